@@ -1,0 +1,219 @@
+"""The `plchmi` command.
+
+    plchmi PROJECT                 open the operator HMI (Textual)
+    plchmi check PROJECT           load, validate and summarise a project
+    plchmi run PROJECT --for 60s   headless run in virtual time
+
+Exit status: 0 success, 2 bad input (a project error, a bad argument), 1 a failure at run
+time. Errors about a project name the file, line and column; there is never a traceback for
+bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+from hmi.errors import ProjectError, UsageError
+from hmi.timefmt import DURATION_HINT, format_duration, parse_duration, seconds
+
+MAX_ERRORS_SHOWN = 25
+SUBCOMMANDS = ("check", "run", "ui")
+
+
+def _duration(text: str) -> int:
+    try:
+        us = parse_duration(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not {DURATION_HINT}") from None
+    if us <= 0:
+        raise argparse.ArgumentTypeError("the duration must be longer than zero")
+    return us
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="plchmi",
+        description="Operator HMI and soft-PLC runtime with a safety control filter. "
+        "'plchmi PROJECT' opens the HMI.")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    def project_arg(p: argparse.ArgumentParser) -> None:
+        p.add_argument("project", help="project folder (or its project.yaml)")
+
+    def engine_args(p: argparse.ArgumentParser) -> None:
+        p.add_argument("--control", metavar="VARIANT",
+                       help="control law variant to run (default: the project's first)")
+        p.add_argument("--policy", choices=("monitor", "block", "correct"),
+                       help="safety filter policy (default: the project's)")
+
+    p = sub.add_parser("check", help="load and validate a project, print a summary")
+    project_arg(p)
+
+    p = sub.add_parser("run", help="run headless in virtual time")
+    project_arg(p)
+    engine_args(p)
+    p.add_argument("--for", dest="duration", type=_duration, required=True, metavar="TIME",
+                   help="virtual time to run, e.g. 60s")
+    p.add_argument("--period", type=_duration, metavar="TIME",
+                   help="scan period (default: the project's)")
+    p.add_argument("--inject", action="append", default=[], metavar="FAULT@TIME",
+                   help="inject a fault into the simulated plant, e.g. F5@12s (repeatable)")
+    p.add_argument("--trace", type=Path, metavar="FILE",
+                   help="write every scan to FILE (.csv, or .jsonl for JSON Lines)")
+
+    p = sub.add_parser("ui", help="open the operator HMI (the default command)")
+    project_arg(p)
+    engine_args(p)
+    p.add_argument("--inject", action="append", default=[], metavar="FAULT@TIME",
+                   help="schedule a fault in the simulated plant")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args_list = list(sys.argv[1:] if argv is None else argv)
+    if args_list and args_list[0] not in SUBCOMMANDS and not args_list[0].startswith("-"):
+        args_list.insert(0, "ui")
+    parser = _parser()
+    if not args_list:
+        parser.print_help()
+        return 2
+    args = parser.parse_args(args_list)
+    try:
+        if args.command == "check":
+            return cmd_check(args)
+        if args.command == "run":
+            return cmd_run(args)
+        if args.command == "ui":
+            return cmd_ui(args)
+    except ProjectError as exc:
+        print_project_error(exc)
+        return 2
+    except UsageError as exc:
+        print(f"plchmi: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+    parser.print_help()
+    return 2
+
+
+def print_project_error(exc: ProjectError) -> None:
+    shown = exc.errors[:MAX_ERRORS_SHOWN]
+    for diagnostic in shown:
+        print(diagnostic, file=sys.stderr)
+    if len(exc.errors) > len(shown):
+        print(f"... and {len(exc.errors) - len(shown)} more errors", file=sys.stderr)
+    count = len(exc.errors)
+    print(f"plchmi: the project has {count} error{'s' if count != 1 else ''}; nothing was run",
+          file=sys.stderr)
+
+
+def load(path: str):
+    from hmi.project.loader import load_project
+    return load_project(path)
+
+
+def cmd_check(args: argparse.Namespace) -> int:
+    from hmi.report import check_report
+    project = load(args.project)
+    print(check_report(project))
+    return 0
+
+
+def make_engine(project, args: argparse.Namespace):
+    """The engine for a command's --control/--policy/--inject options, on a simulated plant."""
+    from hmi.engine.scan import Engine
+    from hmi.plant.sim import SimPlant, parse_injection
+
+    if args.control and args.control not in project.controls:
+        raise UsageError(f"--control {args.control!r}: the project has "
+                         + ", ".join(project.controls))
+    plant = SimPlant(project)
+    injections = [parse_injection(text) for text in getattr(args, "inject", [])]
+    for injection in injections:
+        plant.resolve(injection)
+    for injection in injections:
+        plant.inject(injection)
+    engine = Engine(project, plant, control=args.control, policy=args.policy)
+    return engine, injections
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from hmi.engine.runner import Controller
+    from hmi.engine.trace import TraceWriter
+    from hmi.report import run_summary
+
+    project = load(args.project)
+    engine, injections = make_engine(project, args)
+    controller = Controller(engine, args.period)
+    writer = None
+    if args.trace:
+        try:
+            writer = TraceWriter(args.trace)
+        except OSError as exc:
+            raise UsageError(f"--trace {args.trace}: {exc.strerror}") from None
+    collector = RunCollector()
+    started = time.perf_counter()
+    try:
+        def on_scan(snap):
+            collector.add(snap)
+            if writer:
+                writer.write(snap)
+        last = controller.run_for(args.duration, on_scan)
+    finally:
+        if writer:
+            writer.close()
+    wall = time.perf_counter() - started
+    print(run_summary(engine, last, collector, injections, wall,
+                      trace=(args.trace, writer.count) if writer else None))
+    return 0
+
+
+class RunCollector:
+    """What a headless run remembers for its summary, without keeping every snapshot."""
+
+    def __init__(self) -> None:
+        self.scans = 0
+        self.violations: dict[str, int] = {}
+        self.corrections = 0
+        self.unsafe_written = 0
+        self.fallbacks = 0
+        self.first_latch: tuple[int, int, str] | None = None
+        self.events = []
+        self.step_changes = 0
+        self.max_distance = 0
+
+    def add(self, snap) -> None:
+        self.scans += 1
+        self.events.extend(snap.plant_events)
+        report = snap.filter
+        if report is not None:
+            for name in report.violated_names:
+                self.violations[name] = self.violations.get(name, 0) + 1
+            if report.changes:
+                self.corrections += 1
+            if report.unsafe_written:
+                self.unsafe_written += 1
+            if report.fallback:
+                self.fallbacks += 1
+            self.max_distance = max(self.max_distance, report.distance)
+        if snap.latched and self.first_latch is None:
+            reason = snap.latched[0]
+            self.first_latch = (reason.scan, reason.time_us, reason.detail)
+
+
+def cmd_ui(args: argparse.Namespace) -> int:
+    project = load(args.project)
+    engine, _ = make_engine(project, args)
+    from hmi.ui.app import run_app
+    return run_app(engine)
+
+
+__all__ = ["format_duration", "main", "seconds"]
+
+if __name__ == "__main__":
+    raise SystemExit(main())

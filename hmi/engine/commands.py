@@ -1,0 +1,112 @@
+"""Operator and engineer commands: the one way anything outside the engine changes it.
+
+Commands are plain data so that the UI, a headless script, a test and the journal all speak
+the same language. :class:`hmi.engine.runner.Controller` accepts every command; the run-state
+ones (pause, step) it handles itself, the others it passes to the engine.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from hmi.plant.sim import Injection
+
+
+@dataclass(frozen=True)
+class Pause:
+    pass
+
+
+@dataclass(frozen=True)
+class Resume:
+    pass
+
+
+@dataclass(frozen=True)
+class StepScans:
+    count: int = 1
+
+
+@dataclass(frozen=True)
+class SetSpeed:
+    factor: float | None  # 1.0 real time, 10.0 ten times faster, None as fast as possible
+
+
+@dataclass(frozen=True)
+class SetMode:
+    manual: bool
+
+
+@dataclass(frozen=True)
+class ManualOutput:
+    """Request an output on/off in manual mode (it still goes through the filter)."""
+
+    name: str
+    value: bool | None  # None releases the request (the output returns to 0)
+
+
+@dataclass(frozen=True)
+class FaultReset:
+    pass
+
+
+@dataclass(frozen=True)
+class SetPolicy:
+    policy: str  # monitor, block, correct
+
+
+@dataclass(frozen=True)
+class InjectFault:
+    injection: Injection
+
+
+@dataclass(frozen=True)
+class SetInput:
+    """Press or release an input no simulated device drives (a push button)."""
+
+    name: str
+    value: bool
+
+
+Command = (Pause | Resume | StepScans | SetSpeed | SetMode | ManualOutput | FaultReset
+           | SetPolicy | InjectFault | SetInput)
+
+
+@dataclass(frozen=True)
+class CommandResult:
+    accepted: bool
+    message: str
+
+    @classmethod
+    def ok(cls, message: str) -> CommandResult:
+        return cls(True, message)
+
+    @classmethod
+    def refused(cls, message: str) -> CommandResult:
+        return cls(False, message)
+
+
+def describe(command: Command) -> str:
+    """One line for the journal and the UI."""
+    match command:
+        case Pause():
+            return "pause"
+        case Resume():
+            return "run"
+        case StepScans(count=n):
+            return f"step {n} scan{'s' if n != 1 else ''}"
+        case SetSpeed(factor=f):
+            return "speed: as fast as possible" if f is None else f"speed: x{f:g}"
+        case SetMode(manual=m):
+            return "enter manual mode" if m else "leave manual mode"
+        case ManualOutput(name=n, value=v):
+            return f"manual {n} " + ("release" if v is None else ("on" if v else "off"))
+        case FaultReset():
+            return "fault reset"
+        case SetPolicy(policy=p):
+            return f"filter policy: {p}"
+        case InjectFault(injection=i):
+            return f"inject fault {i}"
+        case SetInput(name=n, value=v):
+            return f"input {n} {'on' if v else 'off'}"
+    return repr(command)

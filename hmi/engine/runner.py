@@ -1,0 +1,104 @@
+"""Driving the engine: virtual-time runs for headless use, and the one command interface.
+
+:class:`Controller` is what the UI and the headless commands talk to. It owns the run state
+(running, paused, stepping) and forwards engine commands, so pause/step/manual/reset all
+enter through :meth:`Controller.command`. It never sleeps: the live app paces it from a
+worker thread; headless runs call :meth:`Controller.run_for` in virtual time.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from hmi.engine.commands import (
+    Command,
+    CommandResult,
+    Pause,
+    Resume,
+    SetSpeed,
+    StepScans,
+    describe,
+)
+from hmi.engine.scan import Engine
+from hmi.engine.snapshot import Snapshot
+
+
+@dataclass
+class RunState:
+    running: bool = True
+    speed: float | None = 1.0  # None: as fast as possible
+    pending_steps: int = 0
+
+    @property
+    def label(self) -> str:
+        if self.pending_steps:
+            return "stepping"
+        return "running" if self.running else "paused"
+
+
+Listener = Callable[[Command, CommandResult, Snapshot | None], None]
+
+
+class Controller:
+    """The engine plus its run state; thread-safe so a UI thread can send commands."""
+
+    def __init__(self, engine: Engine, period_us: int | None = None):
+        self.engine = engine
+        self.period_us = period_us or engine.project.scan_period_us
+        self.state = RunState()
+        self.lock = threading.RLock()
+        self.listeners: list[Listener] = []
+        self.scan_listeners: list[Callable[[Snapshot], None]] = []
+
+    @property
+    def next_time(self) -> int:
+        return 0 if not self.engine.started else self.engine.now + self.period_us
+
+    def command(self, command: Command) -> CommandResult:
+        with self.lock:
+            match command:
+                case Pause():
+                    self.state.running = False
+                    result = CommandResult.ok("paused")
+                case Resume():
+                    self.state.running = True
+                    self.state.pending_steps = 0
+                    result = CommandResult.ok("running")
+                case StepScans(count=n):
+                    if n < 1:
+                        result = CommandResult.refused("step count must be at least 1")
+                    else:
+                        self.state.running = False
+                        for _ in range(n):
+                            self.scan_once()
+                        result = CommandResult.ok(f"stepped {n} scan{'s' if n > 1 else ''}, "
+                                                  f"now scan {self.engine.scan}")
+                case SetSpeed(factor=factor):
+                    self.state.speed = factor
+                    result = CommandResult.ok(describe(command))
+                case _:
+                    result = self.engine.apply(command)
+            for listener in self.listeners:
+                listener(command, result, self.engine.last)
+            return result
+
+    def scan_once(self) -> Snapshot:
+        with self.lock:
+            snapshot = self.engine.step(self.next_time)
+            for listener in self.scan_listeners:
+                listener(snapshot)
+            return snapshot
+
+    def run_for(self, duration_us: int, on_scan: Callable[[Snapshot], None] | None = None
+                ) -> Snapshot:
+        """Run scans in virtual time from now until `duration_us` more has elapsed."""
+        end = self.next_time + duration_us
+        snapshot = self.engine.last
+        while self.next_time <= end:
+            snapshot = self.scan_once()
+            if on_scan is not None:
+                on_scan(snapshot)
+        assert snapshot is not None
+        return snapshot

@@ -1,0 +1,296 @@
+"""The scan: one PLC cycle, in the order of DESIGN.md (000 Fig. 1, 004 Fig. 1).
+
+    1 input scan   2 memory (timers, observers, step times)   3 diagnosers
+    4 reconstruction   5 functional control (or manual requests)   6 filter   7 output scan
+
+The engine never reads a clock: :meth:`Engine.step` is given the scan's time. Everything it
+computes lands in an immutable :class:`Snapshot`. The engine knows nothing of any UI.
+"""
+
+from __future__ import annotations
+
+import time
+import traceback
+from collections import deque
+from collections.abc import Callable, Sequence
+
+from hmi.engine.commands import (
+    CommandResult,
+    FaultReset,
+    InjectFault,
+    ManualOutput,
+    SetInput,
+    SetMode,
+    SetPolicy,
+)
+from hmi.engine.layout import Layout
+from hmi.engine.snapshot import LatchReason, Snapshot
+from hmi.logic.control import ControlRuntime
+from hmi.logic.expr import BoolFn, compile_bool, max_depth
+from hmi.logic.timers import TimerRuntime
+from hmi.plant.base import Plant, PlantError
+from hmi.project.model import POLICIES, Project
+
+
+class Engine:
+    def __init__(self, project: Project, plant: Plant, control: str | None = None,
+                 policy: str | None = None):
+        self.project = project
+        self.plant = plant
+        self.control_name = control or project.default_control
+        if self.control_name not in project.controls:
+            raise KeyError(self.control_name)
+        law = project.controls[self.control_name]
+        self.policy = policy or project.policy
+        if self.policy not in POLICIES:
+            raise ValueError(self.policy)
+        self.layout = Layout.build(project, law)
+        lay = self.layout
+        slots, times = lay.slots, lay.step_times
+        self.input_slots = lay.indices(lay.inputs)
+        self.output_slots = lay.indices(lay.outputs)
+        self.safe_vector = tuple(v.safe for v in project.outputs)
+        self.timers = [(TimerRuntime(t.name, t.kind, t.preset_us), slots[t.name],
+                        compile_bool(t.input, slots, times)) for t in project.timers]
+        self.observers: list[tuple[int, BoolFn | None, BoolFn | None, BoolFn | None]] = []
+        for o in project.observers:
+            if o.expr is not None:
+                self.observers.append((slots[o.name], compile_bool(o.expr, slots, times),
+                                       None, None))
+            else:
+                self.observers.append((slots[o.name], None, compile_bool(o.set, slots, times),
+                                       compile_bool(o.reset, slots, times)))
+        self.control = ControlRuntime(law, slots, times)
+        depth = 1
+        for expr in _all_exprs(project):
+            depth = max(depth, max_depth(expr))
+        self.history: deque[list] = deque(maxlen=depth)
+        self.image: list = lay.initial_image(project)
+        self.scan = 0
+        self.now = 0
+        self.mode = "auto"
+        self.manual: dict[str, bool] = {}
+        self.latched: list[LatchReason] = []
+        self.last: Snapshot | None = None
+        self.started = False
+        # Hooks for the stages later features fill in (diagnosers, filter, monitors...).
+        self.stages_after_memory: list[Callable[[Engine], None]] = []
+        self.output_stage: Callable[[Engine, tuple[bool, ...]], tuple[tuple[bool, ...], object]]
+        self.output_stage = _pass_through
+        self.snapshot_extras: list[Callable[[Engine, dict], None]] = []
+
+    # -- commands ----------------------------------------------------------------------------
+    def apply(self, command) -> CommandResult:
+        """Apply an operator command now; its effect on outputs shows at the next scan."""
+        match command:
+            case SetMode(manual=True):
+                if self.mode == "manual":
+                    return CommandResult.refused("already in manual mode")
+                self.mode = "manual"
+                self.manual = {}
+                return CommandResult.ok("manual mode: outputs follow operator requests, "
+                                        "still through the safety filter")
+            case SetMode(manual=False):
+                if self.mode == "auto":
+                    return CommandResult.refused("already in automatic mode")
+                released = sorted(self.manual)
+                self.mode = "auto"
+                self.manual = {}
+                extra = f"; released {', '.join(released)}" if released else ""
+                return CommandResult.ok("automatic mode: the control law drives the outputs"
+                                        + extra)
+            case ManualOutput(name=name, value=value):
+                if self.mode != "manual":
+                    return CommandResult.refused("manual requests need manual mode")
+                if name not in self.layout.outputs:
+                    return CommandResult.refused(f"{name!r} is not an output")
+                if value is None:
+                    self.manual.pop(name, None)
+                    return CommandResult.ok(f"{name} released")
+                self.manual[name] = bool(value)
+                return CommandResult.ok(f"{name} requested {'on' if value else 'off'}")
+            case FaultReset():
+                return self.fault_reset()
+            case SetPolicy(policy=policy):
+                if policy not in POLICIES:
+                    return CommandResult.refused(f"unknown policy {policy!r}")
+                if policy == "monitor" and getattr(self.plant, "kind", "sim") != "sim" and \
+                        not getattr(self, "allow_monitor_on_real_plant", False):
+                    return CommandResult.refused(
+                        "monitor policy passes unsafe orders through; refused on a real plant "
+                        "(start with --allow-monitor to permit it)")
+                old, self.policy = self.policy, policy
+                return CommandResult.ok(f"filter policy {old} -> {policy}")
+            case InjectFault(injection=injection):
+                inject = getattr(self.plant, "inject", None)
+                if inject is None:
+                    return CommandResult.refused("fault injection needs a simulated plant")
+                try:
+                    inject(injection)
+                except Exception as exc:  # a UsageError naming what exists
+                    return CommandResult.refused(str(exc))
+                return CommandResult.ok(f"SIMULATION: fault {injection} scheduled")
+            case SetInput(name=name, value=value):
+                set_input = getattr(self.plant, "set_input", None)
+                if set_input is None:
+                    return CommandResult.refused("inputs can only be set on a simulated plant")
+                try:
+                    set_input(name, value)
+                except KeyError:
+                    return CommandResult.refused(
+                        f"{name!r} is driven by the simulated plant, not by the operator")
+                return CommandResult.ok(f"SIMULATION: input {name} {'on' if value else 'off'}")
+        return CommandResult.refused(f"the engine does not handle {command!r}")
+
+    def fault_reset(self) -> CommandResult:
+        parts = []
+        if self.latched:
+            parts.append("safe-state latch released (" + "; ".join(
+                r.detail for r in self.latched) + ")")
+            self.latched = []
+        for hook in getattr(self, "reset_hooks", ()):
+            parts.extend(hook(self))
+        return CommandResult.ok("fault reset: " + ("; ".join(parts) if parts
+                                                   else "nothing was latched"))
+
+    def latch_safe(self, source: str, detail: str) -> None:
+        if not any(r.source == source and r.detail == detail for r in self.latched):
+            self.latched.append(LatchReason(source, detail, self.scan, self.now))
+
+    # -- the scan ----------------------------------------------------------------------------
+    def step(self, now: int) -> Snapshot:
+        wall = time.perf_counter()
+        self.scan += 1
+        self.now = now
+        image = self.image
+        error = None
+        extras: dict = {}
+        try:
+            inputs_ok = self._input_scan(now)
+            if not self.started:
+                self._start(now)
+            hist = self.history
+            # 2. memory
+            for runtime, slot, fn in self.timers:
+                image[slot] = runtime.update(fn(image, hist), now)
+            for slot, expr, set_, reset in self.observers:
+                if expr is not None:
+                    image[slot] = expr(image, hist)
+                else:
+                    image[slot] = not reset(image, hist) and (set_(image, hist) or image[slot])
+            self.control.update_times(image, now)
+            # 3-4. diagnosers, reconstruction (and monitors) hook in here
+            for stage in self.stages_after_memory:
+                stage(self)
+            # 5. functional control
+            self.control.run(image, hist, now)
+            if self.mode == "manual":
+                fov = tuple(self.manual.get(name, False) for name in self.layout.outputs)
+            else:
+                fov = tuple(image[s] for s in self.output_slots)
+            # 6. filter
+            if not inputs_ok:
+                outputs, report = self.safe_vector, None
+            else:
+                outputs, report = self.output_stage(self, fov)
+            if self.latched:
+                outputs = self.safe_vector
+            extras["filter"] = report
+        except Exception as exc:  # never leave the plant driven by a half-computed scan
+            error = f"{type(exc).__name__}: {exc}"
+            self.latch_safe("internal", f"internal error at scan {self.scan}: {error}")
+            fov = self.safe_vector
+            outputs = self.safe_vector
+            extras["traceback"] = traceback.format_exc()
+        # 7. output scan
+        for slot, value in zip(self.output_slots, outputs, strict=True):
+            image[slot] = value
+        self._output_scan(now, outputs)
+        for hook in self.snapshot_extras:
+            hook(self, extras)
+        snapshot = self._snapshot(fov, outputs, extras, error,
+                                  (time.perf_counter() - wall) * 1e6)
+        self.history.appendleft(image.copy())
+        self.last = snapshot
+        return snapshot
+
+    def _start(self, now: int) -> None:
+        self.control.reset(self.image, now)
+        for _ in range(self.history.maxlen or 1):
+            self.history.append(self.image.copy())
+        self.started = True
+
+    def _input_scan(self, now: int) -> bool:
+        try:
+            values = self.plant.read(now)
+        except PlantError as exc:
+            self.latch_safe("plant", f"plant connection lost: {exc}")
+            return False
+        image = self.image
+        for name, slot in zip(self.layout.inputs, self.input_slots, strict=True):
+            image[slot] = bool(values[name])
+        return True
+
+    def _output_scan(self, now: int, outputs: Sequence[bool]) -> None:
+        try:
+            self.plant.write(now, dict(zip(self.layout.outputs, outputs, strict=True)))
+        except PlantError as exc:
+            self.latch_safe("plant", f"plant connection lost: {exc}")
+
+    def _snapshot(self, fov, outputs, extras: dict, error: str | None,
+                  wall_us: float) -> Snapshot:
+        plant = self.plant
+        state = getattr(plant, "state", None)
+        counters = getattr(plant, "counters", None)
+        events_fn = getattr(plant, "events", None)
+        new_events: tuple = ()
+        if events_fn is not None:
+            events = events_fn()
+            seen = getattr(self, "_events_seen", 0)
+            if len(events) > seen:
+                new_events = tuple(events[seen:])
+                self._events_seen = len(events)
+        return Snapshot(
+            scan=self.scan, time_us=self.now, period_us=self.project.scan_period_us,
+            layout=self.layout, values=tuple(self.image), fov=tuple(fov),
+            outputs=tuple(outputs), active_steps=self.control.active_steps(self.image),
+            fired=self.control.fired,
+            timers=tuple(rt.state(self.now) for rt, _, _ in self.timers),
+            control=self.control_name, mode=self.mode,
+            manual=tuple(sorted(self.manual.items())), policy=self.policy,
+            latched=tuple(self.latched), plant=plant.status,
+            plant_state=tuple(state().items()) if state else (),
+            plant_counters=tuple(counters().items()) if counters else (),
+            plant_events=new_events,
+            filter=extras.get("filter"),
+            diagnosers=extras.get("diagnosers", ()),
+            monitors=extras.get("monitors", ()),
+            reconstructed=extras.get("reconstructed", ()),
+            masked=extras.get("masked", ()),
+            explanations=extras.get("explanations", ()),
+            alarms=extras.get("alarms", ()),
+            error=error, scan_wall_us=wall_us,
+        )
+
+
+def _pass_through(engine: Engine, fov: tuple[bool, ...]):
+    return fov, None
+
+
+def _all_exprs(project: Project):
+    for t in project.timers:
+        yield t.input
+    for o in project.observers:
+        yield from (e for e in (o.expr, o.set, o.reset) if e is not None)
+    for c in project.constraints:
+        yield c.expr
+    for law in project.controls.values():
+        for eq in law.equations:
+            yield from (e for e in (eq.expr, eq.set, eq.reset) if e is not None)
+        if law.grafcet:
+            for tr in law.grafcet.transitions:
+                yield tr.receptivity
+            for step in law.grafcet.steps:
+                for action in step.actions:
+                    if action.condition is not None:
+                        yield action.condition

@@ -1,0 +1,85 @@
+"""What one scan leaves behind: an immutable record the UI, traces and tests read.
+
+A snapshot never refers to live engine state: every field is a tuple, a frozen dataclass or
+a read-only mapping, so a UI thread can hold one while the engine runs the next scan.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from hmi.engine.layout import Layout
+from hmi.logic.timers import TimerState
+from hmi.plant.base import PlantStatus
+from hmi.plant.device import PlantEvent
+
+
+@dataclass(frozen=True)
+class LatchReason:
+    """Why the outputs are held in the safe state (until a fault reset)."""
+
+    source: str  # "filter", "plant", "internal"
+    detail: str
+    scan: int
+    time_us: int
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    scan: int
+    time_us: int
+    period_us: int
+    layout: Layout
+    values: tuple  # the whole image at the end of the scan (outputs as written)
+    fov: tuple[bool, ...]  # functional output vector, before the filter
+    outputs: tuple[bool, ...]  # written to the plant
+    active_steps: tuple[str, ...]
+    fired: tuple[int, ...]  # GRAFCET transitions fired this scan
+    timers: tuple[TimerState, ...]
+    control: str  # the control variant running
+    mode: str  # "auto" or "manual"
+    manual: tuple[tuple[str, bool], ...]  # manual requests in effect
+    policy: str
+    latched: tuple[LatchReason, ...]
+    plant: PlantStatus
+    plant_state: tuple[tuple[str, Any], ...] = ()
+    plant_counters: tuple[tuple[str, int], ...] = ()
+    plant_events: tuple[PlantEvent, ...] = ()  # events that happened during this scan
+    # Filled by the safety filter, diagnosers, monitors and explanations.
+    filter: Any = None
+    diagnosers: tuple = ()
+    monitors: tuple = ()
+    reconstructed: tuple[str, ...] = ()  # sensors running on their reconstruction
+    masked: tuple[str, ...] = ()  # outputs masked by a faulty actuator's flag
+    explanations: tuple = ()
+    alarms: tuple = ()
+    error: str | None = None  # an internal error caught during this scan
+    scan_wall_us: float = field(default=0.0, compare=False)  # measured, not deterministic
+
+    def value(self, name: str) -> Any:
+        return self.values[self.layout.slots[name]]
+
+    def named(self, names: tuple[str, ...]) -> dict[str, Any]:
+        slots = self.layout.slots
+        return {n: self.values[slots[n]] for n in names}
+
+    @property
+    def inputs(self) -> dict[str, bool]:
+        return self.named(self.layout.inputs)
+
+    @property
+    def output_map(self) -> dict[str, bool]:
+        return dict(zip(self.layout.outputs, self.outputs, strict=True))
+
+    @property
+    def fov_map(self) -> dict[str, bool]:
+        return dict(zip(self.layout.outputs, self.fov, strict=True))
+
+    @property
+    def time_s(self) -> float:
+        return self.time_us / 1_000_000
+
+    @property
+    def is_safe_latched(self) -> bool:
+        return bool(self.latched)

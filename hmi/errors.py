@@ -1,0 +1,94 @@
+"""Errors that point at the place in a project file that caused them.
+
+Every problem found in a project is a :class:`Diagnostic` with a file, a line and a column, a
+statement of what is wrong and, when it helps, what was expected. Loading collects as many
+diagnostics as it can before giving up, so an engineer fixes a file in one pass rather than
+one error per run.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+
+@dataclass(frozen=True, order=True)
+class SourcePos:
+    """A position in a project file; line and column count from 1, as editors show them."""
+
+    file: str
+    line: int = 0
+    col: int = 0
+
+    def __str__(self) -> str:
+        if self.line <= 0:
+            return self.file
+        return f"{self.file}:{self.line}:{self.col}"
+
+    def shifted(self, columns: int) -> SourcePos:
+        """The position `columns` characters further on the same line (inside a scalar)."""
+        return SourcePos(self.file, self.line, self.col + columns)
+
+
+@dataclass(frozen=True)
+class Diagnostic:
+    pos: SourcePos
+    message: str
+    expected: str | None = None
+    severity: str = "error"  # "error" or "warning"
+
+    def __str__(self) -> str:
+        text = f"{self.pos}: {self.severity}: {self.message}"
+        if self.expected:
+            text += f" (expected {self.expected})"
+        return text
+
+
+@dataclass
+class Diagnostics:
+    """An accumulator of diagnostics shared by the loader's passes."""
+
+    items: list[Diagnostic] = field(default_factory=list)
+
+    def error(self, pos: SourcePos, message: str, expected: str | None = None) -> None:
+        self.items.append(Diagnostic(pos, message, expected, "error"))
+
+    def warning(self, pos: SourcePos, message: str, expected: str | None = None) -> None:
+        self.items.append(Diagnostic(pos, message, expected, "warning"))
+
+    @property
+    def errors(self) -> list[Diagnostic]:
+        return [d for d in self.items if d.severity == "error"]
+
+    @property
+    def warnings(self) -> list[Diagnostic]:
+        return [d for d in self.items if d.severity == "warning"]
+
+    def raise_if_errors(self) -> None:
+        if self.errors:
+            raise ProjectError(self.errors, self.warnings)
+
+
+class ProjectError(Exception):
+    """A project could not be loaded; carries every error found, in file order."""
+
+    def __init__(self, errors: list[Diagnostic], warnings: list[Diagnostic] | None = None):
+        self.errors = sorted(errors, key=lambda d: d.pos)
+        self.warnings = warnings or []
+        super().__init__("\n".join(str(d) for d in self.errors))
+
+    @classmethod
+    def single(cls, pos: SourcePos, message: str, expected: str | None = None) -> ProjectError:
+        return cls([Diagnostic(pos, message, expected)])
+
+
+class UsageError(Exception):
+    """A command-line argument is wrong (a bad duration, an unknown fault...): exit status 2."""
+
+
+def display_path(path: Path) -> str:
+    """A path as the user most likely typed it: relative to the working directory if inside it."""
+    try:
+        return str(path.resolve().relative_to(Path.cwd().resolve()))
+    except ValueError:
+        return str(path)

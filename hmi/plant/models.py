@@ -1,0 +1,14 @@
+"""The catalogue of simulated device models a project's `plant: kind: sim` can name."""
+
+from __future__ import annotations
+
+from hmi.plant.device import SimDevice
+from hmi.plant.valve import Valve
+
+MODELS: dict[str, type[SimDevice]] = {
+    Valve.MODEL: Valve,
+}
+
+
+def model(name: str) -> type[SimDevice] | None:
+    return MODELS.get(name)

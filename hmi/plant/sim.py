@@ -1,0 +1,157 @@
+"""A simulated plant: the project's devices, bound to its variables by their ports.
+
+Inputs that no device drives (a push button, a selector) read as 0 unless the operator sets
+them (:meth:`SimPlant.set_input`), which is how training and commissioning sessions press
+buttons on a simulated cell.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from hmi.errors import UsageError
+from hmi.plant.base import PlantStatus
+from hmi.plant.device import PlantEvent, SimDevice
+from hmi.plant.models import MODELS
+from hmi.project.model import Project
+from hmi.timefmt import DURATION_HINT, parse_duration
+
+
+@dataclass(frozen=True)
+class Injection:
+    """A fault to inject: `F5@12s`, `V1.F5@12s`, or with a duration `stop@3s+2s`."""
+
+    code: str
+    at_us: int
+    device: str | None = None
+    duration_us: int | None = None
+
+    def __str__(self) -> str:
+        from hmi.timefmt import format_duration
+        prefix = f"{self.device}." if self.device else ""
+        text = f"{prefix}{self.code}@{format_duration(self.at_us)}"
+        if self.duration_us is not None:
+            text += f"+{format_duration(self.duration_us)}"
+        return text
+
+
+_INJECT_RE = re.compile(r"^(?:(?P<device>[A-Za-z_]\w*)\.)?(?P<code>[A-Za-z_]\w*)"
+                        r"@(?P<at>[^+]+)(?:\+(?P<dur>.+))?$")
+
+
+def parse_injection(text: str) -> Injection:
+    match = _INJECT_RE.match(text.strip())
+    if not match:
+        raise UsageError(f"--inject {text!r}: expected FAULT@TIME, DEVICE.FAULT@TIME or "
+                         f"FAULT@TIME+DURATION, e.g. F5@12s")
+    try:
+        at = parse_duration(match["at"])
+        duration = parse_duration(match["dur"]) if match["dur"] else None
+    except ValueError:
+        raise UsageError(f"--inject {text!r}: the time is not {DURATION_HINT}") from None
+    return Injection(match["code"], at, match["device"], duration)
+
+
+class SimPlant:
+    kind = "sim"
+
+    def __init__(self, project: Project):
+        self.project = project
+        self.input_names = tuple(v.name for v in project.inputs)
+        self.output_names = tuple(v.name for v in project.outputs)
+        self.devices: list[SimDevice] = []
+        self._sensor_bind: list[tuple[SimDevice, tuple[tuple[str, str], ...]]] = []
+        self._actuator_bind: list[tuple[SimDevice, tuple[tuple[str, str], ...]]] = []
+        driven: set[str] = set()
+        for spec in project.plant.devices:
+            device = MODELS[spec.model](spec.name, spec.params)
+            self.devices.append(device)
+            sensors = tuple((port, var) for port, var in spec.ports.items()
+                            if port in device.SENSORS)
+            actuators = tuple((port, var) for port, var in spec.ports.items()
+                              if port in device.ACTUATORS)
+            self._sensor_bind.append((device, sensors))
+            self._actuator_bind.append((device, actuators))
+            driven.update(var for _, var in sensors)
+        self.free_inputs = {name: False for name in self.input_names if name not in driven}
+        self._values = dict.fromkeys(self.input_names, False)
+
+    # -- engine side -------------------------------------------------------------------------
+    def read(self, now_us: int) -> Mapping[str, bool]:
+        values = self._values
+        for device, binding in self._sensor_bind:
+            device.advance(now_us)
+            sensed = device.sensors()
+            for port, var in binding:
+                values[var] = sensed[port]
+        values.update(self.free_inputs)
+        return values
+
+    def write(self, now_us: int, outputs: Mapping[str, bool]) -> None:
+        for device, binding in self._actuator_bind:
+            device.write(now_us, {port: outputs[var] for port, var in binding})
+
+    @property
+    def status(self) -> PlantStatus:
+        models = ", ".join(f"{d.name} ({d.MODEL})" for d in self.devices) or "no devices"
+        return PlantStatus("sim", f"simulated: {models}")
+
+    def close(self) -> None:
+        pass
+
+    # -- simulation side ---------------------------------------------------------------------
+    def set_input(self, name: str, value: bool) -> None:
+        if name not in self.free_inputs:
+            raise KeyError(name)
+        self.free_inputs[name] = bool(value)
+
+    def faults(self) -> list[tuple[str, str, str]]:
+        """(device, code, description) of every fault the plant can simulate."""
+        return [(d.name, spec.code, spec.description)
+                for d in self.devices for spec in d.FAULTS.values()]
+
+    def resolve(self, injection: Injection) -> SimDevice:
+        """The device an injection names, or a UsageError saying what exists."""
+        candidates = [d for d in self.devices
+                      if injection.code in d.FAULTS
+                      and (injection.device is None or d.name == injection.device)]
+        if len(candidates) == 1:
+            return candidates[0]
+        if not candidates:
+            known = sorted({f"{d.name}.{c}" if len(self.devices) > 1 else c
+                            for d in self.devices for c in d.FAULTS})
+            raise UsageError(f"unknown fault {injection}; this plant can simulate: "
+                             + ", ".join(known))
+        names = ", ".join(f"{d.name}.{injection.code}" for d in candidates)
+        raise UsageError(f"fault {injection.code} exists on several devices; name one: {names}")
+
+    def inject(self, injection: Injection) -> None:
+        device = self.resolve(injection)
+        device.inject(injection.code, injection.at_us, injection.duration_us)
+
+    def state(self) -> dict[str, Any]:
+        single = len(self.devices) == 1
+        out: dict[str, Any] = {}
+        for device in self.devices:
+            for key, value in device.state().items():
+                out[key if single else f"{device.name}.{key}"] = value
+        return out
+
+    def counters(self) -> dict[str, int]:
+        single = len(self.devices) == 1
+        out: dict[str, int] = {}
+        for device in self.devices:
+            for key, value in device.counters().items():
+                out[key if single else f"{device.name}.{key}"] = value
+        return out
+
+    def events(self) -> list[PlantEvent]:
+        merged = [e for d in self.devices for e in d.events]
+        merged.sort(key=lambda e: e.time_us)
+        return merged
+
+    def damage(self) -> list[PlantEvent]:
+        return [e for e in self.events() if e.damage]

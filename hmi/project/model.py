@@ -1,0 +1,263 @@
+"""What a loaded project holds: plain, immutable data, already validated.
+
+The loader builds these from YAML; the engine compiles them. Nothing here knows about files
+beyond the positions kept for error messages and explanations.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from hmi.errors import SourcePos
+from hmi.logic.expr import Expr, Literal
+
+# --------------------------------------------------------------------------------------------
+# I/O and memory
+# --------------------------------------------------------------------------------------------
+
+TABLES = {
+    "coil": "coil",
+    "di": "discrete input",
+    "hr": "holding register bit",
+    "ir": "input register bit",
+}
+READ_ONLY_TABLES = {"di", "ir"}
+
+
+@dataclass(frozen=True)
+class PlantAddress:
+    """Where a variable lives on a Modbus device: a table, a 0-based index, a bit for registers."""
+
+    table: str  # coil, di, hr, ir
+    index: int
+    bit: int | None = None
+
+    def __str__(self) -> str:
+        return f"{self.table}:{self.index}" + (f".{self.bit}" if self.bit is not None else "")
+
+
+@dataclass(frozen=True)
+class Variable:
+    name: str
+    kind: str  # "input", "output" or "memory"
+    description: str
+    safe: bool = False  # outputs: the value written in the safe state; memories: initial
+    address: PlantAddress | None = None
+    pos: SourcePos = field(default_factory=lambda: SourcePos("?"))
+    device: str | None = None  # the plant device this variable belongs to, for explanations
+
+
+@dataclass(frozen=True)
+class Timer:
+    """IEC 61131-3 TON / TOF: Q follows IN after PT (TON) or stays PT after IN falls (TOF)."""
+
+    name: str
+    kind: str  # "TON" or "TOF"
+    input: Expr
+    preset_us: int
+    description: str
+    pos: SourcePos
+
+
+@dataclass(frozen=True)
+class Observer:
+    """A Boolean function of the plant's history (001): either an expression or a set/reset."""
+
+    name: str
+    description: str
+    expr: Expr | None = None
+    set: Expr | None = None
+    reset: Expr | None = None
+    initial: bool = False
+    pos: SourcePos = field(default_factory=lambda: SourcePos("?"))
+
+
+# --------------------------------------------------------------------------------------------
+# Control law
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Equation:
+    """`target = expr`, or a memory `target = not reset and (set or target)` (reset wins)."""
+
+    target: str
+    expr: Expr | None = None
+    set: Expr | None = None
+    reset: Expr | None = None
+    set_dominant: bool = False
+    pos: SourcePos = field(default_factory=lambda: SourcePos("?"))
+
+
+@dataclass(frozen=True)
+class Action:
+    """A step action: continuous (N, optionally conditional) or stored on activation (S/R)."""
+
+    kind: str  # "N", "S" or "R"
+    target: str
+    condition: Expr | None = None
+    pos: SourcePos = field(default_factory=lambda: SourcePos("?"))
+
+
+@dataclass(frozen=True)
+class Step:
+    number: int
+    name: str  # the activity variable, X<number>
+    initial: bool
+    description: str
+    actions: tuple[Action, ...]
+    pos: SourcePos
+
+
+@dataclass(frozen=True)
+class Transition:
+    number: int
+    sources: tuple[str, ...]  # step variables
+    targets: tuple[str, ...]
+    receptivity: Expr
+    description: str
+    pos: SourcePos
+
+
+@dataclass(frozen=True)
+class Grafcet:
+    steps: tuple[Step, ...]
+    transitions: tuple[Transition, ...]
+    pos: SourcePos
+
+
+@dataclass(frozen=True)
+class ControlLaw:
+    """One variant of the functional program (e.g. `normal`, `faulty`)."""
+
+    name: str
+    description: str
+    equations: tuple[Equation, ...]
+    grafcet: Grafcet | None
+    pos: SourcePos
+
+    def driven_outputs(self) -> set[str]:
+        targets = {eq.target for eq in self.equations}
+        if self.grafcet:
+            targets |= {a.target for s in self.grafcet.steps for a in s.actions if a.kind == "N"}
+        return targets
+
+
+# --------------------------------------------------------------------------------------------
+# Safety constraints
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Constraint:
+    """A monomial that must be FALSE at the end of every scan (000 eq. 1-2, 004 eq. 1-4).
+
+    `kind` is "simple" (one output at t: CSs) or "combined" (several: CSc), found by the
+    loader. For a simple constraint, `output_positive` tells its form: o.h0 (True: the
+    output must be 0 when h0 holds) or not(o).h1 (False: the output must be 1).
+    """
+
+    name: str
+    expr: Expr
+    literals: tuple[Literal, ...]
+    kind: str
+    outputs: tuple[str, ...]
+    description: str
+    pos: SourcePos
+    output_positive: bool | None = None
+    texts: dict[str, Any] = field(default_factory=dict, compare=False, hash=False)
+
+    @property
+    def output_literals(self) -> tuple[Literal, ...]:
+        return tuple(lit for lit in self.literals if lit.depth == 0 and lit.name in self.outputs)
+
+    @property
+    def context_literals(self) -> tuple[Literal, ...]:
+        """The literals over uncontrollable variables Y (everything but outputs at t)."""
+        return tuple(lit for lit in self.literals
+                     if not (lit.depth == 0 and lit.name in self.outputs))
+
+
+# --------------------------------------------------------------------------------------------
+# Plant
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class DeviceSpec:
+    """One simulated device: a model, its parameters, and its ports bound to project variables."""
+
+    name: str
+    model: str
+    params: dict[str, Any]
+    ports: dict[str, str]  # model port -> project variable
+    pos: SourcePos
+
+
+@dataclass(frozen=True)
+class PlantSpec:
+    kind: str  # "sim" or "modbus"
+    devices: tuple[DeviceSpec, ...] = ()
+    host: str = "127.0.0.1"
+    port: int = 502
+    unit: int = 1
+    timeout_us: int = 1_000_000
+    pos: SourcePos = field(default_factory=lambda: SourcePos("?"))
+
+
+# --------------------------------------------------------------------------------------------
+# Project
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Project:
+    name: str
+    description: str
+    path: Path
+    scan_period_us: int
+    inputs: tuple[Variable, ...]
+    outputs: tuple[Variable, ...]
+    memories: tuple[Variable, ...]
+    timers: tuple[Timer, ...]
+    observers: tuple[Observer, ...]
+    controls: dict[str, ControlLaw]
+    default_control: str
+    constraints: tuple[Constraint, ...]
+    policy: str  # "monitor", "block" or "correct"
+    plant: PlantSpec
+    pos: SourcePos
+    files: tuple[str, ...] = ()
+    extra: dict[str, Any] = field(default_factory=dict)  # sections added by later features
+
+    @property
+    def simple_constraints(self) -> tuple[Constraint, ...]:
+        return tuple(c for c in self.constraints if c.kind == "simple")
+
+    @property
+    def combined_constraints(self) -> tuple[Constraint, ...]:
+        return tuple(c for c in self.constraints if c.kind == "combined")
+
+    def variable(self, name: str) -> Variable | None:
+        for var in (*self.inputs, *self.outputs, *self.memories):
+            if var.name == name:
+                return var
+        return None
+
+    def describe(self, name: str) -> str:
+        """The operator-facing description of any named thing, or the name itself."""
+        var = self.variable(name)
+        if var is not None and var.description:
+            return var.description
+        for item in (*self.timers, *self.observers):
+            if item.name == name and item.description:
+                return item.description
+        return name
+
+    def control(self, name: str | None = None) -> ControlLaw:
+        return self.controls[name or self.default_control]
+
+
+POLICIES = ("monitor", "block", "correct")

@@ -1,0 +1,133 @@
+"""Plain-text reports printed by the headless commands (check, run)."""
+
+from __future__ import annotations
+
+from hmi.project.model import Constraint, ControlLaw, Project
+from hmi.timefmt import format_duration, seconds
+
+
+def _table(rows: list[list[str]], indent: str = "  ") -> list[str]:
+    if not rows:
+        return []
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    lines = []
+    for row in rows:
+        cells = [cell.ljust(widths[i]) for i, cell in enumerate(row)]
+        lines.append((indent + "  ".join(cells)).rstrip())
+    return lines
+
+
+def constraint_meaning(c: Constraint) -> str:
+    """What a constraint forces, in the papers' words (h0: must be 0, h1: must be 1)."""
+    if c.kind == "combined":
+        return "combined over " + ", ".join(c.outputs)
+    ctx = " and ".join(str(lit) for lit in c.context_literals) or "always"
+    if c.output_positive:
+        return f"{c.outputs[0]} must be 0 when {ctx}"
+    return f"{c.outputs[0]} must be 1 when {ctx}"
+
+
+def _law_summary(law: ControlLaw) -> str:
+    parts = []
+    if law.grafcet:
+        g = law.grafcet
+        initial = ", ".join(s.name for s in g.steps if s.initial)
+        parts.append(f"GRAFCET {len(g.steps)} steps (initial {initial}), "
+                     f"{len(g.transitions)} transitions")
+    if law.equations:
+        parts.append(f"{len(law.equations)} equations")
+    return "; ".join(parts)
+
+
+def check_report(project: Project) -> str:
+    lines = [f"Project {project.name}: {project.description}".rstrip(": "),
+             "  files: " + ", ".join(project.files),
+             f"  scan period {format_duration(project.scan_period_us)}, "
+             f"filter policy {project.policy}, plant {project.plant.kind}"
+             + (": " + ", ".join(f"{d.name} ({d.model})" for d in project.plant.devices)
+                if project.plant.devices else ""),
+             ""]
+    lines.append(f"Inputs ({len(project.inputs)})")
+    lines += _table([[v.name, str(v.address or ""), v.description] for v in project.inputs])
+    lines.append(f"Outputs ({len(project.outputs)})")
+    lines += _table([[v.name, str(v.address or ""), f"safe {int(v.safe)}", v.description]
+                     for v in project.outputs])
+    if project.memories:
+        lines.append(f"Memories ({len(project.memories)})")
+        lines += _table([[v.name, f"initial {int(v.safe)}", v.description]
+                         for v in project.memories])
+    lines.append(f"Timers ({len(project.timers)})")
+    lines += _table([[t.name, t.kind, format_duration(t.preset_us), f"input {t.input}",
+                      t.description] for t in project.timers])
+    lines.append(f"Observers ({len(project.observers)})")
+    rows = []
+    for o in project.observers:
+        body = str(o.expr) if o.expr else f"set {o.set}, reset {o.reset}"
+        rows.append([o.name, body, o.description])
+    lines += _table(rows)
+    lines.append(f"Control law ({len(project.controls)} variant"
+                 f"{'s' if len(project.controls) != 1 else ''})")
+    lines += _table([[name + (" (default)" if name == project.default_control else ""),
+                      _law_summary(law), law.description]
+                     for name, law in project.controls.items()])
+    simple = len(project.simple_constraints)
+    combined = len(project.combined_constraints)
+    lines.append(f"Safety constraints ({len(project.constraints)}: {simple} simple, "
+                 f"{combined} combined)")
+    lines += _table([[c.name, c.kind, c.expr.source, constraint_meaning(c)]
+                     for c in project.constraints])
+    for section in project.extra.get("check_sections", ()):
+        lines.append("")
+        lines.extend(section)
+    warnings = project.extra.get("warnings", ())
+    if warnings:
+        lines.append("")
+        lines.append(f"Warnings ({len(warnings)})")
+        lines += [f"  {w}" for w in warnings]
+    lines.append("")
+    lines.append("OK: the project is valid")
+    return "\n".join(lines)
+
+
+def run_summary(engine, last, collector, injections, wall_s: float, trace=None) -> str:
+    project = engine.project
+    scans = collector.scans
+    rate = scans / wall_s if wall_s > 0 else float("inf")
+    lines = [
+        f"Ran {project.name} (control {engine.control_name}, policy {engine.policy}) for "
+        f"{seconds(last.time_us)} s of virtual time: {scans} scans in {wall_s:.2f} s wall "
+        f"({rate:,.0f} scans/s)",
+    ]
+    if last.plant_counters:
+        lines.append("Plant: " + ", ".join(f"{k} {v}" for k, v in last.plant_counters))
+    if injections:
+        lines.append("Faults injected: " + ", ".join(str(i) for i in injections))
+    damage = [e for e in collector.events if e.damage]
+    if damage:
+        lines.append(f"Damage events: {len(damage)}")
+        for event in damage[:10]:
+            lines.append(f"  {seconds(event.time_us)} s  {event.device}  {event.kind}: "
+                         f"{event.detail}")
+        if len(damage) > 10:
+            lines.append(f"  ... and {len(damage) - 10} more")
+    else:
+        lines.append("Damage events: none")
+    if collector.violations or collector.corrections or collector.first_latch:
+        total = sum(collector.violations.values())
+        lines.append(f"Filter: {total} constraint violations detected in "
+                     f"{len(collector.violations)} constraints "
+                     f"({', '.join(f'{k} x{v}' for k, v in sorted(collector.violations.items()))})")
+        lines.append(f"  scans corrected {collector.corrections}, max Hamming distance "
+                     f"{collector.max_distance}, fallbacks to the safe state "
+                     f"{collector.fallbacks}, unsafe outputs written {collector.unsafe_written}")
+    if collector.first_latch:
+        scan, t, detail = collector.first_latch
+        lines.append(f"Outputs latched safe from scan {scan} ({seconds(t)} s): {detail}")
+    outputs = " ".join(f"{n}={int(v)}" for n, v in zip(last.layout.outputs, last.outputs,
+                                                       strict=True))
+    lines.append(f"Final: steps {'+'.join(last.active_steps) or '-'}; outputs {outputs}; "
+                 f"latched {'yes' if last.latched else 'no'}")
+    if trace:
+        path, count = trace
+        lines.append(f"Trace: {path} ({count} scans)")
+    return "\n".join(lines)

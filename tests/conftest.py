@@ -1,0 +1,37 @@
+"""Shared helpers: projects written to temporary folders, engines on the simulated plant."""
+
+from __future__ import annotations
+
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from hmi.engine.runner import Controller
+from hmi.engine.scan import Engine
+from hmi.plant.sim import SimPlant, parse_injection
+from hmi.project.loader import load_project
+
+ROOT = Path(__file__).resolve().parent.parent
+PROJECTS = ROOT / "projects"
+
+
+def write_project(folder: Path, files: dict[str, str]) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    for name, text in files.items():
+        (folder / name).write_text(textwrap.dedent(text).lstrip("\n"), encoding="utf-8")
+    return folder
+
+
+def make_controller(project_path, control=None, policy=None, inject=()):
+    project = load_project(project_path)
+    plant = SimPlant(project)
+    for text in inject:
+        plant.inject(parse_injection(text))
+    engine = Engine(project, plant, control=control, policy=policy)
+    return Controller(engine)
+
+
+@pytest.fixture
+def valve_project():
+    return load_project(PROJECTS / "cispi_valve")

@@ -1,0 +1,72 @@
+"""The command line (check, run, bad arguments) and the published JSON Schema."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import jsonschema
+import pytest
+import yaml
+
+from hmi.cli import main
+from tests.conftest import PROJECTS, ROOT
+
+SCHEMA = json.loads((ROOT / "hmi" / "project" / "schema.json").read_text())
+
+
+def test_check_lists_the_constraint_classes(capsys):
+    assert main(["check", str(PROJECTS / "cispi_valve")]) == 0
+    out = capsys.readouterr().out
+    for i in range(1, 7):
+        assert f"CSs{i}  simple" in out
+    assert "CSc1  combined" in out
+    assert "Safety constraints (7: 6 simple, 1 combined)" in out
+
+
+def test_run_writes_a_trace_and_summarises(tmp_path, capsys):
+    trace = tmp_path / "t.csv"
+    assert main(["run", str(PROJECTS / "cispi_valve"), "--for", "20s", "--trace",
+                 str(trace)]) == 0
+    out = capsys.readouterr().out
+    assert "2001 scans" in out and "cycles 2" in out and "Damage events: none" in out
+    assert len(trace.read_text().splitlines()) == 2002
+
+
+@pytest.mark.parametrize("args,fragment", [
+    (["run", "PROJECT", "--for", "ten"], "is not a duration"),
+    (["run", "PROJECT", "--for", "10s", "--inject", "F99@1s"], "unknown fault F99"),
+    (["run", "PROJECT", "--for", "10s", "--inject", "F5"], "expected FAULT@TIME"),
+    (["run", "PROJECT", "--for", "10s", "--control", "nope"], "--control 'nope'"),
+    (["run", "PROJECT"], "--for"),
+])
+def test_bad_arguments_exit_2_with_a_message(args, fragment):
+    args = [str(PROJECTS / "cispi_valve") if a == "PROJECT" else a for a in args]
+    proc = subprocess.run([sys.executable, "-m", "hmi.cli", *args], capture_output=True,
+                          text=True, cwd=ROOT)
+    assert proc.returncode == 2
+    assert fragment in proc.stderr and "Traceback" not in proc.stderr
+
+
+def _project_files():
+    return sorted(p for p in PROJECTS.glob("*/*.yaml"))
+
+
+@pytest.mark.parametrize("path", _project_files(), ids=lambda p: f"{p.parent.name}/{p.name}")
+def test_example_project_files_validate_against_the_schema(path):
+    jsonschema.validate(yaml.safe_load(path.read_text()), SCHEMA)
+
+
+def test_schema_rejects_what_the_loader_rejects():
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.validate({"inptus": {}}, SCHEMA)
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.validate({"timers": {"T": {"type": "TON", "input": "a"}}}, SCHEMA)
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.validate({"scan_period": "10"}, SCHEMA)
+
+
+def test_schema_covers_every_section_the_loader_knows():
+    from hmi.project.loader import TOP_KEYS
+    assert set(SCHEMA["properties"]) == TOP_KEYS

@@ -1,0 +1,92 @@
+"""The scan engine on the CISPI valve: cycling, determinism, faults, commands, safety."""
+
+from __future__ import annotations
+
+from hmi.engine.commands import FaultReset, ManualOutput, SetMode
+from hmi.engine.trace import TraceWriter
+from tests.conftest import PROJECTS, make_controller
+
+VALVE = PROJECTS / "cispi_valve"
+S = 1_000_000
+
+
+def run(ctl, seconds, trace=None):
+    writer = TraceWriter(trace) if trace else None
+    snaps = []
+
+    def on_scan(s):
+        snaps.append(s)
+        if writer:
+            writer.write(s)
+    ctl.run_for(seconds * S, on_scan)
+    if writer:
+        writer.close()
+    return snaps
+
+
+def test_valve_cycles_and_scans_follow_the_period():
+    ctl = make_controller(VALVE)
+    snaps = run(ctl, 60)
+    assert len(snaps) == 6001 and snaps[-1].time_us == 60 * S
+    assert [s.time_us for s in snaps[:3]] == [0, 10_000, 20_000]
+    counters = dict(snaps[-1].plant_counters)
+    assert counters["cycles"] == 7  # 8 s per cycle: open 2 s, hold 3 s, close 2 s, wait 1 s
+    assert not any(e.damage for s in snaps for e in s.plant_events)
+    opening = [s for s in snaps if s.active_steps == ("X1",)]
+    assert opening and all(s.outputs == (False, True) for s in opening)
+
+
+def test_two_runs_give_byte_identical_traces(tmp_path):
+    for name in ("a.csv", "b.csv", "a.jsonl", "b.jsonl"):
+        run(make_controller(VALVE, inject=["F4@10s"]), 30, tmp_path / name)
+    assert (tmp_path / "a.csv").read_bytes() == (tmp_path / "b.csv").read_bytes()
+    assert (tmp_path / "a.jsonl").read_bytes() == (tmp_path / "b.jsonl").read_bytes()
+    assert len((tmp_path / "a.csv").read_text().splitlines()) == 3002
+
+
+def test_f13_leaves_the_valve_between_positions():
+    snaps = run(make_controller(VALVE, inject=["F13@20s"]), 60)
+    after = [s for s in snaps if s.time_us >= 30 * S]
+    assert all(dict(s.plant_state)["jammed"] for s in after)
+    assert all(not s.value("fsc") and not s.value("fso") for s in after)
+    assert {dict(s.plant_state)["position"] for s in after} == {50.0}
+
+
+def test_faulty_control_without_filter_damages_the_valve():
+    # The faulty program holds orders against the stops; the monitor policy lets it through.
+    snaps = run(make_controller(VALVE, control="faulty", policy="monitor"), 30)
+    kinds = {e.kind for s in snaps for e in s.plant_events if e.damage}
+    assert "both_orders" in kinds
+
+
+def test_manual_mode_replaces_the_functional_vector():
+    ctl = make_controller(VALVE)
+    ctl.scan_once()
+    assert ctl.command(ManualOutput("O", True)).accepted is False  # needs manual mode
+    assert ctl.command(SetMode(True)).accepted
+    assert ctl.command(ManualOutput("O", True)).accepted
+    s = ctl.scan_once()
+    assert s.mode == "manual" and s.fov == (False, True) and s.manual == (("O", True),)
+    result = ctl.command(SetMode(False))
+    assert "released O" in result.message
+    s = ctl.scan_once()
+    assert s.mode == "auto" and s.manual == ()
+
+
+def test_an_internal_error_puts_outputs_safe_and_says_so():
+    ctl = make_controller(VALVE)
+    run(ctl, 2)  # opening: O is on
+    assert ctl.engine.last.outputs == (False, True)
+
+    def broken(engine, fov):
+        raise RuntimeError("solver bug")
+    ctl.engine.output_stage = broken
+    s = ctl.scan_once()
+    assert s.outputs == (False, False) and s.latched[0].source == "internal"
+    assert "solver bug" in s.error
+    assert ctl.engine.plant.devices[0].orders == {"C": False, "O": False}
+    s = ctl.scan_once()
+    assert s.outputs == (False, False)  # stays safe until a fault reset
+    ctl.engine.output_stage = lambda engine, fov: (fov, None)
+    assert "safe-state latch released" in ctl.command(FaultReset()).message
+    assert ctl.scan_once().latched == ()

@@ -1,0 +1,132 @@
+"""Timers (TON/TOF) and GRAFCET evolution, through small projects run by the engine."""
+
+from __future__ import annotations
+
+from hmi.logic.timers import TimerRuntime
+from tests.conftest import make_controller, write_project
+
+
+def test_ton_rises_after_preset_and_resets_when_input_drops():
+    t = TimerRuntime("T", "TON", 100)
+    assert [t.update(x, now) for x, now in
+            [(True, 0), (True, 99), (True, 100), (True, 150), (False, 160), (True, 170),
+             (True, 269), (True, 270)]] == [False, False, True, True, False, False, False, True]
+
+
+def test_tof_holds_for_preset_after_input_falls():
+    t = TimerRuntime("T", "TOF", 100)
+    assert [t.update(x, now) for x, now in
+            [(False, 0), (True, 10), (False, 20), (False, 119), (False, 120), (True, 130),
+             (False, 140), (True, 200), (False, 210), (False, 309), (False, 310)]] == [
+        False, True, True, True, False, True, True, True, True, True, False]
+    assert t.elapsed(310) == 0
+
+
+GRAFCET_PROJECT = {
+    "project.yaml": """
+        name: g
+        scan_period: 10ms
+        inputs: {a: A, b: B, fsc: sensor, fso: sensor}
+        outputs: {C: order, O: order, P: order}
+        memories: {M: {description: memory}}
+        control:
+          equations:
+            P: M and X4
+          grafcet:
+            steps:
+              0: {initial: true}
+              1: {actions: [C]}
+              2: {actions: [{do: O, if: X2.t < 30ms}]}
+              3: {actions: [{set: M}]}
+              4: {}
+              5: {actions: [{reset: M}]}
+            transitions:
+              - {from: 0, to: [1, 2], when: a}
+              - {from: 1, to: 3, when: "True"}
+              - {from: 2, to: 4, when: "True"}
+              - {from: [3, 4], to: 5, when: b}
+              - {from: 5, to: 0, when: X5.t >= 20ms}
+        plant: {kind: sim, model: valve, ports: {C: C, O: O}}
+    """,
+}
+
+
+def run_scans(controller, n, inputs=None):
+    snaps = []
+    for _ in range(n):
+        for name, value in (inputs or {}).items():
+            controller.engine.plant.set_input(name, value)
+        snaps.append(controller.scan_once())
+    return snaps
+
+
+def test_grafcet_evolution_fork_join_one_clearing_per_scan(tmp_path):
+    ctl = make_controller(write_project(tmp_path / "g", GRAFCET_PROJECT))
+    plant = ctl.engine.plant
+    s = ctl.scan_once()
+    assert s.active_steps == ("X0",)
+    plant.set_input("a", True)
+    s = ctl.scan_once()  # fork: 0 -> 1 and 2 together
+    assert s.active_steps == ("X1", "X2") and s.fired == (1,)
+    assert s.fov == (True, True, False)  # C from X1, O from X2 (X2.t < 30ms)
+    s = ctl.scan_once()  # 1 -> 3 and 2 -> 4 fire together, once (no chain within a scan)
+    assert s.active_steps == ("X3", "X4") and s.fired == (2, 3)
+    assert s.value("M") is True  # stored action on activation of X3
+    assert s.fov == (False, False, True)  # P = M and X4
+    s = ctl.scan_once()
+    assert s.active_steps == ("X3", "X4")  # join waits for b
+    plant.set_input("b", True)
+    s = ctl.scan_once()
+    assert s.active_steps == ("X5",) and s.value("M") is False
+    plant.set_input("a", False)
+    s = ctl.scan_once()  # X5.t = 10ms
+    assert s.active_steps == ("X5",)
+    s = ctl.scan_once()  # X5.t = 20ms -> back to X0
+    assert s.active_steps == ("X0",)
+
+
+def test_conditional_action_follows_step_time(tmp_path):
+    files = {"project.yaml": """
+        name: c
+        scan_period: 10ms
+        inputs: {fsc: s, fso: s}
+        outputs: {C: order, O: order}
+        control:
+          grafcet:
+            steps:
+              0: {initial: true, actions: [{do: O, if: X0.t < 30ms}]}
+            transitions: []
+        plant: {kind: sim, model: valve}
+    """}
+    ctl = make_controller(write_project(tmp_path / "c", files))
+    got = [(s.value("X0.t"), s.fov[1]) for s in run_scans(ctl, 5)]
+    assert got == [(0, True), (10_000, True), (20_000, True), (30_000, False), (40_000, False)]
+
+
+def test_equations_set_reset_and_prev_through_engine(tmp_path):
+    files = {"project.yaml": """
+        name: eq
+        scan_period: 10ms
+        inputs: {a: A, b: B}
+        outputs: {Y: out, Z: out}
+        memories: {M: mem}
+        control:
+          equations:
+            M: {set: rise(a), reset: b}
+            Y: M
+            Z: prev(a, 2) and not a
+        plant: {kind: sim, model: valve, ports: {C: Y, O: Z}}
+    """}
+    ctl = make_controller(write_project(tmp_path / "eq", files))
+    p = ctl.engine.plant
+    seq = [(0, 0), (1, 0), (1, 0), (0, 0), (0, 1), (1, 1)]
+    got = []
+    for a, b in seq:
+        p.set_input("a", bool(a))
+        p.set_input("b", bool(b))
+        s = ctl.scan_once()
+        got.append((s.value("M"), s.fov[1]))
+    # M set on the rise of a (scan 2), kept, reset by b (scan 5), reset wins at scan 6.
+    assert [m for m, _ in got] == [False, True, True, True, False, False]
+    # Z = a two scans ago and not a now: scans 4 (a at 2) and 5 (a at 3), not 6 (a is 1).
+    assert [z for _, z in got] == [False, False, False, True, True, False]
