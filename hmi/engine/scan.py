@@ -73,11 +73,16 @@ class Engine:
         self.latched: list[LatchReason] = []
         self.last: Snapshot | None = None
         self.started = False
-        # Hooks for the stages later features fill in (diagnosers, filter, monitors...).
-        self.stages_after_memory: list[Callable[[Engine], None]] = []
+        # Extension points, in scan order. A stage reads and writes the image and may put
+        # what it wants shown into `self.extras` (keys are Snapshot field names).
+        self.stages_after_memory: list[Callable[[Engine], None]] = []  # diagnosers, monitors
         self.output_stage: Callable[[Engine, tuple[bool, ...]], tuple[tuple[bool, ...], object]]
-        self.output_stage = _pass_through
-        self.snapshot_extras: list[Callable[[Engine, dict], None]] = []
+        self.output_stage = _pass_through  # the safety filter
+        self.snapshot_extras: list[Callable[[Engine, dict], None]] = []  # explanations...
+        # Each reset hook releases what its feature latched and returns lines saying what
+        # was reset (or what stays, and why).
+        self.reset_hooks: list[Callable[[Engine], list[str]]] = []
+        self.extras: dict = {}
 
     # -- commands ----------------------------------------------------------------------------
     def apply(self, command) -> CommandResult:
@@ -148,7 +153,7 @@ class Engine:
             parts.append("safe-state latch released (" + "; ".join(
                 r.detail for r in self.latched) + ")")
             self.latched = []
-        for hook in getattr(self, "reset_hooks", ()):
+        for hook in self.reset_hooks:
             parts.extend(hook(self))
         return CommandResult.ok("fault reset: " + ("; ".join(parts) if parts
                                                    else "nothing was latched"))
@@ -165,6 +170,7 @@ class Engine:
         image = self.image
         error = None
         extras: dict = {}
+        self.extras = extras
         try:
             inputs_ok = self._input_scan(now)
             if not self.started:
