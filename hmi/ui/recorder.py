@@ -1,0 +1,124 @@
+"""What the UI remembers of every scan, not only of the scans it gets to draw.
+
+The app draws at most ~20 times a second while the engine may scan every 10 ms, so reading
+``engine.last`` alone would miss short pulses: a one-scan edge, a 300 ms sensor glitch between
+two frames. The recorder is called from the scan thread for every snapshot (through
+``Controller.scan_listeners``) and keeps, per Boolean signal, only its changes (time, value).
+That costs a few comparisons per scan, and drawing a window of the chronogram is then
+proportional to the number of changes in it, not to the number of scans.
+
+It also keeps the plant's events (damage, glitches) which a snapshot carries only for the
+scan in which they happened.
+"""
+
+from __future__ import annotations
+
+import threading
+from bisect import bisect_right
+from collections import deque
+from dataclasses import dataclass
+
+from hmi.engine.layout import Layout
+from hmi.engine.snapshot import Snapshot
+from hmi.plant.device import PlantEvent
+
+FOV_SUFFIX = ".fov"
+
+
+@dataclass(frozen=True)
+class Signal:
+    """A Boolean signal the chronogram can draw."""
+
+    name: str  # as the project names it; "C.fov" for an output's functional value
+    kind: str  # input, output, fov, timer, observer, memory, step
+    slot: int  # index in Snapshot.values, or in Snapshot.fov for kind "fov"
+
+
+def boolean_signals(layout: Layout) -> tuple[Signal, ...]:
+    """Every Boolean signal of a layout, in the order an engineer reads a cell."""
+    signals: list[Signal] = []
+    for name in layout.outputs:
+        signals.append(Signal(name, "output", layout.slots[name]))
+    for name in layout.inputs:
+        signals.append(Signal(name, "input", layout.slots[name]))
+    for name in layout.timers:
+        signals.append(Signal(name, "timer", layout.slots[name]))
+    for name in layout.observers:
+        signals.append(Signal(name, "observer", layout.slots[name]))
+    for name in layout.memories:
+        signals.append(Signal(name, "memory", layout.slots[name]))
+    for name in layout.steps:
+        signals.append(Signal(name, "step", layout.slots[name]))
+    for index, name in enumerate(layout.outputs):
+        signals.append(Signal(name + FOV_SUFFIX, "fov", index))
+    return tuple(signals)
+
+
+@dataclass(frozen=True)
+class Trace:
+    """One signal over a window: its changes, and what was known before the window."""
+
+    first_us: int | None  # time of the first sample recorded (None: nothing yet)
+    initial: bool | None  # value at the window's start (None: before the first sample)
+    changes: tuple[tuple[int, bool], ...]  # (time, new value) inside the window
+
+
+class ScanRecorder:
+    """Edges of every Boolean signal and the plant's events, fed from the scan thread."""
+
+    def __init__(self, layout: Layout, keep_changes: int = 20_000, keep_events: int = 500):
+        self.signals = boolean_signals(layout)
+        self.by_name = {s.name: i for i, s in enumerate(self.signals)}
+        self._value_slots = [(i, s.slot) for i, s in enumerate(self.signals) if s.kind != "fov"]
+        self._fov_slots = [(i, s.slot) for i, s in enumerate(self.signals) if s.kind == "fov"]
+        self._last: list[bool | None] = [None] * len(self.signals)
+        self._changes: list[deque[tuple[int, bool]]] = [
+            deque(maxlen=keep_changes) for _ in self.signals]
+        self.events: deque[PlantEvent] = deque(maxlen=keep_events)
+        self.event_count = 0
+        self.damage_count = 0
+        self.scans = 0
+        self.first_us: int | None = None
+        self.last_us: int | None = None
+        self._lock = threading.Lock()
+
+    def on_scan(self, snap: Snapshot) -> None:
+        """Called once per scan, in the scan thread: keep it cheap."""
+        values, fov, last, changes = snap.values, snap.fov, self._last, self._changes
+        t = snap.time_us
+        with self._lock:
+            for i, slot in self._value_slots:
+                v = bool(values[slot])
+                if v is not last[i]:
+                    last[i] = v
+                    changes[i].append((t, v))
+            for i, slot in self._fov_slots:
+                v = bool(fov[slot])
+                if v is not last[i]:
+                    last[i] = v
+                    changes[i].append((t, v))
+            if snap.plant_events:
+                self.events.extend(snap.plant_events)
+                self.event_count += len(snap.plant_events)
+                self.damage_count += sum(1 for e in snap.plant_events if e.damage)
+            if self.first_us is None:
+                self.first_us = t
+            self.last_us = t
+            self.scans += 1
+
+    def trace(self, name: str, start_us: int, end_us: int) -> Trace:
+        """The signal `name` between start and end (virtual time, inclusive of the end)."""
+        index = self.by_name[name]
+        with self._lock:
+            points = list(self._changes[index])
+        if not points:
+            return Trace(None, None, ())
+        times = [t for t, _ in points]
+        before = bisect_right(times, start_us)  # changes at or before the start
+        initial = points[before - 1][1] if before else None
+        upto = bisect_right(times, end_us)
+        return Trace(points[0][0], initial, tuple(points[before:upto]))
+
+    def recent_events(self, count: int = 20) -> list[PlantEvent]:
+        with self._lock:
+            return list(self.events)[-count:]

@@ -1,0 +1,139 @@
+"""The status bar and the banners under it: the two things that must survive any screen size.
+
+The status bar is one line. When the terminal is narrow it drops its least important fields
+first (project name, measured scan time, plant details) and never the mode, the run state or
+an alarm. The banner strip appears only while something abnormal is in effect: manual mode
+(MANUAL / FORCES ACTIVE) and outputs latched in the safe state.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from rich.text import Text
+from textual.widgets import Static
+
+from hmi.timefmt import seconds
+from hmi.ui.frame import Frame
+from hmi.ui.style import MUTED, Level, banner, tag
+
+SEPARATOR = " │ "
+
+
+@dataclass(frozen=True)
+class Field:
+    text: Text
+    priority: int  # 0 is kept longest
+
+
+def speed_text(speed: float | None) -> str:
+    return "max" if speed is None else f"×{speed:g}"
+
+
+def status_fields(frame: Frame, wide: bool) -> list[Field]:
+    snap = frame.snapshot
+    plant = snap.plant
+    fields: list[Field] = [Field(Text(frame.project, style="bold"), 6)]
+    if plant.kind == "sim":
+        fields.append(Field(tag("SIM", Level.SIMULATION), 2))
+    else:
+        where = plant.description if wide else plant.kind
+        if plant.connected:
+            fields.append(Field(Text(f"{where} ● connected"), 3))
+        else:
+            fields.append(Field(tag(f"{where} DISCONNECTED", Level.ALARM), 0))
+    fields.append(Field(tag("MANUAL", Level.ATTENTION) if snap.mode == "manual"
+                        else Text("AUTO"), 0))
+    if snap.policy == "monitor":
+        fields.append(Field(tag("filter monitor", Level.ATTENTION), 1))
+    else:
+        fields.append(Field(Text(f"filter {snap.policy}"), 3))
+    if snap.latched:
+        fields.append(Field(tag("SAFE STATE", Level.ALARM), 0))
+    if snap.error:
+        fields.append(Field(tag("INTERNAL ERROR", Level.ALARM), 0))
+    if frame.run == "running":
+        fields.append(Field(Text(f"▶ running {speed_text(frame.speed)}"), 0))
+    else:
+        fields.append(Field(tag(frame.run.upper(), Level.ATTENTION), 0))
+    fields.append(Field(Text(f"scan {snap.scan}"), 1))
+    fields.append(Field(Text(f"t {seconds(snap.time_us)} s"), 1))
+    if frame.show_measured:
+        fields.append(Field(Text(f"{snap.scan_wall_us:4.0f} µs/scan", style=MUTED), 4))
+        if frame.overruns:
+            fields.append(Field(tag(f"{frame.overruns} late", Level.ATTENTION), 2))
+    return fields
+
+
+def fit(fields: list[Field], width: int) -> Text:
+    """Join fields with separators, dropping the least important until the line fits."""
+    kept = list(fields)
+    while True:
+        line = Text(" ", no_wrap=True, overflow="ellipsis")
+        for i, f in enumerate(kept):
+            if i:
+                line.append(SEPARATOR, style=MUTED)
+            line.append_text(f.text)
+        if line.cell_len <= width or len(kept) <= 1:
+            return line
+        worst = max(range(len(kept)), key=lambda i: (kept[i].priority, i))
+        if kept[worst].priority == 0:
+            return line  # only essentials left: let it crop rather than hide them
+        kept.pop(worst)
+
+
+class StatusBar(Static):
+    """Project, plant, mode, filter policy, run state, scan number, virtual time, scan time."""
+
+    def __init__(self, *, id: str | None = None):
+        super().__init__(id=id, markup=False)
+        self.frame: Frame | None = None
+
+    def show(self, frame: Frame) -> None:
+        self.frame = frame
+        self._draw()
+
+    def on_resize(self) -> None:
+        self._draw()
+
+    def _draw(self) -> None:
+        if self.frame is None:
+            self.update("starting…")
+            return
+        width = self.size.width or 80
+        self.update(fit(status_fields(self.frame, width >= 120), width))
+
+
+class BannerStrip(Static):
+    """Banners for states the operator must never forget: manual forces, safe-state latch."""
+
+    def __init__(self, *, id: str | None = None):
+        super().__init__(id=id, markup=False)
+        self.display = False
+
+    def show(self, frame: Frame) -> None:
+        lines = banner_lines(frame)
+        self.display = bool(lines)
+        if lines:
+            self.update(Text("\n").join(lines))
+
+
+def banner_lines(frame: Frame) -> list[Text]:
+    snap = frame.snapshot
+    lines: list[Text] = []
+    if snap.mode == "manual":
+        line = banner("MANUAL / FORCES ACTIVE", Level.ATTENTION)
+        requests = dict(snap.manual)
+        forced = " ".join(f"{name}={int(value)}" for name, value in requests.items())
+        line.append(f" requests: {forced or 'none (all outputs 0)'}"
+                    f" · filtered ({snap.policy}) · m: leave")
+        lines.append(line)
+    if snap.latched:
+        line = banner("OUTPUTS HELD IN SAFE STATE", Level.ALARM)
+        line.append(" " + "; ".join(r.detail for r in snap.latched)
+                    + " · r: fault reset once the cause is gone")
+        lines.append(line)
+    for line in lines:
+        line.no_wrap = True
+        line.overflow = "ellipsis"
+    return lines
