@@ -98,6 +98,7 @@ class PlcHmiApp(App):
         self._stepping = False
         self._request: tuple[str, bool, int, str] | None = None  # pending manual verdict
         self._injected: list[InjectedFault] = []
+        self._mode_commanded: str | None = None  # accepted SetMode, not yet in a snapshot
         plant = engine.plant
         self.free_inputs: tuple[str, ...] = tuple(getattr(plant, "free_inputs", {}) or ())
         self.register_theme(isa101_theme())
@@ -169,8 +170,10 @@ class PlcHmiApp(App):
         if snap is None:
             return False
         state = self.controller.state
+        if self._mode_commanded == snap.mode:
+            self._mode_commanded = None
         key = (snap.scan, id(snap), self.run_label(), state.speed, self.driver.overruns,
-               self._version)
+               self._version, self._mode_commanded)
         if not force and key == self._key:
             return False
         self._key = key
@@ -179,7 +182,7 @@ class PlcHmiApp(App):
             project=self.project.name, show_measured=self.show_measured,
             overruns=self.driver.overruns, changed=output_changes(snap),
             injected=tuple(self._injected), free_inputs=self.free_inputs,
-            damage_count=self.recorder.damage_count)
+            damage_count=self.recorder.damage_count, mode_commanded=self._mode_commanded)
         self.frame = frame
         for view in self._views:
             view.show(frame)
@@ -191,9 +194,11 @@ class PlcHmiApp(App):
         if self._request is None:
             return
         name, requested, scan, what = self._request
-        if snap.scan <= scan or snap.mode != "manual":
+        if snap.scan <= scan:
             return
         self._request = None
+        if snap.mode != "manual":
+            return  # left manual mode before a scan ran the request
         ok, line = request_verdict(snap, name, requested)
         self.message.say(verdict_text(ok, f"{what} → {line}"))
 
@@ -211,6 +216,8 @@ class PlcHmiApp(App):
             case ManualOutput(name=name, value=value) if result.accepted:
                 last = self.controller.engine.last
                 self._request = (name, bool(value), last.scan if last else 0, what)
+            case SetMode(manual=manual) if result.accepted:
+                self._mode_commanded = "manual" if manual else "auto"
             case InjectFault(injection=injection) if result.accepted:
                 self._injected.append(InjectedFault(injection, self._fault_text(injection)))
                 self._version += 1
@@ -279,7 +286,8 @@ class PlcHmiApp(App):
         snap = self.controller.engine.last
         if snap is None:
             return
-        if snap.mode == "manual":
+        manual_now = self.frame.manual_keys if self.frame else snap.mode == "manual"
+        if manual_now:
             requested = ", ".join(f"{n}={int(v)}" for n, v in snap.manual) or "none"
             lines = [f"Every manual request is released (now: {requested}).",
                      "The control law drives the outputs again, from its current steps.",
@@ -421,7 +429,7 @@ class PlcHmiApp(App):
         for count in (10, 100):
             entries.append(PaletteEntry(f"Step {count} scans", "Run them, then stay paused",
                                         partial(self.send, StepScans(count))))
-        if snap is not None and snap.mode == "manual":
+        if snap is not None and self.frame is not None and self.frame.manual_keys:
             for name in snap.layout.outputs:
                 for value, word, key in ((True, "on", "1"), (False, "off", "0"),
                                          (None, "release", "x")):

@@ -34,6 +34,10 @@ class Frame:
     injected: tuple[InjectedFault, ...] = ()
     free_inputs: tuple[str, ...] = ()  # inputs no simulated device drives: push buttons
     damage_count: int = 0  # damaging plant events seen since the app started
+    # The mode the operator last commanded, accepted by the engine but not yet in a snapshot
+    # (paused: no scan has run since). Manual request keys follow it, so that an operator
+    # who paused, then entered manual mode, can prepare requests before stepping.
+    mode_commanded: str | None = None
 
     @property
     def simulated(self) -> bool:
@@ -41,4 +45,10 @@ class Frame:
 
     @property
     def manual(self) -> bool:
+        """Manual mode in effect (the last scan ran in manual mode)."""
         return self.snapshot.mode == "manual"
+
+    @property
+    def manual_keys(self) -> bool:
+        """Whether manual requests make sense now: in effect, or commanded and accepted."""
+        return (self.mode_commanded or self.snapshot.mode) == "manual"

@@ -59,8 +59,8 @@ class IOPanel(DataTable):
     def show(self, frame: Frame) -> None:
         self.frame = frame
         snap = frame.snapshot
-        if frame.manual != self._manual:
-            self._manual = frame.manual
+        if frame.manual_keys != self._manual:
+            self._manual = frame.manual_keys
             self.refresh_bindings()
         reconstructed, masked = set(snap.reconstructed), set(snap.masked)
         for name in snap.layout.inputs:
