@@ -3,6 +3,7 @@
     plchmi PROJECT                 open the operator HMI (Textual)
     plchmi check PROJECT           load, validate and summarise a project
     plchmi run PROJECT --for 60s   headless run in virtual time
+    plchmi bench SECTION           measurements (ui: scan jitter and UI refresh rate)
 
 Exit status: 0 success, 2 bad input (a project error, a bad argument), 1 a failure at run
 time. Errors about a project name the file, line and column; there is never a traceback for
@@ -21,7 +22,7 @@ from hmi.errors import ProjectError, UsageError
 from hmi.timefmt import DURATION_HINT, format_duration, parse_duration, seconds
 
 MAX_ERRORS_SHOWN = 25
-SUBCOMMANDS = ("check", "run", "ui")
+SUBCOMMANDS = ("check", "run", "ui", "bench")
 
 
 def _duration(text: str) -> int:
@@ -70,6 +71,9 @@ def _parser() -> argparse.ArgumentParser:
     engine_args(p)
     p.add_argument("--inject", action="append", default=[], metavar="FAULT@TIME",
                    help="schedule a fault in the simulated plant")
+
+    from hmi import bench
+    bench.add_parser(sub)
     return parser
 
 
@@ -89,6 +93,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             return cmd_run(args)
         if args.command == "ui":
             return cmd_ui(args)
+        if args.command == "bench":
+            from hmi import bench
+            return bench.run(args)
     except ProjectError as exc:
         print_project_error(exc)
         return 2

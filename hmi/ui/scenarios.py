@@ -80,6 +80,15 @@ async def fault_f13(pilot: Pilot) -> None:
     await run_for(pilot, 4.0)
 
 
+async def fault_dialog(pilot: Pilot) -> None:
+    """The SIMULATION fault injection dialog, F13 highlighted."""
+    await run_for(pilot, 3.0)
+    await pilot.press("f")
+    await wait_for_screen(pilot, FaultDialog)
+    await pilot.press("end")
+    await pilot.pause()
+
+
 @dataclass(frozen=True)
 class Scenario:
     name: str
@@ -95,4 +104,6 @@ SCENARIOS: tuple[Scenario, ...] = (
     Scenario("stepping", (80, 24), stepping, "Paused, stepped scan by scan"),
     Scenario("fault_f13", (120, 36), fault_f13,
              "SIMULATION: F13 injected, the valve blocked between its end switches"),
+    Scenario("fault_dialog", (100, 30), fault_dialog,
+             "SIMULATION: the fault injection dialog"),
 )
