@@ -65,9 +65,9 @@ from hmi.ui.verdict import output_changes, request_verdict
 REFRESH_HZ = 20
 SPEEDS: tuple[float | None, ...] = (1.0, 10.0, None)
 POLICY_HELP = {
-    "monitor": "report violations, pass the program's orders through (commissioning only)",
-    "block": "on a violation, latch every output to its safe state until a fault reset",
-    "correct": "change the fewest outputs needed to satisfy every constraint",
+    "monitor": "report violations only; unsafe orders pass (commissioning)",
+    "block": "on a violation, every output safe until a fault reset",
+    "correct": "change the fewest outputs that satisfy every constraint",
 }
 RUN_STATE_COMMANDS = (Pause, Resume, StepScans, SetSpeed)
 
@@ -142,7 +142,9 @@ class PlcHmiApp(App):
         self.message.say(Text("ctrl+p: all commands", style=MUTED))
         self.poll(force=True)
         self.set_interval(1 / self.refresh_hz, self.poll)
-        self.driver.start()
+        # Start scanning once the first screen is drawn: the first layout is the heaviest
+        # thing the UI does and would otherwise make the first scans late.
+        self.call_after_refresh(self.driver.start)
 
     def on_unmount(self) -> None:
         self.driver.stop()
@@ -380,7 +382,11 @@ class PlcHmiApp(App):
 
     def action_signals(self) -> None:
         chrono = self.chronogram
-        descriptions = {n: self.project.describe(n) for n in self.controller.engine.layout.names}
+        engine = self.controller.engine
+        descriptions = {n: self.project.describe(n) for n in engine.layout.names}
+        law = self.project.controls[engine.control_name]
+        if law.grafcet:
+            descriptions.update({s.name: s.description for s in law.grafcet.steps})
 
         def chosen(signals: tuple[str, ...] | None) -> None:
             if signals is not None:

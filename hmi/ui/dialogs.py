@@ -80,7 +80,7 @@ class StepDialog(ModalScreen[int | None]):
             yield Static(f"Number of scans to run, then pause (1 to {self.MAX_STEPS}):",
                          classes="dialog-line")
             yield Input(str(self.default), type="integer", id="count",
-                        select_on_focus=True)
+                        select_on_focus=True, compact=True)
             yield Label("", id="error", classes="dialog-error")
             yield Label("enter: step    esc: cancel", classes="dialog-hint")
 
@@ -116,7 +116,7 @@ class ChoiceDialog(ModalScreen[str | None]):
         self.note = note
 
     def compose(self) -> ComposeResult:
-        with Vertical(classes="dialog"):
+        with Vertical(classes="dialog dialog-wide"):
             yield _title(self.title_text, self.level)
             if self.note:
                 yield Static(self.note, classes="dialog-line", markup=False)

@@ -50,7 +50,7 @@ class FaultDialog(ModalScreen[Injection | None]):
                                for device, code, description in self.faults), id="faults")
             yield Static("When: in how many seconds (0 or empty = at the next scan)",
                          classes="dialog-line")
-            yield Input("0", id="delay", placeholder="0, 5, 2.5s, 500ms")
+            yield Input("0", id="delay", placeholder="0, 5, 2.5s, 500ms", compact=True)
             yield Label("", id="error", classes="dialog-error")
             yield Label("↑↓ fault    tab: when    enter: inject    esc: cancel",
                         classes="dialog-hint")

@@ -107,6 +107,8 @@ class IOPanel(DataTable):
 
     # -- actions -----------------------------------------------------------------------------
     def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
+        if self.app.screen is not self.screen and action in (*MANUAL_ACTIONS, "button"):
+            return False  # a dialog is open over the table
         if action in MANUAL_ACTIONS:
             return self._manual
         if action == "button":

@@ -30,7 +30,8 @@ def speed_text(speed: float | None) -> str:
     return "max" if speed is None else f"×{speed:g}"
 
 
-def status_fields(frame: Frame, wide: bool) -> list[Field]:
+def status_fields(frame: Frame, wide: bool, compact: bool = False) -> list[Field]:
+    """The status bar's fields; `compact` uses the short forms (80 columns)."""
     snap = frame.snapshot
     plant = snap.plant
     fields: list[Field] = [Field(Text(frame.project, style="bold"), 6)]
@@ -44,36 +45,45 @@ def status_fields(frame: Frame, wide: bool) -> list[Field]:
             fields.append(Field(tag(f"{where} DISCONNECTED", Level.ALARM), 0))
     fields.append(Field(tag("MANUAL", Level.ATTENTION) if snap.mode == "manual"
                         else Text("AUTO"), 0))
+    filter_word = "" if compact else "filter "
     if snap.policy == "monitor":
-        fields.append(Field(tag("filter monitor", Level.ATTENTION), 1))
+        fields.append(Field(tag(f"{filter_word}monitor", Level.ATTENTION), 1))
     else:
-        fields.append(Field(Text(f"filter {snap.policy}"), 3))
+        fields.append(Field(Text(f"{filter_word}{snap.policy}"), 3))
     if snap.latched:
         fields.append(Field(tag("SAFE STATE", Level.ALARM), 0))
     if snap.error:
         fields.append(Field(tag("INTERNAL ERROR", Level.ALARM), 0))
     if frame.run == "running":
-        fields.append(Field(Text(f"▶ running {speed_text(frame.speed)}"), 0))
+        word = "run" if compact else "running"
+        fields.append(Field(Text(f"▶ {word} {speed_text(frame.speed)}"), 0))
     else:
         fields.append(Field(tag(frame.run.upper(), Level.ATTENTION), 0))
-    fields.append(Field(Text(f"scan {snap.scan}"), 1))
-    fields.append(Field(Text(f"t {seconds(snap.time_us)} s"), 1))
+    fields.append(Field(Text(f"#{snap.scan}" if compact else f"scan {snap.scan}"), 1))
+    fields.append(Field(Text(f"{seconds(snap.time_us)} s" if compact
+                             else f"t {seconds(snap.time_us)} s"), 1))
     if frame.show_measured:
-        fields.append(Field(Text(f"{snap.scan_wall_us:4.0f} µs/scan", style=MUTED), 4))
+        unit = "µs" if compact else "µs/scan"
+        fields.append(Field(Text(f"{snap.scan_wall_us:.0f} {unit}", style=MUTED), 4))
         if frame.overruns:
             fields.append(Field(tag(f"{frame.overruns} late", Level.ATTENTION), 2))
     return fields
+
+
+def join(fields: list[Field]) -> Text:
+    line = Text(" ", no_wrap=True, overflow="ellipsis")
+    for i, f in enumerate(fields):
+        if i:
+            line.append(SEPARATOR, style=MUTED)
+        line.append_text(f.text)
+    return line
 
 
 def fit(fields: list[Field], width: int) -> Text:
     """Join fields with separators, dropping the least important until the line fits."""
     kept = list(fields)
     while True:
-        line = Text(" ", no_wrap=True, overflow="ellipsis")
-        for i, f in enumerate(kept):
-            if i:
-                line.append(SEPARATOR, style=MUTED)
-            line.append_text(f.text)
+        line = join(kept)
         if line.cell_len <= width or len(kept) <= 1:
             return line
         worst = max(range(len(kept)), key=lambda i: (kept[i].priority, i))
@@ -101,7 +111,11 @@ class StatusBar(Static):
             self.update("starting…")
             return
         width = self.size.width or 80
-        self.update(fit(status_fields(self.frame, width >= 120), width))
+        wide = width >= 120
+        line = join(status_fields(self.frame, wide))
+        if line.cell_len > width:  # short forms first, then drop the least important
+            line = fit(status_fields(self.frame, wide, compact=True), width)
+        self.update(line)
 
 
 class BannerStrip(Static):
