@@ -24,6 +24,7 @@ from hmi.engine.commands import (
     SetPolicy,
 )
 from hmi.engine.layout import Layout
+from hmi.engine.monitors import install_monitors
 from hmi.engine.snapshot import LatchReason, Snapshot
 from hmi.logic.control import ControlRuntime
 from hmi.logic.expr import BoolFn, compile_bool, max_depth
@@ -75,14 +76,17 @@ class Engine:
         self.started = False
         # Extension points, in scan order. A stage reads and writes the image and may put
         # what it wants shown into `self.extras` (keys are Snapshot field names).
-        self.stages_after_memory: list[Callable[[Engine], None]] = []  # diagnosers, monitors
+        self.stages_after_memory: list[Callable[[Engine], None]] = []  # diagnosers
         self.output_stage: Callable[[Engine, tuple[bool, ...]], tuple[tuple[bool, ...], object]]
         self.output_stage = _pass_through  # the safety filter
+        # Observers of the whole scan (I(t) read and O(t) written): stopwatch monitors.
+        self.stages_after_output: list[Callable[[Engine], None]] = []
         self.snapshot_extras: list[Callable[[Engine, dict], None]] = []  # explanations...
         # Each reset hook releases what its feature latched and returns lines saying what
         # was reset (or what stays, and why).
         self.reset_hooks: list[Callable[[Engine], list[str]]] = []
         self.extras: dict = {}
+        install_monitors(self)
 
     # -- commands ----------------------------------------------------------------------------
     def apply(self, command) -> CommandResult:
@@ -212,6 +216,14 @@ class Engine:
         for slot, value in zip(self.output_slots, outputs, strict=True):
             image[slot] = value
         self._output_scan(now, outputs)
+        try:
+            for stage in self.stages_after_output:
+                stage(self)
+        except Exception as exc:  # a broken monitor must not stop the scan silently
+            message = f"{type(exc).__name__}: {exc}"
+            error = error or message
+            self.latch_safe("internal", f"internal error at scan {self.scan}: {message}")
+            extras["traceback"] = traceback.format_exc()
         for hook in self.snapshot_extras:
             hook(self, extras)
         snapshot = self._snapshot(fov, outputs, extras, error,

@@ -45,6 +45,8 @@ from hmi.project.model import (
     Transition,
     Variable,
 )
+from hmi.project.monitors import parse_monitors
+from hmi.project.scenarios import parse_scenarios
 from hmi.project.yamlnodes import NodeError, YNode, load_yaml
 from hmi.timefmt import DURATION_HINT, parse_duration
 
@@ -53,6 +55,7 @@ PROJECT_FILE = "project.yaml"
 TOP_KEYS = {
     "name", "description", "scan_period", "include", "inputs", "outputs", "memories",
     "timers", "observers", "control", "constraints", "policy", "plant",
+    "monitors", "scenarios",
 }
 
 NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
@@ -254,6 +257,8 @@ class ProjectLoader:
             policy = self.guard(lambda: self._choice(s["policy"], "policy", POLICIES), policy)
         plant = self._plant(pos, inputs, outputs)
         self._check_addresses(inputs, outputs)
+        monitors = parse_monitors(self, period)  # stopwatch monitors: hmi/project/monitors.py
+        scenarios = parse_scenarios(self, plant)
         self.diag.raise_if_errors()
         project = Project(
             name=name, description=description, path=self.folder, scan_period_us=period,
@@ -261,7 +266,8 @@ class ProjectLoader:
             timers=tuple(timers), observers=tuple(observers), controls=controls,
             default_control=default_control, constraints=tuple(constraints), policy=policy,
             plant=plant, pos=pos, files=tuple(self.files),
-            extra={"warnings": tuple(self.diag.warnings)},
+            extra={"warnings": tuple(self.diag.warnings), "monitors": monitors,
+                   "scenarios": scenarios},
         )
         return project
 
