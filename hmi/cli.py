@@ -3,6 +3,7 @@
     plchmi PROJECT                 open the operator HMI (Textual)
     plchmi check PROJECT           load, validate and summarise a project
     plchmi run PROJECT --for 60s   headless run in virtual time
+    plchmi sweep PROJECT           stopwatch monitor vs watchdog over interruptions
 
 Exit status: 0 success, 2 bad input (a project error, a bad argument), 1 a failure at run
 time. Errors about a project name the file, line and column; there is never a traceback for
@@ -21,7 +22,7 @@ from hmi.errors import ProjectError, UsageError
 from hmi.timefmt import DURATION_HINT, format_duration, parse_duration, seconds
 
 MAX_ERRORS_SHOWN = 25
-SUBCOMMANDS = ("check", "run", "ui")
+SUBCOMMANDS = ("check", "run", "sweep", "ui")
 
 
 def _duration(text: str) -> int:
@@ -56,14 +57,19 @@ def _parser() -> argparse.ArgumentParser:
     p = sub.add_parser("run", help="run headless in virtual time")
     project_arg(p)
     engine_args(p)
-    p.add_argument("--for", dest="duration", type=_duration, required=True, metavar="TIME",
-                   help="virtual time to run, e.g. 60s")
+    p.add_argument("--for", dest="duration", type=_duration, metavar="TIME",
+                   help="virtual time to run, e.g. 60s (default: the scenario's)")
+    p.add_argument("--scenario", metavar="NAME",
+                   help="inject the faults of a scenario the project declares")
     p.add_argument("--period", type=_duration, metavar="TIME",
                    help="scan period (default: the project's)")
     p.add_argument("--inject", action="append", default=[], metavar="FAULT@TIME",
                    help="inject a fault into the simulated plant, e.g. F5@12s (repeatable)")
     p.add_argument("--trace", type=Path, metavar="FILE",
                    help="write every scan to FILE (.csv, or .jsonl for JSON Lines)")
+
+    from hmi.sweep import add_sweep_parser
+    add_sweep_parser(sub, project_arg)
 
     p = sub.add_parser("ui", help="open the operator HMI (the default command)")
     project_arg(p)
@@ -87,6 +93,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             return cmd_check(args)
         if args.command == "run":
             return cmd_run(args)
+        if args.command == "sweep":
+            from hmi.sweep import cmd_sweep
+            return cmd_sweep(args, load(args.project))
         if args.command == "ui":
             return cmd_ui(args)
     except ProjectError as exc:
@@ -124,7 +133,7 @@ def cmd_check(args: argparse.Namespace) -> int:
     return 0
 
 
-def make_engine(project, args: argparse.Namespace):
+def make_engine(project, args: argparse.Namespace, extra_injections=()):
     """The engine for a command's --control/--policy/--inject options, on a simulated plant."""
     from hmi.engine.scan import Engine
     from hmi.plant.sim import SimPlant, parse_injection
@@ -133,7 +142,8 @@ def make_engine(project, args: argparse.Namespace):
         raise UsageError(f"--control {args.control!r}: the project has "
                          + ", ".join(project.controls))
     plant = SimPlant(project)
-    injections = [parse_injection(text) for text in getattr(args, "inject", [])]
+    injections = [*extra_injections,
+                  *(parse_injection(text) for text in getattr(args, "inject", []))]
     for injection in injections:
         plant.resolve(injection)
     for injection in injections:
@@ -148,7 +158,14 @@ def cmd_run(args: argparse.Namespace) -> int:
     from hmi.report import run_summary
 
     project = load(args.project)
-    engine, injections = make_engine(project, args)
+    scenario = None
+    if args.scenario:
+        from hmi.project.scenarios import find_scenario
+        scenario = find_scenario(project, args.scenario)
+    duration = args.duration or (scenario.duration_us if scenario else None)
+    if duration is None:
+        raise UsageError("--for TIME is required (or a --scenario that sets its length)")
+    engine, injections = make_engine(project, args, scenario.injections if scenario else ())
     controller = Controller(engine, args.period)
     writer = None
     if args.trace:
@@ -163,11 +180,13 @@ def cmd_run(args: argparse.Namespace) -> int:
             collector.add(snap)
             if writer:
                 writer.write(snap)
-        last = controller.run_for(args.duration, on_scan)
+        last = controller.run_for(duration, on_scan)
     finally:
         if writer:
             writer.close()
     wall = time.perf_counter() - started
+    if scenario:
+        print(f"Scenario {scenario.name}: {scenario.description}")
     print(run_summary(engine, last, collector, injections, wall,
                       trace=(args.trace, writer.count) if writer else None))
     return 0
@@ -186,9 +205,12 @@ class RunCollector:
         self.events = []
         self.step_changes = 0
         self.max_distance = 0
+        from hmi.monitor_report import MonitorLog
+        self.monitors = MonitorLog()
 
     def add(self, snap) -> None:
         self.scans += 1
+        self.monitors.add(snap)
         self.events.extend(snap.plant_events)
         report = snap.filter
         if report is not None:

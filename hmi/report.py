@@ -76,6 +76,10 @@ def check_report(project: Project) -> str:
                  f"{combined} combined)")
     lines += _table([[c.name, c.kind, c.expr.source, constraint_meaning(c)]
                      for c in project.constraints])
+    from hmi.monitor_report import monitor_check_lines
+    monitor_lines = monitor_check_lines(project)
+    if monitor_lines:
+        lines += ["", *monitor_lines]
     for section in project.extra.get("check_sections", ()):
         lines.append("")
         lines.extend(section)
@@ -120,6 +124,10 @@ def run_summary(engine, last, collector, injections, wall_s: float, trace=None) 
         lines.append(f"  scans corrected {collector.corrections}, max Hamming distance "
                      f"{collector.max_distance}, fallbacks to the safe state "
                      f"{collector.fallbacks}, unsafe outputs written {collector.unsafe_written}")
+    monitors = getattr(collector, "monitors", None)
+    if monitors is not None:
+        from hmi.monitor_report import monitor_summary_lines
+        lines += monitor_summary_lines(monitors)
     if collector.first_latch:
         scan, t, detail = collector.first_latch
         lines.append(f"Outputs latched safe from scan {scan} ({seconds(t)} s): {detail}")

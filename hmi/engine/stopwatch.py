@@ -14,15 +14,16 @@ satisfy that any more, which gives these rules, checked at every scan:
   ``(delta_x2 + x_T2) - delta_y2 >= 2``) or at the very scan it resumes;
 * ``deadline`` — the task has done its minimum work but is still running when ``x`` reaches
   gamma (``y >= alpha`` and ``x >= gamma``);
-* ``overrun`` — the effective work already exceeds beta (``y > beta``): whenever it ends, it
-  ends outside [alpha, beta];
+* ``overrun`` — ``y > beta``, or the task is still executing with ``y == beta`` after this
+  scan's events: it did not end with ``y <= beta`` and any later end follows more work, so
+  whenever it ends, ``y > beta``;
 * at the end: ``late_end`` (``x >= gamma``), ``overrun`` (``y > beta``), ``too_fast``
   (``y < alpha``).
 
-The first three together are ``x + max(0, alpha - y) >= gamma or y > beta``: the complement of
-the acceptable time space of 002 Fig. 4.4 in l2/l3. Nothing earlier is possible without
-false alarms: while they are false, ending with ``y`` in [alpha, beta] before gamma is still
-reachable.
+The first three are the complement of the acceptable time space of 002 Fig. 4.4 in l2/l3
+(``x + max(0, alpha - y) < gamma`` and ``y <= beta``), sampled at scans. Nothing earlier is
+possible without false alarms: while they are false, ending with ``y`` in [alpha, beta]
+before gamma is still reachable.
 
 The automaton is driven by scans: :meth:`TaskAutomaton.step` receives the scan's time and the
 four observations. The location entered at a scan holds until the next scan, so the
@@ -56,7 +57,7 @@ RULES = {
     "cannot_finish": "cannot end in time: still needs alpha - y of work, x + (alpha - y) >= "
                      "gamma",
     "deadline": "still running when x reached gamma",
-    "overrun": "effective work y exceeded beta",
+    "overrun": "effective work y goes beyond beta",
     "late_end": "ended with x >= gamma",
     "too_fast": "ended with y < alpha (too fast)",
 }
@@ -90,6 +91,26 @@ class Detection:
     @property
     def reason(self) -> str:
         return RULES[self.rule]
+
+    def explain(self, window: Window) -> str:
+        """The rule with this detection's numbers, in seconds."""
+        a, b, g = window.alpha_us, window.beta_us, window.gamma_us
+        x, y = self.x_us, self.y_us
+        if self.rule == "cannot_finish":
+            return (f"cannot end in time: still needs alpha - y = {_s(a - y)} s of work, so "
+                    f"it ends at x >= {_s(x + a - y)} s, not before gamma = {_s(g)} s")
+        if self.rule == "deadline":
+            return f"still running when x reached gamma = {_s(g)} s"
+        if self.rule == "overrun":
+            return (f"effective work y = {_s(y)} s and still working: it ends with y > beta = "
+                    f"{_s(b)} s")
+        if self.rule == "late_end":
+            return f"ended at x = {_s(x)} s, not before gamma = {_s(g)} s"
+        return f"ended after y = {_s(y)} s of work, less than alpha = {_s(a)} s (too fast)"
+
+
+def _s(us: int) -> str:
+    return f"{us // 1_000_000}.{(us % 1_000_000) // 1_000:03d}"
 
 
 @dataclass(frozen=True)
@@ -211,7 +232,7 @@ class TaskAutomaton:
             return "cannot_finish"
         if y >= w.alpha_us and x >= w.gamma_us:
             return "deadline"
-        if y > w.beta_us:
+        if y > w.beta_us or (y == w.beta_us and self.phase is Phase.RUNNING):
             return "overrun"
         return None
 

@@ -144,7 +144,7 @@ def _monitor(loader: ProjectLoader, name: str, node: YNode, kpos: SourcePos, per
             have = "interrupt" if "interrupt" in fields else "resume"
             need = "resume" if have == "interrupt" else "interrupt"
             loader.diag.error(fields[have].pos, f"{what} has '{have}' but no '{need}'",
-                              f"both 'interrupt:' and 'resume:' events, or a level "
+                              "both 'interrupt:' and 'resume:' events, or a level "
                               "'interrupted:'")
             ok = False
         else:
