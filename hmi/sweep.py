@@ -217,6 +217,8 @@ def run_sweep(project, task_name: str | None, fault: str | None, starts: Sequenc
               control: str | None = None) -> SweepResult:
     if project.plant.kind != "sim":
         raise UsageError("the sweep injects faults: it needs a simulated plant")
+    if control and control not in project.controls:
+        raise UsageError(f"--control {control!r}: the project has " + ", ".join(project.controls))
     task = _pick_task(project, task_name)
     fault = fault or _default_fault(project, task)
     from hmi.plant.sim import SimPlant, parse_injection

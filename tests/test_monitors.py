@@ -231,5 +231,7 @@ def test_sweep_bad_arguments_exit_2(capsys):
     assert "--task 'nope'" in capsys.readouterr().err
     assert main(["sweep", str(CELL), "--fault", "C1.jam"]) == 2
     assert "unknown fault" in capsys.readouterr().err
+    assert main(["sweep", str(CELL), "--control", "nope"]) == 2
+    assert "--control 'nope'" in capsys.readouterr().err
     assert main(["sweep", str(PROJECTS / "cispi_valve")]) == 2
     assert "declares no monitors" in capsys.readouterr().err
