@@ -49,6 +49,8 @@ def _parser() -> argparse.ArgumentParser:
                        help="control law variant to run (default: the project's first)")
         p.add_argument("--policy", choices=("monitor", "block", "correct"),
                        help="safety filter policy (default: the project's)")
+        p.add_argument("--solver", choices=("exact", "paper"),
+                       help="corrector search strategy (default: the project's, else exact)")
 
     p = sub.add_parser("check", help="load and validate a project, print a summary")
     project_arg(p)
@@ -118,9 +120,11 @@ def load(path: str):
 
 
 def cmd_check(args: argparse.Namespace) -> int:
+    from hmi.engine.filter_analysis import analyse
     from hmi.report import check_report
     project = load(args.project)
-    print(check_report(project))
+    filter_lines = analyse(project).lines(len(project.outputs))
+    print(check_report(project, [filter_lines]))
     return 0
 
 
@@ -138,7 +142,8 @@ def make_engine(project, args: argparse.Namespace):
         plant.resolve(injection)
     for injection in injections:
         plant.inject(injection)
-    engine = Engine(project, plant, control=args.control, policy=args.policy)
+    engine = Engine(project, plant, control=args.control, policy=args.policy,
+                    solver=args.solver)
     return engine, injections
 
 
@@ -180,6 +185,7 @@ class RunCollector:
         self.scans = 0
         self.violations: dict[str, int] = {}
         self.corrections = 0
+        self.safe_scans = 0
         self.unsafe_written = 0
         self.fallbacks = 0
         self.first_latch: tuple[int, int, str] | None = None
@@ -194,7 +200,9 @@ class RunCollector:
         if report is not None:
             for name in report.violated_names:
                 self.violations[name] = self.violations.get(name, 0) + 1
-            if report.changes:
+            if report.safe_state:
+                self.safe_scans += 1
+            elif report.changes:
                 self.corrections += 1
             if report.unsafe_written:
                 self.unsafe_written += 1

@@ -23,6 +23,7 @@ from hmi.engine.commands import (
     SetMode,
     SetPolicy,
 )
+from hmi.engine.filter import SafetyFilter
 from hmi.engine.layout import Layout
 from hmi.engine.snapshot import LatchReason, Snapshot
 from hmi.logic.control import ControlRuntime
@@ -34,7 +35,7 @@ from hmi.project.model import POLICIES, Project
 
 class Engine:
     def __init__(self, project: Project, plant: Plant, control: str | None = None,
-                 policy: str | None = None):
+                 policy: str | None = None, solver: str | None = None):
         self.project = project
         self.plant = plant
         self.control_name = control or project.default_control
@@ -77,7 +78,8 @@ class Engine:
         # what it wants shown into `self.extras` (keys are Snapshot field names).
         self.stages_after_memory: list[Callable[[Engine], None]] = []  # diagnosers, monitors
         self.output_stage: Callable[[Engine, tuple[bool, ...]], tuple[tuple[bool, ...], object]]
-        self.output_stage = _pass_through  # the safety filter
+        self.filter = SafetyFilter(project, slots, times, solver or project.solver)
+        self.output_stage = self.filter  # the safety filter
         self.snapshot_extras: list[Callable[[Engine, dict], None]] = []  # explanations...
         # Each reset hook releases what its feature latched and returns lines saying what
         # was reset (or what stays, and why).
