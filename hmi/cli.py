@@ -21,7 +21,7 @@ from hmi.errors import ProjectError, UsageError
 from hmi.timefmt import DURATION_HINT, format_duration, parse_duration, seconds
 
 MAX_ERRORS_SHOWN = 25
-SUBCOMMANDS = ("check", "run", "ui")
+SUBCOMMANDS = ("check", "run", "ui", "bench")
 
 
 def _duration(text: str) -> int:
@@ -67,6 +67,12 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--trace", type=Path, metavar="FILE",
                    help="write every scan to FILE (.csv, or .jsonl for JSON Lines)")
 
+    p = sub.add_parser("bench", help="measure and print performance figures (never fails)")
+    p.add_argument("sections", nargs="*", metavar="SECTION",
+                   help="sections to run (default: all): " + ", ".join(_bench_sections()))
+    p.add_argument("--quick", action="store_true", help="fewer samples, for a fast look")
+    p.add_argument("--seed", type=int, default=1, help="random seed for generated problems")
+
     p = sub.add_parser("ui", help="open the operator HMI (the default command)")
     project_arg(p)
     engine_args(p)
@@ -91,6 +97,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return cmd_run(args)
         if args.command == "ui":
             return cmd_ui(args)
+        if args.command == "bench":
+            return cmd_bench(args)
     except ProjectError as exc:
         print_project_error(exc)
         return 2
@@ -212,6 +220,27 @@ class RunCollector:
         if snap.latched and self.first_latch is None:
             reason = snap.latched[0]
             self.first_latch = (reason.scan, reason.time_us, reason.detail)
+
+
+def _bench_sections() -> list[str]:
+    from hmi.bench import sections
+    return list(sections())
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    from hmi.bench import sections
+    available = sections()
+    chosen = args.sections or list(available)
+    unknown = [s for s in chosen if s not in available]
+    if unknown:
+        raise UsageError(f"unknown bench section {', '.join(unknown)}; sections: "
+                         + ", ".join(available))
+    for index, name in enumerate(chosen):
+        if index:
+            print()
+        print(f"== bench {name}: {available[name].HELP}", flush=True)
+        available[name].run(args)
+    return 0
 
 
 def cmd_ui(args: argparse.Namespace) -> int:

@@ -178,17 +178,15 @@ class SafetyFilter:
         return self._correct(fov, candidate, active, violations)
 
     def _correct(self, fov, candidate: int, active, violations):
+        if not violations:
+            # Common case: the candidate violates nothing, so it is written unchanged (a
+            # conflict between simple constraints would show as a violation).
+            return fov, FilterReport("correct", self.strategy)
         f0 = f1 = 0
-        by: dict[tuple[int, str], list[str]] = {}
         for c in active:
-            if not c.simple:
-                continue
-            if c.pos:
+            if c.simple:
                 f0 |= c.pos
-                by.setdefault((c.pos, "F0"), []).append(c.name)
-            else:
                 f1 |= c.neg
-                by.setdefault((c.neg, "F1"), []).append(c.name)
         conflicts = f0 & f1
         if conflicts:
             names = [self.outputs[k] for k in range(self.n) if conflicts >> k & 1]
@@ -216,6 +214,10 @@ class SafetyFilter:
         changes = []
         combined_names = tuple(c.name for c in active if not c.simple
                                and mem & c.pos == c.pos and not mem & c.neg)
+        by = {}
+        for c in active:
+            if c.simple:
+                by.setdefault((c.pos or c.neg, "F0" if c.pos else "F1"), []).append(c.name)
         for k in range(self.n):
             bit = 1 << k
             if not (written ^ candidate) & bit:

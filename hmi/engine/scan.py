@@ -250,14 +250,8 @@ class Engine:
         plant = self.plant
         state = getattr(plant, "state", None)
         counters = getattr(plant, "counters", None)
-        events_fn = getattr(plant, "events", None)
-        new_events: tuple = ()
-        if events_fn is not None:
-            events = events_fn()
-            seen = getattr(self, "_events_seen", 0)
-            if len(events) > seen:
-                new_events = tuple(events[seen:])
-                self._events_seen = len(events)
+        take_events = getattr(plant, "take_events", None)
+        new_events = take_events() if take_events is not None else ()
         return Snapshot(
             scan=self.scan, time_us=self.now, period_us=self.project.scan_period_us,
             layout=self.layout, values=tuple(self.image), fov=tuple(fov),
