@@ -170,6 +170,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         except OSError as exc:
             raise UsageError(f"--trace {args.trace}: {exc.strerror}") from None
     collector = RunCollector()
+    from hmi.engine.runner import settle_memory
+    settle_memory()
     started = time.perf_counter()
     try:
         def on_scan(snap):

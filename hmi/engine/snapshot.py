@@ -37,7 +37,7 @@ class Snapshot(NamedTuple):
     outputs: tuple[bool, ...]  # written to the plant
     active_steps: tuple[str, ...]
     fired: tuple[int, ...]  # GRAFCET transitions fired this scan
-    timers: tuple[TimerState, ...]
+    timer_elapsed: tuple[int, ...]  # ET of each timer (its Q is in `values`)
     control: str  # the control variant running
     mode: str  # "auto" or "manual"
     manual: tuple[tuple[str, bool], ...]  # manual requests in effect
@@ -76,6 +76,14 @@ class Snapshot(NamedTuple):
     @property
     def fov_map(self) -> dict[str, bool]:
         return dict(zip(self.layout.outputs, self.fov, strict=True))
+
+    @property
+    def timers(self) -> tuple[TimerState, ...]:
+        """Timer states, built on demand (a scan only records the elapsed times)."""
+        lay = self.layout
+        return tuple(TimerState(name, self.values[lay.slots[name]], elapsed, preset)
+                     for name, elapsed, preset in zip(lay.timers, self.timer_elapsed,
+                                                      lay.timer_presets, strict=True))
 
     @property
     def time_s(self) -> float:

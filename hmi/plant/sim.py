@@ -134,21 +134,18 @@ class SimPlant:
         device = self.resolve(injection)
         device.inject(injection.code, injection.at_us, injection.duration_us)
 
-    def state(self) -> dict[str, Any]:
-        single = len(self.devices) == 1
-        out: dict[str, Any] = {}
-        for device in self.devices:
-            for key, value in device.state().items():
-                out[key if single else f"{device.name}.{key}"] = value
-        return out
+    def state(self) -> tuple[tuple[str, Any], ...]:
+        """Physical state as (name, value) pairs, device-prefixed when there are several."""
+        if len(self.devices) == 1:
+            return tuple(self.devices[0].state().items())
+        return tuple((f"{d.name}.{key}", value) for d in self.devices
+                     for key, value in d.state().items())
 
-    def counters(self) -> dict[str, int]:
-        single = len(self.devices) == 1
-        out: dict[str, int] = {}
-        for device in self.devices:
-            for key, value in device.counters().items():
-                out[key if single else f"{device.name}.{key}"] = value
-        return out
+    def counters(self) -> tuple[tuple[str, int], ...]:
+        if len(self.devices) == 1:
+            return tuple(self.devices[0].counters().items())
+        return tuple((f"{d.name}.{key}", value) for d in self.devices
+                     for key, value in d.counters().items())
 
     def take_events(self) -> tuple[PlantEvent, ...]:
         """Events recorded since the previous call (once per scan, by the engine)."""
