@@ -22,7 +22,7 @@ from hmi.errors import ProjectError, UsageError
 from hmi.timefmt import DURATION_HINT, format_duration, parse_duration, seconds
 
 MAX_ERRORS_SHOWN = 25
-SUBCOMMANDS = ("check", "run", "sweep", "ui")
+SUBCOMMANDS = ("check", "run", "sweep", "ui", "bench")
 
 
 def _duration(text: str) -> int:
@@ -50,6 +50,8 @@ def _parser() -> argparse.ArgumentParser:
                        help="control law variant to run (default: the project's first)")
         p.add_argument("--policy", choices=("monitor", "block", "correct"),
                        help="safety filter policy (default: the project's)")
+        p.add_argument("--solver", choices=("exact", "paper"),
+                       help="corrector search strategy (default: the project's, else exact)")
 
     p = sub.add_parser("check", help="load and validate a project, print a summary")
     project_arg(p)
@@ -70,6 +72,12 @@ def _parser() -> argparse.ArgumentParser:
 
     from hmi.sweep import add_sweep_parser
     add_sweep_parser(sub, project_arg)
+
+    p = sub.add_parser("bench", help="measure and print performance figures (never fails)")
+    p.add_argument("sections", nargs="*", metavar="SECTION",
+                   help="sections to run (default: all): " + ", ".join(_bench_sections()))
+    p.add_argument("--quick", action="store_true", help="fewer samples, for a fast look")
+    p.add_argument("--seed", type=int, default=1, help="random seed for generated problems")
 
     p = sub.add_parser("ui", help="open the operator HMI (the default command)")
     project_arg(p)
@@ -98,6 +106,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return cmd_sweep(args, load(args.project))
         if args.command == "ui":
             return cmd_ui(args)
+        if args.command == "bench":
+            return cmd_bench(args)
     except ProjectError as exc:
         print_project_error(exc)
         return 2
@@ -127,9 +137,11 @@ def load(path: str):
 
 
 def cmd_check(args: argparse.Namespace) -> int:
+    from hmi.engine.filter_analysis import analyse
     from hmi.report import check_report
     project = load(args.project)
-    print(check_report(project))
+    filter_lines = analyse(project).lines(len(project.outputs))
+    print(check_report(project, [filter_lines]))
     return 0
 
 
@@ -148,7 +160,8 @@ def make_engine(project, args: argparse.Namespace, extra_injections=()):
         plant.resolve(injection)
     for injection in injections:
         plant.inject(injection)
-    engine = Engine(project, plant, control=args.control, policy=args.policy)
+    engine = Engine(project, plant, control=args.control, policy=args.policy,
+                    solver=args.solver)
     return engine, injections
 
 
@@ -174,6 +187,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         except OSError as exc:
             raise UsageError(f"--trace {args.trace}: {exc.strerror}") from None
     collector = RunCollector()
+    from hmi.engine.runner import settle_memory
+    settle_memory()
     started = time.perf_counter()
     try:
         def on_scan(snap):
@@ -199,6 +214,7 @@ class RunCollector:
         self.scans = 0
         self.violations: dict[str, int] = {}
         self.corrections = 0
+        self.safe_scans = 0
         self.unsafe_written = 0
         self.fallbacks = 0
         self.first_latch: tuple[int, int, str] | None = None
@@ -216,7 +232,9 @@ class RunCollector:
         if report is not None:
             for name in report.violated_names:
                 self.violations[name] = self.violations.get(name, 0) + 1
-            if report.changes:
+            if report.safe_state:
+                self.safe_scans += 1
+            elif report.changes:
                 self.corrections += 1
             if report.unsafe_written:
                 self.unsafe_written += 1
@@ -226,6 +244,27 @@ class RunCollector:
         if snap.latched and self.first_latch is None:
             reason = snap.latched[0]
             self.first_latch = (reason.scan, reason.time_us, reason.detail)
+
+
+def _bench_sections() -> list[str]:
+    from hmi.bench import sections
+    return list(sections())
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    from hmi.bench import sections
+    available = sections()
+    chosen = args.sections or list(available)
+    unknown = [s for s in chosen if s not in available]
+    if unknown:
+        raise UsageError(f"unknown bench section {', '.join(unknown)}; sections: "
+                         + ", ".join(available))
+    for index, name in enumerate(chosen):
+        if index:
+            print()
+        print(f"== bench {name}: {available[name].HELP}", flush=True)
+        available[name].run(args)
+    return 0
 
 
 def cmd_ui(args: argparse.Namespace) -> int:

@@ -54,7 +54,7 @@ PROJECT_FILE = "project.yaml"
 
 TOP_KEYS = {
     "name", "description", "scan_period", "include", "inputs", "outputs", "memories",
-    "timers", "observers", "control", "constraints", "policy", "plant",
+    "timers", "observers", "control", "constraints", "policy", "solver", "plant",
     "monitors", "scenarios",
 }
 
@@ -255,6 +255,10 @@ class ProjectLoader:
         policy = "correct"
         if "policy" in s:
             policy = self.guard(lambda: self._choice(s["policy"], "policy", POLICIES), policy)
+        solver = "exact"
+        if "solver" in s:
+            solver = self.guard(lambda: self._choice(s["solver"], "solver", ("exact", "paper")),
+                                solver)
         plant = self._plant(pos, inputs, outputs)
         self._check_addresses(inputs, outputs)
         monitors = parse_monitors(self, period)  # stopwatch monitors: hmi/project/monitors.py
@@ -265,7 +269,7 @@ class ProjectLoader:
             inputs=tuple(inputs), outputs=tuple(outputs), memories=tuple(memories),
             timers=tuple(timers), observers=tuple(observers), controls=controls,
             default_control=default_control, constraints=tuple(constraints), policy=policy,
-            plant=plant, pos=pos, files=tuple(self.files),
+            plant=plant, pos=pos, files=tuple(self.files), solver=solver,
             extra={"warnings": tuple(self.diag.warnings), "monitors": monitors,
                    "scenarios": scenarios},
         )
