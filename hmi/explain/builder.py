@@ -196,6 +196,7 @@ class ExplanationBuilder:
     def _constraint(self, engine, report, violation, constraint, changed, onset) -> Explanation:
         device = self.device_of(constraint.outputs)
         rule = constraint.description or f"the constraint {constraint.expr.source} must stay false"
+        quoted = f"\u201c{rule}\u201d"
         action = self._action_text(report, changed)
         source = "the operator's manual request" if engine.mode == "manual" else \
             "the control program"
@@ -205,7 +206,7 @@ class ExplanationBuilder:
                f"`{constraint.expr.source}`, was true on {source}'s outputs at scan "
                f"{engine.scan} ({seconds(engine.now)} s): {values}. Violated {since}.")
         if report.policy == "monitor":
-            consequences = (f"The unsafe vector WAS written, breaking the rule \u201c{rule}\u201d: "
+            consequences = (f"The unsafe vector WAS written, breaking the rule {quoted}: "
                             "damage is possible. The monitor policy only reports; nothing "
                             "protects the plant.")
             severity = "high"
@@ -215,7 +216,7 @@ class ExplanationBuilder:
                        cmd.SetPolicy("correct"), True),
                 self.policy_stop(device), self.policy_manual())
         elif report.policy == "block" or report.safe_state:
-            consequences = (f"Written as asked, this vector would break the rule \u201c{rule}\u201d. "
+            consequences = (f"Written as asked, this vector would break the rule {quoted}. "
                             "Safe blocking holds every output at its safe value until a fault "
                             "reset: the cell is stopped, safely.")
             severity = "medium"
@@ -224,9 +225,10 @@ class ExplanationBuilder:
                                   "(check it first: it asked for an unsafe order)", True),
                 self.policy_manual(), self.policy_stop(device))
         else:
-            written = ", ".join(f"{c.output}={int(c.written)}" for c in changed) or "a safe vector"
+            written = ", ".join(f"{c.output}={int(c.written)}"
+                                for c in changed) or "a safe vector"
             note = f" {report.note}." if report.note and constraint.kind == "combined" else ""
-            consequences = (f"Written as asked, this vector would break the rule \u201c{rule}\u201d. "
+            consequences = (f"Written as asked, this vector would break the rule {quoted}. "
                             f"The filter wrote {written} instead (Hamming distance "
                             f"{report.distance} from what was asked).{note} The program is "
                             "not told and keeps asking while the situation lasts; the cell "
