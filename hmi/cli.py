@@ -22,7 +22,7 @@ from hmi.errors import ProjectError, UsageError
 from hmi.timefmt import DURATION_HINT, format_duration, parse_duration, seconds
 
 MAX_ERRORS_SHOWN = 25
-SUBCOMMANDS = ("check", "run", "sweep", "ui", "bench")
+SUBCOMMANDS = ("check", "run", "sweep", "ui", "bench", "journal")
 
 
 def _duration(text: str) -> int:
@@ -69,6 +69,17 @@ def _parser() -> argparse.ArgumentParser:
                    help="inject a fault into the simulated plant, e.g. F5@12s (repeatable)")
     p.add_argument("--trace", type=Path, metavar="FILE",
                    help="write every scan to FILE (.csv, or .jsonl for JSON Lines)")
+    p.add_argument("--explain", action="store_true",
+                   help="print the four levels of every alarm's explanation")
+    p.add_argument("--journal", type=Path, metavar="FILE",
+                   help="journal file (default: the user's data folder, see plchmi journal)")
+
+    p = sub.add_parser("journal", help="print or export a project's operator journal")
+    project_arg(p)
+    p.add_argument("--since", metavar="WHEN",
+                   help="only entries since WHEN: an ISO date/time, or a duration ago (2h)")
+    p.add_argument("--csv", action="store_true", help="export as CSV")
+    p.add_argument("--path", type=Path, metavar="FILE", help="journal file to read")
 
     from hmi.sweep import add_sweep_parser
     add_sweep_parser(sub, project_arg)
@@ -108,6 +119,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return cmd_ui(args)
         if args.command == "bench":
             return cmd_bench(args)
+        if args.command == "journal":
+            return cmd_journal(args)
     except ProjectError as exc:
         print_project_error(exc)
         return 2
@@ -187,6 +200,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         except OSError as exc:
             raise UsageError(f"--trace {args.trace}: {exc.strerror}") from None
     collector = RunCollector()
+    recorder = open_journal(controller, args.journal, "run")
     from hmi.engine.runner import settle_memory
     settle_memory()
     started = time.perf_counter()
@@ -199,12 +213,99 @@ def cmd_run(args: argparse.Namespace) -> int:
     finally:
         if writer:
             writer.close()
+        recorder.close()
     wall = time.perf_counter() - started
     if scenario:
         print(f"Scenario {scenario.name}: {scenario.description}")
     print(run_summary(engine, last, collector, injections, wall,
                       trace=(args.trace, writer.count) if writer else None))
+    print(alarm_summary(collector, args.explain))
+    print(f"Journal: {recorder.journal.path}")
     return 0
+
+
+def open_journal(controller, path: Path | None, source: str):
+    from hmi.explain.journal import Journal, default_path
+    from hmi.explain.recorder import JournalRecorder
+    target = path or default_path(controller.engine.project.name)
+    try:
+        return JournalRecorder(controller, Journal(target), source)
+    except OSError as exc:
+        raise UsageError(f"cannot open the journal {target}: {exc.strerror}") from None
+
+
+def alarm_summary(collector: RunCollector, explain: bool) -> str:
+    from hmi.timefmt import seconds as secs
+    if not collector.alarm_events:
+        return "Alarms: none"
+    raised = [e for e in collector.alarm_events if e.event in ("raised", "returned")]
+    lines = [f"Alarms: {len(raised)} raised or returned, "
+             f"{sum(1 for e in collector.alarm_events if e.event == 'chattering')} chattering"]
+    shown = 0
+    for event in collector.alarm_events:
+        if event.event not in ("raised", "chattering") or shown >= 20:
+            continue
+        shown += 1
+        what = "CHATTERING " if event.event == "chattering" else ""
+        lines.append(f"  {secs(event.time_us)} s  [{event.severity}] {what}{event.text}")
+    if explain:
+        for key, explanation in collector.explanations.items():
+            lines.append("")
+            lines.append(f"Explanation of {key} (as last shown, since "
+                         f"{secs(explanation.since_us)} s):")
+            lines.append(explanation.render(4))
+            if explanation.recommended:
+                lines.append(f"  Recommended: {explanation.recommended.label}")
+    return "\n".join(lines)
+
+
+def cmd_journal(args: argparse.Namespace) -> int:
+    import csv
+    from datetime import UTC, datetime
+
+    from hmi.explain.journal import JournalError, default_path, read, since_filter
+    from hmi.project.loader import load_project
+    path = args.path or default_path(load_project(args.project).name)
+    since = None
+    if args.since:
+        try:
+            since = datetime.now(UTC) - timedelta_of(args.since)
+        except ValueError:
+            try:
+                since = datetime.fromisoformat(args.since)
+            except ValueError:
+                raise UsageError(f"--since {args.since!r}: expected an ISO date/time "
+                                 "(2026-11-22T15:00) or a duration ago (30m, 2h)") from None
+            if since.tzinfo is None:
+                since = since.astimezone(UTC)
+    try:
+        result = read(path)
+    except JournalError as exc:
+        print(f"plchmi: {exc}", file=sys.stderr)
+        return 1
+    entries = list(since_filter(result.entries, since))
+    columns = ("wall", "scan", "t", "type", "event", "key", "severity", "text", "message")
+    if args.csv:
+        writer = csv.writer(sys.stdout, lineterminator="\n")
+        writer.writerow(columns)
+        for entry in entries:
+            writer.writerow([entry.get(c, "") for c in columns])
+    else:
+        for entry in entries:
+            text = entry.get("text") or entry.get("message") or entry.get("project", "")
+            key = f" {entry['key']}" if entry.get("key") else ""
+            print(f"{entry.get('wall', '')}  scan {entry.get('scan', ''):>6}  "
+                  f"t={entry.get('t', '')}  {entry.get('type', ''):<7} "
+                  f"{entry.get('event', '')}{key}: {text}")
+    if result.truncated:
+        print(f"plchmi: the last entry of {path} was cut short (the process was killed while "
+              "writing it); it is ignored", file=sys.stderr)
+    return 0
+
+
+def timedelta_of(text: str):
+    from datetime import timedelta
+    return timedelta(microseconds=parse_duration(text))
 
 
 class RunCollector:
@@ -223,11 +324,18 @@ class RunCollector:
         self.max_distance = 0
         from hmi.monitor_report import MonitorLog
         self.monitors = MonitorLog()
+        self.alarm_events = []
+        self.explanations = {}
 
     def add(self, snap) -> None:
         self.scans += 1
         self.monitors.add(snap)
         self.events.extend(snap.plant_events)
+        if snap.alarm_events:
+            self.alarm_events.extend(snap.alarm_events)
+        for explanation in snap.explanations:
+            if explanation.alarm:
+                self.explanations[explanation.key] = explanation
         report = snap.filter
         if report is not None:
             for name in report.violated_names:

@@ -235,3 +235,57 @@ def test_sweep_bad_arguments_exit_2(capsys):
     assert "--control 'nope'" in capsys.readouterr().err
     assert main(["sweep", str(PROJECTS / "cispi_valve")]) == 2
     assert "declares no monitors" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------------------------
+# Explanations and alarms
+# --------------------------------------------------------------------------------------------
+
+
+def test_a_monitor_fault_is_explained_and_raises_a_latched_alarm():
+    ctl = make_controller(CELL, inject=["C1.stop@1s+2s"])
+    snaps = []
+    ctl.run_for(4 * S, snaps.append)
+    assert not any(e.key == "monitor:conveyor" for e in at(snaps, 2_990 * MS).explanations)
+    snap = at(snaps, 3 * S)
+    e = next(e for e in snap.explanations if e.key == "monitor:conveyor")
+    assert e.kind == "monitor" and e.latched and e.alarm and e.device == "Conveyor C1"
+    assert (e.since_scan, e.since_us) == (301, 3 * S)
+    assert "cannot end within its acceptable time (conveyor_fault)" in e.what
+    assert "x = 3.000 s" in e.why and "y = 1.000 s" in e.why and "[3s, 5s]" in e.why
+    assert "still in progress" in e.consequences
+    assert [p.id for p in e.policies] == ["continue", "stop_device", "reset"]
+    raised = [a for a in snap.alarm_events if a.key == "monitor:conveyor"]
+    assert [a.event for a in raised] == ["raised"]
+    ctl.run_for(2 * S)  # the late task ended; the next one runs normally
+    ctl.command(FaultReset())
+    snap = ctl.scan_once()
+    assert not any(e.key == "monitor:conveyor" for e in snap.explanations)
+    assert not any(a.key == "monitor:conveyor" and a.active for a in snap.alarms)
+
+
+def test_project_texts_replace_a_monitor_explanation(tmp_path):
+    import shutil
+    folder = tmp_path / "cell"
+    shutil.copytree(CELL, folder)
+    with (folder / "monitors.yaml").open("a") as f:
+        f.write('explanations:\n  monitors:\n    conveyor:\n'
+                '      what: "{task} late: x={x}, y={y}, gamma={gamma} ({label})"\n'
+                '      severity: high\n')
+    ctl = make_controller(folder, inject=["C1.stop@1s+2s"])
+    ctl.run_for(3 * S)
+    e = next(e for e in ctl.engine.last.explanations if e.key == "monitor:conveyor")
+    assert e.what == ("Conveyor C1 carrying a pallet from the pusher to B late: x=3.000, "
+                      "y=1.000, gamma=5s (conveyor_fault)")
+    assert e.severity == "high"
+
+
+def test_explanations_for_an_unknown_monitor_are_a_load_error(tmp_path, capsys):
+    import shutil
+    folder = tmp_path / "cell"
+    shutil.copytree(CELL, folder)
+    with (folder / "monitors.yaml").open("a") as f:
+        f.write("explanations:\n  monitors:\n    belt: {what: x}\n")
+    assert main(["check", str(folder)]) == 2
+    err = capsys.readouterr().err
+    assert "monitors.yaml:" in err and "explanations for unknown monitor 'belt'" in err

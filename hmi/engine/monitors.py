@@ -21,6 +21,7 @@ from collections import deque
 from typing import TYPE_CHECKING, NamedTuple
 
 from hmi.engine.stopwatch import FAULTY, Detection, TaskAutomaton, WatchdogTrip, Window
+from hmi.explain.monitors import monitor_explanations
 from hmi.logic.expr import BoolFn, compile_bool, max_depth
 from hmi.project.monitors import TaskMonitor, monitors_of
 from hmi.timefmt import format_duration, seconds
@@ -147,6 +148,9 @@ def install_monitors(engine: Engine) -> MonitorStage | None:
     stage = MonitorStage(engine, specs)
     engine.stages_after_output.append(stage)
     engine.reset_hooks.append(stage.reset)
+    explainer = getattr(engine, "explainer", None)
+    if explainer is not None:
+        explainer.extra_builders.append(monitor_explanations)
     return stage
 
 

@@ -55,7 +55,7 @@ PROJECT_FILE = "project.yaml"
 TOP_KEYS = {
     "name", "description", "scan_period", "include", "inputs", "outputs", "memories",
     "timers", "observers", "control", "constraints", "policy", "solver", "plant",
-    "monitors", "scenarios",
+    "explanations", "monitors", "scenarios",
 }
 
 NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
@@ -263,6 +263,14 @@ class ProjectLoader:
         self._check_addresses(inputs, outputs)
         monitors = parse_monitors(self, period)  # stopwatch monitors: hmi/project/monitors.py
         scenarios = parse_scenarios(self, plant)
+        texts = None
+        if "explanations" in s:
+            from hmi.project.explanations import parse_explanations
+            texts = parse_explanations(
+                s["explanations"], self.guard,
+                {"constraints": {c.name for c in constraints},
+                 "monitors": {m.name for m in monitors}},
+                self.diag.error)
         self.diag.raise_if_errors()
         project = Project(
             name=name, description=description, path=self.folder, scan_period_us=period,
@@ -270,8 +278,8 @@ class ProjectLoader:
             timers=tuple(timers), observers=tuple(observers), controls=controls,
             default_control=default_control, constraints=tuple(constraints), policy=policy,
             plant=plant, pos=pos, files=tuple(self.files), solver=solver,
-            extra={"warnings": tuple(self.diag.warnings), "monitors": monitors,
-                   "scenarios": scenarios},
+            extra={"warnings": tuple(self.diag.warnings), "explanations": texts,
+                   "monitors": monitors, "scenarios": scenarios},
         )
         return project
 
