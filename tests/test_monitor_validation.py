@@ -125,3 +125,22 @@ def test_durations_off_the_scan_grid_are_a_warning(tmp_path):
     warnings = [str(w) for w in load_project(folder).extra["warnings"]]
     assert any("5.005s in monitor 'job' is not a multiple of the scan period" in w
                for w in warnings)
+
+
+def test_a_monitor_reading_deep_history_gets_it(tmp_path):
+    # prev(a, 5) needs five past images; the engine's history grows to fit the monitors.
+    from tests.conftest import make_controller
+    folder = tmp_path / "p"
+    folder.mkdir()
+    (folder / "project.yaml").write_text(project_text() + GOOD.lstrip("\n").replace(
+        "start: rise(Y)", "start: prev(Y, 5) and not prev(Y, 6)"))
+    ctl = make_controller(folder)
+    assert ctl.engine.history.maxlen >= 6
+    ctl.run_for(3_000_000)
+    (m,) = ctl.engine.last.monitors
+    # Y is written from the first scan (t = 0): five scans later is the 50 ms scan.
+    assert m.attempt >= 1 and ctl.engine.last.error is None
+    first = make_controller(folder)
+    starts = []
+    first.run_for(200_000, lambda s: starts.append(s.time_us) if s.monitors[0].attempt else None)
+    assert starts[0] == 50_000

@@ -64,14 +64,6 @@ class MonitorState(NamedTuple):
     def labels(self) -> tuple[str, ...]:
         return (self.label,) if self.faulty else ()
 
-    def what(self) -> str:
-        """One line for the operator."""
-        if self.detection is None:
-            return f"{self.title}: {self.location}"
-        d = self.detection
-        return (f"{self.label}: {self.title} - {d.reason} (x = {seconds(d.x_us)} s, "
-                f"y = {seconds(d.y_us)} s at {seconds(d.time_us)} s)")
-
 
 class MonitorStage:
     """The engine's stopwatch monitors: compiled conditions and one automaton per task."""

@@ -42,6 +42,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import Enum
 
+from hmi.timefmt import seconds as _s
+
 
 class Phase(Enum):
     """What the task is doing, as observed (independent of any latched fault)."""
@@ -107,10 +109,6 @@ class Detection:
         if self.rule == "late_end":
             return f"ended at x = {_s(x)} s, not before gamma = {_s(g)} s"
         return f"ended after y = {_s(y)} s of work, less than alpha = {_s(a)} s (too fast)"
-
-
-def _s(us: int) -> str:
-    return f"{us // 1_000_000}.{(us % 1_000_000) // 1_000:03d}"
 
 
 @dataclass(frozen=True)
