@@ -3,7 +3,7 @@
     plchmi PROJECT                 open the operator HMI (Textual)
     plchmi check PROJECT           load, validate and summarise a project
     plchmi run PROJECT --for 60s   headless run in virtual time
-    plchmi bench SECTION           measurements (ui: scan jitter and UI refresh rate)
+    plchmi sweep PROJECT           stopwatch monitor vs watchdog over interruptions
 
 Exit status: 0 success, 2 bad input (a project error, a bad argument), 1 a failure at run
 time. Errors about a project name the file, line and column; there is never a traceback for
@@ -22,7 +22,7 @@ from hmi.errors import ProjectError, UsageError
 from hmi.timefmt import DURATION_HINT, format_duration, parse_duration, seconds
 
 MAX_ERRORS_SHOWN = 25
-SUBCOMMANDS = ("check", "run", "ui", "bench")
+SUBCOMMANDS = ("check", "run", "sweep", "ui", "bench", "journal")
 
 
 def _duration(text: str) -> int:
@@ -50,6 +50,8 @@ def _parser() -> argparse.ArgumentParser:
                        help="control law variant to run (default: the project's first)")
         p.add_argument("--policy", choices=("monitor", "block", "correct"),
                        help="safety filter policy (default: the project's)")
+        p.add_argument("--solver", choices=("exact", "paper"),
+                       help="corrector search strategy (default: the project's, else exact)")
 
     p = sub.add_parser("check", help="load and validate a project, print a summary")
     project_arg(p)
@@ -57,23 +59,42 @@ def _parser() -> argparse.ArgumentParser:
     p = sub.add_parser("run", help="run headless in virtual time")
     project_arg(p)
     engine_args(p)
-    p.add_argument("--for", dest="duration", type=_duration, required=True, metavar="TIME",
-                   help="virtual time to run, e.g. 60s")
+    p.add_argument("--for", dest="duration", type=_duration, metavar="TIME",
+                   help="virtual time to run, e.g. 60s (default: the scenario's)")
+    p.add_argument("--scenario", metavar="NAME",
+                   help="inject the faults of a scenario the project declares")
     p.add_argument("--period", type=_duration, metavar="TIME",
                    help="scan period (default: the project's)")
     p.add_argument("--inject", action="append", default=[], metavar="FAULT@TIME",
                    help="inject a fault into the simulated plant, e.g. F5@12s (repeatable)")
     p.add_argument("--trace", type=Path, metavar="FILE",
                    help="write every scan to FILE (.csv, or .jsonl for JSON Lines)")
+    p.add_argument("--explain", action="store_true",
+                   help="print the four levels of every alarm's explanation")
+    p.add_argument("--journal", type=Path, metavar="FILE",
+                   help="journal file (default: the user's data folder, see plchmi journal)")
+
+    p = sub.add_parser("journal", help="print or export a project's operator journal")
+    project_arg(p)
+    p.add_argument("--since", metavar="WHEN",
+                   help="only entries since WHEN: an ISO date/time, or a duration ago (2h)")
+    p.add_argument("--csv", action="store_true", help="export as CSV")
+    p.add_argument("--path", type=Path, metavar="FILE", help="journal file to read")
+
+    from hmi.sweep import add_sweep_parser
+    add_sweep_parser(sub, project_arg)
+
+    p = sub.add_parser("bench", help="measure and print performance figures (never fails)")
+    p.add_argument("sections", nargs="*", metavar="SECTION",
+                   help="sections to run (default: all): " + ", ".join(_bench_sections()))
+    p.add_argument("--quick", action="store_true", help="fewer samples, for a fast look")
+    p.add_argument("--seed", type=int, default=1, help="random seed for generated problems")
 
     p = sub.add_parser("ui", help="open the operator HMI (the default command)")
     project_arg(p)
     engine_args(p)
     p.add_argument("--inject", action="append", default=[], metavar="FAULT@TIME",
                    help="schedule a fault in the simulated plant")
-
-    from hmi import bench
-    bench.add_parser(sub)
     return parser
 
 
@@ -91,11 +112,15 @@ def main(argv: Sequence[str] | None = None) -> int:
             return cmd_check(args)
         if args.command == "run":
             return cmd_run(args)
+        if args.command == "sweep":
+            from hmi.sweep import cmd_sweep
+            return cmd_sweep(args, load(args.project))
         if args.command == "ui":
             return cmd_ui(args)
         if args.command == "bench":
-            from hmi import bench
-            return bench.run(args)
+            return cmd_bench(args)
+        if args.command == "journal":
+            return cmd_journal(args)
     except ProjectError as exc:
         print_project_error(exc)
         return 2
@@ -125,13 +150,15 @@ def load(path: str):
 
 
 def cmd_check(args: argparse.Namespace) -> int:
+    from hmi.engine.filter_analysis import analyse
     from hmi.report import check_report
     project = load(args.project)
-    print(check_report(project))
+    filter_lines = analyse(project).lines(len(project.outputs))
+    print(check_report(project, [filter_lines]))
     return 0
 
 
-def make_engine(project, args: argparse.Namespace):
+def make_engine(project, args: argparse.Namespace, extra_injections=()):
     """The engine for a command's --control/--policy/--inject options, on a simulated plant."""
     from hmi.engine.scan import Engine
     from hmi.plant.sim import SimPlant, parse_injection
@@ -140,12 +167,14 @@ def make_engine(project, args: argparse.Namespace):
         raise UsageError(f"--control {args.control!r}: the project has "
                          + ", ".join(project.controls))
     plant = SimPlant(project)
-    injections = [parse_injection(text) for text in getattr(args, "inject", [])]
+    injections = [*extra_injections,
+                  *(parse_injection(text) for text in getattr(args, "inject", []))]
     for injection in injections:
         plant.resolve(injection)
     for injection in injections:
         plant.inject(injection)
-    engine = Engine(project, plant, control=args.control, policy=args.policy)
+    engine = Engine(project, plant, control=args.control, policy=args.policy,
+                    solver=args.solver)
     return engine, injections
 
 
@@ -155,7 +184,14 @@ def cmd_run(args: argparse.Namespace) -> int:
     from hmi.report import run_summary
 
     project = load(args.project)
-    engine, injections = make_engine(project, args)
+    scenario = None
+    if args.scenario:
+        from hmi.project.scenarios import find_scenario
+        scenario = find_scenario(project, args.scenario)
+    duration = args.duration or (scenario.duration_us if scenario else None)
+    if duration is None:
+        raise UsageError("--for TIME is required (or a --scenario that sets its length)")
+    engine, injections = make_engine(project, args, scenario.injections if scenario else ())
     controller = Controller(engine, args.period)
     writer = None
     if args.trace:
@@ -164,20 +200,112 @@ def cmd_run(args: argparse.Namespace) -> int:
         except OSError as exc:
             raise UsageError(f"--trace {args.trace}: {exc.strerror}") from None
     collector = RunCollector()
+    recorder = open_journal(controller, args.journal, "run")
+    from hmi.engine.runner import settle_memory
+    settle_memory()
     started = time.perf_counter()
     try:
         def on_scan(snap):
             collector.add(snap)
             if writer:
                 writer.write(snap)
-        last = controller.run_for(args.duration, on_scan)
+        last = controller.run_for(duration, on_scan)
     finally:
         if writer:
             writer.close()
+        recorder.close()
     wall = time.perf_counter() - started
+    if scenario:
+        print(f"Scenario {scenario.name}: {scenario.description}")
     print(run_summary(engine, last, collector, injections, wall,
                       trace=(args.trace, writer.count) if writer else None))
+    print(alarm_summary(collector, args.explain))
+    print(f"Journal: {recorder.journal.path}")
     return 0
+
+
+def open_journal(controller, path: Path | None, source: str):
+    from hmi.explain.journal import Journal, default_path
+    from hmi.explain.recorder import JournalRecorder
+    target = path or default_path(controller.engine.project.name)
+    try:
+        return JournalRecorder(controller, Journal(target), source)
+    except OSError as exc:
+        raise UsageError(f"cannot open the journal {target}: {exc.strerror}") from None
+
+
+def alarm_summary(collector: RunCollector, explain: bool) -> str:
+    from hmi.timefmt import seconds as secs
+    if not collector.alarm_events:
+        return "Alarms: none"
+    raised = [e for e in collector.alarm_events if e.event in ("raised", "returned")]
+    lines = [f"Alarms: {len(raised)} raised or returned, "
+             f"{sum(1 for e in collector.alarm_events if e.event == 'chattering')} chattering"]
+    shown = 0
+    for event in collector.alarm_events:
+        if event.event not in ("raised", "chattering") or shown >= 20:
+            continue
+        shown += 1
+        what = "CHATTERING " if event.event == "chattering" else ""
+        lines.append(f"  {secs(event.time_us)} s  [{event.severity}] {what}{event.text}")
+    if explain:
+        for key, explanation in collector.explanations.items():
+            lines.append("")
+            lines.append(f"Explanation of {key} (as last shown, since "
+                         f"{secs(explanation.since_us)} s):")
+            lines.append(explanation.render(4))
+            if explanation.recommended:
+                lines.append(f"  Recommended: {explanation.recommended.label}")
+    return "\n".join(lines)
+
+
+def cmd_journal(args: argparse.Namespace) -> int:
+    import csv
+    from datetime import UTC, datetime
+
+    from hmi.explain.journal import JournalError, default_path, read, since_filter
+    from hmi.project.loader import load_project
+    path = args.path or default_path(load_project(args.project).name)
+    since = None
+    if args.since:
+        try:
+            since = datetime.now(UTC) - timedelta_of(args.since)
+        except ValueError:
+            try:
+                since = datetime.fromisoformat(args.since)
+            except ValueError:
+                raise UsageError(f"--since {args.since!r}: expected an ISO date/time "
+                                 "(2026-11-22T15:00) or a duration ago (30m, 2h)") from None
+            if since.tzinfo is None:
+                since = since.astimezone(UTC)
+    try:
+        result = read(path)
+    except JournalError as exc:
+        print(f"plchmi: {exc}", file=sys.stderr)
+        return 1
+    entries = list(since_filter(result.entries, since))
+    columns = ("wall", "scan", "t", "type", "event", "key", "severity", "text", "message")
+    if args.csv:
+        writer = csv.writer(sys.stdout, lineterminator="\n")
+        writer.writerow(columns)
+        for entry in entries:
+            writer.writerow([entry.get(c, "") for c in columns])
+    else:
+        for entry in entries:
+            text = entry.get("text") or entry.get("message") or entry.get("project", "")
+            key = f" {entry['key']}" if entry.get("key") else ""
+            print(f"{entry.get('wall', '')}  scan {entry.get('scan', ''):>6}  "
+                  f"t={entry.get('t', '')}  {entry.get('type', ''):<7} "
+                  f"{entry.get('event', '')}{key}: {text}")
+    if result.truncated:
+        print(f"plchmi: the last entry of {path} was cut short (the process was killed while "
+              "writing it); it is ignored", file=sys.stderr)
+    return 0
+
+
+def timedelta_of(text: str):
+    from datetime import timedelta
+    return timedelta(microseconds=parse_duration(text))
 
 
 class RunCollector:
@@ -187,21 +315,34 @@ class RunCollector:
         self.scans = 0
         self.violations: dict[str, int] = {}
         self.corrections = 0
+        self.safe_scans = 0
         self.unsafe_written = 0
         self.fallbacks = 0
         self.first_latch: tuple[int, int, str] | None = None
         self.events = []
         self.step_changes = 0
         self.max_distance = 0
+        from hmi.monitor_report import MonitorLog
+        self.monitors = MonitorLog()
+        self.alarm_events = []
+        self.explanations = {}
 
     def add(self, snap) -> None:
         self.scans += 1
+        self.monitors.add(snap)
         self.events.extend(snap.plant_events)
+        if snap.alarm_events:
+            self.alarm_events.extend(snap.alarm_events)
+        for explanation in snap.explanations:
+            if explanation.alarm:
+                self.explanations[explanation.key] = explanation
         report = snap.filter
         if report is not None:
             for name in report.violated_names:
                 self.violations[name] = self.violations.get(name, 0) + 1
-            if report.changes:
+            if report.safe_state:
+                self.safe_scans += 1
+            elif report.changes:
                 self.corrections += 1
             if report.unsafe_written:
                 self.unsafe_written += 1
@@ -211,6 +352,27 @@ class RunCollector:
         if snap.latched and self.first_latch is None:
             reason = snap.latched[0]
             self.first_latch = (reason.scan, reason.time_us, reason.detail)
+
+
+def _bench_sections() -> list[str]:
+    from hmi.bench import sections
+    return list(sections())
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    from hmi.bench import sections
+    available = sections()
+    chosen = args.sections or list(available)
+    unknown = [s for s in chosen if s not in available]
+    if unknown:
+        raise UsageError(f"unknown bench section {', '.join(unknown)}; sections: "
+                         + ", ".join(available))
+    for index, name in enumerate(chosen):
+        if index:
+            print()
+        print(f"== bench {name}: {available[name].HELP}", flush=True)
+        available[name].run(args)
+    return 0
 
 
 def cmd_ui(args: argparse.Namespace) -> int:

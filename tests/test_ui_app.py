@@ -583,3 +583,71 @@ async def test_wait_helpers_are_bounded():
             await wait_until(pilot, lambda: False, "never", timeout=0.05)
         with pytest.raises(WaitTimeout):
             await run_until(pilot, lambda s: False, 0.1, "never")
+
+
+# -- the safety filter's report ------------------------------------------------------------
+
+
+def _changed(snap) -> bool:
+    return snap.filter is not None and bool(snap.filter.changes)
+
+
+async def test_filter_changes_are_shown_with_their_constraint():
+    app = make_app(control="faulty")
+    async with app.run_test(size=(120, 36)) as pilot:
+        await run_until(pilot, _changed, 10, "a filter correction")
+        snap = engine(app).last
+        change = snap.filter.changes[0]
+        io = region_text(app, "#io")
+        row = next(line for line in io.splitlines() if f"│ {change.output} " in line)
+        assert "≠ filter" in row and change.by[0] in row
+        constraints = region_text(app, "#constraints")
+        for name in snap.filter.violated_names:
+            line = next(line for line in constraints.splitlines() if f" {name} " in line)
+            assert "▲ corrected" in line
+        assert "violated" in region_text(app, "#status")
+        chrono = region_text(app, "#chronogram")
+        assert any(line.strip("│ ").startswith(f"{change.output}") and "≠" in line
+                   for line in chrono.splitlines())
+        # later, the history stays: counted, with its last time
+        await run_until(pilot, lambda s: s.filter is not None and not s.filter.violations, 10,
+                        "a scan without violation")
+        constraints = region_text(app, "#constraints")
+        assert f"{change.by[0]} · ×" in constraints and "last" in constraints
+
+
+async def test_manual_request_refused_by_the_filter_names_the_constraint():
+    app = make_app()
+    async with app.run_test(size=(120, 36)) as pilot:
+        await run_until(pilot, lambda s: "X2" in s.active_steps, 10, "the valve open")
+        await enter_manual(pilot)
+        await select_row(pilot, "O")
+        await pilot.press("1")  # open order on an open valve: CSs2
+        await run_for(pilot, 0.05)
+        message = app.message.plain
+        assert "NOT AS REQUESTED" in message and "written 0" in message
+        assert "CSs2" in message
+        assert engine(app).last.output_map["O"] is False
+        assert "≠ filter CSs2" in region_text(app, "#io")
+
+
+async def test_reset_under_safe_blocking_says_what_stays():
+    app = make_app(control="faulty", policy="block")
+    async with app.run_test(size=(120, 36)) as pilot:
+        await run_until(pilot, lambda s: bool(s.latched), 10, "safe blocking")
+        await run_until(pilot, lambda s: s.filter is not None and bool(s.filter.violations),
+                        10, "the program still violating")
+        await pilot.press("r")
+        await wait_for_screen(pilot, ConfirmDialog)
+        text = screen_text(app)
+        assert "stays" in text and "its cause is still present" in text
+        await pilot.press("n")
+        await wait_for_main(pilot)
+        await run_until(pilot, lambda s: s.filter is not None and not s.filter.violations,
+                        10, "the program no longer violating")
+        await pilot.press("r")
+        await wait_for_screen(pilot, ConfirmDialog)
+        assert "will be reset: safe-state latch (filter)" in screen_text(app)
+        await pilot.press("y")
+        await wait_for_main(pilot)
+        assert engine(app).latched == []

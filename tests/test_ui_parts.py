@@ -3,8 +3,6 @@ the reset preview, verdicts on manual requests, the fault dialog's delay."""
 
 from __future__ import annotations
 
-import dataclasses
-
 import pytest
 
 from hmi.engine.snapshot import LatchReason
@@ -15,6 +13,7 @@ from hmi.ui.frame import Frame
 from hmi.ui.recorder import ScanRecorder, Trace
 from hmi.ui.reset import PREVIEWS, ResetLine, reset_preview
 from hmi.ui.status import banner_lines, fit, status_fields
+from hmi.ui.style import MUTED
 from hmi.ui.verdict import output_changes, request_verdict
 from tests.conftest import PROJECTS, make_controller
 
@@ -76,7 +75,7 @@ def _frame(snap, **kw) -> Frame:
 def _snapshot(**changes):
     controller = make_controller(PROJECTS / "cispi_valve")
     controller.run_for(1_500_000)
-    return dataclasses.replace(controller.engine.last, **changes)
+    return controller.engine.last._replace(**changes)
 
 
 def test_status_keeps_alarms_and_mode_when_narrow():
@@ -94,11 +93,15 @@ def test_status_keeps_alarms_and_mode_when_narrow():
 def test_every_coloured_status_field_carries_a_symbol_or_word():
     snap = _snapshot(mode="manual", policy="monitor",
                      latched=(LatchReason("internal", "boom", 1, 0),))
+    coloured = 0
     for field in status_fields(_frame(snap, run="stepping"), wide=True):
-        for span in field.text.spans:
-            style = span.style
-            if getattr(style, "color", None) is not None or getattr(style, "bgcolor", None):
-                assert any(sym in field.text.plain for sym in ("▲", "✗", "◇")), field
+        styles = [span.style for span in field.text.spans] + [field.text.style]
+        styles = [s for s in styles if s != MUTED]  # grey is the normal, quiet colour
+        if any(getattr(s, "color", None) is not None or getattr(s, "bgcolor", None) is not None
+               for s in styles):
+            coloured += 1
+            assert any(sym in field.text.plain for sym in ("▲", "✗")), field
+    assert coloured == 4  # manual, monitor, safe state, stepping
 
 
 def test_banner_lines_for_manual_and_latch():
@@ -134,8 +137,8 @@ def test_reset_preview_is_extensible():
 def test_output_changes_and_request_verdict_name_the_latch():
     snap = _snapshot()
     assert output_changes(snap) == {}
-    latched = dataclasses.replace(
-        snap, fov=(False, True), outputs=(False, False),
+    latched = snap._replace(
+        fov=(False, True), outputs=(False, False),
         latched=(LatchReason("internal", "boom", 1, 0),))
     assert output_changes(latched) == {"O": "held safe: boom"}
     ok, line = request_verdict(latched, "O", True)
@@ -154,3 +157,22 @@ def test_parse_delay(text, us):
 def test_parse_delay_rejects_words():
     with pytest.raises(ValueError):
         parse_delay("soon")
+
+
+def test_recorder_counts_violation_episodes_from_every_scan():
+    controller = make_controller(PROJECTS / "cispi_valve", control="faulty")
+    recorder = ScanRecorder(controller.engine.layout)
+    violated_scans: dict[str, int] = {}
+
+    def count(snap):
+        for name in snap.filter.violated_names:
+            violated_scans[name] = violated_scans.get(name, 0) + 1
+
+    controller.scan_listeners.extend([recorder.on_scan, count])
+    controller.run_for(20_000_000)
+    stats = recorder.constraint_stats()
+    assert violated_scans and set(stats) == set(violated_scans)
+    for name, scans in violated_scans.items():
+        assert stats[name].scans == scans
+        assert 1 <= stats[name].episodes <= scans
+        assert stats[name].last_us is not None

@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import pytest
 
-from hmi.ui.scenarios import SCENARIOS, make_app
+from hmi.ui.scenarios import SCENARIOS
 
 
 @pytest.mark.parametrize("scenario", SCENARIOS, ids=lambda s: s.name)
 def test_screen(snap_compare, scenario):
-    assert snap_compare(make_app(), terminal_size=scenario.size, run_before=scenario.run)
+    assert snap_compare(scenario.make(), terminal_size=scenario.size, run_before=scenario.run)

@@ -1,30 +1,32 @@
-"""``plchmi bench SECTION``: measurements of the runtime, one section per concern.
+"""`plchmi bench [SECTION ...]`: measured figures, printed; never a pass/fail test.
 
-Each section is a module with ``HELP``, ``add_arguments(parser)`` and ``run(args) -> int``;
-add a line to :data:`SECTIONS` to add one (``plchmi bench ui`` is the HMI's).
+Each module of this package that defines SECTION (its name), HELP (one line) and
+`run(args) -> None` is a section; `plchmi bench` with no section runs them all.
 """
 
 from __future__ import annotations
 
-import argparse
-from importlib import import_module
-
-SECTIONS: dict[str, str] = {
-    "ui": "hmi.bench.ui",
-}
+import importlib
+import pkgutil
+import statistics
+from types import ModuleType
 
 
-def add_parser(sub) -> argparse.ArgumentParser:
-    """Add ``bench`` and its sections to the CLI's subparsers."""
-    parser = sub.add_parser("bench", help="measure the runtime (scan jitter, UI refresh...)")
-    sections = parser.add_subparsers(dest="section", metavar="SECTION", required=True)
-    for name, module_name in SECTIONS.items():
-        module = import_module(module_name)
-        section = sections.add_parser(name, help=module.HELP, description=module.HELP)
-        module.add_arguments(section)
-        section.set_defaults(bench_run=module.run)
-    return parser
+def sections() -> dict[str, ModuleType]:
+    found = {}
+    for info in pkgutil.iter_modules(__path__):
+        module = importlib.import_module(f"{__name__}.{info.name}")
+        if hasattr(module, "SECTION") and hasattr(module, "run"):
+            found[module.SECTION] = module
+    return dict(sorted(found.items()))
 
 
-def run(args: argparse.Namespace) -> int:
-    return args.bench_run(args)
+def percentile(values: list[float], p: float) -> float:
+    """Nearest-rank percentile (p in 0..100) of a non-empty list."""
+    ordered = sorted(values)
+    rank = max(1, min(len(ordered), round(p / 100 * len(ordered) + 0.5)))
+    return ordered[rank - 1]
+
+
+def summary(values: list[float]) -> tuple[float, float, float]:
+    return percentile(values, 50), percentile(values, 99), statistics.fmean(values)

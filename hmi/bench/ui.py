@@ -1,135 +1,116 @@
 """``plchmi bench ui``: the HMI running headless, live, against the wall clock.
 
-The scan runs in its thread at the given period while the Textual app polls, builds frames
-and renders them (headless: the terminal output is discarded, the work is not). Reported:
+The CISPI valve scans in its thread every 10 ms while the Textual app polls, builds frames
+and renders them (headless: the terminal output is discarded, the work is not). Printed:
 
 - scan jitter: how late each scan started against its schedule (p50, p99, max), and the
-  overruns (scans more than a period late, after which the runner re-anchors);
-- the UI refresh rate: frames handed to the panels per second (the app caps it at 20);
-- with ``--baseline``, the same scan loop without the UI first, to show what the UI costs.
+  overruns (scans more than a period late, after which the runner re-anchors), first for the
+  scan loop alone (the baseline), then with the UI running;
+- the UI refresh rate: frames handed to the panels per second (the app caps it at 20).
 
 All of it shares one Python process, hence one GIL: the UI cannot run in parallel with a
 scan, only between scans. The jitter with the UI on is the honest figure for that design.
+``--quick`` shortens both measurements.
 """
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import time
 from pathlib import Path
 
-from hmi.timefmt import DURATION_HINT, parse_duration
+from hmi.bench import percentile
 
-HELP = "run the HMI headless at a 10 ms scan for 30 s; print scan jitter and UI refresh rate"
-DEFAULT_PROJECT = Path("projects/cispi_valve")
+SECTION = "ui"
+HELP = "HMI headless at a 10 ms scan for 30 s (wall): scan jitter p50/p99, UI refresh rate"
 
-
-def _duration(text: str) -> int:
-    try:
-        return parse_duration(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not {DURATION_HINT}") from None
-
-
-def _size(text: str) -> tuple[int, int]:
-    try:
-        w, h = (int(part) for part in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not WIDTHxHEIGHT, e.g. 120x36") from None
-    return w, h
+PROJECT = Path(__file__).resolve().parents[2] / "projects" / "cispi_valve"
+PERIOD_US = 10_000
+UI_SECONDS, BASELINE_SECONDS = 30.0, 10.0
+QUICK_UI_SECONDS, QUICK_BASELINE_SECONDS = 5.0, 3.0
+SIZE = (120, 36)
+SETTLE_S = 0.5  # let the app finish mounting and its first layout before measuring
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("project", nargs="?", default=str(DEFAULT_PROJECT),
-                        help="project folder (default: projects/cispi_valve)")
-    parser.add_argument("--period", type=_duration, default=10_000, metavar="TIME",
-                        help="scan period (default 10ms)")
-    parser.add_argument("--for", dest="duration", type=_duration, default=30_000_000,
-                        metavar="TIME", help="wall-clock time to measure (default 30s)")
-    parser.add_argument("--size", type=_size, default=(120, 36), metavar="WxH",
-                        help="terminal size of the headless app (default 120x36)")
-    parser.add_argument("--baseline", action="store_true",
-                        help="first measure the scan loop alone, without the UI")
-
-
-def percentile(values: list[float], p: float) -> float:
-    if not values:
-        return float("nan")
-    ordered = sorted(values)
-    index = min(len(ordered) - 1, max(0, round(p / 100 * (len(ordered) - 1))))
-    return ordered[index]
-
-
-def _controller(project_path: str, period_us: int):
+def _controller(period_us: int):
     from hmi.engine.runner import Controller
     from hmi.engine.scan import Engine
     from hmi.plant.sim import SimPlant
     from hmi.project.loader import load_project
 
-    project = load_project(project_path)
+    project = load_project(PROJECT)
     return Controller(Engine(project, SimPlant(project)), period_us)
 
 
-def _jitter_line(label: str, jitter: list[float], scans: int, seconds: float,
-                 period_us: int, overruns: int) -> str:
+def jitter_line(label: str, jitter: list[float], scans: int, seconds: float,
+                period_us: int, overruns: int) -> str:
     expected = seconds * 1e6 / period_us
-    return (f"{label:<10} scans {scans} in {seconds:.1f} s ({scans / expected:.1%} of "
-            f"{expected:.0f} scheduled)  jitter p50 {percentile(jitter, 50):.0f} µs  "
-            f"p99 {percentile(jitter, 99):.0f} µs  max {max(jitter, default=0):.0f} µs  "
+    if not jitter:
+        return f"  {label:<8} no scan was measured"
+    return (f"  {label:<8} {scans} scans in {seconds:.1f} s ({scans / expected:.1%} of the "
+            f"{expected:.0f} scheduled)  jitter p50 {percentile(jitter, 50):6.0f} us  "
+            f"p99 {percentile(jitter, 99):6.0f} us  max {max(jitter):6.0f} us  "
             f"overruns {overruns}")
 
 
-def baseline(project: str, period_us: int, seconds: float) -> str:
+def baseline(seconds: float, period_us: int = PERIOD_US) -> str:
+    """The scan loop alone, paced by the wall clock: what the UI is compared with."""
     from hmi.engine.live import LiveRunner
 
-    controller = _controller(project, period_us)
+    controller = _controller(period_us)
     runner = LiveRunner(controller)
     runner.start()
+    time.sleep(SETTLE_S)
+    samples0, scans0, overruns0 = len(runner.jitter_us), controller.engine.scan, \
+        runner.overruns
+    start = time.perf_counter()
     time.sleep(seconds)  # the measurement itself: the runner paces by the wall clock
+    elapsed = time.perf_counter() - start
+    jitter = list(runner.jitter_us)[samples0:]
+    scans, overruns = controller.engine.scan - scans0, runner.overruns - overruns0
     runner.stop()
-    return _jitter_line("no UI", list(runner.jitter_us), controller.engine.scan, seconds,
-                        period_us, runner.overruns)
+    return jitter_line("no UI", jitter, scans, elapsed, period_us, overruns)
 
 
-def with_ui(project: str, period_us: int, seconds: float, size: tuple[int, int]) -> list[str]:
+def with_ui(seconds: float, period_us: int = PERIOD_US,
+            size: tuple[int, int] = SIZE) -> list[str]:
+    """The live app, headless: scans in their thread, the UI polling and rendering."""
     from hmi.ui.app import PlcHmiApp
 
-    controller = _controller(project, period_us)
+    controller = _controller(period_us)
     app = PlcHmiApp(controller, live=True)
     result: dict = {}
 
     async def measure() -> None:
         async with app.run_test(size=size):
+            await asyncio.sleep(SETTLE_S)
             runner = app.driver.runner
-            await asyncio.sleep(0.5)  # let the app finish mounting and its first layout
-            start, frames0 = time.perf_counter(), app.frames_shown
             samples0, scans0, overruns0 = (len(runner.jitter_us), controller.engine.scan,
                                            runner.overruns)
+            start, frames0 = time.perf_counter(), app.frames_shown
             await asyncio.sleep(seconds)  # the measurement: let the live app run
-            elapsed = time.perf_counter() - start
-            result.update(elapsed=elapsed, frames=app.frames_shown - frames0,
+            result.update(elapsed=time.perf_counter() - start,
+                          frames=app.frames_shown - frames0,
                           jitter=list(runner.jitter_us)[samples0:],
                           scans=controller.engine.scan - scans0,
                           overruns=runner.overruns - overruns0)
 
     asyncio.run(measure())
-    elapsed = result["elapsed"]
-    frames = result["frames"]
+    elapsed, frames = result["elapsed"], result["frames"]
     return [
-        _jitter_line("with UI", result["jitter"], result["scans"], elapsed, period_us,
-                     result["overruns"]),
-        f"{'UI':<10} {frames} frames in {elapsed:.1f} s: {frames / elapsed:.1f} frames/s "
-        f"(cap {app.refresh_hz:g}/s)",
+        jitter_line("with UI", result["jitter"], result["scans"], elapsed, period_us,
+                    result["overruns"]),
+        f"  {'UI':<8} {frames} frames in {elapsed:.1f} s: {frames / elapsed:.1f} frames/s "
+        f"(cap {app.refresh_hz:g}/s), app {size[0]}x{size[1]} headless",
     ]
 
 
-def run(args: argparse.Namespace) -> int:
-    seconds = args.duration / 1e6
-    print(f"plchmi bench ui: {args.project}, scan period {args.period / 1000:g} ms, "
-          f"{seconds:g} s wall per measurement, app {args.size[0]}x{args.size[1]} headless")
-    if args.baseline:
-        print(baseline(args.project, args.period, seconds), flush=True)
-    for line in with_ui(args.project, args.period, seconds, args.size):
-        print(line)
-    return 0
+def run(args) -> None:
+    quick = getattr(args, "quick", False)
+    base_s = QUICK_BASELINE_SECONDS if quick else BASELINE_SECONDS
+    ui_s = QUICK_UI_SECONDS if quick else UI_SECONDS
+    print(f"  {PROJECT.name}, scan period {PERIOD_US // 1000} ms; baseline {base_s:g} s, "
+          f"with the UI {ui_s:g} s (wall clock)", flush=True)
+    print(baseline(base_s), flush=True)
+    for line in with_ui(ui_s):
+        print(line, flush=True)

@@ -11,7 +11,7 @@ import threading
 import time
 from collections import deque
 
-from hmi.engine.runner import Controller
+from hmi.engine.runner import Controller, settle_memory
 
 
 class LiveRunner:
@@ -23,6 +23,7 @@ class LiveRunner:
         self._thread = threading.Thread(target=self._loop, name="plchmi-scan", daemon=True)
 
     def start(self) -> None:
+        settle_memory()
         self._thread.start()
 
     def stop(self, timeout: float = 2.0) -> None:

@@ -8,7 +8,7 @@ action into a command sent through :meth:`PlcHmiApp.send`, the single door to
 ``Controller.command`` (where the journal listens).
 
 Screen regions (see ``app.tcss``): status bar and banners on top; the body in columns —
-``#col-plant`` (I/O; the constraints panel goes under it), ``#col-logic`` (control; the
+``#col-plant`` (I/O, and the constraints under it), ``#col-logic`` (control; the
 diagnosers and monitors panel goes under it), ``#col-time`` (chronogram; the explanation
 panel goes beside it); the alarm list will dock above the simulation strip, and the message
 line and footer close the screen.
@@ -44,6 +44,7 @@ from hmi.plant.sim import Injection
 from hmi.project.model import POLICIES
 from hmi.ui.actions import ACTIONS, bindings
 from hmi.ui.chronogram import WINDOWS_US, Chronogram
+from hmi.ui.constraints_panel import ConstraintInfo, ConstraintsPanel
 from hmi.ui.dialogs import ChoiceDialog, ConfirmDialog, StepDialog
 from hmi.ui.driver import LiveDriver, VirtualDriver
 from hmi.ui.fault_dialog import FaultDialog
@@ -115,12 +116,15 @@ class PlcHmiApp(App):
         timers = [TimerInfo(t.name, t.kind, t.description) for t in project.timers]
         default_signals = tuple(s.name for s in self.recorder.signals
                                 if s.kind in ("output", "input", "timer"))
+        constraints = [ConstraintInfo(c.name, c.kind, c.expr.source, c.description)
+                       for c in project.constraints]
         yield StatusBar(id="status")
         yield BannerStrip(id="banners")
         with Vertical(id="body"):
             with Horizontal(id="top"):
                 with Vertical(id="col-plant"):
                     yield IOPanel(engine.layout, descriptions, self.free_inputs, id="io")
+                    yield ConstraintsPanel(constraints, id="constraints")
                 with Vertical(id="col-logic"):
                     yield GrafcetPanel(engine.control_name, steps, timers, id="control")
             with Horizontal(id="bottom"), Vertical(id="col-time"):
@@ -136,7 +140,8 @@ class PlcHmiApp(App):
         else:
             self.recorder.on_scan(self.controller.engine.last)
         self._views = [self.query_one(StatusBar), self.query_one(BannerStrip),
-                       self.query_one(IOPanel), self.query_one(GrafcetPanel),
+                       self.query_one(IOPanel), self.query_one(ConstraintsPanel),
+                       self.query_one(GrafcetPanel),
                        self.query_one(Chronogram), self.query_one(SimPanel)]
         self.query_one(IOPanel).focus()
         self.message.say(Text("ctrl+p: all commands", style=MUTED))
@@ -184,7 +189,8 @@ class PlcHmiApp(App):
             project=self.project.name, show_measured=self.show_measured,
             overruns=self.driver.overruns, changed=output_changes(snap),
             injected=tuple(self._injected), free_inputs=self.free_inputs,
-            damage_count=self.recorder.damage_count, mode_commanded=self._mode_commanded)
+            damage_count=self.recorder.damage_count, mode_commanded=self._mode_commanded,
+            constraints=self.recorder.constraint_stats())
         self.frame = frame
         for view in self._views:
             view.show(frame)

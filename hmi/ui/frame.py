@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 
 from hmi.engine.snapshot import Snapshot
 from hmi.plant.sim import Injection
+from hmi.ui.recorder import ConstraintStats
 
 
 @dataclass(frozen=True)
@@ -38,6 +39,7 @@ class Frame:
     # (paused: no scan has run since). Manual request keys follow it, so that an operator
     # who paused, then entered manual mode, can prepare requests before stepping.
     mode_commanded: str | None = None
+    constraints: Mapping[str, ConstraintStats] = field(default_factory=dict)  # history
 
     @property
     def simulated(self) -> bool:

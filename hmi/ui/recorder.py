@@ -8,7 +8,8 @@ That costs a few comparisons per scan, and drawing a window of the chronogram is
 proportional to the number of changes in it, not to the number of scans.
 
 It also keeps the plant's events (damage, glitches) which a snapshot carries only for the
-scan in which they happened.
+scan in which they happened, and, per safety constraint, how often and when the filter found
+it violated (a one-scan violation between two frames still counts).
 """
 
 from __future__ import annotations
@@ -55,6 +56,17 @@ def boolean_signals(layout: Layout) -> tuple[Signal, ...]:
 
 
 @dataclass(frozen=True)
+class ConstraintStats:
+    """A constraint's history: violation episodes (scans in a row), scans, last time."""
+
+    name: str
+    episodes: int = 0
+    scans: int = 0
+    since_us: int | None = None  # start of the current episode (None: not violated now)
+    last_us: int | None = None  # last scan it was violated
+
+
+@dataclass(frozen=True)
 class Trace:
     """One signal over a window: its changes, and what was known before the window."""
 
@@ -78,6 +90,8 @@ class ScanRecorder:
         self.event_count = 0
         self.damage_count = 0
         self.scans = 0
+        self._violated_now: set[str] = set()
+        self._constraints: dict[str, ConstraintStats] = {}
         self.first_us: int | None = None
         self.last_us: int | None = None
         self._lock = threading.Lock()
@@ -101,10 +115,31 @@ class ScanRecorder:
                 self.events.extend(snap.plant_events)
                 self.event_count += len(snap.plant_events)
                 self.damage_count += sum(1 for e in snap.plant_events if e.damage)
+            report = snap.filter
+            if report is not None and (report.violations or self._violated_now):
+                self._count_violations(report.violated_names, t)
             if self.first_us is None:
                 self.first_us = t
             self.last_us = t
             self.scans += 1
+
+    def _count_violations(self, names: tuple[str, ...], t: int) -> None:
+        stats = self._constraints
+        now = set(names)
+        for name in now:
+            old = stats.get(name) or ConstraintStats(name)
+            new_episode = name not in self._violated_now
+            stats[name] = ConstraintStats(
+                name, old.episodes + new_episode, old.scans + 1,
+                t if new_episode else old.since_us, t)
+        for name in self._violated_now - now:
+            old = stats[name]
+            stats[name] = ConstraintStats(name, old.episodes, old.scans, None, old.last_us)
+        self._violated_now = now
+
+    def constraint_stats(self) -> dict[str, ConstraintStats]:
+        with self._lock:
+            return dict(self._constraints)
 
     def trace(self, name: str, start_us: int, end_us: int) -> Trace:
         """The signal `name` between start and end (virtual time, inclusive of the end)."""

@@ -8,7 +8,8 @@ with wall-clock figures hidden, so it renders identically on any machine.
 from __future__ import annotations
 
 from collections.abc import Awaitable, Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 from textual.pilot import Pilot
@@ -89,12 +90,19 @@ async def fault_dialog(pilot: Pilot) -> None:
     await pilot.pause()
 
 
+async def faulty_program(pilot: Pilot) -> None:
+    """The deliberately faulty program: it holds orders against the end stops and orders
+    open and close together; the filter is at work (correct or block, by the app's policy)."""
+    await run_for(pilot, 8.7)
+
+
 @dataclass(frozen=True)
 class Scenario:
     name: str
     size: tuple[int, int]
     run: Callable[[Pilot], Awaitable[None]]
     description: str
+    make: Callable[[], PlcHmiApp] = field(default=make_app)
 
 
 SCENARIOS: tuple[Scenario, ...] = (
@@ -106,4 +114,10 @@ SCENARIOS: tuple[Scenario, ...] = (
              "SIMULATION: F13 injected, the valve blocked between its end switches"),
     Scenario("fault_dialog", (100, 30), fault_dialog,
              "SIMULATION: the fault injection dialog"),
+    Scenario("filter_corrects", (120, 36), faulty_program,
+             "The faulty program, corrected by the filter (policy correct)",
+             partial(make_app, control="faulty")),
+    Scenario("safe_blocking", (100, 30), faulty_program,
+             "The faulty program under safe blocking: outputs latched safe",
+             partial(make_app, control="faulty", policy="block")),
 )

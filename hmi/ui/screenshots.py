@@ -14,13 +14,13 @@ from pathlib import Path
 
 from textual.pilot import Pilot
 
-from hmi.ui.scenarios import SCENARIOS, Scenario, make_app
+from hmi.ui.scenarios import SCENARIOS, Scenario
 
 DEFAULT_OUT = Path(__file__).resolve().parents[2] / "screenshots"
 
 
 def shoot(scenario: Scenario, out: Path) -> Path:
-    app = make_app()
+    app = scenario.make()
     path = out / f"{scenario.name}.svg"
 
     async def auto_pilot(pilot: Pilot) -> None:

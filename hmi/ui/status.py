@@ -50,6 +50,14 @@ def status_fields(frame: Frame, wide: bool, compact: bool = False) -> list[Field
         fields.append(Field(tag(f"{filter_word}monitor", Level.ATTENTION), 1))
     else:
         fields.append(Field(Text(f"{filter_word}{snap.policy}"), 3))
+    report = snap.filter
+    if report is not None and report.violations:
+        count = len(report.violations)
+        unsafe = report.unsafe_written or report.safe_state
+        word = "violated" if compact else ("constraint violated" if count == 1
+                                           else "constraints violated")
+        fields.append(Field(tag(f"{count} {word}", Level.ALARM if unsafe else Level.ATTENTION),
+                            1))
     if snap.latched:
         fields.append(Field(tag("SAFE STATE", Level.ALARM), 0))
     if snap.error:

@@ -54,9 +54,13 @@ OK_SYMBOL = "✓"
 
 
 def tag(word: str, level: Level) -> Text:
-    """A word with its level's symbol and colour: never colour alone."""
+    """A word with its level's symbol and colour: never colour alone.
+
+    The style is a span, not the Text's base style, so that text appended after the tag
+    (a reason, a detail) stays in the quiet default colour.
+    """
     symbol = SYMBOL[level]
-    return Text(f"{symbol} {word}" if symbol else word, style=STYLE[level])
+    return Text.assemble((f"{symbol} {word}" if symbol else word, STYLE[level]))
 
 
 def banner(word: str, level: Level) -> Text:

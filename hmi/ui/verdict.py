@@ -1,49 +1,54 @@
 """Why a written output differs from what was asked: the functional value or a manual request.
 
-The operator must see at once when an order was not written as asked, and why. Today two
-things can change an output between the control law (or the operator's request) and the
-plant: the safe-state latch (every output to its safe value until a fault reset) and the
-safety filter's report, when the filter stage fills one in. Later features (masked
-actuators) add their reasons here rather than in the widgets.
+The operator must see at once when an order was not written as asked, and why. Three things
+can change an output between the control law (or the operator's request) and the plant: the
+safety filter (its report names the constraints behind each change), the safe-state latch
+(every output to its safe value until a fault reset), and a masked actuator. (A device the
+operator stopped is held safe before the filter: its FOV already shows it.) The
+widgets ask here rather than reading the report themselves, so the wording is the same on
+the I/O table, the chronogram and the message line.
 """
 
 from __future__ import annotations
 
 from hmi.engine.snapshot import Snapshot
 
+HOW_WORDS = {
+    "F0": "forced 0",
+    "F1": "forced 1",
+    "combined": "combined repair",
+    "safe state": "safe state",
+}
 
-def _filter_changes(snap: Snapshot) -> dict[str, str]:
-    """Outputs the filter changed, with the constraint that changed each (if reported)."""
+
+def filter_changes(snap: Snapshot) -> dict[str, str]:
+    """Outputs the filter changed this scan -> "filter CSs2, CSs6 (forced 0)"."""
     report = snap.filter
     if report is None:
         return {}
-    changes = getattr(report, "changes", None) or ()
     out: dict[str, str] = {}
-    for change in changes:
-        name = getattr(change, "output", None) or getattr(change, "name", None)
-        if name is None and isinstance(change, tuple) and change:
-            name = change[0]
-        if name is None:
-            continue
-        by = getattr(change, "constraint", None) or getattr(change, "constraints", None)
-        if isinstance(by, tuple | list):
-            by = ", ".join(str(b) for b in by)
-        out[str(name)] = f"filter: {by}" if by else "filter"
+    for change in report.changes:
+        how = HOW_WORDS.get(change.how, change.how)
+        by = ", ".join(b for b in change.by if b != "safe state")
+        if change.how == "safe state":
+            out[change.output] = f"safe state ({report.note})" if report.note else "safe state"
+        else:
+            out[change.output] = f"filter {by} ({how})" if by else f"filter ({how})"
     return out
 
 
 def output_changes(snap: Snapshot) -> dict[str, str]:
     """Output name -> a short reason, for every output whose written value is not its FOV."""
-    reasons = _filter_changes(snap)
+    reasons = filter_changes(snap)
     out: dict[str, str] = {}
     masked = set(snap.masked)
     for name, fov, written in zip(snap.layout.outputs, snap.fov, snap.outputs, strict=True):
         if fov == written:
             continue
-        if name in reasons:
-            out[name] = reasons[name]
-        elif snap.latched:
+        if snap.latched:
             out[name] = "held safe: " + snap.latched[0].detail
+        elif name in reasons:
+            out[name] = reasons[name]
         elif name in masked:
             out[name] = "masked: actuator flagged faulty"
         else:
