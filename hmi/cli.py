@@ -95,6 +95,8 @@ def _parser() -> argparse.ArgumentParser:
     engine_args(p)
     p.add_argument("--inject", action="append", default=[], metavar="FAULT@TIME",
                    help="schedule a fault in the simulated plant")
+    p.add_argument("--journal", type=Path, metavar="FILE",
+                   help="journal file (default: the user's data folder, see plchmi journal)")
     return parser
 
 
@@ -376,10 +378,16 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def cmd_ui(args: argparse.Namespace) -> int:
+    from hmi.engine.runner import Controller
+    from hmi.ui.app import run_app
     project = load(args.project)
     engine, _ = make_engine(project, args)
-    from hmi.ui.app import run_app
-    return run_app(engine)
+    controller = Controller(engine)
+    recorder = open_journal(controller, args.journal, "hmi")
+    try:
+        return run_app(controller)
+    finally:
+        recorder.close()
 
 
 __all__ = ["format_duration", "main", "seconds"]

@@ -4,6 +4,8 @@ the reset preview, verdicts on manual requests, the fault dialog's delay."""
 from __future__ import annotations
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from hmi.engine.snapshot import LatchReason
 from hmi.plant.base import PlantStatus
@@ -176,3 +178,56 @@ def test_recorder_counts_violation_episodes_from_every_scan():
         assert stats[name].scans == scans
         assert 1 <= stats[name].episodes <= scans
         assert stats[name].last_us is not None
+
+
+def _columns_reference(trace, start, window, width, end):
+    """Column by column, the plain definition the fast drawing must agree with."""
+    out, value, k, changes = [], trace.initial, 0, trace.changes
+    for c in range(width):
+        lo = start + c * window // width
+        hi = start + (c + 1) * window // width
+        if end is not None and lo >= end:
+            out.append(UNKNOWN)
+            continue
+        before, n = value, 0
+        while k < len(changes) and changes[k][0] <= hi:
+            value, n, k = changes[k][1], n + 1, k + 1
+        if n == 0:
+            out.append(UNKNOWN if value is None else (HIGH if value else LOW))
+        elif n == 1:
+            out.append((HIGH if value else LOW) if before is None else (RISE if value else FALL))
+        else:
+            out.append(MULTI)
+    return "".join(out)
+
+
+@given(st.lists(st.integers(1, 2_000_000), max_size=40, unique=True),
+       st.sampled_from([None, False, True]), st.integers(1, 150),
+       st.integers(1, 3_000_000), st.integers(0, 3_000_000))
+def test_columns_agree_with_the_plain_definition(times, initial, width, window, end):
+    value = initial if initial is not None else False
+    changes = []
+    for t in sorted(times):
+        value = not value
+        changes.append((t, value))
+    changes = [(t, v) for t, v in changes if t <= end]
+    trace = Trace(changes[0][0] if changes else None, initial, tuple(changes))
+    assert columns(trace, 0, window, width, end) == \
+        _columns_reference(trace, 0, window, width, end)
+
+
+def test_recorder_forgets_old_history_but_keeps_the_level():
+    controller = make_controller(PROJECTS / "cispi_valve")
+    recorder = ScanRecorder(controller.engine.layout, keep_us=10_000_000)
+    controller.scan_listeners.append(recorder.on_scan)
+    controller.run_for(60_000_000)
+    kept = recorder._changes[recorder.by_name["O"]]
+    assert kept[0][0] <= 60_000_000 - 10_000_000  # the level before the kept window...
+    assert len(kept) <= 6  # ...and about 12.5 s of an 8 s cycle, not 60 s of it
+    full = ScanRecorder(controller.engine.layout)  # a fresh run, never trimmed, agrees
+    again = make_controller(PROJECTS / "cispi_valve")
+    again.scan_listeners.append(full.on_scan)
+    again.run_for(60_000_000)
+    window = (50_000_000, 60_000_000)
+    assert recorder.trace("O", *window).changes == full.trace("O", *window).changes
+    assert recorder.trace("O", *window).initial == full.trace("O", *window).initial

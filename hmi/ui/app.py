@@ -480,7 +480,9 @@ class PlcHmiApp(App):
 _ACTION_NAMES = {a.action for a in ACTIONS}
 
 
-def run_app(engine: Engine) -> int:
-    app = PlcHmiApp(Controller(engine))
+def run_app(target: Engine | Controller) -> int:
+    """Run the HMI live on an engine (or on a controller others listen to: the journal)."""
+    controller = target if isinstance(target, Controller) else Controller(target)
+    app = PlcHmiApp(controller)
     app.run()
     return 0

@@ -35,37 +35,45 @@ def columns(trace: Trace, start_us: int, window_us: int, width: int,
             end_us: int | None = None) -> str:
     """The glyphs of one signal over `width` columns covering (start, start + window].
 
-    Columns after `end_us` (the last scan: the future, while the run is younger than the
-    window) are blank.
+    Column c covers (start + c·window//width, start + (c+1)·window//width]. Columns after
+    `end_us` (the last scan: the future, while the run is younger than the window) are
+    blank. The work is proportional to the changes in the window, not to the width: runs of
+    columns without a change are drawn in one piece.
     """
+    def column_of(t: int) -> int:  # the column whose span holds time t (t > start)
+        return max(0, -(-(t - start_us) * width // window_us) - 1)
+
+    def level(value: bool | None) -> str:
+        return UNKNOWN if value is None else (HIGH if value else LOW)
+
+    limit = width
+    if end_us is not None:
+        elapsed = end_us - start_us
+        limit = min(width, max(0, -(-elapsed * width // window_us)))
     out: list[str] = []
     changes = trace.changes
     value = trace.initial
-    k = 0
-    for c in range(width):
-        lo = start_us + c * window_us // width
-        hi = start_us + (c + 1) * window_us // width
-        if end_us is not None and lo >= end_us:
-            out.append(UNKNOWN)
-            continue
-        n = 0
-        first_new = None
-        while k < len(changes) and changes[k][0] <= hi:
-            if first_new is None:
-                first_new = changes[k][1]
-            value_before = value
-            value = changes[k][1]
-            n += 1
-            k += 1
-        if n == 0:
-            out.append(UNKNOWN if value is None else (HIGH if value else LOW))
-        elif n == 1:
-            if value_before is None:  # the first sample ever: no edge to show
-                out.append(HIGH if value else LOW)
-            else:
-                out.append(RISE if value else FALL)
-        else:
+    filled = 0
+    i, n = 0, len(changes)
+    while i < n:
+        c = column_of(changes[i][0])
+        if c >= limit:
+            break
+        out.append(level(value) * (c - filled))
+        before, count = value, 0
+        while i < n and column_of(changes[i][0]) == c:
+            value = changes[i][1]
+            count += 1
+            i += 1
+        if count > 1:
             out.append(MULTI)
+        elif before is None:  # the first sample ever: no edge to show
+            out.append(level(value))
+        else:
+            out.append(RISE if value else FALL)
+        filled = c + 1
+    out.append(level(value) * (limit - filled))
+    out.append(UNKNOWN * (width - limit))
     return "".join(out)
 
 
@@ -109,11 +117,19 @@ class Chronogram(Widget):
         super().__init__(id=id)
         self.recorder = recorder
         self.frame: Frame | None = None
+        self._drawn: tuple | None = None
         self.set_reactive(Chronogram.signals, signals)
 
     def show(self, frame: Frame) -> None:
+        """Redraw only when something visible moved: a new edge, or time crossing a column
+        (one column is window/width: ~90 ms for 10 s on 110 columns, 0.5 s for 60 s)."""
         self.frame = frame
-        self.refresh()
+        width = max(1, self.content_size.width)
+        key = (frame.snapshot.time_us * width // self.window_us, self.recorder.change_count,
+               tuple(sorted(frame.changed)))
+        if key != self._drawn:
+            self._drawn = key
+            self.refresh()
 
     def watch_window_us(self) -> None:
         self.border_title = f"Chronogram · last {self.window_us // 1_000_000} s"

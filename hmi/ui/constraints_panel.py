@@ -18,10 +18,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from rich.text import Text
-from textual.widgets import Static
 
 from hmi.timefmt import seconds
 from hmi.ui.frame import Frame
+from hmi.ui.panel import TextPanel
 from hmi.ui.style import MUTED, OK_SYMBOL, Level, tag
 
 
@@ -58,9 +58,9 @@ def explanation_line(frame: Frame, info: ConstraintInfo) -> str:
     return info.description or info.expr
 
 
-class ConstraintsPanel(Static):
+class ConstraintsPanel(TextPanel):
     def __init__(self, constraints: list[ConstraintInfo], *, id: str | None = None):
-        super().__init__(id=id, markup=False)
+        super().__init__(id=id)
         self.constraints = constraints
         self.frame: Frame | None = None
         self.show_all = False  # every constraint, even never violated (when there is room)
@@ -71,7 +71,7 @@ class ConstraintsPanel(Static):
     def show(self, frame: Frame) -> None:
         self.frame = frame
         self.show_all = self.app.size.height >= 40
-        self.update(self.render_frame(frame))
+        self.show_text(self.render_frame(frame))
 
     def render_frame(self, frame: Frame) -> Text:
         text = Text(no_wrap=True, overflow="ellipsis")

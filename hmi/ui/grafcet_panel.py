@@ -11,10 +11,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from rich.text import Text
-from textual.widgets import Static
 
 from hmi.timefmt import format_duration
 from hmi.ui.frame import Frame
+from hmi.ui.panel import TextPanel
 from hmi.ui.style import MUTED
 
 BAR = 10
@@ -42,10 +42,10 @@ def timer_bar(elapsed_us: int, preset_us: int, width: int = BAR) -> str:
     return "▕" + "█" * filled + "·" * (width - filled) + "▏"
 
 
-class GrafcetPanel(Static):
+class GrafcetPanel(TextPanel):
     def __init__(self, control: str, steps: list[StepInfo], timers: list[TimerInfo], *,
                  id: str | None = None):
-        super().__init__(id=id, markup=False)
+        super().__init__(id=id)
         self.control = control
         self.steps = steps
         self.timers = timers
@@ -56,11 +56,11 @@ class GrafcetPanel(Static):
 
     def show(self, frame: Frame) -> None:
         self.frame = frame
-        self.update(self.render_frame(frame))
+        self.show_text(self.render_frame(frame))
 
     def on_resize(self) -> None:
         if self.frame is not None:
-            self.update(self.render_frame(self.frame))
+            self.show_text(self.render_frame(self.frame))
 
     def render_frame(self, frame: Frame) -> Text:
         snap = frame.snapshot

@@ -42,12 +42,14 @@ class IOPanel(DataTable):
         self.free_inputs = free_inputs
         self.frame: Frame | None = None
         self._cells: dict[tuple[str, str], object] = {}
+        self._widths: dict[str, int] = {}
         self._manual = False
 
     def on_mount(self) -> None:
         self.border_title = "I/O"
         for key, label in COLUMNS:
             self.add_column(label, key=key)
+            self._widths[key] = len(label)
         for name in self.layout_.inputs:
             self.add_row(name, "in", "", "", "", self.descriptions.get(name, ""), key=name)
         for name in self.layout_.outputs:
@@ -96,7 +98,12 @@ class IOPanel(DataTable):
         key = (row, column)
         if self._cells.get(key) != value:
             self._cells[key] = value
-            self.update_cell(row, column, value, update_width=True)
+            # Widening a column re-lays the screen out: only ask when the text is wider.
+            width = value.cell_len if isinstance(value, Text) else len(str(value))
+            wider = width > self._widths.get(column, 0)
+            if wider:
+                self._widths[column] = width
+            self.update_cell(row, column, value, update_width=wider)
 
     @property
     def selected(self) -> str | None:

@@ -8,9 +8,9 @@ whether the value written to the plant is the one requested, and if not, why.
 from __future__ import annotations
 
 from rich.text import Text
-from textual.widgets import Static
 
 from hmi.engine.commands import CommandResult
+from hmi.ui.panel import TextPanel
 from hmi.ui.style import OK_SYMBOL, Level, tag
 
 
@@ -30,12 +30,12 @@ def verdict_text(ok: bool, line: str) -> Text:
     return text
 
 
-class MessageLine(Static):
+class MessageLine(TextPanel):
     def __init__(self, *, id: str | None = None):
-        super().__init__("", id=id, markup=False)
+        super().__init__(id=id)
         self.plain = ""
 
     def say(self, text: Text | str) -> None:
         text = Text(text) if isinstance(text, str) else text
         self.plain = text.plain
-        self.update(text)
+        self.show_text(text)

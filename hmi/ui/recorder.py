@@ -24,6 +24,11 @@ from hmi.engine.snapshot import Snapshot
 from hmi.plant.device import PlantEvent
 
 FOV_SUFFIX = ".fov"
+KEEP_US = 120_000_000  # history kept: twice the chronogram's widest window
+
+
+def _time(point: tuple[int, bool]) -> int:
+    return point[0]
 
 
 @dataclass(frozen=True)
@@ -78,18 +83,22 @@ class Trace:
 class ScanRecorder:
     """Edges of every Boolean signal and the plant's events, fed from the scan thread."""
 
-    def __init__(self, layout: Layout, keep_changes: int = 20_000, keep_events: int = 500):
+    def __init__(self, layout: Layout, keep_us: int = KEEP_US, keep_events: int = 500):
         self.signals = boolean_signals(layout)
         self.by_name = {s.name: i for i, s in enumerate(self.signals)}
         self._value_slots = [(i, s.slot) for i, s in enumerate(self.signals) if s.kind != "fov"]
         self._fov_slots = [(i, s.slot) for i, s in enumerate(self.signals) if s.kind == "fov"]
         self._last: list[bool | None] = [None] * len(self.signals)
-        self._changes: list[deque[tuple[int, bool]]] = [
-            deque(maxlen=keep_changes) for _ in self.signals]
+        # Per signal, its changes in time order; trimmed to `keep_us` of history (plus the
+        # change before, which gives the level at the start of the oldest window).
+        self._changes: list[list[tuple[int, bool]]] = [[] for _ in self.signals]
+        self.keep_us = keep_us
+        self._trim_at: int | None = None
         self.events: deque[PlantEvent] = deque(maxlen=keep_events)
         self.event_count = 0
         self.damage_count = 0
         self.scans = 0
+        self.change_count = 0  # edges recorded so far: a cheap "anything new?" for drawing
         self._violated_now: set[str] = set()
         self._constraints: dict[str, ConstraintStats] = {}
         self.first_us: int | None = None
@@ -106,11 +115,13 @@ class ScanRecorder:
                 if v is not last[i]:
                     last[i] = v
                     changes[i].append((t, v))
+                    self.change_count += 1
             for i, slot in self._fov_slots:
                 v = bool(fov[slot])
                 if v is not last[i]:
                     last[i] = v
                     changes[i].append((t, v))
+                    self.change_count += 1
             if snap.plant_events:
                 self.events.extend(snap.plant_events)
                 self.event_count += len(snap.plant_events)
@@ -120,8 +131,19 @@ class ScanRecorder:
                 self._count_violations(report.violated_names, t)
             if self.first_us is None:
                 self.first_us = t
+                self._trim_at = t + self.keep_us
+            elif t >= self._trim_at:
+                self._trim(t - self.keep_us)
+                self._trim_at = t + self.keep_us // 4
             self.last_us = t
             self.scans += 1
+
+    def _trim(self, before_us: int) -> None:
+        """Forget changes older than `before_us`, keeping the last one before it."""
+        for points in self._changes:
+            cut = bisect_right(points, before_us, key=_time) - 1
+            if cut > 0:
+                del points[:cut]
 
     def _count_violations(self, names: tuple[str, ...], t: int) -> None:
         stats = self._constraints
@@ -145,14 +167,13 @@ class ScanRecorder:
         """The signal `name` between start and end (virtual time, inclusive of the end)."""
         index = self.by_name[name]
         with self._lock:
-            points = list(self._changes[index])
-        if not points:
-            return Trace(None, None, ())
-        times = [t for t, _ in points]
-        before = bisect_right(times, start_us)  # changes at or before the start
-        initial = points[before - 1][1] if before else None
-        upto = bisect_right(times, end_us)
-        return Trace(points[0][0], initial, tuple(points[before:upto]))
+            points = self._changes[index]
+            if not points:
+                return Trace(None, None, ())
+            before = bisect_right(points, start_us, key=_time)  # changes at or before start
+            initial = points[before - 1][1] if before else None
+            upto = bisect_right(points, end_us, key=_time)
+            return Trace(points[0][0], initial, tuple(points[before:upto]))
 
     def recent_events(self, count: int = 20) -> list[PlantEvent]:
         with self._lock:

@@ -8,10 +8,10 @@ operator must never mistake a simulation for the cell.
 from __future__ import annotations
 
 from rich.text import Text
-from textual.widgets import Static
 
 from hmi.timefmt import seconds
 from hmi.ui.frame import Frame
+from hmi.ui.panel import TextPanel
 from hmi.ui.recorder import ScanRecorder
 from hmi.ui.style import MUTED, Level, tag
 
@@ -53,12 +53,13 @@ def plant_text(frame: Frame, recorder: ScanRecorder | None, wide: bool) -> Text:
     return text
 
 
-class SimPanel(Static):
+class SimPanel(TextPanel):
     def __init__(self, recorder: ScanRecorder, *, id: str | None = None):
-        super().__init__(id=id, markup=False)
+        super().__init__(id=id)
         self.recorder = recorder
 
     def show(self, frame: Frame) -> None:
-        self.display = frame.simulated
+        if self.display != frame.simulated:
+            self.display = frame.simulated
         if frame.simulated:
-            self.update(plant_text(frame, self.recorder, self.app.size.width >= 120))
+            self.show_text(plant_text(frame, self.recorder, self.app.size.width >= 120))

@@ -11,10 +11,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from rich.text import Text
-from textual.widgets import Static
 
 from hmi.timefmt import seconds
 from hmi.ui.frame import Frame
+from hmi.ui.panel import TextPanel
 from hmi.ui.style import MUTED, Level, banner, tag
 
 SEPARATOR = " │ "
@@ -100,11 +100,11 @@ def fit(fields: list[Field], width: int) -> Text:
         kept.pop(worst)
 
 
-class StatusBar(Static):
+class StatusBar(TextPanel):
     """Project, plant, mode, filter policy, run state, scan number, virtual time, scan time."""
 
     def __init__(self, *, id: str | None = None):
-        super().__init__(id=id, markup=False)
+        super().__init__(id=id)
         self.frame: Frame | None = None
 
     def show(self, frame: Frame) -> None:
@@ -116,28 +116,29 @@ class StatusBar(Static):
 
     def _draw(self) -> None:
         if self.frame is None:
-            self.update("starting…")
+            self.show_text(Text("starting…"))
             return
         width = self.size.width or 80
         wide = width >= 120
         line = join(status_fields(self.frame, wide))
         if line.cell_len > width:  # short forms first, then drop the least important
             line = fit(status_fields(self.frame, wide, compact=True), width)
-        self.update(line)
+        self.show_text(line)
 
 
-class BannerStrip(Static):
+class BannerStrip(TextPanel):
     """Banners for states the operator must never forget: manual forces, safe-state latch."""
 
     def __init__(self, *, id: str | None = None):
-        super().__init__(id=id, markup=False)
+        super().__init__(id=id)
         self.display = False
 
     def show(self, frame: Frame) -> None:
         lines = banner_lines(frame)
-        self.display = bool(lines)
+        if self.display != bool(lines):
+            self.display = bool(lines)
         if lines:
-            self.update(Text("\n").join(lines))
+            self.show_text(Text("\n").join(lines))
 
 
 def banner_lines(frame: Frame) -> list[Text]:
