@@ -42,6 +42,7 @@ from hmi.engine.runner import Controller
 from hmi.engine.scan import Engine
 from hmi.plant.sim import Injection
 from hmi.project.model import POLICIES
+from hmi.timefmt import seconds
 from hmi.ui.actions import ACTIONS, bindings
 from hmi.ui.chronogram import WINDOWS_US, Chronogram
 from hmi.ui.constraints_panel import ConstraintInfo, ConstraintsPanel
@@ -330,6 +331,8 @@ class PlcHmiApp(App):
         if not lines:
             lines.append(Text("Nothing is latched: the reset will change nothing.",
                               style=MUTED))
+        lines.append(Text(f"(as of scan {snap.scan}, t = {seconds(snap.time_us)} s; the cell "
+                          "keeps running while this dialog is open)", style=MUTED))
         self.push_screen(ConfirmDialog("Fault reset?", lines, "Reset",
                                        dialog_id="reset-dialog"),
                          partial(self._confirmed, FaultReset()))
