@@ -651,3 +651,18 @@ async def test_reset_under_safe_blocking_says_what_stays():
         await pilot.press("y")
         await wait_for_main(pilot)
         assert engine(app).latched == []
+
+
+async def test_simulation_controls_are_off_for_a_real_plant():
+    app = make_app()
+    engine(app).plant.kind = "modbus"  # as a Modbus plant would say: no speed, no faults
+    async with app.run_test(size=SIZE) as pilot:
+        await pilot.press("v", "f")
+        await settle(pilot)
+        assert app.controller.state.speed == 1.0
+        assert len(app.screen_stack) == 1  # no fault dialog
+        titles = [e.title for e in app.palette_entries()]
+        assert not any("SIMULATION" in t or t.startswith("Run speed") for t in titles)
+        app.action_speed(10.0)  # even if asked directly, refused with its reason
+        assert app.controller.state.speed == 1.0
+        assert "NOT AVAILABLE" in app.message.plain and "real plant" in app.message.plain
