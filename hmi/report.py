@@ -89,13 +89,14 @@ def check_report(project: Project) -> str:
     return "\n".join(lines)
 
 
-def run_summary(engine, last, collector, injections, wall_s: float, trace=None) -> str:
+def run_summary(engine, last, collector, injections, wall_s: float, trace=None,
+                time_kind: str = "virtual") -> str:
     project = engine.project
     scans = collector.scans
     rate = scans / wall_s if wall_s > 0 else float("inf")
     lines = [
         f"Ran {project.name} (control {engine.control_name}, policy {engine.policy}) for "
-        f"{seconds(last.time_us)} s of virtual time: {scans} scans in {wall_s:.2f} s wall "
+        f"{seconds(last.time_us)} s of {time_kind} time: {scans} scans in {wall_s:.2f} s wall "
         f"({rate:,.0f} scans/s)",
     ]
     if last.plant_counters:

@@ -44,9 +44,13 @@ Listener = Callable[[Command, CommandResult, Snapshot | None], None]
 class Controller:
     """The engine plus its run state; thread-safe so a UI thread can send commands."""
 
-    def __init__(self, engine: Engine, period_us: int | None = None):
+    def __init__(self, engine: Engine, period_us: int | None = None,
+                 clock: Callable[[], int] | None = None):
         self.engine = engine
         self.period_us = period_us or engine.project.scan_period_us
+        # A real plant runs on real time: each scan's time comes from `clock` (see
+        # hmi.engine.live.WallClock) instead of advancing by one period per scan.
+        self.clock = clock
         self.state = RunState()
         self.lock = threading.RLock()
         self.listeners: list[Listener] = []
@@ -54,7 +58,9 @@ class Controller:
 
     @property
     def next_time(self) -> int:
-        return 0 if not self.engine.started else self.engine.now + self.period_us
+        if self.clock is not None:
+            return self.clock()
+        return 0 if not self.engine.scan else self.engine.now + self.period_us
 
     def command(self, command: Command) -> CommandResult:
         with self.lock:
