@@ -33,8 +33,12 @@ class ServerProcess:
         self._reader: threading.Thread | None = None
 
     def start(self, timeout: float = 30.0) -> int:
-        """Start the server; return its port once it listens (RuntimeError otherwise)."""
-        self.lines = []
+        """Start (or restart) the server; return its port once it listens.
+
+        Lines accumulate across restarts: `len(lines)` before a restart marks where the new
+        server's lines begin.
+        """
+        first = len(self.lines)
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "hmi.cli", "serve-plant", self.project, "--host", self.host,
@@ -42,7 +46,7 @@ class ServerProcess:
             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
         self._reader = threading.Thread(target=self._read, args=(self.proc,), daemon=True)
         self._reader.start()
-        line = self.wait_for(lambda s: _SERVING_RE.match(s) is not None, timeout)
+        line = self.wait_for(lambda s: _SERVING_RE.match(s) is not None, timeout, first)
         match = _SERVING_RE.match(line)
         assert match is not None
         self.port = int(match["port"])
