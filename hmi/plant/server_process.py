@@ -17,6 +17,7 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+BANNER_END = "Ctrl-C stops the server."
 _SERVING_RE = re.compile(r"^Serving .* on (?P<host>\S+):(?P<port>\d+)$")
 
 
@@ -47,6 +48,7 @@ class ServerProcess:
         self._reader = threading.Thread(target=self._read, args=(self.proc,), daemon=True)
         self._reader.start()
         line = self.wait_for(lambda s: _SERVING_RE.match(s) is not None, timeout, first)
+        self.wait_for(BANNER_END, timeout, first)  # the whole banner is in
         match = _SERVING_RE.match(line)
         assert match is not None
         self.port = int(match["port"])
