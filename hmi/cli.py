@@ -51,6 +51,8 @@ def _parser() -> argparse.ArgumentParser:
                        help="control law variant to run (default: the project's first)")
         p.add_argument("--policy", choices=("monitor", "block", "correct"),
                        help="safety filter policy (default: the project's)")
+        p.add_argument("--solver", choices=("exact", "paper"),
+                       help="corrector search strategy (default: the project's, else exact)")
 
     def plant_args(p: argparse.ArgumentParser, connect_default: str) -> None:
         p.add_argument("--plant", metavar="PLANT",
@@ -81,6 +83,12 @@ def _parser() -> argparse.ArgumentParser:
                    help="write every scan to FILE (.csv, or .jsonl for JSON Lines)")
     plant_args(p, "10s")
 
+    p = sub.add_parser("bench", help="measure and print performance figures (never fails)")
+    p.add_argument("sections", nargs="*", metavar="SECTION",
+                   help="sections to run (default: all): " + ", ".join(_bench_sections()))
+    p.add_argument("--quick", action="store_true", help="fewer samples, for a fast look")
+    p.add_argument("--seed", type=int, default=1, help="random seed for generated problems")
+
     p = sub.add_parser("ui", help="open the operator HMI (the default command)")
     project_arg(p)
     engine_args(p)
@@ -99,18 +107,7 @@ def _parser() -> argparse.ArgumentParser:
                    "mute@5s+2s), in time since the server started (repeatable)")
     p.add_argument("--delay", type=_duration, metavar="TIME",
                    help="answer every request TIME late (a slow server)")
-
-    p = sub.add_parser("bench", help="measure performance figures (never fails)")
-    p.add_argument("sections", nargs="*", metavar="SECTION",
-                   help="sections to run (default: all): " + ", ".join(_bench_sections()))
-    p.add_argument("--scans", type=int, default=2000, metavar="N",
-                   help="scans (or round trips) measured per figure (2000)")
     return parser
-
-
-def _bench_sections() -> list[str]:
-    from hmi.bench import SECTIONS
-    return list(SECTIONS)
 
 
 def _port(text: str) -> int:
@@ -144,8 +141,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.command == "serve-plant":
             return cmd_serve_plant(args)
         if args.command == "bench":
-            from hmi.bench import run_bench
-            return run_bench(args.sections, args.scans)
+            return cmd_bench(args)
     except ProjectError as exc:
         print_project_error(exc)
         return 2
@@ -178,16 +174,18 @@ def load(path: str):
 
 
 def cmd_check(args: argparse.Namespace) -> int:
+    from hmi.engine.filter_analysis import analyse
     from hmi.report import check_report
     project = load(args.project)
-    print(check_report(project))
+    sections = [analyse(project).lines(len(project.outputs))]
     if project.plant.kind == "modbus":
         from hmi.plant.modbus_client import ModbusSettings
         from hmi.plant.modbus_map import AddressMap
         settings = ModbusSettings.from_spec(project.plant)
-        print(f"\nModbus {settings.where}, requests per scan:")
-        for line in AddressMap.for_project(project, settings.read_gap).describe():
-            print(f"  {line}")
+        sections.append([f"Modbus {settings.where}: requests per scan"] + [
+            f"  {line}" for line in
+            AddressMap.for_project(project, settings.read_gap).describe()])
+    print(check_report(project, sections))
     return 0
 
 
@@ -209,7 +207,8 @@ def make_engine(project, args: argparse.Namespace):
             (args.policy or project.policy) == "monitor":
         raise UsageError("the monitor policy passes unsafe orders through to a real plant; "
                          "choose --policy block or correct, or add --allow-monitor")
-    engine = Engine(project, plant, control=args.control, policy=args.policy)
+    engine = Engine(project, plant, control=args.control, policy=args.policy,
+                    solver=args.solver)
     engine.allow_monitor_on_real_plant = allow_monitor
     return engine, injections
 
@@ -251,6 +250,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         except OSError as exc:
             raise UsageError(f"--trace {args.trace}: {exc.strerror}") from None
     collector = RunCollector()
+    from hmi.engine.runner import settle_memory
+    settle_memory()
     started = time.perf_counter()
     try:
         def on_scan(snap):
@@ -274,6 +275,7 @@ class RunCollector:
         self.scans = 0
         self.violations: dict[str, int] = {}
         self.corrections = 0
+        self.safe_scans = 0
         self.unsafe_written = 0
         self.fallbacks = 0
         self.first_latch: tuple[int, int, str] | None = None
@@ -288,7 +290,9 @@ class RunCollector:
         if report is not None:
             for name in report.violated_names:
                 self.violations[name] = self.violations.get(name, 0) + 1
-            if report.changes:
+            if report.safe_state:
+                self.safe_scans += 1
+            elif report.changes:
                 self.corrections += 1
             if report.unsafe_written:
                 self.unsafe_written += 1
@@ -365,6 +369,27 @@ def plant_report(plant, overruns: int) -> str:
                      f"ms, max {d['max_io_ms']:.2f} ms; scans slower than the period "
                      f"{d['slow_scans']}; scan overruns {overruns}")
     return "\n".join(lines)
+
+
+def _bench_sections() -> list[str]:
+    from hmi.bench import sections
+    return list(sections())
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    from hmi.bench import sections
+    available = sections()
+    chosen = args.sections or list(available)
+    unknown = [s for s in chosen if s not in available]
+    if unknown:
+        raise UsageError(f"unknown bench section {', '.join(unknown)}; sections: "
+                         + ", ".join(available))
+    for index, name in enumerate(chosen):
+        if index:
+            print()
+        print(f"== bench {name}: {available[name].HELP}", flush=True)
+        available[name].run(args)
+    return 0
 
 
 def cmd_ui(args: argparse.Namespace) -> int:

@@ -39,7 +39,7 @@ def _law_summary(law: ControlLaw) -> str:
     return "; ".join(parts)
 
 
-def check_report(project: Project) -> str:
+def check_report(project: Project, sections: list[list[str]] = ()) -> str:
     lines = [f"Project {project.name}: {project.description}".rstrip(": "),
              "  files: " + ", ".join(project.files),
              f"  scan period {format_duration(project.scan_period_us)}, "
@@ -76,7 +76,7 @@ def check_report(project: Project) -> str:
                  f"{combined} combined)")
     lines += _table([[c.name, c.kind, c.expr.source, constraint_meaning(c)]
                      for c in project.constraints])
-    for section in project.extra.get("check_sections", ()):
+    for section in (*project.extra.get("check_sections", ()), *sections):
         lines.append("")
         lines.extend(section)
     warnings = project.extra.get("warnings", ())
@@ -118,9 +118,10 @@ def run_summary(engine, last, collector, injections, wall_s: float, trace=None,
         lines.append(f"Filter: {total} constraint violations detected in "
                      f"{len(collector.violations)} constraints "
                      f"({', '.join(f'{k} x{v}' for k, v in sorted(collector.violations.items()))})")
-        lines.append(f"  scans corrected {collector.corrections}, max Hamming distance "
-                     f"{collector.max_distance}, fallbacks to the safe state "
-                     f"{collector.fallbacks}, unsafe outputs written {collector.unsafe_written}")
+        lines.append(f"  scans corrected {collector.corrections}, scans held in the safe state "
+                     f"{collector.safe_scans} (of which fallbacks {collector.fallbacks}), "
+                     f"max Hamming distance {collector.max_distance}, "
+                     f"unsafe outputs written {collector.unsafe_written}")
     if collector.first_latch:
         scan, t, detail = collector.first_latch
         lines.append(f"Outputs latched safe from scan {scan} ({seconds(t)} s): {detail}")

@@ -148,7 +148,7 @@ VALVE = str(PROJECTS / "cispi_valve")
      "--allow-monitor"),
     (["serve-plant", VALVE, "--inject", "F99@1s"], "communication faults: busy, mute"),
     (["serve-plant", VALVE, "--port", "70000"], "is not a TCP port"),
-    (["bench", "nope"], "unknown bench section 'nope'"),
+    (["bench", "nope"], "unknown bench section nope"),
 ])
 def test_bad_modbus_arguments_exit_2(args, fragment):
     proc = _cli(*args)

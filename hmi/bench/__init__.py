@@ -1,44 +1,32 @@
-"""`plchmi bench [SECTION ...]`: performance figures, measured and printed.
+"""`plchmi bench [SECTION ...]`: measured figures, printed; never a pass/fail test.
 
-A bench prints what it measured and never fails the command: a section that cannot run says
-why and the next one runs. Each section is a module here with `run(scans, out)`; other
-features add theirs to SECTIONS.
+Each module of this package that defines SECTION (its name), HELP (one line) and
+`run(args) -> None` is a section; `plchmi bench` with no section runs them all.
 """
 
 from __future__ import annotations
 
 import importlib
-from collections.abc import Sequence
-
-from hmi.errors import UsageError
-
-SECTIONS = {
-    "modbus": "hmi.bench.modbus",
-}
+import pkgutil
+import statistics
+from types import ModuleType
 
 
-def percentiles(samples: Sequence[float]) -> tuple[float, float, float]:
-    """(p50, p99, max) of samples, by rank (no interpolation)."""
-    ordered = sorted(samples)
-    n = len(ordered)
-    return ordered[n // 2], ordered[min(n - 1, int(n * 0.99))], ordered[-1]
+def sections() -> dict[str, ModuleType]:
+    found = {}
+    for info in pkgutil.iter_modules(__path__):
+        module = importlib.import_module(f"{__name__}.{info.name}")
+        if hasattr(module, "SECTION") and hasattr(module, "run"):
+            found[module.SECTION] = module
+    return dict(sorted(found.items()))
 
 
-def run_bench(sections: Sequence[str], scans: int) -> int:
-    names = list(sections) or list(SECTIONS)
-    unknown = [n for n in names if n not in SECTIONS]
-    if unknown:
-        raise UsageError(f"unknown bench section {unknown[0]!r}; sections: "
-                         + ", ".join(SECTIONS))
-    if scans < 10:
-        raise UsageError("--scans must be at least 10")
-    for name in names:
-        try:
-            importlib.import_module(SECTIONS[name]).run(scans, _out)
-        except Exception as exc:  # a bench reports; it does not fail
-            _out(f"bench {name}: could not measure: {type(exc).__name__}: {exc}")
-    return 0
+def percentile(values: list[float], p: float) -> float:
+    """Nearest-rank percentile (p in 0..100) of a non-empty list."""
+    ordered = sorted(values)
+    rank = max(1, min(len(ordered), round(p / 100 * len(ordered) + 0.5)))
+    return ordered[rank - 1]
 
 
-def _out(line: str) -> None:
-    print(line, flush=True)
+def summary(values: list[float]) -> tuple[float, float, float]:
+    return percentile(values, 50), percentile(values, 99), statistics.fmean(values)

@@ -25,6 +25,7 @@ class Layout:
     observers: tuple[str, ...]
     steps: tuple[str, ...]
     step_times: Mapping[str, int]  # step name -> slot of its activity time (us)
+    timer_presets: tuple[int, ...] = ()
     extra: Mapping[str, tuple[str, ...]] = field(default_factory=dict)  # kind -> names
 
     @classmethod
@@ -67,6 +68,7 @@ class Layout:
             timers=tuple(t.name for t in project.timers),
             observers=tuple(o.name for o in project.observers),
             steps=steps, step_times=MappingProxyType(step_times),
+            timer_presets=tuple(t.preset_us for t in project.timers),
             extra=MappingProxyType({k: tuple(v) for k, v in extra_kinds.items()}),
         )
 

@@ -12,7 +12,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 
-from hmi.engine.runner import Controller
+from hmi.engine.runner import Controller, settle_memory
 from hmi.engine.snapshot import Snapshot
 
 
@@ -25,6 +25,7 @@ class LiveRunner:
         self._thread = threading.Thread(target=self._loop, name="plchmi-scan", daemon=True)
 
     def start(self) -> None:
+        settle_memory()
         self._thread.start()
 
     def stop(self, timeout: float = 2.0) -> None:

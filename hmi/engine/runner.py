@@ -8,6 +8,7 @@ worker thread; headless runs call :meth:`Controller.run_for` in virtual time.
 
 from __future__ import annotations
 
+import gc
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -23,6 +24,15 @@ from hmi.engine.commands import (
 )
 from hmi.engine.scan import Engine
 from hmi.engine.snapshot import Snapshot
+
+
+def settle_memory() -> None:
+    """Move everything built so far (project, compiled expressions, UI) out of the garbage
+    collector's sight: the scan creates no reference cycles, and collections that re-traverse
+    those long-lived objects are what makes a scan's worst case several times its median.
+    """
+    gc.collect()
+    gc.freeze()
 
 
 @dataclass

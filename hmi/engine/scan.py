@@ -23,6 +23,7 @@ from hmi.engine.commands import (
     SetMode,
     SetPolicy,
 )
+from hmi.engine.filter import SafetyFilter
 from hmi.engine.layout import Layout
 from hmi.engine.snapshot import LatchReason, Snapshot
 from hmi.logic.control import ControlRuntime
@@ -34,7 +35,7 @@ from hmi.project.model import POLICIES, Project
 
 class Engine:
     def __init__(self, project: Project, plant: Plant, control: str | None = None,
-                 policy: str | None = None):
+                 policy: str | None = None, solver: str | None = None):
         self.project = project
         self.plant = plant
         self.control_name = control or project.default_control
@@ -83,7 +84,8 @@ class Engine:
         # what it wants shown into `self.extras` (keys are Snapshot field names).
         self.stages_after_memory: list[Callable[[Engine], None]] = []  # diagnosers, monitors
         self.output_stage: Callable[[Engine, tuple[bool, ...]], tuple[tuple[bool, ...], object]]
-        self.output_stage = _pass_through  # the safety filter
+        self.filter = SafetyFilter(project, slots, times, solver or project.solver)
+        self.output_stage = self.filter  # the safety filter
         self.snapshot_extras: list[Callable[[Engine, dict], None]] = []  # explanations...
         # Each reset hook releases what its feature latched and returns lines saying what
         # was reset (or what stays, and why).
@@ -274,25 +276,19 @@ class Engine:
         plant = self.plant
         state = getattr(plant, "state", None)
         counters = getattr(plant, "counters", None)
-        events_fn = getattr(plant, "events", None)
-        new_events: tuple = ()
-        if events_fn is not None:
-            events = events_fn()
-            seen = getattr(self, "_events_seen", 0)
-            if len(events) > seen:
-                new_events = tuple(events[seen:])
-                self._events_seen = len(events)
+        take_events = getattr(plant, "take_events", None)
+        new_events = take_events() if take_events is not None else ()
         return Snapshot(
             scan=self.scan, time_us=self.now, period_us=self.project.scan_period_us,
             layout=self.layout, values=tuple(self.image), fov=tuple(fov),
             outputs=tuple(outputs), active_steps=self.control.active_steps(self.image),
             fired=self.control.fired,
-            timers=tuple(rt.state(self.now) for rt, _, _ in self.timers),
+            timer_elapsed=tuple(rt.elapsed(self.now) for rt, _, _ in self.timers),
             control=self.control_name, mode=self.mode,
             manual=tuple(sorted(self.manual.items())), policy=self.policy,
             latched=tuple(self.latched), plant=plant.status,
-            plant_state=tuple(state().items()) if state else (),
-            plant_counters=tuple(counters().items()) if counters else (),
+            plant_state=state() if state else (),
+            plant_counters=counters() if counters else (),
             plant_events=new_events,
             filter=extras.get("filter"),
             diagnosers=extras.get("diagnosers", ()),

@@ -346,11 +346,9 @@ class ModbusPlant:
         return (ordered[len(ordered) // 2],
                 ordered[min(len(ordered) - 1, int(len(ordered) * 0.99))])
 
-    def state(self) -> dict[str, Any]:
-        return {}
-
-    def events(self) -> list:
-        return []
+    def state(self) -> tuple:
+        """No physical state: a real plant is only known through its I/O."""
+        return ()
 
     def stop(self, now_us: int, safe: Mapping[str, bool]) -> bool:
         """Leave the device as a stopping PLC does: write the safe vector in full, then close.

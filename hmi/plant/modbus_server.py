@@ -244,7 +244,7 @@ class PlantServer:
         return (f"Stopped after {seconds(self.now_us())} s: {c['requests']} requests "
                 f"({c['reads']} reads, {c['writes']} writes, {c['exceptions']} exceptions) "
                 f"from {c['clients']} connections; plant: "
-                + (", ".join(f"{k} {v}" for k, v in counters.items()) or "-")
+                + (", ".join(f"{k} {v}" for k, v in counters) or "-")
                 + f"; damage events: {len(damage) or 'none'}")
 
     # -- running ---------------------------------------------------------------------------

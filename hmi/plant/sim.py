@@ -78,6 +78,9 @@ class SimPlant:
             driven.update(var for _, var in sensors)
         self.free_inputs = {name: False for name in self.input_names if name not in driven}
         self._values = dict.fromkeys(self.input_names, False)
+        self._taken = [0] * len(self.devices)
+        models = ", ".join(f"{d.name} ({d.MODEL})" for d in self.devices) or "no devices"
+        self._status = PlantStatus("sim", f"simulated: {models}")
 
     # -- engine side -------------------------------------------------------------------------
     def read(self, now_us: int) -> Mapping[str, bool]:
@@ -96,8 +99,7 @@ class SimPlant:
 
     @property
     def status(self) -> PlantStatus:
-        models = ", ".join(f"{d.name} ({d.MODEL})" for d in self.devices) or "no devices"
-        return PlantStatus("sim", f"simulated: {models}")
+        return self._status
 
     def close(self) -> None:
         pass
@@ -132,21 +134,29 @@ class SimPlant:
         device = self.resolve(injection)
         device.inject(injection.code, injection.at_us, injection.duration_us)
 
-    def state(self) -> dict[str, Any]:
-        single = len(self.devices) == 1
-        out: dict[str, Any] = {}
-        for device in self.devices:
-            for key, value in device.state().items():
-                out[key if single else f"{device.name}.{key}"] = value
-        return out
+    def state(self) -> tuple[tuple[str, Any], ...]:
+        """Physical state as (name, value) pairs, device-prefixed when there are several."""
+        if len(self.devices) == 1:
+            return tuple(self.devices[0].state().items())
+        return tuple((f"{d.name}.{key}", value) for d in self.devices
+                     for key, value in d.state().items())
 
-    def counters(self) -> dict[str, int]:
-        single = len(self.devices) == 1
-        out: dict[str, int] = {}
-        for device in self.devices:
-            for key, value in device.counters().items():
-                out[key if single else f"{device.name}.{key}"] = value
-        return out
+    def counters(self) -> tuple[tuple[str, int], ...]:
+        if len(self.devices) == 1:
+            return tuple(self.devices[0].counters().items())
+        return tuple((f"{d.name}.{key}", value) for d in self.devices
+                     for key, value in d.counters().items())
+
+    def take_events(self) -> tuple[PlantEvent, ...]:
+        """Events recorded since the previous call (once per scan, by the engine)."""
+        new: list[PlantEvent] = []
+        for k, device in enumerate(self.devices):
+            if len(device.events) > self._taken[k]:
+                new.extend(device.events[self._taken[k]:])
+                self._taken[k] = len(device.events)
+        if len(new) > 1:
+            new.sort(key=lambda e: e.time_us)
+        return tuple(new)
 
     def events(self) -> list[PlantEvent]:
         merged = [e for d in self.devices for e in d.events]

@@ -238,9 +238,10 @@ class Valve(SimDevice):
 
     # -- reporting -------------------------------------------------------------------------
     def state(self) -> dict[str, Any]:
+        drive = self._drive()
         return {
             "position": round(100 * self.pos / self.travel, 1),
-            "motion": (self._drive() if self._can_move(self._drive()) else 0),
+            "motion": drive if self._can_move(drive) else 0,
             "jammed": self.jammed,
         }
 

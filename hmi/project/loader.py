@@ -52,7 +52,7 @@ PROJECT_FILE = "project.yaml"
 
 TOP_KEYS = {
     "name", "description", "scan_period", "include", "inputs", "outputs", "memories",
-    "timers", "observers", "control", "constraints", "policy", "plant",
+    "timers", "observers", "control", "constraints", "policy", "solver", "plant",
 }
 
 NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
@@ -252,6 +252,10 @@ class ProjectLoader:
         policy = "correct"
         if "policy" in s:
             policy = self.guard(lambda: self._choice(s["policy"], "policy", POLICIES), policy)
+        solver = "exact"
+        if "solver" in s:
+            solver = self.guard(lambda: self._choice(s["solver"], "solver", ("exact", "paper")),
+                                solver)
         plant = self._plant(pos, inputs, outputs)
         self._check_addresses(inputs, outputs)
         self.diag.raise_if_errors()
@@ -260,7 +264,7 @@ class ProjectLoader:
             inputs=tuple(inputs), outputs=tuple(outputs), memories=tuple(memories),
             timers=tuple(timers), observers=tuple(observers), controls=controls,
             default_control=default_control, constraints=tuple(constraints), policy=policy,
-            plant=plant, pos=pos, files=tuple(self.files),
+            plant=plant, pos=pos, files=tuple(self.files), solver=solver,
             extra={"warnings": tuple(self.diag.warnings)},
         )
         return project

@@ -232,6 +232,7 @@ class Project:
     plant: PlantSpec
     pos: SourcePos
     files: tuple[str, ...] = ()
+    solver: str = "exact"  # the corrector's search strategy: "exact" or "paper"
     extra: dict[str, Any] = field(default_factory=dict)  # sections added by later features
 
     @property

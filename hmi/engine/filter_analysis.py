@@ -1,0 +1,204 @@
+"""Offline checks of a constraint set, printed by `plchmi check` (004 eq. 4, §4).
+
+* Conflicts: a simple constraint `o.h0` and another `not o.h1` on the same output whose
+  contexts can hold together (004 demands h0 xor h1) — the corrector could not satisfy both.
+* Situations with no safe output vector: assignments of the uncontrollable variables Y in
+  which every output vector violates some constraint, so the filter would fall back to the
+  safe state. Searched exhaustively when Y has at most EXHAUSTIVE_VARS variables, otherwise
+  on a bounded random sample (said so in the report).
+* The worst-case Hamming distance the corrector may need, over those situations and every
+  functional vector (exhaustive for small projects), and the outputs in combined constraints.
+
+A situation is skipped as unreachable when it needs the previous outputs to violate a
+constraint that involves only outputs (like `C and O`): the filter never writes such a vector
+(and the safe state satisfies it), so `prev(C) and prev(O)` cannot both hold.
+"""
+
+from __future__ import annotations
+
+import itertools
+import random
+from dataclasses import dataclass, field
+
+from hmi.engine.solver import exact_solve
+from hmi.logic.expr import Literal
+from hmi.project.model import Project
+
+EXHAUSTIVE_VARS = 16
+SAMPLES = 20_000
+EXHAUSTIVE_FOV_OUTPUTS = 10
+
+
+@dataclass
+class FilterAnalysis:
+    variables: list[tuple[str, int]]
+    exhaustive: bool
+    situations: int = 0
+    unreachable: int = 0
+    conflicts: list[str] = field(default_factory=list)
+    no_solution: list[str] = field(default_factory=list)
+    no_solution_count: int = 0
+    worst_distance: int = 0
+    worst_example: str = ""
+    worst_exhaustive: bool = True
+    combined_outputs: list[str] = field(default_factory=list)
+
+    def lines(self, outputs: int) -> list[str]:
+        how = (f"exhaustive over {self.situations} situations of {len(self.variables)} "
+               "uncontrollable variables" if self.exhaustive else
+               f"bounded: {self.situations} random situations of {len(self.variables)} "
+               "uncontrollable variables")
+        lines = [f"Safety filter analysis ({how})"]
+        if self.unreachable:
+            lines.append(f"  {self.unreachable} situations skipped as unreachable (previous "
+                         "outputs violating an output-only constraint)")
+        if self.conflicts:
+            lines.append(f"  conflicts between simple constraints: {len(self.conflicts)}")
+            lines += [f"    {c}" for c in self.conflicts]
+        else:
+            lines.append("  conflicts between simple constraints: none")
+        if self.no_solution_count:
+            lines.append(f"  situations with no safe output vector (the filter falls back to "
+                         f"the safe state): {self.no_solution_count}, e.g.")
+            lines += [f"    {c}" for c in self.no_solution[:3]]
+        else:
+            lines.append("  situations with no safe output vector: none")
+        scope = "" if self.worst_exhaustive else " (over sampled functional vectors)"
+        lines.append(f"  worst-case Hamming distance the corrector may need: "
+                     f"{self.worst_distance}{scope}"
+                     + (f", e.g. {self.worst_example}" if self.worst_example else ""))
+        lines.append(f"  outputs in combined constraints: {len(self.combined_outputs)} of "
+                     f"{outputs}" + (f" ({', '.join(self.combined_outputs)})"
+                                     if self.combined_outputs else ""))
+        return lines
+
+
+def _lit_text(name: str, depth: int, value: bool) -> str:
+    text = name if depth == 0 else (f"prev({name})" if depth == 1 else f"prev({name}, {depth})")
+    return text if value else f"not {text}"
+
+
+def analyse(project: Project, seed: int = 0) -> FilterAnalysis:
+    outputs = [v.name for v in project.outputs]
+    index = {name: k for k, name in enumerate(outputs)}
+    safe = sum(1 << k for k, v in enumerate(project.outputs) if v.safe)
+    # Each constraint: output masks and context literals.
+    items = []
+    for c in project.constraints:
+        pos = neg = 0
+        ctx: list[Literal] = []
+        for lit in c.literals:
+            if lit.depth == 0 and lit.name in index:
+                if lit.positive:
+                    pos |= 1 << index[lit.name]
+                else:
+                    neg |= 1 << index[lit.name]
+            else:
+                ctx.append(lit)
+        items.append((c, pos, neg, tuple(ctx)))
+    variables = sorted({(lit.name, lit.depth) for _, _, _, ctx in items for lit in ctx})
+    var_index = {v: i for i, v in enumerate(variables)}
+    # Output-only constraints the safe state satisfies can be shifted to previous scans.
+    invariants = []
+    for c, pos, neg, ctx in items:
+        violated_by_safe_state = safe & pos == pos and not safe & neg
+        if not ctx and not violated_by_safe_state:
+            invariants.append((c.name, pos, neg))
+    analysis = FilterAnalysis(variables, len(variables) <= EXHAUSTIVE_VARS)
+    analysis.combined_outputs = [outputs[k] for k in range(len(outputs))
+                                 if any((p | n) >> k & 1 for c, p, n, _ in items
+                                        if c.kind == "combined")]
+    analysis.conflicts = _conflicts(items, outputs, invariants)
+
+    def reachable(assign: tuple[bool, ...]) -> bool:
+        for _, pos, neg in invariants:
+            for depth in {d for (_, d) in variables if d >= 1}:
+                hit = True
+                for k, name in enumerate(outputs):
+                    for mask, want in ((pos, True), (neg, False)):
+                        if mask >> k & 1:
+                            i = var_index.get((name, depth))
+                            if i is None or assign[i] != want:
+                                hit = False
+                if hit:
+                    return False
+        return True
+
+    if analysis.exhaustive:
+        situations = itertools.product((False, True), repeat=len(variables))
+    else:
+        rng = random.Random(seed)
+        situations = (tuple(rng.random() < 0.5 for _ in variables) for _ in range(SAMPLES))
+    fovs_exhaustive = len(outputs) <= EXHAUSTIVE_FOV_OUTPUTS
+    analysis.worst_exhaustive = fovs_exhaustive
+    rng = random.Random(seed + 1)
+    all_bits = (1 << len(outputs)) - 1
+    for assign in situations:
+        analysis.situations += 1
+        if not reachable(assign):
+            analysis.unreachable += 1
+            continue
+        active = [(c, pos, neg) for c, pos, neg, ctx in items
+                  if all(assign[var_index[(lit.name, lit.depth)]] == lit.positive
+                         for lit in ctx)]
+        f0 = f1 = 0
+        for c, pos, neg in active:
+            if c.kind == "simple":
+                if pos:
+                    f0 |= pos
+                else:
+                    f1 |= neg
+        combined = [(pos, neg) for c, pos, neg in active if c.kind == "combined"]
+        situation = ", ".join(_lit_text(n, d, assign[var_index[(n, d)]]) for n, d in variables)
+        if f0 & f1 or exact_solve(f1, combined, all_bits & ~(f0 | f1)).vector is None:
+            analysis.no_solution_count += 1
+            if len(analysis.no_solution) < 3:
+                forced = [outputs[k] for k in range(len(outputs)) if (f0 & f1) >> k & 1]
+                why = (f"{', '.join(forced)} forced both ways" if forced
+                       else "the combined constraints cannot all be satisfied")
+                analysis.no_solution.append(f"{situation}: {why}")
+            continue
+        fovs = range(1 << len(outputs)) if fovs_exhaustive else (
+            rng.getrandbits(len(outputs)) for _ in range(64))
+        for fov in fovs:
+            mem = (fov & ~f0) | f1
+            solution = exact_solve(mem, combined, all_bits & ~(f0 | f1))
+            if solution.vector is None:
+                continue
+            distance = (solution.vector ^ fov).bit_count()
+            if distance > analysis.worst_distance:
+                analysis.worst_distance = distance
+                asked = " ".join(f"{o}={fov >> k & 1}" for k, o in enumerate(outputs))
+                analysis.worst_example = f"FOV {asked} with {situation}"
+    return analysis
+
+
+def _conflicts(items, outputs, invariants) -> list[str]:
+    found = []
+    for (a, apos, _, actx), (b, _, bneg, bctx) in itertools.product(items, items):
+        if a.kind != "simple" or b.kind != "simple" or not apos or not bneg:
+            continue
+        if apos != bneg:
+            continue
+        joint: dict[tuple[str, int], bool] = {}
+        compatible = True
+        for lit in (*actx, *bctx):
+            key = (lit.name, lit.depth)
+            if joint.setdefault(key, lit.positive) != lit.positive:
+                compatible = False
+                break
+        if compatible:
+            for _, pos, neg in invariants:
+                for depth in {d for (_, d) in joint if d >= 1}:
+                    need = {(outputs[k], depth): True for k in range(len(outputs))
+                            if pos >> k & 1}
+                    need.update({(outputs[k], depth): False for k in range(len(outputs))
+                                 if neg >> k & 1})
+                    if all(joint.get(key) == value for key, value in need.items()):
+                        compatible = False
+        if compatible:
+            output = outputs[apos.bit_length() - 1]
+            when = " and ".join(_lit_text(n, d, v) for (n, d), v in joint.items()) or "always"
+            found.append(f"{a.name} forces {output} to 0 and {b.name} forces it to 1 when "
+                         f"{when}")
+    return found

@@ -1,0 +1,6 @@
+"""Where the example projects live (the repository's projects/ folder)."""
+
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+PROJECTS = REPO / "projects"
