@@ -113,6 +113,7 @@ def run_summary(engine, last, collector, injections, wall_s: float, trace=None,
             lines.append(f"  ... and {len(damage) - 10} more")
     else:
         lines.append("Damage events: none")
+    unsafe_verb = "seen (read-only)" if getattr(engine, "observe", False) else "written"
     if collector.violations or collector.corrections or collector.first_latch:
         total = sum(collector.violations.values())
         lines.append(f"Filter: {total} constraint violations detected in "
@@ -121,7 +122,7 @@ def run_summary(engine, last, collector, injections, wall_s: float, trace=None,
         lines.append(f"  scans corrected {collector.corrections}, scans held in the safe state "
                      f"{collector.safe_scans} (of which fallbacks {collector.fallbacks}), "
                      f"max Hamming distance {collector.max_distance}, "
-                     f"unsafe outputs written {collector.unsafe_written}")
+                     f"unsafe outputs {unsafe_verb} {collector.unsafe_written}")
     if collector.first_latch:
         scan, t, detail = collector.first_latch
         lines.append(f"Outputs latched safe from scan {scan} ({seconds(t)} s): {detail}")
