@@ -23,7 +23,7 @@ from hmi.errors import ProjectError, UsageError
 from hmi.timefmt import DURATION_HINT, format_duration, parse_duration, seconds
 
 MAX_ERRORS_SHOWN = 25
-SUBCOMMANDS = ("check", "run", "ui", "serve-plant", "bench")
+SUBCOMMANDS = ("check", "run", "ui", "serve-plant", "bench", "journal")
 
 
 def _duration(text: str) -> int:
@@ -82,6 +82,17 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--trace", type=Path, metavar="FILE",
                    help="write every scan to FILE (.csv, or .jsonl for JSON Lines)")
     plant_args(p, "10s")
+    p.add_argument("--explain", action="store_true",
+                   help="print the four levels of every alarm's explanation")
+    p.add_argument("--journal", type=Path, metavar="FILE",
+                   help="journal file (default: the user's data folder, see plchmi journal)")
+
+    p = sub.add_parser("journal", help="print or export a project's operator journal")
+    project_arg(p)
+    p.add_argument("--since", metavar="WHEN",
+                   help="only entries since WHEN: an ISO date/time, or a duration ago (2h)")
+    p.add_argument("--csv", action="store_true", help="export as CSV")
+    p.add_argument("--path", type=Path, metavar="FILE", help="journal file to read")
 
     p = sub.add_parser("bench", help="measure and print performance figures (never fails)")
     p.add_argument("sections", nargs="*", metavar="SECTION",
@@ -142,6 +153,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return cmd_serve_plant(args)
         if args.command == "bench":
             return cmd_bench(args)
+        if args.command == "journal":
+            return cmd_journal(args)
     except ProjectError as exc:
         print_project_error(exc)
         return 2
@@ -250,6 +263,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         except OSError as exc:
             raise UsageError(f"--trace {args.trace}: {exc.strerror}") from None
     collector = RunCollector()
+    recorder = open_journal(controller, args.journal, "run")
     from hmi.engine.runner import settle_memory
     settle_memory()
     started = time.perf_counter()
@@ -262,10 +276,97 @@ def cmd_run(args: argparse.Namespace) -> int:
     finally:
         if writer:
             writer.close()
+        recorder.close()
     wall = time.perf_counter() - started
     print(run_summary(engine, last, collector, injections, wall,
                       trace=(args.trace, writer.count) if writer else None))
+    print(alarm_summary(collector, args.explain))
+    print(f"Journal: {recorder.journal.path}")
     return 0
+
+
+def open_journal(controller, path: Path | None, source: str):
+    from hmi.explain.journal import Journal, default_path
+    from hmi.explain.recorder import JournalRecorder
+    target = path or default_path(controller.engine.project.name)
+    try:
+        return JournalRecorder(controller, Journal(target), source)
+    except OSError as exc:
+        raise UsageError(f"cannot open the journal {target}: {exc.strerror}") from None
+
+
+def alarm_summary(collector: RunCollector, explain: bool) -> str:
+    from hmi.timefmt import seconds as secs
+    if not collector.alarm_events:
+        return "Alarms: none"
+    raised = [e for e in collector.alarm_events if e.event in ("raised", "returned")]
+    lines = [f"Alarms: {len(raised)} raised or returned, "
+             f"{sum(1 for e in collector.alarm_events if e.event == 'chattering')} chattering"]
+    shown = 0
+    for event in collector.alarm_events:
+        if event.event not in ("raised", "chattering") or shown >= 20:
+            continue
+        shown += 1
+        what = "CHATTERING " if event.event == "chattering" else ""
+        lines.append(f"  {secs(event.time_us)} s  [{event.severity}] {what}{event.text}")
+    if explain:
+        for key, explanation in collector.explanations.items():
+            lines.append("")
+            lines.append(f"Explanation of {key} (as last shown, since "
+                         f"{secs(explanation.since_us)} s):")
+            lines.append(explanation.render(4))
+            if explanation.recommended:
+                lines.append(f"  Recommended: {explanation.recommended.label}")
+    return "\n".join(lines)
+
+
+def cmd_journal(args: argparse.Namespace) -> int:
+    import csv
+    from datetime import UTC, datetime
+
+    from hmi.explain.journal import JournalError, default_path, read, since_filter
+    from hmi.project.loader import load_project
+    path = args.path or default_path(load_project(args.project).name)
+    since = None
+    if args.since:
+        try:
+            since = datetime.now(UTC) - timedelta_of(args.since)
+        except ValueError:
+            try:
+                since = datetime.fromisoformat(args.since)
+            except ValueError:
+                raise UsageError(f"--since {args.since!r}: expected an ISO date/time "
+                                 "(2026-11-22T15:00) or a duration ago (30m, 2h)") from None
+            if since.tzinfo is None:
+                since = since.astimezone(UTC)
+    try:
+        result = read(path)
+    except JournalError as exc:
+        print(f"plchmi: {exc}", file=sys.stderr)
+        return 1
+    entries = list(since_filter(result.entries, since))
+    columns = ("wall", "scan", "t", "type", "event", "key", "severity", "text", "message")
+    if args.csv:
+        writer = csv.writer(sys.stdout, lineterminator="\n")
+        writer.writerow(columns)
+        for entry in entries:
+            writer.writerow([entry.get(c, "") for c in columns])
+    else:
+        for entry in entries:
+            text = entry.get("text") or entry.get("message") or entry.get("project", "")
+            key = f" {entry['key']}" if entry.get("key") else ""
+            print(f"{entry.get('wall', '')}  scan {entry.get('scan', ''):>6}  "
+                  f"t={entry.get('t', '')}  {entry.get('type', ''):<7} "
+                  f"{entry.get('event', '')}{key}: {text}")
+    if result.truncated:
+        print(f"plchmi: the last entry of {path} was cut short (the process was killed while "
+              "writing it); it is ignored", file=sys.stderr)
+    return 0
+
+
+def timedelta_of(text: str):
+    from datetime import timedelta
+    return timedelta(microseconds=parse_duration(text))
 
 
 class RunCollector:
@@ -282,10 +383,17 @@ class RunCollector:
         self.events = []
         self.step_changes = 0
         self.max_distance = 0
+        self.alarm_events = []
+        self.explanations = {}
 
     def add(self, snap) -> None:
         self.scans += 1
         self.events.extend(snap.plant_events)
+        if snap.alarm_events:
+            self.alarm_events.extend(snap.alarm_events)
+        for explanation in snap.explanations:
+            if explanation.alarm:
+                self.explanations[explanation.key] = explanation
         report = snap.filter
         if report is not None:
             for name in report.violated_names:
@@ -319,9 +427,11 @@ def run_real_time(engine, args: argparse.Namespace) -> int:
             raise UsageError(f"--trace {args.trace}: {exc.strerror}") from None
     plant = engine.plant
     collector = RunCollector()
+    controller = Controller(engine, args.period, clock=WallClock())
+    recorder = None
     try:
         connect_plant(engine, args.connect_timeout or 10_000_000)
-        controller = Controller(engine, args.period, clock=WallClock())
+        recorder = open_journal(controller, args.journal, "run")
 
         def on_scan(snap):
             collector.add(snap)
@@ -335,11 +445,15 @@ def run_real_time(engine, args: argparse.Namespace) -> int:
         if writer:
             writer.close()
         stop_plant(engine)
+        if recorder:
+            recorder.close()
     last = engine.last
     print(run_summary(engine, last, collector, [], wall,
                       trace=(args.trace, writer.count) if writer else None, time_kind="real"))
+    print(alarm_summary(collector, args.explain))
     print(report)
     print(f"Stopped: {plant.message}")
+    print(f"Journal: {recorder.journal.path}")
     return 0
 
 

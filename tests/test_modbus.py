@@ -157,6 +157,11 @@ def test_server_killed_and_restarted_mid_run(server, tmp_path):
         frozen = live.wait(lambda s: "cannot connect" in s.plant.message, "retries")
         assert frozen.is_safe_latched and frozen.outputs == (True, False)
         assert frozen.fov == (True, False) and frozen.active_steps == ("X1",)
+        # The alarm the operator sees (issue 6's explanations), with the reason.
+        alarm = next(e for e in frozen.explanations if e.kind == "plant")
+        assert "plant connection lost" in alarm.what and alarm.latched
+        assert "connection was closed" in alarm.why
+        assert any(a.key == alarm.key for a in frozen.alarms)
 
         mark = len(srv.lines)
         srv.port = port
@@ -170,7 +175,7 @@ def test_server_killed_and_restarted_mid_run(server, tmp_path):
         assert all(s.is_safe_latched and s.outputs == (True, False)
                    for s in live.snaps if back.scan <= s.scan <= settle.scan)
         result = live.controller.command(FaultReset())
-        assert result.accepted and "plant:" in result.message
+        assert result.accepted and "plant connection lost" in result.message
         resumed = live.wait(lambda s: not s.latched and s.output_map["O"], "the law to resume",
                             since=len(live.snaps))
         assert resumed.plant.connected
@@ -191,6 +196,8 @@ def test_exception_responses_are_reported_by_name(server, tmp_path):
         assert "to read discrete inputs 100" in snap.latched[0].detail
         assert snap.outputs == (False, False)
         assert snap.plant.details["exceptions"] >= 1
+        alarm = next(e for e in snap.explanations if e.kind == "plant")
+        assert "the plant answered Illegal Data Address" in alarm.what
         live.wait(lambda s: s.scan >= snap.scan + 20, "more scans")  # still scanning
 
 

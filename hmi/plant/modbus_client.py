@@ -202,7 +202,7 @@ class ModbusPlant:
 
     def _schedule_retry(self, why: str) -> None:
         self._next_attempt = time.monotonic() + self._backoff_s
-        self.message = f"{why}; retrying every {self._backoff_s:g} s"
+        self.message = f"{why}; next try in {self._backoff_s:g} s"
         self._backoff_s = min(self._backoff_s * 2, BACKOFF_MAX_S)
 
     def _lost(self, reason: str) -> PlantError:
@@ -212,10 +212,10 @@ class ModbusPlant:
         self._client = None
         self.connected = False
         self.stats["losses"] += 1
-        self._down_reason = f"connection to {self.settings.where} lost: {reason}"
+        self._down_reason = f"{self.settings.where}: {reason}"
         self._next_attempt = 0.0  # try again at the next scan, then back off
         self._backoff_s = BACKOFF_FIRST_S
-        self.message = self._down_reason
+        self.message = f"connection to {self.settings.where} lost: {reason}"
         return PlantError(self._down_reason)
 
     def _ensure_connected(self) -> ModbusTcpClient:
@@ -244,7 +244,7 @@ class ModbusPlant:
             self.last_exception = name
             detail = f"{self.settings.where} answered {name} (exception {code}) to {what}"
             self.message = detail
-            raise PlantError(detail)
+            raise PlantError(detail, lost=False)
         return response
 
     # -- the engine's side ---------------------------------------------------------------

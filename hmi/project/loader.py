@@ -53,6 +53,7 @@ PROJECT_FILE = "project.yaml"
 TOP_KEYS = {
     "name", "description", "scan_period", "include", "inputs", "outputs", "memories",
     "timers", "observers", "control", "constraints", "policy", "solver", "plant",
+    "explanations",
 }
 
 NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
@@ -258,6 +259,13 @@ class ProjectLoader:
                                 solver)
         plant = self._plant(pos, inputs, outputs)
         self._check_addresses(inputs, outputs)
+        texts = None
+        if "explanations" in s:
+            from hmi.project.explanations import parse_explanations
+            texts = parse_explanations(
+                s["explanations"], self.guard,
+                {"constraints": {c.name for c in constraints}},
+                self.diag.error)
         self.diag.raise_if_errors()
         project = Project(
             name=name, description=description, path=self.folder, scan_period_us=period,
@@ -265,7 +273,7 @@ class ProjectLoader:
             timers=tuple(timers), observers=tuple(observers), controls=controls,
             default_control=default_control, constraints=tuple(constraints), policy=policy,
             plant=plant, pos=pos, files=tuple(self.files), solver=solver,
-            extra={"warnings": tuple(self.diag.warnings)},
+            extra={"warnings": tuple(self.diag.warnings), "explanations": texts},
         )
         return project
 
