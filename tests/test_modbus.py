@@ -19,7 +19,7 @@ from collections.abc import Callable
 import pytest
 from pymodbus.client import ModbusTcpClient
 
-from hmi.engine.commands import FaultReset, SetMode
+from hmi.engine.commands import FaultReset, Pause, Resume, SetMode, StepScans
 from hmi.engine.live import LiveRunner, WallClock
 from hmi.engine.runner import Controller
 from hmi.engine.scan import Engine
@@ -179,6 +179,26 @@ def test_server_killed_and_restarted_mid_run(server, tmp_path):
         resumed = live.wait(lambda s: not s.latched and s.output_map["O"], "the law to resume",
                             since=len(live.snaps))
         assert resumed.plant.connected
+        srv.wait_for("C=0 O=1", WAIT, start=mark)
+
+
+def test_pausing_a_real_plant_holds_it_safe(server):
+    srv = server()
+    with Live(VALVE, srv.port) as live:
+        live.wait(lambda s: s.output_map["O"], "the valve opening")
+        result = live.controller.command(Pause())
+        assert "outputs written safe while paused" in result.message
+        assert read_coils(srv.port) == [False, False]
+        paused_at = live.engine.scan
+        srv.wait_for("C=0 O=0", WAIT)
+        mark = len(srv.lines)
+        assert not live.controller.command(StepScans(1)).accepted
+        deadline = time.monotonic() + 0.3
+        while time.monotonic() < deadline:  # no scan drives it while paused
+            assert read_coils(srv.port) == [False, False]
+        assert live.engine.scan == paused_at
+        assert live.controller.command(Resume()).accepted
+        live.wait(lambda s: s.output_map["O"], "the valve opening again", since=len(live.snaps))
         srv.wait_for("C=0 O=1", WAIT, start=mark)
 
 

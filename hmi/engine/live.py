@@ -56,7 +56,7 @@ class LiveRunner:
                     now = time.perf_counter()
                     lateness = now - next_wall
                 self.jitter_us.append(lateness * 1e6)
-            controller.scan_once()
+            controller.scan_if_running()
             if speed is None:
                 next_wall = time.perf_counter()
                 continue

@@ -24,6 +24,7 @@ from hmi.engine.commands import (
 )
 from hmi.engine.scan import Engine
 from hmi.engine.snapshot import Snapshot
+from hmi.plant.base import PlantError
 
 
 def settle_memory() -> None:
@@ -77,13 +78,17 @@ class Controller:
             match command:
                 case Pause():
                     self.state.running = False
-                    result = CommandResult.ok("paused")
+                    result = CommandResult.ok("paused" + self._park_real_plant())
                 case Resume():
                     self.state.running = True
                     self.state.pending_steps = 0
                     result = CommandResult.ok("running")
                 case StepScans(count=n):
-                    if n < 1:
+                    if self._real_plant_driven():
+                        result = CommandResult.refused(
+                            "stepping would drive a real plant for a scan and leave it so; "
+                            "not available on a real plant (pause holds it safe)")
+                    elif n < 1:
                         result = CommandResult.refused("step count must be at least 1")
                     else:
                         self.state.running = False
@@ -99,6 +104,30 @@ class Controller:
             for listener in self.listeners:
                 listener(command, result, self.engine.last)
             return result
+
+    def _real_plant_driven(self) -> bool:
+        engine = self.engine
+        return getattr(engine.plant, "kind", "sim") != "sim" and \
+            not getattr(engine, "observe", False)
+
+    def _park_real_plant(self) -> str:
+        """A paused PLC must not leave a real plant driven: write the safe vector once."""
+        engine = self.engine
+        plant = engine.plant
+        if not self._real_plant_driven() or not engine.started:
+            return ""
+        try:
+            plant.write(engine.now, dict(zip(engine.layout.outputs, engine.safe_vector,
+                                             strict=True)))
+        except PlantError as exc:
+            return f"; the safe outputs could not be written ({exc})"
+        return "; real plant: outputs written safe while paused"
+
+    def scan_if_running(self) -> Snapshot | None:
+        """One scan unless paused meanwhile (checked under the lock, so no scan follows a
+        pause: a paused real plant keeps the safe outputs the pause wrote)."""
+        with self.lock:
+            return self.scan_once() if self.state.running else None
 
     def scan_once(self) -> Snapshot:
         with self.lock:
