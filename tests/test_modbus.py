@@ -190,8 +190,9 @@ def test_pausing_a_real_plant_holds_it_safe(server):
         assert "outputs written safe while paused" in result.message
         assert read_coils(srv.port) == [False, False]
         paused_at = live.engine.scan
-        srv.wait_for("C=0 O=0", WAIT)
-        mark = len(srv.lines)
+        opened = srv.lines.index(srv.wait_for("C=0 O=1", WAIT))
+        parked = srv.lines.index(srv.wait_for("C=0 O=0", WAIT, start=opened + 1))
+        mark = parked + 1
         assert not live.controller.command(StepScans(1)).accepted
         deadline = time.monotonic() + 0.3
         while time.monotonic() < deadline:  # no scan drives it while paused
