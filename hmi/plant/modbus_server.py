@@ -181,6 +181,7 @@ class PlantServer:
                 changed = True
         if changed:
             self.plant.write(now, self.orders)
+            self._show(now)  # at once: a short pulse must not fall between two ticks
 
     # -- what the console shows ------------------------------------------------------------
     def banner(self, host: str, port: int) -> list[str]:
@@ -208,9 +209,8 @@ class PlantServer:
         lines.append("Ctrl-C stops the server.")
         return lines
 
-    def tick(self) -> None:
-        """Advance the physics to now and print what changed."""
-        now = self.now_us()
+    def _show(self, now: int) -> None:
+        """Print the served I/O at `now` if it changed since the last line printed."""
         values = self.plant.read(now)
         shown = tuple(values[p.name] for p in self.map.inputs) + tuple(self.orders.values())
         if shown != self._shown:
@@ -218,6 +218,11 @@ class PlantServer:
             io = " ".join(f"{p.name}={int(values[p.name])}" for p in self.map.inputs)
             orders = " ".join(f"{n}={int(v)}" for n, v in self.orders.items())
             self.out(f"{seconds(now):>10} s  {io}  |  {orders}")
+
+    def tick(self) -> None:
+        """Advance the physics to now and print what changed."""
+        now = self.now_us()
+        self._show(now)
         events = self.plant.events()
         for event in events[self._events_shown:]:
             damage = " (damage)" if event.damage else ""
