@@ -156,6 +156,7 @@ def test_server_killed_and_restarted_mid_run(server, tmp_path):
         # From then on: the safe vector, and steps held (the law does not run blind).
         frozen = live.wait(lambda s: "cannot connect" in s.plant.message, "retries")
         assert frozen.is_safe_latched and frozen.outputs == (True, False)
+        assert frozen.latched == lost.latched  # one reason per outage, not one per retry
         assert frozen.fov == (True, False) and frozen.active_steps == ("X1",)
         # The alarm the operator sees (issue 6's explanations), with the reason.
         alarm = next(e for e in frozen.explanations if e.kind == "plant")

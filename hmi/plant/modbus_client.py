@@ -173,6 +173,7 @@ class ModbusPlant:
         self.last_exception = ""
         self.io_us: deque[float] = deque(maxlen=10_000)  # wall time of each scan's I/O
         self._scan_io = 0.0
+        self._scan_ok = False
 
     # -- connection ----------------------------------------------------------------------
     def connect(self) -> bool:
@@ -192,8 +193,12 @@ class ModbusPlant:
             return True
         reason = getattr(client, "last_error", "") or "connection failed"
         client.close()
-        self._down_reason = f"cannot connect to {s.where}: {reason}"
-        self._schedule_retry(self._down_reason)
+        failed = f"cannot connect to {s.where}: {reason}"
+        if not self.ever_connected:
+            # After a loss, the loss stays the reason the engine is given (one latch reason
+            # per outage); the failed attempts show in the status message.
+            self._down_reason = failed
+        self._schedule_retry(failed)
         return False
 
     @property
@@ -253,6 +258,7 @@ class ModbusPlant:
         client = self._ensure_connected()
         unit = self.settings.unit
         values: dict[str, bool] = {}
+        self._scan_ok = False
         try:
             for rng in self.map.reads:
                 what = f"read {rng}"
@@ -273,6 +279,7 @@ class ModbusPlant:
                         g.start, count=g.count, device_id=unit))
                     self.map.decode(rng, r.registers, values)
                 self.stats["reads"] += 1
+            self._scan_ok = True
         finally:
             self._scan_io = time.perf_counter() - started
             if self.read_only:  # no write follows: the scan's I/O ends here
@@ -318,7 +325,8 @@ class ModbusPlant:
             self._last_full_us = now_us
 
     def _end_scan(self, io_s: float) -> None:
-        self.io_us.append(io_s * 1e6)
+        if self._scan_ok and self.connected:  # a round trip figure: scans that did all I/O
+            self.io_us.append(io_s * 1e6)
         if io_s * 1e6 > self.period_us:
             self.stats["slow_scans"] += 1
 
