@@ -27,7 +27,7 @@ from hmi.engine.snapshot import Snapshot
 from hmi.plant.modbus_client import ModbusPlant, ModbusSettings, wait_connected
 from hmi.plant.server_process import ServerProcess
 from hmi.project.loader import load_project
-from tests.conftest import PROJECTS, ROOT, make_controller
+from tests.conftest import PROJECTS, ROOT, make_controller, write_project
 
 VALVE = PROJECTS / "cispi_valve"
 S = 1_000_000
@@ -69,7 +69,9 @@ class Live:
 
     def __exit__(self, *exc: object) -> None:
         self.runner.stop(5)
-        self.plant.close()
+        engine = self.engine
+        self.plant.stop(engine.now, dict(zip(engine.layout.outputs, engine.safe_vector,
+                                             strict=True)))
 
     def wait(self, test: Callable[[Snapshot], bool], what: str, timeout: float = WAIT,
              since: int = 0) -> Snapshot:
@@ -202,6 +204,53 @@ def test_pausing_a_real_plant_holds_it_safe(server):
         assert live.controller.command(Resume()).accepted
         live.wait(lambda s: s.output_map["O"], "the valve opening again", since=len(live.snaps))
         srv.wait_for("C=0 O=1", WAIT, start=mark)
+
+
+REGISTER_VALVE = """
+    name: register_valve
+    scan_period: 10ms
+    inputs:
+      fsc: {description: closed end switch, address: "ir:2.3"}
+      fso: {description: open end switch, address: "di:0"}
+    outputs:
+      C: {description: close order, address: "hr:5.1"}
+      O: {description: open order, address: "coil:3"}
+    control:
+      grafcet:
+        steps:
+          0: {initial: true}
+          1: {actions: [O]}
+          2: {actions: [C]}
+        transitions:
+          - {from: 0, to: 1, when: fsc}
+          - {from: 1, to: 2, when: fso}
+          - {from: 2, to: 1, when: fsc}
+    plant:
+      kind: modbus
+      model: valve
+      params: {travel: 300ms}
+"""
+
+
+def test_register_bits_and_scattered_addresses_end_to_end(server, tmp_path):
+    write_project(tmp_path, {"project.yaml": REGISTER_VALVE})
+    srv = server(tmp_path)
+    other = ModbusTcpClient("127.0.0.1", port=srv.port, timeout=5)
+    assert other.connect()
+    assert not other.write_register(5, 0x8000, device_id=1).isError()  # not ours: bit 15
+    with Live(tmp_path, srv.port) as live:
+        closing = live.wait(lambda s: s.active_steps == ("X2",) and s.output_map["C"],
+                            "closing")
+        # The server decoded C from bit 1 of holding register 5 (a Mask Write Register)...
+        srv.wait_for("C=1 O=0", WAIT)
+        # ...and the valve closed: fsc came back through bit 3 of input register 2.
+        live.wait(lambda s: s.active_steps == ("X1",), "open again",
+                  since=closing.scan)  # snaps[k] is scan k + 1
+        assert live.plant.status.details["exceptions"] == 0
+    # Stopped: the safe vector was written; the register's other bit was left alone.
+    assert other.read_holding_registers(5, count=1, device_id=1).registers[0] == 0x8000
+    assert other.read_coils(3, count=1, device_id=1).bits[0] is False
+    other.close()
 
 
 def test_exception_responses_are_reported_by_name(server, tmp_path):
