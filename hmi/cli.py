@@ -3,8 +3,8 @@
     plchmi PROJECT                 open the operator HMI (Textual)
     plchmi check PROJECT           load, validate and summarise a project
     plchmi run PROJECT --for 60s   headless run in virtual time (real time on a real plant)
+    plchmi sweep PROJECT           stopwatch monitor vs watchdog over interruptions
     plchmi serve-plant PROJECT     the simulated plant as a Modbus TCP server
-    plchmi bench [SECTION ...]     measure (sections: modbus)
 
 Exit status: 0 success, 2 bad input (a project error, a bad argument), 1 a failure at run
 time. Errors about a project name the file, line and column; there is never a traceback for
@@ -23,7 +23,7 @@ from hmi.errors import ProjectError, UsageError
 from hmi.timefmt import DURATION_HINT, format_duration, parse_duration, seconds
 
 MAX_ERRORS_SHOWN = 25
-SUBCOMMANDS = ("check", "run", "ui", "serve-plant", "bench", "journal")
+SUBCOMMANDS = ("check", "run", "sweep", "ui", "serve-plant", "bench", "journal")
 
 
 def _duration(text: str) -> int:
@@ -73,8 +73,10 @@ def _parser() -> argparse.ArgumentParser:
     p = sub.add_parser("run", help="run headless in virtual time")
     project_arg(p)
     engine_args(p)
-    p.add_argument("--for", dest="duration", type=_duration, required=True, metavar="TIME",
-                   help="virtual time to run, e.g. 60s")
+    p.add_argument("--for", dest="duration", type=_duration, metavar="TIME",
+                   help="virtual time to run, e.g. 60s (default: the scenario's)")
+    p.add_argument("--scenario", metavar="NAME",
+                   help="inject the faults of a scenario the project declares")
     p.add_argument("--period", type=_duration, metavar="TIME",
                    help="scan period (default: the project's)")
     p.add_argument("--inject", action="append", default=[], metavar="FAULT@TIME",
@@ -93,6 +95,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="only entries since WHEN: an ISO date/time, or a duration ago (2h)")
     p.add_argument("--csv", action="store_true", help="export as CSV")
     p.add_argument("--path", type=Path, metavar="FILE", help="journal file to read")
+
+    from hmi.sweep import add_sweep_parser
+    add_sweep_parser(sub, project_arg)
 
     p = sub.add_parser("bench", help="measure and print performance figures (never fails)")
     p.add_argument("sections", nargs="*", metavar="SECTION",
@@ -147,6 +152,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             return cmd_check(args)
         if args.command == "run":
             return cmd_run(args)
+        if args.command == "sweep":
+            from hmi.sweep import cmd_sweep
+            return cmd_sweep(args, load(args.project))
         if args.command == "ui":
             return cmd_ui(args)
         if args.command == "serve-plant":
@@ -202,7 +210,7 @@ def cmd_check(args: argparse.Namespace) -> int:
     return 0
 
 
-def make_engine(project, args: argparse.Namespace):
+def make_engine(project, args: argparse.Namespace, extra_injections=()):
     """The engine for a command's --control/--policy/--inject/--plant options."""
     from hmi.engine.scan import Engine
     from hmi.plant.select import open_plant
@@ -211,7 +219,8 @@ def make_engine(project, args: argparse.Namespace):
     if args.control and args.control not in project.controls:
         raise UsageError(f"--control {args.control!r}: the project has "
                          + ", ".join(project.controls))
-    injections = [parse_injection(text) for text in getattr(args, "inject", [])]
+    injections = [*extra_injections,
+                  *(parse_injection(text) for text in getattr(args, "inject", []))]
     read_only = getattr(args, "read_only", False)
     plant = open_plant(project, getattr(args, "plant", None), read_only, injections,
                        getattr(args, "period", None))
@@ -252,9 +261,16 @@ def cmd_run(args: argparse.Namespace) -> int:
     from hmi.report import run_summary
 
     project = load(args.project)
-    engine, injections = make_engine(project, args)
+    scenario = None
+    if args.scenario:
+        from hmi.project.scenarios import find_scenario
+        scenario = find_scenario(project, args.scenario)
+    duration = args.duration or (scenario.duration_us if scenario else None)
+    if duration is None:
+        raise UsageError("--for TIME is required (or a --scenario that sets its length)")
+    engine, injections = make_engine(project, args, scenario.injections if scenario else ())
     if engine.plant.kind != "sim":
-        return run_real_time(engine, args)
+        return run_real_time(engine, args, duration)
     controller = Controller(engine, args.period)
     writer = None
     if args.trace:
@@ -272,12 +288,14 @@ def cmd_run(args: argparse.Namespace) -> int:
             collector.add(snap)
             if writer:
                 writer.write(snap)
-        last = controller.run_for(args.duration, on_scan)
+        last = controller.run_for(duration, on_scan)
     finally:
         if writer:
             writer.close()
         recorder.close()
     wall = time.perf_counter() - started
+    if scenario:
+        print(f"Scenario {scenario.name}: {scenario.description}")
     print(run_summary(engine, last, collector, injections, wall,
                       trace=(args.trace, writer.count) if writer else None))
     print(alarm_summary(collector, args.explain))
@@ -383,11 +401,14 @@ class RunCollector:
         self.events = []
         self.step_changes = 0
         self.max_distance = 0
+        from hmi.monitor_report import MonitorLog
+        self.monitors = MonitorLog()
         self.alarm_events = []
         self.explanations = {}
 
     def add(self, snap) -> None:
         self.scans += 1
+        self.monitors.add(snap)
         self.events.extend(snap.plant_events)
         if snap.alarm_events:
             self.alarm_events.extend(snap.alarm_events)
@@ -412,7 +433,7 @@ class RunCollector:
             self.first_latch = (reason.scan, reason.time_us, reason.detail)
 
 
-def run_real_time(engine, args: argparse.Namespace) -> int:
+def run_real_time(engine, args: argparse.Namespace, duration_us: int) -> int:
     """A headless run against a real plant: scans paced and stamped by the wall clock."""
     from hmi.engine.live import WallClock, run_live_for
     from hmi.engine.runner import Controller
@@ -438,7 +459,7 @@ def run_real_time(engine, args: argparse.Namespace) -> int:
             if writer:
                 writer.write(snap)
         started = time.perf_counter()
-        runner = run_live_for(controller, args.duration, on_scan)
+        runner = run_live_for(controller, duration_us, on_scan)
         wall = time.perf_counter() - started
         report = plant_report(plant, runner.overruns)
     finally:

@@ -29,6 +29,7 @@ from hmi.engine.commands import (
 )
 from hmi.engine.filter import SafetyFilter
 from hmi.engine.layout import Layout
+from hmi.engine.monitors import install_monitors
 from hmi.engine.snapshot import LatchReason, Snapshot
 from hmi.explain.alarms import AlarmManager
 from hmi.explain.builder import ExplanationBuilder
@@ -88,10 +89,12 @@ class Engine:
         self.started = False
         # Extension points, in scan order. A stage reads and writes the image and may put
         # what it wants shown into `self.extras` (keys are Snapshot field names).
-        self.stages_after_memory: list[Callable[[Engine], None]] = []  # diagnosers, monitors
+        self.stages_after_memory: list[Callable[[Engine], None]] = []  # diagnosers
         self.output_stage: Callable[[Engine, tuple[bool, ...]], tuple[tuple[bool, ...], object]]
         self.filter = SafetyFilter(project, slots, times, solver or project.solver)
         self.output_stage = self.filter  # the safety filter
+        # Observers of the whole scan (I(t) read and O(t) written): stopwatch monitors.
+        self.stages_after_output: list[Callable[[Engine], None]] = []
         self.snapshot_extras: list[Callable[[Engine, dict], None]] = []  # explanations...
         # Each reset hook releases what its feature latched and returns lines saying what
         # was reset (or what stays, and why).
@@ -107,6 +110,7 @@ class Engine:
                         for v in project.outputs if v.device}
         self.stopped_devices: set[str] = set()
         self._stop_mask: tuple[int, ...] = ()
+        install_monitors(self)  # after the explainer: it adds a builder to it
 
     # -- commands ----------------------------------------------------------------------------
     def apply(self, command) -> CommandResult:
@@ -263,7 +267,7 @@ class Engine:
                 else:
                     image[slot] = not reset(image, hist) and (set_(image, hist) or image[slot])
             self.control.update_times(image, now)
-            # 3-4. diagnosers, reconstruction (and monitors) hook in here
+            # 3-4. diagnosers, reconstruction hook in here (monitors: after the output scan)
             for stage in self.stages_after_memory:
                 stage(self)
             # 5. functional control
@@ -298,6 +302,14 @@ class Engine:
             image[slot] = value
         if not self.observe:
             self._output_scan(now, outputs)
+        try:
+            for stage in self.stages_after_output:
+                stage(self)
+        except Exception as exc:  # a broken monitor must not stop the scan silently
+            message = f"{type(exc).__name__}: {exc}"
+            error = error or message
+            self.latch_safe("internal", f"internal error at scan {self.scan}: {message}")
+            extras["traceback"] = traceback.format_exc()
         try:
             self.explanations = self.explainer.build(self, extras.get("filter"))
         except Exception as exc:  # explanations must never stop the scan

@@ -45,6 +45,8 @@ from hmi.project.model import (
     Transition,
     Variable,
 )
+from hmi.project.monitors import parse_monitors
+from hmi.project.scenarios import parse_scenarios
 from hmi.project.yamlnodes import NodeError, YNode, load_yaml
 from hmi.timefmt import DURATION_HINT, parse_duration
 
@@ -53,7 +55,7 @@ PROJECT_FILE = "project.yaml"
 TOP_KEYS = {
     "name", "description", "scan_period", "include", "inputs", "outputs", "memories",
     "timers", "observers", "control", "constraints", "policy", "solver", "plant",
-    "explanations",
+    "explanations", "monitors", "scenarios",
 }
 
 NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
@@ -259,12 +261,15 @@ class ProjectLoader:
                                 solver)
         plant = self._plant(pos, inputs, outputs)
         self._check_addresses(inputs, outputs)
+        monitors = parse_monitors(self, period)  # stopwatch monitors: hmi/project/monitors.py
+        scenarios = parse_scenarios(self, plant)
         texts = None
         if "explanations" in s:
             from hmi.project.explanations import parse_explanations
             texts = parse_explanations(
                 s["explanations"], self.guard,
-                {"constraints": {c.name for c in constraints}},
+                {"constraints": {c.name for c in constraints},
+                 "monitors": {m.name for m in monitors}},
                 self.diag.error)
         self.diag.raise_if_errors()
         project = Project(
@@ -273,7 +278,8 @@ class ProjectLoader:
             timers=tuple(timers), observers=tuple(observers), controls=controls,
             default_control=default_control, constraints=tuple(constraints), policy=policy,
             plant=plant, pos=pos, files=tuple(self.files), solver=solver,
-            extra={"warnings": tuple(self.diag.warnings), "explanations": texts},
+            extra={"warnings": tuple(self.diag.warnings), "explanations": texts,
+                   "monitors": monitors, "scenarios": scenarios},
         )
         return project
 
