@@ -163,3 +163,15 @@ def test_a_project_without_addresses_cannot_run_on_modbus(tmp_path):
     assert proc.returncode == 2
     assert "project.yaml:5:3: error: input 'b' has no plant address" in proc.stderr
     assert "Traceback" not in proc.stderr
+
+
+def test_the_schema_knows_the_modbus_plant_keys():
+    import json
+
+    import jsonschema
+    import yaml
+    schema = json.loads((ROOT / "hmi" / "project" / "schema.json").read_text())
+    jsonschema.validate(yaml.safe_load(textwrap.dedent(MODBUS_PROJECT)), schema)
+    bad = yaml.safe_load(textwrap.dedent(MODBUS_PROJECT).replace("read_gap: 0", "read_gap: -1"))
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.validate(bad, schema)
