@@ -147,8 +147,7 @@ class ModbusPlant:
     kind = "modbus"
 
     def __init__(self, project: Project, settings: ModbusSettings, read_only: bool = False,
-                 period_us: int | None = None,
-                 client_factory: Callable[..., ModbusTcpClient] = _Client):
+                 period_us: int | None = None):
         self.project = project
         self.settings = settings
         self.read_only = read_only
@@ -156,7 +155,6 @@ class ModbusPlant:
         self.input_names = tuple(v.name for v in project.inputs)
         self.output_names = tuple(v.name for v in project.outputs)
         self.map = AddressMap.for_project(project, settings.read_gap, read_back=read_only)
-        self._client_factory = client_factory
         self._client: ModbusTcpClient | None = None
         self.connected = False
         self.ever_connected = False
@@ -180,8 +178,7 @@ class ModbusPlant:
         """One connection attempt now; on failure the next is scheduled after a backoff."""
         self.attempts += 1
         s = self.settings
-        client = self._client_factory(s.host, port=s.port, timeout=s.timeout_us / 1e6,
-                                      retries=0)
+        client = _Client(s.host, port=s.port, timeout=s.timeout_us / 1e6, retries=0)
         if client.connect():
             self._client = client
             self.connected = True
