@@ -483,9 +483,11 @@ class PlcHmiApp(App):
 _ACTION_NAMES = {a.action for a in ACTIONS}
 
 
-def run_app(target: Engine | Controller) -> int:
-    """Run the HMI live on an engine (or on a controller others listen to: the journal)."""
-    controller = target if isinstance(target, Controller) else Controller(target)
+def run_app(target: Engine | Controller, clock=None) -> int:
+    """Run the HMI live on an engine, or on a controller others listen to (the journal).
+
+    A real plant passes a wall clock to stamp its scans (see hmi.engine.live.WallClock)."""
+    controller = target if isinstance(target, Controller) else Controller(target, clock=clock)
     app = PlcHmiApp(controller)
     app.run()
     return 0
