@@ -666,3 +666,28 @@ async def test_simulation_controls_are_off_for_a_real_plant():
         app.action_speed(10.0)  # even if asked directly, refused with its reason
         assert app.controller.state.speed == 1.0
         assert "NOT AVAILABLE" in app.message.plain and "real plant" in app.message.plain
+
+
+async def test_a_lost_plant_is_shown_and_its_inputs_marked_stale(monkeypatch):
+    from hmi.plant.base import PlantError, PlantStatus
+
+    app = make_app()
+    plant = engine(app).plant
+
+    def unreachable(now_us):
+        raise PlantError("connection refused")
+
+    async with app.run_test(size=(120, 36)) as pilot:
+        await run_for(pilot, 0.5)
+        # what a Modbus plant does when the link drops (monkeypatch restores the class)
+        monkeypatch.setattr(plant, "read", unreachable)
+        monkeypatch.setattr(type(plant), "status", property(lambda self: PlantStatus(
+            "modbus", "modbus 127.0.0.1:5020 unit 1", connected=False,
+            message="connection refused")))
+        await run_for(pilot, 0.1)
+        assert "DISCONNECTED" in region_text(app, "#status")
+        banners = region_text(app, "#banners")
+        assert "PLANT DISCONNECTED" in banners and "connection refused" in banners
+        assert "OUTPUTS HELD IN SAFE STATE" in banners
+        io = region_text(app, "#io")
+        assert io.count("✗ stale") == 2  # fsc and fso: last values read, not the plant's

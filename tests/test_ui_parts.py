@@ -113,6 +113,10 @@ def test_banner_lines_for_manual_and_latch():
     assert "MANUAL / FORCES ACTIVE" in lines[0] and "O=1" in lines[0]
     assert "OUTPUTS HELD IN SAFE STATE" in lines[1] and "CSc1 violated" in lines[1]
     assert banner_lines(_frame(_snapshot())) == []
+    lost = _snapshot(plant=PlantStatus("modbus", "modbus 127.0.0.1:5020", connected=False,
+                                       message="connection refused"))
+    line = banner_lines(_frame(lost))[0].plain
+    assert "PLANT DISCONNECTED" in line and "connection refused" in line
 
 
 def test_reset_preview_says_what_stays_and_why():

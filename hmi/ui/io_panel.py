@@ -68,6 +68,8 @@ class IOPanel(DataTable):
         for name in snap.layout.inputs:
             value = snap.value(name)
             state: list[Text] = []
+            if not snap.plant.connected:
+                state.append(tag("stale", Level.ALARM))  # the last value read, not the plant's
             if name in reconstructed:
                 state.append(tag("reconstructed", Level.ATTENTION))
             if name in self.free_inputs:

@@ -151,6 +151,10 @@ def banner_lines(frame: Frame) -> list[Text]:
         line.append(f" requests: {forced or 'none (all outputs 0)'}"
                     f" · filtered ({snap.policy}) · m: leave")
         lines.append(line)
+    if not snap.plant.connected:
+        line = banner("PLANT DISCONNECTED", Level.ALARM)
+        line.append(f" {snap.plant.description}: {snap.plant.message or 'no answer'}")
+        lines.append(line)
     if snap.latched:
         line = banner("OUTPUTS HELD IN SAFE STATE", Level.ALARM)
         line.append(" " + "; ".join(r.detail for r in snap.latched)
