@@ -32,6 +32,13 @@ ACTIONS: tuple[OperatorAction, ...] = (
                    "Run a chosen number of scans, then stay paused"),
     OperatorAction("speed", "v", "Speed", "Run speed: next (×1, ×10, max)",
                    "Simulated plant only: real time, ten times faster, as fast as possible"),
+    OperatorAction("ack", "a", "Ack", "Alarms: acknowledge the selected alarm",
+                   "Acknowledge the alarm selected in the alarm list (tab, then ↑↓ to select)"),
+    OperatorAction("ack_all", "A", "Ack all", "Alarms: acknowledge all",
+                   "Acknowledge every alarm in the list", key_display="A"),
+    OperatorAction("explain", "e", "Explain", "Explanation: next level",
+                   "Open the next level of the selected alarm's explanation (why, "
+                   "consequences, policies); after the last, fold it"),
     OperatorAction("manual", "m", "Manual", "Manual mode: enter / leave…",
                    "Drive the outputs by hand (still filtered); leaving releases them all"),
     OperatorAction("reset", "r", "Reset", "Fault reset…",

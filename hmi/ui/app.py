@@ -8,10 +8,13 @@ action into a command sent through :meth:`PlcHmiApp.send`, the single door to
 ``Controller.command`` (where the journal listens).
 
 Screen regions (see ``app.tcss``): status bar and banners on top; the body in columns —
-``#col-plant`` (I/O, and the constraints under it), ``#col-logic`` (control; the
-diagnosers and monitors panel goes under it), ``#col-time`` (chronogram; the explanation
-panel goes beside it); the alarm list will dock above the simulation strip, and the message
-line and footer close the screen.
+``#col-plant`` (I/O, and the constraints under it), ``#col-logic`` (control, and the
+monitors under it), ``#col-time`` (chronogram) with the explanation panel beside it; the
+alarm list under the body, with a height of its own so it is never squeezed; the simulation
+strip, the message line and the footer close the screen.
+
+The explanation panel explains the *subject*: the alarm selected in the alarm list, or a
+situation picked from the palette or by clicking a constraint.
 """
 
 from __future__ import annotations
@@ -24,40 +27,54 @@ from textual.containers import Horizontal, Vertical
 from textual.screen import ModalScreen
 
 from hmi.engine.commands import (
+    Acknowledge,
+    ChoosePolicy,
     Command,
     CommandResult,
     FaultReset,
     InjectFault,
     ManualOutput,
     Pause,
+    ReleaseDevice,
     Resume,
     SetInput,
     SetMode,
     SetPolicy,
     SetSpeed,
     StepScans,
+    StopDevice,
     describe,
 )
 from hmi.engine.runner import Controller
 from hmi.engine.scan import Engine
+from hmi.explain.model import Policy
 from hmi.plant.sim import Injection
 from hmi.project.model import POLICIES
+from hmi.project.monitors import monitors_of
 from hmi.timefmt import seconds
 from hmi.ui.actions import ACTIONS, bindings
+from hmi.ui.alarm_list import AlarmList, AlarmSelected
 from hmi.ui.chronogram import WINDOWS_US, Chronogram
 from hmi.ui.constraints_panel import ConstraintInfo, ConstraintsPanel
 from hmi.ui.dialogs import ChoiceDialog, ConfirmDialog, StepDialog
 from hmi.ui.driver import LiveDriver, VirtualDriver
+from hmi.ui.explain_panel import (
+    ExplanationPanel,
+    ExplanationShown,
+    PolicyRequested,
+    result_line,
+)
 from hmi.ui.fault_dialog import FaultDialog
 from hmi.ui.footer import HmiFooter
 from hmi.ui.frame import Frame, InjectedFault
 from hmi.ui.grafcet_panel import GrafcetPanel, StepInfo, TimerInfo
 from hmi.ui.io_panel import IOPanel
 from hmi.ui.message_line import MessageLine, result_text, verdict_text
-from hmi.ui.messages import CommandRequested
+from hmi.ui.messages import CommandRequested, ExplainRequested
+from hmi.ui.monitors_panel import MonitorsPanel
 from hmi.ui.palette import HmiCommands, PaletteEntry
 from hmi.ui.recorder import ScanRecorder
-from hmi.ui.reset import reset_preview
+from hmi.ui.reset import ResetLine, reset_preview
 from hmi.ui.signal_dialog import SignalDialog
 from hmi.ui.sim_panel import SimPanel
 from hmi.ui.status import BannerStrip, StatusBar
@@ -72,6 +89,7 @@ POLICY_HELP = {
     "correct": "change the fewest outputs that satisfy every constraint",
 }
 RUN_STATE_COMMANDS = (Pause, Resume, StepScans, SetSpeed)
+WIDE = 120  # from this width on, the explanation panel stays beside the chronogram
 
 
 class PlcHmiApp(App):
@@ -103,6 +121,9 @@ class PlcHmiApp(App):
         self._mode_commanded: str | None = None  # accepted SetMode, not yet in a snapshot
         plant = engine.plant
         self.free_inputs: tuple[str, ...] = tuple(getattr(plant, "free_inputs", {}) or ())
+        # What the explanation panel explains: the selected alarm, unless the operator picked
+        # another situation (palette, a constraint clicked) since the selection last moved.
+        self.subject: str | None = None
         self.register_theme(isa101_theme())
         self.theme = "isa101"
 
@@ -128,8 +149,12 @@ class PlcHmiApp(App):
                     yield ConstraintsPanel(constraints, id="constraints")
                 with Vertical(id="col-logic"):
                     yield GrafcetPanel(engine.control_name, steps, timers, id="control")
-            with Horizontal(id="bottom"), Vertical(id="col-time"):
-                yield Chronogram(self.recorder, default_signals, id="chronogram")
+                    yield MonitorsPanel(len(monitors_of(project)), id="monitors")
+            with Horizontal(id="bottom"):
+                with Vertical(id="col-time"):
+                    yield Chronogram(self.recorder, default_signals, id="chronogram")
+                yield ExplanationPanel(id="explain")
+        yield AlarmList(id="alarms")
         yield SimPanel(self.recorder, id="sim")
         yield MessageLine(id="message")
         yield HmiFooter(compact=True)
@@ -142,8 +167,9 @@ class PlcHmiApp(App):
             self.recorder.on_scan(self.controller.engine.last)
         self._views = [self.query_one(StatusBar), self.query_one(BannerStrip),
                        self.query_one(IOPanel), self.query_one(ConstraintsPanel),
-                       self.query_one(GrafcetPanel),
-                       self.query_one(Chronogram), self.query_one(SimPanel)]
+                       self.query_one(GrafcetPanel), self.query_one(MonitorsPanel),
+                       self.query_one(Chronogram), self.query_one(AlarmList),
+                       self.query_one(SimPanel)]
         self.query_one(IOPanel).focus()
         self.message.say(Text("ctrl+p: all commands", style=MUTED))
         self.poll(force=True)
@@ -195,6 +221,7 @@ class PlcHmiApp(App):
         self.frame = frame
         for view in self._views:
             view.show(frame)
+        self._explain(frame)
         self._judge_request(snap)
         self.frames_shown += 1
         return True
@@ -210,6 +237,124 @@ class PlcHmiApp(App):
             return  # left manual mode before a scan ran the request
         ok, line = request_verdict(snap, name, requested)
         self.message.say(verdict_text(ok, f"{what} → {line}"))
+
+    # -- the explanation's subject -----------------------------------------------------------
+    @property
+    def alarm_list(self) -> AlarmList:
+        return self.query_one(AlarmList)
+
+    @property
+    def explanation_panel(self) -> ExplanationPanel:
+        return self.query_one(ExplanationPanel)
+
+    def _explain(self, frame: Frame) -> None:
+        """Hand the subject's explanation to the panel (the current one, else the alarm's
+        last: a cleared alarm still explains what happened until it is acknowledged)."""
+        snap = frame.snapshot
+        key = self.subject or self.alarm_list.selected
+        explanation = next((e for e in snap.explanations if e.key == key), None)
+        alarm = next((a for a in snap.alarms if a.key == key), None)
+        if explanation is None and alarm is not None:
+            explanation = alarm.explanation
+        if explanation is None and key != self.alarm_list.selected:
+            self.subject = None  # the situation picked is over: back to the selected alarm
+            key = self.alarm_list.selected
+            explanation = next((e for e in snap.explanations if e.key == key), None)
+            alarm = next((a for a in snap.alarms if a.key == key), None)
+            if explanation is None and alarm is not None:
+                explanation = alarm.explanation
+        self.explanation_panel.show(key if explanation else None, explanation, alarm,
+                                    self.size.width >= WIDE)
+
+    def on_alarm_selected(self, message: AlarmSelected) -> None:
+        self.subject = None
+        if self.frame is not None:
+            self._explain(self.frame)
+
+    def on_explain_requested(self, message: ExplainRequested) -> None:
+        self.explain(message.key, message.open_level)
+
+    def explain(self, key: str, open_level: int = 2) -> None:
+        """Explain `key` (select its alarm when it has one) and open it to `open_level`."""
+        snap = self.controller.engine.last
+        if snap is None:
+            return
+        if not any(e.key == key for e in snap.explanations) and \
+                not any(a.key == key for a in snap.alarms):
+            self.message.say(Text(f"nothing to explain for {key} now", style=MUTED))
+            return
+        if not self.alarm_list.select(key):
+            self.subject = key
+        else:
+            self.subject = None
+        if self.frame is not None:
+            self._explain(self.frame)
+        panel = self.explanation_panel
+        if panel.key == key and panel.level < open_level:
+            panel.open_to(open_level)
+
+    def on_explanation_shown(self, message: ExplanationShown) -> None:
+        """Narrow screens: an open explanation takes the chronogram's place."""
+        chrono = self.query_one("#col-time")
+        show = self.size.width >= WIDE or not message.visible
+        if chrono.display != show:
+            chrono.display = show
+
+    def on_resize(self) -> None:
+        if self.frame is not None:
+            self._explain(self.frame)
+
+    def on_policy_requested(self, message: PolicyRequested) -> None:
+        self.choose_policy(message.key, message.policy)
+
+    def choose_policy(self, key: str, policy: Policy) -> None:
+        """A policy button (or its palette entry): confirmed if it changes what the plant
+        does, then sent as ChoosePolicy; its answer is shown in the panel at once."""
+        if policy.command is None:
+            self._choose(key, policy, True)
+            return
+        title, lines, level = self._policy_confirmation(key, policy)
+        self.push_screen(ConfirmDialog(title, lines, policy.label, level=level,
+                                       dialog_id="policy-choice"),
+                         partial(self._choose, key, policy))
+
+    def _choose(self, key: str, policy: Policy, yes: bool | None) -> None:
+        if not yes:
+            self.message.say(Text(f"cancelled: {policy.label} for {key}", style=MUTED))
+            return
+        result = self.send(ChoosePolicy(key, policy.id))
+        self.explanation_panel.say_result(key, result_line(policy, result.accepted,
+                                                           result.message))
+
+    def _policy_confirmation(self, key: str, policy: Policy
+                             ) -> tuple[str, list[Text | str], Level]:
+        snap = self.controller.engine.last
+        explanation = next((e for e in snap.explanations if e.key == key), None) \
+            if snap else None
+        lines: list[Text | str] = []
+        if explanation is not None:
+            lines.append(Text(f"For: {explanation.what}", style=MUTED))
+        lines.append(f"{policy.label}: {policy.effect}.")
+        level = Level.ATTENTION
+        match policy.command:
+            case FaultReset():
+                lines += self._reset_lines(snap) if snap else []
+            case SetMode(manual=True):
+                lines += self._manual_lines(snap) if snap else []
+            case SetMode(manual=False):
+                lines.append("Every manual request is released; the program drives again.")
+            case StopDevice(device=device):
+                outputs = ", ".join(v.name for v in self.project.outputs
+                                    if v.device == device)
+                lines += [f"Every output of {device} ({outputs}) is held at its safe value "
+                          "until you release it;",
+                          "the control program keeps running and the rest of the cell goes "
+                          "on.",
+                          f"To release it: ctrl+p, Release device {device}."]
+                level = Level.ALARM
+            case SetPolicy(policy=name):
+                lines.append(f"The safety filter switches to {name}: {POLICY_HELP[name]}.")
+        return f"{policy.label}?", lines, level
 
     # -- sending commands --------------------------------------------------------------------
     def send(self, command: Command) -> CommandResult:
@@ -227,6 +372,10 @@ class PlcHmiApp(App):
                 self._request = (name, bool(value), last.scan if last else 0, what)
             case SetMode(manual=manual) if result.accepted:
                 self._mode_commanded = "manual" if manual else "auto"
+            case ChoosePolicy(key=key, policy=policy_id) if result.accepted:
+                inner = self._policy_command(key, policy_id)
+                if isinstance(inner, SetMode):
+                    self._mode_commanded = "manual" if inner.manual else "auto"
             case InjectFault(injection=injection) if result.accepted:
                 self._injected.append(InjectedFault(injection, self._fault_text(injection)))
                 self._version += 1
@@ -239,6 +388,19 @@ class PlcHmiApp(App):
 
     def on_command_requested(self, message: CommandRequested) -> None:
         self.send(message.command)
+
+    def _policy_command(self, key: str, policy_id: str) -> Command | None:
+        """What choosing a policy sends, as the last explanation of `key` offered it."""
+        snap = self.controller.engine.last
+        if snap is None:
+            return None
+        explanation = next((e for e in snap.explanations if e.key == key), None)
+        if explanation is None:
+            alarm = next((a for a in snap.alarms if a.key == key), None)
+            explanation = alarm.explanation if alarm else None
+        policy = next((p for p in explanation.policies if p.id == policy_id), None) \
+            if explanation else None
+        return policy.command if policy else None
 
     def refuse(self, what: str, why: str) -> None:
         """A control that does not apply here; said, not silently ignored."""
@@ -305,13 +467,17 @@ class PlcHmiApp(App):
                                            dialog_id="manual-dialog"),
                              partial(self._confirmed, SetMode(False)))
         else:
-            lines = ["The control law stops driving the outputs: they follow your requests,",
-                     "and an output you have not requested is 0.",
-                     f"Every request still goes through the safety filter ({snap.policy}).",
-                     "Select an output in the I/O table: 1 on, 0 off, x release."]
-            self.push_screen(ConfirmDialog("Enter manual mode?", lines, "Enter manual",
+            self.push_screen(ConfirmDialog("Enter manual mode?", self._manual_lines(snap),
+                                           "Enter manual",
                                            dialog_id="manual-dialog"),
                              partial(self._confirmed, SetMode(True)))
+
+    @staticmethod
+    def _manual_lines(snap) -> list[Text | str]:
+        return ["The control law stops driving the outputs: they follow your requests,",
+                "and an output you have not requested is 0.",
+                f"Every request still goes through the safety filter ({snap.policy}).",
+                "Select an output in the I/O table: 1 on, 0 off, x release."]
 
     def action_manual_request(self, name: str, value: bool | None) -> None:
         self.send(ManualOutput(name, value))
@@ -320,22 +486,37 @@ class PlcHmiApp(App):
         snap = self.controller.engine.last
         if snap is None:
             return
-        lines: list[Text | str] = []
-        for line in reset_preview(snap):
-            if line.resets:
-                lines.append(Text(f"{OK_SYMBOL} will be reset: {line.what}"))
-            else:
-                text = tag("stays", Level.ATTENTION)
-                text.append(f": {line.what} — its cause is still present: {line.why}")
-                lines.append(text)
+        self.push_screen(ConfirmDialog("Fault reset?", self._reset_lines(snap), "Reset",
+                                       dialog_id="reset-dialog"),
+                         partial(self._confirmed, FaultReset()))
+
+    @staticmethod
+    def _reset_lines(snap) -> list[Text | str]:
+        """What a reset would release and what stays, as of `snap` (see hmi.ui.reset)."""
+        lines: list[Text | str] = [reset_line(line) for line in reset_preview(snap)]
         if not lines:
             lines.append(Text("Nothing is latched: the reset will change nothing.",
                               style=MUTED))
         lines.append(Text(f"(as of scan {snap.scan}, t = {seconds(snap.time_us)} s; the cell "
                           "keeps running while this dialog is open)", style=MUTED))
-        self.push_screen(ConfirmDialog("Fault reset?", lines, "Reset",
-                                       dialog_id="reset-dialog"),
-                         partial(self._confirmed, FaultReset()))
+        return lines
+
+    def action_ack(self) -> None:
+        key = self.alarm_list.selected
+        if key is None:
+            self.refuse("acknowledge", "no alarm in the list")
+            return
+        self.send(Acknowledge(key))
+
+    def action_ack_all(self) -> None:
+        self.send(Acknowledge(None))
+
+    def action_explain(self) -> None:
+        panel = self.explanation_panel
+        if panel.key is None:
+            self.refuse("explanation", "no alarm selected, nothing to explain")
+            return
+        panel.expand()
 
     def action_policy(self, policy: str | None = None) -> None:
         current = self.controller.engine.last.policy if self.controller.engine.last \
@@ -456,6 +637,8 @@ class PlcHmiApp(App):
         for policy in POLICIES:
             entries.append(PaletteEntry(f"Filter policy: {policy}…", POLICY_HELP[policy],
                                         partial(self.action_policy, policy)))
+        if snap is not None:
+            entries += self._situation_entries(snap)
         if self.simulated:
             for device, code, description in self._faults():
                 entries.append(PaletteEntry(
@@ -480,7 +663,52 @@ class PlcHmiApp(App):
         return entries
 
 
+    def _situation_entries(self, snap) -> list[PaletteEntry]:
+        """Per alarm and situation: acknowledge, explain, its policies; stopped devices."""
+        entries: list[PaletteEntry] = []
+        for alarm in snap.alarms:
+            if alarm.state != "active-acknowledged":
+                entries.append(PaletteEntry(f"Alarms: acknowledge {alarm.text}",
+                                            f"{alarm.state}, P{alarm.priority}",
+                                            partial(self.send, Acknowledge(alarm.key))))
+        explained = {e.key: e for e in snap.explanations}
+        for alarm in snap.alarms:
+            if alarm.key not in explained and alarm.explanation is not None:
+                explained[alarm.key] = alarm.explanation
+        for key, explanation in explained.items():
+            entries.append(PaletteEntry(f"Explain: {explanation.what}",
+                                        f"{explanation.severity} · {key}",
+                                        partial(self.explain, key)))
+        panel = self.explanation_panel
+        if panel.key is not None and panel.explanation is not None:
+            for policy in panel.explanation.policies:
+                mark = " (recommended)" if policy.recommended else ""
+                entries.append(PaletteEntry(
+                    f"Policy: {policy.label}{mark} — {panel.explanation.device}"
+                    + ("…" if policy.command is not None else ""),
+                    policy.effect, partial(self.choose_policy, panel.key, policy)))
+        for device in snap.stopped_devices:
+            entries.append(PaletteEntry(f"Release device {device}",
+                                        "Its outputs follow the program (and the filter) again",
+                                        partial(self.send, ReleaseDevice(device))))
+        return entries
+
+
 _ACTION_NAMES = {a.action for a in ACTIONS}
+
+
+def reset_line(line: ResetLine) -> Text:
+    """One line of the fault reset dialog: will be reset, or stays and why."""
+    if line.resets:
+        text = Text(f"{OK_SYMBOL} will be reset: {line.what}")
+    else:
+        text = tag("stays", Level.ATTENTION)
+        text.append(f": {line.what}")
+        if line.why:
+            text.append(f" — {line.why}")
+    if line.note:
+        text.append(f" ({line.note})", style=MUTED)
+    return text
 
 
 def run_app(target: Engine | Controller, clock=None) -> int:

@@ -18,3 +18,12 @@ class CommandRequested(Message):
     def __init__(self, command: Command) -> None:
         super().__init__()
         self.command = command
+
+
+class ExplainRequested(Message):
+    """Explain a situation (by its key), e.g. a constraint clicked in its panel."""
+
+    def __init__(self, key: str, open_level: int = 2) -> None:
+        super().__init__()
+        self.key = key
+        self.open_level = open_level

@@ -1,9 +1,11 @@
 """What a fault reset would do, shown in its confirmation dialog before the operator agrees.
 
-A reset releases what is latched — the safe-state latch today; latched diagnoser states and
-alarms once those features exist — but a latch whose cause is still present comes straight
-back at the next scan. The dialog says which is which, so the operator does not reset in a
-loop without understanding why nothing changes.
+A reset releases what is latched — the safe-state latch, monitor labels, latched diagnoser
+states, and with them their latched alarms — but a latch whose cause is still present comes
+straight back at the next scan (or, for a monitor, is not released at all). The dialog says
+which is which, so the operator does not reset in a loop without understanding why nothing
+changes. It also names what a reset does *not* touch although the operator may expect it
+to: devices the operator stopped (released from the palette).
 
 Each feature that latches something adds a *preview* function to :data:`PREVIEWS`; the
 dialog shows the lines of all of them. A preview only reads the snapshot.
@@ -15,13 +17,15 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 from hmi.engine.snapshot import LatchReason, Snapshot
+from hmi.timefmt import seconds
 
 
 @dataclass(frozen=True)
 class ResetLine:
     what: str  # the thing latched, in the operator's words
     resets: bool  # True: the reset releases it; False: it stays (its cause is present)
-    why: str = ""  # for a line that stays: the cause still present
+    why: str = ""  # for a line that stays: why (its cause still present...)
+    note: str = ""  # anything else the operator should know about it
 
 
 ResetPreview = Callable[[Snapshot], Iterable[ResetLine]]
@@ -43,10 +47,64 @@ def latch_preview(snap: Snapshot) -> Iterable[ResetLine]:
     for reason in snap.latched:
         what = f"safe-state latch ({reason.source}): {reason.detail}"
         cause = _latch_cause_present(snap, reason)
-        yield ResetLine(what, resets=not cause, why=cause)
+        yield ResetLine(what, resets=not cause,
+                        why=f"its cause is still present: {cause}" if cause else "")
 
 
-PREVIEWS: list[ResetPreview] = [latch_preview]
+def _condemned(m) -> bool:
+    """A monitor whose latched fault a reset cannot release: the condemned attempt still runs
+    (hmi.engine.stopwatch.TaskAutomaton.reset; x - y never decreases within an attempt)."""
+    return bool(m.running and m.last_detection is not None
+                and m.last_detection.attempt == m.attempt)
+
+
+def monitor_preview(snap: Snapshot) -> Iterable[ResetLine]:
+    for m in snap.monitors:
+        d = m.detection
+        if d is None:
+            continue
+        what = f"monitor label {m.label} ({m.title}, since {seconds(d.time_us)} s)"
+        if _condemned(m):
+            yield ResetLine(what, resets=False,
+                            why=f"the task is still in progress (x = {seconds(m.x_us)} s) and "
+                                "can no longer end in time; reset again once it has ended")
+        else:
+            yield ResetLine(what, resets=True)
+
+
+def _alarm_released(snap: Snapshot, key: str) -> bool | None:
+    """Whether a reset removes the cause of a latched alarm (None: not known here)."""
+    kind, _, name = key.partition(":")
+    if kind == "safe_state":
+        return not any(_latch_cause_present(snap, r) for r in snap.latched if r.source == name)
+    if kind == "monitor":
+        return not any(_condemned(m) for m in snap.monitors if m.name == name)
+    return None
+
+
+def alarm_preview(snap: Snapshot) -> Iterable[ResetLine]:
+    """Latched alarms clear with what latched them; they stay listed until acknowledged."""
+    latched = [a for a in snap.alarms if getattr(a, "latched", False) and a.active]
+    released = [a for a in latched if _alarm_released(snap, a.key) is not False]
+    kept = len(latched) - len(released)
+    if released:
+        n = len(released)
+        yield ResetLine(f"{n} latched alarm{'s' if n != 1 else ''} clear with their latch",
+                        resets=True, note="listed, cleared, until acknowledged")
+    if kept:
+        yield ResetLine(f"{kept} latched alarm{'s' if kept != 1 else ''}", resets=False,
+                        why="what latched them stays (see above)")
+
+
+def stopped_preview(snap: Snapshot) -> Iterable[ResetLine]:
+    for device in snap.stopped_devices:
+        yield ResetLine(f"{device} stopped by the operator", resets=False,
+                        note="a fault reset does not release a stopped device: ctrl+p, "
+                             f"Release device {device}")
+
+
+PREVIEWS: list[ResetPreview] = [latch_preview, monitor_preview, alarm_preview,
+                                 stopped_preview]
 
 
 def reset_preview(snap: Snapshot) -> list[ResetLine]:

@@ -1,0 +1,247 @@
+"""The alarm list (ISA-18.2): what needs the operator, unacknowledged first.
+
+One row per alarm, in the engine's order (unacknowledged — active or cleared — first, then by
+priority, newest first)::
+
+    ▲ UNACK          P2  3.000 s  Conveyor C1 …: cannot end within its acceptable time  LATCHED
+    ● ACK            P3  7.920 s  Valve V1: close order blocked — never hold …  ×4
+    ○ CLEARED-UNACK  P3  6.000 s  Valve V1: open order blocked — …
+
+The state is a symbol *and* a word; the colour follows the priority (P1 red, P2 and P3
+amber) and only active alarms carry it: a cleared alarm waiting for its acknowledgement is
+grey. ``×4`` counts the returns of a chattering alarm collapsed into one row; ``LATCHED``
+marks an alarm that stays until a fault reset.
+
+The list is a panel of its own with a height it sets itself (one row per alarm, up to a cap
+that depends on the terminal's height), placed outside the body so the chronogram gives up
+rows for it: at 80×24 it is never pushed off the screen. When there are more alarms than
+rows, the rows scroll around the selection and the border says how many are out of view.
+
+The selection (↑↓ when the list has the focus, or a click) says which alarm the explanation
+panel explains and which one ``a`` acknowledges. The list posts
+:class:`AlarmSelected` up when it changes; it never sends a command itself.
+"""
+
+from __future__ import annotations
+
+from rich.style import Style
+from rich.text import Text
+from textual import events
+from textual.binding import Binding
+from textual.message import Message
+
+from hmi.explain.alarms import ACTIVE_ACK, ACTIVE_UNACK, CLEARED_UNACK, Alarm
+from hmi.timefmt import seconds
+from hmi.ui.frame import Frame
+from hmi.ui.panel import TextPanel
+from hmi.ui.style import MUTED, OK_SYMBOL, STYLE, Level
+
+STATES = {
+    ACTIVE_UNACK: ("▲", "UNACK"),
+    ACTIVE_ACK: ("●", "ACK"),
+    CLEARED_UNACK: ("○", "CLEARED-UNACK"),
+}
+STATE_WIDTH = max(len(f"{s} {w}") for s, w in STATES.values())
+PRIORITY_LEVEL = {1: Level.ALARM, 2: Level.ATTENTION, 3: Level.ATTENTION}
+SELECTED = Style(bgcolor="#4a4a4a")
+WIDE = 110  # from this width on, a device column
+
+
+SHORT = 30  # below this height: three rows, and a top border only (see app.tcss)
+
+
+def rows_for_height(height: int) -> int:
+    """How many alarm rows the list may take on a terminal this tall."""
+    if height < SHORT:
+        return 3
+    if height < 40:
+        return 4
+    return 6
+
+
+def state_cell(alarm: Alarm) -> Text:
+    symbol, word = STATES.get(alarm.state, ("?", alarm.state))
+    cell = f"{symbol} {word}".ljust(STATE_WIDTH)
+    if alarm.state == CLEARED_UNACK:
+        return Text(cell, style=MUTED)
+    style = STYLE[PRIORITY_LEVEL.get(alarm.priority, Level.ATTENTION)]
+    if alarm.state == ACTIVE_ACK:
+        style = style + Style(bold=False)
+    return Text(cell, style=style)
+
+
+def _without_device(text: str, device: str) -> str:
+    """The level-1 line without its leading device name, when a column already shows it
+    ("Valve V1: close order blocked" -> "close order blocked")."""
+    if device and text.startswith(device) and text[len(device):len(device) + 1] in (":", " "):
+        return text[len(device) + 1:].lstrip()
+    return text
+
+
+def alarm_row(alarm: Alarm, width: int, device_w: int = 0, time_w: int = 7) -> Text:
+    """One alarm as one line of at most `width` cells (the text ends in an ellipsis)."""
+    row = Text(no_wrap=True, overflow="ellipsis", end="")
+    row.append_text(state_cell(alarm))
+    muted = alarm.state == CLEARED_UNACK
+    plain = MUTED if muted else Style()
+    row.append("  ")
+    row.append(f"P{alarm.priority}", style=MUTED if muted else Style(bold=True))
+    row.append(f" {seconds(alarm.raised_us):>{time_w}} s  ", style=MUTED)
+    text = alarm.text
+    if device_w:
+        row.append(alarm.device[:device_w].ljust(device_w) + " ", style=plain)
+        text = _without_device(text, alarm.device)
+    tail = Text(end="")
+    if alarm.explanation is not None and alarm.explanation.ambiguous:
+        tail.append("  ? ambiguous", style=STYLE[Level.ATTENTION])
+    if alarm.chattering or alarm.returns:
+        tail.append(f"  ×{alarm.returns + 1}", style=Style(bold=True) if alarm.chattering
+                    else MUTED)
+        if alarm.chattering:
+            tail.append(" chattering", style=MUTED)
+    if alarm.latched:
+        tail.append("  LATCHED", style=Style(bold=True) if not muted else MUTED)
+    room = width - row.cell_len - tail.cell_len
+    if room < len(text):
+        text = text[:max(0, room - 1)] + "…" if room > 0 else ""
+    row.append(text, style=plain)
+    row.append_text(tail)
+    return row
+
+
+class AlarmSelected(Message):
+    """The operator selected another alarm (None: the list is empty)."""
+
+    def __init__(self, key: str | None) -> None:
+        super().__init__()
+        self.key = key
+
+
+class AlarmList(TextPanel):
+    """Alarms, unacknowledged first; a selection for the explanation and for ``a``."""
+
+    can_focus = True
+    BINDINGS = [
+        Binding("up", "move(-1)", "Previous alarm", show=False),
+        Binding("down", "move(1)", "Next alarm", show=False),
+        Binding("home", "move(-1000)", show=False),
+        Binding("end", "move(1000)", show=False),
+    ]
+
+    def __init__(self, *, id: str | None = None):
+        super().__init__(id=id)
+        self.alarms: tuple[Alarm, ...] = ()
+        self.selected: str | None = None  # the selected alarm's key
+        self.top = 0  # index of the first row shown
+        self._rows = -1
+        self._drawn: tuple | None = None
+
+    def on_mount(self) -> None:
+        self.border_title = "Alarms"
+
+    # -- display -----------------------------------------------------------------------------
+    def show(self, frame: Frame) -> None:
+        alarms = tuple(frame.snapshot.alarms)
+        changed = alarms != self.alarms
+        self.alarms = alarms
+        keys = [a.key for a in alarms]
+        if self.selected not in keys:
+            self._select(keys[0] if keys else None)
+        if changed or self._drawn is None:
+            self._draw()
+
+    def on_resize(self) -> None:
+        self._draw()
+
+    def on_focus(self) -> None:
+        self._draw()
+
+    def on_blur(self) -> None:
+        self._draw()
+
+    @property
+    def selected_alarm(self) -> Alarm | None:
+        return next((a for a in self.alarms if a.key == self.selected), None)
+
+    def _draw(self) -> None:
+        height = self.app.size.height
+        rows = min(max(len(self.alarms), 1), rows_for_height(height))
+        if rows != self._rows:
+            self._rows = rows
+            # the border: top and bottom lines; on a short screen, the top line only
+            self.set_class(height < SHORT, "-compact")
+            self.styles.height = rows + (1 if height < SHORT else 2)
+        width = max(20, self.content_size.width or self.app.size.width - 4)
+        key = (self.alarms, self.selected, rows, width, self.has_focus)
+        if key == self._drawn:
+            return
+        self._drawn = key
+        unack = sum(a.state != ACTIVE_ACK for a in self.alarms)
+        title = (f"Alarms · {unack} unacknowledged / {len(self.alarms)}"
+                 if self.alarms else "Alarms")
+        if not self.alarms:
+            self.border_title = title
+            self.show_text(Text(f"{OK_SYMBOL} no alarm", style=MUTED))
+            return
+        index = self._index()
+        if index < self.top:
+            self.top = index
+        elif index >= self.top + rows:
+            self.top = index - rows + 1
+        self.top = max(0, min(self.top, len(self.alarms) - rows))
+        below = len(self.alarms) - self.top - rows
+        hidden = []
+        if self.top:
+            hidden.append(f"↑ {self.top} more")
+        if below > 0:
+            hidden.append(f"↓ {below} more")
+        self.border_title = " · ".join((title, *hidden))  # on the top line: always shown
+        device_w = 0
+        if width >= WIDE:
+            device_w = min(16, max(len(a.device) for a in self.alarms))
+        time_w = max(len(seconds(a.raised_us)) for a in self.alarms)
+        text = Text(no_wrap=True, overflow="ellipsis")
+        for i, alarm in enumerate(self.alarms[self.top:self.top + rows]):
+            if i:
+                text.append("\n")
+            row = alarm_row(alarm, width - 2, device_w, time_w)
+            mine = alarm.key == self.selected
+            text.append("› " if mine else "  ", style=Style(bold=True))
+            text.append_text(row)
+            if mine and self.has_focus:
+                text.stylize(SELECTED, len(text) - row.cell_len - 2, len(text))
+        self.show_text(text)
+
+    def _index(self) -> int:
+        keys = [a.key for a in self.alarms]
+        return keys.index(self.selected) if self.selected in keys else 0
+
+    # -- selection ---------------------------------------------------------------------------
+    def _select(self, key: str | None) -> None:
+        if key != self.selected:
+            self.selected = key
+            self.post_message(AlarmSelected(key))
+
+    def select(self, key: str) -> bool:
+        """Select an alarm by key (from the palette, a constraint clicked); False if none."""
+        if not any(a.key == key for a in self.alarms):
+            return False
+        self._select(key)
+        self._draw()
+        return True
+
+    def action_move(self, step: int) -> None:
+        if not self.alarms:
+            return
+        index = max(0, min(len(self.alarms) - 1, self._index() + step))
+        self._select(self.alarms[index].key)
+        self._draw()
+
+    def on_click(self, event: events.Click) -> None:
+        offset = event.get_content_offset(self)
+        if offset is None:
+            return
+        row = offset.y
+        if 0 <= row < self._rows and self.top + row < len(self.alarms):
+            self._select(self.alarms[self.top + row].key)
+            self._draw()

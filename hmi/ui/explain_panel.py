@@ -1,0 +1,284 @@
+"""The explanation panel: the selected alarm's graduated explanation, level by level.
+
+000 asks for "a graduated explanation with potential consequences" so that the operator can
+choose the best policy. The four levels of :class:`~hmi.explain.model.Explanation` are shown
+one under the other, the first always, the others on demand::
+
+    P2 medium · Conveyor C1 · since 3.000 s (scan 301) · LATCHED
+    Conveyor C1 carrying a pallet …: cannot end within its acceptable time (conveyor_fault)
+    ▾ Why
+      Stopwatch monitor conveyor: at scan 301 (3.000 s), x = 3.000 s …
+    ▸ Consequences
+    ▸ Policies · 3, recommended: Continue
+
+``e`` opens the next level (and, once all are open, folds them back to the first); a click
+on a level's heading opens it (with the levels before it) or folds it (with those after).
+Opening the policies focuses the recommended one: enter chooses it. Each policy is a button
+with its effect beside it; choosing one asks the app (:class:`PolicyRequested`), which
+confirms the choices that change what the plant does and sends ``ChoosePolicy``; the
+result is shown here at once, under the buttons, as well as on the message line.
+
+An ambiguous diagnosis says so in its heading (``? AMBIGUOUS``): the labels it cannot tell
+apart are in its first line, and the recommended check in its policies.
+
+The panel rebuilds its widgets only when the explanation, the open levels or a result
+change (an explanation object is kept by the engine while its situation lasts), so a
+frame where nothing changed costs a comparison.
+"""
+
+from __future__ import annotations
+
+from rich.style import Style
+from rich.text import Text
+from textual import events, on
+from textual.app import ComposeResult
+from textual.containers import Horizontal, Vertical, VerticalScroll
+from textual.message import Message
+from textual.widgets import Button, Static
+
+from hmi.explain.alarms import CLEARED_UNACK, PRIORITY, Alarm
+from hmi.explain.model import Explanation, Policy
+from hmi.timefmt import seconds
+from hmi.ui.style import MUTED, OK_SYMBOL, STYLE, Level, tag
+
+LEVELS = ("What", "Why", "Consequences", "Policies")
+RECOMMENDED = "★"
+SEVERITY_LEVEL = {"high": Level.ALARM, "medium": Level.ATTENTION, "low": Level.ATTENTION}
+
+
+class PolicyRequested(Message):
+    """The operator pressed a policy's button: the app confirms if needed, then sends it."""
+
+    def __init__(self, key: str, policy: Policy) -> None:
+        super().__init__()
+        self.key = key
+        self.policy = policy
+
+
+class ExplanationShown(Message):
+    """The panel appeared or went away (on a narrow screen it takes the chronogram's place)."""
+
+    def __init__(self, visible: bool) -> None:
+        super().__init__()
+        self.visible = visible
+
+
+class LevelView(Static):
+    """One level: its heading, and its text when open. A click opens or folds it."""
+
+    def __init__(self, level: int, *, id: str | None = None):
+        super().__init__(id=id, markup=False, classes="explain-level")
+        self.level = level
+
+    def on_click(self, event: events.Click) -> None:
+        event.stop()
+        panel = next(a for a in self.ancestors if isinstance(a, ExplanationPanel))
+        panel.toggle(self.level)
+
+
+def heading_text(explanation: Explanation, alarm: Alarm | None) -> Text:
+    """Priority, severity, device, since when, and the marks that change how to read it."""
+    priority = PRIORITY.get(explanation.severity, 3)
+    level = SEVERITY_LEVEL.get(explanation.severity, Level.ATTENTION)
+    text = Text(no_wrap=True, overflow="ellipsis")
+    if explanation.alarm:
+        text.append_text(tag(f"P{priority} {explanation.severity}", level))
+    else:
+        text.append(f"{explanation.severity} (no alarm)", style=MUTED)
+    text.append(f" · {explanation.device} · since {seconds(explanation.since_us)} s "
+                f"(scan {explanation.since_scan})", style=MUTED)
+    if explanation.ambiguous:
+        text.append(" · ")
+        text.append("? AMBIGUOUS", style=STYLE[Level.ATTENTION])
+    if explanation.latched:
+        text.append(" · LATCHED", style=Style(bold=True))
+    if alarm is not None and alarm.state == CLEARED_UNACK:
+        text.append(f" · ○ cleared at {seconds(alarm.changed_us)} s", style=MUTED)
+    return text
+
+
+def level_text(explanation: Explanation, level: int, open_: bool) -> Text:
+    """A level's heading (▸ closed, ▾ open) and, when open, its text, indented."""
+    title = LEVELS[level - 1]
+    text = Text()
+    if level == 4:
+        rec = explanation.recommended
+        count = len(explanation.policies)
+        head = f"{'▾' if open_ else '▸'} {title} · {count}"
+        if rec is not None:
+            head += f", recommended: {rec.label}"
+        text.append(head, style=Style(bold=open_))
+        return text
+    text.append(f"{'▾' if open_ else '▸'} {title}", style=Style(bold=open_))
+    if open_:
+        body = explanation.levels[level - 1]
+        for line in body.splitlines():
+            text.append("\n  " + line)
+    return text
+
+
+def policy_label(policy: Policy) -> str:
+    return f"{RECOMMENDED} {policy.label}" if policy.recommended else policy.label
+
+
+def policy_effect(policy: Policy) -> Text:
+    text = Text()
+    if policy.recommended:
+        text.append("recommended · ", style=Style(bold=True))
+    text.append(policy.effect)
+    if policy.command is None:
+        text.append(" (nothing is sent)", style=MUTED)
+    return text
+
+
+class ExplanationPanel(VerticalScroll):
+    """The graduated explanation of one situation (the app says which: `key`)."""
+
+    can_focus = False  # tab goes to the policy buttons; the mouse wheel scrolls
+
+    def __init__(self, *, id: str | None = None):
+        super().__init__(id=id)
+        self.key: str | None = None
+        self.explanation: Explanation | None = None
+        self.alarm: Alarm | None = None
+        self.levels: dict[str, int] = {}  # open levels per situation (1: the first only)
+        self.results: dict[str, Text] = {}  # the last policy choice's answer, per situation
+        self.wide = True
+        self._drawn: tuple | None = None
+        self._policies: tuple[Policy, ...] | None = None
+        self._focus_recommended = False
+        self.visible = True
+
+    def compose(self) -> ComposeResult:
+        yield Static(id="explain-head", markup=False)
+        yield Static(id="explain-what", markup=False)
+        yield LevelView(2, id="explain-why")
+        yield LevelView(3, id="explain-consequences")
+        yield LevelView(4, id="explain-policies-head")
+        yield Vertical(id="explain-policies")
+        yield Static(id="explain-result", markup=False)
+
+    def on_mount(self) -> None:
+        self.border_title = "Explanation"
+
+    # -- what the app sets -------------------------------------------------------------------
+    @property
+    def level(self) -> int:
+        return self.levels.get(self.key, 1) if self.key else 1
+
+    def show(self, key: str | None, explanation: Explanation | None, alarm: Alarm | None,
+             wide: bool) -> None:
+        """Explain `key` (None: nothing selected); `alarm` when it is an alarm's."""
+        self.key, self.explanation, self.alarm, self.wide = key, explanation, alarm, wide
+        self._draw()
+
+    def expand(self) -> None:
+        """``e``: open the next level; after the last, fold back to the first."""
+        if self.key is None or self.explanation is None:
+            return
+        level = self.level
+        self._set_level(1 if level >= 4 else level + 1)
+
+    def toggle(self, level: int) -> None:
+        """A heading clicked: open up to it, or fold it and those after it."""
+        if self.key is None:
+            return
+        self._set_level(level - 1 if self.level >= level else level)
+
+    def open_to(self, level: int) -> None:
+        if self.key is not None:
+            self._set_level(level)
+
+    def say_result(self, key: str, text: Text) -> None:
+        self.results[key] = text
+        self._draw()
+
+    def _set_level(self, level: int) -> None:
+        assert self.key is not None
+        self.levels[self.key] = level
+        self._focus_recommended = level == 4
+        self._draw()
+
+    # -- drawing -----------------------------------------------------------------------------
+    def _draw(self) -> None:
+        exp = self.explanation
+        level = self.level
+        visible = exp is not None and (self.wide or level >= 2)
+        if visible != self.visible or self._drawn is None:
+            self.visible = visible
+            self.display = visible
+            self.post_message(ExplanationShown(visible))
+        state = (self.key, id(exp), self.alarm.state if self.alarm else None, level,
+                 self.results.get(self.key or ""), self.wide)
+        if state == self._drawn:
+            return
+        self._drawn = state
+        head = self.query_one("#explain-head", Static)
+        what = self.query_one("#explain-what", Static)
+        views = [self.query_one(f"#explain-{n}", LevelView)
+                 for n in ("why", "consequences", "policies-head")]
+        result = self.query_one("#explain-result", Static)
+        if exp is None:
+            self.border_title = "Explanation"
+            head.update(Text(f"{OK_SYMBOL} no alarm to explain", style=MUTED))
+            what.update("")
+            for view in views:
+                view.display = False
+            self._set_policies(())
+            result.update("")
+            return
+        self.border_title = f"Explanation · {exp.kind}"
+        self.border_subtitle = f"level {level}/4 · e: {'more' if level < 4 else 'fold'}"
+        head.update(heading_text(exp, self.alarm))
+        what.update(Text(exp.what, style=Style(bold=True)))
+        for view in views:
+            view.display = True
+            view.update(level_text(exp, view.level, level >= view.level))
+        self._set_policies(exp.policies if level >= 4 else ())
+        result.update(self.results.get(self.key or "", ""))
+        if self._focus_recommended:
+            self._focus_recommended = False
+            self.call_after_refresh(self._focus_policy)
+
+    def _set_policies(self, policies: tuple[Policy, ...]) -> None:
+        if policies == self._policies:
+            return
+        self._policies = policies
+        box = self.query_one("#explain-policies", Vertical)
+        box.remove_children()
+        rows = []
+        for index, policy in enumerate(policies):
+            button = Button(policy_label(policy), id=f"policy-{index}", compact=True,
+                            classes="policy-button")
+            button.policy = policy  # type: ignore[attr-defined]
+            rows.append(Horizontal(button, Static(policy_effect(policy), markup=False,
+                                                  classes="policy-effect"),
+                                   classes="policy-row"))
+        if rows:
+            box.mount(*rows)
+
+    def _focus_policy(self) -> None:
+        buttons = list(self.query(".policy-button").results(Button))
+        chosen = next((b for b in buttons if getattr(b, "policy", None) is not None
+                       and b.policy.recommended), buttons[0] if buttons else None)
+        if chosen is not None:
+            chosen.focus(scroll_visible=False)
+            # its region is known once the rows just mounted are laid out
+            self.call_after_refresh(self.scroll_to_widget, chosen, animate=False)
+
+    @on(Button.Pressed, ".policy-button")
+    def _pressed(self, event: Button.Pressed) -> None:
+        event.stop()
+        policy = getattr(event.button, "policy", None)
+        if policy is not None and self.key is not None:
+            self.post_message(PolicyRequested(self.key, policy))
+
+
+def result_line(policy: Policy, accepted: bool, message: str) -> Text:
+    """The answer to a policy choice, for the panel (the message line has its own)."""
+    if accepted:
+        return Text(f"{OK_SYMBOL} {policy.label}: {message}")
+    line = tag("REFUSED", Level.ALARM)
+    line.append(f" {policy.label}: {message}")
+    return line
+
