@@ -92,6 +92,15 @@ RUN_STATE_COMMANDS = (Pause, Resume, StepScans, SetSpeed)
 WIDE = 120  # from this width on, the explanation panel stays beside the chronogram
 
 
+class Body(Vertical):
+    """The panels' area. Its height changes with what is around it (an alarm row, a
+    banner, the footer wrapping); the monitors panel sizes its detail on it."""
+
+    def on_resize(self) -> None:
+        for panel in self.query(MonitorsPanel):
+            panel.recheck()
+
+
 class PlcHmiApp(App):
     CSS_PATH = ["app.tcss", "dialogs.tcss"]
     TITLE = "plchmi"
@@ -142,10 +151,12 @@ class PlcHmiApp(App):
                        for c in project.constraints]
         yield StatusBar(id="status")
         yield BannerStrip(id="banners")
-        with Vertical(id="body"):
+        with Body(id="body"):
             with Horizontal(id="top"):
                 with Vertical(id="col-plant"):
-                    yield IOPanel(engine.layout, descriptions, self.free_inputs, id="io")
+                    yield IOPanel(engine.layout, descriptions, self.free_inputs, id="io",
+                                  devices={v.name: v.device for v in project.outputs
+                                           if v.device})
                     yield ConstraintsPanel(constraints, id="constraints")
                 with Vertical(id="col-logic"):
                     yield GrafcetPanel(engine.control_name, steps, timers, id="control")
@@ -323,7 +334,7 @@ class PlcHmiApp(App):
             self.message.say(Text(f"cancelled: {policy.label} for {key}", style=MUTED))
             return
         result = self.send(ChoosePolicy(key, policy.id))
-        self.explanation_panel.say_result(key, result_line(policy, result.accepted,
+        self.explanation_panel.say_result(key, result_line(key, policy, result.accepted,
                                                            result.message))
 
     def _policy_confirmation(self, key: str, policy: Policy

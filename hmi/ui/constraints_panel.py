@@ -10,7 +10,8 @@ Every row says what the filter did about a violation, in a word beside the colou
 - ``✓``          never violated (listed only when there is room).
 
 When space is short (80×24) only the violated and recently violated rows are listed, and a
-clean history collapses into one line.
+clean history collapses into one line. A click on a row opens its explanation (while the
+constraint is violated, or its alarm is listed).
 """
 
 from __future__ import annotations
@@ -18,9 +19,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from rich.text import Text
+from textual import events
 
 from hmi.timefmt import seconds
 from hmi.ui.frame import Frame
+from hmi.ui.messages import ExplainRequested
 from hmi.ui.panel import TextPanel
 from hmi.ui.style import MUTED, OK_SYMBOL, Level, tag
 
@@ -59,11 +62,20 @@ def explanation_line(frame: Frame, info: ConstraintInfo) -> str:
 
 
 class ConstraintsPanel(TextPanel):
+    """A click on a row asks for that constraint's explanation (ExplainRequested)."""
+
     def __init__(self, constraints: list[ConstraintInfo], *, id: str | None = None):
         super().__init__(id=id)
         self.constraints = constraints
         self.frame: Frame | None = None
         self.show_all = False  # every constraint, even never violated (when there is room)
+        self.row_names: list[str] = []  # the constraint on each row, as last drawn
+
+    def on_click(self, event: events.Click) -> None:
+        offset = event.get_content_offset(self)
+        if offset is not None and 0 <= offset.y + self.scroll_y < len(self.row_names):
+            name = self.row_names[int(offset.y + self.scroll_y)]
+            self.post_message(ExplainRequested(f"constraint:{name}"))
 
     def on_mount(self) -> None:
         self.border_title = f"Constraints · {len(self.constraints)}"
@@ -75,6 +87,7 @@ class ConstraintsPanel(TextPanel):
 
     def render_frame(self, frame: Frame) -> Text:
         text = Text(no_wrap=True, overflow="ellipsis")
+        self.row_names = []
         if frame.snapshot.filter is None and not frame.constraints:
             text.append("no filter report yet", style=MUTED)
             return text
@@ -92,6 +105,7 @@ class ConstraintsPanel(TextPanel):
         for i, (rank, _, info, word) in enumerate(sorted(rows, key=lambda r: r[:2])):
             if i:
                 text.append("\n")
+            self.row_names.append(info.name)
             stats = frame.constraints.get(info.name)
             text.append(info.name.ljust(name_w) + " ", style="bold" if rank < 2 else MUTED)
             cell = word.copy()

@@ -85,8 +85,7 @@ def heading_text(explanation: Explanation, alarm: Alarm | None) -> Text:
         text.append_text(tag(f"P{priority} {explanation.severity}", level))
     else:
         text.append(f"{explanation.severity} (no alarm)", style=MUTED)
-    text.append(f" · {explanation.device} · since {seconds(explanation.since_us)} s "
-                f"(scan {explanation.since_scan})", style=MUTED)
+    # the marks that change how to read it first: the end of the line may be cut
     if explanation.ambiguous:
         text.append(" · ")
         text.append("? AMBIGUOUS", style=STYLE[Level.ATTENTION])
@@ -94,6 +93,8 @@ def heading_text(explanation: Explanation, alarm: Alarm | None) -> Text:
         text.append(" · LATCHED", style=Style(bold=True))
     if alarm is not None and alarm.state == CLEARED_UNACK:
         text.append(f" · ○ cleared at {seconds(alarm.changed_us)} s", style=MUTED)
+    text.append(f" · {explanation.device} · since {seconds(explanation.since_us)} s "
+                f"(scan {explanation.since_scan})", style=MUTED)
     return text
 
 
@@ -147,6 +148,8 @@ class ExplanationPanel(VerticalScroll):
         self._drawn: tuple | None = None
         self._policies: tuple[Policy, ...] | None = None
         self._focus_recommended = False
+        self._answered: Text | None = None
+        self._pending_end = False
         self.visible = True
 
     def compose(self) -> ComposeResult:
@@ -203,7 +206,9 @@ class ExplanationPanel(VerticalScroll):
     def _draw(self) -> None:
         exp = self.explanation
         level = self.level
-        visible = exp is not None and (self.wide or level >= 2)
+        # wide: always there; narrow: only once opened past the first level (the alarm
+        # list already shows that line), in the chronogram's place
+        visible = self.wide or (exp is not None and level >= 2)
         if visible != self.visible or self._drawn is None:
             self.visible = visible
             self.display = visible
@@ -235,10 +240,22 @@ class ExplanationPanel(VerticalScroll):
             view.display = True
             view.update(level_text(exp, view.level, level >= view.level))
         self._set_policies(exp.policies if level >= 4 else ())
-        result.update(self.results.get(self.key or "", ""))
+        answer = self.results.get(self.key or "")
+        result.update(answer or "")
+        if answer is not None and answer is not self._answered:
+            self._answered = answer  # a new answer: make sure it is seen
+            self._pending_end = True  # the answer is the last line: scroll to it once laid out
         if self._focus_recommended:
             self._focus_recommended = False
             self.call_after_refresh(self._focus_policy)
+
+    def _scroll_update(self, virtual_size) -> None:
+        # Textual's hook (8.2) for a new virtual size: the first moment the answer's lines
+        # have a place, so the first moment scrolling to the end reaches them.
+        super()._scroll_update(virtual_size)
+        if self._pending_end:  # the answer's lines are laid out now
+            self._pending_end = False
+            self.scroll_end(animate=False, immediate=True)
 
     def _set_policies(self, policies: tuple[Policy, ...]) -> None:
         if policies == self._policies:
@@ -274,11 +291,14 @@ class ExplanationPanel(VerticalScroll):
             self.post_message(PolicyRequested(self.key, policy))
 
 
-def result_line(policy: Policy, accepted: bool, message: str) -> Text:
-    """The answer to a policy choice, for the panel (the message line has its own)."""
+def result_line(key: str, policy: Policy, accepted: bool, message: str) -> Text:
+    """The answer to a policy choice, for the panel (the message line has its own): the
+    engine's answer without the part that repeats the policy and the situation."""
+    _, found, rest = message.partition(f" for {key}: ")
+    answer = rest if found else message
     if accepted:
-        return Text(f"{OK_SYMBOL} {policy.label}: {message}")
+        return Text(f"{OK_SYMBOL} {policy.label} chosen: {answer}")
     line = tag("REFUSED", Level.ALARM)
-    line.append(f" {policy.label}: {message}")
+    line.append(f" {policy.label}: {answer}")
     return line
 

@@ -1,6 +1,9 @@
 """The control program's state: GRAFCET steps (active ones marked, with their activity time)
 and the timers with their elapsed time against the preset.
 
+On a short screen (under 30 lines) shared with the monitors or diagnosers, only the active
+steps are listed (the title says how many: `2/6 steps active`).
+
 No colour here: an active step is normal. It is marked by a filled dot and bold text; the
 time a step has been active is what tells an engineer the sequence is stuck (a valve that
 never reaches its end switch keeps its "Opening" step active for ever).
@@ -18,6 +21,7 @@ from hmi.ui.panel import TextPanel
 from hmi.ui.style import MUTED
 
 BAR = 10
+SHORT = 30  # below this height the panel may list the active steps only
 
 
 @dataclass(frozen=True)
@@ -54,6 +58,14 @@ class GrafcetPanel(TextPanel):
     def on_mount(self) -> None:
         self.border_title = f"Control · {self.control}"
 
+    @property
+    def compact(self) -> bool:
+        """Active steps only: on a short screen, when panels share this column with it
+        (monitors, diagnosers), so that theirs are not the rows lost."""
+        if self.app.size.height >= SHORT or self.parent is None:
+            return False
+        return any(c.display for c in self.parent.children if c is not self)
+
     def show(self, frame: Frame) -> None:
         self.frame = frame
         self.show_text(self.render_frame(frame))
@@ -70,8 +82,13 @@ class GrafcetPanel(TextPanel):
         text = Text(no_wrap=True, overflow="ellipsis")
         if not self.steps:
             text.append("no GRAFCET (equations only)\n", style=MUTED)
+        compact = self.compact
+        self.border_title = f"Control · {self.control}" + (
+            f" · {len(active)}/{len(self.steps)} steps active" if compact else "")
         for step in self.steps:
             on = step.name in active
+            if compact and not on:
+                continue
             desc_w = max(0, width - name_w - 3 - 10)
             desc = step.description[:desc_w].ljust(desc_w)
             if on:

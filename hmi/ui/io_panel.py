@@ -35,11 +35,13 @@ class IOPanel(DataTable):
     ]
 
     def __init__(self, layout: Layout, descriptions: dict[str, str],
-                 free_inputs: tuple[str, ...], *, id: str | None = None):
+                 free_inputs: tuple[str, ...], *, id: str | None = None,
+                 devices: dict[str, str] | None = None):
         super().__init__(id=id, cursor_type="row", zebra_stripes=False)
         self.layout_ = layout
         self.descriptions = descriptions
         self.free_inputs = free_inputs
+        self.devices = devices or {}  # output -> its device (for devices the operator stops)
         self.frame: Frame | None = None
         self._cells: dict[tuple[str, str], object] = {}
         self._widths: dict[str, int] = {}
@@ -86,6 +88,8 @@ class IOPanel(DataTable):
                 state.append(tag("≠ " + frame.changed[name], level))
             if name in masked:
                 state.append(tag("masked", Level.ALARM))
+            if self.devices.get(name) in snap.stopped_devices:
+                state.append(tag("stopped", Level.ATTENTION))
             if frame.manual:
                 if name in requests:
                     state.append(tag(f"forced {bit(requests[name])}", Level.ATTENTION))

@@ -14,13 +14,15 @@ while the task is interrupted) must end between alpha and beta. A task that wait
 normal and grey; an interrupted one is amber with ``‖``; a latched fault is red with ``✗``,
 its label, and the stopwatch values at detection, which stay until a fault reset.
 
-On a short terminal each task takes one line (location, x bar, the fault label).
+When the column has too few rows, the detection values go first (they are in the
+explanation too), then each task takes one line (location, x bar, the fault label).
 """
 
 from __future__ import annotations
 
 from rich.style import Style
 from rich.text import Text
+from textual.css.query import NoMatches
 
 from hmi.engine.monitors import MonitorState
 from hmi.engine.stopwatch import Window
@@ -30,6 +32,7 @@ from hmi.ui.panel import TextPanel
 from hmi.ui.style import MUTED, STYLE, Level
 
 BAR = 12
+TOP_SHARE = 0.6  # app.tcss: #top { max-height: 60% }
 LOCATIONS = {
     "waiting": ("○", "waiting", Level.NORMAL),
     "executing": ("▶", "executing", Level.NORMAL),
@@ -100,15 +103,17 @@ def detection_text(m: MonitorState) -> Text:
     return text
 
 
-def monitor_lines(m: MonitorState, name_w: int, width: int, compact: bool) -> list[Text]:
+def monitor_lines(m: MonitorState, name_w: int, width: int, detail: int) -> list[Text]:
+    """A task's lines: `detail` 2 = location, bars, detection; 1 = location and bars (the
+    detection is in the explanation); 0 = one line (location, x bar, fault label)."""
     head = location_cell(m, name_w)
-    if compact:
+    if detail == 0:  # the fault label before the bar: the end of the line may be cut
         line = head
+        if m.detection is not None:
+            line.append(" ")
+            line.append(m.label, style=STYLE[Level.ALARM])
         line.append("  ")
         line.append_text(x_text(m))
-        if m.detection is not None:
-            line.append("  ")
-            line.append(f"✗ {m.label}", style=STYLE[Level.ALARM])
         return [line]
     if m.detection is not None:
         head.append(" ")
@@ -128,7 +133,7 @@ def monitor_lines(m: MonitorState, name_w: int, width: int, compact: bool) -> li
         lines = [head, bars]
     else:
         lines = [head, bars, Text("  ").append_text(y)]
-    if m.detection is not None:
+    if m.detection is not None and detail >= 2:
         lines.append(Text("  ").append_text(detection_text(m)))
     return lines
 
@@ -141,6 +146,7 @@ class MonitorsPanel(TextPanel):
         self.count = count
         self.frame: Frame | None = None
         self.display = count > 0
+        self._room_used: int | None = None
 
     def on_mount(self) -> None:
         self.border_title = f"Monitors · {self.count}"
@@ -149,9 +155,17 @@ class MonitorsPanel(TextPanel):
         self.frame = frame
         if self.count:
             self.show_text(self.render_frame(frame))
+            # The room is measured on the last layout; this frame may change it (an alarm
+            # row, a banner): check again once it is laid out.
+            self.call_after_refresh(self.recheck)
 
     def on_resize(self) -> None:
         if self.frame is not None and self.count:
+            self.show_text(self.render_frame(self.frame))
+
+    def recheck(self) -> None:
+        """Draw again if the room changed since the last drawing (see Body.on_resize)."""
+        if self.frame is not None and self.count and self._room() != self._room_used:
             self.show_text(self.render_frame(self.frame))
 
     def render_frame(self, frame: Frame) -> Text:
@@ -161,10 +175,30 @@ class MonitorsPanel(TextPanel):
             text.append("no monitor state yet", style=MUTED)
             return text
         width = max(30, self.content_size.width or 40)
-        compact = self.app.size.height < 30
         faulty = sum(1 for m in monitors if m.faulty)
         self.border_title = f"Monitors · {len(monitors)}" + (
             f" · {faulty} faulty" if faulty else "")
         name_w = max(len(m.name) for m in monitors)
-        lines = [line for m in monitors for line in monitor_lines(m, name_w, width, compact)]
+        room = self._room_used = self._room()
+        for detail in (2, 1, 0):
+            lines = [line for m in monitors
+                     for line in monitor_lines(m, name_w, width, detail)]
+            if room is None or len(lines) <= room:
+                break
         return Text("\n", no_wrap=True, overflow="ellipsis").join(lines)
+
+    def _room(self) -> int | None:
+        """Lines the panel can show: the body's upper share (app.tcss: ``#top`` is at most
+        TOP_SHARE of ``#body``) less the panels above it in its column and its border."""
+        try:
+            body = self.screen.query_one("#body")
+        except NoMatches:
+            return None
+        if not body.size.height or self.parent is None:
+            return None
+        above = 0
+        for sibling in self.parent.children:
+            if sibling is self:
+                break
+            above += sibling.outer_size.height if sibling.display else 0
+        return int(body.size.height * TOP_SHARE) - above - 2

@@ -3,7 +3,8 @@
 The status bar is one line. When the terminal is narrow it drops its least important fields
 first (project name, measured scan time, plant details) and never the mode, the run state or
 an alarm. The banner strip appears only while something abnormal is in effect: manual mode
-(MANUAL / FORCES ACTIVE) and outputs latched in the safe state.
+(MANUAL / FORCES ACTIVE), a device the operator stopped, and outputs latched in the safe
+state.
 """
 
 from __future__ import annotations
@@ -154,6 +155,13 @@ def banner_lines(frame: Frame) -> list[Text]:
     if not snap.plant.connected:
         line = banner("PLANT DISCONNECTED", Level.ALARM)
         line.append(f" {snap.plant.description}: {snap.plant.message or 'no answer'}")
+        lines.append(line)
+    if snap.stopped_devices:
+        stopped = ", ".join(snap.stopped_devices)
+        line = banner("DEVICE STOPPED" if len(snap.stopped_devices) == 1
+                      else "DEVICES STOPPED", Level.ATTENTION)
+        line.append(f" {stopped}: outputs held safe by the operator"
+                    " · ctrl+p: Release device")
         lines.append(line)
     if snap.latched:
         line = banner("OUTPUTS HELD IN SAFE STATE", Level.ALARM)

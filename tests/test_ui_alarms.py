@@ -1,0 +1,527 @@
+"""Pilot tests of the alarm list, the explanation panel, the monitors panel and their controls.
+
+As in test_ui_app.py: a VirtualDriver (no scan unless the test runs virtual time), bounded
+waits, and assertions on the engine *and* on what the widgets show.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from hmi.engine.commands import InjectFault, StopDevice
+from hmi.explain.alarms import ACTIVE_ACK, ACTIVE_UNACK, CLEARED_UNACK
+from hmi.plant.sim import Injection
+from hmi.ui.alarm_list import AlarmList
+from hmi.ui.chronogram import Chronogram
+from hmi.ui.dialogs import ConfirmDialog
+from hmi.ui.explain_panel import ExplanationPanel
+from hmi.ui.scenarios import VALVE, make_app
+from hmi.ui.testing import (
+    palette,
+    region_text,
+    run_for,
+    run_until,
+    screen_text,
+    settle,
+    wait_for_main,
+    wait_for_screen,
+    wait_until,
+)
+
+CONVEYOR = VALVE.parent / "conveyor_robot"
+WIDE = (120, 36)
+
+
+def engine(app):
+    return app.controller.engine
+
+
+def alarms(app) -> dict[str, str]:
+    """The engine's alarms, key -> ISA-18.2 state (what the next snapshot will list)."""
+    return {a.key: a.state for a in engine(app).alarm_manager.alarms.values()}
+
+
+def flat(app, selector: str) -> str:
+    """A panel's text with its wrapped lines joined: what a sentence reads across lines."""
+    lines = [line.strip("│╭╮╰╯─ ") for line in region_text(app, selector).splitlines()]
+    return " ".join(" ".join(lines).split())
+
+
+def panel(app) -> ExplanationPanel:
+    return app.query_one(ExplanationPanel)
+
+
+async def conveyor_fault(pilot) -> None:
+    """002 §4 (paper scenario): the conveyor stops for 2 s after 1 s of work; its monitor
+    fires at x = 3 s, y = 1 s."""
+    pilot.app.send(InjectFault(Injection("stop", 1_000_000, "C1", 2_000_000)))
+    await run_until(pilot, lambda s: any(m.detection for m in s.monitors), 5,
+                    "the conveyor monitor's fault")
+
+
+# -- the alarm list ------------------------------------------------------------------------
+
+
+async def test_alarm_list_shows_state_priority_time_and_text():
+    app = make_app(control="faulty")
+    async with app.run_test(size=WIDE) as pilot:
+        await run_for(pilot, 8.7)
+        snap = engine(app).last
+        listed = region_text(app, "#alarms")
+        states = {a.state for a in snap.alarms}
+        assert {ACTIVE_UNACK, CLEARED_UNACK} <= states
+        assert "▲ UNACK" in listed and "○ CLEARED-UNACK" in listed
+        rows = [line for line in listed.splitlines() if "P" in line and " s " in line]
+        # unacknowledged first: the engine's order, row for row
+        shown = [row for row in rows if "UNACK" in row]
+        assert len(shown) == min(len(snap.alarms), 4)
+        first = snap.alarms[0]
+        assert f"P{first.priority}" in rows[0] and "6.000 s" in rows[0]
+        assert f"{len(snap.alarms)} unacknowledged / {len(snap.alarms)}" in listed
+        if len(snap.alarms) > 4:
+            assert f"↓ {len(snap.alarms) - 4} more" in listed
+
+
+async def test_acknowledge_the_selected_alarm_with_a():
+    app = make_app(control="faulty")
+    async with app.run_test(size=WIDE) as pilot:
+        await run_until(pilot, lambda s: any(a.state == ACTIVE_UNACK for a in s.alarms), 5,
+                        "an unacknowledged alarm")
+        selected = app.query_one(AlarmList).selected
+        assert selected == engine(app).last.alarms[0].key
+        await pilot.press("a")
+        await settle(pilot)
+        assert alarms(app)[selected] == ACTIVE_ACK
+        assert "acknowledged 1 alarm" in app.message.plain
+        await run_for(pilot, 0.01)
+        assert "● ACK" in region_text(app, "#alarms")
+
+
+async def test_acknowledge_all_with_shift_a_and_a_cleared_alarm_goes():
+    app = make_app(control="faulty")
+    async with app.run_test(size=WIDE) as pilot:
+        await run_for(pilot, 8.7)
+        before = alarms(app)
+        cleared = [k for k, s in before.items() if s == CLEARED_UNACK]
+        assert cleared
+        await pilot.press("A")
+        await settle(pilot)
+        after = alarms(app)
+        assert all(k not in after for k in cleared)  # acknowledged and already clear: gone
+        assert all(s == ACTIVE_ACK for s in after.values())
+        await run_for(pilot, 0.01)
+        listed = region_text(app, "#alarms")
+        assert "UNACK" not in listed and "● ACK" in listed
+        assert "0 unacknowledged" in listed
+
+
+async def test_acknowledge_while_paused_says_when_it_shows():
+    app = make_app(control="faulty")
+    async with app.run_test(size=WIDE) as pilot:
+        await run_for(pilot, 3.0)
+        await pilot.press("space", "A")
+        await settle(pilot)
+        assert all(s == ACTIVE_ACK for s in alarms(app).values())
+        assert "applies at the next scan (paused)" in app.message.plain
+
+
+async def test_acknowledge_with_no_alarm_is_refused_with_its_reason():
+    app = make_app()
+    async with app.run_test(size=WIDE) as pilot:
+        await run_for(pilot, 1.0)
+        await pilot.press("a")
+        await settle(pilot)
+        assert "NOT AVAILABLE" in app.message.plain and "no alarm" in app.message.plain
+        assert "✓ no alarm" in region_text(app, "#alarms")
+
+
+async def test_acknowledge_from_the_palette():
+    app = make_app(control="faulty")
+    async with app.run_test(size=WIDE) as pilot:
+        await run_for(pilot, 3.0)
+        await palette(pilot, "Alarms: acknowledge all")
+        assert all(s == ACTIVE_ACK for s in alarms(app).values())
+        await run_for(pilot, 3.0)  # CSc1 raised meanwhile
+        key = next(k for k, s in alarms(app).items() if s == ACTIVE_UNACK)
+        text = engine(app).alarm_manager.alarms[key].text
+        await palette(pilot, f"Alarms: acknowledge {text}", text)
+        assert alarms(app)[key] == ACTIVE_ACK
+
+
+async def test_select_an_alarm_with_the_keys_and_the_explanation_follows():
+    app = make_app(control="faulty")
+    async with app.run_test(size=WIDE) as pilot:
+        await run_for(pilot, 8.7)
+        listed = engine(app).last.alarms
+        alarm_list = app.query_one(AlarmList)
+        alarm_list.focus()
+        await pilot.press("down")
+        await settle(pilot)
+        assert alarm_list.selected == listed[1].key
+        assert panel(app).key == listed[1].key
+        assert listed[1].text in region_text(app, "#explain").replace("\n", " ") or \
+            listed[1].text[:40] in region_text(app, "#explain")
+        assert "› " + "▲ UNACK" in region_text(app, "#alarms").replace("│ ", "")
+        await pilot.press("a")  # acknowledges the selected one, not the first
+        await settle(pilot)
+        assert alarms(app)[listed[1].key] == ACTIVE_ACK
+        assert alarms(app)[listed[0].key] == listed[0].state
+
+
+async def test_click_an_alarm_to_select_it():
+    app = make_app(control="faulty")
+    async with app.run_test(size=WIDE) as pilot:
+        await run_for(pilot, 8.7)
+        listed = engine(app).last.alarms
+        alarm_list = app.query_one(AlarmList)
+        await pilot.click(AlarmList, offset=(10, 3))  # the border, then rows 0, 1, 2
+        await settle(pilot)
+        assert alarm_list.selected == listed[2].key
+        assert panel(app).key == listed[2].key
+
+
+async def test_alarm_list_survives_80x24_with_many_alarms():
+    app = make_app(control="faulty")
+    async with app.run_test(size=(80, 24)) as pilot:
+        await run_for(pilot, 8.7)
+        assert len(engine(app).last.alarms) == 5
+        screen = app.screen.region
+        for selector in ("#status", "#alarms", "#message", "HmiFooter"):
+            region = app.query_one(selector).region
+            assert region.area > 0 and screen.contains_region(region), selector
+        rows = [line for line in region_text(app, "#alarms").splitlines() if "UNACK" in line]
+        assert len(rows) == 3  # three rows, never fewer
+        assert "↓ 2 more" in region_text(app, "#alarms")
+        chrono = app.query_one(Chronogram).region
+        assert chrono.height >= 4  # the chronogram gave the rows, but is still there
+        footer = "\n".join(screen_text(app).splitlines()[-2:])
+        for label in ("Ack", "Ack all", "Explain"):
+            assert label in footer
+
+
+# -- the explanation panel -----------------------------------------------------------------
+
+
+async def test_expand_the_explanation_level_by_level():
+    app = make_app(control="faulty", policy="block")
+    async with app.run_test(size=WIDE) as pilot:
+        await run_until(pilot, lambda s: bool(s.latched), 5, "safe blocking")
+        app.explain("safe_state:filter", open_level=1)
+        await settle(pilot)
+        exp = next(e for e in engine(app).last.explanations if e.key == "safe_state:filter")
+        text = region_text(app, "#explain")
+        assert exp.what[:30] in text and "LATCHED" in text
+        assert "▸ Why" in text and "▸ Consequences" in text and "▸ Policies" in text
+        assert exp.why[:30] not in text.replace("\n", " ")
+        await pilot.press("e")
+        await settle(pilot)
+        text = region_text(app, "#explain")
+        assert "▾ Why" in text and "The filter's policy is safe blocking" in text
+        await pilot.press("e")
+        await settle(pilot)
+        assert "▾ Consequences" in region_text(app, "#explain")
+        await pilot.press("e")
+        await wait_until(pilot, lambda: app.focused is not None
+                         and "policy-button" in app.focused.classes, "a policy button")
+        focused = app.focused
+        assert focused.policy.recommended and focused.policy.id == "reset"
+        assert "★ Fault reset" in str(focused.label)
+        assert panel(app).level == 4
+        await pilot.press("e")  # folds back to the first level
+        await settle(pilot)
+        assert panel(app).level == 1
+        assert "▸ Why" in region_text(app, "#explain")
+
+
+async def test_click_a_level_heading_opens_and_folds_it():
+    app = make_app(control="faulty", policy="block")
+    async with app.run_test(size=WIDE) as pilot:
+        await run_until(pilot, lambda s: bool(s.latched), 5, "safe blocking")
+        app.explain("safe_state:filter", open_level=1)
+        await settle(pilot)
+        await pilot.click("#explain-consequences")
+        await settle(pilot)
+        assert panel(app).level == 3  # consequences, and why before it
+        text = region_text(app, "#explain")
+        assert "▾ Why" in text and "▾ Consequences" in text
+        await pilot.click("#explain-why")
+        await settle(pilot)
+        assert panel(app).level == 1
+        assert "▸ Why" in region_text(app, "#explain")
+
+
+async def test_narrow_screen_explanation_takes_the_chronogram_place():
+    app = make_app(control="faulty")
+    async with app.run_test(size=(80, 24)) as pilot:
+        await run_for(pilot, 3.0)
+        assert not panel(app).display  # level 1 is the alarm list's own line
+        assert app.query_one("#col-time").display
+        await pilot.press("e")
+        await settle(pilot)
+        assert panel(app).display and not app.query_one("#col-time").display
+        assert "▾ Why" in region_text(app, "#explain")
+        await pilot.press("e", "e", "e")
+        await settle(pilot)
+        assert not panel(app).display and app.query_one("#col-time").display
+
+
+async def test_explain_with_nothing_to_explain_is_refused():
+    app = make_app()
+    async with app.run_test(size=WIDE) as pilot:
+        await run_for(pilot, 1.0)
+        assert "no alarm to explain" in region_text(app, "#explain")
+        await pilot.press("e")
+        await settle(pilot)
+        assert "NOT AVAILABLE" in app.message.plain
+
+
+async def test_click_a_constraint_opens_its_explanation():
+    app = make_app(control="faulty")
+    async with app.run_test(size=WIDE) as pilot:
+        await run_until(pilot, lambda s: s.filter is not None and "CSs2" in
+                        s.filter.violated_names, 5, "CSs2 violated")
+        rows = app.query_one("#constraints").row_names
+        await pilot.click("#constraints", offset=(3, 1 + rows.index("CSs2")))
+        await settle(pilot)
+        assert panel(app).key == "constraint:CSs2"
+        assert app.query_one(AlarmList).selected == "constraint:CSs2"
+        assert "▾ Why" in region_text(app, "#explain")
+        assert "CSs2" in region_text(app, "#explain")
+
+
+# -- policies ------------------------------------------------------------------------------
+
+
+async def open_policies(pilot, key: str) -> None:
+    app = pilot.app
+    app.explain(key, open_level=4)
+    await wait_until(pilot, lambda: app.focused is not None
+                     and "policy-button" in app.focused.classes, "the policy buttons")
+    await settle(pilot)
+
+
+async def test_policy_without_a_command_is_chosen_at_once():
+    app = make_app(control="faulty")
+    seen = []
+    app.controller.listeners.append(lambda cmd, result, snap: seen.append(cmd))
+    async with app.run_test(size=WIDE) as pilot:
+        await run_until(pilot, lambda s: any(a.state == ACTIVE_UNACK for a in s.alarms), 5,
+                        "a corrected constraint")
+        key = engine(app).last.alarms[0].key
+        await open_policies(pilot, key)
+        assert app.focused.policy.id == "continue"  # the recommended one, focused
+        await pilot.press("enter")
+        await settle(pilot)
+        assert len(app.screen_stack) == 1  # no confirmation: nothing changes in the plant
+        assert type(seen[-1]).__name__ == "ChoosePolicy" and seen[-1].policy == "continue"
+        assert "✓ Continue chosen: let the filter keep correcting" in flat(app, "#explain")
+        assert "chosen" in app.message.plain
+
+
+async def test_policy_fault_reset_is_confirmed_with_the_reset_preview():
+    app = make_app(control="faulty", policy="block")
+    async with app.run_test(size=WIDE) as pilot:
+        await run_until(pilot, lambda s: bool(s.latched), 5, "safe blocking")
+        await run_until(pilot, lambda s: s.filter is not None and not s.filter.violations,
+                        10, "the program no longer violating")
+        await open_policies(pilot, "safe_state:filter")
+        await pilot.press("enter")  # the recommended: fault reset
+        await wait_for_screen(pilot, ConfirmDialog)
+        text = screen_text(app)
+        assert "Fault reset?" in text and "will be reset: safe-state latch (filter)" in text
+        await pilot.press("y")
+        await wait_for_main(pilot)
+        assert engine(app).latched == []
+        assert "✓ Fault reset chosen: fault reset: safe-state latch released" in \
+            flat(app, "#explain")
+
+
+async def test_policy_cancelled_sends_nothing():
+    app = make_app(control="faulty", policy="block")
+    seen = []
+    app.controller.listeners.append(lambda cmd, result, snap: seen.append(cmd))
+    async with app.run_test(size=WIDE) as pilot:
+        await run_until(pilot, lambda s: bool(s.latched), 5, "safe blocking")
+        await open_policies(pilot, "safe_state:filter")
+        await pilot.press("enter")
+        await wait_for_screen(pilot, ConfirmDialog)
+        await pilot.press("n")
+        await wait_for_main(pilot)
+        assert seen == [] and engine(app).latched
+        assert "cancelled" in app.message.plain
+
+
+async def test_policy_manual_enters_manual_mode_after_confirmation():
+    app = make_app(control="faulty", policy="block")
+    async with app.run_test(size=WIDE) as pilot:
+        await run_until(pilot, lambda s: bool(s.latched), 5, "safe blocking")
+        await open_policies(pilot, "safe_state:filter")
+        await pilot.press("tab")  # the next policy
+        assert app.focused.policy.id == "manual"
+        await pilot.press("enter")
+        await wait_for_screen(pilot, ConfirmDialog)
+        assert "still goes through the safety filter" in screen_text(app)
+        await pilot.press("y")
+        await wait_for_main(pilot)
+        assert engine(app).mode == "manual"
+        assert app.frame.manual_keys  # the manual keys work before the next scan
+        await run_for(pilot, 0.01)
+        assert "MANUAL / FORCES ACTIVE" in region_text(app, "#banners")
+
+
+async def test_policy_stop_device_then_release_it_from_the_palette():
+    app = make_app(control="faulty")
+    seen = []
+    app.controller.listeners.append(lambda cmd, result, snap: seen.append(type(cmd).__name__))
+    async with app.run_test(size=WIDE) as pilot:
+        await run_until(pilot, lambda s: any(a.key.startswith("constraint:")
+                                             for a in s.alarms), 5, "a constraint alarm")
+        await open_policies(pilot, engine(app).last.alarms[0].key)
+        button = next(b for b in app.query(".policy-button")
+                      if b.policy.id == "stop_device")
+        button.focus()
+        await pilot.press("enter")
+        await wait_for_screen(pilot, ConfirmDialog)
+        assert "Every output of Valve V1 (C, O) is held at its safe value" in screen_text(app)
+        await pilot.press("y")
+        await wait_for_main(pilot)
+        assert engine(app).stopped_devices == {"Valve V1"}
+        await run_for(pilot, 0.05)
+        snap = engine(app).last
+        assert snap.outputs == (False, False) and snap.fov == (False, False)
+        assert "DEVICE STOPPED" in region_text(app, "#banners")
+        assert region_text(app, "#io").count("▲ stopped") == 2
+        await palette(pilot, "Release device Valve V1")
+        assert engine(app).stopped_devices == set()
+        await run_for(pilot, 0.05)
+        assert not app.query_one("#banners").display
+        assert seen == ["ChoosePolicy", "ReleaseDevice"]
+
+
+async def test_policy_switch_the_filter_to_correct_under_monitor():
+    app = make_app(control="faulty", policy="monitor")
+    async with app.run_test(size=WIDE) as pilot:
+        await run_until(pilot, lambda s: any(a.severity == "high" for a in s.alarms), 5,
+                        "an unsafe vector written")
+        key = next(a.key for a in engine(app).last.alarms if a.severity == "high")
+        await open_policies(pilot, key)
+        assert "✗ P1 high" in region_text(app, "#explain")
+        assert app.focused.policy.id == "correct"
+        await pilot.press("enter")
+        await wait_for_screen(pilot, ConfirmDialog)
+        assert "The safety filter switches to correct" in screen_text(app)
+        await pilot.press("y")
+        await wait_for_main(pilot)
+        assert engine(app).policy == "correct"
+
+
+async def test_policies_are_in_the_palette():
+    app = make_app(control="faulty", policy="block")
+    async with app.run_test(size=WIDE) as pilot:
+        await run_until(pilot, lambda s: bool(s.latched), 5, "safe blocking")
+        app.explain("safe_state:filter", open_level=1)
+        await settle(pilot)
+        titles = [e.title for e in app.palette_entries()]
+        assert any(t.startswith("Policy: Fault reset (recommended)") for t in titles)
+        assert any(t.startswith("Explain: ") for t in titles)
+        await palette(pilot, "Policy: Switch to manual", "Switch to manual")
+        await wait_for_screen(pilot, ConfirmDialog)
+        await pilot.press("y")
+        await wait_for_main(pilot)
+        assert engine(app).mode == "manual"
+
+
+# -- monitors ------------------------------------------------------------------------------
+
+
+async def test_monitors_panel_shows_windows_and_a_latched_fault():
+    app = make_app(CONVEYOR)
+    async with app.run_test(size=(160, 48)) as pilot:
+        await run_for(pilot, 0.5)
+        text = region_text(app, "#monitors")
+        assert "Monitors · 2" in text
+        assert "▶ conveyor" in text and "executing" in text
+        assert "x ▕" in text and "/5 s" in text and "in [3, 4]" in text
+        await conveyor_fault(pilot)
+        text = region_text(app, "#monitors")
+        assert "✗ conveyor" in text and "FAULTY" in text and "conveyor_fault" in text
+        assert "at 3.000 s: x 3.000 s, y 1.000 s" in text
+        assert "1 faulty" in text
+        listed = region_text(app, "#alarms")
+        assert "▲ UNACK" in listed and "LATCHED" in listed and "P2" in listed
+
+
+async def test_monitors_panel_gives_up_detail_rather_than_rows():
+    app = make_app(CONVEYOR)
+    async with app.run_test(size=WIDE) as pilot:
+        await conveyor_fault(pilot)
+        # 120×36: no room for the detection line (it is in the explanation): the panel
+        # keeps location, bars and label for both tasks, and its lower border shows
+        lines = region_text(app, "#monitors").splitlines()
+        assert lines[-1].startswith("╰")
+        text = "\n".join(lines)
+        assert "✗ conveyor FAULTY conveyor_fault" in text and "○ robot" in text
+        assert "at 3.000 s" not in text
+    app = make_app(CONVEYOR)
+    async with app.run_test(size=(80, 24)) as pilot:
+        await conveyor_fault(pilot)
+        lines = region_text(app, "#monitors").splitlines()
+        assert any("✗ conveyor FAULTY conveyor_fault" in line for line in lines)
+        assert any("○ robot" in line and "x ▕" in line for line in lines)
+
+
+async def test_monitor_fault_reset_preview_and_policies():
+    app = make_app(CONVEYOR)
+    async with app.run_test(size=WIDE) as pilot:
+        await conveyor_fault(pilot)
+        await pilot.press("r")
+        await wait_for_screen(pilot, ConfirmDialog)
+        text = screen_text(app)
+        # the condemned attempt still runs: the label stays
+        assert "stays: monitor label conveyor_fault" in text
+        assert "can no longer end in time" in text
+        await pilot.press("n")
+        await wait_for_main(pilot)
+        await run_until(pilot, lambda s: not next(m for m in s.monitors
+                                                   if m.name == "conveyor").running,
+                        5, "the late pallet arrives")
+        app.send(StopDevice("Robot R1"))
+        await run_for(pilot, 0.01)  # the dialog previews the last snapshot
+        await pilot.press("r")
+        await wait_for_screen(pilot, ConfirmDialog)
+        text = screen_text(app)
+        assert "will be reset: monitor label conveyor_fault" in text
+        assert "1 latched alarm clear with their latch" in text
+        assert "stays: Robot R1 stopped by the operator" in text
+        await pilot.press("y")
+        await wait_for_main(pilot)
+        await run_for(pilot, 0.01)
+        snap = engine(app).last
+        assert not any(m.detection for m in snap.monitors)
+        assert "Robot R1" in snap.stopped_devices
+        assert "○ CLEARED-UNACK" in region_text(app, "#alarms")
+
+
+async def test_monitor_fault_explanation_offers_its_policies():
+    app = make_app(CONVEYOR)
+    async with app.run_test(size=WIDE) as pilot:
+        await conveyor_fault(pilot)
+        assert panel(app).key == "monitor:conveyor"
+        await open_policies(pilot, "monitor:conveyor")
+        labels = [b.policy.id for b in app.query(".policy-button")]
+        assert labels == ["continue", "stop_device", "reset"]
+        text = region_text(app, "#explain")
+        assert "★ Continue" in text and "recommended" in text
+
+
+async def test_new_controls_reach_the_controller_listeners(tmp_path: Path):
+    app = make_app(control="faulty")
+    seen = []
+    app.controller.listeners.append(lambda cmd, result, snap: seen.append(type(cmd).__name__))
+    async with app.run_test(size=WIDE) as pilot:
+        await run_for(pilot, 3.0)
+        await pilot.press("a", "A")
+        await open_policies(pilot, engine(app).last.alarms[0].key)
+        await pilot.press("enter")
+        await settle(pilot)
+    assert seen == ["Acknowledge", "Acknowledge", "ChoosePolicy"]
