@@ -23,6 +23,7 @@ from hmi.engine.commands import (
     SetMode,
     SetPolicy,
 )
+from hmi.engine.diagnoser import install_diagnosers
 from hmi.engine.filter import SafetyFilter
 from hmi.engine.layout import Layout
 from hmi.engine.snapshot import LatchReason, Snapshot
@@ -30,12 +31,14 @@ from hmi.logic.control import ControlRuntime
 from hmi.logic.expr import BoolFn, compile_bool, max_depth
 from hmi.logic.timers import TimerRuntime
 from hmi.plant.base import Plant, PlantError
+from hmi.project.diagnosers import layout_names
 from hmi.project.model import POLICIES, Project
 
 
 class Engine:
     def __init__(self, project: Project, plant: Plant, control: str | None = None,
-                 policy: str | None = None, solver: str | None = None):
+                 policy: str | None = None, solver: str | None = None,
+                 diagnosis: str = "ftc"):
         self.project = project
         self.plant = plant
         self.control_name = control or project.default_control
@@ -45,7 +48,8 @@ class Engine:
         self.policy = policy or project.policy
         if self.policy not in POLICIES:
             raise ValueError(self.policy)
-        self.layout = Layout.build(project, law)
+        # Partition flags and filtered sensors get slots (hmi/engine/diagnoser.py).
+        self.layout = Layout.build(project, law, extra=layout_names(project))
         lay = self.layout
         slots, times = lay.slots, lay.step_times
         self.input_slots = lay.indices(lay.inputs)
@@ -85,6 +89,8 @@ class Engine:
         # was reset (or what stays, and why).
         self.reset_hooks: list[Callable[[Engine], list[str]]] = []
         self.extras: dict = {}
+        # Diagnosers (stages 3-4), masking around the filter, their reset hook.
+        self.diagnosis = install_diagnosers(self, diagnosis)
 
     # -- commands ----------------------------------------------------------------------------
     def apply(self, command) -> CommandResult:
