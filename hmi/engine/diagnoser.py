@@ -276,37 +276,53 @@ class DiagnosisStage:
         self.outputs = lay.outputs
         self.mask: tuple[bool, ...] | None = None  # this scan's mask (ftc only)
         self.depth = max((rt.depth for rt in self.runtimes), default=1)
+        self.dirty = True  # flags, routes and masks to recompute at the next scan
+        self.routes: tuple[tuple[int, int], ...] = ()  # filtered slot <- sensor or estimate
+        self.records: tuple[DiagnoserState, ...] = ()
+        self.reconstructed: tuple[str, ...] = ()
+        self.masked: tuple[str, ...] = ()
 
     def __call__(self, engine: Engine) -> None:
         image, hist = engine.image, engine.history
-        now, scan = engine.now, engine.scan
+        changed = self.dirty
+        if self.mode != "off":
+            now, scan = engine.now, engine.scan
+            for rt in self.runtimes:
+                if rt.step(image, hist, now, scan):
+                    changed = True
+        if changed:  # flags, routes and masks only move when a diagnoser changes state
+            self._settle(image)
+        for fslot, source in self.routes:
+            image[fslot] = image[source]
+        extras = engine.extras
+        extras["diagnosers"] = self.records
+        extras["reconstructed"] = self.reconstructed
+        extras["masked"] = self.masked
+
+    def _settle(self, image) -> None:
+        self.dirty = False
         if self.mode != "off":
             for rt in self.runtimes:
-                rt.step(image, hist, now, scan)
                 for slot, value in zip(rt.flag_slots, rt.flags, strict=True):
                     image[slot] = value
         ftc = self.mode == "ftc"
+        routes = []
         reconstructed = []
         for fslot, sslot, eslot, flag, sensor, _estimate in self.sensors:
             if ftc and image[flag]:
-                image[fslot] = image[eslot]
+                routes.append((fslot, eslot))
                 reconstructed.append(sensor)
             else:
-                image[fslot] = image[sslot]
-        mask = None
-        masked = []
+                routes.append((fslot, sslot))
+        self.routes = tuple(routes)
+        mask = [False] * len(self.outputs)
         if ftc:
             for k, flags in self.masks:
-                if any(image[f] for f in flags):
-                    if mask is None:
-                        mask = [False] * len(self.outputs)
-                    mask[k] = True
-                    masked.append(self.outputs[k])
-        self.mask = tuple(mask) if mask is not None else None
-        extras = engine.extras
-        extras["diagnosers"] = tuple(rt.record for rt in self.runtimes)
-        extras["reconstructed"] = tuple(reconstructed)
-        extras["masked"] = tuple(masked)
+                mask[k] = any(image[f] for f in flags)
+        self.mask = tuple(mask) if any(mask) else None
+        self.masked = tuple(self.outputs[k] for k, m in enumerate(mask) if m)
+        self.reconstructed = tuple(reconstructed)
+        self.records = tuple(rt.record for rt in self.runtimes)
 
     def reset(self, engine: Engine) -> list[str]:
         """The fault-reset hook: re-synchronise every faulty diagnoser, or say why not."""
@@ -317,6 +333,7 @@ class DiagnosisStage:
             line = rt.resync(engine.image, engine.history, engine.now, engine.scan)
             if line:
                 lines.append(line)
+        self.dirty = True  # flags follow the new states at the next scan
         return lines
 
 
