@@ -3,6 +3,8 @@
     plchmi PROJECT                 open the operator HMI (Textual)
     plchmi check PROJECT           load, validate and summarise a project
     plchmi run PROJECT --for 60s   headless run in virtual time
+    plchmi diagnose PROJECT        the diagnosers' automata and their diagnosability
+    plchmi campaign PROJECT        the fault campaign (000 Table 1)
 
 Exit status: 0 success, 2 bad input (a project error, a bad argument), 1 a failure at run
 time. Errors about a project name the file, line and column; there is never a traceback for
@@ -21,7 +23,7 @@ from hmi.errors import ProjectError, UsageError
 from hmi.timefmt import DURATION_HINT, format_duration, parse_duration, seconds
 
 MAX_ERRORS_SHOWN = 25
-SUBCOMMANDS = ("check", "run", "ui", "bench")
+SUBCOMMANDS = ("check", "run", "ui", "bench", "diagnose", "campaign")
 
 
 def _duration(text: str) -> int:
@@ -66,6 +68,19 @@ def _parser() -> argparse.ArgumentParser:
                    help="inject a fault into the simulated plant, e.g. F5@12s (repeatable)")
     p.add_argument("--trace", type=Path, metavar="FILE",
                    help="write every scan to FILE (.csv, or .jsonl for JSON Lines)")
+    p.add_argument("--diagnosis", choices=("ftc", "observe", "off"), default="ftc",
+                   help="diagnosers: drive reconstruction and masking (ftc, the default), "
+                   "run without effect (observe), or not run (off)")
+
+    p = sub.add_parser("diagnose", help="print the diagnosers' automata and diagnosability")
+    project_arg(p)
+
+    p = sub.add_parser("campaign", help="inject every fault under three configurations and "
+                       "classify the runs (000 Table 1)")
+    project_arg(p)
+    p.add_argument("--json", action="store_true", help="print the results as JSON")
+    p.add_argument("--jobs", type=int, default=None, metavar="N",
+                   help="worker processes (default: 2 if the machine has 2 cores or more)")
 
     p = sub.add_parser("bench", help="measure and print performance figures (never fails)")
     p.add_argument("sections", nargs="*", metavar="SECTION",
@@ -99,6 +114,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             return cmd_ui(args)
         if args.command == "bench":
             return cmd_bench(args)
+        if args.command == "diagnose":
+            return cmd_diagnose(args)
+        if args.command == "campaign":
+            return cmd_campaign(args)
     except ProjectError as exc:
         print_project_error(exc)
         return 2
@@ -131,8 +150,41 @@ def cmd_check(args: argparse.Namespace) -> int:
     from hmi.engine.filter_analysis import analyse
     from hmi.report import check_report
     project = load(args.project)
+    from hmi.diag_report import check_sections
     filter_lines = analyse(project).lines(len(project.outputs))
-    print(check_report(project, [filter_lines]))
+    print(check_report(project, [filter_lines, *check_sections(project)]))
+    return 0
+
+
+def cmd_diagnose(args: argparse.Namespace) -> int:
+    from hmi.diag_report import diagnose_report
+    print(diagnose_report(load(args.project)))
+    return 0
+
+
+def cmd_campaign(args: argparse.Namespace) -> int:
+    import json
+    import os
+
+    from hmi.engine.campaign import report_lines, run_campaign
+    from hmi.project.campaign import campaign_of
+    project = load(args.project)
+    spec = campaign_of(project)
+    if spec is None:
+        raise UsageError(f"project {project.name} has no 'campaign:' section")
+    jobs = args.jobs if args.jobs is not None else min(2, os.cpu_count() or 1)
+    if jobs < 1:
+        raise UsageError("--jobs must be at least 1")
+
+    def progress(done: int, total: int, run) -> None:
+        print(f"[{done:>2}/{total}] {run.scenario.name:<10} {run.config.title:<22} "
+              f"{run.outcome}", file=sys.stderr, flush=True)
+
+    result = run_campaign(project, spec, progress, jobs=jobs)
+    if args.json:
+        print(json.dumps(result.as_dict(), indent=2))
+    else:
+        print("\n".join(report_lines(result)))
     return 0
 
 
@@ -151,7 +203,7 @@ def make_engine(project, args: argparse.Namespace):
     for injection in injections:
         plant.inject(injection)
     engine = Engine(project, plant, control=args.control, policy=args.policy,
-                    solver=args.solver)
+                    solver=args.solver, diagnosis=getattr(args, "diagnosis", None) or "ftc")
     return engine, injections
 
 
@@ -202,9 +254,12 @@ class RunCollector:
         self.events = []
         self.step_changes = 0
         self.max_distance = 0
+        from hmi.diag_report import DiagnosisLog
+        self.diagnosis = DiagnosisLog()
 
     def add(self, snap) -> None:
         self.scans += 1
+        self.diagnosis.add(snap)
         self.events.extend(snap.plant_events)
         report = snap.filter
         if report is not None:
