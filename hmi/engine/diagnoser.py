@@ -21,7 +21,8 @@ If none fires, the state's timeout fires once the time in state reaches `after`.
 therefore wins over a timeout at the same scan. A state entered at this scan is not left
 before the next one (like one GRAFCET clearing per scan), so each state is seen by the filter.
 
-**Masking wins over the filter.** Masked orders are forced to 0 in the candidate vector the
+**Masking wins over the filter** (except under the `monitor` policy, which alters nothing and
+only says what it would have masked). Masked orders are forced to 0 in the candidate vector the
 filter sees (so the filter judges what will really be sent), and again after the filter: a
 simple constraint of the form `not o . h1` (e.g. CSs4, never drop O before fso) would
 otherwise switch a masked order back on. The scan where masking starts may therefore leave
@@ -297,7 +298,7 @@ class DiagnosisStage:
         extras = engine.extras
         extras["diagnosers"] = self.records
         extras["reconstructed"] = self.reconstructed
-        extras["masked"] = self.masked
+        extras["masked"] = self.masked if engine.policy != "monitor" else ()
 
     def _settle(self, image) -> None:
         self.dirty = False
@@ -351,10 +352,23 @@ class MaskedOutputStage:
         mask = self.stage.mask
         if mask is None:
             return self.inner(engine, fov)
+        if engine.policy == "monitor":  # monitor alters nothing, masks included: it says so
+            written, report = self.inner(engine, fov)
+            return written, self._unapplied(report)
         candidate = tuple(v and not m for v, m in zip(fov, mask, strict=True))
         written, report = self.inner(engine, candidate)
         forced = tuple(bool(w) and not m for w, m in zip(written, mask, strict=True))
         return forced, self._report(engine, report, fov, candidate, written, forced, mask)
+
+    def _unapplied(self, report):
+        from hmi.engine.filter import FilterReport
+        if not isinstance(report, FilterReport):
+            return report
+        masked = [self.stage.outputs[k] for k, m in enumerate(self.stage.mask or ()) if m]
+        flags = sorted({f for n in masked for f in self.stage.mask_flags[n]})
+        extra = (f"{', '.join(flags)} would mask {', '.join(masked)}; not applied under the "
+                 "monitor policy")
+        return replace(report, note=f"{report.note}; {extra}" if report.note else extra)
 
     def _report(self, engine: Engine, report, fov, candidate, written, forced, mask):
         from hmi.engine.filter import Change, FilterReport, pack
