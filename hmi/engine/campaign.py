@@ -247,8 +247,9 @@ def _worker_run(task: tuple[int, int]) -> RunResult:
 
 def report_lines(result: CampaignResult) -> list[str]:
     spec = result.spec
-    tabled = [s for s in spec.scenarios if s.table]
-    extra = [s for s in spec.scenarios if not s.table]
+    ran = [s for s in spec.scenarios if any(r.scenario == s for r in result.runs)]
+    tabled = [s for s in ran if s.table]
+    extra = [s for s in ran if not s.table]
     lines = [f"Fault campaign of {result.project}: {len(tabled)} scenarios"
              + (f" (+{len(extra)} extra)" if extra else "")
              + f" x {len(CONFIGS)} configurations, {format_duration(spec.length_us)} of "

@@ -442,7 +442,8 @@ class _Parser:
                                        if k in kinds}))
             return None
         if kind not in kinds:
-            self.error(node.pos, f"{name!r} is a {kind}, not usable as the {role} of a "
+            article = "an" if kind[0] in "aeiou" else "a"
+            self.error(node.pos, f"{name!r} is {article} {kind}, not usable as the {role} of a "
                        "partition", "a name of kind " + " or ".join(sorted(kinds)))
             return None
         return name
