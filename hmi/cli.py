@@ -267,7 +267,7 @@ class RunCollector:
                 self.violations[name] = self.violations.get(name, 0) + 1
             if report.safe_state:
                 self.safe_scans += 1
-            elif report.changes:
+            elif any(c.how != "masked" for c in report.changes):  # masks: diagnosers' lines
                 self.corrections += 1
             if report.unsafe_written:
                 self.unsafe_written += 1

@@ -96,6 +96,7 @@ class DiagnosisLog:
     changes: list[tuple[int, str, str, tuple[str, ...], str, str]] = field(
         default_factory=list)  # (time, diagnoser, state, labels, via, flags set)
     normal_moves: int = 0
+    masked_requests: int = 0  # scans where the program asked for an order the mask withdrew
     reconstructed_since: dict[str, int] = field(default_factory=dict)
     masked_since: dict[str, int] = field(default_factory=dict)
     _last: tuple = ()
@@ -120,6 +121,8 @@ class DiagnosisLog:
             self.reconstructed_since.setdefault(name, snap.time_us)
         for name in snap.masked:
             self.masked_since.setdefault(name, snap.time_us)
+        if snap.masked and any(snap.fov_map[name] for name in snap.masked):
+            self.masked_requests += 1
 
 
 def summary_lines(log: DiagnosisLog, engine, last) -> list[str]:
@@ -149,7 +152,8 @@ def summary_lines(log: DiagnosisLog, engine, last) -> list[str]:
             lines.append(f"  reconstructed: {sensor}{source} since {seconds(since)} s{now}")
     if log.masked_since:
         lines.append("  masked: " + ", ".join(f"{n} since {seconds(t)} s"
-                                              for n, t in log.masked_since.items()))
+                                              for n, t in log.masked_since.items())
+                     + f" ({log.masked_requests} scans withdrew an order the program asked for)")
     elif stage.mode == "ftc":
         lines.append("  masked: none")
     return lines

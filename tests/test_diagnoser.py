@@ -210,3 +210,23 @@ def test_the_trace_has_the_diagnoser_state_and_the_flags(project, tmp_path):
         assert name in columns
     last = dict(zip(columns, rows[-1].split(","), strict=True))
     assert last["diag.V1"] == "S9" and last["def_fso"] == "1"
+
+
+def test_run_summary_shows_the_diagnosis_the_flags_and_the_reconstruction(capsys):
+    from hmi.cli import main
+    assert main(["run", str(VALVE), "--for", "60s", "--inject", "F4@10s"]) == 0
+    out = capsys.readouterr().out
+    assert "Damage events: none" in out and "cycles 7" in out
+    assert "10.000 s  V1 -> S9 {F9}  flags def_fso  (N3 -> S9 on fso and not fsc within " \
+           "[0s, 1.5s))" in out
+    assert "reconstructed: fso from fso_hat since 10.000 s" in out
+    assert "masked: none" in out
+
+
+def test_run_summary_counts_masked_orders_apart_from_corrections(capsys):
+    from hmi.cli import main
+    assert main(["run", str(VALVE), "--for", "30s", "--inject", "F2@8.2s"]) == 0
+    out = capsys.readouterr().out
+    assert "scans corrected 0" in out
+    assert "9.190 s  V1 -> B2 {F2, F5}  flags def_fsc, def_V" in out
+    assert "masked: C since 9.190 s, O since 9.190 s (2082 scans withdrew an order" in out
