@@ -3,6 +3,7 @@
     plchmi PROJECT                 open the operator HMI (Textual)
     plchmi check PROJECT           load, validate and summarise a project
     plchmi run PROJECT --for 60s   headless run in virtual time
+    plchmi sweep PROJECT           stopwatch monitor vs watchdog over interruptions
     plchmi diagnose PROJECT        the diagnosers' automata and their diagnosability
     plchmi campaign PROJECT        the fault campaign (000 Table 1)
 
@@ -23,7 +24,7 @@ from hmi.errors import ProjectError, UsageError
 from hmi.timefmt import DURATION_HINT, format_duration, parse_duration, seconds
 
 MAX_ERRORS_SHOWN = 25
-SUBCOMMANDS = ("check", "run", "ui", "bench", "diagnose", "campaign")
+SUBCOMMANDS = ("check", "run", "sweep", "ui", "bench", "journal", "diagnose", "campaign")
 
 
 def _duration(text: str) -> int:
@@ -60,8 +61,10 @@ def _parser() -> argparse.ArgumentParser:
     p = sub.add_parser("run", help="run headless in virtual time")
     project_arg(p)
     engine_args(p)
-    p.add_argument("--for", dest="duration", type=_duration, required=True, metavar="TIME",
-                   help="virtual time to run, e.g. 60s")
+    p.add_argument("--for", dest="duration", type=_duration, metavar="TIME",
+                   help="virtual time to run, e.g. 60s (default: the scenario's)")
+    p.add_argument("--scenario", metavar="NAME",
+                   help="inject the faults of a scenario the project declares")
     p.add_argument("--period", type=_duration, metavar="TIME",
                    help="scan period (default: the project's)")
     p.add_argument("--inject", action="append", default=[], metavar="FAULT@TIME",
@@ -71,6 +74,10 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--diagnosis", choices=("ftc", "observe", "off"), default="ftc",
                    help="diagnosers: drive reconstruction and masking (ftc, the default), "
                    "run without effect (observe), or not run (off)")
+    p.add_argument("--explain", action="store_true",
+                   help="print the four levels of every alarm's explanation")
+    p.add_argument("--journal", type=Path, metavar="FILE",
+                   help="journal file (default: the user's data folder, see plchmi journal)")
 
     p = sub.add_parser("diagnose", help="print the diagnosers' automata and diagnosability")
     project_arg(p)
@@ -81,6 +88,16 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print the results as JSON")
     p.add_argument("--jobs", type=int, default=None, metavar="N",
                    help="worker processes (default: 2 if the machine has 2 cores or more)")
+
+    p = sub.add_parser("journal", help="print or export a project's operator journal")
+    project_arg(p)
+    p.add_argument("--since", metavar="WHEN",
+                   help="only entries since WHEN: an ISO date/time, or a duration ago (2h)")
+    p.add_argument("--csv", action="store_true", help="export as CSV")
+    p.add_argument("--path", type=Path, metavar="FILE", help="journal file to read")
+
+    from hmi.sweep import add_sweep_parser
+    add_sweep_parser(sub, project_arg)
 
     p = sub.add_parser("bench", help="measure and print performance figures (never fails)")
     p.add_argument("sections", nargs="*", metavar="SECTION",
@@ -110,10 +127,15 @@ def main(argv: Sequence[str] | None = None) -> int:
             return cmd_check(args)
         if args.command == "run":
             return cmd_run(args)
+        if args.command == "sweep":
+            from hmi.sweep import cmd_sweep
+            return cmd_sweep(args, load(args.project))
         if args.command == "ui":
             return cmd_ui(args)
         if args.command == "bench":
             return cmd_bench(args)
+        if args.command == "journal":
+            return cmd_journal(args)
         if args.command == "diagnose":
             return cmd_diagnose(args)
         if args.command == "campaign":
@@ -188,7 +210,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     return 0
 
 
-def make_engine(project, args: argparse.Namespace):
+def make_engine(project, args: argparse.Namespace, extra_injections=()):
     """The engine for a command's --control/--policy/--inject options, on a simulated plant."""
     from hmi.engine.scan import Engine
     from hmi.plant.sim import SimPlant, parse_injection
@@ -197,7 +219,8 @@ def make_engine(project, args: argparse.Namespace):
         raise UsageError(f"--control {args.control!r}: the project has "
                          + ", ".join(project.controls))
     plant = SimPlant(project)
-    injections = [parse_injection(text) for text in getattr(args, "inject", [])]
+    injections = [*extra_injections,
+                  *(parse_injection(text) for text in getattr(args, "inject", []))]
     for injection in injections:
         plant.resolve(injection)
     for injection in injections:
@@ -213,7 +236,14 @@ def cmd_run(args: argparse.Namespace) -> int:
     from hmi.report import run_summary
 
     project = load(args.project)
-    engine, injections = make_engine(project, args)
+    scenario = None
+    if args.scenario:
+        from hmi.project.scenarios import find_scenario
+        scenario = find_scenario(project, args.scenario)
+    duration = args.duration or (scenario.duration_us if scenario else None)
+    if duration is None:
+        raise UsageError("--for TIME is required (or a --scenario that sets its length)")
+    engine, injections = make_engine(project, args, scenario.injections if scenario else ())
     controller = Controller(engine, args.period)
     writer = None
     if args.trace:
@@ -222,6 +252,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         except OSError as exc:
             raise UsageError(f"--trace {args.trace}: {exc.strerror}") from None
     collector = RunCollector()
+    recorder = open_journal(controller, args.journal, "run")
     from hmi.engine.runner import settle_memory
     settle_memory()
     started = time.perf_counter()
@@ -230,14 +261,103 @@ def cmd_run(args: argparse.Namespace) -> int:
             collector.add(snap)
             if writer:
                 writer.write(snap)
-        last = controller.run_for(args.duration, on_scan)
+        last = controller.run_for(duration, on_scan)
     finally:
         if writer:
             writer.close()
+        recorder.close()
     wall = time.perf_counter() - started
+    if scenario:
+        print(f"Scenario {scenario.name}: {scenario.description}")
     print(run_summary(engine, last, collector, injections, wall,
                       trace=(args.trace, writer.count) if writer else None))
+    print(alarm_summary(collector, args.explain))
+    print(f"Journal: {recorder.journal.path}")
     return 0
+
+
+def open_journal(controller, path: Path | None, source: str):
+    from hmi.explain.journal import Journal, default_path
+    from hmi.explain.recorder import JournalRecorder
+    target = path or default_path(controller.engine.project.name)
+    try:
+        return JournalRecorder(controller, Journal(target), source)
+    except OSError as exc:
+        raise UsageError(f"cannot open the journal {target}: {exc.strerror}") from None
+
+
+def alarm_summary(collector: RunCollector, explain: bool) -> str:
+    from hmi.timefmt import seconds as secs
+    if not collector.alarm_events:
+        return "Alarms: none"
+    raised = [e for e in collector.alarm_events if e.event in ("raised", "returned")]
+    lines = [f"Alarms: {len(raised)} raised or returned, "
+             f"{sum(1 for e in collector.alarm_events if e.event == 'chattering')} chattering"]
+    shown = 0
+    for event in collector.alarm_events:
+        if event.event not in ("raised", "chattering") or shown >= 20:
+            continue
+        shown += 1
+        what = "CHATTERING " if event.event == "chattering" else ""
+        lines.append(f"  {secs(event.time_us)} s  [{event.severity}] {what}{event.text}")
+    if explain:
+        for key, explanation in collector.explanations.items():
+            lines.append("")
+            lines.append(f"Explanation of {key} (as last shown, since "
+                         f"{secs(explanation.since_us)} s):")
+            lines.append(explanation.render(4))
+            if explanation.recommended:
+                lines.append(f"  Recommended: {explanation.recommended.label}")
+    return "\n".join(lines)
+
+
+def cmd_journal(args: argparse.Namespace) -> int:
+    import csv
+    from datetime import UTC, datetime
+
+    from hmi.explain.journal import JournalError, default_path, read, since_filter
+    from hmi.project.loader import load_project
+    path = args.path or default_path(load_project(args.project).name)
+    since = None
+    if args.since:
+        try:
+            since = datetime.now(UTC) - timedelta_of(args.since)
+        except ValueError:
+            try:
+                since = datetime.fromisoformat(args.since)
+            except ValueError:
+                raise UsageError(f"--since {args.since!r}: expected an ISO date/time "
+                                 "(2026-11-22T15:00) or a duration ago (30m, 2h)") from None
+            if since.tzinfo is None:
+                since = since.astimezone(UTC)
+    try:
+        result = read(path)
+    except JournalError as exc:
+        print(f"plchmi: {exc}", file=sys.stderr)
+        return 1
+    entries = list(since_filter(result.entries, since))
+    columns = ("wall", "scan", "t", "type", "event", "key", "severity", "text", "message")
+    if args.csv:
+        writer = csv.writer(sys.stdout, lineterminator="\n")
+        writer.writerow(columns)
+        for entry in entries:
+            writer.writerow([entry.get(c, "") for c in columns])
+    else:
+        for entry in entries:
+            text = entry.get("text") or entry.get("message") or entry.get("project", "")
+            key = f" {entry['key']}" if entry.get("key") else ""
+            print(f"{entry.get('wall', '')}  scan {entry.get('scan', ''):>6}  "
+                  f"t={entry.get('t', '')}  {entry.get('type', ''):<7} "
+                  f"{entry.get('event', '')}{key}: {text}")
+    if result.truncated:
+        print(f"plchmi: the last entry of {path} was cut short (the process was killed while "
+              "writing it); it is ignored", file=sys.stderr)
+    return 0
+
+
+def timedelta_of(text: str):
+    from datetime import timedelta
+    return timedelta(microseconds=parse_duration(text))
 
 
 class RunCollector:
@@ -254,13 +374,23 @@ class RunCollector:
         self.events = []
         self.step_changes = 0
         self.max_distance = 0
+        from hmi.monitor_report import MonitorLog
+        self.monitors = MonitorLog()
+        self.alarm_events = []
+        self.explanations = {}
         from hmi.diag_report import DiagnosisLog
         self.diagnosis = DiagnosisLog()
 
     def add(self, snap) -> None:
         self.scans += 1
+        self.monitors.add(snap)
         self.diagnosis.add(snap)
         self.events.extend(snap.plant_events)
+        if snap.alarm_events:
+            self.alarm_events.extend(snap.alarm_events)
+        for explanation in snap.explanations:
+            if explanation.alarm:
+                self.explanations[explanation.key] = explanation
         report = snap.filter
         if report is not None:
             for name in report.violated_names:

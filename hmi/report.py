@@ -76,6 +76,10 @@ def check_report(project: Project, sections: list[list[str]] = ()) -> str:
                  f"{combined} combined)")
     lines += _table([[c.name, c.kind, c.expr.source, constraint_meaning(c)]
                      for c in project.constraints])
+    from hmi.monitor_report import monitor_check_lines
+    monitor_lines = monitor_check_lines(project)
+    if monitor_lines:
+        lines += ["", *monitor_lines]
     for section in (*project.extra.get("check_sections", ()), *sections):
         lines.append("")
         lines.extend(section)
@@ -121,6 +125,10 @@ def run_summary(engine, last, collector, injections, wall_s: float, trace=None) 
                      f"{collector.safe_scans} (of which fallbacks {collector.fallbacks}), "
                      f"max Hamming distance {collector.max_distance}, "
                      f"unsafe outputs written {collector.unsafe_written}")
+    monitors = getattr(collector, "monitors", None)
+    if monitors is not None:
+        from hmi.monitor_report import monitor_summary_lines
+        lines += monitor_summary_lines(monitors)
     if collector.first_latch:
         scan, t, detail = collector.first_latch
         lines.append(f"Outputs latched safe from scan {scan} ({seconds(t)} s): {detail}")

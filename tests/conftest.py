@@ -32,6 +32,12 @@ def make_controller(project_path, control=None, policy=None, inject=()):
     return Controller(engine)
 
 
+@pytest.fixture(autouse=True)
+def data_folder(tmp_path, monkeypatch):
+    """Journals written by tests go to a temporary folder, never the user's data folder."""
+    monkeypatch.setenv("PLCHMI_DATA", str(tmp_path / "data"))
+
+
 @pytest.fixture
 def valve_project():
     return load_project(PROJECTS / "cispi_valve")

@@ -68,8 +68,36 @@ class SetInput:
     value: bool
 
 
+@dataclass(frozen=True)
+class Acknowledge:
+    """Acknowledge one alarm (by key) or all of them (key None)."""
+
+    key: str | None = None
+
+
+@dataclass(frozen=True)
+class StopDevice:
+    """Hold every output of a device at its safe value until released (an operator policy)."""
+
+    device: str
+
+
+@dataclass(frozen=True)
+class ReleaseDevice:
+    device: str
+
+
+@dataclass(frozen=True)
+class ChoosePolicy:
+    """The operator picks one of the policies an explanation offers; it is carried out."""
+
+    key: str  # the explanation's (alarm's) key
+    policy: str  # the policy's id
+
+
 Command = (Pause | Resume | StepScans | SetSpeed | SetMode | ManualOutput | FaultReset
-           | SetPolicy | InjectFault | SetInput)
+           | SetPolicy | InjectFault | SetInput | Acknowledge | StopDevice | ReleaseDevice
+           | ChoosePolicy)
 
 
 @dataclass(frozen=True)
@@ -109,4 +137,12 @@ def describe(command: Command) -> str:
             return f"inject fault {i}"
         case SetInput(name=n, value=v):
             return f"input {n} {'on' if v else 'off'}"
+        case Acknowledge(key=k):
+            return "acknowledge all alarms" if k is None else f"acknowledge alarm {k}"
+        case StopDevice(device=d):
+            return f"stop device {d}"
+        case ReleaseDevice(device=d):
+            return f"release device {d}"
+        case ChoosePolicy(key=k, policy=p):
+            return f"choose policy {p} for {k}"
     return repr(command)

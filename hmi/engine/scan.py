@@ -15,18 +15,25 @@ from collections import deque
 from collections.abc import Callable, Sequence
 
 from hmi.engine.commands import (
+    Acknowledge,
+    ChoosePolicy,
     CommandResult,
     FaultReset,
     InjectFault,
     ManualOutput,
+    ReleaseDevice,
     SetInput,
     SetMode,
     SetPolicy,
+    StopDevice,
 )
 from hmi.engine.diagnoser import install_diagnosers
 from hmi.engine.filter import SafetyFilter
 from hmi.engine.layout import Layout
+from hmi.engine.monitors import install_monitors
 from hmi.engine.snapshot import LatchReason, Snapshot
+from hmi.explain.alarms import AlarmManager
+from hmi.explain.builder import ExplanationBuilder
 from hmi.logic.control import ControlRuntime
 from hmi.logic.expr import BoolFn, compile_bool, max_depth
 from hmi.logic.timers import TimerRuntime
@@ -80,15 +87,28 @@ class Engine:
         self.started = False
         # Extension points, in scan order. A stage reads and writes the image and may put
         # what it wants shown into `self.extras` (keys are Snapshot field names).
-        self.stages_after_memory: list[Callable[[Engine], None]] = []  # diagnosers, monitors
+        self.stages_after_memory: list[Callable[[Engine], None]] = []  # diagnosers
         self.output_stage: Callable[[Engine, tuple[bool, ...]], tuple[tuple[bool, ...], object]]
         self.filter = SafetyFilter(project, slots, times, solver or project.solver)
         self.output_stage = self.filter  # the safety filter
+        # Observers of the whole scan (I(t) read and O(t) written): stopwatch monitors.
+        self.stages_after_output: list[Callable[[Engine], None]] = []
         self.snapshot_extras: list[Callable[[Engine, dict], None]] = []  # explanations...
         # Each reset hook releases what its feature latched and returns lines saying what
         # was reset (or what stays, and why).
         self.reset_hooks: list[Callable[[Engine], list[str]]] = []
         self.extras: dict = {}
+        # Explanations and alarms (computed every scan; the journal listens from outside).
+        self.explainer = ExplanationBuilder(project)
+        self.alarm_manager = AlarmManager()
+        self.pending_alarm_events: list = []  # from acknowledgements between scans
+        self.explanations: tuple = ()
+        self.devices = {v.device: tuple(o.name for o in project.outputs
+                                        if o.device == v.device)
+                        for v in project.outputs if v.device}
+        self.stopped_devices: set[str] = set()
+        self._stop_mask: tuple[int, ...] = ()
+        install_monitors(self)  # after the explainer: it adds a builder to it
         # Diagnosers (stages 3-4), masking around the filter, their reset hook.
         self.diagnosis = install_diagnosers(self, diagnosis)
 
@@ -143,6 +163,30 @@ class Engine:
                 except Exception as exc:  # a UsageError naming what exists
                     return CommandResult.refused(str(exc))
                 return CommandResult.ok(f"SIMULATION: fault {injection} scheduled")
+            case Acknowledge(key=key):
+                events = self.alarm_manager.acknowledge(key, self.scan, self.now)
+                self.pending_alarm_events.extend(events)
+                if key is not None and not events:
+                    return CommandResult.refused(f"no alarm {key} to acknowledge")
+                return CommandResult.ok(f"acknowledged {len(events)} alarm"
+                                        f"{'s' if len(events) != 1 else ''}")
+            case StopDevice(device=device):
+                if device not in self.devices:
+                    return CommandResult.refused(f"no device {device!r}; devices: "
+                                                 + ", ".join(self.devices))
+                self.stopped_devices.add(device)
+                self._update_stop_mask()
+                return CommandResult.ok(f"{device} stopped: its outputs "
+                                        f"({', '.join(self.devices[device])}) are held at their "
+                                        "safe values until released")
+            case ReleaseDevice(device=device):
+                if device not in self.stopped_devices:
+                    return CommandResult.refused(f"{device} is not stopped")
+                self.stopped_devices.discard(device)
+                self._update_stop_mask()
+                return CommandResult.ok(f"{device} released")
+            case ChoosePolicy(key=key, policy=policy_id):
+                return self._choose_policy(key, policy_id)
             case SetInput(name=name, value=value):
                 set_input = getattr(self.plant, "set_input", None)
                 if set_input is None:
@@ -154,6 +198,30 @@ class Engine:
                         f"{name!r} is driven by the simulated plant, not by the operator")
                 return CommandResult.ok(f"SIMULATION: input {name} {'on' if value else 'off'}")
         return CommandResult.refused(f"the engine does not handle {command!r}")
+
+    def _update_stop_mask(self) -> None:
+        stopped = {o for d in self.stopped_devices for o in self.devices[d]}
+        self._stop_mask = tuple(k for k, v in enumerate(self.project.outputs)
+                                if v.name in stopped)
+
+    def _choose_policy(self, key: str, policy_id: str) -> CommandResult:
+        explanation = next((e for e in self.explanations if e.key == key), None)
+        if explanation is None:
+            alarm = self.alarm_manager.alarms.get(key)
+            explanation = alarm.explanation if alarm else None
+        if explanation is None:
+            return CommandResult.refused(f"no situation {key} to act on")
+        policy = next((p for p in explanation.policies if p.id == policy_id), None)
+        if policy is None:
+            return CommandResult.refused(f"{key} offers no policy {policy_id!r}; it offers "
+                                         + ", ".join(p.id for p in explanation.policies))
+        if policy.command is None:
+            return CommandResult.ok(f"policy '{policy.label}' chosen for {key}: "
+                                    f"{policy.effect}")
+        result = self.apply(policy.command)
+        verdict = "chosen" if result.accepted else "could not be carried out"
+        return CommandResult(result.accepted, f"policy '{policy.label}' {verdict} for {key}: "
+                             f"{result.message}")
 
     def fault_reset(self) -> CommandResult:
         parts = []
@@ -193,7 +261,7 @@ class Engine:
                 else:
                     image[slot] = not reset(image, hist) and (set_(image, hist) or image[slot])
             self.control.update_times(image, now)
-            # 3-4. diagnosers, reconstruction (and monitors) hook in here
+            # 3-4. diagnosers, reconstruction hook in here (monitors: after the output scan)
             for stage in self.stages_after_memory:
                 stage(self)
             # 5. functional control
@@ -202,6 +270,9 @@ class Engine:
                 fov = tuple(self.manual.get(name, False) for name in self.layout.outputs)
             else:
                 fov = tuple(image[s] for s in self.output_slots)
+            if self._stop_mask:
+                fov = tuple(self.safe_vector[k] if k in self._stop_mask else value
+                            for k, value in enumerate(fov))
             # 6. filter
             if not inputs_ok:
                 outputs, report = self.safe_vector, None
@@ -220,6 +291,25 @@ class Engine:
         for slot, value in zip(self.output_slots, outputs, strict=True):
             image[slot] = value
         self._output_scan(now, outputs)
+        try:
+            for stage in self.stages_after_output:
+                stage(self)
+        except Exception as exc:  # a broken monitor must not stop the scan silently
+            message = f"{type(exc).__name__}: {exc}"
+            error = error or message
+            self.latch_safe("internal", f"internal error at scan {self.scan}: {message}")
+            extras["traceback"] = traceback.format_exc()
+        try:
+            self.explanations = self.explainer.build(self, extras.get("filter"))
+        except Exception as exc:  # explanations must never stop the scan
+            self.explanations = ()
+            error = error or f"explanations: {type(exc).__name__}: {exc}"
+        events = self.pending_alarm_events
+        self.pending_alarm_events = []
+        events.extend(self.alarm_manager.update(self.explanations, self.scan, now))
+        extras["explanations"] = self.explanations
+        extras["alarms"] = self.alarm_manager.listed()
+        extras["alarm_events"] = tuple(events)
         for hook in self.snapshot_extras:
             hook(self, extras)
         snapshot = self._snapshot(fov, outputs, extras, error,
@@ -277,6 +367,8 @@ class Engine:
             masked=extras.get("masked", ()),
             explanations=extras.get("explanations", ()),
             alarms=extras.get("alarms", ()),
+            alarm_events=extras.get("alarm_events", ()),
+            stopped_devices=tuple(sorted(self.stopped_devices)),
             error=error, scan_wall_us=wall_us,
         )
 

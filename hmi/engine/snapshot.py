@@ -55,6 +55,8 @@ class Snapshot(NamedTuple):
     masked: tuple[str, ...] = ()  # outputs masked by a faulty actuator's flag
     explanations: tuple = ()
     alarms: tuple = ()
+    alarm_events: tuple = ()  # alarm transitions during this scan (for the journal)
+    stopped_devices: tuple[str, ...] = ()  # devices the operator stopped
     error: str | None = None  # an internal error caught during this scan
     scan_wall_us: float = 0.0  # measured, not deterministic
 

@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+from hmi.plant.conveyor import Conveyor
 from hmi.plant.device import SimDevice
+from hmi.plant.robot import Robot
 from hmi.plant.valve import Valve
 
 MODELS: dict[str, type[SimDevice]] = {
     Valve.MODEL: Valve,
+    Conveyor.MODEL: Conveyor,
+    Robot.MODEL: Robot,
 }
 
 

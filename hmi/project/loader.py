@@ -47,6 +47,8 @@ from hmi.project.model import (
     Transition,
     Variable,
 )
+from hmi.project.monitors import parse_monitors
+from hmi.project.scenarios import parse_scenarios
 from hmi.project.yamlnodes import NodeError, YNode, load_yaml
 from hmi.timefmt import DURATION_HINT, parse_duration
 
@@ -55,7 +57,7 @@ PROJECT_FILE = "project.yaml"
 TOP_KEYS = {
     "name", "description", "scan_period", "include", "inputs", "outputs", "memories",
     "timers", "observers", "control", "constraints", "policy", "solver", "plant",
-    "diagnosers", "campaign",
+    "explanations", "monitors", "scenarios", "diagnosers", "campaign",
 }
 
 NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
@@ -267,8 +269,20 @@ class ProjectLoader:
                                 solver)
         plant = self._plant(pos, inputs, outputs)
         self._check_addresses(inputs, outputs)
+        monitors = parse_monitors(self, period)  # stopwatch monitors: hmi/project/monitors.py
+        scenarios = parse_scenarios(self, plant)
         diagnosers = parse_diagnosers(self)  # hmi/project/diagnosers.py
         campaign = parse_campaign(self, plant)  # hmi/project/campaign.py
+        texts = None
+        if "explanations" in s:
+            from hmi.project.explanations import parse_explanations
+            texts = parse_explanations(
+                s["explanations"], self.guard,
+                {"constraints": {c.name for c in constraints},
+                 "monitors": {m.name for m in monitors},
+                 "labels": {lab for d in diagnosers for lab in d.labels},
+                 "partitions": {p.name for d in diagnosers for p in d.partitions}},
+                self.diag.error)
         self.diag.raise_if_errors()
         project = Project(
             name=name, description=description, path=self.folder, scan_period_us=period,
@@ -276,7 +290,8 @@ class ProjectLoader:
             timers=tuple(timers), observers=tuple(observers), controls=controls,
             default_control=default_control, constraints=tuple(constraints), policy=policy,
             plant=plant, pos=pos, files=tuple(self.files), solver=solver,
-            extra={"warnings": tuple(self.diag.warnings), "diagnosers": diagnosers,
+            extra={"warnings": tuple(self.diag.warnings), "explanations": texts,
+                   "monitors": monitors, "scenarios": scenarios, "diagnosers": diagnosers,
                    "campaign": campaign},
         )
         return project

@@ -1,0 +1,160 @@
+"""Alarms with the ISA-18.2 states, driven by the explanations that need the operator.
+
+    (normal) --condition--> active-unacknowledged --ack--> active-acknowledged
+    active-unacknowledged --clears--> cleared-unacknowledged --ack--> (normal, removed)
+    active-acknowledged --clears--> (normal, removed)
+    cleared-unacknowledged --returns--> active-unacknowledged
+
+A latched situation (diagnoser fault, safe blocking) keeps its condition true until a fault
+reset, so its alarm stays active until then. A chattering alarm — one that returns more than
+CHATTER_RETURNS times within CHATTER_WINDOW — is collapsed: it stays in the list as one
+active alarm with a count, and clears only once its condition has stayed clear for
+CHATTER_WINDOW, instead of flooding the list (and the journal) with transitions.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field, replace
+
+from hmi.explain.model import Explanation
+
+ACTIVE_UNACK = "active-unacknowledged"
+ACTIVE_ACK = "active-acknowledged"
+CLEARED_UNACK = "cleared-unacknowledged"
+CHATTER_RETURNS = 3
+CHATTER_WINDOW_US = 60_000_000
+PRIORITY = {"high": 1, "medium": 2, "low": 3}
+
+
+@dataclass(frozen=True)
+class Alarm:
+    key: str
+    state: str
+    severity: str
+    text: str  # level 1 of its explanation
+    device: str
+    kind: str
+    raised_scan: int
+    raised_us: int
+    changed_us: int
+    returns: int = 0  # how many times it came back after clearing
+    chattering: bool = False
+    latched: bool = False
+    explanation: Explanation | None = field(default=None, compare=False)
+
+    @property
+    def active(self) -> bool:
+        return self.state in (ACTIVE_UNACK, ACTIVE_ACK)
+
+    @property
+    def acknowledged(self) -> bool:
+        return self.state == ACTIVE_ACK
+
+    @property
+    def priority(self) -> int:
+        return PRIORITY.get(self.severity, 3)
+
+
+@dataclass(frozen=True)
+class AlarmEvent:
+    """One transition, for the journal: raised, acknowledged, cleared, returned, removed,
+    chattering."""
+
+    key: str
+    event: str
+    state: str  # the state after the transition ("normal" once removed)
+    severity: str
+    text: str
+    scan: int
+    time_us: int
+    returns: int = 0
+
+
+class AlarmManager:
+    def __init__(self) -> None:
+        self.alarms: dict[str, Alarm] = {}
+        self.returns: dict[str, deque[int]] = {}
+        self.clear_since: dict[str, int] = {}  # chattering alarms: condition clear since
+
+    def update(self, explanations: tuple[Explanation, ...], scan: int, now: int
+               ) -> list[AlarmEvent]:
+        events: list[AlarmEvent] = []
+        present = {e.key: e for e in explanations if e.alarm}
+        for key, exp in present.items():
+            alarm = self.alarms.get(key)
+            was_clear = self.clear_since.pop(key, None) is not None
+            if alarm is None:
+                alarm = Alarm(key, ACTIVE_UNACK, exp.severity, exp.what, exp.device, exp.kind,
+                              scan, now, now, latched=exp.latched, explanation=exp)
+                self.alarms[key] = alarm
+                events.append(self._event(alarm, "raised", scan, now))
+            elif alarm.state == CLEARED_UNACK:
+                history = self.returns.setdefault(key, deque())
+                history.append(now)
+                while history and now - history[0] > CHATTER_WINDOW_US:
+                    history.popleft()
+                chattering = alarm.chattering or len(history) > CHATTER_RETURNS
+                alarm = replace(alarm, state=ACTIVE_UNACK, changed_us=now,
+                                returns=alarm.returns + 1, chattering=chattering,
+                                severity=exp.severity, text=exp.what, explanation=exp)
+                self.alarms[key] = alarm
+                events.append(self._event(alarm, "returned", scan, now))
+                if chattering:
+                    events.append(self._event(alarm, "chattering", scan, now))
+            else:
+                if alarm.chattering and was_clear:
+                    # A collapsed alarm's condition came back while still shown active.
+                    alarm = replace(alarm, returns=alarm.returns + 1)
+                if alarm.explanation is not exp:
+                    alarm = replace(alarm, severity=exp.severity, text=exp.what,
+                                    explanation=exp, latched=exp.latched)
+                self.alarms[key] = alarm
+        for key, alarm in list(self.alarms.items()):
+            if key in present or alarm.state == CLEARED_UNACK:
+                continue
+            if alarm.chattering:
+                since = self.clear_since.setdefault(key, now)
+                if now - since < CHATTER_WINDOW_US:
+                    continue
+            events.extend(self._clear(alarm, scan, now))
+        return events
+
+    def _clear(self, alarm: Alarm, scan: int, now: int) -> list[AlarmEvent]:
+        self.clear_since.pop(alarm.key, None)
+        if alarm.state == ACTIVE_ACK:
+            del self.alarms[alarm.key]
+            self.returns.pop(alarm.key, None)
+            return [self._event(replace(alarm, state="normal"), "cleared", scan, now)]
+        cleared = replace(alarm, state=CLEARED_UNACK, changed_us=now)
+        self.alarms[alarm.key] = cleared
+        return [self._event(cleared, "cleared", scan, now)]
+
+    def acknowledge(self, key: str | None, scan: int, now: int) -> list[AlarmEvent]:
+        """Acknowledge one alarm (by key) or all (None)."""
+        keys = [key] if key is not None else list(self.alarms)
+        events = []
+        for k in keys:
+            alarm = self.alarms.get(k)
+            if alarm is None:
+                continue
+            if alarm.state == ACTIVE_UNACK:
+                alarm = replace(alarm, state=ACTIVE_ACK, changed_us=now)
+                self.alarms[k] = alarm
+                events.append(self._event(alarm, "acknowledged", scan, now))
+            elif alarm.state == CLEARED_UNACK:
+                del self.alarms[k]
+                self.returns.pop(k, None)
+                events.append(self._event(replace(alarm, state="normal"), "acknowledged",
+                                          scan, now))
+        return events
+
+    def listed(self) -> tuple[Alarm, ...]:
+        """The alarm list: unacknowledged first, then by priority, newest first."""
+        return tuple(sorted(self.alarms.values(),
+                            key=lambda a: (a.state == ACTIVE_ACK, a.priority, -a.changed_us)))
+
+    @staticmethod
+    def _event(alarm: Alarm, event: str, scan: int, now: int) -> AlarmEvent:
+        return AlarmEvent(alarm.key, event, alarm.state, alarm.severity, alarm.text, scan, now,
+                          alarm.returns)

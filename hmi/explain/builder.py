@@ -1,0 +1,355 @@
+"""From a scan's results to graduated explanations.
+
+Each abnormal situation has a stable key ("constraint:CSs2", "safe_state:filter", "plant")
+and an onset (scan, time) kept while it lasts. Texts come from the project's `explanations:`
+section when it has them, otherwise from generated defaults built on the variables'
+operator-facing descriptions. An explanation is rebuilt only when its situation changes, so a
+constraint violated for a thousand scans costs one set of sentences.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from hmi.engine import commands as cmd
+from hmi.explain.model import Explanation, Policy
+from hmi.explain.texts import ProjectTexts, TextSpec, fill
+from hmi.project.model import Project
+from hmi.timefmt import seconds
+
+
+@dataclass
+class _Onset:
+    scan: int
+    time_us: int
+
+
+def _lower_first(text: str) -> str:
+    return text[:1].lower() + text[1:] if text else text
+
+
+class ExplanationBuilder:
+    """Owns the onsets and the cache; `build(engine, report)` runs once per scan."""
+
+    def __init__(self, project: Project, texts: ProjectTexts | None = None):
+        self.project = project
+        self.texts = texts or project.extra.get("explanations") or ProjectTexts()
+        self.onsets: dict[str, _Onset] = {}
+        self.cache: dict[str, tuple[tuple, Explanation]] = {}
+        self.devices = {v.name: (v.device or project.name)
+                        for v in (*project.inputs, *project.outputs)}
+        self.describe = project.describe
+        self.constraints = {c.name: c for c in project.constraints}
+        # Later features add builders for their situations (diagnoses, monitor faults...).
+        self.extra_builders: list[Callable[[ExplanationBuilder, object], list[Explanation]]] = []
+
+    # -- public ------------------------------------------------------------------------------
+    def build(self, engine, report) -> tuple[Explanation, ...]:
+        found: list[Explanation] = []
+        if report is not None and report.violations:
+            found.extend(self._constraints(engine, report))
+        if report is not None and report.fallback:
+            found.append(self._fallback(engine, report))
+        for reason in engine.latched:
+            found.append(self._latch(engine, reason))
+        status = engine.plant.status
+        if not status.connected and not any(r.source == "plant" for r in engine.latched):
+            found.append(self._plant(engine, status.message))
+        if engine.mode == "manual" and engine.manual:
+            found.append(self._manual(engine))
+        for builder in self.extra_builders:
+            found.extend(builder(self, engine))
+        keys = {e.key for e in found}
+        for key in list(self.onsets):
+            if key not in keys:
+                del self.onsets[key]
+                self.cache.pop(key, None)
+        return tuple(found)
+
+    def onset(self, key: str, engine) -> _Onset:
+        onset = self.onsets.get(key)
+        if onset is None:
+            onset = self.onsets[key] = _Onset(engine.scan, engine.now)
+        return onset
+
+    def cached(self, key: str, signature: tuple, make: Callable[[], Explanation]) -> Explanation:
+        hit = self.cache.get(key)
+        if hit is not None and hit[0] == signature:
+            return hit[1]
+        explanation = make()
+        self.cache[key] = (signature, explanation)
+        return explanation
+
+    def apply_texts(self, spec: TextSpec, defaults: dict, values: dict) -> dict:
+        """The four levels, each from the project's text when it has one, else the default."""
+        out = dict(defaults)
+        for level in ("what", "why", "consequences"):
+            text = getattr(spec, level)
+            if text:
+                out[level] = fill(text, values)
+        if spec.severity:
+            out["severity"] = spec.severity
+        if spec.alarm is not None:
+            out["alarm"] = spec.alarm
+        if spec.policies or spec.recommend:
+            policies = []
+            for policy in out["policies"]:
+                effect = spec.policies.get(policy.id)
+                recommended = (policy.id == spec.recommend) if spec.recommend else \
+                    policy.recommended
+                policies.append(Policy(policy.id, policy.label,
+                                       fill(effect, values) if effect else policy.effect,
+                                       policy.command, recommended))
+            out["policies"] = tuple(policies)
+        return out
+
+    def device_of(self, names) -> str:
+        for name in names:
+            if name in self.devices:
+                return self.devices[name]
+        return self.project.name
+
+    def short(self, name: str) -> str:
+        """A variable's description without its device's name ("open order", not "Valve V1
+        open order"), for sentences that already name the device."""
+        desc = self.describe(name)
+        device = self.devices.get(name)
+        if device and desc.lower().startswith(device.lower()):
+            desc = desc[len(device):].strip(" :-—")
+        return desc or name
+
+    def literal_values(self, literals) -> str:
+        """`C=1 (close order); prev(C)=0; fso=0 (open end switch)` from a violation."""
+        parts = []
+        seen: set[str] = set()
+        for literal, value in literals:
+            core = literal[4:] if literal.startswith("not ") else literal
+            name = core[5:].split(",")[0].rstrip(")") if core.startswith("prev(") else core
+            text = f"{core}={int(value) if isinstance(value, bool) else value}"
+            if name not in seen and self.describe(name) != name:
+                text += f" ({self.short(name)})"
+                seen.add(name)
+            parts.append(text)
+        return "; ".join(parts)
+
+    def var_text(self, name: str, value) -> str:
+        desc = self.describe(name)
+        shown = int(value) if isinstance(value, bool) else value
+        return f"{name}={shown}" + (f" ({desc})" if desc != name else "")
+
+    # -- policies shared by several kinds ---------------------------------------------------
+    @staticmethod
+    def policy_continue(effect: str, recommended: bool = False) -> Policy:
+        return Policy("continue", "Continue", effect, None, recommended)
+
+    @staticmethod
+    def policy_manual(recommended: bool = False) -> Policy:
+        return Policy("manual", "Switch to manual",
+                      "the control program stops driving the outputs; your requests still go "
+                      "through the safety filter", cmd.SetMode(True), recommended)
+
+    @staticmethod
+    def policy_stop(device: str, recommended: bool = False) -> Policy:
+        return Policy("stop_device", f"Stop {device}",
+                      f"hold every output of {device} at its safe value until you release it",
+                      cmd.StopDevice(device), recommended)
+
+    @staticmethod
+    def policy_reset(effect: str, recommended: bool = False) -> Policy:
+        return Policy("reset", "Fault reset", effect, cmd.FaultReset(), recommended)
+
+    # -- constraints ------------------------------------------------------------------------
+    def _constraints(self, engine, report) -> list[Explanation]:
+        out = []
+        changes_by_output = {c.output: c for c in report.changes}
+        for violation in report.violations:
+            constraint = self.constraints[violation.name]
+            changed = tuple(changes_by_output[o] for o in constraint.outputs
+                            if o in changes_by_output)
+            key = f"constraint:{violation.name}"
+            onset = self.onset(key, engine)
+            signature = (report.policy, violation.literals, tuple(
+                (c.output, c.written, c.how) for c in changed), bool(engine.latched),
+                engine.mode)
+            out.append(self.cached(key, signature, lambda v=violation, c=constraint,
+                                   ch=changed, o=onset: self._constraint(engine, report, v, c,
+                                                                         ch, o)))
+        return out
+
+    def _action_text(self, report, changed) -> str:
+        if report.policy == "monitor":
+            return "NOT corrected (monitor policy)"
+        if report.safe_state:
+            return "all outputs held at their safe values"
+        if not changed:
+            return "corrected"
+        parts = []
+        for change in changed:
+            desc = _lower_first(self.short(change.output))
+            if change.written:
+                parts.append(f"{desc} kept on")
+            else:
+                parts.append(f"{desc} blocked")
+        return ", ".join(parts)
+
+    def _constraint(self, engine, report, violation, constraint, changed, onset) -> Explanation:
+        device = self.device_of(constraint.outputs)
+        rule = constraint.description or f"the constraint {constraint.expr.source} must stay false"
+        quoted = f"\u201c{rule}\u201d"
+        action = self._action_text(report, changed)
+        source = "the operator's manual request" if engine.mode == "manual" else \
+            "the control program"
+        values = self.literal_values(violation.literals)
+        since = (f"since scan {onset.scan} ({seconds(onset.time_us)} s)")
+        why = (f"Safety constraint {constraint.name} ({constraint.kind}), "
+               f"`{constraint.expr.source}`, was true on {source}'s outputs at scan "
+               f"{engine.scan} ({seconds(engine.now)} s): {values}. Violated {since}.")
+        if report.policy == "monitor":
+            consequences = (f"The unsafe vector WAS written, breaking the rule {quoted}: "
+                            "damage is possible. The monitor policy only reports; nothing "
+                            "protects the plant.")
+            severity = "high"
+            policies = (
+                Policy("correct", "Switch the filter to correct",
+                       "the filter corrects unsafe orders from the next scan on",
+                       cmd.SetPolicy("correct"), True),
+                self.policy_stop(device), self.policy_manual())
+        elif report.policy == "block" or report.safe_state:
+            consequences = (f"Written as asked, this vector would break the rule {quoted}. "
+                            "Safe blocking holds every output at its safe value until a fault "
+                            "reset: the cell is stopped, safely.")
+            severity = "medium"
+            policies = (
+                self.policy_reset("release the latch; the program resumes from where it is "
+                                  "(check it first: it asked for an unsafe order)", True),
+                self.policy_manual(), self.policy_stop(device))
+        else:
+            written = ", ".join(f"{c.output}={int(c.written)}"
+                                for c in changed) or "a safe vector"
+            note = f" {report.note}." if report.note and constraint.kind == "combined" else ""
+            consequences = (f"Written as asked, this vector would break the rule {quoted}. "
+                            f"The filter wrote {written} instead (Hamming distance "
+                            f"{report.distance} from what was asked).{note} The program is "
+                            "not told and keeps asking while the situation lasts; the cell "
+                            "continues safely.")
+            severity = "low"
+            policies = (
+                self.policy_continue("let the filter keep correcting this order", True),
+                self.policy_manual(), self.policy_stop(device))
+        defaults = {"what": f"{device}: {action} — {_lower_first(rule)} ({constraint.name})",
+                    "why": why, "consequences": consequences, "policies": policies,
+                    "severity": severity, "alarm": True}
+        fields = {"device": device, "time": seconds(engine.now), "scan": engine.scan,
+                  "since_time": seconds(onset.time_us), "since_scan": onset.scan,
+                  "action": action, "name": constraint.name, "expr": constraint.expr.source,
+                  "description": constraint.description, "values": values,
+                  "outputs": ", ".join(constraint.outputs),
+                  "changes": ", ".join(f"{c.output} {int(c.requested)}->{int(c.written)}"
+                                       for c in changed),
+                  "policy": report.policy}
+        spec = self.texts.get("constraints", constraint.name)
+        level = self.apply_texts(spec, defaults, fields)
+        return Explanation(f"constraint:{constraint.name}", "constraint", level["severity"],
+                           device, level["what"], level["why"], level["consequences"],
+                           level["policies"], onset.scan, onset.time_us, level["alarm"])
+
+    # -- safe state, fallback, plant, manual -------------------------------------------------
+    def _latch(self, engine, reason) -> Explanation:
+        key = f"safe_state:{reason.source}"
+        onset = _Onset(reason.scan, reason.time_us)
+        self.onsets.setdefault(key, onset)
+
+        def make() -> Explanation:
+            if reason.source == "plant":
+                what = f"{self.project.name}: plant connection lost — outputs held safe"
+                why = (f"{reason.detail} (scan {reason.scan}, {seconds(reason.time_us)} s). "
+                       "Inputs can no longer be trusted.")
+                consequences = ("The safe output vector is written as soon as the connection "
+                                "is back; automatic operation resumes only after a fault reset. "
+                                "The plant's own state is unknown meanwhile.")
+                severity = "high"
+            elif reason.source == "internal":
+                what = f"{self.project.name}: internal error — outputs held safe"
+                why = f"{reason.detail} (scan {reason.scan}, {seconds(reason.time_us)} s)."
+                consequences = ("The scan could not be completed safely, so every output went "
+                                "to its safe value and stays there until a fault reset.")
+                severity = "high"
+            else:
+                what = f"{self.project.name}: cell stopped safe — {reason.detail}"
+                why = (f"The filter's policy is safe blocking: at scan {reason.scan} "
+                       f"({seconds(reason.time_us)} s) {reason.detail}.")
+                consequences = ("Every output is held at its safe value until a fault reset; "
+                                "production is stopped. Nothing moves unless the operator acts.")
+                severity = "medium"
+            policies = (self.policy_reset("release the latch and let the control program "
+                                          "drive the outputs again", True),
+                        self.policy_manual())
+            spec = self.texts.get("situations", f"safe_state_{reason.source}")
+            level = self.apply_texts(spec, {"what": what, "why": why,
+                                            "consequences": consequences,
+                                            "policies": policies, "severity": severity,
+                                            "alarm": True},
+                                     {"device": self.project.name,
+                                      "time": seconds(engine.now), "scan": engine.scan,
+                                      "since_time": seconds(reason.time_us),
+                                      "since_scan": reason.scan, "action": "outputs held safe",
+                                      "reason": reason.source, "detail": reason.detail})
+            return Explanation(key, "safe_state" if reason.source != "plant" else "plant",
+                               level["severity"], self.project.name, level["what"],
+                               level["why"], level["consequences"], level["policies"],
+                               reason.scan, reason.time_us, level["alarm"], latched=True)
+        return self.cached(key, (reason.detail,), make)
+
+    def _fallback(self, engine, report) -> Explanation:
+        key = "fallback"
+        onset = self.onset(key, engine)
+
+        def make() -> Explanation:
+            violated = ", ".join(report.violated_names)
+            what = f"{self.project.name}: no safe output vector — safe state written"
+            why = (f"At scan {engine.scan} ({seconds(engine.now)} s) the corrector found no "
+                   f"output vector satisfying every constraint ({report.fallback}); "
+                   f"violated by the program: {violated}. Since scan {onset.scan}.")
+            consequences = ("Every output is at its safe value while the situation lasts; the "
+                            "cell does not progress. The constraint set may be too strict for "
+                            "this situation, or a sensor gives an impossible picture.")
+            policies = (self.policy_manual(True),
+                        Policy("check", "Check sensors",
+                               "look for a sensor giving an impossible combination", None))
+            return Explanation(key, "fallback", "high", self.project.name, what, why,
+                               consequences, policies, onset.scan, onset.time_us)
+        return self.cached(key, (report.fallback, report.violated_names), make)
+
+    def _plant(self, engine, message: str) -> Explanation:
+        key = "plant"
+        onset = self.onset(key, engine)
+
+        def make() -> Explanation:
+            what = f"{self.project.name}: plant not connected — {message or 'no connection'}"
+            why = f"{engine.plant.status.description}: {message}. Since scan {onset.scan}."
+            consequences = ("No output is written until the connection is established; "
+                            "inputs are not trusted.")
+            return Explanation(key, "plant", "high", self.project.name, what, why,
+                               consequences, (self.policy_manual(),), onset.scan,
+                               onset.time_us)
+        return self.cached(key, (message,), make)
+
+    def _manual(self, engine) -> Explanation:
+        key = "manual"
+        onset = self.onset(key, engine)
+        forces = tuple(sorted(engine.manual.items()))
+
+        def make() -> Explanation:
+            listed = ", ".join(f"{n}={int(v)}" for n, v in forces)
+            what = f"{self.project.name}: MANUAL — forces active ({listed})"
+            why = (f"Manual mode since scan {onset.scan} ({seconds(onset.time_us)} s); "
+                   f"requested: {listed}.")
+            consequences = ("The control program does not drive the outputs; every request "
+                            "still goes through the safety filter.")
+            policies = (Policy("auto", "Leave manual",
+                               "release every manual output; the program drives them again",
+                               cmd.SetMode(False), True),)
+            return Explanation(key, "manual", "low", self.project.name, what, why,
+                               consequences, policies, onset.scan, onset.time_us, alarm=False)
+        return self.cached(key, forces, make)

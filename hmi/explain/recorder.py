@@ -1,0 +1,74 @@
+"""Connects a controller to the journal: operator actions and alarm transitions.
+
+It listens to the controller (commands with their results, and every scan's snapshot), so the
+engine itself never touches a file. A manual request is journalled twice: when it is made,
+and once the next scan shows what the filter did with it.
+"""
+
+from __future__ import annotations
+
+from hmi.engine.commands import Command, CommandResult, ManualOutput, describe
+from hmi.engine.runner import Controller
+from hmi.engine.snapshot import Snapshot
+from hmi.explain.journal import Journal
+from hmi.timefmt import seconds
+
+
+class JournalRecorder:
+    def __init__(self, controller: Controller, journal: Journal, source: str = "hmi"):
+        self.controller = controller
+        self.journal = journal
+        self.pending_manual: list[ManualOutput] = []
+        engine = controller.engine
+        journal.append({"type": "session", "event": "start", "source": source,
+                        "project": engine.project.name, "control": engine.control_name,
+                        "policy": engine.policy, "plant": engine.plant.status.description,
+                        "scan": engine.scan, "t": seconds(engine.now)})
+        controller.listeners.append(self.on_command)
+        controller.scan_listeners.append(self.on_scan)
+
+    def on_command(self, command: Command, result: CommandResult,
+                   snapshot: Snapshot | None) -> None:
+        engine = self.controller.engine
+        self.journal.append({
+            "type": "action", "event": describe(command), "accepted": result.accepted,
+            "message": result.message, "scan": engine.scan, "t": seconds(engine.now)})
+        if isinstance(command, ManualOutput) and result.accepted and command.value is not None:
+            self.pending_manual.append(command)
+        for event in getattr(engine, "pending_alarm_events", ()):
+            self._alarm(event)
+        if hasattr(engine, "pending_alarm_events"):
+            engine.pending_alarm_events = []
+
+    def on_scan(self, snapshot: Snapshot) -> None:
+        for event in snapshot.alarm_events:
+            self._alarm(event)
+        if self.pending_manual:
+            report = snapshot.filter
+            for request in self.pending_manual:
+                index = snapshot.layout.outputs.index(request.name)
+                written = snapshot.outputs[index]
+                change = next((c for c in (report.changes if report else ())
+                               if c.output == request.name), None)
+                if change is None:
+                    outcome = f"written {int(written)} as requested"
+                else:
+                    by = ", ".join(change.by)
+                    outcome = f"refused: written {int(written)} because of {by}"
+                self.journal.append({
+                    "type": "action", "event": f"manual {request.name} "
+                    f"{'on' if request.value else 'off'}: filter result", "accepted": True,
+                    "message": outcome, "scan": snapshot.scan, "t": seconds(snapshot.time_us)})
+            self.pending_manual = []
+
+    def _alarm(self, event) -> None:
+        self.journal.append({
+            "type": "alarm", "event": event.event, "key": event.key, "state": event.state,
+            "severity": event.severity, "text": event.text, "returns": event.returns,
+            "scan": event.scan, "t": seconds(event.time_us)})
+
+    def close(self) -> None:
+        engine = self.controller.engine
+        self.journal.append({"type": "session", "event": "stop", "scan": engine.scan,
+                             "t": seconds(engine.now)})
+        self.journal.close()

@@ -1,0 +1,309 @@
+"""Graduated explanations, ISA-18.2 alarms, policy choices and the durable journal."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from hmi.cli import main
+from hmi.engine.commands import (
+    Acknowledge,
+    ChoosePolicy,
+    FaultReset,
+    ManualOutput,
+    SetMode,
+)
+from hmi.errors import ProjectError
+from hmi.explain.alarms import (
+    ACTIVE_ACK,
+    ACTIVE_UNACK,
+    CLEARED_UNACK,
+    AlarmManager,
+)
+from hmi.explain.journal import Journal, read
+from hmi.explain.model import Explanation
+from hmi.explain.recorder import JournalRecorder
+from hmi.project.loader import load_project
+from tests.conftest import PROJECTS, ROOT, make_controller, write_project
+
+VALVE = PROJECTS / "cispi_valve"
+S = 1_000_000
+
+
+def run_until(ctl, predicate, seconds=30):
+    end = ctl.engine.now + seconds * S
+    while ctl.engine.now < end:
+        snap = ctl.scan_once()
+        if predicate(snap):
+            return snap
+    raise AssertionError("condition not reached")
+
+
+def explanation(snap, key):
+    return next(e for e in snap.explanations if e.key == key)
+
+
+# -- explanations of each kind ---------------------------------------------------------------
+
+def test_corrected_constraint_explanation_has_four_levels_from_descriptions():
+    ctl = make_controller(VALVE, control="faulty", policy="correct")
+    snap = run_until(ctl, lambda s: "CSs5" in s.filter.violated_names)
+    e = explanation(snap, "constraint:CSs5")
+    assert e.what == ("Valve V1: close order blocked — start closing only from the open "
+                      "position (CSs5)")
+    assert "`rise(C) and not fso_filter`" in e.why and "C=1 (close order); prev(C)=0" in e.why
+    assert "fso_filter=0 (Valve V1 open end switch, as the filter reads it)" in e.why
+    assert f"scan {snap.scan}" in e.why
+    assert "The filter wrote C=0 instead" in e.consequences
+    assert e.severity == "low" and e.recommended.id == "continue"
+    assert [p.id for p in e.policies] == ["continue", "manual", "stop_device"]
+
+
+def test_project_texts_fill_their_placeholders():
+    ctl = make_controller(VALVE, control="faulty", policy="correct")
+    snap = run_until(ctl, lambda s: "CSc1" in s.filter.violated_names)
+    e = explanation(snap, "constraint:CSc1")
+    assert e.what == "Valve V1: open and close ordered together - open order blocked"
+    assert "kept the orders apart (O 1->0)" in e.consequences
+    assert e.severity == "medium"  # the project's choice
+
+
+def test_blocked_and_monitor_explanations_differ():
+    snap = run_until(make_controller(VALVE, control="faulty", policy="block"),
+                     lambda s: s.latched)
+    keys = {e.key for e in snap.explanations}
+    assert {"constraint:CSs2", "safe_state:filter"} <= keys
+    latch = explanation(snap, "safe_state:filter")
+    assert latch.latched and latch.recommended.id == "reset"
+    assert "Check the control program before resetting" in latch.consequences
+    snap = run_until(make_controller(VALVE, control="faulty", policy="monitor"),
+                     lambda s: s.filter.violations)
+    e = snap.explanations[0]
+    assert "NOT corrected" in e.what and e.severity == "high"
+    assert e.recommended.id == "correct"
+
+
+def test_manual_forces_are_explained_without_an_alarm():
+    ctl = make_controller(VALVE)
+    ctl.scan_once()
+    ctl.command(SetMode(True))
+    ctl.command(ManualOutput("O", True))
+    snap = ctl.scan_once()
+    e = explanation(snap, "manual")
+    assert "MANUAL" in e.what and "O=1" in e.what and not e.alarm
+    assert not [a for a in snap.alarms if a.key == "manual"]
+
+
+def test_fallback_and_internal_error_are_explained(tmp_path):
+    ctl = make_controller(VALVE)
+    ctl.scan_once()
+    ctl.engine.output_stage = lambda engine, fov: 1 / 0
+    snap = ctl.scan_once()
+    e = explanation(snap, "safe_state:internal")
+    assert "internal error" in e.what and "ZeroDivisionError" in e.why and e.severity == "high"
+
+
+def test_unknown_placeholder_is_a_load_error_with_position(tmp_path):
+    files = {"project.yaml": """
+        name: x
+        scan_period: 10ms
+        inputs: {fsc: a, fso: b}
+        outputs: {C: c, O: o}
+        control: {equations: {C: fsc}}
+        constraints:
+          K1: C and fsc
+        explanations:
+          constraints:
+            K1: {what: "{device}: {devise} blocked"}
+            K9: {what: hello}
+        plant: {kind: sim, model: valve}
+    """}
+    with pytest.raises(ProjectError) as info:
+        load_project(write_project(tmp_path / "x", files))
+    messages = [str(d) for d in info.value.errors]
+    assert any("unknown placeholder {devise}" in m and ":10:" in m for m in messages)
+    assert any("explanations for unknown constraint 'K9'" in m for m in messages)
+
+
+# -- alarms ----------------------------------------------------------------------------------
+
+def make_exp(key="k", latched=False, severity="low", text="thing") -> Explanation:
+    return Explanation(key, "constraint", severity, "dev", text, "why", "cons", (), 0, 0,
+                       latched=latched)
+
+
+def test_isa_18_2_states():
+    m = AlarmManager()
+    e = make_exp()
+    events = m.update((e,), 1, 0)
+    assert [(x.event, x.state) for x in events] == [("raised", ACTIVE_UNACK)]
+    assert [(x.event, x.state) for x in m.acknowledge("k", 2, 10)] == [
+        ("acknowledged", ACTIVE_ACK)]
+    events = m.update((), 3, 20)  # acknowledged then cleared: back to normal
+    assert [(x.event, x.state) for x in events] == [("cleared", "normal")] and not m.alarms
+    m.update((e,), 4, 30)
+    events = m.update((), 5, 40)  # cleared before acknowledgement: stays listed
+    assert [(x.event, x.state) for x in events] == [("cleared", CLEARED_UNACK)]
+    assert m.listed()[0].state == CLEARED_UNACK
+    events = m.update((e,), 6, 50)  # returns
+    assert [(x.event, x.state) for x in events] == [("returned", ACTIVE_UNACK)]
+    m.update((), 7, 60)
+    assert [(x.event, x.state) for x in m.acknowledge(None, 8, 70)] == [
+        ("acknowledged", "normal")]
+    assert not m.alarms
+
+
+def test_acknowledge_all_and_ordering_by_priority():
+    m = AlarmManager()
+    m.update((make_exp("a", severity="low"), make_exp("b", severity="high")), 1, 0)
+    assert [a.key for a in m.listed()] == ["b", "a"]
+    assert len(m.acknowledge(None, 2, 1)) == 2
+    assert all(a.state == ACTIVE_ACK for a in m.listed())
+
+
+def test_chattering_is_collapsed_into_one_alarm_with_a_count():
+    m = AlarmManager()
+    e = make_exp()
+    events = []
+    t = 0
+    for _ in range(10):  # returns every 2 s: 10 times a minute
+        events += m.update((e,), 0, t)
+        events += m.update((), 0, t + 1 * S)
+        t += 2 * S
+    kinds = [x.event for x in events]
+    assert kinds.count("chattering") == 1
+    assert kinds.count("returned") == 4  # the 4th return makes it chattering; then collapsed
+    alarm = m.listed()[0]
+    assert alarm.chattering and alarm.active and alarm.returns == 9
+    later = m.update((), 0, t + 61 * S)  # stays clear for a minute: finally clears
+    assert [x.event for x in later] == ["cleared"]
+
+
+def test_latched_alarm_stays_until_fault_reset():
+    ctl = make_controller(VALVE, control="faulty", policy="block")
+    snap = run_until(ctl, lambda s: s.latched)
+    for _ in range(200):
+        snap = ctl.scan_once()
+    alarm = next(a for a in snap.alarms if a.key == "safe_state:filter")
+    assert alarm.active and alarm.latched
+    ctl.command(Acknowledge("safe_state:filter"))
+    ctl.command(FaultReset())
+    snap = ctl.scan_once()
+    assert not [a for a in snap.alarms if a.key == "safe_state:filter"]
+    assert any(e.event == "cleared" and e.key == "safe_state:filter" for e in snap.alarm_events)
+
+
+# -- policy choices --------------------------------------------------------------------------
+
+def test_choosing_stop_device_masks_its_outputs_and_release_restores():
+    ctl = make_controller(VALVE, control="faulty", policy="correct")
+    run_until(ctl, lambda s: "CSs2" in s.filter.violated_names)
+    result = ctl.command(ChoosePolicy("constraint:CSs2", "stop_device"))
+    assert result.accepted and "Valve V1 stopped" in result.message
+    snaps = [ctl.scan_once() for _ in range(500)]
+    assert all(s.outputs == (False, False) for s in snaps)
+    assert snaps[-1].stopped_devices == ("Valve V1",)
+    from hmi.engine.commands import ReleaseDevice
+    assert ctl.command(ReleaseDevice("Valve V1")).accepted
+    assert not ctl.command(ChoosePolicy("constraint:CSs2", "teleport")).accepted
+
+
+def test_choosing_manual_and_reset_policies_send_their_commands():
+    ctl = make_controller(VALVE, control="faulty", policy="block")
+    run_until(ctl, lambda s: s.latched)
+    assert ctl.command(ChoosePolicy("safe_state:filter", "reset")).accepted
+    assert not ctl.engine.latched
+    snap = run_until(ctl, lambda s: s.latched)
+    assert ctl.command(ChoosePolicy("safe_state:filter", "manual")).accepted
+    assert ctl.engine.mode == "manual"
+    assert snap.scan
+
+
+# -- journal ---------------------------------------------------------------------------------
+
+def test_journal_records_actions_alarm_transitions_and_manual_outcomes(tmp_path):
+    ctl = make_controller(VALVE)
+    recorder = JournalRecorder(ctl, Journal(tmp_path / "j.jsonl"), "test")
+    ctl.scan_once()
+    ctl.command(SetMode(True))
+    ctl.command(ManualOutput("C", True))  # closing a closed valve: refused by CSs1 and CSs5
+    ctl.scan_once()
+    ctl.command(Acknowledge(None))
+    ctl.scan_once()
+    recorder.close()
+    entries = read(tmp_path / "j.jsonl").entries
+    events = [(e["type"], e["event"]) for e in entries]
+    assert events[0] == ("session", "start") and events[-1] == ("session", "stop")
+    assert ("action", "enter manual mode") in events
+    outcome = next(e for e in entries if e["event"] == "manual C on: filter result")
+    assert outcome["message"] == "refused: written 0 because of CSs1, CSs5"
+    raised = [e for e in entries if e["type"] == "alarm" and e["event"] == "raised"]
+    assert {e["key"] for e in raised} == {"constraint:CSs1", "constraint:CSs5"}
+    assert all(e["scan"] == 2 and e["t"] == "0.010" and e["wall"] for e in raised)
+    assert [e["event"] for e in entries if e["type"] == "alarm"].count("acknowledged") == 2
+
+
+def test_truncated_last_line_is_tolerated(tmp_path, capsys):
+    path = tmp_path / "j.jsonl"
+    journal = Journal(path)
+    journal.append({"type": "action", "event": "one", "scan": 1, "t": "0.000"})
+    journal.append({"type": "action", "event": "two", "scan": 2, "t": "0.010"})
+    journal.close()
+    with path.open("ab") as f:
+        f.write(b'{"wall":"2026-11-22T10:00:00.000+00:00","type":"ac')
+    result = read(path)
+    assert [e["event"] for e in result.entries] == ["one", "two"] and result.truncated
+    assert main(["journal", str(VALVE), "--path", str(path)]) == 0
+    captured = capsys.readouterr()
+    assert "one" in captured.out and "two" in captured.out
+    assert "cut short" in captured.err
+
+
+def test_journal_csv_export(tmp_path, capsys):
+    path = tmp_path / "j.jsonl"
+    assert main(["run", str(VALVE), "--for", "10s", "--control", "faulty",
+                 "--journal", str(path)]) == 0
+    capsys.readouterr()
+    assert main(["journal", str(VALVE), "--path", str(path), "--csv"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == "wall,scan,t,type,event,key,severity,text,message"
+    assert any(",alarm,raised,constraint:CSs2," in line for line in lines)
+
+
+def test_a_sigkilled_run_leaves_a_readable_journal(tmp_path):
+    path = tmp_path / "j.jsonl"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hmi.cli", "run", str(VALVE), "--for", "100h",
+         "--control", "faulty", "--journal", str(path)],
+        cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            if path.exists() and path.read_bytes().count(b"\n") >= 20:
+                break
+            time.sleep(0.05)
+        else:
+            raise AssertionError("the run did not journal 20 entries in 60 s")
+    finally:
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+    result = read(path)
+    assert len(result.entries) >= 20
+    assert result.entries[0]["event"] == "start"
+    assert all("wall" in e and "scan" in e for e in result.entries)
+    assert json.loads(path.read_bytes().split(b"\n")[1])  # complete lines are valid JSON
+    assert main(["journal", str(VALVE), "--path", str(path)]) == 0
+
+
+def test_run_prints_alarms_and_full_explanations(capsys):
+    assert main(["run", str(VALVE), "--for", "10s", "--control", "faulty", "--explain"]) == 0
+    out = capsys.readouterr().out
+    assert "Alarms:" in out and "[low] Valve V1: open order blocked" in out
+    assert "Explanation of constraint:CSs2" in out and "Consequences:" in out
+    assert "Recommended: Continue" in out
