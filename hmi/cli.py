@@ -2,8 +2,9 @@
 
     plchmi PROJECT                 open the operator HMI (Textual)
     plchmi check PROJECT           load, validate and summarise a project
-    plchmi run PROJECT --for 60s   headless run in virtual time
+    plchmi run PROJECT --for 60s   headless run in virtual time (real time on a real plant)
     plchmi sweep PROJECT           stopwatch monitor vs watchdog over interruptions
+    plchmi serve-plant PROJECT     the simulated plant as a Modbus TCP server
     plchmi diagnose PROJECT        the diagnosers' automata and their diagnosability
     plchmi campaign PROJECT        the fault campaign (000 Table 1)
 
@@ -24,7 +25,8 @@ from hmi.errors import ProjectError, UsageError
 from hmi.timefmt import DURATION_HINT, format_duration, parse_duration, seconds
 
 MAX_ERRORS_SHOWN = 25
-SUBCOMMANDS = ("check", "run", "sweep", "ui", "bench", "journal", "diagnose", "campaign")
+SUBCOMMANDS = ("check", "run", "sweep", "ui", "serve-plant", "bench", "journal",
+               "diagnose", "campaign")
 
 
 def _duration(text: str) -> int:
@@ -55,6 +57,19 @@ def _parser() -> argparse.ArgumentParser:
         p.add_argument("--solver", choices=("exact", "paper"),
                        help="corrector search strategy (default: the project's, else exact)")
 
+    def plant_args(p: argparse.ArgumentParser, connect_default: str) -> None:
+        p.add_argument("--plant", metavar="PLANT",
+                       help="sim, modbus (the project's settings) or "
+                       "modbus://HOST:PORT[/UNIT] (default: the project's plant)")
+        p.add_argument("--read-only", action="store_true",
+                       help="observe a real PLC over Modbus: read its inputs and outputs, "
+                       "check the constraints on them, write nothing")
+        p.add_argument("--connect-timeout", type=_duration, metavar="TIME",
+                       help="give up if a Modbus plant does not answer within TIME "
+                       f"(default: {connect_default})")
+        p.add_argument("--allow-monitor", action="store_true",
+                       help="permit the monitor policy (unsafe orders pass) on a real plant")
+
     p = sub.add_parser("check", help="load and validate a project, print a summary")
     project_arg(p)
 
@@ -71,6 +86,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="inject a fault into the simulated plant, e.g. F5@12s (repeatable)")
     p.add_argument("--trace", type=Path, metavar="FILE",
                    help="write every scan to FILE (.csv, or .jsonl for JSON Lines)")
+    plant_args(p, "10s")
     p.add_argument("--diagnosis", choices=("ftc", "observe", "off"), default="ftc",
                    help="diagnosers: drive reconstruction and masking (ftc, the default), "
                    "run without effect (observe), or not run (off)")
@@ -110,7 +126,32 @@ def _parser() -> argparse.ArgumentParser:
     engine_args(p)
     p.add_argument("--inject", action="append", default=[], metavar="FAULT@TIME",
                    help="schedule a fault in the simulated plant")
+    plant_args(p, "keep trying")
+
+    p = sub.add_parser("serve-plant", help="serve the simulated plant over Modbus TCP")
+    project_arg(p)
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on (127.0.0.1)")
+    p.add_argument("--port", type=_port, default=5020,
+                   help="TCP port (5020; 0 picks a free one and prints it)")
+    p.add_argument("--unit", type=_unit, help="Modbus unit id (default: the project's, or 1)")
+    p.add_argument("--inject", action="append", default=[], metavar="FAULT@TIME",
+                   help="a device fault (F5@12s) or a communication fault (busy@5s+2s, "
+                   "mute@5s+2s), in time since the server started (repeatable)")
+    p.add_argument("--delay", type=_duration, metavar="TIME",
+                   help="answer every request TIME late (a slow server)")
     return parser
+
+
+def _port(text: str) -> int:
+    if not text.isdigit() or int(text) > 65535:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a TCP port (0 to 65535)")
+    return int(text)
+
+
+def _unit(text: str) -> int:
+    if not text.isdigit() or int(text) > 255:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a Modbus unit id (0 to 255)")
+    return int(text)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -132,6 +173,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return cmd_sweep(args, load(args.project))
         if args.command == "ui":
             return cmd_ui(args)
+        if args.command == "serve-plant":
+            return cmd_serve_plant(args)
         if args.command == "bench":
             return cmd_bench(args)
         if args.command == "journal":
@@ -146,6 +189,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except UsageError as exc:
         print(f"plchmi: error: {exc}", file=sys.stderr)
         return 2
+    except RunFailure as exc:
+        print(f"plchmi: error: {exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         return 130
     parser.print_help()
@@ -172,9 +218,17 @@ def cmd_check(args: argparse.Namespace) -> int:
     from hmi.engine.filter_analysis import analyse
     from hmi.report import check_report
     project = load(args.project)
+    sections = [analyse(project).lines(len(project.outputs))]
+    if project.plant.kind == "modbus":
+        from hmi.plant.modbus_client import ModbusSettings
+        from hmi.plant.modbus_map import AddressMap
+        settings = ModbusSettings.from_spec(project.plant)
+        sections.append([f"Modbus {settings.where}: requests per scan"] + [
+            f"  {line}" for line in
+            AddressMap.for_project(project, settings.read_gap).describe()])
     from hmi.diag_report import check_sections
-    filter_lines = analyse(project).lines(len(project.outputs))
-    print(check_report(project, [filter_lines, *check_sections(project)]))
+    sections += check_sections(project)
+    print(check_report(project, sections))
     return 0
 
 
@@ -211,23 +265,48 @@ def cmd_campaign(args: argparse.Namespace) -> int:
 
 
 def make_engine(project, args: argparse.Namespace, extra_injections=()):
-    """The engine for a command's --control/--policy/--inject options, on a simulated plant."""
+    """The engine for a command's --control/--policy/--inject/--plant options."""
     from hmi.engine.scan import Engine
-    from hmi.plant.sim import SimPlant, parse_injection
+    from hmi.plant.select import open_plant
+    from hmi.plant.sim import parse_injection
 
     if args.control and args.control not in project.controls:
         raise UsageError(f"--control {args.control!r}: the project has "
                          + ", ".join(project.controls))
-    plant = SimPlant(project)
     injections = [*extra_injections,
                   *(parse_injection(text) for text in getattr(args, "inject", []))]
-    for injection in injections:
-        plant.resolve(injection)
-    for injection in injections:
-        plant.inject(injection)
+    read_only = getattr(args, "read_only", False)
+    plant = open_plant(project, getattr(args, "plant", None), read_only, injections,
+                       getattr(args, "period", None))
+    allow_monitor = getattr(args, "allow_monitor", False)
+    if plant.kind != "sim" and not read_only and not allow_monitor and \
+            (args.policy or project.policy) == "monitor":
+        raise UsageError("the monitor policy passes unsafe orders through to a real plant; "
+                         "choose --policy block or correct, or add --allow-monitor")
     engine = Engine(project, plant, control=args.control, policy=args.policy,
                     solver=args.solver, diagnosis=getattr(args, "diagnosis", None) or "ftc")
+    engine.allow_monitor_on_real_plant = allow_monitor
     return engine, injections
+
+
+def connect_plant(engine, timeout_us: int | None) -> None:
+    """Connect a real plant before the first scan, saying what happens; exit 1 if it fails."""
+    plant = engine.plant
+    if plant.kind == "sim":
+        return
+    from hmi.plant.modbus_client import wait_connected
+
+    def report(line: str) -> None:
+        print(f"plchmi: {line}", file=sys.stderr, flush=True)
+    timeout_s = None if timeout_us is None else timeout_us / 1e6
+    if not wait_connected(plant, timeout_s, report):
+        plant.close()
+        raise RunFailure(f"no connection to the plant within {format_duration(timeout_us)}: "
+                         f"{plant.message}")
+
+
+class RunFailure(Exception):
+    """A failure at run time (exit status 1), with a message for the operator."""
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -244,6 +323,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     if duration is None:
         raise UsageError("--for TIME is required (or a --scenario that sets its length)")
     engine, injections = make_engine(project, args, scenario.injections if scenario else ())
+    if engine.plant.kind != "sim":
+        return run_real_time(engine, args, duration)
     controller = Controller(engine, args.period)
     writer = None
     if args.trace:
@@ -409,6 +490,79 @@ class RunCollector:
             self.first_latch = (reason.scan, reason.time_us, reason.detail)
 
 
+def run_real_time(engine, args: argparse.Namespace, duration_us: int) -> int:
+    """A headless run against a real plant: scans paced and stamped by the wall clock."""
+    from hmi.engine.live import WallClock, run_live_for
+    from hmi.engine.runner import Controller
+    from hmi.engine.trace import TraceWriter
+    from hmi.report import run_summary
+
+    writer = None
+    if args.trace:
+        try:
+            writer = TraceWriter(args.trace)
+        except OSError as exc:
+            raise UsageError(f"--trace {args.trace}: {exc.strerror}") from None
+    plant = engine.plant
+    collector = RunCollector()
+    controller = Controller(engine, args.period, clock=WallClock())
+    recorder = None
+    try:
+        connect_plant(engine, args.connect_timeout or 10_000_000)
+        recorder = open_journal(controller, args.journal, "run")
+
+        def on_scan(snap):
+            collector.add(snap)
+            if writer:
+                writer.write(snap)
+        started = time.perf_counter()
+        runner = run_live_for(controller, duration_us, on_scan)
+        wall = time.perf_counter() - started
+        report = plant_report(plant, runner.overruns)
+    finally:
+        if writer:
+            writer.close()
+        stop_plant(engine)
+        if recorder:
+            recorder.close()
+    last = engine.last
+    print(run_summary(engine, last, collector, [], wall,
+                      trace=(args.trace, writer.count) if writer else None, time_kind="real"))
+    print(alarm_summary(collector, args.explain))
+    print(report)
+    print(f"Stopped: {plant.message}")
+    print(f"Journal: {recorder.journal.path}")
+    return 0
+
+
+def stop_plant(engine) -> None:
+    """At the end of a run on a real plant, leave its outputs safe, as a stopping PLC does."""
+    plant = engine.plant
+    stop = getattr(plant, "stop", None)
+    if stop is None:
+        plant.close()
+        return
+    safe = dict(zip(engine.layout.outputs, engine.safe_vector, strict=True))
+    stop(engine.now, safe)
+
+
+def plant_report(plant, overruns: int) -> str:
+    """What a run against a Modbus plant saw of it."""
+    status = plant.status
+    d = status.details
+    lines = [f"Plant {status.description}: {'connected' if status.connected else 'NOT CONNECTED'}"
+             f" ({status.message})",
+             f"  requests {d['requests']} (reads {d['reads']}, writes {d['writes']}), "
+             f"exception responses {d['exceptions']}, timeouts {d['timeouts']}, "
+             f"connections lost {d['losses']}, connections made {d['connects']}"]
+    io = plant.io_percentiles()
+    if io:
+        lines.append(f"  Modbus I/O per scan: p50 {io[0] / 1000:.2f} ms, p99 {io[1] / 1000:.2f} "
+                     f"ms, max {d['max_io_ms']:.2f} ms; scans slower than the period "
+                     f"{d['slow_scans']}; scan overruns {overruns}")
+    return "\n".join(lines)
+
+
 def _bench_sections() -> list[str]:
     from hmi.bench import sections
     return list(sections())
@@ -434,7 +588,37 @@ def cmd_ui(args: argparse.Namespace) -> int:
     project = load(args.project)
     engine, _ = make_engine(project, args)
     from hmi.ui.app import run_app
-    return run_app(engine)
+    if engine.plant.kind == "sim":
+        return run_app(engine)
+    from hmi.engine.live import WallClock
+    try:
+        connect_plant(engine, args.connect_timeout)
+        return run_app(engine, clock=WallClock())
+    finally:
+        stop_plant(engine)
+
+
+def cmd_serve_plant(args: argparse.Namespace) -> int:
+    from hmi.plant.modbus_map import address_diagnostics
+    from hmi.plant.modbus_server import COMM_FAULTS, run_server
+    from hmi.plant.sim import parse_injection
+
+    project = load(args.project)
+    errors = address_diagnostics(project, "serve-plant serves every input and output at its "
+                                 "address")
+    if errors:
+        raise ProjectError(errors)
+    if not project.plant.devices:
+        raise UsageError("the project has no simulated devices to serve")
+    injections = [parse_injection(text) for text in args.inject]
+    unit = project.plant.unit if args.unit is None else args.unit
+    try:
+        return run_server(project, args.host, args.port, unit, injections, args.delay or 0)
+    except UsageError as exc:
+        if "unknown fault" in str(exc):
+            raise UsageError(f"{exc}; communication faults: {', '.join(COMM_FAULTS)}"
+                             ) from None
+        raise
 
 
 __all__ = ["format_duration", "main", "seconds"]

@@ -230,3 +230,60 @@ def test_run_summary_counts_masked_orders_apart_from_corrections(capsys):
     assert "scans corrected 0" in out
     assert "9.190 s  V1 -> B2 {F2, F5}  flags def_fsc, def_V" in out
     assert "masked: C since 9.190 s, O since 9.190 s (2082 scans withdrew an order" in out
+
+
+def test_an_order_withdrawn_mid_travel_by_a_latch_resynchronises_instead_of_faulting(project):
+    ctl = controller(project)
+    run(ctl, 2)  # opening since 1.000 s
+    assert ctl.engine.last.diagnosers[0].state == "N3"
+    ctl.engine.latch_safe("test", "an operator emergency stop")
+    snaps = run(ctl, 5)  # much longer than the travel window: no arrival, no fault
+    assert snaps[1].diagnosers[0].state == "N0"
+    assert snaps[1].diagnosers[0].via == "N3 -> N0 on not O and not fsc and not fso"
+    assert not any(s.diagnosers[0].faulty for s in snaps)
+    # After the reset the filter refuses to restart the opening from mid-travel (CSs6), so
+    # the valve stays where the latch left it; the diagnoser waits, synchronising, no fault.
+    assert "safe-state latch released" in ctl.command(FaultReset()).message
+    after = run(ctl, 10)
+    assert {s.diagnosers[0].state for s in after} == {"N0"}
+    assert not any(s.masked for s in after)
+
+
+def test_a_gap_in_the_observation_sends_a_normal_diagnoser_back_to_synchronising(project):
+    engine = Engine(project, SimPlant(project))
+    for k in range(150):  # 1.49 s: opening (N3)
+        snap = engine.step(k * SCAN)
+    assert snap.diagnosers[0].state == "N3"
+    # A live run paused for 3 s: the next scan comes 3 s later.
+    snap = engine.step(snap.time_us + 3 * S)
+    d = snap.diagnosers[0]
+    assert d.state == "N0" and d.via == "plant not observed for 3s: re-synchronising"
+    assert not d.faulty
+
+
+def test_a_plant_outage_keeps_a_faulty_decision_and_resynchronises_a_normal_one(project):
+    from hmi.plant.base import PlantError
+
+    class Flaky(SimPlant):
+        down: tuple[int, int] = (0, 0)
+
+        def read(self, now_us):
+            if self.down[0] <= now_us < self.down[1]:
+                raise PlantError("connection lost")
+            return super().read(now_us)
+
+    plant = Flaky(project)
+    plant.down = (int(1.5 * S), int(2.5 * S))
+    ctl = Controller(Engine(project, plant))
+    snaps = run(ctl, 3)
+    during = next(s for s in snaps if s.time_us == 2 * S)
+    assert during.diagnosers[0].state == "N3"  # shown as it stood, not stepped
+    back = next(s for s in snaps if s.time_us == 2_500 * MS)
+    assert back.diagnosers[0].state == "N0"
+    assert back.diagnosers[0].via.startswith("plant not observed for")
+    # A faulty decision outlives an outage.
+    plant = Flaky(project)
+    plant.inject(parse_injection("F9@1.5s"))
+    plant.down = (int(2 * S), int(3 * S))
+    ctl = Controller(Engine(project, plant))
+    assert run(ctl, 4)[-1].diagnosers[0].state == "S9"

@@ -30,6 +30,11 @@ such a constraint violated; the filter report says so in its note, and counts it
 (the order is withdrawn from a device the diagnoser no longer trusts; 000 §3: "when a fault is
 on an actuator, all outputs must be deactivated by the filter").
 
+**Gaps in the observation.** When the stage did not run for some scans (the inputs were
+unknown: plant connection lost) or a step between two scans is longer than 10 scan periods (a
+pause of a live run), a diagnoser in a normal state returns to its initial, synchronising
+state: its state and clock no longer describe a plant it did not see. Faulty decisions stay.
+
 Modes (for the campaign's configurations): `ftc` (flags drive reconstruction and masking),
 `observe` (the diagnosers run and set their flags, nothing uses them: x_filter = x), `off`
 (the diagnosers do not run: flags stay 0 and x_filter = x).
@@ -55,11 +60,13 @@ from hmi.logic.expr import (
     walk,
 )
 from hmi.project.diagnosers import DiagnoserSpec, DiagTransition, diagnosers_of
+from hmi.timefmt import format_duration
 
 if TYPE_CHECKING:
     from hmi.engine.scan import Engine
 
 MODES = ("ftc", "observe", "off")
+GAP_SCANS = 10  # a step this many scan periods long is a gap in the observation
 MODE_HELP = {
     "ftc": "diagnosers drive reconstruction and masking (fault-tolerant control)",
     "observe": "diagnosers run and set their flags; nothing uses them",
@@ -278,6 +285,9 @@ class DiagnosisStage:
         self.mask: tuple[bool, ...] | None = None  # this scan's mask (ftc only)
         self.depth = max((rt.depth for rt in self.runtimes), default=1)
         self.dirty = True  # flags, routes and masks to recompute at the next scan
+        self.last_scan: int | None = None  # the last scan the stage ran
+        self.last_now = 0
+        self.period: int | None = None  # the shortest step seen between two scans
         self.routes: tuple[tuple[int, int], ...] = ()  # filtered slot <- sensor or estimate
         self.records: tuple[DiagnoserState, ...] = ()
         self.reconstructed: tuple[str, ...] = ()
@@ -288,6 +298,13 @@ class DiagnosisStage:
         changed = self.dirty
         if self.mode != "off":
             now, scan = engine.now, engine.scan
+            if self.last_scan is not None:
+                delta = now - self.last_now
+                if scan != self.last_scan + 1 or (self.period and delta > GAP_SCANS * self.period):
+                    changed = self._lost_sight(now, scan, delta) or changed
+                elif delta > 0:
+                    self.period = min(self.period or delta, delta)
+            self.last_scan, self.last_now = scan, now
             for rt in self.runtimes:
                 if rt.step(image, hist, now, scan):
                     changed = True
@@ -299,6 +316,27 @@ class DiagnosisStage:
         extras["diagnosers"] = self.records
         extras["reconstructed"] = self.reconstructed
         extras["masked"] = self.masked if engine.policy != "monitor" else ()
+
+    def _lost_sight(self, now: int, scan: int, delta: int) -> bool:
+        """The plant was not observed for `delta` (inputs unknown, or no scan: a pause).
+
+        A normal state and its clock no longer describe the plant (the valve may have moved,
+        or stopped, unseen), so the diagnoser goes back to its initial, synchronising state
+        rather than read a missed arrival as a fault. A faulty decision stays latched; an
+        intermediate one keeps its state with its clock frozen during the gap, and refines
+        on what it sees next.
+        """
+        changed = False
+        for rt in self.runtimes:
+            if rt.state.faulty:
+                if rt.since_us is not None:
+                    rt.since_us += max(0, delta - (self.period or 0))
+                continue
+            if rt.current != rt.initial:
+                rt.enter(rt.initial, now, scan, f"plant not observed for "
+                         f"{format_duration(delta)}: re-synchronising")
+                changed = True
+        return changed
 
     def _settle(self, image) -> None:
         self.dirty = False
@@ -324,6 +362,13 @@ class DiagnosisStage:
         self.masked = tuple(self.outputs[k] for k, m in enumerate(mask) if m)
         self.reconstructed = tuple(reconstructed)
         self.records = tuple(rt.record for rt in self.runtimes)
+
+    def publish(self, engine: Engine, extras: dict) -> None:
+        """Snapshot hook: a scan that skipped the stage (inputs unknown) still shows the
+        diagnosers, as they stand."""
+        extras.setdefault("diagnosers", self.records)
+        extras.setdefault("reconstructed", self.reconstructed)
+        extras.setdefault("masked", self.masked if engine.policy != "monitor" else ())
 
     def reset(self, engine: Engine) -> list[str]:
         """The fault-reset hook: re-synchronise every faulty diagnoser, or say why not."""
@@ -410,6 +455,7 @@ def install_diagnosers(engine: Engine, mode: str = "ftc") -> DiagnosisStage | No
     engine.stages_after_memory.append(stage)
     engine.output_stage = MaskedOutputStage(engine.output_stage, stage)
     engine.reset_hooks.append(stage.reset)
+    engine.snapshot_extras.append(stage.publish)
     if stage.depth > (engine.history.maxlen or 0) and not engine.started:
         engine.history = deque(maxlen=stage.depth)
     engine.diagnosis = stage

@@ -55,6 +55,12 @@ class Engine:
         self.policy = policy or project.policy
         if self.policy not in POLICIES:
             raise ValueError(self.policy)
+        # Read-only plant (observing a real PLC): the device's own outputs, read back, replace
+        # the FOV; the control law does not run, nothing is written, the filter only detects.
+        self.observe = bool(getattr(plant, "read_only", False))
+        if self.observe:
+            self.policy = "monitor"
+        self._readback: tuple[bool, ...] = ()
         # Partition flags and filtered sensors get slots (hmi/engine/diagnoser.py).
         self.layout = Layout.build(project, law, extra=layout_names(project))
         lay = self.layout
@@ -115,6 +121,9 @@ class Engine:
     # -- commands ----------------------------------------------------------------------------
     def apply(self, command) -> CommandResult:
         """Apply an operator command now; its effect on outputs shows at the next scan."""
+        if self.observe and isinstance(command, SetMode | ManualOutput | SetPolicy):
+            return CommandResult.refused("read-only mode: nothing is written to the plant and "
+                                         "the filter only detects")
         match command:
             case SetMode(manual=True):
                 if self.mode == "manual":
@@ -248,7 +257,10 @@ class Engine:
         extras: dict = {}
         self.extras = extras
         try:
-            inputs_ok = self._input_scan(now)
+            if not self._input_scan(now):
+                # The inputs are unknown (plant lost): memories, timers and steps hold, so
+                # the control law never acts on stale inputs; the outputs go safe (latched).
+                raise _InputsUnknown
             if not self.started:
                 self._start(now)
             hist = self.history
@@ -265,22 +277,26 @@ class Engine:
             for stage in self.stages_after_memory:
                 stage(self)
             # 5. functional control
-            self.control.run(image, hist, now)
-            if self.mode == "manual":
-                fov = tuple(self.manual.get(name, False) for name in self.layout.outputs)
+            if self.observe:
+                fov = self._readback
             else:
-                fov = tuple(image[s] for s in self.output_slots)
-            if self._stop_mask:
-                fov = tuple(self.safe_vector[k] if k in self._stop_mask else value
-                            for k, value in enumerate(fov))
+                self.control.run(image, hist, now)
+                if self.mode == "manual":
+                    fov = tuple(self.manual.get(name, False) for name in self.layout.outputs)
+                else:
+                    fov = tuple(image[s] for s in self.output_slots)
+                if self._stop_mask:
+                    fov = tuple(self.safe_vector[k] if k in self._stop_mask else value
+                                for k, value in enumerate(fov))
             # 6. filter
-            if not inputs_ok:
-                outputs, report = self.safe_vector, None
-            else:
-                outputs, report = self.output_stage(self, fov)
-            if self.latched:
+            outputs, report = self.output_stage(self, fov)
+            if self.observe:
+                outputs = fov  # what the device has: it is observed, never driven
+            elif self.latched:
                 outputs = self.safe_vector
             extras["filter"] = report
+        except _InputsUnknown:
+            fov = outputs = self._held_outputs()
         except Exception as exc:  # never leave the plant driven by a half-computed scan
             error = f"{type(exc).__name__}: {exc}"
             self.latch_safe("internal", f"internal error at scan {self.scan}: {error}")
@@ -290,7 +306,8 @@ class Engine:
         # 7. output scan
         for slot, value in zip(self.output_slots, outputs, strict=True):
             image[slot] = value
-        self._output_scan(now, outputs)
+        if not self.observe:
+            self._output_scan(now, outputs)
         try:
             for stage in self.stages_after_output:
                 stage(self)
@@ -320,6 +337,7 @@ class Engine:
 
     def _start(self, now: int) -> None:
         self.control.reset(self.image, now)
+        self.history.clear()
         for _ in range(self.history.maxlen or 1):
             self.history.append(self.image.copy())
         self.started = True
@@ -328,18 +346,26 @@ class Engine:
         try:
             values = self.plant.read(now)
         except PlantError as exc:
-            self.latch_safe("plant", f"plant connection lost: {exc}")
+            self.latch_safe("plant", _plant_detail(exc))
             return False
         image = self.image
         for name, slot in zip(self.layout.inputs, self.input_slots, strict=True):
             image[slot] = bool(values[name])
+        if self.observe:
+            self._readback = tuple(bool(values[name]) for name in self.layout.outputs)
         return True
+
+    def _held_outputs(self) -> tuple[bool, ...]:
+        """Outputs of a scan whose inputs are unknown: safe; observed ones as last seen."""
+        if self.observe:
+            return tuple(self.image[s] for s in self.output_slots)
+        return self.safe_vector
 
     def _output_scan(self, now: int, outputs: Sequence[bool]) -> None:
         try:
             self.plant.write(now, dict(zip(self.layout.outputs, outputs, strict=True)))
         except PlantError as exc:
-            self.latch_safe("plant", f"plant connection lost: {exc}")
+            self.latch_safe("plant", _plant_detail(exc))
 
     def _snapshot(self, fov, outputs, extras: dict, error: str | None,
                   wall_us: float) -> Snapshot:
@@ -371,6 +397,15 @@ class Engine:
             stopped_devices=tuple(sorted(self.stopped_devices)),
             error=error, scan_wall_us=wall_us,
         )
+
+
+def _plant_detail(exc: PlantError) -> str:
+    lost = getattr(exc, "lost", True)
+    return f"plant {'connection lost' if lost else 'error'}: {exc}"
+
+
+class _InputsUnknown(Exception):
+    """The input scan failed: skip to the output scan with the outputs safe."""
 
 
 def _pass_through(engine: Engine, fov: tuple[bool, ...]):

@@ -744,7 +744,7 @@ class ProjectLoader:
             return PlantSpec("sim")
         fields = self.guard(lambda: node.check_keys(
             "plant", {"kind", "model", "params", "ports", "devices", "host", "port", "unit",
-                      "timeout"}, ["kind"]))
+                      "timeout", "read_gap", "write_refresh"}, ["kind"]))
         if fields is None:
             return PlantSpec("sim")
         kind = self.guard(lambda: self._choice(fields["kind"], "plant kind", ("sim", "modbus")),
@@ -787,6 +787,19 @@ class ProjectLoader:
         if "timeout" in fields:
             spec_kwargs["timeout_us"] = self.guard(
                 lambda: fields["timeout"].as_duration("timeout"), 1_000_000)
+        if "read_gap" in fields:
+            spec_kwargs["read_gap"] = self.guard(
+                lambda: fields["read_gap"].as_int("read_gap", 0, 2000), 8)
+        if "write_refresh" in fields:
+            spec_kwargs["write_refresh_us"] = self.guard(
+                lambda: fields["write_refresh"].as_duration("write_refresh", allow_zero=True),
+                1_000_000)
+        if kind == "modbus":  # a real device: every input and output needs its address
+            for var in (*inputs, *outputs):
+                if var.address is None:
+                    self.diag.error(var.pos, f"{var.kind} {var.name!r} has no plant address, "
+                                    "which a Modbus plant needs for every input and output",
+                                    "address: di:N or coil:N (or ir:N.B, hr:N.B)")
         return PlantSpec(kind, tuple(devices), pos=node.pos, **spec_kwargs)
 
     def _device(self, name: str | None, node: YNode, fields: dict[str, YNode],

@@ -6,7 +6,7 @@ from textual.app import App, ComposeResult
 from textual.binding import Binding
 from textual.widgets import DataTable, Footer, Static
 
-from hmi.engine.commands import Pause, Resume, StepScans
+from hmi.engine.commands import FaultReset, Pause, Resume, StepScans
 from hmi.engine.live import LiveRunner
 from hmi.engine.runner import Controller
 from hmi.engine.scan import Engine
@@ -22,6 +22,7 @@ class PlcHmiApp(App):
     BINDINGS = [
         Binding("space", "toggle_run", "Run/Pause"),
         Binding("s", "step", "Step"),
+        Binding("r", "fault_reset", "Fault reset"),
         Binding("q", "quit", "Quit"),
     ]
 
@@ -80,13 +81,24 @@ class PlcHmiApp(App):
         engine = self.controller.engine
         run = self.controller.state.label.upper()
         scan = f"scan {snap.scan}  t={seconds(snap.time_us)} s" if snap else "no scan yet"
+        plant = engine.plant.status
+        link = "" if plant.connected else f"  |  PLANT DISCONNECTED: {plant.message}"
+        latched = f"  |  OUTPUTS SAFE: {snap.latched[-1].detail}" if snap and snap.latched \
+            else ""
+        overruns = f"  |  overruns {self.runner.overruns}" if self.runner and \
+            self.runner.overruns else ""
         self.query_one("#status", Static).update(
-            f"{engine.project.name}  |  {engine.plant.status.description}  |  "
-            f"{engine.mode.upper()}  |  policy {engine.policy}  |  {run}  |  {scan}")
+            f"{engine.project.name}  |  {plant.description}  |  "
+            f"{engine.mode.upper()}  |  policy {engine.policy}  |  {run}  |  {scan}"
+            f"{link}{latched}{overruns}")
 
     def action_toggle_run(self) -> None:
         running = self.controller.state.running
         result = self.controller.command(Pause() if running else Resume())
+        self.query_one("#message", Static).update(result.message)
+
+    def action_fault_reset(self) -> None:
+        result = self.controller.command(FaultReset())
         self.query_one("#message", Static).update(result.message)
 
     def action_step(self) -> None:
@@ -99,7 +111,8 @@ def _bit(value: bool) -> str:
     return "1" if value else "0"
 
 
-def run_app(engine: Engine) -> int:
-    app = PlcHmiApp(Controller(engine))
+def run_app(engine: Engine, clock=None) -> int:
+    """Run the HMI; a real plant passes a wall clock to stamp its scans (see WallClock)."""
+    app = PlcHmiApp(Controller(engine, clock=clock))
     app.run()
     return 0
