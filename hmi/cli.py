@@ -194,8 +194,29 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     except KeyboardInterrupt:
         return 130
+    except Exception as exc:  # a bug: say so plainly, keep the details for the developers
+        report = write_crash_report(exc)
+        print(f"plchmi: internal error: {type(exc).__name__}: {exc}", file=sys.stderr)
+        print(f"plchmi: the details are in {report}; please report it", file=sys.stderr)
+        return 1
     parser.print_help()
     return 2
+
+
+def write_crash_report(exc: BaseException) -> str:
+    """Write the traceback to the data folder; return where (or why it could not)."""
+    import traceback
+    from datetime import UTC, datetime
+
+    from hmi.explain.journal import data_folder
+    stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S")
+    path = data_folder() / f"crash-{stamp}.txt"
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text("".join(traceback.format_exception(exc)), encoding="utf-8")
+    except OSError as err:
+        return f"(no report: {err.strerror})"
+    return str(path)
 
 
 def print_project_error(exc: ProjectError) -> None:
