@@ -126,6 +126,8 @@ def _parser() -> argparse.ArgumentParser:
     engine_args(p)
     p.add_argument("--inject", action="append", default=[], metavar="FAULT@TIME",
                    help="schedule a fault in the simulated plant")
+    p.add_argument("--journal", type=Path, metavar="FILE",
+                   help="journal file (default: the user's data folder, see plchmi journal)")
     plant_args(p, "keep trying")
 
     p = sub.add_parser("serve-plant", help="serve the simulated plant over Modbus TCP")
@@ -606,17 +608,26 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def cmd_ui(args: argparse.Namespace) -> int:
+    from hmi.engine.runner import Controller
+    from hmi.ui.app import run_app
     project = load(args.project)
     engine, _ = make_engine(project, args)
-    from hmi.ui.app import run_app
-    if engine.plant.kind == "sim":
-        return run_app(engine)
-    from hmi.engine.live import WallClock
+    clock = None
+    if engine.plant.kind != "sim":
+        from hmi.engine.live import WallClock
+        clock = WallClock()
+    controller = Controller(engine, clock=clock)
+    recorder = None
     try:
-        connect_plant(engine, args.connect_timeout)
-        return run_app(engine, clock=WallClock())
+        if clock is not None:
+            connect_plant(engine, args.connect_timeout)
+        recorder = open_journal(controller, args.journal, "hmi")
+        return run_app(controller)
     finally:
-        stop_plant(engine)
+        if clock is not None:
+            stop_plant(engine)
+        if recorder is not None:
+            recorder.close()
 
 
 def cmd_serve_plant(args: argparse.Namespace) -> int:
