@@ -5,6 +5,8 @@
     plchmi run PROJECT --for 60s   headless run in virtual time (real time on a real plant)
     plchmi sweep PROJECT           stopwatch monitor vs watchdog over interruptions
     plchmi serve-plant PROJECT     the simulated plant as a Modbus TCP server
+    plchmi diagnose PROJECT        the diagnosers' automata and their diagnosability
+    plchmi campaign PROJECT        the fault campaign (000 Table 1)
 
 Exit status: 0 success, 2 bad input (a project error, a bad argument), 1 a failure at run
 time. Errors about a project name the file, line and column; there is never a traceback for
@@ -23,7 +25,8 @@ from hmi.errors import ProjectError, UsageError
 from hmi.timefmt import DURATION_HINT, format_duration, parse_duration, seconds
 
 MAX_ERRORS_SHOWN = 25
-SUBCOMMANDS = ("check", "run", "sweep", "ui", "serve-plant", "bench", "journal")
+SUBCOMMANDS = ("check", "run", "sweep", "ui", "serve-plant", "bench", "journal",
+               "diagnose", "campaign")
 
 
 def _duration(text: str) -> int:
@@ -84,10 +87,23 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--trace", type=Path, metavar="FILE",
                    help="write every scan to FILE (.csv, or .jsonl for JSON Lines)")
     plant_args(p, "10s")
+    p.add_argument("--diagnosis", choices=("ftc", "observe", "off"), default="ftc",
+                   help="diagnosers: drive reconstruction and masking (ftc, the default), "
+                   "run without effect (observe), or not run (off)")
     p.add_argument("--explain", action="store_true",
                    help="print the four levels of every alarm's explanation")
     p.add_argument("--journal", type=Path, metavar="FILE",
                    help="journal file (default: the user's data folder, see plchmi journal)")
+
+    p = sub.add_parser("diagnose", help="print the diagnosers' automata and diagnosability")
+    project_arg(p)
+
+    p = sub.add_parser("campaign", help="inject every fault under three configurations and "
+                       "classify the runs (000 Table 1)")
+    project_arg(p)
+    p.add_argument("--json", action="store_true", help="print the results as JSON")
+    p.add_argument("--jobs", type=int, default=None, metavar="N",
+                   help="worker processes (default: 2 if the machine has 2 cores or more)")
 
     p = sub.add_parser("journal", help="print or export a project's operator journal")
     project_arg(p)
@@ -165,6 +181,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             return cmd_bench(args)
         if args.command == "journal":
             return cmd_journal(args)
+        if args.command == "diagnose":
+            return cmd_diagnose(args)
+        if args.command == "campaign":
+            return cmd_campaign(args)
     except ProjectError as exc:
         print_project_error(exc)
         return 2
@@ -229,7 +249,41 @@ def cmd_check(args: argparse.Namespace) -> int:
         sections.append([f"Modbus {settings.where}: requests per scan"] + [
             f"  {line}" for line in
             AddressMap.for_project(project, settings.read_gap).describe()])
+    from hmi.diag_report import check_sections
+    sections += check_sections(project)
     print(check_report(project, sections))
+    return 0
+
+
+def cmd_diagnose(args: argparse.Namespace) -> int:
+    from hmi.diag_report import diagnose_report
+    print(diagnose_report(load(args.project)))
+    return 0
+
+
+def cmd_campaign(args: argparse.Namespace) -> int:
+    import json
+    import os
+
+    from hmi.engine.campaign import report_lines, run_campaign
+    from hmi.project.campaign import campaign_of
+    project = load(args.project)
+    spec = campaign_of(project)
+    if spec is None:
+        raise UsageError(f"project {project.name} has no 'campaign:' section")
+    jobs = args.jobs if args.jobs is not None else min(2, os.cpu_count() or 1)
+    if jobs < 1:
+        raise UsageError("--jobs must be at least 1")
+
+    def progress(done: int, total: int, run) -> None:
+        print(f"[{done:>2}/{total}] {run.scenario.name:<10} {run.config.title:<22} "
+              f"{run.outcome}", file=sys.stderr, flush=True)
+
+    result = run_campaign(project, spec, progress, jobs=jobs)
+    if args.json:
+        print(json.dumps(result.as_dict(), indent=2))
+    else:
+        print("\n".join(report_lines(result)))
     return 0
 
 
@@ -253,7 +307,7 @@ def make_engine(project, args: argparse.Namespace, extra_injections=()):
         raise UsageError("the monitor policy passes unsafe orders through to a real plant; "
                          "choose --policy block or correct, or add --allow-monitor")
     engine = Engine(project, plant, control=args.control, policy=args.policy,
-                    solver=args.solver)
+                    solver=args.solver, diagnosis=getattr(args, "diagnosis", None) or "ftc")
     engine.allow_monitor_on_real_plant = allow_monitor
     return engine, injections
 
@@ -428,10 +482,13 @@ class RunCollector:
         self.monitors = MonitorLog()
         self.alarm_events = []
         self.explanations = {}
+        from hmi.diag_report import DiagnosisLog
+        self.diagnosis = DiagnosisLog()
 
     def add(self, snap) -> None:
         self.scans += 1
         self.monitors.add(snap)
+        self.diagnosis.add(snap)
         self.events.extend(snap.plant_events)
         if snap.alarm_events:
             self.alarm_events.extend(snap.alarm_events)
@@ -444,7 +501,7 @@ class RunCollector:
                 self.violations[name] = self.violations.get(name, 0) + 1
             if report.safe_state:
                 self.safe_scans += 1
-            elif report.changes:
+            elif any(c.how != "masked" for c in report.changes):  # masks: diagnosers' lines
                 self.corrections += 1
             if report.unsafe_written:
                 self.unsafe_written += 1

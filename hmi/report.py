@@ -134,6 +134,10 @@ def run_summary(engine, last, collector, injections, wall_s: float, trace=None,
     if collector.first_latch:
         scan, t, detail = collector.first_latch
         lines.append(f"Outputs latched safe from scan {scan} ({seconds(t)} s): {detail}")
+    diagnosis = getattr(collector, "diagnosis", None)
+    if diagnosis is not None:
+        from hmi.diag_report import summary_lines
+        lines += summary_lines(diagnosis, engine, last)
     outputs = " ".join(f"{n}={int(v)}" for n, v in zip(last.layout.outputs, last.outputs,
                                                        strict=True))
     lines.append(f"Final: steps {'+'.join(last.active_steps) or '-'}; outputs {outputs}; "

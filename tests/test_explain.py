@@ -57,7 +57,8 @@ def test_corrected_constraint_explanation_has_four_levels_from_descriptions():
     e = explanation(snap, "constraint:CSs5")
     assert e.what == ("Valve V1: close order blocked — start closing only from the open "
                       "position (CSs5)")
-    assert "`rise(C) and not fso`" in e.why and "C=1 (close order); prev(C)=0" in e.why
+    assert "`rise(C) and not fso_filter`" in e.why and "C=1 (close order); prev(C)=0" in e.why
+    assert "fso_filter=0 (Valve V1 open end switch, as the filter reads it)" in e.why
     assert f"scan {snap.scan}" in e.why
     assert "The filter wrote C=0 instead" in e.consequences
     assert e.severity == "low" and e.recommended.id == "continue"

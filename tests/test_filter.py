@@ -33,7 +33,7 @@ def test_detection_names_the_constraint_and_its_literals():
     assert violation.description == "Never order open and close together"
     rise = next(s for s in snaps if "CSs6" in s.filter.violated_names)
     literals = dict(next(v for v in rise.filter.violations if v.name == "CSs6").literals)
-    assert literals == {"O": True, "not prev(O)": False, "not fsc": False}
+    assert literals == {"O": True, "not prev(O)": False, "not fsc_filter": False}
 
 
 def test_monitor_passes_everything_through_and_says_it_is_unsafe():

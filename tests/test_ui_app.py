@@ -51,7 +51,7 @@ def button_project(tmp_path: Path) -> Path:
         "inputs:\n", "inputs:\n  start:\n    description: Start push button\n", 1))
     control = folder / "control.yaml"
     control.write_text(control.read_text().replace(
-        "when: fsc and X0.t >= 1s", "when: fsc and X0.t >= 1s and start", 1))
+        "when: fsc_filter and X0.t >= 1s", "when: fsc_filter and X0.t >= 1s and start", 1))
     return folder
 
 

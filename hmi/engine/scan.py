@@ -27,6 +27,7 @@ from hmi.engine.commands import (
     SetPolicy,
     StopDevice,
 )
+from hmi.engine.diagnoser import install_diagnosers
 from hmi.engine.filter import SafetyFilter
 from hmi.engine.layout import Layout
 from hmi.engine.monitors import install_monitors
@@ -37,12 +38,14 @@ from hmi.logic.control import ControlRuntime
 from hmi.logic.expr import BoolFn, compile_bool, max_depth
 from hmi.logic.timers import TimerRuntime
 from hmi.plant.base import Plant, PlantError
+from hmi.project.diagnosers import layout_names
 from hmi.project.model import POLICIES, Project
 
 
 class Engine:
     def __init__(self, project: Project, plant: Plant, control: str | None = None,
-                 policy: str | None = None, solver: str | None = None):
+                 policy: str | None = None, solver: str | None = None,
+                 diagnosis: str = "ftc"):
         self.project = project
         self.plant = plant
         self.control_name = control or project.default_control
@@ -58,7 +61,8 @@ class Engine:
         if self.observe:
             self.policy = "monitor"
         self._readback: tuple[bool, ...] = ()
-        self.layout = Layout.build(project, law)
+        # Partition flags and filtered sensors get slots (hmi/engine/diagnoser.py).
+        self.layout = Layout.build(project, law, extra=layout_names(project))
         lay = self.layout
         slots, times = lay.slots, lay.step_times
         self.input_slots = lay.indices(lay.inputs)
@@ -111,6 +115,8 @@ class Engine:
         self.stopped_devices: set[str] = set()
         self._stop_mask: tuple[int, ...] = ()
         install_monitors(self)  # after the explainer: it adds a builder to it
+        # Diagnosers (stages 3-4), masking around the filter, their reset hook.
+        self.diagnosis = install_diagnosers(self, diagnosis)
 
     # -- commands ----------------------------------------------------------------------------
     def apply(self, command) -> CommandResult:

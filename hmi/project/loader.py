@@ -26,6 +26,8 @@ from hmi.logic.expr import (
     walk,
 )
 from hmi.plant.models import MODELS
+from hmi.project.campaign import parse_campaign
+from hmi.project.diagnosers import declare_diagnoser_names, parse_diagnosers
 from hmi.project.model import (
     POLICIES,
     READ_ONLY_TABLES,
@@ -55,7 +57,7 @@ PROJECT_FILE = "project.yaml"
 TOP_KEYS = {
     "name", "description", "scan_period", "include", "inputs", "outputs", "memories",
     "timers", "observers", "control", "constraints", "policy", "solver", "plant",
-    "explanations", "monitors", "scenarios",
+    "explanations", "monitors", "scenarios", "diagnosers", "campaign",
 }
 
 NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
@@ -64,10 +66,12 @@ RESERVED = {"and", "or", "not", "True", "False", "prev", "rise", "fall", "None"}
     keyword.kwlist)
 
 # What each kind of expression may read. Outputs at the current scan are only known once the
-# control law has run, so timers and observers (updated before it) read them through prev().
-GLOBAL_KINDS = {"input", "output", "timer", "observer"}
-CONTROL_KINDS = {"input", "output", "memory", "timer", "observer", "step"}
-CONSTRAINT_KINDS = {"input", "output", "timer", "observer"}
+# control law has run, so timers and observers (updated before it) read them through prev();
+# so are partition flags and filtered sensors (hmi/project/diagnosers.py), computed after them.
+GLOBAL_KINDS = {"input", "output", "timer", "observer", "flag", "filtered"}
+CONTROL_KINDS = {"input", "output", "memory", "timer", "observer", "step", "flag", "filtered"}
+CONSTRAINT_KINDS = {"input", "output", "timer", "observer", "flag", "filtered"}
+PREV_ONLY = {"output", "flag", "filtered"}  # for timers and observers
 
 
 def resolve_project_file(path: str | Path) -> Path:
@@ -155,9 +159,12 @@ class ProjectLoader:
         namespace.update(dict.fromkeys(steps, "step"))
         problems = check_names(parsed, namespace, steps, kinds, context or f"in {what}")
         for var in (n for n in walk(parsed.root) if isinstance(n, Var)):
-            if var.depth == 0 and namespace.get(var.name) in prev_only:
+            kind = namespace.get(var.name)
+            if var.depth == 0 and kind in prev_only:
+                kind_text = {"flag": "a partition flag", "filtered": "a filtered sensor"}.get(
+                    kind or "", f"an {kind}")
                 problems.append(ExprError(
-                    parsed.pos_of(var), f"{var.name!r} is an output: its value at this scan "
+                    parsed.pos_of(var), f"{var.name!r} is {kind_text}: its value at this scan "
                     f"is not known yet when {what} is computed",
                     f"prev({var.name}), the value written at the previous scan"))
         for problem in problems:
@@ -246,6 +253,7 @@ class ProjectLoader:
             self.diag.error(pos, "the project has no outputs", "an 'outputs:' section")
         timer_nodes = self._declare_items("timers", "timer")
         observer_nodes = self._declare_items("observers", "observer")
+        declare_diagnoser_names(self)  # def_<partition> flags, <sensor>_filter names
 
         timers = [t for t in (self._timer(n, k, p) for n, k, p in timer_nodes) if t]
         observers = [o for o in (self._observer(n, k, p) for n, k, p in observer_nodes) if o]
@@ -263,13 +271,17 @@ class ProjectLoader:
         self._check_addresses(inputs, outputs)
         monitors = parse_monitors(self, period)  # stopwatch monitors: hmi/project/monitors.py
         scenarios = parse_scenarios(self, plant)
+        diagnosers = parse_diagnosers(self)  # hmi/project/diagnosers.py
+        campaign = parse_campaign(self, plant)  # hmi/project/campaign.py
         texts = None
         if "explanations" in s:
             from hmi.project.explanations import parse_explanations
             texts = parse_explanations(
                 s["explanations"], self.guard,
                 {"constraints": {c.name for c in constraints},
-                 "monitors": {m.name for m in monitors}},
+                 "monitors": {m.name for m in monitors},
+                 "labels": {lab for d in diagnosers for lab in d.labels},
+                 "partitions": {p.name for d in diagnosers for p in d.partitions}},
                 self.diag.error)
         self.diag.raise_if_errors()
         project = Project(
@@ -279,7 +291,8 @@ class ProjectLoader:
             default_control=default_control, constraints=tuple(constraints), policy=policy,
             plant=plant, pos=pos, files=tuple(self.files), solver=solver,
             extra={"warnings": tuple(self.diag.warnings), "explanations": texts,
-                   "monitors": monitors, "scenarios": scenarios},
+                   "monitors": monitors, "scenarios": scenarios, "diagnosers": diagnosers,
+                   "campaign": campaign},
         )
         return project
 
@@ -353,7 +366,7 @@ class ProjectLoader:
         description = self.guard(lambda: fields["description"].as_str("description"), "") \
             if "description" in fields else ""
         expr = self.expr(fields["input"], f"the input of timer {name!r}", GLOBAL_KINDS,
-                         prev_only={"output"})
+                         prev_only=PREV_ONLY)
         if kind is None or preset is None or expr is None:
             return None
         return Timer(name, kind, expr, preset, description, kpos)
@@ -361,7 +374,7 @@ class ProjectLoader:
     def _observer(self, name: str, node: YNode, kpos: SourcePos) -> Observer | None:
         what = f"observer {name!r}"
         if node.kind == "scalar":
-            expr = self.expr(node, what, GLOBAL_KINDS, prev_only={"output"})
+            expr = self.expr(node, what, GLOBAL_KINDS, prev_only=PREV_ONLY)
             return Observer(name, "", expr=expr, pos=kpos) if expr else None
         fields = self.guard(lambda: node.check_keys(
             what, {"expr", "set", "reset", "initial", "description"}))
@@ -378,7 +391,7 @@ class ProjectLoader:
                             "expr: ... , or set: ... and reset: ...")
             return None
         if has_expr:
-            expr = self.expr(fields["expr"], what, GLOBAL_KINDS, prev_only={"output"})
+            expr = self.expr(fields["expr"], what, GLOBAL_KINDS, prev_only=PREV_ONLY)
             return Observer(name, description, expr=expr, initial=initial, pos=kpos) \
                 if expr else None
         if "set" not in fields or "reset" not in fields:
@@ -387,9 +400,9 @@ class ProjectLoader:
                             "both set: and reset:")
             return None
         set_ = self.expr(fields["set"], f"the set of {what}", GLOBAL_KINDS,
-                         prev_only={"output"})
+                         prev_only=PREV_ONLY)
         reset = self.expr(fields["reset"], f"the reset of {what}", GLOBAL_KINDS,
-                          prev_only={"output"})
+                          prev_only=PREV_ONLY)
         if set_ is None or reset is None:
             return None
         return Observer(name, description, set=set_, reset=reset, initial=initial, pos=kpos)

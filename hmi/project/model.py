@@ -257,6 +257,13 @@ class Project:
         for item in (*self.timers, *self.observers):
             if item.name == name and item.description:
                 return item.description
+        for spec in self.extra.get("diagnosers", ()):  # flags, filtered sensors
+            for p in spec.partitions:
+                if name == p.filtered and p.sensor:
+                    return f"{self.describe(p.sensor)}, as the filter reads it"
+                if name == p.flag:
+                    return (f"{spec.device or spec.name}: {p.description or p.name} "
+                            "distrusted by the diagnoser")
         return name
 
     def control(self, name: str | None = None) -> ControlLaw:

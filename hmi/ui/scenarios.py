@@ -71,7 +71,9 @@ async def stepping(pilot: Pilot) -> None:
 
 
 async def fault_f13(pilot: Pilot) -> None:
-    """SIMULATION: F13 injected while opening; the valve jams, the sequence waits for fso."""
+    """SIMULATION: F13 injected while opening; the valve jams at 40 % (the motor stalls
+    before any arrival deadline can expire), the diagnoser concludes {F3, F13} when fso does
+    not come: fso reconstructed, both orders masked."""
     await run_until(pilot, lambda s: "X1" in s.active_steps, 5, "the opening step")
     await run_for(pilot, 0.8)
     await pilot.press("f")
@@ -111,7 +113,7 @@ SCENARIOS: tuple[Scenario, ...] = (
     Scenario("manual", (100, 30), manual, "Manual mode: MANUAL / FORCES ACTIVE, O forced on"),
     Scenario("stepping", (80, 24), stepping, "Paused, stepped scan by scan"),
     Scenario("fault_f13", (120, 36), fault_f13,
-             "SIMULATION: F13 injected, the valve blocked between its end switches"),
+             "SIMULATION: F13 injected, the valve jammed; diagnosed {F3, F13}, orders masked"),
     Scenario("fault_dialog", (100, 30), fault_dialog,
              "SIMULATION: the fault injection dialog"),
     Scenario("filter_corrects", (120, 36), faulty_program,

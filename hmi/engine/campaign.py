@@ -1,0 +1,291 @@
+"""The fault campaign (000 §3.3, Table 1): every fault, three configurations, classified.
+
+Configurations (000 Table 1's columns):
+
+* **Diag no Filter** — the diagnosers run and set their flags, but nothing uses them (no
+  reconstruction, no masking) and the filter only monitors (it passes every order through);
+* **No Diag Filter** — the filter corrects (the project's policy), the diagnosers do not run:
+  every flag stays 0 and every x_filter = x;
+* **FTC (Diag and Filter)** — both, interacting: flags drive reconstruction and masking.
+
+Classification of one run, by objective criteria only (docs/cispi_valve.md):
+
+* **Defect** — the plant recorded a damaging event (for the valve: `both_orders`,
+  `end_stop_overrun`, `stall`);
+* **Blocked** — no damage, but the functional cycle stopped: the project's cycle counter did
+  not advance during the last `window` of the run;
+* **Tolerant** — no damage and the cycle kept going (possibly degraded).
+
+Runs are in virtual time on the simulated plant; each is exactly repeatable.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from hmi.engine.scan import Engine
+from hmi.plant.device import PlantEvent
+from hmi.plant.sim import Injection, SimPlant
+from hmi.project.campaign import CampaignSpec, Scenario
+from hmi.project.model import Project
+from hmi.timefmt import format_duration, seconds
+
+DEFECT, BLOCKED, TOLERANT = "Defect", "Blocked", "Tolerant"
+OUTCOMES = (BLOCKED, TOLERANT, DEFECT)  # the paper's row order
+
+
+@dataclass(frozen=True)
+class Config:
+    key: str
+    title: str
+    policy: str | None  # None: the project's policy
+    diagnosis: str  # hmi.engine.diagnoser.MODES
+
+
+CONFIGS = (
+    Config("diag_no_filter", "Diag no Filter", "monitor", "observe"),
+    Config("filter_no_diag", "No Diag Filter", None, "off"),
+    Config("ftc", "FTC (Diag and Filter)", None, "ftc"),
+)
+
+# 000 Table 1, as published: (Blocked, Tolerant, Defect) per configuration.
+PAPER_TABLE = {
+    "diag_no_filter": {BLOCKED: 8, TOLERANT: 1, DEFECT: 4},
+    "filter_no_diag": {BLOCKED: 9, TOLERANT: 0, DEFECT: 4},
+    "ftc": {BLOCKED: 7, TOLERANT: 4, DEFECT: 2},
+}
+
+
+def classify(damage: list[PlantEvent], cycle_times_us: list[int], length_us: int,
+             window_us: int) -> tuple[str, str]:
+    """The outcome of one run and its objective reason (damage first, then progress).
+
+    `cycle_times_us` are the instants the cycle counter advanced. A run is Blocked when none
+    of them falls inside the last `window_us` of the run, i.e. after `length_us - window_us`.
+    """
+    harmful = [e for e in damage if e.damage]
+    if harmful:
+        first = harmful[0]
+        more = f" (+{len(harmful) - 1} more)" if len(harmful) > 1 else ""
+        return DEFECT, f"{first.kind} at {seconds(first.time_us)} s: {first.detail}{more}"
+    start = length_us - window_us
+    recent = [t for t in cycle_times_us if t > start]
+    if not recent:
+        last = (f"the last completed at {seconds(cycle_times_us[-1])} s" if cycle_times_us
+                else "none completed")
+        return BLOCKED, (f"no cycle in the last {format_duration(window_us)} ({last})")
+    return TOLERANT, f"{len(recent)} cycles in the last {format_duration(window_us)}"
+
+
+@dataclass(frozen=True)
+class RunResult:
+    scenario: Scenario
+    config: Config
+    outcome: str
+    reason: str  # the objective reason of the outcome
+    context: str  # what the diagnoser / filter were doing at the end, for the reader
+    damage: tuple[PlantEvent, ...]
+    cycles: int  # completed during the whole run
+    detected_us: int | None  # first scan a diagnoser left its normal states
+    decision: tuple[str, ...]  # the final decision (labels) of the diagnoser(s)
+    states: tuple[str, ...]  # the final state of each diagnoser
+
+    def line(self) -> str:
+        return f"{self.outcome}: {self.reason}" + (f"; {self.context}" if self.context else "")
+
+    def as_dict(self) -> dict:
+        return {
+            "scenario": self.scenario.name, "fault": self.scenario.fault,
+            "device": self.scenario.device, "at_s": self.scenario.at_us / 1e6,
+            "phase": self.scenario.phase, "table": self.scenario.table,
+            "config": self.config.key, "outcome": self.outcome, "reason": self.reason,
+            "context": self.context, "cycles": self.cycles,
+            "damage": [{"time_s": e.time_us / 1e6, "kind": e.kind, "detail": e.detail}
+                       for e in self.damage],
+            "detected_s": None if self.detected_us is None else self.detected_us / 1e6,
+            "decision": list(self.decision), "states": list(self.states),
+        }
+
+
+@dataclass
+class CampaignResult:
+    project: str
+    spec: CampaignSpec
+    runs: list[RunResult] = field(default_factory=list)
+    wall_s: float = 0.0
+
+    def table(self, config: str) -> dict[str, int]:
+        counts = dict.fromkeys(OUTCOMES, 0)
+        for run in self.runs:
+            if run.config.key == config and run.scenario.table:
+                counts[run.outcome] += 1
+        return counts
+
+    def result(self, scenario: Scenario, config: str) -> RunResult:
+        return next(r for r in self.runs if r.scenario == scenario and r.config.key == config)
+
+    def as_dict(self) -> dict:
+        return {
+            "project": self.project, "length_s": self.spec.length_us / 1e6,
+            "window_s": self.spec.window_us / 1e6, "counter": self.spec.counter,
+            "configurations": [{"key": c.key, "title": c.title, "policy": c.policy,
+                                "diagnosis": c.diagnosis} for c in CONFIGS],
+            "table": {c.key: self.table(c.key) for c in CONFIGS},
+            "paper": PAPER_TABLE,
+            "runs": [r.as_dict() for r in self.runs],
+        }
+
+
+def run_one(project: Project, spec: CampaignSpec, scenario: Scenario, config: Config,
+            period_us: int | None = None) -> RunResult:
+    """One scenario under one configuration, in virtual time."""
+    plant = SimPlant(project)
+    plant.inject(Injection(scenario.fault, scenario.at_us, scenario.device))
+    engine = Engine(project, plant, policy=config.policy, diagnosis=config.diagnosis)
+    period = period_us or project.scan_period_us
+    damage: list[PlantEvent] = []
+    cycle_times: list[int] = []
+    counter_index: int | None = None
+    count = 0
+    detected: int | None = None
+    snap = None
+    for now in range(0, spec.length_us + 1, period):
+        snap = engine.step(now)
+        if snap.plant_events:
+            damage.extend(e for e in snap.plant_events if e.damage)
+        counters = snap.plant_counters
+        if counter_index is None:
+            counter_index = next(k for k, (name, _) in enumerate(counters)
+                                 if name == spec.counter)
+        value = counters[counter_index][1]
+        if value != count:
+            cycle_times.extend([now] * (value - count))
+            count = value
+        if detected is None and any(d.faulty for d in snap.diagnosers):
+            detected = now
+    assert snap is not None
+    outcome, reason = classify(damage, cycle_times, spec.length_us, spec.window_us)
+    decision = tuple(lab for d in snap.diagnosers for lab in d.labels)
+    return RunResult(scenario, config, outcome, reason, _context(snap, config, detected),
+                     tuple(damage), count, detected, decision,
+                     tuple(d.state for d in snap.diagnosers))
+
+
+def _context(snap, config: Config, detected: int | None) -> str:
+    """What the FTC machinery was doing at the end of the run, in a few words."""
+    if config.diagnosis == "off":
+        parts = ["diagnosers off"]
+    else:
+        faulty = [d for d in snap.diagnosers if d.faulty]
+        if not faulty:
+            parts = ["no fault diagnosed"]
+        else:
+            when = f" from {seconds(detected)} s" if detected is not None else ""
+            parts = [f"{d.state} {{{', '.join(d.labels)}}}{when}" for d in faulty]
+            if config.diagnosis == "observe":
+                parts.append("flags unused")
+    if snap.reconstructed:
+        parts.append(", ".join(snap.reconstructed) + " reconstructed")
+    if snap.masked:
+        parts.append(", ".join(snap.masked) + " masked")
+    if snap.latched:
+        parts.append("outputs latched safe")
+    return "; ".join(parts)
+
+
+def run_campaign(project: Project, spec: CampaignSpec,
+                 progress: Callable[[int, int, RunResult], None] | None = None,
+                 period_us: int | None = None, jobs: int = 1) -> CampaignResult:
+    """Every scenario under every configuration; `jobs` > 1 runs them in worker processes.
+
+    Each run is deterministic and independent, so running them in parallel changes nothing
+    but the wall time; results are kept in scenario order whatever order they finish in.
+    """
+    import time
+    started = time.perf_counter()
+    result = CampaignResult(project.name, spec)
+    tasks = [(i, j) for i in range(len(spec.scenarios)) for j in range(len(CONFIGS))]
+    done: dict[tuple[int, int], RunResult] = {}
+
+    def record(task: tuple[int, int], run: RunResult) -> None:
+        done[task] = run
+        if progress is not None:
+            progress(len(done), len(tasks), run)
+
+    if jobs > 1 and len(tasks) > 1:
+        from concurrent.futures import ProcessPoolExecutor
+        with ProcessPoolExecutor(max_workers=jobs, initializer=_worker_init,
+                                 initargs=(str(project.path), period_us)) as pool:
+            futures = {pool.submit(_worker_run, task): task for task in tasks}
+            from concurrent.futures import as_completed
+            for future in as_completed(futures):
+                record(futures[future], future.result())
+    else:
+        for i, j in tasks:
+            record((i, j), run_one(project, spec, spec.scenarios[i], CONFIGS[j], period_us))
+    result.runs = [done[task] for task in tasks]
+    result.wall_s = time.perf_counter() - started
+    return result
+
+
+_WORKER: dict = {}
+
+
+def _worker_init(path: str, period_us: int | None) -> None:
+    from hmi.project.campaign import campaign_of
+    from hmi.project.loader import load_project
+    project = load_project(path)
+    _WORKER.update(project=project, spec=campaign_of(project), period=period_us)
+
+
+def _worker_run(task: tuple[int, int]) -> RunResult:
+    i, j = task
+    spec = _WORKER["spec"]
+    return run_one(_WORKER["project"], spec, spec.scenarios[i], CONFIGS[j], _WORKER["period"])
+
+
+def report_lines(result: CampaignResult) -> list[str]:
+    spec = result.spec
+    ran = [s for s in spec.scenarios if any(r.scenario == s for r in result.runs)]
+    tabled = [s for s in ran if s.table]
+    extra = [s for s in ran if not s.table]
+    lines = [f"Fault campaign of {result.project}: {len(tabled)} scenarios"
+             + (f" (+{len(extra)} extra)" if extra else "")
+             + f" x {len(CONFIGS)} configurations, {format_duration(spec.length_us)} of "
+             f"virtual time each ({result.wall_s:.1f} s wall)",
+             f"  Defect: a damaging plant event; Blocked: no '{spec.counter}' completed in the "
+             f"last {format_duration(spec.window_us)}; Tolerant: otherwise",
+             ""]
+    header = ["", *[c.title for c in CONFIGS]]
+    sub = ["", *["plchmi  paper" for _ in CONFIGS]]
+    rows = [header, sub]
+    for outcome in OUTCOMES:
+        row = [outcome]
+        for c in CONFIGS:
+            row.append(f"{result.table(c.key)[outcome]:>6}  {PAPER_TABLE[c.key][outcome]:>5}")
+        rows.append(row)
+    lines += _table(rows)
+    lines.append("  (paper: 000 Table 1, ProcesSim; plchmi: this project's model, counted over "
+                 "the scenarios of the table)")
+    lines.append("")
+    lines.append("Per scenario (" + " | ".join(c.title for c in CONFIGS) + ")")
+    for group, title in ((tabled, None), (extra, "Extra scenarios (not counted in the table)")):
+        if not group:
+            continue
+        if title:
+            lines.append("")
+            lines.append(title)
+        for scenario in group:
+            runs = [result.result(scenario, c.key) for c in CONFIGS]
+            lines.append(f"  {scenario.name:<10} " + " | ".join(f"{r.outcome:<8}" for r in runs)
+                         + (f"  {scenario.phase}" if scenario.phase else ""))
+            for c, r in zip(CONFIGS, runs, strict=True):
+                lines.append(f"      {c.title}: {r.line()}")
+    return lines
+
+
+def _table(rows: list[list[str]], indent: str = "  ") -> list[str]:
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    return [(indent + "  ".join(c.rjust(widths[i]) if i else c.ljust(widths[i])
+                                for i, c in enumerate(r))).rstrip() for r in rows]
