@@ -404,8 +404,10 @@ async def test_policy_switch_the_filter_to_correct_under_monitor():
         await run_until(pilot, lambda s: any(a.severity == "high" for a in s.alarms), 5,
                         "an unsafe vector written")
         key = next(a.key for a in engine(app).last.alarms if a.severity == "high")
+        app.explain(key, open_level=1)
+        await settle(pilot)
+        assert "✗ P1 high" in region_text(app, "#explain")  # unsafe vector written: red
         await open_policies(pilot, key)
-        assert "✗ P1 high" in region_text(app, "#explain")
         assert app.focused.policy.id == "correct"
         await pilot.press("enter")
         await wait_for_screen(pilot, ConfirmDialog)

@@ -89,6 +89,10 @@ class DiagnoserState:
     via: str  # the transition (or reset) that led here; "" for the initial state
     flags: tuple[tuple[str, bool], ...]
     final: bool  # no transition leaves this state: only a fault reset does
+    # What a fault reset right after this scan would do (faulty states only): the normal
+    # state a resync rule matches on the current I/O ("" if none), and the values tested.
+    resync: str = ""
+    resync_values: str = ""
 
     @property
     def faulty(self) -> bool:
@@ -218,6 +222,26 @@ class DiagnoserRuntime:
             return True
         return False
 
+    def resync_match(self, image, hist) -> tuple[int, int, object] | None:
+        """The first resync rule the I/O satisfies: (target, rule number, rule), or None."""
+        for fn, target, k, rule in self.resync_rules:
+            if fn(image, hist):
+                return target, k, rule
+        return None
+
+    def preview(self, image, hist) -> DiagnoserState:
+        """The record, with what a fault reset would do now (for the reset dialog).
+
+        Called after the scan, before its image joins the history; the reset itself runs
+        after that, so the history is seen as the reset will see it: this image first."""
+        record = self.record
+        if not record.faulty:
+            return record
+        seen = _Shifted(image, hist)
+        match = self.resync_match(image, seen)
+        return replace(record, resync=self.names[match[0]] if match else "",
+                       resync_values=self._resync_values(image, seen))
+
     def resync(self, image, hist, now: int, scan: int) -> str:
         """Fault reset: back to the normal state the current I/O is consistent with."""
         spec = self.spec
@@ -226,13 +250,14 @@ class DiagnoserRuntime:
             return ""
         shown = self._resync_values(image, hist)
         was = f"{state.name} {{{', '.join(state.labels)}}}"
-        for fn, target, k, rule in self.resync_rules:
-            if fn(image, hist):
-                self.enter(target, now, scan, f"fault reset (resync rule {k}: {rule.when})")
-                new = self.state
-                return (f"diagnoser {spec.name}: {was} reset, re-synchronised to {new.name}"
-                        + (f" ({new.description})" if new.description else "")
-                        + (f" on {shown}" if shown else "") + "; flags cleared")
+        match = self.resync_match(image, hist)
+        if match is not None:
+            target, k, rule = match
+            self.enter(target, now, scan, f"fault reset (resync rule {k}: {rule.when})")
+            new = self.state
+            return (f"diagnoser {spec.name}: {was} reset, re-synchronised to {new.name}"
+                    + (f" ({new.description})" if new.description else "")
+                    + (f" on {shown}" if shown else "") + "; flags cleared")
         if not self.resync_rules:
             return (f"diagnoser {spec.name} stays in {was}: it declares no resync rule, so "
                     "it cannot tell which normal state the plant is in")
@@ -253,6 +278,18 @@ class DiagnoserRuntime:
             value = image[slot] if back == 0 else hist[back - 1][slot]
             parts.append(f"{to_text(Var(0, name, depth))}={int(bool(value))}")
         return ", ".join(parts)
+
+
+class _Shifted:
+    """The history as it will be once this scan's image is in it (index 0: the image)."""
+
+    __slots__ = ("hist", "image")
+
+    def __init__(self, image, hist):
+        self.image, self.hist = image, hist
+
+    def __getitem__(self, k: int):
+        return self.image if k == 0 else self.hist[k - 1]
 
 
 class DiagnosisStage:
@@ -290,6 +327,7 @@ class DiagnosisStage:
         self.period: int | None = None  # the shortest step seen between two scans
         self.routes: tuple[tuple[int, int], ...] = ()  # filtered slot <- sensor or estimate
         self.records: tuple[DiagnoserState, ...] = ()
+        self.faulty = False  # some diagnoser holds a faulty decision (its records + preview)
         self.reconstructed: tuple[str, ...] = ()
         self.masked: tuple[str, ...] = ()
 
@@ -314,6 +352,7 @@ class DiagnosisStage:
             image[fslot] = image[source]
         extras = engine.extras
         extras["diagnosers"] = self.records
+        self.faulty = any(r.faulty for r in self.records)
         extras["reconstructed"] = self.reconstructed
         extras["masked"] = self.masked if engine.policy != "monitor" else ()
 
@@ -365,7 +404,10 @@ class DiagnosisStage:
 
     def publish(self, engine: Engine, extras: dict) -> None:
         """Snapshot hook: a scan that skipped the stage (inputs unknown) still shows the
-        diagnosers, as they stand."""
+        diagnosers, as they stand; a faulty one with what a fault reset would do now."""
+        if self.faulty:
+            extras["diagnosers"] = tuple(rt.preview(engine.image, engine.history)
+                                         for rt in self.runtimes)
         extras.setdefault("diagnosers", self.records)
         extras.setdefault("reconstructed", self.reconstructed)
         extras.setdefault("masked", self.masked if engine.policy != "monitor" else ())
@@ -456,6 +498,10 @@ def install_diagnosers(engine: Engine, mode: str = "ftc") -> DiagnosisStage | No
     engine.output_stage = MaskedOutputStage(engine.output_stage, stage)
     engine.reset_hooks.append(stage.reset)
     engine.snapshot_extras.append(stage.publish)
+    explainer = getattr(engine, "explainer", None)
+    if explainer is not None:  # a faulty decision is explained and raises an alarm
+        from hmi.explain.diagnosis import diagnosis_explanations
+        explainer.extra_builders.append(diagnosis_explanations)
     if stage.depth > (engine.history.maxlen or 0) and not engine.started:
         engine.history = deque(maxlen=stage.depth)
     engine.diagnosis = stage

@@ -49,6 +49,7 @@ from hmi.engine.runner import Controller
 from hmi.engine.scan import Engine
 from hmi.explain.model import Policy
 from hmi.plant.sim import Injection
+from hmi.project.diagnosers import diagnosers_of
 from hmi.project.model import POLICIES
 from hmi.project.monitors import monitors_of
 from hmi.timefmt import seconds
@@ -56,6 +57,7 @@ from hmi.ui.actions import ACTIONS, bindings
 from hmi.ui.alarm_list import AlarmList, AlarmSelected
 from hmi.ui.chronogram import WINDOWS_US, Chronogram
 from hmi.ui.constraints_panel import ConstraintInfo, ConstraintsPanel
+from hmi.ui.diagnosers_panel import DiagnosersPanel, PartitionInfo
 from hmi.ui.dialogs import ChoiceDialog, ConfirmDialog, StepDialog
 from hmi.ui.driver import LiveDriver, VirtualDriver
 from hmi.ui.explain_panel import (
@@ -73,6 +75,7 @@ from hmi.ui.message_line import MessageLine, result_text, verdict_text
 from hmi.ui.messages import CommandRequested, ExplainRequested
 from hmi.ui.monitors_panel import MonitorsPanel
 from hmi.ui.palette import HmiCommands, PaletteEntry
+from hmi.ui.panel import ColumnPanel
 from hmi.ui.recorder import ScanRecorder
 from hmi.ui.reset import ResetLine, reset_preview
 from hmi.ui.signal_dialog import SignalDialog
@@ -94,10 +97,10 @@ WIDE = 120  # from this width on, the explanation panel stays beside the chronog
 
 class Body(Vertical):
     """The panels' area. Its height changes with what is around it (an alarm row, a
-    banner, the footer wrapping); the monitors panel sizes its detail on it."""
+    banner, the footer wrapping); the column panels size their detail on it."""
 
     def on_resize(self) -> None:
-        for panel in self.query(MonitorsPanel):
+        for panel in self.query(ColumnPanel):
             panel.recheck()
 
 
@@ -149,6 +152,9 @@ class PlcHmiApp(App):
                                 if s.kind in ("output", "input", "timer"))
         constraints = [ConstraintInfo(c.name, c.kind, c.expr.source, c.description)
                        for c in project.constraints]
+        diagnosers = diagnosers_of(project)
+        partitions = {p.flag: PartitionInfo(p.flag, p.sensor, p.estimate, p.actuators)
+                      for spec in diagnosers for p in spec.partitions}
         yield StatusBar(id="status")
         yield BannerStrip(id="banners")
         with Body(id="body"):
@@ -156,10 +162,12 @@ class PlcHmiApp(App):
                 with Vertical(id="col-plant"):
                     yield IOPanel(engine.layout, descriptions, self.free_inputs, id="io",
                                   devices={v.name: v.device for v in project.outputs
-                                           if v.device})
+                                           if v.device},
+                                  partitions=tuple(partitions.values()))
                     yield ConstraintsPanel(constraints, id="constraints")
                 with Vertical(id="col-logic"):
                     yield GrafcetPanel(engine.control_name, steps, timers, id="control")
+                    yield DiagnosersPanel(partitions, len(diagnosers), id="diagnosers")
                     yield MonitorsPanel(len(monitors_of(project)), id="monitors")
             with Horizontal(id="bottom"):
                 with Vertical(id="col-time"):
@@ -178,7 +186,8 @@ class PlcHmiApp(App):
             self.recorder.on_scan(self.controller.engine.last)
         self._views = [self.query_one(StatusBar), self.query_one(BannerStrip),
                        self.query_one(IOPanel), self.query_one(ConstraintsPanel),
-                       self.query_one(GrafcetPanel), self.query_one(MonitorsPanel),
+                       self.query_one(GrafcetPanel), self.query_one(DiagnosersPanel),
+                       self.query_one(MonitorsPanel),
                        self.query_one(Chronogram), self.query_one(AlarmList),
                        self.query_one(SimPanel)]
         self.query_one(IOPanel).focus()

@@ -2,7 +2,7 @@
 and the timers with their elapsed time against the preset.
 
 On a short screen (under 30 lines) shared with the monitors or diagnosers, only the active
-steps are listed (the title says how many: `2/6 steps active`).
+steps are listed (the title says how many: ``2/6 active``).
 
 No colour here: an active step is normal. It is marked by a filled dot and bold text; the
 time a step has been active is what tells an engineer the sequence is stuck (a valve that
@@ -84,7 +84,7 @@ class GrafcetPanel(TextPanel):
             text.append("no GRAFCET (equations only)\n", style=MUTED)
         compact = self.compact
         self.border_title = f"Control · {self.control}" + (
-            f" · {len(active)}/{len(self.steps)} steps active" if compact else "")
+            f" · {len(active)}/{len(self.steps)} active" if compact else "")
         for step in self.steps:
             on = step.name in active
             if compact and not on:

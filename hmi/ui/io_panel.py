@@ -1,6 +1,8 @@
 """The I/O table: inputs as read; outputs with their functional value (FOV) beside the value
 written, so a difference — the filter, the safe-state latch, a masked actuator — shows at a
-glance, with the reason in words.
+glance, with the reason in words. A sensor the diagnosers distrust reads
+``≈ reconstructed (fso_hat)`` (the filter reads its estimate), an order they mask
+``⊘ masked (def_V)``, an output of a device the operator stopped ``▲ stopped``.
 
 The table is also where the operator picks an output for a manual request (keys 1 / 0 / x
 on the highlighted row) or presses a simulated push button (b). It does not send anything
@@ -36,12 +38,18 @@ class IOPanel(DataTable):
 
     def __init__(self, layout: Layout, descriptions: dict[str, str],
                  free_inputs: tuple[str, ...], *, id: str | None = None,
-                 devices: dict[str, str] | None = None):
+                 devices: dict[str, str] | None = None, partitions: tuple = ()):
         super().__init__(id=id, cursor_type="row", zebra_stripes=False)
         self.layout_ = layout
         self.descriptions = descriptions
         self.free_inputs = free_inputs
         self.devices = devices or {}  # output -> its device (for devices the operator stops)
+        # diagnoser partitions: sensor -> its estimate; output -> the flags that mask it
+        self.estimates = {p.sensor: p.estimate for p in partitions if p.sensor}
+        self.mask_flags: dict[str, list[str]] = {}
+        for p in partitions:
+            for out in p.actuators:
+                self.mask_flags.setdefault(out, []).append(p.flag)
         self.frame: Frame | None = None
         self._cells: dict[tuple[str, str], object] = {}
         self._widths: dict[str, int] = {}
@@ -73,21 +81,30 @@ class IOPanel(DataTable):
             if not snap.plant.connected:
                 state.append(tag("stale", Level.ALARM))  # the last value read, not the plant's
             if name in reconstructed:
-                state.append(tag("reconstructed", Level.ATTENTION))
+                estimate = self.estimates.get(name)
+                state.append(Text(f"≈ reconstructed ({estimate})" if estimate
+                                  else "≈ reconstructed", style=STYLE[Level.ATTENTION]))
             if name in self.free_inputs:
                 state.append(tag("button " + ("pressed" if value else "up"),
                                  Level.SIMULATION))
             self._set(name, "value", bit(value))
             self._set(name, "state", _join(state))
         requests = dict(snap.manual)
+        set_flags = {f for d in snap.diagnosers for f, v in d.flags if v}
         for name, fov, written in zip(snap.layout.outputs, snap.fov, snap.outputs, strict=True):
             state = []
             differs = name in frame.changed
-            if differs:
-                level = Level.ALARM if snap.latched else Level.ATTENTION
-                state.append(tag("≠ " + frame.changed[name], level))
+            reason = frame.changed.get(name)
             if name in masked:
-                state.append(tag("masked", Level.ALARM))
+                flags = ", ".join(f for f in self.mask_flags.get(name, ())
+                                  if f in set_flags)
+                state.append(Text(f"⊘ masked ({flags})" if flags else "⊘ masked",
+                                  style=STYLE[Level.ALARM]))
+                if reason is not None and reason.startswith("masked"):
+                    reason = None  # the mark says it (the FOV cell shows the difference)
+            if reason is not None:
+                level = Level.ALARM if snap.latched else Level.ATTENTION
+                state.insert(0, tag("≠ " + reason, level))
             if self.devices.get(name) in snap.stopped_devices:
                 state.append(tag("stopped", Level.ATTENTION))
             if frame.manual:

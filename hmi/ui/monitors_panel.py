@@ -22,17 +22,15 @@ from __future__ import annotations
 
 from rich.style import Style
 from rich.text import Text
-from textual.css.query import NoMatches
 
 from hmi.engine.monitors import MonitorState
 from hmi.engine.stopwatch import Window
 from hmi.timefmt import format_duration, seconds
 from hmi.ui.frame import Frame
-from hmi.ui.panel import TextPanel
+from hmi.ui.panel import ColumnPanel
 from hmi.ui.style import MUTED, STYLE, Level
 
 BAR = 12
-TOP_SHARE = 0.6  # app.tcss: #top { max-height: 60% }
 LOCATIONS = {
     "waiting": ("○", "waiting", Level.NORMAL),
     "executing": ("▶", "executing", Level.NORMAL),
@@ -138,37 +136,21 @@ def monitor_lines(m: MonitorState, name_w: int, width: int, detail: int) -> list
     return lines
 
 
-class MonitorsPanel(TextPanel):
+class MonitorsPanel(ColumnPanel):
     """Every task monitor of the project; hidden when it has none."""
 
     def __init__(self, count: int, *, id: str | None = None):
         super().__init__(id=id)
         self.count = count
-        self.frame: Frame | None = None
         self.display = count > 0
-        self._room_used: int | None = None
 
     def on_mount(self) -> None:
         self.border_title = f"Monitors · {self.count}"
 
-    def show(self, frame: Frame) -> None:
-        self.frame = frame
-        if self.count:
-            self.show_text(self.render_frame(frame))
-            # The room is measured on the last layout; this frame may change it (an alarm
-            # row, a banner): check again once it is laid out.
-            self.call_after_refresh(self.recheck)
+    def min_lines(self) -> int:
+        return max(1, self.count)
 
-    def on_resize(self) -> None:
-        if self.frame is not None and self.count:
-            self.show_text(self.render_frame(self.frame))
-
-    def recheck(self) -> None:
-        """Draw again if the room changed since the last drawing (see Body.on_resize)."""
-        if self.frame is not None and self.count and self._room() != self._room_used:
-            self.show_text(self.render_frame(self.frame))
-
-    def render_frame(self, frame: Frame) -> Text:
+    def render_detail(self, frame: Frame, detail: int) -> Text:
         monitors = frame.snapshot.monitors
         text = Text(no_wrap=True, overflow="ellipsis")
         if not monitors:
@@ -179,26 +161,5 @@ class MonitorsPanel(TextPanel):
         self.border_title = f"Monitors · {len(monitors)}" + (
             f" · {faulty} faulty" if faulty else "")
         name_w = max(len(m.name) for m in monitors)
-        room = self._room_used = self._room()
-        for detail in (2, 1, 0):
-            lines = [line for m in monitors
-                     for line in monitor_lines(m, name_w, width, detail)]
-            if room is None or len(lines) <= room:
-                break
+        lines = [line for m in monitors for line in monitor_lines(m, name_w, width, detail)]
         return Text("\n", no_wrap=True, overflow="ellipsis").join(lines)
-
-    def _room(self) -> int | None:
-        """Lines the panel can show: the body's upper share (app.tcss: ``#top`` is at most
-        TOP_SHARE of ``#body``) less the panels above it in its column and its border."""
-        try:
-            body = self.screen.query_one("#body")
-        except NoMatches:
-            return None
-        if not body.size.height or self.parent is None:
-            return None
-        above = 0
-        for sibling in self.parent.children:
-            if sibling is self:
-                break
-            above += sibling.outer_size.height if sibling.display else 0
-        return int(body.size.height * TOP_SHARE) - above - 2

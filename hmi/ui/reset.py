@@ -72,6 +72,24 @@ def monitor_preview(snap: Snapshot) -> Iterable[ResetLine]:
             yield ResetLine(what, resets=True)
 
 
+def diagnoser_preview(snap: Snapshot) -> Iterable[ResetLine]:
+    """Faulty diagnosers: a reset re-synchronises one when the I/O matches a normal state
+    (the engine says which, per scan: DiagnoserState.resync), else the fault stays."""
+    for d in snap.diagnosers:
+        if not d.faulty:
+            continue
+        what = (f"diagnoser {d.name} in {d.state} {{{', '.join(d.labels)}}} and its flags "
+                f"(since {seconds(d.since_us)} s)")
+        if d.resync:
+            yield ResetLine(what, resets=True,
+                            note=f"re-synchronised to {d.resync} on {d.resync_values}")
+        else:
+            yield ResetLine(what, resets=False,
+                            why=f"its cause is still present: {d.resync_values or 'the I/O'} "
+                                "match no normal state; reset once the device is repaired or "
+                                "back at rest")
+
+
 def _alarm_released(snap: Snapshot, key: str) -> bool | None:
     """Whether a reset removes the cause of a latched alarm (None: not known here)."""
     kind, _, name = key.partition(":")
@@ -79,6 +97,8 @@ def _alarm_released(snap: Snapshot, key: str) -> bool | None:
         return not any(_latch_cause_present(snap, r) for r in snap.latched if r.source == name)
     if kind == "monitor":
         return not any(_condemned(m) for m in snap.monitors if m.name == name)
+    if kind == "diagnosis":
+        return all(bool(d.resync) for d in snap.diagnosers if d.name == name and d.faulty)
     return None
 
 
@@ -103,8 +123,8 @@ def stopped_preview(snap: Snapshot) -> Iterable[ResetLine]:
                              f"Release device {device}")
 
 
-PREVIEWS: list[ResetPreview] = [latch_preview, monitor_preview, alarm_preview,
-                                 stopped_preview]
+PREVIEWS: list[ResetPreview] = [latch_preview, diagnoser_preview, monitor_preview,
+                                 alarm_preview, stopped_preview]
 
 
 def reset_preview(snap: Snapshot) -> list[ResetLine]:

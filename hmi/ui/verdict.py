@@ -32,6 +32,8 @@ def filter_changes(snap: Snapshot) -> dict[str, str]:
         by = ", ".join(b for b in change.by if b != "safe state")
         if change.how == "safe state":
             out[change.output] = f"safe state ({report.note})" if report.note else "safe state"
+        elif change.how == "masked":  # a diagnoser's flag, not a constraint
+            out[change.output] = f"masked ({by})" if by else "masked"
         else:
             out[change.output] = f"filter {by} ({how})" if by else f"filter ({how})"
     return out

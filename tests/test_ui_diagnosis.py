@@ -1,0 +1,160 @@
+"""Pilot tests of the diagnosers on the operator screen: the panel, the I/O marks, the
+diagnosis explanations (certain and ambiguous), their alarms and policies, and the reset.
+
+The faults are injected in the simulated valve exactly as the fault dialog does
+(InjectFault through the app), and the valve's diagnoser V1 decides (projects/cispi_valve/
+diagnoser.yaml): F1 at 10 s ends in A1 {F1, F13} (ambiguous, orders masked); F9 at 10 s is
+isolated with certainty in S9 (fso read from its estimate).
+"""
+
+from __future__ import annotations
+
+from hmi.engine.commands import InjectFault
+from hmi.plant.sim import Injection
+from hmi.ui.alarm_list import AlarmList
+from hmi.ui.dialogs import ConfirmDialog
+from hmi.ui.explain_panel import ExplanationPanel
+from hmi.ui.scenarios import make_app
+from hmi.ui.testing import (
+    region_text,
+    run_until,
+    screen_text,
+    settle,
+    wait_for_main,
+    wait_for_screen,
+    wait_until,
+)
+
+WIDE = (120, 36)
+
+
+def engine(app):
+    return app.controller.engine
+
+
+def flat(app, selector: str) -> str:
+    lines = [line.strip("│╭╮╰╯─ ") for line in region_text(app, selector).splitlines()]
+    return " ".join(" ".join(lines).split())
+
+
+def decided(labels: tuple[str, ...]):
+    return lambda s: bool(s.diagnosers) and s.diagnosers[0].labels == labels
+
+
+async def inject(pilot, code: str, at_s: float, labels: tuple[str, ...]) -> None:
+    pilot.app.send(InjectFault(Injection(code, int(at_s * 1_000_000))))
+    await run_until(pilot, decided(labels), 30, f"the diagnoser deciding {labels}")
+
+
+async def test_normal_diagnoser_is_quiet():
+    app = make_app()
+    async with app.run_test(size=WIDE) as pilot:
+        await run_until(pilot, lambda s: s.diagnosers and s.diagnosers[0].state == "N5", 10,
+                        "open at rest")
+        text = region_text(app, "#diagnosers")
+        assert "Diagnosers · 1" in text and "faulty" not in text
+        assert "● V1 N5 Open at rest" in text
+        assert "flags  def_fsc  def_fso  def_V" in text  # none set: no symbol, no colour
+        assert "✗" not in text and "▲" not in text
+
+
+async def test_ambiguous_diagnosis_reads_as_such():
+    app = make_app()
+    async with app.run_test(size=WIDE) as pilot:
+        await inject(pilot, "F1", 10, ("F1", "F13"))
+        snap = engine(app).last
+        assert set(snap.masked) == {"C", "O"} and snap.reconstructed == ("fsc",)
+        text = region_text(app, "#diagnosers")
+        assert "✗ V1 A1" in text and "1 faulty" in text
+        assert "{F1, F13} ? ambiguous" in text
+        assert "▲ def_fsc" in text and "✗ def_V" in text
+        assert "≈ fsc from fsc_hat" in text and "⊘ C, O masked (def_V)" in text
+        io = region_text(app, "#io")
+        assert "≈ reconstructed (fsc_hat)" in io
+        assert io.count("⊘ masked (def_V)") == 2
+        # its alarm, selected first (P1), and the explanation that says "ambiguous"
+        alarm = snap.alarms[0]
+        assert alarm.key == "diagnosis:V1" and alarm.latched and alarm.priority == 1
+        assert app.query_one(AlarmList).selected == "diagnosis:V1"
+        assert "? ambiguous" in region_text(app, "#alarms")
+        explained = flat(app, "#explain")
+        assert "? AMBIGUOUS" in explained and "LATCHED" in explained
+        assert "sensor fsc stuck at 0 (F1) or valve blocked between its positions (F13)" \
+            in explained and "check the valve and motor first" in explained
+        await pilot.press("e", "e", "e")
+        await wait_until(pilot, lambda: app.focused is not None
+                         and "policy-button" in app.focused.classes, "the policies")
+        await settle(pilot)
+        assert app.focused.policy.id == "check"  # recommended: check the valve first
+        panel = app.query_one(ExplanationPanel)
+        panel.scroll_home(animate=False)
+        await settle(pilot)
+        assert "cannot tell apart" in flat(app, "#explain")
+
+
+async def test_certain_diagnosis_recommends_running_degraded():
+    app = make_app()
+    seen = []
+    app.controller.listeners.append(lambda cmd, result, snap: seen.append(cmd))
+    async with app.run_test(size=WIDE) as pilot:
+        await inject(pilot, "F9", 10, ("F9",))
+        snap = engine(app).last
+        assert snap.reconstructed == ("fso",) and snap.masked == ()
+        assert "F9 ✗ certain  unexpected fso rise" in region_text(app, "#diagnosers")
+        assert "≈ reconstructed (fso_hat)" in region_text(app, "#io")
+        explained = flat(app, "#explain")
+        assert "diagnosed with certainty" in explained and "AMBIGUOUS" not in explained
+        app.explain("diagnosis:V1", open_level=4)
+        await wait_until(pilot, lambda: app.focused is not None
+                         and "policy-button" in app.focused.classes, "the policies")
+        assert app.focused.policy.id == "continue"
+        await pilot.press("enter")  # nothing sent to the plant: no confirmation
+        await settle(pilot)
+        assert len(app.screen_stack) == 1
+        assert seen[-1].policy == "continue"
+        assert "✓ Continue chosen: keep running degraded: fso read from fso_hat" in \
+            flat(app, "#explain")
+
+
+async def test_reset_re_synchronises_a_diagnoser_only_when_the_io_allows_it():
+    app = make_app()
+    async with app.run_test(size=WIDE) as pilot:
+        await inject(pilot, "F1", 10, ("F1", "F13"))
+        await pilot.press("r")
+        await wait_for_screen(pilot, ConfirmDialog)
+        text = screen_text(app)
+        assert "stays: diagnoser V1 in A1 {F1, F13}" in text
+        assert "fsc=0, fso=0, C=0, O=0 match no normal" in text
+        await pilot.press("y")
+        await wait_for_main(pilot)
+        assert engine(app).diagnosis.runtimes[0].state.name == "A1"
+        assert "stays in A1" in app.message.plain
+    app = make_app()
+    async with app.run_test(size=WIDE) as pilot:
+        await inject(pilot, "F9", 10, ("F9",))
+        await run_until(pilot, lambda s: not s.output_map["C"] and not s.output_map["O"]
+                        and s.value("fso") and not s.value("fsc"), 10, "the valve at rest")
+        await pilot.press("r")
+        await wait_for_screen(pilot, ConfirmDialog)
+        text = screen_text(app)
+        assert "will be reset: diagnoser V1 in S9 {F9}" in text
+        assert "re-synchronised to N5 on fsc=0, fso=1, C=0, O=0" in text
+        assert "1 latched alarm clear with their latch" in text
+        await pilot.press("y")
+        await wait_for_main(pilot)
+        assert engine(app).diagnosis.runtimes[0].state.name == "N5"
+        await run_until(pilot, lambda s: not s.diagnosers[0].faulty, 1, "the next scan")
+        assert "faulty" not in region_text(app, "#diagnosers")
+        assert "○ CLEARED-UNACK" in region_text(app, "#alarms")
+
+
+async def test_diagnosers_panel_keeps_one_line_at_80x24():
+    app = make_app()
+    async with app.run_test(size=(80, 24)) as pilot:
+        await inject(pilot, "F1", 10, ("F1", "F13"))
+        text = region_text(app, "#diagnosers")
+        assert "✗ V1 A1 {F1, F13} ? ambiguous" in text
+        assert "active" in region_text(app, "#control")  # the control lists active steps
+        screen = app.screen.region
+        for selector in ("#status", "#alarms", "#diagnosers", "HmiFooter"):
+            assert screen.contains_region(app.query_one(selector).region), selector
