@@ -611,7 +611,7 @@ def cmd_ui(args: argparse.Namespace) -> int:
     from hmi.engine.runner import Controller
     from hmi.ui.app import run_app
     project = load(args.project)
-    engine, _ = make_engine(project, args)
+    engine, injections = make_engine(project, args)
     clock = None
     if engine.plant.kind != "sim":
         from hmi.engine.live import WallClock
@@ -622,7 +622,7 @@ def cmd_ui(args: argparse.Namespace) -> int:
         if clock is not None:
             connect_plant(engine, args.connect_timeout)
         recorder = open_journal(controller, args.journal, "hmi")
-        return run_app(controller)
+        return run_app(controller, injected=tuple(injections))
     finally:
         if clock is not None:
             stop_plant(engine)

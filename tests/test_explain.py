@@ -163,7 +163,12 @@ def test_acknowledge_all_and_ordering_by_priority():
     m = AlarmManager()
     m.update((make_exp("a", severity="low"), make_exp("b", severity="high")), 1, 0)
     assert [a.key for a in m.listed()] == ["b", "a"]
-    assert len(m.acknowledge(None, 2, 1)) == 2
+    m.update((make_exp("a", severity="low"), make_exp("c", severity="low")), 2, 1)
+    # active unacknowledged, then cleared unacknowledged (b), whatever their priority
+    assert [(a.key, a.state) for a in m.listed()] == [
+        ("c", ACTIVE_UNACK), ("a", ACTIVE_UNACK), ("b", CLEARED_UNACK)]
+    assert len(m.acknowledge(None, 3, 2)) == 3  # b, cleared, leaves the list
+    assert sorted(a.key for a in m.listed()) == ["a", "c"]
     assert all(a.state == ACTIVE_ACK for a in m.listed())
 
 

@@ -11,7 +11,8 @@ from pathlib import Path
 from hmi.engine.commands import InjectFault, StopDevice
 from hmi.explain.alarms import ACTIVE_ACK, ACTIVE_UNACK, CLEARED_UNACK
 from hmi.plant.sim import Injection
-from hmi.ui.alarm_list import AlarmList
+from hmi.timefmt import seconds
+from hmi.ui.alarm_list import AlarmList, without_device
 from hmi.ui.chronogram import Chronogram
 from hmi.ui.dialogs import ConfirmDialog
 from hmi.ui.explain_panel import ExplanationPanel
@@ -67,19 +68,20 @@ async def test_alarm_list_shows_state_priority_time_and_text():
     async with app.run_test(size=WIDE) as pilot:
         await run_for(pilot, 8.7)
         snap = engine(app).last
+        assert {a.state for a in snap.alarms} == {ACTIVE_UNACK, CLEARED_UNACK}
         listed = region_text(app, "#alarms")
-        states = {a.state for a in snap.alarms}
-        assert {ACTIVE_UNACK, CLEARED_UNACK} <= states
-        assert "▲ UNACK" in listed and "○ CLEARED-UNACK" in listed
-        rows = [line for line in listed.splitlines() if "P" in line and " s " in line]
-        # unacknowledged first: the engine's order, row for row
-        shown = [row for row in rows if "UNACK" in row]
-        assert len(shown) == min(len(snap.alarms), 4)
-        first = snap.alarms[0]
-        assert f"P{first.priority}" in rows[0] and "6.000 s" in rows[0]
-        assert f"{len(snap.alarms)} unacknowledged / {len(snap.alarms)}" in listed
-        if len(snap.alarms) > 4:
-            assert f"↓ {len(snap.alarms) - 4} more" in listed
+        rows = [line for line in listed.splitlines() if "UNACK" in line]
+        assert len(rows) == 4 and len(snap.alarms) == 5
+        assert "5 unacknowledged / 5" in listed and "↓ 1 more" in listed
+        words = {ACTIVE_UNACK: "▲ UNACK ", CLEARED_UNACK: "○ CLEARED-UNACK"}
+        for row, alarm in zip(rows, snap.alarms, strict=False):  # row for row, in order
+            assert words[alarm.state] in row
+            assert f"P{alarm.priority} {seconds(alarm.raised_us)} s" in row
+            assert without_device(alarm.text, alarm.device)[:20] in row
+        # active ones first, then those already clear that wait for the acknowledgement
+        order = [a.state for a in snap.alarms]
+        assert order == sorted(order, key=[ACTIVE_UNACK, CLEARED_UNACK].index)
+        assert any("×2" in row for row in rows)  # returned once: counted
 
 
 async def test_acknowledge_the_selected_alarm_with_a():

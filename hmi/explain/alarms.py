@@ -25,6 +25,7 @@ CLEARED_UNACK = "cleared-unacknowledged"
 CHATTER_RETURNS = 3
 CHATTER_WINDOW_US = 60_000_000
 PRIORITY = {"high": 1, "medium": 2, "low": 3}
+LIST_ORDER = {ACTIVE_UNACK: 0, CLEARED_UNACK: 1, ACTIVE_ACK: 2}
 
 
 @dataclass(frozen=True)
@@ -150,9 +151,12 @@ class AlarmManager:
         return events
 
     def listed(self) -> tuple[Alarm, ...]:
-        """The alarm list: unacknowledged first, then by priority, newest first."""
+        """The alarm list: unacknowledged first — active ones, then those whose condition
+        already cleared (they only wait for the acknowledgement) — then acknowledged; in each
+        group by priority, newest first."""
         return tuple(sorted(self.alarms.values(),
-                            key=lambda a: (a.state == ACTIVE_ACK, a.priority, -a.changed_us)))
+                            key=lambda a: (LIST_ORDER.get(a.state, 1), a.priority,
+                                           -a.changed_us)))
 
     @staticmethod
     def _event(alarm: Alarm, event: str, scan: int, now: int) -> AlarmEvent:

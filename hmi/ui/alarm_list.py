@@ -70,7 +70,7 @@ def state_cell(alarm: Alarm) -> Text:
     return Text(cell, style=style)
 
 
-def _without_device(text: str, device: str) -> str:
+def without_device(text: str, device: str) -> str:
     """The level-1 line without its leading device name, when a column already shows it
     ("Valve V1: close order blocked" -> "close order blocked")."""
     if device and text.startswith(device) and text[len(device):len(device) + 1] in (":", " "):
@@ -90,7 +90,7 @@ def alarm_row(alarm: Alarm, width: int, device_w: int = 0, time_w: int = 7) -> T
     text = alarm.text
     if device_w:
         row.append(alarm.device[:device_w].ljust(device_w) + " ", style=plain)
-        text = _without_device(text, alarm.device)
+        text = without_device(text, alarm.device)
     tail = Text(end="")
     if alarm.explanation is not None and alarm.explanation.ambiguous:
         tail.append("  ? ambiguous", style=STYLE[Level.ATTENTION])

@@ -113,7 +113,8 @@ class PlcHmiApp(App):
     VERTICAL_BREAKPOINTS = [(0, "-short"), (40, "-tall")]
 
     def __init__(self, controller: Controller, live: bool = True, *,
-                 show_measured: bool | None = None, refresh_hz: float = REFRESH_HZ):
+                 show_measured: bool | None = None, refresh_hz: float = REFRESH_HZ,
+                 injected: tuple[Injection, ...] = ()):
         super().__init__()
         self.controller = controller
         engine = controller.engine
@@ -129,13 +130,15 @@ class PlcHmiApp(App):
         self._version = 0  # bumped when something the frame shows changes outside the scan
         self._stepping = False
         self._request: tuple[str, bool, int, str] | None = None  # pending manual verdict
-        self._injected: list[InjectedFault] = []
+        self._injected: list[InjectedFault] = []  # shown on the SIMULATION strip
         self._mode_commanded: str | None = None  # accepted SetMode, not yet in a snapshot
         plant = engine.plant
         self.free_inputs: tuple[str, ...] = tuple(getattr(plant, "free_inputs", {}) or ())
         # What the explanation panel explains: the selected alarm, unless the operator picked
         # another situation (palette, a constraint clicked) since the selection last moved.
         self.subject: str | None = None
+        # faults scheduled before the app started (plchmi ui --inject)
+        self._injected += [InjectedFault(i, self._fault_text(i)) for i in injected]
         self.register_theme(isa101_theme())
         self.theme = "isa101"
 
@@ -731,11 +734,13 @@ def reset_line(line: ResetLine) -> Text:
     return text
 
 
-def run_app(target: Engine | Controller, clock=None) -> int:
+def run_app(target: Engine | Controller, clock=None, injected: tuple[Injection, ...] = ()
+            ) -> int:
     """Run the HMI live on an engine, or on a controller others listen to (the journal).
 
-    A real plant passes a wall clock to stamp its scans (see hmi.engine.live.WallClock)."""
+    A real plant passes a wall clock to stamp its scans (see hmi.engine.live.WallClock);
+    `injected` are the faults the command line scheduled in a simulated plant."""
     controller = target if isinstance(target, Controller) else Controller(target, clock=clock)
-    app = PlcHmiApp(controller)
+    app = PlcHmiApp(controller, injected=injected)
     app.run()
     return 0

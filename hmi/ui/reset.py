@@ -113,7 +113,7 @@ def alarm_preview(snap: Snapshot) -> Iterable[ResetLine]:
                         resets=True, note="listed, cleared, until acknowledged")
     if kept:
         yield ResetLine(f"{kept} latched alarm{'s' if kept != 1 else ''}", resets=False,
-                        why="what latched them stays (see above)")
+                        why=f"what latched {'them' if kept != 1 else 'it'} stays (see above)")
 
 
 def stopped_preview(snap: Snapshot) -> Iterable[ResetLine]:

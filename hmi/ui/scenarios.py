@@ -1,4 +1,5 @@
-"""Named states of the app on the CISPI valve, reached by pressing the operator's keys.
+"""Named states of the app (the CISPI valve, the conveyor/robot cell), reached by pressing the
+operator's keys.
 
 The snapshot tests and the screenshot script (``python -m hmi.ui.screenshots``) share these,
 so the README's pictures are the states the tests check. Every scenario runs in virtual time
@@ -16,23 +17,40 @@ from textual.pilot import Pilot
 
 from hmi.engine.runner import Controller
 from hmi.engine.scan import Engine
-from hmi.plant.sim import SimPlant
+from hmi.plant.sim import SimPlant, parse_injection
 from hmi.project.loader import load_project
+from hmi.ui.alarm_list import AlarmList
 from hmi.ui.app import PlcHmiApp
 from hmi.ui.dialogs import ConfirmDialog
 from hmi.ui.fault_dialog import FaultDialog
 from hmi.ui.io_panel import IOPanel
-from hmi.ui.testing import run_for, run_until, settle, wait_for_main, wait_for_screen
+from hmi.ui.testing import (
+    run_for,
+    run_until,
+    settle,
+    wait_for_main,
+    wait_for_screen,
+    wait_until,
+)
 
 VALVE = Path(__file__).resolve().parents[2] / "projects" / "cispi_valve"
+CONVEYOR = VALVE.parent / "conveyor_robot"
 
 
 def make_app(project: Path = VALVE, control: str | None = None,
-             policy: str | None = None) -> PlcHmiApp:
-    """A virtual-time app on a simulated plant, with no wall-clock figures on screen."""
+             policy: str | None = None, inject: tuple[str, ...] = ()) -> PlcHmiApp:
+    """A virtual-time app on a simulated plant, with no wall-clock figures on screen.
+
+    `inject` are faults as the command line writes them (``C1.stop@1s+2s``), scheduled
+    before the first scan as ``plchmi ui --inject`` does."""
     loaded = load_project(project)
-    engine = Engine(loaded, SimPlant(loaded), control=control, policy=policy)
-    return PlcHmiApp(Controller(engine), live=False, show_measured=False)
+    injections = tuple(parse_injection(text) for text in inject)
+    plant = SimPlant(loaded)
+    for injection in injections:
+        plant.inject(injection)
+    engine = Engine(loaded, plant, control=control, policy=policy)
+    return PlcHmiApp(Controller(engine), live=False, show_measured=False,
+                     injected=injections)
 
 
 async def select_row(pilot: Pilot, name: str) -> None:
@@ -98,6 +116,89 @@ async def faulty_program(pilot: Pilot) -> None:
     await run_for(pilot, 8.7)
 
 
+async def inject_by_dialog(pilot: Pilot, index: int, delay: str) -> None:
+    """SIMULATION: the fault dialog's `index`-th fault, `delay` seconds from now."""
+    await pilot.press("f")
+    await wait_for_screen(pilot, FaultDialog)
+    await pilot.press(*(["down"] * index), "enter")  # the fault; then the delay field
+    await pilot.press("backspace", *delay, "enter")
+    await wait_for_main(pilot)
+
+
+def decided(labels: tuple[str, ...]):
+    return lambda s: bool(s.diagnosers) and s.diagnosers[0].labels == labels
+
+
+async def diagnosis_certain(pilot: Pilot) -> None:
+    """SIMULATION: F9 (unexpected fso rise) at 10 s; the diagnoser isolates it with
+    certainty (S9), fso is read from its estimate; the explanation opened to its evidence."""
+    await inject_by_dialog(pilot, 8, "10")
+    await run_until(pilot, decided(("F9",)), 25, "F9 isolated")
+    await run_for(pilot, 1.0)
+    await pilot.press("e")
+    await settle(pilot)
+
+
+async def diagnosis_ambiguous(pilot: Pilot) -> None:
+    """SIMULATION: F1 (fsc stuck at 0) at 10 s; at the end of the next closing the diagnoser
+    concludes {F1, F13}: ambiguous, fsc reconstructed, orders masked. The explanation is
+    open to its policies, the recommended one (check the valve first) focused."""
+    await inject_by_dialog(pilot, 0, "10")
+    await run_until(pilot, decided(("F1", "F13")), 25, "the ambiguity {F1, F13}")
+    await run_for(pilot, 1.0)
+    await pilot.press("e", "e", "e")
+    await settle(pilot)
+
+
+async def reset_refused(pilot: Pilot) -> None:
+    """The fault reset dialog after F1: the diagnoser cannot re-synchronise (fsc=0, fso=0
+    match no normal state), so the dialog says what stays and why."""
+    await diagnosis_ambiguous_state(pilot)
+    await pilot.press("r")
+    await wait_for_screen(pilot, ConfirmDialog)
+    await pilot.pause()
+
+
+async def diagnosis_ambiguous_state(pilot: Pilot) -> None:
+    await inject_by_dialog(pilot, 0, "10")
+    await run_until(pilot, decided(("F1", "F13")), 25, "the ambiguity {F1, F13}")
+    await run_for(pilot, 1.0)
+
+
+async def manual_refused(pilot: Pilot) -> None:
+    """Manual mode, the valve open: the operator asks for the open order, the filter refuses
+    it (CSs2: never hold the open order on an open valve) and the answer says so."""
+    await run_until(pilot, lambda s: "X2" in s.active_steps, 10, "the valve open")
+    await pilot.press("m")
+    await wait_for_screen(pilot, ConfirmDialog)
+    await pilot.press("y")
+    await wait_for_main(pilot)
+    await select_row(pilot, "O")
+    await pilot.press("1")
+    await run_for(pilot, 0.05)
+
+
+async def monitor_fault(pilot: Pilot) -> None:
+    """Conveyor/robot, 002 §4 paper scenario (C1.stop@1s+2s): the conveyor's monitor fires
+    at x = 3 s, y = 1 s, two seconds before a watchdog would; its explanation opened."""
+    await run_until(pilot, lambda s: any(m.detection for m in s.monitors), 5,
+                    "the conveyor monitor's fault")
+    await run_for(pilot, 0.5)
+    await pilot.press("e")
+    await settle(pilot)
+
+
+async def alarms_80x24(pilot: Pilot) -> None:
+    """The faulty program at 80×24: five alarms in three rows; the operator tabs to the list,
+    selects the second (active) alarm and acknowledges it: it goes after the unacknowledged
+    ones, and the list scrolls to keep it in view."""
+    await run_for(pilot, 8.7)
+    await pilot.press("tab")
+    await wait_until(pilot, lambda: isinstance(pilot.app.focused, AlarmList), "the list")
+    await pilot.press("down", "a")
+    await run_for(pilot, 0.01)
+
+
 @dataclass(frozen=True)
 class Scenario:
     name: str
@@ -122,4 +223,18 @@ SCENARIOS: tuple[Scenario, ...] = (
     Scenario("safe_blocking", (100, 30), faulty_program,
              "The faulty program under safe blocking: outputs latched safe",
              partial(make_app, control="faulty", policy="block")),
+    Scenario("manual_refused", (100, 30), manual_refused,
+             "Manual mode: the open order requested on an open valve, refused by the filter"),
+    Scenario("diagnosis_certain", (120, 36), diagnosis_certain,
+             "SIMULATION: F9 isolated with certainty; fso read from its estimate"),
+    Scenario("diagnosis_ambiguous", (160, 48), diagnosis_ambiguous,
+             "SIMULATION: F1 diagnosed {F1, F13}, ambiguous; the explanation open"),
+    Scenario("reset_refused", (120, 36), reset_refused,
+             "Fault reset after F1: the diagnoser cannot re-synchronise; the dialog says why"),
+    Scenario("monitor_fault", (120, 36), monitor_fault,
+             "Conveyor/robot (002 §4): the conveyor's stopwatch monitor fires at x = 3 s",
+             partial(make_app, CONVEYOR, inject=("C1.stop@1s+2s",))),
+    Scenario("alarms_80x24", (80, 24), alarms_80x24,
+             "The alarm list at 80×24: five alarms in three rows, one acknowledged",
+             partial(make_app, control="faulty")),
 )

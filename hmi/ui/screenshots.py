@@ -1,14 +1,23 @@
 """Regenerate ``screenshots/*.svg`` from the real app in its main states.
 
-    python -m hmi.ui.screenshots [--out screenshots] [--only NAME ...]
+    python -m hmi.ui.screenshots [--out screenshots] [--only NAME ...] [--png DIR]
 
 The states are those of :mod:`hmi.ui.scenarios` (the snapshot tests use the same), reached by
 pressing the operator's keys in virtual time, so the pictures are exactly repeatable.
+
+``--png DIR`` also converts each SVG to a PNG (1400 px wide, white background) with
+``rsvg-convert`` (Debian's librsvg2-bin), to look at them without a browser. librsvg drops
+the spaces that open a text run unless told to keep them, which shifts coloured words left
+(`conveyorFAULTY`); the copy it converts says ``xml:space="preserve"``. The SVGs themselves
+are left as Textual wrote them (browsers keep those spaces).
 """
 
 from __future__ import annotations
 
 import argparse
+import shutil
+import subprocess
+import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -35,18 +44,36 @@ def shoot(scenario: Scenario, out: Path) -> Path:
     return path
 
 
+def to_png(svg: Path, png: Path, width: int = 1400) -> None:
+    """Convert with rsvg-convert, keeping the spaces that open a text run (see above)."""
+    text = svg.read_text(encoding="utf-8").replace("<svg ", '<svg xml:space="preserve" ', 1)
+    with tempfile.NamedTemporaryFile("w", suffix=".svg", encoding="utf-8") as tmp:
+        tmp.write(text)
+        tmp.flush()
+        subprocess.run(["rsvg-convert", "-w", str(width), "-b", "white", tmp.name,
+                        "-o", str(png)], check=True)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m hmi.ui.screenshots",
                                      description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output folder")
     parser.add_argument("--only", nargs="*", metavar="NAME",
                         help="scenarios to shoot: " + ", ".join(s.name for s in SCENARIOS))
+    parser.add_argument("--png", type=Path, metavar="DIR",
+                        help="also write PNGs there (needs rsvg-convert)")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
+    if args.png is not None:
+        if shutil.which("rsvg-convert") is None:
+            parser.error("--png needs rsvg-convert (apt-get install librsvg2-bin)")
+        args.png.mkdir(parents=True, exist_ok=True)
     chosen = [s for s in SCENARIOS if not args.only or s.name in args.only]
     for scenario in chosen:
         path = shoot(scenario, args.out)
         print(f"{path}  {scenario.size[0]}×{scenario.size[1]}  {scenario.description}")
+        if args.png is not None:
+            to_png(path, args.png / f"{scenario.name}.png")
     return 0
 
 
