@@ -10,7 +10,7 @@ priority, newest first)::
 The state is a symbol *and* a word; the colour follows the priority (P1 red, P2 and P3
 amber) and only active alarms carry it: a cleared alarm waiting for its acknowledgement is
 grey. ``×4`` counts the returns of a chattering alarm collapsed into one row; ``LATCHED``
-marks an alarm that stays until a fault reset.
+marks an active alarm that stays until a fault reset.
 
 The list is a panel of its own with a height it sets itself (one row per alarm, up to a cap
 that depends on the terminal's height), placed outside the body so the chronogram gives up
@@ -33,7 +33,7 @@ from textual.message import Message
 from hmi.explain.alarms import ACTIVE_ACK, ACTIVE_UNACK, CLEARED_UNACK, Alarm
 from hmi.timefmt import seconds
 from hmi.ui.frame import Frame
-from hmi.ui.panel import TextPanel
+from hmi.ui.panel import TextPanel, set_title
 from hmi.ui.style import MUTED, OK_SYMBOL, STYLE, Level
 
 STATES = {
@@ -99,8 +99,8 @@ def alarm_row(alarm: Alarm, width: int, device_w: int = 0, time_w: int = 7) -> T
                     else MUTED)
         if alarm.chattering:
             tail.append(" chattering", style=MUTED)
-    if alarm.latched:
-        tail.append("  LATCHED", style=Style(bold=True) if not muted else MUTED)
+    if alarm.latched and alarm.active:  # cleared: the latch that held it is gone
+        tail.append("  LATCHED", style=Style(bold=True))
     room = width - row.cell_len - tail.cell_len
     if room < len(text):
         text = text[:max(0, room - 1)] + "…" if room > 0 else ""
@@ -180,7 +180,7 @@ class AlarmList(TextPanel):
         title = (f"Alarms · {unack} unacknowledged / {len(self.alarms)}"
                  if self.alarms else "Alarms")
         if not self.alarms:
-            self.border_title = title
+            set_title(self, title)
             self.show_text(Text(f"{OK_SYMBOL} no alarm", style=MUTED))
             return
         index = self._index()
@@ -195,7 +195,7 @@ class AlarmList(TextPanel):
             hidden.append(f"↑ {self.top} more")
         if below > 0:
             hidden.append(f"↓ {below} more")
-        self.border_title = " · ".join((title, *hidden))  # on the top line: always shown
+        set_title(self, " · ".join((title, *hidden)))  # on the top line: always shown
         device_w = 0
         if width >= WIDE:
             device_w = min(16, max(len(a.device) for a in self.alarms))

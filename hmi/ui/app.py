@@ -187,12 +187,17 @@ class PlcHmiApp(App):
             self.controller.scan_once()
         else:
             self.recorder.on_scan(self.controller.engine.last)
+        # the panels that set their own height first (banners, alarm rows): the column
+        # panels measure their room after them
         self._views = [self.query_one(StatusBar), self.query_one(BannerStrip),
-                       self.query_one(IOPanel), self.query_one(ConstraintsPanel),
-                       self.query_one(GrafcetPanel), self.query_one(DiagnosersPanel),
-                       self.query_one(MonitorsPanel),
-                       self.query_one(Chronogram), self.query_one(AlarmList),
-                       self.query_one(SimPanel)]
+                       self.query_one(AlarmList), self.query_one(IOPanel),
+                       self.query_one(ConstraintsPanel), self.query_one(GrafcetPanel),
+                       self.query_one(DiagnosersPanel), self.query_one(MonitorsPanel),
+                       self.query_one(Chronogram), self.query_one(SimPanel)]
+        # kept, not queried per frame: cheaper, and a frame during shutdown finds them
+        self._alarm_list = self.query_one(AlarmList)
+        self._explanation = self.query_one(ExplanationPanel)
+        self._col_time = self.query_one("#col-time")
         self.query_one(IOPanel).focus()
         self.message.say(Text("ctrl+p: all commands", style=MUTED))
         self.poll(force=True)
@@ -264,11 +269,11 @@ class PlcHmiApp(App):
     # -- the explanation's subject -----------------------------------------------------------
     @property
     def alarm_list(self) -> AlarmList:
-        return self.query_one(AlarmList)
+        return self._alarm_list
 
     @property
     def explanation_panel(self) -> ExplanationPanel:
-        return self.query_one(ExplanationPanel)
+        return self._explanation
 
     def _explain(self, frame: Frame) -> None:
         """Hand the subject's explanation to the panel (the current one, else the alarm's
@@ -318,13 +323,13 @@ class PlcHmiApp(App):
 
     def on_explanation_shown(self, message: ExplanationShown) -> None:
         """Narrow screens: an open explanation takes the chronogram's place."""
-        chrono = self.query_one("#col-time")
+        chrono = self._col_time
         show = self.size.width >= WIDE or not message.visible
         if chrono.display != show:
             chrono.display = show
 
     def on_resize(self) -> None:
-        if self.frame is not None:
+        if self.frame is not None and hasattr(self, "_explanation"):
             self._explain(self.frame)
 
     def on_policy_requested(self, message: PolicyRequested) -> None:
@@ -357,7 +362,8 @@ class PlcHmiApp(App):
         lines: list[Text | str] = []
         if explanation is not None:
             lines.append(Text(f"For: {explanation.what}", style=MUTED))
-        lines.append(f"{policy.label}: {policy.effect}.")
+        if not isinstance(policy.command, StopDevice):  # (said in full below)
+            lines.append(f"{policy.label}: {policy.effect}.")
         level = Level.ATTENTION
         match policy.command:
             case FaultReset():

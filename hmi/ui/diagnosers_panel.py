@@ -29,7 +29,7 @@ from rich.text import Text
 
 from hmi.timefmt import seconds
 from hmi.ui.frame import Frame
-from hmi.ui.panel import ColumnPanel
+from hmi.ui.panel import ColumnPanel, set_title
 from hmi.ui.style import MUTED, STYLE, Level
 
 
@@ -151,8 +151,8 @@ class DiagnosersPanel(ColumnPanel):
             text.append("no diagnoser state yet", style=MUTED)
             return text
         faulty = sum(1 for d in snap.diagnosers if d.faulty)
-        self.border_title = f"Diagnosers · {len(snap.diagnosers)}" + (
-            f" · {faulty} faulty" if faulty else "")
+        set_title(self, f"Diagnosers · {len(snap.diagnosers)}"
+                  + (f" · {faulty} faulty" if faulty else ""))
         name_w = max(len(d.name) for d in snap.diagnosers)
         reconstructed, masked = set(snap.reconstructed), set(snap.masked)
         lines = [line for d in snap.diagnosers

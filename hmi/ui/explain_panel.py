@@ -39,6 +39,7 @@ from textual.widgets import Button, Static
 from hmi.explain.alarms import CLEARED_UNACK, PRIORITY, Alarm
 from hmi.explain.model import Explanation, Policy
 from hmi.timefmt import seconds
+from hmi.ui.panel import set_title
 from hmi.ui.style import MUTED, OK_SYMBOL, STYLE, Level, tag
 
 LEVELS = ("What", "Why", "Consequences", "Policies")
@@ -150,6 +151,7 @@ class ExplanationPanel(VerticalScroll):
         self._focus_recommended = False
         self._answered: Text | None = None
         self._pending_end = False
+        self._contents: dict[str | None, Text | str] = {}  # each part's text as shown
         self.visible = True
 
     def compose(self) -> ComposeResult:
@@ -224,24 +226,26 @@ class ExplanationPanel(VerticalScroll):
                  for n in ("why", "consequences", "policies-head")]
         result = self.query_one("#explain-result", Static)
         if exp is None:
-            self.border_title = "Explanation"
-            head.update(Text(f"{OK_SYMBOL} no alarm to explain", style=MUTED))
-            what.update("")
+            set_title(self, "Explanation")
+            self._put(head, Text(f"{OK_SYMBOL} no alarm to explain", style=MUTED))
+            self._put(what, "")
             for view in views:
                 view.display = False
             self._set_policies(())
-            result.update("")
+            self._put(result, "")
             return
-        self.border_title = f"Explanation · {exp.kind}"
-        self.border_subtitle = f"level {level}/4 · e: {'more' if level < 4 else 'fold'}"
-        head.update(heading_text(exp, self.alarm))
-        what.update(Text(exp.what, style=Style(bold=True)))
+        set_title(self, f"Explanation · {exp.kind}")
+        subtitle = f"level {level}/4 · e: {'more' if level < 4 else 'fold'}"
+        if self.border_subtitle != subtitle:
+            self.border_subtitle = subtitle
+        self._put(head, heading_text(exp, self.alarm))
+        self._put(what, Text(exp.what, style=Style(bold=True)))
         for view in views:
             view.display = True
-            view.update(level_text(exp, view.level, level >= view.level))
+            self._put(view, level_text(exp, view.level, level >= view.level))
         self._set_policies(exp.policies if level >= 4 else ())
         answer = self.results.get(self.key or "")
-        result.update(answer or "")
+        self._put(result, answer or "")
         if answer is not None and answer is not self._answered:
             self._answered = answer  # a new answer: make sure it is seen
             self._pending_end = True  # the answer is the last line: scroll to it once laid out
@@ -256,6 +260,12 @@ class ExplanationPanel(VerticalScroll):
         if self._pending_end:  # the answer's lines are laid out now
             self._pending_end = False
             self.scroll_end(animate=False, immediate=True)
+
+    def _put(self, widget: Static, content: Text | str) -> None:
+        """Update a part only when its text changed: an update re-lays the screen out."""
+        if self._contents.get(widget.id) != content:
+            self._contents[widget.id] = content
+            widget.update(content)
 
     def _set_policies(self, policies: tuple[Policy, ...]) -> None:
         if policies == self._policies:

@@ -17,7 +17,7 @@ from rich.text import Text
 
 from hmi.timefmt import format_duration
 from hmi.ui.frame import Frame
-from hmi.ui.panel import TextPanel
+from hmi.ui.panel import TextPanel, set_title
 from hmi.ui.style import MUTED
 
 BAR = 10
@@ -83,8 +83,8 @@ class GrafcetPanel(TextPanel):
         if not self.steps:
             text.append("no GRAFCET (equations only)\n", style=MUTED)
         compact = self.compact
-        self.border_title = f"Control · {self.control}" + (
-            f" · {len(active)}/{len(self.steps)} active" if compact else "")
+        set_title(self, f"Control · {self.control}" + (
+            f" · {len(active)}/{len(self.steps)} active" if compact else ""))
         for step in self.steps:
             on = step.name in active
             if compact and not on:

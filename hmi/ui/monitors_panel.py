@@ -27,7 +27,7 @@ from hmi.engine.monitors import MonitorState
 from hmi.engine.stopwatch import Window
 from hmi.timefmt import format_duration, seconds
 from hmi.ui.frame import Frame
-from hmi.ui.panel import ColumnPanel
+from hmi.ui.panel import ColumnPanel, set_title
 from hmi.ui.style import MUTED, STYLE, Level
 
 BAR = 12
@@ -158,8 +158,8 @@ class MonitorsPanel(ColumnPanel):
             return text
         width = max(30, self.content_size.width or 40)
         faulty = sum(1 for m in monitors if m.faulty)
-        self.border_title = f"Monitors · {len(monitors)}" + (
-            f" · {faulty} faulty" if faulty else "")
+        set_title(self, f"Monitors · {len(monitors)}"
+                  + (f" · {faulty} faulty" if faulty else ""))
         name_w = max(len(m.name) for m in monitors)
         lines = [line for m in monitors for line in monitor_lines(m, name_w, width, detail)]
         return Text("\n", no_wrap=True, overflow="ellipsis").join(lines)

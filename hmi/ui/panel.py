@@ -18,6 +18,13 @@ from hmi.ui.frame import Frame
 TOP_SHARE = 0.6  # app.tcss: #top { max-height: 60% } of #body
 
 
+def set_title(widget, title: str) -> None:
+    """Set a border title only when it changes: setting it repaints the widget, and a panel
+    that set it every frame would repaint every frame for nothing."""
+    if widget.border_title != title:
+        widget.border_title = title
+
+
 class TextPanel(Static):
     def __init__(self, *, id: str | None = None):
         super().__init__(id=id, markup=False)
