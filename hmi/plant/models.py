@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 from hmi.plant.device import SimDevice
+from hmi.plant.palletizer import Palletizer
 from hmi.plant.sorter import SortingCell
 from hmi.plant.valve import Valve
 
 MODELS: dict[str, type[SimDevice]] = {
     Valve.MODEL: Valve,
     SortingCell.MODEL: SortingCell,
+    Palletizer.MODEL: Palletizer,
 }
 
 

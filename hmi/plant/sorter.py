@@ -258,8 +258,6 @@ class SortingCell(SimDevice):
 
     def _step(self, dt: int) -> None:
         drive = direction(self.orders["ROT90"], self.orders["ROT0"])
-        if "table_jam" in self.jams:
-            self.turn.jammed = True
         self.turn.step(dt, drive)
         if drive and self.turn.stalled_beyond(int(self.params["stall_tolerance"])):
             tolerance = seconds(self.params["stall_tolerance"])
@@ -380,6 +378,7 @@ class SortingCell(SimDevice):
             self.stuck[code.rsplit("_", 1)[0]] = code.endswith("1")
         else:
             self.jams.add(code)
+            self.turn.jammed = "table_jam" in self.jams
             self._build_lines()
 
     # -- reporting --------------------------------------------------------------------------

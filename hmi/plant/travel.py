@@ -49,10 +49,13 @@ class Travel:
             if drive:
                 self.stall_us += dt
             return 0
-        target = self.pos + drive * dt
         end = self.travel if drive > 0 else 0
         if limit is not None:
             end = min(end, limit) if drive > 0 else max(end, limit)
+        if (end - self.pos) * drive <= 0:  # already against the obstacle
+            self.stall_us += dt
+            return 0
+        target = self.pos + drive * dt
         target = min(target, end) if drive > 0 else max(target, end)
         moved = abs(target - self.pos)
         self.pos = target
