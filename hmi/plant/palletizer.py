@@ -157,9 +157,9 @@ class Palletizer(SimDevice):
         return Line((Segment("feed", 0, length, 1, speed),), WALL, WALL)
 
     def _in_zone(self) -> Box | None:
-        zone = self.feed_len - self.box_len
+        """The box against the end stop, in front of the pusher (within 2 mm of the stop)."""
         for box in self.feed:
-            if box.lo + box.length // 2 >= zone:
+            if box.lo + box.length >= self.feed_len - 2 * MM:
                 return box
         return None
 
