@@ -62,7 +62,7 @@ def test_boxes_come_to_the_pusher_and_wait_there():
     t = hold_until(p, "box_ready", FEED=1)
     assert t == pytest.approx(3_993_333, abs=10 * MS)  # (1500 - 2 - 300) mm at 300 mm/s
     hold(p, t + 5 * S, FEED=1)
-    assert [b.lo for b in p.feed][0] == 1200 * MM  # against the end stop
+    assert next(b.lo for b in p.feed) == 1200 * MM  # against the end stop
     assert not damage(p)
 
 

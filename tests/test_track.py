@@ -3,6 +3,8 @@ two-way travels."""
 
 from __future__ import annotations
 
+import itertools
+
 from hmi.plant.boxes import MM, Box, BoxSource
 from hmi.plant.track import EXIT, OPEN, WALL, Line, Segment, advance, covered
 from hmi.plant.travel import Travel, direction
@@ -79,7 +81,7 @@ def test_the_box_source_is_a_fixed_schedule():
     first = schedule(1)
     assert first == schedule(1) and first != schedule(2)
     assert first[0][0] == 500_000
-    gaps = [b[0] - a[0] for a, b in zip(first, first[1:], strict=False)]
+    gaps = [b[0] - a[0] for a, b in itertools.pairwise(first)]
     assert all(4 * S <= g <= 7 * S and g % 1000 == 0 for g in gaps)
     assert {high for _, high in first} == {True, False}
 

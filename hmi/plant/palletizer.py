@@ -30,6 +30,7 @@ Damage events (objective, once per occurrence):
   load_crushed    the elevator pressed the load against the plate or the held layer beyond
                   `crush_tolerance`
   elevator_overrun  ELEV_DOWN held at the bottom beyond `stall_tolerance`
+  elevator_stall  an elevator order held on a jammed elevator beyond `stall_tolerance`
 Not damage: partial_layer (a layer of fewer than `per_layer` boxes placed on the pallet).
 
 Faults: feed_jam, pusher_jam, plate_jam, clamp_jam, elevator_jam (that drive does not move);
@@ -98,8 +99,9 @@ class Palletizer(SimDevice):
         "band": ParamSpec("duration", 20_000, "end switches are made within this much travel"),
         "crush_tolerance": ParamSpec("duration", 50_000, "the load pressed against the plate "
                                      "longer than this is damage"),
-        "stall_tolerance": ParamSpec("duration", 1_000_000, "ELEV_DOWN held at the bottom "
-                                     "longer than this is damage"),
+        "stall_tolerance": ParamSpec("duration", 1_000_000, "an elevator order held without "
+                                     "motion (at the bottom, or jammed) longer than this is "
+                                     "damage"),
         "exchange_time": ParamSpec("duration", 2_000_000, "time to exchange a loaded pallet "
                                    "for an empty one at the bottom"),
         "first_box": ParamSpec("duration", 500_000, "when the first box is due"),
@@ -289,7 +291,11 @@ class Palletizer(SimDevice):
             room = self.plate_level - self.load_top()
             limit = self.lift.pos + max(room, 0) // self.lift_speed
         self.lift.step(dt, drive, limit)
-        if drive > 0 and self.lift.stalled_beyond(int(self.params["crush_tolerance"])):
+        if drive and self.lift.jammed:
+            if self.lift.stalled_beyond(int(self.params["stall_tolerance"])):
+                self.record(self.t, "elevator_stall", True, "elevator order held on a jammed "
+                            f"elevator for more than {seconds(self.params['stall_tolerance'])} s")
+        elif drive > 0 and self.lift.stalled_beyond(int(self.params["crush_tolerance"])):
             what = "the held layer" if self.hanging else "the layer plate"
             self.record(self.t, "load_crushed", True, f"the elevator pressed the load against "
                         f"{what} for more than {seconds(self.params['crush_tolerance'])} s")
