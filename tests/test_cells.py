@@ -5,7 +5,7 @@ the results written there."""
 
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import cache
 
 import pytest
 
@@ -18,7 +18,7 @@ from tests.conftest import PROJECTS
 S = 1_000_000
 
 
-@lru_cache(maxsize=None)
+@cache
 def cell(name: str, control: str = "normal", policy: str = "correct", seconds: int = 60,
          inject: tuple[str, ...] = ()) -> CellRun:
     return measure(load_project(PROJECTS / name), control, seconds * S, policy=policy,
