@@ -77,17 +77,17 @@ def test_sorting_faulty_program_under_block_is_latched_safe():
 # -- palletizer ------------------------------------------------------------------------------
 
 def test_palletizer_functional_program_builds_pallets_safely():
-    run = cell("palletizer", seconds=120)
-    assert run.counters["pallets"] >= 2 and run.counters["boxes_palletized"] >= 18
+    run = cell("palletizer", seconds=80)
+    assert run.counters["pallets"] >= 1 and run.counters["layers"] >= 4
     assert run.counters["lost"] == 0
     assert not run.damage and run.unsafe_written == 0 and run.fallbacks == 0
     assert run.max_distance <= 2
 
 
 def test_palletizer_faulty_program_is_kept_safe_by_the_corrector():
-    run = cell("palletizer", control="faulty", seconds=100)
+    run = cell("palletizer", control="faulty", seconds=80)
     assert not run.damage and run.unsafe_written == 0 and run.fallbacks == 0
-    assert run.counters["layers"] >= 3 and run.counters["lost"] == 0
+    assert run.counters["pallets"] >= 1 and run.counters["lost"] == 0
     assert run.max_distance == 2
 
 
@@ -109,11 +109,11 @@ SCENARIOS = [
     ("sorting", "tt_front_stuck0@14s", 40, {"box_dropped"}),
     ("sorting", "table_jam@20s", 40, {"turn_stall"}),
     ("palletizer", "plate_closed_stuck1@20s", 90, set()),
-    ("palletizer", "clamp_closed_stuck1@20s", 60, set()),
-    ("palletizer", "layer_eye_stuck0@20s", 60, {"load_crushed"}),
+    ("palletizer", "clamp_closed_stuck1@20s", 45, set()),
+    ("palletizer", "layer_eye_stuck0@20s", 45, {"load_crushed"}),
     ("palletizer", "pusher_home_stuck1@20s", 40, {"box_against_pusher"}),
-    ("palletizer", "clamp_open_stuck1@20s", 60, {"plate_into_layer"}),
-    ("palletizer", "elevator_jam@20s", 60, {"elevator_stall"}),
+    ("palletizer", "clamp_open_stuck1@20s", 45, {"plate_into_layer"}),
+    ("palletizer", "elevator_jam@20s", 45, {"elevator_stall"}),
 ]
 
 

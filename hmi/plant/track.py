@@ -29,19 +29,15 @@ class Segment:
     length: int  # nm
     direction: int  # +1: the segment's axis runs along the line's axis; -1: against it
     speed: int  # mm/s along the segment's own axis (negative: backwards), 0 when stopped
+    low: int = field(init=False)  # the segment's extent in line coordinates
+    high: int = field(init=False)
+    velocity: int = field(init=False)  # speed along the line's axis (nm/µs)
 
-    @property
-    def low(self) -> int:
-        return self.start if self.direction > 0 else self.start - self.length
-
-    @property
-    def high(self) -> int:
-        return self.low + self.length
-
-    @property
-    def velocity(self) -> int:
-        """Speed along the line's axis (nm/µs)."""
-        return self.speed * self.direction
+    def __post_init__(self) -> None:  # computed once: a line is rebuilt only on a change
+        low = self.start if self.direction > 0 else self.start - self.length
+        object.__setattr__(self, "low", low)
+        object.__setattr__(self, "high", low + self.length)
+        object.__setattr__(self, "velocity", self.speed * self.direction)
 
     def to_line(self, lo: int, length: int) -> int:
         """The line coordinate of the low end of a box at `lo` on this segment's axis."""
