@@ -141,6 +141,14 @@ def test_rolling_between_positions_drops_the_box():
     assert damage(c) == ["box_dropped"]
 
 
+def test_rolling_backward_at_0_degrees_crushes_the_box_against_the_next_one():
+    c = cell(interval_min=3 * S, interval_max=3 * S)
+    load(c)
+    hold_until(c, "entry_end", CONV_E=1)  # the next box waits at the end of the entry
+    hold(c, c.t + 2 * S, CONV_E=1, ROLL_M=1)
+    assert damage(c) == ["boxes_crushed"]
+
+
 def test_both_directions_together_are_damage_and_move_nothing():
     c = cell()
     hold(c, 1 * S, ROT90=1, ROT0=1, ROLL_P=1, ROLL_M=1)
