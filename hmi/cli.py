@@ -2,7 +2,9 @@
 
     plchmi PROJECT                 open the operator HMI (Textual)
     plchmi check PROJECT           load, validate and summarise a project
-    plchmi run PROJECT --for 60s   headless run in virtual time
+    plchmi run PROJECT --for 60s   headless run in virtual time (real time on a real plant)
+    plchmi sweep PROJECT           stopwatch monitor vs watchdog over interruptions
+    plchmi serve-plant PROJECT     the simulated plant as a Modbus TCP server
 
 Exit status: 0 success, 2 bad input (a project error, a bad argument), 1 a failure at run
 time. Errors about a project name the file, line and column; there is never a traceback for
@@ -21,7 +23,7 @@ from hmi.errors import ProjectError, UsageError
 from hmi.timefmt import DURATION_HINT, format_duration, parse_duration, seconds
 
 MAX_ERRORS_SHOWN = 25
-SUBCOMMANDS = ("check", "run", "ui", "bench", "journal")
+SUBCOMMANDS = ("check", "run", "sweep", "ui", "serve-plant", "bench", "journal")
 
 
 def _duration(text: str) -> int:
@@ -52,20 +54,36 @@ def _parser() -> argparse.ArgumentParser:
         p.add_argument("--solver", choices=("exact", "paper"),
                        help="corrector search strategy (default: the project's, else exact)")
 
+    def plant_args(p: argparse.ArgumentParser, connect_default: str) -> None:
+        p.add_argument("--plant", metavar="PLANT",
+                       help="sim, modbus (the project's settings) or "
+                       "modbus://HOST:PORT[/UNIT] (default: the project's plant)")
+        p.add_argument("--read-only", action="store_true",
+                       help="observe a real PLC over Modbus: read its inputs and outputs, "
+                       "check the constraints on them, write nothing")
+        p.add_argument("--connect-timeout", type=_duration, metavar="TIME",
+                       help="give up if a Modbus plant does not answer within TIME "
+                       f"(default: {connect_default})")
+        p.add_argument("--allow-monitor", action="store_true",
+                       help="permit the monitor policy (unsafe orders pass) on a real plant")
+
     p = sub.add_parser("check", help="load and validate a project, print a summary")
     project_arg(p)
 
     p = sub.add_parser("run", help="run headless in virtual time")
     project_arg(p)
     engine_args(p)
-    p.add_argument("--for", dest="duration", type=_duration, required=True, metavar="TIME",
-                   help="virtual time to run, e.g. 60s")
+    p.add_argument("--for", dest="duration", type=_duration, metavar="TIME",
+                   help="virtual time to run, e.g. 60s (default: the scenario's)")
+    p.add_argument("--scenario", metavar="NAME",
+                   help="inject the faults of a scenario the project declares")
     p.add_argument("--period", type=_duration, metavar="TIME",
                    help="scan period (default: the project's)")
     p.add_argument("--inject", action="append", default=[], metavar="FAULT@TIME",
                    help="inject a fault into the simulated plant, e.g. F5@12s (repeatable)")
     p.add_argument("--trace", type=Path, metavar="FILE",
                    help="write every scan to FILE (.csv, or .jsonl for JSON Lines)")
+    plant_args(p, "10s")
     p.add_argument("--explain", action="store_true",
                    help="print the four levels of every alarm's explanation")
     p.add_argument("--journal", type=Path, metavar="FILE",
@@ -78,6 +96,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--csv", action="store_true", help="export as CSV")
     p.add_argument("--path", type=Path, metavar="FILE", help="journal file to read")
 
+    from hmi.sweep import add_sweep_parser
+    add_sweep_parser(sub, project_arg)
+
     p = sub.add_parser("bench", help="measure and print performance figures (never fails)")
     p.add_argument("sections", nargs="*", metavar="SECTION",
                    help="sections to run (default: all): " + ", ".join(_bench_sections()))
@@ -89,7 +110,34 @@ def _parser() -> argparse.ArgumentParser:
     engine_args(p)
     p.add_argument("--inject", action="append", default=[], metavar="FAULT@TIME",
                    help="schedule a fault in the simulated plant")
+    p.add_argument("--journal", type=Path, metavar="FILE",
+                   help="journal file (default: the user's data folder, see plchmi journal)")
+    plant_args(p, "keep trying")
+
+    p = sub.add_parser("serve-plant", help="serve the simulated plant over Modbus TCP")
+    project_arg(p)
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on (127.0.0.1)")
+    p.add_argument("--port", type=_port, default=5020,
+                   help="TCP port (5020; 0 picks a free one and prints it)")
+    p.add_argument("--unit", type=_unit, help="Modbus unit id (default: the project's, or 1)")
+    p.add_argument("--inject", action="append", default=[], metavar="FAULT@TIME",
+                   help="a device fault (F5@12s) or a communication fault (busy@5s+2s, "
+                   "mute@5s+2s), in time since the server started (repeatable)")
+    p.add_argument("--delay", type=_duration, metavar="TIME",
+                   help="answer every request TIME late (a slow server)")
     return parser
+
+
+def _port(text: str) -> int:
+    if not text.isdigit() or int(text) > 65535:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a TCP port (0 to 65535)")
+    return int(text)
+
+
+def _unit(text: str) -> int:
+    if not text.isdigit() or int(text) > 255:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a Modbus unit id (0 to 255)")
+    return int(text)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -106,8 +154,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             return cmd_check(args)
         if args.command == "run":
             return cmd_run(args)
+        if args.command == "sweep":
+            from hmi.sweep import cmd_sweep
+            return cmd_sweep(args, load(args.project))
         if args.command == "ui":
             return cmd_ui(args)
+        if args.command == "serve-plant":
+            return cmd_serve_plant(args)
         if args.command == "bench":
             return cmd_bench(args)
         if args.command == "journal":
@@ -118,10 +171,34 @@ def main(argv: Sequence[str] | None = None) -> int:
     except UsageError as exc:
         print(f"plchmi: error: {exc}", file=sys.stderr)
         return 2
+    except RunFailure as exc:
+        print(f"plchmi: error: {exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         return 130
+    except Exception as exc:  # a bug: say so plainly, keep the details for the developers
+        report = write_crash_report(exc)
+        print(f"plchmi: internal error: {type(exc).__name__}: {exc}", file=sys.stderr)
+        print(f"plchmi: the details are in {report}; please report it", file=sys.stderr)
+        return 1
     parser.print_help()
     return 2
+
+
+def write_crash_report(exc: BaseException) -> str:
+    """Write the traceback to the data folder; return where (or why it could not)."""
+    import traceback
+    from datetime import UTC, datetime
+
+    from hmi.explain.journal import data_folder
+    stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S")
+    path = data_folder() / f"crash-{stamp}.txt"
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text("".join(traceback.format_exception(exc)), encoding="utf-8")
+    except OSError as err:
+        return f"(no report: {err.strerror})"
+    return str(path)
 
 
 def print_project_error(exc: ProjectError) -> None:
@@ -144,28 +221,61 @@ def cmd_check(args: argparse.Namespace) -> int:
     from hmi.engine.filter_analysis import analyse
     from hmi.report import check_report
     project = load(args.project)
-    filter_lines = analyse(project).lines(len(project.outputs))
-    print(check_report(project, [filter_lines]))
+    sections = [analyse(project).lines(len(project.outputs))]
+    if project.plant.kind == "modbus":
+        from hmi.plant.modbus_client import ModbusSettings
+        from hmi.plant.modbus_map import AddressMap
+        settings = ModbusSettings.from_spec(project.plant)
+        sections.append([f"Modbus {settings.where}: requests per scan"] + [
+            f"  {line}" for line in
+            AddressMap.for_project(project, settings.read_gap).describe()])
+    print(check_report(project, sections))
     return 0
 
 
-def make_engine(project, args: argparse.Namespace):
-    """The engine for a command's --control/--policy/--inject options, on a simulated plant."""
+def make_engine(project, args: argparse.Namespace, extra_injections=()):
+    """The engine for a command's --control/--policy/--inject/--plant options."""
     from hmi.engine.scan import Engine
-    from hmi.plant.sim import SimPlant, parse_injection
+    from hmi.plant.select import open_plant
+    from hmi.plant.sim import parse_injection
 
     if args.control and args.control not in project.controls:
         raise UsageError(f"--control {args.control!r}: the project has "
                          + ", ".join(project.controls))
-    plant = SimPlant(project)
-    injections = [parse_injection(text) for text in getattr(args, "inject", [])]
-    for injection in injections:
-        plant.resolve(injection)
-    for injection in injections:
-        plant.inject(injection)
+    injections = [*extra_injections,
+                  *(parse_injection(text) for text in getattr(args, "inject", []))]
+    read_only = getattr(args, "read_only", False)
+    plant = open_plant(project, getattr(args, "plant", None), read_only, injections,
+                       getattr(args, "period", None))
+    allow_monitor = getattr(args, "allow_monitor", False)
+    if plant.kind != "sim" and not read_only and not allow_monitor and \
+            (args.policy or project.policy) == "monitor":
+        raise UsageError("the monitor policy passes unsafe orders through to a real plant; "
+                         "choose --policy block or correct, or add --allow-monitor")
     engine = Engine(project, plant, control=args.control, policy=args.policy,
                     solver=args.solver)
+    engine.allow_monitor_on_real_plant = allow_monitor
     return engine, injections
+
+
+def connect_plant(engine, timeout_us: int | None) -> None:
+    """Connect a real plant before the first scan, saying what happens; exit 1 if it fails."""
+    plant = engine.plant
+    if plant.kind == "sim":
+        return
+    from hmi.plant.modbus_client import wait_connected
+
+    def report(line: str) -> None:
+        print(f"plchmi: {line}", file=sys.stderr, flush=True)
+    timeout_s = None if timeout_us is None else timeout_us / 1e6
+    if not wait_connected(plant, timeout_s, report):
+        plant.close()
+        raise RunFailure(f"no connection to the plant within {format_duration(timeout_us)}: "
+                         f"{plant.message}")
+
+
+class RunFailure(Exception):
+    """A failure at run time (exit status 1), with a message for the operator."""
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -174,7 +284,16 @@ def cmd_run(args: argparse.Namespace) -> int:
     from hmi.report import run_summary
 
     project = load(args.project)
-    engine, injections = make_engine(project, args)
+    scenario = None
+    if args.scenario:
+        from hmi.project.scenarios import find_scenario
+        scenario = find_scenario(project, args.scenario)
+    duration = args.duration or (scenario.duration_us if scenario else None)
+    if duration is None:
+        raise UsageError("--for TIME is required (or a --scenario that sets its length)")
+    engine, injections = make_engine(project, args, scenario.injections if scenario else ())
+    if engine.plant.kind != "sim":
+        return run_real_time(engine, args, duration)
     controller = Controller(engine, args.period)
     writer = None
     if args.trace:
@@ -192,12 +311,14 @@ def cmd_run(args: argparse.Namespace) -> int:
             collector.add(snap)
             if writer:
                 writer.write(snap)
-        last = controller.run_for(args.duration, on_scan)
+        last = controller.run_for(duration, on_scan)
     finally:
         if writer:
             writer.close()
         recorder.close()
     wall = time.perf_counter() - started
+    if scenario:
+        print(f"Scenario {scenario.name}: {scenario.description}")
     print(run_summary(engine, last, collector, injections, wall,
                       trace=(args.trace, writer.count) if writer else None))
     print(alarm_summary(collector, args.explain))
@@ -303,11 +424,14 @@ class RunCollector:
         self.events = []
         self.step_changes = 0
         self.max_distance = 0
+        from hmi.monitor_report import MonitorLog
+        self.monitors = MonitorLog()
         self.alarm_events = []
         self.explanations = {}
 
     def add(self, snap) -> None:
         self.scans += 1
+        self.monitors.add(snap)
         self.events.extend(snap.plant_events)
         if snap.alarm_events:
             self.alarm_events.extend(snap.alarm_events)
@@ -332,6 +456,79 @@ class RunCollector:
             self.first_latch = (reason.scan, reason.time_us, reason.detail)
 
 
+def run_real_time(engine, args: argparse.Namespace, duration_us: int) -> int:
+    """A headless run against a real plant: scans paced and stamped by the wall clock."""
+    from hmi.engine.live import WallClock, run_live_for
+    from hmi.engine.runner import Controller
+    from hmi.engine.trace import TraceWriter
+    from hmi.report import run_summary
+
+    writer = None
+    if args.trace:
+        try:
+            writer = TraceWriter(args.trace)
+        except OSError as exc:
+            raise UsageError(f"--trace {args.trace}: {exc.strerror}") from None
+    plant = engine.plant
+    collector = RunCollector()
+    controller = Controller(engine, args.period, clock=WallClock())
+    recorder = None
+    try:
+        connect_plant(engine, args.connect_timeout or 10_000_000)
+        recorder = open_journal(controller, args.journal, "run")
+
+        def on_scan(snap):
+            collector.add(snap)
+            if writer:
+                writer.write(snap)
+        started = time.perf_counter()
+        runner = run_live_for(controller, duration_us, on_scan)
+        wall = time.perf_counter() - started
+        report = plant_report(plant, runner.overruns)
+    finally:
+        if writer:
+            writer.close()
+        stop_plant(engine)
+        if recorder:
+            recorder.close()
+    last = engine.last
+    print(run_summary(engine, last, collector, [], wall,
+                      trace=(args.trace, writer.count) if writer else None, time_kind="real"))
+    print(alarm_summary(collector, args.explain))
+    print(report)
+    print(f"Stopped: {plant.message}")
+    print(f"Journal: {recorder.journal.path}")
+    return 0
+
+
+def stop_plant(engine) -> None:
+    """At the end of a run on a real plant, leave its outputs safe, as a stopping PLC does."""
+    plant = engine.plant
+    stop = getattr(plant, "stop", None)
+    if stop is None:
+        plant.close()
+        return
+    safe = dict(zip(engine.layout.outputs, engine.safe_vector, strict=True))
+    stop(engine.now, safe)
+
+
+def plant_report(plant, overruns: int) -> str:
+    """What a run against a Modbus plant saw of it."""
+    status = plant.status
+    d = status.details
+    lines = [f"Plant {status.description}: {'connected' if status.connected else 'NOT CONNECTED'}"
+             f" ({status.message})",
+             f"  requests {d['requests']} (reads {d['reads']}, writes {d['writes']}), "
+             f"exception responses {d['exceptions']}, timeouts {d['timeouts']}, "
+             f"connections lost {d['losses']}, connections made {d['connects']}"]
+    io = plant.io_percentiles()
+    if io:
+        lines.append(f"  Modbus I/O per scan: p50 {io[0] / 1000:.2f} ms, p99 {io[1] / 1000:.2f} "
+                     f"ms, max {d['max_io_ms']:.2f} ms; scans slower than the period "
+                     f"{d['slow_scans']}; scan overruns {overruns}")
+    return "\n".join(lines)
+
+
 def _bench_sections() -> list[str]:
     from hmi.bench import sections
     return list(sections())
@@ -354,10 +551,49 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def cmd_ui(args: argparse.Namespace) -> int:
+    from hmi.engine.runner import Controller
+    from hmi.ui.app import run_app
     project = load(args.project)
     engine, _ = make_engine(project, args)
-    from hmi.ui.app import run_app
-    return run_app(engine)
+    clock = None
+    if engine.plant.kind != "sim":
+        from hmi.engine.live import WallClock
+        clock = WallClock()
+    controller = Controller(engine, clock=clock)
+    recorder = None
+    try:
+        if clock is not None:
+            connect_plant(engine, args.connect_timeout)
+        recorder = open_journal(controller, args.journal, "hmi")
+        return run_app(controller)
+    finally:
+        if clock is not None:
+            stop_plant(engine)
+        if recorder is not None:
+            recorder.close()
+
+
+def cmd_serve_plant(args: argparse.Namespace) -> int:
+    from hmi.plant.modbus_map import address_diagnostics
+    from hmi.plant.modbus_server import COMM_FAULTS, run_server
+    from hmi.plant.sim import parse_injection
+
+    project = load(args.project)
+    errors = address_diagnostics(project, "serve-plant serves every input and output at its "
+                                 "address")
+    if errors:
+        raise ProjectError(errors)
+    if not project.plant.devices:
+        raise UsageError("the project has no simulated devices to serve")
+    injections = [parse_injection(text) for text in args.inject]
+    unit = project.plant.unit if args.unit is None else args.unit
+    try:
+        return run_server(project, args.host, args.port, unit, injections, args.delay or 0)
+    except UsageError as exc:
+        if "unknown fault" in str(exc):
+            raise UsageError(f"{exc}; communication faults: {', '.join(COMM_FAULTS)}"
+                             ) from None
+        raise
 
 
 __all__ = ["format_duration", "main", "seconds"]

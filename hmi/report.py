@@ -76,6 +76,10 @@ def check_report(project: Project, sections: list[list[str]] = ()) -> str:
                  f"{combined} combined)")
     lines += _table([[c.name, c.kind, c.expr.source, constraint_meaning(c)]
                      for c in project.constraints])
+    from hmi.monitor_report import monitor_check_lines
+    monitor_lines = monitor_check_lines(project)
+    if monitor_lines:
+        lines += ["", *monitor_lines]
     for section in (*project.extra.get("check_sections", ()), *sections):
         lines.append("")
         lines.extend(section)
@@ -89,13 +93,14 @@ def check_report(project: Project, sections: list[list[str]] = ()) -> str:
     return "\n".join(lines)
 
 
-def run_summary(engine, last, collector, injections, wall_s: float, trace=None) -> str:
+def run_summary(engine, last, collector, injections, wall_s: float, trace=None,
+                time_kind: str = "virtual") -> str:
     project = engine.project
     scans = collector.scans
     rate = scans / wall_s if wall_s > 0 else float("inf")
     lines = [
         f"Ran {project.name} (control {engine.control_name}, policy {engine.policy}) for "
-        f"{seconds(last.time_us)} s of virtual time: {scans} scans in {wall_s:.2f} s wall "
+        f"{seconds(last.time_us)} s of {time_kind} time: {scans} scans in {wall_s:.2f} s wall "
         f"({rate:,.0f} scans/s)",
     ]
     if last.plant_counters:
@@ -112,6 +117,7 @@ def run_summary(engine, last, collector, injections, wall_s: float, trace=None) 
             lines.append(f"  ... and {len(damage) - 10} more")
     else:
         lines.append("Damage events: none")
+    unsafe_verb = "seen (read-only)" if getattr(engine, "observe", False) else "written"
     if collector.violations or collector.corrections or collector.first_latch:
         total = sum(collector.violations.values())
         lines.append(f"Filter: {total} constraint violations detected in "
@@ -120,7 +126,11 @@ def run_summary(engine, last, collector, injections, wall_s: float, trace=None) 
         lines.append(f"  scans corrected {collector.corrections}, scans held in the safe state "
                      f"{collector.safe_scans} (of which fallbacks {collector.fallbacks}), "
                      f"max Hamming distance {collector.max_distance}, "
-                     f"unsafe outputs written {collector.unsafe_written}")
+                     f"unsafe outputs {unsafe_verb} {collector.unsafe_written}")
+    monitors = getattr(collector, "monitors", None)
+    if monitors is not None:
+        from hmi.monitor_report import monitor_summary_lines
+        lines += monitor_summary_lines(monitors)
     if collector.first_latch:
         scan, t, detail = collector.first_latch
         lines.append(f"Outputs latched safe from scan {scan} ({seconds(t)} s): {detail}")

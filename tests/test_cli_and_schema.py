@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import jsonschema
 import pytest
@@ -70,3 +71,17 @@ def test_schema_rejects_what_the_loader_rejects():
 def test_schema_covers_every_section_the_loader_knows():
     from hmi.project.loader import TOP_KEYS
     assert set(SCHEMA["properties"]) == TOP_KEYS
+
+
+def test_an_unexpected_failure_is_reported_without_a_traceback(monkeypatch, capsys, tmp_path):
+    import hmi.engine.trace as trace
+
+    def broken(self, snap):
+        raise RuntimeError("disk on fire")
+    monkeypatch.setattr(trace.TraceWriter, "write", broken)
+    assert main(["run", str(PROJECTS / "cispi_valve"), "--for", "1s", "--trace",
+                 str(tmp_path / "t.csv")]) == 1
+    err = capsys.readouterr().err
+    assert "internal error: RuntimeError: disk on fire" in err and "Traceback" not in err
+    report = err.split("the details are in ")[1].split(";")[0]
+    assert "Traceback" in Path(report).read_text()

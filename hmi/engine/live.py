@@ -10,8 +10,10 @@ from __future__ import annotations
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 
 from hmi.engine.runner import Controller, settle_memory
+from hmi.engine.snapshot import Snapshot
 
 
 class LiveRunner:
@@ -54,7 +56,7 @@ class LiveRunner:
                     now = time.perf_counter()
                     lateness = now - next_wall
                 self.jitter_us.append(lateness * 1e6)
-            controller.scan_once()
+            controller.scan_if_running()
             if speed is None:
                 next_wall = time.perf_counter()
                 continue
@@ -63,3 +65,53 @@ class LiveRunner:
                 # More than a whole period late: count it and re-anchor rather than burst.
                 self.overruns += 1
                 next_wall = time.perf_counter()
+
+
+class WallClock:
+    """Scan times for a real plant: whole microseconds of monotonic time since the first call.
+
+    Strictly increasing, so two scans never share a time. The engine itself never reads a
+    clock; a Controller given this clock stamps each scan with the real time it started.
+    """
+
+    def __init__(self) -> None:
+        self._t0: int | None = None
+        self._last = -1
+
+    def __call__(self) -> int:
+        now = time.monotonic_ns() // 1000
+        if self._t0 is None:
+            self._t0 = now
+        t = max(now - self._t0, self._last + 1)
+        self._last = t
+        return t
+
+
+def run_live_for(controller: Controller, duration_us: int,
+                 on_scan: Callable[[Snapshot], None] | None = None) -> LiveRunner:
+    """Run scans paced by the wall clock until the scan time reaches `duration_us`.
+
+    A headless run against a real plant: the same LiveRunner as the HMI, without a UI.
+    Returns the (stopped) runner, whose `overruns` and `jitter_us` the caller may report.
+    """
+    done = threading.Event()
+
+    def listener(snap: Snapshot) -> None:
+        if done.is_set():
+            return
+        if on_scan is not None:
+            on_scan(snap)
+        if snap.time_us >= duration_us:
+            done.set()
+
+    controller.scan_listeners.append(listener)
+    runner = LiveRunner(controller)
+    runner.start()
+    try:
+        while not done.wait(0.1):
+            if not runner.alive:
+                raise RuntimeError("the scan thread stopped unexpectedly")
+    finally:
+        runner.stop()
+        controller.scan_listeners.remove(listener)
+    return runner

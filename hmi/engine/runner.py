@@ -24,6 +24,7 @@ from hmi.engine.commands import (
 )
 from hmi.engine.scan import Engine
 from hmi.engine.snapshot import Snapshot
+from hmi.plant.base import PlantError
 
 
 def settle_memory() -> None:
@@ -54,9 +55,13 @@ Listener = Callable[[Command, CommandResult, Snapshot | None], None]
 class Controller:
     """The engine plus its run state; thread-safe so a UI thread can send commands."""
 
-    def __init__(self, engine: Engine, period_us: int | None = None):
+    def __init__(self, engine: Engine, period_us: int | None = None,
+                 clock: Callable[[], int] | None = None):
         self.engine = engine
         self.period_us = period_us or engine.project.scan_period_us
+        # A real plant runs on real time: each scan's time comes from `clock` (see
+        # hmi.engine.live.WallClock) instead of advancing by one period per scan.
+        self.clock = clock
         self.state = RunState()
         self.lock = threading.RLock()
         self.listeners: list[Listener] = []
@@ -64,20 +69,26 @@ class Controller:
 
     @property
     def next_time(self) -> int:
-        return 0 if not self.engine.started else self.engine.now + self.period_us
+        if self.clock is not None:
+            return self.clock()
+        return 0 if not self.engine.scan else self.engine.now + self.period_us
 
     def command(self, command: Command) -> CommandResult:
         with self.lock:
             match command:
                 case Pause():
                     self.state.running = False
-                    result = CommandResult.ok("paused")
+                    result = CommandResult.ok("paused" + self._park_real_plant())
                 case Resume():
                     self.state.running = True
                     self.state.pending_steps = 0
                     result = CommandResult.ok("running")
                 case StepScans(count=n):
-                    if n < 1:
+                    if self._real_plant_driven():
+                        result = CommandResult.refused(
+                            "stepping would drive a real plant for a scan and leave it so; "
+                            "not available on a real plant (pause holds it safe)")
+                    elif n < 1:
                         result = CommandResult.refused("step count must be at least 1")
                     else:
                         self.state.running = False
@@ -93,6 +104,30 @@ class Controller:
             for listener in self.listeners:
                 listener(command, result, self.engine.last)
             return result
+
+    def _real_plant_driven(self) -> bool:
+        engine = self.engine
+        return getattr(engine.plant, "kind", "sim") != "sim" and \
+            not getattr(engine, "observe", False)
+
+    def _park_real_plant(self) -> str:
+        """A paused PLC must not leave a real plant driven: write the safe vector once."""
+        engine = self.engine
+        plant = engine.plant
+        if not self._real_plant_driven() or not engine.started:
+            return ""
+        try:
+            plant.write(engine.now, dict(zip(engine.layout.outputs, engine.safe_vector,
+                                             strict=True)))
+        except PlantError as exc:
+            return f"; the safe outputs could not be written ({exc})"
+        return "; real plant: outputs written safe while paused"
+
+    def scan_if_running(self) -> Snapshot | None:
+        """One scan unless paused meanwhile (checked under the lock, so no scan follows a
+        pause: a paused real plant keeps the safe outputs the pause wrote)."""
+        with self.lock:
+            return self.scan_once() if self.state.running else None
 
     def scan_once(self) -> Snapshot:
         with self.lock:

@@ -29,6 +29,7 @@ from hmi.engine.commands import (
 )
 from hmi.engine.filter import SafetyFilter
 from hmi.engine.layout import Layout
+from hmi.engine.monitors import install_monitors
 from hmi.engine.snapshot import LatchReason, Snapshot
 from hmi.explain.alarms import AlarmManager
 from hmi.explain.builder import ExplanationBuilder
@@ -51,6 +52,12 @@ class Engine:
         self.policy = policy or project.policy
         if self.policy not in POLICIES:
             raise ValueError(self.policy)
+        # Read-only plant (observing a real PLC): the device's own outputs, read back, replace
+        # the FOV; the control law does not run, nothing is written, the filter only detects.
+        self.observe = bool(getattr(plant, "read_only", False))
+        if self.observe:
+            self.policy = "monitor"
+        self._readback: tuple[bool, ...] = ()
         self.layout = Layout.build(project, law)
         lay = self.layout
         slots, times = lay.slots, lay.step_times
@@ -82,10 +89,12 @@ class Engine:
         self.started = False
         # Extension points, in scan order. A stage reads and writes the image and may put
         # what it wants shown into `self.extras` (keys are Snapshot field names).
-        self.stages_after_memory: list[Callable[[Engine], None]] = []  # diagnosers, monitors
+        self.stages_after_memory: list[Callable[[Engine], None]] = []  # diagnosers
         self.output_stage: Callable[[Engine, tuple[bool, ...]], tuple[tuple[bool, ...], object]]
         self.filter = SafetyFilter(project, slots, times, solver or project.solver)
         self.output_stage = self.filter  # the safety filter
+        # Observers of the whole scan (I(t) read and O(t) written): stopwatch monitors.
+        self.stages_after_output: list[Callable[[Engine], None]] = []
         self.snapshot_extras: list[Callable[[Engine, dict], None]] = []  # explanations...
         # Each reset hook releases what its feature latched and returns lines saying what
         # was reset (or what stays, and why).
@@ -101,10 +110,14 @@ class Engine:
                         for v in project.outputs if v.device}
         self.stopped_devices: set[str] = set()
         self._stop_mask: tuple[int, ...] = ()
+        install_monitors(self)  # after the explainer: it adds a builder to it
 
     # -- commands ----------------------------------------------------------------------------
     def apply(self, command) -> CommandResult:
         """Apply an operator command now; its effect on outputs shows at the next scan."""
+        if self.observe and isinstance(command, SetMode | ManualOutput | SetPolicy):
+            return CommandResult.refused("read-only mode: nothing is written to the plant and "
+                                         "the filter only detects")
         match command:
             case SetMode(manual=True):
                 if self.mode == "manual":
@@ -238,7 +251,10 @@ class Engine:
         extras: dict = {}
         self.extras = extras
         try:
-            inputs_ok = self._input_scan(now)
+            if not self._input_scan(now):
+                # The inputs are unknown (plant lost): memories, timers and steps hold, so
+                # the control law never acts on stale inputs; the outputs go safe (latched).
+                raise _InputsUnknown
             if not self.started:
                 self._start(now)
             hist = self.history
@@ -251,26 +267,30 @@ class Engine:
                 else:
                     image[slot] = not reset(image, hist) and (set_(image, hist) or image[slot])
             self.control.update_times(image, now)
-            # 3-4. diagnosers, reconstruction (and monitors) hook in here
+            # 3-4. diagnosers, reconstruction hook in here (monitors: after the output scan)
             for stage in self.stages_after_memory:
                 stage(self)
             # 5. functional control
-            self.control.run(image, hist, now)
-            if self.mode == "manual":
-                fov = tuple(self.manual.get(name, False) for name in self.layout.outputs)
+            if self.observe:
+                fov = self._readback
             else:
-                fov = tuple(image[s] for s in self.output_slots)
-            if self._stop_mask:
-                fov = tuple(self.safe_vector[k] if k in self._stop_mask else value
-                            for k, value in enumerate(fov))
+                self.control.run(image, hist, now)
+                if self.mode == "manual":
+                    fov = tuple(self.manual.get(name, False) for name in self.layout.outputs)
+                else:
+                    fov = tuple(image[s] for s in self.output_slots)
+                if self._stop_mask:
+                    fov = tuple(self.safe_vector[k] if k in self._stop_mask else value
+                                for k, value in enumerate(fov))
             # 6. filter
-            if not inputs_ok:
-                outputs, report = self.safe_vector, None
-            else:
-                outputs, report = self.output_stage(self, fov)
-            if self.latched:
+            outputs, report = self.output_stage(self, fov)
+            if self.observe:
+                outputs = fov  # what the device has: it is observed, never driven
+            elif self.latched:
                 outputs = self.safe_vector
             extras["filter"] = report
+        except _InputsUnknown:
+            fov = outputs = self._held_outputs()
         except Exception as exc:  # never leave the plant driven by a half-computed scan
             error = f"{type(exc).__name__}: {exc}"
             self.latch_safe("internal", f"internal error at scan {self.scan}: {error}")
@@ -280,7 +300,16 @@ class Engine:
         # 7. output scan
         for slot, value in zip(self.output_slots, outputs, strict=True):
             image[slot] = value
-        self._output_scan(now, outputs)
+        if not self.observe:
+            self._output_scan(now, outputs)
+        try:
+            for stage in self.stages_after_output:
+                stage(self)
+        except Exception as exc:  # a broken monitor must not stop the scan silently
+            message = f"{type(exc).__name__}: {exc}"
+            error = error or message
+            self.latch_safe("internal", f"internal error at scan {self.scan}: {message}")
+            extras["traceback"] = traceback.format_exc()
         try:
             self.explanations = self.explainer.build(self, extras.get("filter"))
         except Exception as exc:  # explanations must never stop the scan
@@ -302,6 +331,7 @@ class Engine:
 
     def _start(self, now: int) -> None:
         self.control.reset(self.image, now)
+        self.history.clear()
         for _ in range(self.history.maxlen or 1):
             self.history.append(self.image.copy())
         self.started = True
@@ -310,18 +340,26 @@ class Engine:
         try:
             values = self.plant.read(now)
         except PlantError as exc:
-            self.latch_safe("plant", f"plant connection lost: {exc}")
+            self.latch_safe("plant", _plant_detail(exc))
             return False
         image = self.image
         for name, slot in zip(self.layout.inputs, self.input_slots, strict=True):
             image[slot] = bool(values[name])
+        if self.observe:
+            self._readback = tuple(bool(values[name]) for name in self.layout.outputs)
         return True
+
+    def _held_outputs(self) -> tuple[bool, ...]:
+        """Outputs of a scan whose inputs are unknown: safe; observed ones as last seen."""
+        if self.observe:
+            return tuple(self.image[s] for s in self.output_slots)
+        return self.safe_vector
 
     def _output_scan(self, now: int, outputs: Sequence[bool]) -> None:
         try:
             self.plant.write(now, dict(zip(self.layout.outputs, outputs, strict=True)))
         except PlantError as exc:
-            self.latch_safe("plant", f"plant connection lost: {exc}")
+            self.latch_safe("plant", _plant_detail(exc))
 
     def _snapshot(self, fov, outputs, extras: dict, error: str | None,
                   wall_us: float) -> Snapshot:
@@ -353,6 +391,15 @@ class Engine:
             stopped_devices=tuple(sorted(self.stopped_devices)),
             error=error, scan_wall_us=wall_us,
         )
+
+
+def _plant_detail(exc: PlantError) -> str:
+    lost = getattr(exc, "lost", True)
+    return f"plant {'connection lost' if lost else 'error'}: {exc}"
+
+
+class _InputsUnknown(Exception):
+    """The input scan failed: skip to the output scan with the outputs safe."""
 
 
 def _pass_through(engine: Engine, fov: tuple[bool, ...]):

@@ -9,6 +9,7 @@ constraint violated for a thousand scans costs one set of sentences.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -261,7 +262,17 @@ class ExplanationBuilder:
         self.onsets.setdefault(key, onset)
 
         def make() -> Explanation:
-            if reason.source == "plant":
+            if reason.source == "plant" and reason.detail.startswith("plant error"):
+                # The device answered, refusing a request (a Modbus exception response).
+                named = re.search(r"answered (.+?) \(exception", reason.detail)
+                refusal = named.group(1) if named else "an error"
+                what = f"{self.project.name}: the plant answered {refusal} — outputs held safe"
+                why = (f"{reason.detail} (scan {reason.scan}, {seconds(reason.time_us)} s). "
+                       "The inputs of that scan could not all be read.")
+                consequences = ("The safe output vector is written while the device refuses; "
+                                "automatic operation resumes only after a fault reset.")
+                severity = "high"
+            elif reason.source == "plant":
                 what = f"{self.project.name}: plant connection lost — outputs held safe"
                 why = (f"{reason.detail} (scan {reason.scan}, {seconds(reason.time_us)} s). "
                        "Inputs can no longer be trusted.")

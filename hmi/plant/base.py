@@ -24,7 +24,17 @@ class PlantStatus:
 
 
 class PlantError(Exception):
-    """The plant could not be read or written this scan (connection lost, exception...)."""
+    """The plant could not be read or written this scan.
+
+    `lost` is True when the link itself is gone (not connected, closed, no answer) and False
+    when the device answered but refused (a Modbus exception response): the operator is told
+    one or the other. The message is stable for a given cause, so that the engine's latch,
+    which keeps one reason per distinct message, does not grow while the cause lasts.
+    """
+
+    def __init__(self, message: str, lost: bool = True):
+        super().__init__(message)
+        self.lost = lost
 
 
 class Plant(Protocol):

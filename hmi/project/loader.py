@@ -45,6 +45,8 @@ from hmi.project.model import (
     Transition,
     Variable,
 )
+from hmi.project.monitors import parse_monitors
+from hmi.project.scenarios import parse_scenarios
 from hmi.project.yamlnodes import NodeError, YNode, load_yaml
 from hmi.timefmt import DURATION_HINT, parse_duration
 
@@ -53,7 +55,7 @@ PROJECT_FILE = "project.yaml"
 TOP_KEYS = {
     "name", "description", "scan_period", "include", "inputs", "outputs", "memories",
     "timers", "observers", "control", "constraints", "policy", "solver", "plant",
-    "explanations",
+    "explanations", "monitors", "scenarios",
 }
 
 NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
@@ -259,12 +261,15 @@ class ProjectLoader:
                                 solver)
         plant = self._plant(pos, inputs, outputs)
         self._check_addresses(inputs, outputs)
+        monitors = parse_monitors(self, period)  # stopwatch monitors: hmi/project/monitors.py
+        scenarios = parse_scenarios(self, plant)
         texts = None
         if "explanations" in s:
             from hmi.project.explanations import parse_explanations
             texts = parse_explanations(
                 s["explanations"], self.guard,
-                {"constraints": {c.name for c in constraints}},
+                {"constraints": {c.name for c in constraints},
+                 "monitors": {m.name for m in monitors}},
                 self.diag.error)
         self.diag.raise_if_errors()
         project = Project(
@@ -273,7 +278,8 @@ class ProjectLoader:
             timers=tuple(timers), observers=tuple(observers), controls=controls,
             default_control=default_control, constraints=tuple(constraints), policy=policy,
             plant=plant, pos=pos, files=tuple(self.files), solver=solver,
-            extra={"warnings": tuple(self.diag.warnings), "explanations": texts},
+            extra={"warnings": tuple(self.diag.warnings), "explanations": texts,
+                   "monitors": monitors, "scenarios": scenarios},
         )
         return project
 
@@ -725,7 +731,7 @@ class ProjectLoader:
             return PlantSpec("sim")
         fields = self.guard(lambda: node.check_keys(
             "plant", {"kind", "model", "params", "ports", "devices", "host", "port", "unit",
-                      "timeout"}, ["kind"]))
+                      "timeout", "read_gap", "write_refresh"}, ["kind"]))
         if fields is None:
             return PlantSpec("sim")
         kind = self.guard(lambda: self._choice(fields["kind"], "plant kind", ("sim", "modbus")),
@@ -768,6 +774,19 @@ class ProjectLoader:
         if "timeout" in fields:
             spec_kwargs["timeout_us"] = self.guard(
                 lambda: fields["timeout"].as_duration("timeout"), 1_000_000)
+        if "read_gap" in fields:
+            spec_kwargs["read_gap"] = self.guard(
+                lambda: fields["read_gap"].as_int("read_gap", 0, 2000), 8)
+        if "write_refresh" in fields:
+            spec_kwargs["write_refresh_us"] = self.guard(
+                lambda: fields["write_refresh"].as_duration("write_refresh", allow_zero=True),
+                1_000_000)
+        if kind == "modbus":  # a real device: every input and output needs its address
+            for var in (*inputs, *outputs):
+                if var.address is None:
+                    self.diag.error(var.pos, f"{var.kind} {var.name!r} has no plant address, "
+                                    "which a Modbus plant needs for every input and output",
+                                    "address: di:N or coil:N (or ir:N.B, hr:N.B)")
         return PlantSpec(kind, tuple(devices), pos=node.pos, **spec_kwargs)
 
     def _device(self, name: str | None, node: YNode, fields: dict[str, YNode],

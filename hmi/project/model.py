@@ -204,6 +204,8 @@ class PlantSpec:
     port: int = 502
     unit: int = 1
     timeout_us: int = 1_000_000
+    read_gap: int = 8  # unused addresses a read may span to save a request
+    write_refresh_us: int = 1_000_000  # outputs are rewritten in full at least this often
     pos: SourcePos = field(default_factory=lambda: SourcePos("?"))
 
 

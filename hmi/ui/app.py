@@ -1,105 +1,493 @@
-"""The operator HMI (Textual). Reads engine snapshots; sends commands through the controller."""
+"""The operator HMI (Textual). Reads engine snapshots; sends commands through the controller.
+
+Data flows one way. The scans run elsewhere (a :class:`~hmi.ui.driver.LiveDriver` thread, or
+the test driving a :class:`~hmi.ui.driver.VirtualDriver`); at most ``REFRESH_HZ`` times a
+second the app reads ``engine.last``, wraps it in a :class:`~hmi.ui.frame.Frame` and hands it
+down to every panel (``show(frame)``). Panels post messages up; the app turns every operator
+action into a command sent through :meth:`PlcHmiApp.send`, the single door to
+``Controller.command`` (where the journal listens).
+
+Screen regions (see ``app.tcss``): status bar and banners on top; the body in columns —
+``#col-plant`` (I/O, and the constraints under it), ``#col-logic`` (control; the
+diagnosers and monitors panel goes under it), ``#col-time`` (chronogram; the explanation
+panel goes beside it); the alarm list will dock above the simulation strip, and the message
+line and footer close the screen.
+"""
 
 from __future__ import annotations
 
-from textual.app import App, ComposeResult
-from textual.binding import Binding
-from textual.widgets import DataTable, Footer, Static
+from functools import partial
 
-from hmi.engine.commands import Pause, Resume, StepScans
-from hmi.engine.live import LiveRunner
+from rich.text import Text
+from textual.app import App, ComposeResult
+from textual.containers import Horizontal, Vertical
+from textual.screen import ModalScreen
+
+from hmi.engine.commands import (
+    Command,
+    CommandResult,
+    FaultReset,
+    InjectFault,
+    ManualOutput,
+    Pause,
+    Resume,
+    SetInput,
+    SetMode,
+    SetPolicy,
+    SetSpeed,
+    StepScans,
+    describe,
+)
 from hmi.engine.runner import Controller
 from hmi.engine.scan import Engine
-from hmi.engine.snapshot import Snapshot
+from hmi.plant.sim import Injection
+from hmi.project.model import POLICIES
 from hmi.timefmt import seconds
+from hmi.ui.actions import ACTIONS, bindings
+from hmi.ui.chronogram import WINDOWS_US, Chronogram
+from hmi.ui.constraints_panel import ConstraintInfo, ConstraintsPanel
+from hmi.ui.dialogs import ChoiceDialog, ConfirmDialog, StepDialog
+from hmi.ui.driver import LiveDriver, VirtualDriver
+from hmi.ui.fault_dialog import FaultDialog
+from hmi.ui.footer import HmiFooter
+from hmi.ui.frame import Frame, InjectedFault
+from hmi.ui.grafcet_panel import GrafcetPanel, StepInfo, TimerInfo
+from hmi.ui.io_panel import IOPanel
+from hmi.ui.message_line import MessageLine, result_text, verdict_text
+from hmi.ui.messages import CommandRequested
+from hmi.ui.palette import HmiCommands, PaletteEntry
+from hmi.ui.recorder import ScanRecorder
+from hmi.ui.reset import reset_preview
+from hmi.ui.signal_dialog import SignalDialog
+from hmi.ui.sim_panel import SimPanel
+from hmi.ui.status import BannerStrip, StatusBar
+from hmi.ui.style import MUTED, OK_SYMBOL, Level, isa101_theme, tag
+from hmi.ui.verdict import output_changes, request_verdict
 
 REFRESH_HZ = 20
+SPEEDS: tuple[float | None, ...] = (1.0, 10.0, None)
+POLICY_HELP = {
+    "monitor": "report violations only; unsafe orders pass (commissioning)",
+    "block": "on a violation, every output safe until a fault reset",
+    "correct": "change the fewest outputs that satisfy every constraint",
+}
+RUN_STATE_COMMANDS = (Pause, Resume, StepScans, SetSpeed)
 
 
 class PlcHmiApp(App):
-    CSS_PATH = "app.tcss"
+    CSS_PATH = ["app.tcss", "dialogs.tcss"]
     TITLE = "plchmi"
-    BINDINGS = [
-        Binding("space", "toggle_run", "Run/Pause"),
-        Binding("s", "step", "Step"),
-        Binding("q", "quit", "Quit"),
-    ]
+    BINDINGS = bindings()
+    COMMANDS = App.COMMANDS | {HmiCommands}
+    HORIZONTAL_BREAKPOINTS = [(0, "-narrow"), (120, "-wide")]
+    VERTICAL_BREAKPOINTS = [(0, "-short"), (40, "-tall")]
 
-    def __init__(self, controller: Controller, live: bool = True):
+    def __init__(self, controller: Controller, live: bool = True, *,
+                 show_measured: bool | None = None, refresh_hz: float = REFRESH_HZ):
         super().__init__()
         self.controller = controller
-        self.live = live
-        self.runner: LiveRunner | None = None
-        self._shown_scan = -1
+        engine = controller.engine
+        self.project = engine.project
+        self.driver: LiveDriver | VirtualDriver = (LiveDriver(controller) if live
+                                                   else VirtualDriver(controller))
+        self.show_measured = live if show_measured is None else show_measured
+        self.refresh_hz = refresh_hz
+        self.recorder = ScanRecorder(engine.layout)
+        self.frame: Frame | None = None
+        self.frames_shown = 0  # frames handed to the panels (the UI refresh count)
+        self._key: tuple | None = None
+        self._version = 0  # bumped when something the frame shows changes outside the scan
+        self._stepping = False
+        self._request: tuple[str, bool, int, str] | None = None  # pending manual verdict
+        self._injected: list[InjectedFault] = []
+        self._mode_commanded: str | None = None  # accepted SetMode, not yet in a snapshot
+        plant = engine.plant
+        self.free_inputs: tuple[str, ...] = tuple(getattr(plant, "free_inputs", {}) or ())
+        self.register_theme(isa101_theme())
+        self.theme = "isa101"
 
+    # -- layout ------------------------------------------------------------------------------
     def compose(self) -> ComposeResult:
-        yield Static(id="status")
-        yield DataTable(id="io", cursor_type="row")
-        yield Static(id="steps")
-        yield Static(id="message")
-        yield Footer()
+        engine = self.controller.engine
+        project = self.project
+        descriptions = {v.name: v.description for v in (*project.inputs, *project.outputs)}
+        law = project.controls[engine.control_name]
+        steps = [StepInfo(s.name, s.description) for s in law.grafcet.steps] \
+            if law.grafcet else []
+        timers = [TimerInfo(t.name, t.kind, t.description) for t in project.timers]
+        default_signals = tuple(s.name for s in self.recorder.signals
+                                if s.kind in ("output", "input", "timer"))
+        constraints = [ConstraintInfo(c.name, c.kind, c.expr.source, c.description)
+                       for c in project.constraints]
+        yield StatusBar(id="status")
+        yield BannerStrip(id="banners")
+        with Vertical(id="body"):
+            with Horizontal(id="top"):
+                with Vertical(id="col-plant"):
+                    yield IOPanel(engine.layout, descriptions, self.free_inputs, id="io")
+                    yield ConstraintsPanel(constraints, id="constraints")
+                with Vertical(id="col-logic"):
+                    yield GrafcetPanel(engine.control_name, steps, timers, id="control")
+            with Horizontal(id="bottom"), Vertical(id="col-time"):
+                yield Chronogram(self.recorder, default_signals, id="chronogram")
+        yield SimPanel(self.recorder, id="sim")
+        yield MessageLine(id="message")
+        yield HmiFooter(compact=True)
 
     def on_mount(self) -> None:
-        table = self.query_one("#io", DataTable)
-        for label in ("Variable", "Kind", "Value", "Functional", "Description"):
-            table.add_column(label, key=label)
-        project = self.controller.engine.project
-        for var in project.inputs:
-            table.add_row(var.name, "input", "", "", var.description, key=var.name)
-        for var in project.outputs:
-            table.add_row(var.name, "output", "", "", var.description, key=var.name)
+        self.controller.scan_listeners.append(self.recorder.on_scan)
         if self.controller.engine.last is None:
             self.controller.scan_once()
-        self.refresh_view()
-        self.set_interval(1 / REFRESH_HZ, self.refresh_view)
-        if self.live:
-            self.runner = LiveRunner(self.controller)
-            self.runner.start()
+        else:
+            self.recorder.on_scan(self.controller.engine.last)
+        self._views = [self.query_one(StatusBar), self.query_one(BannerStrip),
+                       self.query_one(IOPanel), self.query_one(ConstraintsPanel),
+                       self.query_one(GrafcetPanel),
+                       self.query_one(Chronogram), self.query_one(SimPanel)]
+        self.query_one(IOPanel).focus()
+        self.message.say(Text("ctrl+p: all commands", style=MUTED))
+        self.poll(force=True)
+        self.set_interval(1 / self.refresh_hz, self.poll)
+        # Start scanning once the first screen is drawn: the first layout is the heaviest
+        # thing the UI does and would otherwise make the first scans late.
+        self.call_after_refresh(self.driver.start)
 
     def on_unmount(self) -> None:
-        if self.runner:
-            self.runner.stop()
+        self.driver.stop()
+        if self.recorder.on_scan in self.controller.scan_listeners:
+            self.controller.scan_listeners.remove(self.recorder.on_scan)
 
-    def refresh_view(self) -> None:
+    @property
+    def message(self) -> MessageLine:
+        return self.query_one(MessageLine)
+
+    @property
+    def chronogram(self) -> Chronogram:
+        return self.query_one(Chronogram)
+
+    # -- the display loop --------------------------------------------------------------------
+    def run_label(self) -> str:
+        label = self.controller.state.label
+        if label == "paused" and self._stepping:
+            return "stepping"
+        return label
+
+    def poll(self, force: bool = False) -> bool:
+        """Show the latest snapshot if anything changed; True if a frame was handed down."""
         snap = self.controller.engine.last
-        if snap is None or snap.scan == self._shown_scan:
-            self._status(snap)
-            return
-        self._shown_scan = snap.scan
-        self._status(snap)
-        table = self.query_one("#io", DataTable)
-        for name in snap.layout.inputs:
-            table.update_cell(name, "Value", _bit(snap.value(name)))
-        for name, fov, out in zip(snap.layout.outputs, snap.fov, snap.outputs, strict=True):
-            table.update_cell(name, "Value", _bit(out))
-            table.update_cell(name, "Functional", _bit(fov))
-        self.query_one("#steps", Static).update(
-            "Active steps: " + (" ".join(snap.active_steps) or "-"))
+        if snap is None:
+            return False
+        state = self.controller.state
+        if self._mode_commanded == snap.mode:
+            self._mode_commanded = None
+        key = (snap.scan, id(snap), self.run_label(), state.speed, self.driver.overruns,
+               self._version, self._mode_commanded)
+        if not force and key == self._key:
+            return False
+        self._key = key
+        frame = Frame(
+            snapshot=snap, run=self.run_label(), speed=state.speed, live=self.driver.live,
+            project=self.project.name, show_measured=self.show_measured,
+            overruns=self.driver.overruns, changed=output_changes(snap),
+            injected=tuple(self._injected), free_inputs=self.free_inputs,
+            damage_count=self.recorder.damage_count, mode_commanded=self._mode_commanded,
+            constraints=self.recorder.constraint_stats())
+        self.frame = frame
+        for view in self._views:
+            view.show(frame)
+        self._judge_request(snap)
+        self.frames_shown += 1
+        return True
 
-    def _status(self, snap: Snapshot | None) -> None:
-        engine = self.controller.engine
-        run = self.controller.state.label.upper()
-        scan = f"scan {snap.scan}  t={seconds(snap.time_us)} s" if snap else "no scan yet"
-        self.query_one("#status", Static).update(
-            f"{engine.project.name}  |  {engine.plant.status.description}  |  "
-            f"{engine.mode.upper()}  |  policy {engine.policy}  |  {run}  |  {scan}")
+    def _judge_request(self, snap) -> None:
+        if self._request is None:
+            return
+        name, requested, scan, what = self._request
+        if snap.scan <= scan:
+            return
+        self._request = None
+        if snap.mode != "manual":
+            return  # left manual mode before a scan ran the request
+        ok, line = request_verdict(snap, name, requested)
+        self.message.say(verdict_text(ok, f"{what} → {line}"))
+
+    # -- sending commands --------------------------------------------------------------------
+    def send(self, command: Command) -> CommandResult:
+        """The one place operator actions leave the UI: through ``Controller.command``."""
+        result = self.controller.command(command)
+        what = describe(command)
+        text = result_text(what, result)
+        match command:
+            case Pause() | Resume():
+                self._stepping = False
+            case StepScans():
+                self._stepping = self._stepping or result.accepted
+            case ManualOutput(name=name, value=value) if result.accepted:
+                last = self.controller.engine.last
+                self._request = (name, bool(value), last.scan if last else 0, what)
+            case SetMode(manual=manual) if result.accepted:
+                self._mode_commanded = "manual" if manual else "auto"
+            case InjectFault(injection=injection) if result.accepted:
+                self._injected.append(InjectedFault(injection, self._fault_text(injection)))
+                self._version += 1
+        if result.accepted and not isinstance(command, RUN_STATE_COMMANDS) \
+                and not self.controller.state.running:
+            text.append(" — applies at the next scan (paused)", style=MUTED)
+        self.message.say(text)
+        self.poll(force=True)
+        return result
+
+    def on_command_requested(self, message: CommandRequested) -> None:
+        self.send(message.command)
+
+    def refuse(self, what: str, why: str) -> None:
+        """A control that does not apply here; said, not silently ignored."""
+        line = tag("NOT AVAILABLE", Level.ALARM)
+        line.append(f" {what}: {why}")
+        self.message.say(line)
+
+    def _fault_text(self, injection: Injection) -> str:
+        for device, code, description in self._faults():
+            if code == injection.code and (injection.device in (None, device)):
+                return description
+        return injection.code
+
+    def _faults(self) -> list[tuple[str, str, str]]:
+        faults = getattr(self.controller.engine.plant, "faults", None)
+        return faults() if faults else []
+
+    @property
+    def simulated(self) -> bool:
+        return getattr(self.controller.engine.plant, "kind", "") == "sim"
+
+    # -- bindings ----------------------------------------------------------------------------
+    def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
+        if isinstance(self.screen, ModalScreen) and action in _ACTION_NAMES:
+            return False  # a dialog is open: its own keys only
+        if action in ("speed", "inject") and not self.simulated:
+            return None  # shown dimmed: simulation only
+        return True
 
     def action_toggle_run(self) -> None:
-        running = self.controller.state.running
-        result = self.controller.command(Pause() if running else Resume())
-        self.query_one("#message", Static).update(result.message)
+        self.send(Pause() if self.controller.state.running else Resume())
 
     def action_step(self) -> None:
-        result = self.controller.command(StepScans(1))
-        self.query_one("#message", Static).update(result.message)
-        self.refresh_view()
+        self.send(StepScans(1))
+
+    def action_step_n(self) -> None:
+        def done(count: int | None) -> None:
+            if count:
+                self.send(StepScans(count))
+        self.push_screen(StepDialog(), done)
+
+    def action_speed(self, factor: float | str | None = "next") -> None:
+        if not self.simulated:
+            self.refuse("run speed", "a real plant runs in real time only")
+            return
+        if factor == "next":
+            current = self.controller.state.speed
+            index = SPEEDS.index(current) if current in SPEEDS else -1
+            factor = SPEEDS[(index + 1) % len(SPEEDS)]
+        assert not isinstance(factor, str)
+        self.send(SetSpeed(factor))
+
+    def action_manual(self) -> None:
+        snap = self.controller.engine.last
+        if snap is None:
+            return
+        manual_now = self.frame.manual_keys if self.frame else snap.mode == "manual"
+        if manual_now:
+            requested = ", ".join(f"{n}={int(v)}" for n, v in snap.manual) or "none"
+            lines = [f"Every manual request is released (now: {requested}).",
+                     "The control law drives the outputs again, from its current steps.",
+                     f"The safety filter keeps its policy ({snap.policy})."]
+            self.push_screen(ConfirmDialog("Leave manual mode?", lines, "Leave manual",
+                                           dialog_id="manual-dialog"),
+                             partial(self._confirmed, SetMode(False)))
+        else:
+            lines = ["The control law stops driving the outputs: they follow your requests,",
+                     "and an output you have not requested is 0.",
+                     f"Every request still goes through the safety filter ({snap.policy}).",
+                     "Select an output in the I/O table: 1 on, 0 off, x release."]
+            self.push_screen(ConfirmDialog("Enter manual mode?", lines, "Enter manual",
+                                           dialog_id="manual-dialog"),
+                             partial(self._confirmed, SetMode(True)))
+
+    def action_manual_request(self, name: str, value: bool | None) -> None:
+        self.send(ManualOutput(name, value))
+
+    def action_reset(self) -> None:
+        snap = self.controller.engine.last
+        if snap is None:
+            return
+        lines: list[Text | str] = []
+        for line in reset_preview(snap):
+            if line.resets:
+                lines.append(Text(f"{OK_SYMBOL} will be reset: {line.what}"))
+            else:
+                text = tag("stays", Level.ATTENTION)
+                text.append(f": {line.what} — its cause is still present: {line.why}")
+                lines.append(text)
+        if not lines:
+            lines.append(Text("Nothing is latched: the reset will change nothing.",
+                              style=MUTED))
+        lines.append(Text(f"(as of scan {snap.scan}, t = {seconds(snap.time_us)} s; the cell "
+                          "keeps running while this dialog is open)", style=MUTED))
+        self.push_screen(ConfirmDialog("Fault reset?", lines, "Reset",
+                                       dialog_id="reset-dialog"),
+                         partial(self._confirmed, FaultReset()))
+
+    def action_policy(self, policy: str | None = None) -> None:
+        current = self.controller.engine.last.policy if self.controller.engine.last \
+            else self.controller.engine.policy
+        if policy is not None:
+            self._confirm_policy(current, policy)
+            return
+        options = [(p, Text(f"{p:<8} {POLICY_HELP[p]}" + ("  (now)" if p == current else "")))
+                   for p in POLICIES]
+
+        def chosen(policy: str | None) -> None:
+            if policy is not None:
+                self._confirm_policy(current, policy)
+        self.push_screen(ChoiceDialog("Safety filter policy", options, current,
+                                      dialog_id="policy-dialog"), chosen)
+
+    def _confirm_policy(self, current: str, policy: str) -> None:
+        level = Level.ALARM if policy == "monitor" else Level.ATTENTION
+        lines: list[Text | str] = [f"{current} → {policy}: {POLICY_HELP[policy]}."]
+        if policy == "monitor":
+            lines.append(tag("Unsafe orders will reach the plant; the filter only reports.",
+                             Level.ALARM))
+        self.push_screen(ConfirmDialog(f"Switch the filter policy to {policy}?", lines,
+                                       f"Switch to {policy}", level=level,
+                                       dialog_id="policy-confirm"),
+                         partial(self._confirmed, SetPolicy(policy)))
+
+    def _confirmed(self, command: Command, yes: bool | None) -> None:
+        if yes:
+            self.send(command)
+        else:
+            self.message.say(Text(f"cancelled: {describe(command)}", style=MUTED))
+
+    def action_inject(self) -> None:
+        if not self.simulated:
+            self.refuse("fault injection", "only a simulated plant can be given faults")
+            return
+        engine = self.controller.engine
+        devices = {device for device, _, _ in self._faults()}
+
+        def chosen(injection: Injection | None) -> None:
+            if injection is not None:
+                self.send(InjectFault(injection))
+        self.push_screen(FaultDialog(self._faults(), engine.now, len(devices) <= 1), chosen)
+
+    def action_inject_now(self, device: str, code: str) -> None:
+        devices = {d for d, _, _ in self._faults()}
+        self.send(InjectFault(Injection(code, self.controller.engine.now,
+                                        None if len(devices) <= 1 else device)))
+
+    def action_button(self, name: str, value: bool) -> None:
+        self.send(SetInput(name, value))
+
+    def action_signals(self) -> None:
+        chrono = self.chronogram
+        engine = self.controller.engine
+        descriptions = {n: self.project.describe(n) for n in engine.layout.names}
+        law = self.project.controls[engine.control_name]
+        if law.grafcet:
+            descriptions.update({s.name: s.description for s in law.grafcet.steps})
+
+        def chosen(signals: tuple[str, ...] | None) -> None:
+            if signals is not None:
+                self.set_signals(signals)
+        self.push_screen(SignalDialog(self.recorder.signals, chrono.signals, descriptions),
+                         chosen)
+
+    def set_signals(self, signals: tuple[str, ...]) -> None:
+        self.chronogram.signals = signals
+        self.chronogram.refresh(layout=True)
+        self.message.say(f"{OK_SYMBOL} chronogram: " + (", ".join(signals) or "no signals"))
+
+    def toggle_signal(self, name: str) -> None:
+        current = self.chronogram.signals
+        if name in current:
+            self.set_signals(tuple(s for s in current if s != name))
+        else:
+            order = [s.name for s in self.recorder.signals]
+            self.set_signals(tuple(sorted((*current, name), key=order.index)))
+
+    def action_window(self, window_us: int | None = None) -> None:
+        chrono = self.chronogram
+        if window_us is None:
+            index = WINDOWS_US.index(chrono.window_us) if chrono.window_us in WINDOWS_US \
+                else -1
+            window_us = WINDOWS_US[(index + 1) % len(WINDOWS_US)]
+        chrono.window_us = window_us
+        chrono.refresh()
+        self.message.say(f"{OK_SYMBOL} chronogram: last {window_us // 1_000_000} s")
+
+    # -- the command palette -----------------------------------------------------------------
+    def palette_entries(self) -> list[PaletteEntry]:
+        """Every control, as palette commands; the ones that do not apply now are left out."""
+        entries: list[PaletteEntry] = []
+        for a in ACTIONS:
+            if a.action in ("speed", "inject") and not self.simulated:
+                continue
+            entries.append(PaletteEntry(f"{a.title}  [{a.key_display or a.key}]", a.help,
+                                        getattr(self, f"action_{a.action}"), a.action))
+        snap = self.controller.engine.last
+        if self.simulated:
+            for factor, word in ((1.0, "real time"), (10.0, "×10"),
+                                 (None, "as fast as possible")):
+                entries.append(PaletteEntry(f"Run speed: {word}", "Simulated plant only",
+                                            partial(self.action_speed, factor)))
+        for count in (10, 100):
+            entries.append(PaletteEntry(f"Step {count} scans", "Run them, then stay paused",
+                                        partial(self.send, StepScans(count))))
+        if snap is not None and self.frame is not None and self.frame.manual_keys:
+            for name in snap.layout.outputs:
+                for value, word, key in ((True, "on", "1"), (False, "off", "0"),
+                                         (None, "release", "x")):
+                    entries.append(PaletteEntry(
+                        f"Manual: {name} {word}  [{key}]",
+                        f"Request {self.project.describe(name)} {word} (filtered)",
+                        partial(self.action_manual_request, name, value),
+                        f"manual_{'on' if value else 'off' if value is False else 'release'}"))
+        for policy in POLICIES:
+            entries.append(PaletteEntry(f"Filter policy: {policy}…", POLICY_HELP[policy],
+                                        partial(self.action_policy, policy)))
+        if self.simulated:
+            for device, code, description in self._faults():
+                entries.append(PaletteEntry(
+                    f"SIMULATION: inject {device}.{code} now", description,
+                    partial(self.action_inject_now, device, code)))
+            for name in self.free_inputs:
+                for value, word in ((True, "press"), (False, "release")):
+                    entries.append(PaletteEntry(
+                        f"SIMULATION: {word} button {name}  [b]",
+                        self.project.describe(name),
+                        partial(self.action_button, name, value), "button"))
+        shown = set(self.chronogram.signals)
+        for signal in self.recorder.signals:
+            verb = "hide" if signal.name in shown else "show"
+            entries.append(PaletteEntry(f"Chronogram: {verb} {signal.name}",
+                                        self.project.describe(signal.name.split(".")[0]),
+                                        partial(self.toggle_signal, signal.name)))
+        for window in WINDOWS_US:
+            entries.append(PaletteEntry(f"Chronogram: last {window // 1_000_000} s",
+                                        "Time window of the timing diagram",
+                                        partial(self.action_window, window)))
+        return entries
 
 
-def _bit(value: bool) -> str:
-    return "1" if value else "0"
+_ACTION_NAMES = {a.action for a in ACTIONS}
 
 
-def run_app(engine: Engine) -> int:
-    app = PlcHmiApp(Controller(engine))
+def run_app(target: Engine | Controller, clock=None) -> int:
+    """Run the HMI live on an engine, or on a controller others listen to (the journal).
+
+    A real plant passes a wall clock to stamp its scans (see hmi.engine.live.WallClock)."""
+    controller = target if isinstance(target, Controller) else Controller(target, clock=clock)
+    app = PlcHmiApp(controller)
     app.run()
     return 0

@@ -1,0 +1,116 @@
+"""``plchmi bench ui``: the HMI running headless, live, against the wall clock.
+
+The CISPI valve scans in its thread every 10 ms while the Textual app polls, builds frames
+and renders them (headless: the terminal output is discarded, the work is not). Printed:
+
+- scan jitter: how late each scan started against its schedule (p50, p99, max), and the
+  overruns (scans more than a period late, after which the runner re-anchors), first for the
+  scan loop alone (the baseline), then with the UI running;
+- the UI refresh rate: frames handed to the panels per second (the app caps it at 20).
+
+All of it shares one Python process, hence one GIL: the UI cannot run in parallel with a
+scan, only between scans. The jitter with the UI on is the honest figure for that design.
+``--quick`` shortens both measurements.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from pathlib import Path
+
+from hmi.bench import percentile
+
+SECTION = "ui"
+HELP = "HMI headless at a 10 ms scan for 30 s (wall): scan jitter p50/p99, UI refresh rate"
+
+PROJECT = Path(__file__).resolve().parents[2] / "projects" / "cispi_valve"
+PERIOD_US = 10_000
+UI_SECONDS, BASELINE_SECONDS = 30.0, 10.0
+QUICK_UI_SECONDS, QUICK_BASELINE_SECONDS = 5.0, 3.0
+SIZE = (120, 36)
+SETTLE_S = 0.5  # let the app finish mounting and its first layout before measuring
+
+
+def _controller(period_us: int):
+    from hmi.engine.runner import Controller
+    from hmi.engine.scan import Engine
+    from hmi.plant.sim import SimPlant
+    from hmi.project.loader import load_project
+
+    project = load_project(PROJECT)
+    return Controller(Engine(project, SimPlant(project)), period_us)
+
+
+def jitter_line(label: str, jitter: list[float], scans: int, seconds: float,
+                period_us: int, overruns: int) -> str:
+    expected = seconds * 1e6 / period_us
+    if not jitter:
+        return f"  {label:<8} no scan was measured"
+    return (f"  {label:<8} {scans} scans in {seconds:.1f} s ({scans / expected:.1%} of the "
+            f"{expected:.0f} scheduled)  jitter p50 {percentile(jitter, 50):6.0f} us  "
+            f"p99 {percentile(jitter, 99):6.0f} us  max {max(jitter):6.0f} us  "
+            f"overruns {overruns}")
+
+
+def baseline(seconds: float, period_us: int = PERIOD_US) -> str:
+    """The scan loop alone, paced by the wall clock: what the UI is compared with."""
+    from hmi.engine.live import LiveRunner
+
+    controller = _controller(period_us)
+    runner = LiveRunner(controller)
+    runner.start()
+    time.sleep(SETTLE_S)
+    samples0, scans0, overruns0 = len(runner.jitter_us), controller.engine.scan, \
+        runner.overruns
+    start = time.perf_counter()
+    time.sleep(seconds)  # the measurement itself: the runner paces by the wall clock
+    elapsed = time.perf_counter() - start
+    jitter = list(runner.jitter_us)[samples0:]
+    scans, overruns = controller.engine.scan - scans0, runner.overruns - overruns0
+    runner.stop()
+    return jitter_line("no UI", jitter, scans, elapsed, period_us, overruns)
+
+
+def with_ui(seconds: float, period_us: int = PERIOD_US,
+            size: tuple[int, int] = SIZE) -> list[str]:
+    """The live app, headless: scans in their thread, the UI polling and rendering."""
+    from hmi.ui.app import PlcHmiApp
+
+    controller = _controller(period_us)
+    app = PlcHmiApp(controller, live=True)
+    result: dict = {}
+
+    async def measure() -> None:
+        async with app.run_test(size=size):
+            await asyncio.sleep(SETTLE_S)
+            runner = app.driver.runner
+            samples0, scans0, overruns0 = (len(runner.jitter_us), controller.engine.scan,
+                                           runner.overruns)
+            start, frames0 = time.perf_counter(), app.frames_shown
+            await asyncio.sleep(seconds)  # the measurement: let the live app run
+            result.update(elapsed=time.perf_counter() - start,
+                          frames=app.frames_shown - frames0,
+                          jitter=list(runner.jitter_us)[samples0:],
+                          scans=controller.engine.scan - scans0,
+                          overruns=runner.overruns - overruns0)
+
+    asyncio.run(measure())
+    elapsed, frames = result["elapsed"], result["frames"]
+    return [
+        jitter_line("with UI", result["jitter"], result["scans"], elapsed, period_us,
+                    result["overruns"]),
+        f"  {'UI':<8} {frames} frames in {elapsed:.1f} s: {frames / elapsed:.1f} frames/s "
+        f"(cap {app.refresh_hz:g}/s), app {size[0]}x{size[1]} headless",
+    ]
+
+
+def run(args) -> None:
+    quick = getattr(args, "quick", False)
+    base_s = QUICK_BASELINE_SECONDS if quick else BASELINE_SECONDS
+    ui_s = QUICK_UI_SECONDS if quick else UI_SECONDS
+    print(f"  {PROJECT.name}, scan period {PERIOD_US // 1000} ms; baseline {base_s:g} s, "
+          f"with the UI {ui_s:g} s (wall clock)", flush=True)
+    print(baseline(base_s), flush=True)
+    for line in with_ui(ui_s):
+        print(line, flush=True)

@@ -1,0 +1,151 @@
+"""Stopwatch monitors in the scan: one automaton per task, run after the output scan.
+
+Why after the output scan: a monitor observes the I/O the scan exchanged with the plant, the
+inputs read at t and the orders written at t. A task started by an order (`start: rise(d)`)
+then starts at the very scan that sends the order, the instant the plant starts working, so
+the stopwatches measure the plant's own durations (exactly, when the plant's events fall on
+scan instants). A fault found at scan k is in snapshot k.
+
+Composition (002 §4 composes the tasks into one 12-location automaton): here each task has
+its own automaton, stepped independently at every scan. docs/monitors.md explains why the
+detection instants are the same.
+
+A monitor fault is a label, like a diagnoser's: latched until a fault reset, shown with the
+stopwatch values at detection. It does not force outputs safe; the cell keeps working and the
+operator decides.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from typing import TYPE_CHECKING, NamedTuple
+
+from hmi.engine.stopwatch import FAULTY, Detection, TaskAutomaton, WatchdogTrip, Window
+from hmi.explain.monitors import monitor_explanations
+from hmi.logic.expr import BoolFn, compile_bool, max_depth
+from hmi.project.monitors import TaskMonitor, monitors_of
+from hmi.timefmt import format_duration, seconds
+
+if TYPE_CHECKING:
+    from hmi.engine.scan import Engine
+
+
+class MonitorState(NamedTuple):
+    """One task's monitor at the end of a scan; immutable, for snapshots and traces.
+
+    A named tuple rather than a frozen dataclass: one is built per task at every scan, and a
+    tuple is several times cheaper to build.
+    """
+
+    name: str
+    label: str
+    title: str  # the task as the operator knows it
+    device: str | None
+    location: str  # waiting, executing, interrupted, faulty
+    x_us: int  # time since the task started (kept running while faulty)
+    y_us: int  # effective work (frozen while interrupted)
+    alpha_us: int
+    beta_us: int
+    gamma_us: int
+    attempt: int  # how many times the task started
+    attempt_start_us: int
+    running: bool  # the task is in progress (executing or interrupted), faulty or not
+    detection: Detection | None  # the latched fault's evidence (None: label not raised)
+    last_detection: Detection | None  # the most recent faulty attempt, latched or not
+    watchdog: WatchdogTrip | None  # the last time a plain watchdog would have fired
+    faults: int
+    completed: int  # attempts that ended inside the acceptable window
+
+    @property
+    def faulty(self) -> bool:
+        return self.location == FAULTY
+
+    @property
+    def labels(self) -> tuple[str, ...]:
+        return (self.label,) if self.faulty else ()
+
+
+class MonitorStage:
+    """The engine's stopwatch monitors: compiled conditions and one automaton per task."""
+
+    def __init__(self, engine: Engine, specs: tuple[TaskMonitor, ...]):
+        lay = engine.layout
+        self.specs = specs
+        # The fields of MonitorState that never change, computed once (states() runs per scan).
+        self.heads = [(s.name, s.label, s.title, s.device) for s in specs]
+        self.tails = [(s.alpha_us, s.beta_us, s.gamma_us) for s in specs]
+        self.automata = [TaskAutomaton(Window(s.alpha_us, s.beta_us, s.gamma_us))
+                         for s in specs]
+        self.conditions: list[tuple[BoolFn, BoolFn, BoolFn | None, BoolFn | None, bool]] = []
+        for s in specs:
+            def fn(expr):
+                return compile_bool(expr, lay.slots, lay.step_times)
+            if s.interrupted is not None:
+                level = fn(s.interrupted)
+                self.conditions.append((fn(s.start), fn(s.end), level, level, True))
+            elif s.interrupt is not None and s.resume is not None:
+                self.conditions.append((fn(s.start), fn(s.end), fn(s.interrupt),
+                                        fn(s.resume), False))
+            else:
+                self.conditions.append((fn(s.start), fn(s.end), None, None, False))
+
+    def __call__(self, engine: Engine) -> None:
+        image, hist, now, scan = engine.image, engine.history, engine.now, engine.scan
+        for automaton, (start, end, suspend, resume, level) in zip(
+                self.automata, self.conditions, strict=True):
+            if suspend is None or resume is None:
+                s = r = False
+            elif level:
+                s = suspend(image, hist)
+                r = not s
+            else:
+                s, r = suspend(image, hist), resume(image, hist)
+            automaton.step(now, scan, start(image, hist), end(image, hist), s, r)
+        engine.extras["monitors"] = self.states()
+
+    def states(self) -> tuple[MonitorState, ...]:
+        return tuple(_state(head, a, tail)
+                     for head, tail, a in zip(self.heads, self.tails, self.automata, strict=True))
+
+    def reset(self, engine: Engine) -> list[str]:
+        """Fault reset: release each latched label whose task is no longer faulty."""
+        lines = []
+        for spec, a in zip(self.specs, self.automata, strict=True):
+            if a.latched is None:
+                continue
+            if a.reset():
+                lines.append(f"{spec.label} released")
+            else:
+                lines.append(
+                    f"{spec.label} stays: {spec.title} is still {a.phase.value} "
+                    f"(x = {seconds(a.x_us)} s, y = {seconds(a.y_us)} s) and can no longer end "
+                    f"before gamma {format_duration(spec.gamma_us)}; reset again once it ends")
+        return lines
+
+
+def _state(head: tuple, a: TaskAutomaton, window: tuple[int, int, int]) -> MonitorState:
+    return MonitorState(*head, a.location, a.x_us, a.y_us, *window, a.attempt,
+                        a.attempt_start_us, a.running, a.latched, a.last_detection,
+                        a.watchdog.last, a.faults, a.completed)
+
+
+def install_monitors(engine: Engine) -> MonitorStage | None:
+    """Hook the project's monitors into `engine` (no-op for a project without monitors)."""
+    specs = monitors_of(engine.project)
+    if not specs:
+        return None
+    depth = max((max_depth(e) for s in specs for e in s.exprs), default=1)
+    if engine.history.maxlen is not None and depth > engine.history.maxlen:
+        engine.history = deque(engine.history, maxlen=depth)
+    stage = MonitorStage(engine, specs)
+    engine.stages_after_output.append(stage)
+    engine.reset_hooks.append(stage.reset)
+    explainer = getattr(engine, "explainer", None)
+    if explainer is not None:
+        explainer.extra_builders.append(monitor_explanations)
+    return stage
+
+
+def monitor_stage(engine: Engine) -> MonitorStage | None:
+    """The engine's monitor stage, if its project has monitors."""
+    return next((s for s in engine.stages_after_output if isinstance(s, MonitorStage)), None)

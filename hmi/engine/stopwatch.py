@@ -1,0 +1,260 @@
+"""The stopwatch automaton of one interruptible task (002 Fig. 3 and 4.5), in integer µs.
+
+Locations (002): ``waiting`` (l1), ``executing`` (l2), ``interrupted`` (l3), ``faulty`` (l4).
+Stopwatch ``x`` is the time since the task started; it runs in executing and interrupted.
+Stopwatch ``y`` is the effective work; it runs in executing only (frozen while interrupted).
+
+A correct run ends with ``y`` in [alpha, beta] and ``x`` in [alpha, gamma) (002 Property 1:
+``x == gamma`` is already too late). The fault is raised as soon as no continuation can
+satisfy that any more, which gives these rules, checked at every scan:
+
+* ``cannot_finish`` — the task still needs ``alpha - y`` of work, which cannot end before
+  gamma: ``x + (alpha - y) >= gamma`` with ``y < alpha``. ``x - y`` only grows while the task
+  is interrupted, so this first holds during an interruption (002 §4, location L8:
+  ``(delta_x2 + x_T2) - delta_y2 >= 2``) or at the very scan it resumes;
+* ``deadline`` — the task has done its minimum work but is still running when ``x`` reaches
+  gamma (``y >= alpha`` and ``x >= gamma``);
+* ``overrun`` — ``y > beta``, or the task is still executing with ``y == beta`` after this
+  scan's events: it did not end with ``y <= beta`` and any later end follows more work, so
+  whenever it ends, ``y > beta``;
+* at the end: ``late_end`` (``x >= gamma``), ``overrun`` (``y > beta``), ``too_fast``
+  (``y < alpha``).
+
+The first three are the complement of the acceptable time space of 002 Fig. 4.4 in l2/l3
+(``x + max(0, alpha - y) < gamma`` and ``y <= beta``), sampled at scans. Nothing earlier is
+possible without false alarms: while they are false, ending with ``y`` in [alpha, beta]
+before gamma is still reachable.
+
+The automaton is driven by scans: :meth:`TaskAutomaton.step` receives the scan's time and the
+four observations. The location entered at a scan holds until the next scan, so the
+stopwatches first advance by the elapsed time in the location held since the previous scan,
+then the scan's observations are applied, then the rules are checked on the exact values.
+When the plant's events fall on scan instants, ``x`` and ``y`` are exact; otherwise an
+event is dated at the first scan that sees it (at most one period late).
+
+A detection is latched (location ``faulty``) until :meth:`TaskAutomaton.reset`. While it is
+latched the automaton keeps tracking the task, so that a reset knows whether the task is
+still hopeless, and so that the plain watchdog used for comparison keeps running.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import Enum
+
+from hmi.timefmt import seconds as _s
+
+
+class Phase(Enum):
+    """What the task is doing, as observed (independent of any latched fault)."""
+
+    IDLE = "waiting"
+    RUNNING = "executing"
+    SUSPENDED = "interrupted"
+
+
+FAULTY = "faulty"
+
+RULES = {
+    "cannot_finish": "cannot end in time: still needs alpha - y of work, x + (alpha - y) >= "
+                     "gamma",
+    "deadline": "still running when x reached gamma",
+    "overrun": "effective work y goes beyond beta",
+    "late_end": "ended with x >= gamma",
+    "too_fast": "ended with y < alpha (too fast)",
+}
+
+
+@dataclass(frozen=True)
+class Window:
+    """Normal duration [alpha, beta] and acceptable duration [alpha, gamma], in µs."""
+
+    alpha_us: int
+    beta_us: int
+    gamma_us: int
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.alpha_us <= self.beta_us < self.gamma_us:
+            raise ValueError(f"need 0 <= alpha <= beta < gamma, got {self}")
+
+
+@dataclass(frozen=True)
+class Detection:
+    """Why and when a task was found faulty, with the stopwatch values at that scan."""
+
+    rule: str  # a key of RULES
+    time_us: int
+    scan: int
+    x_us: int
+    y_us: int
+    attempt: int  # which start of the task (1 = the first)
+    attempt_start_us: int
+
+    @property
+    def reason(self) -> str:
+        return RULES[self.rule]
+
+    def explain(self, window: Window) -> str:
+        """The rule with this detection's numbers, in seconds."""
+        a, b, g = window.alpha_us, window.beta_us, window.gamma_us
+        x, y = self.x_us, self.y_us
+        if self.rule == "cannot_finish":
+            return (f"cannot end in time: still needs alpha - y = {_s(a - y)} s of work, so "
+                    f"it ends at x >= {_s(x + a - y)} s, not before gamma = {_s(g)} s")
+        if self.rule == "deadline":
+            return f"still running when x reached gamma = {_s(g)} s"
+        if self.rule == "overrun":
+            return (f"effective work y = {_s(y)} s and still working: it ends with y > beta = "
+                    f"{_s(b)} s")
+        if self.rule == "late_end":
+            return f"ended at x = {_s(x)} s, not before gamma = {_s(g)} s"
+        return f"ended after y = {_s(y)} s of work, less than alpha = {_s(a)} s (too fast)"
+
+
+@dataclass(frozen=True)
+class WatchdogTrip:
+    """When a plain watchdog (fault when x reaches gamma) fired on the same attempt."""
+
+    time_us: int
+    scan: int
+    x_us: int
+    attempt: int
+
+
+class Watchdog:
+    """The usual alternative to a stopwatch monitor: a timer started with the task that
+    trips when the task has not ended once gamma has elapsed. Kept beside each monitor to
+    measure how much earlier the monitor is on the same run; it never raises a label."""
+
+    def __init__(self, gamma_us: int):
+        self.gamma_us = gamma_us
+        self.last: WatchdogTrip | None = None
+        self._armed = False
+
+    def start(self) -> None:
+        self._armed = True
+
+    def observe(self, now: int, scan: int, x_us: int, attempt: int, ended: bool) -> None:
+        """Called at every scan of an attempt (including the scan that sees its end)."""
+        if self._armed and x_us >= self.gamma_us:
+            self.last = WatchdogTrip(now, scan, x_us, attempt)
+            self._armed = False
+        if ended:
+            self._armed = False
+
+
+class TaskAutomaton:
+    """One task's stopwatch automaton; pure logic, no engine, no expressions."""
+
+    def __init__(self, window: Window):
+        self.window = window
+        self.phase = Phase.IDLE
+        self.x_us = 0
+        self.y_us = 0
+        self.last_us: int | None = None
+        self.attempt = 0
+        self.attempt_start_us = 0
+        self.attempt_fault: Detection | None = None  # the current/last attempt's verdict
+        self.latched: Detection | None = None  # what the label shows until a reset
+        self.last_detection: Detection | None = None
+        self.faults = 0  # attempts found faulty
+        self.completed = 0  # attempts ended inside the acceptable window
+        self.watchdog = Watchdog(window.gamma_us)
+
+    # -- what the operator sees -------------------------------------------------------------
+    @property
+    def location(self) -> str:
+        return FAULTY if self.latched is not None else self.phase.value
+
+    @property
+    def running(self) -> bool:
+        return self.phase is not Phase.IDLE
+
+    # -- one scan ---------------------------------------------------------------------------
+    def step(self, now: int, scan: int, start: bool, end: bool, suspend: bool,
+             resume: bool) -> Detection | None:
+        """Advance to `now` and apply this scan's observations; return a new detection.
+
+        `suspend` is looked at while executing and `resume` while interrupted, so a level
+        signal "task interrupted" is passed as (level, not level) and a pair of events as
+        they are.
+        """
+        elapsed = 0 if self.last_us is None else now - self.last_us
+        self.last_us = now
+        if self.phase is Phase.IDLE:
+            if start:
+                self._begin(now)
+                if suspend:
+                    self.phase = Phase.SUSPENDED
+                self.watchdog.observe(now, scan, self.x_us, self.attempt, False)
+            return None
+        self.x_us += elapsed
+        if self.phase is Phase.RUNNING:
+            self.y_us += elapsed
+        if end:
+            verdict = self._judge_end()
+            self.phase = Phase.IDLE
+            if verdict is None and self.attempt_fault is None:
+                self.completed += 1
+        else:
+            if self.phase is Phase.RUNNING and suspend:
+                self.phase = Phase.SUSPENDED
+            elif self.phase is Phase.SUSPENDED and resume:
+                self.phase = Phase.RUNNING
+            verdict = self._judge_running()
+        self.watchdog.observe(now, scan, self.x_us, self.attempt, end)
+        if verdict is None or self.attempt_fault is not None:
+            return None
+        detection = Detection(verdict, now, scan, self.x_us, self.y_us, self.attempt,
+                              self.attempt_start_us)
+        self.attempt_fault = detection
+        self.last_detection = detection
+        self.faults += 1
+        if self.latched is None:
+            self.latched = detection
+            return detection
+        return None  # already faulty: counted, but the label keeps its first evidence
+
+    def _begin(self, now: int) -> None:
+        self.phase = Phase.RUNNING
+        self.x_us = 0
+        self.y_us = 0
+        self.attempt += 1
+        self.attempt_start_us = now
+        self.attempt_fault = None
+        self.watchdog.start()
+
+    def _judge_running(self) -> str | None:
+        w, x, y = self.window, self.x_us, self.y_us
+        if y < w.alpha_us and x + (w.alpha_us - y) >= w.gamma_us:
+            return "cannot_finish"
+        if y >= w.alpha_us and x >= w.gamma_us:
+            return "deadline"
+        if y > w.beta_us or (y == w.beta_us and self.phase is Phase.RUNNING):
+            return "overrun"
+        return None
+
+    def _judge_end(self) -> str | None:
+        w, x, y = self.window, self.x_us, self.y_us
+        if x >= w.gamma_us:
+            return "late_end"
+        if y > w.beta_us:
+            return "overrun"
+        if y < w.alpha_us:
+            return "too_fast"
+        return None
+
+    # -- fault reset ------------------------------------------------------------------------
+    def reset(self) -> bool:
+        """Release the latched fault unless the task in progress is itself faulty.
+
+        Returns True when released. A task still running after a fault that condemned it
+        (``x - y`` never decreases within an attempt) keeps the fault: the monitor stays in
+        step with the plant instead of pretending the late task is on time.
+        """
+        if self.latched is None:
+            return True
+        if self.running and self.attempt_fault is not None:
+            return False
+        self.latched = None
+        return True

@@ -1,0 +1,403 @@
+"""A real plant over Modbus TCP: the engine's inputs read from a device, its outputs written.
+
+The engine's scan is synchronous, so this uses pymodbus's synchronous client: a scan's reads
+happen in the scan, in order, and their answers are the scan's input image.
+
+Faults never escape as anything but :class:`PlantError`, whose message is stable for a given
+cause (the engine's latch keeps one reason per distinct message), and :attr:`status` says
+what is going on in plain words:
+
+* not connected (at start, or after a loss): every read raises; a new connection is tried
+  with a doubling backoff (0.1 s to 2 s); nothing is ever written while disconnected;
+* connection lost or no answer within the timeout: the socket is closed (a late answer could
+  otherwise be taken for the next request's), the plant is disconnected, the read raises;
+* an exception response (Illegal Data Address, Server Device Busy...): the read or write
+  raises with the exception's name; the connection is kept.
+
+Outputs are written when they change, in full after every (re)connection (so the first
+thing a reconnected device receives is the whole vector the engine holds: the safe vector,
+since the engine latches safe on the loss), and in full at least every `write_refresh`, so
+that a device whose outputs were changed behind our back is corrected within that time.
+In read-only mode nothing is written, ever: :meth:`ModbusPlant.write` returns at once, and
+the outputs' addresses are read back instead.
+"""
+
+from __future__ import annotations
+
+import logging
+import socket
+import time
+from collections import deque
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, replace
+from typing import Any
+from urllib.parse import urlsplit
+
+from pymodbus.client import ModbusTcpClient
+from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
+
+from hmi.errors import UsageError
+from hmi.plant.base import PlantError, PlantStatus
+from hmi.plant.modbus_map import AddressMap
+from hmi.project.model import PlantSpec, Project
+from hmi.timefmt import format_duration
+
+# pymodbus logs connection failures itself; with no handler configured, Python would print
+# them on stderr (over the HMI). We report every problem ourselves, in PlantStatus.
+logging.getLogger("pymodbus").addHandler(logging.NullHandler())
+logging.getLogger("pymodbus").propagate = False
+
+# Modbus application protocol v1.1b3, §7: exception codes and their names.
+EXCEPTION_NAMES = {
+    1: "Illegal Function",
+    2: "Illegal Data Address",
+    3: "Illegal Data Value",
+    4: "Server Device Failure",
+    5: "Acknowledge",
+    6: "Server Device Busy",
+    7: "Negative Acknowledge",
+    8: "Memory Parity Error",
+    10: "Gateway Path Unavailable",
+    11: "Gateway Target Device Failed to Respond",
+}
+
+BACKOFF_FIRST_S = 0.1
+BACKOFF_MAX_S = 2.0
+URL_HINT = "modbus://HOST:PORT[/UNIT], e.g. modbus://127.0.0.1:5020/1"
+
+
+@dataclass(frozen=True)
+class ModbusSettings:
+    host: str = "127.0.0.1"
+    port: int = 502
+    unit: int = 1
+    timeout_us: int = 1_000_000
+    read_gap: int = 8
+    write_refresh_us: int = 1_000_000
+
+    @classmethod
+    def from_spec(cls, spec: PlantSpec) -> ModbusSettings:
+        return cls(spec.host, spec.port, spec.unit, spec.timeout_us, spec.read_gap,
+                   spec.write_refresh_us)
+
+    @property
+    def where(self) -> str:
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"{host}:{self.port} unit {self.unit}"
+
+
+def parse_plant_url(text: str, base: ModbusSettings) -> ModbusSettings:
+    """`modbus://HOST:PORT[/UNIT]` over the project's settings; a UsageError if malformed."""
+    bad = f"--plant {text!r}: expected {URL_HINT}"
+    try:
+        url = urlsplit(text)
+        port = url.port
+    except ValueError:
+        raise UsageError(bad + " (the port must be a number from 1 to 65535)") from None
+    if url.scheme != "modbus" or not url.hostname or url.query or url.fragment \
+            or url.username or url.password:
+        raise UsageError(bad)
+    if port is None or port == 0:
+        raise UsageError(bad + " (the port is missing)")
+    unit = base.unit
+    path = url.path.strip("/")
+    if path:
+        if not path.isdigit() or not 0 <= int(path) <= 255:
+            raise UsageError(bad + f" (unit {path!r} is not a number from 0 to 255)")
+        unit = int(path)
+    return replace(base, host=url.hostname, port=port, unit=unit)
+
+
+class _Client(ModbusTcpClient):
+    """pymodbus's client, connecting so that we learn why a connection failed.
+
+    pymodbus's own connect() logs the OSError and returns False; we want the reason in the
+    operator's words ("Connection refused"), and TCP_NODELAY for small request/answer pairs.
+    """
+
+    last_error = ""
+
+    def connect(self) -> bool:
+        if self.socket:
+            return True
+        params = self.comm_params
+        try:
+            sock = socket.create_connection((params.host, params.port),
+                                            timeout=params.timeout_connect)
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        except OSError as exc:
+            self.last_error = _os_reason(exc)
+            self.socket = None
+            return False
+        self.socket = sock
+        return True
+
+
+def _os_reason(exc: OSError) -> str:
+    if isinstance(exc, TimeoutError | socket.timeout):
+        return "no answer (connect timed out)"
+    if isinstance(exc, socket.gaierror):
+        return f"unknown host ({exc.strerror})"
+    return exc.strerror or type(exc).__name__
+
+
+class ModbusPlant:
+    """The Plant protocol over Modbus TCP (see the module docstring for fault handling)."""
+
+    kind = "modbus"
+
+    def __init__(self, project: Project, settings: ModbusSettings, read_only: bool = False,
+                 period_us: int | None = None):
+        self.project = project
+        self.settings = settings
+        self.read_only = read_only
+        self.period_us = period_us or project.scan_period_us
+        self.input_names = tuple(v.name for v in project.inputs)
+        self.output_names = tuple(v.name for v in project.outputs)
+        self.map = AddressMap.for_project(project, settings.read_gap, read_back=read_only)
+        self._client: ModbusTcpClient | None = None
+        self.connected = False
+        self.ever_connected = False
+        self.message = "not connected yet"
+        self._down_reason = f"not connected to {settings.where}"
+        self._backoff_s = BACKOFF_FIRST_S
+        self._next_attempt = 0.0  # time.monotonic() of the next connection attempt
+        self.attempts = 0
+        self._written: dict[object, tuple] = {}  # request plan entry -> values last written
+        self._last_full_us: int | None = None
+        self.stats = dict.fromkeys(
+            ("requests", "reads", "writes", "exceptions", "timeouts", "losses", "connects",
+             "slow_scans"), 0)
+        self.last_exception = ""
+        self.io_us: deque[float] = deque(maxlen=10_000)  # wall time of each scan's I/O
+        self._scan_io = 0.0
+        self._scan_ok = False
+
+    # -- connection ----------------------------------------------------------------------
+    def connect(self) -> bool:
+        """One connection attempt now; on failure the next is scheduled after a backoff."""
+        self.attempts += 1
+        s = self.settings
+        client = _Client(s.host, port=s.port, timeout=s.timeout_us / 1e6, retries=0)
+        if client.connect():
+            self._client = client
+            self.connected = True
+            self.ever_connected = True
+            self.stats["connects"] += 1
+            self._backoff_s = BACKOFF_FIRST_S
+            self._written.clear()  # the first write after a connection is a full one
+            self.message = f"connected to {s.where}"
+            return True
+        reason = getattr(client, "last_error", "") or "connection failed"
+        client.close()
+        failed = f"cannot connect to {s.where}: {reason}"
+        if not self.ever_connected:
+            # After a loss, the loss stays the reason the engine is given (one latch reason
+            # per outage); the failed attempts show in the status message.
+            self._down_reason = failed
+        self._schedule_retry(failed)
+        return False
+
+    @property
+    def retry_in_s(self) -> float:
+        return max(0.0, self._next_attempt - time.monotonic())
+
+    def _schedule_retry(self, why: str) -> None:
+        self._next_attempt = time.monotonic() + self._backoff_s
+        self.message = f"{why}; next try in {self._backoff_s:g} s"
+        self._backoff_s = min(self._backoff_s * 2, BACKOFF_MAX_S)
+
+    def _lost(self, reason: str) -> PlantError:
+        """Drop the connection (a late answer must not pass for the next one's)."""
+        if self._client is not None:
+            self._client.close()
+        self._client = None
+        self.connected = False
+        self.stats["losses"] += 1
+        self._down_reason = f"{self.settings.where}: {reason}"
+        self._next_attempt = 0.0  # try again at the next scan, then back off
+        self._backoff_s = BACKOFF_FIRST_S
+        self.message = f"connection to {self.settings.where} lost: {reason}"
+        return PlantError(self._down_reason)
+
+    def _ensure_connected(self) -> ModbusTcpClient:
+        if not self.connected and time.monotonic() >= self._next_attempt:
+            self.connect()
+        if not self.connected or self._client is None:
+            raise PlantError(self._down_reason)
+        return self._client
+
+    def _request(self, what: str, call: Callable[[], Any]) -> Any:
+        self.stats["requests"] += 1
+        try:
+            response = call()
+        except ModbusIOException:
+            self.stats["timeouts"] += 1
+            raise self._lost(f"no answer to {what} within "
+                             f"{format_duration(self.settings.timeout_us)}") from None
+        except (ConnectionException, OSError):
+            raise self._lost("the connection was closed") from None
+        except ModbusException as exc:
+            raise self._lost(f"{type(exc).__name__} during {what}") from None
+        if response.isError():
+            code = getattr(response, "exception_code", 0)
+            name = EXCEPTION_NAMES.get(code, f"exception {code}")
+            self.stats["exceptions"] += 1
+            self.last_exception = name
+            detail = f"{self.settings.where} answered {name} (exception {code}) to {what}"
+            self.message = detail
+            raise PlantError(detail, lost=False)
+        return response
+
+    # -- the engine's side ---------------------------------------------------------------
+    def read(self, now_us: int) -> Mapping[str, bool]:
+        started = time.perf_counter()
+        client = self._ensure_connected()
+        unit = self.settings.unit
+        values: dict[str, bool] = {}
+        self._scan_ok = False
+        try:
+            for rng in self.map.reads:
+                what = f"read {rng}"
+                if rng.table == "di":
+                    r = self._request(what, lambda g=rng: client.read_discrete_inputs(
+                        g.start, count=g.count, device_id=unit))
+                    self.map.decode(rng, r.bits, values)
+                elif rng.table == "coil":
+                    r = self._request(what, lambda g=rng: client.read_coils(
+                        g.start, count=g.count, device_id=unit))
+                    self.map.decode(rng, r.bits, values)
+                elif rng.table == "hr":
+                    r = self._request(what, lambda g=rng: client.read_holding_registers(
+                        g.start, count=g.count, device_id=unit))
+                    self.map.decode(rng, r.registers, values)
+                else:
+                    r = self._request(what, lambda g=rng: client.read_input_registers(
+                        g.start, count=g.count, device_id=unit))
+                    self.map.decode(rng, r.registers, values)
+                self.stats["reads"] += 1
+            self._scan_ok = True
+        finally:
+            self._scan_io = time.perf_counter() - started
+            if self.read_only:  # no write follows: the scan's I/O ends here
+                self._end_scan(self._scan_io)
+        self.message = f"connected to {self.settings.where}"
+        return values
+
+    def write(self, now_us: int, outputs: Mapping[str, bool]) -> None:
+        if self.read_only:
+            return  # read-only mode: never a single write request
+        started = time.perf_counter()
+        try:
+            self._write(now_us, outputs)
+        finally:
+            self._end_scan(self._scan_io + time.perf_counter() - started)
+            self._scan_io = 0.0
+
+    def _write(self, now_us: int, outputs: Mapping[str, bool]) -> None:
+        if not self.connected or self._client is None:
+            raise PlantError(self._down_reason)  # never connect in order to write
+        client = self._client
+        unit = self.settings.unit
+        refresh = self.settings.write_refresh_us
+        full = self._last_full_us is None or not self._written or \
+            now_us - self._last_full_us >= refresh
+        for run in self.map.coil_runs:
+            values = tuple(bool(outputs[n]) for n in run.names)
+            if full or self._written.get(run) != values:
+                self._request(f"write {run}", lambda r=run, v=values: client.write_coils(
+                    r.start, list(v), device_id=unit))
+                self._written[run] = values
+                self.stats["writes"] += 1
+        for reg in self.map.register_bits:
+            values = tuple(bool(outputs[n]) for n, _ in reg.bits)
+            if full or self._written.get(reg) != values:
+                and_mask, or_mask = reg.masks(outputs)
+                self._request(f"write {reg}", lambda r=reg, a=and_mask, o=or_mask:
+                              client.mask_write_register(address=r.index, and_mask=a,
+                                                         or_mask=o, device_id=unit))
+                self._written[reg] = values
+                self.stats["writes"] += 1
+        if full:
+            self._last_full_us = now_us
+
+    def _end_scan(self, io_s: float) -> None:
+        if self._scan_ok and self.connected:  # a round trip figure: scans that did all I/O
+            self.io_us.append(io_s * 1e6)
+        if io_s * 1e6 > self.period_us:
+            self.stats["slow_scans"] += 1
+
+    @property
+    def status(self) -> PlantStatus:
+        s = self.settings
+        description = f"modbus {s.where}" + (" (read-only)" if self.read_only else "")
+        details: dict[str, Any] = dict(self.stats)
+        details["host"], details["port"], details["unit"] = s.host, s.port, s.unit
+        details["read_only"] = self.read_only
+        if self.io_us:
+            details["last_io_ms"] = round(self.io_us[-1] / 1000, 3)
+            details["max_io_ms"] = round(max(self.io_us) / 1000, 3)
+        if self.last_exception:
+            details["last_exception"] = self.last_exception
+        if not self.connected:
+            details["retry_in_s"] = round(self.retry_in_s, 2)
+        return PlantStatus("modbus", description, self.connected, self.message, details)
+
+    def io_percentiles(self) -> tuple[float, float] | None:
+        """(p50, p99) of a scan's Modbus I/O in microseconds, over the recent scans."""
+        if not self.io_us:
+            return None
+        ordered = sorted(self.io_us)
+        return (ordered[len(ordered) // 2],
+                ordered[min(len(ordered) - 1, int(len(ordered) * 0.99))])
+
+    def state(self) -> tuple:
+        """No physical state: a real plant is only known through its I/O."""
+        return ()
+
+    def stop(self, now_us: int, safe: Mapping[str, bool]) -> bool:
+        """Leave the device as a stopping PLC does: write the safe vector in full, then close.
+
+        Returns whether the safe vector was written (not in read-only mode, nor when the
+        device cannot be reached: then it is up to the device's own communication watchdog).
+        """
+        written = False
+        if self.connected and not self.read_only:
+            self._written.clear()
+            try:
+                self._write(now_us, safe)
+                written = True
+            except PlantError:
+                pass
+        self.close()
+        self.message = "stopped: safe outputs written, connection closed" if written else \
+            "stopped: connection closed"
+        return written
+
+    def close(self) -> None:
+        if self._client is not None:
+            self._client.close()
+        self._client = None
+        self.connected = False
+
+
+def wait_connected(plant: ModbusPlant, timeout_s: float | None,
+                   report: Callable[[str], None]) -> bool:
+    """Try to connect until it works or `timeout_s` has passed (None: keep trying).
+
+    For the runners, before the first scan: the engine does not start until the plant is
+    connected, so nothing is written to a device before it answers.
+    """
+    deadline = None if timeout_s is None else time.monotonic() + timeout_s
+    while True:
+        if plant.connect():
+            report(plant.message)
+            return True
+        wait = plant.retry_in_s
+        if deadline is not None:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return False
+            wait = min(wait, left)
+        report(f"attempt {plant.attempts}: {plant.message}")
+        time.sleep(wait)

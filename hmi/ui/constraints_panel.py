@@ -1,0 +1,106 @@
+"""The safety constraints: violated now, and recently (how often, last time), each with its
+one-line explanation.
+
+Every row says what the filter did about a violation, in a word beside the colour:
+
+- ``✗ UNSAFE``  violated and written anyway (monitor policy, or no safe vector existed);
+- ``✗ blocked`` violated, outputs held in the safe state (block policy, or a fallback);
+- ``▲ corrected`` violated by the program's (or the operator's) orders, the filter changed them;
+- ``· ×3 …``     not violated now; violated 3 times since the start, last at that time;
+- ``✓``          never violated (listed only when there is room).
+
+When space is short (80×24) only the violated and recently violated rows are listed, and a
+clean history collapses into one line.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from rich.text import Text
+
+from hmi.timefmt import seconds
+from hmi.ui.frame import Frame
+from hmi.ui.panel import TextPanel
+from hmi.ui.style import MUTED, OK_SYMBOL, Level, tag
+
+
+@dataclass(frozen=True)
+class ConstraintInfo:
+    name: str
+    kind: str  # simple / combined
+    expr: str
+    description: str
+
+
+def _state(frame: Frame, name: str) -> tuple[Text, int]:
+    """The state word of a constraint now, and a sort rank (0 most urgent)."""
+    snap = frame.snapshot
+    report = snap.filter
+    stats = frame.constraints.get(name)
+    violated = report is not None and name in report.violated_names
+    if violated:
+        if name in report.residual and not report.safe_state:
+            return tag("UNSAFE", Level.ALARM), 0
+        if report.safe_state:
+            return tag("blocked", Level.ALARM), 0
+        return tag("corrected", Level.ATTENTION), 1
+    if stats is not None and stats.episodes:
+        return Text(f"· ×{stats.episodes}", style=MUTED), 2
+    return Text(OK_SYMBOL, style=MUTED), 3
+
+
+def explanation_line(frame: Frame, info: ConstraintInfo) -> str:
+    """The level-1 explanation when the engine gives one, else the constraint's description."""
+    for explanation in frame.snapshot.explanations:
+        if getattr(explanation, "key", None) == f"constraint:{info.name}":
+            return str(getattr(explanation, "what", "")) or info.description
+    return info.description or info.expr
+
+
+class ConstraintsPanel(TextPanel):
+    def __init__(self, constraints: list[ConstraintInfo], *, id: str | None = None):
+        super().__init__(id=id)
+        self.constraints = constraints
+        self.frame: Frame | None = None
+        self.show_all = False  # every constraint, even never violated (when there is room)
+
+    def on_mount(self) -> None:
+        self.border_title = f"Constraints · {len(self.constraints)}"
+
+    def show(self, frame: Frame) -> None:
+        self.frame = frame
+        self.show_all = self.app.size.height >= 40
+        self.show_text(self.render_frame(frame))
+
+    def render_frame(self, frame: Frame) -> Text:
+        text = Text(no_wrap=True, overflow="ellipsis")
+        if frame.snapshot.filter is None and not frame.constraints:
+            text.append("no filter report yet", style=MUTED)
+            return text
+        rows = []
+        for index, info in enumerate(self.constraints):
+            word, rank = _state(frame, info.name)
+            if rank == 3 and not self.show_all:
+                continue
+            rows.append((rank, index, info, word))
+        if not rows:
+            text.append(f"{OK_SYMBOL} none violated since the start "
+                        f"(policy {frame.snapshot.policy})", style=MUTED)
+            return text
+        name_w = max(len(info.name) for _, _, info, _ in rows)
+        for i, (rank, _, info, word) in enumerate(sorted(rows, key=lambda r: r[:2])):
+            if i:
+                text.append("\n")
+            stats = frame.constraints.get(info.name)
+            text.append(info.name.ljust(name_w) + " ", style="bold" if rank < 2 else MUTED)
+            cell = word.copy()
+            cell.pad_right(12 - cell.cell_len)
+            text.append_text(cell)
+            if stats is not None and stats.last_us is not None:
+                since = stats.since_us if rank < 2 else stats.last_us
+                word_t = "since" if rank < 2 else "last"
+                text.append(f"{word_t} {seconds(since)} s ", style=MUTED)
+            style = "" if rank < 2 else MUTED
+            text.append(explanation_line(frame, info), style=style)
+        return text

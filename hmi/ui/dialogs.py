@@ -1,0 +1,139 @@
+"""Modal dialogs for the actions that deserve a second thought or a parameter.
+
+Confirmation is asked for what changes how the cell is protected or driven (manual mode,
+filter policy, fault reset); a dialog says what will happen in plain words before the
+operator agrees. Each dialog returns its answer through ``dismiss`` and never sends a
+command itself: the app does, so every action still goes through ``Controller.command``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from rich.text import Text
+from textual import on
+from textual.app import ComposeResult
+from textual.binding import Binding
+from textual.containers import Horizontal, Vertical
+from textual.screen import ModalScreen
+from textual.widgets import Button, Input, Label, OptionList, Static
+from textual.widgets.option_list import Option
+
+from hmi.ui.style import Level, banner
+
+
+def _title(text: str, level: Level) -> Static:
+    title = banner(text, level) if level is not Level.NORMAL else Text(f" {text} ",
+                                                                      style="bold")
+    return Static(title, classes="dialog-title", markup=False)
+
+
+class ConfirmDialog(ModalScreen[bool]):
+    """Yes / no, with the consequences listed. y or enter confirms; n or escape cancels."""
+
+    BINDINGS = [
+        Binding("y", "answer(True)", "Confirm"),
+        Binding("enter", "answer(True)", "Confirm", show=False),
+        Binding("n", "answer(False)", "Cancel"),
+        Binding("escape", "answer(False)", "Cancel", show=False),
+    ]
+
+    def __init__(self, title: str, lines: Sequence[Text | str], confirm: str = "Confirm",
+                 level: Level = Level.ATTENTION, dialog_id: str = "confirm"):
+        super().__init__(id=dialog_id)
+        self.title_text = title
+        self.lines = list(lines)
+        self.confirm_label = confirm
+        self.level = level
+
+    def compose(self) -> ComposeResult:
+        with Vertical(classes="dialog"):
+            yield _title(self.title_text, self.level)
+            for line in self.lines:
+                yield Static(line, classes="dialog-line", markup=False)
+            yield Label("y / enter: confirm    n / esc: cancel", classes="dialog-hint")
+            with Horizontal(classes="dialog-buttons"):
+                yield Button(f"{self.confirm_label} (y)", id="yes", variant="default")
+                yield Button("Cancel (n)", id="no", variant="default")
+
+    def action_answer(self, yes: bool) -> None:
+        self.dismiss(yes)
+
+    @on(Button.Pressed)
+    def _pressed(self, event: Button.Pressed) -> None:
+        self.dismiss(event.button.id == "yes")
+
+
+class StepDialog(ModalScreen[int | None]):
+    """How many scans to step (1 to MAX_STEPS)."""
+
+    MAX_STEPS = 10_000
+    BINDINGS = [Binding("escape", "cancel", "Cancel")]
+
+    def __init__(self, default: int = 10):
+        super().__init__(id="step-dialog")
+        self.default = default
+
+    def compose(self) -> ComposeResult:
+        with Vertical(classes="dialog"):
+            yield _title("Step N scans", Level.NORMAL)
+            yield Static(f"Number of scans to run, then pause (1 to {self.MAX_STEPS}):",
+                         classes="dialog-line")
+            yield Input(str(self.default), type="integer", id="count",
+                        select_on_focus=True, compact=True)
+            yield Label("", id="error", classes="dialog-error")
+            yield Label("enter: step    esc: cancel", classes="dialog-hint")
+
+    @on(Input.Submitted)
+    def _submitted(self, event: Input.Submitted) -> None:
+        try:
+            count = int(event.value)
+        except ValueError:
+            count = 0
+        if not 1 <= count <= self.MAX_STEPS:
+            self.query_one("#error", Label).update(
+                f"✗ enter a whole number from 1 to {self.MAX_STEPS}")
+            return
+        self.dismiss(count)
+
+    def action_cancel(self) -> None:
+        self.dismiss(None)
+
+
+class ChoiceDialog(ModalScreen[str | None]):
+    """Pick one of a few options (filter policy, speed...); enter picks, escape cancels."""
+
+    BINDINGS = [Binding("escape", "cancel", "Cancel")]
+
+    def __init__(self, title: str, options: Sequence[tuple[str, Text | str]],
+                 current: str | None = None, level: Level = Level.NORMAL,
+                 dialog_id: str = "choice", note: str = ""):
+        super().__init__(id=dialog_id)
+        self.title_text = title
+        self.options = list(options)
+        self.current = current
+        self.level = level
+        self.note = note
+
+    def compose(self) -> ComposeResult:
+        with Vertical(classes="dialog dialog-wide"):
+            yield _title(self.title_text, self.level)
+            if self.note:
+                yield Static(self.note, classes="dialog-line", markup=False)
+            yield OptionList(*(Option(prompt, id=key) for key, prompt in self.options),
+                             id="choices")
+            yield Label("↑↓ choose    enter: select    esc: cancel", classes="dialog-hint")
+
+    def on_mount(self) -> None:
+        options = self.query_one("#choices", OptionList)
+        keys = [key for key, _ in self.options]
+        if self.current in keys:
+            options.highlighted = keys.index(self.current)
+        options.focus()
+
+    @on(OptionList.OptionSelected)
+    def _selected(self, event: OptionList.OptionSelected) -> None:
+        self.dismiss(event.option.id)
+
+    def action_cancel(self) -> None:
+        self.dismiss(None)

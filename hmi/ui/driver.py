@@ -1,0 +1,78 @@
+"""Who runs the scans while the app is open.
+
+- :class:`LiveDriver`: the real thing. A :class:`~hmi.engine.live.LiveRunner` thread paces the
+  scans by the wall clock; the UI only reads ``engine.last`` and never waits for a scan.
+- :class:`VirtualDriver`: for tests and screenshots. Nothing runs by itself; the test calls
+  :meth:`VirtualDriver.advance` to run scans in virtual time, exactly as the live runner
+  would have (none while paused), so what the screen shows is repeatable to the character.
+"""
+
+from __future__ import annotations
+
+import sys
+
+from hmi.engine.live import LiveRunner
+from hmi.engine.runner import Controller
+
+# The scan thread and the UI share one interpreter lock. When the scan thread wakes up for
+# its next scan while the UI is rendering, it waits until the UI thread is asked to let go,
+# by default after 5 ms: that would be most of a 10 ms period. Half a millisecond bounds
+# that wait; measured by `plchmi bench ui`.
+SWITCH_INTERVAL_S = 0.0005
+
+
+class LiveDriver:
+    live = True
+
+    def __init__(self, controller: Controller):
+        self.controller = controller
+        self.runner = LiveRunner(controller)
+
+    def start(self) -> None:
+        """Start scanning. Called once the app is mounted, so that its widgets exist."""
+        sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
+        # LiveRunner.start freezes what exists (the app's widgets included) out of the
+        # garbage collector's sight: a full collection over them took ~40 ms here.
+        self.runner.start()
+
+    def stop(self) -> None:
+        self.runner.stop()
+
+    @property
+    def overruns(self) -> int:
+        return self.runner.overruns
+
+
+class VirtualDriver:
+    live = False
+    overruns = 0
+
+    def __init__(self, controller: Controller):
+        self.controller = controller
+
+    def start(self) -> None:
+        pass
+
+    def stop(self) -> None:
+        pass
+
+    def advance(self, duration_us: int) -> int:
+        """Run the scans that `duration_us` of virtual time holds, if running; return how many."""
+        controller = self.controller
+        if not controller.state.running:
+            return 0
+        end = controller.engine.now + duration_us
+        count = 0
+        while controller.state.running and controller.next_time <= end:
+            controller.scan_once()
+            count += 1
+        return count
+
+    def advance_until(self, predicate, limit_us: int) -> bool:
+        """Run scans until `predicate(snapshot)` holds, at most `limit_us` of virtual time."""
+        controller = self.controller
+        end = controller.engine.now + limit_us
+        while controller.state.running and controller.next_time <= end:
+            if predicate(controller.scan_once()):
+                return True
+        return False

@@ -1,0 +1,92 @@
+"""SIMULATION: pick a fault of the simulated plant and when it happens (now, or in N s).
+
+Fault injection exists for training and commissioning: watching the filter and the diagnosers
+react to a stuck sensor or a jammed valve. The dialog is marked SIMULATION in reverse video
+and returns an :class:`~hmi.plant.sim.Injection` in the engine's virtual time; the app sends
+it as an ``InjectFault`` command.
+"""
+
+from __future__ import annotations
+
+from textual import on
+from textual.app import ComposeResult
+from textual.binding import Binding
+from textual.containers import Vertical
+from textual.screen import ModalScreen
+from textual.widgets import Input, Label, OptionList, Static
+from textual.widgets.option_list import Option
+
+from hmi.plant.sim import Injection
+from hmi.timefmt import parse_duration
+from hmi.ui.style import Level, banner
+
+
+def parse_delay(text: str) -> int:
+    """'' or 'now' or '0' -> 0; '5' -> 5 s; '500ms', '2.5s' -> as written (microseconds)."""
+    text = text.strip().lower()
+    if text in ("", "now", "0"):
+        return 0
+    try:
+        return round(float(text) * 1_000_000)
+    except ValueError:
+        return parse_duration(text)
+
+
+class FaultDialog(ModalScreen[Injection | None]):
+    BINDINGS = [Binding("escape", "cancel", "Cancel")]
+
+    def __init__(self, faults: list[tuple[str, str, str]], now_us: int, single_device: bool):
+        super().__init__(id="fault-dialog")
+        self.faults = faults
+        self.now_us = now_us
+        self.single_device = single_device
+
+    def compose(self) -> ComposeResult:
+        with Vertical(classes="dialog dialog-wide"):
+            yield Static(banner("SIMULATION — inject a fault into the simulated plant",
+                                Level.SIMULATION), classes="dialog-title", markup=False)
+            yield OptionList(*(Option(f"{device}.{code}  {description}",
+                                      id=f"{device}.{code}")
+                               for device, code, description in self.faults), id="faults")
+            yield Static("When: in how many seconds (0 or empty = at the next scan)",
+                         classes="dialog-line")
+            yield Input("0", id="delay", placeholder="0, 5, 2.5s, 500ms", compact=True)
+            yield Label("", id="error", classes="dialog-error")
+            yield Label("↑↓ fault    tab: when    enter: inject    esc: cancel",
+                        classes="dialog-hint")
+
+    def on_mount(self) -> None:
+        faults = self.query_one("#faults", OptionList)
+        if self.faults:
+            faults.highlighted = 0
+        faults.focus()
+
+    def _inject(self) -> None:
+        faults = self.query_one("#faults", OptionList)
+        if faults.highlighted is None:
+            self.query_one("#error", Label).update("✗ choose a fault")
+            return
+        option = faults.get_option_at_index(faults.highlighted)
+        device, _, code = (option.id or "").partition(".")
+        try:
+            delay = parse_delay(self.query_one("#delay", Input).value)
+        except ValueError:
+            self.query_one("#error", Label).update(
+                "✗ the delay is a number of seconds or a duration such as 500ms")
+            return
+        if delay < 0:
+            self.query_one("#error", Label).update("✗ the delay cannot be negative")
+            return
+        self.dismiss(Injection(code, self.now_us + delay,
+                               None if self.single_device else device))
+
+    @on(OptionList.OptionSelected)
+    def _fault_chosen(self, event: OptionList.OptionSelected) -> None:
+        self.query_one("#delay", Input).focus()
+
+    @on(Input.Submitted)
+    def _submitted(self) -> None:
+        self._inject()
+
+    def action_cancel(self) -> None:
+        self.dismiss(None)

@@ -1,0 +1,56 @@
+"""One frame of the display: a snapshot plus the few things around it that the UI shows.
+
+The app builds a frame at most ~20 times a second and hands it down to every panel; a panel
+only reads its frame, never the engine, so the whole screen shows one consistent scan.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+from hmi.engine.snapshot import Snapshot
+from hmi.plant.sim import Injection
+from hmi.ui.recorder import ConstraintStats
+
+
+@dataclass(frozen=True)
+class InjectedFault:
+    """A fault the operator scheduled in the simulated plant, as the UI remembers it."""
+
+    injection: Injection
+    description: str
+
+
+@dataclass(frozen=True, eq=False)
+class Frame:
+    snapshot: Snapshot
+    run: str  # "running", "paused" or "stepping"
+    speed: float | None  # 1.0 real time, 10.0, None as fast as possible
+    live: bool  # scans paced by the wall clock (False: a test or a screenshot drives them)
+    project: str
+    show_measured: bool = True  # False hides wall-clock figures (snapshot tests)
+    overruns: int = 0  # scans that fell more than a period behind (live only)
+    changed: Mapping[str, str] = field(default_factory=dict)  # output -> why it differs
+    injected: tuple[InjectedFault, ...] = ()
+    free_inputs: tuple[str, ...] = ()  # inputs no simulated device drives: push buttons
+    damage_count: int = 0  # damaging plant events seen since the app started
+    # The mode the operator last commanded, accepted by the engine but not yet in a snapshot
+    # (paused: no scan has run since). Manual request keys follow it, so that an operator
+    # who paused, then entered manual mode, can prepare requests before stepping.
+    mode_commanded: str | None = None
+    constraints: Mapping[str, ConstraintStats] = field(default_factory=dict)  # history
+
+    @property
+    def simulated(self) -> bool:
+        return self.snapshot.plant.kind == "sim"
+
+    @property
+    def manual(self) -> bool:
+        """Manual mode in effect (the last scan ran in manual mode)."""
+        return self.snapshot.mode == "manual"
+
+    @property
+    def manual_keys(self) -> bool:
+        """Whether manual requests make sense now: in effect, or commanded and accepted."""
+        return (self.mode_commanded or self.snapshot.mode) == "manual"

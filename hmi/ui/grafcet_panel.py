@@ -1,0 +1,94 @@
+"""The control program's state: GRAFCET steps (active ones marked, with their activity time)
+and the timers with their elapsed time against the preset.
+
+No colour here: an active step is normal. It is marked by a filled dot and bold text; the
+time a step has been active is what tells an engineer the sequence is stuck (a valve that
+never reaches its end switch keeps its "Opening" step active for ever).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from rich.text import Text
+
+from hmi.timefmt import format_duration
+from hmi.ui.frame import Frame
+from hmi.ui.panel import TextPanel
+from hmi.ui.style import MUTED
+
+BAR = 10
+
+
+@dataclass(frozen=True)
+class StepInfo:
+    name: str
+    description: str
+
+
+@dataclass(frozen=True)
+class TimerInfo:
+    name: str
+    kind: str
+    description: str
+
+
+def _secs(us: int) -> str:
+    return f"{us / 1_000_000:6.2f} s"
+
+
+def timer_bar(elapsed_us: int, preset_us: int, width: int = BAR) -> str:
+    filled = 0 if preset_us <= 0 else min(width, elapsed_us * width // preset_us)
+    return "▕" + "█" * filled + "·" * (width - filled) + "▏"
+
+
+class GrafcetPanel(TextPanel):
+    def __init__(self, control: str, steps: list[StepInfo], timers: list[TimerInfo], *,
+                 id: str | None = None):
+        super().__init__(id=id)
+        self.control = control
+        self.steps = steps
+        self.timers = timers
+        self.frame: Frame | None = None
+
+    def on_mount(self) -> None:
+        self.border_title = f"Control · {self.control}"
+
+    def show(self, frame: Frame) -> None:
+        self.frame = frame
+        self.show_text(self.render_frame(frame))
+
+    def on_resize(self) -> None:
+        if self.frame is not None:
+            self.show_text(self.render_frame(self.frame))
+
+    def render_frame(self, frame: Frame) -> Text:
+        snap = frame.snapshot
+        active = set(snap.active_steps)
+        width = max(20, self.content_size.width or 40)
+        name_w = max((len(s.name) for s in self.steps), default=2)
+        text = Text(no_wrap=True, overflow="ellipsis")
+        if not self.steps:
+            text.append("no GRAFCET (equations only)\n", style=MUTED)
+        for step in self.steps:
+            on = step.name in active
+            desc_w = max(0, width - name_w - 3 - 10)
+            desc = step.description[:desc_w].ljust(desc_w)
+            if on:
+                elapsed = snap.value(step.name + ".t") if (step.name + ".t") in \
+                    snap.layout.slots else 0
+                text.append(f"● {step.name.ljust(name_w)} ", style="bold")
+                text.append(desc, style="bold")
+                text.append(f" {_secs(int(elapsed))}\n", style="bold")
+            else:
+                text.append(f"○ {step.name.ljust(name_w)} {desc}\n", style=MUTED)
+        timer_w = max((len(t.name) for t in self.timers), default=0)
+        for state in snap.timers:
+            info = next((t for t in self.timers if t.name == state.name), None)
+            kind = info.kind if info else "TON"
+            text.append(f"{state.name.ljust(timer_w)} {kind} ", style=MUTED)
+            text.append(timer_bar(state.elapsed_us, state.preset_us))
+            text.append(f" {state.elapsed_us / 1e6:4.2f}/{format_duration(state.preset_us)}")
+            text.append(f"  Q {int(state.q)}\n", style="bold" if state.q else "")
+        text.rstrip()
+        return text

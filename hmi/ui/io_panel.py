@@ -1,0 +1,151 @@
+"""The I/O table: inputs as read; outputs with their functional value (FOV) beside the value
+written, so a difference — the filter, the safe-state latch, a masked actuator — shows at a
+glance, with the reason in words.
+
+The table is also where the operator picks an output for a manual request (keys 1 / 0 / x
+on the highlighted row) or presses a simulated push button (b). It does not send anything
+itself: it posts :class:`~hmi.ui.messages.CommandRequested` up to the app.
+"""
+
+from __future__ import annotations
+
+from rich.text import Text
+from textual.binding import Binding
+from textual.widgets import DataTable
+
+from hmi.engine.commands import ManualOutput, SetInput
+from hmi.engine.layout import Layout
+from hmi.ui.frame import Frame
+from hmi.ui.messages import CommandRequested
+from hmi.ui.style import MUTED, STYLE, Level, bit, tag
+
+COLUMNS = (("signal", "Signal"), ("dir", "I/O"), ("fov", "FOV"), ("value", "Value"),
+           ("state", "State"), ("description", "Description"))
+MANUAL_ACTIONS = ("manual_on", "manual_off", "manual_release")
+
+
+class IOPanel(DataTable):
+    BINDINGS = [
+        Binding("1", "manual_on", "On", tooltip="Manual: request the highlighted output on"),
+        Binding("0", "manual_off", "Off", tooltip="Manual: request the highlighted output off"),
+        Binding("x", "manual_release", "Release",
+                tooltip="Manual: release the request (the output returns to 0)"),
+        Binding("b", "button", "Button",
+                tooltip="SIMULATION: press / release the highlighted push button"),
+    ]
+
+    def __init__(self, layout: Layout, descriptions: dict[str, str],
+                 free_inputs: tuple[str, ...], *, id: str | None = None):
+        super().__init__(id=id, cursor_type="row", zebra_stripes=False)
+        self.layout_ = layout
+        self.descriptions = descriptions
+        self.free_inputs = free_inputs
+        self.frame: Frame | None = None
+        self._cells: dict[tuple[str, str], object] = {}
+        self._widths: dict[str, int] = {}
+        self._manual = False
+
+    def on_mount(self) -> None:
+        self.border_title = "I/O"
+        for key, label in COLUMNS:
+            self.add_column(label, key=key)
+            self._widths[key] = len(label)
+        for name in self.layout_.inputs:
+            self.add_row(name, "in", "", "", "", self.descriptions.get(name, ""), key=name)
+        for name in self.layout_.outputs:
+            self.add_row(name, "out", "", "", "", self.descriptions.get(name, ""), key=name)
+        if self.layout_.outputs:
+            self.move_cursor(row=len(self.layout_.inputs))
+
+    # -- display -----------------------------------------------------------------------------
+    def show(self, frame: Frame) -> None:
+        self.frame = frame
+        snap = frame.snapshot
+        if frame.manual_keys != self._manual:
+            self._manual = frame.manual_keys
+            self.refresh_bindings()
+        reconstructed, masked = set(snap.reconstructed), set(snap.masked)
+        for name in snap.layout.inputs:
+            value = snap.value(name)
+            state: list[Text] = []
+            if not snap.plant.connected:
+                state.append(tag("stale", Level.ALARM))  # the last value read, not the plant's
+            if name in reconstructed:
+                state.append(tag("reconstructed", Level.ATTENTION))
+            if name in self.free_inputs:
+                state.append(tag("button " + ("pressed" if value else "up"),
+                                 Level.SIMULATION))
+            self._set(name, "value", bit(value))
+            self._set(name, "state", _join(state))
+        requests = dict(snap.manual)
+        for name, fov, written in zip(snap.layout.outputs, snap.fov, snap.outputs, strict=True):
+            state = []
+            differs = name in frame.changed
+            if differs:
+                level = Level.ALARM if snap.latched else Level.ATTENTION
+                state.append(tag("≠ " + frame.changed[name], level))
+            if name in masked:
+                state.append(tag("masked", Level.ALARM))
+            if frame.manual:
+                if name in requests:
+                    state.append(tag(f"forced {bit(requests[name])}", Level.ATTENTION))
+                else:
+                    state.append(Text("no request", style=MUTED))
+            fov_style = STYLE[Level.ATTENTION] if differs else MUTED
+            self._set(name, "fov", Text(bit(fov), style=fov_style))
+            self._set(name, "value", Text(bit(written), style="bold" if written else ""))
+            self._set(name, "state", _join(state))
+
+    def _set(self, row: str, column: str, value: object) -> None:
+        key = (row, column)
+        if self._cells.get(key) != value:
+            self._cells[key] = value
+            # Widening a column re-lays the screen out: only ask when the text is wider.
+            width = value.cell_len if isinstance(value, Text) else len(str(value))
+            wider = width > self._widths.get(column, 0)
+            if wider:
+                self._widths[column] = width
+            self.update_cell(row, column, value, update_width=wider)
+
+    @property
+    def selected(self) -> str | None:
+        if self.row_count == 0:
+            return None
+        row_key, _ = self.coordinate_to_cell_key(self.cursor_coordinate)
+        return row_key.value
+
+    # -- actions -----------------------------------------------------------------------------
+    def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
+        if self.app.screen is not self.screen and action in (*MANUAL_ACTIONS, "button"):
+            return False  # a dialog is open over the table
+        if action in MANUAL_ACTIONS:
+            return self._manual
+        if action == "button":
+            return bool(self.free_inputs)
+        return True
+
+    def _request(self, value: bool | None) -> None:
+        name = self.selected
+        if name is not None:
+            self.post_message(CommandRequested(ManualOutput(name, value)))
+
+    def action_manual_on(self) -> None:
+        self._request(True)
+
+    def action_manual_off(self) -> None:
+        self._request(False)
+
+    def action_manual_release(self) -> None:
+        self._request(None)
+
+    def action_button(self) -> None:
+        name = self.selected
+        if name is None or self.frame is None:
+            return
+        snap = self.frame.snapshot
+        current = bool(snap.value(name)) if name in snap.layout.slots else False
+        self.post_message(CommandRequested(SetInput(name, not current)))
+
+
+def _join(parts: list[Text]) -> Text:
+    return Text(" ").join(parts) if parts else Text("")

@@ -1,0 +1,20 @@
+"""Messages the panels send up to the app ("attributes down, messages up").
+
+A panel never calls the controller: it asks the app to send a command, so that every operator
+action goes through one place (``PlcHmiApp.send`` → ``Controller.command``), where the
+journal will listen.
+"""
+
+from __future__ import annotations
+
+from textual.message import Message
+
+from hmi.engine.commands import Command
+
+
+class CommandRequested(Message):
+    """A panel asks the app to send an operator command to the controller."""
+
+    def __init__(self, command: Command) -> None:
+        super().__init__()
+        self.command = command

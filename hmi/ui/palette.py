@@ -1,0 +1,41 @@
+"""The command palette (ctrl+p): every operator control, plus the per-item variants that have
+no single key (a manual request for a named output, a named policy, a chronogram signal).
+
+The entries come from the app (:meth:`PlcHmiApp.palette_entries`), which builds them from the
+same table as the footer bindings and hides those that do not apply now (manual requests
+outside manual mode, fault injection on a real plant).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from textual.command import DiscoveryHit, Hit, Hits, Provider
+
+
+@dataclass(frozen=True)
+class PaletteEntry:
+    title: str
+    help: str
+    run: Callable[[], object]
+    action: str | None = None  # the binding's action, when the entry mirrors a key
+
+
+class HmiCommands(Provider):
+    """Offers the app's palette entries; fuzzy search on their titles."""
+
+    def _entries(self) -> list[PaletteEntry]:
+        entries = getattr(self.app, "palette_entries", None)
+        return list(entries()) if entries else []
+
+    async def discover(self) -> Hits:
+        for entry in self._entries():
+            yield DiscoveryHit(entry.title, entry.run, help=entry.help)
+
+    async def search(self, query: str) -> Hits:
+        matcher = self.matcher(query)
+        for entry in self._entries():
+            score = matcher.match(entry.title)
+            if score > 0:
+                yield Hit(score, matcher.highlight(entry.title), entry.run, help=entry.help)

@@ -1,0 +1,180 @@
+"""What the UI remembers of every scan, not only of the scans it gets to draw.
+
+The app draws at most ~20 times a second while the engine may scan every 10 ms, so reading
+``engine.last`` alone would miss short pulses: a one-scan edge, a 300 ms sensor glitch between
+two frames. The recorder is called from the scan thread for every snapshot (through
+``Controller.scan_listeners``) and keeps, per Boolean signal, only its changes (time, value).
+That costs a few comparisons per scan, and drawing a window of the chronogram is then
+proportional to the number of changes in it, not to the number of scans.
+
+It also keeps the plant's events (damage, glitches) which a snapshot carries only for the
+scan in which they happened, and, per safety constraint, how often and when the filter found
+it violated (a one-scan violation between two frames still counts).
+"""
+
+from __future__ import annotations
+
+import threading
+from bisect import bisect_right
+from collections import deque
+from dataclasses import dataclass
+
+from hmi.engine.layout import Layout
+from hmi.engine.snapshot import Snapshot
+from hmi.plant.device import PlantEvent
+
+FOV_SUFFIX = ".fov"
+KEEP_US = 120_000_000  # history kept: twice the chronogram's widest window
+
+
+def _time(point: tuple[int, bool]) -> int:
+    return point[0]
+
+
+@dataclass(frozen=True)
+class Signal:
+    """A Boolean signal the chronogram can draw."""
+
+    name: str  # as the project names it; "C.fov" for an output's functional value
+    kind: str  # input, output, fov, timer, observer, memory, step
+    slot: int  # index in Snapshot.values, or in Snapshot.fov for kind "fov"
+
+
+def boolean_signals(layout: Layout) -> tuple[Signal, ...]:
+    """Every Boolean signal of a layout, in the order an engineer reads a cell."""
+    signals: list[Signal] = []
+    for name in layout.outputs:
+        signals.append(Signal(name, "output", layout.slots[name]))
+    for name in layout.inputs:
+        signals.append(Signal(name, "input", layout.slots[name]))
+    for name in layout.timers:
+        signals.append(Signal(name, "timer", layout.slots[name]))
+    for name in layout.observers:
+        signals.append(Signal(name, "observer", layout.slots[name]))
+    for name in layout.memories:
+        signals.append(Signal(name, "memory", layout.slots[name]))
+    for name in layout.steps:
+        signals.append(Signal(name, "step", layout.slots[name]))
+    for index, name in enumerate(layout.outputs):
+        signals.append(Signal(name + FOV_SUFFIX, "fov", index))
+    return tuple(signals)
+
+
+@dataclass(frozen=True)
+class ConstraintStats:
+    """A constraint's history: violation episodes (scans in a row), scans, last time."""
+
+    name: str
+    episodes: int = 0
+    scans: int = 0
+    since_us: int | None = None  # start of the current episode (None: not violated now)
+    last_us: int | None = None  # last scan it was violated
+
+
+@dataclass(frozen=True)
+class Trace:
+    """One signal over a window: its changes, and what was known before the window."""
+
+    first_us: int | None  # time of the first sample recorded (None: nothing yet)
+    initial: bool | None  # value at the window's start (None: before the first sample)
+    changes: tuple[tuple[int, bool], ...]  # (time, new value) inside the window
+
+
+class ScanRecorder:
+    """Edges of every Boolean signal and the plant's events, fed from the scan thread."""
+
+    def __init__(self, layout: Layout, keep_us: int = KEEP_US, keep_events: int = 500):
+        self.signals = boolean_signals(layout)
+        self.by_name = {s.name: i for i, s in enumerate(self.signals)}
+        self._value_slots = [(i, s.slot) for i, s in enumerate(self.signals) if s.kind != "fov"]
+        self._fov_slots = [(i, s.slot) for i, s in enumerate(self.signals) if s.kind == "fov"]
+        self._last: list[bool | None] = [None] * len(self.signals)
+        # Per signal, its changes in time order; trimmed to `keep_us` of history (plus the
+        # change before, which gives the level at the start of the oldest window).
+        self._changes: list[list[tuple[int, bool]]] = [[] for _ in self.signals]
+        self.keep_us = keep_us
+        self._trim_at: int | None = None
+        self.events: deque[PlantEvent] = deque(maxlen=keep_events)
+        self.event_count = 0
+        self.damage_count = 0
+        self.scans = 0
+        self.change_count = 0  # edges recorded so far: a cheap "anything new?" for drawing
+        self._violated_now: set[str] = set()
+        self._constraints: dict[str, ConstraintStats] = {}
+        self.first_us: int | None = None
+        self.last_us: int | None = None
+        self._lock = threading.Lock()
+
+    def on_scan(self, snap: Snapshot) -> None:
+        """Called once per scan, in the scan thread: keep it cheap."""
+        values, fov, last, changes = snap.values, snap.fov, self._last, self._changes
+        t = snap.time_us
+        with self._lock:
+            for i, slot in self._value_slots:
+                v = bool(values[slot])
+                if v is not last[i]:
+                    last[i] = v
+                    changes[i].append((t, v))
+                    self.change_count += 1
+            for i, slot in self._fov_slots:
+                v = bool(fov[slot])
+                if v is not last[i]:
+                    last[i] = v
+                    changes[i].append((t, v))
+                    self.change_count += 1
+            if snap.plant_events:
+                self.events.extend(snap.plant_events)
+                self.event_count += len(snap.plant_events)
+                self.damage_count += sum(1 for e in snap.plant_events if e.damage)
+            report = snap.filter
+            if report is not None and (report.violations or self._violated_now):
+                self._count_violations(report.violated_names, t)
+            if self.first_us is None:
+                self.first_us = t
+                self._trim_at = t + self.keep_us
+            elif t >= self._trim_at:
+                self._trim(t - self.keep_us)
+                self._trim_at = t + self.keep_us // 4
+            self.last_us = t
+            self.scans += 1
+
+    def _trim(self, before_us: int) -> None:
+        """Forget changes older than `before_us`, keeping the last one before it."""
+        for points in self._changes:
+            cut = bisect_right(points, before_us, key=_time) - 1
+            if cut > 0:
+                del points[:cut]
+
+    def _count_violations(self, names: tuple[str, ...], t: int) -> None:
+        stats = self._constraints
+        now = set(names)
+        for name in now:
+            old = stats.get(name) or ConstraintStats(name)
+            new_episode = name not in self._violated_now
+            stats[name] = ConstraintStats(
+                name, old.episodes + new_episode, old.scans + 1,
+                t if new_episode else old.since_us, t)
+        for name in self._violated_now - now:
+            old = stats[name]
+            stats[name] = ConstraintStats(name, old.episodes, old.scans, None, old.last_us)
+        self._violated_now = now
+
+    def constraint_stats(self) -> dict[str, ConstraintStats]:
+        with self._lock:
+            return dict(self._constraints)
+
+    def trace(self, name: str, start_us: int, end_us: int) -> Trace:
+        """The signal `name` between start and end (virtual time, inclusive of the end)."""
+        index = self.by_name[name]
+        with self._lock:
+            points = self._changes[index]
+            if not points:
+                return Trace(None, None, ())
+            before = bisect_right(points, start_us, key=_time)  # changes at or before start
+            initial = points[before - 1][1] if before else None
+            upto = bisect_right(points, end_us, key=_time)
+            return Trace(points[0][0], initial, tuple(points[before:upto]))
+
+    def recent_events(self, count: int = 20) -> list[PlantEvent]:
+        with self._lock:
+            return list(self.events)[-count:]

@@ -1,0 +1,65 @@
+"""The simulated plant, clearly marked SIMULATION: its physical state, the faults the
+operator injected (scheduled or active), and the damage the simulation recorded.
+
+On a real plant this strip is not shown: there is no hidden truth to display there, and an
+operator must never mistake a simulation for the cell.
+"""
+
+from __future__ import annotations
+
+from rich.text import Text
+
+from hmi.timefmt import seconds
+from hmi.ui.frame import Frame
+from hmi.ui.panel import TextPanel
+from hmi.ui.recorder import ScanRecorder
+from hmi.ui.style import MUTED, Level, tag
+
+
+def plant_text(frame: Frame, recorder: ScanRecorder | None, wide: bool) -> Text:
+    snap = frame.snapshot
+    text = Text(no_wrap=True, overflow="ellipsis")
+    text.append_text(tag("SIMULATION", Level.SIMULATION))
+    for key, value in snap.plant_state:
+        if isinstance(value, bool):
+            if value:
+                text.append("  ")
+                text.append_text(tag(key.upper(), Level.ALARM))
+        elif key.endswith("position"):
+            text.append(f"  {key} {value:5.1f}%")
+        else:
+            text.append(f"  {key} {value}", style=MUTED)
+    for key, value in snap.plant_counters:
+        if key.endswith("cycles"):
+            text.append(f"  {key} {value}", style=MUTED)
+    if frame.injected:
+        text.append("  faults:", style=MUTED)
+        for fault in frame.injected:
+            at = fault.injection.at_us
+            text.append(" ")
+            if at <= snap.time_us:
+                text.append_text(tag(f"{fault.injection.code} since {seconds(at)} s",
+                                     Level.ATTENTION))
+            else:
+                text.append(f"{fault.injection.code} in {seconds(at - snap.time_us)} s")
+    if frame.damage_count:
+        text.append("  ")
+        text.append_text(tag(f"damage ×{frame.damage_count}", Level.ALARM))
+        if recorder is not None and wide:
+            last = [e for e in recorder.recent_events() if e.damage]
+            if last:
+                text.append(f" last: {last[-1].detail} at {seconds(last[-1].time_us)} s",
+                            style=MUTED)
+    return text
+
+
+class SimPanel(TextPanel):
+    def __init__(self, recorder: ScanRecorder, *, id: str | None = None):
+        super().__init__(id=id)
+        self.recorder = recorder
+
+    def show(self, frame: Frame) -> None:
+        if self.display != frame.simulated:
+            self.display = frame.simulated
+        if frame.simulated:
+            self.show_text(plant_text(frame, self.recorder, self.app.size.width >= 120))

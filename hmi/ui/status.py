@@ -1,0 +1,166 @@
+"""The status bar and the banners under it: the two things that must survive any screen size.
+
+The status bar is one line. When the terminal is narrow it drops its least important fields
+first (project name, measured scan time, plant details) and never the mode, the run state or
+an alarm. The banner strip appears only while something abnormal is in effect: manual mode
+(MANUAL / FORCES ACTIVE) and outputs latched in the safe state.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from rich.text import Text
+
+from hmi.timefmt import seconds
+from hmi.ui.frame import Frame
+from hmi.ui.panel import TextPanel
+from hmi.ui.style import MUTED, Level, banner, tag
+
+SEPARATOR = " │ "
+
+
+@dataclass(frozen=True)
+class Field:
+    text: Text
+    priority: int  # 0 is kept longest
+
+
+def speed_text(speed: float | None) -> str:
+    return "max" if speed is None else f"×{speed:g}"
+
+
+def status_fields(frame: Frame, wide: bool, compact: bool = False) -> list[Field]:
+    """The status bar's fields; `compact` uses the short forms (80 columns)."""
+    snap = frame.snapshot
+    plant = snap.plant
+    fields: list[Field] = [Field(Text(frame.project, style="bold"), 6)]
+    if plant.kind == "sim":
+        fields.append(Field(tag("SIM", Level.SIMULATION), 2))
+    else:
+        where = plant.description if wide else plant.kind
+        if plant.connected:
+            fields.append(Field(Text(f"{where} ● connected"), 3))
+        else:
+            fields.append(Field(tag(f"{where} DISCONNECTED", Level.ALARM), 0))
+    fields.append(Field(tag("MANUAL", Level.ATTENTION) if snap.mode == "manual"
+                        else Text("AUTO"), 0))
+    filter_word = "" if compact else "filter "
+    if snap.policy == "monitor":
+        fields.append(Field(tag(f"{filter_word}monitor", Level.ATTENTION), 1))
+    else:
+        fields.append(Field(Text(f"{filter_word}{snap.policy}"), 3))
+    report = snap.filter
+    if report is not None and report.violations:
+        count = len(report.violations)
+        unsafe = report.unsafe_written or report.safe_state
+        word = "violated" if compact else ("constraint violated" if count == 1
+                                           else "constraints violated")
+        fields.append(Field(tag(f"{count} {word}", Level.ALARM if unsafe else Level.ATTENTION),
+                            1))
+    if snap.latched:
+        fields.append(Field(tag("SAFE STATE", Level.ALARM), 0))
+    if snap.error:
+        fields.append(Field(tag("INTERNAL ERROR", Level.ALARM), 0))
+    if frame.run == "running":
+        word = "run" if compact else "running"
+        fields.append(Field(Text(f"▶ {word} {speed_text(frame.speed)}"), 0))
+    else:
+        fields.append(Field(tag(frame.run.upper(), Level.ATTENTION), 0))
+    fields.append(Field(Text(f"#{snap.scan}" if compact else f"scan {snap.scan}"), 1))
+    fields.append(Field(Text(f"{seconds(snap.time_us)} s" if compact
+                             else f"t {seconds(snap.time_us)} s"), 1))
+    if frame.show_measured:
+        unit = "µs" if compact else "µs/scan"
+        fields.append(Field(Text(f"{snap.scan_wall_us:.0f} {unit}", style=MUTED), 4))
+        if frame.overruns:
+            fields.append(Field(tag(f"{frame.overruns} late", Level.ATTENTION), 2))
+    return fields
+
+
+def join(fields: list[Field]) -> Text:
+    line = Text(" ", no_wrap=True, overflow="ellipsis")
+    for i, f in enumerate(fields):
+        if i:
+            line.append(SEPARATOR, style=MUTED)
+        line.append_text(f.text)
+    return line
+
+
+def fit(fields: list[Field], width: int) -> Text:
+    """Join fields with separators, dropping the least important until the line fits."""
+    kept = list(fields)
+    while True:
+        line = join(kept)
+        if line.cell_len <= width or len(kept) <= 1:
+            return line
+        worst = max(range(len(kept)), key=lambda i: (kept[i].priority, i))
+        if kept[worst].priority == 0:
+            return line  # only essentials left: let it crop rather than hide them
+        kept.pop(worst)
+
+
+class StatusBar(TextPanel):
+    """Project, plant, mode, filter policy, run state, scan number, virtual time, scan time."""
+
+    def __init__(self, *, id: str | None = None):
+        super().__init__(id=id)
+        self.frame: Frame | None = None
+
+    def show(self, frame: Frame) -> None:
+        self.frame = frame
+        self._draw()
+
+    def on_resize(self) -> None:
+        self._draw()
+
+    def _draw(self) -> None:
+        if self.frame is None:
+            self.show_text(Text("starting…"))
+            return
+        width = self.size.width or 80
+        wide = width >= 120
+        line = join(status_fields(self.frame, wide))
+        if line.cell_len > width:  # short forms first, then drop the least important
+            line = fit(status_fields(self.frame, wide, compact=True), width)
+        self.show_text(line)
+
+
+class BannerStrip(TextPanel):
+    """Banners for states the operator must never forget: manual forces, safe-state latch."""
+
+    def __init__(self, *, id: str | None = None):
+        super().__init__(id=id)
+        self.display = False
+
+    def show(self, frame: Frame) -> None:
+        lines = banner_lines(frame)
+        if self.display != bool(lines):
+            self.display = bool(lines)
+        if lines:
+            self.show_text(Text("\n").join(lines))
+
+
+def banner_lines(frame: Frame) -> list[Text]:
+    snap = frame.snapshot
+    lines: list[Text] = []
+    if snap.mode == "manual":
+        line = banner("MANUAL / FORCES ACTIVE", Level.ATTENTION)
+        requests = dict(snap.manual)
+        forced = " ".join(f"{name}={int(value)}" for name, value in requests.items())
+        line.append(f" requests: {forced or 'none (all outputs 0)'}"
+                    f" · filtered ({snap.policy}) · m: leave")
+        lines.append(line)
+    if not snap.plant.connected:
+        line = banner("PLANT DISCONNECTED", Level.ALARM)
+        line.append(f" {snap.plant.description}: {snap.plant.message or 'no answer'}")
+        lines.append(line)
+    if snap.latched:
+        line = banner("OUTPUTS HELD IN SAFE STATE", Level.ALARM)
+        line.append(" " + "; ".join(r.detail for r in snap.latched)
+                    + " · r: fault reset once the cause is gone")
+        lines.append(line)
+    for line in lines:
+        line.no_wrap = True
+        line.overflow = "ellipsis"
+    return lines

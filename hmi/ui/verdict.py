@@ -1,0 +1,67 @@
+"""Why a written output differs from what was asked: the functional value or a manual request.
+
+The operator must see at once when an order was not written as asked, and why. Three things
+can change an output between the control law (or the operator's request) and the plant: the
+safety filter (its report names the constraints behind each change), the safe-state latch
+(every output to its safe value until a fault reset), and a masked actuator. (A device the
+operator stopped is held safe before the filter: its FOV already shows it.) The
+widgets ask here rather than reading the report themselves, so the wording is the same on
+the I/O table, the chronogram and the message line.
+"""
+
+from __future__ import annotations
+
+from hmi.engine.snapshot import Snapshot
+
+HOW_WORDS = {
+    "F0": "forced 0",
+    "F1": "forced 1",
+    "combined": "combined repair",
+    "safe state": "safe state",
+}
+
+
+def filter_changes(snap: Snapshot) -> dict[str, str]:
+    """Outputs the filter changed this scan -> "filter CSs2, CSs6 (forced 0)"."""
+    report = snap.filter
+    if report is None:
+        return {}
+    out: dict[str, str] = {}
+    for change in report.changes:
+        how = HOW_WORDS.get(change.how, change.how)
+        by = ", ".join(b for b in change.by if b != "safe state")
+        if change.how == "safe state":
+            out[change.output] = f"safe state ({report.note})" if report.note else "safe state"
+        else:
+            out[change.output] = f"filter {by} ({how})" if by else f"filter ({how})"
+    return out
+
+
+def output_changes(snap: Snapshot) -> dict[str, str]:
+    """Output name -> a short reason, for every output whose written value is not its FOV."""
+    reasons = filter_changes(snap)
+    out: dict[str, str] = {}
+    masked = set(snap.masked)
+    for name, fov, written in zip(snap.layout.outputs, snap.fov, snap.outputs, strict=True):
+        if fov == written:
+            continue
+        if snap.latched:
+            out[name] = "held safe: " + snap.latched[0].detail
+        elif name in reasons:
+            out[name] = reasons[name]
+        elif name in masked:
+            out[name] = "masked: actuator flagged faulty"
+        else:
+            out[name] = "changed by the output stage"
+    return out
+
+
+def request_verdict(snap: Snapshot, name: str, requested: bool) -> tuple[bool, str]:
+    """(written as requested?, one line) for a manual request, judged on a later scan."""
+    written = snap.output_map[name]
+    word = "on" if requested else "off"
+    if written == requested:
+        return True, f"{name} {word}: written {int(written)} at scan {snap.scan}"
+    why = output_changes(snap).get(name, "changed by the output stage")
+    return False, (f"{name} requested {word}, written {int(written)} at scan {snap.scan} "
+                   f"— {why}")

@@ -1,0 +1,402 @@
+"""Against a real Modbus TCP server: `plchmi serve-plant` in another process, on 127.0.0.1.
+
+Never a mock of the transport. The servers listen on ports the system picks (`--port 0`);
+every wait has a deadline generous enough for a loaded 2-core machine, and polls a condition
+rather than sleeping a fixed time.
+"""
+
+from __future__ import annotations
+
+import csv
+import shutil
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
+
+import pytest
+from pymodbus.client import ModbusTcpClient
+
+from hmi.engine.commands import FaultReset, Pause, Resume, SetMode, StepScans
+from hmi.engine.live import LiveRunner, WallClock
+from hmi.engine.runner import Controller
+from hmi.engine.scan import Engine
+from hmi.engine.snapshot import Snapshot
+from hmi.plant.modbus_client import ModbusPlant, ModbusSettings, wait_connected
+from hmi.plant.server_process import ServerProcess
+from hmi.project.loader import load_project
+from tests.conftest import PROJECTS, ROOT, make_controller, write_project
+
+VALVE = PROJECTS / "cispi_valve"
+S = 1_000_000
+WAIT = 30.0  # seconds: a deadline, not a sleep
+
+
+@pytest.fixture
+def server():
+    servers: list[ServerProcess] = []
+
+    def start(project=VALVE, *extra: str, port: int = 0) -> ServerProcess:
+        srv = ServerProcess(project, extra, port=port)
+        servers.append(srv)
+        srv.start(WAIT)
+        return srv
+    yield start
+    for srv in servers:
+        srv.stop()
+
+
+class Live:
+    """An engine on a Modbus plant, scanning in real time in its own thread."""
+
+    def __init__(self, project_path, port: int, read_only: bool = False,
+                 timeout_us: int = 1_000_000):
+        self.project = load_project(project_path)
+        self.plant = ModbusPlant(self.project, ModbusSettings(port=port, timeout_us=timeout_us),
+                                 read_only=read_only)
+        assert wait_connected(self.plant, WAIT, lambda line: None), self.plant.message
+        self.engine = Engine(self.project, self.plant)
+        self.controller = Controller(self.engine, clock=WallClock())
+        self.snaps: list[Snapshot] = []
+        self.controller.scan_listeners.append(self.snaps.append)
+        self.runner = LiveRunner(self.controller)
+
+    def __enter__(self) -> Live:
+        self.runner.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.runner.stop(5)
+        engine = self.engine
+        self.plant.stop(engine.now, dict(zip(engine.layout.outputs, engine.safe_vector,
+                                             strict=True)))
+
+    def wait(self, test: Callable[[Snapshot], bool], what: str, timeout: float = WAIT,
+             since: int = 0) -> Snapshot:
+        deadline = time.monotonic() + timeout
+        seen = since
+        while time.monotonic() < deadline:
+            snaps = self.snaps[seen:]
+            for snap in snaps:
+                if test(snap):
+                    return snap
+            seen += len(snaps)
+            assert self.runner.alive, "the scan thread died"
+            time.sleep(0.01)
+        last = self.snaps[-1] if self.snaps else None
+        raise AssertionError(f"timed out waiting for {what}; last scan: "
+                             f"{last and (last.inputs, last.outputs, last.plant, last.latched)}")
+
+
+def read_coils(port: int, count: int = 2) -> list[bool]:
+    client = ModbusTcpClient("127.0.0.1", port=port, timeout=5, retries=1)
+    assert client.connect()
+    try:
+        response = client.read_coils(0, count=count, device_id=1)
+        assert not response.isError(), response
+        return list(response.bits[:count])
+    finally:
+        client.close()
+
+
+def states(rows: list[dict]) -> list[tuple]:
+    """The sequence of distinct (fsc, fso, C, O, steps) a trace went through."""
+    out: list[tuple] = []
+    for r in rows:
+        state = (r["fsc"], r["fso"], r["C"], r["O"], r["steps"])
+        if not out or out[-1] != state:
+            out.append(state)
+    return out
+
+
+def test_a_headless_run_against_serve_plant_behaves_like_the_simulation(server, tmp_path):
+    srv = server()
+    trace = tmp_path / "modbus.csv"
+    proc = subprocess.run(
+        [sys.executable, "-m", "hmi.cli", "run", str(VALVE), "--for", "10s",
+         "--plant", f"modbus://127.0.0.1:{srv.port}", "--trace", str(trace)],
+        capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert "of real time" in proc.stdout and "Damage events: none" in proc.stdout
+    assert "connections lost 0" in proc.stdout and "exception responses 0" in proc.stdout
+    # The run ended while the valve was opening: a stopping PLC leaves its outputs safe.
+    assert "Stopped: stopped: safe outputs written" in proc.stdout
+    assert read_coils(srv.port) == [False, False]
+    srv.stop()
+    summary = srv.lines[-1]
+    assert "cycles 1" in summary and "damage events: none" in summary, summary
+
+    # The same project on the simulated plant, in virtual time: the same states, in order.
+    sim_trace = tmp_path / "sim.csv"
+    assert subprocess.run([sys.executable, "-m", "hmi.cli", "run", str(VALVE), "--for", "10s",
+                           "--trace", str(sim_trace)], cwd=ROOT, capture_output=True,
+                          timeout=120).returncode == 0
+    with trace.open() as f1, sim_trace.open() as f2:
+        real, sim = list(csv.DictReader(f1)), list(csv.DictReader(f2))
+    assert states(real) == states(sim)
+    assert len(states(sim)) >= 8  # a whole cycle: open, hold, close, wait, open again
+
+
+def test_server_killed_and_restarted_mid_run(server, tmp_path):
+    # A copy of the valve whose safe state holds the close order, so that the safe vector
+    # is visible on the restarted server (whose coils start at 0).
+    folder = tmp_path / "valve"
+    shutil.copytree(VALVE, folder)
+    text = (folder / "project.yaml").read_text()
+    (folder / "project.yaml").write_text(text.replace(
+        "    safe: 0\n    address: coil:0", "    safe: 1\n    address: coil:0"))
+    srv = server(folder)
+    port = srv.port
+    with Live(folder, port) as live:
+        live.wait(lambda s: s.output_map == {"C": False, "O": True}, "the valve opening")
+        srv.kill()
+        lost = live.wait(lambda s: not s.plant.connected, "the loss to be seen")
+        assert lost.latched[0].source == "plant" and "lost" in lost.latched[0].detail
+        assert "PlantStatus" not in lost.plant.message
+        # From then on: the safe vector, and steps held (the law does not run blind).
+        frozen = live.wait(lambda s: "cannot connect" in s.plant.message, "retries")
+        assert frozen.is_safe_latched and frozen.outputs == (True, False)
+        assert frozen.latched == lost.latched  # one reason per outage, not one per retry
+        assert frozen.fov == (True, False) and frozen.active_steps == ("X1",)
+        # The alarm the operator sees (issue 6's explanations), with the reason.
+        alarm = next(e for e in frozen.explanations if e.kind == "plant")
+        assert "plant connection lost" in alarm.what and alarm.latched
+        assert "connection was closed" in alarm.why
+        assert any(a.key == alarm.key for a in frozen.alarms)
+
+        mark = len(srv.lines)
+        srv.port = port
+        srv.start(WAIT)
+        back = live.wait(lambda s: s.plant.connected, "the reconnection", since=len(live.snaps))
+        # The first thing the restarted device receives is the safe vector, C on.
+        srv.wait_for("C=1 O=0", WAIT, start=mark)
+        assert read_coils(port) == [True, False]
+        # Still latched: automatic operation waits for the operator.
+        settle = live.wait(lambda s: s.time_us >= back.time_us + 500_000, "half a second")
+        assert all(s.is_safe_latched and s.outputs == (True, False)
+                   for s in live.snaps if back.scan <= s.scan <= settle.scan)
+        result = live.controller.command(FaultReset())
+        assert result.accepted and "plant connection lost" in result.message
+        resumed = live.wait(lambda s: not s.latched and s.output_map["O"], "the law to resume",
+                            since=len(live.snaps))
+        assert resumed.plant.connected
+        srv.wait_for("C=0 O=1", WAIT, start=mark)
+
+
+def test_pausing_a_real_plant_holds_it_safe(server):
+    srv = server()
+    with Live(VALVE, srv.port) as live:
+        live.wait(lambda s: s.output_map["O"], "the valve opening")
+        result = live.controller.command(Pause())
+        assert "outputs written safe while paused" in result.message
+        assert read_coils(srv.port) == [False, False]
+        paused_at = live.engine.scan
+        opened = srv.lines.index(srv.wait_for("C=0 O=1", WAIT))
+        parked = srv.lines.index(srv.wait_for("C=0 O=0", WAIT, start=opened + 1))
+        mark = parked + 1
+        assert not live.controller.command(StepScans(1)).accepted
+        deadline = time.monotonic() + 0.3
+        while time.monotonic() < deadline:  # no scan drives it while paused
+            assert read_coils(srv.port) == [False, False]
+        assert live.engine.scan == paused_at
+        assert live.controller.command(Resume()).accepted
+        live.wait(lambda s: s.output_map["O"], "the valve opening again", since=len(live.snaps))
+        srv.wait_for("C=0 O=1", WAIT, start=mark)
+
+
+REGISTER_VALVE = """
+    name: register_valve
+    scan_period: 10ms
+    inputs:
+      fsc: {description: closed end switch, address: "ir:2.3"}
+      fso: {description: open end switch, address: "di:0"}
+    outputs:
+      C: {description: close order, address: "hr:5.1"}
+      O: {description: open order, address: "coil:3"}
+    control:
+      grafcet:
+        steps:
+          0: {initial: true}
+          1: {actions: [O]}
+          2: {actions: [C]}
+        transitions:
+          - {from: 0, to: 1, when: fsc}
+          - {from: 1, to: 2, when: fso}
+          - {from: 2, to: 1, when: fsc}
+    plant:
+      kind: modbus
+      model: valve
+      params: {travel: 300ms}
+"""
+
+
+def test_register_bits_and_scattered_addresses_end_to_end(server, tmp_path):
+    write_project(tmp_path, {"project.yaml": REGISTER_VALVE})
+    srv = server(tmp_path)
+    other = ModbusTcpClient("127.0.0.1", port=srv.port, timeout=5)
+    assert other.connect()
+    assert not other.write_register(5, 0x8000, device_id=1).isError()  # not ours: bit 15
+    with Live(tmp_path, srv.port) as live:
+        closing = live.wait(lambda s: s.active_steps == ("X2",) and s.output_map["C"],
+                            "closing")
+        # The server decoded C from bit 1 of holding register 5 (a Mask Write Register)...
+        srv.wait_for("C=1 O=0", WAIT)
+        # ...and the valve closed: fsc came back through bit 3 of input register 2.
+        live.wait(lambda s: s.active_steps == ("X1",), "open again",
+                  since=closing.scan)  # snaps[k] is scan k + 1
+        assert live.plant.status.details["exceptions"] == 0
+    # Stopped: the safe vector was written; the register's other bit was left alone.
+    assert other.read_holding_registers(5, count=1, device_id=1).registers[0] == 0x8000
+    assert other.read_coils(3, count=1, device_id=1).bits[0] is False
+    other.close()
+
+
+def test_exception_responses_are_reported_by_name(server, tmp_path):
+    srv = server()
+    folder = tmp_path / "far"
+    shutil.copytree(VALVE, folder)
+    text = (folder / "project.yaml").read_text()
+    (folder / "project.yaml").write_text(text.replace("address: di:1", "address: di:100"))
+    with Live(folder, srv.port) as live:
+        snap = live.wait(lambda s: s.latched, "the exception")
+        assert snap.plant.connected  # an exception response is an answer: the link is fine
+        assert "Illegal Data Address (exception 2)" in snap.plant.message
+        assert "Illegal Data Address" in snap.latched[0].detail
+        assert "to read discrete inputs 100" in snap.latched[0].detail
+        assert snap.outputs == (False, False)
+        assert snap.plant.details["exceptions"] >= 1
+        alarm = next(e for e in snap.explanations if e.kind == "plant")
+        assert "the plant answered Illegal Data Address" in alarm.what
+        live.wait(lambda s: s.scan >= snap.scan + 20, "more scans")  # still scanning
+
+
+def test_a_busy_device_is_reported_and_operation_resumes_after_reset(server):
+    srv = server(VALVE, "--inject", "busy@0s+2s")
+    with Live(VALVE, srv.port) as live:
+        busy = live.wait(lambda s: "Server Device Busy" in s.plant.message, "busy answers")
+        assert busy.latched and "Server Device Busy (exception 6)" in busy.latched[0].detail
+        live.wait(lambda s: s.plant.message.startswith("connected"), "the end of busy")
+        assert live.controller.command(FaultReset()).accepted
+        live.wait(lambda s: not s.latched and s.output_map["O"], "the valve opening",
+                  since=len(live.snaps))
+
+
+def test_a_device_that_stops_answering_times_out_and_is_reconnected(server):
+    srv = server(VALVE, "--inject", "mute@1s+2s")
+    with Live(VALVE, srv.port, timeout_us=200_000) as live:
+        lost = live.wait(lambda s: not s.plant.connected, "the timeout")
+        assert "within 200ms" in lost.plant.message
+        assert lost.plant.details["timeouts"] >= 1
+        assert lost.outputs == (False, False) and lost.latched[0].source == "plant"
+        live.wait(lambda s: s.plant.connected and s.plant.message.startswith("connected")
+                  and s.time_us > 3 * S, "answers again", since=len(live.snaps))
+
+
+def test_read_only_mode_observes_and_writes_nothing(server):
+    srv = server()
+    # The "real PLC" (here a plain client) opens the valve.
+    other = ModbusTcpClient("127.0.0.1", port=srv.port, timeout=5)
+    assert other.connect()
+    assert not other.write_coils(0, [False, True], device_id=1).isError()
+    other.close()
+    with Live(VALVE, srv.port, read_only=True) as live:
+        snap = live.wait(lambda s: s.value("fso"), "the valve open")
+        # Detection only: the PLC holds O on the open valve; CSs2 (O and fso) is reported,
+        # and what the device has is shown as it is, not corrected.
+        assert "CSs2" in snap.filter.violated_names and snap.filter.policy == "monitor"
+        assert snap.outputs == (False, True) and not snap.filter.changes
+        assert live.engine.policy == "monitor"
+        assert not live.controller.command(SetMode(True)).accepted
+        live.wait(lambda s: s.scan >= snap.scan + 30, "more scans")
+        seen = list(live.snaps)
+    assert all(s.outputs == (False, True) and s.fov == (False, True) for s in seen)
+    assert all(s.active_steps == ("X0",) for s in seen)  # the control law never ran
+    assert live.plant.status.details["writes"] == 0 and live.plant.status.details["reads"] > 30
+    assert read_coils(srv.port) == [False, True]
+    srv.stop()
+    assert " 1 writes," in srv.lines[-1], srv.lines[-1]  # the other client's, and only it
+
+
+def test_a_slow_server_makes_overruns_that_are_counted(server):
+    srv = server(VALVE, "--delay", "25ms")
+    with Live(VALVE, srv.port) as live:
+        live.wait(lambda s: live.runner.overruns >= 3 and s.plant.details["slow_scans"] >= 3,
+                  "overruns")
+        snap = live.snaps[-1]
+        assert snap.plant.connected and not snap.latched
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_an_absent_server_is_retried_then_the_run_gives_up():
+    port = _free_port()
+    started = time.monotonic()
+    proc = subprocess.run(
+        [sys.executable, "-m", "hmi.cli", "run", str(VALVE), "--for", "5s",
+         "--plant", f"modbus://127.0.0.1:{port}", "--connect-timeout", "1500ms"],
+        capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert proc.returncode == 1
+    assert f"no connection to the plant within 1.5s: cannot connect to 127.0.0.1:{port} " \
+        "unit 1: Connection refused" in proc.stderr
+    assert proc.stderr.count("attempt ") >= 3  # retried, with backoff
+    assert "Traceback" not in proc.stderr and proc.stdout == ""
+    assert time.monotonic() - started < 60
+
+
+def test_a_run_waits_for_a_late_server(server):
+    port = _free_port()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hmi.cli", "run", str(VALVE), "--for", "2s",
+         "--plant", f"modbus://127.0.0.1:{port}", "--connect-timeout", "60s"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    assert proc.stderr is not None and proc.stdout is not None
+    attempts: list[str] = []
+
+    def read_stderr() -> None:
+        for line in proc.stderr:
+            attempts.append(line)
+    reader = threading.Thread(target=read_stderr, daemon=True)
+    reader.start()
+    deadline = time.monotonic() + WAIT
+    while not any("attempt 2" in line for line in attempts) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    srv = server(VALVE, port=port)
+    out = proc.stdout.read()
+    proc.wait(120)
+    reader.join(5)
+    assert proc.returncode == 0, "".join(attempts)
+    assert "Connection refused" in "".join(attempts)
+    assert "scans in" in out
+    srv.stop()
+    assert "1 connections" in srv.lines[-1]
+
+
+def test_bench_prints_both_round_trips():
+    proc = subprocess.run([sys.executable, "-m", "hmi.cli", "bench", "modbus", "--quick"],
+                          capture_output=True, text=True, cwd=ROOT, timeout=180)
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.splitlines()
+    assert lines[0].startswith("== bench modbus:") and "could not" not in proc.stdout
+    assert any("plchmi scan, outputs changing" in line and " ms" in line for line in lines)
+    assert any("bare pymodbus" in line and " ms" in line for line in lines)
+
+
+def test_the_sim_run_is_unchanged_by_the_clock_option():
+    # The engine is deterministic; a Controller without a clock keeps virtual time.
+    ctl = make_controller(VALVE)
+    assert ctl.clock is None
+    ctl.run_for(1 * S)
+    assert ctl.engine.now == 1 * S
+
+
+def test_serve_plant_prints_its_map(server):
+    srv = server()
+    assert srv.lines[0].startswith("Serving cispi_valve's simulated plant")
+    assert any(line.split()[:3] == ["di:0", "fsc", "sensor"] for line in srv.lines)
+    assert any(line.split()[:3] == ["coil:1", "O", "order"] for line in srv.lines)

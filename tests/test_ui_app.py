@@ -1,0 +1,693 @@
+"""Pilot tests of the operator HMI: press the keys, then check the engine and the screen.
+
+Every test runs the app on a VirtualDriver: no scan happens unless the test runs virtual
+time, so what the screen shows is exactly repeatable. Waits are bounded (hmi.ui.testing).
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+from textual.command import CommandPalette
+
+from hmi.engine.commands import Pause, SetMode
+from hmi.ui.actions import ACTIONS
+from hmi.ui.app import PlcHmiApp
+from hmi.ui.chronogram import Chronogram
+from hmi.ui.dialogs import ChoiceDialog, ConfirmDialog, StepDialog
+from hmi.ui.fault_dialog import FaultDialog
+from hmi.ui.io_panel import IOPanel
+from hmi.ui.scenarios import VALVE, make_app, select_row
+from hmi.ui.signal_dialog import SignalDialog
+from hmi.ui.testing import (
+    WaitTimeout,
+    palette,
+    region_text,
+    run_for,
+    run_until,
+    screen_text,
+    settle,
+    wait_for_main,
+    wait_for_screen,
+    wait_until,
+)
+
+SIZE = (100, 30)
+
+
+def engine(app: PlcHmiApp):
+    return app.controller.engine
+
+
+@pytest.fixture
+def button_project(tmp_path: Path) -> Path:
+    """The valve with a start push button that no simulated device drives."""
+    folder = tmp_path / "valve_button"
+    shutil.copytree(VALVE, folder)
+    project = folder / "project.yaml"
+    project.write_text(project.read_text().replace(
+        "inputs:\n", "inputs:\n  start:\n    description: Start push button\n", 1))
+    control = folder / "control.yaml"
+    control.write_text(control.read_text().replace(
+        "when: fsc and X0.t >= 1s", "when: fsc and X0.t >= 1s and start", 1))
+    return folder
+
+
+# -- the display ---------------------------------------------------------------------------
+
+
+async def test_the_valve_is_seen_cycling():
+    app = make_app()
+    async with app.run_test(size=SIZE) as pilot:
+        await run_until(pilot, lambda s: "X2" in s.active_steps, 10, "the valve open")
+        snap = engine(app).last
+        assert snap.value("fso") is True
+        status = region_text(app, "#status")
+        assert f"scan {snap.scan}" in status and "AUTO" in status and "running" in status
+        io = region_text(app, "#io")
+        assert any(line.split()[1:2] == ["fso"] and " 1 " in line for line in io.splitlines())
+        control = region_text(app, "#control")
+        assert "● X2" in control and "○ X1" in control
+        # A whole cycle later the chronogram holds both edges of the open order.
+        await run_until(pilot, lambda s: s.plant_counters and dict(s.plant_counters)["cycles"]
+                        >= 1, 20, "a full cycle")
+        chrono = region_text(app, "#chronogram")
+        o_row = next(line for line in chrono.splitlines() if line.strip("│ ").startswith("O "))
+        assert "▐" in o_row and "█" in o_row and "▌" in o_row and "▁" in o_row
+        assert "cycles 1" in region_text(app, "#sim")
+
+
+async def test_frames_follow_the_engine_without_extra_scans():
+    app = make_app()
+    async with app.run_test(size=SIZE) as pilot:
+        await run_for(pilot, 1.0)
+        scans = engine(app).scan
+        shown = app.frames_shown
+        assert app.poll() is False  # nothing new: nothing handed down
+        assert app.frames_shown == shown
+        assert engine(app).scan == scans  # the UI never scans by itself
+
+
+@pytest.mark.parametrize("size", [(80, 24), (160, 48)])
+async def test_layout_keeps_status_footer_and_panels_on_screen(size):
+    app = make_app()
+    async with app.run_test(size=size) as pilot:
+        await run_for(pilot, 5.0)
+        screen = app.screen.region
+        for selector in ("#status", "#io", "#control", "#chronogram", "#sim", "#message",
+                         "HmiFooter"):
+            region = app.query_one(selector).region
+            assert region.area > 0, selector
+            assert screen.contains_region(region), selector
+        text = screen_text(app).splitlines()
+        assert "AUTO" in text[0]
+        assert "Run/Pause" in "\n".join(text[-2:])
+        # every operator key is visible in the footer, even at 80 columns
+        footer = "\n".join(text[-2:])
+        for action in ACTIONS:
+            assert action.label in footer, action.label
+        io = region_text(app, "#io")
+        if size[0] >= 160:
+            assert "Valve V1 close order" in io  # room for the descriptions
+            assert "cispi_valve" in text[0]
+
+
+# -- run / pause / step / speed ------------------------------------------------------------
+
+
+async def test_pause_and_resume():
+    app = make_app()
+    async with app.run_test(size=SIZE) as pilot:
+        await run_for(pilot, 0.5)
+        await pilot.press("space")
+        await settle(pilot)
+        assert app.controller.state.running is False
+        assert "PAUSED" in region_text(app, "#status")
+        scan = engine(app).scan
+        assert await run_for(pilot, 2.0) == 0
+        assert engine(app).scan == scan
+        await pilot.press("space")
+        await settle(pilot)
+        assert app.controller.state.running is True
+        assert await run_for(pilot, 1.0) == 100
+        assert "running" in region_text(app, "#status")
+
+
+async def test_step_one_scan():
+    app = make_app()
+    async with app.run_test(size=SIZE) as pilot:
+        await run_for(pilot, 0.5)
+        scan = engine(app).scan
+        await pilot.press("s")
+        await settle(pilot)
+        assert engine(app).scan == scan + 1
+        assert app.controller.state.running is False
+        assert "STEPPING" in region_text(app, "#status")
+        assert f"scan {scan + 1}" in region_text(app, "#status")
+        assert "stepped 1 scan" in app.message.plain
+        await pilot.press("space")  # run again: no longer stepping
+        await settle(pilot)
+        assert "running" in region_text(app, "#status")
+
+
+async def test_step_n_scans_through_the_dialog():
+    app = make_app()
+    async with app.run_test(size=SIZE) as pilot:
+        scan = engine(app).scan
+        await pilot.press("n")
+        dialog = await wait_for_screen(pilot, StepDialog)
+        await pilot.press("0", "enter")  # replaces the selected default: refused
+        await pilot.pause()
+        assert isinstance(app.screen, StepDialog)
+        assert "from 1 to" in str(dialog.query_one("#error").render())
+        await pilot.press("backspace", "2", "5", "enter")
+        await wait_for_main(pilot)
+        assert engine(app).scan == scan + 25
+        assert "STEPPING" in region_text(app, "#status")
+
+
+async def test_step_n_can_be_cancelled():
+    app = make_app()
+    async with app.run_test(size=SIZE) as pilot:
+        scan = engine(app).scan
+        await pilot.press("n")
+        await wait_for_screen(pilot, StepDialog)
+        await pilot.press("escape")
+        await wait_for_main(pilot)
+        assert engine(app).scan == scan
+        assert app.controller.state.running is True
+
+
+async def test_speed_cycles_real_time_ten_times_max():
+    app = make_app()
+    async with app.run_test(size=(120, 30)) as pilot:
+        seen = []
+        for _ in range(3):
+            await pilot.press("v")
+            await settle(pilot)
+            seen.append((app.controller.state.speed, region_text(app, "#status")))
+        assert [s for s, _ in seen] == [10.0, None, 1.0]
+        assert "×10" in seen[0][1] and "max" in seen[1][1] and "×1" in seen[2][1]
+
+
+# -- manual mode ---------------------------------------------------------------------------
+
+
+async def enter_manual(pilot) -> None:
+    await pilot.press("m")
+    await wait_for_screen(pilot, ConfirmDialog)
+    await pilot.press("y")
+    await wait_for_main(pilot)
+
+
+async def test_manual_mode_needs_confirmation():
+    app = make_app()
+    async with app.run_test(size=SIZE) as pilot:
+        await pilot.press("m")
+        dialog = await wait_for_screen(pilot, ConfirmDialog)
+        assert "still goes through the safety filter" in screen_text(app)
+        await pilot.press("s")  # app keys are off while a dialog is open
+        await pilot.press("n")
+        await wait_for_main(pilot)
+        assert dialog.is_attached is False
+        assert engine(app).mode == "auto"
+        assert engine(app).scan == 1
+        assert "cancelled" in app.message.plain
+
+
+async def test_manual_request_is_written_and_shown():
+    app = make_app()
+    async with app.run_test(size=SIZE) as pilot:
+        await run_for(pilot, 0.5)  # closed, waiting: X0
+        await enter_manual(pilot)
+        assert engine(app).mode == "manual"
+        await run_for(pilot, 0.1)
+        assert "MANUAL / FORCES ACTIVE" in region_text(app, "#banners")
+        assert "MANUAL" in region_text(app, "#status")
+        await select_row(pilot, "O")
+        await pilot.press("1")
+        await settle(pilot)
+        assert engine(app).manual == {"O": True}
+        assert "O requested on" in app.message.plain  # the answer comes at once
+        await run_for(pilot, 0.05)
+        assert "written 1" in app.message.plain
+        assert engine(app).last.output_map["O"] is True
+        assert "forced 1" in region_text(app, "#io")
+        assert "O=1" in region_text(app, "#banners")
+        await run_for(pilot, 2.5)
+        assert engine(app).last.value("fso") is True  # the valve opened under the force
+        await pilot.press("x")
+        await settle(pilot)
+        assert engine(app).manual == {}
+        await run_for(pilot, 0.05)
+        assert engine(app).last.output_map["O"] is False
+
+
+async def test_manual_request_on_an_input_is_refused_with_its_reason():
+    app = make_app()
+    async with app.run_test(size=SIZE) as pilot:
+        await enter_manual(pilot)
+        await select_row(pilot, "fsc")
+        await pilot.press("1")
+        await settle(pilot)
+        assert "REFUSED" in app.message.plain and "not an output" in app.message.plain
+        assert engine(app).manual == {}
+
+
+async def test_manual_keys_are_hidden_outside_manual_mode():
+    app = make_app()
+    async with app.run_test(size=SIZE) as pilot:
+        await select_row(pilot, "O")
+        await pilot.press("1")
+        await settle(pilot)
+        assert engine(app).manual == {}
+        footer = "\n".join(screen_text(app).splitlines()[-2:])
+        assert "Release" not in footer
+        await enter_manual(pilot)
+        await run_for(pilot, 0.01)
+        footer = "\n".join(screen_text(app).splitlines()[-2:])
+        assert "Release" in footer and "On" in footer
+
+
+async def test_a_request_not_written_as_asked_says_why():
+    app = make_app()
+    async with app.run_test(size=SIZE) as pilot:
+        await enter_manual(pilot)
+        # An internal error latches the outputs safe (as the engine does on an exception).
+        engine(app).latch_safe("internal", "test latch")
+        await run_for(pilot, 0.01)
+        assert "OUTPUTS HELD IN SAFE STATE" in region_text(app, "#banners")
+        await select_row(pilot, "O")
+        await pilot.press("1")
+        await run_for(pilot, 0.01)
+        message = app.message.plain
+        assert "NOT AS REQUESTED" in message and "written 0" in message
+        assert "held safe: test latch" in message
+        io = region_text(app, "#io")
+        assert "≠ held safe" in io  # FOV 1, written 0, with the reason
+
+
+async def test_leaving_manual_releases_every_output():
+    app = make_app()
+    async with app.run_test(size=SIZE) as pilot:
+        await enter_manual(pilot)
+        await select_row(pilot, "O")
+        await pilot.press("1")
+        await select_row(pilot, "C")
+        await pilot.press("0")
+        await run_for(pilot, 0.1)
+        assert engine(app).manual == {"O": True, "C": False}
+        await pilot.press("m")
+        await wait_for_screen(pilot, ConfirmDialog)
+        assert "O=1" in screen_text(app)  # the dialog lists what is released
+        await pilot.press("y")
+        await wait_for_main(pilot)
+        assert engine(app).mode == "auto" and engine(app).manual == {}
+        assert "released C, O" in app.message.plain
+        await run_for(pilot, 0.05)
+        assert not app.query_one("#banners").display
+
+
+# -- fault reset, policy, fault injection, push buttons -----------------------------------
+
+
+async def test_fault_reset_lists_what_it_resets_and_releases_the_latch():
+    app = make_app()
+    async with app.run_test(size=(120, 30)) as pilot:
+        await run_for(pilot, 0.5)
+        engine(app).latch_safe("internal", "simulated internal error")
+        await run_for(pilot, 0.1)
+        assert "SAFE STATE" in region_text(app, "#status")
+        await pilot.press("r")
+        await wait_for_screen(pilot, ConfirmDialog)
+        text = screen_text(app)
+        assert "will be reset: safe-state latch (internal): simulated internal error" in text
+        await pilot.press("y")
+        await wait_for_main(pilot)
+        assert engine(app).latched == []
+        assert "safe-state latch released" in app.message.plain
+        await run_for(pilot, 0.1)
+        assert "SAFE STATE" not in region_text(app, "#status")
+
+
+async def test_fault_reset_cancelled_keeps_the_latch():
+    app = make_app()
+    async with app.run_test(size=SIZE) as pilot:
+        engine(app).latch_safe("internal", "x")
+        await pilot.press("r")
+        await wait_for_screen(pilot, ConfirmDialog)
+        await pilot.press("escape")
+        await wait_for_main(pilot)
+        assert len(engine(app).latched) == 1
+
+
+async def test_fault_reset_with_nothing_latched_says_so():
+    app = make_app()
+    async with app.run_test(size=SIZE) as pilot:
+        await pilot.press("r")
+        await wait_for_screen(pilot, ConfirmDialog)
+        assert "Nothing is latched" in screen_text(app)
+        await pilot.press("y")
+        await wait_for_main(pilot)
+        assert "nothing was latched" in app.message.plain
+
+
+async def test_policy_switch_is_confirmed():
+    app = make_app()
+    async with app.run_test(size=(120, 30)) as pilot:
+        await pilot.press("p")
+        await wait_for_screen(pilot, ChoiceDialog)
+        await pilot.press("up", "enter")  # correct is highlighted; up is block
+        await wait_for_screen(pilot, ConfirmDialog)
+        assert "correct → block" in screen_text(app)
+        await pilot.press("y")
+        await wait_for_main(pilot)
+        assert engine(app).policy == "block"
+        await run_for(pilot, 0.01)
+        assert "filter block" in region_text(app, "#status")
+        # monitor is marked abnormal on the status bar
+        await pilot.press("p")
+        await wait_for_screen(pilot, ChoiceDialog)
+        await pilot.press("home", "enter")
+        await wait_for_screen(pilot, ConfirmDialog)
+        assert "Unsafe orders will reach the plant" in screen_text(app)
+        await pilot.press("n")
+        await wait_for_main(pilot)
+        assert engine(app).policy == "block"
+
+
+async def test_fault_injection_now_jams_the_valve():
+    app = make_app()
+    async with app.run_test(size=(120, 36)) as pilot:
+        await run_until(pilot, lambda s: "X1" in s.active_steps, 5, "opening")
+        await run_for(pilot, 0.5)
+        await pilot.press("f")
+        await wait_for_screen(pilot, FaultDialog)
+        assert "SIMULATION" in screen_text(app)
+        await pilot.press("end", "enter", "enter")
+        await wait_for_main(pilot)
+        assert "F13" in app.message.plain and "SIMULATION" in app.message.plain
+        await run_for(pilot, 3.0)
+        snap = engine(app).last
+        assert dict(snap.plant_state)["jammed"] is True
+        assert "X1" in snap.active_steps  # the sequence waits for fso for ever
+        sim = region_text(app, "#sim")
+        assert "SIMULATION" in sim and "JAMMED" in sim and "F13 since" in sim
+        assert "damage" in sim  # the motor stalled against the jam
+
+
+async def test_fault_injection_later():
+    app = make_app()
+    async with app.run_test(size=(120, 36)) as pilot:
+        await pilot.press("f")
+        dialog = await wait_for_screen(pilot, FaultDialog)
+        await pilot.press("enter")  # the first fault: F1
+        await pilot.pause()
+        assert dialog.query_one("#delay").has_focus
+        await pilot.press("backspace", "2", "enter")
+        await wait_for_main(pilot)
+        assert "F1 in 2.000 s" in region_text(app, "#sim")
+        await run_for(pilot, 2.1)
+        assert "F1 since 2.000 s" in region_text(app, "#sim")
+
+
+async def test_fault_dialog_rejects_a_bad_delay():
+    app = make_app()
+    async with app.run_test(size=(120, 36)) as pilot:
+        await pilot.press("f")
+        dialog = await wait_for_screen(pilot, FaultDialog)
+        await pilot.press("enter", "backspace", "s", "o", "o", "n", "enter")
+        await pilot.pause()
+        assert isinstance(app.screen, FaultDialog)
+        assert "delay" in str(dialog.query_one("#error").render())
+
+
+async def test_push_button_for_a_free_input(button_project):
+    app = make_app(button_project)
+    async with app.run_test(size=SIZE) as pilot:
+        await run_for(pilot, 2.0)
+        assert engine(app).last.active_steps == ("X0",)  # waits for the button
+        assert "button up" in region_text(app, "#io")
+        await select_row(pilot, "start")
+        await pilot.press("b")
+        await run_for(pilot, 0.05)
+        assert engine(app).last.value("start") is True
+        assert "button pressed" in region_text(app, "#io")
+        assert "X1" in engine(app).last.active_steps
+        await pilot.press("b")
+        await run_for(pilot, 0.05)
+        assert engine(app).last.value("start") is False
+
+
+async def test_push_button_on_a_driven_input_is_refused(button_project):
+    app = make_app(button_project)
+    async with app.run_test(size=SIZE) as pilot:
+        await select_row(pilot, "fsc")
+        await pilot.press("b")
+        await settle(pilot)
+        assert "REFUSED" in app.message.plain and "driven by the simulated plant" in \
+            app.message.plain
+
+
+# -- chronogram ----------------------------------------------------------------------------
+
+
+async def test_choose_chronogram_signals_with_the_key():
+    app = make_app()
+    async with app.run_test(size=SIZE) as pilot:
+        before = app.query_one(Chronogram).signals
+        assert before == ("C", "O", "fsc", "fso", "TON1", "TON2")
+        await pilot.press("g")
+        await wait_for_screen(pilot, SignalDialog)
+        await pilot.press("space")  # untick the first (C)
+        await pilot.press("end", "space")  # tick the last (O.fov)
+        await pilot.press("enter")
+        await wait_for_main(pilot)
+        after = app.query_one(Chronogram).signals
+        assert "C" not in after and "O.fov" in after
+        assert "O fov" in region_text(app, "#chronogram")
+
+
+async def test_chronogram_window_key():
+    app = make_app()
+    async with app.run_test(size=SIZE) as pilot:
+        await pilot.press("w")
+        await settle(pilot)
+        assert app.query_one(Chronogram).window_us == 30_000_000
+        assert "last 30 s" in region_text(app, "#chronogram")
+
+
+# -- the command palette -------------------------------------------------------------------
+
+
+async def test_every_binding_has_a_palette_entry(button_project):
+    app = make_app(button_project)
+    async with app.run_test(size=SIZE) as pilot:
+        app.send(SetMode(True))
+        await run_for(pilot, 0.01)
+        covered = {e.action for e in app.palette_entries() if e.action}
+        keys = {b.action for b in PlcHmiApp.BINDINGS} | {b.action for b in IOPanel.BINDINGS}
+        assert keys <= covered, keys - covered
+
+
+async def test_palette_runs_commands():
+    app = make_app()
+    async with app.run_test(size=SIZE) as pilot:
+        await palette(pilot, "Run / pause")
+        assert app.controller.state.running is False
+        await palette(pilot, "Step 10 scans")
+        assert engine(app).scan == 11
+        await palette(pilot, "Filter policy: monitor")
+        await wait_for_screen(pilot, ConfirmDialog)
+        await pilot.press("y")
+        await wait_for_main(pilot)
+        assert engine(app).policy == "monitor"
+        await pilot.press("s")
+        await settle(pilot)
+        assert "▲ filter monitor" in region_text(app, "#status")
+        await palette(pilot, "Chronogram: show X1")
+        assert "X1" in app.query_one(Chronogram).signals
+        await palette(pilot, "SIMULATION: inject valve.F5 now", "inject valve.F5")
+        assert any(f.injection.code == "F5" for f in app.frame.injected)
+        await palette(pilot, "Run speed: as fast as possible")
+        assert app.controller.state.speed is None
+
+
+async def test_palette_manual_requests_only_in_manual_mode():
+    app = make_app()
+    async with app.run_test(size=SIZE) as pilot:
+        assert not any(e.title.startswith("Manual:") for e in app.palette_entries())
+        await enter_manual(pilot)
+        await palette(pilot, "Manual: O on")
+        assert engine(app).manual == {"O": True}
+
+
+async def test_palette_closes_without_running_anything():
+    app = make_app()
+    async with app.run_test(size=SIZE) as pilot:
+        await pilot.press("ctrl+p")
+        await wait_for_screen(pilot, CommandPalette)
+        await pilot.press("escape")
+        await wait_for_main(pilot)
+        assert app.controller.state.running is True
+
+
+# -- every action goes through Controller.command -----------------------------------------
+
+
+async def test_operator_actions_reach_the_controller_listeners():
+    app = make_app()
+    seen = []
+    app.controller.listeners.append(lambda cmd, result, snap: seen.append(type(cmd).__name__))
+    async with app.run_test(size=SIZE) as pilot:
+        await pilot.press("space", "s")
+        await enter_manual(pilot)
+        await select_row(pilot, "O")
+        await pilot.press("1")
+        await pilot.press("f")
+        await wait_for_screen(pilot, FaultDialog)
+        await pilot.press("enter", "enter")
+        await wait_for_main(pilot)
+        await pilot.press("r")
+        await wait_for_screen(pilot, ConfirmDialog)
+        await pilot.press("y")
+        await wait_for_main(pilot)
+    assert seen == ["Pause", "StepScans", "SetMode", "ManualOutput", "InjectFault",
+                    "FaultReset"]
+
+
+# -- the live runner -----------------------------------------------------------------------
+
+
+async def test_live_mode_scans_in_a_thread_and_refreshes():
+    app = make_app()
+    live = PlcHmiApp(app.controller, live=True)
+    async with live.run_test(size=SIZE) as pilot:
+        await wait_until(pilot, lambda: live.controller.engine.scan > 20, "20 live scans")
+        await wait_until(pilot, lambda: live.frames_shown > 3, "a few UI frames")
+        assert "µs/scan" in region_text(live, "#status")
+        live.send(Pause())
+        await pilot.pause(0.05)
+        scan = live.controller.engine.scan
+        await pilot.pause(0.1)
+        assert live.controller.engine.scan == scan
+    assert not live.driver.runner.alive
+
+
+async def test_wait_helpers_are_bounded():
+    app = make_app()
+    async with app.run_test(size=SIZE) as pilot:
+        with pytest.raises(WaitTimeout):
+            await wait_until(pilot, lambda: False, "never", timeout=0.05)
+        with pytest.raises(WaitTimeout):
+            await run_until(pilot, lambda s: False, 0.1, "never")
+
+
+# -- the safety filter's report ------------------------------------------------------------
+
+
+def _changed(snap) -> bool:
+    return snap.filter is not None and bool(snap.filter.changes)
+
+
+async def test_filter_changes_are_shown_with_their_constraint():
+    app = make_app(control="faulty")
+    async with app.run_test(size=(120, 36)) as pilot:
+        await run_until(pilot, _changed, 10, "a filter correction")
+        snap = engine(app).last
+        change = snap.filter.changes[0]
+        io = region_text(app, "#io")
+        row = next(line for line in io.splitlines() if f"│ {change.output} " in line)
+        assert "≠ filter" in row and change.by[0] in row
+        constraints = region_text(app, "#constraints")
+        for name in snap.filter.violated_names:
+            line = next(line for line in constraints.splitlines() if f" {name} " in line)
+            assert "▲ corrected" in line
+        assert "violated" in region_text(app, "#status")
+        chrono = region_text(app, "#chronogram")
+        assert any(line.strip("│ ").startswith(f"{change.output}") and "≠" in line
+                   for line in chrono.splitlines())
+        # later, the history stays: counted, with its last time
+        await run_until(pilot, lambda s: s.filter is not None and not s.filter.violations, 10,
+                        "a scan without violation")
+        constraints = region_text(app, "#constraints")
+        assert f"{change.by[0]} · ×" in constraints and "last" in constraints
+
+
+async def test_manual_request_refused_by_the_filter_names_the_constraint():
+    app = make_app()
+    async with app.run_test(size=(120, 36)) as pilot:
+        await run_until(pilot, lambda s: "X2" in s.active_steps, 10, "the valve open")
+        await enter_manual(pilot)
+        await select_row(pilot, "O")
+        await pilot.press("1")  # open order on an open valve: CSs2
+        await run_for(pilot, 0.05)
+        message = app.message.plain
+        assert "NOT AS REQUESTED" in message and "written 0" in message
+        assert "CSs2" in message
+        assert engine(app).last.output_map["O"] is False
+        assert "≠ filter CSs2" in region_text(app, "#io")
+
+
+async def test_reset_under_safe_blocking_says_what_stays():
+    app = make_app(control="faulty", policy="block")
+    async with app.run_test(size=(120, 36)) as pilot:
+        await run_until(pilot, lambda s: bool(s.latched), 10, "safe blocking")
+        await run_until(pilot, lambda s: s.filter is not None and bool(s.filter.violations),
+                        10, "the program still violating")
+        await pilot.press("r")
+        await wait_for_screen(pilot, ConfirmDialog)
+        text = screen_text(app)
+        assert "stays" in text and "its cause is still present" in text
+        await pilot.press("n")
+        await wait_for_main(pilot)
+        await run_until(pilot, lambda s: s.filter is not None and not s.filter.violations,
+                        10, "the program no longer violating")
+        await pilot.press("r")
+        await wait_for_screen(pilot, ConfirmDialog)
+        assert "will be reset: safe-state latch (filter)" in screen_text(app)
+        await pilot.press("y")
+        await wait_for_main(pilot)
+        assert engine(app).latched == []
+
+
+async def test_simulation_controls_are_off_for_a_real_plant():
+    app = make_app()
+    engine(app).plant.kind = "modbus"  # as a Modbus plant would say: no speed, no faults
+    async with app.run_test(size=SIZE) as pilot:
+        await pilot.press("v", "f")
+        await settle(pilot)
+        assert app.controller.state.speed == 1.0
+        assert len(app.screen_stack) == 1  # no fault dialog
+        titles = [e.title for e in app.palette_entries()]
+        assert not any("SIMULATION" in t or t.startswith("Run speed") for t in titles)
+        app.action_speed(10.0)  # even if asked directly, refused with its reason
+        assert app.controller.state.speed == 1.0
+        assert "NOT AVAILABLE" in app.message.plain and "real plant" in app.message.plain
+
+
+async def test_a_lost_plant_is_shown_and_its_inputs_marked_stale(monkeypatch):
+    from hmi.plant.base import PlantError, PlantStatus
+
+    app = make_app()
+    plant = engine(app).plant
+
+    def unreachable(now_us):
+        raise PlantError("connection refused")
+
+    async with app.run_test(size=(120, 36)) as pilot:
+        await run_for(pilot, 0.5)
+        # what a Modbus plant does when the link drops (monkeypatch restores the class)
+        monkeypatch.setattr(plant, "read", unreachable)
+        monkeypatch.setattr(type(plant), "status", property(lambda self: PlantStatus(
+            "modbus", "modbus 127.0.0.1:5020 unit 1", connected=False,
+            message="connection refused")))
+        await run_for(pilot, 0.1)
+        assert "DISCONNECTED" in region_text(app, "#status")
+        banners = region_text(app, "#banners")
+        assert "PLANT DISCONNECTED" in banners and "connection refused" in banners
+        assert "OUTPUTS HELD IN SAFE STATE" in banners
+        io = region_text(app, "#io")
+        assert io.count("✗ stale") == 2  # fsc and fso: last values read, not the plant's

@@ -1,0 +1,237 @@
+"""The UI's pure parts, without an app: chronogram drawing, the recorder, the status line,
+the reset preview, verdicts on manual requests, the fault dialog's delay."""
+
+from __future__ import annotations
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from hmi.engine.snapshot import LatchReason
+from hmi.plant.base import PlantStatus
+from hmi.ui.chronogram import FALL, HIGH, LOW, MULTI, RISE, UNKNOWN, axis, columns
+from hmi.ui.fault_dialog import parse_delay
+from hmi.ui.frame import Frame
+from hmi.ui.recorder import ScanRecorder, Trace
+from hmi.ui.reset import PREVIEWS, ResetLine, reset_preview
+from hmi.ui.status import banner_lines, fit, status_fields
+from hmi.ui.style import MUTED
+from hmi.ui.verdict import output_changes, request_verdict
+from tests.conftest import PROJECTS, make_controller
+
+
+def test_columns_draw_levels_edges_and_short_pulses():
+    # 10 columns of 100 ms over (0, 1 s]: low, a rise at 250 ms, a fall at 550 ms,
+    # a 20 ms pulse at 810-830 ms.
+    trace = Trace(0, False, ((250_000, True), (550_000, False), (810_000, True),
+                             (830_000, False)))
+    drawn = columns(trace, 0, 1_000_000, 10)
+    assert drawn == LOW * 2 + RISE + HIGH * 2 + FALL + LOW * 2 + MULTI + LOW
+
+
+def test_columns_blank_before_the_first_sample_and_after_the_last_scan():
+    trace = Trace(300_000, None, ((300_000, True),))
+    drawn = columns(trace, 0, 1_000_000, 10, end_us=600_000)
+    assert drawn == UNKNOWN * 2 + HIGH * 4 + UNKNOWN * 4
+
+
+def test_axis_labels_round_times_on_their_column():
+    row = axis(10_000_000, 10_000_000, 80)
+    assert len(row) == 80
+    assert "┊11s" in row and "┊19s" in row  # 20s would not fit at the right edge
+    assert row.index("┊12s") == 2 * 80 // 10 - 1
+
+
+def test_recorder_keeps_every_edge_even_between_frames():
+    controller = make_controller(PROJECTS / "cispi_valve", inject=["F7@3s"])
+    recorder = ScanRecorder(controller.engine.layout)
+    controller.scan_listeners.append(recorder.on_scan)
+    controller.run_for(10_000_000)
+    # F7: fsc reads 1 for 300 ms while the valve is away from closed: two edges, recorded
+    trace = recorder.trace("fsc", 0, 10_000_000)
+    times = [t for t, v in trace.changes]
+    glitch = [(t, v) for t, v in trace.changes if 3_000_000 <= t <= 3_400_000]
+    assert [v for _, v in glitch] == [True, False]
+    assert glitch[1][0] - glitch[0][0] == 300_000
+    assert times == sorted(times)
+    assert recorder.scans == controller.engine.scan
+    o_fov = recorder.trace("O.fov", 0, 10_000_000)
+    assert o_fov.changes == recorder.trace("O", 0, 10_000_000).changes  # no filter yet
+
+
+def test_recorder_trace_initial_value_and_window():
+    controller = make_controller(PROJECTS / "cispi_valve")
+    recorder = ScanRecorder(controller.engine.layout)
+    controller.scan_listeners.append(recorder.on_scan)
+    controller.run_for(6_000_000)
+    trace = recorder.trace("fso", 4_000_000, 6_000_000)
+    assert trace.initial is True  # open at 4 s
+    assert all(4_000_000 < t <= 6_000_000 for t, _ in trace.changes)
+
+
+def _frame(snap, **kw) -> Frame:
+    return Frame(snapshot=snap, run=kw.pop("run", "running"), speed=1.0, live=False,
+                 project="cispi_valve", **kw)
+
+
+def _snapshot(**changes):
+    controller = make_controller(PROJECTS / "cispi_valve")
+    controller.run_for(1_500_000)
+    return controller.engine.last._replace(**changes)
+
+
+def test_status_keeps_alarms_and_mode_when_narrow():
+    snap = _snapshot(latched=(LatchReason("plant", "connection lost", 3, 30_000),),
+                     plant=PlantStatus("modbus", "modbus 127.0.0.1:5020", connected=False))
+    fields = status_fields(_frame(snap, run="paused"), wide=False, compact=True)
+    line = fit(fields, 40).plain
+    assert "DISCONNECTED" in line and "SAFE STATE" in line and "AUTO" in line
+    assert "PAUSED" in line
+    assert "cispi_valve" not in line  # the project name goes first
+    full = fit(status_fields(_frame(snap), wide=True), 200).plain
+    assert "cispi_valve" in full and "scan " in full
+
+
+def test_every_coloured_status_field_carries_a_symbol_or_word():
+    snap = _snapshot(mode="manual", policy="monitor",
+                     latched=(LatchReason("internal", "boom", 1, 0),))
+    coloured = 0
+    for field in status_fields(_frame(snap, run="stepping"), wide=True):
+        styles = [span.style for span in field.text.spans] + [field.text.style]
+        styles = [s for s in styles if s != MUTED]  # grey is the normal, quiet colour
+        if any(getattr(s, "color", None) is not None or getattr(s, "bgcolor", None) is not None
+               for s in styles):
+            coloured += 1
+            assert any(sym in field.text.plain for sym in ("▲", "✗")), field
+    assert coloured == 4  # manual, monitor, safe state, stepping
+
+
+def test_banner_lines_for_manual_and_latch():
+    snap = _snapshot(mode="manual", manual=(("O", True),),
+                     latched=(LatchReason("filter", "CSc1 violated", 5, 50_000),))
+    lines = [line.plain for line in banner_lines(_frame(snap))]
+    assert "MANUAL / FORCES ACTIVE" in lines[0] and "O=1" in lines[0]
+    assert "OUTPUTS HELD IN SAFE STATE" in lines[1] and "CSc1 violated" in lines[1]
+    assert banner_lines(_frame(_snapshot())) == []
+    lost = _snapshot(plant=PlantStatus("modbus", "modbus 127.0.0.1:5020", connected=False,
+                                       message="connection refused"))
+    line = banner_lines(_frame(lost))[0].plain
+    assert "PLANT DISCONNECTED" in line and "connection refused" in line
+
+
+def test_reset_preview_says_what_stays_and_why():
+    snap = _snapshot(latched=(LatchReason("plant", "connection lost", 3, 30_000),
+                              LatchReason("internal", "error at scan 4", 4, 40_000)),
+                     plant=PlantStatus("modbus", "m", connected=False, message="timeout"))
+    lines = reset_preview(snap)
+    assert [line.resets for line in lines] == [True, False]  # resets first
+    assert "error at scan 4" in lines[0].what
+    assert "still disconnected" in lines[1].why and "timeout" in lines[1].why
+
+
+def test_reset_preview_is_extensible():
+    def alarms(snap):
+        yield ResetLine("alarm A1 (acknowledged)", resets=True)
+
+    PREVIEWS.append(alarms)
+    try:
+        assert [line.what for line in reset_preview(_snapshot())] == ["alarm A1 (acknowledged)"]
+    finally:
+        PREVIEWS.remove(alarms)
+
+
+def test_output_changes_and_request_verdict_name_the_latch():
+    snap = _snapshot()
+    assert output_changes(snap) == {}
+    latched = snap._replace(
+        fov=(False, True), outputs=(False, False),
+        latched=(LatchReason("internal", "boom", 1, 0),))
+    assert output_changes(latched) == {"O": "held safe: boom"}
+    ok, line = request_verdict(latched, "O", True)
+    assert not ok and "written 0" in line and "held safe: boom" in line
+    ok, line = request_verdict(latched, "C", False)
+    assert ok and "written 0" in line
+
+
+@pytest.mark.parametrize("text, us", [("", 0), ("now", 0), ("0", 0), ("5", 5_000_000),
+                                      ("2.5", 2_500_000), ("500ms", 500_000),
+                                      ("1.5s", 1_500_000)])
+def test_parse_delay(text, us):
+    assert parse_delay(text) == us
+
+
+def test_parse_delay_rejects_words():
+    with pytest.raises(ValueError):
+        parse_delay("soon")
+
+
+def test_recorder_counts_violation_episodes_from_every_scan():
+    controller = make_controller(PROJECTS / "cispi_valve", control="faulty")
+    recorder = ScanRecorder(controller.engine.layout)
+    violated_scans: dict[str, int] = {}
+
+    def count(snap):
+        for name in snap.filter.violated_names:
+            violated_scans[name] = violated_scans.get(name, 0) + 1
+
+    controller.scan_listeners.extend([recorder.on_scan, count])
+    controller.run_for(20_000_000)
+    stats = recorder.constraint_stats()
+    assert violated_scans and set(stats) == set(violated_scans)
+    for name, scans in violated_scans.items():
+        assert stats[name].scans == scans
+        assert 1 <= stats[name].episodes <= scans
+        assert stats[name].last_us is not None
+
+
+def _columns_reference(trace, start, window, width, end):
+    """Column by column, the plain definition the fast drawing must agree with."""
+    out, value, k, changes = [], trace.initial, 0, trace.changes
+    for c in range(width):
+        lo = start + c * window // width
+        hi = start + (c + 1) * window // width
+        if end is not None and lo >= end:
+            out.append(UNKNOWN)
+            continue
+        before, n = value, 0
+        while k < len(changes) and changes[k][0] <= hi:
+            value, n, k = changes[k][1], n + 1, k + 1
+        if n == 0:
+            out.append(UNKNOWN if value is None else (HIGH if value else LOW))
+        elif n == 1:
+            out.append((HIGH if value else LOW) if before is None else (RISE if value else FALL))
+        else:
+            out.append(MULTI)
+    return "".join(out)
+
+
+@given(st.lists(st.integers(1, 2_000_000), max_size=40, unique=True),
+       st.sampled_from([None, False, True]), st.integers(1, 150),
+       st.integers(1, 3_000_000), st.integers(0, 3_000_000))
+def test_columns_agree_with_the_plain_definition(times, initial, width, window, end):
+    value = initial if initial is not None else False
+    changes = []
+    for t in sorted(times):
+        value = not value
+        changes.append((t, value))
+    changes = [(t, v) for t, v in changes if t <= end]
+    trace = Trace(changes[0][0] if changes else None, initial, tuple(changes))
+    assert columns(trace, 0, window, width, end) == \
+        _columns_reference(trace, 0, window, width, end)
+
+
+def test_recorder_forgets_old_history_but_keeps_the_level():
+    controller = make_controller(PROJECTS / "cispi_valve")
+    recorder = ScanRecorder(controller.engine.layout, keep_us=10_000_000)
+    controller.scan_listeners.append(recorder.on_scan)
+    controller.run_for(60_000_000)
+    kept = recorder._changes[recorder.by_name["O"]]
+    assert kept[0][0] <= 60_000_000 - 10_000_000  # the level before the kept window...
+    assert len(kept) <= 6  # ...and about 12.5 s of an 8 s cycle, not 60 s of it
+    full = ScanRecorder(controller.engine.layout)  # a fresh run, never trimmed, agrees
+    again = make_controller(PROJECTS / "cispi_valve")
+    again.scan_listeners.append(full.on_scan)
+    again.run_for(60_000_000)
+    window = (50_000_000, 60_000_000)
+    assert recorder.trace("O", *window).changes == full.trace("O", *window).changes
+    assert recorder.trace("O", *window).initial == full.trace("O", *window).initial
