@@ -13,6 +13,7 @@ from hmi.bench import sections
 from hmi.bench.cellrun import CellRun, measure, report_lines
 from hmi.cli import main
 from hmi.project.loader import load_project
+from hmi.project.scenarios import scenarios_of
 from tests.conftest import PROJECTS
 
 S = 1_000_000
@@ -99,38 +100,51 @@ def test_palletizer_faulty_program_does_damage_under_monitor():
 
 # -- fault scenarios (docs/sorting.md, docs/palletizer.md) -------------------------------------
 
-SCENARIOS = [
-    # project, injection, seconds, damage expected (kinds; empty: none)
-    ("sorting", "tt_back_stuck1@20s", 40, set()),
-    ("sorting", "entry_end_stuck0@20s", 40, set()),
-    ("sorting", "high_stuck0@10s", 40, set()),
-    ("sorting", "left_blocked@10s", 60, set()),
-    ("sorting", "tt_back_stuck0@20s", 40, {"box_sheared"}),
-    ("sorting", "tt_front_stuck0@14s", 40, {"box_dropped"}),
-    ("sorting", "table_jam@20s", 40, {"turn_stall"}),
-    ("palletizer", "plate_closed_stuck1@20s", 90, set()),
-    ("palletizer", "clamp_closed_stuck1@20s", 45, set()),
-    ("palletizer", "layer_eye_stuck0@20s", 45, {"load_crushed"}),
-    ("palletizer", "pusher_home_stuck1@20s", 40, {"box_against_pusher"}),
-    ("palletizer", "clamp_open_stuck1@20s", 45, {"plate_into_layer"}),
-    ("palletizer", "elevator_jam@20s", 45, {"elevator_stall"}),
-]
+# The damage each scenario of the projects' scenarios.yaml must (or must not) do, as the doc
+# pages report it; every scenario a project declares must be listed here, and only those.
+EXPECTED_DAMAGE = {
+    ("sorting", "tt_back_stuck1"): set(),
+    ("sorting", "entry_end_stuck0"): set(),
+    ("sorting", "high_stuck0"): set(),
+    ("sorting", "left_blocked"): set(),
+    ("sorting", "tt_back_stuck0"): {"box_sheared"},
+    ("sorting", "tt_front_stuck0"): {"box_dropped"},
+    ("sorting", "table_jam"): {"turn_stall"},
+    ("palletizer", "plate_closed_stuck1"): set(),
+    ("palletizer", "clamp_closed_stuck1"): set(),
+    ("palletizer", "layer_eye_stuck0"): {"load_crushed"},
+    ("palletizer", "pusher_home_stuck1"): {"box_against_pusher"},
+    ("palletizer", "clamp_open_stuck1"): {"plate_into_layer"},
+    ("palletizer", "elevator_jam"): {"elevator_stall"},
+}
 
 
-@pytest.mark.parametrize("name,injection,seconds,damage", SCENARIOS,
-                         ids=[f"{s[0]}-{s[1]}" for s in SCENARIOS])
-def test_fault_scenarios(name, injection, seconds, damage):
-    run = cell(name, seconds=seconds, inject=(injection,))
-    assert set(run.damage) == damage
+def scenario_run(name: str, scenario: str) -> CellRun:
+    (found,) = [s for s in scenarios_of(load_project(PROJECTS / name)) if s.name == scenario]
+    return cell(name, seconds=found.duration_us // S,
+                inject=tuple(str(i) for i in found.injections))
+
+
+def test_every_declared_scenario_has_its_expected_outcome():
+    declared = {(name, s.name) for name in ("sorting", "palletizer")
+                for s in scenarios_of(load_project(PROJECTS / name))}
+    assert declared == set(EXPECTED_DAMAGE)
+
+
+@pytest.mark.parametrize("name,scenario", sorted(EXPECTED_DAMAGE),
+                         ids=[f"{n}-{s}" for n, s in sorted(EXPECTED_DAMAGE)])
+def test_fault_scenarios(name, scenario):
+    run = scenario_run(name, scenario)
+    assert set(run.damage) == EXPECTED_DAMAGE[(name, scenario)]
     assert sum(run.damage.values()) <= 1  # one event at most: the cell stops, or goes on safely
     assert run.unsafe_written == 0  # whatever the plant does, the filter never writes unsafe
 
 
 def test_scenario_details():
     # A stuck high sensor sends high boxes left: missorted, not damage.
-    assert cell("sorting", seconds=40, inject=("high_stuck0@10s",)).counters["missorted"] == 2
+    assert scenario_run("sorting", "high_stuck0").counters["missorted"] == 2
     # The plate's reconstruction lets the palletizer work on with a stuck plate_closed switch.
-    run = cell("palletizer", seconds=90, inject=("plate_closed_stuck1@20s",))
+    run = scenario_run("palletizer", "plate_closed_stuck1")
     assert run.counters["pallets"] == 1 and run.counters["layers"] == 5
     assert run.counters["lost"] == 0
 

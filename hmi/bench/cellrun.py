@@ -51,19 +51,19 @@ def with_seed(project: Project, seed: int) -> Project:
 
 
 def measure(project: Project, control: str, duration_us: int, policy: str = "correct",
-            strategy: str = "exact", timed: bool = True, inject: tuple[str, ...] = ()
-            ) -> CellRun:
+            strategy: str = "exact", timed: bool = True, inject: tuple = ()) -> CellRun:
     """Run the cell headless on its simulated plant, scan by scan, and collect the figures.
 
-    `inject` holds fault injections as written on the command line (`table_jam@30s`).
+    `inject` holds fault injections: Injection objects (a scenario's), or text as written on
+    the command line (`table_jam@30s`).
     """
     from hmi.engine.runner import settle_memory
     from hmi.engine.scan import Engine
-    from hmi.plant.sim import SimPlant, parse_injection
+    from hmi.plant.sim import Injection, SimPlant, parse_injection
 
     plant = SimPlant(project)
-    for text in inject:
-        plant.inject(parse_injection(text))
+    for item in inject:
+        plant.inject(item if isinstance(item, Injection) else parse_injection(item))
     engine = Engine(project, plant, control=control, policy=policy, solver=strategy)
     run = CellRun(project.name, control, policy, strategy)
     stage = engine.output_stage
