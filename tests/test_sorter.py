@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from hmi.plant.boxes import MM
+from hmi.plant.boxes import MM, Box
 from hmi.plant.sorter import ACTUATORS, SENSORS, SortingCell
 
 MS = 1_000
@@ -115,6 +115,26 @@ def test_unloading_left_with_the_rollers_backward():
     hold_until(c, "tt_90", ROT90=1)
     hold(c, c.t + 6 * S, ROLL_M=1, CONV_L=1)
     assert c.counters()["sorted_left"] == 1 and not damage(c)
+
+
+def test_a_box_barely_across_the_edge_is_pushed_off_not_sheared():
+    c = cell()
+    hold(c, 10 * MS)
+    c.boxes[0].lo = c.entry_len - c.box_len + 15 * MM  # 15 mm onto the table (margin 20)
+    hold(c, 2 * S, ROT90=1)
+    assert not damage(c) and c.boxes and c.sensors()["tt_90"]
+
+
+def test_coming_into_line_with_a_box_overhanging_onto_another_is_a_collision():
+    c = cell()
+    hold(c, 10 * MS)
+    c.boxes[0].segment, c.boxes[0].lo = "right", 0  # waiting at the start of the right exit
+    hold_until(c, "tt_90", ROT90=1)
+    hold(c, c.t + 600 * MS, ROT0=1)  # half way back
+    b = Box(99, c.box_len, False, "table", c.table_len - c.box_len + 50 * MM)
+    c.boxes.append(b)  # overhangs the front edge by 50 mm
+    hold_until(c, "tt_90", ROT90=1)
+    assert damage(c) == ["box_collision"] and b not in c.boxes
 
 
 def test_feeding_a_box_into_the_turned_table_is_damage():

@@ -157,8 +157,8 @@ def analyse(project: Project, seed: int = 0) -> FilterAnalysis:
         if not seen:
             solvable[key] = not f0 & f1 and exact_solve(
                 f1, combined, all_bits & ~(f0 | f1)).vector is not None
-        if seen and solvable[key]:
-            continue  # its worst distance is already counted
+        if seen and solvable[key] and fovs_exhaustive:
+            continue  # every functional vector was already tried on this very problem
         situation = ", ".join(_lit_text(n, d, assign[var_index[(n, d)]]) for n, d in variables)
         if not solvable[key]:
             analysis.no_solution_count += 1
