@@ -11,7 +11,7 @@ room, so two runs with the same parameters see exactly the same boxes at the sam
 from __future__ import annotations
 
 import random
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 MM = 1_000_000  # nanometres per millimetre: positions are integer nm, speeds mm/s = nm/µs
 
@@ -24,7 +24,6 @@ class Box:
     segment: str  # the conveyor or table carrying it (the one under its centre)
     lo: int  # nm: its end nearest the segment's origin, on the segment's own axis
     due_us: int = 0  # when the schedule made it due
-    touching: set[str] = field(default_factory=set)  # contacts already reported
 
     @property
     def kind(self) -> str:

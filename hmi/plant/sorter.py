@@ -301,14 +301,15 @@ class SortingCell(SimDevice):
                         break
 
     def _collide_on_alignment(self) -> None:
+        """The table comes into line: a box overhanging its edge onto another box is hit."""
         for line in self.lines:
             if "table" not in line.by_segment or len(line.segments) == 1:
                 continue
             placed = sorted(((line.place(b), b) for b in self._on(line)),
                             key=lambda item: item[0])
-            for (x1, b1), (x2, _b2) in itertools.pairwise(placed):
-                if x1 + b1.length - x2 > TOUCH and b1 in self.boxes and _b2 in self.boxes:
-                    hit = b1 if b1.segment == "table" else _b2
+            for (x1, b1), (x2, b2) in itertools.pairwise(placed):
+                if x1 + b1.length - x2 > TOUCH and b1 in self.boxes and b2 in self.boxes:
+                    hit = b1 if b1.segment == "table" else b2
                     self._lose(hit, "box_collision", f"{hit.kind} box {hit.ident} overhanging "
                                "the table hit a box as the table came into line")
 
