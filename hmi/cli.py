@@ -196,6 +196,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     except KeyboardInterrupt:
         return 130
+    except BrokenPipeError:
+        # The reader went away (plchmi ... | head): not an error; silence the final flush.
+        import os
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except Exception as exc:  # a bug: say so plainly, keep the details for the developers
         report = write_crash_report(exc)
         print(f"plchmi: internal error: {type(exc).__name__}: {exc}", file=sys.stderr)
