@@ -886,10 +886,15 @@ def _param_value(spec: Any, node: YNode, name: str) -> Any:
                             "one of " + ", ".join(spec.choices))
         return value
     value = node.as_number(f"parameter {name!r}")
-    if (spec.minimum is not None and value < spec.minimum) or \
-            (spec.maximum is not None and value > spec.maximum):
-        raise NodeError(node.pos, f"parameter {name!r} is {value:g}, out of range",
-                        f"a number from {spec.minimum:g} to {spec.maximum:g}")
+    low, high = spec.minimum, spec.maximum
+    if low is not None and value < low or high is not None and value > high:
+        if low is not None and high is not None:
+            expected = f"a number from {low:g} to {high:g}"
+        elif low is not None:
+            expected = f"a number of at least {low:g}"
+        else:
+            expected = f"a number of at most {high:g}"
+        raise NodeError(node.pos, f"parameter {name!r} is {value:g}, out of range", expected)
     return value
 
 
