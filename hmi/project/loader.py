@@ -887,7 +887,7 @@ def _param_value(spec: Any, node: YNode, name: str) -> Any:
         return value
     value = node.as_number(f"parameter {name!r}")
     low, high = spec.minimum, spec.maximum
-    if low is not None and value < low or high is not None and value > high:
+    if (low is not None and value < low) or (high is not None and value > high):
         if low is not None and high is not None:
             expected = f"a number from {low:g} to {high:g}"
         elif low is not None:
