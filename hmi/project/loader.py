@@ -27,6 +27,7 @@ from hmi.logic.expr import (
 )
 from hmi.plant.models import MODELS
 from hmi.project.campaign import parse_campaign
+from hmi.project.components import Components, load_components, merge_texts
 from hmi.project.diagnosers import declare_diagnoser_names, parse_diagnosers
 from hmi.project.model import (
     POLICIES,
@@ -57,7 +58,7 @@ PROJECT_FILE = "project.yaml"
 TOP_KEYS = {
     "name", "description", "scan_period", "include", "inputs", "outputs", "memories",
     "timers", "observers", "control", "constraints", "policy", "solver", "plant",
-    "explanations", "monitors", "scenarios", "diagnosers", "campaign",
+    "explanations", "monitors", "scenarios", "diagnosers", "campaign", "components",
 }
 
 NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
@@ -107,6 +108,7 @@ class ProjectLoader:
         self.section_pos: dict[str, SourcePos] = {}
         self.files: list[str] = []
         self.pending_includes: list[YNode] = []
+        self.components = Components()  # component instances (hmi/project/components.py)
 
     # -- helpers ----------------------------------------------------------------------------
     def guard(self, fn: Callable[[], Any], default: Any = None) -> Any:
@@ -154,6 +156,7 @@ class ProjectLoader:
         parsed = self.guard(parse)
         if parsed is None:
             return None
+        parsed = self.components.localise(node, parsed)  # a component's names, per instance
         steps = tuple(steps)
         namespace = dict(self.namespace)
         namespace.update(dict.fromkeys(steps, "step"))
@@ -251,6 +254,10 @@ class ProjectLoader:
             self.diag.error(pos, "the project has no inputs", "an 'inputs:' section")
         if "outputs" not in s:
             self.diag.error(pos, "the project has no outputs", "an 'outputs:' section")
+        # Component instances add timers, observers, constraints, diagnosers and explanations,
+        # read below with the project's own (hmi/project/components.py).
+        self.components = load_components(self)
+        self.files.extend(self.components.files)
         timer_nodes = self._declare_items("timers", "timer")
         observer_nodes = self._declare_items("observers", "observer")
         declare_diagnoser_names(self)  # def_<partition> flags, <sensor>_filter names
@@ -274,15 +281,18 @@ class ProjectLoader:
         diagnosers = parse_diagnosers(self)  # hmi/project/diagnosers.py
         campaign = parse_campaign(self, plant)  # hmi/project/campaign.py
         texts = None
+        sources = [*self.components.explanations]
         if "explanations" in s:
+            sources.append((None, s["explanations"]))
+        if sources:
             from hmi.project.explanations import parse_explanations
-            texts = parse_explanations(
-                s["explanations"], self.guard,
-                {"constraints": {c.name for c in constraints},
-                 "monitors": {m.name for m in monitors},
-                 "labels": {lab for d in diagnosers for lab in d.labels},
-                 "partitions": {p.name for d in diagnosers for p in d.partitions}},
-                self.diag.error)
+            known = {"constraints": {c.name for c in constraints},
+                     "monitors": {m.name for m in monitors},
+                     "labels": {lab for d in diagnosers for lab in d.labels},
+                     "partitions": {p.name for d in diagnosers for p in d.partitions}}
+            texts = merge_texts(self, [
+                (owner, parse_explanations(node, self.guard, known, self.diag.error))
+                for owner, node in sources])
         self.diag.raise_if_errors()
         project = Project(
             name=name, description=description, path=self.folder, scan_period_us=period,
@@ -292,7 +302,9 @@ class ProjectLoader:
             plant=plant, pos=pos, files=tuple(self.files), solver=solver,
             extra={"warnings": tuple(self.diag.warnings), "explanations": texts,
                    "monitors": monitors, "scenarios": scenarios, "diagnosers": diagnosers,
-                   "campaign": campaign},
+                   "campaign": campaign, "components": tuple(self.components.instances),
+                   "check_sections": ((self.components.check_lines(),)
+                                      if self.components.instances else ())},
         )
         return project
 
@@ -307,13 +319,17 @@ class ProjectLoader:
 
     # -- declarations -----------------------------------------------------------------------
     def _section_items(self, key: str) -> list[tuple[str, YNode, SourcePos]]:
+        """(name, node, key position) of a section's items: the component instances' first
+        (in instance order; the project's own timers and observers may read theirs), then
+        the project's."""
+        instances = list(self.components.items.get(key, ()))
         node = self.sections.get(key)
         if node is None:
-            return []
+            return instances
         if node.kind == "scalar" and node.value is None:
-            return []
+            return instances
         mapping = self.guard(lambda: node.as_map(key), {})
-        return [(name, item, node.key_pos[name]) for name, item in mapping.items()]
+        return instances + [(name, item, node.key_pos[name]) for name, item in mapping.items()]
 
     def _variables(self, key: str, kind: str, allowed: set[str]) -> list[Variable]:
         out = []
