@@ -766,6 +766,7 @@ class ProjectLoader:
         kind = self.guard(lambda: self._choice(fields["kind"], "plant kind", ("sim", "modbus")),
                           "sim")
         devices: list[DeviceSpec] = []
+        self._links: list[tuple[str, str, str, SourcePos, tuple[str, ...]]] = []
         if "model" in fields and "devices" in fields:
             self.diag.error(fields["devices"].pos, "the plant has both 'model' and 'devices'",
                             "'model' for one device, or 'devices' for several")
@@ -786,6 +787,7 @@ class ProjectLoader:
         elif kind == "sim":
             self.diag.error(node.pos, "a simulated plant needs a model",
                             "'model: valve' or a 'devices:' mapping")
+        self._check_links(devices)
         if kind == "sim":
             bound = {var for d in devices for var in d.ports.values()}
             for var in inputs:
@@ -837,6 +839,12 @@ class ProjectLoader:
                                    _param_value(s, n, p))
                 if value is not None:
                     params[pname] = value
+                    if model.PARAMS[pname].kind == "device":
+                        self._links.append((name or model_name, pname, value, pnode.pos,
+                                            model.PARAMS[pname].choices))
+            for pname, message, expected in model.param_problems(params):
+                self.diag.error(pmap[pname].pos if pname in pmap else fields["params"].pos,
+                                f"{model_name} parameter {pname!r}: {message}", expected)
         input_names = {v.name for v in inputs}
         output_names = {v.name for v in outputs}
         # A port binds by identity to a project variable of the same name unless 'ports:'
@@ -865,6 +873,21 @@ class ProjectLoader:
                 self.diag.warning(fields["model"].pos, f"{model_name} actuator {port!r} is not "
                                   "bound to any output; it is never driven")
         return DeviceSpec(name or model_name, model_name, params, ports, node.pos)
+
+    def _check_links(self, devices: list[DeviceSpec]) -> None:
+        """A "device" parameter (a pipe to another device) names a device of the right model."""
+        models = {d.name: d.model for d in devices}
+        for owner, param, target, pos, allowed in self._links:
+            if target == owner:
+                self.diag.error(pos, f"device {owner!r}: parameter {param!r} names the device "
+                                "itself", "another device of the plant")
+            elif target not in models:
+                self.diag.error(pos, f"device {owner!r}: parameter {param!r} names {target!r}, "
+                                "which is not a device of the plant",
+                                "one of " + ", ".join(sorted(models)))
+            elif allowed and models[target] not in allowed:
+                self.diag.error(pos, f"device {owner!r}: parameter {param!r} names {target!r}, "
+                                f"a {models[target]}", "a device of model " + " or ".join(allowed))
 
     def _check_addresses(self, inputs: list[Variable], outputs: list[Variable]) -> None:
         used: dict[tuple[str, int, int | None], Variable] = {}
@@ -895,6 +918,8 @@ def _param_value(spec: Any, node: YNode, name: str) -> Any:
         return node.as_duration(f"parameter {name!r}")
     if spec.kind == "bool":
         return node.as_bool(f"parameter {name!r}")
+    if spec.kind == "device":
+        return node.as_str(f"parameter {name!r} (a device name)")
     if spec.kind == "choice":
         value = node.as_str(f"parameter {name!r}")
         if value not in spec.choices:
