@@ -284,7 +284,8 @@ def report_lines(result: CampaignResult) -> list[str]:
             lines.append(title)
         for scenario in group:
             runs = [result.result(scenario, c.key) for c in CONFIGS]
-            lines.append(f"  {scenario.name:<{width}} " + " | ".join(f"{r.outcome:<8}" for r in runs)
+            outcomes = " | ".join(f"{r.outcome:<8}" for r in runs)
+            lines.append(f"  {scenario.name:<{width}} {outcomes}"
                          + (f"  {scenario.phase}" if scenario.phase else ""))
             for c, r in zip(CONFIGS, runs, strict=True):
                 lines.append(f"      {c.title}: {r.line()}")
