@@ -351,3 +351,24 @@ def test_the_component_behaves_scan_for_scan_like_the_valve_project(valve_pair, 
                           tuple(sorted(flags.items()))))
         runs.append((trace, [(e.time_us, e.kind) for e in plant.events()]))
     assert runs[0] == runs[1]
+
+
+def test_library_components_validate_against_the_component_schema():
+    import json
+
+    import jsonschema
+    import yaml
+    from referencing import Registry, Resource
+    schemas = [json.loads((ROOT / "hmi" / "project" / name).read_text())
+               for name in ("schema.json", "component.schema.json")]
+    registry = Registry().with_resources(
+        (s["$id"], Resource.from_contents(s)) for s in schemas)
+    validator = jsonschema.Draft202012Validator(schemas[1], registry=registry)
+    files = sorted((ROOT / "components").glob("*.yaml"))
+    assert files
+    for path in files:
+        validator.validate(yaml.safe_load(path.read_text()))
+    bad = yaml.safe_load(VALVE.read_text())
+    bad["parameters"]["C"]["kind"] = "memory"
+    with pytest.raises(jsonschema.ValidationError):
+        validator.validate(bad)
