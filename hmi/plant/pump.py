@@ -173,7 +173,9 @@ class Pump(SimDevice):
 
     # -- reporting ----------------------------------------------------------------------------
     def state(self) -> dict[str, Any]:
-        return {"running": self.running, "flow": round(self.delivering / 1000, 1)}
+        # 0/1, not a bool: in a plant's state a true bool is an abnormal condition (a jam),
+        # which the HMI shows as an alarm; a running pump is not one.
+        return {"running": int(self.running), "flow": round(self.delivering / 1000, 1)}
 
     def counters(self) -> dict[str, int]:
         return {"starts": self.starts}

@@ -241,12 +241,15 @@ class Components:
     items: dict[str, list[tuple[str, YNode, SourcePos]]] = field(default_factory=dict)
     explanations: list[tuple[ComponentInstance, YNode]] = field(default_factory=list)
     files: list[str] = field(default_factory=list)
-    scopes: dict[int, ComponentInstance] = field(default_factory=dict)  # id(YNode) -> owner
+    # id(YNode) -> (the node, its instance): the node is kept so that its id is never reused
+    scopes: dict[int, tuple[YNode, ComponentInstance]] = field(default_factory=dict)
 
     def localise(self, node: YNode, expr: Expr) -> Expr:
         """An expression read from `node`, renamed if the node belongs to an instance."""
-        owner = self.scopes.get(id(node))
-        return owner.rename_expr(expr) if owner is not None else expr
+        entry = self.scopes.get(id(node))
+        if entry is None or entry[0] is not node:
+            return expr
+        return entry[1].rename_expr(expr)
 
     def check_lines(self) -> list[str]:
         """The `plchmi check` section: each instance, its bindings and the names it adds."""
@@ -751,8 +754,9 @@ def _set_context(node: YNode, context: str) -> None:
             _set_context(child, context)
 
 
-def _register(node: YNode, inst: ComponentInstance, scopes: dict[int, ComponentInstance]) -> None:
-    scopes[id(node)] = inst
+def _register(node: YNode, inst: ComponentInstance,
+              scopes: dict[int, tuple[YNode, ComponentInstance]]) -> None:
+    scopes[id(node)] = (node, inst)
     children = node.value.values() if node.kind == "map" else (
         node.value if node.kind == "seq" else ())
     for child in children:
