@@ -42,6 +42,30 @@ class CellRun:
         return max(self.distances, default=0)
 
 
+def run_cell_bench(args, folder: str, title: str, work, strategies=("exact",),
+                   footnote: str | None = None) -> None:
+    """The body of a cell's bench section: each program (and strategy) for 10 virtual
+    minutes (1 with --quick), one block of figures per row."""
+    from hmi.paths import PROJECTS
+    from hmi.project.loader import load_project
+
+    minute = 60_000_000
+    minutes = 1 if getattr(args, "quick", False) else 10
+    seed = getattr(args, "seed", 1)
+    project = with_seed(load_project(PROJECTS / folder), seed)
+    print(f"{title}: {minutes} min of virtual time per row "
+          f"({minutes * minute // project.scan_period_us:,} scans of "
+          f"{project.scan_period_us // 1000} ms), policy correct, box schedule seed {seed}",
+          flush=True)
+    for control in ("normal", "faulty"):
+        for strategy in strategies:
+            result = measure(project, control, minutes * minute, strategy=strategy)
+            for line in report_lines(result, work(result.counters)):
+                print(line, flush=True)
+    if footnote:
+        print(footnote, flush=True)
+
+
 def with_seed(project: Project, seed: int) -> Project:
     """The project with every simulated device's `seed` parameter (if it has one) replaced."""
     devices = tuple(dataclasses.replace(d, params={**d.params, "seed": seed})

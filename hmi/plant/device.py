@@ -34,6 +34,17 @@ class FaultSpec:
     component: str  # the part that fails: a sensor port name or "actuator"
 
 
+def jam_and_stuck_faults(jams: dict[str, str], sensors: tuple[str, ...]
+                         ) -> dict[str, FaultSpec]:
+    """The usual fault list of a cell model: each drive's jam, each sensor stuck at 0 or 1."""
+    faults = {code: FaultSpec(code, text, "actuator") for code, text in jams.items()}
+    for sensor in sensors:
+        for value in (0, 1):
+            code = f"{sensor}_stuck{value}"
+            faults[code] = FaultSpec(code, f"sensor {sensor} stuck at {value}", sensor)
+    return faults
+
+
 @dataclass(frozen=True)
 class PlantEvent:
     """Something objective that happened in the plant; `damage` marks a damaging situation."""

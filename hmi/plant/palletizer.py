@@ -42,7 +42,7 @@ from __future__ import annotations
 from typing import Any, ClassVar
 
 from hmi.plant.boxes import MM, Box, BoxSource
-from hmi.plant.device import FaultSpec, ParamSpec, PendingFault, SimDevice
+from hmi.plant.device import FaultSpec, ParamSpec, PendingFault, SimDevice, jam_and_stuck_faults
 from hmi.plant.track import WALL, Line, Segment, advance
 from hmi.plant.travel import Travel, direction
 from hmi.timefmt import seconds
@@ -65,12 +65,7 @@ _JAMS = {
 
 
 def _faults() -> dict[str, FaultSpec]:
-    faults = {code: FaultSpec(code, text, "actuator") for code, text in _JAMS.items()}
-    for sensor in SENSORS:
-        for value in (0, 1):
-            code = f"{sensor}_stuck{value}"
-            faults[code] = FaultSpec(code, f"sensor {sensor} stuck at {value}", sensor)
-    return faults
+    return jam_and_stuck_faults(_JAMS, SENSORS)
 
 
 def _number(default: float, text: str, low: float, high: float) -> ParamSpec:

@@ -48,7 +48,7 @@ import itertools
 from typing import Any, ClassVar
 
 from hmi.plant.boxes import MM, Box, BoxSource
-from hmi.plant.device import FaultSpec, ParamSpec, PendingFault, SimDevice
+from hmi.plant.device import FaultSpec, ParamSpec, PendingFault, SimDevice, jam_and_stuck_faults
 from hmi.plant.track import EXIT, OPEN, TOUCH, WALL, Line, Segment, advance
 from hmi.plant.travel import Travel, direction
 from hmi.timefmt import seconds
@@ -71,12 +71,7 @@ _DRIVE_FAULTS = {
 
 
 def _faults() -> dict[str, FaultSpec]:
-    faults = {code: FaultSpec(code, text, "actuator") for code, text in _DRIVE_FAULTS.items()}
-    for sensor in SENSORS:
-        for value in (0, 1):
-            code = f"{sensor}_stuck{value}"
-            faults[code] = FaultSpec(code, f"sensor {sensor} stuck at {value}", sensor)
-    return faults
+    return jam_and_stuck_faults(_DRIVE_FAULTS, SENSORS)
 
 
 def _mm(value: float) -> int:
