@@ -166,25 +166,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     args = parser.parse_args(args_list)
     try:
-        if args.command == "check":
-            return cmd_check(args)
-        if args.command == "run":
-            return cmd_run(args)
-        if args.command == "sweep":
-            from hmi.sweep import cmd_sweep
-            return cmd_sweep(args, load(args.project))
-        if args.command == "ui":
-            return cmd_ui(args)
-        if args.command == "serve-plant":
-            return cmd_serve_plant(args)
-        if args.command == "bench":
-            return cmd_bench(args)
-        if args.command == "journal":
-            return cmd_journal(args)
-        if args.command == "diagnose":
-            return cmd_diagnose(args)
-        if args.command == "campaign":
-            return cmd_campaign(args)
+        handler = COMMANDS.get(args.command)
+        if handler is not None:
+            return handler(args)
     except ProjectError as exc:
         print_project_error(exc)
         return 2
@@ -196,6 +180,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     except KeyboardInterrupt:
         return 130
+    except BrokenPipeError:
+        # The reader went away (plchmi ... | head): not an error; silence the final flush.
+        import os
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except Exception as exc:  # a bug: say so plainly, keep the details for the developers
         report = write_crash_report(exc)
         print(f"plchmi: internal error: {type(exc).__name__}: {exc}", file=sys.stderr)
@@ -219,6 +208,11 @@ def write_crash_report(exc: BaseException) -> str:
     except OSError as err:
         return f"(no report: {err.strerror})"
     return str(path)
+
+
+def _sweep(args: argparse.Namespace) -> int:
+    from hmi.sweep import cmd_sweep
+    return cmd_sweep(args, load(args.project))
 
 
 def print_project_error(exc: ProjectError) -> None:
@@ -654,6 +648,13 @@ def cmd_serve_plant(args: argparse.Namespace) -> int:
 
 
 __all__ = ["format_duration", "main", "seconds"]
+
+
+COMMANDS = {
+    "check": cmd_check, "run": cmd_run, "sweep": _sweep, "ui": cmd_ui,
+    "serve-plant": cmd_serve_plant, "bench": cmd_bench, "journal": cmd_journal,
+    "diagnose": cmd_diagnose, "campaign": cmd_campaign,
+}
 
 if __name__ == "__main__":
     raise SystemExit(main())

@@ -14,11 +14,18 @@ from pathlib import Path
 
 @dataclass(frozen=True, order=True)
 class SourcePos:
-    """A position in a project file; line and column count from 1, as editors show them."""
+    """A position in a project file; line and column count from 1, as editors show them.
+
+    `context` says through what the file was reached when one file serves several times: a
+    component file instantiated by a project ("in component V1 of project.yaml:20:5"). It is
+    not part of ``str(pos)`` (messages quote positions inline) but every diagnostic at such a
+    position ends with it, so the engineer knows which instance a component error is about.
+    """
 
     file: str
     line: int = 0
     col: int = 0
+    context: str = ""
 
     def __str__(self) -> str:
         if self.line <= 0:
@@ -27,7 +34,7 @@ class SourcePos:
 
     def shifted(self, columns: int) -> SourcePos:
         """The position `columns` characters further on the same line (inside a scalar)."""
-        return SourcePos(self.file, self.line, self.col + columns)
+        return SourcePos(self.file, self.line, self.col + columns, self.context)
 
 
 @dataclass(frozen=True)
@@ -41,6 +48,8 @@ class Diagnostic:
         text = f"{self.pos}: {self.severity}: {self.message}"
         if self.expected:
             text += f" (expected {self.expected})"
+        if self.pos.context:
+            text += f" ({self.pos.context})"
         return text
 
 

@@ -30,10 +30,11 @@ def test_valve_ambiguities_are_f1_f13_and_f3_f13_final(valve):
     assert not f13.certain and {a.labels for a in f13.ambiguities} == finals
 
 
-def test_valve_has_nine_normal_and_sixteen_abnormal_states(valve):
-    assert len(valve.normal) == 9 and valve.abnormal == 16
+def test_valve_has_nine_normal_and_eighteen_abnormal_states(valve):
+    # The paper's 16 plus R7 {F2, F7} and R9 {F4, F9} (see docs/cispi_valve.md).
+    assert len(valve.normal) == 9 and valve.abnormal == 18
     assert len(valve.certain_states) == 10
-    assert sorted(valve.intermediate) == ["B1", "B2", "B3", "B4"]
+    assert sorted(valve.intermediate) == ["B1", "B2", "B3", "B4", "R7", "R9"]
     assert sorted(valve.final_ambiguous) == ["A1", "A3"]
     assert valve.unreachable == ()
 
@@ -64,7 +65,7 @@ def test_check_and_diagnose_print_the_figures(capsys):
     out = capsys.readouterr().out
     assert "labels isolated with certainty: 10/13; ambiguous: 3 (F1, F3, F13)" in out
     assert "final ambiguities: {F1, F13}, {F3, F13}" in out
-    assert "states: 9 normal, 16 abnormal (10 isolating one label, 6 ambiguous of which 4 " \
+    assert "states: 9 normal, 18 abnormal (10 isolating one label, 8 ambiguous of which 6 " \
            "intermediate)" in out
     assert "Diagnostic Coverage DC = 10/13 = 76.9 %: ISO 13849-1 band low" in out
     assert main(["diagnose", str(PROJECTS / "cispi_valve")]) == 0

@@ -77,13 +77,16 @@ DIAGNOSES = [
     ("F4@12s", "S4", ("F4",), CLOSE_ORDER_2, SCAN + 300 * MS + 2_200 * MS),
     ("F5@8.2s", "S5", ("F5",), OPEN_ORDER_2, SCAN + 300 * MS + 2_200 * MS + SCAN),
     ("F6@12s", "S6", ("F6",), CLOSE_ORDER_2, SCAN + 300 * MS + 2_200 * MS + SCAN),
-    ("F7@14.5s", "S7", ("F7",), 14_500 * MS, 0),
+    ("F7@14.5s", "S7", ("F7",), 14_500 * MS, 500 * MS),  # via R7 {F2, F7}
     ("F8@8.2s", "S8", ("F8",), 8_200 * MS, 500 * MS),
-    ("F9@9.5s", "S9", ("F9",), 9_500 * MS, 0),
+    ("F9@9.5s", "S9", ("F9",), 9_500 * MS, 500 * MS),  # via R9 {F4, F9}
     ("F10@12s", "S10", ("F10",), 12_000 * MS, 500 * MS),
     ("F11@8.2s", "S11", ("F11",), 8_200 * MS, SCAN + 2_500 * MS),
     ("F12@12s", "S12", ("F12",), 12_000 * MS, SCAN + 2_500 * MS),
     ("F13@10.4s", "A3", ("F3", "F13"), OPEN_ORDER_2, SCAN + 300 * MS + 1_930 * MS + SCAN),
+    # A switch sticking at 1 mid-travel: made too early, then still made after a glitch.
+    ("F2@14.5s", "S2", ("F2",), 14_500 * MS, 500 * MS),
+    ("F4@10s", "S4", ("F4",), 10_000 * MS, 500 * MS),
 ]
 
 
@@ -119,9 +122,12 @@ def test_a_sensor_flag_reconstructs_the_sensor_and_the_cycle_goes_on(project):
     snaps = run(controller(project, ["F9@9.5s"]), 30)
     at = next(s for s in snaps if s.time_us == 9_500 * MS)
     d = at.diagnosers[0]
-    assert (d.state, d.labels, dict(d.flags)) == ("S9", ("F9",),
+    # A glitch or a stuck switch: both are fso's partition, so fso is reconstructed at once.
+    assert (d.state, d.labels, dict(d.flags)) == ("R9", ("F4", "F9"),
                                                   {"def_fsc": False, "def_fso": True,
                                                    "def_V": False})
+    glitch_over = next(s for s in snaps if s.diagnosers[0].state == "S9")
+    assert glitch_over.time_us == 9_800 * MS  # fso broke again after its 300 ms glitch
     assert at.value("fso") and not at.value("fso_filter")  # the glitch is not believed ...
     assert at.reconstructed == ("fso",) and at.masked == ()
     assert at.active_steps == ("X1",) and at.outputs == (False, True)  # ... so O stays on
@@ -217,8 +223,9 @@ def test_run_summary_shows_the_diagnosis_the_flags_and_the_reconstruction(capsys
     assert main(["run", str(VALVE), "--for", "60s", "--inject", "F4@10s"]) == 0
     out = capsys.readouterr().out
     assert "Damage events: none" in out and "cycles 7" in out
-    assert "10.000 s  V1 -> S9 {F9}  flags def_fso  (N3 -> S9 on fso and not fsc within " \
-           "[0s, 1.5s))" in out
+    assert "10.000 s  V1 -> R9 {F4, F9}  flags def_fso  (N3 -> R9 on fso and not fsc " \
+           "within [0s, 1.5s))" in out
+    assert "10.500 s  V1 -> S4 {F4}  flags def_fso  (R9 -> S4 after 500ms)" in out
     assert "reconstructed: fso from fso_hat since 10.000 s" in out
     assert "masked: none" in out
 

@@ -132,7 +132,7 @@ class CampaignResult:
             "configurations": [{"key": c.key, "title": c.title, "policy": c.policy,
                                 "diagnosis": c.diagnosis} for c in CONFIGS],
             "table": {c.key: self.table(c.key) for c in CONFIGS},
-            "paper": PAPER_TABLE,
+            "paper": PAPER_TABLE if self.spec.paper else None,
             "runs": [r.as_dict() for r in self.runs],
         }
 
@@ -258,18 +258,24 @@ def report_lines(result: CampaignResult) -> list[str]:
              f"last {format_duration(spec.window_us)}; Tolerant: otherwise",
              ""]
     header = ["", *[c.title for c in CONFIGS]]
-    sub = ["", *["plchmi  paper" for _ in CONFIGS]]
-    rows = [header, sub]
-    for outcome in OUTCOMES:
-        row = [outcome]
-        for c in CONFIGS:
-            row.append(f"{result.table(c.key)[outcome]:>6}  {PAPER_TABLE[c.key][outcome]:>5}")
-        rows.append(row)
-    lines += _table(rows)
-    lines.append("  (paper: 000 Table 1, ProcesSim; plchmi: this project's model, counted over "
-                 "the scenarios of the table)")
+    if spec.paper:
+        rows = [header, ["", *["plchmi  paper" for _ in CONFIGS]]]
+        for outcome in OUTCOMES:
+            row = [outcome]
+            for c in CONFIGS:
+                row.append(f"{result.table(c.key)[outcome]:>6}  {PAPER_TABLE[c.key][outcome]:>5}")
+            rows.append(row)
+        lines += _table(rows)
+        lines.append("  (paper: 000 Table 1, ProcesSim; plchmi: this project's model, counted "
+                     "over the scenarios of the table)")
+    else:
+        rows = [header] + [[outcome, *[str(result.table(c.key)[outcome]) for c in CONFIGS]]
+                           for outcome in OUTCOMES]
+        lines += _table(rows)
+        lines.append("  (counted over the scenarios of the table, one per fault)")
     lines.append("")
     lines.append("Per scenario (" + " | ".join(c.title for c in CONFIGS) + ")")
+    width = max([10, *(len(s.name) for s in ran)])
     for group, title in ((tabled, None), (extra, "Extra scenarios (not counted in the table)")):
         if not group:
             continue
@@ -278,7 +284,8 @@ def report_lines(result: CampaignResult) -> list[str]:
             lines.append(title)
         for scenario in group:
             runs = [result.result(scenario, c.key) for c in CONFIGS]
-            lines.append(f"  {scenario.name:<10} " + " | ".join(f"{r.outcome:<8}" for r in runs)
+            outcomes = " | ".join(f"{r.outcome:<8}" for r in runs)
+            lines.append(f"  {scenario.name:<{width}} {outcomes}"
                          + (f"  {scenario.phase}" if scenario.phase else ""))
             for c, r in zip(CONFIGS, runs, strict=True):
                 lines.append(f"      {c.title}: {r.line()}")

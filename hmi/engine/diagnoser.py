@@ -505,4 +505,8 @@ def install_diagnosers(engine: Engine, mode: str = "ftc") -> DiagnosisStage | No
     if stage.depth > (engine.history.maxlen or 0) and not engine.started:
         engine.history = deque(maxlen=stage.depth)
     engine.diagnosis = stage
+    explainer = getattr(engine, "explainer", None)
+    if explainer is not None:
+        from hmi.explain.diagnoses import diagnosis_explanations
+        explainer.extra_builders.append(diagnosis_explanations)
     return stage

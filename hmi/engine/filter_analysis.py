@@ -133,6 +133,9 @@ def analyse(project: Project, seed: int = 0) -> FilterAnalysis:
     analysis.worst_exhaustive = fovs_exhaustive
     rng = random.Random(seed + 1)
     all_bits = (1 << len(outputs)) - 1
+    # Many situations activate the same constraints: the corrector's problem depends only on
+    # (F0, F1, the active combined constraints), so each distinct problem is solved once.
+    solvable: dict[tuple, bool] = {}
     for assign in situations:
         analysis.situations += 1
         if not reachable(assign):
@@ -149,8 +152,15 @@ def analyse(project: Project, seed: int = 0) -> FilterAnalysis:
                 else:
                     f1 |= neg
         combined = [(pos, neg) for c, pos, neg in active if c.kind == "combined"]
+        key = (f0, f1, tuple(combined))
+        seen = key in solvable
+        if not seen:
+            solvable[key] = not f0 & f1 and exact_solve(
+                f1, combined, all_bits & ~(f0 | f1)).vector is not None
+        if seen and solvable[key] and fovs_exhaustive:
+            continue  # every functional vector was already tried on this very problem
         situation = ", ".join(_lit_text(n, d, assign[var_index[(n, d)]]) for n, d in variables)
-        if f0 & f1 or exact_solve(f1, combined, all_bits & ~(f0 | f1)).vector is None:
+        if not solvable[key]:
             analysis.no_solution_count += 1
             if len(analysis.no_solution) < 3:
                 forced = [outputs[k] for k in range(len(outputs)) if (f0 & f1) >> k & 1]

@@ -188,7 +188,9 @@ class ExplanationBuilder:
         parts = []
         for change in changed:
             desc = _lower_first(self.short(change.output))
-            if change.written:
+            if change.how == "masked":
+                parts.append(f"{desc} withdrawn by {', '.join(change.by)}")
+            elif change.written:
                 parts.append(f"{desc} kept on")
             else:
                 parts.append(f"{desc} blocked")
@@ -225,6 +227,19 @@ class ExplanationBuilder:
                 self.policy_reset("release the latch; the program resumes from where it is "
                                   "(check it first: it asked for an unsafe order)", True),
                 self.policy_manual(), self.policy_stop(device))
+        elif any(c.how == "masked" for c in changed):
+            flags = ", ".join(sorted({f for c in changed if c.how == "masked" for f in c.by}))
+            withdrawn = ", ".join(c.output for c in changed if c.how == "masked")
+            consequences = (f"A diagnoser suspects a fault of {device} and holds its orders at 0 "
+                            f"({flags}). That withdraws {withdrawn} although the rule {quoted} "
+                            "asks to keep it: the mask has the last word, because a device "
+                            "that may be blocked must not be driven. See the diagnosis for what "
+                            "to do.")
+            severity = "low"
+            policies = (
+                self.policy_continue("leave the orders masked until the diagnosis is "
+                                     "cleared by a fault reset", True),
+                self.policy_manual())
         else:
             written = ", ".join(f"{c.output}={int(c.written)}"
                                 for c in changed) or "a safe vector"

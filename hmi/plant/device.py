@@ -15,7 +15,9 @@ from typing import Any, ClassVar
 
 @dataclass(frozen=True)
 class ParamSpec:
-    """One model parameter: its type ("duration", "number", "bool", "choice"), default, help."""
+    """One model parameter: its type ("duration", "number", "bool", "choice", "device"),
+    default, help. A "device" parameter names another device of the plant (a pipe or a shaft
+    the PLC does not see); its `choices` are the models it may name."""
 
     kind: str
     default: Any
@@ -30,6 +32,17 @@ class FaultSpec:
     code: str
     description: str
     component: str  # the part that fails: a sensor port name or "actuator"
+
+
+def jam_and_stuck_faults(jams: dict[str, str], sensors: tuple[str, ...]
+                         ) -> dict[str, FaultSpec]:
+    """The usual fault list of a cell model: each drive's jam, each sensor stuck at 0 or 1."""
+    faults = {code: FaultSpec(code, text, "actuator") for code, text in jams.items()}
+    for sensor in sensors:
+        for value in (0, 1):
+            code = f"{sensor}_stuck{value}"
+            faults[code] = FaultSpec(code, f"sensor {sensor} stuck at {value}", sensor)
+    return faults
 
 
 @dataclass(frozen=True)
@@ -106,6 +119,19 @@ class SimDevice(ABC):
     @abstractmethod
     def _advance_to(self, t: int) -> None:
         """Integrate the physics from self.t to t (t >= self.t) and set self.t = t."""
+
+    def link(self, devices: Mapping[str, SimDevice]) -> None:  # noqa: B027
+        """Hook: resolve "device" parameters to the plant's other devices (all built by then).
+
+        Physical links between devices (a pump pushing through valves into tanks) are not
+        ports: the PLC neither reads nor writes them, so the plant wires them here.
+        """
+
+    @classmethod
+    def param_problems(cls, params: Mapping[str, Any]) -> list[tuple[str, str, str]]:
+        """(parameter, what is wrong, what was expected) for values that do not fit together
+        (each alone passed its ParamSpec); the loader reports them at the parameter."""
+        return []
 
     def _orders_changed(self, t: int, changed: dict[str, bool]) -> None:  # noqa: B027
         """Hook: react to new orders (record dangerous combinations...)."""

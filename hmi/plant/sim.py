@@ -76,6 +76,9 @@ class SimPlant:
             self._sensor_bind.append((device, sensors))
             self._actuator_bind.append((device, actuators))
             driven.update(var for _, var in sensors)
+        by_name = {d.name: d for d in self.devices}
+        for device in self.devices:  # pipes and shafts between devices (device.link)
+            device.link(by_name)
         self.free_inputs = {name: False for name in self.input_names if name not in driven}
         self._values = dict.fromkeys(self.input_names, False)
         self._taken = [0] * len(self.devices)

@@ -4,6 +4,7 @@
       length: 45s          # virtual time of each run
       window: 20s          # Blocked = no completed cycle during the last `window` of a run
       counter: cycles      # the plant counter that counts completed functional cycles
+      paper: true          # print 000 Table 1 beside the counts (the valve's; default)
       scenarios:
         - {fault: F1, at: 12s, phase: valve open at rest; symptom at the next closing}
         - {fault: F4, at: 10s, phase: ..., table: false}   # shown, not counted in Table 1
@@ -50,6 +51,7 @@ class CampaignSpec:
     counter: str
     scenarios: tuple[Scenario, ...]
     pos: SourcePos
+    paper: bool = True  # compare the counts with 000 Table 1 (a campaign of the CISPI valve)
 
 
 def campaign_of(project: Project) -> CampaignSpec | None:
@@ -73,7 +75,7 @@ def parse_campaign(loader: ProjectLoader, plant: PlantSpec) -> CampaignSpec | No
     if node is None:
         return None
     fields = loader.guard(lambda: node.check_keys(
-        "campaign", {"length", "window", "counter", "scenarios"},
+        "campaign", {"length", "window", "counter", "scenarios", "paper"},
         ["length", "window", "counter", "scenarios"]))
     if fields is None:
         return None
@@ -81,6 +83,8 @@ def parse_campaign(loader: ProjectLoader, plant: PlantSpec) -> CampaignSpec | No
     length = loader.guard(lambda: fields["length"].as_duration("campaign length"))
     window = loader.guard(lambda: fields["window"].as_duration("campaign window"))
     counter = loader.guard(lambda: fields["counter"].as_str("campaign counter"))
+    paper = loader.guard(lambda: fields["paper"].as_bool("paper"), True) \
+        if "paper" in fields else True
     if length is not None and window is not None and window >= length:
         loader.diag.error(fields["window"].pos, f"the campaign window ({format_duration(window)})"
                           f" is not shorter than a run ({format_duration(length)})",
@@ -138,4 +142,4 @@ def parse_campaign(loader: ProjectLoader, plant: PlantSpec) -> CampaignSpec | No
         if code not in tabled:
             loader.diag.warning(fields["scenarios"].pos, f"fault {code} of {device} has no "
                                 "scenario counted in the campaign table")
-    return CampaignSpec(length, window, counter, tuple(scenarios), node.pos)
+    return CampaignSpec(length, window, counter, tuple(scenarios), node.pos, bool(paper))

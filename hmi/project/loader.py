@@ -27,6 +27,7 @@ from hmi.logic.expr import (
 )
 from hmi.plant.models import MODELS
 from hmi.project.campaign import parse_campaign
+from hmi.project.components import Components, load_components, merge_texts
 from hmi.project.diagnosers import declare_diagnoser_names, parse_diagnosers
 from hmi.project.model import (
     POLICIES,
@@ -57,7 +58,7 @@ PROJECT_FILE = "project.yaml"
 TOP_KEYS = {
     "name", "description", "scan_period", "include", "inputs", "outputs", "memories",
     "timers", "observers", "control", "constraints", "policy", "solver", "plant",
-    "explanations", "monitors", "scenarios", "diagnosers", "campaign",
+    "explanations", "monitors", "scenarios", "diagnosers", "campaign", "components",
 }
 
 NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
@@ -107,6 +108,7 @@ class ProjectLoader:
         self.section_pos: dict[str, SourcePos] = {}
         self.files: list[str] = []
         self.pending_includes: list[YNode] = []
+        self.components = Components()  # component instances (hmi/project/components.py)
 
     # -- helpers ----------------------------------------------------------------------------
     def guard(self, fn: Callable[[], Any], default: Any = None) -> Any:
@@ -154,6 +156,7 @@ class ProjectLoader:
         parsed = self.guard(parse)
         if parsed is None:
             return None
+        parsed = self.components.localise(node, parsed)  # a component's names, per instance
         steps = tuple(steps)
         namespace = dict(self.namespace)
         namespace.update(dict.fromkeys(steps, "step"))
@@ -251,6 +254,10 @@ class ProjectLoader:
             self.diag.error(pos, "the project has no inputs", "an 'inputs:' section")
         if "outputs" not in s:
             self.diag.error(pos, "the project has no outputs", "an 'outputs:' section")
+        # Component instances add timers, observers, constraints, diagnosers and explanations,
+        # read below with the project's own (hmi/project/components.py).
+        self.components = load_components(self)
+        self.files.extend(self.components.files)
         timer_nodes = self._declare_items("timers", "timer")
         observer_nodes = self._declare_items("observers", "observer")
         declare_diagnoser_names(self)  # def_<partition> flags, <sensor>_filter names
@@ -274,15 +281,18 @@ class ProjectLoader:
         diagnosers = parse_diagnosers(self)  # hmi/project/diagnosers.py
         campaign = parse_campaign(self, plant)  # hmi/project/campaign.py
         texts = None
+        sources = [*self.components.explanations]
         if "explanations" in s:
+            sources.append((None, s["explanations"]))
+        if sources:
             from hmi.project.explanations import parse_explanations
-            texts = parse_explanations(
-                s["explanations"], self.guard,
-                {"constraints": {c.name for c in constraints},
-                 "monitors": {m.name for m in monitors},
-                 "labels": {lab for d in diagnosers for lab in d.labels},
-                 "partitions": {p.name for d in diagnosers for p in d.partitions}},
-                self.diag.error)
+            known = {"constraints": {c.name for c in constraints},
+                     "monitors": {m.name for m in monitors},
+                     "labels": {lab for d in diagnosers for lab in d.labels},
+                     "partitions": {p.name for d in diagnosers for p in d.partitions}}
+            texts = merge_texts(self, [
+                (owner, parse_explanations(node, self.guard, known, self.diag.error))
+                for owner, node in sources])
         self.diag.raise_if_errors()
         project = Project(
             name=name, description=description, path=self.folder, scan_period_us=period,
@@ -292,7 +302,9 @@ class ProjectLoader:
             plant=plant, pos=pos, files=tuple(self.files), solver=solver,
             extra={"warnings": tuple(self.diag.warnings), "explanations": texts,
                    "monitors": monitors, "scenarios": scenarios, "diagnosers": diagnosers,
-                   "campaign": campaign},
+                   "campaign": campaign, "components": tuple(self.components.instances),
+                   "check_sections": ((self.components.check_lines(),)
+                                      if self.components.instances else ())},
         )
         return project
 
@@ -307,13 +319,17 @@ class ProjectLoader:
 
     # -- declarations -----------------------------------------------------------------------
     def _section_items(self, key: str) -> list[tuple[str, YNode, SourcePos]]:
+        """(name, node, key position) of a section's items: the component instances' first
+        (in instance order; the project's own timers and observers may read theirs), then
+        the project's."""
+        instances = list(self.components.items.get(key, ()))
         node = self.sections.get(key)
         if node is None:
-            return []
+            return instances
         if node.kind == "scalar" and node.value is None:
-            return []
+            return instances
         mapping = self.guard(lambda: node.as_map(key), {})
-        return [(name, item, node.key_pos[name]) for name, item in mapping.items()]
+        return instances + [(name, item, node.key_pos[name]) for name, item in mapping.items()]
 
     def _variables(self, key: str, kind: str, allowed: set[str]) -> list[Variable]:
         out = []
@@ -750,6 +766,7 @@ class ProjectLoader:
         kind = self.guard(lambda: self._choice(fields["kind"], "plant kind", ("sim", "modbus")),
                           "sim")
         devices: list[DeviceSpec] = []
+        self._links: list[tuple[str, str, str, SourcePos, tuple[str, ...]]] = []
         if "model" in fields and "devices" in fields:
             self.diag.error(fields["devices"].pos, "the plant has both 'model' and 'devices'",
                             "'model' for one device, or 'devices' for several")
@@ -770,6 +787,7 @@ class ProjectLoader:
         elif kind == "sim":
             self.diag.error(node.pos, "a simulated plant needs a model",
                             "'model: valve' or a 'devices:' mapping")
+        self._check_links(devices)
         if kind == "sim":
             bound = {var for d in devices for var in d.ports.values()}
             for var in inputs:
@@ -821,6 +839,12 @@ class ProjectLoader:
                                    _param_value(s, n, p))
                 if value is not None:
                     params[pname] = value
+                    if model.PARAMS[pname].kind == "device":
+                        self._links.append((name or model_name, pname, value, pnode.pos,
+                                            model.PARAMS[pname].choices))
+            for pname, message, expected in model.param_problems(params):
+                self.diag.error(pmap[pname].pos if pname in pmap else fields["params"].pos,
+                                f"{model_name} parameter {pname!r}: {message}", expected)
         input_names = {v.name for v in inputs}
         output_names = {v.name for v in outputs}
         # A port binds by identity to a project variable of the same name unless 'ports:'
@@ -849,6 +873,21 @@ class ProjectLoader:
                 self.diag.warning(fields["model"].pos, f"{model_name} actuator {port!r} is not "
                                   "bound to any output; it is never driven")
         return DeviceSpec(name or model_name, model_name, params, ports, node.pos)
+
+    def _check_links(self, devices: list[DeviceSpec]) -> None:
+        """A "device" parameter (a pipe to another device) names a device of the right model."""
+        models = {d.name: d.model for d in devices}
+        for owner, param, target, pos, allowed in self._links:
+            if target == owner:
+                self.diag.error(pos, f"device {owner!r}: parameter {param!r} names the device "
+                                "itself", "another device of the plant")
+            elif target not in models:
+                self.diag.error(pos, f"device {owner!r}: parameter {param!r} names {target!r}, "
+                                "which is not a device of the plant",
+                                "one of " + ", ".join(sorted(models)))
+            elif allowed and models[target] not in allowed:
+                self.diag.error(pos, f"device {owner!r}: parameter {param!r} names {target!r}, "
+                                f"a {models[target]}", "a device of model " + " or ".join(allowed))
 
     def _check_addresses(self, inputs: list[Variable], outputs: list[Variable]) -> None:
         used: dict[tuple[str, int, int | None], Variable] = {}
@@ -879,6 +918,8 @@ def _param_value(spec: Any, node: YNode, name: str) -> Any:
         return node.as_duration(f"parameter {name!r}")
     if spec.kind == "bool":
         return node.as_bool(f"parameter {name!r}")
+    if spec.kind == "device":
+        return node.as_str(f"parameter {name!r} (a device name)")
     if spec.kind == "choice":
         value = node.as_str(f"parameter {name!r}")
         if value not in spec.choices:
@@ -886,10 +927,15 @@ def _param_value(spec: Any, node: YNode, name: str) -> Any:
                             "one of " + ", ".join(spec.choices))
         return value
     value = node.as_number(f"parameter {name!r}")
-    if (spec.minimum is not None and value < spec.minimum) or \
-            (spec.maximum is not None and value > spec.maximum):
-        raise NodeError(node.pos, f"parameter {name!r} is {value:g}, out of range",
-                        f"a number from {spec.minimum:g} to {spec.maximum:g}")
+    low, high = spec.minimum, spec.maximum
+    if (low is not None and value < low) or (high is not None and value > high):
+        if low is not None and high is not None:
+            expected = f"a number from {low:g} to {high:g}"
+        elif low is not None:
+            expected = f"a number of at least {low:g}"
+        else:
+            expected = f"a number of at most {high:g}"
+        raise NodeError(node.pos, f"parameter {name!r} is {value:g}, out of range", expected)
     return value
 
 

@@ -1,0 +1,224 @@
+"""Graduated explanations of local diagnoser decisions (000 §2-3), for the explanation builder.
+
+One explanation per faulty diagnoser, key ``diagnosis:<name>``, latched like the decision
+(until a fault reset). A certain decision names the fault; an ambiguous one reads as such —
+"fsc stuck at 0, or the valve blocked between its positions" — and recommends checking the
+actuator hypothesis first: a blocked valve can be damaged by further orders, a dead switch
+cannot. Consequences say what the flags are already doing (a sensor running on its estimate,
+orders held at 0). Texts from the project (`explanations: labels:` for a certain label,
+`partitions:` for what a flag does) replace the generated ones.
+
+While a sensor partition's flag is set, the degraded mode has its own explanation (key
+``reconstruction:<sensor>``, no alarm: the diagnosis already raised one), with the operator's
+choices: continue degraded, stop the device, reset after repair.
+"""
+
+from __future__ import annotations
+
+from hmi.explain.model import Explanation, Policy
+from hmi.timefmt import seconds
+
+
+def diagnosis_explanations(builder, engine) -> list[Explanation]:
+    """The `extra_builders` entry: explanations of faulty diagnosers and degraded sensors."""
+    stage = getattr(engine, "diagnosis", None)
+    if stage is None:
+        return []
+    out: list[Explanation] = []
+    states = engine.extras.get("diagnosers", ())
+    specs = {rt.spec.name: rt.spec for rt in stage.runtimes}
+    for state in states:
+        if not state.faulty:
+            continue
+        spec = specs[state.name]
+        key = f"diagnosis:{state.name}"
+        builder.onset(key, engine)
+        out.append(builder.cached(
+            key, (state.state, state.labels, tuple(engine.extras.get("masked", ())),
+                  engine.policy, stage.mode),
+            lambda s=state, sp=spec: _diagnosis(builder, engine, stage, sp, s)))
+        for partition in spec.partitions:
+            if partition.sensor and partition.sensor in engine.extras.get("reconstructed", ()):
+                rkey = f"reconstruction:{partition.sensor}"
+                builder.onset(rkey, engine)
+                out.append(builder.cached(
+                    rkey, (state.labels,),
+                    lambda s=state, sp=spec, p=partition: _reconstruction(builder, engine, sp,
+                                                                        p, s)))
+    return out
+
+
+def _effects(builder, engine, spec, state) -> tuple[list[str], list[str]]:
+    """What the flags are doing: sentences, and the names of sensors/outputs involved."""
+    masked = set(engine.extras.get("masked", ()))
+    reconstructed = set(engine.extras.get("reconstructed", ()))
+    doing, names = [], []
+    for partition in spec.partitions:
+        if not set(partition.labels) & set(state.labels):
+            continue
+        if partition.sensor:
+            names.append(partition.sensor)
+            if partition.sensor in reconstructed:
+                estimate = partition.estimate
+                doing.append(f"{partition.sensor} is no longer trusted: the filter and the "
+                             f"program read its estimate {estimate} "
+                             f"({builder.describe(estimate)}) instead "
+                             f"({partition.flag} set)")
+            else:
+                doing.append(f"{partition.flag} is set, but {partition.sensor} is still read "
+                             "as is (diagnosis observed only: no reconstruction in this mode)")
+        if partition.actuators:
+            held = [o for o in partition.actuators if o in masked]
+            names.extend(partition.actuators)
+            if held:
+                doing.append(f"{', '.join(held)} {'are' if len(held) > 1 else 'is'} held at 0 "
+                             f"({partition.flag} masks {spec.device or spec.name}'s orders): it "
+                             "no longer moves")
+            else:
+                why = "monitor policy" if engine.policy == "monitor" else \
+                    "diagnosis observed only"
+                doing.append(f"{partition.flag} is set but the orders are not masked ({why})")
+    return doing, names
+
+
+def _is_actuator(spec, label: str) -> bool:
+    partition = spec.partition_of(label)
+    return bool(partition and partition.actuators)
+
+
+def _diagnosis(builder, engine, stage, spec, state) -> Explanation:
+    device = spec.device or builder.project.name
+    texts = dict(zip(state.labels, state.label_texts, strict=True))
+    certain = state.certain
+    doing, _ = _effects(builder, engine, spec, state)
+    action = "; ".join(doing) if doing else "nothing is changed"
+    short_action = ", ".join(
+        ("orders held at 0" if "held at 0" in d else
+         f"{d.split(' ')[0]} on its estimate" if "estimate" in d else "flag set")
+        for d in doing) or "observed only"
+    hypotheses = ", or ".join(f"{texts[lab]}" for lab in state.labels)
+    label_list = ", ".join(state.labels)
+    since = builder.onsets[f"diagnosis:{spec.name}"]
+    if certain:
+        label = state.labels[0]
+        what = f"{device}: {texts[label]} ({label}) — {short_action}"
+    else:
+        what = f"{device}: {hypotheses} ({label_list}, ambiguous) — {short_action}"
+    final = "final: only a fault reset leaves it" if state.final else \
+        "intermediate: the next observations will decide"
+    why = (f"Local diagnoser {spec.name} reached state {state.state} ({state.description}) at "
+           f"scan {state.since_scan} ({seconds(state.since_us)} s) by {state.via or 'reset'}; "
+           f"its decision is {{{label_list}}} — "
+           + ("isolated with certainty" if certain else
+              f"{len(state.labels)} faults explain what was observed and the diagnoser cannot "
+              f"tell them apart ({final})")
+           + f". Faulty since scan {since.scan} ({seconds(since.time_us)} s).")
+    consequences = _consequences(spec, state, texts, action)
+    policies = _policies(builder, spec, state, texts, device)
+    severity = "high" if any(_is_actuator(spec, lab) for lab in state.labels) else "medium"
+    values = {"device": device, "time": seconds(engine.now), "scan": engine.scan,
+              "since_time": seconds(since.time_us), "since_scan": since.scan,
+              "action": short_action, "label": state.labels[0] if certain else label_list,
+              "labels": label_list, "label_text": hypotheses, "state": state.state,
+              "state_text": state.description, "diagnoser": spec.name,
+              "transition": state.via, "values": ""}
+    level = {"what": what, "why": why, "consequences": consequences, "policies": policies,
+             "severity": severity, "alarm": True}
+    if certain:
+        level = builder.apply_texts(builder.texts.get("labels", state.labels[0]), level, values)
+    return Explanation(f"diagnosis:{spec.name}", "diagnosis", level["severity"], device,
+                       level["what"], level["why"], level["consequences"], level["policies"],
+                       since.scan, since.time_us, level["alarm"], latched=True,
+                       ambiguous=not certain)
+
+
+def _consequences(spec, state, texts, action: str) -> str:
+    parts = []
+    if state.certain:
+        label = state.labels[0]
+        if _is_actuator(spec, label):
+            parts.append(f"Ordered to move, a {texts[label]} would not follow: the motor would "
+                         "be driven against it and overheat, or the device would move when "
+                         "nothing asks it to.")
+        else:
+            parts.append(f"With a {texts[label]}, every decision based on that sensor would "
+                         "be made on a false picture: constraints could block safe orders or "
+                         "let unsafe ones through.")
+    else:
+        for label in state.labels:
+            kind = "an actuator fault" if _is_actuator(spec, label) else "a sensor fault"
+            parts.append(f"If it is {label} ({texts[label]}, {kind}): "
+                         + ("driving the device again would push against the fault."
+                            if _is_actuator(spec, label) else
+                            "only the sensor's information is wrong; the device itself "
+                            "would work."))
+    parts.append(f"Already done: {action}.")
+    parts.append("The decision stays until a fault reset; the reset re-synchronises the "
+                 "diagnoser if the inputs show a normal situation, and keeps it faulty "
+                 "(saying why) if the fault is still visible.")
+    return " ".join(parts)
+
+
+def _policies(builder, spec, state, texts, device: str) -> tuple[Policy, ...]:
+    actuator = [lab for lab in state.labels if _is_actuator(spec, lab)]
+    sensor = [lab for lab in state.labels if not _is_actuator(spec, lab)]
+    policies: list[Policy] = []
+    if not state.certain and actuator and sensor:
+        first = ", ".join(texts[lab] for lab in actuator)
+        then = ", ".join(texts[lab] for lab in sensor)
+        policies.append(Policy(
+            "check", f"Check {device} first",
+            f"look at the device itself before its sensors: if {first} ({', '.join(actuator)}),"
+            " orders would damage it — repair it, then reset; if it is not, the sensor is at "
+            f"fault ({then}: {', '.join(sensor)}) — replace it, then reset (or continue "
+            "degraded meanwhile)", None, True))
+    if sensor and not actuator:
+        policies.append(Policy(
+            "continue", "Continue degraded",
+            "keep running on the reconstructed value; replace the sensor at the next stop",
+            None, True))
+    policies.append(builder.policy_stop(device))
+    policies.append(builder.policy_reset(
+        "after repair: re-synchronise the diagnoser and release the flags (it stays faulty "
+        "if the fault is still visible)", recommended=bool(actuator) and state.certain))
+    policies.append(builder.policy_manual())
+    return tuple(policies)
+
+
+def _reconstruction(builder, engine, spec, partition, state) -> Explanation:
+    device = spec.device or builder.project.name
+    key = f"reconstruction:{partition.sensor}"
+    since = builder.onsets[key]
+    estimate = partition.estimate
+    what = (f"{device}: {partition.sensor} replaced by its estimate {estimate} — running "
+            "degraded")
+    why = (f"{partition.flag} is set since scan {since.scan} ({seconds(since.time_us)} s): the "
+           f"decision of {spec.name} ({', '.join(state.labels)}) holds a label of partition "
+           f"{partition.name}. {partition.filtered} = not {partition.flag} and "
+           f"{partition.sensor} or {partition.flag} and {estimate} (000 eq. 7-8).")
+    consequences = (f"The program and the filter see {estimate} ({builder.describe(estimate)})"
+                    f" where they would see {partition.sensor}: an estimate from the orders "
+                    "and the travel time, not a measurement. If the device stops moving as "
+                    "the estimate assumes (a jam), the estimate will be wrong and only the "
+                    "other sensors and the diagnoser can tell.")
+    policies = (
+        Policy("continue", "Continue degraded",
+               f"keep running on {estimate}; plan the sensor's replacement", None, True),
+        builder.policy_stop(device),
+        builder.policy_reset("after replacing the sensor: the flag is released if the "
+                             "diagnoser re-synchronises"),
+    )
+    values = {"device": device, "time": seconds(engine.now), "scan": engine.scan,
+              "since_time": seconds(since.time_us), "since_scan": since.scan,
+              "action": "reconstructed", "partition": partition.name,
+              "sensor": partition.sensor, "estimate": estimate or "",
+              "outputs": "", "labels": ", ".join(state.labels)}
+    spec_texts = builder.texts.get("partitions", partition.name)
+    level = builder.apply_texts(spec_texts, {"what": what, "why": why,
+                                             "consequences": consequences,
+                                             "policies": policies, "severity": "medium",
+                                             "alarm": False}, values)
+    return Explanation(key, "reconstruction", level["severity"], device, level["what"],
+                       level["why"], level["consequences"], level["policies"], since.scan,
+                       since.time_us, level["alarm"], latched=True)
+

@@ -1,0 +1,85 @@
+"""Explanations of diagnoser decisions: certain, ambiguous, degraded sensors, policies."""
+
+from __future__ import annotations
+
+from hmi.cli import main
+from hmi.engine.commands import ChoosePolicy, FaultReset
+from tests.conftest import PROJECTS, make_controller
+
+VALVE = PROJECTS / "cispi_valve"
+S = 1_000_000
+
+
+def run_to(ctl, seconds):
+    snap = None
+    end = ctl.engine.now + seconds * S
+    while ctl.engine.now < end:
+        snap = ctl.scan_once()
+    return snap
+
+
+def find(snap, key):
+    return next(e for e in snap.explanations if e.key == key)
+
+
+def test_ambiguous_diagnosis_reads_as_such_and_recommends_checking_the_valve_first(capsys):
+    assert main(["run", str(VALVE), "--for", "60s", "--inject", "F1@10s", "--explain"]) == 0
+    out = capsys.readouterr().out
+    assert ("[high] Valve V1: sensor fsc stuck at 0, or valve blocked between its positions "
+            "(F1, F13, ambiguous)") in out
+    section = out.split("Explanation of diagnosis:V1")[1]
+    for level in ("Why:", "Consequences:", "Policies:"):
+        assert level in section
+    assert "cannot tell them apart (final: only a fault reset leaves it)" in section
+    assert "If it is F13 (valve blocked between its positions, an actuator fault)" in section
+    assert "Recommended: Check Valve V1 first" in section
+
+
+def test_certain_sensor_fault_recommends_continuing_degraded_with_project_texts():
+    ctl = make_controller(VALVE, inject=["F4@10s"])
+    snap = run_to(ctl, 12)
+    e = find(snap, "diagnosis:V1")
+    assert e.what == "Valve V1: sensor fso stuck at 1 (F4) — fso on its estimate"
+    assert not e.ambiguous and e.latched and e.severity == "medium"
+    assert 'The open end switch says "open" all the time' in e.consequences  # project text
+    assert "Already done: fso on its estimate;" in e.consequences  # {action} filled
+    assert e.recommended.id == "continue"
+    assert e.recommended.effect.startswith("keep filling on the estimate")
+    degraded = find(snap, "reconstruction:fso")
+    assert degraded.what == "Valve V1: open end switch fso ignored, read from fso_hat - running " \
+                            "degraded"
+    assert not degraded.alarm
+    alarms = [a.key for a in snap.alarms]
+    assert "diagnosis:V1" in alarms and "reconstruction:fso" not in alarms
+
+
+def test_certain_actuator_fault_recommends_reset_after_repair():
+    ctl = make_controller(VALVE, inject=["F11@8.2s"])
+    snap = run_to(ctl, 12)
+    e = find(snap, "diagnosis:V1")
+    assert "unexpected movement from closed to open (F11)" in e.what
+    assert "orders held at 0" in e.what and e.severity == "high"
+    assert e.recommended.id == "reset"
+
+
+def test_a_diagnosis_alarm_stays_until_reset_and_reset_keeps_a_visible_fault():
+    ctl = make_controller(VALVE, inject=["F4@10s"])
+    snap = run_to(ctl, 12)
+    assert any(a.key == "diagnosis:V1" and a.latched for a in snap.alarms)
+    result = ctl.command(ChoosePolicy("diagnosis:V1", "continue"))
+    assert result.accepted and "Continue degraded" in result.message
+    result = ctl.command(FaultReset())
+    snap = ctl.scan_once()
+    # fso is still stuck at 1: the diagnoser cannot re-synchronise and says why.
+    assert "V1" in result.message
+    assert any(a.key == "diagnosis:V1" for a in snap.alarms)
+
+
+def test_diagnosis_alarm_is_journalled(tmp_path):
+    from hmi.explain.journal import read
+    path = tmp_path / "j.jsonl"
+    assert main(["run", str(VALVE), "--for", "20s", "--inject", "F1@10s", "--journal",
+                 str(path)]) == 0
+    raised = [e for e in read(path).entries if e.get("key") == "diagnosis:V1"]
+    assert raised and raised[0]["event"] == "raised" and raised[0]["severity"] == "high"
+    assert raised[0]["t"] == "15.750"
