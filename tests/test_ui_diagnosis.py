@@ -79,17 +79,19 @@ async def test_ambiguous_diagnosis_reads_as_such():
         assert "? ambiguous" in region_text(app, "#alarms")
         explained = flat(app, "#explain")
         assert "? AMBIGUOUS" in explained and "LATCHED" in explained
-        assert "sensor fsc stuck at 0 (F1) or valve blocked between its positions (F13)" \
-            in explained and "check the valve and motor first" in explained
+        assert "sensor fsc stuck at 0, or valve blocked between its positions (F1, F13, " \
+            "ambiguous)" in explained
+        assert "recommended: Check Valve V1 first" in explained
         await pilot.press("e", "e", "e")
         await wait_until(pilot, lambda: app.focused is not None
                          and "policy-button" in app.focused.classes, "the policies")
         await settle(pilot)
         assert app.focused.policy.id == "check"  # recommended: check the valve first
+        assert "★ Check Valve V1 first" in str(app.focused.label)
         panel = app.query_one(ExplanationPanel)
         panel.scroll_home(animate=False)
         await settle(pilot)
-        assert "cannot tell apart" in flat(app, "#explain")
+        assert "cannot tell them apart" in flat(app, "#explain")
 
 
 async def test_certain_diagnosis_recommends_running_degraded():
@@ -103,7 +105,8 @@ async def test_certain_diagnosis_recommends_running_degraded():
         assert "F9 ✗ certain  unexpected fso rise" in region_text(app, "#diagnosers")
         assert "≈ reconstructed (fso_hat)" in region_text(app, "#io")
         explained = flat(app, "#explain")
-        assert "diagnosed with certainty" in explained and "AMBIGUOUS" not in explained
+        assert "unexpected fso rise (0 to 1) (F9) — fso on its estimate" in explained
+        assert "AMBIGUOUS" not in explained
         app.explain("diagnosis:V1", open_level=4)
         await wait_until(pilot, lambda: app.focused is not None
                          and "policy-button" in app.focused.classes, "the policies")
@@ -112,7 +115,7 @@ async def test_certain_diagnosis_recommends_running_degraded():
         await settle(pilot)
         assert len(app.screen_stack) == 1
         assert seen[-1].policy == "continue"
-        assert "✓ Continue chosen: keep running degraded: fso read from fso_hat" in \
+        assert "✓ Continue degraded chosen: keep running on the reconstructed value" in \
             flat(app, "#explain")
 
 

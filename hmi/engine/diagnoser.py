@@ -498,10 +498,6 @@ def install_diagnosers(engine: Engine, mode: str = "ftc") -> DiagnosisStage | No
     engine.output_stage = MaskedOutputStage(engine.output_stage, stage)
     engine.reset_hooks.append(stage.reset)
     engine.snapshot_extras.append(stage.publish)
-    explainer = getattr(engine, "explainer", None)
-    if explainer is not None:  # a faulty decision is explained and raises an alarm
-        from hmi.explain.diagnosis import diagnosis_explanations
-        explainer.extra_builders.append(diagnosis_explanations)
     if stage.depth > (engine.history.maxlen or 0) and not engine.started:
         engine.history = deque(maxlen=stage.depth)
     engine.diagnosis = stage
