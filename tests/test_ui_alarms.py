@@ -529,3 +529,22 @@ async def test_new_controls_reach_the_controller_listeners(tmp_path: Path):
         await pilot.press("enter")
         await settle(pilot)
     assert seen == ["Acknowledge", "Acknowledge", "ChoosePolicy"]
+
+
+async def test_every_key_stays_in_the_footer_at_80_columns_in_manual_mode():
+    from hmi.engine.commands import SetMode
+    from hmi.ui.actions import ACTIONS
+    from hmi.ui.io_panel import IOPanel
+
+    app = make_app()
+    async with app.run_test(size=(80, 24)) as pilot:
+        app.send(SetMode(True))
+        await run_for(pilot, 0.1)
+        footer = app.query_one("HmiFooter")
+        assert footer.region.height == 3  # two lines are too narrow for 17 keys
+        text = "\n".join(screen_text(app).splitlines()[-3:])
+        labels = [a.label for a in ACTIONS] + [b.description for b in IOPanel.BINDINGS
+                                               if b.action != "button"]
+        for label in labels:
+            assert label in text, label
+        assert screen_text(app).splitlines()[0].startswith(" cispi_valve")  # status kept

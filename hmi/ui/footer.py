@@ -2,7 +2,8 @@
 
 Textual's footer is one line that scrolls sideways; at 80 columns, or at 120 in manual mode,
 some of the operator's controls would be off screen. When the keys do not fit on one line
-this footer takes the class ``-wrap`` (see ``app.tcss``) and lays them out in a two-row grid,
+this footer takes the class ``-wrap`` (see ``app.tcss``) and lays them out in a grid of two
+rows, or three when two are too wide (80 columns in manual mode, where the I/O keys join),
 each column as wide as its widest key, so every control stays visible.
 """
 
@@ -16,6 +17,7 @@ from textual.widgets import Footer
 from textual.widgets._footer import FooterKey
 
 ROWS_WHEN_WRAPPED = 2
+MAX_ROWS = 4
 PALETTE_WIDTH = 13  # "▏^p palette" and its padding, docked on the right
 
 
@@ -29,20 +31,37 @@ class HmiFooter(Footer):
 
     def compose(self) -> ComposeResult:
         children = list(super().compose())
-        keys = [c for c in children if isinstance(c, FooterKey)
-                and not c.has_class("-command-palette")]
-        columns = max(1, ceil(len(keys) / ROWS_WHEN_WRAPPED))
-        widths = [0] * columns
-        for index, key in enumerate(keys):
-            widths[index % columns] = max(widths[index % columns], key_width(key))
-        self.styles.grid_size_columns = columns
-        self.styles.grid_columns = " ".join(str(w) for w in widths)
-        self.needed = sum(key_width(k) for k in keys) + PALETTE_WIDTH
+        self._widths = [key_width(c) for c in children if isinstance(c, FooterKey)
+                        and not c.has_class("-command-palette")]
+        self.needed = sum(self._widths) + PALETTE_WIDTH
         self._wrap()
         yield from children
 
     def on_resize(self) -> None:
         self._wrap()
 
+    def grid(self, rows: int) -> list[int]:
+        """Column widths when the keys are laid out on `rows` lines (row-major, as the grid
+        fills), each column as wide as its widest key."""
+        columns = max(1, ceil(len(self._widths) / rows))
+        widths = [0] * columns
+        for index, width in enumerate(self._widths):
+            widths[index % columns] = max(widths[index % columns], width)
+        return widths
+
     def _wrap(self) -> None:
-        self.set_class(self.needed > self.app.size.width, "-wrap")
+        """One line if it fits; else the fewest lines (2 or more) on which every key fits."""
+        width = self.app.size.width
+        wrap = self.needed > width
+        self.set_class(wrap, "-wrap")
+        if not wrap:
+            self.styles.height = 1
+            return
+        rows = ROWS_WHEN_WRAPPED
+        # the last column's trailing space and the palette key's own padding may touch
+        while rows < MAX_ROWS and sum(self.grid(rows)) + PALETTE_WIDTH - 2 > width:
+            rows += 1
+        widths = self.grid(rows)
+        self.styles.grid_size_columns = len(widths)
+        self.styles.grid_columns = " ".join(str(w) for w in widths)
+        self.styles.height = rows
