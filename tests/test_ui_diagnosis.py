@@ -161,3 +161,29 @@ async def test_diagnosers_panel_keeps_one_line_at_80x24():
         screen = app.screen.region
         for selector in ("#status", "#alarms", "#diagnosers", "HmiFooter"):
             assert screen.contains_region(app.query_one(selector).region), selector
+
+
+async def test_a_situation_without_alarm_is_explained_from_the_palette():
+    from hmi.ui.testing import palette
+
+    app = make_app()
+    async with app.run_test(size=WIDE) as pilot:
+        await inject(pilot, "F9", 10, ("F9",))
+        degraded = next(e for e in engine(app).last.explanations
+                        if e.key == "reconstruction:fso")
+        assert not degraded.alarm  # the diagnosis raised the alarm; this one explains more
+        await palette(pilot, f"Explain: {degraded.what}", "fso ignored")
+        assert app.query_one(ExplanationPanel).key == "reconstruction:fso"
+        assert app.query_one(AlarmList).selected == "diagnosis:V1"  # the list is unchanged
+        explained = flat(app, "#explain")
+        assert "severity" not in explained and "(no alarm)" in explained
+        assert "▾ Why" in explained
+        # enter on the alarm list brings the explanation back to the selected alarm
+        app.query_one(AlarmList).focus()
+        await pilot.press("home")
+        await settle(pilot)
+        assert app.query_one(ExplanationPanel).key == "reconstruction:fso"  # no move: kept
+        await pilot.press("enter")
+        await settle(pilot)
+        assert app.query_one(ExplanationPanel).key == "diagnosis:V1"
+        assert app.query_one(ExplanationPanel).level >= 2

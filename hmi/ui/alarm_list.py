@@ -18,8 +18,9 @@ rows for it: at 80×24 it is never pushed off the screen. When there are more al
 rows, the rows scroll around the selection and the border says how many are out of view.
 
 The selection (↑↓ when the list has the focus, or a click) says which alarm the explanation
-panel explains and which one ``a`` acknowledges. The list posts
-:class:`AlarmSelected` up when it changes; it never sends a command itself.
+panel explains and which one ``a`` acknowledges; enter or a click also opens its
+explanation. The list posts :class:`AlarmSelected` up when it changes; it never sends a
+command itself.
 """
 
 from __future__ import annotations
@@ -110,11 +111,13 @@ def alarm_row(alarm: Alarm, width: int, device_w: int = 0, time_w: int = 7) -> T
 
 
 class AlarmSelected(Message):
-    """The operator selected another alarm (None: the list is empty)."""
+    """The operator selected an alarm (None: the list is empty); `open`: and asked for its
+    explanation (enter, or a click)."""
 
-    def __init__(self, key: str | None) -> None:
+    def __init__(self, key: str | None, open: bool = False) -> None:
         super().__init__()
         self.key = key
+        self.open = open
 
 
 class AlarmList(TextPanel):
@@ -126,6 +129,7 @@ class AlarmList(TextPanel):
         Binding("down", "move(1)", "Next alarm", show=False),
         Binding("home", "move(-1000)", show=False),
         Binding("end", "move(1000)", show=False),
+        Binding("enter", "open", "Explain this alarm", show=False),
     ]
 
     def __init__(self, *, id: str | None = None):
@@ -217,10 +221,15 @@ class AlarmList(TextPanel):
         return keys.index(self.selected) if self.selected in keys else 0
 
     # -- selection ---------------------------------------------------------------------------
-    def _select(self, key: str | None) -> None:
-        if key != self.selected:
+    def _select(self, key: str | None, open: bool = False) -> None:
+        if key != self.selected or open:
             self.selected = key
-            self.post_message(AlarmSelected(key))
+            self.post_message(AlarmSelected(key, open))
+
+    def action_open(self) -> None:
+        """Enter: explain the selected alarm (again, if another situation was picked)."""
+        if self.selected is not None:
+            self._select(self.selected, open=True)
 
     def select(self, key: str) -> bool:
         """Select an alarm by key (from the palette, a constraint clicked); False if none."""
@@ -243,5 +252,5 @@ class AlarmList(TextPanel):
             return
         row = offset.y
         if 0 <= row < self._rows and self.top + row < len(self.alarms):
-            self._select(self.alarms[self.top + row].key)
+            self._select(self.alarms[self.top + row].key, open=True)
             self._draw()

@@ -298,6 +298,9 @@ class PlcHmiApp(App):
         self.subject = None
         if self.frame is not None:
             self._explain(self.frame)
+        panel = self.explanation_panel
+        if message.open and panel.key is not None and panel.level < 2:
+            panel.open_to(2)
 
     def on_explain_requested(self, message: ExplainRequested) -> None:
         self.explain(message.key, message.open_level)
