@@ -455,7 +455,7 @@ class MaskedOutputStage:
         flags = sorted({f for n in masked for f in self.stage.mask_flags[n]})
         extra = (f"{', '.join(flags)} would mask {', '.join(masked)}; not applied under the "
                  "monitor policy")
-        return replace(report, note=f"{report.note}; {extra}" if report.note else extra)
+        return report._replace(note=f"{report.note}; {extra}" if report.note else extra)
 
     def _report(self, engine: Engine, report, fov, candidate, written, forced, mask):
         from hmi.engine.filter import Change, FilterReport, pack
@@ -484,7 +484,7 @@ class MaskedOutputStage:
             extra += (f" (accepted: {', '.join(accepted)} stays violated this scan; the mask "
                       "has the last word)")
         note = f"{note}; {extra}" if note else extra
-        return replace(report, changes=tuple(changes), residual=residual, note=note,
+        return report._replace(changes=tuple(changes), residual=residual, note=note,
                        distance=sum(a != b for a, b in zip(candidate, forced, strict=True)))
 
 

@@ -76,7 +76,8 @@ class AlarmManager:
     def __init__(self) -> None:
         self.alarms: dict[str, Alarm] = {}
         self.returns: dict[str, deque[int]] = {}
-        self.clear_since: dict[str, int] = {}  # chattering alarms: condition clear since
+        self.clear_since: dict[str, int] = {}
+        self._listed: tuple[Alarm, ...] | None = ()  # chattering alarms: condition clear since
 
     def update(self, explanations: tuple[Explanation, ...], scan: int, now: int
                ) -> list[AlarmEvent]:
@@ -88,7 +89,7 @@ class AlarmManager:
             if alarm is None:
                 alarm = Alarm(key, ACTIVE_UNACK, exp.severity, exp.what, exp.device, exp.kind,
                               scan, now, now, latched=exp.latched, explanation=exp)
-                self.alarms[key] = alarm
+                self._put(key, alarm)
                 events.append(self._event(alarm, "raised", scan, now))
             elif alarm.state == CLEARED_UNACK:
                 history = self.returns.setdefault(key, deque())
@@ -99,7 +100,7 @@ class AlarmManager:
                 alarm = replace(alarm, state=ACTIVE_UNACK, changed_us=now,
                                 returns=alarm.returns + 1, chattering=chattering,
                                 severity=exp.severity, text=exp.what, explanation=exp)
-                self.alarms[key] = alarm
+                self._put(key, alarm)
                 events.append(self._event(alarm, "returned", scan, now))
                 if chattering:
                     events.append(self._event(alarm, "chattering", scan, now))
@@ -110,7 +111,7 @@ class AlarmManager:
                 if alarm.explanation is not exp:
                     alarm = replace(alarm, severity=exp.severity, text=exp.what,
                                     explanation=exp, latched=exp.latched)
-                self.alarms[key] = alarm
+                self._put(key, alarm)
         for key, alarm in list(self.alarms.items()):
             if key in present or alarm.state == CLEARED_UNACK:
                 continue
@@ -124,11 +125,11 @@ class AlarmManager:
     def _clear(self, alarm: Alarm, scan: int, now: int) -> list[AlarmEvent]:
         self.clear_since.pop(alarm.key, None)
         if alarm.state == ACTIVE_ACK:
-            del self.alarms[alarm.key]
+            self._drop(alarm.key)
             self.returns.pop(alarm.key, None)
             return [self._event(replace(alarm, state="normal"), "cleared", scan, now)]
         cleared = replace(alarm, state=CLEARED_UNACK, changed_us=now)
-        self.alarms[alarm.key] = cleared
+        self._put(alarm.key, cleared)
         return [self._event(cleared, "cleared", scan, now)]
 
     def acknowledge(self, key: str | None, scan: int, now: int) -> list[AlarmEvent]:
@@ -141,22 +142,34 @@ class AlarmManager:
                 continue
             if alarm.state == ACTIVE_UNACK:
                 alarm = replace(alarm, state=ACTIVE_ACK, changed_us=now)
-                self.alarms[k] = alarm
+                self._put(k, alarm)
                 events.append(self._event(alarm, "acknowledged", scan, now))
             elif alarm.state == CLEARED_UNACK:
-                del self.alarms[k]
+                self._drop(k)
                 self.returns.pop(k, None)
                 events.append(self._event(replace(alarm, state="normal"), "acknowledged",
                                           scan, now))
         return events
 
+    def _put(self, key: str, alarm: Alarm) -> None:
+        if self.alarms.get(key) is not alarm:
+            self.alarms[key] = alarm
+            self._listed = None
+
+    def _drop(self, key: str) -> None:
+        del self.alarms[key]
+        self._listed = None
+
     def listed(self) -> tuple[Alarm, ...]:
         """The alarm list: unacknowledged first — active ones, then those whose condition
         already cleared (they only wait for the acknowledgement) — then acknowledged; in each
-        group by priority, newest first."""
-        return tuple(sorted(self.alarms.values(),
-                            key=lambda a: (LIST_ORDER.get(a.state, 1), a.priority,
-                                           -a.changed_us)))
+        group by priority, newest first. Sorted again only after a change (it is asked for
+        every scan)."""
+        if self._listed is None:
+            self._listed = tuple(sorted(self.alarms.values(),
+                                        key=lambda a: (LIST_ORDER.get(a.state, 1), a.priority,
+                                                       -a.changed_us)))
+        return self._listed
 
     @staticmethod
     def _event(alarm: Alarm, event: str, scan: int, now: int) -> AlarmEvent:
