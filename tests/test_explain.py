@@ -18,6 +18,7 @@ from hmi.engine.commands import (
     FaultReset,
     ManualOutput,
     SetMode,
+    SetPolicy,
 )
 from hmi.errors import ProjectError
 from hmi.explain.alarms import (
@@ -63,6 +64,31 @@ def test_corrected_constraint_explanation_has_four_levels_from_descriptions():
     assert "The filter wrote C=0 instead" in e.consequences
     assert e.severity == "low" and e.recommended.id == "continue"
     assert [p.id for p in e.policies] == ["continue", "manual", "stop_device"]
+
+
+def test_a_violation_that_returns_is_explained_from_its_new_onset():
+    """Explanations are reused while a violation lasts, never across two episodes."""
+    ctl = make_controller(VALVE, control="faulty", policy="correct")
+    first = run_until(ctl, lambda s: "CSs5" in s.filter.violated_names)
+    held = ctl.scan_once()  # the program keeps asking: the episode goes on
+    assert "CSs5" in held.filter.violated_names
+    assert explanation(held, "constraint:CSs5") is explanation(first, "constraint:CSs5")
+    run_until(ctl, lambda s: "CSs5" not in s.filter.violated_names)
+    again = run_until(ctl, lambda s: "CSs5" in s.filter.violated_names)
+    e = explanation(again, "constraint:CSs5")
+    assert f"Violated since scan {again.scan}" in e.why
+    assert f"Violated since scan {first.scan}" not in e.why
+
+
+def test_explanation_follows_a_policy_change_during_a_violation():
+    ctl = make_controller(VALVE, control="faulty", policy="correct")
+    before = run_until(ctl, lambda s: "CSs5" in s.filter.violated_names)
+    assert "NOT corrected" not in explanation(before, "constraint:CSs5").what
+    assert ctl.command(SetPolicy("monitor")).accepted
+    snap = ctl.scan_once()
+    assert "CSs5" in snap.filter.violated_names  # the same episode, under another policy
+    e = explanation(snap, "constraint:CSs5")
+    assert "NOT corrected" in e.what and e.severity == "high"
 
 
 def test_project_texts_fill_their_placeholders():

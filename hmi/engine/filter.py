@@ -86,6 +86,9 @@ class CompiledConstraint:
     pos: int  # outputs that must be 1 for the monomial to be true
     neg: int  # outputs that must be 0
     literal_slots: tuple[tuple[Literal, int], ...]
+    # How it reads when violated. A monomial is true only when every literal is, so each
+    # variable's value is fixed by its literal's polarity: the report is built once, here.
+    violation: Violation
 
     @property
     def name(self) -> str:
@@ -116,8 +119,11 @@ def compile_constraints(project: Project, slots, step_times=None) -> list[Compil
             nodes = tuple(Var(0, lit.name, lit.depth) if lit.positive
                           else Not(0, Var(0, lit.name, lit.depth)) for lit in context_nodes)
             context = compile_bool(And(0, nodes), slots, step_times)
+        violation = Violation(c.name, c.kind, tuple((str(lit), lit.positive)
+                                                    for lit in c.literals), c.description)
         compiled.append(CompiledConstraint(
-            c, context, pos, neg, tuple((lit, slots[lit.name]) for lit in c.literals)))
+            c, context, pos, neg, tuple((lit, slots[lit.name]) for lit in c.literals),
+            violation))
     return compiled
 
 
@@ -138,6 +144,32 @@ def unpack(v: int, n: int) -> tuple[bool, ...]:
 # --------------------------------------------------------------------------------------------
 
 
+@dataclass(frozen=True)
+class _ActiveSet:
+    """The active constraints' f_s0 / f_s1 masks (004 eq. 6), the combined ones for the
+    solver, and per output the simple constraints that force it to 0 / to 1."""
+
+    f0: int
+    f1: int
+    combined: list[tuple[int, int]]
+    combined_constraints: tuple[CompiledConstraint, ...]
+    forcing0: tuple[tuple[str, ...], ...]
+    forcing1: tuple[tuple[str, ...], ...]
+
+    @classmethod
+    def of(cls, active, n: int, outputs) -> _ActiveSet:
+        simple = [c for c in active if c.simple]
+        f0 = f1 = 0
+        for c in simple:
+            f0 |= c.pos
+            f1 |= c.neg
+        # A simple constraint has one output literal: positive forces it to 0, negative to 1.
+        forcing0 = tuple(tuple(c.name for c in simple if c.pos >> k & 1) for k in range(n))
+        forcing1 = tuple(tuple(c.name for c in simple if c.neg >> k & 1) for k in range(n))
+        combined = tuple(c for c in active if not c.simple)
+        return cls(f0, f1, [(c.pos, c.neg) for c in combined], combined, forcing0, forcing1)
+
+
 class SafetyFilter:
     """Stateless between scans except for what the engine holds (policy, latch)."""
 
@@ -149,7 +181,9 @@ class SafetyFilter:
         self.compiled = compile_constraints(project, slots, step_times)
         self.safe = pack(v.safe for v in project.outputs)
         self.all_bits = (1 << self.n) - 1
-        self._readers: dict[str, tuple] = {}  # constraint -> how to read each literal
+        # What depends only on which constraints are active, built once per active set: a
+        # cell has few distinct active sets, and a violation scan should not rebuild them.
+        self._by_active: dict[tuple[int, ...], _ActiveSet] = {}
 
     # The engine's output stage.
     def __call__(self, engine, fov: tuple[bool, ...]):
@@ -163,7 +197,7 @@ class SafetyFilter:
         candidate = pack(fov)
         active = self.active(image, history)
         violated = [c for c in active if candidate & c.pos == c.pos and not candidate & c.neg]
-        violations = tuple(self._violation(c, image, history, candidate) for c in violated)
+        violations = tuple(c.violation for c in violated)
         policy = engine.policy
         if policy == "monitor":
             report = FilterReport(policy, self.strategy, violations,
@@ -179,16 +213,20 @@ class SafetyFilter:
             return fov, FilterReport(policy, self.strategy, violations)
         return self._correct(fov, candidate, active, violations)
 
+    def _active_set(self, active) -> _ActiveSet:
+        key = tuple(map(id, active))
+        found = self._by_active.get(key)
+        if found is None:
+            found = self._by_active[key] = _ActiveSet.of(active, self.n, self.outputs)
+        return found
+
     def _correct(self, fov, candidate: int, active, violations):
         if not violations:
             # Common case: the candidate violates nothing, so it is written unchanged (a
             # conflict between simple constraints would show as a violation).
             return fov, FilterReport("correct", self.strategy)
-        f0 = f1 = 0
-        for c in active:
-            if c.simple:
-                f0 |= c.pos
-                f1 |= c.neg
+        aset = self._active_set(active)
+        f0, f1 = aset.f0, aset.f1
         conflicts = f0 & f1
         if conflicts:
             names = [self.outputs[k] for k in range(self.n) if conflicts >> k & 1]
@@ -198,7 +236,7 @@ class SafetyFilter:
                 "simple constraints force " + ", ".join(names) + " both to 0 and to 1",
                 conflicts=tuple(names))
         mem = (candidate & ~f0) | f1
-        combined = [(c.pos, c.neg) for c in active if not c.simple]
+        combined = aset.combined
         solution: Solution | None = None
         solver_us = 0.0
         if combined:
@@ -214,24 +252,16 @@ class SafetyFilter:
         else:
             written = mem
         changes = []
-        combined_names = tuple(c.name for c in active if not c.simple
-                               and mem & c.pos == c.pos and not mem & c.neg)
-        by = {}
-        for c in active:
-            if c.simple:
-                by.setdefault((c.pos or c.neg, "F0" if c.pos else "F1"), []).append(c.name)
+        combined_names = tuple(c.name for c in aset.combined_constraints
+                               if mem & c.pos == c.pos and not mem & c.neg)
         for k in range(self.n):
             bit = 1 << k
             if not (written ^ candidate) & bit:
                 continue
             if f0 & bit:
-                names = tuple(n for (mask, how), ns in by.items() if how == "F0" and mask & bit
-                              for n in ns)
-                changes.append(Change(self.outputs[k], True, False, names, "F0"))
+                changes.append(Change(self.outputs[k], True, False, aset.forcing0[k], "F0"))
             elif f1 & bit:
-                names = tuple(n for (mask, how), ns in by.items() if how == "F1" and mask & bit
-                              for n in ns)
-                changes.append(Change(self.outputs[k], False, True, names, "F1"))
+                changes.append(Change(self.outputs[k], False, True, aset.forcing1[k], "F1"))
             else:
                 changes.append(Change(self.outputs[k], bool(candidate & bit),
                                       bool(written & bit), combined_names, "combined"))
@@ -265,19 +295,6 @@ class SafetyFilter:
             distance=(candidate ^ written).bit_count(), tested=tested, solver_us=solver_us,
             fallback=fallback, residual=residual, safe_state=True, conflicts=conflicts,
             note=why)
-
-    def _violation(self, c: CompiledConstraint, image, history, candidate: int) -> Violation:
-        readers = self._readers.get(c.name)
-        if readers is None:
-            out_index = {name: k for k, name in enumerate(self.outputs)}
-            readers = self._readers[c.name] = tuple(
-                (str(lit), out_index.get(lit.name, -1) if lit.depth == 0 else -1, lit.depth,
-                 slot) for lit, slot in c.literal_slots)
-        values = tuple(
-            (text, bool(candidate >> out & 1) if out >= 0 else
-             bool(image[slot]) if depth == 0 else bool(history[depth - 1][slot]))
-            for text, out, depth, slot in readers)
-        return Violation(c.name, c.constraint.kind, values, c.constraint.description)
 
 
 def safe_for_all(vector: tuple[bool, ...], compiled, image, history) -> bool:

@@ -42,6 +42,7 @@ class ExplanationBuilder:
                         for v in (*project.inputs, *project.outputs)}
         self.describe = project.describe
         self.constraints = {c.name: c for c in project.constraints}
+        self._last_constraints: tuple[tuple, tuple[Explanation, ...]] | None = None
         # Later features add builders for their situations (diagnoses, monitor faults...).
         self.extra_builders: list[Callable[[ExplanationBuilder, object], list[Explanation]]] = []
 
@@ -162,6 +163,14 @@ class ExplanationBuilder:
 
     # -- constraints ------------------------------------------------------------------------
     def _constraints(self, engine, report) -> list[Explanation]:
+        # A violation usually lasts many scans: when nothing the texts depend on has changed
+        # since the last scan, the explanations are last scan's (what the cache would give).
+        whole = (report.policy, report.violations, report.changes, bool(engine.latched),
+                 engine.mode)
+        last = self._last_constraints
+        if last is not None and last[0] == whole and all(
+                self.cache.get(e.key, (None, None))[1] is e for e in last[1]):
+            return list(last[1])
         out = []
         changes_by_output = {c.output: c for c in report.changes}
         for violation in report.violations:
@@ -176,6 +185,7 @@ class ExplanationBuilder:
             out.append(self.cached(key, signature, lambda v=violation, c=constraint,
                                    ch=changed, o=onset: self._constraint(engine, report, v, c,
                                                                          ch, o)))
+        self._last_constraints = (whole, tuple(out))
         return out
 
     def _action_text(self, report, changed) -> str:
