@@ -7,6 +7,7 @@ file it wrote, so expected positions come from the file, not from the loader und
 from __future__ import annotations
 
 import re
+import shutil
 import textwrap
 from dataclasses import dataclass, field
 
@@ -15,6 +16,7 @@ import pytest
 from hmi.cli import main
 from hmi.errors import ProjectError
 from hmi.project.loader import load_project
+from tests.conftest import PROJECTS
 
 BASE = {
     "head": """
@@ -292,3 +294,34 @@ def test_unreachable_step_is_a_warning_not_an_error(tmp_path, capsys):
     assert any("step 2 can never become active" in w for w in warnings)
     assert main(["check", str(folder)]) == 0
     assert "step 2 can never become active" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("wrong, fragment", [
+    ("safe: maybe", "safe value must be a Boolean"),
+    ("address: coil:70000", "address index 70000 is out of range"),
+    ("address: hr:3.16", "bit 16 is out of range"),
+    ("address: di:5", "read-only"),
+    ("description: [a, b]", "description"),
+])
+def test_one_wrong_field_of_an_output_is_one_error(tmp_path, wrong, fragment):
+    """The output still exists for the rest of the check: no knock-on errors elsewhere (the
+    control law targeting it, the plant's ports) that would bury the real one."""
+    folder = tmp_path / "cispi_valve"
+    shutil.copytree(PROJECTS / "cispi_valve", folder)
+    text = (folder / "project.yaml").read_text(encoding="utf-8")
+    field_name = wrong.split(":")[0]
+    lines = text.splitlines(keepends=True)
+    start = lines.index("  C:\n")
+    for k in range(start + 1, len(lines)):
+        if lines[k].strip().startswith(f"{field_name}:"):
+            lines[k] = f"    {wrong}\n"
+            break
+    else:
+        raise AssertionError(f"no {field_name} under C")
+    (folder / "project.yaml").write_text("".join(lines), encoding="utf-8")
+    with pytest.raises(ProjectError) as info:
+        load_project(folder)
+    errors = info.value.errors
+    assert len(errors) == 1, [str(d) for d in errors]
+    assert fragment in errors[0].message + str(errors[0].expected)
+    assert errors[0].pos.file.endswith("project.yaml")

@@ -344,20 +344,25 @@ class ProjectLoader:
 
     def _variable(self, node: YNode, name: str, kind: str, allowed: set[str],
                   kpos: SourcePos) -> Variable:
+        """A declared variable, even when one of its fields is wrong: that field's error is
+        reported and a neutral value stands in, so that the rest of the project is checked
+        against a variable that exists (not "'C' is not an output" after "bad safe value")."""
         if node.kind == "scalar" and node.tag.endswith(":str"):
             return Variable(name, kind, node.value, pos=kpos)
         fields = node.check_keys(f"{kind} {name!r}", allowed)
-        description = fields["description"].as_str("description") if "description" in \
-            fields else ""
+        guard = self.guard
+        description = guard(lambda: fields["description"].as_str("description"), "") \
+            if "description" in fields else ""
         safe = False
         if "safe" in fields:
-            safe = fields["safe"].as_bool("safe value")
+            safe = guard(lambda: fields["safe"].as_bool("safe value"), False)
         if "initial" in fields:
-            safe = fields["initial"].as_bool("initial value")
+            safe = guard(lambda: fields["initial"].as_bool("initial value"), False)
         address = None
         if "address" in fields:
-            address = parse_address(fields["address"], kind)
-        device = fields["device"].as_str("device") if "device" in fields else None
+            address = guard(lambda: parse_address(fields["address"], kind))
+        device = guard(lambda: fields["device"].as_str("device")) if "device" in fields \
+            else None
         return Variable(name, kind, description, safe, address, kpos, device)
 
     def _declare_items(self, key: str, kind: str) -> list[tuple[str, YNode, SourcePos]]:
