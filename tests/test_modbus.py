@@ -8,6 +8,7 @@ rather than sleeping a fixed time.
 from __future__ import annotations
 
 import csv
+import re
 import shutil
 import socket
 import subprocess
@@ -109,6 +110,28 @@ def states(rows: list[dict]) -> list[tuple]:
         if not out or out[-1] != state:
             out.append(state)
     return out
+
+
+DIAGNOSIS = re.compile(r"V1 -> (\w+) \{([^}]*)\}")
+
+
+def test_a_fault_injected_in_serve_plant_is_diagnosed_as_in_the_simulation(server):
+    """F13 (the valve jams on its next movement) injected in the plant process, seen only
+    through Modbus: the same diagnoser transitions and final decision as the direct run."""
+    srv = server(VALVE, "--inject", "F13@0s")
+    real = subprocess.run(
+        [sys.executable, "-m", "hmi.cli", "run", str(VALVE), "--for", "8s",
+         "--plant", f"modbus://127.0.0.1:{srv.port}"],
+        capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert real.returncode == 0, real.stderr
+    sim = subprocess.run(
+        [sys.executable, "-m", "hmi.cli", "run", str(VALVE), "--for", "8s", "--inject",
+         "F13@0s"], capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert sim.returncode == 0, sim.stderr
+    seen = DIAGNOSIS.findall(real.stdout)
+    assert seen == DIAGNOSIS.findall(sim.stdout) == [("A3", "F3, F13")], real.stdout
+    final = [line for line in real.stdout.splitlines() if line.strip().startswith("final: V1")]
+    assert final and "F3 (sensor fso stuck at 0) or F13" in final[0]
 
 
 def test_a_headless_run_against_serve_plant_behaves_like_the_simulation(server, tmp_path):
