@@ -231,3 +231,28 @@ def test_rise_of_an_output_in_a_diagnoser_is_the_order_written_at_the_previous_s
     seen = ctl.scan_once()
     assert seen.diagnosers[0].state == "N2" and seen.diagnosers[0].via == \
         "N1 -> N2 on rise(O)"
+
+
+@pytest.mark.parametrize("line, wrong, fragment", [
+    (61, ("[F4]", "[F99]"), "unknown label 'F99' in state 'S4'"),
+    (53, ("[F4, F6]", "[F4, F66]"), "unknown label 'F66' in state 'B4'"),
+])
+def test_one_mistake_in_the_valve_diagnoser_is_one_error(tmp_path, line, wrong, fragment):
+    """No knock-on errors: the state keeps its faulty decision (its transitions are not also
+    'faulty to normal'), and the explanations of the diagnoser's labels and partitions are
+    not reported as unknown because the diagnoser was rejected."""
+    import shutil
+
+    from tests.conftest import PROJECTS
+    folder = tmp_path / "cispi_valve"
+    shutil.copytree(PROJECTS / "cispi_valve", folder)
+    path = folder / "diagnoser.yaml"
+    lines = path.read_text(encoding="utf-8").splitlines(keepends=True)
+    assert wrong[0] in lines[line - 1]
+    lines[line - 1] = lines[line - 1].replace(*wrong)
+    path.write_text("".join(lines), encoding="utf-8")
+    with pytest.raises(ProjectError) as info:
+        load_project(folder)
+    errors = info.value.errors
+    assert len(errors) == 1 and fragment in errors[0].message, [str(e) for e in errors]
+    assert (errors[0].pos.file.endswith("diagnoser.yaml"), errors[0].pos.line) == (True, line)

@@ -301,6 +301,10 @@ class _Parser:
                 else "" for key in ("description", "device", "initial")}
         labels = self._labels(fields["labels"])
         partitions = self._partitions(fields["partitions"], labels)
+        # Declared even if this diagnoser is rejected: explanations naming them are checked
+        # against what the project says, not reported as unknown on top of the real error.
+        loader.declared_labels.update(labels)
+        loader.declared_partitions.update(p.name for p in partitions)
         states = self._states(fields["states"], labels)
         names = {s.name for s in states}
         initial = text["initial"]
@@ -343,10 +347,13 @@ class _Parser:
         return labels
 
     def _label_list(self, node: YNode, what: str, labels: dict[str, str]) -> tuple[str, ...]:
-        return tuple(label for label, _ in self._label_items(node, what, labels))
+        # An unknown label is reported and kept: the state stays faulty, so its transitions
+        # are not also reported as "faulty to normal" (the diagnoser is rejected anyway).
+        return tuple(label for label, _ in self._label_items(node, what, labels,
+                                                             keep_unknown=True))
 
-    def _label_items(self, node: YNode, what: str,
-                     labels: dict[str, str]) -> list[tuple[str, SourcePos]]:
+    def _label_items(self, node: YNode, what: str, labels: dict[str, str],
+                     keep_unknown: bool = False) -> list[tuple[str, SourcePos]]:
         items = self.loader.guard(lambda: node.as_seq(what), [])
         out: list[tuple[str, SourcePos]] = []
         for item in items:
@@ -357,6 +364,8 @@ class _Parser:
             if label not in labels:
                 self.error(item.pos, f"unknown label {label!r} in {what}",
                            _suggest(label, labels))
+                if keep_unknown:
+                    out.append((label, item.pos))
                 continue
             if any(label == seen for seen, _ in out):
                 self.error(item.pos, f"label {label!r} is listed twice in {what}",

@@ -109,6 +109,8 @@ class ProjectLoader:
         self.files: list[str] = []
         self.pending_includes: list[YNode] = []
         self.components = Components()  # component instances (hmi/project/components.py)
+        self.declared_labels: set[str] = set()  # by every diagnoser, valid or not
+        self.declared_partitions: set[str] = set()
 
     # -- helpers ----------------------------------------------------------------------------
     def guard(self, fn: Callable[[], Any], default: Any = None) -> Any:
@@ -288,8 +290,8 @@ class ProjectLoader:
             from hmi.project.explanations import parse_explanations
             known = {"constraints": {c.name for c in constraints},
                      "monitors": {m.name for m in monitors},
-                     "labels": {lab for d in diagnosers for lab in d.labels},
-                     "partitions": {p.name for d in diagnosers for p in d.partitions}}
+                     "labels": self.declared_labels,
+                     "partitions": self.declared_partitions}
             texts = merge_texts(self, [
                 (owner, parse_explanations(node, self.guard, known, self.diag.error))
                 for owner, node in sources])
