@@ -83,3 +83,21 @@ def test_diagnosis_alarm_is_journalled(tmp_path):
     raised = [e for e in read(path).entries if e.get("key") == "diagnosis:V1"]
     assert raised and raised[0]["event"] == "raised" and raised[0]["severity"] == "high"
     assert raised[0]["t"] == "15.750"
+
+
+def test_masked_actuator_has_its_own_explanation_until_the_reset():
+    ctl = make_controller(VALVE, inject=["F5@5s"])
+    snap = run_to(ctl, 12)
+    assert set(snap.masked) == {"C", "O"}
+    e = find(snap, "masked:V")
+    assert e.kind == "masked" and not e.alarm and e.latched
+    assert e.what == "Valve V1: C, O held at 0 by def_V — the device is not driven"
+    assert "000 eq. 9-10" in e.why and "(F2, F5)" in e.why
+    assert e.since_us == find(snap, "diagnosis:V1").since_us
+    assert [p.id for p in e.policies] == ["continue", "stop_device", "reset"]
+    assert not [a for a in snap.alarms if a.key == "masked:V"]
+    ctl.command(FaultReset())  # F5 is still there: the diagnoser stays faulty, mask and all
+    snap = run_to(ctl, 1)
+    assert snap.masked and find(snap, "masked:V")
+    healthy = run_to(make_controller(VALVE), 12)
+    assert not [e for e in healthy.explanations if e.kind == "masked"]

@@ -10,7 +10,9 @@ orders held at 0). Texts from the project (`explanations: labels:` for a certain
 
 While a sensor partition's flag is set, the degraded mode has its own explanation (key
 ``reconstruction:<sensor>``, no alarm: the diagnosis already raised one), with the operator's
-choices: continue degraded, stop the device, reset after repair.
+choices: continue degraded, stop the device, reset after repair. Likewise while an actuator
+partition's orders are masked (key ``masked:<partition>``, no alarm): which orders are held at
+0, since when, what the cell loses, and the same choices.
 """
 
 from __future__ import annotations
@@ -45,6 +47,15 @@ def diagnosis_explanations(builder, engine) -> list[Explanation]:
                     rkey, (state.labels,),
                     lambda s=state, sp=spec, p=partition: _reconstruction(builder, engine, sp,
                                                                         p, s)))
+            held = tuple(o for o in partition.actuators
+                         if o in engine.extras.get("masked", ()))
+            if held:
+                mkey = f"masked:{partition.name}"
+                builder.onset(mkey, engine)
+                out.append(builder.cached(
+                    mkey, (state.labels, held),
+                    lambda s=state, sp=spec, p=partition, h=held: _masked(builder, engine, sp,
+                                                                          p, s, h)))
     return out
 
 
@@ -222,3 +233,38 @@ def _reconstruction(builder, engine, spec, partition, state) -> Explanation:
                        level["why"], level["consequences"], level["policies"], since.scan,
                        since.time_us, level["alarm"], latched=True)
 
+
+
+def _masked(builder, engine, spec, partition, state, held: tuple[str, ...]) -> Explanation:
+    device = spec.device or builder.project.name
+    key = f"masked:{partition.name}"
+    since = builder.onsets[key]
+    orders = ", ".join(f"{o} ({builder.short(o)})" for o in held)
+    what = f"{device}: {', '.join(held)} held at 0 by {partition.flag} — the device is not driven"
+    why = (f"{partition.flag} is set since scan {since.scan} ({seconds(since.time_us)} s): the "
+           f"decision of {spec.name} ({', '.join(state.labels)}) holds a label of partition "
+           f"{partition.name}, whose orders are masked: C_filter = not {partition.flag} and C "
+           "(000 eq. 9-10), applied to what the program asks and to what the filter writes.")
+    consequences = (f"{orders}: held at 0 whatever the program or a manual request asks, so "
+                    f"{device} stays where it is and the steps of the cycle that need it wait. "
+                    "A device that may be blocked is not driven against the block; the rest of "
+                    "the cell runs on.")
+    policies = (
+        Policy("continue", "Continue without it",
+               f"leave {device} stopped by the mask; the rest of the cell runs", None, True),
+        builder.policy_stop(device),
+        builder.policy_reset("after the repair: the mask is released if the diagnoser "
+                             "re-synchronises"),
+    )
+    values = {"device": device, "time": seconds(engine.now), "scan": engine.scan,
+              "since_time": seconds(since.time_us), "since_scan": since.scan,
+              "action": "masked", "partition": partition.name, "sensor": "",
+              "estimate": "", "outputs": ", ".join(held), "labels": ", ".join(state.labels)}
+    spec_texts = builder.texts.get("partitions", partition.name)
+    level = builder.apply_texts(spec_texts, {"what": what, "why": why,
+                                             "consequences": consequences,
+                                             "policies": policies, "severity": "medium",
+                                             "alarm": False}, values)
+    return Explanation(key, "masked", level["severity"], device, level["what"], level["why"],
+                       level["consequences"], level["policies"], since.scan, since.time_us,
+                       level["alarm"], latched=True)
