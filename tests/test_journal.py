@@ -13,6 +13,7 @@ from hmi.explain.journal import Journal, read
 from tests.conftest import PROJECTS, ROOT
 
 VALVE = PROJECTS / "cispi_valve"
+S = 1_000_000
 HALF_ENTRY = b'{"wall":"2026-11-22T10:00:00.000+00:00","type":"alarm","event":"rai'
 
 
@@ -108,3 +109,47 @@ def test_damaged_lines_anywhere_are_reported_and_skipped(tmp_path, capsys):
     assert "one" in out and "two" in out and "three" in out
     assert err.count("damaged journal entry skipped") == 4
     assert f"{path}:2: damaged journal entry skipped: not valid JSON" in err
+
+
+# -- chattering alarms -----------------------------------------------------------------------
+
+def test_a_collapsed_alarm_still_journals_every_change_of_its_condition():
+    from hmi.explain.alarms import AlarmManager
+    from tests.test_explain import make_exp
+    m = AlarmManager()
+    e = make_exp()
+    events = []
+    t = 0
+    for _ in range(10):  # returns every 2 s: 10 times a minute
+        events += m.update((e,), 0, t)
+        events += m.update((), 0, t + S)
+        t += 2 * S
+    kinds = [x.event for x in events]
+    # Every return and clear the operator could have seen: 10 of each, in order.
+    changes = [k for k in kinds if k in ("raised", "returned", "condition-returned",
+                                         "cleared", "condition-cleared")]
+    assert changes == ["raised", "cleared"] + ["returned", "cleared"] * 3 + \
+        ["returned", "condition-cleared"] + ["condition-returned", "condition-cleared"] * 5
+    returns = [x.returns for x in events if x.event in ("returned", "condition-returned")]
+    assert returns == list(range(1, 10))  # the running count
+    held = [x for x in events if x.event == "condition-cleared"]
+    assert all(x.state == "active-unacknowledged" and x.note for x in held)
+    assert [x.time_us for x in held] == [(2 * i + 1) * S for i in range(4, 10)]
+    later = m.update((), 0, t + 61 * S)
+    assert [x.event for x in later] == ["cleared"]
+    assert later[0].note == "condition clear since 19.000 s (held while chattering)"
+
+
+def test_a_faulty_run_journals_every_return_of_a_chattering_constraint(tmp_path):
+    path = tmp_path / "j.jsonl"
+    assert main(["run", str(VALVE), "--control", "faulty", "--for", "120s",
+                 "--journal", str(path)]) == 0
+    alarms = [e for e in read(path).entries if e["type"] == "alarm"]
+    chattering = {e["key"] for e in alarms if e["event"] == "chattering"}
+    assert chattering
+    for key in chattering:
+        mine = [e for e in alarms if e["key"] == key]
+        came = [e for e in mine if e["event"] in ("raised", "returned", "condition-returned")]
+        went = [e for e in mine if e["event"] in ("cleared", "condition-cleared")]
+        assert len(came) > 5 and abs(len(came) - len(went)) <= 1
+        assert [e["returns"] for e in came] == list(range(len(came)))

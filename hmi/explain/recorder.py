@@ -62,10 +62,13 @@ class JournalRecorder:
             self.pending_manual = []
 
     def _alarm(self, event) -> None:
-        self.journal.append({
+        entry = {
             "type": "alarm", "event": event.event, "key": event.key, "state": event.state,
             "severity": event.severity, "text": event.text, "returns": event.returns,
-            "scan": event.scan, "t": seconds(event.time_us)})
+            "scan": event.scan, "t": seconds(event.time_us)}
+        if getattr(event, "note", ""):
+            entry["message"] = event.note
+        self.journal.append(entry)
 
     def close(self) -> None:
         engine = self.controller.engine
