@@ -535,8 +535,9 @@ def run_real_time(engine, args: argparse.Namespace, duration_us: int) -> int:
     controller = Controller(engine, args.period, clock=WallClock())
     recorder = None
     try:
-        connect_plant(engine, args.connect_timeout or 10_000_000)
+        # The journal first, so that the connection attempts (and giving up) are in it.
         recorder = open_journal(controller, args.journal, "run")
+        connect_plant(engine, args.connect_timeout or 10_000_000)
 
         def on_scan(snap):
             collector.add(snap)
@@ -623,9 +624,9 @@ def cmd_ui(args: argparse.Namespace) -> int:
     controller = Controller(engine, clock=clock)
     recorder = None
     try:
+        recorder = open_journal(controller, args.journal, "hmi")
         if clock is not None:
             connect_plant(engine, args.connect_timeout)
-        recorder = open_journal(controller, args.journal, "hmi")
         return run_app(controller, injected=tuple(injections))
     finally:
         if clock is not None:
