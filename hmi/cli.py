@@ -105,7 +105,12 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--jobs", type=int, default=None, metavar="N",
                    help="worker processes (default: 2 if the machine has 2 cores or more)")
 
-    p = sub.add_parser("journal", help="print or export a project's operator journal")
+    p = sub.add_parser(
+        "journal", help="print or export a project's operator journal",
+        description="Print or export a project's operator journal. A damaged line (an entry "
+        "cut short by a killed process, or garbage) is skipped with a warning on stderr "
+        "naming file:line and what is wrong; every readable entry is still printed and the "
+        "exit status is 0. Exit status 1 only when there is no journal to read.")
     project_arg(p)
     p.add_argument("--since", metavar="WHEN",
                    help="only entries since WHEN: an ISO date/time, or a duration ago (2h)")
@@ -447,6 +452,11 @@ def cmd_journal(args: argparse.Namespace) -> int:
             print(f"{entry.get('wall', '')}  scan {entry.get('scan', ''):>6}  "
                   f"t={entry.get('t', '')}  {entry.get('type', ''):<7} "
                   f"{entry.get('event', '')}{key}: {text}")
+    # Exit status 0 even with damaged lines: the readable entries are what the operator
+    # needs; each damaged line is a warning on stderr (docs/journal.md).
+    for bad in result.damaged:
+        print(f"plchmi: warning: {path}:{bad.line}: damaged journal entry skipped: {bad.reason}",
+              file=sys.stderr)
     if result.truncated:
         print(f"plchmi: the last entry of {path} was cut short (the process was killed while "
               "writing it); it is ignored", file=sys.stderr)
@@ -525,8 +535,9 @@ def run_real_time(engine, args: argparse.Namespace, duration_us: int) -> int:
     controller = Controller(engine, args.period, clock=WallClock())
     recorder = None
     try:
-        connect_plant(engine, args.connect_timeout or 10_000_000)
+        # The journal first, so that the connection attempts (and giving up) are in it.
         recorder = open_journal(controller, args.journal, "run")
+        connect_plant(engine, args.connect_timeout or 10_000_000)
 
         def on_scan(snap):
             collector.add(snap)
@@ -613,9 +624,9 @@ def cmd_ui(args: argparse.Namespace) -> int:
     controller = Controller(engine, clock=clock)
     recorder = None
     try:
+        recorder = open_journal(controller, args.journal, "hmi")
         if clock is not None:
             connect_plant(engine, args.connect_timeout)
-        recorder = open_journal(controller, args.journal, "hmi")
         return run_app(controller, injected=tuple(injections))
     finally:
         if clock is not None:

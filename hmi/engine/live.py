@@ -64,6 +64,8 @@ class LiveRunner:
             if time.perf_counter() > next_wall + period_s:
                 # More than a whole period late: count it and re-anchor rather than burst.
                 self.overruns += 1
+                for listener in controller.overrun_listeners:
+                    listener(self.overruns)
                 next_wall = time.perf_counter()
 
 

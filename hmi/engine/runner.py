@@ -66,6 +66,9 @@ class Controller:
         self.lock = threading.RLock()
         self.listeners: list[Listener] = []
         self.scan_listeners: list[Callable[[Snapshot], None]] = []
+        # Told of each scan overrun (a real-time runner more than a period late), for the
+        # journal; called from the scan thread with the runner's overrun count.
+        self.overrun_listeners: list[Callable[[int], None]] = []
 
     @property
     def next_time(self) -> int:

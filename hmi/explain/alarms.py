@@ -9,7 +9,11 @@ A latched situation (diagnoser fault, safe blocking) keeps its condition true un
 reset, so its alarm stays active until then. A chattering alarm — one that returns more than
 CHATTER_RETURNS times within CHATTER_WINDOW — is collapsed: it stays in the list as one
 active alarm with a count, and clears only once its condition has stayed clear for
-CHATTER_WINDOW, instead of flooding the list (and the journal) with transitions.
+CHATTER_WINDOW, instead of flooding the list with transitions. That is an off-delay (one of
+ISA-18.2's chattering-alarm remedies, next to deadbands and shelving) applied to the list
+only: the journal still gets every change of the condition the operator could have seen, as
+compact ``condition-cleared`` / ``condition-returned`` events with the running count, and
+the final ``cleared`` says since when the condition had really been clear.
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ from collections import deque
 from dataclasses import dataclass, field, replace
 
 from hmi.explain.model import Explanation
+from hmi.timefmt import seconds
 
 ACTIVE_UNACK = "active-unacknowledged"
 ACTIVE_ACK = "active-acknowledged"
@@ -59,8 +64,9 @@ class Alarm:
 
 @dataclass(frozen=True)
 class AlarmEvent:
-    """One transition, for the journal: raised, acknowledged, cleared, returned, removed,
-    chattering."""
+    """One transition, for the journal: raised, acknowledged, cleared, returned, chattering,
+    and for a collapsed (chattering) alarm held active in the list, condition-cleared and
+    condition-returned: its condition changed, the list did not."""
 
     key: str
     event: str
@@ -70,6 +76,7 @@ class AlarmEvent:
     scan: int
     time_us: int
     returns: int = 0
+    note: str = ""  # what the state alone does not say (a held alarm's real clear time)
 
 
 class AlarmManager:
@@ -106,8 +113,10 @@ class AlarmManager:
                     events.append(self._event(alarm, "chattering", scan, now))
             else:
                 if alarm.chattering and was_clear:
-                    # A collapsed alarm's condition came back while still shown active.
+                    # A collapsed alarm's condition came back while still shown active: the
+                    # list does not change, the journal must still see it.
                     alarm = replace(alarm, returns=alarm.returns + 1)
+                    events.append(self._event(alarm, "condition-returned", scan, now))
                 if alarm.explanation is not exp:
                     alarm = replace(alarm, severity=exp.severity, text=exp.what,
                                     explanation=exp, latched=exp.latched)
@@ -115,22 +124,28 @@ class AlarmManager:
         for key, alarm in list(self.alarms.items()):
             if key in present or alarm.state == CLEARED_UNACK:
                 continue
+            note = ""
             if alarm.chattering:
-                since = self.clear_since.setdefault(key, now)
+                since = self.clear_since.get(key)
+                if since is None:
+                    since = self.clear_since[key] = now
+                    events.append(self._event(alarm, "condition-cleared", scan, now,
+                                              "held active while chattering"))
                 if now - since < CHATTER_WINDOW_US:
                     continue
-            events.extend(self._clear(alarm, scan, now))
+                note = f"condition clear since {seconds(since)} s (held while chattering)"
+            events.extend(self._clear(alarm, scan, now, note))
         return events
 
-    def _clear(self, alarm: Alarm, scan: int, now: int) -> list[AlarmEvent]:
+    def _clear(self, alarm: Alarm, scan: int, now: int, note: str = "") -> list[AlarmEvent]:
         self.clear_since.pop(alarm.key, None)
         if alarm.state == ACTIVE_ACK:
             self._drop(alarm.key)
             self.returns.pop(alarm.key, None)
-            return [self._event(replace(alarm, state="normal"), "cleared", scan, now)]
+            return [self._event(replace(alarm, state="normal"), "cleared", scan, now, note)]
         cleared = replace(alarm, state=CLEARED_UNACK, changed_us=now)
         self._put(alarm.key, cleared)
-        return [self._event(cleared, "cleared", scan, now)]
+        return [self._event(cleared, "cleared", scan, now, note)]
 
     def acknowledge(self, key: str | None, scan: int, now: int) -> list[AlarmEvent]:
         """Acknowledge one alarm (by key) or all (None)."""
@@ -172,6 +187,6 @@ class AlarmManager:
         return self._listed
 
     @staticmethod
-    def _event(alarm: Alarm, event: str, scan: int, now: int) -> AlarmEvent:
+    def _event(alarm: Alarm, event: str, scan: int, now: int, note: str = "") -> AlarmEvent:
         return AlarmEvent(alarm.key, event, alarm.state, alarm.severity, alarm.text, scan, now,
-                          alarm.returns)
+                          alarm.returns, note)

@@ -2,15 +2,20 @@
 
 It listens to the controller (commands with their results, and every scan's snapshot), so the
 engine itself never touches a file. A manual request is journalled twice: when it is made,
-and once the next scan shows what the filter did with it.
+and once the next scan shows what the filter did with it. On a real plant it also drains the
+plant's link events (connections, retries, exception responses: hmi.plant.link_log) and
+counts scan overruns, one entry per episode or minute, never one per scan.
 """
 
 from __future__ import annotations
+
+import time
 
 from hmi.engine.commands import Command, CommandResult, ManualOutput, describe
 from hmi.engine.runner import Controller
 from hmi.engine.snapshot import Snapshot
 from hmi.explain.journal import Journal
+from hmi.plant.link_log import Burst
 from hmi.timefmt import seconds
 
 
@@ -24,8 +29,11 @@ class JournalRecorder:
                         "project": engine.project.name, "control": engine.control_name,
                         "policy": engine.policy, "plant": engine.plant.status.description,
                         "scan": engine.scan, "t": seconds(engine.now)})
+        self.link = getattr(engine.plant, "link", None)  # a real plant's LinkLog
+        self.overruns = Burst("scan-overrun", "scan-overruns", "scan overruns")
         controller.listeners.append(self.on_command)
         controller.scan_listeners.append(self.on_scan)
+        controller.overrun_listeners.append(self.on_overrun)
 
     def on_command(self, command: Command, result: CommandResult,
                    snapshot: Snapshot | None) -> None:
@@ -40,7 +48,27 @@ class JournalRecorder:
         if hasattr(engine, "pending_alarm_events"):
             engine.pending_alarm_events = []
 
+    def on_overrun(self, total: int) -> None:
+        engine = self.controller.engine
+        for entry in self.overruns.hit(time.monotonic(), total=total, message=(
+                f"scan {engine.scan} started more than a whole period late; the runner "
+                "re-anchored its schedule")):
+            self._plant(entry)
+
+    def _plant(self, entry: dict) -> None:
+        engine = self.controller.engine
+        self.journal.append({"type": "plant", **entry, "scan": engine.scan,
+                             "t": seconds(engine.now)})
+
+    def _drain_plant(self) -> None:
+        if self.link is not None:
+            for entry in self.link.drain():
+                self._plant(entry)
+
     def on_scan(self, snapshot: Snapshot) -> None:
+        self._drain_plant()
+        for entry in self.overruns.tick(time.monotonic()):
+            self._plant(entry)
         for event in snapshot.alarm_events:
             self._alarm(event)
         if self.pending_manual:
@@ -62,13 +90,19 @@ class JournalRecorder:
             self.pending_manual = []
 
     def _alarm(self, event) -> None:
-        self.journal.append({
+        entry = {
             "type": "alarm", "event": event.event, "key": event.key, "state": event.state,
             "severity": event.severity, "text": event.text, "returns": event.returns,
-            "scan": event.scan, "t": seconds(event.time_us)})
+            "scan": event.scan, "t": seconds(event.time_us)}
+        if getattr(event, "note", ""):
+            entry["message"] = event.note
+        self.journal.append(entry)
 
     def close(self) -> None:
         engine = self.controller.engine
+        self._drain_plant()
+        for entry in self.overruns.end(time.monotonic()):
+            self._plant(entry)
         self.journal.append({"type": "session", "event": "stop", "scan": engine.scan,
                              "t": seconds(engine.now)})
         self.journal.close()

@@ -38,6 +38,7 @@ from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOEx
 
 from hmi.errors import UsageError
 from hmi.plant.base import PlantError, PlantStatus
+from hmi.plant.link_log import LinkLog
 from hmi.plant.modbus_map import AddressMap
 from hmi.project.model import PlantSpec, Project
 from hmi.timefmt import format_duration
@@ -172,6 +173,8 @@ class ModbusPlant:
         self.io_us: deque[float] = deque(maxlen=10_000)  # wall time of each scan's I/O
         self._scan_io = 0.0
         self._scan_ok = False
+        self._exceptions_before = 0  # stats["exceptions"] when the scan's I/O began
+        self.link = LinkLog(settings.where)  # connection events for the journal
 
     # -- connection ----------------------------------------------------------------------
     def connect(self) -> bool:
@@ -187,6 +190,7 @@ class ModbusPlant:
             self._backoff_s = BACKOFF_FIRST_S
             self._written.clear()  # the first write after a connection is a full one
             self.message = f"connected to {s.where}"
+            self.link.connected(self.attempts)
             return True
         reason = getattr(client, "last_error", "") or "connection failed"
         client.close()
@@ -196,6 +200,7 @@ class ModbusPlant:
             # per outage); the failed attempts show in the status message.
             self._down_reason = failed
         self._schedule_retry(failed)
+        self.link.connect_failed(self.attempts, failed)
         return False
 
     @property
@@ -218,6 +223,7 @@ class ModbusPlant:
         self._next_attempt = 0.0  # try again at the next scan, then back off
         self._backoff_s = BACKOFF_FIRST_S
         self.message = f"connection to {self.settings.where} lost: {reason}"
+        self.link.lost(reason)
         return PlantError(self._down_reason)
 
     def _ensure_connected(self) -> ModbusTcpClient:
@@ -246,6 +252,7 @@ class ModbusPlant:
             self.last_exception = name
             detail = f"{self.settings.where} answered {name} (exception {code}) to {what}"
             self.message = detail
+            self.link.exception(name, detail)
             raise PlantError(detail, lost=False)
         return response
 
@@ -256,6 +263,7 @@ class ModbusPlant:
         unit = self.settings.unit
         values: dict[str, bool] = {}
         self._scan_ok = False
+        self._exceptions_before = self.stats["exceptions"]
         try:
             for rng in self.map.reads:
                 what = f"read {rng}"
@@ -326,6 +334,9 @@ class ModbusPlant:
             self.io_us.append(io_s * 1e6)
         if io_s * 1e6 > self.period_us:
             self.stats["slow_scans"] += 1
+        if self._scan_ok and self.connected and \
+                self.stats["exceptions"] == self._exceptions_before:
+            self.link.scan_ok()
 
     @property
     def status(self) -> PlantStatus:
@@ -379,6 +390,7 @@ class ModbusPlant:
             self._client.close()
         self._client = None
         self.connected = False
+        self.link.close()  # the summaries of what was still going on
 
 
 def wait_connected(plant: ModbusPlant, timeout_s: float | None,
