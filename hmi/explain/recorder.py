@@ -104,5 +104,6 @@ class JournalRecorder:
         for entry in self.overruns.end(time.monotonic()):
             self._plant(entry)
         self.journal.append({"type": "session", "event": "stop", "scan": engine.scan,
-                             "t": seconds(engine.now)})
+                             "t": seconds(engine.now),
+                             "message": f"{engine.project.name}, ended normally"})
         self.journal.close()
