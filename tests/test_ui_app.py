@@ -691,3 +691,55 @@ async def test_a_lost_plant_is_shown_and_its_inputs_marked_stale(monkeypatch):
         assert "OUTPUTS HELD IN SAFE STATE" in banners
         io = region_text(app, "#io")
         assert io.count("✗ stale") == 2  # fsc and fso: last values read, not the plant's
+
+
+# -- quitting ------------------------------------------------------------------------------
+
+
+async def test_quit_asks_first_and_says_what_happens():
+    app = make_app()
+    async with app.run_test(size=SIZE) as pilot:
+        await run_for(pilot, 0.5)
+        await enter_manual(pilot)
+        await select_row(pilot, "O")
+        await pilot.press("1")
+        await run_for(pilot, 0.1)
+        await pilot.press("q")  # a stray q: asked, not obeyed
+        await wait_for_screen(pilot, ConfirmDialog)
+        text = screen_text(app)
+        assert "Quit plchmi?" in text and "The scan stops" in text
+        assert "simulated plant stops" in text and "requests (O=1) end" in text
+        await pilot.press("n")
+        await wait_for_main(pilot)
+        assert app.is_running and app.return_code is None
+        assert "cancelled: quit" in app.message.plain
+        await run_for(pilot, 0.1)
+        assert engine(app).last.output_map["O"] is True  # still in control
+        await pilot.press("q")
+        await wait_for_screen(pilot, ConfirmDialog)
+        await pilot.press("y")
+        await wait_until(pilot, lambda: app.return_code is not None, "the app to exit")
+    assert app.return_code == 0
+
+
+async def test_quit_from_the_palette_is_confirmed_too():
+    app = make_app()
+    async with app.run_test(size=SIZE) as pilot:
+        await palette(pilot, "Quit")
+        await wait_for_screen(pilot, ConfirmDialog)
+        await pilot.press("enter")
+        await wait_until(pilot, lambda: app.return_code is not None, "the app to exit")
+
+
+async def test_quit_on_a_real_plant_says_the_outputs_are_written_safe():
+    app = make_app()
+    engine(app).plant.kind = "modbus"
+    async with app.run_test(size=SIZE) as pilot:
+        await pilot.press("q")
+        await wait_for_screen(pilot, ConfirmDialog)
+        text = screen_text(app)
+        assert "Real plant" in text and "safe value (C=0, O=0)" in text
+        assert "watchdog" in text
+        await pilot.press("escape")
+        await wait_for_main(pilot)
+        assert app.return_code is None

@@ -462,6 +462,43 @@ class PlcHmiApp(App):
             return None  # shown dimmed: simulation only
         return True
 
+    async def action_quit(self) -> None:
+        """Quitting ends control of the plant: asked, with what happens to the outputs."""
+        title, lines, level = self._quit_lines()
+        self.push_screen(ConfirmDialog(title, lines, "Quit", level=level,
+                                       dialog_id="quit-dialog"), self._quit_confirmed)
+
+    def _quit_confirmed(self, yes: bool | None) -> None:
+        if yes:
+            self.exit()
+        else:
+            self.message.say(Text("cancelled: quit — the scan goes on", style=MUTED))
+
+    def _quit_lines(self) -> tuple[str, list[Text | str], Level]:
+        snap = self.controller.engine.last
+        lines: list[Text | str] = [
+            "The scan stops: the control program and the safety filter no longer run."]
+        level = Level.ATTENTION
+        if self.simulated:
+            lines.append("The simulated plant stops with it; no real output is driven.")
+        else:
+            level = Level.ALARM
+            where = getattr(getattr(self.controller.engine.plant, "status", None),
+                            "description", "the plant")
+            safe = ", ".join(f"{n}={int(v)}" for n, v in
+                             zip(self.controller.engine.layout.outputs,
+                                 self.controller.engine.safe_vector, strict=True))
+            lines += [tag(f"Real plant ({where}): control ends.", Level.ALARM),
+                      f"Every output is written to its safe value ({safe}), then the "
+                      "connection is closed;",
+                      "if the plant cannot be reached, its own communication watchdog "
+                      "decides what the outputs do."]
+        if snap is not None and snap.mode == "manual":
+            forces = ", ".join(f"{n}={int(v)}" for n, v in snap.manual) or "none"
+            lines.append(tag(f"Manual mode: the requests ({forces}) end with the scan.",
+                             Level.ATTENTION))
+        return "Quit plchmi?", lines, level
+
     def action_toggle_run(self) -> None:
         self.send(Pause() if self.controller.state.running else Resume())
 
