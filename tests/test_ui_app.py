@@ -413,6 +413,26 @@ async def test_fault_injection_later():
         assert "F1 since 2.000 s" in region_text(app, "#sim")
 
 
+async def test_fault_delay_counts_from_the_confirmation():
+    app = make_app()
+    async with app.run_test(size=(120, 36)) as pilot:
+        await pilot.press("f")
+        dialog = await wait_for_screen(pilot, FaultDialog)
+        await pilot.press("enter")  # F1; the delay field has the focus
+        await run_for(pilot, 5.0)  # the operator takes 5 s to type the delay
+        confirmed_at = engine(app).now
+        assert confirmed_at >= 4_900_000
+        await pilot.press("backspace", "3", "enter")
+        await wait_for_main(pilot)
+        assert dialog.is_attached is False
+        (fault,) = app._injected
+        assert fault.injection.at_us == confirmed_at + 3_000_000
+        await run_for(pilot, 2.9)
+        assert "F1 in" in region_text(app, "#sim")  # not yet: 3 s after the confirmation
+        await run_for(pilot, 0.2)
+        assert "F1 since" in region_text(app, "#sim")
+
+
 async def test_fault_dialog_rejects_a_bad_delay():
     app = make_app()
     async with app.run_test(size=(120, 36)) as pilot:

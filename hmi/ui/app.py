@@ -629,7 +629,8 @@ class PlcHmiApp(App):
         def chosen(injection: Injection | None) -> None:
             if injection is not None:
                 self.send(InjectFault(injection))
-        self.push_screen(FaultDialog(self._faults(), engine.now, len(devices) <= 1), chosen)
+        self.push_screen(FaultDialog(self._faults(), lambda: engine.now, len(devices) <= 1),
+                         chosen)
 
     def action_inject_now(self, device: str, code: str) -> None:
         devices = {d for d, _, _ in self._faults()}
