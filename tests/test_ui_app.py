@@ -763,3 +763,18 @@ async def test_quit_on_a_real_plant_says_the_outputs_are_written_safe():
         await pilot.press("escape")
         await wait_for_main(pilot)
         assert app.return_code is None
+
+
+async def test_late_scans_are_explained_on_the_status_bar():
+    app = make_app()
+    app.show_measured = True
+    async with app.run_test(size=(80, 24)) as pilot:
+        await run_for(pilot, 0.5)
+        status = app.query_one("#status")
+        assert "cispi_valve" in region_text(app, "#status")
+        assert status.tooltip is None
+        app.driver.overruns = 2  # as a busy machine would make the live runner count
+        await settle(pilot)
+        assert "cispi_valve" in region_text(app, "#status")  # kept at 80 columns
+        assert "2 scans late" in str(status.tooltip)
+        assert "behind schedule" in str(status.tooltip)
