@@ -636,6 +636,24 @@ async def test_filter_changes_are_shown_with_their_constraint():
         assert f"{change.by[0]} · ×" in constraints and "last" in constraints
 
 
+async def test_a_past_violation_keeps_its_level_1_explanation():
+    app = make_app(control="faulty")
+    async with app.run_test(size=(200, 40)) as pilot:
+        await run_until(pilot, _changed, 10, "a filter correction")
+        snap = engine(app).last
+        name = snap.filter.violated_names[0]
+        what = next(e.what for e in snap.explanations if e.key == f"constraint:{name}")
+        description = next(c.description for c in app.project.constraints if c.name == name)
+        assert what != description
+        await run_until(pilot, lambda s: s.filter is not None and not s.filter.violations, 10,
+                        "a scan without violation")
+        assert app.recorder.constraint_stats()[name].what == what
+        row = next(line for line in region_text(app, "#constraints").splitlines()
+                   if f" {name} " in line)
+        assert "· ×" in row and "last" in row
+        assert what[:40] in row and description[:40] not in row
+
+
 async def test_manual_request_refused_by_the_filter_names_the_constraint():
     app = make_app()
     async with app.run_test(size=(120, 36)) as pilot:
