@@ -22,7 +22,9 @@ from __future__ import annotations
 from functools import partial
 
 from rich.text import Text
+from textual import events
 from textual.app import App, ComposeResult
+from textual.binding import Binding
 from textual.containers import Horizontal, Vertical
 from textual.screen import ModalScreen
 
@@ -92,6 +94,12 @@ POLICY_HELP = {
     "correct": "change the fewest outputs that satisfy every constraint",
 }
 RUN_STATE_COMMANDS = (Pause, Resume, StepScans, SetSpeed)
+MANUAL_KEY_HELP = {
+    True: "Manual: request the I/O table's highlighted output on",
+    False: "Manual: request the I/O table's highlighted output off",
+    None: "Manual: release the request on the I/O table's highlighted output",
+}
+MANUAL_KEYS = {"1": True, "0": False, "x": None}
 WIDE = 120  # from this width on, the explanation panel stays beside the chronogram
 
 
@@ -107,7 +115,15 @@ class Body(Vertical):
 class PlcHmiApp(App):
     CSS_PATH = ["app.tcss", "dialogs.tcss"]
     TITLE = "plchmi"
-    BINDINGS = bindings()
+    # 1 / 0 / x also from outside the I/O table (an explanation's policy button, the alarm
+    # list): they act on the table's highlighted output; the table's own bindings come first
+    # when it has the focus (the footer shows one of each).
+    BINDINGS = [
+        *bindings(),
+        Binding("1", "manual_on", "On", tooltip=MANUAL_KEY_HELP[True]),
+        Binding("0", "manual_off", "Off", tooltip=MANUAL_KEY_HELP[False]),
+        Binding("x", "manual_release", "Release", tooltip=MANUAL_KEY_HELP[None]),
+    ]
     COMMANDS = App.COMMANDS | {HmiCommands}
     HORIZONTAL_BREAKPOINTS = [(0, "-narrow"), (120, "-wide")]
     VERTICAL_BREAKPOINTS = [(0, "-short"), (40, "-tall")]
@@ -460,7 +476,36 @@ class PlcHmiApp(App):
             return False  # a dialog is open: its own keys only
         if action in ("speed", "inject") and not self.simulated:
             return None  # shown dimmed: simulation only
+        if action in ("manual_on", "manual_off", "manual_release"):
+            if isinstance(self.screen, ModalScreen):
+                return False
+            return bool(self.frame and self.frame.manual_keys)  # else hidden (on_key says)
         return True
+
+    def on_key(self, event: events.Key) -> None:
+        """1 / 0 / x outside manual mode: said, not silently ignored."""
+        if event.key in MANUAL_KEYS and not isinstance(self.screen, ModalScreen) and \
+                not (self.frame and self.frame.manual_keys):
+            event.stop()
+            self.refuse("manual request", "not in manual mode (m enters it)")
+
+    def action_manual_on(self) -> None:
+        self._manual_key(True)
+
+    def action_manual_off(self) -> None:
+        self._manual_key(False)
+
+    def action_manual_release(self) -> None:
+        self._manual_key(None)
+
+    def _manual_key(self, value: bool | None) -> None:
+        """A manual key pressed with the focus outside the I/O table: the table's
+        highlighted output is the one requested."""
+        name = self.query_one(IOPanel).selected
+        if name is None:
+            self.refuse("manual request", "no row highlighted in the I/O table")
+            return
+        self.action_manual_request(name, value)
 
     async def action_quit(self) -> None:
         """Quitting ends control of the plant: asked, with what happens to the outputs."""
