@@ -796,3 +796,16 @@ async def test_late_scans_are_explained_on_the_status_bar():
         assert "cispi_valve" in region_text(app, "#status")  # kept at 80 columns
         assert "2 scans late" in str(status.tooltip)
         assert "behind schedule" in str(status.tooltip)
+
+
+async def test_the_same_fault_is_not_injected_twice():
+    app = make_app()
+    async with app.run_test(size=(120, 36)) as pilot:
+        await palette(pilot, "SIMULATION: inject F13 now", expect="F13 now")
+        await run_for(pilot, 0.5)
+        assert len(app._injected) == 1
+        await palette(pilot, "SIMULATION: inject F13 now", expect="F13 now")
+        assert len(app._injected) == 1
+        assert "NOT AVAILABLE" in app.message.plain and "already in effect" in \
+            app.message.plain
+        assert region_text(app, "#sim").count("F13") == 1

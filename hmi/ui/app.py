@@ -673,14 +673,31 @@ class PlcHmiApp(App):
 
         def chosen(injection: Injection | None) -> None:
             if injection is not None:
-                self.send(InjectFault(injection))
+                self._inject(injection)
         self.push_screen(FaultDialog(self._faults(), lambda: engine.now, len(devices) <= 1),
                          chosen)
 
     def action_inject_now(self, device: str, code: str) -> None:
         devices = {d for d, _, _ in self._faults()}
-        self.send(InjectFault(Injection(code, self.controller.engine.now,
-                                        None if len(devices) <= 1 else device)))
+        self._inject(Injection(code, self.controller.engine.now,
+                               None if len(devices) <= 1 else device))
+
+    def _inject(self, injection: Injection) -> None:
+        """Send an injection, unless the same fault is already scheduled or in effect (a
+        simulated fault is never repaired: a second one would change nothing)."""
+        for old in self._injected:
+            same = old.injection
+            if (same.code, same.device) != (injection.code, injection.device):
+                continue
+            if same.duration_us is None or same.at_us + same.duration_us > injection.at_us:
+                when = "in effect" if same.at_us <= self.controller.engine.now \
+                    else "scheduled"
+                self.refuse(f"fault injection {injection.code}",
+                            f"already {when} since {seconds(same.at_us)} s ({old.description})"
+                            if when == "in effect" else
+                            f"already scheduled at {seconds(same.at_us)} s")
+                return
+        self.send(InjectFault(injection))
 
     def action_button(self, name: str, value: bool) -> None:
         self.send(SetInput(name, value))
