@@ -423,3 +423,38 @@ def test_serve_plant_prints_its_map(server):
     assert srv.lines[0].startswith("Serving cispi_valve's simulated plant")
     assert any(line.split()[:3] == ["di:0", "fsc", "sensor"] for line in srv.lines)
     assert any(line.split()[:3] == ["coil:1", "O", "order"] for line in srv.lines)
+
+
+def test_quitting_the_hmi_on_a_real_plant_leaves_its_outputs_safe(server, tmp_path,
+                                                                   monkeypatch):
+    """`plchmi ui` on serve-plant: q asks, y quits, and the plant is left with the safe
+    vector written (the valve was being opened when the operator quit)."""
+    from hmi.cli import main
+    from hmi.ui.app import PlcHmiApp
+    from hmi.ui.dialogs import ConfirmDialog
+    from hmi.ui.testing import screen_text, wait_for_screen, wait_until
+
+    srv = server()
+    monkeypatch.setenv("PLCHMI_DATA", str(tmp_path))
+    seen: dict[str, object] = {}
+
+    async def operator(pilot) -> None:
+        app = pilot.app
+        await wait_until(pilot, lambda: app.controller.engine.last is not None and
+                         app.controller.engine.last.output_map["O"], "the valve opening",
+                         WAIT)
+        seen["coils_before"] = read_coils(srv.port)
+        await pilot.press("q")
+        await wait_for_screen(pilot, ConfirmDialog)
+        seen["dialog"] = screen_text(app)
+        await pilot.press("y")
+
+    run = PlcHmiApp.run
+    monkeypatch.setattr(PlcHmiApp, "run", lambda self: run(self, headless=True,
+                                                           size=(100, 30),
+                                                           auto_pilot=operator))
+    assert main(["ui", str(VALVE), "--plant", f"modbus://127.0.0.1:{srv.port}",
+                 "--journal", str(tmp_path / "journal.jsonl")]) == 0
+    assert seen["coils_before"] == [False, True]  # O on while the valve opened
+    assert "safe value (C=0, O=0)" in str(seen["dialog"])
+    assert read_coils(srv.port) == [False, False]

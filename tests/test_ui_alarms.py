@@ -548,3 +548,38 @@ async def test_every_key_stays_in_the_footer_at_80_columns_in_manual_mode():
         for label in labels:
             assert label in text, label
         assert screen_text(app).splitlines()[0].startswith(" cispi_valve")  # status kept
+
+
+async def test_manual_keys_work_with_the_focus_on_a_policy_button():
+    app = make_app(control="faulty", policy="block")
+    async with app.run_test(size=(80, 24)) as pilot:
+        await run_until(pilot, lambda s: bool(s.latched), 5, "safe blocking")
+        await pilot.press("m")
+        await wait_for_screen(pilot, ConfirmDialog)
+        await pilot.press("y")
+        await wait_for_main(pilot)
+        await run_for(pilot, 0.05)
+        app.explain("safe_state:filter", open_level=1)
+        await settle(pilot)
+        await pilot.press("e", "e", "e")
+        await wait_until(pilot, lambda: app.focused is not None
+                         and "policy-button" in app.focused.classes, "a policy button")
+        footer = "\n".join(screen_text(app).splitlines()[-2:])
+        assert "On" in footer and "Off" in footer  # still offered
+        selected = app.query_one("#io").selected
+        await pilot.press("1")
+        await settle(pilot)
+        assert engine(app).manual == {selected: True}
+        assert f"{selected} requested on" in app.message.plain
+        await pilot.press("x")
+        await settle(pilot)
+        assert engine(app).manual == {}
+
+
+async def test_manual_keys_outside_manual_mode_say_why():
+    app = make_app()
+    async with app.run_test(size=(80, 24)) as pilot:
+        await pilot.press("1")
+        await settle(pilot)
+        assert engine(app).manual == {}
+        assert "NOT AVAILABLE" in app.message.plain and "manual mode" in app.message.plain

@@ -413,6 +413,26 @@ async def test_fault_injection_later():
         assert "F1 since 2.000 s" in region_text(app, "#sim")
 
 
+async def test_fault_delay_counts_from_the_confirmation():
+    app = make_app()
+    async with app.run_test(size=(120, 36)) as pilot:
+        await pilot.press("f")
+        dialog = await wait_for_screen(pilot, FaultDialog)
+        await pilot.press("enter")  # F1; the delay field has the focus
+        await run_for(pilot, 5.0)  # the operator takes 5 s to type the delay
+        confirmed_at = engine(app).now
+        assert confirmed_at >= 4_900_000
+        await pilot.press("backspace", "3", "enter")
+        await wait_for_main(pilot)
+        assert dialog.is_attached is False
+        (fault,) = app._injected
+        assert fault.injection.at_us == confirmed_at + 3_000_000
+        await run_for(pilot, 2.9)
+        assert "F1 in" in region_text(app, "#sim")  # not yet: 3 s after the confirmation
+        await run_for(pilot, 0.2)
+        assert "F1 since" in region_text(app, "#sim")
+
+
 async def test_fault_dialog_rejects_a_bad_delay():
     app = make_app()
     async with app.run_test(size=(120, 36)) as pilot:
@@ -616,6 +636,24 @@ async def test_filter_changes_are_shown_with_their_constraint():
         assert f"{change.by[0]} · ×" in constraints and "last" in constraints
 
 
+async def test_a_past_violation_keeps_its_level_1_explanation():
+    app = make_app(control="faulty")
+    async with app.run_test(size=(200, 40)) as pilot:
+        await run_until(pilot, _changed, 10, "a filter correction")
+        snap = engine(app).last
+        name = snap.filter.violated_names[0]
+        what = next(e.what for e in snap.explanations if e.key == f"constraint:{name}")
+        description = next(c.description for c in app.project.constraints if c.name == name)
+        assert what != description
+        await run_until(pilot, lambda s: s.filter is not None and not s.filter.violations, 10,
+                        "a scan without violation")
+        assert app.recorder.constraint_stats()[name].what == what
+        row = next(line for line in region_text(app, "#constraints").splitlines()
+                   if f" {name} " in line)
+        assert "· ×" in row and "last" in row
+        assert what[:40] in row and description[:40] not in row
+
+
 async def test_manual_request_refused_by_the_filter_names_the_constraint():
     app = make_app()
     async with app.run_test(size=(120, 36)) as pilot:
@@ -691,3 +729,83 @@ async def test_a_lost_plant_is_shown_and_its_inputs_marked_stale(monkeypatch):
         assert "OUTPUTS HELD IN SAFE STATE" in banners
         io = region_text(app, "#io")
         assert io.count("✗ stale") == 2  # fsc and fso: last values read, not the plant's
+
+
+# -- quitting ------------------------------------------------------------------------------
+
+
+async def test_quit_asks_first_and_says_what_happens():
+    app = make_app()
+    async with app.run_test(size=SIZE) as pilot:
+        await run_for(pilot, 0.5)
+        await enter_manual(pilot)
+        await select_row(pilot, "O")
+        await pilot.press("1")
+        await run_for(pilot, 0.1)
+        await pilot.press("q")  # a stray q: asked, not obeyed
+        await wait_for_screen(pilot, ConfirmDialog)
+        text = screen_text(app)
+        assert "Quit plchmi?" in text and "The scan stops" in text
+        assert "simulated plant stops" in text and "requests (O=1) end" in text
+        await pilot.press("n")
+        await wait_for_main(pilot)
+        assert app.is_running and app.return_code is None
+        assert "cancelled: quit" in app.message.plain
+        await run_for(pilot, 0.1)
+        assert engine(app).last.output_map["O"] is True  # still in control
+        await pilot.press("q")
+        await wait_for_screen(pilot, ConfirmDialog)
+        await pilot.press("y")
+        await wait_until(pilot, lambda: app.return_code is not None, "the app to exit")
+    assert app.return_code == 0
+
+
+async def test_quit_from_the_palette_is_confirmed_too():
+    app = make_app()
+    async with app.run_test(size=SIZE) as pilot:
+        await palette(pilot, "Quit")
+        await wait_for_screen(pilot, ConfirmDialog)
+        await pilot.press("enter")
+        await wait_until(pilot, lambda: app.return_code is not None, "the app to exit")
+
+
+async def test_quit_on_a_real_plant_says_the_outputs_are_written_safe():
+    app = make_app()
+    engine(app).plant.kind = "modbus"
+    async with app.run_test(size=SIZE) as pilot:
+        await pilot.press("q")
+        await wait_for_screen(pilot, ConfirmDialog)
+        text = screen_text(app)
+        assert "Real plant" in text and "safe value (C=0, O=0)" in text
+        assert "watchdog" in text
+        await pilot.press("escape")
+        await wait_for_main(pilot)
+        assert app.return_code is None
+
+
+async def test_late_scans_are_explained_on_the_status_bar():
+    app = make_app()
+    app.show_measured = True
+    async with app.run_test(size=(80, 24)) as pilot:
+        await run_for(pilot, 0.5)
+        status = app.query_one("#status")
+        assert "cispi_valve" in region_text(app, "#status")
+        assert status.tooltip is None
+        app.driver.overruns = 2  # as a busy machine would make the live runner count
+        await settle(pilot)
+        assert "cispi_valve" in region_text(app, "#status")  # kept at 80 columns
+        assert "2 scans late" in str(status.tooltip)
+        assert "behind schedule" in str(status.tooltip)
+
+
+async def test_the_same_fault_is_not_injected_twice():
+    app = make_app()
+    async with app.run_test(size=(120, 36)) as pilot:
+        await palette(pilot, "SIMULATION: inject F13 now", expect="F13 now")
+        await run_for(pilot, 0.5)
+        assert len(app._injected) == 1
+        await palette(pilot, "SIMULATION: inject F13 now", expect="F13 now")
+        assert len(app._injected) == 1
+        assert "NOT AVAILABLE" in app.message.plain and "already in effect" in \
+            app.message.plain
+        assert region_text(app, "#sim").count("F13") == 1

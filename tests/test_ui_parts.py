@@ -14,7 +14,7 @@ from hmi.ui.fault_dialog import parse_delay
 from hmi.ui.frame import Frame
 from hmi.ui.recorder import ScanRecorder, Trace
 from hmi.ui.reset import PREVIEWS, ResetLine, reset_preview
-from hmi.ui.status import banner_lines, fit, status_fields
+from hmi.ui.status import banner_lines, fit, late_help, status_fields
 from hmi.ui.style import MUTED
 from hmi.ui.verdict import output_changes, request_verdict
 from tests.conftest import PROJECTS, make_controller
@@ -87,9 +87,25 @@ def test_status_keeps_alarms_and_mode_when_narrow():
     line = fit(fields, 40).plain
     assert "DISCONNECTED" in line and "SAFE STATE" in line and "AUTO" in line
     assert "PAUSED" in line
-    assert "cispi_valve" not in line  # the project name goes first
+    assert "cispi_valve" not in line  # 40 columns: only the essentials are left
     full = fit(status_fields(_frame(snap), wide=True), 200).plain
     assert "cispi_valve" in full and "scan " in full
+
+
+def test_status_at_80_columns_keeps_the_project_over_scan_time_and_late_count():
+    snap = _snapshot(scan_wall_us=1234.0)
+    frame = _frame(snap, show_measured=True, overruns=3)
+    full = fit(status_fields(frame, wide=True), 200).plain
+    assert "1234 µs/scan" in full and "▲ 3 scans late" in full
+    line = fit(status_fields(frame, wide=False, compact=True), 80).plain
+    assert len(line) <= 80
+    assert line.startswith(" cispi_valve │ ◇ SIM │ AUTO")  # the project is kept
+    assert "µs" not in line and "late" not in line  # these go first
+    roomier = fit(status_fields(frame, wide=False, compact=True), 84).plain
+    assert "cispi_valve" in roomier and "▲ 3 scans late" in roomier and "µs" not in roomier
+    assert "1 scan late" in fit(status_fields(_frame(snap, show_measured=True, overruns=1),
+                                              wide=True), 200).plain
+    assert "more than a whole scan period behind" in late_help(3)
 
 
 def test_every_coloured_status_field_carries_a_symbol_or_word():

@@ -22,7 +22,9 @@ from __future__ import annotations
 from functools import partial
 
 from rich.text import Text
+from textual import events
 from textual.app import App, ComposeResult
+from textual.binding import Binding
 from textual.containers import Horizontal, Vertical
 from textual.screen import ModalScreen
 
@@ -92,6 +94,12 @@ POLICY_HELP = {
     "correct": "change the fewest outputs that satisfy every constraint",
 }
 RUN_STATE_COMMANDS = (Pause, Resume, StepScans, SetSpeed)
+MANUAL_KEY_HELP = {
+    True: "Manual: request the I/O table's highlighted output on",
+    False: "Manual: request the I/O table's highlighted output off",
+    None: "Manual: release the request on the I/O table's highlighted output",
+}
+MANUAL_KEYS = {"1": True, "0": False, "x": None}
 WIDE = 120  # from this width on, the explanation panel stays beside the chronogram
 
 
@@ -107,7 +115,15 @@ class Body(Vertical):
 class PlcHmiApp(App):
     CSS_PATH = ["app.tcss", "dialogs.tcss"]
     TITLE = "plchmi"
-    BINDINGS = bindings()
+    # 1 / 0 / x also from outside the I/O table (an explanation's policy button, the alarm
+    # list): they act on the table's highlighted output; the table's own bindings come first
+    # when it has the focus (the footer shows one of each).
+    BINDINGS = [
+        *bindings(),
+        Binding("1", "manual_on", "On", tooltip=MANUAL_KEY_HELP[True]),
+        Binding("0", "manual_off", "Off", tooltip=MANUAL_KEY_HELP[False]),
+        Binding("x", "manual_release", "Release", tooltip=MANUAL_KEY_HELP[None]),
+    ]
     COMMANDS = App.COMMANDS | {HmiCommands}
     HORIZONTAL_BREAKPOINTS = [(0, "-narrow"), (120, "-wide")]
     VERTICAL_BREAKPOINTS = [(0, "-short"), (40, "-tall")]
@@ -460,7 +476,73 @@ class PlcHmiApp(App):
             return False  # a dialog is open: its own keys only
         if action in ("speed", "inject") and not self.simulated:
             return None  # shown dimmed: simulation only
+        if action in ("manual_on", "manual_off", "manual_release"):
+            if isinstance(self.screen, ModalScreen):
+                return False
+            return bool(self.frame and self.frame.manual_keys)  # else hidden (on_key says)
         return True
+
+    def on_key(self, event: events.Key) -> None:
+        """1 / 0 / x outside manual mode: said, not silently ignored."""
+        if event.key in MANUAL_KEYS and not isinstance(self.screen, ModalScreen) and \
+                not (self.frame and self.frame.manual_keys):
+            event.stop()
+            self.refuse("manual request", "not in manual mode (m enters it)")
+
+    def action_manual_on(self) -> None:
+        self._manual_key(True)
+
+    def action_manual_off(self) -> None:
+        self._manual_key(False)
+
+    def action_manual_release(self) -> None:
+        self._manual_key(None)
+
+    def _manual_key(self, value: bool | None) -> None:
+        """A manual key pressed with the focus outside the I/O table: the table's
+        highlighted output is the one requested."""
+        name = self.query_one(IOPanel).selected
+        if name is None:
+            self.refuse("manual request", "no row highlighted in the I/O table")
+            return
+        self.action_manual_request(name, value)
+
+    async def action_quit(self) -> None:
+        """Quitting ends control of the plant: asked, with what happens to the outputs."""
+        title, lines, level = self._quit_lines()
+        self.push_screen(ConfirmDialog(title, lines, "Quit", level=level,
+                                       dialog_id="quit-dialog"), self._quit_confirmed)
+
+    def _quit_confirmed(self, yes: bool | None) -> None:
+        if yes:
+            self.exit()
+        else:
+            self.message.say(Text("cancelled: quit — the scan goes on", style=MUTED))
+
+    def _quit_lines(self) -> tuple[str, list[Text | str], Level]:
+        snap = self.controller.engine.last
+        lines: list[Text | str] = [
+            "The scan stops: the control program and the safety filter no longer run."]
+        level = Level.ATTENTION
+        if self.simulated:
+            lines.append("The simulated plant stops with it; no real output is driven.")
+        else:
+            level = Level.ALARM
+            where = getattr(getattr(self.controller.engine.plant, "status", None),
+                            "description", "the plant")
+            safe = ", ".join(f"{n}={int(v)}" for n, v in
+                             zip(self.controller.engine.layout.outputs,
+                                 self.controller.engine.safe_vector, strict=True))
+            lines += [tag(f"Real plant ({where}): control ends.", Level.ALARM),
+                      f"Every output is written to its safe value ({safe}), then the "
+                      "connection is closed;",
+                      "if the plant cannot be reached, its own communication watchdog "
+                      "decides what the outputs do."]
+        if snap is not None and snap.mode == "manual":
+            forces = ", ".join(f"{n}={int(v)}" for n, v in snap.manual) or "none"
+            lines.append(tag(f"Manual mode: the requests ({forces}) end with the scan.",
+                             Level.ATTENTION))
+        return "Quit plchmi?", lines, level
 
     def action_toggle_run(self) -> None:
         self.send(Pause() if self.controller.state.running else Resume())
@@ -591,13 +673,31 @@ class PlcHmiApp(App):
 
         def chosen(injection: Injection | None) -> None:
             if injection is not None:
-                self.send(InjectFault(injection))
-        self.push_screen(FaultDialog(self._faults(), engine.now, len(devices) <= 1), chosen)
+                self._inject(injection)
+        self.push_screen(FaultDialog(self._faults(), lambda: engine.now, len(devices) <= 1),
+                         chosen)
 
     def action_inject_now(self, device: str, code: str) -> None:
         devices = {d for d, _, _ in self._faults()}
-        self.send(InjectFault(Injection(code, self.controller.engine.now,
-                                        None if len(devices) <= 1 else device)))
+        self._inject(Injection(code, self.controller.engine.now,
+                               None if len(devices) <= 1 else device))
+
+    def _inject(self, injection: Injection) -> None:
+        """Send an injection, unless the same fault is already scheduled or in effect (a
+        simulated fault is never repaired: a second one would change nothing)."""
+        for old in self._injected:
+            same = old.injection
+            if (same.code, same.device) != (injection.code, injection.device):
+                continue
+            if same.duration_us is None or same.at_us + same.duration_us > injection.at_us:
+                when = "in effect" if same.at_us <= self.controller.engine.now \
+                    else "scheduled"
+                self.refuse(f"fault injection {injection.code}",
+                            f"already {when} since {seconds(same.at_us)} s ({old.description})"
+                            if when == "in effect" else
+                            f"already scheduled at {seconds(same.at_us)} s")
+                return
+        self.send(InjectFault(injection))
 
     def action_button(self, name: str, value: bool) -> None:
         self.send(SetInput(name, value))

@@ -8,6 +8,8 @@ it as an ``InjectFault`` command.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from textual import on
 from textual.app import ComposeResult
 from textual.binding import Binding
@@ -35,7 +37,10 @@ def parse_delay(text: str) -> int:
 class FaultDialog(ModalScreen[Injection | None]):
     BINDINGS = [Binding("escape", "cancel", "Cancel")]
 
-    def __init__(self, faults: list[tuple[str, str, str]], now_us: int, single_device: bool):
+    def __init__(self, faults: list[tuple[str, str, str]], now_us: Callable[[], int],
+                 single_device: bool):
+        """`now_us` reads the engine's time: a delay counts from the confirmation, not from
+        when the dialog opened (the cell keeps running while it is open)."""
         super().__init__(id="fault-dialog")
         self.faults = faults
         self.now_us = now_us
@@ -77,7 +82,7 @@ class FaultDialog(ModalScreen[Injection | None]):
         if delay < 0:
             self.query_one("#error", Label).update("✗ the delay cannot be negative")
             return
-        self.dismiss(Injection(code, self.now_us + delay,
+        self.dismiss(Injection(code, self.now_us() + delay,
                                None if self.single_device else device))
 
     @on(OptionList.OptionSelected)

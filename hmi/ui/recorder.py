@@ -69,6 +69,7 @@ class ConstraintStats:
     scans: int = 0
     since_us: int | None = None  # start of the current episode (None: not violated now)
     last_us: int | None = None  # last scan it was violated
+    what: str | None = None  # the level-1 explanation last given during its last episode
 
 
 @dataclass(frozen=True)
@@ -128,7 +129,7 @@ class ScanRecorder:
                 self.damage_count += sum(1 for e in snap.plant_events if e.damage)
             report = snap.filter
             if report is not None and (report.violations or self._violated_now):
-                self._count_violations(report.violated_names, t)
+                self._count_violations(report.violated_names, t, snap.explanations)
             if self.first_us is None:
                 self.first_us = t
                 self._trim_at = t + self.keep_us
@@ -145,18 +146,22 @@ class ScanRecorder:
             if cut > 0:
                 del points[:cut]
 
-    def _count_violations(self, names: tuple[str, ...], t: int) -> None:
+    def _count_violations(self, names: tuple[str, ...], t: int, explanations=()) -> None:
         stats = self._constraints
         now = set(names)
+        whats = {e.key: e.what for e in explanations
+                 if e.key.startswith("constraint:")} if now else {}
         for name in now:
             old = stats.get(name) or ConstraintStats(name)
             new_episode = name not in self._violated_now
+            what = whats.get(f"constraint:{name}") or (None if new_episode else old.what)
             stats[name] = ConstraintStats(
                 name, old.episodes + new_episode, old.scans + 1,
-                t if new_episode else old.since_us, t)
+                t if new_episode else old.since_us, t, what)
         for name in self._violated_now - now:
             old = stats[name]
-            stats[name] = ConstraintStats(name, old.episodes, old.scans, None, old.last_us)
+            stats[name] = ConstraintStats(name, old.episodes, old.scans, None, old.last_us,
+                                          old.what)
         self._violated_now = now
 
     def constraint_stats(self) -> dict[str, ConstraintStats]:

@@ -1,8 +1,9 @@
 """The status bar and the banners under it: the two things that must survive any screen size.
 
-The status bar is one line. When the terminal is narrow it drops its least important fields
-first (project name, measured scan time, plant details) and never the mode, the run state or
-an alarm. The banner strip appears only while something abnormal is in effect: manual mode
+The status bar is one line. When the terminal is narrow it uses short forms, then drops its
+least important fields first (measured scan time, the late-scan count, plant details; the
+project name among the last) and never the mode, the run state or an alarm. The banner
+strip appears only while something abnormal is in effect: manual mode
 (MANUAL / FORCES ACTIVE), a device the operator stopped, and outputs latched in the safe
 state.
 """
@@ -35,7 +36,7 @@ def status_fields(frame: Frame, wide: bool, compact: bool = False) -> list[Field
     """The status bar's fields; `compact` uses the short forms (80 columns)."""
     snap = frame.snapshot
     plant = snap.plant
-    fields: list[Field] = [Field(Text(frame.project, style="bold"), 6)]
+    fields: list[Field] = [Field(Text(frame.project, style="bold"), 2)]
     if plant.kind == "sim":
         fields.append(Field(tag("SIM", Level.SIMULATION), 2))
     else:
@@ -73,10 +74,21 @@ def status_fields(frame: Frame, wide: bool, compact: bool = False) -> list[Field
                              else f"t {seconds(snap.time_us)} s"), 1))
     if frame.show_measured:
         unit = "µs" if compact else "µs/scan"
-        fields.append(Field(Text(f"{snap.scan_wall_us:.0f} {unit}", style=MUTED), 4))
+        fields.append(Field(Text(f"{snap.scan_wall_us:.0f} {unit}", style=MUTED), 5))
         if frame.overruns:
-            fields.append(Field(tag(f"{frame.overruns} late", Level.ATTENTION), 2))
+            fields.append(Field(tag(late_text(frame.overruns), Level.ATTENTION), 4))
     return fields
+
+
+def late_text(overruns: int) -> str:
+    return f"{overruns} scan{'s' if overruns != 1 else ''} late"
+
+
+def late_help(overruns: int) -> str:
+    """What the late-scan count means (the status bar's tooltip)."""
+    return (f"{late_text(overruns)}: {'they' if overruns != 1 else 'it'} ended more than a "
+            "whole scan period behind schedule (the machine was busy). The schedule starts "
+            "again from then: no scan is run twice to catch up.")
 
 
 def join(fields: list[Field]) -> Text:
@@ -121,6 +133,10 @@ class StatusBar(TextPanel):
             return
         width = self.size.width or 80
         wide = width >= 120
+        tooltip = late_help(self.frame.overruns) if self.frame.overruns and \
+            self.frame.show_measured else None
+        if self.tooltip != tooltip:
+            self.tooltip = tooltip
         line = join(status_fields(self.frame, wide))
         if line.cell_len > width:  # short forms first, then drop the least important
             line = fit(status_fields(self.frame, wide, compact=True), width)
