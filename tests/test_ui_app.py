@@ -531,6 +531,8 @@ async def test_palette_runs_commands():
         assert "X1" in app.query_one(Chronogram).signals
         await palette(pilot, "SIMULATION: inject valve.F5 now", "inject valve.F5")
         assert any(f.injection.code == "F5" for f in app.frame.injected)
+        await palette(pilot, "SIMULATION: repair the faulty devices")
+        assert not app._injected and "F5 removed" in region_text(app, "#message")
         await palette(pilot, "Run speed: as fast as possible")
         assert app.controller.state.speed is None
 

@@ -61,6 +61,13 @@ class InjectFault:
 
 
 @dataclass(frozen=True)
+class RepairFaults:
+    """Simulation only: the technician repairs the faulty devices (one, or all)."""
+
+    device: str | None = None
+
+
+@dataclass(frozen=True)
 class SetInput:
     """Press or release an input no simulated device drives (a push button)."""
 
@@ -96,8 +103,8 @@ class ChoosePolicy:
 
 
 Command = (Pause | Resume | StepScans | SetSpeed | SetMode | ManualOutput | FaultReset
-           | SetPolicy | InjectFault | SetInput | Acknowledge | StopDevice | ReleaseDevice
-           | ChoosePolicy)
+           | SetPolicy | InjectFault | RepairFaults | SetInput | Acknowledge | StopDevice
+           | ReleaseDevice | ChoosePolicy)
 
 
 @dataclass(frozen=True)
@@ -135,6 +142,8 @@ def describe(command: Command) -> str:
             return f"filter policy: {p}"
         case InjectFault(injection=i):
             return f"inject fault {i}"
+        case RepairFaults(device=d):
+            return "repair simulated faults" + (f" of {d}" if d else "")
         case SetInput(name=n, value=v):
             return f"input {n} {'on' if v else 'off'}"
         case Acknowledge(key=k):

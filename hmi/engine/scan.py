@@ -22,6 +22,7 @@ from hmi.engine.commands import (
     InjectFault,
     ManualOutput,
     ReleaseDevice,
+    RepairFaults,
     SetInput,
     SetMode,
     SetPolicy,
@@ -32,6 +33,7 @@ from hmi.engine.filter import SafetyFilter
 from hmi.engine.layout import Layout
 from hmi.engine.monitors import install_monitors
 from hmi.engine.snapshot import LatchReason, Snapshot
+from hmi.errors import UsageError
 from hmi.explain.alarms import AlarmManager
 from hmi.explain.builder import ExplanationBuilder
 from hmi.logic.control import ControlRuntime
@@ -172,6 +174,21 @@ class Engine:
                 except Exception as exc:  # a UsageError naming what exists
                     return CommandResult.refused(str(exc))
                 return CommandResult.ok(f"SIMULATION: fault {injection} scheduled")
+            case RepairFaults(device=device):
+                repair = getattr(self.plant, "repair", None)
+                if repair is None:
+                    return CommandResult.refused("only a simulated plant can be repaired from "
+                                                 "here")
+                try:
+                    repaired = repair(self.now, device)
+                except UsageError as exc:
+                    return CommandResult.refused(str(exc))
+                if not repaired:
+                    return CommandResult.refused("no simulated fault to repair")
+                done = "; ".join(f"{name} repaired ({', '.join(codes)} removed)"
+                                 for name, codes in repaired)
+                return CommandResult.ok(f"SIMULATION: {done}; a fault reset now re-synchronises "
+                                        "the diagnosers")
             case Acknowledge(key=key):
                 events = self.alarm_manager.acknowledge(key, self.scan, self.now)
                 self.pending_alarm_events.extend(events)

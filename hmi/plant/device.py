@@ -73,6 +73,9 @@ class SimDevice(ABC):
     ACTUATORS: ClassVar[tuple[str, ...]]
     PARAMS: ClassVar[dict[str, ParamSpec]] = {}
     FAULTS: ClassVar[dict[str, FaultSpec]] = {}
+    # A model that knows how to undo its faults' effects (see _repaired); the others refuse a
+    # repair rather than leave a half-faulty device behind.
+    REPAIRABLE: ClassVar[bool] = False
 
     def __init__(self, name: str, params: Mapping[str, Any]):
         self.name = name
@@ -138,6 +141,22 @@ class SimDevice(ABC):
 
     def _fault_activated(self, fault: PendingFault) -> None:  # noqa: B027
         """Hook: a fault became active at fault.at_us."""
+
+    def repair(self, t: int) -> tuple[str, ...]:
+        """The technician's repair at time t, for training: every active and scheduled fault
+        is removed and the device works normally again from where it physically is. Returns
+        the codes removed."""
+        if not self.REPAIRABLE:
+            raise NotImplementedError(f"repair is not modelled for {self.MODEL} devices")
+        self.advance(t)
+        codes = tuple(self.active_faults) + tuple(p.code for p in self.pending)
+        self.active_faults.clear()
+        self.pending.clear()
+        self._repaired()
+        return codes
+
+    def _repaired(self) -> None:  # noqa: B027
+        """Hook: undo the faults' effects (a jam, an armed fault, a glitch in progress)."""
 
     @abstractmethod
     def state(self) -> dict[str, Any]:

@@ -137,6 +137,22 @@ class SimPlant:
         device = self.resolve(injection)
         device.inject(injection.code, injection.at_us, injection.duration_us)
 
+    def repair(self, now_us: int, device: str | None = None) -> list[tuple[str, tuple[str, ...]]]:
+        """Repair the faulty devices (one, or all of them): (device, codes removed) for each.
+
+        A UsageError names a device that does not exist, or a faulty one whose model cannot
+        be repaired (nothing is repaired then: all or nothing)."""
+        chosen = [d for d in self.devices if device is None or d.name == device]
+        if not chosen:
+            raise UsageError(f"no simulated device {device}; this plant has: "
+                             + ", ".join(d.name for d in self.devices))
+        faulty = [d for d in chosen if d.active_faults or d.pending]
+        stuck = [d.name for d in faulty if not d.REPAIRABLE]
+        if stuck:
+            raise UsageError(f"repair is not modelled for {', '.join(stuck)}: restart the run "
+                             "to clear its faults")
+        return [(d.name, d.repair(now_us)) for d in faulty]
+
     def state(self) -> tuple[tuple[str, Any], ...]:
         """Physical state as (name, value) pairs, device-prefixed when there are several."""
         if len(self.devices) == 1:

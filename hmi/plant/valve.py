@@ -62,6 +62,7 @@ class Valve(SimDevice):
         "initial": ParamSpec("choice", "closed", "initial position", ("closed", "open")),
     }
     FAULTS = _FAULTS
+    REPAIRABLE = True
 
     def __init__(self, name: str, params: dict[str, Any]):
         super().__init__(name, params)
@@ -219,6 +220,15 @@ class Valve(SimDevice):
         if code == "F13" and self.band < self.pos < self.travel - self.band:
             self.armed.discard(code)
             self.jammed = True
+        self._settle()
+
+    def _repaired(self) -> None:
+        self.jammed = False
+        self.armed.clear()
+        self.glitches.clear()
+        self.self_drive = 0
+        self.stall_us = 0
+        self.stall_reported = False
         self._settle()
 
     def _orders_changed(self, t: int, changed: dict[str, bool]) -> None:

@@ -38,6 +38,7 @@ from hmi.engine.commands import (
     ManualOutput,
     Pause,
     ReleaseDevice,
+    RepairFaults,
     Resume,
     SetInput,
     SetMode,
@@ -427,6 +428,11 @@ class PlcHmiApp(App):
             case InjectFault(injection=injection) if result.accepted:
                 self._injected.append(InjectedFault(injection, self._fault_text(injection)))
                 self._version += 1
+            case RepairFaults(device=device) if result.accepted:
+                self._injected = [f for f in self._injected
+                                  if device is not None and f.injection.device not in
+                                  (None, device)]
+                self._version += 1
         if result.accepted and not isinstance(command, RUN_STATE_COMMANDS) \
                 and not self.controller.state.running:
             text.append(" — applies at the next scan (paused)", style=MUTED)
@@ -776,6 +782,10 @@ class PlcHmiApp(App):
                 entries.append(PaletteEntry(
                     f"SIMULATION: inject {device}.{code} now", description,
                     partial(self.action_inject_now, device, code)))
+            entries.append(PaletteEntry(
+                "SIMULATION: repair the faulty devices",
+                "The technician's repair: injected faults removed; then a fault reset "
+                "re-synchronises the diagnosers", partial(self.send, RepairFaults())))
             for name in self.free_inputs:
                 for value, word in ((True, "press"), (False, "release")):
                     entries.append(PaletteEntry(
