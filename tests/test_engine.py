@@ -90,3 +90,13 @@ def test_an_internal_error_puts_outputs_safe_and_says_so():
     ctl.engine.output_stage = lambda engine, fov: (fov, None)
     assert "safe-state latch released" in ctl.command(FaultReset()).message
     assert ctl.scan_once().latched == ()
+
+
+def test_repair_is_refused_for_a_model_that_cannot_undo_its_faults():
+    from hmi.engine.commands import RepairFaults
+    from tests.conftest import PROJECTS, make_controller
+    ctl = make_controller(PROJECTS / "conveyor_robot", inject=["C1.stop@0s"])
+    ctl.scan_once()
+    result = ctl.command(RepairFaults())
+    assert not result.accepted and "repair is not modelled for C1" in result.message
+    assert not ctl.command(RepairFaults("nowhere")).accepted
