@@ -1,7 +1,9 @@
 """The stopwatch monitors of the sorting and palletizer cells (projects/*/monitors.yaml):
 `plchmi check` lists them, normal runs of both programs raise no monitor fault, and each fault
 scenario of docs/sorting.md and docs/palletizer.md raises the labels those pages report, at
-the instants they report (within a scan), before or after the damage as they say."""
+the instants they report (within a scan), before or after the damage as they say; and an
+operator who stops the device the alarm recommends, at the detection scan, avoids the damage
+where the pages say so."""
 
 from __future__ import annotations
 
@@ -10,6 +12,7 @@ from functools import cache
 import pytest
 
 from hmi.cli import main
+from hmi.engine.commands import StopDevice
 from hmi.project.loader import load_project
 from hmi.project.monitors import monitors_of
 from hmi.project.scenarios import scenarios_of
@@ -137,3 +140,38 @@ def test_the_operator_reads_the_cells_own_explanation_of_a_monitor_fault(capsys)
            "order (leave_90_fault)" in out
     assert "motor stalls and overheats after about a second (turn_stall)" in out
     assert "Recommended: Stop Turntable" in out
+
+
+def act_on_alarm(name: str, inject: str, label: str, device: str, seconds: int = 30):
+    """Run with `inject`; at the scan `label` is raised, stop `device` as the operator would.
+    Returns that instant and the damage events (plant time, kind)."""
+    ctl = make_controller(PROJECTS / name, inject=[inject])
+    stopped, damage = [], []
+
+    def on_scan(snap):
+        damage.extend((e.time_us, e.kind) for e in snap.plant_events if e.damage)
+        if not stopped and any(m.label == label and m.detection for m in snap.monitors):
+            stopped.append(snap.time_us)
+            assert ctl.command(StopDevice(device)).accepted
+    ctl.run_for(seconds * S, on_scan)
+    return stopped[0], damage
+
+
+@pytest.mark.parametrize("name,inject,label,device,at_ms", [
+    ("sorting", "table_jam@20s", "leave_90_fault", "Turntable", 20_205),  # turn_stall 21.110
+    ("sorting", "tt_front_stuck0@14s", "unload_fault", "Turntable", 14_000),  # drop 17.005
+    ("palletizer", "pusher_home_stuck1@20s", "leave_home_fault", "Feed conveyor", 23_680),
+])
+def test_stopping_the_device_the_alarm_names_prevents_the_damage(name, inject, label, device,
+                                                                  at_ms):
+    stopped, damage = act_on_alarm(name, inject, label, device)
+    assert stopped == at_ms * MS
+    assert damage == []
+
+
+def test_stopping_the_pusher_instead_of_the_feed_brings_the_damage_earlier():
+    # docs/palletizer.md: halted out of home, the pusher is what the feed drives a box into.
+    stopped, damage = act_on_alarm("palletizer", "pusher_home_stuck1@20s", "leave_home_fault",
+                                   "Pusher")
+    assert stopped == 23_680 * MS
+    assert damage == [(23_695 * MS, "box_against_pusher")]  # instead of 24.555 s
