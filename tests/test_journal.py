@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -153,3 +154,14 @@ def test_a_faulty_run_journals_every_return_of_a_chattering_constraint(tmp_path)
         went = [e for e in mine if e["event"] in ("cleared", "condition-cleared")]
         assert len(came) > 5 and abs(len(came) - len(went)) <= 1
         assert [e["returns"] for e in came] == list(range(len(came)))
+
+
+def test_a_sigkilled_run_leaves_a_readable_journal(tmp_path):
+    path = tmp_path / "j.jsonl"
+    kill_a_run_mid_journal(path)
+    result = read(path)
+    assert len(result.entries) >= 20
+    assert result.entries[0]["event"] == "start"
+    assert all("wall" in e and "scan" in e for e in result.entries)
+    assert json.loads(path.read_bytes().split(b"\n")[1])  # complete lines are valid JSON
+    assert main(["journal", str(VALVE), "--path", str(path)]) == 0

@@ -203,10 +203,9 @@ def _reconstruction(builder, engine, spec, partition, state) -> Explanation:
     estimate = partition.estimate
     what = (f"{device}: {partition.sensor} replaced by its estimate {estimate} — running "
             "degraded")
-    why = (f"{partition.flag} is set since scan {since.scan} ({seconds(since.time_us)} s): the "
-           f"decision of {spec.name} ({', '.join(state.labels)}) holds a label of partition "
-           f"{partition.name}. {partition.filtered} = not {partition.flag} and "
-           f"{partition.sensor} or {partition.flag} and {estimate} (000 eq. 7-8).")
+    why = (f"{_flag_since(spec, partition, state, since)}. {partition.filtered} = not "
+           f"{partition.flag} and {partition.sensor} or {partition.flag} and {estimate} "
+           "(000 eq. 7-8).")
     consequences = (f"The program and the filter see {estimate} ({builder.describe(estimate)})"
                     f" where they would see {partition.sensor}: an estimate from the orders "
                     "and the travel time, not a measurement. If the device stops moving as "
@@ -219,20 +218,11 @@ def _reconstruction(builder, engine, spec, partition, state) -> Explanation:
         builder.policy_reset("after replacing the sensor: the flag is released if the "
                              "diagnoser re-synchronises"),
     )
-    values = {"device": device, "time": seconds(engine.now), "scan": engine.scan,
-              "since_time": seconds(since.time_us), "since_scan": since.scan,
-              "action": "reconstructed", "partition": partition.name,
-              "sensor": partition.sensor, "estimate": estimate or "",
-              "outputs": "", "labels": ", ".join(state.labels)}
-    spec_texts = builder.texts.get("partitions", partition.name)
-    level = builder.apply_texts(spec_texts, {"what": what, "why": why,
-                                             "consequences": consequences,
-                                             "policies": policies, "severity": "medium",
-                                             "alarm": False}, values)
-    return Explanation(key, "reconstruction", level["severity"], device, level["what"],
-                       level["why"], level["consequences"], level["policies"], since.scan,
-                       since.time_us, level["alarm"], latched=True)
-
+    return _partition_explanation(
+        builder, engine, key, "reconstruction", partition, state, since, device,
+        (what, why, consequences, policies),
+        {"action": "reconstructed", "sensor": partition.sensor, "estimate": estimate or "",
+         "outputs": ""})
 
 
 def _masked(builder, engine, spec, partition, state, held: tuple[str, ...]) -> Explanation:
@@ -241,10 +231,9 @@ def _masked(builder, engine, spec, partition, state, held: tuple[str, ...]) -> E
     since = builder.onsets[key]
     orders = ", ".join(f"{o} ({builder.short(o)})" for o in held)
     what = f"{device}: {', '.join(held)} held at 0 by {partition.flag} — the device is not driven"
-    why = (f"{partition.flag} is set since scan {since.scan} ({seconds(since.time_us)} s): the "
-           f"decision of {spec.name} ({', '.join(state.labels)}) holds a label of partition "
-           f"{partition.name}, whose orders are masked: C_filter = not {partition.flag} and C "
-           "(000 eq. 9-10), applied to what the program asks and to what the filter writes.")
+    why = (f"{_flag_since(spec, partition, state, since)}, whose orders are masked: C_filter = "
+           f"not {partition.flag} and C (000 eq. 9-10), applied to what the program asks and "
+           "to what the filter writes.")
     consequences = (f"{orders}: held at 0 whatever the program or a manual request asks, so "
                     f"{device} stays where it is and the steps of the cycle that need it wait. "
                     "A device that may be blocked is not driven against the block; the rest of "
@@ -256,15 +245,31 @@ def _masked(builder, engine, spec, partition, state, held: tuple[str, ...]) -> E
         builder.policy_reset("after the repair: the mask is released if the diagnoser "
                              "re-synchronises"),
     )
+    return _partition_explanation(
+        builder, engine, key, "masked", partition, state, since, device,
+        (what, why, consequences, policies),
+        {"action": "masked", "sensor": "", "estimate": "", "outputs": ", ".join(held)})
+
+
+def _flag_since(spec, partition, state, since) -> str:
+    return (f"{partition.flag} is set since scan {since.scan} ({seconds(since.time_us)} s): "
+            f"the decision of {spec.name} ({', '.join(state.labels)}) holds a label of "
+            f"partition {partition.name}")
+
+
+def _partition_explanation(builder, engine, key: str, kind: str, partition, state, since,
+                           device: str, levels: tuple, extra: dict) -> Explanation:
+    """What a set partition flag does (a sensor on its estimate, orders masked): the generated
+    levels, replaced by the project's `partitions:` texts where it has them; no alarm (the
+    diagnosis raised one), latched like the decision."""
+    what, why, consequences, policies = levels
     values = {"device": device, "time": seconds(engine.now), "scan": engine.scan,
               "since_time": seconds(since.time_us), "since_scan": since.scan,
-              "action": "masked", "partition": partition.name, "sensor": "",
-              "estimate": "", "outputs": ", ".join(held), "labels": ", ".join(state.labels)}
-    spec_texts = builder.texts.get("partitions", partition.name)
-    level = builder.apply_texts(spec_texts, {"what": what, "why": why,
-                                             "consequences": consequences,
-                                             "policies": policies, "severity": "medium",
-                                             "alarm": False}, values)
-    return Explanation(key, "masked", level["severity"], device, level["what"], level["why"],
+              "partition": partition.name, "labels": ", ".join(state.labels), **extra}
+    level = builder.apply_texts(builder.texts.get("partitions", partition.name),
+                                {"what": what, "why": why, "consequences": consequences,
+                                 "policies": policies, "severity": "medium", "alarm": False},
+                                values)
+    return Explanation(key, kind, level["severity"], device, level["what"], level["why"],
                        level["consequences"], level["policies"], since.scan, since.time_us,
                        level["alarm"], latched=True)
