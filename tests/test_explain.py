@@ -191,15 +191,21 @@ def test_acknowledge_all_and_ordering_by_priority():
     assert all(a.state == ACTIVE_ACK for a in m.listed())
 
 
+def chatter(m: AlarmManager, times: int = 10) -> tuple[list, int]:
+    """One alarm returning every 2 s (10 times a minute): its events, and the time after."""
+    e = make_exp()
+    events: list = []
+    t = 0
+    for _ in range(times):
+        events += m.update((e,), 0, t)
+        events += m.update((), 0, t + S)
+        t += 2 * S
+    return events, t
+
+
 def test_chattering_is_collapsed_into_one_alarm_with_a_count():
     m = AlarmManager()
-    e = make_exp()
-    events = []
-    t = 0
-    for _ in range(10):  # returns every 2 s: 10 times a minute
-        events += m.update((e,), 0, t)
-        events += m.update((), 0, t + 1 * S)
-        t += 2 * S
+    events, t = chatter(m)
     kinds = [x.event for x in events]
     assert kinds.count("chattering") == 1
     assert kinds.count("returned") == 4  # the 4th return makes it chattering; then collapsed

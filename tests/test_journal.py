@@ -116,15 +116,9 @@ def test_damaged_lines_anywhere_are_reported_and_skipped(tmp_path, capsys):
 
 def test_a_collapsed_alarm_still_journals_every_change_of_its_condition():
     from hmi.explain.alarms import AlarmManager
-    from tests.test_explain import make_exp
+    from tests.test_explain import chatter
     m = AlarmManager()
-    e = make_exp()
-    events = []
-    t = 0
-    for _ in range(10):  # returns every 2 s: 10 times a minute
-        events += m.update((e,), 0, t)
-        events += m.update((), 0, t + S)
-        t += 2 * S
+    events, t = chatter(m)
     kinds = [x.event for x in events]
     # Every return and clear the operator could have seen: 10 of each, in order.
     changes = [k for k in kinds if k in ("raised", "returned", "condition-returned",
