@@ -187,3 +187,15 @@ async def test_a_situation_without_alarm_is_explained_from_the_palette():
         await settle(pilot)
         assert app.query_one(ExplanationPanel).key == "diagnosis:V1"
         assert app.query_one(ExplanationPanel).level >= 2
+
+
+async def test_at_80_columns_the_io_marks_take_their_short_form():
+    """About ten cells for the State column at 80x24: the marks keep their symbol and the
+    estimate's name, never a cut-off word ("≈ reconstruc")."""
+    app = make_app()
+    async with app.run_test(size=(80, 24)) as pilot:
+        await inject(pilot, "F1", 10, ("F1", "F13"))
+        await settle(pilot)
+        io = region_text(app, "#io")
+        assert "≈ fsc_hat" in io and io.count("⊘ masked") == 2
+        assert "reconstruc" not in io and "(de" not in io

@@ -2,7 +2,8 @@
 written, so a difference — the filter, the safe-state latch, a masked actuator — shows at a
 glance, with the reason in words. A sensor the diagnosers distrust reads
 ``≈ reconstructed (fso_hat)`` (the filter reads its estimate), an order they mask
-``⊘ masked (def_V)``, an output of a device the operator stopped ``▲ stopped``.
+``⊘ masked (def_V)``, an output of a device the operator stopped ``▲ stopped``. In a narrow
+panel the marks are ``≈ fso_hat`` and ``⊘ masked`` (the diagnosers panel names the flag).
 
 The table is also where the operator picks an output for a manual request (keys 1 / 0 / x
 on the highlighted row) or presses a simulated push button (b). It does not send anything
@@ -24,6 +25,7 @@ from hmi.ui.style import MUTED, STYLE, Level, bit, tag
 COLUMNS = (("signal", "Signal"), ("dir", "I/O"), ("fov", "FOV"), ("value", "Value"),
            ("state", "State"), ("description", "Description"))
 MANUAL_ACTIONS = ("manual_on", "manual_off", "manual_release")
+NARROW = 60  # panel width (cells) under which the State marks take their short form
 
 
 class IOPanel(DataTable):
@@ -75,6 +77,9 @@ class IOPanel(DataTable):
             self._manual = frame.manual_keys
             self.refresh_bindings()
         reconstructed, masked = set(snap.reconstructed), set(snap.masked)
+        # In a narrow panel (80 columns) the State column has about ten cells: the marks keep
+        # their symbol and the one name that matters, not the sentence around it.
+        narrow = 0 < self.size.width < NARROW
         for name in snap.layout.inputs:
             value = snap.value(name)
             state: list[Text] = []
@@ -82,8 +87,9 @@ class IOPanel(DataTable):
                 state.append(tag("stale", Level.ALARM))  # the last value read, not the plant's
             if name in reconstructed:
                 estimate = self.estimates.get(name)
-                state.append(Text(f"≈ reconstructed ({estimate})" if estimate
-                                  else "≈ reconstructed", style=STYLE[Level.ATTENTION]))
+                text = f"≈ {estimate}" if narrow and estimate else \
+                    f"≈ reconstructed ({estimate})" if estimate else "≈ reconstructed"
+                state.append(Text(text, style=STYLE[Level.ATTENTION]))
             if name in self.free_inputs:
                 state.append(tag("button " + ("pressed" if value else "up"),
                                  Level.SIMULATION))
@@ -98,8 +104,8 @@ class IOPanel(DataTable):
             if name in masked:
                 flags = ", ".join(f for f in self.mask_flags.get(name, ())
                                   if f in set_flags)
-                state.append(Text(f"⊘ masked ({flags})" if flags else "⊘ masked",
-                                  style=STYLE[Level.ALARM]))
+                text = f"⊘ masked ({flags})" if flags and not narrow else "⊘ masked"
+                state.append(Text(text, style=STYLE[Level.ALARM]))
                 if reason is not None and reason.startswith("masked"):
                     reason = None  # the mark says it (the FOV cell shows the difference)
             if reason is not None:
@@ -116,6 +122,12 @@ class IOPanel(DataTable):
             self._set(name, "fov", Text(bit(fov), style=fov_style))
             self._set(name, "value", Text(bit(written), style="bold" if written else ""))
             self._set(name, "state", _join(state))
+
+    def on_resize(self) -> None:
+        # The short or long form of the marks depends on the width: redraw on the last frame
+        # (the layout may change after it was shown: a wider screen class, a resized terminal).
+        if self.frame is not None:
+            self.show(self.frame)
 
     def _set(self, row: str, column: str, value: object) -> None:
         key = (row, column)
