@@ -42,12 +42,11 @@ from __future__ import annotations
 from typing import Any, ClassVar
 
 from hmi.plant.boxes import MM, Box, BoxSource
-from hmi.plant.device import FaultSpec, ParamSpec, PendingFault, SimDevice, jam_and_stuck_faults
+from hmi.plant.cell import SteppedCell
+from hmi.plant.device import FaultSpec, ParamSpec, jam_and_stuck_faults
 from hmi.plant.track import WALL, Line, Segment, advance
 from hmi.plant.travel import Travel, direction
 from hmi.timefmt import seconds
-
-MAX_STEP_US = 5_000
 
 SENSORS = ("box_in", "box_ready", "pusher_home", "pusher_out", "plate_closed", "plate_open",
            "clamp_open", "clamp_closed", "layer_eye", "elev_bottom", "pallet_empty")
@@ -72,7 +71,7 @@ def _number(default: float, text: str, low: float, high: float) -> ParamSpec:
     return ParamSpec("number", default, text, minimum=low, maximum=high)
 
 
-class Palletizer(SimDevice):
+class Palletizer(SteppedCell):
     MODEL = "palletizer"
     DESCRIPTION = "palletizer: feed conveyor, pusher, layer plate, clamp, elevator"
     SENSORS = SENSORS
@@ -134,8 +133,6 @@ class Palletizer(SimDevice):
         self.hanging: list[Box] = []  # a layer held by the clamp over the open plate
         self.gripped = False
         self.layers: list[int] = []  # boxes per layer on the pallet
-        self.jams: set[str] = set()
-        self.stuck: dict[str, bool] = {}
         self.flags: set[str] = set()  # situations already reported while they last
         self.both: dict[str, bool] = {}
         self.idle_bottom_us = 0
@@ -177,18 +174,7 @@ class Palletizer(SimDevice):
             "pallet_empty": not self.layers,
         }
 
-    def sensors(self) -> dict[str, bool]:
-        values = self.true_sensors()
-        values.update(self.stuck)
-        return values
-
     # -- physics ----------------------------------------------------------------------------
-    def _advance_to(self, t: int) -> None:
-        while self.t < t:
-            dt = min(t - self.t, MAX_STEP_US)
-            self.t += dt
-            self._step(dt)
-
     def _step(self, dt: int) -> None:
         o = self.orders
         self._move_pusher(dt, direction(o["PUSH"], o["RETRACT"]))
@@ -357,16 +343,11 @@ class Palletizer(SimDevice):
         if "ELEV_UP" in changed or "ELEV_DOWN" in changed:
             self.lift.release()
 
-    def _fault_activated(self, fault: PendingFault) -> None:
-        code = fault.code
-        if code.endswith(("_stuck0", "_stuck1")):
-            self.stuck[code.rsplit("_", 1)[0]] = code.endswith("1")
-        else:
-            self.jams.add(code)
-            travel = {"pusher_jam": self.pusher, "plate_jam": self.plate,
-                      "clamp_jam": self.clamp, "elevator_jam": self.lift}.get(code)
-            if travel is not None:
-                travel.jammed = True
+    def _jammed(self, code: str) -> None:
+        travel = {"pusher_jam": self.pusher, "plate_jam": self.plate,
+                  "clamp_jam": self.clamp, "elevator_jam": self.lift}.get(code)
+        if travel is not None:
+            travel.jammed = True
 
     # -- reporting --------------------------------------------------------------------------
     def state(self) -> dict[str, Any]:

@@ -48,12 +48,11 @@ import itertools
 from typing import Any, ClassVar
 
 from hmi.plant.boxes import MM, Box, BoxSource
-from hmi.plant.device import FaultSpec, ParamSpec, PendingFault, SimDevice, jam_and_stuck_faults
+from hmi.plant.cell import SteppedCell
+from hmi.plant.device import FaultSpec, ParamSpec, jam_and_stuck_faults
 from hmi.plant.track import EXIT, OPEN, TOUCH, WALL, Line, Segment, advance
 from hmi.plant.travel import Travel, direction
 from hmi.timefmt import seconds
-
-MAX_STEP_US = 5_000  # physics step: at 300 mm/s a box moves 1.5 mm per step
 
 SENSORS = ("at_entry", "low", "high", "entry_end", "tt_back", "tt_front", "tt_0", "tt_90",
            "left_in", "left_end", "right_in", "right_end")
@@ -82,7 +81,7 @@ def _length(default: float, text: str, low: float = 10, high: float = 20_000) ->
     return ParamSpec("number", default, text + " (mm)", minimum=low, maximum=high)
 
 
-class SortingCell(SimDevice):
+class SortingCell(SteppedCell):
     MODEL = "sorting_cell"
     DESCRIPTION = "box sorting by height: entry conveyor, turntable, left and right exits"
     SENSORS = SENSORS
@@ -142,8 +141,6 @@ class SortingCell(SimDevice):
         self.source = BoxSource(int(p["seed"]), int(p["first_box"]), int(p["interval_min"]),
                                 int(p["interval_max"]), float(p["p_high"]))
         self.boxes: list[Box] = []
-        self.jams: set[str] = set()
-        self.stuck: dict[str, bool] = {}
         self.contacts: set[tuple[str, int, int]] = set()
         self.both = {"rollers": False, "turn": False}
         self.count = dict.fromkeys(("arrived", "sorted_left", "sorted_right", "missorted",
@@ -239,18 +236,7 @@ class SortingCell(SimDevice):
         seen["tt_90"] = self.turn.at_high
         return seen
 
-    def sensors(self) -> dict[str, bool]:
-        values = self.true_sensors()
-        values.update(self.stuck)
-        return values
-
     # -- physics ----------------------------------------------------------------------------
-    def _advance_to(self, t: int) -> None:
-        while self.t < t:
-            dt = min(t - self.t, MAX_STEP_US)
-            self.t += dt
-            self._step(dt)
-
     def _step(self, dt: int) -> None:
         drive = direction(self.orders["ROT90"], self.orders["ROT0"])
         self.turn.step(dt, drive)
@@ -368,14 +354,9 @@ class SortingCell(SimDevice):
             self.turn.release()
         self._build_lines()
 
-    def _fault_activated(self, fault: PendingFault) -> None:
-        code = fault.code
-        if code.endswith(("_stuck0", "_stuck1")):
-            self.stuck[code.rsplit("_", 1)[0]] = code.endswith("1")
-        else:
-            self.jams.add(code)
-            self.turn.jammed = "table_jam" in self.jams
-            self._build_lines()
+    def _jammed(self, code: str) -> None:
+        self.turn.jammed = "table_jam" in self.jams
+        self._build_lines()
 
     # -- reporting --------------------------------------------------------------------------
     def state(self) -> dict[str, Any]:
