@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 from hmi.engine.solver import Solution, is_safe, solve
-from hmi.logic.expr import And, BoolFn, Literal, Not, Var, compile_bool
+from hmi.logic.expr import And, BoolFn, Not, Var, compile_bool
 from hmi.project.model import Constraint, Project
 
 # --------------------------------------------------------------------------------------------
@@ -85,7 +85,6 @@ class CompiledConstraint:
     context: BoolFn | None  # the product of the literals over Y (None: always true)
     pos: int  # outputs that must be 1 for the monomial to be true
     neg: int  # outputs that must be 0
-    literal_slots: tuple[tuple[Literal, int], ...]
     # How it reads when violated. A monomial is true only when every literal is, so each
     # variable's value is fixed by its literal's polarity: the report is built once, here.
     violation: Violation
@@ -121,9 +120,7 @@ def compile_constraints(project: Project, slots, step_times=None) -> list[Compil
             context = compile_bool(And(0, nodes), slots, step_times)
         violation = Violation(c.name, c.kind, tuple((str(lit), lit.positive)
                                                     for lit in c.literals), c.description)
-        compiled.append(CompiledConstraint(
-            c, context, pos, neg, tuple((lit, slots[lit.name]) for lit in c.literals),
-            violation))
+        compiled.append(CompiledConstraint(c, context, pos, neg, violation))
     return compiled
 
 
@@ -157,7 +154,7 @@ class _ActiveSet:
     forcing1: tuple[tuple[str, ...], ...]
 
     @classmethod
-    def of(cls, active, n: int, outputs) -> _ActiveSet:
+    def of(cls, active, n: int) -> _ActiveSet:
         simple = [c for c in active if c.simple]
         f0 = f1 = 0
         for c in simple:
@@ -217,7 +214,7 @@ class SafetyFilter:
         key = tuple(map(id, active))
         found = self._by_active.get(key)
         if found is None:
-            found = self._by_active[key] = _ActiveSet.of(active, self.n, self.outputs)
+            found = self._by_active[key] = _ActiveSet.of(active, self.n)
         return found
 
     def _correct(self, fov, candidate: int, active, violations):
