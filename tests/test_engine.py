@@ -78,16 +78,17 @@ def test_an_internal_error_puts_outputs_safe_and_says_so():
     run(ctl, 2)  # opening: O is on
     assert ctl.engine.last.outputs == (False, True)
 
-    def broken(engine, fov):
+    def broken(*args):
         raise RuntimeError("solver bug")
-    ctl.engine.output_stage = broken
+    working = ctl.engine.filter.apply
+    ctl.engine.filter.apply = broken
     s = ctl.scan_once()
     assert s.outputs == (False, False) and s.latched[0].source == "internal"
     assert "solver bug" in s.error
     assert ctl.engine.plant.devices[0].orders == {"C": False, "O": False}
     s = ctl.scan_once()
     assert s.outputs == (False, False)  # stays safe until a fault reset
-    ctl.engine.output_stage = lambda engine, fov: (fov, None)
+    ctl.engine.filter.apply = working
     assert "safe-state latch released" in ctl.command(FaultReset()).message
     assert ctl.scan_once().latched == ()
 

@@ -6,7 +6,6 @@ import pytest
 
 from hmi.cli import main
 from hmi.engine.commands import FaultReset
-from hmi.engine.monitors import monitor_stage
 from hmi.engine.trace import TraceWriter
 from hmi.project.loader import load_project
 from hmi.sweep import run_sweep
@@ -135,7 +134,7 @@ def test_traces_carry_the_monitors_and_are_deterministic(tmp_path):
 
 def test_a_project_without_monitors_has_no_stage(valve_project):
     ctl = make_controller(PROJECTS / "cispi_valve")
-    assert monitor_stage(ctl.engine) is None and ctl.scan_once().monitors == ()
+    assert ctl.engine.monitors is None and ctl.scan_once().monitors == ()
 
 
 # --------------------------------------------------------------------------------------------

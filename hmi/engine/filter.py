@@ -74,6 +74,16 @@ class FilterReport(NamedTuple):
         return bool(self.residual) and not self.safe_state
 
 
+class FilterDecision(NamedTuple):
+    """What the filter writes this scan, its report, and (safe blocking) why the engine must
+    latch the outputs safe until a fault reset (None: no new latch)."""
+
+    outputs: tuple[bool, ...]
+    report: FilterReport
+    latch: str | None = None
+
+
+
 # --------------------------------------------------------------------------------------------
 # Compiled constraints
 # --------------------------------------------------------------------------------------------
@@ -182,33 +192,34 @@ class SafetyFilter:
         # cell has few distinct active sets, and a violation scan should not rebuild them.
         self._by_active: dict[tuple[int, ...], _ActiveSet] = {}
 
-    # The engine's output stage.
-    def __call__(self, engine, fov: tuple[bool, ...]):
-        return self.apply(engine, fov)
-
     def active(self, image, history) -> list[CompiledConstraint]:
         return [c for c in self.compiled if c.context is None or c.context(image, history)]
 
-    def apply(self, engine, fov: tuple[bool, ...]):
-        image, history = engine.image, engine.history
+    def apply(self, image, history, fov: tuple[bool, ...], policy: str,
+              latched: bool) -> FilterDecision:
+        """The filter's decision on the candidate `fov`. Under `block`, a first violation
+        returns the reason to latch (`latched`: the engine's outputs already are) and the
+        engine latches; the filter itself holds no state between scans."""
         candidate = pack(fov)
         active = self.active(image, history)
         violated = [c for c in active if candidate & c.pos == c.pos and not candidate & c.neg]
         violations = tuple(c.violation for c in violated)
-        policy = engine.policy
         if policy == "monitor":
             report = FilterReport(policy, self.strategy, violations,
                                   residual=tuple(c.name for c in violated))
-            return fov, report
+            return FilterDecision(fov, report)
         if policy == "block":
-            if violated and not engine.latched:
+            latch = None
+            if violated and not latched:
                 first = violated[0].constraint
                 why = f": {first.description}" if first.description else ""
-                engine.latch_safe("filter", f"safe blocking on {first.name}{why}")
-            if engine.latched:
-                return self._safe_state(fov, violations, active, policy, "outputs latched safe")
-            return fov, FilterReport(policy, self.strategy, violations)
-        return self._correct(fov, candidate, active, violations)
+                latch = f"safe blocking on {first.name}{why}"
+            if latched or latch:
+                written, report = self._safe_state(fov, violations, active, policy,
+                                                   "outputs latched safe")
+                return FilterDecision(written, report, latch)
+            return FilterDecision(fov, FilterReport(policy, self.strategy, violations))
+        return FilterDecision(*self._correct(fov, candidate, active, violations))
 
     def _active_set(self, active) -> _ActiveSet:
         key = tuple(map(id, active))

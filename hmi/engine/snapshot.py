@@ -59,6 +59,7 @@ class Snapshot(NamedTuple):
     stopped_devices: tuple[str, ...] = ()  # devices the operator stopped
     error: str | None = None  # an internal error caught during this scan
     scan_wall_us: float = 0.0  # measured, not deterministic
+    filter_wall_us: float = 0.0  # the filter stage's share of it (plchmi bench)
 
     def value(self, name: str) -> Any:
         return self.values[self.layout.slots[name]]
