@@ -300,21 +300,17 @@ def make_engine(project, args: argparse.Namespace, extra_injections=()):
     read_only = getattr(args, "read_only", False)
     plant = open_plant(project, getattr(args, "plant", None), read_only, injections,
                        getattr(args, "period", None))
-    allow_monitor = getattr(args, "allow_monitor", False)
-    if plant.kind != "sim" and not read_only and not allow_monitor and \
-            (args.policy or project.policy) == "monitor":
-        raise UsageError("the monitor policy passes unsafe orders through to a real plant; "
-                         "choose --policy block or correct, or add --allow-monitor")
+    # The engine refuses the monitor policy on a real plant unless --allow-monitor.
     engine = Engine(project, plant, control=args.control, policy=args.policy,
-                    solver=args.solver, diagnosis=getattr(args, "diagnosis", None) or "ftc")
-    engine.allow_monitor_on_real_plant = allow_monitor
+                    solver=args.solver, diagnosis=getattr(args, "diagnosis", None) or "ftc",
+                    allow_monitor_policy=getattr(args, "allow_monitor", False))
     return engine, injections
 
 
 def connect_plant(engine, timeout_us: int | None) -> None:
     """Connect a real plant before the first scan, saying what happens; exit 1 if it fails."""
     plant = engine.plant
-    if plant.kind == "sim":
+    if not plant.is_real:
         return
     from hmi.plant.modbus_client import wait_connected
 
@@ -345,7 +341,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     if duration is None:
         raise UsageError("--for TIME is required (or a --scenario that sets its length)")
     engine, injections = make_engine(project, args, scenario.injections if scenario else ())
-    if engine.plant.kind != "sim":
+    if engine.plant.is_real:
         return run_real_time(engine, args, duration)
     controller = Controller(engine, args.period)
     writer = None
@@ -565,13 +561,8 @@ def run_real_time(engine, args: argparse.Namespace, duration_us: int) -> int:
 
 def stop_plant(engine) -> None:
     """At the end of a run on a real plant, leave its outputs safe, as a stopping PLC does."""
-    plant = engine.plant
-    stop = getattr(plant, "stop", None)
-    if stop is None:
-        plant.close()
-        return
     safe = dict(zip(engine.layout.outputs, engine.safe_vector, strict=True))
-    stop(engine.now, safe)
+    engine.plant.stop(engine.now, safe)
 
 
 def plant_report(plant, overruns: int) -> str:
@@ -618,7 +609,7 @@ def cmd_ui(args: argparse.Namespace) -> int:
     project = load(args.project)
     engine, injections = make_engine(project, args)
     clock = None
-    if engine.plant.kind != "sim":
+    if engine.plant.is_real:
         from hmi.engine.live import WallClock
         clock = WallClock()
     controller = Controller(engine, clock=clock)

@@ -94,11 +94,7 @@ def test_policy_switch_at_run_time():
     assert not ctl.command(SetPolicy("stop")).accepted
 
 
-def test_monitor_policy_is_refused_on_a_real_plant():
-    ctl = make_controller(VALVE)
-    ctl.engine.plant.kind = "modbus"
-    result = ctl.command(SetPolicy("monitor"))
-    assert not result.accepted and "refused on a real plant" in result.message
+# The monitor policy on a real plant: tests/test_plant_contract.py (a real ModbusPlant).
 
 
 def test_the_filter_never_writes_an_unsafe_vector_in_example_runs():

@@ -87,7 +87,7 @@ class Controller:
                     self.state.pending_steps = 0
                     result = CommandResult.ok("running")
                 case StepScans(count=n):
-                    if self._real_plant_driven():
+                    if self.engine.drives_real_plant:
                         result = CommandResult.refused(
                             "stepping would drive a real plant for a scan and leave it so; "
                             "not available on a real plant (pause holds it safe)")
@@ -108,16 +108,11 @@ class Controller:
                 listener(command, result, self.engine.last)
             return result
 
-    def _real_plant_driven(self) -> bool:
-        engine = self.engine
-        return getattr(engine.plant, "kind", "sim") != "sim" and \
-            not getattr(engine, "observe", False)
-
     def _park_real_plant(self) -> str:
         """A paused PLC must not leave a real plant driven: write the safe vector once."""
         engine = self.engine
         plant = engine.plant
-        if not self._real_plant_driven() or not engine.started:
+        if not self.engine.drives_real_plant or not engine.started:
             return ""
         try:
             plant.write(engine.now, dict(zip(engine.layout.outputs, engine.safe_vector,

@@ -51,10 +51,18 @@ from hmi.project.model import POLICIES, Project
 NO_DIAGNOSIS = Diagnosis((), None, (), (), ())
 
 
+MONITOR_POLICY_REFUSED = ("the monitor policy passes unsafe orders through to a real plant; "
+                          "choose --policy block or correct, or add --allow-monitor")
+
+
 class Engine:
+    """One project's scan on one plant. `allow_monitor_policy` permits the `monitor` policy
+    (unsafe orders pass, only reported) on a real plant: refused otherwise, at construction
+    and when the policy is switched (a simulated plant, or observing read-only, may)."""
+
     def __init__(self, project: Project, plant: Plant, control: str | None = None,
                  policy: str | None = None, solver: str | None = None,
-                 diagnosis: str = "ftc"):
+                 diagnosis: str = "ftc", allow_monitor_policy: bool = False):
         self.project = project
         self.plant = plant
         self.control_name = control or project.default_control
@@ -66,9 +74,12 @@ class Engine:
             raise ValueError(self.policy)
         # Read-only plant (observing a real PLC): the device's own outputs, read back, replace
         # the FOV; the control law does not run, nothing is written, the filter only detects.
-        self.observe = bool(getattr(plant, "read_only", False))
+        self.observe = plant.read_only
         if self.observe:
             self.policy = "monitor"
+        self.allow_monitor_policy = allow_monitor_policy
+        if self.policy == "monitor" and self.drives_real_plant and not allow_monitor_policy:
+            raise UsageError(MONITOR_POLICY_REFUSED)
         # Partition flags and filtered sensors get slots (hmi/engine/diagnoser.py).
         self.layout = Layout.build(project, law, extra=layout_names(project))
         lay = self.layout
@@ -149,29 +160,27 @@ class Engine:
             case SetPolicy(policy=policy):
                 if policy not in POLICIES:
                     return CommandResult.refused(f"unknown policy {policy!r}")
-                if policy == "monitor" and getattr(self.plant, "kind", "sim") != "sim" and \
-                        not getattr(self, "allow_monitor_on_real_plant", False):
+                if policy == "monitor" and self.drives_real_plant and \
+                        not self.allow_monitor_policy:
                     return CommandResult.refused(
                         "monitor policy passes unsafe orders through; refused on a real plant "
                         "(start with --allow-monitor to permit it)")
                 old, self.policy = self.policy, policy
                 return CommandResult.ok(f"filter policy {old} -> {policy}")
             case InjectFault(injection=injection):
-                inject = getattr(self.plant, "inject", None)
-                if inject is None:
+                if not self.plant.can_inject:
                     return CommandResult.refused("fault injection needs a simulated plant")
                 try:
-                    inject(injection)
+                    self.plant.inject(injection)
                 except Exception as exc:  # a UsageError naming what exists
                     return CommandResult.refused(str(exc))
                 return CommandResult.ok(f"SIMULATION: fault {injection} scheduled")
             case RepairFaults(device=device):
-                repair = getattr(self.plant, "repair", None)
-                if repair is None:
+                if not self.plant.can_repair:
                     return CommandResult.refused("only a simulated plant can be repaired from "
                                                  "here")
                 try:
-                    repaired = repair(self.now, device)
+                    repaired = self.plant.repair(self.now, device)
                 except UsageError as exc:
                     return CommandResult.refused(str(exc))
                 if not repaired:
@@ -205,16 +214,20 @@ class Engine:
             case ChoosePolicy(key=key, policy=policy_id):
                 return self._choose_policy(key, policy_id)
             case SetInput(name=name, value=value):
-                set_input = getattr(self.plant, "set_input", None)
-                if set_input is None:
+                if not self.plant.can_set_inputs:
                     return CommandResult.refused("inputs can only be set on a simulated plant")
                 try:
-                    set_input(name, value)
+                    self.plant.set_input(name, value)
                 except KeyError:
                     return CommandResult.refused(
                         f"{name!r} is driven by the simulated plant, not by the operator")
                 return CommandResult.ok(f"SIMULATION: input {name} {'on' if value else 'off'}")
         return CommandResult.refused(f"the engine does not handle {command!r}")
+
+    @property
+    def drives_real_plant(self) -> bool:
+        """Outputs written by this engine move real machinery."""
+        return self.plant.is_real and not self.observe
 
     def _update_stop_mask(self) -> None:
         stopped = {o for d in self.stopped_devices for o in self.devices[d]}
@@ -369,10 +382,6 @@ class Engine:
                   diagnosers: tuple, monitors: tuple, error: str | None, wall: float,
                   filter_us: float) -> Snapshot:
         plant = self.plant
-        state = getattr(plant, "state", None)
-        counters = getattr(plant, "counters", None)
-        take_events = getattr(plant, "take_events", None)
-        new_events = take_events() if take_events is not None else ()
         monitor_policy = self.policy == "monitor"
         return Snapshot(
             scan=self.scan, time_us=self.now, period_us=self.project.scan_period_us,
@@ -383,9 +392,8 @@ class Engine:
             control=self.control_name, mode=self.mode,
             manual=tuple(sorted(self.manual.items())), policy=self.policy,
             latched=tuple(self.latched), plant=plant.status,
-            plant_state=state() if state else (),
-            plant_counters=counters() if counters else (),
-            plant_events=new_events,
+            plant_state=plant.state(), plant_counters=plant.counters(),
+            plant_events=plant.take_events(),
             filter=report,
             diagnosers=diagnosers,
             monitors=monitors,

@@ -35,8 +35,8 @@ def _row(snap: Snapshot) -> dict[str, Any]:
     row["mode"] = snap.mode
     row["latched"] = int(bool(snap.latched))
     report = snap.filter
-    row["violated"] = "+".join(getattr(report, "violated_names", ())) if report else ""
-    row["changed"] = "+".join(getattr(report, "changed_names", ())) if report else ""
+    row["violated"] = "+".join(report.violated_names) if report else ""
+    row["changed"] = "+".join(report.changed_names) if report else ""
     for diag in snap.diagnosers:
         row[f"diag.{diag.name}"] = diag.state
     for mon in snap.monitors:

@@ -29,7 +29,7 @@ class JournalRecorder:
                         "project": engine.project.name, "control": engine.control_name,
                         "policy": engine.policy, "plant": engine.plant.status.description,
                         "scan": engine.scan, "t": seconds(engine.now)})
-        self.link = getattr(engine.plant, "link", None)  # a real plant's LinkLog
+        self.link = engine.plant.link  # a real plant's LinkLog (None: simulated)
         self.overruns = Burst("scan-overrun", "scan-overruns", "scan overruns")
         controller.listeners.append(self.on_command)
         controller.scan_listeners.append(self.on_scan)
@@ -43,10 +43,9 @@ class JournalRecorder:
             "message": result.message, "scan": engine.scan, "t": seconds(engine.now)})
         if isinstance(command, ManualOutput) and result.accepted and command.value is not None:
             self.pending_manual.append(command)
-        for event in getattr(engine, "pending_alarm_events", ()):
+        for event in engine.pending_alarm_events:
             self._alarm(event)
-        if hasattr(engine, "pending_alarm_events"):
-            engine.pending_alarm_events = []
+        engine.pending_alarm_events = []
 
     def on_overrun(self, total: int) -> None:
         engine = self.controller.engine

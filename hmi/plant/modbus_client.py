@@ -37,7 +37,7 @@ from pymodbus.client import ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 
 from hmi.errors import UsageError
-from hmi.plant.base import PlantError, PlantStatus
+from hmi.plant.base import Plant, PlantError, PlantState, PlantStatus
 from hmi.plant.link_log import LinkLog
 from hmi.plant.modbus_map import AddressMap
 from hmi.project.model import PlantSpec, Project
@@ -142,10 +142,11 @@ def _os_reason(exc: OSError) -> str:
     return exc.strerror or type(exc).__name__
 
 
-class ModbusPlant:
-    """The Plant protocol over Modbus TCP (see the module docstring for fault handling)."""
+class ModbusPlant(Plant):
+    """The Plant contract over Modbus TCP (see the module docstring for fault handling)."""
 
     kind = "modbus"
+    is_real = True
 
     def __init__(self, project: Project, settings: ModbusSettings, read_only: bool = False,
                  period_us: int | None = None):
@@ -362,7 +363,7 @@ class ModbusPlant:
         return (ordered[len(ordered) // 2],
                 ordered[min(len(ordered) - 1, int(len(ordered) * 0.99))])
 
-    def state(self) -> tuple:
+    def state(self) -> PlantState:
         """No physical state: a real plant is only known through its I/O."""
         return ()
 

@@ -7,56 +7,26 @@ buttons on a simulated cell.
 
 from __future__ import annotations
 
-import re
 from collections.abc import Mapping
-from dataclasses import dataclass
-from typing import Any
 
 from hmi.errors import UsageError
-from hmi.plant.base import PlantStatus
+from hmi.plant.base import Plant, PlantState, PlantStatus
 from hmi.plant.device import PlantEvent, SimDevice
+from hmi.plant.injection import Injection, parse_injection
 from hmi.plant.models import MODELS
 from hmi.project.model import Project
-from hmi.timefmt import DURATION_HINT, parse_duration
+
+__all__ = ["Injection", "SimPlant", "parse_injection"]  # Injection: hmi.plant.injection
 
 
-@dataclass(frozen=True)
-class Injection:
-    """A fault to inject: `F5@12s`, `V1.F5@12s`, or with a duration `stop@3s+2s`."""
+class SimPlant(Plant):
+    """The project's simulated devices: faults can be injected and repaired, and the inputs
+    no device drives set by the operator."""
 
-    code: str
-    at_us: int
-    device: str | None = None
-    duration_us: int | None = None
-
-    def __str__(self) -> str:
-        from hmi.timefmt import format_duration
-        prefix = f"{self.device}." if self.device else ""
-        text = f"{prefix}{self.code}@{format_duration(self.at_us)}"
-        if self.duration_us is not None:
-            text += f"+{format_duration(self.duration_us)}"
-        return text
-
-
-_INJECT_RE = re.compile(r"^(?:(?P<device>[A-Za-z_]\w*)\.)?(?P<code>[A-Za-z_]\w*)"
-                        r"@(?P<at>[^+]+)(?:\+(?P<dur>.+))?$")
-
-
-def parse_injection(text: str) -> Injection:
-    match = _INJECT_RE.match(text.strip())
-    if not match:
-        raise UsageError(f"--inject {text!r}: expected FAULT@TIME, DEVICE.FAULT@TIME or "
-                         f"FAULT@TIME+DURATION, e.g. F5@12s")
-    try:
-        at = parse_duration(match["at"])
-        duration = parse_duration(match["dur"]) if match["dur"] else None
-    except ValueError:
-        raise UsageError(f"--inject {text!r}: the time is not {DURATION_HINT}") from None
-    return Injection(match["code"], at, match["device"], duration)
-
-
-class SimPlant:
     kind = "sim"
+    can_inject = True
+    can_repair = True
+    can_set_inputs = True
 
     def __init__(self, project: Project):
         self.project = project
@@ -153,7 +123,7 @@ class SimPlant:
                              "to clear its faults")
         return [(d.name, d.repair(now_us)) for d in faulty]
 
-    def state(self) -> tuple[tuple[str, Any], ...]:
+    def state(self) -> PlantState:
         """Physical state as (name, value) pairs, device-prefixed when there are several."""
         if len(self.devices) == 1:
             return tuple(self.devices[0].state().items())

@@ -150,7 +150,7 @@ class PlcHmiApp(App):
         self._injected: list[InjectedFault] = []  # shown on the SIMULATION strip
         self._mode_commanded: str | None = None  # accepted SetMode, not yet in a snapshot
         plant = engine.plant
-        self.free_inputs: tuple[str, ...] = tuple(getattr(plant, "free_inputs", {}) or ())
+        self.free_inputs: tuple[str, ...] = tuple(plant.free_inputs)
         # What the explanation panel explains: the selected alarm, unless the operator picked
         # another situation (palette, a constraint clicked) since the selection last moved.
         self.subject: str | None = None
@@ -469,12 +469,11 @@ class PlcHmiApp(App):
         return injection.code
 
     def _faults(self) -> list[tuple[str, str, str]]:
-        faults = getattr(self.controller.engine.plant, "faults", None)
-        return faults() if faults else []
+        return self.controller.engine.plant.faults()
 
     @property
     def simulated(self) -> bool:
-        return getattr(self.controller.engine.plant, "kind", "") == "sim"
+        return not self.controller.engine.plant.is_real
 
     # -- bindings ----------------------------------------------------------------------------
     def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
@@ -534,8 +533,7 @@ class PlcHmiApp(App):
             lines.append("The simulated plant stops with it; no real output is driven.")
         else:
             level = Level.ALARM
-            where = getattr(getattr(self.controller.engine.plant, "status", None),
-                            "description", "the plant")
+            where = self.controller.engine.plant.status.description
             safe = ", ".join(f"{n}={int(v)}" for n, v in
                              zip(self.controller.engine.layout.outputs,
                                  self.controller.engine.safe_vector, strict=True))
