@@ -242,8 +242,8 @@ def cmd_check(args: argparse.Namespace) -> int:
     project = load(args.project)
     sections = [analyse(project).lines(len(project.outputs))]
     if project.plant.kind == "modbus":
-        from hmi.plant.modbus_client import ModbusSettings
-        from hmi.plant.modbus_map import AddressMap
+        from hmi.plant.modbus.address_map import AddressMap
+        from hmi.plant.modbus.client import ModbusSettings
         settings = ModbusSettings.from_spec(project.plant)
         sections.append([f"Modbus {settings.where}: requests per scan"] + [
             f"  {line}" for line in
@@ -289,8 +289,8 @@ def cmd_campaign(args: argparse.Namespace) -> int:
 def make_engine(project, args: argparse.Namespace, extra_injections=()):
     """The engine for a command's --control/--policy/--inject/--plant options."""
     from hmi.engine.scan import Engine
+    from hmi.plant.injection import parse_injection
     from hmi.plant.select import open_plant
-    from hmi.plant.sim import parse_injection
 
     if args.control and args.control not in project.controls:
         raise UsageError(f"--control {args.control!r}: the project has "
@@ -312,7 +312,7 @@ def connect_plant(engine, timeout_us: int | None) -> None:
     plant = engine.plant
     if not plant.is_real:
         return
-    from hmi.plant.modbus_client import wait_connected
+    from hmi.plant.modbus.client import wait_connected
 
     def report(line: str) -> None:
         print(f"plchmi: {line}", file=sys.stderr, flush=True)
@@ -627,9 +627,9 @@ def cmd_ui(args: argparse.Namespace) -> int:
 
 
 def cmd_serve_plant(args: argparse.Namespace) -> int:
-    from hmi.plant.modbus_map import address_diagnostics
-    from hmi.plant.modbus_server import COMM_FAULTS, run_server
-    from hmi.plant.sim import parse_injection
+    from hmi.plant.injection import parse_injection
+    from hmi.plant.modbus.address_map import address_diagnostics
+    from hmi.plant.modbus.server import COMM_FAULTS, run_server
 
     project = load(args.project)
     errors = address_diagnostics(project, "serve-plant serves every input and output at its "

@@ -9,7 +9,8 @@ import pytest
 
 from hmi.engine.runner import Controller
 from hmi.engine.scan import Engine
-from hmi.plant.sim import SimPlant, parse_injection
+from hmi.plant.injection import parse_injection
+from hmi.plant.sim.plant import SimPlant
 from hmi.project.loader import load_project
 
 ROOT = Path(__file__).resolve().parent.parent

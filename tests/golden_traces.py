@@ -37,7 +37,7 @@ sys.path.insert(0, str(ROOT))
 
 from hmi.engine import commands as cmd  # noqa: E402
 from hmi.engine.trace import _row  # noqa: E402
-from hmi.plant.sim import parse_injection  # noqa: E402
+from hmi.plant.injection import parse_injection  # noqa: E402
 
 S = 1_000_000
 
@@ -252,7 +252,7 @@ def open_controller(case: Case):
     """The controller of a case: its project on the simulated plant, as `plchmi run` does."""
     from hmi.engine.runner import Controller
     from hmi.engine.scan import Engine
-    from hmi.plant.sim import SimPlant
+    from hmi.plant.sim.plant import SimPlant
     from hmi.project.loader import load_project
     from hmi.project.scenarios import find_scenario
 

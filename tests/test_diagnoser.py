@@ -1,7 +1,7 @@
 """The CISPI valve diagnoser in the scan: diagnosis of each fault, flags, reconstruction,
 masking, fault reset and re-synchronisation (000 §2.1-2.2, §3.1-3.2).
 
-Times come from the valve model (hmi/plant/valve.py: travel 2 s, switches break after 40 ms
+Times come from the valve model (hmi/plant/sim/valve.py: travel 2 s, switches break after 40 ms
 of travel, glitches last 300 ms) and the normal cycle of the project (closed rest 1 s,
 opening 1.92 s, open 3 s, closing 1.92 s after the first cycle). Second cycle: opening order
 at 8.88 s, open at 10.80 s, closing order at 13.80 s, closed at 15.72 s.
@@ -14,7 +14,8 @@ import pytest
 from hmi.engine.commands import FaultReset
 from hmi.engine.runner import Controller
 from hmi.engine.scan import Engine
-from hmi.plant.sim import SimPlant, parse_injection
+from hmi.plant.injection import parse_injection
+from hmi.plant.sim.plant import SimPlant
 from hmi.project.loader import load_project
 from tests.conftest import PROJECTS
 

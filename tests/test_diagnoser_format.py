@@ -16,7 +16,7 @@ from hmi.engine.commands import SetInput
 from hmi.engine.runner import Controller
 from hmi.engine.scan import Engine
 from hmi.errors import ProjectError
-from hmi.plant.sim import SimPlant
+from hmi.plant.sim.plant import SimPlant
 from hmi.project.loader import load_project
 
 PROJECT = """

@@ -13,7 +13,8 @@ from hmi.engine.commands import FaultReset, InjectFault
 from hmi.engine.runner import Controller
 from hmi.engine.scan import Engine
 from hmi.plant.base import PlantError
-from hmi.plant.sim import Injection, SimPlant
+from hmi.plant.injection import Injection
+from hmi.plant.sim.plant import SimPlant
 from hmi.project.loader import load_project
 from hmi.ui.scenarios import VALVE
 

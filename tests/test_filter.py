@@ -206,7 +206,7 @@ def test_filter_output_is_safe_and_at_minimum_distance(case):
         Path(tmp, "project.yaml").write_text(text)
         project = load_project(tmp)
     from hmi.engine.scan import Engine
-    from hmi.plant.sim import SimPlant
+    from hmi.plant.sim.plant import SimPlant
     for strategy in ("exact", "paper"):
         engine = Engine(project, SimPlant(project), solver=strategy)
         for name, value in zip(("i0", "i1", "i2"), inputs, strict=True):

@@ -25,8 +25,8 @@ from hmi.engine.live import LiveRunner, WallClock
 from hmi.engine.runner import Controller
 from hmi.engine.scan import Engine
 from hmi.engine.snapshot import Snapshot
-from hmi.plant.modbus_client import ModbusPlant, ModbusSettings, wait_connected
-from hmi.plant.server_process import ServerProcess
+from hmi.plant.modbus.client import ModbusPlant, ModbusSettings, wait_connected
+from hmi.plant.modbus.server_process import ServerProcess
 from hmi.project.loader import load_project
 from tests.conftest import PROJECTS, ROOT, make_controller, write_project
 

@@ -10,7 +10,7 @@ isolated with certainty in S9 (fso read from its estimate).
 from __future__ import annotations
 
 from hmi.engine.commands import InjectFault
-from hmi.plant.sim import Injection
+from hmi.plant.injection import Injection
 from hmi.ui.alarm_list import AlarmList
 from hmi.ui.dialogs import ConfirmDialog
 from hmi.ui.explain_panel import ExplanationPanel

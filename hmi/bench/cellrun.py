@@ -83,7 +83,8 @@ def measure(project: Project, control: str, duration_us: int, policy: str = "cor
     """
     from hmi.engine.runner import settle_memory
     from hmi.engine.scan import Engine
-    from hmi.plant.sim import Injection, SimPlant, parse_injection
+    from hmi.plant.injection import Injection, parse_injection
+    from hmi.plant.sim.plant import SimPlant
 
     plant = SimPlant(project)
     for item in inject:

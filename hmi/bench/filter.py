@@ -141,7 +141,7 @@ def _us(value: float) -> str:
 def run_valve(scans: int):
     from hmi.engine.scan import Engine
     from hmi.paths import PROJECTS
-    from hmi.plant.sim import SimPlant
+    from hmi.plant.sim.plant import SimPlant
     from hmi.project.loader import load_project
 
     project = load_project(PROJECTS / "cispi_valve")

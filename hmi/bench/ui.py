@@ -35,7 +35,7 @@ SETTLE_S = 0.5  # let the app finish mounting and its first layout before measur
 def _controller(period_us: int):
     from hmi.engine.runner import Controller
     from hmi.engine.scan import Engine
-    from hmi.plant.sim import SimPlant
+    from hmi.plant.sim.plant import SimPlant
     from hmi.project.loader import load_project
 
     project = load_project(PROJECT)

@@ -25,8 +25,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from hmi.engine.scan import Engine
-from hmi.plant.device import PlantEvent
-from hmi.plant.sim import Injection, SimPlant
+from hmi.plant.base import PlantEvent
+from hmi.plant.injection import Injection
+from hmi.plant.sim.plant import SimPlant
 from hmi.project.campaign import CampaignSpec, Scenario
 from hmi.project.model import Project
 from hmi.timefmt import format_duration, seconds

@@ -13,8 +13,7 @@ from typing import Any, NamedTuple
 
 from hmi.engine.layout import Layout
 from hmi.logic.timers import TimerState
-from hmi.plant.base import PlantStatus
-from hmi.plant.device import PlantEvent
+from hmi.plant.base import PlantEvent, PlantStatus
 
 
 @dataclass(frozen=True)

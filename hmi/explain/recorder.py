@@ -3,7 +3,7 @@
 It listens to the controller (commands with their results, and every scan's snapshot), so the
 engine itself never touches a file. A manual request is journalled twice: when it is made,
 and once the next scan shows what the filter did with it. On a real plant it also drains the
-plant's link events (connections, retries, exception responses: hmi.plant.link_log) and
+plant's link events (connections, retries, exception responses: hmi.plant.modbus.link_log) and
 counts scan overruns, one entry per episode or minute, never one per scan.
 """
 
@@ -15,7 +15,7 @@ from hmi.engine.commands import Command, CommandResult, ManualOutput, describe
 from hmi.engine.runner import Controller
 from hmi.engine.snapshot import Snapshot
 from hmi.explain.journal import Journal
-from hmi.plant.link_log import Burst
+from hmi.plant.modbus.link_log import Burst
 from hmi.timefmt import seconds
 
 

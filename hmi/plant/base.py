@@ -19,17 +19,26 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Any, ClassVar
 
-from hmi.plant.device import PlantEvent
-
 if TYPE_CHECKING:
     from hmi.plant.injection import Injection
-    from hmi.plant.link_log import LinkLog
+    from hmi.plant.modbus.link_log import LinkLog
 
 # The physical state of a plant for traces and the UI: (name, value) pairs, in a stable order
 # ("angle", 42.5), ("V1.position", 0.3)... Empty for a real plant, known only through its I/O.
 PlantState = tuple[tuple[str, Any], ...]
 # Counters of work done ("boxes sorted"...), same shape.
 PlantCounters = tuple[tuple[str, int], ...]
+
+
+@dataclass(frozen=True)
+class PlantEvent:
+    """Something objective that happened in the plant; `damage` marks a damaging situation."""
+
+    time_us: int
+    device: str
+    kind: str
+    damage: bool
+    detail: str
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,7 @@ from hmi.logic.expr import (
     parse_expr,
     walk,
 )
-from hmi.plant.models import MODELS
+from hmi.plant.sim.models import MODELS
 from hmi.project.campaign import parse_campaign
 from hmi.project.components import Components, load_components, merge_texts
 from hmi.project.diagnosers import declare_diagnoser_names, parse_diagnosers

@@ -51,7 +51,7 @@ from hmi.engine.commands import (
 from hmi.engine.runner import Controller
 from hmi.engine.scan import Engine
 from hmi.explain.model import Policy
-from hmi.plant.sim import Injection
+from hmi.plant.injection import Injection
 from hmi.project.diagnosers import diagnosers_of
 from hmi.project.model import POLICIES
 from hmi.project.monitors import monitors_of

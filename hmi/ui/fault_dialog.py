@@ -18,7 +18,7 @@ from textual.screen import ModalScreen
 from textual.widgets import Input, Label, OptionList, Static
 from textual.widgets.option_list import Option
 
-from hmi.plant.sim import Injection
+from hmi.plant.injection import Injection
 from hmi.timefmt import parse_duration
 from hmi.ui.style import Level, banner
 

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 from hmi.engine.layout import Layout
 from hmi.engine.snapshot import Snapshot
-from hmi.plant.device import PlantEvent
+from hmi.plant.base import PlantEvent
 
 FOV_SUFFIX = ".fov"
 KEEP_US = 120_000_000  # history kept: twice the chronogram's widest window

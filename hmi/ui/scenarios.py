@@ -17,7 +17,8 @@ from textual.pilot import Pilot
 
 from hmi.engine.runner import Controller
 from hmi.engine.scan import Engine
-from hmi.plant.sim import SimPlant, parse_injection
+from hmi.plant.injection import parse_injection
+from hmi.plant.sim.plant import SimPlant
 from hmi.project.loader import load_project
 from hmi.ui.alarm_list import AlarmList
 from hmi.ui.app import PlcHmiApp

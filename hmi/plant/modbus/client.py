@@ -38,8 +38,8 @@ from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOEx
 
 from hmi.errors import UsageError
 from hmi.plant.base import Plant, PlantError, PlantState, PlantStatus
-from hmi.plant.link_log import LinkLog
-from hmi.plant.modbus_map import AddressMap
+from hmi.plant.modbus.address_map import AddressMap
+from hmi.plant.modbus.link_log import LinkLog
 from hmi.project.model import PlantSpec, Project
 from hmi.timefmt import format_duration
 

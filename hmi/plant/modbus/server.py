@@ -32,8 +32,9 @@ from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from hmi.errors import UsageError
-from hmi.plant.modbus_map import BIT_TABLES, AddressMap
-from hmi.plant.sim import Injection, SimPlant
+from hmi.plant.injection import Injection
+from hmi.plant.modbus.address_map import BIT_TABLES, AddressMap
+from hmi.plant.sim.plant import SimPlant
 from hmi.project.model import Project
 from hmi.timefmt import format_duration, seconds
 

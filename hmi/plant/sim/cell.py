@@ -1,6 +1,6 @@
 """What the box-handling cell models (sorting, palletizer) share: physics integrated in fixed
 steps, and the usual faults — each drive's jam, each sensor stuck at 0 or 1 (see
-:func:`hmi.plant.device.jam_and_stuck_faults`).
+:func:`hmi.plant.sim.device.jam_and_stuck_faults`).
 
 A subclass gives its sensors as the physics has them (:meth:`true_sensors`), one physics step
 (:meth:`_step`) and what a jam does (:meth:`_jammed`); a stuck sensor is applied here, over
@@ -13,7 +13,7 @@ from abc import abstractmethod
 from collections.abc import Mapping
 from typing import Any, ClassVar
 
-from hmi.plant.device import PendingFault, SimDevice
+from hmi.plant.sim.device import PendingFault, SimDevice
 
 
 class SteppedCell(SimDevice):

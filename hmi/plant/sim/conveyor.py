@@ -21,8 +21,8 @@ from __future__ import annotations
 
 from typing import Any, ClassVar
 
-from hmi.plant.device import FaultSpec, ParamSpec, PendingFault, SimDevice
-from hmi.plant.tasks import TaskLog, TaskRecord
+from hmi.plant.sim.device import FaultSpec, ParamSpec, PendingFault, SimDevice
+from hmi.plant.sim.tasks import TaskLog, TaskRecord
 
 SCALE = 1000  # progress units per µs at full speed
 _NEVER = 1 << 62

@@ -12,6 +12,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
+from hmi.plant.base import PlantEvent
+
 
 @dataclass(frozen=True)
 class ParamSpec:
@@ -43,17 +45,6 @@ def jam_and_stuck_faults(jams: dict[str, str], sensors: tuple[str, ...]
             code = f"{sensor}_stuck{value}"
             faults[code] = FaultSpec(code, f"sensor {sensor} stuck at {value}", sensor)
     return faults
-
-
-@dataclass(frozen=True)
-class PlantEvent:
-    """Something objective that happened in the plant; `damage` marks a damaging situation."""
-
-    time_us: int
-    device: str
-    kind: str
-    damage: bool
-    detail: str
 
 
 @dataclass

@@ -9,9 +9,9 @@
                        pallet on the elevator   under it, the clamp lets go: the layer lands
                         (ELEV_UP / ELEV_DOWN)   on the pallet; the elevator lowers one layer
 
-Boxes arrive on the feed conveyor on a seeded schedule (:mod:`hmi.plant.boxes`) and stop
+Boxes arrive on the feed conveyor on a seeded schedule (:mod:`hmi.plant.sim.boxes`) and stop
 against its end stop in the pusher zone (`box_ready`). The pusher, the plate and the clamp
-are travels between two end switches (:mod:`hmi.plant.travel`): pusher_home/pusher_out,
+are travels between two end switches (:mod:`hmi.plant.sim.travel`): pusher_home/pusher_out,
 plate_closed/plate_open, clamp_open/clamp_closed (the clamp is spring-opened: CLAMP off opens
 it). The elevator's position is in µs of motor time at `elevator_speed`; `layer_eye` is a
 light beam `eye_offset` mm under the plate that sees the top of the load on the pallet;
@@ -41,11 +41,11 @@ from __future__ import annotations
 
 from typing import Any, ClassVar
 
-from hmi.plant.boxes import MM, Box, BoxSource
-from hmi.plant.cell import SteppedCell
-from hmi.plant.device import FaultSpec, ParamSpec, jam_and_stuck_faults
-from hmi.plant.track import WALL, Line, Segment, advance
-from hmi.plant.travel import Travel, direction
+from hmi.plant.sim.boxes import MM, Box, BoxSource
+from hmi.plant.sim.cell import SteppedCell
+from hmi.plant.sim.device import FaultSpec, ParamSpec, jam_and_stuck_faults
+from hmi.plant.sim.track import WALL, Line, Segment, advance
+from hmi.plant.sim.travel import Travel, direction
 from hmi.timefmt import seconds
 
 SENSORS = ("box_in", "box_ready", "pusher_home", "pusher_out", "plate_closed", "plate_open",

@@ -10,10 +10,10 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 from hmi.errors import UsageError
-from hmi.plant.base import Plant, PlantState, PlantStatus
-from hmi.plant.device import PlantEvent, SimDevice
+from hmi.plant.base import Plant, PlantEvent, PlantState, PlantStatus
 from hmi.plant.injection import Injection, parse_injection
-from hmi.plant.models import MODELS
+from hmi.plant.sim.device import SimDevice
+from hmi.plant.sim.models import MODELS
 from hmi.project.model import Project
 
 __all__ = ["Injection", "SimPlant", "parse_injection"]  # Injection: hmi.plant.injection

@@ -8,7 +8,7 @@ delivers that fraction of `flow`. Line a leads into the tank `to_a`, line b into
 be the suction tank: a recirculation). Water comes from the tank `suction`; below
 `dry_level` litres in it the pump draws air and delivers nothing. Flows are integrated per
 step of the plant (one scan) from the valves' positions at the end of the step, in integer
-nanolitres (hmi/plant/tank.py).
+nanolitres (hmi/plant/sim/tank.py).
 
 The order ``P`` starts and stops it; the sensor ``run`` is its running feedback (an auxiliary
 contact of the motor contactor).
@@ -33,9 +33,9 @@ from collections.abc import Mapping
 from fractions import Fraction
 from typing import Any, ClassVar
 
-from hmi.plant.device import FaultSpec, ParamSpec, SimDevice
-from hmi.plant.tank import NL_PER_L, Tank, litres, ml_per_s
-from hmi.plant.valve import Valve
+from hmi.plant.sim.device import FaultSpec, ParamSpec, SimDevice
+from hmi.plant.sim.tank import NL_PER_L, Tank, litres, ml_per_s
+from hmi.plant.sim.valve import Valve
 from hmi.timefmt import seconds
 
 

@@ -17,8 +17,8 @@ from __future__ import annotations
 
 from typing import Any, ClassVar
 
-from hmi.plant.device import FaultSpec, ParamSpec, PendingFault, SimDevice
-from hmi.plant.tasks import TaskLog, TaskRecord
+from hmi.plant.sim.device import FaultSpec, ParamSpec, PendingFault, SimDevice
+from hmi.plant.sim.tasks import TaskLog, TaskRecord
 
 _NEVER = 1 << 62
 HOME, WORKING, DONE, RETURNING = "home", "working", "done", "returning"

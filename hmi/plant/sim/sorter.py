@@ -9,7 +9,7 @@ Layout (lengths are parameters, in mm; defaults in brackets)::
                       right exit (CONV_R) [1500]
 
 Boxes [400 long, low 150 / high 300 mm] are placed at the start of the entry conveyor on a
-seeded schedule (:mod:`hmi.plant.boxes`). The height sensors (`low` sees every box, `high`
+seeded schedule (:mod:`hmi.plant.sim.boxes`). The height sensors (`low` sees every box, `high`
 only high ones) look across the entry conveyor at 1800 mm. The turntable receives a box at 0°
 (rollers forward, ROLL_P, pull it off the entry conveyor), turns to 90° (ROT90; ROT0 turns it
 back), then its rollers send the box to the right exit (ROLL_P) or the left exit (ROLL_M).
@@ -21,7 +21,7 @@ entry conveyor's end, `tt_back`/`tt_front` inside the table's two edges (they tu
 at 90° the back edge faces the left exit), `left_in`/`right_in` at the start of each exit,
 `left_end`/`right_end` at their far ends; `tt_0`/`tt_90` are the turntable's end switches.
 
-Physics (:mod:`hmi.plant.track`): a box is carried by the surface under its centre; boxes
+Physics (:mod:`hmi.plant.sim.track`): a box is carried by the surface under its centre; boxes
 accumulate against each other; the turntable connects to the entry conveyor only at 0° and to
 the exits only at 90° (within `turn_band` of its end).
 
@@ -47,11 +47,11 @@ from __future__ import annotations
 import itertools
 from typing import Any, ClassVar
 
-from hmi.plant.boxes import MM, Box, BoxSource
-from hmi.plant.cell import SteppedCell
-from hmi.plant.device import FaultSpec, ParamSpec, jam_and_stuck_faults
-from hmi.plant.track import EXIT, OPEN, TOUCH, WALL, Line, Segment, advance
-from hmi.plant.travel import Travel, direction
+from hmi.plant.sim.boxes import MM, Box, BoxSource
+from hmi.plant.sim.cell import SteppedCell
+from hmi.plant.sim.device import FaultSpec, ParamSpec, jam_and_stuck_faults
+from hmi.plant.sim.track import EXIT, OPEN, TOUCH, WALL, Line, Segment, advance
+from hmi.plant.sim.travel import Travel, direction
 from hmi.timefmt import seconds
 
 SENSORS = ("at_entry", "low", "high", "entry_end", "tt_back", "tt_front", "tt_0", "tt_90",

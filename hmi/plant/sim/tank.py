@@ -2,7 +2,7 @@
 
 Physics: the tank holds a volume of water, counted in integer nanolitres so that every flow
 over an integer number of microseconds is exact (1 mL/s during 1 µs is 1 nL). It has no
-actuator: a pump (hmi/plant/pump.py) fills it through a valve, and a hand valve drains it by
+actuator: a pump (hmi/plant/sim/pump.py) fills it through a valve, and a hand valve drains it by
 gravity at a constant `drain` rate (while it holds water) into the tank named by `drain_to`,
 or out of the cell. Level switches read 1 while the level is at or above their height.
 Water that arrives in a full tank spills over: the `overflow` damage event, once per episode
@@ -22,7 +22,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any, ClassVar
 
-from hmi.plant.device import FaultSpec, ParamSpec, SimDevice
+from hmi.plant.sim.device import FaultSpec, ParamSpec, SimDevice
 
 NL_PER_L = 1_000_000_000
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from hmi.plant.boxes import Box
+from hmi.plant.sim.boxes import Box
 
 WALL, OPEN, EXIT = "wall", "open", "exit"
 

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 from typing import Any, ClassVar
 
-from hmi.plant.device import FaultSpec, ParamSpec, PendingFault, SimDevice
+from hmi.plant.sim.device import FaultSpec, ParamSpec, PendingFault, SimDevice
 from hmi.timefmt import seconds
 
 _FAULTS = {
