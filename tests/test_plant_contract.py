@@ -4,6 +4,7 @@ the engine holds itself: no `monitor` policy on a real plant unless explicitly a
 from __future__ import annotations
 
 import ast
+import json
 from pathlib import Path
 
 import pytest
@@ -95,3 +96,26 @@ def test_nobody_probes_a_plant_or_the_engine_with_getattr():
     files = [*sorted((ROOT / "hmi").rglob("*.py"))]
     found = [line for path in files for line in _probes(path)]
     assert found == []
+
+
+def test_the_model_registry_names_each_model_and_imports_it_on_use():
+    from hmi.plant.sim.device import SimDevice
+    from hmi.plant.sim.models import MODELS, REGISTRY
+    for name in REGISTRY:
+        cls = MODELS[name]
+        assert issubclass(cls, SimDevice) and name == cls.MODEL
+    assert "nope" not in MODELS and MODELS.get("nope") is None
+
+
+def test_loading_a_project_imports_only_the_models_it_names():
+    import subprocess
+    import sys
+    code = ("import json, sys; from hmi.project.loader import load_project; "
+            f"load_project({str(VALVE)!r}); "
+            "print(json.dumps(sorted(m for m in sys.modules if m.startswith('hmi.plant.sim.'))))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         cwd=ROOT, check=True).stdout
+    loaded = json.loads(out)
+    assert "hmi.plant.sim.valve" in loaded
+    assert not {"hmi.plant.sim.palletizer", "hmi.plant.sim.sorter", "hmi.plant.sim.pump",
+                "hmi.plant.sim.conveyor"} & set(loaded), loaded
