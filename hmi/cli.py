@@ -328,9 +328,9 @@ class RunFailure(Exception):
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from hmi.engine.runner import Controller
     from hmi.engine.trace import TraceWriter
     from hmi.report import run_summary
+    from hmi.session.session import Session
 
     project = load(args.project)
     scenario = None
@@ -343,7 +343,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     engine, injections = make_engine(project, args, scenario.injections if scenario else ())
     if engine.plant.is_real:
         return run_real_time(engine, args, duration)
-    controller = Controller(engine, args.period)
+    controller = Session(engine, args.period)
     writer = None
     if args.trace:
         try:
@@ -352,7 +352,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             raise UsageError(f"--trace {args.trace}: {exc.strerror}") from None
     collector = RunCollector()
     recorder = open_journal(controller, args.journal, "run")
-    from hmi.engine.runner import settle_memory
+    from hmi.session.session import settle_memory
     settle_memory()
     started = time.perf_counter()
     try:
@@ -377,7 +377,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 def open_journal(controller, path: Path | None, source: str):
     from hmi.explain.journal import Journal, default_path
-    from hmi.explain.recorder import JournalRecorder
+    from hmi.session.journal_recorder import JournalRecorder
     target = path or default_path(controller.engine.project.name)
     try:
         return JournalRecorder(controller, Journal(target), source)
@@ -515,10 +515,10 @@ class RunCollector:
 
 def run_real_time(engine, args: argparse.Namespace, duration_us: int) -> int:
     """A headless run against a real plant: scans paced and stamped by the wall clock."""
-    from hmi.engine.live import WallClock, run_live_for
-    from hmi.engine.runner import Controller
     from hmi.engine.trace import TraceWriter
     from hmi.report import run_summary
+    from hmi.session.live import WallClock, run_live_for
+    from hmi.session.session import Session
 
     writer = None
     if args.trace:
@@ -528,7 +528,7 @@ def run_real_time(engine, args: argparse.Namespace, duration_us: int) -> int:
             raise UsageError(f"--trace {args.trace}: {exc.strerror}") from None
     plant = engine.plant
     collector = RunCollector()
-    controller = Controller(engine, args.period, clock=WallClock())
+    controller = Session(engine, args.period, clock=WallClock())
     recorder = None
     try:
         # The journal first, so that the connection attempts (and giving up) are in it.
@@ -549,7 +549,7 @@ def run_real_time(engine, args: argparse.Namespace, duration_us: int) -> int:
         stop_plant(engine)
         if recorder:
             recorder.close()
-    last = engine.last
+    last = controller.last
     print(run_summary(engine, last, collector, [], wall,
                       trace=(args.trace, writer.count) if writer else None, time_kind="real"))
     print(alarm_summary(collector, args.explain))
@@ -604,15 +604,15 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def cmd_ui(args: argparse.Namespace) -> int:
-    from hmi.engine.runner import Controller
+    from hmi.session.session import Session
     from hmi.ui.app import run_app
     project = load(args.project)
     engine, injections = make_engine(project, args)
     clock = None
     if engine.plant.is_real:
-        from hmi.engine.live import WallClock
+        from hmi.session.live import WallClock
         clock = WallClock()
-    controller = Controller(engine, clock=clock)
+    controller = Session(engine, clock=clock)
     recorder = None
     try:
         recorder = open_journal(controller, args.journal, "hmi")

@@ -152,13 +152,13 @@ def _default_fault(project, task) -> str:
 
 
 def _engine(project, control, injections=()):
-    from hmi.engine.runner import Controller
     from hmi.engine.scan import Engine
     from hmi.plant.sim.plant import SimPlant
+    from hmi.session.session import Session
     plant = SimPlant(project)
     for injection in injections:
         plant.inject(injection)
-    return Controller(Engine(project, plant, control=control))
+    return Session(Engine(project, plant, control=control))
 
 
 def _state(snap, name: str):

@@ -250,11 +250,11 @@ def _dump(obj: Any) -> str:
 
 def open_controller(case: Case):
     """The controller of a case: its project on the simulated plant, as `plchmi run` does."""
-    from hmi.engine.runner import Controller
     from hmi.engine.scan import Engine
     from hmi.plant.sim.plant import SimPlant
     from hmi.project.loader import load_project
     from hmi.project.scenarios import find_scenario
+    from hmi.session.session import Session
 
     project = load_project(ROOT / "projects" / case.project)
     plant = SimPlant(project)
@@ -265,12 +265,12 @@ def open_controller(case: Case):
         plant.inject(injection)
     engine = Engine(project, plant, control=case.control, policy=case.policy,
                     solver=case.solver, diagnosis=case.diagnosis)
-    return Controller(engine)
+    return Session(engine)
 
 
 def open_journal(controller, path: Path):
     from hmi.explain.journal import Journal
-    from hmi.explain.recorder import JournalRecorder
+    from hmi.session.journal_recorder import JournalRecorder
     return JournalRecorder(controller, Journal(path), "golden")
 
 
@@ -370,7 +370,7 @@ def run_case(case: Case) -> str:
             while script and script[0][0] <= controller.next_time:
                 _, command = script.pop(0)
                 if callable(command) and not isinstance(command, cmd.Command):
-                    command = command(controller.engine.last)
+                    command = command(controller.last)
                 result = controller.command(command)
                 lines.append(_dump({"command": cmd.describe(command),
                                     "accepted": result.accepted, "message": result.message}))

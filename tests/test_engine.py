@@ -76,7 +76,7 @@ def test_manual_mode_replaces_the_functional_vector():
 def test_an_internal_error_puts_outputs_safe_and_says_so():
     ctl = make_controller(VALVE)
     run(ctl, 2)  # opening: O is on
-    assert ctl.engine.last.outputs == (False, True)
+    assert ctl.last.outputs == (False, True)
 
     def broken(*args):
         raise RuntimeError("solver bug")

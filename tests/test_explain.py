@@ -22,8 +22,8 @@ from hmi.explain.alarms import (
 )
 from hmi.explain.journal import Journal, read
 from hmi.explain.model import Explanation
-from hmi.explain.recorder import JournalRecorder
 from hmi.project.loader import load_project
+from hmi.session.journal_recorder import JournalRecorder
 from tests.conftest import PROJECTS, make_controller, write_project
 
 VALVE = PROJECTS / "cispi_valve"

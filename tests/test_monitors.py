@@ -103,7 +103,7 @@ def test_fault_reset_keeps_a_hopeless_task_faulty_then_releases_it():
     m = monitor(ctl.scan_once(), "conveyor")
     assert m.location == "executing" and m.detection is None and m.attempt == 2
     ctl.run_for(4 * S)
-    m = monitor(ctl.engine.last, "conveyor")
+    m = monitor(ctl.last, "conveyor")
     assert m.completed == 1 and m.faults == 1 and m.detection is None
 
 
@@ -273,7 +273,7 @@ def test_project_texts_replace_a_monitor_explanation(tmp_path):
                 '      severity: high\n')
     ctl = make_controller(folder, inject=["C1.stop@1s+2s"])
     ctl.run_for(3 * S)
-    e = next(e for e in ctl.engine.last.explanations if e.key == "monitor:conveyor")
+    e = next(e for e in ctl.last.explanations if e.key == "monitor:conveyor")
     assert e.what == ("Conveyor C1 carrying a pallet from the pusher to B late: x=3.000, "
                       "y=1.000, gamma=5s (conveyor_fault)")
     assert e.severity == "high"

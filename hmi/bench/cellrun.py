@@ -81,10 +81,10 @@ def measure(project: Project, control: str, duration_us: int, policy: str = "cor
     `inject` holds fault injections: Injection objects (a scenario's), or text as written on
     the command line (`table_jam@30s`).
     """
-    from hmi.engine.runner import settle_memory
     from hmi.engine.scan import Engine
     from hmi.plant.injection import Injection, parse_injection
     from hmi.plant.sim.plant import SimPlant
+    from hmi.session.session import settle_memory
 
     plant = SimPlant(project)
     for item in inject:

@@ -16,8 +16,8 @@ import time
 from dataclasses import dataclass
 
 from hmi.bench import percentile, summary
-from hmi.engine.runner import settle_memory
 from hmi.engine.solver import exact_solve, paper_solve
+from hmi.session.session import settle_memory
 
 SECTION = "filter"
 HELP = "corrector strategies on random constraint sets; per-scan filter time of cispi_valve"

@@ -19,8 +19,6 @@ import time
 from collections import deque
 
 from hmi.engine.commands import (
-    Acknowledge,
-    ChoosePolicy,
     CommandResult,
     FaultReset,
     InjectFault,
@@ -40,8 +38,6 @@ from hmi.engine.monitors import monitor_stage
 from hmi.engine.snapshot import LatchReason, Snapshot
 from hmi.engine.stages import Control, InputScan, Memory, OutputScan, Reconstruction
 from hmi.errors import UsageError
-from hmi.explain.alarms import AlarmManager
-from hmi.explain.builder import ExplanationBuilder
 from hmi.logic.control import ControlRuntime
 from hmi.logic.expr import max_depth
 from hmi.plant.base import Plant
@@ -109,13 +105,7 @@ class Engine:
         self.mode = "auto"
         self.manual: dict[str, bool] = {}
         self.latched: list[LatchReason] = []
-        self.last: Snapshot | None = None
         self.started = False
-        # Explanations and alarms (computed every scan; the journal listens from outside).
-        self.explainer = ExplanationBuilder(project)
-        self.alarm_manager = AlarmManager()
-        self.pending_alarm_events: list = []  # from acknowledgements between scans
-        self.explanations: tuple = ()
         self.devices = {v.device: tuple(o.name for o in project.outputs
                                         if o.device == v.device)
                         for v in project.outputs if v.device}
@@ -189,13 +179,6 @@ class Engine:
                                  for name, codes in repaired)
                 return CommandResult.ok(f"SIMULATION: {done}; a fault reset now re-synchronises "
                                         "the diagnosers")
-            case Acknowledge(key=key):
-                events = self.alarm_manager.acknowledge(key, self.scan, self.now)
-                self.pending_alarm_events.extend(events)
-                if key is not None and not events:
-                    return CommandResult.refused(f"no alarm {key} to acknowledge")
-                return CommandResult.ok(f"acknowledged {len(events)} alarm"
-                                        f"{'s' if len(events) != 1 else ''}")
             case StopDevice(device=device):
                 if device not in self.devices:
                     return CommandResult.refused(f"no device {device!r}; devices: "
@@ -211,8 +194,6 @@ class Engine:
                 self.stopped_devices.discard(device)
                 self._update_stop_mask()
                 return CommandResult.ok(f"{device} released")
-            case ChoosePolicy(key=key, policy=policy_id):
-                return self._choose_policy(key, policy_id)
             case SetInput(name=name, value=value):
                 if not self.plant.can_set_inputs:
                     return CommandResult.refused("inputs can only be set on a simulated plant")
@@ -233,25 +214,6 @@ class Engine:
         stopped = {o for d in self.stopped_devices for o in self.devices[d]}
         self._stop_mask = tuple(k for k, v in enumerate(self.project.outputs)
                                 if v.name in stopped)
-
-    def _choose_policy(self, key: str, policy_id: str) -> CommandResult:
-        explanation = next((e for e in self.explanations if e.key == key), None)
-        if explanation is None:
-            alarm = self.alarm_manager.alarms.get(key)
-            explanation = alarm.explanation if alarm else None
-        if explanation is None:
-            return CommandResult.refused(f"no situation {key} to act on")
-        policy = next((p for p in explanation.policies if p.id == policy_id), None)
-        if policy is None:
-            return CommandResult.refused(f"{key} offers no policy {policy_id!r}; it offers "
-                                         + ", ".join(p.id for p in explanation.policies))
-        if policy.command is None:
-            return CommandResult.ok(f"policy '{policy.label}' chosen for {key}: "
-                                    f"{policy.effect}")
-        result = self.apply(policy.command)
-        verdict = "chosen" if result.accepted else "could not be carried out"
-        return CommandResult(result.accepted, f"policy '{policy.label}' {verdict} for {key}: "
-                             f"{result.message}")
 
     def fault_reset(self) -> CommandResult:
         parts = []
@@ -347,22 +309,7 @@ class Engine:
                       if self.diagnosis is not None else ())
         snapshot = self._snapshot(fov, outputs, report, diagnosis, diagnosers, monitors, error,
                                   wall, filter_us)
-        # Explanations and alarms, from the snapshot.
-        try:
-            self.explanations = self.explainer.build(snapshot)
-        except Exception as exc:  # explanations must never stop the scan
-            self.explanations = ()
-            snapshot = snapshot._replace(
-                error=error or f"explanations: {type(exc).__name__}: {exc}")
-        events = self.pending_alarm_events
-        self.pending_alarm_events = []
-        events.extend(self.alarm_manager.update(self.explanations, self.scan, now))
-        snapshot = snapshot._replace(explanations=self.explanations,
-                                     alarms=self.alarm_manager.listed(),
-                                     alarm_events=tuple(events),
-                                     scan_wall_us=(time.perf_counter() - wall) * 1e6)
         self.history.appendleft(image.copy())
-        self.last = snapshot
         return snapshot
 
     def _start(self, now: int) -> None:
@@ -400,7 +347,8 @@ class Engine:
             reconstructed=diagnosis.reconstructed,
             masked=diagnosis.masked if not monitor_policy else (),
             stopped_devices=tuple(sorted(self.stopped_devices)),
-            error=error, filter_wall_us=filter_us,
+            error=error, scan_wall_us=(time.perf_counter() - wall) * 1e6,
+            filter_wall_us=filter_us,
         )
 
 

@@ -1,6 +1,6 @@
-"""Connects a controller to the journal: operator actions and alarm transitions.
+"""Connects a session to the journal: operator actions and alarm transitions.
 
-It listens to the controller (commands with their results, and every scan's snapshot), so the
+It listens to the session (commands with their results, and every scan's snapshot), so the
 engine itself never touches a file. A manual request is journalled twice: when it is made,
 and once the next scan shows what the filter did with it. On a real plant it also drains the
 plant's link events (connections, retries, exception responses: hmi.plant.modbus.link_log) and
@@ -12,50 +12,49 @@ from __future__ import annotations
 import time
 
 from hmi.engine.commands import Command, CommandResult, ManualOutput, describe
-from hmi.engine.runner import Controller
 from hmi.engine.snapshot import Snapshot
 from hmi.explain.journal import Journal
 from hmi.plant.modbus.link_log import Burst
+from hmi.session.session import Session
 from hmi.timefmt import seconds
 
 
 class JournalRecorder:
-    def __init__(self, controller: Controller, journal: Journal, source: str = "hmi"):
-        self.controller = controller
+    def __init__(self, session: Session, journal: Journal, source: str = "hmi"):
+        self.session = session
         self.journal = journal
         self.pending_manual: list[ManualOutput] = []
-        engine = controller.engine
+        engine = session.engine
         journal.append({"type": "session", "event": "start", "source": source,
                         "project": engine.project.name, "control": engine.control_name,
                         "policy": engine.policy, "plant": engine.plant.status.description,
                         "scan": engine.scan, "t": seconds(engine.now)})
         self.link = engine.plant.link  # a real plant's LinkLog (None: simulated)
         self.overruns = Burst("scan-overrun", "scan-overruns", "scan overruns")
-        controller.listeners.append(self.on_command)
-        controller.scan_listeners.append(self.on_scan)
-        controller.overrun_listeners.append(self.on_overrun)
+        session.listeners.append(self.on_command)
+        session.scan_listeners.append(self.on_scan)
+        session.overrun_listeners.append(self.on_overrun)
 
     def on_command(self, command: Command, result: CommandResult,
                    snapshot: Snapshot | None) -> None:
-        engine = self.controller.engine
+        engine = self.session.engine
         self.journal.append({
             "type": "action", "event": describe(command), "accepted": result.accepted,
             "message": result.message, "scan": engine.scan, "t": seconds(engine.now)})
         if isinstance(command, ManualOutput) and result.accepted and command.value is not None:
             self.pending_manual.append(command)
-        for event in engine.pending_alarm_events:
+        for event in self.session.take_alarm_events():  # acknowledgements, journalled now
             self._alarm(event)
-        engine.pending_alarm_events = []
 
     def on_overrun(self, total: int) -> None:
-        engine = self.controller.engine
+        engine = self.session.engine
         for entry in self.overruns.hit(time.monotonic(), total=total, message=(
                 f"scan {engine.scan} started more than a whole period late; the runner "
                 "re-anchored its schedule")):
             self._plant(entry)
 
     def _plant(self, entry: dict) -> None:
-        engine = self.controller.engine
+        engine = self.session.engine
         self.journal.append({"type": "plant", **entry, "scan": engine.scan,
                              "t": seconds(engine.now)})
 
@@ -98,7 +97,7 @@ class JournalRecorder:
         self.journal.append(entry)
 
     def close(self) -> None:
-        engine = self.controller.engine
+        engine = self.session.engine
         self._drain_plant()
         for entry in self.overruns.end(time.monotonic()):
             self._plant(entry)

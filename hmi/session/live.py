@@ -12,12 +12,12 @@ import time
 from collections import deque
 from collections.abc import Callable
 
-from hmi.engine.runner import Controller, settle_memory
 from hmi.engine.snapshot import Snapshot
+from hmi.session.session import Session, settle_memory
 
 
 class LiveRunner:
-    def __init__(self, controller: Controller, keep_jitter: int = 100_000):
+    def __init__(self, controller: Session, keep_jitter: int = 100_000):
         self.controller = controller
         self.jitter_us: deque[float] = deque(maxlen=keep_jitter)
         self.overruns = 0
@@ -73,7 +73,7 @@ class WallClock:
     """Scan times for a real plant: whole microseconds of monotonic time since the first call.
 
     Strictly increasing, so two scans never share a time. The engine itself never reads a
-    clock; a Controller given this clock stamps each scan with the real time it started.
+    clock; a Session given this clock stamps each scan with the real time it started.
     """
 
     def __init__(self) -> None:
@@ -89,7 +89,7 @@ class WallClock:
         return t
 
 
-def run_live_for(controller: Controller, duration_us: int,
+def run_live_for(controller: Session, duration_us: int,
                  on_scan: Callable[[Snapshot], None] | None = None) -> LiveRunner:
     """Run scans paced by the wall clock until the scan time reaches `duration_us`.
 

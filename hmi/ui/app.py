@@ -2,10 +2,10 @@
 
 Data flows one way. The scans run elsewhere (a :class:`~hmi.ui.driver.LiveDriver` thread, or
 the test driving a :class:`~hmi.ui.driver.VirtualDriver`); at most ``REFRESH_HZ`` times a
-second the app reads ``engine.last``, wraps it in a :class:`~hmi.ui.frame.Frame` and hands it
+second the app reads ``session.last``, wraps it in a :class:`~hmi.ui.frame.Frame` and hands it
 down to every panel (``show(frame)``). Panels post messages up; the app turns every operator
 action into a command sent through :meth:`PlcHmiApp.send`, the single door to
-``Controller.command`` (where the journal listens).
+``Session.command`` (where the journal listens).
 
 Screen regions (see ``app.tcss``): status bar and banners on top; the body in columns —
 ``#col-plant`` (I/O, and the constraints under it), ``#col-logic`` (control, and the
@@ -48,13 +48,13 @@ from hmi.engine.commands import (
     StopDevice,
     describe,
 )
-from hmi.engine.runner import Controller
 from hmi.engine.scan import Engine
 from hmi.explain.model import Policy
 from hmi.plant.injection import Injection
 from hmi.project.diagnosers import diagnosers_of
 from hmi.project.model import POLICIES
 from hmi.project.monitors import monitors_of
+from hmi.session.session import Session
 from hmi.timefmt import seconds
 from hmi.ui.actions import ACTIONS, bindings
 from hmi.ui.alarm_list import AlarmList, AlarmSelected
@@ -129,7 +129,7 @@ class PlcHmiApp(App):
     HORIZONTAL_BREAKPOINTS = [(0, "-narrow"), (120, "-wide")]
     VERTICAL_BREAKPOINTS = [(0, "-short"), (40, "-tall")]
 
-    def __init__(self, controller: Controller, live: bool = True, *,
+    def __init__(self, controller: Session, live: bool = True, *,
                  show_measured: bool | None = None, refresh_hz: float = REFRESH_HZ,
                  injected: tuple[Injection, ...] = ()):
         super().__init__()
@@ -200,10 +200,10 @@ class PlcHmiApp(App):
 
     def on_mount(self) -> None:
         self.controller.scan_listeners.append(self.recorder.on_scan)
-        if self.controller.engine.last is None:
+        if self.controller.last is None:
             self.controller.scan_once()
         else:
-            self.recorder.on_scan(self.controller.engine.last)
+            self.recorder.on_scan(self.controller.last)
         # the panels that set their own height first (banners, alarm rows): the column
         # panels measure their room after them
         self._views = [self.query_one(StatusBar), self.query_one(BannerStrip),
@@ -247,7 +247,7 @@ class PlcHmiApp(App):
         """Show the latest snapshot if anything changed; True if a frame was handed down.
 
         The snapshot comes from the recorder with the history of that same scan (never
-        ``engine.last`` then the history: the scan thread may run a scan in between)."""
+        ``session.last`` then the history: the scan thread may run a scan in between)."""
         recorded = self.recorder.latest()
         snap = recorded.snapshot
         if snap is None:
@@ -328,7 +328,7 @@ class PlcHmiApp(App):
 
     def explain(self, key: str, open_level: int = 2) -> None:
         """Explain `key` (select its alarm when it has one) and open it to `open_level`."""
-        snap = self.controller.engine.last
+        snap = self.controller.last
         if snap is None:
             return
         if not any(e.key == key for e in snap.explanations) and \
@@ -380,7 +380,7 @@ class PlcHmiApp(App):
 
     def _policy_confirmation(self, key: str, policy: Policy
                              ) -> tuple[str, list[Text | str], Level]:
-        snap = self.controller.engine.last
+        snap = self.controller.last
         explanation = next((e for e in snap.explanations if e.key == key), None) \
             if snap else None
         lines: list[Text | str] = []
@@ -411,7 +411,7 @@ class PlcHmiApp(App):
 
     # -- sending commands --------------------------------------------------------------------
     def send(self, command: Command) -> CommandResult:
-        """The one place operator actions leave the UI: through ``Controller.command``."""
+        """The one place operator actions leave the UI: through ``Session.command``."""
         result = self.controller.command(command)
         what = describe(command)
         text = result_text(what, result)
@@ -421,7 +421,7 @@ class PlcHmiApp(App):
             case StepScans():
                 self._stepping = self._stepping or result.accepted
             case ManualOutput(name=name, value=value) if result.accepted:
-                last = self.controller.engine.last
+                last = self.controller.last
                 self._request = (name, bool(value), last.scan if last else 0, what)
             case SetMode(manual=manual) if result.accepted:
                 self._mode_commanded = "manual" if manual else "auto"
@@ -449,7 +449,7 @@ class PlcHmiApp(App):
 
     def _policy_command(self, key: str, policy_id: str) -> Command | None:
         """What choosing a policy sends, as the last explanation of `key` offered it."""
-        snap = self.controller.engine.last
+        snap = self.controller.last
         if snap is None:
             return None
         explanation = next((e for e in snap.explanations if e.key == key), None)
@@ -529,7 +529,7 @@ class PlcHmiApp(App):
             self.message.say(Text("cancelled: quit — the scan goes on", style=MUTED))
 
     def _quit_lines(self) -> tuple[str, list[Text | str], Level]:
-        snap = self.controller.engine.last
+        snap = self.controller.last
         lines: list[Text | str] = [
             "The scan stops: the control program and the safety filter no longer run."]
         level = Level.ATTENTION
@@ -576,7 +576,7 @@ class PlcHmiApp(App):
         self.send(SetSpeed(factor))
 
     def action_manual(self) -> None:
-        snap = self.controller.engine.last
+        snap = self.controller.last
         if snap is None:
             return
         manual_now = self.frame.manual_keys if self.frame else snap.mode == "manual"
@@ -605,7 +605,7 @@ class PlcHmiApp(App):
         self.send(ManualOutput(name, value))
 
     def action_reset(self) -> None:
-        snap = self.controller.engine.last
+        snap = self.controller.last
         if snap is None:
             return
         self.push_screen(ConfirmDialog("Fault reset?", self._reset_lines(snap), "Reset",
@@ -641,7 +641,7 @@ class PlcHmiApp(App):
         panel.expand()
 
     def action_policy(self, policy: str | None = None) -> None:
-        current = self.controller.engine.last.policy if self.controller.engine.last \
+        current = self.controller.last.policy if self.controller.last \
             else self.controller.engine.policy
         if policy is not None:
             self._confirm_policy(current, policy)
@@ -756,7 +756,7 @@ class PlcHmiApp(App):
                 continue
             entries.append(PaletteEntry(f"{a.title}  [{a.key_display or a.key}]", a.help,
                                         getattr(self, f"action_{a.action}"), a.action))
-        snap = self.controller.engine.last
+        snap = self.controller.last
         if self.simulated:
             for factor, word in ((1.0, "real time"), (10.0, "×10"),
                                  (None, "as fast as possible")):
@@ -855,13 +855,13 @@ def reset_line(line: ResetLine) -> Text:
     return text
 
 
-def run_app(target: Engine | Controller, clock=None, injected: tuple[Injection, ...] = ()
+def run_app(target: Engine | Session, clock=None, injected: tuple[Injection, ...] = ()
             ) -> int:
     """Run the HMI live on an engine, or on a controller others listen to (the journal).
 
-    A real plant passes a wall clock to stamp its scans (see hmi.engine.live.WallClock);
+    A real plant passes a wall clock to stamp its scans (see hmi.session.live.WallClock);
     `injected` are the faults the command line scheduled in a simulated plant."""
-    controller = target if isinstance(target, Controller) else Controller(target, clock=clock)
+    controller = target if isinstance(target, Session) else Session(target, clock=clock)
     app = PlcHmiApp(controller, injected=injected)
     app.run()
     return 0

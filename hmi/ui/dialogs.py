@@ -3,7 +3,7 @@
 Confirmation is asked for what changes how the cell is protected or driven (manual mode,
 filter policy, fault reset); a dialog says what will happen in plain words before the
 operator agrees. Each dialog returns its answer through ``dismiss`` and never sends a
-command itself: the app does, so every action still goes through ``Controller.command``.
+command itself: the app does, so every action still goes through ``Session.command``.
 """
 
 from __future__ import annotations
