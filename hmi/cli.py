@@ -546,7 +546,7 @@ def run_real_time(engine, args: argparse.Namespace, duration_us: int) -> int:
         started = time.perf_counter()
         runner = run_live_for(controller, duration_us, on_scan)
         wall = time.perf_counter() - started
-        report = plant_report(plant, runner.overruns)
+        at_end = plant.status  # the link as the run ended, before the stop closes it
     finally:
         if writer:
             writer.close()
@@ -557,7 +557,8 @@ def run_real_time(engine, args: argparse.Namespace, duration_us: int) -> int:
     print(run_summary(engine, last, collector, [], wall,
                       trace=(args.trace, writer.count) if writer else None, time_kind="real"))
     print(alarm_summary(collector, args.explain))
-    print(report)
+    # After the stop: its write of the safe vector is counted like any other request.
+    print(plant_report(plant, at_end, runner.overruns))
     print(f"Stopped: {plant.message}")
     print(f"Journal: {recorder.journal.path}")
     return 0
@@ -574,15 +575,17 @@ def stop_plant(engine) -> None:
     stop(engine.now, safe)
 
 
-def plant_report(plant, overruns: int) -> str:
-    """What a run against a Modbus plant saw of it."""
-    status = plant.status
-    d = status.details
-    lines = [f"Plant {status.description}: {'connected' if status.connected else 'NOT CONNECTED'}"
-             f" ({status.message})",
-             f"  requests {d['requests']} (reads {d['reads']}, writes {d['writes']}), "
+def plant_report(plant, at_end, overruns: int) -> str:
+    """What a run against a Modbus plant saw of it: the link as it was when the run ended
+    (`at_end`), and every request sent, the stop's included."""
+    d = plant.status.details
+    stop = f", of which {d['stop_writes']} at stop" if d["stop_writes"] else ""
+    lines = [f"Plant {at_end.description}: "
+             f"{'connected' if at_end.connected else 'NOT CONNECTED'} ({at_end.message})",
+             f"  requests {d['requests']} (reads {d['reads']}, writes {d['writes']}{stop}), "
              f"exception responses {d['exceptions']}, timeouts {d['timeouts']}, "
-             f"connections lost {d['losses']}, connections made {d['connects']}"]
+             f"invalid answers {d['invalid']}, connections lost {d['losses']}, "
+             f"connections made {d['connects']}"]
     io = plant.io_percentiles()
     if io:
         lines.append(f"  Modbus I/O per scan: p50 {io[0] / 1000:.2f} ms, p99 {io[1] / 1000:.2f} "
