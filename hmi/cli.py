@@ -146,6 +146,10 @@ def _parser() -> argparse.ArgumentParser:
                    "mute@5s+2s), in time since the server started (repeatable)")
     p.add_argument("--delay", type=_duration, metavar="TIME",
                    help="answer every request TIME late (a slow server)")
+    p.add_argument("--max-connections", type=_positive, default=16, metavar="N",
+                   help="connections open at once; more are closed at once (16)")
+    p.add_argument("--idle-timeout", type=_duration, default=60_000_000, metavar="TIME",
+                   help="close a connection with no request for TIME (60s)")
     return parser
 
 
@@ -158,6 +162,12 @@ def _port(text: str) -> int:
 def _unit(text: str) -> int:
     if not text.isdigit() or int(text) > 255:
         raise argparse.ArgumentTypeError(f"{text!r} is not a Modbus unit id (0 to 255)")
+    return int(text)
+
+
+def _positive(text: str) -> int:
+    if not text.isdigit() or not 1 <= int(text) <= 10_000:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number from 1 to 10000")
     return int(text)
 
 
@@ -653,7 +663,8 @@ def cmd_serve_plant(args: argparse.Namespace) -> int:
     injections = [parse_injection(text) for text in args.inject]
     unit = project.plant.unit if args.unit is None else args.unit
     try:
-        return run_server(project, args.host, args.port, unit, injections, args.delay or 0)
+        return run_server(project, args.host, args.port, unit, injections, args.delay or 0,
+                          args.max_connections, args.idle_timeout / 1e6)
     except UsageError as exc:
         if "unknown fault" in str(exc):
             raise UsageError(f"{exc}; communication faults: {', '.join(COMM_FAULTS)}"
