@@ -120,8 +120,9 @@ class ModbusPlant:
     kind = "modbus"
 
     def __init__(self, project: Project, settings: ModbusSettings, read_only: bool = False,
-                 period_us: int | None = None):
+                 period_us: int | None = None, clock: Callable[[], float] = time.monotonic):
         self.project = project
+        self.clock = clock  # for the back-off (seconds); the tests give a virtual one
         self.settings = settings
         self.read_only = read_only
         self.period_us = period_us or project.scan_period_us
@@ -138,7 +139,7 @@ class ModbusPlant:
         self._down_reason = f"not connected to {settings.where}"
         self._outage = False  # since a problem, until a scan's I/O all works again
         self._backoff_s = BACKOFF_FIRST_S
-        self._next_attempt = 0.0  # time.monotonic() of the next connection attempt
+        self._next_attempt = 0.0  # clock() of the next connection attempt
         self.attempts = 0
         self._written: dict[object, tuple] = {}  # request plan entry -> values last written
         self._last_full_us: int | None = None
@@ -149,7 +150,7 @@ class ModbusPlant:
         self.io_us: deque[float] = deque(maxlen=10_000)  # wall time of each scan's I/O
         self._scan_io = 0.0
         self._scan_ok = False
-        self.link = LinkLog(settings.where)  # connection events for the journal
+        self.link = LinkLog(settings.where, clock)  # connection events for the journal
 
     # -- connection ----------------------------------------------------------------------
     def connect(self) -> bool:
@@ -183,10 +184,10 @@ class ModbusPlant:
 
     @property
     def retry_in_s(self) -> float:
-        return max(0.0, self._next_attempt - time.monotonic())
+        return max(0.0, self._next_attempt - self.clock())
 
     def _schedule_retry(self, why: str) -> None:
-        self._next_attempt = time.monotonic() + self._backoff_s
+        self._next_attempt = self.clock() + self._backoff_s
         self.message = f"{why}; next try in {self._backoff_s:g} s"
         self._backoff_s = min(self._backoff_s * 2, BACKOFF_MAX_S)
 
@@ -205,7 +206,7 @@ class ModbusPlant:
         return PlantError(self._down_reason)
 
     def _ensure_connected(self) -> ModbusLink:
-        if not self.connected and time.monotonic() >= self._next_attempt:
+        if not self.connected and self.clock() >= self._next_attempt:
             self.connect()
         if not self.connected or self._conn is None:
             raise PlantError(self._down_reason)
