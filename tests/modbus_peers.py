@@ -23,7 +23,6 @@ from modbus_tk import hooks, modbus_tcp
 
 WAIT = 30.0  # seconds: a deadline, not a sleep
 
-
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
