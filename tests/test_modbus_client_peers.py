@@ -6,6 +6,7 @@ clock, so no test waits for a back-off to pass. Sockets are real throughout.
 
 from __future__ import annotations
 
+import json
 import re
 import struct
 import subprocess
@@ -385,3 +386,25 @@ def test_the_run_report_counts_every_write_the_device_saw(tmp_path):
     assert writes == sum(1 for f in seen if f == 15) >= 2
     assert reads == sum(1 for f in seen if f == 2) and requests == len(seen)
     assert "Stopped: stopped: safe outputs written" in proc.stdout
+
+
+def test_a_run_against_a_device_dropping_every_connection_journals_a_handful(tmp_path):
+    """The issue's storm, end to end: `plchmi run` for 2 s against a device that accepts
+    and closes every connection (before: about 200 connections and 400 journal lines)."""
+    journal = tmp_path / "j.jsonl"
+    with ScriptedDevice() as dev:
+        proc = subprocess.run(
+            [sys.executable, "-m", "hmi.cli", "run", str(VALVE), "--for", "2s",
+             "--plant", f"modbus://127.0.0.1:{dev.port}", "--journal", str(journal)],
+            capture_output=True, text=True, cwd=ROOT, timeout=120)
+        connections = dev.connections
+    assert proc.returncode == 0, proc.stderr
+    assert 2 <= connections <= 6, connections  # 0, 0.1, 0.3, 0.7, 1.5 s: never more
+    entries = [json.loads(line) for line in journal.read_text().splitlines()]
+    events = [(e["type"], e["event"]) for e in entries
+              if not e["event"].startswith("scan-overrun")]
+    assert events == [("session", "start"), ("plant", "connected"), ("plant", "lost"),
+                      ("alarm", "raised"), ("plant", "connect-retries"),
+                      ("session", "stop")], events
+    assert "closed by the device" in entries[2]["message"]
+    assert f"connections made {connections}" in proc.stdout

@@ -205,8 +205,8 @@ class LinkLog:
         self._add([{"event": "reconnected", "attempt": self._attempt,
                     "failed_attempts": o.failed, "losses": o.losses,
                     "failing_since": o.since_wall,
-                    "message": f"connected to {self.where} again (attempt {self._attempt}),"
-                    f" working since; the outage since {o.since_wall}: "
+                    "message": f"the link to {self.where} works again (connection attempt "
+                    f"{self._attempt}); the outage since {o.since_wall}: "
                     f"{Outage.describe(o.totals())}; last problem: {o.last}"}])
 
     def gave_up(self) -> None:
