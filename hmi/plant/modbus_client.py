@@ -42,7 +42,6 @@ from hmi.errors import UsageError
 from hmi.plant.base import PlantError, PlantStatus
 from hmi.plant.link_log import LinkLog
 from hmi.plant.modbus_frame import (
-    EXCEPTION_NAMES,
     READ_COILS,
     READ_DISCRETE_INPUTS,
     READ_HOLDING_REGISTERS,
@@ -61,9 +60,6 @@ from hmi.plant.modbus_link import (
 )
 from hmi.plant.modbus_map import AddressMap
 from hmi.project.model import PlantSpec, Project
-
-__all__ = ["EXCEPTION_NAMES", "ModbusPlant", "ModbusSettings", "parse_plant_url",
-           "wait_connected"]
 
 READ_FUNCTION = {"coil": READ_COILS, "di": READ_DISCRETE_INPUTS,
                  "hr": READ_HOLDING_REGISTERS, "ir": READ_INPUT_REGISTERS}
