@@ -148,11 +148,13 @@ def paper_solve(start: int, combined: Masks, unforced: int, f0: int = 0, f1: int
     all_free = sum(bits)
     max_ham = noc
     farthest_solution: int | None = None
+    rounds = 0
     for k in range(1, noc // 2 + 1):
         for ham in paper_subsets(noc, k):
             if budget is not None and steps > budget:
                 return Solution(None, 0, tested, "budget", steps=steps, budget=budget)
-            if deadline is not None and not tested & 63 and time.perf_counter() > deadline:
+            rounds += 1
+            if deadline is not None and not rounds & 63 and time.perf_counter() > deadline:
                 return Solution(None, 0, tested, "deadline", steps=steps, budget=budget)
             flip = 0
             for b, on in zip(bits, ham, strict=True):
