@@ -336,9 +336,15 @@ class Problem:
                 groups.setdefault(component[j], []).append(j)
         flipped = 0
         nodes = 1
+        nb = self.nb
+        # The cost of changing output k (see _solve_group): D, + O if it switches k on, +
+        # 2^(nb-1-k); sums of them order like (distance, orders switched on, priority).
+        D = 1 << (nb + 8)
+        O = 1 << nb
+        cost = [D + (0 if start >> k & 1 else O) + (1 << (nb - 1 - k)) for k in range(nb)]
         for violated in groups.values():
             allowance = None if budget is None else budget - steps
-            status, flip, used_nodes, used_steps = _solve_group(self, start, violated,
+            status, flip, used_nodes, used_steps = _solve_group(self, start, violated, cost,
                                                                 allowance, deadline)
             steps += used_steps
             nodes += used_nodes
@@ -360,7 +366,7 @@ class _Proved(Exception):
     """The SAT solver proved that no safe vector exists."""
 
 
-def _solve_group(problem: Problem, start: int, violated: list[int],
+def _solve_group(problem: Problem, start: int, violated: list[int], cost: list[int],
                  allowance: int | None, deadline: float | None = None
                  ) -> tuple[str, int, int, int]:
     """The cheapest repair of the violated constraints of one component.
@@ -383,7 +389,6 @@ def _solve_group(problem: Problem, start: int, violated: list[int],
     occ = problem.occ_items
     D = 1 << (nb + 8)
     O = 1 << nb
-    cost = [D + (0 if start >> k & 1 else O) + (1 << (nb - 1 - k)) for k in range(nb)]
     steps = 0
     nodes = 0
     viol0 = 0
