@@ -5,7 +5,7 @@ constraint, once its context (the literals over uncontrollable variables Y) hold
 of masks over the outputs: it is violated by v when every output it needs at 1 is 1
 (`v & pos == pos`) and every output it needs at 0 is 0 (`v & neg == 0`).
 
-Two strategies give the same minimal distance:
+Two strategies give the same minimal distance (when they finish within their budget):
 
 * :func:`paper_solve` — Algorithm 1 / Fig. 2 of Pichard, Philippot & Riera (ICINCO 2018):
   k-subsets of the free outputs in increasing k, in the paper's order (a colex successor, ST
@@ -17,16 +17,23 @@ Two strategies give the same minimal distance:
   not only of the violated ones — with the paper's GG a repair that must touch an output of a
   not-yet-violated constraint is missed (tests/test_solver.py shows such a case), and the two
   strategies could not promise the same answer.
-* :func:`exact_solve` — branch and bound by iterative deepening over violated constraints: a
-  violated monomial is repaired only by flipping one of its output literals, so each node
-  branches on the outputs of the first violated constraint only; depth is bounded by the
-  distance being tried. All solutions at the minimal depth are collected and the tie-break
-  below picks one.
+* :func:`exact_solve` / :class:`Problem` — branch and bound over the free outputs with unit
+  propagation and a bound from violated constraints on disjoint outputs; a small CDCL SAT
+  solver (:mod:`hmi.engine.sat`) proves a situation infeasible without enumerating. The
+  cost of a set of changes is one integer that orders like (distance, tie-break), so the
+  first optimum is the documented choice. Details in :func:`_solve_group`.
 
 Tie-break (exact): fewest outputs switched on (0 -> 1) — removing an order is safer than
 adding one; then, outputs being listed in priority order in the project (first = most
 important to keep as asked), the set of changed outputs whose most important member is the
-least important (compare the sorted index tuples, larger wins).
+least important (compare the sorted index tuples, larger wins). The paper strategy has no
+tie-break: the first safe vector in its enumeration order wins.
+
+Budget: both strategies count their work in *steps* — one constraint read against a vector
+(propagation, the bound, a paper vector test) or one clause visit / decision of the SAT
+solver — and stop past `budget` steps with how "budget" and no vector (the caller writes the
+safe state). Counting, not timing, keeps a headless run's trace the same on any machine. A
+live run may also pass a wall-clock `deadline` (how "deadline"), a safety net only.
 """
 
 from __future__ import annotations
