@@ -372,8 +372,8 @@ class ExplanationBuilder:
                    f"Violated by the program: {violated}. Since scan {onset.scan}.")
             consequences = ("Every output is at its safe value for this scan; nothing unsafe is "
                             "written. Each scan searches again, so the cell stays stopped only "
-                            "while the situation lasts. The scan itself is never late: the "
-                            "search stops at its budget.")
+                            "while the situation lasts. The search is stopped at its budget "
+                            "so that it never holds up the scan.")
             policies = [self.policy_manual(True),
                         Policy("budget", "Raise the search budget",
                                "engineering: set solver_budget in the project (or start with "
