@@ -241,8 +241,8 @@ class Problem:
     outputs alone violate makes the problem infeasible (`impossible`).
     """
 
-    __slots__ = ("LM", "N", "P", "_component", "forced_values", "impossible", "nb", "occ",
-                 "occ_items", "origin", "size", "unforced")
+    __slots__ = ("LM", "N", "P", "_components", "forced_values", "impossible", "nb",
+                 "occ_items", "origin", "size", "true_items", "unforced")
 
     def __init__(self, combined: Masks, unforced: int, forced_values: int = 0):
         self.unforced = unforced
@@ -275,45 +275,54 @@ class Problem:
                 origin.append(i)
         self.P, self.N, self.origin = P, N, origin
         self.LM = LM = [p | q for p, q in zip(P, N, strict=True)]
-        self.occ = occ = [[] for _ in range(nb)]
-        # What propagation reads, per output: (bit of the constraint, pos, neg, outputs).
-        self.occ_items = occ_items = [[] for _ in range(nb)]
+        # What propagation reads, per output k: (bit of the constraint, pos, neg, outputs) for
+        # each constraint on k; split by the value k must have for its literal to be true.
+        pos_items: list[list[tuple[int, int, int, int]]] = [[] for _ in range(nb)]
+        neg_items: list[list[tuple[int, int, int, int]]] = [[] for _ in range(nb)]
         for j, (p, q, m) in enumerate(zip(P, N, LM, strict=True)):
             item = (1 << j, p, q, m)
-            while m:
-                low = m & -m
-                k = low.bit_length() - 1
-                occ[k].append(j)
-                occ_items[k].append(item)
-                m ^= low
-        self._component: list[int] | None = None
+            while p:
+                low = p & -p
+                pos_items[low.bit_length() - 1].append(item)
+                p ^= low
+            while q:
+                low = q & -q
+                neg_items[low.bit_length() - 1].append(item)
+                q ^= low
+        self.occ_items = [a + b for a, b in zip(pos_items, neg_items, strict=True)]
+        self.true_items = (neg_items, pos_items)  # [value of k][k]
+        self._components: list[int] | None = None
 
     @property
-    def component(self) -> list[int]:
-        """Each constraint's component (constraints linked by shared outputs), labelled by
-        its first constraint: components are independent problems. Built when first needed
-        (a single violated constraint needs none)."""
-        if self._component is not None:
-            return self._component
-        LM, occ = self.LM, self.occ
-        component = [-1] * len(LM)
-        seen = 0  # outputs whose constraints are already labelled
-        for j0 in range(len(LM)):
-            if component[j0] >= 0:
-                continue
-            component[j0] = j0
-            frontier = LM[j0]
+    def components(self) -> list[int]:
+        """The constraints (as bit masks) of each component, constraints linked by shared
+        outputs: components are independent problems. Built when first needed (a single
+        violated constraint needs none)."""
+        if self._components is not None:
+            return self._components
+        found = []
+        occ, LM = self.occ_items, self.LM
+        left = (1 << len(LM)) - 1
+        while left:
+            first = left & -left
+            members = first
+            frontier = LM[first.bit_length() - 1]
+            seen = 0
             while frontier:
                 low = frontier & -frontier
                 frontier ^= low
                 seen |= low
-                for j in occ[low.bit_length() - 1]:
-                    if component[j] < 0:
-                        component[j] = j0
-                        frontier |= LM[j] & ~seen
-        self._component = component
-        return component
+                for jbit, _, _, outputs in occ[low.bit_length() - 1]:
+                    if not members & jbit:
+                        members |= jbit
+                        frontier |= outputs & ~seen
+            found.append(members)
+            left &= ~members
+        self._components = found
+        return found
 
+    def component_of(self, j: int) -> int:
+        return next(members for members in self.components if members >> j & 1)
 
     def original(self, indices) -> tuple[int, ...]:
         if self.origin is None:
@@ -337,10 +346,11 @@ class Problem:
         if len(violated) == 1:
             groups = {-1: violated}  # one problem; its component is found only if needed
         else:
-            component = self.component
+            components = self.components
             groups = {}
             for j in violated:
-                groups.setdefault(component[j], []).append(j)
+                label = next(c for c, members in enumerate(components) if members >> j & 1)
+                groups.setdefault(label, []).append(j)
         flipped = 0
         nodes = 1
         nb = self.nb
@@ -360,8 +370,7 @@ class Problem:
             if status == "budget" or (budget is not None and steps > budget):
                 return Solution(None, 0, nodes, "budget", steps=steps, budget=budget)
             if status == "none":
-                root = self.component[violated[0]]
-                involved = self.original(j for j, c in enumerate(self.component) if c == root)
+                involved = self.original(_bits(self.component_of(violated[0])))
                 return Solution(None, 0, nodes, "none", steps=steps, budget=budget,
                                 involved=involved)
             flipped |= flip
@@ -394,6 +403,7 @@ def _solve_group(problem: Problem, start: int, violated: list[int], cost: list[i
     """
     P, LM, nb = problem.P, problem.LM, problem.nb
     occ = problem.occ_items
+    true_items = problem.true_items
     D = 1 << (nb + 8)
     O = 1 << nb
     steps = 0
@@ -406,11 +416,13 @@ def _solve_group(problem: Problem, start: int, violated: list[int], cost: list[i
     best_flip = 0
     cap = DIVE_STEPS if allowance is None else min(DIVE_STEPS, allowance)
 
-    def propagate(v: int, A: int, g: int, viol: int, queue: list[int]):
-        """The assignments in `queue` are already applied; follow their consequences."""
+    def propagate(v: int, A: int, g: int, viol: int, queue: list[int], kept: int = -1):
+        """The assignments in `queue` are already applied; follow their consequences. A kept
+        output (`kept`) only matters to the constraints whose literal on it is true."""
         nonlocal steps
         while queue:
-            items = occ[queue.pop()]
+            k = queue.pop()
+            items = true_items[v >> k & 1][k] if k == kept else occ[k]
             steps += len(items)
             for jbit, pos, neg, lits in items:
                 false = lits ^ ((v & pos) | (neg & ~v))
@@ -442,12 +454,9 @@ def _solve_group(problem: Problem, start: int, violated: list[int], cost: list[i
         nonlocal steps, best_g, best_flip, cap
         outputs = 0
         clauses = []
-        component = problem.component
-        label = component[violated[0]]
-        for j, c in enumerate(component):
-            if c == label:
-                outputs |= LM[j]
-                clauses.append([2 * k + (0 if P[j] >> k & 1 else 1) for k in _bits(LM[j])])
+        for j in _bits(problem.component_of(violated[0])):
+            outputs |= LM[j]
+            clauses.append([2 * k + (0 if P[j] >> k & 1 else 1) for k in _bits(LM[j])])
         steps += len(clauses)
         left = None if allowance is None else allowance - steps
         sat = solve_sat(_bits(outputs), clauses, phase=start, budget=left, deadline=deadline)
@@ -518,7 +527,7 @@ def _solve_group(problem: Problem, start: int, violated: list[int], cost: list[i
             if child is not None:
                 dfs(*child)
             # the next children keep k as it is
-            rest = propagate(v, A | bit, g, viol, [k])
+            rest = propagate(v, A | bit, g, viol, [k], k)
             if rest is None:
                 break
             v, A, g, viol = rest
