@@ -11,6 +11,7 @@ import shutil
 import socket
 import struct
 import subprocess
+import sys
 
 import modbus_tk.defines as tk
 import pytest
@@ -20,7 +21,7 @@ from pyModbusTCP.client import ModbusClient
 
 from hmi.plant.server_process import ServerProcess
 from tests import test_modbus
-from tests.conftest import write_project
+from tests.conftest import ROOT, write_project
 from tests.modbus_peers import (
     WAIT,
     closed_by_peer,
@@ -293,3 +294,16 @@ def test_mbpoll_reads_and_writes_serve_plant(serve):
     assert values(coils.stdout) == [0, 0, 0, 1], coils
     bad = mbpoll("-t", "0", "-r", "100", "-c", "2", "127.0.0.1")
     assert bad.returncode != 0 and "Illegal data address" in bad.stderr, bad
+
+
+def test_a_port_in_use_is_a_clear_error(project):
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        proc = subprocess.run([sys.executable, "-m", "hmi.cli", "serve-plant", str(project),
+                               "--port", str(port)], capture_output=True, text=True,
+                              cwd=ROOT, timeout=120)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert proc.stderr.strip() == f"plchmi: error: cannot listen on 127.0.0.1:{port}: " \
+        "Address already in use"

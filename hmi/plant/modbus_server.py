@@ -22,6 +22,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import ipaddress
+import os
 import signal
 import sys
 import time
@@ -237,9 +238,9 @@ class PlantServer:
             loop.add_signal_handler(sig, stop.set)
         try:
             bound = await self.modbus.start(host, port)
-        except OSError as exc:
-            raise UsageError(f"cannot listen on {host}:{port}: {exc.strerror or exc} (is the "
-                             "port already in use?)") from None
+        except OSError as exc:  # asyncio's message repeats the address: the errno's words
+            reason = os.strerror(exc.errno) if exc.errno else str(exc)
+            raise UsageError(f"cannot listen on {host}:{port}: {reason}") from None
         self._t0 = time.monotonic_ns()
         if not is_loopback(host):
             self.warn(f"plchmi: warning: listening on {host}: the simulated plant can be read "
