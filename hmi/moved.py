@@ -1,7 +1,7 @@
 """Old module names of issue 14's moves (phase A), kept importable for one phase.
 
 Branches written against the old layout keep running while they merge: ``import
-hmi.plant.modbus_client`` gives the module now at hmi.plant.modbus.client, the very same
+hmi.plant.modbus.client`` gives the module now at hmi.plant.modbus.client, the very same
 module object (so a monkeypatch through either name patches both). New code imports the new
 names; phase B removes this module.
 """

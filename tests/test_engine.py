@@ -80,15 +80,15 @@ def test_an_internal_error_puts_outputs_safe_and_says_so():
 
     def broken(*args):
         raise RuntimeError("solver bug")
-    working = ctl.engine.filter.apply
-    ctl.engine.filter.apply = broken
+    working = ctl.engine.filter_stage.apply
+    ctl.engine.filter_stage.apply = broken
     s = ctl.scan_once()
     assert s.outputs == (False, False) and s.latched[0].source == "internal"
     assert "solver bug" in s.error
     assert ctl.engine.plant.devices[0].orders == {"C": False, "O": False}
     s = ctl.scan_once()
     assert s.outputs == (False, False)  # stays safe until a fault reset
-    ctl.engine.filter.apply = working
+    ctl.engine.filter_stage.apply = working
     assert "safe-state latch released" in ctl.command(FaultReset()).message
     assert ctl.scan_once().latched == ()
 

@@ -122,7 +122,7 @@ def test_manual_forces_are_explained_without_an_alarm():
 def test_fallback_and_internal_error_are_explained(tmp_path):
     ctl = make_controller(VALVE)
     ctl.scan_once()
-    ctl.engine.filter.apply = lambda *args: 1 / 0
+    ctl.engine.filter_stage.apply = lambda *args: 1 / 0
     snap = ctl.scan_once()
     e = explanation(snap, "safe_state:internal")
     assert "internal error" in e.what and "ZeroDivisionError" in e.why and e.severity == "high"

@@ -216,7 +216,7 @@ def test_filter_output_is_safe_and_at_minimum_distance(case):
         for name, value in zip(("i0", "i1", "i2"), inputs, strict=True):
             assert image[engine.layout.slots[name]] == value
         outputs, report, _ = engine.filter.apply(engine.image, engine.history, tuple(fov),
-                                                 engine.policy, False, None)
+                                                 engine.policy, False)
 
         def safe(vec):
             env = dict(zip(outs, vec, strict=True))

@@ -58,7 +58,8 @@ class Engine:
 
     def __init__(self, project: Project, plant: Plant, control: str | None = None,
                  policy: str | None = None, solver: str | None = None,
-                 diagnosis: str = "ftc", allow_monitor_policy: bool = False):
+                 diagnosis: str = "ftc", solver_budget: int | None = None,
+                 allow_monitor_policy: bool = False):
         self.project = project
         self.plant = plant
         self.control_name = control or project.default_control
@@ -88,9 +89,11 @@ class Engine:
         self.diagnosis = diagnosis_stage(project, lay, diagnosis)  # 3 (None: no diagnosers)
         self.reconstruction = Reconstruction()  # 4
         self.control_stage = Control(self.control, lay)  # 5
-        self.filter = FilterStage(  # 6
-            SafetyFilter(project, lay.slots, lay.step_times, solver or project.solver),
-            self.diagnosis.mask_flags if self.diagnosis else {})
+        self.filter = SafetyFilter(project, lay.slots, lay.step_times,
+                                   solver or project.solver,
+                                   solver_budget or project.solver_budget)
+        self.filter_stage = FilterStage(  # 6: the filter, given the diagnosers' mask
+            self.filter, self.diagnosis.mask_flags if self.diagnosis else {})
         self.output_scan = OutputScan(plant, lay)  # 7
         self.monitors = monitor_stage(project, lay)  # 8 (None: no monitors)
         # The history is as deep as the deepest expression of any stage reads.
@@ -205,6 +208,12 @@ class Engine:
                 return CommandResult.ok(f"SIMULATION: input {name} {'on' if value else 'off'}")
         return CommandResult.refused(f"the engine does not handle {command!r}")
 
+    def limit_search_time(self, wall_us: float | None) -> None:
+        """Live runs only: the corrector's search also stops after `wall_us` of wall time, a
+        safety net on a loaded machine (a headless run never sets it: traces depend on the
+        search's steps only; docs/filter.md, "Budget")."""
+        self.filter.wall_limit_us = wall_us
+
     @property
     def drives_real_plant(self) -> bool:
         """Outputs written by this engine move real machinery."""
@@ -271,7 +280,7 @@ class Engine:
                                 for k, value in enumerate(fov))
             # 6. filter, given the diagnosers' mask
             started = time.perf_counter()
-            decision = self.filter.apply(image, hist, fov, self.policy, bool(self.latched),
+            decision = self.filter_stage.apply(image, hist, fov, self.policy, bool(self.latched),
                                          diagnosis.mask)
             filter_us = (time.perf_counter() - started) * 1e6
             if decision.latch is not None:

@@ -4,9 +4,9 @@
     models.py   the device models by name (imported on use)
     device.py   what every device offers; valve.py, conveyor.py, ... the models
 
-Importing this package imports no device model. ``from hmi.plant.sim import SimPlant`` (and
+Importing this package imports no device model. ``from hmi.plant.sim.plant import SimPlant`` (and
 ``Injection``, ``parse_injection``) still works, resolved on use: the module was
-hmi/plant/sim.py until issue 14 (phase A; the alias goes in phase B).
+hmi/plant/sim/plant.py until issue 14 (phase A; the alias goes in phase B).
 """
 
 from __future__ import annotations
