@@ -21,7 +21,8 @@ MOVED: dict[str, str] = {
     **{f"hmi.plant.{old}": f"hmi.plant.{new}" for old, new in {
         "modbus_client": "modbus.client", "modbus_map": "modbus.address_map",
         "modbus_server": "modbus.server", "link_log": "modbus.link_log",
-        "server_process": "modbus.server_process",
+        "server_process": "modbus.server_process", "modbus_frame": "modbus.frame",
+        "modbus_link": "modbus.link", "modbus_tcp_server": "modbus.tcp_server",
         **{name: f"sim.{name}" for name in (
             "device", "models", "valve", "conveyor", "robot", "pump", "tank", "sorter",
             "palletizer", "boxes", "cell", "tasks", "track", "travel")},

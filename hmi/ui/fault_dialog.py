@@ -2,7 +2,7 @@
 
 Fault injection exists for training and commissioning: watching the filter and the diagnosers
 react to a stuck sensor or a jammed valve. The dialog is marked SIMULATION in reverse video
-and returns an :class:`~hmi.plant.sim.Injection` in the engine's virtual time; the app sends
+and returns an :class:`~hmi.plant.injection.Injection` in the engine's virtual time; the app sends
 it as an ``InjectFault`` command.
 """
 

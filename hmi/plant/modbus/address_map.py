@@ -17,7 +17,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 from hmi.errors import Diagnostic
-from hmi.plant.modbus_frame import MAX_READ_BITS, MAX_READ_REGISTERS, MAX_WRITE_COILS
+from hmi.plant.modbus.frame import MAX_READ_BITS, MAX_READ_REGISTERS, MAX_WRITE_COILS
 from hmi.project.model import PlantAddress, Project, Variable
 
 BIT_TABLES = ("coil", "di")

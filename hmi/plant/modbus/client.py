@@ -41,8 +41,7 @@ from urllib.parse import urlsplit
 from hmi.errors import UsageError
 from hmi.plant.base import Plant, PlantError, PlantState, PlantStatus
 from hmi.plant.modbus.address_map import AddressMap
-from hmi.plant.modbus.link_log import LinkLog
-from hmi.plant.modbus_frame import (
+from hmi.plant.modbus.frame import (
     READ_COILS,
     READ_DISCRETE_INPUTS,
     READ_HOLDING_REGISTERS,
@@ -51,7 +50,7 @@ from hmi.plant.modbus_frame import (
     read_request,
     write_coils_request,
 )
-from hmi.plant.modbus_link import (
+from hmi.plant.modbus.link import (
     ConnectFailed,
     ExceptionAnswer,
     InvalidAnswer,
@@ -59,6 +58,7 @@ from hmi.plant.modbus_link import (
     ModbusLink,
     NoAnswer,
 )
+from hmi.plant.modbus.link_log import LinkLog
 from hmi.project.model import PlantSpec, Project
 
 READ_FUNCTION = {"coil": READ_COILS, "di": READ_DISCRETE_INPUTS,

@@ -23,7 +23,7 @@ import select
 import socket
 import time
 
-from hmi.plant.modbus_frame import (
+from hmi.plant.modbus.frame import (
     HEADER_SIZE,
     MAX_ADU,
     Answer,

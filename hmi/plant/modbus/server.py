@@ -32,8 +32,8 @@ from dataclasses import dataclass
 from hmi.errors import UsageError
 from hmi.plant.injection import Injection
 from hmi.plant.modbus.address_map import BIT_TABLES, AddressMap
-from hmi.plant.modbus_frame import SERVER_DEVICE_BUSY
-from hmi.plant.modbus_tcp_server import (
+from hmi.plant.modbus.frame import SERVER_DEVICE_BUSY
+from hmi.plant.modbus.tcp_server import (
     IDLE_S,
     MAX_CONNECTIONS,
     ModbusServer,

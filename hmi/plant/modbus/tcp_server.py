@@ -32,7 +32,7 @@ from collections import Counter
 from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass, field
 
-from hmi.plant.modbus_frame import (
+from hmi.plant.modbus.frame import (
     BIT_READS,
     COIL_OFF,
     COIL_ON,
