@@ -18,6 +18,8 @@ MOVED: dict[str, str] = {
     "hmi.engine.runner": "hmi.session.session",
     "hmi.engine.live": "hmi.session.live",
     "hmi.explain.recorder": "hmi.session.journal_recorder",
+    "hmi.logic.control": "hmi.engine.control",
+    "hmi.logic.grafcet": "hmi.engine.grafcet",
     **{f"hmi.plant.{old}": f"hmi.plant.{new}" for old, new in {
         "modbus_client": "modbus.client", "modbus_map": "modbus.address_map",
         "modbus_server": "modbus.server", "link_log": "modbus.link_log",

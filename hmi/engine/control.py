@@ -10,8 +10,8 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
+from hmi.engine.grafcet import GrafcetRuntime
 from hmi.logic.expr import BoolFn, compile_bool
-from hmi.logic.grafcet import GrafcetRuntime
 from hmi.project.model import ControlLaw
 
 

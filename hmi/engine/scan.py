@@ -30,6 +30,7 @@ from hmi.engine.commands import (
     SetPolicy,
     StopDevice,
 )
+from hmi.engine.control import ControlRuntime
 from hmi.engine.diagnoser import Diagnosis, diagnosis_stage
 from hmi.engine.filter import FilterReport, SafetyFilter
 from hmi.engine.filter_stage import FilterStage
@@ -38,7 +39,6 @@ from hmi.engine.monitors import monitor_stage
 from hmi.engine.snapshot import LatchReason, Snapshot
 from hmi.engine.stages import Control, InputScan, Memory, OutputScan, Reconstruction
 from hmi.errors import UsageError
-from hmi.logic.control import ControlRuntime
 from hmi.logic.expr import max_depth
 from hmi.plant.base import Plant
 from hmi.project.diagnosers import layout_names

@@ -23,8 +23,8 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Protocol
 
+from hmi.engine.control import ControlRuntime
 from hmi.engine.layout import Layout
-from hmi.logic.control import ControlRuntime
 from hmi.logic.expr import BoolFn, History, Image, compile_bool
 from hmi.logic.timers import TimerRuntime
 from hmi.plant.base import Plant, PlantError
