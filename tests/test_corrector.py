@@ -206,7 +206,7 @@ def test_past_its_budget_the_filter_writes_the_safe_state_and_says_so(tmp_path):
     folder = pairs_project(tmp_path, "solver_budget: 300\n")
     engine = engine_for(folder)
     assert engine.filter.budget == 300
-    snap = engine.step(0)
+    snap = Session(engine).scan_once()  # the session explains the scan
     report = snap.filter
     assert snap.outputs == (False,) * 12 and report.safe_state and not report.unsafe_written
     assert report.stopped == "budget" and report.steps > 300 and report.budget == 300

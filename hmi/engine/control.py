@@ -11,8 +11,10 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 from hmi.engine.grafcet import GrafcetRuntime
-from hmi.logic.expr import BoolFn, compile_bool
+from hmi.logic.expr import BoolFn, History, Image, compile_bool
 from hmi.project.model import ControlLaw
+
+ASSIGN, SET_DOMINANT, RESET_DOMINANT = 0, 1, 2  # the kinds of equation
 
 
 class ControlRuntime:
@@ -21,38 +23,40 @@ class ControlRuntime:
         self.law = law
         self.grafcet = (GrafcetRuntime(law.grafcet, slots, step_time_slots)
                         if law.grafcet else None)
-        self.equations: list[tuple[int, BoolFn | None, BoolFn | None, BoolFn | None, bool]] = []
+        # (target slot, kind, expression or set, reset or unused), in the order written
+        self.equations: list[tuple[int, int, BoolFn, BoolFn]] = []
         for eq in law.equations:
             slot = slots[eq.target]
             if eq.expr is not None:
-                self.equations.append((slot, compile_bool(eq.expr, slots, step_time_slots),
-                                       None, None, False))
+                fn = compile_bool(eq.expr, slots, step_time_slots)
+                self.equations.append((slot, ASSIGN, fn, fn))
             else:
-                self.equations.append((slot, None, compile_bool(eq.set, slots, step_time_slots),
-                                       compile_bool(eq.reset, slots, step_time_slots),
-                                       eq.set_dominant))
+                assert eq.set is not None and eq.reset is not None  # the loader's guarantee
+                self.equations.append((slot, SET_DOMINANT if eq.set_dominant else RESET_DOMINANT,
+                                       compile_bool(eq.set, slots, step_time_slots),
+                                       compile_bool(eq.reset, slots, step_time_slots)))
 
-    def reset(self, image: list, now: int) -> None:
+    def reset(self, image: Image, now: int) -> None:
         if self.grafcet:
             self.grafcet.reset(image, now)
 
-    def update_times(self, image: list, now: int) -> None:
+    def update_times(self, image: Image, now: int) -> None:
         if self.grafcet:
             self.grafcet.update_times(image, now)
 
-    def run(self, image: list, history, now: int) -> None:
+    def run(self, image: Image, history: History, now: int) -> None:
         if self.grafcet:
             self.grafcet.evolve(image, history, now)
             self.grafcet.apply_continuous(image, history)
-        for slot, expr, set_, reset, set_dominant in self.equations:
-            if expr is not None:
-                image[slot] = expr(image, history)
-            elif set_dominant:
+        for slot, kind, set_, reset in self.equations:
+            if kind == ASSIGN:
+                image[slot] = set_(image, history)
+            elif kind == SET_DOMINANT:
                 image[slot] = set_(image, history) or (image[slot] and not reset(image, history))
             else:
                 image[slot] = not reset(image, history) and (set_(image, history) or image[slot])
 
-    def active_steps(self, image: list) -> tuple[str, ...]:
+    def active_steps(self, image: Image) -> tuple[str, ...]:
         return self.grafcet.active(image) if self.grafcet else ()
 
     @property

@@ -38,9 +38,9 @@ Modes (for the campaign's configurations): `ftc` (flags drive reconstruction and
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
-from typing import NamedTuple
+from typing import NamedTuple, overload
 
 from hmi.engine.layout import Layout
 from hmi.logic.expr import (
@@ -57,7 +57,13 @@ from hmi.logic.expr import (
     to_text,
     walk,
 )
-from hmi.project.diagnosers import DiagnoserSpec, DiagTransition, diagnosers_of
+from hmi.project.diagnosers import (
+    DiagnoserSpec,
+    DiagState,
+    DiagTransition,
+    ResyncRule,
+    diagnosers_of,
+)
 from hmi.project.model import Project
 from hmi.timefmt import format_duration
 
@@ -137,7 +143,8 @@ def _depth(node: Node) -> int:
 class DiagnoserRuntime:
     """One compiled diagnoser: integer states, compiled conditions, the current state."""
 
-    def __init__(self, spec: DiagnoserSpec, slots, outputs: frozenset[str]):
+    def __init__(self, spec: DiagnoserSpec, slots: Mapping[str, int],
+                 outputs: frozenset[str]):
         self.spec = spec
         self.slots = slots
         self.outputs = outputs
@@ -161,7 +168,7 @@ class DiagnoserRuntime:
                                     index[tr.target], tr))
         self.events = events
         self.timeouts = timeouts
-        self.resync_rules = []
+        self.resync_rules: list[tuple[BoolFn, int, int, ResyncRule]] = []
         for k, rule in enumerate(spec.resync, start=1):
             root = shift_outputs(rule.when.root, outputs)
             self.depth = max(self.depth, _depth(root))
@@ -179,7 +186,7 @@ class DiagnoserRuntime:
         self.record = self._record()
 
     @property
-    def state(self):
+    def state(self) -> DiagState:
         return self.spec.states[self.current]
 
     @property
@@ -201,7 +208,7 @@ class DiagnoserRuntime:
         self.via = via
         self.record = self._record()
 
-    def step(self, image, hist, now: int, scan: int) -> bool:
+    def step(self, image: Image, hist: History, now: int, scan: int) -> bool:
         """One scan of the automaton; True when the state changed."""
         if self.since_us is None:
             self.since_us, self.since_scan = now, scan
@@ -218,14 +225,14 @@ class DiagnoserRuntime:
             return True
         return False
 
-    def resync_match(self, image, hist) -> tuple[int, int, object] | None:
+    def resync_match(self, image: Image, hist: History) -> tuple[int, int, ResyncRule] | None:
         """The first resync rule the I/O satisfies: (target, rule number, rule), or None."""
         for fn, target, k, rule in self.resync_rules:
             if fn(image, hist):
                 return target, k, rule
         return None
 
-    def preview(self, image, hist) -> DiagnoserState:
+    def preview(self, image: Image, hist: History) -> DiagnoserState:
         """The record, with what a fault reset would do now (for the reset dialog).
 
         Called after the scan, before its image joins the history; the reset itself runs
@@ -238,7 +245,7 @@ class DiagnoserRuntime:
         return replace(record, resync=self.names[match[0]] if match else "",
                        resync_values=self._resync_values(image, seen))
 
-    def resync(self, image, hist, now: int, scan: int) -> str:
+    def resync(self, image: Image, hist: History, now: int, scan: int) -> str:
         """Fault reset: back to the normal state the current I/O is consistent with."""
         spec = self.spec
         state = self.state
@@ -260,7 +267,7 @@ class DiagnoserRuntime:
         return (f"diagnoser {spec.name} stays in {was}: {shown} match no normal state: the "
                 "fault is still visible")
 
-    def _resync_values(self, image, hist) -> str:
+    def _resync_values(self, image: Image, hist: History) -> str:
         """`fsc=0, fso=0, C=0, O=0`: the values the resync rules test, as they see them."""
         seen: dict[tuple[str, int], None] = {}
         for rule in self.spec.resync:
@@ -276,15 +283,26 @@ class DiagnoserRuntime:
         return ", ".join(parts)
 
 
-class _Shifted:
+class _Shifted(Sequence[Image]):
     """The history as it will be once this scan's image is in it (index 0: the image)."""
 
     __slots__ = ("hist", "image")
 
-    def __init__(self, image, hist):
+    def __init__(self, image: Image, hist: History):
         self.image, self.hist = image, hist
 
-    def __getitem__(self, k: int):
+    def __len__(self) -> int:
+        return len(self.hist) + 1
+
+    @overload
+    def __getitem__(self, k: int) -> Image: ...
+
+    @overload
+    def __getitem__(self, k: slice) -> Sequence[Image]: ...
+
+    def __getitem__(self, k: int | slice) -> Image | Sequence[Image]:
+        if isinstance(k, slice):
+            return [self.image, *self.hist][k]
         return self.image if k == 0 else self.hist[k - 1]
 
 

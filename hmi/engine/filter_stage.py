@@ -14,7 +14,7 @@ filter").
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 
 from hmi.engine.filter import Change, FilterDecision, FilterReport, SafetyFilter, pack
 from hmi.logic.expr import History, Image
@@ -42,7 +42,7 @@ class FilterStage:
         return FilterDecision(forced, self._report(image, history, report, fov, candidate,
                                                    written, forced, mask), latch)
 
-    def _flags(self, masked) -> list[str]:
+    def _flags(self, masked: Iterable[str]) -> list[str]:
         return sorted({f for name in masked for f in self.mask_flags[name]})
 
     def _unapplied(self, report: FilterReport, mask: tuple[bool, ...]) -> FilterReport:
@@ -51,8 +51,9 @@ class FilterStage:
                  "applied under the monitor policy")
         return report._replace(note=f"{report.note}; {extra}" if report.note else extra)
 
-    def _report(self, image: Image, history: History, report: FilterReport, fov, candidate,
-                written, forced, mask: tuple[bool, ...]) -> FilterReport:
+    def _report(self, image: Image, history: History, report: FilterReport,
+                fov: tuple[bool, ...], candidate: tuple[bool, ...], written: tuple[bool, ...],
+                forced: tuple[bool, ...], mask: tuple[bool, ...]) -> FilterReport:
         outputs = self.outputs
         masked = {outputs[k] for k, m in enumerate(mask) if m}
         changes = [c for c in report.changes if c.output not in masked]

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-from hmi.logic.expr import BoolFn, compile_bool
+from hmi.logic.expr import BoolFn, History, Image, compile_bool
 from hmi.project.model import Grafcet
 
 
@@ -49,19 +49,19 @@ class GrafcetRuntime:
         self.activated_at: dict[str, int] = {}
         self.fired: tuple[int, ...] = ()
 
-    def reset(self, image: list, now: int) -> None:
+    def reset(self, image: Image, now: int) -> None:
         for name, slot in self.step_slots.items():
             image[slot] = name in self.initial
         self.activated_at = dict.fromkeys(self.initial, now)
         for name in self.initial:
             self._stored(image, name)
 
-    def update_times(self, image: list, now: int) -> None:
+    def update_times(self, image: Image, now: int) -> None:
         for name, slot in self.time_slots.items():
             since = self.activated_at.get(name)
             image[slot] = 0 if since is None else now - since
 
-    def evolve(self, image: list, history, now: int) -> tuple[int, ...]:
+    def evolve(self, image: Image, history: History, now: int) -> tuple[int, ...]:
         """Fire every fireable transition at once; return the numbers of those fired."""
         fire = [i for i, (sources, _, receptivity) in enumerate(self.transitions)
                 if all(image[s] for s in sources) and receptivity(image, history)]
@@ -86,16 +86,16 @@ class GrafcetRuntime:
         self.fired = tuple(self.transition_numbers[i] for i in fire)
         return self.fired
 
-    def _stored(self, image: list, step: str) -> None:
+    def _stored(self, image: Image, step: str) -> None:
         for slot, value in self.stored.get(step, ()):
             image[slot] = value
 
-    def apply_continuous(self, image: list, history) -> None:
+    def apply_continuous(self, image: Image, history: History) -> None:
         for slot in self.driven:
             image[slot] = False
         for step_slot, target, cond in self.continuous:
             if image[step_slot] and (cond is None or cond(image, history)):
                 image[target] = True
 
-    def active(self, image: list) -> tuple[str, ...]:
+    def active(self, image: Image) -> tuple[str, ...]:
         return tuple(name for name, slot in self.step_slots.items() if image[slot])

@@ -21,7 +21,7 @@ from typing import NamedTuple
 
 from hmi.engine.layout import Layout
 from hmi.engine.stopwatch import FAULTY, Detection, TaskAutomaton, WatchdogTrip, Window
-from hmi.logic.expr import BoolFn, History, Image, compile_bool, max_depth
+from hmi.logic.expr import BoolFn, Expr, History, Image, compile_bool, max_depth
 from hmi.project.model import Project
 from hmi.project.monitors import TaskMonitor, monitors_of
 from hmi.timefmt import format_duration, seconds
@@ -70,13 +70,14 @@ class MonitorStage:
         self.specs = specs
         self.depth = max((max_depth(e) for s in specs for e in s.exprs), default=1)
         # The fields of MonitorState that never change, computed once (states() runs per scan).
-        self.heads = [(s.name, s.label, s.title, s.device) for s in specs]
+        self.heads: list[tuple[str, str, str, str | None]] = [
+            (s.name, s.label, s.title, s.device) for s in specs]
         self.tails = [(s.alpha_us, s.beta_us, s.gamma_us) for s in specs]
         self.automata = [TaskAutomaton(Window(s.alpha_us, s.beta_us, s.gamma_us))
                          for s in specs]
         self.conditions: list[tuple[BoolFn, BoolFn, BoolFn | None, BoolFn | None, bool]] = []
         for s in specs:
-            def fn(expr):
+            def fn(expr: Expr) -> BoolFn:
                 return compile_bool(expr, lay.slots, lay.step_times)
             if s.interrupted is not None:
                 level = fn(s.interrupted)
@@ -121,7 +122,8 @@ class MonitorStage:
         return lines
 
 
-def _state(head: tuple, a: TaskAutomaton, window: tuple[int, int, int]) -> MonitorState:
+def _state(head: tuple[str, str, str, str | None], a: TaskAutomaton,
+           window: tuple[int, int, int]) -> MonitorState:
     return MonitorState(*head, a.location, a.x_us, a.y_us, *window, a.attempt,
                         a.attempt_start_us, a.running, a.latched, a.last_detection,
                         a.watchdog.last, a.faults, a.completed)

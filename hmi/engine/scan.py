@@ -17,8 +17,10 @@ from __future__ import annotations
 
 import time
 from collections import deque
+from collections.abc import Iterator
 
 from hmi.engine.commands import (
+    Command,
     CommandResult,
     FaultReset,
     InjectFault,
@@ -31,15 +33,15 @@ from hmi.engine.commands import (
     StopDevice,
 )
 from hmi.engine.control import ControlRuntime
-from hmi.engine.diagnoser import Diagnosis, diagnosis_stage
+from hmi.engine.diagnoser import DiagnoserState, Diagnosis, diagnosis_stage
 from hmi.engine.filter import FilterReport, SafetyFilter
 from hmi.engine.filter_stage import FilterStage
 from hmi.engine.layout import Layout
-from hmi.engine.monitors import monitor_stage
+from hmi.engine.monitors import MonitorState, monitor_stage
 from hmi.engine.snapshot import LatchReason, Snapshot
 from hmi.engine.stages import Control, InputScan, Memory, OutputScan, Reconstruction
 from hmi.errors import UsageError
-from hmi.logic.expr import max_depth
+from hmi.logic.expr import Expr, Image, max_depth
 from hmi.plant.base import Plant
 from hmi.project.diagnosers import layout_names
 from hmi.project.model import POLICIES, Project
@@ -101,8 +103,8 @@ class Engine:
         for stage in (self.diagnosis, self.monitors):
             if stage is not None:
                 depth = max(depth, stage.depth)
-        self.history: deque[list] = deque(maxlen=max(depth, 1))
-        self.image: list = lay.initial_image(project)
+        self.history: deque[Image] = deque(maxlen=max(depth, 1))
+        self.image: Image = lay.initial_image(project)
         self.scan = 0
         self.now = 0
         self.mode = "auto"
@@ -116,7 +118,7 @@ class Engine:
         self._stop_mask: tuple[int, ...] = ()
 
     # -- commands ----------------------------------------------------------------------------
-    def apply(self, command) -> CommandResult:
+    def apply(self, command: Command) -> CommandResult:
         """Apply an operator command now; its effect on outputs shows at the next scan."""
         if self.observe and isinstance(command, SetMode | ManualOutput | SetPolicy):
             return CommandResult.refused("read-only mode: nothing is written to the plant and "
@@ -306,7 +308,7 @@ class Engine:
             if lost is not None:
                 self.latch_safe("plant", lost)
         # 8. monitors, on the I/O this scan exchanged
-        monitors: tuple = ()
+        monitors: tuple[MonitorState, ...] = ()
         if self.monitors is not None:
             try:
                 monitors = self.monitors.step(image, self.history, now, self.scan)
@@ -334,9 +336,10 @@ class Engine:
             return tuple(self.image[s] for s in self.output_slots)
         return self.safe_vector
 
-    def _snapshot(self, fov, outputs, report: FilterReport | None, diagnosis: Diagnosis,
-                  diagnosers: tuple, monitors: tuple, error: str | None, wall: float,
-                  filter_us: float) -> Snapshot:
+    def _snapshot(self, fov: tuple[bool, ...], outputs: tuple[bool, ...],
+                  report: FilterReport | None, diagnosis: Diagnosis,
+                  diagnosers: tuple[DiagnoserState, ...], monitors: tuple[MonitorState, ...],
+                  error: str | None, wall: float, filter_us: float) -> Snapshot:
         plant = self.plant
         monitor_policy = self.policy == "monitor"
         return Snapshot(
@@ -365,7 +368,7 @@ class _InputsUnknown(Exception):
     """The input scan failed: skip to the output scan with the outputs safe."""
 
 
-def _all_exprs(project: Project):
+def _all_exprs(project: Project) -> Iterator[Expr]:
     for t in project.timers:
         yield t.input
     for o in project.observers:

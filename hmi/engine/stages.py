@@ -101,24 +101,25 @@ class Memory:
         slots, times = layout.slots, layout.step_times
         self.timers = [(TimerRuntime(t.name, t.kind, t.preset_us), slots[t.name],
                         compile_bool(t.input, slots, times)) for t in project.timers]
-        self.observers: list[tuple[int, BoolFn | None, BoolFn | None, BoolFn | None]] = []
+        # (slot, is an expression, expression or set, reset or unused)
+        self.observers: list[tuple[int, bool, BoolFn, BoolFn]] = []
         for o in project.observers:
             if o.expr is not None:
-                self.observers.append((slots[o.name], compile_bool(o.expr, slots, times),
-                                       None, None))
+                fn = compile_bool(o.expr, slots, times)
+                self.observers.append((slots[o.name], True, fn, fn))
             else:
-                self.observers.append((slots[o.name], None, compile_bool(o.set, slots, times),
+                assert o.set is not None and o.reset is not None  # the loader's guarantee
+                self.observers.append((slots[o.name], False, compile_bool(o.set, slots, times),
                                        compile_bool(o.reset, slots, times)))
         self.control = control
 
     def update(self, image: Image, history: History, now: int) -> None:
         for runtime, slot, fn in self.timers:
             image[slot] = runtime.update(fn(image, history), now)
-        for slot, expr, set_, reset in self.observers:
-            if expr is not None:
-                image[slot] = expr(image, history)
+        for slot, is_expr, set_, reset in self.observers:
+            if is_expr:
+                image[slot] = set_(image, history)
             else:
-                assert set_ is not None and reset is not None
                 image[slot] = not reset(image, history) and (set_(image, history) or image[slot])
         self.control.update_times(image, now)
 

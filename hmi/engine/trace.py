@@ -52,7 +52,7 @@ class TraceWriter:
         self.path = path
         self.format = "jsonl" if path.suffix.lower() in (".jsonl", ".json", ".ndjson") else "csv"
         self.file: IO[str] = path.open("w", encoding="utf-8", newline="")
-        self.writer: csv.DictWriter | None = None
+        self.writer: csv.DictWriter[str] | None = None
         self.count = 0
 
     def write(self, snap: Snapshot) -> None:
