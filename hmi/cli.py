@@ -49,6 +49,11 @@ def _parser() -> argparse.ArgumentParser:
     def project_arg(p: argparse.ArgumentParser) -> None:
         p.add_argument("project", help="project folder (or its project.yaml)")
 
+    def diagnoser_arg(p: argparse.ArgumentParser) -> None:
+        p.add_argument("--diagnoser", metavar="VARIANT",
+                       help="load this variant of the diagnosers (e.g. paper); default: "
+                       "the first each declares")
+
     def engine_args(p: argparse.ArgumentParser) -> None:
         p.add_argument("--control", metavar="VARIANT",
                        help="control law variant to run (default: the project's first)")
@@ -72,9 +77,11 @@ def _parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("check", help="load and validate a project, print a summary")
     project_arg(p)
+    diagnoser_arg(p)
 
     p = sub.add_parser("run", help="run headless in virtual time")
     project_arg(p)
+    diagnoser_arg(p)
     engine_args(p)
     p.add_argument("--for", dest="duration", type=_duration, metavar="TIME",
                    help="virtual time to run, e.g. 60s (default: the scenario's)")
@@ -97,13 +104,20 @@ def _parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("diagnose", help="print the diagnosers' automata and diagnosability")
     project_arg(p)
+    diagnoser_arg(p)
 
     p = sub.add_parser("campaign", help="inject every fault under three configurations and "
                        "classify the runs (000 Table 1)")
     project_arg(p)
+    diagnoser_arg(p)
     p.add_argument("--json", action="store_true", help="print the results as JSON")
     p.add_argument("--jobs", type=int, default=None, metavar="N",
                    help="worker processes (default: 2 if the machine has 2 cores or more)")
+    p.add_argument("--sweep", action="store_true",
+                   help="inject each fault at every instant of a full cycle instead of the "
+                   "scenarios' single instants")
+    p.add_argument("--every", type=_duration, default=None, metavar="TIME",
+                   help="with --sweep: the grid of instants (default: every scan period)")
 
     p = sub.add_parser(
         "journal", help="print or export a project's operator journal",
@@ -128,6 +142,7 @@ def _parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("ui", help="open the operator HMI (the default command)")
     project_arg(p)
+    diagnoser_arg(p)
     engine_args(p)
     p.add_argument("--inject", action="append", default=[], metavar="FAULT@TIME",
                    help="schedule a fault in the simulated plant")
@@ -217,7 +232,7 @@ def write_crash_report(exc: BaseException) -> str:
 
 def _sweep(args: argparse.Namespace) -> int:
     from hmi.sweep import cmd_sweep
-    return cmd_sweep(args, load(args.project))
+    return cmd_sweep(args, load(args.project, getattr(args, "diagnoser", None)))
 
 
 def print_project_error(exc: ProjectError) -> None:
@@ -231,15 +246,15 @@ def print_project_error(exc: ProjectError) -> None:
           file=sys.stderr)
 
 
-def load(path: str):
+def load(path: str, diagnoser: str | None = None):
     from hmi.project.loader import load_project
-    return load_project(path)
+    return load_project(path, diagnoser)
 
 
 def cmd_check(args: argparse.Namespace) -> int:
     from hmi.engine.filter_analysis import analyse
     from hmi.report import check_report
-    project = load(args.project)
+    project = load(args.project, getattr(args, "diagnoser", None))
     sections = [analyse(project).lines(len(project.outputs))]
     if project.plant.kind == "modbus":
         from hmi.plant.modbus_client import ModbusSettings
@@ -256,7 +271,7 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
     from hmi.diag_report import diagnose_report
-    print(diagnose_report(load(args.project)))
+    print(diagnose_report(load(args.project, getattr(args, "diagnoser", None))))
     return 0
 
 
@@ -266,13 +281,17 @@ def cmd_campaign(args: argparse.Namespace) -> int:
 
     from hmi.engine.campaign import report_lines, run_campaign
     from hmi.project.campaign import campaign_of
-    project = load(args.project)
+    project = load(args.project, getattr(args, "diagnoser", None))
     spec = campaign_of(project)
     if spec is None:
         raise UsageError(f"project {project.name} has no 'campaign:' section")
     jobs = args.jobs if args.jobs is not None else min(2, os.cpu_count() or 1)
     if jobs < 1:
         raise UsageError("--jobs must be at least 1")
+    if args.sweep:
+        return _campaign_sweep(args, project, spec, jobs)
+    if args.every is not None:
+        raise UsageError("--every needs --sweep")
 
     def progress(done: int, total: int, run) -> None:
         print(f"[{done:>2}/{total}] {run.scenario.name:<10} {run.config.title:<22} "
@@ -283,6 +302,42 @@ def cmd_campaign(args: argparse.Namespace) -> int:
         print(json.dumps(result.as_dict(), indent=2))
     else:
         print("\n".join(report_lines(result)))
+    return 0
+
+
+def _campaign_sweep(args: argparse.Namespace, project, spec, jobs: int) -> int:
+    import json
+    import time
+
+    from hmi.engine.loop_sweep import CAMPAIGN_CONFIGS, sweep
+    from hmi.engine.loopstate import Unsupported
+    from hmi.engine.sweep_report import as_dict, report_lines
+
+    if args.every is not None and args.every % project.scan_period_us:
+        raise UsageError(f"--every must be a multiple of the scan period "
+                         f"({project.scan_period_us // 1000} ms)")
+    started = time.monotonic()
+    shown = [-1]
+
+    def progress(done: int, total: int) -> None:
+        percent = 100 * done // max(1, total)
+        if percent == shown[0]:
+            return
+        shown[0] = percent
+        bar = "#" * (percent // 4)
+        print(f"\r[{bar:<25}] {percent:3d}%  {done:,}/{total:,} runs  "
+              f"{time.monotonic() - started:5.1f} s", end="", file=sys.stderr, flush=True)
+
+    try:
+        result = sweep(project, CAMPAIGN_CONFIGS, spec.counter, args.every, jobs=jobs,
+                       progress=progress, cache=False)
+    except Unsupported as exc:
+        raise UsageError(f"campaign --sweep: {exc}") from None
+    print(file=sys.stderr)
+    if args.json:
+        print(json.dumps(as_dict(result, spec.scenarios), indent=2))
+    else:
+        print("\n".join(report_lines(result, spec.scenarios, spec.paper, project.name)))
     return 0
 
 
@@ -336,7 +391,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from hmi.engine.trace import TraceWriter
     from hmi.report import run_summary
 
-    project = load(args.project)
+    project = load(args.project, getattr(args, "diagnoser", None))
     scenario = None
     if args.scenario:
         from hmi.project.scenarios import find_scenario
@@ -615,7 +670,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 def cmd_ui(args: argparse.Namespace) -> int:
     from hmi.engine.runner import Controller
     from hmi.ui.app import run_app
-    project = load(args.project)
+    project = load(args.project, getattr(args, "diagnoser", None))
     engine, injections = make_engine(project, args)
     clock = None
     if engine.plant.kind != "sim":
@@ -640,7 +695,7 @@ def cmd_serve_plant(args: argparse.Namespace) -> int:
     from hmi.plant.modbus_server import COMM_FAULTS, run_server
     from hmi.plant.sim import parse_injection
 
-    project = load(args.project)
+    project = load(args.project, getattr(args, "diagnoser", None))
     errors = address_diagnostics(project, "serve-plant serves every input and output at its "
                                  "address")
     if errors:

@@ -63,7 +63,7 @@ DIAG_CONTEXT = ("in a diagnoser (it observes inputs, the orders written at the p
                 "timers and observers, never the control law nor the flags it sets)")
 ESTIMATE_KINDS = {"input", "timer", "observer"}
 DIAGNOSER_KEYS = {"description", "device", "labels", "partitions", "initial", "states",
-                  "transitions", "resync"}
+                  "transitions", "resync", "variants"}
 MAX_ENUMERATED_VARS = 16
 INF = None  # no upper bound on a window
 
@@ -157,6 +157,8 @@ class DiagnoserSpec:
     transitions: tuple[DiagTransition, ...]
     resync: tuple[ResyncRule, ...]
     pos: SourcePos
+    variant: str = ""  # the variant loaded, when the diagnoser declares several
+    variants: tuple[str, ...] = ()
 
     def state(self, name: str) -> DiagState:
         return next(s for s in self.states if s.name == name)
@@ -263,6 +265,12 @@ def parse_diagnosers(loader: ProjectLoader) -> tuple[DiagnoserSpec, ...]:
         spec = _Parser(loader, name, node, kpos).parse()
         if spec is not None:
             out.append(spec)
+    wanted = getattr(loader, "diagnoser_variant", None)
+    if wanted is not None and not loader.diag.errors and not any(s.variants for s in out):
+        from hmi.errors import SourcePos as _Pos
+        pos = loader.section_pos.get("diagnosers", _Pos(str(loader.file)))
+        loader.diag.error(pos, f"--diagnoser {wanted}: no diagnoser of the project declares "
+                          "variants", "a project whose diagnosers list 'variants:'")
     return tuple(out)
 
 
@@ -299,6 +307,7 @@ class _Parser:
             return None
         text = {key: loader.guard(lambda k=key: fields[k].as_str(k), "") if key in fields
                 else "" for key in ("description", "device", "initial")}
+        self.variants, self.variant = self._variants(fields.get("variants"))
         labels = self._labels(fields["labels"])
         partitions = self._partitions(fields["partitions"], labels)
         # Declared even if this diagnoser is rejected: explanations naming them are checked
@@ -323,11 +332,53 @@ class _Parser:
             return None
         spec = DiagnoserSpec(self.name, text["description"], text["device"] or None, labels,
                              partitions, initial, tuple(states), tuple(transitions),
-                             tuple(resync), self.kpos)
+                             tuple(resync), self.kpos, self.variant, self.variants)
         self._check_labels_used(spec, fields["labels"])
         self._check_determinism(spec)
         self._check_reachability(spec)
         return spec if self.ok else None
+
+    # -- variants ------------------------------------------------------------------------------
+    def _variants(self, node: YNode | None) -> tuple[tuple[str, ...], str]:
+        """`variants: [improved, paper]`: the variants this diagnoser declares (the first is
+        loaded by default) and the one loaded (`--diagnoser NAME` chooses another)."""
+        wanted = getattr(self.loader, "diagnoser_variant", None)
+        if node is None:
+            return (), ""
+        items = self.loader.guard(lambda: node.as_seq(f"the variants of {self.what}"), [])
+        names: list[str] = []
+        for item in items:
+            name = self.loader.guard(lambda i=item: i.as_str("a variant name"))
+            if name is None:
+                self.ok = False
+            elif not NAME_RE.match(name) or name in names:
+                self.error(item.pos, f"{name!r} is not a valid, new variant name",
+                           "letters, digits and _, each variant once")
+            else:
+                names.append(name)
+        if not names:
+            self.error(node.pos, f"{self.what} declares an empty variant list",
+                       "variants: [NAME, ...] (the first is the default)")
+            return (), ""
+        if wanted is not None and wanted not in names:
+            self.error(node.pos, f"{self.what} has no variant {wanted!r}", _one_of(names))
+            return tuple(names), names[0]
+        return tuple(names), wanted or names[0]
+
+    def _in_variant(self, fields: dict[str, YNode], what: str) -> bool:
+        """Whether an item tagged `variant: NAME` (or a list) belongs to the loaded variant."""
+        node = fields.get("variant")
+        if node is None:
+            return True
+        items = node.value if node.kind == "seq" else [node]
+        names = [self.loader.guard(lambda i=i: i.as_str(f"the variant of {what}"))
+                 for i in items]
+        for name, item in zip(names, items, strict=True):
+            if name is not None and name not in self.variants:
+                self.error(item.pos, f"{what}: unknown variant {name!r}",
+                           _one_of(self.variants) if self.variants else
+                           "a name declared in the diagnoser's 'variants:' list")
+        return self.variant in names
 
     # -- labels and partitions ---------------------------------------------------------------
     def _labels(self, node: YNode) -> dict[str, str]:
@@ -473,10 +524,12 @@ class _Parser:
                 out.append(DiagState(sname, (), "", kpos))
                 continue
             fields = loader.guard(lambda n=snode, s=sname: n.check_keys(
-                f"state {s!r}", {"labels", "description"}))
+                f"state {s!r}", {"labels", "description", "variant"}))
             if fields is None:  # reported; keep the name so transitions to it do not cascade
                 self.ok = False
                 out.append(DiagState(sname, (), "", kpos))
+                continue
+            if not self._in_variant(fields, f"state {sname!r}"):
                 continue
             slabels = self._label_list(fields["labels"], f"state {sname!r}", labels) \
                 if "labels" in fields else ()
@@ -497,7 +550,13 @@ class _Parser:
         items = self.loader.guard(lambda: node.as_seq(f"the transitions of {self.what}"), [])
         by_name = {s.name: s for s in states}
         out = []
-        for index, item in enumerate(items, start=1):
+        index = 0
+        for item in items:
+            if item.kind == "map" and "variant" in item.value:
+                fields = {"variant": item.value["variant"]}
+                if not self._in_variant(fields, f"a transition of {self.what}"):
+                    continue
+            index += 1
             tr = self._transition(index, item, by_name)
             if tr is not None:
                 out.append(tr)
@@ -524,7 +583,8 @@ class _Parser:
         loader = self.loader
         what = f"transition {index} of {self.what}"
         fields = loader.guard(lambda: node.check_keys(
-            what, {"from", "to", "when", "within", "after", "description"}, ["from", "to"]))
+            what, {"from", "to", "when", "within", "after", "description", "variant"},
+            ["from", "to"]))
         if fields is None:
             self.ok = False
             return None

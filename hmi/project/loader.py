@@ -92,9 +92,14 @@ def resolve_project_file(path: str | Path) -> Path:
                               f"a folder holding {PROJECT_FILE}")
 
 
-def load_project(path: str | Path) -> Project:
-    """Load, validate and return the project at `path`; raise ProjectError listing problems."""
-    return ProjectLoader(resolve_project_file(path)).load()
+def load_project(path: str | Path, diagnoser_variant: str | None = None) -> Project:
+    """Load, validate and return the project at `path`; raise ProjectError listing problems.
+
+    `diagnoser_variant` loads that variant of every diagnoser declaring `variants:` (by
+    default each loads its first)."""
+    loader = ProjectLoader(resolve_project_file(path))
+    loader.diagnoser_variant = diagnoser_variant
+    return loader.load()
 
 
 class ProjectLoader:
@@ -111,6 +116,7 @@ class ProjectLoader:
         self.components = Components()  # component instances (hmi/project/components.py)
         self.declared_labels: set[str] = set()  # by every diagnoser, valid or not
         self.declared_partitions: set[str] = set()
+        self.diagnoser_variant: str | None = None  # --diagnoser NAME
 
     # -- helpers ----------------------------------------------------------------------------
     def guard(self, fn: Callable[[], Any], default: Any = None) -> Any:
