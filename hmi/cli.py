@@ -78,6 +78,9 @@ def _parser() -> argparse.ArgumentParser:
     p = sub.add_parser("check", help="load and validate a project, print a summary")
     project_arg(p)
     diagnoser_arg(p)
+    p.add_argument("--closed-loop", action="store_true",
+                   help="compute the diagnosability on the closed loop if it is not cached "
+                   "(as plchmi diagnose does)")
 
     p = sub.add_parser("run", help="run headless in virtual time")
     project_arg(p)
@@ -118,6 +121,8 @@ def _parser() -> argparse.ArgumentParser:
                    "scenarios' single instants")
     p.add_argument("--every", type=_duration, default=None, metavar="TIME",
                    help="with --sweep: the grid of instants (default: every scan period)")
+    p.add_argument("--faults", metavar="F1,F2,...",
+                   help="with --sweep: only these faults (default: every fault of the plant)")
 
     p = sub.add_parser(
         "journal", help="print or export a project's operator journal",
@@ -264,15 +269,35 @@ def cmd_check(args: argparse.Namespace) -> int:
             f"  {line}" for line in
             AddressMap.for_project(project, settings.read_gap).describe()])
     from hmi.diag_report import check_sections
-    sections += check_sections(project)
+    sections += check_sections(project, args.closed_loop)
     print(check_report(project, sections))
     return 0
 
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
     from hmi.diag_report import diagnose_report
-    print(diagnose_report(load(args.project, getattr(args, "diagnoser", None))))
+    print(diagnose_report(load(args.project, getattr(args, "diagnoser", None)),
+                          progress=_progress_bar()))
     return 0
+
+
+def _progress_bar():
+    """A one-line progress bar on stderr, for explorations of the closed loop."""
+    import time
+    started = time.monotonic()
+    shown = [-1]
+
+    def progress(done: int, total: int) -> None:
+        percent = 100 * done // max(1, total)
+        if percent == shown[0]:
+            return
+        shown[0] = percent
+        bar = "#" * (percent // 4)
+        end = "\n" if done >= total else ""
+        print(f"\r[{bar:<25}] {percent:3d}%  {done:,}/{total:,} runs  "
+              f"{time.monotonic() - started:5.1f} s", end=end, file=sys.stderr, flush=True)
+
+    return progress
 
 
 def cmd_campaign(args: argparse.Namespace) -> int:
@@ -290,8 +315,8 @@ def cmd_campaign(args: argparse.Namespace) -> int:
         raise UsageError("--jobs must be at least 1")
     if args.sweep:
         return _campaign_sweep(args, project, spec, jobs)
-    if args.every is not None:
-        raise UsageError("--every needs --sweep")
+    if args.every is not None or args.faults is not None:
+        raise UsageError("--every and --faults need --sweep")
 
     def progress(done: int, total: int, run) -> None:
         print(f"[{done:>2}/{total}] {run.scenario.name:<10} {run.config.title:<22} "
@@ -307,7 +332,6 @@ def cmd_campaign(args: argparse.Namespace) -> int:
 
 def _campaign_sweep(args: argparse.Namespace, project, spec, jobs: int) -> int:
     import json
-    import time
 
     from hmi.engine.loop_sweep import CAMPAIGN_CONFIGS, sweep
     from hmi.engine.loopstate import Unsupported
@@ -316,29 +340,29 @@ def _campaign_sweep(args: argparse.Namespace, project, spec, jobs: int) -> int:
     if args.every is not None and args.every % project.scan_period_us:
         raise UsageError(f"--every must be a multiple of the scan period "
                          f"({project.scan_period_us // 1000} ms)")
-    started = time.monotonic()
-    shown = [-1]
-
-    def progress(done: int, total: int) -> None:
-        percent = 100 * done // max(1, total)
-        if percent == shown[0]:
-            return
-        shown[0] = percent
-        bar = "#" * (percent // 4)
-        print(f"\r[{bar:<25}] {percent:3d}%  {done:,}/{total:,} runs  "
-              f"{time.monotonic() - started:5.1f} s", end="", file=sys.stderr, flush=True)
-
     try:
         result = sweep(project, CAMPAIGN_CONFIGS, spec.counter, args.every, jobs=jobs,
-                       progress=progress, cache=False)
+                       progress=_progress_bar(), cache=False, faults=_faults(args, project))
     except Unsupported as exc:
         raise UsageError(f"campaign --sweep: {exc}") from None
-    print(file=sys.stderr)
     if args.json:
         print(json.dumps(as_dict(result, spec.scenarios), indent=2))
     else:
         print("\n".join(report_lines(result, spec.scenarios, spec.paper, project.name)))
     return 0
+
+
+def _faults(args: argparse.Namespace, project) -> tuple[str, ...] | None:
+    from hmi.engine.explore import faults_of
+    if args.faults is None:
+        return None
+    known = faults_of(project)
+    chosen = tuple(f.strip() for f in args.faults.split(",") if f.strip())
+    unknown = [f for f in chosen if f not in known]
+    if unknown or not chosen:
+        raise UsageError(f"--faults {args.faults!r}: " + (f"unknown {', '.join(unknown)}; "
+                         if unknown else "") + "the plant's faults are " + ", ".join(known))
+    return chosen
 
 
 def make_engine(project, args: argparse.Namespace, extra_injections=()):

@@ -162,7 +162,9 @@ def outcome_of(start: Start, s: _Summary, period: int) -> Outcome:
         outcome = UNDECIDED
     else:
         outcome = TOLERANT if s.cycling else BLOCKED
-    return Outcome(start.fault, start.at_us, start.extra, outcome, when(s.damage), s.kind,
+    # Damage is recorded on the scan leaving a node: it is seen one scan after that node.
+    damage = when(s.damage + 1) if s.damage < INF else None
+    return Outcome(start.fault, start.at_us, start.extra, outcome, damage, s.kind,
                    when(s.detect), when(s.certain), s.label, s.final, s.state)
 
 

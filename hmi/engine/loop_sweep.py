@@ -65,16 +65,21 @@ class SweepResult:
 def sweep(project, configs: Sequence[LoopConfig], counter: str, every_us: int | None = None,
           extras: bool = True, jobs: int | None = None,
           progress: Callable[[int, int], None] | None = None,
-          cache: bool = True) -> SweepResult:
+          cache: bool = True, compute: bool = True,
+          faults: Sequence[str] | None = None) -> SweepResult | None:
+    """The sweep, from the cache when it holds it; None when it does not and `compute` is
+    false."""
     period = project.scan_period_us
     every = max(1, round((every_us or period) / period))
     variant = project_variant(project)
-    faults = faults_of(project)
-    key = _cache_key(project, variant, configs, counter, every, extras)
+    faults = tuple(faults) if faults else faults_of(project)
+    key = _cache_key(project, variant, configs, counter, every, extras, faults)
     if cache:
         found = _load(key)
         if found is not None:
             return found
+    if not compute:
+        return None
     jobs = jobs or min(2, os.cpu_count() or 1)
     started = time.perf_counter()
     graphs = explore_all(project, configs, counter, faults, extras, jobs, progress, every,
@@ -123,9 +128,9 @@ def _source_digest() -> str:
     return h.hexdigest()
 
 
-def _cache_key(project, variant, configs, counter, every, extras) -> str:
+def _cache_key(project, variant, configs, counter, every, extras, faults) -> str:
     h = hashlib.sha256()
-    h.update(f"{CACHE_VERSION}|{variant}|{counter}|{every}|{extras}|".encode())
+    h.update(f"{CACHE_VERSION}|{variant}|{counter}|{every}|{extras}|{faults}|".encode())
     h.update(repr([(c.key, c.policy, c.diagnosis) for c in configs]).encode())
     for name in project.files:
         h.update(name.encode())
