@@ -30,7 +30,6 @@ from hmi.project.loader import load_project
 from tests.conftest import PROJECTS
 
 
-
 def _toy(after: str) -> Generator:
     """s0 loops on a; the fault leads to s1, which loops on `after`."""
     return Generator(0, 2, [(0, "a", 0), (0, "F", 1), (1, after, 1)], {"a", "b"}, {"F"})
@@ -65,10 +64,12 @@ def test_faudes_and_the_project_agree_fault_by_fault(loop):
     verdicts = {f: diagnosable(gen, {f: {f}}) for f in faults}
     assert verdicts == {f: faudes_diagnosable(gen, {f: {f}}) for f in faults}
     # Not a vacuous agreement: both kinds of verdict occur, and what masking hides (F5,
-    # F6 behind F2, F4) is non-diagnosable under FTC only.
-    assert set(verdicts.values()) == {True, False}
-    assert verdicts["F5"] is (config.diagnosis == "observe")
-    assert verdicts["F13"] is False
+    # F6 behind F2, F4) is non-diagnosable under FTC only (docs/cispi_valve.md quotes these).
+    yes = {f for f, ok in verdicts.items() if ok}
+    if config.diagnosis == "observe":
+        assert yes == {"F2", "F4", "F5", "F6", "F11"}
+    else:
+        assert yes == {"F7", "F8", "F9", "F10", "F11", "F12"}
 
 
 def test_faudes_and_the_project_agree_pair_by_pair(loop):

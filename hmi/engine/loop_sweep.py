@@ -19,7 +19,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from hmi.engine.closed_loop import Outcome, explore_all, outcomes
-from hmi.engine.explore import Explorer, LoopConfig, faults_of
+from hmi.engine.explore import LoopConfig, faults_of
 
 # The campaign's three columns (000 Table 1), as closed-loop configurations.
 DIAG_NO_FILTER = LoopConfig("diag_no_filter", "Diag no Filter", "monitor", "observe")
@@ -100,13 +100,6 @@ def sweep(project, configs: Sequence[LoopConfig], counter: str, every_us: int | 
 def project_variant(project) -> str:
     from hmi.project.diagnosers import diagnosers_of
     return next((s.variant for s in diagnosers_of(project) if s.variant), "")
-
-
-def cycle_of(project, counter: str) -> tuple[int, int]:
-    """(start, length) of the fault-free cycle, in microseconds."""
-    ex = Explorer(project, FILTER_NO_DIAG, counter)
-    g = ex.graph
-    return g.cycle_start * g.period_us, g.cycle_length * g.period_us
 
 
 # -- the cache --------------------------------------------------------------------------------

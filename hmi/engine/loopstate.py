@@ -8,11 +8,12 @@ scan itself never does:
   GRAFCET's activation times, the diagnosers, the plant's devices); the compiled project is
   shared. A few hundred microseconds instead of rebuilding an engine.
 * **key**: a hashable summary of everything that decides the loop's future, with every time
-  made relative to the scan and saturated at `cap`. Two states with the same key have the
-  same future, scan for scan (the loop is deterministic and time-invariant: nothing reads the
-  absolute time except through differences, and every difference is only ever compared with
-  a constant no larger than `cap`). That is what lets the exploration stop a run the moment
-  it reaches a state already explored, and prove a run periodic when its key comes back.
+  made relative to the scan and saturated just above the largest constant it is ever
+  compared with. Two states with the same key have the same future, scan for scan (the loop
+  is deterministic and time-invariant: nothing reads the absolute time except through
+  differences, and a difference beyond every constant it meets compares like any other).
+  That is what lets the exploration stop a run the moment it reaches a state already
+  explored, and prove a run periodic when its key comes back.
 
 What the key leaves out, and why that is sound:
 
@@ -20,8 +21,10 @@ What the key leaves out, and why that is sound:
   shown to people (`via`, `since_scan`): nothing in the scan reads them to decide anything;
 * the explanations and alarms: they are computed from the scan and never fed back into it
   (the exploring engine does not build them at all);
-* times beyond `cap` (a step active for 5 s or for 50 s): every comparison in the project is
-  with a constant below `cap` (:func:`time_cap`), so they compare the same way;
+* times beyond their saturation (a step active for 5 s or for 50 s): a GRAFCET step time is
+  only compared with durations (:func:`step_caps`), a diagnoser's clock only with its state's
+  window bounds and timeout (:func:`state_caps`), a TON's only with its preset, the valve's
+  stall time only with its tolerance;
 * the position of a jammed valve: it never moves again (the sweep does not repair), so it
   matters only through the end switches it makes, which the key keeps.
 
