@@ -42,12 +42,12 @@ normal transitions (a faulty decision is latched), the initial state, and unreac
 from __future__ import annotations
 
 import itertools
-import re
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from hmi.errors import SourcePos
 from hmi.logic.expr import And, Const, Expr, Node, Not, Or, Var, walk
+from hmi.logic.names import NAME_RE
 from hmi.project.yamlnodes import YNode
 from hmi.timefmt import format_duration
 
@@ -55,7 +55,6 @@ if TYPE_CHECKING:
     from hmi.project.loader import ProjectLoader
     from hmi.project.model import Project
 
-NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")  # as the loader's (which imports us)
 FLAG_PREFIX = "def_"
 FILTERED_SUFFIX = "_filter"
 DIAG_KINDS = {"input", "output", "timer", "observer"}
