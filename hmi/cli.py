@@ -22,7 +22,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from hmi.errors import OutputError, ProjectError, UsageError
-from hmi.limits import MIN_SCAN_PERIOD_US
+from hmi.limits import MAX_JOBS, MIN_SCAN_PERIOD_US
 from hmi.timefmt import DURATION_HINT, DurationError, format_duration, parse_duration, seconds
 
 MAX_ERRORS_SHOWN = 25
@@ -293,8 +293,8 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     if spec is None:
         raise UsageError(f"project {project.name} has no 'campaign:' section")
     jobs = args.jobs if args.jobs is not None else min(2, os.cpu_count() or 1)
-    if jobs < 1:
-        raise UsageError("--jobs must be at least 1")
+    if not 1 <= jobs <= MAX_JOBS:
+        raise UsageError(f"--jobs {jobs}: expected 1 to {MAX_JOBS} worker processes")
 
     def progress(done: int, total: int, run) -> None:
         print(f"[{done:>2}/{total}] {run.scenario.name:<10} {run.config.title:<22} "
@@ -464,14 +464,14 @@ def cmd_journal(args: argparse.Namespace) -> int:
         writer = csv.writer(sys.stdout, lineterminator="\n")
         writer.writerow(columns)
         for entry in entries:
-            writer.writerow([entry.get(c, "") for c in columns])
+            writer.writerow([_printable(_field(entry, c)) for c in columns])
     else:
         for entry in entries:
-            text = entry.get("text") or entry.get("message") or entry.get("project", "")
+            text = _field(entry, "text") or _field(entry, "message") or _field(entry, "project")
             key = f" {entry['key']}" if entry.get("key") else ""
-            print(_printable(f"{entry.get('wall', '')}  scan {entry.get('scan', ''):>6}  "
-                             f"t={entry.get('t', '')}  {entry.get('type', ''):<7} "
-                             f"{entry.get('event', '')}{key}: {text}"))
+            print(_printable(f"{_field(entry, 'wall')}  scan {_field(entry, 'scan'):>6}  "
+                             f"t={_field(entry, 't')}  {_field(entry, 'type'):<7} "
+                             f"{_field(entry, 'event')}{key}: {text}"))
     # Exit status 0 even with damaged lines: the readable entries are what the operator
     # needs; each damaged line is a warning on stderr (docs/journal.md).
     for bad in result.damaged:
@@ -508,6 +508,13 @@ def parse_since(text: str):
         except (ValueError, OverflowError):  # at the very ends of the calendar
             since = since.replace(tzinfo=UTC)
     return since
+
+
+def _field(entry: dict, name: str):
+    """A field of a journal entry for display: "" when absent or null (the reader has checked
+    the type of the fields it knows)."""
+    value = entry.get(name)
+    return "" if value is None else value
 
 
 _CONTROL = str.maketrans({c: f"\\x{c:02x}" for c in [*range(0x20), *range(0x7f, 0xa0)]

@@ -49,14 +49,21 @@ MAX_RUN_SCANS = 100_000_000
 NOTICE_RUN_SCANS = 2_000_000
 """Above this many scans a headless run says up front that it will take a while."""
 
+MAX_DETERMINISM_ASSIGNMENTS = 1 << 17
+"""Assignments a diagnoser's determinism check may enumerate in all [408]; past it, the
+remaining pairs of transitions are left unchecked with a warning."""
+
+MAX_JOBS = 32
+"""Worker processes of `plchmi campaign --jobs` (a fork bomb otherwise)."""
+
 MAX_JOURNAL_LINE_BYTES = 1024 * 1024
 """One journal entry; a longer line is damaged [about 400 bytes]."""
 
 __all__ = [
-    "MAX_CONSTRAINTS", "MAX_DURATION_US", "MAX_EXPR_CHARS", "MAX_EXPR_DEPTH", "MAX_FILE_BYTES",
-    "MAX_JOURNAL_LINE_BYTES", "MAX_NAME_CHARS", "MAX_NUMBER_DIGITS", "MAX_RUN_SCANS",
-    "MAX_VARIABLES", "MAX_YAML_DEPTH", "MAX_YAML_NODES", "MIN_SCAN_PERIOD_US",
-    "NOTICE_RUN_SCANS", "describe_bytes",
+    "MAX_CONSTRAINTS", "MAX_DETERMINISM_ASSIGNMENTS", "MAX_DURATION_US", "MAX_EXPR_CHARS",
+    "MAX_EXPR_DEPTH", "MAX_FILE_BYTES", "MAX_JOBS", "MAX_JOURNAL_LINE_BYTES", "MAX_NAME_CHARS",
+    "MAX_NUMBER_DIGITS", "MAX_RUN_SCANS", "MAX_VARIABLES", "MAX_YAML_DEPTH", "MAX_YAML_NODES",
+    "MIN_SCAN_PERIOD_US", "NOTICE_RUN_SCANS", "describe_bytes",
 ]
 
 

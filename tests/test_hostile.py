@@ -595,6 +595,20 @@ JOURNAL_LINES = [
 ]
 
 
+def test_null_fields_of_a_journal_entry_print_as_empty(tmp_path, capsys):
+    """Found by the fuzz suite: `"type": null` made the printer fail."""
+    path = tmp_path / "j.jsonl"
+    path.write_text('{"wall": null, "type": null, "event": "x", "scan": null, "t": null}\n')
+    code, out, _ = cli(["journal", PROJECTS / "cispi_valve", "--path", path], capsys)
+    assert code == 0 and "x: " in out
+
+
+@pytest.mark.parametrize("jobs", ["0", "-3", "100000"])
+def test_campaign_jobs_are_bounded(jobs, capsys):
+    code, _, err = cli(["campaign", PROJECTS / "cispi_valve", "--jobs", jobs], capsys)
+    assert code == 2 and "expected 1 to 32 worker processes" in err
+
+
 @pytest.mark.parametrize("line, reason", JOURNAL_LINES, ids=[str(i) for i in range(8)])
 def test_damaged_journal_lines_are_skipped_with_a_warning(line, reason, tmp_path, capsys):
     path = tmp_path / "j.jsonl"
@@ -698,3 +712,66 @@ def test_docs_list_every_limit():
         if name.startswith(("MAX_", "MIN_", "NOTICE_")):
             assert name in docs, f"docs/project-format.md does not list {name}"
 
+
+
+# --------------------------------------------------------------------------------------------
+# Structures that made a check exponential or quadratic
+# --------------------------------------------------------------------------------------------
+
+DIAG_HEAD = """name: big
+scan_period: 10ms
+inputs:
+""" + "".join(f"  i{k}: in{k}\n" for k in range(16)) + """outputs:
+  Y: y
+  Z: z
+control:
+  equations:
+    Y: i1
+plant:
+  kind: sim
+  model: valve
+  ports: {fsc: i0, fso: i1, C: Y, O: Z}
+"""
+
+
+def diagnoser_fan(count: int, prefix: str = "") -> str:
+    """`count` event transitions from one state, each on all 16 inputs, pairwise exclusive:
+    proving it by enumeration is 2**16 assignments per pair."""
+    def condition(k: int) -> str:
+        return prefix + " and ".join(("" if k >> j & 1 else "not ") + f"i{j}"
+                                     for j in range(16))
+    states = "      S0: {}\n" + "".join(f"      T{k}: {{labels: [L1]}}\n" for k in range(count))
+    moves = "".join(f"      - {{from: S0, to: T{k}, when: \"{condition(k)}\"}}\n"
+                    for k in range(count))
+    return (DIAG_HEAD + "diagnosers:\n  D:\n    labels: {L1: one}\n    partitions:\n"
+            "      p: {labels: [L1], actuators: [Y]}\n    initial: S0\n    states:\n" + states
+            + "    transitions:\n" + moves)
+
+
+def test_a_diagnoser_of_exclusive_products_is_checked_without_enumerating(tmp_path, capsys):
+    folder = write(tmp_path / "p", {"project.yaml": diagnoser_fan(40)})
+    started = time.perf_counter()
+    code, out, err = cli(["check", folder], capsys, seconds=30)
+    assert code == 0 and "not deterministic" not in err + out, err
+    assert time.perf_counter() - started < 15  # 780 pairs: 14 hours by enumeration
+
+
+def test_the_determinism_check_has_a_work_limit(tmp_path, capsys):
+    folder = write(tmp_path / "p", {"project.yaml": diagnoser_fan(8, "(i0 or i1) and ")})
+    code, out, _ = cli(["check", folder], capsys, seconds=30)
+    assert code == 0
+    assert "were not checked for determinism (the check's limit of 131,072 assignments" in out
+
+
+def test_a_long_grafcet_chain_written_backwards_checks_in_linear_time(tmp_path, capsys):
+    count = 2000
+    steps = "".join(f"      {k}: {{initial: {'true' if k == 0 else 'false'}}}\n"
+                    for k in range(count))
+    moves = "".join(f"      - {{from: {k}, to: {k + 1}, when: i0}}\n"
+                    for k in reversed(range(count - 1)))
+    text = DIAG_HEAD.replace("control:\n  equations:\n    Y: i1\n", "control:\n  grafcet:\n"
+                             "    steps:\n" + steps + "    transitions:\n" + moves
+                             + "  equations:\n    Y: i1\n")
+    folder = write(tmp_path / "p", {"project.yaml": text})
+    code, out, err = cli(["check", folder], capsys, seconds=60)
+    assert code == 0 and "can never become active" not in out, err

@@ -19,7 +19,7 @@ from __future__ import annotations
 import ast
 import difflib
 import re
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass
 
 from hmi.errors import SourcePos
@@ -376,7 +376,7 @@ def max_depth(expr: Expr) -> int:
     return max((v.depth for v in variables(expr)), default=0)
 
 
-def check_names(expr: Expr, namespace: Mapping[str, str], steps: Sequence[str] = (),
+def check_names(expr: Expr, namespace: Mapping[str, str], steps: Collection[str] = (),
                 allowed_kinds: set[str] | None = None, context: str = "") -> list[ExprError]:
     """Name errors in `expr`: unknown names, step times of non-steps, forbidden kinds."""
     problems: list[ExprError] = []

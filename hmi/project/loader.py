@@ -116,6 +116,7 @@ class ProjectLoader:
         self.declared_labels: set[str] = set()  # by every diagnoser, valid or not
         self.declared_partitions: set[str] = set()
         self.too_many_names = False
+        self._with_steps: dict[tuple, tuple[dict[str, str], frozenset[str]]] = {}  # expr()
 
     # -- helpers ----------------------------------------------------------------------------
     def guard(self, fn: Callable[[], Any], default: Any = None) -> Any:
@@ -174,10 +175,15 @@ class ProjectLoader:
             return None
         parsed = self.components.localise(node, parsed)  # a component's names, per instance
         steps = tuple(steps)
-        namespace = self.namespace
-        if steps:  # a copy only when steps join the names (not one per expression)
-            namespace = {**namespace, **dict.fromkeys(steps, "step")}
-        problems = check_names(parsed, namespace, steps, kinds, context or f"in {what}")
+        namespace: dict[str, str] = self.namespace
+        step_set: frozenset[str] = frozenset()
+        if steps:  # the names with a law's steps: built once per law, not per expression
+            key = (steps, len(self.namespace))
+            if key not in self._with_steps:
+                self._with_steps[key] = ({**namespace, **dict.fromkeys(steps, "step")},
+                                         frozenset(steps))
+            namespace, step_set = self._with_steps[key]
+        problems = check_names(parsed, namespace, step_set, kinds, context or f"in {what}")
         for var in (n for n in walk(parsed.root) if isinstance(n, Var)):
             kind = namespace.get(var.name)
             if var.depth == 0 and kind in prev_only:
@@ -712,13 +718,20 @@ class ProjectLoader:
 
     def _check_reachability(self, grafcet: Grafcet) -> None:
         reached = {s.name for s in grafcet.steps if s.initial}
-        changed = True
-        while changed:
-            changed = False
-            for tr in grafcet.transitions:
-                if set(tr.sources) <= reached and not set(tr.targets) <= reached:
-                    reached |= set(tr.targets)
-                    changed = True
+        # A transition fires (for this check) once all its source steps are reached; each is
+        # looked at when one of its sources is reached: linear in the transitions.
+        waiting: dict[str, list[Transition]] = {}
+        for tr in grafcet.transitions:
+            for source in set(tr.sources):
+                waiting.setdefault(source, []).append(tr)
+        frontier = list(reached)
+        while frontier:
+            for tr in waiting.get(frontier.pop(), ()):
+                if set(tr.sources) <= reached:
+                    for target in tr.targets:
+                        if target not in reached:
+                            reached.add(target)
+                            frontier.append(target)
         for step in grafcet.steps:
             if step.name not in reached:
                 self.diag.warning(step.pos, f"step {step.number} can never become active "
