@@ -22,7 +22,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from hmi.errors import OutputError, ProjectError, UsageError
-from hmi.limits import MAX_JOBS, MIN_SCAN_PERIOD_US
+from hmi.limits import MAX_JOBS, MAX_RUN_SCANS, MIN_SCAN_PERIOD_US
 from hmi.timefmt import DURATION_HINT, DurationError, format_duration, parse_duration, seconds
 
 MAX_ERRORS_SHOWN = 25
@@ -292,6 +292,13 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     spec = campaign_of(project)
     if spec is None:
         raise UsageError(f"project {project.name} has no 'campaign:' section")
+    from hmi.engine.campaign import CONFIGS
+    runs = len(spec.scenarios) * len(CONFIGS)
+    scans = runs * (spec.length_us // project.scan_period_us + 1)
+    if scans > MAX_RUN_SCANS:
+        raise UsageError(f"the campaign is {runs} runs of {format_duration(spec.length_us)}: "
+                         f"{scans:,} scans, more than the {MAX_RUN_SCANS:,} plchmi runs at once "
+                         "(a shorter campaign length)")
     jobs = args.jobs if args.jobs is not None else min(2, os.cpu_count() or 1)
     if not 1 <= jobs <= MAX_JOBS:
         raise UsageError(f"--jobs {jobs}: expected 1 to {MAX_JOBS} worker processes")

@@ -73,6 +73,8 @@ def open_regular(path: Path) -> int:
         raise FileProblem("this is a folder, not a file", expected="a file") from None
     except OSError as exc:
         raise FileProblem(f"cannot read: {os_reason(exc)}") from None
+    except ValueError as exc:  # a NUL in the name
+        raise FileProblem(f"cannot read: {exc}") from None
     try:
         mode = os.fstat(fd).st_mode
         if not stat.S_ISREG(mode):

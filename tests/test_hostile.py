@@ -775,3 +775,34 @@ def test_a_long_grafcet_chain_written_backwards_checks_in_linear_time(tmp_path, 
     folder = write(tmp_path / "p", {"project.yaml": text})
     code, out, err = cli(["check", folder], capsys, seconds=60)
     assert code == 0 and "can never become active" not in out, err
+
+
+def test_a_sweep_too_long_to_finish_is_refused(capsys):
+    starts = ",".join(f"{k}h" for k in range(1, 40))
+    code, _, err = cli(["sweep", PROJECTS / "conveyor_robot", "--starts", starts, "--lengths",
+                        "900h"], capsys, seconds=30)
+    assert code == 2 and "more than the 100,000,000 scans plchmi runs at once" in err, err
+
+
+@pytest.mark.parametrize("args, code_expected, fragment", [
+    (["check", "a" * 5000], 2, "cannot use this path: File name too long"),
+    (["check", "a\x00b"], 2, "no such project folder"),
+    (["run", str(PROJECTS / "cispi_valve"), "--for", "1s", "--trace", "/tmp/a\x00b"], 2,
+     "embedded null byte"),
+    (["run", str(PROJECTS / "cispi_valve"), "--for", "1s", "--journal", "a" * 5000], 2,
+     "file name too long"),
+    (["journal", str(PROJECTS / "cispi_valve"), "--path", "a" * 5000], 2,
+     "file name too long"),
+])
+def test_paths_the_system_refuses(args, code_expected, fragment, capsys):
+    code, _, err = cli(args, capsys)
+    assert code == code_expected and fragment in err, err
+
+
+def test_a_campaign_too_long_to_finish_is_refused(tmp_path, capsys):
+    folder = tmp_path / "cispi_valve"
+    shutil.copytree(PROJECTS / "cispi_valve", folder)
+    text = (folder / "campaign.yaml").read_text()
+    (folder / "campaign.yaml").write_text(re.sub(r"length: *\S+", "length: 999h", text, count=1))
+    code, _, err = cli(["campaign", folder], capsys)
+    assert code == 2 and "more than the 100,000,000 plchmi runs at once" in err, err

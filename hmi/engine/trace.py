@@ -68,6 +68,8 @@ class TraceWriter:
             self.file: IO[str] = os.fdopen(fd, "w", encoding="utf-8", newline="")
         except OSError as exc:
             raise TraceWriteError("the trace", path, exc) from None
+        except ValueError as exc:  # a NUL in the name
+            raise TraceWriteError("the trace", path, str(exc), bad_path=True) from None
         self.writer: csv.DictWriter | None = None
         self.count = 0
         self.failed = False

@@ -91,6 +91,8 @@ class Journal:
         except OSError as exc:
             self.close()
             raise JournalWriteError("the journal", path, exc) from None
+        except ValueError as exc:  # a NUL in the name
+            raise JournalWriteError("the journal", path, str(exc), bad_path=True) from None
         self.seq = 0
         if self.cut_bytes is not None:
             self._write(b"\n")

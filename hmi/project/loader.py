@@ -82,6 +82,15 @@ PREV_ONLY = {"output", "flag", "filtered"}  # for timers and observers
 def resolve_project_file(path: str | Path) -> Path:
     """The project.yaml a command-line path designates (a folder or the file itself)."""
     p = Path(path)
+    try:
+        return _project_file(p, str(path))
+    except (OSError, ValueError) as exc:  # a name too long, a NUL: not a project anywhere
+        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+        raise ProjectError.single(SourcePos(str(path)[:200]), f"cannot use this path: {reason}",
+                                  f"a folder holding {PROJECT_FILE}") from None
+
+
+def _project_file(p: Path, shown: str) -> Path:
     if p.is_dir():
         candidate = p / PROJECT_FILE
         if not candidate.exists():
@@ -92,7 +101,7 @@ def resolve_project_file(path: str | Path) -> Path:
         return candidate
     if p.exists():
         return p
-    raise ProjectError.single(SourcePos(str(path)), "no such project folder or file",
+    raise ProjectError.single(SourcePos(shown), "no such project folder or file",
                               f"a folder holding {PROJECT_FILE}")
 
 
