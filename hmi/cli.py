@@ -382,15 +382,16 @@ def cmd_run(args: argparse.Namespace) -> int:
     outputs = RunOutputs(controller, args.trace, args.journal, "run")
     settle_memory()
     started = time.perf_counter()
-    last = engine.last
+    def on_scan(snap) -> None:
+        collector.add(snap)
+        if outputs.write(snap):
+            raise _OutputFailed
+
     try:
-        end = controller.next_time + duration
-        while controller.next_time <= end:  # Controller.run_for, stopping on a failed output
-            last = controller.scan_once()
-            collector.add(last)
-            if outputs.write(last):
-                outputs.leave_safe()
-                break
+        last = controller.run_for(duration, on_scan)
+    except _OutputFailed:
+        outputs.leave_safe()
+        last = engine.last
     finally:
         outputs.close()
     if outputs.failure is not None:
@@ -402,6 +403,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     print(alarm_summary(collector, args.explain))
     print(f"Journal: {outputs.recorder.journal.path}")
     return 0
+
+
+class _OutputFailed(Exception):
+    """Ends a headless run at the scan whose trace or journal could not be written."""
 
 
 def run_length_notice(duration_us: int, period_us: int) -> None:
