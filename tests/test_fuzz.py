@@ -218,7 +218,7 @@ def mutated_project(draw) -> tuple[str, dict[str, bytes]]:
     return name, changed
 
 
-@budget(ci_examples=60)
+@budget(ci_examples=100)
 @given(case=mutated_project())
 def test_mutated_projects(case, capsys):
     name, changed = case
@@ -278,7 +278,7 @@ NAMESPACE = {"a": "input", "b": "input", "Y": "output", "Z": "output", "T1": "ti
 SLOTS = {name: k for k, name in enumerate(NAMESPACE)}
 
 
-@budget(ci_examples=400)
+@budget(ci_examples=600)
 @given(text=expressions())
 def test_generated_expressions(text):
     """Parsing gives an Expr or an ExprError at a column of the text; what passes the name
@@ -304,7 +304,7 @@ def test_generated_expressions(text):
         assert fn(image, history) in (True, False)
 
 
-@budget(ci_examples=60)
+@budget(ci_examples=100)
 @given(text=expressions(), where=st.sampled_from(["equation", "constraint", "timer"]))
 def test_generated_expressions_in_a_project(text, where, capsys):
     from tests.test_malformed import project_text
@@ -391,7 +391,7 @@ def command_line(draw, tmp: Path) -> list[str]:
     return args
 
 
-@budget(ci_examples=80)
+@budget(ci_examples=150)
 @given(data=st.data())
 def test_command_lines(data, capsys):
     with tempfile.TemporaryDirectory() as tmp:
@@ -441,7 +441,7 @@ def journal_line(draw) -> bytes:
                                                         "\x07\x08"]))}).encode()
 
 
-@budget(ci_examples=80)
+@budget(ci_examples=150)
 @given(lines=st.lists(journal_line(), max_size=12), newline_at_end=st.booleans(),
        since=st.sampled_from([None, "1h", "0001-01-01", "2026-11-22T15:00"]),
        csv=st.booleans())
