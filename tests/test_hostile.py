@@ -347,6 +347,8 @@ TEXT_CASES = [
      "U+D800 (a lone surrogate)"),
     ("escaped-nul", "name: t", 'name: "t\\0x"', '"t\\0x"', "U+0000 (NUL)"),
     ("escaped-esc", "order Z", '"order \\e[31mZ"', '"order', "U+001B (ESC)"),
+    ("bidi-override", "order Z", "order \u202eZ redro", "order \u202eZ",
+     "U+202E (RIGHT-TO-LEFT OVERRIDE)"),
     ("bel-in-file", "order Z", "order \x07Z", "\x07", "control character U+0007 (BEL)"),
     ("nul-in-file", "order Z", "order \x00Z", "\x00", "control character U+0000 (NUL)"),
     ("name-too-long", "  Z: order Z\n", "  Z: order Z\n  " + "a" * 300 + ": x\n", "a" * 300,

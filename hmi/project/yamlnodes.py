@@ -182,9 +182,11 @@ def _describe_tag(tag: str) -> str:
 _MAP = "tag:yaml.org,2002:map"
 _SEQ = "tag:yaml.org,2002:seq"
 _SCALAR_TAGS = (_STR, _INT, _FLOAT, _BOOL, _NULL)
-# In a value: control characters but tab and newline, and lone surrogates ("\ud800" is a
-# valid YAML escape, and no file, terminal or journal can hold it).
-_NOT_IN_VALUE = re.compile("[\x00-\x08\x0b-\x1f\x7f-\x84\x86-\x9f\ud800-\udfff]")
+# In a value: control characters but tab and newline, lone surrogates ("\ud800" is a valid
+# YAML escape, and no file, terminal or journal can hold it), and the bidirectional overrides
+# and isolates that make a text shown to the operator read otherwise than it is stored.
+_NOT_IN_VALUE = re.compile("[\x00-\x08\x0b-\x1f\x7f-\x84\x86-\x9f\ud800-\udfff"
+                           "\u202a-\u202e\u2066-\u2069]")
 _RESOLVER = yaml.resolver.Resolver()
 _CONSTRUCTOR = yaml.constructor.SafeConstructor()
 
