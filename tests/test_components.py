@@ -230,7 +230,8 @@ def test_two_instances_on_one_sensor_clash_on_its_filtered_name(tmp_path):
 def component_variant(tmp_path: Path, old: str, new: str) -> Path:
     text = VALVE.read_text()
     assert old in text, old
-    path = tmp_path / "lib" / "valve.yaml"
+    path = tmp_path / "p" / "lib" / "valve.yaml"  # inside the project folder: a use: may
+    # not leave the project folder and the component library (hmi/project/confine.py)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(text.replace(old, new, 1), encoding="utf-8")
     return path

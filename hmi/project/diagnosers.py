@@ -42,12 +42,24 @@ normal transitions (a faulty decision is latched), the initial state, and unreac
 from __future__ import annotations
 
 import itertools
-import re
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from hmi.errors import SourcePos
-from hmi.logic.expr import And, Const, Expr, Node, Not, Or, Var, walk
+from hmi.limits import MAX_DETERMINISM_ASSIGNMENTS
+from hmi.logic.expr import (
+    And,
+    Const,
+    Expr,
+    Node,
+    Not,
+    NotMonomial,
+    Or,
+    Var,
+    monomial_literals,
+    walk,
+)
+from hmi.logic.names import NAME_RE
 from hmi.project.yamlnodes import YNode
 from hmi.timefmt import format_duration
 
@@ -55,7 +67,6 @@ if TYPE_CHECKING:
     from hmi.project.loader import ProjectLoader
     from hmi.project.model import Project
 
-NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")  # as the loader's (which imports us)
 FLAG_PREFIX = "def_"
 FILTERED_SUFFIX = "_filter"
 DIAG_KINDS = {"input", "output", "timer", "observer"}
@@ -727,17 +738,26 @@ class _Parser:
         for tr in spec.transitions:
             if not tr.is_timeout:
                 events.setdefault(tr.source, []).append(tr)
+        # Enumerating assignments is exponential: a budget for the whole diagnoser keeps a
+        # hostile one (dozens of 16-variable conditions from one state) from taking hours.
+        budget = [MAX_DETERMINISM_ASSIGNMENTS]
         for trs in events.values():
             for a, b in itertools.combinations(trs, 2):
                 if not _windows_overlap(a, b):
                     continue
-                witness = jointly_satisfiable(a.when, b.when)  # type: ignore[arg-type]
+                witness = jointly_satisfiable(a.when, b.when, budget)  # type: ignore[arg-type]
                 if witness is None:
                     continue
                 if witness == "too many":
                     self.diag.warning(b.pos, f"transitions {a.index} and {b.index} of "
                                       f"{self.what} were not checked for determinism (more "
                                       f"than {MAX_ENUMERATED_VARS} variables)")
+                    continue
+                if witness == "budget":
+                    self.diag.warning(b.pos, f"transitions {a.index} and {b.index} of "
+                                      f"{self.what} were not checked for determinism (the "
+                                      f"check's limit of {MAX_DETERMINISM_ASSIGNMENTS:,} "
+                                      "assignments for one diagnoser is used up)")
                     continue
                 self.error(b.pos, f"{self.what} is not deterministic: from {a.source!r}, "
                            f"transition {a.index} ({a.text()}, at {a.pos}) and transition "
@@ -762,13 +782,15 @@ class _Parser:
 def reachable_states(spec: DiagnoserSpec) -> set[str]:
     """States reachable from the initial state or a resync target (after a fault reset)."""
     reached = {spec.initial, *(r.target for r in spec.resync)}
+    leaving: dict[str, list[str]] = {}
+    for tr in spec.transitions:
+        leaving.setdefault(tr.source, []).append(tr.target)
     frontier = list(reached)
     while frontier:
-        source = frontier.pop()
-        for tr in spec.transitions:
-            if tr.source == source and tr.target not in reached:
-                reached.add(tr.target)
-                frontier.append(tr.target)
+        for target in leaving.get(frontier.pop(), ()):
+            if target not in reached:
+                reached.add(target)
+                frontier.append(target)
     return reached
 
 
@@ -801,16 +823,48 @@ def evaluate(node: Node, values: dict[tuple[str, int], bool]) -> bool:
     raise TypeError(f"not a condition of a diagnoser: {node!r}")
 
 
-def jointly_satisfiable(a: Expr, b: Expr) -> str | None:
-    """A witness assignment making both conditions true, None if none, "too many" if unknown."""
+def jointly_satisfiable(a: Expr, b: Expr, budget: list[int] | None = None) -> str | None:
+    """A witness assignment making both conditions true (the first in enumeration order),
+    None if none; "too many" (variables) or "budget" (`budget[0]` assignments left, spent
+    here) if unknown."""
     names = list(dict.fromkeys([*_vars(a), *_vars(b)]))
+    values = _product_witness(a, b, names)
+    if values is not None:
+        return _witness_text(values) if values else None
     if len(names) > MAX_ENUMERATED_VARS:
         return "too many"
+    if budget is not None:
+        if budget[0] < 1 << len(names):
+            return "budget"
+        budget[0] -= 1 << len(names)
     for bits in itertools.product((False, True), repeat=len(names)):
         values = dict(zip(names, bits, strict=True))
         if evaluate(a.root, values) and evaluate(b.root, values):
-            return ", ".join(f"{_var_text(n, d)}={int(v)}" for (n, d), v in values.items())
+            return _witness_text(values)
     return None
+
+
+def _product_witness(a: Expr, b: Expr, names) -> dict | None:
+    """When both conditions are products of literals (the usual case), the answer without
+    enumerating: {} if they contradict each other, else the first satisfying assignment in
+    enumeration order (every free variable 0). None if either is not a product."""
+    try:
+        parts = (monomial_literals(a), monomial_literals(b))
+    except NotMonomial:
+        return None
+    if parts[0] is None or parts[1] is None:
+        return {}  # one of them can never be true
+    fixed: dict[tuple[str, int], bool] = {}
+    for lit in (*parts[0], *parts[1]):
+        if fixed.setdefault((lit.name, lit.depth), lit.positive) != lit.positive:
+            return {}
+    values = dict.fromkeys(names, False)
+    values.update(fixed)
+    return values
+
+
+def _witness_text(values: dict) -> str:
+    return ", ".join(f"{_var_text(n, d)}={int(v)}" for (n, d), v in values.items())
 
 
 def _var_text(name: str, depth: int) -> str:
