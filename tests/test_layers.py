@@ -1,6 +1,6 @@
 """The import graph keeps the layering of docs/architecture.md, and has no import cycle.
 
-    base (errors, timefmt, paths, moved) <- logic <- project <- plant, engine <- explain
+    base (errors, timefmt, paths, limits, textfile, moved) <- logic <- project <- plant, engine <- explain
         <- session <- apps (ui, cli, bench, reports, sweep)
 
 A module imports from its own layer or from a lower one, never from a higher one; within
@@ -23,14 +23,15 @@ ROOT = Path(__file__).resolve().parent.parent
 PACKAGE = ROOT / "hmi"
 
 LAYERS: tuple[tuple[str, ...], ...] = (
-    ("hmi", "hmi.errors", "hmi.timefmt", "hmi.paths", "hmi.moved"),
+    ("hmi", "hmi.errors", "hmi.timefmt", "hmi.paths", "hmi.moved", "hmi.limits",
+     "hmi.textfile"),
     ("hmi.logic",),
     ("hmi.project",),
     ("hmi.plant", "hmi.engine"),
     ("hmi.explain",),
     ("hmi.session",),
     ("hmi.ui", "hmi.cli", "hmi.bench", "hmi.report", "hmi.diag_report", "hmi.monitor_report",
-     "hmi.sweep"),
+     "hmi.sweep", "hmi.runio"),
 )
 # What explain/ may read of engine/: the snapshot and the types it carries.
 SNAPSHOT_TYPES = {"hmi.engine.snapshot", "hmi.engine.commands", "hmi.engine.stopwatch",

@@ -56,6 +56,17 @@ class ControlRuntime:
             else:
                 image[slot] = not reset(image, history) and (set_(image, history) or image[slot])
 
+    def capture(self) -> tuple[dict[str, int], tuple[int, ...]] | None:
+        """The GRAFCET's activation times and last firing (its steps live in the image)."""
+        if self.grafcet is None:
+            return None
+        return dict(self.grafcet.activated_at), self.grafcet.fired
+
+    def restore(self, state: tuple[dict[str, int], tuple[int, ...]] | None) -> None:
+        if self.grafcet is not None and state is not None:
+            self.grafcet.activated_at = dict(state[0])
+            self.grafcet.fired = state[1]
+
     def active_steps(self, image: Image) -> tuple[str, ...]:
         return self.grafcet.active(image) if self.grafcet else ()
 

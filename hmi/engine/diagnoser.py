@@ -40,7 +40,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
-from typing import NamedTuple, overload
+from typing import Any, NamedTuple, overload
 
 from hmi.engine.layout import Layout
 from hmi.logic.expr import (
@@ -422,6 +422,20 @@ class DiagnosisStage:
         if self.faulty:
             return tuple(rt.preview(image, history) for rt in self.runtimes)
         return self.current.records
+
+    def capture(self) -> tuple[Any, ...]:
+        """The stage's and its diagnosers' state (Engine.capture)."""
+        return (self.current, self.dirty, self.last_scan, self.last_now, self.period,
+                self.faulty, tuple((rt.current, rt.since_us, rt.since_scan, rt.via, rt.record)
+                                   for rt in self.runtimes))
+
+    def restore(self, state: tuple[Any, ...]) -> None:
+        (self.current, self.dirty, self.last_scan, self.last_now, self.period, self.faulty,
+         runtimes) = state
+        for rt, (current, since_us, since_scan, via, record) in zip(
+                self.runtimes, runtimes, strict=True):
+            rt.current, rt.since_us, rt.since_scan, rt.via, rt.record = (
+                current, since_us, since_scan, via, record)
 
     def reset(self, image: Image, history: History, now: int, scan: int) -> list[str]:
         """Fault reset: re-synchronise every faulty diagnoser, or say why not."""

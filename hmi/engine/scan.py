@@ -18,6 +18,7 @@ from __future__ import annotations
 import time
 from collections import deque
 from collections.abc import Iterator
+from typing import Any, NamedTuple
 
 from hmi.engine.commands import (
     Command,
@@ -47,6 +48,25 @@ from hmi.project.diagnosers import layout_names
 from hmi.project.model import POLICIES, Project
 
 NO_DIAGNOSIS = Diagnosis((), None, (), (), ())
+
+
+class EngineState(NamedTuple):
+    """A copy of everything an engine's scans and commands change (Engine.capture)."""
+
+    image: Image
+    history: tuple[Image, ...]
+    scan: int
+    now: int
+    started: bool
+    latched: tuple[LatchReason, ...]
+    mode: str
+    manual: tuple[tuple[str, bool], ...]
+    policy: str
+    stopped_devices: frozenset[str]
+    readback: tuple[bool, ...]
+    memory: tuple[Any, ...]
+    control: Any
+    diagnosis: Any
 
 
 MONITOR_POLICY_REFUSED = ("the monitor policy passes unsafe orders through to a real plant; "
@@ -111,6 +131,9 @@ class Engine:
         self.manual: dict[str, bool] = {}
         self.latched: list[LatchReason] = []
         self.started = False
+        # The last scan as the engine left it: no explanations nor alarms (the session adds
+        # them: Session.last is what the UI shows).
+        self.last: Snapshot | None = None
         self.devices = {v.device: tuple(o.name for o in project.outputs
                                         if o.device == v.device)
                         for v in project.outputs if v.device}
@@ -239,13 +262,63 @@ class Engine:
         return CommandResult.ok("fault reset: " + ("; ".join(parts) if parts
                                                    else "nothing was latched"))
 
+    # -- the state, for the closed-loop exploration ----------------------------------------
+    def capture(self) -> EngineState:
+        """Everything a scan or a command changes, copied: :meth:`restore` makes the engine
+        continue exactly as from here (the project's compiled parts are shared)."""
+        if self.monitors is not None:
+            raise NotImplementedError("an engine with stopwatch monitors cannot be captured")
+        return EngineState(
+            # The history's images are never changed once in it: shared, not copied.
+            list(self.image), tuple(self.history), self.scan, self.now,
+            self.started, tuple(self.latched), self.mode, tuple(self.manual.items()),
+            self.policy, frozenset(self.stopped_devices), self.input_scan.readback,
+            self.memory.capture(), self.control.capture(),
+            self.diagnosis.capture() if self.diagnosis is not None else None)
+
+    def restore(self, state: EngineState) -> None:
+        self.image[:] = state.image
+        self.history.clear()
+        self.history.extend(state.history)
+        self.scan, self.now, self.started = state.scan, state.now, state.started
+        self.latched = list(state.latched)
+        self.mode, self.manual, self.policy = state.mode, dict(state.manual), state.policy
+        self.stopped_devices = set(state.stopped_devices)
+        self._update_stop_mask()
+        self.input_scan.readback = state.readback
+        self.memory.restore(state.memory)
+        self.control.restore(state.control)
+        if self.diagnosis is not None and state.diagnosis is not None:
+            self.diagnosis.restore(state.diagnosis)
+
     def latch_safe(self, source: str, detail: str) -> None:
         if not any(r.source == source and r.detail == detail for r in self.latched):
             self.latched.append(LatchReason(source, detail, self.scan, self.now))
 
     # -- the scan ----------------------------------------------------------------------------
     def step(self, now: int) -> Snapshot:
+        """One scan at `now`, and what it left behind."""
         wall = time.perf_counter()
+        fov, outputs, report, diagnosis, monitors, error, filter_us = self._cycle(now)
+        diagnosers = (self.diagnosis.publish(self.image, self.history)
+                      if self.diagnosis is not None else ())
+        snapshot = self._snapshot(fov, outputs, report, diagnosis, diagnosers, monitors, error,
+                                  wall, filter_us)
+        self.history.appendleft(self.image.copy())
+        self.last = snapshot
+        return snapshot
+
+    def advance(self, now: int) -> None:
+        """One scan at `now` whose results nobody reads: the same stages, no snapshot (the
+        closed-loop exploration, hmi.engine.explore, only follows the state). The plant's
+        events stay with the plant (take_events)."""
+        self._cycle(now)
+        self.history.appendleft(self.image.copy())
+
+    def _cycle(self, now: int) -> tuple[tuple[bool, ...], tuple[bool, ...], FilterReport | None,
+                                        Diagnosis, tuple[MonitorState, ...], str | None,
+                                        float]:
+        """Stages 1 to 8 (module docstring), in order."""
         self.scan += 1
         self.now = now
         image = self.image
@@ -316,12 +389,7 @@ class Engine:
                 message = f"{type(exc).__name__}: {exc}"
                 error = error or message
                 self.latch_safe("internal", f"internal error at scan {self.scan}: {message}")
-        diagnosers = (self.diagnosis.publish(image, self.history)
-                      if self.diagnosis is not None else ())
-        snapshot = self._snapshot(fov, outputs, report, diagnosis, diagnosers, monitors, error,
-                                  wall, filter_us)
-        self.history.appendleft(image.copy())
-        return snapshot
+        return fov, outputs, report, diagnosis, monitors, error, filter_us
 
     def _start(self, now: int) -> None:
         self.control.reset(self.image, now)

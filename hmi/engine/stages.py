@@ -123,6 +123,14 @@ class Memory:
                 image[slot] = not reset(image, history) and (set_(image, history) or image[slot])
         self.control.update_times(image, now)
 
+    def capture(self) -> tuple[tuple[bool, int | None], ...]:
+        """The timers' state (observers live in the image)."""
+        return tuple((rt.q, rt.since) for rt, _, _ in self.timers)
+
+    def restore(self, state: tuple[tuple[bool, int | None], ...]) -> None:
+        for (rt, _, _), (q, since) in zip(self.timers, state, strict=True):
+            rt.q, rt.since = q, since
+
     def elapsed(self, now: int) -> tuple[int, ...]:
         """Each timer's ET, for the snapshot."""
         return tuple(rt.elapsed(now) for rt, _, _ in self.timers)
