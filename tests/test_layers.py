@@ -1,7 +1,7 @@
 """The import graph keeps the layering of docs/architecture.md, and has no import cycle.
 
-    base (errors, timefmt, paths, limits, textfile, moved) <- logic <- project <- plant, engine <- explain
-        <- session <- apps (ui, cli, bench, reports, sweep)
+    base (errors, timefmt, paths, limits, textfile, moved) <- logic <- project
+        <- plant, engine <- explain <- session <- apps (ui, cli, bench, reports, sweep)
 
 A module imports from its own layer or from a lower one, never from a higher one; within
 its layer, plant/ does not import engine/ (the engine drives a plant through the contract of

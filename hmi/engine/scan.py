@@ -5,9 +5,10 @@
     6 filter (with the diagnosers' mask)   7 output scan   8 monitors
 
 Each stage is a small object the engine owns (hmi.engine.stages declares their interfaces);
-:meth:`Engine.step` calls them in that order, hands each what it reads and keeps what it
-returns. No stage reaches back into the engine: the filter returns its decision and the
-engine latches, the diagnosers return their routes and mask and the engine passes them on.
+:meth:`Engine.step` (through ``_cycle``) calls them in that order, hands each what it reads
+and keeps what it returns. No stage reaches back into the engine: the filter returns its
+decision and the engine latches, the diagnosers return their routes and mask and the engine
+passes them on.
 
 The engine never reads a clock: :meth:`Engine.step` is given the scan's time. Everything it
 computes lands in an immutable :class:`Snapshot`. The engine knows nothing of any UI.

@@ -9,10 +9,11 @@
     7 OutputScan       written vector -> plant
     8 monitors         hmi.engine.monitors.MonitorStage (optional), on the I/O just exchanged
 
-The engine (hmi.engine.scan) calls them in that order in :meth:`Engine.step` and passes each
-what it reads; a stage returns what it decided and never reaches back into the engine. The
-protocols below are the declared interfaces: a new stage implements one and is called from
-``Engine.step`` at its place in the cycle (docs/architecture.md).
+The engine (hmi.engine.scan) calls them in that order in ``Engine._cycle`` (for Engine.step
+and Engine.advance) and passes each what it reads; a stage returns what it decided and never
+reaches back into the engine. The protocols below are the declared interfaces: a new stage
+implements one and is called from ``Engine._cycle`` at its place in the cycle
+(docs/architecture.md).
 
 Every stage works on the image (a flat list of slot values, hmi.engine.layout) and its
 history (``history[0]`` the image at the end of the previous scan, and so on back).
