@@ -455,27 +455,33 @@ def _solve_group(problem: Problem, start: int, violated: list[int], cost: list[i
             k = queue.pop()
             items = true_items[v >> k & 1][k] if k == kept else occ[k]
             steps += len(items)
+            nv = ~v
+            na = ~A
             for jbit, pos, neg, lits in items:
-                false = lits ^ ((v & pos) | (neg & ~v))
-                if false & A:
-                    viol &= ~jbit  # an assigned literal is false: satisfied for good
-                    continue
-                unassigned = lits & ~A
-                if false:
-                    viol &= ~jbit
+                false = lits ^ ((v & pos) | (neg & nv))
+                if false:  # not violated
+                    if viol & jbit:
+                        viol ^= jbit
+                    if false & A:
+                        continue  # an assigned literal is false: satisfied for good
+                    unassigned = lits & na
                     if not unassigned & (unassigned - 1):
                         # Only this undecided, false literal keeps it false: keep that output.
                         # (Marked, not followed: nothing changes value, and following every
                         # kept output's constraints costs more than it prunes.)
                         A |= unassigned
+                        na = ~A
                     continue
+                unassigned = lits & na
                 if not unassigned:
                     return None  # violated, and nothing left to change
                 viol |= jbit
                 if not unassigned & (unassigned - 1):
                     u = unassigned.bit_length() - 1
                     A |= unassigned
+                    na = ~A
                     v ^= unassigned
+                    nv = ~v
                     g += cost[u]
                     queue.append(u)
         return v, A, g, viol
@@ -522,10 +528,11 @@ def _solve_group(problem: Problem, start: int, violated: list[int], cost: list[i
         choice = 0
         fewest = 99
         m = viol
+        na = ~A
         while m:
             jb = m & -m
             m ^= jb
-            cand = LM[jb.bit_length() - 1] & ~A
+            cand = LM[jb.bit_length() - 1] & na
             if not cand:
                 return  # violated with every output decided: no repair below this node
             size = cand.bit_count()
