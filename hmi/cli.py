@@ -7,6 +7,8 @@
     plchmi serve-plant PROJECT     the simulated plant as a Modbus TCP server
     plchmi diagnose PROJECT        the diagnosers' automata and their diagnosability
     plchmi campaign PROJECT        the fault campaign (000 Table 1)
+    plchmi export PROJECT --format st|plcopen -o DIR
+                                   the safety layer as IEC 61131-3 code for a PLC
 
 Exit status: 0 success, 2 bad input (a project error, a bad argument), 1 a failure at run
 time. Errors about a project name the file, line and column; there is never a traceback for
@@ -26,7 +28,7 @@ from hmi.timefmt import DURATION_HINT, format_duration, parse_duration, seconds
 
 MAX_ERRORS_SHOWN = 25
 SUBCOMMANDS = ("check", "run", "sweep", "ui", "serve-plant", "bench", "journal",
-               "diagnose", "campaign")
+               "diagnose", "campaign", "export")
 
 
 def _duration(text: str) -> int:
@@ -104,6 +106,17 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print the results as JSON")
     p.add_argument("--jobs", type=int, default=None, metavar="N",
                    help="worker processes (default: 2 if the machine has 2 cores or more)")
+
+    p = sub.add_parser(
+        "export", help="the safety filter, diagnosers and monitors as IEC 61131-3 code",
+        description="Export the project's safety layer (filter, local diagnosers, stopwatch "
+        "monitors) for a PLC: Structured Text (st) or PLCopen TC6 XML (plcopen, for CODESYS, "
+        "TwinCAT and OpenPLC's editor). See docs/plc-export.md.")
+    project_arg(p)
+    p.add_argument("--format", choices=("st", "plcopen"), required=True,
+                   help="st: one IEC 61131-3 file; plcopen: PLCopen TC6 XML")
+    p.add_argument("-o", "--output", type=Path, required=True, metavar="DIR",
+                   help="folder to write into (created if missing)")
 
     p = sub.add_parser(
         "journal", help="print or export a project's operator journal",
@@ -661,10 +674,25 @@ def cmd_serve_plant(args: argparse.Namespace) -> int:
 __all__ = ["format_duration", "main", "seconds"]
 
 
+def cmd_export(args: argparse.Namespace) -> int:
+    from hmi.export import export
+    project = load(args.project)
+    if args.output.exists() and not args.output.is_dir():
+        raise UsageError(f"-o {args.output}: not a folder")
+    try:
+        written = export(project, args.format, args.output)
+    except OSError as exc:
+        raise UsageError(f"-o {args.output}: cannot write there ({exc.strerror})") from None
+    print(f"Wrote {written.path}")
+    for line in written.model.summary:
+        print(f"  {line}")
+    return 0
+
+
 COMMANDS = {
     "check": cmd_check, "run": cmd_run, "sweep": _sweep, "ui": cmd_ui,
     "serve-plant": cmd_serve_plant, "bench": cmd_bench, "journal": cmd_journal,
-    "diagnose": cmd_diagnose, "campaign": cmd_campaign,
+    "diagnose": cmd_diagnose, "campaign": cmd_campaign, "export": cmd_export,
 }
 
 if __name__ == "__main__":
