@@ -11,15 +11,17 @@ and latched evidence.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 from hmi.engine.commands import FaultReset
+from hmi.engine.monitors import monitor_stage
 from hmi.engine.scan import Engine
 from hmi.export.build import build
 from hmi.export.st import write_st
 from hmi.plant.sim import Injection, SimPlant, parse_injection
 from hmi.project.model import Project
+from hmi.project.monitors import monitors_of
 from tests.stsubset import Instance, Program, Runtime
 
 POLICIES = {"monitor": 0, "block": 1, "correct": 2}
@@ -38,14 +40,15 @@ class Agreement:
     violations: int = 0  # scans with a violation
     corrected: int = 0  # scans whose written vector differs from the FOV
     latched: int = 0
+    fallbacks: int = 0  # scans the corrector found no safe vector (the safe state written)
     diagnoser_states: set[str] = field(default_factory=set)
     monitor_faults: int = 0
     resets: int = 0
     tested: int = 0  # most vectors the exported corrector tested in one scan
 
     def add(self, other: Agreement) -> None:
-        for name in ("scans", "violations", "corrected", "latched", "monitor_faults",
-                     "resets"):
+        for name in ("scans", "violations", "corrected", "latched", "fallbacks",
+                     "monitor_faults", "resets"):
             setattr(self, name, getattr(self, name) + getattr(other, name))
         self.diagnoser_states |= other.diagnoser_states
         self.tested = max(self.tested, other.tested)
@@ -71,9 +74,15 @@ class Twin:
         for name, value in zip(self.fov_names, self.fov, strict=True):
             globals_[name] = value
 
-    def run(self, engine: Engine, until_us: int, resets_after: Iterable[int] = ()
-            ) -> Agreement:
-        """Step `engine` to `until_us` and the exported code beside it; assert every scan."""
+    def run(self, engine: Engine, until_us: int | None = None, resets_after: Iterable[int] = (),
+            times: Iterable[int] | None = None,
+            before: Callable[[int, Engine], None] | None = None) -> Agreement:
+        """Step `engine` and the exported code beside it; assert every scan.
+
+        Scans at every period up to `until_us`, or at `times`. `before(scan, engine)` runs
+        before each scan (operator commands, inputs set on the simulated plant); a fault
+        reset follows each scan of `resets_after`, on both sides.
+        """
         project, sym = self.project, self.sym
         rt = Runtime(self.program)
         rt.set(sym["FilterPolicy"], POLICIES[engine.policy])
@@ -88,20 +97,29 @@ class Twin:
         constraints = [c.name for c in project.constraints]
         violations = rt.getter(sym["Violations"])
         latch = rt.getter(sym["FilterLatched"])
+        fallback = rt.getter(sym["FilterFallback"])
         tested = rt.getter(f"Safety.{sym['Filter']}.Tested")
         runtimes = stage.runtimes if stage is not None else []
         diagnosers = [(r, rt.getter(f"Safety.{sym['Diag_' + r.spec.name]}.State"),
                        [(lab, rt.getter(f"Safety.{sym['Diag_' + r.spec.name]}."
                                         f"{sym[r.spec.name + '.' + lab]}"))
                         for lab in r.spec.labels]) for r in runtimes]
-        monitors = {t.name: ([rt.getter(f"Safety.{sym['Mon_' + t.name]}.{port}")
-                              for port in MONITOR_PORTS], rt.getter(sym[t.label]))
-                    for t in project.extra.get("monitors", ())}
+        monitor_specs = monitors_of(project)
+        monitors = [([rt.getter(f"Safety.{sym['Mon_' + t.name]}.{port}")
+                      for port in MONITOR_PORTS], rt.getter(sym[t.label]))
+                    for t in monitor_specs]
+        mstage = monitor_stage(engine)
+        automata = mstage.automata if mstage is not None else []
         resets = set(resets_after)
         result = Agreement()
-        period = project.scan_period_us
-        now = 0
-        while now <= until_us:
+        if times is None:
+            assert until_us is not None
+            times = range(0, until_us + 1, project.scan_period_us)
+        policy = sym["FilterPolicy"]
+        for now in times:
+            if before is not None:
+                before(engine.scan + 1, engine)
+            rt.globals[policy] = POLICIES[engine.policy]
             snap = engine.step(now)
             image = snap.values
             for ident, slot in inputs:
@@ -121,32 +139,37 @@ class Twin:
             assert mine == violated, f"{where}: violations {sorted(mine)} != {sorted(violated)}"
             latched = any(r.source == "filter" for r in snap.latched)
             assert latch() == latched, f"{where}: latch {latch()}"
+            fell_back = report is not None and report.fallback is not None
+            assert fallback() == fell_back, f"{where}: fallback {fallback()} ({report})"
+            if reset:  # between scans, as an operator's command: the PLC did it at its end
+                engine.apply(FaultReset())
+                result.resets += 1
+            # States and latches are compared after a reset on both sides; labels, flags and
+            # the stopwatches only move at the next scan, on both sides.
             for state, (runtime, number, labels) in zip(snap.diagnosers, diagnosers,
                                                         strict=True):
-                got = runtime.names[number()]
-                assert got == state.state, f"{where}: {state.name} in {got}, not {state.state}"
+                got, want = runtime.names[number()], runtime.names[runtime.current]
+                assert got == want, f"{where}: {state.name} in {got}, not {want}"
                 mine_labels = {lab for lab, get in labels if get()}
                 assert mine_labels == set(state.labels), f"{where}: labels of {state.name}"
                 result.diagnoser_states.add(f"{state.name}.{state.state}")
-            for mon in snap.monitors:
-                ports, label = monitors[mon.name]
+            for spec, (ports, label), a in zip(monitor_specs, monitors, automata,
+                                               strict=True):
                 got = tuple(get() for get in ports)
-                d = mon.detection
+                d = a.latched
                 evidence = (RULES[d.rule], d.x_us, d.y_us) if d is not None else got[7:]
-                want = (LOCATIONS[mon.location], mon.x_us, mon.y_us, mon.attempt, mon.faults,
-                        mon.completed, d is not None, *evidence)
-                assert got == want, f"{where}: monitor {mon.name} {got} != {want}"
-                assert label() == (d is not None), f"{where}: global {mon.label}"
+                want = (LOCATIONS[a.location], a.x_us, a.y_us, a.attempt, a.faults,
+                        a.completed, d is not None, *evidence)
+                assert got == want, f"{where}: monitor {spec.name} {got} != {want}"
+                if not reset:
+                    assert label() == (d is not None), f"{where}: global {spec.label}"
                 result.monitor_faults += d is not None
             result.scans += 1
             result.violations += bool(violated)
             result.corrected += snap.outputs != snap.fov
             result.latched += latched
+            result.fallbacks += fell_back
             result.tested = max(result.tested, tested())
-            if reset:
-                engine.apply(FaultReset())
-                result.resets += 1
-            now += period
         return result
 
 
