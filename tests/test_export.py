@@ -30,6 +30,7 @@ from hmi.project.loader import load_project
 from tests.conftest import PROJECTS, ROOT
 from tests.export_harness import Twin, engine_for
 from tests.plcopen_reader import NS, code_only, st_from_plcopen
+from tests.stsubset import Program, Runtime
 
 GOLDEN = ROOT / "tests" / "export_golden"
 EXAMPLES = ("cispi_valve", "conveyor_robot", "sorting", "palletizer", "cispi_subsystem")
@@ -170,6 +171,37 @@ def test_the_palletizer_export_renames_a_clash_and_says_so():
     assert "renamed for IEC 61131-3: PLATE_OPEN -> PLATE_OPEN_2" in model.comment
 
 
+def test_register_bits_map_to_located_words(tmp_path):
+    """`ir:N.B` inputs and `hr:N.B` outputs: one located WORD per register, bit by bit."""
+    (tmp_path / "project.yaml").write_text(yaml.safe_dump({
+        "name": "regs", "scan_period": "10ms",
+        "inputs": {"a": {"description": "a", "address": "ir:0.3"},
+                   "b": {"description": "b", "address": "di:0"},
+                   "vfsc": {"description": "s", "address": "di:1"},
+                   "vfso": {"description": "s", "address": "di:2"}},
+        "outputs": {"y": {"description": "y", "address": "hr:1.2"},
+                    "z": {"description": "z", "address": "coil:0"},
+                    "vC": {"description": "c", "address": "coil:1"},
+                    "vO": {"description": "o", "address": "coil:2"}},
+        "control": {"equations": {"y": "b", "z": "b"}},
+        "constraints": {"c0": "y and a"},
+        "plant": {"kind": "sim", "model": "valve",
+                  "ports": {"fsc": "vfsc", "fso": "vfso", "C": "vC", "O": "vO"}}}))
+    text = write_st(build(load_project(tmp_path)))
+    assert "IW0 AT %IW0 : WORD;" in text and "QW1 AT %QW1 : WORD;" in text
+    assert "b AT %IX0.0 : BOOL;" in text and "z AT %QX0.0 : BOOL;" in text
+    program = Program(text)
+    program.set_native("FB_REGS_CONTROL", lambda inst, g: None)  # FOV_y is set below
+    rt = Runtime(program)
+    rt.set("QW1", 0b1000_0001)  # bits that are not ours stay as they are
+    for word, fov, want in ((0, True, 0b1000_0101), (0b1000, True, 0b1000_0001),
+                            (0, False, 0b1000_0001)):
+        rt.set("IW0", word)
+        rt.set("FOV_y", fov)
+        rt.scan(0)
+        assert rt.get("a") == bool(word) and rt.get("QW1") == want
+
+
 # -- the scan budget --------------------------------------------------------------------------
 
 
@@ -291,7 +323,7 @@ def random_projects(draw):
         monitor["interrupted"] = "i1"
     project = {
         "name": "rnd", "scan_period": "10ms",
-        "policy": draw(st.sampled_from(POLICY_NAMES + ("correct", "correct"))),
+        "policy": draw(st.sampled_from((*POLICY_NAMES, "correct", "correct"))),
         "inputs": inputs, "outputs": outputs,
         "timers": {"t0": {"type": kind, "input": timer_in, "preset": f"{preset}ms"}},
         "observers": {"b0": f"i0 or prev(o{n_out - 1})",

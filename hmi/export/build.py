@@ -139,7 +139,6 @@ def build(project: Project) -> m.PlcProject:
 
     started = prog_scope.take("Started")
     body: list[m.Stmt] = []
-    body += registers.read
     if memory is not None:
         inst = instance("Memory")
         body.append(m.Comment("2. Memory: timers and observers"))
@@ -230,7 +229,7 @@ def build(project: Project) -> m.PlcProject:
              m.if_(m.not_(m.Name(started)), *init, m.Assign(m.Name(started), m.TRUE))]
     durations.raise_if_any()
 
-    externals = tuple(m.Var(v.name, v.type) for v in g.vars)
+    externals = tuple(m.Var(v.name, v.type) for v in (*registers.vars, *g.vars))
     locals_ = [m.Var(started, m.BOOL)]
     if memory is not None:
         locals_.append(m.Var(instances["Memory"], m.Derived(memory.pou.name)))
@@ -243,7 +242,7 @@ def build(project: Project) -> m.PlcProject:
                       "back") for (name, depth), ident in history.items()]
     program = m.Pou(names["program"], "program", (
         m.VarBlock("external", externals), m.VarBlock("local", tuple(locals_))),
-        tuple(first + body),
+        tuple(registers.read + first + body),
         "The safety layer's cycle, in the engine's order. Call it once per PLC cycle from "
         "the task; put the functional control in FB_..._Control.")
 
