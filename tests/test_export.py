@@ -59,7 +59,7 @@ def test_export_writes_the_target_and_says_what_it_holds(tmp_path, capsys, fmt, 
     text = capsys.readouterr().out
     assert f"Wrote {path}" in text
     assert "FB_cispi_valve_Filter" in text and "PRG_cispi_valve_Safety" in text
-    assert "at most 4 vectors per scan" in text and "search limit 2" in text
+    assert "at most 4 vectors tested per scan" in text and "search limit 2" in text
 
 
 def test_export_bad_input_exits_2_without_a_traceback(tmp_path, capsys):

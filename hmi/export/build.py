@@ -356,14 +356,16 @@ def _control_stub(name: str, g: _Globals) -> m.Pou:
 def _summary(project: Project, bound: source.FilterBound, pous: list[m.Pou], g: _Globals,
              scope: Scope) -> list[str]:
     limit = max_distance(bound)
-    combined = sum(c.kind == "combined" for c in source.constraints(project))
+    constraints = source.constraints(project)
+    combined = sum(c.kind == "combined" for c in constraints)
+    vectors = vectors_bound(bound.combined_outputs, limit)
     lines = [f"{len(pous)} POUs: " + ", ".join(p.name for p in pous),
              f"task MainTask every {format_duration(source.scan_period_us(project))}",
-             f"corrector: at most {vectors_bound(bound.combined_outputs, limit)} vectors per "
+             f"corrector: at most {vectors} vector{'s' if vectors != 1 else ''} tested per "
              f"scan ({bound.combined_outputs} outputs in combined constraints, search limit "
              f"{limit}: " + ("plchmi check's proven worst case" if bound.proven else
                              "every output, the static check being sampled")
-             + f"), each against at most {combined} combined constraints"]
+             + f"), each a loop over the {len(constraints)} constraints ({combined} combined)"]
     renamed = {**scope.renamed, **g.scope.renamed}
     if renamed:
         lines.append("renamed for IEC 61131-3: " + ", ".join(

@@ -247,8 +247,8 @@ def build_filter(project: Project, pou_name: str, scope: Scope, bound: source.Fi
         f"Output bits: {order}.\nViolation bits: {cons}.\n"
         f"Corrector budget: at most {vectors_bound(bound.combined_outputs, limit)} vectors "
         f"tested per scan ({bound.combined_outputs} outputs in combined constraints, "
-        f"MAX_DISTANCE {limit}), each against at most {sum(not s for s in simple)} combined "
-        "constraints.")
+        f"MAX_DISTANCE {limit}), each a loop over the {nc} constraints "
+        f"({sum(not s for s in simple)} combined).")
     pou = m.Pou(pou_name, "functionBlock", blocks, body, comment)
     ports = {k: c.t[k] for k in ("Violations", "Latched", "Fallback", "Tested", "Policy",
                                  "Reset", "Ftc")}
