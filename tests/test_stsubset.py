@@ -49,50 +49,27 @@ END_PROGRAM
     return rt
 
 
-def test_ton_counts_from_the_rising_edge_and_resets_when_in_falls():
-    prog = Program(f"""
-PROGRAM Main
-VAR_EXTERNAL
-    x : BOOL; q : BOOL; et : TIME; n : INT; w : DWORD;
-END_VAR
-VAR
-    t : TON;
-END_VAR
-t(IN := x, PT := T#30ms);
-q := t.Q;
-et := t.ET;
-END_PROGRAM
-{CONFIG}""")
-    rt = Runtime(prog)
+def timer(kind: str, preset: str, inputs: list[int]) -> list[tuple[bool, int]]:
+    """(Q, ET) of a `kind` timer at each 10 ms scan, IN following `inputs`."""
+    rt = run(f"t(IN := x, PT := {preset});\nq := t.Q;\net := t.ET;", f"t : {kind};",
+             scans=())
     seen = []
-    for k, x in enumerate([0, 1, 1, 1, 1, 1, 0, 1]):
+    for k, x in enumerate(inputs):
         rt.set("x", bool(x))
         rt.scan(k * 10_000)
         seen.append((rt.get("q"), rt.get("et")))
-    assert seen == [(False, 0), (False, 0), (False, 10_000), (False, 20_000), (True, 30_000),
-                    (True, 30_000), (False, 0), (False, 0)]
+    return seen
+
+
+def test_ton_counts_from_the_rising_edge_and_resets_when_in_falls():
+    assert timer("TON", "T#30ms", [0, 1, 1, 1, 1, 1, 0, 1]) == [
+        (False, 0), (False, 0), (False, 10_000), (False, 20_000), (True, 30_000),
+        (True, 30_000), (False, 0), (False, 0)]
 
 
 def test_tof_holds_q_for_pt_after_in_falls():
-    prog = Program(f"""
-PROGRAM Main
-VAR_EXTERNAL
-    x : BOOL; q : BOOL; et : TIME; n : INT; w : DWORD;
-END_VAR
-VAR
-    t : TOF;
-END_VAR
-t(IN := x, PT := T#20ms);
-q := t.Q;
-END_PROGRAM
-{CONFIG}""")
-    rt = Runtime(prog)
-    seen = []
-    for k, x in enumerate([0, 1, 0, 0, 0, 1, 0]):
-        rt.set("x", bool(x))
-        rt.scan(k * 10_000)
-        seen.append(rt.get("q"))
-    assert seen == [False, True, True, True, False, True, True]
+    seen = timer("TOF", "T#20ms", [0, 1, 0, 0, 0, 1, 0])
+    assert [q for q, _ in seen] == [False, True, True, True, False, True, True]
 
 
 def test_loops_case_and_bits():

@@ -131,23 +131,19 @@ def build_filter(project: Project, pou_name: str, scope: Scope, bound: source.Fi
     views = Views(sc)
     index = {v.name: k for k, v in enumerate(outputs)}
 
-    pos_masks, neg_masks, simple, contexts = [], [], [], []
-    for con in constraints:
-        pos = neg = 0
-        context: list[m.Expr] = []
-        for lit in con.literals:
-            if lit.depth == 0 and lit.name in index:
-                if lit.positive:
-                    pos |= 1 << index[lit.name]
-                else:
-                    neg |= 1 << index[lit.name]
-            else:
-                ref = views.name(lit.name, lit.depth)
-                context.append(ref if lit.positive else m.not_(ref))
-        pos_masks.append(pos)
-        neg_masks.append(neg)
-        simple.append(con.kind == "simple")
-        contexts.append(m.and_(*context))
+    def mask(con, positive: bool) -> int:
+        return sum(1 << index[lit.name] for lit in con.output_literals
+                   if lit.positive == positive)
+
+    def literal(lit) -> m.Expr:
+        ref = views.name(lit.name, lit.depth)
+        return ref if lit.positive else m.not_(ref)
+
+    pos_masks = [mask(con, True) for con in constraints]
+    neg_masks = [mask(con, False) for con in constraints]
+    simple = [con.kind == "simple" for con in constraints]
+    contexts = [m.and_(*(literal(lit) for lit in con.context_literals))
+                for con in constraints]
     masks = [(p.flag, sum(1 << index[o] for o in p.actuators))
              for spec in source.diagnosers(project) for p in spec.partitions if p.actuators]
     limit = max_distance(bound)

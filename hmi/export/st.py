@@ -130,6 +130,10 @@ def _block(stmts: tuple[m.Stmt, ...], depth: int) -> list[str]:
     return lines
 
 
+def _else(orelse: tuple[m.Stmt, ...], depth: int) -> list[str]:
+    return [INDENT * depth + "ELSE", *_block(orelse, depth + 1)] if orelse else []
+
+
 def _stmt(s: m.Stmt, depth: int) -> list[str]:
     pad = INDENT * depth
     match s:
@@ -154,21 +158,13 @@ def _stmt(s: m.Stmt, depth: int) -> list[str]:
             for k, (cond, then) in enumerate(branches):
                 lines.append(f"{pad}{'IF' if k == 0 else 'ELSIF'} {_expr(cond)} THEN")
                 lines += _block(then, depth + 1)
-            if orelse:
-                lines.append(f"{pad}ELSE")
-                lines += _block(orelse, depth + 1)
-            lines.append(f"{pad}END_IF;")
-            return lines
+            return lines + _else(orelse, depth) + [f"{pad}END_IF;"]
         case m.Case(selector=sel, cases=cases, orelse=orelse):
             lines = [f"{pad}CASE {_expr(sel)} OF"]
             for labels, then in cases:
                 lines.append(f"{pad}{INDENT}{', '.join(str(v) for v in labels)}:")
                 lines += _block(then, depth + 2)
-            if orelse:
-                lines.append(f"{pad}ELSE")
-                lines += _block(orelse, depth + 1)
-            lines.append(f"{pad}END_CASE;")
-            return lines
+            return lines + _else(orelse, depth) + [f"{pad}END_CASE;"]
         case m.For(var=var, start=start, end=end, body=body, step=step):
             by = f" BY {step}" if step != 1 else ""
             head = f"{pad}FOR {var} := {_expr(start)} TO {_expr(end)}{by} DO"
