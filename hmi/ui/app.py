@@ -244,8 +244,12 @@ class PlcHmiApp(App):
         return label
 
     def poll(self, force: bool = False) -> bool:
-        """Show the latest snapshot if anything changed; True if a frame was handed down."""
-        snap = self.controller.engine.last
+        """Show the latest snapshot if anything changed; True if a frame was handed down.
+
+        The snapshot comes from the recorder with the history of that same scan (never
+        ``engine.last`` then the history: the scan thread may run a scan in between)."""
+        recorded = self.recorder.latest()
+        snap = recorded.snapshot
         if snap is None:
             return False
         state = self.controller.state
@@ -261,8 +265,8 @@ class PlcHmiApp(App):
             project=self.project.name, show_measured=self.show_measured,
             overruns=self.driver.overruns, changed=output_changes(snap),
             injected=tuple(self._injected), free_inputs=self.free_inputs,
-            damage_count=self.recorder.damage_count, mode_commanded=self._mode_commanded,
-            constraints=self.recorder.constraint_stats())
+            damage_count=recorded.damage_count, mode_commanded=self._mode_commanded,
+            constraints=recorded.constraints)
         self.frame = frame
         for view in self._views:
             view.show(frame)

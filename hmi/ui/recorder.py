@@ -10,6 +10,12 @@ proportional to the number of changes in it, not to the number of scans.
 It also keeps the plant's events (damage, glitches) which a snapshot carries only for the
 scan in which they happened, and, per safety constraint, how often and when the filter found
 it violated (a one-scan violation between two frames still counts).
+
+A frame must show one scan. The UI thread reads the recorder while the scan thread feeds it,
+so the snapshot a frame shows and the history beside it are taken together, under the
+recorder's lock (:meth:`ScanRecorder.latest`): reading ``engine.last`` first and the history
+a moment later mixed two scans — a constraint violated in the snapshot could be "not violated
+now" in a history one scan newer (issue 13: the HMI died on ``--control faulty``).
 """
 
 from __future__ import annotations
@@ -73,6 +79,15 @@ class ConstraintStats:
 
 
 @dataclass(frozen=True)
+class Recorded:
+    """The last scan recorded and the history as of that same scan (one consistent view)."""
+
+    snapshot: Snapshot | None
+    constraints: dict[str, ConstraintStats]
+    damage_count: int
+
+
+@dataclass(frozen=True)
 class Trace:
     """One signal over a window: its changes, and what was known before the window."""
 
@@ -104,6 +119,7 @@ class ScanRecorder:
         self._constraints: dict[str, ConstraintStats] = {}
         self.first_us: int | None = None
         self.last_us: int | None = None
+        self.snapshot: Snapshot | None = None  # the last scan recorded
         self._lock = threading.Lock()
 
     def on_scan(self, snap: Snapshot) -> None:
@@ -138,6 +154,7 @@ class ScanRecorder:
                 self._trim_at = t + self.keep_us // 4
             self.last_us = t
             self.scans += 1
+            self.snapshot = snap
 
     def _trim(self, before_us: int) -> None:
         """Forget changes older than `before_us`, keeping the last one before it."""
@@ -167,6 +184,11 @@ class ScanRecorder:
     def constraint_stats(self) -> dict[str, ConstraintStats]:
         with self._lock:
             return dict(self._constraints)
+
+    def latest(self) -> Recorded:
+        """The last snapshot recorded with the history as of it: what a frame shows."""
+        with self._lock:
+            return Recorded(self.snapshot, dict(self._constraints), self.damage_count)
 
     def trace(self, name: str, start_us: int, end_us: int) -> Trace:
         """The signal `name` between start and end (virtual time, inclusive of the end)."""
