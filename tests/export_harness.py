@@ -76,18 +76,24 @@ class Twin:
 
     def run(self, engine: Engine, until_us: int | None = None, resets_after: Iterable[int] = (),
             times: Iterable[int] | None = None,
-            before: Callable[[int, Engine], None] | None = None) -> Agreement:
+            before: Callable[[int, Engine], None] | None = None,
+            codes: dict[str, int] | None = None) -> Agreement:
         """Step `engine` and the exported code beside it; assert every scan.
 
         Scans at every period up to `until_us`, or at `times`. `before(scan, engine)` runs
         before each scan (operator commands, inputs set on the simulated plant); a fault
-        reset follows each scan of `resets_after`, on both sides.
+        reset follows each scan of `resets_after`, on both sides. `codes` overrides the
+        values written to FilterPolicy and DiagnosisMode (to try values the engine has no
+        name for).
         """
+        codes = codes or {}
         project, sym = self.project, self.sym
         rt = Runtime(self.program)
         rt.set(sym["FilterPolicy"], POLICIES[engine.policy])
         stage = engine.diagnosis
-        rt.set(sym["DiagnosisMode"], MODES[stage.mode if stage is not None else "ftc"])
+        rt.set(sym["DiagnosisMode"], codes.get("DiagnosisMode",
+                                               MODES[stage.mode if stage is not None
+                                                     else "ftc"]))
         lay = engine.layout
         slots = lay.slots
         inputs = [(sym[n], slots[n]) for n in lay.inputs]
@@ -119,7 +125,7 @@ class Twin:
         for now in times:
             if before is not None:
                 before(engine.scan + 1, engine)
-            rt.globals[policy] = POLICIES[engine.policy]
+            rt.globals[policy] = codes.get("FilterPolicy", POLICIES[engine.policy])
             snap = engine.step(now)
             image = snap.values
             for ident, slot in inputs:

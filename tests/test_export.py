@@ -258,6 +258,17 @@ def test_masks_under_the_monitor_policy_agree(valve, valve_twin):
         assert "V1.A3" in result.diagnoser_states or "V1.A1" in result.diagnoser_states
 
 
+def test_an_unknown_policy_or_mode_value_protects_the_plant(valve, valve_twin):
+    """FilterPolicy 7 corrects and DiagnosisMode 9 is FTC: a wrong setting on the PLC never
+    lets unsafe orders through nor drops the reconstruction."""
+    result = valve_twin.run(engine_for(valve, control="faulty", policy="correct"),
+                            10_000_000, codes={"FilterPolicy": 7})
+    assert result.corrected > 100
+    result = valve_twin.run(engine_for(valve, ["F13@9s"]), 15_000_000,
+                            codes={"DiagnosisMode": 9})
+    assert "V1.A3" in result.diagnoser_states
+
+
 def test_gaps_in_the_observation_agree(valve, valve_twin):
     # Time jumps (a paused live run): normal states re-synchronise, faulty ones freeze.
     times = [t * 10_000 for t in range(0, 300)]  # to 3 s: the valve opening

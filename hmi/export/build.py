@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from hmi.errors import ProjectError
 from hmi.export import model as m
 from hmi.export import source
-from hmi.export.diagnoser_pou import MODE_CODES, build_diagnoser
+from hmi.export.diagnoser_pou import MODE_CODES, build_diagnoser, ftc_mode
 from hmi.export.filter_pou import POLICY_CODES, build_filter, max_distance, vectors_bound
 from hmi.export.memory_pou import build_memory
 from hmi.export.names import Scope
@@ -103,8 +103,9 @@ def build(project: Project) -> m.PlcProject:
                initial, comment in (
         ("FaultReset", m.BOOL, None, "set TRUE to reset; the safety program clears it"),
         ("FilterPolicy", m.INT, m.IntLit(POLICY_CODES[source.policy(project)]),
-         "0 monitor, 1 block, 2 correct"),
-        ("DiagnosisMode", m.INT, m.IntLit(MODE_CODES["ftc"]), "0 FTC, 1 observe, 2 off"),
+         "0 monitor, 1 block, 2 correct (other values: correct)"),
+        ("DiagnosisMode", m.INT, m.IntLit(MODE_CODES["ftc"]),
+         "0 FTC, 1 observe, 2 off (other values: FTC)"),
         ("Violations", m.bits_type(max(len(source.constraints(project)), 1)), None,
          "bit j: constraint j violated by the program's outputs"),
         ("FilterLatched", m.BOOL, None, "block policy: outputs latched safe"),
@@ -163,7 +164,7 @@ def build(project: Project) -> m.PlcProject:
     body.append(m.Comment("6. The safety filter"))
     body.append(m.FbCall(finst, (
         (filt.ports["Reset"], m.FALSE), (filt.ports["Policy"], g.name("FilterPolicy")),
-        (filt.ports["Ftc"], m.eq(g.name("DiagnosisMode"), m.IntLit(MODE_CODES["ftc"]))),
+        (filt.ports["Ftc"], ftc_mode(g.name("DiagnosisMode"))),
         *((filt.ports[f"FOV_{v.name}"], g.name(f"FOV_{v.name}"))
           for v in source.outputs(project)),
         *_wire(filt, value))))

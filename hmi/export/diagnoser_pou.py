@@ -20,7 +20,8 @@
   resets between scans): a faulty diagnoser re-synchronises to the first resync rule that
   holds on the values of the scan just ended, entered at that scan's time; its flags follow
   at the next scan, as in the engine.
-* `Mode`: 0 FTC, 1 observe (flags set, nothing uses them), 2 off (not run, flags 0).
+* `Mode`: 0 FTC, 1 observe (flags set, nothing uses them), 2 off (not run, flags 0); any
+  other value is FTC, the mode that protects the plant.
 """
 
 from __future__ import annotations
@@ -34,6 +35,11 @@ from hmi.project.model import Project
 
 FTC, OBSERVE, OFF = 0, 1, 2
 MODE_CODES = {"ftc": FTC, "observe": OBSERVE, "off": OFF}
+
+
+def ftc_mode(mode: m.Expr) -> m.Expr:
+    """FTC unless the mode says observe or off (an unknown value is FTC)."""
+    return m.and_(m.Binary("<>", mode, m.IntLit(OBSERVE)), m.Binary("<>", mode, m.IntLit(OFF)))
 FIXED = ("Mode", "Reset", "State", "Faulty", "Started", "Ftc", "Next", "InState", "Tis",
          "Clock", "Delta", "Period", "Frozen")
 
@@ -158,7 +164,7 @@ def build_diagnoser(project: Project, spec: DiagnoserSpec, pou_name: str, scope:
         step.append(enter_next)
     step += decide + route
     body = (
-        m.Assign(v("Ftc"), m.eq(v("Mode"), m.IntLit(FTC))),
+        m.Assign(v("Ftc"), ftc_mode(v("Mode"))),
         m.If((
             (m.eq(v("Mode"), m.IntLit(OFF)), (m.Comment("off: not run, flags 0"), *off)),
             (v("Reset"), (m.Comment("fault reset: re-synchronise a faulty diagnoser"),
@@ -172,7 +178,7 @@ def build_diagnoser(project: Project, spec: DiagnoserSpec, pou_name: str, scope:
                            for k, s in enumerate(spec.states))
     blocks = (
         m.VarBlock("input", (
-            m.Var(t["Mode"], m.INT, comment="0 FTC, 1 observe, 2 off"),
+            m.Var(t["Mode"], m.INT, comment="0 FTC, 1 observe, 2 off (other values: FTC)"),
             m.Var(t["Reset"], m.BOOL, comment="TRUE: a fault reset (a call of its own)"),
             *(m.Var(ident, m.BOOL) for ident in views.idents.values()),
         )),

@@ -174,11 +174,15 @@ def build_filter(project: Project, pou_name: str, scope: Scope, bound: source.Fi
             c.set("Violations", bor(c("Violations"),
                                     m.Call("SHL", (m.BitsLit(1, c.vword), c("J"))))))))
         any_violation = m.Binary("<>", c("Violations"), m.BitsLit(0, c.vword))
-        scan.append(m.Comment("3. The policy: 0 monitor, 1 block, 2 correct"))
+        scan.append(m.Comment("3. The policy: 0 monitor, 1 block, 2 (or anything else) "
+                              "correct"))
         scan.append(m.If((
             (m.eq(c("Policy"), m.IntLit(BLOCK)),
              (m.if_(any_violation, c.set("Latched", m.TRUE)),)),
-            (m.and_(m.eq(c("Policy"), m.IntLit(CORRECT)), any_violation), _correct(c)),
+            # any value but monitor and block corrects: a wrong setting never passes unsafe
+            # orders through
+            (m.and_(m.Binary("<>", c("Policy"), m.IntLit(MONITOR)), any_violation),
+             _correct(c)),
         )))
     scan.append(m.Comment("4. No safe vector: the safe state; the mask has the last word; "
                           "a latched filter writes the safe state"))
@@ -198,7 +202,7 @@ def build_filter(project: Project, pou_name: str, scope: Scope, bound: source.Fi
     blocks = (
         m.VarBlock("input", (
             m.Var(c.t["Policy"], m.INT, m.IntLit(POLICY_CODES[source.policy(project)]),
-                  comment="0 monitor, 1 block, 2 correct"),
+                  comment="0 monitor, 1 block, 2 correct (other values: correct)"),
             m.Var(c.t["Reset"], m.BOOL, comment="TRUE: a fault reset (a call of its own)"),
             m.Var(c.t["Ftc"], m.BOOL, m.TRUE, comment="diagnosers in FTC mode: masks apply"),
             *(m.Var(fov[v.name], m.BOOL, comment=f"the program's {v.name}") for v in outputs),
