@@ -202,6 +202,16 @@ def test_register_bits_map_to_located_words(tmp_path):
         assert rt.get("a") == bool(word) and rt.get("QW1") == want
 
 
+def test_a_project_on_the_paper_strategy_is_told_the_export_is_exact(tmp_path):
+    for path in (PROJECTS / "conveyor_robot").iterdir():
+        (tmp_path / path.name).write_text(path.read_text())
+    project_file = tmp_path / "project.yaml"
+    project_file.write_text(project_file.read_text() + "\nsolver: paper\n")
+    model = build(load_project(tmp_path))
+    assert any("strategy is paper; the export implements exact" in line
+               for line in model.summary)
+
+
 # -- the scan budget --------------------------------------------------------------------------
 
 

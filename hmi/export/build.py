@@ -108,6 +108,10 @@ def _summary(project: Project, bound: source.FilterBound, pous: list[m.Pou], g: 
              f"{limit}: " + ("plchmi check's proven worst case" if bound.proven else
                              "every output, the static check being sampled")
              + f"), each a loop over the {len(constraints)} constraints ({combined} combined)"]
+    if source.solver(project) != "exact":
+        lines.append(f"the project's corrector strategy is {source.solver(project)}; the "
+                     "export implements exact (the same minimal distance, ties broken as "
+                     "docs/filter.md says)")
     renamed = {**scope.renamed, **g.scope.renamed}
     if renamed:
         lines.append("renamed for IEC 61131-3: " + ", ".join(
