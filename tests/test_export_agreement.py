@@ -102,7 +102,7 @@ def test_the_sorting_cell_traces_agree(pool):
 
 
 def test_the_palletizer_and_subsystem_agree(pool):
-    runs = (_traces("palletizer", ("correct",), ("clamp_closed_stuck1",), campaign=False)
+    runs = (_traces("palletizer", ("correct",), ("pusher_home_stuck1",), campaign=False)
             + _traces("cispi_subsystem", ("correct",), ("v1_jam",), campaign=False))
     total = _all(pool, runs)
     assert len(runs) == 4
