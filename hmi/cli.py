@@ -41,6 +41,19 @@ def _duration(text: str) -> int:
     return us
 
 
+def _solver_budget(text: str) -> int:
+    from hmi.project.model import MAX_SOLVER_BUDGET, MIN_SOLVER_BUDGET
+    try:
+        value = int(text.replace("_", ""))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of steps") from None
+    if not MIN_SOLVER_BUDGET <= value <= MAX_SOLVER_BUDGET:
+        raise argparse.ArgumentTypeError(
+            f"{value} steps is out of range: between {MIN_SOLVER_BUDGET:,} and "
+            f"{MAX_SOLVER_BUDGET:,}")
+    return value
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="plchmi",
@@ -58,6 +71,10 @@ def _parser() -> argparse.ArgumentParser:
                        help="safety filter policy (default: the project's)")
         p.add_argument("--solver", choices=("exact", "paper"),
                        help="corrector search strategy (default: the project's, else exact)")
+        p.add_argument("--solver-budget", type=_solver_budget, metavar="STEPS",
+                       help="corrector search budget per scan, in steps; past it the safe "
+                       "state is written (default: the project's, else half the scan period "
+                       "in microseconds)")
 
     def plant_args(p: argparse.ArgumentParser, connect_default: str) -> None:
         p.add_argument("--plant", metavar="PLANT",
@@ -159,6 +176,10 @@ def _parser() -> argparse.ArgumentParser:
                    "mute@5s+2s), in time since the server started (repeatable)")
     p.add_argument("--delay", type=_duration, metavar="TIME",
                    help="answer every request TIME late (a slow server)")
+    p.add_argument("--max-connections", type=_positive, default=16, metavar="N",
+                   help="connections open at once; more are closed at once (16)")
+    p.add_argument("--idle-timeout", type=_duration, default=60_000_000, metavar="TIME",
+                   help="close a connection with no request for TIME (60s)")
     return parser
 
 
@@ -171,6 +192,12 @@ def _port(text: str) -> int:
 def _unit(text: str) -> int:
     if not text.isdigit() or int(text) > 255:
         raise argparse.ArgumentTypeError(f"{text!r} is not a Modbus unit id (0 to 255)")
+    return int(text)
+
+
+def _positive(text: str) -> int:
+    if not text.isdigit() or not 1 <= int(text) <= 10_000:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number from 1 to 10000")
     return int(text)
 
 
@@ -319,7 +346,8 @@ def make_engine(project, args: argparse.Namespace, extra_injections=()):
         raise UsageError("the monitor policy passes unsafe orders through to a real plant; "
                          "choose --policy block or correct, or add --allow-monitor")
     engine = Engine(project, plant, control=args.control, policy=args.policy,
-                    solver=args.solver, diagnosis=getattr(args, "diagnosis", None) or "ftc")
+                    solver=args.solver, diagnosis=getattr(args, "diagnosis", None) or "ftc",
+                    solver_budget=getattr(args, "solver_budget", None))
     engine.allow_monitor_on_real_plant = allow_monitor
     return engine, injections
 
@@ -491,6 +519,7 @@ class RunCollector:
         self.safe_scans = 0
         self.unsafe_written = 0
         self.fallbacks = 0
+        self.search_stops = 0  # fallbacks because the corrector's search used its budget
         self.first_latch: tuple[int, int, str] | None = None
         self.events = []
         self.step_changes = 0
@@ -524,6 +553,7 @@ class RunCollector:
                 self.unsafe_written += 1
             if report.fallback:
                 self.fallbacks += 1
+                self.search_stops += bool(getattr(report, "stopped", ""))
             self.max_distance = max(self.max_distance, report.distance)
         if snap.latched and self.first_latch is None:
             reason = snap.latched[0]
@@ -559,7 +589,7 @@ def run_real_time(engine, args: argparse.Namespace, duration_us: int) -> int:
         started = time.perf_counter()
         runner = run_live_for(controller, duration_us, on_scan)
         wall = time.perf_counter() - started
-        report = plant_report(plant, runner.overruns)
+        at_end = plant.status  # the link as the run ended, before the stop closes it
     finally:
         if writer:
             writer.close()
@@ -570,7 +600,8 @@ def run_real_time(engine, args: argparse.Namespace, duration_us: int) -> int:
     print(run_summary(engine, last, collector, [], wall,
                       trace=(args.trace, writer.count) if writer else None, time_kind="real"))
     print(alarm_summary(collector, args.explain))
-    print(report)
+    # After the stop: its write of the safe vector is counted like any other request.
+    print(plant_report(plant, at_end, runner.overruns))
     print(f"Stopped: {plant.message}")
     print(f"Journal: {recorder.journal.path}")
     return 0
@@ -587,15 +618,17 @@ def stop_plant(engine) -> None:
     stop(engine.now, safe)
 
 
-def plant_report(plant, overruns: int) -> str:
-    """What a run against a Modbus plant saw of it."""
-    status = plant.status
-    d = status.details
-    lines = [f"Plant {status.description}: {'connected' if status.connected else 'NOT CONNECTED'}"
-             f" ({status.message})",
-             f"  requests {d['requests']} (reads {d['reads']}, writes {d['writes']}), "
+def plant_report(plant, at_end, overruns: int) -> str:
+    """What a run against a Modbus plant saw of it: the link as it was when the run ended
+    (`at_end`), and every request sent, the stop's included."""
+    d = plant.status.details
+    stop = f", of which {d['stop_writes']} at stop" if d["stop_writes"] else ""
+    lines = [f"Plant {at_end.description}: "
+             f"{'connected' if at_end.connected else 'NOT CONNECTED'} ({at_end.message})",
+             f"  requests {d['requests']} (reads {d['reads']}, writes {d['writes']}{stop}), "
              f"exception responses {d['exceptions']}, timeouts {d['timeouts']}, "
-             f"connections lost {d['losses']}, connections made {d['connects']}"]
+             f"invalid answers {d['invalid']}, connections lost {d['losses']}, "
+             f"connections made {d['connects']}"]
     io = plant.io_percentiles()
     if io:
         lines.append(f"  Modbus I/O per scan: p50 {io[0] / 1000:.2f} ms, p99 {io[1] / 1000:.2f} "
@@ -663,7 +696,8 @@ def cmd_serve_plant(args: argparse.Namespace) -> int:
     injections = [parse_injection(text) for text in args.inject]
     unit = project.plant.unit if args.unit is None else args.unit
     try:
-        return run_server(project, args.host, args.port, unit, injections, args.delay or 0)
+        return run_server(project, args.host, args.port, unit, injections, args.delay or 0,
+                          args.max_connections, args.idle_timeout / 1e6)
     except UsageError as exc:
         if "unknown fault" in str(exc):
             raise UsageError(f"{exc}; communication faults: {', '.join(COMM_FAULTS)}"
