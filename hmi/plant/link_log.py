@@ -130,8 +130,10 @@ class LinkLog:
         self._attempt = 0  # the attempt that made the current connection
         self.exceptions = Burst("exception", "exceptions", "exception responses", window_s)
 
-    def _add(self, entries: list[Entry]) -> None:
-        wall = wall_now()
+    def _add(self, entries: list[Entry], wall: str | None = None) -> None:
+        """Queue entries stamped `wall` (default: now). A problem that opens an outage is
+        stamped with the outage's start, which later entries quote as `failing_since`."""
+        wall = wall or wall_now()
         with self._lock:
             self._pending.extend({"type": "plant", "wall": wall, **e} for e in entries)
 
@@ -140,9 +142,9 @@ class LinkLog:
             out, self._pending = self._pending, []
         return out
 
-    def _outage(self) -> Outage:
+    def _outage(self, wall: str) -> Outage:
         if self.outage is None:
-            self.outage = Outage(wall_now(), self.clock())
+            self.outage = Outage(wall, self.clock())
         return self.outage
 
     def _tick(self) -> None:
@@ -161,10 +163,11 @@ class LinkLog:
 
     # -- connection ----------------------------------------------------------------------
     def connect_failed(self, attempt: int, reason: str) -> None:
-        if self._outage().add("failed", reason) == 1:  # the first; the rest are counted
+        wall = wall_now()
+        if self._outage(wall).add("failed", reason) == 1:  # the first; the rest are counted
             self._add([{"event": "connect-failed", "attempt": attempt,
                         "message": f"{reason}; retrying with backoff (retries are "
-                        "summarised when the link works again or the session ends)"}])
+                        "summarised when the link works again or the session ends)"}], wall)
         self._tick()
 
     def connected(self, attempt: int) -> None:
@@ -172,7 +175,7 @@ class LinkLog:
         once a scan's I/O has worked on it (:meth:`link_ok`), or it is merely counted."""
         self._attempt = attempt
         if self._ever_connected:
-            self._outage().add("connects", "")
+            self._outage(wall_now()).add("connects", "")
             self._tick()
             return
         self._ever_connected = True
@@ -189,9 +192,10 @@ class LinkLog:
 
     def lost(self, reason: str) -> None:
         self._add(self.exceptions.end(self.clock()))
-        if self._outage().add("losses", reason) == 1:
+        wall = wall_now()
+        if self._outage(wall).add("losses", reason) == 1:
             self._add([{"event": "lost",
-                        "message": f"connection to {self.where} lost: {reason}"}])
+                        "message": f"connection to {self.where} lost: {reason}"}], wall)
         self._tick()
 
     def link_ok(self) -> None:

@@ -93,6 +93,10 @@ def parse_plant_url(text: str, base: ModbusSettings) -> ModbusSettings:
     bad = f"--plant {text!r}: expected {URL_HINT}"
     try:
         url = urlsplit(text)
+    except ValueError as exc:  # "Invalid IPv6 URL": a '[' without its ']'
+        raise UsageError(f"{bad} ({exc}; an IPv6 address is written in brackets, "
+                         "modbus://[::1]:5020)") from None
+    try:
         port = url.port
     except ValueError:
         raise UsageError(bad + " (the port must be a number from 1 to 65535)") from None
@@ -104,7 +108,7 @@ def parse_plant_url(text: str, base: ModbusSettings) -> ModbusSettings:
     unit = base.unit
     path = url.path.strip("/")
     if path:
-        if not path.isdigit() or not 0 <= int(path) <= 255:
+        if not (path.isascii() and path.isdigit()) or len(path) > 3 or int(path) > 255:
             raise UsageError(bad + f" (unit {path!r} is not a number from 0 to 255)")
         unit = int(path)
     return replace(base, host=url.hostname, port=port, unit=unit)
