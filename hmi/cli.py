@@ -139,6 +139,9 @@ def _parser() -> argparse.ArgumentParser:
     p = sub.add_parser("diagnose", help="print the diagnosers' automata and diagnosability")
     project_arg(p)
     diagnoser_arg(p)
+    p.add_argument("--no-closed-loop", action="store_true",
+                   help="print the closed-loop diagnosability only if it is cached (no "
+                   "exploration, which takes about a minute the first time)")
 
     p = sub.add_parser("campaign", help="inject every fault under three configurations and "
                        "classify the runs (000 Table 1)")
@@ -341,7 +344,7 @@ def cmd_check(args: argparse.Namespace) -> int:
 def cmd_diagnose(args: argparse.Namespace) -> int:
     from hmi.diag_report import diagnose_report
     print(diagnose_report(load(args.project, getattr(args, "diagnoser", None)),
-                          progress=_progress_bar()))
+                          progress=_progress_bar(), compute=not args.no_closed_loop))
     return 0
 
 

@@ -163,7 +163,7 @@ class _ActiveSet:
     combined_constraints: tuple[CompiledConstraint, ...]
     forcing0: tuple[tuple[str, ...], ...]
     forcing1: tuple[tuple[str, ...], ...]
-    problem: Problem | None  # the exact search's preparation, when there is a combined one
+    problem: Problem  # the exact search's preparation (empty when nothing is combined)
 
     @classmethod
     def of(cls, active, n: int) -> _ActiveSet:
@@ -187,7 +187,7 @@ class _ActiveSet:
         combined = tuple(c for c in active if not c.simple)
         masks = [(c.pos, c.neg) for c in combined]
         # Outputs forced by the simple constraints are not free; their values are F1's.
-        problem = Problem(masks, ((1 << n) - 1) & ~(f0 | f1), f1) if masks else None
+        problem = Problem(masks, ((1 << n) - 1) & ~(f0 | f1), f1)
         return cls(f0, f1, masks, combined, forcing0, forcing1, problem)
 
 
