@@ -7,6 +7,8 @@
     plchmi serve-plant PROJECT     the simulated plant as a Modbus TCP server
     plchmi diagnose PROJECT        the diagnosers' automata and their diagnosability
     plchmi campaign PROJECT        the fault campaign (000 Table 1)
+    plchmi export PROJECT --format st|plcopen -o DIR
+                                   the safety layer as IEC 61131-3 code for a PLC
 
 Exit status: 0 success, 2 bad input (a project error, a bad argument), 1 a failure at run
 time. Errors about a project name the file, line and column; there is never a traceback for
@@ -27,7 +29,7 @@ from hmi.timefmt import DURATION_HINT, DurationError, format_duration, parse_dur
 
 MAX_ERRORS_SHOWN = 25
 SUBCOMMANDS = ("check", "run", "sweep", "ui", "serve-plant", "bench", "journal",
-               "diagnose", "campaign")
+               "diagnose", "campaign", "export")
 
 
 def _duration(text: str) -> int:
@@ -137,6 +139,9 @@ def _parser() -> argparse.ArgumentParser:
     p = sub.add_parser("diagnose", help="print the diagnosers' automata and diagnosability")
     project_arg(p)
     diagnoser_arg(p)
+    p.add_argument("--no-closed-loop", action="store_true",
+                   help="print the closed-loop diagnosability only if it is cached (no "
+                   "exploration, which takes about a minute the first time)")
 
     p = sub.add_parser("campaign", help="inject every fault under three configurations and "
                        "classify the runs (000 Table 1)")
@@ -152,6 +157,17 @@ def _parser() -> argparse.ArgumentParser:
                    help="with --sweep: the grid of instants (default: every scan period)")
     p.add_argument("--faults", metavar="F1,F2,...",
                    help="with --sweep: only these faults (default: every fault of the plant)")
+
+    p = sub.add_parser(
+        "export", help="the safety filter, diagnosers and monitors as IEC 61131-3 code",
+        description="Export the project's safety layer (filter, local diagnosers, stopwatch "
+        "monitors) for a PLC: Structured Text (st) or PLCopen TC6 XML (plcopen, for CODESYS, "
+        "TwinCAT and OpenPLC's editor). See docs/plc-export.md.")
+    project_arg(p)
+    p.add_argument("--format", choices=("st", "plcopen"), required=True,
+                   help="st: one IEC 61131-3 file; plcopen: PLCopen TC6 XML")
+    p.add_argument("-o", "--output", type=Path, required=True, metavar="DIR",
+                   help="folder to write into (created if missing)")
 
     p = sub.add_parser(
         "journal", help="print or export a project's operator journal",
@@ -328,7 +344,7 @@ def cmd_check(args: argparse.Namespace) -> int:
 def cmd_diagnose(args: argparse.Namespace) -> int:
     from hmi.diag_report import diagnose_report
     print(diagnose_report(load(args.project, getattr(args, "diagnoser", None)),
-                          progress=_progress_bar()))
+                          progress=_progress_bar(), compute=not args.no_closed_loop))
     return 0
 
 
@@ -846,10 +862,25 @@ def check_host(host: str) -> None:
 __all__ = ["format_duration", "main", "seconds"]
 
 
+def cmd_export(args: argparse.Namespace) -> int:
+    from hmi.export import export
+    project = load(args.project)
+    if args.output.exists() and not args.output.is_dir():
+        raise UsageError(f"-o {args.output}: not a folder")
+    try:
+        written = export(project, args.format, args.output)
+    except OSError as exc:
+        raise UsageError(f"-o {args.output}: cannot write there ({exc.strerror})") from None
+    print(f"Wrote {written.path}")
+    for line in written.model.summary:
+        print(f"  {line}")
+    return 0
+
+
 COMMANDS = {
     "check": cmd_check, "run": cmd_run, "sweep": _sweep, "ui": cmd_ui,
     "serve-plant": cmd_serve_plant, "bench": cmd_bench, "journal": cmd_journal,
-    "diagnose": cmd_diagnose, "campaign": cmd_campaign,
+    "diagnose": cmd_diagnose, "campaign": cmd_campaign, "export": cmd_export,
 }
 
 if __name__ == "__main__":

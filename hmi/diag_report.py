@@ -55,7 +55,7 @@ def check_sections(project: Project, closed_loop: bool = False) -> list[list[str
     return sections
 
 
-def diagnose_report(project: Project, progress=None) -> str:
+def diagnose_report(project: Project, progress=None, compute: bool = True) -> str:
     """For `plchmi diagnose`: the automaton in full, then its diagnosability (the diagram's
     upper bound, then the closed loop's)."""
     specs = diagnosers_of(project)
@@ -94,7 +94,7 @@ def diagnose_report(project: Project, progress=None) -> str:
         out.append("")
         out += report.lines()
         out.append("")
-    out += closed_loop_lines(project, progress=progress)
+    out += closed_loop_lines(project, progress=progress, compute=compute)
     return "\n".join(out).rstrip()
 
 

@@ -27,7 +27,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
      "hmi.textfile"),
     ("hmi.logic",),
     ("hmi.project",),
-    ("hmi.plant", "hmi.engine"),
+    ("hmi.plant", "hmi.engine", "hmi.export"),
     ("hmi.explain",),
     ("hmi.session",),
     ("hmi.ui", "hmi.cli", "hmi.bench", "hmi.report", "hmi.diag_report", "hmi.monitor_report",
