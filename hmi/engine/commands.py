@@ -102,9 +102,21 @@ class ChoosePolicy:
     policy: str  # the policy's id
 
 
+@dataclass(frozen=True)
+class StartRecovery:
+    """Enter recovery mode and run a declared recovery procedure (hmi.project.recovery)."""
+
+    procedure: str
+
+
+@dataclass(frozen=True)
+class EndRecovery:
+    """Leave recovery mode: automatic operation, the control law from its initial steps."""
+
+
 Command = (Pause | Resume | StepScans | SetSpeed | SetMode | ManualOutput | FaultReset
            | SetPolicy | InjectFault | RepairFaults | SetInput | Acknowledge | StopDevice
-           | ReleaseDevice | ChoosePolicy)
+           | ReleaseDevice | ChoosePolicy | StartRecovery | EndRecovery)
 
 
 @dataclass(frozen=True)
@@ -154,4 +166,8 @@ def describe(command: Command) -> str:
             return f"release device {d}"
         case ChoosePolicy(key=k, policy=p):
             return f"choose policy {p} for {k}"
+        case StartRecovery(procedure=p):
+            return f"start recovery {p}"
+        case EndRecovery():
+            return "leave recovery mode"
     return repr(command)

@@ -15,6 +15,7 @@ from hmi.engine.diagnoser import DiagnoserState
 from hmi.engine.filter import FilterReport
 from hmi.engine.layout import Layout
 from hmi.engine.monitors import MonitorState
+from hmi.engine.recovery import NO_RECOVERY, RecoveryState
 from hmi.logic.timers import TimerState
 from hmi.plant.base import PlantEvent, PlantStatus
 
@@ -41,7 +42,7 @@ class Snapshot(NamedTuple):
     fired: tuple[int, ...]  # GRAFCET transitions fired this scan
     timer_elapsed: tuple[int, ...]  # ET of each timer (its Q is in `values`)
     control: str  # the control variant running
-    mode: str  # "auto" or "manual"
+    mode: str  # "auto", "manual" or "recovery"
     manual: tuple[tuple[str, bool], ...]  # manual requests in effect
     policy: str
     latched: tuple[LatchReason, ...]
@@ -61,6 +62,7 @@ class Snapshot(NamedTuple):
     alarms: tuple[Any, ...] = ()
     alarm_events: tuple[Any, ...] = ()  # alarm transitions during this scan (for the journal)
     stopped_devices: tuple[str, ...] = ()  # devices the operator stopped
+    recovery: RecoveryState = NO_RECOVERY  # the recovery procedure running, and those needed
     error: str | None = None  # an internal error caught during this scan
     scan_wall_us: float = 0.0  # measured, not deterministic
     filter_wall_us: float = 0.0  # the filter stage's share of it (plchmi bench)

@@ -18,6 +18,7 @@ from hmi.engine.snapshot import Snapshot
 from hmi.explain.diagnoses import diagnosis_explanations
 from hmi.explain.model import Explanation, Policy
 from hmi.explain.monitors import monitor_explanations
+from hmi.explain.recovery import recovery_explanations
 from hmi.explain.texts import ProjectTexts, TextSpec, fill
 from hmi.project.diagnosers import diagnosers_of
 from hmi.project.model import Project
@@ -70,6 +71,7 @@ class ExplanationBuilder:
         # The situations of the stages that have their own explanations.
         found.extend(monitor_explanations(self, snap))
         found.extend(diagnosis_explanations(self, snap))
+        found.extend(recovery_explanations(self, snap))
         keys = {e.key for e in found}
         for key in list(self.onsets):
             if key not in keys:

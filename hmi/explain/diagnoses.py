@@ -20,6 +20,8 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from hmi.explain.model import Explanation, Policy
+from hmi.explain.recovery import start_policy
+from hmi.project.recovery import recoveries_of
 from hmi.timefmt import seconds
 
 if TYPE_CHECKING:
@@ -190,6 +192,10 @@ def _policies(builder, spec, state, texts, device: str) -> tuple[Policy, ...]:
             "keep running on the reconstructed value; replace the sensor at the next stop",
             None, True))
     policies.append(builder.policy_stop(device))
+    for procedure in recoveries_of(builder.project):
+        if procedure.device == device:
+            policies.append(start_policy(procedure.name, procedure.description,
+                                         recommended=False))
     policies.append(builder.policy_reset(
         "after repair: re-synchronise the diagnoser and release the flags (it stays faulty "
         "if the fault is still visible)", recommended=bool(actuator) and state.certain))

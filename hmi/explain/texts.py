@@ -26,7 +26,8 @@ PLACEHOLDERS: dict[str, tuple[str, ...]] = {
     "situations": (*COMMON, "reason", "detail"),
 }
 LEVELS = ("what", "why", "consequences")
-POLICY_IDS = ("continue", "stop_device", "manual", "reset", "check")
+POLICY_IDS = ("continue", "stop_device", "manual", "reset", "check", "recovery",
+              "leave_recovery")
 
 
 @dataclass(frozen=True)

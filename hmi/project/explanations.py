@@ -34,7 +34,8 @@ def parse_explanations(node: YNode, guard: Callable, known: dict[str, set[str]],
     by_kind: dict[str, dict[str, TextSpec]] = {}
     for kind, knode in kinds.items():
         entries = guard(lambda n=knode, k=kind: n.as_map(f"explanations of {k}"), {})
-        names = known.get(kind, set()) if kind != "situations" else set(SITUATIONS)
+        names = known.get(kind, set()) if kind != "situations" else \
+            set(SITUATIONS) | known.get("situations", set())
         for name, enode in entries.items():
             pos = knode.key_pos[name]
             if name not in names:

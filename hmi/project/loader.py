@@ -59,6 +59,7 @@ from hmi.project.model import (
     Variable,
 )
 from hmi.project.monitors import parse_monitors
+from hmi.project.recovery import RECOVERY_SITUATIONS, parse_recovery
 from hmi.project.scenarios import parse_scenarios
 from hmi.project.yamlnodes import NodeError, YNode, load_yaml
 from hmi.timefmt import DURATION_HINT, format_duration, parse_duration
@@ -69,6 +70,7 @@ TOP_KEYS = {
     "name", "description", "scan_period", "include", "inputs", "outputs", "memories",
     "timers", "observers", "control", "constraints", "policy", "solver", "solver_budget",
     "plant", "explanations", "monitors", "scenarios", "diagnosers", "campaign", "components",
+    "recovery",
 }
 
 
@@ -334,6 +336,7 @@ class ProjectLoader:
         scenarios = parse_scenarios(self, plant)
         diagnosers = parse_diagnosers(self)  # hmi/project/diagnosers.py
         campaign = parse_campaign(self, plant)  # hmi/project/campaign.py
+        recovery = parse_recovery(self, constraints, outputs)  # hmi/project/recovery.py
         texts = None
         sources = [*self.components.explanations]
         if "explanations" in s:
@@ -343,7 +346,9 @@ class ProjectLoader:
             known = {"constraints": {c.name for c in constraints},
                      "monitors": {m.name for m in monitors},
                      "labels": self.declared_labels,
-                     "partitions": self.declared_partitions}
+                     "partitions": self.declared_partitions,
+                     "situations": {f"{prefix}_{r.name}" for r in recovery
+                                    for prefix in RECOVERY_SITUATIONS}}
             texts = merge_texts(self, [
                 (owner, parse_explanations(node, self.guard, known, self.diag.error))
                 for owner, node in sources])
@@ -357,7 +362,8 @@ class ProjectLoader:
             solver_budget=solver_budget,
             extra={"warnings": tuple(self.diag.warnings), "explanations": texts,
                    "monitors": monitors, "scenarios": scenarios, "diagnosers": diagnosers,
-                   "campaign": campaign, "components": tuple(self.components.instances),
+                   "campaign": campaign, "recovery": recovery,
+                   "components": tuple(self.components.instances),
                    "check_sections": ((self.components.check_lines(),)
                                       if self.components.instances else ())},
         )

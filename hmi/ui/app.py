@@ -33,6 +33,7 @@ from hmi.engine.commands import (
     ChoosePolicy,
     Command,
     CommandResult,
+    EndRecovery,
     FaultReset,
     InjectFault,
     ManualOutput,
@@ -44,6 +45,7 @@ from hmi.engine.commands import (
     SetMode,
     SetPolicy,
     SetSpeed,
+    StartRecovery,
     StepScans,
     StopDevice,
     describe,
@@ -54,6 +56,7 @@ from hmi.plant.injection import Injection
 from hmi.project.diagnosers import diagnosers_of
 from hmi.project.model import POLICIES
 from hmi.project.monitors import monitors_of
+from hmi.project.recovery import recoveries_of
 from hmi.session.session import Session
 from hmi.timefmt import seconds
 from hmi.ui.actions import ACTIONS, bindings
@@ -80,7 +83,7 @@ from hmi.ui.monitors_panel import MonitorsPanel
 from hmi.ui.palette import HmiCommands, PaletteEntry
 from hmi.ui.panel import ColumnPanel
 from hmi.ui.recorder import ScanRecorder
-from hmi.ui.reset import ResetLine, reset_preview
+from hmi.ui.reset import ResetLine, recovery_lines, reset_preview
 from hmi.ui.signal_dialog import SignalDialog
 from hmi.ui.sim_panel import SimPanel
 from hmi.ui.status import BannerStrip, StatusBar
@@ -396,6 +399,13 @@ class PlcHmiApp(App):
                 lines += self._manual_lines(snap) if snap else []
             case SetMode(manual=False):
                 lines.append("Every manual request is released; the program drives again.")
+            case StartRecovery(procedure=name):
+                spec = next((p for p in recoveries_of(self.project) if p.name == name), None)
+                if spec is not None:
+                    lines += recovery_lines(self.project, spec)
+                level = Level.ALARM
+            case EndRecovery():
+                lines.append("The control program starts again from its initial steps.")
             case StopDevice(device=device):
                 outputs = ", ".join(v.name for v in self.project.outputs
                                     if v.device == device)
@@ -425,10 +435,18 @@ class PlcHmiApp(App):
                 self._request = (name, bool(value), last.scan if last else 0, what)
             case SetMode(manual=manual) if result.accepted:
                 self._mode_commanded = "manual" if manual else "auto"
+            case StartRecovery() if result.accepted:
+                self._mode_commanded = "recovery"
+            case EndRecovery() if result.accepted:
+                self._mode_commanded = "auto"
             case ChoosePolicy(key=key, policy=policy_id) if result.accepted:
                 inner = self._policy_command(key, policy_id)
                 if isinstance(inner, SetMode):
                     self._mode_commanded = "manual" if inner.manual else "auto"
+                elif isinstance(inner, StartRecovery):
+                    self._mode_commanded = "recovery"
+                elif isinstance(inner, EndRecovery):
+                    self._mode_commanded = "auto"
             case InjectFault(injection=injection) if result.accepted:
                 self._injected.append(InjectedFault(injection, self._fault_text(injection)))
                 self._version += 1
@@ -579,6 +597,9 @@ class PlcHmiApp(App):
         snap = self.controller.last
         if snap is None:
             return
+        if snap.mode == "recovery" or self._mode_commanded == "recovery":
+            self.leave_recovery()
+            return
         manual_now = self.frame.manual_keys if self.frame else snap.mode == "manual"
         if manual_now:
             requested = ", ".join(f"{n}={int(v)}" for n, v in snap.manual) or "none"
@@ -608,9 +629,45 @@ class PlcHmiApp(App):
         snap = self.controller.last
         if snap is None:
             return
+        recovery = next((line.recovery for line in reset_preview(snap) if line.recovery), "")
+
+        def answered(answer: bool | str | None) -> None:
+            if answer == "alternative":
+                self.start_recovery(recovery)
+            else:
+                self._confirmed(FaultReset(), bool(answer))
         self.push_screen(ConfirmDialog("Fault reset?", self._reset_lines(snap), "Reset",
-                                       dialog_id="reset-dialog"),
-                         partial(self._confirmed, FaultReset()))
+                                       dialog_id="reset-dialog",
+                                       alternative="Start recovery" if recovery else None),
+                         answered)
+
+    # -- recovery (hmi.project.recovery) -------------------------------------------------------
+    def start_recovery(self, name: str) -> None:
+        """Confirm, then enter recovery mode running procedure `name`."""
+        spec = next((p for p in recoveries_of(self.project) if p.name == name), None)
+        if spec is None:
+            self.refuse("recovery", f"no recovery procedure {name!r}")
+            return
+        self.push_screen(ConfirmDialog(f"Start recovery: {spec.description}?",
+                                       recovery_lines(self.project, spec), "Start recovery",
+                                       level=Level.ALARM, dialog_id="recovery-dialog"),
+                         partial(self._confirmed, StartRecovery(name)))
+
+    def leave_recovery(self) -> None:
+        snap = self.controller.last
+        state = snap.recovery if snap else None
+        reached = {"done": "The recovery is done.", "failed": "The recovery failed."}.get(
+            state.status if state else "", "The recovery is stopped where it is.")
+        lines = [reached,
+                 "Automatic mode: the control program starts again from its initial steps,",
+                 "through the safety filter "
+                 f"({snap.policy if snap else self.controller.engine.policy})."]
+        if snap is not None and any(d.faulty for d in snap.diagnosers):
+            lines.append(tag("A diagnosis is still latched: r (fault reset) first, or the "
+                             "device stays masked.", Level.ATTENTION))
+        self.push_screen(ConfirmDialog("Leave recovery mode?", lines, "Leave recovery",
+                                       dialog_id="recovery-dialog"),
+                         partial(self._confirmed, EndRecovery()))
 
     @staticmethod
     def _reset_lines(snap) -> list[Text | str]:
@@ -831,6 +888,18 @@ class PlcHmiApp(App):
                     f"Policy: {policy.label}{mark} — {panel.explanation.device}"
                     + ("…" if policy.command is not None else ""),
                     policy.effect, partial(self.choose_policy, panel.key, policy)))
+        if snap.mode == "recovery":
+            entries.append(PaletteEntry("Recovery: leave…", "Automatic mode again; the "
+                                        "program starts from its initial steps",
+                                        self.leave_recovery))
+        else:
+            needed = {n[0] for n in snap.recovery.needed}
+            for spec in recoveries_of(self.project):
+                mark = " (needed now)" if spec.name in needed else ""
+                entries.append(PaletteEntry(
+                    f"Recovery: start — {spec.description}{mark}…",
+                    f"{spec.device}: recovery mode, filtered by its own constraints",
+                    partial(self.start_recovery, spec.name)))
         for device in snap.stopped_devices:
             entries.append(PaletteEntry(f"Release device {device}",
                                         "Its outputs follow the program (and the filter) again",

@@ -39,28 +39,46 @@ class ConfirmDialog(ModalScreen[bool]):
     ]
 
     def __init__(self, title: str, lines: Sequence[Text | str], confirm: str = "Confirm",
-                 level: Level = Level.ATTENTION, dialog_id: str = "confirm"):
+                 level: Level = Level.ATTENTION, dialog_id: str = "confirm",
+                 alternative: str | None = None):
         super().__init__(id=dialog_id)
         self.title_text = title
         self.lines = list(lines)
         self.confirm_label = confirm
         self.level = level
+        # A third answer (key g): "Start recovery" in the fault reset dialog, when the reset
+        # cannot do what the operator wants and a recovery can. Dismisses with the string
+        # "alternative".
+        self.alternative = alternative
 
     def compose(self) -> ComposeResult:
         with Vertical(classes="dialog"):
             yield _title(self.title_text, self.level)
+            hint = "y / enter: confirm    n / esc: cancel"
+            if self.alternative:
+                hint = f"y: confirm    g: {self.alternative.lower()}    n / esc: cancel"
+            yield Label(hint, classes="dialog-hint")
             for line in self.lines:
                 yield Static(line, classes="dialog-line", markup=False)
-            yield Label("y / enter: confirm    n / esc: cancel", classes="dialog-hint")
             with Horizontal(classes="dialog-buttons"):
                 yield Button(f"{self.confirm_label} (y)", id="yes", variant="default")
+                if self.alternative:
+                    yield Button(f"{self.alternative} (g)", id="alternative",
+                                 variant="default")
                 yield Button("Cancel (n)", id="no", variant="default")
 
     def action_answer(self, yes: bool) -> None:
         self.dismiss(yes)
 
+    def key_g(self) -> None:
+        if self.alternative:
+            self.dismiss("alternative")  # type: ignore[arg-type]
+
     @on(Button.Pressed)
     def _pressed(self, event: Button.Pressed) -> None:
+        if event.button.id == "alternative":
+            self.dismiss("alternative")  # type: ignore[arg-type]
+            return
         self.dismiss(event.button.id == "yes")
 
 

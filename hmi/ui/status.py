@@ -4,8 +4,9 @@ The status bar is one line. When the terminal is narrow it uses short forms, the
 least important fields first (measured scan time, the late-scan count, plant details; the
 project name among the last) and never the mode, the run state or an alarm. The banner
 strip appears only while something abnormal is in effect: manual mode
-(MANUAL / FORCES ACTIVE), a device the operator stopped, and outputs latched in the safe
-state.
+(MANUAL / FORCES ACTIVE), recovery mode (RECOVERY, with its step), a device the operator
+stopped, and outputs latched in the safe state. The mode and the filter policy never drop
+from the status bar.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from dataclasses import dataclass
 
 from rich.text import Text
 
+from hmi.engine.recovery import RecoveryState
 from hmi.timefmt import seconds
 from hmi.ui.frame import Frame
 from hmi.ui.panel import TextPanel
@@ -45,13 +47,18 @@ def status_fields(frame: Frame, wide: bool, compact: bool = False) -> list[Field
             fields.append(Field(Text(f"{where} ● connected"), 3))
         else:
             fields.append(Field(tag(f"{where} DISCONNECTED", Level.ALARM), 0))
-    fields.append(Field(tag("MANUAL", Level.ATTENTION) if snap.mode == "manual"
-                        else Text("AUTO"), 0))
+    if snap.mode == "manual":
+        fields.append(Field(tag("MANUAL", Level.ATTENTION), 0))
+    elif snap.mode == "recovery":
+        fields.append(Field(tag("RECOVERY", Level.ATTENTION), 0))
+    else:
+        fields.append(Field(Text("AUTO"), 0))
+    # The mode and the filter policy never drop: they say how the cell is driven and guarded.
     filter_word = "" if compact else "filter "
     if snap.policy == "monitor":
-        fields.append(Field(tag(f"{filter_word}monitor", Level.ATTENTION), 1))
+        fields.append(Field(tag(f"{filter_word}monitor", Level.ATTENTION), 0))
     else:
-        fields.append(Field(Text(f"{filter_word}{snap.policy}"), 3))
+        fields.append(Field(Text(f"{filter_word}{snap.policy}"), 0))
     report = snap.filter
     if report is not None and report.violations:
         count = len(report.violations)
@@ -158,6 +165,22 @@ class BannerStrip(TextPanel):
             self.show_text(Text("\n").join(lines))
 
 
+def recovery_banner(state: RecoveryState) -> Text:
+    """RECOVERY: what runs and how far it got, and the way out."""
+    if state.status == "running":
+        line = banner("RECOVERY", Level.ATTENTION)
+        line.append(f" {state.step_text} {state.step}/{state.steps} · "
+                    f"{state.elapsed_us / 1e6:.1f}/{state.timeout_us / 1e6:.1f} s · "
+                    f"{state.description} · m: leave")
+    elif state.status == "done":
+        line = banner("RECOVERY DONE", Level.ATTENTION)
+        line.append(f" next: r fault reset, then m leave recovery · {state.description}")
+    else:
+        line = banner("RECOVERY FAILED", Level.ALARM)
+        line.append(f" {state.message} · m: leave recovery")
+    return line
+
+
 def banner_lines(frame: Frame) -> list[Text]:
     snap = frame.snapshot
     lines: list[Text] = []
@@ -168,6 +191,8 @@ def banner_lines(frame: Frame) -> list[Text]:
         line.append(f" requests: {forced or 'none (all outputs 0)'}"
                     f" · filtered ({snap.policy}) · m: leave")
         lines.append(line)
+    if snap.mode == "recovery":
+        lines.append(recovery_banner(snap.recovery))
     if not snap.plant.connected:
         line = banner("PLANT DISCONNECTED", Level.ALARM)
         line.append(f" {snap.plant.description}: {snap.plant.message or 'no answer'}")
