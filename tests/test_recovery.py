@@ -243,3 +243,81 @@ def test_the_project_errors_of_a_recovery_name_file_line_and_column(tmp_path):
     assert "drives 'Z', which is not an output" in text
     assert "constraint name 'CSs1' is already used by the project" in text
     assert all(pos.count(":") >= 2 for pos, _ in messages)  # file:line:column
+
+
+# -- in the HMI ------------------------------------------------------------------------------
+
+
+async def test_the_operator_finds_the_way_back_from_f13_through_the_reset_dialog():
+    from hmi.ui.dialogs import ConfirmDialog
+    from hmi.ui.scenarios import make_app
+    from hmi.ui.testing import (
+        palette,
+        region_text,
+        run_for,
+        run_until,
+        screen_text,
+        wait_for_main,
+        wait_for_screen,
+    )
+
+    app = make_app(inject=("F13@10.4s",))
+    async with app.run_test(size=(80, 24)) as pilot:
+        await run_until(pilot, lambda s: s.recovery.needed, 20, "recovery needed")
+        await palette(pilot, "SIMULATION: repair")
+        await pilot.press("r")
+        dialog = await wait_for_screen(pilot, ConfirmDialog)
+        text = screen_text(app)
+        assert "g: start recovery" in text and "known position" in text
+        assert dialog.alternative == "Start recovery"
+        await pilot.press("g")
+        await wait_until_dialog(pilot, "recovery-dialog")
+        text = screen_text(app)
+        assert "Start recovery: Close valve V1" in text and "Only C move" in text
+        await pilot.press("y")
+        await wait_for_main(pilot)
+        await run_for(pilot, 0.5)
+        assert "RECOVERY" in region_text(app, "#status")
+        assert "▲ RECOVERY ▲" in region_text(app, "#banners")
+        await run_until(pilot, lambda s: s.recovery.status == "done", 3, "recovery done")
+        assert "RECOVERY DONE" in region_text(app, "#banners")
+        await pilot.press("r")
+        await wait_for_screen(pilot, ConfirmDialog)
+        await pilot.press("y")
+        await wait_for_main(pilot)
+        await pilot.press("m")
+        await wait_until_dialog(pilot, "recovery-dialog")
+        assert "Leave recovery mode?" in screen_text(app)
+        await pilot.press("y")
+        await wait_for_main(pilot)
+        await run_for(pilot, 20)
+        snap = app.controller.last
+        assert snap.mode == "auto" and "AUTO" in region_text(app, "#status")
+        assert cycles(snap) >= 2 and not any(d.faulty for d in snap.diagnosers)
+        assert not app.query_one("#banners").display
+
+
+async def wait_until_dialog(pilot, dialog_id: str) -> None:
+    from hmi.ui.testing import wait_until
+    await wait_until(pilot, lambda: pilot.app.screen.id == dialog_id, dialog_id)
+    await pilot.pause()
+
+
+@pytest.mark.parametrize("fault", ["V1.F13@26.5s", "V2.F13@22.5s", "V1.F1@30s", "P.welded@30s"])
+def test_the_subsystem_is_brought_back_to_its_initial_state_by_its_cell_recovery(fault):
+    project = load_project(PROJECTS / "cispi_subsystem")
+    plant = SimPlant(project)
+    injection = parse_injection(fault)
+    plant.inject(injection)
+    session = Session(Engine(project, plant))
+    snap = session.run_for(injection.at_us + 15 * S)
+    if "F13" in fault or "F1@" in fault:
+        assert [n[0] for n in snap.recovery.needed] == ["cell_home"]
+    assert session.command(RepairFaults()).accepted
+    repaired_at = len(plant.events())
+    recover(session, "cell_home")
+    fills = dict(session.last.plant_counters)["T2.fills"]
+    snap = session.run_for(60 * S)
+    assert dict(snap.plant_counters)["T2.fills"] - fills >= 2
+    assert not any(d.faulty for d in snap.diagnosers) and not snap.latched
+    assert not [e for e in plant.events()[repaired_at:] if e.damage]

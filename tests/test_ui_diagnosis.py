@@ -127,7 +127,8 @@ async def test_reset_re_synchronises_a_diagnoser_only_when_the_io_allows_it():
         await wait_for_screen(pilot, ConfirmDialog)
         text = screen_text(app)
         assert "stays: diagnoser V1 in A1 {F1, F13}" in text
-        assert "fsc=0, fso=0, C=0, O=0 match no normal" in text
+        assert "reset needs Valve V1 back at a known" in text
+        assert "g: start recovery" in text  # the way back is offered (tests/test_recovery.py)
         await pilot.press("y")
         await wait_for_main(pilot)
         assert engine(app).diagnosis.runtimes[0].state.name == "A1"

@@ -49,8 +49,9 @@ class RecoveryState:
     message: str = ""  # done / failed: what happened, plainly
     # Procedures the cell needs now: (name, device, description, why in plain words).
     needed: tuple[tuple[str, str, str, str], ...] = ()
-    # Every procedure the project declares: (name, device, description).
-    procedures: tuple[tuple[str, str, str], ...] = ()
+    # Every procedure the project declares: (name, device, description, the devices whose
+    # outputs it drives).
+    procedures: tuple[tuple[str, str, str, tuple[str, ...]], ...] = ()
 
     @property
     def running(self) -> bool:
@@ -101,8 +102,11 @@ class RecoveryStage:
         self.message = ""
         self.ended_us: int | None = None
         self.needed: tuple[tuple[str, str, str, str], ...] = ()
-        self.catalogue = tuple((p.spec.name, p.spec.device, p.spec.description)
-                               for p in self.procedures.values())
+        devices = {v.name: v.device for v in project.outputs if v.device}
+        self.catalogue = tuple(
+            (p.spec.name, p.spec.device, p.spec.description,
+             tuple(dict.fromkeys(devices[o] for o in p.spec.outputs if o in devices)))
+            for p in self.procedures.values())
         self._idle = RecoveryState(procedures=self.catalogue)
 
     # -- commands (through the engine) ------------------------------------------------------

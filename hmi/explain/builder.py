@@ -122,6 +122,10 @@ class ExplanationBuilder:
                 return self.devices[name]
         return self.project.name
 
+    def devices_of(self, names) -> set[str]:
+        """The devices these variables belong to."""
+        return {self.devices[n] for n in names if n in self.devices}
+
     def short(self, name: str) -> str:
         """A variable's description without its device's name ("open order", not "Valve V1
         open order"), for sentences that already name the device."""

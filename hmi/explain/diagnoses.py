@@ -193,7 +193,7 @@ def _policies(builder, spec, state, texts, device: str) -> tuple[Policy, ...]:
             None, True))
     policies.append(builder.policy_stop(device))
     for procedure in recoveries_of(builder.project):
-        if procedure.device == device:
+        if device in builder.devices_of(procedure.outputs):
             policies.append(start_policy(procedure.name, procedure.description,
                                          recommended=False))
     policies.append(builder.policy_reset(

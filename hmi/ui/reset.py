@@ -87,9 +87,9 @@ def diagnoser_preview(snap: Snapshot) -> Iterable[ResetLine]:
             yield ResetLine(what, resets=True,
                             note=f"re-synchronised to {d.resync} on {d.resync_values}")
             continue
-        procedures = [p for p in snap.recovery.procedures if p[1] == d.device]
+        procedures = [p for p in snap.recovery.procedures if d.device in p[3]]
         if procedures and snap.mode != "recovery":
-            name, _, description = procedures[0]
+            name, _, description, _ = procedures[0]
             yield ResetLine(what, resets=False,
                             why=f"reset needs {d.device or 'the device'} back at a known "
                                 f"position ({d.resync_values or 'the I/O'} match no normal "

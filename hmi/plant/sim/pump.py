@@ -66,6 +66,7 @@ class Pump(SimDevice):
                               "actuator"),
         "welded": FaultSpec("welded", "pump contactor welded: it does not stop", "actuator"),
     }
+    REPAIRABLE = True
 
     def __init__(self, name: str, params: Mapping[str, Any]):
         super().__init__(name, params)
@@ -103,6 +104,18 @@ class Pump(SimDevice):
             if "welded" in self.active_faults:
                 self.record(t, "stop_failed", False, "stop ordered, the contactor stayed closed")
                 return
+            self.running = False
+            self.dead_us = self.dry_us = 0
+            self.dead_reported = self.dry_reported = False
+
+    def _repaired(self) -> None:
+        """A repaired motor and contactor follow the order again from now: a welded contactor
+        released stops a pump whose order is off; a repaired motor whose order is on runs."""
+        order = self.orders["P"]
+        if order and not self.running:
+            self.running = True
+            self.starts += 1
+        elif not order and self.running:
             self.running = False
             self.dead_us = self.dry_us = 0
             self.dead_reported = self.dry_reported = False

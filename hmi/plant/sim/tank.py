@@ -59,6 +59,8 @@ class Tank(SimDevice):
         "high_stuck0": FaultSpec("high_stuck0", "high level switch stuck at 0", "high"),
         "high_stuck1": FaultSpec("high_stuck1", "high level switch stuck at 1", "high"),
     }
+    # A stuck level switch is replaced: nothing else to undo (the faults are read live).
+    REPAIRABLE = True
 
     def __init__(self, name: str, params: Mapping[str, Any]):
         super().__init__(name, params)
