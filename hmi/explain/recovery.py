@@ -132,17 +132,32 @@ def _failed(builder: ExplanationBuilder, snap: Snapshot, key: str, onset) -> Exp
                        (what, why, consequences, policies), "high", True, onset)
 
 
+def _detail(builder: ExplanationBuilder, name: str) -> str:
+    """The procedure as the engineer wrote it."""
+    spec = next((p for p in recoveries_of(builder.project) if p.name == name), None)
+    if spec is None:
+        return ""
+    steps = "; ".join(f"{k}. do {', '.join(a.output for a in step.actions)} until "
+                      f"`{step.until.source}`" for k, step in enumerate(spec.steps, 1))
+    own = ", ".join(f"{c.name} `{c.expr.source}`" for c in spec.constraints) or "none"
+    return (f"Recovery procedure {spec.name}: {steps}; timeout {seconds(spec.timeout_us)} s; "
+            f"relaxes {', '.join(spec.relaxes) or 'nothing'}; its constraints: {own}"
+            + (f"; needed when `{spec.needed.when.source}` for "
+               f"{seconds(spec.needed.for_us)} s" if spec.needed else "") + ".")
+
+
 def _with_texts(builder: ExplanationBuilder, snap: Snapshot, key: str, text_name: str,
                 device: str, levels: tuple, severity: str, alarm: bool, onset
                 ) -> Explanation:
     what, why, consequences, policies = levels
+    name = key.split(":", 1)[1]
     level = builder.apply_texts(
         builder.texts.get("situations", text_name),
         {"what": what, "why": why, "consequences": consequences, "policies": policies,
-         "severity": severity, "alarm": alarm},
+         "severity": severity, "alarm": alarm, "detail": _detail(builder, name)},
         {"device": device, "time": seconds(snap.time_us), "scan": snap.scan,
          "since_time": seconds(onset.time_us), "since_scan": onset.scan,
          "action": "recovery", "reason": "recovery", "detail": snap.recovery.message})
     return Explanation(key, "recovery", level["severity"], device, level["what"],
                        level["why"], level["consequences"], level["policies"], onset.scan,
-                       onset.time_us, level["alarm"])
+                       onset.time_us, level["alarm"], detail=level["detail"])

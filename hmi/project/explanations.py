@@ -73,8 +73,8 @@ def _spec(node: YNode, kind: str, name: str) -> TextSpec:
             raise NodeError(fields["severity"].pos, f"severity {severity!r} is not known",
                             "high, medium or low")
     alarm = fields["alarm"].as_bool("alarm") if "alarm" in fields else None
-    return TextSpec(texts.get("what"), texts.get("why"), texts.get("consequences"), policies,
-                    recommend, severity, alarm, node.pos)
+    return TextSpec(texts.get("what"), texts.get("why"), texts.get("consequences"),
+                    texts.get("detail"), policies, recommend, severity, alarm, node.pos)
 
 
 def _template(node: YNode, kind: str, what: str) -> str:

@@ -1,8 +1,9 @@
 """The explanation panel: the selected alarm's graduated explanation, level by level.
 
 000 asks for "a graduated explanation with potential consequences" so that the operator can
-choose the best policy. The four levels of :class:`~hmi.explain.model.Explanation` are shown
-one under the other, the first always, the others on demand::
+choose the best policy. The levels of :class:`~hmi.explain.model.Explanation` are shown one
+under the other, the first always, the others on demand; the fifth, the engineering detail
+(diagnoser states, constraints, flags, stopwatch values), comes after the policies::
 
     P2 medium · Conveyor C1 · since 3.000 s (scan 301) · LATCHED
     Conveyor C1 carrying a pallet …: cannot end within its acceptable time (conveyor_fault)
@@ -11,7 +12,7 @@ one under the other, the first always, the others on demand::
     ▸ Consequences
     ▸ Policies · 3, recommended: Continue
 
-``e`` opens the next level (and, once all are open, folds them back to the first); a click
+``e`` opens the next level (and, once all five are open, folds them back to the first); a click
 on a level's heading opens it (with the levels before it) or folds it (with those after).
 Opening the policies focuses the recommended one: enter chooses it. Each policy is a button
 with its effect beside it; choosing one asks the app (:class:`PolicyRequested`), which
@@ -42,7 +43,8 @@ from hmi.timefmt import seconds
 from hmi.ui.panel import set_title
 from hmi.ui.style import MUTED, OK_SYMBOL, STYLE, Level, tag
 
-LEVELS = ("What", "Why", "Consequences", "Policies")
+LEVELS = ("What", "Why", "Consequences", "Policies", "Engineering detail")
+TOP = len(LEVELS)
 RECOMMENDED = "★"
 SEVERITY_LEVEL = {"high": Level.ALARM, "medium": Level.ATTENTION, "low": Level.ATTENTION}
 
@@ -162,6 +164,7 @@ class ExplanationPanel(VerticalScroll):
         yield LevelView(4, id="explain-policies-head")
         yield Vertical(id="explain-policies")
         yield Static(id="explain-result", markup=False)
+        yield LevelView(5, id="explain-detail")
 
     def on_mount(self) -> None:
         self.border_title = "Explanation"
@@ -182,7 +185,7 @@ class ExplanationPanel(VerticalScroll):
         if self.key is None or self.explanation is None:
             return
         level = self.level
-        self._set_level(1 if level >= 4 else level + 1)
+        self._set_level(1 if level >= TOP else level + 1)
 
     def toggle(self, level: int) -> None:
         """A heading clicked: open up to it, or fold it and those after it."""
@@ -223,7 +226,7 @@ class ExplanationPanel(VerticalScroll):
         head = self.query_one("#explain-head", Static)
         what = self.query_one("#explain-what", Static)
         views = [self.query_one(f"#explain-{n}", LevelView)
-                 for n in ("why", "consequences", "policies-head")]
+                 for n in ("why", "consequences", "policies-head", "detail")]
         result = self.query_one("#explain-result", Static)
         if exp is None:
             set_title(self, "Explanation")
@@ -235,13 +238,13 @@ class ExplanationPanel(VerticalScroll):
             self._put(result, "")
             return
         set_title(self, f"Explanation · {exp.kind}")
-        subtitle = f"level {level}/4 · e: {'more' if level < 4 else 'fold'}"
+        subtitle = f"level {level}/{TOP} · e: {'more' if level < TOP else 'fold'}"
         if self.border_subtitle != subtitle:
             self.border_subtitle = subtitle
         self._put(head, heading_text(exp, self.alarm))
         self._put(what, Text(exp.what, style=Style(bold=True)))
         for view in views:
-            view.display = True
+            view.display = view.level < 5 or bool(exp.detail)
             self._put(view, level_text(exp, view.level, level >= view.level))
         self._set_policies(exp.policies if level >= 4 else ())
         answer = self.results.get(self.key or "")
