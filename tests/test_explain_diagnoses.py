@@ -49,8 +49,8 @@ def test_certain_sensor_fault_recommends_continuing_degraded_with_project_texts(
     assert e.recommended.id == "continue"
     assert e.recommended.effect.startswith("keep filling on the estimate")
     degraded = find(snap, "reconstruction:fso")
-    assert degraded.what == "Valve V1: open end switch fso ignored, position estimated from the orders - running " \
-                            "degraded"
+    assert degraded.what == ("Valve V1: open end switch fso ignored, position estimated from "
+                             "the orders - running degraded")
     assert not degraded.alarm
     alarms = [a.key for a in snap.alarms]
     assert "diagnosis:V1" in alarms and "reconstruction:fso" not in alarms

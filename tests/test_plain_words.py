@@ -168,9 +168,7 @@ def test_levels_one_to_three_name_no_internal_identifier(name):
 
 def test_the_engineering_detail_keeps_the_identifiers():
     project = load_project(PROJECTS / "cispi_valve")
-    for what, snap in situations(project):
-        if what.startswith("diagnoser V1 A1 ftc"):
-            break
+    snap = next(s for what, s in situations(project) if what == "diagnoser V1 A1 ftc")
     builder = ExplanationBuilder(project)
     diagnosis = next(e for e in builder.build(snap) if e.key == "diagnosis:V1")
     assert diagnosis.what.startswith("Valve V1: ")
