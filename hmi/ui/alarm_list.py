@@ -79,8 +79,36 @@ def without_device(text: str, device: str) -> str:
     return text
 
 
+DETAIL_LINES = 2  # the selected alarm's full first line, wrapped: at most this many lines
+
+
+def detail_lines(text: str, width: int) -> list[str]:
+    """The selected alarm's whole level-1 sentence, wrapped at word boundaries on at most
+    DETAIL_LINES lines of `width` cells (the last cut with an ellipsis only if it must)."""
+    words, lines, line = text.split(), [], ""
+    for word in words:
+        candidate = f"{line} {word}" if line else word
+        if len(candidate) <= width or not line:
+            line = candidate
+        else:
+            lines.append(line)
+            line = word
+    if line:
+        lines.append(line)
+    if len(lines) > DETAIL_LINES:
+        last = " ".join(lines[DETAIL_LINES - 1:])
+        lines = [*lines[:DETAIL_LINES - 1], last[:width - 1] + "…"]
+    return [x[:width] for x in lines]
+
+
 def alarm_row(alarm: Alarm, width: int, device_w: int = 0, time_w: int = 7) -> Text:
     """One alarm as one line of at most `width` cells (the text ends in an ellipsis)."""
+    return fitted_row(alarm, width, device_w, time_w)[0]
+
+
+def fitted_row(alarm: Alarm, width: int, device_w: int = 0, time_w: int = 7
+               ) -> tuple[Text, bool]:
+    """The row, and whether its text had to be cut to fit."""
     row = Text(no_wrap=True, overflow="ellipsis", end="")
     row.append_text(state_cell(alarm))
     muted = alarm.state == CLEARED_UNACK
@@ -103,11 +131,12 @@ def alarm_row(alarm: Alarm, width: int, device_w: int = 0, time_w: int = 7) -> T
     if alarm.latched and alarm.active:  # cleared: the latch that held it is gone
         tail.append("  LATCHED", style=Style(bold=True))
     room = width - row.cell_len - tail.cell_len
-    if room < len(text):
+    cut = room < len(text)
+    if cut:
         text = text[:max(0, room - 1)] + "…" if room > 0 else ""
     row.append(text, style=plain)
     row.append_text(tail)
-    return row
+    return row, cut
 
 
 class AlarmSelected(Message):
@@ -137,7 +166,8 @@ class AlarmList(TextPanel):
         self.alarms: tuple[Alarm, ...] = ()
         self.selected: str | None = None  # the selected alarm's key
         self.top = 0  # index of the first row shown
-        self._rows = -1
+        self._rows = -1  # lines drawn (alarm rows and the selected alarm's detail)
+        self._alarm_rows = 0
         self._drawn: tuple | None = None
 
     def on_mount(self) -> None:
@@ -170,13 +200,24 @@ class AlarmList(TextPanel):
     def _draw(self) -> None:
         height = self.app.size.height
         rows = min(max(len(self.alarms), 1), rows_for_height(height))
-        if rows != self._rows:
-            self._rows = rows
+        width = max(20, self.content_size.width or self.app.size.width - 4)
+        # The selected alarm's whole first sentence on its own line(s) when its row cuts it
+        # (80 columns): the device and the plain fault are always readable (issue 19).
+        detail: list[str] = []
+        selected = self.selected_alarm
+        if selected is not None:
+            _, cut = fitted_row(selected, width - 2, 0, max(len(seconds(a.raised_us))
+                                                            for a in self.alarms))
+            if cut and width < WIDE:
+                detail = detail_lines(selected.text, width - 4)
+        self._alarm_rows = rows
+        lines = rows + len(detail)
+        if lines != self._rows:
+            self._rows = lines
             # the border: top and bottom lines; on a short screen, the top line only
             self.set_class(height < SHORT, "-compact")
-            self.styles.height = rows + (1 if height < SHORT else 2)
-        width = max(20, self.content_size.width or self.app.size.width - 4)
-        key = (self.alarms, self.selected, rows, width, self.has_focus)
+            self.styles.height = lines + (1 if height < SHORT else 2)
+        key = (self.alarms, self.selected, rows, width, self.has_focus, tuple(detail))
         if key == self._drawn:
             return
         self._drawn = key
@@ -214,6 +255,11 @@ class AlarmList(TextPanel):
             text.append_text(row)
             if mine and self.has_focus:
                 text.stylize(SELECTED, len(text) - row.cell_len - 2, len(text))
+        for k, line in enumerate(detail):
+            text.append("\n")
+            text.append("  ↳ " if k == 0 else "    ", style=MUTED)
+            text.append(line, style=Style(bold=True) if selected and selected.active
+                        else MUTED)
         self.show_text(text)
 
     def _index(self) -> int:
@@ -251,6 +297,6 @@ class AlarmList(TextPanel):
         if offset is None:
             return
         row = offset.y
-        if 0 <= row < self._rows and self.top + row < len(self.alarms):
+        if 0 <= row < self._alarm_rows and self.top + row < len(self.alarms):
             self._select(self.alarms[self.top + row].key, open=True)
             self._draw()

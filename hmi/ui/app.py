@@ -81,7 +81,7 @@ from hmi.ui.message_line import MessageLine, result_text, verdict_text
 from hmi.ui.messages import CommandRequested, ExplainRequested
 from hmi.ui.monitors_panel import MonitorsPanel
 from hmi.ui.palette import HmiCommands, PaletteEntry
-from hmi.ui.panel import ColumnPanel
+from hmi.ui.panel import TOP_SHARE, ColumnPanel
 from hmi.ui.recorder import ScanRecorder
 from hmi.ui.reset import ResetLine, recovery_lines, reset_preview
 from hmi.ui.signal_dialog import SignalDialog
@@ -273,10 +273,28 @@ class PlcHmiApp(App):
         self.frame = frame
         for view in self._views:
             view.show(frame)
+        self._fit_plant_column()
         self._explain(frame)
         self._judge_request(snap)
         self.frames_shown += 1
         return True
+
+    def _fit_plant_column(self) -> None:
+        """The constraints panel first, the I/O table the rest: the I/O table takes at most
+        what the upper row leaves once the constraints panel has its rows (violated ones
+        first), so a violated constraint is on screen at every size from 80x24 (a long I/O
+        table scrolls instead)."""
+        body = self.query_one(Body)
+        if not body.size.height:
+            return
+        constraints = self.query_one(ConstraintsPanel)
+        wanted = min(max(constraints.wanted_lines(), 1), 12 if self.size.height >= 40 else 6)
+        border = 1 if constraints.has_class("-compact") else 2
+        room = int(body.size.height * TOP_SHARE) - (wanted + border)
+        io = self.query_one(IOPanel)
+        limit = max(4, min(room, io.row_count + 3, 14))
+        if io.styles.max_height is None or io.styles.max_height.value != limit:
+            io.styles.max_height = limit
 
     def _judge_request(self, snap) -> None:
         if self._request is None:
@@ -510,11 +528,17 @@ class PlcHmiApp(App):
         return True
 
     def on_key(self, event: events.Key) -> None:
-        """1 / 0 / x outside manual mode: said, not silently ignored."""
-        if event.key in MANUAL_KEYS and not isinstance(self.screen, ModalScreen) and \
-                not (self.frame and self.frame.manual_keys):
+        """1 / 0 / x outside manual mode, b without push buttons: said, not silently
+        ignored."""
+        if isinstance(self.screen, ModalScreen):
+            return
+        if event.key in MANUAL_KEYS and not (self.frame and self.frame.manual_keys):
             event.stop()
             self.refuse("manual request", "not in manual mode (m enters it)")
+        elif event.key == "b" and not self.free_inputs:
+            event.stop()
+            self.refuse("push button", "this project has no push button the operator "
+                        "presses (b presses the highlighted one in a project that has)")
 
     def action_manual_on(self) -> None:
         self._manual_key(True)

@@ -22,6 +22,7 @@ from rich.text import Text
 from textual import events
 
 from hmi.timefmt import seconds
+from hmi.ui.alarm_list import SHORT
 from hmi.ui.frame import Frame
 from hmi.ui.messages import ExplainRequested
 from hmi.ui.panel import TextPanel
@@ -85,8 +86,13 @@ class ConstraintsPanel(TextPanel):
     def on_mount(self) -> None:
         self.border_title = f"Constraints · {len(self.constraints)}"
 
+    def wanted_lines(self) -> int:
+        """Rows it lists now (the app gives it room before the I/O table)."""
+        return len(self.row_names) or 1
+
     def show(self, frame: Frame) -> None:
         self.frame = frame
+        self.set_class(self.app.size.height < SHORT, "-compact")
         self.show_all = self.app.size.height >= 40
         self.show_text(self.render_frame(frame))
 

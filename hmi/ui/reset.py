@@ -136,8 +136,10 @@ def alarm_preview(snap: Snapshot) -> Iterable[ResetLine]:
     kept = len(latched) - len(released)
     if released:
         n = len(released)
-        yield ResetLine(f"{n} latched alarm{'s' if n != 1 else ''} clear with their latch",
-                        resets=True, note="listed, cleared, until acknowledged")
+        words = "latched alarm clears with its latch" if n == 1 else \
+            "latched alarms clear with their latches"
+        yield ResetLine(f"{n} {words}", resets=True,
+                        note="listed, cleared, until acknowledged")
     if kept:
         yield ResetLine(f"{kept} latched alarm{'s' if kept != 1 else ''}", resets=False,
                         why=f"what latched {'them' if kept != 1 else 'it'} stays (see above)")
