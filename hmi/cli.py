@@ -617,6 +617,8 @@ def cmd_journal(args: argparse.Namespace) -> int:
         for entry in entries:
             text = _field(entry, "text") or _field(entry, "message") or _field(entry, "project")
             key = f" {entry['key']}" if entry.get("key") else ""
+            if isinstance(entry.get("by"), str):  # sent by an OPC UA client
+                text = f"{text} [by {entry['by']}]"
             print(_printable(f"{_field(entry, 'wall')}  scan {_field(entry, 'scan'):>6}  "
                              f"t={_field(entry, 't')}  {_field(entry, 'type'):<7} "
                              f"{_field(entry, 'event')}{key}: {text}"))
@@ -871,7 +873,7 @@ def cmd_ui(args: argparse.Namespace) -> int:
     server = None
     try:
         recorder = open_journal(controller, args.journal, "hmi")
-        server = start_server(controller, args)
+        server = start_server(controller, args, log_file=True)
         if clock is not None:
             connect_plant(engine, args.connect_timeout)
         return run_app(controller, injected=tuple(injections))

@@ -142,3 +142,14 @@ def test_a_headless_run_serves_the_cell_read_only_until_terminated(tmp_path):
     assert "Ran cispi_valve" in out and "Journal:" in out
     journal = (tmp_path / "data" / "cispi_valve" / "journal.jsonl").read_text()
     assert '"event":"stop"' in journal
+
+
+def test_the_journal_says_which_opcua_user_sent_a_command(tmp_path, capsys):
+    from hmi.explain.journal import Journal
+    path = tmp_path / "journal.jsonl"
+    journal = Journal(path)
+    journal.append({"type": "action", "event": "fault reset", "accepted": True,
+                    "message": "reset", "scan": 3, "t": "0.030", "by": "opcua:alice"})
+    journal.close()
+    assert main(["journal", VALVE, "--path", str(path)]) == 0
+    assert "fault reset: reset [by opcua:alice]" in capsys.readouterr().out

@@ -94,10 +94,16 @@ def check_arguments(args: argparse.Namespace) -> None:
     require()
 
 
-def start_server(session: Session, args: argparse.Namespace) -> CellServer | None:
-    """The cell's OPC UA server, started, if --opcua was given (None otherwise)."""
+def start_server(session: Session, args: argparse.Namespace, log_file: bool = False
+                 ) -> CellServer | None:
+    """The cell's OPC UA server, started, if --opcua was given (None otherwise).
+
+    asyncua's own log is silenced (its notices are for its developers). The server's
+    failures go to stderr, or with `log_file` (the HMI: stderr is the screen) to
+    opcua/server.log in the project's data folder."""
     if getattr(args, "opcua", None) is None:
         return None
+    _route_logs(session.project.name, log_file)
     from hmi.opcua.server import CellServer, ServeOptions
     from hmi.opcua.users import Users, read_password_file
     from hmi.timefmt import DURATION_HINT, DurationError, parse_duration
@@ -127,6 +133,33 @@ def start_server(session: Session, args: argparse.Namespace) -> CellServer | Non
     server = CellServer(session, options)
     server.start()
     return server
+
+
+def _route_logs(project_name: str, log_file: bool) -> None:
+    import logging
+
+    from hmi.explain.journal import data_folder, safe_file_name
+    library = logging.getLogger("asyncua")
+    library.propagate = False
+    ours = logging.getLogger("hmi.opcua")
+    ours.propagate = False
+    for logger in (library, ours):  # once per process, whatever ran before
+        for old in list(logger.handlers):
+            logger.removeHandler(old)
+    library.addHandler(logging.NullHandler())
+    ours.setLevel(logging.WARNING)
+    if log_file:
+        folder = data_folder() / safe_file_name(project_name) / "opcua"
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            handler: logging.Handler = logging.FileHandler(folder / "server.log",
+                                                           encoding="utf-8")
+        except OSError:
+            handler = logging.NullHandler()
+    else:
+        handler = logging.StreamHandler()
+    handler.setFormatter(logging.Formatter("%(asctime)s plchmi opcua: %(message)s"))
+    ours.addHandler(handler)
 
 
 def _certificate(path: Path) -> bytes:

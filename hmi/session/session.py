@@ -1,6 +1,6 @@
 """A session: the engine, its explanations and alarms, and the run state, behind one door.
 
-:class:`Session` is what the UI, the headless commands and a future OPC UA server talk to.
+:class:`Session` is what the UI, the headless commands and the OPC UA server talk to.
 It owns the engine, the explanation builder and the alarm list, and the run state (running,
 paused, stepping); every operator action enters through :meth:`Session.command` (listeners,
 such as the journal, hear each one with its result). Each scan is the engine's core
