@@ -22,6 +22,7 @@ from asyncua.ua.uaerrors import UaStatusCodeError  # noqa: E402
 
 from hmi.engine.scan import Engine  # noqa: E402
 from hmi.explain.journal import Journal  # noqa: E402
+from hmi.opcua.options import server_certificate  # noqa: E402
 from hmi.opcua.server import CellServer, ServeOptions  # noqa: E402
 from hmi.opcua.users import Users, hash_password  # noqa: E402
 from hmi.plant.injection import parse_injection  # noqa: E402
@@ -49,9 +50,16 @@ class Cell:
         self.session = Session(Engine(project, plant))
         self.journal_path = tmp / "journal.jsonl"
         self.recorder = JournalRecorder(self.session, Journal(self.journal_path))
-        users = Users({"alice": hash_password("alice", PASSWORD)})
+        # alice has a password; carol a certificate the server trusts; the server has its
+        # own certificate, so passwords travel encrypted and certificates can be checked.
+        self.carol = _user_certificate(tmp / "carol", "carol")
+        self.stranger = _user_certificate(tmp / "stranger", "stranger")
+        users = Users({"alice": hash_password("alice", PASSWORD)},
+                      {"carol": self.carol[0].read_bytes()})
+        cert, key = server_certificate(tmp / "pki", project.name, "127.0.0.1")
         self.server = CellServer(self.session, ServeOptions(
-            port=_free_port(), writable=True, users=users))
+            port=_free_port(), writable=True, users=users, certificate=cert,
+            private_key=key))
 
     async def scans(self, n: int) -> int:
         """Run n scans in virtual time; return once the server has published the last."""
@@ -62,6 +70,22 @@ class Cell:
 
     def journal(self) -> list[dict]:
         return [json.loads(line) for line in self.journal_path.read_text().splitlines()]
+
+
+def _user_certificate(folder: Path, name: str) -> tuple[Path, Path]:
+    """A user's certificate (DER) and private key (PEM), self-signed."""
+    from asyncua.crypto import cert_gen
+    from cryptography.hazmat.primitives.serialization import Encoding
+    from cryptography.x509.oid import ExtendedKeyUsageOID
+    folder.mkdir()
+    key = cert_gen.generate_private_key()
+    cert = cert_gen.generate_self_signed_app_certificate(
+        key, f"urn:test:{name}", {"commonName": name}, [],
+        [ExtendedKeyUsageOID.CLIENT_AUTH])
+    der, pem = folder / "cert.der", folder / "key.pem"
+    der.write_bytes(cert.public_bytes(Encoding.DER))
+    pem.write_bytes(cert_gen.dump_private_key_as_pem(key))
+    return der, pem
 
 
 async def until(predicate, what: str = "the expected state") -> None:
@@ -288,3 +312,22 @@ async def test_operator_commands_are_methods_that_go_through_the_filter(cell):
     assert refused and refused[0]["accepted"] is False
     result = next(e for e in cell.journal() if e["event"] == "manual O on: filter result")
     assert result["message"].startswith("refused")
+
+
+async def test_a_trusted_user_certificate_names_the_user_an_unknown_one_does_not(cell):
+    async def reset_as(certificate: tuple[Path, Path]):
+        c = client(cell)
+        await c.load_client_certificate(str(certificate[0]))
+        await c.load_private_key(str(certificate[1]))
+        async with c:
+            ns, node = await _cell_node(c)
+            commands = await node.get_child(f"{ns}:Commands")
+            return await commands.call_method(await commands.get_child(f"{ns}:FaultReset"))
+
+    accepted, message = await reset_as(cell.carol)
+    assert accepted, message
+    entry = cell.journal()[-1]
+    assert (entry["event"], entry["by"]) == ("fault reset", "opcua:carol")
+    with pytest.raises(UaStatusCodeError, match="BadUserAccessDenied"):
+        await reset_as(cell.stranger)  # an untrusted certificate: anonymous, reads only
+    assert cell.journal()[-1] == entry
