@@ -153,3 +153,16 @@ def test_the_journal_says_which_opcua_user_sent_a_command(tmp_path, capsys):
     journal.close()
     assert main(["journal", VALVE, "--path", str(path)]) == 0
     assert "fault reset: reset [by opcua:alice]" in capsys.readouterr().out
+
+
+def test_an_address_already_in_use_is_a_usage_error(capsys):
+    pytest.importorskip("asyncua", reason="the [opcua] extra is not installed")
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        assert main(["run", VALVE, "--for", "1s", "--opcua", f"opc.tcp://127.0.0.1:{port}"]
+                    ) == 2
+    err = capsys.readouterr().err
+    assert f"opc.tcp://127.0.0.1:{port}: cannot listen there" in err
+    assert "Traceback" not in err
