@@ -20,6 +20,7 @@ asyncua = pytest.importorskip("asyncua", reason="the [opcua] extra is not instal
 from asyncua import Client, ua  # noqa: E402
 from asyncua.ua.uaerrors import UaStatusCodeError  # noqa: E402
 
+from hmi.engine.commands import Pause, Resume  # noqa: E402
 from hmi.engine.scan import Engine  # noqa: E402
 from hmi.explain.journal import Journal  # noqa: E402
 from hmi.opcua.options import server_certificate  # noqa: E402
@@ -331,3 +332,24 @@ async def test_a_trusted_user_certificate_names_the_user_an_unknown_one_does_not
     with pytest.raises(UaStatusCodeError, match="BadUserAccessDenied"):
         await reset_as(cell.stranger)  # an untrusted certificate: anonymous, reads only
     assert cell.journal()[-1] == entry
+
+
+async def test_a_paused_cell_says_so_though_no_scan_comes(cell):
+    async with client(cell) as c:
+        ns, node = await _cell_node(c)
+        state = await node.get_child([f"{ns}:Status", f"{ns}:RunState"])
+        assert await state.read_value() == "running"
+        cell.session.command(Pause())
+        try:
+            await until_value(state, "paused")
+        finally:
+            cell.session.command(Resume())
+        await until_value(state, "running")
+
+
+async def until_value(node, expected) -> None:
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + WAIT_S
+    while (value := await node.read_value()) != expected:
+        assert loop.time() < deadline, f"{node} stayed {value!r}, not {expected!r}"
+        await asyncio.sleep(0.01)

@@ -273,6 +273,15 @@ class CellServer:
                                      Description=ua.LocalizedText(long_name)))
             await server.write_attribute_value(node.nodeid, ua.DataValue(StatusCode=waiting))
             self.points.append((node.nodeid, point.read, vtype, [_UNSET]))
+        # The run state is the session's, not a scan's: a paused cell makes no snapshot, and
+        # a SCADA must still learn that its values stopped moving.
+        status = self.objects[("Status",)]
+        self.run_state = await status.add_variable(
+            self._nodeid(("Status", "RunState")), ua.QualifiedName("RunState", ns),
+            self.session.state.label, datatype=ua.NodeId(ua.VariantType.String.value))
+        await _describe(self.run_state, "running, paused or stepping (a paused cell's values "
+                        "stay as the last scan left them)")
+        self._run_state = self.session.state.label
 
     # -- publishing ---------------------------------------------------------------------------
 
@@ -281,6 +290,14 @@ class CellServer:
         batches = []
         while self._batches:
             batches.append(self._batches.popleft())
+        state = self.session.state.label
+        if state != self._run_state:
+            self._run_state = state
+            now = datetime.now(UTC)
+            await self.server.iserver.aspace.write_attribute_value(
+                self.run_state.nodeid, ua.AttributeIds.Value,
+                ua.DataValue(ua.Variant(state, ua.VariantType.String), SourceTimestamp=now,
+                             ServerTimestamp=now))
         snapshot = self._latest
         if snapshot is None:
             return
