@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import json
 import socket
+from dataclasses import replace
 from datetime import timedelta
 from pathlib import Path
 
@@ -353,3 +354,23 @@ async def until_value(node, expected) -> None:
     while (value := await node.read_value()) != expected:
         assert loop.time() < deadline, f"{node} stayed {value!r}, not {expected!r}"
         await asyncio.sleep(0.01)
+
+
+async def test_inputs_are_uncertain_while_the_plant_does_not_answer(cell):
+    """The publisher marks what comes from the plant when the snapshot says the link is lost
+    (a real plant's; fed here as such a snapshot)."""
+    async with client(cell) as c:
+        ns, node = await _cell_node(c)
+        value = await node.get_child([f"{ns}:Valve V1", f"{ns}:Inputs", f"{ns}:fsc",
+                                      f"{ns}:Value"])
+        mode = await node.get_child([f"{ns}:Status", f"{ns}:Mode"])
+        last = cell.session.last
+        lost = last._replace(scan=last.scan + 1, plant=replace(last.plant, connected=False))
+        cell.server.on_scan(lost)
+        await until(lambda: cell.server.published_scan == lost.scan)
+        read = await value.read_data_value(raise_on_bad_status=False)
+        assert read.StatusCode.value == ua.StatusCodes.UncertainNoCommunicationLastUsableValue
+        assert read.Value.Value == lost.value("fsc")
+        assert (await mode.read_data_value()).StatusCode.is_good()  # the cell's own: good
+        await cell.scans(2)  # connected again (past the scan number the fake one took)
+        assert (await value.read_data_value()).StatusCode.is_good()

@@ -39,6 +39,7 @@ class Point:
     kind: str  # BOOL, STRING, STRINGS, DOUBLE, UINT
     read: Callable[[Snapshot], Any]
     unit: str | None = None
+    from_plant: bool = False  # read from the plant: uncertain while it does not answer
 
     @property
     def name(self) -> str:
@@ -109,8 +110,9 @@ class _Builder:
             self.folders.append(Folder(path, description, device))
 
     def point(self, path: tuple[str, ...], description: str, kind: str,
-              read: Callable[[Snapshot], Any], unit: str | None = None) -> None:
-        self.points.append(Point(path, description, kind, read, unit))
+              read: Callable[[Snapshot], Any], unit: str | None = None,
+              from_plant: bool = False) -> None:
+        self.points.append(Point(path, description, kind, read, unit, from_plant))
 
 
 def _under(device: str | None, group: str, name: str) -> tuple[str, ...]:
@@ -160,7 +162,7 @@ def _inputs(b: _Builder, project: Project, layout: Layout) -> None:
         b.folder(base, var.description or var.name)
         slot = layout.slots[var.name]
         b.point((*base, "Value"), f"{var.description or var.name}: the value read",
-                BOOL, lambda s, i=slot: bool(s.values[i]))
+                BOOL, lambda s, i=slot: bool(s.values[i]), from_plant=True)
         partition = filtered.get(var.name)
         if partition is not None and partition.filtered in layout.slots:
             fslot = layout.slots[partition.filtered]

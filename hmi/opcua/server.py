@@ -251,7 +251,7 @@ class CellServer:
                                            ua.QualifiedName(folder.path[-1], ns))
             await _describe(node, folder.description)
             self.objects[folder.path] = node
-        self.points: list[tuple[ua.NodeId, Any, ua.VariantType, list[Any]]] = []
+        self.points: list[tuple[ua.NodeId, Any, ua.VariantType, bool, list[Any]]] = []
         waiting = ua.StatusCode(ua.StatusCodes.BadWaitingForInitialData)
         for point in self.model.points:
             parent = self.objects[point.path[:-1]]
@@ -272,7 +272,7 @@ class CellServer:
                                      DisplayName=ua.LocalizedText(short),
                                      Description=ua.LocalizedText(long_name)))
             await server.write_attribute_value(node.nodeid, ua.DataValue(StatusCode=waiting))
-            self.points.append((node.nodeid, point.read, vtype, [_UNSET]))
+            self.points.append((node.nodeid, point.read, vtype, point.from_plant, [_UNSET]))
         # The run state is the session's, not a scan's: a paused cell makes no snapshot, and
         # a SCADA must still learn that its values stopped moving.
         status = self.objects[("Status",)]
@@ -306,20 +306,23 @@ class CellServer:
             stamp = self._stamp(snapshot.time_us)
             now = datetime.now(UTC)
             write = self.server.iserver.aspace.write_attribute_value
-            for nodeid, read, vtype, last in self.points:
+            connected = snapshot.plant.connected
+            for nodeid, read, vtype, from_plant, last in self.points:
                 try:
                     value = read(snapshot)
                 except Exception:  # a value this run does not have (diagnosis off, ...)
                     value = _BAD
-                if value == last[0]:
+                stale = from_plant and not connected
+                if (value, stale) == last[0]:
                     continue
-                last[0] = value
+                last[0] = (value, stale)
                 if value is _BAD:
                     dv = ua.DataValue(StatusCode=ua.StatusCode(ua.StatusCodes.BadNoData),
                                       SourceTimestamp=stamp, ServerTimestamp=now)
                 else:
-                    dv = ua.DataValue(ua.Variant(value, vtype), SourceTimestamp=stamp,
-                                      ServerTimestamp=now)
+                    # A plant that does not answer: the last value read, marked uncertain.
+                    dv = ua.DataValue(ua.Variant(value, vtype), StatusCode=_STALE if stale
+                                      else _GOOD, SourceTimestamp=stamp, ServerTimestamp=now)
                 await write(nodeid, ua.AttributeIds.Value, dv)
             self.published += 1
             self.published_scan = snapshot.scan
@@ -503,6 +506,8 @@ class CellServer:
 
 _UNSET = object()
 _BAD = object()
+_GOOD = ua.StatusCode()
+_STALE = ua.StatusCode(ua.StatusCodes.UncertainNoCommunicationLastUsableValue)
 
 
 def _manual_output(name: Any, request: Any) -> ManualOutput:
