@@ -748,10 +748,7 @@ def run_real_time(engine, args: argparse.Namespace, duration_us: int | None) -> 
         # The journal first, so that the connection attempts (and giving up) are in it.
         outputs = RunOutputs(controller, args.trace, args.journal, "run")
         server = start_server(controller, args)
-        if server is not None:
-            print(f"plchmi: serving {engine.project.name} over OPC UA at {server.url}"
-                  + (" (operator commands enabled)" if server.options.writable else ""),
-                  file=sys.stderr, flush=True)
+        announce(server, engine.project.name)
         connect_plant(engine, args.connect_timeout or 10_000_000)
 
         def on_scan(snap) -> bool:
@@ -789,6 +786,14 @@ def run_real_time(engine, args: argparse.Namespace, duration_us: int | None) -> 
         print(f"Stopped: {plant.message}")
     print(f"Journal: {outputs.recorder.journal.path}")
     return 0
+
+
+def announce(server, name: str) -> None:
+    """Say where the cell is served (on stderr: a served run's stdout is its summary)."""
+    if server is not None:
+        print(f"plchmi: serving {name} over OPC UA at {server.url}"
+              + (" (operator commands enabled)" if server.options.writable else ""),
+              file=sys.stderr, flush=True)
 
 
 MAX_SERVE_US = 10 * 365 * 24 * 3600 * 1_000_000  # "until interrupted": ten years
@@ -874,6 +879,7 @@ def cmd_ui(args: argparse.Namespace) -> int:
     try:
         recorder = open_journal(controller, args.journal, "hmi")
         server = start_server(controller, args, log_file=True)
+        announce(server, project.name)
         if clock is not None:
             connect_plant(engine, args.connect_timeout)
         return run_app(controller, injected=tuple(injections))
