@@ -309,7 +309,7 @@ def test_journal_csv_export(tmp_path, capsys):
     capsys.readouterr()
     assert main(["journal", str(VALVE), "--path", str(path), "--csv"]) == 0
     lines = capsys.readouterr().out.splitlines()
-    assert lines[0] == "wall,scan,t,type,event,key,severity,text,message"
+    assert lines[0] == "wall,scan,t,type,event,key,state,severity,text,message,by"
     assert any(",alarm,raised,constraint:CSs2," in line for line in lines)
 
 

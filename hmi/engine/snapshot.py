@@ -61,6 +61,7 @@ class Snapshot(NamedTuple):
     explanations: tuple[Any, ...] = ()
     alarms: tuple[Any, ...] = ()
     alarm_events: tuple[Any, ...] = ()  # alarm transitions during this scan (for the journal)
+    shelved: tuple[Any, ...] = ()  # (Alarm, Shelf) of the alarms shelved, not listed
     stopped_devices: tuple[str, ...] = ()  # devices the operator stopped
     recovery: RecoveryState = NO_RECOVERY  # the recovery procedure running, and those needed
     error: str | None = None  # an internal error caught during this scan

@@ -396,7 +396,7 @@ class ExplanationBuilder:
 
         def make() -> Explanation:
             violated = ", ".join(report.violated_names)
-            what = f"{self.project.name}: no safe set of orders — every output held safe"
+            what = f"{self.project.name}: no safe set of orders — safe state written"
             why = (f"At {seconds(snap.time_us)} s no combination of orders kept every safety "
                    f"rule; the program's orders broke {self._rules(report.violated_names)}. "
                    f"Since {seconds(onset.time_us)} s.")
@@ -422,8 +422,7 @@ class ExplanationBuilder:
 
         def make() -> Explanation:
             violated = ", ".join(report.violated_names)
-            what = (f"{self.project.name}: correction not found in time — every output held "
-                    "safe")
+            what = f"{self.project.name}: correction not found in time — safe state written"
             why = (f"At {seconds(snap.time_us)} s the search for safe orders ran out of time; "
                    f"the program's orders broke {self._rules(report.violated_names)}. Since "
                    f"{seconds(onset.time_us)} s.")

@@ -130,6 +130,8 @@ def fitted_row(alarm: Alarm, width: int, device_w: int = 0, time_w: int = 7
             tail.append(" chattering", style=MUTED)
     if alarm.latched and alarm.active:  # cleared: the latch that held it is gone
         tail.append("  LATCHED", style=Style(bold=True))
+    if alarm.comment:
+        tail.append("  ✎", style=MUTED)
     room = width - row.cell_len - tail.cell_len
     cut = room < len(text)
     if cut:
@@ -165,6 +167,7 @@ class AlarmList(TextPanel):
         super().__init__(id=id)
         self.alarms: tuple[Alarm, ...] = ()
         self.selected: str | None = None  # the selected alarm's key
+        self.shelved = 0  # alarms shelved (not listed): said on the border
         self.top = 0  # index of the first row shown
         self._rows = -1  # lines drawn (alarm rows and the selected alarm's detail)
         self._alarm_rows = 0
@@ -176,8 +179,10 @@ class AlarmList(TextPanel):
     # -- display -----------------------------------------------------------------------------
     def show(self, frame: Frame) -> None:
         alarms = tuple(frame.snapshot.alarms)
-        changed = alarms != self.alarms
+        shelved = len(frame.snapshot.shelved)
+        changed = alarms != self.alarms or shelved != self.shelved
         self.alarms = alarms
+        self.shelved = shelved
         keys = [a.key for a in alarms]
         if self.selected not in keys:
             self._select(keys[0] if keys else None)
@@ -224,6 +229,8 @@ class AlarmList(TextPanel):
         unack = sum(a.state != ACTIVE_ACK for a in self.alarms)
         title = (f"Alarms · {unack} unacknowledged / {len(self.alarms)}"
                  if self.alarms else "Alarms")
+        if self.shelved:
+            title += f" · {self.shelved} shelved"
         if not self.alarms:
             set_title(self, title)
             self.show_text(Text(f"{OK_SYMBOL} no alarm", style=MUTED))

@@ -33,6 +33,7 @@ from hmi.engine.commands import (
     ChoosePolicy,
     Command,
     CommandResult,
+    CommentAlarm,
     EndRecovery,
     FaultReset,
     InjectFault,
@@ -45,9 +46,11 @@ from hmi.engine.commands import (
     SetMode,
     SetPolicy,
     SetSpeed,
+    Shelve,
     StartRecovery,
     StepScans,
     StopDevice,
+    Unshelve,
     describe,
 )
 from hmi.engine.scan import Engine
@@ -64,7 +67,7 @@ from hmi.ui.alarm_list import AlarmList, AlarmSelected
 from hmi.ui.chronogram import WINDOWS_US, Chronogram
 from hmi.ui.constraints_panel import ConstraintInfo, ConstraintsPanel
 from hmi.ui.diagnosers_panel import DiagnosersPanel, PartitionInfo
-from hmi.ui.dialogs import ChoiceDialog, ConfirmDialog, StepDialog
+from hmi.ui.dialogs import ChoiceDialog, ConfirmDialog, StepDialog, TextDialog
 from hmi.ui.driver import LiveDriver, VirtualDriver
 from hmi.ui.explain_panel import (
     ExplanationPanel,
@@ -104,6 +107,8 @@ MANUAL_KEY_HELP = {
     None: "Manual: release the request on the I/O table's highlighted output",
 }
 MANUAL_KEYS = {"1": True, "0": False, "x": None}
+SHELVE_TIMES = ((5 * 60_000_000, "5 min"), (15 * 60_000_000, "15 min"),
+                (60 * 60_000_000, "1 h"), (8 * 3_600_000_000, "8 h (the longest)"))
 WIDE = 120  # from this width on, the explanation panel stays beside the chronogram
 
 
@@ -134,7 +139,7 @@ class PlcHmiApp(App):
 
     def __init__(self, controller: Session, live: bool = True, *,
                  show_measured: bool | None = None, refresh_hz: float = REFRESH_HZ,
-                 injected: tuple[Injection, ...] = ()):
+                 injected: tuple[Injection, ...] = (), bell: bool = False):
         super().__init__()
         self.controller = controller
         engine = controller.engine
@@ -159,6 +164,10 @@ class PlcHmiApp(App):
         self.subject: str | None = None
         # faults scheduled before the app started (plchmi ui --inject)
         self._injected += [InjectedFault(i, self._fault_text(i)) for i in injected]
+        # --bell: the terminal bell on each new unacknowledged P1 alarm (issue 19, optional)
+        self.bell_on_p1 = bell
+        self.bells = 0
+        self._p1_unack: frozenset[str] = frozenset()
         self.register_theme(isa101_theme())
         self.theme = "isa101"
 
@@ -274,10 +283,22 @@ class PlcHmiApp(App):
         for view in self._views:
             view.show(frame)
         self._fit_plant_column()
+        self._ring(snap)
         self._explain(frame)
         self._judge_request(snap)
         self.frames_shown += 1
         return True
+
+    def _ring(self, snap) -> None:
+        """The bell, once per P1 alarm that became active and unacknowledged since the last
+        frame (a returning one counts again); nothing without --bell."""
+        now = frozenset(a.key for a in snap.alarms
+                        if a.priority == 1 and a.state == "active-unacknowledged")
+        new = now - self._p1_unack
+        self._p1_unack = now
+        if new and self.bell_on_p1:
+            self.bells += 1
+            self.bell()
 
     def _fit_plant_column(self) -> None:
         """The constraints panel first, the I/O table the rest: the I/O table takes at most
@@ -665,6 +686,45 @@ class PlcHmiApp(App):
                                        alternative="Start recovery" if recovery else None),
                          answered)
 
+    # -- shelving and comments (hmi.explain.alarms) --------------------------------------------
+    def shelve(self, key: str | None = None) -> None:
+        """Shelve an alarm (the selected one): for how long, or once until it clears."""
+        alarm = self._listed_alarm(key, "shelve")
+        if alarm is None:
+            return
+        options = [("once", Text("once: until its condition clears")),
+                   *((str(us), Text(f"for {label}")) for us, label in SHELVE_TIMES)]
+
+        def chosen(answer: str | None) -> None:
+            if answer is not None:
+                self.send(Shelve(alarm.key, None if answer == "once" else int(answer)))
+        self.push_screen(ChoiceDialog(f"Shelve: {alarm.text}", options, "once",
+                                      dialog_id="shelve-dialog",
+                                      note="Hidden from the list, journalled meanwhile, back "
+                                           "by itself; a latched safety alarm cannot be "
+                                           "shelved."), chosen)
+
+    def _listed_alarm(self, key: str | None, what: str):
+        """The listed alarm `key` (default: the selected one), or None, said."""
+        key = key or self.alarm_list.selected
+        snap = self.controller.last
+        alarm = next((a for a in snap.alarms if a.key == key), None) if snap and key else None
+        if alarm is None:
+            self.refuse(what, "no alarm selected")
+        return alarm
+
+    def comment(self, key: str | None = None) -> None:
+        alarm = self._listed_alarm(key, "comment")
+        if alarm is None:
+            return
+
+        def written(text: str | None) -> None:
+            if text:
+                self.send(CommentAlarm(alarm.key, text))
+        self.push_screen(TextDialog(f"Comment: {alarm.text}",
+                                    "Your note on this alarm (journalled with your action):",
+                                    dialog_id="comment-dialog"), written)
+
     # -- recovery (hmi.project.recovery) -------------------------------------------------------
     def start_recovery(self, name: str) -> None:
         """Confirm, then enter recovery mode running procedure `name`."""
@@ -924,6 +984,18 @@ class PlcHmiApp(App):
                     f"Recovery: start — {spec.description}{mark}…",
                     f"{spec.device}: recovery mode, filtered by its own constraints",
                     partial(self.start_recovery, spec.name)))
+        for alarm in snap.alarms:
+            entries.append(PaletteEntry(f"Alarms: shelve… {alarm.text}",
+                                        "Hide it from the list for a while or until it clears "
+                                        "(journalled meanwhile; not a latched safety alarm)",
+                                        partial(self.shelve, alarm.key)))
+            entries.append(PaletteEntry(f"Alarms: comment on {alarm.text}…",
+                                        "A note on this alarm, in the journal",
+                                        partial(self.comment, alarm.key)))
+        for alarm, shelf in snap.shelved:
+            entries.append(PaletteEntry(f"Alarms: unshelve {alarm.text}",
+                                        f"shelved {shelf.describe()}",
+                                        partial(self.send, Unshelve(alarm.key))))
         for device in snap.stopped_devices:
             entries.append(PaletteEntry(f"Release device {device}",
                                         "Its outputs follow the program (and the filter) again",
@@ -948,13 +1020,13 @@ def reset_line(line: ResetLine) -> Text:
     return text
 
 
-def run_app(target: Engine | Session, clock=None, injected: tuple[Injection, ...] = ()
-            ) -> int:
+def run_app(target: Engine | Session, clock=None, injected: tuple[Injection, ...] = (),
+            bell: bool = False) -> int:
     """Run the HMI live on an engine, or on a controller others listen to (the journal).
 
     A real plant passes a wall clock to stamp its scans (see hmi.session.live.WallClock);
     `injected` are the faults the command line scheduled in a simulated plant."""
     controller = target if isinstance(target, Session) else Session(target, clock=clock)
-    app = PlcHmiApp(controller, injected=injected)
+    app = PlcHmiApp(controller, injected=injected, bell=bell)
     app.run()
     return 0

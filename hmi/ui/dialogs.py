@@ -82,6 +82,40 @@ class ConfirmDialog(ModalScreen[bool]):
         self.dismiss(event.button.id == "yes")
 
 
+class TextDialog(ModalScreen[str | None]):
+    """One line of text (an operator's comment on an alarm); enter keeps it, escape drops."""
+
+    BINDINGS = [Binding("escape", "cancel", "Cancel")]
+
+    def __init__(self, title: str, prompt: str, *, dialog_id: str = "text-dialog",
+                 max_length: int = 500):
+        super().__init__(id=dialog_id)
+        self.title_text = title
+        self.prompt = prompt
+        self.max_length = max_length
+
+    def compose(self) -> ComposeResult:
+        with Vertical(classes="dialog dialog-wide"):
+            yield _title(self.title_text, Level.NORMAL)
+            yield Label("enter: keep    esc: cancel", classes="dialog-hint")
+            yield Static(self.prompt, classes="dialog-line", markup=False)
+            yield Input("", id="text", max_length=self.max_length, compact=True)
+            yield Label("", id="error", classes="dialog-error")
+
+    def on_mount(self) -> None:
+        self.query_one("#text", Input).focus()
+
+    @on(Input.Submitted)
+    def _submitted(self, event: Input.Submitted) -> None:
+        if not event.value.strip():
+            self.query_one("#error", Label).update("✗ write something, or esc to cancel")
+            return
+        self.dismiss(event.value.strip())
+
+    def action_cancel(self) -> None:
+        self.dismiss(None)
+
+
 class StepDialog(ModalScreen[int | None]):
     """How many scans to step (1 to MAX_STEPS)."""
 
