@@ -331,8 +331,9 @@ class ExplanationBuilder:
                 severity = "high"
             elif reason.source == "plant":
                 what = f"{self.project.name}: plant connection lost — outputs held safe"
-                why = (f"At {at} s the plant stopped answering: its inputs can no longer be "
-                       "trusted.")
+                cause = reason.detail.split(": ", 1)[-1]
+                why = (f"At {at} s the plant stopped answering ({cause}): its inputs can no "
+                       "longer be trusted.")
                 consequences = ("Every output is held off as soon as the connection is back; "
                                 "automatic operation resumes only after a fault reset. What "
                                 "the machines did meanwhile is unknown: a device stopped "
