@@ -79,8 +79,8 @@ async def test_ambiguous_diagnosis_reads_as_such():
         assert "? ambiguous" in region_text(app, "#alarms")
         explained = flat(app, "#explain")
         assert "? AMBIGUOUS" in explained and "LATCHED" in explained
-        assert "sensor fsc stuck at 0, or valve blocked between its positions (F1, F13, " \
-            "ambiguous)" in explained
+        assert "sensor fsc stuck at 0, or valve blocked between its positions — closed end " \
+            "switch ignored, no longer driven" in explained
         assert "recommended: Check Valve V1 first" in explained
         await pilot.press("e", "e", "e")
         await wait_until(pilot, lambda: app.focused is not None
@@ -105,7 +105,7 @@ async def test_certain_diagnosis_recommends_running_degraded():
         assert "F9 ✗ certain  unexpected fso rise" in region_text(app, "#diagnosers")
         assert "≈ reconstructed (fso_hat)" in region_text(app, "#io")
         explained = flat(app, "#explain")
-        assert "unexpected fso rise (0 to 1) (F9) — fso on its estimate" in explained
+        assert "unexpected fso rise (0 to 1) — open end switch ignored" in explained
         assert "AMBIGUOUS" not in explained
         app.explain("diagnosis:V1", open_level=4)
         await wait_until(pilot, lambda: app.focused is not None
@@ -143,7 +143,7 @@ async def test_reset_re_synchronises_a_diagnoser_only_when_the_io_allows_it():
         text = screen_text(app)
         assert "will be reset: diagnoser V1 in S9 {F9}" in text
         assert "re-synchronised to N5 on fsc=0, fso=1, C=0, O=0" in text
-        assert "1 latched alarm clear with their latch" in text
+        assert "1 latched alarm clears with its latch" in text
         await pilot.press("y")
         await wait_for_main(pilot)
         assert engine(app).diagnosis.runtimes[0].state.name == "N5"

@@ -26,6 +26,7 @@ from textual import events
 from textual.app import App, ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal, Vertical
+from textual.css.scalar import Unit
 from textual.screen import ModalScreen
 
 from hmi.engine.commands import (
@@ -117,6 +118,9 @@ class Body(Vertical):
     banner, the footer wrapping); the column panels size their detail on it."""
 
     def on_resize(self) -> None:
+        app = self.app
+        if isinstance(app, PlcHmiApp) and app.frame is not None:
+            app._fit_plant_column()
         for panel in self.query(ColumnPanel):
             panel.recheck()
 
@@ -309,11 +313,26 @@ class PlcHmiApp(App):
         if not body.size.height:
             return
         constraints = self.query_one(ConstraintsPanel)
-        wanted = min(max(constraints.wanted_lines(), 1), 12 if self.size.height >= 40 else 6)
-        border = 1 if constraints.has_class("-compact") else 2
-        room = int(body.size.height * TOP_SHARE) - (wanted + border)
         io = self.query_one(IOPanel)
-        limit = max(4, min(room, io.row_count + 3, 14))
+        io_least = 4  # its border, the header and one row
+        io_wanted = min(io.row_count + 3, 14)
+        border = 1 if constraints.has_class("-compact") else 2
+        cap = 12 if self.size.height >= 40 else 6
+        wanted = min(constraints.wanted_lines() + border, cap)
+        needed = min(constraints.needed_lines() + border, cap)
+        # The upper row takes 60 % of the body, more when the I/O and the violated
+        # constraints need it, as long as the chronogram keeps its least (#bottom's
+        # min-height, 5 lines).
+        height = body.size.height
+        top = max(int(height * TOP_SHARE), min(height - 5, io_wanted + needed))
+        row = self.query_one("#top")
+        if row.styles.max_height is None or row.styles.max_height.value != top or \
+                row.styles.max_height.unit != Unit.CELLS:
+            row.styles.max_height = top
+        panel = min(max(needed, min(wanted, top - io_wanted)), max(top - io_least, 2))
+        if constraints.styles.max_height is None or constraints.styles.max_height.value != panel:
+            constraints.styles.max_height = panel
+        limit = max(io_least, min(top - panel, io_wanted))
         if io.styles.max_height is None or io.styles.max_height.value != limit:
             io.styles.max_height = limit
 

@@ -163,8 +163,8 @@ class ExplanationPanel(VerticalScroll):
         yield LevelView(3, id="explain-consequences")
         yield LevelView(4, id="explain-policies-head")
         yield Vertical(id="explain-policies")
-        yield Static(id="explain-result", markup=False)
         yield LevelView(5, id="explain-detail")
+        yield Static(id="explain-result", markup=False)
 
     def on_mount(self) -> None:
         self.border_title = "Explanation"
