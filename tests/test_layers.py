@@ -49,7 +49,7 @@ KNOWN = {
     ("hmi.project.explanations", "hmi.explain.texts"),
     ("hmi.project.explanations", "hmi.explain.model"),
 }
-KNOWN_CYCLES = [{"hmi.project.component_file", "hmi.project.components", "hmi.project.loader"}]
+KNOWN_CYCLES: list[set[str]] = []
 
 
 def module_name(path: Path) -> str:

@@ -25,8 +25,8 @@ from hmi.plant.sim.models import MODELS
 from hmi.timefmt import format_duration
 
 if TYPE_CHECKING:
-    from hmi.project.loader import ProjectLoader
     from hmi.project.model import PlantSpec, Project
+    from hmi.project.reader import ProjectReader
 
 
 @dataclass(frozen=True)
@@ -70,7 +70,7 @@ def plant_counters(plant: PlantSpec) -> list[str]:
     return names
 
 
-def parse_campaign(loader: ProjectLoader, plant: PlantSpec) -> CampaignSpec | None:
+def parse_campaign(loader: ProjectReader, plant: PlantSpec) -> CampaignSpec | None:
     node = loader.sections.get("campaign")
     if node is None:
         return None

@@ -64,8 +64,8 @@ from hmi.project.yamlnodes import YNode
 from hmi.timefmt import format_duration
 
 if TYPE_CHECKING:
-    from hmi.project.loader import ProjectLoader
     from hmi.project.model import Project
+    from hmi.project.reader import ProjectReader
 
 FLAG_PREFIX = "def_"
 FILTERED_SUFFIX = "_filter"
@@ -211,7 +211,7 @@ def layout_names(project: Project) -> list[tuple[str, str]]:
 # --------------------------------------------------------------------------------------------
 
 
-def declare_diagnoser_names(loader: ProjectLoader) -> None:
+def declare_diagnoser_names(loader: ProjectReader) -> None:
     """Add `def_<partition>` (kind flag) and `<sensor>_filter` (kind filtered) to the names.
 
     Runs after inputs, outputs, memories, timers and observers are declared, so a clash with
@@ -219,7 +219,7 @@ def declare_diagnoser_names(loader: ProjectLoader) -> None:
     which reports it; this pass only reads what it can.
     """
     flags: dict[str, SourcePos] = {}
-    for _dname, dnode, _kpos in loader._section_items("diagnosers"):
+    for _dname, dnode, _kpos in loader.section_items("diagnosers"):
         if dnode.kind != "map":
             continue
         pnode = dnode.value.get("partitions")
@@ -264,10 +264,10 @@ def declare_diagnoser_names(loader: ProjectLoader) -> None:
 # --------------------------------------------------------------------------------------------
 
 
-def parse_diagnosers(loader: ProjectLoader) -> tuple[DiagnoserSpec, ...]:
+def parse_diagnosers(loader: ProjectReader) -> tuple[DiagnoserSpec, ...]:
     """Read the `diagnosers:` section after every name is declared; report, never raise."""
     out = []
-    for name, node, kpos in loader._section_items("diagnosers"):
+    for name, node, kpos in loader.section_items("diagnosers"):
         name = str(name)
         if not NAME_RE.match(name):
             loader.diag.error(kpos, f"{name!r} is not a valid diagnoser name",
@@ -286,7 +286,7 @@ def parse_diagnosers(loader: ProjectLoader) -> tuple[DiagnoserSpec, ...]:
 
 
 class _Parser:
-    def __init__(self, loader: ProjectLoader, name: str, node: YNode, kpos: SourcePos):
+    def __init__(self, loader: ProjectReader, name: str, node: YNode, kpos: SourcePos):
         self.loader = loader
         self.diag = loader.diag
         self.name = name

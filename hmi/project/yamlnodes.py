@@ -412,3 +412,10 @@ def _compose(text: str, display: str) -> YNode | None:
         except yaml.YAMLError:
             pass  # said by the pure-Python parser below, in its words
     return _Composer(display).compose(yaml.parse(text, Loader=yaml.SafeLoader))
+
+
+def expr_start(node: YNode) -> SourcePos:
+    """Where the expression text starts in the file (after a quote, if quoted)."""
+    if node.style in ('"', "'"):
+        return node.pos.shifted(1)
+    return node.pos
