@@ -45,9 +45,6 @@ KNOWN = {
     ("hmi.project.loader", "hmi.plant.sim.models"),
     ("hmi.project.scenarios", "hmi.plant.sim.models"),
     ("hmi.project.scenarios", "hmi.plant.injection"),
-    ("hmi.project.components", "hmi.explain.texts"),
-    ("hmi.project.explanations", "hmi.explain.texts"),
-    ("hmi.project.explanations", "hmi.explain.model"),
 }
 KNOWN_CYCLES: list[set[str]] = []
 

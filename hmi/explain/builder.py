@@ -18,9 +18,9 @@ from hmi.engine.snapshot import Snapshot
 from hmi.explain.diagnoses import diagnosis_explanations
 from hmi.explain.model import Explanation, Policy
 from hmi.explain.monitors import monitor_explanations
-from hmi.explain.texts import ProjectTexts, TextSpec, fill
 from hmi.project.diagnosers import diagnosers_of
 from hmi.project.model import Project
+from hmi.project.texts import ProjectTexts, TextSpec, fill
 from hmi.timefmt import seconds
 
 

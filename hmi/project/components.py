@@ -43,7 +43,7 @@ pass every check a project's own sections pass.
 
 `{device}`, `{instance}` and `{<parameter>}` in a component's descriptions and label texts are
 filled per instance ("Valve V1", "V1", "fsc1"); explanation texts keep their run-time
-placeholders (hmi/explain/texts.py).
+placeholders (hmi/project/texts.py).
 """
 
 from __future__ import annotations
@@ -54,7 +54,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from hmi.errors import SourcePos, display_path
-from hmi.explain.texts import ProjectTexts, TextSpec
 from hmi.logic.expr import And, Compare, Expr, Node, Not, Or, Var, to_text
 from hmi.project.component_file import (
     FILTERED_SUFFIX,
@@ -67,6 +66,7 @@ from hmi.project.component_file import (
     text_nodes,
 )
 from hmi.project.confine import Refused, component_roots, confined_file
+from hmi.project.texts import ProjectTexts, TextSpec
 from hmi.project.yamlnodes import YNode, load_yaml
 
 if TYPE_CHECKING:

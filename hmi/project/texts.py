@@ -26,6 +26,7 @@ PLACEHOLDERS: dict[str, tuple[str, ...]] = {
     "situations": (*COMMON, "reason", "detail"),
 }
 LEVELS = ("what", "why", "consequences")
+SEVERITIES = ("high", "medium", "low")  # damage possible / degraded / information
 POLICY_IDS = ("continue", "stop_device", "manual", "reset", "check")
 
 
