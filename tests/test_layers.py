@@ -44,7 +44,6 @@ KNOWN = {
     ("hmi.project.campaign", "hmi.plant.sim.models"),
     ("hmi.project.loader", "hmi.plant.sim.models"),
     ("hmi.project.scenarios", "hmi.plant.sim.models"),
-    ("hmi.project.scenarios", "hmi.plant.injection"),
 }
 KNOWN_CYCLES: list[set[str]] = []
 

@@ -13,9 +13,9 @@ from hmi.engine.commands import InjectFault, RepairFaults, SetInput, SetPolicy
 from hmi.engine.scan import Engine
 from hmi.errors import UsageError
 from hmi.plant.base import NotSupported, Plant
-from hmi.plant.injection import parse_injection
 from hmi.plant.modbus.client import ModbusPlant, ModbusSettings
 from hmi.plant.sim.plant import SimPlant
+from hmi.project.injection import parse_injection
 from hmi.project.loader import load_project
 from tests.conftest import PROJECTS, ROOT
 
