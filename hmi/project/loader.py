@@ -23,10 +23,10 @@ from hmi.logic.names import (
     is_step_number,
     name_problem,
 )
-from hmi.plant.sim.models import MODELS
 from hmi.project.campaign import parse_campaign
 from hmi.project.components import load_components, merge_texts
 from hmi.project.confine import Refused, confined_file, project_roots
+from hmi.project.device_models import DEVICE_MODELS, ParamSpec
 from hmi.project.diagnosers import declare_diagnoser_names, parse_diagnosers
 from hmi.project.model import (
     MAX_SOLVER_BUDGET,
@@ -786,23 +786,23 @@ class ProjectLoader(ProjectReader):
         model_name = self.guard(lambda: fields["model"].as_str("model"))
         if model_name is None:
             return None
-        model = MODELS.get(model_name)
+        model = DEVICE_MODELS.get(model_name)
         if model is None:
             self.diag.error(fields["model"].pos, f"unknown plant model {model_name!r}",
-                            "one of " + ", ".join(sorted(MODELS)))
+                            "one of " + ", ".join(sorted(DEVICE_MODELS)))
             return None
         params: dict[str, Any] = {}
         if "params" in fields:
             pmap = self.guard(lambda: fields["params"].check_keys(
-                f"the parameters of {model_name}", set(model.PARAMS)), {})
+                f"the parameters of {model_name}", set(model.params)), {})
             for pname, pnode in pmap.items():
-                value = self.guard(lambda s=model.PARAMS[pname], n=pnode, p=pname:
+                value = self.guard(lambda s=model.params[pname], n=pnode, p=pname:
                                    _param_value(s, n, p))
                 if value is not None:
                     params[pname] = value
-                    if model.PARAMS[pname].kind == "device":
+                    if model.params[pname].kind == "device":
                         self._links.append((name or model_name, pname, value, pnode.pos,
-                                            model.PARAMS[pname].choices))
+                                            model.params[pname].choices))
             for pname, message, expected in model.param_problems(params):
                 self.diag.error(pmap[pname].pos if pname in pmap else fields["params"].pos,
                                 f"{model_name} parameter {pname!r}: {message}", expected)
@@ -810,17 +810,17 @@ class ProjectLoader(ProjectReader):
         output_names = {v.name for v in outputs}
         # A port binds by identity to a project variable of the same name unless 'ports:'
         # says otherwise; a port with no such variable is simply not connected.
-        ports = {p: p for p in model.SENSORS if p in input_names}
-        ports.update({p: p for p in model.ACTUATORS if p in output_names})
+        ports = {p: p for p in model.sensors if p in input_names}
+        ports.update({p: p for p in model.actuators if p in output_names})
         if "ports" in fields:
             pmap = self.guard(lambda: fields["ports"].check_keys(
-                f"the ports of {model_name}", {*model.SENSORS, *model.ACTUATORS}), {})
+                f"the ports of {model_name}", {*model.sensors, *model.actuators}), {})
             for port, vnode in pmap.items():
                 var = self.guard(lambda n=vnode: n.as_str("a port's variable"))
                 if var is not None:
                     ports[port] = var
         for port, var in ports.items():
-            want_input = port in model.SENSORS
+            want_input = port in model.sensors
             ok = var in input_names if want_input else var in output_names
             if not ok:
                 pos = fields["ports"].value[port].pos if "ports" in fields and \
@@ -829,7 +829,7 @@ class ProjectLoader(ProjectReader):
                                 f"not an {'input' if want_input else 'output'} of the project",
                                 f"an {'input' if want_input else 'output'} name (map it under "
                                 "'ports:')")
-        for port in model.ACTUATORS:
+        for port in model.actuators:
             if port not in ports:
                 self.diag.warning(fields["model"].pos, f"{model_name} actuator {port!r} is not "
                                   "bound to any output; it is never driven")
@@ -869,7 +869,7 @@ class ProjectLoader(ProjectReader):
                                 f"({TABLES[var.address.table]})", "coil or hr")
 
 
-def _param_value(spec: Any, node: YNode, name: str) -> Any:
+def _param_value(spec: ParamSpec, node: YNode, name: str) -> Any:
     if spec.kind == "duration":
         return node.as_duration(f"parameter {name!r}")
     if spec.kind == "bool":

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from hmi.errors import SourcePos, UsageError
-from hmi.plant.sim.models import MODELS
+from hmi.project.device_models import DEVICE_MODELS
 from hmi.project.injection import Injection, parse_injection
 from hmi.project.model import PlantSpec
 from hmi.project.yamlnodes import YNode
@@ -109,8 +109,8 @@ def _injection(loader: ProjectReader, item: YNode, plant: PlantSpec) -> Injectio
         loader.diag.error(item.pos, "scenarios inject faults into a simulated plant, and this "
                           f"plant is {plant.kind}", "plant kind: sim")
         return None
-    faults = [(d.name, code) for d in plant.devices if d.model in MODELS
-              for code in MODELS[d.model].FAULTS]
+    faults = [(d.name, code) for d in plant.devices if d.model in DEVICE_MODELS
+              for code in DEVICE_MODELS[d.model].faults]
     several = len(plant.devices) > 1
     matches = [device for device, code in faults if code == injection.code
                and (injection.device is None or device == injection.device)]
