@@ -312,7 +312,7 @@ def test_uneven_cycles_are_not_gaps_on_either_side(valve, valve_twin):
 def test_monitor_resets_agree():
     project = load_project(PROJECTS / "conveyor_robot")
     twin = Twin(project)
-    scenario = next(s for s in project.extra["scenarios"] if s.name == "paper")
+    scenario = next(s for s in project.scenarios if s.name == "paper")
     # at 3.5 s the condemned attempt still runs (the label stays); at 7 s it has ended
     engine = engine_for(project, scenario.injections)
     result = twin.run(engine, 12_000_000, resets_after=(351, 701))

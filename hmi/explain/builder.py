@@ -40,7 +40,7 @@ class ExplanationBuilder:
 
     def __init__(self, project: Project, texts: ProjectTexts | None = None):
         self.project = project
-        self.texts = texts or project.extra.get("explanations") or ProjectTexts()
+        self.texts = texts or project.explanations or ProjectTexts()
         self.onsets: dict[str, _Onset] = {}
         self.cache: dict[str, tuple[tuple, Explanation]] = {}
         self.devices = {v.name: (v.device or project.name)

@@ -55,7 +55,7 @@ class CampaignSpec:
 
 
 def campaign_of(project: Project) -> CampaignSpec | None:
-    return project.extra.get("campaign")
+    return project.campaign
 
 
 def plant_counters(plant: PlantSpec) -> list[str]:

@@ -195,7 +195,7 @@ class DiagnoserSpec:
 
 
 def diagnosers_of(project: Project) -> tuple[DiagnoserSpec, ...]:
-    return project.extra.get("diagnosers", ())
+    return project.diagnosers
 
 
 def layout_names(project: Project) -> list[tuple[str, str]]:

@@ -256,12 +256,11 @@ class ProjectLoader(ProjectReader):
             timers=tuple(timers), observers=tuple(observers), controls=controls,
             default_control=default_control, constraints=tuple(constraints), policy=policy,
             plant=plant, pos=pos, files=tuple(self.files), solver=solver,
-            solver_budget=solver_budget,
-            extra={"warnings": tuple(self.diag.warnings), "explanations": texts,
-                   "monitors": monitors, "scenarios": scenarios, "diagnosers": diagnosers,
-                   "campaign": campaign, "components": tuple(self.components.instances),
-                   "check_sections": ((self.components.check_lines(),)
-                                      if self.components.instances else ())},
+            solver_budget=solver_budget, diagnosers=diagnosers, monitors=monitors,
+            scenarios=scenarios, campaign=campaign, explanations=texts,
+            components=tuple(self.components.instances), warnings=tuple(self.diag.warnings),
+            check_sections=((tuple(self.components.check_lines()),)
+                            if self.components.instances else ()),
         )
         return project
 

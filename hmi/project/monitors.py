@@ -76,7 +76,7 @@ class TaskMonitor:
 
 
 def monitors_of(project: Project) -> tuple[TaskMonitor, ...]:
-    return project.extra.get("monitors", ())
+    return project.monitors
 
 
 def parse_monitors(loader: ProjectReader, period_us: int) -> tuple[TaskMonitor, ...]:

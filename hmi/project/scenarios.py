@@ -43,7 +43,7 @@ class Scenario:
 
 
 def scenarios_of(project: Project) -> tuple[Scenario, ...]:
-    return project.extra.get("scenarios", ())
+    return project.scenarios
 
 
 def find_scenario(project: Project, name: str) -> Scenario:
