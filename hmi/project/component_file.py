@@ -177,7 +177,8 @@ def _item_names(loader: ProjectReader, node: YNode | None, key: str,
 
 
 def _diagnoser_shape(loader: ProjectReader, node: YNode | None,
-                     params: dict[str, Parameter]) -> tuple[list, list[str]]:
+                     params: dict[str, Parameter]
+                     ) -> tuple[list[tuple[str, str | None]], list[str]]:
     """The partitions (and the formal sensor of each) and labels of the component's
     diagnoser; the rest of it is checked per instance by hmi/project/diagnosers.py."""
     if node is None:

@@ -49,16 +49,17 @@ placeholders (hmi/project/texts.py).
 from __future__ import annotations
 
 import ast
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from hmi.errors import SourcePos, display_path
 from hmi.logic.expr import And, Compare, Expr, Node, Not, Or, Var, to_text
+from hmi.logic.names import NAME_RE
 from hmi.project.component_file import (
     FILTERED_SUFFIX,
     FLAG_PREFIX,
-    NAME_RE,
     PLACEHOLDER,
     ComponentDef,
     Parameter,
@@ -458,7 +459,7 @@ def _scalar(like: YNode, value: str) -> YNode:
     return node
 
 
-def _renamed_map(node: YNode, rename) -> YNode:
+def _renamed_map(node: YNode, rename: Callable[[str], str]) -> YNode:
     return YNode("map", {rename(str(k)): v for k, v in node.value.items()}, node.pos, node.tag,
                  {rename(str(k)): p for k, p in node.key_pos.items()})
 

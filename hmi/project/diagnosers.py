@@ -42,6 +42,7 @@ normal transitions (a faulty decision is latched), the initial state, and unreac
 from __future__ import annotations
 
 import itertools
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -502,7 +503,7 @@ class _Parser:
         return tuple(out)
 
     def _name(self, node: YNode, role: str, kinds: set[str], what: str) -> str | None:
-        name = self.loader.guard(lambda: node.as_str(what))
+        name: str | None = self.loader.guard(lambda: node.as_str(what))
         if name is None:
             self.ok = False
             return None
@@ -844,7 +845,8 @@ def jointly_satisfiable(a: Expr, b: Expr, budget: list[int] | None = None) -> st
     return None
 
 
-def _product_witness(a: Expr, b: Expr, names) -> dict | None:
+def _product_witness(a: Expr, b: Expr, names: Sequence[tuple[str, int]]
+                     ) -> dict[tuple[str, int], bool] | None:
     """When both conditions are products of literals (the usual case), the answer without
     enumerating: {} if they contradict each other, else the first satisfying assignment in
     enumeration order (every free variable 0). None if either is not a product."""
@@ -863,7 +865,7 @@ def _product_witness(a: Expr, b: Expr, names) -> dict | None:
     return values
 
 
-def _witness_text(values: dict) -> str:
+def _witness_text(values: Mapping[tuple[str, int], bool]) -> str:
     return ", ".join(f"{_var_text(n, d)}={int(v)}" for (n, d), v in values.items())
 
 
@@ -873,11 +875,11 @@ def _var_text(name: str, depth: int) -> str:
     return f"prev({name})" if depth == 1 else f"prev({name}, {depth})"
 
 
-def _one_of(names) -> str:
+def _one_of(names: Iterable[str]) -> str:
     return "one of " + ", ".join(sorted(names)) if names else "a declared state"
 
 
-def _suggest(name: str, known) -> str:
+def _suggest(name: str, known: Iterable[str]) -> str:
     import difflib
     close = difflib.get_close_matches(name, list(known), n=3, cutoff=0.5)
     if close:

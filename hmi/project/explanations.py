@@ -18,6 +18,7 @@ the kind offers (hmi.project.texts.PLACEHOLDERS) and every name must exist.
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 from hmi.project.texts import (
     LEVELS,
@@ -34,8 +35,8 @@ SITUATIONS = ("safe_state_filter", "safe_state_plant", "safe_state_internal")
 SPEC_KEYS = {*LEVELS, "policies", "recommend", "severity", "alarm"}
 
 
-def parse_explanations(node: YNode, guard: Callable, known: dict[str, set[str]],
-                       error: Callable) -> ProjectTexts:
+def parse_explanations(node: YNode, guard: Callable[..., Any], known: dict[str, set[str]],
+                       error: Callable[..., None]) -> ProjectTexts:
     """`known[kind]` is the set of names a kind may describe (constraint names...)."""
     kinds = guard(lambda: node.check_keys("explanations", set(PLACEHOLDERS)), {})
     by_kind: dict[str, dict[str, TextSpec]] = {}

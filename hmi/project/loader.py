@@ -24,7 +24,7 @@ from hmi.logic.names import (
     name_problem,
 )
 from hmi.project.campaign import parse_campaign
-from hmi.project.components import load_components, merge_texts
+from hmi.project.components import ComponentInstance, load_components, merge_texts
 from hmi.project.confine import Refused, confined_file, project_roots
 from hmi.project.device_models import DEVICE_MODELS, ParamSpec
 from hmi.project.diagnosers import declare_diagnoser_names, parse_diagnosers
@@ -237,7 +237,7 @@ class ProjectLoader(ProjectReader):
         diagnosers = parse_diagnosers(self)  # hmi/project/diagnosers.py
         campaign = parse_campaign(self, plant)  # hmi/project/campaign.py
         texts = None
-        sources = [*self.components.explanations]
+        sources: list[tuple[ComponentInstance | None, YNode]] = [*self.components.explanations]
         if "explanations" in s:
             sources.append((None, s["explanations"]))
         if sources:
@@ -408,7 +408,7 @@ class ProjectLoader(ProjectReader):
             steps = self._step_names(fields["grafcet"])
             grafcet = self._grafcet(fields["grafcet"], what, steps, outputs, memories)
         equations = self._equations(fields.get("equations"), what, steps, outputs, memories)
-        driven_by_actions = {}
+        driven_by_actions: dict[str, SourcePos] = {}
         if grafcet:
             for step in grafcet.steps:
                 for action in step.actions:
@@ -640,7 +640,7 @@ class ProjectLoader(ProjectReader):
 
     # -- constraints ------------------------------------------------------------------------
     def _constraints(self) -> list[Constraint]:
-        out = []
+        out: list[Constraint] = []
         seen: dict[str, SourcePos] = {}
         items = self.section_items("constraints")
         if len(items) > MAX_CONSTRAINTS:
@@ -881,17 +881,17 @@ def _param_value(spec: ParamSpec, node: YNode, name: str) -> Any:
             raise NodeError(node.pos, f"parameter {name!r} is {value!r}",
                             "one of " + ", ".join(spec.choices))
         return value
-    value = node.as_number(f"parameter {name!r}")
+    number = node.as_number(f"parameter {name!r}")
     low, high = spec.minimum, spec.maximum
-    if (low is not None and value < low) or (high is not None and value > high):
+    if (low is not None and number < low) or (high is not None and number > high):
         if low is not None and high is not None:
             expected = f"a number from {low:g} to {high:g}"
         elif low is not None:
             expected = f"a number of at least {low:g}"
         else:
             expected = f"a number of at most {high:g}"
-        raise NodeError(node.pos, f"parameter {name!r} is {value:g}, out of range", expected)
-    return value
+        raise NodeError(node.pos, f"parameter {name!r} is {number:g}, out of range", expected)
+    return number
 
 
 _ADDRESS_RE = re.compile(r"(coil|di|hr|ir):([0-9]{1,6})(?:\.([0-9]{1,3}))?\Z")

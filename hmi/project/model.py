@@ -289,7 +289,8 @@ class Project:
         var = self.variable(name)
         if var is not None and var.description:
             return var.description
-        for item in (*self.timers, *self.observers):
+        items: tuple[Timer | Observer, ...] = (*self.timers, *self.observers)
+        for item in items:
             if item.name == name and item.description:
                 return item.description
         for spec in self.diagnosers:  # flags, filtered sensors

@@ -10,6 +10,7 @@ expression against them, and report a problem at its file, line and column witho
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
+from collections.abc import Set as AbstractSet
 from pathlib import Path
 from typing import Any
 
@@ -38,10 +39,11 @@ class ProjectReader:
         self.declared_partitions: set[str] = set()
         self.diagnoser_variant: str | None = None  # --diagnoser NAME
         self.too_many_names = False
-        self._with_steps: dict[tuple, tuple[dict[str, str], frozenset[str]]] = {}  # expr()
+        self._with_steps: dict[tuple[tuple[str, ...], int],  # expr()
+                               tuple[dict[str, str], frozenset[str]]] = {}
 
     # -- reading ----------------------------------------------------------------------------
-    def guard(self, fn: Callable[[], Any], default: Any = None) -> Any:
+    def guard(self, fn: Callable[..., Any], default: Any = None) -> Any:
         """Run one parsing step; a NodeError becomes a diagnostic and the default is used."""
         try:
             return fn()
@@ -87,7 +89,7 @@ class ProjectReader:
         return True
 
     def expr(self, node: YNode, what: str, kinds: set[str], steps: Iterable[str] = (),
-             prev_only: set[str] = frozenset(), context: str = "") -> Expr | None:
+             prev_only: AbstractSet[str] = frozenset(), context: str = "") -> Expr | None:
         """Parse and name-check one expression; report problems and return None on error."""
         def parse() -> Expr:
             text = node.as_text(what)

@@ -67,7 +67,7 @@ def fields_of(template: str) -> list[str]:
     return names
 
 
-class _Values(dict):
+class _Values(dict[str, Any]):
     def __missing__(self, key: str) -> str:
         return "{" + key + "}"
 
