@@ -53,13 +53,15 @@ class JournalRecorder:
     def on_command(self, command: Command, result: CommandResult,
                    snapshot: Snapshot | None) -> None:
         engine = self.session.engine
-        self._append({
-            "type": "action", "event": describe(command), "accepted": result.accepted,
-            "message": result.message, "scan": engine.scan, "t": seconds(engine.now)})
+        entry = {"type": "action", "event": describe(command), "accepted": result.accepted,
+                 "message": result.message, "scan": engine.scan, "t": seconds(engine.now)}
+        if self.session.origin:
+            entry["by"] = self.session.origin
+        self._append(entry)
         if isinstance(command, ManualOutput) and result.accepted and command.value is not None:
             self.pending_manual.append(command)
         for event in self.session.take_alarm_events():  # acknowledgements, journalled now
-            self._alarm(event)
+            self._alarm(event, self.session.origin)
 
     def on_overrun(self, total: int) -> None:
         engine = self.session.engine
@@ -102,13 +104,15 @@ class JournalRecorder:
                     "message": outcome, "scan": snapshot.scan, "t": seconds(snapshot.time_us)})
             self.pending_manual = []
 
-    def _alarm(self, event) -> None:
+    def _alarm(self, event, by: str = "") -> None:
         entry = {
             "type": "alarm", "event": event.event, "key": event.key, "state": event.state,
             "severity": event.severity, "text": event.text, "returns": event.returns,
             "scan": event.scan, "t": seconds(event.time_us)}
         if getattr(event, "note", ""):
             entry["message"] = event.note
+        if by:
+            entry["by"] = by
         self._append(entry)
 
     def close(self) -> None:
