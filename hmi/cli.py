@@ -191,28 +191,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
     except Exception as exc:  # a bug: say so plainly, keep the details for the developers
+        from hmi.crash import write_crash_report
         report = write_crash_report(exc)
         print(f"plchmi: internal error: {type(exc).__name__}: {exc}", file=sys.stderr)
         print(f"plchmi: the details are in {report}; please report it", file=sys.stderr)
         return 1
     parser.print_help()
     return 2
-
-
-def write_crash_report(exc: BaseException) -> str:
-    """Write the traceback to the data folder; return where (or why it could not)."""
-    import traceback
-    from datetime import UTC, datetime
-
-    from hmi.explain.journal import data_folder
-    stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S")
-    path = data_folder() / f"crash-{stamp}.txt"
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text("".join(traceback.format_exception(exc)), encoding="utf-8")
-    except OSError as err:
-        return f"(no report: {err.strerror})"
-    return str(path)
 
 
 def _sweep(args: argparse.Namespace) -> int:
@@ -368,7 +353,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     finally:
         if writer:
             writer.close()
-        recorder.close()
+        recorder.close(ended_by(sys.exc_info()[1]))
     wall = time.perf_counter() - started
     if scenario:
         print(f"Scenario {scenario.name}: {scenario.description}")
@@ -552,7 +537,7 @@ def run_real_time(engine, args: argparse.Namespace, duration_us: int) -> int:
             writer.close()
         stop_plant(engine)
         if recorder:
-            recorder.close()
+            recorder.close(ended_by(sys.exc_info()[1]))
     last = engine.last
     print(run_summary(engine, last, collector, [], wall,
                       trace=(args.trace, writer.count) if writer else None, time_kind="real"))
@@ -561,6 +546,18 @@ def run_real_time(engine, args: argparse.Namespace, duration_us: int) -> int:
     print(f"Stopped: {plant.message}")
     print(f"Journal: {recorder.journal.path}")
     return 0
+
+
+def ended_by(exc: BaseException | None) -> str | None:
+    """Why a session is ending, for the journal's last entry (None: it ended as asked).
+    Called in a `finally`, with the exception on its way out, if any."""
+    if exc is None:
+        return None
+    if isinstance(exc, KeyboardInterrupt):
+        return "interrupted (SIGINT)"
+    if isinstance(exc, RunFailure | UsageError):
+        return str(exc)
+    return f"internal error: {type(exc).__name__}: {exc}"
 
 
 def stop_plant(engine) -> None:
@@ -623,16 +620,22 @@ def cmd_ui(args: argparse.Namespace) -> int:
         clock = WallClock()
     controller = Controller(engine, clock=clock)
     recorder = None
+    end = None
     try:
         recorder = open_journal(controller, args.journal, "hmi")
         if clock is not None:
             connect_plant(engine, args.connect_timeout)
-        return run_app(controller, injected=tuple(injections))
+        end = run_app(controller, injected=tuple(injections),
+                      on_fault=recorder.on_ui_fault)
+        if end.reason is not None:
+            print(f"plchmi: the HMI ended on an error: {end.reason}", file=sys.stderr)
+        return end.status
     finally:
+        # a real plant: the safe outputs first, then the journal says how it ended
         if clock is not None:
             stop_plant(engine)
         if recorder is not None:
-            recorder.close()
+            recorder.close(end.reason if end is not None else ended_by(sys.exc_info()[1]))
 
 
 def cmd_serve_plant(args: argparse.Namespace) -> int:

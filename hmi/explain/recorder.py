@@ -98,12 +98,29 @@ class JournalRecorder:
             entry["message"] = event.note
         self.journal.append(entry)
 
-    def close(self) -> None:
+    def on_ui_fault(self, fault) -> None:
+        """An error of the HMI (hmi.ui.containment.UIFault): contained, or fatal."""
+        engine = self.controller.engine
+        self.journal.append({
+            "type": "session", "event": "ui-error", "what": fault.what, "fatal": fault.fatal,
+            "message": f"{fault.error}; details in {fault.report}"
+                       + ("" if fault.fatal else "; contained, the scan goes on"),
+            "crash_file": fault.report, "scan": engine.scan, "t": seconds(engine.now)})
+
+    def close(self, abnormal: str | None = None) -> None:
+        """The session's last entry: `stop` if it ended as asked, else `abnormal-end` with
+        the reason (never "ended normally" after an error)."""
         engine = self.controller.engine
         self._drain_plant()
         for entry in self.overruns.end(time.monotonic()):
             self._plant(entry)
-        self.journal.append({"type": "session", "event": "stop", "scan": engine.scan,
-                             "t": seconds(engine.now),
-                             "message": f"{engine.project.name}, ended normally"})
+        name = engine.project.name
+        if abnormal is None:
+            self.journal.append({"type": "session", "event": "stop", "scan": engine.scan,
+                                 "t": seconds(engine.now),
+                                 "message": f"{name}, ended normally"})
+        else:
+            self.journal.append({"type": "session", "event": "abnormal-end",
+                                 "scan": engine.scan, "t": seconds(engine.now),
+                                 "message": f"{name}, ended abnormally: {abnormal}"})
         self.journal.close()

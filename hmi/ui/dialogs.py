@@ -19,6 +19,7 @@ from textual.screen import ModalScreen
 from textual.widgets import Button, Input, Label, OptionList, Static
 from textual.widgets.option_list import Option
 
+from hmi.ui.containment import ContainedPump
 from hmi.ui.style import Level, banner
 
 
@@ -28,7 +29,7 @@ def _title(text: str, level: Level) -> Static:
     return Static(title, classes="dialog-title", markup=False)
 
 
-class ConfirmDialog(ModalScreen[bool]):
+class ConfirmDialog(ContainedPump, ModalScreen[bool]):
     """Yes / no, with the consequences listed. y or enter confirms; n or escape cancels."""
 
     BINDINGS = [
@@ -64,7 +65,7 @@ class ConfirmDialog(ModalScreen[bool]):
         self.dismiss(event.button.id == "yes")
 
 
-class StepDialog(ModalScreen[int | None]):
+class StepDialog(ContainedPump, ModalScreen[int | None]):
     """How many scans to step (1 to MAX_STEPS)."""
 
     MAX_STEPS = 10_000
@@ -100,7 +101,7 @@ class StepDialog(ModalScreen[int | None]):
         self.dismiss(None)
 
 
-class ChoiceDialog(ModalScreen[str | None]):
+class ChoiceDialog(ContainedPump, ModalScreen[str | None]):
     """Pick one of a few options (filter policy, speed...); enter picks, escape cancels."""
 
     BINDINGS = [Binding("escape", "cancel", "Cancel")]

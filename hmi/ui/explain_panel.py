@@ -39,6 +39,7 @@ from textual.widgets import Button, Static
 from hmi.explain.alarms import CLEARED_UNACK, PRIORITY, Alarm
 from hmi.explain.model import Explanation, Policy
 from hmi.timefmt import seconds
+from hmi.ui.containment import ContainedPump
 from hmi.ui.panel import set_title
 from hmi.ui.style import MUTED, OK_SYMBOL, STYLE, Level, tag
 
@@ -64,7 +65,7 @@ class ExplanationShown(Message):
         self.visible = visible
 
 
-class LevelView(Static):
+class LevelView(ContainedPump, Static):
     """One level: its heading, and its text when open. A click opens or folds it."""
 
     def __init__(self, level: int, *, id: str | None = None):
@@ -133,7 +134,7 @@ def policy_effect(policy: Policy) -> Text:
     return text
 
 
-class ExplanationPanel(VerticalScroll):
+class ExplanationPanel(ContainedPump, VerticalScroll):
     """The graduated explanation of one situation (the app says which: `key`)."""
 
     can_focus = False  # tab goes to the policy buttons; the mouse wheel scrolls

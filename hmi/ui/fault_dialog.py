@@ -20,6 +20,7 @@ from textual.widgets.option_list import Option
 
 from hmi.plant.sim import Injection
 from hmi.timefmt import parse_duration
+from hmi.ui.containment import ContainedPump
 from hmi.ui.style import Level, banner
 
 
@@ -34,7 +35,7 @@ def parse_delay(text: str) -> int:
         return parse_duration(text)
 
 
-class FaultDialog(ModalScreen[Injection | None]):
+class FaultDialog(ContainedPump, ModalScreen[Injection | None]):
     BINDINGS = [Binding("escape", "cancel", "Cancel")]
 
     def __init__(self, faults: list[tuple[str, str, str]], now_us: Callable[[], int],

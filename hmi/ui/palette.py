@@ -29,13 +29,19 @@ class HmiCommands(Provider):
         entries = getattr(self.app, "palette_entries", None)
         return list(entries()) if entries else []
 
+    def _run(self, entry: PaletteEntry) -> Callable[[], object]:
+        """The entry's command, its errors contained by the app (hmi.ui.containment)."""
+        guarded = getattr(self.app, "guarded", None)
+        return guarded(f"palette entry {entry.title!r}", entry.run) if guarded else entry.run
+
     async def discover(self) -> Hits:
         for entry in self._entries():
-            yield DiscoveryHit(entry.title, entry.run, help=entry.help)
+            yield DiscoveryHit(entry.title, self._run(entry), help=entry.help)
 
     async def search(self, query: str) -> Hits:
         matcher = self.matcher(query)
         for entry in self._entries():
             score = matcher.match(entry.title)
             if score > 0:
-                yield Hit(score, matcher.highlight(entry.title), entry.run, help=entry.help)
+                yield Hit(score, matcher.highlight(entry.title), self._run(entry),
+                          help=entry.help)

@@ -15,6 +15,7 @@ from textual.screen import ModalScreen
 from textual.widgets import Label, OptionList, Static
 from textual.widgets.option_list import Option
 
+from hmi.ui.containment import ContainedPump
 from hmi.ui.recorder import FOV_SUFFIX, Signal
 from hmi.ui.style import Level, banner
 
@@ -23,7 +24,7 @@ KIND_WORDS = {"input": "input", "output": "output (written)", "fov": "output FOV
               "step": "GRAFCET step"}
 
 
-class SignalDialog(ModalScreen[tuple[str, ...] | None]):
+class SignalDialog(ContainedPump, ModalScreen[tuple[str, ...] | None]):
     BINDINGS = [
         Binding("escape", "cancel", "Cancel"),
         Binding("space", "toggle", "Tick / untick", priority=True),

@@ -4,8 +4,9 @@ The status bar is one line. When the terminal is narrow it uses short forms, the
 least important fields first (measured scan time, the late-scan count, plant details; the
 project name among the last) and never the mode, the run state or an alarm. The banner
 strip appears only while something abnormal is in effect: manual mode
-(MANUAL / FORCES ACTIVE), a device the operator stopped, and outputs latched in the safe
-state.
+(MANUAL / FORCES ACTIVE), a device the operator stopped, outputs latched in the safe
+state, and, for the rest of the session, an error of the UI that was contained (what failed,
+and the file with the details: hmi.ui.containment).
 """
 
 from __future__ import annotations
@@ -183,6 +184,13 @@ def banner_lines(frame: Frame) -> list[Text]:
         line = banner("OUTPUTS HELD IN SAFE STATE", Level.ALARM)
         line.append(" " + "; ".join(r.detail for r in snap.latched)
                     + " · r: fault reset once the cause is gone")
+        lines.append(line)
+    fault = frame.ui_fault
+    if fault is not None:
+        line = banner("UI ERROR", Level.ALARM)
+        count = f" ({frame.ui_faults} errors)" if frame.ui_faults > 1 else ""
+        line.append(f"{count} {fault.what}: {fault.error} · the scan goes on · details: "
+                    f"{fault.report}")
         lines.append(line)
     for line in lines:
         line.no_wrap = True
