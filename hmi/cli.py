@@ -26,7 +26,7 @@ from hmi.timefmt import DURATION_HINT, format_duration, parse_duration, seconds
 
 MAX_ERRORS_SHOWN = 25
 SUBCOMMANDS = ("check", "run", "sweep", "ui", "serve-plant", "bench", "journal",
-               "diagnose", "campaign")
+               "diagnose", "campaign", "soak")
 
 
 def _duration(text: str) -> int:
@@ -120,6 +120,9 @@ def _parser() -> argparse.ArgumentParser:
     from hmi.sweep import add_sweep_parser
     add_sweep_parser(sub, project_arg)
 
+    from hmi.soak.command import add_soak_parser
+    add_soak_parser(sub, project_arg)
+
     p = sub.add_parser("bench", help="measure and print performance figures (never fails)")
     p.add_argument("sections", nargs="*", metavar="SECTION",
                    help="sections to run (default: all): " + ", ".join(_bench_sections()))
@@ -198,6 +201,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     parser.print_help()
     return 2
+
+
+def _soak(args: argparse.Namespace) -> int:
+    from hmi.soak.command import cmd_soak
+    return cmd_soak(args)
 
 
 def _sweep(args: argparse.Namespace) -> int:
@@ -667,7 +675,7 @@ __all__ = ["format_duration", "main", "seconds"]
 COMMANDS = {
     "check": cmd_check, "run": cmd_run, "sweep": _sweep, "ui": cmd_ui,
     "serve-plant": cmd_serve_plant, "bench": cmd_bench, "journal": cmd_journal,
-    "diagnose": cmd_diagnose, "campaign": cmd_campaign,
+    "diagnose": cmd_diagnose, "campaign": cmd_campaign, "soak": _soak,
 }
 
 if __name__ == "__main__":

@@ -26,12 +26,14 @@ class LiveRunner:
         # end the run as an abnormal end, since nothing scans any more.
         self.error: BaseException | None = None
         self.error_traceback = ""
+        self.started = False
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, name="plchmi-scan", daemon=True)
 
     def start(self) -> None:
         settle_memory()
         self._thread.start()
+        self.started = True
 
     def stop(self, timeout: float = 2.0) -> None:
         self._stop.set()

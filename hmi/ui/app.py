@@ -66,7 +66,7 @@ from hmi.ui.chronogram import WINDOWS_US, Chronogram
 from hmi.ui.constraints_panel import ConstraintInfo, ConstraintsPanel
 from hmi.ui.containment import ContainedPump, Containment, UIFault
 from hmi.ui.diagnosers_panel import DiagnosersPanel, PartitionInfo
-from hmi.ui.dialogs import ChoiceDialog, ConfirmDialog, StepDialog
+from hmi.ui.dialogs import ChoiceDialog, ConfirmDialog, Dialog, StepDialog
 from hmi.ui.driver import LiveDriver, VirtualDriver
 from hmi.ui.explain_panel import (
     ExplanationPanel,
@@ -579,6 +579,14 @@ class PlcHmiApp(ContainedPump, App):
                 return False
             return bool(self.frame and self.frame.manual_keys)  # else hidden (on_key says)
         return True
+
+    async def on_event(self, event: events.Event) -> None:
+        """A key typed before the dialog on top was painted is not the dialog's: dropped
+        (a stray enter or y meant for the screen below must not answer it)."""
+        if isinstance(event, events.Key) and not event.is_forwarded and \
+                isinstance(self.screen, Dialog) and not self.screen.takes(event):
+            return
+        await super().on_event(event)
 
     def on_key(self, event: events.Key) -> None:
         """1 / 0 / x outside manual mode: said, not silently ignored."""

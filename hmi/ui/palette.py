@@ -12,6 +12,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from textual.command import DiscoveryHit, Hit, Hits, Provider
+from textual.content import Content
+from textual.fuzzy import Matcher
 
 
 @dataclass(frozen=True)
@@ -36,12 +38,24 @@ class HmiCommands(Provider):
 
     async def discover(self) -> Hits:
         for entry in self._entries():
-            yield DiscoveryHit(entry.title, self._run(entry), help=entry.help)
+            yield DiscoveryHit(Content(entry.title), self._run(entry), text=entry.title,
+                               help=entry.help)
 
     async def search(self, query: str) -> Hits:
         matcher = self.matcher(query)
         for entry in self._entries():
             score = matcher.match(entry.title)
             if score > 0:
-                yield Hit(score, matcher.highlight(entry.title), self._run(entry),
-                          help=entry.help)
+                yield Hit(score, highlighted(matcher, entry.title), self._run(entry),
+                          text=entry.title, help=entry.help)
+
+
+def highlighted(matcher: Matcher, title: str) -> Content:
+    """The title with the characters the query matched marked, read as plain text: titles
+    end in their key, ``[r]``, which ``Matcher.highlight`` would take for markup and drop."""
+    content = Content(title)
+    score, offsets = matcher.fuzzy_search.match(matcher.query, title)
+    for offset in offsets if score else ():
+        if not title[offset].isspace():
+            content = content.stylize(matcher.match_style, offset, offset + 1)
+    return content
