@@ -434,15 +434,24 @@ class PlcHmiApp(ContainedPump, App):
             panel.open_to(open_level)
 
     def on_explanation_shown(self, message: ExplanationShown) -> None:
-        """Narrow screens: an open explanation takes the chronogram's place."""
+        self._place_chronogram()
+
+    def _place_chronogram(self) -> None:
+        """Narrow screens: an open explanation takes the chronogram's place; wide ones show
+        both (again, after a resize from narrow to wide)."""
         chrono = self._col_time
-        show = self.size.width >= WIDE or not message.visible
+        show = self.size.width >= WIDE or not self._explanation.visible
         if chrono.display != show:
             chrono.display = show
 
     def on_resize(self) -> None:
+        # Textual sets the app's new size after this handler: look once it is set
+        self.call_later(self._resized)
+
+    def _resized(self) -> None:
         if self.frame is not None and hasattr(self, "_explanation"):
             self._explain(self.frame)
+            self._place_chronogram()
 
     def on_policy_requested(self, message: PolicyRequested) -> None:
         self.choose_policy(message.key, message.policy)
@@ -525,6 +534,9 @@ class PlcHmiApp(ContainedPump, App):
                                   if device is not None and f.injection.device not in
                                   (None, device)]
                 self._version += 1
+                self.explanation_panel.forget_results()
+            case FaultReset() if result.accepted:
+                self.explanation_panel.forget_results()  # what they answered has changed
         if result.accepted and not isinstance(command, RUN_STATE_COMMANDS) \
                 and not self.controller.state.running:
             text.append(" — applies at the next scan (paused)", style=MUTED)
