@@ -39,6 +39,19 @@ def _duration(text: str) -> int:
     return us
 
 
+def _solver_budget(text: str) -> int:
+    from hmi.project.model import MAX_SOLVER_BUDGET, MIN_SOLVER_BUDGET
+    try:
+        value = int(text.replace("_", ""))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of steps") from None
+    if not MIN_SOLVER_BUDGET <= value <= MAX_SOLVER_BUDGET:
+        raise argparse.ArgumentTypeError(
+            f"{value} steps is out of range: between {MIN_SOLVER_BUDGET:,} and "
+            f"{MAX_SOLVER_BUDGET:,}")
+    return value
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="plchmi",
@@ -56,6 +69,10 @@ def _parser() -> argparse.ArgumentParser:
                        help="safety filter policy (default: the project's)")
         p.add_argument("--solver", choices=("exact", "paper"),
                        help="corrector search strategy (default: the project's, else exact)")
+        p.add_argument("--solver-budget", type=_solver_budget, metavar="STEPS",
+                       help="corrector search budget per scan, in steps; past it the safe "
+                       "state is written (default: the project's, else half the scan period "
+                       "in microseconds)")
 
     def plant_args(p: argparse.ArgumentParser, connect_default: str) -> None:
         p.add_argument("--plant", metavar="PLANT",
@@ -299,7 +316,8 @@ def make_engine(project, args: argparse.Namespace, extra_injections=()):
         raise UsageError("the monitor policy passes unsafe orders through to a real plant; "
                          "choose --policy block or correct, or add --allow-monitor")
     engine = Engine(project, plant, control=args.control, policy=args.policy,
-                    solver=args.solver, diagnosis=getattr(args, "diagnosis", None) or "ftc")
+                    solver=args.solver, diagnosis=getattr(args, "diagnosis", None) or "ftc",
+                    solver_budget=getattr(args, "solver_budget", None))
     engine.allow_monitor_on_real_plant = allow_monitor
     return engine, injections
 
@@ -471,6 +489,7 @@ class RunCollector:
         self.safe_scans = 0
         self.unsafe_written = 0
         self.fallbacks = 0
+        self.search_stops = 0  # fallbacks because the corrector's search used its budget
         self.first_latch: tuple[int, int, str] | None = None
         self.events = []
         self.step_changes = 0
@@ -504,6 +523,7 @@ class RunCollector:
                 self.unsafe_written += 1
             if report.fallback:
                 self.fallbacks += 1
+                self.search_stops += bool(getattr(report, "stopped", ""))
             self.max_distance = max(self.max_distance, report.distance)
         if snap.latched and self.first_latch is None:
             reason = snap.latched[0]

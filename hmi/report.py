@@ -124,7 +124,8 @@ def run_summary(engine, last, collector, injections, wall_s: float, trace=None,
                      f"{len(collector.violations)} constraints "
                      f"({', '.join(f'{k} x{v}' for k, v in sorted(collector.violations.items()))})")
         lines.append(f"  scans corrected {collector.corrections}, scans held in the safe state "
-                     f"{collector.safe_scans} (of which fallbacks {collector.fallbacks}), "
+                     f"{collector.safe_scans} (of which fallbacks {collector.fallbacks}"
+                     f"{_search_stops(collector)}), "
                      f"max Hamming distance {collector.max_distance}, "
                      f"unsafe outputs {unsafe_verb} {collector.unsafe_written}")
     monitors = getattr(collector, "monitors", None)
@@ -146,3 +147,9 @@ def run_summary(engine, last, collector, injections, wall_s: float, trace=None,
         path, count = trace
         lines.append(f"Trace: {path} ({count} scans)")
     return "\n".join(lines)
+
+
+def _search_stops(collector) -> str:
+    """", 3 search budget stops" when the corrector's search was cut short, else ""."""
+    stops = getattr(collector, "search_stops", 0)
+    return f", {stops} at the search budget" if stops else ""

@@ -7,7 +7,7 @@ import itertools
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hmi.engine.solver import exact_solve, is_safe, paper_solve, paper_subsets
+from hmi.engine.solver import exact_solve, is_safe, paper_solve, paper_subsets, tie_key
 
 
 def bits(ham: list[bool]) -> str:
@@ -124,6 +124,30 @@ def problems(draw):
     start = draw(st.integers(0, (1 << n) - 1))
     unforced = draw(st.integers(0, (1 << n) - 1))
     return n, cons, start, unforced
+
+
+def brute_best(start: int, cons, unforced: int, n: int) -> int | None:
+    """The safe vector the exact strategy's documented rule picks, by enumeration."""
+    best = None
+    for v in range(1 << n):
+        if v & ~unforced != start & ~unforced or not is_safe(v, cons):
+            continue
+        flipped = v ^ start
+        key = (flipped.bit_count(), tie_key(flipped, start))
+        if best is None or key < best[0]:
+            best = (key, v)
+    return None if best is None else best[1]
+
+
+@settings(max_examples=300, deadline=None)
+@given(problems())
+def test_exact_picks_the_brute_force_vector_including_the_tie_break(problem):
+    n, cons, start, unforced = problem
+    expected = brute_best(start, cons, unforced, n)
+    sol = exact_solve(start, cons, unforced)
+    assert sol.vector == expected
+    assert sol.how == ("none" if expected is None else
+                       "unchanged" if expected == start else "minimal")
 
 
 @settings(max_examples=400, deadline=None)

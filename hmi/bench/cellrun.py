@@ -154,7 +154,8 @@ def report_lines(run: CellRun, work: str) -> list[str]:
         lines.append(f"    combined search ({len(run.solver_us):,} runs): p50 "
                      f"{_us(percentile(run.solver_us, 50))}, p99 "
                      f"{_us(percentile(run.solver_us, 99))}, max {_us(max(run.solver_us))}; "
-                     f"vectors tested median {tested[len(tested) // 2]}, max {tested[-1]}")
+                     f"{'vectors tested' if run.strategy == 'paper' else 'search nodes'} "
+                     f"median {tested[len(tested) // 2]}, max {tested[-1]}")
     else:
         lines.append("    combined search: never needed (only simple constraints corrected)")
     if run.filter_us:

@@ -6,7 +6,8 @@ constraints with the literals that made them true, and — according to the poli
 the vector through (`monitor`), latches every output to its safe value (`block`), or corrects
 it (`correct`): first the simple constraints' set/reset form (004 eq. 6, `mem = not F0 and
 FOV or F1`), then the safe vector at minimum Hamming distance for the combined constraints
-(:mod:`hmi.engine.solver`); when no safe vector exists it writes the safe state and says so.
+(:mod:`hmi.engine.solver`); when no safe vector exists, or the search uses up its budget
+of steps for the scan, it writes the safe state and says so.
 """
 
 from __future__ import annotations
@@ -15,7 +16,14 @@ import time
 from dataclasses import dataclass
 from typing import NamedTuple
 
-from hmi.engine.solver import Solution, is_safe, solve
+from hmi.engine.solver import (
+    Problem,
+    Solution,
+    default_budget,
+    free_indices,
+    is_safe,
+    paper_solve,
+)
 from hmi.logic.expr import And, BoolFn, Not, Var, compile_bool
 from hmi.project.model import Constraint, Project
 
@@ -59,6 +67,9 @@ class FilterReport(NamedTuple):
     safe_state: bool = False  # the written vector is the project's safe state by decision
     conflicts: tuple[str, ...] = ()  # outputs forced both to 0 and to 1 this scan
     note: str = ""  # how the combined repair was chosen (tie-break), for the operator
+    steps: int = 0  # the search's work this scan, in steps (deterministic: the budget's unit)
+    budget: int = 0  # the step budget the search ran under
+    stopped: str = ""  # "budget" or "deadline": the search was cut short (safe state written)
 
     @property
     def violated_names(self) -> tuple[str, ...]:
@@ -152,6 +163,7 @@ class _ActiveSet:
     combined_constraints: tuple[CompiledConstraint, ...]
     forcing0: tuple[tuple[str, ...], ...]
     forcing1: tuple[tuple[str, ...], ...]
+    problem: Problem | None  # the exact search's preparation, when there is a combined one
 
     @classmethod
     def of(cls, active, n: int) -> _ActiveSet:
@@ -164,15 +176,27 @@ class _ActiveSet:
         forcing0 = tuple(tuple(c.name for c in simple if c.pos >> k & 1) for k in range(n))
         forcing1 = tuple(tuple(c.name for c in simple if c.neg >> k & 1) for k in range(n))
         combined = tuple(c for c in active if not c.simple)
-        return cls(f0, f1, [(c.pos, c.neg) for c in combined], combined, forcing0, forcing1)
+        masks = [(c.pos, c.neg) for c in combined]
+        # Outputs forced by the simple constraints are not free; their values are F1's.
+        problem = Problem(masks, ((1 << n) - 1) & ~(f0 | f1), f1) if masks else None
+        return cls(f0, f1, masks, combined, forcing0, forcing1, problem)
 
 
 class SafetyFilter:
     """Stateless between scans except for what the engine holds (policy, latch)."""
 
-    def __init__(self, project: Project, slots, step_times=None, strategy: str = "exact"):
+    def __init__(self, project: Project, slots, step_times=None, strategy: str = "exact",
+                 budget: int | None = None):
         self.project = project
         self.strategy = strategy
+        # The corrector's budget per scan, in steps: deterministic, so a headless run gives
+        # the same trace on any machine (docs/filter.md, "Budget").
+        self.budget = budget if budget is not None else default_budget(
+            project.scan_period_us)
+        # A wall-clock limit on the search, in microseconds, set only by a live runner
+        # (hmi.engine.live) as a safety net on a slow or loaded machine. Never set in a headless
+        # run, a test or a campaign: it cannot change their traces.
+        self.wall_limit_us: float | None = None
         self.outputs = tuple(v.name for v in project.outputs)
         self.n = len(self.outputs)
         self.compiled = compile_constraints(project, slots, step_times)
@@ -238,13 +262,16 @@ class SafetyFilter:
         solver_us = 0.0
         if combined:
             started = time.perf_counter()
-            solution = solve(self.strategy, mem, combined, self.all_bits & ~(f0 | f1), f0, f1)
+            deadline = (None if self.wall_limit_us is None
+                        else started + self.wall_limit_us / 1e6)
+            if self.strategy == "paper":
+                solution = paper_solve(mem, combined, self.all_bits & ~(f0 | f1), f0, f1,
+                                       budget=self.budget, deadline=deadline)
+            else:
+                solution = aset.problem.solve(mem, self.budget, deadline)
             solver_us = (time.perf_counter() - started) * 1e6
             if solution.vector is None:
-                return self._safe_state(
-                    fov, violations, active, "correct",
-                    "no output vector satisfies every constraint in this situation",
-                    tested=solution.tested, solver_us=solver_us)
+                return self._no_solution(fov, violations, active, aset, solution, solver_us)
             written = solution.vector
         else:
             written = mem
@@ -264,21 +291,62 @@ class SafetyFilter:
                                       bool(written & bit), combined_names, "combined"))
         note = ""
         if solution is not None and solution.flipped:
-            note = (f"{self.strategy} search: {solution.distance} output"
-                    f"{'s' if solution.distance != 1 else ''} changed for "
-                    f"{', '.join(combined_names)} ({solution.how}, {solution.tested} vectors "
-                    "tested; ties go to switching orders off, then to sparing the outputs "
-                    "listed first)")
+            note = self._note(solution, combined_names, mem, combined, f0 | f1)
         residual = tuple(c.name for c in active if written & c.pos == c.pos
                          and not written & c.neg)
         return unpack(written, self.n), FilterReport(
             "correct", self.strategy, violations, tuple(changes),
             distance=(written ^ candidate).bit_count(),
             tested=solution.tested if solution else 0, solver_us=solver_us,
-            residual=residual, note=note)
+            residual=residual, note=note, steps=solution.steps if solution else 0,
+            budget=self.budget if solution else 0)
+
+    def _note(self, solution: Solution, names: tuple[str, ...], mem: int, combined,
+              forced: int) -> str:
+        """How this strategy chose the repair, in its own words (each states its own rule)."""
+        d = solution.distance
+        changed = f"{d} output{'s' if d != 1 else ''} changed for {', '.join(names)}"
+        if self.strategy != "paper":
+            return (f"exact search: {changed}, the fewest possible; among equally close "
+                    "vectors, ties go to switching orders off, then to sparing the outputs "
+                    f"listed first ({solution.tested} nodes, {solution.steps} steps)")
+        free = free_indices(mem, combined, self.all_bits & ~forced)
+        order = ", ".join(self.outputs[k] for k in free)
+        how = {"closest": "the first safe vector in the paper's enumeration order",
+               "farthest": "the memorised farthest vector (the complement of a k-subset: no "
+                           "closer vector was safe)",
+               "worst case": "the worst case (every free output changed)"}.get(
+                   solution.how, solution.how)
+        return (f"paper search (Algorithm 1 of 004): {changed}, {how}; no tie-break: among "
+                "equally close vectors the first in the paper's order is kept, which changes "
+                f"the outputs listed first first (free outputs in order: {order}; "
+                f"{solution.tested} vectors tested)")
+
+    def _no_solution(self, fov, violations, active, aset: _ActiveSet, solution: Solution,
+                     solver_us: float):
+        """The safe state, because no safe vector exists or the search was cut short."""
+        if solution.how == "budget":
+            why = (f"the {self.strategy} search for the closest safe vector used its budget "
+                   f"({solution.steps:,} of {self.budget:,} steps) before finding it or "
+                   "proving there is none")
+        elif solution.how == "deadline":
+            why = (f"the {self.strategy} search for the closest safe vector reached the live "
+                   f"wall-clock limit ({self.wall_limit_us / 1000:g} ms) before finding it or "
+                   "proving there is none")
+        else:
+            why = "no output vector satisfies every constraint in this situation"
+            if solution.involved:
+                names = ", ".join(aset.combined_constraints[i].name
+                                  for i in solution.involved)
+                why += f" ({names} cannot all hold)"
+        stopped = solution.how if solution.how in ("budget", "deadline") else ""
+        return self._safe_state(fov, violations, active, "correct", why,
+                                tested=solution.tested, solver_us=solver_us,
+                                steps=solution.steps, stopped=stopped)
 
     def _safe_state(self, fov, violations, active, policy: str, why: str,
-                    conflicts: tuple[str, ...] = (), tested: int = 0, solver_us: float = 0.0):
+                    conflicts: tuple[str, ...] = (), tested: int = 0, solver_us: float = 0.0,
+                    steps: int = 0, stopped: str = ""):
         candidate = pack(fov)
         written = self.safe
         changes = tuple(Change(self.outputs[k], bool(candidate >> k & 1), bool(written >> k & 1),
@@ -291,7 +359,7 @@ class SafetyFilter:
             policy, self.strategy, violations, changes,
             distance=(candidate ^ written).bit_count(), tested=tested, solver_us=solver_us,
             fallback=fallback, residual=residual, safe_state=True, conflicts=conflicts,
-            note=why)
+            note=why, steps=steps, budget=self.budget if steps else 0, stopped=stopped)
 
 
 def safe_for_all(vector: tuple[bool, ...], compiled, image, history) -> bool:

@@ -32,6 +32,7 @@ class LiveRunner:
 
     def start(self) -> None:
         settle_memory()
+        arm_search_deadline(self.controller)
         self._thread.start()
         self.started = True
 
@@ -81,6 +82,17 @@ class LiveRunner:
                 for listener in controller.overrun_listeners:
                     listener(self.overruns)
                 next_wall = time.perf_counter()
+
+
+def arm_search_deadline(controller: Controller) -> None:
+    """Live runs only: the corrector's search also stops at half the scan period of wall time.
+
+    The search's own budget is in steps (deterministic); on a machine slower or busier than
+    the one the budget was chosen on, this net keeps the scan on time. A headless run never
+    arms it, so it cannot change a trace (docs/filter.md, "Budget")."""
+    safety_filter = getattr(controller.engine, "filter", None)
+    if safety_filter is not None and hasattr(safety_filter, "wall_limit_us"):
+        safety_filter.wall_limit_us = controller.period_us / 2
 
 
 class WallClock:

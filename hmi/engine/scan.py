@@ -47,7 +47,7 @@ from hmi.project.model import POLICIES, Project
 class Engine:
     def __init__(self, project: Project, plant: Plant, control: str | None = None,
                  policy: str | None = None, solver: str | None = None,
-                 diagnosis: str = "ftc"):
+                 diagnosis: str = "ftc", solver_budget: int | None = None):
         self.project = project
         self.plant = plant
         self.control_name = control or project.default_control
@@ -97,7 +97,8 @@ class Engine:
         # what it wants shown into `self.extras` (keys are Snapshot field names).
         self.stages_after_memory: list[Callable[[Engine], None]] = []  # diagnosers
         self.output_stage: Callable[[Engine, tuple[bool, ...]], tuple[tuple[bool, ...], object]]
-        self.filter = SafetyFilter(project, slots, times, solver or project.solver)
+        self.filter = SafetyFilter(project, slots, times, solver or project.solver,
+                                   solver_budget or project.solver_budget)
         self.output_stage = self.filter  # the safety filter
         # Observers of the whole scan (I(t) read and O(t) written): stopwatch monitors.
         self.stages_after_output: list[Callable[[Engine], None]] = []

@@ -338,6 +338,8 @@ class ExplanationBuilder:
         return self.cached(key, (reason.detail,), make)
 
     def _fallback(self, engine, report) -> Explanation:
+        if getattr(report, "stopped", ""):
+            return self._search_stopped(engine, report)
         key = "fallback"
         onset = self.onset(key, engine)
 
@@ -355,6 +357,35 @@ class ExplanationBuilder:
                                "look for a sensor giving an impossible combination", None))
             return Explanation(key, "fallback", "high", self.project.name, what, why,
                                consequences, policies, onset.scan, onset.time_us)
+        return self.cached(key, (report.fallback, report.violated_names), make)
+
+    def _search_stopped(self, engine, report) -> Explanation:
+        """The corrector's search was cut short by its budget: the safe state, said plainly,
+        with what the engineer can change (the budget is a project setting)."""
+        key = "search_budget"
+        onset = self.onset(key, engine)
+
+        def make() -> Explanation:
+            violated = ", ".join(report.violated_names)
+            what = (f"{self.project.name}: correction not found in time — safe state written")
+            why = (f"At scan {engine.scan} ({seconds(engine.now)} s) {report.fallback}. "
+                   f"Violated by the program: {violated}. Since scan {onset.scan}.")
+            consequences = ("Every output is at its safe value for this scan; nothing unsafe is "
+                            "written. Each scan searches again, so the cell stays stopped only "
+                            "while the situation lasts. The search is stopped at its budget "
+                            "so that it never holds up the scan.")
+            policies = [self.policy_manual(True),
+                        Policy("budget", "Raise the search budget",
+                               "engineering: set solver_budget in the project (or start with "
+                               "--solver-budget); `plchmi bench corrector` shows what a search "
+                               "costs on this machine", None)]
+            if report.strategy == "paper":
+                policies.append(Policy("exact", "Use the exact search",
+                                       "engineering: start with --solver exact (or solver: exact "
+                                       "in the project): it proves infeasibility without "
+                                       "enumerating and needs far fewer steps", None))
+            return Explanation(key, "fallback", "high", self.project.name, what, why,
+                               consequences, tuple(policies), onset.scan, onset.time_us)
         return self.cached(key, (report.fallback, report.violated_names), make)
 
     def _plant(self, engine, message: str) -> Explanation:

@@ -30,6 +30,8 @@ from hmi.project.campaign import parse_campaign
 from hmi.project.components import Components, load_components, merge_texts
 from hmi.project.diagnosers import declare_diagnoser_names, parse_diagnosers
 from hmi.project.model import (
+    MAX_SOLVER_BUDGET,
+    MIN_SOLVER_BUDGET,
     POLICIES,
     READ_ONLY_TABLES,
     TABLES,
@@ -57,8 +59,8 @@ PROJECT_FILE = "project.yaml"
 
 TOP_KEYS = {
     "name", "description", "scan_period", "include", "inputs", "outputs", "memories",
-    "timers", "observers", "control", "constraints", "policy", "solver", "plant",
-    "explanations", "monitors", "scenarios", "diagnosers", "campaign", "components",
+    "timers", "observers", "control", "constraints", "policy", "solver", "solver_budget",
+    "plant", "explanations", "monitors", "scenarios", "diagnosers", "campaign", "components",
 }
 
 NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
@@ -276,6 +278,10 @@ class ProjectLoader:
         if "solver" in s:
             solver = self.guard(lambda: self._choice(s["solver"], "solver", ("exact", "paper")),
                                 solver)
+        solver_budget = None
+        if "solver_budget" in s:
+            solver_budget = self.guard(lambda: s["solver_budget"].as_int(
+                "solver_budget", MIN_SOLVER_BUDGET, MAX_SOLVER_BUDGET), None)
         plant = self._plant(pos, inputs, outputs)
         self._check_addresses(inputs, outputs)
         monitors = parse_monitors(self, period)  # stopwatch monitors: hmi/project/monitors.py
@@ -302,6 +308,7 @@ class ProjectLoader:
             timers=tuple(timers), observers=tuple(observers), controls=controls,
             default_control=default_control, constraints=tuple(constraints), policy=policy,
             plant=plant, pos=pos, files=tuple(self.files), solver=solver,
+            solver_budget=solver_budget,
             extra={"warnings": tuple(self.diag.warnings), "explanations": texts,
                    "monitors": monitors, "scenarios": scenarios, "diagnosers": diagnosers,
                    "campaign": campaign, "components": tuple(self.components.instances),

@@ -214,6 +214,12 @@ class PlantSpec:
 # --------------------------------------------------------------------------------------------
 
 
+# The corrector's step budget per scan (`solver_budget:`, `--solver-budget`): below the
+# minimum even a one-constraint repair could not finish; the maximum is seconds of search.
+MIN_SOLVER_BUDGET = 100
+MAX_SOLVER_BUDGET = 10_000_000
+
+
 @dataclass(frozen=True)
 class Project:
     name: str
@@ -233,6 +239,9 @@ class Project:
     pos: SourcePos
     files: tuple[str, ...] = ()
     solver: str = "exact"  # the corrector's search strategy: "exact" or "paper"
+    # The corrector's search budget per scan, in steps (hmi.engine.solver); None: the default
+    # for the scan period (solver.default_budget).
+    solver_budget: int | None = None
     extra: dict[str, Any] = field(default_factory=dict)  # sections added by later features
 
     @property
