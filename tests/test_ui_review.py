@@ -92,7 +92,9 @@ async def test_the_level_opened_is_scrolled_into_view_with_a_scroll_hint(size):
             assert panel.level == level
             text = region_text(app, "#explain")
             lines = text.splitlines()
-            assert heading in lines[1], (level, text)  # on the panel's first line
+            # on the panel's first line, or scrolled as far as it goes (all of it shown)
+            assert heading in lines[1] or (
+                heading in text and panel.scroll_y == panel.max_scroll_y), (level, text)
             assert f"level {level}/4" in lines[-1] and "↑↓ scroll" in lines[-1]
         # the arrows scroll it (the focus is on the recommended policy, inside it)
         top = panel.scroll_y

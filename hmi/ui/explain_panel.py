@@ -266,6 +266,7 @@ class ExplanationPanel(ContainedPump, VerticalScroll):
                 view.display = False
             self._set_policies(())
             self._put(result, "")
+            result.display = False
             return
         set_title(self, f"Explanation · {exp.kind}")
         self._set_subtitle()
@@ -276,6 +277,7 @@ class ExplanationPanel(ContainedPump, VerticalScroll):
             self._put(view, level_text(exp, view.level, level >= view.level))
         self._set_policies(exp.policies if level >= 4 else ())
         self._put(result, answer or "")
+        result.display = answer is not None  # empty, its margin would make the text scroll
         if answer is not None and answer is not self._answered:
             self._answered = answer  # a new answer: make sure it is seen
             self._pending_end = True  # the answer is the last line: scroll to it once laid out
