@@ -432,7 +432,7 @@ def test_quitting_the_hmi_on_a_real_plant_leaves_its_outputs_safe(server, tmp_pa
     from hmi.cli import main
     from hmi.ui.app import PlcHmiApp
     from hmi.ui.dialogs import ConfirmDialog
-    from hmi.ui.testing import screen_text, wait_for_screen, wait_until
+    from hmi.ui.testing import press, screen_text, wait_for_screen, wait_until
 
     srv = server()
     monkeypatch.setenv("PLCHMI_DATA", str(tmp_path))
@@ -444,10 +444,10 @@ def test_quitting_the_hmi_on_a_real_plant_leaves_its_outputs_safe(server, tmp_pa
                          app.controller.engine.last.output_map["O"], "the valve opening",
                          WAIT)
         seen["coils_before"] = read_coils(srv.port)
-        await pilot.press("q")
+        await press(pilot, "q")
         await wait_for_screen(pilot, ConfirmDialog)
         seen["dialog"] = screen_text(app)
-        await pilot.press("y")
+        await press(pilot, "y")
 
     run = PlcHmiApp.run
     monkeypatch.setattr(PlcHmiApp, "run", lambda self: run(self, headless=True,

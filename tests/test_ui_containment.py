@@ -24,7 +24,15 @@ from hmi.ui.constraints_panel import ConstraintsPanel
 from hmi.ui.dialogs import ConfirmDialog
 from hmi.ui.scenarios import VALVE, make_app
 from hmi.ui.testhooks import ENV
-from hmi.ui.testing import palette, region_text, run_for, settle, wait_for_main, wait_for_screen
+from hmi.ui.testing import (
+    palette,
+    press,
+    region_text,
+    run_for,
+    settle,
+    wait_for_main,
+    wait_for_screen,
+)
 from tests.test_modbus import server  # noqa: F401  (the fixture: real server processes)
 
 SIZE = (100, 30)
@@ -88,7 +96,7 @@ async def test_errors_in_handlers_actions_dialogs_palette_and_drawing_are_contai
 
         # a key's action
         monkeypatch.setattr(PlcHmiApp, "action_window", boom)
-        await pilot.press("w")
+        await press(pilot, "w")
         await settle(pilot)
         assert app.containment.latest.what == "action window"
         # a click handler of a panel
@@ -98,9 +106,9 @@ async def test_errors_in_handlers_actions_dialogs_palette_and_drawing_are_contai
         assert app.containment.latest.what == "ConstraintsPanel on_click"
         # the answer to a dialog
         monkeypatch.setattr(PlcHmiApp, "_confirmed", boom)
-        await pilot.press("r")
+        await press(pilot, "r")
         await wait_for_screen(pilot, ConfirmDialog)
-        await pilot.press("y")
+        await press(pilot, "y")
         await wait_for_main(pilot)
         assert app.containment.latest.what.startswith("answer to reset-dialog")
         # a palette entry

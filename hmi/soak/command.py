@@ -58,6 +58,8 @@ def add_soak_parser(sub, project_arg) -> None:
     p.add_argument("--seed", type=int, default=1, help="the operator's random seed (1)")
     p.add_argument("--size", type=_size, default=(80, 24), metavar="WxH",
                    help="terminal size at the start (default 80x24)")
+    p.add_argument("--steps", type=int, metavar="N",
+                   help="stop after N steps too (a bounded run, as the tests do)")
     p.add_argument("--replay", type=Path, metavar="FILE",
                    help="run the steps of FILE (as printed on a failure) instead")
     p.add_argument("--shrink", type=_seconds, default=300.0, metavar="TIME",
@@ -79,7 +81,10 @@ def cmd_soak(args: argparse.Namespace) -> int:
             raise UsageError(f"--replay {args.replay}: {exc.strerror}") from None
         except StepError as exc:
             raise UsageError(str(exc)) from None
-    config = SoakConfig(Path(args.project), args.control, args.size, args.minutes, args.seed)
+    if args.steps is not None and args.steps < 1:
+        raise UsageError("--steps: at least 1")
+    config = SoakConfig(Path(args.project), args.control, args.size, args.minutes, args.seed,
+                        args.steps)
     print(f"soak {project.name} (control {args.control or 'default'}, "
           f"{config.size[0]}x{config.size[1]}, seed {config.seed}): "
           + (f"replaying {len(replay)} steps" if replay is not None
@@ -132,4 +137,9 @@ def summary(result: SoakResult) -> str:
         f"journal), at most {result.max_alarms} listed; journal {result.journal_lines} lines",
         f"  invariants: {len(result.broken)} broken",
     ]
+    if result.safe_state_violations:
+        lines.insert(-1, "  safe state written by decision, leaving constraints violated "
+                     "(allowed: the safe state has the last word): " + ", ".join(
+                         f"{name} {n} scans" for name, n in
+                         sorted(result.safe_state_violations.items())))
     return "\n".join(lines)

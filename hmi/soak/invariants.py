@@ -9,7 +9,11 @@ rather than trusting the engine's own report of it:
 - **safe outputs**: the outputs written satisfy every safety constraint — each constraint is
   evaluated here, on the vector written and the values of the scans before it — unless the
   policy is ``monitor``, or every output of the constraint is masked by a diagnoser (the
-  mask has the last word, docs/project-format.md);
+  mask has the last word, docs/project-format.md), or the vector written is exactly the
+  project's safe state, written by decision (safe blocking, a fallback, a latch): the safe
+  state has the last word too — dropping every order may break a constraint of the form
+  ``not o and h1`` ("never drop the open order before the valve is open", CSs4). Those scans
+  are counted per constraint (:attr:`Invariants.safe_state_violations`), never hidden;
 - **ISA-18.2**: an alarm never leaves the list unacknowledged (only an acknowledged alarm
   leaves when it clears, a cleared one when it is acknowledged); the priority of an alarm in
   the list (active or unacknowledged) never goes down; every change of an alarm's state seen
@@ -21,7 +25,7 @@ rather than trusting the engine's own report of it:
 from __future__ import annotations
 
 import json
-from collections import deque
+from collections import Counter, deque
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -87,6 +91,9 @@ class Invariants:
         self.scans = 0
         self.broken: list[Broken] = []
         self.max_alarms = 0
+        # scans where the safe state, written by decision, left a constraint violated
+        self.safe_state_violations: Counter[str] = Counter()
+        self.safe_vector = tuple(engine.safe_vector)
         controller.scan_listeners.append(self.on_scan)
         controller.listeners.append(self.on_command)
 
@@ -106,6 +113,9 @@ class Invariants:
             violated = self._violated(snap)
             masked = set(snap.masked)
             unsafe = [name for name, outs in violated if not outs <= masked]
+            if unsafe and self._safe_state_by_decision(snap):
+                self.safe_state_violations.update(unsafe)
+                unsafe = []
             if unsafe:
                 written = " ".join(f"{n}={int(v)}" for n, v in
                                    zip(snap.layout.outputs, snap.outputs, strict=True))
@@ -116,6 +126,12 @@ class Invariants:
                             f"{'; '.join(r.detail for r in snap.latched) or 'no'})")
         self.history.appendleft(snap.values)
         self._observe(snap.alarms, acknowledged=())
+
+    def _safe_state_by_decision(self, snap) -> bool:
+        """The outputs written are the safe state, and the engine says it chose it."""
+        report = snap.filter
+        decided = bool(snap.latched) or (report is not None and report.safe_state)
+        return decided and tuple(snap.outputs) == self.safe_vector
 
     def _violated(self, snap) -> list[tuple[str, frozenset[str]]]:
         history = self.history

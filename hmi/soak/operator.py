@@ -52,7 +52,7 @@ class RandomOperator:
         rng = self.rng
         paused = not app.controller.state.running
         weights = {
-            "run": 6 if paused else 32,
+            "run": 6 if paused else 36,
             "resume": 20 if paused else 0,
             "key": 26,
             "heavy": 10,
@@ -85,8 +85,9 @@ class RandomOperator:
                                                                          MAX_SIZE[1]))
 
     def _duration(self) -> int:
-        """10 ms to 20 s of virtual time, log-uniform: short steps and long waits alike."""
-        return int(10_000 * 2000 ** self.rng.random())
+        """10 ms to 60 s of virtual time, log-uniform: short steps and long waits alike (an
+        operator watches the cell for a minute as often as for a scan)."""
+        return int(10_000 * 6000 ** self.rng.random())
 
     def _palette(self, app) -> Step:
         """Any palette entry, by group first (the text before ':' — manual, alarms, policy,

@@ -47,6 +47,7 @@ class SoakConfig:
     size: tuple[int, int] = (80, 24)
     minutes: float = 30.0
     seed: int = 1
+    max_steps: int | None = None  # a bound on the steps too (the CI's budget)
 
 
 @dataclass
@@ -64,6 +65,7 @@ class SoakResult:
     raised: int = 0
     journal_lines: int = 0
     max_alarms: int = 0
+    safe_state_violations: Counter = field(default_factory=Counter)
     skipped: int = 0  # palette entries not there (replays of a shrunk list)
     journal: Path | None = None
 
@@ -98,7 +100,7 @@ async def session(config: SoakConfig, replay: list[Step] | None = None,
     app.controller.listeners.append(count)
     operator = RandomOperator(config.seed)
     limit_us = int(config.minutes * 60_000_000)
-    max_steps = max(100, int(config.minutes * MAX_STEPS_PER_MINUTE))
+    max_steps = config.max_steps or max(100, int(config.minutes * MAX_STEPS_PER_MINUTE))
     started = time.perf_counter()
     try:
         async with app.run_test(size=config.size) as pilot:
@@ -138,6 +140,7 @@ def _fill(result: SoakResult, checker: Invariants, app: PlcHmiApp, started: floa
     result.raised = checker.raised
     result.journal_lines = checker.journal_lines
     result.max_alarms = checker.max_alarms
+    result.safe_state_violations = Counter(checker.safe_state_violations)
 
 
 def _gesture(app: PlcHmiApp, step: Step) -> str:

@@ -42,11 +42,16 @@ class WaitTimeout(AssertionError):
     pass
 
 
+def screen_pending(screen) -> bool:
+    """The screen has a layout, a repaint or callbacks due at its next refresh."""
+    return bool(screen._layout_required or screen._repaint_required or screen._dirty_widgets
+                or screen._callbacks or screen._recompose_required)
+
+
 def busy(app) -> str:
     """What the app has left to do that a test could be waiting for ('' if nothing)."""
     screen = app.screen
-    if screen._layout_required or screen._repaint_required or screen._dirty_widgets \
-            or screen._callbacks or screen._recompose_required:
+    if screen_pending(screen):
         return f"{screen!r}: layout, repaint or callbacks pending"
     nodes = [app]
     for each in app.screen_stack:
@@ -70,11 +75,14 @@ async def drain(pilot: Pilot) -> None:
         if app._exit or not app.is_running:
             return  # the app is ending: nothing more to wait for
         await pilot._wait_for_screen()
-        app.screen._on_timer_update()  # what the screen's refresh timer would do
         await asyncio.sleep(0)  # workers and tasks get their turn
         doing = busy(app)
         if not doing:
             return
+        if doing.endswith("callbacks pending"):
+            # only the screen's refresh is left: what its refresh timer would do (once the
+            # messages are handled, so that one layout and one paint serve them all)
+            app.screen._on_timer_update()
     raise WaitTimeout(f"the app was still busy after {MAX_ROUNDS} rounds: {doing}")
 
 
