@@ -21,8 +21,9 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from hmi.errors import ProjectError, UsageError
-from hmi.timefmt import DURATION_HINT, format_duration, parse_duration, seconds
+from hmi.errors import OutputError, ProjectError, UsageError
+from hmi.limits import MAX_JOBS, MAX_RUN_SCANS, MIN_SCAN_PERIOD_US
+from hmi.timefmt import DURATION_HINT, DurationError, format_duration, parse_duration, seconds
 
 MAX_ERRORS_SHOWN = 25
 SUBCOMMANDS = ("check", "run", "sweep", "ui", "serve-plant", "bench", "journal",
@@ -32,16 +33,27 @@ SUBCOMMANDS = ("check", "run", "sweep", "ui", "serve-plant", "bench", "journal",
 def _duration(text: str) -> int:
     try:
         us = parse_duration(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not {DURATION_HINT}") from None
+    except DurationError as exc:
+        raise argparse.ArgumentTypeError(f"{text!r} {exc.reason} (expected {DURATION_HINT})"
+                                         ) from None
     if us <= 0:
         raise argparse.ArgumentTypeError("the duration must be longer than zero")
+    return us
+
+
+def _period(text: str) -> int:
+    us = _duration(text)
+    if us < MIN_SCAN_PERIOD_US:
+        raise argparse.ArgumentTypeError(f"{text!r} is shorter than the shortest scan period "
+                                         f"({format_duration(MIN_SCAN_PERIOD_US)})")
     return us
 
 
 def _solver_budget(text: str) -> int:
     from hmi.project.model import MAX_SOLVER_BUDGET, MIN_SOLVER_BUDGET
     try:
+        if not text.isascii():  # "１０００" is int() 1000: digits a reader would not see
+            raise ValueError(text)
         value = int(text.replace("_", ""))
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of steps") from None
@@ -61,6 +73,11 @@ def _parser() -> argparse.ArgumentParser:
 
     def project_arg(p: argparse.ArgumentParser) -> None:
         p.add_argument("project", help="project folder (or its project.yaml)")
+
+    def diagnoser_arg(p: argparse.ArgumentParser) -> None:
+        p.add_argument("--diagnoser", metavar="VARIANT",
+                       help="load this variant of the diagnosers (e.g. paper); default: "
+                       "the first each declares")
 
     def engine_args(p: argparse.ArgumentParser) -> None:
         p.add_argument("--control", metavar="VARIANT",
@@ -89,15 +106,20 @@ def _parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("check", help="load and validate a project, print a summary")
     project_arg(p)
+    diagnoser_arg(p)
+    p.add_argument("--closed-loop", action="store_true",
+                   help="compute the diagnosability on the closed loop if it is not cached "
+                   "(as plchmi diagnose does)")
 
     p = sub.add_parser("run", help="run headless in virtual time")
     project_arg(p)
+    diagnoser_arg(p)
     engine_args(p)
     p.add_argument("--for", dest="duration", type=_duration, metavar="TIME",
                    help="virtual time to run, e.g. 60s (default: the scenario's)")
     p.add_argument("--scenario", metavar="NAME",
                    help="inject the faults of a scenario the project declares")
-    p.add_argument("--period", type=_duration, metavar="TIME",
+    p.add_argument("--period", type=_period, metavar="TIME",
                    help="scan period (default: the project's)")
     p.add_argument("--inject", action="append", default=[], metavar="FAULT@TIME",
                    help="inject a fault into the simulated plant, e.g. F5@12s (repeatable)")
@@ -114,13 +136,25 @@ def _parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("diagnose", help="print the diagnosers' automata and diagnosability")
     project_arg(p)
+    diagnoser_arg(p)
+    p.add_argument("--no-closed-loop", action="store_true",
+                   help="print the closed-loop diagnosability only if it is cached (no "
+                   "exploration, which takes about a minute the first time)")
 
     p = sub.add_parser("campaign", help="inject every fault under three configurations and "
                        "classify the runs (000 Table 1)")
     project_arg(p)
+    diagnoser_arg(p)
     p.add_argument("--json", action="store_true", help="print the results as JSON")
     p.add_argument("--jobs", type=int, default=None, metavar="N",
                    help="worker processes (default: 2 if the machine has 2 cores or more)")
+    p.add_argument("--sweep", action="store_true",
+                   help="inject each fault at every instant of a full cycle instead of the "
+                   "scenarios' single instants")
+    p.add_argument("--every", type=_duration, default=None, metavar="TIME",
+                   help="with --sweep: the grid of instants (default: every scan period)")
+    p.add_argument("--faults", metavar="F1,F2,...",
+                   help="with --sweep: only these faults (default: every fault of the plant)")
 
     p = sub.add_parser(
         "journal", help="print or export a project's operator journal",
@@ -148,6 +182,7 @@ def _parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("ui", help="open the operator HMI (the default command)")
     project_arg(p)
+    diagnoser_arg(p)
     engine_args(p)
     p.add_argument("--inject", action="append", default=[], metavar="FAULT@TIME",
                    help="schedule a fault in the simulated plant")
@@ -166,18 +201,37 @@ def _parser() -> argparse.ArgumentParser:
                    "mute@5s+2s), in time since the server started (repeatable)")
     p.add_argument("--delay", type=_duration, metavar="TIME",
                    help="answer every request TIME late (a slow server)")
+    p.add_argument("--max-connections", type=_positive, default=16, metavar="N",
+                   help="connections open at once; more are closed at once (16)")
+    p.add_argument("--idle-timeout", type=_duration, default=60_000_000, metavar="TIME",
+                   help="close a connection with no request for TIME (60s)")
     return parser
 
 
-def _port(text: str) -> int:
-    if not text.isdigit() or int(text) > 65535:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a TCP port (0 to 65535)")
+def _whole(text: str, most: int) -> int | None:
+    """`text` as a whole number from 0 to `most`, ASCII digits only ("²".isdigit() is true)."""
+    if not (text.isascii() and text.isdigit()) or len(text) > 6 or int(text) > most:
+        return None
     return int(text)
 
 
+def _port(text: str) -> int:
+    port = _whole(text, 65535)
+    if port is None:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a TCP port (0 to 65535)")
+    return port
+
+
 def _unit(text: str) -> int:
-    if not text.isdigit() or int(text) > 255:
+    unit = _whole(text, 255)
+    if unit is None:
         raise argparse.ArgumentTypeError(f"{text!r} is not a Modbus unit id (0 to 255)")
+    return unit
+
+
+def _positive(text: str) -> int:
+    if not text.isdigit() or not 1 <= int(text) <= 10_000:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number from 1 to 10000")
     return int(text)
 
 
@@ -203,6 +257,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except RunFailure as exc:
         print(f"plchmi: error: {exc}", file=sys.stderr)
         return 1
+    except OutputError as exc:  # a trace or journal that cannot be opened
+        print(f"plchmi: error: {exc}", file=sys.stderr)
+        return 2 if exc.bad_path else 1
     except KeyboardInterrupt:
         return 130
     except BrokenPipeError:
@@ -227,7 +284,7 @@ def _soak(args: argparse.Namespace) -> int:
 
 def _sweep(args: argparse.Namespace) -> int:
     from hmi.sweep import cmd_sweep
-    return cmd_sweep(args, load(args.project))
+    return cmd_sweep(args, load(args.project, getattr(args, "diagnoser", None)))
 
 
 def print_project_error(exc: ProjectError) -> None:
@@ -241,15 +298,15 @@ def print_project_error(exc: ProjectError) -> None:
           file=sys.stderr)
 
 
-def load(path: str):
+def load(path: str, diagnoser: str | None = None):
     from hmi.project.loader import load_project
-    return load_project(path)
+    return load_project(path, diagnoser)
 
 
 def cmd_check(args: argparse.Namespace) -> int:
     from hmi.engine.filter_analysis import analyse
     from hmi.report import check_report
-    project = load(args.project)
+    project = load(args.project, getattr(args, "diagnoser", None))
     sections = [analyse(project).lines(len(project.outputs))]
     if project.plant.kind == "modbus":
         from hmi.plant.modbus_client import ModbusSettings
@@ -259,15 +316,35 @@ def cmd_check(args: argparse.Namespace) -> int:
             f"  {line}" for line in
             AddressMap.for_project(project, settings.read_gap).describe()])
     from hmi.diag_report import check_sections
-    sections += check_sections(project)
+    sections += check_sections(project, args.closed_loop)
     print(check_report(project, sections))
     return 0
 
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
     from hmi.diag_report import diagnose_report
-    print(diagnose_report(load(args.project)))
+    print(diagnose_report(load(args.project, getattr(args, "diagnoser", None)),
+                          progress=_progress_bar(), compute=not args.no_closed_loop))
     return 0
+
+
+def _progress_bar():
+    """A one-line progress bar on stderr, for explorations of the closed loop."""
+    import time
+    started = time.monotonic()
+    shown = [-1]
+
+    def progress(done: int, total: int) -> None:
+        percent = 100 * done // max(1, total)
+        if percent == shown[0]:
+            return
+        shown[0] = percent
+        bar = "#" * (percent // 4)
+        end = "\n" if done >= total else ""
+        print(f"\r[{bar:<25}] {percent:3d}%  {done:,}/{total:,} runs  "
+              f"{time.monotonic() - started:5.1f} s", end=end, file=sys.stderr, flush=True)
+
+    return progress
 
 
 def cmd_campaign(args: argparse.Namespace) -> int:
@@ -276,13 +353,24 @@ def cmd_campaign(args: argparse.Namespace) -> int:
 
     from hmi.engine.campaign import report_lines, run_campaign
     from hmi.project.campaign import campaign_of
-    project = load(args.project)
+    project = load(args.project, getattr(args, "diagnoser", None))
     spec = campaign_of(project)
     if spec is None:
         raise UsageError(f"project {project.name} has no 'campaign:' section")
+    from hmi.engine.campaign import CONFIGS
+    runs = len(spec.scenarios) * len(CONFIGS)
+    scans = runs * (spec.length_us // project.scan_period_us + 1)
+    if scans > MAX_RUN_SCANS:
+        raise UsageError(f"the campaign is {runs} runs of {format_duration(spec.length_us)}: "
+                         f"{scans:,} scans, more than the {MAX_RUN_SCANS:,} plchmi runs at once "
+                         "(a shorter campaign length)")
     jobs = args.jobs if args.jobs is not None else min(2, os.cpu_count() or 1)
-    if jobs < 1:
-        raise UsageError("--jobs must be at least 1")
+    if not 1 <= jobs <= MAX_JOBS:
+        raise UsageError(f"--jobs {jobs}: expected 1 to {MAX_JOBS} worker processes")
+    if args.sweep:
+        return _campaign_sweep(args, project, spec, jobs)
+    if args.every is not None or args.faults is not None:
+        raise UsageError("--every and --faults need --sweep")
 
     def progress(done: int, total: int, run) -> None:
         print(f"[{done:>2}/{total}] {run.scenario.name:<10} {run.config.title:<22} "
@@ -294,6 +382,41 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     else:
         print("\n".join(report_lines(result)))
     return 0
+
+
+def _campaign_sweep(args: argparse.Namespace, project, spec, jobs: int) -> int:
+    import json
+
+    from hmi.engine.loop_sweep import CAMPAIGN_CONFIGS, sweep
+    from hmi.engine.loopstate import Unsupported
+    from hmi.engine.sweep_report import as_dict, report_lines
+
+    if args.every is not None and args.every % project.scan_period_us:
+        raise UsageError(f"--every must be a multiple of the scan period "
+                         f"({project.scan_period_us // 1000} ms)")
+    try:
+        result = sweep(project, CAMPAIGN_CONFIGS, spec.counter, args.every, jobs=jobs,
+                       progress=_progress_bar(), cache=False, faults=_faults(args, project))
+    except Unsupported as exc:
+        raise UsageError(f"campaign --sweep: {exc}") from None
+    if args.json:
+        print(json.dumps(as_dict(result, spec.scenarios), indent=2))
+    else:
+        print("\n".join(report_lines(result, spec.scenarios, spec.paper, project.name)))
+    return 0
+
+
+def _faults(args: argparse.Namespace, project) -> tuple[str, ...] | None:
+    from hmi.engine.explore import faults_of
+    if args.faults is None:
+        return None
+    known = faults_of(project)
+    chosen = tuple(f.strip() for f in args.faults.split(",") if f.strip())
+    unknown = [f for f in chosen if f not in known]
+    if unknown or not chosen:
+        raise UsageError(f"--faults {args.faults!r}: " + (f"unknown {', '.join(unknown)}; "
+                         if unknown else "") + "the plant's faults are " + ", ".join(known))
+    return chosen
 
 
 def make_engine(project, args: argparse.Namespace, extra_injections=()):
@@ -343,11 +466,11 @@ class RunFailure(Exception):
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from hmi.engine.runner import Controller
-    from hmi.engine.trace import TraceWriter
+    from hmi.engine.runner import Controller, settle_memory
     from hmi.report import run_summary
+    from hmi.runio import RunOutputs
 
-    project = load(args.project)
+    project = load(args.project, getattr(args, "diagnoser", None))
     scenario = None
     if args.scenario:
         from hmi.project.scenarios import find_scenario
@@ -355,49 +478,56 @@ def cmd_run(args: argparse.Namespace) -> int:
     duration = args.duration or (scenario.duration_us if scenario else None)
     if duration is None:
         raise UsageError("--for TIME is required (or a --scenario that sets its length)")
+    run_length_notice(duration, args.period or project.scan_period_us)
     engine, injections = make_engine(project, args, scenario.injections if scenario else ())
     if engine.plant.kind != "sim":
         return run_real_time(engine, args, duration)
     controller = Controller(engine, args.period)
-    writer = None
-    if args.trace:
-        try:
-            writer = TraceWriter(args.trace)
-        except OSError as exc:
-            raise UsageError(f"--trace {args.trace}: {exc.strerror}") from None
     collector = RunCollector()
-    recorder = open_journal(controller, args.journal, "run")
-    from hmi.engine.runner import settle_memory
+    outputs = RunOutputs(controller, args.trace, args.journal, "run")
     settle_memory()
     started = time.perf_counter()
+    def on_scan(snap) -> None:
+        collector.add(snap)
+        if outputs.write(snap):
+            raise _OutputFailed
+
     try:
-        def on_scan(snap):
-            collector.add(snap)
-            if writer:
-                writer.write(snap)
         last = controller.run_for(duration, on_scan)
+    except _OutputFailed:
+        outputs.leave_safe()
+        last = engine.last
     finally:
-        if writer:
-            writer.close()
-        recorder.close(ended_by(sys.exc_info()[1]))
+        outputs.close(ended_by(sys.exc_info()[1]))
+    if outputs.failure is not None:
+        raise RunFailure(outputs.failure_message())
     wall = time.perf_counter() - started
     if scenario:
         print(f"Scenario {scenario.name}: {scenario.description}")
-    print(run_summary(engine, last, collector, injections, wall,
-                      trace=(args.trace, writer.count) if writer else None))
+    print(run_summary(engine, last, collector, injections, wall, trace=outputs.trace))
     print(alarm_summary(collector, args.explain))
-    print(f"Journal: {recorder.journal.path}")
+    print(f"Journal: {outputs.recorder.journal.path}")
     return 0
 
 
-def open_journal(controller, path: Path | None, source: str):
-    from hmi.explain.journal import Journal, default_path
-    from hmi.explain.recorder import JournalRecorder
-    target = path or default_path(controller.engine.project.name)
+class _OutputFailed(Exception):
+    """Ends a headless run at the scan whose trace or journal could not be written."""
+
+
+def run_length_notice(duration_us: int, period_us: int) -> None:
+    """Refuse a run too long to finish; say so up front when one will take a while."""
+    from hmi.runio import RunLengthError, check_run_length
     try:
-        return JournalRecorder(controller, Journal(target), source)
-    except OSError as exc:
-        raise UsageError(f"cannot open the journal {target}: {exc.strerror}") from None
+        notice = check_run_length(duration_us, period_us)
+    except RunLengthError as exc:
+        raise UsageError(str(exc)) from None
+    if notice:
+        print(f"plchmi: {notice}", file=sys.stderr, flush=True)
+
+
+def open_journal(controller, path: Path | None, source: str):
+    from hmi.runio import open_journal as open_recorder
+    return open_recorder(controller, path, source)
 
 
 def alarm_summary(collector: RunCollector, explain: bool) -> str:
@@ -427,42 +557,38 @@ def alarm_summary(collector: RunCollector, explain: bool) -> str:
 
 def cmd_journal(args: argparse.Namespace) -> int:
     import csv
-    from datetime import UTC, datetime
 
-    from hmi.explain.journal import JournalError, default_path, read, since_filter
+    from hmi.explain.journal import (
+        JournalError,
+        JournalPathError,
+        default_path,
+        read,
+        since_filter,
+    )
     from hmi.project.loader import load_project
     path = args.path or default_path(load_project(args.project).name)
-    since = None
-    if args.since:
-        try:
-            since = datetime.now(UTC) - timedelta_of(args.since)
-        except ValueError:
-            try:
-                since = datetime.fromisoformat(args.since)
-            except ValueError:
-                raise UsageError(f"--since {args.since!r}: expected an ISO date/time "
-                                 "(2026-11-22T15:00) or a duration ago (30m, 2h)") from None
-            if since.tzinfo is None:
-                since = since.astimezone(UTC)
+    since = parse_since(args.since) if args.since else None
     try:
         result = read(path)
     except JournalError as exc:
         print(f"plchmi: {exc}", file=sys.stderr)
         return 1
+    except JournalPathError as exc:
+        raise UsageError(f"--path {exc}" if args.path else str(exc)) from None
     entries = list(since_filter(result.entries, since))
     columns = ("wall", "scan", "t", "type", "event", "key", "severity", "text", "message")
     if args.csv:
         writer = csv.writer(sys.stdout, lineterminator="\n")
         writer.writerow(columns)
         for entry in entries:
-            writer.writerow([entry.get(c, "") for c in columns])
+            writer.writerow([_printable(_field(entry, c)) for c in columns])
     else:
         for entry in entries:
-            text = entry.get("text") or entry.get("message") or entry.get("project", "")
+            text = _field(entry, "text") or _field(entry, "message") or _field(entry, "project")
             key = f" {entry['key']}" if entry.get("key") else ""
-            print(f"{entry.get('wall', '')}  scan {entry.get('scan', ''):>6}  "
-                  f"t={entry.get('t', '')}  {entry.get('type', ''):<7} "
-                  f"{entry.get('event', '')}{key}: {text}")
+            print(_printable(f"{_field(entry, 'wall')}  scan {_field(entry, 'scan'):>6}  "
+                             f"t={_field(entry, 't')}  {_field(entry, 'type'):<7} "
+                             f"{_field(entry, 'event')}{key}: {text}"))
     # Exit status 0 even with damaged lines: the readable entries are what the operator
     # needs; each damaged line is a warning on stderr (docs/journal.md).
     for bad in result.damaged:
@@ -474,9 +600,48 @@ def cmd_journal(args: argparse.Namespace) -> int:
     return 0
 
 
-def timedelta_of(text: str):
-    from datetime import timedelta
-    return timedelta(microseconds=parse_duration(text))
+def parse_since(text: str):
+    """--since: a duration ago (2h) or an ISO date/time (local time unless it says its zone);
+    anything else, or a time out of range, is a usage error."""
+    from datetime import UTC, datetime, timedelta
+    hint = "an ISO date/time (2026-11-22T15:00) or a duration ago (30m, 2h)"
+    try:
+        ago = parse_duration(text)
+    except DurationError as exc:
+        if "longer than" in exc.reason:
+            raise UsageError(f"--since {text!r} {exc.reason}; give a date instead") from None
+        ago = None
+    if ago is not None:
+        return datetime.now(UTC) - timedelta(microseconds=ago)
+    try:
+        if not text.isascii():
+            raise ValueError(text)
+        since = datetime.fromisoformat(text)
+    except ValueError:
+        raise UsageError(f"--since {text!r}: expected {hint}") from None
+    if since.tzinfo is None:
+        try:
+            since = since.astimezone(UTC)  # as the operator's clock reads
+        except (ValueError, OverflowError):  # at the very ends of the calendar
+            since = since.replace(tzinfo=UTC)
+    return since
+
+
+def _field(entry: dict, name: str):
+    """A field of a journal entry for display: "" when absent or null (the reader has checked
+    the type of the fields it knows)."""
+    value = entry.get(name)
+    return "" if value is None else value
+
+
+_CONTROL = str.maketrans({c: f"\\x{c:02x}" for c in [*range(0x20), *range(0x7f, 0xa0)]
+                          if c != 0x09})
+
+
+def _printable(value) -> str:
+    """A journal field for the terminal: control characters (an ESC sequence written into a
+    damaged or forged journal) shown as \\xNN, never sent to the terminal."""
+    return str(value).translate(_CONTROL)
 
 
 class RunCollector:
@@ -534,45 +699,42 @@ def run_real_time(engine, args: argparse.Namespace, duration_us: int) -> int:
     """A headless run against a real plant: scans paced and stamped by the wall clock."""
     from hmi.engine.live import WallClock, run_live_for
     from hmi.engine.runner import Controller
-    from hmi.engine.trace import TraceWriter
     from hmi.report import run_summary
+    from hmi.runio import RunOutputs
 
-    writer = None
-    if args.trace:
-        try:
-            writer = TraceWriter(args.trace)
-        except OSError as exc:
-            raise UsageError(f"--trace {args.trace}: {exc.strerror}") from None
     plant = engine.plant
     collector = RunCollector()
     controller = Controller(engine, args.period, clock=WallClock())
-    recorder = None
+    outputs = None
     try:
         # The journal first, so that the connection attempts (and giving up) are in it.
-        recorder = open_journal(controller, args.journal, "run")
+        outputs = RunOutputs(controller, args.trace, args.journal, "run")
         connect_plant(engine, args.connect_timeout or 10_000_000)
 
-        def on_scan(snap):
+        def on_scan(snap) -> bool:
             collector.add(snap)
-            if writer:
-                writer.write(snap)
+            if outputs.write(snap):
+                outputs.leave_safe()
+                return True
+            return False
         started = time.perf_counter()
         runner = run_live_for(controller, duration_us, on_scan)
         wall = time.perf_counter() - started
-        report = plant_report(plant, runner.overruns)
+        at_end = plant.status  # the link as the run ended, before the stop closes it
     finally:
-        if writer:
-            writer.close()
         stop_plant(engine)
-        if recorder:
-            recorder.close(ended_by(sys.exc_info()[1]))
+        if outputs is not None:
+            outputs.close(ended_by(sys.exc_info()[1]))
+    if outputs.failure is not None:
+        raise RunFailure(outputs.failure_message())
     last = engine.last
-    print(run_summary(engine, last, collector, [], wall,
-                      trace=(args.trace, writer.count) if writer else None, time_kind="real"))
+    print(run_summary(engine, last, collector, [], wall, trace=outputs.trace,
+                      time_kind="real"))
     print(alarm_summary(collector, args.explain))
-    print(report)
+    # After the stop: its write of the safe vector is counted like any other request.
+    print(plant_report(plant, at_end, runner.overruns))
     print(f"Stopped: {plant.message}")
-    print(f"Journal: {recorder.journal.path}")
+    print(f"Journal: {outputs.recorder.journal.path}")
     return 0
 
 
@@ -599,15 +761,17 @@ def stop_plant(engine) -> None:
     stop(engine.now, safe)
 
 
-def plant_report(plant, overruns: int) -> str:
-    """What a run against a Modbus plant saw of it."""
-    status = plant.status
-    d = status.details
-    lines = [f"Plant {status.description}: {'connected' if status.connected else 'NOT CONNECTED'}"
-             f" ({status.message})",
-             f"  requests {d['requests']} (reads {d['reads']}, writes {d['writes']}), "
+def plant_report(plant, at_end, overruns: int) -> str:
+    """What a run against a Modbus plant saw of it: the link as it was when the run ended
+    (`at_end`), and every request sent, the stop's included."""
+    d = plant.status.details
+    stop = f", of which {d['stop_writes']} at stop" if d["stop_writes"] else ""
+    lines = [f"Plant {at_end.description}: "
+             f"{'connected' if at_end.connected else 'NOT CONNECTED'} ({at_end.message})",
+             f"  requests {d['requests']} (reads {d['reads']}, writes {d['writes']}{stop}), "
              f"exception responses {d['exceptions']}, timeouts {d['timeouts']}, "
-             f"connections lost {d['losses']}, connections made {d['connects']}"]
+             f"invalid answers {d['invalid']}, connections lost {d['losses']}, "
+             f"connections made {d['connects']}"]
     io = plant.io_percentiles()
     if io:
         lines.append(f"  Modbus I/O per scan: p50 {io[0] / 1000:.2f} ms, p99 {io[1] / 1000:.2f} "
@@ -640,7 +804,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 def cmd_ui(args: argparse.Namespace) -> int:
     from hmi.engine.runner import Controller
     from hmi.ui.app import run_app
-    project = load(args.project)
+    project = load(args.project, getattr(args, "diagnoser", None))
     engine, injections = make_engine(project, args)
     clock = None
     if engine.plant.kind != "sim":
@@ -671,7 +835,7 @@ def cmd_serve_plant(args: argparse.Namespace) -> int:
     from hmi.plant.modbus_server import COMM_FAULTS, run_server
     from hmi.plant.sim import parse_injection
 
-    project = load(args.project)
+    project = load(args.project, getattr(args, "diagnoser", None))
     errors = address_diagnostics(project, "serve-plant serves every input and output at its "
                                  "address")
     if errors:
@@ -680,13 +844,26 @@ def cmd_serve_plant(args: argparse.Namespace) -> int:
         raise UsageError("the project has no simulated devices to serve")
     injections = [parse_injection(text) for text in args.inject]
     unit = project.plant.unit if args.unit is None else args.unit
+    check_host(args.host)
     try:
-        return run_server(project, args.host, args.port, unit, injections, args.delay or 0)
+        return run_server(project, args.host, args.port, unit, injections, args.delay or 0,
+                          args.max_connections, args.idle_timeout / 1e6)
     except UsageError as exc:
         if "unknown fault" in str(exc):
             raise UsageError(f"{exc}; communication faults: {', '.join(COMM_FAULTS)}"
                              ) from None
         raise
+
+
+def check_host(host: str) -> None:
+    """A --host that names no address is a usage error said as such (not "port in use")."""
+    import socket
+    try:
+        socket.getaddrinfo(host, None, type=socket.SOCK_STREAM)
+    except socket.gaierror as exc:
+        raise UsageError(f"--host {host!r}: no such host or address ({exc.strerror})") from None
+    except (UnicodeError, ValueError) as exc:
+        raise UsageError(f"--host {host!r} is not a host name or address ({exc})") from None
 
 
 __all__ = ["format_duration", "main", "seconds"]

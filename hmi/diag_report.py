@@ -33,8 +33,12 @@ def _partition_lines(spec: DiagnoserSpec) -> list[str]:
     return _table(rows, "    ")
 
 
-def check_sections(project: Project) -> list[list[str]]:
-    """For `plchmi check`: each diagnoser in brief, then its diagnosability."""
+def check_sections(project: Project, closed_loop: bool = False) -> list[list[str]]:
+    """For `plchmi check`: each diagnoser in brief, then its diagnosability.
+
+    The closed-loop figures take an exploration (seconds to a minute): `check` prints them
+    when asked (`--closed-loop`) or when an earlier `diagnose` left them in the cache, and
+    otherwise says how to get them, so that checking a project stays instant."""
     sections = []
     for spec in diagnosers_of(project):
         normal = sum(1 for s in spec.states if not s.faulty)
@@ -45,11 +49,15 @@ def check_sections(project: Project) -> list[list[str]]:
         lines += _partition_lines(spec)
         sections.append(lines)
         sections.append(analyse(spec).lines())
+    closed = closed_loop_lines(project, compute=closed_loop)
+    if closed:
+        sections.append(closed)
     return sections
 
 
-def diagnose_report(project: Project) -> str:
-    """For `plchmi diagnose`: the automaton in full, then its diagnosability."""
+def diagnose_report(project: Project, progress=None, compute: bool = True) -> str:
+    """For `plchmi diagnose`: the automaton in full, then its diagnosability (the diagram's
+    upper bound, then the closed loop's)."""
     specs = diagnosers_of(project)
     if not specs:
         return f"Project {project.name} declares no diagnoser."
@@ -86,6 +94,7 @@ def diagnose_report(project: Project) -> str:
         out.append("")
         out += report.lines()
         out.append("")
+    out += closed_loop_lines(project, progress=progress, compute=compute)
     return "\n".join(out).rstrip()
 
 
@@ -157,3 +166,74 @@ def summary_lines(log: DiagnosisLog, engine, last) -> list[str]:
     elif stage.mode == "ftc":
         lines.append("  masked: none")
     return lines
+
+
+# -- diagnosability on the closed loop (hmi/engine/loop_sweep.py) ------------------------------
+
+CLOSED_LOOP_EVERY_US = 200_000  # check / diagnose: every 200 ms of the cycle (+ transitions)
+
+
+def closed_loop_lines(project, every_us: int = CLOSED_LOOP_EVERY_US, jobs: int | None = None,
+                      progress=None, compute: bool = True, extras: bool = True) -> list[str]:
+    """Per configuration where the diagnosers run: isolated with certainty (at some instant,
+    and whatever the instant), delays, misdiagnoses, pairs left ambiguous, DC and band."""
+    from hmi.engine.closed_loop import diagnosability
+    from hmi.engine.diagnosability import iso_band
+    from hmi.engine.loop_sweep import DIAGNOSIS_CONFIGS, sweep
+    from hmi.engine.loopstate import Unsupported
+    from hmi.project.campaign import campaign_of
+
+    spec = campaign_of(project)
+    if spec is None or not diagnosers_of(project):
+        return []
+    title = "Diagnosability on the closed loop"
+    try:
+        result = sweep(project, DIAGNOSIS_CONFIGS, spec.counter, every_us, extras, jobs=jobs,
+                       progress=progress, compute=compute)
+    except Unsupported as exc:
+        return [f"{title}: not computed ({exc})"]
+    if result is None:
+        return [f"{title}: not computed yet; `plchmi diagnose {project.path}` computes it "
+                "(or `plchmi check --closed-loop`), then `check` shows it too"]
+    variant = f", diagnoser variant {result.variant}" if result.variant else ""
+    grid = format_duration(result.every * result.period_us)
+    lines = [f"{title} (plant model + control law + filter + diagnosers{variant}): every "
+             f"fault injected every {grid} of the {format_duration(result.cycle_us)} cycle"
+             + (" and 1 us before and after each diagnoser transition" if result.extras else "")
+             + ", each run followed until its loop closes"]
+    for config in result.configs:
+        d = diagnosability(config, result.of(config.key), result.faults)
+        lines.append(f"  {config.title} (diagnosers {config.diagnosis}, filter "
+                     f"{config.policy or project.policy}):")
+        rows = [["fault", "isolated", "fault -> certain (min/median/max)", "otherwise"]]
+        for f in d.faults:
+            delays = _spread_text(f.delays_us)
+            other = [f"{{{', '.join(labels)}}} {n}" for labels, n in f.ambiguous]
+            other += [f"MISDIAGNOSED {label} {n}" for label, n in f.misdiagnosed]
+            if f.undetected:
+                other.append(f"undetected {f.undetected}")
+            rows.append([f.fault, f"{f.isolated}/{f.runs}", delays, ", ".join(other)])
+        lines += _table(rows, "    ")
+        n = len(d.faults)
+        lines.append(f"    isolated with certainty at some instant: {len(d.isolable)}/{n}, DC "
+                     f"{100 * d.dc:.1f} % (ISO 13849-1 band {iso_band(d.dc)}); whatever the "
+                     f"instant: {len(d.guaranteed)}/{n}, {100 * d.dc_guaranteed:.1f} % "
+                     f"({iso_band(d.dc_guaranteed)}); share of instants: "
+                     f"{100 * d.dc_weighted:.1f} % ({iso_band(d.dc_weighted)})")
+        pairs = d.pairs()
+        lines.append("    pairs left ambiguous (runs): " + (", ".join(
+            f"{{{a}, {b}}} {runs}" for (a, b), runs in pairs) or "none")
+                     + f"; misdiagnoses: {d.misdiagnoses}")
+    lines.append(f"  ({sum(result.states.values()):,} closed-loop states explored in "
+                 f"{result.wall_s:.1f} s on {result.jobs} worker"
+                 f"{'s' if result.jobs > 1 else ''}" + (", read from the cache" if result.cached
+                                                     else "") + ")")
+    return lines
+
+
+def _spread_text(values) -> str:
+    from hmi.engine.closed_loop import spread
+    s = spread(values)
+    if s is None:
+        return "-"
+    return " / ".join(seconds(v) for v in s) + " s"

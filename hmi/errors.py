@@ -8,6 +8,7 @@ one error per run.
 
 from __future__ import annotations
 
+import errno
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -101,3 +102,30 @@ def display_path(path: Path) -> str:
         return str(path.resolve().relative_to(Path.cwd().resolve()))
     except ValueError:
         return str(path)
+
+
+# errno values that say the path given is not a usable file name (a folder, a missing
+# folder): a bad argument. Any other failure (a full disk, no permission, an I/O error) is
+# the system refusing at run time.
+_BAD_PATH_ERRNOS = {errno.EISDIR, errno.ENOENT, errno.ENOTDIR, errno.ENAMETOOLONG, errno.ELOOP}
+
+
+class OutputError(Exception):
+    """Writing an output file (a trace, the journal) failed.
+
+    `bad_path` is true when the path itself is unusable (a folder, a missing folder): a bad
+    argument, exit status 2. Otherwise the system refused the write (a full disk, no
+    permission, an I/O error): a failure at run time, exit status 1, after which a run stops
+    with the plant's outputs written safe.
+    """
+
+    def __init__(self, what: str, path: Path, exc: OSError | str, bad_path: bool = False):
+        if isinstance(exc, OSError):
+            reason = exc.strerror or exc.__class__.__name__
+            reason = reason[0].lower() + reason[1:]
+            bad_path = bad_path or exc.errno in _BAD_PATH_ERRNOS
+        else:
+            reason = exc
+        super().__init__(f"cannot write {what} {path}: {reason}")
+        self.path = path
+        self.bad_path = bad_path

@@ -4,3 +4,4 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
 PROJECTS = REPO / "projects"
+COMPONENTS = REPO / "components"  # the component library (docs/project-format.md)

@@ -27,6 +27,7 @@ from typing import Any
 
 from hmi.engine.stopwatch import Detection, WatchdogTrip
 from hmi.errors import UsageError
+from hmi.limits import MAX_RUN_SCANS
 from hmi.timefmt import format_duration, parse_duration, seconds
 
 DEFAULT_POINTS = "0.5s,1s,1.5s,2s,2.5s,3s"
@@ -229,10 +230,23 @@ def run_sweep(project, task_name: str | None, fault: str | None, starts: Sequenc
     if attempt < 1:
         raise UsageError("--attempt counts from 1")
     t0 = find_task_start(project, task.name, attempt, control)
+    check_sweep_size(len(starts) * len(lengths),
+                     t0 + max(starts) + max(lengths) + 2 * task.gamma_us,
+                     project.scan_period_us)
     rows = tuple(run_one(project, task, fault, t0, w, length, attempt, control)
                  for w in starts for length in lengths)
     return SweepResult(task.name, task.title, (task.alpha_us, task.beta_us, task.gamma_us),
                        fault, attempt, t0, project.scan_period_us, rows)
+
+
+def check_sweep_size(runs: int, horizon_us: int, period_us: int) -> None:
+    """A sweep runs at most MAX_RUN_SCANS scans in all, as one headless run may (a list of a
+    thousand starts of an hour each would run for days)."""
+    scans = runs * (horizon_us // period_us + 1)
+    if scans > MAX_RUN_SCANS:
+        raise UsageError(f"the sweep is {runs:,} runs of up to {horizon_us // period_us + 1:,} "
+                         f"scans, more than the {MAX_RUN_SCANS:,} scans plchmi runs at once "
+                         "(fewer or shorter --starts and --lengths)")
 
 
 # --------------------------------------------------------------------------------------------

@@ -8,20 +8,35 @@ from __future__ import annotations
 
 import re
 
+from hmi.limits import MAX_DURATION_US
+
 US_PER = {"us": 1, "ms": 1_000, "s": 1_000_000, "m": 60_000_000, "min": 60_000_000,
           "h": 3_600_000_000}
 
-DURATION_RE = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*(us|ms|s|min|m|h)\s*$")
+# ASCII digits only: `\d` would take "１０ms" (fullwidth) or "٣s" for numbers, which an
+# engineer reading the file would not see as the digits the engine counts.
+DURATION_RE = re.compile(r"^[ \t]*([0-9]{1,15}(?:\.[0-9]{1,9})?)[ \t]*(us|ms|s|min|m|h)[ \t]*$")
 DURATION_HINT = "a duration such as 500ms, 2s, 1.5s or 2m"
 
 
+class DurationError(ValueError):
+    """Not a duration, or one too long; `reason` says which, in the engineer's words."""
+
+    def __init__(self, text: str, reason: str):
+        super().__init__(f"{text!r} {reason}")
+        self.reason = reason
+
+
 def parse_duration(text: str) -> int:
-    """Parse a duration into microseconds; raise ValueError with a readable message."""
+    """Parse a duration into microseconds; raise DurationError with a readable reason."""
     match = DURATION_RE.match(text)
     if not match:
-        raise ValueError(f"{text!r} is not a duration")
+        raise DurationError(text, "is not a duration")
     number, unit = match.groups()
     us = _to_us(number, unit)
+    if us > MAX_DURATION_US:
+        raise DurationError(text, f"is longer than the longest duration allowed "
+                            f"({MAX_DURATION_US // 3_600_000_000}h)")
     return us
 
 

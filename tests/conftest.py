@@ -41,3 +41,18 @@ def data_folder(tmp_path, monkeypatch):
 @pytest.fixture
 def valve_project():
     return load_project(PROJECTS / "cispi_valve")
+
+
+@pytest.fixture(autouse=True, scope="session")
+def closed_loop_cache(tmp_path_factory):
+    """One cache of closed-loop explorations for the whole session (hmi/engine/loop_sweep.py):
+    `check` of an unchanged copy of a project does not explore it again, and nothing is read
+    from or written to the user's own cache."""
+    import os
+    previous = os.environ.get("PLCHMI_CACHE")
+    os.environ["PLCHMI_CACHE"] = str(tmp_path_factory.mktemp("cache"))
+    yield
+    if previous is None:
+        os.environ.pop("PLCHMI_CACHE", None)
+    else:
+        os.environ["PLCHMI_CACHE"] = previous

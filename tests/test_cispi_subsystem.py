@@ -41,7 +41,7 @@ def test_check_passes_with_both_valve_instances_and_no_warning(capsys):
     assert "Safety constraints (19: 15 simple, 4 combined)" in out
     assert "conflicts between simple constraints: none" in out
     assert "situations with no safe output vector: none" in out
-    assert out.count("Diagnostic Coverage DC = 10/13 = 76.9 %") == 2  # one per valve
+    assert out.count("DC read from the diagram = 10/13 = 76.9 %") == 2  # one per valve
     assert "Warnings" not in out
     assert out.rstrip().endswith("OK: the project is valid")
 

@@ -230,7 +230,8 @@ def test_two_instances_on_one_sensor_clash_on_its_filtered_name(tmp_path):
 def component_variant(tmp_path: Path, old: str, new: str) -> Path:
     text = VALVE.read_text()
     assert old in text, old
-    path = tmp_path / "lib" / "valve.yaml"
+    path = tmp_path / "p" / "lib" / "valve.yaml"  # inside the project folder: a use: may
+    # not leave the project folder and the component library (hmi/project/confine.py)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(text.replace(old, new, 1), encoding="utf-8")
     return path
@@ -298,8 +299,9 @@ def test_bad_components_exit_2_without_a_traceback(tmp_path):
 
 @pytest.fixture(scope="module")
 def valve_pair(tmp_path_factory):
-    """projects/cispi_valve, and a copy whose timers, observers, constraints, diagnoser and
-    constraint explanations come from the component instead (instance V1, bound by identity).
+    """projects/cispi_valve (its paper-faithful diagnoser variant, the one the component
+    carries), and a copy whose timers, observers, constraints, diagnoser and constraint
+    explanations come from the component instead (instance V1, bound by identity).
     """
     folder = tmp_path_factory.mktemp("vc") / "cispi_valve"
     shutil.copytree(PROJECTS / "cispi_valve", folder)
@@ -310,7 +312,7 @@ def valve_pair(tmp_path_factory):
     text = text.replace("  - constraints.yaml\n", "").replace("  - diagnoser.yaml\n", "")
     text = text.replace("  - explanations.yaml\n", "")
     (folder / "project.yaml").write_text(text)
-    return load_project(PROJECTS / "cispi_valve"), load_project(folder)
+    return load_project(PROJECTS / "cispi_valve", "paper"), load_project(folder)
 
 
 def test_the_component_diagnoser_is_the_valve_diagnoser(valve_pair):

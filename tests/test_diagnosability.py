@@ -1,4 +1,6 @@
-"""Diagnosability computed from the automaton (000 §3.3): labels, states, DC and its band."""
+"""Automaton reachability (000 §3.3's figure, read off the diagram): labels, states, DC and its
+band, for the paper-faithful valve diagnoser and the improved one. What the closed loop really
+isolates is in tests/test_closed_loop.py."""
 
 from __future__ import annotations
 
@@ -13,7 +15,19 @@ from tests.test_diagnoser_format import DIAG, write
 
 @pytest.fixture(scope="module")
 def valve():
+    return analyse(load_project(PROJECTS / "cispi_valve", "paper").extra["diagnosers"][0])
+
+
+@pytest.fixture(scope="module")
+def improved():
     return analyse(load_project(PROJECTS / "cispi_valve").extra["diagnosers"][0])
+
+
+def test_the_improved_diagram_has_every_label_but_f13_in_a_single_label_state(improved):
+    assert improved.certain_labels == tuple(f"F{k}" for k in range(1, 13))
+    assert round(100 * improved.dc, 1) == 92.3 and improved.band == "medium"
+    f13 = next(lab for lab in improved.labels if lab.label == "F13")
+    assert {a.labels for a in f13.ambiguities} == {("F1", "F13"), ("F3", "F13")}
 
 
 def test_valve_isolates_ten_labels_of_thirteen_with_certainty(valve):
@@ -60,16 +74,20 @@ def test_figures_follow_the_automaton_not_a_table(tmp_path):
     assert [(a.labels, a.final) for a in f5.ambiguities] == [(("F1", "F5"), False)]
 
 
-def test_check_and_diagnose_print_the_figures(capsys):
-    assert main(["check", str(PROJECTS / "cispi_valve")]) == 0
+def test_check_and_diagnose_print_the_figures(capsys, monkeypatch):
+    # The automaton's figures only: the closed loop's are tests/test_closed_loop.py's.
+    monkeypatch.setattr("hmi.diag_report.closed_loop_lines", lambda *a, **k: [])
+    assert main(["check", str(PROJECTS / "cispi_valve"), "--diagnoser", "paper"]) == 0
     out = capsys.readouterr().out
-    assert "labels isolated with certainty: 10/13; ambiguous: 3 (F1, F3, F13)" in out
+    assert "Automaton reachability of V1 (an upper bound" in out
+    assert "labels with a single-label state in the diagram: 10/13; others: 3 (F1, F3, F13)" \
+        in out
     assert "final ambiguities: {F1, F13}, {F3, F13}" in out
     assert "states: 9 normal, 18 abnormal (10 isolating one label, 8 ambiguous of which 6 " \
            "intermediate)" in out
-    assert "Diagnostic Coverage DC = 10/13 = 76.9 %: ISO 13849-1 band low" in out
-    assert main(["diagnose", str(PROJECTS / "cispi_valve")]) == 0
+    assert "DC read from the diagram = 10/13 = 76.9 %: ISO 13849-1 band low" in out
+    assert main(["diagnose", str(PROJECTS / "cispi_valve"), "--diagnoser", "paper"]) == 0
     out = capsys.readouterr().out
     assert "B2   ambiguous, intermediate  {F2, F5}" in out
     assert "A1   ambiguous, final         {F1, F13}" in out
-    assert "DC = 10/13 = 76.9 %" in out
+    assert "DC read from the diagram = 10/13 = 76.9 %" in out

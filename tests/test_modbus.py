@@ -39,8 +39,9 @@ WAIT = 30.0  # seconds: a deadline, not a sleep
 def server():
     servers: list[ServerProcess] = []
 
-    def start(project=VALVE, *extra: str, port: int = 0) -> ServerProcess:
-        srv = ServerProcess(project, extra, port=port)
+    def start(project=VALVE, *extra: str, port: int = 0,
+              host: str = "127.0.0.1") -> ServerProcess:
+        srv = ServerProcess(project, extra, port=port, host=host)
         servers.append(srv)
         srv.start(WAIT)
         return srv

@@ -3,8 +3,8 @@ diagnosis explanations (certain and ambiguous), their alarms and policies, and t
 
 The faults are injected in the simulated valve exactly as the fault dialog does
 (InjectFault through the app), and the valve's diagnoser V1 decides (projects/cispi_valve/
-diagnoser.yaml): F1 at 10 s ends in A1 {F1, F13} (ambiguous, orders masked); F9 at 10 s is
-isolated with certainty in S9 (fso read from its estimate).
+diagnoser.yaml): F1 at 10 s ends in A1 {F1, F13} (ambiguous, orders masked: final in the paper
+variant, used here); F9 at 10 s is isolated with certainty in S9 (fso read from its estimate).
 """
 
 from __future__ import annotations
@@ -60,7 +60,7 @@ async def test_normal_diagnoser_is_quiet():
 
 
 async def test_ambiguous_diagnosis_reads_as_such():
-    app = make_app()
+    app = make_app(diagnoser="paper")
     async with app.run_test(size=WIDE) as pilot:
         await inject(pilot, "F1", 10, ("F1", "F13"))
         snap = engine(app).last
@@ -153,7 +153,7 @@ async def test_reset_re_synchronises_a_diagnoser_only_when_the_io_allows_it():
 
 
 async def test_diagnosers_panel_keeps_one_line_at_80x24():
-    app = make_app()
+    app = make_app(diagnoser="paper")  # A1 final: the longest decision text
     async with app.run_test(size=(80, 24)) as pilot:
         await inject(pilot, "F1", 10, ("F1", "F13"))
         text = region_text(app, "#diagnosers")

@@ -1,7 +1,10 @@
-"""Offline diagnosability of a local diagnoser, computed from its automaton (000 §3.3).
+"""Automaton reachability of a local diagnoser: the figure 000 §3.3 reads off Fig. 3.
 
-Nothing here is typed in: the figures come from the states reachable from the initial state
-(or a resync target) and their decisions.
+Nothing here is typed in: the figures come from the states reachable *in the diagram* from
+the initial state (or a resync target) and their decisions. It is an upper bound, not the
+diagnosability of the running cell: it ignores the guards (a state whose guard can never
+hold still counts), the time windows and the masking that stops the valve (hmi/engine/
+closed_loop.py computes what the closed loop really isolates). `plchmi check` prints both.
 
 * A label is **detected** when some reachable faulty state's decision holds it.
 * It is **isolated with certainty** when some reachable state's decision is exactly {label}.
@@ -90,8 +93,9 @@ class Diagnosability:
     def lines(self) -> list[str]:
         certain = len(self.certain_labels)
         total = len(self.labels)
-        lines = [f"Diagnosability of {self.name} (from its automaton: reachable states and "
-                 "their decisions)"]
+        lines = [f"Automaton reachability of {self.name} (an upper bound: states reachable in "
+                 "the diagram, guards, timing and masking ignored; the closed loop below says "
+                 "what is really isolated)"]
         rows = [["label", "partition", "detected", "isolation", "what"]]
         for lab in self.labels:
             if lab.certain:
@@ -108,8 +112,8 @@ class Diagnosability:
                          lab.text])
         lines += _table(rows)
         finals = [a for a in self.ambiguous_decisions if a.final]
-        lines.append(f"  labels isolated with certainty: {certain}/{total}; ambiguous: "
-                     f"{total - certain} ("
+        lines.append(f"  labels with a single-label state in the diagram: {certain}/{total}; "
+                     f"others: {total - certain} ("
                      + ", ".join(lab.label for lab in self.labels if not lab.certain) + ")")
         lines.append("  final ambiguities: " + (", ".join(
             "{" + ", ".join(a.labels) + "}" for a in finals) or "none"))
@@ -119,8 +123,8 @@ class Diagnosability:
                      f"{len(self.intermediate)} intermediate)"
                      + (f"; unreachable: {', '.join(self.unreachable)}" if self.unreachable
                         else ""))
-        lines.append(f"  Diagnostic Coverage DC = {certain}/{total} = {100 * self.dc:.1f} %: "
-                     f"ISO 13849-1 band {self.band}")
+        lines.append(f"  DC read from the diagram = {certain}/{total} = {100 * self.dc:.1f} %: "
+                     f"ISO 13849-1 band {self.band} (an upper bound)")
         return lines
 
 

@@ -163,7 +163,7 @@ class _ActiveSet:
     combined_constraints: tuple[CompiledConstraint, ...]
     forcing0: tuple[tuple[str, ...], ...]
     forcing1: tuple[tuple[str, ...], ...]
-    problem: Problem | None  # the exact search's preparation, when there is a combined one
+    problem: Problem  # the exact search's preparation (empty when nothing is combined)
 
     @classmethod
     def of(cls, active, n: int) -> _ActiveSet:
@@ -173,12 +173,21 @@ class _ActiveSet:
             f0 |= c.pos
             f1 |= c.neg
         # A simple constraint has one output literal: positive forces it to 0, negative to 1.
-        forcing0 = tuple(tuple(c.name for c in simple if c.pos >> k & 1) for k in range(n))
-        forcing1 = tuple(tuple(c.name for c in simple if c.neg >> k & 1) for k in range(n))
+        # Built in one pass over the constraints (not one per output: thousands of each).
+        by0: list[list[str]] = [[] for _ in range(n)]
+        by1: list[list[str]] = [[] for _ in range(n)]
+        for c in simple:
+            for mask, names in ((c.pos, by0), (c.neg, by1)):
+                while mask:
+                    low = mask & -mask
+                    names[low.bit_length() - 1].append(c.name)
+                    mask ^= low
+        forcing0 = tuple(map(tuple, by0))
+        forcing1 = tuple(map(tuple, by1))
         combined = tuple(c for c in active if not c.simple)
         masks = [(c.pos, c.neg) for c in combined]
         # Outputs forced by the simple constraints are not free; their values are F1's.
-        problem = Problem(masks, ((1 << n) - 1) & ~(f0 | f1), f1) if masks else None
+        problem = Problem(masks, ((1 << n) - 1) & ~(f0 | f1), f1)
         return cls(f0, f1, masks, combined, forcing0, forcing1, problem)
 
 

@@ -26,6 +26,9 @@ from hmi.project.model import Project
 
 EXHAUSTIVE_VARS = 16
 SAMPLES = 20_000
+MIN_SAMPLES = 100
+WORK = 1_000_000  # constraint evaluations over all situations (about half a second)
+MAX_CONFLICTS_SHOWN = 20
 EXHAUSTIVE_FOV_OUTPUTS = 10
 
 
@@ -35,7 +38,8 @@ class FilterAnalysis:
     exhaustive: bool
     situations: int = 0
     unreachable: int = 0
-    conflicts: list[str] = field(default_factory=list)
+    conflicts: list[str] = field(default_factory=list)  # the first MAX_CONFLICTS_SHOWN
+    conflicts_total: int = 0
     no_solution: list[str] = field(default_factory=list)
     no_solution_count: int = 0
     worst_distance: int = 0
@@ -53,8 +57,10 @@ class FilterAnalysis:
             lines.append(f"  {self.unreachable} situations skipped as unreachable (previous "
                          "outputs violating an output-only constraint)")
         if self.conflicts:
-            lines.append(f"  conflicts between simple constraints: {len(self.conflicts)}")
+            lines.append(f"  conflicts between simple constraints: {self.conflicts_total}")
             lines += [f"    {c}" for c in self.conflicts]
+            if self.conflicts_total > len(self.conflicts):
+                lines.append(f"    ... and {self.conflicts_total - len(self.conflicts)} more")
         else:
             lines.append("  conflicts between simple constraints: none")
         if self.no_solution_count:
@@ -104,31 +110,50 @@ def analyse(project: Project, seed: int = 0) -> FilterAnalysis:
         violated_by_safe_state = safe & pos == pos and not safe & neg
         if not ctx and not violated_by_safe_state:
             invariants.append((c.name, pos, neg))
-    analysis = FilterAnalysis(variables, len(variables) <= EXHAUSTIVE_VARS)
-    analysis.combined_outputs = [outputs[k] for k in range(len(outputs))
-                                 if any((p | n) >> k & 1 for c, p, n, _ in items
-                                        if c.kind == "combined")]
-    analysis.conflicts = _conflicts(items, outputs, invariants)
+    # Every situation evaluates every constraint: bound that work (WORK), so that a project
+    # of thousands of constraints is checked in about a second by sampling fewer situations
+    # (the report says how many) rather than in minutes.
+    per_situation = max(1, len(items))
+    exhaustive = len(variables) <= EXHAUSTIVE_VARS and \
+        (1 << len(variables)) * per_situation <= WORK
+    samples = max(MIN_SAMPLES, min(SAMPLES, WORK // per_situation))
+    analysis = FilterAnalysis(variables, exhaustive)
+    in_combined = 0
+    for c, p, n, _ in items:
+        if c.kind == "combined":
+            in_combined |= p | n
+    analysis.combined_outputs = [outputs[k] for k in range(len(outputs)) if in_combined >> k & 1]
+    analysis.conflicts, analysis.conflicts_total = _conflicts(items, outputs, invariants)
 
-    def reachable(assign: tuple[bool, ...]) -> bool:
-        for _, pos, neg in invariants:
-            for depth in {d for (_, d) in variables if d >= 1}:
-                hit = True
-                for k, name in enumerate(outputs):
-                    for mask, want in ((pos, True), (neg, False)):
-                        if mask >> k & 1:
-                            i = var_index.get((name, depth))
-                            if i is None or assign[i] != want:
-                                hit = False
-                if hit:
-                    return False
-        return True
+    # A situation is a bit mask over `variables`; a set of literals is (mask, wanted bits).
+    def literals_mask(pairs) -> tuple[int, int] | None:
+        mask = want = 0
+        for key, value in pairs:
+            i = var_index.get(key)
+            if i is None:
+                return None
+            mask |= 1 << i
+            if value:
+                want |= 1 << i
+        return mask, want
+
+    # Previous outputs violating an output-only constraint: never written, so unreachable.
+    depths = sorted({d for (_, d) in variables if d >= 1})
+    unreachable_masks = []
+    for _, pos, neg in invariants:
+        for depth in depths:
+            found = literals_mask([((name, depth), bool(pos >> k & 1))
+                                   for k, name in enumerate(outputs) if (pos | neg) >> k & 1])
+            if found is not None:
+                unreachable_masks.append(found)
+    contexts = [(c, pos, neg, literals_mask(((lit.name, lit.depth), lit.positive)
+                                            for lit in ctx)) for c, pos, neg, ctx in items]
 
     if analysis.exhaustive:
         situations = itertools.product((False, True), repeat=len(variables))
     else:
         rng = random.Random(seed)
-        situations = (tuple(rng.random() < 0.5 for _ in variables) for _ in range(SAMPLES))
+        situations = (tuple(rng.random() < 0.5 for _ in variables) for _ in range(samples))
     fovs_exhaustive = len(outputs) <= EXHAUSTIVE_FOV_OUTPUTS
     analysis.worst_exhaustive = fovs_exhaustive
     rng = random.Random(seed + 1)
@@ -138,12 +163,12 @@ def analyse(project: Project, seed: int = 0) -> FilterAnalysis:
     solvable: dict[tuple, bool] = {}
     for assign in situations:
         analysis.situations += 1
-        if not reachable(assign):
+        bits = sum(1 << i for i, value in enumerate(assign) if value)
+        if any(bits & mask == want for mask, want in unreachable_masks):
             analysis.unreachable += 1
             continue
-        active = [(c, pos, neg) for c, pos, neg, ctx in items
-                  if all(assign[var_index[(lit.name, lit.depth)]] == lit.positive
-                         for lit in ctx)]
+        active = [(c, pos, neg) for c, pos, neg, (mask, want) in contexts
+                  if bits & mask == want]
         f0 = f1 = 0
         for c, pos, neg in active:
             if c.kind == "simple":
@@ -183,13 +208,19 @@ def analyse(project: Project, seed: int = 0) -> FilterAnalysis:
     return analysis
 
 
-def _conflicts(items, outputs, invariants) -> list[str]:
+def _conflicts(items, outputs, invariants) -> tuple[list[str], int]:
+    """The pairs of simple constraints forcing one output both ways in a common context:
+    the first MAX_CONFLICTS_SHOWN described, and how many there are in all. Only pairs on the
+    same output are compared (grouped by output, not every pair of constraints)."""
     found = []
-    for (a, apos, _, actx), (b, _, bneg, bctx) in itertools.product(items, items):
-        if a.kind != "simple" or b.kind != "simple" or not apos or not bneg:
-            continue
-        if apos != bneg:
-            continue
+    total = 0
+    simple = [item for item in items if item[0].kind == "simple"]
+    forcing1: dict[int, list] = {}  # output bit -> the constraints forcing it to 1
+    for item in simple:
+        if item[2]:
+            forcing1.setdefault(item[2], []).append(item)
+    pairs = ((a, b) for a in simple if a[1] for b in forcing1.get(a[1], ()))
+    for (a, apos, _, actx), (b, _, _, bctx) in pairs:
         joint: dict[tuple[str, int], bool] = {}
         compatible = True
         for lit in (*actx, *bctx):
@@ -207,8 +238,11 @@ def _conflicts(items, outputs, invariants) -> list[str]:
                     if all(joint.get(key) == value for key, value in need.items()):
                         compatible = False
         if compatible:
+            total += 1
+            if len(found) >= MAX_CONFLICTS_SHOWN:
+                continue
             output = outputs[apos.bit_length() - 1]
             when = " and ".join(_lit_text(n, d, v) for (n, d), v in joint.items()) or "always"
             found.append(f"{a.name} forces {output} to 0 and {b.name} forces it to 1 when "
                          f"{when}")
-    return found
+    return found, total

@@ -116,8 +116,9 @@ class WallClock:
 
 
 def run_live_for(controller: Controller, duration_us: int,
-                 on_scan: Callable[[Snapshot], None] | None = None) -> LiveRunner:
-    """Run scans paced by the wall clock until the scan time reaches `duration_us`.
+                 on_scan: Callable[[Snapshot], bool | None] | None = None) -> LiveRunner:
+    """Run scans paced by the wall clock until the scan time reaches `duration_us`, or until
+    `on_scan` returns True (a failure that ends the run early).
 
     A headless run against a real plant: the same LiveRunner as the HMI, without a UI.
     Returns the (stopped) runner, whose `overruns` and `jitter_us` the caller may report.
@@ -127,8 +128,8 @@ def run_live_for(controller: Controller, duration_us: int,
     def listener(snap: Snapshot) -> None:
         if done.is_set():
             return
-        if on_scan is not None:
-            on_scan(snap)
+        if on_scan is not None and on_scan(snap):
+            done.set()
         if snap.time_us >= duration_us:
             done.set()
 

@@ -28,14 +28,18 @@ class SatResult(NamedTuple):
 
 
 def solve_sat(variables: Sequence[int], clauses: Iterable[Sequence[int]], phase: int = 0,
-              budget: int | None = None, deadline: float | None = None) -> SatResult:
+              budget: int | None = None, deadline: float | None = None,
+              clean: bool = False) -> SatResult:
     """Satisfy `clauses` over `variables` (output indices); decisions take the value the
     output has in `phase` (the corrector passes the vector it starts from), so a model found
-    without conflicts is the phase itself."""
+    without conflicts is the phase itself. `clean`: every clause already names each variable
+    once and every variable is in `variables` (the corrector's are), so they are taken as
+    they are."""
     size = max(variables, default=-1) + 1
-    for clause in clauses:
-        for lit in clause:
-            size = max(size, (lit >> 1) + 1)
+    if not clean:
+        for clause in clauses:
+            for lit in clause:
+                size = max(size, (lit >> 1) + 1)
     val = [-1] * size
     level = [0] * size
     reason = [-1] * size
@@ -46,9 +50,12 @@ def solve_sat(variables: Sequence[int], clauses: Iterable[Sequence[int]], phase:
     limits: list[int] = []  # trail length when each decision level began
     units: list[int] = []
     for clause in clauses:
-        lits = sorted(set(clause))
-        if any(lit ^ 1 in lits for lit in lits):
-            continue  # a tautology holds whatever the values
+        if clean:
+            lits = list(clause)
+        else:
+            lits = sorted(set(clause))
+            if any(lit ^ 1 in lits for lit in lits):
+                continue  # a tautology holds whatever the values
         if not lits:
             return SatResult("unsat", 0, 0)
         if len(lits) == 1:
@@ -170,6 +177,7 @@ def solve_sat(variables: Sequence[int], clauses: Iterable[Sequence[int]], phase:
         elif v != lit & 1:
             return SatResult("unsat", 0, steps)
     order = sorted(set(variables))
+    cursor = 0
     while True:
         conflict = propagate()
         if budget is not None and steps > budget:
@@ -190,10 +198,20 @@ def solve_sat(variables: Sequence[int], clauses: Iterable[Sequence[int]], phase:
                 enqueue(learnt[0], len(stored) - 1)
             continue
         chosen = -1
-        best_activity = -1.0
-        for k in order:
-            if val[k] < 0 and activity[k] > best_activity:
-                chosen, best_activity = k, activity[k]
+        if bump == 1.0:
+            # No conflict yet: every activity is 0, so the choice is the next unassigned
+            # variable in order (nothing has been unassigned since the last decision).
+            while cursor < len(order):
+                if val[order[cursor]] < 0:
+                    chosen = order[cursor]
+                    break
+                cursor += 1
+        else:
+            steps += len(order)  # the activity scan reads every variable
+            best_activity = -1.0
+            for k in order:
+                if val[k] < 0 and activity[k] > best_activity:
+                    chosen, best_activity = k, activity[k]
         if chosen < 0:
             model = 0
             for k in order:

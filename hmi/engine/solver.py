@@ -241,7 +241,7 @@ class Problem:
     outputs alone violate makes the problem infeasible (`impossible`).
     """
 
-    __slots__ = ("LM", "N", "P", "_components", "forced_values", "impossible", "nb",
+    __slots__ = ("LM", "N", "P", "_clauses", "_components", "forced_values", "impossible", "nb",
                  "occ_items", "origin", "size", "true_items", "unforced")
 
     def __init__(self, combined: Masks, unforced: int, forced_values: int = 0):
@@ -292,6 +292,7 @@ class Problem:
         self.occ_items = [a + b for a, b in zip(pos_items, neg_items, strict=True)]
         self.true_items = (neg_items, pos_items)  # [value of k][k]
         self._components: list[int] | None = None
+        self._clauses: dict[int, tuple[int, list[list[int]]]] = {}
 
     @property
     def components(self) -> list[int]:
@@ -319,6 +320,36 @@ class Problem:
             found.append(members)
             left &= ~members
         self._components = found
+        return found
+
+    def clauses(self, j: int) -> tuple[int, list[list[int]]]:
+        """The outputs and the SAT clauses of constraint j's component: constraint
+        `pos . not neg` must be false, so one of its outputs differs from its literal
+        (literal 2k + b: output k is b)."""
+        members = self.component_of(j)
+        found = self._clauses.get(members)
+        if found is None:
+            outputs = 0
+            clauses = []
+            m = members
+            P, N = self.P, self.N
+            while m:
+                low = m & -m
+                m ^= low
+                i = low.bit_length() - 1
+                p, q = P[i], N[i]
+                outputs |= p | q
+                lits = []
+                while p:
+                    bit = p & -p
+                    lits.append(2 * bit.bit_length() - 2)
+                    p ^= bit
+                while q:
+                    bit = q & -q
+                    lits.append(2 * bit.bit_length() - 1)
+                    q ^= bit
+                clauses.append(lits)
+            found = self._clauses[members] = (outputs, clauses)
         return found
 
     def component_of(self, j: int) -> int:
@@ -401,7 +432,7 @@ def _solve_group(problem: Problem, start: int, violated: list[int], cost: list[i
     twice). After DIVE_STEPS without any safe vector found, the CDCL solver decides whether
     one exists at all; its model, if any, becomes the bound the search must beat.
     """
-    P, LM, nb = problem.P, problem.LM, problem.nb
+    LM, nb = problem.LM, problem.nb
     occ = problem.occ_items
     true_items = problem.true_items
     D = 1 << (nb + 8)
@@ -424,27 +455,33 @@ def _solve_group(problem: Problem, start: int, violated: list[int], cost: list[i
             k = queue.pop()
             items = true_items[v >> k & 1][k] if k == kept else occ[k]
             steps += len(items)
+            nv = ~v
+            na = ~A
             for jbit, pos, neg, lits in items:
-                false = lits ^ ((v & pos) | (neg & ~v))
-                if false & A:
-                    viol &= ~jbit  # an assigned literal is false: satisfied for good
-                    continue
-                unassigned = lits & ~A
-                if false:
-                    viol &= ~jbit
+                false = lits ^ ((v & pos) | (neg & nv))
+                if false:  # not violated
+                    if viol & jbit:
+                        viol ^= jbit
+                    if false & A:
+                        continue  # an assigned literal is false: satisfied for good
+                    unassigned = lits & na
                     if not unassigned & (unassigned - 1):
                         # Only this undecided, false literal keeps it false: keep that output.
                         # (Marked, not followed: nothing changes value, and following every
                         # kept output's constraints costs more than it prunes.)
                         A |= unassigned
+                        na = ~A
                     continue
+                unassigned = lits & na
                 if not unassigned:
                     return None  # violated, and nothing left to change
                 viol |= jbit
                 if not unassigned & (unassigned - 1):
                     u = unassigned.bit_length() - 1
                     A |= unassigned
+                    na = ~A
                     v ^= unassigned
+                    nv = ~v
                     g += cost[u]
                     queue.append(u)
         return v, A, g, viol
@@ -452,14 +489,11 @@ def _solve_group(problem: Problem, start: int, violated: list[int], cost: list[i
     def first_bound() -> None:
         """No safe vector found yet: ask the SAT solver whether there is one at all."""
         nonlocal steps, best_g, best_flip, cap
-        outputs = 0
-        clauses = []
-        for j in _bits(problem.component_of(violated[0])):
-            outputs |= LM[j]
-            clauses.append([2 * k + (0 if P[j] >> k & 1 else 1) for k in _bits(LM[j])])
+        outputs, clauses = problem.clauses(violated[0])
         steps += len(clauses)
         left = None if allowance is None else allowance - steps
-        sat = solve_sat(_bits(outputs), clauses, phase=start, budget=left, deadline=deadline)
+        sat = solve_sat(_bits(outputs), clauses, phase=start, budget=left, deadline=deadline,
+                        clean=True)
         steps += sat.steps
         if sat.status == "budget":
             raise _OutOfBudget
@@ -494,10 +528,11 @@ def _solve_group(problem: Problem, start: int, violated: list[int], cost: list[i
         choice = 0
         fewest = 99
         m = viol
+        na = ~A
         while m:
             jb = m & -m
             m ^= jb
-            cand = LM[jb.bit_length() - 1] & ~A
+            cand = LM[jb.bit_length() - 1] & na
             if not cand:
                 return  # violated with every output decided: no repair below this node
             size = cand.bit_count()

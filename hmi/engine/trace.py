@@ -8,10 +8,12 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 from pathlib import Path
 from typing import IO, Any
 
 from hmi.engine.snapshot import Snapshot
+from hmi.errors import OutputError
 from hmi.timefmt import seconds
 
 
@@ -47,28 +49,56 @@ def _row(snap: Snapshot) -> dict[str, Any]:
     return row
 
 
+class TraceWriteError(OutputError):
+    """The trace file could not be opened or written."""
+
+
 class TraceWriter:
+    """Every scan to `path`. A failure to open or write it is a TraceWriteError (say what and
+    where); after one, close() only releases the file."""
+
     def __init__(self, path: Path):
         self.path = path
         self.format = "jsonl" if path.suffix.lower() in (".jsonl", ".json", ".ndjson") else "csv"
-        self.file: IO[str] = path.open("w", encoding="utf-8", newline="")
+        try:
+            # Without blocking: a FIFO nobody reads is refused (ENXIO) instead of hanging.
+            fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_NONBLOCK
+                         | os.O_NOCTTY | os.O_CLOEXEC, 0o644)
+            os.set_blocking(fd, True)
+            self.file: IO[str] = os.fdopen(fd, "w", encoding="utf-8", newline="")
+        except OSError as exc:
+            raise TraceWriteError("the trace", path, exc) from None
+        except ValueError as exc:  # a NUL in the name
+            raise TraceWriteError("the trace", path, str(exc), bad_path=True) from None
         self.writer: csv.DictWriter | None = None
         self.count = 0
+        self.failed = False
 
     def write(self, snap: Snapshot) -> None:
         row = _row(snap)
-        if self.format == "jsonl":
-            self.file.write(json.dumps(row, separators=(",", ":")) + "\n")
-        else:
-            if self.writer is None:
-                self.writer = csv.DictWriter(self.file, fieldnames=list(row),
-                                             lineterminator="\n")
-                self.writer.writeheader()
-            self.writer.writerow(row)
+        try:
+            if self.format == "jsonl":
+                self.file.write(json.dumps(row, separators=(",", ":")) + "\n")
+            else:
+                if self.writer is None:
+                    self.writer = csv.DictWriter(self.file, fieldnames=list(row),
+                                                 lineterminator="\n")
+                    self.writer.writeheader()
+                self.writer.writerow(row)
+        except OSError as exc:
+            self.failed = True
+            raise TraceWriteError("the trace", self.path, exc) from None
         self.count += 1
 
     def close(self) -> None:
-        self.file.close()
+        """Flush and close; a failure to flush is a TraceWriteError (unless one was already
+        reported: then the file is only released)."""
+        try:
+            self.file.close()  # releases the descriptor even when the final flush fails
+        except OSError as exc:
+            if not self.failed:
+                self.failed = True
+                raise TraceWriteError("the trace", self.path, exc) from None
 
     def __enter__(self) -> TraceWriter:
         return self

@@ -17,14 +17,20 @@ The default place is the user's data folder: $PLCHMI_DATA, else $XDG_DATA_HOME/p
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
+import re
+import stat
 from collections.abc import Iterator
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from hmi.errors import OutputError
+from hmi.limits import MAX_JOURNAL_LINE_BYTES, describe_bytes
+from hmi.textfile import FileProblem, open_regular
 from hmi.timefmt import seconds
 
 
@@ -36,7 +42,25 @@ def data_folder() -> Path:
 
 
 def default_path(project_name: str) -> Path:
-    return data_folder() / project_name / "journal.jsonl"
+    return data_folder() / safe_file_name(project_name) / "journal.jsonl"
+
+
+_UNSAFE_IN_FILE_NAME = re.compile(r"[^A-Za-z0-9._-]")
+
+
+def safe_file_name(name: str) -> str:
+    """A folder name for a project's journal, whatever its `name:` says.
+
+    The name is text for the operator (`name: ../../x` or `name: Cell 3/Line 2` is not a
+    path), so anything but ASCII letters, digits, `.`, `_` and `-` becomes `_`, leading dots
+    go (no `..`, no hidden folder) and the length is bounded. A name changed that way gets a
+    short digest of the original, so that two names cleaned alike keep separate journals.
+    """
+    cleaned = _UNSAFE_IN_FILE_NAME.sub("_", name).lstrip(".")[:80]
+    if cleaned == name:
+        return name
+    digest = hashlib.sha256(name.encode("utf-8", "surrogatepass")).hexdigest()[:8]
+    return f"{cleaned or 'project'}-{digest}"
 
 
 def wall_now() -> str:
@@ -52,10 +76,24 @@ class Journal:
 
     def __init__(self, path: Path):
         self.path = path
-        path.parent.mkdir(parents=True, exist_ok=True)
-        self._fd = os.open(path, os.O_RDWR | os.O_APPEND | os.O_CREAT, 0o644)
+        self._fd = -1
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            # Not a FIFO or a device: only a regular file (or a new one) is a journal.
+            self._fd = os.open(path, os.O_RDWR | os.O_APPEND | os.O_CREAT | os.O_NONBLOCK
+                               | os.O_NOCTTY | os.O_CLOEXEC, 0o644)
+            if not stat.S_ISREG(os.fstat(self._fd).st_mode):
+                self.close()
+                raise JournalWriteError("the journal", path, "not a regular file (a journal "
+                                        "must be a file on disk)", bad_path=True)
+            os.set_blocking(self._fd, True)
+            self.cut_bytes = self._partial_tail()
+        except OSError as exc:
+            self.close()
+            raise JournalWriteError("the journal", path, exc) from None
+        except ValueError as exc:  # a NUL in the name
+            raise JournalWriteError("the journal", path, str(exc), bad_path=True) from None
         self.seq = 0
-        self.cut_bytes = self._partial_tail()
         if self.cut_bytes is not None:
             self._write(b"\n")
             self.append({"type": "session", "event": "abnormal-end", "cut_bytes": self.cut_bytes,
@@ -83,10 +121,13 @@ class Journal:
         return cut
 
     def _write(self, data: bytes) -> None:
-        written = 0
-        while written < len(data):
-            written += os.write(self._fd, data[written:])
-        os.fsync(self._fd)
+        try:
+            written = 0
+            while written < len(data):
+                written += os.write(self._fd, data[written:])
+            os.fsync(self._fd)
+        except OSError as exc:
+            raise JournalWriteError("the journal", self.path, exc) from None
 
     def append(self, entry: dict[str, Any]) -> None:
         self.seq += 1
@@ -116,36 +157,76 @@ class JournalRead:
 
 
 class JournalError(Exception):
-    pass
+    """There is no journal to read (exit status 1)."""
+
+
+class JournalWriteError(OutputError):
+    """The journal could not be opened or written."""
+
+
+class JournalPathError(Exception):
+    """The path given is not a journal file (a folder, a device, a FIFO): a usage error."""
 
 
 def read(path: Path) -> JournalRead:
-    """Every readable entry; damaged lines are listed in `damaged`, never fatal."""
+    """Every readable entry; damaged lines are listed in `damaged`, never fatal.
+
+    The file is read line by line (a regular file only: hmi.textfile.open_regular), each
+    line at most MAX_JOURNAL_LINE_BYTES, so neither a device nor a huge line of garbage can
+    make the reader hang or eat the memory."""
     try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        raise JournalError(f"{path}: no journal yet") from None
-    lines = raw.split(b"\n")
-    if lines[-1] == b"":
-        lines.pop()  # the file ends with a newline
-        ends_clean = True
-    else:
-        ends_clean = False
+        fd = open_regular(path)
+    except FileProblem as exc:
+        if exc.message == "file not found":
+            raise JournalError(f"{path}: no journal yet") from None
+        raise JournalPathError(f"{path}: {exc.message}") from None
     entries: list[dict[str, Any]] = []
     damaged: list[Damaged] = []
     truncated = False
-    for number, line in enumerate(lines, start=1):
-        if not line.strip():
-            continue
-        last_cut = number == len(lines) and not ends_clean
-        entry, reason = _parse(line)
-        if entry is not None:
-            entries.append(entry)  # a last line missing only its newline is still whole
-            continue
-        if last_cut:
-            truncated = True
-        damaged.append(Damaged(number, reason))
+    with os.fdopen(fd, "rb") as file:
+        for number, line, complete in _lines(file):
+            if not line.strip():
+                continue
+            if len(line) > MAX_JOURNAL_LINE_BYTES:
+                entry, reason = None, (f"line longer than {describe_bytes(MAX_JOURNAL_LINE_BYTES)}"
+                                       " (not a journal entry)")
+            else:
+                entry, reason = _parse(line)
+            if entry is not None:
+                entries.append(entry)  # a last line missing only its newline is still whole
+                continue
+            if not complete:
+                truncated = True
+            damaged.append(Damaged(number, reason))
     return JournalRead(entries, truncated, tuple(damaged))
+
+
+def _lines(file) -> Iterator[tuple[int, bytes, bool]]:
+    """(number, line without its newline, whether a newline ended it); a line longer than the
+    limit is returned as its first MAX_JOURNAL_LINE_BYTES + 1 bytes, the rest skipped."""
+    number = 0
+    while True:
+        line = file.readline(MAX_JOURNAL_LINE_BYTES + 1)
+        if not line:
+            return
+        number += 1
+        if len(line) > MAX_JOURNAL_LINE_BYTES and not line.endswith(b"\n"):
+            rest = line
+            while rest and not rest.endswith(b"\n"):  # skip to the end of this line
+                rest = file.readline(1 << 20)
+            yield number, line, rest.endswith(b"\n")
+            continue
+        complete = line.endswith(b"\n")
+        yield number, line.rstrip(b"\n"), complete
+
+
+# Fields an entry may carry, and what they must be for the reader to show them.
+_FIELD_TYPES: dict[str, tuple[type, ...]] = {
+    "wall": (str,), "type": (str,), "event": (str,), "scan": (int,), "t": (str, int, float),
+    "message": (str,), "text": (str,), "key": (str,), "severity": (str,), "state": (str,),
+    "project": (str,)}
+_JSON_TYPE = {dict: "an object", list: "a list", str: "a string", bool: "a Boolean",
+              int: "a number", float: "a number", type(None): "null"}
 
 
 def _parse(line: bytes) -> tuple[dict[str, Any] | None, str]:
@@ -159,11 +240,36 @@ def _parse(line: bytes) -> tuple[dict[str, Any] | None, str]:
             return None, (f"entry cut short after {len(line)} bytes (the process writing "
                           "it was killed)")
         return None, f"not valid JSON ({exc.msg}, column {exc.colno})"
+    except RecursionError:
+        return None, "not a journal entry (JSON nested too deep)"
+    except ValueError as exc:  # e.g. an integer of more than 4300 digits
+        return None, f"not a journal entry ({exc})"
     if "\ufffd" in text and "\ufffd" not in line.decode("utf-8", errors="ignore"):
         return None, "not UTF-8 text"
     if not isinstance(entry, dict):
         return None, f"not a journal entry (a JSON {type(entry).__name__})"
+    for name, types in _FIELD_TYPES.items():
+        value = entry.get(name)
+        if value is not None and (not isinstance(value, types) or isinstance(value, bool)):
+            return None, (f"not a journal entry (its {name!r} is "
+                          f"{_JSON_TYPE.get(type(value), 'a value')} where "
+                          f"{_JSON_TYPE[types[0]]} belongs)")
+    if _SURROGATE.search(text) and _has_surrogate(entry):
+        return None, "not a journal entry (a lone surrogate in a text)"
     return entry, ""
+
+
+_SURROGATE = re.compile(r"\\u[dD][89a-fA-F]")
+
+
+def _has_surrogate(value: Any) -> bool:
+    if isinstance(value, str):
+        return any("\ud800" <= c <= "\udfff" for c in value)
+    if isinstance(value, dict):
+        return any(_has_surrogate(k) or _has_surrogate(v) for k, v in value.items())
+    if isinstance(value, list):
+        return any(_has_surrogate(v) for v in value)
+    return False
 
 
 def since_filter(entries: list[dict], since: datetime | None) -> Iterator[dict]:
@@ -173,8 +279,10 @@ def since_filter(entries: list[dict], since: datetime | None) -> Iterator[dict]:
             continue
         try:
             when = datetime.fromisoformat(entry["wall"])
-        except (KeyError, ValueError):
+        except (KeyError, TypeError, ValueError):
             continue
+        if when.tzinfo is None:
+            when = when.replace(tzinfo=UTC)  # the journal writes UTC
         if when >= since:
             yield entry
 

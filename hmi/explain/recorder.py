@@ -5,6 +5,12 @@ engine itself never touches a file. A manual request is journalled twice: when i
 and once the next scan shows what the filter did with it. On a real plant it also drains the
 plant's link events (connections, retries, exception responses: hmi.plant.link_log) and
 counts scan overruns, one entry per episode or minute, never one per scan.
+
+If the journal cannot be written during a session (a full disk, an I/O error), what the
+operator does and sees is no longer recorded: the recorder latches the outputs to their safe
+state with the reason (the operator is told, as for any internal failure), keeps the error in
+`failure` for the caller (a headless run stops, exit status 1) and tries again at the next
+entry.
 """
 
 from __future__ import annotations
@@ -14,7 +20,7 @@ import time
 from hmi.engine.commands import Command, CommandResult, ManualOutput, describe
 from hmi.engine.runner import Controller
 from hmi.engine.snapshot import Snapshot
-from hmi.explain.journal import Journal
+from hmi.explain.journal import Journal, JournalWriteError
 from hmi.plant.link_log import Burst
 from hmi.timefmt import seconds
 
@@ -24,6 +30,7 @@ class JournalRecorder:
         self.controller = controller
         self.journal = journal
         self.pending_manual: list[ManualOutput] = []
+        self.failure: JournalWriteError | None = None
         engine = controller.engine
         journal.append({"type": "session", "event": "start", "source": source,
                         "project": engine.project.name, "control": engine.control_name,
@@ -35,10 +42,18 @@ class JournalRecorder:
         controller.scan_listeners.append(self.on_scan)
         controller.overrun_listeners.append(self.on_overrun)
 
+    def _append(self, entry: dict) -> None:
+        try:
+            self.journal.append(entry)
+        except JournalWriteError as exc:
+            self.failure = exc
+            self.controller.engine.latch_safe(
+                "journal", f"{exc}: operator actions and alarms cannot be recorded")
+
     def on_command(self, command: Command, result: CommandResult,
                    snapshot: Snapshot | None) -> None:
         engine = self.controller.engine
-        self.journal.append({
+        self._append({
             "type": "action", "event": describe(command), "accepted": result.accepted,
             "message": result.message, "scan": engine.scan, "t": seconds(engine.now)})
         if isinstance(command, ManualOutput) and result.accepted and command.value is not None:
@@ -57,7 +72,7 @@ class JournalRecorder:
 
     def _plant(self, entry: dict) -> None:
         engine = self.controller.engine
-        self.journal.append({"type": "plant", **entry, "scan": engine.scan,
+        self._append({"type": "plant", **entry, "scan": engine.scan,
                              "t": seconds(engine.now)})
 
     def _drain_plant(self) -> None:
@@ -83,7 +98,7 @@ class JournalRecorder:
                 else:
                     by = ", ".join(change.by)
                     outcome = f"refused: written {int(written)} because of {by}"
-                self.journal.append({
+                self._append({
                     "type": "action", "event": f"manual {request.name} "
                     f"{'on' if request.value else 'off'}: filter result", "accepted": True,
                     "message": outcome, "scan": snapshot.scan, "t": seconds(snapshot.time_us)})
@@ -96,12 +111,12 @@ class JournalRecorder:
             "scan": event.scan, "t": seconds(event.time_us)}
         if getattr(event, "note", ""):
             entry["message"] = event.note
-        self.journal.append(entry)
+        self._append(entry)
 
     def on_ui_fault(self, fault) -> None:
         """An error of the HMI (hmi.ui.containment.UIFault): contained, or fatal."""
         engine = self.controller.engine
-        self.journal.append({
+        self._append({
             "type": "session", "event": "ui-error", "what": fault.what, "fatal": fault.fatal,
             "message": f"{fault.error}; details in {fault.report}"
                        + ("" if fault.fatal else "; contained, the scan goes on"),
@@ -115,12 +130,13 @@ class JournalRecorder:
         for entry in self.overruns.end(time.monotonic()):
             self._plant(entry)
         name = engine.project.name
-        if abnormal is None:
-            self.journal.append({"type": "session", "event": "stop", "scan": engine.scan,
-                                 "t": seconds(engine.now),
-                                 "message": f"{name}, ended normally"})
-        else:
-            self.journal.append({"type": "session", "event": "abnormal-end",
-                                 "scan": engine.scan, "t": seconds(engine.now),
-                                 "message": f"{name}, ended abnormally: {abnormal}"})
-        self.journal.close()
+        try:
+            if abnormal is None:
+                self._append({"type": "session", "event": "stop", "scan": engine.scan,
+                              "t": seconds(engine.now), "message": f"{name}, ended normally"})
+            else:
+                self._append({"type": "session", "event": "abnormal-end", "scan": engine.scan,
+                              "t": seconds(engine.now),
+                              "message": f"{name}, ended abnormally: {abnormal}"})
+        finally:
+            self.journal.close()

@@ -19,11 +19,13 @@ from __future__ import annotations
 import ast
 import difflib
 import re
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass
 
 from hmi.errors import SourcePos
-from hmi.timefmt import parse_duration
+from hmi.limits import MAX_EXPR_CHARS, MAX_EXPR_DEPTH
+from hmi.logic.names import describe_non_ascii, first_non_ascii
+from hmi.timefmt import DURATION_HINT, DurationError, parse_duration
 
 MAX_PREV_DEPTH = 64
 
@@ -117,10 +119,13 @@ ALLOWED = ("names, and, or, not, parentheses, True/False, prev(x), prev(x, n), r
 # Parsing
 # --------------------------------------------------------------------------------------------
 
-_DURATION_IN_EXPR = re.compile(r"(?<![\w.])(\d+(?:\.\d+)?)\s*(us|ms|s|min|m|h)\b")
+_DURATION_IN_EXPR = re.compile(r"(?<![\w.])([0-9]+(?:\.[0-9]+)?)[ \t]*(us|ms|s|min|m|h)\b")
+# What nests in Python's parser: parentheses (calls included) and chains of `not`; `and` and
+# `or` end a chain of `not`.
+_NESTING = re.compile(r"[()]|\b(?:not|and|or)\b")
 
 
-def _replace_durations(text: str) -> tuple[str, list[int], dict[str, int]]:
+def _replace_durations(text: str, pos: SourcePos) -> tuple[str, list[int], dict[str, int]]:
     """Swap duration literals (not Python) for placeholder names; keep a column map back."""
     out: list[str] = []
     colmap: list[int] = []
@@ -130,7 +135,11 @@ def _replace_durations(text: str) -> tuple[str, list[int], dict[str, int]]:
         out.append(text[last:match.start()])
         colmap.extend(range(last, match.start()))
         name = f"__duration_{len(durations)}"
-        durations[name] = parse_duration(match.group(1) + match.group(2))
+        try:
+            durations[name] = parse_duration(match.group(1) + match.group(2))
+        except DurationError as exc:
+            raise ExprError(pos.shifted(match.start()), f"the time {match.group()!r} "
+                            f"{exc.reason}", DURATION_HINT) from None
         out.append(name)
         colmap.extend([match.start()] * len(name))
         last = match.end()
@@ -145,7 +154,8 @@ def parse_expr(text: str, pos: SourcePos) -> Expr:
         raise ExprError(pos, "empty expression", ALLOWED)
     if "\n" in text.strip():
         text = " ".join(text.split())
-    source, colmap, durations = _replace_durations(text)
+    _check_text(text, pos)
+    source, colmap, durations = _replace_durations(text, pos)
 
     def at(col: int) -> SourcePos:
         col = max(0, min(col, len(colmap) - 1))
@@ -155,14 +165,57 @@ def parse_expr(text: str, pos: SourcePos) -> Expr:
         tree = ast.parse(source, mode="eval")
     except SyntaxError as exc:
         col = (exc.offset or 1) - 1
-        raise ExprError(at(col), f"syntax error in expression {text!r}: {exc.msg}",
+        raise ExprError(at(col), f"syntax error in expression {_short(text)!r}: {exc.msg}",
                         ALLOWED) from None
+    except (RecursionError, MemoryError, ValueError) as exc:  # bounded above; never a crash
+        raise ExprError(pos, f"expression too complex for the parser ({type(exc).__name__})",
+                        f"a simpler expression (at most {MAX_EXPR_DEPTH} levels of nesting)"
+                        ) from None
     builder = _Builder(at, durations, colmap)
     root = builder.build(tree.body)
     if isinstance(root, NUMERIC):
         raise ExprError(at(0), "a time value alone is not a condition",
                         "a comparison such as X3.t >= 2s")
     return Expr(text, root, pos)
+
+
+def _check_text(text: str, pos: SourcePos) -> None:
+    """Refuse, before Python's parser sees it, what it would misread or choke on: non-ASCII
+    characters (NFKC would fold a look-alike into another name), and an expression too long
+    or nested too deep (the parser recurses per level: a thousand `not` exhaust its stack).
+    """
+    if len(text) > MAX_EXPR_CHARS:
+        raise ExprError(pos, f"the expression is {len(text):,} characters long",
+                        f"at most {MAX_EXPR_CHARS:,} characters (a limit of plchmi; split it "
+                        "with observers)")
+    odd = first_non_ascii(text)
+    if odd is not None:
+        raise ExprError(pos.shifted(odd), f"{describe_non_ascii(text[odd])} is not allowed in "
+                        "an expression", "names of ASCII letters, digits and _")
+    depth = 0
+    chains = [0]  # per open parenthesis: the `not` chain running in it
+    for match in _NESTING.finditer(text):
+        token = match.group()
+        if token == "(":
+            chains.append(0)
+        elif token == ")":
+            if len(chains) > 1:
+                chains.pop()
+        elif token == "not":
+            chains[-1] += 1
+        else:
+            chains[-1] = 0
+        level = len(chains) - 1 + sum(chains)
+        if level > depth:
+            depth = level
+            if depth > MAX_EXPR_DEPTH:
+                raise ExprError(pos.shifted(match.start()), "the expression is nested more "
+                                f"than {MAX_EXPR_DEPTH} deep (parentheses and not inside each "
+                                "other)", f"at most {MAX_EXPR_DEPTH} levels (a limit of plchmi)")
+
+
+def _short(text: str) -> str:
+    return text if len(text) <= 80 else text[:77] + "..."
 
 
 class _Builder:
@@ -323,7 +376,7 @@ def max_depth(expr: Expr) -> int:
     return max((v.depth for v in variables(expr)), default=0)
 
 
-def check_names(expr: Expr, namespace: Mapping[str, str], steps: Sequence[str] = (),
+def check_names(expr: Expr, namespace: Mapping[str, str], steps: Collection[str] = (),
                 allowed_kinds: set[str] | None = None, context: str = "") -> list[ExprError]:
     """Name errors in `expr`: unknown names, step times of non-steps, forbidden kinds."""
     problems: list[ExprError] = []
@@ -344,8 +397,15 @@ def check_names(expr: Expr, namespace: Mapping[str, str], steps: Sequence[str] =
     return problems
 
 
+SUGGEST_AMONG = 500  # difflib compares with every name: beyond this, a cheaper look-up
+
+
 def _suggest(name: str, namespace: Mapping[str, str]) -> str:
-    close = difflib.get_close_matches(name, list(namespace), n=3, cutoff=0.5)
+    if len(namespace) > SUGGEST_AMONG:  # thousands of names, maybe thousands of typos
+        folded = name.lower()
+        close = [n for n in namespace if n.lower() == folded][:3]
+    else:
+        close = difflib.get_close_matches(name, list(namespace), n=3, cutoff=0.5)
     if close:
         return "a known name; did you mean " + " or ".join(repr(c) for c in close) + "?"
     if not namespace:

@@ -13,6 +13,7 @@ from abc import abstractmethod
 from collections.abc import Mapping
 from typing import Any, ClassVar
 
+from hmi.plant.boxes import interval_problems
 from hmi.plant.device import PendingFault, SimDevice
 
 
@@ -23,6 +24,13 @@ class SteppedCell(SimDevice):
         super().__init__(name, params)
         self.jams: set[str] = set()
         self.stuck: dict[str, bool] = {}  # sensor -> the value it is stuck at
+
+    @classmethod
+    def param_problems(cls, params: Mapping[str, Any]) -> list[tuple[str, str, str]]:
+        if "interval_min" not in cls.PARAMS:
+            return []
+        defaults = {name: spec.default for name, spec in cls.PARAMS.items()}
+        return interval_problems(params, defaults)
 
     @abstractmethod
     def true_sensors(self) -> dict[str, bool]:

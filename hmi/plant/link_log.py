@@ -3,8 +3,10 @@
 The plant produces these entries where things happen (the connection attempt, the request
 that got an exception response), stamped with the wall time they happened at; the journal
 recorder drains them at the next scan or when it closes. Things that repeat at the scan rate
-are never one entry each: a retry loop is its first failure and then a summary, exception
-responses and scan overruns are their first occurrence and then counts (see :class:`Burst`).
+are never one entry each: an outage (failed attempts, connections lost, answers that break
+the protocol) is its first problem, then counts, then its end (see :class:`LinkLog`);
+exception responses and scan overruns are their first occurrence and then counts (see
+:class:`Burst`).
 Entry types are documented in docs/journal.md.
 """
 
@@ -12,7 +14,9 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable
+from collections import Counter
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from typing import Any
 
@@ -71,23 +75,65 @@ class Burst:
                  f"({self.total} in this episode){tail}"}]
 
 
+@dataclass
+class Outage:
+    """From the first problem (a failed attempt, a lost connection) until a scan's I/O
+    works again: what it was made of, in all and since the last count entry."""
+
+    since_wall: str
+    window_start: float
+    losses: int = 0  # connections lost, the first included
+    failed: int = 0  # connection attempts that failed
+    connects: int = 0  # connections made during the outage (that then did not hold)
+    window: Counter = field(default_factory=Counter)  # the same, since the last entry
+    last: str = ""  # the last problem, in plain words
+
+    def add(self, what: str, reason: str) -> int:
+        setattr(self, what, getattr(self, what) + 1)
+        self.window[what] += 1
+        if reason:
+            self.last = reason
+        return getattr(self, what)
+
+    @staticmethod
+    def describe(counts: Mapping[str, int]) -> str:
+        parts = [f"{counts.get('losses', 0)} connections lost",
+                 f"{counts.get('failed', 0)} failed attempts to connect"]
+        if counts.get("connects"):
+            parts.append(f"{counts['connects']} connections made that did not hold")
+        return ", ".join(parts)
+
+    def totals(self) -> dict[str, int]:
+        return {"losses": self.losses, "failed": self.failed, "connects": self.connects}
+
+
 class LinkLog:
     """The link's journal entries, waiting for the recorder. Thread-safe: the connection is
-    first tried before the scan thread starts, then from the scan thread."""
+    first tried before the scan thread starts, then from the scan thread.
 
-    def __init__(self, where: str, clock: Callable[[], float] = time.monotonic):
+    An outage (see :class:`Outage`) is journalled as its first problem (`connect-failed` or
+    `lost`, with what was wrong), a `link-problems` count a minute while it goes on, and
+    its end: `reconnected` once a scan's I/O works again, or `connect-retries` if the session
+    ends first. A device that accepts connections and then drops them, or answers nonsense,
+    costs a few entries, not two per connection.
+    """
+
+    def __init__(self, where: str, clock: Callable[[], float] = time.monotonic,
+                 window_s: float = WINDOW_S):
         self.where = where
         self.clock = clock
+        self.window_s = window_s
         self._lock = threading.Lock()
         self._pending: list[Entry] = []
-        self._failures = 0  # failed attempts since the last connection (or the start)
-        self._failing_since = ""  # wall time of the first of them
-        self._last_failure = ""
+        self.outage: Outage | None = None
         self._ever_connected = False
-        self.exceptions = Burst("exception", "exceptions", "exception responses")
+        self._attempt = 0  # the attempt that made the current connection
+        self.exceptions = Burst("exception", "exceptions", "exception responses", window_s)
 
-    def _add(self, entries: list[Entry]) -> None:
-        wall = wall_now()
+    def _add(self, entries: list[Entry], wall: str | None = None) -> None:
+        """Queue entries stamped `wall` (default: now). A problem that opens an outage is
+        stamped with the outage's start, which later entries quote as `failing_since`."""
+        wall = wall or wall_now()
         with self._lock:
             self._pending.extend({"type": "plant", "wall": wall, **e} for e in entries)
 
@@ -96,51 +142,90 @@ class LinkLog:
             out, self._pending = self._pending, []
         return out
 
+    def _outage(self, wall: str) -> Outage:
+        if self.outage is None:
+            self.outage = Outage(wall, self.clock())
+        return self.outage
+
+    def _tick(self) -> None:
+        """While an outage lasts: one count entry per window."""
+        o = self.outage
+        now = self.clock()
+        if o is None or now - o.window_start < self.window_s:
+            return
+        self._add([{"event": "link-problems", "losses": o.window["losses"],
+                    "failed_attempts": o.window["failed"], "failing_since": o.since_wall,
+                    "message": f"still no working link to {self.where}: in the last "
+                    f"{now - o.window_start:.0f} s, {Outage.describe(o.window)}; last: "
+                    f"{o.last}"}])
+        o.window.clear()
+        o.window_start = now
+
     # -- connection ----------------------------------------------------------------------
     def connect_failed(self, attempt: int, reason: str) -> None:
-        self._failures += 1
-        self._last_failure = reason
-        if self._failures == 1:  # the first of a series; the rest go into a summary
-            self._failing_since = wall_now()
+        wall = wall_now()
+        if self._outage(wall).add("failed", reason) == 1:  # the first; the rest are counted
             self._add([{"event": "connect-failed", "attempt": attempt,
                         "message": f"{reason}; retrying with backoff (retries are "
-                        "summarised when the connection is made or abandoned)"}])
+                        "summarised when the link works again or the session ends)"}], wall)
+        self._tick()
 
     def connected(self, attempt: int) -> None:
-        event = "reconnected" if self._ever_connected else "connected"
+        """A connection was made. The first one is an entry at once; a reconnection only
+        once a scan's I/O has worked on it (:meth:`link_ok`), or it is merely counted."""
+        self._attempt = attempt
+        if self._ever_connected:
+            self._outage(wall_now()).add("connects", "")
+            self._tick()
+            return
+        self._ever_connected = True
+        o, self.outage = self.outage, None
         message = f"connected to {self.where} (attempt {attempt})"
-        entry: Entry = {"event": event, "attempt": attempt, "failed_attempts": self._failures}
-        if self._failures:
-            message += (f" after {self._failures} failed attempts since "
-                        f"{self._failing_since}; last: {self._last_failure}")
-            entry["failing_since"] = self._failing_since
+        entry: Entry = {"event": "connected", "attempt": attempt,
+                        "failed_attempts": o.failed if o else 0}
+        if o is not None:
+            message += (f" after {o.failed} failed attempts since {o.since_wall}; last: "
+                        f"{o.last}")
+            entry["failing_since"] = o.since_wall
         entry["message"] = message
         self._add([entry])
-        self._ever_connected = True
-        self._failures = 0
 
     def lost(self, reason: str) -> None:
         self._add(self.exceptions.end(self.clock()))
-        self._add([{"event": "lost", "message": f"connection to {self.where} lost: {reason}"}])
+        wall = wall_now()
+        if self._outage(wall).add("losses", reason) == 1:
+            self._add([{"event": "lost",
+                        "message": f"connection to {self.where} lost: {reason}"}], wall)
+        self._tick()
+
+    def link_ok(self) -> None:
+        """A scan whose I/O all worked: an exception episode is over, and so is an outage."""
+        if self.exceptions.active:
+            self._add(self.exceptions.end(self.clock()))
+        o = self.outage
+        if o is None:
+            return
+        self.outage = None
+        self._add([{"event": "reconnected", "attempt": self._attempt,
+                    "failed_attempts": o.failed, "losses": o.losses,
+                    "failing_since": o.since_wall,
+                    "message": f"the link to {self.where} works again (connection attempt "
+                    f"{self._attempt}); the outage since {o.since_wall}: "
+                    f"{Outage.describe(o.totals())}; last problem: {o.last}"}])
 
     def gave_up(self) -> None:
-        """The end of a session while still failing to connect: the retries' summary."""
-        if self._failures:
-            self._add([{"event": "connect-retries", "failed_attempts": self._failures,
-                        "failing_since": self._failing_since,
-                        "message": f"{self._failures} failed attempts to connect to "
-                        f"{self.where} since {self._failing_since}, none succeeded; last: "
-                        f"{self._last_failure}"}])
-            self._failures = 0
+        """The end of a session while the link is not working: the outage's summary."""
+        o, self.outage = self.outage, None
+        if o is None:
+            return
+        self._add([{"event": "connect-retries", "failed_attempts": o.failed,
+                    "losses": o.losses, "failing_since": o.since_wall,
+                    "message": f"no working link to {self.where} since {o.since_wall} when "
+                    f"the session ended: {Outage.describe(o.totals())}; last: {o.last}"}])
 
     # -- exception responses -------------------------------------------------------------
     def exception(self, name: str, detail: str) -> None:
         self._add(self.exceptions.hit(self.clock(), name=name, message=detail))
-
-    def scan_ok(self) -> None:
-        """A scan whose I/O got no exception response: an exception episode is over."""
-        if self.exceptions.active:
-            self._add(self.exceptions.end(self.clock()))
 
     def close(self) -> None:
         self._add(self.exceptions.end(self.clock()))

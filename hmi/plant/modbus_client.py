@@ -1,18 +1,25 @@
 """A real plant over Modbus TCP: the engine's inputs read from a device, its outputs written.
 
-The engine's scan is synchronous, so this uses pymodbus's synchronous client: a scan's reads
-happen in the scan, in order, and their answers are the scan's input image.
+The engine's scan is synchronous, so is the connection (modbus_link): a scan's requests go
+out one at a time, in order, and their checked answers are the scan's input image.
 
 Faults never escape as anything but :class:`PlantError`, whose message is stable for a given
 cause (the engine's latch keeps one reason per distinct message), and :attr:`status` says
 what is going on in plain words:
 
-* not connected (at start, or after a loss): every read raises; a new connection is tried
-  with a doubling backoff (0.1 s to 2 s); nothing is ever written while disconnected;
-* connection lost or no answer within the timeout: the socket is closed (a late answer could
-  otherwise be taken for the next request's), the plant is disconnected, the read raises;
+* not connected (at start, or after a loss): every read raises; nothing is ever written
+  while disconnected;
+* connection closed, no answer within the timeout, or an answer that breaks the protocol
+  (wrong transaction id, unit, function code, byte count, length...: see
+  modbus_frame.check_answer): the socket is closed (a late answer could otherwise be taken
+  for the next request's), the plant is disconnected, the read raises with what was wrong;
 * an exception response (Illegal Data Address, Server Device Busy...): the read or write
   raises with the exception's name; the connection is kept.
+
+Reconnection backs off exponentially (0.1 s, doubling, at most 2 s between attempts) and the
+back-off is reset only by a scan whose requests all got valid answers, never by a mere
+connection: a device that accepts connections and then drops them, or answers nonsense, gets
+a few connections a second at first and one every 2 s after, not one per scan.
 
 Outputs are written when they change, in full after every (re)connection (so the first
 thing a reconnected device receives is the whole vector the engine holds: the safe vector,
@@ -24,8 +31,6 @@ the outputs' addresses are read back instead.
 
 from __future__ import annotations
 
-import logging
-import socket
 import time
 from collections import deque
 from collections.abc import Callable, Mapping
@@ -33,35 +38,31 @@ from dataclasses import dataclass, replace
 from typing import Any
 from urllib.parse import urlsplit
 
-from pymodbus.client import ModbusTcpClient
-from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
-
 from hmi.errors import UsageError
 from hmi.plant.base import PlantError, PlantStatus
 from hmi.plant.link_log import LinkLog
+from hmi.plant.modbus_frame import (
+    READ_COILS,
+    READ_DISCRETE_INPUTS,
+    READ_HOLDING_REGISTERS,
+    READ_INPUT_REGISTERS,
+    mask_write_request,
+    read_request,
+    write_coils_request,
+)
+from hmi.plant.modbus_link import (
+    ConnectFailed,
+    ExceptionAnswer,
+    InvalidAnswer,
+    LinkError,
+    ModbusLink,
+    NoAnswer,
+)
 from hmi.plant.modbus_map import AddressMap
 from hmi.project.model import PlantSpec, Project
-from hmi.timefmt import format_duration
 
-# pymodbus logs connection failures itself; with no handler configured, Python would print
-# them on stderr (over the HMI). We report every problem ourselves, in PlantStatus.
-logging.getLogger("pymodbus").addHandler(logging.NullHandler())
-logging.getLogger("pymodbus").propagate = False
-
-# Modbus application protocol v1.1b3, §7: exception codes and their names.
-EXCEPTION_NAMES = {
-    1: "Illegal Function",
-    2: "Illegal Data Address",
-    3: "Illegal Data Value",
-    4: "Server Device Failure",
-    5: "Acknowledge",
-    6: "Server Device Busy",
-    7: "Negative Acknowledge",
-    8: "Memory Parity Error",
-    10: "Gateway Path Unavailable",
-    11: "Gateway Target Device Failed to Respond",
-}
-
+READ_FUNCTION = {"coil": READ_COILS, "di": READ_DISCRETE_INPUTS,
+                 "hr": READ_HOLDING_REGISTERS, "ir": READ_INPUT_REGISTERS}
 BACKOFF_FIRST_S = 0.1
 BACKOFF_MAX_S = 2.0
 URL_HINT = "modbus://HOST:PORT[/UNIT], e.g. modbus://127.0.0.1:5020/1"
@@ -92,6 +93,10 @@ def parse_plant_url(text: str, base: ModbusSettings) -> ModbusSettings:
     bad = f"--plant {text!r}: expected {URL_HINT}"
     try:
         url = urlsplit(text)
+    except ValueError as exc:  # "Invalid IPv6 URL": a '[' without its ']'
+        raise UsageError(f"{bad} ({exc}; an IPv6 address is written in brackets, "
+                         "modbus://[::1]:5020)") from None
+    try:
         port = url.port
     except ValueError:
         raise UsageError(bad + " (the port must be a number from 1 to 65535)") from None
@@ -103,43 +108,10 @@ def parse_plant_url(text: str, base: ModbusSettings) -> ModbusSettings:
     unit = base.unit
     path = url.path.strip("/")
     if path:
-        if not path.isdigit() or not 0 <= int(path) <= 255:
+        if not (path.isascii() and path.isdigit()) or len(path) > 3 or int(path) > 255:
             raise UsageError(bad + f" (unit {path!r} is not a number from 0 to 255)")
         unit = int(path)
     return replace(base, host=url.hostname, port=port, unit=unit)
-
-
-class _Client(ModbusTcpClient):
-    """pymodbus's client, connecting so that we learn why a connection failed.
-
-    pymodbus's own connect() logs the OSError and returns False; we want the reason in the
-    operator's words ("Connection refused"), and TCP_NODELAY for small request/answer pairs.
-    """
-
-    last_error = ""
-
-    def connect(self) -> bool:
-        if self.socket:
-            return True
-        params = self.comm_params
-        try:
-            sock = socket.create_connection((params.host, params.port),
-                                            timeout=params.timeout_connect)
-            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        except OSError as exc:
-            self.last_error = _os_reason(exc)
-            self.socket = None
-            return False
-        self.socket = sock
-        return True
-
-
-def _os_reason(exc: OSError) -> str:
-    if isinstance(exc, TimeoutError | socket.timeout):
-        return "no answer (connect timed out)"
-    if isinstance(exc, socket.gaierror):
-        return f"unknown host ({exc.strerror})"
-    return exc.strerror or type(exc).__name__
 
 
 class ModbusPlant:
@@ -148,141 +120,129 @@ class ModbusPlant:
     kind = "modbus"
 
     def __init__(self, project: Project, settings: ModbusSettings, read_only: bool = False,
-                 period_us: int | None = None):
+                 period_us: int | None = None, clock: Callable[[], float] = time.monotonic):
         self.project = project
+        self.clock = clock  # for the back-off (seconds); the tests give a virtual one
         self.settings = settings
         self.read_only = read_only
         self.period_us = period_us or project.scan_period_us
         self.input_names = tuple(v.name for v in project.inputs)
         self.output_names = tuple(v.name for v in project.outputs)
         self.map = AddressMap.for_project(project, settings.read_gap, read_back=read_only)
-        self._client: ModbusTcpClient | None = None
+        # Each read request is the same every scan: its PDU is built once.
+        self._reads = tuple((rng, read_request(READ_FUNCTION[rng.table], rng.start, rng.count),
+                             f"read {rng}") for rng in self.map.reads)
+        self._conn: ModbusLink | None = None
         self.connected = False
         self.ever_connected = False
         self.message = "not connected yet"
         self._down_reason = f"not connected to {settings.where}"
+        self._outage = False  # since a problem, until a scan's I/O all works again
         self._backoff_s = BACKOFF_FIRST_S
-        self._next_attempt = 0.0  # time.monotonic() of the next connection attempt
+        self._next_attempt = 0.0  # clock() of the next connection attempt
         self.attempts = 0
         self._written: dict[object, tuple] = {}  # request plan entry -> values last written
         self._last_full_us: int | None = None
         self.stats = dict.fromkeys(
-            ("requests", "reads", "writes", "exceptions", "timeouts", "losses", "connects",
-             "slow_scans"), 0)
+            ("requests", "reads", "writes", "stop_writes", "exceptions", "timeouts", "invalid",
+             "losses", "connects", "slow_scans"), 0)
         self.last_exception = ""
         self.io_us: deque[float] = deque(maxlen=10_000)  # wall time of each scan's I/O
         self._scan_io = 0.0
         self._scan_ok = False
-        self._exceptions_before = 0  # stats["exceptions"] when the scan's I/O began
-        self.link = LinkLog(settings.where)  # connection events for the journal
+        self.link = LinkLog(settings.where, clock)  # connection events for the journal
 
     # -- connection ----------------------------------------------------------------------
     def connect(self) -> bool:
-        """One connection attempt now; on failure the next is scheduled after a backoff."""
+        """One connection attempt now; on failure the next is scheduled after the back-off.
+
+        A connection does not reset the back-off: only a scan whose requests all worked does.
+        """
         self.attempts += 1
         s = self.settings
-        client = _Client(s.host, port=s.port, timeout=s.timeout_us / 1e6, retries=0)
-        if client.connect():
-            self._client = client
-            self.connected = True
-            self.ever_connected = True
-            self.stats["connects"] += 1
-            self._backoff_s = BACKOFF_FIRST_S
-            self._written.clear()  # the first write after a connection is a full one
-            self.message = f"connected to {s.where}"
-            self.link.connected(self.attempts)
-            return True
-        reason = getattr(client, "last_error", "") or "connection failed"
-        client.close()
-        failed = f"cannot connect to {s.where}: {reason}"
-        if not self.ever_connected:
-            # After a loss, the loss stays the reason the engine is given (one latch reason
-            # per outage); the failed attempts show in the status message.
-            self._down_reason = failed
-        self._schedule_retry(failed)
-        self.link.connect_failed(self.attempts, failed)
-        return False
+        conn = ModbusLink(s.host, s.port, s.unit, s.timeout_us)
+        try:
+            conn.connect()
+        except ConnectFailed as exc:
+            failed = f"cannot connect to {s.where}: {exc}"
+            if not self.ever_connected:
+                # After a loss, the loss stays the reason the engine is given (one latch
+                # reason per outage); the failed attempts show in the status message.
+                self._down_reason = failed
+            self._outage = True
+            self._schedule_retry(failed)
+            self.link.connect_failed(self.attempts, failed)
+            return False
+        self._conn = conn
+        self.connected = True
+        self.ever_connected = True
+        self.stats["connects"] += 1
+        self._written.clear()  # the first write after a connection is a full one
+        self.message = f"connected to {s.where}"
+        self.link.connected(self.attempts)
+        return True
 
     @property
     def retry_in_s(self) -> float:
-        return max(0.0, self._next_attempt - time.monotonic())
+        return max(0.0, self._next_attempt - self.clock())
 
     def _schedule_retry(self, why: str) -> None:
-        self._next_attempt = time.monotonic() + self._backoff_s
+        self._next_attempt = self.clock() + self._backoff_s
         self.message = f"{why}; next try in {self._backoff_s:g} s"
         self._backoff_s = min(self._backoff_s * 2, BACKOFF_MAX_S)
 
     def _lost(self, reason: str) -> PlantError:
         """Drop the connection (a late answer must not pass for the next one's)."""
-        if self._client is not None:
-            self._client.close()
-        self._client = None
+        if self._conn is not None:
+            self._conn.close()
+        self._conn = None
         self.connected = False
         self.stats["losses"] += 1
-        self._down_reason = f"{self.settings.where}: {reason}"
-        self._next_attempt = 0.0  # try again at the next scan, then back off
-        self._backoff_s = BACKOFF_FIRST_S
-        self.message = f"connection to {self.settings.where} lost: {reason}"
+        if not self._outage:  # the outage's first problem is the reason, until it is over
+            self._down_reason = f"{self.settings.where}: {reason}"
+        self._outage = True
+        self._schedule_retry(f"connection to {self.settings.where} lost: {reason}")
         self.link.lost(reason)
         return PlantError(self._down_reason)
 
-    def _ensure_connected(self) -> ModbusTcpClient:
-        if not self.connected and time.monotonic() >= self._next_attempt:
+    def _ensure_connected(self) -> ModbusLink:
+        if not self.connected and self.clock() >= self._next_attempt:
             self.connect()
-        if not self.connected or self._client is None:
+        if not self.connected or self._conn is None:
             raise PlantError(self._down_reason)
-        return self._client
+        return self._conn
 
-    def _request(self, what: str, call: Callable[[], Any]) -> Any:
+    def _request(self, conn: ModbusLink, pdu: bytes, what: str) -> tuple:
+        """One request; its values, or a PlantError saying what went wrong."""
         self.stats["requests"] += 1
         try:
-            response = call()
-        except ModbusIOException:
+            return conn.request(pdu, what).values
+        except NoAnswer as exc:
             self.stats["timeouts"] += 1
-            raise self._lost(f"no answer to {what} within "
-                             f"{format_duration(self.settings.timeout_us)}") from None
-        except (ConnectionException, OSError):
-            raise self._lost("the connection was closed") from None
-        except ModbusException as exc:
-            raise self._lost(f"{type(exc).__name__} during {what}") from None
-        if response.isError():
-            code = getattr(response, "exception_code", 0)
-            name = EXCEPTION_NAMES.get(code, f"exception {code}")
+            raise self._lost(str(exc)) from None
+        except InvalidAnswer as exc:
+            self.stats["invalid"] += 1
+            raise self._lost(str(exc)) from None
+        except LinkError as exc:
+            raise self._lost(str(exc)) from None
+        except ExceptionAnswer as exc:
             self.stats["exceptions"] += 1
-            self.last_exception = name
-            detail = f"{self.settings.where} answered {name} (exception {code}) to {what}"
+            self.last_exception = exc.name
+            detail = f"{self.settings.where} answered {exc} to {what}"
             self.message = detail
-            self.link.exception(name, detail)
-            raise PlantError(detail, lost=False)
-        return response
+            self.link.exception(exc.name, detail)
+            raise PlantError(detail, lost=False) from None
 
     # -- the engine's side ---------------------------------------------------------------
     def read(self, now_us: int) -> Mapping[str, bool]:
         started = time.perf_counter()
-        client = self._ensure_connected()
-        unit = self.settings.unit
-        values: dict[str, bool] = {}
         self._scan_ok = False
-        self._exceptions_before = self.stats["exceptions"]
+        conn = self._ensure_connected()
+        values: dict[str, bool] = {}
         try:
-            for rng in self.map.reads:
-                what = f"read {rng}"
-                if rng.table == "di":
-                    r = self._request(what, lambda g=rng: client.read_discrete_inputs(
-                        g.start, count=g.count, device_id=unit))
-                    self.map.decode(rng, r.bits, values)
-                elif rng.table == "coil":
-                    r = self._request(what, lambda g=rng: client.read_coils(
-                        g.start, count=g.count, device_id=unit))
-                    self.map.decode(rng, r.bits, values)
-                elif rng.table == "hr":
-                    r = self._request(what, lambda g=rng: client.read_holding_registers(
-                        g.start, count=g.count, device_id=unit))
-                    self.map.decode(rng, r.registers, values)
-                else:
-                    r = self._request(what, lambda g=rng: client.read_input_registers(
-                        g.start, count=g.count, device_id=unit))
-                    self.map.decode(rng, r.registers, values)
+            for rng, pdu, what in self._reads:
+                # check_answer made sure there are exactly rng.count values
+                self.map.decode(rng, self._request(conn, pdu, what), values)
                 self.stats["reads"] += 1
             self._scan_ok = True
         finally:
@@ -298,45 +258,52 @@ class ModbusPlant:
         started = time.perf_counter()
         try:
             self._write(now_us, outputs)
+        except PlantError:
+            self._scan_ok = False
+            raise
         finally:
             self._end_scan(self._scan_io + time.perf_counter() - started)
             self._scan_io = 0.0
 
-    def _write(self, now_us: int, outputs: Mapping[str, bool]) -> None:
-        if not self.connected or self._client is None:
+    def _write(self, now_us: int, outputs: Mapping[str, bool], at_stop: bool = False) -> None:
+        if not self.connected or self._conn is None:
             raise PlantError(self._down_reason)  # never connect in order to write
-        client = self._client
-        unit = self.settings.unit
+        conn = self._conn
         refresh = self.settings.write_refresh_us
         full = self._last_full_us is None or not self._written or \
             now_us - self._last_full_us >= refresh
         for run in self.map.coil_runs:
             values = tuple(bool(outputs[n]) for n in run.names)
             if full or self._written.get(run) != values:
-                self._request(f"write {run}", lambda r=run, v=values: client.write_coils(
-                    r.start, list(v), device_id=unit))
+                self._request(conn, write_coils_request(run.start, values), f"write {run}")
                 self._written[run] = values
-                self.stats["writes"] += 1
+                self._count_write(at_stop)
         for reg in self.map.register_bits:
             values = tuple(bool(outputs[n]) for n, _ in reg.bits)
             if full or self._written.get(reg) != values:
                 and_mask, or_mask = reg.masks(outputs)
-                self._request(f"write {reg}", lambda r=reg, a=and_mask, o=or_mask:
-                              client.mask_write_register(address=r.index, and_mask=a,
-                                                         or_mask=o, device_id=unit))
+                self._request(conn, mask_write_request(reg.index, and_mask, or_mask),
+                              f"write {reg}")
                 self._written[reg] = values
-                self.stats["writes"] += 1
+                self._count_write(at_stop)
         if full:
             self._last_full_us = now_us
 
+    def _count_write(self, at_stop: bool) -> None:
+        self.stats["writes"] += 1
+        if at_stop:  # the safe vector written when the run ends: counted, and said apart
+            self.stats["stop_writes"] += 1
+
     def _end_scan(self, io_s: float) -> None:
-        if self._scan_ok and self.connected:  # a round trip figure: scans that did all I/O
-            self.io_us.append(io_s * 1e6)
         if io_s * 1e6 > self.period_us:
             self.stats["slow_scans"] += 1
-        if self._scan_ok and self.connected and \
-                self.stats["exceptions"] == self._exceptions_before:
-            self.link.scan_ok()
+        if not (self._scan_ok and self.connected):
+            return
+        # Every request of the scan got a valid answer: the link works.
+        self.io_us.append(io_s * 1e6)  # a round trip figure: scans that did all their I/O
+        self._backoff_s = BACKOFF_FIRST_S
+        self._outage = False
+        self.link.link_ok()
 
     @property
     def status(self) -> PlantStatus:
@@ -376,7 +343,7 @@ class ModbusPlant:
         if self.connected and not self.read_only:
             self._written.clear()
             try:
-                self._write(now_us, safe)
+                self._write(now_us, safe, at_stop=True)
                 written = True
             except PlantError:
                 pass
@@ -386,9 +353,9 @@ class ModbusPlant:
         return written
 
     def close(self) -> None:
-        if self._client is not None:
-            self._client.close()
-        self._client = None
+        if self._conn is not None:
+            self._conn.close()
+        self._conn = None
         self.connected = False
         self.link.close()  # the summaries of what was still going on
 

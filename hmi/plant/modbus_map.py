@@ -17,13 +17,14 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 from hmi.errors import Diagnostic
+from hmi.plant.modbus_frame import MAX_READ_BITS, MAX_READ_REGISTERS, MAX_WRITE_COILS
 from hmi.project.model import PlantAddress, Project, Variable
 
 BIT_TABLES = ("coil", "di")
 REGISTER_TABLES = ("hr", "ir")
-# Modbus application protocol v1.1b3: the most one request may read or write.
-MAX_READ = {"coil": 2000, "di": 2000, "hr": 125, "ir": 125}
-MAX_WRITE_COILS = 1968
+# Modbus application protocol v1.1b3: the most one request may read.
+MAX_READ = {"coil": MAX_READ_BITS, "di": MAX_READ_BITS, "hr": MAX_READ_REGISTERS,
+            "ir": MAX_READ_REGISTERS}
 TABLE_WORDS = {"coil": "coils", "di": "discrete inputs", "hr": "holding registers",
                "ir": "input registers"}
 

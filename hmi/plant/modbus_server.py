@@ -5,12 +5,12 @@ the wall clock (integer microseconds since the server started) and their I/O is 
 address map: sensors are served where their inputs are mapped (discrete inputs, input
 register bits...), orders are taken from where the outputs are mapped (coils, holding
 register bits). With an HMI on the other end this behaves like a real cell, and any Modbus
-client (mbpoll) can look at it.
+client (mbpoll) can look at it. The protocol itself is modbus_tcp_server's.
 
-The physics is advanced on every request, just before it is answered, through pymodbus's
-`SimDevice(action=...)` hook: a read always sees the sensors at the moment it arrives, and a
-write changes the orders at the moment it arrives. A 10 ms tick also advances it, to print
-every change of the served I/O and every plant event as it happens.
+The physics is advanced on every request, just before it is answered: a read always sees
+the sensors at the moment it arrives, and a write changes the orders at the moment it
+arrives. A 10 ms tick also advances it, to print every change of the served I/O and every
+plant event as it happens.
 
 Communication faults are injected like device faults (`--inject busy@5s+2s`): `busy` answers
 every request with exception 6 (Server Device Busy), `mute` stops answering (the connection
@@ -21,32 +21,33 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import logging
+import ipaddress
+import os
 import signal
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from pymodbus.constants import ExcCodes
-from pymodbus.server import ModbusTcpServer
-from pymodbus.simulator import DataType, SimData, SimDevice
-
 from hmi.errors import UsageError
+from hmi.plant.modbus_frame import SERVER_DEVICE_BUSY
 from hmi.plant.modbus_map import BIT_TABLES, AddressMap
+from hmi.plant.modbus_tcp_server import (
+    IDLE_S,
+    MAX_CONNECTIONS,
+    ModbusServer,
+    Refused,
+    Request,
+    Tables,
+)
 from hmi.plant.sim import Injection, SimPlant
 from hmi.project.model import Project
 from hmi.timefmt import format_duration, seconds
-
-logging.getLogger("pymodbus").addHandler(logging.NullHandler())
-logging.getLogger("pymodbus").propagate = False
 
 COMM_FAULTS = {
     "busy": "answer every request with exception 6, Server Device Busy",
     "mute": "stop answering (requests time out, the connection stays open)",
 }
-# Function code -> the table it addresses.
-FC_TABLE = {1: "coil", 5: "coil", 15: "coil", 2: "di", 3: "hr", 6: "hr", 16: "hr", 22: "hr",
-            23: "hr", 4: "ir"}
 TICK_S = 0.01
 
 
@@ -73,14 +74,17 @@ def split_injections(injections: list[Injection]) -> tuple[list[Injection], list
 
 
 class PlantServer:
-    """The simulated plant behind pymodbus's TCP server (see the module docstring)."""
+    """The simulated plant behind our Modbus TCP server (see the module docstring)."""
 
     def __init__(self, project: Project, unit: int, injections: list[Injection] = (),
-                 delay_us: int = 0, out: Callable[[str], None] = print):
+                 delay_us: int = 0, out: Callable[[str], None] = print,
+                 max_connections: int = MAX_CONNECTIONS, idle_s: float = IDLE_S,
+                 warn: Callable[[str], None] | None = None):
         self.project = project
         self.unit = unit
         self.delay_us = delay_us
         self.out = out
+        self.warn = warn or out
         self.plant = SimPlant(project)
         device_faults, self.comm_faults = split_injections(list(injections))
         for inj in device_faults:
@@ -92,94 +96,72 @@ class PlantServer:
         driven = {name for name in self.plant.input_names if name not in self.plant.free_inputs}
         self.sensors = tuple(p for p in self.map.inputs if p.name in driven)
         self.orders = dict.fromkeys(self.plant.output_names, False)
-        self.counts = {"requests": 0, "reads": 0, "writes": 0, "exceptions": 0, "clients": 0}
         self._t0 = time.monotonic_ns()
         self._shown: tuple | None = None
         self._events_shown = 0
         self._comm_shown: set[tuple[str, bool]] = set()
-        self.server: ModbusTcpServer | None = None
+        self.tables = Tables(self.served_sizes(), self._refresh, self._take_orders)
+        self.modbus = ModbusServer(self.tables, unit, self._log, self._gate, max_connections,
+                                   idle_s)
 
     def now_us(self) -> int:
         return (time.monotonic_ns() - self._t0) // 1000
 
-    # -- the datastore hook ----------------------------------------------------------------
-    def device(self) -> SimDevice:
+    def served_sizes(self) -> dict[str, int]:
+        """Each bit table from 0 to its highest used address rounded up to 16 (at least 16),
+        each register table from 0 to its highest used register (at least 1)."""
         sizes = self.map.table_sizes()
-        blocks = []
-        for table in ("coil", "di", "hr", "ir"):
-            if table in BIT_TABLES:
-                count = max(16, -(-sizes[table] // 16) * 16)
-                blocks.append([SimData(0, count=count, values=False, datatype=DataType.BITS)])
-            else:
-                count = max(1, sizes[table])
-                blocks.append([SimData(0, count=count, values=0,
-                                       datatype=DataType.REGISTERS)])
-        return SimDevice(self.unit, simdata=tuple(blocks), action=self._action)
+        return {table: max(16, -(-n // 16) * 16) if table in BIT_TABLES else max(1, n)
+                for table, n in sizes.items()}
 
-    async def _action(self, fc: int, start: int, address: int, count: int,
-                      registers: list[int], set_values: list | None) -> ExcCodes | None:
-        self.counts["requests"] += 1
-        try:
-            now = self.now_us()
-            for fault in self.comm_faults:
-                if fault.active(now):
-                    if fault.code == "busy":
-                        self.counts["exceptions"] += 1
-                        return ExcCodes.DEVICE_BUSY
-                    # mute: answer only once the window is over (the client gave up long ago)
-                    wait_us = (fault.until_us - now) if fault.until_us is not None else 1 << 40
-                    await asyncio.sleep(min(wait_us, 1 << 30) / 1e6)
-                    now = self.now_us()
-            if self.delay_us:
-                await asyncio.sleep(self.delay_us / 1e6)
+    def _log(self, text: str) -> None:
+        self.out(f"{seconds(self.now_us()):>10} s  {text}")
+
+    # -- the hooks of the Modbus server ------------------------------------------------------
+    async def _gate(self, request: Request) -> None:
+        """Communication faults and delay, before a request is carried out."""
+        now = self.now_us()
+        for fault in self.comm_faults:
+            if fault.active(now):
+                if fault.code == "busy":
+                    raise Refused(SERVER_DEVICE_BUSY)
+                # mute: answer only once the window is over (the client gave up long ago)
+                wait_us = (fault.until_us - now) if fault.until_us is not None else 1 << 40
+                await asyncio.sleep(min(wait_us, 1 << 30) / 1e6)
                 now = self.now_us()
-            table = FC_TABLE.get(fc)
-            if table is None:
-                self.counts["exceptions"] += 1
-                return ExcCodes.ILLEGAL_FUNCTION
-            if set_values is None:
-                self.counts["reads"] += 1
-                self._refresh(now, table, start, registers)
-            else:
-                self.counts["writes"] += 1
-                self._take_orders(now, table, address, set_values)
-            return None
-        except Exception as exc:  # never let a bug here kill the server: say it, answer 4
-            self.out(f"{seconds(self.now_us())} s  internal error: {type(exc).__name__}: {exc}")
-            self.counts["exceptions"] += 1
-            return ExcCodes.DEVICE_FAILURE
+        if self.delay_us:
+            await asyncio.sleep(self.delay_us / 1e6)
 
-    def _refresh(self, now: int, table: str, start: int, registers: list[int]) -> None:
-        """Write the sensors' values at `now` into the block about to be read."""
-        values = self.plant.read(now)
+    def _refresh(self, table: str) -> None:
+        """Put the sensors' values at this moment into `table`, about to be read."""
+        values = self.plant.read(self.now_us())
         for p in self.sensors:
             if p.address.table != table:
                 continue
             if table in BIT_TABLES:
-                word, bit = p.address.index // 16 - start, p.address.index % 16
+                self.tables.bits[table][p.address.index] = values[p.name]
             else:
-                word, bit = p.address.index - start, p.address.bit or 0
-            if values[p.name]:
-                registers[word] |= 1 << bit
-            else:
-                registers[word] &= ~(1 << bit)
+                registers = self.tables.registers[table]
+                mask = 1 << (p.address.bit or 0)
+                word = registers[p.address.index]
+                registers[p.address.index] = word | mask if values[p.name] else word & ~mask
 
-    def _take_orders(self, now: int, table: str, address: int, set_values: list) -> None:
+    def _take_orders(self, table: str) -> None:
+        """A write changed `table`: the orders mapped there, at this moment."""
         changed = False
         for p in self.map.outputs:
             if p.address.table != table:
                 continue
-            offset = p.address.index - address
-            if not 0 <= offset < len(set_values):
-                continue
             if table in BIT_TABLES:
-                value = bool(set_values[offset])
+                value = self.tables.bits[table][p.address.index]
             else:
-                value = bool((int(set_values[offset]) >> (p.address.bit or 0)) & 1)
+                value = bool(self.tables.registers[table][p.address.index]
+                             >> (p.address.bit or 0) & 1)
             if self.orders[p.name] != value:
                 self.orders[p.name] = value
                 changed = True
         if changed:
+            now = self.now_us()
             self.plant.write(now, self.orders)
             self._show(now)  # at once: a short pulse must not fall between two ticks
 
@@ -195,13 +177,11 @@ class PlantServer:
             var = self.project.variable(p.name)
             text = var.description if var is not None else ""
             lines.append(f"  {p.address!s:<9} {p.name:<10} {role:<21} {text}")
-        sizes = self.map.table_sizes()
-        served = []
-        for table in ("coil", "di", "hr", "ir"):
-            n = max(16, -(-sizes[table] // 16) * 16) if table in BIT_TABLES \
-                else max(1, sizes[table])
-            served.append(f"{table} 0-{n - 1}")
-        lines.append("  served: " + ", ".join(served) + "; other addresses answer exception 2")
+        served = ", ".join(f"{table} 0-{n - 1}" for table, n in self.served_sizes().items())
+        lines.append(f"  served: {served}; other addresses answer exception 2")
+        m = self.modbus
+        lines.append(f"  at most {m.max_connections} connections at once; a connection with "
+                     f"no request for {m.idle_s:g} s is closed")
         if self.injections:
             lines.append("Faults scheduled: " + ", ".join(str(i) for i in self.injections))
         if self.delay_us:
@@ -236,19 +216,17 @@ class PlantServer:
                     self._comm_shown.add((fault.code, on))
                     self.out(f"{seconds(at):>10} s  communication fault {fault.code} {edge}")
 
-    def on_connect(self, connected: bool) -> None:
-        if connected:
-            self.counts["clients"] += 1
-        self.out(f"{seconds(self.now_us()):>10} s  client "
-                 f"{'connected' if connected else 'disconnected'}")
-
     def summary(self) -> str:
         counters = self.plant.counters()
         damage = self.plant.damage()
-        c = self.counts
-        return (f"Stopped after {seconds(self.now_us())} s: {c['requests']} requests "
-                f"({c['reads']} reads, {c['writes']} writes, {c['exceptions']} exceptions) "
-                f"from {c['clients']} connections; plant: "
+        c = self.modbus.counts
+        closed = [f"{n} {what}" for n, what in (
+            (c.refused, "refused over the limit"), (c.idle_closed, "closed when idle"),
+            (c.bad_frames, "closed on a frame that is not Modbus TCP")) if n]
+        return (f"Stopped after {seconds(self.now_us())} s: {c.requests} requests "
+                f"({c.reads} reads, {c.writes} writes, {c.exceptions_text()}) "
+                f"from {c.connections} connections"
+                + (f" ({', '.join(closed)})" if closed else "") + "; plant: "
                 + (", ".join(f"{k} {v}" for k, v in counters) or "-")
                 + f"; damage events: {len(damage) or 'none'}")
 
@@ -258,16 +236,16 @@ class PlantServer:
         stop = asyncio.Event()
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.add_signal_handler(sig, stop.set)
-        self.server = ModbusTcpServer([self.device()], address=(host, port),
-                                      trace_connect=self.on_connect)
         try:
-            await self.server.serve_forever(background=True)
-        except RuntimeError:
-            raise UsageError(f"cannot listen on {host}:{port} (is the port already in use?)"
-                             ) from None
-        sockets = getattr(self.server.transport, "sockets", None) or ()
-        bound = sockets[0].getsockname()[1] if sockets else port
+            bound = await self.modbus.start(host, port)
+        except OSError as exc:  # asyncio's message repeats the address: the errno's words
+            reason = os.strerror(exc.errno) if exc.errno else str(exc)
+            raise UsageError(f"cannot listen on {host}:{port}: {reason}") from None
         self._t0 = time.monotonic_ns()
+        if not is_loopback(host):
+            self.warn(f"plchmi: warning: listening on {host}: the simulated plant can be read "
+                      f"and driven by anyone who can reach port {bound} (Modbus has no "
+                      "authentication); use --host 127.0.0.1 to keep it on this machine")
         for line in self.banner(host, bound):
             self.out(line)
         try:
@@ -276,15 +254,29 @@ class PlantServer:
                 with contextlib.suppress(TimeoutError):
                     await asyncio.wait_for(stop.wait(), TICK_S)
         finally:
-            await self.server.shutdown()
+            await self.modbus.close()
         self.tick()
         self.out(self.summary())
         return 0
 
 
+def is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False  # a name: it may well resolve to a public address
+
+
 def run_server(project: Project, host: str, port: int, unit: int,
-               injections: list[Injection], delay_us: int = 0) -> int:
+               injections: list[Injection], delay_us: int = 0,
+               max_connections: int = MAX_CONNECTIONS, idle_s: float = IDLE_S) -> int:
     def out(line: str) -> None:
         print(line, flush=True)
-    server = PlantServer(project, unit, injections, delay_us, out)
+
+    def warn(line: str) -> None:
+        print(line, file=sys.stderr, flush=True)
+    server = PlantServer(project, unit, injections, delay_us, out, max_connections, idle_s,
+                         warn)
     return asyncio.run(server.serve(host, port))

@@ -18,12 +18,12 @@ from typing import TYPE_CHECKING
 
 from hmi.errors import ProjectError, SourcePos, display_path
 from hmi.logic.expr import ExprError, StepTime, Var, parse_expr, walk
+from hmi.logic.names import NAME_RE, RESERVED, STEP_RE
 from hmi.project.yamlnodes import NodeError, YNode, load_yaml
 
 if TYPE_CHECKING:
     from hmi.project.loader import ProjectLoader
 
-NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 COMPONENT_KEYS = {"component", "description", "parameters", "timers", "observers",
                   "constraints", "diagnoser", "explanations"}
 PARAMETER_KINDS = ("input", "output")
@@ -110,7 +110,6 @@ def read_component(loader: ProjectLoader, path: Path) -> ComponentDef | None:
 
 
 def _valid_name(loader: ProjectLoader, name: str, pos: SourcePos, what: str) -> bool:
-    from hmi.project.loader import RESERVED, STEP_RE
     if not NAME_RE.match(name):
         loader.diag.error(pos, f"{name!r} is not a valid {what} name",
                           "letters, digits and _, not starting with a digit")

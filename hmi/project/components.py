@@ -66,6 +66,7 @@ from hmi.project.component_file import (
     read_component,
     text_nodes,
 )
+from hmi.project.confine import Refused, component_roots, confined_file
 from hmi.project.yamlnodes import YNode, load_yaml
 
 if TYPE_CHECKING:
@@ -298,8 +299,13 @@ def _instance(loader: ProjectLoader, name: str, inode: YNode, kpos: SourcePos,
         if "device" in fields else name
     if use is None or device is None:
         return None
-    path = (loader.folder / use).resolve()
-    if not path.is_file():
+    try:
+        path = confined_file(loader.folder, use, component_roots(loader.folder),
+                             "the component file")
+    except Refused as exc:
+        loader.diag.error(fields["use"].pos, exc.message, exc.expected)
+        return None
+    if not path.exists():
         loader.diag.error(fields["use"].pos, f"component file {use!r} not found",
                           f"a component YAML file, relative to {display_path(loader.folder)}")
         return None

@@ -42,12 +42,24 @@ normal transitions (a faulty decision is latched), the initial state, and unreac
 from __future__ import annotations
 
 import itertools
-import re
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from hmi.errors import SourcePos
-from hmi.logic.expr import And, Const, Expr, Node, Not, Or, Var, walk
+from hmi.limits import MAX_DETERMINISM_ASSIGNMENTS
+from hmi.logic.expr import (
+    And,
+    Const,
+    Expr,
+    Node,
+    Not,
+    NotMonomial,
+    Or,
+    Var,
+    monomial_literals,
+    walk,
+)
+from hmi.logic.names import NAME_RE
 from hmi.project.yamlnodes import YNode
 from hmi.timefmt import format_duration
 
@@ -55,7 +67,6 @@ if TYPE_CHECKING:
     from hmi.project.loader import ProjectLoader
     from hmi.project.model import Project
 
-NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")  # as the loader's (which imports us)
 FLAG_PREFIX = "def_"
 FILTERED_SUFFIX = "_filter"
 DIAG_KINDS = {"input", "output", "timer", "observer"}
@@ -63,7 +74,7 @@ DIAG_CONTEXT = ("in a diagnoser (it observes inputs, the orders written at the p
                 "timers and observers, never the control law nor the flags it sets)")
 ESTIMATE_KINDS = {"input", "timer", "observer"}
 DIAGNOSER_KEYS = {"description", "device", "labels", "partitions", "initial", "states",
-                  "transitions", "resync"}
+                  "transitions", "resync", "variants"}
 MAX_ENUMERATED_VARS = 16
 INF = None  # no upper bound on a window
 
@@ -157,6 +168,8 @@ class DiagnoserSpec:
     transitions: tuple[DiagTransition, ...]
     resync: tuple[ResyncRule, ...]
     pos: SourcePos
+    variant: str = ""  # the variant loaded, when the diagnoser declares several
+    variants: tuple[str, ...] = ()
 
     def state(self, name: str) -> DiagState:
         return next(s for s in self.states if s.name == name)
@@ -263,6 +276,12 @@ def parse_diagnosers(loader: ProjectLoader) -> tuple[DiagnoserSpec, ...]:
         spec = _Parser(loader, name, node, kpos).parse()
         if spec is not None:
             out.append(spec)
+    wanted = getattr(loader, "diagnoser_variant", None)
+    if wanted is not None and not loader.diag.errors and not any(s.variants for s in out):
+        from hmi.errors import SourcePos as _Pos
+        pos = loader.section_pos.get("diagnosers", _Pos(str(loader.file)))
+        loader.diag.error(pos, f"--diagnoser {wanted}: no diagnoser of the project declares "
+                          "variants", "a project whose diagnosers list 'variants:'")
     return tuple(out)
 
 
@@ -299,6 +318,7 @@ class _Parser:
             return None
         text = {key: loader.guard(lambda k=key: fields[k].as_str(k), "") if key in fields
                 else "" for key in ("description", "device", "initial")}
+        self.variants, self.variant = self._variants(fields.get("variants"))
         labels = self._labels(fields["labels"])
         partitions = self._partitions(fields["partitions"], labels)
         # Declared even if this diagnoser is rejected: explanations naming them are checked
@@ -323,11 +343,53 @@ class _Parser:
             return None
         spec = DiagnoserSpec(self.name, text["description"], text["device"] or None, labels,
                              partitions, initial, tuple(states), tuple(transitions),
-                             tuple(resync), self.kpos)
+                             tuple(resync), self.kpos, self.variant, self.variants)
         self._check_labels_used(spec, fields["labels"])
         self._check_determinism(spec)
         self._check_reachability(spec)
         return spec if self.ok else None
+
+    # -- variants ------------------------------------------------------------------------------
+    def _variants(self, node: YNode | None) -> tuple[tuple[str, ...], str]:
+        """`variants: [improved, paper]`: the variants this diagnoser declares (the first is
+        loaded by default) and the one loaded (`--diagnoser NAME` chooses another)."""
+        wanted = getattr(self.loader, "diagnoser_variant", None)
+        if node is None:
+            return (), ""
+        items = self.loader.guard(lambda: node.as_seq(f"the variants of {self.what}"), [])
+        names: list[str] = []
+        for item in items:
+            name = self.loader.guard(lambda i=item: i.as_str("a variant name"))
+            if name is None:
+                self.ok = False
+            elif not NAME_RE.match(name) or name in names:
+                self.error(item.pos, f"{name!r} is not a valid, new variant name",
+                           "letters, digits and _, each variant once")
+            else:
+                names.append(name)
+        if not names:
+            self.error(node.pos, f"{self.what} declares an empty variant list",
+                       "variants: [NAME, ...] (the first is the default)")
+            return (), ""
+        if wanted is not None and wanted not in names:
+            self.error(node.pos, f"{self.what} has no variant {wanted!r}", _one_of(names))
+            return tuple(names), names[0]
+        return tuple(names), wanted or names[0]
+
+    def _in_variant(self, fields: dict[str, YNode], what: str) -> bool:
+        """Whether an item tagged `variant: NAME` (or a list) belongs to the loaded variant."""
+        node = fields.get("variant")
+        if node is None:
+            return True
+        items = node.value if node.kind == "seq" else [node]
+        names = [self.loader.guard(lambda i=i: i.as_str(f"the variant of {what}"))
+                 for i in items]
+        for name, item in zip(names, items, strict=True):
+            if name is not None and name not in self.variants:
+                self.error(item.pos, f"{what}: unknown variant {name!r}",
+                           _one_of(self.variants) if self.variants else
+                           "a name declared in the diagnoser's 'variants:' list")
+        return self.variant in names
 
     # -- labels and partitions ---------------------------------------------------------------
     def _labels(self, node: YNode) -> dict[str, str]:
@@ -473,10 +535,12 @@ class _Parser:
                 out.append(DiagState(sname, (), "", kpos))
                 continue
             fields = loader.guard(lambda n=snode, s=sname: n.check_keys(
-                f"state {s!r}", {"labels", "description"}))
+                f"state {s!r}", {"labels", "description", "variant"}))
             if fields is None:  # reported; keep the name so transitions to it do not cascade
                 self.ok = False
                 out.append(DiagState(sname, (), "", kpos))
+                continue
+            if not self._in_variant(fields, f"state {sname!r}"):
                 continue
             slabels = self._label_list(fields["labels"], f"state {sname!r}", labels) \
                 if "labels" in fields else ()
@@ -497,7 +561,13 @@ class _Parser:
         items = self.loader.guard(lambda: node.as_seq(f"the transitions of {self.what}"), [])
         by_name = {s.name: s for s in states}
         out = []
-        for index, item in enumerate(items, start=1):
+        index = 0
+        for item in items:
+            if item.kind == "map" and "variant" in item.value:
+                fields = {"variant": item.value["variant"]}
+                if not self._in_variant(fields, f"a transition of {self.what}"):
+                    continue
+            index += 1
             tr = self._transition(index, item, by_name)
             if tr is not None:
                 out.append(tr)
@@ -524,7 +594,8 @@ class _Parser:
         loader = self.loader
         what = f"transition {index} of {self.what}"
         fields = loader.guard(lambda: node.check_keys(
-            what, {"from", "to", "when", "within", "after", "description"}, ["from", "to"]))
+            what, {"from", "to", "when", "within", "after", "description", "variant"},
+            ["from", "to"]))
         if fields is None:
             self.ok = False
             return None
@@ -667,17 +738,26 @@ class _Parser:
         for tr in spec.transitions:
             if not tr.is_timeout:
                 events.setdefault(tr.source, []).append(tr)
+        # Enumerating assignments is exponential: a budget for the whole diagnoser keeps a
+        # hostile one (dozens of 16-variable conditions from one state) from taking hours.
+        budget = [MAX_DETERMINISM_ASSIGNMENTS]
         for trs in events.values():
             for a, b in itertools.combinations(trs, 2):
                 if not _windows_overlap(a, b):
                     continue
-                witness = jointly_satisfiable(a.when, b.when)  # type: ignore[arg-type]
+                witness = jointly_satisfiable(a.when, b.when, budget)  # type: ignore[arg-type]
                 if witness is None:
                     continue
                 if witness == "too many":
                     self.diag.warning(b.pos, f"transitions {a.index} and {b.index} of "
                                       f"{self.what} were not checked for determinism (more "
                                       f"than {MAX_ENUMERATED_VARS} variables)")
+                    continue
+                if witness == "budget":
+                    self.diag.warning(b.pos, f"transitions {a.index} and {b.index} of "
+                                      f"{self.what} were not checked for determinism (the "
+                                      f"check's limit of {MAX_DETERMINISM_ASSIGNMENTS:,} "
+                                      "assignments for one diagnoser is used up)")
                     continue
                 self.error(b.pos, f"{self.what} is not deterministic: from {a.source!r}, "
                            f"transition {a.index} ({a.text()}, at {a.pos}) and transition "
@@ -702,13 +782,15 @@ class _Parser:
 def reachable_states(spec: DiagnoserSpec) -> set[str]:
     """States reachable from the initial state or a resync target (after a fault reset)."""
     reached = {spec.initial, *(r.target for r in spec.resync)}
+    leaving: dict[str, list[str]] = {}
+    for tr in spec.transitions:
+        leaving.setdefault(tr.source, []).append(tr.target)
     frontier = list(reached)
     while frontier:
-        source = frontier.pop()
-        for tr in spec.transitions:
-            if tr.source == source and tr.target not in reached:
-                reached.add(tr.target)
-                frontier.append(tr.target)
+        for target in leaving.get(frontier.pop(), ()):
+            if target not in reached:
+                reached.add(target)
+                frontier.append(target)
     return reached
 
 
@@ -741,16 +823,48 @@ def evaluate(node: Node, values: dict[tuple[str, int], bool]) -> bool:
     raise TypeError(f"not a condition of a diagnoser: {node!r}")
 
 
-def jointly_satisfiable(a: Expr, b: Expr) -> str | None:
-    """A witness assignment making both conditions true, None if none, "too many" if unknown."""
+def jointly_satisfiable(a: Expr, b: Expr, budget: list[int] | None = None) -> str | None:
+    """A witness assignment making both conditions true (the first in enumeration order),
+    None if none; "too many" (variables) or "budget" (`budget[0]` assignments left, spent
+    here) if unknown."""
     names = list(dict.fromkeys([*_vars(a), *_vars(b)]))
+    values = _product_witness(a, b, names)
+    if values is not None:
+        return _witness_text(values) if values else None
     if len(names) > MAX_ENUMERATED_VARS:
         return "too many"
+    if budget is not None:
+        if budget[0] < 1 << len(names):
+            return "budget"
+        budget[0] -= 1 << len(names)
     for bits in itertools.product((False, True), repeat=len(names)):
         values = dict(zip(names, bits, strict=True))
         if evaluate(a.root, values) and evaluate(b.root, values):
-            return ", ".join(f"{_var_text(n, d)}={int(v)}" for (n, d), v in values.items())
+            return _witness_text(values)
     return None
+
+
+def _product_witness(a: Expr, b: Expr, names) -> dict | None:
+    """When both conditions are products of literals (the usual case), the answer without
+    enumerating: {} if they contradict each other, else the first satisfying assignment in
+    enumeration order (every free variable 0). None if either is not a product."""
+    try:
+        parts = (monomial_literals(a), monomial_literals(b))
+    except NotMonomial:
+        return None
+    if parts[0] is None or parts[1] is None:
+        return {}  # one of them can never be true
+    fixed: dict[tuple[str, int], bool] = {}
+    for lit in (*parts[0], *parts[1]):
+        if fixed.setdefault((lit.name, lit.depth), lit.positive) != lit.positive:
+            return {}
+    values = dict.fromkeys(names, False)
+    values.update(fixed)
+    return values
+
+
+def _witness_text(values: dict) -> str:
+    return ", ".join(f"{_var_text(n, d)}={int(v)}" for (n, d), v in values.items())
 
 
 def _var_text(name: str, depth: int) -> str:

@@ -8,13 +8,13 @@ and each names its file, line and column. The result is an immutable :class:`Pro
 
 from __future__ import annotations
 
-import keyword
 import re
 from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
 from hmi.errors import Diagnostic, Diagnostics, ProjectError, SourcePos, display_path
+from hmi.limits import MAX_CONSTRAINTS, MAX_VARIABLES, MIN_SCAN_PERIOD_US
 from hmi.logic.expr import (
     Expr,
     ExprError,
@@ -25,9 +25,17 @@ from hmi.logic.expr import (
     parse_expr,
     walk,
 )
+from hmi.logic.names import (
+    NAME_HINT,
+    RESERVED,
+    STEP_RE,
+    is_step_number,
+    name_problem,
+)
 from hmi.plant.models import MODELS
 from hmi.project.campaign import parse_campaign
 from hmi.project.components import Components, load_components, merge_texts
+from hmi.project.confine import Refused, confined_file, project_roots
 from hmi.project.diagnosers import declare_diagnoser_names, parse_diagnosers
 from hmi.project.model import (
     MAX_SOLVER_BUDGET,
@@ -53,7 +61,7 @@ from hmi.project.model import (
 from hmi.project.monitors import parse_monitors
 from hmi.project.scenarios import parse_scenarios
 from hmi.project.yamlnodes import NodeError, YNode, load_yaml
-from hmi.timefmt import DURATION_HINT, parse_duration
+from hmi.timefmt import DURATION_HINT, format_duration, parse_duration
 
 PROJECT_FILE = "project.yaml"
 
@@ -63,10 +71,6 @@ TOP_KEYS = {
     "plant", "explanations", "monitors", "scenarios", "diagnosers", "campaign", "components",
 }
 
-NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
-STEP_RE = re.compile(r"^X\d+$")
-RESERVED = {"and", "or", "not", "True", "False", "prev", "rise", "fall", "None"} | set(
-    keyword.kwlist)
 
 # What each kind of expression may read. Outputs at the current scan are only known once the
 # control law has run, so timers and observers (updated before it) read them through prev();
@@ -80,6 +84,15 @@ PREV_ONLY = {"output", "flag", "filtered"}  # for timers and observers
 def resolve_project_file(path: str | Path) -> Path:
     """The project.yaml a command-line path designates (a folder or the file itself)."""
     p = Path(path)
+    try:
+        return _project_file(p, str(path))
+    except (OSError, ValueError) as exc:  # a name too long, a NUL: not a project anywhere
+        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+        raise ProjectError.single(SourcePos(str(path)[:200]), f"cannot use this path: {reason}",
+                                  f"a folder holding {PROJECT_FILE}") from None
+
+
+def _project_file(p: Path, shown: str) -> Path:
     if p.is_dir():
         candidate = p / PROJECT_FILE
         if not candidate.exists():
@@ -90,13 +103,18 @@ def resolve_project_file(path: str | Path) -> Path:
         return candidate
     if p.exists():
         return p
-    raise ProjectError.single(SourcePos(str(path)), "no such project folder or file",
+    raise ProjectError.single(SourcePos(shown), "no such project folder or file",
                               f"a folder holding {PROJECT_FILE}")
 
 
-def load_project(path: str | Path) -> Project:
-    """Load, validate and return the project at `path`; raise ProjectError listing problems."""
-    return ProjectLoader(resolve_project_file(path)).load()
+def load_project(path: str | Path, diagnoser_variant: str | None = None) -> Project:
+    """Load, validate and return the project at `path`; raise ProjectError listing problems.
+
+    `diagnoser_variant` loads that variant of every diagnoser declaring `variants:` (by
+    default each loads its first)."""
+    loader = ProjectLoader(resolve_project_file(path))
+    loader.diagnoser_variant = diagnoser_variant
+    return loader.load()
 
 
 class ProjectLoader:
@@ -113,6 +131,9 @@ class ProjectLoader:
         self.components = Components()  # component instances (hmi/project/components.py)
         self.declared_labels: set[str] = set()  # by every diagnoser, valid or not
         self.declared_partitions: set[str] = set()
+        self.diagnoser_variant: str | None = None  # --diagnoser NAME
+        self.too_many_names = False
+        self._with_steps: dict[tuple, tuple[dict[str, str], frozenset[str]]] = {}  # expr()
 
     # -- helpers ----------------------------------------------------------------------------
     def guard(self, fn: Callable[[], Any], default: Any = None) -> Any:
@@ -126,9 +147,18 @@ class ProjectLoader:
         return default
 
     def declare(self, name: str, kind: str, pos: SourcePos) -> bool:
-        if not NAME_RE.match(name):
-            self.diag.error(pos, f"{name!r} is not a valid name",
-                            "letters, digits and _, not starting with a digit")
+        problem = name_problem(name)
+        if problem is not None:
+            shown = repr(name) if len(name) <= 40 else repr(name[:40] + "...")
+            self.diag.error(pos, f"{shown} {problem}" if problem != "is not a valid name"
+                            else f"{shown} is not a valid name", NAME_HINT)
+            return False
+        if len(self.namespace) >= MAX_VARIABLES:
+            if not self.too_many_names:  # reported once, at the first name past the limit
+                self.too_many_names = True
+                self.diag.error(pos, f"more than {MAX_VARIABLES:,} names are declared",
+                                f"at most {MAX_VARIABLES:,} inputs, outputs, memories, timers "
+                                "and observers (a limit of plchmi)")
             return False
         if name in RESERVED:
             self.diag.error(pos, f"{name!r} is a reserved word", "another name")
@@ -162,9 +192,15 @@ class ProjectLoader:
             return None
         parsed = self.components.localise(node, parsed)  # a component's names, per instance
         steps = tuple(steps)
-        namespace = dict(self.namespace)
-        namespace.update(dict.fromkeys(steps, "step"))
-        problems = check_names(parsed, namespace, steps, kinds, context or f"in {what}")
+        namespace: dict[str, str] = self.namespace
+        step_set: frozenset[str] = frozenset()
+        if steps:  # the names with a law's steps: built once per law, not per expression
+            key = (steps, len(self.namespace))
+            if key not in self._with_steps:
+                self._with_steps[key] = ({**namespace, **dict.fromkeys(steps, "step")},
+                                         frozenset(steps))
+            namespace, step_set = self._with_steps[key]
+        problems = check_names(parsed, namespace, step_set, kinds, context or f"in {what}")
         for var in (n for n in walk(parsed.root) if isinstance(n, Var)):
             kind = namespace.get(var.name)
             if var.depth == 0 and kind in prev_only:
@@ -220,8 +256,13 @@ class ProjectLoader:
         name = self.guard(lambda: item.as_str("an included file name"))
         if name is None:
             return
-        path = (self.folder / name)
-        if not path.is_file():
+        try:
+            path = confined_file(self.folder, name, project_roots(self.folder),
+                                 "the included file")
+        except Refused as exc:
+            self.diag.error(item.pos, exc.message, exc.expected)
+            return
+        if not path.exists():
             self.diag.error(item.pos, f"included file {name!r} not found",
                             "a YAML file in the project folder")
             return
@@ -247,6 +288,11 @@ class ProjectLoader:
         period = 10_000
         if "scan_period" in s:
             period = self.guard(lambda: s["scan_period"].as_duration("scan_period"), period)
+            if period < MIN_SCAN_PERIOD_US:
+                self.diag.error(s["scan_period"].pos, f"scan_period {s['scan_period'].raw!r} is "
+                                "shorter than the shortest scan period plchmi runs",
+                                f"at least {format_duration(MIN_SCAN_PERIOD_US)}")
+                period = MIN_SCAN_PERIOD_US
         else:
             self.diag.error(pos, "the project has no scan period", "'scan_period: 10ms'")
 
@@ -543,7 +589,7 @@ class ProjectLoader:
         steps = node.value["steps"]
         if steps.kind != "map":
             return ()
-        return tuple(f"X{k}" for k in steps.value if _is_step_number(k))
+        return tuple(f"X{int(k)}" for k in steps.value if is_step_number(k))
 
     def _grafcet(self, node: YNode, what: str, step_names: tuple[str, ...], outputs: set[str],
                  memories: set[str]) -> Grafcet | None:
@@ -553,12 +599,18 @@ class ProjectLoader:
             return None
         step_map = self.guard(lambda: fields["steps"].as_map("steps"), {})
         steps: list[Step] = []
+        numbered: dict[int, SourcePos] = {}
         for key, snode in step_map.items():
             spos = fields["steps"].key_pos[key]
-            if not _is_step_number(key):
+            if not is_step_number(key):
                 self.diag.error(spos, f"step {key!r} is not a step number",
                                 "a whole number: steps are named X<number>")
                 continue
+            if int(key) in numbered:  # "7" and "007"
+                self.diag.error(spos, f"step {int(key)} is defined twice (first at "
+                                f"{numbered[int(key)]})", "each step number once")
+                continue
+            numbered[int(key)] = spos
             step = self._step(int(key), snode, spos, step_names, outputs, memories)
             if step:
                 steps.append(step)
@@ -670,11 +722,11 @@ class ProjectLoader:
         items = node.value if node.kind == "seq" else [node]
         refs = []
         for item in items:
-            if item.kind != "scalar" or not _is_step_number(item.value):
+            if item.kind != "scalar" or not is_step_number(item.value):
                 self.diag.error(item.pos, f"{what} refers to {item.raw!r}, not a step number",
                                 "a step number or a list of step numbers")
                 return None
-            name = f"X{item.value}"
+            name = f"X{int(item.value)}"
             if name not in steps:
                 self.diag.error(item.pos, f"{what} refers to step {item.value}, which is not "
                                 "declared", "one of the steps: " + ", ".join(
@@ -688,13 +740,20 @@ class ProjectLoader:
 
     def _check_reachability(self, grafcet: Grafcet) -> None:
         reached = {s.name for s in grafcet.steps if s.initial}
-        changed = True
-        while changed:
-            changed = False
-            for tr in grafcet.transitions:
-                if set(tr.sources) <= reached and not set(tr.targets) <= reached:
-                    reached |= set(tr.targets)
-                    changed = True
+        # A transition fires (for this check) once all its source steps are reached; each is
+        # looked at when one of its sources is reached: linear in the transitions.
+        waiting: dict[str, list[Transition]] = {}
+        for tr in grafcet.transitions:
+            for source in set(tr.sources):
+                waiting.setdefault(source, []).append(tr)
+        frontier = list(reached)
+        while frontier:
+            for tr in waiting.get(frontier.pop(), ()):
+                if set(tr.sources) <= reached:
+                    for target in tr.targets:
+                        if target not in reached:
+                            reached.add(target)
+                            frontier.append(target)
         for step in grafcet.steps:
             if step.name not in reached:
                 self.diag.warning(step.pos, f"step {step.number} can never become active "
@@ -704,14 +763,22 @@ class ProjectLoader:
     def _constraints(self) -> list[Constraint]:
         out = []
         seen: dict[str, SourcePos] = {}
-        for name, node, kpos in self._section_items("constraints"):
+        items = self._section_items("constraints")
+        if len(items) > MAX_CONSTRAINTS:
+            self.diag.error(self.section_pos.get("constraints", items[0][2]),
+                            f"the project has {len(items):,} safety constraints",
+                            f"at most {MAX_CONSTRAINTS:,} (a limit of plchmi)")
+            return out
+        for name, node, kpos in items:
             name = str(name)
             if name in seen:
                 continue  # YAML duplicate keys are already refused
             seen[name] = kpos
-            if not NAME_RE.match(name):
-                self.diag.error(kpos, f"{name!r} is not a valid constraint name",
-                                "letters, digits and _")
+            problem = name_problem(name)
+            if problem is not None:
+                self.diag.error(kpos, f"{name!r} is not a valid constraint name"
+                                if problem == "is not a valid name"
+                                else f"constraint name {name[:40]!r} {problem}", NAME_HINT)
                 continue
             constraint = self._constraint(name, node, kpos)
             if constraint:
@@ -922,11 +989,6 @@ class ProjectLoader:
                                 f"({TABLES[var.address.table]})", "coil or hr")
 
 
-def _is_step_number(key: Any) -> bool:
-    return (isinstance(key, int) and not isinstance(key, bool) and key >= 0) or (
-        isinstance(key, str) and key.isdigit())
-
-
 def _param_value(spec: Any, node: YNode, name: str) -> Any:
     if spec.kind == "duration":
         return node.as_duration(f"parameter {name!r}")
@@ -953,7 +1015,7 @@ def _param_value(spec: Any, node: YNode, name: str) -> Any:
     return value
 
 
-_ADDRESS_RE = re.compile(r"^(coil|di|hr|ir):(\d+)(?:\.(\d+))?$")
+_ADDRESS_RE = re.compile(r"(coil|di|hr|ir):([0-9]{1,6})(?:\.([0-9]{1,3}))?\Z")
 
 
 def parse_address(node: YNode, kind: str) -> PlantAddress:

@@ -21,12 +21,12 @@ watches the plant, not the program that drives it.
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from hmi.errors import SourcePos
 from hmi.logic.expr import Expr
+from hmi.logic.names import NAME_RE
 from hmi.project.yamlnodes import NodeError, YNode
 from hmi.timefmt import format_duration
 
@@ -40,7 +40,6 @@ MONITOR_KEYS = {"description", "device", "label", "start", "end", "interrupted",
 MONITOR_CONTEXT = ("in a monitor (it may read inputs, outputs, timers and observers, not the "
                    "control law's steps or memories)")
 LABEL_SUFFIX = "_fault"
-NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")  # as the loader's (which imports us)
 
 
 @dataclass(frozen=True)

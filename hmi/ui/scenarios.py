@@ -40,12 +40,14 @@ CONVEYOR = VALVE.parent / "conveyor_robot"
 
 
 def make_app(project: Path = VALVE, control: str | None = None,
-             policy: str | None = None, inject: tuple[str, ...] = ()) -> PlcHmiApp:
+             policy: str | None = None, inject: tuple[str, ...] = (),
+             diagnoser: str | None = None) -> PlcHmiApp:
     """A virtual-time app on a simulated plant, with no wall-clock figures on screen.
 
     `inject` are faults as the command line writes them (``C1.stop@1s+2s``), scheduled
-    before the first scan as ``plchmi ui --inject`` does."""
-    loaded = load_project(project)
+    before the first scan as ``plchmi ui --inject`` does; `diagnoser` a diagnoser variant
+    (``--diagnoser``)."""
+    loaded = load_project(project, diagnoser)
     injections = tuple(parse_injection(text) for text in inject)
     plant = SimPlant(loaded)
     for injection in injections:

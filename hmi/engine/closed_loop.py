@@ -1,0 +1,388 @@
+"""What the explored closed loop says: each run's class, detection, isolation and delays.
+
+Input: the graph of :mod:`hmi.engine.explore` (one successor per node, runs starting at
+pending nodes). Every run ends in a cycle of that graph (or at the step guard, reported as
+Undecided), so its eventual behaviour is known exactly:
+
+* **Defect** — some scan of the run records damage (before or inside its final cycle);
+* **Tolerant** — no damage, and the final cycle completes functional cycles: the cell keeps
+  working forever;
+* **Blocked** — no damage, and the final cycle completes none: the cell has stopped for good.
+
+The diagnosers' side of a run: the first scan a decision holds a label (**detected**), the
+first scan it holds exactly one label (**isolated with certainty**, right when that label is
+the injected fault, a **misdiagnosis** otherwise), and the decision it ends with (final
+ambiguity when it holds several labels).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+from hmi.engine.explore import HORIZON, Explorer, Graph, LoopConfig, Start
+
+DEFECT, BLOCKED, TOLERANT, UNDECIDED = "Defect", "Blocked", "Tolerant", "Undecided"
+INF = 1 << 62
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """One run of the sweep: a fault at an instant, under one configuration."""
+
+    fault: str
+    at_us: int
+    extra: str
+    outcome: str
+    damage_us: int | None
+    damage_kind: str | None
+    detected_us: int | None  # first scan with a faulty decision
+    certain_us: int | None  # first scan with a single-label decision
+    certain_label: str | None
+    final: tuple[str, ...]  # the decision the run ends with (labels; () normal)
+    final_state: str
+
+    @property
+    def isolated(self) -> bool:
+        return self.certain_label == self.fault
+
+    @property
+    def misdiagnosed(self) -> bool:
+        return self.certain_label is not None and self.certain_label != self.fault
+
+    @property
+    def delay_us(self) -> int | None:
+        return None if self.certain_us is None or not self.isolated else \
+            self.certain_us - self.at_us
+
+
+@dataclass
+class _Summary:
+    damage: int  # scans to the first damaging scan, INF if none
+    kind: str | None
+    detect: int
+    certain: int
+    label: str | None
+    cycling: bool
+    final: tuple[str, ...]
+    state: str
+    horizon: bool
+
+
+def summarise(g: Graph) -> list[_Summary | None]:
+    """Per node: what its future holds (functional graph: tails then a cycle)."""
+    n = len(g.obs)
+    out: list[_Summary | None] = [None] * n
+    on_path = [-1] * n
+    for origin in range(n):
+        if out[origin] is not None:
+            continue
+        path: list[int] = []
+        node = origin
+        while node >= 0 and out[node] is None and on_path[node] < 0:
+            on_path[node] = len(path)
+            path.append(node)
+            node = g.nxt[node]
+        if node < 0:  # HORIZON, or SETTLED: nothing changes after the last node
+            last = path[-1]
+            tail_end = _Summary(INF, None, INF, INF, None, False, g.decision(last),
+                                g.state[last], node == HORIZON)
+            stop = len(path)
+            after = tail_end
+        elif out[node] is not None:
+            stop = len(path)
+            after = out[node]
+        else:  # a new cycle: path[on_path[node]:]
+            stop = on_path[node]
+            cycle = path[stop:]
+            _summarise_cycle(g, cycle, out)
+            after = None
+        for i in range(stop - 1, -1, -1):
+            x = path[i]
+            nxt_summary = after if i == stop - 1 and after is not None else out[g.nxt[x]]
+            assert nxt_summary is not None
+            out[x] = _prepend(g, x, nxt_summary)
+        for x in path:
+            on_path[x] = -1
+    return out
+
+
+def _prepend(g: Graph, x: int, s: _Summary) -> _Summary:
+    dec = g.decision(x)
+    damage = 0 if g.dmg[x] else (s.damage + 1 if s.damage < INF else INF)
+    kind = g.dmg[x] if g.dmg[x] else s.kind
+    detect = 0 if dec else (s.detect + 1 if s.detect < INF else INF)
+    if len(dec) == 1:
+        certain, label = 0, dec[0]
+    else:
+        certain = s.certain + 1 if s.certain < INF else INF
+        label = s.label
+    return _Summary(damage, kind, detect, certain, label, s.cycling, s.final, s.state, s.horizon)
+
+
+def _summarise_cycle(g: Graph, cycle: list[int], out: list) -> None:
+    cycling = any(g.cyc[x] for x in cycle)
+    decisions = {g.decision(x) for x in cycle}
+    final = decisions.pop() if len(decisions) == 1 else tuple(sorted(
+        {lab for d in decisions for lab in d}))
+    states = {g.state[x] for x in cycle}
+    state = states.pop() if len(states) == 1 else "cycling"
+    seed = _Summary(INF, None, INF, INF, None, cycling, final, state, False)
+    # Two passes backwards around the cycle give every node its first occurrences.
+    summaries = {}
+    current = seed
+    for _ in range(2):
+        for x in reversed(cycle):
+            current = _prepend(g, x, current)
+            summaries[x] = current
+    for x in cycle:
+        out[x] = summaries[x]
+
+
+def outcomes(g: Graph) -> list[Outcome]:
+    """The outcome of every run of the graph, in the order they were explored."""
+    summaries = summarise(g)
+    period = g.period_us
+    result = []
+    for s in g.starts:
+        result.append(outcome_of(s, summaries[s.node], period))
+    return result
+
+
+def outcome_of(start: Start, s: _Summary, period: int) -> Outcome:
+    base = start.k * period  # the pending node is the state after scan k
+
+    def when(dist: int) -> int | None:
+        return None if dist >= INF else base + dist * period
+
+    if s.damage < INF:
+        outcome = DEFECT
+    elif s.horizon:
+        outcome = UNDECIDED
+    else:
+        outcome = TOLERANT if s.cycling else BLOCKED
+    # Damage is recorded on the scan leaving a node: it is seen one scan after that node.
+    damage = when(s.damage + 1) if s.damage < INF else None
+    return Outcome(start.fault, start.at_us, start.extra, outcome, damage, s.kind,
+                   when(s.detect), when(s.certain), s.label, s.final, s.state)
+
+
+# --------------------------------------------------------------------------------------------
+# Exploring several configurations and faults, on several cores
+# --------------------------------------------------------------------------------------------
+
+
+def explore_all(project, configs: Sequence[LoopConfig], counter: str,
+                faults: Sequence[str], extras: bool = True, jobs: int | None = None,
+                progress: Callable[[int, int], None] | None = None, every: int = 1,
+                variant: str | None = None, settle: bool = True) -> dict[str, Graph]:
+    """The graph of each configuration, every fault at every instant of the cycle.
+
+    One task per (configuration, fault), spread over `jobs` worker processes (default: the
+    cores). Each worker builds the fault-free prefix itself (deterministic, so node ids agree)
+    and returns the nodes its runs added; the graphs are merged here in task order, so the
+    result does not depend on which worker finished first.
+    """
+    tasks = [(c, f) for c in configs for f in faults]
+    jobs = jobs or os.cpu_count() or 1
+    total = 0
+    done_runs = 0
+    graphs: dict[str, Graph] = {}
+    parts: dict[tuple[str, str], Graph] = {}
+
+    # The instants come from a configuration where the diagnosers run (their transitions in
+    # the fault-free cycle add instants), and are the same for every configuration.
+    first = next((c for c in configs if c.diagnosis != "off"), configs[0])
+    probe = Explorer(project, first, counter, settle)
+    instants = probe.instants(extras, every)
+    total = len(instants) * len(tasks)
+    if jobs <= 1 or len(tasks) <= 1 or project.path is None:
+        for c in configs:
+            ex = probe if c is first else Explorer(project, c, counter, settle)
+            _same_run(ex, _shape(probe))
+
+            def step(n: int) -> None:
+                nonlocal done_runs
+                done_runs += n
+                if progress is not None:
+                    progress(done_runs, total)
+
+            graphs[c.key] = ex.explore(faults, instants, step)
+        return graphs
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+    with ProcessPoolExecutor(max_workers=jobs, initializer=_worker_init,
+                             initargs=(str(project.path), variant, counter, instants,
+                                       settle, _shape(probe))) as pool:
+        futures = {pool.submit(_worker_run, c, f): (c, f) for c, f in tasks}
+        for future in as_completed(futures):
+            c, f = futures[future]
+            part = future.result()
+            parts[(c.key, f)] = part
+            done_runs += len(part.starts)
+            if progress is not None:
+                progress(done_runs, total)
+    for c in configs:
+        graph = None
+        for f in faults:
+            part = parts[(c.key, f)]
+            if graph is None:
+                graph = _empty_like(part)
+            graph.merge(part)
+            graph.wall_s += part.wall_s
+        graphs[c.key] = graph
+    return graphs
+
+
+def _empty_like(part: Graph) -> Graph:
+    base = len(part.prefix)
+    g = Graph(part.config, part.period_us, part.counter, part.obs_names)
+    g.decisions = [()]
+    for node in range(base):
+        g.add(part.obs[node], part.decisions[part.dec[node]], None, part.state[node])
+        g.nxt[node] = part.nxt[node]
+        g.dmg[node] = part.dmg[node]
+        g.cyc[node] = part.cyc[node]
+    g.prefix = list(part.prefix)
+    g.cycle_start = part.cycle_start
+    g.scans = len(part.prefix)
+    return g
+
+
+_WORKER: dict = {}
+
+
+def _shape(ex: Explorer) -> tuple:
+    g = ex.graph
+    return g.cycle_start, tuple(g.obs[n] for n in g.prefix)
+
+
+def _same_run(ex: Explorer, shape: tuple) -> None:
+    """The instants were taken from another configuration's fault-free run: it must be the
+    same run (no configuration acts on a fault-free cell)."""
+    if _shape(ex) != shape:
+        raise RuntimeError(f"the fault-free run under {ex.config.title} differs from the "
+                           "others': the sweep's instants would not be the same phases")
+
+
+def _worker_init(path: str, variant: str | None, counter: str, instants: list,
+                 settle: bool, shape: tuple) -> None:
+    from hmi.project.loader import load_project
+    _WORKER.update(project=load_project(path, variant), counter=counter, instants=instants,
+                   settle=settle, shape=shape)
+
+
+def _worker_run(config: LoopConfig, fault: str) -> Graph:
+    # A fresh explorer per task: its graph holds the prefix and this fault's runs only.
+    w = _WORKER
+    ex = Explorer(w["project"], config, w["counter"], w["settle"])
+    _same_run(ex, w["shape"])
+    ex.explore([fault], w["instants"])
+    return ex.graph
+
+
+# --------------------------------------------------------------------------------------------
+# Diagnosability on the closed loop, from the runs
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class FaultDiagnosis:
+    """How the diagnosers fared with one fault over every instant it was injected at."""
+
+    fault: str
+    runs: int
+    isolated: int  # runs ending up with exactly this label
+    misdiagnosed: tuple[tuple[str, int], ...]  # (wrong label, runs)
+    undetected: int  # runs where no decision ever held a label
+    ambiguous: tuple[tuple[tuple[str, ...], int], ...]  # final multi-label decision, runs
+    delays_us: tuple[int, ...]  # fault -> certain diagnosis, isolated runs, sorted
+    detect_us: tuple[int, ...]  # fault -> first faulty decision, detected runs, sorted
+
+    @property
+    def always(self) -> bool:
+        return self.isolated == self.runs
+
+    @property
+    def ever(self) -> bool:
+        return self.isolated > 0
+
+
+@dataclass(frozen=True)
+class LoopDiagnosability:
+    config: LoopConfig
+    faults: tuple[FaultDiagnosis, ...]
+
+    @property
+    def isolable(self) -> tuple[str, ...]:
+        """Faults the closed loop isolates with certainty at some instant (000's count)."""
+        return tuple(f.fault for f in self.faults if f.ever)
+
+    @property
+    def guaranteed(self) -> tuple[str, ...]:
+        """Faults isolated with certainty whatever the instant they occur at."""
+        return tuple(f.fault for f in self.faults if f.always)
+
+    @property
+    def dc(self) -> float:
+        return len(self.isolable) / len(self.faults) if self.faults else 0.0
+
+    @property
+    def dc_guaranteed(self) -> float:
+        return len(self.guaranteed) / len(self.faults) if self.faults else 0.0
+
+    @property
+    def dc_weighted(self) -> float:
+        """Mean share of instants isolated: the chance a fault occurring at a random phase of
+        the cycle is isolated (the standard's DC weights by probability; this weights every
+        fault alike and every phase alike)."""
+        if not self.faults:
+            return 0.0
+        return sum(f.isolated / f.runs for f in self.faults) / len(self.faults)
+
+    def pairs(self) -> list[tuple[tuple[str, str], int]]:
+        """Pairs of labels left together in a final decision, with the runs concerned."""
+        counts: dict[tuple[str, str], int] = {}
+        for f in self.faults:
+            for labels, runs in f.ambiguous:
+                for a in range(len(labels)):
+                    for b in range(a + 1, len(labels)):
+                        key = (labels[a], labels[b])
+                        counts[key] = counts.get(key, 0) + runs
+        return sorted(counts.items(), key=lambda kv: _label_order(kv[0]))
+
+    @property
+    def misdiagnoses(self) -> int:
+        return sum(n for f in self.faults for _, n in f.misdiagnosed)
+
+
+def _label_order(pair: tuple[str, str]) -> tuple:
+    return tuple((len(x), x) for x in pair)
+
+
+def diagnosability(config: LoopConfig, runs: Sequence[Outcome],
+                   faults: Sequence[str]) -> LoopDiagnosability:
+    out = []
+    for fault in faults:
+        mine = [r for r in runs if r.fault == fault]
+        wrong: dict[str, int] = {}
+        ambiguous: dict[tuple[str, ...], int] = {}
+        for r in mine:
+            if r.misdiagnosed:
+                wrong[r.certain_label] = wrong.get(r.certain_label, 0) + 1
+            elif not r.isolated and len(r.final) > 1:
+                ambiguous[r.final] = ambiguous.get(r.final, 0) + 1
+        out.append(FaultDiagnosis(
+            fault, len(mine), sum(r.isolated for r in mine), tuple(sorted(wrong.items())),
+            sum(r.detected_us is None for r in mine),
+            tuple(sorted(ambiguous.items(), key=lambda kv: -kv[1])),
+            tuple(sorted(r.delay_us for r in mine if r.isolated)),
+            tuple(sorted(r.detected_us - r.at_us for r in mine if r.detected_us is not None))))
+    return LoopDiagnosability(config, tuple(out))
+
+
+def spread(values: Sequence[int]) -> tuple[int, int, int] | None:
+    """(min, median, max) of sorted values (the lower median for an even count)."""
+    if not values:
+        return None
+    return values[0], values[(len(values) - 1) // 2], values[-1]

@@ -1,0 +1,179 @@
+"""`plchmi campaign PROJECT --sweep`: Table 1 over every instant of the cycle, in text.
+
+Per configuration and fault: the share of injection instants that end Blocked, Tolerant or
+Defect, and the worst instant with why; Table 1 both ways (each fault at the single instant
+of campaign.yaml, as the paper did, and each fault at its worst instant); the delays from the
+fault to the first decision and to the certain diagnosis (000 §3.3 only says "detectable in a
+bounded delay").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from hmi.engine.campaign import PAPER_TABLE
+from hmi.engine.closed_loop import (
+    BLOCKED,
+    DEFECT,
+    TOLERANT,
+    UNDECIDED,
+    Outcome,
+    diagnosability,
+    spread,
+)
+from hmi.engine.loop_sweep import SweepResult
+from hmi.timefmt import format_duration, seconds
+
+OUTCOMES = (BLOCKED, TOLERANT, DEFECT)
+SEVERITY = {TOLERANT: 0, BLOCKED: 1, DEFECT: 2, UNDECIDED: 3}
+
+
+@dataclass(frozen=True)
+class FaultSweep:
+    fault: str
+    counts: dict[str, int]
+    runs: int
+    worst: Outcome
+    single: Outcome | None  # the run at campaign.yaml's instant (its phase in the cycle)
+
+    def share(self, outcome: str) -> float:
+        return self.counts.get(outcome, 0) / self.runs if self.runs else 0.0
+
+
+def per_fault(result: SweepResult, config: str, scenarios) -> list[FaultSweep]:
+    out = []
+    tabled = {s.fault: s for s in scenarios if s.table}
+    for fault in result.faults:
+        runs = [r for r in result.of(config) if r.fault == fault]
+        counts: dict[str, int] = {}
+        for r in runs:
+            counts[r.outcome] = counts.get(r.outcome, 0) + 1
+        worst = max(runs, key=lambda r: (SEVERITY[r.outcome], -r.at_us))
+        scenario = tabled.get(fault)
+        single = result.at_phase(config, fault, scenario.at_us) if scenario else None
+        out.append(FaultSweep(fault, counts, len(runs), worst, single))
+    return out
+
+
+def why(r: Outcome) -> str:
+    if r.outcome == DEFECT:
+        return (f"{r.damage_kind} {format_duration(r.damage_us - r.at_us)} after the fault"
+                + _decision(r))
+    if r.outcome == UNDECIDED:
+        return "the run did not settle within the step guard"
+    return _decision(r).lstrip("; ") or "no fault diagnosed"
+
+
+def _decision(r: Outcome) -> str:
+    if not r.final:
+        return "; never diagnosed" if r.detected_us is None else ""
+    return f"; ends in {r.final_state} {{{', '.join(r.final)}}}"
+
+
+def report_lines(result: SweepResult, scenarios, paper: bool, title: str) -> list[str]:
+    total = sum(len(v) for v in result.runs.values())
+    per_config = total // max(1, len(result.configs))
+    grid = format_duration(result.every * result.period_us)
+    variant = f" (diagnoser variant {result.variant})" if result.variant else ""
+    lines = [
+        f"Fault campaign of {title}, swept{variant}: {len(result.faults)} faults x "
+        f"{per_config // max(1, len(result.faults))} instants x {len(result.configs)} "
+        f"configurations = {total:,} runs",
+        f"  instants: every {grid} of the {format_duration(result.cycle_us)} fault-free cycle "
+        f"(from {seconds(result.cycle_start_us)} s)"
+        + (", and 1 us before and after each diagnoser transition in it" if result.extras
+           else ""),
+        "  every run is followed until its loop closes: Defect = damage at any time, Blocked = "
+        "the cell never completes a cycle again, Tolerant = it keeps completing them",
+        f"  {sum(result.states.values()):,} closed-loop states explored in "
+        f"{result.wall_s:.1f} s on {result.jobs} worker{'s' if result.jobs > 1 else ''}"
+        + (" (read from the cache)" if result.cached else ""),
+        "",
+    ]
+    sweeps = {c.key: per_fault(result, c.key, scenarios) for c in result.configs}
+    lines.append("Table 1 both ways: faults by their class at the paper's single instant "
+                 "(campaign.yaml), and at their worst instant")
+    header = [""]
+    sub = [""]
+    for c in result.configs:
+        header += [c.title, "", ""]
+        sub += ["paper" if paper else "", "instant", "worst"]
+    rows = [header, sub]
+    for outcome in OUTCOMES:
+        row = [outcome]
+        for c in result.configs:
+            faults = sweeps[c.key]
+            row.append(str(PAPER_TABLE[c.key][outcome]) if paper and c.key in PAPER_TABLE
+                       else "")
+            row.append(str(sum(1 for f in faults if f.single and f.single.outcome == outcome)))
+            row.append(str(sum(1 for f in faults if f.worst.outcome == outcome)))
+        rows.append(row)
+    lines += _table(rows)
+    for c in result.configs:
+        lines.append("")
+        lines.append(f"{c.title}: share of instants per class, and the worst instant")
+        rows = [["fault", "Blocked", "Tolerant", "Defect", "worst instant: why"]]
+        for f in sweeps[c.key]:
+            w = f.worst
+            rows.append([f.fault, *(f"{100 * f.share(o):.1f}%" for o in OUTCOMES),
+                         f"{w.outcome} at {seconds(w.at_us)} s"
+                         + (f" ({w.extra})" if w.extra else "") + f": {why(w)}"])
+        lines += _table(rows, "  ", right=(1, 2, 3))
+    lines.append("")
+    lines.append("Delays over the instants, min / median / max (000 §3.3: \"detectable in a "
+                 "bounded delay\", no figure)")
+    for c in result.configs:
+        if c.diagnosis == "off":
+            continue
+        d = diagnosability(c, result.of(c.key), result.faults)
+        lines.append(f"  {c.title}")
+        rows = [["fault", "detected", "fault -> first decision", "isolated",
+                 "fault -> certain diagnosis"]]
+        for f in d.faults:
+            rows.append([f.fault, f"{len(f.detect_us)}/{f.runs}", _spread(f.detect_us),
+                         f"{f.isolated}/{f.runs}", _spread(f.delays_us)])
+        lines += _table(rows, "    ")
+    return lines
+
+
+def _spread(values) -> str:
+    s = spread(values)
+    return "-" if s is None else " / ".join(seconds(v) for v in s) + " s"
+
+
+def as_dict(result: SweepResult, scenarios) -> dict:
+    out: dict = {"project": result.project, "variant": result.variant,
+                 "every_s": result.every * result.period_us / 1e6,
+                 "cycle_s": result.cycle_us / 1e6, "cycle_start_s": result.cycle_start_us / 1e6,
+                 "states": result.states, "wall_s": round(result.wall_s, 3),
+                 "jobs": result.jobs, "configurations": {}}
+    for c in result.configs:
+        d = diagnosability(c, result.of(c.key), result.faults)
+        faults = {}
+        for f, fd in zip(per_fault(result, c.key, scenarios), d.faults, strict=True):
+            faults[f.fault] = {
+                "runs": f.runs, "counts": f.counts,
+                "worst": {"outcome": f.worst.outcome, "at_s": f.worst.at_us / 1e6,
+                          "why": why(f.worst)},
+                "single": None if f.single is None else {
+                    "outcome": f.single.outcome, "at_s": f.single.at_us / 1e6},
+                "isolated": fd.isolated, "misdiagnosed": dict(fd.misdiagnosed),
+                "delay_s": _spread_s(fd.delays_us), "detect_s": _spread_s(fd.detect_us),
+            }
+        out["configurations"][c.key] = {"title": c.title, "faults": faults}
+    return out
+
+
+def _spread_s(values):
+    s = spread(values)
+    return None if s is None else [v / 1e6 for v in s]
+
+
+def _table(rows: list[list[str]], indent: str = "  ", right: tuple[int, ...] = ()) -> list[str]:
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    out = []
+    for r in rows:
+        cells = [c.rjust(widths[i]) if (i in right or (not right and i)) else c.ljust(widths[i])
+                 for i, c in enumerate(r)]
+        out.append((indent + "  ".join(cells)).rstrip())
+    return out
