@@ -827,7 +827,10 @@ def cmd_ui(args: argparse.Namespace) -> int:
         if clock is not None:
             stop_plant(engine)
         if recorder is not None:
-            recorder.close(end.reason if end is not None else ended_by(sys.exc_info()[1]))
+            if end is not None:
+                recorder.close(end.reason, end.note)
+            else:
+                recorder.close(ended_by(sys.exc_info()[1]))
 
 
 def cmd_serve_plant(args: argparse.Namespace) -> int:

@@ -77,12 +77,18 @@ async def test_a_panel_raising_at_every_frame_is_contained(monkeypatch, tmp_path
                                        "DeliberateUIError")].count > 2
         assert len(list(report.parent.glob("crash-*.txt"))) == 1
         assert app.is_running and app.return_code is None
-    recorder.close(app_end(app).reason)
+    end = app_end(app)
+    assert end.status == 0 and end.reason is None  # the operator ended it
+    recorder.close(end.reason, end.note)
     entries = journal_entries(tmp_path / "j.jsonl")
     errors = [e for e in entries if e["event"] == "ui-error"]
     assert len(errors) == 1 and errors[0]["what"] == "ConstraintsPanel refresh"
     assert errors[0]["fatal"] is False and errors[0]["crash_file"] == str(report)
-    assert entries[-1]["event"] == "stop"  # contained: the operator quit as usual
+    # contained: the operator ended it, but never "normally" after errors
+    assert entries[-1]["event"] == "stop"
+    assert "ended as asked, after" in entries[-1]["message"]
+    assert "contained UI errors (first: ConstraintsPanel refresh" in entries[-1]["message"]
+    assert "normally" not in entries[-1]["message"]
 
 
 async def test_errors_in_handlers_actions_dialogs_palette_and_drawing_are_contained(

@@ -122,9 +122,10 @@ class JournalRecorder:
                        + ("" if fault.fatal else "; contained, the scan goes on"),
             "crash_file": fault.report, "scan": engine.scan, "t": seconds(engine.now)})
 
-    def close(self, abnormal: str | None = None) -> None:
+    def close(self, abnormal: str | None = None, note: str | None = None) -> None:
         """The session's last entry: `stop` if it ended as asked, else `abnormal-end` with
-        the reason (never "ended normally" after an error)."""
+        the reason (never "ended normally" after an error). `note`: it ended as asked, but
+        after errors that were contained (the stop says so, not "normally")."""
         engine = self.controller.engine
         self._drain_plant()
         for entry in self.overruns.end(time.monotonic()):
@@ -132,8 +133,9 @@ class JournalRecorder:
         name = engine.project.name
         try:
             if abnormal is None:
+                how = f"ended as asked, {note}" if note else "ended normally"
                 self._append({"type": "session", "event": "stop", "scan": engine.scan,
-                              "t": seconds(engine.now), "message": f"{name}, ended normally"})
+                              "t": seconds(engine.now), "message": f"{name}, {how}"})
             else:
                 self._append({"type": "session", "event": "abnormal-end", "scan": engine.scan,
                               "t": seconds(engine.now),

@@ -20,7 +20,7 @@ situation picked from the palette or by clicking a constraint.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import partial
 from typing import Any
 
@@ -326,6 +326,7 @@ class PlcHmiApp(ContainedPump, App):
         if self._mode_commanded == snap.mode:
             self._mode_commanded = None
         contained = self.containment
+        frame_faults = contained.version
         key = (snap.scan, id(snap), self.run_label(), state.speed, self.driver.overruns,
                self._version, self._mode_commanded, contained.version)
         if not force and key == self._key:
@@ -349,11 +350,26 @@ class PlcHmiApp(ContainedPump, App):
             self._explain(frame)
         except Exception as exc:
             self.contain("ExplanationPanel refresh", exc)
+        if contained.version != frame_faults:
+            self._show_faults(frame)
         self._judge_request(snap)
         self.frames_shown += 1
         if self._test_fault is not None:
             self._test_fault.tick(snap.time_us)
         return True
+
+    def _show_faults(self, frame: Frame) -> None:
+        """A panel failed while this frame was shown: the banner and the status bar say so in
+        this same frame (not at the next refresh, which a paused app may never have)."""
+        contained = self.containment
+        self.frame = frame = replace(frame, ui_fault=contained.latest,
+                                     ui_faults=contained.total)
+        self._key = (*self._key[:-1], contained.version) if self._key else None
+        for view in self._views[:2]:  # the status bar and the banners
+            try:
+                view.show(frame)
+            except Exception as exc:
+                self.contain(f"{type(view).__name__} refresh", exc)
 
     def _check_driver(self) -> None:
         """The scan thread died (a scan listener failed): nothing scans any more, so the HMI
@@ -971,6 +987,9 @@ class AppEnd:
 
     status: int
     reason: str | None = None  # None: ended as asked
+    # ended as asked, but UI errors were contained meanwhile: the journal's stop says so
+    # instead of "ended normally"
+    note: str | None = None
 
 
 def run_app(target: Engine | Controller, clock=None, injected: tuple[Injection, ...] = (),
@@ -996,4 +1015,10 @@ def app_end(app: PlcHmiApp) -> AppEnd:
         return AppEnd(1, f"{fatal.what}: {fatal.error} (details in {fatal.report})")
     if app.return_code:
         return AppEnd(1, f"the HMI stopped with return code {app.return_code}")
+    contained = app.containment
+    if contained.total:
+        first = next(iter(contained.faults.values()))
+        return AppEnd(0, note=f"after {contained.total} contained UI error"
+                      f"{'s' if contained.total > 1 else ''} (first: {first.what}: "
+                      f"{first.error}; see the ui-error entries)")
     return AppEnd(0)
