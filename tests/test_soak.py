@@ -10,6 +10,7 @@ seconds of CPU each on this machine; the whole file about a minute). `plchmi soa
 from __future__ import annotations
 
 import asyncio
+import re
 from pathlib import Path
 
 import pytest
@@ -141,6 +142,9 @@ def test_the_command_replays_a_list_and_prints_its_figures(tmp_path, capsys):
     assert main(["soak", str(VALVE), "--replay", str(steps)]) == 0
     out = capsys.readouterr().out
     assert "replaying 7 steps" in out and "invariants: 0 broken" in out
+    assert "checked: 7 times after a step" in out
+    evaluations = re.search(r"(\d+) constraint evaluations", out)
+    assert evaluations and int(evaluations[1]) > 0
     assert "ManualOutput 1" in out and "SetMode 1" in out
 
 

@@ -125,6 +125,7 @@ def summary(result: SoakResult) -> str:
     g = result.gestures
     answers = sum(n for k, n in g.items() if k.startswith("answer"))
     c = result.commands
+    k = result.checks
     lines = [
         f"  {format_duration(result.virtual_us - result.virtual_us % 1000)} virtual in "
         f"{len(result.steps)} steps, {result.scans} scans, {result.wall_s:.1f} s wall",
@@ -135,7 +136,10 @@ def summary(result: SoakResult) -> str:
                                    or "none") + f"; refused {result.refused}",
         f"  alarms: {result.raised} raised, {result.transitions} state changes (all in the "
         f"journal), at most {result.max_alarms} listed; journal {result.journal_lines} lines",
-        f"  invariants: {len(result.broken)} broken",
+        f"  invariants: {len(result.broken)} broken; checked: {k['step']} times after a step "
+        f"(app alive, status bar, journal), {k['constraint']} constraint evaluations on the "
+        f"outputs written, {k['alarm']} alarm-row comparisons, {result.journal_lines} journal "
+        "lines parsed",
     ]
     if result.safe_state_violations:
         lines.insert(-1, "  safe state written by decision, leaving constraints violated "

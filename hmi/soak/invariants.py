@@ -91,6 +91,8 @@ class Invariants:
         self.scans = 0
         self.broken: list[Broken] = []
         self.max_alarms = 0
+        # how many times each kind of check ran (the figures of a soak say so)
+        self.checks: Counter[str] = Counter()
         # scans where the safe state, written by decision, left a constraint violated
         self.safe_state_violations: Counter[str] = Counter()
         self.safe_vector = tuple(engine.safe_vector)
@@ -110,6 +112,7 @@ class Invariants:
         if snap.error:
             self._break("engine-error", snap.error)
         if snap.policy != "monitor":
+            self.checks["constraint"] += len(self.constraints)
             violated = self._violated(snap)
             masked = set(snap.masked)
             unsafe = [name for name, outs in violated if not outs <= masked]
@@ -167,6 +170,7 @@ class Invariants:
     def _observe(self, alarms, acknowledged: tuple[str, ...]) -> None:
         now = {a.key: a for a in alarms}
         self.max_alarms = max(self.max_alarms, len(now))
+        self.checks["alarm"] += len(now) + len(self.alarms)
         for key, old in self.alarms.items():
             if key in now:
                 continue
@@ -198,6 +202,7 @@ class Invariants:
     # -- after every step ---------------------------------------------------------------------
     def check_step(self) -> list[Broken]:
         """The checks that need the screen or the journal; returns everything broken so far."""
+        self.checks["step"] += 1
         self._check_app()
         self._check_status_bar()
         self.check_journal()

@@ -66,6 +66,7 @@ class SoakResult:
     journal_lines: int = 0
     max_alarms: int = 0
     safe_state_violations: Counter = field(default_factory=Counter)
+    checks: Counter = field(default_factory=Counter)  # invariant checks run, by kind
     skipped: int = 0  # palette entries not there (replays of a shrunk list)
     journal: Path | None = None
 
@@ -141,6 +142,7 @@ def _fill(result: SoakResult, checker: Invariants, app: PlcHmiApp, started: floa
     result.journal_lines = checker.journal_lines
     result.max_alarms = checker.max_alarms
     result.safe_state_violations = Counter(checker.safe_state_violations)
+    result.checks = Counter(checker.checks)
 
 
 def _gesture(app: PlcHmiApp, step: Step) -> str:
