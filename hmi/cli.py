@@ -7,6 +7,8 @@
     plchmi serve-plant PROJECT     the simulated plant as a Modbus TCP server
     plchmi diagnose PROJECT        the diagnosers' automata and their diagnosability
     plchmi campaign PROJECT        the fault campaign (000 Table 1)
+    plchmi export PROJECT --format st|plcopen -o DIR
+                                   the safety layer as IEC 61131-3 code for a PLC
 
 Exit status: 0 success, 2 bad input (a project error, a bad argument), 1 a failure at run
 time. Errors about a project name the file, line and column; there is never a traceback for
@@ -27,7 +29,7 @@ from hmi.timefmt import DURATION_HINT, DurationError, format_duration, parse_dur
 
 MAX_ERRORS_SHOWN = 25
 SUBCOMMANDS = ("check", "run", "sweep", "ui", "serve-plant", "bench", "journal",
-               "diagnose", "campaign", "soak")
+               "diagnose", "campaign", "export", "soak")
 
 
 def _duration(text: str) -> int:
@@ -155,6 +157,17 @@ def _parser() -> argparse.ArgumentParser:
                    help="with --sweep: the grid of instants (default: every scan period)")
     p.add_argument("--faults", metavar="F1,F2,...",
                    help="with --sweep: only these faults (default: every fault of the plant)")
+
+    p = sub.add_parser(
+        "export", help="the safety filter, diagnosers and monitors as IEC 61131-3 code",
+        description="Export the project's safety layer (filter, local diagnosers, stopwatch "
+        "monitors) for a PLC: Structured Text (st) or PLCopen TC6 XML (plcopen, for CODESYS, "
+        "TwinCAT and OpenPLC's editor). See docs/plc-export.md.")
+    project_arg(p)
+    p.add_argument("--format", choices=("st", "plcopen"), required=True,
+                   help="st: one IEC 61131-3 file; plcopen: PLCopen TC6 XML")
+    p.add_argument("-o", "--output", type=Path, required=True, metavar="DIR",
+                   help="folder to write into (created if missing)")
 
     p = sub.add_parser(
         "journal", help="print or export a project's operator journal",
@@ -309,8 +322,8 @@ def cmd_check(args: argparse.Namespace) -> int:
     project = load(args.project, getattr(args, "diagnoser", None))
     sections = [analyse(project).lines(len(project.outputs))]
     if project.plant.kind == "modbus":
-        from hmi.plant.modbus_client import ModbusSettings
-        from hmi.plant.modbus_map import AddressMap
+        from hmi.plant.modbus.address_map import AddressMap
+        from hmi.plant.modbus.client import ModbusSettings
         settings = ModbusSettings.from_spec(project.plant)
         sections.append([f"Modbus {settings.where}: requests per scan"] + [
             f"  {line}" for line in
@@ -422,8 +435,8 @@ def _faults(args: argparse.Namespace, project) -> tuple[str, ...] | None:
 def make_engine(project, args: argparse.Namespace, extra_injections=()):
     """The engine for a command's --control/--policy/--inject/--plant options."""
     from hmi.engine.scan import Engine
+    from hmi.plant.injection import parse_injection
     from hmi.plant.select import open_plant
-    from hmi.plant.sim import parse_injection
 
     if args.control and args.control not in project.controls:
         raise UsageError(f"--control {args.control!r}: the project has "
@@ -433,24 +446,20 @@ def make_engine(project, args: argparse.Namespace, extra_injections=()):
     read_only = getattr(args, "read_only", False)
     plant = open_plant(project, getattr(args, "plant", None), read_only, injections,
                        getattr(args, "period", None))
-    allow_monitor = getattr(args, "allow_monitor", False)
-    if plant.kind != "sim" and not read_only and not allow_monitor and \
-            (args.policy or project.policy) == "monitor":
-        raise UsageError("the monitor policy passes unsafe orders through to a real plant; "
-                         "choose --policy block or correct, or add --allow-monitor")
+    # The engine refuses the monitor policy on a real plant unless --allow-monitor.
     engine = Engine(project, plant, control=args.control, policy=args.policy,
                     solver=args.solver, diagnosis=getattr(args, "diagnosis", None) or "ftc",
-                    solver_budget=getattr(args, "solver_budget", None))
-    engine.allow_monitor_on_real_plant = allow_monitor
+                    solver_budget=getattr(args, "solver_budget", None),
+                    allow_monitor_policy=getattr(args, "allow_monitor", False))
     return engine, injections
 
 
 def connect_plant(engine, timeout_us: int | None) -> None:
     """Connect a real plant before the first scan, saying what happens; exit 1 if it fails."""
     plant = engine.plant
-    if plant.kind == "sim":
+    if not plant.is_real:
         return
-    from hmi.plant.modbus_client import wait_connected
+    from hmi.plant.modbus.client import wait_connected
 
     def report(line: str) -> None:
         print(f"plchmi: {line}", file=sys.stderr, flush=True)
@@ -466,9 +475,9 @@ class RunFailure(Exception):
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from hmi.engine.runner import Controller, settle_memory
     from hmi.report import run_summary
     from hmi.runio import RunOutputs
+    from hmi.session.session import Session, settle_memory
 
     project = load(args.project, getattr(args, "diagnoser", None))
     scenario = None
@@ -480,9 +489,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise UsageError("--for TIME is required (or a --scenario that sets its length)")
     run_length_notice(duration, args.period or project.scan_period_us)
     engine, injections = make_engine(project, args, scenario.injections if scenario else ())
-    if engine.plant.kind != "sim":
+    if engine.plant.is_real:
         return run_real_time(engine, args, duration)
-    controller = Controller(engine, args.period)
+    controller = Session(engine, args.period)
     collector = RunCollector()
     outputs = RunOutputs(controller, args.trace, args.journal, "run")
     settle_memory()
@@ -496,7 +505,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         last = controller.run_for(duration, on_scan)
     except _OutputFailed:
         outputs.leave_safe()
-        last = engine.last
+        last = controller.last
     finally:
         outputs.close(ended_by(sys.exc_info()[1]))
     if outputs.failure is not None:
@@ -697,14 +706,14 @@ class RunCollector:
 
 def run_real_time(engine, args: argparse.Namespace, duration_us: int) -> int:
     """A headless run against a real plant: scans paced and stamped by the wall clock."""
-    from hmi.engine.live import WallClock, run_live_for
-    from hmi.engine.runner import Controller
     from hmi.report import run_summary
     from hmi.runio import RunOutputs
+    from hmi.session.live import WallClock, run_live_for
+    from hmi.session.session import Session
 
     plant = engine.plant
     collector = RunCollector()
-    controller = Controller(engine, args.period, clock=WallClock())
+    controller = Session(engine, args.period, clock=WallClock())
     outputs = None
     try:
         # The journal first, so that the connection attempts (and giving up) are in it.
@@ -727,7 +736,7 @@ def run_real_time(engine, args: argparse.Namespace, duration_us: int) -> int:
             outputs.close(ended_by(sys.exc_info()[1]))
     if outputs.failure is not None:
         raise RunFailure(outputs.failure_message())
-    last = engine.last
+    last = controller.last
     print(run_summary(engine, last, collector, [], wall, trace=outputs.trace,
                       time_kind="real"))
     print(alarm_summary(collector, args.explain))
@@ -752,13 +761,8 @@ def ended_by(exc: BaseException | None) -> str | None:
 
 def stop_plant(engine) -> None:
     """At the end of a run on a real plant, leave its outputs safe, as a stopping PLC does."""
-    plant = engine.plant
-    stop = getattr(plant, "stop", None)
-    if stop is None:
-        plant.close()
-        return
     safe = dict(zip(engine.layout.outputs, engine.safe_vector, strict=True))
-    stop(engine.now, safe)
+    engine.plant.stop(engine.now, safe)
 
 
 def plant_report(plant, at_end, overruns: int) -> str:
@@ -802,15 +806,15 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def cmd_ui(args: argparse.Namespace) -> int:
-    from hmi.engine.runner import Controller
+    from hmi.session.session import Session
     from hmi.ui.app import run_app
     project = load(args.project, getattr(args, "diagnoser", None))
     engine, injections = make_engine(project, args)
     clock = None
-    if engine.plant.kind != "sim":
-        from hmi.engine.live import WallClock
+    if engine.plant.is_real:
+        from hmi.session.live import WallClock
         clock = WallClock()
-    controller = Controller(engine, clock=clock)
+    controller = Session(engine, clock=clock)
     recorder = None
     end = None
     try:
@@ -834,9 +838,9 @@ def cmd_ui(args: argparse.Namespace) -> int:
 
 
 def cmd_serve_plant(args: argparse.Namespace) -> int:
-    from hmi.plant.modbus_map import address_diagnostics
-    from hmi.plant.modbus_server import COMM_FAULTS, run_server
-    from hmi.plant.sim import parse_injection
+    from hmi.plant.injection import parse_injection
+    from hmi.plant.modbus.address_map import address_diagnostics
+    from hmi.plant.modbus.server import COMM_FAULTS, run_server
 
     project = load(args.project, getattr(args, "diagnoser", None))
     errors = address_diagnostics(project, "serve-plant serves every input and output at its "
@@ -872,10 +876,25 @@ def check_host(host: str) -> None:
 __all__ = ["format_duration", "main", "seconds"]
 
 
+def cmd_export(args: argparse.Namespace) -> int:
+    from hmi.export import export
+    project = load(args.project)
+    if args.output.exists() and not args.output.is_dir():
+        raise UsageError(f"-o {args.output}: not a folder")
+    try:
+        written = export(project, args.format, args.output)
+    except OSError as exc:
+        raise UsageError(f"-o {args.output}: cannot write there ({exc.strerror})") from None
+    print(f"Wrote {written.path}")
+    for line in written.model.summary:
+        print(f"  {line}")
+    return 0
+
+
 COMMANDS = {
     "check": cmd_check, "run": cmd_run, "sweep": _sweep, "ui": cmd_ui,
     "serve-plant": cmd_serve_plant, "bench": cmd_bench, "journal": cmd_journal,
-    "diagnose": cmd_diagnose, "campaign": cmd_campaign, "soak": _soak,
+    "diagnose": cmd_diagnose, "campaign": cmd_campaign, "export": cmd_export, "soak": _soak,
 }
 
 if __name__ == "__main__":

@@ -136,7 +136,7 @@ class DiagnosisLog:
 
 def summary_lines(log: DiagnosisLog, engine, last) -> list[str]:
     """Diagnoser lines of the run summary: faulty states reached, flags, what they drive."""
-    stage = getattr(engine, "diagnosis", None)
+    stage = engine.diagnosis
     if stage is None:
         return []
     lines = [f"Diagnosers ({stage.mode}): {log.normal_moves} normal transitions"]

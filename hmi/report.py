@@ -117,7 +117,7 @@ def run_summary(engine, last, collector, injections, wall_s: float, trace=None,
             lines.append(f"  ... and {len(damage) - 10} more")
     else:
         lines.append("Damage events: none")
-    unsafe_verb = "seen (read-only)" if getattr(engine, "observe", False) else "written"
+    unsafe_verb = "seen (read-only)" if engine.observe else "written"
     if collector.violations or collector.corrections or collector.first_latch:
         total = sum(collector.violations.values())
         lines.append(f"Filter: {total} constraint violations detected in "

@@ -12,12 +12,12 @@ from __future__ import annotations
 import contextlib
 from pathlib import Path
 
-from hmi.engine.runner import Controller
 from hmi.engine.snapshot import Snapshot
 from hmi.engine.trace import TraceWriter
 from hmi.errors import OutputError
 from hmi.limits import MAX_RUN_SCANS, NOTICE_RUN_SCANS
 from hmi.plant.base import PlantError
+from hmi.session.session import Session
 from hmi.timefmt import format_duration, seconds
 
 
@@ -45,7 +45,7 @@ class RunOutputs:
     """The trace and the journal of one run. `on_scan` writes the trace; a failure of either
     file is kept in `failure` and ends the run (see `stop_on_failure`)."""
 
-    def __init__(self, controller: Controller, trace: Path | None, journal: Path | None,
+    def __init__(self, controller: Session, trace: Path | None, journal: Path | None,
                  source: str):
         self.controller = controller
         self.failure: OutputError | None = None
@@ -108,11 +108,11 @@ class RunOutputs:
                 f"(t = {seconds(engine.now)} s) but what it wrote there is incomplete")
 
 
-def open_journal(controller: Controller, path: Path | None, source: str):
+def open_journal(controller: Session, path: Path | None, source: str):
     """The journal recorder of a session: `path`, else the project's default journal. A
     journal that cannot be opened is an OutputError (hmi.errors)."""
     from hmi.explain.journal import Journal, default_path
-    from hmi.explain.recorder import JournalRecorder
+    from hmi.session.journal_recorder import JournalRecorder
     target = path or default_path(controller.engine.project.name)
     journal = Journal(target)
     try:

@@ -137,7 +137,7 @@ def _pick_task(project, name: str | None):
 def _default_fault(project, task) -> str:
     """The interruption fault of the device whose sensor the task's interruption reads."""
     from hmi.logic.expr import variables
-    from hmi.plant.models import MODELS
+    from hmi.plant.sim.models import MODELS
     exprs = [e for e in (task.interrupted, task.interrupt, task.resume) if e is not None]
     names = {v.name for e in exprs for v in variables(e)}
     found = []
@@ -153,13 +153,13 @@ def _default_fault(project, task) -> str:
 
 
 def _engine(project, control, injections=()):
-    from hmi.engine.runner import Controller
     from hmi.engine.scan import Engine
-    from hmi.plant.sim import SimPlant
+    from hmi.plant.sim.plant import SimPlant
+    from hmi.session.session import Session
     plant = SimPlant(project)
     for injection in injections:
         plant.inject(injection)
-    return Controller(Engine(project, plant, control=control))
+    return Session(Engine(project, plant, control=control))
 
 
 def _state(snap, name: str):
@@ -182,7 +182,7 @@ def run_one(project, task, fault: str, t0: int, start_us: int, length_us: int,
             attempt: int, control: str | None = None) -> SweepRow:
     """One run of the sweep: the task interrupted `start_us` after t0 for `length_us`."""
     from hmi.monitor_report import MonitorLog
-    from hmi.plant.sim import parse_injection
+    from hmi.plant.injection import parse_injection
     injection = parse_injection(f"{fault}@{t0 + start_us}us+{length_us}us")
     ctl = _engine(project, control, [injection])
     device = ctl.engine.plant.resolve(injection)
@@ -222,7 +222,8 @@ def run_sweep(project, task_name: str | None, fault: str | None, starts: Sequenc
         raise UsageError(f"--control {control!r}: the project has " + ", ".join(project.controls))
     task = _pick_task(project, task_name)
     fault = fault or _default_fault(project, task)
-    from hmi.plant.sim import SimPlant, parse_injection
+    from hmi.plant.injection import parse_injection
+    from hmi.plant.sim.plant import SimPlant
     try:
         SimPlant(project).resolve(parse_injection(f"{fault}@0s"))
     except UsageError as exc:

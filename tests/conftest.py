@@ -7,10 +7,11 @@ from pathlib import Path
 
 import pytest
 
-from hmi.engine.runner import Controller
 from hmi.engine.scan import Engine
-from hmi.plant.sim import SimPlant, parse_injection
+from hmi.plant.injection import parse_injection
+from hmi.plant.sim.plant import SimPlant
 from hmi.project.loader import load_project
+from hmi.session.session import Session
 
 ROOT = Path(__file__).resolve().parent.parent
 PROJECTS = ROOT / "projects"
@@ -29,7 +30,7 @@ def make_controller(project_path, control=None, policy=None, inject=()):
     for text in inject:
         plant.inject(parse_injection(text))
     engine = Engine(project, plant, control=control, policy=policy)
-    return Controller(engine)
+    return Session(engine)
 
 
 @pytest.fixture(autouse=True)

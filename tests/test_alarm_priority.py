@@ -38,7 +38,7 @@ def test_a_refused_manual_order_does_not_demote_an_unacknowledged_p1():
             break
     assert "low" in severities  # the situation itself did read low: the rule was exercised
     controller.command(Acknowledge(KEY))  # acknowledged: still listed, still P1
-    assert engine.alarm_manager.alarms[KEY].priority == 1
+    assert controller.alarms.alarms[KEY].priority == 1
 
 
 def test_priority_keeps_the_highest_while_listed_then_starts_afresh():

@@ -22,7 +22,7 @@ from hmi.engine.campaign import (
     run_one,
 )
 from hmi.errors import ProjectError, SourcePos
-from hmi.plant.device import PlantEvent
+from hmi.plant.base import PlantEvent
 from hmi.project.campaign import Scenario
 from hmi.project.loader import load_project
 from tests.conftest import PROJECTS

@@ -13,7 +13,8 @@ from hmi.bench.cellrun import CellRun, measure
 from hmi.cli import main
 from hmi.engine.campaign import CONFIGS, run_one
 from hmi.engine.scan import Engine
-from hmi.plant.sim import SimPlant, parse_injection
+from hmi.plant.injection import parse_injection
+from hmi.plant.sim.plant import SimPlant
 from hmi.project.campaign import Scenario as CampaignScenario
 from hmi.project.loader import load_project
 from hmi.project.scenarios import find_scenario

@@ -24,7 +24,8 @@ from hmi.engine.closed_loop import (
 from hmi.engine.explore import Explorer
 from hmi.engine.loop_sweep import DIAG_NO_FILTER, FILTER_NO_DIAG, FTC, sweep
 from hmi.engine.scan import Engine
-from hmi.plant.sim import Injection, SimPlant
+from hmi.plant.injection import Injection
+from hmi.plant.sim.plant import SimPlant
 from hmi.project.campaign import campaign_of
 from hmi.project.loader import load_project
 from tests.conftest import PROJECTS

@@ -18,7 +18,8 @@ from hmi.engine.diagnosability import analyse
 from hmi.engine.scan import Engine
 from hmi.errors import ProjectError
 from hmi.logic.expr import parse_expr, to_text
-from hmi.plant.sim import Injection, SimPlant
+from hmi.plant.injection import Injection
+from hmi.plant.sim.plant import SimPlant
 from hmi.project.components import rename_node, renamed_source
 from hmi.project.loader import load_project
 from tests.conftest import PROJECTS
@@ -341,7 +342,7 @@ def test_the_component_behaves_scan_for_scan_like_the_valve_project(valve_pair, 
     for project in valve_pair:
         plant = SimPlant(project)
         for text in inject:
-            from hmi.plant.sim import parse_injection
+            from hmi.plant.injection import parse_injection
             plant.inject(parse_injection(text))
         engine = Engine(project, plant, control=control)
         trace = []

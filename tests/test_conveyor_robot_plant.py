@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from hmi.plant.conveyor import Conveyor
-from hmi.plant.robot import Robot
+from hmi.plant.sim.conveyor import Conveyor
+from hmi.plant.sim.robot import Robot
 
 MS = 1_000
 S = 1_000_000

@@ -18,15 +18,15 @@ from pysat.formula import WCNF
 from hmi.bench.corrector import dense_row, infeasible, planted
 from hmi.cli import main
 from hmi.engine.commands import ManualOutput, SetMode
-from hmi.engine.live import arm_search_deadline
-from hmi.engine.runner import Controller
 from hmi.engine.sat import solve_sat
 from hmi.engine.scan import Engine
 from hmi.engine.solver import Problem, exact_solve, is_safe, paper_solve
 from hmi.errors import ProjectError
 from hmi.explain.journal import read
-from hmi.plant.sim import SimPlant
+from hmi.plant.sim.plant import SimPlant
 from hmi.project.loader import load_project
+from hmi.session.live import arm_search_deadline
+from hmi.session.session import Session
 from tests.conftest import PROJECTS, write_project
 
 S = 1_000_000
@@ -206,7 +206,7 @@ def test_past_its_budget_the_filter_writes_the_safe_state_and_says_so(tmp_path):
     folder = pairs_project(tmp_path, "solver_budget: 300\n")
     engine = engine_for(folder)
     assert engine.filter.budget == 300
-    snap = engine.step(0)
+    snap = Session(engine).scan_once()  # the session explains the scan
     report = snap.filter
     assert snap.outputs == (False,) * 12 and report.safe_state and not report.unsafe_written
     assert report.stopped == "budget" and report.steps > 300 and report.budget == 300
@@ -258,7 +258,7 @@ def test_the_budget_is_checked_where_it_is_given(tmp_path, capsys):
 
 def test_only_a_live_runner_arms_the_wall_clock_net(tmp_path):
     engine = engine_for(pairs_project(tmp_path))
-    controller = Controller(engine)
+    controller = Session(engine)
     assert engine.filter.wall_limit_us is None  # headless: traces depend on steps only
     arm_search_deadline(controller)
     assert engine.filter.wall_limit_us == 5_000  # half the 10 ms period
@@ -323,7 +323,7 @@ def test_the_paper_strategy_stops_the_pump_where_the_project_keeps_it_running():
     project = load_project(PROJECTS / "cispi_subsystem")
     written = {}
     for solver in ("exact", "paper"):
-        controller = Controller(Engine(project, SimPlant(project), control="faulty",
+        controller = Session(Engine(project, SimPlant(project), control="faulty",
                                        solver=solver))
         snaps = []
         controller.run_for(4 * S + 1, snaps.append)
@@ -339,7 +339,7 @@ def test_the_paper_strategy_stops_the_pump_where_the_project_keeps_it_running():
 def test_manual_requests_meet_the_same_bounded_corrector(tmp_path):
     folder = pairs_project(tmp_path, "solver_budget: 300\n", n=12)
     engine = engine_for(folder)
-    controller = Controller(engine)
+    controller = Session(engine)
     controller.command(SetMode(True))
     for k in range(12):
         controller.command(ManualOutput(f"o{k}", True))

@@ -1,7 +1,7 @@
 """The CISPI valve diagnoser in the scan: diagnosis of each fault, flags, reconstruction,
 masking, fault reset and re-synchronisation (000 §2.1-2.2, §3.1-3.2).
 
-Times come from the valve model (hmi/plant/valve.py: travel 2 s, switches break after 40 ms
+Times come from the valve model (hmi/plant/sim/valve.py: travel 2 s, switches break after 40 ms
 of travel, glitches last 300 ms) and the normal cycle of the project (closed rest 1 s,
 opening 1.92 s, open 3 s, closing 1.92 s after the first cycle). Second cycle: opening order
 at 8.88 s, open at 10.80 s, closing order at 13.80 s, closed at 15.72 s.
@@ -12,10 +12,11 @@ from __future__ import annotations
 import pytest
 
 from hmi.engine.commands import FaultReset
-from hmi.engine.runner import Controller
 from hmi.engine.scan import Engine
-from hmi.plant.sim import SimPlant, parse_injection
+from hmi.plant.injection import parse_injection
+from hmi.plant.sim.plant import SimPlant
 from hmi.project.loader import load_project
+from hmi.session.session import Session
 from tests.conftest import PROJECTS
 
 S = 1_000_000
@@ -31,14 +32,14 @@ def project():
     return load_project(VALVE)
 
 
-def controller(project, inject=(), diagnosis="ftc", policy=None) -> Controller:
+def controller(project, inject=(), diagnosis="ftc", policy=None) -> Session:
     plant = SimPlant(project)
     for text in inject:
         plant.inject(parse_injection(text))
-    return Controller(Engine(project, plant, policy=policy, diagnosis=diagnosis))
+    return Session(Engine(project, plant, policy=policy, diagnosis=diagnosis))
 
 
-def run(ctl: Controller, seconds: float):
+def run(ctl: Session, seconds: float):
     snaps = []
     ctl.run_for(int(seconds * S), snaps.append)
     return snaps
@@ -242,7 +243,7 @@ def test_run_summary_counts_masked_orders_apart_from_corrections(capsys):
 def test_an_order_withdrawn_mid_travel_by_a_latch_resynchronises_instead_of_faulting(project):
     ctl = controller(project)
     run(ctl, 2)  # opening since 1.000 s
-    assert ctl.engine.last.diagnosers[0].state == "N3"
+    assert ctl.last.diagnosers[0].state == "N3"
     ctl.engine.latch_safe("test", "an operator emergency stop")
     snaps = run(ctl, 5)  # much longer than the travel window: no arrival, no fault
     assert snaps[1].diagnosers[0].state == "N0"
@@ -281,7 +282,7 @@ def test_a_plant_outage_keeps_a_faulty_decision_and_resynchronises_a_normal_one(
 
     plant = Flaky(project)
     plant.down = (int(1.5 * S), int(2.5 * S))
-    ctl = Controller(Engine(project, plant))
+    ctl = Session(Engine(project, plant))
     snaps = run(ctl, 3)
     during = next(s for s in snaps if s.time_us == 2 * S)
     assert during.diagnosers[0].state == "N3"  # shown as it stood, not stepped
@@ -292,5 +293,5 @@ def test_a_plant_outage_keeps_a_faulty_decision_and_resynchronises_a_normal_one(
     plant = Flaky(project)
     plant.inject(parse_injection("F9@1.5s"))
     plant.down = (int(2 * S), int(3 * S))
-    ctl = Controller(Engine(project, plant))
+    ctl = Session(Engine(project, plant))
     assert run(ctl, 4)[-1].diagnosers[0].state == "S9"

@@ -13,11 +13,11 @@ import pytest
 
 from hmi.cli import main
 from hmi.engine.commands import SetInput
-from hmi.engine.runner import Controller
 from hmi.engine.scan import Engine
 from hmi.errors import ProjectError
-from hmi.plant.sim import SimPlant
+from hmi.plant.sim.plant import SimPlant
 from hmi.project.loader import load_project
+from hmi.session.session import Session
 
 PROJECT = """
 name: t
@@ -221,7 +221,7 @@ def test_rise_of_an_output_in_a_diagnoser_is_the_order_written_at_the_previous_s
     and never be true; read one scan back it is true the scan after O was written."""
     project = load_project(write(tmp_path / "p"))
     engine = Engine(project, SimPlant(project))
-    ctl = Controller(engine)
+    ctl = Session(engine)
     for _ in range(5):
         s = ctl.scan_once()
     assert s.diagnosers[0].state == "N1"

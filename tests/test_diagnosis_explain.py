@@ -10,19 +10,20 @@ with certainty a glitch later.
 from __future__ import annotations
 
 from hmi.engine.commands import FaultReset, InjectFault
-from hmi.engine.runner import Controller
 from hmi.engine.scan import Engine
 from hmi.plant.base import PlantError
-from hmi.plant.sim import Injection, SimPlant
+from hmi.plant.injection import Injection
+from hmi.plant.sim.plant import SimPlant
 from hmi.project.loader import load_project
+from hmi.session.session import Session
 from hmi.ui.scenarios import VALVE
 
 S = 1_000_000
 
 
-def run(code: str, until_s: float) -> Controller:
+def run(code: str, until_s: float) -> Session:
     project = load_project(VALVE)
-    controller = Controller(Engine(project, SimPlant(project)))
+    controller = Session(Engine(project, SimPlant(project)))
     controller.command(InjectFault(Injection(code, 10 * S)))
     controller.run_for(int(until_s * S))
     return controller
@@ -30,7 +31,7 @@ def run(code: str, until_s: float) -> Controller:
 
 def test_record_previews_what_a_reset_would_do():
     c = run("F1", 17)
-    record = c.engine.last.diagnosers[0]
+    record = c.last.diagnosers[0]
     assert record.resync == "" and record.resync_values == "fsc=0, fso=0, C=0, O=0"
     message = c.command(FaultReset()).message
     assert "stays in A1" in message
@@ -38,9 +39,9 @@ def test_record_previews_what_a_reset_would_do():
 
     c = run("F9", 11)
     # wait for the valve at rest, open, no order: the rule that re-synchronises to N5
-    while not c.engine.last.diagnosers[0].resync:
+    while not c.last.diagnosers[0].resync:
         c.run_for(10_000)
-    record = c.engine.last.diagnosers[0]
+    record = c.last.diagnosers[0]
     assert record.resync == "N5" and record.resync_values == "fsc=0, fso=1, C=0, O=0"
     message = c.command(FaultReset()).message
     assert "re-synchronised to N5" in message
@@ -49,9 +50,9 @@ def test_record_previews_what_a_reset_would_do():
 
 def test_normal_records_carry_no_preview():
     c = run("F9", 5)  # before the fault
-    record = c.engine.last.diagnosers[0]
+    record = c.last.diagnosers[0]
     assert not record.faulty and record.resync == "" and record.resync_values == ""
-    assert not any(e.key.startswith("diagnosis:") for e in c.engine.last.explanations)
+    assert not any(e.key.startswith("diagnosis:") for e in c.last.explanations)
 
 
 def test_explanations_survive_a_first_scan_without_inputs():
@@ -64,7 +65,6 @@ def test_explanations_survive_a_first_scan_without_inputs():
         raise PlantError("connection refused")
 
     plant.read = unreachable
-    engine = Engine(project, plant)
-    snap = engine.step(0)
+    snap = Session(Engine(project, plant)).scan_once()
     assert snap.error is None
     assert any(e.key.startswith("safe_state:") for e in snap.explanations)

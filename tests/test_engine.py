@@ -76,18 +76,19 @@ def test_manual_mode_replaces_the_functional_vector():
 def test_an_internal_error_puts_outputs_safe_and_says_so():
     ctl = make_controller(VALVE)
     run(ctl, 2)  # opening: O is on
-    assert ctl.engine.last.outputs == (False, True)
+    assert ctl.last.outputs == (False, True)
 
-    def broken(engine, fov):
+    def broken(*args):
         raise RuntimeError("solver bug")
-    ctl.engine.output_stage = broken
+    working = ctl.engine.filter_stage.apply
+    ctl.engine.filter_stage.apply = broken
     s = ctl.scan_once()
     assert s.outputs == (False, False) and s.latched[0].source == "internal"
     assert "solver bug" in s.error
     assert ctl.engine.plant.devices[0].orders == {"C": False, "O": False}
     s = ctl.scan_once()
     assert s.outputs == (False, False)  # stays safe until a fault reset
-    ctl.engine.output_stage = lambda engine, fov: (fov, None)
+    ctl.engine.filter_stage.apply = working
     assert "safe-state latch released" in ctl.command(FaultReset()).message
     assert ctl.scan_once().latched == ()
 

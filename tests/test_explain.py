@@ -22,8 +22,8 @@ from hmi.explain.alarms import (
 )
 from hmi.explain.journal import Journal, read
 from hmi.explain.model import Explanation
-from hmi.explain.recorder import JournalRecorder
 from hmi.project.loader import load_project
+from hmi.session.journal_recorder import JournalRecorder
 from tests.conftest import PROJECTS, make_controller, write_project
 
 VALVE = PROJECTS / "cispi_valve"
@@ -122,7 +122,7 @@ def test_manual_forces_are_explained_without_an_alarm():
 def test_fallback_and_internal_error_are_explained(tmp_path):
     ctl = make_controller(VALVE)
     ctl.scan_once()
-    ctl.engine.output_stage = lambda engine, fov: 1 / 0
+    ctl.engine.filter_stage.apply = lambda *args: 1 / 0
     snap = ctl.scan_once()
     e = explanation(snap, "safe_state:internal")
     assert "internal error" in e.what and "ZeroDivisionError" in e.why and e.severity == "high"

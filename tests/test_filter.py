@@ -94,11 +94,7 @@ def test_policy_switch_at_run_time():
     assert not ctl.command(SetPolicy("stop")).accepted
 
 
-def test_monitor_policy_is_refused_on_a_real_plant():
-    ctl = make_controller(VALVE)
-    ctl.engine.plant.kind = "modbus"
-    result = ctl.command(SetPolicy("monitor"))
-    assert not result.accepted and "refused on a real plant" in result.message
+# The monitor policy on a real plant: tests/test_plant_contract.py (a real ModbusPlant).
 
 
 def test_the_filter_never_writes_an_unsafe_vector_in_example_runs():
@@ -210,7 +206,7 @@ def test_filter_output_is_safe_and_at_minimum_distance(case):
         Path(tmp, "project.yaml").write_text(text)
         project = load_project(tmp)
     from hmi.engine.scan import Engine
-    from hmi.plant.sim import SimPlant
+    from hmi.plant.sim.plant import SimPlant
     for strategy in ("exact", "paper"):
         engine = Engine(project, SimPlant(project), solver=strategy)
         for name, value in zip(("i0", "i1", "i2"), inputs, strict=True):
@@ -219,7 +215,8 @@ def test_filter_output_is_safe_and_at_minimum_distance(case):
         image = engine.image
         for name, value in zip(("i0", "i1", "i2"), inputs, strict=True):
             assert image[engine.layout.slots[name]] == value
-        outputs, report = engine.filter(engine, tuple(fov))
+        outputs, report, _ = engine.filter.apply(engine.image, engine.history, tuple(fov),
+                                                 engine.policy, False)
 
         def safe(vec):
             env = dict(zip(outs, vec, strict=True))

@@ -513,7 +513,7 @@ def test_a_failing_write_mid_run_stops_it_with_the_outputs_safe(tmp_path, capsys
     import csv
     import errno
 
-    from hmi.plant.sim import SimPlant
+    from hmi.plant.sim.plant import SimPlant
 
     writes: list[dict[str, bool]] = []
     real_write = SimPlant.write

@@ -13,7 +13,7 @@ import time
 
 from hmi.engine.commands import FaultReset
 from hmi.explain.journal import Journal, read
-from hmi.explain.recorder import JournalRecorder
+from hmi.session.journal_recorder import JournalRecorder
 from tests import test_modbus
 from tests.conftest import ROOT
 from tests.test_modbus import VALVE, WAIT, Live, _free_port

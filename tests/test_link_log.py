@@ -5,7 +5,7 @@ from __future__ import annotations
 import itertools
 
 from hmi.plant import link_log
-from hmi.plant.link_log import LinkLog
+from hmi.plant.modbus.link_log import LinkLog
 
 
 def _ticking_wall(monkeypatch):

@@ -21,13 +21,13 @@ import pytest
 from pymodbus.client import ModbusTcpClient
 
 from hmi.engine.commands import FaultReset, Pause, Resume, SetMode, StepScans
-from hmi.engine.live import LiveRunner, WallClock
-from hmi.engine.runner import Controller
 from hmi.engine.scan import Engine
 from hmi.engine.snapshot import Snapshot
-from hmi.plant.modbus_client import ModbusPlant, ModbusSettings, wait_connected
-from hmi.plant.server_process import ServerProcess
+from hmi.plant.modbus.client import ModbusPlant, ModbusSettings, wait_connected
+from hmi.plant.modbus.server_process import ServerProcess
 from hmi.project.loader import load_project
+from hmi.session.live import LiveRunner, WallClock
+from hmi.session.session import Session
 from tests.conftest import PROJECTS, ROOT, make_controller, write_project
 
 VALVE = PROJECTS / "cispi_valve"
@@ -60,7 +60,7 @@ class Live:
                                  read_only=read_only)
         assert wait_connected(self.plant, WAIT, lambda line: None), self.plant.message
         self.engine = Engine(self.project, self.plant)
-        self.controller = Controller(self.engine, clock=WallClock())
+        self.controller = Session(self.engine, clock=WallClock())
         self.snaps: list[Snapshot] = []
         self.controller.scan_listeners.append(self.snaps.append)
         self.runner = LiveRunner(self.controller)
@@ -412,7 +412,7 @@ def test_bench_prints_both_round_trips():
 
 
 def test_the_sim_run_is_unchanged_by_the_clock_option():
-    # The engine is deterministic; a Controller without a clock keeps virtual time.
+    # The engine is deterministic; a Session without a clock keeps virtual time.
     ctl = make_controller(VALVE)
     assert ctl.clock is None
     ctl.run_for(1 * S)
@@ -441,8 +441,8 @@ def test_quitting_the_hmi_on_a_real_plant_leaves_its_outputs_safe(server, tmp_pa
 
     async def operator(pilot) -> None:
         app = pilot.app
-        await wait_until(pilot, lambda: app.controller.engine.last is not None and
-                         app.controller.engine.last.output_map["O"], "the valve opening",
+        await wait_until(pilot, lambda: app.controller.last is not None and
+                         app.controller.last.output_map["O"], "the valve opening",
                          WAIT)
         seen["coils_before"] = read_coils(srv.port)
         await press(pilot, "q")

@@ -17,7 +17,7 @@ from pyModbusTCP.server import ModbusServer
 
 from hmi.engine.scan import Engine
 from hmi.plant.base import PlantError
-from hmi.plant.modbus_client import BACKOFF_MAX_S, ModbusPlant, ModbusSettings
+from hmi.plant.modbus.client import BACKOFF_MAX_S, ModbusPlant, ModbusSettings
 from hmi.project.loader import load_project
 from tests.conftest import PROJECTS, ROOT, write_project
 from tests.modbus_peers import (

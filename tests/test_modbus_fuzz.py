@@ -3,7 +3,7 @@
 Random and mutated answers to our client, random requests to our server: neither side ever
 crashes, and every frame is classified — a valid answer (with exactly the values asked for),
 an exception response, or a refusal that says what was wrong. The reference frames here are
-packed with struct in this file, independently of hmi.plant.modbus_frame.
+packed with struct in this file, independently of hmi.plant.modbus.frame.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from hmi.plant.modbus_frame import (
+from hmi.plant.modbus.frame import (
     Answer,
     FrameError,
     adu,
@@ -25,15 +25,15 @@ from hmi.plant.modbus_frame import (
     read_request,
     write_coils_request,
 )
-from hmi.plant.modbus_link import (
+from hmi.plant.modbus.link import (
     ExceptionAnswer,
     InvalidAnswer,
     LinkClosed,
     LinkError,
     ModbusLink,
 )
-from hmi.plant.modbus_tcp_server import ModbusServer, Tables
-from hmi.plant.server_process import ServerProcess
+from hmi.plant.modbus.server_process import ServerProcess
+from hmi.plant.modbus.tcp_server import ModbusServer, Tables
 from tests.conftest import write_project
 from tests.modbus_peers import WAIT, frame, read_frame, read_frames
 from tests.test_modbus import REGISTER_VALVE

@@ -9,8 +9,8 @@ import textwrap
 import pytest
 
 from hmi.errors import ProjectError, UsageError
-from hmi.plant.modbus_client import ModbusSettings, parse_plant_url
-from hmi.plant.modbus_map import AddressMap, Point, plan_coil_runs, plan_reads
+from hmi.plant.modbus.address_map import AddressMap, Point, plan_coil_runs, plan_reads
+from hmi.plant.modbus.client import ModbusSettings, parse_plant_url
 from hmi.project.loader import load_project
 from hmi.project.model import PlantAddress
 from tests.conftest import PROJECTS, ROOT, write_project

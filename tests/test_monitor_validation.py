@@ -137,9 +137,9 @@ def test_a_monitor_reading_deep_history_gets_it(tmp_path):
     ctl = make_controller(folder)
     assert ctl.engine.history.maxlen >= 6
     ctl.run_for(3_000_000)
-    (m,) = ctl.engine.last.monitors
+    (m,) = ctl.last.monitors
     # Y is written from the first scan (t = 0): five scans later is the 50 ms scan.
-    assert m.attempt >= 1 and ctl.engine.last.error is None
+    assert m.attempt >= 1 and ctl.last.error is None
     first = make_controller(folder)
     starts = []
     first.run_for(200_000, lambda s: starts.append(s.time_us) if s.monitors[0].attempt else None)

@@ -6,7 +6,6 @@ import pytest
 
 from hmi.cli import main
 from hmi.engine.commands import FaultReset
-from hmi.engine.monitors import monitor_stage
 from hmi.engine.trace import TraceWriter
 from hmi.project.loader import load_project
 from hmi.sweep import run_sweep
@@ -104,7 +103,7 @@ def test_fault_reset_keeps_a_hopeless_task_faulty_then_releases_it():
     m = monitor(ctl.scan_once(), "conveyor")
     assert m.location == "executing" and m.detection is None and m.attempt == 2
     ctl.run_for(4 * S)
-    m = monitor(ctl.engine.last, "conveyor")
+    m = monitor(ctl.last, "conveyor")
     assert m.completed == 1 and m.faults == 1 and m.detection is None
 
 
@@ -135,7 +134,7 @@ def test_traces_carry_the_monitors_and_are_deterministic(tmp_path):
 
 def test_a_project_without_monitors_has_no_stage(valve_project):
     ctl = make_controller(PROJECTS / "cispi_valve")
-    assert monitor_stage(ctl.engine) is None and ctl.scan_once().monitors == ()
+    assert ctl.engine.monitors is None and ctl.scan_once().monitors == ()
 
 
 # --------------------------------------------------------------------------------------------
@@ -274,7 +273,7 @@ def test_project_texts_replace_a_monitor_explanation(tmp_path):
                 '      severity: high\n')
     ctl = make_controller(folder, inject=["C1.stop@1s+2s"])
     ctl.run_for(3 * S)
-    e = next(e for e in ctl.engine.last.explanations if e.key == "monitor:conveyor")
+    e = next(e for e in ctl.last.explanations if e.key == "monitor:conveyor")
     assert e.what == ("Conveyor C1 carrying a pallet from the pusher to B late: x=3.000, "
                       "y=1.000, gamma=5s (conveyor_fault)")
     assert e.severity == "high"

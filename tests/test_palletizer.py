@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import pytest
 
-from hmi.plant.boxes import MM
-from hmi.plant.palletizer import ACTUATORS, SENSORS, Palletizer
+from hmi.plant.sim.boxes import MM
+from hmi.plant.sim.palletizer import ACTUATORS, SENSORS, Palletizer
 
 MS = 1_000
 S = 1_000_000

@@ -1,4 +1,4 @@
-"""The pump and tank models of the CISPI subsystem (hmi/plant/pump.py, hmi/plant/tank.py):
+"""The pump and tank models of the CISPI subsystem (hmi/plant/sim/pump.py, hmi/plant/sim/tank.py):
 water is conserved, switches follow the level (or their fault), flows follow the valves'
 openings, and the damage events come when the physics says, not before."""
 
@@ -9,9 +9,9 @@ import textwrap
 import pytest
 
 from hmi.errors import ProjectError
-from hmi.plant.pump import Pump, opening
-from hmi.plant.tank import NL_PER_L, Tank
-from hmi.plant.valve import Valve
+from hmi.plant.sim.pump import Pump, opening
+from hmi.plant.sim.tank import NL_PER_L, Tank
+from hmi.plant.sim.valve import Valve
 from hmi.project.loader import load_project
 
 S = 1_000_000

@@ -19,7 +19,7 @@ from modbus_tk import modbus_tcp
 from modbus_tk.exceptions import ModbusError
 from pyModbusTCP.client import ModbusClient
 
-from hmi.plant.server_process import ServerProcess
+from hmi.plant.modbus.server_process import ServerProcess
 from tests import test_modbus
 from tests.conftest import ROOT, write_project
 from tests.modbus_peers import (

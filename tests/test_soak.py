@@ -17,7 +17,7 @@ import pytest
 
 from hmi.cli import main
 from hmi.explain import alarms
-from hmi.explain.recorder import JournalRecorder
+from hmi.session.journal_recorder import JournalRecorder
 from hmi.soak.runner import SoakConfig, session, shrink
 from hmi.soak.steps import Palette, Press, Run, format_steps, parse_steps
 from tests.conftest import PROJECTS

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from hmi.plant.boxes import MM, Box
-from hmi.plant.sorter import ACTUATORS, SENSORS, SortingCell
+from hmi.plant.sim.boxes import MM, Box
+from hmi.plant.sim.sorter import ACTUATORS, SENSORS, SortingCell
 
 MS = 1_000
 S = 1_000_000

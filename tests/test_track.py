@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import itertools
 
-from hmi.plant.boxes import MM, Box, BoxSource
-from hmi.plant.track import EXIT, OPEN, WALL, Line, Segment, advance, covered
-from hmi.plant.travel import Travel, direction
+from hmi.plant.sim.boxes import MM, Box, BoxSource
+from hmi.plant.sim.track import EXIT, OPEN, WALL, Line, Segment, advance, covered
+from hmi.plant.sim.travel import Travel, direction
 
 S = 1_000_000
 

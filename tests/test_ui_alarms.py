@@ -10,7 +10,7 @@ from pathlib import Path
 
 from hmi.engine.commands import InjectFault, StopDevice
 from hmi.explain.alarms import ACTIVE_ACK, ACTIVE_UNACK, CLEARED_UNACK
-from hmi.plant.sim import Injection
+from hmi.plant.injection import Injection
 from hmi.timefmt import seconds
 from hmi.ui.alarm_list import AlarmList, without_device
 from hmi.ui.chronogram import Chronogram
@@ -18,6 +18,7 @@ from hmi.ui.dialogs import ConfirmDialog
 from hmi.ui.explain_panel import ExplanationPanel
 from hmi.ui.scenarios import VALVE, make_app
 from hmi.ui.testing import (
+    click,
     palette,
     press,
     region_text,
@@ -40,7 +41,7 @@ def engine(app):
 
 def alarms(app) -> dict[str, str]:
     """The engine's alarms, key -> ISA-18.2 state (what the next snapshot will list)."""
-    return {a.key: a.state for a in engine(app).alarm_manager.alarms.values()}
+    return {a.key: a.state for a in app.controller.alarms.alarms.values()}
 
 
 def flat(app, selector: str) -> str:
@@ -68,7 +69,7 @@ async def test_alarm_list_shows_state_priority_time_and_text():
     app = make_app(control="faulty")
     async with app.run_test(size=WIDE) as pilot:
         await run_for(pilot, 8.7)
-        snap = engine(app).last
+        snap = app.controller.last
         assert {a.state for a in snap.alarms} == {ACTIVE_UNACK, CLEARED_UNACK}
         listed = region_text(app, "#alarms")
         rows = [line for line in listed.splitlines() if "UNACK" in line]
@@ -91,7 +92,7 @@ async def test_acknowledge_the_selected_alarm_with_a():
         await run_until(pilot, lambda s: any(a.state == ACTIVE_UNACK for a in s.alarms), 5,
                         "an unacknowledged alarm")
         selected = app.query_one(AlarmList).selected
-        assert selected == engine(app).last.alarms[0].key
+        assert selected == app.controller.last.alarms[0].key
         await press(pilot, "a")
         await settle(pilot)
         assert alarms(app)[selected] == ACTIVE_ACK
@@ -146,7 +147,7 @@ async def test_acknowledge_from_the_palette():
         assert all(s == ACTIVE_ACK for s in alarms(app).values())
         await run_for(pilot, 3.0)  # CSc1 raised meanwhile
         key = next(k for k, s in alarms(app).items() if s == ACTIVE_UNACK)
-        text = engine(app).alarm_manager.alarms[key].text
+        text = app.controller.alarms.alarms[key].text
         await palette(pilot, f"Alarms: acknowledge {text}", text)
         assert alarms(app)[key] == ACTIVE_ACK
 
@@ -155,7 +156,7 @@ async def test_select_an_alarm_with_the_keys_and_the_explanation_follows():
     app = make_app(control="faulty")
     async with app.run_test(size=WIDE) as pilot:
         await run_for(pilot, 8.7)
-        listed = engine(app).last.alarms
+        listed = app.controller.last.alarms
         alarm_list = app.query_one(AlarmList)
         alarm_list.focus()
         await press(pilot, "down")
@@ -175,9 +176,9 @@ async def test_click_an_alarm_to_select_it():
     app = make_app(control="faulty")
     async with app.run_test(size=WIDE) as pilot:
         await run_for(pilot, 8.7)
-        listed = engine(app).last.alarms
+        listed = app.controller.last.alarms
         alarm_list = app.query_one(AlarmList)
-        await pilot.click(AlarmList, offset=(10, 3))  # the border, then rows 0, 1, 2
+        assert await click(pilot, "#alarms", 10, 3)  # the border, then rows 0, 1, 2
         await settle(pilot)
         assert alarm_list.selected == listed[2].key
         assert panel(app).key == listed[2].key
@@ -187,7 +188,7 @@ async def test_alarm_list_survives_80x24_with_many_alarms():
     app = make_app(control="faulty")
     async with app.run_test(size=(80, 24)) as pilot:
         await run_for(pilot, 8.7)
-        assert len(engine(app).last.alarms) == 5
+        assert len(app.controller.last.alarms) == 5
         screen = app.screen.region
         for selector in ("#status", "#alarms", "#message", "HmiFooter"):
             region = app.query_one(selector).region
@@ -211,7 +212,7 @@ async def test_expand_the_explanation_level_by_level():
         await run_until(pilot, lambda s: bool(s.latched), 5, "safe blocking")
         app.explain("safe_state:filter", open_level=1)
         await settle(pilot)
-        exp = next(e for e in engine(app).last.explanations if e.key == "safe_state:filter")
+        exp = next(e for e in app.controller.last.explanations if e.key == "safe_state:filter")
         text = region_text(app, "#explain")
         assert exp.what[:30] in text and "LATCHED" in text
         assert "▸ Why" in text and "▸ Consequences" in text and "▸ Policies" in text
@@ -242,7 +243,7 @@ async def test_click_a_level_heading_opens_and_folds_it():
         await run_until(pilot, lambda s: bool(s.latched), 5, "safe blocking")
         app.explain("safe_state:filter", open_level=1)
         await settle(pilot)
-        await pilot.click("#explain-consequences")
+        assert await click(pilot, "#explain-consequences")
         await settle(pilot)
         assert panel(app).level == 3  # consequences, and why before it
         text = region_text(app, "#explain")
@@ -250,7 +251,7 @@ async def test_click_a_level_heading_opens_and_folds_it():
         panel(app).scroll_home(animate=False, immediate=True)
         await settle(pilot)
         assert "▾ Why" in region_text(app, "#explain")  # above it, open too
-        await pilot.click("#explain-why")
+        assert await click(pilot, "#explain-why")
         await settle(pilot)
         assert panel(app).level == 1
         assert "▸ Why" in region_text(app, "#explain")
@@ -287,7 +288,7 @@ async def test_click_a_constraint_opens_its_explanation():
         await run_until(pilot, lambda s: s.filter is not None and "CSs2" in
                         s.filter.violated_names, 5, "CSs2 violated")
         rows = app.query_one("#constraints").row_names
-        await pilot.click("#constraints", offset=(3, 1 + rows.index("CSs2")))
+        assert await click(pilot, "#constraints", 3, 1 + rows.index("CSs2"))
         await settle(pilot)
         assert panel(app).key == "constraint:CSs2"
         assert app.query_one(AlarmList).selected == "constraint:CSs2"
@@ -313,7 +314,7 @@ async def test_policy_without_a_command_is_chosen_at_once():
     async with app.run_test(size=WIDE) as pilot:
         await run_until(pilot, lambda s: any(a.state == ACTIVE_UNACK for a in s.alarms), 5,
                         "a corrected constraint")
-        key = engine(app).last.alarms[0].key
+        key = app.controller.last.alarms[0].key
         await open_policies(pilot, key)
         assert app.focused.policy.id == "continue"  # the recommended one, focused
         await press(pilot, "enter")
@@ -382,7 +383,7 @@ async def test_policy_stop_device_then_release_it_from_the_palette():
     async with app.run_test(size=WIDE) as pilot:
         await run_until(pilot, lambda s: any(a.key.startswith("constraint:")
                                              for a in s.alarms), 5, "a constraint alarm")
-        await open_policies(pilot, engine(app).last.alarms[0].key)
+        await open_policies(pilot, app.controller.last.alarms[0].key)
         button = next(b for b in app.query(".policy-button")
                       if b.policy.id == "stop_device")
         button.focus()
@@ -393,7 +394,7 @@ async def test_policy_stop_device_then_release_it_from_the_palette():
         await wait_for_main(pilot)
         assert engine(app).stopped_devices == {"Valve V1"}
         await run_for(pilot, 0.05)
-        snap = engine(app).last
+        snap = app.controller.last
         assert snap.outputs == (False, False) and snap.fov == (False, False)
         assert "DEVICE STOPPED" in region_text(app, "#banners")
         assert region_text(app, "#io").count("▲ stopped") == 2
@@ -409,7 +410,7 @@ async def test_policy_switch_the_filter_to_correct_under_monitor():
     async with app.run_test(size=WIDE) as pilot:
         await run_until(pilot, lambda s: any(a.severity == "high" for a in s.alarms), 5,
                         "an unsafe vector written")
-        key = next(a.key for a in engine(app).last.alarms if a.severity == "high")
+        key = next(a.key for a in app.controller.last.alarms if a.severity == "high")
         app.explain(key, open_level=1)
         await settle(pilot)
         assert "✗ P1 high" in region_text(app, "#explain")  # unsafe vector written: red
@@ -504,7 +505,7 @@ async def test_monitor_fault_reset_preview_and_policies():
         await press(pilot, "y")
         await wait_for_main(pilot)
         await run_for(pilot, 0.01)
-        snap = engine(app).last
+        snap = app.controller.last
         assert not any(m.detection for m in snap.monitors)
         assert "Robot R1" in snap.stopped_devices
         assert "○ CLEARED-UNACK" in region_text(app, "#alarms")
@@ -529,7 +530,7 @@ async def test_new_controls_reach_the_controller_listeners(tmp_path: Path):
     async with app.run_test(size=WIDE) as pilot:
         await run_for(pilot, 3.0)
         await press(pilot, "a", "A")
-        await open_policies(pilot, engine(app).last.alarms[0].key)
+        await open_policies(pilot, app.controller.last.alarms[0].key)
         await press(pilot, "enter")
         await settle(pilot)
     assert seen == ["Acknowledge", "Acknowledge", "ChoosePolicy"]

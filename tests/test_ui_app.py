@@ -66,7 +66,7 @@ async def test_the_valve_is_seen_cycling():
     app = make_app()
     async with app.run_test(size=SIZE) as pilot:
         await run_until(pilot, lambda s: "X2" in s.active_steps, 10, "the valve open")
-        snap = engine(app).last
+        snap = app.controller.last
         assert snap.value("fso") is True
         status = region_text(app, "#status")
         assert f"scan {snap.scan}" in status and "AUTO" in status and "running" in status
@@ -237,16 +237,16 @@ async def test_manual_request_is_written_and_shown():
         assert "O requested on" in app.message.plain  # the answer comes at once
         await run_for(pilot, 0.05)
         assert "written 1" in app.message.plain
-        assert engine(app).last.output_map["O"] is True
+        assert app.controller.last.output_map["O"] is True
         assert "forced 1" in region_text(app, "#io")
         assert "O=1" in region_text(app, "#banners")
         await run_for(pilot, 2.5)
-        assert engine(app).last.value("fso") is True  # the valve opened under the force
+        assert app.controller.last.value("fso") is True  # the valve opened under the force
         await press(pilot, "x")
         await settle(pilot)
         assert engine(app).manual == {}
         await run_for(pilot, 0.05)
-        assert engine(app).last.output_map["O"] is False
+        assert app.controller.last.output_map["O"] is False
 
 
 async def test_manual_request_on_an_input_is_refused_with_its_reason():
@@ -394,7 +394,7 @@ async def test_fault_injection_now_jams_the_valve():
         await wait_for_main(pilot)
         assert "F13" in app.message.plain and "SIMULATION" in app.message.plain
         await run_for(pilot, 3.0)
-        snap = engine(app).last
+        snap = app.controller.last
         assert dict(snap.plant_state)["jammed"] is True
         assert "X1" in snap.active_steps  # the sequence waits for fso for ever
         sim = region_text(app, "#sim")
@@ -452,17 +452,17 @@ async def test_push_button_for_a_free_input(button_project):
     app = make_app(button_project)
     async with app.run_test(size=SIZE) as pilot:
         await run_for(pilot, 2.0)
-        assert engine(app).last.active_steps == ("X0",)  # waits for the button
+        assert app.controller.last.active_steps == ("X0",)  # waits for the button
         assert "button up" in region_text(app, "#io")
         await select_row(pilot, "start")
         await press(pilot, "b")
         await run_for(pilot, 0.05)
-        assert engine(app).last.value("start") is True
+        assert app.controller.last.value("start") is True
         assert "button pressed" in region_text(app, "#io")
-        assert "X1" in engine(app).last.active_steps
+        assert "X1" in app.controller.last.active_steps
         await press(pilot, "b")
         await run_for(pilot, 0.05)
-        assert engine(app).last.value("start") is False
+        assert app.controller.last.value("start") is False
 
 
 async def test_push_button_on_a_driven_input_is_refused(button_project):
@@ -560,7 +560,7 @@ async def test_palette_closes_without_running_anything():
         assert app.controller.state.running is True
 
 
-# -- every action goes through Controller.command -----------------------------------------
+# -- every action goes through Session.command -----------------------------------------
 
 
 async def test_operator_actions_reach_the_controller_listeners():
@@ -623,7 +623,7 @@ async def test_filter_changes_are_shown_with_their_constraint():
     app = make_app(control="faulty")
     async with app.run_test(size=(120, 36)) as pilot:
         await run_until(pilot, _changed, 10, "a filter correction")
-        snap = engine(app).last
+        snap = app.controller.last
         change = snap.filter.changes[0]
         io = region_text(app, "#io")
         row = next(line for line in io.splitlines() if f"│ {change.output} " in line)
@@ -647,7 +647,7 @@ async def test_a_past_violation_keeps_its_level_1_explanation():
     app = make_app(control="faulty")
     async with app.run_test(size=(200, 40)) as pilot:
         await run_until(pilot, _changed, 10, "a filter correction")
-        snap = engine(app).last
+        snap = app.controller.last
         name = snap.filter.violated_names[0]
         what = next(e.what for e in snap.explanations if e.key == f"constraint:{name}")
         description = next(c.description for c in app.project.constraints if c.name == name)
@@ -672,7 +672,7 @@ async def test_manual_request_refused_by_the_filter_names_the_constraint():
         message = app.message.plain
         assert "NOT AS REQUESTED" in message and "written 0" in message
         assert "CSs2" in message
-        assert engine(app).last.output_map["O"] is False
+        assert app.controller.last.output_map["O"] is False
         assert "≠ filter CSs2" in region_text(app, "#io")
 
 
@@ -700,7 +700,7 @@ async def test_reset_under_safe_blocking_says_what_stays():
 
 async def test_simulation_controls_are_off_for_a_real_plant():
     app = make_app()
-    engine(app).plant.kind = "modbus"  # as a Modbus plant would say: no speed, no faults
+    engine(app).plant.is_real = True  # as a Modbus plant declares: no speed, no faults
     async with app.run_test(size=SIZE) as pilot:
         await press(pilot, "v", "f")
         await settle(pilot)
@@ -759,7 +759,7 @@ async def test_quit_asks_first_and_says_what_happens():
         assert app.is_running and app.return_code is None
         assert "cancelled: quit" in app.message.plain
         await run_for(pilot, 0.1)
-        assert engine(app).last.output_map["O"] is True  # still in control
+        assert app.controller.last.output_map["O"] is True  # still in control
         await press(pilot, "q")
         await wait_for_screen(pilot, ConfirmDialog)
         await press(pilot, "y")
@@ -780,7 +780,7 @@ async def test_quit_from_the_palette_is_confirmed_too():
 
 async def test_quit_on_a_real_plant_says_the_outputs_are_written_safe():
     app = make_app()
-    engine(app).plant.kind = "modbus"
+    engine(app).plant.is_real = True  # as a Modbus plant declares
     async with app.run_test(size=SIZE) as pilot:
         await press(pilot, "q")
         await wait_for_screen(pilot, ConfirmDialog)

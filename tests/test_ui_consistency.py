@@ -55,7 +55,7 @@ async def test_a_scan_landing_while_a_frame_is_built_does_not_mix_two_scans():
     app = make_app(control="faulty")
     async with app.run_test(size=(100, 30)) as pilot:
         await run_until(pilot, lambda s: s.scan == scan, 60, f"scan {scan}")
-        assert name in app.controller.engine.last.filter.violated_names
+        assert name in app.controller.last.filter.violated_names
         app.recorder._lock = ScanFirst(app.recorder._lock, app.controller.scan_once)
         app.poll(force=True)  # issue 13: TypeError in the constraints panel
         await drain(pilot)

@@ -17,7 +17,7 @@ from textual.app import App
 
 from hmi.cli import main
 from hmi.explain.journal import Journal
-from hmi.explain.recorder import JournalRecorder
+from hmi.session.journal_recorder import JournalRecorder
 from hmi.ui.app import PlcHmiApp, app_end
 from hmi.ui.chronogram import Chronogram
 from hmi.ui.constraints_panel import ConstraintsPanel
@@ -25,6 +25,7 @@ from hmi.ui.dialogs import ConfirmDialog
 from hmi.ui.scenarios import VALVE, make_app
 from hmi.ui.testhooks import ENV
 from hmi.ui.testing import (
+    click,
     palette,
     press,
     region_text,
@@ -107,7 +108,7 @@ async def test_errors_in_handlers_actions_dialogs_palette_and_drawing_are_contai
         assert app.containment.latest.what == "action window"
         # a click handler of a panel
         monkeypatch.setattr(ConstraintsPanel, "on_click", boom)
-        await pilot.click("#constraints")
+        assert await click(pilot, "#constraints")
         await settle(pilot)
         assert app.containment.latest.what == "ConstraintsPanel on_click"
         # the answer to a dialog
@@ -207,12 +208,12 @@ def test_a_dead_scan_thread_ends_the_hmi_abnormally(monkeypatch, tmp_path, capsy
 
 def test_a_headless_run_that_fails_is_not_journalled_as_ended_normally(monkeypatch,
                                                                         tmp_path):
-    from hmi.engine.runner import Controller
+    from hmi.session.session import Session
     path = tmp_path / "j.jsonl"
 
     def broken(self, duration_us, on_scan=None):
         raise RuntimeError("deliberate")
-    monkeypatch.setattr(Controller, "run_for", broken)
+    monkeypatch.setattr(Session, "run_for", broken)
     assert main(["run", str(VALVE), "--for", "1s", "--journal", str(path)]) == 1
     last = journal_entries(path)[-1]
     assert last["event"] == "abnormal-end"

@@ -10,7 +10,7 @@ variant, used here); F9 at 10 s is isolated with certainty in S9 (fso read from 
 from __future__ import annotations
 
 from hmi.engine.commands import InjectFault
-from hmi.plant.sim import Injection
+from hmi.plant.injection import Injection
 from hmi.ui.alarm_list import AlarmList
 from hmi.ui.dialogs import ConfirmDialog
 from hmi.ui.explain_panel import ExplanationPanel
@@ -63,7 +63,7 @@ async def test_ambiguous_diagnosis_reads_as_such():
     app = make_app(diagnoser="paper")
     async with app.run_test(size=WIDE) as pilot:
         await inject(pilot, "F1", 10, ("F1", "F13"))
-        snap = engine(app).last
+        snap = app.controller.last
         assert set(snap.masked) == {"C", "O"} and snap.reconstructed == ("fsc",)
         text = region_text(app, "#diagnosers")
         assert "✗ V1 A1" in text and "1 faulty" in text
@@ -101,7 +101,7 @@ async def test_certain_diagnosis_recommends_running_degraded():
     app.controller.listeners.append(lambda cmd, result, snap: seen.append(cmd))
     async with app.run_test(size=WIDE) as pilot:
         await inject(pilot, "F9", 10, ("F9",))
-        snap = engine(app).last
+        snap = app.controller.last
         assert snap.reconstructed == ("fso",) and snap.masked == ()
         assert "F9 ✗ certain  unexpected fso rise" in region_text(app, "#diagnosers")
         assert "≈ reconstructed (fso_hat)" in region_text(app, "#io")
@@ -170,7 +170,7 @@ async def test_a_situation_without_alarm_is_explained_from_the_palette():
     app = make_app()
     async with app.run_test(size=WIDE) as pilot:
         await inject(pilot, "F9", 10, ("F9",))
-        degraded = next(e for e in engine(app).last.explanations
+        degraded = next(e for e in app.controller.last.explanations
                         if e.key == "reconstruction:fso")
         assert not degraded.alarm  # the diagnosis raised the alarm; this one explains more
         await palette(pilot, f"Explain: {degraded.what}", "fso ignored")

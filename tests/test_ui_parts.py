@@ -77,7 +77,7 @@ def _frame(snap, **kw) -> Frame:
 def _snapshot(**changes):
     controller = make_controller(PROJECTS / "cispi_valve")
     controller.run_for(1_500_000)
-    return controller.engine.last._replace(**changes)
+    return controller.last._replace(**changes)
 
 
 def test_status_keeps_alarms_and_mode_when_narrow():

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from hmi.plant.valve import Valve
+from hmi.plant.sim.valve import Valve
 
 MS = 1_000
 S = 1_000_000

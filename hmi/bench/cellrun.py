@@ -81,25 +81,17 @@ def measure(project: Project, control: str, duration_us: int, policy: str = "cor
     `inject` holds fault injections: Injection objects (a scenario's), or text as written on
     the command line (`table_jam@30s`).
     """
-    from hmi.engine.runner import settle_memory
     from hmi.engine.scan import Engine
-    from hmi.plant.sim import Injection, SimPlant, parse_injection
+    from hmi.plant.injection import Injection, parse_injection
+    from hmi.plant.sim.plant import SimPlant
+    from hmi.session.session import settle_memory
 
     plant = SimPlant(project)
     for item in inject:
         plant.inject(item if isinstance(item, Injection) else parse_injection(item))
     engine = Engine(project, plant, control=control, policy=policy, solver=strategy)
     run = CellRun(project.name, control, policy, strategy)
-    stage = engine.output_stage
     filter_us = run.filter_us
-
-    def measured(eng, fov):
-        started = time.perf_counter()
-        out = stage(eng, fov)
-        filter_us.append((time.perf_counter() - started) * 1e6)
-        return out
-    if timed:
-        engine.output_stage = measured
     period = project.scan_period_us
     settle_memory()
     started = time.perf_counter()
@@ -109,6 +101,8 @@ def measure(project: Project, control: str, duration_us: int, policy: str = "cor
             snap = engine.step(k * period)
             k += 1
             report = snap.filter
+            if timed:
+                filter_us.append(snap.filter_wall_us)
             for event in snap.plant_events:
                 if event.damage:
                     run.damage[event.kind] += 1

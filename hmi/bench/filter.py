@@ -16,8 +16,8 @@ import time
 from dataclasses import dataclass
 
 from hmi.bench import percentile, summary
-from hmi.engine.runner import settle_memory
 from hmi.engine.solver import exact_solve, paper_solve
+from hmi.session.session import settle_memory
 
 SECTION = "filter"
 HELP = "corrector strategies on random constraint sets; per-scan filter time of cispi_valve"
@@ -142,7 +142,7 @@ def _us(value: float) -> str:
 def run_valve(scans: int):
     from hmi.engine.scan import Engine
     from hmi.paths import PROJECTS
-    from hmi.plant.sim import SimPlant
+    from hmi.plant.sim.plant import SimPlant
     from hmi.project.loader import load_project
 
     project = load_project(PROJECTS / "cispi_valve")
@@ -153,19 +153,12 @@ def run_valve(scans: int):
         if frozen:
             settle_memory()
         filter_us: list[float] = []
-        stage = engine.output_stage
-
-        def measured(eng, fov, stage=stage, filter_us=filter_us):
-            started = time.perf_counter()
-            out = stage(eng, fov)
-            filter_us.append((time.perf_counter() - started) * 1e6)
-            return out
-        engine.output_stage = measured
         scan_us: list[float] = []
         for k in range(scans):
             started = time.perf_counter()
-            engine.step(k * 10_000)
+            snap = engine.step(k * 10_000)
             scan_us.append((time.perf_counter() - started) * 1e6)
+            filter_us.append(snap.filter_wall_us)
         if frozen:
             gc.unfreeze()
         s50, s99, _ = summary(scan_us)

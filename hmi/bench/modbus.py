@@ -20,8 +20,8 @@ from pathlib import Path
 from pymodbus.client import ModbusTcpClient
 
 from hmi.bench import percentile
-from hmi.plant.modbus_client import ModbusPlant, ModbusSettings
-from hmi.plant.server_process import ServerProcess
+from hmi.plant.modbus.client import ModbusPlant, ModbusSettings
+from hmi.plant.modbus.server_process import ServerProcess
 from hmi.project.loader import load_project
 
 # The CISPI valve's I/O map: two end switches on discrete inputs, two orders on coils.

@@ -33,13 +33,13 @@ SETTLE_S = 0.5  # let the app finish mounting and its first layout before measur
 
 
 def _controller(period_us: int):
-    from hmi.engine.runner import Controller
     from hmi.engine.scan import Engine
-    from hmi.plant.sim import SimPlant
+    from hmi.plant.sim.plant import SimPlant
     from hmi.project.loader import load_project
+    from hmi.session.session import Session
 
     project = load_project(PROJECT)
-    return Controller(Engine(project, SimPlant(project)), period_us)
+    return Session(Engine(project, SimPlant(project)), period_us)
 
 
 def jitter_line(label: str, jitter: list[float], scans: int, seconds: float,
@@ -55,7 +55,7 @@ def jitter_line(label: str, jitter: list[float], scans: int, seconds: float,
 
 def baseline(seconds: float, period_us: int = PERIOD_US) -> str:
     """The scan loop alone, paced by the wall clock: what the UI is compared with."""
-    from hmi.engine.live import LiveRunner
+    from hmi.session.live import LiveRunner
 
     controller = _controller(period_us)
     runner = LiveRunner(controller)

@@ -23,10 +23,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 from hmi.engine.scan import Engine
-from hmi.plant.device import PlantEvent
-from hmi.plant.sim import Injection, SimPlant
+from hmi.engine.snapshot import Snapshot
+from hmi.plant.base import PlantEvent
+from hmi.plant.injection import Injection
+from hmi.plant.sim.plant import SimPlant
 from hmi.project.campaign import CampaignSpec, Scenario
 from hmi.project.model import Project
 from hmi.timefmt import format_duration, seconds
@@ -94,7 +97,7 @@ class RunResult:
     def line(self) -> str:
         return f"{self.outcome}: {self.reason}" + (f"; {self.context}" if self.context else "")
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, Any]:
         return {
             "scenario": self.scenario.name, "fault": self.scenario.fault,
             "device": self.scenario.device, "at_s": self.scenario.at_us / 1e6,
@@ -125,7 +128,7 @@ class CampaignResult:
     def result(self, scenario: Scenario, config: str) -> RunResult:
         return next(r for r in self.runs if r.scenario == scenario and r.config.key == config)
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, Any]:
         return {
             "project": self.project, "length_s": self.spec.length_us / 1e6,
             "window_s": self.spec.window_us / 1e6, "counter": self.spec.counter,
@@ -172,7 +175,7 @@ def run_one(project: Project, spec: CampaignSpec, scenario: Scenario, config: Co
                      tuple(d.state for d in snap.diagnosers))
 
 
-def _context(snap, config: Config, detected: int | None) -> str:
+def _context(snap: Snapshot, config: Config, detected: int | None) -> str:
     """What the FTC machinery was doing at the end of the run, in a few words."""
     if config.diagnosis == "off":
         parts = ["diagnosers off"]
@@ -229,7 +232,7 @@ def run_campaign(project: Project, spec: CampaignSpec,
     return result
 
 
-_WORKER: dict = {}
+_WORKER: dict[str, Any] = {}
 
 
 def _worker_init(path: str, period_us: int | None) -> None:

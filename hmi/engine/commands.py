@@ -1,7 +1,7 @@
 """Operator and engineer commands: the one way anything outside the engine changes it.
 
 Commands are plain data so that the UI, a headless script, a test and the journal all speak
-the same language. :class:`hmi.engine.runner.Controller` accepts every command; the run-state
+the same language. :class:`hmi.session.session.Session` accepts every command; the run-state
 ones (pause, step) it handles itself, the others it passes to the engine.
 """
 
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from hmi.plant.sim import Injection
+from hmi.plant.injection import Injection
 
 
 @dataclass(frozen=True)

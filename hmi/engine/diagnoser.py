@@ -1,12 +1,14 @@
 """Local diagnosers in the scan, their flags, reconstruction and masking (000 §2.1-2.2, §3.2).
 
-Scan stages 3 and 4 of DESIGN.md, run after the memory phase and before the control law:
+Stage 3 of the scan (hmi.engine.stages), run after the memory phase and before the control
+law; it decides what stages 4 and 6 do and returns it as a :class:`Diagnosis`:
 
 3. every diagnoser steps once on I(t), the orders written at t-1 and the clock; its state's
    decision sets the partition flags `def_<partition>`;
 4. a sensor whose flag is set is read from its estimate: `x_filter = not def and x or def and
-   x_hat` (000 eq. 7-8); an actuator partition whose flag is set has its orders masked,
-   `C_filter = not defV and C` (eq. 9-10).
+   x_hat` (000 eq. 7-8) — the routes, applied by hmi.engine.stages.Reconstruction; an
+   actuator partition whose flag is set has its orders masked, `C_filter = not defV and C`
+   (eq. 9-10) — the mask, applied by the filter stage (hmi.engine.filter_stage).
 
 **Why outputs are read one scan back.** At this stage the output slots of the image still hold
 the vector written at t-1, and `history[0]` holds it too, so `rise(O)` compiled as written
@@ -21,14 +23,8 @@ If none fires, the state's timeout fires once the time in state reaches `after`.
 therefore wins over a timeout at the same scan. A state entered at this scan is not left
 before the next one (like one GRAFCET clearing per scan), so each state is seen by the filter.
 
-**Masking wins over the filter** (except under the `monitor` policy, which alters nothing and
-only says what it would have masked). Masked orders are forced to 0 in the candidate vector the
-filter sees (so the filter judges what will really be sent), and again after the filter: a
-simple constraint of the form `not o . h1` (e.g. CSs4, never drop O before fso) would
-otherwise switch a masked order back on. The scan where masking starts may therefore leave
-such a constraint violated; the filter report says so in its note, and counts it as accepted
-(the order is withdrawn from a device the diagnoser no longer trusts; 000 §3: "when a fault is
-on an actuator, all outputs must be deactivated by the filter").
+**Masking wins over the filter**, except under the `monitor` policy: see
+hmi.engine.filter_stage.
 
 **Gaps in the observation.** When the stage did not run for some scans (the inputs were
 unknown: plant connection lost) or a step between two scans is longer than 10 scan periods (a
@@ -42,15 +38,17 @@ Modes (for the campaign's configurations): `ftc` (flags drive reconstruction and
 
 from __future__ import annotations
 
-from collections import deque
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
+from typing import Any, NamedTuple, overload
 
+from hmi.engine.layout import Layout
 from hmi.logic.expr import (
     And,
     BoolFn,
     Compare,
+    History,
+    Image,
     Node,
     Not,
     Or,
@@ -59,11 +57,15 @@ from hmi.logic.expr import (
     to_text,
     walk,
 )
-from hmi.project.diagnosers import DiagnoserSpec, DiagTransition, diagnosers_of
+from hmi.project.diagnosers import (
+    DiagnoserSpec,
+    DiagState,
+    DiagTransition,
+    ResyncRule,
+    diagnosers_of,
+)
+from hmi.project.model import Project
 from hmi.timefmt import format_duration
-
-if TYPE_CHECKING:
-    from hmi.engine.scan import Engine
 
 MODES = ("ftc", "observe", "off")
 GAP_SCANS = 10  # a step this many scan periods long is a gap in the observation
@@ -141,7 +143,8 @@ def _depth(node: Node) -> int:
 class DiagnoserRuntime:
     """One compiled diagnoser: integer states, compiled conditions, the current state."""
 
-    def __init__(self, spec: DiagnoserSpec, slots, outputs: frozenset[str]):
+    def __init__(self, spec: DiagnoserSpec, slots: Mapping[str, int],
+                 outputs: frozenset[str]):
         self.spec = spec
         self.slots = slots
         self.outputs = outputs
@@ -165,7 +168,7 @@ class DiagnoserRuntime:
                                     index[tr.target], tr))
         self.events = events
         self.timeouts = timeouts
-        self.resync_rules = []
+        self.resync_rules: list[tuple[BoolFn, int, int, ResyncRule]] = []
         for k, rule in enumerate(spec.resync, start=1):
             root = shift_outputs(rule.when.root, outputs)
             self.depth = max(self.depth, _depth(root))
@@ -183,7 +186,7 @@ class DiagnoserRuntime:
         self.record = self._record()
 
     @property
-    def state(self):
+    def state(self) -> DiagState:
         return self.spec.states[self.current]
 
     @property
@@ -205,7 +208,7 @@ class DiagnoserRuntime:
         self.via = via
         self.record = self._record()
 
-    def step(self, image, hist, now: int, scan: int) -> bool:
+    def step(self, image: Image, hist: History, now: int, scan: int) -> bool:
         """One scan of the automaton; True when the state changed."""
         if self.since_us is None:
             self.since_us, self.since_scan = now, scan
@@ -222,14 +225,14 @@ class DiagnoserRuntime:
             return True
         return False
 
-    def resync_match(self, image, hist) -> tuple[int, int, object] | None:
+    def resync_match(self, image: Image, hist: History) -> tuple[int, int, ResyncRule] | None:
         """The first resync rule the I/O satisfies: (target, rule number, rule), or None."""
         for fn, target, k, rule in self.resync_rules:
             if fn(image, hist):
                 return target, k, rule
         return None
 
-    def preview(self, image, hist) -> DiagnoserState:
+    def preview(self, image: Image, hist: History) -> DiagnoserState:
         """The record, with what a fault reset would do now (for the reset dialog).
 
         Called after the scan, before its image joins the history; the reset itself runs
@@ -242,7 +245,7 @@ class DiagnoserRuntime:
         return replace(record, resync=self.names[match[0]] if match else "",
                        resync_values=self._resync_values(image, seen))
 
-    def resync(self, image, hist, now: int, scan: int) -> str:
+    def resync(self, image: Image, hist: History, now: int, scan: int) -> str:
         """Fault reset: back to the normal state the current I/O is consistent with."""
         spec = self.spec
         state = self.state
@@ -264,7 +267,7 @@ class DiagnoserRuntime:
         return (f"diagnoser {spec.name} stays in {was}: {shown} match no normal state: the "
                 "fault is still visible")
 
-    def _resync_values(self, image, hist) -> str:
+    def _resync_values(self, image: Image, hist: History) -> str:
         """`fsc=0, fso=0, C=0, O=0`: the values the resync rules test, as they see them."""
         seen: dict[tuple[str, int], None] = {}
         for rule in self.spec.resync:
@@ -280,30 +283,51 @@ class DiagnoserRuntime:
         return ", ".join(parts)
 
 
-class _Shifted:
+class _Shifted(Sequence[Image]):
     """The history as it will be once this scan's image is in it (index 0: the image)."""
 
     __slots__ = ("hist", "image")
 
-    def __init__(self, image, hist):
+    def __init__(self, image: Image, hist: History):
         self.image, self.hist = image, hist
 
-    def __getitem__(self, k: int):
+    def __len__(self) -> int:
+        return len(self.hist) + 1
+
+    @overload
+    def __getitem__(self, k: int) -> Image: ...
+
+    @overload
+    def __getitem__(self, k: slice) -> Sequence[Image]: ...
+
+    def __getitem__(self, k: int | slice) -> Image | Sequence[Image]:
+        if isinstance(k, slice):
+            return [self.image, *self.hist][k]
         return self.image if k == 0 else self.hist[k - 1]
 
 
-class DiagnosisStage:
-    """The engine's diagnosers, flags, reconstructed sensors and masks (one stage)."""
+class Diagnosis(NamedTuple):
+    """What stage 3 decided, for stages 4 and 6 and the snapshot. The stage keeps returning
+    the same object while no diagnoser changes state."""
 
-    def __init__(self, engine: Engine, specs: Sequence[DiagnoserSpec], mode: str):
+    routes: tuple[tuple[int, int], ...]  # filtered slot <- sensor or estimate slot
+    mask: tuple[bool, ...] | None  # per output: forced to 0 (ftc only); None: nothing masked
+    records: tuple[DiagnoserState, ...]
+    reconstructed: tuple[str, ...]  # sensors read from their estimate
+    masked: tuple[str, ...]  # outputs whose orders are masked
+
+
+class DiagnosisStage:
+    """Stage 3 of the scan: the diagnosers, their flags, and what stages 4 and 6 must do."""
+
+    def __init__(self, specs: Sequence[DiagnoserSpec], layout: Layout, mode: str):
         if mode not in MODES:
             raise ValueError(f"unknown diagnosis mode {mode!r}")
         self.mode = mode
-        lay = engine.layout
+        lay = layout
         slots = lay.slots
         outputs = frozenset(lay.outputs)
         self.runtimes = [DiagnoserRuntime(spec, slots, outputs) for spec in specs]
-        self.flag_slots = {p.flag: slots[p.flag] for spec in specs for p in spec.partitions}
         # (filtered slot, sensor slot, estimate slot, flag slot, sensor, estimate)
         self.sensors = [(slots[p.filtered], slots[p.sensor], slots[p.estimate], slots[p.flag],
                          p.sensor, p.estimate)
@@ -315,27 +339,22 @@ class DiagnosisStage:
                 for out in p.actuators:
                     masks.setdefault(lay.outputs.index(out), []).append(slots[p.flag])
         self.masks = sorted(masks.items())
+        # Which flags mask each masked output, for the filter's report.
         self.mask_flags = {lay.outputs[k]: tuple(
             p.flag for spec in specs for p in spec.partitions if lay.outputs[k] in p.actuators)
             for k, _ in self.masks}
         self.outputs = lay.outputs
-        self.mask: tuple[bool, ...] | None = None  # this scan's mask (ftc only)
         self.depth = max((rt.depth for rt in self.runtimes), default=1)
         self.dirty = True  # flags, routes and masks to recompute at the next scan
         self.last_scan: int | None = None  # the last scan the stage ran
         self.last_now = 0
         self.period: int | None = None  # the shortest step seen between two scans
-        self.routes: tuple[tuple[int, int], ...] = ()  # filtered slot <- sensor or estimate
-        self.records: tuple[DiagnoserState, ...] = ()
-        self.faulty = False  # some diagnoser holds a faulty decision (its records + preview)
-        self.reconstructed: tuple[str, ...] = ()
-        self.masked: tuple[str, ...] = ()
+        self.faulty = False  # some diagnoser holds a faulty decision
+        self.current = Diagnosis((), None, (), (), ())  # nothing shown before the first run
 
-    def __call__(self, engine: Engine) -> None:
-        image, hist = engine.image, engine.history
+    def step(self, image: Image, history: History, now: int, scan: int) -> Diagnosis:
         changed = self.dirty
         if self.mode != "off":
-            now, scan = engine.now, engine.scan
             if self.last_scan is not None:
                 delta = now - self.last_now
                 if scan != self.last_scan + 1 or (self.period and delta > GAP_SCANS * self.period):
@@ -344,17 +363,11 @@ class DiagnosisStage:
                     self.period = min(self.period or delta, delta)
             self.last_scan, self.last_now = scan, now
             for rt in self.runtimes:
-                if rt.step(image, hist, now, scan):
+                if rt.step(image, history, now, scan):
                     changed = True
         if changed:  # flags, routes and masks only move when a diagnoser changes state
             self._settle(image)
-        for fslot, source in self.routes:
-            image[fslot] = image[source]
-        extras = engine.extras
-        extras["diagnosers"] = self.records
-        self.faulty = any(r.faulty for r in self.records)
-        extras["reconstructed"] = self.reconstructed
-        extras["masked"] = self.masked if engine.policy != "monitor" else ()
+        return self.current
 
     def _lost_sight(self, now: int, scan: int, delta: int) -> bool:
         """The plant was not observed for `delta` (inputs unknown, or no scan: a pause).
@@ -377,7 +390,7 @@ class DiagnosisStage:
                 changed = True
         return changed
 
-    def _settle(self, image) -> None:
+    def _settle(self, image: Image) -> None:
         self.dirty = False
         if self.mode != "off":
             for rt in self.runtimes:
@@ -392,117 +405,55 @@ class DiagnosisStage:
                 reconstructed.append(sensor)
             else:
                 routes.append((fslot, sslot))
-        self.routes = tuple(routes)
         mask = [False] * len(self.outputs)
         if ftc:
             for k, flags in self.masks:
                 mask[k] = any(image[f] for f in flags)
-        self.mask = tuple(mask) if any(mask) else None
-        self.masked = tuple(self.outputs[k] for k, m in enumerate(mask) if m)
-        self.reconstructed = tuple(reconstructed)
-        self.records = tuple(rt.record for rt in self.runtimes)
+        records = tuple(rt.record for rt in self.runtimes)
+        self.faulty = any(r.faulty for r in records)
+        self.current = Diagnosis(
+            tuple(routes), tuple(mask) if any(mask) else None, records, tuple(reconstructed),
+            tuple(self.outputs[k] for k, m in enumerate(mask) if m))
 
-    def publish(self, engine: Engine, extras: dict) -> None:
-        """Snapshot hook: a scan that skipped the stage (inputs unknown) still shows the
-        diagnosers, as they stand; a faulty one with what a fault reset would do now."""
+    def publish(self, image: Image, history: History) -> tuple[DiagnoserState, ...]:
+        """The diagnosers for the snapshot, at the end of the scan: a faulty one with what a
+        fault reset would do now (for the reset dialog); the records as they stand when the
+        stage did not run this scan (inputs unknown)."""
         if self.faulty:
-            extras["diagnosers"] = tuple(rt.preview(engine.image, engine.history)
-                                         for rt in self.runtimes)
-        extras.setdefault("diagnosers", self.records)
-        extras.setdefault("reconstructed", self.reconstructed)
-        extras.setdefault("masked", self.masked if engine.policy != "monitor" else ())
+            return tuple(rt.preview(image, history) for rt in self.runtimes)
+        return self.current.records
 
-    def reset(self, engine: Engine) -> list[str]:
-        """The fault-reset hook: re-synchronise every faulty diagnoser, or say why not."""
-        if self.mode == "off" or not engine.started:
+    def capture(self) -> tuple[Any, ...]:
+        """The stage's and its diagnosers' state (Engine.capture)."""
+        return (self.current, self.dirty, self.last_scan, self.last_now, self.period,
+                self.faulty, tuple((rt.current, rt.since_us, rt.since_scan, rt.via, rt.record)
+                                   for rt in self.runtimes))
+
+    def restore(self, state: tuple[Any, ...]) -> None:
+        (self.current, self.dirty, self.last_scan, self.last_now, self.period, self.faulty,
+         runtimes) = state
+        for rt, (current, since_us, since_scan, via, record) in zip(
+                self.runtimes, runtimes, strict=True):
+            rt.current, rt.since_us, rt.since_scan, rt.via, rt.record = (
+                current, since_us, since_scan, via, record)
+
+    def reset(self, image: Image, history: History, now: int, scan: int) -> list[str]:
+        """Fault reset: re-synchronise every faulty diagnoser, or say why not."""
+        if self.mode == "off":
             return []
         lines = []
         for rt in self.runtimes:
-            line = rt.resync(engine.image, engine.history, engine.now, engine.scan)
+            line = rt.resync(image, history, now, scan)
             if line:
                 lines.append(line)
         self.dirty = True  # flags follow the new states at the next scan
         return lines
 
 
-class MaskedOutputStage:
-    """Wraps the output stage (the safety filter) so masked orders are never sent."""
-
-    def __init__(self, inner, stage: DiagnosisStage):
-        self.inner = inner
-        self.stage = stage
-
-    def __getattr__(self, name: str):  # the filter's own attributes (compiled, active...)
-        return getattr(self.inner, name)
-
-    def __call__(self, engine: Engine, fov: tuple[bool, ...]):
-        mask = self.stage.mask
-        if mask is None:
-            return self.inner(engine, fov)
-        if engine.policy == "monitor":  # monitor alters nothing, masks included: it says so
-            written, report = self.inner(engine, fov)
-            return written, self._unapplied(report)
-        candidate = tuple(v and not m for v, m in zip(fov, mask, strict=True))
-        written, report = self.inner(engine, candidate)
-        forced = tuple(bool(w) and not m for w, m in zip(written, mask, strict=True))
-        return forced, self._report(engine, report, fov, candidate, written, forced, mask)
-
-    def _unapplied(self, report):
-        from hmi.engine.filter import FilterReport
-        if not isinstance(report, FilterReport):
-            return report
-        masked = [self.stage.outputs[k] for k, m in enumerate(self.stage.mask or ()) if m]
-        flags = sorted({f for n in masked for f in self.stage.mask_flags[n]})
-        extra = (f"{', '.join(flags)} would mask {', '.join(masked)}; not applied under the "
-                 "monitor policy")
-        return report._replace(note=f"{report.note}; {extra}" if report.note else extra)
-
-    def _report(self, engine: Engine, report, fov, candidate, written, forced, mask):
-        from hmi.engine.filter import Change, FilterReport, pack
-        if not isinstance(report, FilterReport):
-            return report
-        outputs = self.stage.outputs
-        masked = {outputs[k] for k, m in enumerate(mask) if m}
-        changes = [c for c in report.changes if c.output not in masked]
-        for k, name in enumerate(outputs):
-            if mask[k] and (fov[k] or written[k]):
-                changes.append(Change(name, bool(fov[k]), False, self.stage.mask_flags[name],
-                                      "masked"))
-        residual = report.residual
-        accepted: tuple[str, ...] = ()
-        active = getattr(self.inner, "active", None)
-        if active is not None and forced != tuple(written):
-            value = pack(forced)
-            violated = [c for c in active(engine.image, engine.history)
-                        if value & c.pos == c.pos and not value & c.neg]
-            accepted = tuple(c.name for c in violated if set(c.constraint.outputs) <= masked)
-            residual = tuple(c.name for c in violated if c.name not in accepted)
-        note = report.note
-        extra = f"orders {', '.join(sorted(masked))} masked by " + ", ".join(
-            sorted({f for n in masked for f in self.stage.mask_flags[n]}))
-        if accepted:
-            extra += (f" (accepted: {', '.join(accepted)} stays violated this scan; the mask "
-                      "has the last word)")
-        note = f"{note}; {extra}" if note else extra
-        return report._replace(changes=tuple(changes), residual=residual, note=note,
-                       distance=sum(a != b for a, b in zip(candidate, forced, strict=True)))
-
-
-def install_diagnosers(engine: Engine, mode: str = "ftc") -> DiagnosisStage | None:
-    """Add the diagnosis stage, the masking wrapper and the reset hook to an engine."""
-    specs = diagnosers_of(engine.project)
-    if not specs:
-        return None
-    stage = DiagnosisStage(engine, specs, mode)
-    engine.stages_after_memory.append(stage)
-    engine.output_stage = MaskedOutputStage(engine.output_stage, stage)
-    engine.reset_hooks.append(stage.reset)
-    engine.snapshot_extras.append(stage.publish)
-    if stage.depth > (engine.history.maxlen or 0) and not engine.started:
-        engine.history = deque(maxlen=stage.depth)
-    engine.diagnosis = stage
-    explainer = getattr(engine, "explainer", None)
-    if explainer is not None:
-        from hmi.explain.diagnoses import diagnosis_explanations
-        explainer.extra_builders.append(diagnosis_explanations)
-    return stage
+def diagnosis_stage(project: Project, layout: Layout, mode: str = "ftc"
+                    ) -> DiagnosisStage | None:
+    """The project's diagnosers as a scan stage (None for a project without diagnosers)."""
+    if mode not in MODES:
+        raise ValueError(f"unknown diagnosis mode {mode!r}")
+    specs = diagnosers_of(project)
+    return DiagnosisStage(specs, layout, mode) if specs else None

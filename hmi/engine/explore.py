@@ -30,7 +30,8 @@ from dataclasses import dataclass, field
 
 from hmi.engine.loopstate import LoopAccess
 from hmi.engine.scan import Engine
-from hmi.plant.sim import Injection, SimPlant
+from hmi.plant.injection import Injection
+from hmi.plant.sim.plant import SimPlant
 
 HORIZON = -1  # successor of a node whose run hit the step limit without closing its loop
 SETTLED = -2  # successor of a node whose future is settled (see Explorer.settled)
@@ -132,15 +133,12 @@ class Explorer:
         self.period = project.scan_period_us
         plant = SimPlant(project)
         engine = Engine(project, plant, policy=config.policy, diagnosis=config.diagnosis)
-        # Explanations, alarms and the display hooks are for people: they never feed back into
-        # the scan, so the exploration skips them (the state key leaves them out too).
-        engine.explainer.build = lambda *args: ()
-        engine.snapshot_extras = []  # display hooks (what a fault reset would do now...)
-        engine._snapshot = lambda *args: None  # the graph records what the loop needs
+        # The exploration advances the engine without snapshots (Engine.advance): what is
+        # shown to people never feeds back into the scan (the state key leaves it out too).
         self.engine, self.plant = engine, plant
         self.access = LoopAccess(engine, plant)
         lay = engine.layout
-        self.obs_slots = engine.input_slots + engine.output_slots
+        self.obs_slots = lay.indices(lay.inputs) + lay.indices(lay.outputs)
         names = tuple(lay.inputs) + tuple(lay.outputs)
         self.graph = Graph(config, self.period, counter, names)
         self.memo: dict[tuple, int] = {}
@@ -169,7 +167,7 @@ class Explorer:
     def _step(self, now: int) -> tuple[str | None, int]:
         """One scan; the damage it recorded (first kind) and the cycles it completed."""
         before = self._count()
-        self.engine.step(now)
+        self.engine.advance(now)
         damage = next((e.kind for e in self.plant.take_events() if e.damage), None)
         self.graph.scans += 1
         return damage, self._count() - before
@@ -280,7 +278,7 @@ class Explorer:
             return True
         if stage is None or stage.mode != "ftc" or self.engine.policy == "monitor":
             return False
-        if stage.mask is None or not all(stage.mask):
+        if stage.current.mask is None or not all(stage.current.mask):
             return False
         return all(_static(d, self.engine.now) for d in devices)
 

@@ -13,6 +13,7 @@ of steps for the scan, it writes the safe state and says so.
 from __future__ import annotations
 
 import time
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -24,7 +25,7 @@ from hmi.engine.solver import (
     is_safe,
     paper_solve,
 )
-from hmi.logic.expr import And, BoolFn, Not, Var, compile_bool
+from hmi.logic.expr import And, BoolFn, History, Image, Not, Var, compile_bool
 from hmi.project.model import Constraint, Project
 
 # --------------------------------------------------------------------------------------------
@@ -85,6 +86,16 @@ class FilterReport(NamedTuple):
         return bool(self.residual) and not self.safe_state
 
 
+class FilterDecision(NamedTuple):
+    """What the filter writes this scan, its report, and (safe blocking) why the engine must
+    latch the outputs safe until a fault reset (None: no new latch)."""
+
+    outputs: tuple[bool, ...]
+    report: FilterReport
+    latch: str | None = None
+
+
+
 # --------------------------------------------------------------------------------------------
 # Compiled constraints
 # --------------------------------------------------------------------------------------------
@@ -109,7 +120,9 @@ class CompiledConstraint:
         return self.constraint.kind == "simple"
 
 
-def compile_constraints(project: Project, slots, step_times=None) -> list[CompiledConstraint]:
+def compile_constraints(project: Project, slots: Mapping[str, int],
+                        step_times: Mapping[str, int] | None = None
+                        ) -> list[CompiledConstraint]:
     index = {v.name: k for k, v in enumerate(project.outputs)}
     compiled = []
     for c in project.constraints:
@@ -135,7 +148,7 @@ def compile_constraints(project: Project, slots, step_times=None) -> list[Compil
     return compiled
 
 
-def pack(values) -> int:
+def pack(values: Iterable[bool]) -> int:
     v = 0
     for k, value in enumerate(values):
         if value:
@@ -166,7 +179,7 @@ class _ActiveSet:
     problem: Problem  # the exact search's preparation (empty when nothing is combined)
 
     @classmethod
-    def of(cls, active, n: int) -> _ActiveSet:
+    def of(cls, active: Sequence[CompiledConstraint], n: int) -> _ActiveSet:
         simple = [c for c in active if c.simple]
         f0 = f1 = 0
         for c in simple:
@@ -194,7 +207,8 @@ class _ActiveSet:
 class SafetyFilter:
     """Stateless between scans except for what the engine holds (policy, latch)."""
 
-    def __init__(self, project: Project, slots, step_times=None, strategy: str = "exact",
+    def __init__(self, project: Project, slots: Mapping[str, int],
+                 step_times: Mapping[str, int] | None = None, strategy: str = "exact",
                  budget: int | None = None):
         self.project = project
         self.strategy = strategy
@@ -203,7 +217,7 @@ class SafetyFilter:
         self.budget = budget if budget is not None else default_budget(
             project.scan_period_us)
         # A wall-clock limit on the search, in microseconds, set only by a live runner
-        # (hmi.engine.live) as a safety net on a slow or loaded machine. Never set in a headless
+        # (hmi.session.live) as a safety net on a slow or loaded machine. Never set in a headless
         # run, a test or a campaign: it cannot change their traces.
         self.wall_limit_us: float | None = None
         self.outputs = tuple(v.name for v in project.outputs)
@@ -215,42 +229,45 @@ class SafetyFilter:
         # cell has few distinct active sets, and a violation scan should not rebuild them.
         self._by_active: dict[tuple[int, ...], _ActiveSet] = {}
 
-    # The engine's output stage.
-    def __call__(self, engine, fov: tuple[bool, ...]):
-        return self.apply(engine, fov)
-
-    def active(self, image, history) -> list[CompiledConstraint]:
+    def active(self, image: Image, history: History) -> list[CompiledConstraint]:
         return [c for c in self.compiled if c.context is None or c.context(image, history)]
 
-    def apply(self, engine, fov: tuple[bool, ...]):
-        image, history = engine.image, engine.history
+    def apply(self, image: Image, history: History, fov: tuple[bool, ...], policy: str,
+              latched: bool) -> FilterDecision:
+        """The filter's decision on the candidate `fov`. Under `block`, a first violation
+        returns the reason to latch (`latched`: the engine's outputs already are) and the
+        engine latches; the filter itself holds no state between scans."""
         candidate = pack(fov)
         active = self.active(image, history)
         violated = [c for c in active if candidate & c.pos == c.pos and not candidate & c.neg]
         violations = tuple(c.violation for c in violated)
-        policy = engine.policy
         if policy == "monitor":
             report = FilterReport(policy, self.strategy, violations,
                                   residual=tuple(c.name for c in violated))
-            return fov, report
+            return FilterDecision(fov, report)
         if policy == "block":
-            if violated and not engine.latched:
+            latch = None
+            if violated and not latched:
                 first = violated[0].constraint
                 why = f": {first.description}" if first.description else ""
-                engine.latch_safe("filter", f"safe blocking on {first.name}{why}")
-            if engine.latched:
-                return self._safe_state(fov, violations, active, policy, "outputs latched safe")
-            return fov, FilterReport(policy, self.strategy, violations)
-        return self._correct(fov, candidate, active, violations)
+                latch = f"safe blocking on {first.name}{why}"
+            if latched or latch:
+                written, report = self._safe_state(fov, violations, active, policy,
+                                                   "outputs latched safe")
+                return FilterDecision(written, report, latch)
+            return FilterDecision(fov, FilterReport(policy, self.strategy, violations))
+        return FilterDecision(*self._correct(fov, candidate, active, violations))
 
-    def _active_set(self, active) -> _ActiveSet:
+    def _active_set(self, active: Sequence[CompiledConstraint]) -> _ActiveSet:
         key = tuple(map(id, active))
         found = self._by_active.get(key)
         if found is None:
             found = self._by_active[key] = _ActiveSet.of(active, self.n)
         return found
 
-    def _correct(self, fov, candidate: int, active, violations):
+    def _correct(self, fov: tuple[bool, ...], candidate: int,
+                 active: Sequence[CompiledConstraint], violations: tuple[Violation, ...]
+                 ) -> tuple[tuple[bool, ...], FilterReport]:
         if not violations:
             # Common case: the candidate violates nothing, so it is written unchanged (a
             # conflict between simple constraints would show as a violation).
@@ -277,6 +294,7 @@ class SafetyFilter:
                 solution = paper_solve(mem, combined, self.all_bits & ~(f0 | f1), f0, f1,
                                        budget=self.budget, deadline=deadline)
             else:
+                assert aset.problem is not None  # prepared whenever there is a combined one
                 solution = aset.problem.solve(mem, self.budget, deadline)
             solver_us = (time.perf_counter() - started) * 1e6
             if solution.vector is None:
@@ -310,7 +328,8 @@ class SafetyFilter:
             residual=residual, note=note, steps=solution.steps if solution else 0,
             budget=self.budget if solution else 0)
 
-    def _note(self, solution: Solution, names: tuple[str, ...], mem: int, combined,
+    def _note(self, solution: Solution, names: tuple[str, ...], mem: int,
+              combined: Sequence[tuple[int, int]],
               forced: int) -> str:
         """How this strategy chose the repair, in its own words (each states its own rule)."""
         d = solution.distance
@@ -331,16 +350,18 @@ class SafetyFilter:
                 f"the outputs listed first first (free outputs in order: {order}; "
                 f"{solution.tested} vectors tested)")
 
-    def _no_solution(self, fov, violations, active, aset: _ActiveSet, solution: Solution,
-                     solver_us: float):
+    def _no_solution(self, fov: tuple[bool, ...], violations: tuple[Violation, ...],
+                     active: Sequence[CompiledConstraint], aset: _ActiveSet, solution: Solution,
+                     solver_us: float) -> tuple[tuple[bool, ...], FilterReport]:
         """The safe state, because no safe vector exists or the search was cut short."""
         if solution.how == "budget":
             why = (f"the {self.strategy} search for the closest safe vector used its budget "
                    f"({solution.steps:,} of {self.budget:,} steps) before finding it or "
                    "proving there is none")
         elif solution.how == "deadline":
+            limit_ms = (self.wall_limit_us or 0) / 1000
             why = (f"the {self.strategy} search for the closest safe vector reached the live "
-                   f"wall-clock limit ({self.wall_limit_us / 1000:g} ms) before finding it or "
+                   f"wall-clock limit ({limit_ms:g} ms) before finding it or "
                    "proving there is none")
         else:
             why = "no output vector satisfies every constraint in this situation"
@@ -353,9 +374,10 @@ class SafetyFilter:
                                 tested=solution.tested, solver_us=solver_us,
                                 steps=solution.steps, stopped=stopped)
 
-    def _safe_state(self, fov, violations, active, policy: str, why: str,
+    def _safe_state(self, fov: tuple[bool, ...], violations: tuple[Violation, ...],
+                    active: Sequence[CompiledConstraint], policy: str, why: str,
                     conflicts: tuple[str, ...] = (), tested: int = 0, solver_us: float = 0.0,
-                    steps: int = 0, stopped: str = ""):
+                    steps: int = 0, stopped: str = "") -> tuple[tuple[bool, ...], FilterReport]:
         candidate = pack(fov)
         written = self.safe
         changes = tuple(Change(self.outputs[k], bool(candidate >> k & 1), bool(written >> k & 1),
@@ -371,7 +393,8 @@ class SafetyFilter:
             note=why, steps=steps, budget=self.budget if steps else 0, stopped=stopped)
 
 
-def safe_for_all(vector: tuple[bool, ...], compiled, image, history) -> bool:
+def safe_for_all(vector: tuple[bool, ...], compiled: Sequence[CompiledConstraint], image: Image,
+                 history: History) -> bool:
     v = pack(vector)
     active = [c for c in compiled if c.context is None or c.context(image, history)]
     return is_safe(v, [(c.pos, c.neg) for c in active])

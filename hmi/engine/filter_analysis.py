@@ -18,11 +18,15 @@ from __future__ import annotations
 
 import itertools
 import random
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 from hmi.engine.solver import exact_solve
 from hmi.logic.expr import Literal
-from hmi.project.model import Project
+from hmi.project.model import Constraint, Project
+
+# A constraint with its output masks (must be 1, must be 0) and its literals over Y.
+_Item = tuple[Constraint, int, int, tuple[Literal, ...]]
 
 EXHAUSTIVE_VARS = 16
 SAMPLES = 20_000
@@ -89,10 +93,10 @@ def analyse(project: Project, seed: int = 0) -> FilterAnalysis:
     index = {name: k for k, name in enumerate(outputs)}
     safe = sum(1 << k for k, v in enumerate(project.outputs) if v.safe)
     # Each constraint: output masks and context literals.
-    items = []
+    items: list[_Item] = []
     for c in project.constraints:
         pos = neg = 0
-        ctx: list[Literal] = []
+        context: list[Literal] = []
         for lit in c.literals:
             if lit.depth == 0 and lit.name in index:
                 if lit.positive:
@@ -100,12 +104,12 @@ def analyse(project: Project, seed: int = 0) -> FilterAnalysis:
                 else:
                     neg |= 1 << index[lit.name]
             else:
-                ctx.append(lit)
-        items.append((c, pos, neg, tuple(ctx)))
+                context.append(lit)
+        items.append((c, pos, neg, tuple(context)))
     variables = sorted({(lit.name, lit.depth) for _, _, _, ctx in items for lit in ctx})
     var_index = {v: i for i, v in enumerate(variables)}
     # Output-only constraints the safe state satisfies can be shifted to previous scans.
-    invariants = []
+    invariants: list[tuple[str, int, int]] = []
     for c, pos, neg, ctx in items:
         violated_by_safe_state = safe & pos == pos and not safe & neg
         if not ctx and not violated_by_safe_state:
@@ -149,6 +153,7 @@ def analyse(project: Project, seed: int = 0) -> FilterAnalysis:
     contexts = [(c, pos, neg, literals_mask(((lit.name, lit.depth), lit.positive)
                                             for lit in ctx)) for c, pos, neg, ctx in items]
 
+    situations: Iterator[tuple[bool, ...]]
     if analysis.exhaustive:
         situations = itertools.product((False, True), repeat=len(variables))
     else:
@@ -160,7 +165,7 @@ def analyse(project: Project, seed: int = 0) -> FilterAnalysis:
     all_bits = (1 << len(outputs)) - 1
     # Many situations activate the same constraints: the corrector's problem depends only on
     # (F0, F1, the active combined constraints), so each distinct problem is solved once.
-    solvable: dict[tuple, bool] = {}
+    solvable: dict[tuple[object, ...], bool] = {}
     for assign in situations:
         analysis.situations += 1
         bits = sum(1 << i for i, value in enumerate(assign) if value)

@@ -10,6 +10,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
 
+from hmi.logic.expr import Image
 from hmi.project.model import ControlLaw, Project
 
 
@@ -75,8 +76,8 @@ class Layout:
     def indices(self, names: Iterable[str]) -> tuple[int, ...]:
         return tuple(self.slots[n] for n in names)
 
-    def initial_image(self, project: Project) -> list:
-        image: list = [False] * len(self.names)
+    def initial_image(self, project: Project) -> Image:
+        image: Image = [False] * len(self.names)
         for slot in self.step_times.values():
             image[slot] = 0
         for v in project.memories:

@@ -36,12 +36,13 @@ compare.
 
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
+from hmi.engine.scan import Engine, EngineState
 from hmi.logic.expr import Compare, Duration, StepTime, walk
-from hmi.plant.valve import Valve
+from hmi.plant.sim.plant import SimPlant
+from hmi.plant.sim.valve import Valve
 
 
 class Unsupported(Exception):
@@ -104,17 +105,17 @@ def _expressions(project):
 class LoopState:
     """A captured closed loop: enough to restore the engine and the plant exactly."""
 
-    engine: tuple
-    plant: tuple
+    engine: EngineState
+    plant: tuple[Any, ...]
 
 
 class LoopAccess:
     """Capture, restore and key of one engine and its simulated plant."""
 
-    def __init__(self, engine, plant):
+    def __init__(self, engine: Engine, plant: SimPlant):
         self.engine = engine
         self.plant = plant
-        if engine.stages_after_output:
+        if engine.monitors is not None:
             raise Unsupported("stopwatch monitors are not supported by the closed-loop "
                               "exploration yet")
         for device in plant.devices:
@@ -127,55 +128,21 @@ class LoopAccess:
         caps = step_caps(engine.project, law)
         self.time_slots = tuple((slot, caps[step]) for step, slot in layout.step_times.items()
                                 if step in caps)
-        grafcet = engine.control.grafcet
-        self.grafcet = grafcet
-        stage = getattr(engine, "diagnosis", None)
+        self.timers = engine.memory.timers
+        stage = engine.diagnosis
         self.stage = stage
         self.runtimes = stage.runtimes if stage is not None else []
         self.state_caps = [state_caps(rt.spec) for rt in self.runtimes]
 
-    # -- capture / restore --------------------------------------------------------------
+    # -- capture / restore (the engine's own, Engine.capture) ---------------------------------
     def capture(self) -> LoopState:
-        e = self.engine
-        stage = self.stage
-        diag = None
-        if stage is not None:
-            diag = (stage.mask, stage.dirty, stage.last_scan, stage.last_now, stage.period,
-                    stage.routes, stage.records, stage.faulty, stage.reconstructed,
-                    stage.masked,
-                    tuple((rt.current, rt.since_us, rt.since_scan, rt.via, rt.record)
-                          for rt in self.runtimes))
-        engine = (list(e.image), tuple(e.history), e.history.maxlen, e.scan, e.now,
-                  e.started, tuple(e.latched), e.last,
-                  tuple((rt.q, rt.since) for rt, _, _ in e.timers),
-                  (dict(self.grafcet.activated_at), self.grafcet.fired) if self.grafcet
-                  else None, diag)
         p = self.plant
         plant = (dict(p._values), list(p._taken),
                  tuple(_copy_vars(d) for d in p.devices))
-        return LoopState(engine, plant)
+        return LoopState(self.engine.capture(), plant)
 
     def restore(self, state: LoopState) -> None:
-        e = self.engine
-        (image, history, maxlen, e.scan, e.now, e.started, latched, e.last, timers,
-         grafcet, diag) = state.engine
-        e.image[:] = image
-        e.history = deque(history, maxlen=maxlen)
-        e.latched = list(latched)
-        for (rt, _, _), (q, since) in zip(e.timers, timers, strict=True):
-            rt.q, rt.since = q, since
-        if grafcet is not None:
-            self.grafcet.activated_at = dict(grafcet[0])
-            self.grafcet.fired = grafcet[1]
-        if diag is not None:
-            stage = self.stage
-            (stage.mask, stage.dirty, stage.last_scan, stage.last_now, stage.period,
-             stage.routes, stage.records, stage.faulty, stage.reconstructed, stage.masked,
-             runtimes) = diag
-            for rt, (current, since_us, since_scan, via, record) in zip(
-                    self.runtimes, runtimes, strict=True):
-                rt.current, rt.since_us, rt.since_scan, rt.via, rt.record = (
-                    current, since_us, since_scan, via, record)
+        self.engine.restore(state.engine)
         p = self.plant
         values, taken, devices = state.plant
         p._values.clear()
@@ -192,7 +159,7 @@ class LoopAccess:
         image = _image_key(e.image, slots)
         history = tuple(_image_key(h, slots) for h in e.history)
         timers = tuple((rt.q, None if rt.since is None else min(now - rt.since, rt.preset))
-                       for rt, _, _ in e.timers)
+                       for rt, _, _ in self.timers)
         diag = tuple((rt.current, None if rt.since_us is None else
                       min(now - rt.since_us, caps[rt.current]))
                      for rt, caps in zip(self.runtimes, self.state_caps, strict=True))

@@ -17,17 +17,14 @@ operator decides.
 
 from __future__ import annotations
 
-from collections import deque
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
+from hmi.engine.layout import Layout
 from hmi.engine.stopwatch import FAULTY, Detection, TaskAutomaton, WatchdogTrip, Window
-from hmi.explain.monitors import monitor_explanations
-from hmi.logic.expr import BoolFn, compile_bool, max_depth
+from hmi.logic.expr import BoolFn, Expr, History, Image, compile_bool, max_depth
+from hmi.project.model import Project
 from hmi.project.monitors import TaskMonitor, monitors_of
 from hmi.timefmt import format_duration, seconds
-
-if TYPE_CHECKING:
-    from hmi.engine.scan import Engine
 
 
 class MonitorState(NamedTuple):
@@ -68,17 +65,19 @@ class MonitorState(NamedTuple):
 class MonitorStage:
     """The engine's stopwatch monitors: compiled conditions and one automaton per task."""
 
-    def __init__(self, engine: Engine, specs: tuple[TaskMonitor, ...]):
-        lay = engine.layout
+    def __init__(self, specs: tuple[TaskMonitor, ...], layout: Layout):
+        lay = layout
         self.specs = specs
+        self.depth = max((max_depth(e) for s in specs for e in s.exprs), default=1)
         # The fields of MonitorState that never change, computed once (states() runs per scan).
-        self.heads = [(s.name, s.label, s.title, s.device) for s in specs]
+        self.heads: list[tuple[str, str, str, str | None]] = [
+            (s.name, s.label, s.title, s.device) for s in specs]
         self.tails = [(s.alpha_us, s.beta_us, s.gamma_us) for s in specs]
         self.automata = [TaskAutomaton(Window(s.alpha_us, s.beta_us, s.gamma_us))
                          for s in specs]
         self.conditions: list[tuple[BoolFn, BoolFn, BoolFn | None, BoolFn | None, bool]] = []
         for s in specs:
-            def fn(expr):
+            def fn(expr: Expr) -> BoolFn:
                 return compile_bool(expr, lay.slots, lay.step_times)
             if s.interrupted is not None:
                 level = fn(s.interrupted)
@@ -89,8 +88,8 @@ class MonitorStage:
             else:
                 self.conditions.append((fn(s.start), fn(s.end), None, None, False))
 
-    def __call__(self, engine: Engine) -> None:
-        image, hist, now, scan = engine.image, engine.history, engine.now, engine.scan
+    def step(self, image: Image, hist: History, now: int, scan: int
+             ) -> tuple[MonitorState, ...]:
         for automaton, (start, end, suspend, resume, level) in zip(
                 self.automata, self.conditions, strict=True):
             if suspend is None or resume is None:
@@ -101,13 +100,13 @@ class MonitorStage:
             else:
                 s, r = suspend(image, hist), resume(image, hist)
             automaton.step(now, scan, start(image, hist), end(image, hist), s, r)
-        engine.extras["monitors"] = self.states()
+        return self.states()
 
     def states(self) -> tuple[MonitorState, ...]:
         return tuple(_state(head, a, tail)
                      for head, tail, a in zip(self.heads, self.tails, self.automata, strict=True))
 
-    def reset(self, engine: Engine) -> list[str]:
+    def reset(self) -> list[str]:
         """Fault reset: release each latched label whose task is no longer faulty."""
         lines = []
         for spec, a in zip(self.specs, self.automata, strict=True):
@@ -123,29 +122,14 @@ class MonitorStage:
         return lines
 
 
-def _state(head: tuple, a: TaskAutomaton, window: tuple[int, int, int]) -> MonitorState:
+def _state(head: tuple[str, str, str, str | None], a: TaskAutomaton,
+           window: tuple[int, int, int]) -> MonitorState:
     return MonitorState(*head, a.location, a.x_us, a.y_us, *window, a.attempt,
                         a.attempt_start_us, a.running, a.latched, a.last_detection,
                         a.watchdog.last, a.faults, a.completed)
 
 
-def install_monitors(engine: Engine) -> MonitorStage | None:
-    """Hook the project's monitors into `engine` (no-op for a project without monitors)."""
-    specs = monitors_of(engine.project)
-    if not specs:
-        return None
-    depth = max((max_depth(e) for s in specs for e in s.exprs), default=1)
-    if engine.history.maxlen is not None and depth > engine.history.maxlen:
-        engine.history = deque(engine.history, maxlen=depth)
-    stage = MonitorStage(engine, specs)
-    engine.stages_after_output.append(stage)
-    engine.reset_hooks.append(stage.reset)
-    explainer = getattr(engine, "explainer", None)
-    if explainer is not None:
-        explainer.extra_builders.append(monitor_explanations)
-    return stage
-
-
-def monitor_stage(engine: Engine) -> MonitorStage | None:
-    """The engine's monitor stage, if its project has monitors."""
-    return next((s for s in engine.stages_after_output if isinstance(s, MonitorStage)), None)
+def monitor_stage(project: Project, layout: Layout) -> MonitorStage | None:
+    """The project's monitors as a scan stage (None for a project without monitors)."""
+    specs = monitors_of(project)
+    return MonitorStage(specs, layout) if specs else None

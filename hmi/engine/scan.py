@@ -1,7 +1,14 @@
 """The scan: one PLC cycle, in the order of DESIGN.md (000 Fig. 1, 004 Fig. 1).
 
     1 input scan   2 memory (timers, observers, step times)   3 diagnosers
-    4 reconstruction   5 functional control (or manual requests)   6 filter   7 output scan
+    4 reconstruction   5 functional control (or manual requests)
+    6 filter (with the diagnosers' mask)   7 output scan   8 monitors
+
+Each stage is a small object the engine owns (hmi.engine.stages declares their interfaces);
+:meth:`Engine.step` (through ``_cycle``) calls them in that order, hands each what it reads
+and keeps what it returns. No stage reaches back into the engine: the filter returns its
+decision and the engine latches, the diagnosers return their routes and mask and the engine
+passes them on.
 
 The engine never reads a clock: :meth:`Engine.step` is given the scan's time. Everything it
 computes lands in an immutable :class:`Snapshot`. The engine knows nothing of any UI.
@@ -10,13 +17,12 @@ computes lands in an immutable :class:`Snapshot`. The engine knows nothing of an
 from __future__ import annotations
 
 import time
-import traceback
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Iterator
+from typing import Any, NamedTuple
 
 from hmi.engine.commands import (
-    Acknowledge,
-    ChoosePolicy,
+    Command,
     CommandResult,
     FaultReset,
     InjectFault,
@@ -28,26 +34,55 @@ from hmi.engine.commands import (
     SetPolicy,
     StopDevice,
 )
-from hmi.engine.diagnoser import install_diagnosers
-from hmi.engine.filter import SafetyFilter
+from hmi.engine.control import ControlRuntime
+from hmi.engine.diagnoser import DiagnoserState, Diagnosis, diagnosis_stage
+from hmi.engine.filter import FilterReport, SafetyFilter
+from hmi.engine.filter_stage import FilterStage
 from hmi.engine.layout import Layout
-from hmi.engine.monitors import install_monitors
+from hmi.engine.monitors import MonitorState, monitor_stage
 from hmi.engine.snapshot import LatchReason, Snapshot
+from hmi.engine.stages import Control, InputScan, Memory, OutputScan, Reconstruction
 from hmi.errors import UsageError
-from hmi.explain.alarms import AlarmManager
-from hmi.explain.builder import ExplanationBuilder
-from hmi.logic.control import ControlRuntime
-from hmi.logic.expr import BoolFn, compile_bool, max_depth
-from hmi.logic.timers import TimerRuntime
-from hmi.plant.base import Plant, PlantError
+from hmi.logic.expr import Expr, Image, max_depth
+from hmi.plant.base import Plant
 from hmi.project.diagnosers import layout_names
 from hmi.project.model import POLICIES, Project
 
+NO_DIAGNOSIS = Diagnosis((), None, (), (), ())
+
+
+class EngineState(NamedTuple):
+    """A copy of everything an engine's scans and commands change (Engine.capture)."""
+
+    image: Image
+    history: tuple[Image, ...]
+    scan: int
+    now: int
+    started: bool
+    latched: tuple[LatchReason, ...]
+    mode: str
+    manual: tuple[tuple[str, bool], ...]
+    policy: str
+    stopped_devices: frozenset[str]
+    readback: tuple[bool, ...]
+    memory: tuple[Any, ...]
+    control: Any
+    diagnosis: Any
+
+
+MONITOR_POLICY_REFUSED = ("the monitor policy passes unsafe orders through to a real plant; "
+                          "choose --policy block or correct, or add --allow-monitor")
+
 
 class Engine:
+    """One project's scan on one plant. `allow_monitor_policy` permits the `monitor` policy
+    (unsafe orders pass, only reported) on a real plant: refused otherwise, at construction
+    and when the policy is switched (a simulated plant, or observing read-only, may)."""
+
     def __init__(self, project: Project, plant: Plant, control: str | None = None,
                  policy: str | None = None, solver: str | None = None,
-                 diagnosis: str = "ftc", solver_budget: int | None = None):
+                 diagnosis: str = "ftc", solver_budget: int | None = None,
+                 allow_monitor_policy: bool = False):
         self.project = project
         self.plant = plant
         self.control_name = control or project.default_control
@@ -59,70 +94,55 @@ class Engine:
             raise ValueError(self.policy)
         # Read-only plant (observing a real PLC): the device's own outputs, read back, replace
         # the FOV; the control law does not run, nothing is written, the filter only detects.
-        self.observe = bool(getattr(plant, "read_only", False))
+        self.observe = plant.read_only
         if self.observe:
             self.policy = "monitor"
-        self._readback: tuple[bool, ...] = ()
+        self.allow_monitor_policy = allow_monitor_policy
+        if self.policy == "monitor" and self.drives_real_plant and not allow_monitor_policy:
+            raise UsageError(MONITOR_POLICY_REFUSED)
         # Partition flags and filtered sensors get slots (hmi/engine/diagnoser.py).
         self.layout = Layout.build(project, law, extra=layout_names(project))
         lay = self.layout
-        slots, times = lay.slots, lay.step_times
-        self.input_slots = lay.indices(lay.inputs)
         self.output_slots = lay.indices(lay.outputs)
         self.safe_vector = tuple(v.safe for v in project.outputs)
-        self.timers = [(TimerRuntime(t.name, t.kind, t.preset_us), slots[t.name],
-                        compile_bool(t.input, slots, times)) for t in project.timers]
-        self.observers: list[tuple[int, BoolFn | None, BoolFn | None, BoolFn | None]] = []
-        for o in project.observers:
-            if o.expr is not None:
-                self.observers.append((slots[o.name], compile_bool(o.expr, slots, times),
-                                       None, None))
-            else:
-                self.observers.append((slots[o.name], None, compile_bool(o.set, slots, times),
-                                       compile_bool(o.reset, slots, times)))
-        self.control = ControlRuntime(law, slots, times)
-        depth = 1
-        for expr in _all_exprs(project):
-            depth = max(depth, max_depth(expr))
-        self.history: deque[list] = deque(maxlen=depth)
-        self.image: list = lay.initial_image(project)
+        self.control = ControlRuntime(law, lay.slots, lay.step_times)
+        # The stages, in scan order (hmi.engine.stages).
+        self.input_scan = InputScan(plant, lay, read_back=self.observe)  # 1
+        self.memory = Memory(project, lay, self.control)  # 2
+        self.diagnosis = diagnosis_stage(project, lay, diagnosis)  # 3 (None: no diagnosers)
+        self.reconstruction = Reconstruction()  # 4
+        self.control_stage = Control(self.control, lay)  # 5
+        self.filter = SafetyFilter(project, lay.slots, lay.step_times,
+                                   solver or project.solver,
+                                   solver_budget or project.solver_budget)
+        self.filter_stage = FilterStage(  # 6: the filter, given the diagnosers' mask
+            self.filter, self.diagnosis.mask_flags if self.diagnosis else {})
+        self.output_scan = OutputScan(plant, lay)  # 7
+        self.monitors = monitor_stage(project, lay)  # 8 (None: no monitors)
+        # The history is as deep as the deepest expression of any stage reads.
+        depth = max((max_depth(expr) for expr in _all_exprs(project)), default=1)
+        for stage in (self.diagnosis, self.monitors):
+            if stage is not None:
+                depth = max(depth, stage.depth)
+        self.history: deque[Image] = deque(maxlen=max(depth, 1))
+        self.image: Image = lay.initial_image(project)
         self.scan = 0
         self.now = 0
         self.mode = "auto"
         self.manual: dict[str, bool] = {}
         self.latched: list[LatchReason] = []
-        self.last: Snapshot | None = None
         self.started = False
-        # Extension points, in scan order. A stage reads and writes the image and may put
-        # what it wants shown into `self.extras` (keys are Snapshot field names).
-        self.stages_after_memory: list[Callable[[Engine], None]] = []  # diagnosers
-        self.output_stage: Callable[[Engine, tuple[bool, ...]], tuple[tuple[bool, ...], object]]
-        self.filter = SafetyFilter(project, slots, times, solver or project.solver,
-                                   solver_budget or project.solver_budget)
-        self.output_stage = self.filter  # the safety filter
-        # Observers of the whole scan (I(t) read and O(t) written): stopwatch monitors.
-        self.stages_after_output: list[Callable[[Engine], None]] = []
-        self.snapshot_extras: list[Callable[[Engine, dict], None]] = []  # explanations...
-        # Each reset hook releases what its feature latched and returns lines saying what
-        # was reset (or what stays, and why).
-        self.reset_hooks: list[Callable[[Engine], list[str]]] = []
-        self.extras: dict = {}
-        # Explanations and alarms (computed every scan; the journal listens from outside).
-        self.explainer = ExplanationBuilder(project)
-        self.alarm_manager = AlarmManager()
-        self.pending_alarm_events: list = []  # from acknowledgements between scans
-        self.explanations: tuple = ()
+        # The last scan as the engine left it: no explanations nor alarms (the session adds
+        # them: Session.last is what the UI shows).
+        self.last: Snapshot | None = None
         self.devices = {v.device: tuple(o.name for o in project.outputs
                                         if o.device == v.device)
                         for v in project.outputs if v.device}
         self.stopped_devices: set[str] = set()
         self._stop_mask: tuple[int, ...] = ()
-        install_monitors(self)  # after the explainer: it adds a builder to it
-        # Diagnosers (stages 3-4), masking around the filter, their reset hook.
-        self.diagnosis = install_diagnosers(self, diagnosis)
 
     # -- commands ----------------------------------------------------------------------------
-    def apply(self, command) -> CommandResult:
+    def apply(self, command: Command) -> CommandResult:
         """Apply an operator command now; its effect on outputs shows at the next scan."""
         if self.observe and isinstance(command, SetMode | ManualOutput | SetPolicy):
             return CommandResult.refused("read-only mode: nothing is written to the plant and "
@@ -159,29 +179,27 @@ class Engine:
             case SetPolicy(policy=policy):
                 if policy not in POLICIES:
                     return CommandResult.refused(f"unknown policy {policy!r}")
-                if policy == "monitor" and getattr(self.plant, "kind", "sim") != "sim" and \
-                        not getattr(self, "allow_monitor_on_real_plant", False):
+                if policy == "monitor" and self.drives_real_plant and \
+                        not self.allow_monitor_policy:
                     return CommandResult.refused(
                         "monitor policy passes unsafe orders through; refused on a real plant "
                         "(start with --allow-monitor to permit it)")
                 old, self.policy = self.policy, policy
                 return CommandResult.ok(f"filter policy {old} -> {policy}")
             case InjectFault(injection=injection):
-                inject = getattr(self.plant, "inject", None)
-                if inject is None:
+                if not self.plant.can_inject:
                     return CommandResult.refused("fault injection needs a simulated plant")
                 try:
-                    inject(injection)
+                    self.plant.inject(injection)
                 except Exception as exc:  # a UsageError naming what exists
                     return CommandResult.refused(str(exc))
                 return CommandResult.ok(f"SIMULATION: fault {injection} scheduled")
             case RepairFaults(device=device):
-                repair = getattr(self.plant, "repair", None)
-                if repair is None:
+                if not self.plant.can_repair:
                     return CommandResult.refused("only a simulated plant can be repaired from "
                                                  "here")
                 try:
-                    repaired = repair(self.now, device)
+                    repaired = self.plant.repair(self.now, device)
                 except UsageError as exc:
                     return CommandResult.refused(str(exc))
                 if not repaired:
@@ -190,13 +208,6 @@ class Engine:
                                  for name, codes in repaired)
                 return CommandResult.ok(f"SIMULATION: {done}; a fault reset now re-synchronises "
                                         "the diagnosers")
-            case Acknowledge(key=key):
-                events = self.alarm_manager.acknowledge(key, self.scan, self.now)
-                self.pending_alarm_events.extend(events)
-                if key is not None and not events:
-                    return CommandResult.refused(f"no alarm {key} to acknowledge")
-                return CommandResult.ok(f"acknowledged {len(events)} alarm"
-                                        f"{'s' if len(events) != 1 else ''}")
             case StopDevice(device=device):
                 if device not in self.devices:
                     return CommandResult.refused(f"no device {device!r}; devices: "
@@ -212,43 +223,32 @@ class Engine:
                 self.stopped_devices.discard(device)
                 self._update_stop_mask()
                 return CommandResult.ok(f"{device} released")
-            case ChoosePolicy(key=key, policy=policy_id):
-                return self._choose_policy(key, policy_id)
             case SetInput(name=name, value=value):
-                set_input = getattr(self.plant, "set_input", None)
-                if set_input is None:
+                if not self.plant.can_set_inputs:
                     return CommandResult.refused("inputs can only be set on a simulated plant")
                 try:
-                    set_input(name, value)
+                    self.plant.set_input(name, value)
                 except KeyError:
                     return CommandResult.refused(
                         f"{name!r} is driven by the simulated plant, not by the operator")
                 return CommandResult.ok(f"SIMULATION: input {name} {'on' if value else 'off'}")
         return CommandResult.refused(f"the engine does not handle {command!r}")
 
+    def limit_search_time(self, wall_us: float | None) -> None:
+        """Live runs only: the corrector's search also stops after `wall_us` of wall time, a
+        safety net on a loaded machine (a headless run never sets it: traces depend on the
+        search's steps only; docs/filter.md, "Budget")."""
+        self.filter.wall_limit_us = wall_us
+
+    @property
+    def drives_real_plant(self) -> bool:
+        """Outputs written by this engine move real machinery."""
+        return self.plant.is_real and not self.observe
+
     def _update_stop_mask(self) -> None:
         stopped = {o for d in self.stopped_devices for o in self.devices[d]}
         self._stop_mask = tuple(k for k, v in enumerate(self.project.outputs)
                                 if v.name in stopped)
-
-    def _choose_policy(self, key: str, policy_id: str) -> CommandResult:
-        explanation = next((e for e in self.explanations if e.key == key), None)
-        if explanation is None:
-            alarm = self.alarm_manager.alarms.get(key)
-            explanation = alarm.explanation if alarm else None
-        if explanation is None:
-            return CommandResult.refused(f"no situation {key} to act on")
-        policy = next((p for p in explanation.policies if p.id == policy_id), None)
-        if policy is None:
-            return CommandResult.refused(f"{key} offers no policy {policy_id!r}; it offers "
-                                         + ", ".join(p.id for p in explanation.policies))
-        if policy.command is None:
-            return CommandResult.ok(f"policy '{policy.label}' chosen for {key}: "
-                                    f"{policy.effect}")
-        result = self.apply(policy.command)
-        verdict = "chosen" if result.accepted else "could not be carried out"
-        return CommandResult(result.accepted, f"policy '{policy.label}' {verdict} for {key}: "
-                             f"{result.message}")
 
     def fault_reset(self) -> CommandResult:
         parts = []
@@ -256,10 +256,41 @@ class Engine:
             parts.append("safe-state latch released (" + "; ".join(
                 r.detail for r in self.latched) + ")")
             self.latched = []
-        for hook in self.reset_hooks:
-            parts.extend(hook(self))
+        if self.monitors is not None:
+            parts.extend(self.monitors.reset())
+        if self.diagnosis is not None and self.started:
+            parts.extend(self.diagnosis.reset(self.image, self.history, self.now, self.scan))
         return CommandResult.ok("fault reset: " + ("; ".join(parts) if parts
                                                    else "nothing was latched"))
+
+    # -- the state, for the closed-loop exploration ----------------------------------------
+    def capture(self) -> EngineState:
+        """Everything a scan or a command changes, copied: :meth:`restore` makes the engine
+        continue exactly as from here (the project's compiled parts are shared)."""
+        if self.monitors is not None:
+            raise NotImplementedError("an engine with stopwatch monitors cannot be captured")
+        return EngineState(
+            # The history's images are never changed once in it: shared, not copied.
+            list(self.image), tuple(self.history), self.scan, self.now,
+            self.started, tuple(self.latched), self.mode, tuple(self.manual.items()),
+            self.policy, frozenset(self.stopped_devices), self.input_scan.readback,
+            self.memory.capture(), self.control.capture(),
+            self.diagnosis.capture() if self.diagnosis is not None else None)
+
+    def restore(self, state: EngineState) -> None:
+        self.image[:] = state.image
+        self.history.clear()
+        self.history.extend(state.history)
+        self.scan, self.now, self.started = state.scan, state.now, state.started
+        self.latched = list(state.latched)
+        self.mode, self.manual, self.policy = state.mode, dict(state.manual), state.policy
+        self.stopped_devices = set(state.stopped_devices)
+        self._update_stop_mask()
+        self.input_scan.readback = state.readback
+        self.memory.restore(state.memory)
+        self.control.restore(state.control)
+        if self.diagnosis is not None and state.diagnosis is not None:
+            self.diagnosis.restore(state.diagnosis)
 
     def latch_safe(self, source: str, detail: str) -> None:
         if not any(r.source == source and r.detail == detail for r in self.latched):
@@ -267,52 +298,75 @@ class Engine:
 
     # -- the scan ----------------------------------------------------------------------------
     def step(self, now: int) -> Snapshot:
+        """One scan at `now`, and what it left behind."""
         wall = time.perf_counter()
+        fov, outputs, report, diagnosis, monitors, error, filter_us = self._cycle(now)
+        diagnosers = (self.diagnosis.publish(self.image, self.history)
+                      if self.diagnosis is not None else ())
+        snapshot = self._snapshot(fov, outputs, report, diagnosis, diagnosers, monitors, error,
+                                  wall, filter_us)
+        self.history.appendleft(self.image.copy())
+        self.last = snapshot
+        return snapshot
+
+    def advance(self, now: int) -> None:
+        """One scan at `now` whose results nobody reads: the same stages, no snapshot (the
+        closed-loop exploration, hmi.engine.explore, only follows the state). The plant's
+        events stay with the plant (take_events)."""
+        self._cycle(now)
+        self.history.appendleft(self.image.copy())
+
+    def _cycle(self, now: int) -> tuple[tuple[bool, ...], tuple[bool, ...], FilterReport | None,
+                                        Diagnosis, tuple[MonitorState, ...], str | None,
+                                        float]:
+        """Stages 1 to 8 (module docstring), in order."""
         self.scan += 1
         self.now = now
         image = self.image
         error = None
-        extras: dict = {}
-        self.extras = extras
+        report: FilterReport | None = None
+        diagnosis = self.diagnosis.current if self.diagnosis else NO_DIAGNOSIS
+        filter_us = 0.0
         try:
-            if not self._input_scan(now):
+            # 1. input scan
+            lost = self.input_scan.read(image, now)
+            if lost is not None:
                 # The inputs are unknown (plant lost): memories, timers and steps hold, so
                 # the control law never acts on stale inputs; the outputs go safe (latched).
+                self.latch_safe("plant", lost)
                 raise _InputsUnknown
             if not self.started:
                 self._start(now)
             hist = self.history
             # 2. memory
-            for runtime, slot, fn in self.timers:
-                image[slot] = runtime.update(fn(image, hist), now)
-            for slot, expr, set_, reset in self.observers:
-                if expr is not None:
-                    image[slot] = expr(image, hist)
-                else:
-                    image[slot] = not reset(image, hist) and (set_(image, hist) or image[slot])
-            self.control.update_times(image, now)
-            # 3-4. diagnosers, reconstruction hook in here (monitors: after the output scan)
-            for stage in self.stages_after_memory:
-                stage(self)
+            self.memory.update(image, hist, now)
+            # 3. diagnosers
+            if self.diagnosis is not None:
+                diagnosis = self.diagnosis.step(image, hist, now, self.scan)
+            # 4. reconstruction
+            self.reconstruction.apply(image, diagnosis.routes)
             # 5. functional control
             if self.observe:
-                fov = self._readback
+                fov = self.input_scan.readback
             else:
-                self.control.run(image, hist, now)
-                if self.mode == "manual":
-                    fov = tuple(self.manual.get(name, False) for name in self.layout.outputs)
-                else:
-                    fov = tuple(image[s] for s in self.output_slots)
+                fov = self.control_stage.fov(image, hist, now, self.manual
+                                             if self.mode == "manual" else None)
                 if self._stop_mask:
                     fov = tuple(self.safe_vector[k] if k in self._stop_mask else value
                                 for k, value in enumerate(fov))
-            # 6. filter
-            outputs, report = self.output_stage(self, fov)
+            # 6. filter, given the diagnosers' mask
+            started = time.perf_counter()
+            decision = self.filter_stage.apply(image, hist, fov, self.policy, bool(self.latched),
+                                         diagnosis.mask)
+            filter_us = (time.perf_counter() - started) * 1e6
+            if decision.latch is not None:
+                self.latch_safe("filter", decision.latch)
+            outputs = decision.outputs
+            report = decision.report
             if self.observe:
                 outputs = fov  # what the device has: it is observed, never driven
             elif self.latched:
                 outputs = self.safe_vector
-            extras["filter"] = report
         except _InputsUnknown:
             fov = outputs = self._held_outputs()
         except Exception as exc:  # never leave the plant driven by a half-computed scan
@@ -320,38 +374,23 @@ class Engine:
             self.latch_safe("internal", f"internal error at scan {self.scan}: {error}")
             fov = self.safe_vector
             outputs = self.safe_vector
-            extras["traceback"] = traceback.format_exc()
         # 7. output scan
         for slot, value in zip(self.output_slots, outputs, strict=True):
             image[slot] = value
         if not self.observe:
-            self._output_scan(now, outputs)
-        try:
-            for stage in self.stages_after_output:
-                stage(self)
-        except Exception as exc:  # a broken monitor must not stop the scan silently
-            message = f"{type(exc).__name__}: {exc}"
-            error = error or message
-            self.latch_safe("internal", f"internal error at scan {self.scan}: {message}")
-            extras["traceback"] = traceback.format_exc()
-        try:
-            self.explanations = self.explainer.build(self, extras.get("filter"))
-        except Exception as exc:  # explanations must never stop the scan
-            self.explanations = ()
-            error = error or f"explanations: {type(exc).__name__}: {exc}"
-        events = self.pending_alarm_events
-        self.pending_alarm_events = []
-        events.extend(self.alarm_manager.update(self.explanations, self.scan, now))
-        extras["explanations"] = self.explanations
-        extras["alarms"] = self.alarm_manager.listed()
-        extras["alarm_events"] = tuple(events)
-        for hook in self.snapshot_extras:
-            hook(self, extras)
-        snapshot = self._snapshot(fov, outputs, extras, error,
-                                  (time.perf_counter() - wall) * 1e6)
-        self.history.appendleft(image.copy())
-        self.last = snapshot
-        return snapshot
+            lost = self.output_scan.write(now, outputs)
+            if lost is not None:
+                self.latch_safe("plant", lost)
+        # 8. monitors, on the I/O this scan exchanged
+        monitors: tuple[MonitorState, ...] = ()
+        if self.monitors is not None:
+            try:
+                monitors = self.monitors.step(image, self.history, now, self.scan)
+            except Exception as exc:  # a broken monitor must not stop the scan silently
+                message = f"{type(exc).__name__}: {exc}"
+                error = error or message
+                self.latch_safe("internal", f"internal error at scan {self.scan}: {message}")
+        return fov, outputs, report, diagnosis, monitors, error, filter_us
 
     def _start(self, now: int) -> None:
         self.control.reset(self.image, now)
@@ -360,77 +399,45 @@ class Engine:
             self.history.append(self.image.copy())
         self.started = True
 
-    def _input_scan(self, now: int) -> bool:
-        try:
-            values = self.plant.read(now)
-        except PlantError as exc:
-            self.latch_safe("plant", _plant_detail(exc))
-            return False
-        image = self.image
-        for name, slot in zip(self.layout.inputs, self.input_slots, strict=True):
-            image[slot] = bool(values[name])
-        if self.observe:
-            self._readback = tuple(bool(values[name]) for name in self.layout.outputs)
-        return True
-
     def _held_outputs(self) -> tuple[bool, ...]:
         """Outputs of a scan whose inputs are unknown: safe; observed ones as last seen."""
         if self.observe:
             return tuple(self.image[s] for s in self.output_slots)
         return self.safe_vector
 
-    def _output_scan(self, now: int, outputs: Sequence[bool]) -> None:
-        try:
-            self.plant.write(now, dict(zip(self.layout.outputs, outputs, strict=True)))
-        except PlantError as exc:
-            self.latch_safe("plant", _plant_detail(exc))
-
-    def _snapshot(self, fov, outputs, extras: dict, error: str | None,
-                  wall_us: float) -> Snapshot:
+    def _snapshot(self, fov: tuple[bool, ...], outputs: tuple[bool, ...],
+                  report: FilterReport | None, diagnosis: Diagnosis,
+                  diagnosers: tuple[DiagnoserState, ...], monitors: tuple[MonitorState, ...],
+                  error: str | None, wall: float, filter_us: float) -> Snapshot:
         plant = self.plant
-        state = getattr(plant, "state", None)
-        counters = getattr(plant, "counters", None)
-        take_events = getattr(plant, "take_events", None)
-        new_events = take_events() if take_events is not None else ()
+        monitor_policy = self.policy == "monitor"
         return Snapshot(
             scan=self.scan, time_us=self.now, period_us=self.project.scan_period_us,
             layout=self.layout, values=tuple(self.image), fov=tuple(fov),
             outputs=tuple(outputs), active_steps=self.control.active_steps(self.image),
             fired=self.control.fired,
-            timer_elapsed=tuple(rt.elapsed(self.now) for rt, _, _ in self.timers),
+            timer_elapsed=self.memory.elapsed(self.now),
             control=self.control_name, mode=self.mode,
             manual=tuple(sorted(self.manual.items())), policy=self.policy,
             latched=tuple(self.latched), plant=plant.status,
-            plant_state=state() if state else (),
-            plant_counters=counters() if counters else (),
-            plant_events=new_events,
-            filter=extras.get("filter"),
-            diagnosers=extras.get("diagnosers", ()),
-            monitors=extras.get("monitors", ()),
-            reconstructed=extras.get("reconstructed", ()),
-            masked=extras.get("masked", ()),
-            explanations=extras.get("explanations", ()),
-            alarms=extras.get("alarms", ()),
-            alarm_events=extras.get("alarm_events", ()),
+            plant_state=plant.state(), plant_counters=plant.counters(),
+            plant_events=plant.take_events(),
+            filter=report,
+            diagnosers=diagnosers,
+            monitors=monitors,
+            reconstructed=diagnosis.reconstructed,
+            masked=diagnosis.masked if not monitor_policy else (),
             stopped_devices=tuple(sorted(self.stopped_devices)),
-            error=error, scan_wall_us=wall_us,
+            error=error, scan_wall_us=(time.perf_counter() - wall) * 1e6,
+            filter_wall_us=filter_us,
         )
-
-
-def _plant_detail(exc: PlantError) -> str:
-    lost = getattr(exc, "lost", True)
-    return f"plant {'connection lost' if lost else 'error'}: {exc}"
 
 
 class _InputsUnknown(Exception):
     """The input scan failed: skip to the output scan with the outputs safe."""
 
 
-def _pass_through(engine: Engine, fov: tuple[bool, ...]):
-    return fov, None
-
-
-def _all_exprs(project: Project):
+def _all_exprs(project: Project) -> Iterator[Expr]:
     for t in project.timers:
         yield t.input
     for o in project.observers:

@@ -11,10 +11,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
+from hmi.engine.diagnoser import DiagnoserState
+from hmi.engine.filter import FilterReport
 from hmi.engine.layout import Layout
+from hmi.engine.monitors import MonitorState
 from hmi.logic.timers import TimerState
-from hmi.plant.base import PlantStatus
-from hmi.plant.device import PlantEvent
+from hmi.plant.base import PlantEvent, PlantStatus
 
 
 @dataclass(frozen=True)
@@ -32,7 +34,7 @@ class Snapshot(NamedTuple):
     time_us: int
     period_us: int
     layout: Layout
-    values: tuple  # the whole image at the end of the scan (outputs as written)
+    values: tuple[Any, ...]  # the whole image at the end of the scan (outputs as written)
     fov: tuple[bool, ...]  # functional output vector, before the filter
     outputs: tuple[bool, ...]  # written to the plant
     active_steps: tuple[str, ...]
@@ -47,18 +49,21 @@ class Snapshot(NamedTuple):
     plant_state: tuple[tuple[str, Any], ...] = ()
     plant_counters: tuple[tuple[str, int], ...] = ()
     plant_events: tuple[PlantEvent, ...] = ()  # events that happened during this scan
-    # Filled by the safety filter, diagnosers, monitors and explanations.
-    filter: Any = None
-    diagnosers: tuple = ()
-    monitors: tuple = ()
+    # Filled by the safety filter, diagnosers, monitors and (hmi.session) explanations.
+    filter: FilterReport | None = None
+    diagnosers: tuple[DiagnoserState, ...] = ()
+    monitors: tuple[MonitorState, ...] = ()
     reconstructed: tuple[str, ...] = ()  # sensors running on their reconstruction
     masked: tuple[str, ...] = ()  # outputs masked by a faulty actuator's flag
-    explanations: tuple = ()
-    alarms: tuple = ()
-    alarm_events: tuple = ()  # alarm transitions during this scan (for the journal)
+    # hmi.explain's Explanation, Alarm, AlarmEvent: the session fills them (the engine does
+    # not import the layer above it).
+    explanations: tuple[Any, ...] = ()
+    alarms: tuple[Any, ...] = ()
+    alarm_events: tuple[Any, ...] = ()  # alarm transitions during this scan (for the journal)
     stopped_devices: tuple[str, ...] = ()  # devices the operator stopped
     error: str | None = None  # an internal error caught during this scan
     scan_wall_us: float = 0.0  # measured, not deterministic
+    filter_wall_us: float = 0.0  # the filter stage's share of it (plchmi bench)
 
     def value(self, name: str) -> Any:
         return self.values[self.layout.slots[name]]

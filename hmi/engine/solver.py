@@ -39,7 +39,7 @@ live run may also pass a wall-clock `deadline` (how "deadline"), a safety net on
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 
 from hmi.engine.sat import solve_sat
@@ -211,7 +211,7 @@ class _NeedIncumbent(Exception):
 DIVE_STEPS = 500
 
 
-def tie_key(flipped: int, start: int) -> tuple:
+def tie_key(flipped: int, start: int) -> tuple[int, tuple[int, ...]]:
     """Smaller is preferred: fewer outputs switched on, then spare the high-priority ones."""
     switched_on = (flipped & ~start).bit_count()
     indices = tuple(k for k in range(flipped.bit_length()) if flipped >> k & 1)
@@ -355,7 +355,7 @@ class Problem:
     def component_of(self, j: int) -> int:
         return next(members for members in self.components if members >> j & 1)
 
-    def original(self, indices) -> tuple[int, ...]:
+    def original(self, indices: Iterable[int]) -> tuple[int, ...]:
         if self.origin is None:
             return tuple(indices)
         return tuple(self.origin[j] for j in indices)
@@ -447,7 +447,8 @@ def _solve_group(problem: Problem, start: int, violated: list[int], cost: list[i
     best_flip = 0
     cap = DIVE_STEPS if allowance is None else min(DIVE_STEPS, allowance)
 
-    def propagate(v: int, A: int, g: int, viol: int, queue: list[int], kept: int = -1):
+    def propagate(v: int, A: int, g: int, viol: int, queue: list[int], kept: int = -1
+                  ) -> tuple[int, int, int, int] | None:
         """The assignments in `queue` are already applied; follow their consequences. A kept
         output (`kept`) only matters to the constraints whose literal on it is true."""
         nonlocal steps

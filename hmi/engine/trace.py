@@ -37,8 +37,8 @@ def _row(snap: Snapshot) -> dict[str, Any]:
     row["mode"] = snap.mode
     row["latched"] = int(bool(snap.latched))
     report = snap.filter
-    row["violated"] = "+".join(getattr(report, "violated_names", ())) if report else ""
-    row["changed"] = "+".join(getattr(report, "changed_names", ())) if report else ""
+    row["violated"] = "+".join(report.violated_names) if report else ""
+    row["changed"] = "+".join(report.changed_names) if report else ""
     for diag in snap.diagnosers:
         row[f"diag.{diag.name}"] = diag.state
     for mon in snap.monitors:
@@ -70,7 +70,7 @@ class TraceWriter:
             raise TraceWriteError("the trace", path, exc) from None
         except ValueError as exc:  # a NUL in the name
             raise TraceWriteError("the trace", path, str(exc), bad_path=True) from None
-        self.writer: csv.DictWriter | None = None
+        self.writer: csv.DictWriter[str] | None = None
         self.count = 0
         self.failed = False
 

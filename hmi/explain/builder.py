@@ -14,8 +14,12 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from hmi.engine import commands as cmd
+from hmi.engine.snapshot import Snapshot
+from hmi.explain.diagnoses import diagnosis_explanations
 from hmi.explain.model import Explanation, Policy
+from hmi.explain.monitors import monitor_explanations
 from hmi.explain.texts import ProjectTexts, TextSpec, fill
+from hmi.project.diagnosers import diagnosers_of
 from hmi.project.model import Project
 from hmi.timefmt import seconds
 
@@ -31,7 +35,8 @@ def _lower_first(text: str) -> str:
 
 
 class ExplanationBuilder:
-    """Owns the onsets and the cache; `build(engine, report)` runs once per scan."""
+    """Owns the onsets and the cache; `build(snapshot)` runs once per scan, on the scan's
+    snapshot: explanations read what the scan left behind, never the live engine."""
 
     def __init__(self, project: Project, texts: ProjectTexts | None = None):
         self.project = project
@@ -43,25 +48,28 @@ class ExplanationBuilder:
         self.describe = project.describe
         self.constraints = {c.name: c for c in project.constraints}
         self._last_constraints: tuple[tuple, tuple[Explanation, ...]] | None = None
-        # Later features add builders for their situations (diagnoses, monitor faults...).
-        self.extra_builders: list[Callable[[ExplanationBuilder, object], list[Explanation]]] = []
+        # Devices the operator can stop (those with outputs), and the diagnosers' models.
+        self.stoppable = {v.device for v in project.outputs if v.device}
+        self.diagnosers = {spec.name: spec for spec in diagnosers_of(project)}
 
     # -- public ------------------------------------------------------------------------------
-    def build(self, engine, report) -> tuple[Explanation, ...]:
+    def build(self, snap: Snapshot) -> tuple[Explanation, ...]:
         found: list[Explanation] = []
+        report = snap.filter
         if report is not None and report.violations:
-            found.extend(self._constraints(engine, report))
+            found.extend(self._constraints(snap, report))
         if report is not None and report.fallback:
-            found.append(self._fallback(engine, report))
-        for reason in engine.latched:
-            found.append(self._latch(engine, reason))
-        status = engine.plant.status
-        if not status.connected and not any(r.source == "plant" for r in engine.latched):
-            found.append(self._plant(engine, status.message))
-        if engine.mode == "manual" and engine.manual:
-            found.append(self._manual(engine))
-        for builder in self.extra_builders:
-            found.extend(builder(self, engine))
+            found.append(self._fallback(snap, report))
+        for reason in snap.latched:
+            found.append(self._latch(snap, reason))
+        status = snap.plant
+        if not status.connected and not any(r.source == "plant" for r in snap.latched):
+            found.append(self._plant(snap, status.message))
+        if snap.mode == "manual" and snap.manual:
+            found.append(self._manual(snap))
+        # The situations of the stages that have their own explanations.
+        found.extend(monitor_explanations(self, snap))
+        found.extend(diagnosis_explanations(self, snap))
         keys = {e.key for e in found}
         for key in list(self.onsets):
             if key not in keys:
@@ -69,10 +77,10 @@ class ExplanationBuilder:
                 self.cache.pop(key, None)
         return tuple(found)
 
-    def onset(self, key: str, engine) -> _Onset:
+    def onset(self, key: str, snap: Snapshot) -> _Onset:
         onset = self.onsets.get(key)
         if onset is None:
-            onset = self.onsets[key] = _Onset(engine.scan, engine.now)
+            onset = self.onsets[key] = _Onset(snap.scan, snap.time_us)
         return onset
 
     def cached(self, key: str, signature: tuple, make: Callable[[], Explanation]) -> Explanation:
@@ -162,11 +170,11 @@ class ExplanationBuilder:
         return Policy("reset", "Fault reset", effect, cmd.FaultReset(), recommended)
 
     # -- constraints ------------------------------------------------------------------------
-    def _constraints(self, engine, report) -> list[Explanation]:
+    def _constraints(self, snap: Snapshot, report) -> list[Explanation]:
         # A violation usually lasts many scans: when nothing the texts depend on has changed
         # since the last scan, the explanations are last scan's (what the cache would give).
-        whole = (report.policy, report.violations, report.changes, bool(engine.latched),
-                 engine.mode)
+        whole = (report.policy, report.violations, report.changes, bool(snap.latched),
+                 snap.mode)
         last = self._last_constraints
         if last is not None and last[0] == whole and all(
                 self.cache.get(e.key, (None, None))[1] is e for e in last[1]):
@@ -178,12 +186,12 @@ class ExplanationBuilder:
             changed = tuple(changes_by_output[o] for o in constraint.outputs
                             if o in changes_by_output)
             key = f"constraint:{violation.name}"
-            onset = self.onset(key, engine)
+            onset = self.onset(key, snap)
             signature = (report.policy, violation.literals, tuple(
-                (c.output, c.written, c.how) for c in changed), bool(engine.latched),
-                engine.mode)
+                (c.output, c.written, c.how) for c in changed), bool(snap.latched),
+                snap.mode)
             out.append(self.cached(key, signature, lambda v=violation, c=constraint,
-                                   ch=changed, o=onset: self._constraint(engine, report, v, c,
+                                   ch=changed, o=onset: self._constraint(snap, report, v, c,
                                                                          ch, o)))
         self._last_constraints = (whole, tuple(out))
         return out
@@ -206,18 +214,19 @@ class ExplanationBuilder:
                 parts.append(f"{desc} blocked")
         return ", ".join(parts)
 
-    def _constraint(self, engine, report, violation, constraint, changed, onset) -> Explanation:
+    def _constraint(self, snap: Snapshot, report, violation, constraint, changed,
+                    onset) -> Explanation:
         device = self.device_of(constraint.outputs)
         rule = constraint.description or f"the constraint {constraint.expr.source} must stay false"
         quoted = f"\u201c{rule}\u201d"
         action = self._action_text(report, changed)
-        source = "the operator's manual request" if engine.mode == "manual" else \
+        source = "the operator's manual request" if snap.mode == "manual" else \
             "the control program"
         values = self.literal_values(violation.literals)
         since = (f"since scan {onset.scan} ({seconds(onset.time_us)} s)")
         why = (f"Safety constraint {constraint.name} ({constraint.kind}), "
                f"`{constraint.expr.source}`, was true on {source}'s outputs at scan "
-               f"{engine.scan} ({seconds(engine.now)} s): {values}. Violated {since}.")
+               f"{snap.scan} ({seconds(snap.time_us)} s): {values}. Violated {since}.")
         if report.policy == "monitor":
             consequences = (f"The unsafe vector WAS written, breaking the rule {quoted}: "
                             "damage is possible. The monitor policy only reports; nothing "
@@ -266,7 +275,7 @@ class ExplanationBuilder:
         defaults = {"what": f"{device}: {action} — {_lower_first(rule)} ({constraint.name})",
                     "why": why, "consequences": consequences, "policies": policies,
                     "severity": severity, "alarm": True}
-        fields = {"device": device, "time": seconds(engine.now), "scan": engine.scan,
+        fields = {"device": device, "time": seconds(snap.time_us), "scan": snap.scan,
                   "since_time": seconds(onset.time_us), "since_scan": onset.scan,
                   "action": action, "name": constraint.name, "expr": constraint.expr.source,
                   "description": constraint.description, "values": values,
@@ -281,7 +290,7 @@ class ExplanationBuilder:
                            level["policies"], onset.scan, onset.time_us, level["alarm"])
 
     # -- safe state, fallback, plant, manual -------------------------------------------------
-    def _latch(self, engine, reason) -> Explanation:
+    def _latch(self, snap: Snapshot, reason) -> Explanation:
         key = f"safe_state:{reason.source}"
         onset = _Onset(reason.scan, reason.time_us)
         self.onsets.setdefault(key, onset)
@@ -327,7 +336,7 @@ class ExplanationBuilder:
                                             "policies": policies, "severity": severity,
                                             "alarm": True},
                                      {"device": self.project.name,
-                                      "time": seconds(engine.now), "scan": engine.scan,
+                                      "time": seconds(snap.time_us), "scan": snap.scan,
                                       "since_time": seconds(reason.time_us),
                                       "since_scan": reason.scan, "action": "outputs held safe",
                                       "reason": reason.source, "detail": reason.detail})
@@ -337,16 +346,16 @@ class ExplanationBuilder:
                                reason.scan, reason.time_us, level["alarm"], latched=True)
         return self.cached(key, (reason.detail,), make)
 
-    def _fallback(self, engine, report) -> Explanation:
-        if getattr(report, "stopped", ""):
-            return self._search_stopped(engine, report)
+    def _fallback(self, snap: Snapshot, report) -> Explanation:
+        if report.stopped:
+            return self._search_stopped(snap, report)
         key = "fallback"
-        onset = self.onset(key, engine)
+        onset = self.onset(key, snap)
 
         def make() -> Explanation:
             violated = ", ".join(report.violated_names)
             what = f"{self.project.name}: no safe output vector — safe state written"
-            why = (f"At scan {engine.scan} ({seconds(engine.now)} s) the corrector found no "
+            why = (f"At scan {snap.scan} ({seconds(snap.time_us)} s) the corrector found no "
                    f"output vector satisfying every constraint ({report.fallback}); "
                    f"violated by the program: {violated}. Since scan {onset.scan}.")
             consequences = ("Every output is at its safe value while the situation lasts; the "
@@ -359,16 +368,16 @@ class ExplanationBuilder:
                                consequences, policies, onset.scan, onset.time_us)
         return self.cached(key, (report.fallback, report.violated_names), make)
 
-    def _search_stopped(self, engine, report) -> Explanation:
+    def _search_stopped(self, snap: Snapshot, report) -> Explanation:
         """The corrector's search was cut short by its budget: the safe state, said plainly,
         with what the engineer can change (the budget is a project setting)."""
         key = "search_budget"
-        onset = self.onset(key, engine)
+        onset = self.onset(key, snap)
 
         def make() -> Explanation:
             violated = ", ".join(report.violated_names)
             what = (f"{self.project.name}: correction not found in time — safe state written")
-            why = (f"At scan {engine.scan} ({seconds(engine.now)} s) {report.fallback}. "
+            why = (f"At scan {snap.scan} ({seconds(snap.time_us)} s) {report.fallback}. "
                    f"Violated by the program: {violated}. Since scan {onset.scan}.")
             consequences = ("Every output is at its safe value for this scan; nothing unsafe is "
                             "written. Each scan searches again, so the cell stays stopped only "
@@ -388,13 +397,13 @@ class ExplanationBuilder:
                                consequences, tuple(policies), onset.scan, onset.time_us)
         return self.cached(key, (report.fallback, report.violated_names), make)
 
-    def _plant(self, engine, message: str) -> Explanation:
+    def _plant(self, snap: Snapshot, message: str) -> Explanation:
         key = "plant"
-        onset = self.onset(key, engine)
+        onset = self.onset(key, snap)
 
         def make() -> Explanation:
             what = f"{self.project.name}: plant not connected — {message or 'no connection'}"
-            why = f"{engine.plant.status.description}: {message}. Since scan {onset.scan}."
+            why = f"{snap.plant.description}: {message}. Since scan {onset.scan}."
             consequences = ("No output is written until the connection is established; "
                             "inputs are not trusted.")
             return Explanation(key, "plant", "high", self.project.name, what, why,
@@ -402,10 +411,10 @@ class ExplanationBuilder:
                                onset.time_us)
         return self.cached(key, (message,), make)
 
-    def _manual(self, engine) -> Explanation:
+    def _manual(self, snap: Snapshot) -> Explanation:
         key = "manual"
-        onset = self.onset(key, engine)
-        forces = tuple(sorted(engine.manual.items()))
+        onset = self.onset(key, snap)
+        forces = snap.manual
 
         def make() -> Explanation:
             listed = ", ".join(f"{n}={int(v)}" for n, v in forces)

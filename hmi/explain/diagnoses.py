@@ -17,52 +17,53 @@ partition's orders are masked (key ``masked:<partition>``, no alarm): which orde
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from hmi.explain.model import Explanation, Policy
 from hmi.timefmt import seconds
 
+if TYPE_CHECKING:
+    from hmi.engine.snapshot import Snapshot
+    from hmi.explain.builder import ExplanationBuilder
 
-def diagnosis_explanations(builder, engine) -> list[Explanation]:
-    """The `extra_builders` entry: explanations of faulty diagnosers and degraded sensors."""
-    stage = getattr(engine, "diagnosis", None)
-    if stage is None:
-        return []
+
+def diagnosis_explanations(builder: ExplanationBuilder, snap: Snapshot) -> list[Explanation]:
+    """Explanations of faulty diagnosers and of what their flags do (degraded sensors,
+    masked orders), from the scan's snapshot."""
     out: list[Explanation] = []
-    states = engine.extras.get("diagnosers", ())
-    specs = {rt.spec.name: rt.spec for rt in stage.runtimes}
-    for state in states:
+    specs = builder.diagnosers
+    for state in snap.diagnosers:
         if not state.faulty:
             continue
         spec = specs[state.name]
         key = f"diagnosis:{state.name}"
-        builder.onset(key, engine)
+        builder.onset(key, snap)
         out.append(builder.cached(
-            key, (state.state, state.labels, tuple(engine.extras.get("masked", ())),
-                  engine.policy, stage.mode),
-            lambda s=state, sp=spec: _diagnosis(builder, engine, stage, sp, s)))
+            key, (state.state, state.labels, snap.masked, snap.policy),
+            lambda s=state, sp=spec: _diagnosis(builder, snap, sp, s)))
         for partition in spec.partitions:
-            if partition.sensor and partition.sensor in engine.extras.get("reconstructed", ()):
+            if partition.sensor and partition.sensor in snap.reconstructed:
                 rkey = f"reconstruction:{partition.sensor}"
-                builder.onset(rkey, engine)
+                builder.onset(rkey, snap)
                 out.append(builder.cached(
                     rkey, (state.labels,),
-                    lambda s=state, sp=spec, p=partition: _reconstruction(builder, engine, sp,
+                    lambda s=state, sp=spec, p=partition: _reconstruction(builder, snap, sp,
                                                                         p, s)))
-            held = tuple(o for o in partition.actuators
-                         if o in engine.extras.get("masked", ()))
+            held = tuple(o for o in partition.actuators if o in snap.masked)
             if held:
                 mkey = f"masked:{partition.name}"
-                builder.onset(mkey, engine)
+                builder.onset(mkey, snap)
                 out.append(builder.cached(
                     mkey, (state.labels, held),
-                    lambda s=state, sp=spec, p=partition, h=held: _masked(builder, engine, sp,
+                    lambda s=state, sp=spec, p=partition, h=held: _masked(builder, snap, sp,
                                                                           p, s, h)))
     return out
 
 
-def _effects(builder, engine, spec, state) -> tuple[list[str], list[str]]:
+def _effects(builder, snap: Snapshot, spec, state) -> tuple[list[str], list[str]]:
     """What the flags are doing: sentences, and the names of sensors/outputs involved."""
-    masked = set(engine.extras.get("masked", ()))
-    reconstructed = set(engine.extras.get("reconstructed", ()))
+    masked = set(snap.masked)
+    reconstructed = set(snap.reconstructed)
     doing, names = [], []
     for partition in spec.partitions:
         if not set(partition.labels) & set(state.labels):
@@ -86,7 +87,7 @@ def _effects(builder, engine, spec, state) -> tuple[list[str], list[str]]:
                              f"({partition.flag} masks {spec.device or spec.name}'s orders): it "
                              "no longer moves")
             else:
-                why = "monitor policy" if engine.policy == "monitor" else \
+                why = "monitor policy" if snap.policy == "monitor" else \
                     "diagnosis observed only"
                 doing.append(f"{partition.flag} is set but the orders are not masked ({why})")
     return doing, names
@@ -97,11 +98,11 @@ def _is_actuator(spec, label: str) -> bool:
     return bool(partition and partition.actuators)
 
 
-def _diagnosis(builder, engine, stage, spec, state) -> Explanation:
+def _diagnosis(builder, snap: Snapshot, spec, state) -> Explanation:
     device = spec.device or builder.project.name
     texts = dict(zip(state.labels, state.label_texts, strict=True))
     certain = state.certain
-    doing, _ = _effects(builder, engine, spec, state)
+    doing, _ = _effects(builder, snap, spec, state)
     action = "; ".join(doing) if doing else "nothing is changed"
     short_action = ", ".join(
         ("orders held at 0" if "held at 0" in d else
@@ -127,7 +128,7 @@ def _diagnosis(builder, engine, stage, spec, state) -> Explanation:
     consequences = _consequences(spec, state, texts, action)
     policies = _policies(builder, spec, state, texts, device)
     severity = "high" if any(_is_actuator(spec, lab) for lab in state.labels) else "medium"
-    values = {"device": device, "time": seconds(engine.now), "scan": engine.scan,
+    values = {"device": device, "time": seconds(snap.time_us), "scan": snap.scan,
               "since_time": seconds(since.time_us), "since_scan": since.scan,
               "action": short_action, "label": state.labels[0] if certain else label_list,
               "labels": label_list, "label_text": hypotheses, "state": state.state,
@@ -196,7 +197,7 @@ def _policies(builder, spec, state, texts, device: str) -> tuple[Policy, ...]:
     return tuple(policies)
 
 
-def _reconstruction(builder, engine, spec, partition, state) -> Explanation:
+def _reconstruction(builder, snap: Snapshot, spec, partition, state) -> Explanation:
     device = spec.device or builder.project.name
     key = f"reconstruction:{partition.sensor}"
     since = builder.onsets[key]
@@ -219,13 +220,13 @@ def _reconstruction(builder, engine, spec, partition, state) -> Explanation:
                              "diagnoser re-synchronises"),
     )
     return _partition_explanation(
-        builder, engine, key, "reconstruction", partition, state, since, device,
+        builder, snap, key, "reconstruction", partition, state, since, device,
         (what, why, consequences, policies),
         {"action": "reconstructed", "sensor": partition.sensor, "estimate": estimate or "",
          "outputs": ""})
 
 
-def _masked(builder, engine, spec, partition, state, held: tuple[str, ...]) -> Explanation:
+def _masked(builder, snap: Snapshot, spec, partition, state, held: tuple[str, ...]) -> Explanation:
     device = spec.device or builder.project.name
     key = f"masked:{partition.name}"
     since = builder.onsets[key]
@@ -246,7 +247,7 @@ def _masked(builder, engine, spec, partition, state, held: tuple[str, ...]) -> E
                              "re-synchronises"),
     )
     return _partition_explanation(
-        builder, engine, key, "masked", partition, state, since, device,
+        builder, snap, key, "masked", partition, state, since, device,
         (what, why, consequences, policies),
         {"action": "masked", "sensor": "", "estimate": "", "outputs": ", ".join(held)})
 
@@ -257,13 +258,13 @@ def _flag_since(spec, partition, state, since) -> str:
             f"partition {partition.name}")
 
 
-def _partition_explanation(builder, engine, key: str, kind: str, partition, state, since,
+def _partition_explanation(builder, snap: Snapshot, key: str, kind: str, partition, state, since,
                            device: str, levels: tuple, extra: dict) -> Explanation:
     """What a set partition flag does (a sensor on its estimate, orders masked): the generated
     levels, replaced by the project's `partitions:` texts where it has them; no alarm (the
     diagnosis raised one), latched like the decision."""
     what, why, consequences, policies = levels
-    values = {"device": device, "time": seconds(engine.now), "scan": engine.scan,
+    values = {"device": device, "time": seconds(snap.time_us), "scan": snap.scan,
               "since_time": seconds(since.time_us), "since_scan": since.scan,
               "partition": partition.name, "labels": ", ".join(state.labels), **extra}
     level = builder.apply_texts(builder.texts.get("partitions", partition.name),

@@ -17,6 +17,8 @@ from hmi.timefmt import format_duration, seconds
 
 if TYPE_CHECKING:
     from hmi.engine.monitors import MonitorState
+    from hmi.engine.snapshot import Snapshot
+    from hmi.explain.builder import ExplanationBuilder
 
 WHAT = {
     "cannot_finish": "cannot end within its acceptable time",
@@ -34,20 +36,20 @@ AFTER = {
 }
 
 
-def monitor_explanations(builder, engine) -> list[Explanation]:
-    """The `extra_builders` entry: an explanation for each faulty monitor of this scan."""
+def monitor_explanations(builder: ExplanationBuilder, snap: Snapshot) -> list[Explanation]:
+    """An explanation for each faulty monitor of this scan."""
     out = []
-    for m in engine.extras.get("monitors", ()):
+    for m in snap.monitors:
         if m.detection is None:
             continue
         key = f"monitor:{m.name}"
-        builder.onset(key, engine)  # so the builder forgets it once the label is released
+        builder.onset(key, snap)  # so the builder forgets it once the label is released
         out.append(builder.cached(key, (m.detection, m.running, m.attempt),
-                                  lambda m=m: _explain(builder, engine, m)))
+                                  lambda m=m: _explain(builder, snap, m)))
     return out
 
 
-def _explain(builder, engine, m: MonitorState) -> Explanation:
+def _explain(builder: ExplanationBuilder, snap: Snapshot, m: MonitorState) -> Explanation:
     d = m.detection
     window = Window(m.alpha_us, m.beta_us, m.gamma_us)
     device = m.device or builder.project.name
@@ -71,12 +73,12 @@ def _explain(builder, engine, m: MonitorState) -> Explanation:
         "until a fault reset.")))
     policies = [builder.policy_continue("let the cell run; the task finishes when it can",
                                         True)]
-    if m.device and m.device in engine.devices:
+    if m.device and m.device in builder.stoppable:
         policies.append(builder.policy_stop(m.device))
     policies.append(builder.policy_reset(reset))
     defaults = {"what": what, "why": why, "consequences": consequences,
                 "policies": tuple(policies), "severity": "medium", "alarm": True}
-    fields = {"device": device, "time": seconds(engine.now), "scan": engine.scan,
+    fields = {"device": device, "time": seconds(snap.time_us), "scan": snap.scan,
               "since_time": seconds(d.time_us), "since_scan": d.scan,
               "action": "none (monitoring only)", "task": m.title, "label": m.label,
               "x": seconds(d.x_us), "y": seconds(d.y_us), "alpha": a, "beta": b, "gamma": g,

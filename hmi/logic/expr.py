@@ -19,8 +19,9 @@ from __future__ import annotations
 import ast
 import difflib
 import re
-from collections.abc import Callable, Collection, Mapping, Sequence
+from collections.abc import Callable, Collection, Iterator, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 from hmi.errors import SourcePos
 from hmi.limits import MAX_EXPR_CHARS, MAX_EXPR_DEPTH
@@ -355,7 +356,7 @@ def _describe_ast(node: ast.AST) -> str:
 # --------------------------------------------------------------------------------------------
 
 
-def walk(node: Node):
+def walk(node: Node) -> Iterator[Node]:
     """Every node of the tree, parents first."""
     yield node
     if isinstance(node, Not):
@@ -492,8 +493,10 @@ def monomial_literals(expr: Expr) -> tuple[Literal, ...] | None:
 # Compilation
 # --------------------------------------------------------------------------------------------
 
-Image = list  # current values, indexed by slot
-History = Sequence[list]  # history[0] is the image one scan ago
+# Current values indexed by slot: bools (inputs, outputs, memories, timers, observers,
+# steps, flags) and ints (step activity times); hmi.engine.layout says which slot is which.
+Image = list[Any]
+History = Sequence[Image]  # history[0] is the image one scan ago
 BoolFn = Callable[[Image, History], bool]
 NumFn = Callable[[Image, History], int]
 
@@ -528,14 +531,15 @@ def _compile(node: Node, slots: Mapping[str, int], times: Mapping[str, int]) -> 
                 return lambda v, h: a(v, h) and b(v, h)
             return lambda v, h: a(v, h) or b(v, h)
         if isinstance(node, And):
-            def all_of(v, h, parts=tuple(parts)):
+            def all_of(v: Image, h: History, parts: tuple[BoolFn, ...] = tuple(parts)
+                       ) -> bool:
                 for part in parts:
                     if not part(v, h):
                         return False
                 return True
             return all_of
 
-        def any_of(v, h, parts=tuple(parts)):
+        def any_of(v: Image, h: History, parts: tuple[BoolFn, ...] = tuple(parts)) -> bool:
             for part in parts:
                 if part(v, h):
                     return True
@@ -575,10 +579,14 @@ def _is_literal(node: Node) -> bool:
 
 def _literal_product(operands: Sequence[Node], slots: Mapping[str, int]) -> BoolFn:
     """A product of literals as index tuples: the common shape of constraints."""
-    now_pos, now_neg, old_pos, old_neg = [], [], [], []
+    now_pos: list[int] = []
+    now_neg: list[int] = []
+    old_pos: list[tuple[int, int]] = []
+    old_neg: list[tuple[int, int]] = []
     for op in operands:
         positive = isinstance(op, Var)
-        var = op if positive else op.operand  # type: ignore[union-attr]
+        var = op.operand if isinstance(op, Not) else op
+        assert isinstance(var, Var)
         slot = slots[var.name]
         if var.depth == 0:
             (now_pos if positive else now_neg).append(slot)
@@ -586,7 +594,7 @@ def _literal_product(operands: Sequence[Node], slots: Mapping[str, int]) -> Bool
             (old_pos if positive else old_neg).append((var.depth - 1, slot))
     np_, nn_, op_, on_ = tuple(now_pos), tuple(now_neg), tuple(old_pos), tuple(old_neg)
 
-    def product(v, h):
+    def product(v: Image, h: History) -> bool:
         for i in np_:
             if not v[i]:
                 return False

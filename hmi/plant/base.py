@@ -1,17 +1,44 @@
-"""The plant as the engine sees it: something that gives inputs and takes outputs.
+"""The plant as the engine sees it: the full contract, and what each kind of plant can do.
 
 The engine calls :meth:`Plant.read` at the start of a scan and :meth:`Plant.write` at its end,
 always passing the scan's time. A simulated plant integrates its physics to that time; a real
 plant (Modbus) does I/O and reports its connection state in :attr:`Plant.status`.
+
+Everything else a caller may ask of a plant is declared here too, with a default that says
+"this plant has none", so nobody probes a plant with ``getattr``: what a plant *can* do is a
+declared capability (``can_inject``, ``can_repair``, ``can_set_inputs``, ``is_real``), and
+asking a plant for something it cannot do raises :class:`NotSupported`. The engine checks the
+capability first and refuses the operator's command in plain words.
 """
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from types import MappingProxyType
+from typing import TYPE_CHECKING, Any, ClassVar
 
-from hmi.plant.device import PlantEvent
+if TYPE_CHECKING:
+    from hmi.plant.injection import Injection
+    from hmi.plant.modbus.link_log import LinkLog
+
+# The physical state of a plant for traces and the UI: (name, value) pairs, in a stable order
+# ("angle", 42.5), ("V1.position", 0.3)... Empty for a real plant, known only through its I/O.
+PlantState = tuple[tuple[str, Any], ...]
+# Counters of work done ("boxes sorted"...), same shape.
+PlantCounters = tuple[tuple[str, int], ...]
+
+
+@dataclass(frozen=True)
+class PlantEvent:
+    """Something objective that happened in the plant; `damage` marks a damaging situation."""
+
+    time_us: int
+    device: str
+    kind: str
+    damage: bool
+    detail: str
 
 
 @dataclass(frozen=True)
@@ -37,21 +64,81 @@ class PlantError(Exception):
         self.lost = lost
 
 
-class Plant(Protocol):
+class NotSupported(Exception):
+    """Asked of a plant that does not declare the capability (a bug in the caller: check
+    the capability first)."""
+
+
+class Plant(ABC):
+    """What every plant is and offers. Subclasses declare their capabilities as class
+    attributes and override the methods those capabilities name."""
+
+    kind: ClassVar[str]  # "sim", "modbus": what PlantStatus.kind says
+    is_real: ClassVar[bool] = False  # a physical device: outputs move real machinery
+    can_inject: ClassVar[bool] = False  # simulated faults (inject, faults)
+    can_repair: ClassVar[bool] = False  # simulated repairs
+    can_set_inputs: ClassVar[bool] = False  # the operator sets the inputs no device drives
+
     input_names: tuple[str, ...]
     output_names: tuple[str, ...]
+    # Observing a real device: inputs and outputs are read, nothing is ever written.
+    read_only: bool = False
+    # Inputs no device drives (push buttons), that the operator may set (can_set_inputs).
+    free_inputs: Mapping[str, bool] = MappingProxyType({})
+    # A real plant's link events (connections, retries, refusals) for the journal.
+    link: LinkLog | None = None
 
-    def read(self, now_us: int) -> Mapping[str, bool]: ...
+    # -- every scan ----------------------------------------------------------------------------
+    @abstractmethod
+    def read(self, now_us: int) -> Mapping[str, bool]:
+        """Every input's value at `now_us` (and every output's, when read_only); raises
+        PlantError when it cannot."""
 
-    def write(self, now_us: int, outputs: Mapping[str, bool]) -> None: ...
+    @abstractmethod
+    def write(self, now_us: int, outputs: Mapping[str, bool]) -> None:
+        """Write every output; raises PlantError when it cannot."""
 
     @property
+    @abstractmethod
     def status(self) -> PlantStatus: ...
 
-    def state(self) -> dict[str, Any]:
-        """Physical state for traces (simulated plants); empty for real plants."""
-        ...
+    def state(self) -> PlantState:
+        """Physical state for traces and the UI; empty for a real plant."""
+        return ()
 
-    def events(self) -> list[PlantEvent]: ...
+    def counters(self) -> PlantCounters:
+        return ()
 
-    def close(self) -> None: ...
+    def take_events(self) -> tuple[PlantEvent, ...]:
+        """Events recorded since the previous call (the engine calls it once per scan)."""
+        return ()
+
+    def events(self) -> list[PlantEvent]:
+        """Every event recorded so far."""
+        return []
+
+    # -- simulation (capabilities) ------------------------------------------------------------
+    def faults(self) -> list[tuple[str, str, str]]:
+        """(device, code, description) of every fault the plant can simulate."""
+        return []
+
+    def inject(self, injection: Injection) -> None:
+        raise NotSupported(f"{self.kind} plant: no fault injection")
+
+    def repair(self, now_us: int, device: str | None = None
+               ) -> list[tuple[str, tuple[str, ...]]]:
+        raise NotSupported(f"{self.kind} plant: no repair")
+
+    def set_input(self, name: str, value: bool) -> None:
+        raise NotSupported(f"{self.kind} plant: inputs come from the plant")
+
+    # -- end of a run ----------------------------------------------------------------------------
+    def stop(self, now_us: int, safe: Mapping[str, bool]) -> bool:
+        """Leave the plant as a stopping PLC does and close it; True when the safe vector was
+        written (a simulated plant simply stops)."""
+        self.close()
+        return False
+
+    @abstractmethod
+    def close(self) -> None:
+        """Release what the plant holds (a connection); reading afterwards is an error."""

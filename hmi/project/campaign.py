@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from hmi.errors import SourcePos
-from hmi.plant.models import MODELS
+from hmi.plant.sim.models import MODELS
 from hmi.timefmt import format_duration
 
 if TYPE_CHECKING:

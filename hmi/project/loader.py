@@ -32,7 +32,7 @@ from hmi.logic.names import (
     is_step_number,
     name_problem,
 )
-from hmi.plant.models import MODELS
+from hmi.plant.sim.models import MODELS
 from hmi.project.campaign import parse_campaign
 from hmi.project.components import Components, load_components, merge_texts
 from hmi.project.confine import Refused, confined_file, project_roots

@@ -19,8 +19,8 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from hmi.errors import SourcePos, UsageError
-from hmi.plant.models import MODELS
-from hmi.plant.sim import Injection, parse_injection
+from hmi.plant.injection import Injection, parse_injection
+from hmi.plant.sim.models import MODELS
 from hmi.project.model import PlantSpec
 from hmi.project.yamlnodes import YNode
 

@@ -1,6 +1,6 @@
 """What must hold after every step of a soak, and after every scan: checked from outside.
 
-The checker listens to the controller like the journal does (every scan, every command) and
+The checker listens to the session like the journal does (every scan, every command) and
 reads the journal file the session writes; it recomputes what it checks from what it sees
 rather than trusting the engine's own report of it:
 
@@ -67,8 +67,8 @@ class _Term:
 class Invariants:
     def __init__(self, app, journal_path: Path):
         self.app = app
-        controller = app.controller
-        self.engine = engine = controller.engine
+        self.session = session = app.controller
+        self.engine = engine = session.engine
         layout = engine.layout
         outputs = {name: k for k, name in enumerate(layout.outputs)}
         self.constraints: list[tuple[str, frozenset[str], tuple[_Term, ...]]] = []
@@ -96,8 +96,8 @@ class Invariants:
         # scans where the safe state, written by decision, left a constraint violated
         self.safe_state_violations: Counter[str] = Counter()
         self.safe_vector = tuple(engine.safe_vector)
-        controller.scan_listeners.append(self.on_scan)
-        controller.listeners.append(self.on_command)
+        session.scan_listeners.append(self.on_scan)
+        session.listeners.append(self.on_command)
 
     @property
     def ok(self) -> bool:
@@ -158,9 +158,8 @@ class Invariants:
 
     # -- every command ------------------------------------------------------------------------
     def on_command(self, command, result, snapshot) -> None:
-        manager = getattr(self.engine, "alarm_manager", None)
-        if manager is None:  # the alarm list as the next scan will show it
-            return
+        # the alarm list as the next scan will show it (the session owns it)
+        manager = self.session.alarms
         acknowledged: tuple[str, ...] = ()
         if isinstance(command, Acknowledge) and result.accepted:
             acknowledged = (command.key,) if command.key is not None else tuple(self.alarms)

@@ -3,7 +3,7 @@
 The app is the one operators run (:class:`~hmi.ui.app.PlcHmiApp`, every panel, dialog and
 binding) on a :class:`~hmi.ui.driver.VirtualDriver`: scans run only when a ``run`` step says
 so, as fast as the machine goes, so a session is exactly repeatable. The journal is the real
-one (:class:`~hmi.explain.recorder.JournalRecorder`, to a file), told of UI errors as in
+one (:class:`~hmi.session.journal_recorder.JournalRecorder`, to a file), told of UI errors as in
 ``plchmi PROJECT``. After every step the invariants are checked (hmi.soak.invariants); the
 session stops at the first broken one.
 
@@ -24,12 +24,12 @@ from textual import events
 from textual.command import CommandInput, CommandList, CommandPalette
 from textual.geometry import Size
 
-from hmi.engine.runner import Controller
 from hmi.engine.scan import Engine
 from hmi.explain.journal import Journal
-from hmi.explain.recorder import JournalRecorder
 from hmi.plant.sim import SimPlant
 from hmi.project.loader import load_project
+from hmi.session.journal_recorder import JournalRecorder
+from hmi.session.session import Session
 from hmi.soak.invariants import Broken, Invariants
 from hmi.soak.operator import RandomOperator
 from hmi.soak.steps import Click, Palette, Press, Resize, Row, Run, Step
@@ -78,7 +78,7 @@ class SoakResult:
 def make_app(config: SoakConfig) -> PlcHmiApp:
     project = load_project(config.project)
     engine = Engine(project, SimPlant(project), control=config.control)
-    return PlcHmiApp(Controller(engine), live=False, show_measured=False)
+    return PlcHmiApp(Session(engine), live=False, show_measured=False)
 
 
 async def session(config: SoakConfig, replay: list[Step] | None = None,

@@ -2,10 +2,10 @@
 
 Data flows one way. The scans run elsewhere (a :class:`~hmi.ui.driver.LiveDriver` thread, or
 the test driving a :class:`~hmi.ui.driver.VirtualDriver`); at most ``REFRESH_HZ`` times a
-second the app reads ``engine.last``, wraps it in a :class:`~hmi.ui.frame.Frame` and hands it
+second the app reads ``session.last``, wraps it in a :class:`~hmi.ui.frame.Frame` and hands it
 down to every panel (``show(frame)``). Panels post messages up; the app turns every operator
 action into a command sent through :meth:`PlcHmiApp.send`, the single door to
-``Controller.command`` (where the journal listens).
+``Session.command`` (where the journal listens).
 
 Screen regions (see ``app.tcss``): status bar and banners on top; the body in columns —
 ``#col-plant`` (I/O, and the constraints under it), ``#col-logic`` (control, and the
@@ -51,13 +51,13 @@ from hmi.engine.commands import (
     StopDevice,
     describe,
 )
-from hmi.engine.runner import Controller
 from hmi.engine.scan import Engine
 from hmi.explain.model import Policy
-from hmi.plant.sim import Injection
+from hmi.plant.injection import Injection
 from hmi.project.diagnosers import diagnosers_of
 from hmi.project.model import POLICIES
 from hmi.project.monitors import monitors_of
+from hmi.session.session import Session
 from hmi.timefmt import seconds
 from hmi.ui import testhooks
 from hmi.ui.actions import ACTIONS, bindings
@@ -134,7 +134,7 @@ class PlcHmiApp(ContainedPump, App):
     HORIZONTAL_BREAKPOINTS = [(0, "-narrow"), (120, "-wide")]
     VERTICAL_BREAKPOINTS = [(0, "-short"), (40, "-tall")]
 
-    def __init__(self, controller: Controller, live: bool = True, *,
+    def __init__(self, controller: Session, live: bool = True, *,
                  show_measured: bool | None = None, refresh_hz: float = REFRESH_HZ,
                  injected: tuple[Injection, ...] = ()):
         super().__init__()
@@ -155,7 +155,7 @@ class PlcHmiApp(ContainedPump, App):
         self._injected: list[InjectedFault] = []  # shown on the SIMULATION strip
         self._mode_commanded: str | None = None  # accepted SetMode, not yet in a snapshot
         plant = engine.plant
-        self.free_inputs: tuple[str, ...] = tuple(getattr(plant, "free_inputs", {}) or ())
+        self.free_inputs: tuple[str, ...] = tuple(plant.free_inputs)
         # What the explanation panel explains: the selected alarm, unless the operator picked
         # another situation (palette, a constraint clicked) since the selection last moved.
         self.subject: str | None = None
@@ -208,10 +208,10 @@ class PlcHmiApp(ContainedPump, App):
 
     def on_mount(self) -> None:
         self.controller.scan_listeners.append(self._record_scan)
-        if self.controller.engine.last is None:
+        if self.controller.last is None:
             self.controller.scan_once()
         else:
-            self._record_scan(self.controller.engine.last)
+            self._record_scan(self.controller.last)
         # the panels that set their own height first (banners, alarm rows): the column
         # panels measure their room after them
         self._views = [self.query_one(StatusBar), self.query_one(BannerStrip),
@@ -313,7 +313,7 @@ class PlcHmiApp(ContainedPump, App):
         """Show the latest snapshot if anything changed; True if a frame was handed down.
 
         The snapshot comes from the recorder with the history of that same scan (never
-        ``engine.last`` then the history: the scan thread may run a scan in between)."""
+        ``session.last`` then the history: the scan thread may run a scan in between)."""
         try:
             return self._poll(force)
         except Exception as exc:  # the frame itself could not be built
@@ -436,7 +436,7 @@ class PlcHmiApp(ContainedPump, App):
 
     def explain(self, key: str, open_level: int = 2) -> None:
         """Explain `key` (select its alarm when it has one) and open it to `open_level`."""
-        snap = self.controller.engine.last
+        snap = self.controller.last
         if snap is None:
             return
         if not any(e.key == key for e in snap.explanations) and \
@@ -497,7 +497,7 @@ class PlcHmiApp(ContainedPump, App):
 
     def _policy_confirmation(self, key: str, policy: Policy
                              ) -> tuple[str, list[Text | str], Level]:
-        snap = self.controller.engine.last
+        snap = self.controller.last
         explanation = next((e for e in snap.explanations if e.key == key), None) \
             if snap else None
         lines: list[Text | str] = []
@@ -528,7 +528,7 @@ class PlcHmiApp(ContainedPump, App):
 
     # -- sending commands --------------------------------------------------------------------
     def send(self, command: Command) -> CommandResult:
-        """The one place operator actions leave the UI: through ``Controller.command``."""
+        """The one place operator actions leave the UI: through ``Session.command``."""
         result = self.controller.command(command)
         what = describe(command)
         text = result_text(what, result)
@@ -538,7 +538,7 @@ class PlcHmiApp(ContainedPump, App):
             case StepScans():
                 self._stepping = self._stepping or result.accepted
             case ManualOutput(name=name, value=value) if result.accepted:
-                last = self.controller.engine.last
+                last = self.controller.last
                 self._request = (name, bool(value), last.scan if last else 0, what)
             case SetMode(manual=manual) if result.accepted:
                 self._mode_commanded = "manual" if manual else "auto"
@@ -569,7 +569,7 @@ class PlcHmiApp(ContainedPump, App):
 
     def _policy_command(self, key: str, policy_id: str) -> Command | None:
         """What choosing a policy sends, as the last explanation of `key` offered it."""
-        snap = self.controller.engine.last
+        snap = self.controller.last
         if snap is None:
             return None
         explanation = next((e for e in snap.explanations if e.key == key), None)
@@ -593,12 +593,11 @@ class PlcHmiApp(ContainedPump, App):
         return injection.code
 
     def _faults(self) -> list[tuple[str, str, str]]:
-        faults = getattr(self.controller.engine.plant, "faults", None)
-        return faults() if faults else []
+        return self.controller.engine.plant.faults()
 
     @property
     def simulated(self) -> bool:
-        return getattr(self.controller.engine.plant, "kind", "") == "sim"
+        return not self.controller.engine.plant.is_real
 
     # -- bindings ----------------------------------------------------------------------------
     def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
@@ -658,7 +657,7 @@ class PlcHmiApp(ContainedPump, App):
             self.message.say(Text("cancelled: quit — the scan goes on", style=MUTED))
 
     def _quit_lines(self) -> tuple[str, list[Text | str], Level]:
-        snap = self.controller.engine.last
+        snap = self.controller.last
         lines: list[Text | str] = [
             "The scan stops: the control program and the safety filter no longer run."]
         level = Level.ATTENTION
@@ -666,8 +665,7 @@ class PlcHmiApp(ContainedPump, App):
             lines.append("The simulated plant stops with it; no real output is driven.")
         else:
             level = Level.ALARM
-            where = getattr(getattr(self.controller.engine.plant, "status", None),
-                            "description", "the plant")
+            where = self.controller.engine.plant.status.description
             safe = ", ".join(f"{n}={int(v)}" for n, v in
                              zip(self.controller.engine.layout.outputs,
                                  self.controller.engine.safe_vector, strict=True))
@@ -706,7 +704,7 @@ class PlcHmiApp(ContainedPump, App):
         self.send(SetSpeed(factor))
 
     def action_manual(self) -> None:
-        snap = self.controller.engine.last
+        snap = self.controller.last
         if snap is None:
             return
         manual_now = self.frame.manual_keys if self.frame else snap.mode == "manual"
@@ -735,7 +733,7 @@ class PlcHmiApp(ContainedPump, App):
         self.send(ManualOutput(name, value))
 
     def action_reset(self) -> None:
-        snap = self.controller.engine.last
+        snap = self.controller.last
         if snap is None:
             return
         self.push_screen(ConfirmDialog("Fault reset?", self._reset_lines(snap), "Reset",
@@ -771,7 +769,7 @@ class PlcHmiApp(ContainedPump, App):
         panel.expand()
 
     def action_policy(self, policy: str | None = None) -> None:
-        current = self.controller.engine.last.policy if self.controller.engine.last \
+        current = self.controller.last.policy if self.controller.last \
             else self.controller.engine.policy
         if policy is not None:
             self._confirm_policy(current, policy)
@@ -886,7 +884,7 @@ class PlcHmiApp(ContainedPump, App):
                 continue
             entries.append(PaletteEntry(f"{a.title}  [{a.key_display or a.key}]", a.help,
                                         getattr(self, f"action_{a.action}"), a.action))
-        snap = self.controller.engine.last
+        snap = self.controller.last
         if self.simulated:
             for factor, word in ((1.0, "real time"), (10.0, "×10"),
                                  (None, "as fast as possible")):
@@ -996,14 +994,14 @@ class AppEnd:
     note: str | None = None
 
 
-def run_app(target: Engine | Controller, clock=None, injected: tuple[Injection, ...] = (),
+def run_app(target: Engine | Session, clock=None, injected: tuple[Injection, ...] = (),
             on_fault: Callable[[UIFault], None] | None = None) -> AppEnd:
     """Run the HMI live on an engine, or on a controller others listen to (the journal).
 
-    A real plant passes a wall clock to stamp its scans (see hmi.engine.live.WallClock);
+    A real plant passes a wall clock to stamp its scans (see hmi.session.live.WallClock);
     `injected` are the faults the command line scheduled in a simulated plant; `on_fault`
     is told of every UI error (the journal)."""
-    controller = target if isinstance(target, Controller) else Controller(target, clock=clock)
+    controller = target if isinstance(target, Session) else Session(target, clock=clock)
     app = PlcHmiApp(controller, injected=injected)
     if on_fault is not None:
         app.containment.listeners.append(on_fault)

@@ -3,7 +3,7 @@
 Confirmation is asked for what changes how the cell is protected or driven (manual mode,
 filter policy, fault reset); a dialog says what will happen in plain words before the
 operator agrees. Each dialog returns its answer through ``dismiss`` and never sends a
-command itself: the app does, so every action still goes through ``Controller.command``.
+command itself: the app does, so every action still goes through ``Session.command``.
 
 Keys typed before a dialog is on screen are not its keys: an Enter meant for the alarm list
 must not confirm a fault reset whose dialog opened a moment late. Every dialog notes when it

@@ -1,7 +1,7 @@
 """Who runs the scans while the app is open.
 
-- :class:`LiveDriver`: the real thing. A :class:`~hmi.engine.live.LiveRunner` thread paces the
-  scans by the wall clock; the UI only reads ``engine.last`` and never waits for a scan.
+- :class:`LiveDriver`: the real thing. A :class:`~hmi.session.live.LiveRunner` thread paces the
+  scans by the wall clock; the UI only reads ``session.last`` and never waits for a scan.
 - :class:`VirtualDriver`: for tests and screenshots. Nothing runs by itself; the test calls
   :meth:`VirtualDriver.advance` to run scans in virtual time, exactly as the live runner
   would have (none while paused), so what the screen shows is repeatable to the character.
@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import sys
 
-from hmi.engine.live import LiveRunner
-from hmi.engine.runner import Controller
+from hmi.session.live import LiveRunner
+from hmi.session.session import Session
 
 # The scan thread and the UI share one interpreter lock. When the scan thread wakes up for
 # its next scan while the UI is rendering, it waits until the UI thread is asked to let go,
@@ -24,7 +24,7 @@ SWITCH_INTERVAL_S = 0.0005
 class LiveDriver:
     live = True
 
-    def __init__(self, controller: Controller):
+    def __init__(self, controller: Session):
         self.controller = controller
         self.runner = LiveRunner(controller)
 
@@ -53,7 +53,7 @@ class VirtualDriver:
     overruns = 0
     error = None
 
-    def __init__(self, controller: Controller):
+    def __init__(self, controller: Session):
         self.controller = controller
 
     def start(self) -> None:

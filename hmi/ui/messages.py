@@ -1,7 +1,7 @@
 """Messages the panels send up to the app ("attributes down, messages up").
 
 A panel never calls the controller: it asks the app to send a command, so that every operator
-action goes through one place (``PlcHmiApp.send`` → ``Controller.command``), where the
+action goes through one place (``PlcHmiApp.send`` → ``Session.command``), where the
 journal will listen.
 """
 

@@ -1,9 +1,9 @@
 """What the UI remembers of every scan, not only of the scans it gets to draw.
 
 The app draws at most ~20 times a second while the engine may scan every 10 ms, so reading
-``engine.last`` alone would miss short pulses: a one-scan edge, a 300 ms sensor glitch between
+``session.last`` alone would miss short pulses: a one-scan edge, a 300 ms sensor glitch between
 two frames. The recorder is called from the scan thread for every snapshot (through
-``Controller.scan_listeners``) and keeps, per Boolean signal, only its changes (time, value).
+``Session.scan_listeners``) and keeps, per Boolean signal, only its changes (time, value).
 That costs a few comparisons per scan, and drawing a window of the chronogram is then
 proportional to the number of changes in it, not to the number of scans.
 
@@ -13,7 +13,7 @@ it violated (a one-scan violation between two frames still counts).
 
 A frame must show one scan. The UI thread reads the recorder while the scan thread feeds it,
 so the snapshot a frame shows and the history beside it are taken together, under the
-recorder's lock (:meth:`ScanRecorder.latest`): reading ``engine.last`` first and the history
+recorder's lock (:meth:`ScanRecorder.latest`): reading ``session.last`` first and the history
 a moment later mixed two scans — a constraint violated in the snapshot could be "not violated
 now" in a history one scan newer (issue 13: the HMI died on ``--control faulty``).
 """
@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 from hmi.engine.layout import Layout
 from hmi.engine.snapshot import Snapshot
-from hmi.plant.device import PlantEvent
+from hmi.plant.base import PlantEvent
 
 FOV_SUFFIX = ".fov"
 KEEP_US = 120_000_000  # history kept: twice the chronogram's widest window

@@ -15,10 +15,11 @@ from pathlib import Path
 
 from textual.pilot import Pilot
 
-from hmi.engine.runner import Controller
 from hmi.engine.scan import Engine
-from hmi.plant.sim import SimPlant, parse_injection
+from hmi.plant.injection import parse_injection
+from hmi.plant.sim.plant import SimPlant
 from hmi.project.loader import load_project
+from hmi.session.session import Session
 from hmi.ui.alarm_list import AlarmList
 from hmi.ui.app import PlcHmiApp
 from hmi.ui.dialogs import ConfirmDialog
@@ -53,7 +54,7 @@ def make_app(project: Path = VALVE, control: str | None = None,
     for injection in injections:
         plant.inject(injection)
     engine = Engine(loaded, plant, control=control, policy=policy)
-    return PlcHmiApp(Controller(engine), live=False, show_measured=False,
+    return PlcHmiApp(Session(engine), live=False, show_measured=False,
                      injected=injections)
 
 

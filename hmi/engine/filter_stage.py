@@ -1,0 +1,80 @@
+"""Stage 6 of the scan: the safety filter, with the diagnosers' mask as an argument.
+
+The mask (hmi.engine.diagnoser.Diagnosis.mask: per output, its orders forced to 0 because a
+diagnoser no longer trusts the actuator, 000 eq. 9-10) **wins over the filter**, except under
+the `monitor` policy, which alters nothing and only says what it would have masked. Masked
+orders are forced to 0 in the candidate vector the filter sees (so the filter judges what will
+really be sent), and again after the filter: a simple constraint of the form `not o . h1`
+(e.g. CSs4, never drop O before fso) would otherwise switch a masked order back on. The scan
+where masking starts may therefore leave such a constraint violated; the report says so in its
+note and counts it as accepted (the order is withdrawn from a device the diagnoser no longer
+trusts; 000 §3: "when a fault is on an actuator, all outputs must be deactivated by the
+filter").
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+
+from hmi.engine.filter import Change, FilterDecision, FilterReport, SafetyFilter, pack
+from hmi.logic.expr import History, Image
+
+
+class FilterStage:
+    """The safety filter and the masking around it; returns its decision to the engine."""
+
+    def __init__(self, safety_filter: SafetyFilter, mask_flags: Mapping[str, tuple[str, ...]]):
+        self.filter = safety_filter
+        self.outputs = safety_filter.outputs
+        self.mask_flags = mask_flags  # masked output -> the flags that mask it
+
+    def apply(self, image: Image, history: History, fov: tuple[bool, ...], policy: str,
+              latched: bool, mask: tuple[bool, ...] | None) -> FilterDecision:
+        inner = self.filter
+        if mask is None:
+            return inner.apply(image, history, fov, policy, latched)
+        if policy == "monitor":  # monitor alters nothing, masks included: it says so
+            decision = inner.apply(image, history, fov, policy, latched)
+            return decision._replace(report=self._unapplied(decision.report, mask))
+        candidate = tuple(v and not m for v, m in zip(fov, mask, strict=True))
+        written, report, latch = inner.apply(image, history, candidate, policy, latched)
+        forced = tuple(bool(w) and not m for w, m in zip(written, mask, strict=True))
+        return FilterDecision(forced, self._report(image, history, report, fov, candidate,
+                                                   written, forced, mask), latch)
+
+    def _flags(self, masked: Iterable[str]) -> list[str]:
+        return sorted({f for name in masked for f in self.mask_flags[name]})
+
+    def _unapplied(self, report: FilterReport, mask: tuple[bool, ...]) -> FilterReport:
+        masked = [self.outputs[k] for k, m in enumerate(mask) if m]
+        extra = (f"{', '.join(self._flags(masked))} would mask {', '.join(masked)}; not "
+                 "applied under the monitor policy")
+        return report._replace(note=f"{report.note}; {extra}" if report.note else extra)
+
+    def _report(self, image: Image, history: History, report: FilterReport,
+                fov: tuple[bool, ...], candidate: tuple[bool, ...], written: tuple[bool, ...],
+                forced: tuple[bool, ...], mask: tuple[bool, ...]) -> FilterReport:
+        outputs = self.outputs
+        masked = {outputs[k] for k, m in enumerate(mask) if m}
+        changes = [c for c in report.changes if c.output not in masked]
+        for k, name in enumerate(outputs):
+            if mask[k] and (fov[k] or written[k]):
+                changes.append(Change(name, bool(fov[k]), False, self.mask_flags[name],
+                                      "masked"))
+        residual = report.residual
+        accepted: tuple[str, ...] = ()
+        if forced != tuple(written):
+            value = pack(forced)
+            violated = [c for c in self.filter.active(image, history)
+                        if value & c.pos == c.pos and not value & c.neg]
+            accepted = tuple(c.name for c in violated if set(c.constraint.outputs) <= masked)
+            residual = tuple(c.name for c in violated if c.name not in accepted)
+        note = report.note
+        extra = f"orders {', '.join(sorted(masked))} masked by " + ", ".join(self._flags(masked))
+        if accepted:
+            extra += (f" (accepted: {', '.join(accepted)} stays violated this scan; the mask "
+                      "has the last word)")
+        note = f"{note}; {extra}" if note else extra
+        return report._replace(changes=tuple(changes), residual=residual, note=note,
+                               distance=sum(a != b for a, b in
+                                            zip(candidate, forced, strict=True)))

@@ -1,0 +1,101 @@
+"""GRAFCET (IEC 60848) evolution, PLC style.
+
+Interpretation, documented in docs/grafcet.md:
+  * A transition is enabled when all its upstream steps are active; it is fireable when it is
+    enabled and its receptivity is true, both judged on the image at the start of the scan.
+  * All fireable transitions fire together (IEC 60848 rule 4), once per scan: there is no
+    search for stability inside a scan, so a chain of true receptivities advances one
+    transition per scan, like a PLC's SFC.
+  * Firing deactivates the upstream steps and activates the downstream ones; a step both
+    deactivated and activated stays active (rule 5) and its step time restarts.
+  * Stored actions (set/reset of memories) happen on activation; continuous actions hold
+    while their step is active (and their condition is true), computed after evolution.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+from hmi.logic.expr import BoolFn, History, Image, compile_bool
+from hmi.project.model import Grafcet
+
+
+class GrafcetRuntime:
+    def __init__(self, grafcet: Grafcet, slots: Mapping[str, int],
+                 step_time_slots: Mapping[str, int]):
+        self.grafcet = grafcet
+        self.step_slots = {s.name: slots[s.name] for s in grafcet.steps}
+        self.time_slots = {s.name: step_time_slots[s.name] for s in grafcet.steps}
+        self.initial = tuple(s.name for s in grafcet.steps if s.initial)
+        self.transitions: list[tuple[tuple[int, ...], tuple[str, ...], BoolFn]] = [
+            (tuple(self.step_slots[s] for s in tr.sources), tr.targets,
+             compile_bool(tr.receptivity, slots, step_time_slots))
+            for tr in grafcet.transitions
+        ]
+        self.transition_numbers = tuple(tr.number for tr in grafcet.transitions)
+        self.stored: dict[str, list[tuple[int, bool]]] = {}
+        self.continuous: list[tuple[int, int, BoolFn | None]] = []  # step slot, target, cond
+        for step in grafcet.steps:
+            for action in step.actions:
+                if action.kind == "N":
+                    cond = (compile_bool(action.condition, slots, step_time_slots)
+                            if action.condition else None)
+                    self.continuous.append((self.step_slots[step.name], slots[action.target],
+                                            cond))
+                else:
+                    self.stored.setdefault(step.name, []).append(
+                        (slots[action.target], action.kind == "S"))
+        self.driven = sorted({target for _, target, _ in self.continuous})
+        self.activated_at: dict[str, int] = {}
+        self.fired: tuple[int, ...] = ()
+
+    def reset(self, image: Image, now: int) -> None:
+        for name, slot in self.step_slots.items():
+            image[slot] = name in self.initial
+        self.activated_at = dict.fromkeys(self.initial, now)
+        for name in self.initial:
+            self._stored(image, name)
+
+    def update_times(self, image: Image, now: int) -> None:
+        for name, slot in self.time_slots.items():
+            since = self.activated_at.get(name)
+            image[slot] = 0 if since is None else now - since
+
+    def evolve(self, image: Image, history: History, now: int) -> tuple[int, ...]:
+        """Fire every fireable transition at once; return the numbers of those fired."""
+        fire = [i for i, (sources, _, receptivity) in enumerate(self.transitions)
+                if all(image[s] for s in sources) and receptivity(image, history)]
+        if not fire:
+            self.fired = ()
+            return ()
+        deactivate: set[str] = set()
+        activate: set[str] = set()
+        for i in fire:
+            sources, targets, _ = self.transitions[i]
+            deactivate.update(name for name, slot in self.step_slots.items() if slot in sources)
+            activate.update(targets)
+        for name in deactivate - activate:
+            image[self.step_slots[name]] = False
+            self.activated_at.pop(name, None)
+            image[self.time_slots[name]] = 0
+        for name in sorted(activate):
+            image[self.step_slots[name]] = True
+            self.activated_at[name] = now
+            image[self.time_slots[name]] = 0
+            self._stored(image, name)
+        self.fired = tuple(self.transition_numbers[i] for i in fire)
+        return self.fired
+
+    def _stored(self, image: Image, step: str) -> None:
+        for slot, value in self.stored.get(step, ()):
+            image[slot] = value
+
+    def apply_continuous(self, image: Image, history: History) -> None:
+        for slot in self.driven:
+            image[slot] = False
+        for step_slot, target, cond in self.continuous:
+            if image[step_slot] and (cond is None or cond(image, history)):
+                image[target] = True
+
+    def active(self, image: Image) -> tuple[str, ...]:
+        return tuple(name for name, slot in self.step_slots.items() if image[slot])

@@ -1,0 +1,184 @@
+"""The stages of one scan (000 Fig. 1, DESIGN.md), each a small object the engine owns.
+
+    1 InputScan        plant -> input slots of the image
+    2 Memory           timers, observers, GRAFCET step times
+    3 diagnosers       hmi.engine.diagnoser.DiagnosisStage (optional)
+    4 Reconstruction   filtered sensors <- the sensor or its estimate, as the diagnosers route
+    5 Control          the control law (or the operator's manual requests) -> FOV
+    6 filter           hmi.engine.filter_stage.FilterStage, given the diagnosers' mask
+    7 OutputScan       written vector -> plant
+    8 monitors         hmi.engine.monitors.MonitorStage (optional), on the I/O just exchanged
+
+The engine (hmi.engine.scan) calls them in that order in ``Engine._cycle`` (for Engine.step
+and Engine.advance) and passes each what it reads; a stage returns what it decided and never
+reaches back into the engine. The protocols below are the declared interfaces: a new stage
+implements one and is called from ``Engine._cycle`` at its place in the cycle
+(docs/architecture.md).
+
+Every stage works on the image (a flat list of slot values, hmi.engine.layout) and its
+history (``history[0]`` the image at the end of the previous scan, and so on back).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING, Protocol
+
+from hmi.engine.control import ControlRuntime
+from hmi.engine.layout import Layout
+from hmi.logic.expr import BoolFn, History, Image, compile_bool
+from hmi.logic.timers import TimerRuntime
+from hmi.plant.base import Plant, PlantError
+from hmi.project.model import Project
+
+if TYPE_CHECKING:
+    from hmi.engine.diagnoser import DiagnoserState, Diagnosis
+    from hmi.engine.filter import FilterDecision
+    from hmi.engine.monitors import MonitorState
+
+
+# -- the declared interfaces ------------------------------------------------------------------
+
+class DiagnoserStage(Protocol):
+    """Stage 3: steps the local diagnosers on I(t) and the orders of t-1, sets their flags."""
+
+    depth: int  # how many past images its conditions read
+
+    def step(self, image: Image, history: History, now: int, scan: int) -> Diagnosis: ...
+
+    def publish(self, image: Image, history: History) -> tuple[DiagnoserState, ...]: ...
+
+    def reset(self, image: Image, history: History, now: int, scan: int) -> list[str]: ...
+
+
+class FilterStageProtocol(Protocol):
+    """Stage 6: the safety filter on the candidate vector, orders masked by the diagnosers."""
+
+    def apply(self, image: Image, history: History, fov: tuple[bool, ...], policy: str,
+              latched: bool, mask: tuple[bool, ...] | None) -> FilterDecision: ...
+
+
+class MonitorStageProtocol(Protocol):
+    """After the output scan: the stopwatch monitors on the I/O the scan exchanged."""
+
+    depth: int
+
+    def step(self, image: Image, history: History, now: int, scan: int
+             ) -> tuple[MonitorState, ...]: ...
+
+    def reset(self) -> list[str]: ...
+
+
+# -- the engine's own stages ------------------------------------------------------------------
+
+class InputScan:
+    """Stage 1: read the plant's inputs into the image."""
+
+    def __init__(self, plant: Plant, layout: Layout, read_back: bool):
+        self.plant = plant
+        self.names = layout.inputs
+        self.slots = layout.indices(layout.inputs)
+        self.outputs = layout.outputs
+        self.read_back = read_back  # observing: the device's own outputs are read too
+        self.readback: tuple[bool, ...] = ()
+
+    def read(self, image: Image, now: int) -> str | None:
+        """None when the inputs are in the image; else why not (the engine latches safe)."""
+        try:
+            values = self.plant.read(now)
+        except PlantError as exc:
+            return plant_detail(exc)
+        for name, slot in zip(self.names, self.slots, strict=True):
+            image[slot] = bool(values[name])
+        if self.read_back:
+            self.readback = tuple(bool(values[name]) for name in self.outputs)
+        return None
+
+
+class Memory:
+    """Stage 2: timers (TON/TOF), observers, and the GRAFCET's step activity times."""
+
+    def __init__(self, project: Project, layout: Layout, control: ControlRuntime):
+        slots, times = layout.slots, layout.step_times
+        self.timers = [(TimerRuntime(t.name, t.kind, t.preset_us), slots[t.name],
+                        compile_bool(t.input, slots, times)) for t in project.timers]
+        # (slot, is an expression, expression or set, reset or unused)
+        self.observers: list[tuple[int, bool, BoolFn, BoolFn]] = []
+        for o in project.observers:
+            if o.expr is not None:
+                fn = compile_bool(o.expr, slots, times)
+                self.observers.append((slots[o.name], True, fn, fn))
+            else:
+                assert o.set is not None and o.reset is not None  # the loader's guarantee
+                self.observers.append((slots[o.name], False, compile_bool(o.set, slots, times),
+                                       compile_bool(o.reset, slots, times)))
+        self.control = control
+
+    def update(self, image: Image, history: History, now: int) -> None:
+        for runtime, slot, fn in self.timers:
+            image[slot] = runtime.update(fn(image, history), now)
+        for slot, is_expr, set_, reset in self.observers:
+            if is_expr:
+                image[slot] = set_(image, history)
+            else:
+                image[slot] = not reset(image, history) and (set_(image, history) or image[slot])
+        self.control.update_times(image, now)
+
+    def capture(self) -> tuple[tuple[bool, int | None], ...]:
+        """The timers' state (observers live in the image)."""
+        return tuple((rt.q, rt.since) for rt, _, _ in self.timers)
+
+    def restore(self, state: tuple[tuple[bool, int | None], ...]) -> None:
+        for (rt, _, _), (q, since) in zip(self.timers, state, strict=True):
+            rt.q, rt.since = q, since
+
+    def elapsed(self, now: int) -> tuple[int, ...]:
+        """Each timer's ET, for the snapshot."""
+        return tuple(rt.elapsed(now) for rt, _, _ in self.timers)
+
+
+class Reconstruction:
+    """Stage 4: each filtered sensor slot takes the value the diagnosers route to it, the
+    sensor itself or its estimate (000 eq. 7-8)."""
+
+    def apply(self, image: Image, routes: Sequence[tuple[int, int]]) -> None:
+        for filtered, source in routes:
+            image[filtered] = image[source]
+
+
+class Control:
+    """Stage 5: the functional output vector, from the control law or the manual requests."""
+
+    def __init__(self, runtime: ControlRuntime, layout: Layout):
+        self.runtime = runtime
+        self.outputs = layout.outputs
+        self.slots = layout.indices(layout.outputs)
+
+    def fov(self, image: Image, history: History, now: int,
+            manual: Mapping[str, bool] | None) -> tuple[bool, ...]:
+        """The law always runs (its steps and memories evolve in manual mode too); `manual`
+        (the operator's requests, in manual mode) replaces what it asks for."""
+        self.runtime.run(image, history, now)
+        if manual is not None:
+            return tuple(manual.get(name, False) for name in self.outputs)
+        return tuple(image[s] for s in self.slots)
+
+
+class OutputScan:
+    """Stage 7: write the vector the filter decided to the plant."""
+
+    def __init__(self, plant: Plant, layout: Layout):
+        self.plant = plant
+        self.names = layout.outputs
+
+    def write(self, now: int, outputs: Sequence[bool]) -> str | None:
+        """None when written; else why not (the engine latches safe)."""
+        try:
+            self.plant.write(now, dict(zip(self.names, outputs, strict=True)))
+        except PlantError as exc:
+            return plant_detail(exc)
+        return None
+
+
+def plant_detail(exc: PlantError) -> str:
+    return f"plant {'connection lost' if exc.lost else 'error'}: {exc}"

@@ -1,0 +1,186 @@
+"""The safety program: one PLC cycle in the engine's order (hmi/engine/scan.py).
+
+    first cycle: the history is the engine's initial image
+    2 Memory   3-4 each Diag_<D>   5 Control (yours)   6 Filter   7 outputs
+    8 each Mon_<task>   a fault reset (after the scan)   the history shifts
+
+The program holds the history its function blocks read: `prev_x` is x at the previous scan,
+`prev2_x` two scans back. Each FB input standing for (x, depth) is wired to the value it
+means at that point of the cycle; a diagnoser reads outputs one scan further back (what the
+plant received), and its reset call reads the scan just ended (see :func:`build_program`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from hmi.export import model as m
+from hmi.export import source
+from hmi.export.diagnoser_pou import ftc_mode
+from hmi.export.image import Globals
+from hmi.export.names import Scope
+from hmi.export.views import Block, Durations, convert, view_name
+from hmi.project.model import Project
+
+
+@dataclass
+class Blocks:
+    """The function blocks the program calls."""
+
+    memory: Block | None
+    diagnosers: list[Block]
+    filter: Block
+    control: m.Pou
+    stopwatch: m.Pou
+    stopwatch_ports: dict[str, str]
+
+
+@dataclass
+class _Program:
+    g: Globals
+    scope: Scope  # the program's own names, below the globals
+    instances: dict[str, str] = field(default_factory=dict)
+    history: dict[tuple[str, int], str] = field(default_factory=dict)
+
+    def instance(self, key: str) -> str:
+        if key not in self.instances:
+            self.instances[key] = self.scope.take(key)
+        return self.instances[key]
+
+    def value(self, name: str, depth: int) -> m.Expr:
+        """`name` as it stands `depth` scans back, at this point of the cycle."""
+        if depth == 0:
+            return self.g.name(name)
+        for d in range(1, depth + 1):
+            if (name, d) not in self.history:
+                self.history[(name, d)] = self.scope.take(view_name(name, d))
+        return m.Name(self.history[(name, depth)])
+
+    def wire(self, block: Block, shift=None) -> list[tuple[str, m.Expr]]:
+        return [(ident, self.value(name, depth) if shift is None else shift(name, depth))
+                for (name, depth), ident in block.inputs.items()]
+
+
+def build_program(project: Project, name: str, g: Globals, b: Blocks,
+                  durations: Durations) -> tuple[m.Pou, dict[str, str]]:
+    p = _Program(g, g.scope.child())
+    outputs = {v.name for v in source.outputs(project)}
+    specs = source.diagnosers(project)
+    body: list[m.Stmt] = []
+    if b.memory is not None:
+        inst = p.instance("Memory")
+        body.append(m.Comment("2. Memory: timers and observers"))
+        body.append(m.FbCall(inst, p.wire(b.memory)))
+        body += [m.Assign(g.name(n), m.Member(m.Name(inst), out))
+                 for n, out in b.memory.outputs.items()]
+    for spec, block in zip(specs, b.diagnosers, strict=True):
+        inst = p.instance(f"Diag_{spec.name}")
+        body.append(m.Comment(f"3-4. Diagnoser {spec.name}: an output is read as written at "
+                              "the previous scan"))
+        body.append(m.FbCall(inst, (
+            (block.ports["Reset"], m.FALSE), (block.ports["Mode"], g.name("DiagnosisMode")),
+            *p.wire(block, lambda n, d: p.value(n, d + (n in outputs))))))
+        body += [m.Assign(g.name(n), m.Member(m.Name(inst), out))
+                 for n, out in block.outputs.items()]
+    ctl = p.instance("Control")
+    body.append(m.Comment("5. The functional control (FB_..._Control: your program) writes "
+                          "the FOV_ variables"))
+    body.append(m.FbCall(ctl))
+    filt = b.filter
+    finst = p.instance("Filter")
+    body.append(m.Comment("6. The safety filter"))
+    body.append(m.FbCall(finst, (
+        (filt.ports["Reset"], m.FALSE), (filt.ports["Policy"], g.name("FilterPolicy")),
+        (filt.ports["Ftc"], ftc_mode(g.name("DiagnosisMode"))),
+        *((filt.ports[f"FOV_{v.name}"], g.name(f"FOV_{v.name}"))
+          for v in source.outputs(project)),
+        *p.wire(filt))))
+    body += [m.Assign(g.name(v.name), m.Member(m.Name(finst), filt.outputs[v.name]))
+             for v in source.outputs(project)]
+    body += [m.Assign(g.name(key), m.Member(m.Name(finst), filt.ports[port]))
+             for key, port in (("Violations", "Violations"), ("FilterLatched", "Latched"),
+                               ("FilterFallback", "Fallback"))]
+    body += g.write
+    monitors = _monitors(project, p, b, durations)
+    if monitors:
+        body.append(m.Comment("7. The output scan (the PLC writes the outputs after the "
+                              "cycle); 8. the stopwatch monitors, on the I/O of this scan"))
+        body += monitors
+    body.append(m.Comment("A fault reset, after the scan (the engine resets between scans)"))
+    body.append(m.if_(g.name("FaultReset"), *_reset(project, p, b)))
+    body.append(m.Comment("The history: this scan's values become the previous ones"))
+    for (n, depth), ident in sorted(p.history.items(), key=lambda kv: (kv[0][0], -kv[0][1])):
+        newer = g.name(n) if depth == 1 else m.Name(p.history[(n, depth - 1)])
+        body.append(m.Assign(m.Name(ident), newer))
+    started = p.scope.take("Started")
+    first = [m.Comment("The first scan: the history is the initial image (inputs as read, "
+                       "outputs safe, observers initial, the rest 0)"),
+             m.if_(m.not_(m.Name(started)),
+                   *(m.Assign(m.Name(ident), g.initial.get(n, m.FALSE))
+                     for (n, _), ident in p.history.items()),
+                   m.Assign(m.Name(started), m.TRUE))]
+
+    types = {"Memory": b.memory.pou.name if b.memory else "", "Control": b.control.name,
+             "Filter": filt.pou.name}
+    types.update({f"Diag_{s.name}": blk.pou.name for s, blk in zip(specs, b.diagnosers,
+                                                                   strict=True)})
+    types.update({f"Mon_{t.name}": b.stopwatch.name for t in source.monitors(project)})
+    locals_ = [m.Var(started, m.BOOL)]
+    locals_ += [m.Var(ident, m.Derived(types[key])) for key, ident in p.instances.items()]
+    locals_ += [m.Var(ident, m.BOOL, comment=f"{n}, {d} scan{'s' if d > 1 else ''} back")
+                for (n, d), ident in p.history.items()]
+    pou = m.Pou(name, "program", (
+        m.VarBlock("external", tuple(m.Var(v.name, v.type) for v in g.all)),
+        m.VarBlock("local", tuple(locals_))),
+        tuple(g.read + first + body),
+        "The safety layer's cycle, in the engine's order. Call it once per PLC cycle from "
+        "the task; put the functional control in FB_..._Control.")
+    return pou, dict(p.instances)
+
+
+def _monitors(project: Project, p: _Program, b: Blocks, durations: Durations
+              ) -> list[m.Stmt]:
+    ports = b.stopwatch_ports
+    out: list[m.Stmt] = []
+    for task in source.monitors(project):
+        inst = p.instance(f"Mon_{task.name}")
+
+        def cond(expr) -> m.Expr:
+            return convert(expr.root, p.value)
+        if task.interrupted is not None:
+            suspend, resume = cond(task.interrupted), m.not_(cond(task.interrupted))
+        elif task.interrupt is not None and task.resume is not None:
+            suspend, resume = cond(task.interrupt), cond(task.resume)
+        else:
+            suspend = resume = m.FALSE
+        what = f"the window of monitor {task.name!r}"
+        out.append(m.FbCall(inst, (
+            (ports["Reset"], m.FALSE), (ports["Start"], cond(task.start)),
+            (ports["Finish"], cond(task.end)), (ports["Suspend"], suspend),
+            (ports["Resume"], resume),
+            (ports["Alpha"], durations.time(task.alpha_us, task.pos, what)),
+            (ports["Beta"], durations.time(task.beta_us, task.pos, what)),
+            (ports["Gamma"], durations.time(task.gamma_us, task.pos, what)))))
+        out.append(m.Assign(p.g.name(task.label), m.Member(m.Name(inst), ports["Fault"])))
+    return out
+
+
+def _reset(project: Project, p: _Program, b: Blocks) -> list[m.Stmt]:
+    outputs = {v.name for v in source.outputs(project)}
+    stmts: list[m.Stmt] = [m.Assign(p.g.name("FaultReset"), m.FALSE),
+                           m.FbCall(p.instances["Filter"], ((b.filter.ports["Reset"], m.TRUE),))]
+
+    # The engine resets between scans, on the image of the scan just ended, which is also
+    # the newest history entry: a read at depth d (outputs one deeper) is the value d - 1
+    # scans back, at least this scan's.
+    def back(n: str, d: int) -> m.Expr:
+        return p.value(n, max(d + (n in outputs) - 1, 0))
+
+    for spec, block in zip(source.diagnosers(project), b.diagnosers, strict=True):
+        stmts.append(m.FbCall(p.instances[f"Diag_{spec.name}"], (
+            (block.ports["Reset"], m.TRUE),
+            *((block.inputs[key], back(*key)) for key in block.reset_reads))))
+    for task in source.monitors(project):
+        stmts.append(m.FbCall(p.instances[f"Mon_{task.name}"],
+                              ((b.stopwatch_ports["Reset"], m.TRUE),)))
+    return stmts

@@ -1,0 +1,161 @@
+"""What every simulated device offers the simulated plant.
+
+A device has sensor ports (read by the PLC) and actuator ports (written by it), parameters
+with defaults, and a list of faults it can suffer. Time is integer microseconds and always
+given by the caller: a device never looks at a clock, so a run is exactly repeatable.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+from hmi.plant.base import PlantEvent
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One model parameter: its type ("duration", "number", "bool", "choice", "device"),
+    default, help. A "device" parameter names another device of the plant (a pipe or a shaft
+    the PLC does not see); its `choices` are the models it may name."""
+
+    kind: str
+    default: Any
+    help: str
+    choices: tuple[str, ...] = ()
+    minimum: float | None = None
+    maximum: float | None = None
+
+
+@dataclass(frozen=True)
+class FaultSpec:
+    code: str
+    description: str
+    component: str  # the part that fails: a sensor port name or "actuator"
+
+
+def jam_and_stuck_faults(jams: dict[str, str], sensors: tuple[str, ...]
+                         ) -> dict[str, FaultSpec]:
+    """The usual fault list of a cell model: each drive's jam, each sensor stuck at 0 or 1."""
+    faults = {code: FaultSpec(code, text, "actuator") for code, text in jams.items()}
+    for sensor in sensors:
+        for value in (0, 1):
+            code = f"{sensor}_stuck{value}"
+            faults[code] = FaultSpec(code, f"sensor {sensor} stuck at {value}", sensor)
+    return faults
+
+
+@dataclass
+class PendingFault:
+    code: str
+    at_us: int
+    duration_us: int | None = None  # for faults that last a while (interruptions)
+    options: dict[str, Any] = field(default_factory=dict)
+
+
+class SimDevice(ABC):
+    """Base of simulated devices; subclasses implement the physics in :meth:`_advance_to`."""
+
+    MODEL: ClassVar[str]
+    DESCRIPTION: ClassVar[str] = ""
+    SENSORS: ClassVar[tuple[str, ...]]
+    ACTUATORS: ClassVar[tuple[str, ...]]
+    PARAMS: ClassVar[dict[str, ParamSpec]] = {}
+    FAULTS: ClassVar[dict[str, FaultSpec]] = {}
+    # A model that knows how to undo its faults' effects (see _repaired); the others refuse a
+    # repair rather than leave a half-faulty device behind.
+    REPAIRABLE: ClassVar[bool] = False
+
+    def __init__(self, name: str, params: Mapping[str, Any]):
+        self.name = name
+        self.params = {key: spec.default for key, spec in self.PARAMS.items()}
+        self.params.update(params)
+        self.t = 0
+        self.orders = dict.fromkeys(self.ACTUATORS, False)
+        self.events: list[PlantEvent] = []
+        self.pending: list[PendingFault] = []
+        self.active_faults: dict[str, int] = {}  # code -> time it became active
+
+    # -- the plant's side --------------------------------------------------------------------
+    def inject(self, code: str, at_us: int, duration_us: int | None = None,
+               **options: Any) -> None:
+        if code not in self.FAULTS:
+            raise KeyError(code)
+        self.pending.append(PendingFault(code, at_us, duration_us, options))
+        self.pending.sort(key=lambda p: p.at_us)
+
+    def write(self, t: int, orders: Mapping[str, bool]) -> None:
+        """The PLC writes its actuator ports at time t (after the device reached t)."""
+        self.advance(t)
+        changed = {port: bool(value) for port, value in orders.items()
+                   if self.orders.get(port) != bool(value)}
+        if changed:
+            self.orders.update(changed)
+            self._orders_changed(t, changed)
+
+    def advance(self, t: int) -> None:
+        """Bring the physics to time t, activating injected faults exactly on time."""
+        if t < self.t:
+            return
+        while self.pending and self.pending[0].at_us <= t:
+            fault = self.pending.pop(0)
+            self._advance_to(max(fault.at_us, self.t))
+            self.active_faults[fault.code] = fault.at_us
+            self._fault_activated(fault)
+        self._advance_to(t)
+
+    @abstractmethod
+    def sensors(self) -> dict[str, bool]:
+        """Sensor port values at the current time (after advance)."""
+
+    @abstractmethod
+    def _advance_to(self, t: int) -> None:
+        """Integrate the physics from self.t to t (t >= self.t) and set self.t = t."""
+
+    def link(self, devices: Mapping[str, SimDevice]) -> None:  # noqa: B027
+        """Hook: resolve "device" parameters to the plant's other devices (all built by then).
+
+        Physical links between devices (a pump pushing through valves into tanks) are not
+        ports: the PLC neither reads nor writes them, so the plant wires them here.
+        """
+
+    @classmethod
+    def param_problems(cls, params: Mapping[str, Any]) -> list[tuple[str, str, str]]:
+        """(parameter, what is wrong, what was expected) for values that do not fit together
+        (each alone passed its ParamSpec); the loader reports them at the parameter."""
+        return []
+
+    def _orders_changed(self, t: int, changed: dict[str, bool]) -> None:  # noqa: B027
+        """Hook: react to new orders (record dangerous combinations...)."""
+
+    def _fault_activated(self, fault: PendingFault) -> None:  # noqa: B027
+        """Hook: a fault became active at fault.at_us."""
+
+    def repair(self, t: int) -> tuple[str, ...]:
+        """The technician's repair at time t, for training: every active and scheduled fault
+        is removed and the device works normally again from where it physically is. Returns
+        the codes removed."""
+        if not self.REPAIRABLE:
+            raise NotImplementedError(f"repair is not modelled for {self.MODEL} devices")
+        self.advance(t)
+        codes = tuple(self.active_faults) + tuple(p.code for p in self.pending)
+        self.active_faults.clear()
+        self.pending.clear()
+        self._repaired()
+        return codes
+
+    def _repaired(self) -> None:  # noqa: B027
+        """Hook: undo the faults' effects (a jam, an armed fault, a glitch in progress)."""
+
+    @abstractmethod
+    def state(self) -> dict[str, Any]:
+        """Scalar values describing the physical state, for traces and the UI."""
+
+    def counters(self) -> dict[str, int]:
+        """Work achieved (cycles, parts...), used to judge whether the cell kept going."""
+        return {}
+
+    def record(self, t: int, kind: str, damage: bool, detail: str) -> None:
+        self.events.append(PlantEvent(t, self.name, kind, damage, detail))

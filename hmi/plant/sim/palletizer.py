@@ -1,0 +1,367 @@
+"""The palletizer of Riera et al. (001, the ITS PLC scene), as one simulated device.
+
+    feed conveyor (FEED) ==> [pusher zone]      the pusher (PUSH / RETRACT) pushes the box in
+                                 |              its zone sideways onto the layer plate, where
+                            layer plate         each push shifts the row by one box; a full
+                      (PLATE_OPEN / PLATE_CLOSE)  row (`per_layer` boxes) is one layer
+                     clamp (CLAMP) around it    the clamp grips the layer, the plate slides
+                                 |              open, the elevator brings the pallet's top just
+                       pallet on the elevator   under it, the clamp lets go: the layer lands
+                        (ELEV_UP / ELEV_DOWN)   on the pallet; the elevator lowers one layer
+
+Boxes arrive on the feed conveyor on a seeded schedule (:mod:`hmi.plant.sim.boxes`) and stop
+against its end stop in the pusher zone (`box_ready`). The pusher, the plate and the clamp
+are travels between two end switches (:mod:`hmi.plant.sim.travel`): pusher_home/pusher_out,
+plate_closed/plate_open, clamp_open/clamp_closed (the clamp is spring-opened: CLAMP off opens
+it). The elevator's position is in µs of motor time at `elevator_speed`; `layer_eye` is a
+light beam `eye_offset` mm under the plate that sees the top of the load on the pallet;
+`elev_bottom` is its low end switch. At the bottom, an elevator left still for
+`exchange_time` has its loaded pallet taken away and an empty one put in its place
+(`pallet_empty`).
+
+Damage events (objective, once per occurrence):
+  pusher_both_ways / plate_both_ways / elevator_both_ways  both directions ordered together
+  box_against_pusher  the feed drove a box into the pusher while it was out of home
+  pusher_against_clamp  the pusher was out (past half its stroke) while the clamp was not open
+  box_dropped     a box pushed onto an open plate, or off the far end of a full row
+  layer_dropped   the plate slid open under boxes the clamp did not hold, or the clamp let a
+                  layer fall from higher than `max_drop` onto the load
+  plate_into_layer  the plate closed against a layer standing in its way
+  load_crushed    the elevator pressed the load against the plate or the held layer beyond
+                  `crush_tolerance`
+  elevator_overrun  ELEV_DOWN held at the bottom beyond `stall_tolerance`
+  elevator_stall  an elevator order held on a jammed elevator beyond `stall_tolerance`
+Not damage: partial_layer (a layer of fewer than `per_layer` boxes placed on the pallet).
+
+Faults: feed_jam, pusher_jam, plate_jam, clamp_jam, elevator_jam (that drive does not move);
+and for every sensor S, S_stuck0 / S_stuck1.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+from hmi.plant.sim.boxes import MM, Box, BoxSource
+from hmi.plant.sim.cell import SteppedCell
+from hmi.plant.sim.device import FaultSpec, ParamSpec, jam_and_stuck_faults
+from hmi.plant.sim.track import WALL, Line, Segment, advance
+from hmi.plant.sim.travel import Travel, direction
+from hmi.timefmt import seconds
+
+SENSORS = ("box_in", "box_ready", "pusher_home", "pusher_out", "plate_closed", "plate_open",
+           "clamp_open", "clamp_closed", "layer_eye", "elev_bottom", "pallet_empty")
+ACTUATORS = ("CLAMP", "PLATE_CLOSE", "PLATE_OPEN", "ELEV_DOWN", "ELEV_UP", "RETRACT", "PUSH",
+             "FEED")
+TRANSFER = 0.9  # fraction of the pusher's stroke where the box leaves the feed for the plate
+
+_JAMS = {
+    "feed_jam": "feed conveyor jammed (does not move)",
+    "pusher_jam": "pusher jammed (does not move)",
+    "plate_jam": "layer plate jammed (does not move)",
+    "clamp_jam": "clamp jammed (does not move)",
+    "elevator_jam": "elevator jammed (does not move)",
+}
+
+
+def _faults() -> dict[str, FaultSpec]:
+    return jam_and_stuck_faults(_JAMS, SENSORS)
+
+
+def _number(default: float, text: str, low: float, high: float) -> ParamSpec:
+    return ParamSpec("number", default, text, minimum=low, maximum=high)
+
+
+class Palletizer(SteppedCell):
+    MODEL = "palletizer"
+    DESCRIPTION = "palletizer: feed conveyor, pusher, layer plate, clamp, elevator"
+    SENSORS = SENSORS
+    ACTUATORS = ACTUATORS
+    PARAMS: ClassVar[dict[str, ParamSpec]] = {
+        "feed_length": _number(1500, "length of the feed conveyor (mm)", 500, 20_000),
+        "feed_speed": _number(300, "feed conveyor speed (mm/s)", 10, 3000),
+        "box_length": _number(300, "length of a box along the feed (mm)", 50, 2000),
+        "box_height": _number(200, "height of a box, hence of a layer (mm)", 20, 2000),
+        "per_layer": _number(3, "boxes in a full row on the plate (one layer)", 1, 12),
+        "lift_range": _number(1000, "elevator travel (mm)", 100, 10_000),
+        "pallet_height": _number(150, "height of an empty pallet (mm)", 10, 1000),
+        "elevator_speed": _number(100, "elevator speed (mm/s)", 10, 2000),
+        "eye_offset": _number(15, "the layer eye looks this far under the plate (mm)", 1, 200),
+        "max_drop": _number(30, "a layer let go from higher than this is damage (mm)", 1, 500),
+        "push_time": ParamSpec("duration", 1_000_000, "pusher stroke time"),
+        "plate_time": ParamSpec("duration", 1_000_000, "time for the plate to open or close"),
+        "clamp_time": ParamSpec("duration", 500_000, "time for the clamp to close or open"),
+        "band": ParamSpec("duration", 20_000, "end switches are made within this much travel"),
+        "crush_tolerance": ParamSpec("duration", 50_000, "the load pressed against the plate "
+                                     "longer than this is damage"),
+        "stall_tolerance": ParamSpec("duration", 1_000_000, "an elevator order held without "
+                                     "motion (at the bottom, or jammed) longer than this is "
+                                     "damage"),
+        "exchange_time": ParamSpec("duration", 2_000_000, "time to exchange a loaded pallet "
+                                   "for an empty one at the bottom"),
+        "first_box": ParamSpec("duration", 500_000, "when the first box is due"),
+        "interval_min": ParamSpec("duration", 4_000_000, "shortest time between two boxes"),
+        "interval_max": ParamSpec("duration", 8_000_000, "longest time between two boxes"),
+        "seed": _number(1, "seed of the box schedule", 0, 2**31),
+        "initial_height": _number(0, "initial elevator height (mm from the bottom)", 0, 10_000),
+    }
+    FAULTS = _faults()
+
+    def __init__(self, name: str, params: dict[str, Any]):
+        super().__init__(name, params)
+        p = self.params
+        self.feed_len = round(p["feed_length"] * MM)
+        self.box_len = round(p["box_length"] * MM)
+        self.layer_h = round(p["box_height"] * MM)
+        self.per_layer = int(p["per_layer"])
+        self.pallet_h = round(p["pallet_height"] * MM)
+        self.lift_speed = int(p["elevator_speed"])  # nm per µs of motor time
+        lift = round(p["lift_range"] * MM)
+        self.plate_level = lift + self.pallet_h  # an empty pallet at the top meets the plate
+        self.eye = round(p["eye_offset"] * MM)
+        self.max_drop = round(p["max_drop"] * MM)
+        band = int(p["band"])
+        self.pusher = Travel(int(p["push_time"]), band)
+        self.plate = Travel(int(p["plate_time"]), band)
+        self.clamp = Travel(int(p["clamp_time"]), band)
+        self.lift = Travel(lift // self.lift_speed, band,
+                           pos=min(round(p["initial_height"] * MM), lift) // self.lift_speed)
+        self.source = BoxSource(int(p["seed"]), int(p["first_box"]), int(p["interval_min"]),
+                                int(p["interval_max"]), 0.0)
+        self.feed: list[Box] = []
+        self.pushing: Box | None = None  # the box in front of the moving pusher
+        self.row: list[Box] = []  # on the plate, index 0 next to the pusher
+        self.hanging: list[Box] = []  # a layer held by the clamp over the open plate
+        self.gripped = False
+        self.layers: list[int] = []  # boxes per layer on the pallet
+        self.flags: set[str] = set()  # situations already reported while they last
+        self.both: dict[str, bool] = {}
+        self.idle_bottom_us = 0
+        self.count = dict.fromkeys(("arrived", "pushed", "layers", "pallets",
+                                    "boxes_palletized", "lost"), 0)
+
+    # -- geometry ---------------------------------------------------------------------------
+    def load_top(self) -> int:
+        """Height (nm from the elevator's bottom) of the top of the pallet and its layers."""
+        return self.lift.pos * self.lift_speed + self.pallet_h + len(self.layers) * self.layer_h
+
+    def _feed_line(self) -> Line:
+        speed = int(self.params["feed_speed"]) if self.orders["FEED"] and \
+            "feed_jam" not in self.jams else 0
+        length = self.feed_len if self.pusher.at_low else self.feed_len - self.box_len
+        return Line((Segment("feed", 0, length, 1, speed),), WALL, WALL)
+
+    def _in_zone(self) -> Box | None:
+        """The box against the end stop, in front of the pusher (within 2 mm of the stop)."""
+        for box in self.feed:
+            if box.lo + box.length >= self.feed_len - 2 * MM:
+                return box
+        return None
+
+    # -- sensors ----------------------------------------------------------------------------
+    def true_sensors(self) -> dict[str, bool]:
+        half = self.box_len // 2
+        return {
+            "box_in": any(b.lo <= half <= b.lo + b.length for b in self.feed),
+            "box_ready": self.pushing is not None or self._in_zone() is not None,
+            "pusher_home": self.pusher.at_low,
+            "pusher_out": self.pusher.at_high,
+            "plate_closed": self.plate.at_low,
+            "plate_open": self.plate.at_high,
+            "clamp_open": self.clamp.at_low,
+            "clamp_closed": self.clamp.at_high,
+            "layer_eye": self.load_top() >= self.plate_level - self.eye,
+            "elev_bottom": self.lift.at_low,
+            "pallet_empty": not self.layers,
+        }
+
+    # -- physics ----------------------------------------------------------------------------
+    def _step(self, dt: int) -> None:
+        o = self.orders
+        self._move_pusher(dt, direction(o["PUSH"], o["RETRACT"]))
+        self._move_clamp(dt, 1 if o["CLAMP"] else -1)
+        self._move_plate(dt, direction(o["PLATE_OPEN"], o["PLATE_CLOSE"]))
+        self._move_lift(dt, direction(o["ELEV_UP"], o["ELEV_DOWN"]))
+        self._move_feed(dt)
+        self._arrive()
+        self._check_collisions()
+
+    def _move_pusher(self, dt: int, drive: int) -> None:
+        was_home = self.pusher.at_low
+        before = self.pusher.pos
+        self.pusher.step(dt, drive)
+        if was_home and not self.pusher.at_low:
+            self._pusher_leaves_home()
+        point = int(self.pusher.travel * TRANSFER)
+        if before < point <= self.pusher.pos and self.pushing is not None:
+            box, self.pushing = self.pushing, None
+            self._onto_plate(box)
+        if self.pusher.at_low and self.pushing is not None:  # pulled back before the transfer
+            box, self.pushing = self.pushing, None
+            box.lo = self.feed_len - box.length
+            self.feed.append(box)
+
+    def _pusher_leaves_home(self) -> None:
+        box = self._in_zone()
+        if box is not None:
+            self.feed.remove(box)
+            self.pushing = box
+        wall = self.feed_len - self.box_len
+        for other in list(self.feed):  # a box half into the zone is struck by the blade
+            if other.lo + other.length > wall:
+                self.feed.remove(other)
+                self._lose(1, "box_against_pusher", f"box {other.ident} struck by the "
+                           "pusher: it was half into the pusher zone")
+
+    def _onto_plate(self, box: Box) -> None:
+        self.count["pushed"] += 1
+        if not self.plate.at_low:
+            self._lose(1, "box_dropped", f"box {box.ident} pushed onto the open layer plate "
+                       "and fell")
+            return
+        self.row.insert(0, box)
+        if len(self.row) > self.per_layer:
+            far = self.row.pop()
+            self._lose(1, "box_dropped", f"box {far.ident} pushed off the far end of a full "
+                       "row")
+
+    def _move_clamp(self, dt: int, drive: int) -> None:
+        was_closed = self.clamp.at_high
+        self.clamp.step(dt, drive)
+        if self.clamp.at_high and not was_closed and self.row and self.plate.at_low:
+            self.gripped = True
+        if was_closed and not self.clamp.at_high:
+            self.gripped = False
+            if self.hanging:
+                self._release_layer()
+
+    def _release_layer(self) -> None:
+        layer, self.hanging = self.hanging, []
+        drop = self.plate_level - self.load_top()
+        if drop > self.max_drop:
+            self._lose(len(layer), "layer_dropped", f"a layer of {len(layer)} boxes let go "
+                       f"{drop // MM} mm above the load")
+            return
+        self.layers.append(len(layer))
+        self.count["layers"] += 1
+        if len(layer) < self.per_layer:
+            self.record(self.t, "partial_layer", False, f"a layer of {len(layer)} boxes "
+                        f"(of {self.per_layer}) placed on the pallet")
+
+    def _move_plate(self, dt: int, drive: int) -> None:
+        half = self.plate.travel // 2
+        before = self.plate.pos
+        self.plate.step(dt, drive)
+        if before < half <= self.plate.pos and self.row:  # the row loses its support
+            if self.gripped:
+                self.hanging, self.row = self.row, []
+            else:
+                self._lose(len(self.row), "layer_dropped", f"the plate opened under "
+                           f"{len(self.row)} boxes the clamp did not hold")
+                self.row = []
+        if drive < 0 and self.load_top() > self.plate_level and self.plate.pos < before:
+            self._once("plate_into_layer", True, "the layer plate closed against the layer "
+                       "standing on the pallet")
+        else:
+            self.flags.discard("plate_into_layer")
+        if self.plate.at_low and self.hanging:  # the plate slid back under the held layer
+            self.row, self.hanging = self.hanging, []
+
+    def _move_lift(self, dt: int, drive: int) -> None:
+        limit = None
+        if drive > 0:  # the load cannot rise through the plate or the held layer
+            room = self.plate_level - self.load_top()
+            limit = self.lift.pos + max(room, 0) // self.lift_speed
+        self.lift.step(dt, drive, limit)
+        if drive and self.lift.jammed:
+            if self.lift.stalled_beyond(int(self.params["stall_tolerance"])):
+                self.record(self.t, "elevator_stall", True, "elevator order held on a jammed "
+                            f"elevator for more than {seconds(self.params['stall_tolerance'])} s")
+        elif drive > 0 and self.lift.stalled_beyond(int(self.params["crush_tolerance"])):
+            what = "the held layer" if self.hanging else "the layer plate"
+            self.record(self.t, "load_crushed", True, f"the elevator pressed the load against "
+                        f"{what} for more than {seconds(self.params['crush_tolerance'])} s")
+        if drive < 0 and self.lift.stalled_beyond(int(self.params["stall_tolerance"])):
+            self.record(self.t, "elevator_overrun", True, "ELEV_DOWN held at the bottom for "
+                        f"more than {seconds(self.params['stall_tolerance'])} s")
+        if drive == 0 and self.lift.at_low:
+            self.idle_bottom_us += dt
+            if self.layers and self.idle_bottom_us >= int(self.params["exchange_time"]):
+                self.count["pallets"] += 1
+                self.count["boxes_palletized"] += sum(self.layers)
+                self.layers = []
+        else:
+            self.idle_bottom_us = 0
+
+    def _move_feed(self, dt: int) -> None:
+        line = self._feed_line()
+        if not line.segments[0].speed:
+            self.flags.discard("box_against_pusher")
+            return
+        outcome = advance(line, self.feed, dt)
+        if outcome.walls and not self.pusher.at_low:
+            box = outcome.walls[0][0]
+            self._once("box_against_pusher", True, f"the feed drove box {box.ident} into the "
+                       "pusher while it was out")
+        else:
+            self.flags.discard("box_against_pusher")
+
+    def _arrive(self) -> None:
+        self.source.collect(self.t)
+        if not self.source.queued:
+            return
+        if any(b.lo < self.box_len + self.box_len // 2 for b in self.feed):
+            return
+        ident, _, due = self.source.pop()
+        self.feed.append(Box(ident, self.box_len, False, "feed", 0, due))
+        self.count["arrived"] += 1
+
+    def _check_collisions(self) -> None:
+        if self.pusher.pos > self.pusher.travel // 2 and not self.clamp.at_low:
+            self._once("pusher_against_clamp", True, "the pusher was out while the clamp was "
+                       "not open")
+        else:
+            self.flags.discard("pusher_against_clamp")
+
+    def _once(self, kind: str, damage: bool, detail: str) -> None:
+        if kind not in self.flags:
+            self.flags.add(kind)
+            self.record(self.t, kind, damage, detail)
+
+    def _lose(self, boxes: int, kind: str, detail: str) -> None:
+        self.count["lost"] += boxes
+        self.record(self.t, kind, True, detail)
+
+    # -- orders and faults -------------------------------------------------------------------
+    def _orders_changed(self, t: int, changed: dict[str, bool]) -> None:
+        o = self.orders
+        for key, a, b in (("pusher", "PUSH", "RETRACT"), ("plate", "PLATE_OPEN", "PLATE_CLOSE"),
+                          ("elevator", "ELEV_UP", "ELEV_DOWN")):
+            both = o[a] and o[b]
+            if both and not self.both.get(key):
+                self.record(t, f"{key}_both_ways", True, f"{a} and {b} ordered together")
+            self.both[key] = both
+        if "ELEV_UP" in changed or "ELEV_DOWN" in changed:
+            self.lift.release()
+
+    def _jammed(self, code: str) -> None:
+        travel = {"pusher_jam": self.pusher, "plate_jam": self.plate,
+                  "clamp_jam": self.clamp, "elevator_jam": self.lift}.get(code)
+        if travel is not None:
+            travel.jammed = True
+
+    # -- reporting --------------------------------------------------------------------------
+    def state(self) -> dict[str, Any]:
+        return {
+            "feed": len(self.feed) + (self.pushing is not None),
+            "row": len(self.row),
+            "hanging": len(self.hanging),
+            "pallet_layers": len(self.layers),
+            "elevator_mm": self.lift.pos * self.lift_speed // MM,
+            "pusher": self.pusher.percent,
+            "plate": self.plate.percent,
+            "clamp": self.clamp.percent,
+            "queued": len(self.source.queued),
+        }
+
+    def counters(self) -> dict[str, int]:
+        return dict(self.count)

@@ -1,0 +1,188 @@
+"""A centrifugal pump drawing from a tank and pushing through two valved lines (000 §3.3).
+
+Physics: while it runs, the pump delivers `flow` L/s shared between its two discharge lines
+in proportion to how far each line's valve is open (the valve devices named by `valve_a`,
+`valve_b`; a valve is shut while its closed end switch would be made and fully open once its
+open one would be, linear in between); with the lines together less than fully open it
+delivers that fraction of `flow`. Line a leads into the tank `to_a`, line b into `to_b` (either may
+be the suction tank: a recirculation). Water comes from the tank `suction`; below
+`dry_level` litres in it the pump draws air and delivers nothing. Flows are integrated per
+step of the plant (one scan) from the valves' positions at the end of the step, in integer
+nanolitres (hmi/plant/sim/tank.py).
+
+The order ``P`` starts and stops it; the sensor ``run`` is its running feedback (an auxiliary
+contact of the motor contactor).
+
+Damage events:
+  ``dead_head``  running with its lines together less than `min_opening` open (both valves
+                 shut, or barely cracked) for longer than `deadhead_tolerance`: the water
+                 churns in the casing and overheats (once per episode);
+  ``dry_run``    running with the suction tank below `dry_level` for longer than
+                 `dry_tolerance`: the seal runs dry (once per episode).
+
+Faults, each injected at a time:
+  ``no_start``  the motor does not start at the next start order (a burnt coil, a tripped
+                breaker): ``run`` stays 0, nothing flows;
+  ``welded``    the contactor welds: the pump does not stop when the order drops (from the
+                next stop order on, for good).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from fractions import Fraction
+from typing import Any, ClassVar
+
+from hmi.plant.sim.device import FaultSpec, ParamSpec, SimDevice
+from hmi.plant.sim.tank import NL_PER_L, Tank, litres, ml_per_s
+from hmi.plant.sim.valve import Valve
+from hmi.timefmt import seconds
+
+
+class Pump(SimDevice):
+    MODEL = "pump"
+    DESCRIPTION = "pump: run order P, running feedback run; draws from a tank, two valved lines"
+    SENSORS = ("run",)
+    ACTUATORS = ("P",)
+    PARAMS: ClassVar[dict[str, ParamSpec]] = {
+        "flow": ParamSpec("number", 10.0, "delivery with a line fully open, in L/s",
+                          minimum=0.1, maximum=1000),
+        "suction": ParamSpec("device", None, "the tank it draws from", ("tank",)),
+        "valve_a": ParamSpec("device", None, "the valve on discharge line a", ("valve",)),
+        "to_a": ParamSpec("device", None, "the tank line a leads into", ("tank",)),
+        "valve_b": ParamSpec("device", None, "the valve on discharge line b", ("valve",)),
+        "to_b": ParamSpec("device", None, "the tank line b leads into", ("tank",)),
+        "min_opening": ParamSpec("number", 0.05, "below this total opening of its lines "
+                                 "the pump is dead-headed", minimum=0.0, maximum=1.0),
+        "dry_level": ParamSpec("number", 5.0, "below this many litres in the suction tank "
+                               "the pump draws air", minimum=0),
+        "deadhead_tolerance": ParamSpec("duration", 1_000_000, "running against closed "
+                                        "valves longer than this is damage"),
+        "dry_tolerance": ParamSpec("duration", 2_000_000, "running dry longer than this is "
+                                   "damage"),
+    }
+    FAULTS: ClassVar[dict[str, FaultSpec]] = {
+        "no_start": FaultSpec("no_start", "pump does not start (motor or contactor failure)",
+                              "actuator"),
+        "welded": FaultSpec("welded", "pump contactor welded: it does not stop", "actuator"),
+    }
+
+    def __init__(self, name: str, params: Mapping[str, Any]):
+        super().__init__(name, params)
+        self.flow = ml_per_s(self.params["flow"])
+        self.dry_at = litres(self.params["dry_level"])
+        self.suction: Tank | None = None
+        self.lines: list[tuple[Valve, Tank | None]] = []
+        self.running = False
+        self.delivering = 0  # mL/s during the last step, for the display
+        self.dead_us = 0
+        self.dry_us = 0
+        self.dead_reported = False
+        self.dry_reported = False
+        self.starts = 0
+
+    def link(self, devices: Mapping[str, SimDevice]) -> None:
+        def get(key: str) -> Any:
+            name = self.params.get(key)
+            return devices[name] if name else None
+        self.suction = get("suction")
+        self.lines = [(get(v), get(t)) for v, t in (("valve_a", "to_a"), ("valve_b", "to_b"))
+                      if get(v) is not None]
+
+    # -- orders -------------------------------------------------------------------------------
+    def _orders_changed(self, t: int, changed: dict[str, bool]) -> None:
+        if "P" not in changed:
+            return
+        if changed["P"] and not self.running:
+            if "no_start" in self.active_faults:
+                self.record(t, "start_failed", False, "start ordered, the motor did not start")
+                return
+            self.running = True
+            self.starts += 1
+        elif not changed["P"] and self.running:
+            if "welded" in self.active_faults:
+                self.record(t, "stop_failed", False, "stop ordered, the contactor stayed closed")
+                return
+            self.running = False
+            self.dead_us = self.dry_us = 0
+            self.dead_reported = self.dry_reported = False
+
+    # -- physics ------------------------------------------------------------------------------
+    def _advance_to(self, t: int) -> None:
+        dt = t - self.t
+        self.t = t
+        if dt <= 0:
+            return
+        if not self.running:
+            self.delivering = 0
+            return
+        for valve, tank in self.lines:
+            valve.advance(t)
+            if tank is not None:
+                tank.advance(t)
+        suction = self.suction
+        if suction is not None:
+            suction.advance(t)
+        self._check_dead_head(t, dt)
+        if suction is not None and suction.volume < self.dry_at:
+            self.delivering = 0
+            self.dry_us += dt
+            if self.dry_us > self.params["dry_tolerance"] and not self.dry_reported:
+                self.dry_reported = True
+                self.record(t, "dry_run", True, f"pump {self.name} ran dry (tank {suction.name} "
+                            f"below {self.dry_at / NL_PER_L:g} L) for more than "
+                            f"{seconds(self.params['dry_tolerance'])} s")
+            return
+        self.dry_us = 0
+        self.dry_reported = False
+        self._deliver(t, dt)
+
+    def _check_dead_head(self, t: int, dt: int) -> None:
+        total = sum((opening(valve) for valve, _ in self.lines), Fraction(0))
+        if self.lines and total < Fraction(self.params["min_opening"]):
+            self.dead_us += dt
+            if self.dead_us > self.params["deadhead_tolerance"] and not self.dead_reported:
+                self.dead_reported = True
+                closed = ", ".join(valve.name for valve, _ in self.lines)
+                self.record(t, "dead_head", True, f"pump {self.name} ran against shut "
+                            f"valves ({closed}) for more than "
+                            f"{seconds(self.params['deadhead_tolerance'])} s: it overheats")
+        else:
+            self.dead_us = 0
+            self.dead_reported = False
+
+    def _deliver(self, t: int, dt: int) -> None:
+        """Move this step's water from the suction tank into the lines' tanks."""
+        openings = [opening(valve) for valve, _ in self.lines]
+        total = sum(openings, Fraction(0))
+        if total == 0:
+            self.delivering = 0
+            return
+        share = min(Fraction(1), total)
+        self.delivering = int(self.flow * share)
+        volumes = [int(self.flow * dt * share * f / total) for f in openings]
+        available = self.suction.take(sum(volumes)) if self.suction is not None else sum(volumes)
+        if available < sum(volumes):  # the tank emptied during the step: share what came
+            volumes = [v * available // sum(volumes) for v in volumes]
+        for (_, tank), volume in zip(self.lines, volumes, strict=True):
+            if tank is not None:
+                tank.add(t, volume)
+
+    def sensors(self) -> dict[str, bool]:
+        return {"run": self.running}
+
+    # -- reporting ----------------------------------------------------------------------------
+    def state(self) -> dict[str, Any]:
+        # 0/1, not a bool: in a plant's state a true bool is an abnormal condition (a jam),
+        # which the HMI shows as an alarm; a running pump is not one.
+        return {"running": int(self.running), "flow": round(self.delivering / 1000, 1)}
+
+    def counters(self) -> dict[str, int]:
+        return {"starts": self.starts}
+
+
+def opening(valve: Valve) -> Fraction:
+    """How far a valve lets water through: 0 while its closed switch would be made (the valve
+    rests there, `band` from its end, after a closing), 1 once its open switch would be."""
+    span = valve.travel - 2 * valve.band
+    return Fraction(max(0, min(valve.pos - valve.band, span)), span)

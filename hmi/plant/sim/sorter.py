@@ -1,0 +1,370 @@
+"""The sorting-by-height cell of 004 §5.3 (the Factory I/O scene), as one simulated device.
+
+Layout (lengths are parameters, in mm; defaults in brackets)::
+
+                      left exit (CONV_L) [1500]
+                               |
+    entry conveyor (CONV_E) [2000]  ==>  [turntable 520]  (0°: in line with the entry)
+                               |
+                      right exit (CONV_R) [1500]
+
+Boxes [400 long, low 150 / high 300 mm] are placed at the start of the entry conveyor on a
+seeded schedule (:mod:`hmi.plant.sim.boxes`). The height sensors (`low` sees every box, `high`
+only high ones) look across the entry conveyor at 1800 mm. The turntable receives a box at 0°
+(rollers forward, ROLL_P, pull it off the entry conveyor), turns to 90° (ROT90; ROT0 turns it
+back), then its rollers send the box to the right exit (ROLL_P) or the left exit (ROLL_M).
+Boxes leave at the far end of an exit (taken by the next machine) and are counted there,
+sorted or missorted (low boxes belong left, high boxes right).
+
+Sensors are light beams 10 mm (`sensor_offset`) inside each edge: `entry_end` before the
+entry conveyor's end, `tt_back`/`tt_front` inside the table's two edges (they turn with it;
+at 90° the back edge faces the left exit), `left_in`/`right_in` at the start of each exit,
+`left_end`/`right_end` at their far ends; `tt_0`/`tt_90` are the turntable's end switches.
+
+Physics (:mod:`hmi.plant.sim.track`): a box is carried by the surface under its centre; boxes
+accumulate against each other; the turntable connects to the entry conveyor only at 0° and to
+the exits only at 90° (within `turn_band` of its end).
+
+Damage events (objective, recorded once per occurrence):
+  rollers_both_ways / turn_both_ways  ROLL_P and ROLL_M, or ROT90 and ROT0, ordered together
+  turn_overrun    a rotation order held against its end stop beyond `stall_tolerance`
+  turn_stall      a rotation order held on a jammed turntable beyond `stall_tolerance`
+  box_sheared     the table turned out of line while a box lay across one of its edges
+                  (more than `shear_margin` on each side)
+  box_against_table  the entry conveyor drove a box into the side of a turntable not at 0°
+  box_dropped     a box fell off an edge of the table with no conveyor in line there
+  boxes_crushed   two touching boxes driven toward each other
+  box_collision   the table came into line with a box overhanging an edge onto another box
+Not damage: missorted (a box delivered to the wrong exit).
+
+Faults: entry_jam, rollers_jam, table_jam, left_jam, right_jam (that drive does not move);
+left_blocked / right_blocked (boxes are no longer taken away at that exit's end: they pile up);
+and for every sensor S, S_stuck0 / S_stuck1.
+"""
+
+from __future__ import annotations
+
+import itertools
+from typing import Any, ClassVar
+
+from hmi.plant.sim.boxes import MM, Box, BoxSource
+from hmi.plant.sim.cell import SteppedCell
+from hmi.plant.sim.device import FaultSpec, ParamSpec, jam_and_stuck_faults
+from hmi.plant.sim.track import EXIT, OPEN, TOUCH, WALL, Line, Segment, advance
+from hmi.plant.sim.travel import Travel, direction
+from hmi.timefmt import seconds
+
+SENSORS = ("at_entry", "low", "high", "entry_end", "tt_back", "tt_front", "tt_0", "tt_90",
+           "left_in", "left_end", "right_in", "right_end")
+ACTUATORS = ("CONV_E", "ROLL_P", "ROLL_M", "ROT90", "ROT0", "CONV_L", "CONV_R")
+
+_DRIVE_FAULTS = {
+    "entry_jam": "entry conveyor jammed (does not move)",
+    "rollers_jam": "turntable rollers jammed (do not turn)",
+    "table_jam": "turntable jammed (does not rotate)",
+    "left_jam": "left exit conveyor jammed (does not move)",
+    "right_jam": "right exit conveyor jammed (does not move)",
+    "left_blocked": "left exit blocked at its end (boxes are no longer taken away)",
+    "right_blocked": "right exit blocked at its end (boxes are no longer taken away)",
+}
+
+
+def _faults() -> dict[str, FaultSpec]:
+    return jam_and_stuck_faults(_DRIVE_FAULTS, SENSORS)
+
+
+def _mm(value: float) -> int:
+    return round(value * MM)
+
+
+def _length(default: float, text: str, low: float = 10, high: float = 20_000) -> ParamSpec:
+    return ParamSpec("number", default, text + " (mm)", minimum=low, maximum=high)
+
+
+class SortingCell(SteppedCell):
+    MODEL = "sorting_cell"
+    DESCRIPTION = "box sorting by height: entry conveyor, turntable, left and right exits"
+    SENSORS = SENSORS
+    ACTUATORS = ACTUATORS
+    PARAMS: ClassVar[dict[str, ParamSpec]] = {
+        "entry_length": _length(2000, "length of the entry conveyor"),
+        "table_length": _length(520, "length of the turntable along its rollers"),
+        "exit_length": _length(1500, "length of each exit conveyor"),
+        "box_length": _length(400, "length of a box"),
+        "height_sensor_at": _length(1800, "position of the height sensors on the entry"),
+        "sensor_offset": _length(10, "edge sensors sit this far inside their edge", 1, 100),
+        "shear_margin": _length(20, "a box across an edge by more than this on both sides "
+                                "is sheared when the table turns", 1, 200),
+        "min_gap": _length(150, "room a new box needs behind the last one", 0, 2000),
+        "entry_speed": ParamSpec("number", 300, "entry conveyor speed (mm/s)", minimum=10,
+                                 maximum=3000),
+        "roller_speed": ParamSpec("number", 300, "turntable roller speed (mm/s)", minimum=10,
+                                  maximum=3000),
+        "exit_speed": ParamSpec("number", 400, "exit conveyor speed (mm/s)", minimum=10,
+                                maximum=3000),
+        "turn_time": ParamSpec("duration", 1_200_000, "time for the table to turn 90°"),
+        "turn_band": ParamSpec("duration", 20_000,
+                               "an end switch is made (and the table in line) within this"),
+        "stall_tolerance": ParamSpec("duration", 1_000_000,
+                                     "a rotation order held without motion beyond this is "
+                                     "damage"),
+        "first_box": ParamSpec("duration", 500_000, "when the first box is due"),
+        "interval_min": ParamSpec("duration", 4_000_000, "shortest time between two boxes"),
+        "interval_max": ParamSpec("duration", 7_000_000, "longest time between two boxes"),
+        "p_high": ParamSpec("number", 0.5, "probability that a box is high", minimum=0,
+                            maximum=1),
+        "seed": ParamSpec("number", 1, "seed of the box schedule", minimum=0, maximum=2**31),
+        "low_box": _length(150, "height of a low box", 20, 1000),
+        "high_box": _length(300, "height of a high box", 20, 1000),
+        "low_beam": _length(50, "height of the low sensor's beam", 1, 1000),
+        "high_beam": _length(220, "height of the high sensor's beam", 1, 1000),
+    }
+    FAULTS = _faults()
+
+    def __init__(self, name: str, params: dict[str, Any]):
+        super().__init__(name, params)
+        p = self.params
+        self.entry_len = _mm(p["entry_length"])
+        self.table_len = _mm(p["table_length"])
+        self.exit_len = _mm(p["exit_length"])
+        self.box_len = _mm(p["box_length"])
+        self.offset = _mm(p["sensor_offset"])
+        self.height_at = _mm(p["height_sensor_at"])
+        self.margin = _mm(p["shear_margin"])
+        self.gap = _mm(p["min_gap"])
+        self.speeds = {name: int(p[name]) for name in ("entry_speed", "roller_speed",
+                                                       "exit_speed")}
+        self.sees_low = p["low_box"] >= p["low_beam"]
+        self.sees_high = {True: p["high_box"] >= p["high_beam"],
+                          False: p["low_box"] >= p["high_beam"]}
+        self.turn = Travel(int(p["turn_time"]), int(p["turn_band"]))
+        self.source = BoxSource(int(p["seed"]), int(p["first_box"]), int(p["interval_min"]),
+                                int(p["interval_max"]), float(p["p_high"]))
+        self.boxes: list[Box] = []
+        self.contacts: set[tuple[str, int, int]] = set()
+        self.both = {"rollers": False, "turn": False}
+        self.count = dict.fromkeys(("arrived", "sorted_left", "sorted_right", "missorted",
+                                    "lost"), 0)
+        self.lines: list[Line] = []
+        self.alignment = self._alignment()
+        self._build_lines()
+
+    # -- geometry ---------------------------------------------------------------------------
+    def _alignment(self) -> int:
+        """0 or 90 when the table is in line with the entry or with the exits, else -1."""
+        if self.turn.at_low:
+            return 0
+        if self.turn.at_high:
+            return 90
+        return -1
+
+    def _segment(self, name: str, start: int, direction_: int) -> Segment:
+        o = self.orders
+        if name == "entry":
+            speed = self.speeds["entry_speed"] if o["CONV_E"] and "entry_jam" not in self.jams \
+                else 0
+            return Segment(name, start, self.entry_len, direction_, speed)
+        if name == "table":
+            roll = 0 if "rollers_jam" in self.jams else direction(o["ROLL_P"], o["ROLL_M"])
+            return Segment(name, start, self.table_len, direction_,
+                           roll * self.speeds["roller_speed"])
+        side = name  # left / right
+        running = o["CONV_L" if side == "left" else "CONV_R"] and f"{side}_jam" not in self.jams
+        return Segment(name, start, self.exit_len, direction_,
+                       self.speeds["exit_speed"] if running else 0)
+
+    def _build_lines(self) -> None:
+        """The lines of conveyors as the table's position connects them now."""
+        e, t = self.entry_len, self.table_len
+        left_end = WALL if "left_blocked" in self.jams else EXIT
+        right_end = WALL if "right_blocked" in self.jams else EXIT
+        if self.alignment == 0:
+            lines = [Line((self._segment("entry", 0, 1), self._segment("table", e, 1)),
+                          WALL, OPEN)]
+        else:
+            lines = [Line((self._segment("entry", 0, 1),), WALL, WALL)]
+        if self.alignment == 90:
+            lines.append(Line((self._segment("left", 0, -1), self._segment("table", 0, 1),
+                               self._segment("right", t, 1)), left_end, right_end))
+        else:
+            lines.append(Line((self._segment("left", 0, -1),), left_end, OPEN))
+            lines.append(Line((self._segment("right", t, 1),), OPEN, right_end))
+            if self.alignment != 0:
+                lines.append(Line((self._segment("table", 0, 1),), OPEN, OPEN))
+        self.lines = lines
+        self.beams = self._beams()
+
+    def _on(self, line: Line) -> list[Box]:
+        segs = line.by_segment
+        return [b for b in self.boxes if b.segment in segs]
+
+    def _beams(self) -> dict[str, tuple[int, int]]:
+        """Each beam sensor as (index of its line, line coordinate), for the lines now."""
+        o, t, x, e = self.offset, self.table_len, self.exit_len, self.entry_len
+        spots = {"at_entry": ("entry", self.box_len // 2), "height": ("entry", self.height_at),
+                 "entry_end": ("entry", e - o), "tt_back": ("table", o),
+                 "tt_front": ("table", t - o), "left_in": ("left", o),
+                 "left_end": ("left", x - o), "right_in": ("right", o),
+                 "right_end": ("right", x - o)}
+        beams = {}
+        for sensor, (segment, at) in spots.items():
+            for index, line in enumerate(self.lines):
+                seg = line.by_segment.get(segment)
+                if seg is not None:
+                    beams[sensor] = (index, seg.start + at if seg.direction > 0
+                                     else seg.start - at)
+        return beams
+
+    # -- sensors ----------------------------------------------------------------------------
+    def true_sensors(self) -> dict[str, bool]:
+        spans: list[list[tuple[int, int, Box]]] = [[] for _ in self.lines]
+        for index, line in enumerate(self.lines):
+            for box in self._on(line):
+                lo = line.place(box)
+                spans[index].append((lo, lo + box.length, box))
+        seen = {}
+        under_height: list[Box] = []
+        for sensor, (index, x) in self.beams.items():
+            hit = [box for lo, hi, box in spans[index] if lo <= x <= hi]
+            if sensor == "height":
+                under_height = hit
+            else:
+                seen[sensor] = bool(hit)
+        seen["low"] = self.sees_low and bool(under_height)
+        seen["high"] = any(self.sees_high[b.high] for b in under_height)
+        seen["tt_0"] = self.turn.at_low
+        seen["tt_90"] = self.turn.at_high
+        return seen
+
+    # -- physics ----------------------------------------------------------------------------
+    def _step(self, dt: int) -> None:
+        drive = direction(self.orders["ROT90"], self.orders["ROT0"])
+        self.turn.step(dt, drive)
+        if drive and self.turn.stalled_beyond(int(self.params["stall_tolerance"])):
+            tolerance = seconds(self.params["stall_tolerance"])
+            if self.turn.jammed:
+                self.record(self.t, "turn_stall", True, f"rotation order held on a jammed "
+                            f"turntable for more than {tolerance} s")
+            else:
+                end = "90°" if drive > 0 else "0°"
+                self.record(self.t, "turn_overrun", True, f"rotation order held against the "
+                            f"{end} end stop for more than {tolerance} s")
+        alignment = self._alignment()
+        if alignment != self.alignment:
+            if self.alignment != -1:
+                self._shear()
+            self.alignment = alignment
+            self._build_lines()
+            if alignment != -1:
+                self._collide_on_alignment()
+        contacts: set[tuple[str, int, int]] = set()
+        for line in self.lines:
+            if line.moving:
+                contacts |= self._move(line, dt)
+        self.contacts = contacts
+        self._feed()
+
+    def _shear(self) -> None:
+        """The table leaves a line: boxes across its edges (in the old line) are sheared."""
+        for line in self.lines:
+            table = line.by_segment.get("table")
+            if table is None or len(line.segments) == 1:
+                continue
+            for box in list(self._on(line)):
+                lo = line.place(box)
+                hi = lo + box.length
+                for edge in (table.low, table.high):
+                    if lo < edge < hi and min(edge - lo, hi - edge) >= self.margin:
+                        where = "entry" if self.alignment == 0 else (
+                            "left exit" if edge == table.low else "right exit")
+                        self._lose(box, "box_sheared", f"{box.kind} box {box.ident} sheared "
+                                   f"between the turning table and the {where}")
+                        break
+
+    def _collide_on_alignment(self) -> None:
+        """The table comes into line: a box overhanging its edge onto another box is hit."""
+        for line in self.lines:
+            if "table" not in line.by_segment or len(line.segments) == 1:
+                continue
+            placed = sorted(((line.place(b), b) for b in self._on(line)),
+                            key=lambda item: item[0])
+            for (x1, b1), (x2, b2) in itertools.pairwise(placed):
+                if x1 + b1.length - x2 > TOUCH and b1 in self.boxes and b2 in self.boxes:
+                    hit = b1 if b1.segment == "table" else b2
+                    self._lose(hit, "box_collision", f"{hit.kind} box {hit.ident} overhanging "
+                               "the table hit a box as the table came into line")
+
+    def _move(self, line: Line, dt: int) -> set[tuple[str, int, int]]:
+        """Move the boxes of one line; return the contacts (crushes, walls) now held."""
+        boxes = self._on(line)
+        outcome = advance(line, boxes, dt)
+        contacts = set()
+        for a, b in outcome.crushed:
+            key = ("crush", a.ident, b.ident)
+            contacts.add(key)
+            if key not in self.contacts:
+                self.record(self.t, "boxes_crushed", True, f"boxes {a.ident} and {b.ident} "
+                            "pressed together by drives running toward each other")
+        for box, end in outcome.walls:
+            key = ("wall", box.ident, 0)
+            contacts.add(key)
+            if end == "high" and line.segments[-1].name == "entry" and key not in self.contacts:
+                self.record(self.t, "box_against_table", True, f"{box.kind} box {box.ident} "
+                            "driven into the side of the turntable (table not at 0°)")
+        for box, _end in outcome.fallen:
+            self._lose(box, "box_dropped", f"{box.kind} box {box.ident} fell off the "
+                       f"{'far' if self.alignment == 0 else 'unaligned'} edge of the turntable")
+        for box, end in outcome.delivered:
+            self.boxes.remove(box)
+            side = "left" if end == "low" else "right"
+            self.count[f"sorted_{side}"] += 1
+            if box.high != (side == "right"):
+                self.count["missorted"] += 1
+                self.record(self.t, "missorted", False, f"{box.kind} box {box.ident} "
+                            f"delivered to the {side} exit")
+        return contacts
+
+    def _lose(self, box: Box, kind: str, detail: str) -> None:
+        if box in self.boxes:
+            self.boxes.remove(box)
+            self.count["lost"] += 1
+            self.record(self.t, kind, True, detail)
+
+    def _feed(self) -> None:
+        self.source.collect(self.t)
+        if not self.source.queued:
+            return
+        room = self.box_len + self.gap
+        if any(b.segment == "entry" and b.lo < room for b in self.boxes):
+            return
+        ident, high, due = self.source.pop()
+        self.boxes.append(Box(ident, self.box_len, high, "entry", 0, due))
+        self.count["arrived"] += 1
+
+    # -- orders and faults -------------------------------------------------------------------
+    def _orders_changed(self, t: int, changed: dict[str, bool]) -> None:
+        o = self.orders
+        for key, a, b, text in (("rollers", "ROLL_P", "ROLL_M", "rollers forward and backward"),
+                                ("turn", "ROT90", "ROT0", "turn to 90° and back to 0°")):
+            both = o[a] and o[b]
+            if both and not self.both[key]:
+                self.record(t, f"{key}_both_ways", True, f"{text} ordered together")
+            self.both[key] = both
+        if "ROT90" in changed or "ROT0" in changed:
+            self.turn.release()
+        self._build_lines()
+
+    def _jammed(self, code: str) -> None:
+        self.turn.jammed = "table_jam" in self.jams
+        self._build_lines()
+
+    # -- reporting --------------------------------------------------------------------------
+    def state(self) -> dict[str, Any]:
+        where = {"entry": 0, "table": 0, "left": 0, "right": 0}
+        for box in self.boxes:
+            where[box.segment] += 1
+        return {"angle": round(90 * self.turn.pos / self.turn.travel, 1), **where,
+                "queued": len(self.source.queued)}
+
+    def counters(self) -> dict[str, int]:
+        return dict(self.count)

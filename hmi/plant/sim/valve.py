@@ -1,0 +1,259 @@
+"""A motorised on/off valve with two end switches: the CISPI valve of 000 §3.
+
+Physics: the position runs from 0 (closed) to `travel` (open), in microseconds of travel, so
+that one unit of position is one microsecond of motor time. The valve moves only while
+exactly one order is on (O opens, C closes) and stops where it is when the order drops. Both
+orders together move nothing and are recorded as damage (the motor is driven both ways).
+End switches are made within `switch_band` of each end. An order held while the valve cannot
+move (at its end stop, or jammed) for longer than `stall_tolerance` is damage.
+
+Faults (000 §3.1), each injected at a time:
+  F1/F2 fsc stuck at 0/1; F3/F4 fso stuck at 0/1;
+  F5/F6 valve stuck at its closed / open position (it can still reach it, never leave it);
+  F7/F9 unexpected fsc / fso rise: the switch reads 1 for `glitch` while it should be 0
+        (at the first moment after injection when it should read 0);
+  F8/F10 unexpected fsc / fso fall: the switch reads 0 for `glitch` while it should be 1;
+  F11/F12 unexpected movement: from closed (F11) or open (F12) and at rest, the valve drives
+        itself to the other end, once;
+  F13 blocked between positions: the valve jams where it is if it is between its ends, or
+        at `block_at` of its travel the next time it moves.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+from hmi.plant.sim.device import FaultSpec, ParamSpec, PendingFault, SimDevice
+from hmi.timefmt import seconds
+
+_FAULTS = {
+    "F1": FaultSpec("F1", "sensor fsc stuck at 0", "fsc"),
+    "F2": FaultSpec("F2", "sensor fsc stuck at 1", "fsc"),
+    "F3": FaultSpec("F3", "sensor fso stuck at 0", "fso"),
+    "F4": FaultSpec("F4", "sensor fso stuck at 1", "fso"),
+    "F5": FaultSpec("F5", "valve stuck at the closed (fsc) position", "actuator"),
+    "F6": FaultSpec("F6", "valve stuck at the open (fso) position", "actuator"),
+    "F7": FaultSpec("F7", "unexpected fsc from 0 to 1", "fsc"),
+    "F8": FaultSpec("F8", "unexpected fsc from 1 to 0", "fsc"),
+    "F9": FaultSpec("F9", "unexpected fso from 0 to 1", "fso"),
+    "F10": FaultSpec("F10", "unexpected fso from 1 to 0", "fso"),
+    "F11": FaultSpec("F11", "unexpected movement from fsc to fso", "actuator"),
+    "F12": FaultSpec("F12", "unexpected movement from fso to fsc", "actuator"),
+    "F13": FaultSpec("F13", "valve blocked between fsc and fso", "actuator"),
+}
+
+_NEVER = 1 << 62
+
+
+class Valve(SimDevice):
+    MODEL = "valve"
+    DESCRIPTION = "motorised valve, orders C (close) and O (open), end switches fsc and fso"
+    SENSORS = ("fsc", "fso")
+    ACTUATORS = ("C", "O")
+    PARAMS: ClassVar[dict[str, ParamSpec]] = {
+        "travel": ParamSpec("duration", 2_000_000, "time to go from one end to the other"),
+        "switch_band": ParamSpec("duration", 40_000,
+                                 "end switch made within this much travel of its end"),
+        "stall_tolerance": ParamSpec("duration", 1_000_000,
+                                     "an order held without motion longer than this is damage"),
+        "glitch": ParamSpec("duration", 300_000, "length of an unexpected sensor change"),
+        "block_at": ParamSpec("number", 0.5, "fraction of travel where F13 jams the valve",
+                              minimum=0.05, maximum=0.95),
+        "initial": ParamSpec("choice", "closed", "initial position", ("closed", "open")),
+    }
+    FAULTS = _FAULTS
+    REPAIRABLE = True
+
+    def __init__(self, name: str, params: dict[str, Any]):
+        super().__init__(name, params)
+        self.travel: int = int(self.params["travel"])
+        self.band: int = min(int(self.params["switch_band"]), self.travel // 4)
+        self.pos: int = 0 if self.params["initial"] == "closed" else self.travel
+        self.jammed = False
+        self.self_drive = 0  # +1 / -1 while F11 / F12 moves the valve by itself
+        self.glitches: dict[str, tuple[bool, int, int]] = {}  # sensor -> (value, start, end)
+        self.armed: set[str] = set()
+        self.stall_us = 0
+        self.stall_reported = False
+        self.both_on = False
+        self.was_open = self.pos >= self.travel - self.band
+        self.cycles = 0
+        self.opens = 0
+        self.closes = 0
+
+    # -- sensors ---------------------------------------------------------------------------
+    def true_fsc(self) -> bool:
+        return self.pos <= self.band
+
+    def true_fso(self) -> bool:
+        return self.pos >= self.travel - self.band
+
+    def sensors(self) -> dict[str, bool]:
+        fsc, fso = self.true_fsc(), self.true_fso()
+        active = self.active_faults
+        if "F1" in active:
+            fsc = False
+        if "F2" in active:
+            fsc = True
+        if "F3" in active:
+            fso = False
+        if "F4" in active:
+            fso = True
+        for sensor, (value, start, end) in self.glitches.items():
+            if start <= self.t < end:
+                if sensor == "fsc":
+                    fsc = value
+                else:
+                    fso = value
+        return {"fsc": fsc, "fso": fso}
+
+    # -- physics ---------------------------------------------------------------------------
+    def _drive(self) -> int:
+        """Direction the motor pushes: +1 opening, -1 closing, 0 none."""
+        if self.self_drive:
+            return self.self_drive
+        c, o = self.orders["C"], self.orders["O"]
+        if o and not c:
+            return 1
+        if c and not o:
+            return -1
+        return 0
+
+    def _can_move(self, drive: int) -> bool:
+        if drive == 0 or self.jammed:
+            return False
+        return self.pos < self.travel if drive > 0 else self.pos > 0
+
+    def _next_boundary(self, drive: int) -> int:
+        """Time until something changes the dynamics (an end, a switch edge, a jam point)."""
+        dt = _NEVER
+        if self._can_move(drive):
+            # Switch zone edges on both sides: where a switch is made and where it breaks.
+            marks = [0, self.band, self.band + 1, self.travel - self.band - 1,
+                     self.travel - self.band, self.travel]
+            if "F13" in self.armed:
+                marks.append(self._block_point())
+            for mark in marks:
+                distance = (mark - self.pos) * drive
+                if distance > 0:
+                    dt = min(dt, distance)
+        elif drive and not self.stall_reported:
+            dt = min(dt, self.params["stall_tolerance"] - self.stall_us + 1)
+        for _, start, end in self.glitches.values():
+            for edge in (start, end):
+                if edge > self.t:
+                    dt = min(dt, edge - self.t)
+        return max(dt, 1)
+
+    def _block_point(self) -> int:
+        return int(self.travel * float(self.params["block_at"]))
+
+    def _advance_to(self, t: int) -> None:
+        while self.t < t:
+            drive = self._drive()
+            step = min(t - self.t, self._next_boundary(drive))
+            if self._can_move(drive):
+                self.pos = max(0, min(self.travel, self.pos + drive * step))
+                self.stall_us = 0
+                self.stall_reported = False
+            elif drive:
+                self.stall_us += step
+            self.t += step
+            self._settle()
+
+    def _settle(self) -> None:
+        """Apply what happens at the current instant: arrivals, armed faults, stalls."""
+        t = self.t
+        if self.true_fso() and not self.was_open:
+            self.was_open = True
+            self.opens += 1
+        if self.true_fsc() and self.was_open:
+            self.was_open = False
+            self.closes += 1
+            self.cycles += 1
+        if self.self_drive and (self.pos == self.travel if self.self_drive > 0 else self.pos == 0):
+            self.self_drive = 0
+        if "F5" in self.armed and self.true_fsc():
+            self.armed.discard("F5")
+            self.jammed = True
+        if "F6" in self.armed and self.true_fso():
+            self.armed.discard("F6")
+            self.jammed = True
+        if "F13" in self.armed and self.pos == self._block_point():
+            self.armed.discard("F13")
+            self.jammed = True
+        self._arm_glitches()
+        at_rest = not self.orders["C"] and not self.orders["O"]
+        if "F11" in self.armed and self.true_fsc() and at_rest and not self.jammed:
+            self.armed.discard("F11")
+            self.self_drive = 1
+        if "F12" in self.armed and self.true_fso() and at_rest and not self.jammed:
+            self.armed.discard("F12")
+            self.self_drive = -1
+        drive = self._drive()
+        if drive and not self._can_move(drive) and not self.stall_reported and (
+                self.stall_us > self.params["stall_tolerance"]):
+            self.stall_reported = True
+            if self.jammed:
+                where = f"jammed at {100 * self.pos // self.travel}% open"
+                self.record(t, "stall", True, f"motor driven against a jammed valve ({where}) "
+                            f"for more than {seconds(self.params['stall_tolerance'])} s")
+            else:
+                stop = "open" if drive > 0 else "closed"
+                order = "O" if drive > 0 else "C"
+                self.record(t, "end_stop_overrun", True,
+                            f"order {order} held against the {stop} end stop for more than "
+                            f"{seconds(self.params['stall_tolerance'])} s")
+
+    def _arm_glitches(self) -> None:
+        truth = {"fsc": self.true_fsc(), "fso": self.true_fso()}
+        for code, sensor, value in (("F7", "fsc", True), ("F8", "fsc", False),
+                                    ("F9", "fso", True), ("F10", "fso", False)):
+            if code in self.armed and truth[sensor] != value:
+                self.armed.discard(code)
+                self.glitches[sensor] = (value, self.t, self.t + int(self.params["glitch"]))
+
+    def _fault_activated(self, fault: PendingFault) -> None:
+        code = fault.code
+        if code in ("F5", "F6", "F7", "F8", "F9", "F10", "F11", "F12", "F13"):
+            self.armed.add(code)
+        if code == "F13" and self.band < self.pos < self.travel - self.band:
+            self.armed.discard(code)
+            self.jammed = True
+        self._settle()
+
+    def _repaired(self) -> None:
+        self.jammed = False
+        self.armed.clear()
+        self.glitches.clear()
+        self.self_drive = 0
+        self.stall_us = 0
+        self.stall_reported = False
+        self._settle()
+
+    def _orders_changed(self, t: int, changed: dict[str, bool]) -> None:
+        both = self.orders["C"] and self.orders["O"]
+        if both and not self.both_on:
+            self.record(t, "both_orders", True, "open and close orders on together")
+        self.both_on = both
+        for port, value in changed.items():
+            if value:
+                continue
+            target_reached = self.true_fso() if port == "O" else self.true_fsc()
+            if not target_reached and not self.jammed:
+                where = 100 * self.pos // self.travel
+                self.record(t, "order_dropped_midway", False,
+                            f"order {port} dropped with the valve {where}% open")
+        self._settle()
+
+    # -- reporting -------------------------------------------------------------------------
+    def state(self) -> dict[str, Any]:
+        drive = self._drive()
+        return {
+            "position": round(100 * self.pos / self.travel, 1),
+            "motion": drive if self._can_move(drive) else 0,
+            "jammed": self.jammed,
+        }
+
+    def counters(self) -> dict[str, int]:
+        return {"cycles": self.cycles, "opens": self.opens, "closes": self.closes}

@@ -1,0 +1,142 @@
+"""Connects a session to the journal: operator actions and alarm transitions.
+
+It listens to the session (commands with their results, and every scan's snapshot), so the
+engine itself never touches a file. A manual request is journalled twice: when it is made,
+and once the next scan shows what the filter did with it. On a real plant it also drains the
+plant's link events (connections, retries, exception responses: hmi.plant.modbus.link_log) and
+counts scan overruns, one entry per episode or minute, never one per scan.
+
+If the journal cannot be written during a session (a full disk, an I/O error), what the
+operator does and sees is no longer recorded: the recorder latches the outputs to their safe
+state with the reason (the operator is told, as for any internal failure), keeps the error in
+`failure` for the caller (a headless run stops, exit status 1) and tries again at the next
+entry.
+"""
+
+from __future__ import annotations
+
+import time
+
+from hmi.engine.commands import Command, CommandResult, ManualOutput, describe
+from hmi.engine.snapshot import Snapshot
+from hmi.explain.journal import Journal, JournalWriteError
+from hmi.plant.modbus.link_log import Burst
+from hmi.session.session import Session
+from hmi.timefmt import seconds
+
+
+class JournalRecorder:
+    def __init__(self, session: Session, journal: Journal, source: str = "hmi"):
+        self.session = session
+        self.journal = journal
+        self.pending_manual: list[ManualOutput] = []
+        self.failure: JournalWriteError | None = None
+        engine = session.engine
+        journal.append({"type": "session", "event": "start", "source": source,
+                        "project": engine.project.name, "control": engine.control_name,
+                        "policy": engine.policy, "plant": engine.plant.status.description,
+                        "scan": engine.scan, "t": seconds(engine.now)})
+        self.link = engine.plant.link  # a real plant's LinkLog (None: simulated)
+        self.overruns = Burst("scan-overrun", "scan-overruns", "scan overruns")
+        session.listeners.append(self.on_command)
+        session.scan_listeners.append(self.on_scan)
+        session.overrun_listeners.append(self.on_overrun)
+
+    def _append(self, entry: dict) -> None:
+        try:
+            self.journal.append(entry)
+        except JournalWriteError as exc:
+            self.failure = exc
+            self.session.engine.latch_safe(
+                "journal", f"{exc}: operator actions and alarms cannot be recorded")
+
+    def on_command(self, command: Command, result: CommandResult,
+                   snapshot: Snapshot | None) -> None:
+        engine = self.session.engine
+        self._append({
+            "type": "action", "event": describe(command), "accepted": result.accepted,
+            "message": result.message, "scan": engine.scan, "t": seconds(engine.now)})
+        if isinstance(command, ManualOutput) and result.accepted and command.value is not None:
+            self.pending_manual.append(command)
+        for event in self.session.take_alarm_events():  # acknowledgements, journalled now
+            self._alarm(event)
+
+    def on_overrun(self, total: int) -> None:
+        engine = self.session.engine
+        for entry in self.overruns.hit(time.monotonic(), total=total, message=(
+                f"scan {engine.scan} started more than a whole period late; the runner "
+                "re-anchored its schedule")):
+            self._plant(entry)
+
+    def _plant(self, entry: dict) -> None:
+        engine = self.session.engine
+        self._append({"type": "plant", **entry, "scan": engine.scan,
+                      "t": seconds(engine.now)})
+
+    def _drain_plant(self) -> None:
+        if self.link is not None:
+            for entry in self.link.drain():
+                self._plant(entry)
+
+    def on_scan(self, snapshot: Snapshot) -> None:
+        self._drain_plant()
+        for entry in self.overruns.tick(time.monotonic()):
+            self._plant(entry)
+        for event in snapshot.alarm_events:
+            self._alarm(event)
+        if self.pending_manual:
+            report = snapshot.filter
+            for request in self.pending_manual:
+                index = snapshot.layout.outputs.index(request.name)
+                written = snapshot.outputs[index]
+                change = next((c for c in (report.changes if report else ())
+                               if c.output == request.name), None)
+                if change is None:
+                    outcome = f"written {int(written)} as requested"
+                else:
+                    by = ", ".join(change.by)
+                    outcome = f"refused: written {int(written)} because of {by}"
+                self._append({
+                    "type": "action", "event": f"manual {request.name} "
+                    f"{'on' if request.value else 'off'}: filter result", "accepted": True,
+                    "message": outcome, "scan": snapshot.scan, "t": seconds(snapshot.time_us)})
+            self.pending_manual = []
+
+    def _alarm(self, event) -> None:
+        entry = {
+            "type": "alarm", "event": event.event, "key": event.key, "state": event.state,
+            "severity": event.severity, "text": event.text, "returns": event.returns,
+            "scan": event.scan, "t": seconds(event.time_us)}
+        if getattr(event, "note", ""):
+            entry["message"] = event.note
+        self._append(entry)
+
+    def on_ui_fault(self, fault) -> None:
+        """An error of the HMI (hmi.ui.containment.UIFault): contained, or fatal."""
+        engine = self.session.engine
+        self._append({
+            "type": "session", "event": "ui-error", "what": fault.what, "fatal": fault.fatal,
+            "message": f"{fault.error}; details in {fault.report}"
+                       + ("" if fault.fatal else "; contained, the scan goes on"),
+            "crash_file": fault.report, "scan": engine.scan, "t": seconds(engine.now)})
+
+    def close(self, abnormal: str | None = None, note: str | None = None) -> None:
+        """The session's last entry: `stop` if it ended as asked, else `abnormal-end` with
+        the reason (never "ended normally" after an error). `note`: it ended as asked, but
+        after errors that were contained (the stop says so, not "normally")."""
+        engine = self.session.engine
+        self._drain_plant()
+        for entry in self.overruns.end(time.monotonic()):
+            self._plant(entry)
+        name = engine.project.name
+        try:
+            if abnormal is None:
+                how = f"ended as asked, {note}" if note else "ended normally"
+                self._append({"type": "session", "event": "stop", "scan": engine.scan,
+                              "t": seconds(engine.now), "message": f"{name}, {how}"})
+            else:
+                self._append({"type": "session", "event": "abnormal-end", "scan": engine.scan,
+                              "t": seconds(engine.now),
+                              "message": f"{name}, ended abnormally: {abnormal}"})
+        finally:
+            self.journal.close()

@@ -1,0 +1,145 @@
+"""Running the engine against the wall clock, in a thread of its own.
+
+The scan thread never waits for a UI: it steps the controller on schedule and leaves the
+latest snapshot in the engine, where a UI reads it at its own pace. Lateness of each scan
+against its schedule is kept as jitter samples for `plchmi bench ui`.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+import traceback
+from collections import deque
+from collections.abc import Callable
+
+from hmi.engine.snapshot import Snapshot
+from hmi.session.session import Session, settle_memory
+
+
+class LiveRunner:
+    def __init__(self, controller: Session, keep_jitter: int = 100_000):
+        self.controller = controller
+        self.jitter_us: deque[float] = deque(maxlen=keep_jitter)
+        self.overruns = 0
+        # Why the scan thread died, if it did (a scan listener failed): whoever runs it must
+        # end the run as an abnormal end, since nothing scans any more.
+        self.error: BaseException | None = None
+        self.error_traceback = ""
+        self.started = False
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, name="plchmi-scan", daemon=True)
+
+    def start(self) -> None:
+        settle_memory()
+        arm_search_deadline(self.controller)
+        self._thread.start()
+        self.started = True
+
+    def stop(self, timeout: float = 2.0) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout)
+
+    @property
+    def alive(self) -> bool:
+        return self._thread.is_alive()
+
+    def _loop(self) -> None:
+        try:
+            self._scan_loop()
+        except Exception as exc:
+            self.error = exc
+            self.error_traceback = traceback.format_exc()
+
+    def _scan_loop(self) -> None:
+        controller = self.controller
+        period_s = controller.period_us / 1e6
+        next_wall = time.perf_counter()
+        while not self._stop.is_set():
+            state = controller.state
+            if not state.running:
+                self._stop.wait(0.02)
+                next_wall = time.perf_counter()
+                continue
+            speed = state.speed
+            now = time.perf_counter()
+            if speed is not None:
+                lateness = now - next_wall
+                if lateness < 0:
+                    self._stop.wait(-lateness)
+                    now = time.perf_counter()
+                    lateness = now - next_wall
+                self.jitter_us.append(lateness * 1e6)
+            controller.scan_if_running()
+            if speed is None:
+                next_wall = time.perf_counter()
+                continue
+            next_wall += period_s / speed
+            if time.perf_counter() > next_wall + period_s:
+                # More than a whole period late: count it and re-anchor rather than burst.
+                self.overruns += 1
+                for listener in controller.overrun_listeners:
+                    listener(self.overruns)
+                next_wall = time.perf_counter()
+
+
+def arm_search_deadline(controller: Session) -> None:
+    """Live runs only: the corrector's search also stops at half the scan period of wall time.
+
+    The search's own budget is in steps (deterministic); on a machine slower or busier than
+    the one the budget was chosen on, this net keeps the scan on time. A headless run never
+    arms it, so it cannot change a trace (docs/filter.md, "Budget")."""
+    controller.engine.limit_search_time(controller.period_us / 2)
+
+
+class WallClock:
+    """Scan times for a real plant: whole microseconds of monotonic time since the first call.
+
+    Strictly increasing, so two scans never share a time. The engine itself never reads a
+    clock; a Session given this clock stamps each scan with the real time it started.
+    """
+
+    def __init__(self) -> None:
+        self._t0: int | None = None
+        self._last = -1
+
+    def __call__(self) -> int:
+        now = time.monotonic_ns() // 1000
+        if self._t0 is None:
+            self._t0 = now
+        t = max(now - self._t0, self._last + 1)
+        self._last = t
+        return t
+
+
+def run_live_for(controller: Session, duration_us: int,
+                 on_scan: Callable[[Snapshot], bool | None] | None = None) -> LiveRunner:
+    """Run scans paced by the wall clock until the scan time reaches `duration_us`, or until
+    `on_scan` returns True (a failure that ends the run early).
+
+    A headless run against a real plant: the same LiveRunner as the HMI, without a UI.
+    Returns the (stopped) runner, whose `overruns` and `jitter_us` the caller may report.
+    """
+    done = threading.Event()
+
+    def listener(snap: Snapshot) -> None:
+        if done.is_set():
+            return
+        if on_scan is not None and on_scan(snap):
+            done.set()
+        if snap.time_us >= duration_us:
+            done.set()
+
+    controller.scan_listeners.append(listener)
+    runner = LiveRunner(controller)
+    runner.start()
+    try:
+        while not done.wait(0.1):
+            if not runner.alive:
+                raise RuntimeError(f"the scan thread stopped unexpectedly: {runner.error!r}"
+                                   ) from runner.error
+    finally:
+        runner.stop()
+        controller.scan_listeners.remove(listener)
+    return runner

@@ -1,0 +1,224 @@
+"""A session: the engine, its explanations and alarms, and the run state, behind one door.
+
+:class:`Session` is what the UI, the headless commands and a future OPC UA server talk to.
+It owns the engine, the explanation builder and the alarm list, and the run state (running,
+paused, stepping); every operator action enters through :meth:`Session.command` (listeners,
+such as the journal, hear each one with its result). Each scan is the engine's core
+snapshot, explained (hmi.explain reads the snapshot, never the engine) and given the alarms
+it raised: :attr:`Session.last` is that complete snapshot.
+
+It never sleeps: the live app paces it from a worker thread (hmi.session.live); headless
+runs call :meth:`Session.run_for` in virtual time.
+"""
+
+from __future__ import annotations
+
+import gc
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from hmi.engine.commands import (
+    Acknowledge,
+    ChoosePolicy,
+    Command,
+    CommandResult,
+    Pause,
+    Resume,
+    SetSpeed,
+    StepScans,
+    describe,
+)
+from hmi.engine.scan import Engine
+from hmi.engine.snapshot import Snapshot
+from hmi.explain.alarms import AlarmEvent, AlarmManager
+from hmi.explain.builder import ExplanationBuilder
+from hmi.explain.model import Explanation
+from hmi.plant.base import PlantError
+
+
+def settle_memory() -> None:
+    """Move everything built so far (project, compiled expressions, UI) out of the garbage
+    collector's sight: the scan creates no reference cycles, and collections that re-traverse
+    those long-lived objects are what makes a scan's worst case several times its median.
+    """
+    gc.collect()
+    gc.freeze()
+
+
+@dataclass
+class RunState:
+    running: bool = True
+    speed: float | None = 1.0  # None: as fast as possible
+    pending_steps: int = 0
+
+    @property
+    def label(self) -> str:
+        if self.pending_steps:
+            return "stepping"
+        return "running" if self.running else "paused"
+
+
+Listener = Callable[[Command, CommandResult, Snapshot | None], None]
+
+
+class Session:
+    """The engine plus its explanations, alarms and run state; thread-safe so a UI thread
+    can send commands while the scan thread runs."""
+
+    def __init__(self, engine: Engine, period_us: int | None = None,
+                 clock: Callable[[], int] | None = None):
+        self.engine = engine
+        self.project = engine.project
+        self.period_us = period_us or engine.project.scan_period_us
+        # A real plant runs on real time: each scan's time comes from `clock` (see
+        # hmi.session.live.WallClock) instead of advancing by one period per scan.
+        self.clock = clock
+        self.state = RunState()
+        self.lock = threading.RLock()
+        self.explainer = ExplanationBuilder(engine.project)
+        self.alarms = AlarmManager()
+        self.explanations: tuple[Explanation, ...] = ()  # the last scan's
+        self.last: Snapshot | None = None  # the last scan, explained
+        self._pending_alarm_events: list[AlarmEvent] = []  # acknowledgements between scans
+        self.listeners: list[Listener] = []
+        self.scan_listeners: list[Callable[[Snapshot], None]] = []
+        # Told of each scan overrun (a real-time runner more than a period late), for the
+        # journal; called from the scan thread with the runner's overrun count.
+        self.overrun_listeners: list[Callable[[int], None]] = []
+
+    @property
+    def next_time(self) -> int:
+        if self.clock is not None:
+            return self.clock()
+        return 0 if not self.engine.scan else self.engine.now + self.period_us
+
+    def command(self, command: Command) -> CommandResult:
+        with self.lock:
+            match command:
+                case Pause():
+                    self.state.running = False
+                    result = CommandResult.ok("paused" + self._park_real_plant())
+                case Resume():
+                    self.state.running = True
+                    self.state.pending_steps = 0
+                    result = CommandResult.ok("running")
+                case StepScans(count=n):
+                    if self.engine.drives_real_plant:
+                        result = CommandResult.refused(
+                            "stepping would drive a real plant for a scan and leave it so; "
+                            "not available on a real plant (pause holds it safe)")
+                    elif n < 1:
+                        result = CommandResult.refused("step count must be at least 1")
+                    else:
+                        self.state.running = False
+                        for _ in range(n):
+                            self.scan_once()
+                        result = CommandResult.ok(f"stepped {n} scan{'s' if n > 1 else ''}, "
+                                                  f"now scan {self.engine.scan}")
+                case SetSpeed(factor=factor):
+                    self.state.speed = factor
+                    result = CommandResult.ok(describe(command))
+                case Acknowledge(key=key):
+                    result = self._acknowledge(key)
+                case ChoosePolicy(key=key, policy=policy_id):
+                    result = self._choose_policy(key, policy_id)
+                case _:
+                    result = self.engine.apply(command)
+            for listener in self.listeners:
+                listener(command, result, self.last)
+            return result
+
+    def _acknowledge(self, key: str | None) -> CommandResult:
+        engine = self.engine
+        events = self.alarms.acknowledge(key, engine.scan, engine.now)
+        self._pending_alarm_events.extend(events)
+        if key is not None and not events:
+            return CommandResult.refused(f"no alarm {key} to acknowledge")
+        return CommandResult.ok(f"acknowledged {len(events)} alarm"
+                                f"{'s' if len(events) != 1 else ''}")
+
+    def take_alarm_events(self) -> list[AlarmEvent]:
+        """Alarm transitions since the last scan (acknowledgements), for whoever journals
+        them now; those not taken go into the next snapshot's alarm_events."""
+        events, self._pending_alarm_events = self._pending_alarm_events, []
+        return events
+
+    def _choose_policy(self, key: str, policy_id: str) -> CommandResult:
+        explanation = next((e for e in self.explanations if e.key == key), None)
+        if explanation is None:
+            alarm = self.alarms.alarms.get(key)
+            explanation = alarm.explanation if alarm else None
+        if explanation is None:
+            return CommandResult.refused(f"no situation {key} to act on")
+        policy = next((p for p in explanation.policies if p.id == policy_id), None)
+        if policy is None:
+            return CommandResult.refused(f"{key} offers no policy {policy_id!r}; it offers "
+                                         + ", ".join(p.id for p in explanation.policies))
+        if policy.command is None:
+            return CommandResult.ok(f"policy '{policy.label}' chosen for {key}: "
+                                    f"{policy.effect}")
+        result = self.engine.apply(policy.command)
+        verdict = "chosen" if result.accepted else "could not be carried out"
+        return CommandResult(result.accepted, f"policy '{policy.label}' {verdict} for {key}: "
+                             f"{result.message}")
+
+    def _park_real_plant(self) -> str:
+        """A paused PLC must not leave a real plant driven: write the safe vector once."""
+        engine = self.engine
+        plant = engine.plant
+        if not self.engine.drives_real_plant or not engine.started:
+            return ""
+        try:
+            plant.write(engine.now, dict(zip(engine.layout.outputs, engine.safe_vector,
+                                             strict=True)))
+        except PlantError as exc:
+            return f"; the safe outputs could not be written ({exc})"
+        return "; real plant: outputs written safe while paused"
+
+    def scan_if_running(self) -> Snapshot | None:
+        """One scan unless paused meanwhile (checked under the lock, so no scan follows a
+        pause: a paused real plant keeps the safe outputs the pause wrote)."""
+        with self.lock:
+            return self.scan_once() if self.state.running else None
+
+    def scan_once(self) -> Snapshot:
+        with self.lock:
+            snapshot = self._explained(self.engine.step(self.next_time))
+            self.last = snapshot
+            for listener in self.scan_listeners:
+                listener(snapshot)
+            return snapshot
+
+    def _explained(self, core: Snapshot) -> Snapshot:
+        """The engine's snapshot with its explanations, the alarm list and its changes."""
+        started = time.perf_counter()
+        error = core.error
+        try:
+            self.explanations = self.explainer.build(core)
+        except Exception as exc:  # explanations must never stop the scan
+            self.explanations = ()
+            error = error or f"explanations: {type(exc).__name__}: {exc}"
+        events = self.take_alarm_events()
+        events.extend(self.alarms.update(self.explanations, core.scan, core.time_us))
+        return core._replace(explanations=self.explanations, alarms=self.alarms.listed(),
+                             alarm_events=tuple(events), error=error,
+                             scan_wall_us=core.scan_wall_us
+                             + (time.perf_counter() - started) * 1e6)
+
+    def run_for(self, duration_us: int, on_scan: Callable[[Snapshot], None] | None = None
+                ) -> Snapshot:
+        """Run scans in virtual time from now until `duration_us` more has elapsed."""
+        end = self.next_time + duration_us
+        snapshot = self.last
+        while self.next_time <= end:
+            snapshot = self.scan_once()
+            if on_scan is not None:
+                on_scan(snapshot)
+        assert snapshot is not None
+        return snapshot
+
+
+# The name before issue 14 ("controller" is 004's word for a filter use): one phase.
+Controller = Session

@@ -1,0 +1,109 @@
+"""The exported safety layer agrees with the engine on every scan of the example projects'
+traces: the valve's whole fault campaign (every scenario under its three configurations) and
+its faulty program under each policy, every scenario of the conveyor/robot cell, the sorting
+cell's scenarios and faulty program, and a trace each of the palletizer and of the CISPI
+subsystem (two component diagnosers, a renamed identifier).
+
+Each trace runs the engine on its simulated plant and the exported Structured Text in the
+tests' interpreter side by side (tests/export_harness.py); about 300,000 scans in all, spread
+over two worker processes when the machine has two cores.
+"""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import Future, ProcessPoolExecutor
+
+import pytest
+
+from hmi.engine.campaign import CONFIGS
+from hmi.plant.sim import Injection
+from hmi.project.campaign import campaign_of
+from hmi.project.loader import load_project
+from hmi.project.scenarios import scenarios_of
+from tests.conftest import PROJECTS
+from tests.export_harness import Agreement, Twin, engine_for
+
+LONG_US = 30_000_000  # the faulty programs' runs
+_TWINS: dict[str, Twin] = {}
+
+
+def _twin(name: str) -> Twin:
+    if name not in _TWINS:
+        _TWINS[name] = Twin(load_project(PROJECTS / name))
+    return _TWINS[name]
+
+
+def _run(name: str, injections: tuple[Injection, ...], until_us: int, policy: str | None,
+         diagnosis: str, control: str | None) -> Agreement:
+    """One trace, in a worker: the engine and the export side by side (asserts inside)."""
+    twin = _twin(name)
+    engine = engine_for(twin.project, injections, policy=policy, control=control,
+                        diagnosis=diagnosis)
+    return twin.run(engine, until_us)
+
+
+@pytest.fixture(scope="module")
+def pool():
+    jobs = min(2, os.cpu_count() or 1)
+    with ProcessPoolExecutor(max_workers=jobs) as executor:
+        yield executor
+
+
+def _traces(name: str, faulty_policies: tuple[str, ...] = ("correct", "block", "monitor"),
+            scenarios: tuple[str, ...] | None = None, campaign: bool = True) -> list[tuple]:
+    """The runs of one project: its campaign, its scenarios, its faulty program."""
+    project = load_project(PROJECTS / name)
+    runs = []
+    spec = campaign_of(project)
+    if spec is not None and campaign:
+        for s in spec.scenarios:
+            for c in CONFIGS:
+                runs.append((name, (Injection(s.fault, s.at_us, s.device),), spec.length_us,
+                             c.policy, c.diagnosis, None))
+    for s in scenarios_of(project):
+        if scenarios is None or s.name in scenarios:
+            runs.append((name, s.injections, s.duration_us or LONG_US, None, "ftc", None))
+    if "faulty" in project.controls:
+        runs += [(name, (), LONG_US, policy, "ftc", "faulty") for policy in faulty_policies]
+    return runs
+
+
+def _all(pool, runs: list[tuple]) -> Agreement:
+    futures: list[Future] = [pool.submit(_run, *run) for run in runs]
+    total = Agreement()
+    for future in futures:
+        total.add(future.result())  # an AssertionError names the scan that disagreed
+    return total
+
+
+def test_the_valve_campaign_and_faulty_program_agree(pool):
+    runs = _traces("cispi_valve")
+    total = _all(pool, runs)
+    assert len(runs) == 16 * 3 + 3
+    assert total.scans == 48 * 4001 + 3 * 3001
+    # the runs reach most of the automaton and every policy's behaviour
+    assert len(total.diagnoser_states) >= 25, sorted(total.diagnoser_states)
+    assert total.corrected > 1000 and total.latched > 1000 and total.violations > 1000
+
+
+def test_the_conveyor_robot_scenarios_agree(pool):
+    runs = _traces("conveyor_robot")
+    total = _all(pool, runs)
+    assert len(runs) == 7
+    assert total.scans == 7 * 1201 and total.monitor_faults > 1000
+
+
+def test_the_sorting_cell_traces_agree(pool):
+    runs = _traces("sorting")
+    total = _all(pool, runs)
+    assert len(runs) == 7 + 3
+    assert total.corrected > 10_000 and total.monitor_faults > 10_000 and total.tested >= 4
+
+
+def test_the_palletizer_and_subsystem_agree(pool):
+    runs = (_traces("palletizer", ("correct",), ("pusher_home_stuck1",), campaign=False)
+            + _traces("cispi_subsystem", ("correct",), ("v1_jam",), campaign=False))
+    total = _all(pool, runs)
+    assert len(runs) == 4
+    assert total.corrected > 1000 and total.monitor_faults > 1000

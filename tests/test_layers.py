@@ -1,0 +1,193 @@
+"""The import graph keeps the layering of docs/architecture.md, and has no import cycle.
+
+    base (errors, timefmt, paths, limits, textfile, moved) <- logic <- project
+        <- plant, engine <- explain <- session <- apps (ui, cli, bench, reports, sweep)
+
+A module imports from its own layer or from a lower one, never from a higher one; within
+its layer, plant/ does not import engine/ (the engine drives a plant through the contract of
+plant/base.py), and explain/ reads what a scan left behind (the snapshot and the data types
+in it), never the engine that runs the scan. Read from the source with `ast` (the standard
+library only); every import counts, also those inside functions and under TYPE_CHECKING.
+Cycles are checked on the imports that run (TYPE_CHECKING ones only name types).
+
+KNOWN lists what phase B of issue 14 removes (the project loader's split): an entry that no
+longer occurs fails the test too, so the list only shrinks.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+PACKAGE = ROOT / "hmi"
+
+LAYERS: tuple[tuple[str, ...], ...] = (
+    ("hmi", "hmi.errors", "hmi.timefmt", "hmi.paths", "hmi.moved", "hmi.limits",
+     "hmi.textfile"),
+    ("hmi.logic",),
+    ("hmi.project",),
+    ("hmi.plant", "hmi.engine", "hmi.export"),
+    ("hmi.explain",),
+    ("hmi.session",),
+    ("hmi.ui", "hmi.cli", "hmi.bench", "hmi.report", "hmi.diag_report", "hmi.monitor_report",
+     "hmi.sweep", "hmi.runio"),
+)
+# What explain/ may read of engine/: the snapshot and the types it carries.
+SNAPSHOT_TYPES = {"hmi.engine.snapshot", "hmi.engine.commands", "hmi.engine.stopwatch",
+                  "hmi.engine.monitors", "hmi.engine.diagnoser", "hmi.engine.filter",
+                  "hmi.engine.layout"}
+
+# Phase B (issue 14): the loader validates devices against the simulated models and parses
+# the explanation texts; both move below project/ (or are handed to it) with its split.
+KNOWN = {
+    ("hmi.project.campaign", "hmi.plant.sim.models"),
+    ("hmi.project.loader", "hmi.plant.sim.models"),
+    ("hmi.project.scenarios", "hmi.plant.sim.models"),
+    ("hmi.project.scenarios", "hmi.plant.injection"),
+    ("hmi.project.components", "hmi.explain.texts"),
+    ("hmi.project.explanations", "hmi.explain.texts"),
+    ("hmi.project.explanations", "hmi.explain.model"),
+}
+KNOWN_CYCLES = [{"hmi.project.component_file", "hmi.project.components", "hmi.project.loader"}]
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+MODULES = {module_name(p): p for p in PACKAGE.rglob("*.py")}
+
+
+def _resolve(name: str) -> str | None:
+    """The hmi module an imported name lives in (`hmi.plant.base.Plant` -> hmi.plant.base)."""
+    while name and name not in MODULES:
+        name = name.rpartition(".")[0]
+    return name or None
+
+
+def imports(name: str) -> list[tuple[str, bool]]:
+    """(imported hmi module, whether it runs: not under TYPE_CHECKING) for one module."""
+    path = MODULES[name]
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    typing_only: set[int] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+            typing_only.update(id(n) for n in ast.walk(node))
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                parts = package.split(".")
+                parts = parts[:len(parts) - node.level + 1]
+                base = ".".join(parts + ([node.module] if node.module else []))
+            # `from hmi.engine import commands` imports hmi.engine.commands; `from
+            # hmi.engine.scan import Engine` imports hmi.engine.scan.
+            names = [f"{base}.{alias.name}" if f"{base}.{alias.name}" in MODULES else base
+                     for alias in node.names]
+        else:
+            continue
+        for imported in names:
+            target = _resolve(imported) if imported.startswith("hmi") else None
+            if target and target != name:
+                found.append((target, id(node) not in typing_only))
+    return found
+
+
+GRAPH = {name: imports(name) for name in MODULES}
+
+
+def layer(name: str) -> int:
+    for k, prefixes in enumerate(LAYERS):
+        if any(name == p or name.startswith(p + ".") for p in prefixes if p != "hmi"):
+            return k
+    assert name == "hmi", f"{name} belongs to no layer: add it to LAYERS"
+    return 0
+
+
+def test_every_module_has_a_layer():
+    for name in MODULES:
+        layer(name)
+
+
+def against_layers(name: str, target: str) -> bool:
+    if layer(target) > layer(name):
+        return True
+    if name.startswith("hmi.plant"):
+        return target.startswith("hmi.engine")
+    if name.startswith("hmi.explain"):
+        return target.startswith("hmi.engine") and target not in SNAPSHOT_TYPES
+    return False
+
+
+def test_no_import_runs_up_the_layers():
+    upward = {(name, target) for name, targets in GRAPH.items() for target, _ in targets
+              if against_layers(name, target)}
+    assert upward - KNOWN == set(), "imports against the layering"
+    assert KNOWN - upward == set(), "no longer needed: remove from KNOWN"
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[set[str]]:
+    """Strongly connected components of more than one module (Tarjan, iterative)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found: list[set[str]] = []
+    for root in graph:
+        if root in index:
+            continue
+        work = [(root, iter(sorted(graph[root])))]
+        index[root] = low[root] = len(index)
+        stack.append(root)
+        on_stack.add(root)
+        while work:
+            node, children = work[-1]
+            child = next(children, None)
+            if child is not None:
+                if child not in index:
+                    index[child] = low[child] = len(index)
+                    stack.append(child)
+                    on_stack.add(child)
+                    work.append((child, iter(sorted(graph.get(child, ())))))
+                elif child in on_stack:
+                    low[node] = min(low[node], index[child])
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[node])
+            if low[node] == index[node]:
+                component = set()
+                while True:
+                    member = stack.pop()
+                    on_stack.discard(member)
+                    component.add(member)
+                    if member == node:
+                        break
+                if len(component) > 1:
+                    found.append(component)
+    return found
+
+
+def test_no_import_cycle():
+    runtime = {name: {t for t, runs in targets if runs} for name, targets in GRAPH.items()}
+    cycles = _cycles(runtime)
+    assert [c for c in cycles if c not in KNOWN_CYCLES] == []
+    assert [c for c in KNOWN_CYCLES if c not in cycles] == [], "no longer a cycle: remove it"
+
+
+def test_the_checker_sees_a_cycle_and_an_upward_import():
+    """The checks themselves can fail: a made-up graph with a loop, and the real layers."""
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [{"a", "b", "c"}]
+    assert layer("hmi.engine.scan") > layer("hmi.project.model")
+    assert layer("hmi.session.session") > layer("hmi.explain.builder") > layer("hmi.engine.scan")
+    assert against_layers("hmi.explain.builder", "hmi.engine.scan")
+    assert against_layers("hmi.plant.sim.plant", "hmi.engine.scan")
+    assert against_layers("hmi.engine.scan", "hmi.session.session")
+    assert not against_layers("hmi.explain.builder", "hmi.engine.snapshot")
+    assert ("hmi.engine.scan", True) in GRAPH["hmi.session.session"]
