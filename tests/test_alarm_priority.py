@@ -16,20 +16,19 @@ def test_a_refused_manual_order_does_not_demote_an_unacknowledged_p1():
     an open valve is written (P1, NOT corrected); switched to correct and manual, the same
     order requested by hand is refused by the filter (a P3 situation). The row stayed the
     same alarm and became P3, unacknowledged; the journal said high → low."""
-    controller = make_controller(PROJECTS / "cispi_valve", control="faulty", policy="monitor")
-    engine = controller.engine
+    session = make_controller(PROJECTS / "cispi_valve", control="faulty", policy="monitor")
     for _ in range(2000):
-        snap = controller.scan_once()
+        snap = session.scan_once()
         alarm = next((a for a in snap.alarms if a.key == KEY), None)
         if alarm is not None:
             break
     assert alarm is not None and alarm.priority == 1 and alarm.state == ACTIVE_UNACK
-    assert controller.command(SetPolicy("correct")).accepted
-    assert controller.command(SetMode(True)).accepted
+    assert session.command(SetPolicy("correct")).accepted
+    assert session.command(SetMode(True)).accepted
     severities = set()
     for _ in range(2000):  # hold O on by hand: refused whenever the valve is open
-        controller.command(ManualOutput("O", True))
-        snap = controller.scan_once()
+        session.command(ManualOutput("O", True))
+        snap = session.scan_once()
         severities |= {e.severity for e in snap.explanations if e.key == KEY}
         listed = next((a for a in snap.alarms if a.key == KEY), None)
         assert listed is not None, "an unacknowledged alarm left the list"
@@ -37,8 +36,8 @@ def test_a_refused_manual_order_does_not_demote_an_unacknowledged_p1():
         if "low" in severities and listed.active:
             break
     assert "low" in severities  # the situation itself did read low: the rule was exercised
-    controller.command(Acknowledge(KEY))  # acknowledged: still listed, still P1
-    assert controller.alarms.alarms[KEY].priority == 1
+    session.command(Acknowledge(KEY))  # acknowledged: still listed, still P1
+    assert session.alarms.alarms[KEY].priority == 1
 
 
 def test_priority_keeps_the_highest_while_listed_then_starts_afresh():

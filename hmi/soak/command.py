@@ -15,6 +15,8 @@ import asyncio
 from datetime import UTC, datetime
 from pathlib import Path
 
+from hmi.errors import UsageError
+from hmi.project.loader import load_project
 from hmi.soak.runner import SoakConfig, SoakResult, session, shrink
 from hmi.soak.steps import StepError, format_steps, parse_size, parse_steps
 from hmi.timefmt import format_duration, parse_duration
@@ -67,9 +69,7 @@ def add_soak_parser(sub, project_arg) -> None:
 
 
 def cmd_soak(args: argparse.Namespace) -> int:
-    from hmi.cli import UsageError, load
-
-    project = load(args.project)  # a bad project: its errors, exit 2
+    project = load_project(args.project)  # a bad project: its errors, exit 2
     if args.control and args.control not in project.controls:
         raise UsageError(f"--control {args.control!r}: the project has "
                          + ", ".join(project.controls))
