@@ -89,7 +89,7 @@ def cmd_soak(args: argparse.Namespace) -> int:
           f"{config.size[0]}x{config.size[1]}, seed {config.seed}): "
           + (f"replaying {len(replay)} steps" if replay is not None
              else f"{args.minutes:g} virtual minutes"), flush=True)
-    result = asyncio.run(session(config, replay))
+    result = asyncio.run(session(config, replay, progress=Progress()))
     print(summary(result))
     if result.ok:
         return 0
@@ -108,6 +108,23 @@ def cmd_soak(args: argparse.Namespace) -> int:
           + (f" --control {args.control}" if args.control else "")
           + f" --size {config.size[0]}x{config.size[1]} --replay {saved}")
     return 1
+
+
+class Progress:
+    """A line every 5 virtual minutes: a long soak shows it is alive, and how fast it goes."""
+
+    EVERY_US = 300_000_000
+
+    def __init__(self) -> None:
+        self.next_us = self.EVERY_US
+
+    def __call__(self, result: SoakResult) -> None:
+        if result.virtual_us < self.next_us:
+            return
+        self.next_us = result.virtual_us - result.virtual_us % self.EVERY_US + self.EVERY_US
+        print(f"  … {result.virtual_us / 60e6:.1f} virtual minutes, {len(result.steps)} steps, "
+              f"{result.scans} scans, {result.wall_s:.0f} s wall, "
+              f"{len(result.broken)} broken", flush=True)
 
 
 def save_steps(config: SoakConfig, steps, why: str) -> Path:

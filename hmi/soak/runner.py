@@ -13,6 +13,7 @@ which the same invariant still breaks: what is left is a short list that reprodu
 
 from __future__ import annotations
 
+import shutil
 import tempfile
 import time
 from collections import Counter
@@ -84,7 +85,10 @@ def make_app(config: SoakConfig) -> PlcHmiApp:
 async def session(config: SoakConfig, replay: list[Step] | None = None,
                   journal_dir: Path | None = None,
                   progress: Callable[[SoakResult], None] | None = None) -> SoakResult:
-    """Run the random operator for `config.minutes` of virtual time (or replay `replay`)."""
+    """Run the random operator for `config.minutes` of virtual time (or replay `replay`).
+
+    The journal goes to `journal_dir`, else to a temporary folder kept only if an invariant
+    broke (its path is in the result)."""
     result = SoakResult(config)
     folder = Path(journal_dir or tempfile.mkdtemp(prefix="plchmi-soak-"))
     result.journal = folder / "journal.jsonl"
@@ -129,6 +133,9 @@ async def session(config: SoakConfig, replay: list[Step] | None = None,
         journal.close(None if checker.ok else str(checker.broken[0]))
     checker.check_journal()  # its last lines (the session's end)
     _fill(result, checker, app, started)
+    if journal_dir is None and result.ok:  # a passing session's journal is not kept
+        shutil.rmtree(folder, ignore_errors=True)
+        result.journal = None
     return result
 
 
@@ -234,7 +241,8 @@ async def shrink(config: SoakConfig, steps: list[Step], invariant: str,
     async def breaks(candidate: list[Step]) -> list[Step] | None:
         nonlocal replays
         replays += 1
-        result = await session(config, replay=candidate)
+        with tempfile.TemporaryDirectory(prefix="plchmi-shrink-") as folder:
+            result = await session(config, replay=candidate, journal_dir=Path(folder))
         if any(b.invariant == invariant for b in result.broken):
             return result.steps  # up to the failing step
         return None
