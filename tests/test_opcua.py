@@ -313,7 +313,7 @@ async def test_operator_commands_are_methods_that_go_through_the_filter(cell):
     refused = [e for e in entries if e["event"] == "manual nope on"]
     assert refused and refused[0]["accepted"] is False
     result = next(e for e in cell.journal() if e["event"] == "manual O on: filter result")
-    assert result["message"].startswith("refused")
+    assert result["message"].startswith("refused") and result["by"] == "opcua:alice"
 
 
 async def test_a_trusted_user_certificate_names_the_user_an_unknown_one_does_not(cell):

@@ -29,7 +29,7 @@ class JournalRecorder:
     def __init__(self, session: Session, journal: Journal, source: str = "hmi"):
         self.session = session
         self.journal = journal
-        self.pending_manual: list[ManualOutput] = []
+        self.pending_manual: list[tuple[ManualOutput, str]] = []  # with who sent it
         self.failure: JournalWriteError | None = None
         engine = session.engine
         journal.append({"type": "session", "event": "start", "source": source,
@@ -59,7 +59,7 @@ class JournalRecorder:
             entry["by"] = self.session.origin
         self._append(entry)
         if isinstance(command, ManualOutput) and result.accepted and command.value is not None:
-            self.pending_manual.append(command)
+            self.pending_manual.append((command, self.session.origin))
         for event in self.session.take_alarm_events():  # acknowledgements, journalled now
             self._alarm(event, self.session.origin)
 
@@ -88,7 +88,7 @@ class JournalRecorder:
             self._alarm(event)
         if self.pending_manual:
             report = snapshot.filter
-            for request in self.pending_manual:
+            for request, origin in self.pending_manual:
                 index = snapshot.layout.outputs.index(request.name)
                 written = snapshot.outputs[index]
                 change = next((c for c in (report.changes if report else ())
@@ -98,10 +98,13 @@ class JournalRecorder:
                 else:
                     by = ", ".join(change.by)
                     outcome = f"refused: written {int(written)} because of {by}"
-                self._append({
+                entry = {
                     "type": "action", "event": f"manual {request.name} "
                     f"{'on' if request.value else 'off'}: filter result", "accepted": True,
-                    "message": outcome, "scan": snapshot.scan, "t": seconds(snapshot.time_us)})
+                    "message": outcome, "scan": snapshot.scan, "t": seconds(snapshot.time_us)}
+                if origin:
+                    entry["by"] = origin
+                self._append(entry)
             self.pending_manual = []
 
     def _alarm(self, event, by: str = "") -> None:
