@@ -44,6 +44,7 @@ from hmi.engine.commands import (
 )
 from hmi.engine.snapshot import Snapshot
 from hmi.errors import UsageError
+from hmi.explain.alarms import ACTIVE_UNACK, CLEARED_UNACK
 from hmi.opcua import NEEDS_USERS
 from hmi.opcua.conditions import ConditionTracker, ConditionView
 from hmi.opcua.model import BOOL, DOUBLE, STRING, STRINGS, UINT, AddressModel, build_model
@@ -515,10 +516,26 @@ class CellServer:
             except (TypeError, ValueError) as exc:  # refused in words, like the engine does
                 return [ua.Variant(False, ua.VariantType.Boolean),
                         ua.Variant(str(exc), ua.VariantType.String)]
+            named = self._name_acknowledger(command, who)
             result = await self._command(command, who)
+            if not result.accepted:
+                for key in named:
+                    self.tracker.acks.pop(key, None)
             return [ua.Variant(result.accepted, ua.VariantType.Boolean),
                     ua.Variant(result.message, ua.VariantType.String)]
         return call
+
+    def _name_acknowledger(self, command: Command, who: Identity) -> list[str]:
+        """The condition events of an acknowledgement sent as a command name its sender
+        too: the alarms it concerns that wait for one (all of them for an empty key)."""
+        if not isinstance(command, Acknowledge) or self._latest is None:
+            return []
+        keys = [a.key for a in self._latest.alarms
+                if a.state in (ACTIVE_UNACK, CLEARED_UNACK)
+                and (command.key is None or a.key == command.key)]
+        for key in keys:
+            self.tracker.acknowledged_by(key, who.name or "", "")
+        return keys
 
 
 _UNSET = object()
