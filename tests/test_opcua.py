@@ -203,6 +203,8 @@ async def test_an_injected_fault_raises_a_high_alarm_event_with_its_explanation(
         assert event["Message"].Text == alarm.text
         assert event["Why"] == alarm.explanation.why
         assert event["Consequences"] == alarm.explanation.consequences
+        assert event["Policies"] == alarm.explanation.policies_text()
+        assert event["Detail"] == getattr(alarm.explanation, "detail", "")
         assert event["ActiveState/Id"] is True and event["AckedState/Id"] is False
         assert event["Retain"] is True
         assert event["SourceName"] == "Valve V1"

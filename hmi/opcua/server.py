@@ -364,12 +364,13 @@ class CellServer:
         self.alarm_type = await server.create_custom_event_type(
             ns, "PlchmiAlarmType", ua.ObjectIds.AlarmConditionType,
             [("Why", ua.VariantType.String), ("Consequences", ua.VariantType.String),
-             ("Policies", ua.VariantType.String), ("Priority", ua.VariantType.String),
+             ("Policies", ua.VariantType.String), ("Detail", ua.VariantType.String),
+             ("Priority", ua.VariantType.String),
              ("AlarmKind", ua.VariantType.String), ("Transition", ua.VariantType.String),
              ("Returns", ua.VariantType.UInt32), ("Chattering", ua.VariantType.Boolean),
              ("LatchedUntilReset", ua.VariantType.Boolean)])
         await _describe(self.alarm_type, "A plchmi alarm (ISA-18.2): Message is level 1 of "
-                        "its explanation; Why, Consequences and Policies the other levels")
+                        "its explanation; Why, Consequences, Policies and Detail the other levels")
         generator = await server.get_event_generator(self.alarm_type, server.nodes.server)
         self._template = generator.event
         self.conditions: dict[str, Any] = {}  # key -> the condition's event object
@@ -424,7 +425,8 @@ class CellServer:
         _two_state(event, "ActiveState", view.active, "Active", "Inactive", stamp)
         _two_state(event, "AckedState", view.acked, "Acknowledged", "Unacknowledged", stamp)
         for name, value in (("Why", view.why), ("Consequences", view.consequences),
-                            ("Policies", view.policies), ("Priority", view.priority),
+                            ("Policies", view.policies), ("Detail", view.detail),
+                            ("Priority", view.priority),
                             ("AlarmKind", view.kind), ("Transition", view.transition),
                             ("Returns", view.returns), ("Chattering", view.chattering),
                             ("LatchedUntilReset", view.latched)):
