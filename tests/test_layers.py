@@ -33,7 +33,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("hmi.explain",),
     ("hmi.session",),
     ("hmi.ui", "hmi.cli", "hmi.bench", "hmi.report", "hmi.diag_report", "hmi.monitor_report",
-     "hmi.sweep", "hmi.runio", "hmi.opcua"),
+     "hmi.sweep", "hmi.runio", "hmi.opcua", "hmi.soak", "hmi.crash"),
 )
 # What explain/ may read of engine/: the snapshot and the types it carries.
 SNAPSHOT_TYPES = {"hmi.engine.snapshot", "hmi.engine.commands", "hmi.engine.stopwatch",
