@@ -174,7 +174,15 @@ async def test_the_bell_rings_once_per_new_unacknowledged_p1(bell):
 async def test_the_operator_shelves_and_comments_from_the_palette():
     from hmi.ui.dialogs import ChoiceDialog, TextDialog
     from hmi.ui.scenarios import make_app
-    from hmi.ui.testing import palette, region_text, run_for, settle, wait_for_main, wait_for_screen
+    from hmi.ui.testing import (
+        palette,
+        press,
+        region_text,
+        run_for,
+        settle,
+        wait_for_main,
+        wait_for_screen,
+    )
 
     app = make_app(control="faulty")
     async with app.run_test(size=(100, 30)) as pilot:
@@ -182,14 +190,14 @@ async def test_the_operator_shelves_and_comments_from_the_palette():
         alarm = first_active(app.controller.last)
         await palette(pilot, f"Alarms: comment on {alarm.text}")
         dialog = await wait_for_screen(pilot, TextDialog)
-        await pilot.press(*"seen it")
-        await pilot.press("enter")
+        await press(pilot, *"seen it")
+        await press(pilot, "enter")
         await wait_for_main(pilot)
         assert app.controller.alarms.alarms[alarm.key].comment == "seen it"
         await palette(pilot, f"Alarms: shelve… {alarm.text}")
         dialog = await wait_for_screen(pilot, ChoiceDialog)
         assert dialog.id == "shelve-dialog"
-        await pilot.press("down", "enter")  # for 5 min
+        await press(pilot, "down", "enter")  # for 5 min
         await wait_for_main(pilot)
         await run_for(pilot, 0.05)
         await settle(pilot)

@@ -13,6 +13,7 @@ import shutil
 from pathlib import Path
 
 import pytest
+from hmi.plant.injection import parse_injection
 
 from hmi.engine.commands import (
     EndRecovery,
@@ -26,7 +27,6 @@ from hmi.engine.scan import Engine
 from hmi.errors import ProjectError
 from hmi.explain.journal import Journal, read
 from hmi.plant.base import PlantError
-from hmi.plant.injection import parse_injection
 from hmi.plant.sim.plant import SimPlant
 from hmi.project.campaign import campaign_of
 from hmi.project.loader import load_project
@@ -253,6 +253,7 @@ async def test_the_operator_finds_the_way_back_from_f13_through_the_reset_dialog
     from hmi.ui.scenarios import make_app
     from hmi.ui.testing import (
         palette,
+        press,
         region_text,
         run_for,
         run_until,
@@ -265,30 +266,30 @@ async def test_the_operator_finds_the_way_back_from_f13_through_the_reset_dialog
     async with app.run_test(size=(80, 24)) as pilot:
         await run_until(pilot, lambda s: s.recovery.needed, 20, "recovery needed")
         await palette(pilot, "SIMULATION: repair")
-        await pilot.press("r")
+        await press(pilot, "r")
         dialog = await wait_for_screen(pilot, ConfirmDialog)
         text = screen_text(app)
         assert "g: start recovery" in text and "known position" in text
         assert dialog.alternative == "Start recovery"
-        await pilot.press("g")
+        await press(pilot, "g")
         await wait_until_dialog(pilot, "recovery-dialog")
         text = screen_text(app)
         assert "Start recovery: Close valve V1" in text and "Only C move" in text
-        await pilot.press("y")
+        await press(pilot, "y")
         await wait_for_main(pilot)
         await run_for(pilot, 0.5)
         assert "RECOVERY" in region_text(app, "#status")
         assert "▲ RECOVERY ▲" in region_text(app, "#banners")
         await run_until(pilot, lambda s: s.recovery.status == "done", 3, "recovery done")
         assert "RECOVERY DONE" in region_text(app, "#banners")
-        await pilot.press("r")
+        await press(pilot, "r")
         await wait_for_screen(pilot, ConfirmDialog)
-        await pilot.press("y")
+        await press(pilot, "y")
         await wait_for_main(pilot)
-        await pilot.press("m")
+        await press(pilot, "m")
         await wait_until_dialog(pilot, "recovery-dialog")
         assert "Leave recovery mode?" in screen_text(app)
-        await pilot.press("y")
+        await press(pilot, "y")
         await wait_for_main(pilot)
         await run_for(pilot, 20)
         snap = app.controller.last

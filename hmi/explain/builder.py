@@ -20,10 +20,10 @@ from hmi.explain.model import Explanation, Policy
 from hmi.explain.monitors import monitor_explanations
 from hmi.explain.plain import PlainNames, lower_first
 from hmi.explain.recovery import recovery_explanations
-from hmi.explain.texts import ProjectTexts, TextSpec, fill
 from hmi.project.diagnosers import diagnosers_of
 from hmi.project.model import Project
 from hmi.project.recovery import recoveries_of
+from hmi.project.texts import ProjectTexts, TextSpec, fill
 from hmi.timefmt import seconds
 
 
@@ -39,7 +39,7 @@ class ExplanationBuilder:
 
     def __init__(self, project: Project, texts: ProjectTexts | None = None):
         self.project = project
-        self.texts = texts or project.extra.get("explanations") or ProjectTexts()
+        self.texts = texts or project.explanations or ProjectTexts()
         self.onsets: dict[str, _Onset] = {}
         self.cache: dict[str, tuple[tuple, Explanation]] = {}
         self.devices = {v.name: (v.device or project.name)

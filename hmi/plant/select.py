@@ -11,10 +11,10 @@ cannot run on Modbus, and that is reported at each variable's file:line:column.
 from __future__ import annotations
 
 from hmi.errors import ProjectError, UsageError
-from hmi.plant.injection import Injection
 from hmi.plant.modbus.address_map import address_diagnostics
 from hmi.plant.modbus.client import URL_HINT, ModbusPlant, ModbusSettings, parse_plant_url
 from hmi.plant.sim.plant import SimPlant
+from hmi.project.injection import Injection
 from hmi.project.model import Project
 
 

@@ -114,7 +114,7 @@ class RecoveryProcedure:
 
 
 def recoveries_of(project: Project) -> tuple[RecoveryProcedure, ...]:
-    return project.extra.get("recovery", ())
+    return project.recovery
 
 
 def parse_recovery(loader: ProjectLoader, constraints: list[Constraint],

@@ -29,7 +29,7 @@ class JournalRecorder:
     def __init__(self, session: Session, journal: Journal, source: str = "hmi"):
         self.session = session
         self.journal = journal
-        self.pending_manual: list[ManualOutput] = []
+        self.pending_manual: list[tuple[ManualOutput, str]] = []  # with who sent it
         self.failure: JournalWriteError | None = None
         self.recovery_status = ""  # the last recovery status journalled (done, failed)
         engine = session.engine
@@ -60,7 +60,7 @@ class JournalRecorder:
             entry["by"] = self.session.origin
         self._append(entry)
         if isinstance(command, ManualOutput) and result.accepted and command.value is not None:
-            self.pending_manual.append(command)
+            self.pending_manual.append((command, self.session.origin))
         for event in self.session.take_alarm_events():  # acknowledgements, journalled now
             self._alarm(event, self.session.origin)
 
@@ -97,7 +97,7 @@ class JournalRecorder:
                               "scan": snapshot.scan, "t": seconds(snapshot.time_us)})
         if self.pending_manual:
             report = snapshot.filter
-            for request in self.pending_manual:
+            for request, origin in self.pending_manual:
                 index = snapshot.layout.outputs.index(request.name)
                 written = snapshot.outputs[index]
                 change = next((c for c in (report.changes if report else ())
@@ -107,10 +107,13 @@ class JournalRecorder:
                 else:
                     by = ", ".join(change.by)
                     outcome = f"refused: written {int(written)} because of {by}"
-                self._append({
+                entry = {
                     "type": "action", "event": f"manual {request.name} "
                     f"{'on' if request.value else 'off'}: filter result", "accepted": True,
-                    "message": outcome, "scan": snapshot.scan, "t": seconds(snapshot.time_us)})
+                    "message": outcome, "scan": snapshot.scan, "t": seconds(snapshot.time_us)}
+                if origin:
+                    entry["by"] = origin
+                self._append(entry)
             self.pending_manual = []
 
     def _alarm(self, event, by: str = "") -> None:
@@ -124,14 +127,32 @@ class JournalRecorder:
             entry["by"] = by
         self._append(entry)
 
-    def close(self) -> None:
+    def on_ui_fault(self, fault) -> None:
+        """An error of the HMI (hmi.ui.containment.UIFault): contained, or fatal."""
+        engine = self.session.engine
+        self._append({
+            "type": "session", "event": "ui-error", "what": fault.what, "fatal": fault.fatal,
+            "message": f"{fault.error}; details in {fault.report}"
+                       + ("" if fault.fatal else "; contained, the scan goes on"),
+            "crash_file": fault.report, "scan": engine.scan, "t": seconds(engine.now)})
+
+    def close(self, abnormal: str | None = None, note: str | None = None) -> None:
+        """The session's last entry: `stop` if it ended as asked, else `abnormal-end` with
+        the reason (never "ended normally" after an error). `note`: it ended as asked, but
+        after errors that were contained (the stop says so, not "normally")."""
         engine = self.session.engine
         self._drain_plant()
         for entry in self.overruns.end(time.monotonic()):
             self._plant(entry)
+        name = engine.project.name
         try:
-            self._append({"type": "session", "event": "stop", "scan": engine.scan,
-                          "t": seconds(engine.now),
-                          "message": f"{engine.project.name}, ended normally"})
+            if abnormal is None:
+                how = f"ended as asked, {note}" if note else "ended normally"
+                self._append({"type": "session", "event": "stop", "scan": engine.scan,
+                              "t": seconds(engine.now), "message": f"{name}, {how}"})
+            else:
+                self._append({"type": "session", "event": "abnormal-end", "scan": engine.scan,
+                              "t": seconds(engine.now),
+                              "message": f"{name}, ended abnormally: {abnormal}"})
         finally:
             self.journal.close()

@@ -7,10 +7,10 @@ priority, newest first)::
     ● ACK            P3  7.920 s  Valve V1: close order blocked — never hold …  ×4
     ○ CLEARED-UNACK  P3  6.000 s  Valve V1: open order blocked — …
 
-The state is a symbol *and* a word; the colour follows the priority (P1 red, P2 and P3
-amber) and only active alarms carry it: a cleared alarm waiting for its acknowledgement is
-grey. ``×4`` counts the returns of a chattering alarm collapsed into one row; ``LATCHED``
-marks an active alarm that stays until a fault reset.
+The state is a symbol *and* a word; the colour of the state and of the priority follows the
+priority (P1 red, P2 and P3 amber) and only active alarms carry it: a cleared alarm waiting
+for its acknowledgement is grey. ``×4`` counts the returns of a chattering alarm collapsed
+into one row; ``LATCHED`` marks an active alarm that stays until a fault reset.
 
 The list is a panel of its own with a height it sets itself (one row per alarm, up to a cap
 that depends on the terminal's height), placed outside the body so the chronogram gives up
@@ -114,7 +114,9 @@ def fitted_row(alarm: Alarm, width: int, device_w: int = 0, time_w: int = 7
     muted = alarm.state == CLEARED_UNACK
     plain = MUTED if muted else Style()
     row.append("  ")
-    row.append(f"P{alarm.priority}", style=MUTED if muted else Style(bold=True))
+    # the priority in its colour too (P1 red, P2-P3 amber; grey once cleared): docs/ui.md
+    row.append(f"P{alarm.priority}", style=MUTED if muted else
+               STYLE[PRIORITY_LEVEL.get(alarm.priority, Level.ATTENTION)])
     row.append(f" {seconds(alarm.raised_us):>{time_w}} s  ", style=MUTED)
     text = alarm.text
     if device_w:
@@ -169,8 +171,8 @@ class AlarmList(TextPanel):
         self.selected: str | None = None  # the selected alarm's key
         self.shelved = 0  # alarms shelved (not listed): said on the border
         self.top = 0  # index of the first row shown
-        self._rows = -1  # lines drawn (alarm rows and the selected alarm's detail)
-        self._alarm_rows = 0
+        self._rows: tuple[int, bool] | None = None  # lines drawn and compact border, as set
+        self._alarm_rows = 0  # of those lines, the alarm rows (then the selected one's line)
         self._drawn: tuple | None = None
 
     def on_mount(self) -> None:
@@ -217,11 +219,12 @@ class AlarmList(TextPanel):
                 detail = detail_lines(selected.text, width - 4)
         self._alarm_rows = rows
         lines = rows + len(detail)
-        if lines != self._rows:
-            self._rows = lines
+        compact = height < SHORT
+        if (lines, compact) != self._rows:
+            self._rows = (lines, compact)  # (a resize may change the border alone)
             # the border: top and bottom lines; on a short screen, the top line only
-            self.set_class(height < SHORT, "-compact")
-            self.styles.height = lines + (1 if height < SHORT else 2)
+            self.set_class(compact, "-compact")
+            self.styles.height = lines + (1 if compact else 2)
         key = (self.alarms, self.selected, rows, width, self.has_focus, tuple(detail))
         if key == self._drawn:
             return

@@ -26,7 +26,9 @@ from hmi.ui.dialogs import ConfirmDialog
 from hmi.ui.fault_dialog import FaultDialog
 from hmi.ui.io_panel import IOPanel
 from hmi.ui.testing import (
+    drain,
     palette,
+    press,
     run_for,
     run_until,
     settle,
@@ -62,7 +64,7 @@ async def select_row(pilot: Pilot, name: str) -> None:
     table = pilot.app.query_one(IOPanel)
     table.focus()
     table.move_cursor(row=table.get_row_index(name))
-    await pilot.pause()
+    await drain(pilot)
 
 
 async def normal(pilot: Pilot) -> None:
@@ -73,13 +75,13 @@ async def normal(pilot: Pilot) -> None:
 async def manual(pilot: Pilot) -> None:
     """Manual mode with the open order forced on, the valve opening under it."""
     await run_for(pilot, 9.5)  # closed, waiting
-    await pilot.press("m")
+    await press(pilot, "m")
     await wait_for_screen(pilot, ConfirmDialog)
-    await pilot.press("y")
+    await press(pilot, "y")
     await wait_for_main(pilot)
     await run_for(pilot, 0.5)
     await select_row(pilot, "O")
-    await pilot.press("1")
+    await press(pilot, "1")
     await settle(pilot)
     await run_for(pilot, 1.2)
 
@@ -87,8 +89,8 @@ async def manual(pilot: Pilot) -> None:
 async def stepping(pilot: Pilot) -> None:
     """Paused mid-opening, then stepped three scans."""
     await run_for(pilot, 1.5)
-    await pilot.press("space")
-    await pilot.press("s", "s", "s")
+    await press(pilot, "space")
+    await press(pilot, "s", "s", "s")
     await settle(pilot)
 
 
@@ -98,9 +100,9 @@ async def fault_f13(pilot: Pilot) -> None:
     not come: fso reconstructed, both orders masked."""
     await run_until(pilot, lambda s: "X1" in s.active_steps, 5, "the opening step")
     await run_for(pilot, 0.8)
-    await pilot.press("f")
+    await press(pilot, "f")
     await wait_for_screen(pilot, FaultDialog)
-    await pilot.press("end", "enter", "enter")  # F13 is the last fault; "0": now
+    await press(pilot, "end", "enter", "enter")  # F13 is the last fault; "0": now
     await wait_for_main(pilot)
     await run_for(pilot, 4.0)
 
@@ -108,10 +110,10 @@ async def fault_f13(pilot: Pilot) -> None:
 async def fault_dialog(pilot: Pilot) -> None:
     """The SIMULATION fault injection dialog, F13 highlighted."""
     await run_for(pilot, 3.0)
-    await pilot.press("f")
+    await press(pilot, "f")
     await wait_for_screen(pilot, FaultDialog)
-    await pilot.press("end")
-    await pilot.pause()
+    await press(pilot, "end")
+    await drain(pilot)
 
 
 async def faulty_program(pilot: Pilot) -> None:
@@ -122,10 +124,10 @@ async def faulty_program(pilot: Pilot) -> None:
 
 async def inject_by_dialog(pilot: Pilot, index: int, delay: str) -> None:
     """SIMULATION: the fault dialog's `index`-th fault, `delay` seconds from now."""
-    await pilot.press("f")
+    await press(pilot, "f")
     await wait_for_screen(pilot, FaultDialog)
-    await pilot.press(*(["down"] * index), "enter")  # the fault; then the delay field
-    await pilot.press("backspace", *delay, "enter")
+    await press(pilot, *(["down"] * index), "enter")  # the fault; then the delay field
+    await press(pilot, "backspace", *delay, "enter")
     await wait_for_main(pilot)
 
 
@@ -139,7 +141,7 @@ async def diagnosis_certain(pilot: Pilot) -> None:
     await inject_by_dialog(pilot, 8, "10")
     await run_until(pilot, decided(("F9",)), 25, "F9 isolated")
     await run_for(pilot, 1.0)
-    await pilot.press("e")
+    await press(pilot, "e")
     await settle(pilot)
 
 
@@ -150,7 +152,7 @@ async def diagnosis_ambiguous(pilot: Pilot) -> None:
     await inject_by_dialog(pilot, 0, "10")
     await run_until(pilot, decided(("F1", "F13")), 25, "the ambiguity {F1, F13}")
     await run_for(pilot, 1.0)
-    await pilot.press("e", "e", "e")
+    await press(pilot, "e", "e", "e")
     await settle(pilot)
 
 
@@ -158,9 +160,9 @@ async def reset_refused(pilot: Pilot) -> None:
     """The fault reset dialog after F1: the diagnoser cannot re-synchronise (fsc=0, fso=0
     match no normal state), so the dialog says what stays and why."""
     await diagnosis_ambiguous_state(pilot)
-    await pilot.press("r")
+    await press(pilot, "r")
     await wait_for_screen(pilot, ConfirmDialog)
-    await pilot.pause()
+    await drain(pilot)
 
 
 async def diagnosis_ambiguous_state(pilot: Pilot) -> None:
@@ -173,12 +175,12 @@ async def manual_refused(pilot: Pilot) -> None:
     """Manual mode, the valve open: the operator asks for the open order, the filter refuses
     it (CSs2: never hold the open order on an open valve) and the answer says so."""
     await run_until(pilot, lambda s: "X2" in s.active_steps, 10, "the valve open")
-    await pilot.press("m")
+    await press(pilot, "m")
     await wait_for_screen(pilot, ConfirmDialog)
-    await pilot.press("y")
+    await press(pilot, "y")
     await wait_for_main(pilot)
     await select_row(pilot, "O")
-    await pilot.press("1")
+    await press(pilot, "1")
     await run_for(pilot, 0.05)
 
 
@@ -188,7 +190,7 @@ async def monitor_fault(pilot: Pilot) -> None:
     await run_until(pilot, lambda s: any(m.detection for m in s.monitors), 5,
                     "the conveyor monitor's fault")
     await run_for(pilot, 0.5)
-    await pilot.press("e")
+    await press(pilot, "e")
     await settle(pilot)
 
 
@@ -197,9 +199,9 @@ async def alarms_80x24(pilot: Pilot) -> None:
     selects the second (active) alarm and acknowledges it: it goes after the unacknowledged
     ones, and the list scrolls to keep it in view."""
     await run_for(pilot, 8.7)
-    await pilot.press("tab")
+    await press(pilot, "tab")
     await wait_until(pilot, lambda: isinstance(pilot.app.focused, AlarmList), "the list")
-    await pilot.press("down", "a")
+    await press(pilot, "down", "a")
     await run_for(pilot, 0.01)
 
 
@@ -208,12 +210,12 @@ async def recovery(pilot: Pilot) -> None:
     the diagnoser and offers the recovery (g); confirmed, the valve closes in recovery mode."""
     await run_until(pilot, lambda s: s.recovery.needed, 20, "recovery needed")
     await palette(pilot, "SIMULATION: repair")
-    await pilot.press("r")
+    await press(pilot, "r")
     await wait_for_screen(pilot, ConfirmDialog)
-    await pilot.press("g")
+    await press(pilot, "g")
     await wait_until(pilot, lambda: pilot.app.screen.id == "recovery-dialog",
                      "the recovery dialog")
-    await pilot.press("y")
+    await press(pilot, "y")
     await wait_for_main(pilot)
     await run_for(pilot, 0.8)
 
