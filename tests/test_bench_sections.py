@@ -6,7 +6,7 @@ from __future__ import annotations
 import os
 import sys
 
-from hmi.bench import goal_line, sections
+from hmi.bench import NAMES, goal_line, sections
 from hmi.bench.engine import engine_rate, session_rate
 from hmi.bench.startup import first_frame
 from hmi.project.loader import load_project
@@ -15,6 +15,10 @@ from tests.conftest import PROJECTS
 
 def test_the_sections_of_issue_18_are_listed():
     assert {"startup", "engine", "campaign", "corrector"} <= set(sections())
+
+
+def test_the_names_the_parser_shows_are_the_sections():
+    assert tuple(sections()) == NAMES
 
 
 def test_first_frame_waits_for_every_marker_and_gives_up_without_them():
