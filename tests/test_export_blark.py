@@ -10,14 +10,13 @@ each file is parsed once, the three in two worker processes.
 
 from __future__ import annotations
 
-import os
 import re
 from concurrent.futures import ProcessPoolExecutor
 
 from hmi.export.build import build
 from hmi.export.st import write_st
 from hmi.project.loader import load_project
-from tests.conftest import PROJECTS
+from tests.conftest import PROJECTS, processes_for_a_test
 
 REQUIRED = ("cispi_valve", "conveyor_robot", "sorting")
 
@@ -43,7 +42,7 @@ def test_the_exports_parse_with_blark():
              for name in REQUIRED}
     for text in texts.values():
         assert "FUNCTION_BLOCK" in text and "VAR_GLOBAL" in text and "AT %IX0.0" in text
-    with ProcessPoolExecutor(max_workers=min(2, os.cpu_count() or 1)) as pool:
+    with ProcessPoolExecutor(max_workers=processes_for_a_test()) as pool:
         errors = dict(zip(texts, pool.map(parse_errors, texts.values()), strict=True))
     assert errors == {name: [] for name in REQUIRED}
 
