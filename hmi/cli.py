@@ -29,7 +29,7 @@ from hmi.timefmt import DURATION_HINT, DurationError, format_duration, parse_dur
 
 MAX_ERRORS_SHOWN = 25
 SUBCOMMANDS = ("check", "run", "sweep", "ui", "serve-plant", "bench", "journal",
-               "diagnose", "campaign", "export")
+               "diagnose", "campaign", "export", "opcua-passwd")
 
 
 def _duration(text: str) -> int:
@@ -135,6 +135,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="print the four levels of every alarm's explanation")
     p.add_argument("--journal", type=Path, metavar="FILE",
                    help="journal file (default: the user's data folder, see plchmi journal)")
+    from hmi.opcua.options import add_arguments as opcua_args
+    opcua_args(p)
 
     p = sub.add_parser("diagnose", help="print the diagnosers' automata and diagnosability")
     project_arg(p)
@@ -199,6 +201,16 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--journal", type=Path, metavar="FILE",
                    help="journal file (default: the user's data folder, see plchmi journal)")
     plant_args(p, "keep trying")
+    opcua_args(p)
+
+    p = sub.add_parser("opcua-passwd", help="add a user to an OPC UA password file",
+                       description="Add (or replace) a user of a password file for "
+                       "--opcua-users: the password is read from the terminal, or from "
+                       "standard input with --stdin, and only a salted hash is stored.")
+    p.add_argument("file", type=Path, help="the password file (created if missing)")
+    p.add_argument("name", help="the user's name")
+    p.add_argument("--stdin", action="store_true",
+                   help="read the password from the first line of standard input")
 
     p = sub.add_parser("serve-plant", help="serve the simulated plant over Modbus TCP")
     project_arg(p)
@@ -492,11 +504,14 @@ def cmd_run(args: argparse.Namespace) -> int:
         from hmi.project.scenarios import find_scenario
         scenario = find_scenario(project, args.scenario)
     duration = args.duration or (scenario.duration_us if scenario else None)
-    if duration is None:
+    from hmi.opcua.options import check_arguments
+    check_arguments(args)
+    if duration is None and args.opcua is None:
         raise UsageError("--for TIME is required (or a --scenario that sets its length)")
-    run_length_notice(duration, args.period or project.scan_period_us)
+    if duration is not None:
+        run_length_notice(duration, args.period or project.scan_period_us)
     engine, injections = make_engine(project, args, scenario.injections if scenario else ())
-    if engine.plant.is_real:
+    if engine.plant.is_real or args.opcua is not None:
         return run_real_time(engine, args, duration)
     controller = Session(engine, args.period)
     collector = RunCollector()
@@ -602,6 +617,8 @@ def cmd_journal(args: argparse.Namespace) -> int:
         for entry in entries:
             text = _field(entry, "text") or _field(entry, "message") or _field(entry, "project")
             key = f" {entry['key']}" if entry.get("key") else ""
+            if isinstance(entry.get("by"), str):  # sent by an OPC UA client
+                text = f"{text} [by {entry['by']}]"
             print(_printable(f"{_field(entry, 'wall')}  scan {_field(entry, 'scan'):>6}  "
                              f"t={_field(entry, 't')}  {_field(entry, 'type'):<7} "
                              f"{_field(entry, 'event')}{key}: {text}"))
@@ -711,8 +728,11 @@ class RunCollector:
             self.first_latch = (reason.scan, reason.time_us, reason.detail)
 
 
-def run_real_time(engine, args: argparse.Namespace, duration_us: int) -> int:
-    """A headless run against a real plant: scans paced and stamped by the wall clock."""
+def run_real_time(engine, args: argparse.Namespace, duration_us: int | None) -> int:
+    """A headless run paced by the wall clock: against a real plant (scans stamped by the
+    wall clock), or serving the cell over OPC UA (--opcua: a simulated plant runs in real
+    time too). Without a duration it runs until interrupted (Ctrl-C, SIGTERM)."""
+    from hmi.opcua.options import start_server
     from hmi.report import run_summary
     from hmi.runio import RunOutputs
     from hmi.session.live import WallClock, run_live_for
@@ -720,11 +740,15 @@ def run_real_time(engine, args: argparse.Namespace, duration_us: int) -> int:
 
     plant = engine.plant
     collector = RunCollector()
-    controller = Session(engine, args.period, clock=WallClock())
+    controller = Session(engine, args.period, clock=WallClock() if plant.is_real else None)
     outputs = None
+    server = None
+    interrupted = False
     try:
         # The journal first, so that the connection attempts (and giving up) are in it.
         outputs = RunOutputs(controller, args.trace, args.journal, "run")
+        server = start_server(controller, args)
+        announce(server, engine.project.name)
         connect_plant(engine, args.connect_timeout or 10_000_000)
 
         def on_scan(snap) -> bool:
@@ -734,24 +758,62 @@ def run_real_time(engine, args: argparse.Namespace, duration_us: int) -> int:
                 return True
             return False
         started = time.perf_counter()
-        runner = run_live_for(controller, duration_us, on_scan)
+        try:
+            with _terminate_as_interrupt():
+                runner = run_live_for(controller, duration_us or MAX_SERVE_US, on_scan)
+        except KeyboardInterrupt:
+            interrupted = True
+            runner = None
         wall = time.perf_counter() - started
         at_end = plant.status  # the link as the run ended, before the stop closes it
     finally:
+        if server is not None:
+            server.stop()
         stop_plant(engine)
         if outputs is not None:
             outputs.close()
     if outputs.failure is not None:
         raise RunFailure(outputs.failure_message())
     last = controller.last
+    if last is None:
+        return 130 if interrupted else 0
     print(run_summary(engine, last, collector, [], wall, trace=outputs.trace,
                       time_kind="real"))
     print(alarm_summary(collector, args.explain))
-    # After the stop: its write of the safe vector is counted like any other request.
-    print(plant_report(plant, at_end, runner.overruns))
-    print(f"Stopped: {plant.message}")
+    if plant.is_real:
+        # After the stop: its write of the safe vector is counted like any other request.
+        print(plant_report(plant, at_end, runner.overruns if runner else 0))
+        print(f"Stopped: {plant.message}")
     print(f"Journal: {outputs.recorder.journal.path}")
     return 0
+
+
+def announce(server, name: str) -> None:
+    """Say where the cell is served (on stderr: a served run's stdout is its summary)."""
+    if server is not None:
+        print(f"plchmi: serving {name} over OPC UA at {server.url}"
+              + (" (operator commands enabled)" if server.options.writable else ""),
+              file=sys.stderr, flush=True)
+
+
+MAX_SERVE_US = 10 * 365 * 24 * 3600 * 1_000_000  # "until interrupted": ten years
+
+
+class _terminate_as_interrupt:
+    """SIGTERM (a service manager stopping the cell) ends a served run like Ctrl-C: the
+    outputs are left safe, the journal is closed and the summary printed."""
+
+    def __enter__(self) -> None:
+        import signal
+        self.previous = signal.signal(signal.SIGTERM, self._raise)
+
+    def __exit__(self, *exc) -> None:
+        import signal
+        signal.signal(signal.SIGTERM, self.previous)
+
+    @staticmethod
+    def _raise(signum, frame) -> None:
+        raise KeyboardInterrupt
 
 
 def stop_plant(engine) -> None:
@@ -801,8 +863,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def cmd_ui(args: argparse.Namespace) -> int:
+    from hmi.opcua.options import check_arguments, start_server
     from hmi.session.session import Session
     from hmi.ui.app import run_app
+    check_arguments(args)
     project = load(args.project, getattr(args, "diagnoser", None))
     engine, injections = make_engine(project, args)
     clock = None
@@ -811,12 +875,17 @@ def cmd_ui(args: argparse.Namespace) -> int:
         clock = WallClock()
     controller = Session(engine, clock=clock)
     recorder = None
+    server = None
     try:
         recorder = open_journal(controller, args.journal, "hmi")
+        server = start_server(controller, args, log_file=True)
+        announce(server, project.name)
         if clock is not None:
             connect_plant(engine, args.connect_timeout)
         return run_app(controller, injected=tuple(injections))
     finally:
+        if server is not None:
+            server.stop()
         if clock is not None:
             stop_plant(engine)
         if recorder is not None:
@@ -877,10 +946,25 @@ def cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_opcua_passwd(args: argparse.Namespace) -> int:
+    from hmi.opcua.users import write_user
+    if args.stdin:
+        password = sys.stdin.readline().rstrip("\r\n")
+    else:
+        import getpass
+        password = getpass.getpass(f"Password for {args.name}: ")
+        if getpass.getpass("Again: ") != password:
+            raise UsageError("the two passwords differ; nothing was written")
+    new = write_user(args.file, args.name, password)
+    print(f"{'Added' if new else 'Replaced'} user {args.name} in {args.file}")
+    return 0
+
+
 COMMANDS = {
     "check": cmd_check, "run": cmd_run, "sweep": _sweep, "ui": cmd_ui,
     "serve-plant": cmd_serve_plant, "bench": cmd_bench, "journal": cmd_journal,
     "diagnose": cmd_diagnose, "campaign": cmd_campaign, "export": cmd_export,
+    "opcua-passwd": cmd_opcua_passwd,
 }
 
 if __name__ == "__main__":

@@ -31,7 +31,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("hmi.explain",),
     ("hmi.session",),
     ("hmi.ui", "hmi.cli", "hmi.bench", "hmi.report", "hmi.diag_report", "hmi.monitor_report",
-     "hmi.sweep", "hmi.runio"),
+     "hmi.sweep", "hmi.runio", "hmi.opcua"),
 )
 # What explain/ may read of engine/: the snapshot and the types it carries.
 SNAPSHOT_TYPES = {"hmi.engine.snapshot", "hmi.engine.commands", "hmi.engine.stopwatch",

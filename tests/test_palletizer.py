@@ -7,6 +7,7 @@ import pytest
 
 from hmi.plant.sim.boxes import MM
 from hmi.plant.sim.palletizer import ACTUATORS, SENSORS, Palletizer
+from tests import plant_steps as steps
 
 MS = 1_000
 S = 1_000_000
@@ -18,23 +19,18 @@ def pal(**params) -> Palletizer:
 
 
 def hold(p: Palletizer, until: int, **orders) -> None:
-    p.write(p.t, {name: bool(orders.get(name)) for name in ACTUATORS})
+    steps.order(p, ACTUATORS, orders)
     while p.t < until:
         p.advance(min(until, p.t + 10 * MS))
 
 
 def hold_until(p: Palletizer, sensor: str, value: bool = True, limit: int = 30 * S,
                **orders) -> int:
-    p.write(p.t, {name: bool(orders.get(name)) for name in ACTUATORS})
-    end = p.t + limit
-    while p.sensors()[sensor] != value:
-        assert p.t < end, f"{sensor} never became {value}"
-        p.advance(p.t + 10 * MS)
-    return p.t
+    return steps.hold_until(p, ACTUATORS, sensor, value, limit, 10 * MS, orders)
 
 
 def damage(p: Palletizer) -> list[str]:
-    return [e.kind for e in p.events if e.damage]
+    return steps.damage(p)
 
 
 def push_one(p: Palletizer) -> None:

@@ -6,6 +6,7 @@ import pytest
 
 from hmi.plant.sim.boxes import MM, Box
 from hmi.plant.sim.sorter import ACTUATORS, SENSORS, SortingCell
+from tests import plant_steps as steps
 
 MS = 1_000
 S = 1_000_000
@@ -18,7 +19,7 @@ def cell(**params) -> SortingCell:
 
 def hold(c: SortingCell, until: int, **orders) -> list[dict[str, bool]]:
     """Hold these orders (the others off) until `until`, sampling sensors every 5 ms."""
-    c.write(c.t, {name: bool(orders.get(name)) for name in ACTUATORS})
+    steps.order(c, ACTUATORS, orders)
     samples = []
     while c.t < until:
         c.advance(min(until, c.t + 5 * MS))
@@ -28,16 +29,11 @@ def hold(c: SortingCell, until: int, **orders) -> list[dict[str, bool]]:
 
 def hold_until(c: SortingCell, sensor: str, value: bool = True, limit: int = 20 * S,
                **orders) -> int:
-    c.write(c.t, {name: bool(orders.get(name)) for name in ACTUATORS})
-    end = c.t + limit
-    while c.sensors()[sensor] != value:
-        assert c.t < end, f"{sensor} never became {value}"
-        c.advance(c.t + 5 * MS)
-    return c.t
+    return steps.hold_until(c, ACTUATORS, sensor, value, limit, 5 * MS, orders)
 
 
 def damage(c: SortingCell) -> list[str]:
-    return [e.kind for e in c.events if e.damage]
+    return steps.damage(c)
 
 
 def load(c: SortingCell) -> None:

@@ -6,5 +6,6 @@
     journal_recorder.py JournalRecorder: operator actions and alarm transitions to the
                         journal, listening to a Session
 
-What the UI, the command line and a future OPC UA server all drive (docs/architecture.md).
+What the UI, the command line and the OPC UA server (hmi/opcua/) all drive
+(docs/architecture.md).
 """

@@ -29,7 +29,7 @@ class JournalRecorder:
     def __init__(self, session: Session, journal: Journal, source: str = "hmi"):
         self.session = session
         self.journal = journal
-        self.pending_manual: list[ManualOutput] = []
+        self.pending_manual: list[tuple[ManualOutput, str]] = []  # with who sent it
         self.failure: JournalWriteError | None = None
         engine = session.engine
         journal.append({"type": "session", "event": "start", "source": source,
@@ -53,13 +53,15 @@ class JournalRecorder:
     def on_command(self, command: Command, result: CommandResult,
                    snapshot: Snapshot | None) -> None:
         engine = self.session.engine
-        self._append({
-            "type": "action", "event": describe(command), "accepted": result.accepted,
-            "message": result.message, "scan": engine.scan, "t": seconds(engine.now)})
+        entry = {"type": "action", "event": describe(command), "accepted": result.accepted,
+                 "message": result.message, "scan": engine.scan, "t": seconds(engine.now)}
+        if self.session.origin:
+            entry["by"] = self.session.origin
+        self._append(entry)
         if isinstance(command, ManualOutput) and result.accepted and command.value is not None:
-            self.pending_manual.append(command)
+            self.pending_manual.append((command, self.session.origin))
         for event in self.session.take_alarm_events():  # acknowledgements, journalled now
-            self._alarm(event)
+            self._alarm(event, self.session.origin)
 
     def on_overrun(self, total: int) -> None:
         engine = self.session.engine
@@ -86,7 +88,7 @@ class JournalRecorder:
             self._alarm(event)
         if self.pending_manual:
             report = snapshot.filter
-            for request in self.pending_manual:
+            for request, origin in self.pending_manual:
                 index = snapshot.layout.outputs.index(request.name)
                 written = snapshot.outputs[index]
                 change = next((c for c in (report.changes if report else ())
@@ -96,19 +98,24 @@ class JournalRecorder:
                 else:
                     by = ", ".join(change.by)
                     outcome = f"refused: written {int(written)} because of {by}"
-                self._append({
+                entry = {
                     "type": "action", "event": f"manual {request.name} "
                     f"{'on' if request.value else 'off'}: filter result", "accepted": True,
-                    "message": outcome, "scan": snapshot.scan, "t": seconds(snapshot.time_us)})
+                    "message": outcome, "scan": snapshot.scan, "t": seconds(snapshot.time_us)}
+                if origin:
+                    entry["by"] = origin
+                self._append(entry)
             self.pending_manual = []
 
-    def _alarm(self, event) -> None:
+    def _alarm(self, event, by: str = "") -> None:
         entry = {
             "type": "alarm", "event": event.event, "key": event.key, "state": event.state,
             "severity": event.severity, "text": event.text, "returns": event.returns,
             "scan": event.scan, "t": seconds(event.time_us)}
         if getattr(event, "note", ""):
             entry["message"] = event.note
+        if by:
+            entry["by"] = by
         self._append(entry)
 
     def close(self) -> None:

@@ -1,6 +1,6 @@
 """A session: the engine, its explanations and alarms, and the run state, behind one door.
 
-:class:`Session` is what the UI, the headless commands and a future OPC UA server talk to.
+:class:`Session` is what the UI, the headless commands and the OPC UA server talk to.
 It owns the engine, the explanation builder and the alarm list, and the run state (running,
 paused, stepping); every operator action enters through :meth:`Session.command` (listeners,
 such as the journal, hear each one with its result). Each scan is the engine's core
@@ -83,6 +83,7 @@ class Session:
         self.last: Snapshot | None = None  # the last scan, explained
         self._pending_alarm_events: list[AlarmEvent] = []  # acknowledgements between scans
         self.listeners: list[Listener] = []
+        self.origin = ""  # who sent the command being carried out ("": the cell's operator)
         self.scan_listeners: list[Callable[[Snapshot], None]] = []
         # Told of each scan overrun (a real-time runner more than a period late), for the
         # journal; called from the scan thread with the runner's overrun count.
@@ -94,8 +95,11 @@ class Session:
             return self.clock()
         return 0 if not self.engine.scan else self.engine.now + self.period_us
 
-    def command(self, command: Command) -> CommandResult:
+    def command(self, command: Command, origin: str = "") -> CommandResult:
+        """Carry out one operator command; `origin` says who sent it when it is not the
+        cell's own operator (an OPC UA client: "opcua:NAME"), for the journal."""
         with self.lock:
+            self.origin = origin
             match command:
                 case Pause():
                     self.state.running = False

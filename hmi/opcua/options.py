@@ -1,0 +1,201 @@
+"""--opcua and its companions: from the command line to a running server.
+
+Kept apart from server.py so that the command line can check every option (and say how to
+install asyncua) before anything imports asyncua or opens a plant.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from hmi.errors import UsageError
+from hmi.opcua import NEEDS_USERS
+
+if TYPE_CHECKING:
+    from hmi.opcua.server import CellServer
+    from hmi.session.session import Session
+
+DEFAULT_URL = "opc.tcp://127.0.0.1:4840"
+_URL = re.compile(r"^opc\.tcp://(?P<host>\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9.-]+)(?::(?P<port>[0-9]{1,5}))?/?$")
+MAX_TRUSTED = 100
+
+
+@dataclass(frozen=True)
+class Endpoint:
+    host: str
+    port: int
+
+
+def parse_endpoint(text: str) -> Endpoint:
+    """`opc.tcp://HOST[:PORT]` (port 4840 by default)."""
+    match = _URL.match(text)
+    if match is None:
+        raise UsageError(f"--opcua {text!r}: expected opc.tcp://HOST:PORT, e.g. {DEFAULT_URL}")
+    port = int(match["port"]) if match["port"] else 4840
+    if not 1 <= port <= 65535:
+        raise UsageError(f"--opcua {text!r}: port {port} is not a TCP port (1 to 65535)")
+    host = match["host"].strip("[]")
+    return Endpoint(host, port)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    group = p.add_argument_group("OPC UA server (docs/opcua.md; needs pip install "
+                                 "'plchmi[opcua]')")
+    group.add_argument("--opcua", nargs="?", const=DEFAULT_URL, metavar="opc.tcp://HOST:PORT",
+                       help=f"serve the cell over OPC UA (default address {DEFAULT_URL}; "
+                       "another host is explicit)")
+    group.add_argument("--opcua-writable", action="store_true",
+                       help="expose the operator commands as methods (acknowledge, fault "
+                       "reset, manual requests, policy); needs --opcua-users or "
+                       "--opcua-trust")
+    group.add_argument("--opcua-users", type=Path, metavar="FILE",
+                       help="password file of the users who may send commands "
+                       "(plchmi opcua-passwd FILE NAME adds one)")
+    group.add_argument("--opcua-trust", action="append", type=Path, default=[],
+                       metavar="CERT", help="trust this client certificate (DER or PEM) as "
+                       "a user named after its file (repeatable)")
+    group.add_argument("--opcua-allow-real-plant", action="store_true",
+                       help="permit --opcua-writable on a real plant")
+    group.add_argument("--opcua-interval", metavar="TIME",
+                       help="publishing interval (default: every scan)")
+    group.add_argument("--opcua-cert", type=Path, metavar="CERT",
+                       help="the server's certificate (DER); with --opcua-key. Default with "
+                       "users: a self-signed one kept in the data folder")
+    group.add_argument("--opcua-key", type=Path, metavar="KEY",
+                       help="the server's private key (PEM)")
+
+
+def check_arguments(args: argparse.Namespace) -> None:
+    """Options that need --opcua, or each other, before anything starts."""
+    url = getattr(args, "opcua", None)
+    companions = [name for name, given in (
+        ("--opcua-writable", args.opcua_writable), ("--opcua-users", args.opcua_users),
+        ("--opcua-trust", args.opcua_trust),
+        ("--opcua-allow-real-plant", args.opcua_allow_real_plant),
+        ("--opcua-interval", args.opcua_interval), ("--opcua-cert", args.opcua_cert),
+        ("--opcua-key", args.opcua_key)) if given]
+    if url is None:
+        if companions:
+            raise UsageError(f"{', '.join(companions)} without --opcua")
+        return
+    parse_endpoint(url)
+    if (args.opcua_cert is None) != (args.opcua_key is None):
+        raise UsageError("--opcua-cert and --opcua-key go together")
+    if args.opcua_writable and not (args.opcua_users or args.opcua_trust):
+        raise UsageError(NEEDS_USERS)
+    if len(args.opcua_trust) > MAX_TRUSTED:
+        raise UsageError(f"--opcua-trust: at most {MAX_TRUSTED} certificates")
+    from hmi.opcua import require
+    require()
+
+
+def start_server(session: Session, args: argparse.Namespace, log_file: bool = False
+                 ) -> CellServer | None:
+    """The cell's OPC UA server, started, if --opcua was given (None otherwise).
+
+    asyncua's own log is silenced (its notices are for its developers). The server's
+    failures go to stderr, or with `log_file` (the HMI: stderr is the screen) to
+    opcua/server.log in the project's data folder."""
+    if getattr(args, "opcua", None) is None:
+        return None
+    _route_logs(session.project.name, log_file)
+    from hmi.opcua.server import CellServer, ServeOptions
+    from hmi.opcua.users import Users, read_password_file
+    from hmi.timefmt import DURATION_HINT, DurationError, parse_duration
+
+    endpoint = parse_endpoint(args.opcua)
+    interval = None
+    if args.opcua_interval:
+        try:
+            interval = parse_duration(args.opcua_interval)
+        except DurationError as exc:
+            raise UsageError(f"--opcua-interval {args.opcua_interval!r} {exc.reason} "
+                             f"(expected {DURATION_HINT})") from None
+        if interval <= 0:
+            raise UsageError("--opcua-interval must be longer than zero")
+    passwords = read_password_file(args.opcua_users) if args.opcua_users else {}
+    certificates = {path.stem: _certificate(path) for path in args.opcua_trust}
+    cert, key = args.opcua_cert, args.opcua_key
+    if cert is None and (passwords or certificates):
+        from hmi.explain.journal import data_folder, safe_file_name
+        folder = data_folder() / safe_file_name(session.project.name) / "opcua"
+        cert, key = server_certificate(folder, session.project.name, endpoint.host)
+    options = ServeOptions(host=endpoint.host, port=endpoint.port,
+                           writable=args.opcua_writable,
+                           users=Users(passwords, certificates),
+                           allow_real_plant=args.opcua_allow_real_plant,
+                           interval_us=interval, certificate=cert, private_key=key)
+    server = CellServer(session, options)
+    server.start()
+    return server
+
+
+def _route_logs(project_name: str, log_file: bool) -> None:
+    import logging
+
+    from hmi.explain.journal import data_folder, safe_file_name
+    library = logging.getLogger("asyncua")
+    library.propagate = False
+    ours = logging.getLogger("hmi.opcua")
+    ours.propagate = False
+    for logger in (library, ours):  # once per process, whatever ran before
+        for old in list(logger.handlers):
+            logger.removeHandler(old)
+    library.addHandler(logging.NullHandler())
+    ours.setLevel(logging.WARNING)
+    if log_file:
+        folder = data_folder() / safe_file_name(project_name) / "opcua"
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            handler: logging.Handler = logging.FileHandler(folder / "server.log",
+                                                           encoding="utf-8")
+        except OSError:
+            handler = logging.NullHandler()
+    else:
+        handler = logging.StreamHandler()
+    handler.setFormatter(logging.Formatter("%(asctime)s plchmi opcua: %(message)s"))
+    ours.addHandler(handler)
+
+
+def _certificate(path: Path) -> bytes:
+    """A trusted client certificate as DER bytes (the file may be DER or PEM)."""
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise UsageError(f"--opcua-trust {path}: cannot be read ({exc.strerror})") from None
+    from cryptography import x509
+    from cryptography.hazmat.primitives.serialization import Encoding
+    try:
+        cert = (x509.load_pem_x509_certificate(data) if data.lstrip().startswith(b"-----")
+                else x509.load_der_x509_certificate(data))
+    except ValueError:
+        raise UsageError(f"--opcua-trust {path}: not an X.509 certificate (DER or PEM)"
+                         ) from None
+    return cert.public_bytes(Encoding.DER)
+
+
+def server_certificate(folder: Path, project_name: str, host: str) -> tuple[Path, Path]:
+    """The server's self-signed certificate and key, made once and kept in `folder` (the
+    data folder: clients trust it once): with it, clients encrypt passwords on the way."""
+    import asyncio
+
+    from asyncua.crypto.cert_gen import setup_self_signed_certificate
+    from cryptography.x509.oid import ExtendedKeyUsageOID
+
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        os.chmod(folder, 0o700)
+    except OSError as exc:
+        raise UsageError(f"{folder}: cannot keep the server's certificate there "
+                         f"({exc.strerror})") from None
+    key, cert = folder / "server-key.pem", folder / "server-cert.der"
+    asyncio.run(setup_self_signed_certificate(
+        key, cert, f"urn:plchmi:{project_name}", host if host != "0.0.0.0" else "localhost",
+        [ExtendedKeyUsageOID.SERVER_AUTH], {"commonName": f"plchmi {project_name}"}))
+    os.chmod(key, 0o600)
+    return cert, key

@@ -1,0 +1,557 @@
+"""The OPC UA server of one cell (asyncua), fed by a Session's snapshots.
+
+It runs in a thread of its own with its own event loop, so the scan thread never waits for
+it: the scan listener only keeps a reference to the newest snapshot (and the alarm events
+of each scan, so none is lost when the publisher skips a snapshot). The publisher wakes at
+the publishing interval, reads the newest snapshot and writes the variables whose value
+changed, stamped with the scan's time (SourceTimestamp), then sends the condition events.
+
+Operator commands from OPC UA clients (only with ``writable``) are methods that call
+``Session.command`` — the HMI's door, where the journal listens — from a worker thread, with
+the client's identity as the command's origin; the engine checks them as it checks the HMI's
+(manual orders still go through the filter).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import contextvars
+import copy
+import logging
+import threading
+import time
+import uuid
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+from typing import Any
+
+from asyncua import Server, ua
+from asyncua.crypto.permission_rules import SimpleRoleRuleset, User, UserRole
+
+from hmi.engine.commands import (
+    Acknowledge,
+    ChoosePolicy,
+    Command,
+    CommandResult,
+    FaultReset,
+    ManualOutput,
+    SetMode,
+    SetPolicy,
+)
+from hmi.engine.snapshot import Snapshot
+from hmi.errors import UsageError
+from hmi.opcua import NEEDS_USERS
+from hmi.opcua.conditions import ConditionTracker, ConditionView
+from hmi.opcua.model import BOOL, DOUBLE, STRING, STRINGS, UINT, AddressModel, build_model
+from hmi.opcua.users import Identity, Users
+from hmi.session.session import Session
+
+log = logging.getLogger("hmi.opcua")
+
+VARIANT = {BOOL: ua.VariantType.Boolean, STRING: ua.VariantType.String,
+           STRINGS: ua.VariantType.String, DOUBLE: ua.VariantType.Double,
+           UINT: ua.VariantType.UInt64}
+DEFAULT = {BOOL: False, STRING: "", STRINGS: [], DOUBLE: 0.0, UINT: 0}
+# UNECE codes (OPC UA Part 8, EUInformation.UnitId) of the units the model uses.
+UNITS = {"s": (5457219, "s", "second"), "ms": (4405047, "ms", "millisecond")}
+UNECE_URI = "http://www.opcfoundation.org/UA/units/un/cefact"
+BUILT_IN = {ua.NodeId(ua.ObjectIds.UtcTime): ua.VariantType.DateTime,
+            ua.NodeId(ua.ObjectIds.Duration): ua.VariantType.Double}
+
+IDLE_S = 0.25  # the publisher's longest sleep without a scan
+
+# The identity of the client whose request is being served: set by the permission check
+# that asyncua runs before each request, read by the method callbacks it then awaits.
+_caller: contextvars.ContextVar[User | None] = contextvars.ContextVar("opcua_caller",
+                                                                       default=None)
+
+
+@dataclass(frozen=True)
+class ServeOptions:
+    host: str = "127.0.0.1"
+    port: int = 4840
+    writable: bool = False
+    users: Users = field(default_factory=Users)
+    allow_real_plant: bool = False
+    interval_us: int | None = None  # publishing interval (None: the scan period)
+    certificate: Path | None = None  # the server's own certificate and key (DER / PEM)
+    private_key: Path | None = None
+
+    @property
+    def url(self) -> str:
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"opc.tcp://{host}:{self.port}"
+
+
+class _Rules(SimpleRoleRuleset):
+    """asyncua's role rules, plus: remember who sent the request being served."""
+
+    def check_validity(self, user: Any, action_type_id: Any, body: Any) -> bool:
+        _caller.set(user)
+        return bool(super().check_validity(user, action_type_id, body))
+
+
+class _UserManager:
+    def __init__(self, users: Users):
+        self.users = users
+
+    def get_user(self, iserver: Any, username: str | None = None, password: str | None = None,
+                 certificate: Any = None) -> User | None:
+        der = certificate if isinstance(certificate, bytes | None) else None
+        identity = self.users.check(username, password, der)
+        if identity is None:
+            log.warning("OPC UA session refused: wrong credentials for %r", username)
+            return None
+        user = User(role=UserRole.User, name=identity.name)
+        user.identity = identity  # type: ignore[attr-defined]
+        return user
+
+
+def _identity(user: User | None) -> Identity:
+    found = getattr(user, "identity", None)
+    return found if isinstance(found, Identity) else Identity(None, "anonymous")
+
+
+class CellServer:
+    """One cell as an OPC UA server. `start()` returns once it listens (or raises)."""
+
+    def __init__(self, session: Session, options: ServeOptions):
+        self.session = session
+        self.options = options
+        engine = session.engine
+        if options.writable and engine.plant.is_real and not options.allow_real_plant:
+            raise UsageError("--opcua-writable on a real plant: OPC UA clients could then "
+                             "drive it; refused unless --opcua-allow-real-plant says so")
+        if options.writable and not (options.users.passwords or options.users.certificates):
+            raise UsageError(NEEDS_USERS)
+        self.model: AddressModel = build_model(session.project, engine.layout)
+        self.interval_s = (options.interval_us or session.period_us) / 1e6
+        self._latest: Snapshot | None = None
+        self._batches: deque[tuple[tuple[Any, ...], tuple[Any, ...]]] = deque()
+        self._thread: threading.Thread | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._stop: asyncio.Event | None = None
+        self._wake: asyncio.Event | None = None
+        self._due = 0.0  # monotonic time from which the next scan wakes the publisher
+        self._ready = threading.Event()
+        self._failure: BaseException | None = None
+        self.tracker = ConditionTracker()
+        self.published = 0  # snapshots published (for tests and the bench)
+        self.published_scan = -1  # the scan of the last snapshot published
+        self.events_sent = 0
+        self.errors = 0  # publishes that failed
+
+    # -- the scan thread's side: cheap, never waits -----------------------------------------
+
+    def on_scan(self, snapshot: Snapshot) -> None:
+        if snapshot.alarm_events:
+            self._batches.append((snapshot.alarm_events, snapshot.alarms))
+        self._latest = snapshot
+        # Wake the publisher right after a scan, when the scan thread has the most of a
+        # period ahead of it: the two then rarely want the GIL at the same moment.
+        now = time.monotonic()
+        if now >= self._due and self._loop is not None and self._wake is not None:
+            self._due = now + self.interval_s * 0.9
+            with contextlib.suppress(RuntimeError):  # the loop is closing
+                self._loop.call_soon_threadsafe(self._wake.set)
+
+    # -- life cycle ---------------------------------------------------------------------------
+
+    def start(self, timeout: float = 60.0) -> None:
+        self._thread = threading.Thread(target=self._run, name="plchmi-opcua", daemon=True)
+        self._thread.start()
+        if not self._ready.wait(timeout):
+            raise RuntimeError(f"the OPC UA server did not start within {timeout:g} s")
+        if self._failure is not None:
+            raise self._failure
+        self.session.scan_listeners.append(self.on_scan)
+
+    def stop(self, timeout: float = 10.0) -> None:
+        if self.on_scan in self.session.scan_listeners:
+            self.session.scan_listeners.remove(self.on_scan)
+        loop, stop, wake = self._loop, self._stop, self._wake
+        if loop is not None and stop is not None and wake is not None:
+            with contextlib.suppress(RuntimeError):  # the loop already ended
+                loop.call_soon_threadsafe(stop.set)
+                loop.call_soon_threadsafe(wake.set)
+        if self._thread is not None:
+            self._thread.join(timeout)
+
+    @property
+    def url(self) -> str:
+        return self.options.url
+
+    def _run(self) -> None:
+        try:
+            asyncio.run(self._main())
+        except BaseException as exc:  # reported to start(), or logged once running
+            if not self._ready.is_set():
+                self._failure = exc
+                self._ready.set()
+            else:
+                log.exception("the OPC UA server stopped on an error")
+
+    async def _main(self) -> None:
+        self._loop = asyncio.get_running_loop()
+        self._stop = asyncio.Event()
+        self._wake = asyncio.Event()
+        server = await self._build()
+        try:
+            await server.start()
+        except OSError as exc:
+            raise UsageError(f"--opcua {self.url}: cannot listen there ({exc.strerror or exc})"
+                             ) from None
+        self._ready.set()
+        try:
+            while not self._stop.is_set():
+                # Woken by a scan (on_scan), by stop(), or at least every IDLE_S to follow
+                # the run state of a cell that makes no scan (paused).
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(self._wake.wait(), IDLE_S)
+                self._wake.clear()
+                try:
+                    await self.publish()
+                except Exception:  # one bad publish must not end the server
+                    self.errors += 1
+                    if self.errors == 1:
+                        log.exception("publishing to OPC UA failed (further failures are "
+                                      "counted, not logged)")
+        finally:
+            await server.stop()
+
+    # -- the address space --------------------------------------------------------------------
+
+    async def _build(self) -> Server:
+        self.server = server = Server(user_manager=_UserManager(self.options.users))
+        server.iserver.bind_condition_methods = True  # ConditionRefresh replays our alarms
+        await server.init()
+        server.set_server_name(f"plchmi {self.model.cell}")
+        server.set_endpoint(self.url)
+        await server.set_application_uri(f"urn:plchmi:{self.model.cell}")
+        policies = [ua.SecurityPolicyType.NoSecurity]
+        if self.options.certificate and self.options.private_key:
+            await server.load_certificate(str(self.options.certificate))
+            await server.load_private_key(str(self.options.private_key))
+            policies += [ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt,
+                         ua.SecurityPolicyType.Basic256Sha256_Sign]
+        server.set_security_policy(policies, permission_ruleset=_Rules())
+        tokens: list[type] = [ua.AnonymousIdentityToken]
+        if self.options.users.passwords:
+            tokens.append(ua.UserNameIdentityToken)
+        if self.options.users.certificates:
+            tokens.append(ua.X509IdentityToken)
+        server.set_identity_tokens(tokens)
+        self.ns = await server.register_namespace(f"urn:plchmi:{self.model.cell}")
+        await self._build_nodes(server)
+        await self._build_alarms(server)
+        if self.options.writable:
+            await self._build_commands(server)
+        return server
+
+    def _nodeid(self, path: tuple[str, ...]) -> ua.NodeId:
+        return ua.NodeId(".".join((self.model.cell, *path)), self.ns)
+
+    async def _build_nodes(self, server: Server) -> None:
+        ns = self.ns
+        self.cell = await server.nodes.objects.add_object(self._nodeid(()),
+                                                          ua.QualifiedName(self.model.cell, ns))
+        await self.cell.write_attribute(ua.AttributeIds.Description, ua.DataValue(
+            ua.Variant(ua.LocalizedText(self.model.description), ua.VariantType.LocalizedText)))
+        self.objects: dict[tuple[str, ...], Any] = {(): self.cell}
+        for folder in self.model.folders:
+            parent = self.objects[folder.path[:-1]]
+            node = await parent.add_object(self._nodeid(folder.path),
+                                           ua.QualifiedName(folder.path[-1], ns))
+            await _describe(node, folder.description)
+            self.objects[folder.path] = node
+        self.points: list[tuple[ua.NodeId, Any, ua.VariantType, bool, list[Any]]] = []
+        waiting = ua.StatusCode(ua.StatusCodes.BadWaitingForInitialData)
+        for point in self.model.points:
+            parent = self.objects[point.path[:-1]]
+            vtype = VARIANT[point.kind]
+            node = await parent.add_variable(
+                self._nodeid(point.path), ua.QualifiedName(point.name, ns),
+                ua.Variant(DEFAULT[point.kind], vtype), datatype=ua.NodeId(vtype.value))
+            if point.kind == STRINGS:
+                await node.write_value_rank(1)
+                await node.write_array_dimensions([0])
+            await _describe(node, point.description)
+            if point.unit:
+                code, short, long_name = UNITS[point.unit]
+                await node.add_property(
+                    ua.NodeId(f"{node.nodeid.Identifier}.EngineeringUnits", ns),
+                    ua.QualifiedName("EngineeringUnits", 0),
+                    ua.EUInformation(NamespaceUri=UNECE_URI, UnitId=code,
+                                     DisplayName=ua.LocalizedText(short),
+                                     Description=ua.LocalizedText(long_name)))
+            await server.write_attribute_value(node.nodeid, ua.DataValue(StatusCode=waiting))
+            self.points.append((node.nodeid, point.read, vtype, point.from_plant, [_UNSET]))
+        # The run state is the session's, not a scan's: a paused cell makes no snapshot, and
+        # a SCADA must still learn that its values stopped moving.
+        status = self.objects[("Status",)]
+        self.run_state = await status.add_variable(
+            self._nodeid(("Status", "RunState")), ua.QualifiedName("RunState", ns),
+            self.session.state.label, datatype=ua.NodeId(ua.VariantType.String.value))
+        await _describe(self.run_state, "running, paused or stepping (a paused cell's values "
+                        "stay as the last scan left them)")
+        self._run_state = self.session.state.label
+
+    # -- publishing ---------------------------------------------------------------------------
+
+    async def publish(self) -> None:
+        """Write what changed since the last publish, then send the condition events."""
+        batches = []
+        while self._batches:
+            batches.append(self._batches.popleft())
+        state = self.session.state.label
+        if state != self._run_state:
+            self._run_state = state
+            now = datetime.now(UTC)
+            await self.server.iserver.aspace.write_attribute_value(
+                self.run_state.nodeid, ua.AttributeIds.Value,
+                ua.DataValue(ua.Variant(state, ua.VariantType.String), SourceTimestamp=now,
+                             ServerTimestamp=now))
+        snapshot = self._latest
+        if snapshot is None:
+            return
+        if snapshot is not self._published:
+            self._published = snapshot
+            stamp = self._stamp(snapshot.time_us)
+            now = datetime.now(UTC)
+            write = self.server.iserver.aspace.write_attribute_value
+            connected = snapshot.plant.connected
+            for nodeid, read, vtype, from_plant, last in self.points:
+                try:
+                    value = read(snapshot)
+                except Exception:  # a value this run does not have (diagnosis off, ...)
+                    value = _BAD
+                stale = from_plant and not connected
+                if (value, stale) == last[0]:
+                    continue
+                last[0] = (value, stale)
+                if value is _BAD:
+                    dv = ua.DataValue(StatusCode=ua.StatusCode(ua.StatusCodes.BadNoData),
+                                      SourceTimestamp=stamp, ServerTimestamp=now)
+                else:
+                    # A plant that does not answer: the last value read, marked uncertain.
+                    dv = ua.DataValue(ua.Variant(value, vtype), StatusCode=_STALE if stale
+                                      else _GOOD, SourceTimestamp=stamp, ServerTimestamp=now)
+                await write(nodeid, ua.AttributeIds.Value, dv)
+            self.published += 1
+            self.published_scan = snapshot.scan
+        for view in self.tracker.update(batches, snapshot.alarms, snapshot.time_us):
+            await self._send(view)
+
+    _published: Snapshot | None = None
+    _epoch: datetime | None = None
+
+    def _stamp(self, time_us: int) -> datetime:
+        """The wall time of a scan: the run's time (virtual or the wall clock's) from the
+        wall time of the first scan this server saw."""
+        if self._epoch is None:
+            self._epoch = datetime.now(UTC) - timedelta(microseconds=time_us)
+        return self._epoch + timedelta(microseconds=time_us)
+
+    # -- alarms as Part 9 conditions ----------------------------------------------------------
+
+    async def _build_alarms(self, server: Server) -> None:
+        ns = self.ns
+        self.alarm_type = await server.create_custom_event_type(
+            ns, "PlchmiAlarmType", ua.ObjectIds.AlarmConditionType,
+            [("Why", ua.VariantType.String), ("Consequences", ua.VariantType.String),
+             ("Policies", ua.VariantType.String), ("Priority", ua.VariantType.String),
+             ("AlarmKind", ua.VariantType.String), ("Transition", ua.VariantType.String),
+             ("Returns", ua.VariantType.UInt32), ("Chattering", ua.VariantType.Boolean),
+             ("LatchedUntilReset", ua.VariantType.Boolean)])
+        await _describe(self.alarm_type, "A plchmi alarm (ISA-18.2): Message is level 1 of "
+                        "its explanation; Why, Consequences and Policies the other levels")
+        generator = await server.get_event_generator(self.alarm_type, server.nodes.server)
+        self._template = generator.event
+        self.conditions: dict[str, Any] = {}  # key -> the condition's event object
+        self.condition_keys: dict[ua.NodeId, str] = {}
+        self.event_ids: dict[str, deque[bytes]] = {}
+        self.alarms_folder = await self.cell.add_object(self._nodeid(("Alarms",)),
+                                                        ua.QualifiedName("Alarms", ns))
+        await _describe(self.alarms_folder, "One condition per alarm the cell has raised; "
+                        "events come from the Server object")
+        server.iserver.isession.add_method_callback(
+            ua.NodeId(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge), self._acknowledge)
+
+    async def _condition(self, view: ConditionView) -> Any:
+        event = self.conditions.get(view.key)
+        if event is not None:
+            return event
+        node = await self.alarms_folder.add_object(
+            self._nodeid(("Alarms", view.key)), ua.QualifiedName(view.key, self.ns))
+        await _describe(node, view.message)
+        event = copy.copy(self._template)
+        # asyncua types some fields by a data type's NodeId (UtcTime, Duration), which its
+        # Variant cannot encode once the field has a value: use the built-in types.
+        event.data_types = {name: BUILT_IN.get(t, t) if isinstance(t, ua.NodeId) else t
+                            for name, t in self._template.data_types.items()}
+        event.NodeId = node.nodeid
+        source = self.objects.get(self.model.device_path(view.device), self.cell)
+        event.SourceNode = source.nodeid
+        event.SourceName = view.device or self.model.cell
+        event.ConditionName = view.key
+        event.ConditionClassId = ua.NodeId(ua.ObjectIds.ProcessConditionClassType)
+        event.ConditionClassName = ua.LocalizedText("Process")
+        event.BranchId = ua.NodeId()
+        self.conditions[view.key] = event
+        self.condition_keys[node.nodeid] = view.key
+        self.event_ids[view.key] = deque(maxlen=16)
+        return event
+
+    async def _send(self, view: ConditionView) -> None:
+        event = await self._condition(view)
+        stamp = self._stamp(view.time_us)
+        event.EventId = uuid.uuid4().bytes
+        self.event_ids[view.key].append(event.EventId)
+        event.Time = stamp
+        event.ReceiveTime = datetime.now(UTC)
+        event.Message = ua.LocalizedText(view.message)
+        event.Severity = view.severity
+        event.Retain = view.retain
+        event.Quality = ua.StatusCode()
+        event.Comment = ua.LocalizedText(view.comment)
+        event.ClientUserId = view.user
+        _two_state(event, "EnabledState", True, "Enabled", "Disabled", stamp)
+        _two_state(event, "ActiveState", view.active, "Active", "Inactive", stamp)
+        _two_state(event, "AckedState", view.acked, "Acknowledged", "Unacknowledged", stamp)
+        for name, value in (("Why", view.why), ("Consequences", view.consequences),
+                            ("Policies", view.policies), ("Priority", view.priority),
+                            ("AlarmKind", view.kind), ("Transition", view.transition),
+                            ("Returns", view.returns), ("Chattering", view.chattering),
+                            ("LatchedUntilReset", view.latched)):
+            setattr(event, name, value)
+        await self.server.iserver.subscription_service.trigger_event(event)
+        self.events_sent += 1
+
+    async def _acknowledge(self, parent: ua.NodeId, event_id: ua.Variant,
+                           comment: ua.Variant) -> ua.StatusCode:
+        """Part 9 Acknowledge on a condition: the session's Acknowledge, journalled with the
+        client's identity."""
+        who = _identity(_caller.get())
+        denied = self._denied(who)
+        if denied is not None:
+            return denied
+        key = self.condition_keys.get(parent)
+        if key is None:
+            return ua.StatusCode(ua.StatusCodes.BadNodeIdUnknown)
+        if _value(event_id) not in self.event_ids.get(key, ()):
+            return ua.StatusCode(ua.StatusCodes.BadEventIdUnknown)
+        text = _value(comment)
+        note = text.Text if isinstance(text, ua.LocalizedText) else ""
+        self.tracker.acknowledged_by(key, who.name or "", note or "")
+        result = await self._command(Acknowledge(key), who, note or "")
+        if not result.accepted:
+            self.tracker.acks.pop(key, None)
+            return ua.StatusCode(ua.StatusCodes.BadConditionBranchAlreadyAcked)
+        return ua.StatusCode()  # the acknowledged state goes out with the next scan
+
+    def _denied(self, who: Identity) -> ua.StatusCode | None:
+        if not self.options.writable or who.name is None:
+            return ua.StatusCode(ua.StatusCodes.BadUserAccessDenied)
+        return None
+
+    async def _command(self, command: Command, who: Identity, comment: str = ""
+                       ) -> CommandResult:
+        origin = f"opcua:{who.name}"
+        if comment:
+            origin += f" ({comment})"
+        return await asyncio.to_thread(self.session.command, command, origin)
+
+    # -- operator commands as methods (writable only) -----------------------------------------
+
+    async def _build_commands(self, server: Server) -> None:
+        ns = self.ns
+        folder = await self.cell.add_object(self._nodeid(("Commands",)),
+                                            ua.QualifiedName("Commands", ns))
+        await _describe(folder, "Operator commands, as the HMI sends them (journalled with "
+                        "the OPC UA user); they need a user, and the filter still applies")
+        out = [_arg("Accepted", ua.VariantType.Boolean, "the command was carried out"),
+               _arg("Message", ua.VariantType.String, "what happened, in words")]
+        specs: list[tuple[str, str, list[ua.Argument], Callable[..., Command]]] = [
+            ("Acknowledge", "acknowledge one alarm by key, or all with an empty key",
+             [_arg("Key", ua.VariantType.String, "the alarm's key (empty: all)")],
+             lambda key: Acknowledge(key or None)),
+            ("FaultReset", "fault reset: clear the latch and the diagnosers' decisions",
+             [], lambda: FaultReset()),
+            ("SetMode", "enter (true) or leave (false) manual mode",
+             [_arg("Manual", ua.VariantType.Boolean, "true: manual mode")],
+             lambda manual: SetMode(bool(manual))),
+            ("ManualOutput", "manual mode: request an output on or off (the filter still "
+             "applies), or release the request",
+             [_arg("Output", ua.VariantType.String, "the output's name"),
+              _arg("Request", ua.VariantType.String, "on, off or release")],
+             _manual_output),
+            ("SetPolicy", "the safety filter's policy: block or correct (monitor only where "
+             "the engine allows it)",
+             [_arg("Policy", ua.VariantType.String, "monitor, block or correct")],
+             lambda policy: SetPolicy(str(policy))),
+            ("ChoosePolicy", "carry out a policy an alarm's explanation offers",
+             [_arg("Key", ua.VariantType.String, "the alarm's key"),
+              _arg("Policy", ua.VariantType.String, "the policy's id")],
+             lambda key, policy: ChoosePolicy(str(key), str(policy))),
+        ]
+        for name, text, inputs, make in specs:
+            node = await folder.add_method(self._nodeid(("Commands", name)),
+                                           ua.QualifiedName(name, ns), self._method(make),
+                                           inputs, out)
+            await _describe(node, text)
+
+    def _method(self, make: Callable[..., Command]) -> Callable[..., Any]:
+        async def call(parent: ua.NodeId, *args: ua.Variant) -> Any:
+            who = _identity(_caller.get())
+            denied = self._denied(who)
+            if denied is not None:
+                return denied
+            try:
+                command = make(*(_value(a) for a in args))
+            except (TypeError, ValueError) as exc:  # refused in words, like the engine does
+                return [ua.Variant(False, ua.VariantType.Boolean),
+                        ua.Variant(str(exc), ua.VariantType.String)]
+            result = await self._command(command, who)
+            return [ua.Variant(result.accepted, ua.VariantType.Boolean),
+                    ua.Variant(result.message, ua.VariantType.String)]
+        return call
+
+
+_UNSET = object()
+_BAD = object()
+_GOOD = ua.StatusCode()
+_STALE = ua.StatusCode(ua.StatusCodes.UncertainNoCommunicationLastUsableValue)
+
+
+def _manual_output(name: Any, request: Any) -> ManualOutput:
+    value = {"on": True, "off": False, "release": None}.get(str(request).lower(), "?")
+    if value == "?":
+        raise ValueError(f"request {request!r}: expected on, off or release")
+    return ManualOutput(str(name), value)  # type: ignore[arg-type]
+
+
+def _value(variant: Any) -> Any:
+    return variant.Value if isinstance(variant, ua.Variant) else variant
+
+
+def _arg(name: str, vtype: ua.VariantType, text: str) -> ua.Argument:
+    return ua.Argument(Name=name, DataType=ua.NodeId(vtype.value), ValueRank=-1,
+                       Description=ua.LocalizedText(text))
+
+
+async def _describe(node: Any, text: str) -> None:
+    await node.write_attribute(ua.AttributeIds.Description, ua.DataValue(
+        ua.Variant(ua.LocalizedText(text), ua.VariantType.LocalizedText)))
+
+
+def _two_state(event: Any, name: str, value: bool, true: str, false: str,
+               stamp: datetime) -> None:
+    changed = getattr(event, f"{name}/Id", None) != value
+    setattr(event, name, ua.LocalizedText(true if value else false))
+    setattr(event, f"{name}/Id", value)
+    if changed and f"{name}/TransitionTime" in event.data_types:
+        setattr(event, f"{name}/TransitionTime", stamp)

@@ -1,0 +1,110 @@
+"""An independent client, node-opcua (JavaScript), against the cell's OPC UA server.
+
+asyncua is both our server and the other tests' client: a mistake shared by the two would go
+unseen. node-opcua-client, installed from npm into a temporary folder when the test runs,
+browses, reads, subscribes to the alarm events, asks for a ConditionRefresh and acknowledges
+the alarm with a user whose password it encrypts with the server's certificate. Skipped, with
+the reason, where node or npm is missing or npm cannot install the package.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import socket
+import subprocess
+import threading
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("asyncua", reason="the [opcua] extra is not installed")
+
+from hmi.engine.scan import Engine
+from hmi.explain.journal import Journal
+from hmi.opcua.options import server_certificate
+from hmi.opcua.server import CellServer, ServeOptions
+from hmi.opcua.users import Users, hash_password
+from hmi.plant.injection import parse_injection
+from hmi.plant.select import open_plant
+from hmi.project.loader import load_project
+from hmi.session.journal_recorder import JournalRecorder
+from hmi.session.session import Session
+
+ROOT = Path(__file__).resolve().parent.parent
+NODE_OPCUA = "node-opcua-client@2.182.2"  # pinned: the version this test was written against
+SCRIPT = Path(__file__).with_name("opcua_node_client.js")
+
+
+@pytest.fixture(scope="module")
+def node_modules(tmp_path_factory) -> Path:
+    node, npm = shutil.which("node"), shutil.which("npm")
+    if node is None or npm is None:
+        pytest.skip("node and npm are needed for the node-opcua cross-check "
+                    "(apt-get install nodejs npm)")
+    folder = tmp_path_factory.mktemp("node")
+    try:
+        done = subprocess.run([npm, "install", "--no-audit", "--no-fund", "--loglevel=error",
+                               "--prefix", str(folder), NODE_OPCUA], capture_output=True,
+                              text=True, timeout=600)
+    except subprocess.TimeoutExpired:
+        pytest.skip(f"npm did not install {NODE_OPCUA} within 10 minutes")
+    if done.returncode != 0:
+        pytest.skip(f"npm could not install {NODE_OPCUA} (registry unreachable?): "
+                    + done.stderr.strip()[-300:])
+    return folder / "node_modules"
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_node_opcua_browses_reads_and_acknowledges_as_a_user(node_modules, tmp_path):
+    project = load_project(ROOT / "projects" / "cispi_valve")
+    plant = open_plant(project, None, False, [parse_injection("F5@8.2s")], None)
+    session = Session(Engine(project, plant))
+    journal = tmp_path / "journal.jsonl"
+    recorder = JournalRecorder(session, Journal(journal))
+    cert, key = server_certificate(tmp_path / "pki", project.name, "127.0.0.1")
+    server = CellServer(session, ServeOptions(
+        port=_free_port(), writable=True, certificate=cert, private_key=key,
+        users=Users({"bob": hash_password("bob", "node-secret")})))
+    server.start()
+    for _ in range(1000):  # F5 at 8.2 s is diagnosed at 9.19 s
+        session.scan_once()
+    stop = threading.Event()
+
+    def cell_runs() -> None:  # the cell keeps scanning (virtual time) while node works
+        while not stop.wait(0.005):
+            session.scan_once()
+
+    scanner = threading.Thread(target=cell_runs, daemon=True)
+    scanner.start()
+    try:
+        done = subprocess.run(["node", str(SCRIPT), server.url, "bob", "node-secret"],
+                              capture_output=True, text=True, timeout=300,
+                              env={"NODE_PATH": str(node_modules),
+                                   "PATH": os.environ.get("PATH", "/usr/bin:/bin")})
+    finally:
+        stop.set()
+        scanner.join(10)
+        server.stop()
+        recorder.close()
+    assert done.returncode == 0, done.stderr[-2000:]
+    # node-opcua logs its own notices on stdout; the result is the line that is JSON.
+    seen = json.loads(next(line for line in reversed(done.stdout.splitlines())
+                           if line.startswith("{")))
+    assert {"Valve V1", "Status", "Constraints", "Alarms", "Commands"} <= set(seen["children"])
+    assert seen["scanCount"] >= 1000 and seen["sourceTimestamp"]
+    alarm = next(a for a in session.last.alarms if a.key == "diagnosis:V1")
+    assert seen["alarm"] == {"severity": 900, "message": alarm.text, "active": True,
+                             "acked": False, "retain": True, "source": "Valve V1"}
+    assert seen["anonymousAck"] == "BadUserAccessDenied"
+    assert seen["ack"] == "Good"
+    assert seen["acked"] == {"user": "bob", "active": True, "retain": True}
+    entries = [json.loads(line) for line in journal.read_text().splitlines()]
+    action = next(e for e in entries if e.get("event") == "acknowledge alarm diagnosis:V1")
+    assert action["by"] == "opcua:bob (node-opcua was here)" and action["accepted"]
