@@ -15,8 +15,8 @@ from types import ModuleType
 # The sections' names, for `plchmi --help` and argument checks without importing every
 # section (some import pymodbus or the whole engine: the HMI's start-up would pay for them).
 # tests/test_bench_sections.py checks it against sections().
-NAMES = ("campaign", "corrector", "engine", "filter", "modbus", "palletizer", "sorting",
-         "startup", "ui")
+NAMES = ("campaign", "corrector", "engine", "filter", "modbus", "opcua", "palletizer",
+         "sorting", "startup", "ui")
 
 
 def sections() -> dict[str, ModuleType]:
