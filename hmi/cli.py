@@ -29,7 +29,7 @@ from hmi.timefmt import DURATION_HINT, DurationError, format_duration, parse_dur
 
 MAX_ERRORS_SHOWN = 25
 SUBCOMMANDS = ("check", "run", "sweep", "ui", "serve-plant", "bench", "journal",
-               "diagnose", "campaign", "export", "opcua-passwd")
+               "diagnose", "campaign", "export", "opcua-passwd", "soak")
 
 
 def _duration(text: str) -> int:
@@ -186,6 +186,9 @@ def _parser() -> argparse.ArgumentParser:
     from hmi.sweep import add_sweep_parser
     add_sweep_parser(sub, project_arg)
 
+    from hmi.soak.command import add_soak_parser
+    add_soak_parser(sub, project_arg)
+
     p = sub.add_parser("bench", help="measure and print performance figures (never fails)")
     p.add_argument("sections", nargs="*", metavar="SECTION",
                    help="sections to run (default: all): " + ", ".join(_bench_sections()))
@@ -290,6 +293,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
     except Exception as exc:  # a bug: say so plainly, keep the details for the developers
+        from hmi.crash import write_crash_report
         report = write_crash_report(exc)
         print(f"plchmi: internal error: {type(exc).__name__}: {exc}", file=sys.stderr)
         print(f"plchmi: the details are in {report}; please report it", file=sys.stderr)
@@ -298,20 +302,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 2
 
 
-def write_crash_report(exc: BaseException) -> str:
-    """Write the traceback to the data folder; return where (or why it could not)."""
-    import traceback
-    from datetime import UTC, datetime
-
-    from hmi.explain.journal import data_folder
-    stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S")
-    path = data_folder() / f"crash-{stamp}.txt"
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text("".join(traceback.format_exception(exc)), encoding="utf-8")
-    except OSError as err:
-        return f"(no report: {err.strerror})"
-    return str(path)
+def _soak(args: argparse.Namespace) -> int:
+    from hmi.soak.command import cmd_soak
+    return cmd_soak(args)
 
 
 def _sweep(args: argparse.Namespace) -> int:
@@ -529,7 +522,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         outputs.leave_safe()
         last = controller.last
     finally:
-        outputs.close()
+        outputs.close(ended_by(sys.exc_info()[1]))
     if outputs.failure is not None:
         raise RunFailure(outputs.failure_message())
     wall = time.perf_counter() - started
@@ -771,7 +764,7 @@ def run_real_time(engine, args: argparse.Namespace, duration_us: int | None) -> 
             server.stop()
         stop_plant(engine)
         if outputs is not None:
-            outputs.close()
+            outputs.close(ended_by(sys.exc_info()[1]))
     if outputs.failure is not None:
         raise RunFailure(outputs.failure_message())
     last = controller.last
@@ -786,6 +779,18 @@ def run_real_time(engine, args: argparse.Namespace, duration_us: int | None) -> 
         print(f"Stopped: {plant.message}")
     print(f"Journal: {outputs.recorder.journal.path}")
     return 0
+
+
+def ended_by(exc: BaseException | None) -> str | None:
+    """Why a session is ending, for the journal's last entry (None: it ended as asked).
+    Called in a `finally`, with the exception on its way out, if any."""
+    if exc is None:
+        return None
+    if isinstance(exc, KeyboardInterrupt):
+        return "interrupted (SIGINT)"
+    if isinstance(exc, RunFailure | UsageError):
+        return str(exc)
+    return f"internal error: {type(exc).__name__}: {exc}"
 
 
 def announce(server, name: str) -> None:
@@ -875,6 +880,7 @@ def cmd_ui(args: argparse.Namespace) -> int:
         clock = WallClock()
     controller = Session(engine, clock=clock)
     recorder = None
+    end = None
     server = None
     try:
         recorder = open_journal(controller, args.journal, "hmi")
@@ -882,14 +888,22 @@ def cmd_ui(args: argparse.Namespace) -> int:
         announce(server, project.name)
         if clock is not None:
             connect_plant(engine, args.connect_timeout)
-        return run_app(controller, injected=tuple(injections))
+        end = run_app(controller, injected=tuple(injections),
+                      on_fault=recorder.on_ui_fault)
+        if end.reason is not None:
+            print(f"plchmi: the HMI ended on an error: {end.reason}", file=sys.stderr)
+        return end.status
     finally:
         if server is not None:
             server.stop()
+        # a real plant: the safe outputs first, then the journal says how it ended
         if clock is not None:
             stop_plant(engine)
         if recorder is not None:
-            recorder.close()
+            if end is not None:
+                recorder.close(end.reason, end.note)
+            else:
+                recorder.close(ended_by(sys.exc_info()[1]))
 
 
 def cmd_serve_plant(args: argparse.Namespace) -> int:
@@ -964,7 +978,7 @@ COMMANDS = {
     "check": cmd_check, "run": cmd_run, "sweep": _sweep, "ui": cmd_ui,
     "serve-plant": cmd_serve_plant, "bench": cmd_bench, "journal": cmd_journal,
     "diagnose": cmd_diagnose, "campaign": cmd_campaign, "export": cmd_export,
-    "opcua-passwd": cmd_opcua_passwd,
+    "opcua-passwd": cmd_opcua_passwd, "soak": _soak,
 }
 
 if __name__ == "__main__":

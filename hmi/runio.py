@@ -84,14 +84,18 @@ class RunOutputs:
             with contextlib.suppress(PlantError):  # a real plant is stopped safe after
                 engine.plant.write(engine.now, safe)
 
-    def close(self) -> None:
-        """Close both files; a failure to close the trace (its last flush) is a failure."""
+    def close(self, abnormal: str | None = None) -> None:
+        """Close both files; a failure to close the trace (its last flush) is a failure.
+        `abnormal`: why the run is ending on an error (the journal's abnormal-end), if it
+        is; an output failure that stopped the run is one too."""
         if self.writer is not None:
             try:
                 self.writer.close()
             except OutputError as exc:
                 self.failure = self.failure or exc
-        self.recorder.close()
+        if abnormal is None and self.stopped_early:
+            abnormal = f"output failure: {self.failure}"
+        self.recorder.close(abnormal)
         if self.failure is None and self.recorder.failure is not None:
             self.failure = self.recorder.failure
 

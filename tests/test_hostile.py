@@ -469,7 +469,7 @@ def test_the_library_is_reached_from_a_project_elsewhere(tmp_path):
     text = (folder / "project.yaml").read_text()
     library = os.path.relpath(ROOT / "components" / "valve.yaml", folder)
     (folder / "project.yaml").write_text(text.replace("../../components/valve.yaml", library))
-    assert len(load_project(folder).extra["components"]) == 2
+    assert len(load_project(folder).components) == 2
 
 
 @pytest.mark.parametrize("name", ["../../ESCAPED", "/tmp/ESCAPED", "..", ".", "a/../../b",
@@ -536,8 +536,12 @@ def test_a_failing_write_mid_run_stops_it_with_the_outputs_safe(tmp_path, capsys
     assert "outputs written safe" in err
     assert writes[-1] == {"C": False, "O": False}  # the valve's safe vector, written last
     assert any(w != writes[-1] for w in writes)  # it had been driven before
-    events = [e["event"] for e in read(journal).entries]
-    assert events[0] == "start" and events[-1] == "stop"
+    entries = read(journal).entries
+    assert entries[0]["event"] == "start"
+    # never "ended normally" after an error (issue 13): an abnormal end, with the reason
+    assert entries[-1]["event"] == "abnormal-end", entries[-1]
+    assert "ended abnormally" in entries[-1]["message"]
+    assert "cannot write the trace" in entries[-1]["message"], entries[-1]["message"]
 
 
 def test_a_journal_that_fails_mid_run_stops_it_safe(tmp_path, capsys, monkeypatch):

@@ -67,7 +67,8 @@ def test_giving_up_journals_the_retries_summary(tmp_path):
     entries = plant_entries(path)
     assert [e["event"] for e in entries] == ["connect-failed", "connect-retries"]
     assert entries[1]["failed_attempts"] == proc.stderr.count("attempt ") + 1
-    assert [e["event"] for e in read(path).entries][-1] == "stop"
+    last = read(path).entries[-1]  # never "ended normally" after an error (issue 13)
+    assert last["event"] == "abnormal-end" and "ended abnormally" in last["message"], last
 
 
 def test_loss_and_reconnection_are_journalled(server, tmp_path):

@@ -433,7 +433,7 @@ def test_quitting_the_hmi_on_a_real_plant_leaves_its_outputs_safe(server, tmp_pa
     from hmi.cli import main
     from hmi.ui.app import PlcHmiApp
     from hmi.ui.dialogs import ConfirmDialog
-    from hmi.ui.testing import screen_text, wait_for_screen, wait_until
+    from hmi.ui.testing import press, screen_text, wait_for_screen, wait_live
 
     srv = server()
     monkeypatch.setenv("PLCHMI_DATA", str(tmp_path))
@@ -441,14 +441,13 @@ def test_quitting_the_hmi_on_a_real_plant_leaves_its_outputs_safe(server, tmp_pa
 
     async def operator(pilot) -> None:
         app = pilot.app
-        await wait_until(pilot, lambda: app.controller.last is not None and
-                         app.controller.last.output_map["O"], "the valve opening",
-                         WAIT)
+        await wait_live(pilot, lambda: app.controller.last is not None and
+                        app.controller.last.output_map["O"], "the valve opening")
         seen["coils_before"] = read_coils(srv.port)
-        await pilot.press("q")
+        await press(pilot, "q")
         await wait_for_screen(pilot, ConfirmDialog)
         seen["dialog"] = screen_text(app)
-        await pilot.press("y")
+        await press(pilot, "y")
 
     run = PlcHmiApp.run
     monkeypatch.setattr(PlcHmiApp, "run", lambda self: run(self, headless=True,

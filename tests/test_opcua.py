@@ -27,8 +27,8 @@ from hmi.explain.journal import Journal  # noqa: E402
 from hmi.opcua.options import server_certificate  # noqa: E402
 from hmi.opcua.server import CellServer, ServeOptions  # noqa: E402
 from hmi.opcua.users import Users, hash_password  # noqa: E402
-from hmi.plant.injection import parse_injection  # noqa: E402
 from hmi.plant.select import open_plant  # noqa: E402
+from hmi.project.injection import parse_injection  # noqa: E402
 from hmi.project.loader import load_project  # noqa: E402
 from hmi.session.journal_recorder import JournalRecorder  # noqa: E402
 from hmi.session.session import Session  # noqa: E402
@@ -203,6 +203,8 @@ async def test_an_injected_fault_raises_a_high_alarm_event_with_its_explanation(
         assert event["Message"].Text == alarm.text
         assert event["Why"] == alarm.explanation.why
         assert event["Consequences"] == alarm.explanation.consequences
+        assert event["Policies"] == alarm.explanation.policies_text()
+        assert event["Detail"] == getattr(alarm.explanation, "detail", "")
         assert event["ActiveState/Id"] is True and event["AckedState/Id"] is False
         assert event["Retain"] is True
         assert event["SourceName"] == "Valve V1"
@@ -374,3 +376,37 @@ async def test_inputs_are_uncertain_while_the_plant_does_not_answer(cell):
         assert (await mode.read_data_value()).StatusCode.is_good()  # the cell's own: good
         await cell.scans(2)  # connected again (past the scan number the fake one took)
         assert (await value.read_data_value()).StatusCode.is_good()
+
+
+async def test_acknowledge_all_as_a_command_names_the_user_in_every_condition_event(cell):
+    await cell.scans(1)
+    fault = cell.session.last
+    if not any(a.state == "active-unacknowledged" for a in fault.alarms):
+        # a new fault to acknowledge: the valve repaired, reset, then stuck again
+        from hmi.engine.commands import FaultReset, InjectFault, RepairFaults
+        cell.session.command(RepairFaults())
+        cell.session.command(FaultReset())
+        await cell.scans(400)
+        cell.session.command(InjectFault(parse_injection(
+            f"F5@{cell.session.engine.now / 1e6 + 0.01:.2f}s")))
+        await cell.scans(1500)
+    waiting = {a.key for a in cell.session.last.alarms if a.state == "active-unacknowledged"}
+    assert waiting, "no alarm waits for an acknowledgement"
+    async with client(cell, "alice") as c:
+        handler = Events()
+        sub = await c.create_subscription(10, handler)
+        await sub.subscribe_events(c.nodes.server,
+                                   c.get_node(cell.server.alarm_type.nodeid))
+        ns, node = await _cell_node(c)
+        commands = await node.get_child(f"{ns}:Commands")
+        accepted, message = await commands.call_method(
+            await commands.get_child(f"{ns}:Acknowledge"), "")
+        assert accepted, message
+        await cell.scans(1)
+        await until(lambda: waiting <= {e["ConditionName"] for e in handler.events
+                                        if e.get("Transition") == "acknowledged"},
+                    "the acknowledgements")
+        for event in handler.events:
+            if event.get("Transition") == "acknowledged":
+                assert event["ClientUserId"] == "alice", event["ConditionName"]
+        await sub.delete()

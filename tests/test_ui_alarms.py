@@ -10,7 +10,7 @@ from pathlib import Path
 
 from hmi.engine.commands import InjectFault, StopDevice
 from hmi.explain.alarms import ACTIVE_ACK, ACTIVE_UNACK, CLEARED_UNACK
-from hmi.plant.injection import Injection
+from hmi.project.injection import Injection
 from hmi.timefmt import seconds
 from hmi.ui.alarm_list import AlarmList, without_device
 from hmi.ui.chronogram import Chronogram
@@ -18,7 +18,9 @@ from hmi.ui.dialogs import ConfirmDialog
 from hmi.ui.explain_panel import ExplanationPanel
 from hmi.ui.scenarios import VALVE, make_app
 from hmi.ui.testing import (
+    click,
     palette,
+    press,
     region_text,
     run_for,
     run_until,
@@ -91,7 +93,7 @@ async def test_acknowledge_the_selected_alarm_with_a():
                         "an unacknowledged alarm")
         selected = app.query_one(AlarmList).selected
         assert selected == app.controller.last.alarms[0].key
-        await pilot.press("a")
+        await press(pilot, "a")
         await settle(pilot)
         assert alarms(app)[selected] == ACTIVE_ACK
         assert "acknowledged 1 alarm" in app.message.plain
@@ -106,7 +108,7 @@ async def test_acknowledge_all_with_shift_a_and_a_cleared_alarm_goes():
         before = alarms(app)
         cleared = [k for k, s in before.items() if s == CLEARED_UNACK]
         assert cleared
-        await pilot.press("A")
+        await press(pilot, "A")
         await settle(pilot)
         after = alarms(app)
         assert all(k not in after for k in cleared)  # acknowledged and already clear: gone
@@ -121,7 +123,7 @@ async def test_acknowledge_while_paused_says_when_it_shows():
     app = make_app(control="faulty")
     async with app.run_test(size=WIDE) as pilot:
         await run_for(pilot, 3.0)
-        await pilot.press("space", "A")
+        await press(pilot, "space", "A")
         await settle(pilot)
         assert all(s == ACTIVE_ACK for s in alarms(app).values())
         assert "applies at the next scan (paused)" in app.message.plain
@@ -131,7 +133,7 @@ async def test_acknowledge_with_no_alarm_is_refused_with_its_reason():
     app = make_app()
     async with app.run_test(size=WIDE) as pilot:
         await run_for(pilot, 1.0)
-        await pilot.press("a")
+        await press(pilot, "a")
         await settle(pilot)
         assert "NOT AVAILABLE" in app.message.plain and "no alarm" in app.message.plain
         assert "✓ no alarm" in region_text(app, "#alarms")
@@ -157,14 +159,14 @@ async def test_select_an_alarm_with_the_keys_and_the_explanation_follows():
         listed = app.controller.last.alarms
         alarm_list = app.query_one(AlarmList)
         alarm_list.focus()
-        await pilot.press("down")
+        await press(pilot, "down")
         await settle(pilot)
         assert alarm_list.selected == listed[1].key
         assert panel(app).key == listed[1].key
         assert listed[1].text in region_text(app, "#explain").replace("\n", " ") or \
             listed[1].text[:40] in region_text(app, "#explain")
         assert "› " + "▲ UNACK" in region_text(app, "#alarms").replace("│ ", "")
-        await pilot.press("a")  # acknowledges the selected one, not the first
+        await press(pilot, "a")  # acknowledges the selected one, not the first
         await settle(pilot)
         assert alarms(app)[listed[1].key] == ACTIVE_ACK
         assert alarms(app)[listed[0].key] == listed[0].state
@@ -176,7 +178,7 @@ async def test_click_an_alarm_to_select_it():
         await run_for(pilot, 8.7)
         listed = app.controller.last.alarms
         alarm_list = app.query_one(AlarmList)
-        await pilot.click(AlarmList, offset=(10, 3))  # the border, then rows 0, 1, 2
+        assert await click(pilot, "#alarms", 10, 3)  # the border, then rows 0, 1, 2
         await settle(pilot)
         assert alarm_list.selected == listed[2].key
         assert panel(app).key == listed[2].key
@@ -215,21 +217,21 @@ async def test_expand_the_explanation_level_by_level():
         assert exp.what[:30] in text and "LATCHED" in text
         assert "▸ Why" in text and "▸ Consequences" in text and "▸ Policies" in text
         assert exp.why[:30] not in text.replace("\n", " ")
-        await pilot.press("e")
+        await press(pilot, "e")
         await settle(pilot)
         text = region_text(app, "#explain")
         assert "▾ Why" in text and "The filter's policy is safe blocking" in text
-        await pilot.press("e")
+        await press(pilot, "e")
         await settle(pilot)
         assert "▾ Consequences" in region_text(app, "#explain")
-        await pilot.press("e")
+        await press(pilot, "e")
         await wait_until(pilot, lambda: app.focused is not None
                          and "policy-button" in app.focused.classes, "a policy button")
         focused = app.focused
         assert focused.policy.recommended and focused.policy.id == "reset"
         assert "★ Fault reset" in str(focused.label)
         assert panel(app).level == 4
-        await pilot.press("e")  # folds back to the first level
+        await press(pilot, "e")  # folds back to the first level
         await settle(pilot)
         assert panel(app).level == 1
         assert "▸ Why" in region_text(app, "#explain")
@@ -241,12 +243,15 @@ async def test_click_a_level_heading_opens_and_folds_it():
         await run_until(pilot, lambda s: bool(s.latched), 5, "safe blocking")
         app.explain("safe_state:filter", open_level=1)
         await settle(pilot)
-        await pilot.click("#explain-consequences")
+        assert await click(pilot, "#explain-consequences")
         await settle(pilot)
         assert panel(app).level == 3  # consequences, and why before it
         text = region_text(app, "#explain")
-        assert "▾ Why" in text and "▾ Consequences" in text
-        await pilot.click("#explain-why")
+        assert "▾ Consequences" in text  # the level opened, scrolled into view
+        panel(app).scroll_home(animate=False, immediate=True)
+        await settle(pilot)
+        assert "▾ Why" in region_text(app, "#explain")  # above it, open too
+        assert await click(pilot, "#explain-why")
         await settle(pilot)
         assert panel(app).level == 1
         assert "▸ Why" in region_text(app, "#explain")
@@ -258,11 +263,11 @@ async def test_narrow_screen_explanation_takes_the_chronogram_place():
         await run_for(pilot, 3.0)
         assert not panel(app).display  # level 1 is the alarm list's own line
         assert app.query_one("#col-time").display
-        await pilot.press("e")
+        await press(pilot, "e")
         await settle(pilot)
         assert panel(app).display and not app.query_one("#col-time").display
         assert "▾ Why" in region_text(app, "#explain")
-        await pilot.press("e", "e", "e")
+        await press(pilot, "e", "e", "e")
         await settle(pilot)
         assert not panel(app).display and app.query_one("#col-time").display
 
@@ -272,7 +277,7 @@ async def test_explain_with_nothing_to_explain_is_refused():
     async with app.run_test(size=WIDE) as pilot:
         await run_for(pilot, 1.0)
         assert "no alarm to explain" in region_text(app, "#explain")
-        await pilot.press("e")
+        await press(pilot, "e")
         await settle(pilot)
         assert "NOT AVAILABLE" in app.message.plain
 
@@ -283,7 +288,7 @@ async def test_click_a_constraint_opens_its_explanation():
         await run_until(pilot, lambda s: s.filter is not None and "CSs2" in
                         s.filter.violated_names, 5, "CSs2 violated")
         rows = app.query_one("#constraints").row_names
-        await pilot.click("#constraints", offset=(3, 1 + rows.index("CSs2")))
+        assert await click(pilot, "#constraints", 3, 1 + rows.index("CSs2"))
         await settle(pilot)
         assert panel(app).key == "constraint:CSs2"
         assert app.query_one(AlarmList).selected == "constraint:CSs2"
@@ -312,7 +317,7 @@ async def test_policy_without_a_command_is_chosen_at_once():
         key = app.controller.last.alarms[0].key
         await open_policies(pilot, key)
         assert app.focused.policy.id == "continue"  # the recommended one, focused
-        await pilot.press("enter")
+        await press(pilot, "enter")
         await settle(pilot)
         assert len(app.screen_stack) == 1  # no confirmation: nothing changes in the plant
         assert type(seen[-1]).__name__ == "ChoosePolicy" and seen[-1].policy == "continue"
@@ -327,11 +332,11 @@ async def test_policy_fault_reset_is_confirmed_with_the_reset_preview():
         await run_until(pilot, lambda s: s.filter is not None and not s.filter.violations,
                         10, "the program no longer violating")
         await open_policies(pilot, "safe_state:filter")
-        await pilot.press("enter")  # the recommended: fault reset
+        await press(pilot, "enter")  # the recommended: fault reset
         await wait_for_screen(pilot, ConfirmDialog)
         text = screen_text(app)
         assert "Fault reset?" in text and "will be reset: safe-state latch (filter)" in text
-        await pilot.press("y")
+        await press(pilot, "y")
         await wait_for_main(pilot)
         assert engine(app).latched == []
         assert "✓ Fault reset chosen: fault reset: safe-state latch released" in \
@@ -345,9 +350,9 @@ async def test_policy_cancelled_sends_nothing():
     async with app.run_test(size=WIDE) as pilot:
         await run_until(pilot, lambda s: bool(s.latched), 5, "safe blocking")
         await open_policies(pilot, "safe_state:filter")
-        await pilot.press("enter")
+        await press(pilot, "enter")
         await wait_for_screen(pilot, ConfirmDialog)
-        await pilot.press("n")
+        await press(pilot, "n")
         await wait_for_main(pilot)
         assert seen == [] and engine(app).latched
         assert "cancelled" in app.message.plain
@@ -358,12 +363,12 @@ async def test_policy_manual_enters_manual_mode_after_confirmation():
     async with app.run_test(size=WIDE) as pilot:
         await run_until(pilot, lambda s: bool(s.latched), 5, "safe blocking")
         await open_policies(pilot, "safe_state:filter")
-        await pilot.press("tab")  # the next policy
+        await press(pilot, "tab")  # the next policy
         assert app.focused.policy.id == "manual"
-        await pilot.press("enter")
+        await press(pilot, "enter")
         await wait_for_screen(pilot, ConfirmDialog)
         assert "still goes through the safety filter" in screen_text(app)
-        await pilot.press("y")
+        await press(pilot, "y")
         await wait_for_main(pilot)
         assert engine(app).mode == "manual"
         assert app.frame.manual_keys  # the manual keys work before the next scan
@@ -382,10 +387,10 @@ async def test_policy_stop_device_then_release_it_from_the_palette():
         button = next(b for b in app.query(".policy-button")
                       if b.policy.id == "stop_device")
         button.focus()
-        await pilot.press("enter")
+        await press(pilot, "enter")
         await wait_for_screen(pilot, ConfirmDialog)
         assert "Every output of Valve V1 (C, O) is held at its safe value" in screen_text(app)
-        await pilot.press("y")
+        await press(pilot, "y")
         await wait_for_main(pilot)
         assert engine(app).stopped_devices == {"Valve V1"}
         await run_for(pilot, 0.05)
@@ -411,10 +416,10 @@ async def test_policy_switch_the_filter_to_correct_under_monitor():
         assert "✗ P1 high" in region_text(app, "#explain")  # unsafe vector written: red
         await open_policies(pilot, key)
         assert app.focused.policy.id == "correct"
-        await pilot.press("enter")
+        await press(pilot, "enter")
         await wait_for_screen(pilot, ConfirmDialog)
         assert "The safety filter switches to correct" in screen_text(app)
-        await pilot.press("y")
+        await press(pilot, "y")
         await wait_for_main(pilot)
         assert engine(app).policy == "correct"
 
@@ -430,7 +435,7 @@ async def test_policies_are_in_the_palette():
         assert any(t.startswith("Explain: ") for t in titles)
         await palette(pilot, "Policy: Switch to manual", "Switch to manual")
         await wait_for_screen(pilot, ConfirmDialog)
-        await pilot.press("y")
+        await press(pilot, "y")
         await wait_for_main(pilot)
         assert engine(app).mode == "manual"
 
@@ -478,26 +483,26 @@ async def test_monitor_fault_reset_preview_and_policies():
     app = make_app(CONVEYOR)
     async with app.run_test(size=WIDE) as pilot:
         await conveyor_fault(pilot)
-        await pilot.press("r")
+        await press(pilot, "r")
         await wait_for_screen(pilot, ConfirmDialog)
         text = screen_text(app)
         # the condemned attempt still runs: the label stays
         assert "stays: monitor label conveyor_fault" in text
         assert "can no longer end in time" in text
-        await pilot.press("n")
+        await press(pilot, "n")
         await wait_for_main(pilot)
         await run_until(pilot, lambda s: not next(m for m in s.monitors
                                                    if m.name == "conveyor").running,
                         5, "the late pallet arrives")
         app.send(StopDevice("Robot R1"))
         await run_for(pilot, 0.01)  # the dialog previews the last snapshot
-        await pilot.press("r")
+        await press(pilot, "r")
         await wait_for_screen(pilot, ConfirmDialog)
         text = screen_text(app)
         assert "will be reset: monitor label conveyor_fault" in text
         assert "1 latched alarm clear with their latch" in text
         assert "stays: Robot R1 stopped by the operator" in text
-        await pilot.press("y")
+        await press(pilot, "y")
         await wait_for_main(pilot)
         await run_for(pilot, 0.01)
         snap = app.controller.last
@@ -524,9 +529,9 @@ async def test_new_controls_reach_the_controller_listeners(tmp_path: Path):
     app.controller.listeners.append(lambda cmd, result, snap: seen.append(type(cmd).__name__))
     async with app.run_test(size=WIDE) as pilot:
         await run_for(pilot, 3.0)
-        await pilot.press("a", "A")
+        await press(pilot, "a", "A")
         await open_policies(pilot, app.controller.last.alarms[0].key)
-        await pilot.press("enter")
+        await press(pilot, "enter")
         await settle(pilot)
     assert seen == ["Acknowledge", "Acknowledge", "ChoosePolicy"]
 
@@ -554,24 +559,24 @@ async def test_manual_keys_work_with_the_focus_on_a_policy_button():
     app = make_app(control="faulty", policy="block")
     async with app.run_test(size=(80, 24)) as pilot:
         await run_until(pilot, lambda s: bool(s.latched), 5, "safe blocking")
-        await pilot.press("m")
+        await press(pilot, "m")
         await wait_for_screen(pilot, ConfirmDialog)
-        await pilot.press("y")
+        await press(pilot, "y")
         await wait_for_main(pilot)
         await run_for(pilot, 0.05)
         app.explain("safe_state:filter", open_level=1)
         await settle(pilot)
-        await pilot.press("e", "e", "e")
+        await press(pilot, "e", "e", "e")
         await wait_until(pilot, lambda: app.focused is not None
                          and "policy-button" in app.focused.classes, "a policy button")
         footer = "\n".join(screen_text(app).splitlines()[-2:])
         assert "On" in footer and "Off" in footer  # still offered
         selected = app.query_one("#io").selected
-        await pilot.press("1")
+        await press(pilot, "1")
         await settle(pilot)
         assert engine(app).manual == {selected: True}
         assert f"{selected} requested on" in app.message.plain
-        await pilot.press("x")
+        await press(pilot, "x")
         await settle(pilot)
         assert engine(app).manual == {}
 
@@ -579,7 +584,7 @@ async def test_manual_keys_work_with_the_focus_on_a_policy_button():
 async def test_manual_keys_outside_manual_mode_say_why():
     app = make_app()
     async with app.run_test(size=(80, 24)) as pilot:
-        await pilot.press("1")
+        await press(pilot, "1")
         await settle(pilot)
         assert engine(app).manual == {}
         assert "NOT AVAILABLE" in app.message.plain and "manual mode" in app.message.plain

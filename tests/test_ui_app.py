@@ -6,6 +6,7 @@ time, so what the screen shows is exactly repeatable. Waits are bounded (hmi.ui.
 
 from __future__ import annotations
 
+import re
 import shutil
 from pathlib import Path
 
@@ -23,7 +24,9 @@ from hmi.ui.scenarios import VALVE, make_app, select_row
 from hmi.ui.signal_dialog import SignalDialog
 from hmi.ui.testing import (
     WaitTimeout,
+    drain,
     palette,
+    press,
     region_text,
     run_for,
     run_until,
@@ -31,6 +34,7 @@ from hmi.ui.testing import (
     settle,
     wait_for_main,
     wait_for_screen,
+    wait_live,
     wait_until,
 )
 
@@ -121,14 +125,14 @@ async def test_pause_and_resume():
     app = make_app()
     async with app.run_test(size=SIZE) as pilot:
         await run_for(pilot, 0.5)
-        await pilot.press("space")
+        await press(pilot, "space")
         await settle(pilot)
         assert app.controller.state.running is False
         assert "PAUSED" in region_text(app, "#status")
         scan = engine(app).scan
         assert await run_for(pilot, 2.0) == 0
         assert engine(app).scan == scan
-        await pilot.press("space")
+        await press(pilot, "space")
         await settle(pilot)
         assert app.controller.state.running is True
         assert await run_for(pilot, 1.0) == 100
@@ -140,14 +144,14 @@ async def test_step_one_scan():
     async with app.run_test(size=SIZE) as pilot:
         await run_for(pilot, 0.5)
         scan = engine(app).scan
-        await pilot.press("s")
+        await press(pilot, "s")
         await settle(pilot)
         assert engine(app).scan == scan + 1
         assert app.controller.state.running is False
         assert "STEPPING" in region_text(app, "#status")
         assert f"scan {scan + 1}" in region_text(app, "#status")
         assert "stepped 1 scan" in app.message.plain
-        await pilot.press("space")  # run again: no longer stepping
+        await press(pilot, "space")  # run again: no longer stepping
         await settle(pilot)
         assert "running" in region_text(app, "#status")
 
@@ -156,13 +160,13 @@ async def test_step_n_scans_through_the_dialog():
     app = make_app()
     async with app.run_test(size=SIZE) as pilot:
         scan = engine(app).scan
-        await pilot.press("n")
+        await press(pilot, "n")
         dialog = await wait_for_screen(pilot, StepDialog)
-        await pilot.press("0", "enter")  # replaces the selected default: refused
-        await pilot.pause()
+        await press(pilot, "0", "enter")  # replaces the selected default: refused
+        await drain(pilot)
         assert isinstance(app.screen, StepDialog)
         assert "from 1 to" in str(dialog.query_one("#error").render())
-        await pilot.press("backspace", "2", "5", "enter")
+        await press(pilot, "backspace", "2", "5", "enter")
         await wait_for_main(pilot)
         assert engine(app).scan == scan + 25
         assert "STEPPING" in region_text(app, "#status")
@@ -172,9 +176,9 @@ async def test_step_n_can_be_cancelled():
     app = make_app()
     async with app.run_test(size=SIZE) as pilot:
         scan = engine(app).scan
-        await pilot.press("n")
+        await press(pilot, "n")
         await wait_for_screen(pilot, StepDialog)
-        await pilot.press("escape")
+        await press(pilot, "escape")
         await wait_for_main(pilot)
         assert engine(app).scan == scan
         assert app.controller.state.running is True
@@ -185,7 +189,7 @@ async def test_speed_cycles_real_time_ten_times_max():
     async with app.run_test(size=(120, 30)) as pilot:
         seen = []
         for _ in range(3):
-            await pilot.press("v")
+            await press(pilot, "v")
             await settle(pilot)
             seen.append((app.controller.state.speed, region_text(app, "#status")))
         assert [s for s, _ in seen] == [10.0, None, 1.0]
@@ -196,20 +200,20 @@ async def test_speed_cycles_real_time_ten_times_max():
 
 
 async def enter_manual(pilot) -> None:
-    await pilot.press("m")
+    await press(pilot, "m")
     await wait_for_screen(pilot, ConfirmDialog)
-    await pilot.press("y")
+    await press(pilot, "y")
     await wait_for_main(pilot)
 
 
 async def test_manual_mode_needs_confirmation():
     app = make_app()
     async with app.run_test(size=SIZE) as pilot:
-        await pilot.press("m")
+        await press(pilot, "m")
         dialog = await wait_for_screen(pilot, ConfirmDialog)
         assert "still goes through the safety filter" in screen_text(app)
-        await pilot.press("s")  # app keys are off while a dialog is open
-        await pilot.press("n")
+        await press(pilot, "s")  # app keys are off while a dialog is open
+        await press(pilot, "n")
         await wait_for_main(pilot)
         assert dialog.is_attached is False
         assert engine(app).mode == "auto"
@@ -227,7 +231,7 @@ async def test_manual_request_is_written_and_shown():
         assert "MANUAL / FORCES ACTIVE" in region_text(app, "#banners")
         assert "MANUAL" in region_text(app, "#status")
         await select_row(pilot, "O")
-        await pilot.press("1")
+        await press(pilot, "1")
         await settle(pilot)
         assert engine(app).manual == {"O": True}
         assert "O requested on" in app.message.plain  # the answer comes at once
@@ -238,7 +242,7 @@ async def test_manual_request_is_written_and_shown():
         assert "O=1" in region_text(app, "#banners")
         await run_for(pilot, 2.5)
         assert app.controller.last.value("fso") is True  # the valve opened under the force
-        await pilot.press("x")
+        await press(pilot, "x")
         await settle(pilot)
         assert engine(app).manual == {}
         await run_for(pilot, 0.05)
@@ -250,7 +254,7 @@ async def test_manual_request_on_an_input_is_refused_with_its_reason():
     async with app.run_test(size=SIZE) as pilot:
         await enter_manual(pilot)
         await select_row(pilot, "fsc")
-        await pilot.press("1")
+        await press(pilot, "1")
         await settle(pilot)
         assert "REFUSED" in app.message.plain and "not an output" in app.message.plain
         assert engine(app).manual == {}
@@ -260,7 +264,7 @@ async def test_manual_keys_are_hidden_outside_manual_mode():
     app = make_app()
     async with app.run_test(size=SIZE) as pilot:
         await select_row(pilot, "O")
-        await pilot.press("1")
+        await press(pilot, "1")
         await settle(pilot)
         assert engine(app).manual == {}
         footer = "\n".join(screen_text(app).splitlines()[-2:])
@@ -280,7 +284,7 @@ async def test_a_request_not_written_as_asked_says_why():
         await run_for(pilot, 0.01)
         assert "OUTPUTS HELD IN SAFE STATE" in region_text(app, "#banners")
         await select_row(pilot, "O")
-        await pilot.press("1")
+        await press(pilot, "1")
         await run_for(pilot, 0.01)
         message = app.message.plain
         assert "NOT AS REQUESTED" in message and "written 0" in message
@@ -294,15 +298,15 @@ async def test_leaving_manual_releases_every_output():
     async with app.run_test(size=SIZE) as pilot:
         await enter_manual(pilot)
         await select_row(pilot, "O")
-        await pilot.press("1")
+        await press(pilot, "1")
         await select_row(pilot, "C")
-        await pilot.press("0")
+        await press(pilot, "0")
         await run_for(pilot, 0.1)
         assert engine(app).manual == {"O": True, "C": False}
-        await pilot.press("m")
+        await press(pilot, "m")
         await wait_for_screen(pilot, ConfirmDialog)
         assert "O=1" in screen_text(app)  # the dialog lists what is released
-        await pilot.press("y")
+        await press(pilot, "y")
         await wait_for_main(pilot)
         assert engine(app).mode == "auto" and engine(app).manual == {}
         assert "released C, O" in app.message.plain
@@ -320,11 +324,11 @@ async def test_fault_reset_lists_what_it_resets_and_releases_the_latch():
         engine(app).latch_safe("internal", "simulated internal error")
         await run_for(pilot, 0.1)
         assert "SAFE STATE" in region_text(app, "#status")
-        await pilot.press("r")
+        await press(pilot, "r")
         await wait_for_screen(pilot, ConfirmDialog)
         text = screen_text(app)
         assert "will be reset: safe-state latch (internal): simulated internal error" in text
-        await pilot.press("y")
+        await press(pilot, "y")
         await wait_for_main(pilot)
         assert engine(app).latched == []
         assert "safe-state latch released" in app.message.plain
@@ -336,9 +340,9 @@ async def test_fault_reset_cancelled_keeps_the_latch():
     app = make_app()
     async with app.run_test(size=SIZE) as pilot:
         engine(app).latch_safe("internal", "x")
-        await pilot.press("r")
+        await press(pilot, "r")
         await wait_for_screen(pilot, ConfirmDialog)
-        await pilot.press("escape")
+        await press(pilot, "escape")
         await wait_for_main(pilot)
         assert len(engine(app).latched) == 1
 
@@ -346,10 +350,10 @@ async def test_fault_reset_cancelled_keeps_the_latch():
 async def test_fault_reset_with_nothing_latched_says_so():
     app = make_app()
     async with app.run_test(size=SIZE) as pilot:
-        await pilot.press("r")
+        await press(pilot, "r")
         await wait_for_screen(pilot, ConfirmDialog)
         assert "Nothing is latched" in screen_text(app)
-        await pilot.press("y")
+        await press(pilot, "y")
         await wait_for_main(pilot)
         assert "nothing was latched" in app.message.plain
 
@@ -357,23 +361,23 @@ async def test_fault_reset_with_nothing_latched_says_so():
 async def test_policy_switch_is_confirmed():
     app = make_app()
     async with app.run_test(size=(120, 30)) as pilot:
-        await pilot.press("p")
+        await press(pilot, "p")
         await wait_for_screen(pilot, ChoiceDialog)
-        await pilot.press("up", "enter")  # correct is highlighted; up is block
+        await press(pilot, "up", "enter")  # correct is highlighted; up is block
         await wait_for_screen(pilot, ConfirmDialog)
         assert "correct → block" in screen_text(app)
-        await pilot.press("y")
+        await press(pilot, "y")
         await wait_for_main(pilot)
         assert engine(app).policy == "block"
         await run_for(pilot, 0.01)
         assert "filter block" in region_text(app, "#status")
         # monitor is marked abnormal on the status bar
-        await pilot.press("p")
+        await press(pilot, "p")
         await wait_for_screen(pilot, ChoiceDialog)
-        await pilot.press("home", "enter")
+        await press(pilot, "home", "enter")
         await wait_for_screen(pilot, ConfirmDialog)
         assert "Unsafe orders will reach the plant" in screen_text(app)
-        await pilot.press("n")
+        await press(pilot, "n")
         await wait_for_main(pilot)
         assert engine(app).policy == "block"
 
@@ -383,10 +387,10 @@ async def test_fault_injection_now_jams_the_valve():
     async with app.run_test(size=(120, 36)) as pilot:
         await run_until(pilot, lambda s: "X1" in s.active_steps, 5, "opening")
         await run_for(pilot, 0.5)
-        await pilot.press("f")
+        await press(pilot, "f")
         await wait_for_screen(pilot, FaultDialog)
         assert "SIMULATION" in screen_text(app)
-        await pilot.press("end", "enter", "enter")
+        await press(pilot, "end", "enter", "enter")
         await wait_for_main(pilot)
         assert "F13" in app.message.plain and "SIMULATION" in app.message.plain
         await run_for(pilot, 3.0)
@@ -401,12 +405,12 @@ async def test_fault_injection_now_jams_the_valve():
 async def test_fault_injection_later():
     app = make_app()
     async with app.run_test(size=(120, 36)) as pilot:
-        await pilot.press("f")
+        await press(pilot, "f")
         dialog = await wait_for_screen(pilot, FaultDialog)
-        await pilot.press("enter")  # the first fault: F1
-        await pilot.pause()
+        await press(pilot, "enter")  # the first fault: F1
+        await drain(pilot)
         assert dialog.query_one("#delay").has_focus
-        await pilot.press("backspace", "2", "enter")
+        await press(pilot, "backspace", "2", "enter")
         await wait_for_main(pilot)
         assert "F1 in 2.000 s" in region_text(app, "#sim")
         await run_for(pilot, 2.1)
@@ -416,13 +420,13 @@ async def test_fault_injection_later():
 async def test_fault_delay_counts_from_the_confirmation():
     app = make_app()
     async with app.run_test(size=(120, 36)) as pilot:
-        await pilot.press("f")
+        await press(pilot, "f")
         dialog = await wait_for_screen(pilot, FaultDialog)
-        await pilot.press("enter")  # F1; the delay field has the focus
+        await press(pilot, "enter")  # F1; the delay field has the focus
         await run_for(pilot, 5.0)  # the operator takes 5 s to type the delay
         confirmed_at = engine(app).now
         assert confirmed_at >= 4_900_000
-        await pilot.press("backspace", "3", "enter")
+        await press(pilot, "backspace", "3", "enter")
         await wait_for_main(pilot)
         assert dialog.is_attached is False
         (fault,) = app._injected
@@ -436,10 +440,10 @@ async def test_fault_delay_counts_from_the_confirmation():
 async def test_fault_dialog_rejects_a_bad_delay():
     app = make_app()
     async with app.run_test(size=(120, 36)) as pilot:
-        await pilot.press("f")
+        await press(pilot, "f")
         dialog = await wait_for_screen(pilot, FaultDialog)
-        await pilot.press("enter", "backspace", "s", "o", "o", "n", "enter")
-        await pilot.pause()
+        await press(pilot, "enter", "backspace", "s", "o", "o", "n", "enter")
+        await drain(pilot)
         assert isinstance(app.screen, FaultDialog)
         assert "delay" in str(dialog.query_one("#error").render())
 
@@ -451,12 +455,12 @@ async def test_push_button_for_a_free_input(button_project):
         assert app.controller.last.active_steps == ("X0",)  # waits for the button
         assert "button up" in region_text(app, "#io")
         await select_row(pilot, "start")
-        await pilot.press("b")
+        await press(pilot, "b")
         await run_for(pilot, 0.05)
         assert app.controller.last.value("start") is True
         assert "button pressed" in region_text(app, "#io")
         assert "X1" in app.controller.last.active_steps
-        await pilot.press("b")
+        await press(pilot, "b")
         await run_for(pilot, 0.05)
         assert app.controller.last.value("start") is False
 
@@ -465,7 +469,7 @@ async def test_push_button_on_a_driven_input_is_refused(button_project):
     app = make_app(button_project)
     async with app.run_test(size=SIZE) as pilot:
         await select_row(pilot, "fsc")
-        await pilot.press("b")
+        await press(pilot, "b")
         await settle(pilot)
         assert "REFUSED" in app.message.plain and "driven by the simulated plant" in \
             app.message.plain
@@ -479,11 +483,11 @@ async def test_choose_chronogram_signals_with_the_key():
     async with app.run_test(size=SIZE) as pilot:
         before = app.query_one(Chronogram).signals
         assert before == ("C", "O", "fsc", "fso", "TON1", "TON2")
-        await pilot.press("g")
+        await press(pilot, "g")
         await wait_for_screen(pilot, SignalDialog)
-        await pilot.press("space")  # untick the first (C)
-        await pilot.press("end", "space")  # tick the last (O.fov)
-        await pilot.press("enter")
+        await press(pilot, "space")  # untick the first (C)
+        await press(pilot, "end", "space")  # tick the last (O.fov)
+        await press(pilot, "enter")
         await wait_for_main(pilot)
         after = app.query_one(Chronogram).signals
         assert "C" not in after and "O.fov" in after
@@ -493,7 +497,7 @@ async def test_choose_chronogram_signals_with_the_key():
 async def test_chronogram_window_key():
     app = make_app()
     async with app.run_test(size=SIZE) as pilot:
-        await pilot.press("w")
+        await press(pilot, "w")
         await settle(pilot)
         assert app.query_one(Chronogram).window_us == 30_000_000
         assert "last 30 s" in region_text(app, "#chronogram")
@@ -521,10 +525,10 @@ async def test_palette_runs_commands():
         assert engine(app).scan == 11
         await palette(pilot, "Filter policy: monitor")
         await wait_for_screen(pilot, ConfirmDialog)
-        await pilot.press("y")
+        await press(pilot, "y")
         await wait_for_main(pilot)
         assert engine(app).policy == "monitor"
-        await pilot.press("s")
+        await press(pilot, "s")
         await settle(pilot)
         assert "▲ filter monitor" in region_text(app, "#status")
         await palette(pilot, "Chronogram: show X1")
@@ -549,9 +553,9 @@ async def test_palette_manual_requests_only_in_manual_mode():
 async def test_palette_closes_without_running_anything():
     app = make_app()
     async with app.run_test(size=SIZE) as pilot:
-        await pilot.press("ctrl+p")
+        await press(pilot, "ctrl+p")
         await wait_for_screen(pilot, CommandPalette)
-        await pilot.press("escape")
+        await press(pilot, "escape")
         await wait_for_main(pilot)
         assert app.controller.state.running is True
 
@@ -564,17 +568,17 @@ async def test_operator_actions_reach_the_controller_listeners():
     seen = []
     app.controller.listeners.append(lambda cmd, result, snap: seen.append(type(cmd).__name__))
     async with app.run_test(size=SIZE) as pilot:
-        await pilot.press("space", "s")
+        await press(pilot, "space", "s")
         await enter_manual(pilot)
         await select_row(pilot, "O")
-        await pilot.press("1")
-        await pilot.press("f")
+        await press(pilot, "1")
+        await press(pilot, "f")
         await wait_for_screen(pilot, FaultDialog)
-        await pilot.press("enter", "enter")
+        await press(pilot, "enter", "enter")
         await wait_for_main(pilot)
-        await pilot.press("r")
+        await press(pilot, "r")
         await wait_for_screen(pilot, ConfirmDialog)
-        await pilot.press("y")
+        await press(pilot, "y")
         await wait_for_main(pilot)
     assert seen == ["Pause", "StepScans", "SetMode", "ManualOutput", "InjectFault",
                     "FaultReset"]
@@ -587,13 +591,14 @@ async def test_live_mode_scans_in_a_thread_and_refreshes():
     app = make_app()
     live = PlcHmiApp(app.controller, live=True)
     async with live.run_test(size=SIZE) as pilot:
-        await wait_until(pilot, lambda: live.controller.engine.scan > 20, "20 live scans")
-        await wait_until(pilot, lambda: live.frames_shown > 3, "a few UI frames")
-        assert "µs/scan" in region_text(live, "#status")
-        live.send(Pause())
-        await pilot.pause(0.05)
+        await wait_live(pilot, lambda: live.controller.engine.scan > 20, "20 live scans")
+        await wait_live(pilot, lambda: live.frames_shown > 3, "a few UI frames")
+        # the measured scan time: "µs/scan", or "µs" when a loaded machine adds "n scans
+        # late" and the bar takes its short forms
+        assert re.search(r"\d+ µs", region_text(live, "#status"))
+        live.send(Pause())  # under the controller's lock: no scan starts after it
         scan = live.controller.engine.scan
-        await pilot.pause(0.1)
+        await pilot.pause(0.1)  # (a check that nothing happens: a sleep cannot make it flaky)
         assert live.controller.engine.scan == scan
     assert not live.driver.runner.alive
 
@@ -601,8 +606,8 @@ async def test_live_mode_scans_in_a_thread_and_refreshes():
 async def test_wait_helpers_are_bounded():
     app = make_app()
     async with app.run_test(size=SIZE) as pilot:
-        with pytest.raises(WaitTimeout):
-            await wait_until(pilot, lambda: False, "never", timeout=0.05)
+        with pytest.raises(WaitTimeout, match="nothing left to do"):
+            await wait_until(pilot, lambda: False, "never")
         with pytest.raises(WaitTimeout):
             await run_until(pilot, lambda s: False, 0.1, "never")
 
@@ -662,7 +667,7 @@ async def test_manual_request_refused_by_the_filter_names_the_constraint():
         await run_until(pilot, lambda s: "X2" in s.active_steps, 10, "the valve open")
         await enter_manual(pilot)
         await select_row(pilot, "O")
-        await pilot.press("1")  # open order on an open valve: CSs2
+        await press(pilot, "1")  # open order on an open valve: CSs2
         await run_for(pilot, 0.05)
         message = app.message.plain
         assert "NOT AS REQUESTED" in message and "written 0" in message
@@ -677,18 +682,18 @@ async def test_reset_under_safe_blocking_says_what_stays():
         await run_until(pilot, lambda s: bool(s.latched), 10, "safe blocking")
         await run_until(pilot, lambda s: s.filter is not None and bool(s.filter.violations),
                         10, "the program still violating")
-        await pilot.press("r")
+        await press(pilot, "r")
         await wait_for_screen(pilot, ConfirmDialog)
         text = screen_text(app)
         assert "stays" in text and "its cause is still present" in text
-        await pilot.press("n")
+        await press(pilot, "n")
         await wait_for_main(pilot)
         await run_until(pilot, lambda s: s.filter is not None and not s.filter.violations,
                         10, "the program no longer violating")
-        await pilot.press("r")
+        await press(pilot, "r")
         await wait_for_screen(pilot, ConfirmDialog)
         assert "will be reset: safe-state latch (filter)" in screen_text(app)
-        await pilot.press("y")
+        await press(pilot, "y")
         await wait_for_main(pilot)
         assert engine(app).latched == []
 
@@ -697,7 +702,7 @@ async def test_simulation_controls_are_off_for_a_real_plant():
     app = make_app()
     engine(app).plant.is_real = True  # as a Modbus plant declares: no speed, no faults
     async with app.run_test(size=SIZE) as pilot:
-        await pilot.press("v", "f")
+        await press(pilot, "v", "f")
         await settle(pilot)
         assert app.controller.state.speed == 1.0
         assert len(app.screen_stack) == 1  # no fault dialog
@@ -742,22 +747,22 @@ async def test_quit_asks_first_and_says_what_happens():
         await run_for(pilot, 0.5)
         await enter_manual(pilot)
         await select_row(pilot, "O")
-        await pilot.press("1")
+        await press(pilot, "1")
         await run_for(pilot, 0.1)
-        await pilot.press("q")  # a stray q: asked, not obeyed
+        await press(pilot, "q")  # a stray q: asked, not obeyed
         await wait_for_screen(pilot, ConfirmDialog)
         text = screen_text(app)
         assert "Quit plchmi?" in text and "The scan stops" in text
         assert "simulated plant stops" in text and "requests (O=1) end" in text
-        await pilot.press("n")
+        await press(pilot, "n")
         await wait_for_main(pilot)
         assert app.is_running and app.return_code is None
         assert "cancelled: quit" in app.message.plain
         await run_for(pilot, 0.1)
         assert app.controller.last.output_map["O"] is True  # still in control
-        await pilot.press("q")
+        await press(pilot, "q")
         await wait_for_screen(pilot, ConfirmDialog)
-        await pilot.press("y")
+        await press(pilot, "y")
         await wait_until(pilot, lambda: app.return_code is not None, "the app to exit")
     assert app.return_code == 0
 
@@ -767,7 +772,9 @@ async def test_quit_from_the_palette_is_confirmed_too():
     async with app.run_test(size=SIZE) as pilot:
         await palette(pilot, "Quit")
         await wait_for_screen(pilot, ConfirmDialog)
-        await pilot.press("enter")
+        await press(pilot, "enter")  # only moves the focus: quitting needs y
+        assert app.is_running and isinstance(app.screen, ConfirmDialog)
+        await press(pilot, "y")
         await wait_until(pilot, lambda: app.return_code is not None, "the app to exit")
 
 
@@ -775,12 +782,12 @@ async def test_quit_on_a_real_plant_says_the_outputs_are_written_safe():
     app = make_app()
     engine(app).plant.is_real = True  # as a Modbus plant declares
     async with app.run_test(size=SIZE) as pilot:
-        await pilot.press("q")
+        await press(pilot, "q")
         await wait_for_screen(pilot, ConfirmDialog)
         text = screen_text(app)
         assert "Real plant" in text and "safe value (C=0, O=0)" in text
         assert "watchdog" in text
-        await pilot.press("escape")
+        await press(pilot, "escape")
         await wait_for_main(pilot)
         assert app.return_code is None
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from hmi.ui.constraints_panel import ConstraintsPanel
 from hmi.ui.scenarios import VALVE, make_app
-from hmi.ui.testing import region_text, run_until
+from hmi.ui.testing import drain, region_text, run_until
 from tests.conftest import make_controller
 
 
@@ -58,7 +58,7 @@ async def test_a_scan_landing_while_a_frame_is_built_does_not_mix_two_scans():
         assert name in app.controller.last.filter.violated_names
         app.recorder._lock = ScanFirst(app.recorder._lock, app.controller.scan_once)
         app.poll(force=True)  # issue 13: TypeError in the constraints panel
-        await pilot.pause()
+        await drain(pilot)
         frame = app.frame
         assert frame.snapshot.scan == scan + 1  # the newest scan, with its own history
         assert name not in frame.snapshot.filter.violated_names

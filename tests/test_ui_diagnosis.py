@@ -10,12 +10,13 @@ variant, used here); F9 at 10 s is isolated with certainty in S9 (fso read from 
 from __future__ import annotations
 
 from hmi.engine.commands import InjectFault
-from hmi.plant.injection import Injection
+from hmi.project.injection import Injection
 from hmi.ui.alarm_list import AlarmList
 from hmi.ui.dialogs import ConfirmDialog
 from hmi.ui.explain_panel import ExplanationPanel
 from hmi.ui.scenarios import make_app
 from hmi.ui.testing import (
+    press,
     region_text,
     run_until,
     screen_text,
@@ -82,7 +83,7 @@ async def test_ambiguous_diagnosis_reads_as_such():
         assert "sensor fsc stuck at 0, or valve blocked between its positions (F1, F13, " \
             "ambiguous)" in explained
         assert "recommended: Check Valve V1 first" in explained
-        await pilot.press("e", "e", "e")
+        await press(pilot, "e", "e", "e")
         await wait_until(pilot, lambda: app.focused is not None
                          and "policy-button" in app.focused.classes, "the policies")
         await settle(pilot)
@@ -111,7 +112,7 @@ async def test_certain_diagnosis_recommends_running_degraded():
         await wait_until(pilot, lambda: app.focused is not None
                          and "policy-button" in app.focused.classes, "the policies")
         assert app.focused.policy.id == "continue"
-        await pilot.press("enter")  # nothing sent to the plant: no confirmation
+        await press(pilot, "enter")  # nothing sent to the plant: no confirmation
         await settle(pilot)
         assert len(app.screen_stack) == 1
         assert seen[-1].policy == "continue"
@@ -123,12 +124,12 @@ async def test_reset_re_synchronises_a_diagnoser_only_when_the_io_allows_it():
     app = make_app()
     async with app.run_test(size=WIDE) as pilot:
         await inject(pilot, "F1", 10, ("F1", "F13"))
-        await pilot.press("r")
+        await press(pilot, "r")
         await wait_for_screen(pilot, ConfirmDialog)
         text = screen_text(app)
         assert "stays: diagnoser V1 in A1 {F1, F13}" in text
         assert "fsc=0, fso=0, C=0, O=0 match no normal" in text
-        await pilot.press("y")
+        await press(pilot, "y")
         await wait_for_main(pilot)
         assert engine(app).diagnosis.runtimes[0].state.name == "A1"
         assert "stays in A1" in app.message.plain
@@ -137,13 +138,13 @@ async def test_reset_re_synchronises_a_diagnoser_only_when_the_io_allows_it():
         await inject(pilot, "F9", 10, ("F9",))
         await run_until(pilot, lambda s: not s.output_map["C"] and not s.output_map["O"]
                         and s.value("fso") and not s.value("fsc"), 10, "the valve at rest")
-        await pilot.press("r")
+        await press(pilot, "r")
         await wait_for_screen(pilot, ConfirmDialog)
         text = screen_text(app)
         assert "will be reset: diagnoser V1 in S9 {F9}" in text
         assert "re-synchronised to N5 on fsc=0, fso=1, C=0, O=0" in text
         assert "1 latched alarm clear with their latch" in text
-        await pilot.press("y")
+        await press(pilot, "y")
         await wait_for_main(pilot)
         assert engine(app).diagnosis.runtimes[0].state.name == "N5"
         await run_until(pilot, lambda s: not s.diagnosers[0].faulty, 1, "the next scan")
@@ -180,10 +181,10 @@ async def test_a_situation_without_alarm_is_explained_from_the_palette():
         assert "▾ Why" in explained
         # enter on the alarm list brings the explanation back to the selected alarm
         app.query_one(AlarmList).focus()
-        await pilot.press("home")
+        await press(pilot, "home")
         await settle(pilot)
         assert app.query_one(ExplanationPanel).key == "reconstruction:fso"  # no move: kept
-        await pilot.press("enter")
+        await press(pilot, "enter")
         await settle(pilot)
         assert app.query_one(ExplanationPanel).key == "diagnosis:V1"
         assert app.query_one(ExplanationPanel).level >= 2

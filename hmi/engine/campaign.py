@@ -28,9 +28,9 @@ from typing import Any
 from hmi.engine.scan import Engine
 from hmi.engine.snapshot import Snapshot
 from hmi.plant.base import PlantEvent
-from hmi.plant.injection import Injection
 from hmi.plant.sim.plant import SimPlant
 from hmi.project.campaign import CampaignSpec, Scenario
+from hmi.project.injection import Injection
 from hmi.project.model import Project
 from hmi.timefmt import format_duration, seconds
 

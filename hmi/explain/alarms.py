@@ -14,6 +14,13 @@ ISA-18.2's chattering-alarm remedies, next to deadbands and shelving) applied to
 only: the journal still gets every change of the condition the operator could have seen, as
 compact ``condition-cleared`` / ``condition-returned`` events with the running count, and
 the final ``cleared`` says since when the condition had really been clear.
+
+**Priority never goes down while the alarm is listed.** An alarm's situation may change its
+severity while it lasts (a violation first passed unsafe under the monitor policy, then a
+refused manual order on the same constraint, reads "low"). While the alarm is active or
+unacknowledged its priority keeps the highest it had: an operator who saw a P1 must not find
+it quietly demoted to P3 before acknowledging it. It starts afresh only once it has left the
+list (acknowledged and cleared).
 """
 
 from __future__ import annotations
@@ -31,6 +38,11 @@ CHATTER_RETURNS = 3
 CHATTER_WINDOW_US = 60_000_000
 PRIORITY = {"high": 1, "medium": 2, "low": 3}
 LIST_ORDER = {ACTIVE_UNACK: 0, CLEARED_UNACK: 1, ACTIVE_ACK: 2}
+
+
+def highest(old: str, new: str) -> str:
+    """The severity of the two with the higher priority (the smaller P number)."""
+    return old if PRIORITY.get(old, 3) < PRIORITY.get(new, 3) else new
 
 
 @dataclass(frozen=True)
@@ -106,7 +118,8 @@ class AlarmManager:
                 chattering = alarm.chattering or len(history) > CHATTER_RETURNS
                 alarm = replace(alarm, state=ACTIVE_UNACK, changed_us=now,
                                 returns=alarm.returns + 1, chattering=chattering,
-                                severity=exp.severity, text=exp.what, explanation=exp)
+                                severity=highest(alarm.severity, exp.severity),
+                                text=exp.what, explanation=exp)
                 self._put(key, alarm)
                 events.append(self._event(alarm, "returned", scan, now))
                 if chattering:
@@ -118,8 +131,8 @@ class AlarmManager:
                     alarm = replace(alarm, returns=alarm.returns + 1)
                     events.append(self._event(alarm, "condition-returned", scan, now))
                 if alarm.explanation is not exp:
-                    alarm = replace(alarm, severity=exp.severity, text=exp.what,
-                                    explanation=exp, latched=exp.latched)
+                    alarm = replace(alarm, severity=highest(alarm.severity, exp.severity),
+                                    text=exp.what, explanation=exp, latched=exp.latched)
                 self._put(key, alarm)
         for key, alarm in list(self.alarms.items()):
             if key in present or alarm.state == CLEARED_UNACK:

@@ -11,7 +11,7 @@ how each of its states reads as a condition and which condition events to send:
 
 Severity comes from the ISA-18.2 priority (SEVERITY), Message is level 1 of the alarm's
 explanation, and the other levels travel as the event type's own properties (Why,
-Consequences, Policies).
+Consequences, Policies, Detail).
 
 Transitions reach the publisher two ways: the alarm events carried by snapshots (raised,
 cleared, returned...), and the alarm list of the latest snapshot, compared with what was
@@ -53,6 +53,7 @@ class ConditionView:
     why: str  # level 2
     consequences: str  # level 3
     policies: str  # level 4
+    detail: str  # level 5, the engineering detail, where the explanation has one
     time_us: int  # when it happened, in the run's time
     returns: int
     chattering: bool
@@ -156,5 +157,6 @@ def _view(key: str, transition: str, state: str, alarm: Alarm | None, time_us: i
         why=explanation.why if explanation else "",
         consequences=explanation.consequences if explanation else "",
         policies=explanation.policies_text() if explanation else "",
+        detail=getattr(explanation, "detail", "") or "",
         time_us=time_us, returns=returns, chattering=bool(alarm and alarm.chattering),
         latched=bool(alarm and alarm.latched), user=user, comment=comment)

@@ -44,6 +44,7 @@ from hmi.engine.commands import (
 )
 from hmi.engine.snapshot import Snapshot
 from hmi.errors import UsageError
+from hmi.explain.alarms import ACTIVE_UNACK, CLEARED_UNACK
 from hmi.opcua import NEEDS_USERS
 from hmi.opcua.conditions import ConditionTracker, ConditionView
 from hmi.opcua.model import BOOL, DOUBLE, STRING, STRINGS, UINT, AddressModel, build_model
@@ -363,12 +364,13 @@ class CellServer:
         self.alarm_type = await server.create_custom_event_type(
             ns, "PlchmiAlarmType", ua.ObjectIds.AlarmConditionType,
             [("Why", ua.VariantType.String), ("Consequences", ua.VariantType.String),
-             ("Policies", ua.VariantType.String), ("Priority", ua.VariantType.String),
+             ("Policies", ua.VariantType.String), ("Detail", ua.VariantType.String),
+             ("Priority", ua.VariantType.String),
              ("AlarmKind", ua.VariantType.String), ("Transition", ua.VariantType.String),
              ("Returns", ua.VariantType.UInt32), ("Chattering", ua.VariantType.Boolean),
              ("LatchedUntilReset", ua.VariantType.Boolean)])
         await _describe(self.alarm_type, "A plchmi alarm (ISA-18.2): Message is level 1 of "
-                        "its explanation; Why, Consequences and Policies the other levels")
+                        "its explanation; Why, Consequences, Policies and Detail the other levels")
         generator = await server.get_event_generator(self.alarm_type, server.nodes.server)
         self._template = generator.event
         self.conditions: dict[str, Any] = {}  # key -> the condition's event object
@@ -423,7 +425,8 @@ class CellServer:
         _two_state(event, "ActiveState", view.active, "Active", "Inactive", stamp)
         _two_state(event, "AckedState", view.acked, "Acknowledged", "Unacknowledged", stamp)
         for name, value in (("Why", view.why), ("Consequences", view.consequences),
-                            ("Policies", view.policies), ("Priority", view.priority),
+                            ("Policies", view.policies), ("Detail", view.detail),
+                            ("Priority", view.priority),
                             ("AlarmKind", view.kind), ("Transition", view.transition),
                             ("Returns", view.returns), ("Chattering", view.chattering),
                             ("LatchedUntilReset", view.latched)):
@@ -515,10 +518,26 @@ class CellServer:
             except (TypeError, ValueError) as exc:  # refused in words, like the engine does
                 return [ua.Variant(False, ua.VariantType.Boolean),
                         ua.Variant(str(exc), ua.VariantType.String)]
+            named = self._name_acknowledger(command, who)
             result = await self._command(command, who)
+            if not result.accepted:
+                for key in named:
+                    self.tracker.acks.pop(key, None)
             return [ua.Variant(result.accepted, ua.VariantType.Boolean),
                     ua.Variant(result.message, ua.VariantType.String)]
         return call
+
+    def _name_acknowledger(self, command: Command, who: Identity) -> list[str]:
+        """The condition events of an acknowledgement sent as a command name its sender
+        too: the alarms it concerns that wait for one (all of them for an empty key)."""
+        if not isinstance(command, Acknowledge) or self._latest is None:
+            return []
+        keys = [a.key for a in self._latest.alarms
+                if a.state in (ACTIVE_UNACK, CLEARED_UNACK)
+                and (command.key is None or a.key == command.key)]
+        for key in keys:
+            self.tracker.acknowledged_by(key, who.name or "", "")
+        return keys
 
 
 _UNSET = object()

@@ -13,8 +13,8 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from hmi.errors import ProjectError, UsageError
-from hmi.plant.injection import Injection
 from hmi.plant.sim.plant import SimPlant
+from hmi.project.injection import Injection
 from hmi.project.model import Project
 
 if TYPE_CHECKING:

@@ -118,14 +118,32 @@ class JournalRecorder:
             entry["by"] = by
         self._append(entry)
 
-    def close(self) -> None:
+    def on_ui_fault(self, fault) -> None:
+        """An error of the HMI (hmi.ui.containment.UIFault): contained, or fatal."""
+        engine = self.session.engine
+        self._append({
+            "type": "session", "event": "ui-error", "what": fault.what, "fatal": fault.fatal,
+            "message": f"{fault.error}; details in {fault.report}"
+                       + ("" if fault.fatal else "; contained, the scan goes on"),
+            "crash_file": fault.report, "scan": engine.scan, "t": seconds(engine.now)})
+
+    def close(self, abnormal: str | None = None, note: str | None = None) -> None:
+        """The session's last entry: `stop` if it ended as asked, else `abnormal-end` with
+        the reason (never "ended normally" after an error). `note`: it ended as asked, but
+        after errors that were contained (the stop says so, not "normally")."""
         engine = self.session.engine
         self._drain_plant()
         for entry in self.overruns.end(time.monotonic()):
             self._plant(entry)
+        name = engine.project.name
         try:
-            self._append({"type": "session", "event": "stop", "scan": engine.scan,
-                          "t": seconds(engine.now),
-                          "message": f"{engine.project.name}, ended normally"})
+            if abnormal is None:
+                how = f"ended as asked, {note}" if note else "ended normally"
+                self._append({"type": "session", "event": "stop", "scan": engine.scan,
+                              "t": seconds(engine.now), "message": f"{name}, {how}"})
+            else:
+                self._append({"type": "session", "event": "abnormal-end", "scan": engine.scan,
+                              "t": seconds(engine.now),
+                              "message": f"{name}, ended abnormally: {abnormal}"})
         finally:
             self.journal.close()

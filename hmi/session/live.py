@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import threading
 import time
+import traceback
 from collections import deque
 from collections.abc import Callable
 
@@ -21,6 +22,11 @@ class LiveRunner:
         self.controller = controller
         self.jitter_us: deque[float] = deque(maxlen=keep_jitter)
         self.overruns = 0
+        # Why the scan thread died, if it did (a scan listener failed): whoever runs it must
+        # end the run as an abnormal end, since nothing scans any more.
+        self.error: BaseException | None = None
+        self.error_traceback = ""
+        self.started = False
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, name="plchmi-scan", daemon=True)
 
@@ -28,6 +34,7 @@ class LiveRunner:
         settle_memory()
         arm_search_deadline(self.controller)
         self._thread.start()
+        self.started = True
 
     def stop(self, timeout: float = 2.0) -> None:
         self._stop.set()
@@ -39,6 +46,13 @@ class LiveRunner:
         return self._thread.is_alive()
 
     def _loop(self) -> None:
+        try:
+            self._scan_loop()
+        except Exception as exc:
+            self.error = exc
+            self.error_traceback = traceback.format_exc()
+
+    def _scan_loop(self) -> None:
         controller = self.controller
         period_s = controller.period_us / 1e6
         next_wall = time.perf_counter()
@@ -123,7 +137,8 @@ def run_live_for(controller: Session, duration_us: int,
     try:
         while not done.wait(0.1):
             if not runner.alive:
-                raise RuntimeError("the scan thread stopped unexpectedly")
+                raise RuntimeError(f"the scan thread stopped unexpectedly: {runner.error!r}"
+                                   ) from runner.error
     finally:
         runner.stop()
         controller.scan_listeners.remove(listener)

@@ -72,6 +72,7 @@ class Session:
         self.engine = engine
         self.project = engine.project
         self.period_us = period_us or engine.project.scan_period_us
+        engine.set_nominal_period(self.period_us)
         # A real plant runs on real time: each scan's time comes from `clock` (see
         # hmi.session.live.WallClock) instead of advancing by one period per scan.
         self.clock = clock

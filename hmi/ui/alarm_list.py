@@ -7,10 +7,10 @@ priority, newest first)::
     ● ACK            P3  7.920 s  Valve V1: close order blocked — never hold …  ×4
     ○ CLEARED-UNACK  P3  6.000 s  Valve V1: open order blocked — …
 
-The state is a symbol *and* a word; the colour follows the priority (P1 red, P2 and P3
-amber) and only active alarms carry it: a cleared alarm waiting for its acknowledgement is
-grey. ``×4`` counts the returns of a chattering alarm collapsed into one row; ``LATCHED``
-marks an active alarm that stays until a fault reset.
+The state is a symbol *and* a word; the colour of the state and of the priority follows the
+priority (P1 red, P2 and P3 amber) and only active alarms carry it: a cleared alarm waiting
+for its acknowledgement is grey. ``×4`` counts the returns of a chattering alarm collapsed
+into one row; ``LATCHED`` marks an active alarm that stays until a fault reset.
 
 The list is a panel of its own with a height it sets itself (one row per alarm, up to a cap
 that depends on the terminal's height), placed outside the body so the chronogram gives up
@@ -86,7 +86,9 @@ def alarm_row(alarm: Alarm, width: int, device_w: int = 0, time_w: int = 7) -> T
     muted = alarm.state == CLEARED_UNACK
     plain = MUTED if muted else Style()
     row.append("  ")
-    row.append(f"P{alarm.priority}", style=MUTED if muted else Style(bold=True))
+    # the priority in its colour too (P1 red, P2-P3 amber; grey once cleared): docs/ui.md
+    row.append(f"P{alarm.priority}", style=MUTED if muted else
+               STYLE[PRIORITY_LEVEL.get(alarm.priority, Level.ATTENTION)])
     row.append(f" {seconds(alarm.raised_us):>{time_w}} s  ", style=MUTED)
     text = alarm.text
     if device_w:
@@ -137,7 +139,7 @@ class AlarmList(TextPanel):
         self.alarms: tuple[Alarm, ...] = ()
         self.selected: str | None = None  # the selected alarm's key
         self.top = 0  # index of the first row shown
-        self._rows = -1
+        self._rows: tuple[int, bool] | None = None  # rows and compact border, as set
         self._drawn: tuple | None = None
 
     def on_mount(self) -> None:
@@ -170,11 +172,12 @@ class AlarmList(TextPanel):
     def _draw(self) -> None:
         height = self.app.size.height
         rows = min(max(len(self.alarms), 1), rows_for_height(height))
-        if rows != self._rows:
-            self._rows = rows
+        compact = height < SHORT
+        if (rows, compact) != self._rows:
+            self._rows = (rows, compact)  # (a resize may change the border alone)
             # the border: top and bottom lines; on a short screen, the top line only
-            self.set_class(height < SHORT, "-compact")
-            self.styles.height = rows + (1 if height < SHORT else 2)
+            self.set_class(compact, "-compact")
+            self.styles.height = rows + (1 if compact else 2)
         width = max(20, self.content_size.width or self.app.size.width - 4)
         key = (self.alarms, self.selected, rows, width, self.has_focus)
         if key == self._drawn:
@@ -251,6 +254,6 @@ class AlarmList(TextPanel):
         if offset is None:
             return
         row = offset.y
-        if 0 <= row < self._rows and self.top + row < len(self.alarms):
+        if self._rows and 0 <= row < self._rows[0] and self.top + row < len(self.alarms):
             self._select(self.alarms[self.top + row].key, open=True)
             self._draw()

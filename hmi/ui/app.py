@@ -19,7 +19,10 @@ situation picked from the palette or by clicking a constraint.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 from functools import partial
+from typing import Any
 
 from rich.text import Text
 from textual import events
@@ -56,12 +59,14 @@ from hmi.project.model import POLICIES
 from hmi.project.monitors import monitors_of
 from hmi.session.session import Session
 from hmi.timefmt import seconds
+from hmi.ui import testhooks
 from hmi.ui.actions import ACTIONS, bindings
 from hmi.ui.alarm_list import AlarmList, AlarmSelected
 from hmi.ui.chronogram import WINDOWS_US, Chronogram
 from hmi.ui.constraints_panel import ConstraintInfo, ConstraintsPanel
+from hmi.ui.containment import ContainedPump, Containment, UIFault
 from hmi.ui.diagnosers_panel import DiagnosersPanel, PartitionInfo
-from hmi.ui.dialogs import ChoiceDialog, ConfirmDialog, StepDialog
+from hmi.ui.dialogs import ChoiceDialog, ConfirmDialog, Dialog, StepDialog
 from hmi.ui.driver import LiveDriver, VirtualDriver
 from hmi.ui.explain_panel import (
     ExplanationPanel,
@@ -104,7 +109,7 @@ MANUAL_KEYS = {"1": True, "0": False, "x": None}
 WIDE = 120  # from this width on, the explanation panel stays beside the chronogram
 
 
-class Body(Vertical):
+class Body(ContainedPump, Vertical):
     """The panels' area. Its height changes with what is around it (an alarm row, a
     banner, the footer wrapping); the column panels size their detail on it."""
 
@@ -113,7 +118,7 @@ class Body(Vertical):
             panel.recheck()
 
 
-class PlcHmiApp(App):
+class PlcHmiApp(ContainedPump, App):
     CSS_PATH = ["app.tcss", "dialogs.tcss"]
     TITLE = "plchmi"
     # 1 / 0 / x also from outside the I/O table (an explanation's policy button, the alarm
@@ -156,6 +161,9 @@ class PlcHmiApp(App):
         self.subject: str | None = None
         # faults scheduled before the app started (plchmi ui --inject)
         self._injected += [InjectedFault(i, self._fault_text(i)) for i in injected]
+        # UI errors: contained and shown (banner, journal), or the reason the app ended
+        self.containment = Containment(lambda: (engine.scan, engine.now))
+        self._test_fault: testhooks.Armed | None = None
         self.register_theme(isa101_theme())
         self.theme = "isa101"
 
@@ -199,11 +207,11 @@ class PlcHmiApp(App):
         yield HmiFooter(compact=True)
 
     def on_mount(self) -> None:
-        self.controller.scan_listeners.append(self.recorder.on_scan)
+        self.controller.scan_listeners.append(self._record_scan)
         if self.controller.last is None:
             self.controller.scan_once()
         else:
-            self.recorder.on_scan(self.controller.last)
+            self._record_scan(self.controller.last)
         # the panels that set their own height first (banners, alarm rows): the column
         # panels measure their room after them
         self._views = [self.query_one(StatusBar), self.query_one(BannerStrip),
@@ -216,17 +224,75 @@ class PlcHmiApp(App):
         self._explanation = self.query_one(ExplanationPanel)
         self._col_time = self.query_one("#col-time")
         self.query_one(IOPanel).focus()
+        test_fault = testhooks.from_environment()
+        self._test_fault = testhooks.Armed(self, test_fault) if test_fault else None
         self.message.say(Text("ctrl+p: all commands", style=MUTED))
         self.poll(force=True)
-        self.set_interval(1 / self.refresh_hz, self.poll)
+        if self.driver.live:
+            self.set_interval(1 / self.refresh_hz, self.poll)
+        # else: in virtual time (tests, screenshots, the soak) whoever runs the scans shows
+        # the frames (hmi.ui.testing.settle); a refresh paced by the wall clock would make
+        # what a test sees depend on the machine's load
         # Start scanning once the first screen is drawn: the first layout is the heaviest
         # thing the UI does and would otherwise make the first scans late.
         self.call_after_refresh(self.driver.start)
 
     def on_unmount(self) -> None:
         self.driver.stop()
-        if self.recorder.on_scan in self.controller.scan_listeners:
-            self.controller.scan_listeners.remove(self.recorder.on_scan)
+        if self._record_scan in self.controller.scan_listeners:
+            self.controller.scan_listeners.remove(self._record_scan)
+
+    def _record_scan(self, snap) -> None:
+        """The recorder's share of a scan, in the scan thread: an error there is the UI's,
+        contained, never the scan's (the scan and the journal go on)."""
+        try:
+            self.recorder.on_scan(snap)
+        except Exception as exc:
+            self.containment.record("the UI's scan recorder", exc)
+
+    # -- fault containment (see hmi.ui.containment) ------------------------------------------
+    def contain(self, what: str, exc: BaseException) -> UIFault:
+        """An error in the UI: remembered, shown (banner, message line), journalled; the
+        screen goes on refreshing and the scan never noticed."""
+        fault = self.containment.record(what, exc)
+        try:
+            line = tag("UI ERROR", Level.ALARM)
+            line.append(f" {fault.summary} · details: {fault.report}")
+            self.message.say(line)
+        except Exception:
+            pass  # the banner says it at the next frame
+        return fault
+
+    def guarded(self, what: str, function: Callable[..., Any]) -> Callable[..., Any]:
+        """`function`, with its errors contained (dialog answers, palette entries)."""
+        def run(*args: Any) -> Any:
+            try:
+                return function(*args)
+            except Exception as exc:
+                self.contain(what, exc)
+                return None
+        return run
+
+    def _handle_exception(self, error: Exception) -> None:
+        """Textual's last resort (an error in its own widgets or the compositor): the app
+        cannot go on. Remembered as the reason of an abnormal end, then Textual ends it."""
+        self.containment.record("the HMI (Textual)", error, fatal=True)
+        super()._handle_exception(error)
+
+    async def run_action(self, action, default_namespace=None, namespaces=None) -> bool:
+        """Every key's and palette's action goes through here: an error in it is contained."""
+        try:
+            return await super().run_action(action, default_namespace, namespaces)
+        except Exception as exc:
+            self.contain(f"action {action}", exc)
+            return True
+
+    def push_screen(self, screen, callback=None, wait_for_dismiss=False, *, mode=None):
+        """Dialogs: the answer's handling is contained like any other action."""
+        if callback is not None:
+            callback = self.guarded(f"answer to {getattr(screen, 'id', None) or screen}",
+                                    callback)
+        return super().push_screen(screen, callback, wait_for_dismiss, mode=mode)
 
     @property
     def message(self) -> MessageLine:
@@ -248,6 +314,14 @@ class PlcHmiApp(App):
 
         The snapshot comes from the recorder with the history of that same scan (never
         ``session.last`` then the history: the scan thread may run a scan in between)."""
+        try:
+            return self._poll(force)
+        except Exception as exc:  # the frame itself could not be built
+            self.contain("the screen refresh", exc)
+            return False
+
+    def _poll(self, force: bool) -> bool:
+        self._check_driver()
         recorded = self.recorder.latest()
         snap = recorded.snapshot
         if snap is None:
@@ -255,8 +329,10 @@ class PlcHmiApp(App):
         state = self.controller.state
         if self._mode_commanded == snap.mode:
             self._mode_commanded = None
+        contained = self.containment
+        frame_faults = contained.version
         key = (snap.scan, id(snap), self.run_label(), state.speed, self.driver.overruns,
-               self._version, self._mode_commanded)
+               self._version, self._mode_commanded, contained.version)
         if not force and key == self._key:
             return False
         self._key = key
@@ -266,14 +342,46 @@ class PlcHmiApp(App):
             overruns=self.driver.overruns, changed=output_changes(snap),
             injected=tuple(self._injected), free_inputs=self.free_inputs,
             damage_count=recorded.damage_count, mode_commanded=self._mode_commanded,
-            constraints=recorded.constraints)
+            constraints=recorded.constraints, ui_fault=contained.latest,
+            ui_faults=contained.total)
         self.frame = frame
-        for view in self._views:
-            view.show(frame)
-        self._explain(frame)
+        for view in self._views:  # one panel failing leaves the others showing this frame
+            try:
+                view.show(frame)
+            except Exception as exc:
+                self.contain(f"{type(view).__name__} refresh", exc)
+        try:
+            self._explain(frame)
+        except Exception as exc:
+            self.contain("ExplanationPanel refresh", exc)
+        if contained.version != frame_faults:
+            self._show_faults(frame)
         self._judge_request(snap)
         self.frames_shown += 1
+        if self._test_fault is not None:
+            self._test_fault.tick(snap.time_us)
         return True
+
+    def _show_faults(self, frame: Frame) -> None:
+        """A panel failed while this frame was shown: the banner and the status bar say so in
+        this same frame (not at the next refresh, which a paused app may never have)."""
+        contained = self.containment
+        self.frame = frame = replace(frame, ui_fault=contained.latest,
+                                     ui_faults=contained.total)
+        self._key = (*self._key[:-1], contained.version) if self._key else None
+        for view in self._views[:2]:  # the status bar and the banners
+            try:
+                view.show(frame)
+            except Exception as exc:
+                self.contain(f"{type(view).__name__} refresh", exc)
+
+    def _check_driver(self) -> None:
+        """The scan thread died (a scan listener failed): nothing scans any more, so the HMI
+        cannot go on. An abnormal end (see hmi.cli.cmd_ui: safe outputs on a real plant)."""
+        error = getattr(self.driver, "error", None)
+        if error is not None and self.containment.fatal is None:
+            self.containment.record("the scan thread", error, fatal=True)
+            self.exit(return_code=1)
 
     def _judge_request(self, snap) -> None:
         if self._request is None:
@@ -346,15 +454,24 @@ class PlcHmiApp(App):
             panel.open_to(open_level)
 
     def on_explanation_shown(self, message: ExplanationShown) -> None:
-        """Narrow screens: an open explanation takes the chronogram's place."""
+        self._place_chronogram()
+
+    def _place_chronogram(self) -> None:
+        """Narrow screens: an open explanation takes the chronogram's place; wide ones show
+        both (again, after a resize from narrow to wide)."""
         chrono = self._col_time
-        show = self.size.width >= WIDE or not message.visible
+        show = self.size.width >= WIDE or not self._explanation.visible
         if chrono.display != show:
             chrono.display = show
 
     def on_resize(self) -> None:
+        # Textual sets the app's new size after this handler: look once it is set
+        self.call_later(self._resized)
+
+    def _resized(self) -> None:
         if self.frame is not None and hasattr(self, "_explanation"):
             self._explain(self.frame)
+            self._place_chronogram()
 
     def on_policy_requested(self, message: PolicyRequested) -> None:
         self.choose_policy(message.key, message.policy)
@@ -437,6 +554,9 @@ class PlcHmiApp(App):
                                   if device is not None and f.injection.device not in
                                   (None, device)]
                 self._version += 1
+                self.explanation_panel.forget_results()
+            case FaultReset() if result.accepted:
+                self.explanation_panel.forget_results()  # what they answered has changed
         if result.accepted and not isinstance(command, RUN_STATE_COMMANDS) \
                 and not self.controller.state.running:
             text.append(" — applies at the next scan (paused)", style=MUTED)
@@ -490,6 +610,14 @@ class PlcHmiApp(App):
                 return False
             return bool(self.frame and self.frame.manual_keys)  # else hidden (on_key says)
         return True
+
+    async def on_event(self, event: events.Event) -> None:
+        """A key typed before the dialog on top was painted is not the dialog's: dropped
+        (a stray enter or y meant for the screen below must not answer it)."""
+        if isinstance(event, events.Key) and not event.is_forwarded and \
+                isinstance(self.screen, Dialog) and not self.screen.takes(event):
+            return
+        await super().on_event(event)
 
     def on_key(self, event: events.Key) -> None:
         """1 / 0 / x outside manual mode: said, not silently ignored."""
@@ -855,13 +983,44 @@ def reset_line(line: ResetLine) -> Text:
     return text
 
 
-def run_app(target: Engine | Session, clock=None, injected: tuple[Injection, ...] = ()
-            ) -> int:
+@dataclass(frozen=True)
+class AppEnd:
+    """How the HMI ended: exit status 0 when the operator quit, else 1 with the reason."""
+
+    status: int
+    reason: str | None = None  # None: ended as asked
+    # ended as asked, but UI errors were contained meanwhile: the journal's stop says so
+    # instead of "ended normally"
+    note: str | None = None
+
+
+def run_app(target: Engine | Session, clock=None, injected: tuple[Injection, ...] = (),
+            on_fault: Callable[[UIFault], None] | None = None) -> AppEnd:
     """Run the HMI live on an engine, or on a controller others listen to (the journal).
 
     A real plant passes a wall clock to stamp its scans (see hmi.session.live.WallClock);
-    `injected` are the faults the command line scheduled in a simulated plant."""
+    `injected` are the faults the command line scheduled in a simulated plant; `on_fault`
+    is told of every UI error (the journal)."""
     controller = target if isinstance(target, Session) else Session(target, clock=clock)
     app = PlcHmiApp(controller, injected=injected)
+    if on_fault is not None:
+        app.containment.listeners.append(on_fault)
     app.run()
-    return 0
+    return app_end(app)
+
+
+def app_end(app: PlcHmiApp) -> AppEnd:
+    """Why the app stopped: a fatal error (Textual's last resort, the scan thread), any
+    non-zero return code, or the operator's quit."""
+    fatal = app.containment.fatal
+    if fatal is not None:
+        return AppEnd(1, f"{fatal.what}: {fatal.error} (details in {fatal.report})")
+    if app.return_code:
+        return AppEnd(1, f"the HMI stopped with return code {app.return_code}")
+    contained = app.containment
+    if contained.total:
+        first = next(iter(contained.faults.values()))
+        return AppEnd(0, note=f"after {contained.total} contained UI error"
+                      f"{'s' if contained.total > 1 else ''} (first: {first.what}: "
+                      f"{first.error}; see the ui-error entries)")
+    return AppEnd(0)

@@ -20,6 +20,7 @@ from rich.text import Text
 from textual.reactive import reactive
 from textual.widget import Widget
 
+from hmi.ui.containment import ContainedPump
 from hmi.ui.frame import Frame
 from hmi.ui.recorder import FOV_SUFFIX, ScanRecorder, Trace
 from hmi.ui.style import MUTED, STYLE, Level
@@ -106,7 +107,7 @@ def axis(start_us: int, window_us: int, width: int) -> str:
     return "".join(row)
 
 
-class Chronogram(Widget):
+class Chronogram(ContainedPump, Widget):
     """Draws the recorder's history of the chosen signals up to the frame's scan time."""
 
     signals: reactive[tuple[str, ...]] = reactive(tuple)
@@ -138,6 +139,15 @@ class Chronogram(Widget):
         self.watch_window_us()
 
     def render(self) -> Text:
+        """Drawn by Textual's compositor, outside any handler: an error here is contained
+        here (the chronogram says so; the rest of the screen is drawn)."""
+        try:
+            return self._draw_text()
+        except Exception as exc:
+            fault = self.app.contain("Chronogram drawing", exc)  # type: ignore[attr-defined]
+            return Text(f"✗ chronogram not drawn: {fault.error}", style=MUTED)
+
+    def _draw_text(self) -> Text:
         text = Text(no_wrap=True, overflow="crop")
         if not self.signals:
             text.append("no signals chosen: press g to choose", style=MUTED)

@@ -4,14 +4,22 @@ Confirmation is asked for what changes how the cell is protected or driven (manu
 filter policy, fault reset); a dialog says what will happen in plain words before the
 operator agrees. Each dialog returns its answer through ``dismiss`` and never sends a
 command itself: the app does, so every action still goes through ``Session.command``.
+
+Keys typed before a dialog is on screen are not its keys: an Enter meant for the alarm list
+must not confirm a fault reset whose dialog opened a moment late. Every dialog notes when it
+was first painted (:attr:`Dialog.shown_at`); the app drops the keys that were typed before
+(``PlcHmiApp.on_event``). A confirmation needs ``y`` (or a click on its button): Enter only
+moves the focus between its buttons, and the focus starts on Cancel.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TypeVar
 
 from rich.text import Text
-from textual import on
+from textual import events, on
+from textual._time import get_time
 from textual.app import ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal, Vertical
@@ -19,7 +27,10 @@ from textual.screen import ModalScreen
 from textual.widgets import Button, Input, Label, OptionList, Static
 from textual.widgets.option_list import Option
 
+from hmi.ui.containment import ContainedPump
 from hmi.ui.style import Level, banner
+
+_R = TypeVar("_R")
 
 
 def _title(text: str, level: Level) -> Static:
@@ -28,15 +39,35 @@ def _title(text: str, level: Level) -> Static:
     return Static(title, classes="dialog-title", markup=False)
 
 
-class ConfirmDialog(ModalScreen[bool]):
-    """Yes / no, with the consequences listed. y or enter confirms; n or escape cancels."""
+class Dialog(ContainedPump, ModalScreen[_R]):
+    """A modal dialog of the HMI: its errors contained, and the moment it was first shown
+    known, so that keys typed before it was on screen are dropped (see the module)."""
+
+    shown_at: float | None = None  # Textual's event clock (Message.time) when first painted
+
+    def on_mount(self) -> None:
+        self.call_after_refresh(self._painted)
+
+    def _painted(self) -> None:
+        if self.shown_at is None:
+            self.shown_at = get_time()
+
+    def takes(self, event: events.Key) -> bool:
+        """Whether a key is the dialog's: typed once the dialog was on screen."""
+        return self.shown_at is not None and event.time >= self.shown_at
+
+
+class ConfirmDialog(Dialog[bool]):
+    """Yes / no, with the consequences listed. y confirms; n or escape cancels; enter only
+    moves the focus between the buttons (it never confirms)."""
 
     BINDINGS = [
         Binding("y", "answer(True)", "Confirm"),
-        Binding("enter", "answer(True)", "Confirm", show=False),
         Binding("n", "answer(False)", "Cancel"),
         Binding("escape", "answer(False)", "Cancel", show=False),
+        Binding("enter", "app.focus_next", "Next button", show=False, priority=True),
     ]
+    AUTO_FOCUS = "#no"
 
     def __init__(self, title: str, lines: Sequence[Text | str], confirm: str = "Confirm",
                  level: Level = Level.ATTENTION, dialog_id: str = "confirm"):
@@ -51,7 +82,7 @@ class ConfirmDialog(ModalScreen[bool]):
             yield _title(self.title_text, self.level)
             for line in self.lines:
                 yield Static(line, classes="dialog-line", markup=False)
-            yield Label("y / enter: confirm    n / esc: cancel", classes="dialog-hint")
+            yield Label("y: confirm    n / esc: cancel", classes="dialog-hint")
             with Horizontal(classes="dialog-buttons"):
                 yield Button(f"{self.confirm_label} (y)", id="yes", variant="default")
                 yield Button("Cancel (n)", id="no", variant="default")
@@ -64,7 +95,7 @@ class ConfirmDialog(ModalScreen[bool]):
         self.dismiss(event.button.id == "yes")
 
 
-class StepDialog(ModalScreen[int | None]):
+class StepDialog(Dialog[int | None]):
     """How many scans to step (1 to MAX_STEPS)."""
 
     MAX_STEPS = 10_000
@@ -100,7 +131,7 @@ class StepDialog(ModalScreen[int | None]):
         self.dismiss(None)
 
 
-class ChoiceDialog(ModalScreen[str | None]):
+class ChoiceDialog(Dialog[str | None]):
     """Pick one of a few options (filter policy, speed...); enter picks, escape cancels."""
 
     BINDINGS = [Binding("escape", "cancel", "Cancel")]

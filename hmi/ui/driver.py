@@ -42,10 +42,16 @@ class LiveDriver:
     def overruns(self) -> int:
         return self.runner.overruns
 
+    @property
+    def error(self) -> BaseException | None:
+        """Why the scan thread died (None while it runs or after a normal stop)."""
+        return self.runner.error
+
 
 class VirtualDriver:
     live = False
     overruns = 0
+    error = None
 
     def __init__(self, controller: Session):
         self.controller = controller

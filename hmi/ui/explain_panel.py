@@ -13,10 +13,15 @@ one under the other, the first always, the others on demand::
 
 ``e`` opens the next level (and, once all are open, folds them back to the first); a click
 on a level's heading opens it (with the levels before it) or folds it (with those after).
-Opening the policies focuses the recommended one: enter chooses it. Each policy is a button
-with its effect beside it; choosing one asks the app (:class:`PolicyRequested`), which
+The level just opened is scrolled to the top of the panel; when the text is taller than the
+panel the subtitle says ``↑↓ scroll`` and the panel has the focus (tab moves on), so the
+arrows scroll it. Opening the policies focuses the recommended one: enter chooses it. Each
+policy is a button with its effect beside it; choosing one asks the app
+(:class:`PolicyRequested`), which
 confirms the choices that change what the plant does and sends ``ChoosePolicy``; the
-result is shown here at once, under the buttons, as well as on the message line.
+result is shown here at once, under the buttons, as well as on the message line — while the
+explanation it answered is the one shown, and until a fault reset or a repair changes the
+situation it spoke of (the app then forgets it).
 
 An ambiguous diagnosis says so in its heading (``? AMBIGUOUS``): the labels it cannot tell
 apart are in its first line, and the recommended check in its policies.
@@ -39,6 +44,7 @@ from textual.widgets import Button, Static
 from hmi.explain.alarms import CLEARED_UNACK, PRIORITY, Alarm
 from hmi.explain.model import Explanation, Policy
 from hmi.timefmt import seconds
+from hmi.ui.containment import ContainedPump
 from hmi.ui.panel import set_title
 from hmi.ui.style import MUTED, OK_SYMBOL, STYLE, Level, tag
 
@@ -64,7 +70,7 @@ class ExplanationShown(Message):
         self.visible = visible
 
 
-class LevelView(Static):
+class LevelView(ContainedPump, Static):
     """One level: its heading, and its text when open. A click opens or folds it."""
 
     def __init__(self, level: int, *, id: str | None = None):
@@ -133,10 +139,10 @@ def policy_effect(policy: Policy) -> Text:
     return text
 
 
-class ExplanationPanel(VerticalScroll):
+class ExplanationPanel(ContainedPump, VerticalScroll):
     """The graduated explanation of one situation (the app says which: `key`)."""
 
-    can_focus = False  # tab goes to the policy buttons; the mouse wheel scrolls
+    can_focus = True  # ↑↓ scroll it (its bindings); tab goes on to the policy buttons
 
     def __init__(self, *, id: str | None = None):
         super().__init__(id=id)
@@ -144,13 +150,17 @@ class ExplanationPanel(VerticalScroll):
         self.explanation: Explanation | None = None
         self.alarm: Alarm | None = None
         self.levels: dict[str, int] = {}  # open levels per situation (1: the first only)
-        self.results: dict[str, Text] = {}  # the last policy choice's answer, per situation
+        # the last policy choice's answer, per situation, with the explanation it answered
+        self.results: dict[str, tuple[Text, int]] = {}
         self.wide = True
         self._drawn: tuple | None = None
         self._policies: tuple[Policy, ...] | None = None
         self._focus_recommended = False
         self._answered: Text | None = None
         self._pending_end = False
+        # The level just opened, kept at the top of the panel while the panel is laid out
+        # again (it appears, widens, its text reflows), until the operator scrolls.
+        self._anchor: int | None = None
         self._contents: dict[str | None, Text | str] = {}  # each part's text as shown
         self.visible = True
 
@@ -174,6 +184,8 @@ class ExplanationPanel(VerticalScroll):
     def show(self, key: str | None, explanation: Explanation | None, alarm: Alarm | None,
              wide: bool) -> None:
         """Explain `key` (None: nothing selected); `alarm` when it is an alarm's."""
+        if key != self.key:
+            self._anchor = None
         self.key, self.explanation, self.alarm, self.wide = key, explanation, alarm, wide
         self._draw()
 
@@ -195,14 +207,33 @@ class ExplanationPanel(VerticalScroll):
             self._set_level(level)
 
     def say_result(self, key: str, text: Text) -> None:
-        self.results[key] = text
+        shown = self.explanation if key == self.key else None
+        self.results[key] = (text, id(shown))
         self._draw()
+
+    def forget_results(self) -> None:
+        """The situations the answers spoke of changed (a fault reset, a repair): the
+        answers are history now, the message line and the journal keep them."""
+        if self.results:
+            self.results.clear()
+            self._draw()
+
+    def _answer(self) -> Text | None:
+        """The answer to the last policy chosen here, if it answered this explanation."""
+        found = self.results.get(self.key or "")
+        if found is None or found[1] != id(self.explanation):
+            return None
+        return found[0]
 
     def _set_level(self, level: int) -> None:
         assert self.key is not None
+        opened = level > self.level
         self.levels[self.key] = level
         self._focus_recommended = level == 4
+        self._anchor = level if opened and level > 1 else None
         self._draw()
+        if opened and 1 < level < 4 and self.visible and not self.has_focus:
+            self.focus(scroll_visible=False)  # ↑↓ scroll it
 
     # -- drawing -----------------------------------------------------------------------------
     def _draw(self) -> None:
@@ -215,8 +246,9 @@ class ExplanationPanel(VerticalScroll):
             self.visible = visible
             self.display = visible
             self.post_message(ExplanationShown(visible))
+        answer = self._answer()
         state = (self.key, id(exp), self.alarm.state if self.alarm else None, level,
-                 self.results.get(self.key or ""), self.wide)
+                 answer, self.wide)
         if state == self._drawn:
             return
         self._drawn = state
@@ -227,25 +259,25 @@ class ExplanationPanel(VerticalScroll):
         result = self.query_one("#explain-result", Static)
         if exp is None:
             set_title(self, "Explanation")
+            self._set_subtitle("")
             self._put(head, Text(f"{OK_SYMBOL} no alarm to explain", style=MUTED))
             self._put(what, "")
             for view in views:
                 view.display = False
             self._set_policies(())
             self._put(result, "")
+            result.display = False
             return
         set_title(self, f"Explanation · {exp.kind}")
-        subtitle = f"level {level}/4 · e: {'more' if level < 4 else 'fold'}"
-        if self.border_subtitle != subtitle:
-            self.border_subtitle = subtitle
+        self._set_subtitle()
         self._put(head, heading_text(exp, self.alarm))
         self._put(what, Text(exp.what, style=Style(bold=True)))
         for view in views:
             view.display = True
             self._put(view, level_text(exp, view.level, level >= view.level))
         self._set_policies(exp.policies if level >= 4 else ())
-        answer = self.results.get(self.key or "")
         self._put(result, answer or "")
+        result.display = answer is not None  # empty, its margin would make the text scroll
         if answer is not None and answer is not self._answered:
             self._answered = answer  # a new answer: make sure it is seen
             self._pending_end = True  # the answer is the last line: scroll to it once laid out
@@ -253,13 +285,71 @@ class ExplanationPanel(VerticalScroll):
             self._focus_recommended = False
             self.call_after_refresh(self._focus_policy)
 
+    def _set_subtitle(self, subtitle: str | None = None) -> None:
+        """`level 2/4 · e: more`, and `↑↓ scroll` while the text is taller than the panel."""
+        if subtitle is None:
+            level = self.level
+            subtitle = f"level {level}/4 · e: {'more' if level < 4 else 'fold'}"
+            if self.max_scroll_y > 0:
+                subtitle += " · ↑↓ scroll"
+        if self.border_subtitle != subtitle:
+            self.border_subtitle = subtitle
+
     def _scroll_update(self, virtual_size) -> None:
-        # Textual's hook (8.2) for a new virtual size: the first moment the answer's lines
-        # have a place, so the first moment scrolling to the end reaches them.
+        # Textual's hook (8.2) for a new virtual size: the first moment the new lines have a
+        # place, so the first moment scrolling to them reaches them.
         super()._scroll_update(virtual_size)
+        if self.explanation is not None:
+            self._set_subtitle()
         if self._pending_end:  # the answer's lines are laid out now
             self._pending_end = False
+            self._anchor = None
             self.scroll_end(animate=False, immediate=True)
+        elif self._anchor is not None:
+            self.call_after_refresh(self._scroll_to_anchor)
+
+    def on_resize(self) -> None:
+        if self._anchor is not None:
+            self.call_after_refresh(self._scroll_to_anchor)
+
+    def _scroll_to_anchor(self) -> None:
+        if self._anchor is None or self.explanation is None:
+            return
+        view = self.query_one(("#explain-why", "#explain-consequences",
+                               "#explain-policies-head")[self._anchor - 2])
+        if self.scroll_y != view.virtual_region.y:
+            self.scroll_to(y=view.virtual_region.y, animate=False, immediate=True)
+
+    # The operator scrolls: the level opened no longer holds the top.
+    def action_scroll_up(self) -> None:
+        self._anchor = None
+        super().action_scroll_up()
+
+    def action_scroll_down(self) -> None:
+        self._anchor = None
+        super().action_scroll_down()
+
+    def action_page_up(self) -> None:
+        self._anchor = None
+        super().action_page_up()
+
+    def action_page_down(self) -> None:
+        self._anchor = None
+        super().action_page_down()
+
+    def action_scroll_home(self) -> None:
+        self._anchor = None
+        super().action_scroll_home()
+
+    def action_scroll_end(self) -> None:
+        self._anchor = None
+        super().action_scroll_end()
+
+    def on_mouse_scroll_up(self) -> None:
+        self._anchor = None
+
+    def on_mouse_scroll_down(self) -> None:
+        self._anchor = None
 
     def _put(self, widget: Static, content: Text | str) -> None:
         """Update a part only when its text changed: an update re-lays the screen out."""
@@ -289,9 +379,7 @@ class ExplanationPanel(VerticalScroll):
         chosen = next((b for b in buttons if getattr(b, "policy", None) is not None
                        and b.policy.recommended), buttons[0] if buttons else None)
         if chosen is not None:
-            chosen.focus(scroll_visible=False)
-            # its region is known once the rows just mounted are laid out
-            self.call_after_refresh(self.scroll_to_widget, chosen, animate=False)
+            chosen.focus(scroll_visible=False)  # the policies' heading is scrolled to
 
     @on(Button.Pressed, ".policy-button")
     def _pressed(self, event: Button.Pressed) -> None:

@@ -14,12 +14,12 @@ from textual import on
 from textual.app import ComposeResult
 from textual.binding import Binding
 from textual.containers import Vertical
-from textual.screen import ModalScreen
 from textual.widgets import Input, Label, OptionList, Static
 from textual.widgets.option_list import Option
 
 from hmi.plant.injection import Injection
 from hmi.timefmt import parse_duration
+from hmi.ui.dialogs import Dialog
 from hmi.ui.style import Level, banner
 
 
@@ -34,7 +34,7 @@ def parse_delay(text: str) -> int:
         return parse_duration(text)
 
 
-class FaultDialog(ModalScreen[Injection | None]):
+class FaultDialog(Dialog[Injection | None]):
     BINDINGS = [Binding("escape", "cancel", "Cancel")]
 
     def __init__(self, faults: list[tuple[str, str, str]], now_us: Callable[[], int],

@@ -16,6 +16,8 @@ from textual.app import ComposeResult
 from textual.widgets import Footer
 from textual.widgets._footer import FooterKey
 
+from hmi.ui.containment import ContainedPump
+
 ROWS_WHEN_WRAPPED = 2
 MAX_ROWS = 4
 PALETTE_WIDTH = 13  # "▏^p palette" and its padding, docked on the right
@@ -26,7 +28,7 @@ def key_width(key: FooterKey) -> int:
     return cell_len(key.key_display) + 1 + cell_len(key.description) + 1
 
 
-class HmiFooter(Footer):
+class HmiFooter(ContainedPump, Footer):
     needed = 0  # columns one line would need for every key
 
     def compose(self) -> ComposeResult:

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 
 from hmi.engine.snapshot import Snapshot
 from hmi.plant.injection import Injection
+from hmi.ui.containment import UIFault
 from hmi.ui.recorder import ConstraintStats
 
 
@@ -40,6 +41,8 @@ class Frame:
     # who paused, then entered manual mode, can prepare requests before stepping.
     mode_commanded: str | None = None
     constraints: Mapping[str, ConstraintStats] = field(default_factory=dict)  # history
+    ui_fault: UIFault | None = None  # the latest UI error contained (hmi.ui.containment)
+    ui_faults: int = 0  # how many UI errors were contained this session
 
     @property
     def simulated(self) -> bool:

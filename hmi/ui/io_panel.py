@@ -18,6 +18,7 @@ from textual.widgets import DataTable
 
 from hmi.engine.commands import ManualOutput, SetInput
 from hmi.engine.layout import Layout
+from hmi.ui.containment import ContainedPump
 from hmi.ui.frame import Frame
 from hmi.ui.messages import CommandRequested
 from hmi.ui.style import MUTED, STYLE, Level, bit, tag
@@ -28,7 +29,7 @@ MANUAL_ACTIONS = ("manual_on", "manual_off", "manual_release")
 NARROW = 60  # panel width (cells) under which the State marks take their short form
 
 
-class IOPanel(DataTable):
+class IOPanel(ContainedPump, DataTable):
     BINDINGS = [
         Binding("1", "manual_on", "On", tooltip="Manual: request the highlighted output on"),
         Binding("0", "manual_off", "Off", tooltip="Manual: request the highlighted output off"),

@@ -12,6 +12,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from textual.command import DiscoveryHit, Hit, Hits, Provider
+from textual.content import Content
+from textual.fuzzy import Matcher
 
 
 @dataclass(frozen=True)
@@ -29,13 +31,31 @@ class HmiCommands(Provider):
         entries = getattr(self.app, "palette_entries", None)
         return list(entries()) if entries else []
 
+    def _run(self, entry: PaletteEntry) -> Callable[[], object]:
+        """The entry's command, its errors contained by the app (hmi.ui.containment)."""
+        guarded = getattr(self.app, "guarded", None)
+        return guarded(f"palette entry {entry.title!r}", entry.run) if guarded else entry.run
+
     async def discover(self) -> Hits:
         for entry in self._entries():
-            yield DiscoveryHit(entry.title, entry.run, help=entry.help)
+            yield DiscoveryHit(Content(entry.title), self._run(entry), text=entry.title,
+                               help=entry.help)
 
     async def search(self, query: str) -> Hits:
         matcher = self.matcher(query)
         for entry in self._entries():
             score = matcher.match(entry.title)
             if score > 0:
-                yield Hit(score, matcher.highlight(entry.title), entry.run, help=entry.help)
+                yield Hit(score, highlighted(matcher, entry.title), self._run(entry),
+                          text=entry.title, help=entry.help)
+
+
+def highlighted(matcher: Matcher, title: str) -> Content:
+    """The title with the characters the query matched marked, read as plain text: titles
+    end in their key, ``[r]``, which ``Matcher.highlight`` would take for markup and drop."""
+    content = Content(title)
+    score, offsets = matcher.fuzzy_search.match(matcher.query, title)
+    for offset in offsets if score else ():
+        if not title[offset].isspace():
+            content = content.stylize(matcher.match_style, offset, offset + 1)
+    return content

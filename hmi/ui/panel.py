@@ -13,6 +13,7 @@ from rich.text import Text
 from textual.css.query import NoMatches
 from textual.widgets import Static
 
+from hmi.ui.containment import ContainedPump
 from hmi.ui.frame import Frame
 
 TOP_SHARE = 0.6  # app.tcss: #top { max-height: 60% } of #body
@@ -25,7 +26,7 @@ def set_title(widget, title: str) -> None:
         widget.border_title = title
 
 
-class TextPanel(Static):
+class TextPanel(ContainedPump, Static):
     def __init__(self, *, id: str | None = None):
         super().__init__(id=id, markup=False)
         self._lines = -1

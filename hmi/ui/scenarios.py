@@ -26,6 +26,8 @@ from hmi.ui.dialogs import ConfirmDialog
 from hmi.ui.fault_dialog import FaultDialog
 from hmi.ui.io_panel import IOPanel
 from hmi.ui.testing import (
+    drain,
+    press,
     run_for,
     run_until,
     settle,
@@ -61,7 +63,7 @@ async def select_row(pilot: Pilot, name: str) -> None:
     table = pilot.app.query_one(IOPanel)
     table.focus()
     table.move_cursor(row=table.get_row_index(name))
-    await pilot.pause()
+    await drain(pilot)
 
 
 async def normal(pilot: Pilot) -> None:
@@ -72,13 +74,13 @@ async def normal(pilot: Pilot) -> None:
 async def manual(pilot: Pilot) -> None:
     """Manual mode with the open order forced on, the valve opening under it."""
     await run_for(pilot, 9.5)  # closed, waiting
-    await pilot.press("m")
+    await press(pilot, "m")
     await wait_for_screen(pilot, ConfirmDialog)
-    await pilot.press("y")
+    await press(pilot, "y")
     await wait_for_main(pilot)
     await run_for(pilot, 0.5)
     await select_row(pilot, "O")
-    await pilot.press("1")
+    await press(pilot, "1")
     await settle(pilot)
     await run_for(pilot, 1.2)
 
@@ -86,8 +88,8 @@ async def manual(pilot: Pilot) -> None:
 async def stepping(pilot: Pilot) -> None:
     """Paused mid-opening, then stepped three scans."""
     await run_for(pilot, 1.5)
-    await pilot.press("space")
-    await pilot.press("s", "s", "s")
+    await press(pilot, "space")
+    await press(pilot, "s", "s", "s")
     await settle(pilot)
 
 
@@ -97,9 +99,9 @@ async def fault_f13(pilot: Pilot) -> None:
     not come: fso reconstructed, both orders masked."""
     await run_until(pilot, lambda s: "X1" in s.active_steps, 5, "the opening step")
     await run_for(pilot, 0.8)
-    await pilot.press("f")
+    await press(pilot, "f")
     await wait_for_screen(pilot, FaultDialog)
-    await pilot.press("end", "enter", "enter")  # F13 is the last fault; "0": now
+    await press(pilot, "end", "enter", "enter")  # F13 is the last fault; "0": now
     await wait_for_main(pilot)
     await run_for(pilot, 4.0)
 
@@ -107,10 +109,10 @@ async def fault_f13(pilot: Pilot) -> None:
 async def fault_dialog(pilot: Pilot) -> None:
     """The SIMULATION fault injection dialog, F13 highlighted."""
     await run_for(pilot, 3.0)
-    await pilot.press("f")
+    await press(pilot, "f")
     await wait_for_screen(pilot, FaultDialog)
-    await pilot.press("end")
-    await pilot.pause()
+    await press(pilot, "end")
+    await drain(pilot)
 
 
 async def faulty_program(pilot: Pilot) -> None:
@@ -121,10 +123,10 @@ async def faulty_program(pilot: Pilot) -> None:
 
 async def inject_by_dialog(pilot: Pilot, index: int, delay: str) -> None:
     """SIMULATION: the fault dialog's `index`-th fault, `delay` seconds from now."""
-    await pilot.press("f")
+    await press(pilot, "f")
     await wait_for_screen(pilot, FaultDialog)
-    await pilot.press(*(["down"] * index), "enter")  # the fault; then the delay field
-    await pilot.press("backspace", *delay, "enter")
+    await press(pilot, *(["down"] * index), "enter")  # the fault; then the delay field
+    await press(pilot, "backspace", *delay, "enter")
     await wait_for_main(pilot)
 
 
@@ -138,7 +140,7 @@ async def diagnosis_certain(pilot: Pilot) -> None:
     await inject_by_dialog(pilot, 8, "10")
     await run_until(pilot, decided(("F9",)), 25, "F9 isolated")
     await run_for(pilot, 1.0)
-    await pilot.press("e")
+    await press(pilot, "e")
     await settle(pilot)
 
 
@@ -149,7 +151,7 @@ async def diagnosis_ambiguous(pilot: Pilot) -> None:
     await inject_by_dialog(pilot, 0, "10")
     await run_until(pilot, decided(("F1", "F13")), 25, "the ambiguity {F1, F13}")
     await run_for(pilot, 1.0)
-    await pilot.press("e", "e", "e")
+    await press(pilot, "e", "e", "e")
     await settle(pilot)
 
 
@@ -157,9 +159,9 @@ async def reset_refused(pilot: Pilot) -> None:
     """The fault reset dialog after F1: the diagnoser cannot re-synchronise (fsc=0, fso=0
     match no normal state), so the dialog says what stays and why."""
     await diagnosis_ambiguous_state(pilot)
-    await pilot.press("r")
+    await press(pilot, "r")
     await wait_for_screen(pilot, ConfirmDialog)
-    await pilot.pause()
+    await drain(pilot)
 
 
 async def diagnosis_ambiguous_state(pilot: Pilot) -> None:
@@ -172,12 +174,12 @@ async def manual_refused(pilot: Pilot) -> None:
     """Manual mode, the valve open: the operator asks for the open order, the filter refuses
     it (CSs2: never hold the open order on an open valve) and the answer says so."""
     await run_until(pilot, lambda s: "X2" in s.active_steps, 10, "the valve open")
-    await pilot.press("m")
+    await press(pilot, "m")
     await wait_for_screen(pilot, ConfirmDialog)
-    await pilot.press("y")
+    await press(pilot, "y")
     await wait_for_main(pilot)
     await select_row(pilot, "O")
-    await pilot.press("1")
+    await press(pilot, "1")
     await run_for(pilot, 0.05)
 
 
@@ -187,7 +189,7 @@ async def monitor_fault(pilot: Pilot) -> None:
     await run_until(pilot, lambda s: any(m.detection for m in s.monitors), 5,
                     "the conveyor monitor's fault")
     await run_for(pilot, 0.5)
-    await pilot.press("e")
+    await press(pilot, "e")
     await settle(pilot)
 
 
@@ -196,9 +198,9 @@ async def alarms_80x24(pilot: Pilot) -> None:
     selects the second (active) alarm and acknowledges it: it goes after the unacknowledged
     ones, and the list scrolls to keep it in view."""
     await run_for(pilot, 8.7)
-    await pilot.press("tab")
+    await press(pilot, "tab")
     await wait_until(pilot, lambda: isinstance(pilot.app.focused, AlarmList), "the list")
-    await pilot.press("down", "a")
+    await press(pilot, "down", "a")
     await run_for(pilot, 0.01)
 
 

@@ -24,6 +24,7 @@ from pathlib import Path
 from textual.pilot import Pilot
 
 from hmi.ui.scenarios import SCENARIOS, Scenario
+from hmi.ui.testing import drain
 
 DEFAULT_OUT = Path(__file__).resolve().parents[2] / "screenshots"
 
@@ -34,7 +35,7 @@ def shoot(scenario: Scenario, out: Path) -> Path:
 
     async def auto_pilot(pilot: Pilot) -> None:
         await scenario.run(pilot)
-        await pilot.pause()
+        await drain(pilot)
         await pilot.wait_for_scheduled_animations()
         app.save_screenshot(filename=path.name, path=str(out))
         app.exit()

@@ -11,10 +11,10 @@ from textual import on
 from textual.app import ComposeResult
 from textual.binding import Binding
 from textual.containers import Vertical
-from textual.screen import ModalScreen
 from textual.widgets import Label, OptionList, Static
 from textual.widgets.option_list import Option
 
+from hmi.ui.dialogs import Dialog
 from hmi.ui.recorder import FOV_SUFFIX, Signal
 from hmi.ui.style import Level, banner
 
@@ -23,7 +23,7 @@ KIND_WORDS = {"input": "input", "output": "output (written)", "fov": "output FOV
               "step": "GRAFCET step"}
 
 
-class SignalDialog(ModalScreen[tuple[str, ...] | None]):
+class SignalDialog(Dialog[tuple[str, ...] | None]):
     BINDINGS = [
         Binding("escape", "cancel", "Cancel"),
         Binding("space", "toggle", "Tick / untick", priority=True),

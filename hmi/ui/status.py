@@ -2,10 +2,12 @@
 
 The status bar is one line. When the terminal is narrow it uses short forms, then drops its
 least important fields first (measured scan time, the late-scan count, plant details; the
-project name among the last) and never the mode, the run state or an alarm. The banner
+project name among the last) and never the mode, the filter policy, the run state or an
+alarm. The banner
 strip appears only while something abnormal is in effect: manual mode
-(MANUAL / FORCES ACTIVE), a device the operator stopped, and outputs latched in the safe
-state.
+(MANUAL / FORCES ACTIVE), a device the operator stopped, outputs latched in the safe
+state, and, for the rest of the session, an error of the UI that was contained (what failed,
+and the file with the details: hmi.ui.containment).
 """
 
 from __future__ import annotations
@@ -47,11 +49,13 @@ def status_fields(frame: Frame, wide: bool, compact: bool = False) -> list[Field
             fields.append(Field(tag(f"{where} DISCONNECTED", Level.ALARM), 0))
     fields.append(Field(tag("MANUAL", Level.ATTENTION) if snap.mode == "manual"
                         else Text("AUTO"), 0))
+    # the mode and the filter policy are never dropped (a soak invariant): what protects the
+    # cell must always be on screen
     filter_word = "" if compact else "filter "
     if snap.policy == "monitor":
-        fields.append(Field(tag(f"{filter_word}monitor", Level.ATTENTION), 1))
+        fields.append(Field(tag(f"{filter_word}monitor", Level.ATTENTION), 0))
     else:
-        fields.append(Field(Text(f"{filter_word}{snap.policy}"), 3))
+        fields.append(Field(Text(f"{filter_word}{snap.policy}"), 0))
     report = snap.filter
     if report is not None and report.violations:
         count = len(report.violations)
@@ -183,6 +187,13 @@ def banner_lines(frame: Frame) -> list[Text]:
         line = banner("OUTPUTS HELD IN SAFE STATE", Level.ALARM)
         line.append(" " + "; ".join(r.detail for r in snap.latched)
                     + " · r: fault reset once the cause is gone")
+        lines.append(line)
+    fault = frame.ui_fault
+    if fault is not None:
+        line = banner("UI ERROR", Level.ALARM)
+        count = f" ({frame.ui_faults} errors)" if frame.ui_faults > 1 else ""
+        line.append(f"{count} {fault.what}: {fault.error} · the scan goes on · details: "
+                    f"{fault.report}")
         lines.append(line)
     for line in lines:
         line.no_wrap = True

@@ -1,27 +1,134 @@
-"""Helpers for driving the app headless: bounded waits and virtual time, never bare sleeps.
+"""Helpers for driving the app headless: waits on the app's own state and virtual time, never
+on the wall clock.
 
-Used by the pilot tests, the snapshot tests and the screenshot script, so that all three see
-the same app in the same states. With a :class:`~hmi.ui.driver.VirtualDriver` nothing scans
-unless the caller says so, hence every screen these helpers produce is exactly repeatable.
+Used by the pilot tests, the snapshot tests, the screenshot script and the soak
+(``plchmi soak``), so that all of them see the same app in the same states. With a
+:class:`~hmi.ui.driver.VirtualDriver` nothing scans unless the caller says so, hence every
+screen these helpers produce is exactly repeatable.
+
+A wait never has a deadline in seconds (a loaded machine made such tests fail): it lets the
+app process what it has queued — every widget's messages, the screen's pending layout and
+repaint, the callbacks due after a refresh, running workers, animations — until nothing is
+left (:func:`drain`), then looks. A condition still false on an idle app will never come true
+(nothing scans by itself), so the wait fails at once, saying so. Textual's own
+``Pilot.press`` sleeps at least 20 ms per key to guess idleness from CPU time; :func:`press`
+posts the key and drains instead, which is exact and faster. This reads a few of Textual's
+private attributes (message queues, the screen's update flags): Textual is pinned (8.2.8).
 """
 
 from __future__ import annotations
 
+import asyncio
 import time
+import unicodedata
 from collections.abc import Callable
 from typing import Any
 
+from textual import events
 from textual.command import CommandInput, CommandList, CommandPalette
+from textual.geometry import Offset
+from textual.keys import REPLACED_KEYS, _character_to_key, _get_unicode_name_from_key
 from textual.pilot import Pilot
+from textual.worker import WorkerState
 
 from hmi.ui.app import PlcHmiApp
 from hmi.ui.driver import VirtualDriver
 
-DEFAULT_TIMEOUT = 5.0
+MAX_ROUNDS = 10_000  # of message processing in one drain: only a guard against a loop
+LIVE_HANG_GUARD_S = 300.0  # live tests: only against a dead thread; waits end on state
 
 
 class WaitTimeout(AssertionError):
     pass
+
+
+def screen_pending(screen) -> bool:
+    """The screen has a layout, a repaint or callbacks due at its next refresh."""
+    return bool(screen._layout_required or screen._repaint_required or screen._dirty_widgets
+                or screen._callbacks or screen._recompose_required)
+
+
+def busy(app) -> str:
+    """What the app has left to do that a test could be waiting for ('' if nothing)."""
+    screen = app.screen
+    if screen_pending(screen):
+        return f"{screen!r}: layout, repaint or callbacks pending"
+    nodes = [app]
+    for each in app.screen_stack:
+        nodes.extend(each.walk_children(with_self=True))
+    for node in nodes:
+        if not node._message_queue.empty() or node._next_callbacks:
+            return f"{node!r}: messages pending"
+    for worker in app.workers:
+        if worker.state in (WorkerState.PENDING, WorkerState.RUNNING):
+            return f"worker {worker.name!r} running"
+    animator = app.animator
+    if animator._animations or animator._scheduled:
+        return f"animations {list(animator._animations) or list(animator._scheduled)}"
+    return ""
+
+
+async def drain(pilot: Pilot) -> None:
+    """Let the app process everything it has queued, and lay out and repaint its screen."""
+    app = pilot.app
+    for _ in range(MAX_ROUNDS):
+        if app._exit or not app.is_running:
+            return  # the app is ending: nothing more to wait for
+        await pilot._wait_for_screen()
+        await asyncio.sleep(0)  # workers and tasks get their turn
+        doing = busy(app)
+        if not doing:
+            return
+        if doing.endswith("callbacks pending"):
+            # only the screen's refresh is left: what its refresh timer would do (once the
+            # messages are handled, so that one layout and one paint serve them all)
+            app.screen._on_timer_update()
+    raise WaitTimeout(f"the app was still busy after {MAX_ROUNDS} rounds: {doing}")
+
+
+async def press(pilot: Pilot, *keys: str) -> None:
+    """Press keys one after the other, each handled (and what it opened drawn) before the
+    next; like ``Pilot.press`` without its CPU-idle sleeps."""
+    app = pilot.app
+    for key in keys:
+        event = key_event(key)
+        event.set_sender(app)
+        app._driver.send_message(event)
+        await drain(pilot)
+
+
+def key_event(key: str) -> events.Key:
+    """The event a terminal sends for `key`, built as ``Pilot.press`` builds it."""
+    if len(key) == 1 and not key.isalnum():
+        key = _character_to_key(key)
+    try:
+        char = unicodedata.lookup(_get_unicode_name_from_key(REPLACED_KEYS.get(key, key)))
+    except KeyError:
+        char = key if len(key) == 1 else None
+    return events.Key(key, char)
+
+
+async def click(pilot: Pilot, selector: str, x: int = 0, y: int = 0) -> bool:
+    """A mouse click at (x, y) from a widget's top-left corner, as a terminal sends it (down,
+    up, click), each handled before the next; like ``Pilot.click`` without its sleeps.
+    False (nothing clicked) if the point is off the screen or the widget is not shown."""
+    app = pilot.app
+    screen = app.screen
+    widget = screen.query_one(selector)
+    if not widget.display or not widget.region:
+        return False
+    arguments = {"widget": widget, "delta_x": 0, "delta_y": 0, "button": 1, "shift": False,
+                 "meta": False, "ctrl": False}
+    point = widget.region.offset + Offset(x, y)
+    if point not in screen.size.region:
+        return False
+    arguments.update(x=point.x, y=point.y, screen_x=point.x, screen_y=point.y)
+    for cls in (events.MouseDown, events.MouseUp, events.Click):
+        kwargs = {**arguments, "chain": 1} if cls is events.Click else arguments
+        app.mouse_position = point
+        screen._forward_event(cls(**kwargs))
+        await drain(pilot)
+    return True
 
 
 async def settle(pilot: Pilot) -> None:
@@ -29,35 +136,56 @@ async def settle(pilot: Pilot) -> None:
     app = pilot.app
     assert isinstance(app, PlcHmiApp)
     app.poll(force=True)
-    await pilot.pause()
+    await drain(pilot)
 
 
-async def wait_until(pilot: Pilot, predicate: Callable[[], Any], what: str = "condition",
-                     timeout: float = DEFAULT_TIMEOUT) -> Any:
-    """Let the app run until `predicate()` is truthy; fail after `timeout` wall seconds."""
-    deadline = time.monotonic() + timeout
+async def wait_until(pilot: Pilot, predicate: Callable[[], Any], what: str = "condition"
+                     ) -> Any:
+    """Let the app work until `predicate()` is truthy; fail once the app is idle without it.
+
+    For a live app (a scan thread), see :func:`wait_live`."""
+    for _ in range(3):
+        result = predicate()
+        if result:
+            return result
+        await drain(pilot)
+    result = predicate()
+    if result:
+        return result
+    raise WaitTimeout(f"{what} did not happen: the app has nothing left to do")
+
+
+async def wait_live(pilot: Pilot, predicate: Callable[[], Any], what: str) -> Any:
+    """A live app (its scan thread, its refresh timer): wait for `predicate()` as long as the
+    scan thread runs. No deadline paces it; only a dead thread, or a hang of several minutes,
+    fails it."""
+    app = pilot.app
+    started = time.monotonic()
     while True:
         result = predicate()
         if result:
             return result
-        if time.monotonic() > deadline:
-            raise WaitTimeout(f"timed out after {timeout:g} s waiting for {what}")
-        await pilot.pause(0.01)
+        runner = getattr(app.driver, "runner", None)
+        if runner is not None and runner.started and not runner.alive:
+            raise WaitTimeout(f"{what}: the scan thread is not running ({runner.error!r})")
+        if time.monotonic() - started > LIVE_HANG_GUARD_S:
+            raise WaitTimeout(f"{what} did not happen in {LIVE_HANG_GUARD_S:g} s (a hang)")
+        await asyncio.sleep(0.01)
 
 
-async def wait_for_screen(pilot: Pilot, screen_type: type, timeout: float = DEFAULT_TIMEOUT):
+async def wait_for_screen(pilot: Pilot, screen_type: type):
     """Wait until the active screen is a `screen_type` and return it (mounted)."""
     screen = await wait_until(
         pilot, lambda: isinstance(pilot.app.screen, screen_type) and pilot.app.screen,
-        f"a {screen_type.__name__}", timeout)
-    await pilot.pause()
+        f"a {screen_type.__name__}")
+    await drain(pilot)
     return screen
 
 
-async def wait_for_main(pilot: Pilot, timeout: float = DEFAULT_TIMEOUT) -> None:
+async def wait_for_main(pilot: Pilot) -> None:
     """Wait until every dialog is closed (the main screen is active again)."""
     app = pilot.app
-    await wait_until(pilot, lambda: len(app.screen_stack) == 1, "the main screen", timeout)
+    await wait_until(pilot, lambda: len(app.screen_stack) == 1, "the main screen")
     await settle(pilot)
 
 
@@ -82,11 +210,10 @@ async def run_until(pilot: Pilot, predicate: Callable, limit_s: float, what: str
     await settle(pilot)
 
 
-async def palette(pilot: Pilot, query: str, expect: str | None = None,
-                  timeout: float = DEFAULT_TIMEOUT) -> None:
+async def palette(pilot: Pilot, query: str, expect: str | None = None) -> None:
     """Open the command palette, type `query`, and run the first hit (checked by `expect`)."""
-    await pilot.press("ctrl+p")
-    screen = await wait_for_screen(pilot, CommandPalette, timeout)
+    await press(pilot, "ctrl+p")
+    screen = await wait_for_screen(pilot, CommandPalette)
     # Typing character by character costs a search per key; set the text in one go (the
     # palette searches on the input's Changed message exactly as when typing).
     screen.query_one(CommandInput).value = query
@@ -100,11 +227,10 @@ async def palette(pilot: Pilot, query: str, expect: str | None = None,
         plain = getattr(prompt, "plain", str(prompt))
         return expect.lower() in plain.lower() and plain
 
-    await wait_until(pilot, first_hit, f"a palette hit for {expect!r}", timeout)
-    await pilot.press("enter")
+    await wait_until(pilot, first_hit, f"a palette hit for {expect!r}")
+    await press(pilot, "enter")
     await wait_until(pilot, lambda: not isinstance(pilot.app.screen, CommandPalette),
-                     "the palette to close", timeout)
-    await pilot.pause()
+                     "the palette to close")
 
 
 def screen_text(app: PlcHmiApp) -> str:

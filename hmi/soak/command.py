@@ -1,0 +1,166 @@
+"""``plchmi soak PROJECT``: the command line of the soak, and what it prints.
+
+    plchmi soak projects/cispi_valve --control faulty --minutes 30 --seed 7 --size 80x24
+
+On success (exit 0) it prints the figures of the session: virtual time, scans, steps and what
+they were, commands, alarms, journal lines. On a broken invariant (exit 1) it prints the seed,
+the invariant and the step list that reproduces it — shrunk within ``--shrink`` seconds —
+and saves that list so that ``--replay FILE`` runs it again.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+from datetime import UTC, datetime
+from pathlib import Path
+
+from hmi.errors import UsageError
+from hmi.project.loader import load_project
+from hmi.soak.runner import SoakConfig, SoakResult, session, shrink
+from hmi.soak.steps import StepError, format_steps, parse_size, parse_steps
+from hmi.timefmt import format_duration, parse_duration
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        width, height = parse_size(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    if not (40 <= width <= 500 and 10 <= height <= 200):
+        raise argparse.ArgumentTypeError(f"{text}: a terminal from 40x10 to 500x200")
+    return width, height
+
+
+def _minutes(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of minutes") from None
+    if not 0 < value <= 10_000:
+        raise argparse.ArgumentTypeError(f"{text}: from more than 0 to 10000 minutes")
+    return value
+
+
+def _seconds(text: str) -> float:
+    try:
+        return parse_duration(text) / 1e6
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a duration (30s, 5m)") from None
+
+
+def add_soak_parser(sub, project_arg) -> None:
+    p = sub.add_parser("soak", help="drive the whole HMI with a seeded random operator and "
+                       "check its invariants after every step (virtual time)")
+    project_arg(p)
+    p.add_argument("--control", metavar="VARIANT",
+                   help="control law variant (default: the project's first)")
+    p.add_argument("--minutes", type=_minutes, default=30.0,
+                   help="virtual minutes to run (default 30)")
+    p.add_argument("--seed", type=int, default=1, help="the operator's random seed (1)")
+    p.add_argument("--size", type=_size, default=(80, 24), metavar="WxH",
+                   help="terminal size at the start (default 80x24)")
+    p.add_argument("--steps", type=int, metavar="N",
+                   help="stop after N steps too (a bounded run, as the tests do)")
+    p.add_argument("--replay", type=Path, metavar="FILE",
+                   help="run the steps of FILE (as printed on a failure) instead")
+    p.add_argument("--shrink", type=_seconds, default=300.0, metavar="TIME",
+                   help="time allowed to shrink a failing step list (default 5m; 0: none)")
+
+
+def cmd_soak(args: argparse.Namespace) -> int:
+    project = load_project(args.project)  # a bad project: its errors, exit 2
+    if args.control and args.control not in project.controls:
+        raise UsageError(f"--control {args.control!r}: the project has "
+                         + ", ".join(project.controls))
+    replay = None
+    if args.replay is not None:
+        try:
+            replay = parse_steps(args.replay.read_text(encoding="utf-8"), str(args.replay))
+        except OSError as exc:
+            raise UsageError(f"--replay {args.replay}: {exc.strerror}") from None
+        except StepError as exc:
+            raise UsageError(str(exc)) from None
+    if args.steps is not None and args.steps < 1:
+        raise UsageError("--steps: at least 1")
+    config = SoakConfig(Path(args.project), args.control, args.size, args.minutes, args.seed,
+                        args.steps)
+    print(f"soak {project.name} (control {args.control or 'default'}, "
+          f"{config.size[0]}x{config.size[1]}, seed {config.seed}): "
+          + (f"replaying {len(replay)} steps" if replay is not None
+             else f"{args.minutes:g} virtual minutes"), flush=True)
+    result = asyncio.run(session(config, replay, progress=Progress()))
+    print(summary(result))
+    if result.ok:
+        return 0
+    broken = result.broken[0]
+    print(f"\nBROKEN: {broken}")
+    print(f"seed {config.seed}, after {len(result.steps)} steps; journal: {result.journal}")
+    steps = result.steps
+    if args.shrink > 0 and len(steps) > 1:
+        print(f"shrinking the step list (up to {args.shrink:g} s)…", flush=True)
+        steps, replays = asyncio.run(shrink(config, steps, broken.invariant, args.shrink))
+        print(f"shrunk from {len(result.steps)} to {len(steps)} steps in {replays} replays")
+    saved = save_steps(config, steps, str(broken))
+    print(f"\nSteps that reproduce it (saved in {saved}):")
+    print(format_steps(steps), end="")
+    print(f"\nReplay: plchmi soak {args.project}"
+          + (f" --control {args.control}" if args.control else "")
+          + f" --size {config.size[0]}x{config.size[1]} --replay {saved}")
+    return 1
+
+
+class Progress:
+    """A line every 5 virtual minutes: a long soak shows it is alive, and how fast it goes."""
+
+    EVERY_US = 300_000_000
+
+    def __init__(self) -> None:
+        self.next_us = self.EVERY_US
+
+    def __call__(self, result: SoakResult) -> None:
+        if result.virtual_us < self.next_us:
+            return
+        self.next_us = result.virtual_us - result.virtual_us % self.EVERY_US + self.EVERY_US
+        print(f"  … {result.virtual_us / 60e6:.1f} virtual minutes, {len(result.steps)} steps, "
+              f"{result.scans} scans, {result.wall_s:.0f} s wall, "
+              f"{len(result.broken)} broken", flush=True)
+
+
+def save_steps(config: SoakConfig, steps, why: str) -> Path:
+    from hmi.explain.journal import data_folder
+    stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S")
+    path = data_folder() / "soak" / f"{config.project.name}-seed{config.seed}-{stamp}.steps"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    head = (f"# plchmi soak {config.project} --control {config.control or 'default'} "
+            f"--size {config.size[0]}x{config.size[1]} --seed {config.seed}\n# {why}\n")
+    path.write_text(head + format_steps(steps), encoding="utf-8")
+    return path
+
+
+def summary(result: SoakResult) -> str:
+    g = result.gestures
+    answers = sum(n for k, n in g.items() if k.startswith("answer"))
+    c = result.commands
+    k = result.checks
+    lines = [
+        f"  {format_duration(result.virtual_us - result.virtual_us % 1000)} virtual in "
+        f"{len(result.steps)} steps, {result.scans} scans, {result.wall_s:.1f} s wall",
+        f"  steps: run {g['run']}, keys {g['press']}, palette {g['palette']}, "
+        f"I/O rows {g['row']}, clicks {g['click']}, resizes {g['resize']}, dialog answers "
+        f"{answers}" + (f"; {result.skipped} not possible" if result.skipped else ""),
+        "  commands accepted: " + (", ".join(f"{k} {n}" for k, n in sorted(c.items()))
+                                   or "none") + f"; refused {result.refused}",
+        f"  alarms: {result.raised} raised, {result.transitions} state changes (all in the "
+        f"journal), at most {result.max_alarms} listed; journal {result.journal_lines} lines",
+        f"  invariants: {len(result.broken)} broken; checked: {k['step']} times after a step "
+        f"(app alive, status bar, journal), {k['constraint']} constraint evaluations on the "
+        f"outputs written, {k['alarm']} alarm-row comparisons, {result.journal_lines} journal "
+        "lines parsed",
+    ]
+    if result.safe_state_violations:
+        lines.insert(-1, "  safe state written by decision, leaving constraints violated "
+                     "(allowed: the safe state has the last word): " + ", ".join(
+                         f"{name} {n} scans" for name, n in
+                         sorted(result.safe_state_violations.items())))
+    return "\n".join(lines)

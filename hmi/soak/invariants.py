@@ -1,0 +1,269 @@
+"""What must hold after every step of a soak, and after every scan: checked from outside.
+
+The checker listens to the session like the journal does (every scan, every command) and
+reads the journal file the session writes; it recomputes what it checks from what it sees
+rather than trusting the engine's own report of it:
+
+- **no exception anywhere**: no UI error contained, no fatal one, no exception kept by Textual,
+  the app still running, no internal error in a scan;
+- **safe outputs**: the outputs written satisfy every safety constraint — each constraint is
+  evaluated here, on the vector written and the values of the scans before it — unless the
+  policy is ``monitor``, or every output of the constraint is masked by a diagnoser (the
+  mask has the last word, docs/project-format.md), or the vector written is exactly the
+  project's safe state, written by decision (safe blocking, a fallback, a latch): the safe
+  state has the last word too — dropping every order may break a constraint of the form
+  ``not o and h1`` ("never drop the open order before the valve is open", CSs4). Those scans
+  are counted per constraint (:attr:`Invariants.safe_state_violations`), never hidden;
+- **ISA-18.2**: an alarm never leaves the list unacknowledged (only an acknowledged alarm
+  leaves when it clears, a cleared one when it is acknowledged); the priority of an alarm in
+  the list (active or unacknowledged) never goes down; every change of an alarm's state seen
+  in the list is in the journal, in order;
+- **the status bar** shows the mode and the filter policy of the scan on screen;
+- **the journal**: every line parses (a JSON object with a type and an event).
+"""
+
+from __future__ import annotations
+
+import json
+from collections import Counter, deque
+from dataclasses import dataclass
+from pathlib import Path
+
+from textual.geometry import Region
+
+from hmi.engine.commands import Acknowledge
+from hmi.explain.alarms import ACTIVE_ACK, ACTIVE_UNACK, CLEARED_UNACK
+from hmi.timefmt import seconds
+
+UNACKNOWLEDGED = (ACTIVE_UNACK, CLEARED_UNACK)
+MODE_WORDS = {"auto": "AUTO", "manual": "MANUAL"}
+
+
+@dataclass(frozen=True)
+class Broken:
+    """A broken invariant: which, what was seen, and when (the engine's scan and time)."""
+
+    invariant: str
+    detail: str
+    scan: int
+    time_us: int
+
+    def __str__(self) -> str:
+        return f"{self.invariant} at scan {self.scan} (t = {seconds(self.time_us)} s): " \
+               f"{self.detail}"
+
+
+@dataclass(frozen=True)
+class _Term:
+    """A literal of a constraint, as the checker reads it: an output written at t (its index
+    in the output vector), or a value `depth` scans back (its slot in the image)."""
+
+    output: int | None
+    slot: int
+    depth: int
+    positive: bool
+
+
+class Invariants:
+    def __init__(self, app, journal_path: Path):
+        self.app = app
+        self.session = session = app.controller
+        self.engine = engine = session.engine
+        layout = engine.layout
+        outputs = {name: k for k, name in enumerate(layout.outputs)}
+        self.constraints: list[tuple[str, frozenset[str], tuple[_Term, ...]]] = []
+        depth = 1
+        for c in engine.project.constraints:
+            terms = tuple(_Term(outputs.get(lit.name) if lit.depth == 0 else None,
+                                layout.slots[lit.name], lit.depth, lit.positive)
+                          for lit in c.literals)
+            depth = max(depth, *(t.depth for t in terms), 1)
+            self.constraints.append((c.name, frozenset(c.outputs), terms))
+        self.history: deque[tuple] = deque(maxlen=depth)  # values of the scans before
+        self.alarms: dict[str, object] = {}  # the list as last seen, by key
+        self.expected: dict[str, deque[tuple[str, int]]] = {}  # transitions to find
+        self.journal_path = journal_path
+        self._journal_at = 0  # bytes read so far
+        self._partial = b""
+        self.journal_lines = 0
+        self.transitions = 0
+        self.raised = 0
+        self.scans = 0
+        self.broken: list[Broken] = []
+        self.max_alarms = 0
+        # how many times each kind of check ran (the figures of a soak say so)
+        self.checks: Counter[str] = Counter()
+        # scans where the safe state, written by decision, left a constraint violated
+        self.safe_state_violations: Counter[str] = Counter()
+        self.safe_vector = tuple(engine.safe_vector)
+        session.scan_listeners.append(self.on_scan)
+        session.listeners.append(self.on_command)
+
+    @property
+    def ok(self) -> bool:
+        return not self.broken
+
+    def _break(self, invariant: str, detail: str) -> None:
+        self.broken.append(Broken(invariant, detail, self.engine.scan, self.engine.now))
+
+    # -- every scan ---------------------------------------------------------------------------
+    def on_scan(self, snap) -> None:
+        self.scans += 1
+        if snap.error:
+            self._break("engine-error", snap.error)
+        if snap.policy != "monitor":
+            self.checks["constraint"] += len(self.constraints)
+            violated = self._violated(snap)
+            masked = set(snap.masked)
+            unsafe = [name for name, outs in violated if not outs <= masked]
+            if unsafe and self._safe_state_by_decision(snap):
+                self.safe_state_violations.update(unsafe)
+                unsafe = []
+            if unsafe:
+                written = " ".join(f"{n}={int(v)}" for n, v in
+                                   zip(snap.layout.outputs, snap.outputs, strict=True))
+                self._break("unsafe-output",
+                            f"{', '.join(unsafe)} violated by the outputs written ({written}; "
+                            f"policy {snap.policy}, mode {snap.mode}, masked "
+                            f"{', '.join(snap.masked) or 'none'}, latched "
+                            f"{'; '.join(r.detail for r in snap.latched) or 'no'})")
+        self.history.appendleft(snap.values)
+        self._observe(snap.alarms, acknowledged=())
+
+    def _safe_state_by_decision(self, snap) -> bool:
+        """The outputs written are the safe state, and the engine says it chose it."""
+        report = snap.filter
+        decided = bool(snap.latched) or (report is not None and report.safe_state)
+        return decided and tuple(snap.outputs) == self.safe_vector
+
+    def _violated(self, snap) -> list[tuple[str, frozenset[str]]]:
+        history = self.history
+        values, written = snap.values, snap.outputs
+        found = []
+        for name, outs, terms in self.constraints:
+            for term in terms:
+                if term.depth > len(history):
+                    break  # a value from before the first scan seen: not judged
+                if term.output is not None:
+                    value = written[term.output]
+                elif term.depth == 0:
+                    value = values[term.slot]
+                else:
+                    value = history[term.depth - 1][term.slot]
+                if bool(value) != term.positive:
+                    break
+            else:
+                found.append((name, outs))
+        return found
+
+    # -- every command ------------------------------------------------------------------------
+    def on_command(self, command, result, snapshot) -> None:
+        # the alarm list as the next scan will show it (the session owns it)
+        manager = self.session.alarms
+        acknowledged: tuple[str, ...] = ()
+        if isinstance(command, Acknowledge) and result.accepted:
+            acknowledged = (command.key,) if command.key is not None else tuple(self.alarms)
+        self._observe(manager.listed(), acknowledged)
+
+    # -- the alarm list -----------------------------------------------------------------------
+    def _observe(self, alarms, acknowledged: tuple[str, ...]) -> None:
+        now = {a.key: a for a in alarms}
+        self.max_alarms = max(self.max_alarms, len(now))
+        self.checks["alarm"] += len(now) + len(self.alarms)
+        for key, old in self.alarms.items():
+            if key in now:
+                continue
+            leaves_ok = (old.state == ACTIVE_ACK and not acknowledged) or \
+                (old.state == CLEARED_UNACK and key in acknowledged)
+            if old.state in UNACKNOWLEDGED and not leaves_ok:
+                self._break("alarm-left-unacknowledged",
+                            f"{key} ({old.text!r}, P{old.priority}) left the list while "
+                            f"{old.state}")
+            self._expect(key, "normal")
+        for key, alarm in now.items():
+            old = self.alarms.get(key)
+            if old is None:
+                self.raised += 1
+                self._expect(key, alarm.state)
+                continue
+            if alarm.priority > old.priority:
+                self._break("priority-lowered",
+                            f"{key} went from P{old.priority} to P{alarm.priority} while "
+                            f"{old.state} → {alarm.state} ({old.text!r} → {alarm.text!r})")
+            if alarm.state != old.state:
+                self._expect(key, alarm.state)
+        self.alarms = now
+
+    def _expect(self, key: str, state: str) -> None:
+        self.transitions += 1
+        self.expected.setdefault(key, deque()).append((state, self.engine.scan))
+
+    # -- after every step ---------------------------------------------------------------------
+    def check_step(self) -> list[Broken]:
+        """The checks that need the screen or the journal; returns everything broken so far."""
+        self.checks["step"] += 1
+        self._check_app()
+        self._check_status_bar()
+        self.check_journal()
+        return self.broken
+
+    def _check_app(self) -> None:
+        app = self.app
+        contained = app.containment
+        fault = contained.fatal or contained.latest
+        if fault is not None and not any(b.invariant == "exception" for b in self.broken):
+            self._break("exception", f"{fault.summary} (details in {fault.report})")
+        exception = getattr(app, "_exception", None)
+        if exception is not None and not any(b.invariant == "exception" for b in self.broken):
+            self._break("exception", f"Textual: {type(exception).__name__}: {exception}")
+        if not app.is_running and not any(b.invariant == "exception" for b in self.broken):
+            self._break("app-ended", f"the app stopped (return code {app.return_code})")
+
+    def _check_status_bar(self) -> None:
+        from hmi.ui.status import StatusBar
+        app = self.app
+        frame = app.frame
+        if frame is None:
+            return
+        status = app.screen_stack[0].query_one(StatusBar)
+        width = status.size.width
+        if not width:
+            return
+        strip = status.render_lines(Region(0, 0, width, 1))[0]
+        line = strip.text
+        snap = frame.snapshot
+        mode = MODE_WORDS.get(snap.mode, snap.mode.upper())
+        missing = [word for word in (mode, snap.policy) if word not in line]
+        if missing:
+            self._break("status-bar", f"{' and '.join(missing)} not shown at {app.size.width}"
+                        f"×{app.size.height}: {line.rstrip()!r}")
+
+    def check_journal(self) -> None:
+        with self.journal_path.open("rb") as f:
+            f.seek(self._journal_at)
+            data = f.read()
+        self._journal_at += len(data)
+        data = self._partial + data
+        lines = data.split(b"\n")
+        self._partial = lines.pop()  # after the last newline: not a whole line yet
+        for line in lines:
+            self.journal_lines += 1
+            try:
+                entry = json.loads(line)
+            except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+                self._break("journal-line", f"line {self.journal_lines} does not parse: {exc}")
+                continue
+            if not isinstance(entry, dict) or not {"type", "event", "wall"} <= entry.keys():
+                self._break("journal-line", f"line {self.journal_lines} is not an entry: "
+                            f"{line[:120]!r}")
+                continue
+            if entry["type"] == "alarm":
+                pending = self.expected.get(entry.get("key", ""))
+                if pending and pending[0][0] == entry.get("state"):
+                    pending.popleft()
+        for key, pending in self.expected.items():
+            if pending:
+                state, scan = pending[0]
+                self._break("transition-not-journalled",
+                            f"{key} became {state} at scan {scan}; no journal entry says so")
+                pending.clear()

@@ -1,0 +1,266 @@
+"""One soak session: the real app under Textual's pilot, in virtual time, step after step.
+
+The app is the one operators run (:class:`~hmi.ui.app.PlcHmiApp`, every panel, dialog and
+binding) on a :class:`~hmi.ui.driver.VirtualDriver`: scans run only when a ``run`` step says
+so, as fast as the machine goes, so a session is exactly repeatable. The journal is the real
+one (:class:`~hmi.session.journal_recorder.JournalRecorder`, to a file), told of UI errors as in
+``plchmi PROJECT``. After every step the invariants are checked (hmi.soak.invariants); the
+session stops at the first broken one.
+
+:func:`shrink` replays a failing step list without chunks of it, keeping every removal after
+which the same invariant still breaks: what is left is a short list that reproduces it.
+"""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+import time
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from textual import events
+from textual.command import CommandInput, CommandList, CommandPalette
+from textual.geometry import Size
+
+from hmi.engine.scan import Engine
+from hmi.explain.journal import Journal
+from hmi.plant.sim import SimPlant
+from hmi.project.loader import load_project
+from hmi.session.journal_recorder import JournalRecorder
+from hmi.session.session import Session
+from hmi.soak.invariants import Broken, Invariants
+from hmi.soak.operator import RandomOperator
+from hmi.soak.steps import Click, Palette, Press, Resize, Row, Run, Step
+from hmi.ui.app import PlcHmiApp
+from hmi.ui.io_panel import IOPanel
+from hmi.ui.testing import click, drain, press, settle, wait_for_screen
+
+MAX_STEPS_PER_MINUTE = 2000  # a guard: an operator that never lets time run still ends
+
+
+@dataclass(frozen=True)
+class SoakConfig:
+    project: Path
+    control: str | None = None
+    size: tuple[int, int] = (80, 24)
+    minutes: float = 30.0
+    seed: int = 1
+    max_steps: int | None = None  # a bound on the steps too (the CI's budget)
+
+
+@dataclass
+class SoakResult:
+    config: SoakConfig
+    steps: list[Step] = field(default_factory=list)  # done, in order (the failing one last)
+    broken: list[Broken] = field(default_factory=list)
+    scans: int = 0
+    virtual_us: int = 0
+    wall_s: float = 0.0
+    gestures: Counter = field(default_factory=Counter)  # step kinds, dialog answers
+    commands: Counter = field(default_factory=Counter)  # accepted commands by type
+    refused: int = 0
+    transitions: int = 0  # alarm state changes seen in the list (all found in the journal)
+    raised: int = 0
+    journal_lines: int = 0
+    max_alarms: int = 0
+    safe_state_violations: Counter = field(default_factory=Counter)
+    checks: Counter = field(default_factory=Counter)  # invariant checks run, by kind
+    skipped: int = 0  # palette entries not there (replays of a shrunk list)
+    journal: Path | None = None
+
+    @property
+    def ok(self) -> bool:
+        return not self.broken
+
+
+def make_app(config: SoakConfig) -> PlcHmiApp:
+    project = load_project(config.project)
+    engine = Engine(project, SimPlant(project), control=config.control)
+    return PlcHmiApp(Session(engine), live=False, show_measured=False)
+
+
+async def session(config: SoakConfig, replay: list[Step] | None = None,
+                  journal_dir: Path | None = None,
+                  progress: Callable[[SoakResult], None] | None = None) -> SoakResult:
+    """Run the random operator for `config.minutes` of virtual time (or replay `replay`).
+
+    The journal goes to `journal_dir`, else to a temporary folder kept only if an invariant
+    broke (its path is in the result)."""
+    result = SoakResult(config)
+    folder = Path(journal_dir or tempfile.mkdtemp(prefix="plchmi-soak-"))
+    result.journal = folder / "journal.jsonl"
+    app = make_app(config)
+    journal = JournalRecorder(app.controller, Journal(result.journal), "soak")
+    app.containment.listeners.append(journal.on_ui_fault)
+    checker = Invariants(app, result.journal)
+
+    def count(command, answer, snapshot) -> None:
+        if answer.accepted:
+            result.commands[type(command).__name__] += 1
+        else:
+            result.refused += 1
+    app.controller.listeners.append(count)
+    operator = RandomOperator(config.seed)
+    limit_us = int(config.minutes * 60_000_000)
+    max_steps = config.max_steps or max(100, int(config.minutes * MAX_STEPS_PER_MINUTE))
+    started = time.perf_counter()
+    try:
+        async with app.run_test(size=config.size) as pilot:
+            await settle(pilot)
+            engine = app.controller.engine
+            while True:
+                if replay is not None:
+                    if len(result.steps) >= len(replay):
+                        break
+                    step = replay[len(result.steps)]
+                elif engine.now >= limit_us or len(result.steps) >= max_steps:
+                    break
+                else:
+                    step = operator.next(app)
+                result.gestures[_gesture(app, step)] += 1
+                result.steps.append(step)
+                if not await perform(pilot, step):
+                    result.skipped += 1
+                if checker.check_step() or not app.is_running:
+                    break
+                if progress is not None and len(result.steps) % 50 == 0:
+                    _fill(result, checker, app, started)
+                    progress(result)
+    finally:
+        journal.close(None if checker.ok else str(checker.broken[0]))
+    checker.check_journal()  # its last lines (the session's end)
+    _fill(result, checker, app, started)
+    if journal_dir is None and result.ok:  # a passing session's journal is not kept
+        shutil.rmtree(folder, ignore_errors=True)
+        result.journal = None
+    return result
+
+
+def _fill(result: SoakResult, checker: Invariants, app: PlcHmiApp, started: float) -> None:
+    result.broken = list(checker.broken)
+    result.scans = checker.scans
+    result.virtual_us = app.controller.engine.now
+    result.wall_s = time.perf_counter() - started
+    result.transitions = checker.transitions
+    result.raised = checker.raised
+    result.journal_lines = checker.journal_lines
+    result.max_alarms = checker.max_alarms
+    result.safe_state_violations = Counter(checker.safe_state_violations)
+    result.checks = Counter(checker.checks)
+
+
+def _gesture(app: PlcHmiApp, step: Step) -> str:
+    """What kind of gesture a step is, for the figures (dialog answers by dialog)."""
+    screen = app.screen
+    if isinstance(step, Press) and screen is not app.screen_stack[0]:
+        return f"answer {screen.id or type(screen).__name__}: {step.keys[-1]}"
+    return type(step).__name__.lower()
+
+
+async def perform(pilot, step: Step) -> bool:
+    """Do one step on the app; False if it could not be done (and nothing happened)."""
+    app = pilot.app
+    match step:
+        case Run(us=us):
+            app.driver.advance(us)
+        case Press(keys=keys):
+            await press(pilot, *keys)
+        case Palette(title=title):
+            if not await palette_entry(pilot, title):
+                await settle(pilot)
+                return False
+        case Row(name=name):
+            if not await click_row(pilot, name):
+                await settle(pilot)
+                return False
+        case Click(selector=selector, x=x, y=y):
+            if not app.screen.query(selector) or not await click(pilot, selector, x, y):
+                await settle(pilot)
+                return False
+        case Resize(width=width, height=height):
+            size = Size(width, height)
+            app._driver._size = size  # the headless driver's terminal size
+            app.post_message(events.Resize(size, size))
+    await settle(pilot)
+    return True
+
+
+async def palette_entry(pilot, title: str) -> bool:
+    """Open the palette, search for `title` and run the entry with exactly that title."""
+    app = pilot.app
+    if app.screen is not app.screen_stack[0]:
+        return False  # a dialog is open: ctrl+p is not the main screen's
+    await press(pilot, "ctrl+p")
+    if not isinstance(app.screen, CommandPalette):
+        return False
+    screen = await wait_for_screen(pilot, CommandPalette)
+    screen.query_one(CommandInput).value = title
+    await drain(pilot)
+    commands = screen.query_one(CommandList)
+    for index in range(commands.option_count):
+        prompt = commands.get_option_at_index(index).prompt
+        plain = getattr(prompt, "plain", str(prompt))
+        if plain.split("\n")[0].strip() == title:
+            commands.highlighted = index
+            await drain(pilot)
+            await press(pilot, "enter")
+            return True
+    await press(pilot, "escape")
+    return False
+
+
+async def click_row(pilot, name: str) -> bool:
+    """Click the I/O table's row of `name`, scrolled into view first (a mouse wheel)."""
+    table = pilot.app.query_one(IOPanel)
+    if pilot.app.screen is not pilot.app.screen_stack[0] or not table.region:
+        return False
+    try:
+        index = table.get_row_index(name)
+    except Exception:
+        return False
+    rows = table.scrollable_content_region.height - table.header_height
+    if rows <= 0:
+        return False
+    if not table.scroll_y <= index < table.scroll_y + rows:
+        table.scroll_to(y=max(0, index - rows // 2), animate=False, immediate=True)
+        await drain(pilot)
+    y = 1 + table.header_height + index - int(table.scroll_y)
+    return await click(pilot, "#io", 3, y)
+
+
+async def shrink(config: SoakConfig, steps: list[Step], invariant: str,
+                 budget_s: float = 300.0) -> tuple[list[Step], int]:
+    """The shortest step list found within `budget_s` that still breaks `invariant`, and the
+    number of replays tried (ddmin: drop chunks, halving them when none can go)."""
+    deadline = time.perf_counter() + budget_s
+    replays = 0
+
+    async def breaks(candidate: list[Step]) -> list[Step] | None:
+        nonlocal replays
+        replays += 1
+        with tempfile.TemporaryDirectory(prefix="plchmi-shrink-") as folder:
+            result = await session(config, replay=candidate, journal_dir=Path(folder))
+        if any(b.invariant == invariant for b in result.broken):
+            return result.steps  # up to the failing step
+        return None
+
+    best = steps
+    chunks = 2
+    while len(best) > 1 and time.perf_counter() < deadline:
+        size = -(-len(best) // chunks)
+        for start in range(0, len(best), size):
+            if time.perf_counter() >= deadline:
+                break
+            found = await breaks(best[:start] + best[start + size:])
+            if found is not None:
+                best = found
+                chunks = max(chunks - 1, 2)
+                break
+        else:
+            if size == 1:
+                break
+            chunks = min(len(best), chunks * 2)
+    return best, replays

@@ -1,0 +1,156 @@
+"""`plchmi soak` (issue 13): the whole app driven by a seeded random operator, with its
+invariants checked after every step — a bounded part of it in CI, the failing step lists of
+the past as regressions, and proof that each invariant can fail.
+
+The CI budget: every example project x {normal, faulty} for 20 steps each (about five
+seconds of CPU each on this machine; the whole file about a minute). `plchmi soak PROJECT
+--minutes 30` runs as long as asked.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import re
+from pathlib import Path
+
+import pytest
+
+from hmi.cli import main
+from hmi.explain import alarms
+from hmi.session.journal_recorder import JournalRecorder
+from hmi.soak.runner import SoakConfig, session, shrink
+from hmi.soak.steps import Palette, Press, Run, format_steps, parse_steps
+from tests.conftest import PROJECTS
+
+REGRESSIONS = Path(__file__).parent / "soak"
+CI_STEPS = 20
+EXAMPLES = [("cispi_valve", "normal"), ("cispi_valve", "faulty"),
+            ("cispi_subsystem", "normal"), ("cispi_subsystem", "faulty"),
+            ("sorting", "normal"), ("sorting", "faulty"),
+            ("palletizer", "normal"), ("palletizer", "faulty"),
+            ("conveyor_robot", "main")]
+
+
+def soak(config: SoakConfig, replay=None):
+    return asyncio.run(session(config, replay))
+
+
+@pytest.mark.parametrize(("project", "control"), EXAMPLES,
+                         ids=[f"{p}-{c}" for p, c in EXAMPLES])
+def test_every_example_keeps_its_invariants(project, control):
+    seed = EXAMPLES.index((project, control)) + 1
+    size = (80, 24) if seed % 2 else (160, 48)
+    result = soak(SoakConfig(PROJECTS / project, control, size, 10.0, seed, CI_STEPS))
+    assert result.ok, "\n".join([str(result.broken[0]), f"seed {seed}:",
+                                 format_steps(result.steps)])
+    assert len(result.steps) == CI_STEPS and result.scans > 0
+
+
+@pytest.mark.parametrize("name", sorted(p.name for p in REGRESSIONS.glob("*.steps")))
+def test_failing_step_lists_of_the_past_pass(name):
+    """Each file: a step list that once broke an invariant (its header says which)."""
+    text = (REGRESSIONS / name).read_text(encoding="utf-8")
+    header = text.splitlines()[0].split()
+    project = PROJECTS / Path(header[header.index("soak") + 1]).name
+    control = header[header.index("--control") + 1]
+    size = tuple(int(n) for n in header[header.index("--size") + 1].split("x"))
+    steps = parse_steps(text, name)
+    result = soak(SoakConfig(project, control, size), steps)
+    assert result.ok, str(result.broken[0])
+    assert len(result.steps) == len(steps) and result.skipped == 0
+
+
+def test_the_same_seed_gives_the_same_session():
+    config = SoakConfig(PROJECTS / "cispi_valve", "faulty", (80, 24), 10.0, 7, 12)
+    first, second = soak(config), soak(config)
+    assert first.steps == second.steps and first.scans == second.scans
+    assert first.transitions == second.transitions
+    replayed = soak(config, first.steps)  # and its steps replay it
+    assert replayed.scans == first.scans and replayed.virtual_us == first.virtual_us
+
+
+# -- each invariant can fail ---------------------------------------------------------------
+
+VALVE = PROJECTS / "cispi_valve"
+
+
+def test_a_lowered_priority_is_caught(monkeypatch):
+    """Without the rule (the old behaviour: the latest severity wins), the issue's sequence
+    — P1 under monitor, then a refused manual order on the same constraint — breaks."""
+    monkeypatch.setattr(alarms, "highest", lambda old, new: new)
+    steps = [Palette("Filter policy: monitor…"), Press(("y",)), Run(3_000_000),
+             Palette("Filter policy: correct…"), Press(("y",)),
+             Press(("m",)), Press(("y",)), Palette("Manual: O on  [1]"), Run(3_000_000)]
+    result = soak(SoakConfig(VALVE, "faulty", (100, 30)), steps)
+    assert [b.invariant for b in result.broken][:1] == ["priority-lowered"]
+
+
+def test_an_unsafe_vector_written_is_caught(monkeypatch):
+    from hmi.engine.filter import FilterReport, SafetyFilter
+
+    def lax(self, fov, candidate, active, violations):  # reports correct, writes the FOV
+        return fov, FilterReport("correct", self.strategy, violations)
+    monkeypatch.setattr(SafetyFilter, "_correct", lax)
+    result = soak(SoakConfig(VALVE, "faulty", (80, 24)), [Run(10_000_000)])
+    assert result.broken and result.broken[0].invariant == "unsafe-output"
+    assert "violated by the outputs written" in result.broken[0].detail
+
+
+def test_a_transition_missing_from_the_journal_is_caught(monkeypatch):
+    journal_alarm = JournalRecorder._alarm
+
+    def forgetful(self, event):
+        if event.event != "cleared":
+            journal_alarm(self, event)
+    monkeypatch.setattr(JournalRecorder, "_alarm", forgetful)
+    result = soak(SoakConfig(VALVE, "faulty", (80, 24)), [Run(10_000_000)])
+    assert result.broken and result.broken[0].invariant == "transition-not-journalled"
+
+
+def test_an_ui_error_is_caught_and_shrunk(monkeypatch):
+    """A panel that fails in manual mode; 12 steps of which two matter: the shrinker finds
+    them (the error is contained by the app, and still a broken invariant for the soak)."""
+    from hmi.ui.constraints_panel import ConstraintsPanel
+    show = ConstraintsPanel.show
+
+    def fragile(self, frame):
+        if frame.snapshot.mode == "manual":
+            raise RuntimeError("deliberate")
+        show(self, frame)
+    monkeypatch.setattr(ConstraintsPanel, "show", fragile)
+    steps = [Run(500_000), Press(("w",)), Run(1_000_000), Press(("e",)), Press(("g",)),
+             Press(("escape",)), Press(("m",)), Press(("y",)), Press(("v",)), Run(200_000),
+             Press(("w",)), Run(300_000)]
+    config = SoakConfig(VALVE, "normal", (80, 24))
+    result = soak(config, steps)
+    assert result.broken[0].invariant == "exception"
+    assert "ConstraintsPanel refresh: RuntimeError: deliberate" in result.broken[0].detail
+    shrunk, replays = asyncio.run(shrink(config, result.steps, "exception", 120))
+    # manual mode entered, and a scan for a frame to show it
+    assert shrunk[:2] == [Press(("m",)), Press(("y",))] and len(shrunk) == 3, \
+        format_steps(shrunk)
+    assert isinstance(shrunk[2], Run)
+    assert replays > 1
+
+
+# -- the command ---------------------------------------------------------------------------
+
+
+def test_the_command_replays_a_list_and_prints_its_figures(tmp_path, capsys):
+    steps = tmp_path / "steps.txt"
+    steps.write_text("run 2s\npress m\npress y\nrow O\npress 1\nrun 1s\nresize 60x20\n")
+    assert main(["soak", str(VALVE), "--replay", str(steps)]) == 0
+    out = capsys.readouterr().out
+    assert "replaying 7 steps" in out and "invariants: 0 broken" in out
+    assert "checked: 7 times after a step" in out
+    evaluations = re.search(r"(\d+) constraint evaluations", out)
+    assert evaluations and int(evaluations[1]) > 0
+    assert "ManualOutput 1" in out and "SetMode 1" in out
+
+
+def test_a_bad_step_list_is_a_clear_error(tmp_path, capsys):
+    steps = tmp_path / "steps.txt"
+    steps.write_text("run 2s\n\njump 3\n")
+    assert main(["soak", str(VALVE), "--replay", str(steps)]) == 2
+    err = capsys.readouterr().err
+    assert f"{steps}:3:1: unknown step 'jump'" in err and "Traceback" not in err
