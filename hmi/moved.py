@@ -20,6 +20,8 @@ MOVED: dict[str, str] = {
     "hmi.explain.recorder": "hmi.session.journal_recorder",
     "hmi.logic.control": "hmi.engine.control",
     "hmi.logic.grafcet": "hmi.engine.grafcet",
+    "hmi.explain.texts": "hmi.project.texts",
+    "hmi.plant.injection": "hmi.project.injection",
     **{f"hmi.plant.{old}": f"hmi.plant.{new}" for old, new in {
         "modbus_client": "modbus.client", "modbus_map": "modbus.address_map",
         "modbus_server": "modbus.server", "link_log": "modbus.link_log",

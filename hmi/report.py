@@ -80,10 +80,10 @@ def check_report(project: Project, sections: list[list[str]] = ()) -> str:
     monitor_lines = monitor_check_lines(project)
     if monitor_lines:
         lines += ["", *monitor_lines]
-    for section in (*project.extra.get("check_sections", ()), *sections):
+    for section in (*project.check_sections, *sections):
         lines.append("")
         lines.extend(section)
-    warnings = project.extra.get("warnings", ())
+    warnings = project.warnings
     if warnings:
         lines.append("")
         lines.append(f"Warnings ({len(warnings)})")

@@ -182,7 +182,7 @@ def run_one(project, task, fault: str, t0: int, start_us: int, length_us: int,
             attempt: int, control: str | None = None) -> SweepRow:
     """One run of the sweep: the task interrupted `start_us` after t0 for `length_us`."""
     from hmi.monitor_report import MonitorLog
-    from hmi.plant.injection import parse_injection
+    from hmi.project.injection import parse_injection
     injection = parse_injection(f"{fault}@{t0 + start_us}us+{length_us}us")
     ctl = _engine(project, control, [injection])
     device = ctl.engine.plant.resolve(injection)
@@ -222,8 +222,8 @@ def run_sweep(project, task_name: str | None, fault: str | None, starts: Sequenc
         raise UsageError(f"--control {control!r}: the project has " + ", ".join(project.controls))
     task = _pick_task(project, task_name)
     fault = fault or _default_fault(project, task)
-    from hmi.plant.injection import parse_injection
     from hmi.plant.sim.plant import SimPlant
+    from hmi.project.injection import parse_injection
     try:
         SimPlant(project).resolve(parse_injection(f"{fault}@0s"))
     except UsageError as exc:

@@ -37,7 +37,7 @@ sys.path.insert(0, str(ROOT))
 
 from hmi.engine import commands as cmd  # noqa: E402
 from hmi.engine.trace import _row  # noqa: E402
-from hmi.plant.injection import parse_injection  # noqa: E402
+from hmi.project.injection import parse_injection  # noqa: E402
 
 S = 1_000_000
 

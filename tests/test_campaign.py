@@ -107,7 +107,7 @@ def test_campaign_section_errors_point_at_the_value(tmp_path, campaign, fragment
 @pytest.fixture(scope="module")
 def valve():
     project = load_project(PROJECTS / "cispi_valve")
-    return project, project.extra["campaign"]
+    return project, project.campaign
 
 
 def test_ftc_beats_the_paper_no_defect_and_at_least_four_tolerant(valve):

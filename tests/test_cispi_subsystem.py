@@ -13,9 +13,9 @@ from hmi.bench.cellrun import CellRun, measure
 from hmi.cli import main
 from hmi.engine.campaign import CONFIGS, run_one
 from hmi.engine.scan import Engine
-from hmi.plant.injection import parse_injection
 from hmi.plant.sim.plant import SimPlant
 from hmi.project.campaign import Scenario as CampaignScenario
+from hmi.project.injection import parse_injection
 from hmi.project.loader import load_project
 from hmi.project.scenarios import find_scenario
 from tests.conftest import PROJECTS
@@ -49,8 +49,8 @@ def test_check_passes_with_both_valve_instances_and_no_warning(capsys):
 
 def test_the_valve_parts_come_from_the_component_not_from_the_project():
     p = project()
-    assert {d.name for d in p.extra["diagnosers"]} == {"V1", "V2"}
-    assert all(d.pos.file.endswith("components/valve.yaml") for d in p.extra["diagnosers"])
+    assert {d.name for d in p.diagnosers} == {"V1", "V2"}
+    assert all(d.pos.file.endswith("components/valve.yaml") for d in p.diagnosers)
     own = [c.name for c in p.constraints if c.pos.file.endswith("constraints.yaml")]
     assert own == ["CSs1", "CSs2", "CSs3", "CSc1", "CSc2"]
     assert sum(c.name.startswith(("V1_", "V2_")) for c in p.constraints) == 14
@@ -115,7 +115,7 @@ def test_each_valve_is_diagnosed_independently(faulty, healthy):
 def test_the_diagnoser_is_what_prevents_dead_heading_on_a_stuck_open_switch(valve):
     """Filter alone: the stuck switch says the line is open, the pump runs against two shut
     valves. Filter and diagnoser: the switch is replaced by its estimate; the cycle goes on."""
-    spec = project().extra["campaign"]
+    spec = project().campaign
     scenario = CampaignScenario("F4", valve, 20 * S, "", False, spec.pos)
     by_key = {c.key: c for c in CONFIGS}
     alone = run_one(project(), spec, scenario, by_key["filter_no_diag"])
@@ -149,6 +149,6 @@ def test_each_scenario_gives_what_the_documentation_says(name, damage, fills):
     ("V1.F13@26.5s", ("Defect", "Defect", "Tolerant")),
 ])
 def test_campaign_rows_quoted_in_the_documentation(fault, outcomes):
-    spec = project().extra["campaign"]
+    spec = project().campaign
     scenario = next(s for s in spec.scenarios if s.name == fault)
     assert tuple(run_one(project(), spec, scenario, c).outcome for c in CONFIGS) == outcomes

@@ -24,9 +24,9 @@ from hmi.engine.closed_loop import (
 from hmi.engine.explore import Explorer
 from hmi.engine.loop_sweep import DIAG_NO_FILTER, FILTER_NO_DIAG, FTC, sweep
 from hmi.engine.scan import Engine
-from hmi.plant.injection import Injection
 from hmi.plant.sim.plant import SimPlant
 from hmi.project.campaign import campaign_of
+from hmi.project.injection import Injection
 from hmi.project.loader import load_project
 from tests.conftest import PROJECTS
 
@@ -169,8 +169,8 @@ def test_an_impossible_guard_moves_the_closed_loop_figures_not_the_diagram(tmp_p
     assert "isolated with certainty at some instant: 11/13" in _block(before, observe)
     assert "isolated with certainty at some instant: 10/13" in _block(after, observe)
     from hmi.engine.diagnosability import analyse
-    assert analyse(valve.extra["diagnosers"][0]).certain_labels == \
-        analyse(broken.extra["diagnosers"][0]).certain_labels
+    assert analyse(valve.diagnosers[0]).certain_labels == \
+        analyse(broken.diagnosers[0]).certain_labels
 
 
 def test_masking_moves_the_closed_loop_figures(valve):

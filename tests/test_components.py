@@ -18,9 +18,9 @@ from hmi.engine.diagnosability import analyse
 from hmi.engine.scan import Engine
 from hmi.errors import ProjectError
 from hmi.logic.expr import parse_expr, to_text
-from hmi.plant.injection import Injection
 from hmi.plant.sim.plant import SimPlant
 from hmi.project.components import rename_node, renamed_source
+from hmi.project.injection import Injection
 from hmi.project.loader import load_project
 from tests.conftest import PROJECTS
 
@@ -92,7 +92,7 @@ def test_each_instance_gets_its_own_prefixed_names(two_valves):
                                              "V2_fsc_hat"]
     assert [c.name for c in p.constraints][:7] == [f"V1_{n}" for n in (
         "CSs1", "CSs2", "CSs3", "CSs4", "CSs5", "CSs6", "CSc1")]
-    diags = p.extra["diagnosers"]
+    diags = p.diagnosers
     assert [(d.name, d.device) for d in diags] == [("V1", "Valve V1"), ("V2", "Valve V2")]
     assert [(q.name, q.flag, q.sensor, q.estimate, q.filtered, q.actuators)
             for q in diags[1].partitions] == [
@@ -122,13 +122,13 @@ def test_expressions_are_renamed_as_trees_and_read_as_text(two_valves):
 def test_descriptions_and_label_texts_are_filled_per_instance(two_valves):
     timer = {t.name: t for t in two_valves.timers}["V2_TON2"]
     assert timer.description == "Valve V2: close order held for a full travel (estimate of fsc2)"
-    v1 = two_valves.extra["diagnosers"][0]
+    v1 = two_valves.diagnosers[0]
     assert v1.description == "Local diagnoser of Valve V1 (000 §3.1, Fig. 3)"
     assert v1.labels["F4"] == "sensor fso1 stuck at 1"
 
 
 def test_component_explanations_are_keyed_by_the_instance_names(two_valves):
-    texts = two_valves.extra["explanations"]
+    texts = two_valves.explanations
     assert texts.get("constraints", "V2_CSc1").severity == "medium"
     assert texts.get("constraints", "V1_CSs1").consequences.startswith("Holding the close")
     assert texts.get("constraints", "CSc1").severity is None
@@ -317,7 +317,7 @@ def valve_pair(tmp_path_factory):
 
 
 def test_the_component_diagnoser_is_the_valve_diagnoser(valve_pair):
-    original, component = (p.extra["diagnosers"][0] for p in valve_pair)
+    original, component = (p.diagnosers[0] for p in valve_pair)
     assert [(s.name, s.labels) for s in original.states] == \
         [(s.name, s.labels) for s in component.states]
     assert [t.text() for t in original.transitions] == [t.text() for t in component.transitions]
@@ -342,7 +342,7 @@ def test_the_component_behaves_scan_for_scan_like_the_valve_project(valve_pair, 
     for project in valve_pair:
         plant = SimPlant(project)
         for text in inject:
-            from hmi.plant.injection import parse_injection
+            from hmi.project.injection import parse_injection
             plant.inject(parse_injection(text))
         engine = Engine(project, plant, control=control)
         trace = []

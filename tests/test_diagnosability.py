@@ -15,12 +15,12 @@ from tests.test_diagnoser_format import DIAG, write
 
 @pytest.fixture(scope="module")
 def valve():
-    return analyse(load_project(PROJECTS / "cispi_valve", "paper").extra["diagnosers"][0])
+    return analyse(load_project(PROJECTS / "cispi_valve", "paper").diagnosers[0])
 
 
 @pytest.fixture(scope="module")
 def improved():
-    return analyse(load_project(PROJECTS / "cispi_valve").extra["diagnosers"][0])
+    return analyse(load_project(PROJECTS / "cispi_valve").diagnosers[0])
 
 
 def test_the_improved_diagram_has_every_label_but_f13_in_a_single_label_state(improved):
@@ -63,10 +63,10 @@ def test_iso_13849_bands(dc, band):
 def test_figures_follow_the_automaton_not_a_table(tmp_path):
     """Remove the state that isolates F2 and the figures change accordingly."""
     project = load_project(write(tmp_path / "p"))
-    before = analyse(project.extra["diagnosers"][0])
+    before = analyse(project.diagnosers[0])
     assert before.certain_labels == ("F1", "F2") and before.dc == pytest.approx(2 / 3)
     diag = DIAG.replace("      - {from: N2, to: S2, after: 300ms}\n", "")
-    after = analyse(load_project(write(tmp_path / "q", diag=diag)).extra["diagnosers"][0])
+    after = analyse(load_project(write(tmp_path / "q", diag=diag)).diagnosers[0])
     assert after.certain_labels == ("F1",) and after.unreachable == ("S2",)
     f2 = next(lab for lab in after.labels if lab.label == "F2")
     assert not f2.detected and after.band == "none"

@@ -13,8 +13,8 @@ import pytest
 
 from hmi.engine.commands import FaultReset
 from hmi.engine.scan import Engine
-from hmi.plant.injection import parse_injection
 from hmi.plant.sim.plant import SimPlant
+from hmi.project.injection import parse_injection
 from hmi.project.loader import load_project
 from hmi.session.session import Session
 from tests.conftest import PROJECTS
@@ -295,3 +295,37 @@ def test_a_plant_outage_keeps_a_faulty_decision_and_resynchronises_a_normal_one(
     plant.down = (int(2 * S), int(3 * S))
     ctl = Session(Engine(project, plant))
     assert run(ctl, 4)[-1].diagnosers[0].state == "S9"
+
+
+def test_a_catch_up_scan_does_not_make_the_next_normal_step_a_gap(project):
+    """A live run's scans come at uneven times: one 1 ms after the previous (catching up
+    after a late one), the next 11 ms later. A gap is counted in the nominal period (the
+    project's 10 ms), not in the shortest step seen, so none of these resets the diagnoser;
+    a pause of 3 s still does."""
+    engine = Engine(project, SimPlant(project))
+    for k in range(150):  # 1.49 s: opening (N3)
+        snap = engine.step(k * SCAN)
+    assert snap.diagnosers[0].state == "N3"
+    now = snap.time_us
+    for step in (1, 11, 1, 19, 3, 17, 1, 60, 10):  # in ms; 60 ms: six scans late, no gap
+        now += step * MS
+        snap = engine.step(now)
+        d = snap.diagnosers[0]
+        assert d.state == "N3" and not d.via.startswith("plant not observed"), (step, d.via)
+    snap = engine.step(now + 3 * S)
+    assert snap.diagnosers[0].via == "plant not observed for 3s: re-synchronising"
+
+
+def test_a_session_slower_than_the_project_counts_gaps_in_its_own_period(project):
+    """`--period 200ms` on a 10 ms project: a 200 ms step is one scan, not twenty, even after
+    a 1 ms catch-up scan; a gap is ten of the session's periods."""
+    engine = Engine(project, SimPlant(project))
+    Session(engine, 200 * MS)
+    now = 0
+    snaps = []
+    for step in (200, 200, 200, 200, 200, 200, 1, 200, 199, 201):  # 1.4 s: opening (N3)
+        now += step * MS
+        snaps.append(engine.step(now))
+    assert snaps[-1].diagnosers[0].state == "N3"
+    assert not any(s.diagnosers[0].via.startswith("plant not observed") for s in snaps)
+    assert engine.step(now + 2_001 * MS).diagnosers[0].via.startswith("plant not observed")

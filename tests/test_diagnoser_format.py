@@ -184,7 +184,7 @@ def test_invalid_diagnoser(case: Case, tmp_path, capsys):
 
 def test_the_base_project_is_valid_and_declares_flags_and_filtered_sensors(tmp_path):
     project = load_project(write(tmp_path / "p"))
-    spec = project.extra["diagnosers"][0]
+    spec = project.diagnosers[0]
     assert [p.flag for p in spec.partitions] == ["def_fsc", "def_V"]
     assert [p.filtered for p in spec.partitions] == ["fsc_filter", None]
     # A constraint reads the filtered sensor at t, as a context literal (not an output).
@@ -209,7 +209,7 @@ def test_unreachable_states_and_unused_labels_are_warnings(tmp_path, capsys):
         "F5: valve stuck}", "F5: valve stuck, F6: other}").replace(
         "V: {labels: [F5]", "V: {labels: [F5, F6]")
     project = load_project(write(tmp_path / "p", diag=diag))
-    warnings = [str(w) for w in project.extra["warnings"]]
+    warnings = [str(w) for w in project.warnings]
     assert any("state 'S9' of diagnoser 'D' is unreachable" in w for w in warnings)
     assert any("label 'F6' of diagnoser 'D' is in no state's decision" in w for w in warnings)
     assert main(["check", str(tmp_path / "p")]) == 0

@@ -12,8 +12,8 @@ from __future__ import annotations
 from hmi.engine.commands import FaultReset, InjectFault
 from hmi.engine.scan import Engine
 from hmi.plant.base import PlantError
-from hmi.plant.injection import Injection
 from hmi.plant.sim.plant import SimPlant
+from hmi.project.injection import Injection
 from hmi.project.loader import load_project
 from hmi.session.session import Session
 from hmi.ui.scenarios import VALVE

@@ -291,10 +291,28 @@ def test_gaps_in_the_observation_agree(valve, valve_twin):
     assert engine.diagnosis.current.records[0].faulty, via
 
 
+def test_uneven_cycles_are_not_gaps_on_either_side(valve, valve_twin):
+    # A late cycle, its 1 ms catch-up, then normal ones: the gap is counted in the nominal
+    # period on both sides, so nothing re-synchronises; a 2 s stop still does.
+    steps = [10, 10, 24, 1, 11, 10, 10, 37, 1, 1, 12, 9, 10]  # ms, repeated
+    times, now = [], 0
+    while now < 12_000_000:
+        times.append(now)
+        now += steps[len(times) % len(steps)] * 1000
+    times += [14_000_000 + t * 10_000 for t in range(300)]
+    engine = engine_for(valve, ["F1@9s"])
+    seen: list[str] = []
+    result = valve_twin.run(engine, times=times, before=lambda scan, e: seen.extend(
+        r.via for r in (e.diagnosis.current.records if scan < len(times) - 300 else ())))
+    assert result.scans == len(times)
+    assert not any(via.startswith("plant not observed") for via in seen)
+    assert engine.diagnosis.current.records[0].faulty
+
+
 def test_monitor_resets_agree():
     project = load_project(PROJECTS / "conveyor_robot")
     twin = Twin(project)
-    scenario = next(s for s in project.extra["scenarios"] if s.name == "paper")
+    scenario = next(s for s in project.scenarios if s.name == "paper")
     # at 3.5 s the condemned attempt still runs (the label stays); at 7 s it has ended
     engine = engine_for(project, scenario.injections)
     result = twin.run(engine, 12_000_000, resets_after=(351, 701))

@@ -469,7 +469,7 @@ def test_the_library_is_reached_from_a_project_elsewhere(tmp_path):
     text = (folder / "project.yaml").read_text()
     library = os.path.relpath(ROOT / "components" / "valve.yaml", folder)
     (folder / "project.yaml").write_text(text.replace("../../components/valve.yaml", library))
-    assert len(load_project(folder).extra["components"]) == 2
+    assert len(load_project(folder).components) == 2
 
 
 @pytest.mark.parametrize("name", ["../../ESCAPED", "/tmp/ESCAPED", "..", ".", "a/../../b",

@@ -290,7 +290,7 @@ def test_unreachable_step_is_a_warning_not_an_error(tmp_path, capsys):
         "      1: {actions: [Y]}\n", "      1: {actions: [Y]}\n      2: {}\n")
     (folder / "project.yaml").write_text(project_text(control=control))
     project = load_project(folder)
-    warnings = [str(w) for w in project.extra["warnings"]]
+    warnings = [str(w) for w in project.warnings]
     assert any("step 2 can never become active" in w for w in warnings)
     assert main(["check", str(folder)]) == 0
     assert "step 2 can never become active" in capsys.readouterr().out

@@ -122,7 +122,7 @@ def test_durations_off_the_scan_grid_are_a_warning(tmp_path):
     folder.mkdir()
     (folder / "project.yaml").write_text(project_text() + GOOD.lstrip("\n").replace(
         "[3s, 5s]", "[3s, 5.005s]"))
-    warnings = [str(w) for w in load_project(folder).extra["warnings"]]
+    warnings = [str(w) for w in load_project(folder).warnings]
     assert any("5.005s in monitor 'job' is not a multiple of the scan period" in w
                for w in warnings)
 

@@ -26,8 +26,8 @@ from hmi.explain.journal import Journal
 from hmi.opcua.options import server_certificate
 from hmi.opcua.server import CellServer, ServeOptions
 from hmi.opcua.users import Users, hash_password
-from hmi.plant.injection import parse_injection
 from hmi.plant.select import open_plant
+from hmi.project.injection import parse_injection
 from hmi.project.loader import load_project
 from hmi.session.journal_recorder import JournalRecorder
 from hmi.session.session import Session

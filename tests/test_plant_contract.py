@@ -13,9 +13,9 @@ from hmi.engine.commands import InjectFault, RepairFaults, SetInput, SetPolicy
 from hmi.engine.scan import Engine
 from hmi.errors import UsageError
 from hmi.plant.base import NotSupported, Plant
-from hmi.plant.injection import parse_injection
 from hmi.plant.modbus.client import ModbusPlant, ModbusSettings
 from hmi.plant.sim.plant import SimPlant
+from hmi.project.injection import parse_injection
 from hmi.project.loader import load_project
 from tests.conftest import PROJECTS, ROOT
 
@@ -101,21 +101,26 @@ def test_nobody_probes_a_plant_or_the_engine_with_getattr():
 def test_the_model_registry_names_each_model_and_imports_it_on_use():
     from hmi.plant.sim.device import SimDevice
     from hmi.plant.sim.models import MODELS, REGISTRY
+    from hmi.project.device_models import DEVICE_MODELS
+    assert set(REGISTRY) == set(DEVICE_MODELS)
     for name in REGISTRY:
         cls = MODELS[name]
         assert issubclass(cls, SimDevice) and name == cls.MODEL
+        assert cls.SPEC is DEVICE_MODELS[name]
+        # The counters the catalogue promises (a campaign's `counter:` is checked against
+        # them) are those a device reports.
+        assert tuple(cls(name, {}).counters()) == DEVICE_MODELS[name].counters, name
     assert "nope" not in MODELS and MODELS.get("nope") is None
 
 
-def test_loading_a_project_imports_only_the_models_it_names():
+def test_loading_a_project_imports_no_simulated_model():
+    """The loader checks devices against the catalogue (hmi/project/device_models.py): no
+    simulation is imported until a plant is built."""
     import subprocess
     import sys
     code = ("import json, sys; from hmi.project.loader import load_project; "
             f"load_project({str(VALVE)!r}); "
-            "print(json.dumps(sorted(m for m in sys.modules if m.startswith('hmi.plant.sim.'))))")
+            "print(json.dumps(sorted(m for m in sys.modules if m.startswith('hmi.plant'))))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          cwd=ROOT, check=True).stdout
-    loaded = json.loads(out)
-    assert "hmi.plant.sim.valve" in loaded
-    assert not {"hmi.plant.sim.palletizer", "hmi.plant.sim.sorter", "hmi.plant.sim.pump",
-                "hmi.plant.sim.conveyor"} & set(loaded), loaded
+    assert json.loads(out) == []

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from hmi.engine.commands import InjectFault, StopDevice
 from hmi.explain.alarms import ACTIVE_ACK, ACTIVE_UNACK, CLEARED_UNACK
-from hmi.plant.injection import Injection
+from hmi.project.injection import Injection
 from hmi.timefmt import seconds
 from hmi.ui.alarm_list import AlarmList, without_device
 from hmi.ui.chronogram import Chronogram

@@ -10,7 +10,7 @@ variant, used here); F9 at 10 s is isolated with certainty in S9 (fso read from 
 from __future__ import annotations
 
 from hmi.engine.commands import InjectFault
-from hmi.plant.injection import Injection
+from hmi.project.injection import Injection
 from hmi.ui.alarm_list import AlarmList
 from hmi.ui.dialogs import ConfirmDialog
 from hmi.ui.explain_panel import ExplanationPanel

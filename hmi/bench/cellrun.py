@@ -82,8 +82,8 @@ def measure(project: Project, control: str, duration_us: int, policy: str = "cor
     the command line (`table_jam@30s`).
     """
     from hmi.engine.scan import Engine
-    from hmi.plant.injection import Injection, parse_injection
     from hmi.plant.sim.plant import SimPlant
+    from hmi.project.injection import Injection, parse_injection
     from hmi.session.session import settle_memory
 
     plant = SimPlant(project)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from hmi.plant.injection import Injection
+from hmi.project.injection import Injection
 
 
 @dataclass(frozen=True)

@@ -30,6 +30,10 @@ hmi.engine.filter_stage.
 unknown: plant connection lost) or a step between two scans is longer than 10 scan periods (a
 pause of a live run), a diagnoser in a normal state returns to its initial, synchronising
 state: its state and clock no longer describe a plant it did not see. Faulty decisions stay.
+The period is the nominal one, the period the scans are meant to run at (the project's, or a
+session's slower one), never a step measured between two scans: a live run's scans come at
+uneven times, and a 1 ms catch-up scan after a late one must not make the next normal step
+look like ten missed scans.
 
 Modes (for the campaign's configurations): `ftc` (flags drive reconstruction and masking),
 `observe` (the diagnosers run and set their flags, nothing uses them: x_filter = x), `off`
@@ -68,7 +72,7 @@ from hmi.project.model import Project
 from hmi.timefmt import format_duration
 
 MODES = ("ftc", "observe", "off")
-GAP_SCANS = 10  # a step this many scan periods long is a gap in the observation
+GAP_SCANS = 10  # a step longer than this many nominal scan periods is a gap in the observation
 MODE_HELP = {
     "ftc": "diagnosers drive reconstruction and masking (fault-tolerant control)",
     "observe": "diagnosers run and set their flags; nothing uses them",
@@ -184,6 +188,8 @@ class DiagnoserRuntime:
         self.since_scan = 0
         self.via = ""
         self.record = self._record()
+        self._resync_reads: tuple[tuple[str, int, int], ...] | None = None
+        self._preview: tuple[DiagnoserState, str, str, DiagnoserState] | None = None
 
     @property
     def state(self) -> DiagState:
@@ -242,8 +248,15 @@ class DiagnoserRuntime:
             return record
         seen = _Shifted(image, hist)
         match = self.resync_match(image, seen)
-        return replace(record, resync=self.names[match[0]] if match else "",
-                       resync_values=self._resync_values(image, seen))
+        resync = self.names[match[0]] if match else ""
+        values = self._resync_values(image, seen)
+        # A faulty diagnoser usually stays put for many scans: the same preview, built once.
+        last = self._preview
+        if last is not None and last[0] is record and last[1] == resync and last[2] == values:
+            return last[3]
+        shown = replace(record, resync=resync, resync_values=values)
+        self._preview = (record, resync, values, shown)
+        return shown
 
     def resync(self, image: Image, hist: History, now: int, scan: int) -> str:
         """Fault reset: back to the normal state the current I/O is consistent with."""
@@ -269,18 +282,18 @@ class DiagnoserRuntime:
 
     def _resync_values(self, image: Image, hist: History) -> str:
         """`fsc=0, fso=0, C=0, O=0`: the values the resync rules test, as they see them."""
-        seen: dict[tuple[str, int], None] = {}
-        for rule in self.spec.resync:
-            for node in walk(rule.when.root):
-                if isinstance(node, Var):
-                    seen.setdefault((node.name, node.depth))
-        parts = []
-        for name, depth in seen:
-            back = depth + (1 if name in self.outputs else 0)
-            slot = self.slots[name]
-            value = image[slot] if back == 0 else hist[back - 1][slot]
-            parts.append(f"{to_text(Var(0, name, depth))}={int(bool(value))}")
-        return ", ".join(parts)
+        reads = self._resync_reads
+        if reads is None:  # what the rules read, found once (this runs at every faulty scan)
+            seen: dict[tuple[str, int], None] = {}
+            for rule in self.spec.resync:
+                for node in walk(rule.when.root):
+                    if isinstance(node, Var):
+                        seen.setdefault((node.name, node.depth))
+            reads = self._resync_reads = tuple(
+                (to_text(Var(0, name, depth)), self.slots[name],
+                 depth + (1 if name in self.outputs else 0)) for name, depth in seen)
+        return ", ".join(f"{text}={int(bool(image[slot] if back == 0 else hist[back - 1][slot]))}"
+                         for text, slot, back in reads)
 
 
 class _Shifted(Sequence[Image]):
@@ -320,10 +333,12 @@ class Diagnosis(NamedTuple):
 class DiagnosisStage:
     """Stage 3 of the scan: the diagnosers, their flags, and what stages 4 and 6 must do."""
 
-    def __init__(self, specs: Sequence[DiagnoserSpec], layout: Layout, mode: str):
+    def __init__(self, specs: Sequence[DiagnoserSpec], layout: Layout, mode: str,
+                 period_us: int):
         if mode not in MODES:
             raise ValueError(f"unknown diagnosis mode {mode!r}")
         self.mode = mode
+        self.period = period_us  # nominal: a step longer than GAP_SCANS of it is a gap
         lay = layout
         slots = lay.slots
         outputs = frozenset(lay.outputs)
@@ -348,7 +363,6 @@ class DiagnosisStage:
         self.dirty = True  # flags, routes and masks to recompute at the next scan
         self.last_scan: int | None = None  # the last scan the stage ran
         self.last_now = 0
-        self.period: int | None = None  # the shortest step seen between two scans
         self.faulty = False  # some diagnoser holds a faulty decision
         self.current = Diagnosis((), None, (), (), ())  # nothing shown before the first run
 
@@ -357,10 +371,8 @@ class DiagnosisStage:
         if self.mode != "off":
             if self.last_scan is not None:
                 delta = now - self.last_now
-                if scan != self.last_scan + 1 or (self.period and delta > GAP_SCANS * self.period):
+                if scan != self.last_scan + 1 or delta > GAP_SCANS * self.period:
                     changed = self._lost_sight(now, scan, delta) or changed
-                elif delta > 0:
-                    self.period = min(self.period or delta, delta)
             self.last_scan, self.last_now = scan, now
             for rt in self.runtimes:
                 if rt.step(image, history, now, scan):
@@ -382,7 +394,7 @@ class DiagnosisStage:
         for rt in self.runtimes:
             if rt.state.faulty:
                 if rt.since_us is not None:
-                    rt.since_us += max(0, delta - (self.period or 0))
+                    rt.since_us += max(0, delta - self.period)
                 continue
             if rt.current != rt.initial:
                 rt.enter(rt.initial, now, scan, f"plant not observed for "
@@ -425,13 +437,12 @@ class DiagnosisStage:
 
     def capture(self) -> tuple[Any, ...]:
         """The stage's and its diagnosers' state (Engine.capture)."""
-        return (self.current, self.dirty, self.last_scan, self.last_now, self.period,
-                self.faulty, tuple((rt.current, rt.since_us, rt.since_scan, rt.via, rt.record)
-                                   for rt in self.runtimes))
+        return (self.current, self.dirty, self.last_scan, self.last_now, self.faulty,
+                tuple((rt.current, rt.since_us, rt.since_scan, rt.via, rt.record)
+                      for rt in self.runtimes))
 
     def restore(self, state: tuple[Any, ...]) -> None:
-        (self.current, self.dirty, self.last_scan, self.last_now, self.period, self.faulty,
-         runtimes) = state
+        (self.current, self.dirty, self.last_scan, self.last_now, self.faulty, runtimes) = state
         for rt, (current, since_us, since_scan, via, record) in zip(
                 self.runtimes, runtimes, strict=True):
             rt.current, rt.since_us, rt.since_scan, rt.via, rt.record = (
@@ -456,4 +467,4 @@ def diagnosis_stage(project: Project, layout: Layout, mode: str = "ftc"
     if mode not in MODES:
         raise ValueError(f"unknown diagnosis mode {mode!r}")
     specs = diagnosers_of(project)
-    return DiagnosisStage(specs, layout, mode) if specs else None
+    return DiagnosisStage(specs, layout, mode, project.scan_period_us) if specs else None

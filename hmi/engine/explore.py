@@ -30,8 +30,8 @@ from dataclasses import dataclass, field
 
 from hmi.engine.loopstate import LoopAccess
 from hmi.engine.scan import Engine
-from hmi.plant.injection import Injection
 from hmi.plant.sim.plant import SimPlant
+from hmi.project.injection import Injection
 
 HORIZON = -1  # successor of a node whose run hit the step limit without closing its loop
 SETTLED = -2  # successor of a node whose future is settled (see Explorer.settled)

@@ -240,6 +240,13 @@ class Engine:
         search's steps only; docs/filter.md, "Budget")."""
         self.filter.wall_limit_us = wall_us
 
+    def set_nominal_period(self, period_us: int) -> None:
+        """The period the scans are meant to run at, when a session runs at another than the
+        project's (--period): the diagnosers count a gap in the observation in it, and never
+        in less than the project's period (a faster session does not make gaps shorter)."""
+        if self.diagnosis is not None:
+            self.diagnosis.period = max(period_us, self.project.scan_period_us)
+
     @property
     def drives_real_plant(self) -> bool:
         """Outputs written by this engine move real machinery."""

@@ -18,9 +18,9 @@ from hmi.engine.snapshot import Snapshot
 from hmi.explain.diagnoses import diagnosis_explanations
 from hmi.explain.model import Explanation, Policy
 from hmi.explain.monitors import monitor_explanations
-from hmi.explain.texts import ProjectTexts, TextSpec, fill
 from hmi.project.diagnosers import diagnosers_of
 from hmi.project.model import Project
+from hmi.project.texts import ProjectTexts, TextSpec, fill
 from hmi.timefmt import seconds
 
 
@@ -40,7 +40,7 @@ class ExplanationBuilder:
 
     def __init__(self, project: Project, texts: ProjectTexts | None = None):
         self.project = project
-        self.texts = texts or project.extra.get("explanations") or ProjectTexts()
+        self.texts = texts or project.explanations or ProjectTexts()
         self.onsets: dict[str, _Onset] = {}
         self.cache: dict[str, tuple[tuple, Explanation]] = {}
         self.devices = {v.name: (v.device or project.name)

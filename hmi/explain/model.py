@@ -7,8 +7,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-SEVERITIES = ("high", "medium", "low")  # damage possible / degraded / information
-
 
 @dataclass(frozen=True)
 class Policy:

@@ -4,7 +4,7 @@ One explanation per latched monitor label, key ``monitor:<task>``: what (the tas
 rule, in plain words), why (the stopwatch values at detection and the rule with its
 numbers), consequences (what a late task means and that nothing is stopped), policies
 (continue, stop the device, fault reset). A project's `explanations: monitors: <task>:` texts
-replace any level; their placeholders are those of hmi.explain.texts.PLACEHOLDERS.
+replace any level; their placeholders are those of hmi.project.texts.PLACEHOLDERS.
 """
 
 from __future__ import annotations

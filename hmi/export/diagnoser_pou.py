@@ -8,10 +8,11 @@
   are `InState.ET >= tmin AND InState.ET < tmax` and a timeout is `InState.ET >= after`. The
   current state's event transitions are tried in file order, the timeout last: one
   transition per scan, an event wins over a timeout at the same scan.
-* **Gaps**: a call more than 10 scan periods after the previous one (the shortest interval
-  seen between calls, measured by the TON `Clock`) means the plant was not observed: a normal
-  state goes back to the initial one, a faulty one keeps its decision with its clock frozen
-  over the gap (`Frozen`).
+* **Gaps**: a call more than 10 scan periods after the previous one (the interval measured by
+  the TON `Clock`, the period the task's nominal one: never an interval measured, so a late
+  cycle's catch-up does not make the next normal one a gap) means the plant was not
+  observed: a normal state goes back to the initial one, a faulty one keeps its decision with
+  its clock frozen over the gap (`Frozen`).
 * **Decision, flags, reconstruction**: each label is true in the states that decide it; a
   partition flag `def_p` while the decision holds one of its labels; a sensor partition gives
   `x_filter = not def and x or def and x_hat` (000 eq. 7-8) in FTC mode (`Mode = 0`), the
@@ -141,18 +142,12 @@ def build_diagnoser(project: Project, spec: DiagnoserSpec, pou_name: str, scope:
         m.Assign(v("Delta"), clock),
         m.FbCall(t["Clock"], (("IN", m.FALSE),)),
         m.FbCall(t["Clock"], (("IN", m.TRUE),)),
-        m.if_(v("Started"), m.If((
-            (m.and_(m.Binary(">", v("Period"), m.TimeLit(0)),
-                    m.Binary(">", v("Delta"), m.Binary("*", v("Period"), m.IntLit(10)))),
-             (m.If(((v("Faulty"), (m.Assign(v("Frozen"), m.Binary(
-                 "-", m.Binary("+", v("Frozen"), v("Delta")), v("Period"))),)),
+        m.if_(m.and_(v("Started"),
+                     m.Binary(">", v("Delta"), m.Binary("*", v("Period"), m.IntLit(10)))),
+              m.If(((v("Faulty"), (m.Assign(v("Frozen"), m.Binary(
+                  "-", m.Binary("+", v("Frozen"), v("Delta")), v("Period"))),)),
                     (m.Binary("<>", v("State"), m.IntLit(initial)),
-                     (m.Comment("re-synchronise"), go(spec.initial), enter_next)))),)),
-            (m.and_(m.Binary(">", v("Delta"), m.TimeLit(0)),
-                    m.or_(m.eq(v("Period"), m.TimeLit(0)),
-                          m.Binary("<", v("Delta"), v("Period")))),
-             (m.Assign(v("Period"), v("Delta")),)),
-        ))),
+                     (m.Comment("re-synchronise"), go(spec.initial), enter_next))))),
         m.Assign(v("Started"), m.TRUE),
         m.Assign(v("Next"), m.IntLit(-1)),
         m.FbCall(t["InState"], (("IN", m.TRUE), ("PT", tmax))),
@@ -199,7 +194,8 @@ def build_diagnoser(project: Project, spec: DiagnoserSpec, pou_name: str, scope:
             m.Var(t["Tis"], m.TIME, comment="time in the current state"),
             m.Var(t["Clock"], m.Derived("TON"), comment="time since the previous call"),
             m.Var(t["Delta"], m.TIME),
-            m.Var(t["Period"], m.TIME, comment="the shortest interval between two calls"),
+            m.Var(t["Period"], m.TIME, m.TimeLit(project.scan_period_us // 1000),
+                  comment="the task's nominal period (the project's scan period)"),
             m.Var(t["Frozen"], m.TIME, comment="time in state not counted (gaps)"),
         )),
     )

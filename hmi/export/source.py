@@ -1,8 +1,8 @@
 """Everything the export reads from a loaded project, in one place.
 
-The project model is about to change (phase B of issue 14 replaces `Project.extra` with a
-typed model): the builders never reach into `Project` themselves, they call these functions,
-so that change is one edit here.
+The builders never reach into `Project` themselves, they call these functions, so a change
+of the project model (such as phase B of issue 14's typed fields replacing `Project.extra`)
+is one edit here.
 """
 
 from __future__ import annotations

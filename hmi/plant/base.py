@@ -20,8 +20,8 @@ from types import MappingProxyType
 from typing import TYPE_CHECKING, Any, ClassVar
 
 if TYPE_CHECKING:
-    from hmi.plant.injection import Injection
     from hmi.plant.modbus.link_log import LinkLog
+    from hmi.project.injection import Injection
 
 # The physical state of a plant for traces and the UI: (name, value) pairs, in a stable order
 # ("angle", 42.5), ("V1.position", 0.3)... Empty for a real plant, known only through its I/O.

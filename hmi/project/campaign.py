@@ -21,12 +21,12 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from hmi.errors import SourcePos
-from hmi.plant.sim.models import MODELS
+from hmi.project.device_models import DEVICE_MODELS
 from hmi.timefmt import format_duration
 
 if TYPE_CHECKING:
-    from hmi.project.loader import ProjectLoader
     from hmi.project.model import PlantSpec, Project
+    from hmi.project.reader import ProjectReader
 
 
 @dataclass(frozen=True)
@@ -55,22 +55,22 @@ class CampaignSpec:
 
 
 def campaign_of(project: Project) -> CampaignSpec | None:
-    return project.extra.get("campaign")
+    return project.campaign
 
 
 def plant_counters(plant: PlantSpec) -> list[str]:
     """The counters a simulated plant reports, named as SimPlant.counters() names them."""
     names: list[str] = []
     for device in plant.devices:
-        model = MODELS.get(device.model)
+        model = DEVICE_MODELS.get(device.model)
         if model is None:
             continue
-        keys = list(model(device.name, device.params).counters())
+        keys = list(model.counters)
         names += keys if len(plant.devices) == 1 else [f"{device.name}.{k}" for k in keys]
     return names
 
 
-def parse_campaign(loader: ProjectLoader, plant: PlantSpec) -> CampaignSpec | None:
+def parse_campaign(loader: ProjectReader, plant: PlantSpec) -> CampaignSpec | None:
     node = loader.sections.get("campaign")
     if node is None:
         return None
@@ -98,7 +98,7 @@ def parse_campaign(loader: ProjectLoader, plant: PlantSpec) -> CampaignSpec | No
         loader.diag.error(fields["counter"].pos, f"the plant has no counter {counter!r}",
                           "one of " + ", ".join(counters) if counters else "a plant counter")
     faults = {(d.name, code) for d in plant.devices
-              for code in getattr(MODELS.get(d.model), "FAULTS", {})}
+              for code in (DEVICE_MODELS[d.model].faults if d.model in DEVICE_MODELS else ())}
     items = loader.guard(lambda: fields["scenarios"].as_seq("campaign scenarios"), [])
     scenarios = []
     for k, item in enumerate(items, start=1):

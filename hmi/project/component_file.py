@@ -19,10 +19,10 @@ from typing import TYPE_CHECKING
 from hmi.errors import ProjectError, SourcePos, display_path
 from hmi.logic.expr import ExprError, StepTime, Var, parse_expr, walk
 from hmi.logic.names import NAME_RE, RESERVED, STEP_RE
-from hmi.project.yamlnodes import NodeError, YNode, load_yaml
+from hmi.project.yamlnodes import NodeError, YNode, expr_start, load_yaml
 
 if TYPE_CHECKING:
-    from hmi.project.loader import ProjectLoader
+    from hmi.project.reader import ProjectReader
 
 COMPONENT_KEYS = {"component", "description", "parameters", "timers", "observers",
                   "constraints", "diagnoser", "explanations"}
@@ -75,7 +75,7 @@ class ComponentDef:
 
 
 
-def read_component(loader: ProjectLoader, path: Path) -> ComponentDef | None:
+def read_component(loader: ProjectReader, path: Path) -> ComponentDef | None:
     """Read and validate one component file; report its errors once, return None if any."""
     display = display_path(path)
     try:
@@ -109,7 +109,7 @@ def read_component(loader: ProjectLoader, path: Path) -> ComponentDef | None:
     return comp if len(loader.diag.errors) == before else None
 
 
-def _valid_name(loader: ProjectLoader, name: str, pos: SourcePos, what: str) -> bool:
+def _valid_name(loader: ProjectReader, name: str, pos: SourcePos, what: str) -> bool:
     if not NAME_RE.match(name):
         loader.diag.error(pos, f"{name!r} is not a valid {what} name",
                           "letters, digits and _, not starting with a digit")
@@ -126,7 +126,7 @@ def _valid_name(loader: ProjectLoader, name: str, pos: SourcePos, what: str) -> 
     return False
 
 
-def _parameters(loader: ProjectLoader, node: YNode) -> dict[str, Parameter]:
+def _parameters(loader: ProjectReader, node: YNode) -> dict[str, Parameter]:
     mapping = loader.guard(lambda: node.as_map("parameters"), {})
     out: dict[str, Parameter] = {}
     for name, pnode in mapping.items():
@@ -153,7 +153,7 @@ def _parameters(loader: ProjectLoader, node: YNode) -> dict[str, Parameter]:
     return out
 
 
-def _item_names(loader: ProjectLoader, node: YNode | None, key: str,
+def _item_names(loader: ProjectReader, node: YNode | None, key: str,
                 local: dict[str, SourcePos], declare: bool) -> list[str]:
     """The names of a timers / observers / constraints map, checked like a project's."""
     if node is None:
@@ -176,8 +176,9 @@ def _item_names(loader: ProjectLoader, node: YNode | None, key: str,
     return names
 
 
-def _diagnoser_shape(loader: ProjectLoader, node: YNode | None,
-                     params: dict[str, Parameter]) -> tuple[list, list[str]]:
+def _diagnoser_shape(loader: ProjectReader, node: YNode | None,
+                     params: dict[str, Parameter]
+                     ) -> tuple[list[tuple[str, str | None]], list[str]]:
     """The partitions (and the formal sensor of each) and labels of the component's
     diagnoser; the rest of it is checked per instance by hmi/project/diagnosers.py."""
     if node is None:
@@ -250,10 +251,9 @@ def _expression_nodes(fields: dict[str, YNode]) -> list[YNode]:
     return out
 
 
-def _check_expressions(loader: ProjectLoader, fields: dict[str, YNode],
+def _check_expressions(loader: ProjectReader, fields: dict[str, YNode],
                        comp: ComponentDef) -> None:
     """Each expression parses and reads only the component's own names and parameters."""
-    from hmi.project.loader import expr_start
     namespace = comp.namespace()
     for node in _expression_nodes(fields):
         if node.kind != "scalar":
@@ -301,7 +301,7 @@ def text_nodes(fields: dict[str, YNode]) -> list[YNode]:
     return out
 
 
-def _check_placeholders(loader: ProjectLoader, fields: dict[str, YNode],
+def _check_placeholders(loader: ProjectReader, fields: dict[str, YNode],
                         comp: ComponentDef) -> None:
     known = {"device", "instance", *comp.parameters}
     for node in text_nodes(fields):
@@ -315,7 +315,7 @@ def _check_placeholders(loader: ProjectLoader, fields: dict[str, YNode],
                                   "text", "one of " + ", ".join("{" + k + "}" for k in known))
 
 
-def _check_explanation_names(loader: ProjectLoader, node: YNode, comp: ComponentDef) -> None:
+def _check_explanation_names(loader: ProjectReader, node: YNode, comp: ComponentDef) -> None:
     kinds = loader.guard(lambda: node.check_keys("the explanations of a component",
                                                  set(EXPLANATION_KINDS)), {})
     own = {"constraints": set(comp.constraints), "labels": set(comp.labels),

@@ -43,23 +43,23 @@ pass every check a project's own sections pass.
 
 `{device}`, `{instance}` and `{<parameter>}` in a component's descriptions and label texts are
 filled per instance ("Valve V1", "V1", "fsc1"); explanation texts keep their run-time
-placeholders (hmi/explain/texts.py).
+placeholders (hmi/project/texts.py).
 """
 
 from __future__ import annotations
 
 import ast
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from hmi.errors import SourcePos, display_path
-from hmi.explain.texts import ProjectTexts, TextSpec
 from hmi.logic.expr import And, Compare, Expr, Node, Not, Or, Var, to_text
+from hmi.logic.names import NAME_RE
 from hmi.project.component_file import (
     FILTERED_SUFFIX,
     FLAG_PREFIX,
-    NAME_RE,
     PLACEHOLDER,
     ComponentDef,
     Parameter,
@@ -67,10 +67,11 @@ from hmi.project.component_file import (
     text_nodes,
 )
 from hmi.project.confine import Refused, component_roots, confined_file
+from hmi.project.texts import ProjectTexts, TextSpec
 from hmi.project.yamlnodes import YNode, load_yaml
 
 if TYPE_CHECKING:
-    from hmi.project.loader import ProjectLoader
+    from hmi.project.reader import ProjectReader
 
 INSTANCE_KEYS = {"use", "bind", "device"}
 
@@ -212,7 +213,7 @@ class Components:
         return lines
 
 
-def merge_texts(loader: ProjectLoader, parts: list[tuple[ComponentInstance | None, ProjectTexts]]
+def merge_texts(loader: ProjectReader, parts: list[tuple[ComponentInstance | None, ProjectTexts]]
                 ) -> ProjectTexts:
     """The explanation texts of the instances, then the project's, which win on a name.
 
@@ -240,7 +241,7 @@ def merge_texts(loader: ProjectLoader, parts: list[tuple[ComponentInstance | Non
     return ProjectTexts(by_kind)
 
 
-def load_components(loader: ProjectLoader) -> Components:
+def load_components(loader: ProjectReader) -> Components:
     """Read the `components:` section: validate each component file once, bind and check
     each instance, and build the renamed sections it adds. Problems are reported on the
     loader's diagnostics; an instance with a problem adds nothing (no cascade of errors)."""
@@ -266,15 +267,15 @@ def load_components(loader: ProjectLoader) -> Components:
     return result
 
 
-def _project_names(loader: ProjectLoader) -> dict[str, tuple[str, SourcePos]]:
+def _project_names(loader: ProjectReader) -> dict[str, tuple[str, SourcePos]]:
     """Every name the project itself declares (variables, items, flags), to find clashes."""
     taken: dict[str, tuple[str, SourcePos]] = {
         name: (kind, loader.declared_at[name]) for name, kind in loader.namespace.items()}
     for key, what in (("timers", "timer"), ("observers", "observer"),
                       ("constraints", "constraint"), ("diagnosers", "diagnoser")):
-        for name, _node, kpos in loader._section_items(key):
+        for name, _node, kpos in loader.section_items(key):
             taken.setdefault(str(name), (what, kpos))
-    for _name, dnode, _kpos in loader._section_items("diagnosers"):
+    for _name, dnode, _kpos in loader.section_items("diagnosers"):
         parts = dnode.value.get("partitions") if dnode.kind == "map" else None
         if parts is None or parts.kind != "map":
             continue
@@ -287,7 +288,7 @@ def _project_names(loader: ProjectLoader) -> dict[str, tuple[str, SourcePos]]:
     return taken
 
 
-def _instance(loader: ProjectLoader, name: str, inode: YNode, kpos: SourcePos,
+def _instance(loader: ProjectReader, name: str, inode: YNode, kpos: SourcePos,
               definitions: dict[Path, ComponentDef | None],
               result: Components) -> ComponentInstance | None:
     what = f"component {name!r}"
@@ -322,7 +323,7 @@ def _instance(loader: ProjectLoader, name: str, inode: YNode, kpos: SourcePos,
     return ComponentInstance(name, comp, device, bind, kpos)
 
 
-def _bindings(loader: ProjectLoader, name: str, comp: ComponentDef, node: YNode,
+def _bindings(loader: ProjectReader, name: str, comp: ComponentDef, node: YNode,
               kpos: SourcePos) -> dict[str, str] | None:
     """formal -> project variable, every parameter bound once, each to a variable of its kind."""
     mapping = loader.guard(lambda: node.as_map(f"the bindings of component {name!r}"))
@@ -375,7 +376,7 @@ def _bindings(loader: ProjectLoader, name: str, comp: ComponentDef, node: YNode,
     return {p: bind[p] for p in comp.parameters if p in bind} if ok else None
 
 
-def _claim_names(loader: ProjectLoader, inst: ComponentInstance,
+def _claim_names(loader: ProjectReader, inst: ComponentInstance,
                  taken: dict[str, tuple[str, SourcePos]]) -> bool:
     """Check the names the instance adds against the project's and earlier instances'."""
     ok = True
@@ -403,7 +404,7 @@ def _article(kind: str) -> str:
 # --------------------------------------------------------------------------------------------
 
 
-def _add_sections(loader: ProjectLoader, inst: ComponentInstance, result: Components) -> None:
+def _add_sections(loader: ProjectReader, inst: ComponentInstance, result: Components) -> None:
     """Read the component's YAML again for this instance (positions carrying the instance),
     rename its items and references, and queue them for the loader's sections."""
     comp = inst.component
@@ -458,7 +459,7 @@ def _scalar(like: YNode, value: str) -> YNode:
     return node
 
 
-def _renamed_map(node: YNode, rename) -> YNode:
+def _renamed_map(node: YNode, rename: Callable[[str], str]) -> YNode:
     return YNode("map", {rename(str(k)): v for k, v in node.value.items()}, node.pos, node.tag,
                  {rename(str(k)): p for k, p in node.key_pos.items()})
 

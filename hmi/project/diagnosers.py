@@ -42,6 +42,7 @@ normal transitions (a faulty decision is latched), the initial state, and unreac
 from __future__ import annotations
 
 import itertools
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -64,8 +65,8 @@ from hmi.project.yamlnodes import YNode
 from hmi.timefmt import format_duration
 
 if TYPE_CHECKING:
-    from hmi.project.loader import ProjectLoader
     from hmi.project.model import Project
+    from hmi.project.reader import ProjectReader
 
 FLAG_PREFIX = "def_"
 FILTERED_SUFFIX = "_filter"
@@ -195,7 +196,7 @@ class DiagnoserSpec:
 
 
 def diagnosers_of(project: Project) -> tuple[DiagnoserSpec, ...]:
-    return project.extra.get("diagnosers", ())
+    return project.diagnosers
 
 
 def layout_names(project: Project) -> list[tuple[str, str]]:
@@ -211,7 +212,7 @@ def layout_names(project: Project) -> list[tuple[str, str]]:
 # --------------------------------------------------------------------------------------------
 
 
-def declare_diagnoser_names(loader: ProjectLoader) -> None:
+def declare_diagnoser_names(loader: ProjectReader) -> None:
     """Add `def_<partition>` (kind flag) and `<sensor>_filter` (kind filtered) to the names.
 
     Runs after inputs, outputs, memories, timers and observers are declared, so a clash with
@@ -219,7 +220,7 @@ def declare_diagnoser_names(loader: ProjectLoader) -> None:
     which reports it; this pass only reads what it can.
     """
     flags: dict[str, SourcePos] = {}
-    for _dname, dnode, _kpos in loader._section_items("diagnosers"):
+    for _dname, dnode, _kpos in loader.section_items("diagnosers"):
         if dnode.kind != "map":
             continue
         pnode = dnode.value.get("partitions")
@@ -264,10 +265,10 @@ def declare_diagnoser_names(loader: ProjectLoader) -> None:
 # --------------------------------------------------------------------------------------------
 
 
-def parse_diagnosers(loader: ProjectLoader) -> tuple[DiagnoserSpec, ...]:
+def parse_diagnosers(loader: ProjectReader) -> tuple[DiagnoserSpec, ...]:
     """Read the `diagnosers:` section after every name is declared; report, never raise."""
     out = []
-    for name, node, kpos in loader._section_items("diagnosers"):
+    for name, node, kpos in loader.section_items("diagnosers"):
         name = str(name)
         if not NAME_RE.match(name):
             loader.diag.error(kpos, f"{name!r} is not a valid diagnoser name",
@@ -286,7 +287,7 @@ def parse_diagnosers(loader: ProjectLoader) -> tuple[DiagnoserSpec, ...]:
 
 
 class _Parser:
-    def __init__(self, loader: ProjectLoader, name: str, node: YNode, kpos: SourcePos):
+    def __init__(self, loader: ProjectReader, name: str, node: YNode, kpos: SourcePos):
         self.loader = loader
         self.diag = loader.diag
         self.name = name
@@ -502,7 +503,7 @@ class _Parser:
         return tuple(out)
 
     def _name(self, node: YNode, role: str, kinds: set[str], what: str) -> str | None:
-        name = self.loader.guard(lambda: node.as_str(what))
+        name: str | None = self.loader.guard(lambda: node.as_str(what))
         if name is None:
             self.ok = False
             return None
@@ -844,7 +845,8 @@ def jointly_satisfiable(a: Expr, b: Expr, budget: list[int] | None = None) -> st
     return None
 
 
-def _product_witness(a: Expr, b: Expr, names) -> dict | None:
+def _product_witness(a: Expr, b: Expr, names: Sequence[tuple[str, int]]
+                     ) -> dict[tuple[str, int], bool] | None:
     """When both conditions are products of literals (the usual case), the answer without
     enumerating: {} if they contradict each other, else the first satisfying assignment in
     enumeration order (every free variable 0). None if either is not a product."""
@@ -863,7 +865,7 @@ def _product_witness(a: Expr, b: Expr, names) -> dict | None:
     return values
 
 
-def _witness_text(values: dict) -> str:
+def _witness_text(values: Mapping[tuple[str, int], bool]) -> str:
     return ", ".join(f"{_var_text(n, d)}={int(v)}" for (n, d), v in values.items())
 
 
@@ -873,11 +875,11 @@ def _var_text(name: str, depth: int) -> str:
     return f"prev({name})" if depth == 1 else f"prev({name}, {depth})"
 
 
-def _one_of(names) -> str:
+def _one_of(names: Iterable[str]) -> str:
     return "one of " + ", ".join(sorted(names)) if names else "a declared state"
 
 
-def _suggest(name: str, known) -> str:
+def _suggest(name: str, known: Iterable[str]) -> str:
     import difflib
     close = difflib.get_close_matches(name, list(known), n=3, cutoff=0.5)
     if close:

@@ -12,23 +12,31 @@
         safe_state_filter: {what: "..."}
 
 Kinds: constraints, labels, partitions, monitors, situations. Every placeholder must be one
-the kind offers (hmi.explain.texts.PLACEHOLDERS) and every name must exist.
+the kind offers (hmi.project.texts.PLACEHOLDERS) and every name must exist.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
-from hmi.explain.model import SEVERITIES
-from hmi.explain.texts import LEVELS, PLACEHOLDERS, POLICY_IDS, ProjectTexts, TextSpec, fields_of
+from hmi.project.texts import (
+    LEVELS,
+    PLACEHOLDERS,
+    POLICY_IDS,
+    SEVERITIES,
+    ProjectTexts,
+    TextSpec,
+    fields_of,
+)
 from hmi.project.yamlnodes import NodeError, YNode
 
 SITUATIONS = ("safe_state_filter", "safe_state_plant", "safe_state_internal")
 SPEC_KEYS = {*LEVELS, "policies", "recommend", "severity", "alarm"}
 
 
-def parse_explanations(node: YNode, guard: Callable, known: dict[str, set[str]],
-                       error: Callable) -> ProjectTexts:
+def parse_explanations(node: YNode, guard: Callable[..., Any], known: dict[str, set[str]],
+                       error: Callable[..., None]) -> ProjectTexts:
     """`known[kind]` is the set of names a kind may describe (constraint names...)."""
     kinds = guard(lambda: node.check_keys("explanations", set(PLACEHOLDERS)), {})
     by_kind: dict[str, dict[str, TextSpec]] = {}

@@ -9,33 +9,24 @@ and each names its file, line and column. The result is an immutable :class:`Pro
 from __future__ import annotations
 
 import re
-from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
-from hmi.errors import Diagnostic, Diagnostics, ProjectError, SourcePos, display_path
-from hmi.limits import MAX_CONSTRAINTS, MAX_VARIABLES, MIN_SCAN_PERIOD_US
+from hmi.errors import ProjectError, SourcePos, display_path
+from hmi.limits import MAX_CONSTRAINTS, MIN_SCAN_PERIOD_US
 from hmi.logic.expr import (
-    Expr,
-    ExprError,
     NotMonomial,
-    Var,
-    check_names,
     monomial_literals,
-    parse_expr,
-    walk,
 )
 from hmi.logic.names import (
     NAME_HINT,
-    RESERVED,
-    STEP_RE,
     is_step_number,
     name_problem,
 )
-from hmi.plant.sim.models import MODELS
 from hmi.project.campaign import parse_campaign
-from hmi.project.components import Components, load_components, merge_texts
+from hmi.project.components import ComponentInstance, load_components, merge_texts
 from hmi.project.confine import Refused, confined_file, project_roots
+from hmi.project.device_models import DEVICE_MODELS, ParamSpec
 from hmi.project.diagnosers import declare_diagnoser_names, parse_diagnosers
 from hmi.project.model import (
     MAX_SOLVER_BUDGET,
@@ -59,9 +50,10 @@ from hmi.project.model import (
     Variable,
 )
 from hmi.project.monitors import parse_monitors
+from hmi.project.reader import ProjectReader
 from hmi.project.scenarios import parse_scenarios
 from hmi.project.yamlnodes import NodeError, YNode, load_yaml
-from hmi.timefmt import DURATION_HINT, format_duration, parse_duration
+from hmi.timefmt import DURATION_HINT, format_duration
 
 PROJECT_FILE = "project.yaml"
 
@@ -117,102 +109,12 @@ def load_project(path: str | Path, diagnoser_variant: str | None = None) -> Proj
     return loader.load()
 
 
-class ProjectLoader:
+class ProjectLoader(ProjectReader):
+    """Reads project.yaml and its includes, then each section, into a :class:`Project`."""
+
     def __init__(self, file: Path):
-        self.file = file
-        self.folder = file.parent
-        self.diag = Diagnostics()
-        self.namespace: dict[str, str] = {}  # name -> kind
-        self.declared_at: dict[str, SourcePos] = {}
-        self.sections: dict[str, YNode] = {}
-        self.section_pos: dict[str, SourcePos] = {}
-        self.files: list[str] = []
+        super().__init__(file)
         self.pending_includes: list[YNode] = []
-        self.components = Components()  # component instances (hmi/project/components.py)
-        self.declared_labels: set[str] = set()  # by every diagnoser, valid or not
-        self.declared_partitions: set[str] = set()
-        self.diagnoser_variant: str | None = None  # --diagnoser NAME
-        self.too_many_names = False
-        self._with_steps: dict[tuple, tuple[dict[str, str], frozenset[str]]] = {}  # expr()
-
-    # -- helpers ----------------------------------------------------------------------------
-    def guard(self, fn: Callable[[], Any], default: Any = None) -> Any:
-        """Run one parsing step; a NodeError becomes a diagnostic and the default is used."""
-        try:
-            return fn()
-        except NodeError as exc:
-            self.diag.items.append(exc.diagnostic)
-        except ExprError as exc:
-            self.diag.error(exc.pos, exc.message, exc.expected)
-        return default
-
-    def declare(self, name: str, kind: str, pos: SourcePos) -> bool:
-        problem = name_problem(name)
-        if problem is not None:
-            shown = repr(name) if len(name) <= 40 else repr(name[:40] + "...")
-            self.diag.error(pos, f"{shown} {problem}" if problem != "is not a valid name"
-                            else f"{shown} is not a valid name", NAME_HINT)
-            return False
-        if len(self.namespace) >= MAX_VARIABLES:
-            if not self.too_many_names:  # reported once, at the first name past the limit
-                self.too_many_names = True
-                self.diag.error(pos, f"more than {MAX_VARIABLES:,} names are declared",
-                                f"at most {MAX_VARIABLES:,} inputs, outputs, memories, timers "
-                                "and observers (a limit of plchmi)")
-            return False
-        if name in RESERVED:
-            self.diag.error(pos, f"{name!r} is a reserved word", "another name")
-            return False
-        if STEP_RE.match(name):
-            self.diag.error(pos, f"{name!r} looks like a GRAFCET step variable",
-                            "a name not of the form X<number> (reserved for steps)")
-            return False
-        if name.startswith("def_"):
-            self.diag.error(pos, f"{name!r} starts with def_, reserved for partition flags",
-                            "another name")
-            return False
-        if name in self.namespace:
-            first = self.declared_at[name]
-            self.diag.error(pos, f"{name!r} is already declared as {self.namespace[name]} "
-                            f"at {first}", "unique names across inputs, outputs, memories, "
-                            "timers and observers")
-            return False
-        self.namespace[name] = kind
-        self.declared_at[name] = pos
-        return True
-
-    def expr(self, node: YNode, what: str, kinds: set[str], steps: Iterable[str] = (),
-             prev_only: set[str] = frozenset(), context: str = "") -> Expr | None:
-        """Parse and name-check one expression; report problems and return None on error."""
-        def parse() -> Expr:
-            text = node.as_text(what)
-            return parse_expr(text, expr_start(node))
-        parsed = self.guard(parse)
-        if parsed is None:
-            return None
-        parsed = self.components.localise(node, parsed)  # a component's names, per instance
-        steps = tuple(steps)
-        namespace: dict[str, str] = self.namespace
-        step_set: frozenset[str] = frozenset()
-        if steps:  # the names with a law's steps: built once per law, not per expression
-            key = (steps, len(self.namespace))
-            if key not in self._with_steps:
-                self._with_steps[key] = ({**namespace, **dict.fromkeys(steps, "step")},
-                                         frozenset(steps))
-            namespace, step_set = self._with_steps[key]
-        problems = check_names(parsed, namespace, step_set, kinds, context or f"in {what}")
-        for var in (n for n in walk(parsed.root) if isinstance(n, Var)):
-            kind = namespace.get(var.name)
-            if var.depth == 0 and kind in prev_only:
-                kind_text = {"flag": "a partition flag", "filtered": "a filtered sensor"}.get(
-                    kind or "", f"an {kind}")
-                problems.append(ExprError(
-                    parsed.pos_of(var), f"{var.name!r} is {kind_text}: its value at this scan "
-                    f"is not known yet when {what} is computed",
-                    f"prev({var.name}), the value written at the previous scan"))
-        for problem in problems:
-            self.diag.error(problem.pos, problem.message, problem.expected)
-        return None if problems else parsed
 
     # -- top level --------------------------------------------------------------------------
     def load(self) -> Project:
@@ -319,10 +221,10 @@ class ProjectLoader:
         constraints = self._constraints()
         policy = "correct"
         if "policy" in s:
-            policy = self.guard(lambda: self._choice(s["policy"], "policy", POLICIES), policy)
+            policy = self.guard(lambda: self.choice(s["policy"], "policy", POLICIES), policy)
         solver = "exact"
         if "solver" in s:
-            solver = self.guard(lambda: self._choice(s["solver"], "solver", ("exact", "paper")),
+            solver = self.guard(lambda: self.choice(s["solver"], "solver", ("exact", "paper")),
                                 solver)
         solver_budget = None
         if "solver_budget" in s:
@@ -335,7 +237,7 @@ class ProjectLoader:
         diagnosers = parse_diagnosers(self)  # hmi/project/diagnosers.py
         campaign = parse_campaign(self, plant)  # hmi/project/campaign.py
         texts = None
-        sources = [*self.components.explanations]
+        sources: list[tuple[ComponentInstance | None, YNode]] = [*self.components.explanations]
         if "explanations" in s:
             sources.append((None, s["explanations"]))
         if sources:
@@ -354,41 +256,18 @@ class ProjectLoader:
             timers=tuple(timers), observers=tuple(observers), controls=controls,
             default_control=default_control, constraints=tuple(constraints), policy=policy,
             plant=plant, pos=pos, files=tuple(self.files), solver=solver,
-            solver_budget=solver_budget,
-            extra={"warnings": tuple(self.diag.warnings), "explanations": texts,
-                   "monitors": monitors, "scenarios": scenarios, "diagnosers": diagnosers,
-                   "campaign": campaign, "components": tuple(self.components.instances),
-                   "check_sections": ((self.components.check_lines(),)
-                                      if self.components.instances else ())},
+            solver_budget=solver_budget, diagnosers=diagnosers, monitors=monitors,
+            scenarios=scenarios, campaign=campaign, explanations=texts,
+            components=tuple(self.components.instances), warnings=tuple(self.diag.warnings),
+            check_sections=((tuple(self.components.check_lines()),)
+                            if self.components.instances else ()),
         )
         return project
 
-    @staticmethod
-    def _choice(node: YNode, what: str, choices: Iterable[str]) -> str:
-        value = node.as_str(what)
-        choices = tuple(choices)
-        if value not in choices:
-            raise NodeError(node.pos, f"{what} {value!r} is not known", "one of "
-                            + ", ".join(choices))
-        return value
-
     # -- declarations -----------------------------------------------------------------------
-    def _section_items(self, key: str) -> list[tuple[str, YNode, SourcePos]]:
-        """(name, node, key position) of a section's items: the component instances' first
-        (in instance order; the project's own timers and observers may read theirs), then
-        the project's."""
-        instances = list(self.components.items.get(key, ()))
-        node = self.sections.get(key)
-        if node is None:
-            return instances
-        if node.kind == "scalar" and node.value is None:
-            return instances
-        mapping = self.guard(lambda: node.as_map(key), {})
-        return instances + [(name, item, node.key_pos[name]) for name, item in mapping.items()]
-
     def _variables(self, key: str, kind: str, allowed: set[str]) -> list[Variable]:
         out = []
-        for name, node, kpos in self._section_items(key):
+        for name, node, kpos in self.section_items(key):
             if not self.declare(str(name), kind, kpos):
                 continue
             var = self.guard(lambda n=node, nm=str(name), p=kpos: self._variable(
@@ -422,7 +301,7 @@ class ProjectLoader:
 
     def _declare_items(self, key: str, kind: str) -> list[tuple[str, YNode, SourcePos]]:
         declared = []
-        for name, node, kpos in self._section_items(key):
+        for name, node, kpos in self.section_items(key):
             if self.declare(str(name), kind, kpos):
                 declared.append((str(name), node, kpos))
         return declared
@@ -437,7 +316,7 @@ class ProjectLoader:
             self.diag.error(node.pos, f"timer {name!r} has no preset",
                             "'preset:' with " + DURATION_HINT)
             return None
-        kind = self.guard(lambda: self._choice(fields["type"], "timer type", ("TON", "TOF")))
+        kind = self.guard(lambda: self.choice(fields["type"], "timer type", ("TON", "TOF")))
         preset = self.guard(lambda: fields["preset"].as_duration("preset"))
         description = self.guard(lambda: fields["description"].as_str("description"), "") \
             if "description" in fields else ""
@@ -529,7 +408,7 @@ class ProjectLoader:
             steps = self._step_names(fields["grafcet"])
             grafcet = self._grafcet(fields["grafcet"], what, steps, outputs, memories)
         equations = self._equations(fields.get("equations"), what, steps, outputs, memories)
-        driven_by_actions = {}
+        driven_by_actions: dict[str, SourcePos] = {}
         if grafcet:
             for step in grafcet.steps:
                 for action in step.actions:
@@ -569,7 +448,7 @@ class ProjectLoader:
                     continue
                 dominant = "reset"
                 if "dominant" in fields:
-                    dominant = self.guard(lambda f=fields: self._choice(
+                    dominant = self.guard(lambda f=fields: self.choice(
                         f["dominant"], "dominant", ("set", "reset")), "reset")
                 set_ = self.expr(fields["set"], f"the set of {target!r}", CONTROL_KINDS, steps)
                 reset = self.expr(fields["reset"], f"the reset of {target!r}", CONTROL_KINDS,
@@ -761,9 +640,9 @@ class ProjectLoader:
 
     # -- constraints ------------------------------------------------------------------------
     def _constraints(self) -> list[Constraint]:
-        out = []
+        out: list[Constraint] = []
         seen: dict[str, SourcePos] = {}
-        items = self._section_items("constraints")
+        items = self.section_items("constraints")
         if len(items) > MAX_CONSTRAINTS:
             self.diag.error(self.section_pos.get("constraints", items[0][2]),
                             f"the project has {len(items):,} safety constraints",
@@ -844,7 +723,7 @@ class ProjectLoader:
                       "timeout", "read_gap", "write_refresh"}, ["kind"]))
         if fields is None:
             return PlantSpec("sim")
-        kind = self.guard(lambda: self._choice(fields["kind"], "plant kind", ("sim", "modbus")),
+        kind = self.guard(lambda: self.choice(fields["kind"], "plant kind", ("sim", "modbus")),
                           "sim")
         devices: list[DeviceSpec] = []
         self._links: list[tuple[str, str, str, SourcePos, tuple[str, ...]]] = []
@@ -906,23 +785,23 @@ class ProjectLoader:
         model_name = self.guard(lambda: fields["model"].as_str("model"))
         if model_name is None:
             return None
-        model = MODELS.get(model_name)
+        model = DEVICE_MODELS.get(model_name)
         if model is None:
             self.diag.error(fields["model"].pos, f"unknown plant model {model_name!r}",
-                            "one of " + ", ".join(sorted(MODELS)))
+                            "one of " + ", ".join(sorted(DEVICE_MODELS)))
             return None
         params: dict[str, Any] = {}
         if "params" in fields:
             pmap = self.guard(lambda: fields["params"].check_keys(
-                f"the parameters of {model_name}", set(model.PARAMS)), {})
+                f"the parameters of {model_name}", set(model.params)), {})
             for pname, pnode in pmap.items():
-                value = self.guard(lambda s=model.PARAMS[pname], n=pnode, p=pname:
+                value = self.guard(lambda s=model.params[pname], n=pnode, p=pname:
                                    _param_value(s, n, p))
                 if value is not None:
                     params[pname] = value
-                    if model.PARAMS[pname].kind == "device":
+                    if model.params[pname].kind == "device":
                         self._links.append((name or model_name, pname, value, pnode.pos,
-                                            model.PARAMS[pname].choices))
+                                            model.params[pname].choices))
             for pname, message, expected in model.param_problems(params):
                 self.diag.error(pmap[pname].pos if pname in pmap else fields["params"].pos,
                                 f"{model_name} parameter {pname!r}: {message}", expected)
@@ -930,17 +809,17 @@ class ProjectLoader:
         output_names = {v.name for v in outputs}
         # A port binds by identity to a project variable of the same name unless 'ports:'
         # says otherwise; a port with no such variable is simply not connected.
-        ports = {p: p for p in model.SENSORS if p in input_names}
-        ports.update({p: p for p in model.ACTUATORS if p in output_names})
+        ports = {p: p for p in model.sensors if p in input_names}
+        ports.update({p: p for p in model.actuators if p in output_names})
         if "ports" in fields:
             pmap = self.guard(lambda: fields["ports"].check_keys(
-                f"the ports of {model_name}", {*model.SENSORS, *model.ACTUATORS}), {})
+                f"the ports of {model_name}", {*model.sensors, *model.actuators}), {})
             for port, vnode in pmap.items():
                 var = self.guard(lambda n=vnode: n.as_str("a port's variable"))
                 if var is not None:
                     ports[port] = var
         for port, var in ports.items():
-            want_input = port in model.SENSORS
+            want_input = port in model.sensors
             ok = var in input_names if want_input else var in output_names
             if not ok:
                 pos = fields["ports"].value[port].pos if "ports" in fields and \
@@ -949,7 +828,7 @@ class ProjectLoader:
                                 f"not an {'input' if want_input else 'output'} of the project",
                                 f"an {'input' if want_input else 'output'} name (map it under "
                                 "'ports:')")
-        for port in model.ACTUATORS:
+        for port in model.actuators:
             if port not in ports:
                 self.diag.warning(fields["model"].pos, f"{model_name} actuator {port!r} is not "
                                   "bound to any output; it is never driven")
@@ -989,7 +868,7 @@ class ProjectLoader:
                                 f"({TABLES[var.address.table]})", "coil or hr")
 
 
-def _param_value(spec: Any, node: YNode, name: str) -> Any:
+def _param_value(spec: ParamSpec, node: YNode, name: str) -> Any:
     if spec.kind == "duration":
         return node.as_duration(f"parameter {name!r}")
     if spec.kind == "bool":
@@ -1002,17 +881,17 @@ def _param_value(spec: Any, node: YNode, name: str) -> Any:
             raise NodeError(node.pos, f"parameter {name!r} is {value!r}",
                             "one of " + ", ".join(spec.choices))
         return value
-    value = node.as_number(f"parameter {name!r}")
+    number = node.as_number(f"parameter {name!r}")
     low, high = spec.minimum, spec.maximum
-    if (low is not None and value < low) or (high is not None and value > high):
+    if (low is not None and number < low) or (high is not None and number > high):
         if low is not None and high is not None:
             expected = f"a number from {low:g} to {high:g}"
         elif low is not None:
             expected = f"a number of at least {low:g}"
         else:
             expected = f"a number of at most {high:g}"
-        raise NodeError(node.pos, f"parameter {name!r} is {value:g}, out of range", expected)
-    return value
+        raise NodeError(node.pos, f"parameter {name!r} is {number:g}, out of range", expected)
+    return number
 
 
 _ADDRESS_RE = re.compile(r"(coil|di|hr|ir):([0-9]{1,6})(?:\.([0-9]{1,3}))?\Z")
@@ -1037,18 +916,3 @@ def parse_address(node: YNode, kind: str) -> PlantAddress:
     if bit is not None:
         raise NodeError(node.pos, f"a {TABLES[table]} address has no bit", f"{table}:{index}")
     return PlantAddress(table, index)
-
-
-def expr_start(node: YNode) -> SourcePos:
-    """Where the expression text starts in the file (after a quote, if quoted)."""
-    if node.style in ('"', "'"):
-        return node.pos.shifted(1)
-    return node.pos
-
-
-def duration_of(text: str) -> int:
-    return parse_duration(text)
-
-
-def format_diagnostics(items: Iterable[Diagnostic]) -> str:
-    return "\n".join(str(d) for d in items)

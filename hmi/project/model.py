@@ -6,12 +6,21 @@ beyond the positions kept for error messages and explanations.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from hmi.errors import SourcePos
+from hmi.errors import Diagnostic, SourcePos
 from hmi.logic.expr import Expr, Literal
+
+if TYPE_CHECKING:  # the sections' own types (they import this module)
+    from hmi.project.campaign import CampaignSpec
+    from hmi.project.components import ComponentInstance
+    from hmi.project.diagnosers import DiagnoserSpec
+    from hmi.project.monitors import TaskMonitor
+    from hmi.project.scenarios import Scenario
+    from hmi.project.texts import ProjectTexts
 
 # --------------------------------------------------------------------------------------------
 # I/O and memory
@@ -242,7 +251,24 @@ class Project:
     # The corrector's search budget per scan, in steps (hmi.engine.solver); None: the default
     # for the scan period (solver.default_budget).
     solver_budget: int | None = None
-    extra: dict[str, Any] = field(default_factory=dict)  # sections added by later features
+    # The sections read by their own modules (hmi/project/<section>.py).
+    diagnosers: tuple[DiagnoserSpec, ...] = ()
+    monitors: tuple[TaskMonitor, ...] = ()
+    scenarios: tuple[Scenario, ...] = ()
+    campaign: CampaignSpec | None = None
+    explanations: ProjectTexts | None = None  # None: the built-in texts only
+    components: tuple[ComponentInstance, ...] = ()
+    warnings: tuple[Diagnostic, ...] = ()  # what the loader warned about (plchmi check)
+    check_sections: tuple[tuple[str, ...], ...] = ()  # more `plchmi check` sections
+
+    @property
+    def extra(self) -> Mapping[str, Any]:
+        """The old untyped view of the sections above (issue 14 phase A), read-only, for
+        branches merging; new code reads the fields. Removed with hmi/moved.py."""
+        return {"warnings": self.warnings, "explanations": self.explanations,
+                "monitors": self.monitors, "scenarios": self.scenarios,
+                "diagnosers": self.diagnosers, "campaign": self.campaign,
+                "components": self.components, "check_sections": self.check_sections}
 
     @property
     def simple_constraints(self) -> tuple[Constraint, ...]:
@@ -263,10 +289,11 @@ class Project:
         var = self.variable(name)
         if var is not None and var.description:
             return var.description
-        for item in (*self.timers, *self.observers):
+        items: tuple[Timer | Observer, ...] = (*self.timers, *self.observers)
+        for item in items:
             if item.name == name and item.description:
                 return item.description
-        for spec in self.extra.get("diagnosers", ()):  # flags, filtered sensors
+        for spec in self.diagnosers:  # flags, filtered sensors
             for p in spec.partitions:
                 if name == p.filtered and p.sensor:
                     return f"{self.describe(p.sensor)}, as the filter reads it"

@@ -31,8 +31,8 @@ from hmi.project.yamlnodes import NodeError, YNode
 from hmi.timefmt import format_duration
 
 if TYPE_CHECKING:
-    from hmi.project.loader import ProjectLoader
     from hmi.project.model import Project
+    from hmi.project.reader import ProjectReader
 
 MONITOR_KINDS = {"input", "output", "timer", "observer"}
 MONITOR_KEYS = {"description", "device", "label", "start", "end", "interrupted", "interrupt",
@@ -76,14 +76,14 @@ class TaskMonitor:
 
 
 def monitors_of(project: Project) -> tuple[TaskMonitor, ...]:
-    return project.extra.get("monitors", ())
+    return project.monitors
 
 
-def parse_monitors(loader: ProjectLoader, period_us: int) -> tuple[TaskMonitor, ...]:
+def parse_monitors(loader: ProjectReader, period_us: int) -> tuple[TaskMonitor, ...]:
     """Read the `monitors:` section after every name is declared; report, never raise."""
     out: list[TaskMonitor] = []
     labels: dict[str, SourcePos] = {}
-    for name, node, kpos in loader._section_items("monitors"):
+    for name, node, kpos in loader.section_items("monitors"):
         name = str(name)
         if not NAME_RE.match(name):
             loader.diag.error(kpos, f"{name!r} is not a valid task name",
@@ -95,7 +95,7 @@ def parse_monitors(loader: ProjectLoader, period_us: int) -> tuple[TaskMonitor, 
     return tuple(out)
 
 
-def _monitor(loader: ProjectLoader, name: str, node: YNode, kpos: SourcePos, period_us: int,
+def _monitor(loader: ProjectReader, name: str, node: YNode, kpos: SourcePos, period_us: int,
              labels: dict[str, SourcePos]) -> TaskMonitor | None:
     what = f"monitor {name!r}"
     fields = loader.guard(lambda: node.check_keys(
@@ -167,7 +167,7 @@ def _pair(node: YNode, what: str, upper: str) -> tuple[int, int]:
     return low, high
 
 
-def _windows(loader: ProjectLoader, what: str, fields: dict[str, YNode],
+def _windows(loader: ProjectReader, what: str, fields: dict[str, YNode],
              period_us: int) -> tuple[int, int, int] | None:
     normal_node, accept_node = fields["normal"], fields["acceptable"]
     normal = loader.guard(lambda: _pair(normal_node, f"the normal duration of {what}", "beta"))

@@ -19,14 +19,14 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from hmi.errors import SourcePos, UsageError
-from hmi.plant.injection import Injection, parse_injection
-from hmi.plant.sim.models import MODELS
+from hmi.project.device_models import DEVICE_MODELS
+from hmi.project.injection import Injection, parse_injection
 from hmi.project.model import PlantSpec
 from hmi.project.yamlnodes import YNode
 
 if TYPE_CHECKING:
-    from hmi.project.loader import ProjectLoader
     from hmi.project.model import Project
+    from hmi.project.reader import ProjectReader
 
 SCENARIO_KEYS = {"description", "inject", "for"}
 SCENARIO_NAME_RE = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_-]*$")
@@ -43,7 +43,7 @@ class Scenario:
 
 
 def scenarios_of(project: Project) -> tuple[Scenario, ...]:
-    return project.extra.get("scenarios", ())
+    return project.scenarios
 
 
 def find_scenario(project: Project, name: str) -> Scenario:
@@ -56,9 +56,9 @@ def find_scenario(project: Project, name: str) -> Scenario:
                                                    else "the project declares no scenarios"))
 
 
-def parse_scenarios(loader: ProjectLoader, plant: PlantSpec) -> tuple[Scenario, ...]:
+def parse_scenarios(loader: ProjectReader, plant: PlantSpec) -> tuple[Scenario, ...]:
     out = []
-    for name, node, kpos in loader._section_items("scenarios"):
+    for name, node, kpos in loader.section_items("scenarios"):
         name = str(name)
         if not SCENARIO_NAME_RE.match(name):
             loader.diag.error(kpos, f"{name!r} is not a valid scenario name",
@@ -70,7 +70,7 @@ def parse_scenarios(loader: ProjectLoader, plant: PlantSpec) -> tuple[Scenario, 
     return tuple(out)
 
 
-def _scenario(loader: ProjectLoader, name: str, node: YNode, kpos: SourcePos,
+def _scenario(loader: ProjectReader, name: str, node: YNode, kpos: SourcePos,
               plant: PlantSpec) -> Scenario | None:
     what = f"scenario {name!r}"
     fields = loader.guard(lambda: node.check_keys(what, SCENARIO_KEYS, ["inject"]))
@@ -96,7 +96,7 @@ def _scenario(loader: ProjectLoader, name: str, node: YNode, kpos: SourcePos,
     return Scenario(name, description or "", tuple(injections), duration, kpos)
 
 
-def _injection(loader: ProjectLoader, item: YNode, plant: PlantSpec) -> Injection | None:
+def _injection(loader: ProjectReader, item: YNode, plant: PlantSpec) -> Injection | None:
     text = loader.guard(lambda: item.as_str("an injection"))
     if text is None:
         return None
@@ -109,8 +109,8 @@ def _injection(loader: ProjectLoader, item: YNode, plant: PlantSpec) -> Injectio
         loader.diag.error(item.pos, "scenarios inject faults into a simulated plant, and this "
                           f"plant is {plant.kind}", "plant kind: sim")
         return None
-    faults = [(d.name, code) for d in plant.devices if d.model in MODELS
-              for code in MODELS[d.model].FAULTS]
+    faults = [(d.name, code) for d in plant.devices if d.model in DEVICE_MODELS
+              for code in DEVICE_MODELS[d.model].faults]
     several = len(plant.devices) > 1
     matches = [device for device, code in faults if code == injection.code
                and (injection.device is None or device == injection.device)]

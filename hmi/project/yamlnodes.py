@@ -10,9 +10,10 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Collection, Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import yaml
 
@@ -67,16 +68,16 @@ class YNode:
         if self.kind != "map":
             raise NodeError(self.pos, f"{what} must be a mapping, found {self.describe()}",
                             "key: value pairs")
-        return self.value
+        return cast("dict[str, YNode]", self.value)
 
     def as_seq(self, what: str) -> list[YNode]:
         if self.kind != "seq":
             raise NodeError(self.pos, f"{what} must be a list, found {self.describe()}",
                             "a YAML list (- item)")
-        return self.value
+        return cast("list[YNode]", self.value)
 
-    def check_keys(self, what: str, allowed: set[str] | list[str],
-                   required: set[str] | list[str] = ()) -> dict[str, YNode]:
+    def check_keys(self, what: str, allowed: Collection[str],
+                   required: Collection[str] = ()) -> dict[str, YNode]:
         """The mapping, after checking it has no unknown and no missing keys."""
         mapping = self.as_map(what)
         for key in mapping:
@@ -100,7 +101,7 @@ class YNode:
         if self.tag != _STR:
             raise NodeError(self.pos, f"{what} must be text, found {self.describe()}",
                             "text (quote it if YAML reads it as another type)")
-        return value
+        return cast(str, value)
 
     def as_text(self, what: str) -> str:
         """Text, accepting numbers and Booleans written bare (an expression `1`, `True`)."""
@@ -108,7 +109,7 @@ class YNode:
         if self.tag == _NULL:
             raise NodeError(self.pos, f"{what} is empty", "a value")
         if self.tag == _STR:
-            return value
+            return cast(str, value)
         return str(self.raw)
 
     @property
@@ -136,7 +137,7 @@ class YNode:
         if maximum is not None and value > maximum:
             raise NodeError(self.pos, f"{what} is {value}, above the maximum {maximum}",
                             f"an integer <= {maximum}")
-        return value
+        return cast(int, value)
 
     def as_number(self, what: str) -> float:
         value = self._scalar(what)
@@ -232,7 +233,7 @@ class _Composer:
                             f"at most {MAX_YAML_NODES:,} values in one file (a limit of "
                             "plchmi, see docs/project-format.md)")
 
-    def compose(self, events) -> YNode | None:
+    def compose(self, events: Iterable[Any]) -> YNode | None:
         stack: list[_Open] = []  # the mappings and lists not closed yet, outermost first
         root: YNode | None = None
         documents = 0
@@ -412,3 +413,10 @@ def _compose(text: str, display: str) -> YNode | None:
         except yaml.YAMLError:
             pass  # said by the pure-Python parser below, in its words
     return _Composer(display).compose(yaml.parse(text, Loader=yaml.SafeLoader))
+
+
+def expr_start(node: YNode) -> SourcePos:
+    """Where the expression text starts in the file (after a quote, if quoted)."""
+    if node.style in ('"', "'"):
+        return node.pos.shifted(1)
+    return node.pos

@@ -30,7 +30,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from hmi.errors import UsageError
-from hmi.plant.injection import Injection
 from hmi.plant.modbus.address_map import BIT_TABLES, AddressMap
 from hmi.plant.modbus.frame import SERVER_DEVICE_BUSY
 from hmi.plant.modbus.tcp_server import (
@@ -42,6 +41,7 @@ from hmi.plant.modbus.tcp_server import (
     Tables,
 )
 from hmi.plant.sim.plant import SimPlant
+from hmi.project.injection import Injection
 from hmi.project.model import Project
 from hmi.timefmt import format_duration, seconds
 

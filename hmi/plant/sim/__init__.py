@@ -13,8 +13,8 @@ from __future__ import annotations
 
 from typing import Any
 
-_MOVED = {"SimPlant": "hmi.plant.sim.plant", "Injection": "hmi.plant.injection",
-          "parse_injection": "hmi.plant.injection"}
+_MOVED = {"SimPlant": "hmi.plant.sim.plant", "Injection": "hmi.project.injection",
+          "parse_injection": "hmi.project.injection"}
 
 
 def __getattr__(name: str) -> Any:

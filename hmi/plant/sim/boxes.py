@@ -11,11 +11,7 @@ room, so two runs with the same parameters see exactly the same boxes at the sam
 from __future__ import annotations
 
 import random
-from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
-
-from hmi.timefmt import format_duration
 
 MM = 1_000_000  # nanometres per millimetre: positions are integer nm, speeds mm/s = nm/µs
 
@@ -32,21 +28,6 @@ class Box:
     @property
     def kind(self) -> str:
         return "high" if self.high else "low"
-
-
-def interval_problems(params: Mapping[str, Any], defaults: Mapping[str, Any]
-                      ) -> list[tuple[str, str, str]]:
-    """The loader's check of a box schedule's parameters (SimDevice.param_problems): the
-    source draws whole milliseconds between interval_min and interval_max."""
-    values = {**defaults, **params}
-    low, high = values["interval_min"], values["interval_max"]
-    if low < 1000:
-        return [("interval_min", f"the shortest interval between boxes is "
-                 f"{format_duration(low)}", "at least 1ms")]
-    if low > high:
-        return [("interval_max", f"interval_max ({format_duration(high)}) is shorter than "
-                 f"interval_min ({format_duration(low)})", "interval_min <= interval_max")]
-    return []
 
 
 class BoxSource:

@@ -1,6 +1,6 @@
 """What the box-handling cell models (sorting, palletizer) share: physics integrated in fixed
 steps, and the usual faults — each drive's jam, each sensor stuck at 0 or 1 (see
-:func:`hmi.plant.sim.device.jam_and_stuck_faults`).
+:func:`hmi.project.device_models.jam_and_stuck_faults`).
 
 A subclass gives its sensors as the physics has them (:meth:`true_sensors`), one physics step
 (:meth:`_step`) and what a jam does (:meth:`_jammed`); a stuck sensor is applied here, over
@@ -13,7 +13,6 @@ from abc import abstractmethod
 from collections.abc import Mapping
 from typing import Any, ClassVar
 
-from hmi.plant.sim.boxes import interval_problems
 from hmi.plant.sim.device import PendingFault, SimDevice
 
 
@@ -24,13 +23,6 @@ class SteppedCell(SimDevice):
         super().__init__(name, params)
         self.jams: set[str] = set()
         self.stuck: dict[str, bool] = {}  # sensor -> the value it is stuck at
-
-    @classmethod
-    def param_problems(cls, params: Mapping[str, Any]) -> list[tuple[str, str, str]]:
-        if "interval_min" not in cls.PARAMS:
-            return []
-        defaults = {name: spec.default for name, spec in cls.PARAMS.items()}
-        return interval_problems(params, defaults)
 
     @abstractmethod
     def true_sensors(self) -> dict[str, bool]:

@@ -19,34 +19,17 @@ Faults, each injected at a time, optionally for a duration (``stop@1s+2s``), els
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from typing import Any
 
-from hmi.plant.sim.device import FaultSpec, ParamSpec, PendingFault, SimDevice
+from hmi.plant.sim.device import PendingFault, SimDevice
 from hmi.plant.sim.tasks import TaskLog, TaskRecord
+from hmi.project.device_models import CONVEYOR
 
 SCALE = 1000  # progress units per µs at full speed
 _NEVER = 1 << 62
 
 
-class Conveyor(SimDevice):
-    MODEL = "conveyor"
-    DESCRIPTION = "belt conveyor: pusher order d, release order, end sensor B, halt sensor"
-    SENSORS = ("B", "halted")
-    ACTUATORS = ("d", "release")
-    PARAMS: ClassVar[dict[str, ParamSpec]] = {
-        "transport": ParamSpec("duration", 3_500_000,
-                               "travel time of a pallet from the pusher to B at full speed"),
-        "slip_speed": ParamSpec("number", 0.5, "belt speed while slipping (fault slip), as a "
-                                "fraction of full speed", minimum=0.05, maximum=1.0),
-        "initial": ParamSpec("choice", "empty", "'loaded': a pallet waits at B at start",
-                             ("empty", "loaded")),
-    }
-    FAULTS: ClassVar[dict[str, FaultSpec]] = {
-        "stop": FaultSpec("stop", "conveyor halted (for the injected duration, else for good)",
-                          "actuator"),
-        "slip": FaultSpec("slip", "belt slipping: pallets move at slip_speed (for the injected "
-                          "duration, else for good)", "actuator"),
-    }
+class Conveyor(SimDevice, model=CONVEYOR):
     INTERRUPTION_FAULT = "stop"  # the fault that interrupts this device's task (sweeps)
 
     def __init__(self, name: str, params: dict[str, Any]):

@@ -13,38 +13,7 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 from hmi.plant.base import PlantEvent
-
-
-@dataclass(frozen=True)
-class ParamSpec:
-    """One model parameter: its type ("duration", "number", "bool", "choice", "device"),
-    default, help. A "device" parameter names another device of the plant (a pipe or a shaft
-    the PLC does not see); its `choices` are the models it may name."""
-
-    kind: str
-    default: Any
-    help: str
-    choices: tuple[str, ...] = ()
-    minimum: float | None = None
-    maximum: float | None = None
-
-
-@dataclass(frozen=True)
-class FaultSpec:
-    code: str
-    description: str
-    component: str  # the part that fails: a sensor port name or "actuator"
-
-
-def jam_and_stuck_faults(jams: dict[str, str], sensors: tuple[str, ...]
-                         ) -> dict[str, FaultSpec]:
-    """The usual fault list of a cell model: each drive's jam, each sensor stuck at 0 or 1."""
-    faults = {code: FaultSpec(code, text, "actuator") for code, text in jams.items()}
-    for sensor in sensors:
-        for value in (0, 1):
-            code = f"{sensor}_stuck{value}"
-            faults[code] = FaultSpec(code, f"sensor {sensor} stuck at {value}", sensor)
-    return faults
+from hmi.project.device_models import DeviceModel, FaultSpec, ParamSpec
 
 
 @dataclass
@@ -56,17 +25,34 @@ class PendingFault:
 
 
 class SimDevice(ABC):
-    """Base of simulated devices; subclasses implement the physics in :meth:`_advance_to`."""
+    """Base of simulated devices; subclasses implement the physics in :meth:`_advance_to`.
 
+    A model names the catalogue entry it implements, ``class Valve(SimDevice, model=VALVE)``
+    (hmi.project.device_models): its name, ports, parameters and faults are that entry's, the
+    very data the loader checked the project against, so the two cannot drift apart.
+    """
+
+    SPEC: ClassVar[DeviceModel]
     MODEL: ClassVar[str]
     DESCRIPTION: ClassVar[str] = ""
     SENSORS: ClassVar[tuple[str, ...]]
     ACTUATORS: ClassVar[tuple[str, ...]]
-    PARAMS: ClassVar[dict[str, ParamSpec]] = {}
-    FAULTS: ClassVar[dict[str, FaultSpec]] = {}
+    PARAMS: ClassVar[Mapping[str, ParamSpec]] = {}
+    FAULTS: ClassVar[Mapping[str, FaultSpec]] = {}
     # A model that knows how to undo its faults' effects (see _repaired); the others refuse a
     # repair rather than leave a half-faulty device behind.
     REPAIRABLE: ClassVar[bool] = False
+
+    def __init_subclass__(cls, model: DeviceModel | None = None, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if model is not None:
+            cls.SPEC = model
+            cls.MODEL = model.name
+            cls.DESCRIPTION = model.description
+            cls.SENSORS = model.sensors
+            cls.ACTUATORS = model.actuators
+            cls.PARAMS = model.params
+            cls.FAULTS = model.faults
 
     def __init__(self, name: str, params: Mapping[str, Any]):
         self.name = name
@@ -120,12 +106,6 @@ class SimDevice(ABC):
         Physical links between devices (a pump pushing through valves into tanks) are not
         ports: the PLC neither reads nor writes them, so the plant wires them here.
         """
-
-    @classmethod
-    def param_problems(cls, params: Mapping[str, Any]) -> list[tuple[str, str, str]]:
-        """(parameter, what is wrong, what was expected) for values that do not fit together
-        (each alone passed its ParamSpec); the loader reports them at the parameter."""
-        return []
 
     def _orders_changed(self, t: int, changed: dict[str, bool]) -> None:  # noqa: B027
         """Hook: react to new orders (record dangerous combinations...)."""

@@ -39,72 +39,20 @@ and for every sensor S, S_stuck0 / S_stuck1.
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from typing import Any
 
 from hmi.plant.sim.boxes import MM, Box, BoxSource
 from hmi.plant.sim.cell import SteppedCell
-from hmi.plant.sim.device import FaultSpec, ParamSpec, jam_and_stuck_faults
 from hmi.plant.sim.track import WALL, Line, Segment, advance
 from hmi.plant.sim.travel import Travel, direction
+from hmi.project.device_models import PALLETIZER
 from hmi.timefmt import seconds
 
-SENSORS = ("box_in", "box_ready", "pusher_home", "pusher_out", "plate_closed", "plate_open",
-           "clamp_open", "clamp_closed", "layer_eye", "elev_bottom", "pallet_empty")
-ACTUATORS = ("CLAMP", "PLATE_CLOSE", "PLATE_OPEN", "ELEV_DOWN", "ELEV_UP", "RETRACT", "PUSH",
-             "FEED")
+SENSORS = PALLETIZER.sensors
+ACTUATORS = PALLETIZER.actuators
 TRANSFER = 0.9  # fraction of the pusher's stroke where the box leaves the feed for the plate
 
-_JAMS = {
-    "feed_jam": "feed conveyor jammed (does not move)",
-    "pusher_jam": "pusher jammed (does not move)",
-    "plate_jam": "layer plate jammed (does not move)",
-    "clamp_jam": "clamp jammed (does not move)",
-    "elevator_jam": "elevator jammed (does not move)",
-}
-
-
-def _faults() -> dict[str, FaultSpec]:
-    return jam_and_stuck_faults(_JAMS, SENSORS)
-
-
-def _number(default: float, text: str, low: float, high: float) -> ParamSpec:
-    return ParamSpec("number", default, text, minimum=low, maximum=high)
-
-
-class Palletizer(SteppedCell):
-    MODEL = "palletizer"
-    DESCRIPTION = "palletizer: feed conveyor, pusher, layer plate, clamp, elevator"
-    SENSORS = SENSORS
-    ACTUATORS = ACTUATORS
-    PARAMS: ClassVar[dict[str, ParamSpec]] = {
-        "feed_length": _number(1500, "length of the feed conveyor (mm)", 500, 20_000),
-        "feed_speed": _number(300, "feed conveyor speed (mm/s)", 10, 3000),
-        "box_length": _number(300, "length of a box along the feed (mm)", 50, 2000),
-        "box_height": _number(200, "height of a box, hence of a layer (mm)", 20, 2000),
-        "per_layer": _number(3, "boxes in a full row on the plate (one layer)", 1, 12),
-        "lift_range": _number(1000, "elevator travel (mm)", 100, 10_000),
-        "pallet_height": _number(150, "height of an empty pallet (mm)", 10, 1000),
-        "elevator_speed": _number(100, "elevator speed (mm/s)", 10, 2000),
-        "eye_offset": _number(15, "the layer eye looks this far under the plate (mm)", 1, 200),
-        "max_drop": _number(30, "a layer let go from higher than this is damage (mm)", 1, 500),
-        "push_time": ParamSpec("duration", 1_000_000, "pusher stroke time"),
-        "plate_time": ParamSpec("duration", 1_000_000, "time for the plate to open or close"),
-        "clamp_time": ParamSpec("duration", 500_000, "time for the clamp to close or open"),
-        "band": ParamSpec("duration", 20_000, "end switches are made within this much travel"),
-        "crush_tolerance": ParamSpec("duration", 50_000, "the load pressed against the plate "
-                                     "longer than this is damage"),
-        "stall_tolerance": ParamSpec("duration", 1_000_000, "an elevator order held without "
-                                     "motion (at the bottom, or jammed) longer than this is "
-                                     "damage"),
-        "exchange_time": ParamSpec("duration", 2_000_000, "time to exchange a loaded pallet "
-                                   "for an empty one at the bottom"),
-        "first_box": ParamSpec("duration", 500_000, "when the first box is due"),
-        "interval_min": ParamSpec("duration", 4_000_000, "shortest time between two boxes"),
-        "interval_max": ParamSpec("duration", 8_000_000, "longest time between two boxes"),
-        "seed": _number(1, "seed of the box schedule", 0, 2**31),
-        "initial_height": _number(0, "initial elevator height (mm from the bottom)", 0, 10_000),
-    }
-    FAULTS = _faults()
+class Palletizer(SteppedCell, model=PALLETIZER):
 
     def __init__(self, name: str, params: dict[str, Any]):
         super().__init__(name, params)

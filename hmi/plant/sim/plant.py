@@ -11,12 +11,12 @@ from collections.abc import Mapping
 
 from hmi.errors import UsageError
 from hmi.plant.base import Plant, PlantEvent, PlantState, PlantStatus
-from hmi.plant.injection import Injection, parse_injection
 from hmi.plant.sim.device import SimDevice
 from hmi.plant.sim.models import MODELS
+from hmi.project.injection import Injection, parse_injection
 from hmi.project.model import Project
 
-__all__ = ["Injection", "SimPlant", "parse_injection"]  # Injection: hmi.plant.injection
+__all__ = ["Injection", "SimPlant", "parse_injection"]  # Injection: hmi.project.injection
 
 
 class SimPlant(Plant):

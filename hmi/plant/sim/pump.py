@@ -31,41 +31,16 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from fractions import Fraction
-from typing import Any, ClassVar
+from typing import Any
 
-from hmi.plant.sim.device import FaultSpec, ParamSpec, SimDevice
+from hmi.plant.sim.device import SimDevice
 from hmi.plant.sim.tank import NL_PER_L, Tank, litres, ml_per_s
 from hmi.plant.sim.valve import Valve
+from hmi.project.device_models import PUMP
 from hmi.timefmt import seconds
 
 
-class Pump(SimDevice):
-    MODEL = "pump"
-    DESCRIPTION = "pump: run order P, running feedback run; draws from a tank, two valved lines"
-    SENSORS = ("run",)
-    ACTUATORS = ("P",)
-    PARAMS: ClassVar[dict[str, ParamSpec]] = {
-        "flow": ParamSpec("number", 10.0, "delivery with a line fully open, in L/s",
-                          minimum=0.1, maximum=1000),
-        "suction": ParamSpec("device", None, "the tank it draws from", ("tank",)),
-        "valve_a": ParamSpec("device", None, "the valve on discharge line a", ("valve",)),
-        "to_a": ParamSpec("device", None, "the tank line a leads into", ("tank",)),
-        "valve_b": ParamSpec("device", None, "the valve on discharge line b", ("valve",)),
-        "to_b": ParamSpec("device", None, "the tank line b leads into", ("tank",)),
-        "min_opening": ParamSpec("number", 0.05, "below this total opening of its lines "
-                                 "the pump is dead-headed", minimum=0.0, maximum=1.0),
-        "dry_level": ParamSpec("number", 5.0, "below this many litres in the suction tank "
-                               "the pump draws air", minimum=0),
-        "deadhead_tolerance": ParamSpec("duration", 1_000_000, "running against closed "
-                                        "valves longer than this is damage"),
-        "dry_tolerance": ParamSpec("duration", 2_000_000, "running dry longer than this is "
-                                   "damage"),
-    }
-    FAULTS: ClassVar[dict[str, FaultSpec]] = {
-        "no_start": FaultSpec("no_start", "pump does not start (motor or contactor failure)",
-                              "actuator"),
-        "welded": FaultSpec("welded", "pump contactor welded: it does not stop", "actuator"),
-    }
+class Pump(SimDevice, model=PUMP):
 
     def __init__(self, name: str, params: Mapping[str, Any]):
         super().__init__(name, params)

@@ -15,29 +15,17 @@ Faults, each injected at a time, optionally for a duration, else for good:
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from typing import Any
 
-from hmi.plant.sim.device import FaultSpec, ParamSpec, PendingFault, SimDevice
+from hmi.plant.sim.device import PendingFault, SimDevice
 from hmi.plant.sim.tasks import TaskLog, TaskRecord
+from hmi.project.device_models import ROBOT
 
 _NEVER = 1 << 62
 HOME, WORKING, DONE, RETURNING = "home", "working", "done", "returning"
 
 
-class Robot(SimDevice):
-    MODEL = "robot"
-    DESCRIPTION = "transfer robot: order G, free sensor e, end sensor R, halt sensor"
-    SENSORS = ("e", "R", "halted")
-    ACTUATORS = ("G",)
-    PARAMS: ClassVar[dict[str, ParamSpec]] = {
-        "work": ParamSpec("duration", 2_500_000, "duration of a transfer (the robot task)"),
-        "return_time": ParamSpec("duration", 500_000, "time to return home after G drops"),
-    }
-    FAULTS: ClassVar[dict[str, FaultSpec]] = {
-        "stop": FaultSpec("stop", "robot paused (for the injected duration, else for good)",
-                          "actuator"),
-        "skip": FaultSpec("skip", "part missing: the robot ends its task at once", "actuator"),
-    }
+class Robot(SimDevice, model=ROBOT):
     INTERRUPTION_FAULT = "stop"
 
     def __init__(self, name: str, params: dict[str, Any]):

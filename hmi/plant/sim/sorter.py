@@ -45,81 +45,23 @@ and for every sensor S, S_stuck0 / S_stuck1.
 from __future__ import annotations
 
 import itertools
-from typing import Any, ClassVar
+from typing import Any
 
 from hmi.plant.sim.boxes import MM, Box, BoxSource
 from hmi.plant.sim.cell import SteppedCell
-from hmi.plant.sim.device import FaultSpec, ParamSpec, jam_and_stuck_faults
 from hmi.plant.sim.track import EXIT, OPEN, TOUCH, WALL, Line, Segment, advance
 from hmi.plant.sim.travel import Travel, direction
+from hmi.project.device_models import SORTING_CELL
 from hmi.timefmt import seconds
 
-SENSORS = ("at_entry", "low", "high", "entry_end", "tt_back", "tt_front", "tt_0", "tt_90",
-           "left_in", "left_end", "right_in", "right_end")
-ACTUATORS = ("CONV_E", "ROLL_P", "ROLL_M", "ROT90", "ROT0", "CONV_L", "CONV_R")
-
-_DRIVE_FAULTS = {
-    "entry_jam": "entry conveyor jammed (does not move)",
-    "rollers_jam": "turntable rollers jammed (do not turn)",
-    "table_jam": "turntable jammed (does not rotate)",
-    "left_jam": "left exit conveyor jammed (does not move)",
-    "right_jam": "right exit conveyor jammed (does not move)",
-    "left_blocked": "left exit blocked at its end (boxes are no longer taken away)",
-    "right_blocked": "right exit blocked at its end (boxes are no longer taken away)",
-}
-
-
-def _faults() -> dict[str, FaultSpec]:
-    return jam_and_stuck_faults(_DRIVE_FAULTS, SENSORS)
-
+SENSORS = SORTING_CELL.sensors
+ACTUATORS = SORTING_CELL.actuators
 
 def _mm(value: float) -> int:
     return round(value * MM)
 
 
-def _length(default: float, text: str, low: float = 10, high: float = 20_000) -> ParamSpec:
-    return ParamSpec("number", default, text + " (mm)", minimum=low, maximum=high)
-
-
-class SortingCell(SteppedCell):
-    MODEL = "sorting_cell"
-    DESCRIPTION = "box sorting by height: entry conveyor, turntable, left and right exits"
-    SENSORS = SENSORS
-    ACTUATORS = ACTUATORS
-    PARAMS: ClassVar[dict[str, ParamSpec]] = {
-        "entry_length": _length(2000, "length of the entry conveyor"),
-        "table_length": _length(520, "length of the turntable along its rollers"),
-        "exit_length": _length(1500, "length of each exit conveyor"),
-        "box_length": _length(400, "length of a box"),
-        "height_sensor_at": _length(1800, "position of the height sensors on the entry"),
-        "sensor_offset": _length(10, "edge sensors sit this far inside their edge", 1, 100),
-        "shear_margin": _length(20, "a box across an edge by more than this on both sides "
-                                "is sheared when the table turns", 1, 200),
-        "min_gap": _length(150, "room a new box needs behind the last one", 0, 2000),
-        "entry_speed": ParamSpec("number", 300, "entry conveyor speed (mm/s)", minimum=10,
-                                 maximum=3000),
-        "roller_speed": ParamSpec("number", 300, "turntable roller speed (mm/s)", minimum=10,
-                                  maximum=3000),
-        "exit_speed": ParamSpec("number", 400, "exit conveyor speed (mm/s)", minimum=10,
-                                maximum=3000),
-        "turn_time": ParamSpec("duration", 1_200_000, "time for the table to turn 90°"),
-        "turn_band": ParamSpec("duration", 20_000,
-                               "an end switch is made (and the table in line) within this"),
-        "stall_tolerance": ParamSpec("duration", 1_000_000,
-                                     "a rotation order held without motion beyond this is "
-                                     "damage"),
-        "first_box": ParamSpec("duration", 500_000, "when the first box is due"),
-        "interval_min": ParamSpec("duration", 4_000_000, "shortest time between two boxes"),
-        "interval_max": ParamSpec("duration", 7_000_000, "longest time between two boxes"),
-        "p_high": ParamSpec("number", 0.5, "probability that a box is high", minimum=0,
-                            maximum=1),
-        "seed": ParamSpec("number", 1, "seed of the box schedule", minimum=0, maximum=2**31),
-        "low_box": _length(150, "height of a low box", 20, 1000),
-        "high_box": _length(300, "height of a high box", 20, 1000),
-        "low_beam": _length(50, "height of the low sensor's beam", 1, 1000),
-        "high_beam": _length(220, "height of the high sensor's beam", 1, 1000),
-    }
-    FAULTS = _faults()
+class SortingCell(SteppedCell, model=SORTING_CELL):
 
     def __init__(self, name: str, params: dict[str, Any]):
         super().__init__(name, params)

@@ -20,9 +20,10 @@ pump act on the tank one after the other).
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any, ClassVar
+from typing import Any
 
-from hmi.plant.sim.device import FaultSpec, ParamSpec, SimDevice
+from hmi.plant.sim.device import SimDevice
+from hmi.project.device_models import TANK
 
 NL_PER_L = 1_000_000_000
 
@@ -37,28 +38,7 @@ def ml_per_s(value: float) -> int:
     return round(float(value) * 1000)
 
 
-class Tank(SimDevice):
-    MODEL = "tank"
-    DESCRIPTION = "tank with low and high level switches and a gravity drain"
-    SENSORS = ("low", "high")
-    ACTUATORS = ()
-    PARAMS: ClassVar[dict[str, ParamSpec]] = {
-        "capacity": ParamSpec("number", 100.0, "volume in litres at which it spills over",
-                              minimum=1),
-        "initial": ParamSpec("number", 0.0, "volume at start, in litres", minimum=0),
-        "low": ParamSpec("number", 20.0, "height of the low switch, in litres", minimum=0),
-        "high": ParamSpec("number", 80.0, "height of the high switch, in litres", minimum=0),
-        "drain": ParamSpec("number", 0.0, "gravity drain through the hand valve, in L/s",
-                           minimum=0, maximum=1000),
-        "drain_to": ParamSpec("device", None, "the tank the drain runs into (default: out of "
-                              "the cell)", ("tank",)),
-    }
-    FAULTS: ClassVar[dict[str, FaultSpec]] = {
-        "low_stuck0": FaultSpec("low_stuck0", "low level switch stuck at 0", "low"),
-        "low_stuck1": FaultSpec("low_stuck1", "low level switch stuck at 1", "low"),
-        "high_stuck0": FaultSpec("high_stuck0", "high level switch stuck at 0", "high"),
-        "high_stuck1": FaultSpec("high_stuck1", "high level switch stuck at 1", "high"),
-    }
+class Tank(SimDevice, model=TANK):
 
     def __init__(self, name: str, params: Mapping[str, Any]):
         super().__init__(name, params)
@@ -73,21 +53,6 @@ class Tank(SimDevice):
         self.overflowing = False
         self.fills = 0
         self.spilled = 0  # nL spilled over in all
-
-    @classmethod
-    def param_problems(cls, params: Mapping[str, Any]) -> list[tuple[str, str, str]]:
-        values = {k: spec.default for k, spec in cls.PARAMS.items()} | dict(params)
-        problems = []
-        if not values["low"] < values["high"]:
-            problems.append(("high", f"the high switch ({values['high']:g} L) is not above the "
-                             f"low one ({values['low']:g} L)", "low < high"))
-        if values["high"] > values["capacity"]:
-            problems.append(("high", f"the high switch ({values['high']:g} L) is above the "
-                             f"capacity ({values['capacity']:g} L)", "high <= capacity"))
-        if values["initial"] > values["capacity"]:
-            problems.append(("initial", f"the initial volume ({values['initial']:g} L) is above "
-                             f"the capacity ({values['capacity']:g} L)", "initial <= capacity"))
-        return problems
 
     def link(self, devices: Mapping[str, SimDevice]) -> None:
         target = self.params.get("drain_to")

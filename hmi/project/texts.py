@@ -26,6 +26,7 @@ PLACEHOLDERS: dict[str, tuple[str, ...]] = {
     "situations": (*COMMON, "reason", "detail"),
 }
 LEVELS = ("what", "why", "consequences")
+SEVERITIES = ("high", "medium", "low")  # damage possible / degraded / information
 POLICY_IDS = ("continue", "stop_device", "manual", "reset", "check")
 
 
@@ -66,7 +67,7 @@ def fields_of(template: str) -> list[str]:
     return names
 
 
-class _Values(dict):
+class _Values(dict[str, Any]):
     def __missing__(self, key: str) -> str:
         return "{" + key + "}"
 
