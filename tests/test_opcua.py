@@ -21,14 +21,20 @@ asyncua = pytest.importorskip("asyncua", reason="the [opcua] extra is not instal
 from asyncua import Client, ua  # noqa: E402
 from asyncua.ua.uaerrors import UaStatusCodeError  # noqa: E402
 
-from hmi.engine.commands import Pause, Resume  # noqa: E402
+from hmi.engine.commands import (  # noqa: E402
+    FaultReset,
+    InjectFault,
+    Pause,
+    RepairFaults,
+    Resume,
+)
 from hmi.engine.scan import Engine  # noqa: E402
 from hmi.explain.journal import Journal  # noqa: E402
 from hmi.opcua.options import server_certificate  # noqa: E402
 from hmi.opcua.server import CellServer, ServeOptions  # noqa: E402
 from hmi.opcua.users import Users, hash_password  # noqa: E402
+from hmi.plant.injection import parse_injection  # noqa: E402
 from hmi.plant.select import open_plant  # noqa: E402
-from hmi.project.injection import parse_injection  # noqa: E402
 from hmi.project.loader import load_project  # noqa: E402
 from hmi.session.journal_recorder import JournalRecorder  # noqa: E402
 from hmi.session.session import Session  # noqa: E402
@@ -69,6 +75,16 @@ class Cell:
         scan = self.session.last.scan
         await until(lambda: self.server.published_scan >= scan)
         return scan
+
+    async def new_fault(self) -> None:
+        """The valve repaired, a fault reset, then stuck again: fresh alarms (the high
+        diagnosis, latched; the constraint CSs4, transient) for a test that needs them."""
+        self.session.command(RepairFaults())
+        self.session.command(FaultReset())
+        await self.scans(400)
+        self.session.command(InjectFault(parse_injection(
+            f"F5@{self.session.engine.now / 1e6 + 0.01:.2f}s")))
+        await self.scans(1500)
 
     def journal(self) -> list[dict]:
         return [json.loads(line) for line in self.journal_path.read_text().splitlines()]
@@ -380,16 +396,8 @@ async def test_inputs_are_uncertain_while_the_plant_does_not_answer(cell):
 
 async def test_acknowledge_all_as_a_command_names_the_user_in_every_condition_event(cell):
     await cell.scans(1)
-    fault = cell.session.last
-    if not any(a.state == "active-unacknowledged" for a in fault.alarms):
-        # a new fault to acknowledge: the valve repaired, reset, then stuck again
-        from hmi.engine.commands import FaultReset, InjectFault, RepairFaults
-        cell.session.command(RepairFaults())
-        cell.session.command(FaultReset())
-        await cell.scans(400)
-        cell.session.command(InjectFault(parse_injection(
-            f"F5@{cell.session.engine.now / 1e6 + 0.01:.2f}s")))
-        await cell.scans(1500)
+    if not any(a.state == "active-unacknowledged" for a in cell.session.last.alarms):
+        await cell.new_fault()
     waiting = {a.key for a in cell.session.last.alarms if a.state == "active-unacknowledged"}
     assert waiting, "no alarm waits for an acknowledgement"
     async with client(cell, "alice") as c:
@@ -410,3 +418,68 @@ async def test_acknowledge_all_as_a_command_names_the_user_in_every_condition_ev
             if event.get("Transition") == "acknowledged":
                 assert event["ClientUserId"] == "alice", event["ConditionName"]
         await sub.delete()
+
+
+async def test_part9_shelving_and_comments_are_the_hmis_journalled_with_the_user(cell):
+    await cell.new_fault()
+    keys = {a.key: a for a in cell.session.last.alarms}
+    assert {"diagnosis:V1", "constraint:CSs4"} <= set(keys)
+    async with client(cell, "alice") as c:
+        handler = Events()
+        sub = await c.create_subscription(10, handler)
+        await sub.subscribe_events(c.nodes.server,
+                                   c.get_node(cell.server.alarm_type.nodeid))
+        ns, node = await _cell_node(c)
+        alarms = await node.get_child(f"{ns}:Alarms")
+
+        async def shelving(key: str, method: int, *args):
+            state = await alarms.get_child([f"{ns}:{key}", "0:ShelvingState"])
+            return await state.call_method(ua.NodeId(method), *args)
+
+        timed = ua.ObjectIds.ShelvedStateMachineType_TimedShelve
+        await shelving("constraint:CSs4", timed, ua.Variant(60_000.0, ua.VariantType.Double))
+        assert "constraint:CSs4" in cell.session.alarms.shelved
+        await cell.scans(1)
+        await until(lambda: any(e.get("ConditionName") == "constraint:CSs4"
+                                and e.get("SuppressedOrShelved") for e in handler.events),
+                    "the shelved condition")
+        shelved = next(e for e in handler.events if e.get("ConditionName") ==
+                       "constraint:CSs4" and e.get("SuppressedOrShelved"))
+        assert shelved["ShelvingState/CurrentState"].Text == "TimedShelved"
+        assert 0 < shelved["ShelvingState/UnshelveTime"] <= 60_000
+        assert shelved["Retain"] is True and shelved["Transition"] == "shelved"
+        with pytest.raises(UaStatusCodeError, match="BadConditionAlreadyShelved"):
+            await shelving("constraint:CSs4", timed,
+                           ua.Variant(1000.0, ua.VariantType.Double))
+        with pytest.raises(UaStatusCodeError, match="BadShelvingTimeOutOfRange"):
+            await shelving("diagnosis:V1", timed, ua.Variant(9 * 3.6e6, ua.VariantType.Double))
+        with pytest.raises(UaStatusCodeError, match="BadInvalidState"):  # latched: never hidden
+            await shelving("diagnosis:V1", ua.ObjectIds.ShelvedStateMachineType_OneShotShelve)
+        unshelve = ua.ObjectIds.ShelvedStateMachineType_Unshelve
+        await shelving("constraint:CSs4", unshelve)
+        with pytest.raises(UaStatusCodeError, match="BadConditionNotShelved"):
+            await shelving("constraint:CSs4", unshelve)
+        await cell.scans(1)
+        await until(lambda: any(e.get("ConditionName") == "constraint:CSs4"
+                                and e.get("Transition") == "unshelved"
+                                for e in handler.events), "the unshelved condition")
+        await c.get_node(ua.ObjectIds.ConditionType).call_method(
+            ua.NodeId(ua.ObjectIds.ConditionType_ConditionRefresh),
+            ua.Variant(sub.subscription_id, ua.VariantType.UInt32))
+        await until(lambda: any(e.get("ConditionName") == "diagnosis:V1"
+                                for e in handler.events), "the refreshed high alarm")
+        high = next(e for e in reversed(handler.events)
+                    if e.get("ConditionName") == "diagnosis:V1")
+        condition = c.get_node(high["NodeId"])
+        await condition.call_method(ua.NodeId(ua.ObjectIds.ConditionType_AddComment),
+                                    ua.Variant(high["EventId"], ua.VariantType.ByteString),
+                                    ua.LocalizedText("valve jammed, fitter called"))
+        await sub.delete()
+    entries = [e for e in cell.journal() if e.get("by") == "opcua:alice"]
+    events = [(e["event"], e["accepted"]) for e in entries if e["type"] == "action"]
+    assert ("shelve alarm constraint:CSs4 for 1m", True) in events
+    assert ("shelve alarm diagnosis:V1 once (until it clears)", False) in events
+    assert ("unshelve alarm constraint:CSs4", True) in events
+    assert ("comment on alarm diagnosis:V1", True) in events
+    assert any(e.get("message") == "valve jammed, fitter called" for e in cell.journal()
+               if e["type"] == "alarm")

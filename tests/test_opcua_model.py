@@ -13,14 +13,14 @@ from pathlib import Path
 
 import pytest
 
-from hmi.engine.commands import Acknowledge, FaultReset
+from hmi.engine.commands import Acknowledge, FaultReset, Shelve, Unshelve
 from hmi.engine.scan import Engine
 from hmi.explain.alarms import ACTIVE_ACK, ACTIVE_UNACK, CLEARED_UNACK
 from hmi.explain.journal import Journal
 from hmi.opcua.conditions import HMI_USER, NORMAL, SEVERITY, ConditionTracker
 from hmi.opcua.model import BOOL, DOUBLE, STRING, STRINGS, UINT, build_model
+from hmi.plant.injection import parse_injection
 from hmi.plant.select import open_plant
-from hmi.project.injection import parse_injection
 from hmi.project.loader import load_project
 from hmi.session.journal_recorder import JournalRecorder
 from hmi.session.session import Session
@@ -117,8 +117,15 @@ def _run_with_acks(seed: int, journal: Path, scans: int = 2500):
                                         else None))
         if rng.random() < 0.002:
             session.command(FaultReset())
+        # Shelving, both ways, mostly of what may be shelved (a latched alarm may not).
+        keys = [a.key for a in snap.alarms if not (a.latched and a.active)
+                or rng.random() < 0.1] + [a.key for a, _ in snap.shelved]
+        if keys and rng.random() < 0.05:
+            key = rng.choice(keys)
+            duration = rng.choice([None, 500_000, 5_000_000])
+            session.command(Unshelve(key) if rng.random() < 0.3 else Shelve(key, duration))
         if rng.random() < 0.3:  # the publisher wakes now and then, never every scan
-            views = tracker.update(batches, snap.alarms, snap.time_us)
+            views = tracker.update(batches, snap.alarms, snap.time_us, snap.shelved)
             batches = []
             sent.extend(views)
             yield snap, views, tracker, sent
@@ -128,9 +135,12 @@ def _run_with_acks(seed: int, journal: Path, scans: int = 2500):
 def test_the_tracker_sends_each_state_change_once_and_ends_in_the_lists_state(seed, tmp_path):
     last = None
     for snap, views, tracker, sent in _run_with_acks(seed, tmp_path / "journal.jsonl"):
-        listed = {a.key: a.state for a in snap.alarms}
-        # After each update the conditions SCADA was told of are the alarm list, exactly.
-        assert {k: s for k, (s, _) in tracker.sent.items()} == listed
+        listed = {a.key: (a.state, "Unshelved") for a in snap.alarms}
+        listed |= {a.key: (a.state, "OneShotShelved" if shelf.until_us is None
+                           else "TimedShelved") for a, shelf in snap.shelved}
+        # After each update the conditions SCADA was told of are the alarm list and the
+        # alarms shelved out of it, exactly, each with its shelving state.
+        assert {k: (sent[0], sent[2]) for k, sent in tracker.sent.items()} == listed
         assert set(tracker.retained()) == set(listed)
         for view in views:
             assert view.retain == (view.state != NORMAL)
@@ -140,13 +150,16 @@ def test_the_tracker_sends_each_state_change_once_and_ends_in_the_lists_state(se
             assert view.message
         last = sent
     assert last is not None
-    by_key: dict[str, list[str]] = {}
+    by_key: dict[str, list[tuple[str, str]]] = {}
     for view in last:
         states = by_key.setdefault(view.key, [])
-        assert not states or states[-1] != view.state or view.transition in (
+        assert not states or states[-1] != (view.state, view.shelving) or view.transition in (
             "returned", "condition-returned"), "the same state sent twice in a row"
-        states.append(view.state)
+        states.append((view.state, view.shelving))
+        assert view.shelved == (view.shelving != "Unshelved")
+        assert (view.unshelve_ms > 0) <= (view.shelving == "TimedShelved")
     assert any(v.transition == "acknowledged" for v in last), "no acknowledgement exercised"
+    assert any(v.shelved for v in last), "no shelving exercised"
 
 
 def test_an_acknowledgement_seen_only_in_the_list_is_sent_with_who_did_it():
@@ -176,4 +189,26 @@ def test_an_acknowledgement_seen_only_in_the_list_is_sent_with_who_did_it():
     cleared = views["constraint:CSs4"]
     assert cleared.state == NORMAL and not cleared.retain and cleared.user == HMI_USER
     assert tracker.update([], snap.alarms, snap.time_us) == []  # nothing changed: nothing sent
-    assert CLEARED_UNACK not in {s for s, _ in tracker.sent.values()}
+    assert CLEARED_UNACK not in {sent[0] for sent in tracker.sent.values()}
+
+
+def test_shelving_states_read_as_part9_names_with_the_time_left():
+    from hmi.explain.alarms import Alarm, Shelf
+    alarm = Alarm("monitor:T1", ACTIVE_UNACK, "medium", "Conveyor C1: too slow", "Conveyor C1",
+                  "monitor", 10, 1_000_000, 1_000_000)
+    tracker = ConditionTracker()
+    [raised] = tracker.update([], (alarm,), 1_000_000)
+    assert (raised.shelving, raised.shelved, raised.transition) == ("Unshelved", False,
+                                                                      "raised")
+    [once] = tracker.update([], (), 2_000_000, ((alarm, Shelf(2_000_000, None)),))
+    assert (once.shelving, once.shelved, once.transition, once.time_us) == (
+        "OneShotShelved", True, "shelved", 2_000_000)
+    assert once.retain and once.unshelve_ms == 0
+    [back] = tracker.update([], (alarm,), 3_000_000)
+    assert (back.shelving, back.transition, back.time_us) == ("Unshelved", "unshelved",
+                                                              3_000_000)
+    [timed] = tracker.update([], (), 4_000_000, ((alarm, Shelf(4_000_000, 64_000_000)),))
+    assert timed.shelving == "TimedShelved" and timed.unshelve_ms == 60_000
+    assert tracker.update([], (), 5_000_000, ((alarm, Shelf(4_000_000, 64_000_000)),)) == []
+    [gone] = tracker.update([], (), 6_000_000)  # cleared while shelved: back to normal
+    assert (gone.state, gone.retain, gone.shelved) == ("normal", False, False)

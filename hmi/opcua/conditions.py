@@ -26,7 +26,14 @@ from __future__ import annotations
 from collections.abc import Iterable
 from dataclasses import dataclass
 
-from hmi.explain.alarms import ACTIVE_ACK, ACTIVE_UNACK, CLEARED_UNACK, Alarm, AlarmEvent
+from hmi.explain.alarms import (
+    ACTIVE_ACK,
+    ACTIVE_UNACK,
+    CLEARED_UNACK,
+    Alarm,
+    AlarmEvent,
+    Shelf,
+)
 from hmi.explain.model import Explanation
 
 NORMAL = "normal"
@@ -36,6 +43,8 @@ NORMAL = "normal"
 # alarm there (1-200 is "diagnostic").
 SEVERITY = {"high": 900, "medium": 500, "low": 300}
 HMI_USER = "plchmi HMI"  # ClientUserId of what the cell's own HMI (or a script) did
+# Part 9's ShelvingState names (ShelvedStateMachineType).
+UNSHELVED, TIMED, ONE_SHOT = "Unshelved", "TimedShelved", "OneShotShelved"
 
 
 @dataclass(frozen=True)
@@ -60,6 +69,8 @@ class ConditionView:
     latched: bool
     user: str  # who acknowledged (ClientUserId); "" otherwise
     comment: str
+    shelving: str = "Unshelved"  # Part 9 ShelvingState: Unshelved, TimedShelved, OneShotShelved
+    unshelve_ms: float = 0.0  # a timed shelf: time left until it ends (Part 9 UnshelveTime)
 
     @property
     def active(self) -> bool:
@@ -68,6 +79,10 @@ class ConditionView:
     @property
     def acked(self) -> bool:
         return self.state in (ACTIVE_ACK, NORMAL)
+
+    @property
+    def shelved(self) -> bool:
+        return self.shelving != UNSHELVED
 
     @property
     def retain(self) -> bool:
@@ -80,74 +95,96 @@ class ConditionTracker:
     """Turns what the scans and the latest snapshot say into the condition events to send."""
 
     def __init__(self) -> None:
-        self.sent: dict[str, tuple[str, int]] = {}  # key -> (state, returns) last sent
+        # key -> (state, returns, shelving) last sent
+        self.sent: dict[str, tuple[str, int, str]] = {}
         self.alarms: dict[str, Alarm] = {}  # key -> the last alarm seen (for its texts)
         self.acks: dict[str, tuple[str, str]] = {}  # key -> (user, comment) of a pending ack
+        self.shelves: dict[str, Shelf] = {}  # the shelved alarms, as last seen
+        self.now_us = 0  # the time of the latest snapshot
 
     def acknowledged_by(self, key: str, user: str, comment: str) -> None:
         """An acknowledgement is on its way from an OPC UA client: name it in the event."""
         self.acks[key] = (user, comment)
 
     def update(self, batches: Iterable[tuple[tuple[AlarmEvent, ...], tuple[Alarm, ...]]],
-               latest: tuple[Alarm, ...], now_us: int) -> list[ConditionView]:
+               latest: tuple[Alarm, ...], now_us: int,
+               shelved: tuple[tuple[Alarm, Shelf], ...] = ()) -> list[ConditionView]:
         """The events to send, oldest first: from the scans' alarm events (`batches`, in
-        order), then from the latest alarm list (`latest`)."""
+        order), then from the latest alarm list (`latest`, and the alarms shelved out of
+        it: still conditions, flagged as shelved)."""
         views: list[ConditionView] = []
+        self.now_us = now_us
+        self.shelves = {alarm.key: shelf for alarm, shelf in shelved}
         for events, alarms in batches:
             self._remember(alarms)
             for event in events:
-                view = self._emit(event.key, event.state, event.event, event.time_us,
-                                  event.returns)
-                if view is not None:
-                    views.append(view)
-        self._remember(latest)
-        listed = set()
-        for alarm in latest:
-            listed.add(alarm.key)
-            view = self._emit(alarm.key, alarm.state, _inferred(alarm), alarm.changed_us,
-                              alarm.returns)
-            if view is not None:
-                views.append(view)
-        for key, (state, returns) in list(self.sent.items()):
-            if key not in listed and state != NORMAL:
+                views += self._emit(event.key, event.state, event.event, event.time_us,
+                                    event.returns)
+        present = (*latest, *(alarm for alarm, _ in shelved))
+        self._remember(present)
+        for alarm in present:
+            views += self._emit(alarm.key, alarm.state, "", alarm.changed_us, alarm.returns)
+        listed = {alarm.key for alarm in present}
+        for key, (state, returns, _) in list(self.sent.items()):
+            if key not in listed:
                 transition = "acknowledged" if state == CLEARED_UNACK else "cleared"
-                view = self._emit(key, NORMAL, transition, now_us, returns)
-                if view is not None:
-                    views.append(view)
+                views += self._emit(key, NORMAL, transition, now_us, returns)
         return views
 
     def retained(self) -> list[str]:
         """Keys of the conditions still of interest (what ConditionRefresh replays)."""
-        return [key for key, (state, _) in self.sent.items() if state != NORMAL]
+        return list(self.sent)
 
-    def _remember(self, alarms: tuple[Alarm, ...]) -> None:
+    def _remember(self, alarms: Iterable[Alarm]) -> None:
         for alarm in alarms:
             self.alarms[alarm.key] = alarm
 
     def _emit(self, key: str, state: str, transition: str, time_us: int, returns: int
-              ) -> ConditionView | None:
+              ) -> list[ConditionView]:
+        """The event for a condition now in `state` (none if that was the last sent);
+        `transition` "" lets the change itself name it."""
         last = self.sent.get(key)  # None: nothing of interest sent (or sent as normal)
-        if (last is None and state == NORMAL) or last == (state, returns):
-            return None
-        self.sent[key] = (state, returns)
+        shelf = self.shelves.get(key) if state != NORMAL else None
+        shelving = UNSHELVED if shelf is None else (
+            ONE_SHOT if shelf.until_us is None else TIMED)
+        now = (state, returns, shelving)
+        if (last is None and state == NORMAL) or last == now:
+            return []
+        if not transition:
+            transition = _inferred(state, returns, last, shelving)
+            if transition == "shelved" and shelf is not None:
+                time_us = shelf.since_us
+            elif transition == "unshelved":
+                time_us = self.now_us
+        if state == NORMAL:
+            self.sent.pop(key, None)
+        else:
+            self.sent[key] = now
         alarm = self.alarms.get(key)
+        if state == NORMAL:
+            self.alarms.pop(key, None)
         user, comment = ("", "")
         if transition == "acknowledged":
             user, comment = self.acks.pop(key, (HMI_USER, ""))
-        if state == NORMAL:
-            self.sent.pop(key, None)
-            self.alarms.pop(key, None)
-        return _view(key, transition, state, alarm, time_us, returns, user, comment)
+        remaining = 0.0
+        if shelf is not None and shelf.until_us is not None:
+            remaining = max(0.0, (shelf.until_us - self.now_us) / 1000)
+        return [_view(key, transition, state, alarm, time_us, returns, user, comment,
+                      shelving, remaining)]
 
 
-def _inferred(alarm: Alarm) -> str:
-    """The transition that leads to an alarm's state, when only the state is known."""
-    return {ACTIVE_UNACK: "returned" if alarm.returns else "raised",
-            ACTIVE_ACK: "acknowledged", CLEARED_UNACK: "cleared"}.get(alarm.state, "changed")
+def _inferred(state: str, returns: int, last: tuple[str, int, str] | None,
+              shelving: str) -> str:
+    """The transition that leads to a condition's state, when only the state is known."""
+    if last is not None and last[:2] == (state, returns):
+        return "unshelved" if shelving == UNSHELVED else "shelved"
+    return {ACTIVE_UNACK: "returned" if returns else "raised",
+            ACTIVE_ACK: "acknowledged", CLEARED_UNACK: "cleared"}.get(state, "changed")
 
 
 def _view(key: str, transition: str, state: str, alarm: Alarm | None, time_us: int,
-          returns: int, user: str, comment: str) -> ConditionView:
+          returns: int, user: str, comment: str, shelving: str, remaining_ms: float
+          ) -> ConditionView:
     explanation: Explanation | None = alarm.explanation if alarm else None
     priority = alarm.severity if alarm else "low"
     return ConditionView(
@@ -159,4 +196,5 @@ def _view(key: str, transition: str, state: str, alarm: Alarm | None, time_us: i
         policies=explanation.policies_text() if explanation else "",
         detail=getattr(explanation, "detail", "") or "",
         time_us=time_us, returns=returns, chattering=bool(alarm and alarm.chattering),
-        latched=bool(alarm and alarm.latched), user=user, comment=comment)
+        latched=bool(alarm and alarm.latched), user=user, comment=comment,
+        shelving=shelving, unshelve_ms=remaining_ms)

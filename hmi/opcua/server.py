@@ -37,16 +37,25 @@ from hmi.engine.commands import (
     ChoosePolicy,
     Command,
     CommandResult,
+    CommentAlarm,
     FaultReset,
     ManualOutput,
     SetMode,
     SetPolicy,
+    Shelve,
+    Unshelve,
 )
 from hmi.engine.snapshot import Snapshot
 from hmi.errors import UsageError
-from hmi.explain.alarms import ACTIVE_UNACK, CLEARED_UNACK
+from hmi.explain.alarms import ACTIVE_UNACK, CLEARED_UNACK, MAX_SHELVE_US
 from hmi.opcua import NEEDS_USERS
-from hmi.opcua.conditions import ConditionTracker, ConditionView
+from hmi.opcua.conditions import (
+    ONE_SHOT,
+    TIMED,
+    UNSHELVED,
+    ConditionTracker,
+    ConditionView,
+)
 from hmi.opcua.model import BOOL, DOUBLE, STRING, STRINGS, UINT, AddressModel, build_model
 from hmi.opcua.users import Identity, Users
 from hmi.session.session import Session
@@ -60,6 +69,14 @@ DEFAULT = {BOOL: False, STRING: "", STRINGS: [], DOUBLE: 0.0, UINT: 0}
 # UNECE codes (OPC UA Part 8, EUInformation.UnitId) of the units the model uses.
 UNITS = {"s": (5457219, "s", "second"), "ms": (4405047, "ms", "millisecond")}
 UNECE_URI = "http://www.opcfoundation.org/UA/units/un/cefact"
+# Part 9 shelving, optional in AlarmConditionType (asyncua's event object lacks it).
+SHELVING_FIELDS = {"ShelvingState": ua.VariantType.LocalizedText,
+                   "ShelvingState/CurrentState": ua.VariantType.LocalizedText,
+                   "ShelvingState/CurrentState/Id": ua.VariantType.NodeId,
+                   "ShelvingState/UnshelveTime": ua.VariantType.Double}
+SHELVING_IDS = {UNSHELVED: ua.ObjectIds.ShelvedStateMachineType_Unshelved,
+                TIMED: ua.ObjectIds.ShelvedStateMachineType_TimedShelved,
+                ONE_SHOT: ua.ObjectIds.ShelvedStateMachineType_OneShotShelved}
 BUILT_IN = {ua.NodeId(ua.ObjectIds.UtcTime): ua.VariantType.DateTime,
             ua.NodeId(ua.ObjectIds.Duration): ua.VariantType.Double}
 
@@ -344,7 +361,8 @@ class CellServer:
                 await write(nodeid, ua.AttributeIds.Value, dv)
             self.published += 1
             self.published_scan = snapshot.scan
-        for view in self.tracker.update(batches, snapshot.alarms, snapshot.time_us):
+        for view in self.tracker.update(batches, snapshot.alarms, snapshot.time_us,
+                                        snapshot.shelved):
             await self._send(view)
 
     _published: Snapshot | None = None
@@ -373,8 +391,11 @@ class CellServer:
                         "its explanation; Why, Consequences, Policies and Detail the other levels")
         generator = await server.get_event_generator(self.alarm_type, server.nodes.server)
         self._template = generator.event
+        for name, vtype in SHELVING_FIELDS.items():  # optional in AlarmConditionType
+            self._template.add_property(name, None, vtype)
         self.conditions: dict[str, Any] = {}  # key -> the condition's event object
         self.condition_keys: dict[ua.NodeId, str] = {}
+        self.shelving_keys: dict[ua.NodeId, str] = {}  # a condition's ShelvingState -> key
         self.event_ids: dict[str, deque[bytes]] = {}
         self.alarms_folder = await self.cell.add_object(self._nodeid(("Alarms",)),
                                                         ua.QualifiedName("Alarms", ns))
@@ -382,6 +403,17 @@ class CellServer:
                         "events come from the Server object")
         server.iserver.isession.add_method_callback(
             ua.NodeId(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge), self._acknowledge)
+        # Part 9 shelving (on each condition's ShelvingState) and comments: the HMI's
+        # shelving and comments, through the same door.
+        session = server.iserver.isession
+        session.add_method_callback(ua.NodeId(ua.ObjectIds.ShelvedStateMachineType_TimedShelve),
+                                    self._timed_shelve)
+        session.add_method_callback(
+            ua.NodeId(ua.ObjectIds.ShelvedStateMachineType_OneShotShelve), self._one_shot_shelve)
+        session.add_method_callback(ua.NodeId(ua.ObjectIds.ShelvedStateMachineType_Unshelve),
+                                    self._unshelve)
+        session.add_method_callback(ua.NodeId(ua.ObjectIds.ConditionType_AddComment),
+                                    self._add_comment)
 
     async def _condition(self, view: ConditionView) -> Any:
         event = self.conditions.get(view.key)
@@ -406,6 +438,11 @@ class CellServer:
         self.conditions[view.key] = event
         self.condition_keys[node.nodeid] = view.key
         self.event_ids[view.key] = deque(maxlen=16)
+        shelving = await node.add_object(self._nodeid(("Alarms", view.key, "ShelvingState")),
+                                         ua.QualifiedName("ShelvingState", 0))
+        await _describe(shelving, "shelve this alarm (TimedShelve, OneShotShelve) or bring "
+                        "it back (Unshelve): the methods of ShelvedStateMachineType")
+        self.shelving_keys[shelving.nodeid] = view.key
         return event
 
     async def _send(self, view: ConditionView) -> None:
@@ -424,6 +461,13 @@ class CellServer:
         _two_state(event, "EnabledState", True, "Enabled", "Disabled", stamp)
         _two_state(event, "ActiveState", view.active, "Active", "Inactive", stamp)
         _two_state(event, "AckedState", view.acked, "Acknowledged", "Unacknowledged", stamp)
+        shelving = ua.LocalizedText(view.shelving)
+        event.ShelvingState = shelving
+        setattr(event, "ShelvingState/CurrentState", shelving)
+        setattr(event, "ShelvingState/CurrentState/Id", ua.NodeId(SHELVING_IDS[view.shelving]))
+        setattr(event, "ShelvingState/UnshelveTime", view.unshelve_ms)
+        event.SuppressedOrShelved = view.shelved
+        event.MaxTimeShelved = MAX_SHELVE_US / 1000
         for name, value in (("Why", view.why), ("Consequences", view.consequences),
                             ("Policies", view.policies), ("Detail", view.detail),
                             ("Priority", view.priority),
@@ -455,6 +499,57 @@ class CellServer:
             self.tracker.acks.pop(key, None)
             return ua.StatusCode(ua.StatusCodes.BadConditionBranchAlreadyAcked)
         return ua.StatusCode()  # the acknowledged state goes out with the next scan
+
+    async def _timed_shelve(self, parent: ua.NodeId, shelving_time: ua.Variant
+                            ) -> ua.StatusCode:
+        """Part 9 TimedShelve: ShelvingTime in milliseconds (a Duration)."""
+        ms = _value(shelving_time)
+        if not isinstance(ms, int | float) or not 0 < ms * 1000 <= MAX_SHELVE_US:
+            return ua.StatusCode(ua.StatusCodes.BadShelvingTimeOutOfRange)
+        return await self._shelving(parent, lambda key: Shelve(key, int(ms * 1000)))
+
+    async def _one_shot_shelve(self, parent: ua.NodeId) -> ua.StatusCode:
+        return await self._shelving(parent, lambda key: Shelve(key, None))
+
+    async def _unshelve(self, parent: ua.NodeId) -> ua.StatusCode:
+        return await self._shelving(parent, Unshelve)
+
+    async def _shelving(self, parent: ua.NodeId, make: Callable[[str], Command]
+                        ) -> ua.StatusCode:
+        who = _identity(_caller.get())
+        denied = self._denied(who)
+        if denied is not None:
+            return denied
+        key = self.shelving_keys.get(parent)
+        if key is None:
+            return ua.StatusCode(ua.StatusCodes.BadNodeIdUnknown)
+        command = make(key)
+        result = await self._command(command, who)
+        if result.accepted:
+            return ua.StatusCode()
+        if isinstance(command, Unshelve):
+            return ua.StatusCode(ua.StatusCodes.BadConditionNotShelved)
+        if "already shelved" in result.message:
+            return ua.StatusCode(ua.StatusCodes.BadConditionAlreadyShelved)
+        return ua.StatusCode(ua.StatusCodes.BadInvalidState)  # latched, or already clear
+
+    async def _add_comment(self, parent: ua.NodeId, event_id: ua.Variant,
+                           comment: ua.Variant) -> ua.StatusCode:
+        """Part 9 AddComment: the HMI's comment on an alarm, journalled with the user."""
+        who = _identity(_caller.get())
+        denied = self._denied(who)
+        if denied is not None:
+            return denied
+        key = self.condition_keys.get(parent)
+        if key is None:
+            return ua.StatusCode(ua.StatusCodes.BadNodeIdUnknown)
+        if _value(event_id) not in self.event_ids.get(key, ()):
+            return ua.StatusCode(ua.StatusCodes.BadEventIdUnknown)
+        text = _value(comment)
+        result = await self._command(CommentAlarm(key, text.Text if isinstance(
+            text, ua.LocalizedText) and text.Text else ""), who)
+        return ua.StatusCode() if result.accepted else ua.StatusCode(
+            ua.StatusCodes.BadInvalidArgument)
 
     def _denied(self, who: Identity) -> ua.StatusCode | None:
         if not self.options.writable or who.name is None:
@@ -500,6 +595,18 @@ class CellServer:
              [_arg("Key", ua.VariantType.String, "the alarm's key"),
               _arg("Policy", ua.VariantType.String, "the policy's id")],
              lambda key, policy: ChoosePolicy(str(key), str(policy))),
+            ("Shelve", "shelve an alarm: out of the list for a time (at most 8 h), or with "
+             "0 once, until its condition clears; still journalled",
+             [_arg("Key", ua.VariantType.String, "the alarm's key"),
+              _arg("Seconds", ua.VariantType.Double, "how long (0: until it clears)")],
+             _shelve),
+            ("Unshelve", "bring a shelved alarm back into the list",
+             [_arg("Key", ua.VariantType.String, "the alarm's key")],
+             lambda key: Unshelve(str(key))),
+            ("Comment", "a comment on an alarm, journalled",
+             [_arg("Key", ua.VariantType.String, "the alarm's key"),
+              _arg("Text", ua.VariantType.String, "the comment")],
+             lambda key, text: CommentAlarm(str(key), str(text))),
         ]
         for name, text, inputs, make in specs:
             node = await folder.add_method(self._nodeid(("Commands", name)),
@@ -544,6 +651,12 @@ _UNSET = object()
 _BAD = object()
 _GOOD = ua.StatusCode()
 _STALE = ua.StatusCode(ua.StatusCodes.UncertainNoCommunicationLastUsableValue)
+
+
+def _shelve(key: Any, seconds: Any) -> Shelve:
+    if not isinstance(seconds, int | float) or seconds < 0:
+        raise ValueError(f"shelving time {seconds!r}: expected seconds, 0 until it clears")
+    return Shelve(str(key), None if seconds == 0 else round(seconds * 1_000_000))
 
 
 def _manual_output(name: Any, request: Any) -> ManualOutput:
