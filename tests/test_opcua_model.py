@@ -12,6 +12,7 @@ import random
 from pathlib import Path
 
 import pytest
+from hmi.plant.injection import parse_injection
 
 from hmi.engine.commands import Acknowledge, FaultReset, Shelve, Unshelve
 from hmi.engine.scan import Engine
@@ -19,7 +20,6 @@ from hmi.explain.alarms import ACTIVE_ACK, ACTIVE_UNACK, CLEARED_UNACK
 from hmi.explain.journal import Journal
 from hmi.opcua.conditions import HMI_USER, NORMAL, SEVERITY, ConditionTracker
 from hmi.opcua.model import BOOL, DOUBLE, STRING, STRINGS, UINT, build_model
-from hmi.plant.injection import parse_injection
 from hmi.plant.select import open_plant
 from hmi.project.loader import load_project
 from hmi.session.journal_recorder import JournalRecorder
