@@ -22,6 +22,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
+from typing import Any
 
 from hmi.engine.filter import SafetyFilter
 from hmi.engine.filter_stage import FilterStage
@@ -197,11 +198,11 @@ class RecoveryStage:
                              - self.started_us, spec.timeout_us, self.message,
                              self.needed, self.catalogue)
 
-    def capture(self) -> tuple:
+    def capture(self) -> tuple[object, ...]:
         return (self.active, self.status, self.step, self.started_us, self.message,
                 self.ended_us, self.needed, tuple(p.needed_since for p in self.procedures.values()))
 
-    def restore(self, state: tuple) -> None:
+    def restore(self, state: tuple[Any, ...]) -> None:
         (self.active, self.status, self.step, self.started_us, self.message, self.ended_us,
          self.needed, since) = state
         for proc, value in zip(self.procedures.values(), since, strict=True):

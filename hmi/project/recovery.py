@@ -38,7 +38,7 @@ from typing import TYPE_CHECKING
 from hmi.errors import SourcePos
 from hmi.logic.expr import Expr
 from hmi.logic.names import NAME_RE
-from hmi.project.constraints import read_constraint
+from hmi.project.constraints import parse_constraint
 from hmi.project.model import Constraint, Variable
 from hmi.project.yamlnodes import YNode
 
@@ -185,7 +185,7 @@ def _procedure(loader: ProjectLoader, name: str, node: YNode, kpos: SourcePos,
                                   + (f" at {first}" if first else " by the project"),
                                   "a name of its own (it shows in the filter's report)")
                 continue
-            constraint = read_constraint(loader, cname, cnode, cpos)
+            constraint = parse_constraint(loader, cname, cnode, cpos)
             if constraint is not None:
                 own[cname] = cpos
                 mine.append(constraint)
