@@ -41,7 +41,6 @@ from hmi.timefmt import seconds
 
 
 class Pump(SimDevice, model=PUMP):
-
     def __init__(self, name: str, params: Mapping[str, Any]):
         super().__init__(name, params)
         self.flow = ml_per_s(self.params["flow"])

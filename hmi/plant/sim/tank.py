@@ -39,7 +39,6 @@ def ml_per_s(value: float) -> int:
 
 
 class Tank(SimDevice, model=TANK):
-
     def __init__(self, name: str, params: Mapping[str, Any]):
         super().__init__(name, params)
         self.capacity = litres(self.params["capacity"])
