@@ -17,6 +17,15 @@ ROOT = Path(__file__).resolve().parent.parent
 PROJECTS = ROOT / "projects"
 
 
+def processes_for_a_test() -> int:
+    """Worker processes a test may start for itself: both cores when the suite runs in one
+    process, one when pytest-xdist already runs a test on each core (.ci/run, README)."""
+    import os
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        return 1
+    return min(2, os.cpu_count() or 1)
+
+
 def write_project(folder: Path, files: dict[str, str]) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     for name, text in files.items():

@@ -6,12 +6,12 @@ subsystem (two component diagnosers, a renamed identifier).
 
 Each trace runs the engine on its simulated plant and the exported Structured Text in the
 tests' interpreter side by side (tests/export_harness.py); about 300,000 scans in all, spread
-over two worker processes when the machine has two cores.
+over two worker processes when the machine has two cores (one when pytest-xdist
+already runs the suite on both).
 """
 
 from __future__ import annotations
 
-import os
 from concurrent.futures import Future, ProcessPoolExecutor
 
 import pytest
@@ -21,10 +21,16 @@ from hmi.plant.sim import Injection
 from hmi.project.campaign import campaign_of
 from hmi.project.loader import load_project
 from hmi.project.scenarios import scenarios_of
-from tests.conftest import PROJECTS
+from tests.conftest import PROJECTS, processes_for_a_test
 from tests.export_harness import Agreement, Twin, engine_for
 
 LONG_US = 30_000_000  # the faulty programs' runs
+# A campaign run is compared up to this long after its fault, not to the campaign's end: on
+# the valve's 48 runs, the last new situation (every Boolean of the image, the violations,
+# the latch, each diagnoser's state and labels) appears at most 10.8 s after the fault
+# (measured on the engine over the whole 40 s runs), so the rest of a run repeats situations
+# already compared; the margin is 4 s. It cuts the valve's campaign scans by about a third.
+AFTER_FAULT_US = 15_000_000
 _TWINS: dict[str, Twin] = {}
 
 
@@ -45,8 +51,7 @@ def _run(name: str, injections: tuple[Injection, ...], until_us: int, policy: st
 
 @pytest.fixture(scope="module")
 def pool():
-    jobs = min(2, os.cpu_count() or 1)
-    with ProcessPoolExecutor(max_workers=jobs) as executor:
+    with ProcessPoolExecutor(max_workers=processes_for_a_test()) as executor:
         yield executor
 
 
@@ -59,8 +64,9 @@ def _traces(name: str, faulty_policies: tuple[str, ...] = ("correct", "block", "
     if spec is not None and campaign:
         for s in spec.scenarios:
             for c in CONFIGS:
-                runs.append((name, (Injection(s.fault, s.at_us, s.device),), spec.length_us,
-                             c.policy, c.diagnosis, None))
+                runs.append((name, (Injection(s.fault, s.at_us, s.device),),
+                             min(spec.length_us, s.at_us + AFTER_FAULT_US), c.policy,
+                             c.diagnosis, None))
     for s in scenarios_of(project):
         if scenarios is None or s.name in scenarios:
             runs.append((name, s.injections, s.duration_us or LONG_US, None, "ftc", None))
@@ -81,7 +87,9 @@ def test_the_valve_campaign_and_faulty_program_agree(pool):
     runs = _traces("cispi_valve")
     total = _all(pool, runs)
     assert len(runs) == 16 * 3 + 3
-    assert total.scans == 48 * 4001 + 3 * 3001
+    period = load_project(PROJECTS / "cispi_valve").scan_period_us
+    assert total.scans == sum(until // period + 1 for _, _, until, *_ in runs)
+    assert total.scans > 48 * 2000 + 3 * 3001  # at least 20 s a campaign run
     # the runs reach most of the automaton and every policy's behaviour
     assert len(total.diagnoser_states) >= 25, sorted(total.diagnoser_states)
     assert total.corrected > 1000 and total.latched > 1000 and total.violations > 1000

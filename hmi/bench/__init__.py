@@ -7,9 +7,16 @@ Each module of this package that defines SECTION (its name), HELP (one line) and
 from __future__ import annotations
 
 import importlib
+import os
 import pkgutil
 import statistics
 from types import ModuleType
+
+# The sections' names, for `plchmi --help` and argument checks without importing every
+# section (some import pymodbus or the whole engine: the HMI's start-up would pay for them).
+# tests/test_bench_sections.py checks it against sections().
+NAMES = ("campaign", "corrector", "engine", "filter", "modbus", "opcua", "palletizer",
+         "sorting", "startup", "ui")
 
 
 def sections() -> dict[str, ModuleType]:
@@ -26,6 +33,24 @@ def percentile(values: list[float], p: float) -> float:
     ordered = sorted(values)
     rank = max(1, min(len(ordered), round(p / 100 * len(ordered) + 0.5)))
     return ordered[rank - 1]
+
+
+def load_line() -> str:
+    """The machine's load, to print beside timed figures: on a shared machine they vary
+    with it."""
+    try:
+        one, five, _ = os.getloadavg()
+    except OSError:
+        return "load average unknown"
+    return f"load average {one:.1f} (5 min {five:.1f}) on {os.cpu_count()} cores"
+
+
+def goal_line(figure: float, goal: float, unit: str, higher_is_better: bool = True) -> str:
+    """The figure beside its goal (issue 18), and whether it is met."""
+    met = figure >= goal if higher_is_better else figure < goal
+    ratio = figure / goal if goal else 0.0
+    sign = ">=" if higher_is_better else "<"
+    return f"goal {sign} {goal:,g} {unit}: {'met' if met else 'NOT met'} ({ratio:.2f}x the goal)"
 
 
 def summary(values: list[float]) -> tuple[float, float, float]:

@@ -153,11 +153,22 @@ def run_one(project: Project, spec: CampaignSpec, scenario: Scenario, config: Co
     count = 0
     detected: int | None = None
     snap = None
-    for now in range(0, spec.length_us + 1, period):
-        snap = engine.step(now)
-        if snap.plant_events:
-            damage.extend(e for e in snap.plant_events if e.damage)
-        counters = snap.plant_counters
+    times = range(0, spec.length_us + 1, period)
+    last = times[-1]
+    stage = engine.diagnosis
+    for now in times:
+        # Only the last scan's snapshot is read (the context); the others only advance the
+        # engine, and the plant's events, counters and the diagnosers are read where they
+        # are (what Engine.step would have copied into a snapshot, with the same values).
+        if now == last:
+            snap = engine.step(now)
+            events = snap.plant_events
+        else:
+            engine.advance(now)
+            events = plant.take_events()
+        if events:
+            damage.extend(e for e in events if e.damage)
+        counters = plant.counters()
         if counter_index is None:
             counter_index = next(k for k, (name, _) in enumerate(counters)
                                  if name == spec.counter)
@@ -165,7 +176,8 @@ def run_one(project: Project, spec: CampaignSpec, scenario: Scenario, config: Co
         if value != count:
             cycle_times.extend([now] * (value - count))
             count = value
-        if detected is None and any(d.faulty for d in snap.diagnosers):
+        if detected is None and stage is not None and any(
+                d.faulty for d in stage.current.records):
             detected = now
     assert snap is not None
     outcome, reason = classify(damage, cycle_times, spec.length_us, spec.window_us)

@@ -66,6 +66,7 @@ class ControlRuntime:
         if self.grafcet is not None and state is not None:
             self.grafcet.activated_at = dict(state[0])
             self.grafcet.fired = state[1]
+            self.grafcet.forget_active()
 
     def active_steps(self, image: Image) -> tuple[str, ...]:
         return self.grafcet.active(image) if self.grafcet else ()

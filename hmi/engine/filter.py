@@ -164,6 +164,8 @@ def unpack(v: int, n: int) -> tuple[bool, ...]:
 # The filter
 # --------------------------------------------------------------------------------------------
 
+PACKED_CACHE = 4096  # distinct candidate vectors remembered (cleared when full)
+
 
 @dataclass(frozen=True)
 class _ActiveSet:
@@ -228,6 +230,12 @@ class SafetyFilter:
         # What depends only on which constraints are active, built once per active set: a
         # cell has few distinct active sets, and a violation scan should not rebuild them.
         self._by_active: dict[tuple[int, ...], _ActiveSet] = {}
+        # Candidate vectors as packed integers: a cell asks for few distinct vectors.
+        self._packed: dict[tuple[bool, ...], int] = {}
+        # The report of a scan with nothing violated, per policy: immutable, built once.
+        self._clean_monitor = FilterReport("monitor", strategy)
+        self._clean_block = FilterReport("block", strategy)
+        self._clean_correct = FilterReport("correct", strategy)
 
     def active(self, image: Image, history: History) -> list[CompiledConstraint]:
         return [c for c in self.compiled if c.context is None or c.context(image, history)]
@@ -237,14 +245,24 @@ class SafetyFilter:
         """The filter's decision on the candidate `fov`. Under `block`, a first violation
         returns the reason to latch (`latched`: the engine's outputs already are) and the
         engine latches; the filter itself holds no state between scans."""
-        candidate = pack(fov)
-        active = self.active(image, history)
-        violated = [c for c in active if candidate & c.pos == c.pos and not candidate & c.neg]
-        violations = tuple(c.violation for c in violated)
+        candidate = self._packed.get(fov)
+        if candidate is None:
+            if len(self._packed) >= PACKED_CACHE:
+                self._packed.clear()
+            candidate = self._packed[fov] = pack(fov)
+        # The outputs' literals first (two integer tests), the context over Y only for the
+        # constraints they make true: most constraints are ruled out without evaluating it.
+        violated = [c for c in self.compiled if candidate & c.pos == c.pos
+                    and not candidate & c.neg and (c.context is None
+                                                   or c.context(image, history))]
         if policy == "monitor":
-            report = FilterReport(policy, self.strategy, violations,
+            if not violated:
+                return FilterDecision(fov, self._clean_monitor)
+            report = FilterReport(policy, self.strategy,
+                                  tuple(c.violation for c in violated),
                                   residual=tuple(c.name for c in violated))
             return FilterDecision(fov, report)
+        violations = tuple(c.violation for c in violated)
         if policy == "block":
             latch = None
             if violated and not latched:
@@ -252,11 +270,19 @@ class SafetyFilter:
                 why = f": {first.description}" if first.description else ""
                 latch = f"safe blocking on {first.name}{why}"
             if latched or latch:
-                written, report = self._safe_state(fov, violations, active, policy,
+                written, report = self._safe_state(fov, violations,
+                                                   self.active(image, history), policy,
                                                    "outputs latched safe")
                 return FilterDecision(written, report, latch)
+            if not violated:
+                return FilterDecision(fov, self._clean_block)
             return FilterDecision(fov, FilterReport(policy, self.strategy, violations))
-        return FilterDecision(*self._correct(fov, candidate, active, violations))
+        if not violated:
+            # Common case: the candidate violates nothing, so it is written unchanged (a
+            # conflict between simple constraints would show as a violation).
+            return FilterDecision(fov, self._clean_correct)
+        return FilterDecision(*self._correct(fov, candidate, self.active(image, history),
+                                             violations))
 
     def _active_set(self, active: Sequence[CompiledConstraint]) -> _ActiveSet:
         key = tuple(map(id, active))
@@ -268,10 +294,6 @@ class SafetyFilter:
     def _correct(self, fov: tuple[bool, ...], candidate: int,
                  active: Sequence[CompiledConstraint], violations: tuple[Violation, ...]
                  ) -> tuple[tuple[bool, ...], FilterReport]:
-        if not violations:
-            # Common case: the candidate violates nothing, so it is written unchanged (a
-            # conflict between simple constraints would show as a violation).
-            return fov, FilterReport("correct", self.strategy)
         aset = self._active_set(active)
         f0, f1 = aset.f0, aset.f1
         conflicts = f0 & f1

@@ -48,11 +48,13 @@ class GrafcetRuntime:
         self.driven = sorted({target for _, target, _ in self.continuous})
         self.activated_at: dict[str, int] = {}
         self.fired: tuple[int, ...] = ()
+        self._active: tuple[str, ...] | None = None  # cache of active(), None: to compute
 
     def reset(self, image: Image, now: int) -> None:
         for name, slot in self.step_slots.items():
             image[slot] = name in self.initial
         self.activated_at = dict.fromkeys(self.initial, now)
+        self._active = None
         for name in self.initial:
             self._stored(image, name)
 
@@ -63,8 +65,14 @@ class GrafcetRuntime:
 
     def evolve(self, image: Image, history: History, now: int) -> tuple[int, ...]:
         """Fire every fireable transition at once; return the numbers of those fired."""
-        fire = [i for i, (sources, _, receptivity) in enumerate(self.transitions)
-                if all(image[s] for s in sources) and receptivity(image, history)]
+        fire = []
+        for i, (sources, _, receptivity) in enumerate(self.transitions):
+            for s in sources:
+                if not image[s]:
+                    break
+            else:
+                if receptivity(image, history):
+                    fire.append(i)
         if not fire:
             self.fired = ()
             return ()
@@ -84,6 +92,7 @@ class GrafcetRuntime:
             image[self.time_slots[name]] = 0
             self._stored(image, name)
         self.fired = tuple(self.transition_numbers[i] for i in fire)
+        self._active = None
         return self.fired
 
     def _stored(self, image: Image, step: str) -> None:
@@ -98,4 +107,13 @@ class GrafcetRuntime:
                 image[target] = True
 
     def active(self, image: Image) -> tuple[str, ...]:
-        return tuple(name for name, slot in self.step_slots.items() if image[slot])
+        """The active steps, recomputed only after a change of steps (a firing, a reset, a
+        restored state): read at every scan, they change at few."""
+        if self._active is None:
+            self._active = tuple(name for name, slot in self.step_slots.items()
+                                 if image[slot])
+        return self._active
+
+    def forget_active(self) -> None:
+        """The steps in the image were changed from outside (a restored state)."""
+        self._active = None

@@ -20,11 +20,13 @@ from __future__ import annotations
 from typing import NamedTuple
 
 from hmi.engine.layout import Layout
-from hmi.engine.stopwatch import FAULTY, Detection, TaskAutomaton, WatchdogTrip, Window
+from hmi.engine.stopwatch import FAULTY, Detection, Phase, TaskAutomaton, WatchdogTrip, Window
 from hmi.logic.expr import BoolFn, Expr, History, Image, compile_bool, max_depth
 from hmi.project.model import Project
 from hmi.project.monitors import TaskMonitor, monitors_of
 from hmi.timefmt import format_duration, seconds
+
+IDLE = Phase.IDLE
 
 
 class MonitorState(NamedTuple):
@@ -76,6 +78,10 @@ class MonitorStage:
         self.automata = [TaskAutomaton(Window(s.alpha_us, s.beta_us, s.gamma_us))
                          for s in specs]
         self.conditions: list[tuple[BoolFn, BoolFn, BoolFn | None, BoolFn | None, bool]] = []
+        # The last MonitorState of each task, and whether its automaton moved since.
+        self._cached: list[MonitorState | None] = [None] * len(specs)
+        self._dirty = [True] * len(specs)
+        self._states: tuple[MonitorState, ...] | None = None
         for s in specs:
             def fn(expr: Expr) -> BoolFn:
                 return compile_bool(expr, lay.slots, lay.step_times)
@@ -90,8 +96,14 @@ class MonitorStage:
 
     def step(self, image: Image, hist: History, now: int, scan: int
              ) -> tuple[MonitorState, ...]:
-        for automaton, (start, end, suspend, resume, level) in zip(
-                self.automata, self.conditions, strict=True):
+        changed = False
+        for k, (automaton, (start, end, suspend, resume, level)) in enumerate(zip(
+                self.automata, self.conditions, strict=True)):
+            if automaton.phase is IDLE and not start(image, hist):
+                # A waiting task that does not start: the automaton only notes the time
+                # (TaskAutomaton.step does nothing else then) and its state is unchanged.
+                automaton.last_us = now
+                continue
             if suspend is None or resume is None:
                 s = r = False
             elif level:
@@ -99,16 +111,32 @@ class MonitorStage:
                 r = not s
             else:
                 s, r = suspend(image, hist), resume(image, hist)
-            automaton.step(now, scan, start(image, hist), end(image, hist), s, r)
-        return self.states()
+            # `start` is only read by a waiting automaton, and this one's is true
+            automaton.step(now, scan, automaton.phase is IDLE, end(image, hist), s, r)
+            self._dirty[k] = True
+            changed = True
+        if changed or self._states is None:
+            return self.states()
+        return self._states
 
     def states(self) -> tuple[MonitorState, ...]:
-        return tuple(_state(head, a, tail)
-                     for head, tail, a in zip(self.heads, self.tails, self.automata, strict=True))
+        """Each task's state; rebuilt only for the automata that moved since the last call
+        (a waiting task's state is the same tuple scan after scan)."""
+        cached = self._cached
+        dirty = self._dirty
+        for k, (head, tail, a) in enumerate(zip(self.heads, self.tails, self.automata,
+                                                strict=True)):
+            if dirty[k] or cached[k] is None:
+                cached[k] = _state(head, a, tail)
+                dirty[k] = False
+        self._states = tuple(cached)  # type: ignore[arg-type]  # every entry is set above
+        return self._states
 
     def reset(self) -> list[str]:
         """Fault reset: release each latched label whose task is no longer faulty."""
         lines = []
+        self._dirty = [True] * len(self.automata)
+        self._states = None
         for spec, a in zip(self.specs, self.automata, strict=True):
             if a.latched is None:
                 continue

@@ -99,3 +99,22 @@ class Snapshot(NamedTuple):
     @property
     def is_safe_latched(self) -> bool:
         return bool(self.latched)
+
+
+_EXPLANATIONS, _ALARMS, _ALARM_EVENTS, _ERROR, _SCAN_WALL = (
+    Snapshot._fields.index(name)
+    for name in ("explanations", "alarms", "alarm_events", "error", "scan_wall_us"))
+
+
+def explained(core: Snapshot, explanations: tuple[Any, ...], alarms: tuple[Any, ...],
+              alarm_events: tuple[Any, ...], error: str | None, scan_wall_us: float
+              ) -> Snapshot:
+    """`core` with the session's fields set: ``core._replace(...)`` without its cost (it
+    runs once per scan, and _replace builds a dict and maps every field)."""
+    fields = list(core)
+    fields[_EXPLANATIONS] = explanations
+    fields[_ALARMS] = alarms
+    fields[_ALARM_EVENTS] = alarm_events
+    fields[_ERROR] = error
+    fields[_SCAN_WALL] = scan_wall_us
+    return tuple.__new__(Snapshot, fields)

@@ -10,12 +10,18 @@ cannot run on Modbus, and that is reported at each variable's file:line:column.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from hmi.errors import ProjectError, UsageError
-from hmi.plant.modbus.address_map import address_diagnostics
-from hmi.plant.modbus.client import URL_HINT, ModbusPlant, ModbusSettings, parse_plant_url
 from hmi.plant.sim.plant import SimPlant
 from hmi.project.injection import Injection
 from hmi.project.model import Project
+
+if TYPE_CHECKING:
+    from hmi.plant.modbus.client import ModbusPlant, ModbusSettings
+
+# The Modbus client (and pymodbus under it) is imported only for a Modbus plant: a simulated
+# one, the HMI's usual start, does not pay for it (issue 18, first frame).
 
 
 def plant_kind(project: Project, choice: str | None) -> str:
@@ -23,10 +29,12 @@ def plant_kind(project: Project, choice: str | None) -> str:
         return project.plant.kind
     if choice in ("sim", "modbus") or choice.startswith("modbus://"):
         return "sim" if choice == "sim" else "modbus"
+    from hmi.plant.modbus.client import URL_HINT
     raise UsageError(f"--plant {choice!r}: expected sim, modbus or {URL_HINT}")
 
 
 def modbus_settings(project: Project, choice: str | None) -> ModbusSettings:
+    from hmi.plant.modbus.client import ModbusSettings, parse_plant_url
     base = ModbusSettings.from_spec(project.plant)
     if choice and choice.startswith("modbus://"):
         return parse_plant_url(choice, base)
@@ -40,6 +48,7 @@ def open_plant(project: Project, choice: str | None = None, read_only: bool = Fa
     kind = plant_kind(project, choice)
     if kind == "sim":
         if read_only:
+            from hmi.plant.modbus.client import URL_HINT
             raise UsageError("--read-only observes a real device: it needs a Modbus plant "
                              f"(--plant {URL_HINT})")
         if not project.plant.devices:
@@ -53,6 +62,8 @@ def open_plant(project: Project, choice: str | None = None, read_only: bool = Fa
     if injections:
         raise UsageError("--inject needs the simulated plant; to inject faults into a plant "
                          "served over Modbus, give them to 'plchmi serve-plant'")
+    from hmi.plant.modbus.address_map import address_diagnostics
+    from hmi.plant.modbus.client import ModbusPlant
     settings = modbus_settings(project, choice)
     errors = address_diagnostics(project, "a Modbus plant needs one for every input and "
                                  "output")

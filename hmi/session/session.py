@@ -31,7 +31,7 @@ from hmi.engine.commands import (
     describe,
 )
 from hmi.engine.scan import Engine
-from hmi.engine.snapshot import Snapshot
+from hmi.engine.snapshot import Snapshot, explained
 from hmi.explain.alarms import AlarmEvent, AlarmManager
 from hmi.explain.builder import ExplanationBuilder
 from hmi.explain.model import Explanation
@@ -207,10 +207,8 @@ class Session:
             error = error or f"explanations: {type(exc).__name__}: {exc}"
         events = self.take_alarm_events()
         events.extend(self.alarms.update(self.explanations, core.scan, core.time_us))
-        return core._replace(explanations=self.explanations, alarms=self.alarms.listed(),
-                             alarm_events=tuple(events), error=error,
-                             scan_wall_us=core.scan_wall_us
-                             + (time.perf_counter() - started) * 1e6)
+        return explained(core, self.explanations, self.alarms.listed(), tuple(events), error,
+                         core.scan_wall_us + (time.perf_counter() - started) * 1e6)
 
     def run_for(self, duration_us: int, on_scan: Callable[[Snapshot], None] | None = None
                 ) -> Snapshot:

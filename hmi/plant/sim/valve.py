@@ -118,6 +118,12 @@ class Valve(SimDevice, model=VALVE):
         return int(self.travel * float(self.params["block_at"]))
 
     def _advance_to(self, t: int) -> None:
+        if not (self.armed or self.glitches or self.self_drive or self.orders["C"]
+                or self.orders["O"]):
+            # At rest with nothing armed: nothing moves and _settle, already applied at this
+            # position, would change nothing; only the time passes.
+            self.t = max(self.t, t)
+            return
         while self.t < t:
             drive = self._drive()
             step = min(t - self.t, self._next_boundary(drive))

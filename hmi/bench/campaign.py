@@ -1,0 +1,53 @@
+"""``plchmi bench campaign``: the fault campaign of the CISPI valve, as times real time.
+
+``plchmi campaign projects/cispi_valve`` runs every scenario under the three configurations
+of 000 Table 1 (48 runs of 40 s of virtual time); this section times it on one worker
+process and on as many as the machine has cores (at most 2, the development machine's),
+and prints the virtual time simulated per second of wall time. The results are checked to be
+the same whatever the number of workers (each run is deterministic and independent).
+
+Issue 18's goal 3: the campaign at >= 1000x real time on both cores.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+from hmi.bench import goal_line, load_line
+
+SECTION = "campaign"
+HELP = "the cispi_valve fault campaign on 1 and 2 cores, x real time (goal >= 1000x)"
+
+GOAL = 1000
+PROJECT = Path(__file__).resolve().parents[2] / "projects" / "cispi_valve"
+
+
+def run(args) -> None:
+    from hmi.engine.campaign import CONFIGS, run_campaign
+    from hmi.project.campaign import campaign_of
+    from hmi.project.loader import load_project
+
+    project = load_project(PROJECT)
+    spec = campaign_of(project)
+    assert spec is not None, "the valve project has a campaign"
+    runs = len(spec.scenarios) * len(CONFIGS)
+    virtual_s = runs * spec.length_us / 1e6
+    cores = min(2, os.cpu_count() or 1)
+    print(f"  {project.name}: {runs} runs x {spec.length_us / 1e6:g} s of virtual time "
+          f"({virtual_s:,.0f} s); {load_line()}", flush=True)
+    outcomes = []
+    for jobs in sorted({1, cores}):
+        started = time.perf_counter()
+        result = run_campaign(project, spec, jobs=jobs)
+        wall = time.perf_counter() - started
+        outcomes.append([(r.scenario.name, r.config.key, r.outcome, r.reason)
+                         for r in result.runs])
+        speed = virtual_s / wall
+        print(f"  {jobs} worker{'s' if jobs > 1 else ' '}  {wall:6.2f} s wall  "
+              f"{speed:8,.0f}x real time", flush=True)
+        if jobs == cores:
+            print(f"             {goal_line(speed, GOAL, 'x real time')}", flush=True)
+    same = all(o == outcomes[0] for o in outcomes)
+    print(f"  results identical on 1 and {cores} workers: {'yes' if same else 'NO'}")

@@ -1,0 +1,97 @@
+"""``plchmi bench engine``: scans per second of each example project, headless, no trace.
+
+Each project runs on its simulated plant in virtual time, as ``plchmi run PROJECT --for
+120s`` runs it without ``--trace``: the session's scans (engine, explanations, alarms) and the
+run's summary collector reading every snapshot. A second figure is the engine alone
+(``Engine.step``: the scan and its snapshot, no session), what the campaign and the studies
+drive. The run is deterministic; only the wall time varies, with the machine's load (printed).
+
+Issue 18's goal 2: cispi_valve >= 100,000 scans/s, sorting and palletizer >= 50,000.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from hmi.bench import goal_line, load_line
+
+if TYPE_CHECKING:
+    from hmi.project.model import Project
+
+SECTION = "engine"
+HELP = "scans/s of each project headless without trace (goal: valve 100k, sorting/pallet 50k)"
+
+PROJECTS = Path(__file__).resolve().parents[2] / "projects"
+# project -> goal in scans/s (issue 18, goal 2); None: measured, no goal set
+GOALS: dict[str, int | None] = {"cispi_valve": 100_000, "conveyor_robot": None,
+                                "cispi_subsystem": None, "sorting": 50_000,
+                                "palletizer": 50_000}
+SECONDS, QUICK_SECONDS = 120, 20
+
+
+def session_rate(project: Project, duration_us: int) -> tuple[int, float]:
+    """(scans, wall seconds) of a `plchmi run` without trace: session and summary collector."""
+    from hmi.cli import RunCollector
+    from hmi.engine.scan import Engine
+    from hmi.plant.sim.plant import SimPlant
+    from hmi.session.session import Session
+
+    session = Session(Engine(project, SimPlant(project)))
+    collector = RunCollector()
+    with _settled():
+        started = time.perf_counter()
+        session.run_for(duration_us, collector.add)
+        return collector.scans, time.perf_counter() - started
+
+
+def engine_rate(project: Project, duration_us: int) -> tuple[int, float]:
+    """(scans, wall seconds) of the engine alone stepping in virtual time."""
+    from hmi.engine.scan import Engine
+    from hmi.plant.sim.plant import SimPlant
+
+    engine = Engine(project, SimPlant(project))
+    period = project.scan_period_us
+    with _settled():
+        started = time.perf_counter()
+        scans = 0
+        for now in range(0, duration_us + 1, period):
+            engine.step(now)
+            scans += 1
+        return scans, time.perf_counter() - started
+
+
+@contextmanager
+def _settled() -> Iterator[None]:
+    """What a headless run does before its scans (hmi.session.session.settle_memory), undone
+    after, so the next project's measure starts alike."""
+    import gc
+
+    from hmi.session.session import settle_memory
+
+    settle_memory()
+    try:
+        yield
+    finally:
+        gc.unfreeze()
+
+
+def run(args) -> None:
+    from hmi.project.loader import load_project
+
+    seconds = QUICK_SECONDS if getattr(args, "quick", False) else SECONDS
+    print(f"  {seconds} s of virtual time per project on its simulated plant; {load_line()}",
+          flush=True)
+    for name, goal in GOALS.items():
+        project = load_project(PROJECTS / name)
+        scans, wall = session_rate(project, seconds * 1_000_000)
+        rate = scans / wall
+        alone, alone_wall = engine_rate(project, seconds * 1_000_000)
+        print(f"  {name:<16} {rate:>9,.0f} scans/s ({1e6 / rate:5.1f} us/scan, "
+              f"{rate * project.scan_period_us / 1e6:,.0f}x real time); engine alone "
+              f"{alone / alone_wall:>9,.0f} scans/s", flush=True)
+        if goal is not None:
+            print(f"  {'':<16} {goal_line(rate, goal, 'scans/s')}", flush=True)

@@ -1,0 +1,141 @@
+"""``plchmi bench startup``: from launching ``plchmi PROJECT`` to its first useful frame.
+
+The HMI is started as the operator starts it, a new process in a real (pseudo-)terminal of
+80×24, and the clock stops when the terminal has received the first frame that holds the I/O
+table with its rows (the column header and the first input's name), not when the imports are
+done: the figure includes the interpreter, the imports, loading the project, building the
+engine, the first scan, Textual's first layout and the bytes written. The app is then quit
+(ctrl+q) and reaped. One launch first, untimed, warms the caches (bytecode written as on
+an operator's machine, files in the OS cache). Also printed: the time to import the HMI's
+module alone (in a fresh interpreter), for comparison.
+
+Issue 18's goal 1: the first useful frame in under half a second on a quiet machine. The
+machine's load average is printed beside the figures: on a shared machine they are noisy.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import select
+import signal
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from hmi.bench import load_line
+
+SECTION = "startup"
+HELP = "launch -> first frame with the I/O table at 80x24 (goal < 0.5 s); import time"
+
+GOAL_S = 0.5
+PROJECT = Path(__file__).resolve().parents[2] / "projects" / "cispi_valve"
+RUNS, QUICK_RUNS = 5, 3
+SIZE = (80, 24)
+TIMEOUT_S = 30.0
+QUIT = b"\x11"  # ctrl+q
+
+
+def first_frame(argv: list[str], markers: tuple[bytes, ...], env: dict[str, str],
+                size: tuple[int, int] = SIZE, timeout_s: float = TIMEOUT_S) -> float | None:
+    """Seconds from the fork of `argv` in a new pseudo-terminal of `size` (columns, rows)
+    until every marker has appeared in what it wrote; None if they did not in `timeout_s`.
+    The process is asked to quit, then killed if it does not, and always reaped."""
+    import fcntl
+    import pty
+    import struct
+    import termios
+
+    started = time.perf_counter()
+    pid, fd = pty.fork()
+    if pid == 0:  # the child: the HMI, in the new terminal
+        try:
+            os.execve(argv[0], argv, env)
+        finally:
+            os._exit(127)
+    cols, rows = size
+    fcntl.ioctl(fd, termios.TIOCSWINSZ, struct.pack("HHHH", rows, cols, 0, 0))
+    seen: float | None = None
+    received = b""
+    try:
+        while time.perf_counter() - started < timeout_s:
+            ready, _, _ = select.select([fd], [], [], 0.05)
+            if not ready:
+                continue
+            try:
+                chunk = os.read(fd, 1 << 16)
+            except OSError:  # the child closed the terminal
+                break
+            if not chunk:
+                break
+            received += chunk
+            if all(m in received for m in markers):
+                seen = time.perf_counter() - started
+                break
+        _quit(pid, fd)
+    finally:
+        os.close(fd)
+    return seen
+
+
+def _quit(pid: int, fd: int) -> None:
+    """Ask the app to quit (ctrl+q), drain its output, kill it after 5 s; reap it."""
+    with contextlib.suppress(OSError):
+        os.write(fd, QUIT)
+    deadline = time.perf_counter() + 5.0
+    while time.perf_counter() < deadline:
+        done, _ = os.waitpid(pid, os.WNOHANG)
+        if done:
+            return
+        ready, _, _ = select.select([fd], [], [], 0.05)
+        if ready:
+            with contextlib.suppress(OSError):
+                os.read(fd, 1 << 16)
+    os.kill(pid, signal.SIGKILL)
+    os.waitpid(pid, 0)
+
+
+def import_seconds(module: str) -> float:
+    """Wall time of a fresh interpreter importing `module` (interpreter start included),
+    with the bytecode cache in use."""
+    env = dict(os.environ)
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
+    started = time.perf_counter()
+    subprocess.run([sys.executable, "-c", f"import {module}"], check=True, env=env)
+    return time.perf_counter() - started
+
+
+def run(args) -> None:
+    from hmi.project.loader import load_project
+
+    runs = QUICK_RUNS if getattr(args, "quick", False) else RUNS
+    project = load_project(PROJECT)
+    markers = (b"Signal", project.inputs[0].name.encode())
+    with tempfile.TemporaryDirectory() as data:
+        env = dict(os.environ, TERM="xterm-256color", PLCHMI_DATA=data,
+                   COLUMNS=str(SIZE[0]), LINES=str(SIZE[1]))
+        # As on an operator's machine: the bytecode cache written (a launch compiling every
+        # module is not the usual start; a development shell may forbid writing it).
+        env.pop("PYTHONDONTWRITEBYTECODE", None)
+        argv = [sys.executable, "-m", "hmi.cli", str(PROJECT)]
+        print(f"  plchmi projects/{PROJECT.name} in a {SIZE[0]}x{SIZE[1]} pseudo-terminal, "
+              f"{runs} launches after one to warm the caches; {load_line()}", flush=True)
+        first_frame(argv, markers, env)
+        times = [first_frame(argv, markers, env) for _ in range(runs)]
+    got = [t for t in times if t is not None]
+    shown = "  ".join("timeout" if t is None else f"{t:.2f}" for t in times)
+    if got:
+        median = statistics.median(got)
+        print(f"  first frame with the I/O table: median {median:.2f} s, min {min(got):.2f} s, "
+              f"max {max(got):.2f} s  ({shown})")
+        print(f"  goal < {GOAL_S} s: {'met' if median < GOAL_S else 'NOT met'} "
+              f"(median {median / GOAL_S:.1f}x the goal)")
+    else:
+        print(f"  no first frame within {TIMEOUT_S:.0f} s ({shown})")
+    imports = [import_seconds("hmi.ui.app") for _ in range(runs)]
+    print(f"  import hmi.ui.app alone (fresh interpreter): median "
+          f"{statistics.median(imports):.2f} s; interpreter alone: "
+          f"{statistics.median([import_seconds('sys') for _ in range(runs)]):.2f} s")
