@@ -69,6 +69,30 @@ def test_the_same_seed_gives_the_same_session():
     assert replayed.scans == first.scans and replayed.virtual_us == first.virtual_us
 
 
+def test_the_operator_can_press_every_key_of_the_main_screen():
+    """Every binding of the app and of its panels (the footer's keys, the I/O table's and
+    the alarm list's) is among the soak operator's keys; palette entries are drawn from
+    `palette_entries()`, all of them."""
+    from textual.widget import Widget
+
+    from hmi.soak.operator import HEAVY_KEYS, MAIN_KEYS
+    from hmi.ui.app import PlcHmiApp
+
+    widgets = [cls for cls in _subclasses(Widget) if cls.__module__.startswith("hmi.ui.")
+               and "Dialog" not in cls.__name__]
+    # their own bindings (Textual's inherited scrolling keys are not in the footer)
+    keys = {key.strip() for cls in (PlcHmiApp, *widgets) for b in cls.__dict__.get("BINDINGS", ())
+            for key in (b.key if hasattr(b, "key") else b[0]).split(",")}
+    assert {"space", "r", "m", "a", "1", "0", "x", "b", "enter"} <= keys  # (read as meant)
+    assert keys - set(MAIN_KEYS) - set(HEAVY_KEYS) == set()
+
+
+def _subclasses(cls):
+    for sub in cls.__subclasses__():
+        yield sub
+        yield from _subclasses(sub)
+
+
 # -- each invariant can fail ---------------------------------------------------------------
 
 VALVE = PROJECTS / "cispi_valve"

@@ -94,6 +94,29 @@ async def test_frames_follow_the_engine_without_extra_scans():
         assert engine(app).scan == scans  # the UI never scans by itself
 
 
+async def test_the_footer_forgets_the_keys_it_removed():
+    """Textual's footer keys each watch the footer (data_bind); the footer recomposes at
+    every change of the bindings (the focus moving, a dialog) and, unless it forgets them,
+    keeps every key it ever showed alive: memory grew without end in a soak (issue 13)."""
+    from textual.widgets._footer import FooterKey
+
+    from hmi.ui.footer import HmiFooter
+
+    app = make_app()
+    async with app.run_test(size=SIZE) as pilot:
+        await run_for(pilot, 0.1)
+        footer = app.query_one(HmiFooter)
+        shown = []
+        for _ in range(12):  # the focus goes round the panels: the bindings change
+            await press(pilot, "tab")
+            shown.append(id(footer.query(FooterKey).first()))
+        assert len(set(shown)) > 3  # it did recompose
+        keys = len(footer.query(FooterKey))
+        watchers = getattr(footer, "__watchers")
+        assert watchers and all(len(entries) <= keys for entries in watchers.values()), \
+            {name: len(entries) for name, entries in watchers.items()}
+
+
 @pytest.mark.parametrize("size", [(80, 24), (160, 48)])
 async def test_layout_keeps_status_footer_and_panels_on_screen(size):
     app = make_app()
