@@ -181,6 +181,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--since", metavar="WHEN",
                    help="only entries since WHEN: an ISO date/time, or a duration ago (2h)")
     p.add_argument("--csv", action="store_true", help="export as CSV")
+    p.add_argument("--kind", action="append", default=[], metavar="KIND",
+                   help="only entries of this kind (repeatable, or comma-separated): "
+                   + ", ".join(JOURNAL_KINDS) + "; --kind alarm is the alarm history")
     p.add_argument("--path", type=Path, metavar="FILE", help="journal file to read")
 
     from hmi.sweep import add_sweep_parser
@@ -203,6 +206,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="schedule a fault in the simulated plant")
     p.add_argument("--journal", type=Path, metavar="FILE",
                    help="journal file (default: the user's data folder, see plchmi journal)")
+    p.add_argument("--bell", action="store_true",
+                   help="ring the terminal bell when a new unacknowledged P1 alarm appears")
     plant_args(p, "keep trying")
     opcua_args(p)
 
@@ -579,6 +584,9 @@ def alarm_summary(collector: RunCollector, explain: bool) -> str:
     return "\n".join(lines)
 
 
+JOURNAL_KINDS = ("action", "alarm", "recovery", "plant", "session")
+
+
 def cmd_journal(args: argparse.Namespace) -> int:
     import csv
 
@@ -599,8 +607,15 @@ def cmd_journal(args: argparse.Namespace) -> int:
         return 1
     except JournalPathError as exc:
         raise UsageError(f"--path {exc}" if args.path else str(exc)) from None
-    entries = list(since_filter(result.entries, since))
-    columns = ("wall", "scan", "t", "type", "event", "key", "severity", "text", "message")
+    kinds = {k.strip() for text in args.kind for k in text.split(",") if k.strip()}
+    unknown = sorted(kinds - set(JOURNAL_KINDS))
+    if unknown:
+        raise UsageError(f"--kind {', '.join(unknown)}: expected "
+                         + ", ".join(JOURNAL_KINDS))
+    entries = [e for e in since_filter(result.entries, since)
+               if not kinds or e.get("type") in kinds]
+    columns = ("wall", "scan", "t", "type", "event", "key", "state", "severity", "text",
+               "message", "by")
     if args.csv:
         writer = csv.writer(sys.stdout, lineterminator="\n")
         writer.writerow(columns)
@@ -889,7 +904,7 @@ def cmd_ui(args: argparse.Namespace) -> int:
         if clock is not None:
             connect_plant(engine, args.connect_timeout)
         end = run_app(controller, injected=tuple(injections),
-                      on_fault=recorder.on_ui_fault)
+                      on_fault=recorder.on_ui_fault, bell=getattr(args, "bell", False))
         if end.reason is not None:
             print(f"plchmi: the HMI ended on an error: {end.reason}", file=sys.stderr)
         return end.status

@@ -50,11 +50,16 @@ def test_corrected_constraint_explanation_has_four_levels_from_descriptions():
     snap = run_until(ctl, lambda s: "CSs5" in s.filter.violated_names)
     e = explanation(snap, "constraint:CSs5")
     assert e.what == ("Valve V1: close order blocked — start closing only from the open "
-                      "position (CSs5)")
-    assert "`rise(C) and not fso_filter`" in e.why and "C=1 (close order); prev(C)=0" in e.why
-    assert "fso_filter=0 (Valve V1 open end switch, as the filter reads it)" in e.why
-    assert f"scan {snap.scan}" in e.why
-    assert "The filter wrote C=0 instead" in e.consequences
+                      "position")
+    # Plain words first (issue 19): the rule and the values in words, the model one level
+    # deeper, in the engineering detail.
+    assert "close order on, close order off just before, open end switch off" in e.why
+    assert "CSs5" not in e.what + e.why + e.consequences
+    assert "`rise(C) and not fso_filter`" in e.detail and "C=1 (close order); prev(C)=0" in \
+        e.detail
+    assert "fso_filter=0 (Valve V1 open end switch, as the filter reads it)" in e.detail
+    assert f"scan {snap.scan}" in e.detail and "CSs5" in e.detail
+    assert "The filter sent close order off instead" in e.consequences
     assert e.severity == "low" and e.recommended.id == "continue"
     assert [p.id for p in e.policies] == ["continue", "manual", "stop_device"]
 
@@ -69,8 +74,8 @@ def test_a_violation_that_returns_is_explained_from_its_new_onset():
     run_until(ctl, lambda s: "CSs5" not in s.filter.violated_names)
     again = run_until(ctl, lambda s: "CSs5" in s.filter.violated_names)
     e = explanation(again, "constraint:CSs5")
-    assert f"Violated since scan {again.scan}" in e.why
-    assert f"Violated since scan {first.scan}" not in e.why
+    assert f"Violated since scan {again.scan}" in e.detail
+    assert f"Violated since scan {first.scan}" not in e.detail
 
 
 def test_explanation_follows_a_policy_change_during_a_violation():
@@ -89,7 +94,7 @@ def test_project_texts_fill_their_placeholders():
     snap = run_until(ctl, lambda s: "CSc1" in s.filter.violated_names)
     e = explanation(snap, "constraint:CSc1")
     assert e.what == "Valve V1: open and close ordered together - open order blocked"
-    assert "kept the orders apart (O 1->0)" in e.consequences
+    assert "kept the orders apart (open order blocked)" in e.consequences
     assert e.severity == "medium"  # the project's choice
 
 
@@ -115,7 +120,8 @@ def test_manual_forces_are_explained_without_an_alarm():
     ctl.command(ManualOutput("O", True))
     snap = ctl.scan_once()
     e = explanation(snap, "manual")
-    assert "MANUAL" in e.what and "O=1" in e.what and not e.alarm
+    assert "MANUAL" in e.what and "open order on" in e.what and not e.alarm
+    assert "O=1" in e.detail
     assert not [a for a in snap.alarms if a.key == "manual"]
 
 
@@ -125,7 +131,8 @@ def test_fallback_and_internal_error_are_explained(tmp_path):
     ctl.engine.filter_stage.apply = lambda *args: 1 / 0
     snap = ctl.scan_once()
     e = explanation(snap, "safe_state:internal")
-    assert "internal error" in e.what and "ZeroDivisionError" in e.why and e.severity == "high"
+    assert "internal error" in e.what and "ZeroDivisionError" in e.detail
+    assert "ZeroDivisionError" not in e.why and e.severity == "high"
 
 
 def test_unknown_placeholder_is_a_load_error_with_position(tmp_path):
@@ -302,7 +309,7 @@ def test_journal_csv_export(tmp_path, capsys):
     capsys.readouterr()
     assert main(["journal", str(VALVE), "--path", str(path), "--csv"]) == 0
     lines = capsys.readouterr().out.splitlines()
-    assert lines[0] == "wall,scan,t,type,event,key,severity,text,message"
+    assert lines[0] == "wall,scan,t,type,event,key,state,severity,text,message,by"
     assert any(",alarm,raised,constraint:CSs2," in line for line in lines)
 
 

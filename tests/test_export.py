@@ -84,7 +84,7 @@ def test_a_duration_a_plc_time_cannot_hold_is_an_error_at_its_line(tmp_path, cap
     (folder / "project.yaml").write_text(text.replace("preset: 2100ms", "preset: 2100500us",
                                                       1))
     for name in ("control.yaml", "constraints.yaml", "explanations.yaml", "diagnoser.yaml",
-                 "campaign.yaml"):
+                 "campaign.yaml", "recovery.yaml"):
         (folder / name).write_text((PROJECTS / "cispi_valve" / name).read_text())
     project = load_project(folder)
     with pytest.raises(ProjectError) as exc:

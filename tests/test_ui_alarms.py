@@ -198,12 +198,23 @@ async def test_alarm_list_survives_80x24_with_many_alarms():
         assert "↓ 2 more" in region_text(app, "#alarms")
         chrono = app.query_one(Chronogram).region
         assert chrono.height >= 4  # the chronogram gave the rows, but is still there
-        footer = "\n".join(screen_text(app).splitlines()[-2:])
+        # the footer lays itself out again after the list grew (the selected alarm's line)
+        footer = await wait_until(pilot, lambda: footer_with(app, "Explain"), "the footer")
         for label in ("Ack", "Ack all", "Explain"):
             assert label in footer
+        # the selected alarm's whole first sentence is readable on its own line
+        selected = app.query_one(AlarmList).selected_alarm
+        assert "↳ " + selected.text in " ".join(region_text(app, "#alarms").split())
 
 
 # -- the explanation panel -----------------------------------------------------------------
+
+
+def footer_with(app, label: str, rows: int = 2) -> str | None:
+    """The footer's lines once they show `label` (a footer re-lays itself out a frame after
+    the screen's layout changed), else None."""
+    text = "\n".join(screen_text(app).splitlines()[-rows:])
+    return text if label in text else None
 
 
 async def test_expand_the_explanation_level_by_level():
@@ -220,7 +231,7 @@ async def test_expand_the_explanation_level_by_level():
         await press(pilot, "e")
         await settle(pilot)
         text = region_text(app, "#explain")
-        assert "▾ Why" in text and "The filter's policy is safe blocking" in text
+        assert "▾ Why" in text and "Under safe blocking the first unsafe order" in text
         await press(pilot, "e")
         await settle(pilot)
         assert "▾ Consequences" in region_text(app, "#explain")
@@ -231,6 +242,13 @@ async def test_expand_the_explanation_level_by_level():
         assert focused.policy.recommended and focused.policy.id == "reset"
         assert "★ Fault reset" in str(focused.label)
         assert panel(app).level == 4
+        await press(pilot, "e")  # the engineering detail, one level deeper
+        await settle(pilot)
+        assert panel(app).level == 5
+        panel(app).scroll_end(animate=False)
+        await settle(pilot)
+        assert "▾ Engineering detail" in region_text(app, "#explain")
+        assert "Latch filter at scan" in region_text(app, "#explain")
         await press(pilot, "e")  # folds back to the first level
         await settle(pilot)
         assert panel(app).level == 1
@@ -267,7 +285,7 @@ async def test_narrow_screen_explanation_takes_the_chronogram_place():
         await settle(pilot)
         assert panel(app).display and not app.query_one("#col-time").display
         assert "▾ Why" in region_text(app, "#explain")
-        await press(pilot, "e", "e", "e")
+        await press(pilot, "e", "e", "e", "e")  # policies, engineering detail, folded
         await settle(pilot)
         assert not panel(app).display and app.query_one("#col-time").display
 
@@ -293,7 +311,7 @@ async def test_click_a_constraint_opens_its_explanation():
         assert panel(app).key == "constraint:CSs2"
         assert app.query_one(AlarmList).selected == "constraint:CSs2"
         assert "▾ Why" in region_text(app, "#explain")
-        assert "CSs2" in region_text(app, "#explain")
+        assert "never hold the open order" in region_text(app, "#explain")
 
 
 # -- policies ------------------------------------------------------------------------------
@@ -500,7 +518,7 @@ async def test_monitor_fault_reset_preview_and_policies():
         await wait_for_screen(pilot, ConfirmDialog)
         text = screen_text(app)
         assert "will be reset: monitor label conveyor_fault" in text
-        assert "1 latched alarm clear with their latch" in text
+        assert "1 latched alarm clears with its latch" in text
         assert "stays: Robot R1 stopped by the operator" in text
         await press(pilot, "y")
         await wait_for_main(pilot)
@@ -519,7 +537,9 @@ async def test_monitor_fault_explanation_offers_its_policies():
         await open_policies(pilot, "monitor:conveyor")
         labels = [b.policy.id for b in app.query(".policy-button")]
         assert labels == ["continue", "stop_device", "reset"]
-        text = region_text(app, "#explain")
+        # the focused recommended policy is scrolled into view once laid out
+        text = await wait_until(pilot, lambda: "★ Continue" in region_text(app, "#explain")
+                                and region_text(app, "#explain"), "the recommended policy")
         assert "★ Continue" in text and "recommended" in text
 
 
@@ -546,8 +566,8 @@ async def test_every_key_stays_in_the_footer_at_80_columns_in_manual_mode():
         app.send(SetMode(True))
         await run_for(pilot, 0.1)
         footer = app.query_one("HmiFooter")
+        text = await wait_until(pilot, lambda: footer_with(app, "Run/Pause", 3), "the footer")
         assert footer.region.height == 3  # two lines are too narrow for 17 keys
-        text = "\n".join(screen_text(app).splitlines()[-3:])
         labels = [a.label for a in ACTIONS] + [b.description for b in IOPanel.BINDINGS
                                                if b.action != "button"]
         for label in labels:

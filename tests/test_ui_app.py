@@ -128,6 +128,8 @@ async def test_layout_keeps_status_footer_and_panels_on_screen(size):
             region = app.query_one(selector).region
             assert region.area > 0, selector
             assert screen.contains_region(region), selector
+        await wait_until(pilot, lambda: "Run/Pause" in "\n".join(
+            screen_text(app).splitlines()[-2:]), "the footer laid out")
         text = screen_text(app).splitlines()
         assert "AUTO" in text[0]
         assert "Run/Pause" in "\n".join(text[-2:])

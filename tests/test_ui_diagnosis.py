@@ -80,8 +80,8 @@ async def test_ambiguous_diagnosis_reads_as_such():
         assert "? ambiguous" in region_text(app, "#alarms")
         explained = flat(app, "#explain")
         assert "? AMBIGUOUS" in explained and "LATCHED" in explained
-        assert "sensor fsc stuck at 0, or valve blocked between its positions (F1, F13, " \
-            "ambiguous)" in explained
+        assert "sensor fsc stuck at 0, or valve blocked between its positions — closed end " \
+            "switch ignored, no longer driven" in explained
         assert "recommended: Check Valve V1 first" in explained
         await press(pilot, "e", "e", "e")
         await wait_until(pilot, lambda: app.focused is not None
@@ -106,7 +106,7 @@ async def test_certain_diagnosis_recommends_running_degraded():
         assert "F9 ✗ certain  unexpected fso rise" in region_text(app, "#diagnosers")
         assert "≈ reconstructed (fso_hat)" in region_text(app, "#io")
         explained = flat(app, "#explain")
-        assert "unexpected fso rise (0 to 1) (F9) — fso on its estimate" in explained
+        assert "unexpected fso rise (0 to 1) — open end switch ignored" in explained
         assert "AMBIGUOUS" not in explained
         app.explain("diagnosis:V1", open_level=4)
         await wait_until(pilot, lambda: app.focused is not None
@@ -128,7 +128,8 @@ async def test_reset_re_synchronises_a_diagnoser_only_when_the_io_allows_it():
         await wait_for_screen(pilot, ConfirmDialog)
         text = screen_text(app)
         assert "stays: diagnoser V1 in A1 {F1, F13}" in text
-        assert "fsc=0, fso=0, C=0, O=0 match no normal" in text
+        assert "reset needs Valve V1 back at a known" in text
+        assert "g: start recovery" in text  # the way back is offered (tests/test_recovery.py)
         await press(pilot, "y")
         await wait_for_main(pilot)
         assert engine(app).diagnosis.runtimes[0].state.name == "A1"
@@ -143,7 +144,7 @@ async def test_reset_re_synchronises_a_diagnoser_only_when_the_io_allows_it():
         text = screen_text(app)
         assert "will be reset: diagnoser V1 in S9 {F9}" in text
         assert "re-synchronised to N5 on fsc=0, fso=1, C=0, O=0" in text
-        assert "1 latched alarm clear with their latch" in text
+        assert "1 latched alarm clears with its latch" in text
         await press(pilot, "y")
         await wait_for_main(pilot)
         assert engine(app).diagnosis.runtimes[0].state.name == "N5"

@@ -95,7 +95,7 @@ async def test_the_level_opened_is_scrolled_into_view_with_a_scroll_hint(size):
             # on the panel's first line, or scrolled as far as it goes (all of it shown)
             assert heading in lines[1] or (
                 heading in text and panel.scroll_y == panel.max_scroll_y), (level, text)
-            assert f"level {level}/4" in lines[-1] and "↑↓ scroll" in lines[-1]
+            assert f"level {level}/5" in lines[-1] and "↑↓ scroll" in lines[-1]
         # the arrows scroll it (the focus is on the recommended policy, inside it)
         top = panel.scroll_y
         await press(pilot, "up")
@@ -136,7 +136,7 @@ async def test_no_level_shown_beside_no_alarm_to_explain():
     async with app.run_test(size=(120, 36)) as pilot:
         await run_for(pilot, 8.7)
         await press(pilot, "e", "e", "e")
-        assert "level 4/4" in region_text(app, "#explain")
+        assert "level 4/5" in region_text(app, "#explain")
         await press(pilot, "m")  # manual, nothing requested: the program's orders stop
         await wait_for_screen(pilot, ConfirmDialog)
         await press(pilot, "y")

@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from hmi.project.injection import Injection
+from hmi.timefmt import format_duration
 
 
 @dataclass(frozen=True)
@@ -102,9 +103,44 @@ class ChoosePolicy:
     policy: str  # the policy's id
 
 
+@dataclass(frozen=True)
+class StartRecovery:
+    """Enter recovery mode and run a declared recovery procedure (hmi.project.recovery)."""
+
+    procedure: str
+
+
+@dataclass(frozen=True)
+class EndRecovery:
+    """Leave recovery mode: automatic operation, the control law from its initial steps."""
+
+
+@dataclass(frozen=True)
+class Shelve:
+    """Shelve an alarm (ISA-18.2 §11, OPC UA Part 9): hidden from the list, still journalled,
+    back by itself after `duration_us`, or (None) one-shot: back once its condition clears."""
+
+    key: str
+    duration_us: int | None = None
+
+
+@dataclass(frozen=True)
+class Unshelve:
+    key: str
+
+
+@dataclass(frozen=True)
+class CommentAlarm:
+    """An operator's comment on an alarm, for the journal and the next shift."""
+
+    key: str
+    text: str
+
+
 Command = (Pause | Resume | StepScans | SetSpeed | SetMode | ManualOutput | FaultReset
            | SetPolicy | InjectFault | RepairFaults | SetInput | Acknowledge | StopDevice
-           | ReleaseDevice | ChoosePolicy)
+           | ReleaseDevice | ChoosePolicy | StartRecovery | EndRecovery | Shelve | Unshelve
+           | CommentAlarm)
 
 
 @dataclass(frozen=True)
@@ -154,4 +190,15 @@ def describe(command: Command) -> str:
             return f"release device {d}"
         case ChoosePolicy(key=k, policy=p):
             return f"choose policy {p} for {k}"
+        case StartRecovery(procedure=p):
+            return f"start recovery {p}"
+        case EndRecovery():
+            return "leave recovery mode"
+        case Shelve(key=k, duration_us=d):
+            return (f"shelve alarm {k} once (until it clears)" if d is None
+                    else f"shelve alarm {k} for {format_duration(d)}")
+        case Unshelve(key=k):
+            return f"unshelve alarm {k}"
+        case CommentAlarm(key=k):
+            return f"comment on alarm {k}"
     return repr(command)

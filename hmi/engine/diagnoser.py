@@ -448,6 +448,15 @@ class DiagnosisStage:
             rt.current, rt.since_us, rt.since_scan, rt.via, rt.record = (
                 current, since_us, since_scan, via, record)
 
+    def resynchronise(self, devices: set[str], now: int, scan: int, why: str) -> None:
+        """The devices' diagnosers in a normal state go back to their initial, synchronising
+        state (a recovery is about to move the device in ways no normal state describes);
+        faulty decisions stay until a fault reset."""
+        for rt in self.runtimes:
+            if rt.spec.device in devices and not rt.state.faulty and rt.current != rt.initial:
+                rt.enter(rt.initial, now, scan, why)
+                self.dirty = True
+
     def reset(self, image: Image, history: History, now: int, scan: int) -> list[str]:
         """Fault reset: re-synchronise every faulty diagnoser, or say why not."""
         if self.mode == "off":

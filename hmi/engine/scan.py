@@ -24,6 +24,7 @@ from typing import Any, NamedTuple
 from hmi.engine.commands import (
     Command,
     CommandResult,
+    EndRecovery,
     FaultReset,
     InjectFault,
     ManualOutput,
@@ -32,6 +33,7 @@ from hmi.engine.commands import (
     SetInput,
     SetMode,
     SetPolicy,
+    StartRecovery,
     StopDevice,
 )
 from hmi.engine.control import ControlRuntime
@@ -40,6 +42,7 @@ from hmi.engine.filter import FilterReport, SafetyFilter
 from hmi.engine.filter_stage import FilterStage
 from hmi.engine.layout import Layout
 from hmi.engine.monitors import MonitorState, monitor_stage
+from hmi.engine.recovery import NO_RECOVERY, recovery_stage
 from hmi.engine.snapshot import LatchReason, Snapshot
 from hmi.engine.stages import Control, InputScan, Memory, OutputScan, Reconstruction
 from hmi.errors import UsageError
@@ -47,6 +50,7 @@ from hmi.logic.expr import Expr, Image, max_depth
 from hmi.plant.base import Plant
 from hmi.project.diagnosers import layout_names
 from hmi.project.model import POLICIES, Project
+from hmi.project.recovery import recoveries_of
 
 NO_DIAGNOSIS = Diagnosis((), None, (), (), ())
 
@@ -68,6 +72,7 @@ class EngineState(NamedTuple):
     memory: tuple[Any, ...]
     control: Any
     diagnosis: Any
+    recovery: Any = None
 
 
 MONITOR_POLICY_REFUSED = ("the monitor policy passes unsafe orders through to a real plant; "
@@ -119,6 +124,11 @@ class Engine:
             self.filter, self.diagnosis.mask_flags if self.diagnosis else {})
         self.output_scan = OutputScan(plant, lay)  # 7
         self.monitors = monitor_stage(project, lay)  # 8 (None: no monitors)
+        # Recovery procedures (replace stages 5-6's law and constraints while one runs).
+        self.recovery = recovery_stage(project, lay, self.safe_vector,
+                                       (solver or project.solver,
+                                        solver_budget or project.solver_budget),
+                                       self.filter_stage.mask_flags)
         # The history is as deep as the deepest expression of any stage reads.
         depth = max((max_depth(expr) for expr in _all_exprs(project)), default=1)
         for stage in (self.diagnosis, self.monitors):
@@ -144,10 +154,13 @@ class Engine:
     # -- commands ----------------------------------------------------------------------------
     def apply(self, command: Command) -> CommandResult:
         """Apply an operator command now; its effect on outputs shows at the next scan."""
-        if self.observe and isinstance(command, SetMode | ManualOutput | SetPolicy):
+        if self.observe and isinstance(command, SetMode | ManualOutput | SetPolicy
+                                       | StartRecovery):
             return CommandResult.refused("read-only mode: nothing is written to the plant and "
                                          "the filter only detects")
         match command:
+            case SetMode() if self.mode == "recovery":
+                return CommandResult.refused("in recovery mode: leave recovery first")
             case SetMode(manual=True):
                 if self.mode == "manual":
                     return CommandResult.refused("already in manual mode")
@@ -176,6 +189,10 @@ class Engine:
                 return CommandResult.ok(f"{name} requested {'on' if value else 'off'}")
             case FaultReset():
                 return self.fault_reset()
+            case StartRecovery(procedure=name):
+                return self._start_recovery(name)
+            case EndRecovery():
+                return self._end_recovery()
             case SetPolicy(policy=policy):
                 if policy not in POLICIES:
                     return CommandResult.refused(f"unknown policy {policy!r}")
@@ -234,6 +251,47 @@ class Engine:
                 return CommandResult.ok(f"SIMULATION: input {name} {'on' if value else 'off'}")
         return CommandResult.refused(f"the engine does not handle {command!r}")
 
+    def _start_recovery(self, name: str) -> CommandResult:
+        stage = self.recovery
+        if stage is None:
+            return CommandResult.refused("this project declares no recovery procedure")
+        if name not in stage.procedures:
+            return CommandResult.refused(f"no recovery procedure {name!r}; the project has "
+                                         + ", ".join(stage.procedures))
+        if self.mode == "recovery" and stage.status == "running" and stage.active:
+            return CommandResult.refused(f"recovery {stage.active.spec.name} is running: "
+                                         "leave recovery first")
+        if self.latched:
+            return CommandResult.refused(
+                "the outputs are held safe (" + "; ".join(r.detail for r in self.latched)
+                + "): a fault reset first, then the recovery")
+        spec = stage.procedures[name].spec
+        stopped = sorted(d for d in self.stopped_devices
+                         if set(self.devices[d]) & set(spec.outputs))
+        if stopped:
+            return CommandResult.refused(f"{', '.join(stopped)} stopped by the operator: "
+                                         "release it first")
+        devices = {v.device for v in self.project.outputs
+                   if v.name in spec.outputs and v.device}
+        if self.diagnosis is not None:
+            self.diagnosis.resynchronise(devices, self.now, self.scan,
+                                         f"recovery {name} started: re-synchronising")
+        self.mode = "recovery"
+        self.manual = {}
+        stage.start(name, self.now)
+        return CommandResult.ok(
+            f"RECOVERY mode: {spec.description}; only {', '.join(spec.outputs)} move, "
+            "every other output is held safe, and its own constraints still filter them")
+
+    def _end_recovery(self) -> CommandResult:
+        if self.mode != "recovery" or self.recovery is None:
+            return CommandResult.refused("not in recovery mode")
+        reached = self.recovery.stop()
+        self.mode = "auto"
+        self.control.reset(self.image, self.now)
+        return CommandResult.ok(f"recovery {reached}; automatic mode: the control program "
+                                "starts again from its initial steps")
+
     def limit_search_time(self, wall_us: float | None) -> None:
         """Live runs only: the corrector's search also stops after `wall_us` of wall time, a
         safety net on a loaded machine (a headless run never sets it: traces depend on the
@@ -282,7 +340,8 @@ class Engine:
             self.started, tuple(self.latched), self.mode, tuple(self.manual.items()),
             self.policy, frozenset(self.stopped_devices), self.input_scan.readback,
             self.memory.capture(), self.control.capture(),
-            self.diagnosis.capture() if self.diagnosis is not None else None)
+            self.diagnosis.capture() if self.diagnosis is not None else None,
+            self.recovery.capture() if self.recovery is not None else None)
 
     def restore(self, state: EngineState) -> None:
         self.image[:] = state.image
@@ -298,6 +357,8 @@ class Engine:
         self.control.restore(state.control)
         if self.diagnosis is not None and state.diagnosis is not None:
             self.diagnosis.restore(state.diagnosis)
+        if self.recovery is not None and state.recovery is not None:
+            self.recovery.restore(state.recovery)
 
     def latch_safe(self, source: str, detail: str) -> None:
         if not any(r.source == source and r.detail == detail for r in self.latched):
@@ -352,19 +413,30 @@ class Engine:
                 diagnosis = self.diagnosis.step(image, hist, now, self.scan)
             # 4. reconstruction
             self.reconstruction.apply(image, diagnosis.routes)
-            # 5. functional control
+            recovery = self.recovery
+            if recovery is not None:
+                recovery.check_needed(image, hist, now)
+            # 5. functional control (or the operator's requests, or a recovery procedure)
+            filter_stage, mask = self.filter_stage, diagnosis.mask
             if self.observe:
                 fov = self.input_scan.readback
+            elif self.mode == "recovery" and recovery is not None:
+                self.control_stage.fov(image, hist, now, {})  # the law's memories evolve
+                fov = recovery.fov(image, hist, now)
+                filter_stage = recovery.filter_stage or filter_stage
+                mask = recovery.unmask(mask)
             else:
                 fov = self.control_stage.fov(image, hist, now, self.manual
                                              if self.mode == "manual" else None)
-                if self._stop_mask:
-                    fov = tuple(self.safe_vector[k] if k in self._stop_mask else value
-                                for k, value in enumerate(fov))
-            # 6. filter, given the diagnosers' mask
+            if self._stop_mask and not self.observe:
+                fov = tuple(self.safe_vector[k] if k in self._stop_mask else value
+                            for k, value in enumerate(fov))
+            # 6. filter, given the diagnosers' mask (a recovery is never unfiltered)
+            policy = self.policy
+            if self.mode == "recovery" and policy == "monitor":
+                policy = "correct"
             started = time.perf_counter()
-            decision = self.filter_stage.apply(image, hist, fov, self.policy, bool(self.latched),
-                                         diagnosis.mask)
+            decision = filter_stage.apply(image, hist, fov, policy, bool(self.latched), mask)
             filter_us = (time.perf_counter() - started) * 1e6
             if decision.latch is not None:
                 self.latch_safe("filter", decision.latch)
@@ -406,6 +478,15 @@ class Engine:
             self.history.append(self.image.copy())
         self.started = True
 
+    def _masked(self, diagnosis: Diagnosis) -> tuple[str, ...]:
+        """The outputs the diagnosers' mask holds at 0 (a running recovery lifts it from the
+        outputs it drives)."""
+        recovery = self.recovery
+        if self.mode != "recovery" or recovery is None or recovery.active is None:
+            return diagnosis.masked
+        driven = recovery.active.spec.outputs
+        return tuple(o for o in diagnosis.masked if o not in driven)
+
     def _held_outputs(self) -> tuple[bool, ...]:
         """Outputs of a scan whose inputs are unknown: safe; observed ones as last seen."""
         if self.observe:
@@ -433,8 +514,10 @@ class Engine:
             diagnosers=diagnosers,
             monitors=monitors,
             reconstructed=diagnosis.reconstructed,
-            masked=diagnosis.masked if not monitor_policy else (),
+            masked=self._masked(diagnosis) if not monitor_policy else (),
             stopped_devices=tuple(sorted(self.stopped_devices)),
+            recovery=(self.recovery.state(self.now) if self.recovery is not None
+                      else NO_RECOVERY),
             error=error, scan_wall_us=(time.perf_counter() - wall) * 1e6,
             filter_wall_us=filter_us,
         )
@@ -445,6 +528,8 @@ class _InputsUnknown(Exception):
 
 
 def _all_exprs(project: Project) -> Iterator[Expr]:
+    for procedure in recoveries_of(project):
+        yield from procedure.exprs
     for t in project.timers:
         yield t.input
     for o in project.observers:

@@ -15,6 +15,7 @@ from hmi.engine.diagnoser import DiagnoserState
 from hmi.engine.filter import FilterReport
 from hmi.engine.layout import Layout
 from hmi.engine.monitors import MonitorState
+from hmi.engine.recovery import NO_RECOVERY, RecoveryState
 from hmi.logic.timers import TimerState
 from hmi.plant.base import PlantEvent, PlantStatus
 
@@ -41,7 +42,7 @@ class Snapshot(NamedTuple):
     fired: tuple[int, ...]  # GRAFCET transitions fired this scan
     timer_elapsed: tuple[int, ...]  # ET of each timer (its Q is in `values`)
     control: str  # the control variant running
-    mode: str  # "auto" or "manual"
+    mode: str  # "auto", "manual" or "recovery"
     manual: tuple[tuple[str, bool], ...]  # manual requests in effect
     policy: str
     latched: tuple[LatchReason, ...]
@@ -60,7 +61,9 @@ class Snapshot(NamedTuple):
     explanations: tuple[Any, ...] = ()
     alarms: tuple[Any, ...] = ()
     alarm_events: tuple[Any, ...] = ()  # alarm transitions during this scan (for the journal)
+    shelved: tuple[Any, ...] = ()  # (Alarm, Shelf) of the alarms shelved, not listed
     stopped_devices: tuple[str, ...] = ()  # devices the operator stopped
+    recovery: RecoveryState = NO_RECOVERY  # the recovery procedure running, and those needed
     error: str | None = None  # an internal error caught during this scan
     scan_wall_us: float = 0.0  # measured, not deterministic
     filter_wall_us: float = 0.0  # the filter stage's share of it (plchmi bench)
@@ -101,20 +104,22 @@ class Snapshot(NamedTuple):
         return bool(self.latched)
 
 
-_EXPLANATIONS, _ALARMS, _ALARM_EVENTS, _ERROR, _SCAN_WALL = (
+_EXPLANATIONS, _ALARMS, _ALARM_EVENTS, _SHELVED, _ERROR, _SCAN_WALL = (
     Snapshot._fields.index(name)
-    for name in ("explanations", "alarms", "alarm_events", "error", "scan_wall_us"))
+    for name in ("explanations", "alarms", "alarm_events", "shelved", "error",
+                 "scan_wall_us"))
 
 
 def explained(core: Snapshot, explanations: tuple[Any, ...], alarms: tuple[Any, ...],
-              alarm_events: tuple[Any, ...], error: str | None, scan_wall_us: float
-              ) -> Snapshot:
+              alarm_events: tuple[Any, ...], error: str | None, scan_wall_us: float,
+              shelved: tuple[Any, ...] = ()) -> Snapshot:
     """`core` with the session's fields set: ``core._replace(...)`` without its cost (it
     runs once per scan, and _replace builds a dict and maps every field)."""
     fields = list(core)
     fields[_EXPLANATIONS] = explanations
     fields[_ALARMS] = alarms
     fields[_ALARM_EVENTS] = alarm_events
+    fields[_SHELVED] = shelved
     fields[_ERROR] = error
     fields[_SCAN_WALL] = scan_wall_us
     return tuple.__new__(Snapshot, fields)

@@ -21,6 +21,14 @@ refused manual order on the same constraint, reads "low"). While the alarm is ac
 unacknowledged its priority keeps the highest it had: an operator who saw a P1 must not find
 it quietly demoted to P3 before acknowledging it. It starts afresh only once it has left the
 list (acknowledged and cleared).
+
+**Shelving** (ISA-18.2 §11, OPC UA Part 9 Shelving): the operator takes an alarm out of the
+list for a while — timed (back after a duration, at most MAX_SHELVE_US) or one-shot (back once
+its condition clears) — without silencing its record: a shelved alarm keeps its states and
+every transition is journalled; it comes back by itself (``unshelved``, with why). A latched
+alarm (safe blocking, a diagnoser's fault) cannot be shelved, and one that latches while
+shelved comes back at once: a safety alarm is never hidden. ``Acknowledge all`` leaves shelved
+alarms alone. **Comments**: the operator's note on an alarm, journalled and kept on it.
 """
 
 from __future__ import annotations
@@ -29,13 +37,14 @@ from collections import deque
 from dataclasses import dataclass, field, replace
 
 from hmi.explain.model import Explanation
-from hmi.timefmt import seconds
+from hmi.timefmt import format_duration, seconds
 
 ACTIVE_UNACK = "active-unacknowledged"
 ACTIVE_ACK = "active-acknowledged"
 CLEARED_UNACK = "cleared-unacknowledged"
 CHATTER_RETURNS = 3
 CHATTER_WINDOW_US = 60_000_000
+MAX_SHELVE_US = 8 * 3_600_000_000  # OPC UA MaxTimeShelved: a shelf is never forever
 PRIORITY = {"high": 1, "medium": 2, "low": 3}
 LIST_ORDER = {ACTIVE_UNACK: 0, CLEARED_UNACK: 1, ACTIVE_ACK: 2}
 
@@ -60,6 +69,7 @@ class Alarm:
     chattering: bool = False
     latched: bool = False
     explanation: Explanation | None = field(default=None, compare=False)
+    comment: str = ""  # the operator's last comment on it
 
     @property
     def active(self) -> bool:
@@ -91,8 +101,22 @@ class AlarmEvent:
     note: str = ""  # what the state alone does not say (a held alarm's real clear time)
 
 
+@dataclass(frozen=True)
+class Shelf:
+    """How an alarm is shelved: until a time, or (None) once, until its condition clears."""
+
+    since_us: int
+    until_us: int | None
+
+    def describe(self) -> str:
+        if self.until_us is None:
+            return "once, until its condition clears"
+        return f"for {format_duration(self.until_us - self.since_us)}"
+
+
 class AlarmManager:
     def __init__(self) -> None:
+        self.shelved: dict[str, Shelf] = {}
         self.alarms: dict[str, Alarm] = {}
         self.returns: dict[str, deque[int]] = {}
         self.clear_since: dict[str, int] = {}
@@ -148,6 +172,63 @@ class AlarmManager:
                     continue
                 note = f"condition clear since {seconds(since)} s (held while chattering)"
             events.extend(self._clear(alarm, scan, now, note))
+        if self.shelved:
+            events.extend(self._expire_shelves(scan, now))
+        return events
+
+    # -- shelving and comments -----------------------------------------------------------------
+    def shelve(self, key: str, duration_us: int | None, scan: int, now: int
+               ) -> tuple[list[AlarmEvent], str]:
+        """Shelve one alarm; (events, "") or ([], why it is refused)."""
+        alarm = self.alarms.get(key)
+        if alarm is None:
+            return [], f"no alarm {key} in the list"
+        if alarm.latched and alarm.active:
+            return [], ("a latched safety alarm cannot be shelved: it goes with a fault reset "
+                        "once its cause is gone")
+        if key in self.shelved:
+            return [], f"already shelved {self.shelved[key].describe()}"
+        if duration_us is not None and not 0 < duration_us <= MAX_SHELVE_US:
+            return [], "a shelving time is longer than zero and at most 8 h"
+        if duration_us is None and not alarm.active:
+            return [], "its condition has already cleared: acknowledge it instead"
+        shelf = Shelf(now, None if duration_us is None else now + duration_us)
+        self.shelved[key] = shelf
+        self._listed = None
+        return [self._event(alarm, "shelved", scan, now, shelf.describe())], ""
+
+    def unshelve(self, key: str, scan: int, now: int, why: str = "by the operator"
+                 ) -> list[AlarmEvent]:
+        if self.shelved.pop(key, None) is None:
+            return []
+        self._listed = None
+        alarm = self.alarms.get(key)
+        if alarm is None:
+            return [AlarmEvent(key, "unshelved", "normal", "", "", scan, now, 0, why)]
+        return [self._event(alarm, "unshelved", scan, now, why)]
+
+    def comment(self, key: str, text: str, scan: int, now: int) -> list[AlarmEvent]:
+        alarm = self.alarms.get(key)
+        if alarm is None:
+            return []
+        self._put(key, replace(alarm, comment=text))
+        return [self._event(alarm, "comment", scan, now, text)]
+
+    def _expire_shelves(self, scan: int, now: int) -> list[AlarmEvent]:
+        events = []
+        for key, shelf in list(self.shelved.items()):
+            alarm = self.alarms.get(key)
+            if alarm is None:
+                why = "returned to normal"
+            elif alarm.latched and alarm.active:
+                why = "latched: a safety alarm is never hidden"
+            elif shelf.until_us is not None and now >= shelf.until_us:
+                why = "shelving time over"
+            elif shelf.until_us is None and not alarm.active:
+                why = "condition cleared: one-shot shelving over"
+            else:
+                continue
+            events.extend(self.unshelve(key, scan, now, why))
         return events
 
     def _clear(self, alarm: Alarm, scan: int, now: int, note: str = "") -> list[AlarmEvent]:
@@ -162,7 +243,7 @@ class AlarmManager:
 
     def acknowledge(self, key: str | None, scan: int, now: int) -> list[AlarmEvent]:
         """Acknowledge one alarm (by key) or all (None)."""
-        keys = [key] if key is not None else list(self.alarms)
+        keys = [key] if key is not None else [k for k in self.alarms if k not in self.shelved]
         events = []
         for k in keys:
             alarm = self.alarms.get(k)
@@ -188,13 +269,18 @@ class AlarmManager:
         del self.alarms[key]
         self._listed = None
 
+    def shelved_listed(self) -> tuple[tuple[Alarm, Shelf], ...]:
+        """The shelved alarms with their shelves (for the HMI: count, unshelve)."""
+        return tuple((self.alarms[k], s) for k, s in self.shelved.items() if k in self.alarms)
+
     def listed(self) -> tuple[Alarm, ...]:
         """The alarm list: unacknowledged first — active ones, then those whose condition
         already cleared (they only wait for the acknowledgement) — then acknowledged; in each
         group by priority, newest first. Sorted again only after a change (it is asked for
         every scan)."""
         if self._listed is None:
-            self._listed = tuple(sorted(self.alarms.values(),
+            shown = (a for a in self.alarms.values() if a.key not in self.shelved)
+            self._listed = tuple(sorted(shown,
                                         key=lambda a: (LIST_ORDER.get(a.state, 1), a.priority,
                                                        -a.changed_us)))
         return self._listed

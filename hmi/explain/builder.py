@@ -18,8 +18,11 @@ from hmi.engine.snapshot import Snapshot
 from hmi.explain.diagnoses import diagnosis_explanations
 from hmi.explain.model import Explanation, Policy
 from hmi.explain.monitors import monitor_explanations
+from hmi.explain.plain import PlainNames, lower_first
+from hmi.explain.recovery import recovery_explanations
 from hmi.project.diagnosers import diagnosers_of
 from hmi.project.model import Project
+from hmi.project.recovery import recoveries_of
 from hmi.project.texts import ProjectTexts, TextSpec, fill
 from hmi.timefmt import seconds
 
@@ -28,10 +31,6 @@ from hmi.timefmt import seconds
 class _Onset:
     scan: int
     time_us: int
-
-
-def _lower_first(text: str) -> str:
-    return text[:1].lower() + text[1:] if text else text
 
 
 class ExplanationBuilder:
@@ -46,11 +45,15 @@ class ExplanationBuilder:
         self.devices = {v.name: (v.device or project.name)
                         for v in (*project.inputs, *project.outputs)}
         self.describe = project.describe
-        self.constraints = {c.name: c for c in project.constraints}
+        # The project's constraints and the recovery procedures' own (a recovery's filter
+        # reports them too).
+        self.constraints = {c.name: c for c in (*project.constraints, *(
+            c for r in recoveries_of(project) for c in r.constraints))}
         self._last_constraints: tuple[tuple, tuple[Explanation, ...]] | None = None
         # Devices the operator can stop (those with outputs), and the diagnosers' models.
         self.stoppable = {v.device for v in project.outputs if v.device}
         self.diagnosers = {spec.name: spec for spec in diagnosers_of(project)}
+        self.plain = PlainNames(project)
 
     # -- public ------------------------------------------------------------------------------
     def build(self, snap: Snapshot) -> tuple[Explanation, ...]:
@@ -70,6 +73,7 @@ class ExplanationBuilder:
         # The situations of the stages that have their own explanations.
         found.extend(monitor_explanations(self, snap))
         found.extend(diagnosis_explanations(self, snap))
+        found.extend(recovery_explanations(self, snap))
         keys = {e.key for e in found}
         for key in list(self.onsets):
             if key not in keys:
@@ -94,7 +98,7 @@ class ExplanationBuilder:
     def apply_texts(self, spec: TextSpec, defaults: dict, values: dict) -> dict:
         """The four levels, each from the project's text when it has one, else the default."""
         out = dict(defaults)
-        for level in ("what", "why", "consequences"):
+        for level in ("what", "why", "consequences", "detail"):
             text = getattr(spec, level)
             if text:
                 out[level] = fill(text, values)
@@ -119,6 +123,10 @@ class ExplanationBuilder:
             if name in self.devices:
                 return self.devices[name]
         return self.project.name
+
+    def devices_of(self, names) -> set[str]:
+        """The devices these variables belong to."""
+        return {self.devices[n] for n in names if n in self.devices}
 
     def short(self, name: str) -> str:
         """A variable's description without its device's name ("open order", not "Valve V1
@@ -197,6 +205,7 @@ class ExplanationBuilder:
         return out
 
     def _action_text(self, report, changed) -> str:
+        """What the filter did, in words: 'close order blocked', 'open order kept on'."""
         if report.policy == "monitor":
             return "NOT corrected (monitor policy)"
         if report.safe_state:
@@ -205,9 +214,9 @@ class ExplanationBuilder:
             return "corrected"
         parts = []
         for change in changed:
-            desc = _lower_first(self.short(change.output))
+            desc = self.plain.name(change.output)
             if change.how == "masked":
-                parts.append(f"{desc} withdrawn by {', '.join(change.by)}")
+                parts.append(f"{desc} withdrawn (the device is suspected faulty)")
             elif change.written:
                 parts.append(f"{desc} kept on")
             else:
@@ -217,18 +226,28 @@ class ExplanationBuilder:
     def _constraint(self, snap: Snapshot, report, violation, constraint, changed,
                     onset) -> Explanation:
         device = self.device_of(constraint.outputs)
-        rule = constraint.description or f"the constraint {constraint.expr.source} must stay false"
+        rule = constraint.description or "a safety rule of the project"
+        if device != self.project.name and rule.lower().startswith(device.lower()):
+            rule = rule[len(device):].strip(" :-—,")  # "Valve V1: never ..." in a component
+        rule = lower_first(rule)
         quoted = f"\u201c{rule}\u201d"
         action = self._action_text(report, changed)
         source = "the operator's manual request" if snap.mode == "manual" else \
             "the control program"
         values = self.literal_values(violation.literals)
-        since = (f"since scan {onset.scan} ({seconds(onset.time_us)} s)")
-        why = (f"Safety constraint {constraint.name} ({constraint.kind}), "
-               f"`{constraint.expr.source}`, was true on {source}'s outputs at scan "
-               f"{snap.scan} ({seconds(snap.time_us)} s): {values}. Violated {since}.")
+        asked = self.plain.literals(violation.literals)
+        why = (f"{source[:1].upper()}{source[1:]} asked for this while {asked}: together they "
+               f"break the rule {quoted}. Since {seconds(onset.time_us)} s.")
+        detail = (f"Safety constraint {constraint.name} ({constraint.kind}), "
+                  f"`{constraint.expr.source}`, was true on {source}'s outputs at scan "
+                  f"{snap.scan} ({seconds(snap.time_us)} s): {values}. Violated since scan "
+                  f"{onset.scan} ({seconds(onset.time_us)} s).")
+        if changed:
+            detail += " Filter: " + ", ".join(
+                f"{c.output} {int(c.requested)}->{int(c.written)} ({c.how}"
+                + (f", by {', '.join(c.by)}" if c.by else "") + ")" for c in changed) + "."
         if report.policy == "monitor":
-            consequences = (f"The unsafe vector WAS written, breaking the rule {quoted}: "
+            consequences = (f"The unsafe orders WERE sent, breaking the rule {quoted}: "
                             "damage is possible. The monitor policy only reports; nothing "
                             "protects the plant.")
             severity = "high"
@@ -238,7 +257,7 @@ class ExplanationBuilder:
                        cmd.SetPolicy("correct"), True),
                 self.policy_stop(device), self.policy_manual())
         elif report.policy == "block" or report.safe_state:
-            consequences = (f"Written as asked, this vector would break the rule {quoted}. "
+            consequences = (f"Sent as asked, these orders would break the rule {quoted}. "
                             "Safe blocking holds every output at its safe value until a fault "
                             "reset: the cell is stopped, safely.")
             severity = "medium"
@@ -247,34 +266,35 @@ class ExplanationBuilder:
                                   "(check it first: it asked for an unsafe order)", True),
                 self.policy_manual(), self.policy_stop(device))
         elif any(c.how == "masked" for c in changed):
-            flags = ", ".join(sorted({f for c in changed if c.how == "masked" for f in c.by}))
-            withdrawn = ", ".join(c.output for c in changed if c.how == "masked")
-            consequences = (f"A diagnoser suspects a fault of {device} and holds its orders at 0 "
-                            f"({flags}). That withdraws {withdrawn} although the rule {quoted} "
-                            "asks to keep it: the mask has the last word, because a device "
-                            "that may be blocked must not be driven. See the diagnosis for what "
-                            "to do.")
+            withdrawn = self.plain.orders(c.output for c in changed if c.how == "masked")
+            consequences = (f"The diagnosis suspects a fault of {device} and holds its orders "
+                            f"off. That withdraws the {withdrawn} although the rule {quoted} "
+                            "asks to keep it: a device that may be blocked must not be "
+                            "driven. See the diagnosis for what to do.")
             severity = "low"
+            flags = ", ".join(sorted({f for c in changed if c.how == "masked" for f in c.by}))
+            detail += f" Masked by {flags} (000 eq. 9-10): the mask wins over the filter."
             policies = (
-                self.policy_continue("leave the orders masked until the diagnosis is "
+                self.policy_continue("leave the orders withdrawn until the diagnosis is "
                                      "cleared by a fault reset", True),
                 self.policy_manual())
         else:
-            written = ", ".join(f"{c.output}={int(c.written)}"
-                                for c in changed) or "a safe vector"
-            note = f" {report.note}." if report.note and constraint.kind == "combined" else ""
-            consequences = (f"Written as asked, this vector would break the rule {quoted}. "
-                            f"The filter wrote {written} instead (Hamming distance "
-                            f"{report.distance} from what was asked).{note} The program is "
-                            "not told and keeps asking while the situation lasts; the cell "
-                            "continues safely.")
+            written = ", ".join(f"{self.plain.name(c.output)} {'on' if c.written else 'off'}"
+                                for c in changed) or "safe orders"
+            consequences = (f"Sent as asked, these orders would break the rule {quoted}. "
+                            f"The filter sent {written} instead, the smallest change that "
+                            "keeps every rule. The program is not told and keeps asking while "
+                            "the situation lasts; the cell continues safely.")
             severity = "low"
+            detail += f" Hamming distance {report.distance} from what was asked."
+            if report.note and constraint.kind == "combined":
+                detail += f" {report.note}."
             policies = (
                 self.policy_continue("let the filter keep correcting this order", True),
                 self.policy_manual(), self.policy_stop(device))
-        defaults = {"what": f"{device}: {action} — {_lower_first(rule)} ({constraint.name})",
+        defaults = {"what": f"{device}: {action} — {rule}",
                     "why": why, "consequences": consequences, "policies": policies,
-                    "severity": severity, "alarm": True}
+                    "severity": severity, "alarm": True, "detail": detail}
         fields = {"device": device, "time": seconds(snap.time_us), "scan": snap.scan,
                   "since_time": seconds(onset.time_us), "since_scan": onset.scan,
                   "action": action, "name": constraint.name, "expr": constraint.expr.source,
@@ -287,7 +307,8 @@ class ExplanationBuilder:
         level = self.apply_texts(spec, defaults, fields)
         return Explanation(f"constraint:{constraint.name}", "constraint", level["severity"],
                            device, level["what"], level["why"], level["consequences"],
-                           level["policies"], onset.scan, onset.time_us, level["alarm"])
+                           level["policies"], onset.scan, onset.time_us, level["alarm"],
+                           detail=level["detail"])
 
     # -- safe state, fallback, plant, manual -------------------------------------------------
     def _latch(self, snap: Snapshot, reason) -> Explanation:
@@ -296,34 +317,49 @@ class ExplanationBuilder:
         self.onsets.setdefault(key, onset)
 
         def make() -> Explanation:
+            at = seconds(reason.time_us)
+            detail = f"Latch {reason.source} at scan {reason.scan} ({at} s): {reason.detail}."
             if reason.source == "plant" and reason.detail.startswith("plant error"):
                 # The device answered, refusing a request (a Modbus exception response).
                 named = re.search(r"answered (.+?) \(exception", reason.detail)
                 refusal = named.group(1) if named else "an error"
                 what = f"{self.project.name}: the plant answered {refusal} — outputs held safe"
-                why = (f"{reason.detail} (scan {reason.scan}, {seconds(reason.time_us)} s). "
-                       "The inputs of that scan could not all be read.")
-                consequences = ("The safe output vector is written while the device refuses; "
+                why = (f"At {at} s the plant refused a request instead of answering it: the "
+                       "inputs could not all be read.")
+                consequences = ("Every output is held off while the device refuses; "
                                 "automatic operation resumes only after a fault reset.")
                 severity = "high"
             elif reason.source == "plant":
                 what = f"{self.project.name}: plant connection lost — outputs held safe"
-                why = (f"{reason.detail} (scan {reason.scan}, {seconds(reason.time_us)} s). "
-                       "Inputs can no longer be trusted.")
-                consequences = ("The safe output vector is written as soon as the connection "
-                                "is back; automatic operation resumes only after a fault reset. "
-                                "The plant's own state is unknown meanwhile.")
+                cause = reason.detail.split(": ", 1)[-1]
+                why = (f"At {at} s the plant stopped answering ({cause}): its inputs can no "
+                       "longer be trusted.")
+                consequences = ("Every output is held off as soon as the connection is back; "
+                                "automatic operation resumes only after a fault reset. What "
+                                "the machines did meanwhile is unknown: a device stopped "
+                                "halfway may need its recovery.")
                 severity = "high"
             elif reason.source == "internal":
                 what = f"{self.project.name}: internal error — outputs held safe"
-                why = f"{reason.detail} (scan {reason.scan}, {seconds(reason.time_us)} s)."
+                why = (f"At {at} s a part of the scan failed unexpectedly; the engineering "
+                       "detail says what, for the engineer.")
                 consequences = ("The scan could not be completed safely, so every output went "
                                 "to its safe value and stays there until a fault reset.")
                 severity = "high"
+            elif reason.source == "journal":
+                what = f"{self.project.name}: the journal cannot be written — outputs held safe"
+                why = (f"At {at} s the operator journal could not be written (a full disk, "
+                       "an input/output error): actions and alarms would not be recorded.")
+                consequences = ("Every output is held at its safe value until a fault reset; "
+                                "free space or fix the disk first.")
+                severity = "high"
             else:
-                what = f"{self.project.name}: cell stopped safe — {reason.detail}"
-                why = (f"The filter's policy is safe blocking: at scan {reason.scan} "
-                       f"({seconds(reason.time_us)} s) {reason.detail}.")
+                rule = reason.detail.split(": ", 1)[1] if ": " in reason.detail else ""
+                what = f"{self.project.name}: cell stopped safe — a safety rule was broken"
+                why = (f"Under safe blocking the first unsafe order stops the whole cell: at "
+                       f"{at} s the program asked for orders that break "
+                       + (f"the rule \u201c{lower_first(rule)}\u201d." if rule
+                          else "a safety rule."))
                 consequences = ("Every output is held at its safe value until a fault reset; "
                                 "production is stopped. Nothing moves unless the operator acts.")
                 severity = "medium"
@@ -334,7 +370,7 @@ class ExplanationBuilder:
             level = self.apply_texts(spec, {"what": what, "why": why,
                                             "consequences": consequences,
                                             "policies": policies, "severity": severity,
-                                            "alarm": True},
+                                            "alarm": True, "detail": detail},
                                      {"device": self.project.name,
                                       "time": seconds(snap.time_us), "scan": snap.scan,
                                       "since_time": seconds(reason.time_us),
@@ -343,8 +379,15 @@ class ExplanationBuilder:
             return Explanation(key, "safe_state" if reason.source != "plant" else "plant",
                                level["severity"], self.project.name, level["what"],
                                level["why"], level["consequences"], level["policies"],
-                               reason.scan, reason.time_us, level["alarm"], latched=True)
+                               reason.scan, reason.time_us, level["alarm"], latched=True,
+                               detail=level["detail"])
         return self.cached(key, (reason.detail,), make)
+
+    def _rules(self, names) -> str:
+        """Constraint names as their rules, in words."""
+        return "; ".join(f"\u201c{lower_first(self.constraints[n].description)}\u201d"
+                         if n in self.constraints and self.constraints[n].description
+                         else "a safety rule" for n in names)
 
     def _fallback(self, snap: Snapshot, report) -> Explanation:
         if report.stopped:
@@ -354,18 +397,22 @@ class ExplanationBuilder:
 
         def make() -> Explanation:
             violated = ", ".join(report.violated_names)
-            what = f"{self.project.name}: no safe output vector — safe state written"
-            why = (f"At scan {snap.scan} ({seconds(snap.time_us)} s) the corrector found no "
-                   f"output vector satisfying every constraint ({report.fallback}); "
-                   f"violated by the program: {violated}. Since scan {onset.scan}.")
+            what = f"{self.project.name}: no safe set of orders — safe state written"
+            why = (f"At {seconds(snap.time_us)} s no combination of orders kept every safety "
+                   f"rule; the program's orders broke {self._rules(report.violated_names)}. "
+                   f"Since {seconds(onset.time_us)} s.")
             consequences = ("Every output is at its safe value while the situation lasts; the "
-                            "cell does not progress. The constraint set may be too strict for "
-                            "this situation, or a sensor gives an impossible picture.")
+                            "cell does not progress. The rules may be too strict for this "
+                            "situation, or a sensor gives an impossible picture.")
+            detail = (f"At scan {snap.scan} the corrector found no output vector satisfying "
+                      f"every constraint ({report.fallback}); violated by the program: "
+                      f"{violated}. Since scan {onset.scan}.")
             policies = (self.policy_manual(True),
                         Policy("check", "Check sensors",
                                "look for a sensor giving an impossible combination", None))
             return Explanation(key, "fallback", "high", self.project.name, what, why,
-                               consequences, policies, onset.scan, onset.time_us)
+                               consequences, policies, onset.scan, onset.time_us,
+                               detail=detail)
         return self.cached(key, (report.fallback, report.violated_names), make)
 
     def _search_stopped(self, snap: Snapshot, report) -> Explanation:
@@ -376,13 +423,16 @@ class ExplanationBuilder:
 
         def make() -> Explanation:
             violated = ", ".join(report.violated_names)
-            what = (f"{self.project.name}: correction not found in time — safe state written")
-            why = (f"At scan {snap.scan} ({seconds(snap.time_us)} s) {report.fallback}. "
-                   f"Violated by the program: {violated}. Since scan {onset.scan}.")
+            what = f"{self.project.name}: correction not found in time — safe state written"
+            why = (f"At {seconds(snap.time_us)} s the search for safe orders ran out of time; "
+                   f"the program's orders broke {self._rules(report.violated_names)}. Since "
+                   f"{seconds(onset.time_us)} s.")
             consequences = ("Every output is at its safe value for this scan; nothing unsafe is "
-                            "written. Each scan searches again, so the cell stays stopped only "
-                            "while the situation lasts. The search is stopped at its budget "
-                            "so that it never holds up the scan.")
+                            "sent. Each scan searches again, so the cell stays stopped only "
+                            "while the situation lasts. The search is stopped in time so that "
+                            "it never holds up the machine.")
+            detail = (f"At scan {snap.scan}: {report.fallback}. Violated by the program: "
+                      f"{violated}. Budget {report.budget} steps. Since scan {onset.scan}.")
             policies = [self.policy_manual(True),
                         Policy("budget", "Raise the search budget",
                                "engineering: set solver_budget in the project (or start with "
@@ -394,7 +444,8 @@ class ExplanationBuilder:
                                        "in the project): it proves infeasibility without "
                                        "enumerating and needs far fewer steps", None))
             return Explanation(key, "fallback", "high", self.project.name, what, why,
-                               consequences, tuple(policies), onset.scan, onset.time_us)
+                               consequences, tuple(policies), onset.scan, onset.time_us,
+                               detail=detail)
         return self.cached(key, (report.fallback, report.violated_names), make)
 
     def _plant(self, snap: Snapshot, message: str) -> Explanation:
@@ -403,12 +454,13 @@ class ExplanationBuilder:
 
         def make() -> Explanation:
             what = f"{self.project.name}: plant not connected — {message or 'no connection'}"
-            why = f"{snap.plant.description}: {message}. Since scan {onset.scan}."
+            why = (f"{snap.plant.description}: {message or 'no answer'}. Since "
+                   f"{seconds(onset.time_us)} s.")
             consequences = ("No output is written until the connection is established; "
                             "inputs are not trusted.")
             return Explanation(key, "plant", "high", self.project.name, what, why,
                                consequences, (self.policy_manual(),), onset.scan,
-                               onset.time_us)
+                               onset.time_us, detail=f"Since scan {onset.scan}.")
         return self.cached(key, (message,), make)
 
     def _manual(self, snap: Snapshot) -> Explanation:
@@ -417,15 +469,18 @@ class ExplanationBuilder:
         forces = snap.manual
 
         def make() -> Explanation:
-            listed = ", ".join(f"{n}={int(v)}" for n, v in forces)
+            listed = ", ".join(f"{self.plain.name(n)} {'on' if v else 'off'}"
+                               for n, v in forces)
             what = f"{self.project.name}: MANUAL — forces active ({listed})"
-            why = (f"Manual mode since scan {onset.scan} ({seconds(onset.time_us)} s); "
-                   f"requested: {listed}.")
+            why = f"Manual mode since {seconds(onset.time_us)} s; requested: {listed}."
             consequences = ("The control program does not drive the outputs; every request "
                             "still goes through the safety filter.")
             policies = (Policy("auto", "Leave manual",
                                "release every manual output; the program drives them again",
                                cmd.SetMode(False), True),)
+            detail = ("Manual requests: " + ", ".join(f"{n}={int(v)}" for n, v in forces)
+                      + f"; manual mode since scan {onset.scan}.")
             return Explanation(key, "manual", "low", self.project.name, what, why,
-                               consequences, policies, onset.scan, onset.time_us, alarm=False)
+                               consequences, policies, onset.scan, onset.time_us, alarm=False,
+                               detail=detail)
         return self.cached(key, forces, make)

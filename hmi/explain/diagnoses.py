@@ -20,6 +20,9 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from hmi.explain.model import Explanation, Policy
+from hmi.explain.plain import lower_first
+from hmi.explain.recovery import start_policy
+from hmi.project.recovery import recoveries_of
 from hmi.timefmt import seconds
 
 if TYPE_CHECKING:
@@ -60,37 +63,47 @@ def diagnosis_explanations(builder: ExplanationBuilder, snap: Snapshot) -> list[
     return out
 
 
-def _effects(builder, snap: Snapshot, spec, state) -> tuple[list[str], list[str]]:
-    """What the flags are doing: sentences, and the names of sensors/outputs involved."""
+def _effects(builder, snap: Snapshot, spec, state) -> tuple[list[str], list[str], list[str]]:
+    """What the flags are doing: plain sentences, short forms for the first line, and the
+    engineering detail (flags, estimates, masks)."""
     masked = set(snap.masked)
     reconstructed = set(snap.reconstructed)
-    doing, names = [], []
+    plain = builder.plain
+    device = spec.device or spec.name
+    doing, short, detail = [], [], []
     for partition in spec.partitions:
         if not set(partition.labels) & set(state.labels):
             continue
         if partition.sensor:
-            names.append(partition.sensor)
+            sensor = plain.name(partition.sensor)
             if partition.sensor in reconstructed:
-                estimate = partition.estimate
-                doing.append(f"{partition.sensor} is no longer trusted: the filter and the "
-                             f"program read its estimate {estimate} "
-                             f"({builder.describe(estimate)}) instead "
-                             f"({partition.flag} set)")
+                estimate = plain.name(partition.estimate) if partition.estimate else \
+                    "an estimate"
+                doing.append(f"the {sensor} is no longer trusted: the {estimate} is used "
+                             "instead")
+                short.append(f"{sensor} ignored")
+                detail.append(f"{partition.flag} set: {partition.sensor} read from "
+                              f"{partition.estimate} ({builder.describe(partition.estimate)})")
             else:
-                doing.append(f"{partition.flag} is set, but {partition.sensor} is still read "
-                             "as is (diagnosis observed only: no reconstruction in this mode)")
+                doing.append(f"the {sensor} is suspected but still read as is (the diagnosis "
+                             "only observes in this mode)")
+                short.append("observed only")
+                detail.append(f"{partition.flag} set, {partition.sensor} not reconstructed "
+                              "(diagnosis observed only)")
         if partition.actuators:
             held = [o for o in partition.actuators if o in masked]
-            names.extend(partition.actuators)
             if held:
-                doing.append(f"{', '.join(held)} {'are' if len(held) > 1 else 'is'} held at 0 "
-                             f"({partition.flag} masks {spec.device or spec.name}'s orders): it "
-                             "no longer moves")
+                doing.append(f"the {plain.orders(held)} {'are' if len(held) > 1 else 'is'} "
+                             f"held off: {device} is no longer driven")
+                short.append("no longer driven")
+                detail.append(f"{partition.flag} masks {', '.join(held)}")
             else:
                 why = "monitor policy" if snap.policy == "monitor" else \
                     "diagnosis observed only"
-                doing.append(f"{partition.flag} is set but the orders are not masked ({why})")
-    return doing, names
+                doing.append(f"its orders are not held off ({why})")
+                short.append("still driven")
+                detail.append(f"{partition.flag} set, orders not masked ({why})")
+    return doing, short, detail
 
 
 def _is_actuator(spec, label: str) -> bool:
@@ -102,29 +115,31 @@ def _diagnosis(builder, snap: Snapshot, spec, state) -> Explanation:
     device = spec.device or builder.project.name
     texts = dict(zip(state.labels, state.label_texts, strict=True))
     certain = state.certain
-    doing, _ = _effects(builder, snap, spec, state)
+    doing, short, effects = _effects(builder, snap, spec, state)
     action = "; ".join(doing) if doing else "nothing is changed"
-    short_action = ", ".join(
-        ("orders held at 0" if "held at 0" in d else
-         f"{d.split(' ')[0]} on its estimate" if "estimate" in d else "flag set")
-        for d in doing) or "observed only"
+    short_action = ", ".join(dict.fromkeys(short)) or "observed only"
     hypotheses = ", or ".join(f"{texts[lab]}" for lab in state.labels)
     label_list = ", ".join(state.labels)
     since = builder.onsets[f"diagnosis:{spec.name}"]
+    what = f"{device}: {hypotheses} — {short_action}"
+    seen = lower_first(state.description) if state.description else "an abnormal behaviour"
+    why = f"What was seen, at {seconds(state.since_us)} s: {seen}."
     if certain:
-        label = state.labels[0]
-        what = f"{device}: {texts[label]} ({label}) — {short_action}"
+        why += f" Only one fault explains it: {hypotheses}."
+    elif state.final:
+        why += (f" {len(state.labels)} faults explain it and what can be seen cannot tell them "
+                f"apart: {hypotheses.replace(', or ', '; or ')}.")
     else:
-        what = f"{device}: {hypotheses} ({label_list}, ambiguous) — {short_action}"
+        why += (f" It may be {hypotheses.replace(', or ', '; or ')}: the next movements will "
+                "tell.")
     final = "final: only a fault reset leaves it" if state.final else \
         "intermediate: the next observations will decide"
-    why = (f"Local diagnoser {spec.name} reached state {state.state} ({state.description}) at "
-           f"scan {state.since_scan} ({seconds(state.since_us)} s) by {state.via or 'reset'}; "
-           f"its decision is {{{label_list}}} — "
-           + ("isolated with certainty" if certain else
-              f"{len(state.labels)} faults explain what was observed and the diagnoser cannot "
-              f"tell them apart ({final})")
-           + f". Faulty since scan {since.scan} ({seconds(since.time_us)} s).")
+    detail = (f"Local diagnoser {spec.name} reached state {state.state} ({state.description}) "
+              f"at scan {state.since_scan} ({seconds(state.since_us)} s) by "
+              f"{state.via or 'reset'}; its decision is {{{label_list}}} — "
+              + ("isolated with certainty" if certain else f"ambiguous ({final})")
+              + f". Faulty since scan {since.scan} ({seconds(since.time_us)} s)."
+              + (" " + "; ".join(effects) + "." if effects else ""))
     consequences = _consequences(spec, state, texts, action)
     policies = _policies(builder, spec, state, texts, device)
     severity = "high" if any(_is_actuator(spec, lab) for lab in state.labels) else "medium"
@@ -135,13 +150,13 @@ def _diagnosis(builder, snap: Snapshot, spec, state) -> Explanation:
               "state_text": state.description, "diagnoser": spec.name,
               "transition": state.via, "values": ""}
     level = {"what": what, "why": why, "consequences": consequences, "policies": policies,
-             "severity": severity, "alarm": True}
+             "severity": severity, "alarm": True, "detail": detail}
     if certain:
         level = builder.apply_texts(builder.texts.get("labels", state.labels[0]), level, values)
     return Explanation(f"diagnosis:{spec.name}", "diagnosis", level["severity"], device,
                        level["what"], level["why"], level["consequences"], level["policies"],
                        since.scan, since.time_us, level["alarm"], latched=True,
-                       ambiguous=not certain)
+                       ambiguous=not certain, detail=level["detail"])
 
 
 def _consequences(spec, state, texts, action: str) -> str:
@@ -154,20 +169,19 @@ def _consequences(spec, state, texts, action: str) -> str:
                          "nothing asks it to.")
         else:
             parts.append(f"With a {texts[label]}, every decision based on that sensor would "
-                         "be made on a false picture: constraints could block safe orders or "
-                         "let unsafe ones through.")
+                         "be made on a false picture: safe orders could be refused or unsafe "
+                         "ones let through.")
     else:
         for label in state.labels:
             kind = "an actuator fault" if _is_actuator(spec, label) else "a sensor fault"
-            parts.append(f"If it is {label} ({texts[label]}, {kind}): "
+            parts.append(f"If it is {texts[label]} ({kind}): "
                          + ("driving the device again would push against the fault."
                             if _is_actuator(spec, label) else
                             "only the sensor's information is wrong; the device itself "
                             "would work."))
     parts.append(f"Already done: {action}.")
-    parts.append("The decision stays until a fault reset; the reset re-synchronises the "
-                 "diagnoser if the inputs show a normal situation, and keeps it faulty "
-                 "(saying why) if the fault is still visible.")
+    parts.append("This stays until a fault reset; the reset clears it only if the device is "
+                 "seen at rest in a normal position, and says why not otherwise.")
     return " ".join(parts)
 
 
@@ -190,6 +204,10 @@ def _policies(builder, spec, state, texts, device: str) -> tuple[Policy, ...]:
             "keep running on the reconstructed value; replace the sensor at the next stop",
             None, True))
     policies.append(builder.policy_stop(device))
+    for procedure in recoveries_of(builder.project):
+        if device in builder.devices_of(procedure.outputs):
+            policies.append(start_policy(procedure.name, procedure.description,
+                                         recommended=False))
     policies.append(builder.policy_reset(
         "after repair: re-synchronise the diagnoser and release the flags (it stays faulty "
         "if the fault is still visible)", recommended=bool(actuator) and state.certain))
@@ -202,26 +220,32 @@ def _reconstruction(builder, snap: Snapshot, spec, partition, state) -> Explanat
     key = f"reconstruction:{partition.sensor}"
     since = builder.onsets[key]
     estimate = partition.estimate
-    what = (f"{device}: {partition.sensor} replaced by its estimate {estimate} — running "
-            "degraded")
-    why = (f"{_flag_since(spec, partition, state, since)}. {partition.filtered} = not "
-           f"{partition.flag} and {partition.sensor} or {partition.flag} and {estimate} "
-           "(000 eq. 7-8).")
-    consequences = (f"The program and the filter see {estimate} ({builder.describe(estimate)})"
-                    f" where they would see {partition.sensor}: an estimate from the orders "
-                    "and the travel time, not a measurement. If the device stops moving as "
-                    "the estimate assumes (a jam), the estimate will be wrong and only the "
-                    "other sensors and the diagnoser can tell.")
+    plain = builder.plain
+    sensor_text = plain.name(partition.sensor)
+    estimate_text = plain.name(estimate) if estimate else "an estimate"
+    suspected = " or ".join(state.label_texts)
+    what = f"{device}: {sensor_text} ignored, {estimate_text} used — running degraded"
+    why = (f"The diagnosis no longer trusts the {sensor_text}: it suspects {suspected}. Since "
+           f"{seconds(since.time_us)} s.")
+    consequences = (f"The program and the safety filter use the {estimate_text} where they "
+                    f"would read the {sensor_text}: an estimate from the orders and the travel "
+                    "time, not a measurement. If the device stops moving as the estimate "
+                    "assumes (a jam), the estimate will be wrong and only the other sensors and "
+                    "the diagnosis can tell.")
+    detail = (f"{_flag_since(spec, partition, state, since)}. {partition.filtered} = not "
+              f"{partition.flag} and {partition.sensor} or {partition.flag} and {estimate} "
+              f"(000 eq. 7-8); {estimate}: {builder.describe(estimate)}.")
     policies = (
         Policy("continue", "Continue degraded",
-               f"keep running on {estimate}; plan the sensor's replacement", None, True),
+               f"keep running on the {estimate_text}; plan the sensor's replacement", None,
+               True),
         builder.policy_stop(device),
         builder.policy_reset("after replacing the sensor: the flag is released if the "
                              "diagnoser re-synchronises"),
     )
     return _partition_explanation(
         builder, snap, key, "reconstruction", partition, state, since, device,
-        (what, why, consequences, policies),
+        (what, why, consequences, policies, detail),
         {"action": "reconstructed", "sensor": partition.sensor, "estimate": estimate or "",
          "outputs": ""})
 
@@ -230,15 +254,17 @@ def _masked(builder, snap: Snapshot, spec, partition, state, held: tuple[str, ..
     device = spec.device or builder.project.name
     key = f"masked:{partition.name}"
     since = builder.onsets[key]
-    orders = ", ".join(f"{o} ({builder.short(o)})" for o in held)
-    what = f"{device}: {', '.join(held)} held at 0 by {partition.flag} — the device is not driven"
-    why = (f"{_flag_since(spec, partition, state, since)}, whose orders are masked: C_filter = "
-           f"not {partition.flag} and C (000 eq. 9-10), applied to what the program asks and "
-           "to what the filter writes.")
-    consequences = (f"{orders}: held at 0 whatever the program or a manual request asks, so "
+    orders = builder.plain.orders(held)
+    suspected = " or ".join(state.label_texts)
+    what = f"{device}: {orders} held off — the device is not driven"
+    why = (f"The diagnosis suspects {device} itself ({suspected}): a device that may be "
+           f"blocked is not driven. Since {seconds(since.time_us)} s.")
+    consequences = (f"The {orders} stay off whatever the program or a manual request asks, so "
                     f"{device} stays where it is and the steps of the cycle that need it wait. "
-                    "A device that may be blocked is not driven against the block; the rest of "
-                    "the cell runs on.")
+                    "The rest of the cell runs on.")
+    detail = (f"{_flag_since(spec, partition, state, since)}, whose orders are masked: "
+              f"C_filter = not {partition.flag} and C (000 eq. 9-10), applied to "
+              f"{', '.join(held)} as the program asks them and as the filter writes them.")
     policies = (
         Policy("continue", "Continue without it",
                f"leave {device} stopped by the mask; the rest of the cell runs", None, True),
@@ -248,7 +274,7 @@ def _masked(builder, snap: Snapshot, spec, partition, state, held: tuple[str, ..
     )
     return _partition_explanation(
         builder, snap, key, "masked", partition, state, since, device,
-        (what, why, consequences, policies),
+        (what, why, consequences, policies, detail),
         {"action": "masked", "sensor": "", "estimate": "", "outputs": ", ".join(held)})
 
 
@@ -263,14 +289,15 @@ def _partition_explanation(builder, snap: Snapshot, key: str, kind: str, partiti
     """What a set partition flag does (a sensor on its estimate, orders masked): the generated
     levels, replaced by the project's `partitions:` texts where it has them; no alarm (the
     diagnosis raised one), latched like the decision."""
-    what, why, consequences, policies = levels
+    what, why, consequences, policies, detail = levels
     values = {"device": device, "time": seconds(snap.time_us), "scan": snap.scan,
               "since_time": seconds(since.time_us), "since_scan": since.scan,
               "partition": partition.name, "labels": ", ".join(state.labels), **extra}
     level = builder.apply_texts(builder.texts.get("partitions", partition.name),
                                 {"what": what, "why": why, "consequences": consequences,
-                                 "policies": policies, "severity": "medium", "alarm": False},
+                                 "policies": policies, "severity": "medium", "alarm": False,
+                                 "detail": detail},
                                 values)
     return Explanation(key, kind, level["severity"], device, level["what"], level["why"],
                        level["consequences"], level["policies"], since.scan, since.time_us,
-                       level["alarm"], latched=True)
+                       level["alarm"], latched=True, detail=level["detail"])

@@ -1,5 +1,10 @@
 """Graduated explanations (000 §4): what, why, consequences, policies — for each abnormal
 situation, the same text for the HMI, the headless run and the journal.
+
+Plain words first (issue 19): levels 1 to 3 say what an operator says — the device, what is
+physically wrong or suspected, what the system did, what happens next — and never name the
+model's internals (diagnoser states, constraint names, flags, estimates, timers, stopwatch
+parameters, scan numbers). Those are kept one level deeper, in the *engineering detail*.
 """
 
 from __future__ import annotations
@@ -35,14 +40,15 @@ class Explanation:
     alarm: bool = True  # needs the operator: raises an alarm
     latched: bool = False  # stays until a fault reset (diagnoser fault, safe blocking)
     ambiguous: bool = False
+    detail: str = ""  # level 5: the engineering detail (states, constraints, flags, values)
 
     @property
     def recommended(self) -> Policy | None:
         return next((p for p in self.policies if p.recommended), None)
 
     @property
-    def levels(self) -> tuple[str, str, str, str]:
-        return (self.what, self.why, self.consequences, self.policies_text())
+    def levels(self) -> tuple[str, str, str, str, str]:
+        return (self.what, self.why, self.consequences, self.policies_text(), self.detail)
 
     def policies_text(self) -> str:
         lines = []
@@ -53,7 +59,7 @@ class Explanation:
 
     def render(self, levels: int = 4) -> str:
         """The explanation as text, up to `levels` levels (1 = the one line)."""
-        titles = ("What", "Why", "Consequences", "Policies")
+        titles = ("What", "Why", "Consequences", "Policies", "Engineering detail")
         parts = [f"[{self.severity}] {self.what}"]
         for title, text in list(zip(titles, self.levels, strict=True))[1:levels]:
             indented = "\n".join("    " + line for line in text.splitlines())

@@ -41,13 +41,13 @@ def parse_constraints(reader: ProjectReader) -> list[Constraint]:
                               if problem == "is not a valid name"
                               else f"constraint name {name[:40]!r} {problem}", NAME_HINT)
             continue
-        constraint = _constraint(reader, name, node, kpos)
+        constraint = parse_constraint(reader, name, node, kpos)
         if constraint:
             out.append(constraint)
     return out
 
 
-def _constraint(reader: ProjectReader, name: str, node: YNode,
+def parse_constraint(reader: ProjectReader, name: str, node: YNode,
                 kpos: SourcePos) -> Constraint | None:
     what = f"constraint {name!r}"
     description = ""

@@ -42,7 +42,8 @@ def parse_explanations(node: YNode, guard: Callable[..., Any], known: dict[str, 
     by_kind: dict[str, dict[str, TextSpec]] = {}
     for kind, knode in kinds.items():
         entries = guard(lambda n=knode, k=kind: n.as_map(f"explanations of {k}"), {})
-        names = known.get(kind, set()) if kind != "situations" else set(SITUATIONS)
+        names = known.get(kind, set()) if kind != "situations" else \
+            set(SITUATIONS) | known.get("situations", set())
         for name, enode in entries.items():
             pos = knode.key_pos[name]
             if name not in names:
@@ -80,8 +81,8 @@ def _spec(node: YNode, kind: str, name: str) -> TextSpec:
             raise NodeError(fields["severity"].pos, f"severity {severity!r} is not known",
                             "high, medium or low")
     alarm = fields["alarm"].as_bool("alarm") if "alarm" in fields else None
-    return TextSpec(texts.get("what"), texts.get("why"), texts.get("consequences"), policies,
-                    recommend, severity, alarm, node.pos)
+    return TextSpec(texts.get("what"), texts.get("why"), texts.get("consequences"),
+                    texts.get("detail"), policies, recommend, severity, alarm, node.pos)
 
 
 def _template(node: YNode, kind: str, what: str) -> str:

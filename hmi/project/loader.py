@@ -29,6 +29,7 @@ from hmi.project.model import (
 from hmi.project.monitors import parse_monitors
 from hmi.project.plant import parse_plant
 from hmi.project.reader import ProjectReader
+from hmi.project.recovery import RECOVERY_SITUATIONS, parse_recovery
 from hmi.project.scenarios import parse_scenarios
 from hmi.project.variables import (
     check_addresses,
@@ -46,6 +47,7 @@ TOP_KEYS = {
     "name", "description", "scan_period", "include", "inputs", "outputs", "memories",
     "timers", "observers", "control", "constraints", "policy", "solver", "solver_budget",
     "plant", "explanations", "monitors", "scenarios", "diagnosers", "campaign", "components",
+    "recovery",
 }
 
 
@@ -213,6 +215,7 @@ class ProjectLoader(ProjectReader):
         scenarios = parse_scenarios(self, plant)
         diagnosers = parse_diagnosers(self)  # hmi/project/diagnosers.py
         campaign = parse_campaign(self, plant)  # hmi/project/campaign.py
+        recovery = parse_recovery(self, constraints, outputs)  # hmi/project/recovery.py
         texts = None
         sources: list[tuple[ComponentInstance | None, YNode]] = [*self.components.explanations]
         if "explanations" in s:
@@ -222,7 +225,9 @@ class ProjectLoader(ProjectReader):
             known = {"constraints": {c.name for c in constraints},
                      "monitors": {m.name for m in monitors},
                      "labels": self.declared_labels,
-                     "partitions": self.declared_partitions}
+                     "partitions": self.declared_partitions,
+                     "situations": {f"{prefix}_{r.name}" for r in recovery
+                                    for prefix in RECOVERY_SITUATIONS}}
             texts = merge_texts(self, [
                 (owner, parse_explanations(node, self.guard, known, self.diag.error))
                 for owner, node in sources])
@@ -234,7 +239,7 @@ class ProjectLoader(ProjectReader):
             default_control=default_control, constraints=tuple(constraints), policy=policy,
             plant=plant, pos=pos, files=tuple(self.files), solver=solver,
             solver_budget=solver_budget, diagnosers=diagnosers, monitors=monitors,
-            scenarios=scenarios, campaign=campaign, explanations=texts,
+            scenarios=scenarios, campaign=campaign, explanations=texts, recovery=recovery,
             components=tuple(self.components.instances), warnings=tuple(self.diag.warnings),
             check_sections=((tuple(self.components.check_lines()),)
                             if self.components.instances else ()),

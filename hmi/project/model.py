@@ -20,6 +20,7 @@ if TYPE_CHECKING:  # the sections' own types (they import this module)
     from hmi.project.components import ComponentInstance
     from hmi.project.diagnosers import DiagnoserSpec
     from hmi.project.monitors import TaskMonitor
+    from hmi.project.recovery import RecoveryProcedure
     from hmi.project.scenarios import Scenario
     from hmi.project.texts import ProjectTexts
 
@@ -270,6 +271,7 @@ class Project:
     campaign: CampaignSpec | None = None
     explanations: ProjectTexts | None = None  # None: the built-in texts only
     components: tuple[ComponentInstance, ...] = ()
+    recovery: tuple[RecoveryProcedure, ...] = ()  # the ways back after a fault (issue 19)
     warnings: tuple[Diagnostic, ...] = ()  # what the loader warned about (plchmi check)
     check_sections: tuple[tuple[str, ...], ...] = ()  # more `plchmi check` sections
 

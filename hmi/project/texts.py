@@ -1,7 +1,8 @@
 """Explanation texts written in the project, with placeholders.
 
 A project may give, per constraint / diagnoser label / partition / monitor / situation kind,
-any of the four levels (`what`, `why`, `consequences`, `policies`), a `severity` and whether
+any of the levels (`what`, `why`, `consequences`, `policies`, and the engineering `detail`),
+a `severity` and whether
 it raises an `alarm`. Texts use `{placeholder}` fields; the placeholders each kind offers are
 listed in PLACEHOLDERS and checked when the project loads, so a typo is a file:line:column
 error and never a half-filled sentence in front of an operator.
@@ -25,9 +26,10 @@ PLACEHOLDERS: dict[str, tuple[str, ...]] = {
     "monitors": (*COMMON, "task", "label", "x", "y", "alpha", "beta", "gamma", "reason"),
     "situations": (*COMMON, "reason", "detail"),
 }
-LEVELS = ("what", "why", "consequences")
+LEVELS = ("what", "why", "consequences", "detail")
 SEVERITIES = ("high", "medium", "low")  # damage possible / degraded / information
-POLICY_IDS = ("continue", "stop_device", "manual", "reset", "check")
+POLICY_IDS = ("continue", "stop_device", "manual", "reset", "check", "recovery",
+              "leave_recovery")
 
 
 @dataclass(frozen=True)
@@ -37,6 +39,7 @@ class TextSpec:
     what: str | None = None
     why: str | None = None
     consequences: str | None = None
+    detail: str | None = None
     policies: dict[str, str] = field(default_factory=dict)  # policy id -> effect text
     recommend: str | None = None
     severity: str | None = None

@@ -31,6 +31,7 @@ class JournalRecorder:
         self.journal = journal
         self.pending_manual: list[tuple[ManualOutput, str]] = []  # with who sent it
         self.failure: JournalWriteError | None = None
+        self.recovery_status = ""  # the last recovery status journalled (done, failed)
         engine = session.engine
         journal.append({"type": "session", "event": "start", "source": source,
                         "project": engine.project.name, "control": engine.control_name,
@@ -86,6 +87,14 @@ class JournalRecorder:
             self._plant(entry)
         for event in snapshot.alarm_events:
             self._alarm(event)
+        recovery = snapshot.recovery
+        if recovery.status != self.recovery_status:
+            self.recovery_status = recovery.status
+            if recovery.status in ("done", "failed"):
+                self._append({"type": "recovery", "event": recovery.status,
+                              "key": f"recovery:{recovery.active}",
+                              "message": f"{recovery.device}: {recovery.message}",
+                              "scan": snapshot.scan, "t": seconds(snapshot.time_us)})
         if self.pending_manual:
             report = snapshot.filter
             for request, origin in self.pending_manual:

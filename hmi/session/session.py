@@ -24,10 +24,13 @@ from hmi.engine.commands import (
     ChoosePolicy,
     Command,
     CommandResult,
+    CommentAlarm,
     Pause,
     Resume,
     SetSpeed,
+    Shelve,
     StepScans,
+    Unshelve,
     describe,
 )
 from hmi.engine.scan import Engine
@@ -129,6 +132,8 @@ class Session:
                     result = self._acknowledge(key)
                 case ChoosePolicy(key=key, policy=policy_id):
                     result = self._choose_policy(key, policy_id)
+                case Shelve() | Unshelve() | CommentAlarm():
+                    result = self._alarm_note(command)
                 case _:
                     result = self.engine.apply(command)
             for listener in self.listeners:
@@ -143,6 +148,31 @@ class Session:
             return CommandResult.refused(f"no alarm {key} to acknowledge")
         return CommandResult.ok(f"acknowledged {len(events)} alarm"
                                 f"{'s' if len(events) != 1 else ''}")
+
+    def _alarm_note(self, command: Shelve | Unshelve | CommentAlarm) -> CommandResult:
+        """Shelving and comments: they change the alarm list, never the plant."""
+        engine, alarms = self.engine, self.alarms
+        match command:
+            case Shelve(key=key, duration_us=duration):
+                events, why = alarms.shelve(key, duration, engine.scan, engine.now)
+                if why:
+                    return CommandResult.refused(why)
+                message = f"{events[0].text}: shelved {events[0].note}; journalled meanwhile"
+            case Unshelve(key=key):
+                events = alarms.unshelve(key, engine.scan, engine.now)
+                if not events:
+                    return CommandResult.refused(f"alarm {key} is not shelved")
+                message = f"{events[0].text or key}: back in the list"
+            case CommentAlarm(key=key, text=text):
+                text = " ".join(text.split())[:500]
+                if not text:
+                    return CommandResult.refused("an empty comment")
+                events = alarms.comment(key, text, engine.scan, engine.now)
+                if not events:
+                    return CommandResult.refused(f"no alarm {key} in the list")
+                message = f"comment journalled on {events[0].text}"
+        self._pending_alarm_events.extend(events)
+        return CommandResult.ok(message)
 
     def take_alarm_events(self) -> list[AlarmEvent]:
         """Alarm transitions since the last scan (acknowledgements), for whoever journals
@@ -208,7 +238,8 @@ class Session:
         events = self.take_alarm_events()
         events.extend(self.alarms.update(self.explanations, core.scan, core.time_us))
         return explained(core, self.explanations, self.alarms.listed(), tuple(events), error,
-                         core.scan_wall_us + (time.perf_counter() - started) * 1e6)
+                         core.scan_wall_us + (time.perf_counter() - started) * 1e6,
+                         self.alarms.shelved_listed() if self.alarms.shelved else ())
 
     def run_for(self, duration_us: int, on_scan: Callable[[Snapshot], None] | None = None
                 ) -> Snapshot:

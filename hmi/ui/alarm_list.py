@@ -79,8 +79,36 @@ def without_device(text: str, device: str) -> str:
     return text
 
 
+DETAIL_LINES = 2  # the selected alarm's full first line, wrapped: at most this many lines
+
+
+def detail_lines(text: str, width: int) -> list[str]:
+    """The selected alarm's whole level-1 sentence, wrapped at word boundaries on at most
+    DETAIL_LINES lines of `width` cells (the last cut with an ellipsis only if it must)."""
+    words, lines, line = text.split(), [], ""
+    for word in words:
+        candidate = f"{line} {word}" if line else word
+        if len(candidate) <= width or not line:
+            line = candidate
+        else:
+            lines.append(line)
+            line = word
+    if line:
+        lines.append(line)
+    if len(lines) > DETAIL_LINES:
+        last = " ".join(lines[DETAIL_LINES - 1:])
+        lines = [*lines[:DETAIL_LINES - 1], last[:width - 1] + "…"]
+    return [x[:width] for x in lines]
+
+
 def alarm_row(alarm: Alarm, width: int, device_w: int = 0, time_w: int = 7) -> Text:
     """One alarm as one line of at most `width` cells (the text ends in an ellipsis)."""
+    return fitted_row(alarm, width, device_w, time_w)[0]
+
+
+def fitted_row(alarm: Alarm, width: int, device_w: int = 0, time_w: int = 7
+               ) -> tuple[Text, bool]:
+    """The row, and whether its text had to be cut to fit."""
     row = Text(no_wrap=True, overflow="ellipsis", end="")
     row.append_text(state_cell(alarm))
     muted = alarm.state == CLEARED_UNACK
@@ -104,12 +132,15 @@ def alarm_row(alarm: Alarm, width: int, device_w: int = 0, time_w: int = 7) -> T
             tail.append(" chattering", style=MUTED)
     if alarm.latched and alarm.active:  # cleared: the latch that held it is gone
         tail.append("  LATCHED", style=Style(bold=True))
+    if alarm.comment:
+        tail.append("  ✎", style=MUTED)
     room = width - row.cell_len - tail.cell_len
-    if room < len(text):
+    cut = room < len(text)
+    if cut:
         text = text[:max(0, room - 1)] + "…" if room > 0 else ""
     row.append(text, style=plain)
     row.append_text(tail)
-    return row
+    return row, cut
 
 
 class AlarmSelected(Message):
@@ -138,8 +169,10 @@ class AlarmList(TextPanel):
         super().__init__(id=id)
         self.alarms: tuple[Alarm, ...] = ()
         self.selected: str | None = None  # the selected alarm's key
+        self.shelved = 0  # alarms shelved (not listed): said on the border
         self.top = 0  # index of the first row shown
-        self._rows: tuple[int, bool] | None = None  # rows and compact border, as set
+        self._rows: tuple[int, bool] | None = None  # lines drawn and compact border, as set
+        self._alarm_rows = 0  # of those lines, the alarm rows (then the selected one's line)
         self._drawn: tuple | None = None
 
     def on_mount(self) -> None:
@@ -148,8 +181,10 @@ class AlarmList(TextPanel):
     # -- display -----------------------------------------------------------------------------
     def show(self, frame: Frame) -> None:
         alarms = tuple(frame.snapshot.alarms)
-        changed = alarms != self.alarms
+        shelved = len(frame.snapshot.shelved)
+        changed = alarms != self.alarms or shelved != self.shelved
         self.alarms = alarms
+        self.shelved = shelved
         keys = [a.key for a in alarms]
         if self.selected not in keys:
             self._select(keys[0] if keys else None)
@@ -172,20 +207,33 @@ class AlarmList(TextPanel):
     def _draw(self) -> None:
         height = self.app.size.height
         rows = min(max(len(self.alarms), 1), rows_for_height(height))
+        width = max(20, self.content_size.width or self.app.size.width - 4)
+        # The selected alarm's whole first sentence on its own line(s) when its row cuts it
+        # (80 columns): the device and the plain fault are always readable (issue 19).
+        detail: list[str] = []
+        selected = self.selected_alarm
+        if selected is not None:
+            _, cut = fitted_row(selected, width - 2, 0, max(len(seconds(a.raised_us))
+                                                            for a in self.alarms))
+            if cut and width < WIDE:
+                detail = detail_lines(selected.text, width - 4)
+        self._alarm_rows = rows
+        lines = rows + len(detail)
         compact = height < SHORT
-        if (rows, compact) != self._rows:
-            self._rows = (rows, compact)  # (a resize may change the border alone)
+        if (lines, compact) != self._rows:
+            self._rows = (lines, compact)  # (a resize may change the border alone)
             # the border: top and bottom lines; on a short screen, the top line only
             self.set_class(compact, "-compact")
-            self.styles.height = rows + (1 if compact else 2)
-        width = max(20, self.content_size.width or self.app.size.width - 4)
-        key = (self.alarms, self.selected, rows, width, self.has_focus)
+            self.styles.height = lines + (1 if compact else 2)
+        key = (self.alarms, self.selected, rows, width, self.has_focus, tuple(detail))
         if key == self._drawn:
             return
         self._drawn = key
         unack = sum(a.state != ACTIVE_ACK for a in self.alarms)
         title = (f"Alarms · {unack} unacknowledged / {len(self.alarms)}"
                  if self.alarms else "Alarms")
+        if self.shelved:
+            title += f" · {self.shelved} shelved"
         if not self.alarms:
             set_title(self, title)
             self.show_text(Text(f"{OK_SYMBOL} no alarm", style=MUTED))
@@ -217,6 +265,11 @@ class AlarmList(TextPanel):
             text.append_text(row)
             if mine and self.has_focus:
                 text.stylize(SELECTED, len(text) - row.cell_len - 2, len(text))
+        for k, line in enumerate(detail):
+            text.append("\n")
+            text.append("  ↳ " if k == 0 else "    ", style=MUTED)
+            text.append(line, style=Style(bold=True) if selected and selected.active
+                        else MUTED)
         self.show_text(text)
 
     def _index(self) -> int:
@@ -254,6 +307,6 @@ class AlarmList(TextPanel):
         if offset is None:
             return
         row = offset.y
-        if self._rows and 0 <= row < self._rows[0] and self.top + row < len(self.alarms):
+        if 0 <= row < self._alarm_rows and self.top + row < len(self.alarms):
             self._select(self.alarms[self.top + row].key, open=True)
             self._draw()

@@ -29,6 +29,7 @@ from textual import events
 from textual.app import App, ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal, Vertical
+from textual.css.scalar import Unit
 from textual.screen import ModalScreen
 
 from hmi.engine.commands import (
@@ -36,6 +37,8 @@ from hmi.engine.commands import (
     ChoosePolicy,
     Command,
     CommandResult,
+    CommentAlarm,
+    EndRecovery,
     FaultReset,
     InjectFault,
     ManualOutput,
@@ -47,8 +50,11 @@ from hmi.engine.commands import (
     SetMode,
     SetPolicy,
     SetSpeed,
+    Shelve,
+    StartRecovery,
     StepScans,
     StopDevice,
+    Unshelve,
     describe,
 )
 from hmi.engine.scan import Engine
@@ -57,6 +63,7 @@ from hmi.plant.injection import Injection
 from hmi.project.diagnosers import diagnosers_of
 from hmi.project.model import POLICIES
 from hmi.project.monitors import monitors_of
+from hmi.project.recovery import recoveries_of
 from hmi.session.session import Session
 from hmi.timefmt import seconds
 from hmi.ui import testhooks
@@ -66,7 +73,7 @@ from hmi.ui.chronogram import WINDOWS_US, Chronogram
 from hmi.ui.constraints_panel import ConstraintInfo, ConstraintsPanel
 from hmi.ui.containment import ContainedPump, Containment, UIFault
 from hmi.ui.diagnosers_panel import DiagnosersPanel, PartitionInfo
-from hmi.ui.dialogs import ChoiceDialog, ConfirmDialog, Dialog, StepDialog
+from hmi.ui.dialogs import ChoiceDialog, ConfirmDialog, Dialog, StepDialog, TextDialog
 from hmi.ui.driver import LiveDriver, VirtualDriver
 from hmi.ui.explain_panel import (
     ExplanationPanel,
@@ -83,9 +90,9 @@ from hmi.ui.message_line import MessageLine, result_text, verdict_text
 from hmi.ui.messages import CommandRequested, ExplainRequested
 from hmi.ui.monitors_panel import MonitorsPanel
 from hmi.ui.palette import HmiCommands, PaletteEntry
-from hmi.ui.panel import ColumnPanel
+from hmi.ui.panel import TOP_SHARE, ColumnPanel
 from hmi.ui.recorder import ScanRecorder
-from hmi.ui.reset import ResetLine, reset_preview
+from hmi.ui.reset import ResetLine, recovery_lines, reset_preview
 from hmi.ui.signal_dialog import SignalDialog
 from hmi.ui.sim_panel import SimPanel
 from hmi.ui.status import BannerStrip, StatusBar
@@ -106,6 +113,8 @@ MANUAL_KEY_HELP = {
     None: "Manual: release the request on the I/O table's highlighted output",
 }
 MANUAL_KEYS = {"1": True, "0": False, "x": None}
+SHELVE_TIMES = ((5 * 60_000_000, "5 min"), (15 * 60_000_000, "15 min"),
+                (60 * 60_000_000, "1 h"), (8 * 3_600_000_000, "8 h (the longest)"))
 WIDE = 120  # from this width on, the explanation panel stays beside the chronogram
 
 
@@ -114,6 +123,9 @@ class Body(ContainedPump, Vertical):
     banner, the footer wrapping); the column panels size their detail on it."""
 
     def on_resize(self) -> None:
+        app = self.app
+        if isinstance(app, PlcHmiApp) and app.frame is not None:
+            app._fit_plant_column()
         for panel in self.query(ColumnPanel):
             panel.recheck()
 
@@ -136,7 +148,7 @@ class PlcHmiApp(ContainedPump, App):
 
     def __init__(self, controller: Session, live: bool = True, *,
                  show_measured: bool | None = None, refresh_hz: float = REFRESH_HZ,
-                 injected: tuple[Injection, ...] = ()):
+                 injected: tuple[Injection, ...] = (), bell: bool = False):
         super().__init__()
         self.controller = controller
         engine = controller.engine
@@ -161,6 +173,10 @@ class PlcHmiApp(ContainedPump, App):
         self.subject: str | None = None
         # faults scheduled before the app started (plchmi ui --inject)
         self._injected += [InjectedFault(i, self._fault_text(i)) for i in injected]
+        # --bell: the terminal bell on each new unacknowledged P1 alarm (issue 19, optional)
+        self.bell_on_p1 = bell
+        self.bells = 0
+        self._p1_unack: frozenset[str] = frozenset()
         # UI errors: contained and shown (banner, journal), or the reason the app ended
         self.containment = Containment(lambda: (engine.scan, engine.now))
         self._test_fault: testhooks.Armed | None = None
@@ -351,6 +367,11 @@ class PlcHmiApp(ContainedPump, App):
             except Exception as exc:
                 self.contain(f"{type(view).__name__} refresh", exc)
         try:
+            self._fit_plant_column()
+        except Exception as exc:
+            self.contain("plant column layout", exc)
+        self._ring(snap)
+        try:
             self._explain(frame)
         except Exception as exc:
             self.contain("ExplanationPanel refresh", exc)
@@ -361,6 +382,49 @@ class PlcHmiApp(ContainedPump, App):
         if self._test_fault is not None:
             self._test_fault.tick(snap.time_us)
         return True
+
+    def _ring(self, snap) -> None:
+        """The bell, once per P1 alarm that became active and unacknowledged since the last
+        frame (a returning one counts again); nothing without --bell."""
+        now = frozenset(a.key for a in snap.alarms
+                        if a.priority == 1 and a.state == "active-unacknowledged")
+        new = now - self._p1_unack
+        self._p1_unack = now
+        if new and self.bell_on_p1:
+            self.bells += 1
+            self.bell()
+
+    def _fit_plant_column(self) -> None:
+        """The constraints panel first, the I/O table the rest: the I/O table takes at most
+        what the upper row leaves once the constraints panel has its rows (violated ones
+        first), so a violated constraint is on screen at every size from 80x24 (a long I/O
+        table scrolls instead)."""
+        body = self.query_one(Body)
+        if not body.size.height:
+            return
+        constraints = self.query_one(ConstraintsPanel)
+        io = self.query_one(IOPanel)
+        io_least = 4  # its border, the header and one row
+        io_wanted = min(io.row_count + 3, 14)
+        border = 1 if constraints.has_class("-compact") else 2
+        cap = 12 if self.size.height >= 40 else 6
+        wanted = min(constraints.wanted_lines() + border, cap)
+        needed = min(constraints.needed_lines() + border, cap)
+        # The upper row takes 60 % of the body, more when the I/O and the violated
+        # constraints need it, as long as the chronogram keeps its least (#bottom's
+        # min-height, 5 lines).
+        height = body.size.height
+        top = max(int(height * TOP_SHARE), min(height - 5, io_wanted + needed))
+        row = self.query_one("#top")
+        if row.styles.max_height is None or row.styles.max_height.value != top or \
+                row.styles.max_height.unit != Unit.CELLS:
+            row.styles.max_height = top
+        panel = min(max(needed, min(wanted, top - io_wanted)), max(top - io_least, 2))
+        if constraints.styles.max_height is None or constraints.styles.max_height.value != panel:
+            constraints.styles.max_height = panel
+        limit = max(io_least, min(top - panel, io_wanted))
+        if io.styles.max_height is None or io.styles.max_height.value != limit:
+            io.styles.max_height = limit
 
     def _show_faults(self, frame: Frame) -> None:
         """A panel failed while this frame was shown: the banner and the status bar say so in
@@ -513,6 +577,13 @@ class PlcHmiApp(ContainedPump, App):
                 lines += self._manual_lines(snap) if snap else []
             case SetMode(manual=False):
                 lines.append("Every manual request is released; the program drives again.")
+            case StartRecovery(procedure=name):
+                spec = next((p for p in recoveries_of(self.project) if p.name == name), None)
+                if spec is not None:
+                    lines += recovery_lines(self.project, spec)
+                level = Level.ALARM
+            case EndRecovery():
+                lines.append("The control program starts again from its initial steps.")
             case StopDevice(device=device):
                 outputs = ", ".join(v.name for v in self.project.outputs
                                     if v.device == device)
@@ -542,10 +613,18 @@ class PlcHmiApp(ContainedPump, App):
                 self._request = (name, bool(value), last.scan if last else 0, what)
             case SetMode(manual=manual) if result.accepted:
                 self._mode_commanded = "manual" if manual else "auto"
+            case StartRecovery() if result.accepted:
+                self._mode_commanded = "recovery"
+            case EndRecovery() if result.accepted:
+                self._mode_commanded = "auto"
             case ChoosePolicy(key=key, policy=policy_id) if result.accepted:
                 inner = self._policy_command(key, policy_id)
                 if isinstance(inner, SetMode):
                     self._mode_commanded = "manual" if inner.manual else "auto"
+                elif isinstance(inner, StartRecovery):
+                    self._mode_commanded = "recovery"
+                elif isinstance(inner, EndRecovery):
+                    self._mode_commanded = "auto"
             case InjectFault(injection=injection) if result.accepted:
                 self._injected.append(InjectedFault(injection, self._fault_text(injection)))
                 self._version += 1
@@ -620,11 +699,17 @@ class PlcHmiApp(ContainedPump, App):
         await super().on_event(event)
 
     def on_key(self, event: events.Key) -> None:
-        """1 / 0 / x outside manual mode: said, not silently ignored."""
-        if event.key in MANUAL_KEYS and not isinstance(self.screen, ModalScreen) and \
-                not (self.frame and self.frame.manual_keys):
+        """1 / 0 / x outside manual mode, b without push buttons: said, not silently
+        ignored."""
+        if isinstance(self.screen, ModalScreen):
+            return
+        if event.key in MANUAL_KEYS and not (self.frame and self.frame.manual_keys):
             event.stop()
             self.refuse("manual request", "not in manual mode (m enters it)")
+        elif event.key == "b" and not self.free_inputs:
+            event.stop()
+            self.refuse("push button", "this project has no push button the operator "
+                        "presses (b presses the highlighted one in a project that has)")
 
     def action_manual_on(self) -> None:
         self._manual_key(True)
@@ -707,6 +792,9 @@ class PlcHmiApp(ContainedPump, App):
         snap = self.controller.last
         if snap is None:
             return
+        if snap.mode == "recovery" or self._mode_commanded == "recovery":
+            self.leave_recovery()
+            return
         manual_now = self.frame.manual_keys if self.frame else snap.mode == "manual"
         if manual_now:
             requested = ", ".join(f"{n}={int(v)}" for n, v in snap.manual) or "none"
@@ -736,9 +824,84 @@ class PlcHmiApp(ContainedPump, App):
         snap = self.controller.last
         if snap is None:
             return
+        recovery = next((line.recovery for line in reset_preview(snap) if line.recovery), "")
+
+        def answered(answer: bool | str | None) -> None:
+            if answer == "alternative":
+                self.start_recovery(recovery)
+            else:
+                self._confirmed(FaultReset(), bool(answer))
         self.push_screen(ConfirmDialog("Fault reset?", self._reset_lines(snap), "Reset",
-                                       dialog_id="reset-dialog"),
-                         partial(self._confirmed, FaultReset()))
+                                       dialog_id="reset-dialog",
+                                       alternative="Start recovery" if recovery else None),
+                         answered)
+
+    # -- shelving and comments (hmi.explain.alarms) --------------------------------------------
+    def shelve(self, key: str | None = None) -> None:
+        """Shelve an alarm (the selected one): for how long, or once until it clears."""
+        alarm = self._listed_alarm(key, "shelve")
+        if alarm is None:
+            return
+        options = [("once", Text("once: until its condition clears")),
+                   *((str(us), Text(f"for {label}")) for us, label in SHELVE_TIMES)]
+
+        def chosen(answer: str | None) -> None:
+            if answer is not None:
+                self.send(Shelve(alarm.key, None if answer == "once" else int(answer)))
+        self.push_screen(ChoiceDialog(f"Shelve: {alarm.text}", options, "once",
+                                      dialog_id="shelve-dialog",
+                                      note="Hidden from the list, journalled meanwhile, back "
+                                           "by itself; a latched safety alarm cannot be "
+                                           "shelved."), chosen)
+
+    def _listed_alarm(self, key: str | None, what: str):
+        """The listed alarm `key` (default: the selected one), or None, said."""
+        key = key or self.alarm_list.selected
+        snap = self.controller.last
+        alarm = next((a for a in snap.alarms if a.key == key), None) if snap and key else None
+        if alarm is None:
+            self.refuse(what, "no alarm selected")
+        return alarm
+
+    def comment(self, key: str | None = None) -> None:
+        alarm = self._listed_alarm(key, "comment")
+        if alarm is None:
+            return
+
+        def written(text: str | None) -> None:
+            if text:
+                self.send(CommentAlarm(alarm.key, text))
+        self.push_screen(TextDialog(f"Comment: {alarm.text}",
+                                    "Your note on this alarm (journalled with your action):",
+                                    dialog_id="comment-dialog"), written)
+
+    # -- recovery (hmi.project.recovery) -------------------------------------------------------
+    def start_recovery(self, name: str) -> None:
+        """Confirm, then enter recovery mode running procedure `name`."""
+        spec = next((p for p in recoveries_of(self.project) if p.name == name), None)
+        if spec is None:
+            self.refuse("recovery", f"no recovery procedure {name!r}")
+            return
+        self.push_screen(ConfirmDialog(f"Start recovery: {spec.description}?",
+                                       recovery_lines(self.project, spec), "Start recovery",
+                                       level=Level.ALARM, dialog_id="recovery-dialog"),
+                         partial(self._confirmed, StartRecovery(name)))
+
+    def leave_recovery(self) -> None:
+        snap = self.controller.last
+        state = snap.recovery if snap else None
+        reached = {"done": "The recovery is done.", "failed": "The recovery failed."}.get(
+            state.status if state else "", "The recovery is stopped where it is.")
+        lines = [reached,
+                 "Automatic mode: the control program starts again from its initial steps,",
+                 "through the safety filter "
+                 f"({snap.policy if snap else self.controller.engine.policy})."]
+        if snap is not None and any(d.faulty for d in snap.diagnosers):
+            lines.append(tag("A diagnosis is still latched: r (fault reset) first, or the "
+                             "device stays masked.", Level.ATTENTION))
+        self.push_screen(ConfirmDialog("Leave recovery mode?", lines, "Leave recovery",
+                                       dialog_id="recovery-dialog"),
+                         partial(self._confirmed, EndRecovery()))
 
     @staticmethod
     def _reset_lines(snap) -> list[Text | str]:
@@ -959,6 +1122,30 @@ class PlcHmiApp(ContainedPump, App):
                     f"Policy: {policy.label}{mark} — {panel.explanation.device}"
                     + ("…" if policy.command is not None else ""),
                     policy.effect, partial(self.choose_policy, panel.key, policy)))
+        if snap.mode == "recovery":
+            entries.append(PaletteEntry("Recovery: leave…", "Automatic mode again; the "
+                                        "program starts from its initial steps",
+                                        self.leave_recovery))
+        else:
+            needed = {n[0] for n in snap.recovery.needed}
+            for spec in recoveries_of(self.project):
+                mark = " (needed now)" if spec.name in needed else ""
+                entries.append(PaletteEntry(
+                    f"Recovery: start — {spec.description}{mark}…",
+                    f"{spec.device}: recovery mode, filtered by its own constraints",
+                    partial(self.start_recovery, spec.name)))
+        for alarm in snap.alarms:
+            entries.append(PaletteEntry(f"Alarms: shelve… {alarm.text}",
+                                        "Hide it from the list for a while or until it clears "
+                                        "(journalled meanwhile; not a latched safety alarm)",
+                                        partial(self.shelve, alarm.key)))
+            entries.append(PaletteEntry(f"Alarms: comment on {alarm.text}…",
+                                        "A note on this alarm, in the journal",
+                                        partial(self.comment, alarm.key)))
+        for alarm, shelf in snap.shelved:
+            entries.append(PaletteEntry(f"Alarms: unshelve {alarm.text}",
+                                        f"shelved {shelf.describe()}",
+                                        partial(self.send, Unshelve(alarm.key))))
         for device in snap.stopped_devices:
             entries.append(PaletteEntry(f"Release device {device}",
                                         "Its outputs follow the program (and the filter) again",
@@ -995,14 +1182,14 @@ class AppEnd:
 
 
 def run_app(target: Engine | Session, clock=None, injected: tuple[Injection, ...] = (),
-            on_fault: Callable[[UIFault], None] | None = None) -> AppEnd:
+            on_fault: Callable[[UIFault], None] | None = None, bell: bool = False) -> AppEnd:
     """Run the HMI live on an engine, or on a controller others listen to (the journal).
 
     A real plant passes a wall clock to stamp its scans (see hmi.session.live.WallClock);
     `injected` are the faults the command line scheduled in a simulated plant; `on_fault`
     is told of every UI error (the journal)."""
     controller = target if isinstance(target, Session) else Session(target, clock=clock)
-    app = PlcHmiApp(controller, injected=injected)
+    app = PlcHmiApp(controller, injected=injected, bell=bell)
     if on_fault is not None:
         app.containment.listeners.append(on_fault)
     app.run()

@@ -22,6 +22,7 @@ from rich.text import Text
 from textual import events
 
 from hmi.timefmt import seconds
+from hmi.ui.alarm_list import SHORT
 from hmi.ui.frame import Frame
 from hmi.ui.messages import ExplainRequested
 from hmi.ui.panel import TextPanel
@@ -75,6 +76,7 @@ class ConstraintsPanel(TextPanel):
         self.frame: Frame | None = None
         self.show_all = False  # every constraint, even never violated (when there is room)
         self.row_names: list[str] = []  # the constraint on each row, as last drawn
+        self.violated = 0  # rows of constraints violated now (listed first)
 
     def on_click(self, event: events.Click) -> None:
         offset = event.get_content_offset(self)
@@ -85,14 +87,24 @@ class ConstraintsPanel(TextPanel):
     def on_mount(self) -> None:
         self.border_title = f"Constraints · {len(self.constraints)}"
 
+    def wanted_lines(self) -> int:
+        """Rows it lists now (the app gives it room before the I/O table)."""
+        return len(self.row_names) or 1
+
+    def needed_lines(self) -> int:
+        """Rows it must show: the constraints violated now (at least one line)."""
+        return max(self.violated, 1)
+
     def show(self, frame: Frame) -> None:
         self.frame = frame
+        self.set_class(self.app.size.height < SHORT, "-compact")
         self.show_all = self.app.size.height >= 40
         self.show_text(self.render_frame(frame))
 
     def render_frame(self, frame: Frame) -> Text:
         text = Text(no_wrap=True, overflow="ellipsis")
         self.row_names = []
+        self.violated = 0
         if frame.snapshot.filter is None and not frame.constraints:
             text.append("no filter report yet", style=MUTED)
             return text
@@ -102,6 +114,7 @@ class ConstraintsPanel(TextPanel):
             if rank == 3 and not self.show_all:
                 continue
             rows.append((rank, index, info, word))
+            self.violated += rank < 2
         if not rows:
             text.append(f"{OK_SYMBOL} none violated since the start "
                         f"(policy {frame.snapshot.policy})", style=MUTED)

@@ -66,33 +66,87 @@ class ConfirmDialog(Dialog[bool]):
         Binding("n", "answer(False)", "Cancel"),
         Binding("escape", "answer(False)", "Cancel", show=False),
         Binding("enter", "app.focus_next", "Next button", show=False, priority=True),
+        Binding("g", "alternative", "Alternative", show=False),
     ]
     AUTO_FOCUS = "#no"
 
     def __init__(self, title: str, lines: Sequence[Text | str], confirm: str = "Confirm",
-                 level: Level = Level.ATTENTION, dialog_id: str = "confirm"):
+                 level: Level = Level.ATTENTION, dialog_id: str = "confirm",
+                 alternative: str | None = None):
         super().__init__(id=dialog_id)
         self.title_text = title
         self.lines = list(lines)
         self.confirm_label = confirm
         self.level = level
+        # A third answer (key g): "Start recovery" in the fault reset dialog, when the reset
+        # cannot do what the operator wants and a recovery can. Dismisses with the string
+        # "alternative".
+        self.alternative = alternative
 
     def compose(self) -> ComposeResult:
         with Vertical(classes="dialog"):
             yield _title(self.title_text, self.level)
+            hint = "y: confirm    n / esc: cancel"
+            if self.alternative:
+                hint = f"y: confirm    g: {self.alternative.lower()}    n / esc: cancel"
+            yield Label(hint, classes="dialog-hint")
             for line in self.lines:
                 yield Static(line, classes="dialog-line", markup=False)
-            yield Label("y: confirm    n / esc: cancel", classes="dialog-hint")
             with Horizontal(classes="dialog-buttons"):
                 yield Button(f"{self.confirm_label} (y)", id="yes", variant="default")
+                if self.alternative:
+                    yield Button(f"{self.alternative} (g)", id="alternative",
+                                 variant="default")
                 yield Button("Cancel (n)", id="no", variant="default")
 
     def action_answer(self, yes: bool) -> None:
         self.dismiss(yes)
 
+    def action_alternative(self) -> None:
+        if self.alternative:
+            self.dismiss("alternative")  # type: ignore[arg-type]
+
     @on(Button.Pressed)
     def _pressed(self, event: Button.Pressed) -> None:
+        if event.button.id == "alternative":
+            self.dismiss("alternative")  # type: ignore[arg-type]
+            return
         self.dismiss(event.button.id == "yes")
+
+
+class TextDialog(Dialog[str | None]):
+    """One line of text (an operator's comment on an alarm); enter keeps it, escape drops."""
+
+    BINDINGS = [Binding("escape", "cancel", "Cancel")]
+
+    def __init__(self, title: str, prompt: str, *, dialog_id: str = "text-dialog",
+                 max_length: int = 500):
+        super().__init__(id=dialog_id)
+        self.title_text = title
+        self.prompt = prompt
+        self.max_length = max_length
+
+    def compose(self) -> ComposeResult:
+        with Vertical(classes="dialog dialog-wide"):
+            yield _title(self.title_text, Level.NORMAL)
+            yield Label("enter: keep    esc: cancel", classes="dialog-hint")
+            yield Static(self.prompt, classes="dialog-line", markup=False)
+            yield Input("", id="text", max_length=self.max_length, compact=True)
+            yield Label("", id="error", classes="dialog-error")
+
+    def on_mount(self) -> None:
+        super().on_mount()
+        self.query_one("#text", Input).focus()
+
+    @on(Input.Submitted)
+    def _submitted(self, event: Input.Submitted) -> None:
+        if not event.value.strip():
+            self.query_one("#error", Label).update("✗ write something, or esc to cancel")
+            return
+        self.dismiss(event.value.strip())
+
+    def action_cancel(self) -> None:
+        self.dismiss(None)
 
 
 class StepDialog(Dialog[int | None]):

@@ -1,8 +1,9 @@
 """The explanation panel: the selected alarm's graduated explanation, level by level.
 
 000 asks for "a graduated explanation with potential consequences" so that the operator can
-choose the best policy. The four levels of :class:`~hmi.explain.model.Explanation` are shown
-one under the other, the first always, the others on demand::
+choose the best policy. The levels of :class:`~hmi.explain.model.Explanation` are shown one
+under the other, the first always, the others on demand; the fifth, the engineering detail
+(diagnoser states, constraints, flags, stopwatch values), comes after the policies::
 
     P2 medium · Conveyor C1 · since 3.000 s (scan 301) · LATCHED
     Conveyor C1 carrying a pallet …: cannot end within its acceptable time (conveyor_fault)
@@ -11,7 +12,7 @@ one under the other, the first always, the others on demand::
     ▸ Consequences
     ▸ Policies · 3, recommended: Continue
 
-``e`` opens the next level (and, once all are open, folds them back to the first); a click
+``e`` opens the next level (and, once all five are open, folds them back to the first); a click
 on a level's heading opens it (with the levels before it) or folds it (with those after).
 The level just opened is scrolled to the top of the panel; when the text is taller than the
 panel the subtitle says ``↑↓ scroll`` and the panel has the focus (tab moves on), so the
@@ -48,7 +49,8 @@ from hmi.ui.containment import ContainedPump
 from hmi.ui.panel import set_title
 from hmi.ui.style import MUTED, OK_SYMBOL, STYLE, Level, tag
 
-LEVELS = ("What", "Why", "Consequences", "Policies")
+LEVELS = ("What", "Why", "Consequences", "Policies", "Engineering detail")
+TOP = len(LEVELS)
 RECOMMENDED = "★"
 SEVERITY_LEVEL = {"high": Level.ALARM, "medium": Level.ATTENTION, "low": Level.ATTENTION}
 
@@ -171,6 +173,7 @@ class ExplanationPanel(ContainedPump, VerticalScroll):
         yield LevelView(3, id="explain-consequences")
         yield LevelView(4, id="explain-policies-head")
         yield Vertical(id="explain-policies")
+        yield LevelView(5, id="explain-detail")
         yield Static(id="explain-result", markup=False)
 
     def on_mount(self) -> None:
@@ -194,7 +197,7 @@ class ExplanationPanel(ContainedPump, VerticalScroll):
         if self.key is None or self.explanation is None:
             return
         level = self.level
-        self._set_level(1 if level >= 4 else level + 1)
+        self._set_level(1 if level >= TOP else level + 1)
 
     def toggle(self, level: int) -> None:
         """A heading clicked: open up to it, or fold it and those after it."""
@@ -232,7 +235,7 @@ class ExplanationPanel(ContainedPump, VerticalScroll):
         self._focus_recommended = level == 4
         self._anchor = level if opened and level > 1 else None
         self._draw()
-        if opened and 1 < level < 4 and self.visible and not self.has_focus:
+        if opened and 1 < level != 4 and self.visible and not self.has_focus:
             self.focus(scroll_visible=False)  # ↑↓ scroll it
 
     # -- drawing -----------------------------------------------------------------------------
@@ -255,7 +258,7 @@ class ExplanationPanel(ContainedPump, VerticalScroll):
         head = self.query_one("#explain-head", Static)
         what = self.query_one("#explain-what", Static)
         views = [self.query_one(f"#explain-{n}", LevelView)
-                 for n in ("why", "consequences", "policies-head")]
+                 for n in ("why", "consequences", "policies-head", "detail")]
         result = self.query_one("#explain-result", Static)
         if exp is None:
             set_title(self, "Explanation")
@@ -273,7 +276,7 @@ class ExplanationPanel(ContainedPump, VerticalScroll):
         self._put(head, heading_text(exp, self.alarm))
         self._put(what, Text(exp.what, style=Style(bold=True)))
         for view in views:
-            view.display = True
+            view.display = view.level < 5 or bool(exp.detail)
             self._put(view, level_text(exp, view.level, level >= view.level))
         self._set_policies(exp.policies if level >= 4 else ())
         self._put(result, answer or "")
@@ -286,10 +289,10 @@ class ExplanationPanel(ContainedPump, VerticalScroll):
             self.call_after_refresh(self._focus_policy)
 
     def _set_subtitle(self, subtitle: str | None = None) -> None:
-        """`level 2/4 · e: more`, and `↑↓ scroll` while the text is taller than the panel."""
+        """`level 2/5 · e: more`, and `↑↓ scroll` while the text is taller than the panel."""
         if subtitle is None:
             level = self.level
-            subtitle = f"level {level}/4 · e: {'more' if level < 4 else 'fold'}"
+            subtitle = f"level {level}/{TOP} · e: {'more' if level < TOP else 'fold'}"
             if self.max_scroll_y > 0:
                 subtitle += " · ↑↓ scroll"
         if self.border_subtitle != subtitle:
@@ -316,7 +319,7 @@ class ExplanationPanel(ContainedPump, VerticalScroll):
         if self._anchor is None or self.explanation is None:
             return
         view = self.query_one(("#explain-why", "#explain-consequences",
-                               "#explain-policies-head")[self._anchor - 2])
+                               "#explain-policies-head", "#explain-detail")[self._anchor - 2])
         if self.scroll_y != view.virtual_region.y:
             self.scroll_to(y=view.virtual_region.y, animate=False, immediate=True)
 

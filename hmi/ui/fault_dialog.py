@@ -50,15 +50,20 @@ class FaultDialog(Dialog[Injection | None]):
         with Vertical(classes="dialog dialog-wide"):
             yield Static(banner("SIMULATION — inject a fault into the simulated plant",
                                 Level.SIMULATION), classes="dialog-title", markup=False)
+            # First, so that it is on screen at 80x24 when the dialog opens; and true: the
+            # first enter chooses the fault and moves to its time, the second injects it.
+            yield Label("↑↓ fault · enter: choose · enter again: inject · esc: cancel",
+                        classes="dialog-hint")
             yield OptionList(*(Option(f"{device}.{code}  {description}",
                                       id=f"{device}.{code}")
                                for device, code, description in self.faults), id="faults")
             yield Static("When: in how many seconds (0 or empty = at the next scan)",
                          classes="dialog-line")
             yield Input("0", id="delay", placeholder="0, 5, 2.5s, 500ms", compact=True)
+            yield Static("For how long (a halt...; empty = until repaired)",
+                         classes="dialog-line")
+            yield Input("", id="duration", placeholder="empty, 2, 1.5s, 500ms", compact=True)
             yield Label("", id="error", classes="dialog-error")
-            yield Label("↑↓ fault    tab: when    enter: inject    esc: cancel",
-                        classes="dialog-hint")
 
     def on_mount(self) -> None:
         faults = self.query_one("#faults", OptionList)
@@ -82,8 +87,19 @@ class FaultDialog(Dialog[Injection | None]):
         if delay < 0:
             self.query_one("#error", Label).update("✗ the delay cannot be negative")
             return
+        duration_text = self.query_one("#duration", Input).value.strip()
+        try:
+            duration = parse_delay(duration_text) if duration_text else None
+        except ValueError:
+            self.query_one("#error", Label).update(
+                "✗ the duration is a number of seconds or a duration such as 500ms")
+            return
+        if duration is not None and duration <= 0:
+            self.query_one("#error", Label).update(
+                "✗ the duration must be longer than zero (empty: until repaired)")
+            return
         self.dismiss(Injection(code, self.now_us() + delay,
-                               None if self.single_device else device))
+                               None if self.single_device else device, duration))
 
     @on(OptionList.OptionSelected)
     def _fault_chosen(self, event: OptionList.OptionSelected) -> None:
@@ -92,6 +108,10 @@ class FaultDialog(Dialog[Injection | None]):
     @on(Input.Submitted)
     def _submitted(self) -> None:
         self._inject()
+
+    @on(OptionList.OptionHighlighted)
+    def _fault_highlighted(self, event: OptionList.OptionHighlighted) -> None:
+        self.query_one("#error", Label).update("")
 
     def action_cancel(self) -> None:
         self.dismiss(None)

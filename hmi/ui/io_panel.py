@@ -5,6 +5,9 @@ glance, with the reason in words. A sensor the diagnosers distrust reads
 ``⊘ masked (def_V)``, an output of a device the operator stopped ``▲ stopped``. In a narrow
 panel the marks are ``≈ fso_hat`` and ``⊘ masked`` (the diagnosers panel names the flag).
 
+The Description column comes last: at 80 columns it is cut to a few letters, so the
+highlighted signal's whole description is on the table's lower border.
+
 The table is also where the operator picks an output for a manual request (keys 1 / 0 / x
 on the highlighted row) or presses a simulated push button (b). It does not send anything
 itself: it posts :class:`~hmi.ui.messages.CommandRequested` up to the app.
@@ -140,6 +143,14 @@ class IOPanel(ContainedPump, DataTable):
             if wider:
                 self._widths[column] = width
             self.update_cell(row, column, value, update_width=wider)
+
+    def on_data_table_row_highlighted(self, event: DataTable.RowHighlighted) -> None:
+        """The highlighted signal's whole description on the border (a narrow table cuts
+        its column to a few letters; names and values come first)."""
+        name = event.row_key.value if event.row_key is not None else None
+        text = f"{name}: {self.descriptions.get(name, '')}" if name else ""
+        if self.border_subtitle != text:
+            self.border_subtitle = text
 
     @property
     def selected(self) -> str | None:

@@ -15,10 +15,16 @@ from hmi.ui.style import OK_SYMBOL, Level, tag
 
 
 def result_text(what: str, result: CommandResult) -> Text:
+    """'✓ fault reset: nothing was latched'; the command's words once, not twice when the
+    answer already starts with them ('fault reset: fault reset: ...', 'speed: x1: speed:
+    x1')."""
+    message = result.message
+    said = message.lower().startswith(what.lower())
+    body = message if said else f"{what}: {message}"
     if result.accepted:
-        return Text(f"{OK_SYMBOL} {what}: {result.message}")
+        return Text(f"{OK_SYMBOL} {body}")
     line = tag("REFUSED", Level.ALARM)
-    line.append(f" {what}: {result.message}")
+    line.append(f" {body}")
     return line
 
 

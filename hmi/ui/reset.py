@@ -17,6 +17,8 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 from hmi.engine.snapshot import LatchReason, Snapshot
+from hmi.project.model import Project
+from hmi.project.recovery import RecoveryProcedure
 from hmi.timefmt import seconds
 
 
@@ -26,6 +28,7 @@ class ResetLine:
     resets: bool  # True: the reset releases it; False: it stays (its cause is present)
     why: str = ""  # for a line that stays: why (its cause still present...)
     note: str = ""  # anything else the operator should know about it
+    recovery: str = ""  # the recovery procedure that would let it reset (offered)
 
 
 ResetPreview = Callable[[Snapshot], Iterable[ResetLine]]
@@ -83,11 +86,35 @@ def diagnoser_preview(snap: Snapshot) -> Iterable[ResetLine]:
         if d.resync:
             yield ResetLine(what, resets=True,
                             note=f"re-synchronised to {d.resync} on {d.resync_values}")
+            continue
+        procedures = [p for p in snap.recovery.procedures if d.device in p[3]]
+        if procedures and snap.mode != "recovery":
+            name, _, description, _ = procedures[0]
+            yield ResetLine(what, resets=False,
+                            why=f"reset needs {d.device or 'the device'} back at a known "
+                                f"position ({d.resync_values or 'the I/O'} match no normal "
+                                "state) — after the repair, start the recovery "
+                                f"\u201c{description}\u201d",
+                            recovery=name)
         else:
             yield ResetLine(what, resets=False,
                             why=f"its cause is still present: {d.resync_values or 'the I/O'} "
                                 "match no normal state; reset once the device is repaired or "
                                 "back at rest")
+
+
+def recovery_preview(snap: Snapshot) -> Iterable[ResetLine]:
+    """What the cell needs a recovery for: a reset does not move a device back."""
+    if snap.mode == "recovery":
+        state = snap.recovery
+        if state.status == "running":
+            yield ResetLine(f"recovery running: {state.description}", resets=False,
+                            why="a reset does not stop it; leave recovery to stop it")
+        return
+    for name, device, description, text in snap.recovery.needed:
+        yield ResetLine(f"{device}: {text}", resets=False,
+                        why="a reset does not move it back — start the recovery "
+                            f"\u201c{description}\u201d", recovery=name)
 
 
 def _alarm_released(snap: Snapshot, key: str) -> bool | None:
@@ -109,8 +136,10 @@ def alarm_preview(snap: Snapshot) -> Iterable[ResetLine]:
     kept = len(latched) - len(released)
     if released:
         n = len(released)
-        yield ResetLine(f"{n} latched alarm{'s' if n != 1 else ''} clear with their latch",
-                        resets=True, note="listed, cleared, until acknowledged")
+        words = "latched alarm clears with its latch" if n == 1 else \
+            "latched alarms clear with their latches"
+        yield ResetLine(f"{n} {words}", resets=True,
+                        note="listed, cleared, until acknowledged")
     if kept:
         yield ResetLine(f"{kept} latched alarm{'s' if kept != 1 else ''}", resets=False,
                         why=f"what latched {'them' if kept != 1 else 'it'} stays (see above)")
@@ -124,7 +153,31 @@ def stopped_preview(snap: Snapshot) -> Iterable[ResetLine]:
 
 
 PREVIEWS: list[ResetPreview] = [latch_preview, diagnoser_preview, monitor_preview,
-                                 alarm_preview, stopped_preview]
+                                 recovery_preview, alarm_preview, stopped_preview]
+
+
+def recovery_lines(project: Project, spec: RecoveryProcedure) -> list[str]:
+    """What starting a recovery procedure does, for its confirmation dialog."""
+    steps = "; ".join(f"{k}. {step.description}" for k, step in enumerate(spec.steps, 1))
+    others = [v.name for v in project.outputs if v.name not in spec.outputs]
+    relaxed = [c for c in project.constraints if c.name in spec.relaxes]
+    lines = [f"{spec.device or project.name}: {steps} (it stops by itself at the end, or "
+             f"after {seconds(spec.timeout_us)} s with every output safe).",
+             f"Only {', '.join(spec.outputs)} move"
+             + (f"; {', '.join(others)} held at their safe values" if others else "")
+             + "; the control program waits."]
+    rules = [c.description or c.name for c in spec.constraints]
+    if rules:
+        lines.append("Still filtered, by its own rules: " + "; ".join(rules) + ".")
+    if relaxed:
+        lines.append("Not enforced meanwhile: " + "; ".join(
+            (c.description or c.name)[:1].lower() + (c.description or c.name)[1:]
+            for c in relaxed) + ".")
+    lines.append("Only after the repair: a device still jammed would be driven against its "
+                 "jam until the time limit.")
+    lines.append("Then: r (fault reset), and m to leave recovery: the program restarts from "
+                 "its initial steps.")
+    return lines
 
 
 def reset_preview(snap: Snapshot) -> list[ResetLine]:

@@ -27,6 +27,7 @@ from hmi.ui.fault_dialog import FaultDialog
 from hmi.ui.io_panel import IOPanel
 from hmi.ui.testing import (
     drain,
+    palette,
     press,
     run_for,
     run_until,
@@ -204,6 +205,21 @@ async def alarms_80x24(pilot: Pilot) -> None:
     await run_for(pilot, 0.01)
 
 
+async def recovery(pilot: Pilot) -> None:
+    """F13 at 10.4 s jams the valve 78 % open; repaired, the fault reset cannot re-synchronise
+    the diagnoser and offers the recovery (g); confirmed, the valve closes in recovery mode."""
+    await run_until(pilot, lambda s: s.recovery.needed, 20, "recovery needed")
+    await palette(pilot, "SIMULATION: repair")
+    await press(pilot, "r")
+    await wait_for_screen(pilot, ConfirmDialog)
+    await press(pilot, "g")
+    await wait_until(pilot, lambda: pilot.app.screen.id == "recovery-dialog",
+                     "the recovery dialog")
+    await press(pilot, "y")
+    await wait_for_main(pilot)
+    await run_for(pilot, 0.8)
+
+
 @dataclass(frozen=True)
 class Scenario:
     name: str
@@ -239,6 +255,9 @@ SCENARIOS: tuple[Scenario, ...] = (
     Scenario("monitor_fault", (120, 36), monitor_fault,
              "Conveyor/robot (002 §4): the conveyor's stopwatch monitor fires at x = 3 s",
              partial(make_app, CONVEYOR, inject=("C1.stop@1s+2s",))),
+    Scenario("recovery_80x24", (80, 24), recovery,
+             "SIMULATION: F13 repaired; RECOVERY closes the valve, filtered by its own rules",
+             partial(make_app, inject=("F13@10.4s",))),
     Scenario("alarms_80x24", (80, 24), alarms_80x24,
              "The alarm list at 80×24: five alarms in three rows, one acknowledged",
              partial(make_app, control="faulty")),

@@ -5,9 +5,10 @@ least important fields first (measured scan time, the late-scan count, plant det
 project name among the last) and never the mode, the filter policy, the run state or an
 alarm. The banner
 strip appears only while something abnormal is in effect: manual mode
-(MANUAL / FORCES ACTIVE), a device the operator stopped, outputs latched in the safe
-state, and, for the rest of the session, an error of the UI that was contained (what failed,
-and the file with the details: hmi.ui.containment).
+(MANUAL / FORCES ACTIVE), recovery mode (RECOVERY, with its step), a device the operator
+stopped, outputs latched in the safe state, and, for the rest of the session, an error of the
+UI that was contained (what failed, and the file with the details: hmi.ui.containment). The
+mode and the filter policy never drop from the status bar.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from dataclasses import dataclass
 
 from rich.text import Text
 
+from hmi.engine.recovery import RecoveryState
 from hmi.timefmt import seconds
 from hmi.ui.frame import Frame
 from hmi.ui.panel import TextPanel
@@ -47,8 +49,12 @@ def status_fields(frame: Frame, wide: bool, compact: bool = False) -> list[Field
             fields.append(Field(Text(f"{where} ● connected"), 3))
         else:
             fields.append(Field(tag(f"{where} DISCONNECTED", Level.ALARM), 0))
-    fields.append(Field(tag("MANUAL", Level.ATTENTION) if snap.mode == "manual"
-                        else Text("AUTO"), 0))
+    if snap.mode == "manual":
+        fields.append(Field(tag("MANUAL", Level.ATTENTION), 0))
+    elif snap.mode == "recovery":
+        fields.append(Field(tag("RECOVERY", Level.ATTENTION), 0))
+    else:
+        fields.append(Field(Text("AUTO"), 0))
     # the mode and the filter policy are never dropped (a soak invariant): what protects the
     # cell must always be on screen
     filter_word = "" if compact else "filter "
@@ -162,6 +168,22 @@ class BannerStrip(TextPanel):
             self.show_text(Text("\n").join(lines))
 
 
+def recovery_banner(state: RecoveryState) -> Text:
+    """RECOVERY: what runs and how far it got, and the way out."""
+    if state.status == "running":
+        line = banner("RECOVERY", Level.ATTENTION)
+        line.append(f" {state.step_text} {state.step}/{state.steps} · "
+                    f"{state.elapsed_us / 1e6:.1f}/{state.timeout_us / 1e6:.1f} s · "
+                    f"{state.description} · m: leave")
+    elif state.status == "done":
+        line = banner("RECOVERY DONE", Level.ATTENTION)
+        line.append(f" next: r fault reset, then m leave recovery · {state.description}")
+    else:
+        line = banner("RECOVERY FAILED", Level.ALARM)
+        line.append(f" {state.message} · m: leave recovery")
+    return line
+
+
 def banner_lines(frame: Frame) -> list[Text]:
     snap = frame.snapshot
     lines: list[Text] = []
@@ -172,6 +194,8 @@ def banner_lines(frame: Frame) -> list[Text]:
         line.append(f" requests: {forced or 'none (all outputs 0)'}"
                     f" · filtered ({snap.policy}) · m: leave")
         lines.append(line)
+    if snap.mode == "recovery":
+        lines.append(recovery_banner(snap.recovery))
     if not snap.plant.connected:
         line = banner("PLANT DISCONNECTED", Level.ALARM)
         line.append(f" {snap.plant.description}: {snap.plant.message or 'no answer'}")

@@ -41,6 +41,8 @@ from hmi.timefmt import seconds
 
 
 class Pump(SimDevice, model=PUMP):
+    REPAIRABLE = True
+
     def __init__(self, name: str, params: Mapping[str, Any]):
         super().__init__(name, params)
         self.flow = ml_per_s(self.params["flow"])
@@ -62,6 +64,18 @@ class Pump(SimDevice, model=PUMP):
         self.suction = get("suction")
         self.lines = [(get(v), get(t)) for v, t in (("valve_a", "to_a"), ("valve_b", "to_b"))
                       if get(v) is not None]
+
+    def _repaired(self) -> None:
+        """A repaired motor and contactor follow the order again from now: a welded contactor
+        released stops a pump whose order is off; a repaired motor whose order is on runs."""
+        order = self.orders["P"]
+        if order and not self.running:
+            self.running = True
+            self.starts += 1
+        elif not order and self.running:
+            self.running = False
+            self.dead_us = self.dry_us = 0
+            self.dead_reported = self.dry_reported = False
 
     # -- orders -------------------------------------------------------------------------------
     def _orders_changed(self, t: int, changed: dict[str, bool]) -> None:

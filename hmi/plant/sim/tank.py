@@ -39,6 +39,9 @@ def ml_per_s(value: float) -> int:
 
 
 class Tank(SimDevice, model=TANK):
+    # A stuck level switch is replaced: nothing else to undo (the faults are read live).
+    REPAIRABLE = True
+
     def __init__(self, name: str, params: Mapping[str, Any]):
         super().__init__(name, params)
         self.capacity = litres(self.params["capacity"])

@@ -1,0 +1,218 @@
+"""Recovery mode in the scan: a declared procedure brings a device back (issue 19).
+
+The procedures are the project's (hmi.project.recovery). The engine owns one
+:class:`RecoveryStage`; while the operator has one running (recovery mode, entered with
+:class:`~hmi.engine.commands.StartRecovery`):
+
+* stage 5 takes the procedure's vector instead of the control law's: the outputs it drives
+  follow its current step, every other output is at its safe value (production stopped,
+  GEMMA A5/A6);
+* stage 6 filters that vector with the procedure's own filter: the project's constraints
+  but the ones it relaxes, plus its own, never under `monitor` (a recovery is always
+  filtered: `monitor` runs it under `correct`). The diagnosers' mask is lifted from the
+  outputs it drives: the operator confirmed the device is repaired.
+
+A step ends when its `until` holds; the last one ends the procedure (done: everything safe,
+the cell waits for the operator to leave recovery). Past its timeout the procedure fails:
+outputs safe, the operator told. Every scan, in any mode, the stage also says which
+procedures the cell needs (their `needed` condition held long enough).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+from typing import Any
+
+from hmi.engine.filter import SafetyFilter
+from hmi.engine.filter_stage import FilterStage
+from hmi.engine.layout import Layout
+from hmi.logic.expr import BoolFn, History, Image, compile_bool
+from hmi.project.model import Project
+from hmi.project.recovery import RecoveryProcedure, recoveries_of
+from hmi.timefmt import seconds
+
+
+@dataclass(frozen=True)
+class RecoveryState:
+    """The recovery for the snapshot: what runs (if anything) and what the cell needs."""
+
+    active: str | None = None  # the procedure's name
+    device: str = ""
+    description: str = ""
+    status: str = ""  # running, done, failed
+    step: int = 0  # 1-based, while running
+    steps: int = 0
+    step_text: str = ""
+    since_us: int = 0  # when the procedure started
+    elapsed_us: int = 0
+    timeout_us: int = 0
+    message: str = ""  # done / failed: what happened, plainly
+    # Procedures the cell needs now: (name, device, description, why in plain words).
+    needed: tuple[tuple[str, str, str, str], ...] = ()
+    # Every procedure the project declares: (name, device, description, the devices whose
+    # outputs it drives).
+    procedures: tuple[tuple[str, str, str, tuple[str, ...]], ...] = ()
+
+    @property
+    def running(self) -> bool:
+        return self.status == "running"
+
+
+NO_RECOVERY = RecoveryState()
+
+
+class _Procedure:
+    """One compiled procedure."""
+
+    def __init__(self, spec: RecoveryProcedure, project: Project, layout: Layout,
+                 filter_args: tuple[str, int | None],
+                 mask_flags: Mapping[str, tuple[str, ...]]):
+        self.spec = spec
+        slots = layout.slots
+        index = {name: k for k, name in enumerate(layout.outputs)}
+        self.driven = tuple(index[o] for o in spec.outputs)
+        self.steps: list[tuple[list[tuple[int, BoolFn | None]], BoolFn]] = [
+            ([(index[a.output], compile_bool(a.condition, slots) if a.condition else None)
+              for a in step.actions], compile_bool(step.until, slots))
+            for step in spec.steps]
+        self.needed: BoolFn | None = compile_bool(spec.needed.when, slots) \
+            if spec.needed else None
+        self.needed_since: int | None = None
+        constraints = tuple(c for c in project.constraints if c.name not in spec.relaxes) \
+            + spec.constraints
+        self.filter = FilterStage(
+            SafetyFilter(replace(project, constraints=constraints), slots, layout.step_times,
+                         *filter_args), mask_flags)
+
+
+class RecoveryStage:
+    """The project's recovery procedures and the one running, if any."""
+
+    def __init__(self, project: Project, layout: Layout, safe: tuple[bool, ...],
+                 filter_args: tuple[str, int | None],
+                 mask_flags: Mapping[str, tuple[str, ...]]):
+        self.procedures = {spec.name: _Procedure(spec, project, layout, filter_args,
+                                                 mask_flags)
+                           for spec in recoveries_of(project)}
+        self.safe = safe
+        self.active: _Procedure | None = None
+        self.status = ""
+        self.step = 0
+        self.started_us = 0
+        self.message = ""
+        self.ended_us: int | None = None
+        self.needed: tuple[tuple[str, str, str, str], ...] = ()
+        devices = {v.name: v.device for v in project.outputs if v.device}
+        self.catalogue = tuple(
+            (p.spec.name, p.spec.device, p.spec.description,
+             tuple(dict.fromkeys(devices[o] for o in p.spec.outputs if o in devices)))
+            for p in self.procedures.values())
+        self._idle = RecoveryState(procedures=self.catalogue)
+
+    # -- commands (through the engine) ------------------------------------------------------
+    def start(self, name: str, now: int) -> None:
+        self.active = self.procedures[name]
+        self.status = "running"
+        self.step = 0
+        self.started_us = now
+        self.message = ""
+        self.ended_us = None
+
+    def stop(self) -> str:
+        """Leave recovery: what the procedure had reached, for the operator."""
+        proc, status = self.active, self.status
+        self.active = None
+        self.status = ""
+        if proc is None:
+            return ""
+        return {"done": "done", "failed": "failed"}.get(status, "stopped before its end")
+
+    # -- every scan -------------------------------------------------------------------------
+    def check_needed(self, image: Image, history: History, now: int) -> None:
+        """Which procedures the cell needs now (their condition held for long enough)."""
+        needed = []
+        for name, proc in self.procedures.items():
+            if proc.needed is None:
+                continue
+            if proc.needed(image, history):
+                if proc.needed_since is None:
+                    proc.needed_since = now
+                spec = proc.spec
+                assert spec.needed is not None
+                if now - proc.needed_since >= spec.needed.for_us:
+                    needed.append((name, spec.device, spec.description, spec.needed.text))
+            else:
+                proc.needed_since = None
+        self.needed = tuple(needed)
+
+    def fov(self, image: Image, history: History, now: int) -> tuple[bool, ...]:
+        """Stage 5 in recovery mode: the procedure's vector (others safe)."""
+        proc = self.active
+        vector = list(self.safe)
+        if proc is None or self.status != "running":
+            return tuple(vector)
+        while self.step < len(proc.steps) and proc.steps[self.step][1](image, history):
+            self.step += 1
+        if self.step >= len(proc.steps):
+            self.status = "done"
+            self.ended_us = now
+            self.message = (f"done in {seconds(now - self.started_us)} s: "
+                            f"{proc.spec.description}")
+            return tuple(vector)
+        if now - self.started_us >= proc.spec.timeout_us:
+            self.status = "failed"
+            self.ended_us = now
+            step = proc.spec.steps[self.step]
+            self.message = (f"not done within {seconds(proc.spec.timeout_us)} s (step "
+                            f"{self.step + 1}, {step.description.lower()}, did not end): "
+                            "outputs held safe")
+            return tuple(vector)
+        for slot, condition in proc.steps[self.step][0]:
+            vector[slot] = condition is None or condition(image, history)
+        return tuple(vector)
+
+    @property
+    def filter_stage(self) -> FilterStage | None:
+        return self.active.filter if self.active is not None else None
+
+    def unmask(self, mask: tuple[bool, ...] | None) -> tuple[bool, ...] | None:
+        """The diagnosers' mask without the outputs the running procedure drives."""
+        if mask is None or self.active is None:
+            return mask
+        driven = self.active.driven
+        lifted = tuple(m and k not in driven for k, m in enumerate(mask))
+        return lifted if any(lifted) else None
+
+    def state(self, now: int) -> RecoveryState:
+        proc = self.active
+        if proc is None:
+            return RecoveryState(needed=self.needed, procedures=self.catalogue) \
+                if self.needed else self._idle
+        spec = proc.spec
+        step_text = spec.steps[self.step].description if self.status == "running" else ""
+        return RecoveryState(spec.name, spec.device, spec.description, self.status,
+                             self.step + 1 if self.status == "running" else 0,
+                             len(spec.steps), step_text, self.started_us,
+                             (self.ended_us if self.ended_us is not None else now)
+                             - self.started_us, spec.timeout_us, self.message,
+                             self.needed, self.catalogue)
+
+    def capture(self) -> tuple[object, ...]:
+        return (self.active, self.status, self.step, self.started_us, self.message,
+                self.ended_us, self.needed, tuple(p.needed_since for p in self.procedures.values()))
+
+    def restore(self, state: tuple[Any, ...]) -> None:
+        (self.active, self.status, self.step, self.started_us, self.message, self.ended_us,
+         self.needed, since) = state
+        for proc, value in zip(self.procedures.values(), since, strict=True):
+            proc.needed_since = value
+
+
+def recovery_stage(project: Project, layout: Layout, safe: tuple[bool, ...],
+                   filter_args: tuple[str, int | None],
+                   mask_flags: Mapping[str, tuple[str, ...]]) -> RecoveryStage | None:
+    """The project's recovery procedures as a stage (None: it declares none)."""
+    return RecoveryStage(project, layout, safe, filter_args, mask_flags) \
+        if recoveries_of(project) else None
+

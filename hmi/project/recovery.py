@@ -1,0 +1,248 @@
+"""The `recovery:` section: declared ways back from a fault (issue 19).
+
+A fault can leave a device where neither the control program nor the operator can move it:
+a valve stopped between its end positions (a jam, repaired; a lost plant connection) is
+refused by the constraints that start a travel only from an end. A *recovery procedure* is
+the way back the engineer declares for such a case: a short sequence of steps that brings a
+device (or the whole cell) to its initial position, with its own safety constraints. The
+operator runs it in recovery mode, entered with a confirmation (GEMMA's A5/A6: prepare the
+restart after a failure, bring the machine to its initial state).
+
+    recovery:
+      V1_home:
+        device: Valve V1
+        description: Close valve V1 (its initial position)
+        needed:                       # optional: when the cell needs it (shown, advised)
+          when: not fsc and not fso and not C and not O
+          for: 500ms
+          text: valve V1 is stopped between its end positions
+        steps:                        # a linear sequence; the last `until` ends it
+          - {description: Closing, do: [C], until: fsc}
+        timeout: 2.5s                 # not done by then: outputs safe, recovery failed
+        relaxes: [CSs3, CSs4, CSs5, CSs6]   # project constraints suspended while it runs
+        constraints:                  # its own, in force while it runs
+          R_V1_closed: {expr: C and fsc, description: never push the closed end stop}
+
+While a procedure runs, the outputs it drives follow its steps and every other output is held
+at its safe value; they are filtered by the project's constraints except the ones it
+`relaxes`, plus its own. A condition reads the inputs of the scan and the orders written at
+the previous scan (like the GRAFCET's receptivities); `do` items are output names or
+`{do: NAME, if: CONDITION}`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from hmi.errors import SourcePos
+from hmi.logic.expr import Expr
+from hmi.logic.names import NAME_RE
+from hmi.project.constraints import parse_constraint
+from hmi.project.model import Constraint, Variable
+from hmi.project.yamlnodes import YNode
+
+if TYPE_CHECKING:
+    from hmi.project.loader import ProjectLoader
+    from hmi.project.model import Project
+
+RECOVERY_KEYS = {"device", "description", "needed", "steps", "timeout", "relaxes",
+                 "constraints"}
+NEEDED_KEYS = {"when", "for", "text"}
+STEP_KEYS = {"description", "do", "until"}
+# The situations a project's explanations may word, per procedure: `<prefix>_<procedure>`.
+RECOVERY_SITUATIONS = ("recovery_needed", "recovery", "recovery_failed")
+CONDITION_KINDS = {"input", "output", "timer", "observer", "flag", "filtered"}
+CONDITION_CONTEXT = ("in a recovery procedure (it may read inputs, outputs, timers, observers "
+                     "and flags)")
+
+
+@dataclass(frozen=True)
+class RecoveryAction:
+    """An output the step turns on, while `condition` holds (None: always)."""
+
+    output: str
+    condition: Expr | None
+
+
+@dataclass(frozen=True)
+class RecoveryStep:
+    description: str
+    actions: tuple[RecoveryAction, ...]
+    until: Expr
+
+
+@dataclass(frozen=True)
+class RecoveryNeed:
+    """When the cell needs the procedure: `when` held for `for_us`; `text` says it plainly."""
+
+    when: Expr
+    for_us: int
+    text: str
+
+
+@dataclass(frozen=True)
+class RecoveryProcedure:
+    name: str
+    device: str  # as the operator knows it ("Valve V1"), or the project's name (the cell)
+    description: str  # what it does, in the operator's words
+    steps: tuple[RecoveryStep, ...]
+    timeout_us: int
+    relaxes: tuple[str, ...]  # project constraints not enforced while it runs
+    constraints: tuple[Constraint, ...]  # its own
+    needed: RecoveryNeed | None
+    pos: SourcePos
+
+    @property
+    def exprs(self) -> tuple[Expr, ...]:
+        """Every expression it evaluates (the engine sizes its history on them)."""
+        out: list[Expr] = [c.expr for c in self.constraints]
+        if self.needed is not None:
+            out.append(self.needed.when)
+        for step in self.steps:
+            out.append(step.until)
+            out.extend(a.condition for a in step.actions if a.condition is not None)
+        return tuple(out)
+
+    @property
+    def outputs(self) -> tuple[str, ...]:
+        """The outputs it drives, in the order its steps name them."""
+        seen: dict[str, None] = {}
+        for step in self.steps:
+            for action in step.actions:
+                seen.setdefault(action.output)
+        return tuple(seen)
+
+
+def recoveries_of(project: Project) -> tuple[RecoveryProcedure, ...]:
+    return project.recovery
+
+
+def parse_recovery(loader: ProjectLoader, constraints: list[Constraint],
+                   outputs: list[Variable]) -> tuple[RecoveryProcedure, ...]:
+    """Read the `recovery:` section once every name and constraint is known; report, never
+    raise."""
+    node = loader.sections.get("recovery")
+    if node is None:
+        return ()
+    items = loader.guard(lambda: node.as_map("the recovery section"), {})
+    known = {c.name for c in constraints}
+    devices = {v.name: v.device or "" for v in outputs}
+    own: dict[str, SourcePos] = {}
+    out = []
+    for name, item in items.items():
+        kpos = node.key_pos.get(name, item.pos)
+        if not NAME_RE.match(str(name)):
+            loader.diag.error(kpos, f"{name!r} is not a valid recovery procedure name",
+                              "letters, digits and _, not starting with a digit")
+            continue
+        procedure = _procedure(loader, str(name), item, kpos, known, own, devices)
+        if procedure is not None:
+            out.append(procedure)
+    return tuple(out)
+
+
+def _procedure(loader: ProjectLoader, name: str, node: YNode, kpos: SourcePos,
+               known: set[str], own: dict[str, SourcePos], devices: dict[str, str]
+               ) -> RecoveryProcedure | None:
+    what = f"recovery procedure {name!r}"
+    fields = loader.guard(lambda: node.check_keys(what, RECOVERY_KEYS,
+                                                  ["description", "steps", "timeout"]))
+    if fields is None:
+        return None
+    description = loader.guard(lambda: fields["description"].as_str("description"), "")
+    device = loader.guard(lambda: fields["device"].as_str("device"), "") \
+        if "device" in fields else ""
+    timeout = loader.guard(lambda: fields["timeout"].as_duration(f"the timeout of {what}"))
+    outputs = set(devices)
+    steps = [loader.guard(lambda s=s, k=k: _step(loader, what, k, s, outputs))
+             for k, s in enumerate(loader.guard(
+                 lambda: fields["steps"].as_seq(f"the steps of {what}"), []), start=1)]
+    if not steps:
+        loader.diag.error(fields["steps"].pos, f"{what} has no steps",
+                          "a list of steps: {description, do, until}")
+    relaxes: list[str] = []
+    if "relaxes" in fields:
+        for item in loader.guard(lambda: fields["relaxes"].as_seq(f"what {what} relaxes"), []):
+            cname = loader.guard(lambda i=item: i.as_str("a constraint name"))
+            if cname is None:
+                continue
+            if cname not in known:
+                loader.diag.error(item.pos, f"{what} relaxes {cname!r}, which is not a "
+                                  "constraint of the project",
+                                  "one of " + ", ".join(sorted(known)))
+                continue
+            relaxes.append(cname)
+    mine: list[Constraint] = []
+    if "constraints" in fields:
+        for cname, cnode in loader.guard(lambda: fields["constraints"].as_map(
+                f"the constraints of {what}"), {}).items():
+            cpos = fields["constraints"].key_pos.get(cname, cnode.pos)
+            cname = str(cname)
+            if cname in known or cname in own:
+                first = own.get(cname)
+                loader.diag.error(cpos, f"constraint name {cname!r} is already used"
+                                  + (f" at {first}" if first else " by the project"),
+                                  "a name of its own (it shows in the filter's report)")
+                continue
+            constraint = parse_constraint(loader, cname, cnode, cpos)
+            if constraint is not None:
+                own[cname] = cpos
+                mine.append(constraint)
+    needed = _needed(loader, what, fields["needed"]) if "needed" in fields else None
+    if timeout is None or any(s is None for s in steps) or not steps or (
+            "needed" in fields and needed is None):
+        return None
+    if not device:
+        named = {devices[a.output] for s in steps if s for a in s.actions} - {""}
+        device = named.pop() if len(named) == 1 else ""
+    return RecoveryProcedure(name, device, description, tuple(s for s in steps if s),
+                             timeout, tuple(relaxes), tuple(mine), needed, kpos)
+
+
+def _needed(loader: ProjectLoader, what: str, node: YNode) -> RecoveryNeed | None:
+    fields = loader.guard(lambda: node.check_keys(f"when {what} is needed", NEEDED_KEYS,
+                                                  ["when", "text"]))
+    if fields is None:
+        return None
+    when = loader.expr(fields["when"], f"when {what} is needed", CONDITION_KINDS,
+                       context=CONDITION_CONTEXT)
+    text = loader.guard(lambda: fields["text"].as_str("text"))
+    for_us = loader.guard(lambda: fields["for"].as_duration("for", allow_zero=True), None) \
+        if "for" in fields else 0
+    if when is None or text is None or for_us is None:
+        return None
+    return RecoveryNeed(when, for_us, text)
+
+
+def _step(loader: ProjectLoader, what: str, number: int, node: YNode, outputs: set[str]
+          ) -> RecoveryStep | None:
+    where = f"step {number} of {what}"
+    fields = node.check_keys(where, STEP_KEYS, ["do", "until"])
+    description = fields["description"].as_str("description") if "description" in fields \
+        else f"step {number}"
+    until = loader.expr(fields["until"], f"the end condition of {where}", CONDITION_KINDS,
+                        context=CONDITION_CONTEXT)
+    actions = []
+    ok = until is not None
+    for item in fields["do"].as_seq(f"the outputs {where} drives"):
+        condition = None
+        if item.kind == "map":
+            afields = item.check_keys(f"an action of {where}", {"do", "if"}, ["do"])
+            target_node = afields["do"]
+            if "if" in afields:
+                condition = loader.expr(afields["if"], f"the condition of an action of {where}",
+                                        CONDITION_KINDS, context=CONDITION_CONTEXT)
+                ok = ok and condition is not None
+        else:
+            target_node = item
+        target = target_node.as_str("an output name")
+        if target not in outputs:
+            loader.diag.error(target_node.pos, f"{where} drives {target!r}, which is not an "
+                              "output", "one of " + ", ".join(sorted(outputs)))
+            ok = False
+            continue
+        actions.append(RecoveryAction(target, condition))
+    if not ok or until is None:
+        return None
+    return RecoveryStep(description, tuple(actions), until)
