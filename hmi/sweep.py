@@ -137,13 +137,13 @@ def _pick_task(project, name: str | None):
 def _default_fault(project, task) -> str:
     """The interruption fault of the device whose sensor the task's interruption reads."""
     from hmi.logic.expr import variables
-    from hmi.plant.sim.models import MODELS
+    from hmi.project.device_models import DEVICE_MODELS
     exprs = [e for e in (task.interrupted, task.interrupt, task.resume) if e is not None]
     names = {v.name for e in exprs for v in variables(e)}
     found = []
     for spec in project.plant.devices:
-        model = MODELS.get(spec.model)
-        code = getattr(model, "INTERRUPTION_FAULT", None)
+        model = DEVICE_MODELS.get(spec.model)
+        code = model.interruption_fault if model is not None else None
         if code and names & set(spec.ports.values()):
             found.append(f"{spec.name}.{code}")
     if len(found) != 1:

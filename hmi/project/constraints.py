@@ -12,6 +12,7 @@ from hmi.logic.expr import NotMonomial, monomial_literals
 from hmi.logic.names import NAME_HINT, name_problem
 from hmi.project.model import (
     Constraint,
+    ConstraintKind,
 )
 from hmi.project.reader import ProjectReader
 from hmi.project.yamlnodes import YNode
@@ -86,7 +87,7 @@ def parse_constraint(reader: ProjectReader, name: str, node: YNode,
                           "filter cannot enforce it",
                           "at least one output without prev(), e.g. 'C and fsc'")
         return None
-    kind = "simple" if len(outputs) == 1 else "combined"
+    kind: ConstraintKind = "simple" if len(outputs) == 1 else "combined"
     positive = None
     if kind == "simple":
         positive = next(lit.positive for lit in literals

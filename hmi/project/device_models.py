@@ -59,6 +59,7 @@ class DeviceModel:
     # Values that do not fit together (each alone passed its ParamSpec), given every
     # parameter's value (the defaults and the project's).
     problems: Callable[[Mapping[str, Any]], Problems] = _no_problems
+    interruption_fault: str | None = None  # the fault that interrupts its task (sweeps)
 
     def param_problems(self, params: Mapping[str, Any]) -> Problems:
         """(parameter, what is wrong, what was expected), reported at the parameter."""
@@ -161,6 +162,7 @@ CONVEYOR = DeviceModel(
                           "duration, else for good)", "actuator"),
     },
     counters=("pallets", "handed"),
+    interruption_fault="stop",
 )
 
 ROBOT = DeviceModel(
@@ -178,6 +180,7 @@ ROBOT = DeviceModel(
         "skip": FaultSpec("skip", "part missing: the robot ends its task at once", "actuator"),
     },
     counters=("transfers",),
+    interruption_fault="stop",
 )
 
 # -- pump and tank (hmi/plant/sim/pump.py, tank.py) -------------------------------------------

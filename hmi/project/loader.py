@@ -22,7 +22,9 @@ from hmi.project.model import (
     MAX_SOLVER_BUDGET,
     MIN_SOLVER_BUDGET,
     POLICIES,
+    PolicyName,
     Project,
+    SolverName,
 )
 from hmi.project.monitors import parse_monitors
 from hmi.project.plant import parse_plant
@@ -196,10 +198,10 @@ class ProjectLoader(ProjectReader):
         controls, default_control = parse_controls(self, pos, {v.name for v in outputs},
                                                    {m.name for m in memories})
         constraints = parse_constraints(self)
-        policy = "correct"
+        policy: PolicyName = "correct"
         if "policy" in s:
             policy = self.guard(lambda: self.choice(s["policy"], "policy", POLICIES), policy)
-        solver = "exact"
+        solver: SolverName = "exact"
         if "solver" in s:
             solver = self.guard(lambda: self.choice(s["solver"], "solver", ("exact", "paper")),
                                 solver)

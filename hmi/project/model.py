@@ -6,6 +6,7 @@ beyond the positions kept for error messages and explanations.
 
 from __future__ import annotations
 
+import typing
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,6 +23,17 @@ if TYPE_CHECKING:  # the sections' own types (they import this module)
     from hmi.project.recovery import RecoveryProcedure
     from hmi.project.scenarios import Scenario
     from hmi.project.texts import ProjectTexts
+
+# The closed vocabularies of the model, as types: mypy (strict, CI) refuses a misspelt kind
+# or policy wherever one is compared or built. At run time they are the plain strings the
+# project file holds (the loader checks them against these same lists).
+VariableKind = typing.Literal["input", "output", "memory"]
+TimerKind = typing.Literal["TON", "TOF"]
+ActionKind = typing.Literal["N", "S", "R"]
+ConstraintKind = typing.Literal["simple", "combined"]
+PlantKind = typing.Literal["sim", "modbus"]
+PolicyName = typing.Literal["monitor", "block", "correct"]
+SolverName = typing.Literal["exact", "paper"]
 
 # --------------------------------------------------------------------------------------------
 # I/O and memory
@@ -51,7 +63,7 @@ class PlantAddress:
 @dataclass(frozen=True)
 class Variable:
     name: str
-    kind: str  # "input", "output" or "memory"
+    kind: VariableKind
     description: str
     safe: bool = False  # outputs: the value written in the safe state; memories: initial
     address: PlantAddress | None = None
@@ -64,7 +76,7 @@ class Timer:
     """IEC 61131-3 TON / TOF: Q follows IN after PT (TON) or stays PT after IN falls (TOF)."""
 
     name: str
-    kind: str  # "TON" or "TOF"
+    kind: TimerKind
     input: Expr
     preset_us: int
     description: str
@@ -105,7 +117,7 @@ class Equation:
 class Action:
     """A step action: continuous (N, optionally conditional) or stored on activation (S/R)."""
 
-    kind: str  # "N", "S" or "R"
+    kind: ActionKind  # continuous (N), set (S), reset (R)
     target: str
     condition: Expr | None = None
     pos: SourcePos = field(default_factory=lambda: SourcePos("?"))
@@ -172,7 +184,7 @@ class Constraint:
     name: str
     expr: Expr
     literals: tuple[Literal, ...]
-    kind: str
+    kind: ConstraintKind
     outputs: tuple[str, ...]
     description: str
     pos: SourcePos
@@ -208,7 +220,7 @@ class DeviceSpec:
 
 @dataclass(frozen=True)
 class PlantSpec:
-    kind: str  # "sim" or "modbus"
+    kind: PlantKind
     devices: tuple[DeviceSpec, ...] = ()
     host: str = "127.0.0.1"
     port: int = 502
@@ -244,11 +256,11 @@ class Project:
     controls: dict[str, ControlLaw]
     default_control: str
     constraints: tuple[Constraint, ...]
-    policy: str  # "monitor", "block" or "correct"
+    policy: PolicyName
     plant: PlantSpec
     pos: SourcePos
     files: tuple[str, ...] = ()
-    solver: str = "exact"  # the corrector's search strategy: "exact" or "paper"
+    solver: SolverName = "exact"  # the corrector's search strategy
     # The corrector's search budget per scan, in steps (hmi.engine.solver); None: the default
     # for the scan period (solver.default_budget).
     solver_budget: int | None = None
@@ -308,4 +320,4 @@ class Project:
         return self.controls[name or self.default_control]
 
 
-POLICIES = ("monitor", "block", "correct")
+POLICIES: tuple[PolicyName, ...] = typing.get_args(PolicyName)

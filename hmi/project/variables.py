@@ -18,6 +18,7 @@ from hmi.project.model import (
     PlantAddress,
     Timer,
     Variable,
+    VariableKind,
 )
 from hmi.project.reader import ProjectReader
 from hmi.project.yamlnodes import NodeError, YNode
@@ -30,19 +31,20 @@ GLOBAL_KINDS = {"input", "output", "timer", "observer", "flag", "filtered"}
 PREV_ONLY = {"output", "flag", "filtered"}  # for timers and observers
 
 
-def read_variables(reader: ProjectReader, key: str, kind: str, allowed: set[str]) -> list[Variable]:
+def read_variables(reader: ProjectReader, key: str, kind: VariableKind,
+                   allowed: set[str]) -> list[Variable]:
     out = []
     for name, node, kpos in reader.section_items(key):
         if not reader.declare(str(name), kind, kpos):
             continue
-        var = reader.guard(lambda n=node, nm=str(name), p=kpos: _variable(reader,
-            n, nm, kind, allowed, p))
+        var = reader.guard(lambda n=node, nm=str(name), p=kpos: _variable(
+            reader, n, nm, kind, allowed, p))
         if var is not None:
             out.append(var)
     return out
 
 
-def _variable(reader: ProjectReader, node: YNode, name: str, kind: str, allowed: set[str],
+def _variable(reader: ProjectReader, node: YNode, name: str, kind: VariableKind, allowed: set[str],
               kpos: SourcePos) -> Variable:
     """A declared variable, even when one of its fields is wrong: that field's error is
     reported and a neutral value stands in, so that the rest of the project is checked

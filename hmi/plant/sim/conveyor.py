@@ -30,8 +30,6 @@ _NEVER = 1 << 62
 
 
 class Conveyor(SimDevice, model=CONVEYOR):
-    INTERRUPTION_FAULT = "stop"  # the fault that interrupts this device's task (sweeps)
-
     def __init__(self, name: str, params: dict[str, Any]):
         super().__init__(name, params)
         self.length = int(self.params["transport"]) * SCALE

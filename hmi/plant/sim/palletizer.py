@@ -53,7 +53,6 @@ ACTUATORS = PALLETIZER.actuators
 TRANSFER = 0.9  # fraction of the pusher's stroke where the box leaves the feed for the plate
 
 class Palletizer(SteppedCell, model=PALLETIZER):
-
     def __init__(self, name: str, params: dict[str, Any]):
         super().__init__(name, params)
         p = self.params

@@ -26,8 +26,6 @@ HOME, WORKING, DONE, RETURNING = "home", "working", "done", "returning"
 
 
 class Robot(SimDevice, model=ROBOT):
-    INTERRUPTION_FAULT = "stop"
-
     def __init__(self, name: str, params: dict[str, Any]):
         super().__init__(name, params)
         self.work = int(self.params["work"])

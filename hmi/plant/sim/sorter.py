@@ -62,7 +62,6 @@ def _mm(value: float) -> int:
 
 
 class SortingCell(SteppedCell, model=SORTING_CELL):
-
     def __init__(self, name: str, params: dict[str, Any]):
         super().__init__(name, params)
         p = self.params
