@@ -482,17 +482,11 @@ class CellServer:
                            comment: ua.Variant) -> ua.StatusCode:
         """Part 9 Acknowledge on a condition: the session's Acknowledge, journalled with the
         client's identity."""
-        who = _identity(_caller.get())
-        denied = self._denied(who)
-        if denied is not None:
-            return denied
-        key = self.condition_keys.get(parent)
-        if key is None:
-            return ua.StatusCode(ua.StatusCodes.BadNodeIdUnknown)
-        if _value(event_id) not in self.event_ids.get(key, ()):
-            return ua.StatusCode(ua.StatusCodes.BadEventIdUnknown)
-        text = _value(comment)
-        note = text.Text if isinstance(text, ua.LocalizedText) else ""
+        found = self._condition_call(parent, event_id)
+        if isinstance(found, ua.StatusCode):
+            return found
+        who, key = found
+        note = _comment_text(comment)
         self.tracker.acknowledged_by(key, who.name or "", note or "")
         result = await self._command(Acknowledge(key), who, note or "")
         if not result.accepted:
@@ -536,6 +530,18 @@ class CellServer:
     async def _add_comment(self, parent: ua.NodeId, event_id: ua.Variant,
                            comment: ua.Variant) -> ua.StatusCode:
         """Part 9 AddComment: the HMI's comment on an alarm, journalled with the user."""
+        found = self._condition_call(parent, event_id)
+        if isinstance(found, ua.StatusCode):
+            return found
+        who, key = found
+        result = await self._command(CommentAlarm(key, _comment_text(comment)), who)
+        return ua.StatusCode() if result.accepted else ua.StatusCode(
+            ua.StatusCodes.BadInvalidArgument)
+
+    def _condition_call(self, parent: ua.NodeId, event_id: ua.Variant
+                        ) -> tuple[Identity, str] | ua.StatusCode:
+        """The caller and the alarm a Part 9 method on a condition names, or the refusal:
+        Acknowledge and AddComment check the same user, condition and event id."""
         who = _identity(_caller.get())
         denied = self._denied(who)
         if denied is not None:
@@ -545,11 +551,7 @@ class CellServer:
             return ua.StatusCode(ua.StatusCodes.BadNodeIdUnknown)
         if _value(event_id) not in self.event_ids.get(key, ()):
             return ua.StatusCode(ua.StatusCodes.BadEventIdUnknown)
-        text = _value(comment)
-        result = await self._command(CommentAlarm(key, text.Text if isinstance(
-            text, ua.LocalizedText) and text.Text else ""), who)
-        return ua.StatusCode() if result.accepted else ua.StatusCode(
-            ua.StatusCodes.BadInvalidArgument)
+        return who, key
 
     def _denied(self, who: Identity) -> ua.StatusCode | None:
         if not self.options.writable or who.name is None:
@@ -687,3 +689,9 @@ def _two_state(event: Any, name: str, value: bool, true: str, false: str,
     setattr(event, f"{name}/Id", value)
     if changed and f"{name}/TransitionTime" in event.data_types:
         setattr(event, f"{name}/TransitionTime", stamp)
+
+
+def _comment_text(comment: ua.Variant) -> str:
+    """The text of a Part 9 method's LocalizedText comment ('' when none was given)."""
+    text = _value(comment)
+    return (text.Text or "") if isinstance(text, ua.LocalizedText) else ""
