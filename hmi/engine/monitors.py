@@ -132,6 +132,17 @@ class MonitorStage:
         self._states = tuple(cached)  # type: ignore[arg-type]  # every entry is set above
         return self._states
 
+    def abandon(self) -> list[str]:
+        """A recovery starts: every task in progress is forgotten (TaskAutomaton.abandon).
+        Returns the tasks abandoned, by their titles."""
+        abandoned = []
+        for k, (spec, a) in enumerate(zip(self.specs, self.automata, strict=True)):
+            if a.abandon():
+                abandoned.append(spec.title)
+                self._dirty[k] = True
+        self._states = None
+        return abandoned
+
     def reset(self) -> list[str]:
         """Fault reset: release each latched label whose task is no longer faulty."""
         lines = []

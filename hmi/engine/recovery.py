@@ -12,7 +12,7 @@ The procedures are the project's (hmi.project.recovery). The engine owns one
   filtered: `monitor` runs it under `correct`). The diagnosers' mask is lifted from the
   outputs it drives: the operator confirmed the device is repaired.
 
-A step ends when its `until` holds; the last one ends the procedure (done: everything safe,
+A step ends when its `until` holds (for the step's `for`, if it has one); the last one ends the procedure (done: everything safe,
 the cell waits for the operator to leave recovery). Past its timeout the procedure fails:
 outputs safe, the operator told. Every scan, in any mode, the stage also says which
 procedures the cell needs (their `needed` condition held long enough).
@@ -76,6 +76,7 @@ class _Procedure:
             ([(index[a.output], compile_bool(a.condition, slots) if a.condition else None)
               for a in step.actions], compile_bool(step.until, slots))
             for step in spec.steps]
+        self.hold = tuple(step.for_us for step in spec.steps)
         self.needed: BoolFn | None = compile_bool(spec.needed.when, slots) \
             if spec.needed else None
         self.needed_since: int | None = None
@@ -102,6 +103,7 @@ class RecoveryStage:
         self.started_us = 0
         self.message = ""
         self.ended_us: int | None = None
+        self.held_since: int | None = None  # the current step's `until` holds since then
         self.needed: tuple[tuple[str, str, str, str], ...] = ()
         devices = {v.name: v.device for v in project.outputs if v.device}
         self.catalogue = tuple(
@@ -118,6 +120,7 @@ class RecoveryStage:
         self.started_us = now
         self.message = ""
         self.ended_us = None
+        self.held_since = None
 
     def stop(self) -> str:
         """Leave recovery: what the procedure had reached, for the operator."""
@@ -152,8 +155,18 @@ class RecoveryStage:
         vector = list(self.safe)
         if proc is None or self.status != "running":
             return tuple(vector)
-        while self.step < len(proc.steps) and proc.steps[self.step][1](image, history):
+        while self.step < len(proc.steps):
+            if not proc.steps[self.step][1](image, history):
+                self.held_since = None
+                break
+            hold = proc.hold[self.step]
+            if hold:
+                if self.held_since is None:
+                    self.held_since = now
+                if now - self.held_since < hold:
+                    break
             self.step += 1
+            self.held_since = None
         if self.step >= len(proc.steps):
             self.status = "done"
             self.ended_us = now
@@ -200,11 +213,12 @@ class RecoveryStage:
 
     def capture(self) -> tuple[object, ...]:
         return (self.active, self.status, self.step, self.started_us, self.message,
-                self.ended_us, self.needed, tuple(p.needed_since for p in self.procedures.values()))
+                self.ended_us, self.held_since, self.needed,
+                tuple(p.needed_since for p in self.procedures.values()))
 
     def restore(self, state: tuple[Any, ...]) -> None:
         (self.active, self.status, self.step, self.started_us, self.message, self.ended_us,
-         self.needed, since) = state
+         self.held_since, self.needed, since) = state
         for proc, value in zip(self.procedures.values(), since, strict=True):
             proc.needed_since = value
 

@@ -276,6 +276,8 @@ class Engine:
         if self.diagnosis is not None:
             self.diagnosis.resynchronise(devices, self.now, self.scan,
                                          f"recovery {name} started: re-synchronising")
+        if self.monitors is not None:  # the program's tasks in progress are void now
+            self.monitors.abandon()
         self.mode = "recovery"
         self.manual = {}
         stage.start(name, self.now)
@@ -286,9 +288,19 @@ class Engine:
     def _end_recovery(self) -> CommandResult:
         if self.mode != "recovery" or self.recovery is None:
             return CommandResult.refused("not in recovery mode")
+        active = self.recovery.active
         reached = self.recovery.stop()
         self.mode = "auto"
         self.control.reset(self.image, self.now)
+        if active is not None and reached == "done":
+            # The observers the procedure re-establishes (a turntable emptied: an observer
+            # set on an edge that never came back would deny it) start from their initial
+            # values, like the program's steps.
+            for observer in self.project.observers:
+                if observer.name in active.spec.resets:
+                    self.image[self.layout.slots[observer.name]] = observer.initial
+        if self.monitors is not None:  # tasks the procedure's moves started are not the
+            self.monitors.abandon()    # program's
         return CommandResult.ok(f"recovery {reached}; automatic mode: the control program "
                                 "starts again from its initial steps")
 

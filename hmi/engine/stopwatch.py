@@ -134,6 +134,10 @@ class Watchdog:
     def start(self) -> None:
         self._armed = True
 
+    def stop(self) -> None:
+        """The attempt was abandoned: nothing to trip on."""
+        self._armed = False
+
     def observe(self, now: int, scan: int, x_us: int, attempt: int, ended: bool) -> None:
         """Called at every scan of an attempt (including the scan that sees its end)."""
         if self._armed and x_us >= self.gamma_us:
@@ -243,6 +247,17 @@ class TaskAutomaton:
         if y < w.alpha_us:
             return "too_fast"
         return None
+
+    def abandon(self) -> bool:
+        """Forget the attempt in progress (True if there was one): a recovery is about to
+        move the cell in ways no task describes, and the program restarts from its initial
+        steps after it. The next start begins a new attempt; a latched label stays until a
+        fault reset, which can release it now that no condemned attempt runs."""
+        if self.phase is Phase.IDLE:
+            return False
+        self.phase = Phase.IDLE
+        self.watchdog.stop()
+        return True
 
     # -- fault reset ------------------------------------------------------------------------
     def reset(self) -> bool:

@@ -215,7 +215,7 @@ class ProjectLoader(ProjectReader):
         scenarios = parse_scenarios(self, plant)
         diagnosers = parse_diagnosers(self)  # hmi/project/diagnosers.py
         campaign = parse_campaign(self, plant)  # hmi/project/campaign.py
-        recovery = parse_recovery(self, constraints, outputs)  # hmi/project/recovery.py
+        recovery = parse_recovery(self, constraints, outputs, observers)  # hmi/project/recovery.py
         texts = None
         sources: list[tuple[ComponentInstance | None, YNode]] = [*self.components.explanations]
         if "explanations" in s:

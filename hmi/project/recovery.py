@@ -17,9 +17,10 @@ restart after a failure, bring the machine to its initial state).
           for: 500ms
           text: valve V1 is stopped between its end positions
         steps:                        # a linear sequence; the last `until` ends it
-          - {description: Closing, do: [C], until: fsc}
+          - {description: Closing, do: [C], until: fsc}   # `for: 1s`: until held that long
         timeout: 2.5s                 # not done by then: outputs safe, recovery failed
         relaxes: [CSs3, CSs4, CSs5, CSs6]   # project constraints suspended while it runs
+        resets: []                    # observers back to their initial value once done
         constraints:                  # its own, in force while it runs
           R_V1_closed: {expr: C and fsc, description: never push the closed end stop}
 
@@ -39,7 +40,7 @@ from hmi.errors import SourcePos
 from hmi.logic.expr import Expr
 from hmi.logic.names import NAME_RE
 from hmi.project.constraints import parse_constraint
-from hmi.project.model import Constraint, Variable
+from hmi.project.model import Constraint, Observer, Variable
 from hmi.project.yamlnodes import YNode
 
 if TYPE_CHECKING:
@@ -47,9 +48,9 @@ if TYPE_CHECKING:
     from hmi.project.model import Project
 
 RECOVERY_KEYS = {"device", "description", "needed", "steps", "timeout", "relaxes",
-                 "constraints"}
+                 "constraints", "resets"}
 NEEDED_KEYS = {"when", "for", "text"}
-STEP_KEYS = {"description", "do", "until"}
+STEP_KEYS = {"description", "do", "until", "for"}
 # The situations a project's explanations may word, per procedure: `<prefix>_<procedure>`.
 RECOVERY_SITUATIONS = ("recovery_needed", "recovery", "recovery_failed")
 CONDITION_KINDS = {"input", "output", "timer", "observer", "flag", "filtered"}
@@ -70,6 +71,8 @@ class RecoveryStep:
     description: str
     actions: tuple[RecoveryAction, ...]
     until: Expr
+    # `until` must hold this long (a table rolled for a second with no box seen is empty).
+    for_us: int = 0
 
 
 @dataclass(frozen=True)
@@ -92,6 +95,9 @@ class RecoveryProcedure:
     constraints: tuple[Constraint, ...]  # its own
     needed: RecoveryNeed | None
     pos: SourcePos
+    # The program's set/reset observers it brings back to their initial value when it is
+    # done (a turntable emptied: "a box lies on the table" is false whatever edge was missed).
+    resets: tuple[str, ...] = ()
 
     @property
     def exprs(self) -> tuple[Expr, ...]:
@@ -119,7 +125,8 @@ def recoveries_of(project: Project) -> tuple[RecoveryProcedure, ...]:
 
 
 def parse_recovery(loader: ProjectLoader, constraints: list[Constraint],
-                   outputs: list[Variable]) -> tuple[RecoveryProcedure, ...]:
+                   outputs: list[Variable], observers: list[Observer]
+                   ) -> tuple[RecoveryProcedure, ...]:
     """Read the `recovery:` section once every name and constraint is known; report, never
     raise."""
     node = loader.sections.get("recovery")
@@ -128,6 +135,7 @@ def parse_recovery(loader: ProjectLoader, constraints: list[Constraint],
     items = loader.guard(lambda: node.as_map("the recovery section"), {})
     known = {c.name for c in constraints}
     devices = {v.name: v.device or "" for v in outputs}
+    memorised = {o.name for o in observers if o.expr is None}
     own: dict[str, SourcePos] = {}
     out = []
     for name, item in items.items():
@@ -136,15 +144,15 @@ def parse_recovery(loader: ProjectLoader, constraints: list[Constraint],
             loader.diag.error(kpos, f"{name!r} is not a valid recovery procedure name",
                               "letters, digits and _, not starting with a digit")
             continue
-        procedure = _procedure(loader, str(name), item, kpos, known, own, devices)
+        procedure = _procedure(loader, str(name), item, kpos, known, own, devices, memorised)
         if procedure is not None:
             out.append(procedure)
     return tuple(out)
 
 
 def _procedure(loader: ProjectLoader, name: str, node: YNode, kpos: SourcePos,
-               known: set[str], own: dict[str, SourcePos], devices: dict[str, str]
-               ) -> RecoveryProcedure | None:
+               known: set[str], own: dict[str, SourcePos], devices: dict[str, str],
+               memorised: set[str]) -> RecoveryProcedure | None:
     what = f"recovery procedure {name!r}"
     fields = loader.guard(lambda: node.check_keys(what, RECOVERY_KEYS,
                                                   ["description", "steps", "timeout"]))
@@ -189,6 +197,18 @@ def _procedure(loader: ProjectLoader, name: str, node: YNode, kpos: SourcePos,
             if constraint is not None:
                 own[cname] = cpos
                 mine.append(constraint)
+    resets: list[str] = []
+    if "resets" in fields:
+        for item in loader.guard(lambda: fields["resets"].as_seq(f"what {what} resets"), []):
+            oname = loader.guard(lambda i=item: i.as_str("an observer name"))
+            if oname is None:
+                continue
+            if oname not in memorised:
+                loader.diag.error(item.pos, f"{what} resets {oname!r}, which is not an "
+                                  "observer with set and reset",
+                                  "one of " + (", ".join(sorted(memorised)) or "(none)"))
+                continue
+            resets.append(oname)
     needed = _needed(loader, what, fields["needed"]) if "needed" in fields else None
     if timeout is None or any(s is None for s in steps) or not steps or (
             "needed" in fields and needed is None):
@@ -197,7 +217,8 @@ def _procedure(loader: ProjectLoader, name: str, node: YNode, kpos: SourcePos,
         named = {devices[a.output] for s in steps if s for a in s.actions} - {""}
         device = named.pop() if len(named) == 1 else ""
     return RecoveryProcedure(name, device, description, tuple(s for s in steps if s),
-                             timeout, tuple(relaxes), tuple(mine), needed, kpos)
+                             timeout, tuple(relaxes), tuple(mine), needed, kpos,
+                             tuple(resets))
 
 
 def _needed(loader: ProjectLoader, what: str, node: YNode) -> RecoveryNeed | None:
@@ -223,6 +244,8 @@ def _step(loader: ProjectLoader, what: str, number: int, node: YNode, outputs: s
         else f"step {number}"
     until = loader.expr(fields["until"], f"the end condition of {where}", CONDITION_KINDS,
                         context=CONDITION_CONTEXT)
+    for_us = fields["for"].as_duration(f"how long the end condition of {where} must hold",
+                                       allow_zero=True) if "for" in fields else 0
     actions = []
     ok = until is not None
     for item in fields["do"].as_seq(f"the outputs {where} drives"):
@@ -245,4 +268,4 @@ def _step(loader: ProjectLoader, what: str, number: int, node: YNode, outputs: s
         actions.append(RecoveryAction(target, condition))
     if not ok or until is None:
         return None
-    return RecoveryStep(description, tuple(actions), until)
+    return RecoveryStep(description, tuple(actions), until, for_us)

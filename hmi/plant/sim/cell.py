@@ -3,8 +3,9 @@ steps, and the usual faults — each drive's jam, each sensor stuck at 0 or 1 (s
 :func:`hmi.project.device_models.jam_and_stuck_faults`).
 
 A subclass gives its sensors as the physics has them (:meth:`true_sensors`), one physics step
-(:meth:`_step`) and what a jam does (:meth:`_jammed`); a stuck sensor is applied here, over
-the true value, so no model can forget it.
+(:meth:`_step`) and what the jams do (:meth:`_jams_changed`); a stuck sensor is applied here,
+over the true value, so no model can forget it. A repair (the technician's, in training)
+clears both: the drives move again and the sensors read the truth, from where the cell is.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from hmi.plant.sim.device import PendingFault, SimDevice
 
 
 class SteppedCell(SimDevice):
+    REPAIRABLE = True
     MAX_STEP_US: ClassVar[int] = 5_000  # physics step: at 300 mm/s a box moves 1.5 mm
 
     def __init__(self, name: str, params: Mapping[str, Any]):
@@ -49,8 +51,13 @@ class SteppedCell(SimDevice):
             self.stuck[code.rsplit("_", 1)[0]] = code.endswith("1")
         else:
             self.jams.add(code)
-            self._jammed(code)
+            self._jams_changed()
+
+    def _repaired(self) -> None:
+        self.jams.clear()
+        self.stuck.clear()
+        self._jams_changed()
 
     @abstractmethod
-    def _jammed(self, code: str) -> None:
-        """Hook: the drive a jam fault names stops moving."""
+    def _jams_changed(self) -> None:
+        """Hook: the drives named in `self.jams` stop moving, the others move again."""

@@ -15,6 +15,7 @@ Faults, each injected at a time, optionally for a duration (``stop@1s+2s``), els
         away without repair);
   slip  the belt slips: pallets move at ``slip_speed`` of full speed (the task runs, slowly:
         its effective work grows beyond beta).
+A repair (training) ends a halt or a slip at once.
 """
 
 from __future__ import annotations
@@ -30,6 +31,8 @@ _NEVER = 1 << 62
 
 
 class Conveyor(SimDevice, model=CONVEYOR):
+    REPAIRABLE = True
+
     def __init__(self, name: str, params: dict[str, Any]):
         super().__init__(name, params)
         self.length = int(self.params["transport"]) * SCALE
@@ -84,6 +87,11 @@ class Conveyor(SimDevice, model=CONVEYOR):
             self.halt_until = max(self.halt_until, until)
         elif fault.code == "slip":
             self.slip_until = max(self.slip_until, until)
+
+    def _repaired(self) -> None:
+        """The belt runs again at full speed from now (a halt or a slip ends)."""
+        self.halt_until = min(self.halt_until, self.t)
+        self.slip_until = min(self.slip_until, self.t)
 
     def _orders_changed(self, t: int, changed: dict[str, bool]) -> None:
         if changed.get("release") and self.at_end:

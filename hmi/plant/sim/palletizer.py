@@ -290,11 +290,12 @@ class Palletizer(SteppedCell, model=PALLETIZER):
         if "ELEV_UP" in changed or "ELEV_DOWN" in changed:
             self.lift.release()
 
-    def _jammed(self, code: str) -> None:
-        travel = {"pusher_jam": self.pusher, "plate_jam": self.plate,
-                  "clamp_jam": self.clamp, "elevator_jam": self.lift}.get(code)
-        if travel is not None:
-            travel.jammed = True
+    def _jams_changed(self) -> None:
+        for code, travel in (("pusher_jam", self.pusher), ("plate_jam", self.plate),
+                             ("clamp_jam", self.clamp), ("elevator_jam", self.lift)):
+            if travel.jammed and code not in self.jams:
+                travel.release()  # repaired: a stall starts counting again
+            travel.jammed = code in self.jams
 
     # -- reporting --------------------------------------------------------------------------
     def state(self) -> dict[str, Any]:

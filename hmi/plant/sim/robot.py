@@ -11,6 +11,7 @@ Faults, each injected at a time, optionally for a duration, else for good:
         sensor ``halted`` reads 1 - the interruption of the robot task;
   skip  the part is missing: the robot ends its current task at once (or its next one, if
         idle) and reports R, far faster than normal.
+A repair (training) clears the stop at once and disarms a skip not yet used.
 """
 
 from __future__ import annotations
@@ -26,6 +27,8 @@ HOME, WORKING, DONE, RETURNING = "home", "working", "done", "returning"
 
 
 class Robot(SimDevice, model=ROBOT):
+    REPAIRABLE = True
+
     def __init__(self, name: str, params: dict[str, Any]):
         super().__init__(name, params)
         self.work = int(self.params["work"])
@@ -80,6 +83,11 @@ class Robot(SimDevice, model=ROBOT):
                 self._end_task()
             else:
                 self.skip_armed = True
+
+    def _repaired(self) -> None:
+        """The protective stop clears now; a part reported missing is there again."""
+        self.halt_until = min(self.halt_until, self.t)
+        self.skip_armed = False
 
     def _orders_changed(self, t: int, changed: dict[str, bool]) -> None:
         if "G" not in changed:

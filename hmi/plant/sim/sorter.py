@@ -295,7 +295,9 @@ class SortingCell(SteppedCell, model=SORTING_CELL):
             self.turn.release()
         self._build_lines()
 
-    def _jammed(self, code: str) -> None:
+    def _jams_changed(self) -> None:
+        if self.turn.jammed and "table_jam" not in self.jams:
+            self.turn.release()  # repaired: a stall starts counting again
         self.turn.jammed = "table_jam" in self.jams
         self._build_lines()
 
