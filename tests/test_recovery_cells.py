@@ -42,9 +42,7 @@ CELLS = {
         "sorting", 20 * S, ("sorted_left", "sorted_right"),
         # A box left across an edge of the table, or the program waiting for an edge that
         # passed while a sensor was dead: the turntable must be cleared and brought home.
-        dict.fromkeys(("low_stuck0", "entry_end_stuck0", "tt_back_stuck0",
-                       "tt_back_stuck1", "tt_front_stuck0", "tt_0_stuck1", "tt_90_stuck0",
-                       "tt_90_stuck1"), "table_home"),
+        dict.fromkeys(("tt_front_stuck0", "tt_0_stuck1", "tt_90_stuck0"), "table_home"),
         # at_entry and left_in/right_in are read by nothing; high only sorts (a missorted
         # box is not an alarm); a jammed entry looks like no box arriving; the right exit
         # blocked at 20 s fills without a box reaching its end in the window; low stuck at
