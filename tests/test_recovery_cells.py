@@ -4,8 +4,9 @@ One test per fault each cell's simulated plant can inject: the fault bites (an a
 it is one of the few the cell cannot see), the technician repairs it, the operator runs the
 recovery procedure the fault needs (none for most: the program picks up where it stopped),
 then a fault reset once the tasks the fault caught in progress have ended (the reset's own
-advice: "reset again once it ends"; a recovery abandons them); the cell is then in automatic operation again: no latch, no
-monitor label, no recovery needed, at least two more pieces of work done, no new damage.
+advice: "reset again once it ends"; a recovery abandons them); the cell is then in automatic
+operation again: no latch, no monitor label, no recovery needed, at least two more pieces of
+work done, no new damage.
 The faults that need the recovery are shown to be dead ends without it. All in virtual time.
 """
 
@@ -138,7 +139,7 @@ def test_every_fault_ends_in_automatic_operation_after_repair_recovery_and_reset
 @pytest.mark.parametrize("fault", sorted(CELLS["sorting"].recovery))
 def test_the_faults_that_need_the_table_cleared_are_dead_ends_without_it(fault):
     cell = CELLS["sorting"]
-    session, plant, _ = faulty_cell(cell, fault)
+    session, _, _ = faulty_cell(cell, fault)
     assert session.command(RepairFaults()).accepted
     caught = running(session.scan_once())
     run_while(session, lambda s: caught & running(s), 40 * S)

@@ -71,8 +71,8 @@ async def test_ambiguous_diagnosis_reads_as_such():
         assert "▲ def_fsc" in text and "✗ def_V" in text
         assert "≈ fsc from fsc_hat" in text and "⊘ C, O masked (def_V)" in text
         io = region_text(app, "#io")
-        assert "≈ reconstructed (fsc_hat)" in io
-        assert io.count("⊘ masked (def_V)") == 2
+        assert "≈ estimated closed position" in io  # the operator's words, not fsc_hat
+        assert io.count("⊘ masked by the diagnosis") == 2 and "def_V" not in io
         # its alarm, selected first (P1), and the explanation that says "ambiguous"
         alarm = snap.alarms[0]
         assert alarm.key == "diagnosis:V1" and alarm.latched and alarm.priority == 1
@@ -104,7 +104,7 @@ async def test_certain_diagnosis_recommends_running_degraded():
         snap = app.controller.last
         assert snap.reconstructed == ("fso",) and snap.masked == ()
         assert "F9 ✗ certain  unexpected fso rise" in region_text(app, "#diagnosers")
-        assert "≈ reconstructed (fso_hat)" in region_text(app, "#io")
+        assert "≈ estimated open position" in region_text(app, "#io")
         explained = flat(app, "#explain")
         assert "unexpected fso rise (0 to 1) — open end switch ignored" in explained
         assert "AMBIGUOUS" not in explained
@@ -192,12 +192,12 @@ async def test_a_situation_without_alarm_is_explained_from_the_palette():
 
 
 async def test_at_80_columns_the_io_marks_take_their_short_form():
-    """About ten cells for the State column at 80x24: the marks keep their symbol and the
-    estimate's name, never a cut-off word ("≈ reconstruc")."""
+    """About ten cells for the State column at 80x24: the marks keep their symbol and a
+    plain word, never a cut-off one ("≈ reconstruc") nor an identifier ("≈ fsc_hat")."""
     app = make_app()
     async with app.run_test(size=(80, 24)) as pilot:
         await inject(pilot, "F1", 10, ("F1", "F13"))
         await settle(pilot)
         io = region_text(app, "#io")
-        assert "≈ fsc_hat" in io and io.count("⊘ masked") == 2
+        assert "≈ estimated" in io and io.count("⊘ masked") == 2 and "_hat" not in io
         assert "reconstruc" not in io and "(de" not in io

@@ -12,10 +12,11 @@ The procedures are the project's (hmi.project.recovery). The engine owns one
   filtered: `monitor` runs it under `correct`). The diagnosers' mask is lifted from the
   outputs it drives: the operator confirmed the device is repaired.
 
-A step ends when its `until` holds (for the step's `for`, if it has one); the last one ends the procedure (done: everything safe,
-the cell waits for the operator to leave recovery). Past its timeout the procedure fails:
-outputs safe, the operator told. Every scan, in any mode, the stage also says which
-procedures the cell needs (their `needed` condition held long enough).
+A step ends when its `until` holds (for the step's `for`, if it has one); the last one ends
+the procedure (done: everything safe, the cell waits for the operator to leave recovery).
+Past its timeout the procedure fails: outputs safe, the operator told. Every scan, in any
+mode, the stage also says which procedures the cell needs (their `needed` condition held
+long enough).
 """
 
 from __future__ import annotations

@@ -113,27 +113,31 @@ def fitted_row(alarm: Alarm, width: int, device_w: int = 0, time_w: int = 7
     row.append_text(state_cell(alarm))
     muted = alarm.state == CLEARED_UNACK
     plain = MUTED if muted else Style()
+    # Every gap ends the run before it (`P1 ` then `10.830 s  `): a viewer that drops the
+    # spaces opening a run (librsvg, some browsers) still shows `P1 10.830 s`, not `P110.830`.
     row.append("  ")
     # the priority in its colour too (P1 red, P2-P3 amber; grey once cleared): docs/ui.md
-    row.append(f"P{alarm.priority}", style=MUTED if muted else
+    raised = seconds(alarm.raised_us)
+    row.append(f"P{alarm.priority} " + " " * max(0, time_w - len(raised)),
+               style=MUTED if muted else
                STYLE[PRIORITY_LEVEL.get(alarm.priority, Level.ATTENTION)])
-    row.append(f" {seconds(alarm.raised_us):>{time_w}} s  ", style=MUTED)
+    row.append(f"{raised} s  ", style=MUTED)
     text = alarm.text
     if device_w:
         row.append(alarm.device[:device_w].ljust(device_w) + " ", style=plain)
         text = without_device(text, alarm.device)
     tail = Text(end="")
     if alarm.explanation is not None and alarm.explanation.ambiguous:
-        tail.append("  ? ambiguous", style=STYLE[Level.ATTENTION])
+        tail.append("  ").append("? ambiguous", style=STYLE[Level.ATTENTION])
     if alarm.chattering or alarm.returns:
-        tail.append(f"  ×{alarm.returns + 1}", style=Style(bold=True) if alarm.chattering
-                    else MUTED)
+        tail.append("  ").append(f"×{alarm.returns + 1}", style=Style(bold=True)
+                                 if alarm.chattering else MUTED)
         if alarm.chattering:
-            tail.append(" chattering", style=MUTED)
+            tail.append(" ").append("chattering", style=MUTED)
     if alarm.latched and alarm.active:  # cleared: the latch that held it is gone
-        tail.append("  LATCHED", style=Style(bold=True))
+        tail.append("  ").append("LATCHED", style=Style(bold=True))
     if alarm.comment:
-        tail.append("  ✎", style=MUTED)
+        tail.append("  ").append("✎", style=MUTED)
     room = width - row.cell_len - tail.cell_len
     cut = room < len(text)
     if cut:

@@ -187,7 +187,9 @@ class PlcHmiApp(ContainedPump, App):
     def compose(self) -> ComposeResult:
         engine = self.controller.engine
         project = self.project
-        descriptions = {v.name: v.description for v in (*project.inputs, *project.outputs)}
+        # the I/O's, and the estimates' (an I/O row says "≈ estimated open position")
+        descriptions = {v.name: v.description for v in (*project.inputs, *project.outputs,
+                                                         *project.timers, *project.observers)}
         law = project.controls[engine.control_name]
         steps = [StepInfo(s.name, s.description) for s in law.grafcet.steps] \
             if law.grafcet else []

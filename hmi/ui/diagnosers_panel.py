@@ -30,7 +30,7 @@ from rich.text import Text
 from hmi.timefmt import seconds
 from hmi.ui.frame import Frame
 from hmi.ui.panel import ColumnPanel, set_title
-from hmi.ui.style import MUTED, STYLE, Level
+from hmi.ui.style import MUTED, STYLE, Level, gap
 
 
 @dataclass(frozen=True)
@@ -50,8 +50,8 @@ def decision_cell(labels: tuple[str, ...], final: bool) -> Text:
         text.append(f"{labels[0]} ✗ certain", style=STYLE[Level.ALARM])
     else:
         word = "ambiguous" if final else "not yet isolated"
-        text.append("{" + ", ".join(labels) + "}", style=STYLE[Level.ALARM])
-        text.append(f" ? {word}", style=STYLE[Level.ATTENTION])
+        text.append("{" + ", ".join(labels) + "} ", style=STYLE[Level.ALARM])
+        text.append(f"? {word}", style=STYLE[Level.ATTENTION])
     return text
 
 
@@ -61,7 +61,7 @@ def flags_text(flags: tuple[tuple[str, bool], ...], partitions: dict[str, Partit
     for name, value in flags:
         text.append(" ")
         if not value:
-            text.append(f" {name}", style=MUTED)
+            text.append(" ").append(name, style=MUTED)
             continue
         info = partitions.get(name)
         level = Level.ALARM if info is not None and info.actuators else Level.ATTENTION
@@ -80,16 +80,16 @@ def effects_text(flags: tuple[tuple[str, bool], ...], partitions: dict[str, Part
             continue
         if info.sensor and info.sensor in reconstructed:
             if text:
-                text.append("   ")
+                gap(text, 3)
             text.append(f"≈ {info.sensor} from {info.estimate}", style=STYLE[Level.ATTENTION])
         outs = [o for o in info.actuators if o in masked]
         if outs:
             if text:
-                text.append("   ")
+                gap(text, 3)
             text.append(f"⊘ {', '.join(outs)} masked ({name})", style=STYLE[Level.ALARM])
         elif info.actuators:
             if text:
-                text.append("   ")
+                gap(text, 3)
             text.append(f"{', '.join(info.actuators)} not masked ({name}: monitor policy or "
                         "observe mode)", style=MUTED)
     return text or None
@@ -97,26 +97,27 @@ def effects_text(flags: tuple[tuple[str, bool], ...], partitions: dict[str, Part
 
 def diagnoser_lines(d, partitions: dict[str, PartitionInfo], reconstructed: set[str],
                     masked: set[str], name_w: int, detail: int) -> list[Text]:
+    # Each gap ends the run before it (`V1 ` then `A3 `), so no viewer runs them together.
     head = Text()
     if d.faulty:
-        head.append(f"✗ {d.name.ljust(name_w)}", style=STYLE[Level.ALARM])
+        head.append(f"✗ {d.name.ljust(name_w)} ", style=STYLE[Level.ALARM])
     else:
-        head.append(f"● {d.name.ljust(name_w)}", style=Style(bold=True))
-    head.append(f" {d.state}", style=Style(bold=True))
+        head.append(f"● {d.name.ljust(name_w)} ", style=Style(bold=True))
+    head.append(f"{d.state} ", style=Style(bold=True))
     if detail == 0:
         if d.faulty:
-            head.append(" ")
-            head.append_text(decision_cell(d.labels, d.final))
-        head.append(f" {d.description}", style=MUTED)
+            gap(head.append_text(decision_cell(d.labels, d.final)), 1)
+        head.append(d.description, style=MUTED)
         return [head]
-    head.append(f" {d.description}" if d.description else "")
-    head.append(f" · since {seconds(d.since_us)} s", style=MUTED)
+    if d.description:
+        head.append(f"{d.description} ")
+    head.append(f"· since {seconds(d.since_us)} s", style=MUTED)
     lines = [head]
     if d.faulty:
         line = Text("  ")
         line.append_text(decision_cell(d.labels, d.final))
         if detail >= 2:
-            line.append("  ")
+            gap(line)
             line.append(d.label_texts[0] if len(d.labels) == 1 else " · ".join(
                 f"{lab} {text}" for lab, text in zip(d.labels, d.label_texts, strict=True)))
         lines.append(line)

@@ -1,9 +1,10 @@
 """The I/O table: inputs as read; outputs with their functional value (FOV) beside the value
 written, so a difference — the filter, the safe-state latch, a masked actuator — shows at a
 glance, with the reason in words. A sensor the diagnosers distrust reads
-``≈ reconstructed (fso_hat)`` (the filter reads its estimate), an order they mask
-``⊘ masked (def_V)``, an output of a device the operator stopped ``▲ stopped``. In a narrow
-panel the marks are ``≈ fso_hat`` and ``⊘ masked`` (the diagnosers panel names the flag).
+``≈ estimated open position`` (the filter reads its estimate), an order they mask
+``⊘ masked by the diagnosis``, an output of a device the operator stopped ``▲ stopped``. In
+a narrow panel the marks are ``≈ estimated`` and ``⊘ masked``. The identifiers (``fso_hat``,
+``def_V``) are the diagnosers panel's, for the engineer.
 
 The Description column comes last: at 80 columns it is cut to a few letters, so the
 highlighted signal's whole description is on the table's lower border.
@@ -21,6 +22,7 @@ from textual.widgets import DataTable
 
 from hmi.engine.commands import ManualOutput, SetInput
 from hmi.engine.layout import Layout
+from hmi.explain.plain import lower_first, without_notes
 from hmi.ui.containment import ContainedPump
 from hmi.ui.frame import Frame
 from hmi.ui.messages import CommandRequested
@@ -90,9 +92,12 @@ class IOPanel(ContainedPump, DataTable):
             if not snap.plant.connected:
                 state.append(tag("stale", Level.ALARM))  # the last value read, not the plant's
             if name in reconstructed:
+                # The operator's words, not the estimate's identifier (fso_hat): "estimated",
+                # or with room the estimate's own plain name ("estimated open position").
                 estimate = self.estimates.get(name)
-                text = f"≈ {estimate}" if narrow and estimate else \
-                    f"≈ reconstructed ({estimate})" if estimate else "≈ reconstructed"
+                plain = lower_first(without_notes(self.descriptions.get(estimate, ""))) \
+                    if estimate else ""
+                text = f"≈ {plain}" if plain and not narrow else "≈ estimated"
                 state.append(Text(text, style=STYLE[Level.ATTENTION]))
             if name in self.free_inputs:
                 state.append(tag("button " + ("pressed" if value else "up"),
@@ -108,7 +113,7 @@ class IOPanel(ContainedPump, DataTable):
             if name in masked:
                 flags = ", ".join(f for f in self.mask_flags.get(name, ())
                                   if f in set_flags)
-                text = f"⊘ masked ({flags})" if flags and not narrow else "⊘ masked"
+                text = "⊘ masked by the diagnosis" if flags and not narrow else "⊘ masked"
                 state.append(Text(text, style=STYLE[Level.ALARM]))
                 if reason is not None and reason.startswith("masked"):
                     reason = None  # the mark says it (the FOV cell shows the difference)

@@ -8,8 +8,10 @@ pressing the operator's keys in virtual time, so the pictures are exactly repeat
 ``--png DIR`` also converts each SVG to a PNG (1400 px wide, white background) with
 ``rsvg-convert`` (Debian's librsvg2-bin), to look at them without a browser. librsvg drops
 the spaces that open a text run unless told to keep them, which shifts coloured words left
-(`conveyorFAULTY`); the copy it converts says ``xml:space="preserve"``. The SVGs themselves
-are left as Textual wrote them (browsers keep those spaces).
+(`conveyorFAULTY`, `P110.830 s`). The SVGs are written with ``xml:space="preserve"`` on their
+root, so that every viewer keeps those spaces (librsvg, and browsers, which otherwise treat a
+run's opening spaces as XML white space); the app also closes each gap in the run before it
+(hmi.ui.style.gap), so a viewer that still drops them loses no column.
 """
 
 from __future__ import annotations
@@ -38,6 +40,7 @@ def shoot(scenario: Scenario, out: Path) -> Path:
         await drain(pilot)
         await pilot.wait_for_scheduled_animations()
         app.save_screenshot(filename=path.name, path=str(out))
+        preserve(path)
         app.exit()
 
     app.title = f"plchmi — {scenario.description}"
@@ -45,9 +48,21 @@ def shoot(scenario: Scenario, out: Path) -> Path:
     return path
 
 
+PRESERVE = '<svg xml:space="preserve" '
+
+
+def preserve(svg: Path) -> None:
+    """Say on the SVG's root that its spaces are text (see above); idempotent."""
+    text = svg.read_text(encoding="utf-8")
+    if PRESERVE not in text:
+        svg.write_text(text.replace("<svg ", PRESERVE, 1), encoding="utf-8")
+
+
 def to_png(svg: Path, png: Path, width: int = 1400) -> None:
     """Convert with rsvg-convert, keeping the spaces that open a text run (see above)."""
-    text = svg.read_text(encoding="utf-8").replace("<svg ", '<svg xml:space="preserve" ', 1)
+    text = svg.read_text(encoding="utf-8")
+    if PRESERVE not in text:
+        text = text.replace("<svg ", PRESERVE, 1)
     with tempfile.NamedTemporaryFile("w", suffix=".svg", encoding="utf-8") as tmp:
         tmp.write(text)
         tmp.flush()

@@ -99,3 +99,13 @@ def isa101_theme():
             "input-selection-background": "#5a5a5a",
         },
     )
+
+
+def gap(text: Text, width: int = 2) -> Text:
+    """Append a gap of `width` spaces that closes the text's last run (in its style, which
+    must have no background): the SVG screenshots are read by viewers that drop the spaces
+    opening a run, and would run the next column into this one (`P110.830 s`, `V1A3`)."""
+    last = text.spans[-1] if text.spans else None
+    style = last.style if last is not None and last.end == len(text) else text.style
+    text.append(" " * width, style=style)
+    return text
