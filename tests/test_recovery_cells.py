@@ -81,6 +81,10 @@ def running(snap) -> set[tuple[str, int]]:
     return {(m.name, m.attempt) for m in snap.monitors if m.running}
 
 
+def needed(snap) -> list[str]:
+    return [name for name, *_ in snap.recovery.needed]
+
+
 def run_while(session: Session, predicate, limit_us: int):
     end = session.engine.now + limit_us
     snap = session.scan_once()
@@ -115,10 +119,13 @@ def test_every_fault_ends_in_automatic_operation_after_repair_recovery_and_reset
     code = fault.rsplit(".", 1)[-1]
     session, plant, seen = faulty_cell(cell, fault)
     assert bool(seen) != (code in cell.silent), (fault, sorted(set(seen)))
-    damage = len(plant.damage())
+    procedure = cell.recovery.get(code)
+    if procedure is not None:  # the cell says so (an alarm recommends the recovery)
+        snap = run_while(session, lambda s: procedure not in needed(s), 10 * S)
+        assert procedure in needed(snap), f"the cell did not say it needs {procedure}"
+    damage = len(plant.damage())  # what the fault did; none may come after the repair
     assert session.command(RepairFaults()).accepted
     caught = running(session.scan_once())  # tasks the fault may have made late
-    procedure = cell.recovery.get(code)
     if procedure is not None:
         assert session.command(StartRecovery(procedure)).accepted
         snap = run_while(session, lambda s: s.recovery.status == "running", 20 * S)
@@ -149,3 +156,27 @@ def test_the_faults_that_need_the_table_cleared_are_dead_ends_without_it(fault):
     stuck = work(cell, snap) - before < 2
     labels = [m.name for m in snap.monitors if m.detection]
     assert stuck or labels, f"{fault} resumed without the recovery"
+
+
+@pytest.mark.parametrize("fault", ["C1.stop@1s+2s", "C1.slip@1s+2s", "R1.stop@1s+2.5s"])
+def test_the_conveyor_cells_transient_faults_recover_without_repair(fault):
+    """002's interruptions go away by themselves ("halted by a malfunction" for 2 s): the
+    monitor raises its label, the belt or the robot moves again, the task ends (late), and a
+    fault reset then releases the label; the cell goes on working, nothing repaired."""
+    cell = CELLS["conveyor_robot"]
+    project = project_of(cell.name)
+    plant = SimPlant(project)
+    plant.inject(parse_injection(fault))
+    session = Session(Engine(project, plant))
+    snap = session.run_for(6 * S)
+    assert [m.name for m in snap.monitors if m.detection], "the interruption was not seen"
+    assert not dict(snap.plant_state).get("C1.halted") and \
+        not dict(snap.plant_state).get("R1.halted")  # over by itself
+    caught = running(snap)
+    run_while(session, lambda s: caught & running(s), 10 * S)
+    reset = session.command(FaultReset())
+    assert "released" in reset.message and "stays" not in reset.message, reset.message
+    before = work(cell, session.last)
+    snap = session.run_for(12 * S)
+    assert not [m.name for m in snap.monitors if m.detection]
+    assert work(cell, snap) - before >= 2 and not plant.damage()

@@ -60,8 +60,8 @@ class GrafcetPanel(TextPanel):
 
     @property
     def compact(self) -> bool:
-        """Active steps only: on a short screen, when panels share this column with it
-        (monitors, diagnosers), so that theirs are not the rows lost."""
+        """Active steps and running timers only: on a short screen, when panels share this
+        column with it (monitors, diagnosers), so that theirs are not the rows lost."""
         if self.app.size.height >= SHORT or self.parent is None:
             return False
         return any(c.display for c in self.parent.children if c is not self)
@@ -101,6 +101,8 @@ class GrafcetPanel(TextPanel):
                 text.append(f"○ {step.name.ljust(name_w)} {desc}\n", style=MUTED)
         timer_w = max((len(t.name) for t in self.timers), default=0)
         for state in snap.timers:
+            if compact and not state.q and not state.elapsed_us:
+                continue  # short and shared: idle timers give their rows to the column
             info = next((t for t in self.timers if t.name == state.name), None)
             kind = info.kind if info else "TON"
             text.append(f"{state.name.ljust(timer_w)} {kind} ", style=MUTED)

@@ -1,5 +1,6 @@
 """The simulated plant, clearly marked SIMULATION: its physical state, the faults the
-operator injected (scheduled or active), and the damage the simulation recorded.
+operator injected (scheduled, active, or over for a fault that lasts a while), and the
+damage the simulation recorded.
 
 On a real plant this strip is not shown: there is no hidden truth to display there, and an
 operator must never mistake a simulation for the cell.
@@ -36,9 +37,15 @@ def plant_text(frame: Frame, recorder: ScanRecorder | None, wide: bool) -> Text:
         text.append("  faults:", style=MUTED)
         for fault in frame.injected:
             at = fault.injection.at_us
+            duration = fault.injection.duration_us
             text.append(" ")
-            if at <= snap.time_us:
-                text.append_text(tag(f"{fault.injection.code} since {seconds(at)} s",
+            if duration is not None and at + duration <= snap.time_us:
+                # a transient fault (a 2 s halt) is over: said so, not shown as still active
+                text.append(f"{fault.injection.code} {seconds(at)}-{seconds(at + duration)} s "
+                            "over", style=MUTED)
+            elif at <= snap.time_us:
+                until = f" until {seconds(at + duration)} s" if duration is not None else ""
+                text.append_text(tag(f"{fault.injection.code} since {seconds(at)} s{until}",
                                      Level.ATTENTION))
             else:
                 text.append(f"{fault.injection.code} in {seconds(at - snap.time_us)} s")
