@@ -8,6 +8,7 @@ import textwrap
 from pathlib import Path
 
 import pytest
+from hypothesis import HealthCheck, settings
 
 from hmi.engine.scan import Engine
 from hmi.plant.sim.plant import SimPlant
@@ -17,6 +18,13 @@ from hmi.session.session import Session
 
 ROOT = Path(__file__).resolve().parent.parent
 PROJECTS = ROOT / "projects"
+
+# Hypothesis's defaults time each example on the wall clock (a 200 ms deadline, a health
+# check of slow generation): on the shared 2-core machine a loaded moment failed a Modbus
+# fuzzer that passes at once when run again. Tests here never wait on the wall clock, so no
+# deadline and no timing health check; each test's own settings still choose its examples.
+settings.register_profile("plchmi", deadline=None, suppress_health_check=[HealthCheck.too_slow])
+settings.load_profile("plchmi")
 
 
 def pytest_configure(config):
