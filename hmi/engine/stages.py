@@ -113,6 +113,9 @@ class Memory:
                 self.observers.append((slots[o.name], False, compile_bool(o.set, slots, times),
                                        compile_bool(o.reset, slots, times)))
         self.control = control
+        # The declarations, for the compiled scan (hmi.engine.compiled) to generate from.
+        self.project_timers = project.timers
+        self.project_observers = project.observers
 
     def update(self, image: Image, history: History, now: int) -> None:
         for runtime, slot, fn in self.timers:
@@ -160,8 +163,12 @@ class Control:
         (the operator's requests, in manual mode) replaces what it asks for."""
         self.runtime.run(image, history, now)
         if manual is not None:
-            return tuple(manual.get(name, False) for name in self.outputs)
+            return self.manual_fov(manual)
         return tuple(image[s] for s in self.slots)
+
+    def manual_fov(self, manual: Mapping[str, bool]) -> tuple[bool, ...]:
+        """The operator's requests as the vector (an output not requested: off)."""
+        return tuple(manual.get(name, False) for name in self.outputs)
 
 
 class OutputScan:
