@@ -56,6 +56,7 @@ class CompiledScan:
         self.slots = layout.slots
         self.times = layout.step_times
         self.label = label
+        self.sources: list[str] = []  # every function's generated text, in build order
         self.core: CoreFn = self._core(layout, memory, control, diagnosis, recovery)
         self.violated: ViolatedFn = self._violated(safety_filter)
         self.monitors: MonitorFn | None = (self._monitors(monitors) if monitors is not None
@@ -65,7 +66,9 @@ class CompiledScan:
         return expr_source(node, self.slots, self.times if times is None else times)
 
     def _build(self, src: Source, name: str, params: str) -> Callable[..., Any]:
-        return build(src, name, params, f"<plchmi compiled {name}: {self.label}>")
+        fn = build(src, name, params, f"<plchmi compiled {name}: {self.label}>")
+        self.sources.append(fn.__doc__ or "")
+        return fn
 
     # -- stages 2 to 5 -----------------------------------------------------------------------
     def _core(self, layout: Layout, memory: Memory, control: ControlRuntime,
