@@ -159,9 +159,8 @@ class Engine:
                                       self.recovery, self.filter, self.monitors,
                                       f"{project.name}/{self.control_name}")
                          if compiled and not self.observe else None)
-        self._clean = {"monitor": self.filter._clean_monitor,
-                       "block": self.filter._clean_block,
-                       "correct": self.filter._clean_correct}
+        if self.compiled is not None:  # the filter's first question, compiled
+            self.filter_stage.quick = self.compiled.violated
 
     # -- commands ----------------------------------------------------------------------------
     def apply(self, command: Command) -> CommandResult:
@@ -461,22 +460,12 @@ class Engine:
             if self.mode == "recovery" and policy == "monitor":
                 policy = "correct"
             started = time.perf_counter()
-            if fast is not None and mask is None and filter_stage is self.filter_stage and (
-                    policy != "block" or not self.latched) and not fast.violated(
-                    image, hist, fov):
-                # Nothing violated, nothing masked: the filter writes the candidate as it is
-                # (SafetyFilter.apply's own answer then, without its work).
-                outputs = fov
-                report = self._clean[policy]
-                filter_us = (time.perf_counter() - started) * 1e6
-            else:
-                decision = filter_stage.apply(image, hist, fov, policy, bool(self.latched),
-                                              mask)
-                filter_us = (time.perf_counter() - started) * 1e6
-                if decision.latch is not None:
-                    self.latch_safe("filter", decision.latch)
-                outputs = decision.outputs
-                report = decision.report
+            decision = filter_stage.apply(image, hist, fov, policy, bool(self.latched), mask)
+            filter_us = (time.perf_counter() - started) * 1e6
+            if decision.latch is not None:
+                self.latch_safe("filter", decision.latch)
+            outputs = decision.outputs
+            report = decision.report
             if self.observe:
                 outputs = fov  # what the device has: it is observed, never driven
             elif self.latched:

@@ -81,9 +81,16 @@ class InputScan:
         self.outputs = layout.outputs
         self.read_back = read_back  # observing: the device's own outputs are read too
         self.readback: tuple[bool, ...] = ()
+        self.bindings = tuple(zip(self.names, self.slots, strict=True))
 
     def read(self, image: Image, now: int) -> str | None:
         """None when the inputs are in the image; else why not (the engine latches safe)."""
+        if not self.read_back:
+            try:
+                self.plant.read_into(now, image, self.bindings)
+            except PlantError as exc:
+                return plant_detail(exc)
+            return None
         try:
             values = self.plant.read(now)
         except PlantError as exc:
@@ -137,7 +144,9 @@ class Memory:
 
     def elapsed(self, now: int) -> tuple[int, ...]:
         """Each timer's ET, for the snapshot."""
-        return tuple(rt.elapsed(now) for rt, _, _ in self.timers)
+        if not self.timers:
+            return ()
+        return tuple([rt.elapsed(now) for rt, _, _ in self.timers])
 
 
 class Reconstruction:
@@ -181,7 +190,7 @@ class OutputScan:
     def write(self, now: int, outputs: Sequence[bool]) -> str | None:
         """None when written; else why not (the engine latches safe)."""
         try:
-            self.plant.write(now, dict(zip(self.names, outputs, strict=True)))
+            self.plant.write_vector(now, self.names, tuple(outputs))
         except PlantError as exc:
             return plant_detail(exc)
         return None

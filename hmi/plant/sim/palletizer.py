@@ -39,6 +39,7 @@ and for every sensor S, S_stuck0 / S_stuck1.
 
 from __future__ import annotations
 
+from collections.abc import Hashable
 from typing import Any
 
 from hmi.plant.sim.boxes import MM, Box, BoxSource
@@ -312,3 +313,11 @@ class Palletizer(SteppedCell, model=PALLETIZER):
 
     def counters(self) -> dict[str, int]:
         return dict(self.count)
+
+    def state_key(self) -> Hashable:
+        return (len(self.feed), self.pushing is None, len(self.row), len(self.hanging),
+                len(self.layers), self.lift.pos, self.pusher.pos, self.plate.pos, self.clamp.pos,
+                len(self.source.queued))
+
+    def counters_key(self) -> Hashable:
+        return tuple(self.count.values())

@@ -45,6 +45,7 @@ and for every sensor S, S_stuck0 / S_stuck1.
 from __future__ import annotations
 
 import itertools
+from collections.abc import Hashable
 from typing import Any
 
 from hmi.plant.sim.boxes import MM, Box, BoxSource
@@ -309,3 +310,9 @@ class SortingCell(SteppedCell, model=SORTING_CELL):
 
     def counters(self) -> dict[str, int]:
         return dict(self.count)
+
+    def state_key(self) -> Hashable:
+        return (self.turn.pos, len(self.source.queued), tuple([b.segment for b in self.boxes]))
+
+    def counters_key(self) -> Hashable:
+        return tuple(self.count.values())

@@ -21,6 +21,7 @@ Faults (000 §3.1), each injected at a time:
 
 from __future__ import annotations
 
+from collections.abc import Hashable
 from typing import Any
 
 from hmi.plant.sim.device import PendingFault, SimDevice
@@ -232,3 +233,9 @@ class Valve(SimDevice, model=VALVE):
 
     def counters(self) -> dict[str, int]:
         return {"cycles": self.cycles, "opens": self.opens, "closes": self.closes}
+
+    def state_key(self) -> Hashable:
+        return (self.pos, self.jammed, self.self_drive, self.orders["C"], self.orders["O"])
+
+    def counters_key(self) -> Hashable:
+        return (self.cycles, self.opens, self.closes)
