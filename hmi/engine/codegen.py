@@ -20,6 +20,7 @@ from __future__ import annotations
 import ast
 import re
 from collections.abc import Callable, Mapping
+from types import CodeType
 from typing import Any
 
 from hmi.logic.expr import And, Compare, Const, Duration, Node, Not, Or, StepTime, Var
@@ -119,16 +120,27 @@ def _check(tree: ast.AST) -> None:
             raise ValueError(f"generated code holds the constant {node.value!r}")
 
 
+# Compiled code by its text: every engine of a project generates the same texts (only the
+# objects handed over differ), and a campaign builds one engine per run.
+_CODE: dict[tuple[str, str], CodeType] = {}
+CODE_CACHE = 2048
+
+
 def build(source: Source, name: str, params: str, filename: str) -> Callable[..., Any]:
     """Compile `source`'s lines as the body of ``def name(params, *, k0=k0, ...)``."""
     text = f"def {name}({params}{source.defaults()}):\n" + "\n".join(source.lines) + "\n"
     if not source.lines:
         text += "    pass\n"
-    tree = ast.parse(text, filename=filename)
-    _check(tree)
+    code = _CODE.get((text, filename))
+    if code is None:
+        tree = ast.parse(text, filename=filename)
+        _check(tree)
+        if len(_CODE) >= CODE_CACHE:
+            _CODE.clear()
+        code = _CODE[text, filename] = compile(tree, filename, "exec")
     namespace: dict[str, Any] = {"__builtins__": {}}
     namespace.update((f"k{n}", obj) for n, obj in enumerate(source.objects))
-    exec(compile(tree, filename, "exec"), namespace)  # the tree is checked above
+    exec(code, namespace)  # compiled from a tree checked above
     fn: Callable[..., Any] = namespace[name]
     fn.__doc__ = text  # what was generated, for whoever debugs it
     return fn

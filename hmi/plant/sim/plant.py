@@ -109,11 +109,17 @@ class SimPlant(Plant):
         for device, binding in self._actuator_bind:
             device.write(now_us, {port: outputs[var] for port, var in binding})
 
+    def forget_writes(self) -> None:
+        """The devices' orders were set from outside (a restored closed-loop state): the next
+        write_vector writes whatever it is given."""
+        self._written = None
+
     def write_vector(self, now_us: int, names: tuple[str, ...],
                      values: tuple[bool, ...]) -> None:
         """Skips the write when it changes nothing: the same vector as the last write, and
         every device already brought to `now_us` by this scan's read (then each device's
-        write would only find its orders unchanged)."""
+        write would only find its orders unchanged). Whoever sets the devices' orders
+        otherwise calls :meth:`forget_writes`."""
         written = self._written
         if written is not None and now_us == self._read_at and written[1] == values \
                 and written[0] is names:

@@ -119,10 +119,11 @@ class Valve(SimDevice, model=VALVE):
         return int(self.travel * float(self.params["block_at"]))
 
     def _advance_to(self, t: int) -> None:
-        if not (self.armed or self.glitches or self.self_drive or self.orders["C"]
-                or self.orders["O"]):
-            # At rest with nothing armed: nothing moves and _settle, already applied at this
-            # position, would change nothing; only the time passes.
+        if not (self.glitches or self.self_drive or self.orders["C"] or self.orders["O"]):
+            # At rest, no glitch under way: nothing moves, and _settle, already applied after
+            # the last change (a move, new orders, a fault, a repair), would change nothing,
+            # armed faults included (they wait for a position or orders that do not change
+            # while at rest); only the time passes.
             self.t = max(self.t, t)
             return
         while self.t < t:
