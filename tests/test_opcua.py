@@ -20,7 +20,6 @@ import pytest
 asyncua = pytest.importorskip("asyncua", reason="the [opcua] extra is not installed")
 from asyncua import Client, ua  # noqa: E402
 from asyncua.ua.uaerrors import UaStatusCodeError  # noqa: E402
-from hmi.plant.injection import parse_injection  # noqa: E402
 
 from hmi.engine.commands import (  # noqa: E402
     FaultReset,
@@ -35,6 +34,7 @@ from hmi.opcua.options import server_certificate  # noqa: E402
 from hmi.opcua.server import CellServer, ServeOptions  # noqa: E402
 from hmi.opcua.users import Users, hash_password  # noqa: E402
 from hmi.plant.select import open_plant  # noqa: E402
+from hmi.project.injection import parse_injection  # noqa: E402
 from hmi.project.loader import load_project  # noqa: E402
 from hmi.session.journal_recorder import JournalRecorder  # noqa: E402
 from hmi.session.session import Session  # noqa: E402

@@ -10,7 +10,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from hmi.engine.snapshot import Snapshot
-from hmi.plant.injection import Injection
+from hmi.project.injection import Injection
 from hmi.ui.containment import UIFault
 from hmi.ui.recorder import ConstraintStats
 
