@@ -43,6 +43,8 @@ def _minutes(text: str) -> float:
 
 
 def _seconds(text: str) -> float:
+    if text.strip() == "0":  # the help's "0: none", a bare zero without a unit
+        return 0.0
     try:
         return parse_duration(text) / 1e6
     except ValueError:

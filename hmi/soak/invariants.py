@@ -14,6 +14,8 @@ rather than trusting the engine's own report of it:
   state has the last word too — dropping every order may break a constraint of the form
   ``not o and h1`` ("never drop the open order before the valve is open", CSs4). Those scans
   are counted per constraint (:attr:`Invariants.safe_state_violations`), never hidden;
+  in recovery mode the constraints are those of the procedure running: the project's but the
+  ones it relaxes, plus its own;
 - **ISA-18.2**: an alarm never leaves the list unacknowledged (only an acknowledged alarm
   leaves when it clears, a cleared one when it is acknowledged); the priority of an alarm in
   the list (active or unacknowledged) never goes down; every change of an alarm's state seen
@@ -33,6 +35,7 @@ from textual.geometry import Region
 
 from hmi.engine.commands import Acknowledge
 from hmi.explain.alarms import ACTIVE_ACK, ACTIVE_UNACK, CLEARED_UNACK
+from hmi.project.recovery import recoveries_of
 from hmi.timefmt import seconds
 
 UNACKNOWLEDGED = (ACTIVE_UNACK, CLEARED_UNACK)
@@ -71,14 +74,25 @@ class Invariants:
         self.engine = engine = session.engine
         layout = engine.layout
         outputs = {name: k for k, name in enumerate(layout.outputs)}
-        self.constraints: list[tuple[str, frozenset[str], tuple[_Term, ...]]] = []
-        depth = 1
-        for c in engine.project.constraints:
-            terms = tuple(_Term(outputs.get(lit.name) if lit.depth == 0 else None,
-                                layout.slots[lit.name], lit.depth, lit.positive)
-                          for lit in c.literals)
-            depth = max(depth, *(t.depth for t in terms), 1)
-            self.constraints.append((c.name, frozenset(c.outputs), terms))
+        def checked(constraints) -> list[tuple[str, frozenset[str], tuple[_Term, ...]]]:
+            return [(c.name, frozenset(c.outputs),
+                     tuple(_Term(outputs.get(lit.name) if lit.depth == 0 else None,
+                                 layout.slots[lit.name], lit.depth, lit.positive)
+                           for lit in c.literals))
+                    for c in constraints]
+
+        project = engine.project
+        self.constraints = checked(project.constraints)
+        # A recovery procedure is filtered by the project's constraints but the ones it
+        # relaxes, plus its own (docs/ui.md, "Recovery"): while it is the active one, that is
+        # what the outputs written must satisfy.
+        self.recovery_constraints = {
+            spec.name: checked([c for c in project.constraints if c.name not in spec.relaxes]
+                               + list(spec.constraints))
+            for spec in recoveries_of(project)}
+        depth = max([1] + [t.depth for group in (self.constraints,
+                                                 *self.recovery_constraints.values())
+                           for _, _, terms in group for t in terms])
         self.history: deque[tuple] = deque(maxlen=depth)  # values of the scans before
         self.alarms: dict[str, object] = {}  # the list as last seen, by key
         self.expected: dict[str, deque[tuple[str, int]]] = {}  # transitions to find
@@ -112,8 +126,10 @@ class Invariants:
         if snap.error:
             self._break("engine-error", snap.error)
         if snap.policy != "monitor":
-            self.checks["constraint"] += len(self.constraints)
-            violated = self._violated(snap)
+            constraints = self.recovery_constraints.get(snap.recovery.active or "",
+                                                        self.constraints)
+            self.checks["constraint"] += len(constraints)
+            violated = self._violated(snap, constraints)
             masked = set(snap.masked)
             unsafe = [name for name, outs in violated if not outs <= masked]
             if unsafe and self._safe_state_by_decision(snap):
@@ -136,11 +152,11 @@ class Invariants:
         decided = bool(snap.latched) or (report is not None and report.safe_state)
         return decided and tuple(snap.outputs) == self.safe_vector
 
-    def _violated(self, snap) -> list[tuple[str, frozenset[str]]]:
+    def _violated(self, snap, constraints) -> list[tuple[str, frozenset[str]]]:
         history = self.history
         values, written = snap.values, snap.outputs
         found = []
-        for name, outs, terms in self.constraints:
+        for name, outs, terms in constraints:
             for term in terms:
                 if term.depth > len(history):
                     break  # a value from before the first scan seen: not judged
