@@ -8,12 +8,13 @@ before the server binds it. `serve` then tries another one instead of failing th
 from __future__ import annotations
 
 import socket
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from hmi.engine.scan import Engine
 from hmi.errors import UsageError
 from hmi.opcua.server import CellServer, ServeOptions
+from hmi.opcua.status import ServingStatus
 from hmi.plant.select import open_plant
 from hmi.project.injection import parse_injection
 from hmi.project.loader import load_project
@@ -29,10 +30,13 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def serve(session: Session, options: Callable[[int], ServeOptions]) -> CellServer:
-    """A started server for `session`, with the options `options(port)` on a free port."""
+def serve(session: Session, options: Callable[[int], ServeOptions],
+          listeners: Sequence[Callable[[ServingStatus], None]] = ()) -> CellServer:
+    """A started server for `session`, with the options `options(port)` on a free port;
+    `listeners` hear its changes of state from the start."""
     for attempt in range(TRIES):
         server = CellServer(session, options(free_port()))
+        server.listeners.extend(listeners)
         try:
             server.start()
         except UsageError as exc:  # taken between the look and the bind: another port

@@ -24,7 +24,7 @@ import time
 import uuid
 from collections import deque
 from collections.abc import Awaitable, Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import UTC, timedelta
 from pathlib import Path
 from typing import Any
@@ -33,6 +33,7 @@ from asyncua import ua
 from asyncua.common.node import Node
 from asyncua.crypto.permission_rules import SimpleRoleRuleset, User, UserRole
 from asyncua.server.internal_server import InternalServer
+from asyncua.server.internal_session import SessionState
 from asyncua.server.server import Server
 from asyncua.server.user_managers import UserManager
 from asyncua.ua.attribute_ids import AttributeIds
@@ -64,6 +65,7 @@ from hmi.opcua.conditions import (
     ConditionView,
 )
 from hmi.opcua.model import BOOL, DOUBLE, STRING, STRINGS, UINT, AddressModel, build_model
+from hmi.opcua.status import FAILED, SERVING, STARTING, STOPPED, OpcClient, ServingStatus
 from hmi.opcua.users import Identity, Users
 from hmi.session.session import Session
 
@@ -195,6 +197,18 @@ class CellServer:
         self.published_scan = -1  # the scan of the last snapshot published
         self.events_sent = 0
         self.errors = 0  # publishes that failed
+        # What the operator's screen shows (hmi.opcua.status): replaced, never changed, so
+        # that the UI thread reads a consistent one; `listeners` hear each change of state
+        # (serving, stopped, failed), in the server's thread (the journal).
+        users = options.users
+        security = ["None"]
+        if options.certificate and options.private_key:
+            security += ["Basic256Sha256 Sign", "Basic256Sha256 SignAndEncrypt"]
+        self.log_file = ""  # where the server's errors are written (hmi.opcua.options)
+        self._status = ServingStatus(options.url, STARTING, tuple(security), options.writable,
+                                     len(users.passwords) + len(users.certificates))
+        self.listeners: list[Callable[[ServingStatus], None]] = []
+        self._clients_due = 0.0  # monotonic time of the next look at the connections
 
     # -- the scan thread's side: cheap, never waits -----------------------------------------
 
@@ -236,6 +250,23 @@ class CellServer:
     def url(self) -> str:
         return self.options.url
 
+    def status(self) -> ServingStatus:
+        """What the server is doing now (the latest; a new object when anything changed)."""
+        return self._status
+
+    def _set_status(self, **changes: Any) -> None:
+        old = self._status
+        new = replace(old, log=self.log_file, **changes)
+        if new == old:
+            return
+        self._status = new
+        if new.state != old.state:
+            for listener in list(self.listeners):
+                try:
+                    listener(new)
+                except Exception:  # a listener's failure is not the server's
+                    log.exception("an OPC UA status listener failed")
+
     def _run(self) -> None:
         try:
             asyncio.run(self._main())
@@ -245,6 +276,12 @@ class CellServer:
                 self._ready.set()
             else:
                 log.exception("the OPC UA server stopped on an error")
+                self._set_status(state=FAILED, clients=(),
+                                 error=f"{type(exc).__name__}: {exc}" if str(exc)
+                                 else type(exc).__name__)
+                return
+        if self._ready.is_set():
+            self._set_status(state=STOPPED, clients=())
 
     async def _main(self) -> None:
         self._loop = asyncio.get_running_loop()
@@ -256,23 +293,57 @@ class CellServer:
         except OSError as exc:
             raise UsageError(f"--opcua {self.url}: cannot listen there ({exc.strerror or exc})"
                              ) from None
+        self._set_status(state=SERVING)  # journalled before start() returns
         self._ready.set()
         try:
-            while not self._stop.is_set():
-                # Woken by a scan (on_scan), by stop(), or at least every IDLE_S to follow
-                # the run state of a cell that makes no scan (paused).
-                with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(self._wake.wait(), IDLE_S)
-                self._wake.clear()
-                try:
-                    await self.publish()
-                except Exception:  # one bad publish must not end the server
-                    self.errors += 1
-                    if self.errors == 1:
-                        log.exception("publishing to OPC UA failed (further failures are "
-                                      "counted, not logged)")
+            await self._serve()
         finally:
             await server.stop()
+
+    async def _serve(self) -> None:
+        """Publish until stop() is called."""
+        assert self._stop is not None and self._wake is not None
+        while not self._stop.is_set():
+            # Woken by a scan (on_scan), by stop(), or at least every IDLE_S to follow
+            # the run state of a cell that makes no scan (paused).
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._wake.wait(), IDLE_S)
+            self._wake.clear()
+            try:
+                await self.publish()
+            except Exception:  # one bad publish must not end the server
+                self.errors += 1
+                if self.errors == 1:
+                    log.exception("publishing to OPC UA failed (further failures are "
+                                  "counted, not logged)")
+            now = time.monotonic()
+            if now >= self._clients_due:
+                self._clients_due = now + IDLE_S
+                self._set_status(clients=self._clients(), published=self.published,
+                                 events=self.events_sent, errors=self.errors)
+
+    def _clients(self) -> tuple[OpcClient, ...]:
+        """The clients connected now, with their session's user and their channel's
+        security (read from asyncua's connection objects)."""
+        binary = getattr(self.server, "bserver", None)
+        found = []
+        for connection in list(getattr(binary, "clients", ())):
+            processor = connection.processor
+            peer = connection.peer_name
+            where = (f"{peer[0]}:{peer[1]}" if isinstance(peer, tuple) and len(peer) >= 2
+                     else str(peer))
+            user = ""
+            security = "None"
+            if processor is not None:
+                session = processor.session
+                if session is not None and session.state == SessionState.Activated:
+                    user = _identity(session.user).name or "anonymous"
+                policy = processor._connection.security_policy
+                mode = policy.Mode
+                if mode != ua.MessageSecurityMode.None_:
+                    security = f"{policy.URI.rsplit('#', 1)[-1]} {mode.name}"
+            found.append(OpcClient(where, user, security))
+        return tuple(found)
 
     # -- the address space --------------------------------------------------------------------
 

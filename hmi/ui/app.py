@@ -73,7 +73,14 @@ from hmi.ui.chronogram import WINDOWS_US, Chronogram
 from hmi.ui.constraints_panel import ConstraintInfo, ConstraintsPanel
 from hmi.ui.containment import ContainedPump, Containment, UIFault
 from hmi.ui.diagnosers_panel import DiagnosersPanel, PartitionInfo
-from hmi.ui.dialogs import ChoiceDialog, ConfirmDialog, Dialog, StepDialog, TextDialog
+from hmi.ui.dialogs import (
+    ChoiceDialog,
+    ConfirmDialog,
+    Dialog,
+    InfoDialog,
+    StepDialog,
+    TextDialog,
+)
 from hmi.ui.driver import LiveDriver, VirtualDriver
 from hmi.ui.explain_panel import (
     ExplanationPanel,
@@ -93,6 +100,7 @@ from hmi.ui.palette import HmiCommands, PaletteEntry
 from hmi.ui.panel import TOP_SHARE, ColumnPanel
 from hmi.ui.recorder import ScanRecorder
 from hmi.ui.reset import ResetLine, recovery_lines, reset_preview
+from hmi.ui.serving import Served, serving_lines
 from hmi.ui.signal_dialog import SignalDialog
 from hmi.ui.sim_panel import SimPanel
 from hmi.ui.status import BannerStrip, StatusBar
@@ -148,9 +156,11 @@ class PlcHmiApp(ContainedPump, App):
 
     def __init__(self, controller: Session, live: bool = True, *,
                  show_measured: bool | None = None, refresh_hz: float = REFRESH_HZ,
-                 injected: tuple[Injection, ...] = (), bell: bool = False):
+                 injected: tuple[Injection, ...] = (), bell: bool = False,
+                 served: Served | None = None):
         super().__init__()
         self.controller = controller
+        self.served = served  # the cell's OPC UA server (--opcua): its status is shown
         engine = controller.engine
         self.project = engine.project
         self.driver: LiveDriver | VirtualDriver = (LiveDriver(controller) if live
@@ -347,8 +357,9 @@ class PlcHmiApp(ContainedPump, App):
             self._mode_commanded = None
         contained = self.containment
         frame_faults = contained.version
+        serving = self.served.status() if self.served is not None else None
         key = (snap.scan, id(snap), self.run_label(), state.speed, self.driver.overruns,
-               self._version, self._mode_commanded, contained.version)
+               self._version, self._mode_commanded, contained.version, serving)
         if not force and key == self._key:
             return False
         self._key = key
@@ -359,7 +370,7 @@ class PlcHmiApp(ContainedPump, App):
             injected=tuple(self._injected), free_inputs=self.free_inputs,
             damage_count=recorded.damage_count, mode_commanded=self._mode_commanded,
             constraints=recorded.constraints, ui_fault=contained.latest,
-            ui_faults=contained.total)
+            ui_faults=contained.total, serving=serving)
         self.frame = frame
         for view in self._views:  # one panel failing leaves the others showing this frame
             try:
@@ -1095,7 +1106,18 @@ class PlcHmiApp(ContainedPump, App):
             entries.append(PaletteEntry(f"Chronogram: last {window // 1_000_000} s",
                                         "Time window of the timing diagram",
                                         partial(self.action_window, window)))
+        if self.served is not None:
+            entries.append(PaletteEntry(
+                "OPC UA server: endpoint, clients, security",
+                "What the SCADA sees of this cell: where it is served, who is connected",
+                self.show_serving))
         return entries
+
+    def show_serving(self) -> None:
+        """The OPC UA server's page: endpoint, clients and their security (palette)."""
+        if self.served is not None:
+            self.push_screen(InfoDialog("OPC UA server", serving_lines(self.served.status()),
+                                        dialog_id="opcua-dialog"))
 
 
     def _situation_entries(self, snap) -> list[PaletteEntry]:
@@ -1182,14 +1204,16 @@ class AppEnd:
 
 
 def run_app(target: Engine | Session, clock=None, injected: tuple[Injection, ...] = (),
-            on_fault: Callable[[UIFault], None] | None = None, bell: bool = False) -> AppEnd:
+            on_fault: Callable[[UIFault], None] | None = None, bell: bool = False,
+            served: Served | None = None) -> AppEnd:
     """Run the HMI live on an engine, or on a controller others listen to (the journal).
 
     A real plant passes a wall clock to stamp its scans (see hmi.session.live.WallClock);
     `injected` are the faults the command line scheduled in a simulated plant; `on_fault`
-    is told of every UI error (the journal)."""
+    is told of every UI error (the journal); `served` is the cell's OPC UA server, whose
+    state the screen shows."""
     controller = target if isinstance(target, Session) else Session(target, clock=clock)
-    app = PlcHmiApp(controller, injected=injected, bell=bell)
+    app = PlcHmiApp(controller, injected=injected, bell=bell, served=served)
     if on_fault is not None:
         app.containment.listeners.append(on_fault)
     app.run()
