@@ -153,3 +153,54 @@ def _search_stops(collector) -> str:
     """", 3 search budget stops" when the corrector's search was cut short, else ""."""
     stops = getattr(collector, "search_stops", 0)
     return f", {stops} at the search budget" if stops else ""
+
+
+class RunCollector:
+    """What a headless run remembers for its summary, without keeping every snapshot."""
+
+    def __init__(self) -> None:
+        self.scans = 0
+        self.violations: dict[str, int] = {}
+        self.corrections = 0
+        self.safe_scans = 0
+        self.unsafe_written = 0
+        self.fallbacks = 0
+        self.search_stops = 0  # fallbacks because the corrector's search used its budget
+        self.first_latch: tuple[int, int, str] | None = None
+        self.events = []
+        self.step_changes = 0
+        self.max_distance = 0
+        from hmi.monitor_report import MonitorLog
+        self.monitors = MonitorLog()
+        self.alarm_events = []
+        self.explanations = {}
+        from hmi.diag_report import DiagnosisLog
+        self.diagnosis = DiagnosisLog()
+
+    def add(self, snap) -> None:
+        self.scans += 1
+        self.monitors.add(snap)
+        self.diagnosis.add(snap)
+        self.events.extend(snap.plant_events)
+        if snap.alarm_events:
+            self.alarm_events.extend(snap.alarm_events)
+        for explanation in snap.explanations:
+            if explanation.alarm:
+                self.explanations[explanation.key] = explanation
+        report = snap.filter
+        if report is not None:
+            for name in report.violated_names:
+                self.violations[name] = self.violations.get(name, 0) + 1
+            if report.safe_state:
+                self.safe_scans += 1
+            elif any(c.how != "masked" for c in report.changes):  # masks: diagnosers' lines
+                self.corrections += 1
+            if report.unsafe_written:
+                self.unsafe_written += 1
+            if report.fallback:
+                self.fallbacks += 1
+                self.search_stops += bool(getattr(report, "stopped", ""))
+            self.max_distance = max(self.max_distance, report.distance)
+        if snap.latched and self.first_latch is None:
+            reason = snap.latched[0]
+            self.first_latch = (reason.scan, reason.time_us, reason.detail)

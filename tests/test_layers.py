@@ -25,7 +25,7 @@ ROOT = Path(__file__).resolve().parent.parent
 PACKAGE = ROOT / "hmi"
 
 LAYERS: tuple[tuple[str, ...], ...] = (
-    ("hmi", "hmi.errors", "hmi.timefmt", "hmi.paths", "hmi.moved", "hmi.limits",
+    ("hmi", "hmi.errors", "hmi.timefmt", "hmi.paths", "hmi.limits",
      "hmi.textfile"),
     ("hmi.logic",),
     ("hmi.project",),
@@ -118,6 +118,35 @@ def test_no_import_runs_up_the_layers():
     upward = {(name, target) for name, targets in GRAPH.items() for target, _ in targets
               if against_layers(name, target)}
     assert upward == set(), "imports against the layering"
+
+
+# The command line (hmi/cli/): one module per command, assembled by entry.py; what several
+# commands share lives in these modules, never in another command's.
+CLI_SHARED = {"hmi.cli.common", "hmi.cli.options", "hmi.cli.session", "hmi.cli.summary"}
+CLI_ASSEMBLY = {"hmi.cli", "hmi.cli.__main__", "hmi.cli.entry"}
+
+
+def against_cli_layout(name: str, target: str) -> bool:
+    """An import the command line's layout forbids: hmi/cli/ from outside it (the command
+    line is the top: nothing is built on it), or one command's module from another's."""
+    if not target.startswith("hmi.cli"):
+        return False
+    if not name.startswith("hmi.cli"):
+        return True
+    if name in CLI_ASSEMBLY:
+        return False
+    return target not in CLI_SHARED
+
+
+def test_the_command_line_is_one_module_per_command():
+    wrong = {(name, target) for name, targets in GRAPH.items() for target, _ in targets
+             if against_cli_layout(name, target)}
+    assert wrong == set(), "imports against hmi/cli/'s layout"
+    assert {"hmi.cli.run", "hmi.cli.ui", "hmi.cli.journal"} <= set(MODULES)
+    assert against_cli_layout("hmi.bench.engine", "hmi.cli.summary")
+    assert against_cli_layout("hmi.cli.run", "hmi.cli.ui")
+    assert not against_cli_layout("hmi.cli.run", "hmi.cli.options")
+    assert not against_cli_layout("hmi.cli.entry", "hmi.cli.run")
 
 
 def _cycles(graph: dict[str, set[str]]) -> list[set[str]]:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import itertools
 
-from hmi.plant import link_log
+from hmi.plant.modbus import link_log
 from hmi.plant.modbus.link_log import LinkLog
 
 

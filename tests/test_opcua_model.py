@@ -12,7 +12,6 @@ import random
 from pathlib import Path
 
 import pytest
-from hmi.plant.injection import parse_injection
 
 from hmi.engine.commands import Acknowledge, FaultReset, Shelve, Unshelve
 from hmi.engine.scan import Engine
@@ -21,6 +20,7 @@ from hmi.explain.journal import Journal
 from hmi.opcua.conditions import HMI_USER, NORMAL, SEVERITY, ConditionTracker
 from hmi.opcua.model import BOOL, DOUBLE, STRING, STRINGS, UINT, build_model
 from hmi.plant.select import open_plant
+from hmi.project.injection import parse_injection
 from hmi.project.loader import load_project
 from hmi.session.journal_recorder import JournalRecorder
 from hmi.session.session import Session

@@ -13,7 +13,6 @@ import shutil
 from pathlib import Path
 
 import pytest
-from hmi.plant.injection import parse_injection
 
 from hmi.engine.commands import (
     EndRecovery,
@@ -29,6 +28,7 @@ from hmi.explain.journal import Journal, read
 from hmi.plant.base import PlantError
 from hmi.plant.sim.plant import SimPlant
 from hmi.project.campaign import campaign_of
+from hmi.project.injection import parse_injection
 from hmi.project.loader import load_project
 from hmi.session.journal_recorder import JournalRecorder
 from hmi.session.session import Session

@@ -35,9 +35,9 @@ SECONDS, QUICK_SECONDS = 120, 20
 
 def session_rate(project: Project, duration_us: int) -> tuple[int, float]:
     """(scans, wall seconds) of a `plchmi run` without trace: session and summary collector."""
-    from hmi.cli import RunCollector
     from hmi.engine.scan import Engine
     from hmi.plant.sim.plant import SimPlant
+    from hmi.report import RunCollector
     from hmi.session.session import Session
 
     session = Session(Engine(project, SimPlant(project)))

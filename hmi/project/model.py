@@ -7,7 +7,6 @@ beyond the positions kept for error messages and explanations.
 from __future__ import annotations
 
 import typing
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -274,15 +273,6 @@ class Project:
     recovery: tuple[RecoveryProcedure, ...] = ()  # the ways back after a fault (issue 19)
     warnings: tuple[Diagnostic, ...] = ()  # what the loader warned about (plchmi check)
     check_sections: tuple[tuple[str, ...], ...] = ()  # more `plchmi check` sections
-
-    @property
-    def extra(self) -> Mapping[str, Any]:
-        """The old untyped view of the sections above (issue 14 phase A), read-only, for
-        branches merging; new code reads the fields. Removed with hmi/moved.py."""
-        return {"warnings": self.warnings, "explanations": self.explanations,
-                "monitors": self.monitors, "scenarios": self.scenarios,
-                "diagnosers": self.diagnosers, "campaign": self.campaign,
-                "components": self.components, "check_sections": self.check_sections}
 
     @property
     def simple_constraints(self) -> tuple[Constraint, ...]:

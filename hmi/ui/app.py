@@ -59,8 +59,8 @@ from hmi.engine.commands import (
 )
 from hmi.engine.scan import Engine
 from hmi.explain.model import Policy
-from hmi.plant.injection import Injection
 from hmi.project.diagnosers import diagnosers_of
+from hmi.project.injection import Injection
 from hmi.project.model import POLICIES
 from hmi.project.monitors import monitors_of
 from hmi.project.recovery import recoveries_of
@@ -452,7 +452,7 @@ class PlcHmiApp(ContainedPump, App):
 
     def _check_driver(self) -> None:
         """The scan thread died (a scan listener failed): nothing scans any more, so the HMI
-        cannot go on. An abnormal end (see hmi.cli.cmd_ui: safe outputs on a real plant)."""
+        cannot go on. An abnormal end (see hmi.cli.ui.cmd_ui: safe outputs on a real plant)."""
         error = getattr(self.driver, "error", None)
         if error is not None and self.containment.fatal is None:
             self.containment.record("the scan thread", error, fatal=True)

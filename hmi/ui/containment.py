@@ -11,7 +11,7 @@ again at the next frame: it may recover).
 Where an error reaches Textual itself (its own widgets, the compositor) the app cannot carry
 on: Textual ends it. It then ends as an abnormal end — the crash file, a journal entry with
 the reason, a non-zero exit status, and on a real plant the safe outputs written first (see
-``hmi.cli.cmd_ui``) — never as "ended normally".
+``hmi.cli.ui.cmd_ui``) — never as "ended normally".
 
 Where errors are caught:
 

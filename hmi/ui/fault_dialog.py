@@ -2,7 +2,7 @@
 
 Fault injection exists for training and commissioning: watching the filter and the diagnosers
 react to a stuck sensor or a jammed valve. The dialog is marked SIMULATION in reverse video
-and returns an :class:`~hmi.plant.injection.Injection` in the engine's virtual time; the app sends
+and returns an :class:`~hmi.project.injection.Injection` in the engine's virtual time; the app sends
 it as an ``InjectFault`` command.
 """
 
@@ -17,7 +17,7 @@ from textual.containers import Vertical
 from textual.widgets import Input, Label, OptionList, Static
 from textual.widgets.option_list import Option
 
-from hmi.plant.injection import Injection
+from hmi.project.injection import Injection
 from hmi.timefmt import parse_duration
 from hmi.ui.dialogs import Dialog
 from hmi.ui.style import Level, banner

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from hmi.engine.snapshot import Snapshot
-from hmi.plant.injection import Injection
+from hmi.project.injection import Injection
 from hmi.ui.containment import UIFault
 from hmi.ui.recorder import ConstraintStats
 

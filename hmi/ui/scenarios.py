@@ -16,8 +16,8 @@ from pathlib import Path
 from textual.pilot import Pilot
 
 from hmi.engine.scan import Engine
-from hmi.plant.injection import parse_injection
 from hmi.plant.sim.plant import SimPlant
+from hmi.project.injection import parse_injection
 from hmi.project.loader import load_project
 from hmi.session.session import Session
 from hmi.ui.alarm_list import AlarmList

@@ -1,0 +1,37 @@
+"""``plchmi bench [SECTION...]``: measure and print performance figures (docs/performance.md);
+the sections themselves are in hmi/bench/."""
+
+from __future__ import annotations
+
+import argparse
+
+from hmi.errors import UsageError
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("bench", help="measure and print performance figures (never fails)")
+    p.add_argument("sections", nargs="*", metavar="SECTION",
+                   help="sections to run (default: all): " + ", ".join(_bench_sections()))
+    p.add_argument("--quick", action="store_true", help="fewer samples, for a fast look")
+    p.add_argument("--seed", type=int, default=1, help="random seed for generated problems")
+
+
+def _bench_sections() -> list[str]:
+    from hmi.bench import NAMES
+    return list(NAMES)
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    from hmi.bench import sections
+    available = sections()
+    chosen = args.sections or list(available)
+    unknown = [s for s in chosen if s not in available]
+    if unknown:
+        raise UsageError(f"unknown bench section {', '.join(unknown)}; sections: "
+                         + ", ".join(available))
+    for index, name in enumerate(chosen):
+        if index:
+            print()
+        print(f"== bench {name}: {available[name].HELP}", flush=True)
+        available[name].run(args)
+    return 0

@@ -1,0 +1,39 @@
+"""``plchmi export PROJECT --format st|plcopen -o DIR``: the safety layer as IEC 61131-3 code
+for a PLC (docs/plc-export.md)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from hmi.cli.common import load
+from hmi.cli.options import project_arg
+from hmi.errors import UsageError
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser(
+        "export", help="the safety filter, diagnosers and monitors as IEC 61131-3 code",
+        description="Export the project's safety layer (filter, local diagnosers, stopwatch "
+        "monitors) for a PLC: Structured Text (st) or PLCopen TC6 XML (plcopen, for CODESYS, "
+        "TwinCAT and OpenPLC's editor). See docs/plc-export.md.")
+    project_arg(p)
+    p.add_argument("--format", choices=("st", "plcopen"), required=True,
+                   help="st: one IEC 61131-3 file; plcopen: PLCopen TC6 XML")
+    p.add_argument("-o", "--output", type=Path, required=True, metavar="DIR",
+                   help="folder to write into (created if missing)")
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from hmi.export import export
+    project = load(args.project)
+    if args.output.exists() and not args.output.is_dir():
+        raise UsageError(f"-o {args.output}: not a folder")
+    try:
+        written = export(project, args.format, args.output)
+    except OSError as exc:
+        raise UsageError(f"-o {args.output}: cannot write there ({exc.strerror})") from None
+    print(f"Wrote {written.path}")
+    for line in written.model.summary:
+        print(f"  {line}")
+    return 0

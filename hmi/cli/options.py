@@ -1,0 +1,111 @@
+"""What several commands' options share: the argument types (a duration, a scan period, a
+port...) and the groups of options (project, diagnoser variant, engine, plant).
+
+A bad value is an `argparse.ArgumentTypeError` with a message saying what was expected, so
+that argparse reports it with exit status 2 and no traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from hmi.limits import MIN_SCAN_PERIOD_US
+from hmi.timefmt import DURATION_HINT, DurationError, format_duration, parse_duration
+
+
+def duration(text: str) -> int:
+    try:
+        us = parse_duration(text)
+    except DurationError as exc:
+        raise argparse.ArgumentTypeError(f"{text!r} {exc.reason} (expected {DURATION_HINT})"
+                                         ) from None
+    if us <= 0:
+        raise argparse.ArgumentTypeError("the duration must be longer than zero")
+    return us
+
+
+def period(text: str) -> int:
+    us = duration(text)
+    if us < MIN_SCAN_PERIOD_US:
+        raise argparse.ArgumentTypeError(f"{text!r} is shorter than the shortest scan period "
+                                         f"({format_duration(MIN_SCAN_PERIOD_US)})")
+    return us
+
+
+def solver_budget(text: str) -> int:
+    from hmi.project.model import MAX_SOLVER_BUDGET, MIN_SOLVER_BUDGET
+    try:
+        if not text.isascii():  # "１０００" is int() 1000: digits a reader would not see
+            raise ValueError(text)
+        value = int(text.replace("_", ""))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of steps") from None
+    if not MIN_SOLVER_BUDGET <= value <= MAX_SOLVER_BUDGET:
+        raise argparse.ArgumentTypeError(
+            f"{value} steps is out of range: between {MIN_SOLVER_BUDGET:,} and "
+            f"{MAX_SOLVER_BUDGET:,}")
+    return value
+
+
+def whole(text: str, most: int) -> int | None:
+    """`text` as a whole number from 0 to `most`, ASCII digits only ("²".isdigit() is true)."""
+    if not (text.isascii() and text.isdigit()) or len(text) > 6 or int(text) > most:
+        return None
+    return int(text)
+
+
+def tcp_port(text: str) -> int:
+    port = whole(text, 65535)
+    if port is None:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a TCP port (0 to 65535)")
+    return port
+
+
+def unit_id(text: str) -> int:
+    unit = whole(text, 255)
+    if unit is None:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a Modbus unit id (0 to 255)")
+    return unit
+
+
+def positive(text: str) -> int:
+    if not text.isdigit() or not 1 <= int(text) <= 10_000:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number from 1 to 10000")
+    return int(text)
+
+
+def project_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("project", help="project folder (or its project.yaml)")
+
+
+def diagnoser_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--diagnoser", metavar="VARIANT",
+                   help="load this variant of the diagnosers (e.g. paper); default: "
+                   "the first each declares")
+
+
+def engine_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--control", metavar="VARIANT",
+                   help="control law variant to run (default: the project's first)")
+    p.add_argument("--policy", choices=("monitor", "block", "correct"),
+                   help="safety filter policy (default: the project's)")
+    p.add_argument("--solver", choices=("exact", "paper"),
+                   help="corrector search strategy (default: the project's, else exact)")
+    p.add_argument("--solver-budget", type=solver_budget, metavar="STEPS",
+                   help="corrector search budget per scan, in steps; past it the safe "
+                   "state is written (default: the project's, else half the scan period "
+                   "in microseconds)")
+
+
+def plant_args(p: argparse.ArgumentParser, connect_default: str) -> None:
+    p.add_argument("--plant", metavar="PLANT",
+                   help="sim, modbus (the project's settings) or "
+                   "modbus://HOST:PORT[/UNIT] (default: the project's plant)")
+    p.add_argument("--read-only", action="store_true",
+                   help="observe a real PLC over Modbus: read its inputs and outputs, "
+                   "check the constraints on them, write nothing")
+    p.add_argument("--connect-timeout", type=duration, metavar="TIME",
+                   help="give up if a Modbus plant does not answer within TIME "
+                   f"(default: {connect_default})")
+    p.add_argument("--allow-monitor", action="store_true",
+                   help="permit the monitor policy (unsafe orders pass) on a real plant")

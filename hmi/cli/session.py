@@ -1,0 +1,69 @@
+"""What the commands that drive a session (run, ui) share: the engine their options ask
+for, the real plant's connection and stop, the OPC UA announcement, the journal."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from hmi.cli.common import RunFailure
+from hmi.errors import UsageError
+from hmi.timefmt import format_duration
+
+
+def make_engine(project, args: argparse.Namespace, extra_injections=()):
+    """The engine for a command's --control/--policy/--inject/--plant options."""
+    from hmi.engine.scan import Engine
+    from hmi.plant.select import open_plant
+    from hmi.project.injection import parse_injection
+
+    if args.control and args.control not in project.controls:
+        raise UsageError(f"--control {args.control!r}: the project has "
+                         + ", ".join(project.controls))
+    injections = [*extra_injections,
+                  *(parse_injection(text) for text in getattr(args, "inject", []))]
+    read_only = getattr(args, "read_only", False)
+    plant = open_plant(project, getattr(args, "plant", None), read_only, injections,
+                       getattr(args, "period", None))
+    # The engine refuses the monitor policy on a real plant unless --allow-monitor.
+    engine = Engine(project, plant, control=args.control, policy=args.policy,
+                    solver=args.solver, diagnosis=getattr(args, "diagnosis", None) or "ftc",
+                    solver_budget=getattr(args, "solver_budget", None),
+                    allow_monitor_policy=getattr(args, "allow_monitor", False))
+    return engine, injections
+
+
+def connect_plant(engine, timeout_us: int | None) -> None:
+    """Connect a real plant before the first scan, saying what happens; exit 1 if it fails."""
+    plant = engine.plant
+    if not plant.is_real:
+        return
+    from hmi.plant.modbus.client import wait_connected
+
+    def report(line: str) -> None:
+        print(f"plchmi: {line}", file=sys.stderr, flush=True)
+    timeout_s = None if timeout_us is None else timeout_us / 1e6
+    if not wait_connected(plant, timeout_s, report):
+        plant.close()
+        raise RunFailure(f"no connection to the plant within {format_duration(timeout_us)}: "
+                         f"{plant.message}")
+
+
+def announce(server, name: str) -> None:
+    """Say where the cell is served (on stderr: a served run's stdout is its summary)."""
+    if server is not None:
+        print(f"plchmi: serving {name} over OPC UA at {server.url}"
+              + (" (operator commands enabled)" if server.options.writable else ""),
+              file=sys.stderr, flush=True)
+
+
+def stop_plant(engine) -> None:
+    """At the end of a run on a real plant, leave its outputs safe, as a stopping PLC does."""
+    safe = dict(zip(engine.layout.outputs, engine.safe_vector, strict=True))
+    engine.plant.stop(engine.now, safe)
+
+
+def open_journal(controller, path: Path | None, source: str):
+    from hmi.runio import open_journal as open_recorder
+    return open_recorder(controller, path, source)

@@ -1,0 +1,128 @@
+"""The studies of a project's faults and monitors: ``plchmi diagnose`` (the diagnosers'
+automata and diagnosability), ``plchmi campaign`` (000 Table 1, or a sweep of fault
+instants) and ``plchmi sweep`` (stopwatch monitor vs watchdog)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from hmi.cli.common import load, progress_bar
+from hmi.cli.options import diagnoser_arg, duration, project_arg
+from hmi.errors import UsageError
+from hmi.limits import MAX_JOBS, MAX_RUN_SCANS
+from hmi.timefmt import format_duration
+
+
+def add_parsers(sub) -> None:
+    """diagnose and campaign (sweep is added later: the help lists commands in order)."""
+    p = sub.add_parser("diagnose", help="print the diagnosers' automata and diagnosability")
+    project_arg(p)
+    diagnoser_arg(p)
+    p.add_argument("--no-closed-loop", action="store_true",
+                   help="print the closed-loop diagnosability only if it is cached (no "
+                   "exploration, which takes about a minute the first time)")
+
+    p = sub.add_parser("campaign", help="inject every fault under three configurations and "
+                       "classify the runs (000 Table 1)")
+    project_arg(p)
+    diagnoser_arg(p)
+    p.add_argument("--json", action="store_true", help="print the results as JSON")
+    p.add_argument("--jobs", type=int, default=None, metavar="N",
+                   help="worker processes (default: 2 if the machine has 2 cores or more)")
+    p.add_argument("--sweep", action="store_true",
+                   help="inject each fault at every instant of a full cycle instead of the "
+                   "scenarios' single instants")
+    p.add_argument("--every", type=duration, default=None, metavar="TIME",
+                   help="with --sweep: the grid of instants (default: every scan period)")
+    p.add_argument("--faults", metavar="F1,F2,...",
+                   help="with --sweep: only these faults (default: every fault of the plant)")
+
+
+def add_sweep_parser(sub) -> None:
+    from hmi.sweep import add_sweep_parser
+    add_sweep_parser(sub, project_arg)
+
+
+def cmd_diagnose(args: argparse.Namespace) -> int:
+    from hmi.diag_report import diagnose_report
+    print(diagnose_report(load(args.project, getattr(args, "diagnoser", None)),
+                          progress=progress_bar(), compute=not args.no_closed_loop))
+    return 0
+
+
+def cmd_campaign(args: argparse.Namespace) -> int:
+    import json
+    import os
+
+    from hmi.engine.campaign import report_lines, run_campaign
+    from hmi.project.campaign import campaign_of
+    project = load(args.project, getattr(args, "diagnoser", None))
+    spec = campaign_of(project)
+    if spec is None:
+        raise UsageError(f"project {project.name} has no 'campaign:' section")
+    from hmi.engine.campaign import CONFIGS
+    runs = len(spec.scenarios) * len(CONFIGS)
+    scans = runs * (spec.length_us // project.scan_period_us + 1)
+    if scans > MAX_RUN_SCANS:
+        raise UsageError(f"the campaign is {runs} runs of {format_duration(spec.length_us)}: "
+                         f"{scans:,} scans, more than the {MAX_RUN_SCANS:,} plchmi runs at once "
+                         "(a shorter campaign length)")
+    jobs = args.jobs if args.jobs is not None else min(2, os.cpu_count() or 1)
+    if not 1 <= jobs <= MAX_JOBS:
+        raise UsageError(f"--jobs {jobs}: expected 1 to {MAX_JOBS} worker processes")
+    if args.sweep:
+        return _campaign_sweep(args, project, spec, jobs)
+    if args.every is not None or args.faults is not None:
+        raise UsageError("--every and --faults need --sweep")
+
+    def progress(done: int, total: int, run) -> None:
+        print(f"[{done:>2}/{total}] {run.scenario.name:<10} {run.config.title:<22} "
+              f"{run.outcome}", file=sys.stderr, flush=True)
+
+    result = run_campaign(project, spec, progress, jobs=jobs)
+    if args.json:
+        print(json.dumps(result.as_dict(), indent=2))
+    else:
+        print("\n".join(report_lines(result)))
+    return 0
+
+
+def _campaign_sweep(args: argparse.Namespace, project, spec, jobs: int) -> int:
+    import json
+
+    from hmi.engine.loop_sweep import CAMPAIGN_CONFIGS, sweep
+    from hmi.engine.loopstate import Unsupported
+    from hmi.engine.sweep_report import as_dict, report_lines
+
+    if args.every is not None and args.every % project.scan_period_us:
+        raise UsageError(f"--every must be a multiple of the scan period "
+                         f"({project.scan_period_us // 1000} ms)")
+    try:
+        result = sweep(project, CAMPAIGN_CONFIGS, spec.counter, args.every, jobs=jobs,
+                       progress=progress_bar(), cache=False, faults=_faults(args, project))
+    except Unsupported as exc:
+        raise UsageError(f"campaign --sweep: {exc}") from None
+    if args.json:
+        print(json.dumps(as_dict(result, spec.scenarios), indent=2))
+    else:
+        print("\n".join(report_lines(result, spec.scenarios, spec.paper, project.name)))
+    return 0
+
+
+def _faults(args: argparse.Namespace, project) -> tuple[str, ...] | None:
+    from hmi.engine.explore import faults_of
+    if args.faults is None:
+        return None
+    known = faults_of(project)
+    chosen = tuple(f.strip() for f in args.faults.split(",") if f.strip())
+    unknown = [f for f in chosen if f not in known]
+    if unknown or not chosen:
+        raise UsageError(f"--faults {args.faults!r}: " + (f"unknown {', '.join(unknown)}; "
+                         if unknown else "") + "the plant's faults are " + ", ".join(known))
+    return chosen
+
+
+def cmd_sweep(args: argparse.Namespace) -> int:
+    from hmi.sweep import cmd_sweep
+    return cmd_sweep(args, load(args.project, getattr(args, "diagnoser", None)))

@@ -1,0 +1,67 @@
+"""``plchmi PROJECT`` (``plchmi ui PROJECT``): the operator HMI, with its journal, its plant
+and, if asked, the OPC UA server."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from hmi.cli.common import ended_by, load
+from hmi.cli.options import diagnoser_arg, engine_args, plant_args, project_arg
+from hmi.cli.session import announce, connect_plant, make_engine, open_journal, stop_plant
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("ui", help="open the operator HMI (the default command)")
+    project_arg(p)
+    diagnoser_arg(p)
+    engine_args(p)
+    p.add_argument("--inject", action="append", default=[], metavar="FAULT@TIME",
+                   help="schedule a fault in the simulated plant")
+    p.add_argument("--journal", type=Path, metavar="FILE",
+                   help="journal file (default: the user's data folder, see plchmi journal)")
+    p.add_argument("--bell", action="store_true",
+                   help="ring the terminal bell when a new unacknowledged P1 alarm appears")
+    plant_args(p, "keep trying")
+    from hmi.opcua.options import add_arguments as opcua_args
+    opcua_args(p)
+
+
+def cmd_ui(args: argparse.Namespace) -> int:
+    from hmi.opcua.options import check_arguments, start_server
+    from hmi.session.session import Session
+    from hmi.ui.app import run_app
+    check_arguments(args)
+    project = load(args.project, getattr(args, "diagnoser", None))
+    engine, injections = make_engine(project, args)
+    clock = None
+    if engine.plant.is_real:
+        from hmi.session.live import WallClock
+        clock = WallClock()
+    controller = Session(engine, clock=clock)
+    recorder = None
+    end = None
+    server = None
+    try:
+        recorder = open_journal(controller, args.journal, "hmi")
+        server = start_server(controller, args, log_file=True)
+        announce(server, project.name)
+        if clock is not None:
+            connect_plant(engine, args.connect_timeout)
+        end = run_app(controller, injected=tuple(injections),
+                      on_fault=recorder.on_ui_fault, bell=getattr(args, "bell", False))
+        if end.reason is not None:
+            print(f"plchmi: the HMI ended on an error: {end.reason}", file=sys.stderr)
+        return end.status
+    finally:
+        if server is not None:
+            server.stop()
+        # a real plant: the safe outputs first, then the journal says how it ended
+        if clock is not None:
+            stop_plant(engine)
+        if recorder is not None:
+            if end is not None:
+                recorder.close(end.reason, end.note)
+            else:
+                recorder.close(ended_by(sys.exc_info()[1]))
