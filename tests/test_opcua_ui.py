@@ -16,16 +16,16 @@ from pathlib import Path
 import pytest
 
 pytest.importorskip("asyncua", reason="the [opcua] extra is not installed")
-from asyncua import Client  # noqa: E402
+from asyncua import Client
 
-from hmi.explain.journal import Journal  # noqa: E402
-from hmi.opcua.options import journal_listener, server_certificate  # noqa: E402
-from hmi.opcua.server import ServeOptions  # noqa: E402
-from hmi.opcua.users import Users, hash_password  # noqa: E402
-from hmi.session.journal_recorder import JournalRecorder  # noqa: E402
-from hmi.ui.app import PlcHmiApp  # noqa: E402
-from hmi.ui.dialogs import InfoDialog  # noqa: E402
-from hmi.ui.testing import (  # noqa: E402
+from hmi.explain.journal import Journal
+from hmi.opcua.options import journal_listener, server_certificate
+from hmi.opcua.server import ServeOptions
+from hmi.opcua.users import Users, hash_password
+from hmi.session.journal_recorder import JournalRecorder
+from hmi.ui.app import PlcHmiApp
+from hmi.ui.dialogs import InfoDialog
+from hmi.ui.testing import (
     palette,
     press,
     region_text,
@@ -35,7 +35,7 @@ from hmi.ui.testing import (  # noqa: E402
     wait_for_main,
     wait_for_screen,
 )
-from tests.opcua_cells import ROOT, serve, valve_session  # noqa: E402
+from tests.opcua_cells import ROOT, serve, valve_session
 
 WAIT_S = 30.0  # a safety net only: every wait ends on the state it waits for
 PASSWORD = "correct horse"

@@ -125,7 +125,7 @@ def run_real_time(engine, args: argparse.Namespace, duration_us: int | None) -> 
     try:
         # The journal first, so that the connection attempts (and giving up) are in it.
         outputs = RunOutputs(controller, args.trace, args.journal, "run")
-        server = start_server(controller, args)
+        server = start_server(controller, args, journal=outputs.recorder)
         announce(server, engine.project.name)
         connect_plant(engine, args.connect_timeout or 10_000_000)
 

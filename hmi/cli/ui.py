@@ -45,12 +45,13 @@ def cmd_ui(args: argparse.Namespace) -> int:
     server = None
     try:
         recorder = open_journal(controller, args.journal, "hmi")
-        server = start_server(controller, args, log_file=True)
+        server = start_server(controller, args, log_file=True, journal=recorder)
         announce(server, project.name)
         if clock is not None:
             connect_plant(engine, args.connect_timeout)
         end = run_app(controller, injected=tuple(injections),
-                      on_fault=recorder.on_ui_fault, bell=getattr(args, "bell", False))
+                      on_fault=recorder.on_ui_fault, bell=getattr(args, "bell", False),
+                      served=server)
         if end.reason is not None:
             print(f"plchmi: the HMI ended on an error: {end.reason}", file=sys.stderr)
         return end.status
