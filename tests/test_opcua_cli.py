@@ -173,3 +173,6 @@ def test_an_address_already_in_use_is_a_usage_error(capsys):
     err = capsys.readouterr().err
     assert f"opc.tcp://127.0.0.1:{port}: cannot listen there" in err
     assert "Traceback" not in err
+    # it never served: the journal says nothing of a server that stopped
+    journal = Path(os.environ["PLCHMI_DATA"]) / "cispi_valve" / "journal.jsonl"
+    assert journal.is_file() and '"opcua-' not in journal.read_text()

@@ -271,17 +271,16 @@ class CellServer:
         try:
             asyncio.run(self._main())
         except BaseException as exc:  # reported to start(), or logged once running
-            if not self._ready.is_set():
+            if not self._ready.is_set():  # it never served: start() raises it
                 self._failure = exc
                 self._ready.set()
-            else:
-                log.exception("the OPC UA server stopped on an error")
-                self._set_status(state=FAILED, clients=(),
-                                 error=f"{type(exc).__name__}: {exc}" if str(exc)
-                                 else type(exc).__name__)
                 return
-        if self._ready.is_set():
-            self._set_status(state=STOPPED, clients=())
+            log.exception("the OPC UA server stopped on an error")
+            self._set_status(state=FAILED, clients=(),
+                             error=f"{type(exc).__name__}: {exc}" if str(exc)
+                             else type(exc).__name__)
+            return
+        self._set_status(state=STOPPED, clients=())
 
     async def _main(self) -> None:
         self._loop = asyncio.get_running_loop()
