@@ -25,10 +25,21 @@ def test_first_frame_waits_for_every_marker_and_gives_up_without_them():
     env = dict(os.environ)
     shown = first_frame([sys.executable, "-c", "print('Signal'); print('fsc')"],
                         (b"Signal", b"fsc"), env, timeout_s=20)
-    assert shown is not None and 0 < shown < 20
+    assert shown.wall_s is not None and 0 < shown.wall_s < 20
     missing = first_frame([sys.executable, "-c", "print('Signal')"], (b"Signal", b"fsc"),
                           env, timeout_s=2)
-    assert missing is None
+    assert missing.wall_s is None and missing.cpu_s is None
+
+
+def test_first_frame_reads_the_cpu_time_the_process_had_used():
+    """A process that works 0.3 s of CPU before its frame: the CPU figure sees that work
+    (in clock ticks), whatever the load makes of the wall time."""
+    busy = ("import time\nt = time.process_time()\nwhile time.process_time() - t < 0.3:\n"
+            "    pass\nprint('Signal fsc', flush=True)")
+    shown = first_frame([sys.executable, "-c", busy], (b"Signal", b"fsc"), dict(os.environ),
+                        timeout_s=60)
+    assert shown.wall_s is not None and shown.cpu_s is not None
+    assert 0.25 <= shown.cpu_s <= shown.wall_s + 0.05
 
 
 def test_the_engine_rates_count_the_scans_of_a_plchmi_run():
