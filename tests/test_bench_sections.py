@@ -6,6 +6,8 @@ from __future__ import annotations
 import os
 import sys
 
+import pytest
+
 from hmi.bench import NAMES, goal_line, sections
 from hmi.bench.engine import engine_rate, session_rate
 from hmi.bench.startup import first_frame
@@ -55,3 +57,21 @@ def test_the_goal_line_says_met_or_not():
     assert "NOT met" in goal_line(10_500, 100_000, "scans/s")
     assert ": met" in goal_line(120_000, 100_000, "scans/s")
     assert ": met" in goal_line(0.4, 0.5, "s", higher_is_better=False)
+
+
+def test_first_frame_starts_the_process_in_the_folder_asked(tmp_path):
+    """bench startup --against: `python -m hmi.cli` imports the hmi of its working folder."""
+    shown = first_frame([sys.executable, "-c", "import os; print('Signal', os.getcwd())"],
+                        (b"Signal", str(tmp_path).encode()), dict(os.environ),
+                        timeout_s=20, cwd=tmp_path)
+    assert shown.wall_s is not None
+
+
+def test_against_takes_a_plchmi_checkout_only(tmp_path):
+    from hmi.bench.startup import ROOT, checkouts
+    from hmi.errors import UsageError
+
+    assert [tree.root for tree in checkouts(None)] == [ROOT]
+    assert [tree.root for tree in checkouts(str(ROOT))] == [ROOT, ROOT]
+    with pytest.raises(UsageError, match="not a plchmi checkout"):
+        checkouts(str(tmp_path))

@@ -33,12 +33,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from hmi.bench import load_line
+from hmi.errors import UsageError
 
 SECTION = "startup"
 HELP = "launch -> first frame with the I/O table at 80x24 (goal < 0.5 s); import time"
 
 GOAL_S = 0.5
-PROJECT = Path(__file__).resolve().parents[2] / "projects" / "cispi_valve"
+ROOT = Path(__file__).resolve().parents[2]
+PROJECT = ROOT / "projects" / "cispi_valve"
 RUNS, QUICK_RUNS = 5, 3
 SIZE = (80, 24)
 TIMEOUT_S = 30.0
@@ -65,7 +67,8 @@ def cpu_seconds(pid: int) -> float | None:
 
 
 def first_frame(argv: list[str], markers: tuple[bytes, ...], env: dict[str, str],
-                size: tuple[int, int] = SIZE, timeout_s: float = TIMEOUT_S) -> Launch:
+                size: tuple[int, int] = SIZE, timeout_s: float = TIMEOUT_S,
+                cwd: Path | None = None) -> Launch:
     """The time from the fork of `argv` in a new pseudo-terminal of `size` (columns, rows)
     until every marker has appeared in what it wrote (and the CPU time it had used then).
     The process is asked to quit, then killed if it does not, and always reaped."""
@@ -78,6 +81,8 @@ def first_frame(argv: list[str], markers: tuple[bytes, ...], env: dict[str, str]
     pid, fd = pty.fork()
     if pid == 0:  # the child: the HMI, in the new terminal
         try:
+            if cwd is not None:  # `python -m hmi.cli` imports the hmi of its folder
+                os.chdir(cwd)
             os.execve(argv[0], argv, env)
         finally:
             os._exit(127)
@@ -133,39 +138,91 @@ def import_seconds(module: str) -> float:
     return time.perf_counter() - started
 
 
+@dataclass(frozen=True)
+class Checkout:
+    """A plchmi source tree whose HMI a launch starts (this one, or --against another)."""
+
+    label: str
+    root: Path
+
+    def argv(self) -> list[str]:
+        return [sys.executable, "-m", "hmi.cli", str(self.root / "projects" / PROJECT.name)]
+
+
+def checkouts(against: str | None) -> list[Checkout]:
+    """This checkout, and the one to compare with (bench startup --against DIR)."""
+    found = [Checkout("this checkout", ROOT)]
+    if against:
+        other = Path(against).resolve()
+        if not ((other / "hmi" / "ui" / "app.py").is_file()
+                and (other / "projects" / PROJECT.name).is_dir()):
+            raise UsageError(f"--against {against}: not a plchmi checkout (no hmi/ui/app.py "
+                             f"or projects/{PROJECT.name} there)")
+        found.append(Checkout(f"--against {against}", other))
+    return found
+
+
 def run(args) -> None:
     from hmi.project.loader import load_project
 
     runs = QUICK_RUNS if getattr(args, "quick", False) else RUNS
+    trees = checkouts(getattr(args, "against", None))
     project = load_project(PROJECT)
     markers = (b"Signal", project.inputs[0].name.encode())
+    launches: dict[Checkout, list[Launch]] = {tree: [] for tree in trees}
     with tempfile.TemporaryDirectory() as data:
         env = dict(os.environ, TERM="xterm-256color", PLCHMI_DATA=data,
                    COLUMNS=str(SIZE[0]), LINES=str(SIZE[1]))
         # As on an operator's machine: the bytecode cache written (a launch compiling every
         # module is not the usual start; a development shell may forbid writing it).
         env.pop("PYTHONDONTWRITEBYTECODE", None)
-        argv = [sys.executable, "-m", "hmi.cli", str(PROJECT)]
         print(f"  plchmi projects/{PROJECT.name} in a {SIZE[0]}x{SIZE[1]} pseudo-terminal, "
-              f"{runs} launches after one to warm the caches; {load_line()}", flush=True)
-        first_frame(argv, markers, env)
-        launches = [first_frame(argv, markers, env) for _ in range(runs)]
-    got = [launch.wall_s for launch in launches if launch.wall_s is not None]
-    shown = "  ".join("timeout" if launch.wall_s is None else f"{launch.wall_s:.2f}"
-                      for launch in launches)
-    if got:
-        median = statistics.median(got)
-        print(f"  first frame with the I/O table: median {median:.2f} s, min {min(got):.2f} s, "
-              f"max {max(got):.2f} s  ({shown})")
-        cpu = [launch.cpu_s for launch in launches if launch.cpu_s is not None]
-        if cpu:
-            print(f"  CPU time of the HMI's process at its first frame: median "
-                  f"{statistics.median(cpu):.2f} s, min {min(cpu):.2f} s")
-        print(f"  goal < {GOAL_S} s: {'met' if median < GOAL_S else 'NOT met'} "
-              f"(median {median / GOAL_S:.1f}x the goal); {load_line()}")
-    else:
-        print(f"  no first frame within {TIMEOUT_S:.0f} s ({shown})")
+              f"{runs} launches" + (" each, interleaved," if len(trees) > 1 else "")
+              + f" after one to warm the caches; {load_line()}", flush=True)
+        for tree in trees:
+            first_frame(tree.argv(), markers, env, cwd=tree.root)
+        for _ in range(runs):
+            for tree in trees:
+                launches[tree].append(first_frame(tree.argv(), markers, env, cwd=tree.root))
+    for tree in trees:
+        if len(trees) > 1:
+            print(f"  {tree.label} ({tree.root}):")
+        _report(launches[tree])
+    if len(trees) > 1:
+        _compare(*(launches[tree] for tree in trees))
+    print(f"  {load_line()}")
     imports = [import_seconds("hmi.ui.app") for _ in range(runs)]
     print(f"  import hmi.ui.app alone (fresh interpreter): median "
           f"{statistics.median(imports):.2f} s; interpreter alone: "
           f"{statistics.median([import_seconds('sys') for _ in range(runs)]):.2f} s")
+
+
+def _report(launches: list[Launch]) -> None:
+    got = [launch.wall_s for launch in launches if launch.wall_s is not None]
+    shown = "  ".join("timeout" if launch.wall_s is None else f"{launch.wall_s:.2f}"
+                      for launch in launches)
+    if not got:
+        print(f"  no first frame within {TIMEOUT_S:.0f} s ({shown})")
+        return
+    median = statistics.median(got)
+    print(f"  first frame with the I/O table: median {median:.2f} s, min {min(got):.2f} s, "
+          f"max {max(got):.2f} s  ({shown})")
+    cpu = [launch.cpu_s for launch in launches if launch.cpu_s is not None]
+    if cpu:
+        print(f"  CPU time of the HMI's process at its first frame: median "
+              f"{statistics.median(cpu):.2f} s, min {min(cpu):.2f} s")
+    print(f"  goal < {GOAL_S} s: {'met' if median < GOAL_S else 'NOT met'} "
+          f"(median {median / GOAL_S:.1f}x the goal)")
+
+
+def _compare(these: list[Launch], others: list[Launch]) -> None:
+    """Launch by launch (each pair started one after the other): how many times faster this
+    checkout is than the other, in wall time and in CPU time."""
+    for what, pairs in (("wall", [(a.wall_s, b.wall_s) for a, b in zip(these, others,
+                                                                       strict=True)]),
+                        ("CPU", [(a.cpu_s, b.cpu_s) for a, b in zip(these, others,
+                                                                   strict=True)])):
+        ratios = [b / a for a, b in pairs if a and b]
+        if ratios:
+            print(f"  this checkout is {statistics.median(ratios):.2f}x faster in {what} time "
+                  f"(median of {len(ratios)} interleaved pairs)")
