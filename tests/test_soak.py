@@ -191,3 +191,18 @@ def test_a_recovery_is_judged_by_its_own_constraints():
     result = soak(SoakConfig(VALVE, "normal", (100, 30)), steps)
     assert result.ok, str(result.broken[0])
     assert result.commands["StartRecovery"] == 1
+
+
+def test_a_shelved_alarm_may_leave_the_list_unacknowledged():
+    """Seed 44's 30-minute soak of the valve broke `alarm-left-unacknowledged` when the
+    operator shelved a cleared-unacknowledged alarm: shelving hides an alarm in any state
+    (ISA-18.2 §11), its state still journalled; the checker now follows it to the shelf and
+    back."""
+    text = "Valve V1: open order blocked — start opening only from the closed position"
+    steps = [Run(10_000_000), Palette(f"Alarms: shelve… {text}"), Press(("down",)),
+             Press(("enter",)), Run(1_000_000), Palette(f"Alarms: unshelve {text}"),
+             Run(1_000_000)]
+    result = soak(SoakConfig(VALVE, "faulty", (100, 30)), steps)
+    assert result.ok, str(result.broken[0])
+    assert result.commands["Shelve"] == 1 and result.commands["Unshelve"] == 1
+    assert result.skipped == 0

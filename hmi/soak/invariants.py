@@ -19,7 +19,9 @@ rather than trusting the engine's own report of it:
 - **ISA-18.2**: an alarm never leaves the list unacknowledged (only an acknowledged alarm
   leaves when it clears, a cleared one when it is acknowledged); the priority of an alarm in
   the list (active or unacknowledged) never goes down; every change of an alarm's state seen
-  in the list is in the journal, in order;
+  in the list is in the journal, in order; an alarm the operator shelves leaves the list in
+  any state (hidden, not gone: its "shelved" line carries its state) and its return is
+  journalled too;
 - **the status bar** shows the mode and the filter policy of the scan on screen;
 - **the journal**: every line parses (a JSON object with a type and an event).
 """
@@ -95,6 +97,7 @@ class Invariants:
                            for _, _, terms in group for t in terms])
         self.history: deque[tuple] = deque(maxlen=depth)  # values of the scans before
         self.alarms: dict[str, object] = {}  # the list as last seen, by key
+        self.hidden: set[str] = set()  # alarms that left the list for a shelf
         self.expected: dict[str, deque[tuple[str, int]]] = {}  # transitions to find
         self.journal_path = journal_path
         self._journal_at = 0  # bytes read so far
@@ -186,8 +189,16 @@ class Invariants:
         now = {a.key: a for a in alarms}
         self.max_alarms = max(self.max_alarms, len(now))
         self.checks["alarm"] += len(now) + len(self.alarms)
+        manager = self.session.alarms
         for key, old in self.alarms.items():
             if key in now:
+                continue
+            if key in manager.shelved:
+                # Shelved by the operator: hidden from the list, not gone; its "shelved"
+                # line in the journal carries its state (ISA-18.2 §11).
+                self.hidden.add(key)
+                held = manager.alarms.get(key)
+                self._expect(key, held.state if held is not None else old.state)
                 continue
             leaves_ok = (old.state == ACTIVE_ACK and not acknowledged) or \
                 (old.state == CLEARED_UNACK and key in acknowledged)
@@ -199,7 +210,10 @@ class Invariants:
         for key, alarm in now.items():
             old = self.alarms.get(key)
             if old is None:
-                self.raised += 1
+                if key in self.hidden:  # back from its shelf (its "unshelved" line)
+                    self.hidden.discard(key)
+                else:
+                    self.raised += 1
                 self._expect(key, alarm.state)
                 continue
             if alarm.priority > old.priority:
