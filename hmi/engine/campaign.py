@@ -176,9 +176,8 @@ def run_one(project: Project, spec: CampaignSpec, scenario: Scenario, config: Co
         if value != count:
             cycle_times.extend([now] * (value - count))
             count = value
-        if detected is None and stage is not None and any(
-                d.faulty for d in stage.current.records):
-            detected = now
+        if detected is None and stage is not None and stage.faulty:
+            detected = now  # (stage.faulty: some record of stage.current is faulty)
     assert snap is not None
     outcome, reason = classify(damage, cycle_times, spec.length_us, spec.window_us)
     decision = tuple(lab for d in snap.diagnosers for lab in d.labels)

@@ -14,10 +14,13 @@ filter").
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 
 from hmi.engine.filter import Change, FilterDecision, FilterReport, SafetyFilter, pack
 from hmi.logic.expr import History, Image
+
+# Whether a candidate vector violates any constraint (hmi.engine.compiled).
+QuickTest = Callable[[Image, History, tuple[bool, ...]], bool]
 
 
 class FilterStage:
@@ -27,11 +30,22 @@ class FilterStage:
         self.filter = safety_filter
         self.outputs = safety_filter.outputs
         self.mask_flags = mask_flags  # masked output -> the flags that mask it
+        # The compiled scan's test of the candidate (None: the filter tests it itself). When
+        # nothing is masked nor violated, and no block latch holds, the filter's answer is
+        # its clean report with the candidate unchanged: given without its work.
+        self.quick: QuickTest | None = None
+        self.clean = {"monitor": safety_filter._clean_monitor,
+                      "block": safety_filter._clean_block,
+                      "correct": safety_filter._clean_correct}
 
     def apply(self, image: Image, history: History, fov: tuple[bool, ...], policy: str,
               latched: bool, mask: tuple[bool, ...] | None) -> FilterDecision:
         inner = self.filter
         if mask is None:
+            quick = self.quick
+            if quick is not None and not (latched and policy == "block") and not quick(
+                    image, history, fov):
+                return FilterDecision(fov, self.clean[policy])
             return inner.apply(image, history, fov, policy, latched)
         if policy == "monitor":  # monitor alters nothing, masks included: it says so
             decision = inner.apply(image, history, fov, policy, latched)

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-from hmi.logic.expr import BoolFn, History, Image, compile_bool
+from hmi.logic.expr import BoolFn, History, Image, Node, compile_bool
 from hmi.project.model import Grafcet
 
 
@@ -35,6 +35,7 @@ class GrafcetRuntime:
         self.transition_numbers = tuple(tr.number for tr in grafcet.transitions)
         self.stored: dict[str, list[tuple[int, bool]]] = {}
         self.continuous: list[tuple[int, int, BoolFn | None]] = []  # step slot, target, cond
+        self.continuous_conditions: list[Node | None] = []  # their trees (compiled scan)
         for step in grafcet.steps:
             for action in step.actions:
                 if action.kind == "N":
@@ -42,6 +43,8 @@ class GrafcetRuntime:
                             if action.condition else None)
                     self.continuous.append((self.step_slots[step.name], slots[action.target],
                                             cond))
+                    self.continuous_conditions.append(
+                        action.condition.root if action.condition else None)
                 else:
                     self.stored.setdefault(step.name, []).append(
                         (slots[action.target], action.kind == "S"))
@@ -76,6 +79,11 @@ class GrafcetRuntime:
         if not fire:
             self.fired = ()
             return ()
+        return self.fire(fire, image, now)
+
+    def fire(self, fire: list[int], image: Image, now: int) -> tuple[int, ...]:
+        """Fire the transitions `fire` (indices, in order) together; the compiled scan
+        (hmi.engine.compiled) finds them itself and calls this only when there are some."""
         deactivate: set[str] = set()
         activate: set[str] = set()
         for i in fire:

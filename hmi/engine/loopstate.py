@@ -150,6 +150,7 @@ class LoopAccess:
         p._taken[:] = taken
         for device, saved in zip(p.devices, devices, strict=True):
             _restore_vars(device, saved)
+        p.forget_writes()  # the devices' orders are the captured ones now
 
     # -- the key --------------------------------------------------------------------------
     def key(self) -> tuple:

@@ -119,6 +119,14 @@ class MonitorStage:
             return self.states()
         return self._states
 
+    def current(self) -> tuple[MonitorState, ...]:
+        """The states as the last scan left them, for its snapshot: what :meth:`step`
+        returns, built only when a snapshot asks (the compiled scan steps the automata
+        without building states; hmi.engine.compiled)."""
+        if self._states is None or True in self._dirty:
+            return self.states()
+        return self._states
+
     def states(self) -> tuple[MonitorState, ...]:
         """Each task's state; rebuilt only for the automata that moved since the last call
         (a waiting task's state is the same tuple scan after scan)."""
@@ -135,7 +143,7 @@ class MonitorStage:
     def reset(self) -> list[str]:
         """Fault reset: release each latched label whose task is no longer faulty."""
         lines = []
-        self._dirty = [True] * len(self.automata)
+        self._dirty[:] = [True] * len(self.automata)  # in place: the compiled scan holds it
         self._states = None
         for spec, a in zip(self.specs, self.automata, strict=True):
             if a.latched is None:

@@ -36,12 +36,13 @@ from hmi.engine.commands import (
     StartRecovery,
     StopDevice,
 )
+from hmi.engine.compiled import CompiledScan
 from hmi.engine.control import ControlRuntime
 from hmi.engine.diagnoser import DiagnoserState, Diagnosis, diagnosis_stage
 from hmi.engine.filter import FilterReport, SafetyFilter
 from hmi.engine.filter_stage import FilterStage
 from hmi.engine.layout import Layout
-from hmi.engine.monitors import MonitorState, monitor_stage
+from hmi.engine.monitors import monitor_stage
 from hmi.engine.recovery import NO_RECOVERY, recovery_stage
 from hmi.engine.snapshot import LatchReason, Snapshot
 from hmi.engine.stages import Control, InputScan, Memory, OutputScan, Reconstruction
@@ -87,7 +88,7 @@ class Engine:
     def __init__(self, project: Project, plant: Plant, control: str | None = None,
                  policy: str | None = None, solver: str | None = None,
                  diagnosis: str = "ftc", solver_budget: int | None = None,
-                 allow_monitor_policy: bool = False):
+                 allow_monitor_policy: bool = False, compiled: bool = True):
         self.project = project
         self.plant = plant
         self.control_name = control or project.default_control
@@ -150,6 +151,16 @@ class Engine:
                         for v in project.outputs if v.device}
         self.stopped_devices: set[str] = set()
         self._stop_mask: tuple[int, ...] = ()
+        # The compiled scan (hmi.engine.compiled): the stages above, generated as flat
+        # functions over the same state. `compiled=False` keeps the interpreter alone (the
+        # reference the compiled scan is tested against). Observing a read-only device runs
+        # no control law: nothing to compile.
+        self.compiled = (CompiledScan(lay, self.memory, self.control, self.diagnosis,
+                                      self.recovery, self.filter, self.monitors,
+                                      f"{project.name}/{self.control_name}")
+                         if compiled and not self.observe else None)
+        if self.compiled is not None:  # the filter's first question, compiled
+            self.filter_stage.quick = self.compiled.violated
 
     # -- commands ----------------------------------------------------------------------------
     def apply(self, command: Command) -> CommandResult:
@@ -368,11 +379,11 @@ class Engine:
     def step(self, now: int) -> Snapshot:
         """One scan at `now`, and what it left behind."""
         wall = time.perf_counter()
-        fov, outputs, report, diagnosis, monitors, error, filter_us = self._cycle(now)
+        fov, outputs, report, diagnosis, monitored, error, filter_us = self._cycle(now)
         diagnosers = (self.diagnosis.publish(self.image, self.history)
                       if self.diagnosis is not None else ())
-        snapshot = self._snapshot(fov, outputs, report, diagnosis, diagnosers, monitors, error,
-                                  wall, filter_us)
+        snapshot = self._snapshot(fov, outputs, report, diagnosis, diagnosers, monitored,
+                                  error, wall, filter_us)
         self.history.appendleft(self.image.copy())
         self.last = snapshot
         return snapshot
@@ -385,9 +396,11 @@ class Engine:
         self.history.appendleft(self.image.copy())
 
     def _cycle(self, now: int) -> tuple[tuple[bool, ...], tuple[bool, ...], FilterReport | None,
-                                        Diagnosis, tuple[MonitorState, ...], str | None,
-                                        float]:
-        """Stages 1 to 8 (module docstring), in order."""
+                                        Diagnosis, bool, str | None, float]:
+        """Stages 1 to 8 (module docstring), in order. In automatic and manual mode stages
+        2-5, the filter's first test and the monitors run compiled (hmi.engine.compiled);
+        the stages' own methods run whatever else happens (a violation, masking, a latch, a
+        recovery), on the same state."""
         self.scan += 1
         self.now = now
         image = self.image
@@ -395,6 +408,7 @@ class Engine:
         report: FilterReport | None = None
         diagnosis = self.diagnosis.current if self.diagnosis else NO_DIAGNOSIS
         filter_us = 0.0
+        fast = self.compiled
         try:
             # 1. input scan
             lost = self.input_scan.read(image, now)
@@ -406,28 +420,38 @@ class Engine:
             if not self.started:
                 self._start(now)
             hist = self.history
-            # 2. memory
-            self.memory.update(image, hist, now)
-            # 3. diagnosers
-            if self.diagnosis is not None:
-                diagnosis = self.diagnosis.step(image, hist, now, self.scan)
-            # 4. reconstruction
-            self.reconstruction.apply(image, diagnosis.routes)
             recovery = self.recovery
-            if recovery is not None:
-                recovery.check_needed(image, hist, now)
-            # 5. functional control (or the operator's requests, or a recovery procedure)
-            filter_stage, mask = self.filter_stage, diagnosis.mask
-            if self.observe:
-                fov = self.input_scan.readback
-            elif self.mode == "recovery" and recovery is not None:
-                self.control_stage.fov(image, hist, now, {})  # the law's memories evolve
-                fov = recovery.fov(image, hist, now)
-                filter_stage = recovery.filter_stage or filter_stage
-                mask = recovery.unmask(mask)
+            filter_stage = self.filter_stage
+            if fast is not None and self.mode != "recovery":
+                # 2-5 compiled: memory, diagnosers, reconstruction, recoveries needed, law
+                fov = fast.core(image, hist, now, self.scan)
+                if self.diagnosis is not None:
+                    diagnosis = self.diagnosis.current
+                mask = diagnosis.mask
+                if self.mode == "manual":
+                    fov = self.control_stage.manual_fov(self.manual)
             else:
-                fov = self.control_stage.fov(image, hist, now, self.manual
-                                             if self.mode == "manual" else None)
+                # 2. memory
+                self.memory.update(image, hist, now)
+                # 3. diagnosers
+                if self.diagnosis is not None:
+                    diagnosis = self.diagnosis.step(image, hist, now, self.scan)
+                # 4. reconstruction
+                self.reconstruction.apply(image, diagnosis.routes)
+                if recovery is not None:
+                    recovery.check_needed(image, hist, now)
+                # 5. functional control (or the operator's requests, or a recovery procedure)
+                mask = diagnosis.mask
+                if self.observe:
+                    fov = self.input_scan.readback
+                elif self.mode == "recovery" and recovery is not None:
+                    self.control_stage.fov(image, hist, now, {})  # the law's memories evolve
+                    fov = recovery.fov(image, hist, now)
+                    filter_stage = recovery.filter_stage or filter_stage
+                    mask = recovery.unmask(mask)
+                else:
+                    fov = self.control_stage.fov(image, hist, now, self.manual
+                                                 if self.mode == "manual" else None)
             if self._stop_mask and not self.observe:
                 fov = tuple(self.safe_vector[k] if k in self._stop_mask else value
                             for k, value in enumerate(fov))
@@ -460,16 +484,20 @@ class Engine:
             lost = self.output_scan.write(now, outputs)
             if lost is not None:
                 self.latch_safe("plant", lost)
-        # 8. monitors, on the I/O this scan exchanged
-        monitors: tuple[MonitorState, ...] = ()
+        # 8. monitors, on the I/O this scan exchanged (their states: Engine._snapshot)
+        monitored = False
         if self.monitors is not None:
             try:
-                monitors = self.monitors.step(image, self.history, now, self.scan)
+                if fast is not None and fast.monitors is not None:
+                    fast.monitors(image, self.history, now, self.scan)
+                else:
+                    self.monitors.step(image, self.history, now, self.scan)
+                monitored = True
             except Exception as exc:  # a broken monitor must not stop the scan silently
                 message = f"{type(exc).__name__}: {exc}"
                 error = error or message
                 self.latch_safe("internal", f"internal error at scan {self.scan}: {message}")
-        return fov, outputs, report, diagnosis, monitors, error, filter_us
+        return fov, outputs, report, diagnosis, monitored, error, filter_us
 
     def _start(self, now: int) -> None:
         self.control.reset(self.image, now)
@@ -495,32 +523,36 @@ class Engine:
 
     def _snapshot(self, fov: tuple[bool, ...], outputs: tuple[bool, ...],
                   report: FilterReport | None, diagnosis: Diagnosis,
-                  diagnosers: tuple[DiagnoserState, ...], monitors: tuple[MonitorState, ...],
+                  diagnosers: tuple[DiagnoserState, ...], monitored: bool,
                   error: str | None, wall: float, filter_us: float) -> Snapshot:
         plant = self.plant
-        monitor_policy = self.policy == "monitor"
-        return Snapshot(
-            scan=self.scan, time_us=self.now, period_us=self.project.scan_period_us,
-            layout=self.layout, values=tuple(self.image), fov=tuple(fov),
-            outputs=tuple(outputs), active_steps=self.control.active_steps(self.image),
-            fired=self.control.fired,
-            timer_elapsed=self.memory.elapsed(self.now),
-            control=self.control_name, mode=self.mode,
-            manual=tuple(sorted(self.manual.items())), policy=self.policy,
-            latched=tuple(self.latched), plant=plant.status,
-            plant_state=plant.state(), plant_counters=plant.counters(),
-            plant_events=plant.take_events(),
-            filter=report,
-            diagnosers=diagnosers,
-            monitors=monitors,
-            reconstructed=diagnosis.reconstructed,
-            masked=self._masked(diagnosis) if not monitor_policy else (),
-            stopped_devices=tuple(sorted(self.stopped_devices)),
-            recovery=(self.recovery.state(self.now) if self.recovery is not None
-                      else NO_RECOVERY),
-            error=error, scan_wall_us=(time.perf_counter() - wall) * 1e6,
-            filter_wall_us=filter_us,
-        )
+        now = self.now
+        # Positional, in Snapshot's field order (checked by _SNAPSHOT_ORDER below): a
+        # NamedTuple built from keywords maps every one of them at every scan.
+        return tuple.__new__(Snapshot, (
+            self.scan, now, self.project.scan_period_us, self.layout, tuple(self.image),
+            tuple(fov), tuple(outputs), self.control.active_steps(self.image),
+            self.control.fired, self.memory.elapsed(now), self.control_name, self.mode,
+            tuple(sorted(self.manual.items())) if self.manual else (), self.policy,
+            tuple(self.latched), plant.status, plant.state(), plant.counters(),
+            plant.take_events(), report, diagnosers,
+            self.monitors.current() if monitored and self.monitors is not None else (),
+            diagnosis.reconstructed,
+            self._masked(diagnosis) if self.policy != "monitor" else (),
+            (), (), (), (),  # explanations, alarms, alarm_events, shelved: the session's
+            tuple(sorted(self.stopped_devices)) if self.stopped_devices else (),
+            self.recovery.state(now) if self.recovery is not None else NO_RECOVERY,
+            error, (time.perf_counter() - wall) * 1e6, filter_us))
+
+
+# The order _snapshot builds a Snapshot in; a new field must be added there too.
+_SNAPSHOT_ORDER = (
+    "scan", "time_us", "period_us", "layout", "values", "fov", "outputs", "active_steps",
+    "fired", "timer_elapsed", "control", "mode", "manual", "policy", "latched", "plant",
+    "plant_state", "plant_counters", "plant_events", "filter", "diagnosers", "monitors",
+    "reconstructed", "masked", "explanations", "alarms", "alarm_events", "shelved",
+    "stopped_devices", "recovery", "error", "scan_wall_us", "filter_wall_us")
+assert Snapshot._fields == _SNAPSHOT_ORDER, "Engine._snapshot builds Snapshot by position"
 
 
 class _InputsUnknown(Exception):

@@ -81,9 +81,16 @@ class InputScan:
         self.outputs = layout.outputs
         self.read_back = read_back  # observing: the device's own outputs are read too
         self.readback: tuple[bool, ...] = ()
+        self.bindings = tuple(zip(self.names, self.slots, strict=True))
 
     def read(self, image: Image, now: int) -> str | None:
         """None when the inputs are in the image; else why not (the engine latches safe)."""
+        if not self.read_back:
+            try:
+                self.plant.read_into(now, image, self.bindings)
+            except PlantError as exc:
+                return plant_detail(exc)
+            return None
         try:
             values = self.plant.read(now)
         except PlantError as exc:
@@ -113,6 +120,9 @@ class Memory:
                 self.observers.append((slots[o.name], False, compile_bool(o.set, slots, times),
                                        compile_bool(o.reset, slots, times)))
         self.control = control
+        # The declarations, for the compiled scan (hmi.engine.compiled) to generate from.
+        self.project_timers = project.timers
+        self.project_observers = project.observers
 
     def update(self, image: Image, history: History, now: int) -> None:
         for runtime, slot, fn in self.timers:
@@ -134,7 +144,9 @@ class Memory:
 
     def elapsed(self, now: int) -> tuple[int, ...]:
         """Each timer's ET, for the snapshot."""
-        return tuple(rt.elapsed(now) for rt, _, _ in self.timers)
+        if not self.timers:
+            return ()
+        return tuple([rt.elapsed(now) for rt, _, _ in self.timers])
 
 
 class Reconstruction:
@@ -160,8 +172,12 @@ class Control:
         (the operator's requests, in manual mode) replaces what it asks for."""
         self.runtime.run(image, history, now)
         if manual is not None:
-            return tuple(manual.get(name, False) for name in self.outputs)
+            return self.manual_fov(manual)
         return tuple(image[s] for s in self.slots)
+
+    def manual_fov(self, manual: Mapping[str, bool]) -> tuple[bool, ...]:
+        """The operator's requests as the vector (an output not requested: off)."""
+        return tuple(manual.get(name, False) for name in self.outputs)
 
 
 class OutputScan:
@@ -174,7 +190,7 @@ class OutputScan:
     def write(self, now: int, outputs: Sequence[bool]) -> str | None:
         """None when written; else why not (the engine latches safe)."""
         try:
-            self.plant.write(now, dict(zip(self.names, outputs, strict=True)))
+            self.plant.write_vector(now, self.names, tuple(outputs))
         except PlantError as exc:
             return plant_detail(exc)
         return None

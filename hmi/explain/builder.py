@@ -54,9 +54,29 @@ class ExplanationBuilder:
         self.stoppable = {v.device for v in project.outputs if v.device}
         self.diagnosers = {spec.name: spec for spec in diagnosers_of(project)}
         self.plain = PlainNames(project)
+        # The fields build() read at its last scan when that scan explained nothing.
+        self._quiet: tuple[object, ...] | None = None
 
     # -- public ------------------------------------------------------------------------------
     def build(self, snap: Snapshot) -> tuple[Explanation, ...]:
+        # A scan that explained nothing, followed by one whose every field read here is the
+        # very same object, explains nothing either (most scans of a working cell): the
+        # situations are found from these fields only, the scan and time only date them.
+        quiet = self._quiet
+        if quiet is not None and snap.filter is quiet[0] and snap.latched is quiet[1] \
+                and snap.plant is quiet[2] and snap.mode is quiet[3] \
+                and snap.manual is quiet[4] and snap.monitors is quiet[5] \
+                and snap.diagnosers is quiet[6] and snap.recovery is quiet[7] \
+                and snap.reconstructed is quiet[8] and snap.masked is quiet[9] \
+                and snap.policy is quiet[10]:
+            return ()
+        found = self._build(snap)
+        self._quiet = None if found else (
+            snap.filter, snap.latched, snap.plant, snap.mode, snap.manual, snap.monitors,
+            snap.diagnosers, snap.recovery, snap.reconstructed, snap.masked, snap.policy)
+        return found
+
+    def _build(self, snap: Snapshot) -> tuple[Explanation, ...]:
         found: list[Explanation] = []
         report = snap.filter
         if report is not None and report.violations:

@@ -98,6 +98,21 @@ class Plant(ABC):
     def write(self, now_us: int, outputs: Mapping[str, bool]) -> None:
         """Write every output; raises PlantError when it cannot."""
 
+    def read_into(self, now_us: int, image: list[Any],
+                  bindings: tuple[tuple[str, int], ...]) -> None:
+        """:meth:`read`, each input's value stored at its slot of the engine's image
+        (`bindings`: (input, slot) pairs, the same tuple at every scan). A simulated plant
+        does it without building the mapping."""
+        values = self.read(now_us)
+        for name, slot in bindings:
+            image[slot] = bool(values[name])
+
+    def write_vector(self, now_us: int, names: tuple[str, ...],
+                     values: tuple[bool, ...]) -> None:
+        """:meth:`write` given the outputs as a vector in `names`' order (the engine's). A
+        simulated plant skips a write that changes nothing."""
+        self.write(now_us, dict(zip(names, values, strict=True)))
+
     @property
     @abstractmethod
     def status(self) -> PlantStatus: ...

@@ -236,10 +236,14 @@ class Session:
             self.explanations = ()
             error = error or f"explanations: {type(exc).__name__}: {exc}"
         events = self.take_alarm_events()
-        events.extend(self.alarms.update(self.explanations, core.scan, core.time_us))
-        return explained(core, self.explanations, self.alarms.listed(), tuple(events), error,
+        alarms = self.alarms
+        if self.explanations or alarms.alarms or alarms.shelved:
+            # (with no situation, no alarm and nothing shelved the update has nothing to do)
+            events.extend(alarms.update(self.explanations, core.scan, core.time_us))
+        return explained(core, self.explanations, alarms.listed(),
+                         tuple(events) if events else (), error,
                          core.scan_wall_us + (time.perf_counter() - started) * 1e6,
-                         self.alarms.shelved_listed() if self.alarms.shelved else ())
+                         alarms.shelved_listed() if alarms.shelved else ())
 
     def run_for(self, duration_us: int, on_scan: Callable[[Snapshot], None] | None = None
                 ) -> Snapshot:

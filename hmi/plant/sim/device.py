@@ -8,7 +8,7 @@ given by the caller: a device never looks at a clock, so a run is exactly repeat
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Mapping
+from collections.abc import Hashable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -63,6 +63,9 @@ class SimDevice(ABC):
         self.events: list[PlantEvent] = []
         self.pending: list[PendingFault] = []
         self.active_faults: dict[str, int] = {}  # code -> time it became active
+        # state_items / counter_items: the last key and the items built for it
+        self._state_cache: tuple[Hashable, tuple[tuple[str, Any], ...]] | None = None
+        self._counter_cache: tuple[Hashable, tuple[tuple[str, int], ...]] | None = None
 
     # -- the plant's side --------------------------------------------------------------------
     def inject(self, code: str, at_us: int, duration_us: int | None = None,
@@ -137,5 +140,43 @@ class SimDevice(ABC):
         """Work achieved (cycles, parts...), used to judge whether the cell kept going."""
         return {}
 
+    # A snapshot holds the plant's state and counters at every scan, and they change at few:
+    # a model that says what its state() and counters() are computed from (a few fields, in
+    # a tuple) has them rebuilt only when that changes. None: rebuilt at every call.
+    def state_key(self) -> Hashable | None:
+        """The values state() is computed from (None: no cache)."""
+        return None
+
+    def counters_key(self) -> Hashable | None:
+        """The values counters() is computed from (None: no cache)."""
+        return None
+
+    def state_items(self, prefixed: bool) -> tuple[tuple[str, Any], ...]:
+        """state() as (name, value) pairs, names prefixed with the device's when asked; the
+        same tuple while state_key() is unchanged."""
+        key = self.state_key()
+        cached = self._state_cache
+        if key is not None and cached is not None and cached[0] == key:
+            return cached[1]
+        items = _items(self.name, self.state(), prefixed)
+        self._state_cache = (key, items)
+        return items
+
+    def counter_items(self, prefixed: bool) -> tuple[tuple[str, int], ...]:
+        """counters() as state_items() gives state()."""
+        key = self.counters_key()
+        cached = self._counter_cache
+        if key is not None and cached is not None and cached[0] == key:
+            return cached[1]
+        items = _items(self.name, self.counters(), prefixed)
+        self._counter_cache = (key, items)
+        return items
+
     def record(self, t: int, kind: str, damage: bool, detail: str) -> None:
         self.events.append(PlantEvent(t, self.name, kind, damage, detail))
+
+
+def _items(name: str, values: Mapping[str, Any], prefixed: bool) -> tuple[tuple[str, Any], ...]:
+    if prefixed:
+        return tuple((f"{name}.{key}", value) for key, value in values.items())
+    return tuple(values.items())

@@ -39,11 +39,12 @@ and for every sensor S, S_stuck0 / S_stuck1.
 
 from __future__ import annotations
 
+from collections.abc import Hashable
 from typing import Any
 
 from hmi.plant.sim.boxes import MM, Box, BoxSource
 from hmi.plant.sim.cell import SteppedCell
-from hmi.plant.sim.track import WALL, Line, Segment, advance
+from hmi.plant.sim.track import NEVER, WALL, Line, Segment, advance, beam_steps
 from hmi.plant.sim.travel import Travel, direction
 from hmi.project.device_models import PALLETIZER
 from hmi.timefmt import seconds
@@ -83,6 +84,7 @@ class Palletizer(SteppedCell, model=PALLETIZER):
         self.flags: set[str] = set()  # situations already reported while they last
         self.both: dict[str, bool] = {}
         self.idle_bottom_us = 0
+        self._lines: dict[tuple[int, int], Line] = {}  # the feed's line per (speed, length)
         self.count = dict.fromkeys(("arrived", "pushed", "layers", "pallets",
                                     "boxes_palletized", "lost"), 0)
 
@@ -95,7 +97,11 @@ class Palletizer(SteppedCell, model=PALLETIZER):
         speed = int(self.params["feed_speed"]) if self.orders["FEED"] and \
             "feed_jam" not in self.jams else 0
         length = self.feed_len if self.pusher.at_low else self.feed_len - self.box_len
-        return Line((Segment("feed", 0, length, 1, speed),), WALL, WALL)
+        line = self._lines.get((speed, length))  # a line is immutable: built once per shape
+        if line is None:
+            line = self._lines[speed, length] = Line((Segment("feed", 0, length, 1, speed),),
+                                                     WALL, WALL)
+        return line
 
     def _in_zone(self) -> Box | None:
         """The box against the end stop, in front of the pusher (within 2 mm of the stop)."""
@@ -122,6 +128,9 @@ class Palletizer(SteppedCell, model=PALLETIZER):
         }
 
     # -- physics ----------------------------------------------------------------------------
+    def _plan_glide(self, dt: int) -> _Glide | None:
+        return _Glide.plan(self, dt)
+
     def _step(self, dt: int) -> None:
         o = self.orders
         self._move_pusher(dt, direction(o["PUSH"], o["RETRACT"]))
@@ -289,12 +298,14 @@ class Palletizer(SteppedCell, model=PALLETIZER):
             self.both[key] = both
         if "ELEV_UP" in changed or "ELEV_DOWN" in changed:
             self.lift.release()
+        self._glide = None
 
     def _jammed(self, code: str) -> None:
         travel = {"pusher_jam": self.pusher, "plate_jam": self.plate,
                   "clamp_jam": self.clamp, "elevator_jam": self.lift}.get(code)
         if travel is not None:
             travel.jammed = True
+        self._glide = None
 
     # -- reporting --------------------------------------------------------------------------
     def state(self) -> dict[str, Any]:
@@ -312,3 +323,154 @@ class Palletizer(SteppedCell, model=PALLETIZER):
 
     def counters(self) -> dict[str, int]:
         return dict(self.count)
+
+    def state_key(self) -> Hashable:
+        return (len(self.feed), self.pushing is None, len(self.row), len(self.hanging),
+                len(self.layers), self.lift.pos, self.pusher.pos, self.plate.pos, self.clamp.pos,
+                len(self.source.queued))
+
+    def counters_key(self) -> Hashable:
+        return tuple(self.count.values())
+
+
+
+class _Glide:
+    """A run of physics steps in which nothing moves but boxes gliding on the feed.
+
+    Why: most of a palletizer's time the pusher, the plate, the clamp and the elevator are at
+    rest (held at an end, or not driven), and a step of :meth:`Palletizer._step` then only
+    moves the free boxes on the feed by `speed * dt`, adds `dt` to the clocks of the orders
+    held against an end stop (and to the elevator's time idle at the bottom), and repeats
+    what it already decided (a flag raised stays raised, one cleared stays clear). Integer
+    arithmetic on the positions and clocks gives how many steps stay so: no box reaching
+    another, the end stop, the light beam or the pusher zone, no stall or exchange time
+    running out, no box due from the source. For those steps the cell does just that and
+    keeps its sensors. New orders or a fault end the glide, and the cell checks before each
+    step that nothing else was changed by hand (:meth:`holds`).
+    """
+
+    __slots__ = ("clocks", "dt", "expected", "feed", "idle", "movers", "sensors", "steps",
+                 "travels", "wall_hit")
+
+    def __init__(self, cell: Palletizer, dt: int, steps: int, movers: list[tuple[Box, int]],
+                 clocks: list[Travel], idle: bool, wall_hit: bool):
+        self.dt = dt
+        self.steps = steps
+        self.movers = movers  # (box, its move per step)
+        self.clocks = clocks  # travels held against an end: their stall time runs
+        self.idle = idle  # the elevator idles at the bottom: its idle time runs
+        self.wall_hit = wall_hit  # the front box is pressed against the end stop
+        self.feed = cell.feed
+        self.expected = [b.lo for b in cell.feed]
+        self.travels = _travels(cell)
+        self.sensors = cell.true_sensors()
+
+    def holds(self, cell: Palletizer) -> bool:
+        """The cell is as the glide left it (nobody moved a box, a travel, the layers)."""
+        feed = cell.feed
+        if feed is not self.feed or len(feed) != len(self.expected) or \
+                _travels(cell) != self.travels:
+            return False
+        for box, lo in zip(feed, self.expected, strict=True):  # noqa: SIM110 - no generator
+            if box.lo != lo:
+                return False
+        return True
+
+    def move(self, cell: Palletizer) -> None:
+        """One step of _step when only clocks and gliding boxes change."""
+        self.steps -= 1
+        dt = self.dt
+        for box, delta in self.movers:
+            box.lo += delta
+        for travel in self.clocks:
+            travel.stall_us += dt
+        if self.idle:
+            cell.idle_bottom_us += dt
+        flags = cell.flags
+        flags.discard("plate_into_layer")  # no plate motion
+        if not (self.wall_hit and not cell.pusher.at_low):
+            flags.discard("box_against_pusher")
+        if not (cell.pusher.pos > cell.pusher.travel // 2 and not cell.clamp.at_low):
+            flags.discard("pusher_against_clamp")
+        self.expected = [b.lo for b in cell.feed]
+
+    @classmethod
+    def plan(cls, cell: Palletizer, dt: int) -> _Glide | None:
+        """How many steps of `dt` from now change only clocks and gliding boxes."""
+        o = cell.orders
+        clocks: list[Travel] = []
+        for travel, drive in ((cell.pusher, direction(o["PUSH"], o["RETRACT"])),
+                              (cell.clamp, 1 if o["CLAMP"] else -1),
+                              (cell.plate, direction(o["PLATE_OPEN"], o["PLATE_CLOSE"]))):
+            if travel.can_move(drive):
+                return None
+            if drive:
+                clocks.append(travel)
+        lift = cell.lift
+        drive = direction(o["ELEV_UP"], o["ELEV_DOWN"])
+        steps = NEVER
+        if drive:
+            if lift.can_move(drive):
+                if drive < 0:
+                    return None
+                room = cell.plate_level - cell.load_top()
+                if lift.pos + max(room, 0) // cell.lift_speed > lift.pos:
+                    return None  # it rises
+            clocks.append(lift)
+            tolerances = []
+            if lift.jammed:
+                tolerances.append(int(cell.params["stall_tolerance"]))
+            elif drive > 0:
+                tolerances.append(int(cell.params["crush_tolerance"]))
+            if drive < 0:
+                tolerances.append(int(cell.params["stall_tolerance"]))
+            if not lift.stall_reported:
+                for tolerance in tolerances:
+                    steps = min(steps, (tolerance - lift.stall_us) // dt)
+        idle = drive == 0 and lift.at_low
+        if idle and cell.layers:
+            steps = min(steps, (int(cell.params["exchange_time"]) - 1 - cell.idle_bottom_us)
+                        // dt)
+        source = cell.source
+        steps = min(steps, (source.next_due - 1 - cell.t) // dt)
+        line = cell._feed_line()
+        segment = line.segments[0]
+        d = segment.velocity * dt
+        movers: list[tuple[Box, int]] = []
+        wall_hit = False
+        room = cell.box_len + cell.box_len // 2
+        if d:
+            half = cell.box_len // 2
+            zone = cell.feed_len - 2 * MM
+            ahead, ahead_static = line.high, True  # the next thing up: the end stop first
+            for k, box in enumerate(sorted(cell.feed, key=lambda b: b.lo, reverse=True)):
+                hi = box.lo + box.length
+                static = ahead_static and hi == ahead  # pressed against it: stays
+                if static:
+                    wall_hit = wall_hit or k == 0
+                else:
+                    if hi > ahead:
+                        return None
+                    if ahead_static:  # it reaches what is ahead (a box gliding too keeps
+                        steps = min(steps, (ahead - hi) // d)  # its distance)
+                    steps = min(steps, beam_steps(box.lo, hi, half, d) - 1)
+                    if hi < zone:  # the pusher zone
+                        steps = min(steps, (zone - 1 - hi) // d)
+                    movers.append((box, segment.speed * dt))
+                ahead, ahead_static = box.lo, static
+            if wall_hit and not cell.pusher.at_low and "box_against_pusher" not in cell.flags:
+                return None
+        if source.queued:  # a queued box waits while a box that does not move is in the way
+            moving = {id(b) for b, _ in movers}
+            if not any(b.lo < room and id(b) not in moving for b in cell.feed):
+                return None
+        if steps <= 0:
+            return None
+        return cls(cell, dt, steps, movers, clocks, idle, wall_hit)
+
+
+def _travels(cell: Palletizer) -> tuple[object, ...]:
+    return (cell.pusher.pos, cell.plate.pos, cell.clamp.pos, cell.lift.pos, cell.pusher.jammed,
+            cell.plate.jammed, cell.clamp.jammed, cell.lift.jammed, cell.pushing,
+            len(cell.row), len(cell.hanging), len(cell.layers))
+

@@ -45,11 +45,22 @@ and for every sensor S, S_stuck0 / S_stuck1.
 from __future__ import annotations
 
 import itertools
+from collections.abc import Hashable
 from typing import Any
 
 from hmi.plant.sim.boxes import MM, Box, BoxSource
 from hmi.plant.sim.cell import SteppedCell
-from hmi.plant.sim.track import EXIT, OPEN, TOUCH, WALL, Line, Segment, advance
+from hmi.plant.sim.track import (
+    EXIT,
+    NEVER,
+    OPEN,
+    TOUCH,
+    WALL,
+    Line,
+    Segment,
+    advance,
+    beam_steps,
+)
 from hmi.plant.sim.travel import Travel, direction
 from hmi.project.device_models import SORTING_CELL
 from hmi.timefmt import seconds
@@ -178,6 +189,9 @@ class SortingCell(SteppedCell, model=SORTING_CELL):
         return seen
 
     # -- physics ----------------------------------------------------------------------------
+    def _plan_glide(self, dt: int) -> _Glide | None:
+        return _Glide.plan(self, dt)
+
     def _step(self, dt: int) -> None:
         drive = direction(self.orders["ROT90"], self.orders["ROT0"])
         self.turn.step(dt, drive)
@@ -294,10 +308,12 @@ class SortingCell(SteppedCell, model=SORTING_CELL):
         if "ROT90" in changed or "ROT0" in changed:
             self.turn.release()
         self._build_lines()
+        self._glide = None
 
     def _jammed(self, code: str) -> None:
         self.turn.jammed = "table_jam" in self.jams
         self._build_lines()
+        self._glide = None
 
     # -- reporting --------------------------------------------------------------------------
     def state(self) -> dict[str, Any]:
@@ -309,3 +325,117 @@ class SortingCell(SteppedCell, model=SORTING_CELL):
 
     def counters(self) -> dict[str, int]:
         return dict(self.count)
+
+    def state_key(self) -> Hashable:
+        return (self.turn.pos, len(self.source.queued), tuple([b.segment for b in self.boxes]))
+
+    def counters_key(self) -> Hashable:
+        return tuple(self.count.values())
+
+
+
+class _Glide:
+    """A run of physics steps that are plain translations, found after a normal step.
+
+    Why: boxes glide along the conveyors most of the time, and a step of :meth:`_step` then
+    only adds `speed * dt` to each box's position; everything else it checks (the table
+    turning, boxes touching, walls, exits, drops, a box's centre reaching another surface, a
+    box due from the source) cannot happen for a number of steps that integer arithmetic on
+    the positions gives exactly, and no light beam changes either. For those steps the cell
+    moves the boxes and keeps the sensors it computed. Anything done to the cell otherwise
+    (new orders, a fault, a repair, a box moved or added by hand) ends the glide: the cell
+    checks what it vouched for before each step (:meth:`holds`).
+    """
+
+    __slots__ = ("boxes", "dt", "expected", "lines", "movers", "sensors", "steps", "turn")
+
+    def __init__(self, cell: SortingCell, dt: int, steps: int,
+                 movers: list[tuple[Box, int]]):
+        self.dt = dt
+        self.steps = steps
+        self.movers = movers  # (box, its position's change per step on its own axis)
+        self.boxes = cell.boxes
+        self.lines = cell.lines  # rebuilt (a new list) whenever the conveyors change
+        self.expected = [(b, b.segment, b.lo) for b in cell.boxes]
+        self.turn = (cell.turn.pos, cell.turn.jammed)
+        self.sensors = cell.true_sensors()
+
+    def holds(self, cell: SortingCell) -> bool:
+        """The cell is as the glide left it (nobody moved a box, the table, the list)."""
+        if cell.boxes is not self.boxes or cell.lines is not self.lines or \
+                len(cell.boxes) != len(self.expected) or \
+                (cell.turn.pos, cell.turn.jammed) != self.turn:
+            return False
+        for box, segment, lo in self.expected:
+            if box.lo != lo or box.segment != segment:
+                return False
+        return True
+
+    def move(self, cell: SortingCell) -> None:
+        """One step: each box on a running surface moves on; nothing else happens."""
+        self.steps -= 1
+        for box, delta in self.movers:
+            box.lo += delta
+        self.expected = [(b, b.segment, b.lo) for b in cell.boxes]
+
+    @classmethod
+    def plan(cls, cell: SortingCell, dt: int) -> _Glide | None:
+        """How many steps of `dt` from now are plain translations (None: not even one)."""
+        if direction(cell.orders["ROT90"], cell.orders["ROT0"]) or cell.contacts:
+            return None
+        source = cell.source
+        if source.queued:
+            return None
+        steps = (source.next_due - 1 - cell.t) // dt  # steps ending before the next box
+        if steps <= 0:
+            return None
+        beams: dict[int, list[int]] = {}
+        for index, x in cell.beams.values():
+            beams.setdefault(index, []).append(x)
+        movers: list[tuple[Box, int]] = []
+        for index, line in enumerate(cell.lines):
+            boxes = cell._on(line)
+            if not boxes or not line.moving:
+                continue  # boxes that do not move: nothing changes there
+            placed = sorted(((line.place(b), b) for b in boxes), key=lambda item: item[0])
+            moves = []
+            for x, box in placed:
+                centre = x + box.length // 2
+                seg = line.segment_at(centre)
+                if seg is None or seg.name != box.segment:
+                    return None
+                d = seg.velocity * dt
+                moves.append(d)
+                steps = min(steps, _within(centre, d, seg.low, seg.high - 1))
+                hi = x + box.length
+                if line.high_end != OPEN:  # the front stays short of an exit or wall
+                    limit = line.high - 1 if line.high_end == EXIT else line.high
+                    steps = min(steps, _within(hi, d, -NEVER, limit))
+                if line.low_end != OPEN:
+                    limit = line.low + 1 if line.low_end == EXIT else line.low
+                    steps = min(steps, _within(x, d, limit, NEVER))
+                for beam in beams.get(index, ()):
+                    steps = min(steps, beam_steps(x, hi, beam, d) - 1)
+                if steps <= 0:
+                    return None
+                movers.append((box, seg.speed * dt))
+            for k in range(len(placed) - 1):  # boxes closing in stay apart (not touching)
+                closing = moves[k] - moves[k + 1]
+                if closing > 0:
+                    gap = placed[k + 1][0] - (placed[k][0] + placed[k][1].length)
+                    steps = min(steps, (gap - TOUCH - 1) // closing)
+                    if steps <= 0:
+                        return None
+        return cls(cell, dt, steps, movers)
+
+
+def _within(x: int, d: int, low: int, high: int) -> int:
+    """How many steps of d keep x in [low, high] (x is in it now, else 0)."""
+    if not low <= x <= high:
+        return 0
+    if d > 0:
+        return (high - x) // d
+    if d < 0:
+        return (x - low) // -d
+    return NEVER
+

@@ -162,3 +162,21 @@ def covered(line: Line, boxes: list[Box], x: int) -> bool:
         if lo <= x <= lo + box.length:
             return True
     return False
+
+
+NEVER = 1 << 62  # a number of steps larger than any run
+
+
+def beam_steps(lo: int, hi: int, x: int, d: int) -> int:
+    """The first step after which a box spanning [lo, hi] and moving d a step covers a light
+    beam at x otherwise than now (covered: lo <= x <= hi, as :func:`covered` reads it);
+    NEVER when it never will. The cells' glides (sorter, palletizer) stop before it."""
+    if d > 0:
+        if lo <= x <= hi:
+            return (x - lo) // d + 1
+        return -(-(x - hi) // d) if x > hi else NEVER
+    if d < 0:
+        if lo <= x <= hi:
+            return (hi - x) // -d + 1
+        return -(-(lo - x) // -d) if x < lo else NEVER
+    return NEVER

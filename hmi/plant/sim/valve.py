@@ -21,6 +21,7 @@ Faults (000 §3.1), each injected at a time:
 
 from __future__ import annotations
 
+from collections.abc import Hashable
 from typing import Any
 
 from hmi.plant.sim.device import PendingFault, SimDevice
@@ -118,10 +119,11 @@ class Valve(SimDevice, model=VALVE):
         return int(self.travel * float(self.params["block_at"]))
 
     def _advance_to(self, t: int) -> None:
-        if not (self.armed or self.glitches or self.self_drive or self.orders["C"]
-                or self.orders["O"]):
-            # At rest with nothing armed: nothing moves and _settle, already applied at this
-            # position, would change nothing; only the time passes.
+        if not (self.glitches or self.self_drive or self.orders["C"] or self.orders["O"]):
+            # At rest, no glitch under way: nothing moves, and _settle, already applied after
+            # the last change (a move, new orders, a fault, a repair), would change nothing,
+            # armed faults included (they wait for a position or orders that do not change
+            # while at rest); only the time passes.
             self.t = max(self.t, t)
             return
         while self.t < t:
@@ -232,3 +234,9 @@ class Valve(SimDevice, model=VALVE):
 
     def counters(self) -> dict[str, int]:
         return {"cycles": self.cycles, "opens": self.opens, "closes": self.closes}
+
+    def state_key(self) -> Hashable:
+        return (self.pos, self.jammed, self.self_drive, self.orders["C"], self.orders["O"])
+
+    def counters_key(self) -> Hashable:
+        return (self.cycles, self.opens, self.closes)

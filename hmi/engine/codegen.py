@@ -1,0 +1,146 @@
+"""Python source for a project's scan, generated from its parsed expressions (issue 18).
+
+Why generate code: a scan that calls one closure per node of every expression (hmi.logic.expr's
+``compile_bool``) spends most of its time in calls. Here each expression becomes one Python
+expression over the image (``v[3] and not h[0][5]``), and a stage's whole work one function,
+built once when the engine is built.
+
+Why this is safe although project files are data and never evaluated: the source is written
+only from the *parsed and validated* trees (hmi.logic.expr), and only from slot indices,
+integer constants (durations, presets, window bounds) and a fixed vocabulary of operators and
+local names. No text of a project file (a name, a description, a comment) is ever part of
+it: objects a function needs (a timer, a diagnoser, a name used as a key) are handed to it as
+default arguments ``k0``, ``k1``... And before anything is compiled, :func:`build` walks the
+source's syntax tree and refuses any node, name or constant outside that vocabulary, so a bug
+in a generator cannot turn into arbitrary code either.
+"""
+
+from __future__ import annotations
+
+import ast
+import re
+from collections.abc import Callable, Mapping
+from types import CodeType
+from typing import Any
+
+from hmi.logic.expr import And, Compare, Const, Duration, Node, Not, Or, StepTime, Var
+
+_COMPARE = {"<": "<", "<=": "<=", ">": ">", ">=": ">=", "==": "==", "!=": "!="}
+
+
+def expr_source(node: Node, slots: Mapping[str, int], times: Mapping[str, int]) -> str:
+    """One Boolean expression as Python source over ``v`` (the image) and ``h`` (the history:
+    ``h[0]`` is the image one scan ago). Evaluates to the same value as
+    ``compile_bool(node, slots, times)`` (bools in, bools out), with the same short-circuits."""
+    if isinstance(node, Const):
+        return "True" if node.value else "False"
+    if isinstance(node, Var):
+        slot = int(slots[node.name])
+        if node.depth == 0:
+            return f"v[{slot}]"
+        return f"h[{int(node.depth) - 1}][{slot}]"
+    if isinstance(node, Not):
+        return f"(not {expr_source(node.operand, slots, times)})"
+    if isinstance(node, (And, Or)):
+        word = " and " if isinstance(node, And) else " or "
+        return "(" + word.join(expr_source(op, slots, times) for op in node.operands) + ")"
+    if isinstance(node, Compare):
+        op = _COMPARE[node.op]
+        return (f"({_num_source(node.left, times)} {op} "
+                f"{_num_source(node.right, times)})")
+    raise TypeError(f"not a Boolean node: {node!r}")
+
+
+def _num_source(node: Node, times: Mapping[str, int]) -> str:
+    if isinstance(node, Duration):
+        return str(int(node.us))
+    if isinstance(node, StepTime):
+        return f"v[{int(times[node.step])}]"
+    raise TypeError(f"not a numeric node: {node!r}")
+
+
+class Source:
+    """Lines of generated code and the objects they use, handed over as default arguments."""
+
+    def __init__(self) -> None:
+        self.lines: list[str] = []
+        self.objects: list[Any] = []
+        self._known: dict[int, str] = {}
+
+    def ref(self, obj: Any) -> str:
+        """The local name (``k<n>``) under which the generated code sees `obj`."""
+        name = self._known.get(id(obj))
+        if name is None:
+            name = self._known[id(obj)] = f"k{len(self.objects)}"
+            self.objects.append(obj)
+        return name
+
+    def line(self, indent: int, text: str) -> None:
+        self.lines.append("    " * indent + text)
+
+    def defaults(self) -> str:
+        """The keyword-only parameters binding every object (fast local look-ups)."""
+        if not self.objects:
+            return ""
+        return ", *" + "".join(f", k{n}=k{n}" for n in range(len(self.objects)))
+
+
+# What generated code may contain: the statements and expressions of the templates below.
+_NODES = (ast.Module, ast.FunctionDef, ast.arguments, ast.arg, ast.Return, ast.Assign,
+          ast.AugAssign, ast.If, ast.For, ast.Expr, ast.Name, ast.Load, ast.Store,
+          ast.Subscript, ast.Attribute, ast.Constant, ast.BoolOp, ast.And, ast.Or, ast.UnaryOp,
+          ast.Not, ast.Compare, ast.Lt, ast.LtE, ast.Gt, ast.GtE, ast.Eq, ast.NotEq, ast.Is,
+          ast.IsNot, ast.Call, ast.Tuple, ast.List, ast.BinOp, ast.Sub, ast.Add, ast.Pass,
+          ast.IfExp, ast.Mult)
+# Local names: the parameters and locals of the templates, and the objects handed over.
+LOCALS = frozenset({"v", "h", "f", "t", "now", "scan", "r", "s", "q", "x", "a", "b", "c",
+                    "su", "changed", "fire", "moved"})
+_HANDED = re.compile(r"k[0-9]+\Z")
+# Attributes the templates read or set on the objects they are given.
+ATTRIBUTES = frozenset({
+    "since", "q", "get", "current", "routes", "dirty", "step", "last_scan", "last_now",
+    "period", "since_us", "_settle", "needed_since", "check_needed", "needed", "fire",
+    "fired", "activated_at", "append", "phase", "last_us",
+})
+
+
+def _check(tree: ast.AST) -> None:
+    """Refuse anything outside the templates' vocabulary (defence in depth, see module doc)."""
+    for node in ast.walk(tree):
+        if not isinstance(node, _NODES):
+            raise ValueError(f"generated code holds a {type(node).__name__}")
+        if isinstance(node, ast.Name) and not (node.id in LOCALS or _HANDED.match(node.id)):
+            raise ValueError(f"generated code names {node.id!r}")
+        if isinstance(node, ast.arg) and not (node.arg in LOCALS or _HANDED.match(node.arg)):
+            raise ValueError(f"generated code has the parameter {node.arg!r}")
+        if isinstance(node, ast.Attribute) and node.attr not in ATTRIBUTES:
+            raise ValueError(f"generated code reads .{node.attr}")
+        if isinstance(node, ast.Constant) and not (
+                node.value is None or isinstance(node.value, (bool, int))):
+            raise ValueError(f"generated code holds the constant {node.value!r}")
+
+
+# Compiled code by its text: every engine of a project generates the same texts (only the
+# objects handed over differ), and a campaign builds one engine per run.
+_CODE: dict[tuple[str, str], CodeType] = {}
+CODE_CACHE = 2048
+
+
+def build(source: Source, name: str, params: str, filename: str) -> Callable[..., Any]:
+    """Compile `source`'s lines as the body of ``def name(params, *, k0=k0, ...)``."""
+    text = f"def {name}({params}{source.defaults()}):\n" + "\n".join(source.lines) + "\n"
+    if not source.lines:
+        text += "    pass\n"
+    code = _CODE.get((text, filename))
+    if code is None:
+        tree = ast.parse(text, filename=filename)
+        _check(tree)
+        if len(_CODE) >= CODE_CACHE:
+            _CODE.clear()
+        code = _CODE[text, filename] = compile(tree, filename, "exec")
+    namespace: dict[str, Any] = {"__builtins__": {}}
+    namespace.update((f"k{n}", obj) for n, obj in enumerate(source.objects))
+    exec(code, namespace)  # compiled from a tree checked above
+    fn: Callable[..., Any] = namespace[name]
+    fn.__doc__ = text  # what was generated, for whoever debugs it
+    return fn
