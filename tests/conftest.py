@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import os
+import sys
 import textwrap
 from pathlib import Path
 
 import pytest
+from hypothesis import HealthCheck, settings
 
 from hmi.engine.scan import Engine
 from hmi.plant.sim.plant import SimPlant
@@ -16,11 +19,27 @@ from hmi.session.session import Session
 ROOT = Path(__file__).resolve().parent.parent
 PROJECTS = ROOT / "projects"
 
+# Hypothesis's defaults time each example on the wall clock (a 200 ms deadline, a health
+# check of slow generation): on the shared 2-core machine a loaded moment failed a Modbus
+# fuzzer that passes at once when run again. Tests here never wait on the wall clock, so no
+# deadline and no timing health check; each test's own settings still choose its examples.
+settings.register_profile("plchmi", deadline=None, suppress_health_check=[HealthCheck.too_slow])
+settings.load_profile("plchmi")
+
+
+def pytest_configure(config):
+    """Compile each module once in a run and reuse it: this process, the xdist workers (started
+    after this) and the commands tests start (`python -m hmi.cli ...`) write and read bytecode
+    even where PYTHONDONTWRITEBYTECODE is set (this machine sets it). Without it each worker
+    and each command compiled hmi (and each worker the tests) again: measured, 0.45 CPU s
+    more for each `python -m hmi.cli check`, 5 s more for each worker's collection."""
+    sys.dont_write_bytecode = False
+    os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+
 
 def processes_for_a_test() -> int:
     """Worker processes a test may start for itself: both cores when the suite runs in one
     process, one when pytest-xdist already runs a test on each core (.ci/run, README)."""
-    import os
     if os.environ.get("PYTEST_XDIST_WORKER"):
         return 1
     return min(2, os.cpu_count() or 1)
@@ -58,7 +77,6 @@ def closed_loop_cache(tmp_path_factory):
     """One cache of closed-loop explorations for the whole session (hmi/engine/loop_sweep.py):
     `check` of an unchanged copy of a project does not explore it again, and nothing is read
     from or written to the user's own cache."""
-    import os
     previous = os.environ.get("PLCHMI_CACHE")
     os.environ["PLCHMI_CACHE"] = str(tmp_path_factory.mktemp("cache"))
     yield
@@ -66,3 +84,28 @@ def closed_loop_cache(tmp_path_factory):
         os.environ.pop("PLCHMI_CACHE", None)
     else:
         os.environ["PLCHMI_CACHE"] = previous
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    """With PLCHMI_TEST_CPU=FILE, each test's CPU seconds (its process and the children it
+    reaped: servers, pools) and wall seconds, set-up and teardown included, are appended to
+    FILE.<worker> as `nodeid<TAB>cpu<TAB>wall`: on a shared machine the wall time of a test
+    says more about the load than about the test (docs/performance.md)."""
+    path = os.environ.get("PLCHMI_TEST_CPU")
+    if not path:
+        yield
+        return
+    import resource
+    import time
+
+    def cpu() -> float:
+        own = resource.getrusage(resource.RUSAGE_SELF)
+        children = resource.getrusage(resource.RUSAGE_CHILDREN)
+        return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+    cpu0, wall0 = cpu(), time.perf_counter()
+    yield
+    line = f"{item.nodeid}\t{cpu() - cpu0:.3f}\t{time.perf_counter() - wall0:.3f}\n"
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
+    with open(f"{path}.{worker}", "a", encoding="utf-8") as out:
+        out.write(line)

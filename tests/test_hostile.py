@@ -98,11 +98,11 @@ def test_an_alias_bomb_is_refused_fast_and_small(levels, tmp_path, capsys):
     text = BASE + "description: x\n" + alias_bomb(levels).replace("a0:", "x0:")
     folder = write(tmp_path / "p", {"project.yaml": text})
     tracemalloc.start()
-    started = time.perf_counter()
+    started = time.process_time()  # CPU time: the wall clock measures the machine's load
     try:
         with pytest.raises(ProjectError) as info, bounded(5):
             load_project(folder)
-        elapsed = time.perf_counter() - started
+        elapsed = time.process_time() - started
         peak = tracemalloc.get_traced_memory()[1]
     finally:
         tracemalloc.stop()
@@ -756,10 +756,10 @@ def diagnoser_fan(count: int, prefix: str = "") -> str:
 
 def test_a_diagnoser_of_exclusive_products_is_checked_without_enumerating(tmp_path, capsys):
     folder = write(tmp_path / "p", {"project.yaml": diagnoser_fan(40)})
-    started = time.perf_counter()
+    started = time.process_time()  # CPU time: the wall clock measures the machine's load
     code, out, err = cli(["check", folder], capsys, seconds=30)
     assert code == 0 and "not deterministic" not in err + out, err
-    assert time.perf_counter() - started < 15  # 780 pairs: 14 hours by enumeration
+    assert time.process_time() - started < 15  # 780 pairs: 14 hours by enumeration
 
 
 def test_the_determinism_check_has_a_work_limit(tmp_path, capsys):

@@ -36,6 +36,10 @@ from hmi.ui.driver import VirtualDriver
 
 MAX_ROUNDS = 10_000  # of message processing in one drain: only a guard against a loop
 LIVE_HANG_GUARD_S = 300.0  # live tests: only against a dead thread; waits end on state
+# Textual's pilot gives up waiting for the screen's messages after 30 s of wall clock; a
+# process starved by a loaded machine (a niced 30-minute soak at load 15) got there
+# without anything being wrong. Like the guard above, this is only against a hang.
+SCREEN_HANG_GUARD_S = 600.0
 
 
 class WaitTimeout(AssertionError):
@@ -74,7 +78,7 @@ async def drain(pilot: Pilot) -> None:
     for _ in range(MAX_ROUNDS):
         if app._exit or not app.is_running:
             return  # the app is ending: nothing more to wait for
-        await pilot._wait_for_screen()
+        await pilot._wait_for_screen(timeout=SCREEN_HANG_GUARD_S)
         await asyncio.sleep(0)  # workers and tasks get their turn
         doing = busy(app)
         if not doing:
