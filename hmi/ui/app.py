@@ -96,7 +96,7 @@ from hmi.ui.reset import ResetLine, recovery_lines, reset_preview
 from hmi.ui.signal_dialog import SignalDialog
 from hmi.ui.sim_panel import SimPanel
 from hmi.ui.status import BannerStrip, StatusBar
-from hmi.ui.style import MUTED, OK_SYMBOL, Level, isa101_theme, tag
+from hmi.ui.style import ISA101, MUTED, OK_SYMBOL, Level, isa101_theme, tag
 from hmi.ui.verdict import output_changes, request_verdict
 
 REFRESH_HZ = 20
@@ -180,8 +180,18 @@ class PlcHmiApp(ContainedPump, App):
         # UI errors: contained and shown (banner, journal), or the reason the app ended
         self.containment = Containment(lambda: (engine.scan, engine.now))
         self._test_fault: testhooks.Armed | None = None
-        self.register_theme(isa101_theme())
-        self.theme = "isa101"
+        self.set_class(True, f"-theme-{self.theme}", update=False)  # as a theme change sets
+
+    def get_css_variables(self) -> dict[str, str]:
+        """The ISA-101 theme from the start: App.__init__ builds the stylesheet from these
+        variables, so the theme is set before it does (without its watcher), not after, which
+        parsed and applied every stylesheet a second time at each start (docs/performance.md).
+        Both are dark themes: what App.__init__ set from the default theme before (the
+        dark-mode class, the ANSI colour filter) holds for this one."""
+        if ISA101 not in self.available_themes:
+            self.register_theme(isa101_theme())
+            self.set_reactive(App.theme, ISA101)
+        return super().get_css_variables()
 
     # -- layout ------------------------------------------------------------------------------
     def compose(self) -> ComposeResult:
