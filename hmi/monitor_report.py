@@ -77,7 +77,7 @@ class MonitorLog:
 
     def add(self, snap) -> None:
         states = snap.monitors
-        if not states:
+        if not states or states is self.last:  # the same states: all recorded already
             return
         for m in states:
             d = m.last_detection

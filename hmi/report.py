@@ -188,7 +188,11 @@ class RunCollector:
             if explanation.alarm:
                 self.explanations[explanation.key] = explanation
         report = snap.filter
-        if report is not None:
+        # (a report with nothing violated, changed, left or fallen back on counts nothing:
+        # most scans' report, tested in a few reads)
+        if report is not None and (report.violations or report.changes or report.residual
+                                   or report.fallback or report.safe_state
+                                   or report.distance):
             for name in report.violated_names:
                 self.violations[name] = self.violations.get(name, 0) + 1
             if report.safe_state:

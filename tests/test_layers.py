@@ -1,6 +1,6 @@
 """The import graph keeps the layering of docs/architecture.md, and has no import cycle.
 
-    base (errors, timefmt, paths, limits, textfile, moved) <- logic <- project
+    base (errors, timefmt, paths, limits, textfile, codecache) <- logic <- project
         <- plant, engine <- explain <- session <- apps (ui, cli, bench, reports, sweep)
 
 A module imports from its own layer or from a lower one, never from a higher one; within
@@ -25,7 +25,7 @@ ROOT = Path(__file__).resolve().parent.parent
 PACKAGE = ROOT / "hmi"
 
 LAYERS: tuple[tuple[str, ...], ...] = (
-    ("hmi", "hmi.errors", "hmi.timefmt", "hmi.paths", "hmi.limits",
+    ("hmi", "hmi.errors", "hmi.timefmt", "hmi.paths", "hmi.limits", "hmi.codecache",
      "hmi.textfile"),
     ("hmi.logic",),
     ("hmi.project",),

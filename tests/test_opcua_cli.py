@@ -4,6 +4,7 @@ file, writes refused on a real plant, and a headless served run seen by a client
 from __future__ import annotations
 
 import asyncio
+import json
 import os
 import signal
 import socket
@@ -145,6 +146,9 @@ def test_a_headless_run_serves_the_cell_read_only_until_terminated(tmp_path):
     assert "Ran cispi_valve" in out and "Journal:" in out
     journal = (tmp_path / "data" / "cispi_valve" / "journal.jsonl").read_text()
     assert '"event":"stop"' in journal
+    served = [json.loads(line) for line in journal.splitlines() if '"opcua-' in line]
+    assert [e["event"] for e in served] == ["opcua-serving", "opcua-stopped"]
+    assert f"serving over OPC UA at {url}, read only" in served[0]["message"]
 
 
 def test_the_journal_says_which_opcua_user_sent_a_command(tmp_path, capsys):
@@ -169,3 +173,6 @@ def test_an_address_already_in_use_is_a_usage_error(capsys):
     err = capsys.readouterr().err
     assert f"opc.tcp://127.0.0.1:{port}: cannot listen there" in err
     assert "Traceback" not in err
+    # it never served: the journal says nothing of a server that stopped
+    journal = Path(os.environ["PLCHMI_DATA"]) / "cispi_valve" / "journal.jsonl"
+    assert journal.is_file() and '"opcua-' not in journal.read_text()

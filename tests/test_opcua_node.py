@@ -12,7 +12,6 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import socket
 import subprocess
 import threading
 from pathlib import Path
@@ -21,16 +20,12 @@ import pytest
 
 pytest.importorskip("asyncua", reason="the [opcua] extra is not installed")
 
-from hmi.engine.scan import Engine
 from hmi.explain.journal import Journal
 from hmi.opcua.options import server_certificate
-from hmi.opcua.server import CellServer, ServeOptions
+from hmi.opcua.server import ServeOptions
 from hmi.opcua.users import Users, hash_password
-from hmi.plant.select import open_plant
-from hmi.project.injection import parse_injection
-from hmi.project.loader import load_project
 from hmi.session.journal_recorder import JournalRecorder
-from hmi.session.session import Session
+from tests.opcua_cells import serve, valve_session
 
 ROOT = Path(__file__).resolve().parent.parent
 NODE_OPCUA = "node-opcua-client@2.182.2"  # pinned: the version this test was written against
@@ -56,23 +51,15 @@ def node_modules(tmp_path_factory) -> Path:
     return folder / "node_modules"
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def test_node_opcua_browses_reads_and_acknowledges_as_a_user(node_modules, tmp_path):
-    project = load_project(ROOT / "projects" / "cispi_valve")
-    plant = open_plant(project, None, False, [parse_injection("F5@8.2s")], None)
-    session = Session(Engine(project, plant))
+    session = valve_session()
+    project = session.engine.project
     journal = tmp_path / "journal.jsonl"
     recorder = JournalRecorder(session, Journal(journal))
     cert, key = server_certificate(tmp_path / "pki", project.name, "127.0.0.1")
-    server = CellServer(session, ServeOptions(
-        port=_free_port(), writable=True, certificate=cert, private_key=key,
+    server = serve(session, lambda port: ServeOptions(
+        port=port, writable=True, certificate=cert, private_key=key,
         users=Users({"bob": hash_password("bob", "node-secret")})))
-    server.start()
     for _ in range(1000):  # F5 at 8.2 s is diagnosed at 9.19 s
         session.scan_once()
     stop = threading.Event()

@@ -6,20 +6,21 @@ Each module of this package that defines SECTION (its name), HELP (one line) and
 
 from __future__ import annotations
 
-import importlib
 import os
-import pkgutil
-import statistics
 from types import ModuleType
 
 # The sections' names, for `plchmi --help` and argument checks without importing every
-# section (some import pymodbus or the whole engine: the HMI's start-up would pay for them).
+# section (some import pymodbus or the whole engine: the HMI's start-up would pay for them;
+# for the same reason this module imports what its functions need only when they run).
 # tests/test_bench_sections.py checks it against sections().
 NAMES = ("campaign", "corrector", "engine", "filter", "modbus", "opcua", "palletizer",
          "sorting", "startup", "ui")
 
 
 def sections() -> dict[str, ModuleType]:
+    import importlib
+    import pkgutil
+
     found = {}
     for info in pkgutil.iter_modules(__path__):
         module = importlib.import_module(f"{__name__}.{info.name}")
@@ -54,4 +55,6 @@ def goal_line(figure: float, goal: float, unit: str, higher_is_better: bool = Tr
 
 
 def summary(values: list[float]) -> tuple[float, float, float]:
+    import statistics
+
     return percentile(values, 50), percentile(values, 99), statistics.fmean(values)

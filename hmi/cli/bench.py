@@ -14,6 +14,9 @@ def add_parser(sub) -> None:
                    help="sections to run (default: all): " + ", ".join(_bench_sections()))
     p.add_argument("--quick", action="store_true", help="fewer samples, for a fast look")
     p.add_argument("--seed", type=int, default=1, help="random seed for generated problems")
+    p.add_argument("--against", metavar="DIR",
+                   help="startup only: launch this checkout and the plchmi checkout in DIR "
+                   "in turn, and compare them (before/after figures measured interleaved)")
 
 
 def _bench_sections() -> list[str]:

@@ -13,7 +13,6 @@ from hmi.cli.options import diagnoser_arg, duration, engine_args, period, plant_
 from hmi.cli.session import announce, connect_plant, make_engine, stop_plant
 from hmi.cli.summary import alarm_summary, plant_report
 from hmi.errors import UsageError
-from hmi.report import RunCollector
 
 
 def add_parser(sub) -> None:
@@ -44,7 +43,7 @@ def add_parser(sub) -> None:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from hmi.report import run_summary
+    from hmi.report import RunCollector, run_summary
     from hmi.runio import RunOutputs
     from hmi.session.session import Session, settle_memory
 
@@ -111,7 +110,7 @@ def run_real_time(engine, args: argparse.Namespace, duration_us: int | None) -> 
     wall clock), or serving the cell over OPC UA (--opcua: a simulated plant runs in real
     time too). Without a duration it runs until interrupted (Ctrl-C, SIGTERM)."""
     from hmi.opcua.options import start_server
-    from hmi.report import run_summary
+    from hmi.report import RunCollector, run_summary
     from hmi.runio import RunOutputs
     from hmi.session.live import WallClock, run_live_for
     from hmi.session.session import Session
@@ -125,7 +124,7 @@ def run_real_time(engine, args: argparse.Namespace, duration_us: int | None) -> 
     try:
         # The journal first, so that the connection attempts (and giving up) are in it.
         outputs = RunOutputs(controller, args.trace, args.journal, "run")
-        server = start_server(controller, args)
+        server = start_server(controller, args, journal=outputs.recorder)
         announce(server, engine.project.name)
         connect_plant(engine, args.connect_timeout or 10_000_000)
 

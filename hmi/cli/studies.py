@@ -11,7 +11,7 @@ from hmi.cli.common import load, progress_bar
 from hmi.cli.options import diagnoser_arg, duration, project_arg
 from hmi.errors import UsageError
 from hmi.limits import MAX_JOBS, MAX_RUN_SCANS
-from hmi.timefmt import format_duration
+from hmi.timefmt import format_duration, parse_duration
 
 
 def add_parsers(sub) -> None:
@@ -39,9 +39,35 @@ def add_parsers(sub) -> None:
                    help="with --sweep: only these faults (default: every fault of the plant)")
 
 
+DEFAULT_POINTS = "0.5s,1s,1.5s,2s,2.5s,3s"  # plchmi sweep's starts and lengths
+
+
 def add_sweep_parser(sub) -> None:
-    from hmi.sweep import add_sweep_parser
-    add_sweep_parser(sub, project_arg)
+    p = sub.add_parser("sweep", help="stopwatch monitor vs plain watchdog over a sweep of "
+                       "interruption starts and lengths")
+    project_arg(p)
+    p.add_argument("--task", metavar="NAME", help="the monitored task (default: the first)")
+    p.add_argument("--fault", metavar="DEVICE.CODE",
+                   help="the fault that interrupts it, e.g. C1.stop (default: the "
+                   "interruption fault of the device driving the task's interruption signal)")
+    p.add_argument("--starts", type=points, default=points(DEFAULT_POINTS), metavar="LIST",
+                   help=f"interruption starts after the task's start (default {DEFAULT_POINTS})")
+    p.add_argument("--lengths", type=points, default=points(DEFAULT_POINTS),
+                   metavar="LIST", help=f"interruption lengths (default {DEFAULT_POINTS})")
+    p.add_argument("--attempt", type=int, default=1, metavar="N",
+                   help="interrupt the task's N-th start (default 1)")
+    p.add_argument("--control", metavar="VARIANT", help="control law variant to run")
+
+
+def points(text: str) -> tuple[int, ...]:
+    try:
+        values = tuple(parse_duration(part) for part in text.split(",") if part.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not a comma-separated list of durations, e.g. 0.5s,1s,2s") from None
+    if not values:
+        raise argparse.ArgumentTypeError("the list is empty")
+    return values
 
 
 def cmd_diagnose(args: argparse.Namespace) -> int:

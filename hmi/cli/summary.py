@@ -3,7 +3,10 @@ alarms raised (and their explanations with --explain), and what a Modbus plant s
 
 from __future__ import annotations
 
-from hmi.report import RunCollector
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # the report's model, imported by the commands that run
+    from hmi.report import RunCollector
 
 
 def alarm_summary(collector: RunCollector, explain: bool) -> str:

@@ -4,12 +4,14 @@ and, if asked, the OPC UA server."""
 from __future__ import annotations
 
 import argparse
+import gc
 import sys
 from pathlib import Path
 
 from hmi.cli.common import ended_by, load
 from hmi.cli.options import diagnoser_arg, engine_args, plant_args, project_arg
 from hmi.cli.session import announce, connect_plant, make_engine, open_journal, stop_plant
+from hmi.codecache import dataclass_code
 
 
 def add_parser(sub) -> None:
@@ -29,28 +31,49 @@ def add_parser(sub) -> None:
 
 
 def cmd_ui(args: argparse.Namespace) -> int:
-    from hmi.opcua.options import check_arguments, start_server
-    from hmi.session.session import Session
+    # The start (docs/performance.md): no garbage collection until the scans start (the
+    # start allocates much and frees little; hmi.ui.driver.LiveDriver.start collects once,
+    # freezes what exists and turns it back on), and the code of the generated dataclass
+    # methods read from its cache instead of compiled again (hmi/codecache.py).
+    gc.disable()
+    try:
+        with dataclass_code():
+            import hmi.ui.app  # noqa: F401  (the HMI's modules: their classes built here)
+            from hmi.opcua.options import check_arguments
+            from hmi.session.session import Session
+            check_arguments(args)
+            project = load(args.project, getattr(args, "diagnoser", None))
+            engine, injections = make_engine(project, args)
+            clock = None
+            if engine.plant.is_real:
+                from hmi.session.live import WallClock
+                clock = WallClock()
+            controller = Session(engine, clock=clock)
+        return _run_hmi(args, controller, injections)
+    finally:
+        gc.enable()
+
+
+def _run_hmi(args: argparse.Namespace, controller, injections) -> int:
+    """The HMI on its session: the journal, the OPC UA server if asked, the plant's
+    connection; whatever ends it, the journal says how (and a real plant is left safe)."""
+    from hmi.opcua.options import start_server
     from hmi.ui.app import run_app
-    check_arguments(args)
-    project = load(args.project, getattr(args, "diagnoser", None))
-    engine, injections = make_engine(project, args)
-    clock = None
-    if engine.plant.is_real:
-        from hmi.session.live import WallClock
-        clock = WallClock()
-    controller = Session(engine, clock=clock)
+    engine = controller.engine
+    project = engine.project
+    clock = controller.clock
     recorder = None
     end = None
     server = None
     try:
         recorder = open_journal(controller, args.journal, "hmi")
-        server = start_server(controller, args, log_file=True)
+        server = start_server(controller, args, log_file=True, journal=recorder)
         announce(server, project.name)
         if clock is not None:
             connect_plant(engine, args.connect_timeout)
         end = run_app(controller, injected=tuple(injections),
-                      on_fault=recorder.on_ui_fault, bell=getattr(args, "bell", False))
+                      on_fault=recorder.on_ui_fault, bell=getattr(args, "bell", False),
+                      served=server)
         if end.reason is not None:
             print(f"plchmi: the HMI ended on an error: {end.reason}", file=sys.stderr)
         return end.status

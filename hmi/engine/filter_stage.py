@@ -37,6 +37,9 @@ class FilterStage:
         self.clean = {"monitor": safety_filter._clean_monitor,
                       "block": safety_filter._clean_block,
                       "correct": safety_filter._clean_correct}
+        # The last masked scan's report when the mask had the last word on nothing the
+        # filter wrote: ((report, fov, written, mask), the report shown).
+        self._masked_report: tuple[tuple[object, ...], FilterReport] | None = None
 
     def apply(self, image: Image, history: History, fov: tuple[bool, ...], policy: str,
               latched: bool, mask: tuple[bool, ...] | None) -> FilterDecision:
@@ -51,8 +54,23 @@ class FilterStage:
             decision = inner.apply(image, history, fov, policy, latched)
             return decision._replace(report=self._unapplied(decision.report, mask))
         candidate = tuple(v and not m for v, m in zip(fov, mask, strict=True))
-        written, report, latch = inner.apply(image, history, candidate, policy, latched)
+        quick = self.quick
+        if quick is not None and not (latched and policy == "block") and not quick(
+                image, history, candidate):
+            written, report, latch = candidate, self.clean[policy], None
+        else:
+            written, report, latch = inner.apply(image, history, candidate, policy, latched)
         forced = tuple(bool(w) and not m for w, m in zip(written, mask, strict=True))
+        if forced == tuple(written):
+            # The report then depends on these only: a device masked for many scans with the
+            # same orders asked gets the same report, built once.
+            key = (report, fov, written, mask)
+            last = self._masked_report
+            if last is not None and last[0] == key:
+                return FilterDecision(forced, last[1], latch)
+            shown = self._report(image, history, report, fov, candidate, written, forced, mask)
+            self._masked_report = (key, shown)
+            return FilterDecision(forced, shown, latch)
         return FilterDecision(forced, self._report(image, history, report, fov, candidate,
                                                    written, forced, mask), latch)
 

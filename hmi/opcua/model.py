@@ -17,7 +17,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from hmi.engine.diagnoser import DiagnoserState
+from hmi.engine.filter import Change
 from hmi.engine.layout import Layout
+from hmi.engine.monitors import MonitorState
 from hmi.engine.snapshot import Snapshot
 from hmi.project.diagnosers import diagnosers_of
 from hmi.project.model import Project
@@ -162,15 +165,16 @@ def _inputs(b: _Builder, project: Project, layout: Layout) -> None:
         b.folder(base, var.description or var.name)
         slot = layout.slots[var.name]
         b.point((*base, "Value"), f"{var.description or var.name}: the value read",
-                BOOL, lambda s, i=slot: bool(s.values[i]), from_plant=True)
+                BOOL, _value_at(slot), from_plant=True)
         partition = filtered.get(var.name)
-        if partition is not None and partition.filtered in layout.slots:
+        if partition is not None and partition.filtered is not None \
+                and partition.filtered in layout.slots:
             fslot = layout.slots[partition.filtered]
             b.point((*base, "FilteredValue"), f"{var.description or var.name}, as the safety "
                     "filter reads it (the estimate while the diagnoser distrusts it)", BOOL,
-                    lambda s, i=fslot: bool(s.values[i]))
+                    _value_at(fslot))
             b.point((*base, "Reconstructed"), "the filter reads the estimate instead of the "
-                    "sensor", BOOL, lambda s, n=var.name: n in s.reconstructed)
+                    "sensor", BOOL, _named_in(var.name, lambda s: s.reconstructed))
 
 
 def _outputs(b: _Builder, project: Project, layout: Layout) -> None:
@@ -183,19 +187,59 @@ def _outputs(b: _Builder, project: Project, layout: Layout) -> None:
         i = index[var.name]
         what = var.description or var.name
         b.point((*base, "ProgramValue"), f"{what}: what the program (or the operator in "
-                "manual mode) asked for", BOOL, lambda s, i=i: bool(s.fov[i]))
+                "manual mode) asked for", BOOL, _output_at(i, lambda s: s.fov))
         b.point((*base, "WrittenValue"), f"{what}: what the safety filter wrote to the plant",
-                BOOL, lambda s, i=i: bool(s.outputs[i]))
+                BOOL, _output_at(i, lambda s: s.outputs))
         b.point((*base, "FilterChanged"), "the filter wrote something else than asked", BOOL,
-                lambda s, n=var.name: _change(s, n) is not None)
+                _changed(var.name))
         b.point((*base, "FilterConstraint"), "the constraints (or safe state) that changed it "
                 "(empty when unchanged)", STRING,
-                lambda s, n=var.name: _change_by(s, n))
+                _changed_by(var.name))
         b.point((*base, "Masked"), "masked because the diagnoser distrusts its actuator",
-                BOOL, lambda s, n=var.name: n in s.masked)
+                BOOL, _named_in(var.name, lambda s: s.masked))
 
 
-def _change(snapshot: Snapshot, output: str):
+def _value_at(slot: int) -> Callable[[Snapshot], bool]:
+    """The reader of one slot of the process image."""
+    return lambda s: bool(s.values[slot])
+
+
+def _output_at(index: int, vector: Callable[[Snapshot], tuple[bool, ...]]
+               ) -> Callable[[Snapshot], bool]:
+    """The reader of one output in an output vector (the program's, or the written one)."""
+    return lambda s: bool(vector(s)[index])
+
+
+def _named_in(name: str, names: Callable[[Snapshot], tuple[str, ...]]
+              ) -> Callable[[Snapshot], bool]:
+    """The reader of "`name` is among the names a snapshot lists" (masked, reconstructed)."""
+    return lambda s: name in names(s)
+
+
+def _changed(output: str) -> Callable[[Snapshot], bool]:
+    return lambda s: _change(s, output) is not None
+
+
+def _changed_by(output: str) -> Callable[[Snapshot], str]:
+    return lambda s: _change_by(s, output)
+
+
+def _violated(name: str) -> Callable[[Snapshot], bool]:
+    return lambda s: name in s.filter.violated_names if s.filter else False
+
+
+def _diagnoser(order: int, field: Callable[[DiagnoserState], Any]
+               ) -> Callable[[Snapshot], Any]:
+    """The reader of one field of the diagnoser at `order` in the snapshot."""
+    return lambda s: field(s.diagnosers[order])
+
+
+def _monitor(order: int, field: Callable[[MonitorState], Any]) -> Callable[[Snapshot], Any]:
+    """The reader of one field of the stopwatch monitor at `order` in the snapshot."""
+    return lambda s: field(s.monitors[order])
+
+
+def _change(snapshot: Snapshot, output: str) -> Change | None:
     report = snapshot.filter
     if report is None:
         return None
@@ -216,7 +260,7 @@ def _constraints(b: _Builder, project: Project) -> None:
     for c in project.constraints:
         b.point(("Constraints", c.name), f"{c.description or c.name} (true: violated by the "
                 "request at the last scan)", BOOL,
-                lambda s, n=c.name: n in s.filter.violated_names if s.filter else False)
+                _violated(c.name))
 
 
 def _diagnosers(b: _Builder, project: Project) -> None:
@@ -226,28 +270,29 @@ def _diagnosers(b: _Builder, project: Project) -> None:
         b.folder(group, spec.description or spec.name)
         rows: list[tuple[str, str, str, Callable[[Snapshot], Any]]] = [
             ("State", "the diagnoser's state", STRING,
-             lambda s, i=order: s.diagnosers[i].state),
+             _diagnoser(order, lambda d: d.state)),
             ("StateDescription", "what the state means", STRING,
-             lambda s, i=order: s.diagnosers[i].description),
+             _diagnoser(order, lambda d: d.description)),
             ("Labels", "the fault labels of its decision (empty: normal)", STRINGS,
-             lambda s, i=order: list(s.diagnosers[i].labels)),
+             _diagnoser(order, lambda d: list(d.labels))),
             ("LabelTexts", "the faults, in words", STRINGS,
-             lambda s, i=order: list(s.diagnosers[i].label_texts)),
+             _diagnoser(order, lambda d: list(d.label_texts))),
             ("Faulty", "a fault is detected", BOOL,
-             lambda s, i=order: s.diagnosers[i].faulty),
+             _diagnoser(order, lambda d: d.faulty)),
             ("Certain", "exactly one fault label: isolated with certainty", BOOL,
-             lambda s, i=order: s.diagnosers[i].certain),
+             _diagnoser(order, lambda d: d.certain)),
         ]
         for name, text, kind, read in rows:
             b.point((*group, name), text, kind, read)
         b.folder((*group, "Flags"), "partition flags: the filter distrusts these components")
         for p in spec.partitions:
             b.point((*group, "Flags", p.flag), f"{p.description or p.name} distrusted", BOOL,
-                    lambda s, i=order, f=p.flag: _flag(s, i, f))
+                    _diagnoser(order, _flag(p.flag)))
 
 
-def _flag(snapshot: Snapshot, order: int, flag: str) -> bool:
-    return any(value for name, value in snapshot.diagnosers[order].flags if name == flag)
+def _flag(flag: str) -> Callable[[DiagnoserState], bool]:
+    """The reader of one partition flag of a diagnoser."""
+    return lambda d: any(value for name, value in d.flags if name == flag)
 
 
 def _monitors(b: _Builder, project: Project) -> None:
@@ -257,19 +302,19 @@ def _monitors(b: _Builder, project: Project) -> None:
         b.folder(group, task.title)
         rows: list[tuple[str, str, str, Callable[[Snapshot], Any], str | None]] = [
             ("X", "time since the task started", DOUBLE,
-             lambda s, i=order: s.monitors[i].x_us / 1e6, SECOND),
+             _monitor(order, lambda m: m.x_us / 1e6), SECOND),
             ("Y", "effective work time (frozen while interrupted)", DOUBLE,
-             lambda s, i=order: s.monitors[i].y_us / 1e6, SECOND),
+             _monitor(order, lambda m: m.y_us / 1e6), SECOND),
             ("State", "waiting, executing, interrupted or faulty", STRING,
-             lambda s, i=order: s.monitors[i].location, None),
+             _monitor(order, lambda m: m.location), None),
             ("Alpha", "the shortest normal work time (y)", DOUBLE,
-             lambda s, i=order: s.monitors[i].alpha_us / 1e6, SECOND),
+             _monitor(order, lambda m: m.alpha_us / 1e6), SECOND),
             ("Beta", "the longest normal work time (y)", DOUBLE,
-             lambda s, i=order: s.monitors[i].beta_us / 1e6, SECOND),
+             _monitor(order, lambda m: m.beta_us / 1e6), SECOND),
             ("Gamma", "the task must end before this elapsed time (x)", DOUBLE,
-             lambda s, i=order: s.monitors[i].gamma_us / 1e6, SECOND),
+             _monitor(order, lambda m: m.gamma_us / 1e6), SECOND),
             ("Faults", "faulty attempts so far", UINT,
-             lambda s, i=order: s.monitors[i].faults, None),
+             _monitor(order, lambda m: m.faults), None),
         ]
         for name, text, kind, read, unit in rows:
             b.point((*group, name), text, kind, read, unit)

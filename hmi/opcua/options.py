@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import os
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -18,6 +19,8 @@ from hmi.opcua import NEEDS_USERS
 
 if TYPE_CHECKING:
     from hmi.opcua.server import CellServer
+    from hmi.opcua.status import ServingStatus
+    from hmi.session.journal_recorder import JournalRecorder
     from hmi.session.session import Session
 
 DEFAULT_URL = "opc.tcp://127.0.0.1:4840"
@@ -94,16 +97,17 @@ def check_arguments(args: argparse.Namespace) -> None:
     require()
 
 
-def start_server(session: Session, args: argparse.Namespace, log_file: bool = False
-                 ) -> CellServer | None:
+def start_server(session: Session, args: argparse.Namespace, log_file: bool = False,
+                 journal: JournalRecorder | None = None) -> CellServer | None:
     """The cell's OPC UA server, started, if --opcua was given (None otherwise).
 
     asyncua's own log is silenced (its notices are for its developers). The server's
     failures go to stderr, or with `log_file` (the HMI: stderr is the screen) to
-    opcua/server.log in the project's data folder."""
+    opcua/server.log in the project's data folder. With `journal`, the journal says when
+    the server starts serving, stops, or fails."""
     if getattr(args, "opcua", None) is None:
         return None
-    _route_logs(session.project.name, log_file)
+    log_path = _route_logs(session.project.name, log_file)
     from hmi.opcua.server import CellServer, ServeOptions
     from hmi.opcua.users import Users, read_password_file
     from hmi.timefmt import DURATION_HINT, DurationError, parse_duration
@@ -131,11 +135,31 @@ def start_server(session: Session, args: argparse.Namespace, log_file: bool = Fa
                            allow_real_plant=args.opcua_allow_real_plant,
                            interval_us=interval, certificate=cert, private_key=key)
     server = CellServer(session, options)
+    server.log_file = str(log_path or "")
+    if journal is not None:
+        server.listeners.append(journal_listener(journal))
     server.start()
     return server
 
 
-def _route_logs(project_name: str, log_file: bool) -> None:
+def journal_listener(journal: JournalRecorder) -> Callable[[ServingStatus], None]:
+    """Journals each change of the server's state: serving (where, read-only or not),
+    stopped, failed (why, and where the details are)."""
+    def told(status: ServingStatus) -> None:
+        if status.up:
+            journal.on_service("opcua-serving", f"serving over OPC UA at {status.url}, "
+                               + ("operator commands enabled" if status.writable
+                                  else "read only"))
+        elif status.failed:
+            journal.on_service("opcua-failed", f"the OPC UA server at {status.url} failed: "
+                               f"{status.error}; the SCADA no longer sees this cell"
+                               + (f"; details in {status.log}" if status.log else ""))
+        else:
+            journal.on_service("opcua-stopped", f"the OPC UA server at {status.url} stopped")
+    return told
+
+
+def _route_logs(project_name: str, log_file: bool) -> Path | None:
     import logging
 
     from hmi.explain.journal import data_folder, safe_file_name
@@ -148,18 +172,21 @@ def _route_logs(project_name: str, log_file: bool) -> None:
             logger.removeHandler(old)
     library.addHandler(logging.NullHandler())
     ours.setLevel(logging.WARNING)
+    path = None
     if log_file:
         folder = data_folder() / safe_file_name(project_name) / "opcua"
         try:
             folder.mkdir(parents=True, exist_ok=True)
             handler: logging.Handler = logging.FileHandler(folder / "server.log",
                                                            encoding="utf-8")
+            path = folder / "server.log"
         except OSError:
             handler = logging.NullHandler()
     else:
         handler = logging.StreamHandler()
     handler.setFormatter(logging.Formatter("%(asctime)s plchmi opcua: %(message)s"))
     ours.addHandler(handler)
+    return path
 
 
 def _certificate(path: Path) -> bytes:

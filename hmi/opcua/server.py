@@ -23,14 +23,22 @@ import threading
 import time
 import uuid
 from collections import deque
-from collections.abc import Callable
-from dataclasses import dataclass, field
-from datetime import UTC, datetime, timedelta
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass, field, replace
+from datetime import UTC, timedelta
 from pathlib import Path
 from typing import Any
 
-from asyncua import Server, ua
+from asyncua import ua
+from asyncua.common.node import Node
 from asyncua.crypto.permission_rules import SimpleRoleRuleset, User, UserRole
+from asyncua.server.internal_server import InternalServer
+from asyncua.server.internal_session import SessionState
+from asyncua.server.server import Server
+from asyncua.server.user_managers import UserManager
+from asyncua.ua.attribute_ids import AttributeIds
+from asyncua.ua.object_ids import ObjectIds
+from asyncua.ua.status_codes import StatusCodes
 
 from hmi.engine.commands import (
     Acknowledge,
@@ -47,7 +55,7 @@ from hmi.engine.commands import (
 )
 from hmi.engine.snapshot import Snapshot
 from hmi.errors import UsageError
-from hmi.explain.alarms import ACTIVE_UNACK, CLEARED_UNACK, MAX_SHELVE_US
+from hmi.explain.alarms import ACTIVE_UNACK, CLEARED_UNACK, MAX_SHELVE_US, Alarm, AlarmEvent
 from hmi.opcua import NEEDS_USERS
 from hmi.opcua.conditions import (
     ONE_SHOT,
@@ -57,10 +65,24 @@ from hmi.opcua.conditions import (
     ConditionView,
 )
 from hmi.opcua.model import BOOL, DOUBLE, STRING, STRINGS, UINT, AddressModel, build_model
+from hmi.opcua.status import FAILED, SERVING, STARTING, STOPPED, OpcClient, ServingStatus
 from hmi.opcua.users import Identity, Users
 from hmi.session.session import Session
 
 log = logging.getLogger("hmi.opcua")
+
+
+def _id(identifier: int | str, namespace: int = 0) -> ua.NodeId:
+    """A node id from a plain number or string: asyncua types its fields with its own
+    subclasses of int and str (Int32, String, Int16), which encode the same."""
+    return ua.NodeId(ua.Int32(identifier) if isinstance(identifier, int)
+                     else ua.String(identifier), ua.Int16(namespace))
+
+
+def _status(code: int) -> ua.StatusCode:
+    """A status code from one of asyncua's StatusCodes constants (plain ints)."""
+    return ua.StatusCode(ua.UInt32(code))
+
 
 VARIANT = {BOOL: ua.VariantType.Boolean, STRING: ua.VariantType.String,
            STRINGS: ua.VariantType.String, DOUBLE: ua.VariantType.Double,
@@ -74,11 +96,11 @@ SHELVING_FIELDS = {"ShelvingState": ua.VariantType.LocalizedText,
                    "ShelvingState/CurrentState": ua.VariantType.LocalizedText,
                    "ShelvingState/CurrentState/Id": ua.VariantType.NodeId,
                    "ShelvingState/UnshelveTime": ua.VariantType.Double}
-SHELVING_IDS = {UNSHELVED: ua.ObjectIds.ShelvedStateMachineType_Unshelved,
-                TIMED: ua.ObjectIds.ShelvedStateMachineType_TimedShelved,
-                ONE_SHOT: ua.ObjectIds.ShelvedStateMachineType_OneShotShelved}
-BUILT_IN = {ua.NodeId(ua.ObjectIds.UtcTime): ua.VariantType.DateTime,
-            ua.NodeId(ua.ObjectIds.Duration): ua.VariantType.Double}
+SHELVING_IDS = {UNSHELVED: ObjectIds.ShelvedStateMachineType_Unshelved,
+                TIMED: ObjectIds.ShelvedStateMachineType_TimedShelved,
+                ONE_SHOT: ObjectIds.ShelvedStateMachineType_OneShotShelved}
+BUILT_IN = {_id(ObjectIds.UtcTime): ua.VariantType.DateTime,
+            _id(ObjectIds.Duration): ua.VariantType.Double}
 
 IDLE_S = 0.25  # the publisher's longest sleep without a scan
 
@@ -105,33 +127,46 @@ class ServeOptions:
         return f"opc.tcp://{host}:{self.port}"
 
 
+# asyncua's SimpleRoleRuleset has no annotations: its two methods, typed as we use them.
+_simple_rules: Callable[[SimpleRoleRuleset], None] = SimpleRoleRuleset.__init__
+_simple_check: Callable[[SimpleRoleRuleset, User, ua.NodeId, object], bool] = \
+    SimpleRoleRuleset.check_validity
+
+
 class _Rules(SimpleRoleRuleset):
     """asyncua's role rules, plus: remember who sent the request being served."""
 
-    def check_validity(self, user: Any, action_type_id: Any, body: Any) -> bool:
+    def __init__(self) -> None:
+        _simple_rules(self)
+
+    def check_validity(self, user: User, action_type_id: ua.NodeId, body: object) -> bool:
         _caller.set(user)
-        return bool(super().check_validity(user, action_type_id, body))
+        return _simple_check(self, user, action_type_id, body)
 
 
-class _UserManager:
+@dataclass
+class _CellUser(User):
+    """asyncua's user of a session, with who they are for the journal."""
+
+    identity: Identity = field(default_factory=lambda: Identity(None, "anonymous"))
+
+
+class _UserManager(UserManager):
     def __init__(self, users: Users):
         self.users = users
 
-    def get_user(self, iserver: Any, username: str | None = None, password: str | None = None,
-                 certificate: Any = None) -> User | None:
+    def get_user(self, iserver: InternalServer, username: str | None = None,
+                 password: str | None = None, certificate: Any = None) -> User | None:
         der = certificate if isinstance(certificate, bytes | None) else None
         identity = self.users.check(username, password, der)
         if identity is None:
             log.warning("OPC UA session refused: wrong credentials for %r", username)
             return None
-        user = User(role=UserRole.User, name=identity.name)
-        user.identity = identity  # type: ignore[attr-defined]
-        return user
+        return _CellUser(role=UserRole.User, name=identity.name, identity=identity)
 
 
 def _identity(user: User | None) -> Identity:
-    found = getattr(user, "identity", None)
-    return found if isinstance(found, Identity) else Identity(None, "anonymous")
+    return user.identity if isinstance(user, _CellUser) else Identity(None, "anonymous")
 
 
 class CellServer:
@@ -149,7 +184,7 @@ class CellServer:
         self.model: AddressModel = build_model(session.project, engine.layout)
         self.interval_s = (options.interval_us or session.period_us) / 1e6
         self._latest: Snapshot | None = None
-        self._batches: deque[tuple[tuple[Any, ...], tuple[Any, ...]]] = deque()
+        self._batches: deque[tuple[tuple[AlarmEvent, ...], tuple[Alarm, ...]]] = deque()
         self._thread: threading.Thread | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._stop: asyncio.Event | None = None
@@ -162,6 +197,18 @@ class CellServer:
         self.published_scan = -1  # the scan of the last snapshot published
         self.events_sent = 0
         self.errors = 0  # publishes that failed
+        # What the operator's screen shows (hmi.opcua.status): replaced, never changed, so
+        # that the UI thread reads a consistent one; `listeners` hear each change of state
+        # (serving, stopped, failed), in the server's thread (the journal).
+        users = options.users
+        security = ["None"]
+        if options.certificate and options.private_key:
+            security += ["Basic256Sha256 Sign", "Basic256Sha256 SignAndEncrypt"]
+        self.log_file = ""  # where the server's errors are written (hmi.opcua.options)
+        self._status = ServingStatus(options.url, STARTING, tuple(security), options.writable,
+                                     len(users.passwords) + len(users.certificates))
+        self.listeners: list[Callable[[ServingStatus], None]] = []
+        self._clients_due = 0.0  # monotonic time of the next look at the connections
 
     # -- the scan thread's side: cheap, never waits -----------------------------------------
 
@@ -203,15 +250,37 @@ class CellServer:
     def url(self) -> str:
         return self.options.url
 
+    def status(self) -> ServingStatus:
+        """What the server is doing now (the latest; a new object when anything changed)."""
+        return self._status
+
+    def _set_status(self, **changes: Any) -> None:
+        old = self._status
+        new = replace(old, log=self.log_file, **changes)
+        if new == old:
+            return
+        self._status = new
+        if new.state != old.state:
+            for listener in list(self.listeners):
+                try:
+                    listener(new)
+                except Exception:  # a listener's failure is not the server's
+                    log.exception("an OPC UA status listener failed")
+
     def _run(self) -> None:
         try:
             asyncio.run(self._main())
         except BaseException as exc:  # reported to start(), or logged once running
-            if not self._ready.is_set():
+            if not self._ready.is_set():  # it never served: start() raises it
                 self._failure = exc
                 self._ready.set()
-            else:
-                log.exception("the OPC UA server stopped on an error")
+                return
+            log.exception("the OPC UA server stopped on an error")
+            self._set_status(state=FAILED, clients=(),
+                             error=f"{type(exc).__name__}: {exc}" if str(exc)
+                             else type(exc).__name__)
+            return
+        self._set_status(state=STOPPED, clients=())
 
     async def _main(self) -> None:
         self._loop = asyncio.get_running_loop()
@@ -223,23 +292,57 @@ class CellServer:
         except OSError as exc:
             raise UsageError(f"--opcua {self.url}: cannot listen there ({exc.strerror or exc})"
                              ) from None
+        self._set_status(state=SERVING)  # journalled before start() returns
         self._ready.set()
         try:
-            while not self._stop.is_set():
-                # Woken by a scan (on_scan), by stop(), or at least every IDLE_S to follow
-                # the run state of a cell that makes no scan (paused).
-                with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(self._wake.wait(), IDLE_S)
-                self._wake.clear()
-                try:
-                    await self.publish()
-                except Exception:  # one bad publish must not end the server
-                    self.errors += 1
-                    if self.errors == 1:
-                        log.exception("publishing to OPC UA failed (further failures are "
-                                      "counted, not logged)")
+            await self._serve()
         finally:
             await server.stop()
+
+    async def _serve(self) -> None:
+        """Publish until stop() is called."""
+        assert self._stop is not None and self._wake is not None
+        while not self._stop.is_set():
+            # Woken by a scan (on_scan), by stop(), or at least every IDLE_S to follow
+            # the run state of a cell that makes no scan (paused).
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._wake.wait(), IDLE_S)
+            self._wake.clear()
+            try:
+                await self.publish()
+            except Exception:  # one bad publish must not end the server
+                self.errors += 1
+                if self.errors == 1:
+                    log.exception("publishing to OPC UA failed (further failures are "
+                                  "counted, not logged)")
+            now = time.monotonic()
+            if now >= self._clients_due:
+                self._clients_due = now + IDLE_S
+                self._set_status(clients=self._clients(), published=self.published,
+                                 events=self.events_sent, errors=self.errors)
+
+    def _clients(self) -> tuple[OpcClient, ...]:
+        """The clients connected now, with their session's user and their channel's
+        security (read from asyncua's connection objects)."""
+        binary = getattr(self.server, "bserver", None)
+        found = []
+        for connection in list(getattr(binary, "clients", ())):
+            processor = connection.processor
+            peer = connection.peer_name
+            where = (f"{peer[0]}:{peer[1]}" if isinstance(peer, tuple) and len(peer) >= 2
+                     else str(peer))
+            user = ""
+            security = "None"
+            if processor is not None:
+                session = processor.session
+                if session is not None and session.state == SessionState.Activated:
+                    user = _identity(session.user).name or "anonymous"
+                policy = processor._connection.security_policy
+                mode = policy.Mode
+                if mode != ua.MessageSecurityMode.None_:
+                    security = f"{policy.URI.rsplit('#', 1)[-1]} {mode.name}"
+            found.append(OpcClient(where, user, security))
+        return tuple(found)
 
     # -- the address space --------------------------------------------------------------------
 
@@ -271,49 +374,51 @@ class CellServer:
         return server
 
     def _nodeid(self, path: tuple[str, ...]) -> ua.NodeId:
-        return ua.NodeId(".".join((self.model.cell, *path)), self.ns)
+        return _id(".".join((self.model.cell, *path)), self.ns)
 
     async def _build_nodes(self, server: Server) -> None:
         ns = self.ns
         self.cell = await server.nodes.objects.add_object(self._nodeid(()),
                                                           ua.QualifiedName(self.model.cell, ns))
-        await self.cell.write_attribute(ua.AttributeIds.Description, ua.DataValue(
+        await self.cell.write_attribute(AttributeIds.Description, ua.DataValue(
             ua.Variant(ua.LocalizedText(self.model.description), ua.VariantType.LocalizedText)))
-        self.objects: dict[tuple[str, ...], Any] = {(): self.cell}
+        self.objects: dict[tuple[str, ...], Node] = {(): self.cell}
         for folder in self.model.folders:
             parent = self.objects[folder.path[:-1]]
             node = await parent.add_object(self._nodeid(folder.path),
                                            ua.QualifiedName(folder.path[-1], ns))
             await _describe(node, folder.description)
             self.objects[folder.path] = node
-        self.points: list[tuple[ua.NodeId, Any, ua.VariantType, bool, list[Any]]] = []
-        waiting = ua.StatusCode(ua.StatusCodes.BadWaitingForInitialData)
+        self.points: list[_Variable] = []
+        waiting = _status(StatusCodes.BadWaitingForInitialData)
         for point in self.model.points:
             parent = self.objects[point.path[:-1]]
             vtype = VARIANT[point.kind]
             node = await parent.add_variable(
                 self._nodeid(point.path), ua.QualifiedName(point.name, ns),
-                ua.Variant(DEFAULT[point.kind], vtype), datatype=ua.NodeId(vtype.value))
+                ua.Variant(DEFAULT[point.kind], vtype), datatype=_id(vtype.value))
             if point.kind == STRINGS:
                 await node.write_value_rank(1)
-                await node.write_array_dimensions([0])
+                # an array of any length (asyncua's write_array_dimensions takes one int)
+                await node.write_attribute(AttributeIds.ArrayDimensions, ua.DataValue(
+                    ua.Variant([0], ua.VariantType.UInt32)))
             await _describe(node, point.description)
             if point.unit:
                 code, short, long_name = UNITS[point.unit]
                 await node.add_property(
-                    ua.NodeId(f"{node.nodeid.Identifier}.EngineeringUnits", ns),
+                    self._nodeid((*point.path, "EngineeringUnits")),
                     ua.QualifiedName("EngineeringUnits", 0),
                     ua.EUInformation(NamespaceUri=UNECE_URI, UnitId=code,
                                      DisplayName=ua.LocalizedText(short),
                                      Description=ua.LocalizedText(long_name)))
             await server.write_attribute_value(node.nodeid, ua.DataValue(StatusCode=waiting))
-            self.points.append((node.nodeid, point.read, vtype, point.from_plant, [_UNSET]))
+            self.points.append(_Variable(node.nodeid, point.read, vtype, point.from_plant))
         # The run state is the session's, not a scan's: a paused cell makes no snapshot, and
         # a SCADA must still learn that its values stopped moving.
         status = self.objects[("Status",)]
         self.run_state = await status.add_variable(
             self._nodeid(("Status", "RunState")), ua.QualifiedName("RunState", ns),
-            self.session.state.label, datatype=ua.NodeId(ua.VariantType.String.value))
+            self.session.state.label, datatype=_id(ua.VariantType.String.value))
         await _describe(self.run_state, "running, paused or stepping (a paused cell's values "
                         "stay as the last scan left them)")
         self._run_state = self.session.state.label
@@ -328,9 +433,9 @@ class CellServer:
         state = self.session.state.label
         if state != self._run_state:
             self._run_state = state
-            now = datetime.now(UTC)
+            now = ua.DateTime.now(UTC)
             await self.server.iserver.aspace.write_attribute_value(
-                self.run_state.nodeid, ua.AttributeIds.Value,
+                self.run_state.nodeid, AttributeIds.Value,
                 ua.DataValue(ua.Variant(state, ua.VariantType.String), SourceTimestamp=now,
                              ServerTimestamp=now))
         snapshot = self._latest
@@ -339,26 +444,27 @@ class CellServer:
         if snapshot is not self._published:
             self._published = snapshot
             stamp = self._stamp(snapshot.time_us)
-            now = datetime.now(UTC)
+            now = ua.DateTime.now(UTC)
             write = self.server.iserver.aspace.write_attribute_value
             connected = snapshot.plant.connected
-            for nodeid, read, vtype, from_plant, last in self.points:
+            for variable in self.points:
                 try:
-                    value = read(snapshot)
+                    value = variable.read(snapshot)
                 except Exception:  # a value this run does not have (diagnosis off, ...)
                     value = _BAD
-                stale = from_plant and not connected
-                if (value, stale) == last[0]:
+                stale = variable.from_plant and not connected
+                if (value, stale) == variable.last:
                     continue
-                last[0] = (value, stale)
+                variable.last = (value, stale)
                 if value is _BAD:
-                    dv = ua.DataValue(StatusCode=ua.StatusCode(ua.StatusCodes.BadNoData),
+                    dv = ua.DataValue(StatusCode=_status(StatusCodes.BadNoData),
                                       SourceTimestamp=stamp, ServerTimestamp=now)
                 else:
                     # A plant that does not answer: the last value read, marked uncertain.
-                    dv = ua.DataValue(ua.Variant(value, vtype), StatusCode=_STALE if stale
-                                      else _GOOD, SourceTimestamp=stamp, ServerTimestamp=now)
-                await write(nodeid, ua.AttributeIds.Value, dv)
+                    dv = ua.DataValue(ua.Variant(value, variable.vtype),
+                                      StatusCode=_STALE if stale else _GOOD,
+                                      SourceTimestamp=stamp, ServerTimestamp=now)
+                await write(variable.nodeid, AttributeIds.Value, dv)
             self.published += 1
             self.published_scan = snapshot.scan
         for view in self.tracker.update(batches, snapshot.alarms, snapshot.time_us,
@@ -366,13 +472,13 @@ class CellServer:
             await self._send(view)
 
     _published: Snapshot | None = None
-    _epoch: datetime | None = None
+    _epoch: ua.DateTime | None = None
 
-    def _stamp(self, time_us: int) -> datetime:
+    def _stamp(self, time_us: int) -> ua.DateTime:
         """The wall time of a scan: the run's time (virtual or the wall clock's) from the
         wall time of the first scan this server saw."""
         if self._epoch is None:
-            self._epoch = datetime.now(UTC) - timedelta(microseconds=time_us)
+            self._epoch = ua.DateTime.now(UTC) - timedelta(microseconds=time_us)
         return self._epoch + timedelta(microseconds=time_us)
 
     # -- alarms as Part 9 conditions ----------------------------------------------------------
@@ -380,7 +486,7 @@ class CellServer:
     async def _build_alarms(self, server: Server) -> None:
         ns = self.ns
         self.alarm_type = await server.create_custom_event_type(
-            ns, "PlchmiAlarmType", ua.ObjectIds.AlarmConditionType,
+            ns, "PlchmiAlarmType", ObjectIds.AlarmConditionType,
             [("Why", ua.VariantType.String), ("Consequences", ua.VariantType.String),
              ("Policies", ua.VariantType.String), ("Detail", ua.VariantType.String),
              ("Priority", ua.VariantType.String),
@@ -389,11 +495,14 @@ class CellServer:
              ("LatchedUntilReset", ua.VariantType.Boolean)])
         await _describe(self.alarm_type, "A plchmi alarm (ISA-18.2): Message is level 1 of "
                         "its explanation; Why, Consequences, Policies and Detail the other levels")
-        generator = await server.get_event_generator(self.alarm_type, server.nodes.server)
+        generator = await server.get_event_generator(self.alarm_type,
+                                                      server.nodes.server.nodeid)
         self._template = generator.event
         for name, vtype in SHELVING_FIELDS.items():  # optional in AlarmConditionType
             self._template.add_property(name, None, vtype)
-        self.conditions: dict[str, Any] = {}  # key -> the condition's event object
+        # key -> the condition's event object (its fields are added at run time by
+        # asyncua's add_property: asyncua types it Any too)
+        self.conditions: dict[str, Any] = {}
         self.condition_keys: dict[ua.NodeId, str] = {}
         self.shelving_keys: dict[ua.NodeId, str] = {}  # a condition's ShelvingState -> key
         self.event_ids: dict[str, deque[bytes]] = {}
@@ -402,17 +511,17 @@ class CellServer:
         await _describe(self.alarms_folder, "One condition per alarm the cell has raised; "
                         "events come from the Server object")
         server.iserver.isession.add_method_callback(
-            ua.NodeId(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge), self._acknowledge)
+            _id(ObjectIds.AcknowledgeableConditionType_Acknowledge), self._acknowledge)
         # Part 9 shelving (on each condition's ShelvingState) and comments: the HMI's
         # shelving and comments, through the same door.
         session = server.iserver.isession
-        session.add_method_callback(ua.NodeId(ua.ObjectIds.ShelvedStateMachineType_TimedShelve),
+        session.add_method_callback(_id(ObjectIds.ShelvedStateMachineType_TimedShelve),
                                     self._timed_shelve)
         session.add_method_callback(
-            ua.NodeId(ua.ObjectIds.ShelvedStateMachineType_OneShotShelve), self._one_shot_shelve)
-        session.add_method_callback(ua.NodeId(ua.ObjectIds.ShelvedStateMachineType_Unshelve),
+            _id(ObjectIds.ShelvedStateMachineType_OneShotShelve), self._one_shot_shelve)
+        session.add_method_callback(_id(ObjectIds.ShelvedStateMachineType_Unshelve),
                                     self._unshelve)
-        session.add_method_callback(ua.NodeId(ua.ObjectIds.ConditionType_AddComment),
+        session.add_method_callback(_id(ObjectIds.ConditionType_AddComment),
                                     self._add_comment)
 
     async def _condition(self, view: ConditionView) -> Any:
@@ -432,7 +541,7 @@ class CellServer:
         event.SourceNode = source.nodeid
         event.SourceName = view.device or self.model.cell
         event.ConditionName = view.key
-        event.ConditionClassId = ua.NodeId(ua.ObjectIds.ProcessConditionClassType)
+        event.ConditionClassId = _id(ObjectIds.ProcessConditionClassType)
         event.ConditionClassName = ua.LocalizedText("Process")
         event.BranchId = ua.NodeId()
         self.conditions[view.key] = event
@@ -451,7 +560,7 @@ class CellServer:
         event.EventId = uuid.uuid4().bytes
         self.event_ids[view.key].append(event.EventId)
         event.Time = stamp
-        event.ReceiveTime = datetime.now(UTC)
+        event.ReceiveTime = ua.DateTime.now(UTC)
         event.Message = ua.LocalizedText(view.message)
         event.Severity = view.severity
         event.Retain = view.retain
@@ -464,7 +573,7 @@ class CellServer:
         shelving = ua.LocalizedText(view.shelving)
         event.ShelvingState = shelving
         setattr(event, "ShelvingState/CurrentState", shelving)
-        setattr(event, "ShelvingState/CurrentState/Id", ua.NodeId(SHELVING_IDS[view.shelving]))
+        setattr(event, "ShelvingState/CurrentState/Id", _id(SHELVING_IDS[view.shelving]))
         setattr(event, "ShelvingState/UnshelveTime", view.unshelve_ms)
         event.SuppressedOrShelved = view.shelved
         event.MaxTimeShelved = MAX_SHELVE_US / 1000
@@ -491,7 +600,7 @@ class CellServer:
         result = await self._command(Acknowledge(key), who, note or "")
         if not result.accepted:
             self.tracker.acks.pop(key, None)
-            return ua.StatusCode(ua.StatusCodes.BadConditionBranchAlreadyAcked)
+            return _status(StatusCodes.BadConditionBranchAlreadyAcked)
         return ua.StatusCode()  # the acknowledged state goes out with the next scan
 
     async def _timed_shelve(self, parent: ua.NodeId, shelving_time: ua.Variant
@@ -499,7 +608,7 @@ class CellServer:
         """Part 9 TimedShelve: ShelvingTime in milliseconds (a Duration)."""
         ms = _value(shelving_time)
         if not isinstance(ms, int | float) or not 0 < ms * 1000 <= MAX_SHELVE_US:
-            return ua.StatusCode(ua.StatusCodes.BadShelvingTimeOutOfRange)
+            return _status(StatusCodes.BadShelvingTimeOutOfRange)
         return await self._shelving(parent, lambda key: Shelve(key, int(ms * 1000)))
 
     async def _one_shot_shelve(self, parent: ua.NodeId) -> ua.StatusCode:
@@ -516,16 +625,16 @@ class CellServer:
             return denied
         key = self.shelving_keys.get(parent)
         if key is None:
-            return ua.StatusCode(ua.StatusCodes.BadNodeIdUnknown)
+            return _status(StatusCodes.BadNodeIdUnknown)
         command = make(key)
         result = await self._command(command, who)
         if result.accepted:
             return ua.StatusCode()
         if isinstance(command, Unshelve):
-            return ua.StatusCode(ua.StatusCodes.BadConditionNotShelved)
+            return _status(StatusCodes.BadConditionNotShelved)
         if "already shelved" in result.message:
-            return ua.StatusCode(ua.StatusCodes.BadConditionAlreadyShelved)
-        return ua.StatusCode(ua.StatusCodes.BadInvalidState)  # latched, or already clear
+            return _status(StatusCodes.BadConditionAlreadyShelved)
+        return _status(StatusCodes.BadInvalidState)  # latched, or already clear
 
     async def _add_comment(self, parent: ua.NodeId, event_id: ua.Variant,
                            comment: ua.Variant) -> ua.StatusCode:
@@ -535,8 +644,7 @@ class CellServer:
             return found
         who, key = found
         result = await self._command(CommentAlarm(key, _comment_text(comment)), who)
-        return ua.StatusCode() if result.accepted else ua.StatusCode(
-            ua.StatusCodes.BadInvalidArgument)
+        return ua.StatusCode() if result.accepted else _status(StatusCodes.BadInvalidArgument)
 
     def _condition_call(self, parent: ua.NodeId, event_id: ua.Variant
                         ) -> tuple[Identity, str] | ua.StatusCode:
@@ -548,14 +656,14 @@ class CellServer:
             return denied
         key = self.condition_keys.get(parent)
         if key is None:
-            return ua.StatusCode(ua.StatusCodes.BadNodeIdUnknown)
+            return _status(StatusCodes.BadNodeIdUnknown)
         if _value(event_id) not in self.event_ids.get(key, ()):
-            return ua.StatusCode(ua.StatusCodes.BadEventIdUnknown)
+            return _status(StatusCodes.BadEventIdUnknown)
         return who, key
 
     def _denied(self, who: Identity) -> ua.StatusCode | None:
         if not self.options.writable or who.name is None:
-            return ua.StatusCode(ua.StatusCodes.BadUserAccessDenied)
+            return _status(StatusCodes.BadUserAccessDenied)
         return None
 
     async def _command(self, command: Command, who: Identity, comment: str = ""
@@ -616,8 +724,10 @@ class CellServer:
                                            inputs, out)
             await _describe(node, text)
 
-    def _method(self, make: Callable[..., Command]) -> Callable[..., Any]:
-        async def call(parent: ua.NodeId, *args: ua.Variant) -> Any:
+    def _method(self, make: Callable[..., Command]
+                ) -> Callable[..., Awaitable[ua.StatusCode | list[ua.Variant]]]:
+        async def call(parent: ua.NodeId, *args: ua.Variant
+                       ) -> ua.StatusCode | list[ua.Variant]:
             who = _identity(_caller.get())
             denied = self._denied(who)
             if denied is not None:
@@ -650,9 +760,21 @@ class CellServer:
 
 
 _UNSET = object()
+
+
+@dataclass(slots=True)
+class _Variable:
+    """A published variable: how to read it from a snapshot, and what was last written
+    (value, stale) so that only changes are written."""
+
+    nodeid: ua.NodeId
+    read: Callable[[Snapshot], Any]
+    vtype: ua.VariantType
+    from_plant: bool
+    last: object = _UNSET
 _BAD = object()
 _GOOD = ua.StatusCode()
-_STALE = ua.StatusCode(ua.StatusCodes.UncertainNoCommunicationLastUsableValue)
+_STALE = _status(StatusCodes.UncertainNoCommunicationLastUsableValue)
 
 
 def _shelve(key: Any, seconds: Any) -> Shelve:
@@ -673,17 +795,17 @@ def _value(variant: Any) -> Any:
 
 
 def _arg(name: str, vtype: ua.VariantType, text: str) -> ua.Argument:
-    return ua.Argument(Name=name, DataType=ua.NodeId(vtype.value), ValueRank=-1,
+    return ua.Argument(Name=name, DataType=_id(vtype.value), ValueRank=-1,
                        Description=ua.LocalizedText(text))
 
 
-async def _describe(node: Any, text: str) -> None:
-    await node.write_attribute(ua.AttributeIds.Description, ua.DataValue(
+async def _describe(node: Node, text: str) -> None:
+    await node.write_attribute(AttributeIds.Description, ua.DataValue(
         ua.Variant(ua.LocalizedText(text), ua.VariantType.LocalizedText)))
 
 
 def _two_state(event: Any, name: str, value: bool, true: str, false: str,
-               stamp: datetime) -> None:
+               stamp: ua.DateTime) -> None:
     changed = getattr(event, f"{name}/Id", None) != value
     setattr(event, name, ua.LocalizedText(true if value else false))
     setattr(event, f"{name}/Id", value)

@@ -136,6 +136,14 @@ class JournalRecorder:
                        + ("" if fault.fatal else "; contained, the scan goes on"),
             "crash_file": fault.report, "scan": engine.scan, "t": seconds(engine.now)})
 
+    def on_service(self, event: str, message: str) -> None:
+        """A service beside the scan changed state (the OPC UA server: opcua-serving,
+        opcua-stopped, opcua-failed), told from its own thread."""
+        engine = self.session.engine
+        with self.session.lock:
+            self._append({"type": "session", "event": event, "message": message,
+                          "scan": engine.scan, "t": seconds(engine.now)})
+
     def close(self, abnormal: str | None = None, note: str | None = None) -> None:
         """The session's last entry: `stop` if it ended as asked, else `abnormal-end` with
         the reason (never "ended normally" after an error). `note`: it ended as asked, but

@@ -73,7 +73,14 @@ from hmi.ui.chronogram import WINDOWS_US, Chronogram
 from hmi.ui.constraints_panel import ConstraintInfo, ConstraintsPanel
 from hmi.ui.containment import ContainedPump, Containment, UIFault
 from hmi.ui.diagnosers_panel import DiagnosersPanel, PartitionInfo
-from hmi.ui.dialogs import ChoiceDialog, ConfirmDialog, Dialog, StepDialog, TextDialog
+from hmi.ui.dialogs import (
+    ChoiceDialog,
+    ConfirmDialog,
+    Dialog,
+    InfoDialog,
+    StepDialog,
+    TextDialog,
+)
 from hmi.ui.driver import LiveDriver, VirtualDriver
 from hmi.ui.explain_panel import (
     ExplanationPanel,
@@ -93,10 +100,11 @@ from hmi.ui.palette import HmiCommands, PaletteEntry
 from hmi.ui.panel import TOP_SHARE, ColumnPanel
 from hmi.ui.recorder import ScanRecorder
 from hmi.ui.reset import ResetLine, recovery_lines, reset_preview
+from hmi.ui.serving import Served, serving_lines
 from hmi.ui.signal_dialog import SignalDialog
 from hmi.ui.sim_panel import SimPanel
 from hmi.ui.status import BannerStrip, StatusBar
-from hmi.ui.style import MUTED, OK_SYMBOL, Level, isa101_theme, tag
+from hmi.ui.style import ISA101, MUTED, OK_SYMBOL, Level, isa101_theme, tag
 from hmi.ui.verdict import output_changes, request_verdict
 
 REFRESH_HZ = 20
@@ -148,9 +156,11 @@ class PlcHmiApp(ContainedPump, App):
 
     def __init__(self, controller: Session, live: bool = True, *,
                  show_measured: bool | None = None, refresh_hz: float = REFRESH_HZ,
-                 injected: tuple[Injection, ...] = (), bell: bool = False):
+                 injected: tuple[Injection, ...] = (), bell: bool = False,
+                 served: Served | None = None):
         super().__init__()
         self.controller = controller
+        self.served = served  # the cell's OPC UA server (--opcua): its status is shown
         engine = controller.engine
         self.project = engine.project
         self.driver: LiveDriver | VirtualDriver = (LiveDriver(controller) if live
@@ -180,8 +190,18 @@ class PlcHmiApp(ContainedPump, App):
         # UI errors: contained and shown (banner, journal), or the reason the app ended
         self.containment = Containment(lambda: (engine.scan, engine.now))
         self._test_fault: testhooks.Armed | None = None
-        self.register_theme(isa101_theme())
-        self.theme = "isa101"
+        self.set_class(True, f"-theme-{self.theme}", update=False)  # as a theme change sets
+
+    def get_css_variables(self) -> dict[str, str]:
+        """The ISA-101 theme from the start: App.__init__ builds the stylesheet from these
+        variables, so the theme is set before it does (without its watcher), not after, which
+        parsed and applied every stylesheet a second time at each start (docs/performance.md).
+        Both are dark themes: what App.__init__ set from the default theme before (the
+        dark-mode class, the ANSI colour filter) holds for this one."""
+        if ISA101 not in self.available_themes:
+            self.register_theme(isa101_theme())
+            self.set_reactive(App.theme, ISA101)
+        return super().get_css_variables()
 
     # -- layout ------------------------------------------------------------------------------
     def compose(self) -> ComposeResult:
@@ -349,8 +369,9 @@ class PlcHmiApp(ContainedPump, App):
             self._mode_commanded = None
         contained = self.containment
         frame_faults = contained.version
+        serving = self.served.status() if self.served is not None else None
         key = (snap.scan, id(snap), self.run_label(), state.speed, self.driver.overruns,
-               self._version, self._mode_commanded, contained.version)
+               self._version, self._mode_commanded, contained.version, serving)
         if not force and key == self._key:
             return False
         self._key = key
@@ -361,7 +382,7 @@ class PlcHmiApp(ContainedPump, App):
             injected=tuple(self._injected), free_inputs=self.free_inputs,
             damage_count=recorded.damage_count, mode_commanded=self._mode_commanded,
             constraints=recorded.constraints, ui_fault=contained.latest,
-            ui_faults=contained.total)
+            ui_faults=contained.total, serving=serving)
         self.frame = frame
         for view in self._views:  # one panel failing leaves the others showing this frame
             try:
@@ -1097,7 +1118,18 @@ class PlcHmiApp(ContainedPump, App):
             entries.append(PaletteEntry(f"Chronogram: last {window // 1_000_000} s",
                                         "Time window of the timing diagram",
                                         partial(self.action_window, window)))
+        if self.served is not None:
+            entries.append(PaletteEntry(
+                "OPC UA server: endpoint, clients, security",
+                "What the SCADA sees of this cell: where it is served, who is connected",
+                self.show_serving))
         return entries
+
+    def show_serving(self) -> None:
+        """The OPC UA server's page: endpoint, clients and their security (palette)."""
+        if self.served is not None:
+            self.push_screen(InfoDialog("OPC UA server", serving_lines(self.served.status()),
+                                        dialog_id="opcua-dialog"))
 
 
     def _situation_entries(self, snap) -> list[PaletteEntry]:
@@ -1184,14 +1216,16 @@ class AppEnd:
 
 
 def run_app(target: Engine | Session, clock=None, injected: tuple[Injection, ...] = (),
-            on_fault: Callable[[UIFault], None] | None = None, bell: bool = False) -> AppEnd:
+            on_fault: Callable[[UIFault], None] | None = None, bell: bool = False,
+            served: Served | None = None) -> AppEnd:
     """Run the HMI live on an engine, or on a controller others listen to (the journal).
 
     A real plant passes a wall clock to stamp its scans (see hmi.session.live.WallClock);
     `injected` are the faults the command line scheduled in a simulated plant; `on_fault`
-    is told of every UI error (the journal)."""
+    is told of every UI error (the journal); `served` is the cell's OPC UA server, whose
+    state the screen shows."""
     controller = target if isinstance(target, Session) else Session(target, clock=clock)
-    app = PlcHmiApp(controller, injected=injected, bell=bell)
+    app = PlcHmiApp(controller, injected=injected, bell=bell, served=served)
     if on_fault is not None:
         app.containment.listeners.append(on_fault)
     app.run()

@@ -114,6 +114,29 @@ class ConfirmDialog(Dialog[bool]):
         self.dismiss(event.button.id == "yes")
 
 
+class InfoDialog(Dialog[None]):
+    """Lines to read (the OPC UA server's page); escape, enter or q closes it."""
+
+    BINDINGS = [Binding("escape", "close", "Close"), Binding("enter", "close", "Close",
+                                                           show=False),
+                Binding("q", "close", "Close", show=False)]
+
+    def __init__(self, title: str, lines: Sequence[Text | str], *, dialog_id: str = "info"):
+        super().__init__(id=dialog_id)
+        self.title_text = title
+        self.lines = list(lines)
+
+    def compose(self) -> ComposeResult:
+        with Vertical(classes="dialog dialog-wide"):
+            yield _title(self.title_text, Level.NORMAL)
+            for line in self.lines:
+                yield Static(line, classes="dialog-line", markup=False)
+            yield Label("esc / enter: close", classes="dialog-hint")
+
+    def action_close(self) -> None:
+        self.dismiss(None)
+
+
 class TextDialog(Dialog[str | None]):
     """One line of text (an operator's comment on an alarm); enter keeps it, escape drops."""
 

@@ -9,6 +9,7 @@
 
 from __future__ import annotations
 
+import gc
 import sys
 
 from hmi.session.live import LiveRunner
@@ -34,6 +35,9 @@ class LiveDriver:
         # LiveRunner.start freezes what exists (the app's widgets included) out of the
         # garbage collector's sight: a full collection over them took ~40 ms here.
         self.runner.start()
+        # The start (hmi.cli.ui) runs without automatic collection, to here: the scans run
+        # with it, as every other session does.
+        gc.enable()
 
     def stop(self) -> None:
         self.runner.stop()

@@ -8,11 +8,15 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 from hmi.engine.snapshot import Snapshot
 from hmi.project.injection import Injection
 from hmi.ui.containment import UIFault
 from hmi.ui.recorder import ConstraintStats
+
+if TYPE_CHECKING:  # the HMI without --opcua never imports anything of OPC UA
+    from hmi.opcua.status import ServingStatus
 
 
 @dataclass(frozen=True)
@@ -43,6 +47,7 @@ class Frame:
     constraints: Mapping[str, ConstraintStats] = field(default_factory=dict)  # history
     ui_fault: UIFault | None = None  # the latest UI error contained (hmi.ui.containment)
     ui_faults: int = 0  # how many UI errors were contained this session
+    serving: ServingStatus | None = None  # the cell's OPC UA server (--opcua), if any
 
     @property
     def simulated(self) -> bool:

@@ -220,6 +220,37 @@ async def recovery(pilot: Pilot) -> None:
     await run_for(pilot, 0.8)
 
 
+class _Served:
+    """A server's state as the HMI reads it (hmi.opcua.status), fixed for the picture: two
+    SCADA clients, one of them sending commands over an encrypted channel."""
+
+    def __init__(self) -> None:
+        from hmi.opcua.status import SERVING, OpcClient, ServingStatus
+        self._status = ServingStatus(
+            "opc.tcp://0.0.0.0:4840", SERVING,
+            ("None", "Basic256Sha256 Sign", "Basic256Sha256 SignAndEncrypt"), writable=True,
+            users=2, clients=(OpcClient("10.0.4.21:50412", "anonymous", "None"),
+                              OpcClient("10.0.4.30:61022", "alice",
+                                        "Basic256Sha256 SignAndEncrypt")),
+            published=1230, events=0)
+
+    def status(self):
+        return self._status
+
+
+def served_app() -> PlcHmiApp:
+    """The valve served over OPC UA (``--opcua``), its server's state fixed (`_Served`)."""
+    app = make_app()
+    app.served = _Served()
+    return app
+
+
+async def serving(pilot: Pilot) -> None:
+    """Served over OPC UA: the status bar counts the SCADA's clients, at 80×24 beside the
+    mode and the policy (the palette's server page: tests/test_opcua_ui.py)."""
+    await run_for(pilot, 12.3)
+
+
 @dataclass(frozen=True)
 class Scenario:
     name: str
@@ -261,4 +292,7 @@ SCENARIOS: tuple[Scenario, ...] = (
     Scenario("alarms_80x24", (80, 24), alarms_80x24,
              "The alarm list at 80×24: five alarms in three rows, one acknowledged",
              partial(make_app, control="faulty")),
+    Scenario("serving_80x24", (80, 24), serving,
+             "Served over OPC UA (--opcua): two SCADA clients, at 80×24",
+             served_app),
 )

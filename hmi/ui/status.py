@@ -21,6 +21,7 @@ from hmi.engine.recovery import RecoveryState
 from hmi.timefmt import seconds
 from hmi.ui.frame import Frame
 from hmi.ui.panel import TextPanel
+from hmi.ui.serving import serving_banner, serving_field
 from hmi.ui.style import MUTED, Level, banner, tag
 
 SEPARATOR = " │ "
@@ -49,6 +50,8 @@ def status_fields(frame: Frame, wide: bool, compact: bool = False) -> list[Field
             fields.append(Field(Text(f"{where} ● connected"), 3))
         else:
             fields.append(Field(tag(f"{where} DISCONNECTED", Level.ALARM), 0))
+    if frame.serving is not None:
+        fields.append(Field(*serving_field(frame.serving)))
     if snap.mode == "manual":
         fields.append(Field(tag("MANUAL", Level.ATTENTION), 0))
     elif snap.mode == "recovery":
@@ -211,6 +214,8 @@ def banner_lines(frame: Frame) -> list[Text]:
         line = banner("OUTPUTS HELD IN SAFE STATE", Level.ALARM)
         line.append(" " + "; ".join(r.detail for r in snap.latched)
                     + " · r: fault reset once the cause is gone")
+        lines.append(line)
+    if frame.serving is not None and (line := serving_banner(frame.serving)) is not None:
         lines.append(line)
     fault = frame.ui_fault
     if fault is not None:

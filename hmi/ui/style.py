@@ -74,12 +74,15 @@ def bit(value: object) -> str:
     return "1" if value else "0"
 
 
+ISA101 = "isa101"  # the theme's name
+
+
 def isa101_theme():
     """A grey Textual theme: accents are greys, so only abnormal states carry colour."""
     from textual.theme import Theme
 
     return Theme(
-        name="isa101",
+        name=ISA101,
         primary="#9a9a9a",
         secondary="#7a7a7a",
         accent="#b0b0b0",

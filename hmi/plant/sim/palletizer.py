@@ -336,7 +336,7 @@ class Palletizer(SteppedCell, model=PALLETIZER):
 
 
 class _Glide:
-    """A run of physics steps in which nothing moves but boxes gliding on the feed.
+    """A run of physics steps in which things only move on: boxes on the feed, travels.
 
     Why: most of a palletizer's time the pusher, the plate, the clamp and the elevator are at
     rest (held at an end, or not driven), and a step of :meth:`Palletizer._step` then only
@@ -350,15 +350,17 @@ class _Glide:
     step that nothing else was changed by hand (:meth:`holds`).
     """
 
-    __slots__ = ("clocks", "dt", "expected", "feed", "idle", "movers", "sensors", "steps",
-                 "travels", "wall_hit")
+    __slots__ = ("clocks", "dt", "expected", "feed", "idle", "movers", "moving", "sensors",
+                 "steps", "travels", "wall_hit")
 
     def __init__(self, cell: Palletizer, dt: int, steps: int, movers: list[tuple[Box, int]],
-                 clocks: list[Travel], idle: bool, wall_hit: bool):
+                 clocks: list[Travel], moving: list[tuple[Travel, int]], idle: bool,
+                 wall_hit: bool):
         self.dt = dt
         self.steps = steps
         self.movers = movers  # (box, its move per step)
         self.clocks = clocks  # travels held against an end: their stall time runs
+        self.moving = moving  # (travel, drive): travels short of every mark they pass
         self.idle = idle  # the elevator idles at the bottom: its idle time runs
         self.wall_hit = wall_hit  # the front box is pressed against the end stop
         self.feed = cell.feed
@@ -385,6 +387,10 @@ class _Glide:
             box.lo += delta
         for travel in self.clocks:
             travel.stall_us += dt
+        for travel, drive in self.moving:  # a full step's motion (Travel.step)
+            travel.pos += drive * dt
+            travel.stall_us = 0
+            travel.stall_reported = False
         if self.idle:
             cell.idle_bottom_us += dt
         flags = cell.flags
@@ -394,40 +400,54 @@ class _Glide:
         if not (cell.pusher.pos > cell.pusher.travel // 2 and not cell.clamp.at_low):
             flags.discard("pusher_against_clamp")
         self.expected = [b.lo for b in cell.feed]
+        self.travels = _travels(cell)
 
     @classmethod
     def plan(cls, cell: Palletizer, dt: int) -> _Glide | None:
         """How many steps of `dt` from now change only clocks and gliding boxes."""
         o = cell.orders
-        clocks: list[Travel] = []
-        for travel, drive in ((cell.pusher, direction(o["PUSH"], o["RETRACT"])),
-                              (cell.clamp, 1 if o["CLAMP"] else -1),
-                              (cell.plate, direction(o["PLATE_OPEN"], o["PLATE_CLOSE"]))):
-            if travel.can_move(drive):
-                return None
-            if drive:
-                clocks.append(travel)
-        lift = cell.lift
-        drive = direction(o["ELEV_UP"], o["ELEV_DOWN"])
+        clocks: list[Travel] = []  # held against an end: their stall time runs
+        moving: list[tuple[Travel, int]] = []  # (travel, drive) moving freely
         steps = NEVER
+        pusher, plate, lift = cell.pusher, cell.plate, cell.lift
+        plate_drive = direction(o["PLATE_OPEN"], o["PLATE_CLOSE"])
+        if plate_drive < 0 and plate.can_move(-1) and cell.load_top() > cell.plate_level:
+            return None  # the plate closes against the layer: an event at every step
+        for travel, drive, marks in (
+                (pusher, direction(o["PUSH"], o["RETRACT"]),
+                 (int(pusher.travel * TRANSFER), pusher.travel // 2 + 1)),
+                (cell.clamp, 1 if o["CLAMP"] else -1, ()),
+                (plate, plate_drive, (plate.travel // 2,))):
+            if travel.can_move(drive):
+                moving.append((travel, drive))
+                steps = min(steps, _travel_steps(travel, drive, dt, marks))
+            elif drive:
+                clocks.append(travel)
+        drive = direction(o["ELEV_UP"], o["ELEV_DOWN"])
         if drive:
-            if lift.can_move(drive):
+            # The load meets the plate at `top` (the lift's limit), the eye sees it from
+            # `eye`, and it rises above the plate past `above` (positions of the lift).
+            base = cell.pallet_h + len(cell.layers) * cell.layer_h
+            speed = cell.lift_speed
+            top = (cell.plate_level - base) // speed
+            eye = -(-(cell.plate_level - cell.eye - base) // speed)
+            above = top + 1
+            limit = lift.pos + max(cell.plate_level - cell.load_top(), 0) // speed
+            if lift.can_move(drive) and (drive < 0 or limit > lift.pos):
+                moving.append((lift, drive))
+                steps = min(steps, _travel_steps(lift, drive, dt, (top, eye, above)))
+            else:
+                clocks.append(lift)
+                tolerances = []
+                if lift.jammed:
+                    tolerances.append(int(cell.params["stall_tolerance"]))
+                elif drive > 0:
+                    tolerances.append(int(cell.params["crush_tolerance"]))
                 if drive < 0:
-                    return None
-                room = cell.plate_level - cell.load_top()
-                if lift.pos + max(room, 0) // cell.lift_speed > lift.pos:
-                    return None  # it rises
-            clocks.append(lift)
-            tolerances = []
-            if lift.jammed:
-                tolerances.append(int(cell.params["stall_tolerance"]))
-            elif drive > 0:
-                tolerances.append(int(cell.params["crush_tolerance"]))
-            if drive < 0:
-                tolerances.append(int(cell.params["stall_tolerance"]))
-            if not lift.stall_reported:
-                for tolerance in tolerances:
-                    steps = min(steps, (tolerance - lift.stall_us) // dt)
+                    tolerances.append(int(cell.params["stall_tolerance"]))
+                if not lift.stall_reported:
+                    for tolerance in tolerances:
+                        steps = min(steps, (tolerance - lift.stall_us) // dt)
         idle = drive == 0 and lift.at_low
         if idle and cell.layers:
             steps = min(steps, (int(cell.params["exchange_time"]) - 1 - cell.idle_bottom_us)
@@ -462,12 +482,23 @@ class _Glide:
             if wall_hit and not cell.pusher.at_low and "box_against_pusher" not in cell.flags:
                 return None
         if source.queued:  # a queued box waits while a box that does not move is in the way
-            moving = {id(b) for b, _ in movers}
-            if not any(b.lo < room and id(b) not in moving for b in cell.feed):
+            gliding = {id(b) for b, _ in movers}
+            if not any(b.lo < room and id(b) not in gliding for b in cell.feed):
                 return None
         if steps <= 0:
             return None
-        return cls(cell, dt, steps, movers, clocks, idle, wall_hit)
+        return cls(cell, dt, steps, movers, clocks, moving, idle, wall_hit)
+
+
+def _travel_steps(travel: Travel, drive: int, dt: int, marks: tuple[int, ...]) -> int:
+    """How many full steps a travel moving `drive` makes before reaching a position where
+    anything about it changes: its end switches (`band`), its ends, or `marks` (each the
+    first position of a "pos >= mark" test: the transfer point, half the stroke...)."""
+    pos = travel.pos
+    bounds = (travel.band + 1, travel.travel - travel.band, travel.travel, 1, *marks)
+    if drive > 0:
+        return min(((b - 1 - pos) // dt for b in bounds if b > pos), default=NEVER)
+    return min(((pos - b) // dt for b in bounds if b <= pos), default=NEVER)
 
 
 def _travels(cell: Palletizer) -> tuple[object, ...]:

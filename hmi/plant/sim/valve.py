@@ -128,7 +128,8 @@ class Valve(SimDevice, model=VALVE):
             return
         while self.t < t:
             drive = self._drive()
-            step = min(t - self.t, self._next_boundary(drive))
+            boundary = self._next_boundary(drive)
+            step = min(t - self.t, boundary)
             if self._can_move(drive):
                 self.pos = max(0, min(self.travel, self.pos + drive * step))
                 self.stall_us = 0
@@ -136,7 +137,10 @@ class Valve(SimDevice, model=VALVE):
             elif drive:
                 self.stall_us += step
             self.t += step
-            self._settle()
+            if step == boundary:
+                self._settle()
+            # else: short of every mark, switch edge and stall limit (_next_boundary), so
+            # everything _settle tests is as it was after the last change: nothing to do
 
     def _settle(self) -> None:
         """Apply what happens at the current instant: arrivals, armed faults, stalls."""

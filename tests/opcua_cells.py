@@ -1,0 +1,54 @@
+"""Shared by the OPC UA tests: a served valve cell on a port of its own.
+
+Under pytest-xdist several workers start servers at once, and other tests open loopback
+connections whose ephemeral ports come from the same range: a port found free may be taken
+before the server binds it. `serve` then tries another one instead of failing the test.
+"""
+
+from __future__ import annotations
+
+import socket
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+from hmi.engine.scan import Engine
+from hmi.errors import UsageError
+from hmi.opcua.server import CellServer, ServeOptions
+from hmi.opcua.status import ServingStatus
+from hmi.plant.select import open_plant
+from hmi.project.injection import parse_injection
+from hmi.project.loader import load_project
+from hmi.session.session import Session
+
+ROOT = Path(__file__).resolve().parent.parent
+TRIES = 5
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def serve(session: Session, options: Callable[[int], ServeOptions],
+          listeners: Sequence[Callable[[ServingStatus], None]] = ()) -> CellServer:
+    """A started server for `session`, with the options `options(port)` on a free port;
+    `listeners` hear its changes of state from the start."""
+    for attempt in range(TRIES):
+        server = CellServer(session, options(free_port()))
+        server.listeners.extend(listeners)
+        try:
+            server.start()
+        except UsageError as exc:  # taken between the look and the bind: another port
+            if "cannot listen there" not in str(exc) or attempt == TRIES - 1:
+                raise
+            continue
+        return server
+    raise AssertionError("unreachable")
+
+
+def valve_session(faults: tuple[str, ...] = ("F5@8.2s",)) -> Session:
+    """The CISPI valve on its simulated plant, with `faults` scheduled (F5: stuck)."""
+    project = load_project(ROOT / "projects" / "cispi_valve")
+    plant = open_plant(project, None, False, [parse_injection(f) for f in faults], None)
+    return Session(Engine(project, plant))
