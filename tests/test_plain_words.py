@@ -162,7 +162,11 @@ def test_levels_one_to_three_name_no_internal_identifier(name):
                 bad = offences(text, names)
                 if bad:
                     problems.append(f"{what} / {e.key} / {level}: {sorted(set(bad))}: {text}")
-    assert not problems, f"{len(problems)} texts name identifiers:\n" + "\n".join(problems[:40])
+            labels = [p.label for p in e.policies]
+            if len(set(labels)) != len(labels):  # an operator's choice is offered once
+                problems.append(f"{what} / {e.key} / policies offered twice: {labels}")
+    assert not problems, f"{len(problems)} texts name identifiers (or repeat a choice):\n" \
+        + "\n".join(problems[:40])
     assert count > 0 and {"constraint", "safe_state", "plant", "fallback"} <= seen_kinds
 
 

@@ -59,10 +59,10 @@ def recovery_explanations(builder: ExplanationBuilder, snap: Snapshot) -> list[E
                             "rules. Repair the cause first (a jam, a dead switch), then start "
                             "it; after it, a fault reset and leaving recovery restart the "
                             "cycle.")
-            policies = (start_policy(name, description),
-                        builder.policy_stop(device) if device in builder.stoppable
-                        else builder.policy_manual(),
-                        builder.policy_manual())
+            # stop the device if it is one (not "Valves V1 and V2"), and manual mode: each
+            # offered once
+            stop = (builder.policy_stop(device),) if device in builder.stoppable else ()
+            policies = (start_policy(name, description), *stop, builder.policy_manual())
             return _with_texts(builder, snap, key, f"recovery_needed_{name}", device,
                                (what, why, consequences, policies), "medium", True, onset)
         out.append(builder.cached(key, (text,), make))
