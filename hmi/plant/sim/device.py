@@ -8,7 +8,7 @@ given by the caller: a device never looks at a clock, so a run is exactly repeat
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Hashable, Mapping
+from collections.abc import Callable, Hashable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -154,23 +154,15 @@ class SimDevice(ABC):
     def state_items(self, prefixed: bool) -> tuple[tuple[str, Any], ...]:
         """state() as (name, value) pairs, names prefixed with the device's when asked; the
         same tuple while state_key() is unchanged."""
-        key = self.state_key()
-        cached = self._state_cache
-        if key is not None and cached is not None and cached[0] == key:
-            return cached[1]
-        items = _items(self.name, self.state(), prefixed)
-        self._state_cache = (key, items)
-        return items
+        self._state_cache = cache = _refreshed(self._state_cache, self.state_key(), self.name,
+                                               self.state, prefixed)
+        return cache[1]
 
     def counter_items(self, prefixed: bool) -> tuple[tuple[str, int], ...]:
         """counters() as state_items() gives state()."""
-        key = self.counters_key()
-        cached = self._counter_cache
-        if key is not None and cached is not None and cached[0] == key:
-            return cached[1]
-        items = _items(self.name, self.counters(), prefixed)
-        self._counter_cache = (key, items)
-        return items
+        self._counter_cache = cache = _refreshed(self._counter_cache, self.counters_key(),
+                                                 self.name, self.counters, prefixed)
+        return cache[1]
 
     def record(self, t: int, kind: str, damage: bool, detail: str) -> None:
         self.events.append(PlantEvent(t, self.name, kind, damage, detail))
@@ -180,3 +172,13 @@ def _items(name: str, values: Mapping[str, Any], prefixed: bool) -> tuple[tuple[
     if prefixed:
         return tuple((f"{name}.{key}", value) for key, value in values.items())
     return tuple(values.items())
+
+
+def _refreshed(cache: tuple[Hashable, tuple[tuple[str, Any], ...]] | None, key: Hashable | None,
+               name: str, values: Callable[[], Mapping[str, Any]], prefixed: bool
+               ) -> tuple[Hashable, tuple[tuple[str, Any], ...]]:
+    """`cache` while the device says its values are unchanged (the same `key`), else the items
+    of `values()` anew: a snapshot then finds the very tuple it had."""
+    if key is not None and cache is not None and cache[0] == key:
+        return cache
+    return key, _items(name, values(), prefixed)

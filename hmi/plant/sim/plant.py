@@ -186,19 +186,15 @@ class SimPlant(Plant):
         the same tuple as long as no device's state changed (SimDevice.state_key)."""
         if len(self.devices) == 1:
             return self.devices[0].state_items(False)
-        parts = [d.state_items(True) for d in self.devices]
-        last = self._state_parts
-        if last is None or any(a is not b for a, b in zip(parts, last[0], strict=True)):
-            last = self._state_parts = (parts, tuple(item for part in parts for item in part))
+        self._state_parts = last = _joined([d.state_items(True) for d in self.devices],
+                                           self._state_parts)
         return last[1]
 
     def counters(self) -> tuple[tuple[str, int], ...]:
         if len(self.devices) == 1:
             return self.devices[0].counter_items(False)
-        parts = [d.counter_items(True) for d in self.devices]
-        last = self._counter_parts
-        if last is None or any(a is not b for a, b in zip(parts, last[0], strict=True)):
-            last = self._counter_parts = (parts, tuple(item for part in parts for item in part))
+        self._counter_parts = last = _joined([d.counter_items(True) for d in self.devices],
+                                             self._counter_parts)
         return last[1]
 
     def take_events(self) -> tuple[PlantEvent, ...]:
@@ -225,3 +221,13 @@ class SimPlant(Plant):
 
     def damage(self) -> list[PlantEvent]:
         return [e for e in self.events() if e.damage]
+
+
+def _joined(parts: list[tuple[Any, ...]], last: tuple[list[Any], tuple[Any, ...]] | None
+            ) -> tuple[list[Any], tuple[Any, ...]]:
+    """The devices' parts as one tuple, and the parts it was made of: `last` again while
+    every part is the very object it was (a device whose state did not change returns the
+    same tuple), so that a snapshot compares the plant's state by identity."""
+    if last is None or any(a is not b for a, b in zip(parts, last[0], strict=True)):
+        return parts, tuple(item for part in parts for item in part)
+    return last
