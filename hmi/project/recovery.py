@@ -33,6 +33,7 @@ the previous scan (like the GRAFCET's receptivities); `do` items are output name
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -169,18 +170,8 @@ def _procedure(loader: ProjectLoader, name: str, node: YNode, kpos: SourcePos,
     if not steps:
         loader.diag.error(fields["steps"].pos, f"{what} has no steps",
                           "a list of steps: {description, do, until}")
-    relaxes: list[str] = []
-    if "relaxes" in fields:
-        for item in loader.guard(lambda: fields["relaxes"].as_seq(f"what {what} relaxes"), []):
-            cname = loader.guard(lambda i=item: i.as_str("a constraint name"))
-            if cname is None:
-                continue
-            if cname not in known:
-                loader.diag.error(item.pos, f"{what} relaxes {cname!r}, which is not a "
-                                  "constraint of the project",
-                                  "one of " + ", ".join(sorted(known)))
-                continue
-            relaxes.append(cname)
+    relaxes = _names(loader, fields, "relaxes", what, known, "a constraint name",
+                     "a constraint of the project")
     mine: list[Constraint] = []
     if "constraints" in fields:
         for cname, cnode in loader.guard(lambda: fields["constraints"].as_map(
@@ -197,18 +188,8 @@ def _procedure(loader: ProjectLoader, name: str, node: YNode, kpos: SourcePos,
             if constraint is not None:
                 own[cname] = cpos
                 mine.append(constraint)
-    resets: list[str] = []
-    if "resets" in fields:
-        for item in loader.guard(lambda: fields["resets"].as_seq(f"what {what} resets"), []):
-            oname = loader.guard(lambda i=item: i.as_str("an observer name"))
-            if oname is None:
-                continue
-            if oname not in memorised:
-                loader.diag.error(item.pos, f"{what} resets {oname!r}, which is not an "
-                                  "observer with set and reset",
-                                  "one of " + (", ".join(sorted(memorised)) or "(none)"))
-                continue
-            resets.append(oname)
+    resets = _names(loader, fields, "resets", what, memorised, "an observer name",
+                    "an observer with set and reset")
     needed = _needed(loader, what, fields["needed"]) if "needed" in fields else None
     if timeout is None or any(s is None for s in steps) or not steps or (
             "needed" in fields and needed is None):
@@ -219,6 +200,25 @@ def _procedure(loader: ProjectLoader, name: str, node: YNode, kpos: SourcePos,
     return RecoveryProcedure(name, device, description, tuple(s for s in steps if s),
                              timeout, tuple(relaxes), tuple(mine), needed, kpos,
                              tuple(resets))
+
+
+def _names(loader: ProjectLoader, fields: dict[str, YNode], key: str, what: str,
+           allowed: Collection[str], one: str, kind: str) -> list[str]:
+    """The names listed under `key` (relaxes, resets), each one of `allowed`; any other is an
+    error at its own line and column, with the names that would do."""
+    names: list[str] = []
+    if key not in fields:
+        return names
+    for item in loader.guard(lambda: fields[key].as_seq(f"what {what} {key}"), []):
+        name = loader.guard(lambda i=item: i.as_str(one))
+        if name is None:
+            continue
+        if name not in allowed:
+            loader.diag.error(item.pos, f"{what} {key} {name!r}, which is not {kind}",
+                              "one of " + (", ".join(sorted(allowed)) or "(none)"))
+            continue
+        names.append(name)
+    return names
 
 
 def _needed(loader: ProjectLoader, what: str, node: YNode) -> RecoveryNeed | None:
