@@ -126,6 +126,13 @@ _CODE: dict[tuple[str, str], CodeType] = {}
 CODE_CACHE = 2048
 
 
+def code_table() -> dict[tuple[str, str], CodeType]:
+    """The compiled code by (text, file name) that :func:`build` keeps, every text checked by
+    :func:`_check` before it was compiled: the HMI's start keeps it across processes
+    (hmi.codecache.kept_codes, under a fingerprint of this module's source)."""
+    return _CODE
+
+
 def build(source: Source, name: str, params: str, filename: str) -> Callable[..., Any]:
     """Compile `source`'s lines as the body of ``def name(params, *, k0=k0, ...)``."""
     text = f"def {name}({params}{source.defaults()}):\n" + "\n".join(source.lines) + "\n"
