@@ -27,6 +27,7 @@ import hashlib
 import os
 import pickle
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 from hmi.codecache import read_file, write_file, writing
@@ -86,51 +87,47 @@ def project_key(path: str | Path, diagnoser_variant: str | None) -> str:
     return digest.hexdigest()
 
 
-def _tree(root: Path, digest: hashlib.blake2b) -> None:
-    """Every entry under `root` (not following symlinks: their targets are recorded, and
-    what they lead to must lie in a tree walked too): name, kind, content."""
-    entries = 0
-    size = 0
+def _entries(root: Path, skip: str | None = None) -> Iterator[os.DirEntry[str]]:
+    """Every entry under `root` in a fixed order, not following symlinks (folders named
+    `skip` listed, not entered)."""
     pending = [root]
     while pending:
-        folder = pending.pop()
-        with os.scandir(folder) as listing:
+        with os.scandir(pending.pop()) as listing:
             found = sorted(listing, key=lambda e: e.name)
         for entry in found:
-            entries += 1
-            if entries > MAX_ENTRIES:
-                raise TooBig(str(root))
-            if entry.is_symlink():
-                digest.update(f"link {entry.path} -> {os.readlink(entry.path)}\0".encode(
-                    "utf-8", "surrogateescape"))
-            elif entry.is_dir():
-                digest.update(f"dir {entry.path}\0".encode("utf-8", "surrogateescape"))
+            if entry.is_dir(follow_symlinks=False) and entry.name != skip:
                 pending.append(Path(entry.path))
-            elif entry.is_file():
-                with open(entry.path, "rb") as file:
-                    content = file.read(MAX_BYTES - size + 1)
-                size += len(content)
-                if size > MAX_BYTES:
-                    raise TooBig(str(root))
-                digest.update(f"file {entry.path} {len(content)}\0".encode(
-                    "utf-8", "surrogateescape"))
-                digest.update(content)
-            else:  # a fifo, a socket, a device: the loader refuses them; not kept
-                raise TooBig(entry.path)
+            yield entry
+
+
+def _tree(root: Path, digest: hashlib.blake2b) -> None:
+    """Every entry under `root` (symlinks not followed: their targets are recorded, and
+    what they lead to must lie in a tree walked too): name, kind, content."""
+    size = 0
+    for count, entry in enumerate(_entries(root), start=1):
+        if count > MAX_ENTRIES:
+            raise TooBig(str(root))
+        if entry.is_symlink():
+            record = f"link {entry.path} -> {os.readlink(entry.path)}"
+        elif entry.is_dir():
+            record = f"dir {entry.path}"
+        elif entry.is_file():
+            with open(entry.path, "rb") as file:
+                content = file.read(MAX_BYTES - size + 1)
+            size += len(content)
+            if size > MAX_BYTES:
+                raise TooBig(str(root))
+            record = f"file {entry.path} {len(content)}"
+            digest.update(content)
+        else:  # a fifo, a socket, a device: the loader refuses them; not kept
+            raise TooBig(entry.path)
+        digest.update(f"{record}\0".encode("utf-8", "surrogateescape"))
 
 
 def _code(package: Path, digest: hashlib.blake2b) -> None:
     """hmi's files by name, size and modification time (not its bytecode)."""
-    pending = [package]
-    while pending:
-        folder = pending.pop()
-        with os.scandir(folder) as listing:
-            found = sorted(listing, key=lambda e: e.name)
-        for entry in found:
-            if entry.is_dir(follow_symlinks=False):
-                if entry.name != "__pycache__":
-                    pending.append(Path(entry.path))
-                continue
+    for entry in _entries(package, skip="__pycache__"):
+        if not entry.is_dir(follow_symlinks=False):
             stat = entry.stat()
             digest.update(f"{entry.path} {stat.st_size} {stat.st_mtime_ns}\0".encode(
                 "utf-8", "surrogateescape"))
