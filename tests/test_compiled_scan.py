@@ -83,6 +83,7 @@ def twin_run(name: str, seed: int) -> int:
                       diagnosis=diagnosis, compiled=flag) for flag in (True, False)]
     assert engines[0].compiled is not None and engines[1].compiled is None
     period = project.scan_period_us
+    seen: tuple[int, tuple] | None = None
     for k in range(SCANS):
         now = k * period
         if k and rng.random() < 0.02:
@@ -94,7 +95,19 @@ def twin_run(name: str, seed: int) -> int:
             for field in Snapshot._fields:
                 a, b = getattr(comparable(fast), field), getattr(comparable(reference), field)
                 assert a == b, f"{name} seed {seed} scan {k}: {field} differs: {a!r} != {b!r}"
+        seen = check_marks(fast, seen)
     return SCANS
+
+
+def check_marks(snap: Snapshot, seen: tuple[int, tuple] | None) -> tuple[int, tuple] | None:
+    """Snapshot.monitor_marks moves whenever a task's monitor changes in anything but its
+    stopwatches (readers skip `monitors` otherwise); returns what the next scan compares."""
+    if not snap.monitors:
+        return seen
+    shown = tuple(m._replace(x_us=0, y_us=0) for m in snap.monitors)
+    if seen is not None and seen[1] != shown:
+        assert snap.monitor_marks != seen[0], (snap.scan, seen[1], shown)
+    return snap.monitor_marks, shown
 
 
 @pytest.mark.parametrize("name", NAMES)

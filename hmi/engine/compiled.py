@@ -271,33 +271,55 @@ class CompiledScan:
     # -- after the output scan ----------------------------------------------------------------
     def _monitors(self, stage: MonitorStage) -> MonitorFn:
         """MonitorStage.step without its loop: a waiting task whose start is false only has
-        its clock noted; any other calls TaskAutomaton.step with the conditions' values."""
+        its clock noted; a running task that neither ends, changes phase, breaks a rule nor
+        trips its watchdog only has its stopwatches advanced (TaskAutomaton.step would do
+        nothing else, and the snapshot's states are then its base moved on, see
+        MonitorStage); any other calls TaskAutomaton.step with the conditions' values."""
         src = Source()
-        idle = src.ref(Phase.IDLE)
+        idle, running, suspended = (src.ref(p) for p in (Phase.IDLE, Phase.RUNNING,
+                                                          Phase.SUSPENDED))
         dirty = src.ref(stage._dirty)
         src.line(1, "moved = False")
         for k, (automaton, spec) in enumerate(zip(stage.automata, stage.specs, strict=True)):
             start, end = self._expr(spec.start.root), self._expr(spec.end.root)
             if spec.interrupted is not None:
-                level = self._expr(spec.interrupted.root)
-                sus = f"{level}, not {level}"
+                sus, res = self._expr(spec.interrupted.root), "not s"
             elif spec.interrupt is not None and spec.resume is not None:
-                sus = f"{self._expr(spec.interrupt.root)}, {self._expr(spec.resume.root)}"
+                sus, res = self._expr(spec.interrupt.root), self._expr(spec.resume.root)
             else:
-                sus = "False, False"
+                sus, res = "False", "False"
+            w = automaton.window
+            alpha, beta, gamma = int(w.alpha_us), int(w.beta_us), int(w.gamma_us)
             src.line(1, f"a = {src.ref(automaton)}")
-            src.line(1, f"if a.phase is {idle}:")
+            src.line(1, "p = a.phase")
+            src.line(1, f"if p is {idle}:")
             src.line(2, f"if {start}:")
-            src.line(3, f"a.step(now, scan, True, {end}, {sus})")
+            src.line(3, f"s = {sus}")
+            src.line(3, f"a.step(now, scan, True, {end}, s, {res})")
             src.line(3, f"{dirty}[{k}] = True")
             src.line(3, "moved = True")
             src.line(2, "else:")
             src.line(3, "a.last_us = now")
             src.line(1, "else:")
-            src.line(2, f"a.step(now, scan, False, {end}, {sus})")
-            src.line(2, f"{dirty}[{k}] = True")
-            src.line(2, "moved = True")
+            src.line(2, f"e = {end}")
+            src.line(2, f"s = {sus}")
+            src.line(2, f"r = {res}")
+            src.line(2, "el = now - a.last_us")
+            src.line(2, "x = a.x_us + el")
+            src.line(2, f"y = a.y_us + el if p is {running} else a.y_us")
+            stays = f"((p is {running} and not s) or (p is {suspended} and not r))"
+            rules = (f"(y < {alpha} and x + ({alpha} - y) >= {gamma}) or "
+                     f"(y >= {alpha} and x >= {gamma}) or y > {beta} or "
+                     f"(y == {beta} and p is {running})")
+            src.line(2, f"if not e and {stays} and (a.attempt_fault is not None or not "
+                        f"({rules})) and not (a.watchdog._armed and x >= {gamma}):")
+            src.line(3, "a.last_us = now")
+            src.line(3, "a.x_us = x")
+            src.line(3, "a.y_us = y")
+            src.line(2, "else:")
+            src.line(3, "a.step(now, scan, False, e, s, r)")
+            src.line(3, f"{dirty}[{k}] = True")
+            src.line(3, "moved = True")
         src.line(1, "return moved")
         fn: MonitorFn = self._build(src, "monitors", "v, h, now, scan")
         return fn
-

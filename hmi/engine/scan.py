@@ -60,7 +60,7 @@ class EngineState(NamedTuple):
     """A copy of everything an engine's scans and commands change (Engine.capture)."""
 
     image: Image
-    history: tuple[Image, ...]
+    history: tuple[tuple[Any, ...], ...]
     scan: int
     now: int
     started: bool
@@ -135,7 +135,7 @@ class Engine:
         for stage in (self.diagnosis, self.monitors):
             if stage is not None:
                 depth = max(depth, stage.depth)
-        self.history: deque[Image] = deque(maxlen=max(depth, 1))
+        self.history: deque[tuple[Any, ...]] = deque(maxlen=max(depth, 1))
         self.image: Image = lay.initial_image(project)
         self.scan = 0
         self.now = 0
@@ -394,9 +394,12 @@ class Engine:
         fov, outputs, report, diagnosis, monitored, error, filter_us = self._cycle(now)
         diagnosers = (self.diagnosis.publish(self.image, self.history)
                       if self.diagnosis is not None else ())
-        snapshot = self._snapshot(fov, outputs, report, diagnosis, diagnosers, monitored,
-                                  error, wall, filter_us)
-        self.history.appendleft(self.image.copy())
+        # The image as the scan left it: the snapshot's values and the history's newest
+        # entry are one tuple (an image in the history is never changed).
+        values = tuple(self.image)
+        snapshot = self._snapshot(values, fov, outputs, report, diagnosis, diagnosers,
+                                  monitored, error, wall, filter_us)
+        self.history.appendleft(values)
         self.last = snapshot
         return snapshot
 
@@ -405,7 +408,7 @@ class Engine:
         closed-loop exploration, hmi.engine.explore, only follows the state). The plant's
         events stay with the plant (take_events)."""
         self._cycle(now)
-        self.history.appendleft(self.image.copy())
+        self.history.appendleft(tuple(self.image))
 
     def _cycle(self, now: int) -> tuple[tuple[bool, ...], tuple[bool, ...], FilterReport | None,
                                         Diagnosis, bool, str | None, float]:
@@ -514,8 +517,9 @@ class Engine:
     def _start(self, now: int) -> None:
         self.control.reset(self.image, now)
         self.history.clear()
+        values = tuple(self.image)
         for _ in range(self.history.maxlen or 1):
-            self.history.append(self.image.copy())
+            self.history.append(values)
         self.started = True
 
     def _masked(self, diagnosis: Diagnosis) -> tuple[str, ...]:
@@ -533,28 +537,35 @@ class Engine:
             return tuple(self.image[s] for s in self.output_slots)
         return self.safe_vector
 
-    def _snapshot(self, fov: tuple[bool, ...], outputs: tuple[bool, ...],
+    def _snapshot(self, values: tuple[Any, ...], fov: tuple[bool, ...],
+                  outputs: tuple[bool, ...],
                   report: FilterReport | None, diagnosis: Diagnosis,
                   diagnosers: tuple[DiagnoserState, ...], monitored: bool,
                   error: str | None, wall: float, filter_us: float) -> Snapshot:
         plant = self.plant
         now = self.now
+        monitors: Any = ()
+        marks = 0
+        if self.monitors is not None:
+            marks = self.monitors.marks
+            if monitored:
+                monitors, marks = self.monitors.capture(now)
         # Positional, in Snapshot's field order (checked by _SNAPSHOT_ORDER below): a
         # NamedTuple built from keywords maps every one of them at every scan.
         return tuple.__new__(Snapshot, (
-            self.scan, now, self.project.scan_period_us, self.layout, tuple(self.image),
+            self.scan, now, self.project.scan_period_us, self.layout, values,
             tuple(fov), tuple(outputs), self.control.active_steps(self.image),
             self.control.fired, self.memory.elapsed(now), self.control_name, self.mode,
             tuple(sorted(self.manual.items())) if self.manual else (), self.policy,
             tuple(self.latched), plant.status, plant.state(), plant.counters(),
             plant.take_events(), report, diagnosers,
-            self.monitors.current() if monitored and self.monitors is not None else (),
+            monitors,
             diagnosis.reconstructed,
             self._masked(diagnosis) if self.policy != "monitor" else (),
             (), (), (), (),  # explanations, alarms, alarm_events, shelved: the session's
             tuple(sorted(self.stopped_devices)) if self.stopped_devices else (),
             self.recovery.state(now) if self.recovery is not None else NO_RECOVERY,
-            error, (time.perf_counter() - wall) * 1e6, filter_us))
+            error, (time.perf_counter() - wall) * 1e6, filter_us, marks))
 
 
 # The order _snapshot builds a Snapshot in; a new field must be added there too.
@@ -563,7 +574,7 @@ _SNAPSHOT_ORDER = (
     "fired", "timer_elapsed", "control", "mode", "manual", "policy", "latched", "plant",
     "plant_state", "plant_counters", "plant_events", "filter", "diagnosers", "monitors",
     "reconstructed", "masked", "explanations", "alarms", "alarm_events", "shelved",
-    "stopped_devices", "recovery", "error", "scan_wall_us", "filter_wall_us")
+    "stopped_devices", "recovery", "error", "scan_wall_us", "filter_wall_us", "monitor_marks")
 assert Snapshot._fields == _SNAPSHOT_ORDER, "Engine._snapshot builds Snapshot by position"
 
 
