@@ -1,4 +1,5 @@
-"""The code of generated dataclass methods, compiled once and kept like bytecode.
+"""Code compiled from generated text, compiled once and kept like bytecode; and the file
+rules of every cache the HMI's start keeps (docs/performance.md, issue 18 goal 1).
 
 Python writes each module's bytecode to ``__pycache__`` so that a new process does not compile
 it again, but a dataclass's methods (``__init__``, ``__repr__``, ``__eq__``, ``__hash__``,
@@ -9,12 +10,14 @@ each one's cost and a fifth of the whole start (docs/performance.md). Inside
 the code object compiled from the very same text in an earlier process, if any: the methods
 are the same functions, built the same way, from the same source; only the compiling is
 skipped. New texts are compiled as usual and the cache file is written at the end.
+:func:`kept_codes` does the same for a table of code by text that a module keeps itself
+(the compiled scan's, hmi.engine.codegen).
 
-The file lives beside hmi's bytecode, is written under the same rule (not when bytecode
+The files live beside hmi's bytecode, are written under the same rule (not when bytecode
 writing is off: ``PYTHONDONTWRITEBYTECODE``, ``python -B``), atomically, and read only when
-it was written by this interpreter version (its bytecode magic number); anything unreadable
-is ignored and rebuilt. It holds source text and the code compiled from it, nothing else: it
-is trusted as the ``.pyc`` files beside it are.
+written by this interpreter version (its bytecode magic number) in the same format for the
+same inputs (a header); anything unreadable is ignored and rebuilt. They are trusted as the
+``.pyc`` files beside them are.
 """
 
 from __future__ import annotations
@@ -22,13 +25,14 @@ from __future__ import annotations
 import builtins
 import contextlib
 import dataclasses
+import hashlib
 import importlib.util
 import marshal
 import os
 import sys
 from collections.abc import Iterator
 from pathlib import Path
-from types import CodeType
+from types import CodeType, ModuleType
 from typing import Any
 
 DEFAULT_PATH = (Path(__file__).resolve().parent / "__pycache__"
@@ -66,38 +70,68 @@ class CodeCache:
                       namespace)
 
     def save(self) -> None:
-        """Write the file if something new was compiled (atomically; errors ignored, as
-        Python ignores a ``__pycache__`` it cannot write)."""
+        """Write the file if something new was compiled."""
         if not self.compiled:
             return
         codes = self.codes if len(self.codes) <= MAX_ENTRIES else {}
-        temp = self.path.with_name(f"{self.path.name}.{os.getpid()}.tmp")
-        with contextlib.suppress(OSError, ValueError):
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            try:
-                with open(temp, "wb") as file:
-                    file.write(HEADER)
-                    marshal.dump(codes, file)
-                os.replace(temp, self.path)  # readers see the old file or the new, whole
-            finally:
-                with contextlib.suppress(OSError):
-                    os.unlink(temp)
+        write_file(self.path, HEADER, marshal.dumps(codes))
 
 
-def _read(path: Path) -> dict[str, CodeType]:
+def read_file(path: Path, header: bytes) -> bytes | None:
+    """What follows `header` in the file at `path`, or None (missing, unreadable, another
+    header: another interpreter, another format, other inputs)."""
     try:
         data = path.read_bytes()
     except OSError:
-        return {}
-    if not data.startswith(HEADER):
+        return None
+    return data[len(header):] if data.startswith(header) else None
+
+
+def write_file(path: Path, header: bytes, body: bytes) -> None:
+    """`header` then `body` to `path`, atomically (a reader sees the old file or the new one,
+    whole); errors ignored, as Python ignores a ``__pycache__`` it cannot write."""
+    temp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
+    with contextlib.suppress(OSError, ValueError):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            with open(temp, "wb") as file:
+                file.write(header)
+                file.write(body)
+            os.replace(temp, path)
+        finally:
+            with contextlib.suppress(OSError):
+                os.unlink(temp)
+
+
+def writing(write: bool | None = None) -> bool:
+    """Whether a cache is written: as asked, else under the rule of the ``.pyc`` files."""
+    return (not sys.dont_write_bytecode) if write is None else write
+
+
+def source_fingerprint(module: ModuleType) -> bytes:
+    """A digest of a module's source file (what a cache written under another version of it
+    must not be taken for)."""
+    source = module.__file__
+    if source is None:
+        raise ValueError(f"{module.__name__} has no source file")
+    return hashlib.blake2b(Path(source).read_bytes(), digest_size=16).hexdigest().encode()
+
+
+def _codes(body: bytes | None) -> dict[Any, CodeType]:
+    """The table a cache file holds (empty if it holds anything else)."""
+    if body is None:
         return {}
     try:
-        codes = marshal.loads(data[len(HEADER):])
+        codes = marshal.loads(body)
     except (EOFError, ValueError, TypeError):
         return {}
     if not isinstance(codes, dict):
         return {}
-    return {k: v for k, v in codes.items() if isinstance(k, str) and isinstance(v, CodeType)}
+    return {k: v for k, v in codes.items() if isinstance(v, CodeType)}
+
+
+def _read(path: Path) -> dict[str, CodeType]:
+    return {k: v for k, v in _codes(read_file(path, HEADER)).items() if isinstance(k, str)}
 
 
 @contextlib.contextmanager
@@ -115,5 +149,26 @@ def dataclass_code(path: Path = DEFAULT_PATH, write: bool | None = None
         yield cache
     finally:
         del dataclasses.exec  # type: ignore[attr-defined]
-        if (not sys.dont_write_bytecode) if write is None else write:
+        if writing(write):
             cache.save()
+
+
+@contextlib.contextmanager
+def kept_codes(table: dict[Any, CodeType], path: Path, fingerprint: bytes,
+               write: bool | None = None) -> Iterator[int]:
+    """A module's own table of compiled code by text (each key holds the very text the code
+    was compiled from) gets the entries an earlier process kept at `path`; what was added
+    meanwhile is kept at the end. `fingerprint` names what else decided that a text may be
+    compiled (hmi.engine.codegen: its checker): a file written under another one is
+    ignored. Yields how many entries were taken from the file."""
+    header = importlib.util.MAGIC_NUMBER + b"kept codes 1 " + fingerprint + b"\n"
+    kept = _codes(read_file(path, header))
+    taken = {key: code for key, code in kept.items() if key not in table}
+    table.update(taken)
+    try:
+        yield len(taken)
+    finally:
+        new = {key: code for key, code in table.items() if key not in kept}
+        if new and writing(write):
+            codes = {**kept, **new} if len(kept) + len(new) <= MAX_ENTRIES else dict(table)
+            write_file(path, header, marshal.dumps(codes))

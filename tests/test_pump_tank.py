@@ -5,8 +5,11 @@ openings, and the damage events come when the physics says, not before."""
 from __future__ import annotations
 
 import textwrap
+from fractions import Fraction
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from hmi.errors import ProjectError
 from hmi.plant.sim.pump import Pump, opening
@@ -107,6 +110,41 @@ def test_the_pump_shares_its_flow_between_the_open_lines():
     run(d, 4 * S, start=2 * S + 10 * MS)
     assert d["T2"].volume == 65 * NL_PER_L  # + 7.5 L/s for 2 s
     assert total(d) == 115 * NL_PER_L and d["P"].sensors() == {"run": True}
+
+
+@settings(max_examples=300, deadline=None)
+@given(travels=st.tuples(st.integers(8, 5_000_000), st.integers(8, 5_000_000)),
+       bands=st.tuples(st.integers(0, 300_000), st.integers(0, 300_000)),
+       places=st.tuples(st.floats(0, 1), st.floats(0, 1)),
+       flow=st.floats(0.1, 1000), dt=st.integers(1, 50_000),
+       min_opening=st.floats(0, 1))
+def test_the_pump_computes_in_integers_exactly_what_the_fractions_say(
+        travels, bands, places, flow, dt, min_opening):
+    """The pump's step works on the openings' numerators over one denominator (issue 18);
+    the reference is the fraction arithmetic it replaced, with `opening`, truncated the same."""
+    tanks = {name: Tank(name, {"capacity": 10_000, "initial": 5_000 if name == "S" else 0,
+                               "low": 1, "high": 9_999}) for name in ("S", "A", "B")}
+    valves = {}
+    for name, travel, band, place in zip(("V1", "V2"), travels, bands, places, strict=True):
+        v = valves[name] = Valve(name, {"travel": travel, "switch_band": band})
+        v.pos = round(place * v.travel)
+    p = Pump("P", {"flow": flow, "suction": "S", "valve_a": "V1", "to_a": "A",
+                   "valve_b": "V2", "to_b": "B", "min_opening": min_opening})
+    devices = {**tanks, **valves, "P": p}
+    for device in devices.values():
+        device.link(devices)
+    fractions = [opening(valves["V1"]), opening(valves["V2"])]
+    total_f = sum(fractions, Fraction(0))
+    p._check_dead_head(0, dt)
+    assert (p.dead_us == dt) == (total_f < Fraction(min_opening))
+    p._deliver(0, dt)
+    if total_f == 0:
+        assert p.delivering == 0 and tanks["A"].volume == tanks["B"].volume == 0
+        return
+    share = min(Fraction(1), total_f)
+    assert p.delivering == int(p.flow * share)
+    assert [tanks["A"].volume, tanks["B"].volume] == [
+        int(p.flow * dt * share * f / total_f) for f in fractions]
 
 
 def test_dead_heading_is_damage_after_its_tolerance_only():

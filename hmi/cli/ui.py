@@ -8,10 +8,15 @@ import gc
 import sys
 from pathlib import Path
 
-from hmi.cli.common import ended_by, load
+from hmi.cli.common import ended_by
 from hmi.cli.options import diagnoser_arg, engine_args, plant_args, project_arg
 from hmi.cli.session import announce, connect_plant, make_engine, open_journal, stop_plant
-from hmi.codecache import dataclass_code
+from hmi.codecache import dataclass_code, kept_codes, source_fingerprint
+
+# The compiled scan's code (hmi.engine.codegen), kept beside hmi's bytecode as the dataclass
+# methods' code is (hmi/codecache.py).
+SCAN_CODE_PATH = (Path(__file__).resolve().parents[1] / "__pycache__"
+                  / f"compiled-scan.{sys.implementation.cache_tag}.marshal")
 
 
 def add_parser(sub) -> None:
@@ -34,16 +39,21 @@ def cmd_ui(args: argparse.Namespace) -> int:
     # The start (docs/performance.md): no garbage collection until the scans start (the
     # start allocates much and frees little; hmi.ui.driver.LiveDriver.start collects once,
     # freezes what exists and turns it back on), and the code of the generated dataclass
-    # methods read from its cache instead of compiled again (hmi/codecache.py).
+    # methods and of the compiled scan read from their caches instead of compiled again
+    # (hmi/codecache.py), the project read back as loaded before (hmi/project/kept.py).
     gc.disable()
     try:
         with dataclass_code():
             import hmi.ui.app  # noqa: F401  (the HMI's modules: their classes built here)
+            from hmi.engine import codegen
             from hmi.opcua.options import check_arguments
+            from hmi.project import kept
             from hmi.session.session import Session
             check_arguments(args)
-            project = load(args.project, getattr(args, "diagnoser", None))
-            engine, injections = make_engine(project, args)
+            # the project as an earlier start loaded it, if nothing it depends on changed
+            project = kept.load(args.project, getattr(args, "diagnoser", None))
+            with kept_codes(codegen.code_table(), SCAN_CODE_PATH, source_fingerprint(codegen)):
+                engine, injections = make_engine(project, args)
             clock = None
             if engine.plant.is_real:
                 from hmi.session.live import WallClock
@@ -59,6 +69,7 @@ def _run_hmi(args: argparse.Namespace, controller, injections) -> int:
     connection; whatever ends it, the journal says how (and a real plant is left safe)."""
     from hmi.opcua.options import start_server
     from hmi.ui.app import run_app
+    from hmi.ui.csscache import kept_css
     engine = controller.engine
     project = engine.project
     clock = controller.clock
@@ -71,9 +82,10 @@ def _run_hmi(args: argparse.Namespace, controller, injections) -> int:
         announce(server, project.name)
         if clock is not None:
             connect_plant(engine, args.connect_timeout)
-        end = run_app(controller, injected=tuple(injections),
-                      on_fault=recorder.on_ui_fault, bell=getattr(args, "bell", False),
-                      served=server)
+        with kept_css() as css:  # Textual's stylesheets as parsed at an earlier start
+            end = run_app(controller, injected=tuple(injections),
+                          on_fault=recorder.on_ui_fault, bell=getattr(args, "bell", False),
+                          served=server, on_first_frame=css.save if css else None)
         if end.reason is not None:
             print(f"plchmi: the HMI ended on an error: {end.reason}", file=sys.stderr)
         return end.status

@@ -94,13 +94,14 @@ _NODES = (ast.Module, ast.FunctionDef, ast.arguments, ast.arg, ast.Return, ast.A
           ast.IfExp, ast.Mult)
 # Local names: the parameters and locals of the templates, and the objects handed over.
 LOCALS = frozenset({"v", "h", "f", "t", "now", "scan", "r", "s", "q", "x", "a", "b", "c",
-                    "su", "changed", "fire", "moved"})
+                    "su", "changed", "fire", "moved", "p", "e", "el", "y"})
 _HANDED = re.compile(r"k[0-9]+\Z")
 # Attributes the templates read or set on the objects they are given.
 ATTRIBUTES = frozenset({
     "since", "q", "get", "current", "routes", "dirty", "step", "last_scan", "last_now",
     "period", "since_us", "_settle", "needed_since", "check_needed", "needed", "fire",
-    "fired", "activated_at", "append", "phase", "last_us",
+    "fired", "activated_at", "append", "phase", "last_us", "x_us", "y_us", "attempt_fault",
+    "watchdog", "_armed",
 })
 
 
@@ -124,6 +125,13 @@ def _check(tree: ast.AST) -> None:
 # objects handed over differ), and a campaign builds one engine per run.
 _CODE: dict[tuple[str, str], CodeType] = {}
 CODE_CACHE = 2048
+
+
+def code_table() -> dict[tuple[str, str], CodeType]:
+    """The compiled code by (text, file name) that :func:`build` keeps, every text checked by
+    :func:`_check` before it was compiled: the HMI's start keeps it across processes
+    (hmi.codecache.kept_codes, under a fingerprint of this module's source)."""
+    return _CODE
 
 
 def build(source: Source, name: str, params: str, filename: str) -> Callable[..., Any]:

@@ -12,7 +12,8 @@ compiled here is the same work written out flat (hmi.engine.codegen): for the au
 * ``violated(v, h, f)``: whether the candidate `f` violates any safety constraint (stage 6's
   first question: most scans violate none, and then the filter has nothing else to do);
 * ``monitors(v, h, now, scan)``: the stopwatch monitors after the output scan; True when an
-  automaton moved.
+  automaton moved;
+* ``elapsed(now)``: the timers' ET for the snapshot.
 
 Every function works on the stage objects' own state (a timer's ``since``, a diagnoser's
 ``current``, a GRAFCET's ``activated_at``) and hands the rare events to the stage's own
@@ -45,6 +46,7 @@ if TYPE_CHECKING:
 CoreFn = Callable[[Image, History, int, int], tuple[bool, ...]]
 ViolatedFn = Callable[[Image, History, tuple[bool, ...]], bool]
 MonitorFn = Callable[[Image, History, int, int], bool]
+ElapsedFn = Callable[[int], tuple[int, ...]]
 
 
 class CompiledScan:
@@ -61,6 +63,7 @@ class CompiledScan:
         self.violated: ViolatedFn = self._violated(safety_filter)
         self.monitors: MonitorFn | None = (self._monitors(monitors) if monitors is not None
                                            else None)
+        self.elapsed: ElapsedFn = self._elapsed(memory)
 
     def _expr(self, node: Node, times: Mapping[str, int] | None = None) -> str:
         return expr_source(node, self.slots, self.times if times is None else times)
@@ -247,6 +250,18 @@ class CompiledScan:
             else:
                 src.line(1, f"v[{s}] = (not {reset}) and ({set_} or v[{s}])")
 
+    def _elapsed(self, memory: Memory) -> ElapsedFn:
+        """``elapsed(now)``: each timer's ET for the snapshot, as Memory.elapsed."""
+        src = Source()
+        parts = []
+        for runtime, _, _ in memory.timers:
+            r, preset = src.ref(runtime), int(runtime.preset)
+            parts.append(f"(0 if {r}.since is None else (now - {r}.since if now - {r}.since < "
+                         f"{preset} else {preset})), ")
+        src.line(1, "return (" + "".join(parts) + ")")
+        fn: ElapsedFn = self._build(src, "elapsed", "now")
+        return fn
+
     # -- stage 6's first question ------------------------------------------------------------
     def _violated(self, safety_filter: SafetyFilter) -> ViolatedFn:
         """Whether the candidate violates a constraint: the outputs' literals read in `f`,
@@ -271,33 +286,55 @@ class CompiledScan:
     # -- after the output scan ----------------------------------------------------------------
     def _monitors(self, stage: MonitorStage) -> MonitorFn:
         """MonitorStage.step without its loop: a waiting task whose start is false only has
-        its clock noted; any other calls TaskAutomaton.step with the conditions' values."""
+        its clock noted; a running task that neither ends, changes phase, breaks a rule nor
+        trips its watchdog only has its stopwatches advanced (TaskAutomaton.step would do
+        nothing else, and the snapshot's states are then its base moved on, see
+        MonitorStage); any other calls TaskAutomaton.step with the conditions' values."""
         src = Source()
-        idle = src.ref(Phase.IDLE)
+        idle, running, suspended = (src.ref(p) for p in (Phase.IDLE, Phase.RUNNING,
+                                                          Phase.SUSPENDED))
         dirty = src.ref(stage._dirty)
         src.line(1, "moved = False")
         for k, (automaton, spec) in enumerate(zip(stage.automata, stage.specs, strict=True)):
             start, end = self._expr(spec.start.root), self._expr(spec.end.root)
             if spec.interrupted is not None:
-                level = self._expr(spec.interrupted.root)
-                sus = f"{level}, not {level}"
+                sus, res = self._expr(spec.interrupted.root), "not s"
             elif spec.interrupt is not None and spec.resume is not None:
-                sus = f"{self._expr(spec.interrupt.root)}, {self._expr(spec.resume.root)}"
+                sus, res = self._expr(spec.interrupt.root), self._expr(spec.resume.root)
             else:
-                sus = "False, False"
+                sus, res = "False", "False"
+            w = automaton.window
+            alpha, beta, gamma = int(w.alpha_us), int(w.beta_us), int(w.gamma_us)
             src.line(1, f"a = {src.ref(automaton)}")
-            src.line(1, f"if a.phase is {idle}:")
+            src.line(1, "p = a.phase")
+            src.line(1, f"if p is {idle}:")
             src.line(2, f"if {start}:")
-            src.line(3, f"a.step(now, scan, True, {end}, {sus})")
+            src.line(3, f"s = {sus}")
+            src.line(3, f"a.step(now, scan, True, {end}, s, {res})")
             src.line(3, f"{dirty}[{k}] = True")
             src.line(3, "moved = True")
             src.line(2, "else:")
             src.line(3, "a.last_us = now")
             src.line(1, "else:")
-            src.line(2, f"a.step(now, scan, False, {end}, {sus})")
-            src.line(2, f"{dirty}[{k}] = True")
-            src.line(2, "moved = True")
+            src.line(2, f"e = {end}")
+            src.line(2, f"s = {sus}")
+            src.line(2, f"r = {res}")
+            src.line(2, "el = now - a.last_us")
+            src.line(2, "x = a.x_us + el")
+            src.line(2, f"y = a.y_us + el if p is {running} else a.y_us")
+            stays = f"((p is {running} and not s) or (p is {suspended} and not r))"
+            rules = (f"(y < {alpha} and x + ({alpha} - y) >= {gamma}) or "
+                     f"(y >= {alpha} and x >= {gamma}) or y > {beta} or "
+                     f"(y == {beta} and p is {running})")
+            src.line(2, f"if not e and {stays} and (a.attempt_fault is not None or not "
+                        f"({rules})) and not (a.watchdog._armed and x >= {gamma}):")
+            src.line(3, "a.last_us = now")
+            src.line(3, "a.x_us = x")
+            src.line(3, "a.y_us = y")
+            src.line(2, "else:")
+            src.line(3, "a.step(now, scan, False, e, s, r)")
+            src.line(3, f"{dirty}[{k}] = True")
+            src.line(3, "moved = True")
         src.line(1, "return moved")
         fn: MonitorFn = self._build(src, "monitors", "v, h, now, scan")
         return fn
-

@@ -27,6 +27,7 @@ from hmi.project.monitors import TaskMonitor, monitors_of
 from hmi.timefmt import format_duration, seconds
 
 IDLE = Phase.IDLE
+RUNNING = Phase.RUNNING
 
 
 class MonitorState(NamedTuple):
@@ -65,7 +66,14 @@ class MonitorState(NamedTuple):
 
 
 class MonitorStage:
-    """The engine's stopwatch monitors: compiled conditions and one automaton per task."""
+    """The engine's stopwatch monitors: compiled conditions and one automaton per task.
+
+    The states a snapshot shows are built lazily (:class:`LazyMonitors`): per task a *base*,
+    the task's :class:`MonitorState` when it was last rebuilt and the time it was taken at,
+    is kept; a running task whose automaton only advanced its stopwatches since (the
+    compiled scan's common case, hmi.engine.compiled) is shown as its base with ``x`` and
+    ``y`` moved on by the elapsed time, exactly what :meth:`TaskAutomaton.step` adds.
+    """
 
     def __init__(self, specs: tuple[TaskMonitor, ...], layout: Layout):
         lay = layout
@@ -78,10 +86,12 @@ class MonitorStage:
         self.automata = [TaskAutomaton(Window(s.alpha_us, s.beta_us, s.gamma_us))
                          for s in specs]
         self.conditions: list[tuple[BoolFn, BoolFn, BoolFn | None, BoolFn | None, bool]] = []
-        # The last MonitorState of each task, and whether its automaton moved since.
-        self._cached: list[MonitorState | None] = [None] * len(specs)
+        # Per task: its base (see the class docstring) and whether TaskAutomaton.step ran on
+        # it since the base was taken (then the base is taken again).
+        self._bases: list[Base | None] = [None] * len(specs)
         self._dirty = [True] * len(specs)
-        self._states: tuple[MonitorState, ...] | None = None
+        self.marks = 0  # the automata's changes, summed when a base is taken again
+        self._capture: tuple[tuple[Base, ...], bool] | None = None
         for s in specs:
             def fn(expr: Expr) -> BoolFn:
                 return compile_bool(expr, lay.slots, lay.step_times)
@@ -94,9 +104,7 @@ class MonitorStage:
             else:
                 self.conditions.append((fn(s.start), fn(s.end), None, None, False))
 
-    def step(self, image: Image, hist: History, now: int, scan: int
-             ) -> tuple[MonitorState, ...]:
-        changed = False
+    def step(self, image: Image, hist: History, now: int, scan: int) -> None:
         for k, (automaton, (start, end, suspend, resume, level)) in enumerate(zip(
                 self.automata, self.conditions, strict=True)):
             if automaton.phase is IDLE and not start(image, hist):
@@ -114,31 +122,38 @@ class MonitorStage:
             # `start` is only read by a waiting automaton, and this one's is true
             automaton.step(now, scan, automaton.phase is IDLE, end(image, hist), s, r)
             self._dirty[k] = True
-            changed = True
-        if changed or self._states is None:
-            return self.states()
-        return self._states
 
-    def current(self) -> tuple[MonitorState, ...]:
-        """The states as the last scan left them, for its snapshot: what :meth:`step`
-        returns, built only when a snapshot asks (the compiled scan steps the automata
-        without building states; hmi.engine.compiled)."""
-        if self._states is None or True in self._dirty:
-            return self.states()
-        return self._states
+    def capture(self, now: int) -> tuple[tuple[MonitorState, ...] | LazyMonitors, int]:
+        """The states at the end of the scan at `now`, for its snapshot, and the marks: the
+        states themselves when no task is running (then the same tuple scan after scan), else
+        a :class:`LazyMonitors` that builds them when read."""
+        captured = self._capture
+        if captured is None or True in self._dirty:
+            captured = self._capture = self._rebase()
+        bases, running = captured
+        if running:
+            return LazyMonitors(bases, now), self.marks
+        return tuple(b[0] for b in bases), self.marks
 
-    def states(self) -> tuple[MonitorState, ...]:
-        """Each task's state; rebuilt only for the automata that moved since the last call
-        (a waiting task's state is the same tuple scan after scan)."""
-        cached = self._cached
-        dirty = self._dirty
+    def current(self, now: int) -> tuple[MonitorState, ...]:
+        """Each task's state at the end of the scan at `now`."""
+        states, _ = self.capture(now)
+        return states.states() if isinstance(states, LazyMonitors) else states
+
+    def _rebase(self) -> tuple[tuple[Base, ...], bool]:
+        """Take again the base of every task stepped since its last one, and sum the
+        automata's changes (TaskAutomaton.changes) in `marks`."""
+        bases, dirty = self._bases, self._dirty
+        running = False
         for k, (head, tail, a) in enumerate(zip(self.heads, self.tails, self.automata,
                                                 strict=True)):
-            if dirty[k] or cached[k] is None:
-                cached[k] = _state(head, a, tail)
+            base = bases[k]
+            if dirty[k] or base is None:
+                base = bases[k] = (_state(head, a, tail), a.last_us or 0, a.phase)
                 dirty[k] = False
-        self._states = tuple(cached)  # type: ignore[arg-type]  # every entry is set above
-        return self._states
+            running = running or base[2] is not IDLE
+        self.marks = sum(a.changes for a in self.automata)
+        return tuple(bases), running  # type: ignore[arg-type]  # every entry is set above
 
     def abandon(self) -> list[str]:
         """A recovery starts: every task in progress is forgotten (TaskAutomaton.abandon).
@@ -148,14 +163,14 @@ class MonitorStage:
             if a.abandon():
                 abandoned.append(spec.title)
                 self._dirty[k] = True
-        self._states = None
+        self._capture = None
         return abandoned
 
     def reset(self) -> list[str]:
         """Fault reset: release each latched label whose task is no longer faulty."""
         lines = []
         self._dirty[:] = [True] * len(self.automata)  # in place: the compiled scan holds it
-        self._states = None
+        self._capture = None
         for spec, a in zip(self.specs, self.automata, strict=True):
             if a.latched is None:
                 continue
@@ -167,6 +182,57 @@ class MonitorStage:
                     f"(x = {seconds(a.x_us)} s, y = {seconds(a.y_us)} s) and can no longer end "
                     f"before gamma {format_duration(spec.gamma_us)}; reset again once it ends")
         return lines
+
+
+_X, _Y = MonitorState._fields.index("x_us"), MonitorState._fields.index("y_us")
+assert _Y == _X + 1, "_at rebuilds MonitorState around x_us, y_us"
+
+# A task's base: its state, when its automaton last advanced (TaskAutomaton.last_us), and
+# its phase then.
+Base = tuple[MonitorState, int, Phase]
+
+
+class LazyMonitors:
+    """The tasks' states at the end of one scan, built when first read (most snapshots of a
+    headless run are never read for them). Immutable in meaning: the bases are frozen
+    tuples and `now` the scan's time; :meth:`states` caches what it built."""
+
+    __slots__ = ("_states", "bases", "now")
+
+    def __init__(self, bases: tuple[Base, ...], now: int):
+        self.bases = bases
+        self.now = now
+        self._states: tuple[MonitorState, ...] | None = None
+
+    def states(self) -> tuple[MonitorState, ...]:
+        states = self._states
+        if states is None:
+            states = self._states = tuple(_at(base, self.now) for base in self.bases)
+        return states
+
+    def __eq__(self, other: object) -> bool:
+        if isinstance(other, LazyMonitors):
+            other = other.states()
+        return self.states() == other
+
+    def __hash__(self) -> int:
+        return hash(self.states())
+
+    def __repr__(self) -> str:
+        return repr(self.states())
+
+
+def _at(base: Base, now: int) -> MonitorState:
+    """A task's state at `now` from its base: a running task's stopwatches have advanced by
+    the time elapsed since (``y`` only while executing), as TaskAutomaton.step advances them
+    when nothing else happens."""
+    state, since, phase = base
+    if phase is IDLE or now == since:
+        return state
+    elapsed = now - since
+    y = state.y_us + elapsed if phase is RUNNING else state.y_us
+    # MonitorState._replace without its cost (a dict and a map per call)
+    return tuple.__new__(MonitorState, (*state[:_X], state.x_us + elapsed, y, *state[_Y + 1:]))
 
 
 def _state(head: tuple[str, str, str, str | None], a: TaskAutomaton,

@@ -3,18 +3,20 @@
 A snapshot never refers to live engine state: every field is a tuple, a frozen dataclass or
 a read-only mapping, so a UI thread can hold one while the engine runs the next scan. It is a
 NamedTuple rather than a frozen dataclass because one is built every scan and a NamedTuple is
-several times cheaper to build.
+several times cheaper to build. Its `monitors` field is read lazily (Snapshot.monitors): the
+stored value may be a LazyMonitors, itself immutable in meaning, built into the states on
+first read.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, cast
 
 from hmi.engine.diagnoser import DiagnoserState
 from hmi.engine.filter import FilterReport
 from hmi.engine.layout import Layout
-from hmi.engine.monitors import MonitorState
+from hmi.engine.monitors import LazyMonitors, MonitorState
 from hmi.engine.recovery import NO_RECOVERY, RecoveryState
 from hmi.logic.timers import TimerState
 from hmi.plant.base import PlantEvent, PlantStatus
@@ -30,7 +32,9 @@ class LatchReason:
     time_us: int
 
 
-class Snapshot(NamedTuple):
+class _Fields(NamedTuple):
+    """A snapshot's fields as stored (Snapshot reads some of them lazily)."""
+
     scan: int
     time_us: int
     period_us: int
@@ -53,7 +57,7 @@ class Snapshot(NamedTuple):
     # Filled by the safety filter, diagnosers, monitors and (hmi.session) explanations.
     filter: FilterReport | None = None
     diagnosers: tuple[DiagnoserState, ...] = ()
-    monitors: tuple[MonitorState, ...] = ()
+    monitors: tuple[MonitorState, ...] | LazyMonitors = ()
     reconstructed: tuple[str, ...] = ()  # sensors running on their reconstruction
     masked: tuple[str, ...] = ()  # outputs masked by a faulty actuator's flag
     # hmi.explain's Explanation, Alarm, AlarmEvent: the session fills them (the engine does
@@ -67,6 +71,23 @@ class Snapshot(NamedTuple):
     error: str | None = None  # an internal error caught during this scan
     scan_wall_us: float = 0.0  # measured, not deterministic
     filter_wall_us: float = 0.0  # the filter stage's share of it (plchmi bench)
+    # Changes whenever any task's monitor changes in anything but its stopwatches (location,
+    # attempt, detection, watchdog trip, counts): a reader that only cares about those reads
+    # `monitors` when it moved (hmi.engine.monitors).
+    monitor_marks: int = 0
+
+
+class Snapshot(_Fields):
+    __slots__ = ()
+
+    @property
+    def monitors(self) -> tuple[MonitorState, ...]:
+        """Each task's monitor at the end of the scan, built when first read (the engine
+        stores a LazyMonitors while a task runs: most scans' states are never read)."""
+        stored = tuple.__getitem__(self, _MONITORS)
+        if type(stored) is LazyMonitors:
+            return stored.states()
+        return cast("tuple[MonitorState, ...]", stored)
 
     def value(self, name: str) -> Any:
         return self.values[self.layout.slots[name]]
@@ -104,10 +125,10 @@ class Snapshot(NamedTuple):
         return bool(self.latched)
 
 
-_EXPLANATIONS, _ALARMS, _ALARM_EVENTS, _SHELVED, _ERROR, _SCAN_WALL = (
+_EXPLANATIONS, _ALARMS, _ALARM_EVENTS, _SHELVED, _ERROR, _SCAN_WALL, _MONITORS = (
     Snapshot._fields.index(name)
     for name in ("explanations", "alarms", "alarm_events", "shelved", "error",
-                 "scan_wall_us"))
+                 "scan_wall_us", "monitors"))
 
 
 def explained(core: Snapshot, explanations: tuple[Any, ...], alarms: tuple[Any, ...],

@@ -34,7 +34,7 @@ from hmi.project.model import Project
 if TYPE_CHECKING:
     from hmi.engine.diagnoser import DiagnoserState, Diagnosis
     from hmi.engine.filter import FilterDecision
-    from hmi.engine.monitors import MonitorState
+    from hmi.engine.monitors import LazyMonitors, MonitorState
 
 
 # -- the declared interfaces ------------------------------------------------------------------
@@ -63,8 +63,9 @@ class MonitorStageProtocol(Protocol):
 
     depth: int
 
-    def step(self, image: Image, history: History, now: int, scan: int
-             ) -> tuple[MonitorState, ...]: ...
+    def step(self, image: Image, history: History, now: int, scan: int) -> None: ...
+
+    def capture(self, now: int) -> tuple[tuple[MonitorState, ...] | LazyMonitors, int]: ...
 
     def reset(self) -> list[str]: ...
 

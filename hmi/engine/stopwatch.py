@@ -164,6 +164,9 @@ class TaskAutomaton:
         self.faults = 0  # attempts found faulty
         self.completed = 0  # attempts ended inside the acceptable window
         self.watchdog = Watchdog(window.gamma_us)
+        # Changes of what the operator sees apart from the stopwatches (phase, attempt,
+        # detections, watchdog trips, counts, the latch): Snapshot.monitor_marks sums them.
+        self.changes = 0
 
     # -- what the operator sees -------------------------------------------------------------
     @property
@@ -185,12 +188,15 @@ class TaskAutomaton:
         """
         elapsed = 0 if self.last_us is None else now - self.last_us
         self.last_us = now
+        watchdog = self.watchdog
+        tripped = watchdog.last
         if self.phase is Phase.IDLE:
             if start:
                 self._begin(now)
                 if suspend:
                     self.phase = Phase.SUSPENDED
-                self.watchdog.observe(now, scan, self.x_us, self.attempt, False)
+                watchdog.observe(now, scan, self.x_us, self.attempt, False)
+                self.changes += 1
             return None
         self.x_us += elapsed
         if self.phase is Phase.RUNNING:
@@ -198,15 +204,20 @@ class TaskAutomaton:
         if end:
             verdict = self._judge_end()
             self.phase = Phase.IDLE
+            self.changes += 1
             if verdict is None and self.attempt_fault is None:
                 self.completed += 1
         else:
             if self.phase is Phase.RUNNING and suspend:
                 self.phase = Phase.SUSPENDED
+                self.changes += 1
             elif self.phase is Phase.SUSPENDED and resume:
                 self.phase = Phase.RUNNING
+                self.changes += 1
             verdict = self._judge_running()
-        self.watchdog.observe(now, scan, self.x_us, self.attempt, end)
+        watchdog.observe(now, scan, self.x_us, self.attempt, end)
+        if watchdog.last is not tripped:
+            self.changes += 1
         if verdict is None or self.attempt_fault is not None:
             return None
         detection = Detection(verdict, now, scan, self.x_us, self.y_us, self.attempt,
@@ -214,6 +225,7 @@ class TaskAutomaton:
         self.attempt_fault = detection
         self.last_detection = detection
         self.faults += 1
+        self.changes += 1
         if self.latched is None:
             self.latched = detection
             return detection
@@ -256,6 +268,7 @@ class TaskAutomaton:
         if self.phase is Phase.IDLE:
             return False
         self.phase = Phase.IDLE
+        self.changes += 1
         self.watchdog.stop()
         return True
 
@@ -272,4 +285,5 @@ class TaskAutomaton:
         if self.running and self.attempt_fault is not None:
             return False
         self.latched = None
+        self.changes += 1
         return True

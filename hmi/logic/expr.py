@@ -496,7 +496,8 @@ def monomial_literals(expr: Expr) -> tuple[Literal, ...] | None:
 # Current values indexed by slot: bools (inputs, outputs, memories, timers, observers,
 # steps, flags) and ints (step activity times); hmi.engine.layout says which slot is which.
 Image = list[Any]
-History = Sequence[Image]  # history[0] is the image one scan ago
+# history[0] is the image one scan ago (the engine keeps past images as tuples: never changed)
+History = Sequence[Sequence[Any]]
 BoolFn = Callable[[Image, History], bool]
 NumFn = Callable[[Image, History], int]
 

@@ -20,6 +20,7 @@ A repair (training) ends a halt or a slip at once.
 
 from __future__ import annotations
 
+from collections.abc import Hashable
 from typing import Any
 
 from hmi.plant.sim.device import PendingFault, SimDevice
@@ -117,6 +118,13 @@ class Conveyor(SimDevice, model=CONVEYOR):
 
     def counters(self) -> dict[str, int]:
         return {"pallets": self.delivered, "handed": self.handed}
+
+    def state_key(self) -> Hashable:
+        return (None if self.pallet is None else round(100 * self.pallet / self.length, 1),
+                self.halted, self.t < self.slip_until)
+
+    def counters_key(self) -> Hashable:
+        return (self.delivered, self.handed)
 
     def task_records(self) -> tuple[TaskRecord, ...]:
         """Each pallet's transport: placed, arrived at B, time the belt actually moved it."""

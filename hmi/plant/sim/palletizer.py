@@ -45,7 +45,7 @@ from typing import Any
 from hmi.plant.sim.boxes import MM, Box, BoxSource
 from hmi.plant.sim.cell import SteppedCell
 from hmi.plant.sim.track import NEVER, WALL, Line, Segment, advance, beam_steps
-from hmi.plant.sim.travel import Travel, direction
+from hmi.plant.sim.travel import Travel, direction, free_steps
 from hmi.project.device_models import PALLETIZER
 from hmi.timefmt import seconds
 
@@ -379,15 +379,17 @@ class _Glide:
                 return False
         return True
 
-    def move(self, cell: Palletizer) -> None:
-        """One step of _step when only clocks and gliding boxes change."""
-        self.steps -= 1
-        dt = self.dt
+    def move(self, cell: Palletizer, count: int) -> None:
+        """`count` steps of _step when only clocks and gliding boxes change: each adds the
+        same to a position or a clock, and the flags it sets or clears are the same at every
+        one of them (nothing they test changes during the glide)."""
+        self.steps -= count
+        dt = self.dt * count
         for box, delta in self.movers:
-            box.lo += delta
+            box.lo += delta * count
         for travel in self.clocks:
             travel.stall_us += dt
-        for travel, drive in self.moving:  # a full step's motion (Travel.step)
+        for travel, drive in self.moving:  # full steps' motion (Travel.step)
             travel.pos += drive * dt
             travel.stall_us = 0
             travel.stall_reported = False
@@ -420,7 +422,7 @@ class _Glide:
                 (plate, plate_drive, (plate.travel // 2,))):
             if travel.can_move(drive):
                 moving.append((travel, drive))
-                steps = min(steps, _travel_steps(travel, drive, dt, marks))
+                steps = min(steps, free_steps(travel, drive, dt, marks, NEVER))
             elif drive:
                 clocks.append(travel)
         drive = direction(o["ELEV_UP"], o["ELEV_DOWN"])
@@ -435,7 +437,7 @@ class _Glide:
             limit = lift.pos + max(cell.plate_level - cell.load_top(), 0) // speed
             if lift.can_move(drive) and (drive < 0 or limit > lift.pos):
                 moving.append((lift, drive))
-                steps = min(steps, _travel_steps(lift, drive, dt, (top, eye, above)))
+                steps = min(steps, free_steps(lift, drive, dt, (top, eye, above), NEVER))
             else:
                 clocks.append(lift)
                 tolerances = []
@@ -488,17 +490,6 @@ class _Glide:
         if steps <= 0:
             return None
         return cls(cell, dt, steps, movers, clocks, moving, idle, wall_hit)
-
-
-def _travel_steps(travel: Travel, drive: int, dt: int, marks: tuple[int, ...]) -> int:
-    """How many full steps a travel moving `drive` makes before reaching a position where
-    anything about it changes: its end switches (`band`), its ends, or `marks` (each the
-    first position of a "pos >= mark" test: the transfer point, half the stroke...)."""
-    pos = travel.pos
-    bounds = (travel.band + 1, travel.travel - travel.band, travel.travel, 1, *marks)
-    if drive > 0:
-        return min(((b - 1 - pos) // dt for b in bounds if b > pos), default=NEVER)
-    return min(((pos - b) // dt for b in bounds if b <= pos), default=NEVER)
 
 
 def _travels(cell: Palletizer) -> tuple[object, ...]:

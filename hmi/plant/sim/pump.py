@@ -8,7 +8,9 @@ delivers that fraction of `flow`. Line a leads into the tank `to_a`, line b into
 be the suction tank: a recirculation). Water comes from the tank `suction`; below
 `dry_level` litres in it the pump draws air and delivers nothing. Flows are integrated per
 step of the plant (one scan) from the valves' positions at the end of the step, in integer
-nanolitres (hmi/plant/sim/tank.py).
+nanolitres (hmi/plant/sim/tank.py). The openings are exact fractions (:func:`opening`); a step
+computes with their numerators over one common denominator, in integers, for the very same
+results at a fraction of the cost (issue 18: the plant runs at every scan).
 
 The order ``P`` starts and stops it; the sensor ``run`` is its running feedback (an auxiliary
 contact of the motor contactor).
@@ -29,7 +31,8 @@ Faults, each injected at a time:
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import math
+from collections.abc import Hashable, Mapping
 from fractions import Fraction
 from typing import Any
 
@@ -56,6 +59,11 @@ class Pump(SimDevice, model=PUMP):
         self.dead_reported = False
         self.dry_reported = False
         self.starts = 0
+        # The lines' openings over one denominator (see link); min_opening as p / q.
+        self._scales: tuple[int, ...] = ()
+        self._denominator = 1
+        limit = Fraction(self.params["min_opening"])
+        self._min_opening = (limit.numerator, limit.denominator)
 
     def link(self, devices: Mapping[str, SimDevice]) -> None:
         def get(key: str) -> Any:
@@ -64,6 +72,11 @@ class Pump(SimDevice, model=PUMP):
         self.suction = get("suction")
         self.lines = [(get(v), get(t)) for v, t in (("valve_a", "to_a"), ("valve_b", "to_b"))
                       if get(v) is not None]
+        # opening(valve) = n / span; over the common denominator D (the product of the
+        # spans) it is n * (D // span) / D: integers only from here on.
+        spans = [valve.travel - 2 * valve.band for valve, _ in self.lines]
+        self._denominator = math.prod(spans)
+        self._scales = tuple(self._denominator // span for span in spans)
 
     def _repaired(self) -> None:
         """A repaired motor and contactor follow the order again from now: a welded contactor
@@ -125,9 +138,15 @@ class Pump(SimDevice, model=PUMP):
         self.dry_reported = False
         self._deliver(t, dt)
 
+    def _openings(self) -> list[int]:
+        """Each line's :func:`opening` times the common denominator (an integer)."""
+        return [_open_span(valve) * scale
+                for (valve, _), scale in zip(self.lines, self._scales, strict=True)]
+
     def _check_dead_head(self, t: int, dt: int) -> None:
-        total = sum((opening(valve) for valve, _ in self.lines), Fraction(0))
-        if self.lines and total < Fraction(self.params["min_opening"]):
+        # sum(opening) < min_opening, as sum(numerators) / D < p / q
+        p, q = self._min_opening
+        if self.lines and sum(self._openings()) * q < p * self._denominator:
             self.dead_us += dt
             if self.dead_us > self.params["deadhead_tolerance"] and not self.dead_reported:
                 self.dead_reported = True
@@ -141,14 +160,23 @@ class Pump(SimDevice, model=PUMP):
 
     def _deliver(self, t: int, dt: int) -> None:
         """Move this step's water from the suction tank into the lines' tanks."""
-        openings = [opening(valve) for valve, _ in self.lines]
-        total = sum(openings, Fraction(0))
+        openings = self._openings()
+        total = sum(openings)  # the lines' opening together, over the denominator
         if total == 0:
             self.delivering = 0
             return
-        share = min(Fraction(1), total)
-        self.delivering = int(self.flow * share)
-        volumes = [int(self.flow * dt * share * f / total) for f in openings]
+        # With fractions f_i = openings_i / D, total T = total / D and share = min(1, T):
+        # delivering = flow * share and line i gets flow * dt * share * f_i / T, truncated.
+        # Every term is a non-negative integer ratio, so truncating is floor division: at
+        # T >= 1 line i gets flow * dt * openings_i // total, below it flow * dt *
+        # openings_i // D (share / T = 1 / D).
+        flow, denominator = self.flow, self._denominator
+        if total >= denominator:
+            self.delivering = flow
+            volumes = [flow * dt * f // total for f in openings]
+        else:
+            self.delivering = flow * total // denominator
+            volumes = [flow * dt * f // denominator for f in openings]
         available = self.suction.take(sum(volumes)) if self.suction is not None else sum(volumes)
         if available < sum(volumes):  # the tank emptied during the step: share what came
             volumes = [v * available // sum(volumes) for v in volumes]
@@ -168,9 +196,19 @@ class Pump(SimDevice, model=PUMP):
     def counters(self) -> dict[str, int]:
         return {"starts": self.starts}
 
+    def state_key(self) -> Hashable:
+        return (self.running, self.delivering)
+
+    def counters_key(self) -> Hashable:
+        return self.starts
+
 
 def opening(valve: Valve) -> Fraction:
     """How far a valve lets water through: 0 while its closed switch would be made (the valve
     rests there, `band` from its end, after a closing), 1 once its open switch would be."""
-    span = valve.travel - 2 * valve.band
-    return Fraction(max(0, min(valve.pos - valve.band, span)), span)
+    return Fraction(_open_span(valve), valve.travel - 2 * valve.band)
+
+
+def _open_span(valve: Valve) -> int:
+    """The numerator of :func:`opening` (its denominator is the valve's span)."""
+    return max(0, min(valve.pos - valve.band, valve.travel - 2 * valve.band))

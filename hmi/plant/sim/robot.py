@@ -16,6 +16,7 @@ A repair (training) clears the stop at once and disarms a skip not yet used.
 
 from __future__ import annotations
 
+from collections.abc import Hashable
 from typing import Any
 
 from hmi.plant.sim.device import PendingFault, SimDevice
@@ -118,6 +119,12 @@ class Robot(SimDevice, model=ROBOT):
 
     def counters(self) -> dict[str, int]:
         return {"transfers": self.transfers}
+
+    def state_key(self) -> Hashable:
+        return (self.mode, self.halted)
+
+    def counters_key(self) -> Hashable:
+        return self.transfers
 
     def task_records(self) -> tuple[TaskRecord, ...]:
         """Each transfer: order given, end reported, time actually worked."""

@@ -61,7 +61,7 @@ from hmi.plant.sim.track import (
     advance,
     beam_steps,
 )
-from hmi.plant.sim.travel import Travel, direction
+from hmi.plant.sim.travel import Travel, direction, free_steps
 from hmi.project.device_models import SORTING_CELL
 from hmi.timefmt import seconds
 
@@ -340,22 +340,28 @@ class _Glide:
     """A run of physics steps that are plain translations, found after a normal step.
 
     Why: boxes glide along the conveyors most of the time, and a step of :meth:`_step` then
-    only adds `speed * dt` to each box's position; everything else it checks (the table
-    turning, boxes touching, walls, exits, drops, a box's centre reaching another surface, a
-    box due from the source) cannot happen for a number of steps that integer arithmetic on
-    the positions gives exactly, and no light beam changes either. For those steps the cell
-    moves the boxes and keeps the sensors it computed. Anything done to the cell otherwise
-    (new orders, a fault, a repair, a box moved or added by hand) ends the glide: the cell
-    checks what it vouched for before each step (:meth:`holds`).
+    only adds `speed * dt` to each box's position, and the table's turn (if ordered) only adds
+    `dt` to its position, or to its stall clock while it is held at an end or jammed;
+    everything else it checks (the table coming into or out of line, an end switch, a stall
+    running out, boxes touching, walls, exits, drops, a box's centre reaching another surface,
+    a box due from the source) cannot happen for a number of steps that integer arithmetic on
+    the positions gives exactly, and no light beam or end switch changes either. For those
+    steps the cell moves the boxes and the table and keeps the sensors it computed. Anything
+    done to the cell otherwise (new orders, a fault, a repair, a box or the table moved or a
+    box added by hand) ends the glide: the cell checks what it vouched for before each step
+    (:meth:`holds`).
     """
 
-    __slots__ = ("boxes", "dt", "expected", "lines", "movers", "sensors", "steps", "turn")
+    __slots__ = ("boxes", "dt", "expected", "lines", "movers", "sensors", "stalling", "steps",
+                 "turn", "turning")
 
     def __init__(self, cell: SortingCell, dt: int, steps: int,
-                 movers: list[tuple[Box, int]]):
+                 movers: list[tuple[Box, int]], turning: int, stalling: bool):
         self.dt = dt
         self.steps = steps
         self.movers = movers  # (box, its position's change per step on its own axis)
+        self.turning = turning  # +1 / -1: the table turns freely that way at every step
+        self.stalling = stalling  # a turn order held without motion: its stall clock runs
         self.boxes = cell.boxes
         self.lines = cell.lines  # rebuilt (a new list) whenever the conveyors change
         self.expected = [(b, b.segment, b.lo) for b in cell.boxes]
@@ -373,22 +379,44 @@ class _Glide:
                 return False
         return True
 
-    def move(self, cell: SortingCell) -> None:
-        """One step: each box on a running surface moves on; nothing else happens."""
-        self.steps -= 1
+    def move(self, cell: SortingCell, count: int) -> None:
+        """`count` steps: each box on a running surface moves on, the table turns on (or its
+        stall clock runs); nothing else happens."""
+        self.steps -= count
         for box, delta in self.movers:
-            box.lo += delta
+            box.lo += delta * count
+        turn = cell.turn
+        if self.turning:  # full steps' motion (Travel.step)
+            turn.pos += self.turning * self.dt * count
+            turn.stall_us = 0
+            turn.stall_reported = False
+        elif self.stalling:
+            turn.stall_us += self.dt * count
         self.expected = [(b, b.segment, b.lo) for b in cell.boxes]
+        self.turn = (turn.pos, turn.jammed)
 
     @classmethod
     def plan(cls, cell: SortingCell, dt: int) -> _Glide | None:
         """How many steps of `dt` from now are plain translations (None: not even one)."""
-        if direction(cell.orders["ROT90"], cell.orders["ROT0"]) or cell.contacts:
+        if cell.contacts:
             return None
         source = cell.source
         if source.queued:
             return None
         steps = (source.next_due - 1 - cell.t) // dt  # steps ending before the next box
+        if steps <= 0:
+            return None
+        drive = direction(cell.orders["ROT90"], cell.orders["ROT0"])
+        turn = cell.turn
+        turning, stalling = 0, False
+        if turn.can_move(drive):  # short of an end switch, of the end, of either end
+            turning = drive
+            steps = min(steps, free_steps(turn, drive, dt, (), NEVER))
+        elif drive:  # held at an end or jammed: short of the stall being reported
+            stalling = True
+            if not turn.stall_reported:
+                tolerance = int(cell.params["stall_tolerance"])
+                steps = min(steps, (tolerance - turn.stall_us) // dt)
         if steps <= 0:
             return None
         beams: dict[int, list[int]] = {}
@@ -428,7 +456,7 @@ class _Glide:
                     steps = min(steps, (gap - TOUCH - 1) // closing)
                     if steps <= 0:
                         return None
-        return cls(cell, dt, steps, movers)
+        return cls(cell, dt, steps, movers, turning, stalling)
 
 
 def _within(x: int, d: int, low: int, high: int) -> int:

@@ -19,7 +19,7 @@ pump act on the tank one after the other).
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Hashable, Mapping
 from typing import Any
 
 from hmi.plant.sim.device import SimDevice
@@ -122,3 +122,9 @@ class Tank(SimDevice, model=TANK):
 
     def counters(self) -> dict[str, int]:
         return {"fills": self.fills}
+
+    def state_key(self) -> Hashable:
+        return round(self.volume / NL_PER_L, 1)  # the level shown, not every nanolitre
+
+    def counters_key(self) -> Hashable:
+        return self.fills

@@ -86,3 +86,15 @@ def direction(forward: bool, backward: bool) -> int:
     if backward and not forward:
         return -1
     return 0
+
+
+def free_steps(travel: Travel, drive: int, dt: int, marks: tuple[int, ...], never: int) -> int:
+    """How many full steps of `dt` a travel moving `drive` (it can move) makes before reaching
+    a position where anything about it changes: its end switches (`band`), its ends, or
+    `marks` (each the first position of a "pos >= mark" test: a transfer point, half the
+    stroke...); `never` when nothing is ahead. The cells' glides stop before it."""
+    pos = travel.pos
+    bounds = (travel.band + 1, travel.travel - travel.band, travel.travel, 1, *marks)
+    if drive > 0:
+        return min(((b - 1 - pos) // dt for b in bounds if b > pos), default=never)
+    return min(((pos - b) // dt for b in bounds if b <= pos), default=never)
