@@ -255,3 +255,36 @@ def test_every_class_on_the_start_path_gets_the_same_methods_from_the_cache(tmp_
     assert fingerprint(str(cache)) == reference
     assert cache.stat().st_size > 0
     assert fingerprint(str(cache)) == reference
+
+
+def _subparsers(parser) -> dict:
+    return next(a for a in parser._actions if a.dest == "command").choices
+
+
+def test_a_command_builds_only_its_own_options_the_same_as_the_whole_parser():
+    """`plchmi COMMAND ...` builds COMMAND's options alone (hmi/cli/entry.py): its help,
+    usage and defaults are those of the whole parser's."""
+    from hmi.cli import entry
+
+    whole = _subparsers(entry.build_parser())
+    assert set(whole) == set(entry.SUBCOMMANDS) == set(entry.COMMANDS)
+    assert {n for names, _, _ in entry.PARTS for n in names} == set(entry.SUBCOMMANDS)
+    for command in entry.SUBCOMMANDS:
+        alone = _subparsers(entry.build_parser(command))
+        assert command in alone and set(alone) <= set(whole)
+        assert alone[command].format_help() == whole[command].format_help(), command
+        assert _options(alone[command]) == _options(whole[command]), command
+
+
+def _options(parser) -> list[str]:
+    return [repr((a.dest, a.default, a.option_strings, a.nargs, a.choices, a.type,
+                  a.required)) for a in parser._actions]
+
+
+def test_the_hmis_start_imports_no_other_commands_module():
+    out = run_python("import json, sys\nfrom hmi.cli.entry import build_parser\n"
+                     "build_parser('ui').parse_args(['ui', 'projects/cispi_valve'])\n"
+                     "print(json.dumps(sorted(m for m in sys.modules if "
+                     "m.startswith('hmi.cli.'))))")
+    assert set(json.loads(out)) == {"hmi.cli.entry", "hmi.cli.common", "hmi.cli.ui",
+                                    "hmi.cli.options", "hmi.cli.session"}
