@@ -6,7 +6,9 @@ script: a control variant, a policy and a diagnosis mode drawn at the start, the
 commands at random scans (manual mode and manual orders, policy changes, fault injections
 and repairs, fault resets, devices stopped and released, recoveries started and left).
 Every deterministic field of every snapshot must be the same (only the measured wall times
-differ). The golden traces (tests/test_golden.py) pin the recorded behaviour; this test pins
+differ). The reference also searches every correction afresh, where the compiled engine's
+filter gives again a correction it found before (SafetyFilter.remember). The golden traces
+(tests/test_golden.py) pin the recorded behaviour; this test pins
 the two implementations to each other in situations no golden case scripts.
 """
 
@@ -82,6 +84,7 @@ def twin_run(name: str, seed: int) -> int:
     engines = [Engine(project, SimPlant(project), control=control, policy=policy,
                       diagnosis=diagnosis, compiled=flag) for flag in (True, False)]
     assert engines[0].compiled is not None and engines[1].compiled is None
+    engines[1].filter.remember = False  # the reference searches every correction afresh
     period = project.scan_period_us
     seen: tuple[int, tuple] | None = None
     for k in range(SCANS):

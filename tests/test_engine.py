@@ -82,6 +82,10 @@ def test_an_internal_error_puts_outputs_safe_and_says_so():
         raise RuntimeError("solver bug")
     working = ctl.engine.filter_stage.apply
     ctl.engine.filter_stage.apply = broken
+    compiled = ctl.engine.compiled  # the filter's first question, asked by the scan itself
+    assert compiled is not None
+    test = compiled.violated
+    compiled.violated = broken
     s = ctl.scan_once()
     assert s.outputs == (False, False) and s.latched[0].source == "internal"
     assert "solver bug" in s.error
@@ -89,6 +93,7 @@ def test_an_internal_error_puts_outputs_safe_and_says_so():
     s = ctl.scan_once()
     assert s.outputs == (False, False)  # stays safe until a fault reset
     ctl.engine.filter_stage.apply = working
+    compiled.violated = test
     assert "safe-state latch released" in ctl.command(FaultReset()).message
     assert ctl.scan_once().latched == ()
 

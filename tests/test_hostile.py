@@ -30,7 +30,7 @@ from hmi.limits import (
 )
 from hmi.logic.expr import ExprError, parse_expr
 from hmi.project.loader import load_project
-from hmi.project.yamlnodes import compose_text
+from hmi.project.yamlcompose import compose_text
 from tests.bounds import bounded, run_cli
 from tests.conftest import PROJECTS, ROOT
 from tests.test_malformed import project_text

@@ -1,11 +1,13 @@
 """What the HMI's start keeps across processes (issue 18 goal 1, docs/performance.md): the
-compiled scan's code (hmi.codecache.kept_codes) and the loaded project (hmi.project.kept).
+compiled scan's code (hmi.codecache.kept_codes), the loaded project (hmi.project.kept).
 Each is used only when what it stands for would come out the same, and then runs the same:
 checked here against the uncached path, scan by scan. How much faster the start is, is
-measured by `plchmi bench startup`, never here."""
+measured by `plchmi bench startup`, never here. Also Textual's parsed stylesheets
+(hmi.ui.csscache): the same rules, the same screens."""
 
 from __future__ import annotations
 
+import contextlib
 import marshal
 import os
 import re
@@ -13,6 +15,7 @@ import shutil
 from pathlib import Path
 
 import pytest
+from textual.css.stylesheet import Stylesheet, StylesheetParseError
 
 from hmi.codecache import kept_codes, source_fingerprint
 from hmi.engine import codegen
@@ -24,6 +27,11 @@ from hmi.plant.sim.plant import SimPlant
 from hmi.project import kept
 from hmi.project.loader import load_project
 from hmi.session.session import Session
+from hmi.ui import csscache
+from hmi.ui.csscache import kept_css
+from hmi.ui.dialogs import ConfirmDialog
+from hmi.ui.scenarios import make_app
+from hmi.ui.testing import press, settle, wait_for_screen
 
 EXAMPLES = sorted(p.name for p in PROJECTS.iterdir() if (p / "project.yaml").is_file())
 SCANS = 1500
@@ -251,3 +259,81 @@ def test_nothing_is_kept_when_bytecode_writing_is_off(tmp_path, monkeypatch):
     cache = tmp_path / "kept"
     kept.load(PROJECTS / "cispi_valve", folder=cache)
     assert not cache.exists()
+
+
+# -- Textual's parsed stylesheets ------------------------------------------------------------
+
+def rules_seen(app) -> list[tuple]:
+    """Every rule of the app's stylesheet as data: selectors, declared styles (a layout by
+    its repr: Textual makes a new one per parse), flags."""
+    return [(repr(rule.selector_set), sorted((k, repr(v)) for k, v in rule.styles._rules.items()),
+             rule.is_default_rules, rule.tie_breaker, sorted(rule.selector_names),
+             sorted(rule.pseudo_classes)) for rule in app.stylesheet.rules]
+
+
+async def screens(css: Path | None, size: tuple[int, int]) -> tuple[list, list[str], object]:
+    """The app's rules, its screen and its quit dialog (whose CSS is parsed when it opens),
+    with the kept stylesheets at `css` (None: without)."""
+    with (kept_css(css, write=True) if css else contextlib.nullcontext()) as kept:
+        app = make_app()
+        async with app.run_test(size=size) as pilot:
+            await settle(pilot)
+            shots = [app.export_screenshot()]
+            await press(pilot, "ctrl+q")
+            await wait_for_screen(pilot, ConfirmDialog)
+            shots.append(app.export_screenshot())
+            rules = rules_seen(app)
+            await press(pilot, "escape")
+    return rules, shots, kept
+
+
+@pytest.mark.parametrize("size", [(80, 24), (120, 36)])
+async def test_kept_stylesheets_give_the_same_rules_and_the_same_screens(tmp_path, size):
+    css = tmp_path / "css.pickle"
+    reference = await screens(None, size)
+    first = await screens(css, size)
+    assert first[2].parsed > 0 and css.exists()
+    again = await screens(css, size)
+    assert again[2].hits > 0 and again[2].parsed == 0  # every stylesheet read back
+    assert again[0] == first[0] == reference[0]
+    assert again[1] == first[1] == reference[1]
+
+
+def test_other_variables_another_textual_or_errors_are_not_taken_from_the_cache(tmp_path,
+                                                                              monkeypatch):
+    css = tmp_path / "css.pickle"
+    text = "Label { color: $accent; padding: 1 2; }"
+
+    def parse(variables: dict[str, str]) -> tuple[list, object]:
+        with kept_css(css, write=True) as kept:
+            sheet = Stylesheet(variables=variables)
+            sheet.add_source(text, ("test.tcss", ""))
+            sheet.parse()
+        return [repr(r.styles._rules) for r in sheet.rules], kept
+
+    red, kept = parse({"accent": "red"})
+    assert kept.parsed == 1
+    assert parse({"accent": "red"})[1].hits == 1
+    blue, kept = parse({"accent": "blue"})
+    assert kept.parsed == 1 and blue != red and "Color(0, 0, 255)" in blue[0]
+    with kept_css(css, write=True) as kept:  # a CSS error: said as usual, never kept
+        sheet = Stylesheet()
+        sheet.add_source("Label { colour: red; }", ("bad.tcss", ""))
+        with pytest.raises(StylesheetParseError):
+            sheet.parse()
+        assert kept.parsed == 1
+    assert len(csscache._read(css)) == 2
+    css.write_bytes(csscache.HEADER + b"damaged")
+    assert parse({"accent": "red"})[1].parsed == 1
+    monkeypatch.setattr(csscache, "TEXTUAL", "0.0.1")
+    with kept_css(css) as kept:
+        assert kept is None
+        assert Stylesheet._parse_rules is vars(Stylesheet)["_parse_rules"]
+        assert not getattr(Stylesheet._parse_rules, "kept_css", False)
+
+
+def test_the_stylesheet_cache_is_checked_against_the_pinned_textual():
+    """The cache wraps a private method of Textual: it was checked against this version;
+    another one turns it off (above), and this test says to check it again."""
+    import textual
+    assert textual.__version__ == csscache.TEXTUAL

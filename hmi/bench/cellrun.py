@@ -90,6 +90,9 @@ def measure(project: Project, control: str, duration_us: int, policy: str = "cor
     for item in inject:
         plant.inject(item if isinstance(item, Injection) else parse_injection(item))
     engine = Engine(project, plant, control=control, policy=policy, solver=strategy)
+    # This bench measures the corrector: every correction is searched, none given again
+    # from the filter's memory (SafetyFilter.remember).
+    engine.filter.remember = False
     run = CellRun(project.name, control, policy, strategy)
     filter_us = run.filter_us
     period = project.scan_period_us

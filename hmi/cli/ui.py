@@ -69,6 +69,7 @@ def _run_hmi(args: argparse.Namespace, controller, injections) -> int:
     connection; whatever ends it, the journal says how (and a real plant is left safe)."""
     from hmi.opcua.options import start_server
     from hmi.ui.app import run_app
+    from hmi.ui.csscache import kept_css
     engine = controller.engine
     project = engine.project
     clock = controller.clock
@@ -81,9 +82,10 @@ def _run_hmi(args: argparse.Namespace, controller, injections) -> int:
         announce(server, project.name)
         if clock is not None:
             connect_plant(engine, args.connect_timeout)
-        end = run_app(controller, injected=tuple(injections),
-                      on_fault=recorder.on_ui_fault, bell=getattr(args, "bell", False),
-                      served=server)
+        with kept_css() as css:  # Textual's stylesheets as parsed at an earlier start
+            end = run_app(controller, injected=tuple(injections),
+                          on_fault=recorder.on_ui_fault, bell=getattr(args, "bell", False),
+                          served=server, on_first_frame=css.save if css else None)
         if end.reason is not None:
             print(f"plchmi: the HMI ended on an error: {end.reason}", file=sys.stderr)
         return end.status

@@ -12,7 +12,8 @@ compiled here is the same work written out flat (hmi.engine.codegen): for the au
 * ``violated(v, h, f)``: whether the candidate `f` violates any safety constraint (stage 6's
   first question: most scans violate none, and then the filter has nothing else to do);
 * ``monitors(v, h, now, scan)``: the stopwatch monitors after the output scan; True when an
-  automaton moved.
+  automaton moved;
+* ``elapsed(now)``: the timers' ET for the snapshot.
 
 Every function works on the stage objects' own state (a timer's ``since``, a diagnoser's
 ``current``, a GRAFCET's ``activated_at``) and hands the rare events to the stage's own
@@ -45,6 +46,7 @@ if TYPE_CHECKING:
 CoreFn = Callable[[Image, History, int, int], tuple[bool, ...]]
 ViolatedFn = Callable[[Image, History, tuple[bool, ...]], bool]
 MonitorFn = Callable[[Image, History, int, int], bool]
+ElapsedFn = Callable[[int], tuple[int, ...]]
 
 
 class CompiledScan:
@@ -61,6 +63,7 @@ class CompiledScan:
         self.violated: ViolatedFn = self._violated(safety_filter)
         self.monitors: MonitorFn | None = (self._monitors(monitors) if monitors is not None
                                            else None)
+        self.elapsed: ElapsedFn = self._elapsed(memory)
 
     def _expr(self, node: Node, times: Mapping[str, int] | None = None) -> str:
         return expr_source(node, self.slots, self.times if times is None else times)
@@ -246,6 +249,18 @@ class CompiledScan:
                 src.line(1, f"v[{s}] = {set_} or (v[{s}] and (not {reset}))")
             else:
                 src.line(1, f"v[{s}] = (not {reset}) and ({set_} or v[{s}])")
+
+    def _elapsed(self, memory: Memory) -> ElapsedFn:
+        """``elapsed(now)``: each timer's ET for the snapshot, as Memory.elapsed."""
+        src = Source()
+        parts = []
+        for runtime, _, _ in memory.timers:
+            r, preset = src.ref(runtime), int(runtime.preset)
+            parts.append(f"(0 if {r}.since is None else (now - {r}.since if now - {r}.since < "
+                         f"{preset} else {preset})), ")
+        src.line(1, "return (" + "".join(parts) + ")")
+        fn: ElapsedFn = self._build(src, "elapsed", "now")
+        return fn
 
     # -- stage 6's first question ------------------------------------------------------------
     def _violated(self, safety_filter: SafetyFilter) -> ViolatedFn:

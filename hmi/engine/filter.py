@@ -165,6 +165,7 @@ def unpack(v: int, n: int) -> tuple[bool, ...]:
 # --------------------------------------------------------------------------------------------
 
 PACKED_CACHE = 4096  # distinct candidate vectors remembered (cleared when full)
+CORRECTION_CACHE = 4096  # corrections remembered (cleared when full)
 
 
 @dataclass(frozen=True)
@@ -232,6 +233,12 @@ class SafetyFilter:
         self._by_active: dict[tuple[int, ...], _ActiveSet] = {}
         # Candidate vectors as packed integers: a cell asks for few distinct vectors.
         self._packed: dict[tuple[bool, ...], int] = {}
+        # Corrections already found, by (candidate, active constraints): the corrector is a
+        # function of these (its search is bounded in steps, not in time, unless a live run
+        # set wall_limit_us), and a cell asks for the same repair scan after scan.
+        self._corrections: dict[tuple[int, tuple[int, ...]],
+                                tuple[tuple[bool, ...], FilterReport]] = {}
+        self.remember = True  # False: every correction searched afresh (the tests' reference)
         # The report of a scan with nothing violated, per policy: immutable, built once.
         self._clean_monitor = FilterReport("monitor", strategy)
         self._clean_block = FilterReport("block", strategy)
@@ -281,8 +288,22 @@ class SafetyFilter:
             # Common case: the candidate violates nothing, so it is written unchanged (a
             # conflict between simple constraints would show as a violation).
             return FilterDecision(fov, self._clean_correct)
-        return FilterDecision(*self._correct(fov, candidate, self.active(image, history),
-                                             violations))
+        active = self.active(image, history)
+        if self.wall_limit_us is not None or not self.remember:
+            # (a search cut by wall time depends on the machine: never given again)
+            return FilterDecision(*self._correct(fov, candidate, active, violations))
+        key = (candidate, tuple(map(id, active)))
+        found = self._corrections.get(key)
+        if found is not None:
+            return FilterDecision(*found)
+        written, report = self._correct(fov, candidate, active, violations)
+        if len(self._corrections) >= CORRECTION_CACHE:
+            self._corrections.clear()
+        # Given again, the same decision and report, except that no search ran for it then
+        # (solver_us 0; tested and steps still say what finding it took).
+        self._corrections[key] = (written, report._replace(solver_us=0.0)
+                                  if report.solver_us else report)
+        return FilterDecision(written, report)
 
     def _active_set(self, active: Sequence[CompiledConstraint]) -> _ActiveSet:
         key = tuple(map(id, active))

@@ -184,6 +184,9 @@ class MonitorStage:
         return lines
 
 
+_X, _Y = MonitorState._fields.index("x_us"), MonitorState._fields.index("y_us")
+assert _Y == _X + 1, "_at rebuilds MonitorState around x_us, y_us"
+
 # A task's base: its state, when its automaton last advanced (TaskAutomaton.last_us), and
 # its phase then.
 Base = tuple[MonitorState, int, Phase]
@@ -227,8 +230,9 @@ def _at(base: Base, now: int) -> MonitorState:
     if phase is IDLE or now == since:
         return state
     elapsed = now - since
-    return state._replace(x_us=state.x_us + elapsed,
-                          y_us=state.y_us + elapsed if phase is RUNNING else state.y_us)
+    y = state.y_us + elapsed if phase is RUNNING else state.y_us
+    # MonitorState._replace without its cost (a dict and a map per call)
+    return tuple.__new__(MonitorState, (*state[:_X], state.x_us + elapsed, y, *state[_Y + 1:]))
 
 
 def _state(head: tuple[str, str, str, str | None], a: TaskAutomaton,

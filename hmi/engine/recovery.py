@@ -112,6 +112,7 @@ class RecoveryStage:
              tuple(dict.fromkeys(devices[o] for o in p.spec.outputs if o in devices)))
             for p in self.procedures.values())
         self._idle = RecoveryState(procedures=self.catalogue)
+        self._shown_needed: RecoveryState | None = None
 
     # -- commands (through the engine) ------------------------------------------------------
     def start(self, name: str, now: int) -> None:
@@ -201,8 +202,13 @@ class RecoveryStage:
     def state(self, now: int) -> RecoveryState:
         proc = self.active
         if proc is None:
-            return RecoveryState(needed=self.needed, procedures=self.catalogue) \
-                if self.needed else self._idle
+            if not self.needed:
+                return self._idle
+            shown = self._shown_needed  # the same needs: the same state (read every scan)
+            if shown is None or shown.needed != self.needed:
+                shown = self._shown_needed = RecoveryState(needed=self.needed,
+                                                           procedures=self.catalogue)
+            return shown
         spec = proc.spec
         step_text = spec.steps[self.step].description if self.status == "running" else ""
         return RecoveryState(spec.name, spec.device, spec.description, self.status,

@@ -45,10 +45,17 @@ from hmi.engine.layout import Layout
 from hmi.engine.monitors import monitor_stage
 from hmi.engine.recovery import NO_RECOVERY, recovery_stage
 from hmi.engine.snapshot import LatchReason, Snapshot
-from hmi.engine.stages import Control, InputScan, Memory, OutputScan, Reconstruction
+from hmi.engine.stages import (
+    Control,
+    InputScan,
+    Memory,
+    OutputScan,
+    Reconstruction,
+    plant_detail,
+)
 from hmi.errors import UsageError
 from hmi.logic.expr import Expr, Image, max_depth
-from hmi.plant.base import Plant
+from hmi.plant.base import Plant, PlantError
 from hmi.project.diagnosers import layout_names
 from hmi.project.model import POLICIES, Project
 from hmi.project.recovery import recoveries_of
@@ -161,6 +168,10 @@ class Engine:
                          if compiled and not self.observe else None)
         if self.compiled is not None:  # the filter's first question, compiled
             self.filter_stage.quick = self.compiled.violated
+        self._bindings = self.input_scan.bindings
+        self._elapsed = (self.compiled.elapsed if self.compiled is not None
+                         else self.memory.elapsed)
+        self._clean = self.filter_stage.clean  # each policy's report of a clean scan
 
     # -- commands ----------------------------------------------------------------------------
     def apply(self, command: Command) -> CommandResult:
@@ -418,12 +429,14 @@ class Engine:
         recovery), on the same state."""
         self.scan += 1
         self.now = now
+        fast = self.compiled
+        if fast is not None and self.started and self.mode == "auto" and not self._stop_mask:
+            return self._auto_cycle(now, fast)
         image = self.image
         error = None
         report: FilterReport | None = None
         diagnosis = self.diagnosis.current if self.diagnosis else NO_DIAGNOSIS
         filter_us = 0.0
-        fast = self.compiled
         try:
             # 1. input scan
             lost = self.input_scan.read(image, now)
@@ -495,24 +508,83 @@ class Engine:
         # 7. output scan
         for slot, value in zip(self.output_slots, outputs, strict=True):
             image[slot] = value
+        monitored, error = self._output_scan(now, outputs, error, fast)
+        return fov, outputs, report, diagnosis, monitored, error, filter_us
+
+    def _auto_cycle(self, now: int, fast: CompiledScan
+                    ) -> tuple[tuple[bool, ...], tuple[bool, ...], FilterReport | None,
+                               Diagnosis, bool, str | None, float]:
+        """:meth:`_cycle` in automatic mode, compiled, once started, no device stopped: the
+        same stages with the branches that cannot apply left out (most scans of a run).
+        When the filter lets the law's vector through, the image already holds it."""
+        image = self.image
+        hist = self.history
+        stage = self.diagnosis
+        diagnosis = stage.current if stage is not None else NO_DIAGNOSIS
+        report: FilterReport | None = None
+        error = None
+        filter_us = 0.0
+        try:
+            try:  # 1. input scan
+                self.plant.read_into(now, image, self._bindings)
+            except PlantError as exc:  # as in _cycle: memories, timers and steps hold
+                self.latch_safe("plant", plant_detail(exc))
+                raise _InputsUnknown from None
+            # 2-5 compiled: memory, diagnosers, reconstruction, recoveries needed, law
+            fov = fast.core(image, hist, now, self.scan)
+            if stage is not None:
+                diagnosis = stage.current
+            mask = diagnosis.mask
+            # 6. filter: given without its work when nothing is masked, latched nor violated
+            policy = self.policy
+            started = time.perf_counter()
+            if mask is None and not self.latched and not fast.violated(image, hist, fov):
+                report = self._clean[policy]
+                filter_us = (time.perf_counter() - started) * 1e6
+                monitored, error = self._output_scan(now, fov, None, fast)
+                return fov, fov, report, diagnosis, monitored, error, filter_us
+            decision = self.filter_stage.apply(image, hist, fov, policy, bool(self.latched),
+                                               mask)
+            filter_us = (time.perf_counter() - started) * 1e6
+            if decision.latch is not None:
+                self.latch_safe("filter", decision.latch)
+            outputs = decision.outputs
+            report = decision.report
+            if self.latched:
+                outputs = self.safe_vector
+        except _InputsUnknown:
+            fov = outputs = self.safe_vector
+        except Exception as exc:  # never leave the plant driven by a half-computed scan
+            error = f"{type(exc).__name__}: {exc}"
+            self.latch_safe("internal", f"internal error at scan {self.scan}: {error}")
+            fov = outputs = self.safe_vector
+        for slot, value in zip(self.output_slots, outputs, strict=True):  # 7. output scan
+            image[slot] = value
+        monitored, error = self._output_scan(now, outputs, error, fast)
+        return fov, outputs, report, diagnosis, monitored, error, filter_us
+
+    def _output_scan(self, now: int, outputs: tuple[bool, ...], error: str | None,
+                     fast: CompiledScan | None) -> tuple[bool, str | None]:
+        """Stage 7's write to the plant (the image holds `outputs` already), then stage 8,
+        the monitors, on the I/O this scan exchanged (their states: Engine._snapshot).
+        Returns whether the monitors ran and the scan's error."""
         if not self.observe:
             lost = self.output_scan.write(now, outputs)
             if lost is not None:
                 self.latch_safe("plant", lost)
-        # 8. monitors, on the I/O this scan exchanged (their states: Engine._snapshot)
-        monitored = False
-        if self.monitors is not None:
-            try:
-                if fast is not None and fast.monitors is not None:
-                    fast.monitors(image, self.history, now, self.scan)
-                else:
-                    self.monitors.step(image, self.history, now, self.scan)
-                monitored = True
-            except Exception as exc:  # a broken monitor must not stop the scan silently
-                message = f"{type(exc).__name__}: {exc}"
-                error = error or message
-                self.latch_safe("internal", f"internal error at scan {self.scan}: {message}")
-        return fov, outputs, report, diagnosis, monitored, error, filter_us
+        monitors = self.monitors
+        if monitors is None:
+            return False, error
+        try:
+            if fast is not None and fast.monitors is not None:
+                fast.monitors(self.image, self.history, now, self.scan)
+            else:
+                monitors.step(self.image, self.history, now, self.scan)
+        except Exception as exc:  # a broken monitor must not stop the scan silently
+            message = f"{type(exc).__name__}: {exc}"
+            self.latch_safe("internal", f"internal error at scan {self.scan}: {message}")
+            return False, error or message
+        return True, error
 
     def _start(self, now: int) -> None:
         self.control.reset(self.image, now)
@@ -555,7 +627,7 @@ class Engine:
         return tuple.__new__(Snapshot, (
             self.scan, now, self.project.scan_period_us, self.layout, values,
             tuple(fov), tuple(outputs), self.control.active_steps(self.image),
-            self.control.fired, self.memory.elapsed(now), self.control_name, self.mode,
+            self.control.fired, self._elapsed(now), self.control_name, self.mode,
             tuple(sorted(self.manual.items())) if self.manual else (), self.policy,
             tuple(self.latched), plant.status, plant.state(), plant.counters(),
             plant.take_events(), report, diagnosers,

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 from hmi.errors import ProjectError, SourcePos, display_path
 from hmi.logic.expr import ExprError, StepTime, Var, parse_expr, walk
 from hmi.logic.names import NAME_RE, RESERVED, STEP_RE
-from hmi.project.yamlnodes import NodeError, YNode, expr_start, load_yaml
+from hmi.project.yamlnodes import NodeError, YNode, expr_start
 
 if TYPE_CHECKING:
     from hmi.project.reader import ProjectReader
@@ -77,6 +77,8 @@ class ComponentDef:
 
 def read_component(loader: ProjectReader, path: Path) -> ComponentDef | None:
     """Read and validate one component file; report its errors once, return None if any."""
+    from hmi.project.yamlcompose import load_yaml  # PyYAML: not for a project read back
+
     display = display_path(path)
     try:
         root = load_yaml(path, display)

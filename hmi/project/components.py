@@ -68,7 +68,7 @@ from hmi.project.component_file import (
 )
 from hmi.project.confine import Refused, component_roots, confined_file
 from hmi.project.texts import ProjectTexts, TextSpec
-from hmi.project.yamlnodes import YNode, load_yaml
+from hmi.project.yamlnodes import YNode
 
 if TYPE_CHECKING:
     from hmi.project.reader import ProjectReader
@@ -407,6 +407,8 @@ def _article(kind: str) -> str:
 def _add_sections(loader: ProjectReader, inst: ComponentInstance, result: Components) -> None:
     """Read the component's YAML again for this instance (positions carrying the instance),
     rename its items and references, and queue them for the loader's sections."""
+    from hmi.project.yamlcompose import load_yaml  # PyYAML: not for a project read back
+
     comp = inst.component
     root = load_yaml(comp.path, comp.file)  # read cleanly once already
     _set_context(root, inst.context)

@@ -38,7 +38,7 @@ from hmi.project.variables import (
     read_timer,
     read_variables,
 )
-from hmi.project.yamlnodes import YNode, load_yaml
+from hmi.project.yamlnodes import YNode
 from hmi.timefmt import format_duration
 
 PROJECT_FILE = "project.yaml"
@@ -97,6 +97,8 @@ class ProjectLoader(ProjectReader):
 
     # -- top level --------------------------------------------------------------------------
     def load(self) -> Project:
+        from hmi.project.yamlcompose import load_yaml  # PyYAML: not for a project read back
+
         display = display_path(self.file)
         root = load_yaml(self.file, display)
         self.files.append(display)
@@ -148,6 +150,7 @@ class ProjectLoader(ProjectReader):
                             "a YAML file in the project folder")
             return
         display = display_path(path)
+        from hmi.project.yamlcompose import load_yaml
         try:
             root = load_yaml(path, display)
         except ProjectError as exc:

@@ -190,6 +190,8 @@ class PlcHmiApp(ContainedPump, App):
         # UI errors: contained and shown (banner, journal), or the reason the app ended
         self.containment = Containment(lambda: (engine.scan, engine.now))
         self._test_fault: testhooks.Armed | None = None
+        # told once the first frame is on the screen (the start's caches save then)
+        self.first_frame_listeners: list[Callable[[], None]] = []
         self.set_class(True, f"-theme-{self.theme}", update=False)  # as a theme change sets
 
     def get_css_variables(self) -> dict[str, str]:
@@ -273,7 +275,12 @@ class PlcHmiApp(ContainedPump, App):
         # what a test sees depend on the machine's load
         # Start scanning once the first screen is drawn: the first layout is the heaviest
         # thing the UI does and would otherwise make the first scans late.
-        self.call_after_refresh(self.driver.start)
+        self.call_after_refresh(self._first_frame_shown)
+
+    def _first_frame_shown(self) -> None:
+        self.driver.start()
+        for listener in self.first_frame_listeners:
+            listener()
 
     def on_unmount(self) -> None:
         self.driver.stop()
@@ -1217,17 +1224,20 @@ class AppEnd:
 
 def run_app(target: Engine | Session, clock=None, injected: tuple[Injection, ...] = (),
             on_fault: Callable[[UIFault], None] | None = None, bell: bool = False,
-            served: Served | None = None) -> AppEnd:
+            served: Served | None = None,
+            on_first_frame: Callable[[], None] | None = None) -> AppEnd:
     """Run the HMI live on an engine, or on a controller others listen to (the journal).
 
     A real plant passes a wall clock to stamp its scans (see hmi.session.live.WallClock);
     `injected` are the faults the command line scheduled in a simulated plant; `on_fault`
     is told of every UI error (the journal); `served` is the cell's OPC UA server, whose
-    state the screen shows."""
+    state the screen shows; `on_first_frame` is called once the first frame is shown."""
     controller = target if isinstance(target, Session) else Session(target, clock=clock)
     app = PlcHmiApp(controller, injected=injected, bell=bell, served=served)
     if on_fault is not None:
         app.containment.listeners.append(on_fault)
+    if on_first_frame is not None:
+        app.first_frame_listeners.append(on_first_frame)
     app.run()
     return app_end(app)
 

@@ -1,0 +1,127 @@
+"""Textual's parsed stylesheets, kept across starts (issue 18 goal 1, docs/performance.md).
+
+At every start Textual parses the HMI's ``.tcss`` files and the default CSS of every widget
+class it mounts, with the theme's variables substituted: about 17 ms of the CPU time to the
+first frame. The rules a parse gives (``RuleSet`` objects: selectors and declared styles)
+are plain data; read back with pickle they cost about 1.5 ms. Inside :func:`kept_css`,
+``Stylesheet._parse_rules`` (the one place Textual turns CSS text into rules; it keeps an
+in-process cache of its own there) first looks in what earlier starts kept under a digest
+of everything the parse reads: the CSS text, where it was read from, its default/scope/
+tie-breaker flags and every variable's value. A text that parses with errors is never kept
+(Textual reports it as usual).
+
+``_parse_rules`` is Textual's, not a public interface: the cache works with the Textual
+version it was checked against (TEXTUAL, the version pyproject.toml pins) and stays out of
+the way with any other. The file sits beside hmi's bytecode, written under the bytecode's
+rule (hmi/codecache.py) and trusted as it is.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import pickle
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import textual
+from textual.css.stylesheet import Stylesheet
+
+from hmi.codecache import read_file, write_file, writing
+
+TEXTUAL = "8.2.8"  # the version whose Stylesheet._parse_rules this wraps
+DEFAULT_PATH = (Path(__file__).resolve().parents[1] / "__pycache__"
+                / f"textual-css.{sys.implementation.cache_tag}.pickle")
+HEADER = f"plchmi kept css 1 textual {TEXTUAL}\n".encode()
+MAX_ENTRIES = 256  # past this (stylesheets of older versions of the HMI), start afresh
+
+
+class KeptCss:
+    """Parsed rules by the digest of what their parse read, pickled: each stylesheet reads
+    them back as new objects, as its own parse would give (Textual keeps parsed rules per
+    stylesheet, and builds a new stylesheet to parse again when the variables change)."""
+
+    def __init__(self, path: Path, write: bool | None = None) -> None:
+        self.path = path
+        self.write = write  # None: the bytecode's rule
+        self.entries: dict[str, bytes] = _read(path)
+        self.hits = 0
+        self.parsed = 0
+        self._unsaved = False
+
+    def rules(self, parse: Any, stylesheet: Stylesheet, css: str, read_from: Any,
+              is_default_rules: bool, tie_breaker: int, scope: str) -> list[Any]:
+        """What ``parse`` (Textual's ``_parse_rules``) would return."""
+        in_process = stylesheet._parse_cache
+        cache_key = (css, read_from, is_default_rules, tie_breaker, scope)
+        rules = in_process.get(cache_key)
+        if rules is not None:  # as Textual's own method answers it
+            return rules
+        key = hashlib.blake2b(repr((*cache_key, sorted(stylesheet._variables.items())))
+                              .encode("utf-8", "surrogatepass"), digest_size=20).hexdigest()
+        kept = self.entries.get(key)
+        if kept is not None:
+            with contextlib.suppress(Exception):  # anything unreadable: parsed again
+                rules = pickle.loads(kept)
+        if isinstance(rules, list):
+            self.hits += 1
+            in_process[cache_key] = rules
+            return rules
+        rules = parse(stylesheet, css, read_from, is_default_rules, tie_breaker, scope)
+        self.parsed += 1
+        if not any(rule.errors for rule in rules):
+            # pickled now, before anything else holds (and might change) them
+            self.entries[key] = pickle.dumps(rules, pickle.HIGHEST_PROTOCOL)
+            self._unsaved = True
+        return rules
+
+    def save(self) -> None:
+        """Write the file if something was parsed since the last save."""
+        if not self._unsaved or not writing(self.write):
+            return
+        self._unsaved = False
+        entries = self.entries if len(self.entries) <= MAX_ENTRIES else {}
+        write_file(self.path, HEADER, pickle.dumps(entries, pickle.HIGHEST_PROTOCOL))
+
+
+def _read(path: Path) -> dict[str, bytes]:
+    body = read_file(path, HEADER)
+    if body is None:
+        return {}
+    try:
+        entries = pickle.loads(body)
+    except Exception:  # damaged: rebuilt
+        return {}
+    if not isinstance(entries, dict):
+        return {}
+    return {k: v for k, v in entries.items() if isinstance(k, str) and isinstance(v, bytes)}
+
+
+@contextlib.contextmanager
+def kept_css(path: Path = DEFAULT_PATH, write: bool | None = None) -> Iterator[KeptCss | None]:
+    """Stylesheets parsed inside read their rules from what earlier starts kept at `path`;
+    what was parsed is kept at the end, or before with :meth:`KeptCss.save` (the HMI saves
+    once its first frame is shown: an operator's HMI is rarely quit cleanly). `write`:
+    default, the bytecode's rule. Yields None and changes nothing with another Textual
+    version, or when already inside."""
+    original = Stylesheet.__dict__["_parse_rules"]
+    if textual.__version__ != TEXTUAL or getattr(original, "kept_css", False):
+        yield None
+        return
+    kept = KeptCss(path, write)
+
+    def parse_rules(self: Stylesheet, css: str, read_from: Any,
+                    is_default_rules: bool = False, tie_breaker: int = 0,
+                    scope: str = "") -> list[Any]:
+        return kept.rules(original, self, css, read_from, is_default_rules, tie_breaker,
+                          scope)
+
+    parse_rules.kept_css = True  # type: ignore[attr-defined]
+    Stylesheet._parse_rules = parse_rules  # type: ignore[method-assign]
+    try:
+        yield kept
+    finally:
+        Stylesheet._parse_rules = original  # type: ignore[method-assign]
+        kept.save()
