@@ -176,23 +176,28 @@ class RunCollector:
         self.explanations = {}
         from hmi.diag_report import DiagnosisLog
         self.diagnosis = DiagnosisLog()
+        self._nothing = None  # the last filter report that counted nothing (reports are
+        # immutable: the same one counts nothing again)
 
     def add(self, snap) -> None:
         self.scans += 1
         self.monitors.add(snap)
         self.diagnosis.add(snap)
-        self.events.extend(snap.plant_events)
+        if snap.plant_events:
+            self.events.extend(snap.plant_events)
         if snap.alarm_events:
             self.alarm_events.extend(snap.alarm_events)
-        for explanation in snap.explanations:
-            if explanation.alarm:
-                self.explanations[explanation.key] = explanation
+        if snap.explanations:
+            for explanation in snap.explanations:
+                if explanation.alarm:
+                    self.explanations[explanation.key] = explanation
         report = snap.filter
         # (a report with nothing violated, changed, left or fallen back on counts nothing:
-        # most scans' report, tested in a few reads)
-        if report is not None and (report.violations or report.changes or report.residual
-                                   or report.fallback or report.safe_state
-                                   or report.distance):
+        # most scans' report, tested in a few reads; and a scan that reuses the very report
+        # last found so, without reading it again)
+        if report is not None and report is not self._nothing and (
+                report.violations or report.changes or report.residual or report.fallback
+                or report.safe_state or report.distance):
             for name in report.violated_names:
                 self.violations[name] = self.violations.get(name, 0) + 1
             if report.safe_state:
@@ -205,6 +210,8 @@ class RunCollector:
                 self.fallbacks += 1
                 self.search_stops += bool(getattr(report, "stopped", ""))
             self.max_distance = max(self.max_distance, report.distance)
+        else:
+            self._nothing = report
         if snap.latched and self.first_latch is None:
             reason = snap.latched[0]
             self.first_latch = (reason.scan, reason.time_us, reason.detail)

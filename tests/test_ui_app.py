@@ -117,6 +117,35 @@ async def test_the_footer_forgets_the_keys_it_removed():
             {name: len(entries) for name, entries in watchers.items()}
 
 
+async def test_the_footer_recomposes_once_for_the_changes_of_one_refresh(monkeypatch):
+    """The bindings change several times before the first frame (the start, the focus
+    given to the I/O table, the first snapshot shown): one recompose per refresh, with the
+    bindings as they are then, not one per change (4 before the first frame, each
+    building and styling every key again); each key is compact (the footer's setting)
+    from birth instead of being restyled once mounted."""
+    from textual.widgets._footer import FooterKey
+
+    from hmi.ui.footer import HmiFooter
+
+    focused = []
+    recompose = HmiFooter.recompose
+
+    async def counted(self) -> None:
+        focused.append(self.screen.focused)
+        await recompose(self)
+    monkeypatch.setattr(HmiFooter, "recompose", counted)
+    app = make_app()
+    async with app.run_test(size=SIZE) as pilot:
+        await run_for(pilot, 0.1)
+        assert len(focused) == 2, focused
+        await press(pilot, "tab")  # the focus moves: the keys of the alarm list
+        assert len(focused) > 2 and focused[-1] is app.screen.focused
+        footer = app.query_one(HmiFooter)
+        keys = list(footer.query(FooterKey))
+        assert keys and all(key.compact and key.has_class("-compact") for key in keys)
+        assert "Run/Pause" in region_text(app, "HmiFooter")
+
+
 @pytest.mark.parametrize("size", [(80, 24), (160, 48)])
 async def test_layout_keeps_status_footer_and_panels_on_screen(size):
     app = make_app()

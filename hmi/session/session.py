@@ -231,16 +231,19 @@ class Session:
         started = time.perf_counter()
         error = core.error
         try:
-            self.explanations = self.explainer.build(core)
+            explanations = self.explainer.build(core)
         except Exception as exc:  # explanations must never stop the scan
-            self.explanations = ()
+            explanations = ()
             error = error or f"explanations: {type(exc).__name__}: {exc}"
-        events = self.take_alarm_events()
+        self.explanations = explanations
+        events = self._pending_alarm_events  # acknowledgements since the last scan
+        if events:
+            self._pending_alarm_events = []
         alarms = self.alarms
-        if self.explanations or alarms.alarms or alarms.shelved:
+        if explanations or alarms.alarms or alarms.shelved:
             # (with no situation, no alarm and nothing shelved the update has nothing to do)
-            events.extend(alarms.update(self.explanations, core.scan, core.time_us))
-        return explained(core, self.explanations, alarms.listed(),
+            events = events + alarms.update(explanations, core.scan, core.time_us)
+        return explained(core, explanations, alarms.listed(),
                          tuple(events) if events else (), error,
                          core.scan_wall_us + (time.perf_counter() - started) * 1e6,
                          alarms.shelved_listed() if alarms.shelved else ())

@@ -13,6 +13,7 @@ from math import ceil
 
 from rich.cells import cell_len
 from textual.app import ComposeResult
+from textual.screen import Screen
 from textual.widgets import Footer
 from textual.widgets._footer import FooterKey
 
@@ -30,10 +31,36 @@ def key_width(key: FooterKey) -> int:
 
 class HmiFooter(ContainedPump, Footer):
     needed = 0  # columns one line would need for every key
+    _recompose_due = False
+
+    def bindings_changed(self, screen: Screen) -> None:
+        """One recompose for every change of the bindings until the next refresh.
+
+        Textual's footer schedules a recompose per change; the start and a focus move
+        change the bindings several times in one refresh, and each recompose built and
+        styled every key again: 4 recomposes before the valve's first frame, 2 now (with
+        the keys below, 498 style applications in the app's start, 228 now). The one
+        recompose reads the bindings as they are then, the last change included."""
+        self._bindings_ready = True
+        if not screen.app.app_focus or self._recompose_due:
+            return
+        if self.is_attached and screen is self.screen:
+            self._recompose_due = True
+            self.call_after_refresh(self._recompose_once)
+
+    async def _recompose_once(self) -> None:
+        self._recompose_due = False
+        await self.recompose()
 
     def compose(self) -> ComposeResult:
         self._forget_removed_keys()
         children = list(super().compose())
+        for child in children:
+            # Born with the footer's value and its class: else each key's watcher adds the
+            # class once it is mounted, which styles the key a second time.
+            if isinstance(child, FooterKey):
+                child.set_reactive(FooterKey.compact, self.compact)
+                child.set_class(self.compact, "-compact", update=False)
         self._widths = [key_width(c) for c in children if isinstance(c, FooterKey)
                         and not c.has_class("-command-palette")]
         self.needed = sum(self._widths) + PALETTE_WIDTH
