@@ -94,12 +94,23 @@ def twin_run(name: str, seed: int) -> int:
             results = [e.apply(command) for e in engines]
             assert results[0] == results[1], (name, seed, k, command)
         fast, reference = (e.step(now) for e in engines)
+        check_active_bits(engines[0])
         if comparable(fast) != comparable(reference):
             for field in Snapshot._fields:
                 a, b = getattr(comparable(fast), field), getattr(comparable(reference), field)
                 assert a == b, f"{name} seed {seed} scan {k}: {field} differs: {a!r} != {b!r}"
         seen = check_marks(fast, seen)
     return SCANS
+
+
+def check_active_bits(engine: Engine) -> None:
+    """The generated active_bits (the corrector's memory key) against the contexts as the
+    filter evaluates them."""
+    f, image, history = engine.filter, engine.image, engine.history
+    assert engine.compiled is not None
+    expected = sum(1 << k for k, c in enumerate(f.compiled)
+                   if c.context is None or c.context(image, history))
+    assert engine.compiled.active_bits(image, history) == expected
 
 
 def check_marks(snap: Snapshot, seen: tuple[int, tuple] | None) -> tuple[int, tuple] | None:

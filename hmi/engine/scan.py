@@ -168,6 +168,7 @@ class Engine:
                          if compiled and not self.observe else None)
         if self.compiled is not None:  # the filter's first question, compiled
             self.filter_stage.quick = self.compiled.violated
+            self.filter.active_bits = self.compiled.active_bits
         self._bindings = self.input_scan.bindings
         self._period = project.scan_period_us
         # The last run()'s results until snapshot() builds them into a Snapshot, and what
@@ -621,13 +622,17 @@ class Engine:
             # 6. filter: given without its work when nothing is masked, latched nor violated
             policy = self.policy
             started = time.perf_counter()
-            if mask is None and not self.latched and not fast.violated(image, hist, fov):
-                report = self._clean[policy]
-                filter_us = (time.perf_counter() - started) * 1e6
-                monitored, error = self._output_scan(now, fov, None, fast)
-                return fov, fov, report, diagnosis, monitored, error, filter_us
-            decision = self.filter_stage.apply(image, hist, fov, policy, bool(self.latched),
-                                               mask)
+            if mask is None and not self.latched:
+                if not fast.violated(image, hist, fov):
+                    report = self._clean[policy]
+                    filter_us = (time.perf_counter() - started) * 1e6
+                    monitored, error = self._output_scan(now, fov, None, fast)
+                    return fov, fov, report, diagnosis, monitored, error, filter_us
+                # violated, nothing masked: what FilterStage.apply would hand the filter
+                decision = self.filter.apply(image, hist, fov, policy, False)
+            else:
+                decision = self.filter_stage.apply(image, hist, fov, policy,
+                                                   bool(self.latched), mask)
             filter_us = (time.perf_counter() - started) * 1e6
             if decision.latch is not None:
                 self.latch_safe("filter", decision.latch)
