@@ -441,13 +441,9 @@ class Engine:
         # entry are one tuple (an image in the history is never changed).
         values = tuple(image)
         self.history.appendleft(values)
-        monitors: Any = ()
         marks = 0
         if self.monitors is not None:
-            if monitored:
-                monitors, marks = self.monitors.capture(now)
-            else:
-                marks = self.monitors.marks
+            marks = self.monitors.settle() if monitored else self.monitors.marks
         events = self.plant.take_events()
         recovery = self.recovery.state(now) if self.recovery is not None else NO_RECOVERY
         status = self.plant.status
@@ -460,7 +456,7 @@ class Engine:
         if news:
             self._news = (report, status, diagnosers, marks, recovery)
         self._commanded = False
-        self._pending = (values, fov, outputs, report, diagnosis, diagnosers, monitors, marks,
+        self._pending = (values, fov, outputs, report, diagnosis, diagnosers, monitored, marks,
                          events, recovery, error, (time.perf_counter() - wall) * 1e6,
                          filter_us)
         return news
@@ -474,8 +470,11 @@ class Engine:
                 raise RuntimeError("no scan has run yet")
             return self.last
         self._pending = None
-        (values, fov, outputs, report, diagnosis, diagnosers, monitors, marks, events,
+        (values, fov, outputs, report, diagnosis, diagnosers, monitored, marks, events,
          recovery, error, scan_us, filter_us) = pending
+        # (the monitors' bases change only in a scan or a command, which builds this first)
+        monitors: Any = (self.monitors.capture(self.now)
+                         if monitored and self.monitors is not None else ())
         plant = self.plant
         policy = self.policy
         grafcet = self.control.grafcet
