@@ -13,8 +13,8 @@ skipped. New texts are compiled as usual and the cache file is written at the en
 same holds for the two other texts the standard library compiles at import: a named tuple's
 ``__new__`` (``collections.namedtuple``'s ``eval``, for each ``typing.NamedTuple`` too) and
 each string annotation a ``typing.NamedTuple`` checks (``typing.ForwardRef``'s ``compile``):
-some 400 small compilations on the start path. :func:`kept_codes` does the same for a table of code by text that a module keeps itself
-(the compiled scan's, hmi.engine.codegen).
+some 400 small compilations on the start path. :func:`kept_codes` does the same for a table
+of code by text that a module keeps itself (the compiled scan's, hmi.engine.codegen).
 
 The files live beside hmi's bytecode, are written under the same rule (not when bytecode
 writing is off: ``PYTHONDONTWRITEBYTECODE``, ``python -B``), atomically, and read only when
