@@ -425,12 +425,13 @@ class Engine:
     def run(self, now: int) -> bool:
         """One scan at `now` without building its snapshot (:meth:`snapshot` builds it on
         demand, until anything changes the engine again). Returns whether the scan has news:
-        False only when its snapshot would show the same filter report (the very object),
-        no latch, no error, no plant event, the same plant status, diagnosers, recovery state
-        and monitor_marks as the previous scan, nothing reconstructed nor masked, no manual
-        request, and no command came since. A quiet scan's snapshot differs from the one
-        before only in what moves by itself: scan, time, values, fov, outputs, steps and
-        firings, timers, plant state and counters, monitors' stopwatches, wall times."""
+        False only when its filter report is the policy's clean one (nothing violated,
+        corrected nor masked) and its snapshot would show no latch, no error, no plant
+        event, nothing reconstructed nor masked, no manual request, and the same plant
+        status, diagnosers, recovery state and monitor_marks as the previous scan, with no
+        command since. A quiet scan's snapshot differs from the one before only in what
+        moves by itself: scan, time, values, fov, outputs, steps and firings, timers, plant
+        state and counters, monitors' stopwatches, wall times."""
         wall = time.perf_counter()
         self._pending = None  # the previous scan's snapshot, if never asked for: dropped
         fov, outputs, report, diagnosis, monitored, error, filter_us = self._cycle(now)
@@ -448,7 +449,8 @@ class Engine:
         recovery = self.recovery.state(now) if self.recovery is not None else NO_RECOVERY
         status = self.plant.status
         last = self._news
-        news = (last is None or report is not last[0] or status is not last[1]
+        news = (last is None or report is not self._clean.get(self.policy)
+                or report is not last[0] or status is not last[1]
                 or diagnosers is not last[2] or marks != last[3] or recovery is not last[4]
                 or self._commanded or bool(self.latched) or error is not None
                 or bool(events) or bool(diagnosis.masked) or bool(diagnosis.reconstructed)
