@@ -38,7 +38,7 @@ from hmi.engine.commands import (
 )
 from hmi.engine.compiled import CompiledScan
 from hmi.engine.control import ControlRuntime
-from hmi.engine.diagnoser import Diagnosis, diagnosis_stage
+from hmi.engine.diagnoser import DiagnoserState, Diagnosis, diagnosis_stage
 from hmi.engine.filter import FilterReport, SafetyFilter
 from hmi.engine.filter_stage import FilterStage
 from hmi.engine.layout import Layout
@@ -434,10 +434,20 @@ class Engine:
         state and counters, monitors' stopwatches, wall times."""
         wall = time.perf_counter()
         self._pending = None  # the previous scan's snapshot, if never asked for: dropped
-        fov, outputs, report, diagnosis, monitored, error, filter_us = self._cycle(now)
+        fast = self.compiled
+        if fast is not None and self.started and self.mode == "auto" and not self._stop_mask:
+            self.scan += 1  # (what _cycle does first, and then this)
+            self.now = now
+            cycle = self._auto_cycle(now, fast)
+        else:
+            cycle = self._cycle(now)
+        fov, outputs, report, diagnosis, monitored, error, filter_us = cycle
         image = self.image
         stage = self.diagnosis
-        diagnosers = stage.publish(image, self.history) if stage is not None else ()
+        diagnosers: tuple[DiagnoserState, ...] = ()
+        if stage is not None:  # (DiagnosisStage.publish: the records unless one is faulty)
+            diagnosers = stage.publish(image, self.history) if stage.faulty else \
+                stage.current.records
         # The image as the scan left it: the snapshot's values and the history's newest
         # entry are one tuple (an image in the history is never changed).
         values = tuple(image)
@@ -446,17 +456,23 @@ class Engine:
         if self.monitors is not None:
             marks = self.monitors.settle() if monitored else self.monitors.marks
         events = self.plant.take_events()
-        recovery = self.recovery.state(now) if self.recovery is not None else NO_RECOVERY
+        rec = self.recovery
+        recovery = NO_RECOVERY if rec is None else (
+            rec._idle if rec.active is None and not rec.needed else rec.state(now))
         status = self.plant.status
         last = self._news
-        news = (last is None or report is not self._clean.get(self.policy)
-                or report is not last[0] or status is not last[1]
-                or diagnosers is not last[2] or marks != last[3] or recovery is not last[4]
-                or self._commanded or bool(self.latched) or error is not None
-                or bool(events) or bool(diagnosis.masked) or bool(diagnosis.reconstructed)
-                or bool(self.manual))
-        if news:
-            self._news = (report, status, diagnosers, marks, recovery)
+        # (last[5]: that scan's report was its policy's clean one; a command since, a new
+        # policy included, makes this scan news and compares the next with this one)
+        if (last is not None and report is last[0] and last[5] and status is last[1]
+                and diagnosers is last[2] and marks == last[3] and recovery is last[4]
+                and not self._commanded and error is None and not events
+                and not self.latched and not diagnosis.masked
+                and not diagnosis.reconstructed and not self.manual):
+            news = False
+        else:
+            news = True
+            self._news = (report, status, diagnosers, marks, recovery,
+                          report is self._clean.get(self.policy))
         self._commanded = False
         self._pending = (values, fov, outputs, report, diagnosis, diagnosers, monitored, marks,
                          events, recovery, error, (time.perf_counter() - wall) * 1e6,
@@ -655,20 +671,25 @@ class Engine:
     def _output_scan(self, now: int, outputs: tuple[bool, ...], error: str | None,
                      fast: CompiledScan | None) -> tuple[bool, str | None]:
         """Stage 7's write to the plant (the image holds `outputs` already), then stage 8,
-        the monitors, on the I/O this scan exchanged (their states: Engine.step).
+        the monitors, on the I/O this scan exchanged (their states: Engine.snapshot).
         Returns whether the monitors ran and the scan's error."""
         if not self.observe:
             lost = self.output_scan.write(now, outputs)
             if lost is not None:
                 self.latch_safe("plant", lost)
-        monitors = self.monitors
-        if monitors is None:
+        if self.monitors is None:
             return False, error
+        return self._monitor(now, error, fast)
+
+    def _monitor(self, now: int, error: str | None, fast: CompiledScan | None
+                 ) -> tuple[bool, str | None]:
+        """Stage 8 (the engine has monitors): whether they ran, and the scan's error."""
         try:
             if fast is not None and fast.monitors is not None:
                 fast.monitors(self.image, self.history, now, self.scan)
             else:
-                monitors.step(self.image, self.history, now, self.scan)
+                assert self.monitors is not None
+                self.monitors.step(self.image, self.history, now, self.scan)
         except Exception as exc:  # a broken monitor must not stop the scan silently
             message = f"{type(exc).__name__}: {exc}"
             self.latch_safe("internal", f"internal error at scan {self.scan}: {message}")
