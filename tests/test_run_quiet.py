@@ -61,7 +61,8 @@ def test_a_run_prints_and_journals_what_building_every_snapshot_does(
 
 @pytest.mark.parametrize(("project", "faults"), [
     ("sorting", ()), ("sorting", ("table_jam@5s",)), ("cispi_valve", ("F5@3s", "F13@9s")),
-    ("conveyor_robot", ("C1.stop@2s+2s",))])
+    ("conveyor_robot", ("C1.stop@2s+2s",)), ("palletizer", ()),
+    ("palletizer", ("layer_eye_stuck0@9s",))])
 def test_last_builds_a_quiet_scans_snapshot_as_a_scan_would_have(project, faults):
     """Session.last after quiet scans: the snapshot scan_once gives (measured times apart),
     alarms and explanations included; a command between scans sees it too."""
@@ -93,3 +94,4 @@ def test_the_collector_counts_a_quiet_scan_as_the_scan_it_repeats():
         assert getattr(lazy, field) == getattr(full, field), field
     assert lazy.monitors.last == full.monitors.last
     assert lazy.monitors.detections == full.monitors.detections
+

@@ -18,6 +18,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 from hmi.engine.commands import (
     Acknowledge,
@@ -86,6 +87,7 @@ class Session:
         self.explanations: tuple[Explanation, ...] = ()  # the last scan's
         self._last: Snapshot | None = None  # the last scan, explained (see last)
         self._quiet = False  # the last scan was quiet: its snapshot is built when read
+        self._quiet_alarms: tuple[Any, ...] = ()  # the alarm list at that scan
         self._pending_alarm_events: list[AlarmEvent] = []  # acknowledgements between scans
         self.listeners: list[Listener] = []
         self.origin = ""  # who sent the command being carried out ("": the cell's operator)
@@ -104,9 +106,11 @@ class Session:
             with self.lock:
                 if self._quiet:
                     core = self.engine.snapshot()
-                    # What _explained makes of a quiet scan: no explanation, no alarm, no
-                    # alarm event, no error; the session added no time to the engine's.
-                    self._last = explained(core, (), (), (), core.error, core.scan_wall_us)
+                    # What _explained makes of a quiet scan: the last scan's explanations,
+                    # the alarm list as it was, no alarm event, no error, nothing shelved;
+                    # the session added no time to the engine's.
+                    self._last = explained(core, self.explanations, self._quiet_alarms, (),
+                                           core.error, core.scan_wall_us)
                     self._quiet = False
         return self._last
 
@@ -255,19 +259,21 @@ class Session:
 
     def _scan_unless_quiet(self) -> Snapshot | None:
         """One scan; None when it is quiet (its snapshot built only if `last` is read): the
-        engine says the scan has no news (hmi.engine.scan.Engine.run), the last scan
-        explained nothing, there is no alarm (listed or shelved) nor alarm event, and every
-        scan listener is idle. Such a scan's explanations are the last scan's, nothing (every
-        field they are found from is the same, see ExplanationBuilder.build), and the alarm
-        list has nothing to update."""
+        engine says the scan has no news (hmi.engine.scan.Engine.run), no alarm event waits,
+        the alarms are settled for the last scan's explanations (AlarmManager.settled: an
+        update would change nothing) and every scan listener is idle. Such a scan's
+        explanations are the very tuple the last scan's were (every field they are found from
+        is the same: ExplanationBuilder.build returns its last result), so the alarm list
+        has nothing to update either."""
         with self.lock:
             engine = self.engine
             news = engine.run(self.next_time)
             alarms = self.alarms
-            if news or self.explanations or alarms.alarms or alarms.shelved \
-                    or self._pending_alarm_events or not self._listeners_idle():
+            if news or self._pending_alarm_events or not alarms.settled(self.explanations) \
+                    or not self._listeners_idle():
                 return self._scanned(engine.snapshot())
             self._quiet = True
+            self._quiet_alarms = alarms.listed()  # (a command may change it before `last`)
             return None
 
     def _listeners_idle(self) -> bool:
