@@ -9,9 +9,12 @@ each one's cost and a fifth of the whole start (docs/performance.md). Inside
 :func:`dataclass_code`, the ``exec`` that the ``dataclasses`` module runs on that text gets
 the code object compiled from the very same text in an earlier process, if any: the methods
 are the same functions, built the same way, from the same source; only the compiling is
-skipped. New texts are compiled as usual and the cache file is written at the end.
-:func:`kept_codes` does the same for a table of code by text that a module keeps itself
-(the compiled scan's, hmi.engine.codegen).
+skipped. New texts are compiled as usual and the cache file is written at the end. The
+same holds for the two other texts the standard library compiles at import: a named tuple's
+``__new__`` (``collections.namedtuple``'s ``eval``, for each ``typing.NamedTuple`` too) and
+each string annotation a ``typing.NamedTuple`` checks (``typing.ForwardRef``'s ``compile``):
+some 400 small compilations on the start path. :func:`kept_codes` does the same for a table
+of code by text that a module keeps itself (the compiled scan's, hmi.engine.codegen).
 
 The files live beside hmi's bytecode, are written under the same rule (not when bytecode
 writing is off: ``PYTHONDONTWRITEBYTECODE``, ``python -B``), atomically, and read only when
@@ -23,21 +26,28 @@ same inputs (a header); anything unreadable is ignored and rebuilt. They are tru
 from __future__ import annotations
 
 import builtins
+import collections
 import contextlib
 import dataclasses
-import hashlib
 import importlib.util
 import marshal
 import os
 import sys
+import typing
 from collections.abc import Iterator
 from pathlib import Path
 from types import CodeType, ModuleType
 from typing import Any
 
+try:  # hashlib's own blake2b, without hashlib importing OpenSSL's bindings (~3 ms at a start)
+    from _blake2 import blake2b as blake2b
+except ImportError:  # an interpreter built without it
+    from hashlib import blake2b as blake2b
+
 DEFAULT_PATH = (Path(__file__).resolve().parent / "__pycache__"
-                / f"dataclass-methods.{sys.implementation.cache_tag}.marshal")
-HEADER = importlib.util.MAGIC_NUMBER + b"dataclass methods 1\n"  # this interpreter, format 1
+                / f"generated-code.{sys.implementation.cache_tag}.marshal")
+# this interpreter, format 2 (texts for eval keyed apart)
+HEADER = importlib.util.MAGIC_NUMBER + b"generated code 2\n"
 MAX_ENTRIES = 20_000  # past this (texts of classes long gone), the file starts afresh
 
 
@@ -50,13 +60,16 @@ class CodeCache:
         self.hits = 0
         self.compiled = 0
 
-    def code(self, source: str) -> CodeType:
-        code = self.codes.get(source)
+    def code(self, source: str, mode: str = "exec") -> CodeType:
+        """The code of `source` compiled as `mode` ("exec" or "eval") from "<string>"."""
+        key = source if mode == "exec" else f"{mode}\0{source}"  # no text starts with NUL
+        code = self.codes.get(key)
         if code is None:
-            # dont_inherit: compiled as dataclasses' own exec compiles it, without this
-            # module's `from __future__ import annotations` (which would leave the
-            # methods' annotations as the names of dataclasses' local variables)
-            code = self.codes[source] = compile(source, "<string>", "exec", dont_inherit=True)
+            # dont_inherit: compiled as the standard library's own exec, eval and compile
+            # compile it there (none of those modules has a `from __future__` import), not
+            # with this module's `from __future__ import annotations` (which would leave
+            # the methods' annotations as the names of dataclasses' local variables)
+            code = self.codes[key] = compile(source, "<string>", mode, dont_inherit=True)
             self.compiled += 1
         else:
             self.hits += 1
@@ -68,6 +81,24 @@ class CodeCache:
         a code object goes through unchanged."""
         builtins.exec(self.code(source) if isinstance(source, str) else source, scope,
                       namespace)
+
+    def eval(self, source: str | CodeType, scope: dict[str, Any] | None = None,
+             namespace: dict[str, Any] | None = None) -> Any:
+        """The ``eval(text, namespace)`` of collections.namedtuple (its ``__new__``), with
+        the text's cached code (eval strips leading spaces and tabs before compiling)."""
+        if isinstance(source, str):
+            source = self.code(source.lstrip(" \t"), "eval")
+        return builtins.eval(source, scope, namespace)
+
+    def compile(self, source: Any, filename: str, mode: str, flags: int = 0,
+                dont_inherit: bool = False, optimize: int = -1) -> Any:
+        """The ``compile(text, '<string>', 'eval')`` of typing.ForwardRef (a string
+        annotation of a NamedTuple or a generic), with the text's cached code; any other
+        compile goes through unchanged."""
+        if (isinstance(source, str) and filename == "<string>" and mode == "eval"
+                and not flags and optimize == -1):
+            return self.code(source, "eval")
+        return builtins.compile(source, filename, mode, flags, dont_inherit, optimize)
 
     def save(self) -> None:
         """Write the file if something new was compiled."""
@@ -114,7 +145,7 @@ def source_fingerprint(module: ModuleType) -> bytes:
     source = module.__file__
     if source is None:
         raise ValueError(f"{module.__name__} has no source file")
-    return hashlib.blake2b(Path(source).read_bytes(), digest_size=16).hexdigest().encode()
+    return blake2b(Path(source).read_bytes(), digest_size=16).hexdigest().encode()
 
 
 def _codes(body: bytes | None) -> dict[Any, CodeType]:
@@ -137,18 +168,22 @@ def _read(path: Path) -> dict[str, CodeType]:
 @contextlib.contextmanager
 def dataclass_code(path: Path = DEFAULT_PATH, write: bool | None = None
                    ) -> Iterator[CodeCache | None]:
-    """Dataclasses created inside take their methods' code from the cache at `path`.
-    `write`: save what was compiled (default: unless bytecode writing is off). Does nothing
-    (yields None) if something else already replaced the ``exec`` dataclasses sees."""
-    if "exec" in vars(dataclasses):  # nested, or someone else's: leave it alone
+    """Dataclasses, named tuples and string annotations of typing's classes created inside
+    take their generated code from the cache at `path`. `write`: save what was compiled
+    (default: unless bytecode writing is off). Does nothing (yields None) if something else
+    already replaced the builtin one of those modules sees."""
+    shadowed = ((dataclasses, "exec"), (collections, "eval"), (typing, "compile"))
+    if any(name in vars(module) for module, name in shadowed):  # nested, or someone else's
         yield None
         return
     cache = CodeCache(path)
-    dataclasses.exec = cache.run  # type: ignore[attr-defined]  # shadows the builtin
+    for module, name in shadowed:  # a module global shadows the builtin in that module
+        setattr(module, name, getattr(cache, "run" if name == "exec" else name))
     try:
         yield cache
     finally:
-        del dataclasses.exec  # type: ignore[attr-defined]
+        for module, name in shadowed:
+            delattr(module, name)
         if writing(write):
             cache.save()
 

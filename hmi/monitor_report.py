@@ -68,16 +68,34 @@ class FaultReport:
 
 
 class MonitorLog:
-    """Follows the monitors through a run's snapshots without keeping them."""
+    """Follows the monitors through a run's snapshots without keeping them.
+
+    A scan whose `monitor_marks` are those of the last one read (and no error) changed no
+    detection, trip, location or count: its states are not read at all (a snapshot builds
+    them on first read, hmi.engine.monitors.LazyMonitors); `last` is the latest snapshot's.
+    """
 
     def __init__(self) -> None:
         self.detections: dict[tuple[str, int], Detection] = {}
         self.trips: dict[tuple[str, int], WatchdogTrip] = {}
-        self.last: tuple[MonitorState, ...] = ()
+        self._marks: int | None = None  # monitor_marks of the last states read
+        self._latest = None  # the latest snapshot with the monitors' states
+
+    @property
+    def last(self) -> tuple[MonitorState, ...]:
+        """The monitors' states at the latest scan that had them."""
+        return self._latest.monitors if self._latest is not None else ()
 
     def add(self, snap) -> None:
+        marks = snap.monitor_marks
+        if marks == self._marks and snap.error is None:  # only stopwatches ran on
+            self._latest = snap
+            return
         states = snap.monitors
-        if not states or states is self.last:  # the same states: all recorded already
+        if not states:  # no monitors (then never read again), or a failed monitor stage
+            if snap.error is None:
+                self._marks = marks
+                self._latest = snap
             return
         for m in states:
             d = m.last_detection
@@ -86,7 +104,8 @@ class MonitorLog:
             w = m.watchdog
             if w is not None and (m.name, w.attempt) not in self.trips:
                 self.trips[(m.name, w.attempt)] = w
-        self.last = states
+        self._marks = marks
+        self._latest = snap
 
     def detection(self, name: str, attempt: int) -> Detection | None:
         return self.detections.get((name, attempt))

@@ -176,35 +176,60 @@ class RunCollector:
         self.explanations = {}
         from hmi.diag_report import DiagnosisLog
         self.diagnosis = DiagnosisLog()
+        self._nothing = None  # the last filter report that counted nothing (reports are
+        # immutable: the same one counts nothing again)
+        self._report = None  # the last scan's added (a quiet scan has the very same)
 
     def add(self, snap) -> None:
         self.scans += 1
         self.monitors.add(snap)
         self.diagnosis.add(snap)
-        self.events.extend(snap.plant_events)
+        if snap.plant_events:
+            self.events.extend(snap.plant_events)
         if snap.alarm_events:
             self.alarm_events.extend(snap.alarm_events)
-        for explanation in snap.explanations:
-            if explanation.alarm:
-                self.explanations[explanation.key] = explanation
-        report = snap.filter
-        # (a report with nothing violated, changed, left or fallen back on counts nothing:
-        # most scans' report, tested in a few reads)
-        if report is not None and (report.violations or report.changes or report.residual
-                                   or report.fallback or report.safe_state
-                                   or report.distance):
-            for name in report.violated_names:
-                self.violations[name] = self.violations.get(name, 0) + 1
-            if report.safe_state:
-                self.safe_scans += 1
-            elif any(c.how != "masked" for c in report.changes):  # masks: diagnosers' lines
-                self.corrections += 1
-            if report.unsafe_written:
-                self.unsafe_written += 1
-            if report.fallback:
-                self.fallbacks += 1
-                self.search_stops += bool(getattr(report, "stopped", ""))
-            self.max_distance = max(self.max_distance, report.distance)
+        if snap.explanations:
+            for explanation in snap.explanations:
+                if explanation.alarm:
+                    self.explanations[explanation.key] = explanation
+        self._report = snap.filter
+        self._count(snap.filter)
         if snap.latched and self.first_latch is None:
             reason = snap.latched[0]
             self.first_latch = (reason.scan, reason.time_us, reason.detail)
+
+    def quiet(self) -> None:
+        """A quiet scan (hmi.session.Session.run_for): its snapshot, not built, differs from
+        the last one added only in what moves by itself (time, values, plant state,
+        stopwatches): no event, explanation, latch or diagnoser change, and the very same
+        filter report, which counts again what it counted."""
+        self.scans += 1
+        self._count(self._report)
+
+    def finish(self, last) -> None:
+        """The run's last snapshot (built at its end if its scan was quiet): the monitors'
+        states the summary shows are its."""
+        self.monitors.add(last)
+
+    def _count(self, report) -> None:
+        # (a report with nothing violated, changed, left or fallen back on counts nothing:
+        # most scans' report, tested in a few reads; and a scan that reuses the very report
+        # last found so, without reading it again)
+        if report is None or report is self._nothing:
+            return
+        if not (report.violations or report.changes or report.residual or report.fallback
+                or report.safe_state or report.distance):
+            self._nothing = report
+            return
+        for name in report.violated_names:
+            self.violations[name] = self.violations.get(name, 0) + 1
+        if report.safe_state:
+            self.safe_scans += 1
+        elif any(c.how != "masked" for c in report.changes):  # masks: diagnosers' lines
+            self.corrections += 1
+        if report.unsafe_written:
+            self.unsafe_written += 1
+        if report.fallback:
+            self.fallbacks += 1
+            self.search_stops += bool(getattr(report, "stopped", ""))
+        self.max_distance = max(self.max_distance, report.distance)

@@ -51,6 +51,8 @@ def test_the_engine_rates_count_the_scans_of_a_plchmi_run():
     assert scans == 101 and wall > 0 and cpu >= 0
     scans, wall, cpu = engine_rate(project, 100 * period)
     assert scans == 101 and wall > 0 and cpu >= 0
+    scans, wall, cpu = engine_rate(project, 100 * period, snapshots=False)
+    assert scans == 101 and wall > 0 and cpu >= 0
 
 
 def test_the_goal_line_says_met_or_not():

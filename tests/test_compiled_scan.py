@@ -94,12 +94,23 @@ def twin_run(name: str, seed: int) -> int:
             results = [e.apply(command) for e in engines]
             assert results[0] == results[1], (name, seed, k, command)
         fast, reference = (e.step(now) for e in engines)
+        check_active_bits(engines[0])
         if comparable(fast) != comparable(reference):
             for field in Snapshot._fields:
                 a, b = getattr(comparable(fast), field), getattr(comparable(reference), field)
                 assert a == b, f"{name} seed {seed} scan {k}: {field} differs: {a!r} != {b!r}"
         seen = check_marks(fast, seen)
     return SCANS
+
+
+def check_active_bits(engine: Engine) -> None:
+    """The generated active_bits (the corrector's memory key) against the contexts as the
+    filter evaluates them."""
+    f, image, history = engine.filter, engine.image, engine.history
+    assert engine.compiled is not None
+    expected = sum(1 << k for k, c in enumerate(f.compiled)
+                   if c.context is None or c.context(image, history))
+    assert engine.compiled.active_bits(image, history) == expected
 
 
 def check_marks(snap: Snapshot, seen: tuple[int, tuple] | None) -> tuple[int, tuple] | None:
@@ -156,3 +167,56 @@ def test_generated_code_holds_only_slots_constants_and_operators():
                     if tok.type == tokenize.NUMBER:
                         assert tok.string.isdigit(), (name, tok.string)
 
+
+
+# What a quiet scan (Engine.run returning False) keeps from the scan before.
+EVENT_FIELDS = ("filter", "latched", "plant", "mode", "manual", "policy", "diagnosers",
+                "reconstructed", "masked", "stopped_devices", "recovery", "error",
+                "monitor_marks", "control")
+
+
+@pytest.mark.parametrize("name", NAMES)
+@pytest.mark.parametrize("seed", (4, 5))
+def test_run_builds_the_snapshot_on_demand_and_says_when_a_scan_has_news(name, seed):
+    """Engine.run + Engine.snapshot against Engine.step, under one seeded script of
+    commands: a snapshot asked for at any time before the next scan (after a command too)
+    is the one step gives, and a scan run() calls quiet has the policy's clean filter report,
+    changes none of EVENT_FIELDS and has no plant event."""
+    project = load(PROJECTS / name)
+    rng = random.Random(seed)
+    control = rng.choice(sorted(project.controls))
+    policy = rng.choice(POLICIES)
+    stepped, ran = (Engine(project, SimPlant(project), control=control, policy=policy)
+                    for _ in range(2))
+    period = project.scan_period_us
+    before = None
+    quiet = 0
+    for k in range(SCANS):
+        now = k * period
+        command = None
+        if k and rng.random() < 0.02:
+            command = random_command(rng, project, stepped, now)
+            results = [e.apply(command) for e in (stepped, ran)]
+            assert results[0] == results[1], (name, seed, k, command)
+        expected = stepped.step(now)
+        news = ran.run(now)
+        if rng.random() < 0.1:  # asked for now, then maybe again after a command
+            assert comparable(ran.snapshot()) == comparable(expected), (name, seed, k)
+            assert ran.snapshot() is ran.snapshot()
+        if before is not None and not news:
+            quiet += 1
+            assert expected.plant_events == (), (name, seed, k)
+            assert expected.filter is stepped.filter_stage.clean[expected.policy], (name, seed, k)
+            for field in EVENT_FIELDS:
+                assert getattr(expected, field) == getattr(before, field), (name, seed, k, field)
+        before = expected
+    assert quiet > 0, (name, seed)  # (the check above ran)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_most_scans_of_a_working_cell_are_quiet(name):
+    """The point of Engine.run: a cell working normally has news at few scans."""
+    project = load(PROJECTS / name)
+    engine = Engine(project, SimPlant(project))
+    news = sum(engine.run(k * project.scan_period_us) for k in range(SCANS))
+    assert news < SCANS // 2, (name, news)

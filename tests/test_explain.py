@@ -129,6 +129,8 @@ def test_fallback_and_internal_error_are_explained(tmp_path):
     ctl = make_controller(VALVE)
     ctl.scan_once()
     ctl.engine.filter_stage.apply = lambda *args: 1 / 0
+    assert ctl.engine.compiled is not None  # the filter's first question, asked by the scan
+    ctl.engine.compiled.violated = lambda *args: 1 / 0
     snap = ctl.scan_once()
     e = explanation(snap, "safe_state:internal")
     assert "internal error" in e.what and "ZeroDivisionError" in e.detail
@@ -220,6 +222,32 @@ def test_chattering_is_collapsed_into_one_alarm_with_a_count():
     assert alarm.chattering and alarm.active and alarm.returns == 9
     later = m.update((), 0, t + 61 * S)  # stays clear for a minute: finally clears
     assert [x.event for x in later] == ["cleared"]
+
+
+def test_alarms_are_settled_only_when_the_same_update_would_change_nothing():
+    """AlarmManager.settled decides a quiet scan (hmi.session.Session.run_for): no update
+    then, so it must be true only when an update with the last scan's explanations would
+    change nothing."""
+    m = AlarmManager()
+    e, f = make_exp("k"), make_exp("j")
+    assert m.settled(())
+    assert not m.settled((e,))  # it would raise it
+    m.update((e,), 1, 0)
+    assert m.settled((e,)) and m.update((e,), 2, 1) == []
+    assert not m.settled(()) and not m.settled((make_exp("k"),))  # clears; new text
+    m.update((e, f), 3, 2)
+    assert m.settled((e, f)) and not m.settled((e,))  # without f: f clears
+    m.update((e,), 4, 3)
+    assert m.settled((e,))  # f cleared, waits for its acknowledgement
+    m.update((), 5, 4)
+    assert m.settled(()) and m.update((), 6, 5) == []
+    assert not m.settled((e,))  # it would return
+    m.acknowledge(None, 7, 6)
+    _, t = chatter(m)
+    assert not m.settled(())  # chattering: held active while clear, for a minute
+    assert m.update((), 0, t + 61 * S) and m.settled(())
+    m.shelve("k", 10 * S, 0, t + 62 * S)
+    assert not m.settled(())  # the shelf runs out with time
 
 
 def test_latched_alarm_stays_until_fault_reset():

@@ -4,12 +4,14 @@ is measured by `plchmi bench startup`, never here."""
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import json
 import subprocess
 import sys
 import textwrap
 import types
+import typing
 from pathlib import Path
 
 import pytest
@@ -49,6 +51,16 @@ CLASSES = textwrap.dedent('''
 
         def __post_init__(self, scale: int) -> None:
             object.__setattr__(self, "scaled", self.value * scale)
+
+    # named tuples: __new__ is eval'ed text, a string annotation compiled by typing
+    import collections
+    from typing import NamedTuple
+
+    class Pair(NamedTuple):
+        left: int
+        right: list[str] = []
+
+    Legacy = collections.namedtuple("Legacy", "a b", defaults=[2])
 ''')
 
 
@@ -77,7 +89,9 @@ def behaviour(ns: dict) -> list:
     seen = [repr(plain(1)), plain(1) == plain(1), plain(1) == plain(2), repr(p1), p1 == p2,
             hash(p1) == hash(p2), p1 < point(2), sorted([point(3), point(1, 5), point(1)]),
             repr(derived(3, value=2)), derived(3, 2).scaled, point.KIND,
-            [f.name for f in dataclasses.fields(point)], ns["Plain"].__doc__, point.__doc__]
+            [f.name for f in dataclasses.fields(point)], ns["Plain"].__doc__, point.__doc__,
+            ns["Pair"](1), ns["Pair"](1, ["x"]).right, ns["Pair"].__annotations__,
+            ns["Legacy"](1), ns["Legacy"](1, 3)._asdict()]
     with pytest.raises(dataclasses.FrozenInstanceError):
         p1.x = 5
     with pytest.raises(TypeError):
@@ -96,6 +110,9 @@ def test_cached_classes_behave_as_compiled_ones(tmp_path):
     assert behaviour(first) == behaviour(again) == reference
     # the very same code: compiled from the same text
     fresh = build(None)[0]
+    assert (again["Pair"].__new__.__code__.co_code == fresh["Pair"].__new__.__code__.co_code)
+    assert (again["Pair"].__annotations__["right"].__forward_code__.co_code
+            == fresh["Pair"].__annotations__["right"].__forward_code__.co_code)
     for name in ("__init__", "__repr__", "__eq__", "__lt__", "__setattr__", "__hash__"):
         assert (getattr(again["Point"], name).__code__.co_code
                 == getattr(fresh["Point"], name).__code__.co_code), name
@@ -145,9 +162,11 @@ def test_the_cache_is_removed_after_use_and_never_nested(tmp_path):
             assert inner is None  # the outer one stays in place
         assert dataclasses.exec == outer.run
     assert "exec" not in vars(dataclasses)  # the builtin again
+    assert "eval" not in vars(collections) and "compile" not in vars(typing)
     with pytest.raises(KeyError), dataclass_code(tmp_path / "c"):
         {}["missing"]
     assert "exec" not in vars(dataclasses)
+    assert "eval" not in vars(collections) and "compile" not in vars(typing)
 
 
 def test_the_default_cache_sits_with_hmis_bytecode():
@@ -233,6 +252,19 @@ FINGERPRINT = textwrap.dedent("""
                         code.co_varnames, repr(fn.__annotations__), repr(fn.__defaults__),
                         repr(fn.__kwdefaults__), fn.__qualname__]
             seen[f"{name}.{cls.__qualname__}.__doc__"] = cls.__doc__
+        for cls in list(vars(module).values()):  # named tuples: __new__, string annotations
+            if not (isinstance(cls, type) and issubclass(cls, tuple) and hasattr(cls, "_fields")
+                    and cls.__module__ == name):
+                continue
+            new = cls.__new__
+            seen[f"{name}.{cls.__qualname__}.__new__"] = [
+                new.__code__.co_code.hex(), repr(new.__code__.co_consts),
+                new.__code__.co_varnames, repr(new.__defaults__)]
+            for field, annotation in getattr(cls, "__annotations__", {}).items():
+                code = getattr(annotation, "__forward_code__", None)
+                if code is not None:
+                    seen[f"{name}.{cls.__qualname__}.{field}:annotation"] = [
+                        code.co_code.hex(), repr(code.co_consts), code.co_names]
     # addresses differ from one process to the next (a default's repr)
     print(re.sub(r" at 0x[0-9a-f]+", " at 0x", json.dumps(seen)))
 """)
@@ -252,6 +284,41 @@ def test_every_class_on_the_start_path_gets_the_same_methods_from_the_cache(tmp_
 
     reference = fingerprint("-")
     assert len([k for k in reference if k.endswith(".__init__")]) > 100
+    assert len([k for k in reference if k.endswith(".__new__")]) > 30  # named tuples
+    assert len([k for k in reference if k.endswith(":annotation")]) > 100
     assert fingerprint(str(cache)) == reference
     assert cache.stat().st_size > 0
     assert fingerprint(str(cache)) == reference
+
+
+def _subparsers(parser) -> dict:
+    return next(a for a in parser._actions if a.dest == "command").choices
+
+
+def test_a_command_builds_only_its_own_options_the_same_as_the_whole_parser():
+    """`plchmi COMMAND ...` builds COMMAND's options alone (hmi/cli/entry.py): its help,
+    usage and defaults are those of the whole parser's."""
+    from hmi.cli import entry
+
+    whole = _subparsers(entry.build_parser())
+    assert set(whole) == set(entry.SUBCOMMANDS) == set(entry.COMMANDS)
+    assert {n for names, _, _ in entry.PARTS for n in names} == set(entry.SUBCOMMANDS)
+    for command in entry.SUBCOMMANDS:
+        alone = _subparsers(entry.build_parser(command))
+        assert command in alone and set(alone) <= set(whole)
+        assert alone[command].format_help() == whole[command].format_help(), command
+        assert _options(alone[command]) == _options(whole[command]), command
+
+
+def _options(parser) -> list[str]:
+    return [repr((a.dest, a.default, a.option_strings, a.nargs, a.choices, a.type,
+                  a.required)) for a in parser._actions]
+
+
+def test_the_hmis_start_imports_no_other_commands_module():
+    out = run_python("import json, sys\nfrom hmi.cli.entry import build_parser\n"
+                     "build_parser('ui').parse_args(['ui', 'projects/cispi_valve'])\n"
+                     "print(json.dumps(sorted(m for m in sys.modules if "
+                     "m.startswith('hmi.cli.'))))")
+    assert set(json.loads(out)) == {"hmi.cli.entry", "hmi.cli.common", "hmi.cli.ui",
+                                    "hmi.cli.options", "hmi.cli.session"}

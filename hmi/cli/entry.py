@@ -5,43 +5,60 @@ docstring of hmi/cli/__init__.py)."""
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
-from hmi.cli import bench, check, export, journal, run, serve, soak, studies, ui
 from hmi.cli.common import RunFailure, print_project_error
 from hmi.errors import OutputError, ProjectError, UsageError
 
+# Each command's module in hmi/cli/ and its function adding the command's options (a module
+# adding several commands lists them all), in the order of ``plchmi --help``.
+PARTS: tuple[tuple[tuple[str, ...], str, str], ...] = (
+    (("check",), "check", "add_parser"),
+    (("run",), "run", "add_parser"),
+    (("diagnose", "campaign"), "studies", "add_parsers"),
+    (("export",), "export", "add_parser"),
+    (("journal",), "journal", "add_parser"),
+    (("sweep",), "studies", "add_sweep_parser"),
+    (("soak",), "soak", "add_parser"),
+    (("bench",), "bench", "add_parser"),
+    (("ui",), "ui", "add_parser"),
+    (("opcua-passwd", "serve-plant"), "serve", "add_parsers"),
+)
 SUBCOMMANDS = ("check", "run", "sweep", "ui", "serve-plant", "bench", "journal",
                "diagnose", "campaign", "export", "opcua-passwd", "soak")
 
-
+# command -> (its module, its function)
 COMMANDS = {
-    "check": check.cmd_check, "run": run.cmd_run, "sweep": studies.cmd_sweep,
-    "ui": ui.cmd_ui, "serve-plant": serve.cmd_serve_plant, "bench": bench.cmd_bench,
-    "journal": journal.cmd_journal, "diagnose": studies.cmd_diagnose,
-    "campaign": studies.cmd_campaign, "export": export.cmd_export,
-    "opcua-passwd": serve.cmd_opcua_passwd, "soak": soak.cmd_soak,
+    "check": ("check", "cmd_check"), "run": ("run", "cmd_run"),
+    "sweep": ("studies", "cmd_sweep"), "ui": ("ui", "cmd_ui"),
+    "serve-plant": ("serve", "cmd_serve_plant"), "bench": ("bench", "cmd_bench"),
+    "journal": ("journal", "cmd_journal"), "diagnose": ("studies", "cmd_diagnose"),
+    "campaign": ("studies", "cmd_campaign"), "export": ("export", "cmd_export"),
+    "opcua-passwd": ("serve", "cmd_opcua_passwd"), "soak": ("soak", "cmd_soak"),
 }
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """Every command's options, the commands listed in the order of ``plchmi --help``."""
+def _part(module: str, function: str) -> Callable[..., Any]:
+    """A function of a command's module, imported when wanted (a command imports its own
+    module only)."""
+    return getattr(importlib.import_module(f"hmi.cli.{module}"), function)
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """Every command's options, the commands listed in the order of ``plchmi --help``; or
+    `command`'s alone, for running it: its usage, help and errors are the same, and the
+    other commands' modules are not imported (the HMI's start, docs/performance.md)."""
     top = argparse.ArgumentParser(
         prog="plchmi",
         description="Operator HMI and soft-PLC runtime with a safety control filter. "
         "'plchmi PROJECT' opens the HMI.")
     sub = top.add_subparsers(dest="command", metavar="COMMAND")
-    check.add_parser(sub)
-    run.add_parser(sub)
-    studies.add_parsers(sub)
-    export.add_parser(sub)
-    journal.add_parser(sub)
-    studies.add_sweep_parser(sub)
-    soak.add_parser(sub)
-    bench.add_parser(sub)
-    ui.add_parser(sub)
-    serve.add_parsers(sub)
+    for names, module, function in PARTS:
+        if command is None or command in names:
+            _part(module, function)(sub)
     return top
 
 
@@ -49,15 +66,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     args_list = list(sys.argv[1:] if argv is None else argv)
     if args_list and args_list[0] not in SUBCOMMANDS and not args_list[0].startswith("-"):
         args_list.insert(0, "ui")
-    parser = build_parser()
     if not args_list:
-        parser.print_help()
+        build_parser().print_help()
         return 2
+    # a command named: only its options (each command's own usage and errors); anything
+    # else (--help, a bad option) is said by the whole parser
+    parser = build_parser(args_list[0] if args_list[0] in SUBCOMMANDS else None)
     args = parser.parse_args(args_list)
     try:
-        handler = COMMANDS.get(args.command)
-        if handler is not None:
-            return handler(args)
+        if args.command in COMMANDS:
+            return _part(*COMMANDS[args.command])(args)
     except ProjectError as exc:
         print_project_error(exc)
         return 2

@@ -72,8 +72,10 @@ def cmd_run(args: argparse.Namespace) -> int:
         if outputs.write(snap):
             raise _OutputFailed
 
+    # Without a trace, a quiet scan (nothing new: Session.run_for) is only counted.
+    quiet = collector.quiet if outputs.writer is None else None
     try:
-        last = controller.run_for(duration, on_scan)
+        last = controller.run_for(duration, on_scan, quiet)
     except _OutputFailed:
         outputs.leave_safe()
         last = controller.last
@@ -82,6 +84,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     if outputs.failure is not None:
         raise RunFailure(outputs.failure_message())
     wall = time.perf_counter() - started
+    collector.finish(last)
     if scenario:
         print(f"Scenario {scenario.name}: {scenario.description}")
     print(run_summary(engine, last, collector, injections, wall, trace=outputs.trace))

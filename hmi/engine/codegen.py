@@ -91,7 +91,7 @@ _NODES = (ast.Module, ast.FunctionDef, ast.arguments, ast.arg, ast.Return, ast.A
           ast.Subscript, ast.Attribute, ast.Constant, ast.BoolOp, ast.And, ast.Or, ast.UnaryOp,
           ast.Not, ast.Compare, ast.Lt, ast.LtE, ast.Gt, ast.GtE, ast.Eq, ast.NotEq, ast.Is,
           ast.IsNot, ast.Call, ast.Tuple, ast.List, ast.BinOp, ast.Sub, ast.Add, ast.Pass,
-          ast.IfExp, ast.Mult)
+          ast.IfExp, ast.Mult, ast.BitOr)
 # Local names: the parameters and locals of the templates, and the objects handed over.
 LOCALS = frozenset({"v", "h", "f", "t", "now", "scan", "r", "s", "q", "x", "a", "b", "c",
                     "su", "changed", "fire", "moved", "p", "e", "el", "y"})

@@ -13,7 +13,8 @@ compiled here is the same work written out flat (hmi.engine.codegen): for the au
   first question: most scans violate none, and then the filter has nothing else to do);
 * ``monitors(v, h, now, scan)``: the stopwatch monitors after the output scan; True when an
   automaton moved;
-* ``elapsed(now)``: the timers' ET for the snapshot.
+* ``elapsed(now)``: the timers' ET for the snapshot;
+* ``active_bits(v, h)``: which constraints are active, the key of the corrector's memory.
 
 Every function works on the stage objects' own state (a timer's ``since``, a diagnoser's
 ``current``, a GRAFCET's ``activated_at``) and hands the rare events to the stage's own
@@ -47,6 +48,7 @@ CoreFn = Callable[[Image, History, int, int], tuple[bool, ...]]
 ViolatedFn = Callable[[Image, History, tuple[bool, ...]], bool]
 MonitorFn = Callable[[Image, History, int, int], bool]
 ElapsedFn = Callable[[int], tuple[int, ...]]
+ActiveFn = Callable[[Image, History], int]
 
 
 class CompiledScan:
@@ -61,6 +63,7 @@ class CompiledScan:
         self.sources: list[str] = []  # every function's generated text, in build order
         self.core: CoreFn = self._core(layout, memory, control, diagnosis, recovery)
         self.violated: ViolatedFn = self._violated(safety_filter)
+        self.active_bits: ActiveFn = self._active_bits(safety_filter)
         self.monitors: MonitorFn | None = (self._monitors(monitors) if monitors is not None
                                            else None)
         self.elapsed: ElapsedFn = self._elapsed(memory)
@@ -281,6 +284,33 @@ class CompiledScan:
         src = Source()
         src.line(1, "return " + (" or ".join(terms) if terms else "False"))
         fn: ViolatedFn = self._build(src, "violated", "v, h, f")
+        return fn
+
+    def _active_bits(self, safety_filter: SafetyFilter) -> ActiveFn:
+        """``active_bits(v, h)``: which constraints are active (their literals over inputs,
+        memories and earlier scans all true), bit k for safety_filter.compiled[k]: the
+        corrector's memory is keyed on it (SafetyFilter.active_bits)."""
+        index = {name: k for k, name in enumerate(safety_filter.outputs)}
+        always = 0
+        terms = []
+        for k, c in enumerate(safety_filter.compiled):
+            parts = []
+            for lit in c.constraint.literals:
+                if lit.depth == 0 and lit.name in index:
+                    continue
+                read = self._expr(Var(0, lit.name, lit.depth))
+                parts.append(read if lit.positive else f"(not {read})")
+            if parts:
+                terms.append((1 << k, " and ".join(parts)))
+            else:
+                always |= 1 << k
+        src = Source()  # one statement per constraint: a project may have thousands
+        src.line(1, f"b = {always}")
+        for bit, test in terms:
+            src.line(1, f"if {test}:")
+            src.line(2, f"b |= {bit}")
+        src.line(1, "return b")
+        fn: ActiveFn = self._build(src, "active_bits", "v, h")
         return fn
 
     # -- after the output scan ----------------------------------------------------------------

@@ -13,7 +13,7 @@ of steps for the scan, it writes the safe state and says so.
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -233,16 +233,25 @@ class SafetyFilter:
         self._by_active: dict[tuple[int, ...], _ActiveSet] = {}
         # Candidate vectors as packed integers: a cell asks for few distinct vectors.
         self._packed: dict[tuple[bool, ...], int] = {}
-        # Corrections already found, by (candidate, active constraints): the corrector is a
+        # Corrections already found, by (candidate, active constraints' bits): the corrector is a
         # function of these (its search is bounded in steps, not in time, unless a live run
         # set wall_limit_us), and a cell asks for the same repair scan after scan.
-        self._corrections: dict[tuple[int, tuple[int, ...]],
-                                tuple[tuple[bool, ...], FilterReport]] = {}
+        self._corrections: dict[tuple[int, int], tuple[tuple[bool, ...], FilterReport]] = {}
+        # Which constraints are active, as bits in self.compiled's order (hmi.engine.compiled
+        # gives a generated one; None: the contexts evaluated here).
+        self.active_bits: Callable[[Image, History], int] | None = None
         self.remember = True  # False: every correction searched afresh (the tests' reference)
         # The report of a scan with nothing violated, per policy: immutable, built once.
         self._clean_monitor = FilterReport("monitor", strategy)
         self._clean_block = FilterReport("block", strategy)
         self._clean_correct = FilterReport("correct", strategy)
+
+    def _active_bits(self, image: Image, history: History) -> int:
+        fn = self.active_bits
+        if fn is not None:
+            return fn(image, history)
+        return sum(1 << k for k, c in enumerate(self.compiled)
+                   if c.context is None or c.context(image, history))
 
     def active(self, image: Image, history: History) -> list[CompiledConstraint]:
         return [c for c in self.compiled if c.context is None or c.context(image, history)]
@@ -257,6 +266,13 @@ class SafetyFilter:
             if len(self._packed) >= PACKED_CACHE:
                 self._packed.clear()
             candidate = self._packed[fov] = pack(fov)
+        key = None
+        if policy == "correct" and self.remember and self.wall_limit_us is None:
+            # (a search cut by wall time depends on the machine: never given again)
+            key = (candidate, self._active_bits(image, history))
+            found = self._corrections.get(key)
+            if found is not None:
+                return FilterDecision(*found)
         # The outputs' literals first (two integer tests), the context over Y only for the
         # constraints they make true: most constraints are ruled out without evaluating it.
         violated = [c for c in self.compiled if candidate & c.pos == c.pos
@@ -288,15 +304,10 @@ class SafetyFilter:
             # Common case: the candidate violates nothing, so it is written unchanged (a
             # conflict between simple constraints would show as a violation).
             return FilterDecision(fov, self._clean_correct)
-        active = self.active(image, history)
-        if self.wall_limit_us is not None or not self.remember:
-            # (a search cut by wall time depends on the machine: never given again)
-            return FilterDecision(*self._correct(fov, candidate, active, violations))
-        key = (candidate, tuple(map(id, active)))
-        found = self._corrections.get(key)
-        if found is not None:
-            return FilterDecision(*found)
-        written, report = self._correct(fov, candidate, active, violations)
+        written, report = self._correct(fov, candidate, self.active(image, history),
+                                        violations)
+        if key is None:
+            return FilterDecision(written, report)
         if len(self._corrections) >= CORRECTION_CACHE:
             self._corrections.clear()
         # Given again, the same decision and report, except that no search ran for it then

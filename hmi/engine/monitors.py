@@ -91,7 +91,8 @@ class MonitorStage:
         self._bases: list[Base | None] = [None] * len(specs)
         self._dirty = [True] * len(specs)
         self.marks = 0  # the automata's changes, summed when a base is taken again
-        self._capture: tuple[tuple[Base, ...], bool] | None = None
+        # The bases, and the states when no task runs (None: built per scan, lazily).
+        self._capture: tuple[tuple[Base, ...], tuple[MonitorState, ...] | None] | None = None
         for s in specs:
             def fn(expr: Expr) -> BoolFn:
                 return compile_bool(expr, lay.slots, lay.step_times)
@@ -123,24 +124,28 @@ class MonitorStage:
             automaton.step(now, scan, automaton.phase is IDLE, end(image, hist), s, r)
             self._dirty[k] = True
 
-    def capture(self, now: int) -> tuple[tuple[MonitorState, ...] | LazyMonitors, int]:
-        """The states at the end of the scan at `now`, for its snapshot, and the marks: the
-        states themselves when no task is running (then the same tuple scan after scan), else
-        a :class:`LazyMonitors` that builds them when read."""
-        captured = self._capture
-        if captured is None or True in self._dirty:
-            captured = self._capture = self._rebase()
-        bases, running = captured
-        if running:
-            return LazyMonitors(bases, now), self.marks
-        return tuple(b[0] for b in bases), self.marks
+    def settle(self) -> int:
+        """Take again the bases of the tasks stepped since (at the end of a scan); returns
+        the marks (TaskAutomaton.changes summed)."""
+        if self._capture is None or True in self._dirty:
+            self._capture = self._rebase()
+        return self.marks
+
+    def capture(self, now: int) -> tuple[MonitorState, ...] | LazyMonitors:
+        """The states at the end of the scan at `now`, for its snapshot: the states
+        themselves when no task is running (the same tuple scan after scan), else a
+        :class:`LazyMonitors` that builds them when read."""
+        self.settle()
+        assert self._capture is not None
+        bases, idle = self._capture
+        return idle if idle is not None else LazyMonitors(bases, now)
 
     def current(self, now: int) -> tuple[MonitorState, ...]:
         """Each task's state at the end of the scan at `now`."""
-        states, _ = self.capture(now)
+        states = self.capture(now)
         return states.states() if isinstance(states, LazyMonitors) else states
 
-    def _rebase(self) -> tuple[tuple[Base, ...], bool]:
+    def _rebase(self) -> tuple[tuple[Base, ...], tuple[MonitorState, ...] | None]:
         """Take again the base of every task stepped since its last one, and sum the
         automata's changes (TaskAutomaton.changes) in `marks`."""
         bases, dirty = self._bases, self._dirty
@@ -153,7 +158,8 @@ class MonitorStage:
                 dirty[k] = False
             running = running or base[2] is not IDLE
         self.marks = sum(a.changes for a in self.automata)
-        return tuple(bases), running  # type: ignore[arg-type]  # every entry is set above
+        frozen: tuple[Base, ...] = tuple(bases)  # type: ignore[arg-type]  # every one is set
+        return frozen, None if running else tuple(b[0] for b in frozen)
 
     def abandon(self) -> list[str]:
         """A recovery starts: every task in progress is forgotten (TaskAutomaton.abandon).

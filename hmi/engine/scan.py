@@ -168,7 +168,14 @@ class Engine:
                          if compiled and not self.observe else None)
         if self.compiled is not None:  # the filter's first question, compiled
             self.filter_stage.quick = self.compiled.violated
+            self.filter.active_bits = self.compiled.active_bits
         self._bindings = self.input_scan.bindings
+        self._period = project.scan_period_us
+        # The last run()'s results until snapshot() builds them into a Snapshot, and what
+        # news is judged against (hmi.engine.scan.Engine.run).
+        self._pending: tuple[Any, ...] | None = None
+        self._news: tuple[Any, ...] | None = None
+        self._commanded = False
         self._elapsed = (self.compiled.elapsed if self.compiled is not None
                          else self.memory.elapsed)
         self._clean = self.filter_stage.clean  # each policy's report of a clean scan
@@ -176,6 +183,7 @@ class Engine:
     # -- commands ----------------------------------------------------------------------------
     def apply(self, command: Command) -> CommandResult:
         """Apply an operator command now; its effect on outputs shows at the next scan."""
+        self._before_change()
         if self.observe and isinstance(command, SetMode | ManualOutput | SetPolicy
                                        | StartRecovery):
             return CommandResult.refused("read-only mode: nothing is written to the plant and "
@@ -349,7 +357,15 @@ class Engine:
         self._stop_mask = tuple(k for k, v in enumerate(self.project.outputs)
                                 if v.name in stopped)
 
+    def _before_change(self) -> None:
+        """Something other than a scan is about to change the engine or its plant: the last
+        scan's snapshot, if still pending, is built now from what that scan left."""
+        if self._pending is not None:
+            self.snapshot()
+        self._commanded = True
+
     def fault_reset(self) -> CommandResult:
+        self._before_change()
         parts = []
         if self.latched:
             parts.append("safe-state latch released (" + "; ".join(
@@ -378,6 +394,7 @@ class Engine:
             self.recovery.capture() if self.recovery is not None else None)
 
     def restore(self, state: EngineState) -> None:
+        self._before_change()
         self.image[:] = state.image
         self.history.clear()
         self.history.extend(state.history)
@@ -395,29 +412,113 @@ class Engine:
             self.recovery.restore(state.recovery)
 
     def latch_safe(self, source: str, detail: str) -> None:
+        self._before_change()  # (between scans: a runner or the journal latching)
         if not any(r.source == source and r.detail == detail for r in self.latched):
             self.latched.append(LatchReason(source, detail, self.scan, self.now))
 
     # -- the scan ----------------------------------------------------------------------------
     def step(self, now: int) -> Snapshot:
         """One scan at `now`, and what it left behind."""
+        self.run(now)
+        return self.snapshot()
+
+    def run(self, now: int) -> bool:
+        """One scan at `now` without building its snapshot (:meth:`snapshot` builds it on
+        demand, until anything changes the engine again). Returns whether the scan has news:
+        False only when its filter report is the policy's clean one (nothing violated,
+        corrected nor masked) and its snapshot would show no latch, no error, no plant
+        event, nothing reconstructed nor masked, no manual request, and the same plant
+        status, diagnosers, recovery state and monitor_marks as the previous scan, with no
+        command since. A quiet scan's snapshot differs from the one before only in what
+        moves by itself: scan, time, values, fov, outputs, steps and firings, timers, plant
+        state and counters, monitors' stopwatches, wall times."""
         wall = time.perf_counter()
-        fov, outputs, report, diagnosis, monitored, error, filter_us = self._cycle(now)
-        diagnosers = (self.diagnosis.publish(self.image, self.history)
-                      if self.diagnosis is not None else ())
+        self._pending = None  # the previous scan's snapshot, if never asked for: dropped
+        fast = self.compiled
+        if fast is not None and self.started and self.mode == "auto" and not self._stop_mask:
+            self.scan += 1  # (what _cycle does first, and then this)
+            self.now = now
+            cycle = self._auto_cycle(now, fast)
+        else:
+            cycle = self._cycle(now)
+        fov, outputs, report, diagnosis, monitored, error, filter_us = cycle
+        image = self.image
+        stage = self.diagnosis
+        diagnosers: tuple[DiagnoserState, ...] = ()
+        if stage is not None:  # (DiagnosisStage.publish: the records unless one is faulty)
+            diagnosers = stage.publish(image, self.history) if stage.faulty else \
+                stage.current.records
         # The image as the scan left it: the snapshot's values and the history's newest
         # entry are one tuple (an image in the history is never changed).
-        values = tuple(self.image)
-        snapshot = self._snapshot(values, fov, outputs, report, diagnosis, diagnosers,
-                                  monitored, error, wall, filter_us)
+        values = tuple(image)
         self.history.appendleft(values)
-        self.last = snapshot
+        marks = 0
+        if self.monitors is not None:
+            marks = self.monitors.settle() if monitored else self.monitors.marks
+        events = self.plant.take_events()
+        rec = self.recovery
+        recovery = NO_RECOVERY if rec is None else (
+            rec._idle if rec.active is None and not rec.needed else rec.state(now))
+        status = self.plant.status
+        last = self._news
+        # (last[5]: that scan's report was its policy's clean one; a command since, a new
+        # policy included, makes this scan news and compares the next with this one)
+        if (last is not None and report is last[0] and last[5] and status is last[1]
+                and diagnosers is last[2] and marks == last[3] and recovery is last[4]
+                and not self._commanded and error is None and not events
+                and not self.latched and not diagnosis.masked
+                and not diagnosis.reconstructed and not self.manual):
+            news = False
+        else:
+            news = True
+            self._news = (report, status, diagnosers, marks, recovery,
+                          report is self._clean.get(self.policy))
+        self._commanded = False
+        self._pending = (values, fov, outputs, report, diagnosis, diagnosers, monitored, marks,
+                         events, recovery, error, (time.perf_counter() - wall) * 1e6,
+                         filter_us)
+        return news
+
+    def snapshot(self) -> Snapshot:
+        """The last scan's snapshot (:meth:`run`), built now if not yet: the engine's
+        state is still the one that scan left (a command builds it first)."""
+        pending = self._pending
+        if pending is None:
+            if self.last is None:
+                raise RuntimeError("no scan has run yet")
+            return self.last
+        self._pending = None
+        (values, fov, outputs, report, diagnosis, diagnosers, monitored, marks, events,
+         recovery, error, scan_us, filter_us) = pending
+        # (the monitors' bases change only in a scan or a command, which builds this first)
+        monitors: Any = (self.monitors.capture(self.now)
+                         if monitored and self.monitors is not None else ())
+        plant = self.plant
+        policy = self.policy
+        grafcet = self.control.grafcet
+        now = self.now
+        # Positional, in Snapshot's field order (checked by _SNAPSHOT_ORDER below): a
+        # NamedTuple built from keywords maps every one of them at every scan.
+        snapshot = self.last = tuple.__new__(Snapshot, (
+            self.scan, now, self._period, self.layout, values, tuple(fov), tuple(outputs),
+            grafcet.active(self.image) if grafcet is not None else (),
+            grafcet.fired if grafcet is not None else (), self._elapsed(now),
+            self.control_name, self.mode,
+            tuple(sorted(self.manual.items())) if self.manual else (), policy,
+            tuple(self.latched) if self.latched else (), plant.status, plant.state(),
+            plant.counters(), events, report, diagnosers, monitors,
+            diagnosis.reconstructed, self._masked(diagnosis) if policy != "monitor" else (),
+            (), (), (), (),  # explanations, alarms, alarm_events, shelved: the session's
+            tuple(sorted(self.stopped_devices)) if self.stopped_devices else (),
+            recovery, error, scan_us, filter_us, marks))
         return snapshot
 
     def advance(self, now: int) -> None:
         """One scan at `now` whose results nobody reads: the same stages, no snapshot (the
         closed-loop exploration, hmi.engine.explore, only follows the state). The plant's
         events stay with the plant (take_events)."""
+        self._pending = None
+        self._commanded = True  # (the next run() cannot compare with this scan)
         self._cycle(now)
         self.history.appendleft(tuple(self.image))
 
@@ -538,13 +639,17 @@ class Engine:
             # 6. filter: given without its work when nothing is masked, latched nor violated
             policy = self.policy
             started = time.perf_counter()
-            if mask is None and not self.latched and not fast.violated(image, hist, fov):
-                report = self._clean[policy]
-                filter_us = (time.perf_counter() - started) * 1e6
-                monitored, error = self._output_scan(now, fov, None, fast)
-                return fov, fov, report, diagnosis, monitored, error, filter_us
-            decision = self.filter_stage.apply(image, hist, fov, policy, bool(self.latched),
-                                               mask)
+            if mask is None and not self.latched:
+                if not fast.violated(image, hist, fov):
+                    report = self._clean[policy]
+                    filter_us = (time.perf_counter() - started) * 1e6
+                    monitored, error = self._output_scan(now, fov, None, fast)
+                    return fov, fov, report, diagnosis, monitored, error, filter_us
+                # violated, nothing masked: what FilterStage.apply would hand the filter
+                decision = self.filter.apply(image, hist, fov, policy, False)
+            else:
+                decision = self.filter_stage.apply(image, hist, fov, policy,
+                                                   bool(self.latched), mask)
             filter_us = (time.perf_counter() - started) * 1e6
             if decision.latch is not None:
                 self.latch_safe("filter", decision.latch)
@@ -566,20 +671,25 @@ class Engine:
     def _output_scan(self, now: int, outputs: tuple[bool, ...], error: str | None,
                      fast: CompiledScan | None) -> tuple[bool, str | None]:
         """Stage 7's write to the plant (the image holds `outputs` already), then stage 8,
-        the monitors, on the I/O this scan exchanged (their states: Engine._snapshot).
+        the monitors, on the I/O this scan exchanged (their states: Engine.snapshot).
         Returns whether the monitors ran and the scan's error."""
         if not self.observe:
             lost = self.output_scan.write(now, outputs)
             if lost is not None:
                 self.latch_safe("plant", lost)
-        monitors = self.monitors
-        if monitors is None:
+        if self.monitors is None:
             return False, error
+        return self._monitor(now, error, fast)
+
+    def _monitor(self, now: int, error: str | None, fast: CompiledScan | None
+                 ) -> tuple[bool, str | None]:
+        """Stage 8 (the engine has monitors): whether they ran, and the scan's error."""
         try:
             if fast is not None and fast.monitors is not None:
                 fast.monitors(self.image, self.history, now, self.scan)
             else:
-                monitors.step(self.image, self.history, now, self.scan)
+                assert self.monitors is not None
+                self.monitors.step(self.image, self.history, now, self.scan)
         except Exception as exc:  # a broken monitor must not stop the scan silently
             message = f"{type(exc).__name__}: {exc}"
             self.latch_safe("internal", f"internal error at scan {self.scan}: {message}")
@@ -609,45 +719,14 @@ class Engine:
             return tuple(self.image[s] for s in self.output_slots)
         return self.safe_vector
 
-    def _snapshot(self, values: tuple[Any, ...], fov: tuple[bool, ...],
-                  outputs: tuple[bool, ...],
-                  report: FilterReport | None, diagnosis: Diagnosis,
-                  diagnosers: tuple[DiagnoserState, ...], monitored: bool,
-                  error: str | None, wall: float, filter_us: float) -> Snapshot:
-        plant = self.plant
-        now = self.now
-        monitors: Any = ()
-        marks = 0
-        if self.monitors is not None:
-            marks = self.monitors.marks
-            if monitored:
-                monitors, marks = self.monitors.capture(now)
-        # Positional, in Snapshot's field order (checked by _SNAPSHOT_ORDER below): a
-        # NamedTuple built from keywords maps every one of them at every scan.
-        return tuple.__new__(Snapshot, (
-            self.scan, now, self.project.scan_period_us, self.layout, values,
-            tuple(fov), tuple(outputs), self.control.active_steps(self.image),
-            self.control.fired, self._elapsed(now), self.control_name, self.mode,
-            tuple(sorted(self.manual.items())) if self.manual else (), self.policy,
-            tuple(self.latched), plant.status, plant.state(), plant.counters(),
-            plant.take_events(), report, diagnosers,
-            monitors,
-            diagnosis.reconstructed,
-            self._masked(diagnosis) if self.policy != "monitor" else (),
-            (), (), (), (),  # explanations, alarms, alarm_events, shelved: the session's
-            tuple(sorted(self.stopped_devices)) if self.stopped_devices else (),
-            self.recovery.state(now) if self.recovery is not None else NO_RECOVERY,
-            error, (time.perf_counter() - wall) * 1e6, filter_us, marks))
-
-
-# The order _snapshot builds a Snapshot in; a new field must be added there too.
+# The order Engine.step builds a Snapshot in; a new field must be added there too.
 _SNAPSHOT_ORDER = (
     "scan", "time_us", "period_us", "layout", "values", "fov", "outputs", "active_steps",
     "fired", "timer_elapsed", "control", "mode", "manual", "policy", "latched", "plant",
     "plant_state", "plant_counters", "plant_events", "filter", "diagnosers", "monitors",
     "reconstructed", "masked", "explanations", "alarms", "alarm_events", "shelved",
     "stopped_devices", "recovery", "error", "scan_wall_us", "filter_wall_us", "monitor_marks")
-assert Snapshot._fields == _SNAPSHOT_ORDER, "Engine._snapshot builds Snapshot by position"
+assert Snapshot._fields == _SNAPSHOT_ORDER, "Engine.step builds Snapshot by position"
 
 
 class _InputsUnknown(Exception):

@@ -122,6 +122,28 @@ class AlarmManager:
         self.clear_since: dict[str, int] = {}
         self._listed: tuple[Alarm, ...] | None = ()  # chattering alarms: condition clear since
 
+    def settled(self, explanations: tuple[Explanation, ...]) -> bool:
+        """Whether :meth:`update` with these explanations (those of its last call) would
+        change nothing, now or later: nothing shelved (a shelf runs out with time), no
+        chattering alarm held active while clear (held for a while), each alarm of these
+        explanations listed with that very explanation and not cleared (a cleared one would
+        return), every other alarm cleared already and waiting for its acknowledgement (an
+        active one would clear)."""
+        if self.shelved or self.clear_since:
+            return False
+        alarms = self.alarms
+        present = 0
+        for e in explanations:
+            if e.alarm:
+                alarm = alarms.get(e.key)
+                if alarm is None or alarm.explanation is not e or alarm.state == CLEARED_UNACK:
+                    return False
+                present += 1
+        if present == len(alarms):
+            return True
+        keys = {e.key for e in explanations if e.alarm}
+        return all(a.state == CLEARED_UNACK for k, a in alarms.items() if k not in keys)
+
     def update(self, explanations: tuple[Explanation, ...], scan: int, now: int
                ) -> list[AlarmEvent]:
         events: list[AlarmEvent] = []

@@ -12,6 +12,7 @@ from __future__ import annotations
 import re
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 from hmi.engine import commands as cmd
 from hmi.engine.snapshot import Snapshot
@@ -54,26 +55,31 @@ class ExplanationBuilder:
         self.stoppable = {v.device for v in project.outputs if v.device}
         self.diagnosers = {spec.name: spec for spec in diagnosers_of(project)}
         self.plain = PlainNames(project)
-        # The fields build() read at its last scan when that scan explained nothing.
-        self._quiet: tuple[object, ...] | None = None
+        # The last scan's: its report, the fields read from it, the other fields read, and
+        # what they explained (see build).
+        self._last: tuple[Any, Any, tuple[Any, ...], tuple[Explanation, ...]] | None = None
 
     # -- public ------------------------------------------------------------------------------
     def build(self, snap: Snapshot) -> tuple[Explanation, ...]:
-        # A scan that explained nothing, followed by one whose every field read here is the
-        # very same object, explains nothing either (most scans of a working cell): the
-        # situations are found from these fields only, the scan and time only date them.
-        quiet = self._quiet
-        if quiet is not None and snap.filter is quiet[0] and snap.latched is quiet[1] \
-                and snap.plant is quiet[2] and snap.mode is quiet[3] \
-                and snap.manual is quiet[4] and snap.monitors is quiet[5] \
-                and snap.diagnosers is quiet[6] and snap.recovery is quiet[7] \
-                and snap.reconstructed is quiet[8] and snap.masked is quiet[9] \
-                and snap.policy is quiet[10]:
-            return ()
+        # A scan whose every field read here equals the last scan's explains what the last
+        # one did (most scans of a working cell, and a situation that lasts): the situations
+        # are found from these fields only, every explanation comes from the cache by a
+        # signature made of them, and the scan and time only date a new one. So the last
+        # scan's explanations are returned as they are. The filter's report is compared by
+        # the fields read from it (not its measured solver time), the monitors by their marks
+        # (Snapshot.monitor_marks: a detection, a location, a count changed; their stopwatches
+        # explain nothing), and a scan with an error (a stage that did not run) never matches.
+        report = snap.filter
+        inputs = (snap.latched, snap.plant, snap.mode, snap.manual, snap.monitor_marks,
+                  snap.diagnosers, snap.recovery, snap.reconstructed, snap.masked, snap.policy,
+                  snap.error)
+        last = self._last
+        if last is not None and snap.error is None and inputs == last[2] and (
+                report is last[0] or (report is not None and last[0] is not None
+                                      and _read(report) == last[1])):
+            return last[3]
         found = self._build(snap)
-        self._quiet = None if found else (
-            snap.filter, snap.latched, snap.plant, snap.mode, snap.manual, snap.monitors,
-            snap.diagnosers, snap.recovery, snap.reconstructed, snap.masked, snap.policy)
+        self._last = (report, None if report is None else _read(report), inputs, found)
         return found
 
     def _build(self, snap: Snapshot) -> tuple[Explanation, ...]:
@@ -504,3 +510,11 @@ class ExplanationBuilder:
                                consequences, policies, onset.scan, onset.time_us, alarm=False,
                                detail=detail)
         return self.cached(key, forces, make)
+
+
+def _read(report) -> tuple[Any, ...]:
+    """The fields of a filter report the explanations read (all but the search's counts and
+    its measured time)."""
+    return (report.policy, report.strategy, report.violations, report.changes,
+            report.distance, report.fallback, report.safe_state, report.note, report.budget,
+            report.stopped)

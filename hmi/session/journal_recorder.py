@@ -41,6 +41,7 @@ class JournalRecorder:
         self.overruns = Burst("scan-overrun", "scan-overruns", "scan overruns")
         session.listeners.append(self.on_command)
         session.scan_listeners.append(self.on_scan)
+        session.idle_checks[self.on_scan] = self.idle
         session.overrun_listeners.append(self.on_overrun)
 
     def _append(self, entry: dict) -> None:
@@ -80,6 +81,13 @@ class JournalRecorder:
         if self.link is not None:
             for entry in self.link.drain():
                 self._plant(entry)
+
+    def idle(self) -> bool:
+        """Whether a quiet scan (no news, no alarm: Session.run_for) has nothing to journal:
+        no plant link to drain nor overrun episode going on (their entries come with time),
+        no manual request waiting for its filter result. Its alarm events are none and its
+        recovery state the last one's, journalled then."""
+        return self.link is None and not self.overruns.active and not self.pending_manual
 
     def on_scan(self, snapshot: Snapshot) -> None:
         self._drain_plant()

@@ -18,6 +18,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 from hmi.engine.commands import (
     Acknowledge,
@@ -84,14 +85,40 @@ class Session:
         self.explainer = ExplanationBuilder(engine.project)
         self.alarms = AlarmManager()
         self.explanations: tuple[Explanation, ...] = ()  # the last scan's
-        self.last: Snapshot | None = None  # the last scan, explained
+        self._last: Snapshot | None = None  # the last scan, explained (see last)
+        self._quiet = False  # the last scan was quiet: its snapshot is built when read
+        self._quiet_alarms: tuple[Any, ...] = ()  # the alarm list at that scan
         self._pending_alarm_events: list[AlarmEvent] = []  # acknowledgements between scans
         self.listeners: list[Listener] = []
         self.origin = ""  # who sent the command being carried out ("": the cell's operator)
         self.scan_listeners: list[Callable[[Snapshot], None]] = []
+        # A scan listener's check that it has nothing to do on a quiet scan now (see
+        # run_for); a listener without one is given every scan's snapshot.
+        self.idle_checks: dict[Callable[[Snapshot], None], Callable[[], bool]] = {}
         # Told of each scan overrun (a real-time runner more than a period late), for the
         # journal; called from the scan thread with the runner's overrun count.
         self.overrun_listeners: list[Callable[[int], None]] = []
+
+    @property
+    def last(self) -> Snapshot | None:
+        """The last scan, explained; a quiet scan's (run_for) is built here, when read."""
+        if self._quiet:
+            with self.lock:
+                if self._quiet:
+                    core = self.engine.snapshot()
+                    # What _explained makes of a quiet scan: the last scan's explanations,
+                    # the alarm list as it was, no alarm event, no error, nothing shelved;
+                    # the session added no time to the engine's.
+                    self._last = explained(core, self.explanations, self._quiet_alarms, (),
+                                           core.error, core.scan_wall_us)
+                    self._quiet = False
+        return self._last
+
+    @last.setter
+    def last(self, snapshot: Snapshot | None) -> None:
+        with self.lock:
+            self._last = snapshot
+            self._quiet = False
 
     @property
     def next_time(self) -> int:
@@ -220,42 +247,90 @@ class Session:
 
     def scan_once(self) -> Snapshot:
         with self.lock:
-            snapshot = self._explained(self.engine.step(self.next_time))
-            self.last = snapshot
-            for listener in self.scan_listeners:
-                listener(snapshot)
-            return snapshot
+            return self._scanned(self.engine.step(self.next_time))
+
+    def _scanned(self, core: Snapshot) -> Snapshot:
+        snapshot = self._explained(core)
+        self._last = snapshot
+        self._quiet = False
+        for listener in self.scan_listeners:
+            listener(snapshot)
+        return snapshot
+
+    def _scan_unless_quiet(self) -> Snapshot | None:
+        """One scan; None when it is quiet (its snapshot built only if `last` is read): the
+        engine says the scan has no news (hmi.engine.scan.Engine.run), no alarm event waits,
+        the alarms are settled for the last scan's explanations (AlarmManager.settled: an
+        update would change nothing) and every scan listener is idle. Such a scan's
+        explanations are the very tuple the last scan's were (every field they are found from
+        is the same: ExplanationBuilder.build returns its last result), so the alarm list
+        has nothing to update either."""
+        with self.lock:
+            engine = self.engine
+            news = engine.run(self.next_time)
+            alarms = self.alarms
+            if news or self._pending_alarm_events or not alarms.settled(self.explanations) \
+                    or not self._listeners_idle():
+                return self._scanned(engine.snapshot())
+            self._quiet = True
+            self._quiet_alarms = alarms.listed()  # (a command may change it before `last`)
+            return None
+
+    def _listeners_idle(self) -> bool:
+        checks = self.idle_checks
+        for listener in self.scan_listeners:
+            check = checks.get(listener)
+            if check is None or not check():
+                return False
+        return True
 
     def _explained(self, core: Snapshot) -> Snapshot:
         """The engine's snapshot with its explanations, the alarm list and its changes."""
         started = time.perf_counter()
         error = core.error
         try:
-            self.explanations = self.explainer.build(core)
+            explanations = self.explainer.build(core)
         except Exception as exc:  # explanations must never stop the scan
-            self.explanations = ()
+            explanations = ()
             error = error or f"explanations: {type(exc).__name__}: {exc}"
-        events = self.take_alarm_events()
+        self.explanations = explanations
+        events = self._pending_alarm_events  # acknowledgements since the last scan
+        if events:
+            self._pending_alarm_events = []
         alarms = self.alarms
-        if self.explanations or alarms.alarms or alarms.shelved:
+        if explanations or alarms.alarms or alarms.shelved:
             # (with no situation, no alarm and nothing shelved the update has nothing to do)
-            events.extend(alarms.update(self.explanations, core.scan, core.time_us))
-        return explained(core, self.explanations, alarms.listed(),
+            events = events + alarms.update(explanations, core.scan, core.time_us)
+        return explained(core, explanations, alarms.listed(),
                          tuple(events) if events else (), error,
                          core.scan_wall_us + (time.perf_counter() - started) * 1e6,
                          alarms.shelved_listed() if alarms.shelved else ())
 
-    def run_for(self, duration_us: int, on_scan: Callable[[Snapshot], None] | None = None
-                ) -> Snapshot:
-        """Run scans in virtual time from now until `duration_us` more has elapsed."""
+    def run_for(self, duration_us: int, on_scan: Callable[[Snapshot], None] | None = None,
+                on_quiet: Callable[[], None] | None = None) -> Snapshot:
+        """Run scans in virtual time from now until `duration_us` more has elapsed.
+
+        With `on_quiet`, a quiet scan (:meth:`_scan_unless_quiet`: nothing new for the
+        session, most scans of a working cell) calls it instead of `on_scan` and its snapshot
+        is not built unless `last` is read; for a caller that needs no snapshot where nothing
+        happened (plchmi run without a trace counts the scan)."""
         end = self.next_time + duration_us
-        snapshot = self.last
-        while self.next_time <= end:
-            snapshot = self.scan_once()
-            if on_scan is not None:
-                on_scan(snapshot)
-        assert snapshot is not None
-        return snapshot
+        if on_quiet is None:
+            while self.next_time <= end:
+                snapshot = self.scan_once()
+                if on_scan is not None:
+                    on_scan(snapshot)
+        else:
+            scan = self._scan_unless_quiet
+            while self.next_time <= end:
+                snapshot = scan()
+                if snapshot is None:
+                    on_quiet()
+                elif on_scan is not None:
+                    on_scan(snapshot)
+        last = self.last
+        assert last is not None
+        return last
 
 
 # The name before issue 14 ("controller" is 004's word for a filter use): one phase.

@@ -22,12 +22,13 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from functools import partial
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rich.text import Text
 from textual import events
 from textual.app import App, ComposeResult
 from textual.binding import Binding
+from textual.command import Provider
 from textual.containers import Horizontal, Vertical
 from textual.css.scalar import Unit
 from textual.screen import ModalScreen
@@ -73,14 +74,6 @@ from hmi.ui.chronogram import WINDOWS_US, Chronogram
 from hmi.ui.constraints_panel import ConstraintInfo, ConstraintsPanel
 from hmi.ui.containment import ContainedPump, Containment, UIFault
 from hmi.ui.diagnosers_panel import DiagnosersPanel, PartitionInfo
-from hmi.ui.dialogs import (
-    ChoiceDialog,
-    ConfirmDialog,
-    Dialog,
-    InfoDialog,
-    StepDialog,
-    TextDialog,
-)
 from hmi.ui.driver import LiveDriver, VirtualDriver
 from hmi.ui.explain_panel import (
     ExplanationPanel,
@@ -88,7 +81,6 @@ from hmi.ui.explain_panel import (
     PolicyRequested,
     result_line,
 )
-from hmi.ui.fault_dialog import FaultDialog
 from hmi.ui.footer import HmiFooter
 from hmi.ui.frame import Frame, InjectedFault
 from hmi.ui.grafcet_panel import GrafcetPanel, StepInfo, TimerInfo
@@ -96,16 +88,20 @@ from hmi.ui.io_panel import IOPanel
 from hmi.ui.message_line import MessageLine, result_text, verdict_text
 from hmi.ui.messages import CommandRequested, ExplainRequested
 from hmi.ui.monitors_panel import MonitorsPanel
-from hmi.ui.palette import HmiCommands, PaletteEntry
 from hmi.ui.panel import TOP_SHARE, ColumnPanel
 from hmi.ui.recorder import ScanRecorder
 from hmi.ui.reset import ResetLine, recovery_lines, reset_preview
 from hmi.ui.serving import Served, serving_lines
-from hmi.ui.signal_dialog import SignalDialog
 from hmi.ui.sim_panel import SimPanel
 from hmi.ui.status import BannerStrip, StatusBar
 from hmi.ui.style import ISA101, MUTED, OK_SYMBOL, Level, isa101_theme, tag
 from hmi.ui.verdict import output_changes, request_verdict
+
+if TYPE_CHECKING:
+    from hmi.ui.palette import PaletteEntry
+
+# The dialogs, the fault and signal pickers and the palette's provider are imported when
+# first opened: the first frame shows none of them (docs/performance.md).
 
 REFRESH_HZ = 20
 SPEEDS: tuple[float | None, ...] = (1.0, 10.0, None)
@@ -124,6 +120,12 @@ MANUAL_KEYS = {"1": True, "0": False, "x": None}
 SHELVE_TIMES = ((5 * 60_000_000, "5 min"), (15 * 60_000_000, "15 min"),
                 (60 * 60_000_000, "1 h"), (8 * 3_600_000_000, "8 h (the longest)"))
 WIDE = 120  # from this width on, the explanation panel stays beside the chronogram
+
+
+def hmi_commands() -> type[Provider]:
+    """The palette's provider of the HMI's commands (Textual asks when the palette opens)."""
+    from hmi.ui.palette import HmiCommands
+    return HmiCommands
 
 
 class Body(ContainedPump, Vertical):
@@ -150,7 +152,7 @@ class PlcHmiApp(ContainedPump, App):
         Binding("0", "manual_off", "Off", tooltip=MANUAL_KEY_HELP[False]),
         Binding("x", "manual_release", "Release", tooltip=MANUAL_KEY_HELP[None]),
     ]
-    COMMANDS = App.COMMANDS | {HmiCommands}
+    COMMANDS = App.COMMANDS | {hmi_commands}
     HORIZONTAL_BREAKPOINTS = [(0, "-narrow"), (120, "-wide")]
     VERTICAL_BREAKPOINTS = [(0, "-short"), (40, "-tall")]
 
@@ -573,6 +575,7 @@ class PlcHmiApp(ContainedPump, App):
     def choose_policy(self, key: str, policy: Policy) -> None:
         """A policy button (or its palette entry): confirmed if it changes what the plant
         does, then sent as ChoosePolicy; its answer is shown in the panel at once."""
+        from hmi.ui.dialogs import ConfirmDialog
         if policy.command is None:
             self._choose(key, policy, True)
             return
@@ -724,8 +727,10 @@ class PlcHmiApp(ContainedPump, App):
         """A key typed before the dialog on top was painted is not the dialog's: dropped
         (a stray enter or y meant for the screen below must not answer it)."""
         if isinstance(event, events.Key) and not event.is_forwarded and \
-                isinstance(self.screen, Dialog) and not self.screen.takes(event):
-            return
+                isinstance(self.screen, ModalScreen):
+            from hmi.ui.dialogs import Dialog
+            if isinstance(self.screen, Dialog) and not self.screen.takes(event):
+                return
         await super().on_event(event)
 
     def on_key(self, event: events.Key) -> None:
@@ -761,6 +766,7 @@ class PlcHmiApp(ContainedPump, App):
 
     async def action_quit(self) -> None:
         """Quitting ends control of the plant: asked, with what happens to the outputs."""
+        from hmi.ui.dialogs import ConfirmDialog
         title, lines, level = self._quit_lines()
         self.push_screen(ConfirmDialog(title, lines, "Quit", level=level,
                                        dialog_id="quit-dialog"), self._quit_confirmed)
@@ -802,6 +808,7 @@ class PlcHmiApp(ContainedPump, App):
         self.send(StepScans(1))
 
     def action_step_n(self) -> None:
+        from hmi.ui.dialogs import StepDialog
         def done(count: int | None) -> None:
             if count:
                 self.send(StepScans(count))
@@ -819,6 +826,7 @@ class PlcHmiApp(ContainedPump, App):
         self.send(SetSpeed(factor))
 
     def action_manual(self) -> None:
+        from hmi.ui.dialogs import ConfirmDialog
         snap = self.controller.last
         if snap is None:
             return
@@ -851,6 +859,7 @@ class PlcHmiApp(ContainedPump, App):
         self.send(ManualOutput(name, value))
 
     def action_reset(self) -> None:
+        from hmi.ui.dialogs import ConfirmDialog
         snap = self.controller.last
         if snap is None:
             return
@@ -869,6 +878,7 @@ class PlcHmiApp(ContainedPump, App):
     # -- shelving and comments (hmi.explain.alarms) --------------------------------------------
     def shelve(self, key: str | None = None) -> None:
         """Shelve an alarm (the selected one): for how long, or once until it clears."""
+        from hmi.ui.dialogs import ChoiceDialog
         alarm = self._listed_alarm(key, "shelve")
         if alarm is None:
             return
@@ -894,6 +904,7 @@ class PlcHmiApp(ContainedPump, App):
         return alarm
 
     def comment(self, key: str | None = None) -> None:
+        from hmi.ui.dialogs import TextDialog
         alarm = self._listed_alarm(key, "comment")
         if alarm is None:
             return
@@ -908,6 +919,7 @@ class PlcHmiApp(ContainedPump, App):
     # -- recovery (hmi.project.recovery) -------------------------------------------------------
     def start_recovery(self, name: str) -> None:
         """Confirm, then enter recovery mode running procedure `name`."""
+        from hmi.ui.dialogs import ConfirmDialog
         spec = next((p for p in recoveries_of(self.project) if p.name == name), None)
         if spec is None:
             self.refuse("recovery", f"no recovery procedure {name!r}")
@@ -918,6 +930,7 @@ class PlcHmiApp(ContainedPump, App):
                          partial(self._confirmed, StartRecovery(name)))
 
     def leave_recovery(self) -> None:
+        from hmi.ui.dialogs import ConfirmDialog
         snap = self.controller.last
         state = snap.recovery if snap else None
         reached = {"done": "The recovery is done.", "failed": "The recovery failed."}.get(
@@ -962,6 +975,7 @@ class PlcHmiApp(ContainedPump, App):
         panel.expand()
 
     def action_policy(self, policy: str | None = None) -> None:
+        from hmi.ui.dialogs import ChoiceDialog
         current = self.controller.last.policy if self.controller.last \
             else self.controller.engine.policy
         if policy is not None:
@@ -977,6 +991,7 @@ class PlcHmiApp(ContainedPump, App):
                                       dialog_id="policy-dialog"), chosen)
 
     def _confirm_policy(self, current: str, policy: str) -> None:
+        from hmi.ui.dialogs import ConfirmDialog
         level = Level.ALARM if policy == "monitor" else Level.ATTENTION
         lines: list[Text | str] = [f"{current} → {policy}: {POLICY_HELP[policy]}."]
         if policy == "monitor":
@@ -994,6 +1009,7 @@ class PlcHmiApp(ContainedPump, App):
             self.message.say(Text(f"cancelled: {describe(command)}", style=MUTED))
 
     def action_inject(self) -> None:
+        from hmi.ui.fault_dialog import FaultDialog
         if not self.simulated:
             self.refuse("fault injection", "only a simulated plant can be given faults")
             return
@@ -1032,6 +1048,7 @@ class PlcHmiApp(ContainedPump, App):
         self.send(SetInput(name, value))
 
     def action_signals(self) -> None:
+        from hmi.ui.signal_dialog import SignalDialog
         chrono = self.chronogram
         engine = self.controller.engine
         descriptions = {n: self.project.describe(n) for n in engine.layout.names}
@@ -1071,6 +1088,7 @@ class PlcHmiApp(ContainedPump, App):
     # -- the command palette -----------------------------------------------------------------
     def palette_entries(self) -> list[PaletteEntry]:
         """Every control, as palette commands; the ones that do not apply now are left out."""
+        from hmi.ui.palette import PaletteEntry
         entries: list[PaletteEntry] = []
         for a in ACTIONS:
             if a.action in ("speed", "inject") and not self.simulated:
@@ -1134,6 +1152,7 @@ class PlcHmiApp(ContainedPump, App):
 
     def show_serving(self) -> None:
         """The OPC UA server's page: endpoint, clients and their security (palette)."""
+        from hmi.ui.dialogs import InfoDialog
         if self.served is not None:
             self.push_screen(InfoDialog("OPC UA server", serving_lines(self.served.status()),
                                         dialog_id="opcua-dialog"))
@@ -1141,6 +1160,7 @@ class PlcHmiApp(ContainedPump, App):
 
     def _situation_entries(self, snap) -> list[PaletteEntry]:
         """Per alarm and situation: acknowledge, explain, its policies; stopped devices."""
+        from hmi.ui.palette import PaletteEntry
         entries: list[PaletteEntry] = []
         for alarm in snap.alarms:
             if alarm.state != "active-acknowledged":

@@ -11,30 +11,33 @@ tie-breaker flags and every variable's value. A text that parses with errors is 
 (Textual reports it as usual).
 
 ``_parse_rules`` is Textual's, not a public interface: the cache works with the Textual
-version it was checked against (TEXTUAL, the version pyproject.toml pins) and stays out of
-the way with any other. The file sits beside hmi's bytecode, written under the bytecode's
-rule (hmi/codecache.py) and trusted as it is.
+version it was checked against (TEXTUAL, the version pyproject.toml pins; read from the
+installed distribution's folder name: ``textual.__version__`` imports importlib.metadata,
+some 8 ms) and stays out of the way with any other. The parsed rules are Textual's objects:
+the file's header also names the size and time of each file of Textual's CSS package, so
+rules parsed by other code are never read back. The file sits beside hmi's bytecode,
+written under the bytecode's rule (hmi/codecache.py) and trusted as it is.
 """
 
 from __future__ import annotations
 
 import contextlib
-import hashlib
+import os
 import pickle
 import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import textual
+import textual.css
 from textual.css.stylesheet import Stylesheet
 
-from hmi.codecache import read_file, write_file, writing
+from hmi.codecache import blake2b, read_file, write_file, writing
 
 TEXTUAL = "8.2.8"  # the version whose Stylesheet._parse_rules this wraps
 DEFAULT_PATH = (Path(__file__).resolve().parents[1] / "__pycache__"
                 / f"textual-css.{sys.implementation.cache_tag}.pickle")
-HEADER = f"plchmi kept css 1 textual {TEXTUAL}\n".encode()
+FORMAT = b"plchmi kept css 2"
 MAX_ENTRIES = 256  # past this (stylesheets of older versions of the HMI), start afresh
 
 
@@ -43,10 +46,11 @@ class KeptCss:
     them back as new objects, as its own parse would give (Textual keeps parsed rules per
     stylesheet, and builds a new stylesheet to parse again when the variables change)."""
 
-    def __init__(self, path: Path, write: bool | None = None) -> None:
+    def __init__(self, path: Path, header: bytes, write: bool | None = None) -> None:
         self.path = path
+        self.header = header
         self.write = write  # None: the bytecode's rule
-        self.entries: dict[str, bytes] = _read(path)
+        self.entries: dict[str, bytes] = _read(path, header)
         self.hits = 0
         self.parsed = 0
         self._unsaved = False
@@ -59,7 +63,7 @@ class KeptCss:
         rules = in_process.get(cache_key)
         if rules is not None:  # as Textual's own method answers it
             return rules
-        key = hashlib.blake2b(repr((*cache_key, sorted(stylesheet._variables.items())))
+        key = blake2b(repr((*cache_key, sorted(stylesheet._variables.items())))
                               .encode("utf-8", "surrogatepass"), digest_size=20).hexdigest()
         kept = self.entries.get(key)
         if kept is not None:
@@ -83,11 +87,36 @@ class KeptCss:
             return
         self._unsaved = False
         entries = self.entries if len(self.entries) <= MAX_ENTRIES else {}
-        write_file(self.path, HEADER, pickle.dumps(entries, pickle.HIGHEST_PROTOCOL))
+        write_file(self.path, self.header, pickle.dumps(entries, pickle.HIGHEST_PROTOCOL))
 
 
-def _read(path: Path) -> dict[str, bytes]:
-    body = read_file(path, HEADER)
+def textual_version() -> str | None:
+    """The installed Textual's version, from its distribution's folder beside it (None if
+    there is not exactly one)."""
+    package = Path(textual.css.__file__).resolve().parents[1]
+    try:
+        found = [name for name in os.listdir(package.parent)
+                 if name.startswith("textual-") and name.endswith(".dist-info")]
+    except OSError:
+        return None
+    return found[0][len("textual-"):-len(".dist-info")] if len(found) == 1 else None
+
+
+def header() -> bytes:
+    """The file's first line: the format, and each file of Textual's CSS package by name,
+    size and modification time (what parsed the rules, and what their classes are)."""
+    css = Path(textual.css.__file__).resolve().parent
+    digest = blake2b(digest_size=16)
+    with os.scandir(css) as listing:
+        for entry in sorted(listing, key=lambda e: e.name):
+            if entry.name.endswith(".py"):
+                stat = entry.stat()
+                digest.update(f"{entry.name} {stat.st_size} {stat.st_mtime_ns}\0".encode())
+    return b"%s textual %s %s\n" % (FORMAT, TEXTUAL.encode(), digest.hexdigest().encode())
+
+
+def _read(path: Path, header: bytes) -> dict[str, bytes]:
+    body = read_file(path, header)
     if body is None:
         return {}
     try:
@@ -107,10 +136,10 @@ def kept_css(path: Path = DEFAULT_PATH, write: bool | None = None) -> Iterator[K
     default, the bytecode's rule. Yields None and changes nothing with another Textual
     version, or when already inside."""
     original = Stylesheet.__dict__["_parse_rules"]
-    if textual.__version__ != TEXTUAL or getattr(original, "kept_css", False):
+    if textual_version() != TEXTUAL or getattr(original, "kept_css", False):
         yield None
         return
-    kept = KeptCss(path, write)
+    kept = KeptCss(path, header(), write)
 
     def parse_rules(self: Stylesheet, css: str, read_from: Any,
                     is_default_rules: bool = False, tie_breaker: int = 0,

@@ -1,0 +1,97 @@
+"""`plchmi run` without a trace builds no snapshot for a quiet scan (hmi.session.Session.run_for:
+no news from the engine, nothing explained, no alarm): what it prints and journals must be
+exactly what the same run building every scan's snapshot prints and journals."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from hmi.cli import main
+from hmi.engine import commands as cmd
+from hmi.report import RunCollector
+from hmi.session.session import Session
+from tests.conftest import PROJECTS, make_controller
+
+S = 1_000_000
+
+RUNS = [
+    ("cispi_valve", ["--for", "60s"]),
+    ("cispi_valve", ["--for", "40s", "--inject", "F5@5s", "--inject", "F9@12s+2s"]),
+    ("cispi_subsystem", ["--for", "60s", "--inject", "P.welded@30s"]),
+    ("sorting", ["--for", "60s", "--scenario", "table_jam"]),
+    ("sorting", ["--for", "40s", "--policy", "monitor", "--inject", "left_blocked@10s"]),
+    ("palletizer", ["--for", "60s"]),
+    ("conveyor_robot", ["--scenario", "paper"]),
+    ("conveyor_robot", ["--for", "30s", "--explain"]),
+]
+
+
+def run(capsys, tmp_path, name: str, project: str, args: list[str]) -> tuple[list[str], list]:
+    journal = tmp_path / f"{name}.jsonl"
+    assert main(["run", str(PROJECTS / project), *args, "--journal", str(journal)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    # the wall time and the journal's path are all that may differ
+    out = [line.split(" scans in ")[0] if line.startswith("Ran ") else line for line in out
+           if not line.startswith("Journal: ")]
+    entries = [json.loads(line) for line in journal.read_text().splitlines()]
+    for entry in entries:
+        entry.pop("wall")
+    return out, entries
+
+
+@pytest.mark.parametrize(("project", "args"), RUNS)
+def test_a_run_prints_and_journals_what_building_every_snapshot_does(
+        capsys, tmp_path, monkeypatch, project, args):
+    scans = {"quiet": 0}
+    real = Session._scan_unless_quiet
+
+    def counted(self):
+        snapshot = real(self)
+        scans["quiet"] += snapshot is None
+        return snapshot
+
+    monkeypatch.setattr(Session, "_scan_unless_quiet", counted)
+    quiet = run(capsys, tmp_path, "quiet", project, args)
+    assert scans["quiet"] > 100  # the run did skip building snapshots
+    monkeypatch.setattr(Session, "_scan_unless_quiet", lambda self: self.scan_once())
+    assert run(capsys, tmp_path, "full", project, args) == quiet
+
+
+@pytest.mark.parametrize(("project", "faults"), [
+    ("sorting", ()), ("sorting", ("table_jam@5s",)), ("cispi_valve", ("F5@3s", "F13@9s")),
+    ("conveyor_robot", ("C1.stop@2s+2s",)), ("palletizer", ()),
+    ("palletizer", ("layer_eye_stuck0@9s",))])
+def test_last_builds_a_quiet_scans_snapshot_as_a_scan_would_have(project, faults):
+    """Session.last after quiet scans: the snapshot scan_once gives (measured times apart),
+    alarms and explanations included; a command between scans sees it too."""
+    def comparable(snap):
+        return snap._replace(scan_wall_us=0.0, filter_wall_us=0.0)
+
+    lazy, full = (make_controller(PROJECTS / project, inject=faults) for _ in range(2))
+    quiet = []
+    for until in (4, 7, 13, 21, 30):
+        lazy.run_for(until * S - lazy.next_time, None, lambda: quiet.append(1))
+        full.run_for(until * S - full.next_time)
+        assert comparable(lazy.last) == comparable(full.last)
+        for session in (lazy, full):
+            assert session.command(cmd.SetPolicy("monitor" if until % 2 else "correct")).accepted
+        assert comparable(lazy.last) == comparable(full.last)
+    assert len(quiet) > 300
+
+
+def test_the_collector_counts_a_quiet_scan_as_the_scan_it_repeats():
+    session = make_controller(PROJECTS / "palletizer")
+    lazy, full = RunCollector(), RunCollector()
+    last = session.run_for(30 * S, lambda snap: (lazy.add(snap), full.add(snap)),
+                           lambda: (lazy.quiet(), full.add(session.last)))
+    lazy.finish(last)
+    full.finish(last)
+    assert lazy.scans == full.scans == 3001
+    for field in ("violations", "corrections", "safe_scans", "unsafe_written", "fallbacks",
+                  "max_distance", "first_latch", "events", "alarm_events", "step_changes"):
+        assert getattr(lazy, field) == getattr(full, field), field
+    assert lazy.monitors.last == full.monitors.last
+    assert lazy.monitors.detections == full.monitors.detections
+
