@@ -104,6 +104,23 @@ def closed_loop_cache(tmp_path_factory):
         os.environ["PLCHMI_CACHE"] = previous
 
 
+@pytest.fixture(autouse=True, scope="module")
+def kept_textual_css(request, tmp_path_factory):
+    """Textual's parsed stylesheets kept across the app starts of a worker, as the HMI keeps
+    them across its own starts (hmi/ui/csscache.py): each pilot test starts an app, and
+    Textual parsed all the CSS again at each (~15 ms CPU of each start). The rules are read
+    back as new objects for each app; nothing else is shared. Not around the tests of the
+    cache itself, which enter it on their own."""
+    if request.module.__name__.endswith("test_start_caches"):
+        yield
+        return
+    from hmi.ui.csscache import kept_css
+    folder = tmp_path_factory.getbasetemp() / "kept-css"
+    folder.mkdir(exist_ok=True)
+    with kept_css(folder / "textual-css.pickle", write=True):
+        yield
+
+
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item, nextitem):
     """With PLCHMI_TEST_CPU=FILE, each test's CPU seconds (its process and the children it
