@@ -29,7 +29,6 @@ import builtins
 import collections
 import contextlib
 import dataclasses
-import hashlib
 import importlib.util
 import marshal
 import os
@@ -39,6 +38,11 @@ from collections.abc import Iterator
 from pathlib import Path
 from types import CodeType, ModuleType
 from typing import Any
+
+try:  # hashlib's own blake2b, without hashlib importing OpenSSL's bindings (~3 ms at a start)
+    from _blake2 import blake2b as blake2b
+except ImportError:  # an interpreter built without it
+    from hashlib import blake2b as blake2b
 
 DEFAULT_PATH = (Path(__file__).resolve().parent / "__pycache__"
                 / f"generated-code.{sys.implementation.cache_tag}.marshal")
@@ -141,7 +145,7 @@ def source_fingerprint(module: ModuleType) -> bytes:
     source = module.__file__
     if source is None:
         raise ValueError(f"{module.__name__} has no source file")
-    return hashlib.blake2b(Path(source).read_bytes(), digest_size=16).hexdigest().encode()
+    return blake2b(Path(source).read_bytes(), digest_size=16).hexdigest().encode()
 
 
 def _codes(body: bytes | None) -> dict[Any, CodeType]:

@@ -129,6 +129,8 @@ def test_fallback_and_internal_error_are_explained(tmp_path):
     ctl = make_controller(VALVE)
     ctl.scan_once()
     ctl.engine.filter_stage.apply = lambda *args: 1 / 0
+    assert ctl.engine.compiled is not None  # the filter's first question, asked by the scan
+    ctl.engine.compiled.violated = lambda *args: 1 / 0
     snap = ctl.scan_once()
     e = explanation(snap, "safe_state:internal")
     assert "internal error" in e.what and "ZeroDivisionError" in e.detail

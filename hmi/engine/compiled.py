@@ -301,11 +301,15 @@ class CompiledScan:
                 read = self._expr(Var(0, lit.name, lit.depth))
                 parts.append(read if lit.positive else f"(not {read})")
             if parts:
-                terms.append(f"({1 << k} if {' and '.join(parts)} else 0)")
+                terms.append((1 << k, " and ".join(parts)))
             else:
                 always |= 1 << k
-        src = Source()
-        src.line(1, "return " + " | ".join([str(always), *terms]))
+        src = Source()  # one statement per constraint: a project may have thousands
+        src.line(1, f"b = {always}")
+        for bit, test in terms:
+            src.line(1, f"if {test}:")
+            src.line(2, f"b |= {bit}")
+        src.line(1, "return b")
         fn: ActiveFn = self._build(src, "active_bits", "v, h")
         return fn
 

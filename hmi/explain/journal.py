@@ -17,7 +17,6 @@ The default place is the user's data folder: $PLCHMI_DATA, else $XDG_DATA_HOME/p
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import re
@@ -59,6 +58,8 @@ def safe_file_name(name: str) -> str:
     cleaned = _UNSAFE_IN_FILE_NAME.sub("_", name).lstrip(".")[:80]
     if cleaned == name:
         return name
+    import hashlib  # rarely wanted: not imported at every start (docs/performance.md)
+
     digest = hashlib.sha256(name.encode("utf-8", "surrogatepass")).hexdigest()[:8]
     return f"{cleaned or 'project'}-{digest}"
 

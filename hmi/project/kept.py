@@ -23,14 +23,13 @@ one per key, written under the bytecode's rule (hmi/codecache.py) and trusted as
 
 from __future__ import annotations
 
-import hashlib
 import os
 import pickle
 import sys
 from collections.abc import Iterator
 from pathlib import Path
 
-from hmi.codecache import read_file, write_file, writing
+from hmi.codecache import blake2b, read_file, write_file, writing
 from hmi.paths import COMPONENTS
 from hmi.project.loader import load_project, resolve_project_file
 from hmi.project.model import Project
@@ -70,7 +69,7 @@ def load(path: str | Path, diagnoser_variant: str | None = None,
 
 def project_key(path: str | Path, diagnoser_variant: str | None) -> str:
     """The digest of what loading `path` depends on (module docstring)."""
-    digest = hashlib.blake2b(digest_size=20)
+    digest = blake2b(digest_size=20)
 
     def add(*parts: object) -> None:
         digest.update(repr(parts).encode("utf-8", "surrogatepass"))
@@ -100,7 +99,7 @@ def _entries(root: Path, skip: str | None = None) -> Iterator[os.DirEntry[str]]:
             yield entry
 
 
-def _tree(root: Path, digest: hashlib.blake2b) -> None:
+def _tree(root: Path, digest: blake2b) -> None:
     """Every entry under `root` (symlinks not followed: their targets are recorded, and
     what they lead to must lie in a tree walked too): name, kind, content."""
     size = 0
@@ -124,7 +123,7 @@ def _tree(root: Path, digest: hashlib.blake2b) -> None:
         digest.update(f"{record}\0".encode("utf-8", "surrogateescape"))
 
 
-def _code(package: Path, digest: hashlib.blake2b) -> None:
+def _code(package: Path, digest: blake2b) -> None:
     """hmi's files by name, size and modification time (not its bytecode)."""
     for entry in _entries(package, skip="__pycache__"):
         if not entry.is_dir(follow_symlinks=False):

@@ -22,7 +22,6 @@ written under the bytecode's rule (hmi/codecache.py) and trusted as it is.
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import os
 import pickle
 import sys
@@ -33,7 +32,7 @@ from typing import Any
 import textual.css
 from textual.css.stylesheet import Stylesheet
 
-from hmi.codecache import read_file, write_file, writing
+from hmi.codecache import blake2b, read_file, write_file, writing
 
 TEXTUAL = "8.2.8"  # the version whose Stylesheet._parse_rules this wraps
 DEFAULT_PATH = (Path(__file__).resolve().parents[1] / "__pycache__"
@@ -64,7 +63,7 @@ class KeptCss:
         rules = in_process.get(cache_key)
         if rules is not None:  # as Textual's own method answers it
             return rules
-        key = hashlib.blake2b(repr((*cache_key, sorted(stylesheet._variables.items())))
+        key = blake2b(repr((*cache_key, sorted(stylesheet._variables.items())))
                               .encode("utf-8", "surrogatepass"), digest_size=20).hexdigest()
         kept = self.entries.get(key)
         if kept is not None:
@@ -107,7 +106,7 @@ def header() -> bytes:
     """The file's first line: the format, and each file of Textual's CSS package by name,
     size and modification time (what parsed the rules, and what their classes are)."""
     css = Path(textual.css.__file__).resolve().parent
-    digest = hashlib.blake2b(digest_size=16)
+    digest = blake2b(digest_size=16)
     with os.scandir(css) as listing:
         for entry in sorted(listing, key=lambda e: e.name):
             if entry.name.endswith(".py"):
