@@ -287,9 +287,11 @@ async def screens(css: Path | None, size: tuple[int, int]) -> tuple[list, list[s
     return rules, shots, kept
 
 
-@pytest.mark.parametrize("size", [(80, 24), (120, 36)])
-async def test_kept_stylesheets_give_the_same_rules_and_the_same_screens(tmp_path, size):
+async def test_kept_stylesheets_give_the_same_rules_and_the_same_screens(tmp_path):
+    """At 80x24, the operator's terminal (the rules are the same whatever the size: every
+    stylesheet is parsed, whichever rules a size then applies)."""
     css = tmp_path / "css.pickle"
+    size = (80, 24)
     reference = await screens(None, size)
     first = await screens(css, size)
     assert first[2].parsed > 0 and css.exists()
@@ -340,3 +342,16 @@ def test_the_stylesheet_cache_is_checked_against_the_pinned_textual():
     another one turns it off (above), and this test says to check it again."""
     import textual
     assert csscache.textual_version() == textual.__version__ == csscache.TEXTUAL
+
+
+async def test_the_first_frame_listeners_are_told_once_the_first_frame_is_shown():
+    """Where the HMI saves the kept stylesheets (an operator's HMI is rarely quit cleanly)."""
+    app = make_app()
+    told: list[bool] = []
+    app.first_frame_listeners.append(lambda: told.append(app.screen.is_mounted))
+    async with app.run_test(size=(80, 24)) as pilot:
+        await settle(pilot)
+        assert told == [True]
+        await press(pilot, "space")
+        await settle(pilot)
+    assert told == [True]
