@@ -204,7 +204,9 @@ class RunCollector:
         stopwatches): no event, explanation, latch or diagnoser change, and the very same
         filter report, which counts again what it counted."""
         self.scans += 1
-        self._count(self._report)
+        report = self._report
+        if report is not None and report is not self._nothing:
+            self._count(report)
 
     def finish(self, last) -> None:
         """The run's last snapshot (built at its end if its scan was quiet): the monitors'

@@ -269,11 +269,16 @@ class Session:
             engine = self.engine
             news = engine.run(now)
             alarms = self.alarms
-            if news or self._pending_alarm_events or not alarms.settled(self.explanations) \
-                    or not self._listeners_idle():
+            explanations = self.explanations
+            # (with no explanation, no alarm and nothing shelved the list is settled)
+            if news or self._pending_alarm_events or (
+                    (explanations or alarms.alarms or alarms.shelved)
+                    and not alarms.settled(explanations)) \
+                    or (self.scan_listeners and not self._listeners_idle()):
                 return self._scanned(engine.snapshot())
             self._quiet = True
-            self._quiet_alarms = alarms.listed()  # (a command may change it before `last`)
+            # the list as it is now (a command may change it before `last` is read)
+            self._quiet_alarms = alarms.listed() if alarms.alarms else ()
             return None
 
     def _listeners_idle(self) -> bool:
