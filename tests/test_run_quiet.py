@@ -47,15 +47,15 @@ def test_a_run_prints_and_journals_what_building_every_snapshot_does(
     scans = {"quiet": 0}
     real = Session._scan_unless_quiet
 
-    def counted(self):
-        snapshot = real(self)
+    def counted(self, now):
+        snapshot = real(self, now)
         scans["quiet"] += snapshot is None
         return snapshot
 
     monkeypatch.setattr(Session, "_scan_unless_quiet", counted)
     quiet = run(capsys, tmp_path, "quiet", project, args)
     assert scans["quiet"] > 100  # the run did skip building snapshots
-    monkeypatch.setattr(Session, "_scan_unless_quiet", lambda self: self.scan_once())
+    monkeypatch.setattr(Session, "_scan_unless_quiet", lambda self, now: self.scan_once())
     assert run(capsys, tmp_path, "full", project, args) == quiet
 
 

@@ -257,8 +257,8 @@ class Session:
             listener(snapshot)
         return snapshot
 
-    def _scan_unless_quiet(self) -> Snapshot | None:
-        """One scan; None when it is quiet (its snapshot built only if `last` is read): the
+    def _scan_unless_quiet(self, now: int) -> Snapshot | None:
+        """One scan at `now`; None when it is quiet (its snapshot built only if `last` is read): the
         engine says the scan has no news (hmi.engine.scan.Engine.run), no alarm event waits,
         the alarms are settled for the last scan's explanations (AlarmManager.settled: an
         update would change nothing) and every scan listener is idle. Such a scan's
@@ -267,7 +267,7 @@ class Session:
         has nothing to update either."""
         with self.lock:
             engine = self.engine
-            news = engine.run(self.next_time)
+            news = engine.run(now)
             alarms = self.alarms
             if news or self._pending_alarm_events or not alarms.settled(self.explanations) \
                     or not self._listeners_idle():
@@ -322,8 +322,8 @@ class Session:
                     on_scan(snapshot)
         else:
             scan = self._scan_unless_quiet
-            while self.next_time <= end:
-                snapshot = scan()
+            while (now := self.next_time) <= end:
+                snapshot = scan(now)
                 if snapshot is None:
                     on_quiet()
                 elif on_scan is not None:
