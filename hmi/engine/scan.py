@@ -478,6 +478,22 @@ class Engine:
                          (time.perf_counter() - wall) * 1e6)
         return news
 
+    def run_while_quiet(self, start: int, end: int, period: int) -> tuple[int, bool]:
+        """Scans at `start`, `start + period`, ... up to `end` included, by :meth:`run`,
+        stopping after the first that has news. Returns how many ran and whether the last
+        had news. A headless run hands the engine a stretch of scans at once when nothing
+        it reads can change at a quiet scan (hmi.session.Session.run_for); the last scan's
+        snapshot is pending as after run()."""
+        run = self.run
+        count = 0
+        now = start
+        while now <= end:
+            count += 1
+            if run(now):
+                return count, True
+            now += period
+        return count, False
+
     def snapshot(self) -> Snapshot:
         """The last scan's snapshot (:meth:`run`), built now if not yet: the engine's
         state is still the one that scan left (a command builds it first)."""
