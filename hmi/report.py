@@ -198,13 +198,16 @@ class RunCollector:
             reason = snap.latched[0]
             self.first_latch = (reason.scan, reason.time_us, reason.detail)
 
-    def quiet(self) -> None:
-        """A quiet scan (hmi.session.Session.run_for): its snapshot, not built, differs from
-        the last one added only in what moves by itself (time, values, plant state,
-        stopwatches): no event, explanation, latch or diagnoser change, and the very same
-        filter report, which counts again what it counted."""
-        self.scans += 1
-        self._count(self._report)
+    def quiet(self, count: int = 1) -> None:
+        """`count` quiet scans (hmi.session.Session.run_for): their snapshots, not built,
+        differ from the last one added only in what moves by itself (time, values, plant
+        state, stopwatches): no event, explanation, latch or diagnoser change, and the very
+        same filter report, which counts again what it counted, at each of them."""
+        self.scans += count
+        report = self._report
+        if report is not None and report is not self._nothing:
+            for _ in range(count):
+                self._count(report)
 
     def finish(self, last) -> None:
         """The run's last snapshot (built at its end if its scan was quiet): the monitors'

@@ -35,7 +35,7 @@ FullSorter, FullPalletizer = _full(SortingCell), _full(Palletizer)
 def physics(cell: SteppedCell) -> dict:
     """Everything the cell's physics holds, but the glide itself and the reporting caches."""
     state = {k: v for k, v in vars(cell).items()
-             if k not in ("_glide", "_state_cache", "_counter_cache", "source")}
+             if k not in ("_glide", "_vouched", "_state_cache", "_counter_cache", "source")}
     source = cell.source
     state["source"] = (source.next_due, source.next_high, source.count, list(source.queued))
     state["sensors"] = cell.sensors()
@@ -84,6 +84,8 @@ def drive(kind: str, holds, sample: int, faults) -> None:
             now = min(end, glide.t + sample)
             glide.advance(now)
             full.advance(now)
+            # what the plant reads right after an advance (SteppedCell.read_sensors)
+            assert dict(glide.read_sensors()) == full.sensors(), f"at {now} us"
             assert physics(glide) == physics(full), f"at {now} us"
     assert glide.events == full.events
 

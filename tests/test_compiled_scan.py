@@ -220,3 +220,22 @@ def test_most_scans_of_a_working_cell_are_quiet(name):
     engine = Engine(project, SimPlant(project))
     news = sum(engine.run(k * project.scan_period_us) for k in range(SCANS))
     assert news < SCANS // 2, (name, news)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_run_while_quiet_stops_at_the_first_news(name):
+    """Engine.run_while_quiet is run() scan after scan, stopping after the first with news:
+    the same scans, the same news, the same state as one run() per scan."""
+    project = load(PROJECTS / name)
+    period = project.scan_period_us
+    batched, single = (Engine(project, SimPlant(project)) for _ in range(2))
+    news_at = [k for k in range(SCANS) if single.run(k * period)]
+    seen = []
+    now, end = 0, (SCANS - 1) * period
+    while now <= end:
+        count, news = batched.run_while_quiet(now, end, period)
+        now += count * period
+        if news:
+            seen.append(now // period - 1)
+    assert seen == news_at and news_at, name
+    assert comparable(batched.snapshot()) == comparable(single.snapshot())

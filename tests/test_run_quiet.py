@@ -45,17 +45,18 @@ def run(capsys, tmp_path, name: str, project: str, args: list[str]) -> tuple[lis
 def test_a_run_prints_and_journals_what_building_every_snapshot_does(
         capsys, tmp_path, monkeypatch, project, args):
     scans = {"quiet": 0}
-    real = Session._scan_unless_quiet
+    real = RunCollector.quiet
 
-    def counted(self):
-        snapshot = real(self)
-        scans["quiet"] += snapshot is None
-        return snapshot
+    def counted(self, count=1):
+        scans["quiet"] += count
+        real(self, count)
 
-    monkeypatch.setattr(Session, "_scan_unless_quiet", counted)
+    monkeypatch.setattr(RunCollector, "quiet", counted)
     quiet = run(capsys, tmp_path, "quiet", project, args)
     assert scans["quiet"] > 100  # the run did skip building snapshots
-    monkeypatch.setattr(Session, "_scan_unless_quiet", lambda self: self.scan_once())
+    # the reference: every scan built, explained and added
+    monkeypatch.setattr(Session, "_ready_for_quiet", lambda self: False)
+    monkeypatch.setattr(Session, "_scan_unless_quiet", lambda self, now: self.scan_once())
     assert run(capsys, tmp_path, "full", project, args) == quiet
 
 
@@ -72,26 +73,28 @@ def test_last_builds_a_quiet_scans_snapshot_as_a_scan_would_have(project, faults
     lazy, full = (make_controller(PROJECTS / project, inject=faults) for _ in range(2))
     quiet = []
     for until in (4, 7, 13, 21, 30):
-        lazy.run_for(until * S - lazy.next_time, None, lambda: quiet.append(1))
+        lazy.run_for(until * S - lazy.next_time, None, quiet.append)
         full.run_for(until * S - full.next_time)
         assert comparable(lazy.last) == comparable(full.last)
         for session in (lazy, full):
             assert session.command(cmd.SetPolicy("monitor" if until % 2 else "correct")).accepted
         assert comparable(lazy.last) == comparable(full.last)
-    assert len(quiet) > 300
+    assert sum(quiet) > 300
 
 
-def test_the_collector_counts_a_quiet_scan_as_the_scan_it_repeats():
-    session = make_controller(PROJECTS / "palletizer")
+@pytest.mark.parametrize("project", ["palletizer", "sorting", "cispi_valve"])
+def test_the_collector_counts_quiet_scans_as_the_scans_they_repeat(project):
+    """RunCollector.quiet(n) against the same run adding every scan's snapshot."""
     lazy, full = RunCollector(), RunCollector()
-    last = session.run_for(30 * S, lambda snap: (lazy.add(snap), full.add(snap)),
-                           lambda: (lazy.quiet(), full.add(session.last)))
+    quiet = []
+    last = make_controller(PROJECTS / project).run_for(
+        30 * S, lazy.add, lambda n: (quiet.append(n), lazy.quiet(n)))
     lazy.finish(last)
-    full.finish(last)
-    assert lazy.scans == full.scans == 3001
+    full.finish(make_controller(PROJECTS / project).run_for(30 * S, full.add))
+    assert lazy.scans == full.scans and sum(quiet) > full.scans // 2
     for field in ("violations", "corrections", "safe_scans", "unsafe_written", "fallbacks",
-                  "max_distance", "first_latch", "events", "alarm_events", "step_changes"):
+                  "max_distance", "first_latch", "events", "alarm_events", "step_changes",
+                  "explanations"):
         assert getattr(lazy, field) == getattr(full, field), field
     assert lazy.monitors.last == full.monitors.last
     assert lazy.monitors.detections == full.monitors.detections
-

@@ -315,8 +315,8 @@ class CompiledScan:
 
     # -- after the output scan ----------------------------------------------------------------
     def _monitors(self, stage: MonitorStage) -> MonitorFn:
-        """MonitorStage.step without its loop: a waiting task whose start is false only has
-        its clock noted; a running task that neither ends, changes phase, breaks a rule nor
+        """MonitorStage.step without its loop: a waiting task whose start is false is left
+        as it is; a running task that neither ends, changes phase, breaks a rule nor
         trips its watchdog only has its stopwatches advanced (TaskAutomaton.step would do
         nothing else, and the snapshot's states are then its base moved on, see
         MonitorStage); any other calls TaskAutomaton.step with the conditions' values."""
@@ -343,8 +343,8 @@ class CompiledScan:
             src.line(3, f"a.step(now, scan, True, {end}, s, {res})")
             src.line(3, f"{dirty}[{k}] = True")
             src.line(3, "moved = True")
-            src.line(2, "else:")
-            src.line(3, "a.last_us = now")
+            # (a waiting task that does not start: TaskAutomaton.step would only note the
+            # time in last_us, which nothing reads before the task starts and step sets it)
             src.line(1, "else:")
             src.line(2, f"e = {end}")
             src.line(2, f"s = {sus}")

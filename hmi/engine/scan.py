@@ -441,7 +441,7 @@ class Engine:
             cycle = self._auto_cycle(now, fast)
         else:
             cycle = self._cycle(now)
-        fov, outputs, report, diagnosis, monitored, error, filter_us = cycle
+        report, diagnosis, monitored, error = cycle[2], cycle[3], cycle[4], cycle[5]
         image = self.image
         stage = self.diagnosis
         diagnosers: tuple[DiagnoserState, ...] = ()
@@ -474,10 +474,25 @@ class Engine:
             self._news = (report, status, diagnosers, marks, recovery,
                           report is self._clean.get(self.policy))
         self._commanded = False
-        self._pending = (values, fov, outputs, report, diagnosis, diagnosers, monitored, marks,
-                         events, recovery, error, (time.perf_counter() - wall) * 1e6,
-                         filter_us)
+        self._pending = (cycle, values, diagnosers, marks, events, recovery,
+                         (time.perf_counter() - wall) * 1e6)
         return news
+
+    def run_while_quiet(self, start: int, end: int, period: int) -> tuple[int, bool]:
+        """Scans at `start`, `start + period`, ... up to `end` included, by :meth:`run`,
+        stopping after the first that has news. Returns how many ran and whether the last
+        had news. A headless run hands the engine a stretch of scans at once when nothing
+        it reads can change at a quiet scan (hmi.session.Session.run_for); the last scan's
+        snapshot is pending as after run()."""
+        run = self.run
+        count = 0
+        now = start
+        while now <= end:
+            count += 1
+            if run(now):
+                return count, True
+            now += period
+        return count, False
 
     def snapshot(self) -> Snapshot:
         """The last scan's snapshot (:meth:`run`), built now if not yet: the engine's
@@ -488,8 +503,8 @@ class Engine:
                 raise RuntimeError("no scan has run yet")
             return self.last
         self._pending = None
-        (values, fov, outputs, report, diagnosis, diagnosers, monitored, marks, events,
-         recovery, error, scan_us, filter_us) = pending
+        cycle, values, diagnosers, marks, events, recovery, scan_us = pending
+        fov, outputs, report, diagnosis, monitored, error, filter_us = cycle
         # (the monitors' bases change only in a scan or a command, which builds this first)
         monitors: Any = (self.monitors.capture(self.now)
                          if monitored and self.monitors is not None else ())

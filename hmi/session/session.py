@@ -257,24 +257,38 @@ class Session:
             listener(snapshot)
         return snapshot
 
-    def _scan_unless_quiet(self) -> Snapshot | None:
-        """One scan; None when it is quiet (its snapshot built only if `last` is read): the
-        engine says the scan has no news (hmi.engine.scan.Engine.run), no alarm event waits,
-        the alarms are settled for the last scan's explanations (AlarmManager.settled: an
-        update would change nothing) and every scan listener is idle. Such a scan's
-        explanations are the very tuple the last scan's were (every field they are found from
-        is the same: ExplanationBuilder.build returns its last result), so the alarm list
-        has nothing to update either."""
+    def _scan_unless_quiet(self, now: int) -> Snapshot | None:
+        """One scan at `now`; None when it is quiet (its snapshot built only if `last` is
+        read): the engine says the scan has no news (hmi.engine.scan.Engine.run) and the
+        session is ready for one (:meth:`_ready_for_quiet`)."""
         with self.lock:
             engine = self.engine
-            news = engine.run(self.next_time)
-            alarms = self.alarms
-            if news or self._pending_alarm_events or not alarms.settled(self.explanations) \
-                    or not self._listeners_idle():
-                return self._scanned(engine.snapshot())
-            self._quiet = True
-            self._quiet_alarms = alarms.listed()  # (a command may change it before `last`)
-            return None
+            if not engine.run(now) and self._ready_for_quiet():
+                self._quiet_from_here()
+                return None
+            return self._scanned(engine.snapshot())
+
+    def _ready_for_quiet(self) -> bool:
+        """Whether a scan with no news from the engine is quiet for the session too: no
+        alarm event waits, the alarm list is settled for the last scan's explanations
+        (AlarmManager.settled: an update with them would change nothing) and every scan
+        listener is idle. Such a scan's explanations are the very tuple the last scan's were
+        (every field they are found from is the same: ExplanationBuilder.build returns its
+        last result), so the alarm list has nothing to update either. Nothing a quiet scan
+        does changes this: only a scan with news or a command can."""
+        alarms = self.alarms
+        explanations = self.explanations
+        # (with no explanation, no alarm and nothing shelved the list is settled)
+        return not self._pending_alarm_events and (
+            not (explanations or alarms.alarms or alarms.shelved)
+            or alarms.settled(explanations)) and (
+            not self.scan_listeners or self._listeners_idle())
+
+    def _quiet_from_here(self) -> None:
+        """The last scan was quiet: `last` builds its snapshot when read."""
+        self._quiet = True
+        # the list as it is now (a command may change it before `last` is read)
+        self._quiet_alarms = self.alarms.listed() if self.alarms.alarms else ()
 
     def _listeners_idle(self) -> bool:
         checks = self.idle_checks
@@ -307,13 +321,15 @@ class Session:
                          alarms.shelved_listed() if alarms.shelved else ())
 
     def run_for(self, duration_us: int, on_scan: Callable[[Snapshot], None] | None = None,
-                on_quiet: Callable[[], None] | None = None) -> Snapshot:
+                on_quiet: Callable[[int], None] | None = None) -> Snapshot:
         """Run scans in virtual time from now until `duration_us` more has elapsed.
 
-        With `on_quiet`, a quiet scan (:meth:`_scan_unless_quiet`: nothing new for the
-        session, most scans of a working cell) calls it instead of `on_scan` and its snapshot
-        is not built unless `last` is read; for a caller that needs no snapshot where nothing
-        happened (plchmi run without a trace counts the scan)."""
+        With `on_quiet`, quiet scans (no news from the engine and the session ready for them,
+        :meth:`_ready_for_quiet`: most scans of a working cell) are told to it by their
+        number instead of to `on_scan`, and their snapshots are not built (`last` builds the
+        last one if read); a stretch of them runs in the engine at once
+        (Engine.run_while_quiet), up to the first scan with news. For a caller that needs no
+        snapshot where nothing happened (plchmi run without a trace counts the scans)."""
         end = self.next_time + duration_us
         if on_quiet is None:
             while self.next_time <= end:
@@ -321,13 +337,24 @@ class Session:
                 if on_scan is not None:
                     on_scan(snapshot)
         else:
-            scan = self._scan_unless_quiet
-            while self.next_time <= end:
-                snapshot = scan()
-                if snapshot is None:
-                    on_quiet()
-                elif on_scan is not None:
-                    on_scan(snapshot)
+            engine = self.engine
+            while (now := self.next_time) <= end:
+                if self.clock is not None or not self._ready_for_quiet():
+                    built = self._scan_unless_quiet(now)
+                    quiet = 0 if built is not None else 1
+                else:
+                    with self.lock:
+                        count, news = engine.run_while_quiet(now, end, self.period_us)
+                        quiet = count - news
+                        if news:
+                            built = self._scanned(engine.snapshot())
+                        else:
+                            built = None
+                            self._quiet_from_here()
+                if quiet:
+                    on_quiet(quiet)
+                if built is not None and on_scan is not None:
+                    on_scan(built)
         last = self.last
         assert last is not None
         return last

@@ -46,6 +46,9 @@ class SteppedCell(SimDevice):
         self.jams: set[str] = set()
         self.stuck: dict[str, bool] = {}  # sensor -> the value it is stuck at
         self._glide: Glide | None = None  # new orders, a fault, a repair end it
+        # The glide the last advance left the cell in (None: it did not move, or no glide):
+        # right after that advance it holds without checking again (read_sensors).
+        self._vouched: Glide | None = None
 
     @abstractmethod
     def true_sensors(self) -> dict[str, bool]:
@@ -60,7 +63,23 @@ class SteppedCell(SimDevice):
         values.update(self.stuck)
         return values
 
+    def read_sensors(self) -> dict[str, bool]:
+        """:meth:`sensors` right after :meth:`advance` (the plant's read): the glide the
+        advance checked or planned holds still, nothing ran in between, so its sensors are
+        read without checking it again nor copying them (the caller only reads them)."""
+        glide = self._glide
+        if glide is None or glide is not self._vouched:
+            return self.sensors()
+        if self.stuck:
+            values = dict(glide.sensors)
+            values.update(self.stuck)
+            return values
+        return glide.sensors
+
     def _advance_to(self, t: int) -> None:
+        self._vouched = None
+        if self.t >= t:
+            return
         while self.t < t:
             dt = min(t - self.t, self.MAX_STEP_US)
             glide = self._glide
@@ -73,6 +92,8 @@ class SteppedCell(SimDevice):
             self.t += dt
             self._step(dt)
             self._glide = self._plan_glide(dt)
+        # a glide checked (holds) then moved, or planned just now: it holds here
+        self._vouched = self._glide
 
     def _plan_glide(self, dt: int) -> Glide | None:
         """After a step of `dt`: the next steps that only glide (None: none known)."""

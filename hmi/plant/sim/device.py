@@ -99,6 +99,11 @@ class SimDevice(ABC):
     def sensors(self) -> dict[str, bool]:
         """Sensor port values at the current time (after advance)."""
 
+    def read_sensors(self) -> Mapping[str, bool]:
+        """The sensors right after :meth:`advance`, for the plant's read (not to be kept
+        nor changed: a model may give the same mapping again)."""
+        return self.sensors()
+
     @abstractmethod
     def _advance_to(self, t: int) -> None:
         """Integrate the physics from self.t to t (t >= self.t) and set self.t = t."""

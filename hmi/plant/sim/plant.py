@@ -52,11 +52,8 @@ class SimPlant(Plant):
             device.link(by_name)
         self.free_inputs = {name: False for name in self.input_names if name not in driven}
         self._values = dict.fromkeys(self.input_names, False)
-        # read_into's plan for the engine's bindings: (bindings, per device its (port, slot)
-        # pairs, the free inputs' (name, slot) pairs).
-        self._plan: tuple[tuple[tuple[str, int], ...],
-                          list[tuple[SimDevice, tuple[tuple[str, int], ...]]],
-                          tuple[tuple[str, int], ...]] | None = None
+        # read_into's plan for the engine's bindings (see _read_plan)
+        self._plan: tuple[Any, ...] | None = None
         self._read_at: int | None = None  # the time every device was last brought to
         self._written: tuple[tuple[str, ...], tuple[bool, ...]] | None = None
         # Several devices: their items last time, and the plant's tuple made of them.
@@ -82,28 +79,54 @@ class SimPlant(Plant):
                   bindings: tuple[tuple[str, int], ...]) -> None:
         """:meth:`read` straight into the engine's image (the same values, no mapping).
         A plant that reads otherwise (a test's flaky plant, a subclass or a patched read)
-        is read through its read."""
+        is read through its read.
+
+        Each device's sensors go in as one vector: the values in its ports' slot order,
+        kept while the device gives the very same mapping again (a gliding cell's), and
+        stored as a slice when its slots follow each other."""
         if type(self).read is not SimPlant.read or "read" in self.__dict__:
             super().read_into(now_us, image, bindings)
             return
         plan = self._plan
         if plan is None or plan[0] is not bindings:
-            slot = dict(bindings)
-            plan = self._plan = (
-                bindings,
-                [(device, tuple((port, slot[var]) for port, var in binding))
-                 for device, binding in self._sensor_bind],
-                tuple((name, slot[name]) for name in self.free_inputs))
-        for device, pairs in plan[1]:
+            plan = self._plan = self._read_plan(bindings)
+        for reader in plan[1]:
+            device, ports, slots, first, last = reader[:5]
             device.advance(now_us)
-            if pairs:
-                sensed = device.sensors()
-                for port, index in pairs:
-                    image[index] = bool(sensed[port])
+            if not ports:
+                continue
+            sensed = device.read_sensors()
+            if sensed is reader[5]:
+                values = reader[6]
+            else:
+                values = tuple([bool(sensed[port]) for port in ports])
+                reader[5], reader[6] = sensed, values
+            if first is not None:
+                image[first:last] = values
+            else:
+                for index, value in zip(slots, values):  # noqa: B905 - same length
+                    image[index] = value
         free = self.free_inputs
         for name, index in plan[2]:
             image[index] = bool(free[name])
         self._read_at = now_us
+
+    def _read_plan(self, bindings: tuple[tuple[str, int], ...]) -> tuple[Any, ...]:
+        """read_into's plan for the engine's bindings: per device [device, its sensor ports
+        in slot order, their slots, the first and end slot when they follow each other
+        (else None), the mapping last read and the vector made of it]; the free inputs'
+        (name, slot) pairs."""
+        slot = dict(bindings)
+        readers = []
+        for device, binding in self._sensor_bind:
+            pairs = sorted((slot[var], port) for port, var in binding)
+            slots = tuple(index for index, _ in pairs)
+            contiguous = bool(slots) and slots == tuple(range(slots[0], slots[0] + len(slots)))
+            readers.append([device, tuple(port for _, port in pairs), slots,
+                            slots[0] if contiguous else None,
+                            slots[0] + len(slots) if contiguous else None, None, ()])
+        return (bindings, readers,
+                tuple((name, slot[name]) for name in self.free_inputs))
 
     def write(self, now_us: int, outputs: Mapping[str, bool]) -> None:
         self._written = None

@@ -38,6 +38,10 @@ class Valve(SimDevice, model=VALVE):
         super().__init__(name, params)
         self.travel: int = int(self.params["travel"])
         self.band: int = min(int(self.params["switch_band"]), self.travel // 4)
+        # Switch zone edges on both sides, where a switch is made and where it breaks, and
+        # the ends (_next_boundary: positions where the dynamics change)
+        self._marks = (0, self.band, self.band + 1, self.travel - self.band - 1,
+                       self.travel - self.band, self.travel)
         self.pos: int = 0 if self.params["initial"] == "closed" else self.travel
         self.jammed = False
         self.self_drive = 0  # +1 / -1 while F11 / F12 moves the valve by itself
@@ -98,15 +102,15 @@ class Valve(SimDevice, model=VALVE):
         """Time until something changes the dynamics (an end, a switch edge, a jam point)."""
         dt = _NEVER
         if self._can_move(drive):
-            # Switch zone edges on both sides: where a switch is made and where it breaks.
-            marks = [0, self.band, self.band + 1, self.travel - self.band - 1,
-                     self.travel - self.band, self.travel]
+            pos = self.pos
+            for mark in self._marks:
+                distance = (mark - pos) * drive
+                if 0 < distance < dt:
+                    dt = distance
             if "F13" in self.armed:
-                marks.append(self._block_point())
-            for mark in marks:
-                distance = (mark - self.pos) * drive
-                if distance > 0:
-                    dt = min(dt, distance)
+                distance = (self._block_point() - pos) * drive
+                if 0 < distance < dt:
+                    dt = distance
         elif drive and not self.stall_reported:
             dt = min(dt, self.params["stall_tolerance"] - self.stall_us + 1)
         for _, start, end in self.glitches.values():
