@@ -416,6 +416,15 @@ class Engine:
         if not any(r.source == source and r.detail == detail for r in self.latched):
             self.latched.append(LatchReason(source, detail, self.scan, self.now))
 
+    def _latch_internal(self, error: str) -> None:
+        """Latch the safe state for an internal error, once per distinct error: one that
+        repeats at every scan (a bug in generated code would) keeps the reason of the scan it
+        first struck, instead of one more reason, explanation and journal line per scan,
+        a list that grew without bound and made every scan slower than the last."""
+        tail = f": {error}"
+        if not any(r.source == "internal" and r.detail.endswith(tail) for r in self.latched):
+            self.latch_safe("internal", f"internal error at scan {self.scan}{tail}")
+
     # -- the scan ----------------------------------------------------------------------------
     def step(self, now: int) -> Snapshot:
         """One scan at `now`, and what it left behind."""
@@ -619,7 +628,7 @@ class Engine:
             fov = outputs = self._held_outputs()
         except Exception as exc:  # never leave the plant driven by a half-computed scan
             error = f"{type(exc).__name__}: {exc}"
-            self.latch_safe("internal", f"internal error at scan {self.scan}: {error}")
+            self._latch_internal(error)
             fov = self.safe_vector
             outputs = self.safe_vector
         # 7. output scan
@@ -677,7 +686,7 @@ class Engine:
             fov = outputs = self.safe_vector
         except Exception as exc:  # never leave the plant driven by a half-computed scan
             error = f"{type(exc).__name__}: {exc}"
-            self.latch_safe("internal", f"internal error at scan {self.scan}: {error}")
+            self._latch_internal(error)
             fov = outputs = self.safe_vector
         for slot, value in zip(self.output_slots, outputs, strict=True):  # 7. output scan
             image[slot] = value
@@ -708,7 +717,7 @@ class Engine:
                 self.monitors.step(self.image, self.history, now, self.scan)
         except Exception as exc:  # a broken monitor must not stop the scan silently
             message = f"{type(exc).__name__}: {exc}"
-            self.latch_safe("internal", f"internal error at scan {self.scan}: {message}")
+            self._latch_internal(message)
             return False, error or message
         return True, error
 
