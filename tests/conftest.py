@@ -27,6 +27,7 @@ settings.register_profile("plchmi", deadline=None, suppress_health_check=[Health
 settings.load_profile("plchmi")
 
 
+@pytest.hookimpl(tryfirst=True)
 def pytest_configure(config):
     """Compile each module once in a run and reuse it: this process, the xdist workers (started
     after this) and the commands tests start (`python -m hmi.cli ...`) write and read bytecode
@@ -35,6 +36,23 @@ def pytest_configure(config):
     more for each `python -m hmi.cli check`, 5 s more for each worker's collection."""
     sys.dont_write_bytecode = False
     os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+    # xdist's default distribution (`load`, what `-n` gives) as `loadgroup`: the same, and
+    # the tests marked `xdist_group` on one worker: the tests that share a computed run
+    # (tests/cellruns.py) then compute it once. The workers name a marked test with its
+    # group (`nodeid@group`), which the scheduler reads; the name changes nothing else.
+    if hasattr(config, "workerinput"):
+        config.option.loadgroup = True
+    elif config.getoption("dist", None) == "load":
+        config.option.dist = "loadgroup"
+
+
+@pytest.hookimpl(optionalhook=True)  # xdist's hooks: a run without xdist has none
+def pytest_xdist_auto_num_workers(config) -> int:
+    """`-n auto` (README, .ci/run): a worker per core, and one more. Some tests sleep while
+    real processes work in real time (the live Modbus and OPC UA tests, a server starting):
+    with one worker per core, a core stayed idle meanwhile (docs/performance.md, the suite's
+    "slept" seconds)."""
+    return len(os.sched_getaffinity(0)) + 1
 
 
 def processes_for_a_test() -> int:
@@ -86,12 +104,32 @@ def closed_loop_cache(tmp_path_factory):
         os.environ["PLCHMI_CACHE"] = previous
 
 
+@pytest.fixture(autouse=True, scope="module")
+def kept_textual_css(request, tmp_path_factory):
+    """Textual's parsed stylesheets kept across the app starts of a worker, as the HMI keeps
+    them across its own starts (hmi/ui/csscache.py): each pilot test starts an app, and
+    Textual parsed all the CSS again at each (~15 ms CPU of each start). The rules are read
+    back as new objects for each app; nothing else is shared. Not around the tests of the
+    cache itself, which enter it on their own."""
+    if request.module.__name__.endswith("test_start_caches"):
+        yield
+        return
+    from hmi.ui.csscache import kept_css
+    folder = tmp_path_factory.getbasetemp() / "kept-css"
+    folder.mkdir(exist_ok=True)
+    with kept_css(folder / "textual-css.pickle", write=True):
+        yield
+
+
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item, nextitem):
     """With PLCHMI_TEST_CPU=FILE, each test's CPU seconds (its process and the children it
-    reaped: servers, pools) and wall seconds, set-up and teardown included, are appended to
-    FILE.<worker> as `nodeid<TAB>cpu<TAB>wall`: on a shared machine the wall time of a test
-    says more about the load than about the test (docs/performance.md)."""
+    reaped: servers, pools), wall seconds and the seconds its process waited for a core
+    (runnable, not running: the machine's load), set-up and teardown included, are appended
+    to FILE.<worker> as `nodeid<TAB>cpu<TAB>wall<TAB>waited`: on a shared machine the wall
+    time of a test says more about the load than about the test (docs/performance.md).
+    wall - cpu - waited is the time the test slept (a real process, a deadline): a core
+    another worker may use."""
     path = os.environ.get("PLCHMI_TEST_CPU")
     if not path:
         yield
@@ -103,9 +141,16 @@ def pytest_runtest_protocol(item, nextitem):
         own = resource.getrusage(resource.RUSAGE_SELF)
         children = resource.getrusage(resource.RUSAGE_CHILDREN)
         return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
-    cpu0, wall0 = cpu(), time.perf_counter()
+    def waited() -> float:  # run-queue time of this process (Linux; 0 elsewhere)
+        try:
+            with open("/proc/self/schedstat", encoding="ascii") as stat:
+                return int(stat.read().split()[1]) / 1e9
+        except (OSError, IndexError, ValueError):
+            return 0.0
+    cpu0, wall0, waited0 = cpu(), time.perf_counter(), waited()
     yield
-    line = f"{item.nodeid}\t{cpu() - cpu0:.3f}\t{time.perf_counter() - wall0:.3f}\n"
+    line = (f"{item.nodeid}\t{cpu() - cpu0:.3f}\t{time.perf_counter() - wall0:.3f}"
+            f"\t{waited() - waited0:.3f}\n")
     worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
     with open(f"{path}.{worker}", "a", encoding="utf-8") as out:
         out.write(line)

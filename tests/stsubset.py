@@ -19,8 +19,9 @@ an index out of bounds and a WHILE that never ends raise at run time.
 from __future__ import annotations
 
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from operator import itemgetter
 
 BITS = {"WORD": 16, "DWORD": 32, "LWORD": 64}
 INTS = {"INT": (-(1 << 15), (1 << 15) - 1), "DINT": (-(1 << 31), (1 << 31) - 1)}
@@ -968,19 +969,35 @@ class Runtime:
 
     def getter(self, path: str) -> Callable[[], object]:
         """A reader of `path`, resolved once (instances live as long as the runtime)."""
+        variables, key = self._place(path)
+        return lambda: variables[key]
+
+    def reader(self, paths: Sequence[str]) -> Callable[[], tuple]:
+        """One reader of several variables of one instance (or of the globals), returning
+        their values as a tuple: one lookup in C per call instead of a Python call per
+        variable (the agreement tests read a dozen of them on every one of 300,000 scans)."""
+        places = [self._place(path) for path in paths]
+        variables = places[0][0]
+        if any(where is not variables for where, _ in places):
+            raise ValueError(f"not one instance: {list(paths)}")
+        take = itemgetter(*(key for _, key in places))
+        if len(places) == 1:
+            return lambda: (take(variables),)
+        return lambda: take(variables)
+
+    def _place(self, path: str) -> tuple[dict, str]:
+        """The variables holding `path`, and its key in them."""
         parts = path.upper().split(".")
         if len(parts) == 1:
             if parts[0] not in self.globals:
                 raise KeyError(path)
-            variables, key = self.globals, parts[0]
-        else:
-            inst = self.instances[parts[0]]
-            for part in parts[1:-1]:
-                inst = inst.vars[part]
-            variables, key = inst.vars, parts[-1]
-            if key not in variables:
-                raise KeyError(path)
-        return lambda: variables[key]
+            return self.globals, parts[0]
+        inst = self.instances[parts[0]]
+        for part in parts[1:-1]:
+            inst = inst.vars[part]
+        if parts[-1] not in inst.vars:
+            raise KeyError(path)
+        return inst.vars, parts[-1]
 
     def set(self, name: str, value) -> None:
         key = name.upper()

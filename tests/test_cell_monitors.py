@@ -7,8 +7,6 @@ where the pages say so."""
 
 from __future__ import annotations
 
-from functools import cache
-
 import pytest
 
 from hmi.cli import main
@@ -16,6 +14,7 @@ from hmi.engine.commands import StopDevice
 from hmi.project.loader import load_project
 from hmi.project.monitors import monitors_of
 from hmi.project.scenarios import scenarios_of
+from tests.cellruns import SHARED, run, scenario_run
 from tests.conftest import PROJECTS, make_controller
 
 MS = 1_000
@@ -27,24 +26,6 @@ TASKS = {
     "palletizer": ("leave_home", "push", "retract", "clamp_close", "clamp_open", "plate_open",
                    "plate_close", "raise_empty", "raise_to_layer", "lower_layer"),
 }
-
-
-@cache
-def run(name: str, control: str = "normal", seconds: int = 60, inject: tuple = ()):
-    """The last snapshot of a headless run and its damage events as (plant time, kind)."""
-    ctl = make_controller(PROJECTS / name, control=control, inject=inject)
-    damage = []
-
-    def on_scan(snap):
-        damage.extend((e.time_us, e.kind) for e in snap.plant_events if e.damage)
-    last = ctl.run_for(seconds * S, on_scan)
-    return last, tuple(damage)
-
-
-def scenario_run(name: str, scenario: str):
-    (found,) = [s for s in scenarios_of(load_project(PROJECTS / name)) if s.name == scenario]
-    return run(name, seconds=found.duration_us // S,
-               inject=tuple(str(i) for i in found.injections))
 
 
 @pytest.mark.parametrize("name", sorted(TASKS))
@@ -62,7 +43,8 @@ def test_check_lists_the_cells_monitors(name, capsys):
                                           ("palletizer", "normal"), ("palletizer", "faulty")])
 def test_no_monitor_fault_in_a_normal_run(name, control):
     # docs/sorting.md and docs/palletizer.md report the same over 10 virtual minutes.
-    last, damage = run(name, control)
+    normal = run(name, control)
+    last, damage = normal.last, normal.damage
     assert not damage
     monitors = {m.name: m for m in last.monitors}
     assert tuple(monitors) == TASKS[name]
@@ -115,11 +97,13 @@ def test_every_declared_scenario_has_its_expected_detections():
     assert declared == set(EXPECTED)
 
 
+@SHARED
 @pytest.mark.parametrize("name,scenario", sorted(EXPECTED),
                          ids=[f"{n}-{s}" for n, s in sorted(EXPECTED)])
 def test_fault_scenarios_raise_the_expected_monitor_labels(name, scenario):
     labels, damage_at = EXPECTED[(name, scenario)]
-    last, damage = scenario_run(name, scenario)
+    run = scenario_run(name, scenario)
+    last, damage = run.last, run.damage
     found = {m.label: m.detection for m in last.monitors if m.detection is not None}
     assert set(found) == set(labels)
     for label, (rule, ms) in labels.items():

@@ -150,6 +150,19 @@ def test_the_xml_target_runs_like_the_engine(valve):
     assert result.scans == 1501 and result.corrected > 100
 
 
+def test_the_harness_names_the_first_value_that_disagrees(valve):
+    """The comparison can fail, and says where: an export whose TON1 preset is 1.1 s
+    instead of 2.1 s disagrees with the engine on the timer's output, at the scan it first
+    differs (the open order held for 1.1 s: t = 2.1 s of the first opening)."""
+    text = write_st(build(valve))
+    tampered = text.replace("T_TON1(IN := prev_O, PT := T#2s100ms);",
+                            "T_TON1(IN := prev_O, PT := T#1s100ms);", 1)
+    assert tampered != text
+    with pytest.raises(AssertionError, match=r"^scan \d+ \(t = \d+ us\): TON1 = True, engine "
+                       r"False"):
+        Twin(valve, text=tampered).run(engine_for(valve), 5_000_000)
+
+
 # -- names ------------------------------------------------------------------------------------
 
 

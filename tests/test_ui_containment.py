@@ -211,7 +211,7 @@ def test_a_headless_run_that_fails_is_not_journalled_as_ended_normally(monkeypat
     from hmi.session.session import Session
     path = tmp_path / "j.jsonl"
 
-    def broken(self, duration_us, on_scan=None):
+    def broken(self, duration_us, *args, **kwargs):  # whatever run_for is given
         raise RuntimeError("deliberate")
     monkeypatch.setattr(Session, "run_for", broken)
     assert main(["run", str(VALVE), "--for", "1s", "--journal", str(path)]) == 1

@@ -1,0 +1,66 @@
+"""The fault scenarios of the sorting and palletizer cells, each run once for the test modules
+that assert on them: tests/test_cells.py (the damage each does, the cells' counters) and
+tests/test_cell_monitors.py (the monitor labels and their instants).
+
+Both modules ran the same 13 scenarios on their own (about 8 CPU s twice). A run is kept per
+process (`functools.cache`); the tests that read one carry the mark `SHARED`, which puts them
+on one pytest-xdist worker (tests/conftest.py schedules by group), so each scenario runs once
+in the suite. A run is a headless session on the simulated plant with the project's own
+policy, exactly as `plchmi run --scenario` runs it; the tests only read what it returns.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass
+from functools import cache
+
+import pytest
+
+from hmi.engine.snapshot import Snapshot
+from hmi.project.loader import load_project
+from hmi.project.scenarios import scenarios_of
+from tests.conftest import PROJECTS, make_controller
+
+S = 1_000_000
+SHARED = pytest.mark.xdist_group("cell-runs")
+
+
+@dataclass(frozen=True)
+class CellSession:
+    last: Snapshot  # the last scan's snapshot
+    damage: tuple[tuple[int, str], ...]  # damage events as (plant time, kind), in order
+    unsafe_written: int  # outputs written that violated a constraint, over the run
+
+    @property
+    def damage_kinds(self) -> Counter:
+        return Counter(kind for _, kind in self.damage)
+
+    @property
+    def counters(self) -> dict[str, int]:
+        return dict(self.last.plant_counters)
+
+
+@cache
+def run(name: str, control: str = "normal", seconds: int = 60,
+        inject: tuple[str, ...] = ()) -> CellSession:
+    """A headless session of `seconds` virtual seconds, with faults as the command line
+    writes them."""
+    ctl = make_controller(PROJECTS / name, control=control, inject=inject)
+    damage: list[tuple[int, str]] = []
+    unsafe = 0
+
+    def on_scan(snap: Snapshot) -> None:
+        nonlocal unsafe
+        damage.extend((e.time_us, e.kind) for e in snap.plant_events if e.damage)
+        if snap.filter is not None:
+            unsafe += snap.filter.unsafe_written
+    last = ctl.run_for(seconds * S, on_scan)
+    return CellSession(last, tuple(damage), unsafe)
+
+
+def scenario_run(name: str, scenario: str) -> CellSession:
+    """The run of a scenario the project declares (its faults, its length)."""
+    (found,) = [s for s in scenarios_of(load_project(PROJECTS / name)) if s.name == scenario]
+    return run(name, seconds=found.duration_us // S,
+               inject=tuple(str(i) for i in found.injections))
