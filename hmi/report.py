@@ -206,15 +206,15 @@ class RunCollector:
         self.scans += count
         report = self._report
         if report is not None and report is not self._nothing:
-            for _ in range(count):
-                self._count(report)
+            self._count(report, count)
 
     def finish(self, last) -> None:
         """The run's last snapshot (built at its end if its scan was quiet): the monitors'
         states the summary shows are its."""
         self.monitors.add(last)
 
-    def _count(self, report) -> None:
+    def _count(self, report, scans: int = 1) -> None:
+        """What `scans` scans with this filter report count."""
         # (a report with nothing violated, changed, left or fallen back on counts nothing:
         # most scans' report, tested in a few reads; and a scan that reuses the very report
         # last found so, without reading it again)
@@ -225,14 +225,14 @@ class RunCollector:
             self._nothing = report
             return
         for name in report.violated_names:
-            self.violations[name] = self.violations.get(name, 0) + 1
+            self.violations[name] = self.violations.get(name, 0) + scans
         if report.safe_state:
-            self.safe_scans += 1
+            self.safe_scans += scans
         elif any(c.how != "masked" for c in report.changes):  # masks: diagnosers' lines
-            self.corrections += 1
+            self.corrections += scans
         if report.unsafe_written:
-            self.unsafe_written += 1
+            self.unsafe_written += scans
         if report.fallback:
-            self.fallbacks += 1
-            self.search_stops += bool(getattr(report, "stopped", ""))
+            self.fallbacks += scans
+            self.search_stops += scans * bool(getattr(report, "stopped", ""))
         self.max_distance = max(self.max_distance, report.distance)

@@ -416,6 +416,16 @@ class Engine:
         if not any(r.source == source and r.detail == detail for r in self.latched):
             self.latched.append(LatchReason(source, detail, self.scan, self.now))
 
+    def _latch_internal(self, error: str) -> None:
+        """An internal error latches the outputs safe, once per distinct error: the same
+        error again at the next scans (a stage broken for good) adds no reason, and the
+        operator reads one, dated from the scan it began at (else one reason, and one
+        explanation, per scan: a live run would fall behind more at every scan)."""
+        for r in self.latched:
+            if r.source == "internal" and r.detail == f"internal error at scan {r.scan}: {error}":
+                return
+        self.latch_safe("internal", f"internal error at scan {self.scan}: {error}")
+
     # -- the scan ----------------------------------------------------------------------------
     def step(self, now: int) -> Snapshot:
         """One scan at `now`, and what it left behind."""
@@ -425,13 +435,15 @@ class Engine:
     def run(self, now: int) -> bool:
         """One scan at `now` without building its snapshot (:meth:`snapshot` builds it on
         demand, until anything changes the engine again). Returns whether the scan has news:
-        False only when its filter report is the policy's clean one (nothing violated,
-        corrected nor masked) and its snapshot would show no latch, no error, no plant
-        event, nothing reconstructed nor masked, no manual request, and the same plant
-        status, diagnosers, recovery state and monitor_marks as the previous scan, with no
-        command since. A quiet scan's snapshot differs from the one before only in what
-        moves by itself: scan, time, values, fov, outputs, steps and firings, timers, plant
-        state and counters, monitors' stopwatches, wall times."""
+        False only when its filter report is the very object of the previous scan's (the
+        policy's clean one, or a remembered correction given again) and its snapshot would
+        show no latch, no error, no plant event, nothing reconstructed nor masked, no manual
+        request, and the same plant status, diagnosers, recovery state and monitor_marks as
+        the previous scan, with no command since. A quiet scan's snapshot differs from the
+        one before only in what moves by itself: scan, time, values, fov, outputs, steps and
+        firings, timers, plant state and counters, monitors' stopwatches, wall times; a
+        reader that counts reports per scan counts the same report again
+        (hmi.report.RunCollector.quiet)."""
         wall = time.perf_counter()
         self._pending = None  # the previous scan's snapshot, if never asked for: dropped
         fast = self.compiled
@@ -461,9 +473,9 @@ class Engine:
             rec._idle if rec.active is None and not rec.needed else rec.state(now))
         status = self.plant.status
         last = self._news
-        # (last[5]: that scan's report was its policy's clean one; a command since, a new
-        # policy included, makes this scan news and compares the next with this one)
-        if (last is not None and report is last[0] and last[5] and status is last[1]
+        # (a command since, a new policy included, makes this scan news and compares the
+        # next with this one)
+        if (last is not None and report is last[0] and status is last[1]
                 and diagnosers is last[2] and marks == last[3] and recovery is last[4]
                 and not self._commanded and error is None and not events
                 and not self.latched and not diagnosis.masked
@@ -471,8 +483,7 @@ class Engine:
             news = False
         else:
             news = True
-            self._news = (report, status, diagnosers, marks, recovery,
-                          report is self._clean.get(self.policy))
+            self._news = (report, status, diagnosers, marks, recovery)
         self._commanded = False
         self._pending = (cycle, values, diagnosers, marks, events, recovery,
                          (time.perf_counter() - wall) * 1e6)
@@ -618,7 +629,7 @@ class Engine:
             fov = outputs = self._held_outputs()
         except Exception as exc:  # never leave the plant driven by a half-computed scan
             error = f"{type(exc).__name__}: {exc}"
-            self.latch_safe("internal", f"internal error at scan {self.scan}: {error}")
+            self._latch_internal(error)
             fov = self.safe_vector
             outputs = self.safe_vector
         # 7. output scan
@@ -676,7 +687,7 @@ class Engine:
             fov = outputs = self.safe_vector
         except Exception as exc:  # never leave the plant driven by a half-computed scan
             error = f"{type(exc).__name__}: {exc}"
-            self.latch_safe("internal", f"internal error at scan {self.scan}: {error}")
+            self._latch_internal(error)
             fov = outputs = self.safe_vector
         for slot, value in zip(self.output_slots, outputs, strict=True):  # 7. output scan
             image[slot] = value
@@ -707,7 +718,7 @@ class Engine:
                 self.monitors.step(self.image, self.history, now, self.scan)
         except Exception as exc:  # a broken monitor must not stop the scan silently
             message = f"{type(exc).__name__}: {exc}"
-            self.latch_safe("internal", f"internal error at scan {self.scan}: {message}")
+            self._latch_internal(message)
             return False, error or message
         return True, error
 

@@ -483,10 +483,19 @@ class _Glide:
                 ahead, ahead_static = box.lo, static
             if wall_hit and not cell.pusher.at_low and "box_against_pusher" not in cell.flags:
                 return None
-        if source.queued:  # a queued box waits while a box that does not move is in the way
-            gliding = {id(b) for b, _ in movers}
-            if not any(b.lo < room and id(b) not in gliding for b in cell.feed):
-                return None
+        if source.queued:  # a queued box waits while a box is in the way at the entrance
+            moves = {id(b): delta for b, delta in movers}
+            blocked = 0  # for how many steps: a box that stays, or the last one to move on
+            for b in cell.feed:
+                if b.lo < room:
+                    delta = moves.get(id(b), 0)
+                    if not delta:
+                        blocked = NEVER
+                        break
+                    blocked = max(blocked, (room - 1 - b.lo) // delta)
+            if blocked <= 0:
+                return None  # it is placed at the next step
+            steps = min(steps, blocked)
         if steps <= 0:
             return None
         return cls(cell, dt, steps, movers, clocks, moving, idle, wall_hit)
