@@ -172,7 +172,9 @@ def check_quiet_scans_told_nothing(full: Twin, quiet: Twin) -> None:
     after_command = {snap["scan"] + 1 for _, _, _, _, snap in full.shown if snap is not None}
     for scan in sorted(full.built):
         snap = full.built[scan]
-        if scan not in quiet.built and previous is not None:
+        # (scans a StepScans command ran are built by it, not handed to on_scan: a scan
+        # after them is compared with nothing)
+        if scan not in quiet.built and previous is not None and previous["scan"] == scan - 1:
             where = f"scan {scan} was quiet but"
             if scan in after_command:  # a comment changes the list between scans (its
                 # journal entry is written then): the quiet scan shows the list as it is
