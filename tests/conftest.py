@@ -47,11 +47,13 @@ def pytest_configure(config):
 
 
 @pytest.hookimpl(optionalhook=True)  # xdist's hooks: a run without xdist has none
-def pytest_xdist_auto_num_workers(config) -> int:
+def pytest_xdist_auto_num_workers(config) -> int | None:
     """`-n auto` (README, .ci/run): a worker per core, and one more. Some tests sleep while
     real processes work in real time (the live Modbus and OPC UA tests, a server starting):
     with one worker per core, a core stayed idle meanwhile (docs/performance.md, the suite's
-    "slept" seconds)."""
+    "slept" seconds). PYTEST_XDIST_AUTO_NUM_WORKERS=N still chooses N (xdist's own rule)."""
+    if os.environ.get("PYTEST_XDIST_AUTO_NUM_WORKERS"):
+        return None
     return len(os.sched_getaffinity(0)) + 1
 
 

@@ -109,3 +109,34 @@ def test_repair_is_refused_for_a_model_that_cannot_undo_its_faults(monkeypatch):
     result = ctl.command(RepairFaults())
     assert not result.accepted and "repair is not modelled for C1" in result.message
     assert not ctl.command(RepairFaults("nowhere")).accepted
+
+
+def test_an_internal_error_that_repeats_latches_once_and_a_new_one_adds_a_reason():
+    """A stage broken for good raises at every scan: one latch reason (dated from its first
+    scan) and one explanation, not one per scan; another error adds its own; after a fault
+    reset, once the cause is gone, the cell runs again."""
+    ctl = make_controller(VALVE)
+    ctl.run_for(2 * S)
+    engine = ctl.engine
+    real = engine.compiled.core
+    failing = {"error": "first"}
+
+    def broken(*args):
+        raise RuntimeError(failing["error"])
+
+    engine.compiled.core = broken
+    last = ctl.run_for(1 * S)
+    first = engine.latched[0].scan
+    assert [(r.source, r.detail) for r in engine.latched] == [
+        ("internal", f"internal error at scan {first}: RuntimeError: first")]
+    assert [e.key for e in last.explanations].count("safe_state:internal") == 1
+    assert last.outputs == engine.safe_vector
+    failing["error"] = "second"
+    last = ctl.run_for(1 * S)
+    assert [(r.source, r.detail) for r in engine.latched] == [
+        ("internal", f"internal error at scan {first}: RuntimeError: first"),
+        ("internal", f"internal error at scan {first + 101}: RuntimeError: second")]
+    assert last.outputs == engine.safe_vector
+    engine.compiled.core = real
+    ctl.command(FaultReset())
+    assert not ctl.run_for(1 * S).latched

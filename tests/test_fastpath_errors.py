@@ -151,9 +151,6 @@ def test_an_error_inside_a_fast_path_latches_writes_safe_and_is_explained(tmp_pa
     assert full.session.last.outputs == quiet.session.last.outputs
 
 
-@pytest.mark.xfail(strict=True, reason="verify 2026-11-25: a persistent internal error latches "
-                   "a new reason at every scan (its detail names the scan): the latch list and "
-                   "the explanations grow by one per scan; reported to fast in TEAM.md")
 def test_a_persistent_internal_error_keeps_one_latch_and_one_explanation():
     """A fault inside the generated scan that repeats at every scan (a bug in generated
     code would) must leave the operator one reason and one explanation, not one per scan:

@@ -416,6 +416,16 @@ class Engine:
         if not any(r.source == source and r.detail == detail for r in self.latched):
             self.latched.append(LatchReason(source, detail, self.scan, self.now))
 
+    def _latch_internal(self, error: str) -> None:
+        """An internal error latches the outputs safe, once per distinct error: the same
+        error again at the next scans (a stage broken for good) adds no reason, and the
+        operator reads one, dated from the scan it began at (else one reason, and one
+        explanation, per scan: a live run would fall behind more at every scan)."""
+        for r in self.latched:
+            if r.source == "internal" and r.detail == f"internal error at scan {r.scan}: {error}":
+                return
+        self.latch_safe("internal", f"internal error at scan {self.scan}: {error}")
+
     # -- the scan ----------------------------------------------------------------------------
     def step(self, now: int) -> Snapshot:
         """One scan at `now`, and what it left behind."""
@@ -619,7 +629,7 @@ class Engine:
             fov = outputs = self._held_outputs()
         except Exception as exc:  # never leave the plant driven by a half-computed scan
             error = f"{type(exc).__name__}: {exc}"
-            self.latch_safe("internal", f"internal error at scan {self.scan}: {error}")
+            self._latch_internal(error)
             fov = self.safe_vector
             outputs = self.safe_vector
         # 7. output scan
@@ -677,7 +687,7 @@ class Engine:
             fov = outputs = self.safe_vector
         except Exception as exc:  # never leave the plant driven by a half-computed scan
             error = f"{type(exc).__name__}: {exc}"
-            self.latch_safe("internal", f"internal error at scan {self.scan}: {error}")
+            self._latch_internal(error)
             fov = outputs = self.safe_vector
         for slot, value in zip(self.output_slots, outputs, strict=True):  # 7. output scan
             image[slot] = value
@@ -708,7 +718,7 @@ class Engine:
                 self.monitors.step(self.image, self.history, now, self.scan)
         except Exception as exc:  # a broken monitor must not stop the scan silently
             message = f"{type(exc).__name__}: {exc}"
-            self.latch_safe("internal", f"internal error at scan {self.scan}: {message}")
+            self._latch_internal(message)
             return False, error or message
         return True, error
 
