@@ -12,7 +12,8 @@ recoveries started and left, free inputs set) given at random virtual times:
   scans neither built nor explained), with ``Session.last`` read at random moments, even
   from inside ``on_quiet``;
 * ``reference``: the interpreter (``Engine(compiled=False)``) with a corrector that searches
-  every correction afresh, every scan built.
+  every correction afresh and an explanation builder that explains every scan afresh,
+  every scan built.
 
 Each has its journal recorder and run collector, as ``plchmi run`` has. Compared: every
 scan the three built (all deterministic fields, monitors and explanations included), the
@@ -85,6 +86,8 @@ class Twin:
         if kind == "reference":
             engine.filter.remember = False
         self.session = Session(engine, period)
+        if kind == "reference":  # every scan's situations found afresh (no reuse)
+            self.session.explainer.build = self.session.explainer._build  # type: ignore
         self.journal_path = tmp / f"{kind}.jsonl"
         self.recorder = JournalRecorder(self.session, Journal(self.journal_path), "run")
         self.collector = RunCollector()
