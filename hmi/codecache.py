@@ -19,7 +19,8 @@ of code by text that a module keeps itself (the compiled scan's, hmi.engine.code
 The files live beside hmi's bytecode, are written under the same rule (not when bytecode
 writing is off: ``PYTHONDONTWRITEBYTECODE``, ``python -B``), atomically, and read only when
 written by this interpreter version (its bytecode magic number) in the same format for the
-same inputs (a header); anything unreadable is ignored and rebuilt. They are trusted as the
+same inputs (a header), and whole (the body's CRC-32: a damaged file is never taken);
+anything unreadable is ignored and rebuilt. They are trusted as the
 ``.pyc`` files beside them are.
 """
 
@@ -34,6 +35,7 @@ import marshal
 import os
 import sys
 import typing
+import zlib
 from collections.abc import Iterator
 from pathlib import Path
 from types import CodeType, ModuleType
@@ -108,25 +110,41 @@ class CodeCache:
         write_file(self.path, HEADER, marshal.dumps(codes))
 
 
+def _digest(body: bytes) -> bytes:
+    """The line after a cache file's header: the body's CRC-32 (8 hex digits), so that a
+    file damaged on disk (flipped bits, a cut, a tail added) is never taken: code
+    unmarshalled or objects unpickled from it would run unchecked (the project's constraints
+    too). A check against damage, not against someone writing the file (trusted as the
+    ``.pyc`` beside it): ~0.25 ms for the 780 KB of generated code at a start, blake2b 1 ms."""
+    return b"%08x\n" % zlib.crc32(body)
+
+
 def read_file(path: Path, header: bytes) -> bytes | None:
-    """What follows `header` in the file at `path`, or None (missing, unreadable, another
-    header: another interpreter, another format, other inputs)."""
+    """What follows `header` and the body's digest in the file at `path`, or None (missing,
+    unreadable, another header: another interpreter, another format, other inputs; or
+    damaged: the digest does not match)."""
     try:
         data = path.read_bytes()
     except OSError:
         return None
-    return data[len(header):] if data.startswith(header) else None
+    if not data.startswith(header):
+        return None
+    start = len(header) + 9  # 8 hex digits and a newline
+    body = data[start:]
+    return body if data[len(header):start] == _digest(body) else None
 
 
 def write_file(path: Path, header: bytes, body: bytes) -> None:
-    """`header` then `body` to `path`, atomically (a reader sees the old file or the new one,
-    whole); errors ignored, as Python ignores a ``__pycache__`` it cannot write."""
+    """`header`, the body's digest, then `body` to `path`, atomically (a reader sees the old
+    file or the new one, whole); errors ignored, as Python ignores a ``__pycache__`` it
+    cannot write."""
     temp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
     with contextlib.suppress(OSError, ValueError):
         path.parent.mkdir(parents=True, exist_ok=True)
         try:
             with open(temp, "wb") as file:
                 file.write(header)
+                file.write(_digest(body))
                 file.write(body)
             os.replace(temp, path)
         finally:
@@ -154,7 +172,7 @@ def _codes(body: bytes | None) -> dict[Any, CodeType]:
         return {}
     try:
         codes = marshal.loads(body)
-    except (EOFError, ValueError, TypeError):
+    except Exception:  # (marshal raises SystemError too on some damage)
         return {}
     if not isinstance(codes, dict):
         return {}

@@ -12,7 +12,8 @@ recoveries started and left, free inputs set) given at random virtual times:
   scans neither built nor explained), with ``Session.last`` read at random moments, even
   from inside ``on_quiet``;
 * ``reference``: the interpreter (``Engine(compiled=False)``) with a corrector that searches
-  every correction afresh, every scan built.
+  every correction afresh and an explanation builder that explains every scan afresh,
+  every scan built.
 
 Each has its journal recorder and run collector, as ``plchmi run`` has. Compared: every
 scan the three built (all deterministic fields, monitors and explanations included), the
@@ -85,6 +86,8 @@ class Twin:
         if kind == "reference":
             engine.filter.remember = False
         self.session = Session(engine, period)
+        if kind == "reference":  # every scan's situations found afresh (no reuse)
+            self.session.explainer.build = self.session.explainer._build  # type: ignore
         self.journal_path = tmp / f"{kind}.jsonl"
         self.recorder = JournalRecorder(self.session, Journal(self.journal_path), "run")
         self.collector = RunCollector()
@@ -92,6 +95,23 @@ class Twin:
         self.quiet_scans = 0
         self.shown: list[tuple[str, str, bool, str, dict[str, Any] | None]] = []
         self.session.listeners.append(self.on_command)
+        # The scans a StepScans command runs are built, and given to the collector too
+        # (RunCollector.quiet repeats the last scan it was given: it must be given every
+        # built one, in order; run_for gives its own to on_scan after on_quiet).
+        self.in_command = False
+        self.session.scan_listeners.append(self.on_stepped)
+        self.session.idle_checks[self.on_stepped] = lambda: True
+
+    def on_stepped(self, snap: Snapshot) -> None:
+        if self.in_command:
+            self.on_scan(snap)
+
+    def command(self, command: cmd.Command) -> cmd.CommandResult:
+        self.in_command = True
+        try:
+            return self.session.command(command)
+        finally:
+            self.in_command = False
 
     def on_command(self, command, result, snap) -> None:
         self.shown.append((self.kind, repr(command), result.accepted, result.message,
@@ -173,6 +193,7 @@ def check_quiet_scans_told_nothing(full: Twin, quiet: Twin) -> None:
     for scan in sorted(full.built):
         snap = full.built[scan]
         if scan not in quiet.built and previous is not None:
+            assert previous["scan"] == scan - 1  # every scan of the full session was built
             where = f"scan {scan} was quiet but"
             if scan in after_command:  # a comment changes the list between scans (its
                 # journal entry is written then): the quiet scan shows the list as it is
@@ -231,7 +252,7 @@ def trio_run(name: str, seed: int, tmp: Path, segments: int = 28) -> dict[str, i
             assert not differences(lasts[kind], lasts["full"]), (
                 name, seed, kind, differences(lasts[kind], lasts["full"]))
         command = random_command(rng, project, full.session, full.session.engine.now)
-        results = [t.session.command(command) for t in twins.values()]
+        results = [t.command(command) for t in twins.values()]
         assert results[1] == results[0] and results[2] == results[0], (command, results)
     for kind in ("quiet", "reference"):
         other = twins[kind]
