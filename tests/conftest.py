@@ -46,17 +46,6 @@ def pytest_configure(config):
         config.option.dist = "loadgroup"
 
 
-@pytest.hookimpl(optionalhook=True)  # xdist's hooks: a run without xdist has none
-def pytest_xdist_auto_num_workers(config) -> int | None:
-    """`-n auto` (README, .ci/run): a worker per core, and one more. Some tests sleep while
-    real processes work in real time (the live Modbus and OPC UA tests, a server starting):
-    with one worker per core, a core stayed idle meanwhile (docs/performance.md, the suite's
-    "slept" seconds). PYTEST_XDIST_AUTO_NUM_WORKERS=N still chooses N (xdist's own rule)."""
-    if os.environ.get("PYTEST_XDIST_AUTO_NUM_WORKERS"):
-        return None
-    return len(os.sched_getaffinity(0)) + 1
-
-
 def processes_for_a_test() -> int:
     """Worker processes a test may start for itself: both cores when the suite runs in one
     process, one when pytest-xdist already runs a test on each core (.ci/run, README)."""
