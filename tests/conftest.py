@@ -46,6 +46,21 @@ def pytest_configure(config):
         config.option.dist = "loadgroup"
 
 
+@pytest.fixture
+def loads(monkeypatch):
+    """How many times hmi.project.kept ran the real loader (the rest were read back):
+    the start-cache tests (test_start_caches, test_fastpath_caches) count with it."""
+    from hmi.project import kept
+    count = [0]
+    real = kept.load_project
+
+    def counted(*args, **kwargs):
+        count[0] += 1
+        return real(*args, **kwargs)
+    monkeypatch.setattr(kept, "load_project", counted)
+    return count
+
+
 def processes_for_a_test() -> int:
     """Worker processes a test may start for itself: both cores when the suite runs in one
     process, one when pytest-xdist already runs a test on each core (.ci/run, README)."""

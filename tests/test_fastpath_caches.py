@@ -38,19 +38,6 @@ def fresh_scan_code():
     table.update(saved)
 
 
-@pytest.fixture
-def loads(monkeypatch):
-    """How many times the real loader ran (the rest were read back)."""
-    count = [0]
-    real = kept.load_project
-
-    def counted(*args, **kwargs):
-        count[0] += 1
-        return real(*args, **kwargs)
-    monkeypatch.setattr(kept, "load_project", counted)
-    return count
-
-
 def damaged(data: bytes, rng: random.Random) -> bytes:
     """`data` cut short, with bits flipped (header, digest or body), or with bytes added."""
     how = rng.randrange(4)

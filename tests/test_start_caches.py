@@ -120,19 +120,6 @@ def copy_project(tmp_path: Path, name: str = "cispi_valve") -> Path:
     return folder
 
 
-@pytest.fixture
-def loads(monkeypatch):
-    """How many times the real loader ran (the rest were read back)."""
-    count = [0]
-    real = kept.load_project
-
-    def counted(*args, **kwargs):
-        count[0] += 1
-        return real(*args, **kwargs)
-    monkeypatch.setattr(kept, "load_project", counted)
-    return count
-
-
 @pytest.mark.parametrize("name", EXAMPLES)
 def test_a_kept_project_is_the_loaded_one_and_runs_the_same(tmp_path, loads, name):
     cache = tmp_path / "kept"
