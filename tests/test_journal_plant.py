@@ -31,7 +31,7 @@ def test_a_late_server_journals_the_first_failure_then_a_summary(server, tmp_pat
     path = tmp_path / "j.jsonl"
     port = _free_port()
     proc = subprocess.Popen(
-        [sys.executable, "-m", "hmi.cli", "run", str(VALVE), "--for", "2s",
+        [sys.executable, "-m", "hmi.cli", "run", str(VALVE), "--for", "300ms",
          "--plant", f"modbus://127.0.0.1:{port}", "--connect-timeout", "60s",
          "--journal", str(path)],
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=ROOT)
@@ -60,7 +60,7 @@ def test_giving_up_journals_the_retries_summary(tmp_path):
     path = tmp_path / "j.jsonl"
     proc = subprocess.run(
         [sys.executable, "-m", "hmi.cli", "run", str(VALVE), "--for", "5s",
-         "--plant", f"modbus://127.0.0.1:{_free_port()}", "--connect-timeout", "1500ms",
+         "--plant", f"modbus://127.0.0.1:{_free_port()}", "--connect-timeout", "800ms",
          "--journal", str(path)],
         capture_output=True, text=True, cwd=ROOT, timeout=120)
     assert proc.returncode == 1
