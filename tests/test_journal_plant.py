@@ -16,7 +16,7 @@ from hmi.explain.journal import Journal, read
 from hmi.session.journal_recorder import JournalRecorder
 from tests import test_modbus
 from tests.conftest import ROOT
-from tests.test_modbus import VALVE, WAIT, Live, _free_port
+from tests.test_modbus import VALVE, WAIT, Live, _free_port, quick_valve
 
 server = test_modbus.server  # the fixture that starts (and stops) real server processes
 
@@ -73,9 +73,10 @@ def test_giving_up_journals_the_retries_summary(tmp_path):
 
 def test_loss_and_reconnection_are_journalled(server, tmp_path):
     path = tmp_path / "j.jsonl"
-    srv = server()
+    valve = quick_valve(tmp_path / "valve")
+    srv = server(valve)
     port = srv.port
-    live = Live(VALVE, port)
+    live = Live(valve, port)
     recorder = JournalRecorder(live.controller, Journal(path), "test")
     with live:
         live.wait(lambda s: s.output_map["O"], "the valve opening")
