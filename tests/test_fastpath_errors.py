@@ -43,17 +43,21 @@ def load(name: str) -> Project:
 
 
 class Broken:
-    """A session whose engine has one function replaced by one that raises from `at_us`."""
+    """A session whose engine has one function replaced by one that raises from `at_us`.
+    `path` is the engine's way through the scan: "auto" the compiled automatic-mode cycle
+    (Engine._auto_cycle), "cycle" the general one (Engine._cycle, compiled: a device is
+    stopped), "interpreter" Engine(compiled=False)."""
 
     def __init__(self, name: str, where: str, at_us: int, quiet: bool, tmp: Path,
-                 times: int = 1):
+                 times: int = 1, path: str = "auto"):
         project = load(name)
         self.quiet = quiet
         plant = SimPlant(project)
-        self.engine = engine = Engine(project, plant)
-        assert engine.compiled is not None
+        self.engine = engine = Engine(project, plant, compiled=path != "interpreter")
         self.session = Session(engine)
-        self.journal_path = tmp / f"{where}-{quiet}.jsonl"
+        if path == "cycle":
+            assert self.session.command(cmd.StopDevice(list(engine.devices)[-1])).accepted
+        self.journal_path = tmp / f"{where}-{quiet}-{path}.jsonl"
         self.recorder = JournalRecorder(self.session, Journal(self.journal_path), "run")
         self.at_us, self.armed, self.hits, self.times = at_us, True, 0, times
         self.written: list[tuple[int, tuple[bool, ...]]] = []
@@ -72,18 +76,37 @@ class Broken:
             "read_into": (plant, "read_into"),
             "correction": (engine.filter, "apply"),
             "active_bits": (engine.filter, "active_bits"),
+            # outside the scan's own error handling (Engine.run, Engine.snapshot)
+            "take_events": (plant, "take_events"),
+            "state": (plant, "state"),
+            "counters": (plant, "counters"),
+            "write_vector": (plant, "write_vector"),
+            "elapsed": (engine, "_elapsed"),
+            "settle": (engine.monitors, "settle"),
+            "status": (plant, "status"),
         }[where]
+        self.where = where
         real = getattr(owner, attribute)
         assert real is not None, f"{name} has no {where}"
 
         def broken(*args, **kwargs):
-            if self.armed and engine.now >= self.at_us and self.hits < self.times:
-                self.hits += 1
-                raise Injected(f"planted in {where}")
+            self.fail()
             return real(*args, **kwargs)
-        setattr(owner, attribute, broken)
+        if where == "status":  # a property: on a class of this plant's own
+            plant_class = type(plant)
+            status = plant_class.status.fget  # type: ignore[attr-defined]
+            plant.__class__ = type("BrokenStatus", (plant_class,), {
+                "status": property(lambda this: self.fail() or status(this))})
+        else:
+            setattr(owner, attribute, broken)
         if where == "violated":  # the filter stage's first question is the same function
             engine.filter_stage.quick = broken
+
+    def fail(self) -> None:
+        """Raise the planted fault, `times` times from `at_us` on, while armed."""
+        if self.armed and self.engine.now >= self.at_us and self.hits < self.times:
+            self.hits += 1
+            raise Injected(f"planted in {self.where}")
 
     def run_for(self, duration: int) -> None:
         def on_scan(snap):
@@ -175,3 +198,122 @@ def test_a_persistent_internal_error_keeps_one_latch_and_one_explanation():
 def make_session(name: str) -> Session:
     project = load(name)
     return Session(Engine(project, SimPlant(project)))
+
+
+# Outside the scan's own error handling: what Engine.run reads after the cycle, the output
+# scan's write raising something other than a PlantError, and what Engine.snapshot reads.
+# where -> (what the latch names, in plain words; whether only a snapshot reads it)
+OUTSIDE = {
+    "take_events": ("reading the plant's events", False),
+    "status": ("reading the plant's status", False),
+    "write_vector": ("writing the outputs to the plant", False),
+    "settle": ("settling the monitors", False),
+    "state": ("reading the plant's state", True),
+    "counters": ("reading the plant's counters", True),
+    "elapsed": ("computing the timers' elapsed times", True),
+}
+PATHS = ("auto", "cycle", "interpreter")
+
+
+@pytest.mark.parametrize("where", OUTSIDE)
+def test_an_error_outside_the_scans_handling_latches_writes_safe_and_is_explained(
+        tmp_path, where):
+    """palletizer (plant events, timers, monitors, devices), on each engine path, building
+    every scan (Engine.step) and on the quiet path (plchmi run's): the error latches,
+    naming what failed, the safe vector is written at once and held, it is explained and
+    journalled once, and a fault reset brings the cell back; never an exception out of the
+    run. What only a snapshot reads fails where a snapshot is built: at that very scan
+    when every scan is built, at the next scan with news (or when the last is read) on the
+    quiet path."""
+    part, snapshot_only = OUTSIDE[where]
+    start = 3 * S
+    at_us = start + 3 * load("palletizer").scan_period_us
+    runs = {(path, quiet): Broken("palletizer", where, at_us, quiet, tmp_path, path=path)
+            for path in PATHS for quiet in (False, True)}
+    for (path, quiet), run in runs.items():
+        case = f"{path}, {'quiet' if quiet else 'every scan built'}"
+        run.run_for(start + 2 * S)
+        engine, session = run.engine, run.session
+        assert run.hits == 1, case
+        latches = [r for r in engine.latched if r.source == "internal"]
+        assert len(latches) == 1, (case, engine.latched)
+        first = latches[0]
+        assert first.part == part and f"{part} failed: Injected: planted in" in first.detail
+        assert first.time_us >= at_us
+        if not (snapshot_only and quiet):
+            assert first.time_us == at_us, case  # at the very scan
+            assert first.scan in run.built, f"{case}: the failing scan went by as a quiet one"
+        safe = engine.safe_vector
+        before = [values for now, values in run.written if now < first.time_us]
+        assert any(values != safe for values in before), f"{case}: nothing to make safe"
+        # the safe vector written at the failing scan's time (after the scan's own outputs
+        # when they were written), and nothing else since
+        at = [values for now, values in run.written if now == first.time_us]
+        assert at and at[-1] == safe, (case, at)
+        after = [values for now, values in run.written if now > first.time_us]
+        assert all(values == safe for values in after), case
+        assert after or first.time_us == engine.now, case
+        last = session.last
+        assert last is not None and last.outputs == safe and last.is_safe_latched
+        shown = [e for e in last.explanations if e.key.startswith("safe_state:internal")]
+        assert len(shown) == 1, (case, [e.key for e in last.explanations])
+        assert part in shown[0].what and part in shown[0].why
+        assert "Injected" in shown[0].detail and "Injected" not in shown[0].why
+        assert shown[0].key in {a.key for a in last.alarms}
+    full = {path: runs[path, False] for path in PATHS}
+    # the interpreter and the compiled scan fail at the same scan and write the same
+    assert full["auto"].written == full["interpreter"].written
+    assert [r.scan for r in full["auto"].engine.latched] == \
+        [r.scan for r in full["interpreter"].engine.latched]
+    if not snapshot_only:  # the quiet path fails at the same scan, and writes the same
+        for path in PATHS:
+            assert runs[path, True].written == full[path].written, path
+            assert [r.scan for r in runs[path, True].engine.latched] == \
+                [r.scan for r in full[path].engine.latched], path
+    # the way back: the cause gone, a fault reset releases the latch and the law runs again
+    for (path, quiet), run in runs.items():
+        run.armed = False
+        assert run.session.command(cmd.FaultReset()).accepted
+        reset_at = run.engine.now
+        run.run_for(3 * S)
+        assert not run.engine.latched, (path, quiet, run.engine.latched)
+        assert any(values != run.engine.safe_vector for now, values in run.written
+                   if now > reset_at), (path, quiet)
+        run.recorder.close()
+        entries = [json.loads(line) for line in run.journal_path.read_text().splitlines()]
+        raised = [e for e in entries if e["type"] == "alarm" and e["event"] == "raised"
+                  and e["key"].startswith("safe_state:internal")]
+        assert len(raised) == 1, (path, quiet, raised)
+        assert part in json.dumps(raised[0])
+
+
+def test_two_different_internal_errors_are_two_explanations_and_two_alarms(tmp_path):
+    """Neither hides the other: each its own key, explanation and alarm, both journalled;
+    the same error again adds none."""
+    run = Broken("palletizer", "take_events", 3 * S, False, tmp_path, times=3)
+    run.run_for(3 * S + S // 2)
+    assert run.hits == 3
+    engine = run.engine
+    assert engine.compiled is not None
+    real = engine.compiled.core
+
+    def broken(*args):
+        raise RuntimeError("a second, different error")
+    engine.compiled.core = broken
+    last = run.session.run_for(S // 2)
+    assert [r.source for r in engine.latched] == ["internal", "internal"]
+    keys = [e.key for e in last.explanations if e.kind == "safe_state"]
+    assert keys == ["safe_state:internal", "safe_state:internal:2"], keys
+    details = [e.detail for e in last.explanations if e.kind == "safe_state"]
+    assert "reading the plant's events failed" in details[0]
+    assert "a second, different error" in details[1]
+    assert set(keys) <= {a.key for a in last.alarms}
+    engine.compiled.core = real
+    run.armed = False
+    assert run.session.command(cmd.FaultReset()).accepted
+    assert not run.session.run_for(S).latched
+    run.recorder.close()
+    entries = [json.loads(line) for line in run.journal_path.read_text().splitlines()]
+    raised = [e["key"] for e in entries if e["type"] == "alarm" and e["event"] == "raised"
+              and e["key"].startswith("safe_state:")]
+    assert raised == keys
