@@ -9,6 +9,13 @@ Each case breaks one function once, at a virtual time in the middle of a quiet s
 transient fault: the latch must hold the outputs safe afterwards by itself), in a session
 building every scan and in one taking the quiet path (``plchmi run``'s), and compares the
 two.
+
+The same holds for an exception raised outside the scan's own error handling (what
+Engine.run and Engine.snapshot read of the plant, the timers and the monitors; a write to
+the plant raising something other than a PlantError), on each engine path (the compiled
+automatic-mode cycle, the general cycle, the interpreter), in ``plchmi run`` and in the HMI:
+latched with a reason naming what failed, the safe vector written at once, never a crash;
+and two different internal errors are two explanations and two alarms.
 """
 
 from __future__ import annotations
@@ -20,6 +27,7 @@ from typing import Any
 
 import pytest
 
+from hmi.cli import main
 from hmi.engine import commands as cmd
 from hmi.engine.scan import Engine
 from hmi.explain.journal import Journal
@@ -62,6 +70,7 @@ class Broken:
         self.at_us, self.armed, self.hits, self.times = at_us, True, 0, times
         self.written: list[tuple[int, tuple[bool, ...]]] = []
         self.built: set[int] = set()
+        self.first_latched: Any = None  # the first snapshot built with the outputs latched
         real_write = plant.write_vector
 
         def write_vector(now, names, values):
@@ -111,6 +120,8 @@ class Broken:
     def run_for(self, duration: int) -> None:
         def on_scan(snap):
             self.built.add(snap.scan)
+            if snap.latched and self.first_latched is None:
+                self.first_latched = snap
         self.session.run_for(duration, on_scan, (lambda count: None) if self.quiet else None)
 
 
@@ -255,6 +266,12 @@ def test_an_error_outside_the_scans_handling_latches_writes_safe_and_is_explaine
         assert after or first.time_us == engine.now, case
         last = session.last
         assert last is not None and last.outputs == safe and last.is_safe_latched
+        # the failing scan's snapshot shows the outputs it left the plant with: safe
+        snap = run.first_latched if run.first_latched is not None else last
+        assert snap.scan == first.scan and snap.outputs == safe, case
+        assert tuple(snap.named(snap.layout.outputs).values()) == safe, case
+        if engine.scan - snap.scan < len(engine.history):  # the next scans read it so
+            assert engine.history[engine.scan - snap.scan] == snap.values, case
         shown = [e for e in last.explanations if e.key.startswith("safe_state:internal")]
         assert len(shown) == 1, (case, [e.key for e in last.explanations])
         assert part in shown[0].what and part in shown[0].why
@@ -317,3 +334,92 @@ def test_two_different_internal_errors_are_two_explanations_and_two_alarms(tmp_p
     raised = [e["key"] for e in entries if e["type"] == "alarm" and e["event"] == "raised"
               and e["key"].startswith("safe_state:")]
     assert raised == keys
+
+
+@pytest.mark.parametrize("where", ["take_events", "write_vector"])
+@pytest.mark.parametrize("trace", [False, True], ids=["quiet", "trace"])
+def test_plchmi_run_latches_an_error_outside_the_scan_and_ends_normally(
+        tmp_path, capsys, monkeypatch, where, trace):
+    """The command line, headless, without a trace (the quiet path) and with one (every
+    scan built): the run goes on to its end with the outputs held safe, says so, journals
+    the alarm, and writes no crash report."""
+    part = OUTSIDE[where][0]
+    monkeypatch.setenv("PLCHMI_DATA", str(tmp_path / "data"))
+    real = getattr(SimPlant, where)
+    calls = {"n": 0}
+
+    def broken(self, *args):
+        calls["n"] += 1
+        if calls["n"] == 150:  # once, at about 1.5 s
+            raise Injected(f"planted in {where}")
+        return real(self, *args)
+    monkeypatch.setattr(SimPlant, where, broken)
+    journal = tmp_path / "j.jsonl"
+    extra = ["--trace", str(tmp_path / "t.jsonl")] if trace else []
+    assert main(["run", str(PROJECTS / "cispi_valve"), "--for", "3s", "--journal",
+                 str(journal), *extra]) == 0
+    out = capsys.readouterr()
+    assert calls["n"] > 150 and "Traceback" not in out.err
+    assert f"internal error at scan 150: {part} failed: Injected" in out.out  # plchmi run's
+    assert "latched yes" in out.out
+    entries = [json.loads(line) for line in journal.read_text().splitlines()]
+    raised = [e for e in entries if e.get("event") == "raised"
+              and e.get("key") == "safe_state:internal"]
+    assert len(raised) == 1 and part in json.dumps(raised[0])
+    assert entries[-1]["event"] == "stop" and "ended normally" in entries[-1]["message"]
+    assert not list((tmp_path / "data").glob("crash-*"))
+
+
+async def test_the_hmi_latches_an_error_outside_the_scan_and_the_operator_resets_it(
+        tmp_path, monkeypatch):
+    """The HMI (pilot, virtual time): reading the plant's state fails once; the app keeps
+    running, shows the outputs held safe and the alarm in plain words, journals it; the
+    operator's fault reset (r, y) brings the valve back."""
+    from hmi.ui.dialogs import ConfirmDialog
+    from hmi.ui.scenarios import make_app
+    from hmi.ui.testing import (
+        press,
+        region_text,
+        run_for,
+        screen_text,
+        wait_for_main,
+        wait_for_screen,
+    )
+    app = make_app()
+    engine = app.controller.engine
+    recorder = JournalRecorder(app.controller, Journal(tmp_path / "j.jsonl"), "test")
+    real = engine.plant.state
+    calls = {"n": 0}
+
+    def broken():
+        calls["n"] += 1
+        if engine.now >= S and calls["n"] < 1000:
+            calls["n"] = 1000
+            raise Injected("planted in the plant's state")
+        return real()
+    monkeypatch.setattr(engine.plant, "state", broken)
+    async with app.run_test(size=(80, 24)) as pilot:
+        await run_for(pilot, 2.0)
+        assert app.is_running and calls["n"] > 1000
+        assert [r.source for r in engine.latched] == ["internal"]
+        assert engine.latched[0].time_us == S
+        assert app.controller.last.outputs == engine.safe_vector
+        assert "SAFE STATE" in region_text(app, "#status")
+        assert "internal error reading the plant's" in screen_text(app)
+        await press(pilot, "r")
+        await wait_for_screen(pilot, ConfirmDialog)
+        assert "reading the plant's state failed" in screen_text(app)
+        await press(pilot, "y")
+        await wait_for_main(pilot)
+        assert engine.latched == []
+        shown = set()
+        for _ in range(12):
+            await run_for(pilot, 0.5)
+            shown.add(app.controller.last.outputs)
+        assert engine.latched == [] and "SAFE STATE" not in region_text(app, "#status")
+        assert shown - {engine.safe_vector}, "the valve does not cycle again"
+    recorder.close()
+    entries = [json.loads(line) for line in (tmp_path / "j.jsonl").read_text().splitlines()]
+    raised = [e for e in entries if e.get("event") == "raised"
+              and e.get("key") == "safe_state:internal"]
+    assert len(raised) == 1 and "reading the plant's state" in json.dumps(raised[0])
