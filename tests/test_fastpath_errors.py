@@ -423,3 +423,22 @@ async def test_the_hmi_latches_an_error_outside_the_scan_and_the_operator_resets
     raised = [e for e in entries if e.get("event") == "raised"
               and e.get("key") == "safe_state:internal"]
     assert len(raised) == 1 and "reading the plant's state" in json.dumps(raised[0])
+
+
+@pytest.mark.parametrize("where", ["take_events", "state", "write_vector"])
+def test_the_live_scan_thread_latches_an_error_outside_the_scan_and_keeps_scanning(
+        tmp_path, where):
+    """The HMI's own scan loop (LiveRunner, as fast as it can: no wall-clock pacing): the
+    thread does not die of it (it would end the HMI abnormally), the outputs are held safe,
+    and the scans go on to the end."""
+    from hmi.session.live import run_live_for
+    part = OUTSIDE[where][0]
+    run = Broken("cispi_valve", where, S // 2, False, tmp_path)
+    run.session.state.speed = None
+    runner = run_live_for(run.session, 2 * S)
+    assert runner.error is None and not runner.alive
+    assert run.hits == 1 and run.engine.now >= 2 * S
+    assert [r.part for r in run.engine.latched] == [part]
+    last = run.session.last
+    assert last is not None and last.outputs == run.engine.safe_vector
+    assert "safe_state:internal" in {a.key for a in last.alarms}
