@@ -24,6 +24,7 @@ from hmi.project.injection import parse_injection
 from hmi.project.loader import load_project
 from hmi.project.model import Project
 from hmi.session.session import Session
+from tests.cellruns import run_quietly
 from tests.conftest import PROJECTS
 
 S = 1_000_000
@@ -108,14 +109,6 @@ def faulty_cell(cell: Cell, fault: str) -> tuple[Session, SimPlant, list[str]]:
     session.scan_listeners.remove(listener)
     run_quietly(session, 2 * S, listener)
     return session, plant, seen
-
-
-def run_quietly(session: Session, duration_us: int, on_scan=None):
-    """`session.run_for` on the quiet path (as `plchmi run` without a trace): the same scans,
-    but the snapshot of a scan with no news is not built (it would be the last one's again;
-    tests/test_fastpath_session.py holds both paths to the same results). Its `on_scan`
-    sees every scan with news, so no alarm is missed. Half the CPU of building them all."""
-    return session.run_for(duration_us, on_scan, on_quiet=lambda _: None)
 
 
 CASES = [pytest.param(name, fault, id=f"{name}-{fault}")
