@@ -180,30 +180,50 @@ _MEMO: dict[int, tuple[Any, Any]] = {}  # id -> (frozen object, its plain form)
 
 def plain(value: Any) -> Any:
     """A JSON-able copy of a snapshot field (NamedTuples and dataclasses as dicts)."""
-    if isinstance(value, str | int | float | bool | None):
-        return value
-    if isinstance(value, Enum):
-        return value.value
-    fields = getattr(value, "_fields", None)
+    convert = _CONVERTERS.get(type(value))
+    if convert is None:
+        convert = _CONVERTERS[type(value)] = _converter(type(value))
+    return convert(value)
+
+
+def _converter(kind: type) -> Callable[[Any], Any]:
+    """How `plain` turns a value of this type into its plain form, found once per type (the
+    recorder converts every field of every scan: asking dataclasses and isinstance again for
+    each value was most of a case's time)."""
+    if kind is type(None) or issubclass(kind, str | int | float | bool):
+        return _same
+    if issubclass(kind, Enum):
+        return lambda value: value.value
+    fields = getattr(kind, "_fields", None)
     if fields is not None:  # a NamedTuple
-        return dict(zip(fields, map(plain, value), strict=True))
-    if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        if isinstance(value, cmd.Command):
-            return cmd.describe(value)
-        hit = _MEMO.get(id(value))
-        if hit is not None and hit[0] is value:
-            return hit[1]
-        out = {f.name: plain(getattr(value, f.name)) for f in dataclasses.fields(value)}
-        if type(value).__dataclass_params__.frozen:  # type: ignore[attr-defined]
-            _MEMO[id(value)] = (value, out)
-        return out
-    if isinstance(value, list | tuple):
-        return [plain(v) for v in value]
-    if isinstance(value, dict):
-        return {str(k): plain(v) for k, v in value.items()}
-    if isinstance(value, float):
-        return round(value, 9)
+        return lambda value: dict(zip(fields, map(plain, value), strict=True))
+    if dataclasses.is_dataclass(kind):
+        if issubclass(kind, cmd.Command):
+            return cmd.describe
+        names = tuple(f.name for f in dataclasses.fields(kind))
+        frozen = kind.__dataclass_params__.frozen  # type: ignore[attr-defined]
+
+        def from_dataclass(value: Any) -> Any:
+            hit = _MEMO.get(id(value))
+            if hit is not None and hit[0] is value:
+                return hit[1]
+            out = {name: plain(getattr(value, name)) for name in names}
+            if frozen:
+                _MEMO[id(value)] = (value, out)
+            return out
+        return from_dataclass
+    if issubclass(kind, list | tuple):
+        return lambda value: [plain(v) for v in value]
+    if issubclass(kind, dict):
+        return lambda value: {str(k): plain(v) for k, v in value.items()}
+    return _same
+
+
+def _same(value: Any) -> Any:
     return value
+
+
+_CONVERTERS: dict[type, Callable[[Any], Any]] = {}
 
 
 def _filter(report) -> Any:
@@ -300,20 +320,28 @@ def leaves(value: Any, path: str, out: dict[str, Any]) -> None:
 
 def diff(old: Any, new: Any, path: str, changed: dict[str, Any], gone: dict[str, Any]
          ) -> None:
-    """The leaves that differ between two plain values; equal subtrees are skipped whole."""
+    """The leaves that differ between two plain values; equal subtrees are skipped whole
+    (compared here before descending: most of a snapshot's subtrees are equal to the last
+    scan's, and a call per equal leaf was most of the recording's time)."""
     if type(old) is type(new) and old == new:
         return
     if isinstance(old, dict) and isinstance(new, dict) and old and new:
+        get = old.get
         for k, v in new.items():
-            diff(old.get(k, _MISSING), v, f"{path}.{k}", changed, gone)
+            was = get(k, _MISSING)
+            if type(was) is not type(v) or was != v:
+                diff(was, v, f"{path}.{k}", changed, gone)
         for k, v in old.items():
             if k not in new:
                 leaves(v, f"{path}.{k}", gone)
         return
     if isinstance(old, list) and isinstance(new, list) and old and new:
+        count = len(old)
         for k, v in enumerate(new):
-            diff(old[k] if k < len(old) else _MISSING, v, f"{path}.{k}", changed, gone)
-        for k in range(len(new), len(old)):
+            was = old[k] if k < count else _MISSING
+            if type(was) is not type(v) or was != v:
+                diff(was, v, f"{path}.{k}", changed, gone)
+        for k in range(len(new), count):
             leaves(old[k], f"{path}.{k}", gone)
         return
     if old is not _MISSING:

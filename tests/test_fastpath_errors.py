@@ -9,6 +9,13 @@ Each case breaks one function once, at a virtual time in the middle of a quiet s
 transient fault: the latch must hold the outputs safe afterwards by itself), in a session
 building every scan and in one taking the quiet path (``plchmi run``'s), and compares the
 two.
+
+The same holds for an exception raised outside the scan's own error handling (what
+Engine.run and Engine.snapshot read of the plant, the timers and the monitors; a write to
+the plant raising something other than a PlantError), on each engine path (the compiled
+automatic-mode cycle, the general cycle, the interpreter), in ``plchmi run`` and in the HMI:
+latched with a reason naming what failed, the safe vector written at once, never a crash;
+and two different internal errors are two explanations and two alarms.
 """
 
 from __future__ import annotations
@@ -20,6 +27,7 @@ from typing import Any
 
 import pytest
 
+from hmi.cli import main
 from hmi.engine import commands as cmd
 from hmi.engine.scan import Engine
 from hmi.explain.journal import Journal
@@ -43,21 +51,26 @@ def load(name: str) -> Project:
 
 
 class Broken:
-    """A session whose engine has one function replaced by one that raises from `at_us`."""
+    """A session whose engine has one function replaced by one that raises from `at_us`.
+    `path` is the engine's way through the scan: "auto" the compiled automatic-mode cycle
+    (Engine._auto_cycle), "cycle" the general one (Engine._cycle, compiled: a device is
+    stopped), "interpreter" Engine(compiled=False)."""
 
     def __init__(self, name: str, where: str, at_us: int, quiet: bool, tmp: Path,
-                 times: int = 1):
+                 times: int = 1, path: str = "auto"):
         project = load(name)
         self.quiet = quiet
         plant = SimPlant(project)
-        self.engine = engine = Engine(project, plant)
-        assert engine.compiled is not None
+        self.engine = engine = Engine(project, plant, compiled=path != "interpreter")
         self.session = Session(engine)
-        self.journal_path = tmp / f"{where}-{quiet}.jsonl"
+        if path == "cycle":
+            assert self.session.command(cmd.StopDevice(list(engine.devices)[-1])).accepted
+        self.journal_path = tmp / f"{where}-{quiet}-{path}.jsonl"
         self.recorder = JournalRecorder(self.session, Journal(self.journal_path), "run")
         self.at_us, self.armed, self.hits, self.times = at_us, True, 0, times
         self.written: list[tuple[int, tuple[bool, ...]]] = []
         self.built: set[int] = set()
+        self.first_latched: Any = None  # the first snapshot built with the outputs latched
         real_write = plant.write_vector
 
         def write_vector(now, names, values):
@@ -72,22 +85,43 @@ class Broken:
             "read_into": (plant, "read_into"),
             "correction": (engine.filter, "apply"),
             "active_bits": (engine.filter, "active_bits"),
+            # outside the scan's own error handling (Engine.run, Engine.snapshot)
+            "take_events": (plant, "take_events"),
+            "state": (plant, "state"),
+            "counters": (plant, "counters"),
+            "write_vector": (plant, "write_vector"),
+            "elapsed": (engine, "_elapsed"),
+            "settle": (engine.monitors, "settle"),
+            "status": (plant, "status"),
         }[where]
+        self.where = where
         real = getattr(owner, attribute)
         assert real is not None, f"{name} has no {where}"
 
         def broken(*args, **kwargs):
-            if self.armed and engine.now >= self.at_us and self.hits < self.times:
-                self.hits += 1
-                raise Injected(f"planted in {where}")
+            self.fail()
             return real(*args, **kwargs)
-        setattr(owner, attribute, broken)
+        if where == "status":  # a property: on a class of this plant's own
+            plant_class = type(plant)
+            status = plant_class.status.fget  # type: ignore[attr-defined]
+            plant.__class__ = type("BrokenStatus", (plant_class,), {
+                "status": property(lambda this: self.fail() or status(this))})
+        else:
+            setattr(owner, attribute, broken)
         if where == "violated":  # the filter stage's first question is the same function
             engine.filter_stage.quick = broken
+
+    def fail(self) -> None:
+        """Raise the planted fault, `times` times from `at_us` on, while armed."""
+        if self.armed and self.engine.now >= self.at_us and self.hits < self.times:
+            self.hits += 1
+            raise Injected(f"planted in {self.where}")
 
     def run_for(self, duration: int) -> None:
         def on_scan(snap):
             self.built.add(snap.scan)
+            if snap.latched and self.first_latched is None:
+                self.first_latched = snap
         self.session.run_for(duration, on_scan, (lambda count: None) if self.quiet else None)
 
 
@@ -175,3 +209,236 @@ def test_a_persistent_internal_error_keeps_one_latch_and_one_explanation():
 def make_session(name: str) -> Session:
     project = load(name)
     return Session(Engine(project, SimPlant(project)))
+
+
+# Outside the scan's own error handling: what Engine.run reads after the cycle, the output
+# scan's write raising something other than a PlantError, and what Engine.snapshot reads.
+# where -> (what the latch names, in plain words; whether only a snapshot reads it)
+OUTSIDE = {
+    "take_events": ("reading the plant's events", False),
+    "status": ("reading the plant's status", False),
+    "write_vector": ("writing the outputs to the plant", False),
+    "settle": ("settling the monitors", False),
+    "state": ("reading the plant's state", True),
+    "counters": ("reading the plant's counters", True),
+    "elapsed": ("computing the timers' elapsed times", True),
+}
+PATHS = ("auto", "cycle", "interpreter")
+
+
+@pytest.mark.parametrize("where", OUTSIDE)
+def test_an_error_outside_the_scans_handling_latches_writes_safe_and_is_explained(
+        tmp_path, where):
+    """palletizer (plant events, timers, monitors, devices), on each engine path, building
+    every scan (Engine.step) and on the quiet path (plchmi run's): the error latches,
+    naming what failed, the safe vector is written at once and held, it is explained and
+    journalled once, and a fault reset brings the cell back; never an exception out of the
+    run. What only a snapshot reads fails where a snapshot is built: at that very scan
+    when every scan is built, at the next scan with news (or when the last is read) on the
+    quiet path."""
+    part, snapshot_only = OUTSIDE[where]
+    start = 3 * S
+    at_us = start + 3 * load("palletizer").scan_period_us
+    runs = {(path, quiet): Broken("palletizer", where, at_us, quiet, tmp_path, path=path)
+            for path in PATHS for quiet in (False, True)}
+    for (path, quiet), run in runs.items():
+        case = f"{path}, {'quiet' if quiet else 'every scan built'}"
+        run.run_for(start + 2 * S)
+        engine, session = run.engine, run.session
+        assert run.hits == 1, case
+        latches = [r for r in engine.latched if r.source == "internal"]
+        assert len(latches) == 1, (case, engine.latched)
+        first = latches[0]
+        assert first.part == part and f"{part} failed: Injected: planted in" in first.detail
+        assert first.time_us >= at_us
+        if not (snapshot_only and quiet):
+            assert first.time_us == at_us, case  # at the very scan
+            assert first.scan in run.built, f"{case}: the failing scan went by as a quiet one"
+        safe = engine.safe_vector
+        before = [values for now, values in run.written if now < first.time_us]
+        assert any(values != safe for values in before), f"{case}: nothing to make safe"
+        # the safe vector written at the failing scan's time (after the scan's own outputs
+        # when they were written), and nothing else since
+        at = [values for now, values in run.written if now == first.time_us]
+        assert at and at[-1] == safe, (case, at)
+        after = [values for now, values in run.written if now > first.time_us]
+        assert all(values == safe for values in after), case
+        assert after or first.time_us == engine.now, case
+        last = session.last
+        assert last is not None and last.outputs == safe and last.is_safe_latched
+        # the failing scan's snapshot shows the outputs it left the plant with: safe
+        snap = run.first_latched if run.first_latched is not None else last
+        assert snap.scan == first.scan and snap.outputs == safe, case
+        assert tuple(snap.named(snap.layout.outputs).values()) == safe, case
+        if engine.scan - snap.scan < len(engine.history):  # the next scans read it so
+            assert engine.history[engine.scan - snap.scan] == snap.values, case
+        shown = [e for e in last.explanations if e.key.startswith("safe_state:internal")]
+        assert len(shown) == 1, (case, [e.key for e in last.explanations])
+        assert part in shown[0].what and part in shown[0].why
+        assert "Injected" in shown[0].detail and "Injected" not in shown[0].why
+        assert shown[0].key in {a.key for a in last.alarms}
+    full = {path: runs[path, False] for path in PATHS}
+    # the interpreter and the compiled scan fail at the same scan and write the same
+    assert full["auto"].written == full["interpreter"].written
+    assert [r.scan for r in full["auto"].engine.latched] == \
+        [r.scan for r in full["interpreter"].engine.latched]
+    if not snapshot_only:  # the quiet path fails at the same scan, and writes the same
+        for path in PATHS:
+            assert runs[path, True].written == full[path].written, path
+            assert [r.scan for r in runs[path, True].engine.latched] == \
+                [r.scan for r in full[path].engine.latched], path
+    # the way back: the cause gone, a fault reset releases the latch and the law runs again
+    for (path, quiet), run in runs.items():
+        run.armed = False
+        assert run.session.command(cmd.FaultReset()).accepted
+        reset_at = run.engine.now
+        run.run_for(3 * S)
+        assert not run.engine.latched, (path, quiet, run.engine.latched)
+        assert any(values != run.engine.safe_vector for now, values in run.written
+                   if now > reset_at), (path, quiet)
+        run.recorder.close()
+        entries = [json.loads(line) for line in run.journal_path.read_text().splitlines()]
+        raised = [e for e in entries if e["type"] == "alarm" and e["event"] == "raised"
+                  and e["key"].startswith("safe_state:internal")]
+        assert len(raised) == 1, (path, quiet, raised)
+        assert part in json.dumps(raised[0])
+
+
+def test_two_different_internal_errors_are_two_explanations_and_two_alarms(tmp_path):
+    """Neither hides the other: each its own key, explanation and alarm, both journalled;
+    the same error again adds none."""
+    run = Broken("palletizer", "take_events", 3 * S, False, tmp_path, times=3)
+    run.run_for(3 * S + S // 2)
+    assert run.hits == 3
+    engine = run.engine
+    assert engine.compiled is not None
+    real = engine.compiled.core
+
+    def broken(*args):
+        raise RuntimeError("a second, different error")
+    engine.compiled.core = broken
+    last = run.session.run_for(S // 2)
+    assert [r.source for r in engine.latched] == ["internal", "internal"]
+    keys = [e.key for e in last.explanations if e.kind == "safe_state"]
+    assert keys == ["safe_state:internal", "safe_state:internal:2"], keys
+    details = [e.detail for e in last.explanations if e.kind == "safe_state"]
+    assert "reading the plant's events failed" in details[0]
+    assert "a second, different error" in details[1]
+    assert set(keys) <= {a.key for a in last.alarms}
+    engine.compiled.core = real
+    run.armed = False
+    assert run.session.command(cmd.FaultReset()).accepted
+    assert not run.session.run_for(S).latched
+    run.recorder.close()
+    entries = [json.loads(line) for line in run.journal_path.read_text().splitlines()]
+    raised = [e["key"] for e in entries if e["type"] == "alarm" and e["event"] == "raised"
+              and e["key"].startswith("safe_state:")]
+    assert raised == keys
+
+
+@pytest.mark.parametrize("where", ["take_events", "write_vector"])
+@pytest.mark.parametrize("trace", [False, True], ids=["quiet", "trace"])
+def test_plchmi_run_latches_an_error_outside_the_scan_and_ends_normally(
+        tmp_path, capsys, monkeypatch, where, trace):
+    """The command line, headless, without a trace (the quiet path) and with one (every
+    scan built): the run goes on to its end with the outputs held safe, says so, journals
+    the alarm, and writes no crash report."""
+    part = OUTSIDE[where][0]
+    monkeypatch.setenv("PLCHMI_DATA", str(tmp_path / "data"))
+    real = getattr(SimPlant, where)
+    calls = {"n": 0}
+
+    def broken(self, *args):
+        calls["n"] += 1
+        if calls["n"] == 150:  # once, at about 1.5 s
+            raise Injected(f"planted in {where}")
+        return real(self, *args)
+    monkeypatch.setattr(SimPlant, where, broken)
+    journal = tmp_path / "j.jsonl"
+    extra = ["--trace", str(tmp_path / "t.jsonl")] if trace else []
+    assert main(["run", str(PROJECTS / "cispi_valve"), "--for", "3s", "--journal",
+                 str(journal), *extra]) == 0
+    out = capsys.readouterr()
+    assert calls["n"] > 150 and "Traceback" not in out.err
+    assert f"internal error at scan 150: {part} failed: Injected" in out.out  # plchmi run's
+    assert "latched yes" in out.out
+    entries = [json.loads(line) for line in journal.read_text().splitlines()]
+    raised = [e for e in entries if e.get("event") == "raised"
+              and e.get("key") == "safe_state:internal"]
+    assert len(raised) == 1 and part in json.dumps(raised[0])
+    assert entries[-1]["event"] == "stop" and "ended normally" in entries[-1]["message"]
+    assert not list((tmp_path / "data").glob("crash-*"))
+
+
+async def test_the_hmi_latches_an_error_outside_the_scan_and_the_operator_resets_it(
+        tmp_path, monkeypatch):
+    """The HMI (pilot, virtual time): reading the plant's state fails once; the app keeps
+    running, shows the outputs held safe and the alarm in plain words, journals it; the
+    operator's fault reset (r, y) brings the valve back."""
+    from hmi.ui.dialogs import ConfirmDialog
+    from hmi.ui.scenarios import make_app
+    from hmi.ui.testing import (
+        press,
+        region_text,
+        run_for,
+        screen_text,
+        wait_for_main,
+        wait_for_screen,
+    )
+    app = make_app()
+    engine = app.controller.engine
+    recorder = JournalRecorder(app.controller, Journal(tmp_path / "j.jsonl"), "test")
+    real = engine.plant.state
+    calls = {"n": 0}
+
+    def broken():
+        calls["n"] += 1
+        if engine.now >= S and calls["n"] < 1000:
+            calls["n"] = 1000
+            raise Injected("planted in the plant's state")
+        return real()
+    monkeypatch.setattr(engine.plant, "state", broken)
+    async with app.run_test(size=(80, 24)) as pilot:
+        await run_for(pilot, 2.0)
+        assert app.is_running and calls["n"] > 1000
+        assert [r.source for r in engine.latched] == ["internal"]
+        assert engine.latched[0].time_us == S
+        assert app.controller.last.outputs == engine.safe_vector
+        assert "SAFE STATE" in region_text(app, "#status")
+        assert "internal error reading the plant's" in screen_text(app)
+        await press(pilot, "r")
+        await wait_for_screen(pilot, ConfirmDialog)
+        assert "reading the plant's state failed" in screen_text(app)
+        await press(pilot, "y")
+        await wait_for_main(pilot)
+        assert engine.latched == []
+        shown = set()
+        for _ in range(12):
+            await run_for(pilot, 0.5)
+            shown.add(app.controller.last.outputs)
+        assert engine.latched == [] and "SAFE STATE" not in region_text(app, "#status")
+        assert shown - {engine.safe_vector}, "the valve does not cycle again"
+    recorder.close()
+    entries = [json.loads(line) for line in (tmp_path / "j.jsonl").read_text().splitlines()]
+    raised = [e for e in entries if e.get("event") == "raised"
+              and e.get("key") == "safe_state:internal"]
+    assert len(raised) == 1 and "reading the plant's state" in json.dumps(raised[0])
+
+
+@pytest.mark.parametrize("where", ["take_events", "state", "write_vector"])
+def test_the_live_scan_thread_latches_an_error_outside_the_scan_and_keeps_scanning(
+        tmp_path, where):
+    """The HMI's own scan loop (LiveRunner, as fast as it can: no wall-clock pacing): the
+    thread does not die of it (it would end the HMI abnormally), the outputs are held safe,
+    and the scans go on to the end."""
+    from hmi.session.live import run_live_for
+    part = OUTSIDE[where][0]
+    run = Broken("cispi_valve", where, S // 2, False, tmp_path)
+    run.session.state.speed = None
+    runner = run_live_for(run.session, 2 * S)
+    assert runner.error is None and not runner.alive
+    assert run.hits == 1 and run.engine.now >= 2 * S
+    assert [r.part for r in run.engine.latched] == [part]
+    last = run.session.last
+    assert last is not None and last.outputs == run.engine.safe_vector
+    assert "safe_state:internal" in {a.key for a in last.alarms}

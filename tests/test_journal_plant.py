@@ -16,7 +16,7 @@ from hmi.explain.journal import Journal, read
 from hmi.session.journal_recorder import JournalRecorder
 from tests import test_modbus
 from tests.conftest import ROOT
-from tests.test_modbus import VALVE, WAIT, Live, _free_port
+from tests.test_modbus import VALVE, WAIT, Live, _free_port, quick_valve
 
 server = test_modbus.server  # the fixture that starts (and stops) real server processes
 
@@ -31,7 +31,7 @@ def test_a_late_server_journals_the_first_failure_then_a_summary(server, tmp_pat
     path = tmp_path / "j.jsonl"
     port = _free_port()
     proc = subprocess.Popen(
-        [sys.executable, "-m", "hmi.cli", "run", str(VALVE), "--for", "2s",
+        [sys.executable, "-m", "hmi.cli", "run", str(VALVE), "--for", "300ms",
          "--plant", f"modbus://127.0.0.1:{port}", "--connect-timeout", "60s",
          "--journal", str(path)],
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=ROOT)
@@ -60,7 +60,7 @@ def test_giving_up_journals_the_retries_summary(tmp_path):
     path = tmp_path / "j.jsonl"
     proc = subprocess.run(
         [sys.executable, "-m", "hmi.cli", "run", str(VALVE), "--for", "5s",
-         "--plant", f"modbus://127.0.0.1:{_free_port()}", "--connect-timeout", "1500ms",
+         "--plant", f"modbus://127.0.0.1:{_free_port()}", "--connect-timeout", "800ms",
          "--journal", str(path)],
         capture_output=True, text=True, cwd=ROOT, timeout=120)
     assert proc.returncode == 1
@@ -73,9 +73,10 @@ def test_giving_up_journals_the_retries_summary(tmp_path):
 
 def test_loss_and_reconnection_are_journalled(server, tmp_path):
     path = tmp_path / "j.jsonl"
-    srv = server()
+    valve = quick_valve(tmp_path / "valve")
+    srv = server(valve)
     port = srv.port
-    live = Live(VALVE, port)
+    live = Live(valve, port)
     recorder = JournalRecorder(live.controller, Journal(path), "test")
     with live:
         live.wait(lambda s: s.output_map["O"], "the valve opening")

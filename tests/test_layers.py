@@ -19,6 +19,7 @@ cycle with its sections (they read through hmi/project/reader.py).
 from __future__ import annotations
 
 import ast
+from functools import cache
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -88,7 +89,11 @@ def imports(name: str) -> list[tuple[str, bool]]:
     return found
 
 
-GRAPH = {name: imports(name) for name in MODULES}
+@cache
+def graph() -> dict[str, list[tuple[str, bool]]]:
+    """Every module's imports, read once, when a test first asks: not at collection, which
+    each pytest-xdist worker does for the whole suite (it cost each worker ~1 CPU s)."""
+    return {name: imports(name) for name in MODULES}
 
 
 def layer(name: str) -> int:
@@ -115,7 +120,7 @@ def against_layers(name: str, target: str) -> bool:
 
 
 def test_no_import_runs_up_the_layers():
-    upward = {(name, target) for name, targets in GRAPH.items() for target, _ in targets
+    upward = {(name, target) for name, targets in graph().items() for target, _ in targets
               if against_layers(name, target)}
     assert upward == set(), "imports against the layering"
 
@@ -139,7 +144,7 @@ def against_cli_layout(name: str, target: str) -> bool:
 
 
 def test_the_command_line_is_one_module_per_command():
-    wrong = {(name, target) for name, targets in GRAPH.items() for target, _ in targets
+    wrong = {(name, target) for name, targets in graph().items() for target, _ in targets
              if against_cli_layout(name, target)}
     assert wrong == set(), "imports against hmi/cli/'s layout"
     assert {"hmi.cli.run", "hmi.cli.ui", "hmi.cli.journal"} <= set(MODULES)
@@ -192,7 +197,7 @@ def _cycles(graph: dict[str, set[str]]) -> list[set[str]]:
 
 
 def test_no_import_cycle():
-    runtime = {name: {t for t, runs in targets if runs} for name, targets in GRAPH.items()}
+    runtime = {name: {t for t, runs in targets if runs} for name, targets in graph().items()}
     assert _cycles(runtime) == []
 
 
@@ -205,4 +210,4 @@ def test_the_checker_sees_a_cycle_and_an_upward_import():
     assert against_layers("hmi.plant.sim.plant", "hmi.engine.scan")
     assert against_layers("hmi.engine.scan", "hmi.session.session")
     assert not against_layers("hmi.explain.builder", "hmi.engine.snapshot")
-    assert ("hmi.engine.scan", True) in GRAPH["hmi.session.session"]
+    assert ("hmi.engine.scan", True) in graph()["hmi.session.session"]

@@ -8,6 +8,7 @@ rather than sleeping a fixed time.
 from __future__ import annotations
 
 import csv
+import json
 import re
 import shutil
 import signal
@@ -17,6 +18,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import pytest
 from pymodbus.client import ModbusTcpClient
@@ -34,6 +36,25 @@ from tests.conftest import PROJECTS, ROOT, make_controller, write_project
 VALVE = PROJECTS / "cispi_valve"
 S = 1_000_000
 WAIT = 30.0  # seconds: a deadline, not a sleep
+
+
+def quick_valve(folder: Path) -> Path:
+    """A copy of the valve, at `folder`, whose filling sequence rests 200 ms closed and holds
+    500 ms open instead of the project's 1 s and 3 s: settings of the process, not of what
+    the tests here check (the valve, its 2 s travel, the diagnosers, the filter and the
+    addresses are the project's). On a real server the tests wait in real time: the first
+    opening comes at 0.2 s instead of 1 s, a whole cycle takes 4.8 s instead of 7.9 s."""
+    shutil.copytree(VALVE, folder)
+    law = folder / "control.yaml"
+    text = law.read_text(encoding="utf-8")
+    for old, new in (("X0.t >= 1s, description: Closed and waited 1 s",
+                      "X0.t >= 200ms, description: Closed and waited 200 ms"),
+                     ("X2.t >= 3s, description: Filled for 3 s",
+                      "X2.t >= 500ms, description: Filled for 500 ms")):
+        assert text.count(old) == 1, f"the valve's law no longer says {old!r}"
+        text = text.replace(old, new)
+    law.write_text(text, encoding="utf-8")
+    return folder
 
 
 @pytest.fixture
@@ -117,22 +138,62 @@ def states(rows: list[dict]) -> list[tuple]:
 DIAGNOSIS = re.compile(r"V1 -> (\w+) \{([^}]*)\}")
 
 
-def test_a_fault_injected_in_serve_plant_is_diagnosed_as_in_the_simulation(server):
+def alarm_events(path) -> list[tuple[str, str]]:
+    """(alarm key, event) of each alarm entry journalled so far (a line being written is
+    left for the next look)."""
+    if not path.exists():
+        return []
+    events = []
+    for line in path.read_text(encoding="utf-8").splitlines():
+        try:
+            entry = json.loads(line)
+        except ValueError:
+            continue
+        if entry.get("type") == "alarm":
+            events.append((entry["key"], entry["event"]))
+    return events
+
+
+def test_a_fault_injected_in_serve_plant_is_diagnosed_as_in_the_simulation(server, tmp_path):
     """F13 (the valve jams on its next movement) injected in the plant process, seen only
-    through Modbus: the same diagnoser transitions and final decision as the direct run."""
+    through Modbus: the same diagnoser transitions, alarms and final decision as the direct
+    run of 8 s.
+
+    The run through Modbus ends on its state, not after 8 s of wall clock: it is stopped
+    (SIGTERM, as a service manager stops it) once it has journalled every alarm event the
+    simulation's 8 s journalled (the last one, recovery needed, at 3.49 s; the jammed valve
+    then rests with both orders withdrawn), with 120 s as a fail-safe only."""
     srv = server(VALVE, "--inject", "F13@0s")
-    real = subprocess.run(
-        [sys.executable, "-m", "hmi.cli", "run", str(VALVE), "--for", "8s",
-         "--plant", f"modbus://127.0.0.1:{srv.port}"],
-        capture_output=True, text=True, cwd=ROOT, timeout=120)
-    assert real.returncode == 0, real.stderr
-    sim = subprocess.run(
-        [sys.executable, "-m", "hmi.cli", "run", str(VALVE), "--for", "8s", "--inject",
-         "F13@0s"], capture_output=True, text=True, cwd=ROOT, timeout=120)
-    assert sim.returncode == 0, sim.stderr
-    seen = DIAGNOSIS.findall(real.stdout)
-    assert seen == DIAGNOSIS.findall(sim.stdout) == [("A3", "F3, F13")], real.stdout
-    final = [line for line in real.stdout.splitlines() if line.strip().startswith("final: V1")]
+    journal = tmp_path / "real.jsonl"
+    run = subprocess.Popen(
+        [sys.executable, "-m", "hmi.cli", "run", str(VALVE), "--for", "120s",
+         "--plant", f"modbus://127.0.0.1:{srv.port}", "--journal", str(journal)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    try:
+        # The simulation runs while the real one waits on its valve (real time, a core idle).
+        sim_journal = tmp_path / "sim.jsonl"
+        sim = subprocess.run(
+            [sys.executable, "-m", "hmi.cli", "run", str(VALVE), "--for", "8s", "--inject",
+             "F13@0s", "--journal", str(sim_journal)], capture_output=True, text=True,
+            cwd=ROOT, timeout=120)
+        assert sim.returncode == 0, sim.stderr
+        expected = alarm_events(sim_journal)
+        assert ("recovery_needed:V1_close", "raised") in expected, expected
+        deadline = time.monotonic() + 120
+        while len(alarm_events(journal)) < len(expected) and run.poll() is None \
+                and time.monotonic() < deadline:
+            time.sleep(0.05)
+        run.send_signal(signal.SIGTERM)
+        out, err = run.communicate(timeout=120)
+    finally:
+        if run.poll() is None:
+            run.kill()
+            run.communicate()
+    assert run.returncode == 0, err
+    assert alarm_events(journal) == expected
+    seen = DIAGNOSIS.findall(out)
+    assert seen == DIAGNOSIS.findall(sim.stdout) == [("A3", "F3, F13")], out
+    final = [line for line in out.splitlines() if line.strip().startswith("final: V1")]
     assert final and "F3 (sensor fso stuck at 0) or F13" in final[0]
 
 
@@ -146,13 +207,21 @@ def test_a_headless_run_against_serve_plant_behaves_like_the_simulation(server, 
     a second time; the open order then stays on for the 2 s of travel. A run of a fixed
     10 s, as this test was, ended before or after that movement depending on the load (each
     transition waits for a scan: at a load of 14 the cycle came late and the last state was
-    missing); its states are compared as a prefix of the simulation's, which runs longer."""
-    srv = server()
+    missing); its states are compared as a prefix of the simulation's, which runs longer.
+    The valve fills for 500 ms (quick_valve): the second opening comes at 4.8 s."""
+    valve = quick_valve(tmp_path / "valve")
+    srv = server(valve)
     trace = tmp_path / "modbus.csv"
     run = subprocess.Popen(
-        [sys.executable, "-m", "hmi.cli", "run", str(VALVE), "--for", "120s",
+        [sys.executable, "-m", "hmi.cli", "run", str(valve), "--for", "120s",
          "--plant", f"modbus://127.0.0.1:{srv.port}", "--trace", str(trace)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    # The same project on the simulated plant, in virtual time, while the real run waits on
+    # its valve (real time, a core idle).
+    sim_trace = tmp_path / "sim.csv"
+    sim = subprocess.Popen([sys.executable, "-m", "hmi.cli", "run", str(valve), "--for", "12s",
+                            "--trace", str(sim_trace)], cwd=ROOT,
+                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         def opening(line: str) -> bool:  # the valve off its closed end, the open order on
             return "fsc=0 fso=0" in line and line.endswith("C=0 O=1")
@@ -164,7 +233,9 @@ def test_a_headless_run_against_serve_plant_behaves_like_the_simulation(server, 
         if run.poll() is None:
             run.kill()
             run.communicate()
+        sim.wait(120)
     assert run.returncode == 0, err
+    assert sim.returncode == 0
     assert "of real time" in out and "Damage events: none" in out
     assert "connections lost 0" in out and "exception responses 0" in out
     # The run ended while the valve was opening: a stopping PLC leaves its outputs safe.
@@ -174,11 +245,7 @@ def test_a_headless_run_against_serve_plant_behaves_like_the_simulation(server, 
     summary = srv.lines[-1]
     assert "cycles 1" in summary and "damage events: none" in summary, summary
 
-    # The same project on the simulated plant, in virtual time: the same states, in order.
-    sim_trace = tmp_path / "sim.csv"
-    assert subprocess.run([sys.executable, "-m", "hmi.cli", "run", str(VALVE), "--for", "12s",
-                           "--trace", str(sim_trace)], cwd=ROOT, capture_output=True,
-                          timeout=120).returncode == 0
+    # The simulation went through the same states, in order.
     with trace.open() as f1, sim_trace.open() as f2:
         real, sim = list(csv.DictReader(f1)), list(csv.DictReader(f2))
     assert real[-1]["O"] == "1"  # stopped while opening
@@ -190,8 +257,7 @@ def test_a_headless_run_against_serve_plant_behaves_like_the_simulation(server, 
 def test_server_killed_and_restarted_mid_run(server, tmp_path):
     # A copy of the valve whose safe state holds the close order, so that the safe vector
     # is visible on the restarted server (whose coils start at 0).
-    folder = tmp_path / "valve"
-    shutil.copytree(VALVE, folder)
+    folder = quick_valve(tmp_path / "valve")
     text = (folder / "project.yaml").read_text()
     (folder / "project.yaml").write_text(text.replace(
         "    safe: 0\n    address: coil:0", "    safe: 1\n    address: coil:0"))
@@ -233,9 +299,10 @@ def test_server_killed_and_restarted_mid_run(server, tmp_path):
         srv.wait_for("C=0 O=1", WAIT, start=mark)
 
 
-def test_pausing_a_real_plant_holds_it_safe(server):
-    srv = server()
-    with Live(VALVE, srv.port) as live:
+def test_pausing_a_real_plant_holds_it_safe(server, tmp_path):
+    valve = quick_valve(tmp_path / "valve")
+    srv = server(valve)
+    with Live(valve, srv.port) as live:
         live.wait(lambda s: s.output_map["O"], "the valve opening")
         result = live.controller.command(Pause())
         assert "outputs written safe while paused" in result.message
@@ -385,12 +452,13 @@ def _free_port() -> int:
 def test_an_absent_server_is_retried_then_the_run_gives_up():
     port = _free_port()
     started = time.monotonic()
+    # 800 ms: attempts at 0, 0.1, 0.3 and 0.7 s (the back-off doubles from 0.1 s)
     proc = subprocess.run(
         [sys.executable, "-m", "hmi.cli", "run", str(VALVE), "--for", "5s",
-         "--plant", f"modbus://127.0.0.1:{port}", "--connect-timeout", "1500ms"],
+         "--plant", f"modbus://127.0.0.1:{port}", "--connect-timeout", "800ms"],
         capture_output=True, text=True, cwd=ROOT, timeout=120)
     assert proc.returncode == 1
-    assert f"no connection to the plant within 1.5s: cannot connect to 127.0.0.1:{port} " \
+    assert f"no connection to the plant within 800ms: cannot connect to 127.0.0.1:{port} " \
         "unit 1: Connection refused" in proc.stderr
     assert proc.stderr.count("attempt ") >= 3  # retried, with backoff
     assert "Traceback" not in proc.stderr and proc.stdout == ""
@@ -400,7 +468,7 @@ def test_an_absent_server_is_retried_then_the_run_gives_up():
 def test_a_run_waits_for_a_late_server(server):
     port = _free_port()
     proc = subprocess.Popen(
-        [sys.executable, "-m", "hmi.cli", "run", str(VALVE), "--for", "2s",
+        [sys.executable, "-m", "hmi.cli", "run", str(VALVE), "--for", "300ms",
          "--plant", f"modbus://127.0.0.1:{port}", "--connect-timeout", "60s"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
     assert proc.stderr is not None and proc.stdout is not None
@@ -459,7 +527,8 @@ def test_quitting_the_hmi_on_a_real_plant_leaves_its_outputs_safe(server, tmp_pa
     from hmi.ui.dialogs import ConfirmDialog
     from hmi.ui.testing import press, screen_text, wait_for_screen, wait_live
 
-    srv = server()
+    valve = quick_valve(tmp_path / "valve")
+    srv = server(valve)
     monkeypatch.setenv("PLCHMI_DATA", str(tmp_path))
     seen: dict[str, object] = {}
 
@@ -477,7 +546,7 @@ def test_quitting_the_hmi_on_a_real_plant_leaves_its_outputs_safe(server, tmp_pa
     monkeypatch.setattr(PlcHmiApp, "run", lambda self: run(self, headless=True,
                                                            size=(100, 30),
                                                            auto_pilot=operator))
-    assert main(["ui", str(VALVE), "--plant", f"modbus://127.0.0.1:{srv.port}",
+    assert main(["ui", str(valve), "--plant", f"modbus://127.0.0.1:{srv.port}",
                  "--journal", str(tmp_path / "journal.jsonl")]) == 0
     assert seen["coils_before"] == [False, True]  # O on while the valve opened
     assert "safe value (C=0, O=0)" in str(seen["dialog"])

@@ -1,10 +1,11 @@
 """An independent client, node-opcua (JavaScript), against the cell's OPC UA server.
 
 asyncua is both our server and the other tests' client: a mistake shared by the two would go
-unseen. node-opcua-client, installed from npm into a temporary folder when the test runs,
-browses, reads, subscribes to the alarm events, asks for a ConditionRefresh and acknowledges
-the alarm with a user whose password it encrypts with the server's certificate. Skipped, with
-the reason, where node or npm is missing or npm cannot install the package.
+unseen. node-opcua-client, installed from npm once into the user's cache folder (see
+node_modules below), browses, reads, subscribes to the alarm events, asks for a
+ConditionRefresh and acknowledges the alarm with a user whose password it encrypts with the
+server's certificate. Skipped, with the reason, where node or npm is missing or npm cannot
+install the package.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import json
 import os
 import shutil
 import subprocess
+import tempfile
 import threading
 from pathlib import Path
 
@@ -32,23 +34,52 @@ NODE_OPCUA = "node-opcua-client@2.182.2"  # pinned: the version this test was wr
 SCRIPT = Path(__file__).with_name("opcua_node_client.js")
 
 
+def _installed(folder: Path) -> bool:
+    """Whether `folder` holds a whole install of the pinned node-opcua-client."""
+    package = folder / "node_modules" / "node-opcua-client" / "package.json"
+    try:
+        version = json.loads(package.read_text(encoding="utf-8"))["version"]
+    except (OSError, ValueError, KeyError):
+        return False
+    return f"node-opcua-client@{version}" == NODE_OPCUA and (folder / "complete").exists()
+
+
 @pytest.fixture(scope="module")
-def node_modules(tmp_path_factory) -> Path:
+def node_modules() -> Path:
+    """node-opcua-client installed once for the user (like npm's own cache, in
+    $XDG_CACHE_HOME or ~/.cache): an install costs ~6 CPU s and ~10 s of wall (npm reads
+    125 packages), the test itself less. A new pin installs beside the old one; an install
+    is built in a folder of its own, marked complete, then renamed into place, so that a
+    half-done or concurrent install is never used."""
     node, npm = shutil.which("node"), shutil.which("npm")
     if node is None or npm is None:
         pytest.skip("node and npm are needed for the node-opcua cross-check "
                     "(apt-get install nodejs npm)")
-    folder = tmp_path_factory.mktemp("node")
-    try:
-        done = subprocess.run([npm, "install", "--no-audit", "--no-fund", "--loglevel=error",
-                               "--prefix", str(folder), NODE_OPCUA], capture_output=True,
-                              text=True, timeout=600)
-    except subprocess.TimeoutExpired:
-        pytest.skip(f"npm did not install {NODE_OPCUA} within 10 minutes")
-    if done.returncode != 0:
-        pytest.skip(f"npm could not install {NODE_OPCUA} (registry unreachable?): "
-                    + done.stderr.strip()[-300:])
-    return folder / "node_modules"
+    cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "plchmi-tests"
+    final = cache / NODE_OPCUA
+    if not _installed(final):
+        cache.mkdir(parents=True, exist_ok=True)
+        folder = Path(tempfile.mkdtemp(prefix="node-install-", dir=cache))
+        try:
+            done = subprocess.run([npm, "install", "--no-audit", "--no-fund",
+                                   "--loglevel=error", "--prefix", str(folder), NODE_OPCUA],
+                                  capture_output=True, text=True, timeout=600)
+        except subprocess.TimeoutExpired:
+            shutil.rmtree(folder, ignore_errors=True)
+            pytest.skip(f"npm did not install {NODE_OPCUA} within 10 minutes")
+        if done.returncode != 0:
+            shutil.rmtree(folder, ignore_errors=True)
+            pytest.skip(f"npm could not install {NODE_OPCUA} (registry unreachable?): "
+                        + done.stderr.strip()[-300:])
+        (folder / "complete").touch()
+        if final.exists():  # an old, broken install (or another run's, just renamed)
+            shutil.rmtree(final, ignore_errors=True)
+        try:
+            folder.rename(final)
+        except OSError:  # another run put its install there first
+            shutil.rmtree(folder, ignore_errors=True)
+        assert _installed(final), f"{final}: no whole install of {NODE_OPCUA}"
+    return final / "node_modules"
 
 
 def test_node_opcua_browses_reads_and_acknowledges_as_a_user(node_modules, tmp_path):

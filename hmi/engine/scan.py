@@ -44,7 +44,7 @@ from hmi.engine.filter_stage import FilterStage
 from hmi.engine.layout import Layout
 from hmi.engine.monitors import monitor_stage
 from hmi.engine.recovery import NO_RECOVERY, recovery_stage
-from hmi.engine.snapshot import LatchReason, Snapshot
+from hmi.engine.snapshot import INTERNAL_PARTS, LatchReason, Snapshot
 from hmi.engine.stages import (
     Control,
     InputScan,
@@ -55,7 +55,7 @@ from hmi.engine.stages import (
 )
 from hmi.errors import UsageError
 from hmi.logic.expr import Expr, Image, max_depth
-from hmi.plant.base import Plant, PlantError
+from hmi.plant.base import Plant, PlantError, PlantStatus
 from hmi.project.diagnosers import layout_names
 from hmi.project.model import POLICIES, Project
 from hmi.project.recovery import recoveries_of
@@ -426,6 +426,53 @@ class Engine:
                 return
         self.latch_safe("internal", f"internal error at scan {self.scan}: {error}")
 
+    def _failure(self, part: str, exc: Exception) -> str:
+        """An exception outside the scan's own handling (reading what the scan left for its
+        snapshot, writing to the plant): latched as an internal error naming `part` in plain
+        words, one of INTERNAL_PARTS (LatchReason.part reads it back); returns the error for
+        the snapshot. Whoever calls this then puts the outputs in the safe state
+        (:meth:`_go_safe`)."""
+        assert part in INTERNAL_PARTS, part
+        error = f"{part} failed: {type(exc).__name__}: {exc}"
+        self._latch_internal(error)
+        return error
+
+    def _go_safe(self, now: int) -> None:
+        """After an internal error outside the scan's own handling, when this scan's outputs
+        are already written: the image's outputs safe and the safe vector written to the
+        plant at once, so no scan that could not be completed leaves the plant driven until
+        the next scan. If the plant cannot take it, that is latched too (a PlantError as the
+        plant's, anything else as one more internal error). Observing a read-only device
+        writes nothing."""
+        if self.observe:
+            return
+        safe = self.safe_vector
+        image = self.image
+        for slot, value in zip(self.output_slots, safe, strict=True):
+            image[slot] = value
+        try:
+            lost = self.output_scan.write(now, safe)
+        except Exception as exc:
+            self._failure("writing the safe outputs to the plant", exc)
+            return
+        if lost is not None:
+            self.latch_safe("plant", lost)
+
+    def _left_safe(self, cycle: tuple[Any, ...], values: tuple[Any, ...], error: str | None
+                   ) -> tuple[tuple[Any, ...], tuple[Any, ...]]:
+        """The scan's results once an internal error put its outputs safe after they were
+        decided (:meth:`_go_safe`, a failed write): the outputs as the image holds them now,
+        the image as the scan's values and the history's newest entry, the scan's error."""
+        image = self.image
+        outputs = tuple(image[s] for s in self.output_slots)
+        error = cycle[5] or error
+        if outputs != cycle[1] or error != cycle[5]:
+            cycle = (cycle[0], outputs, *cycle[2:5], error, cycle[6])
+        if tuple(image) != values:
+            values = tuple(image)
+            self.history[0] = values
+        return cycle, values
+
     # -- the scan ----------------------------------------------------------------------------
     def step(self, now: int) -> Snapshot:
         """One scan at `now`, and what it left behind."""
@@ -456,22 +503,52 @@ class Engine:
         report, diagnosis, monitored, error = cycle[2], cycle[3], cycle[4], cycle[5]
         image = self.image
         stage = self.diagnosis
+        plant = self.plant
+        # What the scan left, read for its snapshot: each read outside the stages' own error
+        # handling is guarded (free in Python 3.11 when nothing raises); one that fails
+        # latches an internal error naming it and puts the outputs safe at once (_go_safe).
+        failed: str | None = None
         diagnosers: tuple[DiagnoserState, ...] = ()
         if stage is not None:  # (DiagnosisStage.publish: the records unless one is faulty)
-            diagnosers = stage.publish(image, self.history) if stage.faulty else \
-                stage.current.records
+            try:
+                diagnosers = stage.publish(image, self.history) if stage.faulty else \
+                    stage.current.records
+            except Exception as exc:
+                failed = self._failure("reading the diagnosers' states", exc)
         # The image as the scan left it: the snapshot's values and the history's newest
         # entry are one tuple (an image in the history is never changed).
         values = tuple(image)
         self.history.appendleft(values)
         marks = 0
-        if self.monitors is not None:
-            marks = self.monitors.settle() if monitored else self.monitors.marks
-        events = self.plant.take_events()
+        monitors = self.monitors
+        if monitors is not None:
+            try:
+                marks = monitors.settle() if monitored else monitors.marks
+            except Exception as exc:
+                failed = self._failure("settling the monitors", exc)
+                marks = monitors.marks
+        try:
+            events = plant.take_events()
+        except Exception as exc:
+            failed = self._failure("reading the plant's events", exc)
+            events = ()
         rec = self.recovery
-        recovery = NO_RECOVERY if rec is None else (
-            rec._idle if rec.active is None and not rec.needed else rec.state(now))
-        status = self.plant.status
+        try:
+            recovery = NO_RECOVERY if rec is None else (
+                rec._idle if rec.active is None and not rec.needed else rec.state(now))
+        except Exception as exc:
+            failed = self._failure("reading the recovery's state", exc)
+            recovery = NO_RECOVERY
+        try:
+            status = plant.status
+        except Exception as exc:
+            failed = self._failure("reading the plant's status", exc)
+            status = self._status_unknown()
+        if failed is not None or error is not None:
+            if failed is not None:
+                self._go_safe(now)
+            cycle, values = self._left_safe(cycle, values, failed)
+            error = cycle[5]
         last = self._news
         # (a command since, a new policy included, makes this scan news and compares the
         # next with this one)
@@ -515,29 +592,79 @@ class Engine:
             return self.last
         self._pending = None
         cycle, values, diagnosers, marks, events, recovery, scan_us = pending
-        fov, outputs, report, diagnosis, monitored, error, filter_us = cycle
-        # (the monitors' bases change only in a scan or a command, which builds this first)
-        monitors: Any = (self.monitors.capture(self.now)
-                         if monitored and self.monitors is not None else ())
         plant = self.plant
         policy = self.policy
         grafcet = self.control.grafcet
         now = self.now
+        # What the snapshot reads of the engine and the plant, each guarded as in run(): one
+        # that raises latches an internal error naming it, is shown empty (the timers'
+        # elapsed times as 0), and the outputs go safe at once.
+        failed: str | None = None
+        monitors: Any = ()
+        if cycle[4] and self.monitors is not None:
+            # (the monitors' bases change only in a scan or a command, which builds this
+            # first)
+            try:
+                monitors = self.monitors.capture(now)
+            except Exception as exc:
+                failed = self._failure("reading the monitors' states", exc)
+        active: tuple[str, ...] = ()
+        if grafcet is not None:
+            try:
+                active = grafcet.active(self.image)
+            except Exception as exc:
+                failed = self._failure("reading the active steps", exc)
+        try:
+            elapsed = self._elapsed(now)
+        except Exception as exc:
+            failed = self._failure("computing the timers' elapsed times", exc)
+            elapsed = (0,) * len(self.layout.timers)
+        try:
+            status = plant.status
+        except Exception as exc:
+            failed = self._failure("reading the plant's status", exc)
+            status = self._status_unknown()
+        try:
+            state = plant.state()
+        except Exception as exc:
+            failed = self._failure("reading the plant's state", exc)
+            state = ()
+        try:
+            counters = plant.counters()
+        except Exception as exc:
+            failed = self._failure("reading the plant's counters", exc)
+            counters = ()
+        diagnosis = cycle[3]
+        masked: tuple[str, ...] = ()
+        if policy != "monitor":
+            try:
+                masked = self._masked(diagnosis)
+            except Exception as exc:
+                failed = self._failure("reading the masked outputs", exc)
+        if failed is not None:
+            self._go_safe(now)
+            cycle, values = self._left_safe(cycle, values, failed)
+        fov, outputs, report, diagnosis, _, error, filter_us = cycle
         # Positional, in Snapshot's field order (checked by _SNAPSHOT_ORDER below): a
         # NamedTuple built from keywords maps every one of them at every scan.
         snapshot = self.last = tuple.__new__(Snapshot, (
             self.scan, now, self._period, self.layout, values, tuple(fov), tuple(outputs),
-            grafcet.active(self.image) if grafcet is not None else (),
-            grafcet.fired if grafcet is not None else (), self._elapsed(now),
+            active, grafcet.fired if grafcet is not None else (), elapsed,
             self.control_name, self.mode,
             tuple(sorted(self.manual.items())) if self.manual else (), policy,
-            tuple(self.latched) if self.latched else (), plant.status, plant.state(),
-            plant.counters(), events, report, diagnosers, monitors,
-            diagnosis.reconstructed, self._masked(diagnosis) if policy != "monitor" else (),
+            tuple(self.latched) if self.latched else (), status, state, counters, events,
+            report, diagnosers, monitors, diagnosis.reconstructed, masked,
             (), (), (), (),  # explanations, alarms, alarm_events, shelved: the session's
             tuple(sorted(self.stopped_devices)) if self.stopped_devices else (),
             recovery, error, scan_us, filter_us, marks))
         return snapshot
+
+    def _status_unknown(self) -> PlantStatus:
+        """The plant's status when reading it failed: the last one shown, else a plain one
+        (an internal error is latched for it)."""
+        if self.last is not None:
+            return self.last.plant
+        return PlantStatus("unknown", "the plant's status could not be read")
 
     def advance(self, now: int) -> None:
         """One scan at `now` whose results nobody reads: the same stages, no snapshot (the
@@ -700,12 +827,24 @@ class Engine:
         the monitors, on the I/O this scan exchanged (their states: Engine.snapshot).
         Returns whether the monitors ran and the scan's error."""
         if not self.observe:
-            lost = self.output_scan.write(now, outputs)
-            if lost is not None:
-                self.latch_safe("plant", lost)
+            try:
+                lost = self.output_scan.write(now, outputs)
+                if lost is not None:
+                    self.latch_safe("plant", lost)
+            except Exception as exc:  # not a PlantError: a bug, in the plant or here
+                error = error or self._write_failed(now, outputs, exc)
         if self.monitors is None:
             return False, error
         return self._monitor(now, error, fast)
+
+    def _write_failed(self, now: int, outputs: tuple[bool, ...], exc: Exception) -> str:
+        """Writing the scan's outputs raised something other than a PlantError: latched as an
+        internal error; the image's outputs go safe and, unless they were already, the safe
+        vector is written at once (that failing too is latched: :meth:`_go_safe`)."""
+        error = self._failure("writing the outputs to the plant", exc)
+        if outputs != self.safe_vector:
+            self._go_safe(now)
+        return error
 
     def _monitor(self, now: int, error: str | None, fast: CompiledScan | None
                  ) -> tuple[bool, str | None]:

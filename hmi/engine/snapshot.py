@@ -26,10 +26,30 @@ from hmi.plant.base import PlantEvent, PlantStatus
 class LatchReason:
     """Why the outputs are held in the safe state (until a fault reset)."""
 
-    source: str  # "filter", "plant", "internal"
+    source: str  # "filter", "plant", "internal", "journal"
     detail: str
     scan: int
     time_us: int
+
+    @property
+    def part(self) -> str:
+        """For an internal error outside the scan's own handling, what failed, in plain
+        words ("reading the plant's events": the detail says "PART failed: ..."); "" for
+        the rest. Read from the detail, not stored: traces record every field."""
+        if self.source != "internal":
+            return ""
+        text = self.detail.partition(": ")[2]
+        return next((part for part in INTERNAL_PARTS if text.startswith(f"{part} failed: ")),
+                    "")
+
+
+# What can fail outside the scan's own error handling (hmi.engine.scan.Engine._failure).
+INTERNAL_PARTS = (
+    "reading the diagnosers' states", "settling the monitors", "reading the plant's events",
+    "reading the recovery's state", "reading the plant's status", "reading the monitors' states",
+    "reading the active steps", "computing the timers' elapsed times",
+    "reading the plant's state", "reading the plant's counters", "reading the masked outputs",
+    "writing the outputs to the plant", "writing the safe outputs to the plant")
 
 
 class _Fields(NamedTuple):

@@ -89,8 +89,10 @@ class ExplanationBuilder:
             found.extend(self._constraints(snap, report))
         if report is not None and report.fallback:
             found.append(self._fallback(snap, report))
+        latches: dict[str, int] = {}  # reasons of each source so far
         for reason in snap.latched:
-            found.append(self._latch(snap, reason))
+            nth = latches[reason.source] = latches.get(reason.source, 0) + 1
+            found.append(self._latch(snap, reason, nth))
         status = snap.plant
         if not status.connected and not any(r.source == "plant" for r in snap.latched):
             found.append(self._plant(snap, status.message))
@@ -337,8 +339,11 @@ class ExplanationBuilder:
                            detail=level["detail"])
 
     # -- safe state, fallback, plant, manual -------------------------------------------------
-    def _latch(self, snap: Snapshot, reason) -> Explanation:
-        key = f"safe_state:{reason.source}"
+    def _latch(self, snap: Snapshot, reason, nth: int = 1) -> Explanation:
+        """The `nth` latch reason of its source: each its own key (the first keeps the plain
+        one), so that two different internal errors, or a plant lost then refusing, are two
+        explanations and two alarms, neither hiding the other."""
+        key = f"safe_state:{reason.source}" + (f":{nth}" if nth > 1 else "")
         onset = _Onset(reason.scan, reason.time_us)
         self.onsets.setdefault(key, onset)
 
@@ -364,6 +369,15 @@ class ExplanationBuilder:
                                 "automatic operation resumes only after a fault reset. What "
                                 "the machines did meanwhile is unknown: a device stopped "
                                 "halfway may need its recovery.")
+                severity = "high"
+            elif reason.source == "internal" and reason.part:
+                what = (f"{self.project.name}: internal error {reason.part} — outputs held "
+                        "safe")
+                why = (f"At {at} s {reason.part} failed unexpectedly; the engineering detail "
+                       "says how, for the engineer.")
+                consequences = ("The outputs went to their safe values at once and stay "
+                                "there until a fault reset; reset once the cause is gone "
+                                "(if it is still there, the error latches again).")
                 severity = "high"
             elif reason.source == "internal":
                 what = f"{self.project.name}: internal error — outputs held safe"

@@ -106,6 +106,10 @@ class Session:
             with self.lock:
                 if self._quiet:
                     core = self.engine.snapshot()
+                    if core.error is not None:
+                        # Building it failed (the engine latched, Engine._snapshot_despite):
+                        # no longer a quiet scan; explained and told now, like any other.
+                        return self._scanned(core)
                     # What _explained makes of a quiet scan: the last scan's explanations,
                     # the alarm list as it was, no alarm event, no error, nothing shelved;
                     # the session added no time to the engine's.

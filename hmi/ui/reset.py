@@ -120,8 +120,10 @@ def recovery_preview(snap: Snapshot) -> Iterable[ResetLine]:
 def _alarm_released(snap: Snapshot, key: str) -> bool | None:
     """Whether a reset removes the cause of a latched alarm (None: not known here)."""
     kind, _, name = key.partition(":")
-    if kind == "safe_state":
-        return not any(_latch_cause_present(snap, r) for r in snap.latched if r.source == name)
+    if kind == "safe_state":  # (safe_state:SOURCE, or safe_state:SOURCE:N for the Nth)
+        source = name.partition(":")[0]
+        return not any(_latch_cause_present(snap, r) for r in snap.latched
+                       if r.source == source)
     if kind == "monitor":
         return not any(_condemned(m) for m in snap.monitors if m.name == name)
     if kind == "diagnosis":
