@@ -33,6 +33,7 @@ from hmi.project.loader import load_project
 from hmi.session.journal_recorder import JournalRecorder
 from hmi.session.session import Session
 from hmi.ui.reset import reset_preview
+from tests.cellruns import run_quietly
 from tests.conftest import PROJECTS
 
 S = 1_000_000
@@ -77,9 +78,9 @@ def test_every_valve_fault_ends_in_automatic_operation_after_repair_recovery_and
         plant.inject(parse_injection(f"{scenario.fault}@{scenario.at_us}us"))
         session = Session(Engine(project, plant))
         faulty = []
-        session.scan_listeners.append(
-            lambda s, seen=faulty: seen.extend(d.labels for d in s.diagnosers if d.faulty))
-        snap = session.run_for(scenario.at_us + 12 * S)
+        snap = run_quietly(session, scenario.at_us + 12 * S,
+                           lambda s, seen=faulty: seen.extend(d.labels for d in s.diagnosers
+                                                              if d.faulty))
         assert faulty, f"{scenario.fault} was never diagnosed"
         if snap.recovery.needed:
             needed_for.append(scenario.fault)
@@ -87,7 +88,7 @@ def test_every_valve_fault_ends_in_automatic_operation_after_repair_recovery_and
         repaired_at = len(plant.events())
         recover(session)
         before = cycles(session.last)
-        snap = session.run_for(20 * S)
+        snap = run_quietly(session, 20 * S)
         assert snap.mode == "auto", scenario.fault
         assert not snap.latched and not snap.error, scenario.fault
         assert not any(d.faulty for d in snap.diagnosers), (scenario.fault, snap.diagnosers)
@@ -103,7 +104,7 @@ def test_f13_repaired_is_a_dead_end_without_the_recovery_and_the_reset_says_so()
     plant = SimPlant(project)
     plant.inject(parse_injection("F13@10.4s"))
     session = Session(Engine(project, plant))
-    session.run_for(22 * S)
+    run_quietly(session, 22 * S)
     session.command(RepairFaults())
     snap = session.scan_once()
     lines = reset_preview(snap)
@@ -111,7 +112,7 @@ def test_f13_repaired_is_a_dead_end_without_the_recovery_and_the_reset_says_so()
     assert advice and all(line.recovery == "V1_close" for line in advice)
     assert any("known position" in line.why for line in advice)
     session.command(FaultReset())
-    stuck = session.run_for(20 * S)
+    stuck = run_quietly(session, 20 * S)
     assert any(d.faulty for d in stuck.diagnosers)  # the reset alone cannot re-synchronise
     assert 0 < dict(stuck.plant_state)["position"] < 100
     assert [n[0] for n in stuck.recovery.needed] == ["V1_close"]
@@ -123,7 +124,7 @@ def test_f13_repaired_is_a_dead_end_without_the_recovery_and_the_reset_says_so()
     assert "C" in session.scan_once().masked
     session.command(SetMode(False))
     recover(session)
-    snap = session.run_for(20 * S)
+    snap = run_quietly(session, 20 * S)
     assert cycles(snap) >= 2 and not any(d.faulty for d in snap.diagnosers)
 
 
@@ -145,10 +146,10 @@ def test_a_connection_lost_mid_travel_is_a_dead_end_without_the_recovery():
     plant = Outage(project)
     plant.down = (int(2 * S), int(3 * S))  # the valve is opening (1 s to 2.96 s)
     session = Session(Engine(project, plant))
-    session.run_for(4 * S)
+    run_quietly(session, 4 * S)
     assert session.last.latched
     assert session.command(FaultReset()).accepted
-    snap = session.run_for(10 * S)
+    snap = run_quietly(session, 10 * S)
     assert not snap.latched
     assert cycles(snap) == 0 and 0 < dict(snap.plant_state)["position"] < 100
     assert snap.filter is not None and "CSs6" in snap.filter.violated_names
@@ -156,7 +157,7 @@ def test_a_connection_lost_mid_travel_is_a_dead_end_without_the_recovery():
     assert any(line.recovery == "V1_close" for line in reset_preview(snap))
     events = len(plant.events())
     recover(session)
-    snap = session.run_for(20 * S)
+    snap = run_quietly(session, 20 * S)
     assert cycles(snap) >= 2 and snap.mode == "auto"
     assert not [e for e in plant.events()[events:] if e.damage]
 
@@ -311,14 +312,14 @@ def test_the_subsystem_is_brought_back_to_its_initial_state_by_its_cell_recovery
     injection = parse_injection(fault)
     plant.inject(injection)
     session = Session(Engine(project, plant))
-    snap = session.run_for(injection.at_us + 15 * S)
+    snap = run_quietly(session, injection.at_us + 15 * S)
     if "F13" in fault or "F1@" in fault:
         assert [n[0] for n in snap.recovery.needed] == ["cell_home"]
     assert session.command(RepairFaults()).accepted
     repaired_at = len(plant.events())
     recover(session, "cell_home")
     fills = dict(session.last.plant_counters)["T2.fills"]
-    snap = session.run_for(60 * S)
+    snap = run_quietly(session, 60 * S)
     assert dict(snap.plant_counters)["T2.fills"] - fills >= 2
     assert not any(d.faulty for d in snap.diagnosers) and not snap.latched
     assert not [e for e in plant.events()[repaired_at:] if e.damage]

@@ -24,6 +24,7 @@ from hmi.project.injection import parse_injection
 from hmi.project.loader import load_project
 from hmi.project.model import Project
 from hmi.session.session import Session
+from tests.cellruns import run_quietly
 from tests.conftest import PROJECTS
 
 S = 1_000_000
@@ -102,11 +103,11 @@ def faulty_cell(cell: Cell, fault: str) -> tuple[Session, SimPlant, list[str]]:
     session = Session(Engine(project, plant))
     seen: list[str] = []
     listener = lambda snap: seen.extend(e.key for e in snap.explanations if e.alarm)  # noqa: E731
+    run_quietly(session, cell.at_us, listener)
     session.scan_listeners.append(listener)
-    session.run_for(cell.at_us)
     run_while(session, lambda _: not seen, 20 * S)
-    session.run_for(2 * S)
     session.scan_listeners.remove(listener)
+    run_quietly(session, 2 * S, listener)
     return session, plant, seen
 
 
@@ -136,7 +137,7 @@ def test_every_fault_ends_in_automatic_operation_after_repair_recovery_and_reset
     reset = session.command(FaultReset())
     assert "stays" not in reset.message, reset.message
     before = work(cell, session.last)
-    snap = session.run_for(20 * S)
+    snap = run_quietly(session, 20 * S)
     assert snap.mode == "auto" and not snap.latched and not snap.error
     assert not [m.name for m in snap.monitors if m.detection]
     assert not snap.recovery.needed
@@ -157,7 +158,7 @@ def test_the_faults_that_need_a_recovery_are_dead_ends_without_it(name, fault):
     run_while(session, lambda s: caught & running(s), 40 * S)
     session.command(FaultReset())
     before = work(cell, session.last)
-    snap = session.run_for(20 * S)
+    snap = run_quietly(session, 20 * S)
     assert work(cell, snap) - before < 2, f"{fault} resumed without the recovery"
     assert cell.recovery[fault] in needed(snap)
 
@@ -172,7 +173,7 @@ def test_the_conveyor_cells_transient_faults_recover_without_repair(fault):
     plant = SimPlant(project)
     plant.inject(parse_injection(fault))
     session = Session(Engine(project, plant))
-    snap = session.run_for(6 * S)
+    snap = run_quietly(session, 6 * S)
     assert [m.name for m in snap.monitors if m.detection], "the interruption was not seen"
     assert not dict(snap.plant_state).get("C1.halted") and \
         not dict(snap.plant_state).get("R1.halted")  # over by itself
@@ -181,6 +182,6 @@ def test_the_conveyor_cells_transient_faults_recover_without_repair(fault):
     reset = session.command(FaultReset())
     assert "released" in reset.message and "stays" not in reset.message, reset.message
     before = work(cell, session.last)
-    snap = session.run_for(12 * S)
+    snap = run_quietly(session, 12 * S)
     assert not [m.name for m in snap.monitors if m.detection]
     assert work(cell, snap) - before >= 2 and not plant.damage()
