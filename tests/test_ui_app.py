@@ -107,8 +107,12 @@ async def test_the_footer_forgets_the_keys_it_removed():
         await run_for(pilot, 0.1)
         footer = app.query_one(HmiFooter)
         shown = []
-        for _ in range(12):  # the focus goes round the panels: the bindings change
-            await press(pilot, "tab")
+        for _ in range(3):  # a dialog opens (its keys only), then closes: the keys change
+            await press(pilot, "m")
+            await wait_for_screen(pilot, ConfirmDialog)
+            shown.append(id(footer.query(FooterKey).first()))
+            await press(pilot, "escape")
+            await wait_for_main(pilot)
             shown.append(id(footer.query(FooterKey).first()))
         assert len(set(shown)) > 3  # it did recompose
         keys = len(footer.query(FooterKey))
@@ -121,8 +125,10 @@ async def test_the_footer_recomposes_once_for_the_changes_of_one_refresh(monkeyp
     """The bindings change several times before the first frame (the start, the focus
     given to the I/O table, the first snapshot shown): one recompose per refresh, with the
     bindings as they are then, not one per change (4 before the first frame, each
-    building and styling every key again); each key is compact (the footer's setting)
-    from birth instead of being restyled once mounted."""
+    building and styling every key again), and none when the keys would be those shown
+    (the second refresh's); each key is compact (the footer's setting) from birth instead
+    of being restyled once mounted. The focus moving between panels with the same keys
+    builds nothing; a dialog, whose keys replace the screen's, does."""
     from textual.widgets._footer import FooterKey
 
     from hmi.ui.footer import HmiFooter
@@ -137,10 +143,17 @@ async def test_the_footer_recomposes_once_for_the_changes_of_one_refresh(monkeyp
     app = make_app()
     async with app.run_test(size=SIZE) as pilot:
         await run_for(pilot, 0.1)
-        assert len(focused) == 2, focused
-        await press(pilot, "tab")  # the focus moves: the keys of the alarm list
-        assert len(focused) > 2 and focused[-1] is app.screen.focused
+        assert len(focused) == 1, focused
         footer = app.query_one(HmiFooter)
+        keys = list(footer.query(FooterKey))
+        await press(pilot, "tab")  # the focus moves to the alarm list: the same keys
+        assert len(focused) == 1 and list(footer.query(FooterKey)) == keys
+        await press(pilot, "m")  # a dialog: the screen's keys are off
+        await wait_for_screen(pilot, ConfirmDialog)
+        assert len(focused) == 2 and focused[-1] is app.screen_stack[0].focused
+        await press(pilot, "escape")
+        await wait_for_main(pilot)
+        assert len(focused) == 3
         keys = list(footer.query(FooterKey))
         assert keys and all(key.compact and key.has_class("-compact") for key in keys)
         assert "Run/Pause" in region_text(app, "HmiFooter")

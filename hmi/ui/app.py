@@ -334,6 +334,27 @@ class PlcHmiApp(ContainedPump, App):
             self.contain(f"action {action}", exc)
             return True
 
+    def get_default_screen(self):
+        """The main screen; like every screen (get_screen: the dialogs, the palette), in
+        virtual time it is drawn at rest, never by the wall clock (VirtualDriver.hold)."""
+        screen = super().get_default_screen()
+        if not self.driver.live:
+            self.driver.hold(screen)
+        return screen
+
+    def get_screen(self, screen):
+        found = super().get_screen(screen)
+        if not self.driver.live:
+            self.driver.hold(found)
+        return found
+
+    def delay_update(self, delay: float = 0.05) -> None:
+        """Textual masks some transitions (the palette closing) by holding every paint for
+        `delay` s of wall clock; in virtual time the screen is drawn at rest anyway, and a
+        wait on the wall clock would make a test spin until it ends."""
+        if self.driver.live:
+            super().delay_update(delay)
+
     def push_screen(self, screen, callback=None, wait_for_dismiss=False, *, mode=None):
         """Dialogs: the answer's handling is contained like any other action."""
         if callback is not None:

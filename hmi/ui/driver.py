@@ -52,10 +52,33 @@ class LiveDriver:
         return self.runner.error
 
 
+class _Held:
+    """A screen's refresh timer that never fires: see :meth:`VirtualDriver.hold`."""
+
+    def pause(self) -> None:
+        pass
+
+    def resume(self) -> None:
+        pass
+
+
+HELD = _Held()
+
+
 class VirtualDriver:
     live = False
     overruns = 0
     error = None
+
+    @staticmethod
+    def hold(screen) -> None:
+        """The screen lays out and paints when whoever drives virtual time says so
+        (hmi.ui.testing.drain: once everything queued is handled), never on its refresh
+        timer: that timer fires 1/60 s of wall clock after a change, so on a loaded machine
+        it painted half-handled states a second time, and what ran depended on the load.
+        Textual's ``Screen._update_timer`` (pause/resume, created at first use) is the one
+        thing it paces by the clock; this sets it before then (Textual pinned, 8.2.8)."""
+        screen._Screen__update_timer = HELD
 
     def __init__(self, controller: Session):
         self.controller = controller

@@ -52,17 +52,46 @@ def screen_pending(screen) -> bool:
                 or screen._callbacks or screen._recompose_required)
 
 
-def busy(app) -> str:
-    """What the app has left to do that a test could be waiting for ('' if nothing)."""
-    screen = app.screen
-    if screen_pending(screen):
-        return f"{screen!r}: layout, repaint or callbacks pending"
+def refresh_due(app) -> list:
+    """The screens whose refresh timer would do something now (VirtualDriver.hold): the
+    active one with anything pending; one shown under a dialog with a layout, a widget to
+    repaint or callbacks due (its own refresh hands the repaint to the active screen, and
+    leaves itself marked for one more: not counted, or this would never end); any other
+    with callbacks due (its timer runs only those)."""
+    current = app.screen
+    shown = app._background_screens
+    due = []
+    for screen in app.screen_stack:
+        if screen is current:
+            pending = screen_pending(screen)
+        elif screen in shown:
+            pending = (screen._layout_required or screen._dirty_widgets
+                       or screen._callbacks or screen._recompose_required)
+        else:
+            pending = screen._callbacks
+        if pending:
+            due.append(screen)
+    return due
+
+
+def messages_pending(app) -> str:
+    """A node (on any screen of the stack, or the app) with messages or callbacks queued."""
     nodes = [app]
     for each in app.screen_stack:
         nodes.extend(each.walk_children(with_self=True))
     for node in nodes:
         if not node._message_queue.empty() or node._next_callbacks:
             return f"{node!r}: messages pending"
+    return ""
+
+
+def busy(app) -> str:
+    """What the app has left to do that a test could be waiting for ('' if nothing)."""
+    for screen in refresh_due(app):
+        return f"{screen!r}: layout, repaint or callbacks pending"
+    doing = messages_pending(app)
+    if doing:
+        return doing
     for worker in app.workers:
         if worker.state in (WorkerState.PENDING, WorkerState.RUNNING):
             return f"worker {worker.name!r} running"
@@ -75,18 +104,26 @@ def busy(app) -> str:
 async def drain(pilot: Pilot) -> None:
     """Let the app process everything it has queued, and lay out and repaint its screen."""
     app = pilot.app
+    doing = ""
     for _ in range(MAX_ROUNDS):
         if app._exit or not app.is_running:
             return  # the app is ending: nothing more to wait for
         await pilot._wait_for_screen(timeout=SCREEN_HANG_GUARD_S)
         await asyncio.sleep(0)  # workers and tasks get their turn
+        # Messages first: the screen is laid out and painted once they are all handled
+        # (what its refresh timer would do, VirtualDriver.hold), so that one layout and one
+        # paint serve them all, not one per round.
+        doing = messages_pending(app)
+        if doing:
+            continue
+        due = refresh_due(app)
+        if due:
+            for screen in due:
+                screen._on_timer_update()
+            continue
         doing = busy(app)
         if not doing:
             return
-        if doing.endswith("callbacks pending"):
-            # only the screen's refresh is left: what its refresh timer would do (once the
-            # messages are handled, so that one layout and one paint serve them all)
-            app.screen._on_timer_update()
     raise WaitTimeout(f"the app was still busy after {MAX_ROUNDS} rounds: {doing}")
 
 
