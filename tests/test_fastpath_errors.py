@@ -160,9 +160,10 @@ def test_an_error_inside_a_fast_path_latches_writes_safe_and_is_explained(tmp_pa
         # the failing scan was built, not counted quiet, and wrote the safe outputs
         assert first.scan in run.built, "the failing scan went by as a quiet one"
         safe = engine.safe_vector
-        # (the monitors run after the output scan: the next scan writes safe)
-        safe_from = first.time_us + (1 if where == "monitors" else 0)
-        after = [values for now, values in run.written if now >= safe_from]
+        # (the monitors run after the output scan: the safe vector is written after it)
+        at = [values for now, values in run.written if now == first.time_us]
+        assert at and at[-1] == safe, at
+        after = [values for now, values in run.written if now > first.time_us]
         assert after and all(values == safe for values in after)
         last = session.last
         assert last is not None and last.outputs == safe and last.is_safe_latched
