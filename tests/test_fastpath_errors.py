@@ -32,6 +32,7 @@ from hmi.engine import commands as cmd
 from hmi.engine.scan import Engine
 from hmi.explain.journal import Journal
 from hmi.plant.sim.plant import SimPlant
+from hmi.project.injection import parse_injection
 from hmi.project.loader import load_project
 from hmi.project.model import Project
 from hmi.session.journal_recorder import JournalRecorder
@@ -57,10 +58,12 @@ class Broken:
     stopped), "interpreter" Engine(compiled=False)."""
 
     def __init__(self, name: str, where: str, at_us: int, quiet: bool, tmp: Path,
-                 times: int = 1, path: str = "auto"):
+                 times: int = 1, path: str = "auto", inject: str = ""):
         project = load(name)
         self.quiet = quiet
         plant = SimPlant(project)
+        if inject:
+            plant.inject(parse_injection(inject))
         self.engine = engine = Engine(project, plant, compiled=path != "interpreter")
         self.session = Session(engine)
         if path == "cycle":
@@ -93,6 +96,11 @@ class Broken:
             "elapsed": (engine, "_elapsed"),
             "settle": (engine.monitors, "settle"),
             "status": (plant, "status"),
+            "publish": (engine.diagnosis, "publish"),
+            "recovery": (engine.recovery, "state"),
+            "capture": (engine.monitors, "capture"),
+            "active": (engine.control.grafcet, "active"),
+            "masked": (engine, "_masked"),
         }[where]
         self.where = where
         real = getattr(owner, attribute)
@@ -152,9 +160,10 @@ def test_an_error_inside_a_fast_path_latches_writes_safe_and_is_explained(tmp_pa
         # the failing scan was built, not counted quiet, and wrote the safe outputs
         assert first.scan in run.built, "the failing scan went by as a quiet one"
         safe = engine.safe_vector
-        # (the monitors run after the output scan: the next scan writes safe)
-        safe_from = first.time_us + (1 if where == "monitors" else 0)
-        after = [values for now, values in run.written if now >= safe_from]
+        # (the monitors run after the output scan: the safe vector is written after it)
+        at = [values for now, values in run.written if now == first.time_us]
+        assert at and at[-1] == safe, at
+        after = [values for now, values in run.written if now > first.time_us]
         assert after and all(values == safe for values in after)
         last = session.last
         assert last is not None and last.outputs == safe and last.is_safe_latched
@@ -222,28 +231,39 @@ OUTSIDE = {
     "state": ("reading the plant's state", True),
     "counters": ("reading the plant's counters", True),
     "elapsed": ("computing the timers' elapsed times", True),
+    "capture": ("reading the monitors' states", True),
+    "active": ("reading the active steps", True),
+    "masked": ("reading the masked outputs", True),
+    # cispi_valve, its valve jammed mid-travel (F13): the diagnoser faulty, a recovery needed
+    "publish": ("reading the diagnosers' states", False),
+    "recovery": ("reading the recovery's state", False),
 }
 PATHS = ("auto", "cycle", "interpreter")
+JAMMED = ("publish", "recovery")
 
 
 @pytest.mark.parametrize("where", OUTSIDE)
 def test_an_error_outside_the_scans_handling_latches_writes_safe_and_is_explained(
         tmp_path, where):
-    """palletizer (plant events, timers, monitors, devices), on each engine path, building
-    every scan (Engine.step) and on the quiet path (plchmi run's): the error latches,
-    naming what failed, the safe vector is written at once and held, it is explained and
-    journalled once, and a fault reset brings the cell back; never an exception out of the
-    run. What only a snapshot reads fails where a snapshot is built: at that very scan
-    when every scan is built, at the next scan with news (or when the last is read) on the
-    quiet path."""
+    """palletizer (plant events, timers, monitors, devices; cispi_valve jammed for the
+    diagnosers' and the recovery's states), on each engine path, building every scan
+    (Engine.step) and on the quiet path (plchmi run's): the error latches, naming what
+    failed, the safe vector is written at once and held, it is explained and journalled
+    once, and a fault reset brings the cell back; never an exception out of the run. What
+    only a snapshot reads fails where a snapshot is built: at that very scan when every
+    scan is built, at the next scan with news (or when the last is read) on the quiet
+    path."""
     part, snapshot_only = OUTSIDE[where]
-    start = 3 * S
-    at_us = start + 3 * load("palletizer").scan_period_us
-    runs = {(path, quiet): Broken("palletizer", where, at_us, quiet, tmp_path, path=path)
-            for path in PATHS for quiet in (False, True)}
+    jammed = where in JAMMED
+    name, start, paths = (("cispi_valve", 13 * S, ("auto", "interpreter")) if jammed
+                          else ("palletizer", S, PATHS))
+    at_us = start + 3 * load(name).scan_period_us
+    runs = {(path, quiet): Broken(name, where, at_us, quiet, tmp_path, path=path,
+                                  inject="F13@10.4s" if jammed else "")
+            for path in paths for quiet in (False, True)}
     for (path, quiet), run in runs.items():
         case = f"{path}, {'quiet' if quiet else 'every scan built'}"
-        run.run_for(start + 2 * S)
+        run.run_for(start + S)
         engine, session = run.engine, run.session
         assert run.hits == 1, case
         latches = [r for r in engine.latched if r.source == "internal"]
@@ -277,25 +297,26 @@ def test_an_error_outside_the_scans_handling_latches_writes_safe_and_is_explaine
         assert part in shown[0].what and part in shown[0].why
         assert "Injected" in shown[0].detail and "Injected" not in shown[0].why
         assert shown[0].key in {a.key for a in last.alarms}
-    full = {path: runs[path, False] for path in PATHS}
+    full = {path: runs[path, False] for path in paths}
     # the interpreter and the compiled scan fail at the same scan and write the same
     assert full["auto"].written == full["interpreter"].written
     assert [r.scan for r in full["auto"].engine.latched] == \
         [r.scan for r in full["interpreter"].engine.latched]
     if not snapshot_only:  # the quiet path fails at the same scan, and writes the same
-        for path in PATHS:
+        for path in paths:
             assert runs[path, True].written == full[path].written, path
             assert [r.scan for r in runs[path, True].engine.latched] == \
                 [r.scan for r in full[path].engine.latched], path
     # the way back: the cause gone, a fault reset releases the latch and the law runs again
+    # (the jammed valve's outputs stay masked by its diagnoser: no latch, though)
     for (path, quiet), run in runs.items():
         run.armed = False
         assert run.session.command(cmd.FaultReset()).accepted
         reset_at = run.engine.now
-        run.run_for(3 * S)
+        run.run_for(S)
         assert not run.engine.latched, (path, quiet, run.engine.latched)
-        assert any(values != run.engine.safe_vector for now, values in run.written
-                   if now > reset_at), (path, quiet)
+        assert jammed or any(values != run.engine.safe_vector for now, values in run.written
+                             if now > reset_at), (path, quiet)
         run.recorder.close()
         entries = [json.loads(line) for line in run.journal_path.read_text().splitlines()]
         raised = [e for e in entries if e["type"] == "alarm" and e["event"] == "raised"
@@ -442,3 +463,26 @@ def test_the_live_scan_thread_latches_an_error_outside_the_scan_and_keeps_scanni
     last = run.session.last
     assert last is not None and last.outputs == run.engine.safe_vector
     assert "safe_state:internal" in {a.key for a in last.alarms}
+
+
+@pytest.mark.parametrize("times", [2, 10**9], ids=["twice", "for good"])
+def test_a_write_that_fails_and_the_safe_write_too_are_both_said(tmp_path, times):
+    """Writing the scan's outputs raises, and so does writing the safe vector at once: two
+    reasons, two explanations (neither hides the other); the scans go on, the safe vector
+    tried again at every scan; a plant whose writes fail for good adds no reason per scan."""
+    at_us = 3 * S
+    run = Broken("palletizer", "write_vector", at_us, True, tmp_path, times=times)
+    run.run_for(4 * S)
+    engine = run.engine
+    assert [(r.part, r.time_us) for r in engine.latched] == [
+        ("writing the outputs to the plant", at_us),
+        ("writing the safe outputs to the plant", at_us)]
+    last = run.session.last
+    assert last is not None and last.outputs == engine.safe_vector
+    keys = [e.key for e in last.explanations if e.kind == "safe_state"]
+    assert keys == ["safe_state:internal", "safe_state:internal:2"]
+    written = [values for now, values in run.written if now >= at_us]
+    if times == 2:  # the next scan's write went through, and was safe
+        assert written and all(values == engine.safe_vector for values in written)
+    else:
+        assert not written and run.hits > 100

@@ -19,6 +19,7 @@ import contextlib
 import contextvars
 import copy
 import logging
+import socket
 import threading
 import time
 import uuid
@@ -286,18 +287,43 @@ class CellServer:
         self._loop = asyncio.get_running_loop()
         self._stop = asyncio.Event()
         self._wake = asyncio.Event()
+        self._check_address()
         server = await self._build()
         try:
             await server.start()
         except OSError as exc:
-            raise UsageError(f"--opcua {self.url}: cannot listen there ({exc.strerror or exc})"
-                             ) from None
+            raise self._cannot_listen(exc) from None
         self._set_status(state=SERVING)  # journalled before start() returns
         self._ready.set()
         try:
             await self._serve()
         finally:
             await server.stop()
+
+    def _cannot_listen(self, exc: OSError) -> UsageError:
+        return UsageError(f"--opcua {self.url}: cannot listen there ({exc.strerror or exc})")
+
+    def _check_address(self) -> None:
+        """Say at once that the address is taken (another server on the port) or not this
+        machine's, not after building the address space (~2 s of CPU): each address is
+        bound as asyncio's server binds it (SO_REUSEADDR, IPv6 only for IPv6), then let go.
+        server.start() still reports whatever this cannot see (the port taken since)."""
+        if self.options.port == 0:
+            return
+        try:
+            found = socket.getaddrinfo(self.options.host, self.options.port,
+                                       type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+        except OSError:
+            return  # not resolved: start() says so, as before
+        for family, kind, proto, _, address in found:
+            with socket.socket(family, kind, proto) as probe:
+                probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                if family == socket.AF_INET6:
+                    probe.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)
+                try:
+                    probe.bind(address)
+                except OSError as exc:
+                    raise self._cannot_listen(exc) from None
 
     async def _serve(self) -> None:
         """Publish until stop() is called."""

@@ -350,34 +350,39 @@ class _Glide:
     step that nothing else was changed by hand (:meth:`holds`).
     """
 
-    __slots__ = ("clocks", "dt", "expected", "feed", "idle", "movers", "moving", "sensors",
-                 "steps", "travels", "wall_hit")
+    __slots__ = ("clocks", "discard", "dt", "feed", "idle", "key", "movers", "moving",
+                 "sensors", "steps")
 
     def __init__(self, cell: Palletizer, dt: int, steps: int, movers: list[tuple[Box, int]],
                  clocks: list[Travel], moving: list[tuple[Travel, int]], idle: bool,
                  wall_hit: bool):
         self.dt = dt
         self.steps = steps
-        self.movers = movers  # (box, its move per step)
         self.clocks = clocks  # travels held against an end: their stall time runs
-        self.moving = moving  # (travel, drive): travels short of every mark they pass
         self.idle = idle  # the elevator idles at the bottom: its idle time runs
-        self.wall_hit = wall_hit  # the front box is pressed against the end stop
+        # The flags a step clears, the same at every step of the glide: what they test (the
+        # front box pressed against the end stop, the pusher home or past half its stroke,
+        # the clamp open) stays as it is, the glide ends before any of it changes.
+        discard = ["plate_into_layer"]  # no plate motion against the layer
+        if not (wall_hit and not cell.pusher.at_low):
+            discard.append("box_against_pusher")
+        if not (cell.pusher.pos > cell.pusher.travel // 2 and not cell.clamp.at_low):
+            discard.append("pusher_against_clamp")
+        self.discard = tuple(discard)
         self.feed = cell.feed
-        self.expected = [b.lo for b in cell.feed]
-        self.travels = _travels(cell)
+        # What holds() compares (_key): the cell as the glide left it. move() brings it
+        # along in place, at the slots of what it moves: a travel's position (slots 0-3:
+        # pusher, plate, clamp, lift), a box's (from _KEY_BOXES on, in feed order).
+        self.key = _key(cell)
+        travels = (cell.pusher, cell.plate, cell.clamp, cell.lift)
+        self.moving = [(travel, drive, travels.index(travel)) for travel, drive in moving]
+        slot = {id(box): _KEY_BOXES + k for k, box in enumerate(cell.feed)}
+        self.movers = [(box, delta, slot[id(box)]) for box, delta in movers]
         self.sensors = cell.true_sensors()
 
     def holds(self, cell: Palletizer) -> bool:
         """The cell is as the glide left it (nobody moved a box, a travel, the layers)."""
-        feed = cell.feed
-        if feed is not self.feed or len(feed) != len(self.expected) or \
-                _travels(cell) != self.travels:
-            return False
-        for box, lo in zip(feed, self.expected, strict=True):  # noqa: SIM110 - no generator
-            if box.lo != lo:
-                return False
-        return True
+        return cell.feed is self.feed and _key(cell) == self.key
 
     def move(self, cell: Palletizer, count: int) -> None:
         """`count` steps of _step when only clocks and gliding boxes change: each adds the
@@ -385,24 +390,18 @@ class _Glide:
         one of them (nothing they test changes during the glide)."""
         self.steps -= count
         dt = self.dt * count
-        for box, delta in self.movers:
-            box.lo += delta * count
+        key = self.key
+        for box, delta, slot in self.movers:
+            key[slot] = box.lo = box.lo + delta * count
         for travel in self.clocks:
             travel.stall_us += dt
-        for travel, drive in self.moving:  # full steps' motion (Travel.step)
-            travel.pos += drive * dt
+        for travel, drive, slot in self.moving:  # full steps' motion (Travel.step)
+            key[slot] = travel.pos = travel.pos + drive * dt
             travel.stall_us = 0
             travel.stall_reported = False
         if self.idle:
             cell.idle_bottom_us += dt
-        flags = cell.flags
-        flags.discard("plate_into_layer")  # no plate motion
-        if not (self.wall_hit and not cell.pusher.at_low):
-            flags.discard("box_against_pusher")
-        if not (cell.pusher.pos > cell.pusher.travel // 2 and not cell.clamp.at_low):
-            flags.discard("pusher_against_clamp")
-        self.expected = [b.lo for b in cell.feed]
-        self.travels = _travels(cell)
+        cell.flags.difference_update(self.discard)
 
     @classmethod
     def plan(cls, cell: Palletizer, dt: int) -> _Glide | None:
@@ -501,8 +500,14 @@ class _Glide:
         return cls(cell, dt, steps, movers, clocks, moving, idle, wall_hit)
 
 
-def _travels(cell: Palletizer) -> tuple[object, ...]:
-    return (cell.pusher.pos, cell.plate.pos, cell.clamp.pos, cell.lift.pos, cell.pusher.jammed,
-            cell.plate.jammed, cell.clamp.jammed, cell.lift.jammed, cell.pushing,
-            len(cell.row), len(cell.hanging), len(cell.layers))
+_KEY_BOXES = 12  # _key's first box slot
 
+
+def _key(cell: Palletizer) -> list[object]:
+    """What a glide depends on and does not move by itself (travels jammed or not, the box
+    being pushed, the row, the held layer, the pallet's layers), and what it moves (the
+    travels' positions, pusher, plate, clamp, lift, then the boxes' on the feed)."""
+    pusher, plate, clamp, lift = cell.pusher, cell.plate, cell.clamp, cell.lift
+    return [pusher.pos, plate.pos, clamp.pos, lift.pos, pusher.jammed, plate.jammed,
+            clamp.jammed, lift.jammed, cell.pushing, len(cell.row), len(cell.hanging),
+            len(cell.layers), *[box.lo for box in cell.feed]]
