@@ -858,6 +858,9 @@ class Engine:
         except Exception as exc:  # a broken monitor must not stop the scan silently
             message = f"{type(exc).__name__}: {exc}"
             self._latch_internal(message)
+            # the outputs were written already (the monitors watch what was exchanged):
+            # safe at once, not from the next scan
+            self._go_safe(now)
             return False, error or message
         return True, error
 
