@@ -132,3 +132,27 @@ def test_in_closed_loop_the_gliding_plant_runs_scan_for_scan_as_the_full_one(pro
     cell_a, cell_b = a.engine.plant.devices[0], b.engine.plant.devices[0]
     assert physics(cell_a) == physics(cell_b)
     assert cell_a.count["arrived"] > 3  # the run did handle boxes
+
+
+@pytest.mark.parametrize(("kind", "orders"), [("sorter", ("CONV_E",)), ("palletizer", ("FEED",))])
+def test_a_change_by_hand_then_touch_steps_in_full_from_there(kind, orders):
+    """A glide trusts the cell to change only through its own methods (issue 18: checking
+    everything at every step cost a quarter of the cell's time); whoever moves a box by hand
+    says so with touch(), and the gliding cell then goes on exactly as the full one."""
+    glide, full = twins(kind, PARAMS[kind])
+    for cell in (glide, full):
+        cell.write(0, {name: name in orders for name in cell.ACTUATORS})
+        cell.advance(600 * MS)
+    assert glide._glide is not None  # the box is gliding on the belt
+    for cell in (glide, full):  # by hand: 40 mm on, or just short of the feed's end stop
+        if kind == "sorter":
+            cell.boxes[0].lo += 40 * 1_000_000
+        else:
+            cell.feed[0].lo = cell.feed_len - cell.box_len - 1_000_000
+        cell.touch()
+    for now in range(610 * MS, 4 * S, 10 * MS):
+        glide.advance(now)
+        full.advance(now)
+        assert dict(glide.read_sensors()) == full.sensors(), f"at {now} us"
+        assert physics(glide) == physics(full), f"at {now} us"
+    assert glide.events == full.events

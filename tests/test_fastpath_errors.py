@@ -256,14 +256,14 @@ def test_an_error_outside_the_scans_handling_latches_writes_safe_and_is_explaine
     part, snapshot_only = OUTSIDE[where]
     jammed = where in JAMMED
     name, start, paths = (("cispi_valve", 13 * S, ("auto", "interpreter")) if jammed
-                          else ("palletizer", 3 * S, PATHS))
+                          else ("palletizer", S, PATHS))
     at_us = start + 3 * load(name).scan_period_us
     runs = {(path, quiet): Broken(name, where, at_us, quiet, tmp_path, path=path,
                                   inject="F13@10.4s" if jammed else "")
             for path in paths for quiet in (False, True)}
     for (path, quiet), run in runs.items():
         case = f"{path}, {'quiet' if quiet else 'every scan built'}"
-        run.run_for(start + 2 * S)
+        run.run_for(start + S)
         engine, session = run.engine, run.session
         assert run.hits == 1, case
         latches = [r for r in engine.latched if r.source == "internal"]
@@ -313,7 +313,7 @@ def test_an_error_outside_the_scans_handling_latches_writes_safe_and_is_explaine
         run.armed = False
         assert run.session.command(cmd.FaultReset()).accepted
         reset_at = run.engine.now
-        run.run_for(3 * S)
+        run.run_for(S)
         assert not run.engine.latched, (path, quiet, run.engine.latched)
         assert jammed or any(values != run.engine.safe_vector for now, values in run.written
                              if now > reset_at), (path, quiet)

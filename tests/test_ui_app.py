@@ -107,13 +107,14 @@ async def test_the_footer_forgets_the_keys_it_removed():
         await run_for(pilot, 0.1)
         footer = app.query_one(HmiFooter)
         shown = []
-        for _ in range(3):  # a dialog opens (its keys only), then closes: the keys change
-            await press(pilot, "m")
-            await wait_for_screen(pilot, ConfirmDialog)
+        for _ in range(2):  # in and out of manual mode: the manual keys come and go
+            await enter_manual(pilot)
+            await run_for(pilot, 0.01)
             shown.append(id(footer.query(FooterKey).first()))
-            await press(pilot, "escape")
-            await wait_for_main(pilot)
+            await enter_manual(pilot)  # m again, confirmed: back to auto
+            await run_for(pilot, 0.01)
             shown.append(id(footer.query(FooterKey).first()))
+        assert engine(app).mode == "auto"
         assert len(set(shown)) > 3  # it did recompose
         keys = len(footer.query(FooterKey))
         watchers = getattr(footer, "__watchers")
@@ -128,7 +129,8 @@ async def test_the_footer_recomposes_once_for_the_changes_of_one_refresh(monkeyp
     building and styling every key again), and none when the keys would be those shown
     (the second refresh's); each key is compact (the footer's setting) from birth instead
     of being restyled once mounted. The focus moving between panels with the same keys
-    builds nothing; a dialog, whose keys replace the screen's, does."""
+    builds nothing, nor does a dialog opening over the screen and closing; manual mode,
+    whose keys join, does."""
     from textual.widgets._footer import FooterKey
 
     from hmi.ui.footer import HmiFooter
@@ -148,12 +150,15 @@ async def test_the_footer_recomposes_once_for_the_changes_of_one_refresh(monkeyp
         keys = list(footer.query(FooterKey))
         await press(pilot, "tab")  # the focus moves to the alarm list: the same keys
         assert len(focused) == 1 and list(footer.query(FooterKey)) == keys
-        await press(pilot, "m")  # a dialog: the screen's keys are off
+        await press(pilot, "m")  # a dialog over the screen: its keys stay under the shade
         await wait_for_screen(pilot, ConfirmDialog)
-        assert len(focused) == 2 and focused[-1] is app.screen_stack[0].focused
+        assert len(focused) == 1 and list(footer.query(FooterKey)) == keys
         await press(pilot, "escape")
         await wait_for_main(pilot)
-        assert len(focused) == 3
+        assert len(focused) == 1
+        await enter_manual(pilot)
+        await run_for(pilot, 0.01)  # the manual keys join: one recompose
+        assert len(focused) == 2 and focused[-1] is app.screen.focused
         keys = list(footer.query(FooterKey))
         assert keys and all(key.compact and key.has_class("-compact") for key in keys)
         assert "Run/Pause" in region_text(app, "HmiFooter")

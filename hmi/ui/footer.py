@@ -43,7 +43,17 @@ class HmiFooter(ContainedPump, Footer):
         the keys below, 498 style applications in the app's start, 228 now). The one
         recompose reads the bindings as they are then, the last change included."""
         self._bindings_ready = True
-        if not screen.app.app_focus or self._recompose_due:
+        if not screen.app.app_focus:
+            return
+        covered = screen is not screen.app.screen
+        if self.is_attached and screen is self.screen:
+            # A dialog (or the palette) over this screen: its keys stay, dimmed as disabled
+            # keys are (they are, until it closes), instead of giving way to a one-line
+            # footer that made the whole screen lay itself out again as the dialog opened,
+            # and again as it closed. Its closing publishes the bindings again (Textual's
+            # stack_updates), and the keys are those of then.
+            self.set_class(covered, "-covered")
+        if covered or self._recompose_due:
             return
         if self.is_attached and screen is self.screen:
             self._recompose_due = True

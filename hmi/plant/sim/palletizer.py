@@ -346,12 +346,12 @@ class _Glide:
     arithmetic on the positions and clocks gives how many steps stay so: no box reaching
     another, the end stop, the light beam or the pusher zone, no stall or exchange time
     running out, no box due from the source. For those steps the cell does just that and
-    keeps its sensors. New orders or a fault end the glide, and the cell checks before each
-    step that nothing else was changed by hand (:meth:`holds`).
+    keeps its sensors. New orders, a fault, a repair or a change by hand
+    (:meth:`SteppedCell.touch`) end the glide.
     """
 
-    __slots__ = ("clocks", "discard", "dt", "feed", "idle", "key", "movers", "moving",
-                 "sensors", "steps")
+    __slots__ = ("clocks", "discard", "dt", "feed", "idle", "movers", "moving", "sensors",
+                 "steps")
 
     def __init__(self, cell: Palletizer, dt: int, steps: int, movers: list[tuple[Box, int]],
                  clocks: list[Travel], moving: list[tuple[Travel, int]], idle: bool,
@@ -370,19 +370,14 @@ class _Glide:
             discard.append("pusher_against_clamp")
         self.discard = tuple(discard)
         self.feed = cell.feed
-        # What holds() compares (_key): the cell as the glide left it. move() brings it
-        # along in place, at the slots of what it moves: a travel's position (slots 0-3:
-        # pusher, plate, clamp, lift), a box's (from _KEY_BOXES on, in feed order).
-        self.key = _key(cell)
-        travels = (cell.pusher, cell.plate, cell.clamp, cell.lift)
-        self.moving = [(travel, drive, travels.index(travel)) for travel, drive in moving]
-        slot = {id(box): _KEY_BOXES + k for k, box in enumerate(cell.feed)}
-        self.movers = [(box, delta, slot[id(box)]) for box, delta in movers]
+        self.movers = movers  # (box, its move per step)
+        self.moving = moving  # (travel, drive): travels short of every mark they pass
         self.sensors = cell.true_sensors()
 
     def holds(self, cell: Palletizer) -> bool:
-        """The cell is as the glide left it (nobody moved a box, a travel, the layers)."""
-        return cell.feed is self.feed and _key(cell) == self.key
+        """The cell holds the feed the glide moves (else a state was restored from copies;
+        a change by hand ends the glide: SteppedCell.touch)."""
+        return cell.feed is self.feed
 
     def move(self, cell: Palletizer, count: int) -> None:
         """`count` steps of _step when only clocks and gliding boxes change: each adds the
@@ -390,13 +385,12 @@ class _Glide:
         one of them (nothing they test changes during the glide)."""
         self.steps -= count
         dt = self.dt * count
-        key = self.key
-        for box, delta, slot in self.movers:
-            key[slot] = box.lo = box.lo + delta * count
+        for box, delta in self.movers:
+            box.lo += delta * count
         for travel in self.clocks:
             travel.stall_us += dt
-        for travel, drive, slot in self.moving:  # full steps' motion (Travel.step)
-            key[slot] = travel.pos = travel.pos + drive * dt
+        for travel, drive in self.moving:  # full steps' motion (Travel.step)
+            travel.pos += drive * dt
             travel.stall_us = 0
             travel.stall_reported = False
         if self.idle:
@@ -498,16 +492,3 @@ class _Glide:
         if steps <= 0:
             return None
         return cls(cell, dt, steps, movers, clocks, moving, idle, wall_hit)
-
-
-_KEY_BOXES = 12  # _key's first box slot
-
-
-def _key(cell: Palletizer) -> list[object]:
-    """What a glide depends on and does not move by itself (travels jammed or not, the box
-    being pushed, the row, the held layer, the pallet's layers), and what it moves (the
-    travels' positions, pusher, plate, clamp, lift, then the boxes' on the feed)."""
-    pusher, plate, clamp, lift = cell.pusher, cell.plate, cell.clamp, cell.lift
-    return [pusher.pos, plate.pos, clamp.pos, lift.pos, pusher.jammed, plate.jammed,
-            clamp.jammed, lift.jammed, cell.pushing, len(cell.row), len(cell.hanging),
-            len(cell.layers), *[box.lo for box in cell.feed]]

@@ -348,12 +348,10 @@ class _Glide:
     the positions gives exactly, and no light beam or end switch changes either. For those
     steps the cell moves the boxes and the table and keeps the sensors it computed. Anything
     done to the cell otherwise (new orders, a fault, a repair, a box or the table moved or a
-    box added by hand) ends the glide: the cell checks what it vouched for before each step
-    (:meth:`holds`).
+    box added by hand: :meth:`SteppedCell.touch`) ends the glide.
     """
 
-    __slots__ = ("boxes", "dt", "expected", "lines", "movers", "sensors", "stalling", "steps",
-                 "turn", "turning")
+    __slots__ = ("boxes", "dt", "lines", "movers", "sensors", "stalling", "steps", "turning")
 
     def __init__(self, cell: SortingCell, dt: int, steps: int,
                  movers: list[tuple[Box, int]], turning: int, stalling: bool):
@@ -364,20 +362,12 @@ class _Glide:
         self.stalling = stalling  # a turn order held without motion: its stall clock runs
         self.boxes = cell.boxes
         self.lines = cell.lines  # rebuilt (a new list) whenever the conveyors change
-        self.expected = [(b, b.segment, b.lo) for b in cell.boxes]
-        self.turn = (cell.turn.pos, cell.turn.jammed)
         self.sensors = cell.true_sensors()
 
     def holds(self, cell: SortingCell) -> bool:
-        """The cell is as the glide left it (nobody moved a box, the table, the list)."""
-        if cell.boxes is not self.boxes or cell.lines is not self.lines or \
-                len(cell.boxes) != len(self.expected) or \
-                (cell.turn.pos, cell.turn.jammed) != self.turn:
-            return False
-        for box, segment, lo in self.expected:
-            if box.lo != lo or box.segment != segment:
-                return False
-        return True
+        """The cell holds the boxes and lines the glide moves on (else a state was restored
+        from copies; a change by hand ends the glide: SteppedCell.touch)."""
+        return cell.boxes is self.boxes and cell.lines is self.lines
 
     def move(self, cell: SortingCell, count: int) -> None:
         """`count` steps: each box on a running surface moves on, the table turns on (or its
@@ -392,8 +382,6 @@ class _Glide:
             turn.stall_reported = False
         elif self.stalling:
             turn.stall_us += self.dt * count
-        self.expected = [(b, b.segment, b.lo) for b in cell.boxes]
-        self.turn = (turn.pos, turn.jammed)
 
     @classmethod
     def plan(cls, cell: SortingCell, dt: int) -> _Glide | None:
