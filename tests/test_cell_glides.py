@@ -32,13 +32,14 @@ def _full(cls: type[SteppedCell]) -> type[SteppedCell]:
 FullSorter, FullPalletizer = _full(SortingCell), _full(Palletizer)
 
 
-def physics(cell: SteppedCell) -> dict:
-    """Everything the cell's physics holds, but the glide itself and the reporting caches."""
+def physics(cell: SteppedCell, sensors: dict | None = None) -> dict:
+    """Everything the cell's physics holds, but the glide itself and the reporting caches
+    (`sensors`: the cell's `sensors()` already read at this instant, not computed again)."""
     state = {k: v for k, v in vars(cell).items()
              if k not in ("_glide", "_vouched", "_state_cache", "_counter_cache", "source")}
     source = cell.source
     state["source"] = (source.next_due, source.next_high, source.count, list(source.queued))
-    state["sensors"] = cell.sensors()
+    state["sensors"] = cell.sensors() if sensors is None else sensors
     state["state"] = cell.state()
     return state
 
@@ -92,8 +93,9 @@ def drive(kind: str, holds, sample: int, faults) -> None:
                 glide.advance(now)
                 sensed = dict(glide.read_sensors())
             full.advance(now)
-            assert sensed == full.sensors(), f"at {now} us"
-            assert physics(glide) == physics(full), f"at {now} us"
+            expected = full.sensors()
+            assert sensed == expected, f"at {now} us"
+            assert physics(glide) == physics(full, expected), f"at {now} us"
     assert glide.events == full.events
 
 

@@ -24,7 +24,7 @@ from functools import cache
 import pytest
 
 from hmi.engine import commands as cmd
-from hmi.engine.codegen import ATTRIBUTES, LOCALS
+from hmi.engine.codegen import ATTRIBUTES, LOCALS, Source, build
 from hmi.engine.diagnoser import MODES
 from hmi.engine.scan import Engine
 from hmi.engine.snapshot import Snapshot
@@ -166,6 +166,21 @@ def test_generated_code_holds_only_slots_constants_and_operators():
                     assert tok.type != tokenize.STRING, (name, tok.string)
                     if tok.type == tokenize.NUMBER:
                         assert tok.string.isdigit(), (name, tok.string)
+
+
+
+@pytest.mark.parametrize("line", [
+    "return __import__('os')", "return v.__class__", "return 'text'", "return 1.5",
+    "return (lambda: v)()", "return k0(v, key=h)", "import os", "return [x for x in v]",
+    "return {}", "global v", "return v[1:2]", "y = b'x'",
+])
+def test_the_checker_refuses_what_no_template_writes(line):
+    """hmi.engine.codegen.build's own walk of the syntax tree refuses every node, name,
+    attribute and literal outside the templates' vocabulary, before anything is compiled."""
+    src = Source()
+    src.line(1, line)
+    with pytest.raises(ValueError, match="generated code"):
+        build(src, "f", "v, h", "<checker test>")
 
 
 

@@ -82,8 +82,11 @@ PROBED = ("plant", "engine")
 
 def _probes(path: Path) -> list[str]:
     """getattr/hasattr calls whose object mentions a plant or the engine."""
-    found = []
-    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+    found: list[str] = []
+    text = path.read_text(encoding="utf-8")
+    if "getattr" not in text and "hasattr" not in text:
+        return found  # no such call can be in it: not parsed (most files; 0.6 CPU s)
+    for node in ast.walk(ast.parse(text)):
         if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and \
                 node.func.id in ("getattr", "hasattr") and node.args:
             target = ast.unparse(node.args[0])

@@ -111,6 +111,13 @@ def faulty_cell(cell: Cell, fault: str) -> tuple[Session, SimPlant, list[str]]:
     return session, plant, seen
 
 
+# How long the reset waits for the tasks the fault caught in progress to end. Measured over
+# every case of the first test: they end within 8.3 s (sorting; palletizer 2.0 s, conveyor
+# 3.5 s). In the dead ends they never end (still running at 40 s, the old limit), so this is
+# how long the operator waits before resetting anyway.
+TASKS_END_US = 20 * S
+
+
 CASES = [pytest.param(name, fault, id=f"{name}-{fault}")
          for name in CELLS for fault in faults_of(name)]
 
@@ -133,7 +140,7 @@ def test_every_fault_ends_in_automatic_operation_after_repair_recovery_and_reset
         snap = run_while(session, lambda s: s.recovery.status == "running", 20 * S)
         assert snap.recovery.status == "done", snap.recovery.message
         assert session.command(EndRecovery()).accepted
-    run_while(session, lambda s: caught & running(s), 40 * S)
+    run_while(session, lambda s: caught & running(s), TASKS_END_US)
     reset = session.command(FaultReset())
     assert "stays" not in reset.message, reset.message
     before = work(cell, session.last)
@@ -155,7 +162,7 @@ def test_the_faults_that_need_a_recovery_are_dead_ends_without_it(name, fault):
     session, _, _ = faulty_cell(cell, fault)
     assert session.command(RepairFaults()).accepted
     caught = running(session.scan_once())
-    run_while(session, lambda s: caught & running(s), 40 * S)
+    run_while(session, lambda s: caught & running(s), TASKS_END_US)
     session.command(FaultReset())
     before = work(cell, session.last)
     snap = run_quietly(session, 20 * S)

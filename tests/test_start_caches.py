@@ -195,6 +195,43 @@ def test_any_change_the_load_depends_on_loads_again(tmp_path, loads, monkeypatch
         assert after.name.startswith("edited ") and after != before
 
 
+@pytest.mark.parametrize("change", ["edit", "component", "cwd", "variant"])
+def test_a_project_loaded_once_per_process_is_loaded_again_on_any_change(
+        tmp_path, loads, monkeypatch, change):
+    """kept.load_once (the pilot tests' make_app): the same project object while nothing it
+    reads changes; a change of a file, of the component library, of the working directory
+    or of the variant asked loads it again."""
+    folder = copy_project(tmp_path, "cispi_subsystem")  # it uses the component library
+    components = tmp_path / "components"
+    shutil.copytree(kept.COMPONENTS, components)
+    monkeypatch.setattr(kept, "COMPONENTS", components)
+    monkeypatch.setattr("hmi.project.confine.COMPONENTS", components)
+    before = kept.load_once(folder)
+    assert kept.load_once(folder) is before and loads[0] == 1
+    variant = None
+    if change == "edit":
+        project_file = folder / "project.yaml"
+        project_file.write_text(project_file.read_text(encoding="utf-8").replace(
+            "name: ", "name: edited ", 1), encoding="utf-8")
+    elif change == "component":
+        valve = next(components.glob("*.yaml"))
+        valve.write_text(valve.read_text() + "\n# edited\n")
+    elif change == "cwd":
+        monkeypatch.chdir(tmp_path)
+    else:
+        variant = "another"
+    if variant is None:
+        after = kept.load_once(folder)
+        assert loads[0] == 2 and after is not before, change
+        assert after == load_project(folder) and kept.load_once(folder) is after
+    else:
+        with pytest.raises(ProjectError):  # cispi_subsystem has no such variant: said
+            kept.load_once(folder, variant)
+        assert loads[0] == 2
+    if change == "edit":
+        assert after.name.startswith("edited ")
+
+
 def test_a_project_with_errors_says_them_as_without_the_cache_and_is_not_kept(tmp_path):
     folder = copy_project(tmp_path)
     (folder / "project.yaml").write_text("name: broken\nscan_period: 10ms\ninputs: [\n")

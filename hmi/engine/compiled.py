@@ -301,14 +301,18 @@ class CompiledScan:
                 read = self._expr(Var(0, lit.name, lit.depth))
                 parts.append(read if lit.positive else f"(not {read})")
             if parts:
-                terms.append((1 << k, " and ".join(parts)))
+                terms.append((k, " and ".join(parts)))
             else:
                 always |= 1 << k
-        src = Source()  # one statement per constraint: a project may have thousands
-        src.line(1, f"b = {always}")
-        for bit, test in terms:
+        # One statement per constraint: a project may have thousands. A bit is written as a
+        # shift, not as its value (folded by the compiler up to bit 127): constraint
+        # 5,000's bit has 1,506 decimal digits, and 5,000 such literals made the text
+        # megabytes long (seconds to parse and check); the constant part is handed over.
+        src = Source()
+        src.line(1, f"b = {src.ref(always)}")
+        for k, test in terms:
             src.line(1, f"if {test}:")
-            src.line(2, f"b |= {bit}")
+            src.line(2, f"b |= 1 << {k}")
         src.line(1, "return b")
         fn: ActiveFn = self._build(src, "active_bits", "v, h")
         return fn

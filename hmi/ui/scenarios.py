@@ -18,7 +18,7 @@ from textual.pilot import Pilot
 from hmi.engine.scan import Engine
 from hmi.plant.sim.plant import SimPlant
 from hmi.project.injection import parse_injection
-from hmi.project.loader import load_project
+from hmi.project.kept import load_once
 from hmi.session.session import Session
 from hmi.ui.alarm_list import AlarmList
 from hmi.ui.app import PlcHmiApp
@@ -49,7 +49,7 @@ def make_app(project: Path = VALVE, control: str | None = None,
     `inject` are faults as the command line writes them (``C1.stop@1s+2s``), scheduled
     before the first scan as ``plchmi ui --inject`` does; `diagnoser` a diagnoser variant
     (``--diagnoser``)."""
-    loaded = load_project(project, diagnoser)
+    loaded = load_once(project, diagnoser)
     injections = tuple(parse_injection(text) for text in inject)
     plant = SimPlant(loaded)
     for injection in injections:
