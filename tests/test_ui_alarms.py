@@ -65,7 +65,7 @@ async def conveyor_fault(pilot) -> None:
 # -- the alarm list ------------------------------------------------------------------------
 
 
-async def test_alarm_list_shows_state_priority_time_and_text():
+async def test_alarm_list_shows_state_priority_time_and_text_and_a_click_selects():
     app = make_app(control="faulty")
     async with app.run_test(size=WIDE) as pilot:
         await run_for(pilot, 8.7)
@@ -84,6 +84,13 @@ async def test_alarm_list_shows_state_priority_time_and_text():
         order = [a.state for a in snap.alarms]
         assert order == sorted(order, key=[ACTIVE_UNACK, CLEARED_UNACK].index)
         assert any("×2" in row for row in rows)  # returned once: counted
+        # the same list (one start for both): a click on a row selects its alarm
+        listed = app.controller.last.alarms
+        alarm_list = app.query_one(AlarmList)
+        assert await click(pilot, "#alarms", 10, 3)  # the border, then rows 0, 1, 2
+        await settle(pilot)
+        assert alarm_list.selected == listed[2].key
+        assert panel(app).key == listed[2].key
 
 
 async def test_acknowledge_the_selected_alarm_with_a():
@@ -99,24 +106,6 @@ async def test_acknowledge_the_selected_alarm_with_a():
         assert "acknowledged 1 alarm" in app.message.plain
         await run_for(pilot, 0.01)
         assert "● ACK" in region_text(app, "#alarms")
-
-
-async def test_acknowledge_all_with_shift_a_and_a_cleared_alarm_goes():
-    app = make_app(control="faulty")
-    async with app.run_test(size=WIDE) as pilot:
-        await run_for(pilot, 8.7)
-        before = alarms(app)
-        cleared = [k for k, s in before.items() if s == CLEARED_UNACK]
-        assert cleared
-        await press(pilot, "A")
-        await settle(pilot)
-        after = alarms(app)
-        assert all(k not in after for k in cleared)  # acknowledged and already clear: gone
-        assert all(s == ACTIVE_ACK for s in after.values())
-        await run_for(pilot, 0.01)
-        listed = region_text(app, "#alarms")
-        assert "UNACK" not in listed and "● ACK" in listed
-        assert "0 unacknowledged" in listed
 
 
 async def test_acknowledge_while_paused_says_when_it_shows():
@@ -152,7 +141,7 @@ async def test_acknowledge_from_the_palette():
         assert alarms(app)[key] == ACTIVE_ACK
 
 
-async def test_select_an_alarm_with_the_keys_and_the_explanation_follows():
+async def test_select_an_alarm_with_the_keys_then_acknowledge_all_with_shift_a():
     app = make_app(control="faulty")
     async with app.run_test(size=WIDE) as pilot:
         await run_for(pilot, 8.7)
@@ -170,18 +159,20 @@ async def test_select_an_alarm_with_the_keys_and_the_explanation_follows():
         await settle(pilot)
         assert alarms(app)[listed[1].key] == ACTIVE_ACK
         assert alarms(app)[listed[0].key] == listed[0].state
-
-
-async def test_click_an_alarm_to_select_it():
-    app = make_app(control="faulty")
-    async with app.run_test(size=WIDE) as pilot:
-        await run_for(pilot, 8.7)
-        listed = app.controller.last.alarms
-        alarm_list = app.query_one(AlarmList)
-        assert await click(pilot, "#alarms", 10, 3)  # the border, then rows 0, 1, 2
+        # then shift+A (one start for both): every other one acknowledged, and those
+        # already clear leave the list
+        before = alarms(app)
+        cleared = [k for k, s in before.items() if s == CLEARED_UNACK]
+        assert cleared
+        await press(pilot, "A")
         await settle(pilot)
-        assert alarm_list.selected == listed[2].key
-        assert panel(app).key == listed[2].key
+        after = alarms(app)
+        assert all(k not in after for k in cleared)  # acknowledged and already clear: gone
+        assert all(s == ACTIVE_ACK for s in after.values())
+        await run_for(pilot, 0.01)
+        listed = region_text(app, "#alarms")
+        assert "UNACK" not in listed and "● ACK" in listed
+        assert "0 unacknowledged" in listed
 
 
 async def test_alarm_list_survives_80x24_with_many_alarms():

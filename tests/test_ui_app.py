@@ -193,7 +193,7 @@ async def test_layout_keeps_status_footer_and_panels_on_screen(size):
 # -- run / pause / step / speed ------------------------------------------------------------
 
 
-async def test_pause_and_resume():
+async def test_pause_and_resume_then_step_one_scan():
     app = make_app()
     async with app.run_test(size=SIZE) as pilot:
         await run_for(pilot, 0.5)
@@ -209,11 +209,7 @@ async def test_pause_and_resume():
         assert app.controller.state.running is True
         assert await run_for(pilot, 1.0) == 100
         assert "running" in region_text(app, "#status")
-
-
-async def test_step_one_scan():
-    app = make_app()
-    async with app.run_test(size=SIZE) as pilot:
+        # one scan stepped (one start for both), from running
         await run_for(pilot, 0.5)
         scan = engine(app).scan
         await press(pilot, "s")
@@ -228,11 +224,17 @@ async def test_step_one_scan():
         assert "running" in region_text(app, "#status")
 
 
-async def test_step_n_scans_through_the_dialog():
+async def test_step_n_can_be_cancelled_then_scans_through_the_dialog():
     app = make_app()
     async with app.run_test(size=SIZE) as pilot:
         scan = engine(app).scan
         await press(pilot, "n")
+        await wait_for_screen(pilot, StepDialog)
+        await press(pilot, "escape")  # cancelled: nothing stepped, still running
+        await wait_for_main(pilot)
+        assert engine(app).scan == scan
+        assert app.controller.state.running is True
+        await press(pilot, "n")  # then (one start for both) 25 scans asked
         dialog = await wait_for_screen(pilot, StepDialog)
         await press(pilot, "0", "enter")  # replaces the selected default: refused
         await drain(pilot)
@@ -242,18 +244,6 @@ async def test_step_n_scans_through_the_dialog():
         await wait_for_main(pilot)
         assert engine(app).scan == scan + 25
         assert "STEPPING" in region_text(app, "#status")
-
-
-async def test_step_n_can_be_cancelled():
-    app = make_app()
-    async with app.run_test(size=SIZE) as pilot:
-        scan = engine(app).scan
-        await press(pilot, "n")
-        await wait_for_screen(pilot, StepDialog)
-        await press(pilot, "escape")
-        await wait_for_main(pilot)
-        assert engine(app).scan == scan
-        assert app.controller.state.running is True
 
 
 async def test_speed_cycles_real_time_ten_times_max():

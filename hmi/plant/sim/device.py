@@ -104,6 +104,12 @@ class SimDevice(ABC):
         nor changed: a model may give the same mapping again)."""
         return self.sensors()
 
+    def sense(self, t: int) -> Mapping[str, bool]:
+        """:meth:`advance` to t then :meth:`read_sensors`: the plant's read of a device with
+        sensor ports, once per scan (a model may do both at once)."""
+        self.advance(t)
+        return self.read_sensors()
+
     @abstractmethod
     def _advance_to(self, t: int) -> None:
         """Integrate the physics from self.t to t (t >= self.t) and set self.t = t."""
