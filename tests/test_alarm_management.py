@@ -21,7 +21,8 @@ from hmi.explain.alarms import ACTIVE_UNACK, AlarmManager
 from hmi.explain.journal import Journal, read
 from hmi.explain.model import Explanation
 from hmi.session.journal_recorder import JournalRecorder
-from tests.conftest import PROJECTS, make_controller
+from tests.conftest import PROJECTS
+from tests.examples import controller as make_controller
 
 S = 1_000_000
 VALVE = PROJECTS / "cispi_valve"

@@ -24,7 +24,8 @@ from hmi.explain.journal import Journal, read
 from hmi.explain.model import Explanation
 from hmi.project.loader import load_project
 from hmi.session.journal_recorder import JournalRecorder
-from tests.conftest import PROJECTS, make_controller, write_project
+from tests.conftest import PROJECTS, write_project
+from tests.examples import controller as make_controller
 
 VALVE = PROJECTS / "cispi_valve"
 S = 1_000_000

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from hmi.cli import main
 from hmi.engine.commands import ChoosePolicy, FaultReset
-from tests.conftest import PROJECTS, make_controller
+from tests.conftest import PROJECTS
+from tests.examples import controller as make_controller
 
 VALVE = PROJECTS / "cispi_valve"
 S = 1_000_000

@@ -9,7 +9,8 @@ import pytest
 
 from hmi.engine import commands as cmd
 from hmi.explain.builder import ExplanationBuilder
-from tests.conftest import PROJECTS, make_controller
+from tests.conftest import PROJECTS
+from tests.examples import controller as make_controller
 
 S = 1_000_000
 

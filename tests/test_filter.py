@@ -13,7 +13,8 @@ from hmi.cli import main
 from hmi.engine.commands import FaultReset, ManualOutput, SetMode, SetPolicy
 from hmi.engine.filter_analysis import analyse
 from hmi.project.loader import load_project
-from tests.conftest import PROJECTS, make_controller, write_project
+from tests.conftest import PROJECTS, write_project
+from tests.examples import controller as make_controller
 
 VALVE = PROJECTS / "cispi_valve"
 S = 1_000_000

@@ -9,7 +9,8 @@ from hmi.engine.commands import FaultReset
 from hmi.engine.trace import TraceWriter
 from hmi.project.loader import load_project
 from hmi.sweep import run_sweep
-from tests.conftest import PROJECTS, make_controller
+from tests.conftest import PROJECTS
+from tests.examples import controller as make_controller
 
 CELL = PROJECTS / "conveyor_robot"
 MS = 1_000

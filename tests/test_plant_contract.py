@@ -16,19 +16,19 @@ from hmi.plant.base import NotSupported, Plant
 from hmi.plant.modbus.client import ModbusPlant, ModbusSettings
 from hmi.plant.sim.plant import SimPlant
 from hmi.project.injection import parse_injection
-from hmi.project.loader import load_project
 from tests.conftest import PROJECTS, ROOT
+from tests.examples import example
 
 VALVE = PROJECTS / "cispi_valve"
 
 
 def modbus_plant(read_only: bool = False) -> ModbusPlant:
     """A Modbus plant on a port nobody listens on: constructing it connects nothing."""
-    return ModbusPlant(load_project(VALVE), ModbusSettings(port=1), read_only=read_only)
+    return ModbusPlant(example("cispi_valve"), ModbusSettings(port=1), read_only=read_only)
 
 
 def test_an_engine_built_directly_on_a_real_plant_refuses_the_monitor_policy():
-    project = load_project(VALVE)
+    project = example("cispi_valve")
     with pytest.raises(UsageError, match="monitor policy passes unsafe orders"):
         Engine(project, modbus_plant(), policy="monitor")
     # explicitly allowed, or observing read-only (nothing written): accepted
@@ -40,7 +40,7 @@ def test_an_engine_built_directly_on_a_real_plant_refuses_the_monitor_policy():
 
 
 def test_switching_to_monitor_is_refused_on_a_real_plant_unless_allowed():
-    project = load_project(VALVE)
+    project = example("cispi_valve")
     engine = Engine(project, modbus_plant(), policy="block")
     result = engine.apply(SetPolicy("monitor"))
     assert not result.accepted and "refused on a real plant" in result.message
@@ -50,7 +50,7 @@ def test_switching_to_monitor_is_refused_on_a_real_plant_unless_allowed():
 
 
 def test_capabilities_are_declared_and_honoured():
-    project = load_project(VALVE)
+    project = example("cispi_valve")
     sim, real = SimPlant(project), modbus_plant()
     assert isinstance(sim, Plant) and isinstance(real, Plant)
     assert (sim.is_real, sim.can_inject, sim.can_repair, sim.can_set_inputs) == \
@@ -69,7 +69,7 @@ def test_capabilities_are_declared_and_honoured():
 
 
 def test_the_engine_refuses_simulation_commands_on_a_real_plant_in_plain_words():
-    engine = Engine(load_project(VALVE), modbus_plant(), policy="block")
+    engine = Engine(example("cispi_valve"), modbus_plant(), policy="block")
     for command, words in ((InjectFault(parse_injection("F5@1s")), "simulated plant"),
                            (RepairFaults(), "simulated plant"),
                            (SetInput("fsc", True), "simulated plant")):
