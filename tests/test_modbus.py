@@ -154,6 +154,14 @@ def alarm_events(path) -> list[tuple[str, str]]:
     return events
 
 
+def _reap(run: subprocess.Popen[str]) -> None:
+    """Kill and reap a run whose end the test did not see (a wait that failed): no stray
+    process keeps its port or its journal open for the next test."""
+    if run.poll() is None:
+        run.kill()
+        run.communicate()
+
+
 def test_a_fault_injected_in_serve_plant_is_diagnosed_as_in_the_simulation(server, tmp_path):
     """F13 (the valve jams on its next movement) injected in the plant process, seen only
     through Modbus: the same diagnoser transitions, alarms and final decision as the direct
@@ -186,9 +194,7 @@ def test_a_fault_injected_in_serve_plant_is_diagnosed_as_in_the_simulation(serve
         run.send_signal(signal.SIGTERM)
         out, err = run.communicate(timeout=120)
     finally:
-        if run.poll() is None:
-            run.kill()
-            run.communicate()
+        _reap(run)
     assert run.returncode == 0, err
     assert alarm_events(journal) == expected
     seen = DIAGNOSIS.findall(out)
@@ -230,9 +236,7 @@ def test_a_headless_run_against_serve_plant_behaves_like_the_simulation(server, 
         run.send_signal(signal.SIGTERM)
         out, err = run.communicate(timeout=120)
     finally:
-        if run.poll() is None:
-            run.kill()
-            run.communicate()
+        _reap(run)
         sim.wait(120)
     assert run.returncode == 0, err
     assert sim.returncode == 0
