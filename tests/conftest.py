@@ -61,6 +61,20 @@ def loads(monkeypatch):
     return count
 
 
+@pytest.fixture
+def fresh_scan_code():
+    """codegen's table of compiled scan code emptied for the test (as in a new process),
+    restored after: the start-cache tests (test_start_caches, test_fastpath_caches) fill
+    it from a kept file and check what was taken."""
+    from hmi.engine import codegen
+    table = codegen.code_table()
+    saved = dict(table)
+    table.clear()
+    yield table
+    table.clear()
+    table.update(saved)
+
+
 def processes_for_a_test() -> int:
     """Worker processes a test may start for itself: both cores when the suite runs in one
     process, one when pytest-xdist already runs a test on each core (.ci/run, README)."""

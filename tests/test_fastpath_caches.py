@@ -27,17 +27,6 @@ from hmi.ui import csscache
 DAMAGES = 24
 
 
-@pytest.fixture
-def fresh_scan_code():
-    """codegen's table emptied (as in a new process), restored after."""
-    table = codegen.code_table()
-    saved = dict(table)
-    table.clear()
-    yield table
-    table.clear()
-    table.update(saved)
-
-
 def damaged(data: bytes, rng: random.Random) -> bytes:
     """`data` cut short, with bits flipped (header, digest or body), or with bytes added."""
     how = rng.randrange(4)

@@ -48,17 +48,6 @@ def trace(project, scans: int = SCANS) -> list:
     return rows
 
 
-@pytest.fixture
-def fresh_scan_code():
-    """codegen's table emptied for the test (as in a new process), restored after."""
-    table = codegen.code_table()
-    saved = dict(table)
-    table.clear()
-    yield table
-    table.clear()
-    table.update(saved)
-
-
 # -- the compiled scan's code ----------------------------------------------------------------
 
 def test_an_engine_built_from_kept_scan_code_runs_as_a_compiled_one(tmp_path, fresh_scan_code):
