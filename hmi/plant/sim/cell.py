@@ -98,11 +98,8 @@ class SteppedCell(SimDevice):
                 glide.move(self, count)
                 self.t = t
                 self._vouched = glide
-                if self.stuck:
-                    values = dict(glide.sensors)
-                    values.update(self.stuck)
-                    return values
-                return glide.sensors
+                # (a stuck sensor, rare: read_sensors lays it over the glide's)
+                return self.read_sensors() if self.stuck else glide.sensors
         self.advance(t)
         return self.read_sensors()
 
