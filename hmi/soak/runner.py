@@ -124,6 +124,10 @@ async def session(config: SoakConfig, replay: list[Step] | None = None,
                 result.steps.append(step)
                 if not await perform(pilot, step):
                     result.skipped += 1
+                # the screen as the step left it is painted (a headless one is not by
+                # itself, hmi.ui.driver): a widget that fails to draw breaks "exception"
+                if app.driver.paint(app):
+                    await drain(pilot)
                 if checker.check_step() or not app.is_running:
                     break
                 if progress is not None and len(result.steps) % 50 == 0:
@@ -199,6 +203,8 @@ async def palette_entry(pilot, title: str) -> bool:
     screen = await wait_for_screen(pilot, CommandPalette)
     screen.query_one(CommandInput).value = title
     await drain(pilot)
+    if app.driver.paint(app):  # the hits as the operator sees them (drawn, tinted screen below)
+        await drain(pilot)
     commands = screen.query_one(CommandList)
     for index in range(commands.option_count):
         prompt = commands.get_option_at_index(index).prompt

@@ -11,6 +11,9 @@ from __future__ import annotations
 
 import gc
 import sys
+from functools import partial
+
+from textual.screen import Screen
 
 from hmi.session.live import LiveRunner
 from hmi.session.session import Session
@@ -63,6 +66,23 @@ class _Held:
 
 
 HELD = _Held()
+MOST_DIRTY = 64  # regions kept to repaint; beyond, the whole screen's region instead
+
+
+def _unseen_refresh(screen) -> None:
+    """``Screen._compositor_refresh`` without the paint, for a headless screen: what is to be
+    repainted is kept for :meth:`VirtualDriver.paint`; the rest is Textual's (the screen
+    under a dialog passes its changes up, the mouse-over is updated)."""
+    app = screen.app
+    if screen is app.screen:
+        screen._dirty_widgets.clear()
+        dirty = screen._compositor._dirty_regions
+        if len(dirty) > MOST_DIRTY:
+            dirty.clear()
+            dirty.add(screen._compositor.size.region)
+        app._update_mouse_over(screen)
+    else:
+        Screen._compositor_refresh(screen)
 
 
 class VirtualDriver:
@@ -77,8 +97,30 @@ class VirtualDriver:
         timer: that timer fires 1/60 s of wall clock after a change, so on a loaded machine
         it painted half-handled states a second time, and what ran depended on the load.
         Textual's ``Screen._update_timer`` (pause/resume, created at first use) is the one
-        thing it paces by the clock; this sets it before then (Textual pinned, 8.2.8)."""
+        thing it paces by the clock; this sets it before then (Textual pinned, 8.2.8).
+
+        Headless (tests, the soak, screenshots), a layout does not paint either: a headless
+        terminal throws every paint away, and whoever looks renders the screen then
+        (hmi.ui.testing.screen_text, ``App.export_screenshot``), or the line it needs (a
+        click's style, ``Widget.render_lines``), or what changed (:meth:`paint`). Painting
+        each frame nobody could see was about a third of a pilot test's CPU, and more under
+        a dialog (the screen below it re-tinted at each paint)."""
         screen._Screen__update_timer = HELD
+        if screen.app.is_headless:
+            screen._compositor_refresh = partial(_unseen_refresh, screen)
+
+    @staticmethod
+    def paint(app) -> bool:
+        """Paint what changed on the active screen since it was last painted, as its refresh
+        would have on a terminal; True if there was anything. For whoever wants every state
+        drawn that it stops at (the soak, after each step: a widget that fails to draw fails
+        there); a test that looks at the screen renders it whole anyway."""
+        screen = app.screen
+        compositor = screen._compositor
+        if app.driver.live or not app.is_headless or not compositor._dirty_regions:
+            return False
+        compositor.render_update(screen_stack=app._background_screens)
+        return True
 
     def __init__(self, controller: Session):
         self.controller = controller
