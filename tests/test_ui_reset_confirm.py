@@ -150,3 +150,20 @@ async def test_the_fault_reset_policy_checks_its_promise_too(tmp_path):
         await wait_for_main(pilot)
         assert [r.accepted for _, r in seen] == [False, True]
         assert "re-synchronised to N1" in seen[-1][1].message
+
+
+async def test_a_reset_confirmed_on_nothing_latched_after_a_fault_came_is_asked_again():
+    app = make_app(inject=("F9@10s",))
+    async with app.run_test(size=(80, 24)) as pilot:
+        await run_for(pilot, 9.0)
+        await press(pilot, "r")
+        text = await dialog_text(pilot)
+        assert "Nothing is latched: the reset will change nothing." in text
+        first = app.screen
+        await run_until(pilot, resync_to("N5"), 5, "F9 diagnosed")
+        await press(pilot, "y")
+        text = await dialog_text(pilot, since=first)
+        assert "no longer: nothing latched, the reset changing nothing" in text
+        assert "► ✓ will be reset: diagnoser V1 in S9 {F9}" in text
+        assert "Reset (y)" in text  # the dialog still fits at 80×24, its buttons too
+        assert diagnoser(app).faulty

@@ -255,6 +255,9 @@ def reset_lines(snap: Snapshot, asked: Asked | None = None) -> list[Text | str]:
                     f"{seconds(asked.time_us)} s): nothing was done.")
         lines.append(head)
         lines += [Text("  no longer: ", style=MUTED) + reset_line(line) for line in gone]
+        if not asked.shown:
+            lines.append(Text("  no longer: nothing latched, the reset changing nothing",
+                              style=MUTED))
         lines.append(Text("What the reset would do now" + (" (► changed):" if fresh else ":"),
                           style="bold"))
     for line in now:
