@@ -164,6 +164,19 @@ def test_an_ui_error_is_caught_and_shrunk(monkeypatch):
     assert replays > 1
 
 
+def test_a_drawing_error_is_caught(monkeypatch):
+    """Headless, a screen is painted only when looked at (hmi.ui.driver): the soak paints
+    the screen each step leaves, so a panel that fails to draw still breaks "exception"."""
+    from hmi.ui.chronogram import Chronogram
+
+    def broken(self):
+        raise RuntimeError("deliberate")
+    monkeypatch.setattr(Chronogram, "_draw_text", broken)
+    result = soak(SoakConfig(VALVE, "normal", (80, 24)), [Run(200_000)])
+    assert [b.invariant for b in result.broken] == ["exception"]
+    assert "Chronogram drawing: RuntimeError: deliberate" in result.broken[0].detail
+
+
 # -- the command ---------------------------------------------------------------------------
 
 

@@ -83,6 +83,35 @@ async def test_the_valve_is_seen_cycling():
         assert "cycles 1" in region_text(app, "#sim")
 
 
+async def test_headless_virtual_time_paints_only_what_someone_looks_at(monkeypatch):
+    """hmi.ui.driver: a headless screen in virtual time is laid out at rest, not painted
+    (a headless terminal throws paints away); a look renders what is there now, and
+    VirtualDriver.paint paints what changed since the last paint, once."""
+    from textual._compositor import Compositor
+
+    paints = []
+    render_update = Compositor.render_update
+
+    def counted(self, full=False, screen_stack=None, simplify=False):
+        paints.append(full)
+        return render_update(self, full, screen_stack, simplify)
+    monkeypatch.setattr(Compositor, "render_update", counted)
+    app = make_app()
+    async with app.run_test(size=SIZE) as pilot:
+        await run_for(pilot, 1.0)
+        await press(pilot, "ctrl+p")
+        await wait_for_screen(pilot, CommandPalette)
+        await press(pilot, "escape")
+        await wait_for_main(pilot)
+        await press(pilot, "space")
+        assert paints == []
+        assert "PAUSED" in region_text(app, "#status")  # the look draws the state of now
+        assert paints == [True]
+        await press(pilot, "space")
+        assert app.driver.paint(app) and paints == [True, False]  # what changed, once
+        assert not app.driver.paint(app) and paints == [True, False]
+
+
 async def test_frames_follow_the_engine_without_extra_scans():
     app = make_app()
     async with app.run_test(size=SIZE) as pilot:
