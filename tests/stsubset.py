@@ -509,29 +509,35 @@ class StandardTimer:
         return Instance(self.kind, {"IN": False, "PT": 0, "Q": False, "ET": 0, "_RUN": False,
                                     "_START": 0, "_PREV": False})
 
-    def call_with_globals(self, inst: Instance, _globals: dict) -> None:
-        self.call(inst)
+    def runner(self) -> Callable[[dict, dict], None]:
+        """The timer's body as the translated code calls an FB: `run(variables, globals)`.
 
-    def call(self, inst: Instance) -> None:
-        v = inst.vars
-        now = self.clock.now_us
+        One function per kind, reading the clock itself: a timer is called twice a scan per
+        monitor, about three million calls in the agreement tests."""
+        clock = self.clock
         if self.kind == "TON":
-            if not v["IN"]:
-                v["Q"], v["ET"], v["_RUN"] = False, 0, False
-            else:
+            def ton(v: dict, _globals: dict) -> None:
+                if not v["IN"]:
+                    v["Q"], v["ET"], v["_RUN"] = False, 0, False
+                    return
+                now = clock.now_us
                 if not v["_RUN"]:  # rising edge of IN: start timing
                     v["_RUN"], v["_START"] = True, now
-                v["ET"] = min(now - v["_START"], v["PT"])
-                v["Q"] = v["ET"] >= v["PT"]
-        else:
+                et = v["ET"] = min(now - v["_START"], v["PT"])
+                v["Q"] = et >= v["PT"]
+            return ton
+
+        def tof(v: dict, _globals: dict) -> None:
             if v["IN"]:
                 v["Q"], v["ET"], v["_RUN"] = True, 0, False
             elif v["_PREV"] or v["_RUN"]:
+                now = clock.now_us
                 if not v["_RUN"]:  # falling edge of IN: start timing
                     v["_RUN"], v["_START"] = True, now
-                v["ET"] = min(now - v["_START"], v["PT"])
-                v["Q"] = v["ET"] < v["PT"]
+                et = v["ET"] = min(now - v["_START"], v["PT"])
+                v["Q"] = et < v["PT"]
             v["_PREV"] = v["IN"]
+        return tof
 
 
 TIMER_TYPES = {"TON": {"IN": "BOOL", "PT": "TIME", "Q": "BOOL", "ET": "TIME"},
@@ -575,6 +581,16 @@ def _ix(k: int, low: int, high: int, line: int) -> int:
     if not low <= k <= high:
         raise StError(f"line {line}: index {k} outside [{low}..{high}]")
     return k - low
+
+
+def _literal_int(node) -> int | None:
+    """The value of an integer literal node (or of a negated one), else None."""
+    if node[0] == "neg":
+        inner = _literal_int(node[2])
+        return None if inner is None else -inner
+    if node[0] == "lit" and isinstance(node[3], int) and not isinstance(node[3], bool):
+        return node[3]
+    return None
 
 
 def _chk(value: int, low: int, high: int, line: int) -> int:
@@ -629,23 +645,25 @@ class Program:
                 self.global_types[d.name] = d.type
                 self.global_decls.append(d)
         self.frames = {name: self._frame(pou) for name, pou in self.pous.items()}
-        # How each FB type runs: its translated body, or a native stand-in (set_native).
-        self.fbs: dict[str, Callable[[Instance, dict], None]] = {
-            k: t.call_with_globals for k, t in self.timers.items()}
+        # How each FB type runs, called as `run(instance variables, globals)`: its translated
+        # body, a standard timer, or a native stand-in (set_native).
+        self.fbs: dict[str, Callable[[dict, dict], None]] = {
+            k: t.runner() for k, t in self.timers.items()}
         self.code: dict[str, Callable[[dict, dict], None]] = {}
+        self._temps = 0  # index and overflow temporaries of the translated code
         for name in self.pous:
             self.code[name] = self._compile_pou(name)
-            self.fbs[name] = self._runner(name)
-
-    def _runner(self, name: str) -> Callable[[Instance, dict], None]:
-        code = self.code[name]
-        return lambda inst, g: code(inst.vars, g)
+            self.fbs[name] = self.code[name]
 
     def set_native(self, pou: str, fn: Callable[[Instance, dict], None]) -> None:
         """Run `fn(instance, globals)` instead of the FB's body (the test's stand-ins)."""
         if pou not in self.pous:
             raise KeyError(pou)
-        self.fbs[pou] = fn
+        self.fbs[pou] = lambda variables, g: fn(Instance(pou, variables), g)
+
+    def _temp(self) -> str:
+        self._temps += 1
+        return f"_k{self._temps}"
 
     # -- declarations ------------------------------------------------------------------------
     def _frame(self, pou: Pou) -> Frame:
@@ -774,7 +792,10 @@ class Program:
             low, high = INTS.get(t, (-TIME_MAX_US, TIME_MAX_US) if t == "TIME" else (0, 0))
             if t == ANY_INT:
                 return f"({a} {op} {b})", t
-            return f"_chk({a} {op} {b}, {low}, {high}, {line})", t
+            # in line, as _chk would (a call per sum costs more than the sum): _chk raises
+            k = self._temp()
+            return (f"({k} if {low} <= ({k} := {a} {op} {b}) <= {high} "
+                    f"else _chk({k}, {low}, {high}, {line}))"), t
         raise StError(f"line {line}: operator {op}")
 
     def _place(self, node, frame: Frame) -> tuple[str, TypeRef, bool]:
@@ -812,7 +833,14 @@ class Program:
             if ti not in (*INTS, ANY_INT):
                 raise StError(f"line {line}: index of type {ti}")
             low, high = base_type.array
-            return (f"{base}[_ix({index}, {low}, {high}, {line})]", TypeRef(base_type.name),
+            literal = _literal_int(node[3])
+            if literal is not None and low <= literal <= high:  # checked here, once
+                return f"{base}[{literal - low}]", TypeRef(base_type.name), writable
+            # in line, as _ix would (out of bounds, _ix raises at run time)
+            k = self._temp()
+            offset = k if low == 0 else f"{k} - {low}"
+            return (f"{base}[{offset} if {low} <= ({k} := {index}) <= {high} "
+                    f"else _ix({k}, {low}, {high}, {line})]", TypeRef(base_type.name),
                     writable)
         raise StError(f"line {line}: not a variable")
 
@@ -933,9 +961,9 @@ class Program:
             out.add(depth, f"{temp} = {value}")
             temps.append((key, temp))
         instance = out.temp()
-        out.add(depth, f"{instance} = {inst}")
+        out.add(depth, f"{instance} = {inst}.vars")
         for key, temp in temps:
-            out.add(depth, f"{instance}.vars[{key!r}] = {temp}")
+            out.add(depth, f"{instance}[{key!r}] = {temp}")
         out.add(depth, f"_fbs[{type_.name!r}]({instance}, g)")
 
 

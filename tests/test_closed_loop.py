@@ -118,6 +118,7 @@ def test_explored_runs_are_the_runs_of_a_fresh_engine(valve, explorers, seed):
                 got.final) == want, (key, fault, at)
 
 
+@pytest.mark.slow
 def test_the_sweep_gives_the_campaign_class_at_the_campaign_instants(valve, explorers):
     """Table 1's thirteen scenarios under FTC, run the campaign's way (40 s, Blocked = no cycle
     in the last 20 s) and as branches of the explored loop: the same class every time."""
@@ -152,6 +153,7 @@ def _row(text: str, config: str, fault: str) -> str:
                 if line.split()[:1] == [fault])
 
 
+@pytest.mark.slow
 def test_an_impossible_guard_moves_the_closed_loop_figures_not_the_diagram(tmp_path, valve):
     """The issue's complaint: `O and not O` into S5 left 000's figure untouched. The diagram's
     figure still cannot see it; the closed loop's does (F5 never isolated any more)."""
@@ -173,6 +175,7 @@ def test_an_impossible_guard_moves_the_closed_loop_figures_not_the_diagram(tmp_p
         analyse(broken.diagnosers[0]).certain_labels
 
 
+@pytest.mark.slow
 def test_masking_moves_the_closed_loop_figures(valve):
     """F5 and F6 are isolated when the diagnoser only observes (the order is held a full
     travel), never under FTC (the mask withdraws it first): {F2, F5} and {F4, F6} stay."""
@@ -188,6 +191,7 @@ def test_masking_moves_the_closed_loop_figures(valve):
     assert ftc < observed
 
 
+@pytest.mark.slow
 def test_the_improved_diagnoser_never_misdiagnoses_where_the_paper_one_does(valve):
     """Every fault every 500 ms of the cycle, observing only (the flags drive nothing, so the
     orders follow the program: the hardest case for a diagnoser)."""

@@ -24,6 +24,8 @@ from hmi.project.scenarios import scenarios_of
 from tests.conftest import PROJECTS, processes_for_a_test
 from tests.export_harness import Agreement, Twin, engine_for
 
+pytestmark = pytest.mark.slow  # a long study: tests/conftest.py, _studies_left_out
+
 LONG_US = 30_000_000  # the faulty programs' runs
 # A campaign run is compared up to this long after its fault, not to the campaign's end: on
 # the valve's 48 runs, the last new situation (every Boolean of the image, the violations,

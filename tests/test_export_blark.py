@@ -23,6 +23,8 @@ from hmi.export.st import write_st
 from hmi.project.loader import load_project
 from tests.conftest import PROJECTS
 
+pytestmark = pytest.mark.slow  # a long study: tests/conftest.py, _studies_left_out
+
 REQUIRED = ("cispi_valve", "conveyor_robot", "sorting")
 
 

@@ -50,6 +50,7 @@ def loop(request):
     return request.param, abstraction(ex.graph), faults_of(project)
 
 
+@pytest.mark.slow
 def test_the_export_is_a_live_faudes_generator_without_silent_cycles(loop):
     _, gen, faults = loop
     system = to_faudes(gen)
@@ -59,6 +60,7 @@ def test_the_export_is_a_live_faudes_generator_without_silent_cycles(loop):
     assert sources == set(range(gen.states))  # every state has a successor
 
 
+@pytest.mark.slow
 def test_faudes_and_the_project_agree_fault_by_fault(loop):
     config, gen, faults = loop
     verdicts = {f: diagnosable(gen, {f: {f}}) for f in faults}
@@ -72,6 +74,7 @@ def test_faudes_and_the_project_agree_fault_by_fault(loop):
         assert yes == {"F7", "F8", "F9", "F10", "F11", "F12"}
 
 
+@pytest.mark.slow
 def test_faudes_and_the_project_agree_pair_by_pair(loop):
     _, gen, faults = loop
     disagree = []

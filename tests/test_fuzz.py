@@ -218,6 +218,7 @@ def mutated_project(draw) -> tuple[str, dict[str, bytes]]:
     return name, changed
 
 
+@pytest.mark.slow
 @budget(ci_examples=100)
 @given(case=mutated_project())
 def test_mutated_projects(case, capsys):
@@ -278,6 +279,7 @@ NAMESPACE = {"a": "input", "b": "input", "Y": "output", "Z": "output", "T1": "ti
 SLOTS = {name: k for k, name in enumerate(NAMESPACE)}
 
 
+@pytest.mark.slow
 @budget(ci_examples=600)
 @given(text=expressions())
 def test_generated_expressions(text):
@@ -304,6 +306,7 @@ def test_generated_expressions(text):
         assert fn(image, history) in (True, False)
 
 
+@pytest.mark.slow
 @budget(ci_examples=100)
 @given(text=expressions(), where=st.sampled_from(["equation", "constraint", "timer"]))
 def test_generated_expressions_in_a_project(text, where, capsys):
@@ -393,6 +396,7 @@ def command_line(draw, tmp: Path) -> list[str]:
     return args
 
 
+@pytest.mark.slow
 @budget(ci_examples=150)
 @given(data=st.data())
 def test_command_lines(data, capsys):
@@ -443,6 +447,7 @@ def journal_line(draw) -> bytes:
                                                         "\x07\x08"]))}).encode()
 
 
+@pytest.mark.slow
 @budget(ci_examples=150)
 @given(lines=st.lists(journal_line(), max_size=12), newline_at_end=st.booleans(),
        since=st.sampled_from([None, "1h", "0001-01-01", "2026-11-22T15:00"]),

@@ -2,8 +2,9 @@
 invariants checked after every step — a bounded part of it in CI, the failing step lists of
 the past as regressions, and proof that each invariant can fail.
 
-The CI budget: every example project x {normal, faulty} for 20 steps each (about five
-seconds of CPU each on this machine; the whole file about a minute). `plchmi soak PROJECT
+The CI budget: every example project x {normal, faulty} for 20 steps each (2-4 CPU s each
+on this machine), a long study (marked slow: `.ci/run` runs it in its second step, the
+everyday run leaves it out, like the same-seed and shrinking checks). `plchmi soak PROJECT
 --minutes 30` runs as long as asked.
 """
 
@@ -35,6 +36,7 @@ def soak(config: SoakConfig, replay=None):
     return asyncio.run(session(config, replay))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("project", "control"), EXAMPLES,
                          ids=[f"{p}-{c}" for p, c in EXAMPLES])
 def test_every_example_keeps_its_invariants(project, control):
@@ -60,6 +62,7 @@ def test_failing_step_lists_of_the_past_pass(name):
     assert len(result.steps) == len(steps) and result.skipped == 0
 
 
+@pytest.mark.slow
 def test_the_same_seed_gives_the_same_session():
     config = SoakConfig(PROJECTS / "cispi_valve", "faulty", (80, 24), 10.0, 7, 12)
     first, second = soak(config), soak(config)
@@ -131,6 +134,7 @@ def test_a_transition_missing_from_the_journal_is_caught(monkeypatch):
     assert result.broken and result.broken[0].invariant == "transition-not-journalled"
 
 
+@pytest.mark.slow
 def test_an_ui_error_is_caught_and_shrunk(monkeypatch):
     """A panel that fails in manual mode; 12 steps of which two matter: the shrinker finds
     them (the error is contained by the app, and still a broken invariant for the soak)."""

@@ -117,6 +117,17 @@ def test_run_time_errors_are_reported():
         run("n := 32767; n := n + 1;")
     with pytest.raises(StError, match="outside"):
         run("a[n + 3] := TRUE;", "a : ARRAY[0..2] OF BOOL;")
+    with pytest.raises(StError, match=r"index 3 outside \[0\.\.2\]"):  # a literal index too
+        run("a[3] := TRUE;", "a : ARRAY[0..2] OF BOOL;")
+    with pytest.raises(StError, match=r"index 0 outside \[1\.\.3\]"):
+        run("n := a[n];", "a : ARRAY[1..3] OF INT;")
+
+
+def test_arrays_with_a_lower_bound_hold_each_element_where_it_is_indexed():
+    rt = run("a[1] := 5; a[n + 2] := 6; a[3] := a[1] + a[2]; n := a[n + 3];",
+             "a : ARRAY[1..3] OF INT;")
+    assert rt.get("n") == 11
+    assert rt.get("P.a") == [5, 6, 11]
 
 
 def test_a_syntax_error_names_its_line():

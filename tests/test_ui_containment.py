@@ -112,7 +112,7 @@ async def test_errors_in_handlers_actions_dialogs_palette_and_drawing_are_contai
         await settle(pilot)
         assert app.containment.latest.what == "ConstraintsPanel on_click"
         # the answer to a dialog
-        monkeypatch.setattr(PlcHmiApp, "_confirmed", boom)
+        monkeypatch.setattr(PlcHmiApp, "_reset_if_unchanged", boom)
         await press(pilot, "r")
         await wait_for_screen(pilot, ConfirmDialog)
         await press(pilot, "y")

@@ -167,9 +167,22 @@ class Session:
                     result = self._alarm_note(command)
                 case _:
                     result = self.engine.apply(command)
-            for listener in self.listeners:
-                listener(command, result, self.last)
+            self._tell(command, result)
             return result
+
+    def decline(self, command: Command, why: str) -> CommandResult:
+        """An operator's confirmation not carried out: the dialog's promise had changed under
+        it (hmi.ui.reset.changes). Refused, and told to the listeners like any command, so
+        the journal says what the operator did and why nothing happened."""
+        with self.lock:
+            self.origin = ""
+            result = CommandResult.refused(why)
+            self._tell(command, result)
+            return result
+
+    def _tell(self, command: Command, result: CommandResult) -> None:
+        for listener in self.listeners:
+            listener(command, result, self.last)
 
     def _acknowledge(self, key: str | None) -> CommandResult:
         engine = self.engine

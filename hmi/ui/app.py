@@ -59,6 +59,7 @@ from hmi.engine.commands import (
     describe,
 )
 from hmi.engine.scan import Engine
+from hmi.engine.snapshot import Snapshot
 from hmi.explain.model import Policy
 from hmi.project.diagnosers import diagnosers_of
 from hmi.project.injection import Injection
@@ -90,7 +91,15 @@ from hmi.ui.messages import CommandRequested, ExplainRequested
 from hmi.ui.monitors_panel import MonitorsPanel
 from hmi.ui.panel import TOP_SHARE, ColumnPanel
 from hmi.ui.recorder import ScanRecorder
-from hmi.ui.reset import ResetLine, recovery_lines, reset_preview
+from hmi.ui.reset import (
+    Asked,
+    ResetLine,
+    changes,
+    recovery_lines,
+    reset_line,
+    reset_lines,
+    reset_preview,
+)
 from hmi.ui.serving import Served, serving_lines
 from hmi.ui.sim_panel import SimPanel
 from hmi.ui.status import BannerStrip, StatusBar
@@ -593,29 +602,46 @@ class PlcHmiApp(ContainedPump, App):
     def on_policy_requested(self, message: PolicyRequested) -> None:
         self.choose_policy(message.key, message.policy)
 
-    def choose_policy(self, key: str, policy: Policy) -> None:
+    def choose_policy(self, key: str, policy: Policy,
+                      asked: Asked | None = None) -> None:
         """A policy button (or its palette entry): confirmed if it changes what the plant
-        does, then sent as ChoosePolicy; its answer is shown in the panel at once."""
+        does, then sent as ChoosePolicy; its answer is shown in the panel at once. A fault
+        reset's is sent only if it still does what its dialog said (`asked`: the dialog the
+        operator confirmed before, when asked again; see :meth:`_reset_if_unchanged`)."""
         from hmi.ui.dialogs import ConfirmDialog
         if policy.command is None:
             self._choose(key, policy, True)
             return
-        title, lines, level = self._policy_confirmation(key, policy)
+        snap = self.controller.last
+        shown = reset_preview(snap) if snap and isinstance(policy.command, FaultReset) \
+            else None
+        title, lines, level = self._policy_confirmation(key, policy, snap, asked)
+
+        def answered(yes: bool | None) -> None:
+            if yes and shown is not None and snap is not None:
+                result = self._reset_if_unchanged(
+                    ChoosePolicy(key, policy.id), shown, snap,
+                    partial(self.choose_policy, key, policy))
+                if result is not None:
+                    self._said(key, policy, result)
+            else:
+                self._choose(key, policy, yes)
         self.push_screen(ConfirmDialog(title, lines, policy.label, level=level,
-                                       dialog_id="policy-choice"),
-                         partial(self._choose, key, policy))
+                                       dialog_id="policy-choice"), answered)
 
     def _choose(self, key: str, policy: Policy, yes: bool | None) -> None:
         if not yes:
             self.message.say(Text(f"cancelled: {policy.label} for {key}", style=MUTED))
             return
-        result = self.send(ChoosePolicy(key, policy.id))
+        self._said(key, policy, self.send(ChoosePolicy(key, policy.id)))
+
+    def _said(self, key: str, policy: Policy, result: CommandResult) -> None:
         self.explanation_panel.say_result(key, result_line(key, policy, result.accepted,
                                                            result.message))
 
-    def _policy_confirmation(self, key: str, policy: Policy
+    def _policy_confirmation(self, key: str, policy: Policy, snap: Snapshot | None,
+                             asked: Asked | None = None
                              ) -> tuple[str, list[Text | str], Level]:
-        snap = self.controller.last
         explanation = next((e for e in snap.explanations if e.key == key), None) \
             if snap else None
         lines: list[Text | str] = []
@@ -626,7 +652,7 @@ class PlcHmiApp(ContainedPump, App):
         level = Level.ATTENTION
         match policy.command:
             case FaultReset():
-                lines += self._reset_lines(snap) if snap else []
+                lines += reset_lines(snap, asked) if snap else []
             case SetMode(manual=True):
                 lines += self._manual_lines(snap) if snap else []
             case SetMode(manual=False):
@@ -654,7 +680,10 @@ class PlcHmiApp(ContainedPump, App):
     # -- sending commands --------------------------------------------------------------------
     def send(self, command: Command) -> CommandResult:
         """The one place operator actions leave the UI: through ``Session.command``."""
-        result = self.controller.command(command)
+        return self._sent(command, self.controller.command(command))
+
+    def _sent(self, command: Command, result: CommandResult) -> CommandResult:
+        """What the UI makes of a command's answer: the message line, the commanded mode."""
         what = describe(command)
         text = result_text(what, result)
         match command:
@@ -879,22 +908,53 @@ class PlcHmiApp(ContainedPump, App):
     def action_manual_request(self, name: str, value: bool | None) -> None:
         self.send(ManualOutput(name, value))
 
-    def action_reset(self) -> None:
+    def action_reset(self, asked: Asked | None = None) -> None:
+        """The fault reset dialog: what the reset would do as of the last scan; y carries it
+        out only if it still does that (`asked`: the dialog the operator confirmed before,
+        when asked again; see :meth:`_reset_if_unchanged`)."""
         from hmi.ui.dialogs import ConfirmDialog
         snap = self.controller.last
         if snap is None:
             return
-        recovery = next((line.recovery for line in reset_preview(snap) if line.recovery), "")
+        shown = reset_preview(snap)
+        recovery = next((line.recovery for line in shown if line.recovery), "")
 
         def answered(answer: bool | str | None) -> None:
             if answer == "alternative":
                 self.start_recovery(recovery)
+            elif answer:
+                self._reset_if_unchanged(FaultReset(), shown, snap, self.action_reset)
             else:
-                self._confirmed(FaultReset(), bool(answer))
-        self.push_screen(ConfirmDialog("Fault reset?", self._reset_lines(snap), "Reset",
-                                       dialog_id="reset-dialog",
+                self._confirmed(FaultReset(), False)
+        self.push_screen(ConfirmDialog("Fault reset?", reset_lines(snap, asked),
+                                       "Reset", dialog_id="reset-dialog",
                                        alternative="Start recovery" if recovery else None),
                          answered)
+
+    def _reset_if_unchanged(self, command: Command, shown: list[ResetLine], seen: Snapshot,
+                            ask_again: Callable[[Asked], None]
+                            ) -> CommandResult | None:
+        """A fault reset confirmed on the preview `shown` (as of `seen`): carried out only if
+        the reset still does what that preview said, checked under the session's lock so no
+        scan comes between the check and the reset. Otherwise nothing is done, the journal
+        says so (Session.decline), and the operator is asked again (`ask_again`) with what
+        changed first; None then."""
+        controller = self.controller
+        with controller.lock:
+            now = controller.last
+            gone, new = changes(shown, reset_preview(now) if now is not None else [])
+            result = controller.command(command) if not gone and not new else None
+        if result is not None:  # (the UI's work on it done without the scan waiting)
+            return self._sent(command, result)
+        scan = now.scan if now is not None else seen.scan
+        told = "; ".join([*(f"was: {reset_line(line).plain}" for line in gone),
+                          *(f"now: {reset_line(line).plain}" for line in new)])
+        self._sent(command, controller.decline(
+            command, f"not done, asked again: what it would do changed while its dialog "
+                     f"was open (scan {seen.scan} to {scan}): {told}"))
+        # (once the dialog answered is gone: the new one takes its place and its id)
+        self.call_later(ask_again, Asked(tuple(shown), seen.scan, seen.time_us))
+        return None
 
     # -- shelving and comments (hmi.explain.alarms) --------------------------------------------
     def shelve(self, key: str | None = None) -> None:
@@ -966,17 +1026,6 @@ class PlcHmiApp(ContainedPump, App):
         self.push_screen(ConfirmDialog("Leave recovery mode?", lines, "Leave recovery",
                                        dialog_id="recovery-dialog"),
                          partial(self._confirmed, EndRecovery()))
-
-    @staticmethod
-    def _reset_lines(snap) -> list[Text | str]:
-        """What a reset would release and what stays, as of `snap` (see hmi.ui.reset)."""
-        lines: list[Text | str] = [reset_line(line) for line in reset_preview(snap)]
-        if not lines:
-            lines.append(Text("Nothing is latched: the reset will change nothing.",
-                              style=MUTED))
-        lines.append(Text(f"(as of scan {snap.scan}, t = {seconds(snap.time_us)} s; the cell "
-                          "keeps running while this dialog is open)", style=MUTED))
-        return lines
 
     def action_ack(self) -> None:
         key = self.alarm_list.selected
@@ -1236,20 +1285,6 @@ class PlcHmiApp(ContainedPump, App):
 
 
 _ACTION_NAMES = {a.action for a in ACTIONS}
-
-
-def reset_line(line: ResetLine) -> Text:
-    """One line of the fault reset dialog: will be reset, or stays and why."""
-    if line.resets:
-        text = Text(f"{OK_SYMBOL} will be reset: {line.what}")
-    else:
-        text = tag("stays", Level.ATTENTION)
-        text.append(f": {line.what}")
-        if line.why:
-            text.append(f" — {line.why}")
-    if line.note:
-        text.append(f" ({line.note})", style=MUTED)
-    return text
 
 
 @dataclass(frozen=True)

@@ -9,6 +9,12 @@ to: devices the operator stopped (released from the palette).
 
 Each feature that latches something adds a *preview* function to :data:`PREVIEWS`; the
 dialog shows the lines of all of them. A preview only reads the snapshot.
+
+The cell keeps running while the dialog is open, so what the operator read can stop being
+true before they confirm (a valve moving on: the diagnoser would now re-synchronise to
+another state, or not at all). :func:`changes` compares what was shown with what the reset
+would do now; the app checks it at the confirmation and, if anything changed, does nothing,
+shows what changed and asks again (PlcHmiApp.confirm_reset).
 """
 
 from __future__ import annotations
@@ -16,10 +22,13 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
+from rich.text import Text
+
 from hmi.engine.snapshot import LatchReason, Snapshot
 from hmi.project.model import Project
 from hmi.project.recovery import RecoveryProcedure
 from hmi.timefmt import seconds
+from hmi.ui.style import MUTED, OK_SYMBOL, Level, tag
 
 
 @dataclass(frozen=True)
@@ -29,6 +38,15 @@ class ResetLine:
     why: str = ""  # for a line that stays: why (its cause still present...)
     note: str = ""  # anything else the operator should know about it
     recovery: str = ""  # the recovery procedure that would let it reset (offered)
+    target: str = ""  # a diagnoser's: the normal state the reset re-synchronises it to
+
+    @property
+    def promise(self) -> tuple[str, bool, str, str]:
+        """What this line promises the operator: the thing, whether it is released, where a
+        diagnoser goes, the recovery offered; not the figures that move while none of that
+        changes (a running task's x, the values a resync reads, which constraint is violated
+        now)."""
+        return self.what, self.resets, self.target, self.recovery
 
 
 ResetPreview = Callable[[Snapshot], Iterable[ResetLine]]
@@ -84,7 +102,7 @@ def diagnoser_preview(snap: Snapshot) -> Iterable[ResetLine]:
         what = (f"diagnoser {d.name} in {d.state} {{{', '.join(d.labels)}}} and its flags "
                 f"(since {seconds(d.since_us)} s)")
         if d.resync:
-            yield ResetLine(what, resets=True,
+            yield ResetLine(what, resets=True, target=d.resync,
                             note=f"re-synchronised to {d.resync} on {d.resync_values}")
             continue
         procedures = [p for p in snap.recovery.procedures if d.device in p[3]]
@@ -186,3 +204,68 @@ def reset_preview(snap: Snapshot) -> list[ResetLine]:
     """Every line the registered previews give for this snapshot, resets first."""
     lines = [line for preview in PREVIEWS for line in preview(snap)]
     return sorted(lines, key=lambda line: not line.resets)
+
+
+def changes(shown: list[ResetLine], now: list[ResetLine]
+            ) -> tuple[list[ResetLine], list[ResetLine]]:
+    """What the operator was shown that no longer holds, and what holds now that they were
+    not shown (each by its promise; both empty: the reset does what they read)."""
+    before = {line.promise for line in shown}
+    after = {line.promise for line in now}
+    return ([line for line in shown if line.promise not in after],
+            [line for line in now if line.promise not in before])
+
+
+@dataclass(frozen=True)
+class Asked:
+    """A fault reset dialog the operator confirmed after the cell had moved: what it showed,
+    as of which scan. The dialog asked again starts with what changed since."""
+
+    shown: tuple[ResetLine, ...]
+    scan: int
+    time_us: int
+
+
+def reset_line(line: ResetLine) -> Text:
+    """One line of the fault reset dialog: will be reset, or stays and why."""
+    if line.resets:
+        text = Text(f"{OK_SYMBOL} will be reset: {line.what}")
+    else:
+        text = tag("stays", Level.ATTENTION)
+        text.append(f": {line.what}")
+        if line.why:
+            text.append(f" — {line.why}")
+    if line.note:
+        text.append(f" ({line.note})", style=MUTED)
+    return text
+
+
+def reset_lines(snap: Snapshot, asked: Asked | None = None) -> list[Text | str]:
+    """The fault reset dialog's lines: what a reset would release and what stays, as of
+    `snap`. Asked again (`asked`), first that nothing was done and what no longer holds, then
+    the lines, those that changed since marked."""
+    now = reset_preview(snap)
+    lines: list[Text | str] = []
+    fresh: set[tuple[str, bool, str, str]] = set()
+    if asked is not None:
+        gone, new = changes(list(asked.shown), now)
+        fresh = {line.promise for line in new}
+        head = tag("CHANGED", Level.ATTENTION)
+        head.append(f" The cell moved since you read this (scan {asked.scan}, t = "
+                    f"{seconds(asked.time_us)} s): nothing was done.")
+        lines.append(head)
+        lines += [Text("  no longer: ", style=MUTED) + reset_line(line) for line in gone]
+        if not asked.shown:
+            lines.append(Text("  no longer: nothing latched, the reset changing nothing",
+                              style=MUTED))
+        lines.append(Text("What the reset would do now" + (" (► changed):" if fresh else ":"),
+                          style="bold"))
+    for line in now:
+        shown = reset_line(line)
+        lines.append(Text("► ", style="bold") + shown if line.promise in fresh
+                     else Text("  ") + shown if asked is not None else shown)
+    if not now:
+        lines.append(Text("Nothing is latched: the reset will change nothing.", style=MUTED))
+    lines.append(Text(f"(as of scan {snap.scan}, t = {seconds(snap.time_us)} s; the cell "
+                      "keeps running while this dialog is open)", style=MUTED))
+    return lines
