@@ -136,10 +136,15 @@ class CompiledScan:
                          f"({self._expr(o.set.root)} or v[{slot}])")
         grafcet = control.grafcet
         if grafcet is not None and grafcet.time_slots:
-            src.line(1, f"a = {src.ref(grafcet)}.activated_at")
-            for name, slot in grafcet.time_slots.items():
-                src.line(1, f"x = a.get({src.ref(name)})")
-                src.line(1, f"v[{int(slot)}] = 0 if x is None else now - x")
+            # only the active steps' times move (GrafcetRuntime.timed); all of them after a
+            # reset or a restored state
+            g = src.ref(grafcet)
+            src.line(1, f"a = {g}.timed")
+            src.line(1, "if a is None:")
+            src.line(2, f"{g}.update_times(v, now)")
+            src.line(1, "else:")
+            src.line(2, "for s, x in a:")
+            src.line(3, "v[s] = now - x")
 
     def _diagnosis(self, src: Source, stage: DiagnosisStage) -> None:
         """Stage 3's common case inline: no gap, nothing dirty, and per diagnoser whether a
@@ -218,13 +223,13 @@ class CompiledScan:
         grafcet = control.grafcet
         if grafcet is not None:
             g = src.ref(grafcet)
-            src.line(1, "fire = []")
-            for k, (sources, _, _) in enumerate(grafcet.transitions):
+            src.line(1, "fire = ()")  # (a tuple grown only when a transition fires: no list
+            for k, (sources, _, _) in enumerate(grafcet.transitions):  # built at every scan)
                 tr = grafcet.grafcet.transitions[k]
                 cond = " and ".join([f"v[{int(s)}]" for s in sources]
                                     + [self._expr(tr.receptivity.root)])
                 src.line(1, f"if {cond}:")
-                src.line(2, f"fire.append({k})")
+                src.line(2, f"fire += ({k},)")
             src.line(1, "if fire:")
             src.line(2, f"{g}.fire(fire, v, now)")
             src.line(1, "else:")

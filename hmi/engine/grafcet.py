@@ -14,7 +14,7 @@ Interpretation, documented in docs/grafcet.md:
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 from hmi.logic.expr import BoolFn, History, Image, Node, compile_bool
 from hmi.project.model import Grafcet
@@ -50,6 +50,12 @@ class GrafcetRuntime:
                         (slots[action.target], action.kind == "S"))
         self.driven = sorted({target for _, target, _ in self.continuous})
         self.activated_at: dict[str, int] = {}
+        # (time slot, activated at) of each active step, for the compiled scan's stage 2: an
+        # inactive step's time slot is 0 and stays 0 until it is activated (fire writes 0 in
+        # the slots of the steps it deactivates), so only the active steps' slots move. None
+        # when the image's time slots may not say so (a reset leaves the time of a step it
+        # deactivates in the image; a restored state): update_times writes them all then.
+        self.timed: tuple[tuple[int, int], ...] | None = None
         self.fired: tuple[int, ...] = ()
         self._active: tuple[str, ...] | None = None  # cache of active(), None: to compute
 
@@ -57,6 +63,7 @@ class GrafcetRuntime:
         for name, slot in self.step_slots.items():
             image[slot] = name in self.initial
         self.activated_at = dict.fromkeys(self.initial, now)
+        self.timed = None
         self._active = None
         for name in self.initial:
             self._stored(image, name)
@@ -65,6 +72,13 @@ class GrafcetRuntime:
         for name, slot in self.time_slots.items():
             since = self.activated_at.get(name)
             image[slot] = 0 if since is None else now - since
+        self._timed()
+
+    def _timed(self) -> None:
+        """The active steps' (time slot, activation time), in the image's time slots' state
+        after update_times or fire (see `timed`)."""
+        slots = self.time_slots
+        self.timed = tuple((slots[name], since) for name, since in self.activated_at.items())
 
     def evolve(self, image: Image, history: History, now: int) -> tuple[int, ...]:
         """Fire every fireable transition at once; return the numbers of those fired."""
@@ -81,7 +95,7 @@ class GrafcetRuntime:
             return ()
         return self.fire(fire, image, now)
 
-    def fire(self, fire: list[int], image: Image, now: int) -> tuple[int, ...]:
+    def fire(self, fire: Sequence[int], image: Image, now: int) -> tuple[int, ...]:
         """Fire the transitions `fire` (indices, in order) together; the compiled scan
         (hmi.engine.compiled) finds them itself and calls this only when there are some."""
         deactivate: set[str] = set()
@@ -101,6 +115,8 @@ class GrafcetRuntime:
             self._stored(image, name)
         self.fired = tuple(self.transition_numbers[i] for i in fire)
         self._active = None
+        if self.timed is not None:  # (else the image's times are not all settled yet)
+            self._timed()
         return self.fired
 
     def _stored(self, image: Image, step: str) -> None:
@@ -125,3 +141,4 @@ class GrafcetRuntime:
     def forget_active(self) -> None:
         """The steps in the image were changed from outside (a restored state)."""
         self._active = None
+        self.timed = None
