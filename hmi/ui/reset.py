@@ -14,7 +14,7 @@ The cell keeps running while the dialog is open, so what the operator read can s
 true before they confirm (a valve moving on: the diagnoser would now re-synchronise to
 another state, or not at all). :func:`changes` compares what was shown with what the reset
 would do now; the app checks it at the confirmation and, if anything changed, does nothing,
-shows what changed and asks again (PlcHmiApp.confirm_reset).
+shows what changed and asks again (PlcHmiApp._reset_if_unchanged).
 """
 
 from __future__ import annotations
