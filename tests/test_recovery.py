@@ -278,6 +278,9 @@ async def test_the_operator_finds_the_way_back_from_f13_through_the_reset_dialog
         assert "Start recovery: Close valve V1" in text and "Only C move" in text
         await press(pilot, "y")
         await wait_for_main(pilot)
+        # the message line names the procedure by its title, not by its identifier
+        assert "start recovery" in app.message.plain and "V1_close" not in app.message.plain
+        assert "Close valve V1" in app.message.plain
         await run_for(pilot, 0.5)
         assert "RECOVERY" in region_text(app, "#status")
         assert "▲ RECOVERY ▲" in region_text(app, "#banners")

@@ -104,6 +104,10 @@ async def test_acknowledge_the_selected_alarm_with_a():
         await settle(pilot)
         assert alarms(app)[selected] == ACTIVE_ACK
         assert "acknowledged 1 alarm" in app.message.plain
+        # named as the alarm list names it, not by its key (constraint:CSs…)
+        text = next(a.text for a in app.controller.last.alarms if a.key == selected)
+        assert f"acknowledged 1 alarm: {text}"[:60] in app.message.plain
+        assert selected not in app.message.plain
         await run_for(pilot, 0.01)
         assert "● ACK" in region_text(app, "#alarms")
 
@@ -331,7 +335,7 @@ async def test_policy_without_a_command_is_chosen_at_once():
         assert len(app.screen_stack) == 1  # no confirmation: nothing changes in the plant
         assert type(seen[-1]).__name__ == "ChoosePolicy" and seen[-1].policy == "continue"
         assert "✓ Continue chosen: let the filter keep correcting" in flat(app, "#explain")
-        assert "chosen" in app.message.plain
+        assert "chosen" in app.message.plain and key not in app.message.plain
 
 
 async def test_policy_fault_reset_is_confirmed_with_the_reset_preview():

@@ -86,7 +86,7 @@ from hmi.ui.footer import HmiFooter
 from hmi.ui.frame import Frame, InjectedFault
 from hmi.ui.grafcet_panel import GrafcetPanel, StepInfo, TimerInfo
 from hmi.ui.io_panel import IOPanel
-from hmi.ui.message_line import MessageLine, result_text, verdict_text
+from hmi.ui.message_line import MessageLine, result_text, spoken, verdict_text
 from hmi.ui.messages import CommandRequested, ExplainRequested
 from hmi.ui.monitors_panel import MonitorsPanel
 from hmi.ui.panel import TOP_SHARE, ColumnPanel
@@ -631,7 +631,8 @@ class PlcHmiApp(ContainedPump, App):
 
     def _choose(self, key: str, policy: Policy, yes: bool | None) -> None:
         if not yes:
-            self.message.say(Text(f"cancelled: {policy.label} for {key}", style=MUTED))
+            self.message.say(Text(f"cancelled: {policy.label} — {self._situation_text(key)}",
+                                  style=MUTED))
             return
         self._said(key, policy, self.send(ChoosePolicy(key, policy.id)))
 
@@ -685,7 +686,8 @@ class PlcHmiApp(ContainedPump, App):
     def _sent(self, command: Command, result: CommandResult) -> CommandResult:
         """What the UI makes of a command's answer: the message line, the commanded mode."""
         what = describe(command)
-        text = result_text(what, result)
+        said, answer = spoken(command, result, self._situation_text)
+        text = result_text(said, result, answer)
         match command:
             case Pause() | Resume():
                 self._stepping = False
@@ -725,6 +727,22 @@ class PlcHmiApp(ContainedPump, App):
         self.message.say(text)
         self.poll(force=True)
         return result
+
+    def _situation_text(self, key: str) -> str:
+        """A situation as the operator reads it in the alarm list (its one-line text), for
+        the message line; its key where nothing shows it any more."""
+        snap = self.controller.last
+        if snap is not None:
+            for alarm in snap.alarms:
+                if alarm.key == key:
+                    return alarm.text
+            for alarm, _shelf in snap.shelved:
+                if alarm.key == key:
+                    return alarm.text
+            for explanation in snap.explanations:
+                if explanation.key == key:
+                    return explanation.what
+        return key
 
     def on_command_requested(self, message: CommandRequested) -> None:
         self.send(message.command)

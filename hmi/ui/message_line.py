@@ -7,18 +7,53 @@ whether the value written to the plant is the one requested, and if not, why.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from rich.text import Text
 
-from hmi.engine.commands import CommandResult
+from hmi.engine.commands import (
+    Acknowledge,
+    ChoosePolicy,
+    Command,
+    CommandResult,
+    CommentAlarm,
+    Shelve,
+    StartRecovery,
+    Unshelve,
+    describe,
+)
 from hmi.ui.panel import TextPanel
 from hmi.ui.style import OK_SYMBOL, Level, tag
 
 
-def result_text(what: str, result: CommandResult) -> Text:
+def spoken(command: Command, result: CommandResult,
+           text_of: Callable[[str], str]) -> tuple[str, str]:
+    """(what, answer) as the operator reads them. The journal keeps the commands' stable
+    identifiers (``describe``: "acknowledge alarm constraint:CSs2", "start recovery
+    V1_close"); the message line names a situation by its text, as the alarm list does
+    (`text_of`: a situation's key -> its one-line text), and leaves out what the answer
+    already says in plain words (the recovery's title, the policy's label)."""
+    what, message = describe(command), result.message
+    match command:
+        case ChoosePolicy(key=key):  # "policy 'Continue' chosen for KEY: ...": the panel
+            return "policy", message.replace(f" for {key}", "", 1)  # shows the subject
+        case Acknowledge(key=str() as key) if result.accepted:
+            return "acknowledged", f"{message}: {text_of(key)}"
+        case StartRecovery():  # the answer names the procedure by its title
+            return "start recovery", message
+        case Acknowledge(key=str() as key) | Shelve(key=key) | Unshelve(key=key) \
+                | CommentAlarm(key=key):
+            named = f"“{text_of(key)}”"
+            return what.replace(key, named), message.replace(key, named)
+    return what, message
+
+
+def result_text(what: str, result: CommandResult, message: str | None = None) -> Text:
     """'✓ fault reset: nothing was latched'; the command's words once, not twice when the
     answer already starts with them ('fault reset: fault reset: ...', 'speed: x1: speed:
-    x1')."""
-    message = result.message
+    x1'). `message`: the answer as the operator reads it (:func:`spoken`), if not the
+    command's own."""
+    message = result.message if message is None else message
     said = message.lower().startswith(what.lower())
     body = message if said else f"{what}: {message}"
     if result.accepted:
