@@ -10,8 +10,10 @@ and keeps what it returns. No stage reaches back into the engine: the filter ret
 decision and the engine latches, the diagnosers return their routes and mask and the engine
 passes them on.
 
-The engine never reads a clock: :meth:`Engine.step` is given the scan's time. Everything it
-computes lands in an immutable :class:`Snapshot`. The engine knows nothing of any UI.
+The engine never reads a clock for what it decides: :meth:`Engine.step` is given the scan's
+time. It only measures how long its scans take in wall time, for the people watching a live
+run (:attr:`Engine.wall_times`). Everything it computes lands in an immutable
+:class:`Snapshot`. The engine knows nothing of any UI.
 """
 
 from __future__ import annotations
@@ -179,6 +181,12 @@ class Engine:
         self._elapsed = (self.compiled.elapsed if self.compiled is not None
                          else self.memory.elapsed)
         self._clean = self.filter_stage.clean  # each policy's report of a clean scan
+        # Whether scans measure their wall time (Snapshot.scan_wall_us, filter_wall_us): the
+        # HMI's status bar and OPC UA show the scan's, the filter benches read the filter's.
+        # Nothing decided reads them; a headless run in virtual time, where nobody watches
+        # them, turns this off (Session.run_for) and saves four clock reads a scan; they
+        # are 0.0 then.
+        self.wall_times = True
 
     # -- commands ----------------------------------------------------------------------------
     def apply(self, command: Command) -> CommandResult:
@@ -491,7 +499,8 @@ class Engine:
         firings, timers, plant state and counters, monitors' stopwatches, wall times; a
         reader that counts reports per scan counts the same report again
         (hmi.report.RunCollector.quiet)."""
-        wall = time.perf_counter()
+        timed = self.wall_times
+        wall = time.perf_counter() if timed else 0.0
         self._pending = None  # the previous scan's snapshot, if never asked for: dropped
         fast = self.compiled
         if fast is not None and self.started and self.mode == "auto" and not self._stop_mask:
@@ -563,7 +572,7 @@ class Engine:
             self._news = (report, status, diagnosers, marks, recovery)
         self._commanded = False
         self._pending = (cycle, values, diagnosers, marks, events, recovery,
-                         (time.perf_counter() - wall) * 1e6)
+                         (time.perf_counter() - wall) * 1e6 if timed else 0.0)
         return news
 
     def run_while_quiet(self, start: int, end: int, period: int) -> tuple[int, bool]:
@@ -741,9 +750,11 @@ class Engine:
             policy = self.policy
             if self.mode == "recovery" and policy == "monitor":
                 policy = "correct"
-            started = time.perf_counter()
+            timed = self.wall_times
+            started = time.perf_counter() if timed else 0.0
             decision = filter_stage.apply(image, hist, fov, policy, bool(self.latched), mask)
-            filter_us = (time.perf_counter() - started) * 1e6
+            if timed:
+                filter_us = (time.perf_counter() - started) * 1e6
             if decision.latch is not None:
                 self.latch_safe("filter", decision.latch)
             outputs = decision.outputs
@@ -791,11 +802,13 @@ class Engine:
             mask = diagnosis.mask
             # 6. filter: given without its work when nothing is masked, latched nor violated
             policy = self.policy
-            started = time.perf_counter()
+            timed = self.wall_times
+            started = time.perf_counter() if timed else 0.0
             if mask is None and not self.latched:
                 if not fast.violated(image, hist, fov):
                     report = self._clean[policy]
-                    filter_us = (time.perf_counter() - started) * 1e6
+                    if timed:
+                        filter_us = (time.perf_counter() - started) * 1e6
                     monitored, error = self._output_scan(now, fov, None, fast)
                     return fov, fov, report, diagnosis, monitored, error, filter_us
                 # violated, nothing masked: what FilterStage.apply would hand the filter
@@ -803,7 +816,8 @@ class Engine:
             else:
                 decision = self.filter_stage.apply(image, hist, fov, policy,
                                                    bool(self.latched), mask)
-            filter_us = (time.perf_counter() - started) * 1e6
+            if timed:
+                filter_us = (time.perf_counter() - started) * 1e6
             if decision.latch is not None:
                 self.latch_safe("filter", decision.latch)
             outputs = decision.outputs
