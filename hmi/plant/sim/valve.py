@@ -23,7 +23,7 @@ Between two changes of its dynamics (a mark, a switch edge, the stall limit, a g
 or its stall clock runs, and its sensors stay as they are. After each advance it plans that
 glide (:meth:`Valve._plan_glide`), and an advance or a read that stays inside it moves the
 valve there at once (issue 18: the plant reads the valve at every scan, and its physics'
-step, calls and dictionary were a fifth of the valve project's scan).
+step, calls and dictionary were over a quarter of the valve project's scan).
 """
 
 from __future__ import annotations
@@ -201,8 +201,10 @@ class Valve(SimDevice, model=VALVE):
         """The glide from here: until the next boundary (_next_boundary), a step of the loop
         in _advance_to only moves the position by the drive, or runs the stall clock, and
         changes nothing _settle or the sensors read (the boundary is the first instant any
-        of that changes, and it comes nearer by exactly the time that passes). None when a
-        step in full would also reset the stall clock (the next one does, then glides)."""
+        of that changes, and it comes nearer by exactly the time that passes; where
+        _next_boundary raised it to 1 µs, the glide holds at self.t only, where the loop does
+        nothing either). None when a step in full would also reset the stall clock (the next
+        one does, then glides)."""
         drive = self._drive()
         can = self._can_move(drive)
         if can and (self.stall_us or self.stall_reported):
