@@ -19,6 +19,7 @@ import keyword
 import random
 import re
 import tokenize
+from collections import deque
 from functools import cache
 
 import pytest
@@ -188,6 +189,24 @@ def test_generated_code_holds_only_slots_constants_and_operators():
                     if tok.type == tokenize.NUMBER:
                         assert tok.string.isdigit(), (name, tok.string)
 
+
+
+def test_past_images_read_twice_are_bound_once_and_read_the_same():
+    """A generated function reads a past image read more than once from a local bound on
+    its first line (codegen._bind_past: a deque's item is a generic subscript), one read
+    once where it is; both give what reading the history each time gives."""
+    src = Source()
+    src.line(1, "return (h[0][1] and not h[0][2]) or (h[1][0] and h[1][3]) or h[2][1]")
+    fn = build(src, "f", "v, h", "<binding test>")
+    text = fn.__doc__ or ""
+    assert text.splitlines()[1] == "    h0 = h[0]; h1 = h[1]" and "h[2][1]" in text
+    rng = random.Random(7)
+    for _ in range(200):
+        history = deque((tuple(rng.random() < 0.5 for _ in range(4)) for _ in range(3)),
+                        maxlen=3)
+        expected = ((history[0][1] and not history[0][2])
+                    or (history[1][0] and history[1][3]) or history[2][1])
+        assert fn([], history) == expected
 
 
 @pytest.mark.parametrize("line", [

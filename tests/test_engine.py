@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pytest
+
 from hmi.engine.commands import FaultReset, ManualOutput, SetMode
 from hmi.engine.trace import TraceWriter
 from tests.conftest import PROJECTS
@@ -144,3 +146,24 @@ def test_an_internal_error_that_repeats_latches_once_and_a_new_one_adds_a_reason
     engine.compiled.core = real
     ctl.command(FaultReset())
     assert not ctl.run_for(1 * S).latched
+
+
+def test_the_wall_time_is_measured_where_someone_watches_it_only():
+    """A scan's wall time is for the people watching a live run (the HMI's status bar, OPC
+    UA, the filter benches: Session.scan_once, Engine.step), never for what is decided: a
+    headless run in virtual time (Session.run_for) does not measure it (four clock reads a
+    scan) and gives the same snapshots but for those two fields, and the engine measures
+    again afterwards, also after a run that raised."""
+    live, headless = make_controller(VALVE), make_controller(VALVE)
+    watched = [live.scan_once() for _ in range(300)]
+    assert all(s.scan_wall_us > 0 and s.filter_wall_us > 0 for s in watched[1:])
+    run_ = run(headless, 3)
+    assert all(s.scan_wall_us == s.filter_wall_us == 0.0 for s in run_)
+    assert [s._replace(scan_wall_us=0.0, filter_wall_us=0.0) for s in watched] == run_[:300]
+    assert headless.engine.wall_times and headless.scan_once().scan_wall_us > 0
+
+    def stop(snap):
+        raise RuntimeError("a reader gave up")
+    with pytest.raises(RuntimeError):
+        headless.run_for(S, stop)
+    assert headless.engine.wall_times

@@ -30,7 +30,9 @@ import pytest
 from hmi.cli import main
 from hmi.engine import commands as cmd
 from hmi.engine.scan import Engine
+from hmi.engine.stages import OutputScan
 from hmi.explain.journal import Journal
+from hmi.plant.base import PlantError
 from hmi.plant.sim.plant import SimPlant
 from hmi.project.injection import parse_injection
 from hmi.project.loader import load_project
@@ -323,6 +325,38 @@ def test_an_error_outside_the_scans_handling_latches_writes_safe_and_is_explaine
                   and e["key"].startswith("safe_state:internal")]
         assert len(raised) == 1, (path, quiet, raised)
         assert part in json.dumps(raised[0])
+
+
+@pytest.mark.parametrize("path", PATHS)
+def test_a_write_the_plant_refuses_is_the_plants_latch_as_the_output_stage_says_it(path):
+    """A PlantError from the plant's write (a link that drops the writes) is the plant's,
+    not an internal error, on each engine path: latched once as 'plant' with the detail
+    OutputScan.write gives for it (Engine._output_scan writes the stage's way itself), the
+    safe vector written from the next scan on, no error in the scan."""
+    project = load("palletizer")
+    plant = SimPlant(project)
+    engine = Engine(project, plant, compiled=path != "interpreter")
+    session = Session(engine)
+    if path == "cycle":
+        assert session.command(cmd.StopDevice(list(engine.devices)[-1])).accepted
+    real = plant.write_vector
+    written: list[tuple[int, tuple[bool, ...]]] = []
+
+    def refused(now, names, values):
+        written.append((now, tuple(values)))
+        if 2 * S <= now < 2 * S + 50_000:
+            raise PlantError("connection lost")
+        return real(now, names, values)
+    plant.write_vector = refused  # type: ignore[method-assign]
+    snaps = []
+    session.run_for(3 * S, snaps.append)
+    at_scan = 2 * S // project.scan_period_us + 1
+    assert [(r.source, r.scan) for r in engine.latched] == [("plant", at_scan)]
+    expected = OutputScan(plant, engine.layout).write(2 * S, engine.safe_vector)
+    assert expected is not None and engine.latched[0].detail == expected
+    assert all(s.error is None for s in snaps)
+    assert all(values == engine.safe_vector for now, values in written if now > 2 * S)
+    assert any(values != engine.safe_vector for now, values in written if now < 2 * S)
 
 
 def test_two_different_internal_errors_are_two_explanations_and_two_alarms(tmp_path):

@@ -94,9 +94,11 @@ _NODES = (ast.Module, ast.FunctionDef, ast.arguments, ast.arg, ast.Return, ast.A
           ast.IsNot, ast.Call, ast.Tuple, ast.List, ast.BinOp, ast.Sub, ast.Add, ast.Pass,
           ast.IfExp, ast.Mult, ast.BitOr, ast.LShift)
 _ALLOWED = frozenset(_NODES)
-# Local names: the parameters and locals of the templates, and the objects handed over.
+# Local names: the parameters and locals of the templates, the past images bound once
+# (_bind_past), and the objects handed over.
 LOCALS = frozenset({"v", "h", "f", "t", "now", "scan", "r", "s", "q", "x", "a", "b", "c",
-                    "su", "changed", "fire", "moved", "p", "e", "el", "y"})
+                    "su", "changed", "fire", "moved", "p", "e", "el", "y",
+                    "h0", "h1", "h2", "h3"})
 _HANDED = re.compile(r"k[0-9]+\Z")
 # Attributes the templates read or set on the objects they are given.
 ATTRIBUTES = frozenset({
@@ -156,9 +158,37 @@ def code_table() -> dict[tuple[str, str], CodeType]:
     return _CODE
 
 
+# A past image read in an expression (expr_source), for the first four of them.
+_PAST_READ = re.compile(r"\bh\[([0-3])\]\[")
+
+
+def _bind_past(lines: list[str]) -> list[str]:
+    """`lines` with each past image they read at least twice (``h[0][5]``, ``h[0][7]``)
+    bound once, on the function's first line (``h0 = h[0]``, then ``h0[5]``): the history is
+    a deque, and a deque's item is a generic subscript (some 150 instructions, a local some
+    10), where an image's slot is a tuple's. The history always holds as many images as the
+    deepest expression reads (Engine._start fills it), so the binding reads what each use
+    read, once; a past image read once is left where it is (a short-circuit may skip it)."""
+    body = "\n".join(lines)
+    counts: dict[str, int] = {}
+    for depth in _PAST_READ.findall(body):
+        counts[depth] = counts.get(depth, 0) + 1
+    bound = sorted(depth for depth, count in counts.items() if count > 1)
+    if not bound:
+        return lines
+    body = _PAST_READ.sub(lambda m: f"h{m.group(1)}[" if m.group(1) in bound else m.group(0),
+                          body)
+    return ["    " + "; ".join(f"h{depth} = h[{depth}]" for depth in bound),
+            *body.split("\n")]
+
+
 def build(source: Source, name: str, params: str, filename: str) -> Callable[..., Any]:
-    """Compile `source`'s lines as the body of ``def name(params, k0=k0, ...)``."""
-    text = f"def {name}({params}{source.defaults()}):\n" + "\n".join(source.lines) + "\n"
+    """Compile `source`'s lines as the body of ``def name(params, k0=k0, ...)`` (past images
+    read more than once bound first, when `params` has the history ``h``: _bind_past)."""
+    lines = source.lines
+    if "h" in (param.strip() for param in params.split(",")):
+        lines = _bind_past(lines)
+    text = f"def {name}({params}{source.defaults()}):\n" + "\n".join(lines) + "\n"
     if not source.lines:
         text += "    pass\n"
     code = _CODE.get((text, filename))

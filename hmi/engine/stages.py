@@ -184,7 +184,9 @@ class Control:
 
 
 class OutputScan:
-    """Stage 7: write the vector the filter decided to the plant."""
+    """Stage 7: write the vector the filter decided to the plant. The engine's scan writes it
+    the same way itself (Engine._output_scan, at every scan: a call less); this writes the
+    safe vector when an error puts the outputs safe at once (Engine._go_safe)."""
 
     def __init__(self, plant: Plant, layout: Layout):
         self.plant = plant

@@ -316,8 +316,10 @@ class Session:
         return True
 
     def _explained(self, core: Snapshot) -> Snapshot:
-        """The engine's snapshot with its explanations, the alarm list and its changes."""
-        started = time.perf_counter()
+        """The engine's snapshot with its explanations, the alarm list and its changes; the
+        time explaining took is added to the scan's wall time, when the engine measures it."""
+        timed = self.engine.wall_times
+        started = time.perf_counter() if timed else 0.0
         error = core.error
         try:
             explanations = self.explainer.build(core)
@@ -334,7 +336,8 @@ class Session:
             events = events + alarms.update(explanations, core.scan, core.time_us)
         return explained(core, explanations, alarms.listed(),
                          tuple(events) if events else (), error,
-                         core.scan_wall_us + (time.perf_counter() - started) * 1e6,
+                         core.scan_wall_us + (time.perf_counter() - started) * 1e6
+                         if timed else core.scan_wall_us,
                          alarms.shelved_listed() if alarms.shelved else ())
 
     def run_for(self, duration_us: int, on_scan: Callable[[Snapshot], None] | None = None,
@@ -346,7 +349,22 @@ class Session:
         number instead of to `on_scan`, and their snapshots are not built (`last` builds the
         last one if read); a stretch of them runs in the engine at once
         (Engine.run_while_quiet), up to the first scan with news. For a caller that needs no
-        snapshot where nothing happened (plchmi run without a trace counts the scans)."""
+        snapshot where nothing happened (plchmi run without a trace counts the scans).
+
+        In virtual time nobody watches the scans' wall time (the HMI and OPC UA drive
+        scan_once): the engine does not measure it meanwhile (Engine.wall_times; the
+        snapshots' scan_wall_us and filter_wall_us are 0.0)."""
+        if self.clock is not None:
+            return self._run_for(duration_us, on_scan, on_quiet)
+        engine = self.engine
+        timed, engine.wall_times = engine.wall_times, False
+        try:
+            return self._run_for(duration_us, on_scan, on_quiet)
+        finally:
+            engine.wall_times = timed
+
+    def _run_for(self, duration_us: int, on_scan: Callable[[Snapshot], None] | None,
+                 on_quiet: Callable[[int], None] | None) -> Snapshot:
         end = self.next_time + duration_us
         if on_quiet is None:
             while self.next_time <= end:

@@ -17,11 +17,18 @@ Faults (000 §3.1), each injected at a time:
         itself to the other end, once;
   F13 blocked between positions: the valve jams where it is if it is between its ends, or
         at `block_at` of its travel the next time it moves.
+
+Between two changes of its dynamics (a mark, a switch edge, the stall limit, a glitch's edge:
+:meth:`Valve._next_boundary`) the valve only glides: its position moves on in a straight line,
+or its stall clock runs, and its sensors stay as they are. After each advance it plans that
+glide (:meth:`Valve._plan_glide`), and an advance or a read that stays inside it moves the
+valve there at once (issue 18: the plant reads the valve at every scan, and its physics'
+step, calls and dictionary were over a quarter of the valve project's scan).
 """
 
 from __future__ import annotations
 
-from collections.abc import Hashable
+from collections.abc import Hashable, Mapping
 from typing import Any
 
 from hmi.plant.sim.device import PendingFault, SimDevice
@@ -29,6 +36,10 @@ from hmi.project.device_models import VALVE
 from hmi.timefmt import seconds
 
 _NEVER = 1 << 62
+
+# A glide (Valve._plan_glide): up to which time (excluded) it holds, how the position moves
+# per microsecond (+1, -1 or 0), whether the stall clock runs instead, and the sensors all along.
+Glide = tuple[int, int, bool, dict[str, bool]]
 
 
 class Valve(SimDevice, model=VALVE):
@@ -54,6 +65,10 @@ class Valve(SimDevice, model=VALVE):
         self.cycles = 0
         self.opens = 0
         self.closes = 0
+        # The glide the valve is in (None: the next advance steps in full). Anything that
+        # changes its dynamics ends it (_settle: new orders, a fault, a repair, a mark
+        # reached); whoever changes its physics by hand calls touch().
+        self._glide: Glide | None = None
 
     # -- sensors ---------------------------------------------------------------------------
     def true_fsc(self) -> bool:
@@ -80,6 +95,36 @@ class Valve(SimDevice, model=VALVE):
                 else:
                     fso = value
         return {"fsc": fsc, "fso": fso}
+
+    def read_sensors(self) -> Mapping[str, bool]:
+        """The sensors right after an advance: the glide's, which that advance planned or
+        moved in (the same mapping while it lasts: the plant then reuses what it made of
+        it)."""
+        glide = self._glide
+        return glide[3] if glide is not None else self.sensors()
+
+    def sense(self, t: int) -> Mapping[str, bool]:
+        """:meth:`SimDevice.sense` taking the common case first: no fault due by t and t
+        inside the glide (one call, no step loop: most of the plant's reads, one a scan),
+        exactly what :meth:`advance` would do there (:meth:`_glide_to`)."""
+        glide = self._glide
+        if glide is not None and t < glide[0] and (
+                not self.pending or self.pending[0].at_us > t):
+            step = t - self.t
+            if step > 0:  # (_glide_to, written out: this is the plant's read at every scan)
+                if glide[1]:
+                    self.pos += glide[1] * step
+                elif glide[2]:
+                    self.stall_us += step
+                self.t = t
+            return glide[3]
+        self.advance(t)
+        return self.read_sensors()
+
+    def touch(self) -> None:
+        """The valve's physics was changed by hand (a test placing it): the glide it was in
+        ends, the next advance steps in full."""
+        self._glide = None
 
     # -- physics ---------------------------------------------------------------------------
     def _drive(self) -> int:
@@ -123,12 +168,17 @@ class Valve(SimDevice, model=VALVE):
         return int(self.travel * float(self.params["block_at"]))
 
     def _advance_to(self, t: int) -> None:
+        glide = self._glide
+        if glide is not None and t < glide[0]:
+            self._glide_to(t, glide)
+            return
         if not (self.glitches or self.self_drive or self.orders["C"] or self.orders["O"]):
             # At rest, no glitch under way: nothing moves, and _settle, already applied after
             # the last change (a move, new orders, a fault, a repair), would change nothing,
             # armed faults included (they wait for a position or orders that do not change
             # while at rest); only the time passes.
             self.t = max(self.t, t)
+            self._glide = self._plan_glide()
             return
         while self.t < t:
             drive = self._drive()
@@ -145,9 +195,37 @@ class Valve(SimDevice, model=VALVE):
                 self._settle()
             # else: short of every mark, switch edge and stall limit (_next_boundary), so
             # everything _settle tests is as it was after the last change: nothing to do
+        self._glide = self._plan_glide()
+
+    def _plan_glide(self) -> Glide | None:
+        """The glide from here: until the next boundary (_next_boundary), a step of the loop
+        in _advance_to only moves the position by the drive, or runs the stall clock, and
+        changes nothing _settle or the sensors read (the boundary is the first instant any
+        of that changes, and it comes nearer by exactly the time that passes; where
+        _next_boundary raised it to 1 µs, the glide holds at self.t only, where the loop does
+        nothing either). None when a step in full would also reset the stall clock (the next
+        one does, then glides)."""
+        drive = self._drive()
+        can = self._can_move(drive)
+        if can and (self.stall_us or self.stall_reported):
+            return None
+        return (self.t + self._next_boundary(drive), drive if can else 0,
+                bool(drive) and not can, self.sensors())
+
+    def _glide_to(self, t: int, glide: Glide) -> None:
+        """Move to `t` inside `glide`, as the loop in _advance_to would (one step short of
+        the boundary: no _settle)."""
+        step = t - self.t
+        if step > 0:
+            if glide[1]:
+                self.pos += glide[1] * step
+            elif glide[2]:
+                self.stall_us += step
+            self.t = t
 
     def _settle(self) -> None:
         """Apply what happens at the current instant: arrivals, armed faults, stalls."""
+        self._glide = None  # (whatever changes here, the glide was planned without it)
         t = self.t
         if self.true_fso() and not self.was_open:
             self.was_open = True
