@@ -246,6 +246,24 @@ async def test_expand_the_explanation_level_by_level():
         assert "▸ Why" in region_text(app, "#explain")
 
 
+async def test_the_explanation_heading_gives_the_priority_the_alarm_list_shows():
+    """Soak seed 101 (valve, normal): F8 is first an ambiguous diagnosis (high, P1), then a
+    certain one the cell runs degraded with (medium). The alarm keeps P1 while listed
+    (ISA-18.2, hmi.explain.alarms); its explanation's heading said `P2 medium` under a row
+    saying P1. It gives the alarm's priority, and the situation's severity now beside it."""
+    app = make_app(control="normal", inject=("F8@120ms",))
+    async with app.run_test(size=WIDE) as pilot:
+        def demoted(snap) -> bool:
+            exp = next((e for e in snap.explanations if e.key == "diagnosis:V1"), None)
+            return exp is not None and exp.severity == "medium"
+        await run_until(pilot, demoted, 5, "the diagnosis certain, medium")
+        alarm = next(a for a in app.controller.last.alarms if a.key == "diagnosis:V1")
+        assert alarm.priority == 1 and app.alarm_list.selected == "diagnosis:V1"
+        assert "P1 " in region_text(app, "#alarms")
+        head = region_text(app, "#explain").splitlines()[1]
+        assert "P1 high · now medium" in head and "P2" not in head, head
+
+
 async def test_click_a_level_heading_opens_and_folds_it():
     app = make_app(control="faulty", policy="block")
     async with app.run_test(size=WIDE) as pilot:
