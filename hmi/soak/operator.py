@@ -6,10 +6,10 @@ the footer (or 1 / 0 / x / b, tab, arrows, enter, escape); run a palette entry, 
 by its exact title; click a row of the I/O table, a constraint, an alarm, an explanation's
 heading or policy; resize the terminal between 60×20 and 200×60. A dialog on top is answered:
 yes, no, escape, enter (which must not confirm), or filled in (a fault and when, a number of
-scans, a policy, chronogram signals). Fault injections, repairs, resets, manual mode with
-forces and policy changes come from the footer and the palette like any other gesture, with
-weights that make them frequent. The choice depends only on the seed and on what the app
-shows, so the same seed on the same program gives the same session.
+scans, a policy, chronogram signals, a comment on an alarm). Fault injections, repairs,
+resets, manual mode with forces and policy changes come from the footer and the palette like
+any other gesture, with weights that make them frequent. The choice depends only on the
+seed and on what the app shows, so the same seed on the same program gives the same session.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from textual.screen import ModalScreen
 
 from hmi.soak.steps import Click, Palette, Press, Resize, Row, Run, Step
 from hmi.ui.actions import ACTIONS
-from hmi.ui.dialogs import ChoiceDialog, ConfirmDialog, StepDialog
+from hmi.ui.dialogs import ChoiceDialog, ConfirmDialog, StepDialog, TextDialog
 from hmi.ui.fault_dialog import FaultDialog
 from hmi.ui.signal_dialog import SignalDialog
 
@@ -32,6 +32,10 @@ HEAVY_KEYS = ("r", "m", "p", "f", "a", "A", "e", "space")
 CLICK_TARGETS = ("#constraints", "#alarms", "#explain", "#io", "#chronogram", "#status",
                  "#banners", "#sim")
 MIN_SIZE, MAX_SIZE = (60, 20), (200, 60)
+# what an operator writes on an alarm: plain words, and text that looks like markup, quotes,
+# a backslash, non-ASCII letters, one long line
+COMMENTS = ("checked on site", "[b]sticky[/b] valve", 'called "maintenance" 50%', "a\\b {x}",
+            "Kühlung prüfen", "ok " * 60)
 
 
 class RandomOperator:
@@ -129,6 +133,14 @@ class RandomOperator:
             moves = ("down",) * rng.randrange(0, len(screen.faults) or 1)
             delay = str(rng.choice((0, 0, 0, 1, 2, 5, 10, 30)))
             return Press((*moves, "enter", "backspace", *delay, "enter"))
+        if isinstance(screen, TextDialog):  # a comment on an alarm
+            roll = rng.random()
+            if roll < 0.2:
+                return Press(("escape",))
+            if roll < 0.3:  # nothing written: the dialog says so and stays
+                return Press(("enter",))
+            text = rng.choice(COMMENTS)
+            return Press((*("space" if c == " " else c for c in text), "enter"))
         if isinstance(screen, SignalDialog):
             if rng.random() < 0.2:
                 return Press(("escape",))
