@@ -32,6 +32,7 @@ HEAVY_KEYS = ("r", "m", "p", "f", "a", "A", "e", "space")
 CLICK_TARGETS = ("#constraints", "#alarms", "#explain", "#io", "#chronogram", "#status",
                  "#banners", "#sim")
 MIN_SIZE, MAX_SIZE = (60, 20), (200, 60)
+REPAIR = "SIMULATION: repair the faulty devices"
 # what an operator writes on an alarm: plain words, and text that looks like markup, quotes,
 # a backslash, non-ASCII letters, one long line
 COMMENTS = ("checked on site", "[b]sticky[/b] valve", 'called "maintenance" 50%', "a\\b {x}",
@@ -64,6 +65,11 @@ class RandomOperator:
             "row": 6,
             "click": 6,
             "resize": 3,
+            # the technician's repair, while the SIMULATION strip shows faults: a palette
+            # entry among 15 to 40 of its group, drawn by its group alone it came once in
+            # ~30 injections, and the way back (repair, fault reset, automatic operation)
+            # was seldom walked. Last, with no weight otherwise: the other draws unchanged.
+            "repair": 3 if app.frame is not None and app.frame.injected else 0,
         }
         kind = rng.choices(list(weights), list(weights.values()))[0]
         match kind:
@@ -82,6 +88,8 @@ class RandomOperator:
                 names = outputs if rng.random() < 0.8 else app.controller.engine.layout.names
                 row = Row(rng.choice(names))
                 return row
+            case "repair":
+                return Palette(REPAIR)
             case "click":
                 target = rng.choice(CLICK_TARGETS)
                 return Click(target, rng.randrange(0, 60), rng.randrange(0, 8))
