@@ -106,6 +106,12 @@ async def test_acknowledge_the_selected_alarm_with_a():
         assert "acknowledged 1 alarm" in app.message.plain
         await run_for(pilot, 0.01)
         assert "● ACK" in region_text(app, "#alarms")
+        # a second time (the soak's operator did it often): said as it is, not "no alarm"
+        await press(pilot, "a")
+        await settle(pilot)
+        text = app.controller.alarms.alarms[selected].text
+        assert "REFUSED" in app.message.plain
+        assert "already acknowledged" in app.message.plain and text[:20] in app.message.plain
 
 
 async def test_acknowledge_while_paused_says_when_it_shows():
