@@ -5,11 +5,12 @@ now, whether manual mode is on) and picks its next gesture: run virtual time; pr
 the footer (or 1 / 0 / x / b, tab, arrows, enter, escape); run a palette entry, any of them,
 by its exact title; click a row of the I/O table, a constraint, an alarm, an explanation's
 heading or policy; resize the terminal between 60×20 and 200×60. A dialog on top is answered:
-yes, no, escape, enter (which must not confirm), or filled in (a fault and when, a number of
-scans, a policy, chronogram signals, a comment on an alarm). Fault injections, repairs,
-resets, manual mode with forces and policy changes come from the footer and the palette like
-any other gesture, with weights that make them frequent. The choice depends only on the
-seed and on what the app shows, so the same seed on the same program gives the same session.
+yes, no, escape, enter (which must not confirm), g (the fault reset's third answer, Start
+recovery, when it offers one), or filled in (a fault and when, a number of scans, a policy,
+chronogram signals, a comment on an alarm). Fault injections, repairs, resets, manual mode
+with forces and policy changes come from the footer and the palette like any other gesture,
+with weights that make them frequent. The choice depends only on the seed and on what the
+app shows, so the same seed on the same program gives the same session.
 """
 
 from __future__ import annotations
@@ -118,6 +119,8 @@ class RandomOperator:
             answers = {"y": 40, "n": 20, "escape": 15, "enter": 12, "tab": 5, "stray": 8}
             if screen.id == "quit-dialog":
                 answers["y"] = 0  # the soak goes on
+            if screen.alternative:  # the reset dialog's third answer: g, Start recovery
+                answers["g"] = 25
             answer = rng.choices(list(answers), list(answers.values()))[0]
             if answer == "stray":  # a main-screen key: the dialog must not let it through
                 return Press((rng.choice(("r", "m", "space", "1", "s", "a")),))
