@@ -10,7 +10,9 @@ recovery, when it offers one), or filled in (a fault and when, a number of scans
 chronogram signals, a comment on an alarm). Fault injections, repairs, resets, manual mode
 with forces and policy changes come from the footer and the palette like any other gesture,
 with weights that make them frequent. The choice depends only on the seed and on what the
-app shows, so the same seed on the same program gives the same session.
+app shows, so the same seed on the same program gives the same session. Time also runs
+while a dialog is open (the operator reads it; the cell goes on), so a confirmation may be
+answered after what it said has changed.
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ CLICK_TARGETS = ("#constraints", "#alarms", "#explain", "#io", "#chronogram", "#
                  "#banners", "#sim")
 MIN_SIZE, MAX_SIZE = (60, 20), (200, 60)
 REPAIR = "SIMULATION: repair the faulty devices"
+READING = 0.15  # how often virtual time runs while a dialog is open, before its answer
 # what an operator writes on an alarm: plain words, and text that looks like markup, quotes,
 # a backslash, non-ASCII letters, one long line
 COMMENTS = ("checked on site", "[b]sticky[/b] valve", 'called "maintenance" 50%', "a\\b {x}",
@@ -50,6 +53,10 @@ class RandomOperator:
         if isinstance(screen, CommandPalette):
             return Press(("escape",))
         if isinstance(screen, ModalScreen):
+            if self.rng.random() < READING:
+                # the operator reads the dialog while the cell runs on (live, the scans never
+                # wait for a dialog): what it previewed may no longer hold when answered
+                return Run(int(10_000 * 500 ** self.rng.random()))  # 10 ms to 5 s
             return self._answer(screen)
         return self._main(app)
 
