@@ -12,6 +12,7 @@ from hmi.engine.commands import (
     ManualOutput,
     SetMode,
     SetPolicy,
+    StopDevice,
 )
 from hmi.errors import ProjectError
 from hmi.explain.alarms import (
@@ -313,6 +314,33 @@ def test_journal_records_actions_alarm_transitions_and_manual_outcomes(tmp_path)
     assert {e["key"] for e in raised} == {"constraint:CSs1", "constraint:CSs5"}
     assert all(e["scan"] == 2 and e["t"] == "0.010" and e["wall"] for e in raised)
     assert [e["event"] for e in entries if e["type"] == "alarm"].count("acknowledged") == 2
+
+
+def test_journal_judges_a_manual_request_against_what_it_asked(tmp_path):
+    """Soak seed 200 (sorting, faulty): 'manual CONV_R on' then a recovery started before
+    the next scan; the journal said 'written 0 as requested'. The outcome is judged against
+    the request: a scan outside manual mode did not apply it, a stopped device refused it."""
+    ctl = make_controller(VALVE)
+    recorder = JournalRecorder(ctl, Journal(tmp_path / "j.jsonl"), "test")
+    ctl.scan_once()
+    assert ctl.command(SetMode(True)).accepted
+    ctl.scan_once()
+    ctl.command(ManualOutput("O", True))
+    assert ctl.command(SetMode(False)).accepted  # left before a scan ran the request
+    assert ctl.scan_once().output_map["O"] is False
+    assert ctl.command(SetMode(True)).accepted
+    ctl.scan_once()
+    assert ctl.command(StopDevice("Valve V1")).accepted
+    ctl.command(ManualOutput("O", True))
+    assert ctl.scan_once().output_map["O"] is False
+    ctl.command(ManualOutput("O", False))  # what it asked: the stop changes nothing
+    ctl.scan_once()
+    recorder.close()
+    outcomes = [e["message"] for e in read(tmp_path / "j.jsonl").entries
+                if e["event"].endswith(": filter result")]
+    assert outcomes == ["not applied: the scan ran in auto mode (written 0)",
+                        "refused: written 0: Valve V1 is stopped by the operator",
+                        "written 0 as requested"]
 
 
 def test_truncated_last_line_is_tolerated(tmp_path, capsys):

@@ -110,6 +110,12 @@ async def test_acknowledge_the_selected_alarm_with_a():
         assert selected not in app.message.plain
         await run_for(pilot, 0.01)
         assert "● ACK" in region_text(app, "#alarms")
+        # a second time (the soak's operator did it often): said as it is, not "no alarm"
+        await press(pilot, "a")
+        await settle(pilot)
+        text = app.controller.alarms.alarms[selected].text
+        assert "REFUSED" in app.message.plain
+        assert "already acknowledged" in app.message.plain and text[:20] in app.message.plain
 
 
 async def test_acknowledge_while_paused_says_when_it_shows():
@@ -248,6 +254,24 @@ async def test_expand_the_explanation_level_by_level():
         await settle(pilot)
         assert panel(app).level == 1
         assert "▸ Why" in region_text(app, "#explain")
+
+
+async def test_the_explanation_heading_gives_the_priority_the_alarm_list_shows():
+    """Soak seed 101 (valve, normal): F8 is first an ambiguous diagnosis (high, P1), then a
+    certain one the cell runs degraded with (medium). The alarm keeps P1 while listed
+    (ISA-18.2, hmi.explain.alarms); its explanation's heading said `P2 medium` under a row
+    saying P1. It gives the alarm's priority, and the situation's severity now beside it."""
+    app = make_app(control="normal", inject=("F8@120ms",))
+    async with app.run_test(size=WIDE) as pilot:
+        def demoted(snap) -> bool:
+            exp = next((e for e in snap.explanations if e.key == "diagnosis:V1"), None)
+            return exp is not None and exp.severity == "medium"
+        await run_until(pilot, demoted, 5, "the diagnosis certain, medium")
+        alarm = next(a for a in app.controller.last.alarms if a.key == "diagnosis:V1")
+        assert alarm.priority == 1 and app.alarm_list.selected == "diagnosis:V1"
+        assert "P1 " in region_text(app, "#alarms")
+        head = region_text(app, "#explain").splitlines()[1]
+        assert "P1 high · now medium" in head and "P2" not in head, head
 
 
 async def test_click_a_level_heading_opens_and_folds_it():

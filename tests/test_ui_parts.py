@@ -169,6 +169,17 @@ def test_output_changes_and_request_verdict_name_the_latch():
     assert ok and "written 0" in line
 
 
+def test_request_verdict_names_a_device_the_operator_stopped():
+    """A stopped device's outputs are held safe before the filter (the FOV is already safe):
+    no change of the filter says why the request was not written, the device does."""
+    snap = _snapshot()._replace(fov=(False, False), outputs=(False, False),
+                                stopped_devices=("Valve V1",))
+    ok, line = request_verdict(snap, "O", True, "Valve V1")
+    assert not ok and "written 0" in line and "Valve V1 stopped by the operator" in line
+    ok, line = request_verdict(snap._replace(stopped_devices=()), "O", True, "Valve V1")
+    assert not ok and "changed by the output stage" in line
+
+
 @pytest.mark.parametrize("text, us", [("", 0), ("now", 0), ("0", 0), ("5", 5_000_000),
                                       ("2.5", 2_500_000), ("500ms", 500_000),
                                       ("1.5s", 1_500_000)])

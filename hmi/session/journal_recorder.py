@@ -104,17 +104,8 @@ class JournalRecorder:
                               "message": f"{recovery.device}: {recovery.message}",
                               "scan": snapshot.scan, "t": seconds(snapshot.time_us)})
         if self.pending_manual:
-            report = snapshot.filter
             for request, origin in self.pending_manual:
-                index = snapshot.layout.outputs.index(request.name)
-                written = snapshot.outputs[index]
-                change = next((c for c in (report.changes if report else ())
-                               if c.output == request.name), None)
-                if change is None:
-                    outcome = f"written {int(written)} as requested"
-                else:
-                    by = ", ".join(change.by)
-                    outcome = f"refused: written {int(written)} because of {by}"
+                outcome = self._manual_outcome(snapshot, request)
                 entry = {
                     "type": "action", "event": f"manual {request.name} "
                     f"{'on' if request.value else 'off'}: filter result", "accepted": True,
@@ -123,6 +114,30 @@ class JournalRecorder:
                     entry["by"] = origin
                 self._append(entry)
             self.pending_manual = []
+
+    def _manual_outcome(self, snapshot: Snapshot, request: ManualOutput) -> str:
+        """What the first scan after a manual request wrote, judged against the request: a
+        scan that ran outside manual mode (the mode changed before it: the request was
+        dropped), the filter, a device the operator stopped (held safe before the filter)
+        or the diagnosis' mask may each write something else than asked."""
+        name = request.name
+        written = int(snapshot.outputs[snapshot.layout.outputs.index(name)])
+        if snapshot.mode != "manual":
+            return f"not applied: the scan ran in {snapshot.mode} mode (written {written})"
+        report = snapshot.filter
+        change = next((c for c in (report.changes if report else ()) if c.output == name),
+                      None)
+        if change is not None:
+            return f"refused: written {written} because of {', '.join(change.by)}"
+        if written == int(request.value):
+            return f"written {written} as requested"
+        device = next((d for d, outs in self.session.engine.devices.items() if name in outs),
+                      None)
+        if device in snapshot.stopped_devices:
+            return f"refused: written {written}: {device} is stopped by the operator"
+        if name in snapshot.masked:
+            return f"refused: written {written}: masked by the diagnosis"
+        return f"refused: written {written}, not as requested"
 
     def _alarm(self, event, by: str = "") -> None:
         entry = {

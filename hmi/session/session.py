@@ -189,6 +189,9 @@ class Session:
         events = self.alarms.acknowledge(key, engine.scan, engine.now)
         self._pending_alarm_events.extend(events)
         if key is not None and not events:
+            alarm = self.alarms.alarms.get(key)
+            if alarm is not None and alarm.acknowledged:  # the operator may not see it yet
+                return CommandResult.refused(f"already acknowledged: {alarm.text}")
             return CommandResult.refused(f"no alarm {key} to acknowledge")
         return CommandResult.ok(f"acknowledged {len(events)} alarm"
                                 f"{'s' if len(events) != 1 else ''}")

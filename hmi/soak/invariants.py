@@ -23,12 +23,14 @@ rather than trusting the engine's own report of it:
   any state (hidden, not gone: its "shelved" line carries its state) and its return is
   journalled too;
 - **the status bar** shows the mode and the filter policy of the scan on screen;
-- **the journal**: every line parses (a JSON object with a type and an event).
+- **the journal**: every line parses (a JSON object with a type and an event); a manual
+  request's outcome never says "as requested" of another value than the one requested.
 """
 
 from __future__ import annotations
 
 import json
+import re
 from collections import Counter, deque
 from dataclasses import dataclass
 from pathlib import Path
@@ -41,6 +43,8 @@ from hmi.project.recovery import recoveries_of
 from hmi.timefmt import seconds
 
 UNACKNOWLEDGED = (ACTIVE_UNACK, CLEARED_UNACK)
+MANUAL_RESULT = re.compile(r"manual (\S+) (on|off): filter result")
+AS_REQUESTED = re.compile(r"written ([01]) as requested")
 MODE_WORDS = {"auto": "AUTO", "manual": "MANUAL"}
 
 
@@ -268,6 +272,18 @@ class Invariants:
             self._break("status-bar", f"{' and '.join(missing)} not shown at {app.size.width}"
                         f"×{app.size.height}: {line.rstrip()!r}")
 
+    def _check_manual_outcome(self, entry: dict) -> None:
+        """A manual request's outcome in the journal never says "as requested" of a value
+        other than the one requested (`manual O on: filter result` / `written 0 as
+        requested` was journalled when the mode changed before the scan, or the device was
+        stopped)."""
+        asked = MANUAL_RESULT.fullmatch(entry["event"])
+        said = AS_REQUESTED.fullmatch(str(entry.get("message", "")))
+        if asked and said and int(said[1]) != (asked[2] == "on"):
+            self._break("journal-manual-outcome",
+                        f"line {self.journal_lines}: {entry['event']!r} says "
+                        f"{entry['message']!r} (scan {entry.get('scan')})")
+
     def check_journal(self) -> None:
         with self.journal_path.open("rb") as f:
             f.seek(self._journal_at)
@@ -287,6 +303,8 @@ class Invariants:
                 self._break("journal-line", f"line {self.journal_lines} is not an entry: "
                             f"{line[:120]!r}")
                 continue
+            if entry["type"] == "action" and str(entry["event"]).endswith(": filter result"):
+                self._check_manual_outcome(entry)
             if entry["type"] == "alarm":
                 pending = self.expected.get(entry.get("key", ""))
                 if pending and pending[0][0] == entry.get("state"):

@@ -5,11 +5,14 @@ now, whether manual mode is on) and picks its next gesture: run virtual time; pr
 the footer (or 1 / 0 / x / b, tab, arrows, enter, escape); run a palette entry, any of them,
 by its exact title; click a row of the I/O table, a constraint, an alarm, an explanation's
 heading or policy; resize the terminal between 60×20 and 200×60. A dialog on top is answered:
-yes, no, escape, enter (which must not confirm), or filled in (a fault and when, a number of
-scans, a policy, chronogram signals). Fault injections, repairs, resets, manual mode with
-forces and policy changes come from the footer and the palette like any other gesture, with
-weights that make them frequent. The choice depends only on the seed and on what the app
-shows, so the same seed on the same program gives the same session.
+yes, no, escape, enter (which must not confirm), g (the fault reset's third answer, Start
+recovery, when it offers one), or filled in (a fault and when, a number of scans, a policy,
+chronogram signals, a comment on an alarm). Fault injections, repairs, resets, manual mode
+with forces and policy changes come from the footer and the palette like any other gesture,
+with weights that make them frequent. The choice depends only on the seed and on what the
+app shows, so the same seed on the same program gives the same session. Time also runs
+while a dialog is open (the operator reads it; the cell goes on), so a confirmation may be
+answered after what it said has changed.
 """
 
 from __future__ import annotations
@@ -21,7 +24,7 @@ from textual.screen import ModalScreen
 
 from hmi.soak.steps import Click, Palette, Press, Resize, Row, Run, Step
 from hmi.ui.actions import ACTIONS
-from hmi.ui.dialogs import ChoiceDialog, ConfirmDialog, StepDialog
+from hmi.ui.dialogs import ChoiceDialog, ConfirmDialog, StepDialog, TextDialog
 from hmi.ui.fault_dialog import FaultDialog
 from hmi.ui.signal_dialog import SignalDialog
 
@@ -32,6 +35,12 @@ HEAVY_KEYS = ("r", "m", "p", "f", "a", "A", "e", "space")
 CLICK_TARGETS = ("#constraints", "#alarms", "#explain", "#io", "#chronogram", "#status",
                  "#banners", "#sim")
 MIN_SIZE, MAX_SIZE = (60, 20), (200, 60)
+REPAIR = "SIMULATION: repair the faulty devices"
+READING = 0.15  # how often virtual time runs while a dialog is open, before its answer
+# what an operator writes on an alarm: plain words, and text that looks like markup, quotes,
+# a backslash, non-ASCII letters, one long line
+COMMENTS = ("checked on site", "[b]sticky[/b] valve", 'called "maintenance" 50%', "a\\b {x}",
+            "Kühlung prüfen", "ok " * 60)
 
 
 class RandomOperator:
@@ -44,6 +53,10 @@ class RandomOperator:
         if isinstance(screen, CommandPalette):
             return Press(("escape",))
         if isinstance(screen, ModalScreen):
+            if self.rng.random() < READING:
+                # the operator reads the dialog while the cell runs on (live, the scans never
+                # wait for a dialog): what it previewed may no longer hold when answered
+                return Run(int(10_000 * 500 ** self.rng.random()))  # 10 ms to 5 s
             return self._answer(screen)
         return self._main(app)
 
@@ -60,6 +73,11 @@ class RandomOperator:
             "row": 6,
             "click": 6,
             "resize": 3,
+            # the technician's repair, while the SIMULATION strip shows faults: a palette
+            # entry among 15 to 40 of its group, drawn by its group alone it came once in
+            # ~30 injections, and the way back (repair, fault reset, automatic operation)
+            # was seldom walked. Last, with no weight otherwise: the other draws unchanged.
+            "repair": 3 if app.frame is not None and app.frame.injected else 0,
         }
         kind = rng.choices(list(weights), list(weights.values()))[0]
         match kind:
@@ -78,6 +96,8 @@ class RandomOperator:
                 names = outputs if rng.random() < 0.8 else app.controller.engine.layout.names
                 row = Row(rng.choice(names))
                 return row
+            case "repair":
+                return Palette(REPAIR)
             case "click":
                 target = rng.choice(CLICK_TARGETS)
                 return Click(target, rng.randrange(0, 60), rng.randrange(0, 8))
@@ -106,6 +126,8 @@ class RandomOperator:
             answers = {"y": 40, "n": 20, "escape": 15, "enter": 12, "tab": 5, "stray": 8}
             if screen.id == "quit-dialog":
                 answers["y"] = 0  # the soak goes on
+            if screen.alternative:  # the reset dialog's third answer: g, Start recovery
+                answers["g"] = 25
             answer = rng.choices(list(answers), list(answers.values()))[0]
             if answer == "stray":  # a main-screen key: the dialog must not let it through
                 return Press((rng.choice(("r", "m", "space", "1", "s", "a")),))
@@ -129,6 +151,14 @@ class RandomOperator:
             moves = ("down",) * rng.randrange(0, len(screen.faults) or 1)
             delay = str(rng.choice((0, 0, 0, 1, 2, 5, 10, 30)))
             return Press((*moves, "enter", "backspace", *delay, "enter"))
+        if isinstance(screen, TextDialog):  # a comment on an alarm
+            roll = rng.random()
+            if roll < 0.2:
+                return Press(("escape",))
+            if roll < 0.3:  # nothing written: the dialog says so and stays
+                return Press(("enter",))
+            text = rng.choice(COMMENTS)
+            return Press((*("space" if c == " " else c for c in text), "enter"))
         if isinstance(screen, SignalDialog):
             if rng.random() < 0.2:
                 return Press(("escape",))

@@ -518,7 +518,8 @@ class PlcHmiApp(ContainedPump, App):
         self._request = None
         if snap.mode != "manual":
             return  # left manual mode before a scan ran the request
-        ok, line = request_verdict(snap, name, requested)
+        device = next((o.device for o in self.project.outputs if o.name == name), None)
+        ok, line = request_verdict(snap, name, requested, device)
         self.message.say(verdict_text(ok, f"{what} → {line}"))
 
     # -- the explanation's subject -----------------------------------------------------------

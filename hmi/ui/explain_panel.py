@@ -86,12 +86,20 @@ class LevelView(ContainedPump, Static):
 
 
 def heading_text(explanation: Explanation, alarm: Alarm | None) -> Text:
-    """Priority, severity, device, since when, and the marks that change how to read it."""
-    priority = PRIORITY.get(explanation.severity, 3)
-    level = SEVERITY_LEVEL.get(explanation.severity, Level.ATTENTION)
+    """Priority, severity, device, since when, and the marks that change how to read it.
+
+    An alarm's priority is the one its row in the list shows: the highest it had while
+    listed (hmi.explain.alarms), not the situation's severity now, which may have come down
+    (a diagnosis first ambiguous, P1, then certain and degraded, medium): that one follows
+    as ``now medium``."""
+    severity = alarm.severity if alarm is not None else explanation.severity
+    priority = PRIORITY.get(severity, 3)
+    level = SEVERITY_LEVEL.get(severity, Level.ATTENTION)
     text = Text(no_wrap=True, overflow="ellipsis")
     if explanation.alarm:
-        text.append_text(tag(f"P{priority} {explanation.severity}", level))
+        text.append_text(tag(f"P{priority} {severity}", level))
+        if severity != explanation.severity:
+            text.append(f" · now {explanation.severity}", style=MUTED)
     else:
         text.append(f"{explanation.severity} (no alarm)", style=MUTED)
     # the marks that change how to read it first: the end of the line may be cut
@@ -250,7 +258,8 @@ class ExplanationPanel(ContainedPump, VerticalScroll):
             self.display = visible
             self.post_message(ExplanationShown(visible))
         answer = self._answer()
-        state = (self.key, id(exp), self.alarm.state if self.alarm else None, level,
+        alarm = self.alarm
+        state = (self.key, id(exp), (alarm.state, alarm.severity) if alarm else None, level,
                  answer, self.wide)
         if state == self._drawn:
             return

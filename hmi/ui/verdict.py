@@ -58,12 +58,18 @@ def output_changes(snap: Snapshot) -> dict[str, str]:
     return out
 
 
-def request_verdict(snap: Snapshot, name: str, requested: bool) -> tuple[bool, str]:
-    """(written as requested?, one line) for a manual request, judged on a later scan."""
+def request_verdict(snap: Snapshot, name: str, requested: bool,
+                    device: str | None = None) -> tuple[bool, str]:
+    """(written as requested?, one line) for a manual request, judged on a later scan;
+    `device` is the output's (a device the operator stopped holds it safe before the filter:
+    its FOV is already the safe value, so no change below says why)."""
     written = snap.output_map[name]
     word = "on" if requested else "off"
     if written == requested:
         return True, f"{name} {word}: written {int(written)} at scan {snap.scan}"
-    why = output_changes(snap).get(name, "changed by the output stage")
+    why = output_changes(snap).get(name)
+    if why is None:
+        why = (f"{device} stopped by the operator" if device in snap.stopped_devices
+               else "changed by the output stage")
     return False, (f"{name} requested {word}, written {int(written)} at scan {snap.scan} "
                    f"— {why}")
