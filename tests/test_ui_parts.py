@@ -262,3 +262,41 @@ def test_recorder_forgets_old_history_but_keeps_the_level():
     window = (50_000_000, 60_000_000)
     assert recorder.trace("O", *window).changes == full.trace("O", *window).changes
     assert recorder.trace("O", *window).initial == full.trace("O", *window).initial
+
+
+def test_the_message_line_names_an_alarm_by_its_text_and_never_twice():
+    from hmi.engine.commands import (
+        Acknowledge,
+        ChoosePolicy,
+        CommandResult,
+        Shelve,
+        StartRecovery,
+        Unshelve,
+    )
+    from hmi.ui.message_line import result_text, spoken
+
+    key, text = "constraint:CSs2", "Valve V1: open order blocked"
+    texts = {key: text}.get
+
+    def line(command, result):
+        said, answer = spoken(command, result, lambda k: texts(k, k))
+        return result_text(said, result, answer).plain
+
+    assert line(Acknowledge(key), CommandResult.ok("acknowledged 1 alarm")) == \
+        f"✓ acknowledged 1 alarm: {text}"
+    refused = line(Acknowledge(key), CommandResult.refused(f"already acknowledged: {text}"))
+    assert refused.count(text) == 1 and key not in refused
+    gone = line(Acknowledge("diagnoser:V9"), CommandResult.refused(
+        "no alarm diagnoser:V9 to acknowledge"))  # nothing names it any more: its key
+    assert "diagnoser:V9" in gone
+    shelved = line(Shelve(key, 600_000_000), CommandResult.ok(
+        f"{text}: shelved for 10 min; journalled meanwhile"))
+    assert shelved.count(text) == 1 and key not in shelved and "shelve alarm" in shelved
+    back = line(Unshelve(key), CommandResult.refused(f"alarm {key} is not shelved"))
+    assert f"“{text}”" in back and key not in back
+    chosen = line(ChoosePolicy(key, "continue"), CommandResult.ok(
+        f"policy 'Continue' chosen for {key}: let the filter keep correcting"))
+    assert chosen == "✓ policy 'Continue' chosen: let the filter keep correcting"
+    recovery = line(StartRecovery("V1_close"), CommandResult.ok(
+        "RECOVERY mode: Close valve V1 (its initial position)"))
+    assert "V1_close" not in recovery and recovery.startswith("✓ start recovery: RECOVERY")

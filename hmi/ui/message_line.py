@@ -43,8 +43,13 @@ def spoken(command: Command, result: CommandResult,
             return "start recovery", message
         case Acknowledge(key=str() as key) | Shelve(key=key) | Unshelve(key=key) \
                 | CommentAlarm(key=key):
-            named = f"“{text_of(key)}”"
-            return what.replace(key, named), message.replace(key, named)
+            text = text_of(key)
+            named = f"“{text}”"
+            # an answer that names the alarm already ('already acknowledged: TEXT',
+            # 'TEXT: back in the list') is not told its text a second time
+            what = what.replace(f" {key}", "") if text in message else \
+                what.replace(key, named)
+            return what, message.replace(key, named)
     return what, message
 
 
