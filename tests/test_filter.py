@@ -93,6 +93,9 @@ def test_policy_switch_at_run_time():
     assert ctl.command(SetPolicy("correct")).accepted
     assert ctl.engine.policy == "correct"
     assert not ctl.command(SetPolicy("stop")).accepted
+    # the policy in effect again: the answer (and so the journal) does not read as a switch
+    same = ctl.command(SetPolicy("correct"))
+    assert same.accepted and same.message == "filter policy stays correct: already in effect"
 
 
 # The monitor policy on a real plant: tests/test_plant_contract.py (a real ModbusPlant).

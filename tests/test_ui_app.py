@@ -471,6 +471,16 @@ async def test_policy_switch_is_confirmed():
         await press(pilot, "n")
         await wait_for_main(pilot)
         assert engine(app).policy == "block"
+        # the policy already in effect: nothing to confirm, nothing sent nor journalled
+        sent = []
+        app.controller.listeners.append(lambda cmd, result, snap: sent.append(cmd))
+        await press(pilot, "p")
+        await wait_for_screen(pilot, ChoiceDialog)
+        await press(pilot, "enter")  # the highlighted one is the current one, block
+        await wait_for_main(pilot)
+        assert len(app.screen_stack) == 1 and not sent
+        assert "already block — nothing changed" in app.message.plain
+        assert engine(app).policy == "block"
 
 
 async def test_fault_injection_now_jams_the_valve():

@@ -240,6 +240,8 @@ class Engine:
                         "monitor policy passes unsafe orders through; refused on a real plant "
                         "(start with --allow-monitor to permit it)")
                 old, self.policy = self.policy, policy
+                if old == policy:  # (the journal must not read as a switch)
+                    return CommandResult.ok(f"filter policy stays {policy}: already in effect")
                 return CommandResult.ok(f"filter policy {old} -> {policy}")
             case InjectFault(injection=injection):
                 if not self.plant.can_inject:

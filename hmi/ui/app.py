@@ -1081,6 +1081,10 @@ class PlcHmiApp(ContainedPump, App):
 
     def _confirm_policy(self, current: str, policy: str) -> None:
         from hmi.ui.dialogs import ConfirmDialog
+        if policy == current:  # nothing to confirm: nothing would change
+            self.message.say(Text(f"filter policy: already {policy} — nothing changed",
+                                  style=MUTED))
+            return
         level = Level.ALARM if policy == "monitor" else Level.ATTENTION
         lines: list[Text | str] = [f"{current} → {policy}: {POLICY_HELP[policy]}."]
         if policy == "monitor":
