@@ -919,3 +919,20 @@ async def test_the_same_fault_is_not_injected_twice():
         assert "NOT AVAILABLE" in app.message.plain and "already in effect" in \
             app.message.plain
         assert region_text(app, "#sim").count("F13") == 1
+
+
+async def test_home_and_end_in_the_io_table_go_to_the_first_and_last_signal():
+    app = make_app(VALVE.parent / "sorting")
+    async with app.run_test(size=(80, 24)) as pilot:
+        await run_for(pilot, 0.1)
+        table = app.query_one(IOPanel)
+        table.focus()
+        await press(pilot, "end")
+        await settle(pilot)
+        last = app.project.outputs[-1].name  # the table lists inputs, then outputs
+        assert table.selected == last and table.scroll_x == 0
+        io = region_text(app, "#io")
+        assert "Signal" in io and "Value" in io  # names and values still in view
+        await press(pilot, "home")
+        await settle(pilot)
+        assert table.selected == app.project.inputs[0].name and table.scroll_x == 0

@@ -165,6 +165,18 @@ class IOPanel(ContainedPump, DataTable):
         return row_key.value
 
     # -- actions -----------------------------------------------------------------------------
+    def action_scroll_home(self) -> None:
+        """Home: the first signal. A row table's Home and End are about rows; Textual's
+        DataTable scrolls sideways on them, and End left only the descriptions' ends on
+        screen at 80 columns, names, values and header scrolled away (seen in a soak)."""
+        self.move_cursor(row=0, column=0)
+        self.scroll_x = 0
+
+    def action_scroll_end(self) -> None:
+        """End: the last signal (names and values stay in view)."""
+        self.move_cursor(row=max(self.row_count - 1, 0), column=0)
+        self.scroll_x = 0
+
     def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
         if self.app.screen is not self.screen and action in (*MANUAL_ACTIONS, "button"):
             return False  # a dialog is open over the table
