@@ -10,15 +10,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hmi.engine.scan import Engine
 from hmi.plant.sim.cell import SteppedCell
 from hmi.plant.sim.palletizer import Palletizer
-from hmi.plant.sim.plant import SimPlant
 from hmi.plant.sim.sorter import SortingCell
 from hmi.project.loader import load_project
 from hmi.project.scenarios import find_scenario
-from hmi.session.session import Session
 from tests.conftest import PROJECTS
+from tests.plant_steps import run_twins
 
 MS = 1_000
 S = 1_000_000
@@ -120,23 +118,10 @@ def test_in_closed_loop_the_gliding_plant_runs_scan_for_scan_as_the_full_one(pro
     state, counters, events) and the cells' whole physics are the same."""
     loaded = load_project(PROJECTS / project)
     injections = find_scenario(loaded, scenario).injections if scenario else ()
-    sessions = []
-    for gliding in (True, False):
-        plant = SimPlant(loaded)
-        if not gliding:
-            for device in plant.devices:
-                device.__class__ = {SortingCell: FullSorter, Palletizer: FullPalletizer}[
-                    type(device)]
-        for injection in injections:
-            plant.inject(injection)
-        sessions.append(Session(Engine(loaded, plant)))
-    a, b = sessions
-    for _ in range(60 * S // loaded.scan_period_us):
-        snap_a, snap_b = a.scan_once(), b.scan_once()
-        assert (snap_a.values, snap_a.plant_state, snap_a.plant_counters,
-                snap_a.plant_events) == (snap_b.values, snap_b.plant_state,
-                                         snap_b.plant_counters, snap_b.plant_events)
-    cell_a, cell_b = a.engine.plant.devices[0], b.engine.plant.devices[0]
+    a, b = run_twins(loaded, {SortingCell: FullSorter, Palletizer: FullPalletizer},
+                     injections, 60 * S // loaded.scan_period_us)
+    cell_a, cell_b = a.devices[0], b.devices[0]
+    assert type(cell_b) in (FullSorter, FullPalletizer)
     assert physics(cell_a) == physics(cell_b)
     assert cell_a.count["arrived"] > 3  # the run did handle boxes
 

@@ -13,12 +13,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hmi.engine.scan import Engine
-from hmi.plant.sim.plant import SimPlant
 from hmi.plant.sim.valve import Valve
 from hmi.project.injection import parse_injection
-from hmi.session.session import Session
 from tests.examples import example
+from tests.plant_steps import run_twins
 
 MS = 1_000
 S = 1_000_000
@@ -159,24 +157,10 @@ def test_in_closed_loop_the_gliding_valves_run_scan_for_scan_as_the_full_ones(pr
     """The project's law drives both plants (faults injected in both): every scan's inputs,
     outputs, plant state, counters and events, and the valves' whole physics, are the same."""
     loaded = example(project)
-    sessions = []
-    for gliding in (True, False):
-        plant = SimPlant(loaded)
-        if not gliding:
-            for device in plant.devices:
-                if type(device) is Valve:
-                    device.__class__ = FullValve
-        for text in faults:
-            plant.inject(parse_injection(text))
-        sessions.append(Session(Engine(loaded, plant)))
-    a, b = sessions
-    for _ in range(30 * S // loaded.scan_period_us):
-        snap_a, snap_b = a.scan_once(), b.scan_once()
-        assert (snap_a.values, snap_a.plant_state, snap_a.plant_counters,
-                snap_a.plant_events) == (snap_b.values, snap_b.plant_state,
-                                         snap_b.plant_counters, snap_b.plant_events)
-    valves = [(x, y) for x, y in zip(a.engine.plant.devices, b.engine.plant.devices,
-                                     strict=True) if isinstance(x, Valve)]
+    a, b = run_twins(loaded, {Valve: FullValve}, map(parse_injection, faults),
+                     30 * S // loaded.scan_period_us)
+    valves = [(x, y) for x, y in zip(a.devices, b.devices, strict=True)
+              if isinstance(x, Valve)]
     assert valves
     for x, y in valves:
         assert physics(x) == physics(y)
