@@ -74,6 +74,13 @@ class GrafcetRuntime:
             image[slot] = 0 if since is None else now - since
         self._timed()
 
+    def shift(self, delta: int) -> None:
+        """Every activation time `delta` later: the program waited that long (manual mode,
+        hmi.engine.control.ControlRuntime.resume), its step times stopped meanwhile."""
+        self.activated_at = {name: since + delta for name, since in self.activated_at.items()}
+        if self.timed is not None:
+            self._timed()
+
     def _timed(self) -> None:
         """The active steps' (time slot, activation time), in the image's time slots' state
         after update_times or fire (see `timed`)."""
