@@ -10,6 +10,9 @@ Interpretation, documented in docs/grafcet.md:
     deactivated and activated stays active (rule 5) and its step time restarts.
   * Stored actions (set/reset of memories) happen on activation; continuous actions hold
     while their step is active (and their condition is true), computed after evolution.
+  * In manual mode the program waits: nothing here runs (no evolution, no step time
+    written), and leaving manual mode shifts the activation times by the time it waited
+    (:meth:`GrafcetRuntime.shift`, from hmi.engine.control.ControlRuntime.resume).
 """
 
 from __future__ import annotations
