@@ -232,13 +232,18 @@ def transfers(snap) -> int:
 
 
 def test_conveyor_cycles_after_manual_mode():
-    """The soak's dead end (/tmp/soak3/conv_deadlock.steps), manual mode entered with the
-    program in X2 + X12 (the robot back home, a pallet on its way to B): start, manual mode
-    for 5 s, automatic for 60 s, a fault reset, 60 s. Before, the law ran on in manual mode:
-    it fired the join, the push and the transport with none of their orders written, and
-    back in automatic mode the robot took the only pallet and the program waited in X3 + X10
-    for a pallet at B for ever, with nothing on screen saying so. Now the program waits in
-    X2 + X12 and the cell cycles: pallets transferred keep increasing, the steps change."""
+    """The random operator's dead end: start, manual mode for 5 s, automatic for 60 s, a
+    fault reset, 60 s, with manual mode entered in X2 + X12 (the robot back home, a pallet on
+    its way to B). Before, the law ran on in manual mode: it fired the join, the push and the
+    transport with none of their orders written, and back in automatic mode the robot took
+    the only pallet and the program waited in X3 + X10 for a pallet at B for ever, with
+    nothing on screen saying so. Now the program waits in X2 + X12 and the cell cycles:
+    pallets transferred keep increasing, the steps change.
+
+    (The soak's step list enters manual mode at 1 s, in X2 + X11: there manual mode drops G
+    and aborts the robot's transfer, and X11 resumed orders G again, which hands over the
+    next pallet as well; that dead end is the plant moved by hand, not the program running
+    blind: docs/grafcet.md, "Manual mode".)"""
     project = example("conveyor_robot")
     session = Session(Engine(project, SimPlant(project)))
     session.run_for(2.8 * S)
