@@ -179,6 +179,8 @@ def test_generated_code_holds_only_slots_constants_and_operators():
         for control in project.controls:
             engine = Engine(project, SimPlant(project), control=control)
             assert engine.compiled is not None and engine.compiled.sources
+            assert engine.compiled.held is not None  # (built at manual mode's first scan)
+            assert any(text.startswith("def held(") for text in engine.compiled.sources)
             for text in engine.compiled.sources:
                 for tok in tokenize.generate_tokens(io.StringIO(text).readline):
                     if tok.type == tokenize.NAME and tok.start[0] > 1:  # after the def line

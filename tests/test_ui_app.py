@@ -20,7 +20,7 @@ from hmi.ui.chronogram import Chronogram
 from hmi.ui.dialogs import ChoiceDialog, ConfirmDialog, StepDialog
 from hmi.ui.fault_dialog import FaultDialog
 from hmi.ui.io_panel import IOPanel
-from hmi.ui.scenarios import VALVE, make_app, select_row
+from hmi.ui.scenarios import CONVEYOR, VALVE, make_app, select_row
 from hmi.ui.signal_dialog import SignalDialog
 from hmi.ui.testing import (
     WaitTimeout,
@@ -364,6 +364,49 @@ async def test_manual_keys_are_hidden_outside_manual_mode():
         await run_for(pilot, 0.01)
         footer = "\n".join(screen_text(app).splitlines()[-2:])
         assert "Release" in footer and "On" in footer
+
+
+async def test_in_manual_mode_the_control_panel_and_the_dialogs_say_the_program_waits():
+    """conveyor_robot in X2 + X11 (the robot transferring under G): the enter-manual dialog
+    names the steps the program waits at, the control panel says it waits (from the command
+    on, before a scan shows manual mode), and the leave-manual dialog names the steps it
+    resumes from and the order they give again."""
+    app = make_app(CONVEYOR)
+    async with app.run_test(size=SIZE) as pilot:
+        await run_for(pilot, 1.0)
+        assert app.controller.last.active_steps == ("X2", "X11")
+        assert "waiting" not in region_text(app, "#control")
+        await press(pilot, "m")
+        dialog = await wait_for_screen(pilot, ConfirmDialog)
+        said = " ".join(map(str, dialog.lines))
+        assert ("The control program waits at X2 (Conveyor carries the pallet to B), X11 "
+                "(Robot transfers the pallet to the assembly station): no step changes, and "
+                "its step times and memories hold until you leave manual mode; it then "
+                "resumes from these steps.") in said
+        assert "The control program waits at X2 (Conveyor" in screen_text(app)
+        await press(pilot, "y")
+        await wait_for_main(pilot)
+        assert "▲ waiting — manual mode: resumes from here" in region_text(app, "#control")
+        await run_for(pilot, 5)
+        control = region_text(app, "#control")
+        assert "▲ waiting — manual mode" in control
+        assert "● X2" in control and "● X11" in control
+        assert app.controller.last.active_steps == ("X2", "X11")
+        await press(pilot, "m")
+        dialog = await wait_for_screen(pilot, ConfirmDialog)
+        said = " ".join(map(str, dialog.lines))
+        assert ("The program resumes from X2 (Conveyor carries the pallet to B), X11 (Robot "
+                "transfers the pallet to the assembly station), its step times going on from "
+                "where they stopped, and drives the outputs again.") in said
+        assert "These steps order G again at the next scan." in said
+        assert "The program resumes from X2 (Conveyor" in screen_text(app)
+        await press(pilot, "y")
+        await wait_for_main(pilot)
+        assert "the control program resumes from X2, X11" in app.message.plain
+        assert "waiting" not in region_text(app, "#control")  # (commanded: resumes)
+        await run_for(pilot, 0.05)
+        assert "waiting" not in region_text(app, "#control")
+        assert app.controller.last.active_steps == ("X3", "X11")
 
 
 async def test_a_request_not_written_as_asked_says_why():

@@ -300,3 +300,44 @@ def test_the_message_line_names_an_alarm_by_its_text_and_never_twice():
     recovery = line(StartRecovery("V1_close"), CommandResult.ok(
         "RECOVERY mode: Close valve V1 (its initial position)"))
     assert "V1_close" not in recovery and recovery.startswith("✓ start recovery: RECOVERY")
+
+
+def test_manual_dialog_lines_name_the_steps_and_the_orders_given_again(tmp_path):
+    """hmi.ui.manual: a GRAFCET's steps with their descriptions (a step without one by its
+    name), the outputs the steps' continuous actions order again; a law of equations only
+    says its memories hold."""
+    from hmi.ui import manual
+    from tests.conftest import write_project
+    ctl = make_controller(PROJECTS / "conveyor_robot")
+    project = ctl.engine.project
+    law = project.controls[ctl.engine.control_name]
+    snap = ctl.scan_once()
+    assert snap.active_steps == ("X1", "X11")
+    assert manual.ordered_again(project, law, snap.active_steps) == ("d", "G")
+    assert manual.steps_text(law, ("X3", "X10")) == (
+        "X3 (A pallet waits at B), X10 (Robot free at home)")
+    assert manual.leave_lines(project, law, snap)[-1] == (
+        "These steps order d, G again at the next scan.")
+    assert manual.enter_lines(project, law, snap)[0].startswith(
+        "The control program waits at X1 (Pusher puts the next pallet on the conveyor), X11 ")
+    folder = write_project(tmp_path / "eq", {"project.yaml": """
+        name: eq
+        scan_period: 10ms
+        inputs: {a: A, fsc: sensor, fso: sensor}
+        outputs: {C: order, O: order}
+        memories: {M: {description: memory}}
+        control:
+          equations:
+            M: {set: a, reset: fsc}
+            C: M
+        plant: {kind: sim, model: valve, ports: {C: C, O: O}}
+    """})
+    ctl = make_controller(folder)
+    project = ctl.engine.project
+    law = project.controls[ctl.engine.control_name]
+    snap = ctl.scan_once()
+    assert manual.enter_lines(project, law, snap) == [
+        "The control program waits: its equations are not evaluated and its memories hold "
+        "until you leave manual mode; it then resumes from there."]
+    assert manual.ordered_again(project, law, ()) == ()
+    assert "memories as they were" in manual.leave_lines(project, law, snap)[0]

@@ -9,6 +9,9 @@ compiled here is the same work written out flat (hmi.engine.codegen): for the au
   (which diagnoser has a transition to fire), stage 4 (reconstruction), which recovery
   procedures the cell may need, and stage 5 (GRAFCET evolution, continuous actions,
   equations); it returns the functional output vector;
+* ``held(v, h, now, scan)``: the same in manual mode, where the program waits: neither the
+  step times nor stage 5 (the engine takes the operator's requests); built the first time
+  manual mode needs it, so an engine that never enters manual mode never generates it;
 * ``violated(v, h, f)``: whether the candidate `f` violates any safety constraint (stage 6's
   first question: most scans violate none, and then the filter has nothing else to do);
 * ``monitors(v, h, now, scan)``: the stopwatch monitors after the output scan; True when an
@@ -45,6 +48,7 @@ if TYPE_CHECKING:
     from hmi.engine.stages import Memory
 
 CoreFn = Callable[[Image, History, int, int], tuple[bool, ...]]
+HeldFn = Callable[[Image, History, int, int], None]
 ViolatedFn = Callable[[Image, History, tuple[bool, ...]], bool]
 MonitorFn = Callable[[Image, History, int, int], bool]
 ElapsedFn = Callable[[int], tuple[int, ...]]
@@ -62,6 +66,8 @@ class CompiledScan:
         self.label = label
         self.sources: list[str] = []  # every function's generated text, in build order
         self.core: CoreFn = self._core(layout, memory, control, diagnosis, recovery)
+        self._parts = (layout, memory, control, diagnosis, recovery)  # (for `held`)
+        self._held: HeldFn | None = None
         self.violated: ViolatedFn = self._violated(safety_filter)
         self.active_bits: ActiveFn = self._active_bits(safety_filter)
         self.monitors: MonitorFn | None = (self._monitors(monitors) if monitors is not None
@@ -77,24 +83,36 @@ class CompiledScan:
         return fn
 
     # -- stages 2 to 5 -----------------------------------------------------------------------
+    @property
+    def held(self) -> HeldFn:
+        """``held(v, h, now, scan)``: stages 2-4 while the program waits in manual mode (see
+        the module docstring), generated at the first call."""
+        fn = self._held
+        if fn is None:
+            fn = self._held = self._core(*self._parts, law=False)
+        return fn
+
     def _core(self, layout: Layout, memory: Memory, control: ControlRuntime,
-              diagnosis: DiagnosisStage | None, recovery: RecoveryStage | None) -> CoreFn:
+              diagnosis: DiagnosisStage | None, recovery: RecoveryStage | None,
+              law: bool = True) -> Any:
+        """``core``, or without the program (`law` False: ``held``)."""
         src = Source()
-        self._memory(src, layout, memory, control)
+        self._memory(src, layout, memory, control, law)
         if diagnosis is not None:
             self._diagnosis(src, diagnosis)
             src.line(1, f"for a, b in {src.ref(diagnosis)}.current.routes:")
             src.line(2, "v[a] = v[b]")
         if recovery is not None:
             self._needed(src, recovery)
+        if not law:
+            return self._build(src, "held", "v, h, now, scan")
         self._control(src, control)
         outs = layout.indices(layout.outputs)
         src.line(1, "return (" + "".join(f"v[{int(s)}], " for s in outs) + ")")
-        fn: CoreFn = self._build(src, "core", "v, h, now, scan")
-        return fn
+        return self._build(src, "core", "v, h, now, scan")
 
     def _memory(self, src: Source, layout: Layout, memory: Memory,
-                control: ControlRuntime) -> None:
+                control: ControlRuntime, law: bool) -> None:
         for (runtime, slot, _), spec in zip(memory.timers, memory.project_timers, strict=True):
             r = src.ref(runtime)
             cond = self._expr(spec.input.root)
@@ -135,7 +153,7 @@ class CompiledScan:
                 src.line(1, f"v[{slot}] = (not {self._expr(o.reset.root)}) and "
                          f"({self._expr(o.set.root)} or v[{slot}])")
         grafcet = control.grafcet
-        if grafcet is not None and grafcet.time_slots:
+        if law and grafcet is not None and grafcet.time_slots:
             # only the active steps' times move (GrafcetRuntime.timed); all of them after a
             # reset or a restored state
             g = src.ref(grafcet)

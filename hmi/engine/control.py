@@ -4,17 +4,33 @@ Order within the control phase: the GRAFCET evolves (and its stored actions appl
 continuous actions set their outputs, then the equations run in the order written. An
 equation reads the current image: a variable already computed this scan has its new value,
 any other its value from the previous scan — the PLC's own semantics.
+
+In manual mode the program waits (GEMMA's F4, S7-GRAPH's MAN mode): the engine does not run
+the law, so no transition fires and no equation is evaluated (its steps and memories hold in
+the image), and the step times stop where they were (:meth:`ControlRuntime.hold`). Leaving
+manual mode (:meth:`ControlRuntime.resume`) shifts the activation times by the time spent
+waiting: the program resumes from the steps where it waited, their times going on from where
+they stopped.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import NamedTuple
 
 from hmi.engine.grafcet import GrafcetRuntime
 from hmi.logic.expr import BoolFn, History, Image, compile_bool
 from hmi.project.model import ControlLaw
 
 ASSIGN, SET_DOMINANT, RESET_DOMINANT = 0, 1, 2  # the kinds of equation
+
+
+class ControlState(NamedTuple):
+    """What ControlRuntime.capture copies (the steps and memories live in the image)."""
+
+    activated_at: dict[str, int] | None  # None: no GRAFCET
+    fired: tuple[int, ...]
+    held_since: int | None  # manual mode: the program waits since then
 
 
 class ControlRuntime:
@@ -35,14 +51,39 @@ class ControlRuntime:
                 self.equations.append((slot, SET_DOMINANT if eq.set_dominant else RESET_DOMINANT,
                                        compile_bool(eq.set, slots, step_time_slots),
                                        compile_bool(eq.reset, slots, step_time_slots)))
+        # The scan time the program has waited since (manual mode), None while it runs.
+        self.held_since: int | None = None
 
     def reset(self, image: Image, now: int) -> None:
         if self.grafcet:
             self.grafcet.reset(image, now)
+        if self.held_since is not None:  # (the first scan, in manual mode: it waits from here)
+            self.held_since = now
 
     def update_times(self, image: Image, now: int) -> None:
-        if self.grafcet:
+        """The step times, in the image; held (not written) while the program waits."""
+        if self.grafcet and self.held_since is None:
             self.grafcet.update_times(image, now)
+
+    def hold(self, now: int) -> None:
+        """Manual mode: the program waits from `now` (the last scan's time). The engine no
+        longer runs it; the step times in the image stay as that scan left them."""
+        if self.held_since is None:
+            self.held_since = now
+            if self.grafcet:
+                self.grafcet.fired = ()
+
+    def resume(self, now: int) -> None:
+        """Leaving manual mode at `now` (the last scan's time): the activation times move on
+        by the time the program waited, so the next scan's step times go on from where they
+        stopped."""
+        since, self.held_since = self.held_since, None
+        if since is not None and self.grafcet is not None and now > since:
+            self.grafcet.shift(now - since)
+
+    @property
+    def held(self) -> bool:
+        return self.held_since is not None
 
     def run(self, image: Image, history: History, now: int) -> None:
         if self.grafcet:
@@ -56,16 +97,19 @@ class ControlRuntime:
             else:
                 image[slot] = not reset(image, history) and (set_(image, history) or image[slot])
 
-    def capture(self) -> tuple[dict[str, int], tuple[int, ...]] | None:
-        """The GRAFCET's activation times and last firing (its steps live in the image)."""
+    def capture(self) -> ControlState:
+        """The GRAFCET's activation times and last firing (its steps live in the image), and
+        since when the program waits (manual mode)."""
         if self.grafcet is None:
-            return None
-        return dict(self.grafcet.activated_at), self.grafcet.fired
+            return ControlState(None, (), self.held_since)
+        return ControlState(dict(self.grafcet.activated_at), self.grafcet.fired,
+                            self.held_since)
 
-    def restore(self, state: tuple[dict[str, int], tuple[int, ...]] | None) -> None:
-        if self.grafcet is not None and state is not None:
-            self.grafcet.activated_at = dict(state[0])
-            self.grafcet.fired = state[1]
+    def restore(self, state: ControlState) -> None:
+        self.held_since = state.held_since
+        if self.grafcet is not None and state.activated_at is not None:
+            self.grafcet.activated_at = dict(state.activated_at)
+            self.grafcet.fired = state.fired
             self.grafcet.forget_active()
 
     def active_steps(self, image: Image) -> tuple[str, ...]:

@@ -10,6 +10,9 @@ Interpretation, documented in docs/grafcet.md:
     deactivated and activated stays active (rule 5) and its step time restarts.
   * Stored actions (set/reset of memories) happen on activation; continuous actions hold
     while their step is active (and their condition is true), computed after evolution.
+  * In manual mode the program waits: nothing here runs (no evolution, no step time
+    written), and leaving manual mode shifts the activation times by the time it waited
+    (:meth:`GrafcetRuntime.shift`, from hmi.engine.control.ControlRuntime.resume).
 """
 
 from __future__ import annotations
@@ -73,6 +76,13 @@ class GrafcetRuntime:
             since = self.activated_at.get(name)
             image[slot] = 0 if since is None else now - since
         self._timed()
+
+    def shift(self, delta: int) -> None:
+        """Every activation time `delta` later: the program waited that long (manual mode,
+        hmi.engine.control.ControlRuntime.resume), its step times stopped meanwhile."""
+        self.activated_at = {name: since + delta for name, since in self.activated_at.items()}
+        if self.timed is not None:
+            self._timed()
 
     def _timed(self) -> None:
         """The active steps' (time slot, activation time), in the image's time slots' state

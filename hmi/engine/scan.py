@@ -204,16 +204,20 @@ class Engine:
                     return CommandResult.refused("already in manual mode")
                 self.mode = "manual"
                 self.manual = {}
-                return CommandResult.ok("manual mode: outputs follow operator requests, "
-                                        "still through the safety filter")
+                self.control.hold(self.now)  # the program waits where it is
+                return CommandResult.ok(f"manual mode: the control program waits{self._where()}"
+                                        "; outputs follow operator requests, still through "
+                                        "the safety filter")
             case SetMode(manual=False):
                 if self.mode == "auto":
                     return CommandResult.refused("already in automatic mode")
                 released = sorted(self.manual)
                 self.mode = "auto"
                 self.manual = {}
+                self.control.resume(self.now)  # from where it waited, at the next scan
                 extra = f"; released {', '.join(released)}" if released else ""
-                return CommandResult.ok("automatic mode: the control law drives the outputs"
+                return CommandResult.ok("automatic mode: the control program resumes"
+                                        f"{self._where('from')} and drives the outputs"
                                         + extra)
             case ManualOutput(name=name, value=value):
                 if self.mode != "manual":
@@ -291,6 +295,12 @@ class Engine:
                 return CommandResult.ok(f"SIMULATION: input {name} {'on' if value else 'off'}")
         return CommandResult.refused(f"the engine does not handle {command!r}")
 
+    def _where(self, word: str = "at") -> str:
+        """' at X3, X10': the program's active steps for SetMode's answers ('' without a
+        GRAFCET, or before the first scan: the program starts from its initial steps)."""
+        steps = self.control.active_steps(self.image) if self.started else ()
+        return f" {word} {', '.join(steps)}" if steps else ""
+
     def _start_recovery(self, name: str) -> CommandResult:
         stage = self.recovery
         if stage is None:
@@ -320,6 +330,7 @@ class Engine:
             self.monitors.abandon()
         self.mode = "recovery"
         self.manual = {}
+        self.control.resume(self.now)  # (from manual mode: the law runs blind in recovery)
         stage.start(name, self.now)
         return CommandResult.ok(
             f"RECOVERY mode: {spec.description}; only {', '.join(spec.outputs)} move, "
@@ -716,13 +727,16 @@ class Engine:
             recovery = self.recovery
             filter_stage = self.filter_stage
             if fast is not None and self.mode != "recovery":
-                # 2-5 compiled: memory, diagnosers, reconstruction, recoveries needed, law
-                fov = fast.core(image, hist, now, self.scan)
+                # 2-5 compiled: memory, diagnosers, reconstruction, recoveries needed, law;
+                # in manual mode the program waits (neither its step times nor the law)
+                if self.mode == "manual":
+                    fast.held(image, hist, now, self.scan)
+                    fov = self.control_stage.manual_fov(self.manual)
+                else:
+                    fov = fast.core(image, hist, now, self.scan)
                 if self.diagnosis is not None:
                     diagnosis = self.diagnosis.current
                 mask = diagnosis.mask
-                if self.mode == "manual":
-                    fov = self.control_stage.manual_fov(self.manual)
             else:
                 # 2. memory
                 self.memory.update(image, hist, now)
@@ -738,7 +752,7 @@ class Engine:
                 if self.observe:
                     fov = self.input_scan.readback
                 elif self.mode == "recovery" and recovery is not None:
-                    self.control_stage.fov(image, hist, now, {})  # the law's memories evolve
+                    self.control_stage.fov(image, hist, now, None)  # the law runs blind
                     fov = recovery.fov(image, hist, now)
                     filter_stage = recovery.filter_stage or filter_stage
                     mask = recovery.unmask(mask)

@@ -1,10 +1,11 @@
 """The stages of one scan (000 Fig. 1, DESIGN.md), each a small object the engine owns.
 
     1 InputScan        plant -> input slots of the image
-    2 Memory           timers, observers, GRAFCET step times
+    2 Memory           timers, observers, GRAFCET step times (held in manual mode)
     3 diagnosers       hmi.engine.diagnoser.DiagnosisStage (optional)
     4 Reconstruction   filtered sensors <- the sensor or its estimate, as the diagnosers route
-    5 Control          the control law (or the operator's manual requests) -> FOV
+    5 Control          the control law -> FOV; in manual mode the operator's requests, and
+                       the program waits where it is (ControlRuntime.hold / resume)
     6 filter           hmi.engine.filter_stage.FilterStage, given the diagnosers' mask
     7 OutputScan       written vector -> plant
     8 monitors         hmi.engine.monitors.MonitorStage (optional), on the I/O just exchanged
@@ -106,7 +107,8 @@ class InputScan:
 
 
 class Memory:
-    """Stage 2: timers (TON/TOF), observers, and the GRAFCET's step activity times."""
+    """Stage 2: timers (TON/TOF), observers, and the GRAFCET's step activity times (these
+    held while the program waits in manual mode: ControlRuntime.update_times)."""
 
     def __init__(self, project: Project, layout: Layout, control: ControlRuntime):
         slots, times = layout.slots, layout.step_times
@@ -171,11 +173,14 @@ class Control:
 
     def fov(self, image: Image, history: History, now: int,
             manual: Mapping[str, bool] | None) -> tuple[bool, ...]:
-        """The law always runs (its steps and memories evolve in manual mode too); `manual`
-        (the operator's requests, in manual mode) replaces what it asks for."""
-        self.runtime.run(image, history, now)
+        """The law's vector; in manual mode (`manual`: the operator's requests) the program
+        waits: the law does not run (no transition fires, no equation is evaluated, its steps
+        and memories hold; its step times were held at stage 2, ControlRuntime.hold) and the
+        requests are the vector. A recovery runs the law blind (Engine._cycle: `manual` None,
+        the vector ignored), and leaving recovery restarts it from its initial steps."""
         if manual is not None:
             return self.manual_fov(manual)
+        self.runtime.run(image, history, now)
         return tuple(image[s] for s in self.slots)
 
     def manual_fov(self, manual: Mapping[str, bool]) -> tuple[bool, ...]:

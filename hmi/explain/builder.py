@@ -513,10 +513,11 @@ class ExplanationBuilder:
                                for n, v in forces)
             what = f"{self.project.name}: MANUAL — forces active ({listed})"
             why = f"Manual mode since {seconds(onset.time_us)} s; requested: {listed}."
-            consequences = ("The control program does not drive the outputs; every request "
-                            "still goes through the safety filter.")
+            consequences = ("The control program waits where it is and does not drive the "
+                            "outputs; every request still goes through the safety filter.")
             policies = (Policy("auto", "Leave manual",
-                               "release every manual output; the program drives them again",
+                               "release every manual output; the program resumes from the "
+                               "steps where it waited and drives them again",
                                cmd.SetMode(False), True),)
             detail = ("Manual requests: " + ", ".join(f"{n}={int(v)}" for n, v in forces)
                       + f"; manual mode since scan {onset.scan}.")

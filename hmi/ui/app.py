@@ -68,7 +68,7 @@ from hmi.project.monitors import monitors_of
 from hmi.project.recovery import recoveries_of
 from hmi.session.session import Session
 from hmi.timefmt import seconds
-from hmi.ui import testhooks
+from hmi.ui import manual, testhooks
 from hmi.ui.actions import ACTIONS, bindings
 from hmi.ui.alarm_list import AlarmList, AlarmSelected
 from hmi.ui.chronogram import WINDOWS_US, Chronogram
@@ -658,7 +658,8 @@ class PlcHmiApp(ContainedPump, App):
             case SetMode(manual=True):
                 lines += self._manual_lines(snap) if snap else []
             case SetMode(manual=False):
-                lines.append("Every manual request is released; the program drives again.")
+                lines.append("Every manual request is released.")
+                lines += self._leave_manual_lines(snap) if snap else []
             case StartRecovery(procedure=name):
                 spec = next((p for p in recoveries_of(self.project) if p.name == name), None)
                 if spec is not None:
@@ -906,7 +907,7 @@ class PlcHmiApp(ContainedPump, App):
         if manual_now:
             requested = ", ".join(f"{n}={int(v)}" for n, v in snap.manual) or "none"
             lines = [f"Every manual request is released (now: {requested}).",
-                     "The control law drives the outputs again, from its current steps.",
+                     *self._leave_manual_lines(snap),
                      f"The safety filter keeps its policy ({snap.policy})."]
             self.push_screen(ConfirmDialog("Leave manual mode?", lines, "Leave manual",
                                            dialog_id="manual-dialog"),
@@ -917,12 +918,17 @@ class PlcHmiApp(ContainedPump, App):
                                            dialog_id="manual-dialog"),
                              partial(self._confirmed, SetMode(True)))
 
-    @staticmethod
-    def _manual_lines(snap) -> list[Text | str]:
+    def _manual_lines(self, snap: Snapshot) -> list[Text | str]:
+        law = self.project.controls[self.controller.engine.control_name]
         return ["The control law stops driving the outputs: they follow your requests,",
                 "and an output you have not requested is 0.",
+                *manual.enter_lines(self.project, law, snap),
                 f"Every request still goes through the safety filter ({snap.policy}).",
                 "Select an output in the I/O table: 1 on, 0 off, x release."]
+
+    def _leave_manual_lines(self, snap: Snapshot) -> list[Text | str]:
+        law = self.project.controls[self.controller.engine.control_name]
+        return list(manual.leave_lines(self.project, law, snap))
 
     def action_manual_request(self, name: str, value: bool | None) -> None:
         self.send(ManualOutput(name, value))

@@ -7,6 +7,10 @@ steps are listed (the title says how many: ``2/6 active``).
 No colour here: an active step is normal. It is marked by a filled dot and bold text; the
 time a step has been active is what tells an engineer the sequence is stuck (a valve that
 never reaches its end switch keeps its "Opening" step active for ever).
+
+In manual mode the program waits (no step changes, its step times and memories hold, and it
+resumes from these steps when manual mode is left): the first line says so, with the
+attention symbol, as soon as manual mode is commanded (paused, before a scan shows it).
 """
 
 from __future__ import annotations
@@ -18,7 +22,7 @@ from rich.text import Text
 from hmi.timefmt import format_duration
 from hmi.ui.frame import Frame
 from hmi.ui.panel import TextPanel, set_title
-from hmi.ui.style import MUTED
+from hmi.ui.style import MUTED, Level, tag
 
 BAR = 10
 SHORT = 30  # below this height the panel may list the active steps only
@@ -80,6 +84,10 @@ class GrafcetPanel(TextPanel):
         width = max(20, self.content_size.width or 40)
         name_w = max((len(s.name) for s in self.steps), default=2)
         text = Text(no_wrap=True, overflow="ellipsis")
+        if frame.manual_keys:  # (the program waits from the command on)
+            text.append_text(tag("waiting — manual mode", Level.ATTENTION))
+            text.append(": resumes from here\n" if self.steps else ": memories held\n",
+                        style=MUTED)
         if not self.steps:
             text.append("no GRAFCET (equations only)\n", style=MUTED)
         compact = self.compact
