@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from hmi.engine.snapshot import Snapshot
 from hmi.project.model import ControlLaw, Project
+from hmi.timefmt import seconds
 
 
 def steps_text(law: ControlLaw, active: tuple[str, ...]) -> str:
@@ -39,9 +40,11 @@ def enter_lines(project: Project, law: ControlLaw, snap: Snapshot) -> list[str]:
         return ["The control program waits: its equations are not evaluated and its "
                 "memories hold until you leave manual mode; it then resumes from there."]
     where = steps_text(law, snap.active_steps) or "its initial steps"
-    return [f"The control program waits at {where}: no step changes, and its step times "
-            "and memories hold until you leave manual mode; it then resumes from these "
-            "steps."]
+    # (the cell keeps running while the dialog is open: the steps are those of its scan,
+    # and the program waits at the ones it is in when the operator confirms)
+    return [f"The control program waits at the steps it is in when you confirm (at "
+            f"{seconds(snap.time_us)} s: {where}): no step changes, and its step times and "
+            "memories hold until you leave manual mode; it then resumes from there."]
 
 
 def leave_lines(project: Project, law: ControlLaw, snap: Snapshot) -> list[str]:
