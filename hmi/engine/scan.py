@@ -125,6 +125,7 @@ class Engine:
         # once per scan in run(), the overdue steps in the snapshot), else None.
         self._supervised = (self.control.grafcet if self.control.grafcet is not None
                             and self.control.grafcet.supervision else None)
+        self._overdue: tuple[str, ...] = ()  # the overdue steps the last scan told of
         # The stages, in scan order (hmi.engine.stages).
         self.input_scan = InputScan(plant, lay, read_back=self.observe)  # 1
         self.memory = Memory(project, lay, self.control)  # 2
@@ -542,15 +543,16 @@ class Engine:
             cycle = self._cycle(now)
         report, diagnosis, monitored, error = cycle[2], cycle[3], cycle[4], cycle[5]
         image = self.image
-        # Step supervision: one comparison a scan; past the deadline a step is overdue
-        # (an alarm: news, even on a scan that has no other).
+        # Step supervision: one comparison a scan; past the deadline a step is overdue,
+        # and a change of the overdue steps (a firing leaves one) is news, even on a scan
+        # that has no other (an alarm raised or cleared). Nothing to do without supervision.
         supervised = self._supervised
         if supervised is not None:
             if now > supervised.deadline:
                 supervised.watch(now)
-            overdue = supervised.overdue
-        else:
-            overdue = ()
+            if supervised.overdue is not self._overdue:
+                self._overdue = supervised.overdue
+                self._commanded = True  # (news, as after a command)
         stage = self.diagnosis
         plant = self.plant
         # What the scan left, read for its snapshot: each read outside the stages' own error
@@ -603,13 +605,13 @@ class Engine:
         # next with this one)
         if (last is not None and report is last[0] and status is last[1]
                 and diagnosers is last[2] and marks == last[3] and recovery is last[4]
-                and overdue is last[5] and not self._commanded and error is None and not events
+                and not self._commanded and error is None and not events
                 and not self.latched and not diagnosis.masked
                 and not diagnosis.reconstructed and not self.manual):
             news = False
         else:
             news = True
-            self._news = (report, status, diagnosers, marks, recovery, overdue)
+            self._news = (report, status, diagnosers, marks, recovery)
         self._commanded = False
         self._pending = (cycle, values, diagnosers, marks, events, recovery,
                          (time.perf_counter() - wall) * 1e6 if timed else 0.0)
