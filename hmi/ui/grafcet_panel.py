@@ -163,7 +163,9 @@ class GrafcetPanel(TextPanel):
                 text.append(desc, style="bold")
                 text.append(f" {_secs(int(elapsed))}\n", style=mark)
                 for wait in self._shown.get(step.name, ()):
-                    self._wait_line(text, wait, stuck and not compact)
+                    late = any(s in snap.overdue_steps
+                               for s in (wait.step, *self._sources(wait)))
+                    self._wait_line(text, wait, late and not compact)
             else:
                 text.append(f"○ {step.name.ljust(name_w)} {desc}\n", style=MUTED)
         timer_w = max((len(t.name) for t in self.timers), default=0)
