@@ -181,6 +181,13 @@ def test_on_the_quiet_path_the_deadline_is_news(seq):
     assert [a.key for a in first.alarms] == ["step:X0"]
     assert comparable(first) == comparable(raised[0])
     assert session.last.overdue_steps == ("X0",)
+    # left on the quiet path: the scan that leaves it is news, the alarm clears there
+    session.engine.plant.set_input("a", True)
+    built = []
+    session.run_for(1 * S, on_scan=built.append, on_quiet=lambda n: None)
+    left = built[0]
+    assert left.active_steps == ("X1", "X5") and left.overdue_steps == ()
+    assert [(a.key, a.state) for a in left.alarms] == [("step:X0", "cleared-unacknowledged")]
 
 
 def test_the_explanation_says_what_the_step_waits_for(seq):

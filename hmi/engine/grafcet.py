@@ -17,8 +17,9 @@ Interpretation, documented in docs/grafcet.md:
     that while the program runs in automatic mode is *overdue* (the program is stuck there:
     hmi.explain.sequence raises an alarm). Kept cheap: `deadline` is the next instant an
     active supervised step becomes overdue; the engine compares the scan's time with it once
-    per scan and calls :meth:`GrafcetRuntime.watch` past it; a firing, a reset and the
-    engine's mode changes (:meth:`GrafcetRuntime.supervise`) recompute it.
+    per scan and calls :meth:`GrafcetRuntime.watch` past it; a firing makes it due at once (the
+    engine recomputes after that scan's control), a reset and the engine's mode changes
+    (:meth:`GrafcetRuntime.supervise`) recompute it.
 """
 
 from __future__ import annotations
@@ -144,8 +145,8 @@ class GrafcetRuntime:
         self._active = None
         if self.timed is not None:  # (else the image's times are not all settled yet)
             self._timed()
-        if self.supervision:
-            self.watch(now)
+        if self.supervision:  # due now: Engine.run watches again after this scan's control
+            self.deadline = DUE
         return self.fired
 
     def supervise(self, watching: bool, now: int) -> None:
@@ -204,3 +205,4 @@ class GrafcetRuntime:
 
 
 NEVER = float("inf")  # a deadline that never comes
+DUE = -1  # a deadline already past (a firing: the overdue steps are recomputed)

@@ -543,13 +543,13 @@ class Engine:
             cycle = self._cycle(now)
         report, diagnosis, monitored, error = cycle[2], cycle[3], cycle[4], cycle[5]
         image = self.image
-        # Step supervision: one comparison a scan; past the deadline a step is overdue,
-        # and a change of the overdue steps (a firing leaves one) is news, even on a scan
-        # that has no other (an alarm raised or cleared). Nothing to do without supervision.
+        # Step supervision: one comparison a scan. Past the deadline (a step's supervision
+        # time, or a firing: hmi.engine.grafcet) the overdue steps are found again, and a
+        # change of them is news, even on a scan that has no other (an alarm raised or
+        # cleared). Nothing to do without supervision.
         supervised = self._supervised
-        if supervised is not None:
-            if now > supervised.deadline:
-                supervised.watch(now)
+        if supervised is not None and now > supervised.deadline:
+            supervised.watch(now)
             if supervised.overdue is not self._overdue:
                 self._overdue = supervised.overdue
                 self._commanded = True  # (news, as after a command)
