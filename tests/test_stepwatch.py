@@ -250,3 +250,37 @@ def test_no_supervision_costs_no_deadline(tmp_path):
     engine = Engine(project, SimPlant(project))
     assert engine._supervised is None
     assert all(engine.step(k * 10 * MS).overdue_steps == () for k in range(200))
+
+
+def test_not_in_recovery_mode_and_restarted_after_it(seq, tmp_path):
+    """Recovery mode runs the law blind: no supervision there; leaving it restarts the
+    program from its initial steps, whose times (and supervision) start again."""
+    files = {"project.yaml": SEQ_PROJECT["project.yaml"] + """
+        recovery:
+          R1:
+            device: Pusher
+            description: Pull the pusher back
+            steps:
+              - {description: Pulling back, do: [P], until: a}
+            timeout: 1h
+    """}
+    project = load_project(write_project(tmp_path / "rec", files))
+    engine = Engine(project, SimPlant(project))
+    period = project.scan_period_us
+    k = 0
+
+    def run(seconds):
+        nonlocal k
+        snaps = []
+        for _ in range(round(seconds * S) // period):
+            snaps.append(engine.step(k * period))
+            k += 1
+        return snaps
+
+    assert run(0.6)[-1].overdue_steps == ("X0",)
+    assert engine.apply(cmd.StartRecovery("R1")).accepted
+    assert all(s.mode == "recovery" and not s.overdue_steps for s in run(2))
+    assert engine.apply(cmd.EndRecovery()).accepted
+    snaps = run(0.6)
+    first = next(s for s in snaps if s.overdue_steps)
+    assert first.time_us - snaps[0].time_us == 510 * MS - period  # X0 again from its start
