@@ -34,6 +34,10 @@ def _law_summary(law: ControlLaw) -> str:
         initial = ", ".join(s.name for s in g.steps if s.initial)
         parts.append(f"GRAFCET {len(g.steps)} steps (initial {initial}), "
                      f"{len(g.transitions)} transitions")
+        supervised = [f"{s.name} {format_duration(s.supervision_us)}" for s in g.steps
+                      if s.supervision_us is not None]
+        if supervised:
+            parts.append("supervision " + ", ".join(supervised))
     if law.equations:
         parts.append(f"{len(law.equations)} equations")
     return "; ".join(parts)

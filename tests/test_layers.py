@@ -40,7 +40,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
 # What explain/ may read of engine/: the snapshot and the types it carries.
 SNAPSHOT_TYPES = {"hmi.engine.snapshot", "hmi.engine.commands", "hmi.engine.stopwatch",
                   "hmi.engine.monitors", "hmi.engine.diagnoser", "hmi.engine.filter",
-                  "hmi.engine.layout"}
+                  "hmi.engine.layout", "hmi.engine.criteria"}
 
 
 def module_name(path: Path) -> str:

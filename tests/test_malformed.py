@@ -194,6 +194,34 @@ CASES = [
          {"head": "name: t\nscan_period: 10ms\ninclude: [more.yaml]\n"}),
     Case("unknown-name-suggestion", "did you mean 'T1'", "T2",
          {"control": "control:\n  equations:\n    Y: T2\n    Z: T1\n"}),
+    # A step's supervision time (docs/project-format.md, "Control law").
+    Case("supervision-negative", "supervision of step 1 '-5s' is not a duration", "-5s",
+         {"control": GRAFCET_OK.replace("1: {actions: [Y]}",
+                                        "1: {actions: [Y], supervision: -5s}")}),
+    Case("supervision-zero", "supervision of step 1 must be longer than zero", "0s}",
+         {"control": GRAFCET_OK.replace("1: {actions: [Y]}",
+                                        "1: {actions: [Y], supervision: 0s}")}),
+    Case("supervision-no-unit", "supervision of step 1 15 has no unit", "15}",
+         {"control": GRAFCET_OK.replace("1: {actions: [Y]}",
+                                        "1: {actions: [Y], supervision: 15}")}),
+    Case("supervision-not-duration", "supervision of step 0 'long' is not a duration", "long",
+         {"control": GRAFCET_OK.replace("0: {initial: true}",
+                                        "0: {initial: true, supervision: long}")}),
+    Case("supervision-list", "supervision of step 1 must be a single value", "[10s]",
+         {"control": GRAFCET_OK.replace("1: {actions: [Y]}",
+                                        "1: {actions: [Y], supervision: [10s]}")}),
+    Case("supervision-below-period", "is shorter than the scan period (10ms)", "5ms",
+         {"control": GRAFCET_OK.replace("1: {actions: [Y]}",
+                                        "1: {actions: [Y], supervision: 5ms}")}),
+    Case("supervision-too-long", "longer than the longest duration allowed", "2000h",
+         {"control": GRAFCET_OK.replace("1: {actions: [Y]}",
+                                        "1: {actions: [Y], supervision: 2000h}")}),
+    Case("supervision-misspelt", "unknown key 'supervison'", "supervison",
+         {"control": GRAFCET_OK.replace("1: {actions: [Y]}",
+                                        "1: {actions: [Y], supervison: 10s}")}),
+    Case("supervision-without-grafcet", "unknown key 'supervision'", "supervision",
+         {"control": "control:\n  main:\n    supervision: 10s\n    equations:\n"
+                     "      Y: a\n      Z: T1\n"}),
 ]
 
 
@@ -325,3 +353,16 @@ def test_one_wrong_field_of_an_output_is_one_error(tmp_path, wrong, fragment):
     assert len(errors) == 1, [str(d) for d in errors]
     assert fragment in errors[0].message + str(errors[0].expected)
     assert errors[0].pos.file.endswith("project.yaml")
+
+
+def test_supervision_not_a_multiple_of_the_period_is_a_warning(tmp_path, capsys):
+    folder = tmp_path / "p"
+    folder.mkdir()
+    (folder / "project.yaml").write_text(project_text(control=GRAFCET_OK.replace(
+        "1: {actions: [Y]}", "1: {actions: [Y], supervision: 1.005s}")), encoding="utf-8")
+    project = load_project(folder)
+    assert project.controls["main"].grafcet.steps[1].supervision_us == 1_005_000
+    assert any("not a multiple of the scan period" in w.message for w in project.warnings)
+    assert main(["check", str(folder)]) == 0
+    out = capsys.readouterr()
+    assert "supervision X1 1.005s" in out.out

@@ -263,3 +263,57 @@ def test_conveyor_cycles_after_manual_mode():
     session.run_for(59 * S, on_scan=seen)
     assert transfers(session.last) >= after_reset + 10
     assert {("X3", "X10"), ("X1", "X11"), ("X2", "X12")} <= steps
+
+
+def test_the_conveyor_dead_end_is_said_and_the_way_back_works():
+    """The soak's step list (tests of /tmp/soak3/conv_deadlock.steps: manual mode at 1 s,
+    mid-transfer, for 5 s): back in automatic mode X11 orders G again, which hands over the
+    pallet X3 counts on, and the program waits in X3 + X10 for a pallet at B that will never
+    come. The step's supervision (10 s) says so: an alarm, with what it waits for (B 0).
+    The way back the alarm recommends: manual mode, d on until a pallet waits at B (3.5 s of
+    transport), released, automatic mode: the program resumes from X3 + X10, the join fires
+    and the cell cycles again; the alarm clears."""
+    project = example("conveyor_robot")
+    session = Session(Engine(project, SimPlant(project)))
+    session.run_for(1 * S)
+    assert session.command(cmd.SetMode(True)).accepted
+    session.run_for(5 * S)
+    assert session.command(cmd.SetMode(False)).accepted
+    session.run_for(9 * S, on_quiet=lambda n: None)
+    assert session.last.active_steps == ("X3", "X10") and session.last.overdue_steps == ()
+    session.run_for(4 * S, on_quiet=lambda n: None)  # X3 since 6.02 s, X10 since 9.02 s
+    snap = session.last
+    assert snap.overdue_steps == ("X3", "X10")
+    alarms = {a.key: a for a in snap.alarms}
+    stuck = alarms["step:X3"]
+    assert stuck.state == "active-unacknowledged" and stuck.raised_us == 16_030_000
+    assert stuck.text == "Program stuck at “A pallet waits at B” — waiting more than 10s"
+    assert "(B) 0" in stuck.explanation.why and "(e) 1" in stuck.explanation.why
+    assert [w.text for w in snap.waits] == ["X3 waits for B and e — B 0, e 1",
+                                            "X10 waits for B and e — B 0, e 1"]
+    before = transfers(snap)
+    # the way back: the recommended policy (manual mode), d until B, release, leave manual
+    result = session.command(cmd.ChoosePolicy("step:X3", "manual"))
+    assert result.accepted and "waits at X3, X10" in result.message
+    assert session.command(cmd.ManualOutput("d", True)).accepted
+    pushed_at = session.last.time_us
+    session.run_for(0.5 * S)
+    assert session.last.overdue_steps == ()  # the program waits on purpose
+    assert session.last.waits[0].values == (("B", False), ("e", True))
+    while not session.last.value("B"):
+        session.scan_once()
+    assert 3.5 * S <= session.last.time_us - pushed_at <= 3.6 * S  # the belt's transport
+    assert [w.holds for w in session.last.waits] == [True, True]
+    assert session.command(cmd.ManualOutput("d", None)).accepted
+    result = session.command(cmd.SetMode(False))
+    assert result.message.startswith("automatic mode: the control program resumes from X3, X10")
+    steps = set()
+
+    def seen(s):
+        steps.add(s.active_steps)
+    session.run_for(30 * S, on_scan=seen)
+    assert {("X1", "X11"), ("X2", "X12"), ("X3", "X10")} <= steps
+    assert transfers(session.last) >= before + 7
+    assert session.last.overdue_steps == ()
+    assert not [a for a in session.last.alarms
+                if a.key.startswith("step:") and a.state.startswith("active")]

@@ -143,6 +143,12 @@ def situations(project):
                               stopped=stopped)
         yield f"fallback {stopped}", base._replace(filter=report)
     yield "manual", base._replace(mode="manual", manual=((outputs[0], True),))
+    grafcet = base.layout.grafcet
+    for step in grafcet.steps if grafcet is not None else ():
+        # a step past its supervision time (every step: their receptivities read timers,
+        # memories, step times, other steps; a step with none written says 0)
+        yield (f"step {step.name} overdue",
+               base._replace(active_steps=(step.name,), overdue_steps=(step.name,)))
     for r in recoveries_of(project):
         needed = ((r.name, r.device, r.description, r.needed.text if r.needed else "x"),)
         yield f"recovery {r.name} needed", base._replace(recovery=RecoveryState(needed=needed))

@@ -13,6 +13,13 @@ Interpretation, documented in docs/grafcet.md:
   * In manual mode the program waits: nothing here runs (no evolution, no step time
     written), and leaving manual mode shifts the activation times by the time it waited
     (:meth:`GrafcetRuntime.shift`, from hmi.engine.control.ControlRuntime.resume).
+  * Supervision (S7-GRAPH's): a step declared with `supervision:` and active longer than
+    that while the program runs in automatic mode is *overdue* (the program is stuck there:
+    hmi.explain.sequence raises an alarm). Kept cheap: `deadline` is the next instant an
+    active supervised step becomes overdue; the engine compares the scan's time with it once
+    per scan and calls :meth:`GrafcetRuntime.watch` past it; a firing makes it due at once (the
+    engine recomputes after that scan's control), a reset and the engine's mode changes
+    (:meth:`GrafcetRuntime.supervise`) recompute it.
 """
 
 from __future__ import annotations
@@ -61,6 +68,15 @@ class GrafcetRuntime:
         self.timed: tuple[tuple[int, int], ...] | None = None
         self.fired: tuple[int, ...] = ()
         self._active: tuple[str, ...] | None = None  # cache of active(), None: to compute
+        # Supervision: each supervised step's time; whether it is watched now (automatic
+        # mode, the program running: the engine says, `supervise`); the active supervised
+        # steps past their time, in step order; the scan time past which the next becomes
+        # overdue (NEVER: none).
+        self.supervision = {s.name: s.supervision_us for s in grafcet.steps
+                            if s.supervision_us is not None}
+        self.watching = True
+        self.overdue: tuple[str, ...] = ()
+        self.deadline: float = NEVER
 
     def reset(self, image: Image, now: int) -> None:
         for name, slot in self.step_slots.items():
@@ -70,6 +86,8 @@ class GrafcetRuntime:
         self._active = None
         for name in self.initial:
             self._stored(image, name)
+        if self.supervision:
+            self.watch(now)
 
     def update_times(self, image: Image, now: int) -> None:
         for name, slot in self.time_slots.items():
@@ -127,7 +145,39 @@ class GrafcetRuntime:
         self._active = None
         if self.timed is not None:  # (else the image's times are not all settled yet)
             self._timed()
+        if self.supervision:  # due now: Engine.run watches again after this scan's control
+            self.deadline = DUE
         return self.fired
+
+    def supervise(self, watching: bool, now: int) -> None:
+        """Whether the supervision times are watched from `now` on (the engine: automatic
+        mode, the program running; not while it waits in manual mode, nor in recovery mode,
+        nor observing a device), and the overdue steps and deadline as of `now`."""
+        self.watching = watching
+        if self.supervision:
+            self.watch(now)
+
+    def watch(self, now: int) -> None:
+        """The overdue steps and the next deadline at `now` (the engine calls this past the
+        deadline; a firing and a reset call it too). `overdue` keeps its identity while it
+        does not change: the engine tells news by it (hmi.engine.scan.Engine.run)."""
+        overdue: list[str] = []
+        deadline: float = NEVER
+        if self.watching:
+            since_of = self.activated_at
+            for name, limit in self.supervision.items():
+                since = since_of.get(name)
+                if since is None:
+                    continue
+                due = since + limit
+                if now > due:
+                    overdue.append(name)
+                elif due < deadline:
+                    deadline = due
+        found = tuple(overdue)
+        if found != self.overdue:
+            self.overdue = found
+        self.deadline = deadline
 
     def _stored(self, image: Image, step: str) -> None:
         for slot, value in self.stored.get(step, ()):
@@ -152,3 +202,7 @@ class GrafcetRuntime:
         """The steps in the image were changed from outside (a restored state)."""
         self._active = None
         self.timed = None
+
+
+NEVER = float("inf")  # a deadline that never comes
+DUE = -1  # a deadline already past (a firing: the overdue steps are recomputed)

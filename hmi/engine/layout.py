@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 
 from hmi.logic.expr import Image
-from hmi.project.model import ControlLaw, Project
+from hmi.project.model import ControlLaw, Grafcet, Project
 
 
 @dataclass(frozen=True)
@@ -28,6 +28,9 @@ class Layout:
     step_times: Mapping[str, int]  # step name -> slot of its activity time (us)
     timer_presets: tuple[int, ...] = ()
     extra: Mapping[str, tuple[str, ...]] = field(default_factory=dict)  # kind -> names
+    # The law's GRAFCET as the project declares it (immutable): what a snapshot's active steps
+    # wait for is read from it (hmi.engine.criteria), and their supervision times.
+    grafcet: Grafcet | None = field(default=None, compare=False)
 
     @classmethod
     def build(cls, project: Project, law: ControlLaw,
@@ -71,6 +74,7 @@ class Layout:
             steps=steps, step_times=MappingProxyType(step_times),
             timer_presets=tuple(t.preset_us for t in project.timers),
             extra=MappingProxyType({k: tuple(v) for k, v in extra_kinds.items()}),
+            grafcet=law.grafcet,
         )
 
     def indices(self, names: Iterable[str]) -> tuple[int, ...]:

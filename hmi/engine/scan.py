@@ -121,6 +121,11 @@ class Engine:
         self.output_slots = lay.indices(lay.outputs)
         self.safe_vector = tuple(v.safe for v in project.outputs)
         self.control = ControlRuntime(law, lay.slots, lay.step_times)
+        # The GRAFCET when it has supervised steps (hmi.engine.grafcet: the deadline compared
+        # once per scan in run(), the overdue steps in the snapshot), else None.
+        self._supervised = (self.control.grafcet if self.control.grafcet is not None
+                            and self.control.grafcet.supervision else None)
+        self._overdue: tuple[str, ...] = ()  # the overdue steps the last scan told of
         # The stages, in scan order (hmi.engine.stages).
         self.input_scan = InputScan(plant, lay, read_back=self.observe)  # 1
         self.memory = Memory(project, lay, self.control)  # 2
@@ -205,6 +210,7 @@ class Engine:
                 self.mode = "manual"
                 self.manual = {}
                 self.control.hold(self.now)  # the program waits where it is
+                self._supervise()
                 return CommandResult.ok(f"manual mode: the control program waits{self._where()}"
                                         "; outputs follow operator requests, still through "
                                         "the safety filter")
@@ -215,6 +221,7 @@ class Engine:
                 self.mode = "auto"
                 self.manual = {}
                 self.control.resume(self.now)  # from where it waited, at the next scan
+                self._supervise()
                 extra = f"; released {', '.join(released)}" if released else ""
                 return CommandResult.ok("automatic mode: the control program resumes"
                                         f"{self._where('from')} and drives the outputs"
@@ -295,6 +302,15 @@ class Engine:
                 return CommandResult.ok(f"SIMULATION: input {name} {'on' if value else 'off'}")
         return CommandResult.refused(f"the engine does not handle {command!r}")
 
+    def _supervise(self) -> None:
+        """The steps' supervision watched only while the program runs in automatic mode:
+        not while it waits (manual mode), nor in recovery mode (it runs blind, and restarts
+        from its initial steps after), nor observing a device (it does not run)."""
+        grafcet = self._supervised
+        if grafcet is not None:
+            grafcet.supervise(self.started and self.mode == "auto" and not self.observe,
+                              self.now)
+
     def _where(self, word: str = "at") -> str:
         """' at X3, X10': the program's active steps for SetMode's answers ('' without a
         GRAFCET, or before the first scan: the program starts from its initial steps)."""
@@ -332,6 +348,7 @@ class Engine:
         self.manual = {}
         self.control.resume(self.now)  # (from manual mode: the law runs blind in recovery)
         stage.start(name, self.now)
+        self._supervise()
         return CommandResult.ok(
             f"RECOVERY mode: {spec.description}; only {', '.join(spec.outputs)} move, "
             "every other output is held safe, and its own constraints still filter them")
@@ -343,6 +360,7 @@ class Engine:
         reached = self.recovery.stop()
         self.mode = "auto"
         self.control.reset(self.image, self.now)
+        self._supervise()
         if active is not None and reached == "done":
             # The observers the procedure re-establishes (a turntable emptied: an observer
             # set on an edge that never came back would deny it) start from their initial
@@ -427,6 +445,7 @@ class Engine:
         self.input_scan.readback = state.readback
         self.memory.restore(state.memory)
         self.control.restore(state.control)
+        self._supervise()
         if self.diagnosis is not None and state.diagnosis is not None:
             self.diagnosis.restore(state.diagnosis)
         if self.recovery is not None and state.recovery is not None:
@@ -524,6 +543,16 @@ class Engine:
             cycle = self._cycle(now)
         report, diagnosis, monitored, error = cycle[2], cycle[3], cycle[4], cycle[5]
         image = self.image
+        # Step supervision: one comparison a scan. Past the deadline (a step's supervision
+        # time, or a firing: hmi.engine.grafcet) the overdue steps are found again, and a
+        # change of them is news, even on a scan that has no other (an alarm raised or
+        # cleared). Nothing to do without supervision.
+        supervised = self._supervised
+        if supervised is not None and now > supervised.deadline:
+            supervised.watch(now)
+            if supervised.overdue is not self._overdue:
+                self._overdue = supervised.overdue
+                self._commanded = True  # (news, as after a command)
         stage = self.diagnosis
         plant = self.plant
         # What the scan left, read for its snapshot: each read outside the stages' own error
@@ -678,7 +707,8 @@ class Engine:
             report, diagnosers, monitors, diagnosis.reconstructed, masked,
             (), (), (), (),  # explanations, alarms, alarm_events, shelved: the session's
             tuple(sorted(self.stopped_devices)) if self.stopped_devices else (),
-            recovery, error, scan_us, filter_us, marks))
+            recovery, error, scan_us, filter_us, marks,
+            self._supervised.overdue if self._supervised is not None else ()))
         return snapshot
 
     def _status_unknown(self) -> PlantStatus:
@@ -901,6 +931,7 @@ class Engine:
         for _ in range(self.history.maxlen or 1):
             self.history.append(values)
         self.started = True
+        self._supervise()
 
     def _masked(self, diagnosis: Diagnosis) -> tuple[str, ...]:
         """The outputs the diagnosers' mask holds at 0 (a running recovery lifts it from the
@@ -923,7 +954,8 @@ _SNAPSHOT_ORDER = (
     "fired", "timer_elapsed", "control", "mode", "manual", "policy", "latched", "plant",
     "plant_state", "plant_counters", "plant_events", "filter", "diagnosers", "monitors",
     "reconstructed", "masked", "explanations", "alarms", "alarm_events", "shelved",
-    "stopped_devices", "recovery", "error", "scan_wall_us", "filter_wall_us", "monitor_marks")
+    "stopped_devices", "recovery", "error", "scan_wall_us", "filter_wall_us", "monitor_marks",
+    "overdue_steps")
 assert Snapshot._fields == _SNAPSHOT_ORDER, "Engine.step builds Snapshot by position"
 
 

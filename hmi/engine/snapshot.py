@@ -13,6 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, NamedTuple, cast
 
+from hmi.engine.criteria import Wait, waits
 from hmi.engine.diagnoser import DiagnoserState
 from hmi.engine.filter import FilterReport
 from hmi.engine.layout import Layout
@@ -95,6 +96,9 @@ class _Fields(NamedTuple):
     # attempt, detection, watchdog trip, counts): a reader that only cares about those reads
     # `monitors` when it moved (hmi.engine.monitors).
     monitor_marks: int = 0
+    # The active GRAFCET steps past their supervision time, the program running in automatic
+    # mode (hmi.engine.grafcet: the program is stuck there; what each waits for: `waits`).
+    overdue_steps: tuple[str, ...] = ()
 
 
 class Snapshot(_Fields):
@@ -108,6 +112,15 @@ class Snapshot(_Fields):
         if type(stored) is LazyMonitors:
             return stored.states()
         return cast("tuple[MonitorState, ...]", stored)
+
+    @property
+    def waits(self) -> tuple[Wait, ...]:
+        """What each active GRAFCET step waits for (hmi.engine.criteria): each transition
+        leaving it, its receptivity with the current values of what it reads, the steps of a
+        join still inactive. Computed when read, from the snapshot alone."""
+        values, slots = self.values, self.layout.slots
+        return waits(self.layout.grafcet, self.active_steps,
+                     _Reader(values, slots))
 
     def value(self, name: str) -> Any:
         return self.values[self.layout.slots[name]]
@@ -143,6 +156,19 @@ class Snapshot(_Fields):
     @property
     def is_safe_latched(self) -> bool:
         return bool(self.latched)
+
+
+class _Reader:
+    """A snapshot's values by name, for hmi.engine.criteria."""
+
+    __slots__ = ("slots", "values")
+
+    def __init__(self, values: tuple[Any, ...], slots: Any):
+        self.values = values
+        self.slots = slots
+
+    def __getitem__(self, name: str) -> Any:
+        return self.values[self.slots[name]]
 
 
 _EXPLANATIONS, _ALARMS, _ALARM_EVENTS, _SHELVED, _ERROR, _SCAN_WALL, _MONITORS = (

@@ -21,6 +21,7 @@ from hmi.explain.model import Explanation, Policy
 from hmi.explain.monitors import monitor_explanations
 from hmi.explain.plain import PlainNames, lower_first
 from hmi.explain.recovery import recovery_explanations
+from hmi.explain.sequence import sequence_explanations
 from hmi.project.diagnosers import diagnosers_of
 from hmi.project.model import Project
 from hmi.project.recovery import recoveries_of
@@ -72,7 +73,7 @@ class ExplanationBuilder:
         report = snap.filter
         inputs = (snap.latched, snap.plant, snap.mode, snap.manual, snap.monitor_marks,
                   snap.diagnosers, snap.recovery, snap.reconstructed, snap.masked, snap.policy,
-                  snap.error)
+                  snap.error, snap.overdue_steps)
         last = self._last
         if last is not None and snap.error is None and inputs == last[2] and (
                 report is last[0] or (report is not None and last[0] is not None
@@ -102,6 +103,7 @@ class ExplanationBuilder:
         found.extend(monitor_explanations(self, snap))
         found.extend(diagnosis_explanations(self, snap))
         found.extend(recovery_explanations(self, snap))
+        found.extend(sequence_explanations(self, snap))
         keys = {e.key for e in found}
         for key in list(self.onsets):
             if key not in keys:

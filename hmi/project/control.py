@@ -18,13 +18,15 @@ from hmi.project.model import (
 )
 from hmi.project.reader import ProjectReader
 from hmi.project.yamlnodes import YNode
+from hmi.timefmt import format_duration
 
 # What the control law's expressions may read (outputs: the value being computed this scan).
 CONTROL_KINDS = {"input", "output", "memory", "timer", "observer", "step", "flag", "filtered"}
 
 
 def parse_controls(reader: ProjectReader, pos: SourcePos, outputs: set[str],
-                   memories: set[str]) -> tuple[dict[str, ControlLaw], str]:
+                   memories: set[str], period_us: int = 10_000
+                   ) -> tuple[dict[str, ControlLaw], str]:
     node = reader.sections.get("control")
     if node is None:
         reader.diag.error(pos, "the project has no control law", "a 'control:' section")
@@ -43,7 +45,8 @@ def parse_controls(reader: ProjectReader, pos: SourcePos, outputs: set[str],
         positions = node.key_pos
     controls: dict[str, ControlLaw] = {}
     for vname, vnode in variants.items():
-        law = _control_law(reader, str(vname), vnode, positions[vname], outputs, memories)
+        law = _control_law(reader, str(vname), vnode, positions[vname], outputs, memories,
+                           period_us)
         if law is not None:
             controls[str(vname)] = law
     default = next(iter(variants), "")
@@ -51,7 +54,7 @@ def parse_controls(reader: ProjectReader, pos: SourcePos, outputs: set[str],
 
 
 def _control_law(reader: ProjectReader, name: str, node: YNode, kpos: SourcePos, outputs: set[str],
-                 memories: set[str]) -> ControlLaw | None:
+                 memories: set[str], period_us: int) -> ControlLaw | None:
     what = f"control variant {name!r}"
     fields = reader.guard(lambda: node.check_keys(
         what, {"description", "equations", "grafcet"}))
@@ -67,7 +70,8 @@ def _control_law(reader: ProjectReader, name: str, node: YNode, kpos: SourcePos,
     steps: tuple[str, ...] = ()
     if "grafcet" in fields:
         steps = _step_names(fields["grafcet"])
-        grafcet = _grafcet(reader, fields["grafcet"], what, steps, outputs, memories)
+        grafcet = _grafcet(reader, fields["grafcet"], what, steps, outputs, memories,
+                           period_us)
     equations = _equations(reader, fields.get("equations"), what, steps, outputs, memories)
     driven_by_actions: dict[str, SourcePos] = {}
     if grafcet:
@@ -135,7 +139,7 @@ def _step_names(node: YNode) -> tuple[str, ...]:
 
 
 def _grafcet(reader: ProjectReader, node: YNode, what: str, step_names: tuple[str, ...],
-             outputs: set[str], memories: set[str]) -> Grafcet | None:
+             outputs: set[str], memories: set[str], period_us: int) -> Grafcet | None:
     fields = reader.guard(lambda: node.check_keys(
         f"the grafcet of {what}", {"steps", "transitions"}, ["steps", "transitions"]))
     if fields is None:
@@ -154,7 +158,7 @@ def _grafcet(reader: ProjectReader, node: YNode, what: str, step_names: tuple[st
                               f"{numbered[int(key)]})", "each step number once")
             continue
         numbered[int(key)] = spos
-        step = _step(reader, int(key), snode, spos, step_names, outputs, memories)
+        step = _step(reader, int(key), snode, spos, step_names, outputs, memories, period_us)
         if step:
             steps.append(step)
     if not step_map:
@@ -175,12 +179,12 @@ def _grafcet(reader: ProjectReader, node: YNode, what: str, step_names: tuple[st
 
 
 def _step(reader: ProjectReader, number: int, node: YNode, spos: SourcePos, steps: tuple[str, ...],
-          outputs: set[str], memories: set[str]) -> Step | None:
+          outputs: set[str], memories: set[str], period_us: int) -> Step | None:
     name = f"X{number}"
     if node.kind == "scalar" and node.value is None:
         return Step(number, name, False, "", (), spos)
     fields = reader.guard(lambda: node.check_keys(
-        f"step {number}", {"initial", "description", "actions"}))
+        f"step {number}", {"initial", "description", "actions", "supervision"}))
     if fields is None:
         return None
     initial = reader.guard(lambda: fields["initial"].as_bool("initial"), False) \
@@ -195,7 +199,31 @@ def _step(reader: ProjectReader, number: int, node: YNode, spos: SourcePos, step
             action = _action(reader, anode, number, steps, outputs, memories)
             if action:
                 actions.append(action)
-    return Step(number, name, initial, description, tuple(actions), spos)
+    supervision = _supervision(reader, fields["supervision"], number, period_us) \
+        if "supervision" in fields else None
+    return Step(number, name, initial, description, tuple(actions), spos, supervision)
+
+
+def _supervision(reader: ProjectReader, node: YNode, number: int, period_us: int) -> int | None:
+    """A step's supervision time (S7-GRAPH's): a duration of at least one scan period (the
+    program cannot be seen waiting less); one that is not a multiple of the period is a
+    warning (the alarm comes at the first scan past it)."""
+    what = f"the supervision of step {number}"
+    us: int | None = reader.guard(lambda: node.as_duration(what))
+    if us is None:
+        return None
+    if us < period_us:
+        reader.diag.error(node.pos, f"{what} ({format_duration(us)}) is shorter than the scan "
+                          f"period ({format_duration(period_us)}): the step would be "
+                          "reported stuck as soon as it is active",
+                          f"a duration of at least {format_duration(period_us)}, longer than "
+                          "the step lasts in a normal cycle")
+        return None
+    if us % period_us:
+        reader.diag.warning(node.pos, f"{what} ({format_duration(us)}) is not a multiple of "
+                            f"the scan period {format_duration(period_us)}: the alarm comes "
+                            "at the first scan past it")
+    return us
 
 
 def _action(reader: ProjectReader, node: YNode, number: int, steps: tuple[str, ...],

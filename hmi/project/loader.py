@@ -199,7 +199,7 @@ class ProjectLoader(ProjectReader):
         timers = [t for t in (read_timer(self, n, k, p) for n, k, p in timer_nodes) if t]
         observers = [o for o in (read_observer(self, n, k, p) for n, k, p in observer_nodes) if o]
         controls, default_control = parse_controls(self, pos, {v.name for v in outputs},
-                                                   {m.name for m in memories})
+                                                   {m.name for m in memories}, period)
         constraints = parse_constraints(self)
         policy: PolicyName = "correct"
         if "policy" in s:
@@ -230,7 +230,9 @@ class ProjectLoader(ProjectReader):
                      "labels": self.declared_labels,
                      "partitions": self.declared_partitions,
                      "situations": {f"{prefix}_{r.name}" for r in recovery
-                                    for prefix in RECOVERY_SITUATIONS}}
+                                    for prefix in RECOVERY_SITUATIONS}
+                     | {f"step_{step.name}" for law in controls.values() if law.grafcet
+                        for step in law.grafcet.steps if step.supervision_us is not None}}
             texts = merge_texts(self, [
                 (owner, parse_explanations(node, self.guard, known, self.diag.error))
                 for owner, node in sources])

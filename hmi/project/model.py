@@ -130,6 +130,9 @@ class Step:
     description: str
     actions: tuple[Action, ...]
     pos: SourcePos
+    # S7-GRAPH's supervision: active longer than this in automatic mode, the program is
+    # stuck there (an alarm, hmi.explain.sequence); None: not supervised.
+    supervision_us: int | None = None
 
 
 @dataclass(frozen=True)

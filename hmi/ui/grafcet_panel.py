@@ -11,18 +11,28 @@ never reaches its end switch keeps its "Opening" step active for ever).
 In manual mode the program waits (no step changes, its step times and memories hold, and it
 resumes from these steps when manual mode is left): the first line says so, with the
 attention symbol, as soon as manual mode is commanded (paused, before a scan shows it).
+
+Under each active step, what it waits for (S7-GRAPH's criteria analysis, read from the
+snapshot: Snapshot.waits): each transition leaving it, its receptivity and the current
+values of what it reads, ``↳ waits for B and e — B 0, e 1``; a join's other steps still to
+come, ``…, and X10 active``; ``✓ met`` once it holds (in manual mode: it goes on when the
+program resumes). A join whose steps are all active is shown once, under the last of them.
+A step past its supervision time (the program stuck there, an alarm) reads ``✗ stuck``, in
+the alarm colour, instead of the arrow.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+from rich.style import Style
 from rich.text import Text
 
+from hmi.engine.criteria import Wait
 from hmi.timefmt import format_duration
 from hmi.ui.frame import Frame
 from hmi.ui.panel import TextPanel, set_title
-from hmi.ui.style import MUTED, Level, tag
+from hmi.ui.style import MUTED, OK_SYMBOL, STYLE, SYMBOL, Level, tag
 
 BAR = 10
 SHORT = 30  # below this height the panel may list the active steps only
@@ -58,6 +68,7 @@ class GrafcetPanel(TextPanel):
         self.steps = steps
         self.timers = timers
         self.frame: Frame | None = None
+        self._shown: dict[str, list[Wait]] = {}  # the waits shown under each active step
 
     def on_mount(self) -> None:
         self.border_title = f"Control · {self.control}"
@@ -78,9 +89,50 @@ class GrafcetPanel(TextPanel):
         if self.frame is not None:
             self.show_text(self.render_frame(self.frame))
 
+    def _placed(self, waits: tuple[Wait, ...], active: set[str]) -> dict[str, list[Wait]]:
+        """Each wait under the step it is shown under: its own, or for a join whose steps
+        are all active, the last of them in the panel's order (shown once)."""
+        order = {s.name: k for k, s in enumerate(self.steps)}
+        placed: dict[str, list[Wait]] = {}
+        seen: set[int] = set()
+        for wait in waits:
+            if wait.transition in seen:
+                continue
+            seen.add(wait.transition)
+            sources = [wait.step] + [s for s in self._sources(wait) if s in active]
+            under = max(sources, key=lambda s: order.get(s, -1))
+            placed.setdefault(under, []).append(wait)
+        return placed
+
+    def _sources(self, wait: Wait) -> tuple[str, ...]:
+        frame = self.frame
+        grafcet = frame.snapshot.layout.grafcet if frame is not None else None
+        if grafcet is None:
+            return ()
+        return next((t.sources for t in grafcet.transitions if t.number == wait.transition),
+                    ())
+
+    @staticmethod
+    def _wait_line(text: Text, wait: Wait, stuck: bool) -> None:
+        """`stuck`: said in words (on a short screen the step's ✗ and the title say it)."""
+        if stuck:
+            text.append("  ")
+            text.append_text(tag("stuck:", Level.ALARM))
+            text.append(" ")
+        else:
+            text.append("  ↳ ", style=MUTED)
+        text.append(f"waits for {wait.condition}")
+        shown = wait.shown_values
+        if shown:
+            text.append(f" — {shown}")
+        if wait.holds:
+            text.append(f" {OK_SYMBOL} met", style=MUTED)
+        text.append("\n")
+
     def render_frame(self, frame: Frame) -> Text:
         snap = frame.snapshot
         active = set(snap.active_steps)
+        self._shown = self._placed(snap.waits, active) if active else {}
         width = max(20, self.content_size.width or 40)
         name_w = max((len(s.name) for s in self.steps), default=2)
         text = Text(no_wrap=True, overflow="ellipsis")
@@ -91,8 +143,10 @@ class GrafcetPanel(TextPanel):
         if not self.steps:
             text.append("no GRAFCET (equations only)\n", style=MUTED)
         compact = self.compact
+        stuck = len(snap.overdue_steps)
         set_title(self, f"Control · {self.control}" + (
-            f" · {len(active)}/{len(self.steps)} active" if compact else ""))
+            f" · {len(active)}/{len(self.steps)}" + ("" if stuck else " active")
+            if compact else "") + (f" · {SYMBOL[Level.ALARM]} stuck" if stuck else ""))
         for step in self.steps:
             on = step.name in active
             if compact and not on:
@@ -102,9 +156,16 @@ class GrafcetPanel(TextPanel):
             if on:
                 elapsed = snap.value(step.name + ".t") if (step.name + ".t") in \
                     snap.layout.slots else 0
-                text.append(f"● {step.name.ljust(name_w)} ", style="bold")
+                stuck = step.name in snap.overdue_steps
+                mark = STYLE[Level.ALARM] if stuck else Style(bold=True)
+                text.append(f"{SYMBOL[Level.ALARM] if stuck else '●'} ", style=mark)
+                text.append(f"{step.name.ljust(name_w)} ", style="bold")
                 text.append(desc, style="bold")
-                text.append(f" {_secs(int(elapsed))}\n", style="bold")
+                text.append(f" {_secs(int(elapsed))}\n", style=mark)
+                for wait in self._shown.get(step.name, ()):
+                    late = any(s in snap.overdue_steps
+                               for s in (wait.step, *self._sources(wait)))
+                    self._wait_line(text, wait, late and not compact)
             else:
                 text.append(f"○ {step.name.ljust(name_w)} {desc}\n", style=MUTED)
         timer_w = max((len(t.name) for t in self.timers), default=0)

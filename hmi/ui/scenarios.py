@@ -194,6 +194,25 @@ async def monitor_fault(pilot: Pilot) -> None:
     await settle(pilot)
 
 
+async def conveyor_stuck(pilot: Pilot) -> None:
+    """Conveyor/robot: manual mode entered mid-transfer for 5 s; back in automatic mode the
+    robot takes the pallet X3 counts on and the program waits in X3 + X10 for a pallet that
+    will not come. Past X3's supervision time (10 s) the alarm says it is stuck and what it
+    waits for; the operator selects it and opens its explanation."""
+    await run_for(pilot, 1)
+    await press(pilot, "m", "y")
+    await wait_for_main(pilot)
+    await run_for(pilot, 5)
+    await press(pilot, "m", "y")
+    await wait_for_main(pilot)
+    await run_until(pilot, lambda s: "X3" in s.overdue_steps, 12, "X3 overdue")
+    await run_for(pilot, 0.5)
+    await press(pilot, "tab")
+    await wait_until(pilot, lambda: isinstance(pilot.app.focused, AlarmList), "the list")
+    await press(pilot, "home", "e")
+    await settle(pilot)
+
+
 async def alarms_80x24(pilot: Pilot) -> None:
     """The faulty program at 80×24: five alarms in three rows; the operator tabs to the list,
     selects the second (active) alarm and acknowledges it: it goes after the unacknowledged
@@ -286,6 +305,9 @@ SCENARIOS: tuple[Scenario, ...] = (
     Scenario("monitor_fault", (120, 36), monitor_fault,
              "Conveyor/robot (002 §4): the conveyor's stopwatch monitor fires at x = 3 s",
              partial(make_app, CONVEYOR, inject=("C1.stop@1s+2s",))),
+    Scenario("conveyor_stuck", (100, 30), conveyor_stuck,
+             "Conveyor/robot stuck: X3 past its supervision time, waiting for B and e",
+             partial(make_app, CONVEYOR)),
     Scenario("recovery_80x24", (80, 24), recovery,
              "SIMULATION: F13 repaired; RECOVERY closes the valve, filtered by its own rules",
              partial(make_app, inject=("F13@10.4s",))),
