@@ -269,6 +269,7 @@ def test_the_message_line_names_an_alarm_by_its_text_and_never_twice():
         Acknowledge,
         ChoosePolicy,
         CommandResult,
+        SetMode,
         Shelve,
         StartRecovery,
         Unshelve,
@@ -300,6 +301,15 @@ def test_the_message_line_names_an_alarm_by_its_text_and_never_twice():
     recovery = line(StartRecovery("V1_close"), CommandResult.ok(
         "RECOVERY mode: Close valve V1 (its initial position)"))
     assert "V1_close" not in recovery and recovery.startswith("✓ start recovery: RECOVERY")
+    manual = line(SetMode(True), CommandResult.ok(
+        "manual mode: the control program waits at X3; outputs follow operator requests"))
+    assert manual == "✓ manual mode: the control program waits at X3; outputs follow " \
+        "operator requests"
+    auto = line(SetMode(False), CommandResult.ok("automatic mode: the control program "
+                                                 "resumes from X3"))
+    assert auto == "✓ automatic mode: the control program resumes from X3"
+    assert line(SetMode(True), CommandResult.refused("already in manual mode")) == \
+        "✗ REFUSED enter manual mode: already in manual mode"
 
 
 def test_manual_dialog_lines_name_the_steps_and_the_orders_given_again(tmp_path):

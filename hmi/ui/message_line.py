@@ -17,6 +17,7 @@ from hmi.engine.commands import (
     Command,
     CommandResult,
     CommentAlarm,
+    SetMode,
     Shelve,
     StartRecovery,
     Unshelve,
@@ -41,6 +42,8 @@ def spoken(command: Command, result: CommandResult,
             return "acknowledged", f"{message}: {text_of(key)}"
         case StartRecovery():  # the answer names the procedure by its title
             return "start recovery", message
+        case SetMode() if result.accepted:  # 'manual mode: the control program waits...'
+            return message.split(":", 1)[0], message  # names the mode: not told twice
         case Acknowledge(key=str() as key) | Shelve(key=key) | Unshelve(key=key) \
                 | CommentAlarm(key=key):
             text = text_of(key)
