@@ -379,10 +379,11 @@ async def test_in_manual_mode_the_control_panel_and_the_dialogs_say_the_program_
         await press(pilot, "m")
         dialog = await wait_for_screen(pilot, ConfirmDialog)
         said = " ".join(map(str, dialog.lines))
-        assert ("The control program waits at the steps it is in when you confirm (at "
-                "1.000 s: X2 (Conveyor carries the pallet to B), X11 (Robot transfers the "
-                "pallet to the assembly station)): no step changes, and its step times and "
-                "memories hold until you leave manual mode; it then resumes from there."
+        assert ("The control program waits at the steps it is in when you confirm (when "
+                "this opened, at 1.000 s: X2 (Conveyor carries the pallet to B), X11 (Robot "
+                "transfers the pallet to the assembly station)): no step changes, and its "
+                "step times and memories hold until you leave manual mode; it then resumes "
+                "from there."
                 ) in said
         assert "The control program waits at the steps it is in when you" in screen_text(app)
         await press(pilot, "y")

@@ -329,8 +329,8 @@ def test_manual_dialog_lines_name_the_steps_and_the_orders_given_again(tmp_path)
     assert manual.leave_lines(project, law, snap)[-1] == (
         "These steps order d, G again at the next scan.")
     assert manual.enter_lines(project, law, snap)[0].startswith(
-        "The control program waits at the steps it is in when you confirm (at 0.000 s: "
-        "X1 (Pusher puts the next pallet on the conveyor), X11 ")
+        "The control program waits at the steps it is in when you confirm (when this "
+        "opened, at 0.000 s: X1 (Pusher puts the next pallet on the conveyor), X11 ")
     folder = write_project(tmp_path / "eq", {"project.yaml": """
         name: eq
         scan_period: 10ms

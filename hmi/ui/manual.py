@@ -42,9 +42,9 @@ def enter_lines(project: Project, law: ControlLaw, snap: Snapshot) -> list[str]:
     where = steps_text(law, snap.active_steps) or "its initial steps"
     # (the cell keeps running while the dialog is open: the steps are those of its scan,
     # and the program waits at the ones it is in when the operator confirms)
-    return [f"The control program waits at the steps it is in when you confirm (at "
-            f"{seconds(snap.time_us)} s: {where}): no step changes, and its step times and "
-            "memories hold until you leave manual mode; it then resumes from there."]
+    return ["The control program waits at the steps it is in when you confirm (when this "
+            f"opened, at {seconds(snap.time_us)} s: {where}): no step changes, and its step "
+            "times and memories hold until you leave manual mode; it then resumes from there."]
 
 
 def leave_lines(project: Project, law: ControlLaw, snap: Snapshot) -> list[str]:
