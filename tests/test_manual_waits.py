@@ -27,6 +27,7 @@ from hmi.session.session import Session
 from tests.conftest import write_project
 from tests.examples import example
 from tests.test_compiled_scan import comparable
+from tests.twins import Twins
 
 MS = 1000
 S = 1_000_000
@@ -65,53 +66,20 @@ def waits(tmp_path):
     return load_project(write_project(tmp_path / "waits", WAITS_PROJECT))
 
 
-class Twins:
-    """The compiled engine and the interpreter, stepped together and compared."""
-
-    def __init__(self, project, **kwargs):
-        self.engines = [Engine(project, SimPlant(project), compiled=flag, **kwargs)
-                        for flag in (True, False)]
-        self.engines[1].filter.remember = False
-        self.period = project.scan_period_us
-        self.k = 0
-        self.snaps: list = []
-
-    def set_input(self, name, value):
-        for e in self.engines:
-            e.plant.set_input(name, value)
-
-    def apply(self, command):
-        results = [e.apply(command) for e in self.engines]
-        assert results[0] == results[1]
-        return results[0]
-
-    def scan(self):
-        fast, reference = (e.step(self.k * self.period) for e in self.engines)
-        assert comparable(fast) == comparable(reference), f"scan {self.k}"
-        self.k += 1
-        self.snaps.append(fast)
-        return fast
-
-    def run(self, seconds):
-        for _ in range(round(seconds * S) // self.period):
-            last = self.scan()
-        return last
-
-
 def test_in_manual_mode_the_program_waits_and_resumes_where_it_waited(waits):
     t = Twins(waits)
     t.scan()
     t.set_input("a", True)
     s = t.scan()
     assert s.active_steps == ("X1",) and s.fired == (1,) and s.value("M") is True
-    s = t.run(0.15)  # X1.t = 150 ms: half the push done
+    s = t.run(0.15)[-1]  # X1.t = 150 ms: half the push done
     assert s.value("X1.t") == 150 * MS and s.fov[0] is True
     assert t.apply(cmd.SetMode(True)).message == (
         "manual mode: the control program waits at X1; outputs follow operator requests, "
         "still through the safety filter")
     t.set_input("b", True)  # in automatic mode: N set (X1 and b)
     first = t.scan()
-    s = t.run(2)  # far past the end of the push
+    s = t.run(2)[-1]  # far past the end of the push
     for snap in (first, s):
         assert snap.mode == "manual" and snap.active_steps == ("X1",) and snap.fired == ()
         assert snap.value("X1.t") == 150 * MS  # frozen
@@ -155,7 +123,7 @@ def test_manual_mode_entered_while_paused_before_the_first_scan(waits):
     t = Twins(waits)
     t.apply(cmd.SetMode(True))
     t.set_input("a", True)
-    s = t.run(0.5)
+    s = t.run(0.5)[-1]
     assert all(p.active_steps == ("X0",) and p.value("X0.t") == 0 for p in t.snaps)
     t.apply(cmd.SetMode(False))
     s = t.scan()  # a, judged at the start of the scan: 0 -> 1 at once
@@ -166,7 +134,7 @@ def test_the_diagnosers_run_in_manual_mode():
     """cispi_valve: O forced on in manual mode opens the valve; the diagnoser follows the
     valve through its states while the program waits in X0."""
     t = Twins(example("cispi_valve"))
-    s = t.run(0.3)
+    s = t.run(0.3)[-1]
     assert s.active_steps == ("X0",)
     before, waited = s.diagnosers[0].state, s.value("X0.t")
     t.apply(cmd.SetMode(True))
@@ -217,7 +185,7 @@ def test_compiled_and_interpreted_scans_agree_through_manual_mode(manual_at):
     """conveyor_robot, the soak's sequence (manual mode mid-transfer and once the robot is
     home): every snapshot of both engines the same."""
     t = Twins(example("conveyor_robot"))
-    entered = t.run(manual_at)
+    entered = t.run(manual_at)[-1]
     t.apply(cmd.SetMode(True))
     t.run(5)
     assert {p.active_steps for p in t.snaps if p.mode == "manual"} == {entered.active_steps}

@@ -19,6 +19,7 @@ from hmi.project.loader import load_project
 from hmi.session.session import Session
 from tests.conftest import write_project
 from tests.test_compiled_scan import comparable
+from tests.twins import Twins
 
 MS = 1000
 S = 1_000_000
@@ -53,34 +54,6 @@ SEQ_PROJECT = {
 @pytest.fixture
 def seq(tmp_path):
     return load_project(write_project(tmp_path / "seq", SEQ_PROJECT))
-
-
-class Twins:
-    """The compiled engine and the stage objects, stepped together and compared."""
-
-    def __init__(self, project):
-        self.engines = [Engine(project, SimPlant(project), compiled=flag)
-                        for flag in (True, False)]
-        self.period = project.scan_period_us
-        self.k = 0
-
-    def set_input(self, name, value):
-        for e in self.engines:
-            e.plant.set_input(name, value)
-
-    def apply(self, command):
-        results = [e.apply(command) for e in self.engines]
-        assert results[0] == results[1]
-        return results[0]
-
-    def scan(self):
-        fast, reference = (e.step(self.k * self.period) for e in self.engines)
-        assert comparable(fast) == comparable(reference), f"scan {self.k}"
-        self.k += 1
-        return fast
-
-    def run(self, seconds):
-        return [self.scan() for _ in range(round(seconds * S) // self.period)]
 
 
 # -- criteria ------------------------------------------------------------------------------------
