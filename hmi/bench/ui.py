@@ -6,7 +6,12 @@ and renders them (headless: the terminal output is discarded, the work is not). 
 - scan jitter: how late each scan started against its schedule (p50, p99, max), and the
   overruns (scans more than a period late, after which the runner re-anchors), first for the
   scan loop alone (the baseline), then with the UI running;
-- the UI refresh rate: frames handed to the panels per second (the app caps it at 20).
+- the UI refresh rate: frames handed to the panels per second (the app caps it at 20);
+- the same again while an operator opens and closes a dialog (the fault dialog, f then
+  escape, every quarter of a second), with the garbage collector's full collections: each
+  closed dialog leaves some ten thousand objects in reference cycles that only a full
+  collection frees, and a full collection holds the interpreter lock throughout (tens of
+  milliseconds here), so the scan thread cannot run meanwhile (docs/ui.md, "Live timing").
 
 All of it shares one Python process, hence one GIL: the UI cannot run in parallel with a
 scan, only between scans. The jitter with the UI on is the honest figure for that design.
@@ -16,6 +21,7 @@ scan, only between scans. The jitter with the UI on is the honest figure for tha
 from __future__ import annotations
 
 import asyncio
+import gc
 import time
 from pathlib import Path
 
@@ -30,6 +36,8 @@ UI_SECONDS, BASELINE_SECONDS = 30.0, 10.0
 QUICK_UI_SECONDS, QUICK_BASELINE_SECONDS = 5.0, 3.0
 SIZE = (120, 36)
 SETTLE_S = 0.5  # let the app finish mounting and its first layout before measuring
+DIALOG_KEYS = ("f", "escape")  # open the fault dialog, close it
+DIALOG_EVERY_S = 0.25
 
 
 def _controller(period_us: int):
@@ -72,9 +80,41 @@ def baseline(seconds: float, period_us: int = PERIOD_US) -> str:
     return jitter_line("no UI", jitter, scans, elapsed, period_us, overruns)
 
 
-def with_ui(seconds: float, period_us: int = PERIOD_US,
-            size: tuple[int, int] = SIZE) -> list[str]:
-    """The live app, headless: scans in their thread, the UI polling and rendering."""
+class FullCollections:
+    """The garbage collector's full (generation 2) collections while installed: how many,
+    and how long each held the interpreter (its own work and the freeing of what it found)."""
+
+    def __init__(self) -> None:
+        self.pauses_ms: list[float] = []
+        self._started = 0.0
+
+    def __call__(self, phase: str, info: dict) -> None:
+        if info["generation"] != 2:
+            return
+        if phase == "start":
+            self._started = time.perf_counter()
+        else:
+            self.pauses_ms.append((time.perf_counter() - self._started) * 1e3)
+
+    def __enter__(self) -> FullCollections:
+        gc.callbacks.append(self)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        gc.callbacks.remove(self)
+
+    def line(self) -> str:
+        pauses = self.pauses_ms
+        if not pauses:
+            return f"  {'GC':<8} no full collection"
+        return (f"  {'GC':<8} {len(pauses)} full collections, median "
+                f"{percentile(pauses, 50):.1f} ms, longest {max(pauses):.1f} ms")
+
+
+def with_ui(seconds: float, period_us: int = PERIOD_US, size: tuple[int, int] = SIZE,
+            keys: tuple[str, ...] = ()) -> list[str]:
+    """The live app, headless: scans in their thread, the UI polling and rendering; `keys`
+    pressed in turn every DIALOG_EVERY_S meanwhile, as an operator would."""
     from hmi.ui.app import PlcHmiApp
 
     controller = _controller(period_us)
@@ -82,26 +122,37 @@ def with_ui(seconds: float, period_us: int = PERIOD_US,
     result: dict = {}
 
     async def measure() -> None:
-        async with app.run_test(size=size):
+        async with app.run_test(size=size) as pilot:
             await asyncio.sleep(SETTLE_S)
             runner = app.driver.runner
             samples0, scans0, overruns0 = (len(runner.jitter_us), controller.engine.scan,
                                            runner.overruns)
             start, frames0 = time.perf_counter(), app.frames_shown
-            await asyncio.sleep(seconds)  # the measurement: let the live app run
+            with FullCollections() as collections:
+                if keys:
+                    pressed = 0
+                    while time.perf_counter() - start < seconds:
+                        await pilot.press(keys[pressed % len(keys)])
+                        pressed += 1
+                        await asyncio.sleep(DIALOG_EVERY_S)
+                else:
+                    await asyncio.sleep(seconds)  # the measurement: let the live app run
             result.update(elapsed=time.perf_counter() - start,
                           frames=app.frames_shown - frames0,
                           jitter=list(runner.jitter_us)[samples0:],
                           scans=controller.engine.scan - scans0,
-                          overruns=runner.overruns - overruns0)
+                          overruns=runner.overruns - overruns0,
+                          collections=collections)
 
     asyncio.run(measure())
     elapsed, frames = result["elapsed"], result["frames"]
+    label = "dialogs" if keys else "with UI"
     return [
-        jitter_line("with UI", result["jitter"], result["scans"], elapsed, period_us,
+        jitter_line(label, result["jitter"], result["scans"], elapsed, period_us,
                     result["overruns"]),
         f"  {'UI':<8} {frames} frames in {elapsed:.1f} s: {frames / elapsed:.1f} frames/s "
         f"(cap {app.refresh_hz:g}/s), app {size[0]}x{size[1]} headless",
+        result["collections"].line(),
     ]
 
 
@@ -113,4 +164,8 @@ def run(args) -> None:
           f"with the UI {ui_s:g} s (wall clock)", flush=True)
     print(baseline(base_s), flush=True)
     for line in with_ui(ui_s):
+        print(line, flush=True)
+    print(f"  then {ui_s:g} s more, the fault dialog opened and closed (f, escape) every "
+          f"{DIALOG_EVERY_S:g} s:", flush=True)
+    for line in with_ui(ui_s, keys=DIALOG_KEYS):
         print(line, flush=True)
