@@ -28,7 +28,8 @@ from pathlib import Path
 from hmi.bench import percentile
 
 SECTION = "ui"
-HELP = "HMI headless at a 10 ms scan for 30 s (wall): scan jitter p50/p99, UI refresh rate"
+HELP = ("HMI headless at a 10 ms scan, 30 s (wall) and 30 s more opening dialogs: scan "
+        "jitter p50/p99, UI refresh rate, full garbage collections")
 
 PROJECT = Path(__file__).resolve().parents[2] / "projects" / "cispi_valve"
 PERIOD_US = 10_000
@@ -107,7 +108,8 @@ class FullCollections:
         pauses = self.pauses_ms
         if not pauses:
             return f"  {'GC':<8} no full collection"
-        return (f"  {'GC':<8} {len(pauses)} full collections, median "
+        many = "full collection" + ("s" if len(pauses) != 1 else "")
+        return (f"  {'GC':<8} {len(pauses)} {many}, median "
                 f"{percentile(pauses, 50):.1f} ms, longest {max(pauses):.1f} ms")
 
 
