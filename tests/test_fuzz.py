@@ -444,7 +444,7 @@ def journal_line(draw) -> bytes:
     if kind == "huge":
         return b'{"n": ' + b"9" * draw(st.integers(4000, 6000)) + b"}"
     return json.dumps({"message": draw(st.sampled_from(["\x1b[2J", "\ud800", "\x00", "\u202e",
-                                                        "\x07\x08"]))}).encode()
+                                                        "\x07\x08", "\u2028", "\x85"]))}).encode()
 
 
 @pytest.mark.slow

@@ -634,6 +634,18 @@ def test_control_characters_in_a_journal_never_reach_the_terminal(tmp_path, caps
     assert code == 0 and "\x1b" not in out and "\x07" not in out and "\\x1b[2J\\x07hi" in out
 
 
+def test_line_separators_and_bidi_controls_in_a_journal_are_shown_escaped(tmp_path, capsys):
+    """Found by the long fuzz (PLCHMI_FUZZ_EXAMPLES=15000): U+2028 in a message split one
+    entry into two lines for whoever reads the output line by line; U+202E would reorder
+    what the terminal shows."""
+    path = tmp_path / "j.jsonl"
+    path.write_text(json.dumps({"type": "action", "event": "x",
+                                "message": "a\u2028b\u2029c\u202ed\u2066e"}) + "\n")
+    code, out, _ = cli(["journal", PROJECTS / "cispi_valve", "--path", path], capsys)
+    assert code == 0 and len(out.splitlines()) == 1
+    assert "a\\u2028b\\u2029c\\u202ed\\u2066e" in out
+
+
 @pytest.mark.parametrize("since, code_expected, fragment", [
     ("99999999999999h", 2, "longer than the longest duration allowed"),
     ("0001-01-01", 0, None),
