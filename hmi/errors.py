@@ -27,6 +27,12 @@ class SourcePos:
     line: int = 0
     col: int = 0
     context: str = ""
+    # The start of a text written over several lines (a YAML block, or a folded plain or
+    # quoted scalar): where each line's part of the text is, as (offset in the text, line,
+    # column, length), so that a position inside the text lands on its own line
+    # (hmi.project.yamlnodes.text_start). Empty for a text on one line.
+    lines: tuple[tuple[int, int, int, int], ...] = field(default=(), compare=False,
+                                                         repr=False)
 
     def __str__(self) -> str:
         if self.line <= 0:
@@ -34,8 +40,18 @@ class SourcePos:
         return f"{self.file}:{self.line}:{self.col}"
 
     def shifted(self, columns: int) -> SourcePos:
-        """The position `columns` characters further on the same line (inside a scalar)."""
-        return SourcePos(self.file, self.line, self.col + columns, self.context)
+        """The position `columns` characters further on in a text that starts here: on the
+        same line, or on the line that holds that character for a text over several lines
+        (never past the end of that line's part of the text)."""
+        if not self.lines:
+            return SourcePos(self.file, self.line, self.col + columns, self.context)
+        offset, line, col, length = self.lines[0]
+        for part in self.lines[1:]:
+            if part[0] > columns:
+                break
+            offset, line, col, length = part
+        inside = min(max(0, columns - offset), max(0, length - 1))
+        return SourcePos(self.file, line, col + inside, self.context)
 
 
 @dataclass(frozen=True)

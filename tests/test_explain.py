@@ -161,6 +161,31 @@ def test_unknown_placeholder_is_a_load_error_with_position(tmp_path):
     assert any("explanations for unknown constraint 'K9'" in m for m in messages)
 
 
+def test_unknown_placeholder_in_a_text_over_several_lines_points_at_its_line(tmp_path):
+    """A folded block (as the example projects write their longer texts): the error names
+    the placeholder's own line and column, not an offset on the block's first line."""
+    files = {"project.yaml": """
+        name: x
+        scan_period: 10ms
+        inputs: {fsc: a, fso: b}
+        outputs: {C: c, O: o}
+        control: {equations: {C: fsc}}
+        constraints:
+          K1: C and fsc
+        explanations:
+          constraints:
+            K1:
+              what: >-
+                {device}: the close order is held
+                off while {devise} is closed
+        plant: {kind: sim, model: valve}
+    """}
+    with pytest.raises(ProjectError) as info:
+        load_project(write_project(tmp_path / "x", files))
+    [diagnostic] = [d for d in info.value.errors if "unknown placeholder {devise}" in d.message]
+    assert (diagnostic.pos.line, diagnostic.pos.col) == (13, 19), str(diagnostic)
+
+
 # -- alarms ----------------------------------------------------------------------------------
 
 def make_exp(key="k", latched=False, severity="low", text="thing") -> Explanation:

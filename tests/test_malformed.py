@@ -222,6 +222,24 @@ CASES = [
     Case("supervision-without-grafcet", "unknown key 'supervision'", "supervision",
          {"control": "control:\n  main:\n    supervision: 10s\n    equations:\n"
                      "      Y: a\n      Z: T1\n"}),
+    # An expression written over several lines points at the line and column of the token
+    # (the long fuzz found a folded block's error at the value's offset on its first line,
+    # a column past the end of that line).
+    Case("folded-block-expr", "unknown name 'bb'", "bb",
+         {"control": "control:\n  equations:\n    Y: >-\n      a and\n      not a or\n"
+                     "      b and  bb\n    Z: T1\n"}),
+    Case("literal-block-expr", "unknown name 'bb'", "bb",
+         {"control": "control:\n  equations:\n    Y: |\n      a and\n      (b or bb)\n"
+                     "    Z: T1\n"}),
+    Case("plain-multiline-expr", "unknown name 'bb'", "bb",
+         {"control": "control:\n  equations:\n    Y: a and\n      b or\n      bb\n"
+                     "    Z: T1\n"}),
+    Case("quoted-multiline-expr", "unknown name 'bb'", "bb",
+         {"control": "control:\n  equations:\n    Y: \"a and\n      bb or b\"\n"
+                     "    Z: T1\n"}),
+    Case("folded-block-syntax", "syntax error in expression", ")\n",
+         {"control": "control:\n  equations:\n    Y: >\n      a and\n      (b and )\n"
+                     "    Z: T1\n"}),
 ]
 
 

@@ -149,12 +149,17 @@ def _replace_durations(text: str, pos: SourcePos) -> tuple[str, list[int], dict[
     return "".join(out), colmap, durations
 
 
+def expression_text(text: str) -> str:
+    """The text an expression is parsed from (its columns count in it): an expression
+    written over several lines is read as one, each run of blanks a single space."""
+    return " ".join(text.split()) if "\n" in text.strip() else text
+
+
 def parse_expr(text: str, pos: SourcePos) -> Expr:
     """Parse `text` (located at `pos`) into an :class:`Expr`, or raise ExprError."""
     if not text.strip():
         raise ExprError(pos, "empty expression", ALLOWED)
-    if "\n" in text.strip():
-        text = " ".join(text.split())
+    text = expression_text(text)
     _check_text(text, pos)
     source, colmap, durations = _replace_durations(text, pos)
 

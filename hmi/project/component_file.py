@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 from hmi.errors import ProjectError, SourcePos, display_path
 from hmi.logic.expr import ExprError, StepTime, Var, parse_expr, walk
 from hmi.logic.names import NAME_RE, RESERVED, STEP_RE
-from hmi.project.yamlnodes import NodeError, YNode, expr_start
+from hmi.project.yamlnodes import NodeError, YNode, expr_start, text_start
 
 if TYPE_CHECKING:
     from hmi.project.reader import ProjectReader
@@ -261,7 +261,8 @@ def _check_expressions(loader: ProjectReader, fields: dict[str, YNode],
         if node.kind != "scalar":
             continue  # the loader reports the shape per instance
         try:
-            parsed = parse_expr(node.as_text("an expression"), expr_start(node))
+            text = node.as_text("an expression")
+            parsed = parse_expr(text, expr_start(node, text))
         except ExprError as exc:
             loader.diag.error(exc.pos, exc.message, exc.expected)
             continue
@@ -311,8 +312,7 @@ def _check_placeholders(loader: ProjectReader, fields: dict[str, YNode],
             continue
         for match in PLACEHOLDER.finditer(node.value):
             if match.group(1) not in known:
-                shift = 1 if node.style in ('"', "'") else 0
-                loader.diag.error(node.pos.shifted(match.start() + shift),
+                loader.diag.error(text_start(node, node.value).shifted(match.start()),
                                   f"unknown placeholder {{{match.group(1)}}} in a component's "
                                   "text", "one of " + ", ".join("{" + k + "}" for k in known))
 

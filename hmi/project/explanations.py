@@ -29,7 +29,7 @@ from hmi.project.texts import (
     TextSpec,
     fields_of,
 )
-from hmi.project.yamlnodes import NodeError, YNode
+from hmi.project.yamlnodes import NodeError, YNode, text_start
 
 SITUATIONS = ("safe_state_filter", "safe_state_plant", "safe_state_internal")
 SPEC_KEYS = {*LEVELS, "policies", "recommend", "severity", "alarm"}
@@ -95,7 +95,7 @@ def _template(node: YNode, kind: str, what: str) -> str:
     for name in names:
         if name not in allowed:
             offset = text.find("{" + name)
-            pos = node.pos.shifted(offset + (1 if node.style in ('"', "'") else 0))
+            pos = text_start(node, text).shifted(offset)
             raise NodeError(pos, f"{what}: unknown placeholder {{{name}}}",
                             "one of " + ", ".join("{" + a + "}" for a in allowed))
     return text

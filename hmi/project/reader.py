@@ -93,7 +93,7 @@ class ProjectReader:
         """Parse and name-check one expression; report problems and return None on error."""
         def parse() -> Expr:
             text = node.as_text(what)
-            return parse_expr(text, expr_start(node))
+            return parse_expr(text, expr_start(node, text))
         parsed = self.guard(parse)
         if parsed is None:
             return None

@@ -68,8 +68,9 @@ class _Composer:
     is refused as such.
     """
 
-    def __init__(self, file: str):
+    def __init__(self, file: str, text: str = ""):
         self.file = file
+        self.text_lines = text.split("\n")  # (a scalar over several lines: _written)
         self.nodes = 0
         # anchor -> (node, nodes in it, its depth); complete nodes only
         self.anchors: dict[str, tuple[YNode, int, int]] = {}
@@ -205,14 +206,39 @@ class _Composer:
         node = YNode("scalar", value, pos, tag)
         node._raw = text
         node.style = event.style or None  # libyaml says "" for plain, PyYAML None
+        if event.end_mark is not None and event.start_mark.line != event.end_mark.line:
+            node.lines = self._written(event.start_mark, event.end_mark, node.style)
         return node
+
+    def _written(self, start: yaml.Mark, end: yaml.Mark, style: str | None
+                 ) -> tuple[tuple[str, int, int], ...]:
+        """A scalar over several lines: each line's part as written (without the
+        indentation, a quote, a block's header line, the blanks at its end), with its line
+        and column from 1 (hmi.project.yamlnodes.text_start finds them in the value)."""
+        parts = []
+        lines = self.text_lines
+        for number in range(start.line, min(end.line, len(lines) - 1) + 1):
+            raw = lines[number].rstrip("\r")
+            first = number == start.line
+            if first and style in ("|", ">"):
+                continue  # the header: | or > and its indicators
+            if number == end.line:
+                raw = raw[:end.column]
+                if style in ('"', "'") and raw.endswith(style):
+                    raw = raw[:-1]
+            begin = start.column + (1 if style in ('"', "'") else 0) if first else 0
+            written = raw[begin:].rstrip(" \t")
+            stripped = written.lstrip(" \t")
+            if stripped:
+                parts.append((stripped, number + 1, begin + len(written) - len(stripped) + 1))
+        return tuple(parts)
 
 
 def _copy(node: YNode) -> YNode:
     """A fresh copy of a node and everything under it (what an alias stands for)."""
     if node.kind == "scalar":
         copy = YNode("scalar", node.value, node.pos, node.tag)
-        copy._raw, copy.style = node._raw, node.style
+        copy._raw, copy.style, copy.lines = node._raw, node.style, node.lines
         return copy
     if node.kind == "map":
         return YNode("map", {k: _copy(v) for k, v in node.value.items()}, node.pos, node.tag,
@@ -262,7 +288,7 @@ def compose_text(text: str, display: str) -> YNode:
 def _compose(text: str, display: str) -> YNode | None:
     if _FAST_LOADER is not None:
         try:
-            return _Composer(display).compose(yaml.parse(text, Loader=_FAST_LOADER))
+            return _Composer(display, text).compose(yaml.parse(text, Loader=_FAST_LOADER))
         except yaml.YAMLError:
             pass  # said by the pure-Python parser below, in its words
-    return _Composer(display).compose(yaml.parse(text, Loader=yaml.SafeLoader))
+    return _Composer(display, text).compose(yaml.parse(text, Loader=yaml.SafeLoader))

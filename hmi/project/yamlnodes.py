@@ -13,9 +13,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Collection
+from dataclasses import replace
 from typing import Any, cast
 
 from hmi.errors import Diagnostic, SourcePos
+from hmi.logic.expr import expression_text
 from hmi.timefmt import DURATION_HINT, DurationError, parse_duration
 
 # YAML's tags of the values a project file may hold (hmi.project.yamlcompose resolves them)
@@ -37,7 +39,7 @@ class NodeError(Exception):
 class YNode:
     """One YAML node: a mapping, a sequence or a scalar, with its position."""
 
-    __slots__ = ("_raw", "key_pos", "kind", "pos", "style", "tag", "value")
+    __slots__ = ("_raw", "key_pos", "kind", "lines", "pos", "style", "tag", "value")
 
     def __init__(self, kind: str, value: Any, pos: SourcePos, tag: str,
                  key_pos: dict[str, SourcePos] | None = None):
@@ -48,6 +50,9 @@ class YNode:
         self.key_pos = key_pos or {}
         self.style: str | None = None
         self._raw: str | None = None
+        # A scalar written over several lines: each line's part as written, with its line
+        # and column ((text, line, column), hmi.project.yamlcompose); None on one line.
+        self.lines: tuple[tuple[str, int, int], ...] | None = None
 
     def __repr__(self) -> str:
         return f"YNode({self.kind}, {self.value!r}, {self.pos})"
@@ -166,8 +171,34 @@ class YNode:
         return us
 
 
-def expr_start(node: YNode) -> SourcePos:
-    """Where the expression text starts in the file (after a quote, if quoted)."""
-    if node.style in ('"', "'"):
-        return node.pos.shifted(1)
-    return node.pos
+def text_start(node: YNode, text: str) -> SourcePos:
+    """Where `text`, the scalar's value as read (or a form of it with its blanks folded),
+    starts in the file: after a quote, if quoted; for a value written over several lines, a
+    position whose :meth:`~hmi.errors.SourcePos.shifted` finds the line of each character.
+    A line's part that cannot be found again in `text` (an escape sequence, a component's
+    renamed text) leaves every character at the scalar's first one: never a column past the
+    end of a line."""
+    start = node.pos.shifted(1) if node.style in ('"', "'") else node.pos
+    if node.lines is None:
+        return start
+    parts: list[tuple[int, int, int, int]] = []
+    cursor = 0
+    for written, line, col in node.lines:
+        found = text.find(written, cursor)
+        length = len(written)
+        if found < 0:  # blanks folded inside the line: found by its words
+            folded = " ".join(written.split())
+            found, length = text.find(folded, cursor), len(folded)
+        if found < 0:
+            return replace(start, lines=((0, start.line, start.col, 1),))
+        parts.append((found, line, col, length))
+        cursor = found + length
+    if not parts:
+        return start
+    return replace(start, line=parts[0][1], col=parts[0][2], lines=tuple(parts))
+
+
+def expr_start(node: YNode, text: str) -> SourcePos:
+    """Where the expression `text` read from `node` starts in the file (hmi.logic.expr
+    counts its columns in :func:`~hmi.logic.expr.expression_text`)."""
+    return text_start(node, expression_text(text))
