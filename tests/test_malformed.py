@@ -237,6 +237,9 @@ CASES = [
     Case("quoted-multiline-expr", "unknown name 'bb'", "bb",
          {"control": "control:\n  equations:\n    Y: \"a and\n      bb or b\"\n"
                      "    Z: T1\n"}),
+    Case("next-line-char", "U+0085", "\x85", {"inputs": "inputs:\n  a: A\x85\n  b: B\n"}),
+    Case("line-separator", "U+2028 (LINE SEPARATOR)", "\u2028",
+         {"inputs": "inputs:\n  a: A\u2028  b: B\n"}),
     Case("folded-block-syntax", "syntax error in expression", ")\n",
          {"control": "control:\n  equations:\n    Y: >\n      a and\n      (b and )\n"
                      "    Z: T1\n"}),
@@ -384,3 +387,23 @@ def test_supervision_not_a_multiple_of_the_period_is_a_warning(tmp_path, capsys)
     assert main(["check", str(folder)]) == 0
     out = capsys.readouterr()
     assert "supervision X1 1.005s" in out.out
+
+
+def test_a_carriage_return_alone_is_refused_where_it_is(tmp_path, capsys):
+    """YAML reads a carriage return without a line feed as a line break, editors do not all:
+    refused, at its place as an editor counts it (CR LF line ends are fine)."""
+    folder = tmp_path / "p"
+    folder.mkdir()
+    text = project_text(inputs="inputs:\n  a: A\r  b: B\n")
+    (folder / "project.yaml").write_bytes(text.encode())
+    with pytest.raises(ProjectError) as info:
+        load_project(folder)
+    [diagnostic] = info.value.errors
+    head = text[:text.index("\r")]
+    assert "a carriage return without a line feed" in diagnostic.message
+    assert (diagnostic.pos.line, diagnostic.pos.col) == (
+        head.count("\n") + 1, len(head) - head.rfind("\n"))
+    (folder / "project.yaml").write_bytes(text.replace("\r", "\n").replace(
+        "\n", "\r\n").encode())
+    assert main(["check", str(folder)]) == 0
+    capsys.readouterr()

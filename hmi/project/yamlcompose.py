@@ -19,7 +19,7 @@ import yaml
 from hmi.errors import ProjectError, SourcePos
 from hmi.limits import MAX_FILE_BYTES, MAX_NUMBER_DIGITS, MAX_YAML_DEPTH, MAX_YAML_NODES
 from hmi.project.yamlnodes import _BOOL, _FLOAT, _INT, _NULL, _STR, NodeError, YNode
-from hmi.textfile import FileProblem, char_name, read_text
+from hmi.textfile import FileProblem, char_name, line_col, read_text
 
 
 def _pos(mark: yaml.Mark | None, file: str) -> SourcePos:
@@ -266,8 +266,24 @@ def load_yaml(path: Path, display: str) -> YNode:
 _FAST_LOADER = getattr(yaml, "CSafeLoader", None) if yaml.__with_libyaml__ else None
 
 
+# Line breaks YAML reads as such but editors and hmi.textfile.line_col do not count (NEL,
+# the Unicode line and paragraph separators, a carriage return alone): with them in a file,
+# the parser's line numbers and the editor's would differ, and every position told after
+# them would be wrong.
+_ODD_BREAK = re.compile("\x85|\u2028|\u2029|\r(?!\n)")
+
+
 def compose_text(text: str, display: str) -> YNode:
     """Positioned nodes of YAML `text` (read from `display`); any problem is a ProjectError."""
+    odd = _ODD_BREAK.search(text)
+    if odd is not None:
+        line, col = line_col(text, odd.start())
+        char = odd.group()
+        what = ("a carriage return without a line feed (old Mac line ends)" if char == "\r"
+                else char_name(char))
+        raise ProjectError.single(SourcePos(display, line, col), f"the file holds {what}, a "
+                                  "line break for YAML that editors do not all show as one",
+                                  "line ends of LF or CR LF only")
     try:
         node = _compose(text, display)
     except yaml.MarkedYAMLError as exc:
