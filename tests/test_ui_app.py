@@ -749,35 +749,6 @@ async def test_live_mode_scans_in_a_thread_and_refreshes():
     assert not live.driver.runner.alive
 
 
-async def test_live_mode_frees_a_closed_dialog_between_two_scans():
-    """LiveRunner.own_full_collections: while the app is live the interpreter starts no full
-    collection by itself; closing a dialog asks the scan thread for one, which it makes
-    after a scan; the interpreter's own schedule is back once the app has ended."""
-    import gc
-
-    from hmi.session import live as live_module
-    before = gc.get_threshold()
-    app = make_app()
-    live = PlcHmiApp(app.controller, live=True)
-    asked = []
-    async with live.run_test(size=SIZE) as pilot:
-        await wait_live(pilot, lambda: live.controller.engine.scan > 5, "5 live scans")
-        assert gc.get_threshold() == (*before[:2], live_module.NEVER)
-        runner = live.driver.runner
-        collect_soon = live.driver.collect_soon
-        live.driver.collect_soon = lambda: (asked.append(True), collect_soon())
-        await press(pilot, "q")
-        await wait_for_screen(pilot, ConfirmDialog)
-        done = runner.slack_collections
-        await press(pilot, "n")
-        await wait_for_main(pilot)
-        await wait_live(pilot, lambda: asked, "the closed dialog's collection asked for")
-        await wait_live(pilot, lambda: runner.slack_collections > done,
-                        "a full collection by the scan thread")
-        assert runner.alive and runner.slack_collection_ms
-    assert gc.get_threshold() == before
-
-
 async def test_wait_helpers_are_bounded():
     app = make_app()
     async with app.run_test(size=SIZE) as pilot:

@@ -9,7 +9,7 @@ and renders them (headless: the terminal output is discarded, the work is not). 
 - the UI refresh rate: frames handed to the panels per second (the app caps it at 20);
 - the same again while an operator opens and closes a dialog (the fault dialog, f then
   escape, every quarter of a second), with the garbage collector's full collections: each
-  closed dialog leaves some ten thousand objects in reference cycles that only a full
+  closed dialog leaves some 20,000 objects in reference cycles that only a full
   collection frees, and a full collection holds the interpreter lock throughout (tens of
   milliseconds here), so the scan thread cannot run meanwhile (docs/ui.md, "Live timing").
 

@@ -7,7 +7,6 @@ against its schedule is kept as jitter samples for `plchmi bench ui`.
 
 from __future__ import annotations
 
-import gc
 import threading
 import time
 import traceback
@@ -16,11 +15,6 @@ from collections.abc import Callable
 
 from hmi.engine.snapshot import Snapshot
 from hmi.session.session import Session, settle_memory
-
-# Full garbage collections when the scan thread owns them (LiveRunner.own_full_collections)
-NEVER = 1_000_000_000  # a threshold the interpreter's count of collections never reaches
-FULL_COLLECTION_EVERY_S = 5.0  # at the latest: what was not asked for is freed too
-COLLECT_DELAY_S = 0.1  # after a dialog closed: Textual has released its widgets by then
 
 
 class LiveRunner:
@@ -35,11 +29,6 @@ class LiveRunner:
         self.started = False
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, name="plchmi-scan", daemon=True)
-        # Full garbage collections in the scan's slack (:meth:`own_full_collections`)
-        self.slack_collections = 0  # done by the scan thread
-        self.slack_collection_ms: deque[float] = deque(maxlen=1000)  # how long each took
-        self._owned_thresholds: tuple[int, int, int] | None = None
-        self._collect_at: float | None = None  # perf_counter time a full collection is due
 
     def start(self) -> None:
         settle_memory()
@@ -51,39 +40,6 @@ class LiveRunner:
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join(timeout)
-        if self._owned_thresholds is not None:  # the interpreter's own schedule again
-            gc.set_threshold(*self._owned_thresholds)
-            self._owned_thresholds = None
-
-    def own_full_collections(self) -> None:
-        """The scan thread decides when the garbage collector makes a full collection: right
-        after a scan, in the time left before the next one, when asked (:meth:`collect_soon`)
-        or at the latest every FULL_COLLECTION_EVERY_S; the interpreter never starts one by
-        itself any more (the youngest generations are still collected as usual).
-
-        Why: a full collection holds the interpreter lock from start to end, so no scan can
-        run meanwhile. Left to the interpreter, it comes at any moment and frees all the
-        garbage gathered since the last one: each closed dialog leaves some 20,000 objects in
-        reference cycles (Textual's widgets and their rendered lines), and a full collection
-        after a few of them took 30-60 ms, several 10 ms scans late (`plchmi bench ui`).
-        Collected once per closed dialog, right after a scan, it frees one dialog's worth at
-        a time, in the slack before the next scan when it fits (7-25 ms measured: not always;
-        the cure is the engine in a process of its own, docs/ui.md "Live timing"). For a
-        process with a UI of its own (the HMI); a run without one makes no such garbage and
-        keeps the interpreter's schedule."""
-        if self._owned_thresholds is None:
-            self._owned_thresholds = gc.get_threshold()
-            young, middle, _ = self._owned_thresholds
-            gc.set_threshold(young, middle, NEVER)
-            self._collect_at = time.perf_counter() + FULL_COLLECTION_EVERY_S
-
-    def collect_soon(self, delay_s: float = COLLECT_DELAY_S) -> None:
-        """A full collection is wanted in `delay_s` (a dialog has just closed: by then
-        Textual has let go of it), after the scan that follows. From any thread."""
-        if self._owned_thresholds is not None:
-            due = time.perf_counter() + delay_s
-            if self._collect_at is None or due < self._collect_at:
-                self._collect_at = due
 
     @property
     def alive(self) -> bool:
@@ -104,7 +60,6 @@ class LiveRunner:
             state = controller.state
             if not state.running:
                 self._stop.wait(0.02)
-                self._collect_if_due()  # (paused, dialogs still open and close)
                 next_wall = time.perf_counter()
                 continue
             speed = state.speed
@@ -127,20 +82,6 @@ class LiveRunner:
                 for listener in controller.overrun_listeners:
                     listener(self.overruns)
                 next_wall = time.perf_counter()
-            self._collect_if_due()
-
-    def _collect_if_due(self) -> None:
-        """A full collection, if one is due (:meth:`own_full_collections`): right after the
-        scan, so that the time it takes is the slack before the next one."""
-        due = self._collect_at
-        if due is None or time.perf_counter() < due:
-            return
-        started = time.perf_counter()
-        gc.collect()
-        done = time.perf_counter()
-        self.slack_collections += 1
-        self.slack_collection_ms.append((done - started) * 1e3)
-        self._collect_at = done + FULL_COLLECTION_EVERY_S
 
 
 def arm_search_deadline(controller: Session) -> None:

@@ -184,7 +184,6 @@ class PlcHmiApp(ContainedPump, App):
         self._key: tuple | None = None
         self._version = 0  # bumped when something the frame shows changes outside the scan
         self._stepping = False
-        self._screens = 1  # how many screens were stacked at the last poll
         self._request: tuple[str, bool, int, str] | None = None  # pending manual verdict
         self._injected: list[InjectedFault] = []  # shown on the SIMULATION strip
         self._mode_commanded: str | None = None  # accepted SetMode, not yet in a snapshot
@@ -400,7 +399,6 @@ class PlcHmiApp(ContainedPump, App):
 
     def _poll(self, force: bool) -> bool:
         self._check_driver()
-        self._check_screens()
         recorded = self.recorder.latest()
         snap = recorded.snapshot
         if snap is None:
@@ -510,15 +508,6 @@ class PlcHmiApp(ContainedPump, App):
         if error is not None and self.containment.fatal is None:
             self.containment.record("the scan thread", error, fatal=True)
             self.exit(return_code=1)
-
-    def _check_screens(self) -> None:
-        """A dialog or the command palette closed since the last poll: its widgets are
-        garbage in reference cycles, freed by the scan thread between two scans
-        (LiveRunner.own_full_collections) rather than whenever the interpreter decides."""
-        screens = len(self.screen_stack)
-        if screens < self._screens:
-            self.driver.collect_soon()
-        self._screens = screens
 
     def _judge_request(self, snap) -> None:
         if self._request is None:

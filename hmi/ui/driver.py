@@ -39,18 +39,11 @@ class LiveDriver:
         # garbage collector's sight: a full collection over them took ~40 ms here.
         self.runner.start()
         # The start (hmi.cli.ui) runs without automatic collection, to here: the scans run
-        # with it, as every other session does; but the full collections are the scan
-        # thread's, in its slack (LiveRunner.own_full_collections: a closed dialog leaves
-        # enough garbage in cycles that a full collection at any moment made scans late).
-        self.runner.own_full_collections()
+        # with it, as every other session does.
         gc.enable()
 
     def stop(self) -> None:
         self.runner.stop()
-
-    def collect_soon(self) -> None:
-        """A screen was closed: its garbage is freed by the scan thread, between two scans."""
-        self.runner.collect_soon()
 
     @property
     def overruns(self) -> int:
@@ -96,9 +89,6 @@ class VirtualDriver:
     live = False
     overruns = 0
     error = None
-
-    def collect_soon(self) -> None:
-        """No scan thread to time a collection against: the interpreter's own schedule."""
 
     @staticmethod
     def hold(screen) -> None:
