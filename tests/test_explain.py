@@ -139,24 +139,33 @@ def test_fallback_and_internal_error_are_explained(tmp_path):
     assert "ZeroDivisionError" not in e.why and e.severity == "high"
 
 
-def test_unknown_placeholder_is_a_load_error_with_position(tmp_path):
-    files = {"project.yaml": """
-        name: x
-        scan_period: 10ms
-        inputs: {fsc: a, fso: b}
-        outputs: {C: c, O: o}
-        control: {equations: {C: fsc}}
-        constraints:
-          K1: C and fsc
-        explanations:
-          constraints:
-            K1: {what: "{device}: {devise} blocked"}
-            K9: {what: hello}
-        plant: {kind: sim, model: valve}
-    """}
+PLACEHOLDER_PROJECT = """\
+name: x
+scan_period: 10ms
+inputs: {fsc: a, fso: b}
+outputs: {C: c, O: o}
+control: {equations: {C: fsc}}
+constraints:
+  K1: C and fsc
+explanations:
+  constraints:
+EXPLANATIONS
+plant: {kind: sim, model: valve}
+"""
+
+
+def placeholder_errors(tmp_path, explanations: str) -> list:
+    """The load errors of a small valve project whose constraint explanations are
+    `explanations` (YAML, indented under `constraints:`)."""
+    text = PLACEHOLDER_PROJECT.replace("EXPLANATIONS\n", explanations)
     with pytest.raises(ProjectError) as info:
-        load_project(write_project(tmp_path / "x", files))
-    messages = [str(d) for d in info.value.errors]
+        load_project(write_project(tmp_path / "x", {"project.yaml": text}))
+    return info.value.errors
+
+
+def test_unknown_placeholder_is_a_load_error_with_position(tmp_path):
+    messages = [str(d) for d in placeholder_errors(
+        tmp_path, '    K1: {what: "{device}: {devise} blocked"}\n    K9: {what: hello}\n')]
     assert any("unknown placeholder {devise}" in m and ":10:" in m for m in messages)
     assert any("explanations for unknown constraint 'K9'" in m for m in messages)
 
@@ -164,25 +173,10 @@ def test_unknown_placeholder_is_a_load_error_with_position(tmp_path):
 def test_unknown_placeholder_in_a_text_over_several_lines_points_at_its_line(tmp_path):
     """A folded block (as the example projects write their longer texts): the error names
     the placeholder's own line and column, not an offset on the block's first line."""
-    files = {"project.yaml": """
-        name: x
-        scan_period: 10ms
-        inputs: {fsc: a, fso: b}
-        outputs: {C: c, O: o}
-        control: {equations: {C: fsc}}
-        constraints:
-          K1: C and fsc
-        explanations:
-          constraints:
-            K1:
-              what: >-
-                {device}: the close order is held
-                off while {devise} is closed
-        plant: {kind: sim, model: valve}
-    """}
-    with pytest.raises(ProjectError) as info:
-        load_project(write_project(tmp_path / "x", files))
-    [diagnostic] = [d for d in info.value.errors if "unknown placeholder {devise}" in d.message]
+    errors = placeholder_errors(tmp_path, "    K1:\n      what: >-\n"
+                                "        {device}: the close order is held\n"
+                                "        off while {devise} is closed\n")
+    [diagnostic] = [d for d in errors if "unknown placeholder {devise}" in d.message]
     assert (diagnostic.pos.line, diagnostic.pos.col) == (13, 19), str(diagnostic)
 
 
