@@ -15,9 +15,9 @@ scan pays nothing for it.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any
 
 from hmi.logic.expr import (
     And,
@@ -34,11 +34,7 @@ from hmi.logic.expr import (
 )
 from hmi.project.model import Grafcet
 
-
-class Values(Protocol):
-    """A name's current value (a snapshot's: hmi.engine.snapshot)."""
-
-    def __getitem__(self, name: str, /) -> Any: ...
+Values = Callable[[str], Any]  # a name's current value (a snapshot's: Snapshot.value)
 
 
 # How the comparisons read on a screen.
@@ -125,7 +121,7 @@ def _missing(node: Node, read: Values) -> tuple[tuple[str, bool], ...]:
         if not isinstance(var, Var) or var.depth:
             return ()
         literals.append((var.name, positive))
-    return tuple((name, need) for name, need in literals if bool(read[name]) != need)
+    return tuple((name, need) for name, need in literals if bool(read(name)) != need)
 
 
 def _value(node: Node, read: Values) -> Any:
@@ -134,7 +130,7 @@ def _value(node: Node, read: Values) -> Any:
     if isinstance(node, Const):
         return node.value
     if isinstance(node, Var):
-        return None if node.depth else bool(read[node.name])
+        return None if node.depth else bool(read(node.name))
     if isinstance(node, Not):
         inner = _value(node.operand, read)
         return None if inner is None else not inner
@@ -144,7 +140,7 @@ def _value(node: Node, read: Values) -> Any:
             return None
         return all(parts) if isinstance(node, And) else any(parts)
     if isinstance(node, StepTime):
-        return int(read[f"{node.step}.t"])
+        return int(read(f"{node.step}.t"))
     if isinstance(node, Duration):
         return node.us
     if isinstance(node, Compare):
@@ -172,7 +168,7 @@ def waits(grafcet: Grafcet | None, active: Sequence[str], read: Values
             names = read_names(node)
             found.append(Wait(
                 step, tr.number, tr.description, receptivity_text(node),
-                tuple((name, read[name]) for name in names),
+                tuple((name, read(name)) for name in names),
                 tuple(s for s in tr.sources if s != step and s not in on),
                 _value(node, read), tr.targets, _missing(node, read)))
     return tuple(found)

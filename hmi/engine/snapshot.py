@@ -118,9 +118,7 @@ class Snapshot(_Fields):
         """What each active GRAFCET step waits for (hmi.engine.criteria): each transition
         leaving it, its receptivity with the current values of what it reads, the steps of a
         join still inactive. Computed when read, from the snapshot alone."""
-        values, slots = self.values, self.layout.slots
-        return waits(self.layout.grafcet, self.active_steps,
-                     _Reader(values, slots))
+        return waits(self.layout.grafcet, self.active_steps, self.value)
 
     def value(self, name: str) -> Any:
         return self.values[self.layout.slots[name]]
@@ -156,19 +154,6 @@ class Snapshot(_Fields):
     @property
     def is_safe_latched(self) -> bool:
         return bool(self.latched)
-
-
-class _Reader:
-    """A snapshot's values by name, for hmi.engine.criteria."""
-
-    __slots__ = ("slots", "values")
-
-    def __init__(self, values: tuple[Any, ...], slots: Any):
-        self.values = values
-        self.slots = slots
-
-    def __getitem__(self, name: str) -> Any:
-        return self.values[self.slots[name]]
 
 
 _EXPLANATIONS, _ALARMS, _ALARM_EVENTS, _SHELVED, _ERROR, _SCAN_WALL, _MONITORS = (
