@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
+from hmi.errors import Diagnostic
 from hmi.project.model import Constraint, ControlLaw, Project
 from hmi.timefmt import format_duration, seconds
 
@@ -43,7 +46,8 @@ def _law_summary(law: ControlLaw) -> str:
     return "; ".join(parts)
 
 
-def check_report(project: Project, sections: list[list[str]] = ()) -> str:
+def check_report(project: Project, sections: list[list[str]] = (),
+                 more_warnings: Sequence[Diagnostic] = ()) -> str:
     lines = [f"Project {project.name}: {project.description}".rstrip(": "),
              "  files: " + ", ".join(project.files),
              f"  scan period {format_duration(project.scan_period_us)}, "
@@ -87,7 +91,7 @@ def check_report(project: Project, sections: list[list[str]] = ()) -> str:
     for section in (*project.check_sections, *sections):
         lines.append("")
         lines.extend(section)
-    warnings = project.warnings
+    warnings = (*project.warnings, *more_warnings)
     if warnings:
         lines.append("")
         lines.append(f"Warnings ({len(warnings)})")

@@ -34,7 +34,8 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("hmi.plant", "hmi.engine", "hmi.export"),
     ("hmi.explain",),
     ("hmi.session",),
-    ("hmi.ui", "hmi.cli", "hmi.bench", "hmi.report", "hmi.diag_report", "hmi.monitor_report",
+    ("hmi.ui", "hmi.cli", "hmi.bench", "hmi.report", "hmi.diag_report", "hmi.band_report",
+     "hmi.monitor_report",
      "hmi.sweep", "hmi.runio", "hmi.opcua", "hmi.soak", "hmi.crash"),
 )
 # What explain/ may read of engine/: the snapshot and the types it carries.

@@ -31,5 +31,9 @@ def cmd_check(args: argparse.Namespace) -> int:
             AddressMap.for_project(project, settings.read_gap).describe()])
     from hmi.diag_report import check_sections
     sections += check_sections(project, args.closed_loop)
-    print(check_report(project, sections))
+    from hmi.band_report import check_band
+    lines, warnings = check_band(project)
+    if lines:
+        sections.append(lines)
+    print(check_report(project, sections, warnings))
     return 0

@@ -19,6 +19,7 @@ PARTS: tuple[tuple[tuple[str, ...], str, str], ...] = (
     (("check",), "check", "add_parser"),
     (("run",), "run", "add_parser"),
     (("diagnose", "campaign"), "studies", "add_parsers"),
+    (("band",), "band", "add_parser"),
     (("export",), "export", "add_parser"),
     (("journal",), "journal", "add_parser"),
     (("sweep",), "studies", "add_sweep_parser"),
@@ -28,7 +29,7 @@ PARTS: tuple[tuple[tuple[str, ...], str, str], ...] = (
     (("opcua-passwd", "serve-plant"), "serve", "add_parsers"),
 )
 SUBCOMMANDS = ("check", "run", "sweep", "ui", "serve-plant", "bench", "journal",
-               "diagnose", "campaign", "export", "opcua-passwd", "soak")
+               "diagnose", "campaign", "band", "export", "opcua-passwd", "soak")
 
 # command -> (its module, its function)
 COMMANDS = {
@@ -36,7 +37,8 @@ COMMANDS = {
     "sweep": ("studies", "cmd_sweep"), "ui": ("ui", "cmd_ui"),
     "serve-plant": ("serve", "cmd_serve_plant"), "bench": ("bench", "cmd_bench"),
     "journal": ("journal", "cmd_journal"), "diagnose": ("studies", "cmd_diagnose"),
-    "campaign": ("studies", "cmd_campaign"), "export": ("export", "cmd_export"),
+    "campaign": ("studies", "cmd_campaign"), "band": ("band", "cmd_band"),
+    "export": ("export", "cmd_export"),
     "opcua-passwd": ("serve", "cmd_opcua_passwd"), "soak": ("soak", "cmd_soak"),
 }
 

@@ -21,7 +21,8 @@ def add_parsers(sub) -> None:
     diagnoser_arg(p)
     p.add_argument("--no-closed-loop", action="store_true",
                    help="print the closed-loop diagnosability only if it is cached (no "
-                   "exploration, which takes about a minute the first time)")
+                   "exploration, which takes minutes the first time)")
+    band_args(p)
 
     p = sub.add_parser("campaign", help="inject every fault under three configurations and "
                        "classify the runs (000 Table 1)")
@@ -37,6 +38,21 @@ def add_parsers(sub) -> None:
                    help="with --sweep: the grid of instants (default: every scan period)")
     p.add_argument("--faults", metavar="F1,F2,...",
                    help="with --sweep: only these faults (default: every fault of the plant)")
+    band_args(p)
+
+
+def band_args(p) -> None:
+    """The options of a study over the declared tolerances."""
+    p.add_argument("--nominal", action="store_true",
+                   help="the project's own plant only, not its declared tolerances")
+    p.add_argument("--samples", type=int, default=None, metavar="N",
+                   help="seeded points of the band besides its corners (default: "
+                   f"{BAND_SAMPLES})")
+    p.add_argument("--seed", type=int, default=1, metavar="S",
+                   help="seed of those points (default 1)")
+
+
+BAND_SAMPLES = 4
 
 
 DEFAULT_POINTS = "0.5s,1s,1.5s,2s,2.5s,3s"  # plchmi sweep's starts and lengths
@@ -70,10 +86,23 @@ def points(text: str) -> tuple[int, ...]:
     return values
 
 
+def _band_options(args: argparse.Namespace) -> tuple[bool, int, int]:
+    samples = BAND_SAMPLES if args.samples is None else args.samples
+    if not 0 <= samples <= 10_000:
+        raise UsageError(f"--samples {samples}: expected 0 to 10000")
+    if args.seed < 0:
+        raise UsageError(f"--seed {args.seed}: expected a whole number from 0")
+    if args.nominal and args.samples is not None:
+        raise UsageError("--samples is about the declared tolerances; --nominal leaves them out")
+    return not args.nominal, samples, args.seed
+
+
 def cmd_diagnose(args: argparse.Namespace) -> int:
     from hmi.diag_report import diagnose_report
+    band, samples, seed = _band_options(args)
     print(diagnose_report(load(args.project, getattr(args, "diagnoser", None)),
-                          progress=progress_bar(), compute=not args.no_closed_loop))
+                          progress=progress_bar(), compute=not args.no_closed_loop,
+                          band=band, samples=samples, seed=seed))
     return 0
 
 
@@ -106,11 +135,29 @@ def cmd_campaign(args: argparse.Namespace) -> int:
         print(f"[{done:>2}/{total}] {run.scenario.name:<10} {run.config.title:<22} "
               f"{run.outcome}", file=sys.stderr, flush=True)
 
+    band, samples, seed = _band_options(args)
     result = run_campaign(project, spec, progress, jobs=jobs)
+    over = None
+    if band:
+        from hmi.engine.band import band_of
+        from hmi.engine.campaign import run_campaign_band
+        declared = band_of(project)
+        if not declared.empty:
+            points = [*declared.corners(), *declared.sample(samples, seed)]
+            print(f"over the declared tolerances: {len(points)} plants", file=sys.stderr)
+            over = run_campaign_band(project, spec, declared, points, jobs=jobs,
+                                     progress=progress_bar())
     if args.json:
-        print(json.dumps(result.as_dict(), indent=2))
+        data = result.as_dict()
+        if over is not None:
+            data["band"] = over.as_dict()
+        print(json.dumps(data, indent=2))
     else:
-        print("\n".join(report_lines(result)))
+        lines = report_lines(result)
+        if over is not None:
+            from hmi.engine.campaign import band_report_lines
+            lines += ["", *band_report_lines(result, over, samples, seed)]
+        print("\n".join(lines))
     return 0
 
 
@@ -121,18 +168,39 @@ def _campaign_sweep(args: argparse.Namespace, project, spec, jobs: int) -> int:
     from hmi.engine.loopstate import Unsupported
     from hmi.engine.sweep_report import as_dict, report_lines
 
-    if args.every is not None and args.every % project.scan_period_us:
+    period = project.scan_period_us
+    if args.every is not None and args.every % period and period % args.every:
         raise UsageError(f"--every must be a multiple of the scan period "
-                         f"({project.scan_period_us // 1000} ms)")
+                         f"({format_duration(period)}) or divide it")
+    band, samples, seed = _band_options(args)
+    faults = _faults(args, project)
     try:
         result = sweep(project, CAMPAIGN_CONFIGS, spec.counter, args.every, jobs=jobs,
-                       progress=progress_bar(), cache=False, faults=_faults(args, project))
+                       progress=progress_bar(), cache=False, faults=faults,
+                       exact=args.every is None)
+        over = None
+        if band and args.every is None:
+            from hmi.engine.band_sweep import band_sweep, exploration_band, exploration_points
+            explored = exploration_band(project)
+            if not explored.empty:
+                points = exploration_points(explored, samples, seed)
+                print(f"over the declared tolerances: {len(points)} plants", file=sys.stderr)
+                over = band_sweep(project, explored, CAMPAIGN_CONFIGS, spec.counter, points,
+                                  faults, jobs=jobs, progress=progress_bar())
     except Unsupported as exc:
         raise UsageError(f"campaign --sweep: {exc}") from None
     if args.json:
-        print(json.dumps(as_dict(result, spec.scenarios), indent=2))
+        data = as_dict(result, spec.scenarios)
+        if over is not None:
+            from hmi.engine.sweep_report import band_as_dict
+            data["band"] = band_as_dict(over, spec.scenarios)
+        print(json.dumps(data, indent=2))
     else:
-        print("\n".join(report_lines(result, spec.scenarios, spec.paper, project.name)))
+        lines = report_lines(result, spec.scenarios, spec.paper, project.name)
+        if over is not None:
+            from hmi.engine.sweep_report import band_lines
+            lines += ["", *band_lines(over, spec.scenarios, spec.paper, samples, seed)]
+        print("\n".join(lines))
     return 0
 
 

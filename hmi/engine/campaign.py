@@ -21,7 +21,7 @@ Runs are in virtual time on the simulated plant; each is exactly repeatable.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -141,8 +141,9 @@ class CampaignResult:
 
 
 def run_one(project: Project, spec: CampaignSpec, scenario: Scenario, config: Config,
-            period_us: int | None = None) -> RunResult:
-    """One scenario under one configuration, in virtual time."""
+            period_us: int | None = None, jitter_us: int = 0, seed: int = 0) -> RunResult:
+    """One scenario under one configuration, in virtual time (each scan up to `jitter_us`
+    late, drawn from `seed`: a band point's, hmi/engine/band.py)."""
     plant = SimPlant(project)
     plant.inject(Injection(scenario.fault, scenario.at_us, scenario.device))
     engine = Engine(project, plant, policy=config.policy, diagnosis=config.diagnosis)
@@ -153,7 +154,11 @@ def run_one(project: Project, spec: CampaignSpec, scenario: Scenario, config: Co
     count = 0
     detected: int | None = None
     snap = None
-    times = range(0, spec.length_us + 1, period)
+    times: Sequence[int] = range(0, spec.length_us + 1, period)
+    if jitter_us:
+        import random
+        late = random.Random(f"jitter:{seed}")
+        times = [t + late.randrange(jitter_us) for t in times]
     last = times[-1]
     stage = engine.diagnosis
     for now in times:
@@ -257,6 +262,139 @@ def _worker_run(task: tuple[int, int]) -> RunResult:
     i, j = task
     spec = _WORKER["spec"]
     return run_one(_WORKER["project"], spec, spec.scenarios[i], CONFIGS[j], _WORKER["period"])
+
+
+# -- the campaign over the declared tolerances -------------------------------------------------
+
+
+@dataclass
+class BandCampaign:
+    """The campaign at every plant of a band (hmi/engine/band.py), in point order."""
+
+    band: Any  # hmi.engine.band.Band
+    points: list[Any]  # BandPoint
+    results: list[CampaignResult]
+    wall_s: float
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"band": self.band.describe(), "wall_s": round(self.wall_s, 3),
+                "plants": [{"point": p.text(self.band), "label": p.label,
+                            "table": {c.key: r.table(c.key) for c in CONFIGS},
+                            "runs": [{"scenario": run.scenario.name, "config": run.config.key,
+                                      "outcome": run.outcome, "reason": run.reason}
+                                     for run in r.runs]}
+                           for p, r in zip(self.points, self.results, strict=True)]}
+
+
+def run_campaign_band(project: Project, spec: CampaignSpec, band: Any, points: list[Any],
+                      jobs: int = 1, progress: Callable[[int, int], None] | None = None
+                      ) -> BandCampaign:
+    """Every scenario under every configuration at every point: the point's plant, its
+    scans late by up to its jitter (each run deterministic, from the point's seed)."""
+    import time
+    started = time.perf_counter()
+    tasks = [(p, i, j) for p in range(len(points)) for i in range(len(spec.scenarios))
+             for j in range(len(CONFIGS))]
+    done: dict[tuple[int, int, int], RunResult] = {}
+    if jobs > 1 and len(tasks) > 1 and project.path is not None:
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        from hmi.engine.loop_sweep import project_variant
+        with ProcessPoolExecutor(max_workers=jobs, initializer=_band_init,
+                                 initargs=(str(project.path), project_variant(project) or None,
+                                           band, points)) as pool:
+            chunks = [tasks[k::jobs * 8] for k in range(jobs * 8)]
+            futures = [pool.submit(_band_run, chunk) for chunk in chunks if chunk]
+            for future in as_completed(futures):
+                done.update(future.result())
+                if progress is not None:
+                    progress(len(done), len(tasks))
+    else:
+        cells = [band.apply(project, p) for p in points]
+        for task in tasks:
+            done[task] = _band_one(cells, spec, band, points, task)
+            if progress is not None:
+                progress(len(done), len(tasks))
+    results = []
+    for p in range(len(points)):
+        result = CampaignResult(project.name, spec)
+        result.runs = [done[(p, i, j)] for i in range(len(spec.scenarios))
+                       for j in range(len(CONFIGS))]
+        results.append(result)
+    return BandCampaign(band, list(points), results, time.perf_counter() - started)
+
+
+def _band_one(cells: list[Project], spec: CampaignSpec, band: Any, points: list[Any],
+              task: tuple[int, int, int]) -> RunResult:
+    p, i, j = task
+    point = points[p]
+    return run_one(cells[p], spec, spec.scenarios[i], CONFIGS[j],
+                   jitter_us=point.jitter_us(band), seed=point.seed)
+
+
+def _band_init(path: str, variant: str | None, band: Any, points: list[Any]) -> None:
+    from hmi.project.campaign import campaign_of
+    from hmi.project.loader import load_project
+    project = load_project(path, variant)
+    _WORKER.update(cells=[band.apply(project, p) for p in points], spec=campaign_of(project),
+                   band=band, points=points)
+
+
+def _band_run(chunk: list[tuple[int, int, int]]) -> dict[tuple[int, int, int], RunResult]:
+    w = _WORKER
+    return {task: _band_one(w["cells"], w["spec"], w["band"], w["points"], task)
+            for task in chunk}
+
+
+SEVERITY = {TOLERANT: 0, BLOCKED: 1, DEFECT: 2}
+
+
+def band_report_lines(nominal: CampaignResult, over: BandCampaign, samples: int,
+                      seed: int) -> list[str]:
+    """Table 1 over the band: each count as its range, worst first, and per scenario the
+    classes it takes across the band, worst first."""
+    band = over.band
+    lines = [f"Over the declared tolerances: {len(over.points)} plants ({band.describe()}: "
+             f"its {len(band.corners())} corners and {samples} points drawn with seed "
+             f"{seed}), every scenario at each; counts worst .. best"]
+    header = ["", *[c.title for c in CONFIGS]]
+    rows = [header]
+    for outcome in OUTCOMES:
+        row = [outcome]
+        for c in CONFIGS:
+            values = [r.table(c.key)[outcome] for r in over.results]
+            worst, best = (max, min) if outcome != TOLERANT else (min, max)
+            low, high = worst(values), best(values)
+            row.append(str(low) if low == high else f"{low} .. {high}")
+        rows.append(row)
+    lines += _table(rows)
+    lines.append("")
+    lines.append("Per scenario, the classes across the band (plants), worst first; the worst "
+                 "plant named when it differs from the nominal class")
+    ran = [s for s in nominal.spec.scenarios if s.table]
+    for scenario in ran:
+        cells = []
+        for c in CONFIGS:
+            seen: dict[str, int] = {}
+            worst_run = None
+            for p, r in zip(over.points, over.results, strict=True):
+                run = r.result(scenario, c.key)
+                seen[run.outcome] = seen.get(run.outcome, 0) + 1
+                if worst_run is None or SEVERITY[run.outcome] > SEVERITY[worst_run[1].outcome]:
+                    worst_run = (p, run)
+            text = ", ".join(f"{o} {n}" for o, n in sorted(seen.items(),
+                                                           key=lambda kv: -SEVERITY[kv[0]]))
+            cells.append(text)
+        lines.append(f"  {scenario.name:<10} " + " | ".join(cells))
+        base = {c.key: nominal.result(scenario, c.key).outcome for c in CONFIGS}
+        for c in CONFIGS:
+            for p, r in zip(over.points, over.results, strict=True):
+                run = r.result(scenario, c.key)
+                if SEVERITY[run.outcome] > SEVERITY[base[c.key]]:
+                    lines.append(f"      {c.title}: {run.outcome} at {p.label} "
+                                 f"({p.text(band)}): {run.reason}")
+                    break
+    return lines
 
 
 def report_lines(result: CampaignResult) -> list[str]:

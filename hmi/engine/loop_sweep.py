@@ -28,7 +28,7 @@ FTC = LoopConfig("ftc", "FTC (Diag and Filter)", None, "ftc")
 CAMPAIGN_CONFIGS = (DIAG_NO_FILTER, FILTER_NO_DIAG, FTC)
 # Where the diagnosers run: observing only, and driving reconstruction and masking.
 DIAGNOSIS_CONFIGS = (DIAG_NO_FILTER, FTC)
-CACHE_VERSION = 1
+CACHE_VERSION = 2
 
 
 @dataclass
@@ -47,6 +47,9 @@ class SweepResult:
     wall_s: float = 0.0
     jobs: int = 1
     cached: bool = False
+    exact: bool = False  # every instant (pieces), not a grid
+    step_us: int | None = None  # a grid finer than the scan: every step_us of each interval
+    point: str = ""  # the band point explored ("" the project's own plant)
 
     def of(self, config: str) -> list[Outcome]:
         return self.runs[config]
@@ -59,6 +62,9 @@ class SweepResult:
         if at >= self.cycle_start_us:
             at = self.cycle_start_us + (at - self.cycle_start_us) % self.cycle_us
         runs = [r for r in self.runs[config] if r.fault == fault and not r.extra]
+        inside = [r for r in runs if r.first_us <= at <= r.last_us]
+        if inside:
+            return inside[0]
         return min(runs, key=lambda r: (abs(r.at_us - at), r.at_us))
 
 
@@ -66,14 +72,22 @@ def sweep(project, configs: Sequence[LoopConfig], counter: str, every_us: int | 
           extras: bool = True, jobs: int | None = None,
           progress: Callable[[int, int], None] | None = None,
           cache: bool = True, compute: bool = True,
-          faults: Sequence[str] | None = None) -> SweepResult | None:
+          faults: Sequence[str] | None = None, exact: bool = False,
+          loaded: tuple | None = None, point: str = "") -> SweepResult | None:
     """The sweep, from the cache when it holds it; None when it does not and `compute` is
-    false."""
+    false. `exact`: every instant of the cycle (Explorer.pieces), else a grid of `every_us`
+    (a multiple of the scan period, or a divisor of it: instants inside each interval).
+    `loaded` and `point`: the project is a band point's (hmi/engine/band.py), as the
+    workers rebuild it and as it is named."""
     period = project.scan_period_us
-    every = max(1, round((every_us or period) / period))
+    step_us = every_us if every_us is not None and every_us < period else None
+    every = max(1, round((every_us or period) / period)) if step_us is None else 1
+    if exact:
+        extras, every, step_us = False, 1, None
     variant = project_variant(project)
     faults = tuple(faults) if faults else faults_of(project)
-    key = _cache_key(project, variant, configs, counter, every, extras, faults)
+    key = _cache_key(project, variant, configs, counter, every, extras, faults,
+                     f"{exact}|{step_us}|{point}")
     if cache:
         found = _load(key)
         if found is not None:
@@ -83,10 +97,11 @@ def sweep(project, configs: Sequence[LoopConfig], counter: str, every_us: int | 
     jobs = jobs or min(2, os.cpu_count() or 1)
     started = time.perf_counter()
     graphs = explore_all(project, configs, counter, faults, extras, jobs, progress, every,
-                         variant or None)
+                         variant or None, exact=exact, step_us=step_us, loaded=loaded)
     first = next(iter(graphs.values()))
     result = SweepResult(project.name, variant, tuple(configs), faults, period, every, extras,
-                         first.cycle_start * period, first.cycle_length * period, jobs=jobs)
+                         first.cycle_start * period, first.cycle_length * period, jobs=jobs,
+                         exact=exact, step_us=step_us, point=point)
     for c in configs:
         g = graphs[c.key]
         result.runs[c.key] = outcomes(g)
@@ -121,10 +136,25 @@ def _source_digest() -> str:
     return h.hexdigest()
 
 
-def _cache_key(project, variant, configs, counter, every, extras, faults) -> str:
+def _cache_key(project, variant, configs, counter, every, extras, faults, more="") -> str:
     h = hashlib.sha256()
-    h.update(f"{CACHE_VERSION}|{variant}|{counter}|{every}|{extras}|{faults}|".encode())
+    h.update(f"{CACHE_VERSION}|{variant}|{counter}|{every}|{extras}|{faults}|{more}|".encode())
     h.update(repr([(c.key, c.policy, c.diagnosis) for c in configs]).encode())
+    for name in project.files:
+        h.update(name.encode())
+        try:
+            h.update(Path(name).read_bytes())
+        except OSError:
+            h.update(b"?")
+    h.update(_source_digest().encode())
+    return h.hexdigest()[:32]
+
+
+def project_digest(project, extra: str) -> str:
+    """A cache key for a study of `project`: its files, the variant loaded, the source of
+    plchmi, and what the study is (`extra`)."""
+    h = hashlib.sha256()
+    h.update(f"{project_variant(project)}|{extra}|".encode())
     for name in project.files:
         h.update(name.encode())
         try:
@@ -145,7 +175,8 @@ def _load(key: str) -> SweepResult | None:
         return SweepResult(data["project"], data["variant"], configs, tuple(data["faults"]),
                            data["period_us"], data["every"], data["extras"],
                            data["cycle_start_us"], data["cycle_us"], runs, data["states"],
-                           data["wall_s"], data["jobs"], cached=True)
+                           data["wall_s"], data["jobs"], cached=True, exact=data["exact"],
+                           step_us=data["step_us"], point=data["point"])
     except (OSError, ValueError, KeyError, TypeError):
         return None
 
@@ -159,6 +190,7 @@ def _store(key: str, result: SweepResult) -> None:
         "cycle_start_us": result.cycle_start_us, "cycle_us": result.cycle_us,
         "runs": {k: [asdict(r) for r in v] for k, v in result.runs.items()},
         "states": result.states, "wall_s": result.wall_s, "jobs": result.jobs,
+        "exact": result.exact, "step_us": result.step_us, "point": result.point,
     }
     try:
         folder.mkdir(parents=True, exist_ok=True)
