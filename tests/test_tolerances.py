@@ -261,3 +261,19 @@ def test_band_needs_declared_tolerances(tmp_path, capsys):
     path.write_text(text[:start])
     assert main(["band", str(folder)]) == 2
     assert "declares no tolerance" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("variant", [None, "paper"])
+def test_the_valve_is_never_diagnosed_faulty_across_its_band(variant):
+    """The corners and 400 seeded points of the band, 40 s each (scans late, switches bouncing
+    their own way at every change): no faulty diagnoser state, no damage, cycling on.
+    `plchmi band projects/cispi_valve --runs 10000` is the long form (docs/cispi_valve.md)."""
+    from hmi.engine.band import fault_free_points, run_band
+    from tests.conftest import processes_for_a_test
+    project = load_project(VALVE, variant)
+    band = fault_free_band(project)
+    runs = run_band(project, band, fault_free_points(band, 400, seed=2), run_length(project),
+                    jobs=processes_for_a_test())
+    assert len(runs.runs) == 417
+    assert not runs.diagnosed and not runs.damaged and not runs.stopped

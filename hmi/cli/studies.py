@@ -176,7 +176,7 @@ def _campaign_sweep(args: argparse.Namespace, project, spec, jobs: int) -> int:
     faults = _faults(args, project)
     try:
         result = sweep(project, CAMPAIGN_CONFIGS, spec.counter, args.every, jobs=jobs,
-                       progress=progress_bar(), cache=False, faults=faults,
+                       progress=progress_bar(), cache=args.every is None, faults=faults,
                        exact=args.every is None)
         over = None
         if band and args.every is None:

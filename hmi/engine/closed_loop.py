@@ -243,8 +243,8 @@ def explore_all(project, configs: Sequence[LoopConfig], counter: str,
         return graphs
     from concurrent.futures import ProcessPoolExecutor, as_completed
     with ProcessPoolExecutor(max_workers=jobs, initializer=_worker_init,
-                             initargs=(str(project.path), variant, counter, instants,
-                                       settle, _shape(probe))) as pool:
+                             initargs=(loaded or (str(project.path), variant, None, None),
+                                       counter, instants, settle, _shape(probe))) as pool:
         futures = {pool.submit(_worker_run, c, f): (c, f) for c, f in tasks}
         for future in as_completed(futures):
             c, f = futures[future]

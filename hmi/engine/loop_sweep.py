@@ -86,29 +86,60 @@ def sweep(project, configs: Sequence[LoopConfig], counter: str, every_us: int | 
         extras, every, step_us = False, 1, None
     variant = project_variant(project)
     faults = tuple(faults) if faults else faults_of(project)
-    key = _cache_key(project, variant, configs, counter, every, extras, faults,
-                     f"{exact}|{step_us}|{point}")
-    if cache:
-        found = _load(key)
-        if found is not None:
-            return found
-    if not compute:
+    # An exact sweep is kept per configuration (diagnose's two are among campaign's three);
+    # a grid's instants depend on the configurations together (the extras around the
+    # transitions come from one where the diagnosers run), so it is kept whole.
+    groups = [(c,) for c in configs] if exact else [tuple(configs)]
+    keys = [_cache_key(project, variant, group, counter, every, extras, faults,
+                       f"{exact}|{step_us}|{point}") for group in groups]
+    found = [_load(key) if cache else None for key in keys]
+    missing = [c for group, part in zip(groups, found, strict=True) if part is None
+               for c in group]
+    if missing and not compute:
         return None
+    if not missing:
+        return _joined([p for p in found if p is not None], configs, cached=True)
     jobs = jobs or min(2, os.cpu_count() or 1)
     started = time.perf_counter()
-    graphs = explore_all(project, configs, counter, faults, extras, jobs, progress, every,
+    graphs = explore_all(project, missing, counter, faults, extras, jobs, progress, every,
                          variant or None, exact=exact, step_us=step_us, loaded=loaded)
     first = next(iter(graphs.values()))
-    result = SweepResult(project.name, variant, tuple(configs), faults, period, every, extras,
-                         first.cycle_start * period, first.cycle_length * period, jobs=jobs,
-                         exact=exact, step_us=step_us, point=point)
-    for c in configs:
-        g = graphs[c.key]
-        result.runs[c.key] = outcomes(g)
-        result.states[c.key] = len(g.obs)
-    result.wall_s = time.perf_counter() - started
-    if cache:
-        _store(key, result)
+    wall = time.perf_counter() - started
+    parts = []
+    for group, key, part in zip(groups, keys, found, strict=True):
+        if part is None:
+            part = SweepResult(project.name, variant, group, faults, period, every, extras,
+                               first.cycle_start * period, first.cycle_length * period,
+                               jobs=jobs, exact=exact, step_us=step_us, point=point)
+            for c in group:
+                g = graphs[c.key]
+                part.runs[c.key] = outcomes(g)
+                part.states[c.key] = len(g.obs)
+            part.wall_s = wall * len(group) / len(missing)
+            if cache:
+                _store(key, part)
+        parts.append(part)
+    result = _joined(parts, configs, cached=False)
+    result.wall_s = wall + sum(p.wall_s for p in parts if p.cached)
+    return result
+
+
+def _joined(parts: list[SweepResult], configs: Sequence[LoopConfig], cached: bool
+            ) -> SweepResult:
+    """One result of the parts the configurations were kept in."""
+    if len(parts) == 1:
+        part = parts[0]
+        part.cached = cached
+        return part
+    first = parts[0]
+    result = SweepResult(first.project, first.variant, tuple(configs), first.faults,
+                         first.period_us, first.every, first.extras, first.cycle_start_us,
+                         first.cycle_us, jobs=first.jobs, cached=cached, exact=first.exact,
+                         step_us=first.step_us, point=first.point)
+    for part in parts:
+        result.runs.update(part.runs)
+        result.states.update(part.states)
+    result.wall_s = sum(p.wall_s for p in parts)
     return result
 
 
