@@ -13,7 +13,6 @@ points as asked, and checks stopwatch monitors too.
 from __future__ import annotations
 
 import json
-import random
 from pathlib import Path
 
 from hmi.engine.band import (
@@ -52,19 +51,9 @@ def fault_free_band(project: Project) -> Band:
 
 def check_points(band: Band, runs: int) -> tuple[list[BandPoint], str]:
     """What `check` runs (at most `runs` runs), and how to say it."""
-    corners = band.corners()
-    room = max(2, runs - 1 - CHECK_SAMPLES)
-    chosen = corners
-    if len(corners) > room:  # both extremes, then a seeded choice
-        draw = random.Random(f"corners:{CHECK_SEED}")
-        inner = sorted(draw.sample(range(1, len(corners) - 1), room - 2))
-        chosen = [corners[0], *(corners[k] for k in inner), corners[-1]]
+    chosen, which = band.some_corners(max(2, runs - 1 - CHECK_SAMPLES), CHECK_SEED)
     points = [band.nominal(), *chosen, *band.sample(CHECK_SAMPLES, CHECK_SEED)]
-    what = (f"the nominal plant, {len(chosen)} of its {len(corners)} corners (seed "
-            f"{CHECK_SEED}), {CHECK_SAMPLES} seeded points" if len(chosen) < len(corners)
-            else f"the nominal plant, its {len(corners)} corners, {CHECK_SAMPLES} seeded "
-            "points")
-    return points, what
+    return points, f"the nominal plant, {which}, {CHECK_SAMPLES} seeded points"
 
 
 def check_band(project: Project) -> tuple[list[str], list[Diagnostic]]:

@@ -8,6 +8,7 @@ instant, whatever the instant, share of instants) computed from the pieces equal
 
 from __future__ import annotations
 
+import itertools
 import random
 
 import pytest
@@ -41,7 +42,7 @@ def check_against_runs(ex: Explorer, fault: str, intervals, extra_instants=()):
     for _, lo, hi in intervals:
         covered = sorted((p.first_us, p.last_us) for p in pieces if lo <= p.first_us <= hi)
         assert covered[0][0] == lo and covered[-1][1] == hi
-        assert all(b[0] == a[1] + 1 for a, b in zip(covered, covered[1:], strict=False))
+        assert all(b[0] == a[1] + 1 for a, b in itertools.pairwise(covered))
     starts = [ex.run(fault, k, at, record=False) for k, lo, hi in intervals
               for at in [*range(lo - 1 + MS, hi + 1, MS),
                          *(t for t in extra_instants if lo <= t <= hi)]]

@@ -277,3 +277,34 @@ def test_the_valve_is_never_diagnosed_faulty_across_its_band(variant):
                     jobs=processes_for_a_test())
     assert len(runs.runs) == 417
     assert not runs.diagnosed and not runs.damaged and not runs.stopped
+
+
+# -- the closed loop over the band -----------------------------------------------------------
+
+
+def test_the_closed_loop_over_the_band_gives_each_figure_as_its_range():
+    """Three plants (nominal, the all-low corner, it with F13's block point high), one cheap
+    fault: the sweep of F5 is made once for the two corners (F5 does not depend on where
+    F13 jams), and the report gives each figure worst .. best."""
+    from hmi.diag_report import band_lines
+    from hmi.engine.band_sweep import band_sweep, exploration_band
+    from hmi.engine.loop_sweep import DIAG_NO_FILTER, FTC
+    project = example("cispi_valve")
+    band = exploration_band(project)
+    assert [d.name(False) for d in band.dimensions] == ["travel", "bounce", "delay",
+                                                        "block_at"]
+    corners = band.corners()
+    points = [band.nominal(), corners[0], corners[1]]
+    over = band_sweep(project, band, (DIAG_NO_FILTER, FTC), "cycles", points,
+                      faults=("F5", "F8"), jobs=1, cache=False)
+    assert over is not None and len(over.results) == 3
+    low, low_block = over.results[1], over.results[2]
+    assert low.runs == low_block.runs  # one sweep for both: F5, F8 ignore the block point
+    assert points[1].text(band) != points[2].text(band)
+    assert over.points[1].seed == over.points[2].seed  # one plant, one bounce pattern
+    text = "\n".join(band_lines(project, over, 0, 1))
+    assert "Over the declared tolerances: 3 plants" in text
+    assert "isolated with certainty at some instant:" in text
+    assert "wrong certain diagnoses (pieces of instants): 0" in text
+    row = next(line for line in text.splitlines() if line.strip().startswith("F8"))
+    assert ".." in row and "%" in row

@@ -53,6 +53,7 @@ def band_args(p) -> None:
 
 
 BAND_SAMPLES = 4
+CAMPAIGN_CORNERS = 64  # the campaign over the band: at most this many corners (seeded)
 
 
 DEFAULT_POINTS = "0.5s,1s,1.5s,2s,2.5s,3s"  # plchmi sweep's starts and lengths
@@ -136,17 +137,25 @@ def cmd_campaign(args: argparse.Namespace) -> int:
               f"{run.outcome}", file=sys.stderr, flush=True)
 
     band, samples, seed = _band_options(args)
+    points = []
+    if band:
+        from hmi.engine.band import band_of
+        declared = band_of(project)
+        corners, which = declared.some_corners(CAMPAIGN_CORNERS, seed)
+        points = [*corners, *declared.sample(samples, seed)]
+        if scans * (1 + len(points)) > MAX_RUN_SCANS:
+            raise UsageError(f"the campaign over the declared tolerances is {runs} runs at "
+                             f"{len(points) + 1} plants: {scans * (1 + len(points)):,} scans, "
+                             f"more than the {MAX_RUN_SCANS:,} plchmi runs at once "
+                             "(--nominal, or fewer --samples)")
     result = run_campaign(project, spec, progress, jobs=jobs)
     over = None
     if band:
-        from hmi.engine.band import band_of
         from hmi.engine.campaign import run_campaign_band
-        declared = band_of(project)
         if not declared.empty:
-            points = [*declared.corners(), *declared.sample(samples, seed)]
             print(f"over the declared tolerances: {len(points)} plants", file=sys.stderr)
             over = run_campaign_band(project, spec, declared, points, jobs=jobs,
-                                     progress=progress_bar())
+                                     progress=progress_bar(), which=which)
     if args.json:
         data = result.as_dict()
         if over is not None:

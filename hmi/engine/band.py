@@ -108,6 +108,17 @@ class Band:
         return [BandPoint(f"corner {k}/{len(combos)}", tuple(values), k)
                 for k, values in enumerate(combos, start=1)]
 
+    def some_corners(self, limit: int, seed: int = 1) -> tuple[list[BandPoint], str]:
+        """The corners, or at most `limit` of them when there are more (both extremes, then
+        a seeded choice); and how to say which."""
+        corners = self.corners()
+        if len(corners) <= limit:
+            return corners, f"its {len(corners)} corners"
+        draw = random.Random(f"corners:{seed}")
+        inner = sorted(draw.sample(range(1, len(corners) - 1), max(0, limit - 2)))
+        chosen = [corners[0], *(corners[k] for k in inner), corners[-1]]
+        return chosen, f"{len(chosen)} of its {len(corners)} corners (seed {seed})"
+
     def sample(self, count: int, seed: int) -> list[BandPoint]:
         """`count` points drawn uniformly inside the ranges, from `seed` (each its own seed
         for the run's draws)."""

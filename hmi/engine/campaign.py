@@ -275,6 +275,7 @@ class BandCampaign:
     points: list[Any]  # BandPoint
     results: list[CampaignResult]
     wall_s: float
+    which: str = ""  # which corners: "its 32 corners", "64 of its 1024 corners (seed 1)"
 
     def as_dict(self) -> dict[str, Any]:
         return {"band": self.band.describe(), "wall_s": round(self.wall_s, 3),
@@ -287,8 +288,8 @@ class BandCampaign:
 
 
 def run_campaign_band(project: Project, spec: CampaignSpec, band: Any, points: list[Any],
-                      jobs: int = 1, progress: Callable[[int, int], None] | None = None
-                      ) -> BandCampaign:
+                      jobs: int = 1, progress: Callable[[int, int], None] | None = None,
+                      which: str = "") -> BandCampaign:
     """Every scenario under every configuration at every point: the point's plant, its
     scans late by up to its jitter (each run deterministic, from the point's seed)."""
     import time
@@ -321,7 +322,8 @@ def run_campaign_band(project: Project, spec: CampaignSpec, band: Any, points: l
         result.runs = [done[(p, i, j)] for i in range(len(spec.scenarios))
                        for j in range(len(CONFIGS))]
         results.append(result)
-    return BandCampaign(band, list(points), results, time.perf_counter() - started)
+    return BandCampaign(band, list(points), results, time.perf_counter() - started,
+                        which or f"its {len(band.corners())} corners")
 
 
 def _band_one(cells: list[Project], spec: CampaignSpec, band: Any, points: list[Any],
@@ -355,8 +357,8 @@ def band_report_lines(nominal: CampaignResult, over: BandCampaign, samples: int,
     classes it takes across the band, worst first."""
     band = over.band
     lines = [f"Over the declared tolerances: {len(over.points)} plants ({band.describe()}: "
-             f"its {len(band.corners())} corners and {samples} points drawn with seed "
-             f"{seed}), every scenario at each; counts worst .. best"]
+             f"{over.which} and {samples} points drawn with seed {seed}), every scenario "
+             "at each; counts worst .. best"]
     header = ["", *[c.title for c in CONFIGS]]
     rows = [header]
     for outcome in OUTCOMES:
