@@ -17,7 +17,6 @@ from concurrent.futures import Executor
 from dataclasses import dataclass, field
 from operator import itemgetter
 
-from hmi.engine.campaign import CONFIGS
 from hmi.engine.commands import FaultReset
 from hmi.engine.scan import Engine
 from hmi.export.build import build
@@ -29,6 +28,7 @@ from hmi.project.loader import load_project
 from hmi.project.model import Project
 from hmi.project.monitors import monitors_of
 from hmi.project.scenarios import scenarios_of
+from hmi.studies.campaign import CONFIGS
 from tests.conftest import PROJECTS
 from tests.stsubset import Instance, Program, Runtime
 
