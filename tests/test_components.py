@@ -13,7 +13,6 @@ from pathlib import Path
 import pytest
 
 from hmi.cli import main
-from hmi.engine.diagnosability import analyse
 from hmi.engine.scan import Engine
 from hmi.errors import ProjectError
 from hmi.logic.expr import parse_expr, to_text
@@ -21,6 +20,7 @@ from hmi.plant.sim.plant import SimPlant
 from hmi.project.components import rename_node, renamed_source
 from hmi.project.injection import Injection
 from hmi.project.loader import load_project
+from hmi.studies.diagnosability import analyse
 from tests.conftest import PROJECTS
 
 ROOT = PROJECTS.parent

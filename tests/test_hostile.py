@@ -291,8 +291,8 @@ def test_run_lengths_beyond_the_limits_are_usage_errors(args, fragment, capsys):
 
 
 def test_a_long_run_says_so_up_front(tmp_path, capsys, monkeypatch):
-    import hmi.runio
-    monkeypatch.setattr(hmi.runio, "NOTICE_RUN_SCANS", 100)
+    import hmi.session.runio
+    monkeypatch.setattr(hmi.session.runio, "NOTICE_RUN_SCANS", 100)
     code, _, err = cli(["run", PROJECTS / "cispi_valve", "--for", "2s"], capsys)
     assert code == 0 and "201 scans to run (2s at a 10ms scan period)" in err
 
