@@ -29,15 +29,9 @@ from typing import Any
 
 from hmi.errors import OutputError
 from hmi.limits import MAX_JOURNAL_LINE_BYTES, describe_bytes
+from hmi.paths import data_folder
 from hmi.textfile import FileProblem, open_regular
 from hmi.timefmt import seconds
-
-
-def data_folder() -> Path:
-    if os.environ.get("PLCHMI_DATA"):
-        return Path(os.environ["PLCHMI_DATA"])
-    base = os.environ.get("XDG_DATA_HOME") or str(Path.home() / ".local" / "share")
-    return Path(base) / "plchmi"
 
 
 def default_path(project_name: str) -> Path:

@@ -82,7 +82,7 @@ class Progress:
 
 
 def save_steps(config: SoakConfig, steps, why: str) -> Path:
-    from hmi.explain.journal import data_folder
+    from hmi.paths import data_folder
     stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S")
     path = data_folder() / "soak" / f"{config.project.name}-seed{config.seed}-{stamp}.steps"
     path.parent.mkdir(parents=True, exist_ok=True)

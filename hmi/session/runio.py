@@ -13,11 +13,11 @@ import contextlib
 from pathlib import Path
 
 from hmi.engine.snapshot import Snapshot
-from hmi.engine.trace import TraceWriter
 from hmi.errors import OutputError
 from hmi.limits import MAX_RUN_SCANS, NOTICE_RUN_SCANS
 from hmi.plant.base import PlantError
 from hmi.session.session import Session
+from hmi.session.trace import TraceWriter
 from hmi.timefmt import format_duration, seconds
 
 
