@@ -295,7 +295,7 @@ def test_server_killed_and_restarted_mid_run(server, tmp_path):
         settle = live.wait(lambda s: s.time_us >= back.time_us + 500_000, "half a second")
         assert all(s.is_safe_latched and s.outputs == (True, False)
                    for s in live.snaps if back.scan <= s.scan <= settle.scan)
-        result = live.link.session.command(FaultReset())
+        result = live.controller.command(FaultReset())
         assert result.accepted and "plant connection lost" in result.message
         resumed = live.wait(lambda s: not s.latched and s.output_map["O"], "the law to resume",
                             since=len(live.snaps))
@@ -308,19 +308,19 @@ def test_pausing_a_real_plant_holds_it_safe(server, tmp_path):
     srv = server(valve)
     with Live(valve, srv.port) as live:
         live.wait(lambda s: s.output_map["O"], "the valve opening")
-        result = live.link.session.command(Pause())
+        result = live.controller.command(Pause())
         assert "outputs written safe while paused" in result.message
         assert read_coils(srv.port) == [False, False]
         paused_at = live.engine.scan
         opened = srv.lines.index(srv.wait_for("C=0 O=1", WAIT))
         parked = srv.lines.index(srv.wait_for("C=0 O=0", WAIT, start=opened + 1))
         mark = parked + 1
-        assert not live.link.session.command(StepScans(1)).accepted
+        assert not live.controller.command(StepScans(1)).accepted
         deadline = time.monotonic() + 0.3
         while time.monotonic() < deadline:  # no scan drives it while paused
             assert read_coils(srv.port) == [False, False]
         assert live.engine.scan == paused_at
-        assert live.link.session.command(Resume()).accepted
+        assert live.controller.command(Resume()).accepted
         live.wait(lambda s: s.output_map["O"], "the valve opening again", since=len(live.snaps))
         srv.wait_for("C=0 O=1", WAIT, start=mark)
 
@@ -397,7 +397,7 @@ def test_a_busy_device_is_reported_and_operation_resumes_after_reset(server):
         busy = live.wait(lambda s: "Server Device Busy" in s.plant.message, "busy answers")
         assert busy.latched and "Server Device Busy (exception 6)" in busy.latched[0].detail
         live.wait(lambda s: s.plant.message.startswith("connected"), "the end of busy")
-        assert live.link.session.command(FaultReset()).accepted
+        assert live.controller.command(FaultReset()).accepted
         live.wait(lambda s: not s.latched and s.output_map["O"], "the valve opening",
                   since=len(live.snaps))
 
@@ -429,7 +429,7 @@ def test_read_only_mode_observes_and_writes_nothing(server):
         assert "CSs2" in snap.filter.violated_names and snap.filter.policy == "monitor"
         assert snap.outputs == (False, True) and not snap.filter.changes
         assert live.engine.policy == "monitor"
-        assert not live.link.session.command(SetMode(True)).accepted
+        assert not live.controller.command(SetMode(True)).accepted
         live.wait(lambda s: s.scan >= snap.scan + 30, "more scans")
         seen = list(live.snaps)
     assert all(s.outputs == (False, True) and s.fov == (False, True) for s in seen)
