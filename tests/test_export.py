@@ -19,7 +19,6 @@ from hypothesis import strategies as st
 
 from hmi.cli import main
 from hmi.engine.commands import ManualOutput, SetInput, SetMode, SetPolicy
-from hmi.engine.filter_analysis import analyse
 from hmi.errors import ProjectError
 from hmi.export import render
 from hmi.export.build import build
@@ -27,6 +26,7 @@ from hmi.export.names import Scope, is_valid
 from hmi.export.plcopen import write_plcopen
 from hmi.export.st import write_st
 from hmi.project.loader import load_project
+from hmi.studies.filter_analysis import analyse
 from tests.conftest import PROJECTS, ROOT
 from tests.export_harness import Twin, engine_for
 from tests.plcopen_reader import NS, code_only, st_from_plcopen

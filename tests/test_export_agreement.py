@@ -16,11 +16,11 @@ from concurrent.futures import Future, ProcessPoolExecutor
 
 import pytest
 
-from hmi.engine.campaign import CONFIGS
 from hmi.plant.sim import Injection
 from hmi.project.campaign import campaign_of
 from hmi.project.loader import load_project
 from hmi.project.scenarios import scenarios_of
+from hmi.studies.campaign import CONFIGS
 from tests.conftest import PROJECTS, processes_for_a_test
 from tests.export_harness import Agreement, Twin, engine_for
 
