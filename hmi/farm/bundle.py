@@ -37,19 +37,30 @@ class Bundle:
     project_file: str  # the project file, relative to the folder
     variant: str | None  # the diagnoser variant loaded (--diagnoser)
     files: tuple[tuple[str, bytes], ...]  # (path relative to the folder, content)
+    # The component library's files it uses: (the path from the project folder to the file,
+    # as its `use:` reaches it, e.g. ../../components/valve.yaml; the file in the library)
+    library: tuple[tuple[str, str], ...]
     digest: str  # sha256 of the project as loaded (see digest_of)
 
     @classmethod
     def of(cls, project: Project, variant: str | None = None) -> Bundle:
         folder = project.path.resolve()
+        library_root = COMPONENTS.resolve()
         inside: list[tuple[str, bytes]] = []
+        library: list[tuple[str, str]] = []
         for name in project.files:
             path = Path(name).resolve()
             if path.is_relative_to(folder):
                 inside.append((path.relative_to(folder).as_posix(), path.read_bytes()))
+            elif path.is_relative_to(library_root):
+                library.append((Path(os.path.relpath(path, folder)).as_posix(),
+                                path.relative_to(library_root).as_posix()))
+            else:
+                raise BundleError(f"project {project.name}: {name} is neither in its folder "
+                                  "nor in the component library")
         if not inside:
             raise BundleError(f"project {project.name}: no file of it lies in {folder}")
-        return cls(folder.name, inside[0][0], variant, tuple(inside),
+        return cls(folder.name, inside[0][0], variant, tuple(inside), tuple(library),
                    digest_of(project, variant))
 
     def load(self) -> Project:
@@ -65,6 +76,14 @@ class Bundle:
                     target = staging / relative
                     target.parent.mkdir(parents=True, exist_ok=True)
                     target.write_bytes(content)
+                # The library's files where the project's `use:` paths lead from the copy:
+                # links to this worker's own library (the loader follows a link and finds
+                # the file inside the library, as it would from the original folder).
+                for relative, in_library in self.library:
+                    target = Path(os.path.normpath(folder / relative))
+                    if not target.exists():
+                        target.parent.mkdir(parents=True, exist_ok=True)
+                        target.symlink_to(COMPONENTS.resolve() / in_library)
                 staging.rename(folder)
         project = load_project(folder / self.project_file, self.variant)
         found = digest_of(project, self.variant)
@@ -76,8 +95,12 @@ class Bundle:
 
     @property
     def folder(self) -> Path:
-        """Where :meth:`load` put the files, on this worker."""
-        return _scratch() / self.digest[:16] / self.name
+        """Where :meth:`load` puts the files on this worker: as many folders deep in its
+        scratch tree as the library's files are folders above the project (`..` from the
+        copy stays inside the tree)."""
+        ups = max((Path(relative).parts.count("..") for relative, _ in self.library),
+                  default=0)
+        return _scratch().joinpath(self.digest[:16], *["up"] * max(0, ups - 1), self.name)
 
 
 def digest_of(project: Project, variant: str | None) -> str:
