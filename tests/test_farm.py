@@ -148,7 +148,7 @@ def test_a_worker_running_other_code_refuses_the_shard():
     project = load_project(VALVE)
     study = campaign_study(project, campaign_of(project))
     other = replace(study.job, code="0" * 64)
-    with pytest.raises(WrongVersion, match="runs plchmi .* the study needs code 000000000000"):
+    with pytest.raises(WrongVersion, match=r"runs plchmi .* the study needs code 000000000000"):
         run_shard(other, 0, study.shards[0])
 
 

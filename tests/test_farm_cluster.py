@@ -72,7 +72,7 @@ class Cluster:
 
     def ensure(self, *names: str) -> None:
         """These workers, and only these: a killed or extra one restarted or stopped."""
-        for name, process in list(self.processes.items()):
+        for name in list(self.processes):
             if name != "scheduler" and name not in names:
                 self.stop(name)
         for name in names:
@@ -196,6 +196,7 @@ def test_a_soak_farm_on_the_cluster_is_the_local_report_though_a_worker_dies(clu
     survivor = cluster.address_of("w1")
     out, err, killer = _run_killing(cluster, capsys, argv)
     assert code == 0 and out == local
+    assert f"worker {killer.address} left the cluster" in err
     assert "6 seeds (1-6)" in out and "6 kept every invariant" in out
     _check_rerun(killer, survivor)
 
@@ -232,7 +233,7 @@ def test_ctrl_c_cancels_the_work_on_the_cluster_and_resume_goes_on(cluster, tmp_
         cluster.wait_for(lambda: any(data.glob("studies/*/shard-*.json")),
                          "a first shard to finish")
         command.send_signal(signal.SIGINT)
-        out, err = command.communicate(timeout=60)
+        _, err = command.communicate(timeout=60)
     finally:
         if command.poll() is None:
             command.kill()

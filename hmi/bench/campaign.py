@@ -25,10 +25,10 @@ PROJECT = Path(__file__).resolve().parents[2] / "projects" / "cispi_valve"
 
 
 def run(args) -> None:
-    from hmi.project.campaign import campaign_of
-    from hmi.project.loader import load_project
     from hmi.farm.executors import executor_for
     from hmi.farm.run import Farm
+    from hmi.project.campaign import campaign_of
+    from hmi.project.loader import load_project
     from hmi.studies.campaign import CONFIGS, run_campaign
 
     project = load_project(PROJECT)

@@ -26,7 +26,6 @@ from hmi.soak.runner import SoakConfig, session, shrink
 from hmi.soak.steps import format_steps
 
 
-
 @dataclass(frozen=True)
 class SeedResult:
     """One seed's session, as plain data (what a worker sends back and the store keeps)."""
