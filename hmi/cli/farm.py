@@ -59,6 +59,8 @@ def print_report(text: str, farm) -> None:
     sys.stdout.flush()
     digest = hashlib.sha256(data.encode("utf-8")).hexdigest()
     print(f"report sha256 {digest}", file=sys.stderr)
+    for note in farm.notes:
+        print(f"  {note}", file=sys.stderr)
     for stats in farm.stats:
         for line in stats.lines():
             print(f"  {line}", file=sys.stderr)

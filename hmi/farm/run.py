@@ -182,6 +182,7 @@ class Farm:
     root: Path | None = None
     keep: bool = True
     stats: list[RunStats] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)  # what a study found without running
 
     def run(self, study: Study, each: Callable[[int, Any], None] | None = None) -> list[Any]:
         from hmi.farm.executors import executor_for

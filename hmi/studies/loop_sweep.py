@@ -87,6 +87,9 @@ def sweep(project, configs: Sequence[LoopConfig], counter: str, every_us: int | 
     if cache:
         found = _load(key)
         if found is not None:
+            if farm is not None:
+                farm.notes.append(f"the closed-loop sweep of {project.name} was read from the "
+                                  f"cache ({cache_folder() / 'closed-loop'})")
             return found
     if not compute:
         return None
