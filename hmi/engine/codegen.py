@@ -24,6 +24,7 @@ from types import CodeType
 from typing import Any
 
 from hmi.logic.expr import And, Compare, Const, Duration, Node, Not, Or, StepTime, Var
+from hmi.program import ir
 
 _COMPARE = {"<": "<", "<=": "<=", ">": ">", ">=": ">=", "==": "==", "!=": "!="}
 
@@ -84,6 +85,65 @@ class Source:
         each missing keyword-only one up by name in a dict (the palletizer's core and
         monitors, 31 objects, paid some 4,000 instructions a scan for it)."""
         return "".join(f", k{n}=k{n}" for n in range(len(self.objects)))
+
+
+def print_program(src: Source, program: tuple[ir.Stmt, ...], indent: int,
+                  slots: Mapping[str, int], times: Mapping[str, int]) -> None:
+    """`program`'s statements as Python lines of `src` (the compiled scan's printer of the
+    scan program, hmi.program.ir): a cell is an attribute of the object handed over, an
+    ``if`` whose else branch is one ``if`` an ``elif``."""
+    for stmt in program:
+        if isinstance(stmt, ir.If):
+            src.line(indent, f"if {_value_source(src, stmt.test, slots, times)}:")
+            _print_branches(src, stmt, indent, slots, times)
+            continue
+        src.line(indent, f"{_value_source(src, stmt.target, slots, times)} = "
+                         f"{_value_source(src, stmt.value, slots, times)}")
+
+
+def _print_branches(src: Source, stmt: ir.If, indent: int, slots: Mapping[str, int],
+                    times: Mapping[str, int]) -> None:
+    print_program(src, stmt.then, indent + 1, slots, times)
+    orelse = stmt.orelse
+    if len(orelse) == 1 and isinstance(orelse[0], ir.If):
+        src.line(indent, f"elif {_value_source(src, orelse[0].test, slots, times)}:")
+        _print_branches(src, orelse[0], indent, slots, times)
+    elif orelse:
+        src.line(indent, "else:")
+        print_program(src, orelse, indent + 1, slots, times)
+
+
+def _value_source(src: Source, value: ir.Value, slots: Mapping[str, int],
+                  times: Mapping[str, int]) -> str:
+    match value:
+        case ir.Test(node=node):
+            return expr_source(node, slots, times)
+        case ir.Now():
+            return "now"
+        case ir.Const(value=constant):
+            return repr(constant if constant is None or isinstance(constant, bool)
+                        else int(constant))
+        case ir.Local(name=name):
+            return name
+        case ir.Slot(index=index):
+            return f"v[{int(index)}]"
+        case ir.Cell(owner=owner, attr=attr):
+            return f"{src.ref(owner)}.{attr}"
+        case ir.Sub(left=left, right=right):
+            return (f"{_operand_source(src, left, slots, times)} - "
+                    f"{_operand_source(src, right, slots, times)}")
+        case ir.AtLeast(left=left, right=right):
+            return (f"{_operand_source(src, left, slots, times)} >= "
+                    f"{_operand_source(src, right, slots, times)}")
+        case ir.IsNone(operand=operand):
+            return f"{_value_source(src, operand, slots, times)} is None"
+    raise TypeError(f"not a value of the scan program: {value!r}")
+
+
+def _operand_source(src: Source, value: ir.Value, slots: Mapping[str, int],
+                    times: Mapping[str, int]) -> str:
+    text = _value_source(src, value, slots, times)
+    return f"({text})" if isinstance(value, ir.Sub | ir.AtLeast | ir.IsNone) else text
 
 
 # What generated code may contain: the statements and expressions of the templates below.
