@@ -1,7 +1,8 @@
 """The import graph keeps the layering of docs/architecture.md, and has no import cycle.
 
     base (errors, timefmt, paths, limits, textfile, codecache) <- logic <- project
-        <- plant, engine <- explain <- session <- apps (ui, cli, bench, reports, sweep)
+        <- plant, engine <- explain <- session, history <- apps (ui, cli, bench, reports,
+        sweep)
 
 A module imports from its own layer or from a lower one, never from a higher one; within
 its layer, plant/ does not import engine/ (the engine drives a plant through the contract of
@@ -33,7 +34,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("hmi.project",),
     ("hmi.plant", "hmi.engine", "hmi.export"),
     ("hmi.explain",),
-    ("hmi.session",),
+    ("hmi.session", "hmi.history"),
     ("hmi.ui", "hmi.cli", "hmi.bench", "hmi.report", "hmi.diag_report", "hmi.monitor_report",
      "hmi.sweep", "hmi.runio", "hmi.opcua", "hmi.soak", "hmi.crash"),
 )

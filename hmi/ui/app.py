@@ -107,6 +107,7 @@ from hmi.ui.style import ISA101, MUTED, OK_SYMBOL, Level, isa101_theme, tag
 from hmi.ui.verdict import output_changes, request_verdict
 
 if TYPE_CHECKING:
+    from hmi.history.target import Target
     from hmi.ui.palette import PaletteEntry
 
 # The dialogs, the fault and signal pickers and the palette's provider are imported when
@@ -168,10 +169,11 @@ class PlcHmiApp(ContainedPump, App):
     def __init__(self, controller: Session, live: bool = True, *,
                  show_measured: bool | None = None, refresh_hz: float = REFRESH_HZ,
                  injected: tuple[Injection, ...] = (), bell: bool = False,
-                 served: Served | None = None):
+                 served: Served | None = None, history: Target | None = None):
         super().__init__()
         self.controller = controller
         self.served = served  # the cell's OPC UA server (--opcua): its status is shown
+        self.history = history  # where the cell's history is kept (the trend screens)
         engine = controller.engine
         self.project = engine.project
         self.driver: LiveDriver | VirtualDriver = (LiveDriver(controller) if live
@@ -1330,15 +1332,17 @@ class AppEnd:
 def run_app(target: Engine | Session, clock=None, injected: tuple[Injection, ...] = (),
             on_fault: Callable[[UIFault], None] | None = None, bell: bool = False,
             served: Served | None = None,
-            on_first_frame: Callable[[], None] | None = None) -> AppEnd:
+            on_first_frame: Callable[[], None] | None = None,
+            history: Target | None = None) -> AppEnd:
     """Run the HMI live on an engine, or on a controller others listen to (the journal).
 
     A real plant passes a wall clock to stamp its scans (see hmi.session.live.WallClock);
     `injected` are the faults the command line scheduled in a simulated plant; `on_fault`
     is told of every UI error (the journal); `served` is the cell's OPC UA server, whose
-    state the screen shows; `on_first_frame` is called once the first frame is shown."""
+    state the screen shows; `on_first_frame` is called once the first frame is shown;
+    `history` is where the cell's history is kept (the trend screens read it)."""
     controller = target if isinstance(target, Session) else Session(target, clock=clock)
-    app = PlcHmiApp(controller, injected=injected, bell=bell, served=served)
+    app = PlcHmiApp(controller, injected=injected, bell=bell, served=served, history=history)
     if on_fault is not None:
         app.containment.listeners.append(on_fault)
     if on_first_frame is not None:
