@@ -159,7 +159,7 @@ def valve_project():
 
 @pytest.fixture(autouse=True, scope="session")
 def closed_loop_cache(tmp_path_factory):
-    """One cache of closed-loop explorations for the whole session (hmi/engine/loop_sweep.py):
+    """One cache of closed-loop explorations for the whole session (hmi/studies/loop_sweep.py):
     `check` of an unchanged copy of a project does not explore it again, and nothing is read
     from or written to the user's own cache."""
     previous = os.environ.get("PLCHMI_CACHE")

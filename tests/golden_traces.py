@@ -36,8 +36,8 @@ GOLDEN = Path(__file__).resolve().parent / "golden"
 sys.path.insert(0, str(ROOT))
 
 from hmi.engine import commands as cmd  # noqa: E402
-from hmi.engine.trace import _row  # noqa: E402
 from hmi.project.injection import parse_injection  # noqa: E402
+from hmi.session.trace import _row  # noqa: E402
 
 S = 1_000_000
 

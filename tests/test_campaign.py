@@ -11,7 +11,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from hmi.cli import main
-from hmi.engine.campaign import (
+from hmi.errors import ProjectError, SourcePos
+from hmi.plant.base import PlantEvent
+from hmi.project.campaign import Scenario
+from hmi.project.loader import load_project
+from hmi.studies.campaign import (
     BLOCKED,
     CONFIGS,
     DEFECT,
@@ -21,10 +25,6 @@ from hmi.engine.campaign import (
     report_lines,
     run_one,
 )
-from hmi.errors import ProjectError, SourcePos
-from hmi.plant.base import PlantEvent
-from hmi.project.campaign import Scenario
-from hmi.project.loader import load_project
 from tests.conftest import PROJECTS
 
 S = 1_000_000

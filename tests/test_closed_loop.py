@@ -1,4 +1,4 @@
-"""The exhaustive exploration of the closed loop (hmi/engine/explore.py, closed_loop.py,
+"""The exhaustive exploration of the closed loop (hmi/studies/explore.py, closed_loop.py,
 loopstate.py) and what it says: checked against plain runs of the engine, and against the
 changes that must move its figures (an impossible guard, masking)."""
 
@@ -10,9 +10,13 @@ import shutil
 import pytest
 
 from hmi.cli import main
-from hmi.diag_report import closed_loop_lines
-from hmi.engine.campaign import CONFIGS, run_one
-from hmi.engine.closed_loop import (
+from hmi.engine.scan import Engine
+from hmi.plant.sim.plant import SimPlant
+from hmi.project.campaign import campaign_of
+from hmi.project.injection import Injection
+from hmi.project.loader import load_project
+from hmi.studies.campaign import CONFIGS, run_one
+from hmi.studies.closed_loop import (
     BLOCKED,
     DEFECT,
     TOLERANT,
@@ -21,13 +25,9 @@ from hmi.engine.closed_loop import (
     outcomes,
     summarise,
 )
-from hmi.engine.explore import Explorer
-from hmi.engine.loop_sweep import DIAG_NO_FILTER, FILTER_NO_DIAG, FTC, sweep
-from hmi.engine.scan import Engine
-from hmi.plant.sim.plant import SimPlant
-from hmi.project.campaign import campaign_of
-from hmi.project.injection import Injection
-from hmi.project.loader import load_project
+from hmi.studies.diag_report import closed_loop_lines
+from hmi.studies.explore import Explorer
+from hmi.studies.loop_sweep import DIAG_NO_FILTER, FILTER_NO_DIAG, FTC, sweep
 from tests.conftest import PROJECTS
 
 VALVE = PROJECTS / "cispi_valve"
@@ -170,7 +170,7 @@ def test_an_impossible_guard_moves_the_closed_loop_figures_not_the_diagram(tmp_p
     assert _row(after, observe, "F5").split()[1].startswith("0/")
     assert "isolated with certainty at some instant: 11/13" in _block(before, observe)
     assert "isolated with certainty at some instant: 10/13" in _block(after, observe)
-    from hmi.engine.diagnosability import analyse
+    from hmi.studies.diagnosability import analyse
     assert analyse(valve.diagnosers[0]).certain_labels == \
         analyse(broken.diagnosers[0]).certain_labels
 

@@ -25,7 +25,7 @@ from hmi.history.query import HistoryReader, write_csv
 from hmi.history.recorder import HistoryRecorder, SampleQueue
 from hmi.history.store import Batch, Event
 from hmi.history.target import Target, open_store
-from hmi.runio import open_journal
+from hmi.session.runio import open_journal
 from tests.conftest import PROJECTS, make_controller
 
 EPOCH = 1_790_000_000_000_000  # 2026-09-21, a fixed wall time for the run's time 0

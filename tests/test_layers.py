@@ -1,20 +1,17 @@
 """The import graph keeps the layering of docs/architecture.md, and has no import cycle.
 
-    base (errors, timefmt, paths, limits, textfile, codecache) <- logic <- project
-        <- plant, engine <- explain <- session, history <- apps (ui, cli, bench, reports,
-        sweep)
+    base (errors, timefmt, paths, limits, textfile, codecache, crash) <- logic <- project
+        <- plant, engine <- studies, export <- explain <- session, history
+        <- apps (ui, cli, bench, opcua, soak)
 
 A module imports from its own layer or from a lower one, never from a higher one; within
 its layer, plant/ does not import engine/ (the engine drives a plant through the contract of
 plant/base.py), and explain/ reads what a scan left behind (the snapshot and the data types
-in it), never the engine that runs the scan. Read from the source with `ast` (the standard
-library only); every import counts, also those inside functions and under TYPE_CHECKING.
-Cycles are checked on the imports that run (TYPE_CHECKING ones only name types).
-
-No exception is listed: phase B of issue 14 moved what the loader read from above it below
-it (the device models' catalogue, hmi/project/device_models.py; the explanation texts,
-hmi/project/texts.py; fault injections, hmi/project/injection.py) and broke the loader's
-cycle with its sections (they read through hmi/project/reader.py).
+in it), never the engine that runs the scan. engine/ holds what runs a scan: the offline
+studies that run it (explorations, campaigns, sweeps) and their reports are in studies/, a
+floor above it. Read from the source with `ast` (the standard library only); every import
+counts, also those inside functions and under TYPE_CHECKING. Cycles are checked on the
+imports that run (TYPE_CHECKING ones only name types).
 """
 
 from __future__ import annotations
@@ -29,14 +26,14 @@ PACKAGE = ROOT / "hmi"
 
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("hmi", "hmi.errors", "hmi.timefmt", "hmi.paths", "hmi.limits", "hmi.codecache",
-     "hmi.textfile"),
+     "hmi.textfile", "hmi.crash", "hmi.outpaths"),
     ("hmi.logic",),
     ("hmi.project",),
-    ("hmi.plant", "hmi.engine", "hmi.export"),
+    ("hmi.plant", "hmi.engine"),
+    ("hmi.studies", "hmi.export"),
     ("hmi.explain",),
     ("hmi.session", "hmi.history"),
-    ("hmi.ui", "hmi.cli", "hmi.bench", "hmi.report", "hmi.diag_report", "hmi.monitor_report",
-     "hmi.sweep", "hmi.runio", "hmi.opcua", "hmi.soak", "hmi.crash"),
+    ("hmi.ui", "hmi.cli", "hmi.bench", "hmi.opcua", "hmi.soak"),
 )
 # What explain/ may read of engine/: the snapshot and the types it carries.
 SNAPSHOT_TYPES = {"hmi.engine.snapshot", "hmi.engine.commands", "hmi.engine.stopwatch",
@@ -219,6 +216,8 @@ def test_the_checker_sees_a_cycle_and_an_upward_import():
     """The checks themselves can fail: a made-up graph with a loop, and the real layers."""
     assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [{"a", "b", "c"}]
     assert layer("hmi.engine.scan") > layer("hmi.project.model")
+    assert layer("hmi.studies.campaign") > layer("hmi.engine.scan")
+    assert against_layers("hmi.engine.scan", "hmi.studies.explore")
     assert layer("hmi.session.session") > layer("hmi.explain.builder") > layer("hmi.engine.scan")
     assert against_layers("hmi.explain.builder", "hmi.engine.scan")
     assert against_layers("hmi.plant.sim.plant", "hmi.engine.scan")

@@ -10,7 +10,7 @@ import pytest
 
 from hmi.cli import main
 from hmi.engine import commands as cmd
-from hmi.report import RunCollector
+from hmi.session.run_report import RunCollector
 from hmi.session.session import Session
 from tests.conftest import PROJECTS, make_controller
 

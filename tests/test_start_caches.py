@@ -20,13 +20,13 @@ from textual.css.stylesheet import Stylesheet, StylesheetParseError
 from hmi.codecache import kept_codes, source_fingerprint
 from hmi.engine import codegen
 from hmi.engine.scan import Engine
-from hmi.engine.trace import _row
 from hmi.errors import ProjectError
 from hmi.paths import PROJECTS
 from hmi.plant.sim.plant import SimPlant
 from hmi.project import kept
 from hmi.project.loader import load_project
 from hmi.session.session import Session
+from hmi.session.trace import _row
 from hmi.ui import csscache
 from hmi.ui.csscache import kept_css
 from hmi.ui.dialogs import ConfirmDialog

@@ -25,9 +25,9 @@ PROJECT = Path(__file__).resolve().parents[2] / "projects" / "cispi_valve"
 
 
 def run(args) -> None:
-    from hmi.engine.campaign import CONFIGS, run_campaign
     from hmi.project.campaign import campaign_of
     from hmi.project.loader import load_project
+    from hmi.studies.campaign import CONFIGS, run_campaign
 
     project = load_project(PROJECT)
     spec = campaign_of(project)

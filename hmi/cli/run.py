@@ -53,8 +53,8 @@ def add_parser(sub) -> None:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from hmi.report import RunCollector, run_summary
-    from hmi.runio import RunOutputs
+    from hmi.session.run_report import RunCollector, run_summary
+    from hmi.session.runio import RunOutputs
     from hmi.session.session import Session, settle_memory
 
     project = load(args.project, getattr(args, "diagnoser", None))
@@ -131,7 +131,7 @@ class _OutputFailed(Exception):
 
 def run_length_notice(duration_us: int, period_us: int) -> None:
     """Refuse a run too long to finish; say so up front when one will take a while."""
-    from hmi.runio import RunLengthError, check_run_length
+    from hmi.session.runio import RunLengthError, check_run_length
     try:
         notice = check_run_length(duration_us, period_us)
     except RunLengthError as exc:
@@ -145,9 +145,9 @@ def run_real_time(engine, args: argparse.Namespace, duration_us: int | None) -> 
     wall clock), or serving the cell over OPC UA (--opcua: a simulated plant runs in real
     time too). Without a duration it runs until interrupted (Ctrl-C, SIGTERM)."""
     from hmi.opcua.options import start_server
-    from hmi.report import RunCollector, run_summary
-    from hmi.runio import RunOutputs
     from hmi.session.live import WallClock, run_live_for
+    from hmi.session.run_report import RunCollector, run_summary
+    from hmi.session.runio import RunOutputs
     from hmi.session.session import Session
 
     plant = engine.plant

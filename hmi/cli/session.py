@@ -65,7 +65,7 @@ def stop_plant(engine) -> None:
 
 
 def open_journal(controller, path: Path | None, source: str):
-    from hmi.runio import open_journal as open_recorder
+    from hmi.session.runio import open_journal as open_recorder
     return open_recorder(controller, path, source)
 
 

@@ -71,7 +71,7 @@ def points(text: str) -> tuple[int, ...]:
 
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
-    from hmi.diag_report import diagnose_report
+    from hmi.studies.diag_report import diagnose_report
     print(diagnose_report(load(args.project, getattr(args, "diagnoser", None)),
                           progress=progress_bar(), compute=not args.no_closed_loop))
     return 0
@@ -81,13 +81,13 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     import json
     import os
 
-    from hmi.engine.campaign import report_lines, run_campaign
     from hmi.project.campaign import campaign_of
+    from hmi.studies.campaign import report_lines, run_campaign
     project = load(args.project, getattr(args, "diagnoser", None))
     spec = campaign_of(project)
     if spec is None:
         raise UsageError(f"project {project.name} has no 'campaign:' section")
-    from hmi.engine.campaign import CONFIGS
+    from hmi.studies.campaign import CONFIGS
     runs = len(spec.scenarios) * len(CONFIGS)
     scans = runs * (spec.length_us // project.scan_period_us + 1)
     if scans > MAX_RUN_SCANS:
@@ -117,9 +117,9 @@ def cmd_campaign(args: argparse.Namespace) -> int:
 def _campaign_sweep(args: argparse.Namespace, project, spec, jobs: int) -> int:
     import json
 
-    from hmi.engine.loop_sweep import CAMPAIGN_CONFIGS, sweep
-    from hmi.engine.loopstate import Unsupported
-    from hmi.engine.sweep_report import as_dict, report_lines
+    from hmi.studies.loop_sweep import CAMPAIGN_CONFIGS, sweep
+    from hmi.studies.loopstate import Unsupported
+    from hmi.studies.sweep_report import as_dict, report_lines
 
     if args.every is not None and args.every % project.scan_period_us:
         raise UsageError(f"--every must be a multiple of the scan period "
@@ -137,7 +137,7 @@ def _campaign_sweep(args: argparse.Namespace, project, spec, jobs: int) -> int:
 
 
 def _faults(args: argparse.Namespace, project) -> tuple[str, ...] | None:
-    from hmi.engine.explore import faults_of
+    from hmi.studies.explore import faults_of
     if args.faults is None:
         return None
     known = faults_of(project)
@@ -150,5 +150,5 @@ def _faults(args: argparse.Namespace, project) -> tuple[str, ...] | None:
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
-    from hmi.sweep import cmd_sweep
+    from hmi.studies.monitor_sweep import cmd_sweep
     return cmd_sweep(args, load(args.project, getattr(args, "diagnoser", None)))

@@ -530,7 +530,7 @@ class Engine:
         one before only in what moves by itself: scan, time, values, fov, outputs, steps and
         firings, timers, plant state and counters, monitors' stopwatches, wall times; a
         reader that counts reports per scan counts the same report again
-        (hmi.report.RunCollector.quiet)."""
+        (hmi.session.run_report.RunCollector.quiet)."""
         timed = self.wall_times
         wall = time.perf_counter() if timed else 0.0
         self._pending = None  # the previous scan's snapshot, if never asked for: dropped
@@ -720,7 +720,7 @@ class Engine:
 
     def advance(self, now: int) -> None:
         """One scan at `now` whose results nobody reads: the same stages, no snapshot (the
-        closed-loop exploration, hmi.engine.explore, only follows the state). The plant's
+        closed-loop exploration, hmi.studies.explore, only follows the state). The plant's
         events stay with the plant (take_events)."""
         self._pending = None
         self._commanded = True  # (the next run() cannot compare with this scan)

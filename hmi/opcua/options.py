@@ -129,7 +129,8 @@ def start_server(session: Session, args: argparse.Namespace, log_file: bool = Fa
     certificates = {path.stem: _certificate(path) for path in args.opcua_trust}
     cert, key = args.opcua_cert, args.opcua_key
     if cert is None and (passwords or certificates):
-        from hmi.explain.journal import data_folder, safe_file_name
+        from hmi.explain.journal import safe_file_name
+        from hmi.paths import data_folder
         folder = data_folder() / safe_file_name(session.project.name) / "opcua"
         cert, key = server_certificate(folder, session.project.name, endpoint.host)
     options = ServeOptions(host=endpoint.host, port=endpoint.port,
@@ -165,7 +166,8 @@ def journal_listener(journal: JournalRecorder) -> Callable[[ServingStatus], None
 def _route_logs(project_name: str, log_file: bool) -> Path | None:
     import logging
 
-    from hmi.explain.journal import data_folder, safe_file_name
+    from hmi.explain.journal import safe_file_name
+    from hmi.paths import data_folder
     library = logging.getLogger("asyncua")
     library.propagate = False
     ours = logging.getLogger("hmi.opcua")

@@ -11,7 +11,7 @@
 
 Each scenario injects one fault at one instant, chosen in the phase of the functional cycle
 where that fault's symptom appears; the campaign runs it under three configurations and
-classifies each run (hmi/engine/campaign.py). Scenarios with `table: false` are extra
+classifies each run (hmi/studies/campaign.py). Scenarios with `table: false` are extra
 evidence printed after the table, so the table keeps one scenario per fault as the paper's.
 """
 

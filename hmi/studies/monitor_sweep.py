@@ -125,11 +125,16 @@ def _default_fault(project, task) -> str:
 def _engine(project, control, injections=()):
     from hmi.engine.scan import Engine
     from hmi.plant.sim.plant import SimPlant
-    from hmi.session.session import Session
     plant = SimPlant(project)
     for injection in injections:
         plant.inject(injection)
-    return Session(Engine(project, plant, control=control))
+    return Engine(project, plant, control=control)
+
+
+def _scan(engine):
+    """The next scan's snapshot, one period after the last in virtual time (the first at 0),
+    as a headless run scans."""
+    return engine.step(engine.now + engine.project.scan_period_us if engine.scan else 0)
 
 
 def _state(snap, name: str):
@@ -138,12 +143,12 @@ def _state(snap, name: str):
 
 def find_task_start(project, task: str, attempt: int = 1, control: str | None = None) -> int:
     """When the task starts for the `attempt`-th time in an undisturbed run (µs)."""
-    ctl = _engine(project, control)
+    engine = _engine(project, control)
     while True:
-        m = _state(ctl.scan_once(), task)
+        m = _state(_scan(engine), task)
         if m.attempt >= attempt:
             return m.attempt_start_us
-        if ctl.engine.now > BASELINE_LIMIT_US:
+        if engine.now > BASELINE_LIMIT_US:
             raise UsageError(f"task {task!r} did not start {attempt} time(s) in "
                              f"{seconds(BASELINE_LIMIT_US)} s of an undisturbed run")
 
@@ -151,19 +156,19 @@ def find_task_start(project, task: str, attempt: int = 1, control: str | None = 
 def run_one(project, task, fault: str, t0: int, start_us: int, length_us: int,
             attempt: int, control: str | None = None) -> SweepRow:
     """One run of the sweep: the task interrupted `start_us` after t0 for `length_us`."""
-    from hmi.monitor_report import MonitorLog
     from hmi.project.injection import parse_injection
+    from hmi.studies.monitor_report import MonitorLog
     injection = parse_injection(f"{fault}@{t0 + start_us}us+{length_us}us")
-    ctl = _engine(project, control, [injection])
-    device = ctl.engine.plant.resolve(injection)
+    engine = _engine(project, control, [injection])
+    device = engine.plant.resolve(injection)
     records = getattr(device, "task_records", None)
     if records is None:
         raise UsageError(f"device {device.name!r} ({device.MODEL}) keeps no task record, so "
                          "the sweep has no ground truth for it")
     log = MonitorLog()
     horizon = t0 + start_us + length_us + 2 * task.gamma_us
-    while ctl.engine.now < horizon or not ctl.engine.started:
-        snap = ctl.scan_once()
+    while engine.now < horizon or not engine.started:
+        snap = _scan(engine)
         log.add(snap)
         m = _state(snap, task.name)
         record = _record(records(), t0)

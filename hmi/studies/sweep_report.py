@@ -11,8 +11,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from hmi.engine.campaign import PAPER_TABLE
-from hmi.engine.closed_loop import (
+from hmi.studies.campaign import PAPER_TABLE
+from hmi.studies.closed_loop import (
     BLOCKED,
     DEFECT,
     TOLERANT,
@@ -21,7 +21,7 @@ from hmi.engine.closed_loop import (
     diagnosability,
     spread,
 )
-from hmi.engine.loop_sweep import SweepResult
+from hmi.studies.loop_sweep import SweepResult
 from hmi.timefmt import format_duration, seconds
 
 OUTCOMES = (BLOCKED, TOLERANT, DEFECT)

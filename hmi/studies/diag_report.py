@@ -1,6 +1,6 @@
 """Plain-text reports about diagnosers: `plchmi check`, `plchmi diagnose`, `plchmi run`.
 
-Kept apart from hmi/report.py so the diagnoser feature adds lines to the shared reports
+Kept apart from hmi/session/run_report.py so the diagnoser feature adds lines to the shared reports
 through two calls (check sections, run summary lines) rather than by editing them.
 """
 
@@ -8,9 +8,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from hmi.engine.diagnosability import analyse
 from hmi.project.diagnosers import DiagnoserSpec, diagnosers_of
 from hmi.project.model import Project
+from hmi.studies.diagnosability import analyse
 from hmi.timefmt import format_duration, seconds
 
 
@@ -168,7 +168,7 @@ def summary_lines(log: DiagnosisLog, engine, last) -> list[str]:
     return lines
 
 
-# -- diagnosability on the closed loop (hmi/engine/loop_sweep.py) ------------------------------
+# -- diagnosability on the closed loop (hmi/studies/loop_sweep.py) ------------------------------
 
 CLOSED_LOOP_EVERY_US = 200_000  # check / diagnose: every 200 ms of the cycle (+ transitions)
 
@@ -177,11 +177,11 @@ def closed_loop_lines(project, every_us: int = CLOSED_LOOP_EVERY_US, jobs: int |
                       progress=None, compute: bool = True, extras: bool = True) -> list[str]:
     """Per configuration where the diagnosers run: isolated with certainty (at some instant,
     and whatever the instant), delays, misdiagnoses, pairs left ambiguous, DC and band."""
-    from hmi.engine.closed_loop import diagnosability
-    from hmi.engine.diagnosability import iso_band
-    from hmi.engine.loop_sweep import DIAGNOSIS_CONFIGS, sweep
-    from hmi.engine.loopstate import Unsupported
     from hmi.project.campaign import campaign_of
+    from hmi.studies.closed_loop import diagnosability
+    from hmi.studies.diagnosability import iso_band
+    from hmi.studies.loop_sweep import DIAGNOSIS_CONFIGS, sweep
+    from hmi.studies.loopstate import Unsupported
 
     spec = campaign_of(project)
     if spec is None or not diagnosers_of(project):
@@ -232,7 +232,7 @@ def closed_loop_lines(project, every_us: int = CLOSED_LOOP_EVERY_US, jobs: int |
 
 
 def _spread_text(values) -> str:
-    from hmi.engine.closed_loop import spread
+    from hmi.studies.closed_loop import spread
     s = spread(values)
     if s is None:
         return "-"

@@ -1,6 +1,6 @@
 """The state of a closed loop (engine + simulated plant): capture, restore, and a time-free key.
 
-The exhaustive exploration of the closed loop (hmi/engine/explore.py) needs three things the
+The exhaustive exploration of the closed loop (hmi/studies/explore.py) needs three things the
 scan itself never does:
 
 * **capture / restore**: fork a run at an injection instant without re-running its

@@ -4,7 +4,7 @@ libFAUDES (the independent cross-check of tests/test_faudes.py).
 **The abstraction.** An observer that sees the order of the observation changes but not when
 they happen: an event is a new observation vector (inputs read and outputs written,
 `o_fsc1_fso0_C0_O1`), a scan that changes nothing is the unobservable `tau`, a fault is an
-unobservable event `F1`..`F13`. It is built from the exploration (hmi/engine/explore.py, run
+unobservable event `F1`..`F13`. It is built from the exploration (hmi/studies/explore.py, run
 without settled sinks so every run's future is complete):
 
 * the fault-free run, kept node by node where a fault is injected or the observation changes
@@ -20,7 +20,7 @@ without settled sinks so every run's future is complete):
 of a real run of the discretised closed loop with at most one fault (and conversely, for the
 injection instants explored), so a fault the abstraction calls diagnosable is distinguished
 by the order of observations alone; one it calls non-diagnosable may still be told apart by
-timing (the timed analysis of hmi/engine/closed_loop.py, and the diagnosers' windows, use it).
+timing (the timed analysis of hmi/studies/closed_loop.py, and the diagnosers' windows, use it).
 
 **Diagnosability** (Sampath et al. 1995, failure types): type T is diagnosable when no pair of
 runs with the same observation, one with T and one without, extends forever. The verifier
@@ -33,7 +33,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
-from hmi.engine.explore import Graph
+from hmi.studies.explore import Graph
 
 TAU = "tau"
 QUIET = "quiet"

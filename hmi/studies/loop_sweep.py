@@ -1,8 +1,8 @@
 """Every fault at every phase of the cycle, per configuration: the runs behind
 `plchmi campaign --sweep` and the closed-loop diagnosability of `check` / `diagnose`.
 
-:func:`sweep` explores the closed loop (hmi/engine/explore.py, on every core) and keeps the
-outcome of each run (hmi/engine/closed_loop.py). Results are cached on disk, keyed by the
+:func:`sweep` explores the closed loop (hmi/studies/explore.py, on every core) and keeps the
+outcome of each run (hmi/studies/closed_loop.py). Results are cached on disk, keyed by the
 project's files, the diagnoser variant, the grid and the source of the `hmi` package, so a
 second `check` of an unchanged project does not explore again. The cache holds plain JSON
 (the outcomes), never code, and a damaged entry is simply recomputed.
@@ -18,8 +18,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from hmi.engine.closed_loop import Outcome, explore_all, outcomes
-from hmi.engine.explore import LoopConfig, faults_of
+from hmi.studies.closed_loop import Outcome, explore_all, outcomes
+from hmi.studies.explore import LoopConfig, faults_of
 
 # The campaign's three columns (000 Table 1), as closed-loop configurations.
 DIAG_NO_FILTER = LoopConfig("diag_no_filter", "Diag no Filter", "monitor", "observe")

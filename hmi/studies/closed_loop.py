@@ -1,6 +1,6 @@
 """What the explored closed loop says: each run's class, detection, isolation and delays.
 
-Input: the graph of :mod:`hmi.engine.explore` (one successor per node, runs starting at
+Input: the graph of :mod:`hmi.studies.explore` (one successor per node, runs starting at
 pending nodes). Every run ends in a cycle of that graph (or at the step guard, reported as
 Undecided), so its eventual behaviour is known exactly:
 
@@ -21,7 +21,7 @@ import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-from hmi.engine.explore import HORIZON, Explorer, Graph, LoopConfig, Start
+from hmi.studies.explore import HORIZON, Explorer, Graph, LoopConfig, Start
 
 DEFECT, BLOCKED, TOLERANT, UNDECIDED = "Defect", "Blocked", "Tolerant", "Undecided"
 INF = 1 << 62

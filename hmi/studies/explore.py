@@ -7,7 +7,7 @@ branches off that path and is again deterministic. The exploration builds the gr
 state these runs visit:
 
 * a **node** is the loop's state after a scan, identified by its time-free key
-  (hmi/engine/loopstate.py); each node has exactly one successor (the next scan);
+  (hmi/studies/loopstate.py); each node has exactly one successor (the next scan);
 * a **run** starts at a *pending* node: a fault-free state with the fault scheduled at
   instant `a` before the next scan;
 * a run stops as soon as it reaches a node already in the graph — its own (it is periodic
@@ -19,7 +19,7 @@ state these runs visit:
 Edges carry what happened during the scan: damage recorded by the plant, cycles completed.
 Nodes carry what was observed (inputs read, outputs written) and the diagnosers' decision.
 Everything else (classes, delays, ambiguities, observational equivalence, the libFAUDES
-export) is computed from this graph by :mod:`hmi.engine.closed_loop`.
+export) is computed from this graph by :mod:`hmi.studies.closed_loop`.
 """
 
 from __future__ import annotations
@@ -28,10 +28,10 @@ import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
-from hmi.engine.loopstate import LoopAccess
 from hmi.engine.scan import Engine
 from hmi.plant.sim.plant import SimPlant
 from hmi.project.injection import Injection
+from hmi.studies.loopstate import LoopAccess
 
 HORIZON = -1  # successor of a node whose run hit the step limit without closing its loop
 SETTLED = -2  # successor of a node whose future is settled (see Explorer.settled)
