@@ -48,5 +48,6 @@ def open_store(target: Target, read_only: bool = False) -> Store:
 
 def default_target(cell: str) -> Target:
     """The cell's own SQLite file in the data folder, beside its journal."""
-    from hmi.explain.journal import data_folder, safe_file_name
+    from hmi.explain.journal import safe_file_name
+    from hmi.paths import data_folder
     return Target("sqlite", str(data_folder() / safe_file_name(cell) / "history.sqlite"))
