@@ -102,8 +102,7 @@ def _run_hmi(args: argparse.Namespace, controller, injections) -> int:
         with kept_css() as css:  # Textual's stylesheets as parsed at an earlier start
             end = run_app(controller, injected=tuple(injections),
                           on_fault=recorder.on_ui_fault, bell=getattr(args, "bell", False),
-                          served=server, on_first_frame=css.save if css else None,
-                          history=historian.target if historian else None)
+                          served=server, on_first_frame=css.save if css else None)
         if end.reason is not None:
             print(f"plchmi: the HMI ended on an error: {end.reason}", file=sys.stderr)
         return end.status

@@ -21,6 +21,7 @@ import contextlib
 import time
 import traceback
 from decimal import Decimal, InvalidOperation
+from pathlib import Path
 from typing import Any
 
 from hmi.engine.snapshot import Snapshot
@@ -69,6 +70,9 @@ class Historian:
     # -- life cycle -------------------------------------------------------------------------
     def attach(self) -> Historian:
         session = self.session
+        target = self.target
+        session.history = str(Path(target.where).resolve()) if target.kind == "sqlite" \
+            else target.where
         self.writer.start()
         session.scan_listeners.append(self.on_scan)
         session.overrun_listeners.append(self.on_overrun)

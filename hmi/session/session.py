@@ -102,6 +102,9 @@ class Session:
         # time_us happened at epoch_us + time_us (wall_us). What the OPC UA server stamps
         # its values with and the historian its samples.
         self.epoch_us: int | None = None
+        # Where this session's history is kept ("" if none): set by the historian that
+        # records it (hmi.history), told to the screens (hmi.link.base.CellFacts.history).
+        self.history = ""
         # Situations reported by services beside the scan (the historian that cannot write:
         # hmi.history), explained and alarmed like the scan's own; replaced, never changed,
         # so the scan thread reads a consistent one (see report).
