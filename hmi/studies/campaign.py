@@ -29,9 +29,8 @@ from hmi.engine.scan import Engine
 from hmi.engine.snapshot import Snapshot
 from hmi.plant.base import PlantEvent
 from hmi.plant.sim.plant import SimPlant
-from hmi.project.campaign import CampaignSpec, Scenario
 from hmi.project.injection import Injection
-from hmi.project.model import Project
+from hmi.project.model import CampaignScenario, CampaignSpec, Project
 from hmi.timefmt import format_duration, seconds
 
 DEFECT, BLOCKED, TOLERANT = "Defect", "Blocked", "Tolerant"
@@ -83,7 +82,7 @@ def classify(damage: list[PlantEvent], cycle_times_us: list[int], length_us: int
 
 @dataclass(frozen=True)
 class RunResult:
-    scenario: Scenario
+    scenario: CampaignScenario
     config: Config
     outcome: str
     reason: str  # the objective reason of the outcome
@@ -125,7 +124,7 @@ class CampaignResult:
                 counts[run.outcome] += 1
         return counts
 
-    def result(self, scenario: Scenario, config: str) -> RunResult:
+    def result(self, scenario: CampaignScenario, config: str) -> RunResult:
         return next(r for r in self.runs if r.scenario == scenario and r.config.key == config)
 
     def as_dict(self) -> dict[str, Any]:
@@ -140,7 +139,7 @@ class CampaignResult:
         }
 
 
-def run_one(project: Project, spec: CampaignSpec, scenario: Scenario, config: Config,
+def run_one(project: Project, spec: CampaignSpec, scenario: CampaignScenario, config: Config,
             period_us: int | None = None) -> RunResult:
     """One scenario under one configuration, in virtual time."""
     plant = SimPlant(project)

@@ -25,8 +25,7 @@ from dataclasses import dataclass
 from rich.text import Text
 
 from hmi.engine.snapshot import LatchReason, Snapshot
-from hmi.project.model import Project
-from hmi.project.recovery import RecoveryProcedure
+from hmi.project.model import Project, RecoveryProcedure
 from hmi.timefmt import seconds
 from hmi.ui.style import MUTED, OK_SYMBOL, Level, tag
 
