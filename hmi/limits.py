@@ -59,8 +59,12 @@ MAX_JOBS = 32
 MAX_JOURNAL_LINE_BYTES = 1024 * 1024
 """One journal entry; a longer line is damaged [about 400 bytes]."""
 
+MAX_DAMAGED_SHOWN = 10
+"""Damaged lines of a journal said one by one by `plchmi journal`; the rest are counted."""
+
 __all__ = [
-    "MAX_CONSTRAINTS", "MAX_DETERMINISM_ASSIGNMENTS", "MAX_DURATION_US", "MAX_EXPR_CHARS",
+    "MAX_CONSTRAINTS", "MAX_DAMAGED_SHOWN", "MAX_DETERMINISM_ASSIGNMENTS", "MAX_DURATION_US",
+    "MAX_EXPR_CHARS",
     "MAX_EXPR_DEPTH", "MAX_FILE_BYTES", "MAX_JOBS", "MAX_JOURNAL_LINE_BYTES", "MAX_NAME_CHARS",
     "MAX_NUMBER_DIGITS", "MAX_RUN_SCANS", "MAX_VARIABLES", "MAX_YAML_DEPTH", "MAX_YAML_NODES",
     "MIN_SCAN_PERIOD_US", "NOTICE_RUN_SCANS", "describe_bytes",

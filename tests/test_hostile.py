@@ -22,6 +22,7 @@ from hmi.errors import ProjectError
 from hmi.explain.journal import default_path, read, safe_file_name
 from hmi.limits import (
     MAX_CONSTRAINTS,
+    MAX_DAMAGED_SHOWN,
     MAX_EXPR_CHARS,
     MAX_EXPR_DEPTH,
     MAX_FILE_BYTES,
@@ -896,3 +897,108 @@ def test_one_input_is_driven_by_one_sensor(tmp_path, capsys):
                     "'fso1', which device 'V1' sensor 'fso'")
     # An output may order several devices: the conveyor's release is the robot's transfer.
     assert cli(["check", PROJECTS / "conveyor_robot"], capsys)[0] == 0
+
+
+def test_a_journal_of_a_million_damaged_lines_is_read_in_bounded_memory(tmp_path, capsys):
+    """Read one line at a time and said in a few lines: a million lines of garbage held
+    ~250 MB as Damaged records and printed a million warnings."""
+    path = tmp_path / "j.jsonl"
+    lines = 1_000_000
+    path.write_bytes(b'{"type":"action","event":"first"}\n' + b"x\n" * lines
+                     + b'{"type":"action","event":"last"}\n')
+    with bounded(60, extra_mb=100):
+        code = main(["journal", str(PROJECTS / "cispi_valve"), "--path", str(path)])
+    out, err = capsys.readouterr()
+    assert code == 0 and "first" in out and "last" in out
+    warnings = err.splitlines()
+    assert len(warnings) == MAX_DAMAGED_SHOWN + 1, warnings[-3:]
+    assert warnings[-1].endswith(f"... and {lines - MAX_DAMAGED_SHOWN:,} more damaged lines "
+                                 "skipped")
+
+
+# --------------------------------------------------------------------------------------------
+# soak --replay: a file from outside, read as every other
+# --------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("kind, fragment", [
+    ("binary", "replay.steps:1:3: not UTF-8 text"),
+    ("device", "/dev/zero: not a regular file: this is a device"),
+    ("fifo", "replay.steps: not a regular file: this is a FIFO"),
+    ("big", "the file is too large"),
+    ("long", "replay.steps:3:1: the steps run 3600001s of virtual time up to here, "
+             "360,000,101 scans at a 10ms scan period: more than the 100,000,000"),
+    ("folder", "this is a folder"),
+])
+def test_a_replay_file_is_read_safely_and_bounded(kind, fragment, tmp_path, capsys):
+    path = tmp_path / "replay.steps"
+    if kind == "binary":
+        path.write_bytes(b"ru\xd0\x00n 1s\n")
+    elif kind == "device":
+        path = Path("/dev/zero")
+    elif kind == "fifo":
+        os.mkfifo(path)
+    elif kind == "big":
+        path.write_bytes(b"press a\n" * (MAX_FILE_BYTES // 8 + 1))
+    elif kind == "long":
+        path.write_text("run 1s\npress a\nrun 1000h\n")
+    elif kind == "folder":
+        path.mkdir()
+    code, out, err = cli(["soak", PROJECTS / "cispi_valve", "--replay", path], capsys)
+    assert code == 2 and fragment in err, err
+    assert "replaying" not in out  # refused before the HMI starts
+
+
+def test_soak_minutes_are_bounded_by_the_run_limit(tmp_path, capsys):
+    text = BASE.replace("scan_period: 10ms", "scan_period: 100us")
+    folder = write(tmp_path / "p", {"project.yaml": text})
+    code, _, err = cli(["soak", folder, "--minutes", "10000"], capsys)
+    assert code == 2 and "6,000,000,001 scans, more than the 100,000,000" in err, err
+
+
+# --------------------------------------------------------------------------------------------
+# Output paths that collide
+# --------------------------------------------------------------------------------------------
+
+
+def test_a_trace_over_the_journal_is_refused_before_a_byte_is_written(tmp_path, capsys):
+    data = Path(os.environ["PLCHMI_DATA"])
+    project = PROJECTS / "cispi_valve"
+    assert cli(["run", project, "--for", "2s", "--control", "faulty"], capsys)[0] == 0
+    journal = default_path("cispi_valve")
+    assert journal.parent.parent == data
+    before = journal.read_bytes()
+    (tmp_path / "hard.jsonl").hardlink_to(journal)
+    (tmp_path / "soft.jsonl").symlink_to(journal)
+    mine = tmp_path / "mine.jsonl"
+    mine.write_bytes(before)
+    for args in (["--trace", journal], ["--trace", tmp_path / "hard.jsonl"],
+                 ["--trace", tmp_path / "soft.jsonl"],
+                 ["--trace", data / "cispi_valve" / ".." / "cispi_valve" / "journal.jsonl"],
+                 ["--trace", mine, "--journal", mine],
+                 ["--journal", mine, "--trace", tmp_path / ".." / tmp_path.name / "mine.jsonl"]):
+        code, out, err = cli(["run", project, "--for", "1s", *args], capsys)
+        assert code == 2, (args, err)
+        assert "would be written over it" in err and "Ran" not in out, err
+    assert journal.read_bytes() == before and mine.read_bytes() == before
+
+
+@pytest.mark.parametrize("option", ["--trace", "--journal"])
+def test_no_output_is_a_file_of_the_project(option, tmp_path, capsys):
+    folder = tmp_path / "cispi_valve"
+    shutil.copytree(PROJECTS / "cispi_valve", folder)
+    before = {p.name: p.read_bytes() for p in folder.iterdir()}
+    for name in ("project.yaml", "constraints.yaml"):
+        code, _, err = cli(["run", folder, "--for", "1s", option, folder / name], capsys)
+        assert code == 2 and "this is a file of the project" in err, err
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
+
+
+def test_an_export_never_writes_over_a_project_file(tmp_path, capsys):
+    head, rest = BASE.split("inputs:", 1)
+    folder = write(tmp_path / "cell", {
+        "project.yaml": head.replace("name: t", "name: cell") + "include: [cell.st]\n",
+        "cell.st": "inputs:" + rest})
+    code, _, err = cli(["export", folder, "--format", "st", "-o", folder], capsys)
+    assert code == 2 and "this is a file of the project" in err, err
+    assert (folder / "cell.st").read_text() == "inputs:" + rest

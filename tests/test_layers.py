@@ -26,7 +26,7 @@ PACKAGE = ROOT / "hmi"
 
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("hmi", "hmi.errors", "hmi.timefmt", "hmi.paths", "hmi.limits", "hmi.codecache",
-     "hmi.textfile", "hmi.crash"),
+     "hmi.textfile", "hmi.crash", "hmi.outpaths"),
     ("hmi.logic",),
     ("hmi.project",),
     ("hmi.plant", "hmi.engine"),

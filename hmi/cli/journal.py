@@ -9,6 +9,7 @@ from pathlib import Path
 
 from hmi.cli.options import project_arg
 from hmi.errors import UsageError
+from hmi.limits import MAX_DAMAGED_SHOWN
 from hmi.timefmt import DurationError, parse_duration
 
 JOURNAL_KINDS = ("action", "alarm", "recovery", "plant", "session")
@@ -39,26 +40,27 @@ def cmd_journal(args: argparse.Namespace) -> int:
         JournalError,
         JournalPathError,
         default_path,
-        read,
         since_filter,
+        stream,
     )
     from hmi.project.loader import load_project
     path = args.path or default_path(load_project(args.project).name)
     since = parse_since(args.since) if args.since else None
-    try:
-        result = read(path)
-    except JournalError as exc:
-        print(f"plchmi: {exc}", file=sys.stderr)
-        return 1
-    except JournalPathError as exc:
-        raise UsageError(f"--path {exc}" if args.path else str(exc)) from None
     kinds = {k.strip() for text in args.kind for k in text.split(",") if k.strip()}
     unknown = sorted(kinds - set(JOURNAL_KINDS))
     if unknown:
         raise UsageError(f"--kind {', '.join(unknown)}: expected "
                          + ", ".join(JOURNAL_KINDS))
-    entries = [e for e in since_filter(result.entries, since)
-               if not kinds or e.get("type") in kinds]
+    try:
+        items = stream(path)
+    except JournalError as exc:
+        print(f"plchmi: {exc}", file=sys.stderr)
+        return 1
+    except JournalPathError as exc:
+        raise UsageError(f"--path {exc}" if args.path else str(exc)) from None
+    damaged = DamagedLines(path)
+    entries = (e for e in since_filter(damaged.skipped(items), since)
+               if not kinds or e.get("type") in kinds)
     columns = ("wall", "scan", "t", "type", "event", "key", "state", "severity", "text",
                "message", "by")
     if args.csv:
@@ -75,15 +77,45 @@ def cmd_journal(args: argparse.Namespace) -> int:
             print(_printable(f"{_field(entry, 'wall')}  scan {_field(entry, 'scan'):>6}  "
                              f"t={_field(entry, 't')}  {_field(entry, 'type'):<7} "
                              f"{_field(entry, 'event')}{key}: {text}"))
-    # Exit status 0 even with damaged lines: the readable entries are what the operator
-    # needs; each damaged line is a warning on stderr (docs/journal.md).
-    for bad in result.damaged:
-        print(f"plchmi: warning: {path}:{bad.line}: damaged journal entry skipped: {bad.reason}",
-              file=sys.stderr)
-    if result.truncated:
-        print(f"plchmi: the last entry of {path} was cut short (the process was killed while "
-              "writing it); it is ignored", file=sys.stderr)
+    damaged.finish()
     return 0
+
+
+class DamagedLines:
+    """The damaged lines of a journal being read, said on stderr as they are met: the first
+    MAX_DAMAGED_SHOWN each with its line and reason, the rest counted and said once at the
+    end (a file of a million lines of garbage is a few lines of warnings, not a million).
+    Exit status 0 even with damaged lines: the readable entries are what the operator needs
+    (docs/journal.md)."""
+
+    def __init__(self, path) -> None:
+        self.path = path
+        self.more = 0
+        self.shown = 0
+        self.truncated = False
+
+    def skipped(self, items):
+        """The entries of `items`, each Damaged among them said (or counted) and left out."""
+        from hmi.explain.journal import Damaged
+        for item in items:
+            if not isinstance(item, Damaged):
+                yield item
+                continue
+            self.truncated = self.truncated or item.cut
+            if self.shown < MAX_DAMAGED_SHOWN:
+                self.shown += 1
+                print(f"plchmi: warning: {self.path}:{item.line}: damaged journal entry "
+                      f"skipped: {item.reason}", file=sys.stderr)
+            else:
+                self.more += 1
+
+    def finish(self) -> None:
+        if self.more:
+            print(f"plchmi: warning: {self.path}: ... and {self.more:,} more damaged lines "
+                  "skipped", file=sys.stderr)
+        if self.truncated:
+            print(f"plchmi: the last entry of {self.path} was cut short (the process was "
+                  "killed while writing it); it is ignored", file=sys.stderr)
 
 
 def parse_since(text: str):

@@ -138,10 +138,12 @@ class Journal:
 
 @dataclass(frozen=True)
 class Damaged:
-    """A line that could not be read: its number (from 1) and what was wrong with it."""
+    """A line that could not be read: its number (from 1) and what was wrong with it;
+    `cut`: it was the last line and had no newline (a writer killed while writing it)."""
 
     line: int
     reason: str
+    cut: bool = False
 
 
 @dataclass(frozen=True)
@@ -164,21 +166,36 @@ class JournalPathError(Exception):
 
 
 def read(path: Path) -> JournalRead:
-    """Every readable entry; damaged lines are listed in `damaged`, never fatal.
+    """Every readable entry, kept in memory; damaged lines are listed in `damaged`, never
+    fatal. For a journal of any size, :func:`stream` holds one line at a time."""
+    entries: list[dict[str, Any]] = []
+    damaged: list[Damaged] = []
+    for item in stream(path):
+        if isinstance(item, Damaged):
+            damaged.append(item)
+        else:
+            entries.append(item)
+    return JournalRead(entries, any(d.cut for d in damaged), tuple(damaged))
 
-    The file is read line by line (a regular file only: hmi.textfile.open_regular), each
-    line at most MAX_JOURNAL_LINE_BYTES, so neither a device nor a huge line of garbage can
-    make the reader hang or eat the memory."""
+
+def stream(path: Path) -> Iterator[dict[str, Any] | Damaged]:
+    """Each readable entry, or the Damaged line in its place, in file order.
+
+    The file is opened here (JournalError: there is none; JournalPathError: not a regular
+    file, hmi.textfile.open_regular) and read one line at a time as the result is iterated,
+    each line at most MAX_JOURNAL_LINE_BYTES, so neither a device, a huge line of garbage
+    nor millions of lines can make the reader hang or hold more than a line."""
     try:
         fd = open_regular(path)
     except FileProblem as exc:
         if exc.message == "file not found":
             raise JournalError(f"{path}: no journal yet") from None
         raise JournalPathError(f"{path}: {exc.message}") from None
-    entries: list[dict[str, Any]] = []
-    damaged: list[Damaged] = []
-    truncated = False
-    with os.fdopen(fd, "rb") as file:
+    return _stream(os.fdopen(fd, "rb"))
+
+
+def _stream(file) -> Iterator[dict[str, Any] | Damaged]:
+    with file:
         for number, line, complete in _lines(file):
             if not line.strip():
                 continue
@@ -188,12 +205,9 @@ def read(path: Path) -> JournalRead:
             else:
                 entry, reason = _parse(line)
             if entry is not None:
-                entries.append(entry)  # a last line missing only its newline is still whole
-                continue
-            if not complete:
-                truncated = True
-            damaged.append(Damaged(number, reason))
-    return JournalRead(entries, truncated, tuple(damaged))
+                yield entry  # a last line missing only its newline is still whole
+            else:
+                yield Damaged(number, reason, not complete)
 
 
 def _lines(file) -> Iterator[tuple[int, bytes, bool]]:

@@ -15,6 +15,7 @@ from pathlib import Path
 from hmi.engine.snapshot import Snapshot
 from hmi.errors import OutputError
 from hmi.limits import MAX_RUN_SCANS, NOTICE_RUN_SCANS
+from hmi.outpaths import check_outputs
 from hmi.plant.base import PlantError
 from hmi.session.session import Session
 from hmi.session.trace import TraceWriter
@@ -50,6 +51,9 @@ class RunOutputs:
         self.controller = controller
         self.failure: OutputError | None = None
         self.stopped_early = False
+        journal = journal or default_journal(controller)
+        check_outputs([("--journal", "the journal of this run", journal),
+                       ("--trace", "the trace", trace)], project_files(controller))
         self.writer = TraceWriter(trace) if trace else None
         try:
             self.recorder = open_journal(controller, journal, source)
@@ -111,12 +115,24 @@ class RunOutputs:
 def open_journal(controller: Session, path: Path | None, source: str):
     """The journal recorder of a session: `path`, else the project's default journal. A
     journal that cannot be opened is an OutputError (hmi.errors)."""
-    from hmi.explain.journal import Journal, default_path
+    from hmi.explain.journal import Journal
     from hmi.session.journal_recorder import JournalRecorder
-    target = path or default_path(controller.engine.project.name)
+    target = path or default_journal(controller)
+    check_outputs([("--journal", "the journal", target)], project_files(controller))
     journal = Journal(target)
     try:
         return JournalRecorder(controller, journal, source)
     except BaseException:
         journal.close()
         raise
+
+
+def default_journal(controller: Session) -> Path:
+    from hmi.explain.journal import default_path
+    return default_path(controller.engine.project.name)
+
+
+def project_files(controller: Session) -> list[tuple[str, Path]]:
+    """Every file the project was read from (its own, its includes, its components')."""
+    return [("a file of the project", Path(name))
+            for name in controller.engine.project.files]
