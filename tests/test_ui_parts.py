@@ -92,7 +92,7 @@ def test_status_keeps_alarms_and_mode_when_narrow():
     assert "cispi_valve" in full and "scan " in full
 
 
-def test_status_at_80_columns_keeps_the_project_over_scan_time_and_late_count():
+def test_status_at_80_columns_keeps_the_project_and_the_late_flag_over_scan_time():
     snap = _snapshot(scan_wall_us=1234.0)
     frame = _frame(snap, show_measured=True, overruns=3)
     full = fit(status_fields(frame, wide=True), 200).plain
@@ -100,9 +100,10 @@ def test_status_at_80_columns_keeps_the_project_over_scan_time_and_late_count():
     line = fit(status_fields(frame, wide=False, compact=True), 80).plain
     assert len(line) <= 80
     assert line.startswith(" cispi_valve │ ◇ SIM │ AUTO")  # the project is kept
-    assert "µs" not in line and "late" not in line  # these go first
-    roomier = fit(status_fields(frame, wide=False, compact=True), 84).plain
-    assert "cispi_valve" in roomier and "▲ 3 scans late" in roomier and "µs" not in roomier
+    assert "µs" not in line  # this goes first
+    assert "▲ 3 late" in line  # a compact late flag stays at every width
+    for width in (60, 70):
+        assert "▲ 3 late" in fit(status_fields(frame, wide=False, compact=True), width).plain
     assert "1 scan late" in fit(status_fields(_frame(snap, show_measured=True, overruns=1),
                                               wide=True), 200).plain
     assert "more than a whole scan period behind" in late_help(3)

@@ -430,6 +430,9 @@ class PlcHmiApp(ContainedPump, App):
                 self.contain(f"{type(view).__name__} refresh", exc)
         try:
             self._fit_plant_column()
+            if len(self.screen_stack) > 1:
+                from hmi.ui.dialogs import keep_clear
+                keep_clear(self)
         except Exception as exc:
             self.contain("plant column layout", exc)
         self._ring(snap)
