@@ -441,8 +441,8 @@ async def test_the_hmi_latches_an_error_outside_the_scan_and_the_operator_resets
         wait_for_screen,
     )
     app = make_app()
-    engine = app.controller.engine
-    recorder = JournalRecorder(app.controller, Journal(tmp_path / "j.jsonl"), "test")
+    engine = app.link.session.engine
+    recorder = JournalRecorder(app.link.session, Journal(tmp_path / "j.jsonl"), "test")
     real = engine.plant.state
     calls = {"n": 0}
 
@@ -458,7 +458,7 @@ async def test_the_hmi_latches_an_error_outside_the_scan_and_the_operator_resets
         assert app.is_running and calls["n"] > 1000
         assert [r.source for r in engine.latched] == ["internal"]
         assert engine.latched[0].time_us == S
-        assert app.controller.last.outputs == engine.safe_vector
+        assert app.link.session.last.outputs == engine.safe_vector
         assert "SAFE STATE" in region_text(app, "#status")
         assert "internal error reading the plant's" in screen_text(app)
         await press(pilot, "r")
@@ -470,7 +470,7 @@ async def test_the_hmi_latches_an_error_outside_the_scan_and_the_operator_resets
         shown = set()
         for _ in range(12):
             await run_for(pilot, 0.5)
-            shown.add(app.controller.last.outputs)
+            shown.add(app.link.session.last.outputs)
         assert engine.latched == [] and "SAFE STATE" not in region_text(app, "#status")
         assert shown - {engine.safe_vector}, "the valve does not cycle again"
     recorder.close()

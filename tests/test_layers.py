@@ -1,7 +1,7 @@
 """The import graph keeps the layering of docs/architecture.md, and has no import cycle.
 
     base (errors, timefmt, paths, limits, textfile, codecache, crash) <- logic <- project
-        <- plant, engine <- studies, export <- explain <- session
+        <- plant, engine <- studies, export <- explain <- session <- link
         <- apps (ui, cli, bench, opcua, soak)
 
 A module imports from its own layer or from a lower one, never from a higher one; within
@@ -33,6 +33,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("hmi.studies", "hmi.export"),
     ("hmi.explain",),
     ("hmi.session",),
+    ("hmi.link",),
     ("hmi.ui", "hmi.cli", "hmi.bench", "hmi.opcua", "hmi.soak"),
 )
 # What explain/ may read of engine/: the snapshot and the types it carries.

@@ -101,7 +101,7 @@ SORTING = VALVE.parent / "sorting"
 
 
 def urgent(app) -> list:
-    alarms = app.controller.last.alarms
+    alarms = app.link.last.alarms
     best = min(a.priority for a in alarms if a.state == ACTIVE_UNACK)
     return [a for a in alarms if a.state == ACTIVE_UNACK and a.priority == best]
 
@@ -172,7 +172,7 @@ async def test_the_selection_stays_and_the_urgent_rows_are_pinned_above_it(size)
         listing.focus()
         await press(pilot, "end")  # the last row: one waiting for its acknowledgement
         chosen = listing.selected
-        assert app.controller.last.alarms[-1].state == CLEARED_UNACK
+        assert app.link.last.alarms[-1].state == CLEARED_UNACK
         assert app.send(InjectFault(parse_injection("table_jam@20.5s"))).accepted
         await run_until(pilot, lambda s: sum(a.priority == 1 and a.state == ACTIVE_UNACK
                                              for a in s.alarms) >= 3, 10, "three P1 alarms")

@@ -80,9 +80,9 @@ class _Term:
 
 
 class Invariants:
-    def __init__(self, app, journal_path: Path):
+    def __init__(self, app, session, journal_path: Path):
         self.app = app
-        self.session = session = app.controller
+        self.session = session
         self.engine = engine = session.engine
         layout = engine.layout
         outputs = {name: k for k, name in enumerate(layout.outputs)}

@@ -76,10 +76,11 @@ class SoakResult:
         return not self.broken
 
 
-def make_app(config: SoakConfig) -> PlcHmiApp:
+def make_app(config: SoakConfig) -> tuple[PlcHmiApp, Session]:
+    """The app, and the session it shows (run in this process, in virtual time)."""
     project = load_project(config.project)
-    engine = Engine(project, SimPlant(project), control=config.control)
-    return PlcHmiApp(Session(engine), live=False, show_measured=False)
+    cell = Session(Engine(project, SimPlant(project), control=config.control))
+    return PlcHmiApp(cell, live=False, show_measured=False), cell
 
 
 async def session(config: SoakConfig, replay: list[Step] | None = None,
@@ -92,17 +93,17 @@ async def session(config: SoakConfig, replay: list[Step] | None = None,
     result = SoakResult(config)
     folder = Path(journal_dir or tempfile.mkdtemp(prefix="plchmi-soak-"))
     result.journal = folder / "journal.jsonl"
-    app = make_app(config)
-    journal = JournalRecorder(app.controller, Journal(result.journal), "soak")
+    app, cell = make_app(config)
+    journal = JournalRecorder(cell, Journal(result.journal), "soak")
     app.containment.listeners.append(journal.on_ui_fault)
-    checker = Invariants(app, result.journal)
+    checker = Invariants(app, cell, result.journal)
 
     def count(command, answer, snapshot) -> None:
         if answer.accepted:
             result.commands[type(command).__name__] += 1
         else:
             result.refused += 1
-    app.controller.listeners.append(count)
+    cell.listeners.append(count)
     operator = RandomOperator(config.seed)
     limit_us = int(config.minutes * 60_000_000)
     max_steps = config.max_steps or max(100, int(config.minutes * MAX_STEPS_PER_MINUTE))
@@ -110,7 +111,7 @@ async def session(config: SoakConfig, replay: list[Step] | None = None,
     try:
         async with app.run_test(size=config.size) as pilot:
             await settle(pilot)
-            engine = app.controller.engine
+            engine = cell.engine
             while True:
                 if replay is not None:
                     if len(result.steps) >= len(replay):
@@ -131,22 +132,22 @@ async def session(config: SoakConfig, replay: list[Step] | None = None,
                 if checker.check_step() or not app.is_running:
                     break
                 if progress is not None and len(result.steps) % 50 == 0:
-                    _fill(result, checker, app, started)
+                    _fill(result, checker, cell, started)
                     progress(result)
     finally:
         journal.close(None if checker.ok else str(checker.broken[0]))
     checker.check_journal()  # its last lines (the session's end)
-    _fill(result, checker, app, started)
+    _fill(result, checker, cell, started)
     if journal_dir is None and result.ok:  # a passing session's journal is not kept
         shutil.rmtree(folder, ignore_errors=True)
         result.journal = None
     return result
 
 
-def _fill(result: SoakResult, checker: Invariants, app: PlcHmiApp, started: float) -> None:
+def _fill(result: SoakResult, checker: Invariants, cell: Session, started: float) -> None:
     result.broken = list(checker.broken)
     result.scans = checker.scans
-    result.virtual_us = app.controller.engine.now
+    result.virtual_us = cell.engine.now
     result.wall_s = time.perf_counter() - started
     result.transitions = checker.transitions
     result.raised = checker.raised
