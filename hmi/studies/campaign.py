@@ -284,7 +284,7 @@ def _same(data: Any) -> Any:
     return data
 
 
-def _run_of(scenario: Scenario, config: Config, r: dict[str, Any]) -> RunResult:
+def _run_of(scenario: CampaignScenario, config: Config, r: dict[str, Any]) -> RunResult:
     return RunResult(scenario, config, r["outcome"], r["reason"], r["context"],
                      tuple(PlantEvent(**e) for e in r["damage"]), r["cycles"],
                      r["detected_us"], tuple(r["decision"]), tuple(r["states"]))
