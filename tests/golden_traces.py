@@ -415,6 +415,7 @@ def run_case(case: Case, attach: Callable[[Any, Any], Callable[[], None]] | None
         for line in journal_path.read_text(encoding="utf-8").splitlines():
             entry = json.loads(line)
             entry.pop("wall", None)
+            entry.pop("session", None)
             lines.append(_dump({"journal": entry}))
     return "\n".join(lines) + "\n"
 

@@ -20,7 +20,7 @@ from collections.abc import Callable
 
 from hmi.engine.commands import Command, CommandResult, ManualOutput, describe
 from hmi.engine.snapshot import Snapshot
-from hmi.explain.journal import Journal, JournalWriteError
+from hmi.explain.journal import Journal, JournalWriteError, new_session_id
 from hmi.plant.modbus.link_log import Burst
 from hmi.session.session import Session
 from hmi.timefmt import seconds
@@ -37,6 +37,7 @@ class JournalRecorder:
         # actions beside its samples); from the thread that journalled it, so never waiting.
         self.taps: list[Callable[[dict], None]] = []
         engine = session.engine
+        journal.session = new_session_id()
         # (kept for whoever taps the journal later: the historian records it too)
         self.start_entry = {"type": "session", "event": "start", "source": source,
                             "project": engine.project.name, "control": engine.control_name,
