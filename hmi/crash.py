@@ -8,7 +8,7 @@ import os
 import traceback
 from datetime import UTC, datetime
 
-from hmi.explain.journal import data_folder
+from hmi.paths import data_folder
 
 _counter = itertools.count(1)
 

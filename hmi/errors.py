@@ -54,12 +54,37 @@ class SourcePos:
         return SourcePos(self.file, line, col + inside, self.context)
 
 
+MAX_MESSAGE_CHARS = 600
+"""The longest message a diagnostic says: a text it quotes from a file is cut to an excerpt
+(:func:`excerpt`), and a message longer than this anyway is cut here, so that no project file
+(a 3.5 MB text where a mapping belongs, a file that is not ours) is printed back whole."""
+
+
+def excerpt(text: str, limit: int = 60) -> str:
+    """`text` quoted for a message, cut to its first `limit` characters with its length said:
+    a value from a file is shown so the engineer finds it, never copied out whole."""
+    if len(text) <= limit:
+        return repr(text)
+    return f"{text[:limit]!r}… ({len(text):,} characters)"
+
+
+def _cut(text: str) -> str:
+    if len(text) <= MAX_MESSAGE_CHARS:
+        return text
+    return text[:MAX_MESSAGE_CHARS] + f"… ({len(text) - MAX_MESSAGE_CHARS:,} characters cut)"
+
+
 @dataclass(frozen=True)
 class Diagnostic:
     pos: SourcePos
     message: str
     expected: str | None = None
     severity: str = "error"  # "error" or "warning"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "message", _cut(self.message))
+        if self.expected is not None:
+            object.__setattr__(self, "expected", _cut(self.expected))
 
     def __str__(self) -> str:
         text = f"{self.pos}: {self.severity}: {self.message}"

@@ -62,7 +62,7 @@ def run(name: str, control: str = "normal", seconds: int = 60,
     def on_quiet(count: int) -> None:  # (no plant event at a quiet scan: Engine.run)
         nonlocal unsafe
         unsafe += report_unsafe * count
-    # on the quiet path, as `plchmi run` without a trace (hmi.report.RunCollector.quiet
+    # on the quiet path, as `plchmi run` without a trace (hmi.session.run_report.RunCollector.quiet
     # counts a quiet scan's report the same way)
     last = ctl.run_for(seconds * S, on_scan, on_quiet)
     return CellSession(last, tuple(damage), unsafe)

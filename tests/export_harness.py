@@ -11,7 +11,9 @@ and latched evidence.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable, Iterable
+from concurrent.futures import Executor
 from dataclasses import dataclass, field
 from operator import itemgetter
 
@@ -20,8 +22,14 @@ from hmi.engine.scan import Engine
 from hmi.export.build import build
 from hmi.export.st import write_st
 from hmi.plant.sim import Injection, SimPlant, parse_injection
+from hmi.project.campaign import campaign_of
+from hmi.project.diagnosers import diagnosers_of, layout_names
+from hmi.project.loader import load_project
 from hmi.project.model import Project
 from hmi.project.monitors import monitors_of
+from hmi.project.scenarios import scenarios_of
+from hmi.studies.campaign import CONFIGS
+from tests.conftest import PROJECTS
 from tests.stsubset import Instance, Program, Runtime
 
 POLICIES = {"monitor": 0, "block": 1, "correct": 2}
@@ -187,6 +195,90 @@ class Twin:
         return result
 
 
+def _engine_drives_fov(text: str, control: str, fov_names: list[str]) -> str:
+    """`text` with the control stub's assignments (`FOV_x := FALSE;`) made `FOV_x := FOV_x;`:
+    the driver writes the engine's FOV before each cycle, which the stub must keep (matiec
+    refuses a function block without a statement)."""
+    start = re.search(rf"^FUNCTION_BLOCK {re.escape(control)}\s*$", text, re.M | re.I)
+    assert start is not None, f"no {control} in the export"
+    end = text.index("END_FUNCTION_BLOCK", start.end())
+    body = text[start.end():end]
+    for name in fov_names:
+        body, count = re.subn(rf"^{re.escape(name)} := FALSE;$", f"{name} := {name};", body,
+                              flags=re.M | re.I)
+        assert count == 1, f"the control stub does not write {name} once"
+    return text[:start.end()] + body + text[end:]
+
+
+LONG_US = 30_000_000  # the faulty programs' runs
+# A campaign run is compared up to this long after its fault, not to the campaign's end: on
+# the valve's 48 runs, the last new situation (every Boolean of the image, the violations,
+# the latch, each diagnoser's state and labels) appears at most 10.8 s after the fault
+# (measured on the engine over the whole 40 s runs), so the rest of a run repeats situations
+# already compared; the margin is 4 s. It cuts the valve's campaign scans by about a third.
+AFTER_FAULT_US = 15_000_000
+
+# One recorded run: project, injections, length, policy, diagnosis mode, control law.
+TraceRun = tuple[str, tuple[Injection, ...], int, str | None, str, str | None]
+
+
+def export_traces(name: str, faulty_policies: tuple[str, ...] = ("correct", "block", "monitor"),
+                  scenarios: tuple[str, ...] | None = None, campaign: bool = True
+                  ) -> list[TraceRun]:
+    """The runs of one example project the export is compared on: its fault campaign (each
+    fault under the three configurations), its scenarios, its faulty program per policy."""
+    project = load_project(PROJECTS / name)
+    runs: list[TraceRun] = []
+    spec = campaign_of(project)
+    if spec is not None and campaign:
+        for s in spec.scenarios:
+            for c in CONFIGS:
+                runs.append((name, (Injection(s.fault, s.at_us, s.device),),
+                             min(spec.length_us, s.at_us + AFTER_FAULT_US), c.policy,
+                             c.diagnosis, None))
+    for s in scenarios_of(project):
+        if scenarios is None or s.name in scenarios:
+            runs.append((name, s.injections, s.duration_us or LONG_US, None, "ftc", None))
+    if "faulty" in project.controls:
+        runs += [(name, (), LONG_US, policy, "ftc", "faulty") for policy in faulty_policies]
+    return runs
+
+
+_TWINS: dict[tuple[type, str], Twin | MatiecTwin] = {}
+
+
+def run_trace(kind: type[Twin] | type[MatiecTwin], name: str,
+              injections: tuple[Injection, ...], until_us: int, policy: str | None,
+              diagnosis: str, control: str | None) -> Agreement:
+    """One trace, in a worker: the engine and the export (`kind`: interpreted by
+    tests/stsubset.py, or compiled by matiec) on the same scans; asserts inside."""
+    twin = _TWINS.get((kind, name))
+    if twin is None:
+        twin = _TWINS[kind, name] = kind(load_project(PROJECTS / name))
+    engine = engine_for(twin.project, injections, policy=policy, control=control,
+                        diagnosis=diagnosis)
+    return twin.run(engine, until_us)
+
+
+def agree_on(pool: Executor, runs: list[TraceRun], kind: type[Twin] | type[MatiecTwin]
+             ) -> Agreement:
+    """`runs` spread over `pool`'s workers, their coverage added up."""
+    futures = [pool.submit(run_trace, kind, *run) for run in runs]
+    total = Agreement()
+    for future in futures:
+        total.add(future.result())  # an AssertionError names the scans that disagreed
+    return total
+
+
+def shorter_ton1(valve_text: str) -> str:
+    """The valve's export with TON1's preset 1.1 s instead of 2.45 s: a wrong program whose
+    first difference from the engine is known (TON1 true at t = 1.1 s of an opening)."""
+    tampered = valve_text.replace("T_TON1(IN := prev_O, PT := T#2s450ms);",
+                                  "T_TON1(IN := prev_O, PT := T#1s100ms);", 1)
+    assert tampered != valve_text
+    return tampered
+
+
 def engine_for(project: Project, inject: Iterable[str | Injection] = (),
                policy: str | None = None, control: str | None = None,
                diagnosis: str = "ftc") -> Engine:
@@ -194,3 +286,135 @@ def engine_for(project: Project, inject: Iterable[str | Injection] = (),
     for item in inject:
         plant.inject(parse_injection(item) if isinstance(item, str) else item)
     return Engine(project, plant, control=control, policy=policy, diagnosis=diagnosis)
+
+
+class MatiecTwin:
+    """The exported program of a project compiled by matiec (tests/matiec.py), run beside
+    engines: the engine's scans are recorded (inputs, FOV, policy, diagnosis mode, fault
+    resets, and everything the safety layer computed), then the compiled program runs on the
+    recorded writes, and each scan's values are compared. The same comparisons as
+    :meth:`Twin.run`; `mismatches` lists every scan that differs, not only the first."""
+
+    def __init__(self, project: Project, text: str | None = None):
+        from tests.matiec import CompiledPlc  # (needs matiec: tests skip without it)
+
+        self.project = project
+        model = build(project)
+        sym = self.sym = {k: v.upper() for k, v in model.symbols.items()}
+        text = text if text is not None else write_st(model)
+        control = next(p.name for p in model.pous if p.name.endswith("_Control"))
+        self.fov_names = [sym[f"FOV_{v.name}"] for v in project.outputs]
+        self.text = _engine_drives_fov(text, control, self.fov_names)
+        lay_inputs = [v.name for v in project.inputs]
+        self.input_names = lay_inputs
+        # what Twin.run compares too: outputs, timers, observers, flags, filtered sensors
+        self.value_names = ([v.name for v in project.outputs]
+                            + [t.name for t in project.timers]
+                            + [o.name for o in project.observers]
+                            + [name for name, _ in layout_names(project)])
+        self.diagnosers = [(d.name, [f"SAFETY.{sym['Diag_' + d.name]}.{sym[d.name + '.' + lab]}"
+                                     for lab in d.labels])
+                           for d in diagnosers_of(project)]
+        self.monitor_specs = monitors_of(project)
+        writes = ([sym[n] for n in lay_inputs] + self.fov_names
+                  + [sym["FaultReset"], sym["FilterPolicy"], sym["DiagnosisMode"]])
+        reads = ([sym[n] for n in self.value_names]
+                 + [sym["Violations"], sym["FilterLatched"], sym["FilterFallback"],
+                    f"SAFETY.{sym['Filter']}.Tested"])
+        for name, labels in self.diagnosers:
+            reads += [f"SAFETY.{sym['Diag_' + name]}.State", *labels]
+        for t in self.monitor_specs:
+            reads += [f"SAFETY.{sym['Mon_' + t.name]}.{port}" for port in MONITOR_PORTS]
+            reads.append(sym[t.label])
+        self.plc = CompiledPlc(self.text, writes, reads)
+
+    def run(self, engine: Engine, until_us: int, resets_after: Iterable[int] = ()) -> Agreement:
+        """Step `engine` every period up to `until_us`, run the compiled program on the same
+        writes, compare. Raises an AssertionError naming the mismatches (all counted)."""
+        rows, expected, result = self.record(engine, until_us, resets_after)
+        got = self.plc.run(rows)
+        mismatches = self.compare(rows, expected, got)
+        result.tested = max((row[self._tested] for row in got), default=0)
+        assert not mismatches, (f"{len(mismatches)} of {len(rows)} scans differ; the first: "
+                                + "; ".join(mismatches[:5]))
+        return result
+
+    @property
+    def _tested(self) -> int:
+        return len(self.value_names) + 3
+
+    def record(self, engine: Engine, until_us: int, resets_after: Iterable[int] = ()
+               ) -> tuple[list[tuple[int, ...]], list[tuple[int | None, ...]], Agreement]:
+        """The engine's run: what the PLC is given before each scan, and what it must hold
+        after it (None: not compared at that scan)."""
+        project = self.project
+        lay = engine.layout
+        slots = lay.slots
+        input_slots = itemgetter(*(slots[n] for n in self.input_names))
+        value_slots = [slots[n] for n in self.value_names]
+        constraints = [c.name for c in project.constraints]
+        stage = engine.diagnosis
+        mode = MODES[stage.mode if stage is not None else "ftc"]
+        runtimes = stage.runtimes if stage is not None else []
+        mstage = engine.monitors
+        automata = mstage.automata if mstage is not None else []
+        resets = set(resets_after)
+        rows: list[tuple[int, ...]] = []
+        expected: list[tuple[int | None, ...]] = []
+        result = Agreement()
+        for now in range(0, until_us + 1, project.scan_period_us):
+            policy = POLICIES[engine.policy]
+            snap = engine.step(now)
+            image = snap.values
+            reset = snap.scan in resets
+            inputs = input_slots(image)
+            rows.append((now, *(inputs if isinstance(inputs, tuple) else (inputs,)),
+                         *snap.fov, reset, policy, mode))
+            report = snap.filter
+            violated = set(report.violated_names) if report is not None else set()
+            word = sum(1 << j for j, c in enumerate(constraints) if c in violated)
+            latched = any(r.source == "filter" for r in snap.latched)
+            fell_back = report is not None and report.fallback is not None
+            want: list[int | None] = [int(image[s]) for s in value_slots]
+            want += [word, latched, fell_back, None]
+            if reset:
+                engine.apply(FaultReset())
+                result.resets += 1
+            for runtime in runtimes:
+                want.append(runtime.current)
+                held = runtime.state.labels
+                want += [lab in held for lab in runtime.spec.labels]
+                result.diagnoser_states.add(f"{runtime.spec.name}.{runtime.names[runtime.current]}")
+            for a in automata:
+                d = a.latched
+                evidence = ((RULES[d.rule], d.x_us, d.y_us) if d is not None
+                            else (None, None, None))
+                want += [LOCATIONS[a.location], a.x_us, a.y_us, a.attempt, a.faults,
+                         a.completed, d is not None, *evidence,
+                         None if reset else d is not None]
+                result.monitor_faults += d is not None
+            expected.append(tuple(None if w is None else int(w) for w in want))
+            result.scans += 1
+            result.violations += bool(violated)
+            result.corrected += snap.outputs != snap.fov
+            result.latched += latched
+            result.fallbacks += fell_back
+        return rows, expected, result
+
+    def compare(self, rows: list[tuple[int, ...]], expected: list[tuple[int | None, ...]],
+                got: list[tuple[int, ...]]) -> list[str]:
+        """Every scan whose compiled values differ from the engine's, named."""
+        names = self._read_names()
+        out = []
+        for k, (row, want, have) in enumerate(zip(rows, expected, got, strict=True)):
+            if len(want) != len(have):
+                out.append(f"scan {k + 1}: {len(have)} values read, {len(want)} expected")
+                continue
+            wrong = [f"{names[j]} = {h}, engine {w}" for j, (w, h) in
+                     enumerate(zip(want, have, strict=True)) if w is not None and w != h]
+            if wrong:
+                out.append(f"scan {k + 1} (t = {row[0]} us): " + ", ".join(wrong))
+        return out
+
+    def _read_names(self) -> list[str]:
+        return list(self.plc.reads)

@@ -161,7 +161,7 @@ async def test_the_bell_rings_once_per_new_unacknowledged_p1(bell):
     app = make_app(inject=("F13@10.4s",))
     app.bell_on_p1 = bell
     rung = []
-    app.bell = lambda: rung.append(app.controller.last.scan)  # the terminal's, counted
+    app.bell = lambda: rung.append(app.link.session.last.scan)  # the terminal's, counted
     async with app.run_test(size=(100, 30)) as pilot:
         await run_for(pilot, 9)
         assert rung == []
@@ -188,13 +188,13 @@ async def test_the_operator_shelves_and_comments_from_the_palette():
     app = make_app(control="faulty")
     async with app.run_test(size=(100, 30)) as pilot:
         await run_for(pilot, 3)
-        alarm = first_active(app.controller.last)
+        alarm = first_active(app.link.session.last)
         await palette(pilot, f"Alarms: comment on {alarm.text}")
         dialog = await wait_for_screen(pilot, TextDialog)
         await press(pilot, *"seen it")
         await press(pilot, "enter")
         await wait_for_main(pilot)
-        assert app.controller.alarms.alarms[alarm.key].comment == "seen it"
+        assert app.link.session.alarms.alarms[alarm.key].comment == "seen it"
         await palette(pilot, f"Alarms: shelve… {alarm.text}")
         dialog = await wait_for_screen(pilot, ChoiceDialog)
         assert dialog.id == "shelve-dialog"
@@ -203,4 +203,4 @@ async def test_the_operator_shelves_and_comments_from_the_palette():
         await run_for(pilot, 0.05)
         await settle(pilot)
         assert "1 shelved" in region_text(app, "#alarms")
-        assert alarm.key not in [a.key for a in app.controller.last.alarms]
+        assert alarm.key not in [a.key for a in app.link.session.last.alarms]

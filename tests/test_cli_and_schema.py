@@ -95,7 +95,7 @@ def test_schema_covers_every_section_the_loader_knows():
 
 
 def test_an_unexpected_failure_is_reported_without_a_traceback(monkeypatch, capsys, tmp_path):
-    import hmi.engine.trace as trace
+    import hmi.session.trace as trace
 
     def broken(self, snap):
         raise RuntimeError("disk on fire")

@@ -1,4 +1,4 @@
-"""The exhaustive exploration of the closed loop (hmi/engine/explore.py, closed_loop.py,
+"""The exhaustive exploration of the closed loop (hmi/studies/explore.py, closed_loop.py,
 loopstate.py) and what it says: checked against plain runs of the engine, and against the
 changes that must move its figures (an impossible guard, masking)."""
 
@@ -10,9 +10,13 @@ import shutil
 import pytest
 
 from hmi.cli import main
-from hmi.diag_report import closed_loop_lines
-from hmi.engine.campaign import CONFIGS, run_one
-from hmi.engine.closed_loop import (
+from hmi.engine.scan import Engine
+from hmi.plant.sim.plant import SimPlant
+from hmi.project.campaign import campaign_of
+from hmi.project.injection import Injection
+from hmi.project.loader import load_project
+from hmi.studies.campaign import CONFIGS, run_one
+from hmi.studies.closed_loop import (
     BLOCKED,
     DEFECT,
     TOLERANT,
@@ -21,13 +25,9 @@ from hmi.engine.closed_loop import (
     outcomes,
     summarise,
 )
-from hmi.engine.explore import Explorer
-from hmi.engine.loop_sweep import DIAG_NO_FILTER, FILTER_NO_DIAG, FTC, sweep
-from hmi.engine.scan import Engine
-from hmi.plant.sim.plant import SimPlant
-from hmi.project.campaign import campaign_of
-from hmi.project.injection import Injection
-from hmi.project.loader import load_project
+from hmi.studies.diag_report import closed_loop_lines
+from hmi.studies.explore import Explorer
+from hmi.studies.loop_sweep import DIAG_NO_FILTER, FILTER_NO_DIAG, FTC, sweep
 from tests.conftest import PROJECTS
 
 VALVE = PROJECTS / "cispi_valve"
@@ -137,7 +137,7 @@ def test_the_sweep_gives_the_campaign_class_at_the_campaign_instants(valve, expl
 
 
 def _diag_lines(project) -> str:
-    return "\n".join(closed_loop_lines(project, every_us=2_000_000, jobs=1, extras=False))
+    return "\n".join(closed_loop_lines(project, every_us=2_000_000, extras=False))
 
 
 def _block(text: str, config: str) -> str:
@@ -168,9 +168,10 @@ def test_an_impossible_guard_moves_the_closed_loop_figures_not_the_diagram(tmp_p
     observe = DIAG_NO_FILTER.title
     assert not _row(before, observe, "F5").split()[1].startswith("0/")
     assert _row(after, observe, "F5").split()[1].startswith("0/")
-    assert "isolated with certainty at some instant: 11/13" in _block(before, observe)
-    assert "isolated with certainty at some instant: 10/13" in _block(after, observe)
-    from hmi.engine.diagnosability import analyse
+    count = [int(_block(text, observe).split("at some instant: ")[1].split("/")[0])
+             for text in (before, after)]
+    assert count[1] == count[0] - 1  # F5 lost, nothing else
+    from hmi.studies.diagnosability import analyse
     assert analyse(valve.diagnosers[0]).certain_labels == \
         analyse(broken.diagnosers[0]).certain_labels
 
@@ -185,7 +186,7 @@ def test_masking_moves_the_closed_loop_figures(valve):
         assert not observed.split()[1].startswith("0/")
         assert ftc.split()[1].startswith("0/") and pair in ftc
     # On this coarse grid (every 2 s) the counts are smaller than docs/cispi_valve.md's
-    # (every 200 ms: 11/13 observing, 10/13 under FTC); masking lowers them all the same.
+    # (every instant: 12/13 observing, 10/13 under FTC); masking lowers them all the same.
     observed, ftc = (int(_block(text, c.title).split("at some instant: ")[1].split("/")[0])
                      for c in (DIAG_NO_FILTER, FTC))
     assert ftc < observed
@@ -198,7 +199,7 @@ def test_the_improved_diagnoser_never_misdiagnoses_where_the_paper_one_does(valv
     paper = load_project(VALVE, "paper")
     results = {}
     for name, project in (("improved", valve), ("paper", paper)):
-        result = sweep(project, [DIAG_NO_FILTER], "cycles", 500_000, extras=False, jobs=1,
+        result = sweep(project, [DIAG_NO_FILTER], "cycles", 500_000, extras=False,
                        cache=False)
         results[name] = diagnosability(DIAG_NO_FILTER, result.of(DIAG_NO_FILTER.key),
                                        result.faults)
@@ -221,10 +222,10 @@ def test_campaign_sweep_prints_table_1_both_ways(capsys):
     captured = capsys.readouterr()
     out = captured.out
     assert "Table 1 both ways" in out and "worst instant: why" in out
-    assert "closed-loop states explored in" in out
+    assert "closed-loop states explored, in shards of 200 runs" in out
     assert "fault -> certain diagnosis" in out
     assert "2 faults x" in out and "F13" not in out
-    assert "100%" in captured.err  # the progress bar
+    assert "100%" in captured.err and "report sha256" in captured.err
     assert main(["campaign", str(VALVE), "--every", "4s"]) == 2  # --every needs --sweep
 
 

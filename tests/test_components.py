@@ -13,14 +13,14 @@ from pathlib import Path
 import pytest
 
 from hmi.cli import main
-from hmi.engine.diagnosability import analyse
 from hmi.engine.scan import Engine
 from hmi.errors import ProjectError
 from hmi.logic.expr import parse_expr, to_text
+from hmi.logic.rename import rename_node, renamed_source
 from hmi.plant.sim.plant import SimPlant
-from hmi.project.components import rename_node, renamed_source
 from hmi.project.injection import Injection
 from hmi.project.loader import load_project
+from hmi.studies.diagnosability import analyse
 from tests.conftest import PROJECTS
 
 ROOT = PROJECTS.parent
@@ -219,9 +219,11 @@ def test_a_name_clash_with_the_project_is_reported_at_the_instance(tmp_path):
 def test_two_instances_on_one_sensor_clash_on_its_filtered_name(tmp_path):
     text = TWO_VALVES.replace("{fsc: fsc2, fso: fso2,", "{fsc: fsc1, fso: fso2,")
     errors = errors_of(write_project(tmp_path / "p", text))
-    assert len(errors) == 1
+    assert len(errors) == 2  # the clash, and the plant's two end switches on one input
     assert "component 'V2' would declare the filtered sensor 'fsc1_filter' (fsc_filter of " \
         in errors[0] and "already declared as filtered sensor of component V1" in errors[0]
+    assert "valve sensor 'fsc' is bound to input 'fsc1', which device 'V1' sensor 'fsc'" \
+        in errors[1]
 
 
 # -- errors inside a component --------------------------------------------------------------

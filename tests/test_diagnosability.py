@@ -7,8 +7,8 @@ from __future__ import annotations
 import pytest
 
 from hmi.cli import main
-from hmi.engine.diagnosability import analyse, iso_band
 from hmi.project.loader import load_project
+from hmi.studies.diagnosability import analyse, iso_band
 from tests.conftest import PROJECTS
 from tests.test_diagnoser_format import DIAG, write
 
@@ -76,7 +76,7 @@ def test_figures_follow_the_automaton_not_a_table(tmp_path):
 
 def test_check_and_diagnose_print_the_figures(capsys, monkeypatch):
     # The automaton's figures only: the closed loop's are tests/test_closed_loop.py's.
-    monkeypatch.setattr("hmi.diag_report.closed_loop_lines", lambda *a, **k: [])
+    monkeypatch.setattr("hmi.studies.diag_report.closed_loop_lines", lambda *a, **k: [])
     assert main(["check", str(PROJECTS / "cispi_valve"), "--diagnoser", "paper"]) == 0
     out = capsys.readouterr().out
     assert "Automaton reachability of V1 (an upper bound" in out

@@ -209,7 +209,7 @@ def test_fault_reset_leaves_the_diagnoser_faulty_while_the_fault_is_visible(proj
 
 
 def test_the_trace_has_the_diagnoser_state_and_the_flags(project, tmp_path):
-    from hmi.engine.trace import TraceWriter
+    from hmi.session.trace import TraceWriter
     ctl = controller(project, ["F9@9.5s"])
     path = tmp_path / "t.csv"
     with TraceWriter(path) as writer:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from hmi.engine.commands import FaultReset, ManualOutput, SetMode
-from hmi.engine.trace import TraceWriter
+from hmi.session.trace import TraceWriter
 from tests.conftest import PROJECTS
 from tests.examples import controller as make_controller
 

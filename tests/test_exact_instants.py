@@ -1,4 +1,4 @@
-"""Every instant, not a grid (hmi/engine/explore.py, Explorer.pieces): the exact sweep splits
+"""Every instant, not a grid (hmi/studies/explore.py, Explorer.pieces): the exact sweep splits
 the cycle into pieces of instants that share a run; the outcome a piece gives is the outcome
 of a run at any instant inside it. Checked against brute force: a run at every millisecond
 (and at random microseconds) must give its piece's outcome, class, damage, detection, certain
@@ -13,9 +13,9 @@ import random
 
 import pytest
 
-from hmi.engine.closed_loop import diagnosability, outcome_of, outcomes, summarise
-from hmi.engine.explore import Explorer
-from hmi.engine.loop_sweep import DIAG_NO_FILTER, FTC
+from hmi.studies.closed_loop import diagnosability, outcome_of, outcomes, summarise
+from hmi.studies.explore import Explorer
+from hmi.studies.loop_sweep import DIAG_NO_FILTER, FTC
 from tests.examples import example
 
 MS = 1_000

@@ -12,44 +12,15 @@ already runs the suite on both).
 
 from __future__ import annotations
 
-from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor
 
 import pytest
 
-from hmi.engine.campaign import CONFIGS
-from hmi.plant.sim import Injection
-from hmi.project.campaign import campaign_of
 from hmi.project.loader import load_project
-from hmi.project.scenarios import scenarios_of
 from tests.conftest import PROJECTS, processes_for_a_test
-from tests.export_harness import Agreement, Twin, engine_for
+from tests.export_harness import Agreement, TraceRun, Twin, agree_on, export_traces
 
 pytestmark = pytest.mark.slow  # a long study: tests/conftest.py, _studies_left_out
-
-LONG_US = 30_000_000  # the faulty programs' runs
-# A campaign run is compared up to this long after its fault, not to the campaign's end: on
-# the valve's 48 runs, the last new situation (every Boolean of the image, the violations,
-# the latch, each diagnoser's state and labels) appears at most 10.8 s after the fault
-# (measured on the engine over the whole 40 s runs), so the rest of a run repeats situations
-# already compared; the margin is 4 s. It cuts the valve's campaign scans by about a third.
-AFTER_FAULT_US = 15_000_000
-_TWINS: dict[str, Twin] = {}
-
-
-def _twin(name: str) -> Twin:
-    if name not in _TWINS:
-        _TWINS[name] = Twin(load_project(PROJECTS / name))
-    return _TWINS[name]
-
-
-def _run(name: str, injections: tuple[Injection, ...], until_us: int, policy: str | None,
-         diagnosis: str, control: str | None) -> Agreement:
-    """One trace, in a worker: the engine and the export side by side (asserts inside)."""
-    twin = _twin(name)
-    engine = engine_for(twin.project, injections, policy=policy, control=control,
-                        diagnosis=diagnosis)
-    return twin.run(engine, until_us)
-
 
 @pytest.fixture(scope="module")
 def pool():
@@ -57,36 +28,12 @@ def pool():
         yield executor
 
 
-def _traces(name: str, faulty_policies: tuple[str, ...] = ("correct", "block", "monitor"),
-            scenarios: tuple[str, ...] | None = None, campaign: bool = True) -> list[tuple]:
-    """The runs of one project: its campaign, its scenarios, its faulty program."""
-    project = load_project(PROJECTS / name)
-    runs = []
-    spec = campaign_of(project)
-    if spec is not None and campaign:
-        for s in spec.scenarios:
-            for c in CONFIGS:
-                runs.append((name, (Injection(s.fault, s.at_us, s.device),),
-                             min(spec.length_us, s.at_us + AFTER_FAULT_US), c.policy,
-                             c.diagnosis, None))
-    for s in scenarios_of(project):
-        if scenarios is None or s.name in scenarios:
-            runs.append((name, s.injections, s.duration_us or LONG_US, None, "ftc", None))
-    if "faulty" in project.controls:
-        runs += [(name, (), LONG_US, policy, "ftc", "faulty") for policy in faulty_policies]
-    return runs
-
-
-def _all(pool, runs: list[tuple]) -> Agreement:
-    futures: list[Future] = [pool.submit(_run, *run) for run in runs]
-    total = Agreement()
-    for future in futures:
-        total.add(future.result())  # an AssertionError names the scan that disagreed
-    return total
+def _all(pool, runs: list[TraceRun]) -> Agreement:
+    return agree_on(pool, runs, Twin)
 
 
 def test_the_valve_campaign_and_faulty_program_agree(pool):
-    runs = _traces("cispi_valve")
+    runs = export_traces("cispi_valve")
     total = _all(pool, runs)
     assert len(runs) == 16 * 3 + 3
     period = load_project(PROJECTS / "cispi_valve").scan_period_us
@@ -98,22 +45,22 @@ def test_the_valve_campaign_and_faulty_program_agree(pool):
 
 
 def test_the_conveyor_robot_scenarios_agree(pool):
-    runs = _traces("conveyor_robot")
+    runs = export_traces("conveyor_robot")
     total = _all(pool, runs)
     assert len(runs) == 7
     assert total.scans == 7 * 1201 and total.monitor_faults > 1000
 
 
 def test_the_sorting_cell_traces_agree(pool):
-    runs = _traces("sorting")
+    runs = export_traces("sorting")
     total = _all(pool, runs)
     assert len(runs) == 7 + 3
     assert total.corrected > 10_000 and total.monitor_faults > 10_000 and total.tested >= 4
 
 
 def test_the_palletizer_and_subsystem_agree(pool):
-    runs = (_traces("palletizer", ("correct",), ("pusher_home_stuck1",), campaign=False)
-            + _traces("cispi_subsystem", ("correct",), ("v1_jam",), campaign=False))
+    runs = (export_traces("palletizer", ("correct",), ("pusher_home_stuck1",), campaign=False)
+            + export_traces("cispi_subsystem", ("correct",), ("v1_jam",), campaign=False))
     total = _all(pool, runs)
     assert len(runs) == 4
     assert total.corrected > 1000 and total.monitor_faults > 1000

@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 from textual.css.stylesheet import Stylesheet
 
+from hmi.cli.check import check_report
 from hmi.codecache import dataclass_code, kept_codes, source_fingerprint
 from hmi.engine import codegen
 from hmi.engine.scan import Engine
@@ -21,7 +22,6 @@ from hmi.paths import PROJECTS
 from hmi.plant.sim.plant import SimPlant
 from hmi.project import kept
 from hmi.project.loader import load_project
-from hmi.report import check_report
 from hmi.ui import csscache
 
 DAMAGES = 24

@@ -187,6 +187,7 @@ def test_an_error_inside_a_fast_path_latches_writes_safe_and_is_explained(tmp_pa
         entries = [json.loads(line) for line in run.journal_path.read_text().splitlines()]
         for entry in entries:
             entry.pop("wall", None)
+            entry.pop("session", None)
         journals.append(entries)
         raised = [e for e in entries if e["type"] == "alarm" and e["event"] == "raised"
                   and "internal" in e["key"]]
@@ -441,8 +442,8 @@ async def test_the_hmi_latches_an_error_outside_the_scan_and_the_operator_resets
         wait_for_screen,
     )
     app = make_app()
-    engine = app.controller.engine
-    recorder = JournalRecorder(app.controller, Journal(tmp_path / "j.jsonl"), "test")
+    engine = app.link.session.engine
+    recorder = JournalRecorder(app.link.session, Journal(tmp_path / "j.jsonl"), "test")
     real = engine.plant.state
     calls = {"n": 0}
 
@@ -458,7 +459,7 @@ async def test_the_hmi_latches_an_error_outside_the_scan_and_the_operator_resets
         assert app.is_running and calls["n"] > 1000
         assert [r.source for r in engine.latched] == ["internal"]
         assert engine.latched[0].time_us == S
-        assert app.controller.last.outputs == engine.safe_vector
+        assert app.link.session.last.outputs == engine.safe_vector
         assert "SAFE STATE" in region_text(app, "#status")
         assert "internal error reading the plant's" in screen_text(app)
         await press(pilot, "r")
@@ -470,7 +471,7 @@ async def test_the_hmi_latches_an_error_outside_the_scan_and_the_operator_resets
         shown = set()
         for _ in range(12):
             await run_for(pilot, 0.5)
-            shown.add(app.controller.last.outputs)
+            shown.add(app.link.session.last.outputs)
         assert engine.latched == [] and "SAFE STATE" not in region_text(app, "#status")
         assert shown - {engine.safe_vector}, "the valve does not cycle again"
     recorder.close()

@@ -1,6 +1,6 @@
 """Independent cross-check with libFAUDES (the `faudes` package, a test dependency).
 
-What it covers: the untimed abstraction of the valve's closed loop (hmi/engine/untimed.py:
+What it covers: the untimed abstraction of the valve's closed loop (hmi/studies/untimed.py:
 the order of observation changes, faults unobservable), exported as a libFAUDES generator,
 for the configurations where the diagnosers run (observing only; FTC), improved diagnoser,
 every fault at every 500 ms of the cycle. libFAUDES' IsEventDiagnosable (C++, its own
@@ -17,16 +17,16 @@ import itertools
 
 import pytest
 
-from hmi.engine.explore import Explorer, faults_of
-from hmi.engine.loop_sweep import DIAG_NO_FILTER, FTC
-from hmi.engine.untimed import (
+from hmi.project.loader import load_project
+from hmi.studies.explore import Explorer, faults_of
+from hmi.studies.loop_sweep import DIAG_NO_FILTER, FTC
+from hmi.studies.untimed import (
     Generator,
     abstraction,
     diagnosable,
     faudes_diagnosable,
     to_faudes,
 )
-from hmi.project.loader import load_project
 from tests.conftest import PROJECTS
 
 

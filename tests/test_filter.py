@@ -11,8 +11,8 @@ from hypothesis import strategies as st
 
 from hmi.cli import main
 from hmi.engine.commands import FaultReset, ManualOutput, SetMode, SetPolicy
-from hmi.engine.filter_analysis import analyse
 from hmi.project.loader import load_project
+from hmi.studies.filter_analysis import analyse
 from tests.conftest import PROJECTS, write_project
 from tests.examples import controller as make_controller
 

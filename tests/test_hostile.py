@@ -22,9 +22,11 @@ from hmi.errors import ProjectError
 from hmi.explain.journal import default_path, read, safe_file_name
 from hmi.limits import (
     MAX_CONSTRAINTS,
+    MAX_DAMAGED_SHOWN,
     MAX_EXPR_CHARS,
     MAX_EXPR_DEPTH,
     MAX_FILE_BYTES,
+    MAX_NAME_CHARS,
     MAX_YAML_DEPTH,
     MAX_YAML_NODES,
 )
@@ -290,8 +292,8 @@ def test_run_lengths_beyond_the_limits_are_usage_errors(args, fragment, capsys):
 
 
 def test_a_long_run_says_so_up_front(tmp_path, capsys, monkeypatch):
-    import hmi.runio
-    monkeypatch.setattr(hmi.runio, "NOTICE_RUN_SCANS", 100)
+    import hmi.session.runio
+    monkeypatch.setattr(hmi.session.runio, "NOTICE_RUN_SCANS", 100)
     code, _, err = cli(["run", PROJECTS / "cispi_valve", "--for", "2s"], capsys)
     assert code == 0 and "201 scans to run (2s at a 10ms scan period)" in err
 
@@ -473,7 +475,7 @@ def test_the_library_is_reached_from_a_project_elsewhere(tmp_path):
 
 
 @pytest.mark.parametrize("name", ["../../ESCAPED", "/tmp/ESCAPED", "..", ".", "a/../../b",
-                                  "Cell 3 / Line 2", "ÉCHAPPÉ", "x" * 300])
+                                  "Cell 3 / Line 2", "ÉCHAPPÉ", "x" * 200])
 def test_the_project_name_is_never_a_path(name, tmp_path, capsys):
     data = Path(os.environ["PLCHMI_DATA"])
     text = BASE.replace("name: t", f"name: {json.dumps(name)}")
@@ -824,3 +826,198 @@ def test_a_campaign_too_long_to_finish_is_refused(tmp_path, capsys):
     (folder / "campaign.yaml").write_text(re.sub(r"length: *\S+", "length: 999h", text, count=1))
     code, _, err = cli(["campaign", folder], capsys)
     assert code == 2 and "more than the 100,000,000 plchmi runs at once" in err, err
+
+
+# --------------------------------------------------------------------------------------------
+# The project file itself
+# --------------------------------------------------------------------------------------------
+
+SECRET = "api_key: hunter2-SECRET\npassword: SECRET-2\n"
+
+
+@pytest.mark.parametrize("command", [["check"], ["run", "--for", "100ms"],
+                                     ["export", "--format", "st", "-o", "OUT"], ["journal"]])
+@pytest.mark.parametrize("target", ["/etc/passwd", "secret.yaml"])
+def test_a_project_file_that_leads_outside_its_folder_is_not_read(command, target, tmp_path,
+                                                                  capsys):
+    secret = write(tmp_path / "elsewhere", {"secret.yaml": SECRET}) / "secret.yaml"
+    folder = tmp_path / "p"
+    folder.mkdir()
+    (folder / "project.yaml").symlink_to(secret if target == "secret.yaml" else target)
+    args = [a.replace("OUT", str(tmp_path / "out")) for a in command]
+    for given in (folder, folder / "project.yaml"):
+        code, out, err = cli([args[0], given, *args[1:]], capsys)
+        assert code == 2, err
+        assert "leads outside the project folder; it is not read" in err
+        for quoted in ("root:", "api_key", "SECRET", "password"):
+            assert quoted not in out + err, err
+
+
+def test_a_project_file_symlinked_inside_its_folder_is_fine(tmp_path):
+    folder = write(tmp_path / "p", {"real.yaml": BASE})
+    (folder / "project.yaml").symlink_to("real.yaml")
+    assert load_project(folder).name == "t"
+
+
+@pytest.mark.parametrize("text", ["x" * 3_500_000 + "\n", "? " + "k" * 3_500_000 + "\n: 1\n",
+                                  BASE + "policy: " + "p" * 3_000_000 + "\n"],
+                         ids=["scalar", "explicit-key", "value-quoted"])
+def test_error_messages_quote_an_excerpt_never_the_file(text, tmp_path, capsys):
+    folder = write(tmp_path / "p", {"project.yaml": text})
+    code, out, err = cli(["check", folder], capsys)
+    assert code == 2
+    assert len(out + err) < 2000, (len(out), len(err))
+    assert "characters" in err, err  # the length is said, so the engineer knows what it was
+
+
+def test_a_project_name_over_the_limit_is_refused_at_its_place(tmp_path, capsys):
+    for length, code_expected in ((MAX_NAME_CHARS, 0), (MAX_NAME_CHARS + 1, 2)):
+        text = BASE.replace("name: t", "name: " + "n" * length)
+        folder = write(tmp_path / str(length), {"project.yaml": text})
+        code, _, err = cli(["check", folder], capsys)
+        assert code == code_expected, err
+    expect_error_at(err, "project.yaml", 1, 7, f"more than {MAX_NAME_CHARS}")
+
+
+def test_one_input_is_driven_by_one_sensor(tmp_path, capsys):
+    """A pump's running feedback wired to the input a valve's end switch already drives:
+    which of them the program reads would be an accident of the plant's step order."""
+    folder = tmp_path / "sub"
+    shutil.copytree(PROJECTS / "cispi_subsystem", folder)
+    text = (folder / "project.yaml").read_text()
+    library = os.path.relpath(ROOT / "components", folder)
+    text = text.replace("../../components", library)
+    (folder / "project.yaml").write_text(text.replace("run: Prun}", "run: fso1}"))
+    code, _, err = cli(["check", folder], capsys)
+    assert code == 2, err
+    changed = (folder / "project.yaml").read_text()
+    line = next(i for i, t in enumerate(changed.splitlines(), 1) if "run: fso1" in t)
+    col = changed.splitlines()[line - 1].index("fso1}") + 1
+    expect_error_at(err, "project.yaml", line, col, "pump sensor 'run' is bound to input "
+                    "'fso1', which device 'V1' sensor 'fso'")
+    # An output may order several devices: the conveyor's release is the robot's transfer.
+    assert cli(["check", PROJECTS / "conveyor_robot"], capsys)[0] == 0
+
+
+def test_a_journal_of_a_million_damaged_lines_is_read_in_bounded_memory(tmp_path, capsys):
+    """Read one line at a time and said in a few lines: a million lines of garbage held
+    ~250 MB as Damaged records and printed a million warnings."""
+    path = tmp_path / "j.jsonl"
+    lines = 1_000_000
+    path.write_bytes(b'{"type":"action","event":"first"}\n' + b"x\n" * lines
+                     + b'{"type":"action","event":"last"}\n')
+    with bounded(60, extra_mb=100):
+        code = main(["journal", str(PROJECTS / "cispi_valve"), "--path", str(path)])
+    out, err = capsys.readouterr()
+    assert code == 0 and "first" in out and "last" in out
+    warnings = err.splitlines()
+    assert len(warnings) == MAX_DAMAGED_SHOWN + 1, warnings[-3:]
+    assert warnings[-1].endswith(f"... and {lines - MAX_DAMAGED_SHOWN:,} more damaged lines "
+                                 "skipped")
+
+
+# --------------------------------------------------------------------------------------------
+# soak --replay: a file from outside, read as every other
+# --------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("kind, fragment", [
+    ("binary", "replay.steps:1:3: not UTF-8 text"),
+    ("device", "/dev/zero: not a regular file: this is a device"),
+    ("fifo", "replay.steps: not a regular file: this is a FIFO"),
+    ("big", "the file is too large"),
+    ("long", "replay.steps:3:1: the steps run 3600001s of virtual time up to here, "
+             "360,000,101 scans at a 10ms scan period: more than the 100,000,000"),
+    ("folder", "this is a folder"),
+])
+def test_a_replay_file_is_read_safely_and_bounded(kind, fragment, tmp_path, capsys):
+    path = tmp_path / "replay.steps"
+    if kind == "binary":
+        path.write_bytes(b"ru\xd0\x00n 1s\n")
+    elif kind == "device":
+        path = Path("/dev/zero")
+    elif kind == "fifo":
+        os.mkfifo(path)
+    elif kind == "big":
+        path.write_bytes(b"press a\n" * (MAX_FILE_BYTES // 8 + 1))
+    elif kind == "long":
+        path.write_text("run 1s\npress a\nrun 1000h\n")
+    elif kind == "folder":
+        path.mkdir()
+    code, out, err = cli(["soak", PROJECTS / "cispi_valve", "--replay", path], capsys)
+    assert code == 2 and fragment in err, err
+    assert "replaying" not in out  # refused before the HMI starts
+
+
+def test_soak_minutes_are_bounded_by_the_run_limit(tmp_path, capsys):
+    text = BASE.replace("scan_period: 10ms", "scan_period: 100us")
+    folder = write(tmp_path / "p", {"project.yaml": text})
+    code, _, err = cli(["soak", folder, "--minutes", "10000"], capsys)
+    assert code == 2 and "6,000,000,001 scans, more than the 100,000,000" in err, err
+
+
+# --------------------------------------------------------------------------------------------
+# Output paths that collide
+# --------------------------------------------------------------------------------------------
+
+
+def test_a_trace_over_the_journal_is_refused_before_a_byte_is_written(tmp_path, capsys):
+    data = Path(os.environ["PLCHMI_DATA"])
+    project = PROJECTS / "cispi_valve"
+    assert cli(["run", project, "--for", "2s", "--control", "faulty"], capsys)[0] == 0
+    journal = default_path("cispi_valve")
+    assert journal.parent.parent == data
+    before = journal.read_bytes()
+    (tmp_path / "hard.jsonl").hardlink_to(journal)
+    (tmp_path / "soft.jsonl").symlink_to(journal)
+    mine = tmp_path / "mine.jsonl"
+    mine.write_bytes(before)
+    for args in (["--trace", journal], ["--trace", tmp_path / "hard.jsonl"],
+                 ["--trace", tmp_path / "soft.jsonl"],
+                 ["--trace", data / "cispi_valve" / ".." / "cispi_valve" / "journal.jsonl"],
+                 ["--trace", mine, "--journal", mine],
+                 ["--journal", mine, "--trace", tmp_path / ".." / tmp_path.name / "mine.jsonl"]):
+        code, out, err = cli(["run", project, "--for", "1s", *args], capsys)
+        assert code == 2, (args, err)
+        assert "would be written over it" in err and "Ran" not in out, err
+    assert journal.read_bytes() == before and mine.read_bytes() == before
+
+
+@pytest.mark.parametrize("option", ["--trace", "--journal"])
+def test_no_output_is_a_file_of_the_project(option, tmp_path, capsys):
+    folder = tmp_path / "cispi_valve"
+    shutil.copytree(PROJECTS / "cispi_valve", folder)
+    before = {p.name: p.read_bytes() for p in folder.iterdir()}
+    for name in ("project.yaml", "constraints.yaml"):
+        code, _, err = cli(["run", folder, "--for", "1s", option, folder / name], capsys)
+        assert code == 2 and "this is a file of the project" in err, err
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
+
+
+def test_an_export_never_writes_over_a_project_file(tmp_path, capsys):
+    head, rest = BASE.split("inputs:", 1)
+    folder = write(tmp_path / "cell", {
+        "project.yaml": head.replace("name: t", "name: cell") + "include: [cell.st]\n",
+        "cell.st": "inputs:" + rest})
+    code, _, err = cli(["export", folder, "--format", "st", "-o", folder], capsys)
+    assert code == 2 and "this is a file of the project" in err, err
+    assert (folder / "cell.st").read_text() == "inputs:" + rest
+
+
+def test_texts_of_a_budget_fallback_under_correct_say_what_happened(tmp_path, capsys):
+    """Nothing is latched when the corrector writes the safe state for one scan: no "Safe
+    blocking ... until a fault reset", no fault reset to recommend; and hundreds of broken
+    rules without descriptions are counted, not "a safety rule" said hundreds of times."""
+    from tests import costly
+    text = costly.combined(300).replace("policy: correct\n", "policy: correct\n"
+                                        "solver_budget: 100\n")
+    folder = write(tmp_path / "p", {"project.yaml": text})
+    code, out, err = cli(["run", folder, "--for", "100ms", "--explain"], capsys, seconds=30)
+    assert code == 0, err
+    assert "at the search budget" in out and "latched no" in out
+    assert "Safe blocking" not in out and "release the latch" not in out
+    assert "Fault reset" not in out
+    assert "search for safe orders ran out of its budget" in out
+    why = next(line for line in out.splitlines() if "used up its budget" in line)
+    assert re.search(r"broke \d+ safety rules\.", why), why
+    assert "a safety rule; a safety rule" not in out

@@ -19,11 +19,11 @@ from __future__ import annotations
 import pytest
 
 from hmi.engine import commands as cmd
-from hmi.engine.loopstate import LoopAccess
 from hmi.engine.scan import Engine
 from hmi.plant.sim.plant import SimPlant
 from hmi.project.loader import load_project
 from hmi.session.session import Session
+from hmi.studies.loopstate import LoopAccess
 from tests.conftest import write_project
 from tests.examples import example
 from tests.test_compiled_scan import comparable

@@ -540,8 +540,8 @@ def test_quitting_the_hmi_on_a_real_plant_leaves_its_outputs_safe(server, tmp_pa
 
     async def operator(pilot) -> None:
         app = pilot.app
-        await wait_live(pilot, lambda: app.controller.last is not None and
-                        app.controller.last.output_map["O"], "the valve opening")
+        await wait_live(pilot, lambda: app.link.session.last is not None and
+                        app.link.session.last.output_map["O"], "the valve opening")
         seen["coils_before"] = read_coils(srv.port)
         await press(pilot, "q")
         await wait_for_screen(pilot, ConfirmDialog)

@@ -6,9 +6,9 @@ import pytest
 
 from hmi.cli import main
 from hmi.engine.commands import FaultReset
-from hmi.engine.trace import TraceWriter
 from hmi.project.loader import load_project
-from hmi.sweep import run_sweep
+from hmi.session.trace import TraceWriter
+from hmi.studies.monitor_sweep import run_sweep
 from tests.conftest import PROJECTS
 from tests.examples import controller as make_controller
 

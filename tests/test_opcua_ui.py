@@ -126,7 +126,7 @@ async def at_80x24_the_server_never_pushes_mode_or_policy_out(served) -> None:
     app = PlcHmiApp(served.session, live=False, show_measured=False, served=served.server)
     async with app.run_test(size=(80, 24)) as pilot:
         await run_for(pilot, 0.5)
-        policy = app.controller.engine.policy
+        policy = app.link.session.engine.policy
         bar = status_bar(app)
         assert "OPC UA: no clients" in bar and "AUTO" in bar and policy in bar, bar
         await press(pilot, "m")  # manual mode, confirmed: the longest mode word
@@ -156,7 +156,7 @@ async def test_a_failed_server_is_a_banner_a_status_word_and_a_journal_entry(ser
         assert "deliberate failure" in screen_text(app)
         bar = status_bar(app)
         assert "OPC UA FAILED" in bar and "AUTO" in bar, bar
-        assert app.controller.engine.policy in bar, bar
+        assert app.link.session.engine.policy in bar, bar
         await palette(pilot, "OPC UA server")
         await wait_for_screen(pilot, InfoDialog)
         assert "FAILED was serving at" in screen_text(app)

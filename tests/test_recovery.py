@@ -25,6 +25,7 @@ from hmi.engine.commands import (
 from hmi.engine.scan import Engine
 from hmi.errors import ProjectError
 from hmi.explain.journal import Journal, read
+from hmi.explain.reset import reset_preview
 from hmi.plant.base import PlantError
 from hmi.plant.sim.plant import SimPlant
 from hmi.project.campaign import campaign_of
@@ -32,7 +33,6 @@ from hmi.project.injection import parse_injection
 from hmi.project.loader import load_project
 from hmi.session.journal_recorder import JournalRecorder
 from hmi.session.session import Session
-from hmi.ui.reset import reset_preview
 from tests.cellruns import run_quietly
 from tests.conftest import PROJECTS
 
@@ -296,7 +296,7 @@ async def test_the_operator_finds_the_way_back_from_f13_through_the_reset_dialog
         await press(pilot, "y")
         await wait_for_main(pilot)
         await run_for(pilot, 20)
-        snap = app.controller.last
+        snap = app.link.session.last
         assert snap.mode == "auto" and "AUTO" in region_text(app, "#status")
         assert cycles(snap) >= 2 and not any(d.faulty for d in snap.diagnosers)
         assert not app.query_one("#banners").display

@@ -10,7 +10,7 @@ import pytest
 
 from hmi.cli import main
 from hmi.engine import commands as cmd
-from hmi.report import RunCollector
+from hmi.session.run_report import RunCollector
 from hmi.session.session import Session
 from tests.conftest import PROJECTS, make_controller
 
@@ -38,6 +38,7 @@ def run(capsys, tmp_path, name: str, project: str, args: list[str]) -> tuple[lis
     entries = [json.loads(line) for line in journal.read_text().splitlines()]
     for entry in entries:
         entry.pop("wall")
+        entry.pop("session")
     return out, entries
 
 

@@ -226,3 +226,33 @@ def test_a_shelved_alarm_may_leave_the_list_unacknowledged():
     assert result.ok, str(result.broken[0])
     assert result.commands["Shelve"] == 1 and result.commands["Unshelve"] == 1
     assert result.skipped == 0
+
+
+def _replay(name: str):
+    text = (REGRESSIONS / name).read_text(encoding="utf-8")
+    header = text.splitlines()[0].split()
+    project = PROJECTS / Path(header[header.index("soak") + 1]).name
+    control = header[header.index("--control") + 1]
+    size = tuple(int(n) for n in header[header.index("--size") + 1].split("x"))
+    return soak(SoakConfig(project, control, size), parse_steps(text, name))
+
+
+def test_an_urgent_alarm_out_of_sight_is_caught(monkeypatch):
+    """Without the pinned rows (the list scrolled around an older selected alarm), the new
+    P1 alarms of the sorting cell's table jam are out of sight: caught."""
+    from hmi.ui import alarm_list
+    monkeypatch.setattr(alarm_list, "urgent_count", lambda alarms: 0)
+    result = _replay("urgent_p1_out_of_sight.steps")
+    assert "urgent-alarm-hidden" in [b.invariant for b in result.broken]
+
+
+def test_a_dialog_over_the_status_bar_is_caught(monkeypatch):
+    """A dialog whose screen is opaque (as the comment dialog's was) or whose box starts
+    over the status bar: caught."""
+    from hmi.ui import dialogs
+
+    def opaque(app):
+        app.screen.styles.background = "#000000"
+    monkeypatch.setattr(dialogs, "keep_clear", opaque)
+    result = _replay("comment_dialog_blank.steps")
+    assert "dialog-hides-status-bar" in [b.invariant for b in result.broken]

@@ -201,9 +201,10 @@ def test_the_scans_start_with_the_garbage_collector_on():
         from hmi.plant.sim.plant import SimPlant
         from hmi.project.loader import load_project
         from hmi.session.session import Session
+        from hmi.link.local import SessionLink
         from hmi.ui.driver import LiveDriver
         project = load_project(PROJECTS / "cispi_valve")
-        driver = LiveDriver(Session(Engine(project, SimPlant(project))))
+        driver = LiveDriver(SessionLink(Session(Engine(project, SimPlant(project))), live=True))
         gc.disable()
         driver.start()
         print(gc.isenabled())

@@ -1,5 +1,5 @@
 """Declared tolerances (hmi/project/tolerances.py) and the band of plants they make
-(hmi/engine/band.py): loading them, their errors at file:line:column, the band's corners and
+(hmi/studies/band.py): loading them, their errors at file:line:column, the band's corners and
 seeded points, fault-free runs across it, and what `plchmi check` and `plchmi band` say — a
 diagnoser too tight for the band is reported with the run that shows it."""
 
@@ -10,11 +10,11 @@ from pathlib import Path
 
 import pytest
 
-from hmi.band_report import check_band, fault_free_band, run_length
 from hmi.cli import main
-from hmi.engine.band import band_of, run_point
 from hmi.errors import ProjectError
 from hmi.project.loader import load_project
+from hmi.studies.band import band_of, run_point
+from hmi.studies.band_report import check_band, fault_free_band, run_length
 from tests.conftest import PROJECTS
 from tests.examples import example
 
@@ -22,6 +22,16 @@ MS = 1_000
 S = 1_000_000
 VALVE = PROJECTS / "cispi_valve"
 EXAMPLES = ("cispi_valve", "cispi_subsystem", "conveyor_robot", "sorting", "palletizer")
+
+
+def farm_for_a_test():
+    """Where a test's study runs: its own processes (tests/conftest.py says how many), its
+    shards not kept."""
+    from hmi.farm.executors import InProcess, LocalPool
+    from hmi.farm.run import Farm
+    from tests.conftest import processes_for_a_test
+    jobs = processes_for_a_test()
+    return Farm(LocalPool(jobs) if jobs > 1 else InProcess(), keep=False)
 
 
 def copy_valve(tmp_path: Path) -> Path:
@@ -182,12 +192,10 @@ def test_every_example_at_every_corner_raises_no_fault_diagnosis(name):
     """The other examples' bands, every corner (cispi_subsystem: 256), a run each: no
     diagnoser nor stopwatch monitor says a healthy cell is faulty, nothing is damaged, and
     the cell keeps working."""
-    from hmi.engine.band import run_band
-    from tests.conftest import processes_for_a_test
+    from hmi.studies.band import run_band
     project = example(name)
     band = fault_free_band(project)
-    runs = run_band(project, band, band.corners(), run_length(project),
-                    jobs=processes_for_a_test())
+    runs = run_band(project, band, band.corners(), run_length(project), farm_for_a_test())
     bad = [(r.point.text(band), r.diagnosis, r.monitor, r.damage) for r in runs.runs
            if not r.clean]
     assert not bad and len(runs.runs) == len(band.corners())
@@ -269,12 +277,11 @@ def test_the_valve_is_never_diagnosed_faulty_across_its_band(variant):
     """The corners and 400 seeded points of the band, 40 s each (scans late, switches bouncing
     their own way at every change): no faulty diagnoser state, no damage, cycling on.
     `plchmi band projects/cispi_valve --runs 10000` is the long form (docs/cispi_valve.md)."""
-    from hmi.engine.band import fault_free_points, run_band
-    from tests.conftest import processes_for_a_test
+    from hmi.studies.band import fault_free_points, run_band
     project = load_project(VALVE, variant)
     band = fault_free_band(project)
     runs = run_band(project, band, fault_free_points(band, 400, seed=2), run_length(project),
-                    jobs=processes_for_a_test())
+                    farm_for_a_test())
     assert len(runs.runs) == 417
     assert not runs.diagnosed and not runs.damaged and not runs.stopped
 
@@ -286,17 +293,20 @@ def test_the_closed_loop_over_the_band_gives_each_figure_as_its_range():
     """Three plants (nominal, the all-low corner, it with F13's block point high), one cheap
     fault: the sweep of F5 is made once for the two corners (F5 does not depend on where
     F13 jams), and the report gives each figure worst .. best."""
-    from hmi.diag_report import band_lines
-    from hmi.engine.band_sweep import band_sweep, exploration_band
-    from hmi.engine.loop_sweep import DIAG_NO_FILTER, FTC
+    from hmi.studies.band import exploration_band
+    from hmi.studies.band_sweep import band_sweep
+    from hmi.studies.diag_report import band_lines
+    from hmi.studies.loop_sweep import DIAG_NO_FILTER, FTC
     project = example("cispi_valve")
     band = exploration_band(project)
     assert [d.name(False) for d in band.dimensions] == ["travel", "bounce", "delay",
                                                         "block_at"]
     corners = band.corners()
     points = [band.nominal(), corners[0], corners[1]]
+    from hmi.farm.executors import InProcess
+    from hmi.farm.run import Farm
     over = band_sweep(project, band, (DIAG_NO_FILTER, FTC), "cycles", points,
-                      faults=("F5", "F8"), jobs=1, cache=False)
+                      faults=("F5", "F8"), farm=Farm(InProcess(), keep=False), cache=False)
     assert over is not None and len(over.results) == 3
     low, low_block = over.results[1], over.results[2]
     assert low.runs == low_block.runs  # one sweep for both: F5, F8 ignore the block point

@@ -36,12 +36,12 @@ WIDE = (120, 36)
 
 
 def engine(app):
-    return app.controller.engine
+    return app.link.session.engine
 
 
 def alarms(app) -> dict[str, str]:
     """The engine's alarms, key -> ISA-18.2 state (what the next snapshot will list)."""
-    return {a.key: a.state for a in app.controller.alarms.alarms.values()}
+    return {a.key: a.state for a in app.link.session.alarms.alarms.values()}
 
 
 def flat(app, selector: str) -> str:
@@ -69,7 +69,7 @@ async def test_alarm_list_shows_state_priority_time_and_text_and_a_click_selects
     app = make_app(control="faulty")
     async with app.run_test(size=WIDE) as pilot:
         await run_for(pilot, 8.7)
-        snap = app.controller.last
+        snap = app.link.session.last
         assert {a.state for a in snap.alarms} == {ACTIVE_UNACK, CLEARED_UNACK}
         listed = region_text(app, "#alarms")
         rows = [line for line in listed.splitlines() if "UNACK" in line]
@@ -85,7 +85,7 @@ async def test_alarm_list_shows_state_priority_time_and_text_and_a_click_selects
         assert order == sorted(order, key=[ACTIVE_UNACK, CLEARED_UNACK].index)
         assert any("×2" in row for row in rows)  # returned once: counted
         # the same list (one start for both): a click on a row selects its alarm
-        listed = app.controller.last.alarms
+        listed = app.link.session.last.alarms
         alarm_list = app.query_one(AlarmList)
         assert await click(pilot, "#alarms", 10, 3)  # the border, then rows 0, 1, 2
         await settle(pilot)
@@ -99,13 +99,13 @@ async def test_acknowledge_the_selected_alarm_with_a():
         await run_until(pilot, lambda s: any(a.state == ACTIVE_UNACK for a in s.alarms), 5,
                         "an unacknowledged alarm")
         selected = app.query_one(AlarmList).selected
-        assert selected == app.controller.last.alarms[0].key
+        assert selected == app.link.session.last.alarms[0].key
         await press(pilot, "a")
         await settle(pilot)
         assert alarms(app)[selected] == ACTIVE_ACK
         assert "acknowledged 1 alarm" in app.message.plain
         # named as the alarm list names it, not by its key (constraint:CSs…)
-        text = next(a.text for a in app.controller.last.alarms if a.key == selected)
+        text = next(a.text for a in app.link.session.last.alarms if a.key == selected)
         assert f"acknowledged 1 alarm: {text}"[:60] in app.message.plain
         assert selected not in app.message.plain
         await run_for(pilot, 0.01)
@@ -113,7 +113,7 @@ async def test_acknowledge_the_selected_alarm_with_a():
         # a second time (the soak's operator did it often): said as it is, not "no alarm"
         await press(pilot, "a")
         await settle(pilot)
-        text = app.controller.alarms.alarms[selected].text
+        text = app.link.session.alarms.alarms[selected].text
         assert "REFUSED" in app.message.plain
         assert "already acknowledged" in app.message.plain and text[:20] in app.message.plain
 
@@ -146,7 +146,7 @@ async def test_acknowledge_from_the_palette():
         assert all(s == ACTIVE_ACK for s in alarms(app).values())
         await run_for(pilot, 3.0)  # CSc1 raised meanwhile
         key = next(k for k, s in alarms(app).items() if s == ACTIVE_UNACK)
-        text = app.controller.alarms.alarms[key].text
+        text = app.link.session.alarms.alarms[key].text
         await palette(pilot, f"Alarms: acknowledge {text}", text)
         assert alarms(app)[key] == ACTIVE_ACK
 
@@ -155,7 +155,7 @@ async def test_select_an_alarm_with_the_keys_then_acknowledge_all_with_shift_a()
     app = make_app(control="faulty")
     async with app.run_test(size=WIDE) as pilot:
         await run_for(pilot, 8.7)
-        listed = app.controller.last.alarms
+        listed = app.link.session.last.alarms
         alarm_list = app.query_one(AlarmList)
         alarm_list.focus()
         await press(pilot, "down")
@@ -189,7 +189,7 @@ async def test_alarm_list_survives_80x24_with_many_alarms():
     app = make_app(control="faulty")
     async with app.run_test(size=(80, 24)) as pilot:
         await run_for(pilot, 8.7)
-        assert len(app.controller.last.alarms) == 5
+        assert len(app.link.session.last.alarms) == 5
         screen = app.screen.region
         for selector in ("#status", "#alarms", "#message", "HmiFooter"):
             region = app.query_one(selector).region
@@ -224,7 +224,7 @@ async def test_expand_the_explanation_level_by_level():
         await run_until(pilot, lambda s: bool(s.latched), 5, "safe blocking")
         app.explain("safe_state:filter", open_level=1)
         await settle(pilot)
-        exp = next(e for e in app.controller.last.explanations if e.key == "safe_state:filter")
+        exp = next(e for e in app.link.session.last.explanations if e.key == "safe_state:filter")
         text = region_text(app, "#explain")
         assert exp.what[:30] in text and "LATCHED" in text
         assert "▸ Why" in text and "▸ Consequences" in text and "▸ Policies" in text
@@ -267,7 +267,7 @@ async def test_the_explanation_heading_gives_the_priority_the_alarm_list_shows()
             exp = next((e for e in snap.explanations if e.key == "diagnosis:V1"), None)
             return exp is not None and exp.severity == "medium"
         await run_until(pilot, demoted, 5, "the diagnosis certain, medium")
-        alarm = next(a for a in app.controller.last.alarms if a.key == "diagnosis:V1")
+        alarm = next(a for a in app.link.session.last.alarms if a.key == "diagnosis:V1")
         assert alarm.priority == 1 and app.alarm_list.selected == "diagnosis:V1"
         assert "P1 " in region_text(app, "#alarms")
         head = region_text(app, "#explain").splitlines()[1]
@@ -347,11 +347,11 @@ async def open_policies(pilot, key: str) -> None:
 async def test_policy_without_a_command_is_chosen_at_once():
     app = make_app(control="faulty")
     seen = []
-    app.controller.listeners.append(lambda cmd, result, snap: seen.append(cmd))
+    app.link.session.listeners.append(lambda cmd, result, snap: seen.append(cmd))
     async with app.run_test(size=WIDE) as pilot:
         await run_until(pilot, lambda s: any(a.state == ACTIVE_UNACK for a in s.alarms), 5,
                         "a corrected constraint")
-        key = app.controller.last.alarms[0].key
+        key = app.link.session.last.alarms[0].key
         await open_policies(pilot, key)
         assert app.focused.policy.id == "continue"  # the recommended one, focused
         await press(pilot, "enter")
@@ -383,7 +383,7 @@ async def test_policy_fault_reset_is_confirmed_with_the_reset_preview():
 async def test_policy_cancelled_sends_nothing():
     app = make_app(control="faulty", policy="block")
     seen = []
-    app.controller.listeners.append(lambda cmd, result, snap: seen.append(cmd))
+    app.link.session.listeners.append(lambda cmd, result, snap: seen.append(cmd))
     async with app.run_test(size=WIDE) as pilot:
         await run_until(pilot, lambda s: bool(s.latched), 5, "safe blocking")
         await open_policies(pilot, "safe_state:filter")
@@ -416,11 +416,11 @@ async def test_policy_manual_enters_manual_mode_after_confirmation():
 async def test_policy_stop_device_then_release_it_from_the_palette():
     app = make_app(control="faulty")
     seen = []
-    app.controller.listeners.append(lambda cmd, result, snap: seen.append(type(cmd).__name__))
+    app.link.session.listeners.append(lambda cmd, result, snap: seen.append(type(cmd).__name__))
     async with app.run_test(size=WIDE) as pilot:
         await run_until(pilot, lambda s: any(a.key.startswith("constraint:")
                                              for a in s.alarms), 5, "a constraint alarm")
-        await open_policies(pilot, app.controller.last.alarms[0].key)
+        await open_policies(pilot, app.link.session.last.alarms[0].key)
         button = next(b for b in app.query(".policy-button")
                       if b.policy.id == "stop_device")
         button.focus()
@@ -431,7 +431,7 @@ async def test_policy_stop_device_then_release_it_from_the_palette():
         await wait_for_main(pilot)
         assert engine(app).stopped_devices == {"Valve V1"}
         await run_for(pilot, 0.05)
-        snap = app.controller.last
+        snap = app.link.session.last
         assert snap.outputs == (False, False) and snap.fov == (False, False)
         assert "DEVICE STOPPED" in region_text(app, "#banners")
         assert region_text(app, "#io").count("▲ stopped") == 2
@@ -447,7 +447,7 @@ async def test_policy_switch_the_filter_to_correct_under_monitor():
     async with app.run_test(size=WIDE) as pilot:
         await run_until(pilot, lambda s: any(a.severity == "high" for a in s.alarms), 5,
                         "an unsafe vector written")
-        key = next(a.key for a in app.controller.last.alarms if a.severity == "high")
+        key = next(a.key for a in app.link.session.last.alarms if a.severity == "high")
         app.explain(key, open_level=1)
         await settle(pilot)
         assert "✗ P1 high" in region_text(app, "#explain")  # unsafe vector written: red
@@ -542,7 +542,7 @@ async def test_monitor_fault_reset_preview_and_policies():
         await press(pilot, "y")
         await wait_for_main(pilot)
         await run_for(pilot, 0.01)
-        snap = app.controller.last
+        snap = app.link.session.last
         assert not any(m.detection for m in snap.monitors)
         assert "Robot R1" in snap.stopped_devices
         assert "○ CLEARED-UNACK" in region_text(app, "#alarms")
@@ -565,11 +565,11 @@ async def test_monitor_fault_explanation_offers_its_policies():
 async def test_new_controls_reach_the_controller_listeners(tmp_path: Path):
     app = make_app(control="faulty")
     seen = []
-    app.controller.listeners.append(lambda cmd, result, snap: seen.append(type(cmd).__name__))
+    app.link.session.listeners.append(lambda cmd, result, snap: seen.append(type(cmd).__name__))
     async with app.run_test(size=WIDE) as pilot:
         await run_for(pilot, 3.0)
         await press(pilot, "a", "A")
-        await open_policies(pilot, app.controller.last.alarms[0].key)
+        await open_policies(pilot, app.link.session.last.alarms[0].key)
         await press(pilot, "enter")
         await settle(pilot)
     assert seen == ["Acknowledge", "Acknowledge", "ChoosePolicy"]

@@ -41,8 +41,16 @@ from hmi.ui.testing import (
 SIZE = (100, 30)
 
 
+def real_plant_app() -> PlcHmiApp:
+    """An app on the simulated valve declaring itself a real plant (as a Modbus plant
+    does) before the HMI reads what its plant can do."""
+    session = make_app().link.session
+    session.engine.plant.is_real = True
+    return PlcHmiApp(session, live=False, show_measured=False)
+
+
 def engine(app: PlcHmiApp):
-    return app.controller.engine
+    return app.link.session.engine
 
 
 @pytest.fixture
@@ -66,7 +74,7 @@ async def test_the_valve_is_seen_cycling():
     app = make_app()
     async with app.run_test(size=SIZE) as pilot:
         await run_until(pilot, lambda s: "X2" in s.active_steps, 10, "the valve open")
-        snap = app.controller.last
+        snap = app.link.session.last
         assert snap.value("fso") is True
         status = region_text(app, "#status")
         assert f"scan {snap.scan}" in status and "AUTO" in status and "running" in status
@@ -228,14 +236,14 @@ async def test_pause_and_resume_then_step_one_scan():
         await run_for(pilot, 0.5)
         await press(pilot, "space")
         await settle(pilot)
-        assert app.controller.state.running is False
+        assert app.link.session.state.running is False
         assert "PAUSED" in region_text(app, "#status")
         scan = engine(app).scan
         assert await run_for(pilot, 2.0) == 0
         assert engine(app).scan == scan
         await press(pilot, "space")
         await settle(pilot)
-        assert app.controller.state.running is True
+        assert app.link.session.state.running is True
         assert await run_for(pilot, 1.0) == 100
         assert "running" in region_text(app, "#status")
         # one scan stepped (one start for both), from running
@@ -244,7 +252,7 @@ async def test_pause_and_resume_then_step_one_scan():
         await press(pilot, "s")
         await settle(pilot)
         assert engine(app).scan == scan + 1
-        assert app.controller.state.running is False
+        assert app.link.session.state.running is False
         assert "STEPPING" in region_text(app, "#status")
         assert f"scan {scan + 1}" in region_text(app, "#status")
         assert "stepped 1 scan" in app.message.plain
@@ -262,7 +270,7 @@ async def test_step_n_can_be_cancelled_then_scans_through_the_dialog():
         await press(pilot, "escape")  # cancelled: nothing stepped, still running
         await wait_for_main(pilot)
         assert engine(app).scan == scan
-        assert app.controller.state.running is True
+        assert app.link.session.state.running is True
         await press(pilot, "n")  # then (one start for both) 25 scans asked
         dialog = await wait_for_screen(pilot, StepDialog)
         await press(pilot, "0", "enter")  # replaces the selected default: refused
@@ -282,7 +290,7 @@ async def test_speed_cycles_real_time_ten_times_max():
         for _ in range(3):
             await press(pilot, "v")
             await settle(pilot)
-            seen.append((app.controller.state.speed, region_text(app, "#status")))
+            seen.append((app.link.session.state.speed, region_text(app, "#status")))
         assert [s for s, _ in seen] == [10.0, None, 1.0]
         assert "×10" in seen[0][1] and "max" in seen[1][1] and "×1" in seen[2][1]
 
@@ -328,16 +336,16 @@ async def test_manual_request_is_written_and_shown():
         assert "O requested on" in app.message.plain  # the answer comes at once
         await run_for(pilot, 0.05)
         assert "written 1" in app.message.plain
-        assert app.controller.last.output_map["O"] is True
+        assert app.link.session.last.output_map["O"] is True
         assert "forced 1" in region_text(app, "#io")
         assert "O=1" in region_text(app, "#banners")
         await run_for(pilot, 2.5)
-        assert app.controller.last.value("fso") is True  # the valve opened under the force
+        assert app.link.session.last.value("fso") is True  # the valve opened under the force
         await press(pilot, "x")
         await settle(pilot)
         assert engine(app).manual == {}
         await run_for(pilot, 0.05)
-        assert app.controller.last.output_map["O"] is False
+        assert app.link.session.last.output_map["O"] is False
 
 
 async def test_manual_request_on_an_input_is_refused_with_its_reason():
@@ -374,7 +382,7 @@ async def test_in_manual_mode_the_control_panel_and_the_dialogs_say_the_program_
     app = make_app(CONVEYOR)
     async with app.run_test(size=SIZE) as pilot:
         await run_for(pilot, 1.0)
-        assert app.controller.last.active_steps == ("X2", "X11")
+        assert app.link.session.last.active_steps == ("X2", "X11")
         assert "waiting" not in region_text(app, "#control")
         await press(pilot, "m")
         dialog = await wait_for_screen(pilot, ConfirmDialog)
@@ -393,7 +401,7 @@ async def test_in_manual_mode_the_control_panel_and_the_dialogs_say_the_program_
         control = region_text(app, "#control")
         assert "▲ waiting — manual mode" in control
         assert "● X2" in control and "● X11" in control
-        assert app.controller.last.active_steps == ("X2", "X11")
+        assert app.link.session.last.active_steps == ("X2", "X11")
         await press(pilot, "m")
         dialog = await wait_for_screen(pilot, ConfirmDialog)
         said = " ".join(map(str, dialog.lines))
@@ -408,7 +416,7 @@ async def test_in_manual_mode_the_control_panel_and_the_dialogs_say_the_program_
         assert "waiting" not in region_text(app, "#control")  # (commanded: resumes)
         await run_for(pilot, 0.05)
         assert "waiting" not in region_text(app, "#control")
-        assert app.controller.last.active_steps == ("X3", "X11")
+        assert app.link.session.last.active_steps == ("X3", "X11")
 
 
 async def test_a_request_not_written_as_asked_says_why():
@@ -518,7 +526,7 @@ async def test_policy_switch_is_confirmed():
         assert engine(app).policy == "block"
         # the policy already in effect: nothing to confirm, nothing sent nor journalled
         sent = []
-        app.controller.listeners.append(lambda cmd, result, snap: sent.append(cmd))
+        app.link.session.listeners.append(lambda cmd, result, snap: sent.append(cmd))
         await press(pilot, "p")
         await wait_for_screen(pilot, ChoiceDialog)
         await press(pilot, "enter")  # the highlighted one is the current one, block
@@ -540,7 +548,7 @@ async def test_fault_injection_now_jams_the_valve():
         await wait_for_main(pilot)
         assert "F13" in app.message.plain and "SIMULATION" in app.message.plain
         await run_for(pilot, 3.0)
-        snap = app.controller.last
+        snap = app.link.session.last
         assert dict(snap.plant_state)["jammed"] is True
         # {F3, F13} masks the valve; fso is read from its estimate, which says "open" once
         # the open order was held a full travel (2.45 s): the program goes on, masked.
@@ -600,17 +608,17 @@ async def test_push_button_for_a_free_input(button_project):
     app = make_app(button_project)
     async with app.run_test(size=SIZE) as pilot:
         await run_for(pilot, 2.0)
-        assert app.controller.last.active_steps == ("X0",)  # waits for the button
+        assert app.link.session.last.active_steps == ("X0",)  # waits for the button
         assert "button up" in region_text(app, "#io")
         await select_row(pilot, "start")
         await press(pilot, "b")
         await run_for(pilot, 0.05)
-        assert app.controller.last.value("start") is True
+        assert app.link.session.last.value("start") is True
         assert "button pressed" in region_text(app, "#io")
-        assert "X1" in app.controller.last.active_steps
+        assert "X1" in app.link.session.last.active_steps
         await press(pilot, "b")
         await run_for(pilot, 0.05)
-        assert app.controller.last.value("start") is False
+        assert app.link.session.last.value("start") is False
 
 
 async def test_push_button_on_a_driven_input_is_refused(button_project):
@@ -668,7 +676,7 @@ async def test_palette_runs_commands():
     app = make_app()
     async with app.run_test(size=SIZE) as pilot:
         await palette(pilot, "Run / pause")
-        assert app.controller.state.running is False
+        assert app.link.session.state.running is False
         await palette(pilot, "Step 10 scans")
         assert engine(app).scan == 11
         await palette(pilot, "Filter policy: monitor")
@@ -686,7 +694,7 @@ async def test_palette_runs_commands():
         await palette(pilot, "SIMULATION: repair the faulty devices")
         assert not app._injected and "F5 removed" in region_text(app, "#message")
         await palette(pilot, "Run speed: as fast as possible")
-        assert app.controller.state.speed is None
+        assert app.link.session.state.speed is None
 
 
 async def test_palette_manual_requests_only_in_manual_mode():
@@ -705,7 +713,7 @@ async def test_palette_closes_without_running_anything():
         await wait_for_screen(pilot, CommandPalette)
         await press(pilot, "escape")
         await wait_for_main(pilot)
-        assert app.controller.state.running is True
+        assert app.link.session.state.running is True
 
 
 # -- every action goes through Session.command -----------------------------------------
@@ -714,7 +722,7 @@ async def test_palette_closes_without_running_anything():
 async def test_operator_actions_reach_the_controller_listeners():
     app = make_app()
     seen = []
-    app.controller.listeners.append(lambda cmd, result, snap: seen.append(type(cmd).__name__))
+    app.link.session.listeners.append(lambda cmd, result, snap: seen.append(type(cmd).__name__))
     async with app.run_test(size=SIZE) as pilot:
         await press(pilot, "space", "s")
         await enter_manual(pilot)
@@ -737,17 +745,17 @@ async def test_operator_actions_reach_the_controller_listeners():
 
 async def test_live_mode_scans_in_a_thread_and_refreshes():
     app = make_app()
-    live = PlcHmiApp(app.controller, live=True)
+    live = PlcHmiApp(app.link.session, live=True)
     async with live.run_test(size=SIZE) as pilot:
-        await wait_live(pilot, lambda: live.controller.engine.scan > 20, "20 live scans")
+        await wait_live(pilot, lambda: live.link.session.engine.scan > 20, "20 live scans")
         await wait_live(pilot, lambda: live.frames_shown > 3, "a few UI frames")
         # the measured scan time: "µs/scan", or "µs" when a loaded machine adds "n scans
         # late" and the bar takes its short forms
         assert re.search(r"\d+ µs", region_text(live, "#status"))
         live.send(Pause())  # under the controller's lock: no scan starts after it
-        scan = live.controller.engine.scan
+        scan = live.link.session.engine.scan
         await pilot.pause(0.1)  # (a check that nothing happens: a sleep cannot make it flaky)
-        assert live.controller.engine.scan == scan
+        assert live.link.session.engine.scan == scan
     assert not live.driver.runner.alive
 
 
@@ -771,7 +779,7 @@ async def test_filter_changes_are_shown_with_their_constraint():
     app = make_app(control="faulty")
     async with app.run_test(size=(120, 36)) as pilot:
         await run_until(pilot, _changed, 10, "a filter correction")
-        snap = app.controller.last
+        snap = app.link.session.last
         change = snap.filter.changes[0]
         io = region_text(app, "#io")
         row = next(line for line in io.splitlines() if f"│ {change.output} " in line)
@@ -795,14 +803,14 @@ async def test_a_past_violation_keeps_its_level_1_explanation():
     app = make_app(control="faulty")
     async with app.run_test(size=(200, 40)) as pilot:
         await run_until(pilot, _changed, 10, "a filter correction")
-        snap = app.controller.last
+        snap = app.link.session.last
         name = snap.filter.violated_names[0]
         what = next(e.what for e in snap.explanations if e.key == f"constraint:{name}")
         description = next(c.description for c in app.project.constraints if c.name == name)
         assert what != description
         await run_until(pilot, lambda s: s.filter is not None and not s.filter.violations, 10,
                         "a scan without violation")
-        assert app.recorder.constraint_stats()[name].what == what
+        assert app.link.recorder.constraint_stats()[name].what == what
         row = next(line for line in region_text(app, "#constraints").splitlines()
                    if f" {name} " in line)
         assert "· ×" in row and "last" in row
@@ -820,7 +828,7 @@ async def test_manual_request_refused_by_the_filter_names_the_constraint():
         message = app.message.plain
         assert "NOT AS REQUESTED" in message and "written 0" in message
         assert "CSs2" in message
-        assert app.controller.last.output_map["O"] is False
+        assert app.link.session.last.output_map["O"] is False
         assert "≠ filter CSs2" in region_text(app, "#io")
 
 
@@ -847,17 +855,16 @@ async def test_reset_under_safe_blocking_says_what_stays():
 
 
 async def test_simulation_controls_are_off_for_a_real_plant():
-    app = make_app()
-    engine(app).plant.is_real = True  # as a Modbus plant declares: no speed, no faults
+    app = real_plant_app()  # as a Modbus plant declares: no speed, no faults
     async with app.run_test(size=SIZE) as pilot:
         await press(pilot, "v", "f")
         await settle(pilot)
-        assert app.controller.state.speed == 1.0
+        assert app.link.session.state.speed == 1.0
         assert len(app.screen_stack) == 1  # no fault dialog
         titles = [e.title for e in app.palette_entries()]
         assert not any("SIMULATION" in t or t.startswith("Run speed") for t in titles)
         app.action_speed(10.0)  # even if asked directly, refused with its reason
-        assert app.controller.state.speed == 1.0
+        assert app.link.session.state.speed == 1.0
         assert "NOT AVAILABLE" in app.message.plain and "real plant" in app.message.plain
 
 
@@ -907,7 +914,7 @@ async def test_quit_asks_first_and_says_what_happens():
         assert app.is_running and app.return_code is None
         assert "cancelled: quit" in app.message.plain
         await run_for(pilot, 0.1)
-        assert app.controller.last.output_map["O"] is True  # still in control
+        assert app.link.session.last.output_map["O"] is True  # still in control
         await press(pilot, "q")
         await wait_for_screen(pilot, ConfirmDialog)
         await press(pilot, "y")
@@ -927,8 +934,7 @@ async def test_quit_from_the_palette_is_confirmed_too():
 
 
 async def test_quit_on_a_real_plant_says_the_outputs_are_written_safe():
-    app = make_app()
-    engine(app).plant.is_real = True  # as a Modbus plant declares
+    app = real_plant_app()  # as a Modbus plant declares
     async with app.run_test(size=SIZE) as pilot:
         await press(pilot, "q")
         await wait_for_screen(pilot, ConfirmDialog)

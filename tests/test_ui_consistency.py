@@ -55,8 +55,8 @@ async def test_a_scan_landing_while_a_frame_is_built_does_not_mix_two_scans():
     app = make_app(control="faulty")
     async with app.run_test(size=(100, 30)) as pilot:
         await run_until(pilot, lambda s: s.scan == scan, 60, f"scan {scan}")
-        assert name in app.controller.last.filter.violated_names
-        app.recorder._lock = ScanFirst(app.recorder._lock, app.controller.scan_once)
+        assert name in app.link.session.last.filter.violated_names
+        app.link.recorder._lock = ScanFirst(app.link.recorder._lock, app.link.session.scan_once)
         app.poll(force=True)  # issue 13: TypeError in the constraints panel
         await drain(pilot)
         frame = app.frame
@@ -64,7 +64,7 @@ async def test_a_scan_landing_while_a_frame_is_built_does_not_mix_two_scans():
         assert name not in frame.snapshot.filter.violated_names
         stats = frame.constraints[name]
         assert stats.since_us is None and stats.last_us == frame.snapshot.time_us - \
-            app.controller.period_us
+            app.link.session.period_us
         for violated in frame.snapshot.filter.violated_names:
             assert frame.constraints[violated].since_us is not None
         assert name in app.query_one(ConstraintsPanel).row_names

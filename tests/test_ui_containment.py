@@ -45,7 +45,7 @@ def journal_entries(path: Path) -> list[dict]:
 
 def journalled(app: PlcHmiApp, path: Path) -> JournalRecorder:
     """The journal listening to the app's controller and to its UI errors, as cmd_ui does."""
-    recorder = JournalRecorder(app.controller, Journal(path), "test")
+    recorder = JournalRecorder(app.link.session, Journal(path), "test")
     app.containment.listeners.append(recorder.on_ui_fault)
     return recorder
 
@@ -71,8 +71,8 @@ async def test_a_panel_raising_at_every_frame_is_contained(monkeypatch, tmp_path
             before = app.frames_shown
             await run_for(pilot, 1.0)
             assert app.frames_shown > before
-            assert app.controller.engine.now >= seconds * 1_000_000
-            assert f"scan {app.controller.engine.scan}" in region_text(app, "#status")
+            assert app.link.session.engine.now >= seconds * 1_000_000
+            assert f"scan {app.link.session.engine.scan}" in region_text(app, "#status")
         # counted, not written again: one crash file, one journal entry
         assert app.containment.faults[("ConstraintsPanel refresh",
                                        "DeliberateUIError")].count > 2
@@ -131,9 +131,9 @@ async def test_errors_in_handlers_actions_dialogs_palette_and_drawing_are_contai
         assert "chronogram not drawn" in region_text(app, "#chronogram")
         assert app.containment.latest.what == "Chronogram drawing"
         # and through it all the scan ran and the app lived
-        scan = app.controller.engine.scan
+        scan = app.link.session.engine.scan
         await run_for(pilot, 1.0)
-        assert app.controller.engine.scan > scan
+        assert app.link.session.engine.scan > scan
         assert app.is_running and app.containment.fatal is None
         assert "UI ERROR" in region_text(app, "#banners")
 

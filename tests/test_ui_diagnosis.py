@@ -30,7 +30,7 @@ WIDE = (120, 36)
 
 
 def engine(app):
-    return app.controller.engine
+    return app.link.session.engine
 
 
 def flat(app, selector: str) -> str:
@@ -63,7 +63,7 @@ async def test_ambiguous_diagnosis_reads_as_such():
     app = make_app(diagnoser="paper")
     async with app.run_test(size=WIDE) as pilot:
         await inject(pilot, "F1", 10, ("F1", "F13"))
-        snap = app.controller.last
+        snap = app.link.session.last
         assert set(snap.masked) == {"C", "O"} and snap.reconstructed == ("fsc",)
         text = region_text(app, "#diagnosers")
         assert "✗ V1 A1" in text and "1 faulty" in text
@@ -98,10 +98,10 @@ async def test_ambiguous_diagnosis_reads_as_such():
 async def test_certain_diagnosis_recommends_running_degraded():
     app = make_app()
     seen = []
-    app.controller.listeners.append(lambda cmd, result, snap: seen.append(cmd))
+    app.link.session.listeners.append(lambda cmd, result, snap: seen.append(cmd))
     async with app.run_test(size=WIDE) as pilot:
         await inject(pilot, "F9", 10, ("F9",))
-        snap = app.controller.last
+        snap = app.link.session.last
         assert snap.reconstructed == ("fso",) and snap.masked == ()
         assert "F9 ✗ certain  unexpected fso rise" in region_text(app, "#diagnosers")
         assert "≈ estimated open position" in region_text(app, "#io")
@@ -171,7 +171,7 @@ async def test_a_situation_without_alarm_is_explained_from_the_palette():
     app = make_app()
     async with app.run_test(size=WIDE) as pilot:
         await inject(pilot, "F9", 10, ("F9",))
-        degraded = next(e for e in app.controller.last.explanations
+        degraded = next(e for e in app.link.session.last.explanations
                         if e.key == "reconstruction:fso")
         assert not degraded.alarm  # the diagnosis raised the alarm; this one explains more
         await palette(pilot, f"Explain: {degraded.what}", "fso ignored")

@@ -8,12 +8,12 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from hmi.engine.snapshot import LatchReason
+from hmi.explain.reset import PREVIEWS, ResetLine, reset_preview
 from hmi.plant.base import PlantStatus
+from hmi.session.recorder import ScanRecorder, Trace
 from hmi.ui.chronogram import FALL, HIGH, LOW, MULTI, RISE, UNKNOWN, axis, columns
 from hmi.ui.fault_dialog import parse_delay
 from hmi.ui.frame import Frame
-from hmi.ui.recorder import ScanRecorder, Trace
-from hmi.ui.reset import PREVIEWS, ResetLine, reset_preview
 from hmi.ui.status import banner_lines, fit, late_help, status_fields
 from hmi.ui.style import MUTED
 from hmi.ui.verdict import output_changes, request_verdict
@@ -92,7 +92,7 @@ def test_status_keeps_alarms_and_mode_when_narrow():
     assert "cispi_valve" in full and "scan " in full
 
 
-def test_status_at_80_columns_keeps_the_project_over_scan_time_and_late_count():
+def test_status_at_80_columns_keeps_the_project_and_the_late_flag_over_scan_time():
     snap = _snapshot(scan_wall_us=1234.0)
     frame = _frame(snap, show_measured=True, overruns=3)
     full = fit(status_fields(frame, wide=True), 200).plain
@@ -100,9 +100,10 @@ def test_status_at_80_columns_keeps_the_project_over_scan_time_and_late_count():
     line = fit(status_fields(frame, wide=False, compact=True), 80).plain
     assert len(line) <= 80
     assert line.startswith(" cispi_valve │ ◇ SIM │ AUTO")  # the project is kept
-    assert "µs" not in line and "late" not in line  # these go first
-    roomier = fit(status_fields(frame, wide=False, compact=True), 84).plain
-    assert "cispi_valve" in roomier and "▲ 3 scans late" in roomier and "µs" not in roomier
+    assert "µs" not in line  # this goes first
+    assert "▲ 3 late" in line  # a compact late flag stays at every width
+    for width in (60, 70):
+        assert "▲ 3 late" in fit(status_fields(frame, wide=False, compact=True), width).plain
     assert "1 scan late" in fit(status_fields(_frame(snap, show_measured=True, overruns=1),
                                               wide=True), 200).plain
     assert "more than a whole scan period behind" in late_help(3)
@@ -352,3 +353,16 @@ def test_manual_dialog_lines_name_the_steps_and_the_orders_given_again(tmp_path)
         "until you leave manual mode; it then resumes from there."]
     assert manual.ordered_again(project, law, ()) == ()
     assert "memories as they were" in manual.leave_lines(project, law, snap)[0]
+
+
+def test_the_journal_words_of_a_reset_line_are_the_dialogs():
+    """What the runtime journals of a declined reset (hmi.explain.reset.line_text) reads as
+    the dialog showed it (hmi.ui.reset.reset_line)."""
+    from hmi.explain.reset import line_text
+    from hmi.ui.reset import reset_line
+    for line in (ResetLine("monitor label F", resets=True),
+                 ResetLine("diagnoser V1", resets=True, note="re-synchronised to N1"),
+                 ResetLine("latch", resets=False, why="its cause is still present"),
+                 ResetLine("V1 stopped", resets=False, note="release it from the palette"),
+                 ResetLine("recovery running", resets=False)):
+        assert line_text(line) == reset_line(line).plain

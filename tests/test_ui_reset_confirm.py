@@ -30,7 +30,7 @@ SIZE = (100, 30)
 
 
 def diagnoser(app):
-    return next(d for d in app.controller.last.diagnosers if d.name == "V1")
+    return next(d for d in app.link.session.last.diagnosers if d.name == "V1")
 
 
 def resync_to(target: str):
@@ -55,10 +55,10 @@ async def test_a_reset_confirmed_after_the_cell_moved_is_asked_again_with_what_c
         tmp_path):
     app = make_app(inject=("F9@10s",))
     journal = tmp_path / "journal.jsonl"
-    JournalRecorder(app.controller, Journal(journal), "test")
+    JournalRecorder(app.link.session, Journal(journal), "test")
     async with app.run_test(size=SIZE) as pilot:
         await run_until(pilot, resync_to("N5"), 13, "V1 faulty, a reset re-synchronising it")
-        opened_at = app.controller.last.scan
+        opened_at = app.link.session.last.scan
         await press(pilot, "r")
         text = await dialog_text(pilot)
         assert "will be reset: diagnoser V1 in S9 {F9}" in text
@@ -94,7 +94,7 @@ async def test_a_reset_confirmed_after_the_cell_moved_is_asked_again_with_what_c
 async def test_a_reset_that_would_now_do_nothing_is_not_sent_as_if_it_would(tmp_path):
     app = make_app(inject=("F9@10s",))
     seen = []
-    app.controller.listeners.append(lambda cmd, result, snap: seen.append(result))
+    app.link.session.listeners.append(lambda cmd, result, snap: seen.append(result))
     async with app.run_test(size=SIZE) as pilot:
         await run_until(pilot, resync_to("N5"), 13, "V1 faulty, a reset re-synchronising it")
         await press(pilot, "r")
@@ -120,7 +120,7 @@ async def test_a_reset_whose_promise_held_is_carried_out_at_once():
         await press(pilot, "r")
         await dialog_text(pilot)
         await run_for(pilot, 0.5)  # the cell moves, the promise stands (still N5)
-        assert resync_to("N5")(app.controller.last)
+        assert resync_to("N5")(app.link.session.last)
         await press(pilot, "y")
         await wait_for_main(pilot)
         await run_for(pilot, 0.01)  # the next scan shows it
@@ -130,10 +130,10 @@ async def test_a_reset_whose_promise_held_is_carried_out_at_once():
 async def test_the_fault_reset_policy_checks_its_promise_too(tmp_path):
     app = make_app(inject=("F9@10s",))
     seen = []
-    app.controller.listeners.append(lambda cmd, result, snap: seen.append((cmd, result)))
+    app.link.session.listeners.append(lambda cmd, result, snap: seen.append((cmd, result)))
     async with app.run_test(size=SIZE) as pilot:
         await run_until(pilot, resync_to("N5"), 13, "V1 faulty, a reset re-synchronising it")
-        explanation = next(e for e in app.controller.last.explanations
+        explanation = next(e for e in app.link.session.last.explanations
                            if e.key == "diagnosis:V1")
         reset = next(p for p in explanation.policies if p.id == "reset")
         app.choose_policy("diagnosis:V1", reset)

@@ -30,7 +30,7 @@ def words(text: str) -> str:
 
 def commands_seen(app) -> list[str]:
     seen: list[str] = []
-    app.controller.listeners.append(lambda c, r, s: seen.append(type(c).__name__))
+    app.link.session.listeners.append(lambda c, r, s: seen.append(type(c).__name__))
     return seen
 
 

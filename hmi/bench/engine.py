@@ -43,7 +43,7 @@ def session_rate(project: Project, duration_us: int) -> tuple[int, float, float]
     summary collector, a quiet scan only counted as that command does (Session.run_for)."""
     from hmi.engine.scan import Engine
     from hmi.plant.sim.plant import SimPlant
-    from hmi.report import RunCollector
+    from hmi.session.run_report import RunCollector
     from hmi.session.session import Session
 
     session = Session(Engine(project, SimPlant(project)))

@@ -5,10 +5,11 @@ from __future__ import annotations
 
 import argparse
 
-from hmi.cli.common import load, progress_bar
+from hmi.cli.common import load
+from hmi.cli.farm import add_farm_args, farm_of, print_report
 from hmi.cli.options import diagnoser_arg, duration, project_arg
 from hmi.errors import UsageError
-from hmi.limits import MAX_JOBS, MAX_RUN_SCANS
+from hmi.limits import MAX_RUN_SCANS
 
 DEFAULT_SAMPLES = 1000
 MAX_SAMPLES = 1_000_000
@@ -25,16 +26,15 @@ def add_parser(sub) -> None:
                    help="seed of the points drawn (default 1)")
     p.add_argument("--for", dest="length", type=duration, default=None, metavar="TIME",
                    help="virtual time of each run (default: the campaign's length, else 60s)")
-    p.add_argument("--jobs", type=int, default=None, metavar="N",
-                   help="worker processes (default: 2 if the machine has 2 cores or more)")
     p.add_argument("--point", metavar="NAME=VALUE,...",
                    help="replay one run, e.g. 'travel=2.4s,bounce=20ms,seed=3' (what check "
                    "and the report print): every diagnoser state it went through")
+    add_farm_args(p)
 
 
 def cmd_band(args: argparse.Namespace) -> int:
-    from hmi.band_report import band_lines, fault_free_band, point_lines, run_length
-    from hmi.engine.band import fault_free_points, run_band
+    from hmi.studies.band import fault_free_points, run_band
+    from hmi.studies.band_report import band_lines, fault_free_band, point_lines, run_length
 
     project = load(args.project, getattr(args, "diagnoser", None))
     band = fault_free_band(project)
@@ -47,8 +47,6 @@ def cmd_band(args: argparse.Namespace) -> int:
         raise UsageError(f"--runs {args.runs}: expected 0 to {MAX_SAMPLES:,}")
     if args.seed < 0:
         raise UsageError(f"--seed {args.seed}: expected a whole number from 0")
-    if args.jobs is not None and not 1 <= args.jobs <= MAX_JOBS:
-        raise UsageError(f"--jobs {args.jobs}: expected 1 to {MAX_JOBS} worker processes")
     if args.point is not None:
         print("\n".join(point_lines(project, band, band.parse_point(args.point), length)))
         return 0
@@ -57,6 +55,7 @@ def cmd_band(args: argparse.Namespace) -> int:
     if scans > MAX_RUN_SCANS:
         raise UsageError(f"{len(points):,} runs of {length // 1_000_000} s are {scans:,} "
                          f"scans, more than the {MAX_RUN_SCANS:,} plchmi runs at once")
-    runs = run_band(project, band, points, length, args.jobs, progress_bar())
-    print("\n".join(band_lines(project, runs, args.runs, args.seed)))
+    with farm_of(args) as farm:
+        runs = run_band(project, band, points, length, farm)
+    print_report("\n".join(band_lines(project, runs, args.runs, args.seed)), farm)
     return 0

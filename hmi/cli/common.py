@@ -1,5 +1,5 @@
 """What every command shares: loading the project, printing its errors, a failure at run
-time and why a session ended, a progress bar for long explorations."""
+time and why a session ended."""
 
 from __future__ import annotations
 
@@ -42,20 +42,16 @@ def ended_by(exc: BaseException | None) -> str | None:
     return f"internal error: {type(exc).__name__}: {exc}"
 
 
-def progress_bar():
-    """A one-line progress bar on stderr, for explorations of the closed loop."""
-    import time
-    started = time.monotonic()
-    shown = [-1]
+_CONTROL = str.maketrans({
+    **{c: f"\\x{c:02x}" for c in [*range(0x20), *range(0x7f, 0xa0)] if c != 0x09},
+    # the line and paragraph separators (an entry must stay one line for whoever splits the
+    # output into lines) and the bidirectional controls (they reorder what a terminal shows)
+    **{c: f"\\u{c:04x}" for c in [0x061C, 0x200E, 0x200F, 0x2028, 0x2029,
+                                   *range(0x202A, 0x202F), *range(0x2066, 0x206A)]}})
 
-    def progress(done: int, total: int) -> None:
-        percent = 100 * done // max(1, total)
-        if percent == shown[0]:
-            return
-        shown[0] = percent
-        bar = "#" * (percent // 4)
-        end = "\n" if done >= total else ""
-        print(f"\r[{bar:<25}] {percent:3d}%  {done:,}/{total:,} runs  "
-              f"{time.monotonic() - started:5.1f} s", end=end, file=sys.stderr, flush=True)
 
-    return progress
+def printable(value) -> str:
+    """A text read from a file or a database, for the terminal: control characters (an ESC
+    sequence written into a damaged or forged journal) shown as \\xNN, line separators and
+    bidirectional controls as \\uNNNN, never sent to the terminal."""
+    return str(value).translate(_CONTROL)

@@ -22,6 +22,7 @@ PARTS: tuple[tuple[tuple[str, ...], str, str], ...] = (
     (("band",), "band", "add_parser"),
     (("export",), "export", "add_parser"),
     (("journal",), "journal", "add_parser"),
+    (("history",), "history", "add_parser"),
     (("sweep",), "studies", "add_sweep_parser"),
     (("soak",), "soak", "add_parser"),
     (("bench",), "bench", "add_parser"),
@@ -29,16 +30,16 @@ PARTS: tuple[tuple[tuple[str, ...], str, str], ...] = (
     (("opcua-passwd", "serve-plant"), "serve", "add_parsers"),
 )
 SUBCOMMANDS = ("check", "run", "sweep", "ui", "serve-plant", "bench", "journal",
-               "diagnose", "campaign", "band", "export", "opcua-passwd", "soak")
+               "diagnose", "campaign", "band", "export", "opcua-passwd", "soak", "history")
 
 # command -> (its module, its function)
 COMMANDS = {
     "check": ("check", "cmd_check"), "run": ("run", "cmd_run"),
     "sweep": ("studies", "cmd_sweep"), "ui": ("ui", "cmd_ui"),
     "serve-plant": ("serve", "cmd_serve_plant"), "bench": ("bench", "cmd_bench"),
-    "journal": ("journal", "cmd_journal"), "diagnose": ("studies", "cmd_diagnose"),
-    "campaign": ("studies", "cmd_campaign"), "band": ("band", "cmd_band"),
-    "export": ("export", "cmd_export"),
+    "journal": ("journal", "cmd_journal"), "history": ("history", "cmd_history"),
+    "diagnose": ("studies", "cmd_diagnose"), "band": ("band", "cmd_band"),
+    "campaign": ("studies", "cmd_campaign"), "export": ("export", "cmd_export"),
     "opcua-passwd": ("serve", "cmd_opcua_passwd"), "soak": ("soak", "cmd_soak"),
 }
 

@@ -7,10 +7,11 @@ from __future__ import annotations
 import argparse
 import sys
 
-from hmi.cli.common import load, progress_bar
+from hmi.cli.common import load
+from hmi.cli.farm import add_farm_args, farm_of, print_report
 from hmi.cli.options import diagnoser_arg, duration, project_arg
 from hmi.errors import UsageError
-from hmi.limits import MAX_JOBS, MAX_RUN_SCANS
+from hmi.limits import MAX_RUN_SCANS
 from hmi.timefmt import format_duration, parse_duration
 
 
@@ -23,14 +24,14 @@ def add_parsers(sub) -> None:
                    help="print the closed-loop diagnosability only if it is cached (no "
                    "exploration, which takes minutes the first time)")
     band_args(p)
+    add_farm_args(p)
 
     p = sub.add_parser("campaign", help="inject every fault under three configurations and "
                        "classify the runs (000 Table 1)")
     project_arg(p)
     diagnoser_arg(p)
     p.add_argument("--json", action="store_true", help="print the results as JSON")
-    p.add_argument("--jobs", type=int, default=None, metavar="N",
-                   help="worker processes (default: 2 if the machine has 2 cores or more)")
+    add_farm_args(p)
     p.add_argument("--sweep", action="store_true",
                    help="inject each fault at every instant of a full cycle instead of the "
                    "scenarios' single instants")
@@ -54,6 +55,17 @@ def band_args(p) -> None:
 
 BAND_SAMPLES = 4
 CAMPAIGN_CORNERS = 64  # the campaign over the band: at most this many corners (seeded)
+
+
+def _band_options(args: argparse.Namespace) -> tuple[bool, int, int]:
+    samples = BAND_SAMPLES if args.samples is None else args.samples
+    if not 0 <= samples <= 10_000:
+        raise UsageError(f"--samples {samples}: expected 0 to 10000")
+    if args.seed < 0:
+        raise UsageError(f"--seed {args.seed}: expected a whole number from 0")
+    if args.nominal and args.samples is not None:
+        raise UsageError("--samples is about the declared tolerances; --nominal leaves them out")
+    return not args.nominal, samples, args.seed
 
 
 DEFAULT_POINTS = "0.5s,1s,1.5s,2s,2.5s,3s"  # plchmi sweep's starts and lengths
@@ -87,95 +99,86 @@ def points(text: str) -> tuple[int, ...]:
     return values
 
 
-def _band_options(args: argparse.Namespace) -> tuple[bool, int, int]:
-    samples = BAND_SAMPLES if args.samples is None else args.samples
-    if not 0 <= samples <= 10_000:
-        raise UsageError(f"--samples {samples}: expected 0 to 10000")
-    if args.seed < 0:
-        raise UsageError(f"--seed {args.seed}: expected a whole number from 0")
-    if args.nominal and args.samples is not None:
-        raise UsageError("--samples is about the declared tolerances; --nominal leaves them out")
-    return not args.nominal, samples, args.seed
-
-
 def cmd_diagnose(args: argparse.Namespace) -> int:
-    from hmi.diag_report import diagnose_report
+    from hmi.studies.diag_report import diagnose_report
+    project = load(args.project, getattr(args, "diagnoser", None))
     band, samples, seed = _band_options(args)
-    print(diagnose_report(load(args.project, getattr(args, "diagnoser", None)),
-                          progress=progress_bar(), compute=not args.no_closed_loop,
-                          band=band, samples=samples, seed=seed))
+    with farm_of(args) as farm:
+        report = diagnose_report(project, farm=farm, compute=not args.no_closed_loop,
+                                 band=band, samples=samples, seed=seed)
+    print_report(report, farm)
     return 0
 
 
 def cmd_campaign(args: argparse.Namespace) -> int:
     import json
-    import os
 
-    from hmi.engine.campaign import report_lines, run_campaign
     from hmi.project.campaign import campaign_of
+    from hmi.studies.campaign import report_lines, run_campaign
     project = load(args.project, getattr(args, "diagnoser", None))
     spec = campaign_of(project)
     if spec is None:
         raise UsageError(f"project {project.name} has no 'campaign:' section")
-    from hmi.engine.campaign import CONFIGS
+    from hmi.studies.campaign import CONFIGS
     runs = len(spec.scenarios) * len(CONFIGS)
     scans = runs * (spec.length_us // project.scan_period_us + 1)
     if scans > MAX_RUN_SCANS:
         raise UsageError(f"the campaign is {runs} runs of {format_duration(spec.length_us)}: "
                          f"{scans:,} scans, more than the {MAX_RUN_SCANS:,} plchmi runs at once "
                          "(a shorter campaign length)")
-    jobs = args.jobs if args.jobs is not None else min(2, os.cpu_count() or 1)
-    if not 1 <= jobs <= MAX_JOBS:
-        raise UsageError(f"--jobs {jobs}: expected 1 to {MAX_JOBS} worker processes")
     if args.sweep:
-        return _campaign_sweep(args, project, spec, jobs)
+        return _campaign_sweep(args, project, spec)
     if args.every is not None or args.faults is not None:
         raise UsageError("--every and --faults need --sweep")
 
-    def progress(done: int, total: int, run) -> None:
-        print(f"[{done:>2}/{total}] {run.scenario.name:<10} {run.config.title:<22} "
-              f"{run.outcome}", file=sys.stderr, flush=True)
-
     band, samples, seed = _band_options(args)
-    points = []
+    points: list = []
     if band:
-        from hmi.engine.band import band_of
+        from hmi.studies.band import band_of
         declared = band_of(project)
         corners, which = declared.some_corners(CAMPAIGN_CORNERS, seed)
-        points = [*corners, *declared.sample(samples, seed)]
+        points = [*corners, *declared.sample(samples, seed)] if not declared.empty else []
         if scans * (1 + len(points)) > MAX_RUN_SCANS:
             raise UsageError(f"the campaign over the declared tolerances is {runs} runs at "
                              f"{len(points) + 1} plants: {scans * (1 + len(points)):,} scans, "
                              f"more than the {MAX_RUN_SCANS:,} plchmi runs at once "
                              "(--nominal, or fewer --samples)")
-    result = run_campaign(project, spec, progress, jobs=jobs)
+
+    def progress(done: int, total: int, run) -> None:
+        print(f"[{done:>2}/{total}] {run.scenario.name:<10} {run.config.title:<22} "
+              f"{run.outcome}", file=sys.stderr, flush=True)
+
+    variant = getattr(args, "diagnoser", None)
     over = None
-    if band:
-        from hmi.engine.campaign import run_campaign_band
-        if not declared.empty:
-            print(f"over the declared tolerances: {len(points)} plants", file=sys.stderr)
-            over = run_campaign_band(project, spec, declared, points, jobs=jobs,
-                                     progress=progress_bar(), which=which)
+    with farm_of(args) as farm:
+        farm.progress = None  # a line per run instead
+        result = run_campaign(project, spec, progress, farm=farm, variant=variant)
+        if points:
+            from hmi.cli.farm import progress_line
+            from hmi.studies.campaign import run_campaign_band
+            farm.progress = progress_line()
+            over = run_campaign_band(project, spec, declared, points, farm, variant, which)
     if args.json:
         data = result.as_dict()
         if over is not None:
             data["band"] = over.as_dict()
-        print(json.dumps(data, indent=2))
+        text = json.dumps(data, indent=2)
     else:
         lines = report_lines(result)
         if over is not None:
-            from hmi.engine.campaign import band_report_lines
+            from hmi.studies.campaign import band_report_lines
             lines += ["", *band_report_lines(result, over, samples, seed)]
-        print("\n".join(lines))
+        text = "\n".join(lines)
+    print_report(text, farm)
     return 0
 
 
-def _campaign_sweep(args: argparse.Namespace, project, spec, jobs: int) -> int:
+def _campaign_sweep(args: argparse.Namespace, project, spec) -> int:
     import json
 
-    from hmi.engine.loop_sweep import CAMPAIGN_CONFIGS, sweep
-    from hmi.engine.loopstate import Unsupported
-    from hmi.engine.sweep_report import as_dict, report_lines
+    from hmi.studies.loop_sweep import CAMPAIGN_CONFIGS, sweep
+    from hmi.studies.loopstate import Unsupported
+    from hmi.studies.sweep_report import as_dict, report_lines
 
     period = project.scan_period_us
     if args.every is not None and args.every % period and period % args.every:
@@ -183,38 +186,39 @@ def _campaign_sweep(args: argparse.Namespace, project, spec, jobs: int) -> int:
                          f"({format_duration(period)}) or divide it")
     band, samples, seed = _band_options(args)
     faults = _faults(args, project)
-    try:
-        result = sweep(project, CAMPAIGN_CONFIGS, spec.counter, args.every, jobs=jobs,
-                       progress=progress_bar(), cache=args.every is None, faults=faults,
-                       exact=args.every is None)
-        over = None
-        if band and args.every is None:
-            from hmi.engine.band_sweep import band_sweep, exploration_band, exploration_points
-            explored = exploration_band(project)
-            if not explored.empty:
-                points = exploration_points(explored, samples, seed)
-                print(f"over the declared tolerances: {len(points)} plants", file=sys.stderr)
-                over = band_sweep(project, explored, CAMPAIGN_CONFIGS, spec.counter, points,
-                                  faults, jobs=jobs, progress=progress_bar())
-    except Unsupported as exc:
-        raise UsageError(f"campaign --sweep: {exc}") from None
+    over = None
+    with farm_of(args) as farm:
+        try:
+            result = sweep(project, CAMPAIGN_CONFIGS, spec.counter, args.every, farm=farm,
+                           cache=args.every is None, faults=faults, exact=args.every is None)
+            if band and args.every is None:
+                from hmi.studies.band import exploration_band
+                from hmi.studies.band_sweep import band_sweep, exploration_points
+                explored = exploration_band(project)
+                if not explored.empty:
+                    over = band_sweep(project, explored, CAMPAIGN_CONFIGS, spec.counter,
+                                      exploration_points(explored, samples, seed), faults,
+                                      farm=farm)
+        except Unsupported as exc:
+            raise UsageError(f"campaign --sweep: {exc}") from None
     if args.json:
         data = as_dict(result, spec.scenarios)
         if over is not None:
-            from hmi.engine.sweep_report import band_as_dict
+            from hmi.studies.sweep_report import band_as_dict
             data["band"] = band_as_dict(over, spec.scenarios)
-        print(json.dumps(data, indent=2))
+        text = json.dumps(data, indent=2)
     else:
         lines = report_lines(result, spec.scenarios, spec.paper, project.name)
         if over is not None:
-            from hmi.engine.sweep_report import band_lines
+            from hmi.studies.sweep_report import band_lines
             lines += ["", *band_lines(over, spec.scenarios, spec.paper, samples, seed)]
-        print("\n".join(lines))
+        text = "\n".join(lines)
+    print_report(text, farm)
     return 0
 
 
 def _faults(args: argparse.Namespace, project) -> tuple[str, ...] | None:
-    from hmi.engine.explore import faults_of
+    from hmi.studies.explore import faults_of
     if args.faults is None:
         return None
     known = faults_of(project)
@@ -227,5 +231,5 @@ def _faults(args: argparse.Namespace, project) -> tuple[str, ...] | None:
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
-    from hmi.sweep import cmd_sweep
+    from hmi.studies.monitor_sweep import cmd_sweep
     return cmd_sweep(args, load(args.project, getattr(args, "diagnoser", None)))

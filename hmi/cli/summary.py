@@ -1,4 +1,4 @@
-"""What a headless run prints at its end besides the run summary (hmi/report.py): the
+"""What a headless run prints at its end besides the run summary (hmi/session/run_report.py): the
 alarms raised (and their explanations with --explain), and what a Modbus plant saw."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:  # the report's model, imported by the commands that run
-    from hmi.report import RunCollector
+    from hmi.session.run_report import RunCollector
 
 
 def alarm_summary(collector: RunCollector, explain: bool) -> str:

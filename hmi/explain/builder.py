@@ -10,52 +10,36 @@ constraint violated for a thousand scans costs one set of sentences.
 from __future__ import annotations
 
 import re
-from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any
 
 from hmi.engine import commands as cmd
 from hmi.engine.snapshot import Snapshot
+from hmi.explain.context import ExplanationContext, Onset
 from hmi.explain.diagnoses import diagnosis_explanations
 from hmi.explain.model import Explanation, Policy
 from hmi.explain.monitors import monitor_explanations
-from hmi.explain.plain import PlainNames, lower_first
+from hmi.explain.plain import lower_first
 from hmi.explain.recovery import recovery_explanations
 from hmi.explain.sequence import sequence_explanations
-from hmi.project.diagnosers import diagnosers_of
 from hmi.project.model import Project
 from hmi.project.recovery import recoveries_of
-from hmi.project.texts import ProjectTexts, TextSpec, fill
+from hmi.project.texts import ProjectTexts
 from hmi.timefmt import seconds
 
-
-@dataclass
-class _Onset:
-    scan: int
-    time_us: int
+RULES_NAMED = 3  # rules quoted by name in one sentence; the others are counted
 
 
-class ExplanationBuilder:
+class ExplanationBuilder(ExplanationContext):
     """Owns the onsets and the cache; `build(snapshot)` runs once per scan, on the scan's
     snapshot: explanations read what the scan left behind, never the live engine."""
 
     def __init__(self, project: Project, texts: ProjectTexts | None = None):
-        self.project = project
-        self.texts = texts or project.explanations or ProjectTexts()
-        self.onsets: dict[str, _Onset] = {}
-        self.cache: dict[str, tuple[tuple, Explanation]] = {}
-        self.devices = {v.name: (v.device or project.name)
-                        for v in (*project.inputs, *project.outputs)}
-        self.describe = project.describe
+        super().__init__(project, texts)
         # The project's constraints and the recovery procedures' own (a recovery's filter
         # reports them too).
         self.constraints = {c.name: c for c in (*project.constraints, *(
             c for r in recoveries_of(project) for c in r.constraints))}
         self._last_constraints: tuple[tuple, tuple[Explanation, ...]] | None = None
-        # Devices the operator can stop (those with outputs), and the diagnosers' models.
-        self.stoppable = {v.device for v in project.outputs if v.device}
-        self.diagnosers = {spec.name: spec for spec in diagnosers_of(project)}
-        self.plain = PlainNames(project)
         # The last scan's: its report, the fields read from it, the other fields read, and
         # what they explained (see build).
         self._last: tuple[Any, Any, tuple[Any, ...], tuple[Explanation, ...]] | None = None
@@ -110,102 +94,6 @@ class ExplanationBuilder:
                 del self.onsets[key]
                 self.cache.pop(key, None)
         return tuple(found)
-
-    def onset(self, key: str, snap: Snapshot) -> _Onset:
-        onset = self.onsets.get(key)
-        if onset is None:
-            onset = self.onsets[key] = _Onset(snap.scan, snap.time_us)
-        return onset
-
-    def cached(self, key: str, signature: tuple, make: Callable[[], Explanation]) -> Explanation:
-        hit = self.cache.get(key)
-        if hit is not None and hit[0] == signature:
-            return hit[1]
-        explanation = make()
-        self.cache[key] = (signature, explanation)
-        return explanation
-
-    def apply_texts(self, spec: TextSpec, defaults: dict, values: dict) -> dict:
-        """The four levels, each from the project's text when it has one, else the default."""
-        out = dict(defaults)
-        for level in ("what", "why", "consequences", "detail"):
-            text = getattr(spec, level)
-            if text:
-                out[level] = fill(text, values)
-        if spec.severity:
-            out["severity"] = spec.severity
-        if spec.alarm is not None:
-            out["alarm"] = spec.alarm
-        if spec.policies or spec.recommend:
-            policies = []
-            for policy in out["policies"]:
-                effect = spec.policies.get(policy.id)
-                recommended = (policy.id == spec.recommend) if spec.recommend else \
-                    policy.recommended
-                policies.append(Policy(policy.id, policy.label,
-                                       fill(effect, values) if effect else policy.effect,
-                                       policy.command, recommended))
-            out["policies"] = tuple(policies)
-        return out
-
-    def device_of(self, names) -> str:
-        for name in names:
-            if name in self.devices:
-                return self.devices[name]
-        return self.project.name
-
-    def devices_of(self, names) -> set[str]:
-        """The devices these variables belong to."""
-        return {self.devices[n] for n in names if n in self.devices}
-
-    def short(self, name: str) -> str:
-        """A variable's description without its device's name ("open order", not "Valve V1
-        open order"), for sentences that already name the device."""
-        desc = self.describe(name)
-        device = self.devices.get(name)
-        if device and desc.lower().startswith(device.lower()):
-            desc = desc[len(device):].strip(" :-—")
-        return desc or name
-
-    def literal_values(self, literals) -> str:
-        """`C=1 (close order); prev(C)=0; fso=0 (open end switch)` from a violation."""
-        parts = []
-        seen: set[str] = set()
-        for literal, value in literals:
-            core = literal[4:] if literal.startswith("not ") else literal
-            name = core[5:].split(",")[0].rstrip(")") if core.startswith("prev(") else core
-            text = f"{core}={int(value) if isinstance(value, bool) else value}"
-            if name not in seen and self.describe(name) != name:
-                text += f" ({self.short(name)})"
-                seen.add(name)
-            parts.append(text)
-        return "; ".join(parts)
-
-    def var_text(self, name: str, value) -> str:
-        desc = self.describe(name)
-        shown = int(value) if isinstance(value, bool) else value
-        return f"{name}={shown}" + (f" ({desc})" if desc != name else "")
-
-    # -- policies shared by several kinds ---------------------------------------------------
-    @staticmethod
-    def policy_continue(effect: str, recommended: bool = False) -> Policy:
-        return Policy("continue", "Continue", effect, None, recommended)
-
-    @staticmethod
-    def policy_manual(recommended: bool = False) -> Policy:
-        return Policy("manual", "Switch to manual",
-                      "the control program stops driving the outputs; your requests still go "
-                      "through the safety filter", cmd.SetMode(True), recommended)
-
-    @staticmethod
-    def policy_stop(device: str, recommended: bool = False) -> Policy:
-        return Policy("stop_device", f"Stop {device}",
-                      f"hold every output of {device} at its safe value until you release it",
-                      cmd.StopDevice(device), recommended)
-
-    @staticmethod
-    def policy_reset(effect: str, recommended: bool = False) -> Policy:
-        return Policy("reset", "Fault reset", effect, cmd.FaultReset(), recommended)
 
     # -- constraints ------------------------------------------------------------------------
     def _constraints(self, snap: Snapshot, report) -> list[Explanation]:
@@ -286,6 +174,20 @@ class ExplanationBuilder:
                        "the filter corrects unsafe orders from the next scan on",
                        cmd.SetPolicy("correct"), True),
                 self.policy_stop(device), self.policy_manual())
+        elif report.safe_state and report.policy != "block" and not snap.latched:
+            # The corrector wrote the safe state for this scan only (no safe set of orders,
+            # or its search budget ran out): nothing is latched, there is nothing to reset.
+            cause = ("the search for safe orders ran out of its budget" if report.stopped
+                     else "no set of orders kept every rule")
+            consequences = (f"Sent as asked, these orders would break the rule {quoted}. "
+                            f"At this scan {cause}, so every output was written at its safe "
+                            "value instead; each scan corrects again, so this lasts only "
+                            "while the situation does.")
+            severity = "medium"
+            policies = (
+                self.policy_continue("let the filter keep correcting (the safe state is "
+                                     "written only while no correction is found)", True),
+                self.policy_manual(), self.policy_stop(device))
         elif report.policy == "block" or report.safe_state:
             consequences = (f"Sent as asked, these orders would break the rule {quoted}. "
                             "Safe blocking holds every output at its safe value until a fault "
@@ -346,7 +248,7 @@ class ExplanationBuilder:
         one), so that two different internal errors, or a plant lost then refusing, are two
         explanations and two alarms, neither hiding the other."""
         key = f"safe_state:{reason.source}" + (f":{nth}" if nth > 1 else "")
-        onset = _Onset(reason.scan, reason.time_us)
+        onset = Onset(reason.scan, reason.time_us)
         self.onsets.setdefault(key, onset)
 
         def make() -> Explanation:
@@ -426,10 +328,25 @@ class ExplanationBuilder:
         return self.cached(key, (reason.detail,), make)
 
     def _rules(self, names) -> str:
-        """Constraint names as their rules, in words."""
-        return "; ".join(f"\u201c{lower_first(self.constraints[n].description)}\u201d"
-                         if n in self.constraints and self.constraints[n].description
-                         else "a safety rule" for n in names)
+        """Constraint names as their rules, in words: the first RULES_NAMED described ones
+        quoted, the others counted (hundreds of constraints broken at once are a number,
+        not "a safety rule" said hundreds of times)."""
+        quoted: list[str] = []
+        others = 0
+        for name in dict.fromkeys(names):
+            constraint = self.constraints.get(name)
+            text = (f"\u201c{lower_first(constraint.description)}\u201d"
+                    if constraint is not None and constraint.description else None)
+            if text is not None and len(quoted) < RULES_NAMED:
+                if text not in quoted:
+                    quoted.append(text)
+            else:
+                others += 1
+        if not others:
+            return "; ".join(quoted)
+        rest = (f"{others} other safety rule{'s' if others > 1 else ''}" if quoted else
+                "a safety rule" if others == 1 else f"{others} safety rules")
+        return "; ".join(quoted) + (" and " if quoted else "") + rest
 
     def _fallback(self, snap: Snapshot, report) -> Explanation:
         if report.stopped:
@@ -465,13 +382,16 @@ class ExplanationBuilder:
 
         def make() -> Explanation:
             violated = ", ".join(report.violated_names)
-            what = f"{self.project.name}: correction not found in time — safe state written"
-            why = (f"At {seconds(snap.time_us)} s the search for safe orders ran out of time; "
+            what = (f"{self.project.name}: correction not found within the search budget — "
+                    "safe state written")
+            why = (f"At {seconds(snap.time_us)} s the search for safe orders used up its "
+                   "budget of work for one scan; "
                    f"the program's orders broke {self._rules(report.violated_names)}. Since "
                    f"{seconds(onset.time_us)} s.")
             consequences = ("Every output is at its safe value for this scan; nothing unsafe is "
                             "sent. Each scan searches again, so the cell stays stopped only "
-                            "while the situation lasts. The search is stopped in time so that "
+                            "while the situation lasts. The search stops at a fixed amount of "
+                            "work, counted the same on every machine, set so that "
                             "it never holds up the machine.")
             detail = (f"At scan {snap.scan}: {report.fallback}. Violated by the program: "
                       f"{violated}. Budget {report.budget} steps. Since scan {onset.scan}.")

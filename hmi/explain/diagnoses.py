@@ -27,10 +27,10 @@ from hmi.timefmt import seconds
 
 if TYPE_CHECKING:
     from hmi.engine.snapshot import Snapshot
-    from hmi.explain.builder import ExplanationBuilder
+    from hmi.explain.context import ExplanationContext
 
 
-def diagnosis_explanations(builder: ExplanationBuilder, snap: Snapshot) -> list[Explanation]:
+def diagnosis_explanations(builder: ExplanationContext, snap: Snapshot) -> list[Explanation]:
     """Explanations of faulty diagnosers and of what their flags do (degraded sensors,
     masked orders), from the scan's snapshot."""
     out: list[Explanation] = []

@@ -17,6 +17,7 @@ The default place is the user's data folder: $PLCHMI_DATA, else $XDG_DATA_HOME/p
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import re
@@ -29,15 +30,9 @@ from typing import Any
 
 from hmi.errors import OutputError
 from hmi.limits import MAX_JOURNAL_LINE_BYTES, describe_bytes
+from hmi.paths import data_folder
 from hmi.textfile import FileProblem, open_regular
 from hmi.timefmt import seconds
-
-
-def data_folder() -> Path:
-    if os.environ.get("PLCHMI_DATA"):
-        return Path(os.environ["PLCHMI_DATA"])
-    base = os.environ.get("XDG_DATA_HOME") or str(Path.home() / ".local" / "share")
-    return Path(base) / "plchmi"
 
 
 def default_path(project_name: str) -> Path:
@@ -68,6 +63,18 @@ def wall_now() -> str:
     return datetime.now(UTC).isoformat(timespec="milliseconds")
 
 
+_SESSIONS = itertools.count(1)
+
+
+def new_session_id() -> str:
+    """An id for one session's entries (its start, UTC, and the process; `.2`, `.3` for a
+    process's further sessions): what tells apart the entries of two sessions, also of two
+    processes writing one journal at once."""
+    n = next(_SESSIONS)
+    return f"{datetime.now(UTC).strftime('%Y%m%dT%H%M%SZ')}-{os.getpid()}" + (
+        f".{n}" if n > 1 else "")
+
+
 class Journal:
     """Append-only writer; each `append` is on disk when it returns.
 
@@ -78,6 +85,7 @@ class Journal:
     def __init__(self, path: Path):
         self.path = path
         self._fd = -1
+        self.session: str | None = None  # written into every entry once set (new_session_id)
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             # Not a FIFO or a device: only a regular file (or a new one) is a journal.
@@ -133,6 +141,8 @@ class Journal:
     def append(self, entry: dict[str, Any]) -> None:
         self.seq += 1
         record = {"wall": wall_now(), **entry}
+        if self.session is not None:
+            record["session"] = self.session
         line = json.dumps(record, ensure_ascii=False, separators=(",", ":")) + "\n"
         self._write(line.encode("utf-8"))
 
@@ -144,10 +154,12 @@ class Journal:
 
 @dataclass(frozen=True)
 class Damaged:
-    """A line that could not be read: its number (from 1) and what was wrong with it."""
+    """A line that could not be read: its number (from 1) and what was wrong with it;
+    `cut`: it was the last line and had no newline (a writer killed while writing it)."""
 
     line: int
     reason: str
+    cut: bool = False
 
 
 @dataclass(frozen=True)
@@ -170,21 +182,36 @@ class JournalPathError(Exception):
 
 
 def read(path: Path) -> JournalRead:
-    """Every readable entry; damaged lines are listed in `damaged`, never fatal.
+    """Every readable entry, kept in memory; damaged lines are listed in `damaged`, never
+    fatal. For a journal of any size, :func:`stream` holds one line at a time."""
+    entries: list[dict[str, Any]] = []
+    damaged: list[Damaged] = []
+    for item in stream(path):
+        if isinstance(item, Damaged):
+            damaged.append(item)
+        else:
+            entries.append(item)
+    return JournalRead(entries, any(d.cut for d in damaged), tuple(damaged))
 
-    The file is read line by line (a regular file only: hmi.textfile.open_regular), each
-    line at most MAX_JOURNAL_LINE_BYTES, so neither a device nor a huge line of garbage can
-    make the reader hang or eat the memory."""
+
+def stream(path: Path) -> Iterator[dict[str, Any] | Damaged]:
+    """Each readable entry, or the Damaged line in its place, in file order.
+
+    The file is opened here (JournalError: there is none; JournalPathError: not a regular
+    file, hmi.textfile.open_regular) and read one line at a time as the result is iterated,
+    each line at most MAX_JOURNAL_LINE_BYTES, so neither a device, a huge line of garbage
+    nor millions of lines can make the reader hang or hold more than a line."""
     try:
         fd = open_regular(path)
     except FileProblem as exc:
         if exc.message == "file not found":
             raise JournalError(f"{path}: no journal yet") from None
         raise JournalPathError(f"{path}: {exc.message}") from None
-    entries: list[dict[str, Any]] = []
-    damaged: list[Damaged] = []
-    truncated = False
-    with os.fdopen(fd, "rb") as file:
+    return _stream(os.fdopen(fd, "rb"))
+
+
+def _stream(file) -> Iterator[dict[str, Any] | Damaged]:
+    with file:
         for number, line, complete in _lines(file):
             if not line.strip():
                 continue
@@ -194,12 +221,9 @@ def read(path: Path) -> JournalRead:
             else:
                 entry, reason = _parse(line)
             if entry is not None:
-                entries.append(entry)  # a last line missing only its newline is still whole
-                continue
-            if not complete:
-                truncated = True
-            damaged.append(Damaged(number, reason))
-    return JournalRead(entries, truncated, tuple(damaged))
+                yield entry  # a last line missing only its newline is still whole
+            else:
+                yield Damaged(number, reason, not complete)
 
 
 def _lines(file) -> Iterator[tuple[int, bytes, bool]]:
@@ -225,7 +249,8 @@ def _lines(file) -> Iterator[tuple[int, bytes, bool]]:
 _FIELD_TYPES: dict[str, tuple[type, ...]] = {
     "wall": (str,), "type": (str,), "event": (str,), "scan": (int,), "t": (str, int, float),
     "message": (str,), "text": (str,), "key": (str,), "severity": (str,), "state": (str,),
-    "project": (str,)}
+    "project": (str,), "session": (str,), "control": (str,), "policy": (str,),
+    "plant": (str,)}
 _JSON_TYPE = {dict: "an object", list: "a list", str: "a string", bool: "a Boolean",
               int: "a number", float: "a number", type(None): "null"}
 

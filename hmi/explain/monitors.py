@@ -19,7 +19,7 @@ from hmi.timefmt import format_duration, seconds
 if TYPE_CHECKING:
     from hmi.engine.monitors import MonitorState
     from hmi.engine.snapshot import Snapshot
-    from hmi.explain.builder import ExplanationBuilder
+    from hmi.explain.context import ExplanationContext
 
 WHAT = {
     "cannot_finish": "cannot end within its acceptable time",
@@ -37,7 +37,7 @@ AFTER = {
 }
 
 
-def monitor_explanations(builder: ExplanationBuilder, snap: Snapshot) -> list[Explanation]:
+def monitor_explanations(builder: ExplanationContext, snap: Snapshot) -> list[Explanation]:
     """An explanation for each faulty monitor of this scan."""
     out = []
     for m in snap.monitors:
@@ -72,7 +72,7 @@ def plain_reason(d, m: MonitorState) -> str:
             f"{f(m.alpha_us)}.")
 
 
-def _explain(builder: ExplanationBuilder, snap: Snapshot, m: MonitorState) -> Explanation:
+def _explain(builder: ExplanationContext, snap: Snapshot, m: MonitorState) -> Explanation:
     d = m.detection
     window = Window(m.alpha_us, m.beta_us, m.gamma_us)
     device = m.device or builder.project.name

@@ -21,7 +21,7 @@ from hmi.timefmt import seconds
 
 if TYPE_CHECKING:
     from hmi.engine.snapshot import Snapshot
-    from hmi.explain.builder import ExplanationBuilder
+    from hmi.explain.context import ExplanationContext
 
 
 def start_policy(name: str, description: str, recommended: bool = True) -> Policy:
@@ -38,7 +38,7 @@ def leave_policy(recommended: bool) -> Policy:
                   cmd.EndRecovery(), recommended)
 
 
-def recovery_explanations(builder: ExplanationBuilder, snap: Snapshot) -> list[Explanation]:
+def recovery_explanations(builder: ExplanationContext, snap: Snapshot) -> list[Explanation]:
     state = snap.recovery
     out: list[Explanation] = []
     for name, device, description, text in state.needed:
@@ -81,7 +81,7 @@ def recovery_explanations(builder: ExplanationBuilder, snap: Snapshot) -> list[E
     return out
 
 
-def _running(builder: ExplanationBuilder, snap: Snapshot, key: str, onset) -> Explanation:
+def _running(builder: ExplanationContext, snap: Snapshot, key: str, onset) -> Explanation:
     state = snap.recovery
     device = state.device or builder.project.name
     if state.status == "running":
@@ -112,7 +112,7 @@ def _running(builder: ExplanationBuilder, snap: Snapshot, key: str, onset) -> Ex
                        (what, why, consequences, policies), "low", False, onset)
 
 
-def _failed(builder: ExplanationBuilder, snap: Snapshot, key: str, onset) -> Explanation:
+def _failed(builder: ExplanationContext, snap: Snapshot, key: str, onset) -> Explanation:
     state = snap.recovery
     device = state.device or builder.project.name
     name = state.active or ""
@@ -132,7 +132,7 @@ def _failed(builder: ExplanationBuilder, snap: Snapshot, key: str, onset) -> Exp
                        (what, why, consequences, policies), "high", True, onset)
 
 
-def _detail(builder: ExplanationBuilder, name: str) -> str:
+def _detail(builder: ExplanationContext, name: str) -> str:
     """The procedure as the engineer wrote it."""
     spec = next((p for p in recoveries_of(builder.project) if p.name == name), None)
     if spec is None:
@@ -146,7 +146,7 @@ def _detail(builder: ExplanationBuilder, name: str) -> str:
                f"{seconds(spec.needed.for_us)} s" if spec.needed else "") + ".")
 
 
-def _with_texts(builder: ExplanationBuilder, snap: Snapshot, key: str, text_name: str,
+def _with_texts(builder: ExplanationContext, snap: Snapshot, key: str, text_name: str,
                 device: str, levels: tuple, severity: str, alarm: bool, onset
                 ) -> Explanation:
     what, why, consequences, policies = levels

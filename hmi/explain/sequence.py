@@ -35,11 +35,11 @@ from hmi.timefmt import format_duration, seconds
 
 if TYPE_CHECKING:
     from hmi.engine.snapshot import Snapshot
-    from hmi.explain.builder import ExplanationBuilder
+    from hmi.explain.context import ExplanationContext
     from hmi.project.model import Grafcet, Step
 
 
-def sequence_explanations(builder: ExplanationBuilder, snap: Snapshot) -> list[Explanation]:
+def sequence_explanations(builder: ExplanationContext, snap: Snapshot) -> list[Explanation]:
     """An explanation for each overdue step of this scan."""
     grafcet = snap.layout.grafcet
     if not snap.overdue_steps or grafcet is None:
@@ -77,7 +77,7 @@ def _quoted(text: str) -> str:
     return f"\u201c{text}\u201d"
 
 
-def _variable_words(builder: ExplanationBuilder, grafcet: Grafcet, name: str, value: Any,
+def _variable_words(builder: ExplanationContext, grafcet: Grafcet, name: str, value: Any,
                     step: str) -> str:
     """'pallet at the end of conveyor C1 (B) 0'; a step time 'the time in this step
     0.12 s'; a step 'the step “Robot free at home” active'."""
@@ -95,11 +95,11 @@ def _variable_words(builder: ExplanationBuilder, grafcet: Grafcet, name: str, va
     return f"{words} {shown}"
 
 
-def _reads_only_io(builder: ExplanationBuilder, wait: Wait) -> bool:
+def _reads_only_io(builder: ExplanationContext, wait: Wait) -> bool:
     return all(name in builder.devices for name, _ in wait.values)
 
 
-def wait_words(builder: ExplanationBuilder, grafcet: Grafcet, wait: Wait) -> str:
+def wait_words(builder: ExplanationContext, grafcet: Grafcet, wait: Wait) -> str:
     """One way on from the step, in words: the transition's description (or its condition
     when it reads only inputs and outputs), the values, the steps of a join still to come."""
     if wait.description:
@@ -117,7 +117,7 @@ def wait_words(builder: ExplanationBuilder, grafcet: Grafcet, wait: Wait) -> str
     return text
 
 
-def _explain(builder: ExplanationBuilder, snap: Snapshot, grafcet: Grafcet, name: str,
+def _explain(builder: ExplanationContext, snap: Snapshot, grafcet: Grafcet, name: str,
              waits: tuple[Wait, ...]) -> Explanation:
     project = builder.project.name
     step = _step(grafcet, name)

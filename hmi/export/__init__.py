@@ -12,6 +12,7 @@ from pathlib import Path
 
 from hmi.export.build import build
 from hmi.export.model import PlcProject
+from hmi.outpaths import check_outputs
 from hmi.project.model import Project
 
 FORMATS = ("st", "plcopen")
@@ -38,7 +39,10 @@ def export(project: Project, fmt: str, out_dir: Path) -> Written:
     """Build the model and write it to `out_dir` (created if needed)."""
     model = build(project)
     filename, text = render(model, fmt)
-    out_dir.mkdir(parents=True, exist_ok=True)
     path = out_dir / filename
+    # never over a file the project was read from (-o the project's folder, a name alike)
+    check_outputs([(f"-o {out_dir}:", "the export", path)],
+                  [("a file of the project", Path(name)) for name in project.files])
+    out_dir.mkdir(parents=True, exist_ok=True)
     path.write_text(text, encoding="utf-8")
     return Written(path, model)

@@ -10,10 +10,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from hmi.errors import ProjectError, SourcePos, display_path
-from hmi.limits import MIN_SCAN_PERIOD_US
+from hmi.errors import ProjectError, SourcePos, display_path, excerpt
+from hmi.limits import MAX_NAME_CHARS, MIN_SCAN_PERIOD_US
 from hmi.project.campaign import parse_campaign
-from hmi.project.components import ComponentInstance, load_components, merge_texts
+from hmi.project.components import load_components, merge_texts
 from hmi.project.confine import Refused, confined_file, project_roots
 from hmi.project.constraints import parse_constraints
 from hmi.project.control import parse_controls
@@ -22,6 +22,7 @@ from hmi.project.model import (
     MAX_SOLVER_BUDGET,
     MIN_SOLVER_BUDGET,
     POLICIES,
+    ComponentInstance,
     PolicyName,
     Project,
     SolverName,
@@ -71,11 +72,23 @@ def _project_file(p: Path, shown: str) -> Path:
                 SourcePos(display_path(p)),
                 f"this folder has no {PROJECT_FILE}",
                 f"a project folder holding {PROJECT_FILE}")
-        return candidate
+        return _confined(candidate)
     if p.exists():
-        return p
+        return _confined(p)
     raise ProjectError.single(SourcePos(shown), "no such project folder or file",
                               f"a folder holding {PROJECT_FILE}")
+
+
+def _confined(file: Path) -> Path:
+    """`file`, if it lies in its own folder once symlinks are followed: the project file is
+    confined like every file it names (a project.yaml that is a symlink to /etc/passwd, or to
+    a secret elsewhere, is refused without being opened, so nothing of it is ever quoted)."""
+    try:
+        confined_file(file.parent, file.name, project_roots(file.parent), "the project file")
+    except Refused as exc:
+        raise ProjectError.single(SourcePos(display_path(file)), exc.message,
+                                  exc.expected) from None
+    return file
 
 
 def load_project(path: str | Path, diagnoser_variant: str | None = None) -> Project:
@@ -116,7 +129,7 @@ class ProjectLoader(ProjectReader):
         for key, node in top.items():
             kpos = root.key_pos[key]
             if key not in TOP_KEYS:
-                self.diag.error(kpos, f"unknown section {key!r}",
+                self.diag.error(kpos, f"unknown section {excerpt(key)}",
                                 "one of " + ", ".join(sorted(TOP_KEYS)))
                 continue
             if key == "include":
@@ -167,6 +180,10 @@ class ProjectLoader(ProjectReader):
         name = self.guard(lambda: s["name"].as_str("name"), "") if "name" in s else ""
         if "name" not in s:
             self.diag.error(pos, "the project has no name", "a 'name:' entry")
+        elif len(name) > MAX_NAME_CHARS:
+            self.diag.error(s["name"].pos, f"the project's name is {len(name):,} characters "
+                            f"long, more than {MAX_NAME_CHARS}",
+                            f"a name of at most {MAX_NAME_CHARS} characters")
         description = self.guard(lambda: s["description"].as_str("description"), "") \
             if "description" in s else ""
         period = 10_000

@@ -38,11 +38,12 @@ def parse_plant(reader: ProjectReader, pos: SourcePos, inputs: list[Variable],
     devices: list[DeviceSpec] = []
     # (owner, parameter, device named, where, models allowed) of each "device" parameter
     links: list[tuple[str, str, str, SourcePos, tuple[str, ...]]] = []
+    wired: dict[str, tuple[str, SourcePos]] = {}  # input -> (the sensor driving it, where)
     if "model" in fields and "devices" in fields:
         reader.diag.error(fields["devices"].pos, "the plant has both 'model' and 'devices'",
                           "'model' for one device, or 'devices' for several")
     elif "model" in fields:
-        device = _device(reader, None, node, fields, inputs, outputs, links)
+        device = _device(reader, None, node, fields, inputs, outputs, links, wired)
         if device:
             devices.append(device)
     elif "devices" in fields:
@@ -56,7 +57,7 @@ def parse_plant(reader: ProjectReader, pos: SourcePos, inputs: list[Variable],
             if dfields is None:
                 continue
             device = _device(reader, str(dname), dnode, dfields, inputs, outputs,
-                             links)
+                             links, wired)
             if device:
                 devices.append(device)
     elif kind == "sim":
@@ -106,7 +107,8 @@ def parse_plant(reader: ProjectReader, pos: SourcePos, inputs: list[Variable],
 
 def _device(reader: ProjectReader, name: str | None, node: YNode, fields: dict[str, YNode],
             inputs: list[Variable], outputs: list[Variable],
-            links: list[tuple[str, str, str, SourcePos, tuple[str, ...]]]) -> DeviceSpec | None:
+            links: list[tuple[str, str, str, SourcePos, tuple[str, ...]]],
+            wired: dict[str, tuple[str, SourcePos]]) -> DeviceSpec | None:
     model_name = reader.guard(lambda: fields["model"].as_str("model"))
     if model_name is None:
         return None
@@ -146,13 +148,24 @@ def _device(reader: ProjectReader, name: str | None, node: YNode, fields: dict[s
     for port, var in ports.items():
         want_input = port in model.sensors
         ok = var in input_names if want_input else var in output_names
+        pos = fields["ports"].value[port].pos if "ports" in fields and \
+            isinstance(fields["ports"].value, dict) and port in fields["ports"].value \
+            else fields["model"].pos
         if not ok:
-            pos = fields["ports"].value[port].pos if "ports" in fields and \
-                port in fields["ports"].value else fields["model"].pos
             reader.diag.error(pos, f"{model_name} port {port!r} is bound to {var!r}, which is "
                               f"not an {'input' if want_input else 'output'} of the project",
                               f"an {'input' if want_input else 'output'} name (map it under "
                               "'ports:')")
+        elif want_input and var in wired:
+            # Two sensors on one input: which one the program reads would be an accident of
+            # the plant's step order. (An output may order several devices: a conveyor's
+            # release is the robot's transfer order.)
+            other, other_pos = wired[var]
+            reader.diag.error(pos, f"{model_name} sensor {port!r} is bound to input {var!r}, "
+                              f"which {other} (at {other_pos}) already drives",
+                              "one sensor per input: an input wired to one device's sensor")
+        elif want_input:
+            wired[var] = (f"{'device ' + repr(name) + ' ' if name else ''}sensor {port!r}", pos)
     for port in model.actuators:
         if port not in ports:
             reader.diag.warning(fields["model"].pos, f"{model_name} actuator {port!r} is not "

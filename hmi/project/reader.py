@@ -11,14 +11,15 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable
 from collections.abc import Set as AbstractSet
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from hmi.errors import Diagnostics, SourcePos
-from hmi.limits import MAX_VARIABLES
+from hmi.limits import MAX_TOTAL_EXPR_CHARS, MAX_VARIABLES
 from hmi.logic.expr import Expr, ExprError, Var, check_names, parse_expr, walk
 from hmi.logic.names import NAME_HINT, RESERVED, STEP_RE, name_problem
-from hmi.project.components import Components
+from hmi.project.model import ComponentInstance
 from hmi.project.yamlnodes import NodeError, YNode, expr_start
 
 
@@ -39,6 +40,8 @@ class ProjectReader:
         self.declared_partitions: set[str] = set()
         self.diagnoser_variant: str | None = None  # --diagnoser NAME
         self.too_many_names = False
+        self.expr_chars = 0  # characters of every expression read, for MAX_TOTAL_EXPR_CHARS
+        self.too_much_expression = False
         self._with_steps: dict[tuple[tuple[str, ...], int],  # expr()
                                tuple[dict[str, str], frozenset[str]]] = {}
 
@@ -91,8 +94,10 @@ class ProjectReader:
     def expr(self, node: YNode, what: str, kinds: set[str], steps: Iterable[str] = (),
              prev_only: AbstractSet[str] = frozenset(), context: str = "") -> Expr | None:
         """Parse and name-check one expression; report problems and return None on error."""
-        def parse() -> Expr:
+        def parse() -> Expr | None:
             text = node.as_text(what)
+            if not self._within_expression_total(node, text):
+                return None
             return parse_expr(text, expr_start(node, text))
         parsed = self.guard(parse)
         if parsed is None:
@@ -121,6 +126,23 @@ class ProjectReader:
             self.diag.error(problem.pos, problem.message, problem.expected)
         return None if problems else parsed
 
+    def _within_expression_total(self, node: YNode, text: str) -> bool:
+        """Count `text` into the project's expressions in all (each use of a YAML alias,
+        each component instance counted as the copy it is); past MAX_TOTAL_EXPR_CHARS, one
+        error at the expression that passes it and nothing more is parsed. What a project
+        costs to compile, check and run grows with that total, not with its file's size."""
+        self.expr_chars += len(text)
+        if self.expr_chars <= MAX_TOTAL_EXPR_CHARS:
+            return True
+        if not self.too_much_expression:
+            self.too_much_expression = True
+            self.diag.error(node.pos, f"the project's expressions pass "
+                            f"{MAX_TOTAL_EXPR_CHARS:,} characters in all here (each use of a "
+                            "YAML alias and each component instance counted as a copy)",
+                            f"at most {MAX_TOTAL_EXPR_CHARS:,} characters of expressions in a "
+                            "project (a limit of plchmi)")
+        return False
+
     def section_items(self, key: str) -> list[tuple[str, YNode, SourcePos]]:
         """(name, node, key position) of a section's items: the component instances' first
         (in instance order; the project's own timers and observers may read theirs), then
@@ -142,3 +164,40 @@ class ProjectReader:
             raise NodeError(node.pos, f"{what} {value!r} is not known", "one of "
                             + ", ".join(choices))
         return value
+
+
+@dataclass
+class Components:
+    """The component instances read so far and the sections they add, ready for the loader:
+    hmi/project/components.py fills it, `ProjectReader.expr` renames an instance's
+    expressions with it."""
+
+    instances: list[ComponentInstance] = field(default_factory=list)
+    items: dict[str, list[tuple[str, YNode, SourcePos]]] = field(default_factory=dict)
+    explanations: list[tuple[ComponentInstance, YNode]] = field(default_factory=list)
+    files: list[str] = field(default_factory=list)
+    # id(YNode) -> (the node, its instance): the node is kept so that its id is never reused
+    scopes: dict[int, tuple[YNode, ComponentInstance]] = field(default_factory=dict)
+
+    def localise(self, node: YNode, expr: Expr) -> Expr:
+        """An expression read from `node`, renamed if the node belongs to an instance."""
+        entry = self.scopes.get(id(node))
+        if entry is None or entry[0] is not node:
+            return expr
+        return entry[1].rename_expr(expr)
+
+    def check_lines(self) -> list[str]:
+        """The `plchmi check` section: each instance, its bindings and the names it adds."""
+        lines = [f"Components ({len(self.instances)} instance"
+                 f"{'s' if len(self.instances) != 1 else ''})"]
+        for inst in self.instances:
+            comp = inst.component
+            lines.append(f"  {inst.name}  {comp.name} ({comp.file})  device {inst.device}")
+            lines.append("      bind " + ", ".join(f"{k}={v}" for k, v in inst.bind.items()))
+            groups: dict[str, list[str]] = {}
+            for name, what, _ in inst.declared():
+                groups.setdefault(what, []).append(name)
+            lines.append("      declares " + "; ".join(
+                f"{what}{'s' if len(names) > 1 else ''} {', '.join(names)}"
+                for what, names in groups.items()))
+        return lines

@@ -13,7 +13,7 @@ A real valve's travel time moves with wear, temperature and supply, its switches
 answer late, a PLC's scans start late: a diagnoser whose windows hold for one exact simulator
 diagnoses a healthy valve faulty. The tolerances say what the design must hold for;
 `plchmi check`, `plchmi band`, `diagnose` and `campaign` run the cell across them
-(hmi/engine/band.py). Only the parameters a model marks as varying (ParamSpec.tolerable) take
+(hmi/studies/band.py). Only the parameters a model marks as varying (ParamSpec.tolerable) take
 one; the nominal value (the parameter's, or its default) must lie in the range, and the range
 within what the parameter allows.
 """

@@ -16,7 +16,7 @@ from collections.abc import Collection
 from dataclasses import replace
 from typing import Any, cast
 
-from hmi.errors import Diagnostic, SourcePos
+from hmi.errors import Diagnostic, SourcePos, excerpt
 from hmi.logic.expr import expression_text
 from hmi.timefmt import DURATION_HINT, DurationError, parse_duration
 
@@ -64,7 +64,7 @@ class YNode:
         if self.kind == "seq":
             return "a list"
         return {_BOOL: "a Boolean", _INT: "an integer", _FLOAT: "a number",
-                _NULL: "nothing (null)"}.get(self.tag, f"the text {self.value!r}")
+                _NULL: "nothing (null)"}.get(self.tag, f"the text {excerpt(str(self.value))}")
 
     def as_map(self, what: str) -> dict[str, YNode]:
         if self.kind != "map":
@@ -85,7 +85,7 @@ class YNode:
         for key in mapping:
             if key not in allowed:
                 raise NodeError(self.key_pos.get(key, self.pos),
-                                f"unknown key {key!r} in {what}",
+                                f"unknown key {excerpt(key)} in {what}",
                                 "one of " + ", ".join(sorted(allowed)))
         for key in required:
             if key not in mapping:

@@ -16,10 +16,29 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 from hmi.errors import UsageError
+from hmi.limits import MAX_FILE_BYTES, MAX_RUN_SCANS
 from hmi.project.loader import load_project
 from hmi.soak.runner import SoakConfig, SoakResult, session, shrink
 from hmi.soak.steps import StepError, format_steps, parse_steps
+from hmi.textfile import FileProblem, read_text
 from hmi.timefmt import format_duration
+
+
+def read_replay(path: Path, period_us: int) -> list:
+    """The steps of a replay file, read as every file from outside is (a regular file of
+    at most MAX_FILE_BYTES, strict UTF-8: hmi.textfile), their virtual time in all at most
+    MAX_RUN_SCANS scans of `period_us`. Anything else is a usage error at the file's line and
+    column."""
+    try:
+        text = read_text(path, MAX_FILE_BYTES)
+    except FileProblem as exc:
+        where = f"{path}:{exc.line}:{exc.col}" if exc.line else str(path)
+        expected = f" (expected {exc.expected})" if exc.expected else ""
+        raise UsageError(f"--replay {where}: {exc.message}{expected}") from None
+    try:
+        return parse_steps(text, str(path), period_us)
+    except StepError as exc:
+        raise UsageError(f"--replay {exc}") from None
 
 
 def cmd_soak(args: argparse.Namespace) -> int:
@@ -27,14 +46,14 @@ def cmd_soak(args: argparse.Namespace) -> int:
     if args.control and args.control not in project.controls:
         raise UsageError(f"--control {args.control!r}: the project has "
                          + ", ".join(project.controls))
+    period = project.scan_period_us
     replay = None
     if args.replay is not None:
-        try:
-            replay = parse_steps(args.replay.read_text(encoding="utf-8"), str(args.replay))
-        except OSError as exc:
-            raise UsageError(f"--replay {args.replay}: {exc.strerror}") from None
-        except StepError as exc:
-            raise UsageError(str(exc)) from None
+        replay = read_replay(args.replay, period)
+    elif int(args.minutes * 60_000_000) // period + 1 > MAX_RUN_SCANS:
+        raise UsageError(f"--minutes {args.minutes:g}: at a {format_duration(period)} scan "
+                         f"period that is {int(args.minutes * 60_000_000) // period + 1:,} "
+                         f"scans, more than the {MAX_RUN_SCANS:,} plchmi runs at once")
     if args.steps is not None and args.steps < 1:
         raise UsageError("--steps: at least 1")
     config = SoakConfig(Path(args.project), args.control, args.size, args.minutes, args.seed,
@@ -82,7 +101,7 @@ class Progress:
 
 
 def save_steps(config: SoakConfig, steps, why: str) -> Path:
-    from hmi.explain.journal import data_folder
+    from hmi.paths import data_folder
     stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S")
     path = data_folder() / "soak" / f"{config.project.name}-seed{config.seed}-{stamp}.steps"
     path.parent.mkdir(parents=True, exist_ok=True)

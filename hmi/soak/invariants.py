@@ -22,7 +22,13 @@ rather than trusting the engine's own report of it:
   in the list is in the journal, in order; an alarm the operator shelves leaves the list in
   any state (hidden, not gone: its "shelved" line carries its state) and its return is
   journalled too;
-- **the status bar** shows the mode and the filter policy of the scan on screen;
+- **the status bar** shows the mode and the filter policy of the scan on screen, and the count
+  of the most urgent unacknowledged alarms (``3 P1 unack``);
+- **the most urgent alarms are visible**: the active unacknowledged alarms of the highest
+  priority listed are rows of the alarm list on screen — all of them that fit in its rows
+  (the selection keeps a row of its own: all but one when it is an urgent one out of them);
+- **no dialog hides the status bar**: over a dialog (or the palette) the status bar and the
+  banners are still on screen, and the dialog's screen lets the cell show through;
 - **the journal**: every line parses (a JSON object with a type and an event); a manual
   request's outcome never says "as requested" of another value than the one requested.
 """
@@ -74,9 +80,9 @@ class _Term:
 
 
 class Invariants:
-    def __init__(self, app, journal_path: Path):
+    def __init__(self, app, session, journal_path: Path):
         self.app = app
-        self.session = session = app.controller
+        self.session = session
         self.engine = engine = session.engine
         layout = engine.layout
         outputs = {name: k for k, name in enumerate(layout.outputs)}
@@ -238,6 +244,8 @@ class Invariants:
         self.checks["step"] += 1
         self._check_app()
         self._check_status_bar()
+        self._check_urgent_alarms()
+        self._check_dialogs()
         self.check_journal()
         return self.broken
 
@@ -271,6 +279,76 @@ class Invariants:
         if missing:
             self._break("status-bar", f"{' and '.join(missing)} not shown at {app.size.width}"
                         f"×{app.size.height}: {line.rstrip()!r}")
+
+    def _check_urgent_alarms(self) -> None:
+        """The most urgent unacknowledged alarms are on screen: each is a row of the alarm
+        list (its priority, time raised and the start of its text), as many as the list's
+        rows allow, and the status bar counts them. Read from the alarm list's lines as
+        drawn, recomputed from the frame's alarms."""
+        from hmi.ui.alarm_list import AlarmList, rows_for_height, without_device
+        from hmi.ui.status import StatusBar
+        app = self.app
+        frame = app.frame
+        if frame is None:
+            return
+        alarms = frame.snapshot.alarms
+        active = [a for a in alarms if a.state == ACTIVE_UNACK]
+        if not active:
+            return
+        best = min(a.priority for a in active)
+        urgent = [a for a in active if a.priority == best]
+        self.checks["urgent-alarm"] += len(urgent)
+        main = app.screen_stack[0]
+        listing = main.query_one(AlarmList)
+        width = listing.size.width
+        if not width:
+            return
+        lines = [strip.text for strip in listing.render_lines(
+            Region(0, 0, width, listing.size.height))]
+        rows = rows_for_height(app.size.height)
+        keys = [a.key for a in alarms]
+        selected = keys.index(listing.selected) if listing.selected in keys else 0
+        # the selection keeps a row: below the urgent ones it gets a row of its own, among
+        # them but past the rows it takes the last pinned one
+        room = rows - 1 if rows <= selected < len(urgent) else rows
+        seen = [a for a in urgent if any(
+            f"P{a.priority}" in line and f"{seconds(a.raised_us)} s" in line
+            and without_device(a.text, a.device)[:12] in line for line in lines)]
+        if len(seen) < min(len(urgent), room):
+            missing = [a.text for a in urgent if a not in seen]
+            self._break("urgent-alarm-hidden",
+                        f"{len(urgent)} P{best} unacknowledged, {len(seen)} on screen at "
+                        f"{app.size.width}×{app.size.height}; not shown: {missing[:3]}")
+        status = main.query_one(StatusBar)
+        line = status.render_lines(Region(0, 0, status.size.width, 1))[0].text
+        if f"{len(urgent)} P{best} unack" not in line:
+            self._break("urgent-count", f"{len(urgent)} P{best} unacknowledged, status bar: "
+                        f"{line.rstrip()!r}")
+
+    def _check_dialogs(self) -> None:
+        """Over a dialog, the status bar and the banners are still on screen: nothing the
+        dialog draws starts above their last line, and the dialog's screen is not opaque."""
+        app = self.app
+        stack = app.screen_stack
+        if len(stack) < 2:
+            return
+        main = stack[0]
+        clear = max((w.region.bottom for w in main.query("#status, #banners") if w.display),
+                    default=0)
+        for screen in stack[1:]:
+            self.checks["dialog"] += 1
+            name = type(screen).__name__
+            if screen.styles.background.a >= 1:
+                self._break("dialog-hides-status-bar", f"{name} is opaque: the cell, its "
+                            "status bar and banners are hidden")
+                continue
+            for child in screen.children:
+                region = child.region
+                if region.height and region.y < clear:
+                    self._break("dialog-hides-status-bar",
+                                f"{name} starts at line {region.y}, over the status bar and "
+                                f"banners (lines 0-{clear - 1}) at {app.size.width}×"
+                                f"{app.size.height}")
 
     def _check_manual_outcome(self, entry: dict) -> None:
         """A manual request's outcome in the journal never says "as requested" of a value

@@ -63,7 +63,7 @@ class RandomOperator:
     # -- the main screen ----------------------------------------------------------------------
     def _main(self, app) -> Step:
         rng = self.rng
-        paused = not app.controller.state.running
+        paused = not app.running
         weights = {
             "run": 6 if paused else 36,
             "resume": 20 if paused else 0,
@@ -92,8 +92,8 @@ class RandomOperator:
             case "palette":
                 return self._palette(app)
             case "row":
-                outputs = app.controller.engine.layout.outputs
-                names = outputs if rng.random() < 0.8 else app.controller.engine.layout.names
+                outputs = app.facts.layout.outputs
+                names = outputs if rng.random() < 0.8 else app.facts.layout.names
                 row = Row(rng.choice(names))
                 return row
             case "repair":

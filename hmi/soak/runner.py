@@ -76,10 +76,11 @@ class SoakResult:
         return not self.broken
 
 
-def make_app(config: SoakConfig) -> PlcHmiApp:
+def make_app(config: SoakConfig) -> tuple[PlcHmiApp, Session]:
+    """The app, and the session it shows (run in this process, in virtual time)."""
     project = load_project(config.project)
-    engine = Engine(project, SimPlant(project), control=config.control)
-    return PlcHmiApp(Session(engine), live=False, show_measured=False)
+    cell = Session(Engine(project, SimPlant(project), control=config.control))
+    return PlcHmiApp(cell, live=False, show_measured=False), cell
 
 
 async def session(config: SoakConfig, replay: list[Step] | None = None,
@@ -92,17 +93,17 @@ async def session(config: SoakConfig, replay: list[Step] | None = None,
     result = SoakResult(config)
     folder = Path(journal_dir or tempfile.mkdtemp(prefix="plchmi-soak-"))
     result.journal = folder / "journal.jsonl"
-    app = make_app(config)
-    journal = JournalRecorder(app.controller, Journal(result.journal), "soak")
+    app, cell = make_app(config)
+    journal = JournalRecorder(cell, Journal(result.journal), "soak")
     app.containment.listeners.append(journal.on_ui_fault)
-    checker = Invariants(app, result.journal)
+    checker = Invariants(app, cell, result.journal)
 
     def count(command, answer, snapshot) -> None:
         if answer.accepted:
             result.commands[type(command).__name__] += 1
         else:
             result.refused += 1
-    app.controller.listeners.append(count)
+    cell.listeners.append(count)
     operator = RandomOperator(config.seed)
     limit_us = int(config.minutes * 60_000_000)
     max_steps = config.max_steps or max(100, int(config.minutes * MAX_STEPS_PER_MINUTE))
@@ -110,7 +111,7 @@ async def session(config: SoakConfig, replay: list[Step] | None = None,
     try:
         async with app.run_test(size=config.size) as pilot:
             await settle(pilot)
-            engine = app.controller.engine
+            engine = cell.engine
             while True:
                 if replay is not None:
                     if len(result.steps) >= len(replay):
@@ -131,22 +132,22 @@ async def session(config: SoakConfig, replay: list[Step] | None = None,
                 if checker.check_step() or not app.is_running:
                     break
                 if progress is not None and len(result.steps) % 50 == 0:
-                    _fill(result, checker, app, started)
+                    _fill(result, checker, cell, started)
                     progress(result)
     finally:
         journal.close(None if checker.ok else str(checker.broken[0]))
     checker.check_journal()  # its last lines (the session's end)
-    _fill(result, checker, app, started)
+    _fill(result, checker, cell, started)
     if journal_dir is None and result.ok:  # a passing session's journal is not kept
         shutil.rmtree(folder, ignore_errors=True)
         result.journal = None
     return result
 
 
-def _fill(result: SoakResult, checker: Invariants, app: PlcHmiApp, started: float) -> None:
+def _fill(result: SoakResult, checker: Invariants, cell: Session, started: float) -> None:
     result.broken = list(checker.broken)
     result.scans = checker.scans
-    result.virtual_us = app.controller.engine.now
+    result.virtual_us = cell.engine.now
     result.wall_s = time.perf_counter() - started
     result.transitions = checker.transitions
     result.raised = checker.raised
@@ -238,11 +239,18 @@ async def click_row(pilot, name: str) -> bool:
 
 
 async def shrink(config: SoakConfig, steps: list[Step], invariant: str,
-                 budget_s: float = 300.0) -> tuple[list[Step], int]:
-    """The shortest step list found within `budget_s` that still breaks `invariant`, and the
-    number of replays tried (ddmin: drop chunks, halving them when none can go)."""
+                 budget_s: float = 300.0, max_replays: int | None = None
+                 ) -> tuple[list[Step], int]:
+    """The shortest step list found within `budget_s` (and `max_replays` replays) that still
+    breaks `invariant`, and the number of replays tried (ddmin: drop chunks, halving them
+    when none can go). Bounded by replays alone (`budget_s` infinite), the result does not
+    depend on the machine's speed: the soak farm's reports are the same wherever it ran."""
     deadline = time.perf_counter() + budget_s
     replays = 0
+
+    def out_of_budget() -> bool:
+        return time.perf_counter() >= deadline or (max_replays is not None
+                                                   and replays >= max_replays)
 
     async def breaks(candidate: list[Step]) -> list[Step] | None:
         nonlocal replays
@@ -255,10 +263,10 @@ async def shrink(config: SoakConfig, steps: list[Step], invariant: str,
 
     best = steps
     chunks = 2
-    while len(best) > 1 and time.perf_counter() < deadline:
+    while len(best) > 1 and not out_of_budget():
         size = -(-len(best) // chunks)
         for start in range(0, len(best), size):
-            if time.perf_counter() >= deadline:
+            if out_of_budget():
                 break
             found = await breaks(best[:start] + best[start + size:])
             if found is not None:

@@ -18,7 +18,8 @@ from __future__ import annotations
 import shlex
 from dataclasses import dataclass
 
-from hmi.timefmt import parse_duration, seconds
+from hmi.limits import MAX_RUN_SCANS
+from hmi.timefmt import format_duration, parse_duration, seconds
 
 
 @dataclass(frozen=True)
@@ -128,16 +129,27 @@ def parse_step(line: str) -> Step:
     raise ValueError(f"unknown step {word!r}; steps: run, press, palette, row, click, resize")
 
 
-def parse_steps(text: str, source: str = "steps") -> list[Step]:
-    """A step list; blank lines and `#` comments are skipped."""
+def parse_steps(text: str, source: str = "steps", period_us: int | None = None) -> list[Step]:
+    """A step list; blank lines and `#` comments are skipped. With `period_us`, the steps may
+    run at most MAX_RUN_SCANS scans of that period in all (the first past it is an error)."""
     steps: list[Step] = []
+    total = 0
     for number, line in enumerate(text.splitlines(), start=1):
         if not line.strip() or line.lstrip().startswith("#"):
             continue
         try:
-            steps.append(parse_step(line))
+            step = parse_step(line)
         except ValueError as exc:
             raise StepError(f"{source}:{number}:1: {exc}") from None
+        if isinstance(step, Run) and period_us is not None:
+            total += step.us
+            if total // period_us + 1 > MAX_RUN_SCANS:
+                raise StepError(
+                    f"{source}:{number}:1: the steps run {format_duration(total)} of virtual "
+                    f"time up to here, {total // period_us + 1:,} scans at a "
+                    f"{format_duration(period_us)} scan period: more than the "
+                    f"{MAX_RUN_SCANS:,} plchmi runs at once")
+        steps.append(step)
     return steps
 
 

@@ -60,6 +60,40 @@ def rows_for_height(height: int) -> int:
     return 6
 
 
+def urgent_count(alarms: tuple[Alarm, ...]) -> int:
+    """How many alarms lead the list as the most urgent: active, unacknowledged, and of the
+    highest priority among those (the list is sorted so that they come first)."""
+    if not alarms or alarms[0].state != ACTIVE_UNACK:
+        return 0
+    best = alarms[0].priority
+    count = 0
+    for alarm in alarms:
+        if alarm.state != ACTIVE_UNACK or alarm.priority != best:
+            break
+        count += 1
+    return count
+
+
+def rows_shown(count: int, urgent: int, selected: int, rows: int, top: int
+               ) -> tuple[list[int], int]:
+    """The indices of the alarms on screen, and the first index of the scrolled part.
+
+    The `urgent` first alarms are pinned at the top (all of them when the selection is one
+    of them, else all but the one row the selection needs); the other rows scroll over the
+    rest so that the selection stays in view."""
+    if count <= rows:
+        return list(range(count)), 0
+    pinned = min(urgent, rows if selected < min(urgent, rows) else rows - 1)
+    window = rows - pinned
+    if selected >= pinned:
+        if selected < top:
+            top = selected
+        elif selected >= top + window:
+            top = selected - window + 1
+    top = max(pinned, min(top, count - window))
+    return [*range(pinned), *range(top, top + window)], top
+
+
 def state_cell(alarm: Alarm) -> Text:
     symbol, word = STATES.get(alarm.state, ("?", alarm.state))
     cell = f"{symbol} {word}".ljust(STATE_WIDTH)
@@ -174,7 +208,8 @@ class AlarmList(TextPanel):
         self.alarms: tuple[Alarm, ...] = ()
         self.selected: str | None = None  # the selected alarm's key
         self.shelved = 0  # alarms shelved (not listed): said on the border
-        self.top = 0  # index of the first row shown
+        self.top = 0  # index of the first row of the scrolled part
+        self._on_screen: list[int] = []  # indices of the alarms on screen, top to bottom
         self._rows: tuple[int, bool] | None = None  # lines drawn and compact border, as set
         self._alarm_rows = 0  # of those lines, the alarm rows (then the selected one's line)
         self._drawn: tuple | None = None
@@ -211,6 +246,9 @@ class AlarmList(TextPanel):
     def _draw(self) -> None:
         height = self.app.size.height
         rows = min(max(len(self.alarms), 1), rows_for_height(height))
+        urgent = urgent_count(self.alarms)
+        if rows <= urgent < len(self.alarms) and self._index() >= urgent:
+            rows += 1  # the urgent rows pinned, and the selection's row under them
         width = max(20, self.content_size.width or self.app.size.width - 4)
         # The selected alarm's whole first sentence on its own line(s) when its row cuts it
         # (80 columns): the device and the plain fault are always readable (issue 19).
@@ -242,16 +280,18 @@ class AlarmList(TextPanel):
             set_title(self, title)
             self.show_text(Text(f"{OK_SYMBOL} no alarm", style=MUTED))
             return
-        index = self._index()
-        if index < self.top:
-            self.top = index
-        elif index >= self.top + rows:
-            self.top = index - rows + 1
-        self.top = max(0, min(self.top, len(self.alarms) - rows))
-        below = len(self.alarms) - self.top - rows
+        shown, self.top = rows_shown(len(self.alarms), urgent, self._index(), rows, self.top)
+        self._on_screen = shown
+        pinned = min(urgent, len(shown))
+        above = shown[-1] + 1 - len(shown)  # out of view between the pinned and the rest
+        below = len(self.alarms) - shown[-1] - 1
         hidden = []
-        if self.top:
-            hidden.append(f"↑ {self.top} more")
+        if urgent > pinned:
+            hidden.append(f"✗ {urgent - pinned} more P{self.alarms[0].priority} unack"
+                          if self.alarms[0].priority == 1 else
+                          f"▲ {urgent - pinned} more P{self.alarms[0].priority} unack")
+        if above:
+            hidden.append(f"↑ {above} more")
         if below > 0:
             hidden.append(f"↓ {below} more")
         set_title(self, " · ".join((title, *hidden)))  # on the top line: always shown
@@ -260,7 +300,7 @@ class AlarmList(TextPanel):
             device_w = min(16, max(len(a.device) for a in self.alarms))
         time_w = max(len(seconds(a.raised_us)) for a in self.alarms)
         text = Text(no_wrap=True, overflow="ellipsis")
-        for i, alarm in enumerate(self.alarms[self.top:self.top + rows]):
+        for i, alarm in enumerate(self.alarms[k] for k in shown):
             if i:
                 text.append("\n")
             row = alarm_row(alarm, width - 2, device_w, time_w)
@@ -311,6 +351,6 @@ class AlarmList(TextPanel):
         if offset is None:
             return
         row = offset.y
-        if 0 <= row < self._alarm_rows and self.top + row < len(self.alarms):
-            self._select(self.alarms[self.top + row].key, open=True)
+        if 0 <= row < min(self._alarm_rows, len(self._on_screen)):
+            self._select(self.alarms[self._on_screen[row]].key, open=True)
             self._draw()

@@ -1,11 +1,12 @@
-"""The operator HMI (Textual). Reads engine snapshots; sends commands through the controller.
+"""The operator HMI (Textual). Reads a cell's views; sends commands through its link.
 
-Data flows one way. The scans run elsewhere (a :class:`~hmi.ui.driver.LiveDriver` thread, or
-the test driving a :class:`~hmi.ui.driver.VirtualDriver`); at most ``REFRESH_HZ`` times a
-second the app reads ``session.last``, wraps it in a :class:`~hmi.ui.frame.Frame` and hands it
-down to every panel (``show(frame)``). Panels post messages up; the app turns every operator
-action into a command sent through :meth:`PlcHmiApp.send`, the single door to
-``Session.command`` (where the journal listens).
+Data flows one way. The scans run elsewhere (the cell's runtime, or, in tests, in this
+process: :mod:`hmi.link`), and the app knows the cell only through its
+:class:`~hmi.link.base.CellLink`: at most ``REFRESH_HZ`` times a second it reads the link's
+latest view, wraps it in a :class:`~hmi.ui.frame.Frame` and hands it down to every panel
+(``show(frame)``). Panels post messages up; the app turns every operator action into a
+command sent through :meth:`PlcHmiApp.send`, the single door to ``CellLink.command`` (where
+the runtime's journal listens).
 
 Screen regions (see ``app.tcss``): status bar and banners on top; the body in columns —
 ``#col-plant`` (I/O, and the constraints under it), ``#col-logic`` (control, and the
@@ -61,6 +62,9 @@ from hmi.engine.commands import (
 from hmi.engine.scan import Engine
 from hmi.engine.snapshot import Snapshot
 from hmi.explain.model import Policy
+from hmi.explain.reset import ResetLine, reset_preview
+from hmi.link.base import CellLink, ResetGuard, View
+from hmi.link.local import SessionLink
 from hmi.project.diagnosers import diagnosers_of
 from hmi.project.injection import Injection
 from hmi.project.model import POLICIES
@@ -90,16 +94,7 @@ from hmi.ui.message_line import MessageLine, result_text, spoken, verdict_text
 from hmi.ui.messages import CommandRequested, ExplainRequested
 from hmi.ui.monitors_panel import MonitorsPanel
 from hmi.ui.panel import TOP_SHARE, ColumnPanel
-from hmi.ui.recorder import ScanRecorder
-from hmi.ui.reset import (
-    Asked,
-    ResetLine,
-    changes,
-    recovery_lines,
-    reset_line,
-    reset_lines,
-    reset_preview,
-)
+from hmi.ui.reset import Asked, recovery_lines, reset_lines
 from hmi.ui.serving import Served, serving_lines
 from hmi.ui.sim_panel import SimPanel
 from hmi.ui.status import BannerStrip, StatusBar
@@ -165,20 +160,25 @@ class PlcHmiApp(ContainedPump, App):
     HORIZONTAL_BREAKPOINTS = [(0, "-narrow"), (120, "-wide")]
     VERTICAL_BREAKPOINTS = [(0, "-short"), (40, "-tall")]
 
-    def __init__(self, controller: Session, live: bool = True, *,
+    def __init__(self, link: CellLink | Session, live: bool = True, *,
                  show_measured: bool | None = None, refresh_hz: float = REFRESH_HZ,
                  injected: tuple[Injection, ...] = (), bell: bool = False,
                  served: Served | None = None):
+        """`link`: the cell (a session given here runs in this process: the pilot tests and
+        the single-process bench); `live`: its scans are paced by the wall clock and the
+        screen refreshes on a timer, else whoever runs virtual time shows the frames."""
         super().__init__()
-        self.controller = controller
+        if isinstance(link, Session):
+            link = SessionLink(link, live=live)
+        self.link: CellLink = link
+        self.facts = link.facts
         self.served = served  # the cell's OPC UA server (--opcua): its status is shown
-        engine = controller.engine
-        self.project = engine.project
-        self.driver: LiveDriver | VirtualDriver = (LiveDriver(controller) if live
-                                                   else VirtualDriver(controller))
+        self.project = link.project
+        self.driver: LiveDriver | VirtualDriver = (LiveDriver(link) if live
+                                                   else VirtualDriver(link))
         self.show_measured = live if show_measured is None else show_measured
         self.refresh_hz = refresh_hz
-        self.recorder = ScanRecorder(engine.layout)
+        self.history = link.history  # every scan's edges and plant events (chronogram)
         self.frame: Frame | None = None
         self.frames_shown = 0  # frames handed to the panels (the UI refresh count)
         self._key: tuple | None = None
@@ -187,8 +187,7 @@ class PlcHmiApp(ContainedPump, App):
         self._request: tuple[str, bool, int, str] | None = None  # pending manual verdict
         self._injected: list[InjectedFault] = []  # shown on the SIMULATION strip
         self._mode_commanded: str | None = None  # accepted SetMode, not yet in a snapshot
-        plant = engine.plant
-        self.free_inputs: tuple[str, ...] = tuple(plant.free_inputs)
+        self.free_inputs: tuple[str, ...] = self.facts.plant.free_inputs
         # What the explanation panel explains: the selected alarm, unless the operator picked
         # another situation (palette, a constraint clicked) since the selection last moved.
         self.subject: str | None = None
@@ -199,7 +198,10 @@ class PlcHmiApp(ContainedPump, App):
         self.bells = 0
         self._p1_unack: frozenset[str] = frozenset()
         # UI errors: contained and shown (banner, journal), or the reason the app ended
-        self.containment = Containment(lambda: (engine.scan, engine.now))
+        self.containment = Containment(self._scan_time)
+        if isinstance(link, SessionLink):  # the recorder runs in this process's scans
+            link.on_recorder_error = partial(self.containment.record,
+                                             "the UI's scan recorder")
         self._test_fault: testhooks.Armed | None = None
         # told once the first frame is on the screen (the start's caches save then)
         self.first_frame_listeners: list[Callable[[], None]] = []
@@ -217,17 +219,22 @@ class PlcHmiApp(ContainedPump, App):
         return super().get_css_variables()
 
     # -- layout ------------------------------------------------------------------------------
+    def _scan_time(self) -> tuple[int, int]:
+        """The scan and time of the newest snapshot (where a UI error is placed)."""
+        last = self.link.last
+        return (last.scan, last.time_us) if last is not None else (0, 0)
+
     def compose(self) -> ComposeResult:
-        engine = self.controller.engine
+        facts = self.facts
         project = self.project
         # the I/O's, and the estimates' (an I/O row says "≈ estimated open position")
         descriptions = {v.name: v.description for v in (*project.inputs, *project.outputs,
                                                          *project.timers, *project.observers)}
-        law = project.controls[engine.control_name]
+        law = project.controls[facts.control]
         steps = [StepInfo(s.name, s.description) for s in law.grafcet.steps] \
             if law.grafcet else []
         timers = [TimerInfo(t.name, t.kind, t.description) for t in project.timers]
-        default_signals = tuple(s.name for s in self.recorder.signals
+        default_signals = tuple(s.name for s in self.history.signals
                                 if s.kind in ("output", "input", "timer"))
         constraints = [ConstraintInfo(c.name, c.kind, c.expr.source, c.description)
                        for c in project.constraints]
@@ -239,30 +246,25 @@ class PlcHmiApp(ContainedPump, App):
         with Body(id="body"):
             with Horizontal(id="top"):
                 with Vertical(id="col-plant"):
-                    yield IOPanel(engine.layout, descriptions, self.free_inputs, id="io",
+                    yield IOPanel(facts.layout, descriptions, self.free_inputs, id="io",
                                   devices={v.name: v.device for v in project.outputs
                                            if v.device},
                                   partitions=tuple(partitions.values()))
                     yield ConstraintsPanel(constraints, id="constraints")
                 with Vertical(id="col-logic"):
-                    yield GrafcetPanel(engine.control_name, steps, timers, id="control")
+                    yield GrafcetPanel(facts.control, steps, timers, id="control")
                     yield DiagnosersPanel(partitions, len(diagnosers), id="diagnosers")
                     yield MonitorsPanel(len(monitors_of(project)), id="monitors")
             with Horizontal(id="bottom"):
                 with Vertical(id="col-time"):
-                    yield Chronogram(self.recorder, default_signals, id="chronogram")
+                    yield Chronogram(self.history, default_signals, id="chronogram")
                 yield ExplanationPanel(id="explain")
         yield AlarmList(id="alarms")
-        yield SimPanel(self.recorder, id="sim")
+        yield SimPanel(self.history, id="sim")
         yield MessageLine(id="message")
         yield HmiFooter(compact=True)
 
     def on_mount(self) -> None:
-        self.controller.scan_listeners.append(self._record_scan)
-        if self.controller.last is None:
-            self.controller.scan_once()
-        else:
-            self._record_scan(self.controller.last)
         # the panels that set their own height first (banners, alarm rows): the column
         # panels measure their room after them
         self._views = [self.query_one(StatusBar), self.query_one(BannerStrip),
@@ -295,16 +297,6 @@ class PlcHmiApp(ContainedPump, App):
 
     def on_unmount(self) -> None:
         self.driver.stop()
-        if self._record_scan in self.controller.scan_listeners:
-            self.controller.scan_listeners.remove(self._record_scan)
-
-    def _record_scan(self, snap) -> None:
-        """The recorder's share of a scan, in the scan thread: an error there is the UI's,
-        contained, never the scan's (the scan and the journal go on)."""
-        try:
-            self.recorder.on_scan(snap)
-        except Exception as exc:
-            self.containment.record("the UI's scan recorder", exc)
 
     # -- fault containment (see hmi.ui.containment) ------------------------------------------
     def contain(self, what: str, exc: BaseException) -> UIFault:
@@ -380,17 +372,24 @@ class PlcHmiApp(ContainedPump, App):
         return self.query_one(Chronogram)
 
     # -- the display loop --------------------------------------------------------------------
-    def run_label(self) -> str:
-        label = self.controller.state.label
+    def run_label(self, view: View | None = None) -> str:
+        view = view or self.link.view()
+        label = view.run.label if view is not None else "paused"
         if label == "paused" and self._stepping:
             return "stepping"
         return label
 
+    @property
+    def running(self) -> bool:
+        """The cell's scans run (not paused), as of the latest view."""
+        view = self.link.view()
+        return view is not None and view.run.running
+
     def poll(self, force: bool = False) -> bool:
         """Show the latest snapshot if anything changed; True if a frame was handed down.
 
-        The snapshot comes from the recorder with the history of that same scan (never
-        ``session.last`` then the history: the scan thread may run a scan in between)."""
+        The snapshot comes with the history of that same scan (a view: never the newest
+        snapshot then the history, which may be a scan newer)."""
         try:
             return self._poll(force)
         except Exception as exc:  # the frame itself could not be built
@@ -399,28 +398,29 @@ class PlcHmiApp(ContainedPump, App):
 
     def _poll(self, force: bool) -> bool:
         self._check_driver()
-        recorded = self.recorder.latest()
-        snap = recorded.snapshot
-        if snap is None:
+        view = self.link.view()
+        if view is None:
             return False
-        state = self.controller.state
+        snap = view.snapshot
+        run = self.run_label(view)
         if self._mode_commanded == snap.mode:
             self._mode_commanded = None
         contained = self.containment
         frame_faults = contained.version
         serving = self.served.status() if self.served is not None else None
-        key = (snap.scan, id(snap), self.run_label(), state.speed, self.driver.overruns,
+        overruns = self.driver.overruns
+        key = (snap.scan, id(snap), run, view.run.speed, overruns,
                self._version, self._mode_commanded, contained.version, serving)
         if not force and key == self._key:
             return False
         self._key = key
         frame = Frame(
-            snapshot=snap, run=self.run_label(), speed=state.speed, live=self.driver.live,
+            snapshot=snap, run=run, speed=view.run.speed, live=self.driver.live,
             project=self.project.name, show_measured=self.show_measured,
-            overruns=self.driver.overruns, changed=output_changes(snap),
+            overruns=overruns, changed=output_changes(snap),
             injected=tuple(self._injected), free_inputs=self.free_inputs,
-            damage_count=recorded.damage_count, mode_commanded=self._mode_commanded,
-            constraints=recorded.constraints, ui_fault=contained.latest,
+            damage_count=view.damage_count, mode_commanded=self._mode_commanded,
+            constraints=view.constraints, ui_fault=contained.latest,
             ui_faults=contained.total, serving=serving)
         self.frame = frame
         for view in self._views:  # one panel failing leaves the others showing this frame
@@ -430,6 +430,9 @@ class PlcHmiApp(ContainedPump, App):
                 self.contain(f"{type(view).__name__} refresh", exc)
         try:
             self._fit_plant_column()
+            if len(self.screen_stack) > 1:
+                from hmi.ui.dialogs import keep_clear
+                keep_clear(self)
         except Exception as exc:
             self.contain("plant column layout", exc)
         self._ring(snap)
@@ -563,7 +566,7 @@ class PlcHmiApp(ContainedPump, App):
 
     def explain(self, key: str, open_level: int = 2) -> None:
         """Explain `key` (select its alarm when it has one) and open it to `open_level`."""
-        snap = self.controller.last
+        snap = self.link.last
         if snap is None:
             return
         if not any(e.key == key for e in snap.explanations) and \
@@ -613,7 +616,7 @@ class PlcHmiApp(ContainedPump, App):
         if policy.command is None:
             self._choose(key, policy, True)
             return
-        snap = self.controller.last
+        snap = self.link.last
         shown = reset_preview(snap) if snap and isinstance(policy.command, FaultReset) \
             else None
         title, lines, level = self._policy_confirmation(key, policy, snap, asked)
@@ -683,7 +686,7 @@ class PlcHmiApp(ContainedPump, App):
     # -- sending commands --------------------------------------------------------------------
     def send(self, command: Command) -> CommandResult:
         """The one place operator actions leave the UI: through ``Session.command``."""
-        return self._sent(command, self.controller.command(command))
+        return self._sent(command, self.link.command(command).result)
 
     def _sent(self, command: Command, result: CommandResult) -> CommandResult:
         """What the UI makes of a command's answer: the message line, the commanded mode."""
@@ -696,7 +699,7 @@ class PlcHmiApp(ContainedPump, App):
             case StepScans():
                 self._stepping = self._stepping or result.accepted
             case ManualOutput(name=name, value=value) if result.accepted:
-                last = self.controller.last
+                last = self.link.last
                 self._request = (name, bool(value), last.scan if last else 0, what)
             case SetMode(manual=manual) if result.accepted:
                 self._mode_commanded = "manual" if manual else "auto"
@@ -724,7 +727,7 @@ class PlcHmiApp(ContainedPump, App):
             case FaultReset() if result.accepted:
                 self.explanation_panel.forget_results()  # what they answered has changed
         if result.accepted and not isinstance(command, RUN_STATE_COMMANDS) \
-                and not self.controller.state.running:
+                and not self.running:
             text.append(" — applies at the next scan (paused)", style=MUTED)
         self.message.say(text)
         self.poll(force=True)
@@ -733,7 +736,7 @@ class PlcHmiApp(ContainedPump, App):
     def _situation_text(self, key: str) -> str:
         """A situation as the operator reads it in the alarm list (its one-line text), for
         the message line; its key where nothing shows it any more."""
-        snap = self.controller.last
+        snap = self.link.last
         if snap is not None:
             for alarm in snap.alarms:
                 if alarm.key == key:
@@ -751,7 +754,7 @@ class PlcHmiApp(ContainedPump, App):
 
     def _policy_command(self, key: str, policy_id: str) -> Command | None:
         """What choosing a policy sends, as the last explanation of `key` offered it."""
-        snap = self.controller.last
+        snap = self.link.last
         if snap is None:
             return None
         explanation = next((e for e in snap.explanations if e.key == key), None)
@@ -775,11 +778,11 @@ class PlcHmiApp(ContainedPump, App):
         return injection.code
 
     def _faults(self) -> list[tuple[str, str, str]]:
-        return self.controller.engine.plant.faults()
+        return list(self.facts.plant.faults)
 
     @property
     def simulated(self) -> bool:
-        return not self.controller.engine.plant.is_real
+        return not self.facts.plant.is_real
 
     # -- bindings ----------------------------------------------------------------------------
     def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
@@ -848,7 +851,7 @@ class PlcHmiApp(ContainedPump, App):
             self.message.say(Text("cancelled: quit — the scan goes on", style=MUTED))
 
     def _quit_lines(self) -> tuple[str, list[Text | str], Level]:
-        snap = self.controller.last
+        snap = self.link.last
         lines: list[Text | str] = [
             "The scan stops: the control program and the safety filter no longer run."]
         level = Level.ATTENTION
@@ -856,10 +859,8 @@ class PlcHmiApp(ContainedPump, App):
             lines.append("The simulated plant stops with it; no real output is driven.")
         else:
             level = Level.ALARM
-            where = self.controller.engine.plant.status.description
-            safe = ", ".join(f"{n}={int(v)}" for n, v in
-                             zip(self.controller.engine.layout.outputs,
-                                 self.controller.engine.safe_vector, strict=True))
+            where = self.facts.plant.description
+            safe = self.facts.safe_text()
             lines += [tag(f"Real plant ({where}): control ends.", Level.ALARM),
                       f"Every output is written to its safe value ({safe}), then the "
                       "connection is closed;",
@@ -872,7 +873,7 @@ class PlcHmiApp(ContainedPump, App):
         return "Quit plchmi?", lines, level
 
     def action_toggle_run(self) -> None:
-        self.send(Pause() if self.controller.state.running else Resume())
+        self.send(Pause() if self.running else Resume())
 
     def action_step(self) -> None:
         self.send(StepScans(1))
@@ -889,7 +890,8 @@ class PlcHmiApp(ContainedPump, App):
             self.refuse("run speed", "a real plant runs in real time only")
             return
         if factor == "next":
-            current = self.controller.state.speed
+            view = self.link.view()
+            current = view.run.speed if view is not None else 1.0
             index = SPEEDS.index(current) if current in SPEEDS else -1
             factor = SPEEDS[(index + 1) % len(SPEEDS)]
         assert not isinstance(factor, str)
@@ -897,7 +899,7 @@ class PlcHmiApp(ContainedPump, App):
 
     def action_manual(self) -> None:
         from hmi.ui.dialogs import ConfirmDialog
-        snap = self.controller.last
+        snap = self.link.last
         if snap is None:
             return
         if snap.mode == "recovery" or self._mode_commanded == "recovery":
@@ -919,7 +921,7 @@ class PlcHmiApp(ContainedPump, App):
                              partial(self._confirmed, SetMode(True)))
 
     def _manual_lines(self, snap: Snapshot) -> list[Text | str]:
-        law = self.project.controls[self.controller.engine.control_name]
+        law = self.project.controls[self.facts.control]
         return ["The control law stops driving the outputs: they follow your requests,",
                 "and an output you have not requested is 0.",
                 *manual.enter_lines(self.project, law, snap),
@@ -927,7 +929,7 @@ class PlcHmiApp(ContainedPump, App):
                 "Select an output in the I/O table: 1 on, 0 off, x release."]
 
     def _leave_manual_lines(self, snap: Snapshot) -> list[Text | str]:
-        law = self.project.controls[self.controller.engine.control_name]
+        law = self.project.controls[self.facts.control]
         return list(manual.leave_lines(self.project, law, snap))
 
     def action_manual_request(self, name: str, value: bool | None) -> None:
@@ -938,7 +940,7 @@ class PlcHmiApp(ContainedPump, App):
         out only if it still does that (`asked`: the dialog the operator confirmed before,
         when asked again; see :meth:`_reset_if_unchanged`)."""
         from hmi.ui.dialogs import ConfirmDialog
-        snap = self.controller.last
+        snap = self.link.last
         if snap is None:
             return
         shown = reset_preview(snap)
@@ -964,19 +966,10 @@ class PlcHmiApp(ContainedPump, App):
         scan comes between the check and the reset. Otherwise nothing is done, the journal
         says so (Session.decline), and the operator is asked again (`ask_again`) with what
         changed first; None then."""
-        controller = self.controller
-        with controller.lock:
-            now = controller.last
-            gone, new = changes(shown, reset_preview(now) if now is not None else [])
-            result = controller.command(command) if not gone and not new else None
-        if result is not None:  # (the UI's work on it done without the scan waiting)
-            return self._sent(command, result)
-        scan = now.scan if now is not None else seen.scan
-        told = "; ".join([*(f"was: {reset_line(line).plain}" for line in gone),
-                          *(f"now: {reset_line(line).plain}" for line in new)])
-        self._sent(command, controller.decline(
-            command, f"not done, asked again: what it would do changed while its dialog "
-                     f"was open (scan {seen.scan} to {scan}): {told}"))
+        answer = self.link.command(command, ResetGuard(tuple(shown), seen.scan))
+        if not answer.declined:
+            return self._sent(command, answer.result)
+        self._sent(command, answer.result)
         # (once the dialog answered is gone: the new one takes its place and its id)
         self.call_later(ask_again, Asked(tuple(shown), seen.scan, seen.time_us))
         return None
@@ -1003,7 +996,7 @@ class PlcHmiApp(ContainedPump, App):
     def _listed_alarm(self, key: str | None, what: str):
         """The listed alarm `key` (default: the selected one), or None, said."""
         key = key or self.alarm_list.selected
-        snap = self.controller.last
+        snap = self.link.last
         alarm = next((a for a in snap.alarms if a.key == key), None) if snap and key else None
         if alarm is None:
             self.refuse(what, "no alarm selected")
@@ -1037,14 +1030,14 @@ class PlcHmiApp(ContainedPump, App):
 
     def leave_recovery(self) -> None:
         from hmi.ui.dialogs import ConfirmDialog
-        snap = self.controller.last
+        snap = self.link.last
         state = snap.recovery if snap else None
         reached = {"done": "The recovery is done.", "failed": "The recovery failed."}.get(
             state.status if state else "", "The recovery is stopped where it is.")
         lines = [reached,
                  "Automatic mode: the control program starts again from its initial steps,",
                  "through the safety filter "
-                 f"({snap.policy if snap else self.controller.engine.policy})."]
+                 f"({snap.policy if snap else 'unchanged'})."]
         if snap is not None and any(d.faulty for d in snap.diagnosers):
             lines.append(tag("A diagnosis is still latched: r (fault reset) first, or the "
                              "device stays masked.", Level.ATTENTION))
@@ -1071,8 +1064,8 @@ class PlcHmiApp(ContainedPump, App):
 
     def action_policy(self, policy: str | None = None) -> None:
         from hmi.ui.dialogs import ChoiceDialog
-        current = self.controller.last.policy if self.controller.last \
-            else self.controller.engine.policy
+        last = self.link.last
+        current = last.policy if last is not None else ""
         if policy is not None:
             self._confirm_policy(current, policy)
             return
@@ -1112,18 +1105,17 @@ class PlcHmiApp(ContainedPump, App):
         if not self.simulated:
             self.refuse("fault injection", "only a simulated plant can be given faults")
             return
-        engine = self.controller.engine
         devices = {device for device, _, _ in self._faults()}
 
         def chosen(injection: Injection | None) -> None:
             if injection is not None:
                 self._inject(injection)
-        self.push_screen(FaultDialog(self._faults(), lambda: engine.now, len(devices) <= 1),
+        self.push_screen(FaultDialog(self._faults(), self._now, len(devices) <= 1),
                          chosen)
 
     def action_inject_now(self, device: str, code: str) -> None:
         devices = {d for d, _, _ in self._faults()}
-        self._inject(Injection(code, self.controller.engine.now,
+        self._inject(Injection(code, self._now(),
                                None if len(devices) <= 1 else device))
 
     def _inject(self, injection: Injection) -> None:
@@ -1134,7 +1126,7 @@ class PlcHmiApp(ContainedPump, App):
             if (same.code, same.device) != (injection.code, injection.device):
                 continue
             if same.duration_us is None or same.at_us + same.duration_us > injection.at_us:
-                when = "in effect" if same.at_us <= self.controller.engine.now \
+                when = "in effect" if same.at_us <= self._now() \
                     else "scheduled"
                 self.refuse(f"fault injection {injection.code}",
                             f"already {when} since {seconds(same.at_us)} s ({old.description})"
@@ -1143,22 +1135,26 @@ class PlcHmiApp(ContainedPump, App):
                 return
         self.send(InjectFault(injection))
 
+    def _now(self) -> int:
+        """The cell's time as of the newest snapshot (a fault injected now, in N s)."""
+        last = self.link.last
+        return last.time_us if last is not None else 0
+
     def action_button(self, name: str, value: bool) -> None:
         self.send(SetInput(name, value))
 
     def action_signals(self) -> None:
         from hmi.ui.signal_dialog import SignalDialog
         chrono = self.chronogram
-        engine = self.controller.engine
-        descriptions = {n: self.project.describe(n) for n in engine.layout.names}
-        law = self.project.controls[engine.control_name]
+        descriptions = {n: self.project.describe(n) for n in self.facts.layout.names}
+        law = self.project.controls[self.facts.control]
         if law.grafcet:
             descriptions.update({s.name: s.description for s in law.grafcet.steps})
 
         def chosen(signals: tuple[str, ...] | None) -> None:
             if signals is not None:
                 self.set_signals(signals)
-        self.push_screen(SignalDialog(self.recorder.signals, chrono.signals, descriptions),
+        self.push_screen(SignalDialog(self.history.signals, chrono.signals, descriptions),
                          chosen)
 
     def set_signals(self, signals: tuple[str, ...]) -> None:
@@ -1171,7 +1167,7 @@ class PlcHmiApp(ContainedPump, App):
         if name in current:
             self.set_signals(tuple(s for s in current if s != name))
         else:
-            order = [s.name for s in self.recorder.signals]
+            order = [s.name for s in self.history.signals]
             self.set_signals(tuple(sorted((*current, name), key=order.index)))
 
     def action_window(self, window_us: int | None = None) -> None:
@@ -1194,7 +1190,7 @@ class PlcHmiApp(ContainedPump, App):
                 continue
             entries.append(PaletteEntry(f"{a.title}  [{a.key_display or a.key}]", a.help,
                                         getattr(self, f"action_{a.action}"), a.action))
-        snap = self.controller.last
+        snap = self.link.last
         if self.simulated:
             for factor, word in ((1.0, "real time"), (10.0, "×10"),
                                  (None, "as fast as possible")):
@@ -1233,7 +1229,7 @@ class PlcHmiApp(ContainedPump, App):
                         self.project.describe(name),
                         partial(self.action_button, name, value), "button"))
         shown = set(self.chronogram.signals)
-        for signal in self.recorder.signals:
+        for signal in self.history.signals:
             verb = "hide" if signal.name in shown else "show"
             entries.append(PaletteEntry(f"Chronogram: {verb} {signal.name}",
                                         self.project.describe(signal.name.split(".")[0]),

@@ -20,9 +20,10 @@ from rich.text import Text
 from textual.reactive import reactive
 from textual.widget import Widget
 
+from hmi.link.base import History
+from hmi.session.recorder import FOV_SUFFIX, Trace
 from hmi.ui.containment import ContainedPump
 from hmi.ui.frame import Frame
-from hmi.ui.recorder import FOV_SUFFIX, ScanRecorder, Trace
 from hmi.ui.style import MUTED, STYLE, Level
 
 HIGH, LOW, RISE, FALL, MULTI, UNKNOWN = "█", "▁", "▐", "▌", "▒", " "
@@ -113,7 +114,7 @@ class Chronogram(ContainedPump, Widget):
     signals: reactive[tuple[str, ...]] = reactive(tuple)
     window_us: reactive[int] = reactive(WINDOWS_US[1])
 
-    def __init__(self, recorder: ScanRecorder, signals: tuple[str, ...], *,
+    def __init__(self, recorder: History, signals: tuple[str, ...], *,
                  id: str | None = None):
         super().__init__(id=id)
         self.recorder = recorder

@@ -39,6 +39,36 @@ def _title(text: str, level: Level) -> Static:
     return Static(title, classes="dialog-title", markup=False)
 
 
+def keep_clear(app) -> None:
+    """Keep the status bar and the banners of the main screen in view above every dialog
+    (and the command palette): the dialog's box starts below them, so nothing the cell says
+    about itself (SAFE STATE, MANUAL, a disconnected plant) is covered while the operator
+    reads or types. Called when a dialog mounts and with every frame, since a banner may
+    come or go while the dialog is open. (The box moves, not the screen: a padded screen
+    shifts the cell drawn under it down by as much.)"""
+    stack = app.screen_stack
+    if len(stack) < 2:
+        return
+    try:
+        clear = max(w.region.bottom for w in stack[0].query("#status, #banners")
+                    if w.display)
+    except ValueError:  # not composed yet
+        return
+    for screen in stack[1:]:
+        if not isinstance(screen, ModalScreen) or not screen.children:
+            continue
+        box = screen.children[0]
+        base = box.__dict__.setdefault("_clear_base", box.styles.margin.top)  # palette: 3
+        top = max(base, clear)
+        margin = box.styles.margin
+        if margin.top != top:
+            box.styles.margin = (top, margin.right, margin.bottom, margin.left)
+        if isinstance(screen, Dialog):  # the whole box below the banners
+            room = max(5, app.size.height - top - 1)
+            if box.styles.max_height is None or box.styles.max_height.value != room:
+                box.styles.max_height = room
+
+
 class Dialog(ContainedPump, ModalScreen[_R]):
     """A modal dialog of the HMI: its errors contained, and the moment it was first shown
     known, so that keys typed before it was on screen are dropped (see the module)."""
@@ -47,6 +77,7 @@ class Dialog(ContainedPump, ModalScreen[_R]):
 
     def on_mount(self) -> None:
         self.call_after_refresh(self._painted)
+        keep_clear(self.app)
 
     def _painted(self) -> None:
         if self.shown_at is None:

@@ -1,58 +1,54 @@
-"""Who runs the scans while the app is open.
+"""Who runs the scans while the app is open, and who shows their frames.
 
-- :class:`LiveDriver`: the real thing. A :class:`~hmi.session.live.LiveRunner` thread paces the
-  scans by the wall clock; the UI only reads ``session.last`` and never waits for a scan.
-- :class:`VirtualDriver`: for tests and screenshots. Nothing runs by itself; the test calls
-  :meth:`VirtualDriver.advance` to run scans in virtual time, exactly as the live runner
-  would have (none while paused), so what the screen shows is repeatable to the character.
+- :class:`LiveDriver`: the real thing. The link's scans (a runtime process, or a
+  :class:`~hmi.session.live.LiveRunner` thread in this process) are paced by the wall clock;
+  the UI reads the link's latest view at most 20 times a second and never waits for a scan.
+- :class:`VirtualDriver`: for tests, screenshots and the soak. Nothing runs by itself; the
+  caller calls :meth:`VirtualDriver.advance` to run scans in virtual time, exactly as the
+  live runner would have (none while paused), so what the screen shows is repeatable to the
+  character.
 """
 
 from __future__ import annotations
 
 import gc
-import sys
 from functools import partial
 
 from textual.screen import Screen
 
-from hmi.session.live import LiveRunner
-from hmi.session.session import Session
-
-# The scan thread and the UI share one interpreter lock. When the scan thread wakes up for
-# its next scan while the UI is rendering, it waits until the UI thread is asked to let go,
-# by default after 5 ms: that would be most of a 10 ms period. Half a millisecond bounds
-# that wait; measured by `plchmi bench ui`.
-SWITCH_INTERVAL_S = 0.0005
+from hmi.link.base import CellLink
 
 
 class LiveDriver:
     live = True
 
-    def __init__(self, controller: Session):
-        self.controller = controller
-        self.runner = LiveRunner(controller)
+    def __init__(self, link: CellLink):
+        self.link = link
+
+    @property
+    def runner(self):
+        """The scan thread, when the scans run in this process (the single-process bench)."""
+        return getattr(self.link, "runner", None)
 
     def start(self) -> None:
         """Start scanning. Called once the app is mounted, so that its widgets exist."""
-        sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
-        # LiveRunner.start freezes what exists (the app's widgets included) out of the
-        # garbage collector's sight: a full collection over them took ~40 ms here.
-        self.runner.start()
-        # The start (hmi.cli.ui) runs without automatic collection, to here: the scans run
-        # with it, as every other session does.
+        self.link.start()
+        # The start (hmi.cli.ui) runs without automatic collection, to here: the screen runs
+        # with it, as every other process does.
         gc.enable()
 
     def stop(self) -> None:
-        self.runner.stop()
+        self.link.stop()
 
     @property
     def overruns(self) -> int:
-        return self.runner.overruns
+        view = self.link.view()
+        return view.overruns if view is not None else 0
 
     @property
     def error(self) -> BaseException | None:
-        """Why the scan thread died (None while it runs or after a normal stop)."""
-        return self.runner.error
+        """Why the scans stopped on their own (None while they run or after a normal stop)."""
+        return self.link.error
 
 
 class _Held:
@@ -122,32 +118,19 @@ class VirtualDriver:
         compositor.render_update(screen_stack=app._background_screens)
         return True
 
-    def __init__(self, controller: Session):
-        self.controller = controller
+    def __init__(self, link: CellLink):
+        self.link = link
 
     def start(self) -> None:
         pass
 
     def stop(self) -> None:
-        pass
+        self.link.stop()
 
     def advance(self, duration_us: int) -> int:
         """Run the scans that `duration_us` of virtual time holds, if running; return how many."""
-        controller = self.controller
-        if not controller.state.running:
-            return 0
-        end = controller.engine.now + duration_us
-        count = 0
-        while controller.state.running and controller.next_time <= end:
-            controller.scan_once()
-            count += 1
-        return count
+        return self.link.advance(duration_us)
 
     def advance_until(self, predicate, limit_us: int) -> bool:
         """Run scans until `predicate(snapshot)` holds, at most `limit_us` of virtual time."""
-        controller = self.controller
-        end = controller.engine.now + limit_us
-        while controller.state.running and controller.next_time <= end:
-            if predicate(controller.scan_once()):
-                return True
-        return False
+        return self.link.advance_until(predicate, limit_us)

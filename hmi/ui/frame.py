@@ -12,8 +12,8 @@ from typing import TYPE_CHECKING
 
 from hmi.engine.snapshot import Snapshot
 from hmi.project.injection import Injection
+from hmi.session.recorder import ConstraintStats
 from hmi.ui.containment import UIFault
-from hmi.ui.recorder import ConstraintStats
 
 if TYPE_CHECKING:  # the HMI without --opcua never imports anything of OPC UA
     from hmi.opcua.status import ServingStatus

@@ -14,8 +14,8 @@ from textual.containers import Vertical
 from textual.widgets import Label, OptionList, Static
 from textual.widgets.option_list import Option
 
+from hmi.session.recorder import FOV_SUFFIX, Signal
 from hmi.ui.dialogs import Dialog
-from hmi.ui.recorder import FOV_SUFFIX, Signal
 from hmi.ui.style import Level, banner
 
 KIND_WORDS = {"input": "input", "output": "output (written)", "fov": "output FOV",

@@ -10,14 +10,14 @@ from __future__ import annotations
 
 from rich.text import Text
 
+from hmi.link.base import History
 from hmi.timefmt import seconds
 from hmi.ui.frame import Frame
 from hmi.ui.panel import TextPanel
-from hmi.ui.recorder import ScanRecorder
 from hmi.ui.style import MUTED, Level, tag
 
 
-def plant_text(frame: Frame, recorder: ScanRecorder | None, wide: bool) -> Text:
+def plant_text(frame: Frame, recorder: History | None, wide: bool) -> Text:
     snap = frame.snapshot
     text = Text(no_wrap=True, overflow="ellipsis")
     text.append_text(tag("SIMULATION", Level.SIMULATION))
@@ -61,7 +61,7 @@ def plant_text(frame: Frame, recorder: ScanRecorder | None, wide: bool) -> Text:
 
 
 class SimPanel(TextPanel):
-    def __init__(self, recorder: ScanRecorder, *, id: str | None = None):
+    def __init__(self, recorder: History, *, id: str | None = None):
         super().__init__(id=id)
         self.recorder = recorder
 

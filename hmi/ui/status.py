@@ -1,9 +1,9 @@
 """The status bar and the banners under it: the two things that must survive any screen size.
 
 The status bar is one line. When the terminal is narrow it uses short forms, then drops its
-least important fields first (measured scan time, the late-scan count, plant details; the
-project name among the last) and never the mode, the filter policy, the run state or an
-alarm. The banner
+least important fields first (measured scan time, plant details; the project name among
+the last) and never the mode, the filter policy, the run state, the count of the most urgent
+unacknowledged alarms (``✗ 3 P1 unack``) nor the late-scan flag. The banner
 strip appears only while something abnormal is in effect: manual mode
 (MANUAL / FORCES ACTIVE), recovery mode (RECOVERY, with its step), a device the operator
 stopped, outputs latched in the safe state, and, for the rest of the session, an error of the
@@ -19,6 +19,7 @@ from rich.text import Text
 
 from hmi.engine.recovery import RecoveryState
 from hmi.timefmt import seconds
+from hmi.ui.alarm_list import urgent_count
 from hmi.ui.frame import Frame
 from hmi.ui.panel import TextPanel
 from hmi.ui.serving import serving_banner, serving_field
@@ -65,6 +66,13 @@ def status_fields(frame: Frame, wide: bool, compact: bool = False) -> list[Field
         fields.append(Field(tag(f"{filter_word}monitor", Level.ATTENTION), 0))
     else:
         fields.append(Field(Text(f"{filter_word}{snap.policy}"), 0))
+    # The most urgent unacknowledged alarms, counted: never dropped, whatever the list shows
+    urgent = urgent_count(tuple(snap.alarms))
+    if urgent:
+        priority = snap.alarms[0].priority
+        word = "unack" if compact else "unacknowledged"
+        fields.append(Field(tag(f"{urgent} P{priority} {word}",
+                                Level.ALARM if priority == 1 else Level.ATTENTION), 0))
     report = snap.filter
     if report is not None and report.violations:
         count = len(report.violations)
@@ -82,14 +90,16 @@ def status_fields(frame: Frame, wide: bool, compact: bool = False) -> list[Field
         fields.append(Field(Text(f"▶ {word} {speed_text(frame.speed)}"), 0))
     else:
         fields.append(Field(tag(frame.run.upper(), Level.ATTENTION), 0))
+    if frame.show_measured and frame.overruns:
+        # a compact flag kept at every width: the cell ran behind time (the tooltip says more)
+        fields.append(Field(tag(f"{frame.overruns} late" if compact
+                                else late_text(frame.overruns), Level.ATTENTION), 0))
     fields.append(Field(Text(f"#{snap.scan}" if compact else f"scan {snap.scan}"), 1))
     fields.append(Field(Text(f"{seconds(snap.time_us)} s" if compact
                              else f"t {seconds(snap.time_us)} s"), 1))
     if frame.show_measured:
         unit = "µs" if compact else "µs/scan"
         fields.append(Field(Text(f"{snap.scan_wall_us:.0f} {unit}", style=MUTED), 5))
-        if frame.overruns:
-            fields.append(Field(tag(late_text(frame.overruns), Level.ATTENTION), 4))
     return fields
 
 

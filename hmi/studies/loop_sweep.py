@@ -1,0 +1,331 @@
+"""Every fault at every phase of the cycle, per configuration: the runs behind
+`plchmi campaign --sweep` and the closed-loop diagnosability of `check` / `diagnose`.
+
+:func:`sweep` explores the closed loop (hmi/studies/explore.py) and keeps the outcome of each
+run (hmi/studies/closed_loop.py). The work is cut into shards of :data:`SHARD_RUNS` runs —
+per configuration, the faults one after the other, each at every instant, taken in that order
+and cut every SHARD_RUNS runs — that any worker computes alone from the project's files
+(hmi/farm/): its explorer back at the fault-free prefix before each shard, the runs of the
+shard explored, their outcomes computed there. The outcomes come back in shard order, so the
+result does not depend on the workers; the states explored are counted per shard (a state two
+shards reach counts in both), so their number depends on the cut, which is fixed here.
+
+An exact sweep (`exact`: every instant of the cycle, not a grid; hmi/studies/explore.py,
+Explorer.pieces) is cut the same way, its units being scan intervals instead of instants. A
+sweep of a band point (hmi/studies/band.py) names the point in its options: every worker
+applies it to the project it loaded.
+
+Results are cached on disk, keyed by the project's files, the diagnoser variant, the grid (or
+exactness), the band point and the code version, so a second `check` of an unchanged project
+does not explore again; an exact sweep is kept per configuration (diagnose's two are among
+campaign's three). The cache holds plain JSON (the outcomes), never code, and a damaged entry
+is simply recomputed.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from hmi.farm.bundle import Bundle, digest_of
+from hmi.farm.job import Study, make_job
+from hmi.farm.run import Farm
+from hmi.farm.version import code_version
+from hmi.studies.closed_loop import Outcome, outcomes
+from hmi.studies.explore import Explorer, LoopConfig, faults_of
+
+# The campaign's three columns (000 Table 1), as closed-loop configurations.
+DIAG_NO_FILTER = LoopConfig("diag_no_filter", "Diag no Filter", "monitor", "observe")
+FILTER_NO_DIAG = LoopConfig("filter_no_diag", "No Diag Filter", None, "off")
+FTC = LoopConfig("ftc", "FTC (Diag and Filter)", None, "ftc")
+CAMPAIGN_CONFIGS = (DIAG_NO_FILTER, FILTER_NO_DIAG, FTC)
+# Where the diagnosers run: observing only, and driving reconstruction and masking.
+DIAGNOSIS_CONFIGS = (DIAG_NO_FILTER, FTC)
+CACHE_VERSION = 3
+# Runs per shard: 0.3-3 s of work each on the valve (docs/studies.md), far above Dask's
+# per-task cost, and 156 shards for the valve's full sweep: enough to keep 64 workers busy.
+SHARD_RUNS = 200
+
+
+@dataclass
+class SweepResult:
+    project: str
+    variant: str
+    configs: tuple[LoopConfig, ...]
+    faults: tuple[str, ...]
+    period_us: int
+    every: int  # scans between two grid instants
+    extras: bool
+    cycle_start_us: int
+    cycle_us: int
+    runs: dict[str, list[Outcome]] = field(default_factory=dict)
+    states: dict[str, int] = field(default_factory=dict)  # nodes explored per config
+    cached: bool = False  # read whole from the cache (how it ran is not part of the result)
+    exact: bool = False  # every instant (pieces of instants), not a grid
+    step_us: int | None = None  # a grid finer than the scan: every step_us of each interval
+    point: str = ""  # the band point explored ("" the project's own plant)
+
+    def of(self, config: str) -> list[Outcome]:
+        return self.runs[config]
+
+    def at_phase(self, config: str, fault: str, at_us: int) -> Outcome:
+        """The run of `fault` at the grid instant with the same phase as `at_us` (the
+        fault-free loop repeats every cycle, so an instant of a later cycle is the same
+        state as its phase in the swept one)."""
+        at = at_us
+        if at >= self.cycle_start_us:
+            at = self.cycle_start_us + (at - self.cycle_start_us) % self.cycle_us
+        runs = [r for r in self.runs[config] if r.fault == fault and not r.extra]
+        inside = [r for r in runs if r.first_us <= at <= r.last_us]
+        if inside:
+            return inside[0]
+        return min(runs, key=lambda r: (abs(r.at_us - at), r.at_us))
+
+
+def sweep(project, configs: Sequence[LoopConfig], counter: str, every_us: int | None = None,
+          extras: bool = True, farm: Farm | None = None, cache: bool = True,
+          compute: bool = True, faults: Sequence[str] | None = None, exact: bool = False,
+          point: dict[str, Any] | None = None) -> SweepResult | None:
+    """The sweep, from the cache when it holds it; None when it does not and `compute` is
+    false. `farm` says where the shards run (default: this machine's processes). `exact`:
+    every instant of the cycle, else a grid of `every_us` (a multiple of the scan period, or
+    a divisor of it: instants inside each interval). `point`: a band point's plant
+    ({"values", "seed", "text"}, hmi/studies/band_sweep.py); `project` is already that plant
+    here, and every worker makes it from the project's files."""
+    period = project.scan_period_us
+    step_us = every_us if every_us is not None and every_us < period else None
+    every = max(1, round((every_us or period) / period)) if step_us is None else 1
+    if exact:
+        extras, every, step_us = False, 1, None
+    variant = project_variant(project)
+    faults = tuple(faults) if faults else faults_of(project)
+    text = point["text"] if point else ""
+    # An exact sweep is kept per configuration; a grid's instants depend on the
+    # configurations together (the extras around transitions come from one where the
+    # diagnosers run), so it is kept whole.
+    groups = [(c,) for c in configs] if exact else [tuple(configs)]
+    keys = [_cache_key(project, variant, group, counter, every, extras, faults,
+                       [exact, step_us, text]) for group in groups]
+    found = [_load(key) if cache else None for key in keys]
+    missing = [c for group, part in zip(groups, found, strict=True) if part is None
+               for c in group]
+    if not missing:
+        if farm is not None:
+            farm.notes.append(f"the closed-loop sweep of {project.name}"
+                              + (f" at {text}" if text else "") + " was read from the cache "
+                              f"({cache_folder() / 'closed-loop'})")
+        return _joined([p for p in found if p is not None], configs, cached=True)
+    if not compute:
+        return None
+    study, probe = sweep_study(project, missing, counter, every, extras, faults, variant,
+                               exact, step_us, point)
+    parts = (farm or Farm()).run(study)
+    computed = {}
+    for c in missing:
+        result = SweepResult(project.name, variant, (c,), faults, period, every, extras,
+                             probe.graph.cycle_start * period,
+                             probe.graph.cycle_length * period, exact=exact,
+                             step_us=step_us, point=text)
+        result.runs[c.key] = []
+        result.states[c.key] = len(probe.graph.prefix)
+        computed[c.key] = result
+    for (c, _, _), part in zip(study.shards, parts, strict=True):
+        key_c = missing[c].key
+        computed[key_c].runs[key_c] += part.outcomes
+        computed[key_c].states[key_c] += part.nodes
+    out = []
+    for group, key, part in zip(groups, keys, found, strict=True):
+        if part is None:
+            part = _joined([computed[c.key] for c in group], group, cached=False)
+            if cache:
+                _store(key, part)
+        out.append(part)
+    return _joined(out, configs, cached=False)
+
+
+def _joined(parts: list[SweepResult], configs: Sequence[LoopConfig], cached: bool
+            ) -> SweepResult:
+    """One result of the parts the configurations were kept in, in `configs` order."""
+    first = parts[0]
+    result = SweepResult(first.project, first.variant, tuple(configs), first.faults,
+                         first.period_us, first.every, first.extras, first.cycle_start_us,
+                         first.cycle_us, cached=cached, exact=first.exact,
+                         step_us=first.step_us, point=first.point)
+    for c in configs:
+        part = next(p for p in parts if c.key in p.runs)
+        result.runs[c.key] = part.runs[c.key]
+        result.states[c.key] = part.states[c.key]
+    return result
+
+
+def sweep_study(project, configs: Sequence[LoopConfig], counter: str, every: int,
+                extras: bool, faults: tuple[str, ...], variant: str, exact: bool = False,
+                step_us: int | None = None, point: dict[str, Any] | None = None
+                ) -> tuple[Study, Explorer]:
+    """The sweep as shards, and the explorer whose fault-free run gave the instants (or the
+    intervals, exact)."""
+    # The instants come from a configuration where the diagnosers run (their transitions in
+    # the fault-free cycle add instants), and are the same for every configuration.
+    first = next((c for c in configs if c.diagnosis != "off"), configs[0])
+    probe = Explorer(project, first, counter)
+    units = ([list(i) for i in probe.intervals()] if exact
+             else [list(i) for i in probe.instants(extras, every, step_us)])
+    runs = len(faults) * len(units)
+    per = SHARD_RUNS // EXACT_COST if exact else SHARD_RUNS
+    shards = tuple((c, start, min(start + per, runs))
+                   for c in range(len(configs)) for start in range(0, runs, per))
+    options = {"configs": [[c.key, c.title, c.policy, c.diagnosis] for c in configs],
+               "counter": counter, "faults": list(faults), "exact": exact,
+               "instants": units, "shape": _shape(probe), "point": point}
+    job = make_job("sweep", Bundle.of(project, variant or None), _setup, _work, options,
+                   shards)
+    title = f"the closed-loop sweep of {project.name}" + (f" at {point['text']}" if point
+                                                           else "")
+    study = Study(title, job, shards, tuple(end - start for _, start, end in shards),
+                  _encode, _decode)
+    return study, probe
+
+
+# An exact sweep's unit (a scan interval) costs about this many grid runs (two at least, the
+# interval's ends; more where it splits): its shards hold as many fewer units.
+EXACT_COST = 3
+
+
+@dataclass(frozen=True)
+class SweepPart:
+    """One shard's runs: their outcomes in order, and the states it explored past the
+    fault-free prefix."""
+
+    outcomes: list[Outcome]
+    nodes: int
+
+
+@dataclass
+class _State:
+    project: Any
+    configs: list[LoopConfig]
+    counter: str
+    # (fault, k, at, why) in the order of the shards; exact: (fault, k, lo, hi)
+    runs: list[tuple[Any, ...]]
+    shape: str
+    exact: bool = False
+    explorers: dict[int, Explorer] = field(default_factory=dict)
+
+    def explorer(self, c: int) -> Explorer:
+        ex = self.explorers.get(c)
+        if ex is None:
+            ex = Explorer(self.project, self.configs[c], self.counter)
+            if _shape(ex) != self.shape:
+                raise RuntimeError(f"the fault-free run under {ex.config.title} differs from "
+                                   "the others': the sweep's instants would not be the same "
+                                   "phases")
+            self.explorers[c] = ex
+        else:
+            ex.reset()
+        return ex
+
+
+def _setup(project, options: dict[str, Any]) -> _State:
+    point = options.get("point")
+    if point:  # a band point's plant, made from the project the worker loaded
+        from hmi.studies.band import plant_at
+        project = plant_at(project, point)
+    units = [tuple(i) for i in options["instants"]]
+    return _State(project, [LoopConfig(*c) for c in options["configs"]], options["counter"],
+                  [(f, *unit) for f in options["faults"] for unit in units],
+                  options["shape"], bool(options.get("exact")))
+
+
+def _work(state: _State, shard: tuple[int, int, int]) -> SweepPart:
+    c, start, end = shard
+    ex = state.explorer(c)
+    if state.exact:
+        for fault, k, lo, hi in state.runs[start:end]:
+            ex.pieces(fault, k, lo, hi)
+    else:
+        for fault, k, at, why in state.runs[start:end]:
+            ex.run(fault, k, at, why)
+    g = ex.graph
+    return SweepPart(outcomes(g), len(g.obs) - len(g.prefix))
+
+
+def _shape(ex: Explorer) -> str:
+    """The fault-free run's digest: no configuration acts on a fault-free cell, so it must
+    be the same run under each (its instants are the same phases)."""
+    g = ex.graph
+    text = repr((g.cycle_start, [g.obs[n] for n in g.prefix]))
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _encode(part: SweepPart) -> dict[str, Any]:
+    return {"nodes": part.nodes, "outcomes": [asdict(r) for r in part.outcomes]}
+
+
+def _decode(shard: Any, data: dict[str, Any]) -> SweepPart:
+    return SweepPart([_outcome(r) for r in data["outcomes"]], int(data["nodes"]))
+
+
+def _outcome(data: dict[str, Any]) -> Outcome:
+    return Outcome(**{**data, "final": tuple(data["final"])})
+
+
+def project_variant(project) -> str:
+    from hmi.project.diagnosers import diagnosers_of
+    return next((s.variant for s in diagnosers_of(project) if s.variant), "")
+
+
+# -- the cache --------------------------------------------------------------------------------
+
+
+def cache_folder() -> Path:
+    base = os.environ.get("PLCHMI_CACHE")
+    if base:
+        return Path(base)
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "plchmi"
+
+
+def _cache_key(project, variant, configs, counter, every, extras, faults, more=()) -> str:
+    text = json.dumps([CACHE_VERSION, variant, counter, every, extras, list(faults),
+                       [[c.key, c.policy, c.diagnosis] for c in configs],
+                       digest_of(project, variant or None), code_version().digest, list(more)])
+    return hashlib.sha256(text.encode()).hexdigest()[:32]
+
+
+def _load(key: str) -> SweepResult | None:
+    path = cache_folder() / "closed-loop" / f"{key}.json"
+    try:
+        data = json.loads(path.read_text())
+        configs = tuple(LoopConfig(**c) for c in data["configs"])
+        runs = {k: [_outcome(r) for r in v] for k, v in data["runs"].items()}
+        return SweepResult(data["project"], data["variant"], configs, tuple(data["faults"]),
+                           data["period_us"], data["every"], data["extras"],
+                           data["cycle_start_us"], data["cycle_us"], runs, data["states"],
+                           cached=True, exact=data["exact"], step_us=data["step_us"],
+                           point=data["point"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def _store(key: str, result: SweepResult) -> None:
+    folder = cache_folder() / "closed-loop"
+    data = {
+        "project": result.project, "variant": result.variant,
+        "configs": [asdict(c) for c in result.configs], "faults": list(result.faults),
+        "period_us": result.period_us, "every": result.every, "extras": result.extras,
+        "cycle_start_us": result.cycle_start_us, "cycle_us": result.cycle_us,
+        "runs": {k: [asdict(r) for r in v] for k, v in result.runs.items()},
+        "states": result.states, "exact": result.exact, "step_us": result.step_us,
+        "point": result.point,
+    }
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        tmp = folder / f"{key}.tmp{os.getpid()}"
+        tmp.write_text(json.dumps(data))
+        tmp.replace(folder / f"{key}.json")
+    except OSError:
+        pass  # a cache that cannot be written only costs time
