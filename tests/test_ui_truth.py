@@ -65,3 +65,18 @@ async def test_a_cell_without_diagnoser_is_not_told_of_diagnosers_after_a_repair
         await palette(pilot, "SIMULATION: repair the faulty devices")
         said = region_text(app, "#message")
         assert "removed" in said and "diagnoser" not in said, said
+
+
+async def test_under_monitor_every_unprotected_violation_is_p1():
+    """"Open and close ordered together — NOT corrected" stayed P2 under the monitor policy
+    (the project rates CSc1 medium when the filter keeps the orders apart) while lesser
+    unprotected violations were P1."""
+    app = make_app(control="faulty", policy="monitor")
+    async with app.run_test(size=SIZE) as pilot:
+        await run_until(pilot, lambda s: any(a.key == "constraint:CSc1" for a in s.alarms),
+                        30, "open and close ordered together")
+        await run_for(pilot, 0.1)
+        alarms = {a.key: a for a in app.frame.snapshot.alarms}
+        both = alarms["constraint:CSc1"]
+        assert "NOT corrected" in both.text and both.priority == 1, both
+        assert all(a.priority == 1 for k, a in alarms.items() if k.startswith("constraint:"))
