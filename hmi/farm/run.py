@@ -116,7 +116,8 @@ def run_study(study: Study, executor: Executor, progress: Progress | None = None
     started = time.perf_counter()
     n = len(study.shards)
     stats = RunStats(executor.description, n, seconds=[None] * n)
-    store = ShardStore(root or default_root(), study.job, study.title, n) if keep else None
+    store = ShardStore(root or default_root(), study.job, study.title, n,
+                       prune=root is None) if keep else None
     results: list[Any] = [None] * n
     found = [False] * n
     runs_done = computed = 0
