@@ -45,8 +45,11 @@ class JournalRecorder:
         session.overrun_listeners.append(self.on_overrun)
 
     def _append(self, entry: dict) -> None:
+        self._append_all([entry])
+
+    def _append_all(self, entries: list[dict]) -> None:
         try:
-            self.journal.append(entry)
+            self.journal.append_all(entries)
         except JournalWriteError as exc:
             self.failure = exc
             self.session.engine.latch_safe(
@@ -93,8 +96,8 @@ class JournalRecorder:
         self._drain_plant()
         for entry in self.overruns.tick(time.monotonic()):
             self._plant(entry)
-        for event in snapshot.alarm_events:
-            self._alarm(event)
+        if snapshot.alarm_events:  # one write and one fsync for the scan's transitions
+            self._append_all([self._alarm_entry(event) for event in snapshot.alarm_events])
         recovery = snapshot.recovery
         if recovery.status != self.recovery_status:
             self.recovery_status = recovery.status
@@ -140,6 +143,10 @@ class JournalRecorder:
         return f"refused: written {written}, not as requested"
 
     def _alarm(self, event, by: str = "") -> None:
+        self._append(self._alarm_entry(event, by))
+
+    @staticmethod
+    def _alarm_entry(event, by: str = "") -> dict:
         entry = {
             "type": "alarm", "event": event.event, "key": event.key, "state": event.state,
             "severity": event.severity, "text": event.text, "returns": event.returns,
@@ -148,7 +155,7 @@ class JournalRecorder:
             entry["message"] = event.note
         if by:
             entry["by"] = by
-        self._append(entry)
+        return entry
 
     def on_ui_fault(self, fault) -> None:
         """An error of the HMI (hmi.ui.containment.UIFault): contained, or fatal."""
