@@ -97,7 +97,10 @@ class JournalRecorder:
         for entry in self.overruns.tick(time.monotonic()):
             self._plant(entry)
         if snapshot.alarm_events:  # one write and one fsync for the scan's transitions
-            self._append_all([self._alarm_entry(event) for event in snapshot.alarm_events])
+            batch: list[dict] = []
+            for event in snapshot.alarm_events:
+                self._alarm(event, batch=batch)
+            self._append_all(batch)
         recovery = snapshot.recovery
         if recovery.status != self.recovery_status:
             self.recovery_status = recovery.status
@@ -142,8 +145,13 @@ class JournalRecorder:
             return f"refused: written {written}: masked by the diagnosis"
         return f"refused: written {written}, not as requested"
 
-    def _alarm(self, event, by: str = "") -> None:
-        self._append(self._alarm_entry(event, by))
+    def _alarm(self, event, by: str = "", batch: list[dict] | None = None) -> None:
+        """Journal one alarm transition now, or add it to `batch` (written by the caller)."""
+        entry = self._alarm_entry(event, by)
+        if batch is None:
+            self._append(entry)
+        else:
+            batch.append(entry)
 
     @staticmethod
     def _alarm_entry(event, by: str = "") -> dict:
