@@ -355,10 +355,11 @@ class SafetyFilter:
                  active: Sequence[CompiledConstraint], violations: tuple[Violation, ...]
                  ) -> tuple[tuple[bool, ...], FilterReport]:
         cost = sum(c.preparation for c in active)
-        if cost > self.budget:
+        if cost > self.budget and any(not c.simple for c in active):
             # Preparing the corrector's problem alone would cost more than the whole budget:
             # the safe state for this scan, without preparing it (work bounded by the
-            # constraints already evaluated, not by the search).
+            # constraints already evaluated, not by the search). Simple constraints alone
+            # need no search: their set/reset form is linear, like their evaluation.
             return self._no_solution(fov, violations, active, None, Solution(
                 None, 0, 0, "budget", steps=len(active), budget=self.budget), 0.0, cost)
         aset = self._active_set(active)
