@@ -29,6 +29,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
      "hmi.textfile", "hmi.crash", "hmi.outpaths"),
     ("hmi.logic",),
     ("hmi.project",),
+    ("hmi.program",),
     ("hmi.plant", "hmi.engine", "hmi.farm"),
     ("hmi.studies", "hmi.export"),
     ("hmi.explain",),
