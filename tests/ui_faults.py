@@ -1,7 +1,7 @@
-"""A test-only hook: deliberate UI errors, to prove fault containment on the real program.
+"""Deliberate UI errors, to prove fault containment on the real program (tests only).
 
-``PLCHMI_TEST_UI_FAULT`` set in the environment (tests only; nothing happens when it is
-unset) makes the HMI fail on purpose once the engine's time reaches an instant:
+:func:`inject` makes every PlcHmiApp started afterwards in the test fail on purpose once the
+engine's time reaches an instant, as the text says:
 
 - ``panel`` or ``panel@2s``: the constraints panel raises at every frame from then on — the
   error must be contained (banner, journal), the scan and the other panels go on;
@@ -9,16 +9,21 @@ unset) makes the HMI fail on purpose once the engine's time reaches an instant:
   hands its errors straight to its last resort, no handler of ours in between), which ends
   the app — it must end as an abnormal end (safe outputs on a real plant, a journal
   entry with the reason, exit status 1).
+
+The app itself knows nothing of this: the test wraps its frame refresh (``PlcHmiApp.poll``)
+with pytest's monkeypatch, which undoes it at the end of the test.
 """
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 
-from hmi.timefmt import parse_duration
+import pytest
 
-ENV = "PLCHMI_TEST_UI_FAULT"
+from hmi.timefmt import parse_duration
+from hmi.ui.app import PlcHmiApp
+from hmi.ui.constraints_panel import ConstraintsPanel
+
 KINDS = ("panel", "fatal")
 
 
@@ -32,32 +37,28 @@ class TestFault:
     after_us: int = 0
 
 
-def from_environment() -> TestFault | None:
-    text = os.environ.get(ENV, "").strip()
-    if not text:
-        return None
-    kind, _, when = text.partition("@")
+def parse(text: str) -> TestFault:
+    """`panel`, `fatal`, optionally `@TIME` (`fatal@1.5s`)."""
+    kind, _, when = text.strip().partition("@")
     if kind not in KINDS:
-        raise ValueError(f"{ENV}={text!r}: expected {' or '.join(KINDS)}, optionally @TIME")
+        raise ValueError(f"{text!r}: expected {' or '.join(KINDS)}, optionally @TIME")
     return TestFault(kind, parse_duration(when) if when else 0)
 
 
 class Armed:
-    """The hook installed in one app; `tick` is called with each frame's time."""
+    """The fault installed in one app; `tick` is called with each frame's time."""
 
-    def __init__(self, app, fault: TestFault):
+    def __init__(self, app: PlcHmiApp, fault: TestFault):
         self.app = app
         self.fault = fault
         self.fired = False
         if fault.kind == "panel":
-            from hmi.ui.constraints_panel import ConstraintsPanel
             panel = app.query_one(ConstraintsPanel)
             show = panel.show
 
             def failing_show(frame) -> None:
                 if frame.snapshot.time_us >= fault.after_us:
-                    raise DeliberateUIError(f"{ENV}: deliberate error in the constraints "
-                                            "panel")
+                    raise DeliberateUIError("deliberate error in the constraints panel")
                 show(frame)
             panel.show = failing_show  # type: ignore[method-assign]
 
@@ -67,5 +68,23 @@ class Armed:
         self.fired = True
 
         def fail() -> None:
-            raise DeliberateUIError(f"{ENV}: deliberate error outside any handler")
+            raise DeliberateUIError("deliberate error outside any handler")
         self.app.set_timer(0.001, fail)
+
+
+def inject(monkeypatch: pytest.MonkeyPatch, text: str) -> None:
+    """Arm `text`'s fault in every PlcHmiApp of this test, at its first frame."""
+    fault = parse(text)
+    poll = PlcHmiApp.poll
+    armed: dict[int, Armed] = {}
+
+    def poll_and_fail(app: PlcHmiApp, force: bool = False) -> bool:
+        hook = armed.get(id(app))
+        if hook is None or hook.app is not app:
+            hook = armed[id(app)] = Armed(app, fault)
+        shown = poll(app, force)
+        if shown:
+            hook.tick(app.frame.snapshot.time_us)
+        return shown
+
+    monkeypatch.setattr(PlcHmiApp, "poll", poll_and_fail)
