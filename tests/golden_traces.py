@@ -408,6 +408,7 @@ def run_case(case: Case) -> str:
         for line in journal_path.read_text(encoding="utf-8").splitlines():
             entry = json.loads(line)
             entry.pop("wall", None)
+            entry.pop("session", None)
             lines.append(_dump({"journal": entry}))
     return "\n".join(lines) + "\n"
 

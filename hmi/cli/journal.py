@@ -61,16 +61,14 @@ def cmd_journal(args: argparse.Namespace) -> int:
     damaged = DamagedLines(path)
     entries = (e for e in since_filter(damaged.skipped(items), since)
                if not kinds or e.get("type") in kinds)
-    columns = ("wall", "scan", "t", "type", "event", "key", "state", "severity", "text",
-               "message", "by")
     if args.csv:
         writer = csv.writer(sys.stdout, lineterminator="\n")
-        writer.writerow(columns)
+        writer.writerow(CSV_COLUMNS)
         for entry in entries:
-            writer.writerow([_printable(_field(entry, c)) for c in columns])
+            writer.writerow([_printable(_csv_field(entry, c)) for c in CSV_COLUMNS])
     else:
         for entry in entries:
-            text = _field(entry, "text") or _field(entry, "message") or _field(entry, "project")
+            text = _field(entry, "text") or _field(entry, "message") or started(entry)
             key = f" {entry['key']}" if entry.get("key") else ""
             if isinstance(entry.get("by"), str):  # sent by an OPC UA client
                 text = f"{text} [by {entry['by']}]"
@@ -143,6 +141,33 @@ def parse_since(text: str):
         except (ValueError, OverflowError):  # at the very ends of the calendar
             since = since.replace(tzinfo=UTC)
     return since
+
+
+# The CSV's columns: the first eleven as they always were, then whether an action was accepted
+# (true / false; blank for other entries) and the session the entry belongs to (its id,
+# written into every entry; blank in journals written before it was).
+CSV_COLUMNS = ("wall", "scan", "t", "type", "event", "key", "state", "severity", "text",
+               "message", "by", "accepted", "session")
+
+
+def started(entry: dict) -> str:
+    """A session's start in words: project, control program, filter policy, plant (what the
+    JSON entry holds in fields of its own); "" for any other entry."""
+    if entry.get("type") != "session" or entry.get("event") != "start":
+        return ""
+    parts = [f"{label} {entry[name]}" for name, label in (
+        ("project", "project"), ("control", "control"), ("policy", "filter policy"),
+        ("plant", "plant"), ("source", "from")) if isinstance(entry.get(name), str)]
+    return "started: " + ", ".join(parts) if parts else ""
+
+
+def _csv_field(entry: dict, name: str):
+    if name == "accepted":
+        value = entry.get("accepted")
+        return "" if not isinstance(value, bool) else ("true" if value else "false")
+    if name == "message":
+        return _field(entry, "message") or started(entry)
+    return _field(entry, name)
 
 
 def _field(entry: dict, name: str):

@@ -17,6 +17,7 @@ The default place is the user's data folder: $PLCHMI_DATA, else $XDG_DATA_HOME/p
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import re
@@ -62,6 +63,18 @@ def wall_now() -> str:
     return datetime.now(UTC).isoformat(timespec="milliseconds")
 
 
+_SESSIONS = itertools.count(1)
+
+
+def new_session_id() -> str:
+    """An id for one session's entries (its start, UTC, and the process; `.2`, `.3` for a
+    process's further sessions): what tells apart the entries of two sessions, also of two
+    processes writing one journal at once."""
+    n = next(_SESSIONS)
+    return f"{datetime.now(UTC).strftime('%Y%m%dT%H%M%SZ')}-{os.getpid()}" + (
+        f".{n}" if n > 1 else "")
+
+
 class Journal:
     """Append-only writer; each `append` is on disk when it returns.
 
@@ -72,6 +85,7 @@ class Journal:
     def __init__(self, path: Path):
         self.path = path
         self._fd = -1
+        self.session: str | None = None  # written into every entry once set (new_session_id)
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             # Not a FIFO or a device: only a regular file (or a new one) is a journal.
@@ -127,6 +141,8 @@ class Journal:
     def append(self, entry: dict[str, Any]) -> None:
         self.seq += 1
         record = {"wall": wall_now(), **entry}
+        if self.session is not None:
+            record["session"] = self.session
         line = json.dumps(record, ensure_ascii=False, separators=(",", ":")) + "\n"
         self._write(line.encode("utf-8"))
 
@@ -233,7 +249,8 @@ def _lines(file) -> Iterator[tuple[int, bytes, bool]]:
 _FIELD_TYPES: dict[str, tuple[type, ...]] = {
     "wall": (str,), "type": (str,), "event": (str,), "scan": (int,), "t": (str, int, float),
     "message": (str,), "text": (str,), "key": (str,), "severity": (str,), "state": (str,),
-    "project": (str,)}
+    "project": (str,), "session": (str,), "control": (str,), "policy": (str,),
+    "plant": (str,)}
 _JSON_TYPE = {dict: "an object", list: "a list", str: "a string", bool: "a Boolean",
               int: "a number", float: "a number", type(None): "null"}
 

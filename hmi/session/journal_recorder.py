@@ -19,7 +19,7 @@ import time
 
 from hmi.engine.commands import Command, CommandResult, ManualOutput, describe
 from hmi.engine.snapshot import Snapshot
-from hmi.explain.journal import Journal, JournalWriteError
+from hmi.explain.journal import Journal, JournalWriteError, new_session_id
 from hmi.plant.modbus.link_log import Burst
 from hmi.session.session import Session
 from hmi.timefmt import seconds
@@ -33,6 +33,7 @@ class JournalRecorder:
         self.failure: JournalWriteError | None = None
         self.recovery_status = ""  # the last recovery status journalled (done, failed)
         engine = session.engine
+        journal.session = new_session_id()
         journal.append({"type": "session", "event": "start", "source": source,
                         "project": engine.project.name, "control": engine.control_name,
                         "policy": engine.policy, "plant": engine.plant.status.description,
