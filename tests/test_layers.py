@@ -1,7 +1,7 @@
 """The import graph keeps the layering of docs/architecture.md, and has no import cycle.
 
     base (errors, timefmt, paths, limits, textfile, codecache, crash) <- logic <- project
-        <- plant, engine, farm <- studies, export <- explain <- session <- link
+        <- plant, engine, farm <- studies, export <- explain <- session, history <- link
         <- apps (ui, cli, bench, opcua, soak)
 
 A module imports from its own layer or from a lower one, never from a higher one; within
@@ -29,10 +29,11 @@ LAYERS: tuple[tuple[str, ...], ...] = (
      "hmi.textfile", "hmi.crash", "hmi.outpaths"),
     ("hmi.logic",),
     ("hmi.project",),
+    ("hmi.program",),
     ("hmi.plant", "hmi.engine", "hmi.farm"),
     ("hmi.studies", "hmi.export"),
     ("hmi.explain",),
-    ("hmi.session",),
+    ("hmi.session", "hmi.history"),
     ("hmi.link",),
     ("hmi.ui", "hmi.cli", "hmi.bench", "hmi.opcua", "hmi.soak"),
 )

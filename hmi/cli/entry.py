@@ -21,6 +21,7 @@ PARTS: tuple[tuple[tuple[str, ...], str, str], ...] = (
     (("diagnose", "campaign"), "studies", "add_parsers"),
     (("export",), "export", "add_parser"),
     (("journal",), "journal", "add_parser"),
+    (("history",), "history", "add_parser"),
     (("sweep",), "studies", "add_sweep_parser"),
     (("soak",), "soak", "add_parser"),
     (("bench",), "bench", "add_parser"),
@@ -28,14 +29,15 @@ PARTS: tuple[tuple[tuple[str, ...], str, str], ...] = (
     (("opcua-passwd", "serve-plant"), "serve", "add_parsers"),
 )
 SUBCOMMANDS = ("check", "run", "sweep", "ui", "serve-plant", "bench", "journal",
-               "diagnose", "campaign", "export", "opcua-passwd", "soak")
+               "diagnose", "campaign", "export", "opcua-passwd", "soak", "history")
 
 # command -> (its module, its function)
 COMMANDS = {
     "check": ("check", "cmd_check"), "run": ("run", "cmd_run"),
     "sweep": ("studies", "cmd_sweep"), "ui": ("ui", "cmd_ui"),
     "serve-plant": ("serve", "cmd_serve_plant"), "bench": ("bench", "cmd_bench"),
-    "journal": ("journal", "cmd_journal"), "diagnose": ("studies", "cmd_diagnose"),
+    "journal": ("journal", "cmd_journal"), "history": ("history", "cmd_history"),
+    "diagnose": ("studies", "cmd_diagnose"),
     "campaign": ("studies", "cmd_campaign"), "export": ("export", "cmd_export"),
     "opcua-passwd": ("serve", "cmd_opcua_passwd"), "soak": ("soak", "cmd_soak"),
 }

@@ -7,6 +7,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from hmi.cli.common import printable as _printable
 from hmi.cli.options import project_arg
 from hmi.errors import UsageError
 from hmi.limits import MAX_DAMAGED_SHOWN
@@ -175,18 +176,3 @@ def _field(entry: dict, name: str):
     the type of the fields it knows)."""
     value = entry.get(name)
     return "" if value is None else value
-
-
-_CONTROL = str.maketrans({
-    **{c: f"\\x{c:02x}" for c in [*range(0x20), *range(0x7f, 0xa0)] if c != 0x09},
-    # the line and paragraph separators (an entry must stay one line for whoever splits the
-    # output into lines) and the bidirectional controls (they reorder what a terminal shows)
-    **{c: f"\\u{c:04x}" for c in [0x061C, 0x200E, 0x200F, 0x2028, 0x2029,
-                                   *range(0x202A, 0x202F), *range(0x2066, 0x206A)]}})
-
-
-def _printable(value) -> str:
-    """A journal field for the terminal: control characters (an ESC sequence written into a
-    damaged or forged journal) shown as \\xNN, line separators and bidirectional controls
-    as \\uNNNN, never sent to the terminal."""
-    return str(value).translate(_CONTROL)

@@ -33,11 +33,12 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any
 
-from hmi.engine.codegen import Source, build, expr_source
+from hmi.engine.codegen import Source, build, expr_source, print_program
 from hmi.engine.control import ASSIGN, SET_DOMINANT
 from hmi.engine.diagnoser import GAP_SCANS, DiagnoserRuntime, DiagnosisStage, shift_outputs
 from hmi.engine.stopwatch import Phase
 from hmi.logic.expr import History, Image, Node, Var
+from hmi.program.timers import lower_timer
 
 if TYPE_CHECKING:
     from hmi.engine.control import ControlRuntime
@@ -113,37 +114,8 @@ class CompiledScan:
 
     def _memory(self, src: Source, layout: Layout, memory: Memory,
                 control: ControlRuntime, law: bool) -> None:
-        for (runtime, slot, _), spec in zip(memory.timers, memory.project_timers, strict=True):
-            r = src.ref(runtime)
-            cond = self._expr(spec.input.root)
-            preset = int(runtime.preset)
-            src.line(1, f"r = {r}")
-            if runtime.kind == "TON":
-                src.line(1, f"if {cond}:")
-                src.line(2, "s = r.since")
-                src.line(2, "if s is None:")
-                src.line(3, "s = now")
-                src.line(3, "r.since = now")
-                src.line(2, f"q = now - s >= {preset}")
-                src.line(2, "r.q = q")
-                src.line(1, "else:")
-                src.line(2, "r.since = None")
-                src.line(2, "q = False")
-                src.line(2, "r.q = False")
-                src.line(1, f"v[{int(slot)}] = q")
-            else:  # TOF
-                src.line(1, f"if {cond}:")
-                src.line(2, "r.since = None")
-                src.line(2, "r.q = True")
-                src.line(1, "elif r.q:")
-                src.line(2, "s = r.since")
-                src.line(2, "if s is None:")
-                src.line(3, "s = now")
-                src.line(3, "r.since = now")
-                src.line(2, f"if now - s >= {preset}:")
-                src.line(3, "r.q = False")
-                src.line(3, "r.since = None")
-                src.line(1, f"v[{int(slot)}] = r.q")
+        for runtime, slot, input_ in memory.timers:
+            print_program(src, lower_timer(runtime, slot, input_), 1, self.slots, self.times)
         for o in memory.project_observers:
             slot = int(self.slots[o.name])
             if o.expr is not None:

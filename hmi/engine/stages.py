@@ -30,6 +30,8 @@ from hmi.engine.layout import Layout
 from hmi.logic.expr import BoolFn, History, Image, compile_bool
 from hmi.logic.timers import TimerRuntime
 from hmi.plant.base import Plant, PlantError
+from hmi.program.evaluate import evaluator
+from hmi.program.timers import lower_timer
 from hmi.project.model import Project
 
 if TYPE_CHECKING:
@@ -112,8 +114,12 @@ class Memory:
 
     def __init__(self, project: Project, layout: Layout, control: ControlRuntime):
         slots, times = layout.slots, layout.step_times
-        self.timers = [(TimerRuntime(t.name, t.kind, t.preset_us), slots[t.name],
-                        compile_bool(t.input, slots, times)) for t in project.timers]
+        # (runtime, slot, IN): the state of each timer; its rule is hmi.program.timers'
+        # lowering, which this stage runs through the scan program's evaluator
+        self.timers = [(TimerRuntime(t.name, t.kind, t.preset_us), slots[t.name], t.input.root)
+                       for t in project.timers]
+        self._timers = evaluator([stmt for rt, slot, input_ in self.timers
+                                  for stmt in lower_timer(rt, slot, input_)], slots, times)
         # (slot, is an expression, expression or set, reset or unused)
         self.observers: list[tuple[int, bool, BoolFn, BoolFn]] = []
         for o in project.observers:
@@ -126,12 +132,10 @@ class Memory:
                                        compile_bool(o.reset, slots, times)))
         self.control = control
         # The declarations, for the compiled scan (hmi.engine.compiled) to generate from.
-        self.project_timers = project.timers
         self.project_observers = project.observers
 
     def update(self, image: Image, history: History, now: int) -> None:
-        for runtime, slot, fn in self.timers:
-            image[slot] = runtime.update(fn(image, history), now)
+        self._timers(image, history, now)
         for slot, is_expr, set_, reset in self.observers:
             if is_expr:
                 image[slot] = set_(image, history)

@@ -40,7 +40,7 @@ def cell_facts(session: Session) -> CellFacts:
             can_inject=plant.can_inject, can_repair=plant.can_repair,
             can_set_inputs=plant.can_set_inputs, free_inputs=tuple(plant.free_inputs),
             faults=tuple(tuple(f) for f in plant.faults())),  # type: ignore[misc]
-        period_us=session.period_us)
+        period_us=session.period_us, history=session.history, epoch_us=session.epoch_us)
 
 
 def run_info(session: Session) -> RunInfo:

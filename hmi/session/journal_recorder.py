@@ -16,6 +16,7 @@ entry.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
 from hmi.engine.commands import Command, CommandResult, ManualOutput, describe
 from hmi.engine.snapshot import Snapshot
@@ -32,12 +33,18 @@ class JournalRecorder:
         self.pending_manual: list[tuple[ManualOutput, str]] = []  # with who sent it
         self.failure: JournalWriteError | None = None
         self.recovery_status = ""  # the last recovery status journalled (done, failed)
+        # Told of every entry once it is in the journal (the historian keeps the alarms and
+        # actions beside its samples); from the thread that journalled it, so never waiting.
+        self.taps: list[Callable[[dict], None]] = []
         engine = session.engine
         journal.session = new_session_id()
-        journal.append({"type": "session", "event": "start", "source": source,
-                        "project": engine.project.name, "control": engine.control_name,
-                        "policy": engine.policy, "plant": engine.plant.status.description,
-                        "scan": engine.scan, "t": seconds(engine.now)})
+        # (kept for whoever taps the journal later: the historian records it too)
+        self.start_entry = {"type": "session", "event": "start", "source": source,
+                            "project": engine.project.name, "control": engine.control_name,
+                            "policy": engine.policy,
+                            "plant": engine.plant.status.description,
+                            "scan": engine.scan, "t": seconds(engine.now)}
+        journal.append(self.start_entry)
         self.link = engine.plant.link  # a real plant's LinkLog (None: simulated)
         self.overruns = Burst("scan-overrun", "scan-overruns", "scan overruns")
         session.listeners.append(self.on_command)
@@ -52,6 +59,9 @@ class JournalRecorder:
             self.failure = exc
             self.session.engine.latch_safe(
                 "journal", f"{exc}: operator actions and alarms cannot be recorded")
+            return
+        for tap in self.taps:
+            tap(entry)
 
     def on_command(self, command: Command, result: CommandResult,
                    snapshot: Snapshot | None) -> None:
