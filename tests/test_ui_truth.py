@@ -5,18 +5,11 @@ message line, the dialogs)."""
 
 from __future__ import annotations
 
+from ui_harness import palette, region_text, run_for, run_until, screen_text, wait_for_main
+from ui_scenarios import CONVEYOR, make_app
+
 from hmi.ui.dialogs import ConfirmDialog
-from hmi.ui.scenarios import CONVEYOR, make_app
-from hmi.ui.testing import (
-    palette,
-    press,
-    region_text,
-    run_for,
-    run_until,
-    screen_text,
-    wait_for_main,
-    wait_for_screen,
-)
+from hmi.ui.headless import press, wait_for_screen
 
 SIZE = (160, 48)
 
