@@ -1,56 +1,9 @@
-"""Timers (TON/TOF) and GRAFCET evolution, through small projects run by the engine."""
+"""Timers (TON/TOF) and GRAFCET evolution, through small projects run by the engine (each
+timer step by step: tests/test_program.py)."""
 
 from __future__ import annotations
 
-from hmi.engine.codegen import Source, build, print_program
-from hmi.logic.expr import Var
-from hmi.logic.timers import TimerRuntime
-from hmi.program.evaluate import evaluator
-from hmi.program.timers import lower_timer
 from tests.conftest import make_controller, write_project
-
-
-def timer_outputs(kind: str, steps: list[tuple[bool, int]]) -> list[bool]:
-    """Q at each (IN, now) of a timer of preset 100, run by the scan program's evaluator and
-    by the Python the compiled scan prints from the same lowering (hmi.program.timers): both
-    must give the same Q and the same state at every step."""
-    ran = []
-    for form in ("evaluator", "python"):
-        runtime = TimerRuntime("T", kind, 100)
-        program = lower_timer(runtime, 1, Var(0, "IN", 0))
-        if form == "evaluator":
-            run = evaluator(program, {"IN": 0, "T": 1}, {})
-        else:
-            src = Source()
-            print_program(src, program, 1, {"IN": 0, "T": 1}, {})
-            fn = build(src, "timer", "v, h, now", "<timer>")
-
-            def run(image, history, now, fn=fn):
-                fn(image, history, now)
-        image = [False, False]
-        seen = []
-        for x, now in steps:
-            image[0] = x
-            run(image, (), now)
-            assert image[1] == runtime.q
-            seen.append((runtime.q, runtime.since, runtime.elapsed(now)))
-        ran.append(seen)
-    assert ran[0] == ran[1]
-    return [q for q, _, _ in ran[0]]
-
-
-def test_ton_rises_after_preset_and_resets_when_input_drops():
-    assert timer_outputs("TON", [(True, 0), (True, 99), (True, 100), (True, 150), (False, 160),
-                                 (True, 170), (True, 269), (True, 270)]) == [
-        False, False, True, True, False, False, False, True]
-
-
-def test_tof_holds_for_preset_after_input_falls():
-    assert timer_outputs("TOF", [(False, 0), (True, 10), (False, 20), (False, 119),
-                                 (False, 120), (True, 130), (False, 140), (True, 200),
-                                 (False, 210), (False, 309), (False, 310)]) == [
-        False, True, True, True, False, True, True, True, True, True, False]
-
 
 GRAFCET_PROJECT = {
     "project.yaml": """

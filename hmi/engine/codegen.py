@@ -137,6 +137,11 @@ def _value_source(src: Source, value: ir.Value, slots: Mapping[str, int],
                     f"{_operand_source(src, right, slots, times)}")
         case ir.IsNone(operand=operand):
             return f"{_value_source(src, operand, slots, times)} is None"
+        case ir.Not(operand=operand):
+            return f"(not {_value_source(src, operand, slots, times)})"
+        case ir.And(operands=operands) | ir.Or(operands=operands):
+            word = " and " if isinstance(value, ir.And) else " or "
+            return "(" + word.join(_value_source(src, o, slots, times) for o in operands) + ")"
     raise TypeError(f"not a value of the scan program: {value!r}")
 
 

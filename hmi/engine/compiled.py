@@ -34,11 +34,9 @@ from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any
 
 from hmi.engine.codegen import Source, build, expr_source, print_program
-from hmi.engine.control import ASSIGN, SET_DOMINANT
 from hmi.engine.diagnoser import GAP_SCANS, DiagnoserRuntime, DiagnosisStage, shift_outputs
 from hmi.engine.stopwatch import Phase
 from hmi.logic.expr import History, Image, Node, Var
-from hmi.program.timers import lower_timer
 
 if TYPE_CHECKING:
     from hmi.engine.control import ControlRuntime
@@ -114,16 +112,8 @@ class CompiledScan:
 
     def _memory(self, src: Source, layout: Layout, memory: Memory,
                 control: ControlRuntime, law: bool) -> None:
-        for runtime, slot, input_ in memory.timers:
-            print_program(src, lower_timer(runtime, slot, input_), 1, self.slots, self.times)
-        for o in memory.project_observers:
-            slot = int(self.slots[o.name])
-            if o.expr is not None:
-                src.line(1, f"v[{slot}] = {self._expr(o.expr.root)}")
-            else:
-                assert o.set is not None and o.reset is not None  # the loader's guarantee
-                src.line(1, f"v[{slot}] = (not {self._expr(o.reset.root)}) and "
-                         f"({self._expr(o.set.root)} or v[{slot}])")
+        # the timers and observers: the stage's scan program (hmi.program), printed
+        print_program(src, memory.program, 1, self.slots, self.times)
         grafcet = control.grafcet
         if law and grafcet is not None and grafcet.time_slots:
             # only the active steps' times move (GrafcetRuntime.timed); all of them after a
@@ -234,19 +224,7 @@ class CompiledScan:
                     test += f" and {self._expr(cond_node)}"
                 src.line(1, f"if {test}:")
                 src.line(2, f"v[{int(target)}] = True")
-        for (slot, kind, _, _), eq in zip(control.equations, control.law.equations,
-                                          strict=True):
-            s = int(slot)
-            if kind == ASSIGN:
-                assert eq.expr is not None
-                src.line(1, f"v[{s}] = {self._expr(eq.expr.root)}")
-                continue
-            assert eq.set is not None and eq.reset is not None  # the loader's guarantee
-            set_, reset = self._expr(eq.set.root), self._expr(eq.reset.root)
-            if kind == SET_DOMINANT:
-                src.line(1, f"v[{s}] = {set_} or (v[{s}] and (not {reset}))")
-            else:
-                src.line(1, f"v[{s}] = (not {reset}) and ({set_} or v[{s}])")
+        print_program(src, control.equations, 1, self.slots, self.times)
 
     def _elapsed(self, memory: Memory) -> ElapsedFn:
         """``elapsed(now)``: each timer's ET for the snapshot, as Memory.elapsed."""

@@ -11,13 +11,16 @@ from typing import Any
 
 from hmi.logic.expr import History, Image, compile_bool
 from hmi.program.ir import (
+    And,
     AtLeast,
     Cell,
     Const,
     If,
     IsNone,
     Local,
+    Not,
     Now,
+    Or,
     Slot,
     Stmt,
     Sub,
@@ -110,4 +113,13 @@ def _value(value: Value, slots: Mapping[str, int], times: Mapping[str, int]) -> 
         case IsNone(operand=operand):
             a = _value(operand, slots, times)
             return lambda v, h, now, env: a(v, h, now, env) is None
+        case Not(operand=operand):
+            a = _value(operand, slots, times)
+            return lambda v, h, now, env: not a(v, h, now, env)
+        case And(operands=operands):
+            fns = [_value(o, slots, times) for o in operands]
+            return lambda v, h, now, env: all(fn(v, h, now, env) for fn in fns)
+        case Or(operands=operands):
+            fns = [_value(o, slots, times) for o in operands]
+            return lambda v, h, now, env: any(fn(v, h, now, env) for fn in fns)
     raise TypeError(f"not a value of the scan program: {value!r}")

@@ -9,8 +9,8 @@ and a method.
 
 The vocabulary is deliberately small: a project's Boolean expression (``Test``, the parsed
 tree of hmi.logic.expr), the scan's time, integer and Boolean constants, ``None``, a
-subtraction, a comparison ``>=``, a test for ``None``, locals, image slots and attributes of
-the objects handed over (``Cell``: a timer's ``since``), assignments and ``if``.
+subtraction, a comparison ``>=``, a test for ``None``, not/and/or, locals, image slots and
+attributes of the objects handed over (``Cell``: a timer's ``since``), assignments and ``if``.
 """
 
 from __future__ import annotations
@@ -82,7 +82,26 @@ class IsNone:
     operand: Value
 
 
-Value = Test | Now | Const | Local | Slot | Cell | Sub | AtLeast | IsNone
+@dataclass(frozen=True)
+class Not:
+    operand: Value
+
+
+@dataclass(frozen=True)
+class And:
+    """Operands evaluated in order, the first false one ending it (Python's, ST's AND_THEN)."""
+
+    operands: tuple[Value, ...]
+
+
+@dataclass(frozen=True)
+class Or:
+    """Operands evaluated in order, the first true one ending it."""
+
+    operands: tuple[Value, ...]
+
+
+Value = Test | Now | Const | Local | Slot | Cell | Sub | AtLeast | IsNone | Not | And | Or
 Target = Local | Slot | Cell
 
 # -- statements ------------------------------------------------------------------------------
