@@ -647,6 +647,8 @@ class Project:
     recovery: tuple[RecoveryProcedure, ...] = ()  # the ways back after a fault (issue 19)
     warnings: tuple[Diagnostic, ...] = ()  # what the loader warned about (plchmi check)
     check_sections: tuple[tuple[str, ...], ...] = ()  # more `plchmi check` sections
+    # The diagnosers file loaded in place of the project's (`--diagnoser FILE.yaml`), if any.
+    diagnosers_file: str = ""
 
     @property
     def simple_constraints(self) -> tuple[Constraint, ...]:
