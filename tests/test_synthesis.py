@@ -89,3 +89,61 @@ def test_the_built_diagnoser_is_deterministic_and_meets_its_goal(tmp_path):
     for a, b in zip(mine, new, strict=True):
         assert set(a.isolable) <= set(b.isolable), a.config.title
         assert b.misdiagnoses == 0, b.config.title
+
+
+# -- the High Level Diagnoser (hmi/project/high_level.py, DiagnosisStage.refine) ----------------
+
+
+def _subsystem_run(name: str, key: str):
+    from hmi.studies.campaign import configs_of, run_one
+    project = load_project(PROJECTS / "cispi_subsystem")
+    spec = project.campaign
+    scenario = next(s for s in spec.scenarios if s.name == name)
+    config = next(c for c in configs_of(project) if c.key == key)
+    return run_one(project, spec, scenario, config)
+
+
+@pytest.mark.parametrize("scenario,label,at", [("V2.F1@25s", "F1", 32_140_000),
+                                               ("V2.F13@28.3s", "F13", 32_680_000)])
+def test_the_high_level_diagnoser_resolves_f1_f13_on_the_subsystem(scenario, label, at):
+    before = _subsystem_run(scenario, "ftc_no_hld")
+    after = _subsystem_run(scenario, "ftc")
+    assert before.decision == ("F1", "F13") and before.refined is None
+    assert after.decision == (label,)
+    assert after.refined == (("F1", "F13"), label, 29_230_000, at)
+    assert after.outcome == before.outcome == "Tolerant"  # and no damage from refining
+
+
+def test_the_refined_decision_is_explained_in_plain_words():
+    from hmi.engine.scan import Engine
+    from hmi.explain.builder import ExplanationBuilder
+    from hmi.plant.sim.plant import SimPlant
+    from hmi.project.injection import Injection
+    project = load_project(PROJECTS / "cispi_subsystem")
+    plant = SimPlant(project)
+    plant.inject(Injection("F1", 25_000_000, "V2"))
+    engine = Engine(project, plant)
+    snap = None
+    for now in range(0, 32_200_001, 10_000):
+        snap = engine.step(now)
+    record = next(d for d in snap.diagnosers if d.name == "V2")
+    assert record.labels == ("F1",) and "closed end switch is stuck" in record.refined_by
+    assert "by the high level diagnoser" in record.what()
+    texts = ExplanationBuilder(project).build(snap)
+    why = next(e.why for e in texts if e.key == "diagnosis:V2")
+    assert "the cell as a whole did: T2 filled" in why
+
+
+def test_a_high_level_rule_must_decide_a_label_of_its_decision(tmp_path):
+    import shutil
+    copy = tmp_path / "valve"
+    shutil.copytree(VALVE, copy)
+    (copy / "hl.yaml").write_text(
+        "high_level:\n  x:\n    diagnoser: V1\n    decision: [F1, F13]\n    rules:\n"
+        "      - {when: fsc, decide: F5, because: no}\n")
+    text = (copy / "project.yaml").read_text()
+    (copy / "project.yaml").write_text(text.replace("  - recovery.yaml\n",
+                                                    "  - recovery.yaml\n  - hl.yaml\n"))
+    with pytest.raises(ProjectError, match=r"hl.yaml:6:.*decides 'F5', not one of the "
+                       "decision it refines"):
+        load_project(copy)

@@ -18,6 +18,7 @@ from hmi.project.confine import Refused, confined_file, project_roots
 from hmi.project.constraints import parse_constraints
 from hmi.project.control import parse_controls
 from hmi.project.diagnosers import declare_diagnoser_names, parse_diagnosers
+from hmi.project.high_level import parse_high_level
 from hmi.project.model import (
     MAX_SOLVER_BUDGET,
     MIN_SOLVER_BUDGET,
@@ -48,7 +49,7 @@ TOP_KEYS = {
     "name", "description", "scan_period", "include", "inputs", "outputs", "memories",
     "timers", "observers", "control", "constraints", "policy", "solver", "solver_budget",
     "plant", "explanations", "monitors", "scenarios", "diagnosers", "campaign", "components",
-    "recovery",
+    "recovery", "high_level",
 }
 
 
@@ -286,6 +287,7 @@ class ProjectLoader(ProjectReader):
         monitors = parse_monitors(self, period)  # stopwatch monitors: hmi/project/monitors.py
         scenarios = parse_scenarios(self, plant)
         diagnosers = parse_diagnosers(self)  # hmi/project/diagnosers.py
+        high_level = parse_high_level(self, diagnosers)  # hmi/project/high_level.py
         campaign = parse_campaign(self, plant)  # hmi/project/campaign.py
         recovery = parse_recovery(self, constraints, outputs, observers)  # hmi/project/recovery.py
         texts = None
@@ -312,7 +314,8 @@ class ProjectLoader(ProjectReader):
             timers=tuple(timers), observers=tuple(observers), controls=controls,
             default_control=default_control, constraints=tuple(constraints), policy=policy,
             plant=plant, pos=pos, files=tuple(self.files), solver=solver,
-            solver_budget=solver_budget, diagnosers=diagnosers, monitors=monitors,
+            solver_budget=solver_budget, diagnosers=diagnosers, high_level=high_level,
+            monitors=monitors,
             scenarios=scenarios, campaign=campaign, explanations=texts, recovery=recovery,
             components=tuple(self.components.instances), warnings=tuple(self.diag.warnings),
             check_sections=((tuple(self.components.check_lines()),)
