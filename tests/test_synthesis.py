@@ -17,7 +17,8 @@ import pytest
 from hmi.errors import ProjectError
 from hmi.project.loader import load_project
 from hmi.studies.explore import Explorer
-from hmi.studies.synthesis import OBSERVING, View, build_nbm, find_target, synthesise
+from hmi.studies.synth_build import synthesise
+from hmi.studies.synthesis import OBSERVING, View, build_nbm, find_target
 from tests.conftest import PROJECTS
 
 VALVE = PROJECTS / "cispi_valve"

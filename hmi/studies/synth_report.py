@@ -124,7 +124,7 @@ def build_report(project: Project, name: str, out_file: Path, farm: Any = None
                  ) -> tuple[str, int]:
     """Build, write, compare: the report and the exit status (0, or 1 when the built
     diagnoser misdiagnoses or did not converge)."""
-    from hmi.studies.synthesis import synthesise
+    from hmi.studies.synth_build import synthesise
     built, text, loaded = synthesise(project, name)
     out_file.write_text(text)
     spec = next(s for s in loaded.diagnosers if s.name == built.target.name)
