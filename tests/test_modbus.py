@@ -39,16 +39,18 @@ WAIT = 30.0  # seconds: a deadline, not a sleep
 
 
 def quick_valve(folder: Path) -> Path:
-    """A copy of the valve, at `folder`, whose filling sequence rests 200 ms closed and holds
+    """A copy of the valve, at `folder`, whose filling sequence rests 600 ms closed and holds
     500 ms open instead of the project's 1 s and 3 s: settings of the process, not of what
     the tests here check (the valve, its 2 s travel, the diagnosers, the filter and the
-    addresses are the project's). On a real server the tests wait in real time: the first
-    opening comes at 0.2 s instead of 1 s, a whole cycle takes 4.8 s instead of 7.9 s."""
+    addresses are the project's). The rest stays longer than the diagnoser's 500 ms dwell at
+    closed rest (an opening within it is read as the switch breaking at rest: B1A). On a
+    real server the tests wait in real time: the first opening comes at 0.6 s instead of
+    1 s, a whole cycle takes 5.2 s instead of 7.9 s."""
     shutil.copytree(VALVE, folder)
     law = folder / "control.yaml"
     text = law.read_text(encoding="utf-8")
     for old, new in (("X0.t >= 1s, description: Closed and waited 1 s",
-                      "X0.t >= 200ms, description: Closed and waited 200 ms"),
+                      "X0.t >= 600ms, description: Closed and waited 600 ms"),
                      ("X2.t >= 3s, description: Filled for 3 s",
                       "X2.t >= 500ms, description: Filled for 500 ms")):
         assert text.count(old) == 1, f"the valve's law no longer says {old!r}"
@@ -214,7 +216,7 @@ def test_a_headless_run_against_serve_plant_behaves_like_the_simulation(server, 
     10 s, as this test was, ended before or after that movement depending on the load (each
     transition waits for a scan: at a load of 14 the cycle came late and the last state was
     missing); its states are compared as a prefix of the simulation's, which runs longer.
-    The valve fills for 500 ms (quick_valve): the second opening comes at 4.8 s."""
+    The valve fills for 500 ms (quick_valve): the second opening comes at 5.2 s."""
     valve = quick_valve(tmp_path / "valve")
     srv = server(valve)
     trace = tmp_path / "modbus.csv"

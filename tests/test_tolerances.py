@@ -318,3 +318,29 @@ def test_the_closed_loop_over_the_band_gives_each_figure_as_its_range():
     assert "wrong certain diagnoses (pieces of instants): 0" in text
     row = next(line for line in text.splitlines() if line.strip().startswith("F8"))
     assert ".." in row and "%" in row
+
+
+@pytest.mark.slow
+def test_an_exact_figure_moves_when_the_plant_model_changes(tmp_path):
+    """F13's share of Defect instants under FTC, every instant of the cycle (about a minute):
+    a jam at rest jams the next travel at `block_at`, and the motor stalls 1 s later. At
+    half the travel (1 s in) that comes before the 2.45 s arrival deadline; at 90 % (1.8 s
+    in) the deadline masks the valve first more often (measured: 88.5 % of the instants
+    Defect at 0.5, 75.8 % at 0.9; the jams during a travel, 37.5 %, stall first either way).
+    The figure follows the plant, not a table."""
+    from hmi.studies.loop_sweep import FTC, sweep
+    shares = {}
+    for block_at in ("0.5", "0.9"):
+        folder = tmp_path / f"valve_{block_at}"
+        shutil.copytree(VALVE, folder)
+        with_plant(folder, "travel: 2s\n", f"travel: 2s\n    block_at: {block_at}\n")
+        project = load_project(folder)
+        result = sweep(project, (FTC,), "cycles", exact=True, faults=("F13",),
+                       farm=farm_for_a_test(), cache=False)
+        assert result is not None and result.exact
+        runs = result.of(FTC.key)
+        total = sum(r.weight for r in runs)
+        assert total == result.cycle_us  # the pieces cover the cycle, every instant once
+        shares[block_at] = sum(r.weight for r in runs if r.outcome == "Defect") / total
+    assert shares["0.5"] > 0.8
+    assert shares["0.9"] < shares["0.5"] - 0.1
