@@ -246,7 +246,7 @@ ATTRIBUTES = frozenset({
     "since", "q",
     # diagnosers
     "dirty", "last_scan", "last_now", "gap_us", "since_us", "current", "begin", "take",
-    "lost_sight", "settle",
+    "lost_sight", "settle", "hld_armed", "refine",
     # GRAFCET
     "fire", "fired",
     # recovery

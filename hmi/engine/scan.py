@@ -140,7 +140,8 @@ class Engine:
     def __init__(self, project: Project, plant: Plant, control: str | None = None,
                  policy: str | None = None, solver: str | None = None,
                  diagnosis: str = "ftc", solver_budget: int | None = None,
-                 allow_monitor_policy: bool = False, compiled: bool = True):
+                 allow_monitor_policy: bool = False, compiled: bool = True,
+                 high_level: bool = True):
         self.project = project
         self.plant = plant
         self.control_name = control or project.default_control
@@ -172,7 +173,8 @@ class Engine:
         # The stages, in scan order (hmi.engine.stages).
         self.input_scan = InputScan(plant, lay, read_back=self.observe)  # 1
         self.memory = Memory(project, lay)  # 2 (and the GRAFCET's step times: control)
-        self.diagnosis = diagnosis_stage(project, lay, diagnosis)  # 3-4 (None: no diagnosers)
+        # 3-4 (None: no diagnosers), with the High Level Diagnoser after the local ones
+        self.diagnosis = diagnosis_stage(project, lay, diagnosis, high_level)
         self.filter = SafetyFilter(project, lay.slots, lay.step_times,
                                    solver or project.solver,
                                    solver_budget or project.solver_budget)

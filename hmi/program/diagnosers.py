@@ -46,9 +46,11 @@ def shift_outputs(node: Node, outputs: frozenset[str]) -> Node:
 
 
 def lower_diagnosis(stage: Any, runtimes: list[tuple[Any, DiagnoserSpec]], mode: str,
-                    outputs: frozenset[str]) -> tuple[Stmt, ...]:
+                    outputs: frozenset[str], high_level: bool = False) -> tuple[Stmt, ...]:
     """Stage 3: the diagnosers of `stage` (each runtime with its specification) step once;
-    a state changed, the stage settles."""
+    then, with a High Level Diagnoser (`high_level`) and only while a decision it refines
+    holds (the stage's ``hld_armed``), its handler ``refine(image, history)``; a state or a
+    decision changed, the stage settles."""
     changed = Local("changed")
     settle = If(changed, (Do(Call(stage, "settle", (ir.TheImage(),))),))
     if mode == "off":  # the diagnosers do not run; the stage settles once (or after a reset)
@@ -68,6 +70,10 @@ def lower_diagnosis(stage: Any, runtimes: list[tuple[Any, DiagnoserSpec]], mode:
     ]
     for runtime, spec in runtimes:
         body += lower_diagnoser(runtime, spec, outputs, changed)
+    if high_level:
+        body.append(If(ir.And((Cell(stage, "hld_armed"),
+                               Call(stage, "refine", (ir.TheImage(), ir.TheHistory())))),
+                       (ir.Assign(changed, TRUE),)))
     body.append(settle)
     return tuple(body)
 
