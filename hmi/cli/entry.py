@@ -27,9 +27,11 @@ PARTS: tuple[tuple[tuple[str, ...], str, str], ...] = (
     (("bench",), "bench", "add_parser"),
     (("ui",), "ui", "add_parser"),
     (("opcua-passwd", "serve-plant"), "serve", "add_parsers"),
+    (("users",), "users", "add_parser"),
 )
 SUBCOMMANDS = ("check", "run", "sweep", "ui", "serve-plant", "bench", "journal",
-               "diagnose", "campaign", "export", "opcua-passwd", "soak", "history")
+               "diagnose", "campaign", "export", "opcua-passwd", "soak", "history",
+               "users")
 
 # command -> (its module, its function)
 COMMANDS = {
@@ -40,6 +42,7 @@ COMMANDS = {
     "diagnose": ("studies", "cmd_diagnose"),
     "campaign": ("studies", "cmd_campaign"), "export": ("export", "cmd_export"),
     "opcua-passwd": ("serve", "cmd_opcua_passwd"), "soak": ("soak", "cmd_soak"),
+    "users": ("users", "cmd_users"),
 }
 
 
