@@ -27,11 +27,11 @@ PARTS: tuple[tuple[tuple[str, ...], str, str], ...] = (
     (("soak",), "soak", "add_parser"),
     (("bench",), "bench", "add_parser"),
     (("ui",), "ui", "add_parser"),
-    (("opcua-passwd", "serve-plant"), "serve", "add_parsers"),
+    (("opcua", "serve-plant"), "serve", "add_parsers"),
     (("users",), "users", "add_parser"),
 )
 SUBCOMMANDS = ("check", "run", "sweep", "ui", "serve-plant", "bench", "journal",
-               "diagnose", "campaign", "export", "opcua-passwd", "soak", "history",
+               "diagnose", "campaign", "export", "opcua", "soak", "history",
                "users", "journal-verify")
 
 # command -> (its module, its function)
@@ -43,7 +43,7 @@ COMMANDS = {
     "journal-verify": ("journal", "cmd_verify"), "history": ("history", "cmd_history"),
     "diagnose": ("studies", "cmd_diagnose"),
     "campaign": ("studies", "cmd_campaign"), "export": ("export", "cmd_export"),
-    "opcua-passwd": ("serve", "cmd_opcua_passwd"), "soak": ("soak", "cmd_soak"),
+    "opcua": ("serve", "cmd_opcua"), "soak": ("soak", "cmd_soak"),
     "users": ("users", "cmd_users"),
 }
 
