@@ -168,14 +168,23 @@ class Journal:
             raise JournalWriteError("the journal", self.path, exc) from None
 
     def append(self, entry: dict[str, Any]) -> None:
-<<<<<<< HEAD
-        self.seq += 1
-        record = {"wall": wall_now(), **entry}
-        if self.session is not None:
-            record["session"] = self.session
-        record.pop("prev", None)  # the link is the writer's alone
-        self._write_entries([json.dumps(record, ensure_ascii=False,
-                                        separators=(",", ":")).encode("utf-8")])
+        self.append_all([entry])
+
+    def append_all(self, entries: list[dict[str, Any]]) -> None:
+        """Several entries in one write and one fsync (a scan's alarm transitions: hundreds of
+        fsyncs a scan held a run to a scan a second), each linked to the one before it."""
+        if not entries:
+            return
+        self.seq += len(entries)
+        wall = wall_now()
+        session = {} if self.session is None else {"session": self.session}
+        lines = []
+        for entry in entries:
+            record = {"wall": wall, **entry, **session}
+            record.pop("prev", None)  # the link is the writer's alone
+            lines.append(json.dumps(record, ensure_ascii=False,
+                                    separators=(",", ":")).encode("utf-8"))
+        self._write_entries(lines)
 
     def _write_entries(self, lines: list[bytes]) -> None:
         """Entries (JSON objects, no newline) written in order, each given its link, under
@@ -274,21 +283,6 @@ class Journal:
                 fcntl.flock(self._fd, fcntl.LOCK_UN)
         except OSError:
             self._unanchored = True
-=======
-        self.append_all([entry])
-
-    def append_all(self, entries: list[dict[str, Any]]) -> None:
-        """Several entries in one write and one fsync (a scan's alarm transitions: hundreds of
-        fsyncs a scan held a run to a scan a second)."""
-        if not entries:
-            return
-        self.seq += len(entries)
-        wall = wall_now()
-        session = {} if self.session is None else {"session": self.session}
-        text = "".join(json.dumps({"wall": wall, **entry, **session}, ensure_ascii=False,
-                                  separators=(",", ":")) + "\n" for entry in entries)
-        self._write(text.encode("utf-8"))
->>>>>>> main
 
     def close(self) -> None:
         if self._fd >= 0 and self._unanchored:
