@@ -53,15 +53,19 @@ class JournalRecorder:
         session.overrun_listeners.append(self.on_overrun)
 
     def _append(self, entry: dict) -> None:
+        self._append_all([entry])
+
+    def _append_all(self, entries: list[dict]) -> None:
         try:
-            self.journal.append(entry)
+            self.journal.append_all(entries)
         except JournalWriteError as exc:
             self.failure = exc
             self.session.engine.latch_safe(
                 "journal", f"{exc}: operator actions and alarms cannot be recorded")
             return
         for tap in self.taps:
-            tap(entry)
+            for entry in entries:
+                tap(entry)
 
     def on_command(self, command: Command, result: CommandResult,
                    snapshot: Snapshot | None) -> None:
@@ -104,8 +108,11 @@ class JournalRecorder:
         self._drain_plant()
         for entry in self.overruns.tick(time.monotonic()):
             self._plant(entry)
-        for event in snapshot.alarm_events:
-            self._alarm(event)
+        if snapshot.alarm_events:  # one write and one fsync for the scan's transitions
+            batch: list[dict] = []
+            for event in snapshot.alarm_events:
+                self._alarm(event, batch=batch)
+            self._append_all(batch)
         recovery = snapshot.recovery
         if recovery.status != self.recovery_status:
             self.recovery_status = recovery.status
@@ -150,7 +157,16 @@ class JournalRecorder:
             return f"refused: written {written}: masked by the diagnosis"
         return f"refused: written {written}, not as requested"
 
-    def _alarm(self, event, by: str = "") -> None:
+    def _alarm(self, event, by: str = "", batch: list[dict] | None = None) -> None:
+        """Journal one alarm transition now, or add it to `batch` (written by the caller)."""
+        entry = self._alarm_entry(event, by)
+        if batch is None:
+            self._append(entry)
+        else:
+            batch.append(entry)
+
+    @staticmethod
+    def _alarm_entry(event, by: str = "") -> dict:
         entry = {
             "type": "alarm", "event": event.event, "key": event.key, "state": event.state,
             "severity": event.severity, "text": event.text, "returns": event.returns,
@@ -159,7 +175,7 @@ class JournalRecorder:
             entry["message"] = event.note
         if by:
             entry["by"] = by
-        self._append(entry)
+        return entry
 
     def on_ui_fault(self, fault) -> None:
         """An error of the HMI (hmi.ui.containment.UIFault): contained, or fatal."""
