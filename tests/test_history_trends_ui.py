@@ -16,10 +16,11 @@ from hmi.history.target import Target
 from hmi.project.injection import Injection
 from hmi.session.runio import open_journal
 from hmi.ui.app import PlcHmiApp
-from hmi.ui.testing import drain, press, run_for, screen_text, wait_for_screen, wait_until
+from hmi.ui.headless import drain, press, wait_for_screen, wait_until
 from hmi.ui.trend import column_end
 from hmi.ui.trend_screen import TrendScreen, TrendSignalDialog
 from tests.conftest import PROJECTS, make_controller
+from tests.ui_harness import palette, run_for, screen_text
 
 EPOCH = 1_790_000_000_000_000  # 2026-09-21 14:13:20 UTC
 
@@ -128,7 +129,6 @@ async def test_without_history_the_trends_say_so():
 
 
 async def test_maintenance_from_the_palette(tmp_path):
-    from hmi.ui.testing import palette
     app, _, historian = _app(Target("sqlite", str(tmp_path / "h.sqlite")))
     async with app.run_test(size=(120, 36)) as pilot:
         await run_for(pilot, 60)
