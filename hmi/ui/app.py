@@ -99,6 +99,7 @@ from hmi.ui.serving import Served, serving_lines
 from hmi.ui.sim_panel import SimPanel
 from hmi.ui.status import BannerStrip, StatusBar
 from hmi.ui.style import ISA101, MUTED, OK_SYMBOL, Level, isa101_theme, tag
+from hmi.ui.textual_adapter import LastResort
 from hmi.ui.verdict import output_changes, request_verdict
 
 if TYPE_CHECKING:
@@ -144,7 +145,7 @@ class Body(ContainedPump, Vertical):
             panel.recheck()
 
 
-class PlcHmiApp(ContainedPump, App):
+class PlcHmiApp(LastResort, ContainedPump, App):
     CSS_PATH = ["app.tcss", "dialogs.tcss"]
     TITLE = "plchmi"
     # 1 / 0 / x also from outside the I/O table (an explanation's policy button, the alarm
@@ -318,11 +319,10 @@ class PlcHmiApp(ContainedPump, App):
                 return None
         return run
 
-    def _handle_exception(self, error: Exception) -> None:
+    def last_resort(self, error: Exception) -> None:
         """Textual's last resort (an error in its own widgets or the compositor): the app
         cannot go on. Remembered as the reason of an abnormal end, then Textual ends it."""
         self.containment.record("the HMI (Textual)", error, fatal=True)
-        super()._handle_exception(error)
 
     async def run_action(self, action, default_namespace=None, namespaces=None) -> bool:
         """Every key's and palette's action goes through here: an error in it is contained."""
