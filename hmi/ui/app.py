@@ -1215,8 +1215,9 @@ class PlcHmiApp(LastResort, ContainedPump, App):
                     partial(self.action_inject_now, device, code)))
             entries.append(PaletteEntry(
                 "SIMULATION: repair the faulty devices",
-                "The technician's repair: injected faults removed; then a fault reset "
-                "re-synchronises the diagnosers", partial(self.send, RepairFaults())))
+                "The technician's repair: injected faults removed; then a fault reset, "
+                "which says first what it resets and what stays",
+                partial(self.send, RepairFaults())))
             for name in self.free_inputs:
                 for value, word in ((True, "press"), (False, "release")):
                     entries.append(PaletteEntry(
