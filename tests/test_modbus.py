@@ -35,7 +35,7 @@ from tests.conftest import PROJECTS, ROOT, make_controller, write_project
 
 VALVE = PROJECTS / "cispi_valve"
 S = 1_000_000
-WAIT = 30.0  # seconds: a deadline, not a sleep
+WAIT = 120.0  # seconds: a deadline on a state, not a sleep (loaded 2-core machines)
 
 
 # The diagnoser's travel windows, widened in quick_valve: an arrival between 1 s and 2.5 s
@@ -139,7 +139,7 @@ class Live:
 
 
 def read_coils(port: int, count: int = 2) -> list[bool]:
-    client = ModbusTcpClient("127.0.0.1", port=port, timeout=5, retries=1)
+    client = ModbusTcpClient("127.0.0.1", port=port, timeout=WAIT, retries=1)
     assert client.connect()
     try:
         response = client.read_coils(0, count=count, device_id=1)
@@ -307,7 +307,7 @@ def test_server_killed_and_restarted_mid_run(server, tmp_path):
         assert frozen.is_safe_latched and frozen.outputs == (True, False)
         assert frozen.latched == lost.latched  # one reason per outage, not one per retry
         assert frozen.fov == (True, False) and frozen.active_steps == ("X1",)
-        # The alarm the operator sees (issue 6's explanations), with the reason.
+        # The alarm the operator sees (its explanation), with the reason.
         alarm = next(e for e in frozen.explanations if e.kind == "plant")
         assert "plant connection lost" in alarm.what and alarm.latched
         assert "connection was closed" in alarm.why
@@ -383,7 +383,7 @@ REGISTER_VALVE = """
 def test_register_bits_and_scattered_addresses_end_to_end(server, tmp_path):
     write_project(tmp_path, {"project.yaml": REGISTER_VALVE})
     srv = server(tmp_path)
-    other = ModbusTcpClient("127.0.0.1", port=srv.port, timeout=5)
+    other = ModbusTcpClient("127.0.0.1", port=srv.port, timeout=WAIT)
     assert other.connect()
     assert not other.write_register(5, 0x8000, device_id=1).isError()  # not ours: bit 15
     with Live(tmp_path, srv.port) as live:
@@ -447,7 +447,7 @@ def test_a_device_that_stops_answering_times_out_and_is_reconnected(server):
 def test_read_only_mode_observes_and_writes_nothing(server):
     srv = server()
     # The "real PLC" (here a plain client) opens the valve.
-    other = ModbusTcpClient("127.0.0.1", port=srv.port, timeout=5)
+    other = ModbusTcpClient("127.0.0.1", port=srv.port, timeout=WAIT)
     assert other.connect()
     assert not other.write_coils(0, [False, True], device_id=1).isError()
     other.close()

@@ -1,4 +1,4 @@
-"""What the HMI's start keeps across processes (issue 18 goal 1, docs/performance.md): the
+"""What the HMI's start keeps across processes (docs/performance.md): the
 compiled scan's code (hmi.codecache.kept_codes), the loaded project (hmi.project.kept).
 Each is used only when what it stands for would come out the same, and then runs the same:
 checked here against the uncached path, scan by scan. How much faster the start is, is
