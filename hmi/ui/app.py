@@ -194,7 +194,7 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         self.subject: str | None = None
         # faults scheduled before the app started (plchmi ui --inject)
         self._injected += [InjectedFault(i, self._fault_text(i)) for i in injected]
-        # --bell: the terminal bell on each new unacknowledged P1 alarm (issue 19, optional)
+        # --bell: the terminal bell on each new unacknowledged P1 alarm (optional)
         self.bell_on_p1 = bell
         self.bells = 0
         self._p1_unack: frozenset[str] = frozenset()

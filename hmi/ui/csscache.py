@@ -1,4 +1,4 @@
-"""Textual's parsed stylesheets, kept across starts (issue 18 goal 1, docs/performance.md).
+"""Textual's parsed stylesheets, kept across starts (docs/performance.md).
 
 At every start Textual parses the HMI's ``.tcss`` files and the default CSS of every widget
 class it mounts, with the theme's variables substituted: about 17 ms of the CPU time to the
