@@ -13,6 +13,7 @@ from pathlib import Path
 
 from hmi.engine.scan import Engine
 from hmi.errors import UsageError
+from hmi.history.target import Target
 from hmi.opcua.server import CellServer, ServeOptions
 from hmi.opcua.status import ServingStatus
 from hmi.plant.select import open_plant
@@ -31,11 +32,13 @@ def free_port() -> int:
 
 
 def serve(session: Session, options: Callable[[int], ServeOptions],
-          listeners: Sequence[Callable[[ServingStatus], None]] = ()) -> CellServer:
+          listeners: Sequence[Callable[[ServingStatus], None]] = (),
+          history: Target | None = None) -> CellServer:
     """A started server for `session`, with the options `options(port)` on a free port;
-    `listeners` hear its changes of state from the start."""
+    `listeners` hear its changes of state from the start; `history`: the cell's history,
+    for HistoryRead."""
     for attempt in range(TRIES):
-        server = CellServer(session, options(free_port()))
+        server = CellServer(session, options(free_port()), history=history)
         server.listeners.extend(listeners)
         try:
             server.start()

@@ -28,7 +28,7 @@ from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from asyncua import ua
 from asyncua.common.node import Node
@@ -70,6 +70,9 @@ from hmi.opcua.model import BOOL, DOUBLE, STRING, STRINGS, UINT, AddressModel, b
 from hmi.opcua.status import FAILED, SERVING, STARTING, STOPPED, OpcClient, ServingStatus
 from hmi.opcua.users import Identity, Users
 from hmi.session.session import Session
+
+if TYPE_CHECKING:
+    from hmi.opcua.history import CellHistory
 
 log = logging.getLogger("hmi.opcua")
 
@@ -180,6 +183,8 @@ class CellServer:
         self.session = session
         self.options = options
         self.history = history  # the cell's history, for HistoryRead (None: none kept)
+        self.storage: CellHistory | None = None  # what answers HistoryRead (with history)
+        self.recorded: dict[str, str] = {}  # the historian's signal of each record
         engine = session.engine
         if options.writable and engine.plant.is_real and not options.allow_real_plant:
             raise UsageError("--opcua-writable on a real plant: OPC UA clients could then "
@@ -379,6 +384,12 @@ class CellServer:
     async def _build(self) -> Server:
         self.server = server = Server(user_manager=_UserManager(self.options.users))
         server.iserver.bind_condition_methods = True  # ConditionRefresh replays our alarms
+        if self.history is not None:  # HistoryRead from the cell's history (Part 11)
+            from hmi.history.catalogue import catalogue
+            from hmi.opcua.history import CellHistory
+            self.storage = CellHistory(self.history, self.model.cell)
+            self.recorded = catalogue(self.session.project, self.session.engine.layout).origin
+            server.iserver.history_manager.set_storage(self.storage)
         await server.init()
         server.set_server_name(f"plchmi {self.model.cell}")
         server.set_endpoint(self.url)
@@ -399,9 +410,26 @@ class CellServer:
         self.ns = await server.register_namespace(f"urn:plchmi:{self.model.cell}")
         await self._build_nodes(server)
         await self._build_alarms(server)
+        if self.storage is not None:
+            self.storage.alarm_type = self.alarm_type.nodeid
+            self.storage.event_sources.add(server.nodes.server.nodeid)
+            await server.nodes.server.set_attr_bit(AttributeIds.EventNotifier,
+                                                   ua.EventNotifier.HistoryRead)
         if self.options.writable:
             await self._build_commands(server)
         return server
+
+    async def _historize(self, node: Node, origin: str, vtype: ua.VariantType) -> None:
+        """A variable the historian records: HistoryRead answered from the cell's history."""
+        signal = self.recorded.get(origin) if origin and self.storage is not None else None
+        if signal is None or self.storage is None:
+            return
+        from hmi.opcua.history import Historized
+        self.storage.nodes[node.nodeid] = Historized(signal, vtype)
+        for attribute in (AttributeIds.AccessLevel, AttributeIds.UserAccessLevel):
+            await node.set_attr_bit(attribute, ua.AccessLevel.HistoryRead)
+        await node.write_attribute(AttributeIds.Historizing, ua.DataValue(
+            ua.Variant(True, ua.VariantType.Boolean)))
 
     def _nodeid(self, path: tuple[str, ...]) -> ua.NodeId:
         return _id(".".join((self.model.cell, *path)), self.ns)
@@ -443,6 +471,7 @@ class CellServer:
                                      Description=ua.LocalizedText(long_name)))
             await server.write_attribute_value(node.nodeid, ua.DataValue(StatusCode=waiting))
             self.points.append(_Variable(node.nodeid, point.read, vtype, point.from_plant))
+            await self._historize(node, point.history, vtype)
         # The run state is the session's, not a scan's: a paused cell makes no snapshot, and
         # a SCADA must still learn that its values stopped moving.
         status = self.objects[("Status",)]
