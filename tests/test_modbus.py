@@ -35,7 +35,7 @@ from tests.conftest import PROJECTS, ROOT, make_controller, write_project
 
 VALVE = PROJECTS / "cispi_valve"
 S = 1_000_000
-WAIT = 30.0  # seconds: a deadline, not a sleep
+WAIT = 120.0  # seconds: a deadline on a state, not a sleep (loaded 2-core machines)
 
 
 def quick_valve(folder: Path) -> Path:
@@ -43,9 +43,13 @@ def quick_valve(folder: Path) -> Path:
     500 ms open instead of the project's 1 s and 3 s: settings of the process, not of what
     the tests here check (the valve, its 2 s travel, the diagnosers, the filter and the
     addresses are the project's). The rest stays longer than the diagnoser's 500 ms dwell at
-    closed rest (an opening within it is read as the switch breaking at rest: B1A). On a
-    real server the tests wait in real time: the first opening comes at 0.6 s instead of
-    1 s, a whole cycle takes 5.2 s instead of 7.9 s."""
+    closed rest (an opening within it is read as the switch breaking at rest: B1A).
+
+    On a real server the tests wait in real time: the first opening comes at 0.6 s instead of
+    1 s, a whole cycle takes 5.2 s instead of 7.9 s. The diagnoser's windows are the
+    project's: built for the valve's declared tolerances (a travel of 1.6 s to 2.4 s, arrival
+    seen within [1.4 s, 2.45 s)), they also hold a PLC that reads its switches late through
+    Modbus on a loaded machine (at a load of 17 on 2 cores: Modbus I/O up to 84 ms a scan)."""
     shutil.copytree(VALVE, folder)
     law = folder / "control.yaml"
     text = law.read_text(encoding="utf-8")
@@ -117,7 +121,7 @@ class Live:
 
 
 def read_coils(port: int, count: int = 2) -> list[bool]:
-    client = ModbusTcpClient("127.0.0.1", port=port, timeout=5, retries=1)
+    client = ModbusTcpClient("127.0.0.1", port=port, timeout=WAIT, retries=1)
     assert client.connect()
     try:
         response = client.read_coils(0, count=count, device_id=1)
@@ -233,8 +237,13 @@ def test_a_headless_run_against_serve_plant_behaves_like_the_simulation(server, 
     try:
         def opening(line: str) -> bool:  # the valve off its closed end, the open order on
             return "fsc=0 fso=0" in line and line.endswith("C=0 O=1")
-        first = srv.wait_for(opening, 120)
-        srv.wait_for(opening, 120, start=srv.lines.index(first) + 1)
+        try:
+            first = srv.wait_for(opening, 120)
+            srv.wait_for(opening, 120, start=srv.lines.index(first) + 1)
+        except RuntimeError as exc:  # what the run saw, to say why
+            run.send_signal(signal.SIGTERM)
+            out, err = run.communicate(timeout=120)
+            raise AssertionError(f"{exc}\nthe run:\n{out}\n{err}") from None
         run.send_signal(signal.SIGTERM)
         out, err = run.communicate(timeout=120)
     finally:
@@ -280,7 +289,7 @@ def test_server_killed_and_restarted_mid_run(server, tmp_path):
         assert frozen.is_safe_latched and frozen.outputs == (True, False)
         assert frozen.latched == lost.latched  # one reason per outage, not one per retry
         assert frozen.fov == (True, False) and frozen.active_steps == ("X1",)
-        # The alarm the operator sees (issue 6's explanations), with the reason.
+        # The alarm the operator sees (its explanation), with the reason.
         alarm = next(e for e in frozen.explanations if e.kind == "plant")
         assert "plant connection lost" in alarm.what and alarm.latched
         assert "connection was closed" in alarm.why
@@ -356,7 +365,7 @@ REGISTER_VALVE = """
 def test_register_bits_and_scattered_addresses_end_to_end(server, tmp_path):
     write_project(tmp_path, {"project.yaml": REGISTER_VALVE})
     srv = server(tmp_path)
-    other = ModbusTcpClient("127.0.0.1", port=srv.port, timeout=5)
+    other = ModbusTcpClient("127.0.0.1", port=srv.port, timeout=WAIT)
     assert other.connect()
     assert not other.write_register(5, 0x8000, device_id=1).isError()  # not ours: bit 15
     with Live(tmp_path, srv.port) as live:
@@ -420,7 +429,7 @@ def test_a_device_that_stops_answering_times_out_and_is_reconnected(server):
 def test_read_only_mode_observes_and_writes_nothing(server):
     srv = server()
     # The "real PLC" (here a plain client) opens the valve.
-    other = ModbusTcpClient("127.0.0.1", port=srv.port, timeout=5)
+    other = ModbusTcpClient("127.0.0.1", port=srv.port, timeout=WAIT)
     assert other.connect()
     assert not other.write_coils(0, [False, True], device_id=1).isError()
     other.close()
