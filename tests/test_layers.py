@@ -1,7 +1,7 @@
 """The import graph keeps the layering of docs/architecture.md, and has no import cycle.
 
     base (errors, timefmt, paths, limits, textfile, codecache, crash) <- logic <- project
-        <- plant, engine <- studies, export <- explain <- session <- link
+        <- plant, engine <- studies, export <- explain <- session <- wire <- runtime <- link
         <- apps (ui, cli, bench, opcua, soak)
 
 A module imports from its own layer or from a lower one, never from a higher one; within
@@ -33,6 +33,8 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("hmi.studies", "hmi.export"),
     ("hmi.explain",),
     ("hmi.session",),
+    ("hmi.wire",),
+    ("hmi.runtime",),
     ("hmi.link",),
     ("hmi.ui", "hmi.cli", "hmi.bench", "hmi.opcua", "hmi.soak"),
 )

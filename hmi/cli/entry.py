@@ -25,15 +25,18 @@ PARTS: tuple[tuple[tuple[str, ...], str, str], ...] = (
     (("soak",), "soak", "add_parser"),
     (("bench",), "bench", "add_parser"),
     (("ui",), "ui", "add_parser"),
+    (("serve", "attach"), "cell", "add_parsers"),
     (("opcua-passwd", "serve-plant"), "serve", "add_parsers"),
 )
-SUBCOMMANDS = ("check", "run", "sweep", "ui", "serve-plant", "bench", "journal",
+SUBCOMMANDS = ("check", "run", "sweep", "ui", "serve", "attach", "serve-plant", "bench",
+               "journal",
                "diagnose", "campaign", "export", "opcua-passwd", "soak")
 
 # command -> (its module, its function)
 COMMANDS = {
     "check": ("check", "cmd_check"), "run": ("run", "cmd_run"),
     "sweep": ("studies", "cmd_sweep"), "ui": ("ui", "cmd_ui"),
+    "serve": ("cell", "cmd_serve"), "attach": ("cell", "cmd_attach"),
     "serve-plant": ("serve", "cmd_serve_plant"), "bench": ("bench", "cmd_bench"),
     "journal": ("journal", "cmd_journal"), "diagnose": ("studies", "cmd_diagnose"),
     "campaign": ("studies", "cmd_campaign"), "export": ("export", "cmd_export"),

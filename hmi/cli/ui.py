@@ -1,5 +1,7 @@
-"""``plchmi PROJECT`` (``plchmi ui PROJECT``): the operator HMI, with its journal, its plant
-and, if asked, the OPC UA server."""
+"""``plchmi PROJECT`` (``plchmi ui PROJECT``): the operator HMI of the project's cell. The
+cell's runtime runs in a process of its own (hmi.cli.cell): started here if none runs, then
+this screen attaches to it. With --opcua the HMI still runs the scans in its own process,
+with the OPC UA server beside them."""
 
 from __future__ import annotations
 
@@ -9,7 +11,7 @@ import sys
 from pathlib import Path
 
 from hmi.cli.common import ended_by
-from hmi.cli.options import diagnoser_arg, engine_args, plant_args, project_arg
+from hmi.cli.options import project_arg
 from hmi.cli.session import announce, connect_plant, make_engine, open_journal, stop_plant
 from hmi.codecache import dataclass_code, kept_codes, source_fingerprint
 
@@ -20,22 +22,46 @@ SCAN_CODE_PATH = (Path(__file__).resolve().parents[1] / "__pycache__"
 
 
 def add_parser(sub) -> None:
-    p = sub.add_parser("ui", help="open the operator HMI (the default command)")
+    from hmi.cli.cell import runtime_args
+    p = sub.add_parser("ui", help="open the operator HMI (the default command): the cell's "
+                       "runtime is started if none runs, and this screen attaches to it")
     project_arg(p)
-    diagnoser_arg(p)
-    engine_args(p)
-    p.add_argument("--inject", action="append", default=[], metavar="FAULT@TIME",
-                   help="schedule a fault in the simulated plant")
-    p.add_argument("--journal", type=Path, metavar="FILE",
-                   help="journal file (default: the user's data folder, see plchmi journal)")
+    runtime_args(p)
     p.add_argument("--bell", action="store_true",
                    help="ring the terminal bell when a new unacknowledged P1 alarm appears")
-    plant_args(p, "keep trying")
     from hmi.opcua.options import add_arguments as opcua_args
     opcua_args(p)
 
 
 def cmd_ui(args: argparse.Namespace) -> int:
+    if getattr(args, "opcua", None) is not None:
+        return cmd_ui_in_process(args)
+    gc.disable()  # (the start: see cmd_ui_in_process)
+    try:
+        with dataclass_code():
+            import hmi.ui.app  # noqa: F401  (the HMI's modules: their classes built here)
+            from hmi.cli.cell import given_runtime_options, run_screen, start_runtime
+            from hmi.errors import UsageError
+            from hmi.project import kept
+            from hmi.runtime.place import place, running
+            project = kept.load(args.project, getattr(args, "diagnoser", None))
+            where = place(project.name, args.socket)
+            pid = running(where)
+            if pid is None:
+                start_runtime(args, project, where)
+            else:
+                given = given_runtime_options(args)
+                if given:
+                    raise UsageError(
+                        f"{project.name} already runs (runtime pid {pid}) with the options it "
+                        f"was started with; {' '.join(given)} cannot change it: attach "
+                        f"(plchmi {args.project}), or stop it first")
+        return run_screen(args, project, where.socket)
+    finally:
+        gc.enable()
+
+
+def cmd_ui_in_process(args: argparse.Namespace) -> int:
     # The start (docs/performance.md): no garbage collection until the scans start (the
     # start allocates much and frees little; hmi.ui.driver.LiveDriver.start collects once,
     # freezes what exists and turns it back on), and the code of the generated dataclass

@@ -52,6 +52,16 @@ class JournalRecorder:
             self.session.engine.latch_safe(
                 "journal", f"{exc}: operator actions and alarms cannot be recorded")
 
+    def sync(self) -> None:
+        """Until every entry so far is on disk (a journal written in the background: a
+        command's answer waits for its entry, outside the session's lock)."""
+        try:
+            self.journal.flush()
+        except JournalWriteError as exc:
+            self.failure = exc
+            self.session.engine.latch_safe(
+                "journal", f"{exc}: operator actions and alarms cannot be recorded")
+
     def on_command(self, command: Command, result: CommandResult,
                    snapshot: Snapshot | None) -> None:
         engine = self.session.engine
@@ -59,6 +69,7 @@ class JournalRecorder:
                  "message": result.message, "scan": engine.scan, "t": seconds(engine.now)}
         if self.session.origin:
             entry["by"] = self.session.origin
+            entry.update(self.session.origin_details)
         self._append(entry)
         if isinstance(command, ManualOutput) and result.accepted and command.value is not None:
             self.pending_manual.append((command, self.session.origin))
@@ -159,12 +170,13 @@ class JournalRecorder:
                        + ("" if fault.fatal else "; contained, the scan goes on"),
             "crash_file": fault.report, "scan": engine.scan, "t": seconds(engine.now)})
 
-    def on_service(self, event: str, message: str) -> None:
+    def on_service(self, event: str, message: str, **fields: str) -> None:
         """A service beside the scan changed state (the OPC UA server: opcua-serving,
-        opcua-stopped, opcua-failed), told from its own thread."""
+        opcua-stopped, opcua-failed; a screen attached, lost, control handed over), told
+        from its own thread; `fields`: who (by, role, client)."""
         engine = self.session.engine
         with self.session.lock:
-            self._append({"type": "session", "event": event, "message": message,
+            self._append({"type": "session", "event": event, "message": message, **fields,
                           "scan": engine.scan, "t": seconds(engine.now)})
 
     def close(self, abnormal: str | None = None, note: str | None = None) -> None:

@@ -64,7 +64,7 @@ from hmi.engine.snapshot import Snapshot
 from hmi.explain.model import Policy
 from hmi.explain.reset import ResetLine, reset_preview
 from hmi.link.base import CellLink, ResetGuard, View
-from hmi.link.local import SessionLink
+from hmi.link.local import LocalLink, SessionLink
 from hmi.project.diagnosers import diagnosers_of
 from hmi.project.injection import Injection
 from hmi.project.model import POLICIES
@@ -169,7 +169,7 @@ class PlcHmiApp(ContainedPump, App):
         screen refreshes on a timer, else whoever runs virtual time shows the frames."""
         super().__init__()
         if isinstance(link, Session):
-            link = SessionLink(link, live=live)
+            link = LocalLink(link, live=live)
         self.link: CellLink = link
         self.facts = link.facts
         self.served = served  # the cell's OPC UA server (--opcua): its status is shown
@@ -179,6 +179,7 @@ class PlcHmiApp(ContainedPump, App):
         self.show_measured = live if show_measured is None else show_measured
         self.refresh_hz = refresh_hz
         self.history = link.history  # every scan's edges and plant events (chronogram)
+        self.stop_cell = False  # the operator quit and asked the cell to stop too
         self.frame: Frame | None = None
         self.frames_shown = 0  # frames handed to the panels (the UI refresh count)
         self._key: tuple | None = None
@@ -838,17 +839,57 @@ class PlcHmiApp(ContainedPump, App):
         self.action_manual_request(name, value)
 
     async def action_quit(self) -> None:
-        """Quitting ends control of the plant: asked, with what happens to the outputs."""
+        """Quitting ends control of the plant: asked, with what happens to the outputs. A
+        screen of a runtime in another process asks whether the cell stops too, or runs on
+        without it (only the screen in control may stop it)."""
         from hmi.ui.dialogs import ConfirmDialog
+        if not self.link.scans_here and not self.in_control:
+            self.push_screen(ConfirmDialog("Quit this screen?", self._leave_lines(), "Quit",
+                                           dialog_id="quit-dialog"), self._quit_confirmed)
+            return
         title, lines, level = self._quit_lines()
-        self.push_screen(ConfirmDialog(title, lines, "Quit", level=level,
-                                       dialog_id="quit-dialog"), self._quit_confirmed)
+        if self.link.scans_here:
+            self.push_screen(ConfirmDialog(title, lines, "Quit", level=level,
+                                           dialog_id="quit-dialog"), self._quit_confirmed)
+            return
+        lines = [Text("y: stop the cell", style="bold"), *lines,
+                 Text("g: leave it running", style="bold"), *self._leave_lines()]
+        self.push_screen(ConfirmDialog("Quit: stop the cell, or leave it running?", lines,
+                                       "Stop the cell", level=level,
+                                       dialog_id="quit-dialog",
+                                       alternative="Leave it running"), self._quit_confirmed)
 
-    def _quit_confirmed(self, yes: bool | None) -> None:
-        if yes:
+    def _quit_confirmed(self, yes: bool | str | None) -> None:
+        if yes == "alternative":
+            self.stop_cell = False
+            self.exit()
+        elif yes:
+            self.stop_cell = not self.link.scans_here and self.in_control
             self.exit()
         else:
             self.message.say(Text("cancelled: quit — the scan goes on", style=MUTED))
+
+    def _leave_lines(self) -> list[Text | str]:
+        """Leaving without stopping the cell: what goes on, and who is in control."""
+        view = self.link.view()
+        holder = view.control.holder if view and view.control else None
+        lines: list[Text | str] = ["The cell keeps running without this screen: its scan, "
+                                   "the safety filter, the alarms and the journal go on."]
+        if holder is None or holder.id == self.link.client:
+            lines.append("Nobody is in control until a screen takes it (plchmi attach "
+                         "shows the cell again).")
+        else:
+            lines.append(f"{holder.identity} stays in control.")
+        return lines
+
+    @property
+    def in_control(self) -> bool:
+        """This screen is the one in control (the only one, for a session in this process)."""
+        if self.link.client is None:
+            return True
+        view = self.link.view()
+        holder = view.control.holder if view and view.control else None
+        return holder is not None and holder.id == self.link.client
 
     def _quit_lines(self) -> tuple[str, list[Text | str], Level]:
         snap = self.link.last
