@@ -28,6 +28,11 @@ MAX_EXPR_CHARS = 2000
 MAX_EXPR_DEPTH = 32
 """Nesting of an expression: parentheses and `not` inside each other [3]."""
 
+MAX_TOTAL_EXPR_CHARS = 400_000
+"""Characters of all a project's expressions together, each use of a YAML alias and each
+component instance counted as a copy [about 9,000]: what compiling, checking and running a
+project costs grows with it (MAX_EXPR_CHARS x MAX_CONSTRAINTS would be 20 million)."""
+
 MAX_CONSTRAINTS = 10_000
 """Safety constraints of a project, its components' included [20]."""
 
@@ -53,6 +58,10 @@ MAX_DETERMINISM_ASSIGNMENTS = 1 << 17
 """Assignments a diagnoser's determinism check may enumerate in all [408]; past it, the
 remaining pairs of transitions are left unchecked with a warning."""
 
+MAX_ANALYSIS_STEPS = 2_000_000
+"""Work of `plchmi check`'s safety filter analysis, in the corrector's steps (a constraint
+or a literal read) [about 60,000]; past it the analysis stops and says how far it went."""
+
 MAX_JOBS = 32
 """Worker processes of `plchmi campaign --jobs` (a fork bomb otherwise)."""
 
@@ -63,10 +72,12 @@ MAX_DAMAGED_SHOWN = 10
 """Damaged lines of a journal said one by one by `plchmi journal`; the rest are counted."""
 
 __all__ = [
+    "MAX_ANALYSIS_STEPS",
     "MAX_CONSTRAINTS", "MAX_DAMAGED_SHOWN", "MAX_DETERMINISM_ASSIGNMENTS", "MAX_DURATION_US",
     "MAX_EXPR_CHARS",
     "MAX_EXPR_DEPTH", "MAX_FILE_BYTES", "MAX_JOBS", "MAX_JOURNAL_LINE_BYTES", "MAX_NAME_CHARS",
-    "MAX_NUMBER_DIGITS", "MAX_RUN_SCANS", "MAX_VARIABLES", "MAX_YAML_DEPTH", "MAX_YAML_NODES",
+    "MAX_NUMBER_DIGITS", "MAX_RUN_SCANS", "MAX_TOTAL_EXPR_CHARS", "MAX_VARIABLES",
+    "MAX_YAML_DEPTH", "MAX_YAML_NODES",
     "MIN_SCAN_PERIOD_US", "NOTICE_RUN_SCANS", "describe_bytes",
 ]
 

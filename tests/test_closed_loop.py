@@ -137,7 +137,7 @@ def test_the_sweep_gives_the_campaign_class_at_the_campaign_instants(valve, expl
 
 
 def _diag_lines(project) -> str:
-    return "\n".join(closed_loop_lines(project, every_us=2_000_000, jobs=1, extras=False))
+    return "\n".join(closed_loop_lines(project, every_us=2_000_000, extras=False))
 
 
 def _block(text: str, config: str) -> str:
@@ -198,7 +198,7 @@ def test_the_improved_diagnoser_never_misdiagnoses_where_the_paper_one_does(valv
     paper = load_project(VALVE, "paper")
     results = {}
     for name, project in (("improved", valve), ("paper", paper)):
-        result = sweep(project, [DIAG_NO_FILTER], "cycles", 500_000, extras=False, jobs=1,
+        result = sweep(project, [DIAG_NO_FILTER], "cycles", 500_000, extras=False,
                        cache=False)
         results[name] = diagnosability(DIAG_NO_FILTER, result.of(DIAG_NO_FILTER.key),
                                        result.faults)
@@ -221,10 +221,10 @@ def test_campaign_sweep_prints_table_1_both_ways(capsys):
     captured = capsys.readouterr()
     out = captured.out
     assert "Table 1 both ways" in out and "worst instant: why" in out
-    assert "closed-loop states explored in" in out
+    assert "closed-loop states explored, in shards of 200 runs" in out
     assert "fault -> certain diagnosis" in out
     assert "2 faults x" in out and "F13" not in out
-    assert "100%" in captured.err  # the progress bar
+    assert "100%" in captured.err and "report sha256" in captured.err
     assert main(["campaign", str(VALVE), "--every", "4s"]) == 2  # --every needs --sweep
 
 

@@ -1002,3 +1002,22 @@ def test_an_export_never_writes_over_a_project_file(tmp_path, capsys):
     code, _, err = cli(["export", folder, "--format", "st", "-o", folder], capsys)
     assert code == 2 and "this is a file of the project" in err, err
     assert (folder / "cell.st").read_text() == "inputs:" + rest
+
+
+def test_texts_of_a_budget_fallback_under_correct_say_what_happened(tmp_path, capsys):
+    """Nothing is latched when the corrector writes the safe state for one scan: no "Safe
+    blocking ... until a fault reset", no fault reset to recommend; and hundreds of broken
+    rules without descriptions are counted, not "a safety rule" said hundreds of times."""
+    from tests import costly
+    text = costly.combined(300).replace("policy: correct\n", "policy: correct\n"
+                                        "solver_budget: 100\n")
+    folder = write(tmp_path / "p", {"project.yaml": text})
+    code, out, err = cli(["run", folder, "--for", "100ms", "--explain"], capsys, seconds=30)
+    assert code == 0, err
+    assert "at the search budget" in out and "latched no" in out
+    assert "Safe blocking" not in out and "release the latch" not in out
+    assert "Fault reset" not in out
+    assert "search for safe orders ran out of its budget" in out
+    why = next(line for line in out.splitlines() if "used up its budget" in line)
+    assert re.search(r"broke \d+ safety rules\.", why), why
+    assert "a safety rule; a safety rule" not in out

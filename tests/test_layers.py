@@ -1,7 +1,8 @@
 """The import graph keeps the layering of docs/architecture.md, and has no import cycle.
 
     base (errors, timefmt, paths, limits, textfile, codecache, crash) <- logic <- project
-        <- plant, engine <- studies, export <- explain <- session <- wire <- runtime <- link
+        <- plant, engine, farm <- studies, export <- explain <- session <- wire <- runtime
+        <- link
         <- apps (ui, cli, bench, opcua, soak)
 
 A module imports from its own layer or from a lower one, never from a higher one; within
@@ -29,7 +30,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
      "hmi.textfile", "hmi.crash", "hmi.outpaths"),
     ("hmi.logic",),
     ("hmi.project",),
-    ("hmi.plant", "hmi.engine"),
+    ("hmi.plant", "hmi.engine", "hmi.farm"),
     ("hmi.studies", "hmi.export"),
     ("hmi.explain",),
     ("hmi.session",),
@@ -141,7 +142,8 @@ def test_no_import_runs_up_the_layers():
 
 # The command line (hmi/cli/): one module per command, assembled by entry.py; what several
 # commands share lives in these modules, never in another command's.
-CLI_SHARED = {"hmi.cli.common", "hmi.cli.options", "hmi.cli.session", "hmi.cli.summary"}
+CLI_SHARED = {"hmi.cli.common", "hmi.cli.options", "hmi.cli.session", "hmi.cli.summary",
+              "hmi.cli.farm"}
 CLI_ASSEMBLY = {"hmi.cli", "hmi.cli.__main__", "hmi.cli.entry"}
 
 

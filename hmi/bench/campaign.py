@@ -25,6 +25,8 @@ PROJECT = Path(__file__).resolve().parents[2] / "projects" / "cispi_valve"
 
 
 def run(args) -> None:
+    from hmi.farm.executors import executor_for
+    from hmi.farm.run import Farm
     from hmi.project.campaign import campaign_of
     from hmi.project.loader import load_project
     from hmi.studies.campaign import CONFIGS, run_campaign
@@ -42,7 +44,8 @@ def run(args) -> None:
     outcomes = []
     for jobs in sorted({1, cores}):
         started, cpu = time.perf_counter(), _cpu()
-        result = run_campaign(project, spec, jobs=jobs)
+        farm = Farm(executor_for(None, jobs), keep=False)
+        result = run_campaign(project, spec, farm=farm)
         wall, cpu = time.perf_counter() - started, _cpu() - cpu
         outcomes.append([(r.scenario.name, r.config.key, r.outcome, r.reason)
                          for r in result.runs])

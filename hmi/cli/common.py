@@ -1,5 +1,5 @@
 """What every command shares: loading the project, printing its errors, a failure at run
-time and why a session ended, a progress bar for long explorations."""
+time and why a session ended."""
 
 from __future__ import annotations
 
@@ -40,22 +40,3 @@ def ended_by(exc: BaseException | None) -> str | None:
     if isinstance(exc, RunFailure | UsageError):
         return str(exc)
     return f"internal error: {type(exc).__name__}: {exc}"
-
-
-def progress_bar():
-    """A one-line progress bar on stderr, for explorations of the closed loop."""
-    import time
-    started = time.monotonic()
-    shown = [-1]
-
-    def progress(done: int, total: int) -> None:
-        percent = 100 * done // max(1, total)
-        if percent == shown[0]:
-            return
-        shown[0] = percent
-        bar = "#" * (percent // 4)
-        end = "\n" if done >= total else ""
-        print(f"\r[{bar:<25}] {percent:3d}%  {done:,}/{total:,} runs  "
-              f"{time.monotonic() - started:5.1f} s", end=end, file=sys.stderr, flush=True)
-
-    return progress

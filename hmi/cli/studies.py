@@ -7,10 +7,11 @@ from __future__ import annotations
 import argparse
 import sys
 
-from hmi.cli.common import load, progress_bar
+from hmi.cli.common import load
+from hmi.cli.farm import add_farm_args, farm_of, print_report
 from hmi.cli.options import diagnoser_arg, duration, project_arg
 from hmi.errors import UsageError
-from hmi.limits import MAX_JOBS, MAX_RUN_SCANS
+from hmi.limits import MAX_RUN_SCANS
 from hmi.timefmt import format_duration, parse_duration
 
 
@@ -22,14 +23,14 @@ def add_parsers(sub) -> None:
     p.add_argument("--no-closed-loop", action="store_true",
                    help="print the closed-loop diagnosability only if it is cached (no "
                    "exploration, which takes about a minute the first time)")
+    add_farm_args(p)
 
     p = sub.add_parser("campaign", help="inject every fault under three configurations and "
                        "classify the runs (000 Table 1)")
     project_arg(p)
     diagnoser_arg(p)
     p.add_argument("--json", action="store_true", help="print the results as JSON")
-    p.add_argument("--jobs", type=int, default=None, metavar="N",
-                   help="worker processes (default: 2 if the machine has 2 cores or more)")
+    add_farm_args(p)
     p.add_argument("--sweep", action="store_true",
                    help="inject each fault at every instant of a full cycle instead of the "
                    "scenarios' single instants")
@@ -72,14 +73,15 @@ def points(text: str) -> tuple[int, ...]:
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
     from hmi.studies.diag_report import diagnose_report
-    print(diagnose_report(load(args.project, getattr(args, "diagnoser", None)),
-                          progress=progress_bar(), compute=not args.no_closed_loop))
+    project = load(args.project, getattr(args, "diagnoser", None))
+    with farm_of(args) as farm:
+        report = diagnose_report(project, farm=farm, compute=not args.no_closed_loop)
+    print_report(report, farm)
     return 0
 
 
 def cmd_campaign(args: argparse.Namespace) -> int:
     import json
-    import os
 
     from hmi.project.campaign import campaign_of
     from hmi.studies.campaign import report_lines, run_campaign
@@ -94,11 +96,8 @@ def cmd_campaign(args: argparse.Namespace) -> int:
         raise UsageError(f"the campaign is {runs} runs of {format_duration(spec.length_us)}: "
                          f"{scans:,} scans, more than the {MAX_RUN_SCANS:,} plchmi runs at once "
                          "(a shorter campaign length)")
-    jobs = args.jobs if args.jobs is not None else min(2, os.cpu_count() or 1)
-    if not 1 <= jobs <= MAX_JOBS:
-        raise UsageError(f"--jobs {jobs}: expected 1 to {MAX_JOBS} worker processes")
     if args.sweep:
-        return _campaign_sweep(args, project, spec, jobs)
+        return _campaign_sweep(args, project, spec)
     if args.every is not None or args.faults is not None:
         raise UsageError("--every and --faults need --sweep")
 
@@ -106,15 +105,16 @@ def cmd_campaign(args: argparse.Namespace) -> int:
         print(f"[{done:>2}/{total}] {run.scenario.name:<10} {run.config.title:<22} "
               f"{run.outcome}", file=sys.stderr, flush=True)
 
-    result = run_campaign(project, spec, progress, jobs=jobs)
-    if args.json:
-        print(json.dumps(result.as_dict(), indent=2))
-    else:
-        print("\n".join(report_lines(result)))
+    with farm_of(args) as farm:
+        farm.progress = None  # a line per run instead
+        result = run_campaign(project, spec, progress, farm=farm,
+                              variant=getattr(args, "diagnoser", None))
+    print_report(json.dumps(result.as_dict(), indent=2) if args.json
+                 else "\n".join(report_lines(result)), farm)
     return 0
 
 
-def _campaign_sweep(args: argparse.Namespace, project, spec, jobs: int) -> int:
+def _campaign_sweep(args: argparse.Namespace, project, spec) -> int:
     import json
 
     from hmi.studies.loop_sweep import CAMPAIGN_CONFIGS, sweep
@@ -124,15 +124,16 @@ def _campaign_sweep(args: argparse.Namespace, project, spec, jobs: int) -> int:
     if args.every is not None and args.every % project.scan_period_us:
         raise UsageError(f"--every must be a multiple of the scan period "
                          f"({project.scan_period_us // 1000} ms)")
-    try:
-        result = sweep(project, CAMPAIGN_CONFIGS, spec.counter, args.every, jobs=jobs,
-                       progress=progress_bar(), cache=False, faults=_faults(args, project))
-    except Unsupported as exc:
-        raise UsageError(f"campaign --sweep: {exc}") from None
-    if args.json:
-        print(json.dumps(as_dict(result, spec.scenarios), indent=2))
-    else:
-        print("\n".join(report_lines(result, spec.scenarios, spec.paper, project.name)))
+    faults = _faults(args, project)
+    with farm_of(args) as farm:
+        try:
+            result = sweep(project, CAMPAIGN_CONFIGS, spec.counter, args.every, farm=farm,
+                           cache=False, faults=faults)
+        except Unsupported as exc:
+            raise UsageError(f"campaign --sweep: {exc}") from None
+    print_report(json.dumps(as_dict(result, spec.scenarios), indent=2) if args.json
+                 else "\n".join(report_lines(result, spec.scenarios, spec.paper,
+                                             project.name)), farm)
     return 0
 
 

@@ -26,6 +26,8 @@ from hmi.project.recovery import recoveries_of
 from hmi.project.texts import ProjectTexts
 from hmi.timefmt import seconds
 
+RULES_NAMED = 3  # rules quoted by name in one sentence; the others are counted
+
 
 class ExplanationBuilder(ExplanationContext):
     """Owns the onsets and the cache; `build(snapshot)` runs once per scan, on the scan's
@@ -172,6 +174,20 @@ class ExplanationBuilder(ExplanationContext):
                        "the filter corrects unsafe orders from the next scan on",
                        cmd.SetPolicy("correct"), True),
                 self.policy_stop(device), self.policy_manual())
+        elif report.safe_state and report.policy != "block" and not snap.latched:
+            # The corrector wrote the safe state for this scan only (no safe set of orders,
+            # or its search budget ran out): nothing is latched, there is nothing to reset.
+            cause = ("the search for safe orders ran out of its budget" if report.stopped
+                     else "no set of orders kept every rule")
+            consequences = (f"Sent as asked, these orders would break the rule {quoted}. "
+                            f"At this scan {cause}, so every output was written at its safe "
+                            "value instead; each scan corrects again, so this lasts only "
+                            "while the situation does.")
+            severity = "medium"
+            policies = (
+                self.policy_continue("let the filter keep correcting (the safe state is "
+                                     "written only while no correction is found)", True),
+                self.policy_manual(), self.policy_stop(device))
         elif report.policy == "block" or report.safe_state:
             consequences = (f"Sent as asked, these orders would break the rule {quoted}. "
                             "Safe blocking holds every output at its safe value until a fault "
@@ -312,10 +328,25 @@ class ExplanationBuilder(ExplanationContext):
         return self.cached(key, (reason.detail,), make)
 
     def _rules(self, names) -> str:
-        """Constraint names as their rules, in words."""
-        return "; ".join(f"\u201c{lower_first(self.constraints[n].description)}\u201d"
-                         if n in self.constraints and self.constraints[n].description
-                         else "a safety rule" for n in names)
+        """Constraint names as their rules, in words: the first RULES_NAMED described ones
+        quoted, the others counted (hundreds of constraints broken at once are a number,
+        not "a safety rule" said hundreds of times)."""
+        quoted: list[str] = []
+        others = 0
+        for name in dict.fromkeys(names):
+            constraint = self.constraints.get(name)
+            text = (f"\u201c{lower_first(constraint.description)}\u201d"
+                    if constraint is not None and constraint.description else None)
+            if text is not None and len(quoted) < RULES_NAMED:
+                if text not in quoted:
+                    quoted.append(text)
+            else:
+                others += 1
+        if not others:
+            return "; ".join(quoted)
+        rest = (f"{others} other safety rule{'s' if others > 1 else ''}" if quoted else
+                "a safety rule" if others == 1 else f"{others} safety rules")
+        return "; ".join(quoted) + (" and " if quoted else "") + rest
 
     def _fallback(self, snap: Snapshot, report) -> Explanation:
         if report.stopped:
@@ -351,13 +382,16 @@ class ExplanationBuilder(ExplanationContext):
 
         def make() -> Explanation:
             violated = ", ".join(report.violated_names)
-            what = f"{self.project.name}: correction not found in time — safe state written"
-            why = (f"At {seconds(snap.time_us)} s the search for safe orders ran out of time; "
+            what = (f"{self.project.name}: correction not found within the search budget — "
+                    "safe state written")
+            why = (f"At {seconds(snap.time_us)} s the search for safe orders used up its "
+                   "budget of work for one scan; "
                    f"the program's orders broke {self._rules(report.violated_names)}. Since "
                    f"{seconds(onset.time_us)} s.")
             consequences = ("Every output is at its safe value for this scan; nothing unsafe is "
                             "sent. Each scan searches again, so the cell stays stopped only "
-                            "while the situation lasts. The search is stopped in time so that "
+                            "while the situation lasts. The search stops at a fixed amount of "
+                            "work, counted the same on every machine, set so that "
                             "it never holds up the machine.")
             detail = (f"At scan {snap.scan}: {report.fallback}. Violated by the program: "
                       f"{violated}. Budget {report.budget} steps. Since scan {onset.scan}.")

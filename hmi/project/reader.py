@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from hmi.errors import Diagnostics, SourcePos
-from hmi.limits import MAX_VARIABLES
+from hmi.limits import MAX_TOTAL_EXPR_CHARS, MAX_VARIABLES
 from hmi.logic.expr import Expr, ExprError, Var, check_names, parse_expr, walk
 from hmi.logic.names import NAME_HINT, RESERVED, STEP_RE, name_problem
 from hmi.project.components import Components
@@ -39,6 +39,8 @@ class ProjectReader:
         self.declared_partitions: set[str] = set()
         self.diagnoser_variant: str | None = None  # --diagnoser NAME
         self.too_many_names = False
+        self.expr_chars = 0  # characters of every expression read, for MAX_TOTAL_EXPR_CHARS
+        self.too_much_expression = False
         self._with_steps: dict[tuple[tuple[str, ...], int],  # expr()
                                tuple[dict[str, str], frozenset[str]]] = {}
 
@@ -91,8 +93,10 @@ class ProjectReader:
     def expr(self, node: YNode, what: str, kinds: set[str], steps: Iterable[str] = (),
              prev_only: AbstractSet[str] = frozenset(), context: str = "") -> Expr | None:
         """Parse and name-check one expression; report problems and return None on error."""
-        def parse() -> Expr:
+        def parse() -> Expr | None:
             text = node.as_text(what)
+            if not self._within_expression_total(node, text):
+                return None
             return parse_expr(text, expr_start(node, text))
         parsed = self.guard(parse)
         if parsed is None:
@@ -120,6 +124,23 @@ class ProjectReader:
         for problem in problems:
             self.diag.error(problem.pos, problem.message, problem.expected)
         return None if problems else parsed
+
+    def _within_expression_total(self, node: YNode, text: str) -> bool:
+        """Count `text` into the project's expressions in all (each use of a YAML alias,
+        each component instance counted as the copy it is); past MAX_TOTAL_EXPR_CHARS, one
+        error at the expression that passes it and nothing more is parsed. What a project
+        costs to compile, check and run grows with that total, not with its file's size."""
+        self.expr_chars += len(text)
+        if self.expr_chars <= MAX_TOTAL_EXPR_CHARS:
+            return True
+        if not self.too_much_expression:
+            self.too_much_expression = True
+            self.diag.error(node.pos, f"the project's expressions pass "
+                            f"{MAX_TOTAL_EXPR_CHARS:,} characters in all here (each use of a "
+                            "YAML alias and each component instance counted as a copy)",
+                            f"at most {MAX_TOTAL_EXPR_CHARS:,} characters of expressions in a "
+                            "project (a limit of plchmi)")
+        return False
 
     def section_items(self, key: str) -> list[tuple[str, YNode, SourcePos]]:
         """(name, node, key position) of a section's items: the component instances' first

@@ -239,11 +239,18 @@ async def click_row(pilot, name: str) -> bool:
 
 
 async def shrink(config: SoakConfig, steps: list[Step], invariant: str,
-                 budget_s: float = 300.0) -> tuple[list[Step], int]:
-    """The shortest step list found within `budget_s` that still breaks `invariant`, and the
-    number of replays tried (ddmin: drop chunks, halving them when none can go)."""
+                 budget_s: float = 300.0, max_replays: int | None = None
+                 ) -> tuple[list[Step], int]:
+    """The shortest step list found within `budget_s` (and `max_replays` replays) that still
+    breaks `invariant`, and the number of replays tried (ddmin: drop chunks, halving them
+    when none can go). Bounded by replays alone (`budget_s` infinite), the result does not
+    depend on the machine's speed: the soak farm's reports are the same wherever it ran."""
     deadline = time.perf_counter() + budget_s
     replays = 0
+
+    def out_of_budget() -> bool:
+        return time.perf_counter() >= deadline or (max_replays is not None
+                                                   and replays >= max_replays)
 
     async def breaks(candidate: list[Step]) -> list[Step] | None:
         nonlocal replays
@@ -256,10 +263,10 @@ async def shrink(config: SoakConfig, steps: list[Step], invariant: str,
 
     best = steps
     chunks = 2
-    while len(best) > 1 and time.perf_counter() < deadline:
+    while len(best) > 1 and not out_of_budget():
         size = -(-len(best) // chunks)
         for start in range(0, len(best), size):
-            if time.perf_counter() >= deadline:
+            if out_of_budget():
                 break
             found = await breaks(best[:start] + best[start + size:])
             if found is not None:

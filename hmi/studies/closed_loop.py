@@ -17,11 +17,10 @@ ambiguity when it holds several labels).
 
 from __future__ import annotations
 
-import os
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
-from hmi.studies.explore import HORIZON, Explorer, Graph, LoopConfig, Start
+from hmi.studies.explore import HORIZON, Graph, LoopConfig, Start
 
 DEFECT, BLOCKED, TOLERANT, UNDECIDED = "Defect", "Blocked", "Tolerant", "Undecided"
 INF = 1 << 62
@@ -166,119 +165,6 @@ def outcome_of(start: Start, s: _Summary, period: int) -> Outcome:
     damage = when(s.damage + 1) if s.damage < INF else None
     return Outcome(start.fault, start.at_us, start.extra, outcome, damage, s.kind,
                    when(s.detect), when(s.certain), s.label, s.final, s.state)
-
-
-# --------------------------------------------------------------------------------------------
-# Exploring several configurations and faults, on several cores
-# --------------------------------------------------------------------------------------------
-
-
-def explore_all(project, configs: Sequence[LoopConfig], counter: str,
-                faults: Sequence[str], extras: bool = True, jobs: int | None = None,
-                progress: Callable[[int, int], None] | None = None, every: int = 1,
-                variant: str | None = None, settle: bool = True) -> dict[str, Graph]:
-    """The graph of each configuration, every fault at every instant of the cycle.
-
-    One task per (configuration, fault), spread over `jobs` worker processes (default: the
-    cores). Each worker builds the fault-free prefix itself (deterministic, so node ids agree)
-    and returns the nodes its runs added; the graphs are merged here in task order, so the
-    result does not depend on which worker finished first.
-    """
-    tasks = [(c, f) for c in configs for f in faults]
-    jobs = jobs or os.cpu_count() or 1
-    total = 0
-    done_runs = 0
-    graphs: dict[str, Graph] = {}
-    parts: dict[tuple[str, str], Graph] = {}
-
-    # The instants come from a configuration where the diagnosers run (their transitions in
-    # the fault-free cycle add instants), and are the same for every configuration.
-    first = next((c for c in configs if c.diagnosis != "off"), configs[0])
-    probe = Explorer(project, first, counter, settle)
-    instants = probe.instants(extras, every)
-    total = len(instants) * len(tasks)
-    if jobs <= 1 or len(tasks) <= 1 or project.path is None:
-        for c in configs:
-            ex = probe if c is first else Explorer(project, c, counter, settle)
-            _same_run(ex, _shape(probe))
-
-            def step(n: int) -> None:
-                nonlocal done_runs
-                done_runs += n
-                if progress is not None:
-                    progress(done_runs, total)
-
-            graphs[c.key] = ex.explore(faults, instants, step)
-        return graphs
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-    with ProcessPoolExecutor(max_workers=jobs, initializer=_worker_init,
-                             initargs=(str(project.path), variant, counter, instants,
-                                       settle, _shape(probe))) as pool:
-        futures = {pool.submit(_worker_run, c, f): (c, f) for c, f in tasks}
-        for future in as_completed(futures):
-            c, f = futures[future]
-            part = future.result()
-            parts[(c.key, f)] = part
-            done_runs += len(part.starts)
-            if progress is not None:
-                progress(done_runs, total)
-    for c in configs:
-        graph = None
-        for f in faults:
-            part = parts[(c.key, f)]
-            if graph is None:
-                graph = _empty_like(part)
-            graph.merge(part)
-            graph.wall_s += part.wall_s
-        graphs[c.key] = graph
-    return graphs
-
-
-def _empty_like(part: Graph) -> Graph:
-    base = len(part.prefix)
-    g = Graph(part.config, part.period_us, part.counter, part.obs_names)
-    g.decisions = [()]
-    for node in range(base):
-        g.add(part.obs[node], part.decisions[part.dec[node]], None, part.state[node])
-        g.nxt[node] = part.nxt[node]
-        g.dmg[node] = part.dmg[node]
-        g.cyc[node] = part.cyc[node]
-    g.prefix = list(part.prefix)
-    g.cycle_start = part.cycle_start
-    g.scans = len(part.prefix)
-    return g
-
-
-_WORKER: dict = {}
-
-
-def _shape(ex: Explorer) -> tuple:
-    g = ex.graph
-    return g.cycle_start, tuple(g.obs[n] for n in g.prefix)
-
-
-def _same_run(ex: Explorer, shape: tuple) -> None:
-    """The instants were taken from another configuration's fault-free run: it must be the
-    same run (no configuration acts on a fault-free cell)."""
-    if _shape(ex) != shape:
-        raise RuntimeError(f"the fault-free run under {ex.config.title} differs from the "
-                           "others': the sweep's instants would not be the same phases")
-
-
-def _worker_init(path: str, variant: str | None, counter: str, instants: list,
-                 settle: bool, shape: tuple) -> None:
-    from hmi.project.loader import load_project
-    _WORKER.update(project=load_project(path, variant), counter=counter, instants=instants,
-                   settle=settle, shape=shape)
-
-
-def _worker_run(config: LoopConfig, fault: str) -> Graph:
-    # A fresh explorer per task: its graph holds the prefix and this fault's runs only.
-    w = _WORKER
-    ex = Explorer(w["project"], config, w["counter"], w["settle"])
-    _same_run(ex, w["shape"])
-    ex.explore([fault], w["instants"])
-    return ex.graph
 
 
 # --------------------------------------------------------------------------------------------

@@ -55,7 +55,7 @@ def check_sections(project: Project, closed_loop: bool = False) -> list[list[str
     return sections
 
 
-def diagnose_report(project: Project, progress=None, compute: bool = True) -> str:
+def diagnose_report(project: Project, farm=None, compute: bool = True) -> str:
     """For `plchmi diagnose`: the automaton in full, then its diagnosability (the diagram's
     upper bound, then the closed loop's)."""
     specs = diagnosers_of(project)
@@ -94,7 +94,7 @@ def diagnose_report(project: Project, progress=None, compute: bool = True) -> st
         out.append("")
         out += report.lines()
         out.append("")
-    out += closed_loop_lines(project, progress=progress, compute=compute)
+    out += closed_loop_lines(project, farm=farm, compute=compute)
     return "\n".join(out).rstrip()
 
 
@@ -173,8 +173,8 @@ def summary_lines(log: DiagnosisLog, engine, last) -> list[str]:
 CLOSED_LOOP_EVERY_US = 200_000  # check / diagnose: every 200 ms of the cycle (+ transitions)
 
 
-def closed_loop_lines(project, every_us: int = CLOSED_LOOP_EVERY_US, jobs: int | None = None,
-                      progress=None, compute: bool = True, extras: bool = True) -> list[str]:
+def closed_loop_lines(project, every_us: int = CLOSED_LOOP_EVERY_US, farm=None,
+                      compute: bool = True, extras: bool = True) -> list[str]:
     """Per configuration where the diagnosers run: isolated with certainty (at some instant,
     and whatever the instant), delays, misdiagnoses, pairs left ambiguous, DC and band."""
     from hmi.project.campaign import campaign_of
@@ -188,8 +188,8 @@ def closed_loop_lines(project, every_us: int = CLOSED_LOOP_EVERY_US, jobs: int |
         return []
     title = "Diagnosability on the closed loop"
     try:
-        result = sweep(project, DIAGNOSIS_CONFIGS, spec.counter, every_us, extras, jobs=jobs,
-                       progress=progress, compute=compute)
+        result = sweep(project, DIAGNOSIS_CONFIGS, spec.counter, every_us, extras, farm=farm,
+                       compute=compute)
     except Unsupported as exc:
         return [f"{title}: not computed ({exc})"]
     if result is None:
@@ -224,10 +224,7 @@ def closed_loop_lines(project, every_us: int = CLOSED_LOOP_EVERY_US, jobs: int |
         lines.append("    pairs left ambiguous (runs): " + (", ".join(
             f"{{{a}, {b}}} {runs}" for (a, b), runs in pairs) or "none")
                      + f"; misdiagnoses: {d.misdiagnoses}")
-    lines.append(f"  ({sum(result.states.values()):,} closed-loop states explored in "
-                 f"{result.wall_s:.1f} s on {result.jobs} worker"
-                 f"{'s' if result.jobs > 1 else ''}" + (", read from the cache" if result.cached
-                                                     else "") + ")")
+    lines.append(f"  ({sum(result.states.values()):,} closed-loop states explored)")
     return lines
 
 

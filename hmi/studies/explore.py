@@ -103,25 +103,6 @@ class Graph:
     def decision(self, node: int) -> tuple[str, ...]:
         return self.decisions[self.dec[node]]
 
-    def merge(self, other: Graph) -> None:
-        """Add the nodes another worker explored from the same prefix (same ids below it)."""
-        base = len(self.prefix)
-        assert other.prefix == self.prefix, "workers built different fault-free prefixes"
-        offset = len(self.obs) - base
-
-        def remap(node: int) -> int:
-            return node if node < base or node == HORIZON else node + offset
-
-        for node in range(base, len(other.obs)):
-            dec = other.decisions[other.dec[node]]
-            new = self.add(other.obs[node], dec, other.fault[node], other.state[node])
-            self.nxt[new] = remap(other.nxt[node])
-            self.dmg[new] = other.dmg[node]
-            self.cyc[new] = other.cyc[node]
-        self.starts += [Start(s.fault, s.at_us, s.k, remap(s.node), s.extra)
-                        for s in other.starts]
-        self.scans += other.scans - len(other.prefix)
-
 
 class Explorer:
     """Builds the graph of one configuration: the prefix, then the runs of given faults."""
@@ -184,6 +165,7 @@ class Explorer:
             if key in self.memo:
                 g.nxt[previous] = self.memo[key]
                 g.cycle_start = g.prefix.index(self.memo[key])
+                self._prefix = (len(g.obs), len(g.decisions), g.scans, dict(self.memo))
                 return
             obs, dec, state = self._observe()
             node = g.add(obs, dec, None, state)
@@ -196,6 +178,20 @@ class Explorer:
             now += self.period
             if len(g.prefix) > MAX_RUN_SCANS:
                 raise RuntimeError("the fault-free run never became periodic")
+
+    def reset(self) -> None:
+        """Forget every run explored: back to the fault-free prefix, as just built. A worker
+        explores shard after shard with one explorer per configuration; each shard's graph,
+        and so what it reports, must not depend on the shards the worker ran before."""
+        nodes, decisions, scans, memo = self._prefix
+        g = self.graph
+        for column in (g.obs, g.dec, g.nxt, g.dmg, g.cyc, g.fault, g.state):
+            del column[nodes:]
+        del g.decisions[decisions:]
+        g.starts.clear()
+        g.scans = scans
+        g.wall_s = 0.0
+        self.memo = dict(memo)
 
     # -- injections ---------------------------------------------------------------------------
     def instants(self, extras: bool = True, every: int = 1) -> list[tuple[int, int, str]]:

@@ -21,7 +21,8 @@ import random
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
-from hmi.engine.solver import exact_solve
+from hmi.engine.solver import Problem
+from hmi.limits import MAX_ANALYSIS_STEPS
 from hmi.logic.expr import Literal
 from hmi.project.model import Constraint, Project
 
@@ -50,21 +51,34 @@ class FilterAnalysis:
     worst_example: str = ""
     worst_exhaustive: bool = True
     combined_outputs: list[str] = field(default_factory=list)
+    steps: int = 0  # work done, in the corrector's steps (constraints read)
+    stopped: bool = False  # the work limit (MAX_ANALYSIS_STEPS) ended it early
+    conflicts_stopped: bool = False  # ... before every pair of simple constraints was compared
 
     def lines(self, outputs: int) -> list[str]:
-        how = (f"exhaustive over {self.situations} situations of {len(self.variables)} "
-               "uncontrollable variables" if self.exhaustive else
-               f"bounded: {self.situations} random situations of {len(self.variables)} "
-               "uncontrollable variables")
+        variables = f"{len(self.variables)} uncontrollable variables"
+        if self.stopped:
+            how = (f"bounded: {self.situations} {'' if self.exhaustive else 'random '}"
+                   f"situations of {variables}, stopped at the analysis's work limit of "
+                   f"{MAX_ANALYSIS_STEPS:,} steps")
+        elif self.exhaustive:
+            how = f"exhaustive over {self.situations} situations of {variables}"
+        else:
+            how = f"bounded: {self.situations} random situations of {variables}"
         lines = [f"Safety filter analysis ({how})"]
         if self.unreachable:
             lines.append(f"  {self.unreachable} situations skipped as unreachable (previous "
                          "outputs violating an output-only constraint)")
         if self.conflicts:
-            lines.append(f"  conflicts between simple constraints: {self.conflicts_total}")
+            lines.append(f"  conflicts between simple constraints: "
+                         f"{'at least ' if self.conflicts_stopped else ''}"
+                         f"{self.conflicts_total}")
             lines += [f"    {c}" for c in self.conflicts]
             if self.conflicts_total > len(self.conflicts):
                 lines.append(f"    ... and {self.conflicts_total - len(self.conflicts)} more")
+        elif self.conflicts_stopped:
+            lines.append("  conflicts between simple constraints: none found before the "
+                         "work limit")
         else:
             lines.append("  conflicts between simple constraints: none")
         if self.no_solution_count:
@@ -127,7 +141,13 @@ def analyse(project: Project, seed: int = 0) -> FilterAnalysis:
         if c.kind == "combined":
             in_combined |= p | n
     analysis.combined_outputs = [outputs[k] for k in range(len(outputs)) if in_combined >> k & 1]
-    analysis.conflicts, analysis.conflicts_total = _conflicts(items, outputs, invariants)
+    # Everything below counts its work in the corrector's steps (one constraint read), and
+    # stops at MAX_ANALYSIS_STEPS: a deterministic bound on the time `check` spends here
+    # whatever the constraints (2,000 combined ones over 24 outputs took 46 CPU s unbounded).
+    # (the pairs of simple constraints get half of it, so that the situations get the rest)
+    conflicts, total, steps = _conflicts(items, outputs, invariants, MAX_ANALYSIS_STEPS // 2)
+    analysis.conflicts, analysis.conflicts_total, analysis.steps = conflicts, total, steps
+    analysis.conflicts_stopped = steps >= MAX_ANALYSIS_STEPS // 2
 
     # A situation is a bit mask over `variables`; a set of literals is (mask, wanted bits).
     def literals_mask(pairs) -> tuple[int, int] | None:
@@ -166,7 +186,33 @@ def analyse(project: Project, seed: int = 0) -> FilterAnalysis:
     # Many situations activate the same constraints: the corrector's problem depends only on
     # (F0, F1, the active combined constraints), so each distinct problem is solved once.
     solvable: dict[tuple[object, ...], bool] = {}
+    def prepare(combined: list[tuple[int, int]], unforced: int, forced: int) -> Problem:
+        """One corrector problem, its preparation counted (a step per constraint and per
+        literal: it is linear in them, and with thousands of active constraints it costs
+        more than the search)."""
+        analysis.steps += len(combined) + sum((p | n).bit_count() for p, n in combined)
+        return Problem(combined, unforced, forced)
+
+    def solve(problem: Problem, start: int):
+        """The exact search within what is left of the work limit; None once it is used
+        up."""
+        left = MAX_ANALYSIS_STEPS - analysis.steps
+        if left <= 0:
+            analysis.stopped = True
+            return None
+        solution = problem.solve(start, budget=left)
+        analysis.steps += solution.steps
+        if solution.how == "budget" or analysis.steps > MAX_ANALYSIS_STEPS:
+            analysis.stopped = True
+            return None
+        return solution
+
     for assign in situations:
+        analysis.steps += len(items)  # each constraint's context read once
+        if analysis.steps > MAX_ANALYSIS_STEPS:
+            analysis.stopped = True
+        if analysis.stopped:
+            break
         analysis.situations += 1
         bits = sum(1 << i for i, value in enumerate(assign) if value)
         if any(bits & mask == want for mask, want in unreachable_masks):
@@ -184,9 +230,17 @@ def analyse(project: Project, seed: int = 0) -> FilterAnalysis:
         combined = [(pos, neg) for c, pos, neg in active if c.kind == "combined"]
         key = (f0, f1, tuple(combined))
         seen = key in solvable
+        problem = None
+        if not (seen and solvable[key] and fovs_exhaustive) and not f0 & f1:
+            # f1 is the forced outputs' values whatever the functional vector: one Problem
+            # serves every vector tried in this situation
+            problem = prepare(combined, all_bits & ~(f0 | f1), f1)
         if not seen:
-            solvable[key] = not f0 & f1 and exact_solve(
-                f1, combined, all_bits & ~(f0 | f1)).vector is not None
+            first = None if problem is None else solve(problem, f1)
+            if analysis.stopped:
+                analysis.situations -= 1  # not analysed to its end: not counted
+                break
+            solvable[key] = first is not None and first.vector is not None
         if seen and solvable[key] and fovs_exhaustive:
             continue  # every functional vector was already tried on this very problem
         situation = ", ".join(_lit_text(n, d, assign[var_index[(n, d)]]) for n, d in variables)
@@ -202,7 +256,10 @@ def analyse(project: Project, seed: int = 0) -> FilterAnalysis:
             rng.getrandbits(len(outputs)) for _ in range(64))
         for fov in fovs:
             mem = (fov & ~f0) | f1
-            solution = exact_solve(mem, combined, all_bits & ~(f0 | f1))
+            assert problem is not None  # solvable: f0 and f1 are disjoint
+            solution = solve(problem, mem)
+            if solution is None:
+                break
             if solution.vector is None:
                 continue
             distance = (solution.vector ^ fov).bit_count()
@@ -213,12 +270,15 @@ def analyse(project: Project, seed: int = 0) -> FilterAnalysis:
     return analysis
 
 
-def _conflicts(items, outputs, invariants) -> tuple[list[str], int]:
+def _conflicts(items, outputs, invariants, budget: int) -> tuple[list[str], int, int]:
     """The pairs of simple constraints forcing one output both ways in a common context:
-    the first MAX_CONFLICTS_SHOWN described, and how many there are in all. Only pairs on the
-    same output are compared (grouped by output, not every pair of constraints)."""
+    the first MAX_CONFLICTS_SHOWN described, how many there are in all, and the steps spent
+    (a literal read is one). Only pairs on the same output are compared (grouped by output,
+    not every pair of constraints); still, 5,000 forcing one output each way are 25 million
+    pairs, so the comparison stops once `budget` steps are spent."""
     found = []
     total = 0
+    steps = 0
     simple = [item for item in items if item[0].kind == "simple"]
     forcing1: dict[int, list] = {}  # output bit -> the constraints forcing it to 1
     for item in simple:
@@ -226,6 +286,9 @@ def _conflicts(items, outputs, invariants) -> tuple[list[str], int]:
             forcing1.setdefault(item[2], []).append(item)
     pairs = ((a, b) for a in simple if a[1] for b in forcing1.get(a[1], ()))
     for (a, apos, _, actx), (b, _, _, bctx) in pairs:
+        steps += 1 + len(actx) + len(bctx) + len(invariants)
+        if steps >= budget:
+            return found, total, budget
         joint: dict[tuple[str, int], bool] = {}
         compatible = True
         for lit in (*actx, *bctx):
@@ -250,4 +313,4 @@ def _conflicts(items, outputs, invariants) -> tuple[list[str], int]:
             when = " and ".join(_lit_text(n, d, v) for (n, d), v in joint.items()) or "always"
             found.append(f"{a.name} forces {output} to 0 and {b.name} forces it to 1 when "
                          f"{when}")
-    return found, total
+    return found, total, steps

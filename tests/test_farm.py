@@ -1,0 +1,217 @@
+"""The studies' shards and their executors on this machine (hmi/farm/): the same report on
+one process and on a pool, a run interrupted and resumed, the fingerprint and the version
+check, the explorer's reset between shards. tests/test_farm_cluster.py does the same on a
+real Dask cluster."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+from dataclasses import replace
+
+import pytest
+
+from hmi.cli import main
+from hmi.errors import UsageError
+from hmi.farm.bundle import Bundle, BundleError
+from hmi.farm.executors import DaskCluster, InProcess, LocalPool, executor_for
+from hmi.farm.run import Farm, Interrupted, makespan, run_study
+from hmi.farm.worker import WrongVersion, run_shard
+from hmi.project.campaign import campaign_of
+from hmi.project.loader import load_project
+from hmi.studies.campaign import campaign_study
+from hmi.studies.closed_loop import outcomes
+from hmi.studies.explore import Explorer
+from hmi.studies.loop_sweep import FTC
+from tests.conftest import PROJECTS
+
+VALVE = PROJECTS / "cispi_valve"
+
+
+def _run(capsys, *argv: str) -> tuple[int, str, str]:
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_the_campaign_report_is_the_same_on_one_process_and_two(capsys):
+    reports = {}
+    for jobs in ("1", "2"):
+        code, out, err = _run(capsys, "campaign", str(VALVE), "--jobs", jobs)
+        assert code == 0
+        printed = re.search(r"report sha256 ([0-9a-f]{64})", err)
+        assert printed and printed[1] == hashlib.sha256(out.encode()).hexdigest()
+        assert "shard times: min" in err and "64 workers" in err
+        reports[jobs] = out
+    assert reports["1"] == reports["2"]
+    assert "s wall" not in reports["1"]  # how it ran is on stderr, not in the report
+
+
+def test_a_small_sweep_is_the_same_on_one_process_and_two(capsys):
+    argv = ["campaign", str(VALVE), "--sweep", "--every", "2s", "--faults", "F5,F13"]
+    one = _run(capsys, *argv, "--jobs", "1")
+    two = _run(capsys, *argv, "--jobs", "2", "--json")
+    again = _run(capsys, *argv, "--jobs", "2")
+    assert one[0] == two[0] == again[0] == 0
+    assert one[1] == again[1]
+    assert json.loads(two[1])["shard_runs"] == 200
+
+
+class Counting(InProcess):
+    """This process, counting the shards it computes."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.computed: list[int] = []
+
+    def map(self, job, items, note):
+        for done in super().map(job, items, note):
+            self.computed.append(done.index)
+            yield done
+
+
+def test_an_interrupted_campaign_resumes_where_it_stopped(tmp_path):
+    project = load_project(VALVE)
+    spec = campaign_of(project)
+    study = campaign_study(project, spec)
+    fresh = run_study(study, InProcess(), root=tmp_path / "fresh").results
+
+    def stop_after_three(tick):
+        if tick.shards_done == 3:
+            raise KeyboardInterrupt
+
+    with pytest.raises(Interrupted) as stopped:
+        run_study(study, InProcess(), stop_after_three, root=tmp_path / "kept")
+    assert (stopped.value.done, stopped.value.shards) == (3, len(study.shards))
+    folder = stopped.value.folder
+    assert len(list(folder.glob("shard-*.json"))) == 3
+    # A damaged shard file is computed again, never trusted.
+    damaged = sorted(folder.glob("shard-*.json"))[1]
+    data = json.loads(damaged.read_text())
+    damaged.write_text(json.dumps({**data, "fingerprint": "0" * 64}))
+    counting = Counting()
+    resumed = run_study(study, counting, resume=True, root=tmp_path / "kept")
+    assert resumed.stats.from_store == 2
+    assert sorted(counting.computed) == [i for i in range(len(study.shards)) if i not in (0, 2)]
+    assert resumed.results == fresh
+    # Without --resume a run starts afresh, whatever the folder holds.
+    again = Counting()
+    run_study(study, again, root=tmp_path / "kept")
+    assert len(again.computed) == len(study.shards)
+
+
+def test_the_command_says_how_to_resume_and_does(tmp_path, capsys, monkeypatch):
+    import hmi.farm.run as farm_run
+    real = farm_run.run_study
+    calls = []
+
+    def interrupted_once(study, executor, progress=None, *args, **kwargs):
+        calls.append(1)
+        if len(calls) > 1:
+            return real(study, executor, progress, *args, **kwargs)
+
+        def stop(tick):
+            if tick.shards_done == 2:
+                raise KeyboardInterrupt
+        return real(study, executor, stop, *args, **kwargs)
+    monkeypatch.setattr(farm_run, "run_study", interrupted_once)
+    kept = tmp_path / "kept"
+    code, out, err = _run(capsys, "campaign", str(VALVE), "--jobs", "1", "--resume", str(kept))
+    assert code == 130 and out == ""
+    assert "interrupted: 2 of 10 shards done" in err and f"--resume {kept}" in err
+    code, out, err = _run(capsys, "campaign", str(VALVE), "--jobs", "1", "--resume", str(kept))
+    assert code == 0 and "2 read back from" in err
+    monkeypatch.setattr(farm_run, "run_study", real)
+    assert _run(capsys, "campaign", str(VALVE), "--jobs", "2")[1] == out
+
+
+def test_the_fingerprint_names_project_code_options_and_cut(tmp_path):
+    project = load_project(VALVE)
+    spec = campaign_of(project)
+    base = campaign_study(project, spec).job.fingerprint
+    assert campaign_study(project, spec).job.fingerprint == base
+    assert campaign_study(project, spec, period_us=20_000).job.fingerprint != base
+    paper = load_project(VALVE, "paper")
+    assert campaign_study(paper, spec, variant="paper").job.fingerprint != base
+    copy = tmp_path / "cispi_valve"
+    import shutil
+    shutil.copytree(VALVE, copy)
+    moved = load_project(copy)
+    assert campaign_study(moved, campaign_of(moved)).job.fingerprint == base  # same files
+    (copy / "campaign.yaml").write_text((copy / "campaign.yaml").read_text() + "\n# note\n")
+    edited = load_project(copy)
+    assert campaign_study(edited, campaign_of(edited)).job.fingerprint != base
+
+
+def test_a_worker_running_other_code_refuses_the_shard():
+    project = load_project(VALVE)
+    study = campaign_study(project, campaign_of(project))
+    other = replace(study.job, code="0" * 64)
+    with pytest.raises(WrongVersion, match=r"runs plchmi .* the study needs code 000000000000"):
+        run_shard(other, 0, study.shards[0])
+
+
+def test_a_project_travels_as_its_files_and_is_checked_where_it_lands():
+    project = load_project(PROJECTS / "cispi_subsystem")  # it instantiates the library's valve
+    bundle = Bundle.of(project)
+    assert "components/valve.yaml" not in {name for name, _ in bundle.files}
+    loaded = bundle.load()
+    assert loaded.path != project.path and loaded.name == project.name
+    assert Bundle.of(loaded).digest == bundle.digest
+    with pytest.raises(BundleError, match="loads differently on this worker"):
+        replace(bundle, digest="f" * 64).load()
+
+
+def test_the_explorer_back_at_its_prefix_explores_a_shard_as_a_fresh_one():
+    project = load_project(VALVE)
+    used = Explorer(project, FTC, "cycles")
+    instants = used.instants(extras=False, every=100)
+    used.explore(["F4"], instants)
+    used.reset()
+    used.explore(["F9"], instants)
+    fresh = Explorer(project, FTC, "cycles")
+    fresh.explore(["F9"], instants)
+    assert outcomes(used.graph) == outcomes(fresh.graph)
+    assert len(used.graph.obs) == len(fresh.graph.obs)
+    assert used.graph.scans == fresh.graph.scans
+
+
+def test_executors_are_named_by_the_options():
+    assert isinstance(executor_for(None, 1), InProcess)
+    assert isinstance(executor_for(None, 2), LocalPool)
+    assert executor_for("local:3", None).local_workers == 3
+    cluster = executor_for("10.0.0.5:8786", None)
+    assert isinstance(cluster, DaskCluster) and cluster.address == "tcp://10.0.0.5:8786"
+    for bad in ("local:0", "local:x", "tcp://host", "udp://h:1", "h:99999"):
+        with pytest.raises(UsageError, match="--cluster"):
+            executor_for(bad, None)
+    with pytest.raises(UsageError, match="--jobs and --cluster"):
+        executor_for("local:2", 2)
+    with pytest.raises(UsageError, match="--jobs 0"):
+        executor_for(None, 0)
+
+
+def test_farm_options_are_checked(capsys):
+    with pytest.raises(SystemExit) as stopped:  # argparse's own exit, status 2
+        main(["soak", str(VALVE), "--seeds", "5-1"])
+    assert stopped.value.code == 2 and "the range goes down" in capsys.readouterr().err
+    assert main(["soak", str(VALVE), "--cluster", "local:2"]) == 2
+    assert "with --seeds only" in capsys.readouterr().err
+    assert main(["soak", str(VALVE), "--seeds", "1-3", "--shrink", "10s"]) == 2
+    assert "not by time" in capsys.readouterr().err
+    assert main(["campaign", str(VALVE), "--cluster", "nowhere"]) == 2
+    assert "expected tcp://HOST:PORT" in capsys.readouterr().err
+
+
+def test_the_time_on_n_workers_is_projected_from_the_shard_times():
+    assert makespan([1.0, 1.0, 1.0, 1.0], 2) == 2.0
+    assert makespan([3.0, 1.0, 1.0, 1.0], 2) == 3.0
+    assert makespan([1.0] * 10, 64) == 1.0
+
+
+def test_the_default_farm_runs_on_local_processes():
+    farm = Farm(keep=False)
+    project = load_project(VALVE)
+    results = farm.run(campaign_study(project, campaign_of(project)))
+    assert len(results) == 10 and farm.stats[0].executor.endswith("local processes")

@@ -1,0 +1,254 @@
+"""The studies on a real Dask cluster: a scheduler and two workers started here on 127.0.0.1
+(``python -m distributed.cli.dask_scheduler`` / ``dask_worker``, as docs/studies.md starts
+them on machines), a small sweep and a small soak farm whose reports must equal the local
+ones byte for byte while a worker is killed in the middle, a worker of another plchmi refused,
+and Ctrl-C leaving the cluster idle. Long studies: `.ci/run` runs them (marked slow); every
+process started here is ended by the fixture, and every wait is bounded."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from hmi.cli import main
+from tests.conftest import PROJECTS, ROOT
+
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("dask-cluster")]
+distributed = pytest.importorskip("distributed")  # the [cluster] extra is in [test]
+
+VALVE = PROJECTS / "cispi_valve"
+START_S = 90  # a scheduler or a worker that has not started by then: the test fails
+
+
+class Cluster:
+    """A scheduler and named workers, each a process of ours (no nanny: a killed worker
+    stays dead, as a machine that fails)."""
+
+    def __init__(self, folder: Path):
+        self.folder = folder
+        self.file = folder / "scheduler.json"
+        self.processes: dict[str, subprocess.Popen] = {}
+        log = open(folder / "scheduler.log", "wb")  # noqa: SIM115 (closed with the process)
+        self.processes["scheduler"] = subprocess.Popen(
+            [sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1",
+             "--port", "0", "--no-dashboard", "--scheduler-file", str(self.file)],
+            stdout=log, stderr=log)
+        deadline = time.monotonic() + START_S
+        while not self.file.exists():
+            assert time.monotonic() < deadline, "the scheduler did not start"
+            assert self.processes["scheduler"].poll() is None, "the scheduler died"
+            time.sleep(0.1)
+        self.address = json.loads(self.file.read_text())["address"]
+        self.client = distributed.Client(self.address, timeout=START_S)
+
+    def start_worker(self, name: str, pythonpath: str | None = None) -> None:
+        env = dict(os.environ)
+        if pythonpath:
+            env["PYTHONPATH"] = pythonpath
+        log = open(self.folder / f"{name}.log", "wb")  # noqa: SIM115
+        self.processes[name] = subprocess.Popen(
+            [sys.executable, "-m", "distributed.cli.dask_worker", "--scheduler-file",
+             str(self.file), "--name", name, "--nthreads", "1", "--no-nanny",
+             "--no-dashboard", "--host", "127.0.0.1"], stdout=log, stderr=log, env=env,
+            cwd=self.folder)
+        self.wait_for(lambda: name in self.names().values(), f"worker {name} to join")
+
+    def names(self) -> dict[str, str]:
+        """address -> name of the workers connected now."""
+        return {address: str(info.get("name")) for address, info in
+                self.client.scheduler_info()["workers"].items()}
+
+    def address_of(self, name: str) -> str:
+        return next(address for address, n in self.names().items() if n == name)
+
+    def ensure(self, *names: str) -> None:
+        """These workers, and only these: a killed or extra one restarted or stopped."""
+        for name in list(self.processes):
+            if name != "scheduler" and name not in names:
+                self.stop(name)
+        for name in names:
+            process = self.processes.get(name)
+            if process is None or process.poll() is not None:
+                self.start_worker(name)
+        self.wait_for(lambda: sorted(self.names().values()) == sorted(names),
+                      f"exactly the workers {names}")
+
+    def stop(self, name: str) -> None:
+        process = self.processes.pop(name)
+        process.terminate()
+        try:
+            process.wait(20)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait(10)
+
+    def wait_for(self, condition, what: str, timeout: float = START_S) -> None:
+        deadline = time.monotonic() + timeout
+        while not condition():
+            assert time.monotonic() < deadline, f"waited {timeout} s for {what}"
+            time.sleep(0.1)
+
+    def close(self) -> None:
+        self.client.close()
+        for name in [n for n in self.processes if n != "scheduler"] + ["scheduler"]:
+            if name in self.processes:
+                self.stop(name)
+
+
+@pytest.fixture(scope="module")
+def cluster(tmp_path_factory):
+    c = Cluster(tmp_path_factory.mktemp("dask"))
+    try:
+        c.ensure("w1", "w2")
+        yield c
+    finally:
+        c.close()
+
+
+class Killer(threading.Thread):
+    """Kills worker `name` once it has been computing a shard for half a second: its shards
+    then have to be computed again by the other worker. Remembers which shards it held."""
+
+    def __init__(self, cluster: Cluster, name: str):
+        super().__init__(daemon=True)
+        self.cluster, self.name = cluster, name
+        self.address = cluster.address_of(name)
+        self.held: list[str] = []
+        self.stop = threading.Event()
+
+    def run(self) -> None:
+        client = distributed.Client(self.cluster.address, timeout=START_S)
+        try:
+            busy_since = None
+            while not self.stop.wait(0.05):
+                held = [str(k) for k in client.processing().get(self.address, ())]
+                if not held:
+                    busy_since = None
+                    continue
+                busy_since = busy_since or time.monotonic()
+                if time.monotonic() - busy_since >= 0.5:
+                    self.held = held
+                    self.cluster.processes[self.name].send_signal(signal.SIGKILL)
+                    return
+        finally:
+            client.close()
+
+
+def _shard_workers(data: Path) -> dict[int, str]:
+    """Which worker computed each shard, from the results kept in the data folder."""
+    found = {}
+    for path in data.glob("studies/*/shard-*.json"):
+        record = json.loads(path.read_text())
+        found[record["index"]] = record["worker"]
+    return found
+
+
+def _run_killing(cluster: Cluster, capsys, argv: list[str]) -> tuple[str, str, Killer]:
+    killer = Killer(cluster, "w2")
+    killer.start()
+    try:
+        code = main([*argv, "--cluster", cluster.address])
+    finally:
+        killer.stop.set()
+        killer.join(10)
+    out, err = capsys.readouterr()
+    assert code in (0, 1), err
+    assert killer.held, "the worker was never seen computing a shard: nothing was killed"
+    return out, err, killer
+
+
+def _check_rerun(killer: Killer, survivor: str) -> None:
+    """The shards the killed worker held were computed again, by the other one."""
+    placed = _shard_workers(Path(os.environ["PLCHMI_DATA"]))
+    held = [int(key.rsplit("shard", 1)[1]) for key in killer.held]
+    assert held and all(placed[i] == survivor for i in held), (held, placed)
+
+
+def test_a_sweep_on_the_cluster_is_the_local_report_though_a_worker_dies(cluster, capsys,
+                                                                         monkeypatch):
+    cluster.ensure("w1", "w2")
+    # Small shards (20 runs, ~0.2 s), so that the run is still going when w2 dies.
+    monkeypatch.setattr("hmi.studies.loop_sweep.SHARD_RUNS", 20)
+    argv = ["campaign", str(VALVE), "--sweep", "--every", "400ms", "--faults", "F5,F8,F13"]
+    assert main([*argv, "--jobs", "1"]) == 0
+    local, _ = capsys.readouterr()
+    survivor = cluster.address_of("w1")
+    out, err, killer = _run_killing(cluster, capsys, argv)
+    assert out == local
+    assert f"worker {killer.address} left the cluster" in err
+    _check_rerun(killer, survivor)
+
+
+def test_a_soak_farm_on_the_cluster_is_the_local_report_though_a_worker_dies(cluster, capsys):
+    cluster.ensure("w1", "w2")
+    argv = ["soak", str(VALVE), "--seeds", "1-6", "--steps", "6"]
+    code = main([*argv, "--jobs", "1"])
+    local, _ = capsys.readouterr()
+    survivor = cluster.address_of("w1")
+    out, err, killer = _run_killing(cluster, capsys, argv)
+    assert code == 0 and out == local
+    assert f"worker {killer.address} left the cluster" in err
+    assert "6 seeds (1-6)" in out and "6 kept every invariant" in out
+    _check_rerun(killer, survivor)
+
+
+def test_a_worker_running_another_plchmi_is_refused(cluster, capsys, tmp_path):
+    cluster.ensure("w1")
+    other = tmp_path / "other"
+    shutil.copytree(ROOT / "hmi", other / "hmi", ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copytree(ROOT / "components", other / "components")
+    with open(other / "hmi" / "farm" / "version.py", "a", encoding="utf-8") as f:
+        f.write("\n# another build of plchmi\n")
+    cluster.start_worker("odd", pythonpath=str(other))
+    try:
+        code = main(["campaign", str(VALVE), "--cluster", cluster.address])
+        err = capsys.readouterr().err
+        odd = cluster.address_of("odd")
+        assert code == 2, err
+        assert "workers running another plchmi than this command's" in err
+        assert odd in err and "nothing was computed" in err
+        assert cluster.address_of("w1") not in err
+    finally:
+        cluster.stop("odd")
+
+
+def test_ctrl_c_cancels_the_work_on_the_cluster_and_resume_goes_on(cluster, tmp_path):
+    cluster.ensure("w1", "w2")
+    data = tmp_path / "data"
+    env = {**os.environ, "PLCHMI_DATA": str(data), "PYTHONUNBUFFERED": "1"}
+    argv = [sys.executable, "-m", "hmi.cli", "soak", str(VALVE), "--seeds", "1-8",
+            "--steps", "4", "--cluster", cluster.address]
+    command = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
+                               cwd=ROOT)
+    try:
+        cluster.wait_for(lambda: any(data.glob("studies/*/shard-*.json")),
+                         "a first shard to finish")
+        command.send_signal(signal.SIGINT)
+        _, err = command.communicate(timeout=60)
+    finally:
+        if command.poll() is None:
+            command.kill()
+    text = err.decode()
+    assert command.returncode == 130, text
+    assert "interrupted:" in text and "--resume" in text and "Traceback" not in text
+    # The scheduler forgets the study: nothing left queued or computing on the workers.
+    cluster.wait_for(lambda: not any(cluster.client.processing().values()) and
+                     cluster.client.run_on_scheduler(lambda dask_scheduler:
+                                                     len(dask_scheduler.tasks)) == 0,
+                     "the cluster to be idle", timeout=30)
+    kept = len(list(data.glob("studies/*/shard-*.json")))
+    assert 1 <= kept < 8
+    resumed = subprocess.run([*argv, "--resume"], capture_output=True, env=env, cwd=ROOT,
+                             timeout=300)
+    assert resumed.returncode == 0, resumed.stderr.decode()
+    assert f"{kept} of 8 shards read back" in resumed.stderr.decode()
+    assert "8 kept every invariant" in resumed.stdout.decode()
