@@ -180,19 +180,36 @@ def run_screen(args: argparse.Namespace, project, socket: Path, view: bool = Fal
     except AttachError as exc:
         raise RunFailure(str(exc)) from None
     app = PlcHmiApp(link, live=True, bell=getattr(args, "bell", False))
+    app.containment.listeners.append(link.report_fault)  # the runtime journals them
     try:
         app.run()
     finally:
         link.leave(stop_cell=app.stop_cell)
     end = app_end(app)
     if end.reason is not None:
-        print(f"plchmi: the HMI ended on an error: {end.reason}", file=sys.stderr)
+        print(f"plchmi: the HMI ended on an error: {end.reason}; the cell runs on "
+              f"(plchmi attach {args.project})", file=sys.stderr)
     elif app.stop_cell:
-        print(f"plchmi: {project.name} stopped", file=sys.stderr)
+        stopped = wait_stopped(socket.parent if args.socket else None, project.name)
+        print(f"plchmi: {project.name} stopped" if stopped else
+              f"plchmi: {project.name} was asked to stop and still runs", file=sys.stderr)
     elif link.lost is None or "left" in link.lost:
         print(f"plchmi: {project.name} keeps running (plchmi attach {args.project})",
               file=sys.stderr)
     return end.status
+
+
+def wait_stopped(folder: Path | None, name: str, guard_s: float = 60.0) -> bool:
+    """Until the runtime asked to stop has ended (its lock released: a real plant's outputs
+    are safe by then), at most `guard_s`."""
+    from hmi.runtime.place import Place, place, running
+    where = Place(folder) if folder is not None else place(name)
+    deadline = time.monotonic() + guard_s
+    while running(where) is not None:
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.02)
+    return True
 
 
 def start_runtime(args: argparse.Namespace, project, where) -> None:

@@ -103,6 +103,9 @@ class CellLink(Protocol):
     def lost(self) -> str | None:
         """Why the runtime is gone (None while it answers): nothing shown is live then."""
 
+    def silent_s(self) -> float:
+        """How long since the runtime last said anything (a tick comes every second)."""
+
     def request_control(self) -> CommandResult:
         """Ask for control (granted at once if nobody holds it, else the holder is asked)."""
 

@@ -176,9 +176,18 @@ class SocketLink:
         return answer if isinstance(answer, m.Stats) else None
 
     def report(self, status: m.ServiceStatus) -> None:
+        self._tell(m.Report(status))
+
+    def report_fault(self, fault: object) -> None:
+        """An error of this screen (hmi.ui.containment.UIFault), for the runtime's journal."""
+        self._tell(m.Fault(str(getattr(fault, "what", "")), str(getattr(fault, "error", "")),
+                           str(getattr(fault, "report", "")), bool(getattr(fault, "fatal",
+                                                                           False))))
+
+    def _tell(self, message: m.ClientMessage) -> None:
         if self.receiver.lost is None:
             try:
-                self._send(m.Report(status))
+                self._send(message)
             except OSError as exc:
                 self.receiver.lose(f"the connection to the runtime broke ({exc})")
 

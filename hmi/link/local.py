@@ -104,6 +104,9 @@ class LocalLink:
     def client(self) -> str | None:
         return self.receiver.client
 
+    def silent_s(self) -> float:
+        return 0.0  # the hub is in this process: it always answers
+
     @property
     def lost(self) -> str | None:
         return self.receiver.lost
@@ -279,6 +282,9 @@ class SessionLink:
     # -- control: no other screen ------------------------------------------------------------
     client = None
     lost = None
+
+    def silent_s(self) -> float:
+        return 0.0
 
     def request_control(self) -> CommandResult:
         return CommandResult.ok("the only screen: always in control")

@@ -230,6 +230,13 @@ class Hub:
                 with self.lock:
                     self.services[status.name] = status
                 return None
+            case m.Fault():
+                if self.journal is not None:
+                    identity = client.identity
+                    with self.session.lock:
+                        self.journal.on_ui_fault(message, by=identity.by, role=identity.role,
+                                                 client=f"{client.id}/{identity.session}")
+                return None
             case m.Bye(stop=stop):
                 if stop:
                     refusal = self._refusal(client)

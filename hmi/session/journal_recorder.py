@@ -161,14 +161,16 @@ class JournalRecorder:
             entry["by"] = by
         self._append(entry)
 
-    def on_ui_fault(self, fault) -> None:
-        """An error of the HMI (hmi.ui.containment.UIFault): contained, or fatal."""
+    def on_ui_fault(self, fault, **who: str) -> None:
+        """An error of the HMI (hmi.ui.containment.UIFault, or a screen's report of one):
+        contained, or fatal; `who`: the screen's (by, role, client)."""
         engine = self.session.engine
+        ended = "; the screen ended, the cell runs on" if who else ""
         self._append({
             "type": "session", "event": "ui-error", "what": fault.what, "fatal": fault.fatal,
             "message": f"{fault.error}; details in {fault.report}"
-                       + ("" if fault.fatal else "; contained, the scan goes on"),
-            "crash_file": fault.report, "scan": engine.scan, "t": seconds(engine.now)})
+                       + (ended if fault.fatal else "; contained, the scan goes on"),
+            "crash_file": fault.report, **who, "scan": engine.scan, "t": seconds(engine.now)})
 
     def on_service(self, event: str, message: str, **fields: str) -> None:
         """A service beside the scan changed state (the OPC UA server: opcua-serving,

@@ -94,6 +94,7 @@ from hmi.ui.message_line import MessageLine, result_text, spoken, verdict_text
 from hmi.ui.messages import CommandRequested, ExplainRequested
 from hmi.ui.monitors_panel import MonitorsPanel
 from hmi.ui.panel import TOP_SHARE, ColumnPanel
+from hmi.ui.presence import SILENT_S
 from hmi.ui.reset import Asked, recovery_lines, reset_lines
 from hmi.ui.serving import Served, serving_lines
 from hmi.ui.sim_panel import SimPanel
@@ -180,6 +181,7 @@ class PlcHmiApp(ContainedPump, App):
         self.refresh_hz = refresh_hz
         self.history = link.history  # every scan's edges and plant events (chronogram)
         self.stop_cell = False  # the operator quit and asked the cell to stop too
+        self._asked: str | None = None  # the screen whose control request was asked
         self.frame: Frame | None = None
         self.frames_shown = 0  # frames handed to the panels (the UI refresh count)
         self._key: tuple | None = None
@@ -410,8 +412,11 @@ class PlcHmiApp(ContainedPump, App):
         frame_faults = contained.version
         serving = self.served.status() if self.served is not None else None
         overruns = self.driver.overruns
-        key = (snap.scan, id(snap), run, view.run.speed, overruns,
-               self._version, self._mode_commanded, contained.version, serving)
+        lost = self.link.lost
+        silent = self.link.silent_s()
+        silent = float(int(silent)) if silent >= SILENT_S else 0.0
+        key = (snap.scan, id(snap), run, view.run.speed, overruns, view.control, lost,
+               silent, self._version, self._mode_commanded, contained.version, serving)
         if not force and key == self._key:
             return False
         self._key = key
@@ -422,7 +427,9 @@ class PlcHmiApp(ContainedPump, App):
             injected=tuple(self._injected), free_inputs=self.free_inputs,
             damage_count=view.damage_count, mode_commanded=self._mode_commanded,
             constraints=view.constraints, ui_fault=contained.latest,
-            ui_faults=contained.total, serving=serving)
+            ui_faults=contained.total, serving=serving, control=view.control,
+            me=self.link.client, lost=lost, silent_s=silent)
+        self._show_presence(frame)
         self.frame = frame
         for view in self._views:  # one panel failing leaves the others showing this frame
             try:
@@ -448,6 +455,104 @@ class PlcHmiApp(ContainedPump, App):
         if self._test_fault is not None:
             self._test_fault.tick(snap.time_us)
         return True
+
+    # -- among the cell's screens (hmi.ui.presence) --------------------------------------
+    def _show_presence(self, frame: Frame) -> None:
+        """The runtime lost (the screen dimmed: nothing is live), and control changing hands:
+        said on the message line; a request from another screen asked in a dialog."""
+        gone = bool(frame.lost or frame.silent_s)
+        if self.has_class("-lost") != gone:
+            self.set_class(gone, "-lost")
+        if frame.lost and (self.frame is None or not self.frame.lost):
+            self.message.say(tag(f"RUNTIME LOST: {frame.lost}", Level.ALARM))
+        before = self.frame.control if self.frame is not None else None
+        now = frame.control
+        if now is None or frame.lost:
+            return
+        me = frame.me
+        had = before is not None and before.holder is not None and before.holder.id == me
+        has = now.holder is not None and now.holder.id == me
+        if had and not has:
+            who = f"{now.holder.identity}" if now.holder else "nobody"
+            self.message.say(tag(f"control is now {who}'s: this screen's commands are "
+                                 "refused until it has control again", Level.ATTENTION))
+        elif has and not had and before is not None:
+            self.message.say(Text(f"{OK_SYMBOL} this screen is in control"))
+        asked = now.asked_by
+        if has and asked is not None and asked.id != self._asked:
+            self._asked = asked.id
+            self._ask_hand_over(asked)
+        elif asked is None:
+            self._asked = None
+
+    def _ask_hand_over(self, asked) -> None:
+        from hmi.ui.dialogs import ConfirmDialog
+        who = asked.identity
+
+        def answered(yes: bool | str | None) -> None:
+            result = self.link.hand_over(asked.id if yes else "")
+            self.message.say(result_text(
+                f"control handed over to {who}" if yes else "control kept", result))
+        self.push_screen(ConfirmDialog(
+            f"{who.user} asks for control", [
+                f"{who} asks to take control of the cell.",
+                "y: hand control over — this screen's commands are refused from then on;",
+                "n: keep it — they are told you kept it, and may take it over anyway."],
+            "Hand over", dialog_id="control-request"), answered)
+
+    def request_control(self) -> None:
+        result = self.link.request_control()
+        self.message.say(result_text("request control", result))
+
+    def take_control(self) -> None:
+        from hmi.ui.dialogs import ConfirmDialog
+        view = self.link.view()
+        holder = view.control.holder if view is not None and view.control else None
+        lines: list[Text | str] = ["This screen takes control of the cell without waiting "
+                                   "for an answer."]
+        if holder is not None:
+            lines.append(f"{holder.identity} loses it at once; their commands are refused "
+                         "from then on, and they are told.")
+
+        def answered(yes: bool | str | None) -> None:
+            if yes:
+                self.message.say(result_text("take control", self.link.take_control()))
+            else:
+                self.message.say(Text("cancelled: take control", style=MUTED))
+        self.push_screen(ConfirmDialog("Take control over?", lines, "Take control",
+                                       dialog_id="control-take"), answered)
+
+    def release_control(self) -> None:
+        self.message.say(result_text("release control", self.link.release_control()))
+
+    def hand_over(self, to: str, who: str) -> None:
+        self.message.say(result_text(f"hand control over to {who}", self.link.hand_over(to)))
+
+    def _control_entries(self) -> list[PaletteEntry]:
+        """Control among several screens: request, take over, release, hand over."""
+        from hmi.ui.palette import PaletteEntry
+        view = self.link.view()
+        control = view.control if view is not None else None
+        if control is None or self.link.client is None or self.link.lost:
+            return []
+        if not self.link.identity.may_command:
+            return []
+        holder = control.holder
+        if holder is None or holder.id != self.link.client:
+            held = f" from {holder.identity}" if holder else ""
+            return [PaletteEntry("Control: request it", "Granted at once if nobody holds it; "
+                                 f"else {holder.identity if holder else 'the holder'} is "
+                                 "asked", self.request_control),
+                    PaletteEntry(f"Control: take it over{held}…", "Without waiting for an "
+                                 "answer (confirmed first)", self.take_control)]
+        entries = [PaletteEntry("Control: release it", "Nobody is in control until a "
+                                "screen takes it", self.release_control)]
+        for client in control.clients:
+            if client.id != self.link.client and client.identity.may_command:
+                entries.append(PaletteEntry(
+                    f"Control: hand over to {client.identity}", f"screen {client.id}",
+                    partial(self.hand_over, client.id, str(client.identity))))
+        return entries
 
     def _ring(self, snap) -> None:
         """The bell, once per P1 alarm that became active and unacknowledged since the last
@@ -1279,6 +1384,7 @@ class PlcHmiApp(ContainedPump, App):
             entries.append(PaletteEntry(f"Chronogram: last {window // 1_000_000} s",
                                         "Time window of the timing diagram",
                                         partial(self.action_window, window)))
+        entries += self._control_entries()
         if self.served is not None:
             entries.append(PaletteEntry(
                 "OPC UA server: endpoint, clients, security",

@@ -22,6 +22,7 @@ from hmi.timefmt import seconds
 from hmi.ui.alarm_list import urgent_count
 from hmi.ui.frame import Frame
 from hmi.ui.panel import TextPanel
+from hmi.ui.presence import control_field, lost_banner, lost_field
 from hmi.ui.serving import serving_banner, serving_field
 from hmi.ui.style import MUTED, Level, banner, tag
 
@@ -43,6 +44,8 @@ def status_fields(frame: Frame, wide: bool, compact: bool = False) -> list[Field
     snap = frame.snapshot
     plant = snap.plant
     fields: list[Field] = [Field(Text(frame.project, style="bold"), 2)]
+    if (gone := lost_field(frame)) is not None:  # first: nothing after it is live
+        fields.insert(0, Field(*gone))
     if plant.kind == "sim":
         fields.append(Field(tag("SIM", Level.SIMULATION), 2))
     else:
@@ -53,6 +56,8 @@ def status_fields(frame: Frame, wide: bool, compact: bool = False) -> list[Field
             fields.append(Field(tag(f"{where} DISCONNECTED", Level.ALARM), 0))
     if frame.serving is not None:
         fields.append(Field(*serving_field(frame.serving)))
+    if (control := control_field(frame)) is not None:
+        fields.append(Field(*control))
     if snap.mode == "manual":
         fields.append(Field(tag("MANUAL", Level.ATTENTION), 0))
     elif snap.mode == "recovery":
@@ -200,6 +205,8 @@ def recovery_banner(state: RecoveryState) -> Text:
 def banner_lines(frame: Frame) -> list[Text]:
     snap = frame.snapshot
     lines: list[Text] = []
+    if (gone := lost_banner(frame)) is not None:
+        lines.append(gone)
     if snap.mode == "manual":
         line = banner("MANUAL / FORCES ACTIVE", Level.ATTENTION)
         requests = dict(snap.manual)

@@ -268,6 +268,17 @@ class Report:
 
 
 @dataclass(frozen=True)
+class Fault:
+    """An error of the screen (its UI), for the journal: contained, or fatal (the screen
+    ends; the cell runs on)."""
+
+    what: str
+    error: str
+    report: str  # the screen's crash file
+    fatal: bool
+
+
+@dataclass(frozen=True)
 class Bye:
     """The screen is leaving as asked; `stop`: and the cell stops with it."""
 
@@ -275,7 +286,7 @@ class Bye:
 
 
 ClientMessage = (Hello | Send | RequestControl | TakeControl | ReleaseControl | HandOver
-                 | Advance | Query | Report | Bye)
+                 | Advance | Query | Report | Fault | Bye)
 
 
 # -- runtime to screen ------------------------------------------------------------------
