@@ -1,6 +1,6 @@
 """``plchmi PROJECT`` (``plchmi ui PROJECT``): the operator HMI of the project's cell. The
-cell's runtime runs in a process of its own (hmi.cli.cell): started here if none runs, then
-this screen attaches to it. With --opcua the HMI still runs the scans in its own process,
+cell's runtime runs in a process of its own (hmi.cli.screens): started here if none runs,
+then this screen attaches to it. With --opcua the HMI still runs the scans in its own process,
 with the OPC UA server beside them."""
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ SCAN_CODE_PATH = (Path(__file__).resolve().parents[1] / "__pycache__"
 
 
 def add_parser(sub) -> None:
-    from hmi.cli.cell import runtime_args
+    from hmi.cli.screens import runtime_args
     p = sub.add_parser("ui", help="open the operator HMI (the default command): the cell's "
                        "runtime is started if none runs, and this screen attaches to it")
     project_arg(p)
@@ -40,7 +40,7 @@ def cmd_ui(args: argparse.Namespace) -> int:
     try:
         with dataclass_code():
             import hmi.ui.app  # noqa: F401  (the HMI's modules: their classes built here)
-            from hmi.cli.cell import given_runtime_options, run_screen, start_runtime
+            from hmi.cli.screens import given_runtime_options, run_screen, start_runtime
             from hmi.errors import UsageError
             from hmi.project import kept
             from hmi.runtime.place import place, running

@@ -100,12 +100,12 @@ class SocketLink:
                     self.first_frame.set()
                 if isinstance(message, m.Closing):
                     break
-        except (OSError, ConnectionError) as exc:
-            receiver.lose(f"the connection to the runtime broke ({exc})")
+        except (OSError, ConnectionError):
+            receiver.lose("its connection closed: the runtime stopped or was killed")
         except ValueError as exc:  # a message this screen cannot read
             receiver.lose(f"the runtime sent what this screen cannot read ({exc})")
         finally:
-            receiver.lose("the connection to the runtime closed")
+            receiver.lose("its connection closed")
             self.first_frame.set()
 
     def _send(self, message: m.ClientMessage) -> None:

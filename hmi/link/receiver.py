@@ -6,6 +6,7 @@ both show exactly what the runtime sent.
 from __future__ import annotations
 
 import threading
+import time
 from dataclasses import replace
 from typing import Any
 
@@ -94,9 +95,9 @@ class Receiver:
         return self._view
 
     def lose(self, why: str) -> None:
-        """The runtime is gone: every answer awaited is refused with why."""
+        """The runtime is gone: every answer awaited is refused with why (and when)."""
         if self.lost is None:
-            self.lost = why
+            self.lost = f"{why} (at {time.strftime('%H:%M:%S')})"
         with self._lock:
             pending = list(self._pending.values())
         for slot in pending:

@@ -109,6 +109,8 @@ class Hub:
         # the cell is asked to stop (by the screen in control): why; told to `on_stop`
         self.stop_reason: str | None = None
         self.on_stop: list[Callable[[str], None]] = []
+        # the transport's: the most unsent bytes of any screen (the socket server's)
+        self.backlog: Callable[[], int] = lambda: 0
 
     def _record(self, snapshot: Any) -> None:
         """Every scan, in the scan thread: a failure of the recorder is the screens' (their
@@ -136,9 +138,9 @@ class Hub:
         with self.lock:
             client = Client(f"c{next(self._ids)}", identity, self.session.engine.now)
             self.clients[client.id] = client
-            self._journal("client-attached", f"{identity} attached as {client.id}", client)
+            self._journal("client-attached", f"{client.info} attached", client)
             if hello.want_control and identity.may_command and self.holder is None:
-                self._grant(client, "control-granted", f"{identity} is in control")
+                self._grant(client, "control-granted", f"{client.info} is in control")
             self._control_version += 1
         return client, m.Welcome(m.PROTOCOL, client.id, self.facts, self.runtime)
 
@@ -148,14 +150,14 @@ class Hub:
         with self.lock:
             if self.clients.pop(client.id, None) is None:
                 return
-            self._journal(event, f"{client.identity} ({client.id}) {why}", client)
+            self._journal(event, f"{client.info} {why}", client)
             if self.asked_by == client.id:
                 self.asked_by = None
             if self.holder == client.id:
                 self.holder = None
                 self.asked_by = None
-                self._journal("control-free", f"nobody is in control: {client.identity} "
-                              f"({client.id}) {why}", client)
+                self._journal("control-free", f"nobody is in control: {client.info} {why}",
+                              client)
             self._control_version += 1
 
     def _journal(self, event: str, message: str, client: Client) -> None:
@@ -241,7 +243,7 @@ class Hub:
                 if stop:
                     refusal = self._refusal(client)
                     if refusal is None:
-                        self.request_stop(f"stopped by {client.identity}")
+                        self.request_stop(f"stopped by {client.info}")
                 return None
             case m.Hello():
                 raise ValueError("a second Hello")
@@ -257,8 +259,8 @@ class Hub:
         holder = self.clients.get(self.holder) if self.holder else None
         if holder is None:
             return "nobody is in control: request control first"
-        return (f"not in control: {holder.identity} is in control; request control "
-                "(or take it over) first")
+        return (f"not in control: {holder.info} is; request control (or take it over) "
+                "first")
 
     def _send(self, client: Client, message: m.Send) -> m.Reply:
         reply = self._carry_out(client, message)
@@ -313,13 +315,13 @@ class Hub:
                 return CommandResult.ok("you are in control")
             holder = self.clients.get(self.holder) if self.holder else None
             if holder is None:
-                self._grant(client, "control-granted", f"{client.identity} is in control")
+                self._grant(client, "control-granted", f"{client.info} is in control")
                 return CommandResult.ok("you are in control")
             self.asked_by = client.id
             self._control_version += 1
-            self._journal("control-requested", f"{client.identity} asks "
-                          f"{holder.identity} for control", client)
-            return CommandResult.ok(f"asked {holder.identity} to hand control over")
+            self._journal("control-requested", f"{client.info} asks {holder.info} for "
+                          "control", client)
+            return CommandResult.ok(f"asked {holder.info} to hand control over")
 
     def _take(self, client: Client) -> CommandResult:
         with self.lock:
@@ -328,8 +330,8 @@ class Hub:
             holder = self.clients.get(self.holder) if self.holder else None
             if holder is client:
                 return CommandResult.ok("you are in control")
-            taken = f", taken over from {holder.identity}" if holder else ""
-            self._grant(client, "control-taken", f"{client.identity} is in control{taken}")
+            taken = f", taken over from {holder.info}" if holder else ""
+            self._grant(client, "control-taken", f"{client.info} is in control{taken}")
             return CommandResult.ok(f"you are in control{taken}")
 
     def _release(self, client: Client) -> CommandResult:
@@ -338,7 +340,7 @@ class Hub:
                 return CommandResult.refused("you are not in control")
             self.holder = None
             self._control_version += 1
-            self._journal("control-released", f"{client.identity} released control: "
+            self._journal("control-released", f"{client.info} released control: "
                           "nobody is in control", client)
             return CommandResult.ok("nobody is in control now")
 
@@ -351,15 +353,15 @@ class Hub:
                 self.asked_by = None
                 self._control_version += 1
                 if asked is not None:
-                    self._journal("control-kept", f"{client.identity} keeps control "
-                                  f"(asked by {asked.identity})", client)
+                    self._journal("control-kept", f"{client.info} keeps control "
+                                  f"(asked by {asked.info})", client)
                 return CommandResult.ok("you keep control")
             other = self.clients.get(to)
             if other is None or not other.identity.may_command:
                 return CommandResult.refused(f"no screen {to} that may take control")
             self._grant(other, "control-handed-over",
-                        f"{client.identity} handed control over to {other.identity}")
-            return CommandResult.ok(f"control handed over to {other.identity}")
+                        f"{client.info} handed control over to {other.info}")
+            return CommandResult.ok(f"control handed over to {other.info}")
 
     def _advance(self, client: Client, duration_us: int) -> CommandResult:
         if not self.runtime.virtual:
@@ -397,7 +399,8 @@ class Hub:
                        lateness.percentile(0.99) if lateness else 0.0,
                        lateness.most if lateness else 0.0,
                        lateness.count if lateness else 0,
-                       rss_kb(), clients, self.frames_sent, dropped, self.runtime.realtime)
+                       rss_kb(), clients, self.frames_sent, dropped, self.backlog(),
+                       self.runtime.realtime)
 
 
 def rss_kb() -> int:

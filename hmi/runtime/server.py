@@ -88,6 +88,11 @@ class SocketServer:
         self._why = ""
         self._due = 0.0  # monotonic time of the next frames (the scan's nudge)
         self._nudged = False
+        hub.backlog = self.backlog
+
+    def backlog(self) -> int:
+        """The most bytes any screen has not taken yet."""
+        return max((c.backlog() for c in list(self.connections)), default=0)
 
     # -- life cycle -----------------------------------------------------------------------
     def start(self) -> None:

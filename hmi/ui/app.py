@@ -473,9 +473,9 @@ class PlcHmiApp(ContainedPump, App):
         had = before is not None and before.holder is not None and before.holder.id == me
         has = now.holder is not None and now.holder.id == me
         if had and not has:
-            who = f"{now.holder.identity}" if now.holder else "nobody"
-            self.message.say(tag(f"control is now {who}'s: this screen's commands are "
-                                 "refused until it has control again", Level.ATTENTION))
+            who = f"{now.holder} is in control now" if now.holder else "nobody is in control"
+            self.message.say(tag(f"{who}: this screen's commands are refused until it has "
+                                 "control again", Level.ATTENTION))
         elif has and not had and before is not None:
             self.message.say(Text(f"{OK_SYMBOL} this screen is in control"))
         asked = now.asked_by
@@ -487,14 +487,14 @@ class PlcHmiApp(ContainedPump, App):
 
     def _ask_hand_over(self, asked) -> None:
         from hmi.ui.dialogs import ConfirmDialog
-        who = asked.identity
+        who = asked
 
         def answered(yes: bool | str | None) -> None:
             result = self.link.hand_over(asked.id if yes else "")
             self.message.say(result_text(
                 f"control handed over to {who}" if yes else "control kept", result))
         self.push_screen(ConfirmDialog(
-            f"{who.user} asks for control", [
+            f"{who.identity.user} asks for control", [
                 f"{who} asks to take control of the cell.",
                 "y: hand control over — this screen's commands are refused from then on;",
                 "n: keep it — they are told you kept it, and may take it over anyway."],
@@ -511,8 +511,8 @@ class PlcHmiApp(ContainedPump, App):
         lines: list[Text | str] = ["This screen takes control of the cell without waiting "
                                    "for an answer."]
         if holder is not None:
-            lines.append(f"{holder.identity} loses it at once; their commands are refused "
-                         "from then on, and they are told.")
+            lines.append(f"{holder} loses it at once; their commands are refused from "
+                         "then on, and they are told.")
 
         def answered(yes: bool | str | None) -> None:
             if yes:
@@ -539,10 +539,10 @@ class PlcHmiApp(ContainedPump, App):
             return []
         holder = control.holder
         if holder is None or holder.id != self.link.client:
-            held = f" from {holder.identity}" if holder else ""
+            held = f" from {holder}" if holder else ""
             return [PaletteEntry("Control: request it", "Granted at once if nobody holds it; "
-                                 f"else {holder.identity if holder else 'the holder'} is "
-                                 "asked", self.request_control),
+                                 f"else {holder or 'the holder'} is asked",
+                                 self.request_control),
                     PaletteEntry(f"Control: take it over{held}…", "Without waiting for an "
                                  "answer (confirmed first)", self.take_control)]
         entries = [PaletteEntry("Control: release it", "Nobody is in control until a "
@@ -550,8 +550,8 @@ class PlcHmiApp(ContainedPump, App):
         for client in control.clients:
             if client.id != self.link.client and client.identity.may_command:
                 entries.append(PaletteEntry(
-                    f"Control: hand over to {client.identity}", f"screen {client.id}",
-                    partial(self.hand_over, client.id, str(client.identity))))
+                    f"Control: hand over to {client}", f"screen {client.id}",
+                    partial(self.hand_over, client.id, str(client))))
         return entries
 
     def _ring(self, snap) -> None:
@@ -984,7 +984,7 @@ class PlcHmiApp(ContainedPump, App):
             lines.append("Nobody is in control until a screen takes it (plchmi attach "
                          "shows the cell again).")
         else:
-            lines.append(f"{holder.identity} stays in control.")
+            lines.append(f"{holder} stays in control.")
         return lines
 
     @property

@@ -15,10 +15,21 @@ from __future__ import annotations
 
 from rich.text import Text
 
+from hmi.timefmt import seconds
 from hmi.ui.frame import Frame
-from hmi.ui.style import Level, banner, tag
+from hmi.ui.style import MUTED, Level, banner, tag
 
 SILENT_S = 3.0  # no word from the runtime for this long: not responding
+
+
+def lost_fields(frame: Frame) -> list[tuple[Text, int]]:
+    """The status bar of a screen whose runtime is gone: that first, then only what was
+    last known, said as such (never the run state, as if it were live)."""
+    snap = frame.snapshot
+    mode = {"auto": "AUTO", "manual": "MANUAL"}.get(snap.mode, snap.mode.upper())
+    return [(tag("RUNTIME LOST", Level.ALARM), 0), (Text(frame.project, style="bold"), 2),
+            (Text(f"last known: {mode}, filter {snap.policy}, scan {snap.scan} at "
+                  f"{seconds(snap.time_us)} s", style=MUTED), 0)]
 
 
 def control_field(frame: Frame) -> tuple[Text, int] | None:
@@ -34,12 +45,13 @@ def control_field(frame: Frame) -> tuple[Text, int] | None:
         asked = control.asked_by
         text = Text("● in control")
         if asked is not None:
-            text = tag(f"{asked.identity.user} asks for control", Level.ATTENTION)
+            text = tag(f"{asked.identity.user} ({asked.id}) asks for control",
+                       Level.ATTENTION)
         return text, 0
     if holder is None:
         return tag("nobody in control", Level.ATTENTION), 0
     who = holder.identity
-    return tag(f"control: {who.user} ({who.door})", Level.ATTENTION), 0
+    return tag(f"control: {who.user} ({who.door}, {holder.id})", Level.ATTENTION), 0
 
 
 def lost_field(frame: Frame) -> tuple[Text, int] | None:
@@ -54,9 +66,8 @@ def lost_banner(frame: Frame) -> Text | None:
     """The red banner of a runtime gone or silent: nothing shown is live."""
     if frame.lost:
         line = banner("RUNTIME LOST", Level.ALARM)
-        line.append(f" {frame.lost} · nothing on this screen is live: the last values "
-                    f"received (scan {frame.snapshot.scan}) are greyed · commands are not "
-                    "sent · q: quit")
+        line.append(f" {frame.lost} · nothing shown is live (greyed: as of scan "
+                    f"{frame.snapshot.scan}) · no command is sent · q: quit")
         return line
     if frame.silent_s >= SILENT_S:
         line = banner("RUNTIME NOT RESPONDING", Level.ALARM)

@@ -22,7 +22,7 @@ from hmi.timefmt import seconds
 from hmi.ui.alarm_list import urgent_count
 from hmi.ui.frame import Frame
 from hmi.ui.panel import TextPanel
-from hmi.ui.presence import control_field, lost_banner, lost_field
+from hmi.ui.presence import control_field, lost_banner, lost_field, lost_fields
 from hmi.ui.serving import serving_banner, serving_field
 from hmi.ui.style import MUTED, Level, banner, tag
 
@@ -43,8 +43,10 @@ def status_fields(frame: Frame, wide: bool, compact: bool = False) -> list[Field
     """The status bar's fields; `compact` uses the short forms (80 columns)."""
     snap = frame.snapshot
     plant = snap.plant
+    if frame.lost:  # nothing is live: said first, and only what was last known
+        return [Field(*f) for f in lost_fields(frame)]
     fields: list[Field] = [Field(Text(frame.project, style="bold"), 2)]
-    if (gone := lost_field(frame)) is not None:  # first: nothing after it is live
+    if (gone := lost_field(frame)) is not None:  # first: what follows may be stale
         fields.insert(0, Field(*gone))
     if plant.kind == "sim":
         fields.append(Field(tag("SIM", Level.SIMULATION), 2))

@@ -87,6 +87,10 @@ class ClientInfo:
     identity: Identity
     since_us: int  # the cell's time when it attached
 
+    def __str__(self) -> str:
+        who = self.identity
+        return f"{who.user} ({who.role}, {who.door}, {self.id})"
+
 
 @dataclass(frozen=True)
 class ControlInfo:
@@ -348,6 +352,7 @@ class Stats:
     clients: int
     frames_sent: int
     frames_dropped: int  # frames a slow screen did not get (it got a later one)
+    backlog_bytes: int  # the most any screen has not read yet (bounded: HIGH_WATER)
     realtime: str
 
 
