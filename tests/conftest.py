@@ -158,6 +158,24 @@ def stop_runtimes(folder: Path) -> None:
             os.kill(pid, signal.SIGKILL)
 
 
+@pytest.fixture(scope="session")
+def postgres():
+    """A throwaway PostgreSQL cluster (tests/pgcluster.py), one per worker that needs it; a
+    machine without PostgreSQL's binaries skips the test and says why (pytest -rs)."""
+    from pgcluster import Cluster, Unavailable
+    try:
+        cluster = Cluster().start()
+    except Unavailable as exc:
+        pytest.skip(f"no PostgreSQL here: {exc}")
+    try:
+        import psycopg  # noqa: F401
+    except ImportError:
+        cluster.stop()
+        pytest.skip("psycopg is not installed (the [test] extra installs it)")
+    yield cluster
+    cluster.stop()
+
+
 @pytest.fixture
 def valve_project():
     return load_project(PROJECTS / "cispi_valve")

@@ -87,8 +87,29 @@ def opposed(count: int = MAX_CONSTRAINTS, inputs: int = 16, outputs: int = 24) -
     return head(inputs, outputs) + "constraints:\n" + "".join(lines)
 
 
+def flood(count: int = 3000, bits: int = 13, outputs: int = 24) -> str:
+    """Combined constraints whose contexts follow a `bits`-bit counter made of observers:
+    the program asks for every output on, so hundreds are violated at each scan and the
+    set of active constraints is a new one at each scan for 2**bits scans (an alarm flood,
+    and as many active sets for the filter to prepare)."""
+    text = head(2, outputs).replace("    Y0: i0\n", "".join(f"    Y{k}: True\n"
+                                                          for k in range(outputs)))
+    text += "observers:\n  b0: not prev(b0)\n"
+    for k in range(1, bits):
+        carry = " and ".join(f"prev(b{j})" for j in range(k))
+        text += (f"  b{k}: (prev(b{k}) and not ({carry})) or (not prev(b{k}) and {carry})\n")
+    rng = random.Random(count)
+    lines = []
+    for i in range(count):
+        a, b, c = rng.sample(range(outputs), 3)
+        ctx = [("not " if rng.random() < 0.5 else "") + f"b{j}"
+               for j in rng.sample(range(bits), 3)]
+        lines.append(f"  K{i}: Y{a} and Y{b} and Y{c} and {' and '.join(ctx)}\n")
+    return text + "constraints:\n" + "".join(lines)
+
+
 KINDS = {"monomials": monomials, "aliased": aliased, "short": short, "combined": combined,
-         "opposed": opposed}
+         "opposed": opposed, "flood": flood}
 
 
 def write(kind: str, folder: Path, count: int | None = None) -> Path:

@@ -355,8 +355,12 @@ def _continuous(path: str, value: Any) -> bool:
         not path.startswith("monitors.") or path.endswith(CONTINUOUS_LEAVES)))
 
 
-def run_case(case: Case) -> str:
-    """The golden text of a case: one line per scan (changed fields), commands, journal."""
+def run_case(case: Case, attach: Callable[[Any, Any], Callable[[], None]] | None = None
+             ) -> str:
+    """The golden text of a case: one line per scan (changed fields), commands, journal.
+    `attach(session, journal recorder)`: something more listening to the run (the
+    historian, tests/test_history_recorder.py), which must change nothing; it returns what
+    closes it."""
     _MEMO.clear()
     controller = open_controller(case)
     lines: list[str] = []
@@ -365,6 +369,7 @@ def run_case(case: Case) -> str:
     with tempfile.TemporaryDirectory() as folder:
         journal_path = Path(folder) / "journal.jsonl"
         recorder = open_journal(controller, journal_path)
+        close = attach(controller, recorder) if attach is not None else None
         script = list(case.script)
         end = int(case.seconds * S)
 
@@ -404,10 +409,13 @@ def run_case(case: Case) -> str:
                                     "accepted": result.accepted, "message": result.message}))
             controller.scan_once()
         recorder.close()
+        if close is not None:
+            close()
         lines.append(_dump({"end": controller.engine.scan, "digest": digest.hexdigest()}))
         for line in journal_path.read_text(encoding="utf-8").splitlines():
             entry = json.loads(line)
             entry.pop("wall", None)
+            entry.pop("session", None)
             lines.append(_dump({"journal": entry}))
     return "\n".join(lines) + "\n"
 

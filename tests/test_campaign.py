@@ -13,8 +13,8 @@ from hypothesis import strategies as st
 from hmi.cli import main
 from hmi.errors import ProjectError, SourcePos
 from hmi.plant.base import PlantEvent
-from hmi.project.campaign import Scenario
 from hmi.project.loader import load_project
+from hmi.project.model import CampaignScenario
 from hmi.studies.campaign import (
     BLOCKED,
     CONFIGS,
@@ -134,7 +134,7 @@ def test_ftc_never_damages_the_valve_whatever_the_fault_instant(valve, fault, at
     is left out: a jam in the first half of a travel stalls the motor before any arrival
     deadline; docs/cispi_valve.md.)"""
     project, spec = valve
-    scenario = Scenario(fault, None, at_ms * 1000, "", True, SourcePos("test"))
+    scenario = CampaignScenario(fault, None, at_ms * 1000, "", True, SourcePos("test"))
     run = run_one(project, spec, scenario, next(c for c in CONFIGS if c.key == "ftc"))
     assert run.outcome != DEFECT, run.line()
 

@@ -13,9 +13,9 @@ from hmi.bench.cellrun import CellRun, measure
 from hmi.cli import main
 from hmi.engine.scan import Engine
 from hmi.plant.sim.plant import SimPlant
-from hmi.project.campaign import Scenario as CampaignScenario
 from hmi.project.injection import parse_injection
 from hmi.project.loader import load_project
+from hmi.project.model import CampaignScenario
 from hmi.project.scenarios import find_scenario
 from hmi.studies.campaign import CONFIGS, run_one
 from tests.conftest import PROJECTS

@@ -16,8 +16,8 @@ from hmi.cli import main
 from hmi.engine.scan import Engine
 from hmi.errors import ProjectError
 from hmi.logic.expr import parse_expr, to_text
+from hmi.logic.rename import rename_node, renamed_source
 from hmi.plant.sim.plant import SimPlant
-from hmi.project.components import rename_node, renamed_source
 from hmi.project.injection import Injection
 from hmi.project.loader import load_project
 from hmi.studies.diagnosability import analyse

@@ -81,3 +81,113 @@ def test_the_filter_analysis_stops_at_its_work_limit(kind, tmp_path, capsys):
     else:
         assert "conflicts between simple constraints: at least " in out
     assert cpu < 8, cpu
+
+
+# --------------------------------------------------------------------------------------------
+# Per scan: the filter's work within its budget, its caches bounded, an alarm flood contained
+# --------------------------------------------------------------------------------------------
+
+
+def engine_of(text: str, folder):
+    from hmi.engine.scan import Engine
+    from hmi.plant.sim import SimPlant
+    from hmi.project.loader import load_project
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "project.yaml").write_text(text, encoding="utf-8")
+    project = load_project(folder)
+    return project, Engine(project, SimPlant(project))
+
+
+def every_output_asked(text: str, outputs: int) -> str:
+    return text.replace("    Y0: i0\n", "".join(f"    Y{k}: True\n" for k in range(outputs)))
+
+
+def test_preparing_the_correction_counts_in_the_budget(tmp_path):
+    """9,000 three-output constraints on 40 outputs: the search reported 9,000 to 9,670 steps
+    against a budget of 5,000, its problem's preparation not counted. Now each scan's report
+    stays within the budget (a search stops at its next node: a few steps past it at most),
+    and a problem whose preparation alone passes it is not searched."""
+    text = every_output_asked(costly.short(9000, outputs=40), 40)
+    project, engine = engine_of(text, tmp_path / "p")
+    budget = engine.filter.budget
+    reports = [engine.step(k * project.scan_period_us).filter for k in range(20)]
+    searched = [r for r in reports if r is not None and r.steps]
+    assert searched and all(r.steps <= budget * 1.02 for r in searched), \
+        [r.steps for r in searched]
+    assert any("would take" in (r.fallback or "") and "not searched" in r.fallback
+               for r in searched), searched[0].fallback
+    text = every_output_asked(costly.short(2000, outputs=40), 40)
+    project, engine = engine_of(text, tmp_path / "q")
+    reports = [engine.step(k * project.scan_period_us).filter for k in range(20)]
+    assert all(r.steps <= budget * 1.02 for r in reports if r is not None), \
+        [r.steps for r in reports if r is not None]
+    assert any("of them preparing it" in (r.fallback or "") for r in reports if r is not None)
+
+
+def test_the_filter_caches_are_bounded_and_change_no_decision(tmp_path, monkeypatch):
+    """Contexts following a counter: a new set of active constraints at every scan. The
+    prepared sets were never dropped (36 MB per 100 scans); bounded now by the constraints
+    they hold, and a filter that clears them often decides exactly as one that keeps them."""
+    import hmi.engine.filter as filter_module
+    text = costly.flood(600, bits=10)
+    project, kept = engine_of(text, tmp_path / "a")
+    monkeypatch.setattr(filter_module, "ACTIVE_SET_CACHE", 500)
+    monkeypatch.setattr(filter_module, "CORRECTION_CACHE_SIZE", 300)
+    _, cleared = engine_of(text, tmp_path / "b")
+    for k in range(60):
+        a = kept.step(k * project.scan_period_us)
+        b = cleared.step(k * project.scan_period_us)
+        assert (a.outputs, a.filter.steps, a.filter.fallback) == \
+            (b.outputs, b.filter.steps, b.filter.fallback), k
+        assert cleared.filter._by_active_size <= 500 + 600
+        assert cleared.filter._corrections_size <= 300 + 600
+
+
+@pytest.mark.slow
+def test_a_new_active_set_every_scan_holds_bounded_memory(tmp_path):
+    """flood(): 3,000 combined constraints, a new active set at each scan. Before the bound:
+    52 MB more held after 300 scans, growing without end; now the caches stop near 25 MB."""
+    import tracemalloc
+    project, engine = engine_of(costly.flood(), tmp_path / "p")
+    for k in range(10):
+        engine.step(k * project.scan_period_us)
+    tracemalloc.start()
+    try:
+        base = tracemalloc.get_traced_memory()[0]
+        with bounded(240, 600):
+            for k in range(10, 310):
+                engine.step(k * project.scan_period_us)
+        held = tracemalloc.get_traced_memory()[0] - base
+    finally:
+        tracemalloc.stop()
+    assert held < 32 * 1024 * 1024, held / 1e6
+
+
+def test_an_alarm_flood_is_one_alarm_and_a_few_journal_writes_per_scan(tmp_path, capsys,
+                                                                     monkeypatch):
+    """Hundreds of rules broken at each scan were hundreds of alarms, each its own fsynced
+    journal line (a 5 s run: 207,221 lines, 86 s). Now the list holds FLOOD_LIMIT of them and
+    one flood alarm counts the others; a scan's transitions are one write and one fsync."""
+    import os
+
+    from hmi.explain.alarms import FLOOD_KEY, FLOOD_LIMIT
+    from hmi.explain.journal import read
+    folder = costly.write("flood", tmp_path / "p", 1500)
+    journal = tmp_path / "journal.jsonl"
+    fsyncs = []
+    real_fsync = os.fsync
+    monkeypatch.setattr(os, "fsync", lambda fd: (fsyncs.append(fd), real_fsync(fd))[1])
+    code, _, err, cpu = costs(["run", folder, "--for", "1s", "--journal", journal], capsys,
+                                seconds=60, extra_mb=600)
+    assert code == 0, err
+    entries = read(journal).entries
+    alarms = [e for e in entries if e["type"] == "alarm"]
+    floods = [e for e in alarms if e["key"] == FLOOD_KEY]
+    assert [e["event"] for e in floods] == ["raised"], floods
+    assert "more safety rules broken than the list shows" in floods[0]["text"]
+    raised = {e["key"] for e in alarms if e["event"] == "raised"
+              and e["key"].startswith("constraint:")}
+    assert len(raised) <= FLOOD_LIMIT, len(raised)
+    assert len(entries) < 2000, len(entries)
+    assert len(fsyncs) <= 2 * 101 + 10, len(fsyncs)
+    assert cpu < 30, cpu

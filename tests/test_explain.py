@@ -385,8 +385,46 @@ def test_journal_csv_export(tmp_path, capsys):
     capsys.readouterr()
     assert main(["journal", str(VALVE), "--path", str(path), "--csv"]) == 0
     lines = capsys.readouterr().out.splitlines()
-    assert lines[0] == "wall,scan,t,type,event,key,state,severity,text,message,by"
+    assert lines[0] == ("wall,scan,t,type,event,key,state,severity,text,message,by,"
+                        "accepted,session")
     assert any(",alarm,raised,constraint:CSs2," in line for line in lines)
+
+
+def test_journal_csv_says_each_start_what_was_accepted_and_the_session(tmp_path, capsys):
+    """The CSV's session start rows were blank (the control program, the filter policy and
+    the plant are fields of their own in the JSON entry); an action's outcome had no column;
+    nothing told two sessions apart. Two runs into one journal, a refused and an accepted
+    command in the second."""
+    import csv
+    path = tmp_path / "j.jsonl"
+    assert main(["run", str(VALVE), "--for", "1s", "--journal", str(path)]) == 0
+    assert main(["run", str(VALVE), "--for", "3s", "--control", "faulty", "--policy",
+                 "block", "--journal", str(path)]) == 0
+    journal = Journal(path)
+    journal.session = "later-1"
+    journal.append({"type": "action", "event": "fault reset", "accepted": False,
+                    "message": "nothing to reset", "scan": 1, "t": "0.010"})
+    journal.append({"type": "action", "event": "acknowledge all", "accepted": True,
+                    "message": "acknowledged 1 alarm", "scan": 2, "t": "0.020"})
+    journal.close()
+    capsys.readouterr()
+    assert main(["journal", str(VALVE), "--path", str(path), "--csv"]) == 0
+    rows = list(csv.DictReader(capsys.readouterr().out.splitlines()))
+    starts = [r for r in rows if r["type"] == "session" and r["event"] == "start"]
+    assert len(starts) == 2
+    assert "control normal" in starts[0]["message"] and "filter policy correct" in \
+        starts[0]["message"] and "plant simulated" in starts[0]["message"]
+    assert "control faulty" in starts[1]["message"] and "filter policy block" in \
+        starts[1]["message"]
+    sessions = [r["session"] for r in rows]
+    assert all(sessions) and sessions[0] != starts[1]["session"]
+    first = {r["session"] for r in rows[:rows.index(starts[1])]}
+    assert first == {starts[0]["session"]}  # every row of a session carries its id
+    actions = {r["event"]: r for r in rows if r["type"] == "action"}
+    assert actions["fault reset"]["accepted"] == "false"
+    assert actions["acknowledge all"]["accepted"] == "true"
+    assert {r["session"] for r in actions.values()} == {"later-1"}
+    assert all(r["accepted"] == "" for r in rows if r["type"] != "action")
 
 
 def test_run_prints_alarms_and_full_explanations(capsys):

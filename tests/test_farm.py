@@ -215,3 +215,18 @@ def test_the_default_farm_runs_on_local_processes():
     project = load_project(VALVE)
     results = farm.run(campaign_study(project, campaign_of(project)))
     assert len(results) == 10 and farm.stats[0].executor.endswith("local processes")
+
+
+def test_the_data_folder_keeps_the_latest_studies_of_a_project(tmp_path, monkeypatch):
+    from hmi.farm import store
+    monkeypatch.setenv("PLCHMI_DATA", str(tmp_path / "data"))
+    project = load_project(VALVE)
+    spec = campaign_of(project)
+    folders = []
+    for period in range(10_000, 10_000 + 7 * 10_000, 10_000):  # seven studies, seven prints
+        study = campaign_study(project, spec, period_us=period)
+        kept = store.ShardStore(store.default_root(), study.job, study.title, 1, prune=True)
+        kept.start(resume=False)
+        folders.append(kept.folder)
+    left = sorted((tmp_path / "data" / "studies").iterdir())
+    assert len(left) == store.KEPT_STUDIES and folders[-1] in left and folders[0] not in left

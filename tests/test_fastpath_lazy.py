@@ -58,6 +58,7 @@ def run(capsys, tmp_path, label: str, name: str, args: list[str]) -> tuple[list[
         if journal.exists() else []
     for entry in entries:
         entry.pop("wall", None)
+        entry.pop("session", None)
     return [str(status), *out, *captured.err.splitlines()], entries
 
 

@@ -215,6 +215,7 @@ def journal(path: Path) -> list[dict]:
     entries = [json.loads(line) for line in path.read_text().splitlines()]
     for entry in entries:
         entry.pop("wall", None)
+        entry.pop("session", None)
     return entries
 
 

@@ -73,11 +73,13 @@ ERROR_LINE = re.compile(r"^(?P<file>.+?)(?::(?P<line>\d+):(?P<col>\d+))?: error:
 # Errors about a whole file (no position inside it), the only ones allowed without line:col.
 WHOLE_FILE = ("file not found", "not a regular file", "the file is too large", "cannot read",
               "this is a folder", "this folder has no project.yaml",
-              "no such project folder or file", "the file is empty")
+              "no such project folder or file", "the file is empty",
+              "leads outside the project folder", "cannot be resolved")
 
 
-def run_main(args: list[str], capsys) -> tuple[int, str, str]:
-    with bounded(CASE_SECONDS, CASE_MB):
+def run_main(args: list[str], capsys, seconds: float = CASE_SECONDS,
+             extra_mb: int = CASE_MB) -> tuple[int, str, str]:
+    with bounded(seconds, extra_mb):
         try:
             code = main([str(a) for a in args])
         except SystemExit as exc:  # argparse: a bad option value
@@ -472,6 +474,214 @@ def test_journal_files(lines, newline_at_end, since, csv, capsys):
         if not csv and since is None:
             assert len(out.splitlines()) == readable, (out, err)
         assert "\x1b" not in out and "\x00" not in out
+
+
+# --------------------------------------------------------------------------------------------
+# The project file as a symlink
+# --------------------------------------------------------------------------------------------
+
+LINK_TARGETS = ["/etc/passwd", "/etc/hostname", "/dev/zero", "/proc/self/status", "secret",
+                "secret_dir/s.yaml", "inside", "sub/inside.yaml", "missing", "loop", "..",
+                "/", "project.yaml.d"]
+
+
+@pytest.mark.slow
+@budget(ci_examples=40)
+@given(target=st.sampled_from(LINK_TARGETS), through=st.sampled_from(["folder", "file"]),
+       command=st.sampled_from(["check", "run", "journal", "export"]))
+def test_symlinked_project_files(target, through, command, capsys):
+    """project.yaml a symlink, to anything: read only when it leads to a file inside its
+    folder; nothing of a file outside is ever printed."""
+    from tests.test_malformed import project_text
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp)
+        (root / "secret").write_text("api_key: SECRET-KEY\n")
+        (root / "secret_dir").mkdir()
+        (root / "secret_dir" / "s.yaml").write_text("password: SECRET-PW\n")
+        folder = root / "p"
+        (folder / "sub").mkdir(parents=True)
+        (folder / "inside").write_text(project_text())
+        (folder / "sub" / "inside.yaml").write_text(project_text())
+        (folder / "project.yaml.d").mkdir()
+        link = folder / "project.yaml"
+        if target == "loop":
+            (folder / "loop").symlink_to(link)
+        outside = target.startswith("/") or target.startswith("secret") or target == ".."
+        link.symlink_to(target if target.startswith("/") else
+                        (root / target if target.startswith("secret") else target))
+        args = {"check": ["check"], "run": ["run", "--for", "100ms"], "journal": ["journal"],
+                "export": ["export", "--format", "st", "-o", root / "out"]}[command]
+        given_path = folder if through == "folder" else link
+        read_outside = reads_confined_to([folder, COMPONENTS, Path(os.environ["PLCHMI_DATA"])])
+        try:
+            code, out, err = run_main([args[0], given_path, *args[1:]], capsys)
+        finally:
+            opened = read_outside()
+        assert not opened, opened
+        for secret in ("SECRET", "root:", "api_key", "password", "VmSize"):
+            assert secret not in out + err, (target, out, err)
+        if outside:
+            assert code == 2, err
+        if target in ("inside", "sub/inside.yaml") and command == "check":
+            assert code == 0, err
+
+
+# --------------------------------------------------------------------------------------------
+# soak --replay files
+# --------------------------------------------------------------------------------------------
+
+STEP_LINES = ["run 1s", "run 10ms", "run 1000h", "run 99999999h", "run -1s", "run", "run １s",
+              "press r y", "press", "palette Manual: O on", "palette", "row O", "row",
+              "click #io 3 1", "click #io x 1", "click", "resize 80x24", "resize 0x0",
+              "resize 99999999999999999999x1", "# a comment", "", "  ", "jump", "\t run 1s"]
+
+
+@pytest.mark.slow
+@budget(ci_examples=150)
+@given(lines=st.lists(st.sampled_from(STEP_LINES) | st.text(max_size=20), max_size=12),
+       raw=st.sampled_from([b"", b"\xff", b"\x00", b"\xed\xa0\x80", b"\r"]),
+       kind=st.sampled_from(["file", "file", "file", "fifo", "folder", "device"]))
+def test_replay_files(lines, raw, kind):
+    """A replay file is a list of steps or a usage error at FILE:LINE:COL, read as every file
+    from outside: never a hang, an internal error or a run past MAX_RUN_SCANS."""
+    from hmi.errors import UsageError
+    from hmi.limits import MAX_RUN_SCANS
+    from hmi.soak.command import read_replay
+    from hmi.soak.steps import Run
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "r.steps"
+        if kind == "fifo":
+            os.mkfifo(path)
+        elif kind == "folder":
+            path.mkdir()
+        elif kind == "device":
+            path = Path("/dev/zero")
+        else:
+            path.write_bytes("\n".join(lines).encode("utf-8", "surrogatepass") + raw)
+        with bounded(CASE_SECONDS, CASE_MB):
+            try:
+                steps = read_replay(path, 10_000)
+            except UsageError as exc:
+                assert str(exc).startswith(f"--replay {path}"), exc
+                return
+        assert kind == "file"
+        assert sum(s.us for s in steps if isinstance(s, Run)) // 10_000 + 1 <= MAX_RUN_SCANS
+
+
+# --------------------------------------------------------------------------------------------
+# Output paths that collide
+# --------------------------------------------------------------------------------------------
+
+
+@pytest.mark.slow
+@budget(ci_examples=60)
+@given(trace=st.sampled_from(["journal", "hard", "soft", "dotted", "project", "include",
+                              "other", "same", None]),
+       journal=st.sampled_from(["default", "explicit", "project", "other", "same"]))
+def test_output_paths_that_collide(trace, journal, capsys):
+    """No output is written over the journal, a file of the project or the other output:
+    a usage error before a byte is written, and every file as it was."""
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp)
+        folder = copy_project("cispi_valve", root)
+        default = Path(os.environ["PLCHMI_DATA"]) / "cispi_valve" / "journal.jsonl"
+        default.parent.mkdir(parents=True, exist_ok=True)
+        default.write_text('{"type":"session","event":"start"}\n')
+        mine = root / "mine.jsonl"
+        mine.write_text('{"type":"session","event":"start"}\n')
+        journal_path = {"default": None, "explicit": mine, "project": folder / "project.yaml",
+                        "other": root / "j2.jsonl", "same": root / "t.jsonl"}[journal]
+        used_journal = journal_path or default
+        linked = used_journal.exists()
+        if linked:
+            (root / "hard").hardlink_to(used_journal)
+        paths = {"journal": used_journal, "hard": root / "hard", "soft": root / "soft",
+                 "dotted": used_journal.parent / ".." / used_journal.parent.name
+                 / used_journal.name, "project": folder / "control.yaml",
+                 "include": folder / "constraints.yaml", "other": root / "t.csv",
+                 "same": root / "t.jsonl", None: None}
+        (root / "soft").symlink_to(used_journal)
+        before = {p: p.read_bytes() for p in [default, mine, *folder.iterdir()] if p.is_file()}
+        args = ["run", folder, "--for", "200ms"]
+        if trace is not None:
+            args += ["--trace", paths[trace]]
+        if journal_path is not None:
+            args += ["--journal", journal_path]
+        code, _, err = run_main(args, capsys)
+        clash = journal == "project" or (trace is not None and (
+            trace in ("journal", "project", "include", "dotted", "soft")
+            or (trace == "hard" and linked)
+            or (trace == "same" and journal == "same")))
+        if clash:
+            assert code == 2 and "would be written over it" in err, (args, err)
+            assert {p: p.read_bytes() for p in before} == before
+        else:
+            assert code == 0, (args, err)
+            assert {p: p.read_bytes() for p in before if p.parent == folder} == \
+                {p: b for p, b in before.items() if p.parent == folder}
+
+
+# --------------------------------------------------------------------------------------------
+# Projects under every limit, and floods
+# --------------------------------------------------------------------------------------------
+
+
+@pytest.mark.slow
+@budget(ci_examples=12)
+@given(kind=st.sampled_from(["monomials", "short", "combined", "opposed", "aliased"]),
+       count=st.integers(1, 10_000), outputs=st.integers(3, 64),
+       inputs=st.integers(2, 200))
+def test_many_constraint_projects(kind, count, outputs, inputs, capsys):
+    """Generated projects of up to MAX_CONSTRAINTS constraints and the longest expressions:
+    `check` and a short `run` each end within a CPU time and memory bound, whatever the
+    shape (refused past MAX_TOTAL_EXPR_CHARS at file:line:column)."""
+    import time
+
+    from tests import costly
+    make = costly.KINDS[kind]
+    if kind == "monomials":
+        count = min(count, 2000)  # 2,000 of them are 3.9 MB: under MAX_FILE_BYTES
+    text = make(count, inputs=inputs, outputs=outputs)
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp) / "p"
+        folder.mkdir()
+        (folder / "project.yaml").write_text(text)
+        for args in (["check", folder], ["run", folder, "--for", "200ms"]):
+            started = time.process_time()
+            code, _, err = run_main(args, capsys, seconds=60, extra_mb=1000)
+            assert time.process_time() - started < 40, args
+            assert code in (0, 2), err
+            check_positions(err, folder)
+            if code == 2:
+                break
+
+
+@pytest.mark.slow
+@budget(ci_examples=4)
+@given(count=st.integers(50, 800), bits=st.integers(3, 12), outputs=st.integers(4, 40))
+def test_flooding_projects(count, bits, outputs, capsys):
+    """Hundreds of rules broken at each scan: at most FLOOD_LIMIT constraint alarms raised
+    and one flood alarm; the journal a bounded number of lines a scan."""
+    from hmi.explain.alarms import FLOOD_KEY, FLOOD_LIMIT
+    from hmi.explain.journal import read
+    from tests import costly
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp) / "p"
+        folder.mkdir()
+        (folder / "project.yaml").write_text(costly.flood(count, bits, outputs))
+        journal = Path(tmp) / "j.jsonl"
+        code, _, err = run_main(["run", folder, "--for", "300ms", "--journal", journal],
+                                capsys, seconds=60, extra_mb=1000)
+        assert code == 0, err
+        alarms = [e for e in read(journal).entries if e["type"] == "alarm"]
+        raised = {e["key"] for e in alarms if e["event"] == "raised"
+                  and e["key"].startswith("constraint:")}
+        assert len(raised) <= FLOOD_LIMIT
+        # the flood alarm is raised once; a flood that comes and goes scan by scan is an
+        # alarm that chatters, collapsed as any other
+        flood = [e["event"] for e in alarms if e["key"] == FLOOD_KEY]
+        assert not flood or (flood[0] == "raised" and flood.count("raised") == 1), flood
+        assert len(alarms) <= 31 * (2 * FLOOD_LIMIT + 5)
 
 
 def test_the_budget_is_documented():

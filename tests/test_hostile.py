@@ -550,16 +550,16 @@ def test_a_journal_that_fails_mid_run_stops_it_safe(tmp_path, capsys, monkeypatc
     import errno
 
     from hmi.explain import journal as journal_module
-    real = journal_module.Journal.append
+    real = journal_module.Journal.append_all
     count = [0]
 
-    def append(self, entry):
+    def append_all(self, entries):  # every write goes through it (a scan's alarms at once)
         count[0] += 1
         if count[0] >= 3:
             raise journal_module.JournalWriteError(
                 "the journal", self.path, OSError(errno.EIO, "Input/output error"))
-        real(self, entry)
-    monkeypatch.setattr(journal_module.Journal, "append", append)
+        real(self, entries)
+    monkeypatch.setattr(journal_module.Journal, "append_all", append_all)
     code, _, err = cli(["run", PROJECTS / "cispi_valve", "--for", "20s", "--control",
                           "faulty", "--journal", tmp_path / "j.jsonl"], capsys)
     assert code == 1 and "cannot write the journal" in err and "input/output error" in err

@@ -37,3 +37,27 @@ def test_a_loss_opens_the_outage_at_its_own_time(monkeypatch):
     entries = log.drain()
     lost = next(e for e in entries if e["event"] == "lost")
     assert log.outage is not None and log.outage.since_wall == lost["wall"]
+
+
+def test_reconnected_does_not_count_the_connection_that_held(monkeypatch):
+    """Every `reconnected` entry said "1 connections made that did not hold": the one that
+    held was counted. Only those that then failed are."""
+    _ticking_wall(monkeypatch)
+    log = LinkLog("modbus 127.0.0.1:5020", clock=lambda: 0.0)
+    log.connected(1)
+    log.link_ok()
+    log.lost("closed by the device")
+    log.connected(2)
+    log.link_ok()
+    back = next(e for e in log.drain() if e["event"] == "reconnected")
+    assert "did not hold" not in back["message"]
+    assert "1 connection lost, 0 failed attempts to connect" in back["message"]
+    log.lost("closed by the device")
+    log.connected(3)
+    log.lost("closed by the device")  # made, then dropped: did not hold
+    log.connect_failed(4, "Connection refused")
+    log.connected(5)
+    log.link_ok()
+    back = next(e for e in log.drain() if e["event"] == "reconnected")
+    assert "2 connections lost, 1 failed attempt to connect, 1 connection made that did " \
+        "not hold" in back["message"]

@@ -211,7 +211,7 @@ async def test_values_follow_the_scans_with_the_scans_time_as_source_timestamp(c
                     "the last scan count")
         value = await count.read_data_value()
         assert value.Value.Value == snap.scan
-        epoch = cell.server._epoch
+        epoch = cell.server.epoch
         assert value.SourceTimestamp == epoch + timedelta(microseconds=snap.time_us)
         assert await written.read_value() == snap.output_map["O"]
         opened = [(v, dv.SourceTimestamp) for n, v, dv in handler.changes if n == written]
@@ -242,7 +242,7 @@ async def test_an_injected_fault_raises_a_high_alarm_event_with_its_explanation(
         assert event["Retain"] is True
         assert event["SourceName"] == "Valve V1"
         assert event["ConditionClassId"] == ua.NodeId(ua.ObjectIds.ProcessConditionClassType)
-        when = cell.server._epoch + timedelta(microseconds=alarm.changed_us)  # raised or back
+        when = cell.server.epoch + timedelta(microseconds=alarm.changed_us)  # raised or back
         assert event["Time"] == when
         await sub.delete()
 

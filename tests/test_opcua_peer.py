@@ -113,7 +113,7 @@ def test_python_opcua_browses_reads_live_values_and_receives_the_alarm():
               "the scan count's notification")
         value = count.get_data_value()
         assert value.Value.Value == snap.scan
-        stamp = server._epoch + timedelta(microseconds=snap.time_us)
+        stamp = server.epoch + timedelta(microseconds=snap.time_us)
         assert _utc(value.SourceTimestamp) == stamp
         assert opened.get_value() is snap.output_map["O"] is True
         assert fsc.get_value() is snap.value("fsc")
@@ -133,7 +133,7 @@ def test_python_opcua_browses_reads_live_values_and_receives_the_alarm():
         assert event["ActiveState"] is True and event["AckedState"] is False
         assert event["Retain"] is True and event["Transition"] == "raised"
         assert event["SourceName"] == "Valve V1"
-        assert _utc(event["Time"]) == server._epoch + timedelta(microseconds=alarm.raised_us)
+        assert _utc(event["Time"]) == server.epoch + timedelta(microseconds=alarm.raised_us)
         subscription.delete()
     finally:
         client.disconnect()

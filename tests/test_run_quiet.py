@@ -38,6 +38,7 @@ def run(capsys, tmp_path, name: str, project: str, args: list[str]) -> tuple[lis
     entries = [json.loads(line) for line in journal.read_text().splitlines()]
     for entry in entries:
         entry.pop("wall")
+        entry.pop("session")
     return out, entries
 
 

@@ -126,9 +126,9 @@ def test_an_unsafe_vector_written_is_caught(monkeypatch):
 def test_a_transition_missing_from_the_journal_is_caught(monkeypatch):
     journal_alarm = JournalRecorder._alarm
 
-    def forgetful(self, event):
+    def forgetful(self, event, *args, **kwargs):
         if event.event != "cleared":
-            journal_alarm(self, event)
+            journal_alarm(self, event, *args, **kwargs)
     monkeypatch.setattr(JournalRecorder, "_alarm", forgetful)
     result = soak(SoakConfig(VALVE, "faulty", (80, 24)), [Run(10_000_000)])
     assert result.broken and result.broken[0].invariant == "transition-not-journalled"

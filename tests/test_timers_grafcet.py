@@ -1,26 +1,9 @@
-"""Timers (TON/TOF) and GRAFCET evolution, through small projects run by the engine."""
+"""Timers (TON/TOF) and GRAFCET evolution, through small projects run by the engine (each
+timer step by step: tests/test_program.py)."""
 
 from __future__ import annotations
 
-from hmi.logic.timers import TimerRuntime
 from tests.conftest import make_controller, write_project
-
-
-def test_ton_rises_after_preset_and_resets_when_input_drops():
-    t = TimerRuntime("T", "TON", 100)
-    assert [t.update(x, now) for x, now in
-            [(True, 0), (True, 99), (True, 100), (True, 150), (False, 160), (True, 170),
-             (True, 269), (True, 270)]] == [False, False, True, True, False, False, False, True]
-
-
-def test_tof_holds_for_preset_after_input_falls():
-    t = TimerRuntime("T", "TOF", 100)
-    assert [t.update(x, now) for x, now in
-            [(False, 0), (True, 10), (False, 20), (False, 119), (False, 120), (True, 130),
-             (False, 140), (True, 200), (False, 210), (False, 309), (False, 310)]] == [
-        False, True, True, True, False, True, True, True, True, True, False]
-    assert t.elapsed(310) == 0
-
 
 GRAFCET_PROJECT = {
     "project.yaml": """

@@ -51,7 +51,7 @@ def add_parsers(sub) -> None:
 # -- the runtime ---------------------------------------------------------------------------
 
 def cmd_serve(args: argparse.Namespace) -> int:
-    from hmi.cli.session import connect_plant, make_engine, stop_plant
+    from hmi.cli.session import connect_plant, make_engine, open_historian, stop_plant
     from hmi.project.kept import TooBig, fingerprint, load
     from hmi.runtime.place import Held, RuntimeLock, place
     from hmi.runtime.runtime import Runtime
@@ -75,6 +75,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
                          + f": attach to it with plchmi attach {args.project}") from None
     engine = None
     outputs = None
+    historian = None
     runtime = None
     abnormal: str | None = None
     try:
@@ -87,6 +88,9 @@ def cmd_serve(args: argparse.Namespace) -> int:
             clock = WallClock()
         session = Session(engine, clock=clock)
         outputs = RunOutputs(session, args.trace, args.journal, "runtime", background=True)
+        # the cell's history, beside the scans (its own thread writes it): the screens' trends
+        historian = open_historian(session, args, outputs.recorder, "runtime",
+                                   default_on=not args.virtual)
         connect_plant(engine, args.connect_timeout)
         if outputs.writer is not None:  # (before the runtime's first scan: it is traced too)
             def traced(snap) -> None:
@@ -112,6 +116,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
             stop_plant(engine)  # the safe outputs first, then the journal says how it ended
         if outputs is not None:
             outputs.close(abnormal or ended_by(sys.exc_info()[1]))
+        if historian is not None:  # after the journal's last entry, which it keeps too
+            historian.close()
         lock.release()
     if outputs is not None and outputs.failure is not None:
         raise RunFailure(outputs.failure_message())

@@ -40,3 +40,18 @@ def ended_by(exc: BaseException | None) -> str | None:
     if isinstance(exc, RunFailure | UsageError):
         return str(exc)
     return f"internal error: {type(exc).__name__}: {exc}"
+
+
+_CONTROL = str.maketrans({
+    **{c: f"\\x{c:02x}" for c in [*range(0x20), *range(0x7f, 0xa0)] if c != 0x09},
+    # the line and paragraph separators (an entry must stay one line for whoever splits the
+    # output into lines) and the bidirectional controls (they reorder what a terminal shows)
+    **{c: f"\\u{c:04x}" for c in [0x061C, 0x200E, 0x200F, 0x2028, 0x2029,
+                                   *range(0x202A, 0x202F), *range(0x2066, 0x206A)]}})
+
+
+def printable(value) -> str:
+    """A text read from a file or a database, for the terminal: control characters (an ESC
+    sequence written into a damaged or forged journal) shown as \\xNN, line separators and
+    bidirectional controls as \\uNNNN, never sent to the terminal."""
+    return str(value).translate(_CONTROL)

@@ -21,6 +21,7 @@ PARTS: tuple[tuple[tuple[str, ...], str, str], ...] = (
     (("diagnose", "campaign"), "studies", "add_parsers"),
     (("export",), "export", "add_parser"),
     (("journal",), "journal", "add_parser"),
+    (("history",), "history", "add_parser"),
     (("sweep",), "studies", "add_sweep_parser"),
     (("soak",), "soak", "add_parser"),
     (("bench",), "bench", "add_parser"),
@@ -29,8 +30,7 @@ PARTS: tuple[tuple[tuple[str, ...], str, str], ...] = (
     (("opcua-passwd", "serve-plant"), "serve", "add_parsers"),
 )
 SUBCOMMANDS = ("check", "run", "sweep", "ui", "serve", "attach", "serve-plant", "bench",
-               "journal",
-               "diagnose", "campaign", "export", "opcua-passwd", "soak")
+               "journal", "diagnose", "campaign", "export", "opcua-passwd", "soak", "history")
 
 # command -> (its module, its function)
 COMMANDS = {
@@ -38,7 +38,8 @@ COMMANDS = {
     "sweep": ("studies", "cmd_sweep"), "ui": ("ui", "cmd_ui"),
     "serve": ("cell", "cmd_serve"), "attach": ("cell", "cmd_attach"),
     "serve-plant": ("serve", "cmd_serve_plant"), "bench": ("bench", "cmd_bench"),
-    "journal": ("journal", "cmd_journal"), "diagnose": ("studies", "cmd_diagnose"),
+    "journal": ("journal", "cmd_journal"), "history": ("history", "cmd_history"),
+    "diagnose": ("studies", "cmd_diagnose"),
     "campaign": ("studies", "cmd_campaign"), "export": ("export", "cmd_export"),
     "opcua-passwd": ("serve", "cmd_opcua_passwd"), "soak": ("soak", "cmd_soak"),
 }

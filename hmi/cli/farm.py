@@ -69,25 +69,33 @@ def print_report(text: str, farm) -> None:
 
 def progress_line():
     """One line on stderr, rewritten after each shard: shards and runs done, runs per
-    second, time left; what happens on the way (a worker lost) on a line of its own."""
+    second, time left; what happens on the way (a worker lost) on a line of its own. When
+    stderr is a file, not a terminal, a line at each tenth of the runs instead."""
     shown = [-1.0]
+    tenth = [-1]
+    terminal = sys.stderr.isatty()
 
     def progress(tick) -> None:
         if tick.note:
-            print(f"\n{tick.note}" if shown[0] >= 0 else tick.note, file=sys.stderr,
-                  flush=True)
+            print(f"\n{tick.note}" if shown[0] >= 0 and terminal else tick.note,
+                  file=sys.stderr, flush=True)
         now = time.monotonic()
         last = tick.shards_done >= tick.shards
-        if not last and now - shown[0] < 0.25 and not tick.note:
+        percent = 100 * tick.runs_done // max(1, tick.runs)
+        if not terminal:
+            if percent // 10 == tenth[0] and not last:
+                return
+            tenth[0] = percent // 10
+        elif not last and now - shown[0] < 0.25 and not tick.note:
             return
         shown[0] = now
-        percent = 100 * tick.runs_done // max(1, tick.runs)
         bar = "#" * (percent // 4)
         eta = "" if tick.eta_s is None or last else f"  about {_minutes(tick.eta_s)} left"
-        print(f"\r[{bar:<25}] {percent:3d}%  {tick.shards_done}/{tick.shards} shards  "
-              f"{tick.runs_done:,}/{tick.runs:,} runs  {tick.rate:,.1f} runs/s  "
-              f"{tick.elapsed_s:5.1f} s{eta}   ", end="\n" if last else "", file=sys.stderr,
-              flush=True)
+        start = "\r" if terminal else ""
+        print(f"{start}[{bar:<25}] {percent:3d}%  {tick.shards_done}/"
+              f"{tick.shards} shards  {tick.runs_done:,}/{tick.runs:,} runs  "
+              f"{tick.rate:,.1f} runs/s  {tick.elapsed_s:5.1f} s{eta}   ",
+              end="\n" if last or not terminal else "", file=sys.stderr, flush=True)
 
     return progress
 

@@ -7,6 +7,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from hmi.cli.common import printable as _printable
 from hmi.cli.options import project_arg
 from hmi.errors import UsageError
 from hmi.limits import MAX_DAMAGED_SHOWN
@@ -61,16 +62,14 @@ def cmd_journal(args: argparse.Namespace) -> int:
     damaged = DamagedLines(path)
     entries = (e for e in since_filter(damaged.skipped(items), since)
                if not kinds or e.get("type") in kinds)
-    columns = ("wall", "scan", "t", "type", "event", "key", "state", "severity", "text",
-               "message", "by")
     if args.csv:
         writer = csv.writer(sys.stdout, lineterminator="\n")
-        writer.writerow(columns)
+        writer.writerow(CSV_COLUMNS)
         for entry in entries:
-            writer.writerow([_printable(_field(entry, c)) for c in columns])
+            writer.writerow([_printable(_csv_field(entry, c)) for c in CSV_COLUMNS])
     else:
         for entry in entries:
-            text = _field(entry, "text") or _field(entry, "message") or _field(entry, "project")
+            text = _field(entry, "text") or _field(entry, "message") or started(entry)
             key = f" {entry['key']}" if entry.get("key") else ""
             if isinstance(entry.get("by"), str):  # sent by an OPC UA client
                 text = f"{text} [by {entry['by']}]"
@@ -145,23 +144,35 @@ def parse_since(text: str):
     return since
 
 
+# The CSV's columns: the first eleven as they always were, then whether an action was accepted
+# (true / false; blank for other entries) and the session the entry belongs to (its id,
+# written into every entry; blank in journals written before it was).
+CSV_COLUMNS = ("wall", "scan", "t", "type", "event", "key", "state", "severity", "text",
+               "message", "by", "accepted", "session")
+
+
+def started(entry: dict) -> str:
+    """A session's start in words: project, control program, filter policy, plant (what the
+    JSON entry holds in fields of its own); "" for any other entry."""
+    if entry.get("type") != "session" or entry.get("event") != "start":
+        return ""
+    parts = [f"{label} {entry[name]}" for name, label in (
+        ("project", "project"), ("control", "control"), ("policy", "filter policy"),
+        ("plant", "plant"), ("source", "from")) if isinstance(entry.get(name), str)]
+    return "started: " + ", ".join(parts) if parts else ""
+
+
+def _csv_field(entry: dict, name: str):
+    if name == "accepted":
+        value = entry.get("accepted")
+        return "" if not isinstance(value, bool) else ("true" if value else "false")
+    if name == "message":
+        return _field(entry, "message") or started(entry)
+    return _field(entry, name)
+
+
 def _field(entry: dict, name: str):
     """A field of a journal entry for display: "" when absent or null (the reader has checked
     the type of the fields it knows)."""
     value = entry.get(name)
     return "" if value is None else value
-
-
-_CONTROL = str.maketrans({
-    **{c: f"\\x{c:02x}" for c in [*range(0x20), *range(0x7f, 0xa0)] if c != 0x09},
-    # the line and paragraph separators (an entry must stay one line for whoever splits the
-    # output into lines) and the bidirectional controls (they reorder what a terminal shows)
-    **{c: f"\\u{c:04x}" for c in [0x061C, 0x200E, 0x200F, 0x2028, 0x2029,
-                                   *range(0x202A, 0x202F), *range(0x2066, 0x206A)]}})
-
-
-def _printable(value) -> str:
-    """A journal field for the terminal: control characters (an ESC sequence written into a
-    damaged or forged journal) shown as \\xNN, line separators and bidirectional controls
-    as \\uNNNN, never sent to the terminal."""
-    return str(value).translate(_CONTROL)

@@ -109,3 +109,21 @@ def plant_args(p: argparse.ArgumentParser, connect_default: str) -> None:
                    f"(default: {connect_default})")
     p.add_argument("--allow-monitor", action="store_true",
                    help="permit the monitor policy (unsafe orders pass) on a real plant")
+
+
+def history_length(text: str) -> int:
+    from hmi.history.span import SpanError, parse_span
+    try:
+        return parse_span(text)
+    except SpanError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def historian_args(p: argparse.ArgumentParser, default: str) -> None:
+    """Where the cell's history is kept (docs/history.md)."""
+    p.add_argument("--historian", metavar="TARGET",
+                   help="keep the cell's history in TARGET: a SQLite file, a "
+                   "postgresql://USER@HOST/DB URL (needs the postgres extra), or off "
+                   f"(default: {default})")
+    p.add_argument("--history-retention", type=history_length, metavar="LENGTH",
+                   help="delete history older than this, e.g. 30d (default: 90d)")

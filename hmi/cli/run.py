@@ -9,8 +9,16 @@ import time
 from pathlib import Path
 
 from hmi.cli.common import RunFailure, ended_by, load
-from hmi.cli.options import diagnoser_arg, duration, engine_args, period, plant_args, project_arg
-from hmi.cli.session import announce, connect_plant, make_engine, stop_plant
+from hmi.cli.options import (
+    diagnoser_arg,
+    duration,
+    engine_args,
+    historian_args,
+    period,
+    plant_args,
+    project_arg,
+)
+from hmi.cli.session import announce, connect_plant, make_engine, open_historian, stop_plant
 from hmi.cli.summary import alarm_summary, plant_report
 from hmi.errors import UsageError
 
@@ -38,6 +46,8 @@ def add_parser(sub) -> None:
                    help="print the four levels of every alarm's explanation")
     p.add_argument("--journal", type=Path, metavar="FILE",
                    help="journal file (default: the user's data folder, see plchmi journal)")
+    historian_args(p, "off for a run in virtual time; in real time (a real plant, "
+                   "--opcua) a SQLite file in the data folder")
     from hmi.opcua.options import add_arguments as opcua_args
     opcua_args(p)
 
@@ -65,6 +75,12 @@ def cmd_run(args: argparse.Namespace) -> int:
     controller = Session(engine, args.period)
     collector = RunCollector()
     outputs = RunOutputs(controller, args.trace, args.journal, "run")
+    try:
+        historian = open_historian(controller, args, outputs.recorder, "run",
+                                   default_on=False, run_us=duration)
+    except BaseException:
+        outputs.close(ended_by(sys.exc_info()[1]))
+        raise
     settle_memory()
     started = time.perf_counter()
     def on_scan(snap) -> None:
@@ -81,6 +97,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         last = controller.last
     finally:
         outputs.close(ended_by(sys.exc_info()[1]))
+        if historian is not None:
+            historian.close()
     if outputs.failure is not None:
         raise RunFailure(outputs.failure_message())
     wall = time.perf_counter() - started
@@ -90,7 +108,21 @@ def cmd_run(args: argparse.Namespace) -> int:
     print(run_summary(engine, last, collector, injections, wall, trace=outputs.trace))
     print(alarm_summary(collector, args.explain))
     print(f"Journal: {outputs.recorder.journal.path}")
+    history_line(historian)
     return 0
+
+
+def history_line(historian) -> None:
+    """Where the run's history went, and how much of it (or why not all)."""
+    if historian is None:
+        return
+    status = historian.status
+    line = f"History: {historian.target.describe()} ({status.written:,} samples and events"
+    if status.dropped:
+        line += f"; {status.dropped:,} lost"
+    if status.state == "failing" or status.waiting:
+        line += f"; {status.waiting:,} could not be written: {status.error}"
+    print(line + ")")
 
 
 class _OutputFailed(Exception):
@@ -122,12 +154,15 @@ def run_real_time(engine, args: argparse.Namespace, duration_us: int | None) -> 
     collector = RunCollector()
     controller = Session(engine, args.period, clock=WallClock() if plant.is_real else None)
     outputs = None
+    historian = None
     server = None
     interrupted = False
     try:
         # The journal first, so that the connection attempts (and giving up) are in it.
         outputs = RunOutputs(controller, args.trace, args.journal, "run")
-        server = start_server(controller, args, journal=outputs.recorder)
+        historian = open_historian(controller, args, outputs.recorder, "run", default_on=True)
+        server = start_server(controller, args, journal=outputs.recorder,
+                              history=historian.target if historian else None)
         announce(server, engine.project.name)
         connect_plant(engine, args.connect_timeout or 10_000_000)
 
@@ -152,6 +187,8 @@ def run_real_time(engine, args: argparse.Namespace, duration_us: int | None) -> 
         stop_plant(engine)
         if outputs is not None:
             outputs.close(ended_by(sys.exc_info()[1]))
+        if historian is not None:
+            historian.close()
     if outputs.failure is not None:
         raise RunFailure(outputs.failure_message())
     last = controller.last
@@ -165,6 +202,7 @@ def run_real_time(engine, args: argparse.Namespace, duration_us: int | None) -> 
         print(plant_report(plant, at_end, runner.overruns if runner else 0))
         print(f"Stopped: {plant.message}")
     print(f"Journal: {outputs.recorder.journal.path}")
+    history_line(historian)
     return 0
 
 

@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 from hmi.cli.common import RunFailure
-from hmi.cli.options import diagnoser_arg, engine_args, plant_args
+from hmi.cli.options import diagnoser_arg, engine_args, historian_args, plant_args
 
 START_S = 60.0  # a runtime starting (a real plant's connection included) is waited for
 
@@ -29,6 +29,7 @@ def runtime_args(p: argparse.ArgumentParser) -> None:
                    help="the runtime's socket (default: runtime.sock in the project's data "
                    "folder)")
     plant_args(p, "keep trying")
+    historian_args(p, "a SQLite file in the data folder, beside the journal")
 
 
 def run_screen(args: argparse.Namespace, project, socket: Path, view: bool = False) -> int:
@@ -113,15 +114,18 @@ def passed_on(args: argparse.Namespace) -> list[str]:
     for option, name in (("--diagnoser", "diagnoser"), ("--control", "control"),
                          ("--policy", "policy"), ("--solver", "solver"),
                          ("--solver-budget", "solver_budget"), ("--journal", "journal"),
-                         ("--socket", "socket"), ("--plant", "plant")):
+                         ("--socket", "socket"), ("--plant", "plant"),
+                         ("--historian", "historian")):
         value = getattr(args, name, None)
         if value is not None:
             out += [option, str(value)]
     for text in getattr(args, "inject", []):
         out += ["--inject", text]
+    from hmi.timefmt import format_duration
     if getattr(args, "connect_timeout", None) is not None:
-        from hmi.timefmt import format_duration
         out += ["--connect-timeout", format_duration(args.connect_timeout)]
+    if getattr(args, "history_retention", None) is not None:  # (a length: whole seconds)
+        out += ["--history-retention", f"{max(1, args.history_retention // 1_000_000)}s"]
     for flag, name in (("--read-only", "read_only"), ("--allow-monitor", "allow_monitor")):
         if getattr(args, name, False):
             out.append(flag)

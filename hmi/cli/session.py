@@ -67,3 +67,30 @@ def stop_plant(engine) -> None:
 def open_journal(controller, path: Path | None, source: str):
     from hmi.session.runio import open_journal as open_recorder
     return open_recorder(controller, path, source)
+
+
+def open_historian(controller, args: argparse.Namespace, journal, source: str,
+                   default_on: bool, run_us: int | None = None):
+    """The cell's historian (hmi.history), attached, or None: `--historian off`, or a
+    headless run in virtual time that did not ask for one (`default_on` False: its hours
+    of simulated time would sit in the cell's history as if they had happened; asked for,
+    it is placed to end when the run ends, `run_us` after its start)."""
+    from hmi.history.target import default_target, parse_target
+    text = getattr(args, "historian", None)
+    if text == "off" or (text is None and not default_on):
+        return None
+    try:
+        target = parse_target(text) if text else default_target(controller.project.name)
+    except ValueError as exc:
+        raise UsageError(f"--historian: {exc}") from None
+    if target.kind == "postgresql":
+        try:
+            import psycopg  # noqa: F401
+        except ImportError:
+            from hmi.history.postgres import NEEDS_EXTRA
+            raise UsageError(f"--historian {target.describe()}: {NEEDS_EXTRA}") from None
+    from hmi.history.historian import Historian
+    from hmi.history.writer import DEFAULT_RETENTION_US
+    retention = getattr(args, "history_retention", None) or DEFAULT_RETENTION_US
+    return Historian(controller, target, source=source, journal=journal,
+                     retention_us=retention, run_us=run_us).attach()

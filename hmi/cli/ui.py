@@ -12,7 +12,14 @@ from pathlib import Path
 
 from hmi.cli.common import ended_by
 from hmi.cli.options import project_arg
-from hmi.cli.session import announce, connect_plant, make_engine, open_journal, stop_plant
+from hmi.cli.session import (
+    announce,
+    connect_plant,
+    make_engine,
+    open_historian,
+    open_journal,
+    stop_plant,
+)
 from hmi.codecache import dataclass_code, kept_codes, source_fingerprint
 
 # The compiled scan's code (hmi.engine.codegen), kept beside hmi's bytecode as the dataclass
@@ -100,11 +107,14 @@ def _run_hmi(args: argparse.Namespace, controller, injections) -> int:
     project = engine.project
     clock = controller.clock
     recorder = None
+    historian = None
     end = None
     server = None
     try:
         recorder = open_journal(controller, args.journal, "hmi")
-        server = start_server(controller, args, log_file=True, journal=recorder)
+        historian = open_historian(controller, args, recorder, "hmi", default_on=True)
+        server = start_server(controller, args, log_file=True, journal=recorder,
+                              history=historian.target if historian else None)
         announce(server, project.name)
         if clock is not None:
             connect_plant(engine, args.connect_timeout)
@@ -126,3 +136,5 @@ def _run_hmi(args: argparse.Namespace, controller, injections) -> int:
                 recorder.close(end.reason, end.note)
             else:
                 recorder.close(ended_by(sys.exc_info()[1]))
+        if historian is not None:  # after the journal's last entry, which it keeps too
+            historian.close()

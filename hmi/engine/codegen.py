@@ -24,6 +24,7 @@ from types import CodeType
 from typing import Any
 
 from hmi.logic.expr import And, Compare, Const, Duration, Node, Not, Or, StepTime, Var
+from hmi.program import ir
 
 _COMPARE = {"<": "<", "<=": "<=", ">": ">", ">=": ">=", "==": "==", "!=": "!="}
 
@@ -84,6 +85,70 @@ class Source:
         each missing keyword-only one up by name in a dict (the palletizer's core and
         monitors, 31 objects, paid some 4,000 instructions a scan for it)."""
         return "".join(f", k{n}=k{n}" for n in range(len(self.objects)))
+
+
+def print_program(src: Source, program: tuple[ir.Stmt, ...], indent: int,
+                  slots: Mapping[str, int], times: Mapping[str, int]) -> None:
+    """`program`'s statements as Python lines of `src` (the compiled scan's printer of the
+    scan program, hmi.program.ir): a cell is an attribute of the object handed over, an
+    ``if`` whose else branch is one ``if`` an ``elif``."""
+    for stmt in program:
+        if isinstance(stmt, ir.If):
+            src.line(indent, f"if {_value_source(src, stmt.test, slots, times)}:")
+            _print_branches(src, stmt, indent, slots, times)
+            continue
+        src.line(indent, f"{_value_source(src, stmt.target, slots, times)} = "
+                         f"{_value_source(src, stmt.value, slots, times)}")
+
+
+def _print_branches(src: Source, stmt: ir.If, indent: int, slots: Mapping[str, int],
+                    times: Mapping[str, int]) -> None:
+    print_program(src, stmt.then, indent + 1, slots, times)
+    orelse = stmt.orelse
+    if len(orelse) == 1 and isinstance(orelse[0], ir.If):
+        src.line(indent, f"elif {_value_source(src, orelse[0].test, slots, times)}:")
+        _print_branches(src, orelse[0], indent, slots, times)
+    elif orelse:
+        src.line(indent, "else:")
+        print_program(src, orelse, indent + 1, slots, times)
+
+
+def _value_source(src: Source, value: ir.Value, slots: Mapping[str, int],
+                  times: Mapping[str, int]) -> str:
+    match value:
+        case ir.Test(node=node):
+            return expr_source(node, slots, times)
+        case ir.Now():
+            return "now"
+        case ir.Const(value=constant):
+            return repr(constant if constant is None or isinstance(constant, bool)
+                        else int(constant))
+        case ir.Local(name=name):
+            return name
+        case ir.Slot(index=index):
+            return f"v[{int(index)}]"
+        case ir.Cell(owner=owner, attr=attr):
+            return f"{src.ref(owner)}.{attr}"
+        case ir.Sub(left=left, right=right):
+            return (f"{_operand_source(src, left, slots, times)} - "
+                    f"{_operand_source(src, right, slots, times)}")
+        case ir.AtLeast(left=left, right=right):
+            return (f"{_operand_source(src, left, slots, times)} >= "
+                    f"{_operand_source(src, right, slots, times)}")
+        case ir.IsNone(operand=operand):
+            return f"{_value_source(src, operand, slots, times)} is None"
+        case ir.Not(operand=operand):
+            return f"(not {_value_source(src, operand, slots, times)})"
+        case ir.And(operands=operands) | ir.Or(operands=operands):
+            word = " and " if isinstance(value, ir.And) else " or "
+            return "(" + word.join(_value_source(src, o, slots, times) for o in operands) + ")"
+    raise TypeError(f"not a value of the scan program: {value!r}")
+
+
+def _operand_source(src: Source, value: ir.Value, slots: Mapping[str, int],
+                    times: Mapping[str, int]) -> str:
+    text = _value_source(src, value, slots, times)
+    return f"({text})" if isinstance(value, ir.Sub | ir.AtLeast | ir.IsNone) else text
 
 
 # What generated code may contain: the statements and expressions of the templates below.
@@ -151,10 +216,50 @@ _CODE: dict[tuple[str, str], CodeType] = {}
 CODE_CACHE = 2048
 
 
+# The code objects of _CODE compiled, or checked (check_code), in this process, by key: an
+# entry of the table that is not the very object here (kept_codes put it there) is checked.
+_CHECKED: dict[tuple[str, str], CodeType] = {}
+
+
+def check_code(code: CodeType, name: str) -> str | None:
+    """Why `code` is not what :func:`build` compiles for function `name` (None: it is): a
+    module that only defines `name` with the objects handed over as defaults, and a function
+    whose names are the templates' locals and attributes, whose constants are None, Booleans,
+    integers and tuples of them, with no nested code nor closure. The same vocabulary as
+    :func:`_check`'s, read from the code object: a cached code object is what would run,
+    whatever text it was filed under (its name checked here, its builtins empty at exec)."""
+    if set(code.co_names) - {name} - {n for n in code.co_names if _HANDED.match(n)}:
+        return f"the module names {sorted(code.co_names)}"
+    functions = [c for c in code.co_consts if isinstance(c, CodeType)]
+    if len(functions) != 1 or functions[0].co_name != name:
+        return "the module does not define one function of that name"
+    if any(not isinstance(c, CodeType) and not _plain_constant(c) for c in code.co_consts):
+        return "the module holds a constant outside the vocabulary"
+    fn = functions[0]
+    if fn.co_freevars or fn.co_cellvars:
+        return "the function has a closure"
+    if not set(fn.co_names) <= ATTRIBUTES:
+        return f"the function reads {sorted(set(fn.co_names) - ATTRIBUTES)}"
+    for local in fn.co_varnames:
+        if not (local in LOCALS or _HANDED.match(local)):
+            return f"the function has the local {local!r}"
+    for constant in fn.co_consts:
+        if not _plain_constant(constant):
+            return f"the function holds the constant {constant!r}"
+    return None
+
+
+def _plain_constant(value: Any) -> bool:
+    if value is None or isinstance(value, (bool, int)):
+        return True
+    return isinstance(value, tuple) and all(_plain_constant(v) for v in value)
+
+
 def code_table() -> dict[tuple[str, str], CodeType]:
     """The compiled code by (text, file name) that :func:`build` keeps, every text checked by
     :func:`_check` before it was compiled: the HMI's start keeps it across processes
-    (hmi.codecache.kept_codes, under a fingerprint of this module's source)."""
+    (hmi.codecache.kept_codes, under a fingerprint of this module's source), and an entry
+    not compiled in this process is checked (:func:`check_code`) before it first runs."""
     return _CODE
 
 
@@ -191,13 +296,22 @@ def build(source: Source, name: str, params: str, filename: str) -> Callable[...
     text = f"def {name}({params}{source.defaults()}):\n" + "\n".join(lines) + "\n"
     if not source.lines:
         text += "    pass\n"
-    code = _CODE.get((text, filename))
+    key = (text, filename)
+    code = _CODE.get(key)
+    if code is not None and _CHECKED.get(key) is not code:
+        # kept by an earlier process (hmi.codecache.kept_codes): what runs is this code
+        # object, so it is checked, not the text it is filed under
+        if check_code(code, name) is None:
+            _CHECKED[key] = code
+        else:  # not code this module writes: compiled again from the checked text
+            code = None
     if code is None:
         tree = ast.parse(text, filename=filename)
         _check(tree)
         if len(_CODE) >= CODE_CACHE:
             _CODE.clear()
-        code = _CODE[text, filename] = compile(tree, filename, "exec")
+            _CHECKED.clear()
+        code = _CODE[key] = _CHECKED[key] = compile(tree, filename, "exec")
     namespace: dict[str, Any] = {"__builtins__": {}}
     namespace.update((f"k{n}", obj) for n, obj in enumerate(source.objects))
     exec(code, namespace)  # compiled from a tree checked above

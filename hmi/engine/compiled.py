@@ -33,8 +33,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any
 
-from hmi.engine.codegen import Source, build, expr_source
-from hmi.engine.control import ASSIGN, SET_DOMINANT
+from hmi.engine.codegen import Source, build, expr_source, print_program
 from hmi.engine.diagnoser import GAP_SCANS, DiagnoserRuntime, DiagnosisStage, shift_outputs
 from hmi.engine.stopwatch import Phase
 from hmi.logic.expr import History, Image, Node, Var
@@ -113,45 +112,8 @@ class CompiledScan:
 
     def _memory(self, src: Source, layout: Layout, memory: Memory,
                 control: ControlRuntime, law: bool) -> None:
-        for (runtime, slot, _), spec in zip(memory.timers, memory.project_timers, strict=True):
-            r = src.ref(runtime)
-            cond = self._expr(spec.input.root)
-            preset = int(runtime.preset)
-            src.line(1, f"r = {r}")
-            if runtime.kind == "TON":
-                src.line(1, f"if {cond}:")
-                src.line(2, "s = r.since")
-                src.line(2, "if s is None:")
-                src.line(3, "s = now")
-                src.line(3, "r.since = now")
-                src.line(2, f"q = now - s >= {preset}")
-                src.line(2, "r.q = q")
-                src.line(1, "else:")
-                src.line(2, "r.since = None")
-                src.line(2, "q = False")
-                src.line(2, "r.q = False")
-                src.line(1, f"v[{int(slot)}] = q")
-            else:  # TOF
-                src.line(1, f"if {cond}:")
-                src.line(2, "r.since = None")
-                src.line(2, "r.q = True")
-                src.line(1, "elif r.q:")
-                src.line(2, "s = r.since")
-                src.line(2, "if s is None:")
-                src.line(3, "s = now")
-                src.line(3, "r.since = now")
-                src.line(2, f"if now - s >= {preset}:")
-                src.line(3, "r.q = False")
-                src.line(3, "r.since = None")
-                src.line(1, f"v[{int(slot)}] = r.q")
-        for o in memory.project_observers:
-            slot = int(self.slots[o.name])
-            if o.expr is not None:
-                src.line(1, f"v[{slot}] = {self._expr(o.expr.root)}")
-            else:
-                assert o.set is not None and o.reset is not None  # the loader's guarantee
-                src.line(1, f"v[{slot}] = (not {self._expr(o.reset.root)}) and "
-                         f"({self._expr(o.set.root)} or v[{slot}])")
+        # the timers and observers: the stage's scan program (hmi.program), printed
+        print_program(src, memory.program, 1, self.slots, self.times)
         grafcet = control.grafcet
         if law and grafcet is not None and grafcet.time_slots:
             # only the active steps' times move (GrafcetRuntime.timed); all of them after a
@@ -262,19 +224,7 @@ class CompiledScan:
                     test += f" and {self._expr(cond_node)}"
                 src.line(1, f"if {test}:")
                 src.line(2, f"v[{int(target)}] = True")
-        for (slot, kind, _, _), eq in zip(control.equations, control.law.equations,
-                                          strict=True):
-            s = int(slot)
-            if kind == ASSIGN:
-                assert eq.expr is not None
-                src.line(1, f"v[{s}] = {self._expr(eq.expr.root)}")
-                continue
-            assert eq.set is not None and eq.reset is not None  # the loader's guarantee
-            set_, reset = self._expr(eq.set.root), self._expr(eq.reset.root)
-            if kind == SET_DOMINANT:
-                src.line(1, f"v[{s}] = {set_} or (v[{s}] and (not {reset}))")
-            else:
-                src.line(1, f"v[{s}] = (not {reset}) and ({set_} or v[{s}])")
+        print_program(src, control.equations, 1, self.slots, self.times)
 
     def _elapsed(self, memory: Memory) -> ElapsedFn:
         """``elapsed(now)``: each timer's ET for the snapshot, as Memory.elapsed."""

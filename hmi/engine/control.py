@@ -19,10 +19,10 @@ from collections.abc import Mapping
 from typing import NamedTuple
 
 from hmi.engine.grafcet import GrafcetRuntime
-from hmi.logic.expr import BoolFn, History, Image, compile_bool
+from hmi.logic.expr import History, Image
+from hmi.program.evaluate import evaluator
+from hmi.program.memories import lower_equation
 from hmi.project.model import ControlLaw
-
-ASSIGN, SET_DOMINANT, RESET_DOMINANT = 0, 1, 2  # the kinds of equation
 
 
 class ControlState(NamedTuple):
@@ -39,18 +39,11 @@ class ControlRuntime:
         self.law = law
         self.grafcet = (GrafcetRuntime(law.grafcet, slots, step_time_slots)
                         if law.grafcet else None)
-        # (target slot, kind, expression or set, reset or unused), in the order written
-        self.equations: list[tuple[int, int, BoolFn, BoolFn]] = []
-        for eq in law.equations:
-            slot = slots[eq.target]
-            if eq.expr is not None:
-                fn = compile_bool(eq.expr, slots, step_time_slots)
-                self.equations.append((slot, ASSIGN, fn, fn))
-            else:
-                assert eq.set is not None and eq.reset is not None  # the loader's guarantee
-                self.equations.append((slot, SET_DOMINANT if eq.set_dominant else RESET_DOMINANT,
-                                       compile_bool(eq.set, slots, step_time_slots),
-                                       compile_bool(eq.reset, slots, step_time_slots)))
+        # the equations in the order written, as the scan program (hmi.program): the
+        # statements the compiled scan prints, evaluated here
+        self.equations = tuple(stmt for eq in law.equations
+                               for stmt in lower_equation(eq, slots[eq.target]))
+        self._equations = evaluator(self.equations, slots, step_time_slots)
         # The scan time the program has waited since (manual mode), None while it runs.
         self.held_since: int | None = None
 
@@ -89,13 +82,7 @@ class ControlRuntime:
         if self.grafcet:
             self.grafcet.evolve(image, history, now)
             self.grafcet.apply_continuous(image, history)
-        for slot, kind, set_, reset in self.equations:
-            if kind == ASSIGN:
-                image[slot] = set_(image, history)
-            elif kind == SET_DOMINANT:
-                image[slot] = set_(image, history) or (image[slot] and not reset(image, history))
-            else:
-                image[slot] = not reset(image, history) and (set_(image, history) or image[slot])
+        self._equations(image, history, now)
 
     def capture(self) -> ControlState:
         """The GRAFCET's activation times and last firing (its steps live in the image), and

@@ -61,14 +61,8 @@ from hmi.logic.expr import (
     to_text,
     walk,
 )
-from hmi.project.diagnosers import (
-    DiagnoserSpec,
-    DiagState,
-    DiagTransition,
-    ResyncRule,
-    diagnosers_of,
-)
-from hmi.project.model import Project
+from hmi.project.diagnosers import diagnosers_of
+from hmi.project.model import DiagnoserSpec, DiagState, DiagTransition, Project, ResyncRule
 from hmi.timefmt import format_duration
 
 MODES = ("ftc", "observe", "off")

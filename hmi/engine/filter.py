@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 from hmi.engine.solver import (
@@ -112,6 +112,12 @@ class CompiledConstraint:
     violation: Violation
 
     @property
+    def preparation(self) -> int:
+        """Steps its part of preparing an active set costs: the constraint, and each output
+        literal of a combined one (what the exact search's problem is built from)."""
+        return 1 if self.simple else 1 + (self.pos | self.neg).bit_count()
+
+    @property
     def name(self) -> str:
         return self.constraint.name
 
@@ -166,6 +172,12 @@ def unpack(v: int, n: int) -> tuple[bool, ...]:
 
 PACKED_CACHE = 4096  # distinct candidate vectors remembered (cleared when full)
 CORRECTION_CACHE = 4096  # corrections remembered (cleared when full)
+# The caches below hold objects as large as the active constraints: they are bounded by the
+# constraints they refer to in all, not by their count (a project whose active set is a new
+# one at every scan grew by 36 MB per 100 scans, never emptied). Clearing one changes no
+# decision: each is a function of its key.
+ACTIVE_SET_CACHE = 50_000  # constraints of the active sets kept prepared, in all (~25 MB)
+CORRECTION_CACHE_SIZE = 200_000  # violations and changes of the corrections kept, in all
 
 
 @dataclass(frozen=True)
@@ -180,6 +192,11 @@ class _ActiveSet:
     forcing0: tuple[tuple[str, ...], ...]
     forcing1: tuple[tuple[str, ...], ...]
     problem: Problem  # the exact search's preparation (empty when nothing is combined)
+    # What preparing this set costs, in the budget's steps (a constraint and each output
+    # literal of a combined one read once): charged to every scan that corrects with it,
+    # prepared anew or kept, so that a budget means the same work either way and the budget
+    # bounds the filter's work per scan, not only its search's.
+    preparation: int = 0
 
     @classmethod
     def of(cls, active: Sequence[CompiledConstraint], n: int) -> _ActiveSet:
@@ -204,7 +221,8 @@ class _ActiveSet:
         masks = [(c.pos, c.neg) for c in combined]
         # Outputs forced by the simple constraints are not free; their values are F1's.
         problem = Problem(masks, ((1 << n) - 1) & ~(f0 | f1), f1)
-        return cls(f0, f1, masks, combined, forcing0, forcing1, problem)
+        return cls(f0, f1, masks, combined, forcing0, forcing1, problem,
+                   sum(c.preparation for c in active))
 
 
 class SafetyFilter:
@@ -231,6 +249,8 @@ class SafetyFilter:
         # What depends only on which constraints are active, built once per active set: a
         # cell has few distinct active sets, and a violation scan should not rebuild them.
         self._by_active: dict[tuple[int, ...], _ActiveSet] = {}
+        self._by_active_size = 0  # constraints in the sets kept (ACTIVE_SET_CACHE)
+        self._corrections_size = 0  # violations and changes in them (CORRECTION_CACHE_SIZE)
         # Candidate vectors as packed integers: a cell asks for few distinct vectors.
         self._packed: dict[tuple[bool, ...], int] = {}
         # Corrections already found, by (candidate, active constraints' bits): the corrector is a
@@ -308,8 +328,12 @@ class SafetyFilter:
                                         violations)
         if key is None:
             return FilterDecision(written, report)
-        if len(self._corrections) >= CORRECTION_CACHE:
+        size = 1 + len(report.violations) + len(report.changes)
+        if (len(self._corrections) >= CORRECTION_CACHE
+                or self._corrections_size + size > CORRECTION_CACHE_SIZE):
             self._corrections.clear()
+            self._corrections_size = 0
+        self._corrections_size += size
         # Given again, the same decision and report, except that no search ran for it then
         # (solver_us 0; tested and steps still say what finding it took).
         self._corrections[key] = (written, report._replace(solver_us=0.0)
@@ -320,12 +344,24 @@ class SafetyFilter:
         key = tuple(map(id, active))
         found = self._by_active.get(key)
         if found is None:
+            if self._by_active_size + len(active) > ACTIVE_SET_CACHE:
+                self._by_active.clear()
+                self._by_active_size = 0
             found = self._by_active[key] = _ActiveSet.of(active, self.n)
+            self._by_active_size += len(active) + 1
         return found
 
     def _correct(self, fov: tuple[bool, ...], candidate: int,
                  active: Sequence[CompiledConstraint], violations: tuple[Violation, ...]
                  ) -> tuple[tuple[bool, ...], FilterReport]:
+        cost = sum(c.preparation for c in active)
+        if cost > self.budget and any(not c.simple for c in active):
+            # Preparing the corrector's problem alone would cost more than the whole budget:
+            # the safe state for this scan, without preparing it (work bounded by the
+            # constraints already evaluated, not by the search). Simple constraints alone
+            # need no search: their set/reset form is linear, like their evaluation.
+            return self._no_solution(fov, violations, active, None, Solution(
+                None, 0, 0, "budget", steps=len(active), budget=self.budget), 0.0, cost)
         aset = self._active_set(active)
         f0, f1 = aset.f0, aset.f1
         conflicts = f0 & f1
@@ -344,12 +380,17 @@ class SafetyFilter:
             started = time.perf_counter()
             deadline = (None if self.wall_limit_us is None
                         else started + self.wall_limit_us / 1e6)
-            if self.strategy == "paper":
+            left = self.budget - aset.preparation  # the search gets what preparing left
+            if left <= 0:
+                solution = Solution(None, 0, 0, "budget", steps=0, budget=left)
+            elif self.strategy == "paper":
                 solution = paper_solve(mem, combined, self.all_bits & ~(f0 | f1), f0, f1,
-                                       budget=self.budget, deadline=deadline)
+                                       budget=left, deadline=deadline)
             else:
                 assert aset.problem is not None  # prepared whenever there is a combined one
-                solution = aset.problem.solve(mem, self.budget, deadline)
+                solution = aset.problem.solve(mem, left, deadline)
+            solution = replace(solution, steps=solution.steps + aset.preparation,
+                               budget=self.budget)
             solver_us = (time.perf_counter() - started) * 1e6
             if solution.vector is None:
                 return self._no_solution(fov, violations, active, aset, solution, solver_us)
@@ -405,13 +446,19 @@ class SafetyFilter:
                 f"{solution.tested} vectors tested)")
 
     def _no_solution(self, fov: tuple[bool, ...], violations: tuple[Violation, ...],
-                     active: Sequence[CompiledConstraint], aset: _ActiveSet, solution: Solution,
-                     solver_us: float) -> tuple[tuple[bool, ...], FilterReport]:
+                     active: Sequence[CompiledConstraint], aset: _ActiveSet | None,
+                     solution: Solution, solver_us: float, cost: int = 0
+                     ) -> tuple[tuple[bool, ...], FilterReport]:
         """The safe state, because no safe vector exists or the search was cut short."""
-        if solution.how == "budget":
+        if solution.how == "budget" and aset is None:
+            why = (f"preparing the {self.strategy} search over the {len(active):,} active "
+                   f"constraints would take {cost:,} steps, more than the budget "
+                   f"of {self.budget:,}: not searched")
+        elif solution.how == "budget":
             why = (f"the {self.strategy} search for the closest safe vector used its budget "
-                   f"({solution.steps:,} of {self.budget:,} steps) before finding it or "
-                   "proving there is none")
+                   f"({solution.steps:,} of {self.budget:,} steps, "
+                   f"{aset.preparation if aset else 0:,} of them preparing it) before finding "
+                   "it or proving there is none")
         elif solution.how == "deadline":
             limit_ms = (self.wall_limit_us or 0) / 1000
             why = (f"the {self.strategy} search for the closest safe vector reached the live "
@@ -419,7 +466,7 @@ class SafetyFilter:
                    "proving there is none")
         else:
             why = "no output vector satisfies every constraint in this situation"
-            if solution.involved:
+            if solution.involved and aset is not None:
                 names = ", ".join(aset.combined_constraints[i].name
                                   for i in solution.involved)
                 why += f" ({names} cannot all hold)"

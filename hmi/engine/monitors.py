@@ -22,8 +22,8 @@ from typing import NamedTuple
 from hmi.engine.layout import Layout
 from hmi.engine.stopwatch import FAULTY, Detection, Phase, TaskAutomaton, WatchdogTrip, Window
 from hmi.logic.expr import BoolFn, Expr, History, Image, compile_bool, max_depth
-from hmi.project.model import Project
-from hmi.project.monitors import TaskMonitor, monitors_of
+from hmi.project.model import Project, TaskMonitor
+from hmi.project.monitors import monitors_of
 from hmi.timefmt import format_duration, seconds
 
 IDLE = Phase.IDLE

@@ -29,8 +29,8 @@ from hmi.engine.filter import SafetyFilter
 from hmi.engine.filter_stage import FilterStage
 from hmi.engine.layout import Layout
 from hmi.logic.expr import BoolFn, History, Image, compile_bool
-from hmi.project.model import Project
-from hmi.project.recovery import RecoveryProcedure, recoveries_of
+from hmi.project.model import Project, RecoveryProcedure
+from hmi.project.recovery import recoveries_of
 from hmi.timefmt import seconds
 
 

@@ -85,6 +85,56 @@ class EngineState(NamedTuple):
     recovery: Any = None
 
 
+class ScanRecord:
+    """The last scan's results, from stages 1 to 8 (Engine._cycle) and what Engine.run read
+    after them, until Engine.snapshot builds them into a Snapshot. One per engine, filled in
+    place by every scan: a record built per scan (a NamedTuple, by its constructor or by
+    tuple.__new__) cost 1,400 to 3,500 instructions a scan more than the positional tuples
+    it replaced (python -m hmi.bench.instructions), slot stores about as much as a tuple."""
+
+    __slots__ = (
+        "diagnosers",
+        "diagnosis",
+        "error",
+        "events",
+        "filter_us",
+        "fov",
+        "marks",
+        "monitored",
+        "outputs",
+        "recovery",
+        "report",
+        "scan_us",
+        "values",
+    )
+
+    def __init__(self) -> None:
+        self.fov: tuple[bool, ...] = ()  # the functional output vector (stage 5)
+        self.outputs: tuple[bool, ...] = ()  # what was written (stage 7)
+        self.report: FilterReport | None = None  # the filter's (None: not reached)
+        self.diagnosis: Diagnosis = NO_DIAGNOSIS  # routes, mask and records (stage 3)
+        self.monitored = False  # whether the monitors ran (stage 8)
+        self.error: str | None = None  # an internal error of the scan, latched
+        self.filter_us = 0.0  # the filter's wall time (0.0 unless Engine.wall_times)
+        self.values: tuple[Any, ...] = ()  # the image as the scan left it (history[0])
+        self.diagnosers: tuple[DiagnoserState, ...] = ()
+        self.marks = 0  # the monitors' marks (Snapshot.monitor_marks)
+        self.events: tuple[Any, ...] = ()  # the plant's events
+        self.recovery: Any = NO_RECOVERY  # the recovery's state
+        self.scan_us = 0.0  # the scan's wall time
+
+
+class ScanNews(NamedTuple):
+    """What a scan is compared with to say whether the next one has news (Engine.run): the
+    very objects the last scan with news gave."""
+
+    report: FilterReport | None
+    status: PlantStatus
+    diagnosers: tuple[DiagnoserState, ...]
+    marks: int
+    recovery: Any
+
+
 MONITOR_POLICY_REFUSED = ("the monitor policy passes unsafe orders through to a real plant; "
                           "choose --policy block or correct, or add --allow-monitor")
 
@@ -180,8 +230,9 @@ class Engine:
         self._period = project.scan_period_us
         # The last run()'s results until snapshot() builds them into a Snapshot, and what
         # news is judged against (hmi.engine.scan.Engine.run).
-        self._pending: tuple[Any, ...] | None = None
-        self._news: tuple[Any, ...] | None = None
+        self._record = ScanRecord()
+        self._pending = False  # whether _record holds a scan whose snapshot is not built
+        self._news: ScanNews | None = None
         self._commanded = False
         self._elapsed = (self.compiled.elapsed if self.compiled is not None
                          else self.memory.elapsed)
@@ -399,7 +450,7 @@ class Engine:
     def _before_change(self) -> None:
         """Something other than a scan is about to change the engine or its plant: the last
         scan's snapshot, if still pending, is built now from what that scan left."""
-        if self._pending is not None:
+        if self._pending:
             self.snapshot()
         self._commanded = True
 
@@ -498,20 +549,17 @@ class Engine:
         if lost is not None:
             self.latch_safe("plant", lost)
 
-    def _left_safe(self, cycle: tuple[Any, ...], values: tuple[Any, ...], error: str | None
-                   ) -> tuple[tuple[Any, ...], tuple[Any, ...]]:
+    def _left_safe(self, error: str | None) -> None:
         """The scan's results once an internal error put its outputs safe after they were
         decided (:meth:`_go_safe`, a failed write): the outputs as the image holds them now,
         the image as the scan's values and the history's newest entry, the scan's error."""
         image = self.image
-        outputs = tuple(image[s] for s in self.output_slots)
-        error = cycle[5] or error
-        if outputs != cycle[1] or error != cycle[5]:
-            cycle = (cycle[0], outputs, *cycle[2:5], error, cycle[6])
-        if tuple(image) != values:
-            values = tuple(image)
-            self.history[0] = values
-        return cycle, values
+        record = self._record
+        record.outputs = tuple(image[s] for s in self.output_slots)
+        record.error = record.error or error
+        if tuple(image) != record.values:
+            record.values = tuple(image)
+            self.history[0] = record.values
 
     # -- the scan ----------------------------------------------------------------------------
     def step(self, now: int) -> Snapshot:
@@ -533,15 +581,17 @@ class Engine:
         (hmi.session.run_report.RunCollector.quiet)."""
         timed = self.wall_times
         wall = time.perf_counter() if timed else 0.0
-        self._pending = None  # the previous scan's snapshot, if never asked for: dropped
+        self._pending = False  # the previous scan's snapshot, if never asked for: dropped
         fast = self.compiled
         if fast is not None and self.started and self.mode == "auto" and not self._stop_mask:
             self.scan += 1  # (what _cycle does first, and then this)
             self.now = now
-            cycle = self._auto_cycle(now, fast)
+            self._auto_cycle(now, fast)
         else:
-            cycle = self._cycle(now)
-        report, diagnosis, monitored, error = cycle[2], cycle[3], cycle[4], cycle[5]
+            self._cycle(now)
+        record = self._record
+        report, diagnosis, monitored, error = (record.report, record.diagnosis,
+                                               record.monitored, record.error)
         image = self.image
         # Step supervision: one comparison a scan. Past the deadline (a step's supervision
         # time, or a firing: hmi.engine.grafcet) the overdue steps are found again, and a
@@ -598,23 +648,31 @@ class Engine:
         if failed is not None or error is not None:
             if failed is not None:
                 self._go_safe(now)
-            cycle, values = self._left_safe(cycle, values, failed)
-            error = cycle[5]
+            record.values = values
+            self._left_safe(failed)
+            values = record.values
+            error = record.error
         last = self._news
         # (a command since, a new policy included, makes this scan news and compares the
         # next with this one)
-        if (last is not None and report is last[0] and status is last[1]
-                and diagnosers is last[2] and marks == last[3] and recovery is last[4]
+        if (last is not None and report is last.report and status is last.status
+                and diagnosers is last.diagnosers and marks == last.marks
+                and recovery is last.recovery
                 and not self._commanded and error is None and not events
                 and not self.latched and not diagnosis.masked
                 and not diagnosis.reconstructed and not self.manual):
             news = False
         else:
             news = True
-            self._news = (report, status, diagnosers, marks, recovery)
+            self._news = ScanNews(report, status, diagnosers, marks, recovery)
         self._commanded = False
-        self._pending = (cycle, values, diagnosers, marks, events, recovery,
-                         (time.perf_counter() - wall) * 1e6 if timed else 0.0)
+        record.values = values
+        record.diagnosers = diagnosers
+        record.marks = marks
+        record.events = events
+        record.recovery = recovery
+        record.scan_us = (time.perf_counter() - wall) * 1e6 if timed else 0.0
+        self._pending = True
         return news
 
     def run_while_quiet(self, start: int, end: int, period: int) -> tuple[int, bool]:
@@ -636,13 +694,12 @@ class Engine:
     def snapshot(self) -> Snapshot:
         """The last scan's snapshot (:meth:`run`), built now if not yet: the engine's
         state is still the one that scan left (a command builds it first)."""
-        pending = self._pending
-        if pending is None:
+        if not self._pending:
             if self.last is None:
                 raise RuntimeError("no scan has run yet")
             return self.last
-        self._pending = None
-        cycle, values, diagnosers, marks, events, recovery, scan_us = pending
+        self._pending = False
+        record = self._record
         plant = self.plant
         policy = self.policy
         grafcet = self.control.grafcet
@@ -652,7 +709,7 @@ class Engine:
         # elapsed times as 0), and the outputs go safe at once.
         failed: str | None = None
         monitors: Any = ()
-        if cycle[4] and self.monitors is not None:
+        if record.monitored and self.monitors is not None:
             # (the monitors' bases change only in a scan or a command, which builds this
             # first)
             try:
@@ -685,7 +742,7 @@ class Engine:
         except Exception as exc:
             failed = self._failure("reading the plant's counters", exc)
             counters = ()
-        diagnosis = cycle[3]
+        diagnosis = record.diagnosis
         masked: tuple[str, ...] = ()
         if policy != "monitor":
             try:
@@ -694,21 +751,22 @@ class Engine:
                 failed = self._failure("reading the masked outputs", exc)
         if failed is not None:
             self._go_safe(now)
-            cycle, values = self._left_safe(cycle, values, failed)
-        fov, outputs, report, diagnosis, _, error, filter_us = cycle
-        # Positional, in Snapshot's field order (checked by _SNAPSHOT_ORDER below): a
-        # NamedTuple built from keywords maps every one of them at every scan.
-        snapshot = self.last = tuple.__new__(Snapshot, (
-            self.scan, now, self._period, self.layout, values, tuple(fov), tuple(outputs),
-            active, grafcet.fired if grafcet is not None else (), elapsed,
-            self.control_name, self.mode,
-            tuple(sorted(self.manual.items())) if self.manual else (), policy,
-            tuple(self.latched) if self.latched else (), status, state, counters, events,
-            report, diagnosers, monitors, diagnosis.reconstructed, masked,
-            (), (), (), (),  # explanations, alarms, alarm_events, shelved: the session's
-            tuple(sorted(self.stopped_devices)) if self.stopped_devices else (),
-            recovery, error, scan_us, filter_us, marks,
-            self._supervised.overdue if self._supervised is not None else ()))
+            self._left_safe(failed)
+        snapshot = self.last = Snapshot(
+            scan=self.scan, time_us=now, period_us=self._period, layout=self.layout,
+            values=record.values, fov=tuple(record.fov), outputs=tuple(record.outputs),
+            active_steps=active, fired=grafcet.fired if grafcet is not None else (),
+            timer_elapsed=elapsed, control=self.control_name, mode=self.mode,
+            manual=tuple(sorted(self.manual.items())) if self.manual else (), policy=policy,
+            latched=tuple(self.latched) if self.latched else (), plant=status,
+            plant_state=state, plant_counters=counters, plant_events=record.events,
+            filter=record.report, diagnosers=record.diagnosers, monitors=monitors,
+            reconstructed=diagnosis.reconstructed, masked=masked,
+            stopped_devices=(tuple(sorted(self.stopped_devices)) if self.stopped_devices
+                             else ()),
+            recovery=record.recovery, error=record.error, scan_wall_us=record.scan_us,
+            filter_wall_us=record.filter_us, monitor_marks=record.marks,
+            overdue_steps=self._supervised.overdue if self._supervised is not None else ())
         return snapshot
 
     def _status_unknown(self) -> PlantStatus:
@@ -722,13 +780,12 @@ class Engine:
         """One scan at `now` whose results nobody reads: the same stages, no snapshot (the
         closed-loop exploration, hmi.studies.explore, only follows the state). The plant's
         events stay with the plant (take_events)."""
-        self._pending = None
+        self._pending = False
         self._commanded = True  # (the next run() cannot compare with this scan)
         self._cycle(now)
         self.history.appendleft(tuple(self.image))
 
-    def _cycle(self, now: int) -> tuple[tuple[bool, ...], tuple[bool, ...], FilterReport | None,
-                                        Diagnosis, bool, str | None, float]:
+    def _cycle(self, now: int) -> None:
         """Stages 1 to 8 (module docstring), in order. In automatic and manual mode stages
         2-5, the filter's first test and the monitors run compiled (hmi.engine.compiled);
         the stages' own methods run whatever else happens (a violation, masking, a latch, a
@@ -737,7 +794,8 @@ class Engine:
         self.now = now
         fast = self.compiled
         if fast is not None and self.started and self.mode == "auto" and not self._stop_mask:
-            return self._auto_cycle(now, fast)
+            self._auto_cycle(now, fast)
+            return
         image = self.image
         error = None
         report: FilterReport | None = None
@@ -820,11 +878,9 @@ class Engine:
         for slot, value in zip(self.output_slots, outputs, strict=True):
             image[slot] = value
         monitored, error = self._output_scan(now, outputs, error, fast)
-        return fov, outputs, report, diagnosis, monitored, error, filter_us
+        self._keep(fov, outputs, report, diagnosis, monitored, error, filter_us)
 
-    def _auto_cycle(self, now: int, fast: CompiledScan
-                    ) -> tuple[tuple[bool, ...], tuple[bool, ...], FilterReport | None,
-                               Diagnosis, bool, str | None, float]:
+    def _auto_cycle(self, now: int, fast: CompiledScan) -> None:
         """:meth:`_cycle` in automatic mode, compiled, once started, no device stopped: the
         same stages with the branches that cannot apply left out (most scans of a run).
         When the filter lets the law's vector through, the image already holds it."""
@@ -856,7 +912,14 @@ class Engine:
                     if timed:
                         filter_us = (time.perf_counter() - started) * 1e6
                     monitored, error = self._output_scan(now, fov, None, fast)
-                    return fov, fov, report, diagnosis, monitored, error, filter_us
+                    record = self._record  # (ScanRecord: written out, as at every scan)
+                    record.fov = record.outputs = fov
+                    record.report = report
+                    record.diagnosis = diagnosis
+                    record.monitored = monitored
+                    record.error = error
+                    record.filter_us = filter_us
+                    return
                 # violated, nothing masked: what FilterStage.apply would hand the filter
                 decision = self.filter.apply(image, hist, fov, policy, False)
             else:
@@ -879,7 +942,27 @@ class Engine:
         for slot, value in zip(self.output_slots, outputs, strict=True):  # 7. output scan
             image[slot] = value
         monitored, error = self._output_scan(now, outputs, error, fast)
-        return fov, outputs, report, diagnosis, monitored, error, filter_us
+        record = self._record
+        record.fov = fov
+        record.outputs = outputs
+        record.report = report
+        record.diagnosis = diagnosis
+        record.monitored = monitored
+        record.error = error
+        record.filter_us = filter_us
+
+    def _keep(self, fov: tuple[bool, ...], outputs: tuple[bool, ...],
+              report: FilterReport | None, diagnosis: Diagnosis, monitored: bool,
+              error: str | None, filter_us: float) -> None:
+        """What stages 1 to 8 decided, into the scan's record (ScanRecord)."""
+        record = self._record
+        record.fov = fov
+        record.outputs = outputs
+        record.report = report
+        record.diagnosis = diagnosis
+        record.monitored = monitored
+        record.error = error
+        record.filter_us = filter_us
 
     def _output_scan(self, now: int, outputs: tuple[bool, ...], error: str | None,
                      fast: CompiledScan | None) -> tuple[bool, str | None]:
@@ -947,17 +1030,6 @@ class Engine:
         if self.observe:
             return tuple(self.image[s] for s in self.output_slots)
         return self.safe_vector
-
-# The order Engine.step builds a Snapshot in; a new field must be added there too.
-_SNAPSHOT_ORDER = (
-    "scan", "time_us", "period_us", "layout", "values", "fov", "outputs", "active_steps",
-    "fired", "timer_elapsed", "control", "mode", "manual", "policy", "latched", "plant",
-    "plant_state", "plant_counters", "plant_events", "filter", "diagnosers", "monitors",
-    "reconstructed", "masked", "explanations", "alarms", "alarm_events", "shelved",
-    "stopped_devices", "recovery", "error", "scan_wall_us", "filter_wall_us", "monitor_marks",
-    "overdue_steps")
-assert Snapshot._fields == _SNAPSHOT_ORDER, "Engine.step builds Snapshot by position"
-
 
 class _InputsUnknown(Exception):
     """The input scan failed: skip to the output scan with the outputs safe."""

@@ -27,9 +27,12 @@ from typing import TYPE_CHECKING, Protocol
 
 from hmi.engine.control import ControlRuntime
 from hmi.engine.layout import Layout
-from hmi.logic.expr import BoolFn, History, Image, compile_bool
+from hmi.logic.expr import History, Image
 from hmi.logic.timers import TimerRuntime
 from hmi.plant.base import Plant, PlantError
+from hmi.program.evaluate import evaluator
+from hmi.program.memories import lower_observer
+from hmi.program.timers import lower_timer
 from hmi.project.model import Project
 
 if TYPE_CHECKING:
@@ -112,31 +115,20 @@ class Memory:
 
     def __init__(self, project: Project, layout: Layout, control: ControlRuntime):
         slots, times = layout.slots, layout.step_times
-        self.timers = [(TimerRuntime(t.name, t.kind, t.preset_us), slots[t.name],
-                        compile_bool(t.input, slots, times)) for t in project.timers]
-        # (slot, is an expression, expression or set, reset or unused)
-        self.observers: list[tuple[int, bool, BoolFn, BoolFn]] = []
-        for o in project.observers:
-            if o.expr is not None:
-                fn = compile_bool(o.expr, slots, times)
-                self.observers.append((slots[o.name], True, fn, fn))
-            else:
-                assert o.set is not None and o.reset is not None  # the loader's guarantee
-                self.observers.append((slots[o.name], False, compile_bool(o.set, slots, times),
-                                       compile_bool(o.reset, slots, times)))
+        # (runtime, slot, IN): the state of each timer; its rule is hmi.program.timers'
+        # lowering, which this stage runs through the scan program's evaluator
+        self.timers = [(TimerRuntime(t.name, t.kind, t.preset_us), slots[t.name], t.input.root)
+                       for t in project.timers]
+        # the timers, then the observers, as the scan program (hmi.program): the statements
+        # the compiled scan prints (self.program) and this stage evaluates
+        self.program = tuple(stmt for rt, slot, input_ in self.timers
+                             for stmt in lower_timer(rt, slot, input_)) + tuple(
+            stmt for o in project.observers for stmt in lower_observer(o, slots[o.name]))
+        self._program = evaluator(self.program, slots, times)
         self.control = control
-        # The declarations, for the compiled scan (hmi.engine.compiled) to generate from.
-        self.project_timers = project.timers
-        self.project_observers = project.observers
 
     def update(self, image: Image, history: History, now: int) -> None:
-        for runtime, slot, fn in self.timers:
-            image[slot] = runtime.update(fn(image, history), now)
-        for slot, is_expr, set_, reset in self.observers:
-            if is_expr:
-                image[slot] = set_(image, history)
-            else:
-                image[slot] = not reset(image, history) and (set_(image, history) or image[slot])
+        self._program(image, history, now)
         self.control.update_times(image, now)
 
     def capture(self) -> tuple[tuple[bool, int | None], ...]:

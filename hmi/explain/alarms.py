@@ -36,7 +36,7 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass, field, replace
 
-from hmi.explain.model import Explanation
+from hmi.explain.model import Explanation, Policy
 from hmi.timefmt import format_duration, seconds
 
 ACTIVE_UNACK = "active-unacknowledged"
@@ -47,6 +47,13 @@ CHATTER_WINDOW_US = 60_000_000
 MAX_SHELVE_US = 8 * 3_600_000_000  # OPC UA MaxTimeShelved: a shelf is never forever
 PRIORITY = {"high": 1, "medium": 2, "low": 3}
 LIST_ORDER = {ACTIVE_UNACK: 0, CLEARED_UNACK: 1, ACTIVE_ACK: 2}
+FLOOD_LIMIT = 20  # constraint alarms listed one by one; past it, an alarm flood
+FLOOD_KEY = "alarm-flood"
+
+
+def _flood_what(held: int) -> str:
+    return (f"Alarm flood: {held} more safety rule{'s' if held != 1 else ''} broken than "
+            "the list shows")
 
 
 def highest(old: str, new: str) -> str:
@@ -121,6 +128,9 @@ class AlarmManager:
         self.returns: dict[str, deque[int]] = {}
         self.clear_since: dict[str, int] = {}
         self._listed: tuple[Alarm, ...] | None = ()  # chattering alarms: condition clear since
+        # An alarm flood going on: (since, its first scan, most alarms held, its
+        # explanation); None: none.
+        self._flood: tuple[int, int, int, Explanation | None] | None = None
 
     def settled(self, explanations: tuple[Explanation, ...]) -> bool:
         """Whether :meth:`update` with these explanations (those of its last call) would
@@ -147,7 +157,7 @@ class AlarmManager:
     def update(self, explanations: tuple[Explanation, ...], scan: int, now: int
                ) -> list[AlarmEvent]:
         events: list[AlarmEvent] = []
-        present = {e.key: e for e in explanations if e.alarm}
+        present = self._contain_flood({e.key: e for e in explanations if e.alarm}, scan, now)
         for key, exp in present.items():
             alarm = self.alarms.get(key)
             was_clear = self.clear_since.pop(key, None) is not None
@@ -197,6 +207,56 @@ class AlarmManager:
         if self.shelved:
             events.extend(self._expire_shelves(scan, now))
         return events
+
+    # -- alarm floods ---------------------------------------------------------------------------
+    def _contain_flood(self, present: dict[str, Explanation], scan: int, now: int
+                       ) -> dict[str, Explanation]:
+        """ISA-18.2's flood: more alarms than an operator can handle at once. The list holds
+        at most FLOOD_LIMIT constraint alarms one by one (those already listed keep their
+        place, cleared-unacknowledged ones included); the constraint alarms past it are
+        held out of the list and counted in one FLOOD_KEY alarm, raised when the flood
+        starts and cleared when it ends, its count updated in place (not journalled at
+        every change). Latched alarms and every other kind are never held: a safety alarm is
+        never hidden, and only the rules' alarms come by the hundred. Nothing else changes:
+        the filter acts on every rule; the constraints panel shows them all."""
+        room = FLOOD_LIMIT - sum(1 for a in self.alarms.values() if a.kind == "constraint")
+        held = []
+        for key, exp in present.items():
+            if exp.kind != "constraint" or exp.latched or key in self.alarms:
+                continue
+            if room > 0:
+                room -= 1
+            else:
+                held.append(key)
+        if not held:
+            self._flood = None
+            return present
+        broken = sum(1 for e in present.values() if e.kind == "constraint")
+        device = present[held[0]].device
+        hold = set(held)
+        present = {k: e for k, e in present.items() if k not in hold}
+        since, since_scan, peak, last = self._flood or (now, scan, 0, None)
+        peak = max(peak, len(held))
+        if last is None or last.what != _flood_what(len(held)) or \
+                not last.why.startswith(f"{broken} "):
+            last = Explanation(
+                FLOOD_KEY, "flood", "high", device, _flood_what(len(held)),
+                f"{broken} safety rules are broken at once. "
+                f"The alarm list shows at most {FLOOD_LIMIT} of them one by one and counts "
+                "the others here (an alarm flood, as ISA-18.2 names it), so that no alarm "
+                f"that needs you is lost among them. Since {seconds(since)} s.",
+                "The filter still acts on every rule: each broken one is corrected, or the "
+                "safe state written, as usual; only the list is shortened. The constraints "
+                "panel shows every rule broken now. Acknowledging the listed alarms makes "
+                "room for the next ones.",
+                (Policy("constraints", "See the constraints panel",
+                        "every rule broken now, with what the filter did", None, True),),
+                since_scan, since,
+                detail=f"{len(held)} constraint alarms held out of the list (at most {peak} "
+                       f"since {seconds(since)} s); FLOOD_LIMIT {FLOOD_LIMIT}.")
+        self._flood = (since, since_scan, peak, last)
+        present[FLOOD_KEY] = last
+        return present
 
     # -- shelving and comments -----------------------------------------------------------------
     def shelve(self, key: str, duration_us: int | None, scan: int, now: int

@@ -18,6 +18,7 @@ The default place is the user's data folder: $PLCHMI_DATA, else $XDG_DATA_HOME/p
 from __future__ import annotations
 
 import contextlib
+import itertools
 import json
 import os
 import re
@@ -64,6 +65,18 @@ def wall_now() -> str:
     return datetime.now(UTC).isoformat(timespec="milliseconds")
 
 
+_SESSIONS = itertools.count(1)
+
+
+def new_session_id() -> str:
+    """An id for one session's entries (its start, UTC, and the process; `.2`, `.3` for a
+    process's further sessions): what tells apart the entries of two sessions, also of two
+    processes writing one journal at once."""
+    n = next(_SESSIONS)
+    return f"{datetime.now(UTC).strftime('%Y%m%dT%H%M%SZ')}-{os.getpid()}" + (
+        f".{n}" if n > 1 else "")
+
+
 class Journal:
     """Append-only writer; each `append` is on disk when it returns.
 
@@ -84,12 +97,13 @@ class Journal:
         self.path = path
         self._fd = -1
         self._queue: list[bytes] = []
-        self._queued = 0  # lines handed to the writer so far
-        self._written = 0  # lines on disk so far
+        self._queued = 0  # writes handed to the writer so far (each one or more entries)
+        self._written = 0  # of them, on disk so far
         self._failure: JournalWriteError | None = None
         self._cond = threading.Condition()
         self._closing = False
         self._writer: threading.Thread | None = None
+        self.session: str | None = None  # written into every entry once set (new_session_id)
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             # Not a FIFO or a device: only a regular file (or a new one) is a journal.
@@ -147,24 +161,33 @@ class Journal:
             raise JournalWriteError("the journal", self.path, exc) from None
 
     def append(self, entry: dict[str, Any]) -> None:
-        record = {"wall": wall_now(), **entry}
-        line = (json.dumps(record, ensure_ascii=False, separators=(",", ":")) + "\n"
-                ).encode("utf-8")
+        self.append_all([entry])
+
+    def append_all(self, entries: list[dict[str, Any]]) -> None:
+        """Several entries in one write and one fsync (a scan's alarm transitions: hundreds of
+        fsyncs a scan held a run to a scan a second); in the background (the class) queued
+        for the journal's own thread, in order."""
+        if not entries:
+            return
+        wall = wall_now()
+        session = {} if self.session is None else {"session": self.session}
+        data = "".join(json.dumps({"wall": wall, **entry, **session}, ensure_ascii=False,
+                                  separators=(",", ":")) + "\n" for entry in entries
+                       ).encode("utf-8")
         if self._writer is None:
-            self.seq += 1
-            self._write(line)
+            self.seq += len(entries)
+            self._write(data)
             return
         with self._cond:
             if self._failure is not None:
                 raise self._failure
             if len(self._queue) >= self.MAX_QUEUED:
                 raise JournalWriteError("the journal", self.path, "the disk does not keep up "
-                                        f"({self.MAX_QUEUED} entries waiting)")
-            self.seq += 1
-            self._queue.append(line)
+                                        f"({self.MAX_QUEUED} writes waiting)")
+            self.seq += len(entries)
+            self._queue.append(data)
             self._queued += 1
             self._cond.notify_all()
-
     def flush(self) -> None:
         """Until every entry appended so far is on disk (background: see the class)."""
         if self._writer is None:
@@ -308,7 +331,8 @@ def _lines(file) -> Iterator[tuple[int, bytes, bool]]:
 _FIELD_TYPES: dict[str, tuple[type, ...]] = {
     "wall": (str,), "type": (str,), "event": (str,), "scan": (int,), "t": (str, int, float),
     "message": (str,), "text": (str,), "key": (str,), "severity": (str,), "state": (str,),
-    "project": (str,)}
+    "project": (str,), "session": (str,), "control": (str,), "policy": (str,),
+    "plant": (str,)}
 _JSON_TYPE = {dict: "an object", list: "a list", str: "a string", bool: "a Boolean",
               int: "a number", float: "a number", type(None): "null"}
 

@@ -31,8 +31,7 @@ from hmi.export import model as m
 from hmi.export import source
 from hmi.export.names import Scope
 from hmi.export.views import TMAX_MS, Block, Durations, Views, convert
-from hmi.project.diagnosers import DiagnoserSpec
-from hmi.project.model import Project
+from hmi.project.model import DiagnoserSpec, Project
 
 FTC, OBSERVE, OFF = 0, 1, 2
 MODE_CODES = {"ftc": FTC, "observe": OBSERVE, "off": OFF}

@@ -11,9 +11,18 @@ import os
 from dataclasses import dataclass
 
 from hmi.logic.expr import Expr, Node, Var, walk
-from hmi.project.diagnosers import DiagnoserSpec, diagnosers_of
-from hmi.project.model import Constraint, Observer, PlantAddress, Project, Timer, Variable
-from hmi.project.monitors import TaskMonitor, monitors_of
+from hmi.project.diagnosers import diagnosers_of
+from hmi.project.model import (
+    Constraint,
+    DiagnoserSpec,
+    Observer,
+    PlantAddress,
+    Project,
+    TaskMonitor,
+    Timer,
+    Variable,
+)
+from hmi.project.monitors import monitors_of
 from hmi.studies.filter_analysis import analyse
 
 

@@ -140,7 +140,10 @@ class DaskCluster:
             if self.local_workers:
                 self.cluster = distributed.LocalCluster(
                     n_workers=self.local_workers, threads_per_worker=1, processes=True,
-                    host="127.0.0.1", dashboard_address=None, silence_logs=logging.ERROR)
+                    host="127.0.0.1", dashboard_address=None, silence_logs=logging.ERROR,
+                    # No dashboard; the scheduler's own HTTP routes (health, metrics) on a
+                    # free port of the loopback, not 8787 (another cluster may have it).
+                    scheduler_kwargs={"dashboard": False, "dashboard_address": "127.0.0.1:0"})
             target = self.cluster if self.cluster is not None else self.address
             self.client = distributed.Client(target, timeout=self.connect_timeout_s)
         except (OSError, TimeoutError) as exc:

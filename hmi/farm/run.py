@@ -11,13 +11,14 @@ each shard's time — is in :class:`RunStats`, for stderr, never in the report.
 from __future__ import annotations
 
 import heapq
+import json
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from hmi.farm.executors import Executor
+from hmi.farm.executors import Executor, FarmError
 from hmi.farm.job import Study
 from hmi.farm.store import ShardStore, default_root
 
@@ -116,13 +117,18 @@ def run_study(study: Study, executor: Executor, progress: Progress | None = None
     started = time.perf_counter()
     n = len(study.shards)
     stats = RunStats(executor.description, n, seconds=[None] * n)
-    store = ShardStore(root or default_root(), study.job, study.title, n) if keep else None
+    store = ShardStore(root or default_root(), study.job, study.title, n,
+                       prune=root is None) if keep else None
     results: list[Any] = [None] * n
     found = [False] * n
     runs_done = computed = 0
     if store is not None:
         stats.folder = store.folder
-        store.start(resume)
+        try:
+            store.start(resume)
+        except OSError as exc:
+            raise FarmError(f"cannot keep the results in {store.folder}: {exc.strerror}; "
+                            "another folder: --resume DIR") from None
         if resume:
             for i, shard in enumerate(study.shards):
                 kept = store.load(i)
@@ -152,12 +158,17 @@ def run_study(study: Study, executor: Executor, progress: Progress | None = None
     pending = [(i, study.shards[i]) for i in range(n) if not found[i]]
     try:
         for done in executor.map(study.job, pending, tick):
-            data = study.encode(done.result)
+            data = json.loads(json.dumps(study.encode(done.result)))  # as the store reads it
             results[done.index] = study.decode(study.shards[done.index], data)
             stats.seconds[done.index] = done.seconds
             stats.workers.add(done.worker)
             if store is not None:
-                store.save(done.index, data, done.seconds, done.worker)
+                try:
+                    store.save(done.index, data, done.seconds, done.worker)
+                except OSError as exc:  # results not kept only cost a resume
+                    tick(f"the results cannot be kept in {store.folder} ({exc.strerror}): "
+                         "the study goes on, but --resume will find nothing")
+                    store = None
             if each is not None:
                 each(done.index, results[done.index])
             done_shards += 1

@@ -31,20 +31,33 @@ class Kept:
     worker: str
 
 
+KEPT_STUDIES = 5  # in the data folder, per kind of study and project: the latest ones
+
+
 class ShardStore:
-    def __init__(self, root: Path, job: Job, title: str, shards: int):
+    def __init__(self, root: Path, job: Job, title: str, shards: int, prune: bool = False):
         safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in job.bundle.name)
-        self.folder = root / f"{job.kind}-{safe}-{job.fingerprint[:16]}"
+        self.prefix = f"{job.kind}-{safe}-"
+        self.folder = root / f"{self.prefix}{job.fingerprint[:16]}"
         self.fingerprint = job.fingerprint
         self.title = title
         self.shards = shards
+        self.prune = prune
 
     def start(self, resume: bool) -> None:
         """Ready the folder: emptied unless resuming (a fresh run never mixes in old
-        results), with a note of what it holds."""
+        results), with a note of what it holds. In the data folder, the results of older
+        studies of the same kind and project go beyond the latest KEPT_STUDIES (each edit of
+        the project or the code makes a new fingerprint: they would pile up)."""
         if not resume and self.folder.exists():
             shutil.rmtree(self.folder)
         self.folder.mkdir(parents=True, exist_ok=True)
+        if self.prune:
+            others = sorted((p for p in self.folder.parent.glob(f"{self.prefix}*")
+                             if p != self.folder and p.is_dir()),
+                            key=lambda p: p.stat().st_mtime, reverse=True)
+            for old in others[KEPT_STUDIES - 1:]:
+                shutil.rmtree(old, ignore_errors=True)
         self._write(self.folder / "study.json", {
             "title": self.title, "fingerprint": self.fingerprint, "shards": self.shards})
 

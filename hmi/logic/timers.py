@@ -14,7 +14,9 @@ class TimerState:
 
 
 class TimerRuntime:
-    """One timer. `update(inp, now)` is called once per scan and returns Q."""
+    """One timer's state: Q, and since when IN rose (TON) or fell (TOF). The rule that
+    updates it once per scan is hmi.program.timers' lowering, the one both the compiled scan
+    and the reference evaluator run."""
 
     __slots__ = ("kind", "name", "preset", "q", "since")
 
@@ -24,27 +26,6 @@ class TimerRuntime:
         self.preset = preset_us
         self.q = False
         self.since: int | None = None  # TON: IN rose at; TOF: IN fell at
-
-    def update(self, inp: bool, now: int) -> bool:
-        if self.kind == "TON":
-            if inp:
-                if self.since is None:
-                    self.since = now
-                self.q = now - self.since >= self.preset
-            else:
-                self.since = None
-                self.q = False
-        else:  # TOF
-            if inp:
-                self.since = None
-                self.q = True
-            elif self.q:
-                if self.since is None:
-                    self.since = now
-                if now - self.since >= self.preset:
-                    self.q = False
-                    self.since = None
-        return self.q
 
     def elapsed(self, now: int) -> int:
         if self.since is None:

@@ -18,6 +18,7 @@ from hmi.errors import UsageError
 from hmi.opcua import NEEDS_USERS
 
 if TYPE_CHECKING:
+    from hmi.history.target import Target
     from hmi.opcua.server import CellServer
     from hmi.opcua.status import ServingStatus
     from hmi.session.journal_recorder import JournalRecorder
@@ -98,13 +99,15 @@ def check_arguments(args: argparse.Namespace) -> None:
 
 
 def start_server(session: Session, args: argparse.Namespace, log_file: bool = False,
-                 journal: JournalRecorder | None = None) -> CellServer | None:
+                 journal: JournalRecorder | None = None,
+                 history: Target | None = None) -> CellServer | None:
     """The cell's OPC UA server, started, if --opcua was given (None otherwise).
 
     asyncua's own log is silenced (its notices are for its developers). The server's
     failures go to stderr, or with `log_file` (the HMI: stderr is the screen) to
     opcua/server.log in the project's data folder. With `journal`, the journal says when
-    the server starts serving, stops, or fails."""
+    the server starts serving, stops, or fails. With `history` (the cell's historian's
+    store), clients can read the variables' and the alarms' history (Part 11)."""
     if getattr(args, "opcua", None) is None:
         return None
     log_path = _route_logs(session.project.name, log_file)
@@ -135,7 +138,7 @@ def start_server(session: Session, args: argparse.Namespace, log_file: bool = Fa
                            users=Users(passwords, certificates),
                            allow_real_plant=args.opcua_allow_real_plant,
                            interval_us=interval, certificate=cert, private_key=key)
-    server = CellServer(session, options)
+    server = CellServer(session, options, history=history)
     server.log_file = str(log_path or "")
     if journal is not None:
         server.listeners.append(journal_listener(journal))

@@ -26,7 +26,7 @@ import uuid
 from collections import deque
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field, replace
-from datetime import UTC, timedelta
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
 
@@ -57,6 +57,7 @@ from hmi.engine.commands import (
 from hmi.engine.snapshot import Snapshot
 from hmi.errors import UsageError
 from hmi.explain.alarms import ACTIVE_UNACK, CLEARED_UNACK, MAX_SHELVE_US, Alarm, AlarmEvent
+from hmi.history.target import Target
 from hmi.opcua import NEEDS_USERS
 from hmi.opcua.conditions import (
     ONE_SHOT,
@@ -104,6 +105,7 @@ BUILT_IN = {_id(ObjectIds.UtcTime): ua.VariantType.DateTime,
             _id(ObjectIds.Duration): ua.VariantType.Double}
 
 IDLE_S = 0.25  # the publisher's longest sleep without a scan
+_EPOCH = ua.DateTime(1970, 1, 1, tzinfo=UTC)
 
 # The identity of the client whose request is being served: set by the permission check
 # that asyncua runs before each request, read by the method callbacks it then awaits.
@@ -173,9 +175,11 @@ def _identity(user: User | None) -> Identity:
 class CellServer:
     """One cell as an OPC UA server. `start()` returns once it listens (or raises)."""
 
-    def __init__(self, session: Session, options: ServeOptions):
+    def __init__(self, session: Session, options: ServeOptions,
+                 history: Target | None = None):
         self.session = session
         self.options = options
+        self.history = history  # the cell's history, for HistoryRead (None: none kept)
         engine = session.engine
         if options.writable and engine.plant.is_real and not options.allow_real_plant:
             raise UsageError("--opcua-writable on a real plant: OPC UA clients could then "
@@ -498,14 +502,16 @@ class CellServer:
             await self._send(view)
 
     _published: Snapshot | None = None
-    _epoch: ua.DateTime | None = None
+    @property
+    def epoch(self) -> datetime:
+        """The wall time of the run's time 0 (what SourceTimestamps count from)."""
+        return self._stamp(0)
 
     def _stamp(self, time_us: int) -> ua.DateTime:
-        """The wall time of a scan: the run's time (virtual or the wall clock's) from the
-        wall time of the first scan this server saw."""
-        if self._epoch is None:
-            self._epoch = ua.DateTime.now(UTC) - timedelta(microseconds=time_us)
-        return self._epoch + timedelta(microseconds=time_us)
+        """The wall time of a scan: the session's (Session.wall_us: the wall clock of a
+        real plant, a simulation's time counted from its start), the time the historian
+        stamps the same scan with."""
+        return _EPOCH + timedelta(microseconds=self.session.wall_us(time_us))
 
     # -- alarms as Part 9 conditions ----------------------------------------------------------
 

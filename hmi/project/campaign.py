@@ -17,41 +17,15 @@ evidence printed after the table, so the table keeps one scenario per fault as t
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from hmi.errors import SourcePos
 from hmi.project.device_models import DEVICE_MODELS
+from hmi.project.model import CampaignScenario, CampaignSpec
 from hmi.timefmt import format_duration
 
 if TYPE_CHECKING:
     from hmi.project.model import PlantSpec, Project
     from hmi.project.reader import ProjectReader
-
-
-@dataclass(frozen=True)
-class Scenario:
-    fault: str
-    device: str | None
-    at_us: int
-    phase: str  # why this instant: the phase of the cycle where the symptom appears
-    table: bool  # counted in the 3x3 table (one per fault), or extra evidence
-    pos: SourcePos
-
-    @property
-    def name(self) -> str:
-        prefix = f"{self.device}." if self.device else ""
-        return f"{prefix}{self.fault}@{format_duration(self.at_us)}"
-
-
-@dataclass(frozen=True)
-class CampaignSpec:
-    length_us: int
-    window_us: int
-    counter: str
-    scenarios: tuple[Scenario, ...]
-    pos: SourcePos
-    paper: bool = True  # compare the counts with 000 Table 1 (a campaign of the CISPI valve)
 
 
 def campaign_of(project: Project) -> CampaignSpec | None:
@@ -130,7 +104,7 @@ def parse_campaign(loader: ProjectReader, plant: PlantSpec) -> CampaignSpec | No
                               f"not before the end of the run ({format_duration(length)})",
                               "an instant inside the run")
             continue
-        scenarios.append(Scenario(code, device or None, at, phase, bool(table), item.pos))
+        scenarios.append(CampaignScenario(code, device or None, at, phase, bool(table), item.pos))
     if not items:
         loader.diag.error(fields["scenarios"].pos, "the campaign has no scenario",
                           "- {fault: F1, at: 12s, phase: ...}")

@@ -12,13 +12,13 @@ diagnoser's determinism...) is left to the loader, per instance.
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from hmi.errors import ProjectError, SourcePos, display_path
 from hmi.logic.expr import ExprError, StepTime, Var, parse_expr, walk
 from hmi.logic.names import NAME_RE, RESERVED, STEP_RE
+from hmi.project.model import FLAG_PREFIX, ComponentDef, Parameter
 from hmi.project.yamlnodes import NodeError, YNode, expr_start, text_start
 
 if TYPE_CHECKING:
@@ -28,51 +28,7 @@ COMPONENT_KEYS = {"component", "description", "parameters", "timers", "observers
                   "constraints", "diagnoser", "explanations"}
 PARAMETER_KINDS = ("input", "output")
 EXPLANATION_KINDS = ("constraints", "labels", "partitions")
-FLAG_PREFIX, FILTERED_SUFFIX = "def_", "_filter"  # as hmi/project/diagnosers.py
 PLACEHOLDER = re.compile(r"\{([A-Za-z_][A-Za-z0-9_]*)\}")
-
-
-@dataclass(frozen=True)
-class Parameter:
-    """A formal parameter: a variable the component expects the project to provide."""
-
-    name: str
-    kind: str  # "input" or "output"
-    description: str
-    pos: SourcePos
-
-
-@dataclass(frozen=True)
-class ComponentDef:
-    """A component file, validated once however many instances use it."""
-
-    name: str
-    description: str
-    file: str  # as displayed in messages
-    path: Path
-    parameters: dict[str, Parameter]
-    timers: tuple[str, ...]
-    observers: tuple[str, ...]
-    constraints: tuple[str, ...]
-    partitions: tuple[tuple[str, str | None], ...]  # (partition, its formal sensor or None)
-    labels: tuple[str, ...]
-
-    @property
-    def has_diagnoser(self) -> bool:
-        return bool(self.partitions)
-
-    def namespace(self) -> dict[str, str]:
-        """Every name the component's expressions may read, with its kind."""
-        names = {p.name: p.kind for p in self.parameters.values()}
-        names.update(dict.fromkeys(self.timers, "timer"))
-        names.update(dict.fromkeys(self.observers, "observer"))
-        for partition, sensor in self.partitions:
-            names[FLAG_PREFIX + partition] = "flag"
-            if sensor:
-                names[sensor + FILTERED_SUFFIX] = "filtered"
-        return names
-
-
 
 
 def read_component(loader: ProjectReader, path: Path) -> ComponentDef | None:

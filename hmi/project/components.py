@@ -48,25 +48,26 @@ placeholders (hmi/project/texts.py).
 
 from __future__ import annotations
 
-import ast
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from hmi.errors import SourcePos, display_path
-from hmi.logic.expr import And, Compare, Expr, Node, Not, Or, Var, to_text
 from hmi.logic.names import NAME_RE
 from hmi.project.component_file import (
-    FILTERED_SUFFIX,
-    FLAG_PREFIX,
     PLACEHOLDER,
-    ComponentDef,
-    Parameter,
     read_component,
     text_nodes,
 )
 from hmi.project.confine import Refused, component_roots, confined_file
+from hmi.project.model import (
+    FILTERED_SUFFIX,
+    FLAG_PREFIX,
+    ComponentDef,
+    ComponentInstance,
+)
+from hmi.project.reader import Components
 from hmi.project.texts import ProjectTexts, TextSpec
 from hmi.project.yamlnodes import YNode
 
@@ -77,140 +78,9 @@ INSTANCE_KEYS = {"use", "bind", "device"}
 
 
 
-@dataclass(frozen=True)
-class ComponentInstance:
-    """One use of a component by a project: its bindings and the names it gives."""
-
-    name: str
-    component: ComponentDef
-    device: str
-    bind: dict[str, str]  # formal parameter -> project variable
-    pos: SourcePos  # the instance's key in the project
-
-    @property
-    def prefix(self) -> str:
-        return f"{self.name}_"
-
-    @property
-    def context(self) -> str:
-        return f"in component {self.name} of {self.pos}"
-
-    def own(self, name: str) -> str:
-        """The project name of one of the component's own items (timer, constraint...)."""
-        return self.prefix + name
-
-    @property
-    def renames(self) -> dict[str, str]:
-        """Component name -> project name, for every name an expression may read."""
-        out = dict(self.bind)
-        comp = self.component
-        out.update({n: self.own(n) for n in (*comp.timers, *comp.observers)})
-        for partition, sensor in comp.partitions:
-            out[FLAG_PREFIX + partition] = FLAG_PREFIX + self.own(partition)
-            if sensor:
-                out[sensor + FILTERED_SUFFIX] = self.bind[sensor] + FILTERED_SUFFIX
-        return out
-
-    def declared(self) -> list[tuple[str, str, str]]:
-        """(project name, what it is, its name in the component) for every name it adds."""
-        comp = self.component
-        out = [(self.own(n), "timer", n) for n in comp.timers]
-        out += [(self.own(n), "observer", n) for n in comp.observers]
-        out += [(self.own(n), "constraint", n) for n in comp.constraints]
-        if comp.has_diagnoser:
-            out.append((self.name, "diagnoser", "diagnoser"))
-        for partition, sensor in comp.partitions:
-            out.append((FLAG_PREFIX + self.own(partition), "partition flag",
-                        FLAG_PREFIX + partition))
-            if sensor:
-                out.append((self.bind[sensor] + FILTERED_SUFFIX, "filtered sensor",
-                            sensor + FILTERED_SUFFIX))
-        return out
-
-    def rename_expr(self, expr: Expr) -> Expr:
-        """The expression with every name renamed for this instance, positions kept.
-
-        The tree is renamed node by node (what the engine compiles); the source text shown in
-        reports is rebuilt from the identifiers' spans in Python's own parse of it, so
-        `rise(C) and not fso_filter` reads `rise(C1) and not fso1_filter`.
-        """
-        renames = self.renames
-        root = rename_node(expr.root, renames)
-        source = renamed_source(expr.source, renames) or to_text(root)
-        return Expr(source, root, expr.pos)
-
-
-def rename_node(node: Node, renames: dict[str, str]) -> Node:
-    """A copy of the tree with every variable renamed (names not in `renames` kept)."""
-    if isinstance(node, Var):
-        return replace(node, name=renames.get(node.name, node.name))
-    if isinstance(node, Not):
-        return replace(node, operand=rename_node(node.operand, renames))
-    if isinstance(node, (And, Or)):
-        return replace(node, operands=tuple(rename_node(op, renames) for op in node.operands))
-    if isinstance(node, Compare):
-        return replace(node, left=rename_node(node.left, renames),
-                       right=rename_node(node.right, renames))
-    return node
-
-
-def renamed_source(source: str, renames: dict[str, str]) -> str | None:
-    """`source` with each identifier in `renames` replaced, located by Python's parser.
-
-    Only whole identifiers (ast.Name nodes) are replaced, never parts of a word. None if the
-    text does not parse as Python (it then holds durations: the caller renders the tree).
-    """
-    try:
-        tree = ast.parse(source, mode="eval")
-    except SyntaxError:
-        return None
-    data = source.encode("utf-8")  # ast offsets count UTF-8 bytes
-    spans = sorted(((n.col_offset, n.end_col_offset or n.col_offset, renames[n.id])
-                    for n in ast.walk(tree) if isinstance(n, ast.Name) and n.id in renames),
-                   reverse=True)
-    for start, end, name in spans:
-        data = data[:start] + name.encode("utf-8") + data[end:]
-    return data.decode("utf-8")
-
-
 # --------------------------------------------------------------------------------------------
 # What a project's `components:` section gives the loader
 # --------------------------------------------------------------------------------------------
-
-
-@dataclass
-class Components:
-    """The instances of a project and the sections they add, ready for the loader."""
-
-    instances: list[ComponentInstance] = field(default_factory=list)
-    items: dict[str, list[tuple[str, YNode, SourcePos]]] = field(default_factory=dict)
-    explanations: list[tuple[ComponentInstance, YNode]] = field(default_factory=list)
-    files: list[str] = field(default_factory=list)
-    # id(YNode) -> (the node, its instance): the node is kept so that its id is never reused
-    scopes: dict[int, tuple[YNode, ComponentInstance]] = field(default_factory=dict)
-
-    def localise(self, node: YNode, expr: Expr) -> Expr:
-        """An expression read from `node`, renamed if the node belongs to an instance."""
-        entry = self.scopes.get(id(node))
-        if entry is None or entry[0] is not node:
-            return expr
-        return entry[1].rename_expr(expr)
-
-    def check_lines(self) -> list[str]:
-        """The `plchmi check` section: each instance, its bindings and the names it adds."""
-        lines = [f"Components ({len(self.instances)} instance"
-                 f"{'s' if len(self.instances) != 1 else ''})"]
-        for inst in self.instances:
-            comp = inst.component
-            lines.append(f"  {inst.name}  {comp.name} ({comp.file})  device {inst.device}")
-            lines.append("      bind " + ", ".join(f"{k}={v}" for k, v in inst.bind.items()))
-            groups: dict[str, list[str]] = {}
-            for name, what, _ in inst.declared():
-                groups.setdefault(what, []).append(name)
-            lines.append("      declares " + "; ".join(
-                f"{what}{'s' if len(names) > 1 else ''} {', '.join(names)}"
-                for what, names in groups.items()))
-        return lines
 
 
 def merge_texts(loader: ProjectReader, parts: list[tuple[ComponentInstance | None, ProjectTexts]]
@@ -506,9 +376,3 @@ def _explanations_node(inst: ComponentInstance, node: YNode) -> YNode:
         value[kind] = _renamed_map(knode, inst.own) if kind in ("constraints", "partitions") \
             and knode.kind == "map" else knode
     return YNode("map", value, node.pos, node.tag, node.key_pos)
-
-
-__all__ = [
-    "ComponentDef", "ComponentInstance", "Components", "Parameter", "load_components",
-    "merge_texts", "rename_node", "renamed_source",
-]

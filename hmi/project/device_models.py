@@ -46,6 +46,18 @@ def _no_problems(values: Mapping[str, Any]) -> Problems:
 
 
 @dataclass(frozen=True)
+class Movement:
+    """One operation of a device that maintenance times: an order and the end sensor that
+    says it is done (the valve's open order O and its open end switch fso). The historian
+    records, per movement, the time from the order's rising edge to the sensor's (its
+    travel time) and the count of movements completed (hmi.history.catalogue)."""
+
+    name: str  # in the operator's words: "opening"
+    order: str  # the actuator port whose rising edge starts it
+    end: str  # the sensor port whose rising edge ends it
+
+
+@dataclass(frozen=True)
 class DeviceModel:
     """What a project may say about one model, and what the loader checks it against."""
 
@@ -60,6 +72,7 @@ class DeviceModel:
     # parameter's value (the defaults and the project's).
     problems: Callable[[Mapping[str, Any]], Problems] = _no_problems
     interruption_fault: str | None = None  # the fault that interrupts its task (sweeps)
+    movements: tuple[Movement, ...] = ()  # what maintenance times (travel, operations)
 
     def param_problems(self, params: Mapping[str, Any]) -> Problems:
         """(parameter, what is wrong, what was expected), reported at the parameter."""
@@ -138,6 +151,7 @@ VALVE = DeviceModel(
         "F13": FaultSpec("F13", "valve blocked between fsc and fso", "actuator"),
     },
     counters=("cycles", "opens", "closes"),
+    movements=(Movement("opening", "O", "fso"), Movement("closing", "C", "fsc")),
 )
 
 # -- conveyor and robot (hmi/plant/sim/conveyor.py, robot.py) --------------------------------
@@ -162,6 +176,7 @@ CONVEYOR = DeviceModel(
                           "duration, else for good)", "actuator"),
     },
     counters=("pallets", "handed"),
+    movements=(Movement("transfer", "d", "B"),),
     interruption_fault="stop",
 )
 
@@ -180,6 +195,7 @@ ROBOT = DeviceModel(
         "skip": FaultSpec("skip", "part missing: the robot ends its task at once", "actuator"),
     },
     counters=("transfers",),
+    movements=(Movement("transfer", "G", "R"),),
     interruption_fault="stop",
 )
 
@@ -213,6 +229,7 @@ PUMP = DeviceModel(
         "welded": FaultSpec("welded", "pump contactor welded: it does not stop", "actuator"),
     },
     counters=("starts",),
+    movements=(Movement("start", "P", "run"),),
 )
 
 TANK = DeviceModel(
@@ -302,6 +319,8 @@ SORTING_CELL = DeviceModel(
     },
     faults=jam_and_stuck_faults(_SORTER_JAMS, SORTER_SENSORS),
     counters=("arrived", "sorted_left", "sorted_right", "missorted", "lost"),
+    movements=(Movement("turn to 90°", "ROT90", "tt_90"),
+               Movement("turn back to 0°", "ROT0", "tt_0")),
     problems=interval_problems,
 )
 
@@ -361,6 +380,11 @@ PALLETIZER = DeviceModel(
     },
     faults=jam_and_stuck_faults(_PALLETIZER_JAMS, PALLETIZER_SENSORS),
     counters=("arrived", "pushed", "layers", "pallets", "boxes_palletized", "lost"),
+    movements=(Movement("push", "PUSH", "pusher_out"),
+               Movement("retract", "RETRACT", "pusher_home"),
+               Movement("plate opening", "PLATE_OPEN", "plate_open"),
+               Movement("plate closing", "PLATE_CLOSE", "plate_closed"),
+               Movement("clamping", "CLAMP", "clamp_closed")),
     problems=interval_problems,
 )
 

@@ -43,7 +43,6 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from hmi.errors import SourcePos
@@ -61,6 +60,15 @@ from hmi.logic.expr import (
     walk,
 )
 from hmi.logic.names import NAME_RE
+from hmi.project.model import (
+    FILTERED_SUFFIX,
+    FLAG_PREFIX,
+    DiagnoserSpec,
+    DiagState,
+    DiagTransition,
+    Partition,
+    ResyncRule,
+)
 from hmi.project.yamlnodes import YNode
 from hmi.timefmt import format_duration
 
@@ -68,8 +76,6 @@ if TYPE_CHECKING:
     from hmi.project.model import Project
     from hmi.project.reader import ProjectReader
 
-FLAG_PREFIX = "def_"
-FILTERED_SUFFIX = "_filter"
 DIAG_KINDS = {"input", "output", "timer", "observer"}
 DIAG_CONTEXT = ("in a diagnoser (it observes inputs, the orders written at the previous scan, "
                 "timers and observers, never the control law nor the flags it sets)")
@@ -78,121 +84,6 @@ DIAGNOSER_KEYS = {"description", "device", "labels", "partitions", "initial", "s
                   "transitions", "resync", "variants"}
 MAX_ENUMERATED_VARS = 16
 INF = None  # no upper bound on a window
-
-
-@dataclass(frozen=True)
-class Partition:
-    """A group of labels of one component (000 §2.1 Π_f), and what its flag drives."""
-
-    name: str
-    labels: tuple[str, ...]
-    sensor: str | None  # sensor partition: this input is reconstructed while flagged
-    estimate: str | None  # ... from this Boolean (observer, timer)
-    actuators: tuple[str, ...]  # actuator partition: these outputs are masked while flagged
-    description: str
-    pos: SourcePos
-
-    @property
-    def flag(self) -> str:
-        return FLAG_PREFIX + self.name
-
-    @property
-    def filtered(self) -> str | None:
-        return self.sensor + FILTERED_SUFFIX if self.sensor else None
-
-
-@dataclass(frozen=True)
-class DiagState:
-    """A state of the automaton; its decision is its labels (none: a normal state)."""
-
-    name: str
-    labels: tuple[str, ...]
-    description: str
-    pos: SourcePos
-
-    @property
-    def faulty(self) -> bool:
-        return bool(self.labels)
-
-
-@dataclass(frozen=True)
-class DiagTransition:
-    """An event transition (`when` within [tmin, tmax)) or a timeout (`after`)."""
-
-    index: int  # 1-based, in file order
-    source: str
-    target: str
-    when: Expr | None
-    tmin_us: int = 0
-    tmax_us: int | None = INF
-    after_us: int | None = None
-    description: str = ""
-    pos: SourcePos = field(default_factory=lambda: SourcePos("?"))
-
-    @property
-    def is_timeout(self) -> bool:
-        return self.when is None
-
-    def window_text(self) -> str:
-        if self.is_timeout:
-            return f"after {format_duration(self.after_us or 0)}"
-        if self.tmin_us == 0 and self.tmax_us is None:
-            return ""
-        upper = "inf" if self.tmax_us is None else format_duration(self.tmax_us)
-        return f"within [{format_duration(self.tmin_us)}, {upper})"
-
-    def text(self) -> str:
-        """`N2 -> N3 on not fsc within [0s, 300ms)`: for reports and the operator."""
-        if self.is_timeout:
-            return f"{self.source} -> {self.target} {self.window_text()}"
-        window = self.window_text()
-        return f"{self.source} -> {self.target} on {self.when}" + (f" {window}" if window
-                                                                    else "")
-
-
-@dataclass(frozen=True)
-class ResyncRule:
-    when: Expr
-    target: str
-    pos: SourcePos
-
-
-@dataclass(frozen=True)
-class DiagnoserSpec:
-    name: str
-    description: str
-    device: str | None
-    labels: dict[str, str]  # label -> operator text, in file order
-    partitions: tuple[Partition, ...]
-    initial: str
-    states: tuple[DiagState, ...]
-    transitions: tuple[DiagTransition, ...]
-    resync: tuple[ResyncRule, ...]
-    pos: SourcePos
-    variant: str = ""  # the variant loaded, when the diagnoser declares several
-    variants: tuple[str, ...] = ()
-
-    def state(self, name: str) -> DiagState:
-        return next(s for s in self.states if s.name == name)
-
-    def partition_of(self, label: str) -> Partition | None:
-        return next((p for p in self.partitions if label in p.labels), None)
-
-    def flags_of(self, state: DiagState) -> tuple[str, ...]:
-        """The partition flags a state's decision sets."""
-        return tuple(p.flag for p in self.partitions if set(p.labels) & set(state.labels))
-
-    def label_text(self, label: str) -> str:
-        return self.labels.get(label, label)
-
-    def decision_text(self, labels: tuple[str, ...]) -> str:
-        """'F1 (fsc stuck at 0) or F13 (valve blocked between positions)'."""
-        return " or ".join(f"{lab} ({self.label_text(lab)})" for lab in labels)
-
-    @property
-    def exprs(self) -> tuple[Expr, ...]:
-        return tuple(t.when for t in self.transitions if t.when is not None) + tuple(
-            r.when for r in self.resync)
 
 
 def diagnosers_of(project: Project) -> tuple[DiagnoserSpec, ...]:

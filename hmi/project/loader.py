@@ -13,7 +13,7 @@ from pathlib import Path
 from hmi.errors import ProjectError, SourcePos, display_path, excerpt
 from hmi.limits import MAX_NAME_CHARS, MIN_SCAN_PERIOD_US
 from hmi.project.campaign import parse_campaign
-from hmi.project.components import ComponentInstance, load_components, merge_texts
+from hmi.project.components import load_components, merge_texts
 from hmi.project.confine import Refused, confined_file, project_roots
 from hmi.project.constraints import parse_constraints
 from hmi.project.control import parse_controls
@@ -22,6 +22,7 @@ from hmi.project.model import (
     MAX_SOLVER_BUDGET,
     MIN_SOLVER_BUDGET,
     POLICIES,
+    ComponentInstance,
     PolicyName,
     Project,
     SolverName,

@@ -21,12 +21,12 @@ watches the plant, not the program that drives it.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from hmi.errors import SourcePos
 from hmi.logic.expr import Expr
 from hmi.logic.names import NAME_RE
+from hmi.project.model import TaskMonitor
 from hmi.project.yamlnodes import NodeError, YNode
 from hmi.timefmt import format_duration
 
@@ -40,39 +40,6 @@ MONITOR_KEYS = {"description", "device", "label", "start", "end", "interrupted",
 MONITOR_CONTEXT = ("in a monitor (it may read inputs, outputs, timers and observers, not the "
                    "control law's steps or memories)")
 LABEL_SUFFIX = "_fault"
-
-
-@dataclass(frozen=True)
-class TaskMonitor:
-    """One interruptible task: its signals and its normal/acceptable durations (µs)."""
-
-    name: str
-    label: str  # the fault label raised by the monitor
-    description: str
-    device: str | None  # the device as the operator knows it
-    start: Expr
-    end: Expr
-    interrupted: Expr | None  # level form: the task is suspended while this holds
-    interrupt: Expr | None  # event form: suspension ...
-    resume: Expr | None  # ... and resumption
-    alpha_us: int
-    beta_us: int
-    gamma_us: int
-    pos: SourcePos
-
-    @property
-    def exprs(self) -> tuple[Expr, ...]:
-        return tuple(e for e in (self.start, self.end, self.interrupted, self.interrupt,
-                                 self.resume) if e is not None)
-
-    @property
-    def title(self) -> str:
-        """How the operator knows the task: its description, or device and name."""
-        return self.description or (f"{self.device}: {self.name}" if self.device else self.name)
-
-    def windows_text(self) -> str:
-        a, b, g = (format_duration(v) for v in (self.alpha_us, self.beta_us, self.gamma_us))
-        return f"normal [{a}, {b}], acceptable [{a}, {g}]"
 
 
 def monitors_of(project: Project) -> tuple[TaskMonitor, ...]:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable
 from collections.abc import Set as AbstractSet
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -18,7 +19,7 @@ from hmi.errors import Diagnostics, SourcePos
 from hmi.limits import MAX_TOTAL_EXPR_CHARS, MAX_VARIABLES
 from hmi.logic.expr import Expr, ExprError, Var, check_names, parse_expr, walk
 from hmi.logic.names import NAME_HINT, RESERVED, STEP_RE, name_problem
-from hmi.project.components import Components
+from hmi.project.model import ComponentInstance
 from hmi.project.yamlnodes import NodeError, YNode, expr_start
 
 
@@ -163,3 +164,40 @@ class ProjectReader:
             raise NodeError(node.pos, f"{what} {value!r} is not known", "one of "
                             + ", ".join(choices))
         return value
+
+
+@dataclass
+class Components:
+    """The component instances read so far and the sections they add, ready for the loader:
+    hmi/project/components.py fills it, `ProjectReader.expr` renames an instance's
+    expressions with it."""
+
+    instances: list[ComponentInstance] = field(default_factory=list)
+    items: dict[str, list[tuple[str, YNode, SourcePos]]] = field(default_factory=dict)
+    explanations: list[tuple[ComponentInstance, YNode]] = field(default_factory=list)
+    files: list[str] = field(default_factory=list)
+    # id(YNode) -> (the node, its instance): the node is kept so that its id is never reused
+    scopes: dict[int, tuple[YNode, ComponentInstance]] = field(default_factory=dict)
+
+    def localise(self, node: YNode, expr: Expr) -> Expr:
+        """An expression read from `node`, renamed if the node belongs to an instance."""
+        entry = self.scopes.get(id(node))
+        if entry is None or entry[0] is not node:
+            return expr
+        return entry[1].rename_expr(expr)
+
+    def check_lines(self) -> list[str]:
+        """The `plchmi check` section: each instance, its bindings and the names it adds."""
+        lines = [f"Components ({len(self.instances)} instance"
+                 f"{'s' if len(self.instances) != 1 else ''})"]
+        for inst in self.instances:
+            comp = inst.component
+            lines.append(f"  {inst.name}  {comp.name} ({comp.file})  device {inst.device}")
+            lines.append("      bind " + ", ".join(f"{k}={v}" for k, v in inst.bind.items()))
+            groups: dict[str, list[str]] = {}
+            for name, what, _ in inst.declared():
+                groups.setdefault(what, []).append(name)
+            lines.append("      declares " + "; ".join(
+                f"{what}{'s' if len(names) > 1 else ''} {', '.join(names)}"
+                for what, names in groups.items()))
+        return lines

@@ -34,19 +34,25 @@ the previous scan (like the GRAFCET's receptivities); `do` items are output name
 from __future__ import annotations
 
 from collections.abc import Collection
-from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from hmi.errors import SourcePos
-from hmi.logic.expr import Expr
 from hmi.logic.names import NAME_RE
 from hmi.project.constraints import parse_constraint
-from hmi.project.model import Constraint, Observer, Variable
+from hmi.project.model import (
+    Constraint,
+    Observer,
+    RecoveryAction,
+    RecoveryNeed,
+    RecoveryProcedure,
+    RecoveryStep,
+    Variable,
+)
 from hmi.project.yamlnodes import YNode
 
 if TYPE_CHECKING:
-    from hmi.project.loader import ProjectLoader
     from hmi.project.model import Project
+    from hmi.project.reader import ProjectReader
 
 RECOVERY_KEYS = {"device", "description", "needed", "steps", "timeout", "relaxes",
                  "constraints", "resets"}
@@ -59,73 +65,11 @@ CONDITION_CONTEXT = ("in a recovery procedure (it may read inputs, outputs, time
                      "and flags)")
 
 
-@dataclass(frozen=True)
-class RecoveryAction:
-    """An output the step turns on, while `condition` holds (None: always)."""
-
-    output: str
-    condition: Expr | None
-
-
-@dataclass(frozen=True)
-class RecoveryStep:
-    description: str
-    actions: tuple[RecoveryAction, ...]
-    until: Expr
-    # `until` must hold this long (a table rolled for a second with no box seen is empty).
-    for_us: int = 0
-
-
-@dataclass(frozen=True)
-class RecoveryNeed:
-    """When the cell needs the procedure: `when` held for `for_us`; `text` says it plainly."""
-
-    when: Expr
-    for_us: int
-    text: str
-
-
-@dataclass(frozen=True)
-class RecoveryProcedure:
-    name: str
-    device: str  # as the operator knows it ("Valve V1"), or the project's name (the cell)
-    description: str  # what it does, in the operator's words
-    steps: tuple[RecoveryStep, ...]
-    timeout_us: int
-    relaxes: tuple[str, ...]  # project constraints not enforced while it runs
-    constraints: tuple[Constraint, ...]  # its own
-    needed: RecoveryNeed | None
-    pos: SourcePos
-    # The program's set/reset observers it brings back to their initial value when it is
-    # done (a turntable emptied: "a box lies on the table" is false whatever edge was missed).
-    resets: tuple[str, ...] = ()
-
-    @property
-    def exprs(self) -> tuple[Expr, ...]:
-        """Every expression it evaluates (the engine sizes its history on them)."""
-        out: list[Expr] = [c.expr for c in self.constraints]
-        if self.needed is not None:
-            out.append(self.needed.when)
-        for step in self.steps:
-            out.append(step.until)
-            out.extend(a.condition for a in step.actions if a.condition is not None)
-        return tuple(out)
-
-    @property
-    def outputs(self) -> tuple[str, ...]:
-        """The outputs it drives, in the order its steps name them."""
-        seen: dict[str, None] = {}
-        for step in self.steps:
-            for action in step.actions:
-                seen.setdefault(action.output)
-        return tuple(seen)
-
-
 def recoveries_of(project: Project) -> tuple[RecoveryProcedure, ...]:
     return project.recovery
 
 
-def parse_recovery(loader: ProjectLoader, constraints: list[Constraint],
+def parse_recovery(loader: ProjectReader, constraints: list[Constraint],
                    outputs: list[Variable], observers: list[Observer]
                    ) -> tuple[RecoveryProcedure, ...]:
     """Read the `recovery:` section once every name and constraint is known; report, never
@@ -151,7 +95,7 @@ def parse_recovery(loader: ProjectLoader, constraints: list[Constraint],
     return tuple(out)
 
 
-def _procedure(loader: ProjectLoader, name: str, node: YNode, kpos: SourcePos,
+def _procedure(loader: ProjectReader, name: str, node: YNode, kpos: SourcePos,
                known: set[str], own: dict[str, SourcePos], devices: dict[str, str],
                memorised: set[str]) -> RecoveryProcedure | None:
     what = f"recovery procedure {name!r}"
@@ -202,7 +146,7 @@ def _procedure(loader: ProjectLoader, name: str, node: YNode, kpos: SourcePos,
                              tuple(resets))
 
 
-def _names(loader: ProjectLoader, fields: dict[str, YNode], key: str, what: str,
+def _names(loader: ProjectReader, fields: dict[str, YNode], key: str, what: str,
            allowed: Collection[str], one: str, kind: str) -> list[str]:
     """The names listed under `key` (relaxes, resets), each one of `allowed`; any other is an
     error at its own line and column, with the names that would do."""
@@ -221,7 +165,7 @@ def _names(loader: ProjectLoader, fields: dict[str, YNode], key: str, what: str,
     return names
 
 
-def _needed(loader: ProjectLoader, what: str, node: YNode) -> RecoveryNeed | None:
+def _needed(loader: ProjectReader, what: str, node: YNode) -> RecoveryNeed | None:
     fields = loader.guard(lambda: node.check_keys(f"when {what} is needed", NEEDED_KEYS,
                                                   ["when", "text"]))
     if fields is None:
@@ -236,7 +180,7 @@ def _needed(loader: ProjectLoader, what: str, node: YNode) -> RecoveryNeed | Non
     return RecoveryNeed(when, for_us, text)
 
 
-def _step(loader: ProjectLoader, what: str, number: int, node: YNode, outputs: set[str]
+def _step(loader: ProjectReader, what: str, number: int, node: YNode, outputs: set[str]
           ) -> RecoveryStep | None:
     where = f"step {number} of {what}"
     fields = node.check_keys(where, STEP_KEYS, ["do", "until"])

@@ -15,13 +15,12 @@ checked against the plant's devices when the project loads.
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from hmi.errors import SourcePos, UsageError
 from hmi.project.device_models import DEVICE_MODELS
 from hmi.project.injection import Injection, parse_injection
-from hmi.project.model import PlantSpec
+from hmi.project.model import PlantSpec, Scenario
 from hmi.project.yamlnodes import YNode
 
 if TYPE_CHECKING:
@@ -31,15 +30,6 @@ if TYPE_CHECKING:
 SCENARIO_KEYS = {"description", "inject", "for"}
 SCENARIO_NAME_RE = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_-]*$")
 INJECTION_HINT = "FAULT@TIME, DEVICE.FAULT@TIME or FAULT@TIME+DURATION, e.g. C1.stop@1s+2s"
-
-
-@dataclass(frozen=True)
-class Scenario:
-    name: str
-    description: str
-    injections: tuple[Injection, ...]
-    duration_us: int | None  # how long `run --scenario` runs when --for is not given
-    pos: SourcePos
 
 
 def scenarios_of(project: Project) -> tuple[Scenario, ...]:

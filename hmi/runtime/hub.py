@@ -53,7 +53,7 @@ def cell_facts(session: Session) -> m.CellFacts:
             can_inject=plant.can_inject, can_repair=plant.can_repair,
             can_set_inputs=plant.can_set_inputs, free_inputs=tuple(plant.free_inputs),
             faults=tuple((d, c, t) for d, c, t in plant.faults())),
-        period_us=session.period_us)
+        period_us=session.period_us, history=session.history, epoch_us=session.epoch_us)
 
 
 def run_info(session: Session) -> m.RunInfo:
@@ -142,7 +142,8 @@ class Hub:
             if hello.want_control and identity.may_command and self.holder is None:
                 self._grant(client, "control-granted", f"{client.info} is in control")
             self._control_version += 1
-        return client, m.Welcome(m.PROTOCOL, client.id, self.facts, self.runtime)
+        # (the facts as they are now: a historian may have placed the run's time 0 since)
+        return client, m.Welcome(m.PROTOCOL, client.id, cell_facts(self.session), self.runtime)
 
     def detach(self, client: Client, event: str, why: str) -> None:
         """A screen left (`client-left`: as asked), or was lost (`client-lost`: its

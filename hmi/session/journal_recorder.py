@@ -16,10 +16,11 @@ entry.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
 from hmi.engine.commands import Command, CommandResult, ManualOutput, describe
 from hmi.engine.snapshot import Snapshot
-from hmi.explain.journal import Journal, JournalWriteError
+from hmi.explain.journal import Journal, JournalWriteError, new_session_id
 from hmi.plant.modbus.link_log import Burst
 from hmi.session.session import Session
 from hmi.timefmt import seconds
@@ -32,11 +33,18 @@ class JournalRecorder:
         self.pending_manual: list[tuple[ManualOutput, str]] = []  # with who sent it
         self.failure: JournalWriteError | None = None
         self.recovery_status = ""  # the last recovery status journalled (done, failed)
+        # Told of every entry once it is in the journal (the historian keeps the alarms and
+        # actions beside its samples); from the thread that journalled it, so never waiting.
+        self.taps: list[Callable[[dict], None]] = []
         engine = session.engine
-        journal.append({"type": "session", "event": "start", "source": source,
-                        "project": engine.project.name, "control": engine.control_name,
-                        "policy": engine.policy, "plant": engine.plant.status.description,
-                        "scan": engine.scan, "t": seconds(engine.now)})
+        journal.session = new_session_id()
+        # (kept for whoever taps the journal later: the historian records it too)
+        self.start_entry = {"type": "session", "event": "start", "source": source,
+                            "project": engine.project.name, "control": engine.control_name,
+                            "policy": engine.policy,
+                            "plant": engine.plant.status.description,
+                            "scan": engine.scan, "t": seconds(engine.now)}
+        journal.append(self.start_entry)
         self.link = engine.plant.link  # a real plant's LinkLog (None: simulated)
         self.overruns = Burst("scan-overrun", "scan-overruns", "scan overruns")
         session.listeners.append(self.on_command)
@@ -45,12 +53,19 @@ class JournalRecorder:
         session.overrun_listeners.append(self.on_overrun)
 
     def _append(self, entry: dict) -> None:
+        self._append_all([entry])
+
+    def _append_all(self, entries: list[dict]) -> None:
         try:
-            self.journal.append(entry)
+            self.journal.append_all(entries)
         except JournalWriteError as exc:
             self.failure = exc
             self.session.engine.latch_safe(
                 "journal", f"{exc}: operator actions and alarms cannot be recorded")
+            return
+        for tap in self.taps:
+            for entry in entries:
+                tap(entry)
 
     def sync(self) -> None:
         """Until every entry so far is on disk (a journal written in the background: a
@@ -104,8 +119,11 @@ class JournalRecorder:
         self._drain_plant()
         for entry in self.overruns.tick(time.monotonic()):
             self._plant(entry)
-        for event in snapshot.alarm_events:
-            self._alarm(event)
+        if snapshot.alarm_events:  # one write and one fsync for the scan's transitions
+            batch: list[dict] = []
+            for event in snapshot.alarm_events:
+                self._alarm(event, batch=batch)
+            self._append_all(batch)
         recovery = snapshot.recovery
         if recovery.status != self.recovery_status:
             self.recovery_status = recovery.status
@@ -150,7 +168,16 @@ class JournalRecorder:
             return f"refused: written {written}: masked by the diagnosis"
         return f"refused: written {written}, not as requested"
 
-    def _alarm(self, event, by: str = "") -> None:
+    def _alarm(self, event, by: str = "", batch: list[dict] | None = None) -> None:
+        """Journal one alarm transition now, or add it to `batch` (written by the caller)."""
+        entry = self._alarm_entry(event, by)
+        if batch is None:
+            self._append(entry)
+        else:
+            batch.append(entry)
+
+    @staticmethod
+    def _alarm_entry(event, by: str = "") -> dict:
         entry = {
             "type": "alarm", "event": event.event, "key": event.key, "state": event.state,
             "severity": event.severity, "text": event.text, "returns": event.returns,
@@ -159,7 +186,7 @@ class JournalRecorder:
             entry["message"] = event.note
         if by:
             entry["by"] = by
-        self._append(entry)
+        return entry
 
     def on_ui_fault(self, fault, **who: str) -> None:
         """An error of the HMI (hmi.ui.containment.UIFault, or a screen's report of one):

@@ -99,6 +99,18 @@ class Session:
         # Told of each scan overrun (a real-time runner more than a period late), for the
         # journal; called from the scan thread with the runner's overrun count.
         self.overrun_listeners: list[Callable[[int], None]] = []
+        # The wall time (microseconds since the Unix epoch) of the run's time 0: a scan at
+        # time_us happened at epoch_us + time_us (wall_us). What the OPC UA server stamps
+        # its values with and the historian its samples.
+        self.epoch_us: int | None = None
+        # Where this session's history is kept ("" if none): set by the historian that
+        # records it (hmi.history), told to the screens (hmi.link.base.CellFacts.history).
+        self.history = ""
+        # Situations reported by services beside the scan (the historian that cannot write:
+        # hmi.history), explained and alarmed like the scan's own; replaced, never changed,
+        # so the scan thread reads a consistent one (see report).
+        self._services: dict[str, Explanation] = {}
+        self._services_seen: dict[str, Explanation] | None = None
 
     @property
     def last(self) -> Snapshot | None:
@@ -124,6 +136,27 @@ class Session:
         with self.lock:
             self._last = snapshot
             self._quiet = False
+
+    def wall_us(self, time_us: int) -> int:
+        """The wall time of the run's time `time_us`: a real plant's scans are stamped by
+        the wall clock (hmi.session.live.WallClock), so this is when they ran; a
+        simulation's time is counted from the wall time of its start (paused time is not
+        in it; at ×10 it runs ahead). Fixed at the first call, unless set before (the
+        historian places a run after the cell's history so far)."""
+        epoch = self.epoch_us
+        if epoch is None:
+            epoch = self.epoch_us = time.time_ns() // 1000 - time_us
+        return epoch + time_us
+
+    def report(self, key: str, explanation: Explanation | None) -> None:
+        """A service's situation (None: over), from any thread: in the next scan's
+        explanations, hence its alarm and the journal."""
+        services = dict(self._services)
+        if explanation is None:
+            services.pop(key, None)
+        else:
+            services[key] = explanation
+        self._services = services
 
     @property
     def next_time(self) -> int:
@@ -306,7 +339,7 @@ class Session:
         alarms = self.alarms
         explanations = self.explanations
         # (with no explanation, no alarm and nothing shelved the list is settled)
-        return not self._pending_alarm_events and (
+        return self._services is self._services_seen and not self._pending_alarm_events and (
             not (explanations or alarms.alarms or alarms.shelved)
             or alarms.settled(explanations)) and (
             not self.scan_listeners or self._listeners_idle())
@@ -336,6 +369,10 @@ class Session:
         except Exception as exc:  # explanations must never stop the scan
             explanations = ()
             error = error or f"explanations: {type(exc).__name__}: {exc}"
+        services = self._services
+        self._services_seen = services
+        if services:
+            explanations = (*explanations, *services.values())
         self.explanations = explanations
         events = self._pending_alarm_events  # acknowledgements since the last scan
         if events:

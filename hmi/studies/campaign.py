@@ -32,9 +32,8 @@ from hmi.farm.job import Study, make_job
 from hmi.farm.run import Farm
 from hmi.plant.base import PlantEvent
 from hmi.plant.sim.plant import SimPlant
-from hmi.project.campaign import CampaignSpec, Scenario
 from hmi.project.injection import Injection
-from hmi.project.model import Project
+from hmi.project.model import CampaignScenario, CampaignSpec, Project
 from hmi.timefmt import format_duration, seconds
 
 DEFECT, BLOCKED, TOLERANT = "Defect", "Blocked", "Tolerant"
@@ -86,7 +85,7 @@ def classify(damage: list[PlantEvent], cycle_times_us: list[int], length_us: int
 
 @dataclass(frozen=True)
 class RunResult:
-    scenario: Scenario
+    scenario: CampaignScenario
     config: Config
     outcome: str
     reason: str  # the objective reason of the outcome
@@ -127,7 +126,7 @@ class CampaignResult:
                 counts[run.outcome] += 1
         return counts
 
-    def result(self, scenario: Scenario, config: str) -> RunResult:
+    def result(self, scenario: CampaignScenario, config: str) -> RunResult:
         return next(r for r in self.runs if r.scenario == scenario and r.config.key == config)
 
     def as_dict(self) -> dict[str, Any]:
@@ -142,7 +141,7 @@ class CampaignResult:
         }
 
 
-def run_one(project: Project, spec: CampaignSpec, scenario: Scenario, config: Config,
+def run_one(project: Project, spec: CampaignSpec, scenario: CampaignScenario, config: Config,
             period_us: int | None = None) -> RunResult:
     """One scenario under one configuration, in virtual time."""
     plant = SimPlant(project)
@@ -285,7 +284,7 @@ def _same(data: Any) -> Any:
     return data
 
 
-def _run_of(scenario: Scenario, config: Config, r: dict[str, Any]) -> RunResult:
+def _run_of(scenario: CampaignScenario, config: Config, r: dict[str, Any]) -> RunResult:
     return RunResult(scenario, config, r["outcome"], r["reason"], r["context"],
                      tuple(PlantEvent(**e) for e in r["damage"]), r["cycles"],
                      r["detected_us"], tuple(r["decision"]), tuple(r["states"]))

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from hmi.project.diagnosers import DiagnoserSpec, diagnosers_of
-from hmi.project.model import Project
+from hmi.project.diagnosers import diagnosers_of
+from hmi.project.model import DiagnoserSpec, Project
 from hmi.studies.diagnosability import analyse
 from hmi.timefmt import format_duration, seconds
 

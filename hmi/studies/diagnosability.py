@@ -22,7 +22,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from hmi.project.diagnosers import DiagnoserSpec, reachable_states
+from hmi.project.diagnosers import reachable_states
+from hmi.project.model import DiagnoserSpec
 
 BANDS = ((0.99, "high"), (0.90, "medium"), (0.60, "low"), (0.0, "none"))
 

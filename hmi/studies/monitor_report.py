@@ -7,8 +7,8 @@ from dataclasses import dataclass
 
 from hmi.engine.monitors import MonitorState
 from hmi.engine.stopwatch import Detection, WatchdogTrip, Window
-from hmi.project.model import Project
-from hmi.project.monitors import TaskMonitor, monitors_of
+from hmi.project.model import Project, TaskMonitor
+from hmi.project.monitors import monitors_of
 from hmi.project.scenarios import scenarios_of
 from hmi.timefmt import format_duration, seconds
 

@@ -13,8 +13,7 @@ from rich.text import Text
 
 from hmi.engine.snapshot import Snapshot
 from hmi.explain.reset import ResetLine, changes, reset_preview
-from hmi.project.model import Project
-from hmi.project.recovery import RecoveryProcedure
+from hmi.project.model import Project, RecoveryProcedure
 from hmi.timefmt import seconds
 from hmi.ui.style import MUTED, OK_SYMBOL, Level, tag
 

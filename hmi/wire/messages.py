@@ -128,6 +128,12 @@ class CellFacts:
     devices: Mapping[str, tuple[str, ...]]  # device -> its outputs
     plant: PlantFacts
     period_us: int
+    # Where the cell's history is kept (hmi.history.target.parse_target reads it back: a
+    # SQLite file's absolute path or a postgresql:// URL; "" if none): the trend screens
+    # open it read-only. And the wall time of the run's time 0 (Session.wall_us), which
+    # places a snapshot on the history's time axis.
+    history: str = ""
+    epoch_us: int | None = None
 
     def safe_text(self) -> str:
         return ", ".join(f"{n}={int(v)}" for n, v in

@@ -97,10 +97,14 @@ class Outage:
 
     @staticmethod
     def describe(counts: Mapping[str, int]) -> str:
-        parts = [f"{counts.get('losses', 0)} connections lost",
-                 f"{counts.get('failed', 0)} failed attempts to connect"]
+        def n(count: int, one: str, many: str) -> str:
+            return f"{count} {one if count == 1 else many}"
+        parts = [n(counts.get("losses", 0), "connection lost", "connections lost"),
+                 n(counts.get("failed", 0), "failed attempt to connect",
+                   "failed attempts to connect")]
         if counts.get("connects"):
-            parts.append(f"{counts['connects']} connections made that did not hold")
+            parts.append(n(counts["connects"], "connection made that did not hold",
+                           "connections made that did not hold"))
         return ", ".join(parts)
 
     def totals(self) -> dict[str, int]:
@@ -206,12 +210,14 @@ class LinkLog:
         if o is None:
             return
         self.outage = None
+        # the connection that works now was counted among those made: it held
+        held = {**o.totals(), "connects": max(0, o.connects - 1)}
         self._add([{"event": "reconnected", "attempt": self._attempt,
                     "failed_attempts": o.failed, "losses": o.losses,
                     "failing_since": o.since_wall,
                     "message": f"the link to {self.where} works again (connection attempt "
                     f"{self._attempt}); the outage since {o.since_wall}: "
-                    f"{Outage.describe(o.totals())}; last problem: {o.last}"}])
+                    f"{Outage.describe(held)}; last problem: {o.last}"}])
 
     def gave_up(self) -> None:
         """The end of a session while the link is not working: the outage's summary."""

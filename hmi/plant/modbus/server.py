@@ -264,6 +264,7 @@ class PlantServer:
         c = self.modbus.counts
         closed = [f"{n} {what}" for n, what in (
             (c.refused, "refused over the limit"), (c.idle_closed, "closed when idle"),
+            (c.slow_closed, "closed as too slow"),
             (c.bad_frames, "closed on a frame that is not Modbus TCP")) if n]
         return (f"Stopped after {seconds(self.now_us())} s: {c.requests} requests "
                 f"({c.reads} reads, {c.writes} writes, {c.exceptions_text()}) "

@@ -16,7 +16,11 @@ is the whole of what serve-plant needs, with none of that:
   framed (protocol id not 0, length field outside 2..254) closes the connection, with a
   log line, since nothing after it can be trusted to start a frame;
 * at most `max_connections` connections are open at once (more are closed at once, with a
-  log line a second at most), and a connection with no whole request for `idle_s` is closed.
+  log line a second at most), and a connection with no whole request for `idle_s` is closed;
+  so is one whose request, once begun, has not all come within `request_s` (a client that
+  trickles its bytes would otherwise keep its slot: 16 clients sending a byte a second held
+  every one), and one that does not take its answers within `write_s` (a client that never
+  reads held its slot forever, the server waiting to send).
 
 The tables are plain Python lists; the owner is told before a read (to put fresh values
 in) and after a write (to take the orders from them).
@@ -70,6 +74,8 @@ from hmi.plant.modbus.frame import (
 
 MAX_CONNECTIONS = 16
 IDLE_S = 60.0
+REQUEST_S = 5.0  # a request's bytes, from its first: a Modbus TCP request is at most 260
+WRITE_S = 10.0  # an answer's bytes taken by the client
 READ_TABLE = {READ_COILS: "coil", READ_DISCRETE_INPUTS: "di", READ_HOLDING_REGISTERS: "hr",
               READ_INPUT_REGISTERS: "ir"}
 
@@ -241,6 +247,7 @@ class ServerCounts:
     connections: int = 0
     refused: int = 0  # connections over the limit
     idle_closed: int = 0
+    slow_closed: int = 0  # a request too slow to come, or answers not taken
     bad_frames: int = 0  # connections closed on a frame that could not be framed
 
     def exceptions_text(self) -> str:
@@ -264,9 +271,11 @@ async def _open(request: Request) -> None:
 class ModbusServer:
     def __init__(self, tables: Tables, unit: int, log: Callable[[str], None],
                  gate: Gate = _open, max_connections: int = MAX_CONNECTIONS,
-                 idle_s: float = IDLE_S):
+                 idle_s: float = IDLE_S, request_s: float = REQUEST_S,
+                 write_s: float = WRITE_S):
         self.tables, self.unit, self.log, self.gate = tables, unit, log, gate
         self.max_connections, self.idle_s = max_connections, idle_s
+        self.request_s, self.write_s = request_s, write_s
         self.counts = ServerCounts()
         self._server: asyncio.Server | None = None
         self._open: set[asyncio.Task] = set()
@@ -343,8 +352,10 @@ class ModbusServer:
         try:
             why = await self._serve(reader, writer)
         except asyncio.CancelledError:
+            # The server stops (close()). The task ends normally rather than cancelled:
+            # Python 3.11's start_server callback asks a cancelled task for its exception
+            # and prints a traceback per open connection at Ctrl-C.
             why = "connection closed: the server stops"
-            raise
         except (ConnectionError, OSError) as exc:
             why = f"client connection lost ({type(exc).__name__})"
         finally:
@@ -356,12 +367,20 @@ class ModbusServer:
         """Answer each request in turn, in order, until the client goes or must be sent
         away; why the connection ends."""
         while True:
+            begun = False
             try:
                 async with asyncio.timeout(self.idle_s):
-                    head = await reader.readexactly(HEADER_SIZE)
+                    first = await reader.readexactly(1)
+                begun = True
+                async with asyncio.timeout(self.request_s):
+                    head = first + await reader.readexactly(HEADER_SIZE - 1)
                     header = parse_header(head)
                     body = await reader.readexactly(header.length - 1)
             except TimeoutError:
+                if begun:
+                    self.counts.slow_closed += 1
+                    return (f"connection closed: a request begun did not all come within "
+                            f"{self.request_s:g} s")
                 self.counts.idle_closed += 1
                 return f"connection closed: no whole request for {self.idle_s:g} s"
             except asyncio.IncompleteReadError as exc:
@@ -374,7 +393,14 @@ class ModbusServer:
                 return f"connection closed: not a Modbus TCP frame ({exc})"
             answer = await self.answer(header.unit, body)
             writer.write(adu(header.transaction, header.unit, answer))
-            await writer.drain()
+            try:
+                async with asyncio.timeout(self.write_s):
+                    await writer.drain()
+            except TimeoutError:
+                self.counts.slow_closed += 1
+                writer.transport.abort()  # what is left unsent is dropped
+                return (f"connection closed: the client took none of its answers for "
+                        f"{self.write_s:g} s")
 
     def _log_refusal(self, peer: str) -> None:
         now = time.monotonic()

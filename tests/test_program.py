@@ -1,0 +1,87 @@
+"""The scan program's rules (hmi/program/), each run in both forms printed from its one
+lowering: the reference evaluator (hmi.program.evaluate) and the Python the compiled scan
+runs (hmi.engine.codegen.print_program, built through codegen's checker). Both must give the
+same image and the same state at every step, and the rule's own truth table."""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Callable
+
+import pytest
+
+from hmi.engine.codegen import Source, build, print_program
+from hmi.logic.expr import Var
+from hmi.logic.timers import TimerRuntime
+from hmi.program.evaluate import evaluator
+from hmi.program.ir import Stmt
+from hmi.program.memories import lower_assign, lower_memory
+from hmi.program.timers import lower_timer
+
+Runner = Callable[[list, int], None]
+
+
+def both_forms(program: tuple[Stmt, ...], slots: dict[str, int]) -> dict[str, Runner]:
+    """`program` as the evaluator runs it and as the compiled scan runs it."""
+    run_evaluated = evaluator(program, slots, {})
+    src = Source()
+    print_program(src, program, 1, slots, {})
+    printed = build(src, "scan", "v, h, now", "<test_program>")
+    return {"evaluator": lambda image, now: run_evaluated(image, (), now),
+            "python": lambda image, now: printed(image, (), now)}
+
+
+def timer_outputs(kind: str, steps: list[tuple[bool, int]]) -> list[bool]:
+    """Q at each (IN, now) of a timer of preset 100, in both forms, with the same Q in the
+    image and the runtime, and the same state, at every step."""
+    ran = []
+    for form in ("evaluator", "python"):
+        runtime = TimerRuntime("T", kind, 100)
+        run = both_forms(lower_timer(runtime, 1, Var(0, "IN", 0)), {"IN": 0, "T": 1})[form]
+        image = [False, False]
+        seen = []
+        for x, now in steps:
+            image[0] = x
+            run(image, now)
+            assert image[1] == runtime.q
+            seen.append((runtime.q, runtime.since, runtime.elapsed(now)))
+        ran.append(seen)
+    assert ran[0] == ran[1]
+    return [q for q, _, _ in ran[0]]
+
+
+def test_ton_rises_after_preset_and_resets_when_input_drops():
+    assert timer_outputs("TON", [(True, 0), (True, 99), (True, 100), (True, 150), (False, 160),
+                                 (True, 170), (True, 269), (True, 270)]) == [
+        False, False, True, True, False, False, False, True]
+
+
+def test_tof_holds_for_preset_after_input_falls():
+    assert timer_outputs("TOF", [(False, 0), (True, 10), (False, 20), (False, 119),
+                                 (False, 120), (True, 130), (False, 140), (True, 200),
+                                 (False, 210), (False, 309), (False, 310)]) == [
+        False, True, True, True, False, True, True, True, True, True, False]
+
+
+SLOTS = {"S": 0, "R": 1, "X": 2}
+
+
+@pytest.mark.parametrize("set_dominant", [False, True])
+def test_a_memory_follows_its_truth_table_in_both_forms(set_dominant):
+    program = lower_memory(2, Var(0, "S", 0), Var(0, "R", 0), set_dominant)
+    for form, run in both_forms(program, SLOTS).items():
+        for s, r, x in itertools.product((False, True), repeat=3):
+            image = [s, r, x]
+            run(image, 0)
+            held = x and not r
+            want = (s or held) if set_dominant else (not r and (s or x))
+            assert image[2] == want, (form, s, r, x)
+            assert image[:2] == [s, r]
+
+
+def test_an_assignment_in_both_forms():
+    for form, run in both_forms(lower_assign(2, Var(0, "S", 0)), SLOTS).items():
+        for s in (False, True):
+            image = [s, False, not s]
+            run(image, 0)
+            assert image[2] == s, form
