@@ -155,8 +155,8 @@ def test_the_journal_exports_the_alarm_history_as_csv_with_filters(tmp_path, cap
 
 @pytest.mark.parametrize("bell", [True, False])
 async def test_the_bell_rings_once_per_new_unacknowledged_p1(bell):
-    from hmi.ui.scenarios import make_app
-    from hmi.ui.testing import run_for, run_until
+    from ui_harness import run_for, run_until
+    from ui_scenarios import make_app
 
     app = make_app(inject=("F13@10.4s",))
     app.bell_on_p1 = bell
@@ -173,17 +173,11 @@ async def test_the_bell_rings_once_per_new_unacknowledged_p1(bell):
 
 
 async def test_the_operator_shelves_and_comments_from_the_palette():
+    from ui_harness import palette, region_text, run_for, wait_for_main
+    from ui_scenarios import make_app
+
     from hmi.ui.dialogs import ChoiceDialog, TextDialog
-    from hmi.ui.scenarios import make_app
-    from hmi.ui.testing import (
-        palette,
-        press,
-        region_text,
-        run_for,
-        settle,
-        wait_for_main,
-        wait_for_screen,
-    )
+    from hmi.ui.headless import press, settle, wait_for_screen
 
     app = make_app(control="faulty")
     async with app.run_test(size=(100, 30)) as pilot:

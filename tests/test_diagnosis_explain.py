@@ -9,6 +9,8 @@ with certainty a glitch later.
 
 from __future__ import annotations
 
+from ui_scenarios import VALVE
+
 from hmi.engine.commands import FaultReset, InjectFault
 from hmi.engine.scan import Engine
 from hmi.plant.base import PlantError
@@ -16,7 +18,6 @@ from hmi.plant.sim.plant import SimPlant
 from hmi.project.injection import Injection
 from hmi.project.loader import load_project
 from hmi.session.session import Session
-from hmi.ui.scenarios import VALVE
 
 S = 1_000_000
 

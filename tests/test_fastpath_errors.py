@@ -431,16 +431,11 @@ async def test_the_hmi_latches_an_error_outside_the_scan_and_the_operator_resets
     """The HMI (pilot, virtual time): reading the plant's state fails once; the app keeps
     running, shows the outputs held safe and the alarm in plain words, journals it; the
     operator's fault reset (r, y) brings the valve back."""
+    from ui_harness import region_text, run_for, screen_text, wait_for_main
+    from ui_scenarios import make_app
+
     from hmi.ui.dialogs import ConfirmDialog
-    from hmi.ui.scenarios import make_app
-    from hmi.ui.testing import (
-        press,
-        region_text,
-        run_for,
-        screen_text,
-        wait_for_main,
-        wait_for_screen,
-    )
+    from hmi.ui.headless import press, wait_for_screen
     app = make_app()
     engine = app.link.session.engine
     recorder = JournalRecorder(app.link.session, Journal(tmp_path / "j.jsonl"), "test")

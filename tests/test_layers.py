@@ -235,3 +235,23 @@ def test_the_checker_sees_a_cycle_and_an_upward_import():
     assert ("hmi.engine.scan", True) in graph()["hmi.session.session"]
     # An import under TYPE_CHECKING is in the graph, marked as not run.
     assert ("hmi.engine.snapshot", False) in graph()["hmi.explain.diagnoses"]
+
+
+TEST_ONLY = {"pytest", "hypothesis", "syrupy", "pytest_textual_snapshot", "tests",
+             "ui_harness", "ui_scenarios", "ui_faults", "screenshots", "conftest"}
+
+
+def test_the_package_ships_no_test_harness():
+    """What only the tests use lives in tests/ (the wheel installs hmi/ alone): no module of
+    hmi/ imports a test tool or a module of tests/, and none reads a PLCHMI_TEST_ variable
+    (a fault injector the production app would arm)."""
+    wrong = []
+    for name, path in MODULES.items():
+        text = path.read_text(encoding="utf-8")
+        if "PLCHMI_TEST_" in text:
+            wrong.append((name, "PLCHMI_TEST_"))
+        for node, _ in _import_statements(ast.parse(text).body, False, text):
+            modules = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                       else [node.module or ""] if not node.level else [])
+            wrong += [(name, m) for m in modules if m.split(".")[0] in TEST_ONLY]
+    assert wrong == []

@@ -529,10 +529,12 @@ def test_quitting_the_hmi_on_a_real_plant_leaves_its_outputs_safe(server, tmp_pa
     """`plchmi ui` on serve-plant: q asks, y stops the cell (its runtime) and quits, and the
     plant is left with the safe vector written (the valve was being opened when the
     operator quit): the command returns once the runtime has stopped."""
+    from ui_harness import screen_text, wait_live
+
     from hmi.cli import main
     from hmi.ui.app import PlcHmiApp
     from hmi.ui.dialogs import ConfirmDialog
-    from hmi.ui.testing import press, screen_text, wait_for_screen, wait_live
+    from hmi.ui.headless import press, wait_for_screen
 
     valve = quick_valve(tmp_path / "valve")
     srv = server(valve)

@@ -17,6 +17,7 @@ import pytest
 
 pytest.importorskip("asyncua", reason="the [opcua] extra is not installed")
 from asyncua import Client
+from ui_harness import palette, region_text, run_for, screen_text, wait_for_main
 
 from hmi.explain.journal import Journal
 from hmi.opcua.options import journal_listener, server_certificate
@@ -25,16 +26,7 @@ from hmi.opcua.users import Users, hash_password
 from hmi.session.journal_recorder import JournalRecorder
 from hmi.ui.app import PlcHmiApp
 from hmi.ui.dialogs import InfoDialog
-from hmi.ui.testing import (
-    palette,
-    press,
-    region_text,
-    run_for,
-    screen_text,
-    settle,
-    wait_for_main,
-    wait_for_screen,
-)
+from hmi.ui.headless import press, settle, wait_for_screen
 from tests.opcua_cells import ROOT, serve, valve_session
 
 WAIT_S = 30.0  # a safety net only: every wait ends on the state it waits for
@@ -185,8 +177,9 @@ def test_without_opcua_the_hmi_imports_nothing_of_opcua():
     (a fresh interpreter: this one has them loaded by the tests)."""
     code = (
         "import asyncio, sys\n"
-        "from hmi.ui.scenarios import make_app\n"
-        "from hmi.ui.testing import region_text, run_for\n"
+        "sys.path.insert(0, 'tests')\n"
+        "from ui_scenarios import make_app\n"
+        "from ui_harness import region_text, run_for\n"
         "async def main():\n"
         "    app = make_app()\n"
         "    async with app.run_test(size=(80, 24)) as pilot:\n"

@@ -250,18 +250,11 @@ def test_the_project_errors_of_a_recovery_name_file_line_and_column(tmp_path):
 
 
 async def test_the_operator_finds_the_way_back_from_f13_through_the_reset_dialog():
+    from ui_harness import palette, region_text, run_for, run_until, screen_text, wait_for_main
+    from ui_scenarios import make_app
+
     from hmi.ui.dialogs import ConfirmDialog
-    from hmi.ui.scenarios import make_app
-    from hmi.ui.testing import (
-        palette,
-        press,
-        region_text,
-        run_for,
-        run_until,
-        screen_text,
-        wait_for_main,
-        wait_for_screen,
-    )
+    from hmi.ui.headless import press, wait_for_screen
 
     app = make_app(inject=("F13@10.4s",))
     async with app.run_test(size=(80, 24)) as pilot:
@@ -303,7 +296,7 @@ async def test_the_operator_finds_the_way_back_from_f13_through_the_reset_dialog
 
 
 async def wait_until_dialog(pilot, dialog_id: str) -> None:
-    from hmi.ui.testing import wait_until
+    from hmi.ui.headless import wait_until
     await wait_until(pilot, lambda: pilot.app.screen.id == dialog_id, dialog_id)
     await pilot.pause()
 

@@ -68,18 +68,19 @@ async def test_a_client_that_never_reads_its_answers_loses_its_slot():
     sock.setblocking(False)
     try:
         await asyncio.get_running_loop().sock_connect(sock, ("127.0.0.1", port))
-        sent, tid = 0, 0
+        # requests by the thousand at a time: the answers (255 bytes each) fill the
+        # server's socket buffers (megabytes on loopback) within a few sends
+        batch = b"".join(request(tid) for tid in range(4096))
+        at = 0
         async with asyncio.timeout(BOUND):
             while not server.counts.slow_closed:
                 try:
-                    tid = (tid + 1) & 0xFFFF
-                    sent += sock.send(request(tid))
-                except BlockingIOError:
+                    at = (at + sock.send(batch[at:])) % len(batch)
+                except BlockingIOError:  # the server stopped reading: it waits to send
                     await asyncio.sleep(0.05)
                 except ConnectionError:
                     break
-                if tid % 64 == 0:
-                    await asyncio.sleep(0)
+                await asyncio.sleep(0)
         assert server.counts.slow_closed == 1
         assert any("took none of its answers for 0.5 s" in line for line in log)
         assert not server._open  # the slot is free

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import pytest
 from textual.css.stylesheet import Stylesheet, StylesheetParseError
+from ui_scenarios import make_app
 
 from hmi.codecache import kept_codes, source_fingerprint
 from hmi.engine import codegen
@@ -30,8 +31,7 @@ from hmi.session.trace import _row
 from hmi.ui import csscache
 from hmi.ui.csscache import kept_css
 from hmi.ui.dialogs import ConfirmDialog
-from hmi.ui.scenarios import make_app
-from hmi.ui.testing import press, settle, wait_for_screen
+from hmi.ui.headless import press, settle, wait_for_screen
 
 EXAMPLES = sorted(p.name for p in PROJECTS.iterdir() if (p / "project.yaml").is_file())
 SCANS = 1500

@@ -8,6 +8,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ui_harness import palette, region_text, run_for, run_until, screen_text, wait_for_main
+from ui_scenarios import VALVE, make_app
+
 from hmi.engine.commands import InjectFault, StopDevice
 from hmi.explain.alarms import ACTIVE_ACK, ACTIVE_UNACK, CLEARED_UNACK
 from hmi.project.injection import Injection
@@ -16,20 +19,7 @@ from hmi.ui.alarm_list import AlarmList, without_device
 from hmi.ui.chronogram import Chronogram
 from hmi.ui.dialogs import ConfirmDialog
 from hmi.ui.explain_panel import ExplanationPanel
-from hmi.ui.scenarios import VALVE, make_app
-from hmi.ui.testing import (
-    click,
-    palette,
-    press,
-    region_text,
-    run_for,
-    run_until,
-    screen_text,
-    settle,
-    wait_for_main,
-    wait_for_screen,
-    wait_until,
-)
+from hmi.ui.headless import click, press, settle, wait_for_screen, wait_until
 
 CONVEYOR = VALVE.parent / "conveyor_robot"
 WIDE = (120, 36)

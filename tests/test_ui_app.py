@@ -1,7 +1,7 @@
 """Pilot tests of the operator HMI: press the keys, then check the engine and the screen.
 
 Every test runs the app on a VirtualDriver: no scan happens unless the test runs virtual
-time, so what the screen shows is exactly repeatable. Waits are bounded (hmi.ui.testing).
+time, so what the screen shows is exactly repeatable. Waits are bounded (hmi.ui.headless).
 """
 
 from __future__ import annotations
@@ -12,6 +12,16 @@ from pathlib import Path
 
 import pytest
 from textual.command import CommandPalette
+from ui_harness import (
+    palette,
+    region_text,
+    run_for,
+    run_until,
+    screen_text,
+    wait_for_main,
+    wait_live,
+)
+from ui_scenarios import CONVEYOR, VALVE, make_app, select_row
 
 from hmi.engine.commands import Pause, SetMode
 from hmi.ui.actions import ACTIONS
@@ -19,24 +29,9 @@ from hmi.ui.app import PlcHmiApp
 from hmi.ui.chronogram import Chronogram
 from hmi.ui.dialogs import ChoiceDialog, ConfirmDialog, StepDialog
 from hmi.ui.fault_dialog import FaultDialog
+from hmi.ui.headless import WaitTimeout, drain, press, settle, wait_for_screen, wait_until
 from hmi.ui.io_panel import IOPanel
-from hmi.ui.scenarios import CONVEYOR, VALVE, make_app, select_row
 from hmi.ui.signal_dialog import SignalDialog
-from hmi.ui.testing import (
-    WaitTimeout,
-    drain,
-    palette,
-    press,
-    region_text,
-    run_for,
-    run_until,
-    screen_text,
-    settle,
-    wait_for_main,
-    wait_for_screen,
-    wait_live,
-    wait_until,
-)
 
 SIZE = (100, 30)
 

@@ -12,9 +12,11 @@ thread gets it.
 
 from __future__ import annotations
 
+from ui_harness import region_text, run_until
+from ui_scenarios import VALVE, make_app
+
 from hmi.ui.constraints_panel import ConstraintsPanel
-from hmi.ui.scenarios import VALVE, make_app
-from hmi.ui.testing import drain, region_text, run_until
+from hmi.ui.headless import drain
 from tests.conftest import make_controller
 
 

@@ -1,7 +1,7 @@
 """Fault containment (issue 13): a UI error never stops the scan and never ends the HMI
 silently; an error the app cannot carry on after ends it as an abnormal end.
 
-The deliberate errors come from the test-only hook (hmi.ui.testhooks, PLCHMI_TEST_UI_FAULT)
+The deliberate errors come from tests/ui_faults.py (wrapped around the app's frame refresh)
 or from a handler replaced by one that raises.
 """
 
@@ -14,6 +14,9 @@ from pathlib import Path
 import pytest
 from pymodbus.client import ModbusTcpClient
 from textual.app import App
+from ui_faults import inject, parse
+from ui_harness import palette, region_text, run_for, wait_for_main
+from ui_scenarios import VALVE, make_app
 
 from hmi.cli import main
 from hmi.explain.journal import Journal
@@ -22,18 +25,7 @@ from hmi.ui.app import PlcHmiApp, app_end
 from hmi.ui.chronogram import Chronogram
 from hmi.ui.constraints_panel import ConstraintsPanel
 from hmi.ui.dialogs import ConfirmDialog
-from hmi.ui.scenarios import VALVE, make_app
-from hmi.ui.testhooks import ENV
-from hmi.ui.testing import (
-    click,
-    palette,
-    press,
-    region_text,
-    run_for,
-    settle,
-    wait_for_main,
-    wait_for_screen,
-)
+from hmi.ui.headless import click, press, settle, wait_for_screen
 from tests.runtimes import wait_for
 from tests.test_modbus import server  # noqa: F401  (the fixture: real server processes)
 
@@ -52,7 +44,7 @@ def journalled(app: PlcHmiApp, path: Path) -> JournalRecorder:
 
 
 async def test_a_panel_raising_at_every_frame_is_contained(monkeypatch, tmp_path):
-    monkeypatch.setenv(ENV, "panel@2s")
+    inject(monkeypatch, "panel@2s")
     app = make_app(control="faulty")
     recorder = journalled(app, tmp_path / "j.jsonl")
     async with app.run_test(size=SIZE) as pilot:
@@ -156,7 +148,7 @@ def test_an_app_crash_exits_non_zero_the_runtime_journals_it_and_runs_on(monkeyp
     """A screen that crashes is the screen's end, not the cell's: its error is journalled by
     the runtime (with who), the screen exits 1, and the cell runs on."""
     path = tmp_path / "j.jsonl"
-    monkeypatch.setenv(ENV, "fatal@0.5s")
+    inject(monkeypatch, "fatal@0.5s")
     status = run_hmi_headless(monkeypatch, [str(VALVE), "--journal", str(path)])
     assert status == 1
     err = capsys.readouterr().err
@@ -184,7 +176,8 @@ def test_an_app_crash_on_a_real_plant_leaves_the_cell_controlled(monkeypatch, tm
     from hmi.runtime.place import place
     srv = server(VALVE)
     path = tmp_path / "j.jsonl"
-    monkeypatch.setenv(ENV, "fatal@1.5s")
+    # the valve's program opens it after 1 s: the crash comes while O is driven
+    inject(monkeypatch, "fatal@1.5s")
     status = run_hmi_headless(monkeypatch, [str(VALVE), "--plant",
                                             f"modbus://127.0.0.1:{srv.port}",
                                             "--journal", str(path)])
@@ -211,10 +204,8 @@ def test_an_app_crash_on_a_real_plant_leaves_the_cell_controlled(monkeypatch, tm
 
 
 def test_the_hook_says_what_it_expects(monkeypatch):
-    from hmi.ui.testhooks import from_environment
-    monkeypatch.setenv(ENV, "everywhere")
     with pytest.raises(ValueError, match="expected panel or fatal"):
-        from_environment()
+        parse("everywhere")
 
 
 def test_a_dead_scan_thread_ends_the_runtime_abnormally(monkeypatch, tmp_path, capsys):

@@ -9,22 +9,15 @@ variant, used here); F9 at 10 s is isolated with certainty in S9 (fso read from 
 
 from __future__ import annotations
 
+from ui_harness import region_text, run_until, screen_text, wait_for_main
+from ui_scenarios import make_app
+
 from hmi.engine.commands import InjectFault
 from hmi.project.injection import Injection
 from hmi.ui.alarm_list import AlarmList
 from hmi.ui.dialogs import ConfirmDialog
 from hmi.ui.explain_panel import ExplanationPanel
-from hmi.ui.scenarios import make_app
-from hmi.ui.testing import (
-    press,
-    region_text,
-    run_until,
-    screen_text,
-    settle,
-    wait_for_main,
-    wait_for_screen,
-    wait_until,
-)
+from hmi.ui.headless import press, settle, wait_for_screen, wait_until
 
 WIDE = (120, 36)
 
@@ -166,7 +159,7 @@ async def test_diagnosers_panel_keeps_one_line_at_80x24():
 
 
 async def test_a_situation_without_alarm_is_explained_from_the_palette():
-    from hmi.ui.testing import palette
+    from ui_harness import palette
 
     app = make_app()
     async with app.run_test(size=WIDE) as pilot:

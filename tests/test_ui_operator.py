@@ -3,19 +3,12 @@ checked on the real app in virtual time."""
 
 from __future__ import annotations
 
+from ui_harness import region_text, run_for, screen_text, wait_for_main
+from ui_scenarios import CONVEYOR, make_app
+
 from hmi.engine.commands import FaultReset, SetSpeed
 from hmi.ui.fault_dialog import FaultDialog
-from hmi.ui.scenarios import CONVEYOR, make_app
-from hmi.ui.testing import (
-    press,
-    region_text,
-    run_for,
-    screen_text,
-    settle,
-    wait_for_main,
-    wait_for_screen,
-    wait_until,
-)
+from hmi.ui.headless import press, settle, wait_for_screen, wait_until
 
 
 async def test_mode_and_policy_never_drop_from_the_status_bar_even_at_60x20():

@@ -13,18 +13,13 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from ui_harness import run_for, run_until, screen_text, wait_for_main
+from ui_scenarios import make_app
+
 from hmi.explain.journal import Journal
 from hmi.session.journal_recorder import JournalRecorder
 from hmi.ui.dialogs import ConfirmDialog
-from hmi.ui.scenarios import make_app
-from hmi.ui.testing import (
-    press,
-    run_for,
-    run_until,
-    screen_text,
-    wait_for_main,
-    wait_until,
-)
+from hmi.ui.headless import press, wait_until
 
 SIZE = (100, 30)
 

@@ -3,24 +3,14 @@
 from __future__ import annotations
 
 import pytest
+from ui_harness import palette, region_text, run_for, screen_text, wait_for_main
+from ui_scenarios import diagnosis_ambiguous_state, make_app
 
 from hmi.explain.alarms import ACTIVE_UNACK, CLEARED_UNACK, Alarm
 from hmi.ui.alarm_list import alarm_row
 from hmi.ui.dialogs import ConfirmDialog
-from hmi.ui.scenarios import diagnosis_ambiguous_state, make_app
+from hmi.ui.headless import drain, key_event, press, settle, wait_for_screen
 from hmi.ui.style import STYLE, Level
-from hmi.ui.testing import (
-    drain,
-    key_event,
-    palette,
-    press,
-    region_text,
-    run_for,
-    screen_text,
-    settle,
-    wait_for_main,
-    wait_for_screen,
-)
 
 
 def words(text: str) -> str:

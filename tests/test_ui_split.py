@@ -11,22 +11,15 @@ import concurrent.futures
 import signal
 import threading
 
+from ui_harness import palette, region_text, screen_text, wait_for_main
+
 from hmi.explain.alarms import ACTIVE_ACK, ACTIVE_UNACK
 from hmi.link.base import Identity
 from hmi.link.client import SocketLink
 from hmi.project.kept import fingerprint, load_once
 from hmi.ui.app import PlcHmiApp
 from hmi.ui.dialogs import ConfirmDialog
-from hmi.ui.testing import (
-    drain,
-    palette,
-    press,
-    region_text,
-    screen_text,
-    settle,
-    wait_for_main,
-    wait_for_screen,
-)
+from hmi.ui.headless import drain, press, settle, wait_for_screen
 from tests.conftest import PROJECTS
 from tests.runtimes import RuntimeProcess, wait_for
 

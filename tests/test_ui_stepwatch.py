@@ -5,17 +5,11 @@ cycles again and the alarm clears."""
 
 from __future__ import annotations
 
+from ui_harness import region_text, run_for, run_until, wait_for_main
+from ui_scenarios import CONVEYOR, make_app, select_row
+
 from hmi.ui.alarm_list import AlarmList
-from hmi.ui.scenarios import CONVEYOR, make_app, select_row
-from hmi.ui.testing import (
-    press,
-    region_text,
-    run_for,
-    run_until,
-    settle,
-    wait_for_main,
-    wait_until,
-)
+from hmi.ui.headless import press, settle, wait_until
 
 
 def transfers(snap) -> int:

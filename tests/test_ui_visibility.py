@@ -11,22 +11,15 @@ from __future__ import annotations
 import pytest
 from textual.command import CommandPalette
 from textual.screen import ModalScreen
+from ui_harness import driver, region_text, run_for, run_until, screen_text
+from ui_scenarios import VALVE, make_app
 
 from hmi.engine.commands import InjectFault, StopDevice
 from hmi.explain.alarms import ACTIVE_UNACK, CLEARED_UNACK
 from hmi.project.injection import parse_injection
 from hmi.timefmt import seconds
 from hmi.ui.alarm_list import AlarmList, without_device
-from hmi.ui.scenarios import VALVE, make_app
-from hmi.ui.testing import (
-    driver,
-    press,
-    region_text,
-    run_for,
-    run_until,
-    screen_text,
-    wait_until,
-)
+from hmi.ui.headless import press, wait_until
 
 SIZES = [(80, 24), (160, 48)]
 

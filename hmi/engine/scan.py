@@ -325,8 +325,11 @@ class Engine:
                     return CommandResult.refused("no simulated fault to repair")
                 done = "; ".join(f"{name} repaired ({', '.join(codes)} removed)"
                                  for name, codes in repaired)
-                return CommandResult.ok(f"SIMULATION: {done}; a fault reset now re-synchronises "
-                                        "the diagnosers")
+                # Never promise what the reset may not do (a valve repaired between its
+                # ends cannot be re-synchronised, a cell may have no diagnoser): its dialog
+                # says what it resets and what stays.
+                return CommandResult.ok(f"SIMULATION: {done}; next: a fault reset (r), "
+                                        "which says first what it resets and what stays")
             case StopDevice(device=device):
                 if device not in self.devices:
                     return CommandResult.refused(f"no device {device!r}; devices: "

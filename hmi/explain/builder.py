@@ -14,6 +14,7 @@ from typing import Any
 
 from hmi.engine import commands as cmd
 from hmi.engine.snapshot import Snapshot
+from hmi.explain.alarms import highest
 from hmi.explain.context import ExplanationContext, Onset
 from hmi.explain.diagnoses import diagnosis_explanations
 from hmi.explain.model import Explanation, Policy
@@ -237,6 +238,11 @@ class ExplanationBuilder(ExplanationContext):
                   "policy": report.policy}
         spec = self.texts.get("constraints", constraint.name)
         level = self.apply_texts(spec, defaults, fields)
+        if report.policy == "monitor":
+            # Unsafe orders were sent: every such violation is high, whatever the project
+            # rates it under a protecting filter (the valve's CSc1, "open and close ordered
+            # together", stayed medium under monitor while lesser ones were P1).
+            level = {**level, "severity": highest(level["severity"], "high")}
         return Explanation(f"constraint:{constraint.name}", "constraint", level["severity"],
                            device, level["what"], level["why"], level["consequences"],
                            level["policies"], onset.scan, onset.time_us, level["alarm"],

@@ -15,7 +15,7 @@ restart after a failure, bring the machine to its initial state).
         needed:                       # optional: when the cell needs it (shown, advised)
           when: not fsc and not fso and not C and not O
           for: 500ms
-          text: valve V1 is stopped between its end positions
+          text: seen between its end positions (no end switch made), its position unknown
         steps:                        # a linear sequence; the last `until` ends it
           - {description: Closing, do: [C], until: fsc}   # `for: 1s`: until held that long
         timeout: 2.5s                 # not done by then: outputs safe, recovery failed

@@ -35,8 +35,8 @@ from hmi.soak.invariants import Broken, Invariants
 from hmi.soak.operator import RandomOperator
 from hmi.soak.steps import Click, Palette, Press, Resize, Row, Run, Step
 from hmi.ui.app import PlcHmiApp
+from hmi.ui.headless import click, drain, press, settle, wait_for_screen
 from hmi.ui.io_panel import IOPanel
-from hmi.ui.testing import click, drain, press, settle, wait_for_screen
 
 MAX_STEPS_PER_MINUTE = 2000  # a guard: an operator that never lets time run still ends
 

@@ -72,7 +72,7 @@ from hmi.project.monitors import monitors_of
 from hmi.project.recovery import recoveries_of
 from hmi.session.session import Session
 from hmi.timefmt import seconds
-from hmi.ui import manual, testhooks
+from hmi.ui import manual
 from hmi.ui.actions import ACTIONS, bindings
 from hmi.ui.alarm_list import AlarmList, AlarmSelected
 from hmi.ui.chronogram import WINDOWS_US, Chronogram
@@ -205,7 +205,6 @@ class PlcHmiApp(ContainedPump, App):
         if isinstance(link, SessionLink):  # the recorder runs in this process's scans
             link.on_recorder_error = partial(self.containment.record,
                                              "the UI's scan recorder")
-        self._test_fault: testhooks.Armed | None = None
         # told once the first frame is on the screen (the start's caches save then)
         self.first_frame_listeners: list[Callable[[], None]] = []
         self.set_class(True, f"-theme-{self.theme}", update=False)  # as a theme change sets
@@ -280,14 +279,12 @@ class PlcHmiApp(ContainedPump, App):
         self._explanation = self.query_one(ExplanationPanel)
         self._col_time = self.query_one("#col-time")
         self.query_one(IOPanel).focus()
-        test_fault = testhooks.from_environment()
-        self._test_fault = testhooks.Armed(self, test_fault) if test_fault else None
         self.message.say(Text("ctrl+p: all commands", style=MUTED))
         self.poll(force=True)
         if self.driver.live:
             self.set_interval(1 / self.refresh_hz, self.poll)
         # else: in virtual time (tests, screenshots, the soak) whoever runs the scans shows
-        # the frames (hmi.ui.testing.settle); a refresh paced by the wall clock would make
+        # the frames (hmi.ui.headless.settle); a refresh paced by the wall clock would make
         # what a test sees depend on the machine's load
         # Start scanning once the first screen is drawn: the first layout is the heaviest
         # thing the UI does and would otherwise make the first scans late.
@@ -452,8 +449,6 @@ class PlcHmiApp(ContainedPump, App):
             self._show_faults(frame)
         self._judge_request(snap)
         self.frames_shown += 1
-        if self._test_fault is not None:
-            self._test_fault.tick(snap.time_us)
         return True
 
     # -- among the cell's screens (hmi.ui.presence) --------------------------------------
@@ -1366,8 +1361,9 @@ class PlcHmiApp(ContainedPump, App):
                     partial(self.action_inject_now, device, code)))
             entries.append(PaletteEntry(
                 "SIMULATION: repair the faulty devices",
-                "The technician's repair: injected faults removed; then a fault reset "
-                "re-synchronises the diagnosers", partial(self.send, RepairFaults())))
+                "The technician's repair: injected faults removed; then a fault reset, "
+                "which says first what it resets and what stays",
+                partial(self.send, RepairFaults())))
             for name in self.free_inputs:
                 for value, word in ((True, "press"), (False, "release")):
                     entries.append(PaletteEntry(

@@ -89,7 +89,7 @@ class VirtualDriver:
     @staticmethod
     def hold(screen) -> None:
         """The screen lays out and paints when whoever drives virtual time says so
-        (hmi.ui.testing.drain: once everything queued is handled), never on its refresh
+        (hmi.ui.headless.drain: once everything queued is handled), never on its refresh
         timer: that timer fires 1/60 s of wall clock after a change, so on a loaded machine
         it painted half-handled states a second time, and what ran depended on the load.
         Textual's ``Screen._update_timer`` (pause/resume, created at first use) is the one
@@ -97,7 +97,7 @@ class VirtualDriver:
 
         Headless (tests, the soak, screenshots), a layout does not paint either: a headless
         terminal throws every paint away, and whoever looks renders the screen then
-        (hmi.ui.testing.screen_text, ``App.export_screenshot``), or the line it needs (a
+        (tests/ui_harness.py's screen_text, ``App.export_screenshot``), or the line it needs (a
         click's style, ``Widget.render_lines``), or what changed (:meth:`paint`). Painting
         each frame nobody could see was about a third of a pilot test's CPU, and more under
         a dialog (the screen below it re-tinted at each paint)."""

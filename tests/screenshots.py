@@ -1,8 +1,8 @@
 """Regenerate ``screenshots/*.svg`` from the real app in its main states.
 
-    python -m hmi.ui.screenshots [--out screenshots] [--only NAME ...] [--png DIR]
+    python tests/screenshots.py [--out screenshots] [--only NAME ...] [--png DIR]
 
-The states are those of :mod:`hmi.ui.scenarios` (the snapshot tests use the same), reached by
+The states are those of tests/ui_scenarios.py (the snapshot tests use the same), reached by
 pressing the operator's keys in virtual time, so the pictures are exactly repeatable.
 
 ``--png DIR`` also converts each SVG to a PNG (1400 px wide, white background) with
@@ -24,11 +24,11 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from textual.pilot import Pilot
+from ui_scenarios import SCENARIOS, Scenario
 
-from hmi.ui.scenarios import SCENARIOS, Scenario
-from hmi.ui.testing import drain
+from hmi.ui.headless import drain
 
-DEFAULT_OUT = Path(__file__).resolve().parents[2] / "screenshots"
+DEFAULT_OUT = Path(__file__).resolve().parents[1] / "screenshots"
 
 
 def shoot(scenario: Scenario, out: Path) -> Path:
@@ -71,7 +71,7 @@ def to_png(svg: Path, png: Path, width: int = 1400) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m hmi.ui.screenshots",
+    parser = argparse.ArgumentParser(prog="python tests/screenshots.py",
                                      description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output folder")
     parser.add_argument("--only", nargs="*", metavar="NAME",

@@ -1,7 +1,7 @@
 """Named states of the app (the CISPI valve, the conveyor/robot cell), reached by pressing the
 operator's keys.
 
-The snapshot tests and the screenshot script (``python -m hmi.ui.screenshots``) share these,
+The snapshot tests and the screenshot script (``python tests/screenshots.py``) share these,
 so the README's pictures are the states the tests check. Every scenario runs in virtual time
 with wall-clock figures hidden, so it renders identically on any machine.
 """
@@ -14,6 +14,7 @@ from functools import partial
 from pathlib import Path
 
 from textual.pilot import Pilot
+from ui_harness import palette, run_for, run_until, wait_for_main
 
 from hmi.engine.scan import Engine
 from hmi.plant.sim.plant import SimPlant
@@ -24,20 +25,10 @@ from hmi.ui.alarm_list import AlarmList
 from hmi.ui.app import PlcHmiApp
 from hmi.ui.dialogs import ConfirmDialog
 from hmi.ui.fault_dialog import FaultDialog
+from hmi.ui.headless import drain, press, settle, wait_for_screen, wait_until
 from hmi.ui.io_panel import IOPanel
-from hmi.ui.testing import (
-    drain,
-    palette,
-    press,
-    run_for,
-    run_until,
-    settle,
-    wait_for_main,
-    wait_for_screen,
-    wait_until,
-)
 
-VALVE = Path(__file__).resolve().parents[2] / "projects" / "cispi_valve"
+VALVE = Path(__file__).resolve().parents[1] / "projects" / "cispi_valve"
 CONVEYOR = VALVE.parent / "conveyor_robot"
 
 
