@@ -411,7 +411,8 @@ async def test_inputs_are_uncertain_while_the_plant_does_not_answer(cell):
         await cell.scans(1)
         last = cell.session.last
         lost = last._replace(scan=last.scan + 1, plant=replace(last.plant, connected=False))
-        cell.server.on_scan(lost)
+        for listener in list(cell.session.scan_listeners):  # as if the session scanned it
+            listener(lost)
         await until(lambda: cell.server.published_scan == lost.scan)
         read = await value.read_data_value(raise_on_bad_status=False)
         assert read.StatusCode.value == ua.StatusCodes.UncertainNoCommunicationLastUsableValue

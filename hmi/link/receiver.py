@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import replace
 from typing import Any
 
@@ -31,6 +32,10 @@ class Receiver:
         self.control: m.ControlInfo | None = None
         self.frames = 0
         self.lost: str | None = None
+        # told of each frame once applied, in order (the OPC UA gateway: every scan's alarm
+        # transitions); in the thread that took it, so a listener must not wait
+        self.listeners: list[Callable[[m.Frame], None]] = []
+        self.listener_errors = 0
         # answers awaited, by id: (event, the answer once it came)
         self._pending: dict[int, list[Any]] = {}
         self._lock = threading.Lock()
@@ -90,6 +95,11 @@ class Receiver:
         self._view = View(frame.snapshot, delta.constraints, delta.damage_count, frame.run,
                           frame.overruns, frame.control, frame.services)
         self.frames += 1
+        for listener in list(self.listeners):
+            try:
+                listener(frame)
+            except Exception:  # a listener's failure is its own, never the link's
+                self.listener_errors += 1
 
     def view(self) -> View | None:
         return self._view
