@@ -14,6 +14,7 @@ from pathlib import Path
 from hmi.engine.scan import Engine
 from hmi.errors import UsageError
 from hmi.opcua.server import CellServer, ServeOptions
+from hmi.opcua.source import CellSource
 from hmi.opcua.status import ServingStatus
 from hmi.plant.select import open_plant
 from hmi.project.injection import parse_injection
@@ -30,10 +31,11 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def serve(session: Session, options: Callable[[int], ServeOptions],
+def serve(session: Session | CellSource, options: Callable[[int], ServeOptions],
           listeners: Sequence[Callable[[ServingStatus], None]] = ()) -> CellServer:
-    """A started server for `session`, with the options `options(port)` on a free port;
-    `listeners` hear its changes of state from the start."""
+    """A started server for `session` (or a source: the runtime through a link), with the
+    options `options(port)` on a free port; `listeners` hear its changes of state from the
+    start."""
     for attempt in range(TRIES):
         server = CellServer(session, options(free_port()))
         server.listeners.extend(listeners)

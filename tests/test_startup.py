@@ -323,4 +323,4 @@ def test_the_hmis_start_imports_no_other_commands_module():
                      "print(json.dumps(sorted(m for m in sys.modules if "
                      "m.startswith('hmi.cli.'))))")
     assert set(json.loads(out)) == {"hmi.cli.entry", "hmi.cli.common", "hmi.cli.ui",
-                                    "hmi.cli.options", "hmi.cli.session", "hmi.cli.screens"}
+                                    "hmi.cli.options", "hmi.cli.screens"}

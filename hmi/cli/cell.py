@@ -6,13 +6,12 @@ running cell). ``plchmi PROJECT`` (hmi.cli.ui) starts a runtime if none runs, th
 from __future__ import annotations
 
 import argparse
-import contextlib
 import os
-import signal
+import subprocess
 import sys
 from pathlib import Path
 
-from hmi.cli.common import RunFailure, ended_by
+from hmi.cli.common import RunFailure, ended_by, on_termination
 from hmi.cli.options import diagnoser_arg, project_arg
 from hmi.cli.screens import run_screen, runtime_args
 from hmi.errors import UsageError
@@ -33,6 +32,8 @@ def add_parsers(sub) -> None:
                    help="write every scan to FILE (.csv or .jsonl), as plchmi run does")
     p.add_argument("--no-realtime", action="store_true",
                    help="do not ask for a real-time priority for the scan thread")
+    from hmi.opcua.options import add_arguments as opcua_args
+    opcua_args(p)  # served by a gateway process beside the runtime (plchmi gateway)
 
     p = sub.add_parser("attach", help="attach a screen to a running cell",
                        description="The operator HMI of a cell whose runtime runs "
@@ -52,12 +53,13 @@ def add_parsers(sub) -> None:
 
 def cmd_serve(args: argparse.Namespace) -> int:
     from hmi.cli.session import connect_plant, make_engine, open_historian, stop_plant
+    from hmi.opcua.options import check_arguments
     from hmi.project.kept import TooBig, fingerprint, load
     from hmi.runtime.place import Held, RuntimeLock, place
     from hmi.runtime.runtime import Runtime
     from hmi.session.runio import RunOutputs
     from hmi.session.session import Session
-
+    check_arguments(args)
     diagnoser = getattr(args, "diagnoser", None)
     project = load(args.project, diagnoser)
     try:
@@ -77,6 +79,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     outputs = None
     historian = None
     runtime = None
+    gateway = None
     abnormal: str | None = None
     try:
         engine, _ = make_engine(project, args)
@@ -101,17 +104,20 @@ def cmd_serve(args: argparse.Namespace) -> int:
             session.scan_listeners.append(traced)
         runtime = Runtime(session, print_, where.socket, outputs.recorder,
                           virtual=args.virtual, realtime=not args.no_realtime)
-        with _ending(runtime):
+        with on_termination(runtime.end):  # (ended as asked: safe outputs, journal closed)
             runtime.start()
             scan = runtime.runner.realtime_state if runtime.runner else "virtual time"
             print(f"plchmi: {project.name} runs (pid {os.getpid()}; scan thread: {scan}); "
                   f"screens attach at {where.socket}", file=sys.stderr, flush=True)
+            gateway = start_gateway(args, where)
             abnormal = runtime.wait()
         why = abnormal or runtime.why or "the runtime stops"
         runtime.stop(why)
     finally:
         if runtime is not None and not runtime.ended.is_set():
             runtime.stop("the runtime stops on an error")
+        if gateway is not None:
+            stop_gateway(gateway)
         if engine is not None and engine.plant.is_real:
             stop_plant(engine)  # the safe outputs first, then the journal says how it ended
         if outputs is not None:
@@ -127,17 +133,39 @@ def cmd_serve(args: argparse.Namespace) -> int:
     return 0
 
 
-@contextlib.contextmanager
-def _ending(runtime):
-    """SIGTERM and SIGINT end the runtime as asked (safe outputs, the journal closed)."""
-    def end(signum, frame) -> None:
-        runtime.end(f"{signal.Signals(signum).name} received")
-    previous = {s: signal.signal(s, end) for s in (signal.SIGTERM, signal.SIGINT)}
+GATEWAY_END_S = 10.0  # a gateway told the runtime stops ends by itself within this
+
+
+def start_gateway(args: argparse.Namespace, where) -> subprocess.Popen | None:
+    """With --opcua: the OPC UA gateway (plchmi gateway), a process of its own attached to
+    this runtime as a screen; its output in gateway.log beside the runtime's."""
+    from hmi.opcua.options import passed_on
+    options = passed_on(args)
+    if not options:
+        return None
+    command = [sys.executable, "-m", "hmi.cli", "gateway", str(args.project), "--socket",
+               str(where.socket), *options]
+    if getattr(args, "diagnoser", None):
+        command += ["--diagnoser", args.diagnoser]
+    log_path = where.folder / "gateway.log"
+    with open(log_path, "ab") as log:
+        process = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=log, stderr=log)
+    print(f"plchmi: the OPC UA gateway starts (pid {process.pid}; its log: {log_path})",
+          file=sys.stderr, flush=True)
+    return process
+
+
+def stop_gateway(process: subprocess.Popen) -> None:
+    """It ends by itself once the runtime closed its screens; else it is told to."""
     try:
-        yield
-    finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
+        process.wait(GATEWAY_END_S)
+    except subprocess.TimeoutExpired:
+        process.terminate()
+        try:
+            process.wait(GATEWAY_END_S)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
 
 
 # -- a screen --------------------------------------------------------------------------

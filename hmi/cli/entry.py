@@ -27,16 +27,19 @@ PARTS: tuple[tuple[tuple[str, ...], str, str], ...] = (
     (("bench",), "bench", "add_parser"),
     (("ui",), "ui", "add_parser"),
     (("serve", "attach"), "cell", "add_parsers"),
+    (("gateway",), "gateway", "add_parser"),
     (("opcua-passwd", "serve-plant"), "serve", "add_parsers"),
 )
-SUBCOMMANDS = ("check", "run", "sweep", "ui", "serve", "attach", "serve-plant", "bench",
-               "journal", "diagnose", "campaign", "export", "opcua-passwd", "soak", "history")
+SUBCOMMANDS = ("check", "run", "sweep", "ui", "serve", "attach", "gateway", "serve-plant",
+               "bench", "journal", "diagnose", "campaign", "export", "opcua-passwd", "soak",
+               "history")
 
 # command -> (its module, its function)
 COMMANDS = {
     "check": ("check", "cmd_check"), "run": ("run", "cmd_run"),
     "sweep": ("studies", "cmd_sweep"), "ui": ("ui", "cmd_ui"),
     "serve": ("cell", "cmd_serve"), "attach": ("cell", "cmd_attach"),
+    "gateway": ("gateway", "cmd_gateway"),
     "serve-plant": ("serve", "cmd_serve_plant"), "bench": ("bench", "cmd_bench"),
     "journal": ("journal", "cmd_journal"), "history": ("history", "cmd_history"),
     "diagnose": ("studies", "cmd_diagnose"),

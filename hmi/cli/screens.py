@@ -129,7 +129,8 @@ def passed_on(args: argparse.Namespace) -> list[str]:
     for flag, name in (("--read-only", "read_only"), ("--allow-monitor", "allow_monitor")):
         if getattr(args, name, False):
             out.append(flag)
-    return out
+    from hmi.opcua.options import passed_on as opcua_options
+    return out + opcua_options(args)
 
 
 def given_runtime_options(args: argparse.Namespace) -> list[str]:

@@ -4,7 +4,9 @@
                    from a snapshot (no asyncua)
     conditions.py  plchmi's ISA-18.2 alarms as Part 9 AlarmConditionType events (no asyncua)
     users.py       who may send commands: the password file, trusted certificates
-    server.py      the asyncua server in its own thread, fed by a Session's snapshots
+    server.py      the asyncua server in its own thread, fed by a cell source's snapshots
+    source.py      the cell it serves: the runtime through its socket (the gateway:
+                   hmi.cli.gateway) or a session in this process (a headless run)
     options.py     --opcua and its companions, from the command line to ServeOptions
 
 asyncua is an optional extra (``pip install 'plchmi[opcua]'``): nothing here imports it

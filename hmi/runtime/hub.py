@@ -231,7 +231,10 @@ class Hub:
                 return self.stats(ident)
             case m.Report(status=status):
                 with self.lock:
+                    before = self.services.get(status.name)
                     self.services[status.name] = status
+                if before is None or before.state != status.state:
+                    self._journal_service(client, status)
                 return None
             case m.Fault():
                 if self.journal is not None:
@@ -249,6 +252,12 @@ class Hub:
             case m.Hello():
                 raise ValueError("a second Hello")
         raise ValueError(f"unexpected {type(message).__name__}")
+
+    def _journal_service(self, client: Client, status: m.ServiceStatus) -> None:
+        """A gateway's change of state (the OPC UA server serving, stopped, failed), in the
+        journal with who reported it; a server starting is journalled once it serves."""
+        if status.state != "starting":
+            self._journal(f"{status.name}-{status.state}", status.text, client)
 
     def _refusal(self, client: Client) -> str | None:
         """Why this screen may not command the cell now (None: it may)."""

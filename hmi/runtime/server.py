@@ -242,6 +242,11 @@ class SocketServer:
                     connection.send(self.hub.encode(reply))
         except (asyncio.IncompleteReadError, ConnectionError):
             pass  # the screen went away: its connection closed (lost)
+        except asyncio.CancelledError:
+            # the runtime stops with this screen still attached: its loop ends. Ended
+            # here, not re-raised: asyncio (3.11) would log the cancelled task's callback
+            # as an error in the runtime's log.
+            pass
         except (Malformed, WireError, ValueError) as exc:
             event, why = "client-lost", f"sent a malformed message ({exc}): disconnected"
             with contextlib.suppress(Exception):
