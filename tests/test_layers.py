@@ -34,7 +34,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("hmi.plant", "hmi.engine", "hmi.farm"),
     ("hmi.studies", "hmi.export"),
     ("hmi.explain",),
-    ("hmi.session", "hmi.history"),
+    ("hmi.session", "hmi.history", "hmi.access"),
     ("hmi.wire",),
     ("hmi.runtime",),
     ("hmi.link",),

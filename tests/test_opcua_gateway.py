@@ -20,9 +20,9 @@ import pytest
 asyncua = pytest.importorskip("asyncua", reason="the [opcua] extra is not installed")
 from asyncua import Client  # noqa: E402
 
+from hmi.access.users import add  # noqa: E402
 from hmi.engine.commands import Pause  # noqa: E402
 from hmi.explain.journal import read  # noqa: E402
-from hmi.opcua.users import write_user  # noqa: E402
 from tests.conftest import PROJECTS  # noqa: E402
 from tests.opcua_cells import free_port  # noqa: E402
 from tests.runtimes import HANG_GUARD_S, ROOT, runtime, wait_for  # noqa: E402
@@ -85,8 +85,13 @@ async def _read_scans(url: str) -> tuple[int, int, list[str]]:
     c, (ns, cell) = await _scan_count(url)
     try:
         count = await cell.get_child([f"{ns}:Status", f"{ns}:ScanCount"])
-        first = await count.read_value()
         started = time.monotonic()
+        while True:  # (until the gateway published its first frame's values)
+            value = await count.read_data_value(raise_on_bad_status=False)
+            if value.StatusCode.is_good() or time.monotonic() - started > HANG_GUARD_S:
+                break
+            await asyncio.sleep(0.05)
+        first = await count.read_value()
         later = first
         while later == first and time.monotonic() - started < HANG_GUARD_S:
             await asyncio.sleep(0.05)
@@ -105,7 +110,7 @@ def test_the_gateway_serves_the_runtimes_cell_and_its_commands_follow_control(tm
     sock = tmp_path / "data" / "g" / "runtime.sock"
     path = tmp_path / "journal.jsonl"
     users = tmp_path / "users"
-    write_user(users, "bob", PASSWORD)
+    add(users, "bob", "operator", PASSWORD)
     with runtime(VALVE, sock, "--journal", str(path), virtual=False) as cell:
         gateway = Gateway(sock, "--opcua-writable", "--opcua-users", str(users))
         try:
@@ -131,7 +136,8 @@ def test_the_gateway_serves_the_runtimes_cell_and_its_commands_follow_control(tm
                        ("opcua:bob", False)], actions
     events = [e["event"] for e in entries
               if e["type"] == "session" and e["event"].startswith("opcua-")]
-    assert events == ["opcua-serving"], events  # (the runtime stopped first: it is gone)
+    # (the runtime stopped first: the gateway left with it, its service stopped)
+    assert events == ["opcua-serving", "opcua-stopped"], events
 
 
 HEL_CLAIM = 2 ** 31 - 1  # bytes the hostile HEL says its message has
@@ -194,3 +200,51 @@ def test_the_gateway_needs_a_running_runtime(tmp_path):
                           env={**os.environ})
     assert done.returncode == 1, done.stderr
     assert "no runtime runs cispi_valve" in done.stderr
+
+
+async def test_the_screens_show_the_gateway_serving_then_its_loss(tmp_path):
+    """The runtime's frames carry the gateway's state: an HMI attached to the runtime shows
+    OPC UA and its clients in the status bar; the gateway killed, the runtime marks it
+    failed (journalled) and the HMI says so in its status bar and a banner."""
+    from ui_harness import region_text
+
+    from hmi.link.base import Identity
+    from hmi.link.client import SocketLink
+    from hmi.project.kept import fingerprint, load_once
+    from hmi.ui.app import PlcHmiApp
+    from hmi.ui.headless import settle
+    from tests.runtimes import RuntimeProcess
+
+    sock = tmp_path / "data" / "s" / "runtime.sock"
+    path = tmp_path / "journal.jsonl"
+    cell = RuntimeProcess(VALVE, sock, "--journal", str(path))
+    try:
+        gateway = Gateway(sock)
+        link = SocketLink(load_once(VALVE), sock, fingerprint(VALVE, None),
+                          Identity("alice", "operator", "terminal", "alice"), True)
+        assert link.first_frame.wait(HANG_GUARD_S)
+
+        def opcua(state: str) -> bool:
+            view = link.view()
+            return view is not None and any(s.name == "opcua" and s.state == state
+                                            for s in view.services)
+        wait_for(lambda: opcua("serving"), "the gateway serving, in the frames")
+        app = PlcHmiApp(link, live=False, show_measured=False)
+        async with app.run_test(size=(120, 36)) as pilot:
+            app.driver.advance(100_000)
+            await settle(pilot)
+            assert "OPC UA: no clients" in region_text(app, "#status")
+            gateway.process.kill()
+            gateway.process.wait(HANG_GUARD_S)
+            wait_for(lambda: opcua("failed"), "the gateway's loss, in the frames")
+            app.driver.advance(100_000)
+            await settle(pilot)
+            assert "OPC UA FAILED" in region_text(app, "#status")
+            assert "OPC UA FAILED" in region_text(app, "#banners")
+        link.leave()
+    finally:
+        cell.stop()
+    events = [(e["event"], e["message"]) for e in journal(path)
+              if e["type"] == "session" and e["event"].startswith("opcua-")]
+    assert [e for e, _ in events] == ["opcua-serving", "opcua-failed"], events
+    assert "its connection closed" in events[1][1]

@@ -91,6 +91,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
             clock = WallClock()
         session = Session(engine, clock=clock)
         outputs = RunOutputs(session, args.trace, args.journal, "runtime", background=True)
+        outputs.recorder.space(args.journal_space)
         # the cell's history, beside the scans (its own thread writes it): the screens' trends
         historian = open_historian(session, args, outputs.recorder, "runtime",
                                    default_on=not args.virtual)

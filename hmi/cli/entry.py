@@ -21,6 +21,7 @@ PARTS: tuple[tuple[tuple[str, ...], str, str], ...] = (
     (("diagnose", "campaign"), "studies", "add_parsers"),
     (("export",), "export", "add_parser"),
     (("journal",), "journal", "add_parser"),
+    (("journal-verify",), "journal", "add_verify_parser"),
     (("history",), "history", "add_parser"),
     (("sweep",), "studies", "add_sweep_parser"),
     (("soak",), "soak", "add_parser"),
@@ -28,11 +29,12 @@ PARTS: tuple[tuple[tuple[str, ...], str, str], ...] = (
     (("ui",), "ui", "add_parser"),
     (("serve", "attach"), "cell", "add_parsers"),
     (("gateway",), "gateway", "add_parser"),
-    (("opcua-passwd", "serve-plant"), "serve", "add_parsers"),
+    (("opcua", "serve-plant"), "serve", "add_parsers"),
+    (("users",), "users", "add_parser"),
 )
 SUBCOMMANDS = ("check", "run", "sweep", "ui", "serve", "attach", "gateway", "serve-plant",
-               "bench", "journal", "diagnose", "campaign", "export", "opcua-passwd", "soak",
-               "history")
+               "bench", "journal", "diagnose", "campaign", "export", "opcua", "soak",
+               "history", "users", "journal-verify")
 
 # command -> (its module, its function)
 COMMANDS = {
@@ -41,10 +43,12 @@ COMMANDS = {
     "serve": ("cell", "cmd_serve"), "attach": ("cell", "cmd_attach"),
     "gateway": ("gateway", "cmd_gateway"),
     "serve-plant": ("serve", "cmd_serve_plant"), "bench": ("bench", "cmd_bench"),
-    "journal": ("journal", "cmd_journal"), "history": ("history", "cmd_history"),
+    "journal": ("journal", "cmd_journal"),
+    "journal-verify": ("journal", "cmd_verify"), "history": ("history", "cmd_history"),
     "diagnose": ("studies", "cmd_diagnose"),
     "campaign": ("studies", "cmd_campaign"), "export": ("export", "cmd_export"),
-    "opcua-passwd": ("serve", "cmd_opcua_passwd"), "soak": ("soak", "cmd_soak"),
+    "opcua": ("serve", "cmd_opcua"), "soak": ("soak", "cmd_soak"),
+    "users": ("users", "cmd_users"),
 }
 
 
@@ -73,6 +77,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args_list = list(sys.argv[1:] if argv is None else argv)
     if args_list and args_list[0] not in SUBCOMMANDS and not args_list[0].startswith("-"):
         args_list.insert(0, "ui")
+    if args_list[:2] == ["journal", "verify"] and len(args_list) > 2:
+        args_list[:2] = ["journal-verify"]  # plchmi journal verify PROJECT
     if not args_list:
         build_parser().print_help()
         return 2

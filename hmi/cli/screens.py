@@ -12,7 +12,13 @@ import time
 from pathlib import Path
 
 from hmi.cli.common import RunFailure
-from hmi.cli.options import diagnoser_arg, engine_args, historian_args, plant_args
+from hmi.cli.options import (
+    diagnoser_arg,
+    engine_args,
+    historian_args,
+    journal_space_arg,
+    plant_args,
+)
 
 START_S = 60.0  # a runtime starting (a real plant's connection included) is waited for
 
@@ -25,6 +31,7 @@ def runtime_args(p: argparse.ArgumentParser) -> None:
                    help="schedule a fault in the simulated plant")
     p.add_argument("--journal", type=Path, metavar="FILE",
                    help="journal file (default: the user's data folder, see plchmi journal)")
+    journal_space_arg(p)
     p.add_argument("--socket", type=Path, metavar="PATH",
                    help="the runtime's socket (default: runtime.sock in the project's data "
                    "folder)")
@@ -124,6 +131,8 @@ def passed_on(args: argparse.Namespace) -> list[str]:
     from hmi.timefmt import format_duration
     if getattr(args, "connect_timeout", None) is not None:
         out += ["--connect-timeout", format_duration(args.connect_timeout)]
+    if getattr(args, "journal_space", 1 << 30) != 1 << 30:  # (bytes: the default's type)
+        out += ["--journal-space", f"{args.journal_space}B"]
     if getattr(args, "history_retention", None) is not None:  # (a length: whole seconds)
         out += ["--history-retention", f"{max(1, args.history_retention // 1_000_000)}s"]
     for flag, name in (("--read-only", "read_only"), ("--allow-monitor", "allow_monitor")):

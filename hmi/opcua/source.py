@@ -30,12 +30,15 @@ from hmi.engine.snapshot import Snapshot
 from hmi.explain.alarms import Alarm, AlarmEvent
 from hmi.link.client import SocketLink
 from hmi.link.local import LocalLink
+from hmi.opcua.users import Identity
 from hmi.project.model import Project
 from hmi.session.session import Session
 from hmi.wire import messages as m
 
 Batch = tuple[tuple[AlarmEvent, ...], tuple[Alarm, ...]]
-GATEWAY_ROLE = "operator"
+# told of a command carried out: the command, its result, who sent it ("opcua:alice", "" the
+# cell's operator)
+CommandListener = Callable[[Command, CommandResult, str], None]
 
 
 class CellSource(Protocol):
@@ -60,11 +63,15 @@ class CellSource(Protocol):
     def wall_us(self, time_us: int) -> int:
         """The wall time of the run's time `time_us` (hmi.session.session.Session.wall_us)."""
 
-    def command(self, command: Command, user: str, note: str = "") -> CommandResult:
+    def command(self, command: Command, who: Identity, note: str = "") -> CommandResult:
         """An OPC UA user's command (blocking: called from a worker thread)."""
 
     def refused_for_control(self, result: CommandResult) -> bool:
         """Whether a refused command was refused because this source is not in control."""
+
+    def listen(self, listener: CommandListener) -> None:
+        """`listener` hears the commands carried out (SessionSource: every door's; the
+        gateway: those of its own users, the others' are the runtime's)."""
 
 
 class SessionSource:
@@ -109,12 +116,17 @@ class SessionSource:
     def wall_us(self, time_us: int) -> int:
         return self.session.wall_us(time_us)
 
-    def command(self, command: Command, user: str, note: str = "") -> CommandResult:
-        origin = f"opcua:{user}" + (f" ({note})" if note else "")
+    def command(self, command: Command, who: Identity, note: str = "") -> CommandResult:
+        origin = f"opcua:{who.name}" + (f" ({note})" if note else "")
         return self.session.command(command, origin)
 
     def refused_for_control(self, result: CommandResult) -> bool:
         return False  # no screens here: nobody else is in control
+
+    def listen(self, listener: CommandListener) -> None:
+        session = self.session
+        session.listeners.append(
+            lambda command, result, snapshot: listener(command, result, session.origin))
 
 
 class LinkSource:
@@ -132,6 +144,7 @@ class LinkSource:
         self._batches: deque[Batch] = deque()
         self._lock = threading.Lock()
         self._wake: Callable[[], None] | None = None
+        self._listeners: list[CommandListener] = []
         self.batches_lost = 0  # alarm batches the runtime could not send (fell behind)
         link.receiver.listeners.append(self._on_frame)
 
@@ -170,11 +183,16 @@ class LinkSource:
             self._epoch_us = time.time_ns() // 1000 - time_us
         return self._epoch_us + time_us
 
-    def command(self, command: Command, user: str, note: str = "") -> CommandResult:
-        who = m.Identity(user, GATEWAY_ROLE, "opcua", self.link.identity.session)
-        answer = self.link.command(command, on_behalf=who, note=note)
+    def command(self, command: Command, who: Identity, note: str = "") -> CommandResult:
+        user = m.Identity(who.name or "", who.role, "opcua", self.link.identity.session)
+        answer = self.link.command(command, on_behalf=user, note=note)
         result: CommandResult = answer.result
+        for listener in list(self._listeners):
+            listener(command, result, user.by)
         return result
+
+    def listen(self, listener: CommandListener) -> None:
+        self._listeners.append(listener)
 
     def refused_for_control(self, result: CommandResult) -> bool:
         if result.accepted:

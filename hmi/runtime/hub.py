@@ -103,6 +103,7 @@ class Hub:
         self.holder: str | None = None
         self.asked_by: str | None = None
         self.services: dict[str, m.ServiceStatus] = {}
+        self._reporters: dict[str, str] = {}  # service -> the screen that reports it
         self._control_version = 0
         self._ids = itertools.count(1)
         self.frames_sent = 0
@@ -160,6 +161,15 @@ class Hub:
                 self._journal("control-free", f"nobody is in control: {client.info} {why}",
                               client)
             self._control_version += 1
+            for name, reporter in list(self._reporters.items()):
+                status = self.services[name]
+                if reporter == client.id and status.state in ("starting", "serving"):
+                    # its gateway gone, the service is not up any more: the screens say so
+                    gone = m.ServiceStatus(
+                        name, "stopped" if event == "client-left" else "failed",
+                        f"the {name} gateway ({client.info}) {why}", 0)
+                    self.services[name] = gone
+                    self._journal_service(client, gone)
 
     def _journal(self, event: str, message: str, client: Client) -> None:
         if self.journal is not None:
@@ -233,6 +243,7 @@ class Hub:
                 with self.lock:
                     before = self.services.get(status.name)
                     self.services[status.name] = status
+                    self._reporters[status.name] = client.id
                 if before is None or before.state != status.state:
                     self._journal_service(client, status)
                 return None

@@ -26,12 +26,12 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from textual import events
 from textual.command import CommandInput, CommandList, CommandPalette
-from textual.geometry import Size
 
 from hmi.engine.scan import Engine
 from hmi.explain.journal import Journal
+from hmi.history.historian import Historian
+from hmi.history.target import Target
 from hmi.plant.sim import SimPlant
 from hmi.project.loader import load_project
 from hmi.session.journal_recorder import JournalRecorder
@@ -82,16 +82,22 @@ class SoakResult:
         return not self.broken
 
 
-def make_cell(config: SoakConfig) -> Session:
-    """The session the app shows (its scans in virtual time)."""
+def make_cell(config: SoakConfig, history: Path | None = None
+              ) -> tuple[Session, Historian | None]:
+    """The session the app shows (its scans in virtual time) and, with a `history` file,
+    its historian: the trend screens then read a real history."""
     project = load_project(config.project)
-    return Session(Engine(project, SimPlant(project), control=config.control))
+    cell = Session(Engine(project, SimPlant(project), control=config.control))
+    historian = Historian(cell, Target("sqlite", str(history)), source="soak").attach() \
+        if history is not None else None
+    return cell, historian
 
 
-def make_app(config: SoakConfig) -> tuple[PlcHmiApp, Session]:
-    """The app, and the session it shows (in this process)."""
-    cell = make_cell(config)
-    return PlcHmiApp(cell, live=False, show_measured=False), cell
+def make_app(config: SoakConfig, history: Path | None = None
+             ) -> tuple[PlcHmiApp, Session, Historian | None]:
+    """The app, the session it shows (in this process) and its historian (make_cell)."""
+    cell, historian = make_cell(config, history)
+    return PlcHmiApp(cell, live=False, show_measured=False), cell, historian
 
 
 class SplitCell:
@@ -160,15 +166,16 @@ async def session(config: SoakConfig, replay: list[Step] | None = None,
     folder = Path(journal_dir or tempfile.mkdtemp(prefix="plchmi-soak-"))
     result.journal = folder / "journal.jsonl"
     split = None
+    cell, historian = make_cell(config, folder / "history.sqlite")
+    journal = JournalRecorder(cell, Journal(result.journal), "soak")
+    if historian is not None:
+        historian.hear(journal)
     if config.split:
-        cell = make_cell(config)
-        journal = JournalRecorder(cell, Journal(result.journal), "soak")
         split = SplitCell(cell, folder, journal)
         app = PlcHmiApp(split.link, live=False, show_measured=False)
         app.containment.listeners.append(split.link.report_fault)  # the runtime journals
     else:
-        app, cell = make_app(config)
-        journal = JournalRecorder(cell, Journal(result.journal), "soak")
+        app = PlcHmiApp(cell, live=False, show_measured=False)
         app.containment.listeners.append(journal.on_ui_fault)
     checker = Invariants(app, cell, result.journal)
 
@@ -212,6 +219,8 @@ async def session(config: SoakConfig, replay: list[Step] | None = None,
         if split is not None:
             split.stop()
         journal.close(None if checker.ok else str(checker.broken[0]))
+        if historian is not None:
+            historian.close()
     checker.check_journal()  # its last lines (the session's end)
     _fill(result, checker, cell, started)
     if journal_dir is None and result.ok:  # a passing session's journal is not kept
@@ -262,9 +271,7 @@ async def perform(pilot, step: Step) -> bool:
                 await settle(pilot)
                 return False
         case Resize(width=width, height=height):
-            size = Size(width, height)
-            app._driver._size = size  # the headless driver's terminal size
-            app.post_message(events.Resize(size, size))
+            await pilot.resize_terminal(width, height)
     await settle(pilot)
     return True
 

@@ -96,14 +96,18 @@ from hmi.ui.monitors_panel import MonitorsPanel
 from hmi.ui.panel import TOP_SHARE, ColumnPanel
 from hmi.ui.presence import SILENT_S
 from hmi.ui.reset import Asked, recovery_lines, reset_lines
-from hmi.ui.serving import Served, serving_lines
+from hmi.ui.serving import Served, gateway_lines, serving_lines
 from hmi.ui.sim_panel import SimPanel
 from hmi.ui.status import BannerStrip, StatusBar
 from hmi.ui.style import ISA101, MUTED, OK_SYMBOL, Level, isa101_theme, tag
+from hmi.ui.textual_adapter import LastResort
 from hmi.ui.verdict import output_changes, request_verdict
 
 if TYPE_CHECKING:
+    from datetime import tzinfo
+
     from hmi.ui.palette import PaletteEntry
+    from hmi.ui.trend_screen import TrendScreen
 
 # The dialogs, the fault and signal pickers and the palette's provider are imported when
 # first opened: the first frame shows none of them (docs/performance.md).
@@ -145,8 +149,8 @@ class Body(ContainedPump, Vertical):
             panel.recheck()
 
 
-class PlcHmiApp(ContainedPump, App):
-    CSS_PATH = ["app.tcss", "dialogs.tcss"]
+class PlcHmiApp(LastResort, ContainedPump, App):
+    CSS_PATH = ["app.tcss", "dialogs.tcss", "trend.tcss"]
     TITLE = "plchmi"
     # 1 / 0 / x also from outside the I/O table (an explanation's policy button, the alarm
     # list): they act on the table's highlighted output; the table's own bindings come first
@@ -196,7 +200,7 @@ class PlcHmiApp(ContainedPump, App):
         self.subject: str | None = None
         # faults scheduled before the app started (plchmi ui --inject)
         self._injected += [InjectedFault(i, self._fault_text(i)) for i in injected]
-        # --bell: the terminal bell on each new unacknowledged P1 alarm (issue 19, optional)
+        # --bell: the terminal bell on each new unacknowledged P1 alarm (optional)
         self.bell_on_p1 = bell
         self.bells = 0
         self._p1_unack: frozenset[str] = frozenset()
@@ -207,6 +211,10 @@ class PlcHmiApp(ContainedPump, App):
                                              "the UI's scan recorder")
         # told once the first frame is on the screen (the start's caches save then)
         self.first_frame_listeners: list[Callable[[], None]] = []
+        # The trends open (hmi.ui.trend_screen), told of every frame; the zone their times
+        # are shown in (None: the machine's; the screenshots: UTC).
+        self.trends: TrendScreen | None = None
+        self.trend_zone: tzinfo | None = None
         self.set_class(True, f"-theme-{self.theme}", update=False)  # as a theme change sets
 
     def get_css_variables(self) -> dict[str, str]:
@@ -321,11 +329,10 @@ class PlcHmiApp(ContainedPump, App):
                 return None
         return run
 
-    def _handle_exception(self, error: Exception) -> None:
+    def last_resort(self, error: Exception) -> None:
         """Textual's last resort (an error in its own widgets or the compositor): the app
         cannot go on. Remembered as the reason of an abnormal end, then Textual ends it."""
         self.containment.record("the HMI (Textual)", error, fatal=True)
-        super()._handle_exception(error)
 
     async def run_action(self, action, default_namespace=None, namespaces=None) -> bool:
         """Every key's and palette's action goes through here: an error in it is contained."""
@@ -408,12 +415,14 @@ class PlcHmiApp(ContainedPump, App):
         contained = self.containment
         frame_faults = contained.version
         serving = self.served.status() if self.served is not None else None
+        gateway = next((s for s in view.services if s.name == "opcua"), None)
         overruns = self.driver.overruns
         lost = self.link.lost
         silent = self.link.silent_s()
         silent = float(int(silent)) if silent >= SILENT_S else 0.0
         key = (snap.scan, id(snap), run, view.run.speed, overruns, view.control, lost,
-               silent, self._version, self._mode_commanded, contained.version, serving)
+               silent, self._version, self._mode_commanded, contained.version, serving,
+               gateway)
         if not force and key == self._key:
             return False
         self._key = key
@@ -424,7 +433,8 @@ class PlcHmiApp(ContainedPump, App):
             injected=tuple(self._injected), free_inputs=self.free_inputs,
             damage_count=view.damage_count, mode_commanded=self._mode_commanded,
             constraints=view.constraints, ui_fault=contained.latest,
-            ui_faults=contained.total, serving=serving, control=view.control,
+            ui_faults=contained.total, serving=serving, gateway=gateway,
+            control=view.control,
             me=self.link.client, lost=lost, silent_s=silent)
         self._show_presence(frame)
         self.frame = frame
@@ -441,6 +451,12 @@ class PlcHmiApp(ContainedPump, App):
         except Exception as exc:
             self.contain("plant column layout", exc)
         self._ring(snap)
+        trends = self.trends
+        if trends is not None:
+            try:
+                trends.tick(self._history_now(snap))
+            except Exception as exc:
+                self.contain("the trends' refresh", exc)
         try:
             self._explain(frame)
         except Exception as exc:
@@ -1298,6 +1314,38 @@ class PlcHmiApp(ContainedPump, App):
         self.push_screen(SignalDialog(self.history.signals, chrono.signals, descriptions),
                          chosen)
 
+    def _history_now(self, snap: Snapshot | None = None) -> int:
+        """The newest scan on the history's time axis (Session.wall_us)."""
+        snap = snap or self.link.last
+        epoch = self.facts.epoch_us
+        if epoch is None:
+            import time
+            return time.time_ns() // 1000
+        return epoch + (snap.time_us if snap is not None else 0)
+
+    def action_trends(self) -> None:
+        self.open_trends()
+
+    def open_trends(self, signals: tuple[str, ...] | None = None,
+                    whole: bool = False) -> None:
+        """The trend screen (hmi.ui.trend_screen) on the chronogram's signals (or
+        `signals`); `whole`: zoomed out to all of the history."""
+        from hmi.ui.trend_screen import TrendScreen
+        history = self.facts.history
+        if not history:
+            self.refuse("trends", "no history is kept for this session (it was started "
+                        "with --historian off)")
+            return
+        chosen = signals if signals is not None else self.chronogram.signals
+        screen = TrendScreen(history, self.project.name, chosen, self._history_now(),
+                             zone=self.trend_zone, whole=whole)
+        self.trends = screen
+
+        def closed(_: object) -> None:
+            if self.trends is screen:
+                self.trends = None
+        self.push_screen(screen, closed)
+
     def set_signals(self, signals: tuple[str, ...]) -> None:
         self.chronogram.signals = signals
         self.chronogram.refresh(layout=True)
@@ -1381,7 +1429,16 @@ class PlcHmiApp(ContainedPump, App):
                                         "Time window of the timing diagram",
                                         partial(self.action_window, window)))
         entries += self._control_entries()
-        if self.served is not None:
+        if self.facts.history:
+            from hmi.history.catalogue import catalogue
+            found = catalogue(self.project, self.facts.layout)
+            for device in found.devices():
+                entries.append(PaletteEntry(
+                    f"Trends: maintenance of {device}",
+                    "Its travel times and operations over the whole history",
+                    partial(self.open_trends, found.maintenance(device), True)))
+        if self.served is not None or (self.frame is not None
+                                       and self.frame.gateway is not None):
             entries.append(PaletteEntry(
                 "OPC UA server: endpoint, clients, security",
                 "What the SCADA sees of this cell: where it is served, who is connected",
@@ -1393,6 +1450,9 @@ class PlcHmiApp(ContainedPump, App):
         from hmi.ui.dialogs import InfoDialog
         if self.served is not None:
             self.push_screen(InfoDialog("OPC UA server", serving_lines(self.served.status()),
+                                        dialog_id="opcua-dialog"))
+        elif self.frame is not None and self.frame.gateway is not None:
+            self.push_screen(InfoDialog("OPC UA server", gateway_lines(self.frame.gateway),
                                         dialog_id="opcua-dialog"))
 
 

@@ -18,6 +18,7 @@ from hmi.wire.messages import ControlInfo
 
 if TYPE_CHECKING:  # the HMI without --opcua never imports anything of OPC UA
     from hmi.opcua.status import ServingStatus
+    from hmi.wire.messages import ServiceStatus
 
 
 @dataclass(frozen=True)
@@ -49,6 +50,7 @@ class Frame:
     ui_fault: UIFault | None = None  # the latest UI error contained (hmi.ui.containment)
     ui_faults: int = 0  # how many UI errors were contained this session
     serving: ServingStatus | None = None  # the cell's OPC UA server (--opcua), if any
+    gateway: ServiceStatus | None = None  # the runtime's OPC UA gateway, if it has one
     control: ControlInfo | None = None  # who is in control (None: no runtime, one screen)
     me: str | None = None  # this screen's id at the runtime
     lost: str | None = None  # why the runtime is gone: nothing shown is live

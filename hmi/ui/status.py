@@ -23,7 +23,7 @@ from hmi.ui.alarm_list import urgent_count
 from hmi.ui.frame import Frame
 from hmi.ui.panel import TextPanel
 from hmi.ui.presence import control_field, lost_banner, lost_field, lost_fields
-from hmi.ui.serving import serving_banner, serving_field
+from hmi.ui.serving import gateway_banner, gateway_field, serving_banner, serving_field
 from hmi.ui.style import MUTED, Level, banner, tag
 
 SEPARATOR = " │ "
@@ -58,6 +58,8 @@ def status_fields(frame: Frame, wide: bool, compact: bool = False) -> list[Field
             fields.append(Field(tag(f"{where} DISCONNECTED", Level.ALARM), 0))
     if frame.serving is not None:
         fields.append(Field(*serving_field(frame.serving)))
+    elif frame.gateway is not None:
+        fields.append(Field(*gateway_field(frame.gateway)))
     if (control := control_field(frame)) is not None:
         fields.append(Field(*control))
     if snap.mode == "manual":
@@ -233,6 +235,9 @@ def banner_lines(frame: Frame) -> list[Text]:
         line = banner("OUTPUTS HELD IN SAFE STATE", Level.ALARM)
         line.append(" " + "; ".join(r.detail for r in snap.latched)
                     + " · r: fault reset once the cause is gone")
+        lines.append(line)
+    if frame.serving is None and frame.gateway is not None \
+            and (line := gateway_banner(frame.gateway)) is not None:
         lines.append(line)
     if frame.serving is not None and (line := serving_banner(frame.serving)) is not None:
         lines.append(line)
