@@ -265,6 +265,10 @@ class TrendScreen(Dialog[None]):
         span = ZOOMS_US[index]
         if span == self.span_us:
             return
+        if self.following and self.cursor is None:  # on now: it stays on now, following
+            self.span_us = span
+            self._place(self.now_us)
+            return
         width = self._width()
         window = self.chart.window
         column = self._cursor_column()
