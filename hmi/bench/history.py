@@ -260,9 +260,9 @@ def history_read(path: Path) -> list[str]:
 
     from asyncua import Client
 
+    from hmi.bench.opcua import _free_port
     from hmi.history.query import HistoryReader
     from hmi.history.target import Target, open_store
-    from hmi.bench.opcua import _free_port
     from hmi.opcua.server import CellServer, ServeOptions
 
     logging.getLogger("asyncua").setLevel(logging.ERROR)  # its session timeout notice
