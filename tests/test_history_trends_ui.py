@@ -191,3 +191,24 @@ async def test_a_read_that_hangs_never_holds_the_ui(postgres):
         await wait_until(pilot, lambda: not any(w.is_running for w in app.workers),
                          "the worker to end")
         assert screen.reads == 0
+
+
+async def test_on_now_the_cursor_reads_the_newest_history(tmp_path):
+    """The history lags the cell (the writer commits every second; here it stopped 40 s
+    ago): on now, the cursor sits on the newest column the history covers and reads its
+    values, not "?" for every signal."""
+    app, session, historian = _app(Target("sqlite", str(tmp_path / "h.sqlite")))
+    async with app.run_test(size=(80, 24)) as pilot:
+        await run_for(pilot, 60)
+        historian.close()
+        await run_for(pilot, 40)  # more than a column (15 s) past the history's end
+        screen = await _trends(pilot)
+        window = screen.chart.window
+        cursor = screen.chart.cursor
+        assert cursor < window.width - 1
+        assert all(d.columns[cursor].known for d in window.drawn)
+        assert not any(d.columns[cursor + 1].known for d in window.drawn)
+        rows = {line.split()[0]: line.split()[1] for line in screen_text(app).splitlines()[2:]
+                if line.strip() and "│" in line}
+        for name in ("C", "O", "fsc", "fso"):
+            assert rows[name] in ("0", "1"), rows

@@ -221,8 +221,17 @@ class TrendScreen(Dialog[None]):
         chart.refresh()
 
     def _cursor_column(self) -> int:
+        """The cursor's column; on now (None), the newest column the history covers: the
+        last second or so is not written yet, and the values read there would all be "?"."""
         width = self._width()
-        return width - 1 if self.cursor is None else max(0, min(width - 1, self.cursor))
+        if self.cursor is not None:
+            return max(0, min(width - 1, self.cursor))
+        window = self.chart.window
+        if window is not None and window.drawn:
+            for c in range(min(width, window.width) - 1, -1, -1):
+                if any(c < len(d.columns) and d.columns[c].known for d in window.drawn):
+                    return c
+        return width - 1
 
     # -- the cell goes on -----------------------------------------------------------------------
     def tick(self, now_us: int) -> None:
