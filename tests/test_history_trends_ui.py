@@ -197,7 +197,7 @@ async def test_on_now_the_cursor_reads_the_newest_history(tmp_path):
     """The history lags the cell (the writer commits every second; here it stopped 40 s
     ago): on now, the cursor sits on the newest column the history covers and reads its
     values, not "?" for every signal."""
-    app, session, historian = _app(Target("sqlite", str(tmp_path / "h.sqlite")))
+    app, _, historian = _app(Target("sqlite", str(tmp_path / "h.sqlite")))
     async with app.run_test(size=(80, 24)) as pilot:
         await run_for(pilot, 60)
         historian.close()
