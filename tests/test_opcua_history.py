@@ -3,10 +3,11 @@ FreeOpcUa's python-opcua (its own client stack and encoding: an independent peer
 
 The valve runs in virtual time with F5 (stuck) at 8.2 s, its alarm acknowledged, then a
 second session after a stop (two segments), all recorded by the historian into SQLite, and
-again into a real PostgreSQL; a server serves the second session with that history. Every answer is compared with the store
-itself: the same samples at the same instants (SourceTimestamp), in the variable's own type,
-paged by continuation points, newest first when asked, the stop between the sessions marked
-BadDataLost; the alarms and actions as events.
+again into a real PostgreSQL; a server serves the second session with that history. Every
+answer is compared with the store itself: the same samples at the same instants
+(SourceTimestamp), in the variable's own type, paged by continuation points, newest first
+when asked, the stop between the sessions marked BadDataLost; the alarms and actions as
+events.
 """
 
 from __future__ import annotations

@@ -315,7 +315,7 @@ class TrendScreen(Dialog[None]):
         self.signals = list(names)
         self.request()
 
-    def toggle(self, name: str) -> None:
+    def toggle_signal(self, name: str) -> None:
         self.show([n for n in self.signals if n != name] if name in self.signals
                   else [*self.signals, name])
 
@@ -351,7 +351,7 @@ class TrendScreen(Dialog[None]):
         for signal in self.known:
             verb = "hide" if signal.name in shown else "show"
             entries.append(PaletteEntry(f"Trends: {verb} {signal.name}", signal.description,
-                                        partial(self.toggle, signal.name)))
+                                        partial(self.toggle_signal, signal.name)))
         return entries
 
     def maintenance(self, names: Sequence[str]) -> None:
