@@ -1,8 +1,9 @@
 """Who a screen is: the runtime decides, from the users file, never from what a screen says.
 
 A screen's Hello names a user, a role and a door; with no users file that is taken as said
-(the local terminal is its login name, an operator, as before any user existed) except that
-the browser door is refused: nobody could have signed in there. Once a users file exists:
+(the local terminal is its login name and does all it did before any user existed: roles
+are not checked, a viewer still sends nothing) except that the browser door is refused:
+nobody could have signed in there. Once a users file exists:
 
 * a password (the terminal asked for it) is checked by the
   :class:`~hmi.access.signin.Authenticator` — the lockout shared with every door;
@@ -86,6 +87,13 @@ class Admission:
         if opened is None:
             return None, why
         return Admitted(identity, opened.id), ""
+
+    def enforced(self) -> bool:
+        """Whether roles are checked: a users file exists (or cannot be read: fail closed)."""
+        try:
+            return self.auth.users() is not None
+        except UsageError:
+            return True
 
     def vouch(self, who: m.Identity) -> m.Identity | str:
         """A gateway's user as the users file has them now (its role, or a viewer's if the
