@@ -237,10 +237,10 @@ def banner_lines(frame: Frame) -> list[Text]:
                     + " · r: fault reset once the cause is gone")
         lines.append(line)
     if frame.serving is None and frame.gateway is not None \
-            and (line := gateway_banner(frame.gateway)) is not None:
-        lines.append(line)
-    if frame.serving is not None and (line := serving_banner(frame.serving)) is not None:
-        lines.append(line)
+            and (served := gateway_banner(frame.gateway)) is not None:
+        lines.append(served)
+    if frame.serving is not None and (served := serving_banner(frame.serving)) is not None:
+        lines.append(served)
     fault = frame.ui_fault
     if fault is not None:
         line = banner("UI ERROR", Level.ALARM)
