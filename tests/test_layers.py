@@ -3,7 +3,7 @@
     base (errors, timefmt, paths, limits, textfile, codecache, crash) <- logic <- project
         <- plant, engine, farm <- studies, export <- explain <- session, history <- wire
         <- runtime <- link
-        <- apps (ui, cli, bench, opcua, soak)
+        <- apps (ui, cli, bench, opcua, soak, web)
 
 A module imports from its own layer or from a lower one, never from a higher one; within
 its layer, plant/ does not import engine/ (the engine drives a plant through the contract of
@@ -38,7 +38,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("hmi.wire",),
     ("hmi.runtime",),
     ("hmi.link",),
-    ("hmi.ui", "hmi.cli", "hmi.bench", "hmi.opcua", "hmi.soak"),
+    ("hmi.ui", "hmi.cli", "hmi.bench", "hmi.opcua", "hmi.soak", "hmi.web"),
 )
 # What explain/ may read of engine/: the snapshot and the types it carries.
 SNAPSHOT_TYPES = {"hmi.engine.snapshot", "hmi.engine.commands", "hmi.engine.stopwatch",

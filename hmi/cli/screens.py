@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import os
 import subprocess
 import sys
 import time
@@ -42,15 +43,22 @@ def runtime_args(p: argparse.ArgumentParser) -> None:
 def run_screen(args: argparse.Namespace, project, socket: Path, view: bool = False) -> int:
     """The HMI attached to the runtime at `socket`; what its quit asked (stop the cell or
     leave it running) is done on the way out."""
-    from hmi.link.base import local_operator
+    from hmi.link.base import Identity, local_operator
     from hmi.link.client import AttachError, SocketLink
     from hmi.project.kept import fingerprint
     from hmi.ui.app import PlcHmiApp, app_end
 
     identity = local_operator(role="viewer" if view else "operator")
+    print_ = fingerprint(args.project, args.diagnoser)
+    ticket = os.environ.pop("PLCHMI_TICKET", "")  # a browser tab's (hmi.web.server)
+    if ticket:
+        identity = Identity("browser", identity.role, "browser", identity.session)
     try:
-        link = SocketLink(project, socket, fingerprint(args.project, args.diagnoser),
-                          identity, want_control=not view)
+        if ticket or not signs_in():
+            link = SocketLink(project, socket, print_, identity, want_control=not view,
+                              ticket=ticket)
+        else:
+            link = signed_in(project, socket, print_, identity, view)
     except AttachError as exc:
         raise RunFailure(str(exc)) from None
     app = PlcHmiApp(link, live=True, bell=getattr(args, "bell", False))
@@ -71,6 +79,48 @@ def run_screen(args: argparse.Namespace, project, socket: Path, view: bool = Fal
         print(f"plchmi: {project.name} keeps running (plchmi attach {args.project})",
               file=sys.stderr)
     return end.status
+
+
+SIGN_IN_TRIES = 3
+
+
+def signs_in() -> bool:
+    """Whether this terminal asks who is there: a users file exists and does not give the
+    local terminal a role of its own (local-terminal = ROLE)."""
+    from hmi.access import users
+    found = users.read(users.default_path())
+    return found is not None and found.settings.local_terminal == "sign-in"
+
+
+def signed_in(project, socket: Path, print_: str, identity, view: bool):
+    """The terminal's sign-in: a name and a password (not echoed), checked by the runtime
+    against the users file; a few tries, then the screen ends."""
+    import getpass
+    from dataclasses import replace
+
+    from hmi.access import users
+    from hmi.link.client import AttachError, SocketLink
+    found = users.read(users.default_path())
+    banner = found.settings.banner if found is not None else ""
+    print(f"{project.name}: sign in (the users of {users.default_path()})", file=sys.stderr)
+    if banner:
+        print(banner, file=sys.stderr)
+    why = ""
+    for _ in range(SIGN_IN_TRIES):
+        try:
+            name = input(f"User name [{identity.user}]: ").strip() or identity.user
+            password = getpass.getpass("Password: ")
+        except EOFError:
+            raise AttachError("sign-in ended (no input)") from None
+        try:
+            return SocketLink(project, socket, print_, replace(identity, user=name),
+                              want_control=not view, password=password)
+        except AttachError as exc:
+            why = str(exc)
+            if not why.startswith("not signed in"):
+                raise
+            print(f"plchmi: {why}", file=sys.stderr)
+    raise AttachError(f"{why} ({SIGN_IN_TRIES} tries)")
 
 
 def wait_stopped(folder: Path | None, name: str, guard_s: float = 60.0) -> bool:
@@ -132,7 +182,7 @@ def passed_on(args: argparse.Namespace) -> list[str]:
     if getattr(args, "connect_timeout", None) is not None:
         out += ["--connect-timeout", format_duration(args.connect_timeout)]
     if getattr(args, "journal_space", 1 << 30) != 1 << 30:  # (bytes: the default's type)
-        out += ["--journal-space", f"{args.journal_space}B"]
+        out += ["--journal-space", f"{max(1000, args.journal_space // 1000)}kB"]
     if getattr(args, "history_retention", None) is not None:  # (a length: whole seconds)
         out += ["--history-retention", f"{max(1, args.history_retention // 1_000_000)}s"]
     for flag, name in (("--read-only", "read_only"), ("--allow-monitor", "allow_monitor")):

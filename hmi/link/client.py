@@ -54,7 +54,8 @@ class SocketLink:
     scans_here = False  # the runtime's process scans: quitting this screen need not stop it
 
     def __init__(self, project: Project, path: Path, fingerprint: str, identity: Identity,
-                 want_control: bool = True, timeout: float = CONNECT_S):
+                 want_control: bool = True, timeout: float = CONNECT_S, password: str = "",
+                 ticket: str = ""):
         self.project = project
         self.path = path
         self.identity = identity
@@ -66,7 +67,7 @@ class SocketLink:
         started = time.perf_counter()
         try:
             self._send(m.Hello(m.PROTOCOL, m.schema_digest(), fingerprint, identity,
-                               want_control))
+                               want_control, password, ticket))
             answer = receiver.decode(read_message(sock, MAX_OUT))
         except (OSError, ConnectionError, ValueError) as exc:
             sock.close()
@@ -78,6 +79,8 @@ class SocketLink:
             sock.close()
             raise AttachError(f"the runtime answered a {type(answer).__name__}")
         receiver.welcome(answer)
+        if answer.identity is not None:
+            self.identity = answer.identity  # as let in: the users file's name and role
         assert receiver.facts is not None and receiver.history is not None
         self.facts = receiver.facts
         self.history = receiver.history

@@ -25,8 +25,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from hmi.access import roles
 from hmi.engine.commands import Command, CommandResult, StepScans
 from hmi.explain.reset import changes, declined_message, reset_preview
+from hmi.runtime.admission import GATEWAY_DOORS, Admission
 from hmi.session.journal_recorder import JournalRecorder
 from hmi.session.live import LiveRunner
 from hmi.session.recorder import Cursor, ScanRecorder
@@ -37,7 +39,6 @@ from hmi.wire.codec import Codec
 MAX_STEPS = 100_000  # scans one StepScans may ask for (the step dialog asks far fewer)
 MAX_ADVANCE_US = 3600 * 1_000_000  # virtual time one Advance may ask for
 TICK_S = 1.0  # a screen hears from the runtime at least this often (a Tick if nothing new)
-GATEWAY_DOORS = ("opcua",)  # doors whose screens send commands on behalf of their users
 
 
 def cell_facts(session: Session) -> m.CellFacts:
@@ -74,6 +75,7 @@ class Client:
     sent_at: float = 0.0  # monotonic time of the last frame or tick
     frames: int = 0
     dropped: int = 0  # frames it could not take (a later one went instead)
+    table_id: str = ""  # its sign-in's entry in the users' session table
     info: m.ClientInfo = field(init=False)
 
     def __post_init__(self) -> None:
@@ -82,8 +84,11 @@ class Client:
 
 class Hub:
     def __init__(self, session: Session, fingerprint: str, runtime: m.RuntimeInfo,
-                 journal: JournalRecorder | None = None, runner: LiveRunner | None = None):
+                 journal: JournalRecorder | None = None, runner: LiveRunner | None = None,
+                 admission: Admission | None = None):
         self.session = session
+        # who may attach, as whom (None: as the screen says: an in-process link's tests)
+        self.admission = admission
         self.fingerprint = fingerprint
         self.runtime = runtime
         self.journal = journal
@@ -136,15 +141,24 @@ class Hub:
         identity = hello.identity
         if identity.role not in m.ROLES or identity.door not in m.DOORS:
             return None, m.Refused(f"unknown role {identity.role!r} or door {identity.door!r}")
+        table_id = ""
+        if self.admission is not None:
+            admitted, why = self.admission.admit(hello)
+            if admitted is None:
+                self._journal_refusal(identity, why)
+                return None, m.Refused(f"not signed in: {why}")
+            identity, table_id = admitted.identity, admitted.table_id
         with self.lock:
-            client = Client(f"c{next(self._ids)}", identity, self.session.engine.now)
+            client = Client(f"c{next(self._ids)}", identity, self.session.engine.now,
+                            table_id=table_id)
             self.clients[client.id] = client
             self._journal("client-attached", f"{client.info} attached", client)
             if hello.want_control and identity.may_command and self.holder is None:
                 self._grant(client, "control-granted", f"{client.info} is in control")
             self._control_version += 1
         # (the facts as they are now: a historian may have placed the run's time 0 since)
-        return client, m.Welcome(m.PROTOCOL, client.id, cell_facts(self.session), self.runtime)
+        return client, m.Welcome(m.PROTOCOL, client.id, cell_facts(self.session), self.runtime,
+                                 identity)
 
     def detach(self, client: Client, event: str, why: str) -> None:
         """A screen left (`client-left`: as asked), or was lost (`client-lost`: its
@@ -152,6 +166,8 @@ class Hub:
         with self.lock:
             if self.clients.pop(client.id, None) is None:
                 return
+            if self.admission is not None and client.table_id:
+                self.admission.table.close(client.table_id)
             self._journal(event, f"{client.info} {why}", client)
             if self.asked_by == client.id:
                 self.asked_by = None
@@ -170,6 +186,13 @@ class Hub:
                         f"the {name} gateway ({client.info}) {why}", 0)
                     self.services[name] = gone
                     self._journal_service(client, gone)
+
+    def _journal_refusal(self, claimed: m.Identity, why: str) -> None:
+        """A screen refused at the door: who it said it was, and why (never the password)."""
+        if self.journal is not None:
+            self.journal.on_service("sign-in-refused", f"{claimed.door}:{claimed.user} was "
+                                    f"not let in: {why}", by=claimed.by, role="",
+                                    client=claimed.session)
 
     def _journal(self, event: str, message: str, client: Client) -> None:
         if self.journal is not None:
@@ -296,11 +319,22 @@ class Hub:
             if who.door not in GATEWAY_DOORS:
                 raise ValueError("on_behalf from a screen that is no gateway")
             who = message.on_behalf
+        vouched: m.Identity | str = who
+        if message.on_behalf is not None and self.admission is not None:
+            vouched = self.admission.vouch(who)  # the users file's word, not the gateway's
+        if isinstance(vouched, m.Identity):
+            who = vouched
         origin = who.by + (f" ({message.note})" if message.note else "")
-        details = {"role": who.role, "client": f"{client.id}/{client.identity.session}"}
+        details = {"user": who.user, "role": who.role, "door": who.door,
+                   "client": f"{client.id}/{client.identity.session}"}
         command = message.command
+        # roles are the users file's: without one nobody signed in, and the terminal does
+        # what it always did (a viewer still sends nothing: _refusal)
+        enforced = self.admission is not None and self.admission.enforced()
         with self.lock:
-            refusal = self._refusal(client) or self._bounds(command)
+            refusal = (self._refusal(client) or (vouched if isinstance(vouched, str) else None)
+                       or (self._role_refusal(who, command) if enforced else None)
+                       or self._bounds(command))
         if refusal is not None:
             return m.Reply(message.id, session.decline(command, refusal, origin, details))
         guard = message.guard
@@ -315,6 +349,11 @@ class Hub:
             return m.Reply(message.id, session.decline(
                 command, declined_message(gone, new, guard.seen_scan, scan), origin, details),
                 declined=True)
+
+    @staticmethod
+    def _role_refusal(who: m.Identity, command: Command) -> str | None:
+        """The role's rights (hmi.access.roles: an unknown command or role is refused)."""
+        return None if roles.may(who.role, command) else roles.refusal(who.role, command)
 
     @staticmethod
     def _bounds(command: Command) -> str | None:

@@ -15,6 +15,7 @@ import threading
 from datetime import UTC, datetime
 from pathlib import Path
 
+from hmi.runtime.admission import Admission
 from hmi.runtime.hub import Hub
 from hmi.runtime.server import SocketServer
 from hmi.session.journal_recorder import JournalRecorder
@@ -28,14 +29,16 @@ SWITCH_INTERVAL_S = 0.0005  # a waking scan thread waits at most this for the in
 class Runtime:
     def __init__(self, session: Session, fingerprint: str, socket: Path,
                  journal: JournalRecorder | None = None, virtual: bool = False,
-                 realtime: bool = True):
+                 realtime: bool = True, admission: Admission | None = None):
         self.session = session
         self.journal = journal
         self.virtual = virtual
         self.runner = None if virtual else LiveRunner(session, realtime=realtime)
         info = m.RuntimeInfo(os.getpid(), datetime.now(UTC).isoformat(timespec="seconds"),
                              virtual, "virtual time" if virtual else "starting")
-        self.hub = Hub(session, fingerprint, info, journal, self.runner)
+        # who may attach: the machine's users file (hmi.runtime.admission)
+        self.admission = admission or Admission()
+        self.hub = Hub(session, fingerprint, info, journal, self.runner, self.admission)
         self.server = SocketServer(self.hub, socket)
         self.ended = threading.Event()
         self.why = ""
@@ -71,5 +74,6 @@ class Runtime:
 
     def stop(self, why: str) -> None:
         self.server.stop(why)
+        self.admission.close()
         if self.runner is not None:
             self.runner.stop()

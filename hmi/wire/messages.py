@@ -213,6 +213,11 @@ class Hello:
     fingerprint: str  # the project's (hmi.project.fingerprint)
     identity: Identity
     want_control: bool  # take control if nobody holds it
+    # Who they are, proved (docs/security.md): the password the terminal asked for, or the
+    # ticket of a door that checked it (the browser's sign-in page). The runtime decides the
+    # role from the users file (hmi.runtime.admission); a password is never kept.
+    password: str = ""
+    ticket: str = ""
 
 
 @dataclass(frozen=True)
@@ -307,6 +312,7 @@ class Welcome:
     client: str  # this screen's id
     facts: CellFacts
     runtime: RuntimeInfo
+    identity: Identity | None = None  # who the runtime let in (the users file's role)
 
 
 @dataclass(frozen=True)
