@@ -319,3 +319,67 @@ def test_the_subsystem_is_brought_back_to_its_initial_state_by_its_cell_recovery
     assert dict(snap.plant_counters)["T2.fills"] - fills >= 2
     assert not any(d.faulty for d in snap.diagnosers) and not snap.latched
     assert not [e for e in plant.events()[repaired_at:] if e.damage]
+
+
+def test_the_program_waits_while_a_recovery_runs_and_restarts_from_its_initial_steps():
+    """The recovery dialog says the control program waits: its steps and step times hold
+    through the whole procedure and the fault reset at its end (no step fires while the
+    procedure drives the valve), and leaving recovery starts it from its initial steps."""
+    project = load_project(VALVE)
+    plant = SimPlant(project)
+    plant.inject(parse_injection("F13@10.4s"))
+    session = Session(Engine(project, plant))
+    run_quietly(session, 22 * S)
+    session.command(RepairFaults())
+    before = session.scan_once()
+    assert session.command(StartRecovery("V1_close")).accepted
+    seen = set()
+    snap = run_until(session, lambda s: seen.add(s.active_steps) or
+                     s.recovery.status != "running", 5 * S)
+    assert snap.recovery.status == "done"
+    assert session.command(FaultReset()).accepted
+    snap = run_quietly(session, 10 * S, lambda s: seen.add(s.active_steps))
+    assert seen == {before.active_steps}, seen
+    assert not snap.output_map["O"]  # what the panel showed is what the valve does
+    assert session.command(EndRecovery()).accepted
+    snap = session.scan_once()
+    assert snap.mode == "auto"
+    initial = tuple(s.name for s in project.controls[snap.control].grafcet.steps
+                    if s.initial)
+    assert snap.active_steps == initial != before.active_steps
+
+
+async def test_the_recovery_banner_says_the_next_step_the_state_needs():
+    """RECOVERY DONE: "next: r fault reset" while a reset has something to release; after the
+    reset only leaving recovery is left, and the control panel has not moved meanwhile."""
+    from ui_harness import palette, region_text, run_for, run_until, wait_for_main
+    from ui_scenarios import make_app
+
+    from hmi.ui.dialogs import ConfirmDialog
+    from hmi.ui.headless import press, wait_for_screen
+
+    app = make_app(inject=("F13@10.4s",))
+    async with app.run_test(size=(80, 24)) as pilot:
+        await run_until(pilot, lambda s: s.recovery.needed, 20, "recovery needed")
+        await palette(pilot, "SIMULATION: repair")
+        await press(pilot, "r")
+        await wait_for_screen(pilot, ConfirmDialog)
+        await press(pilot, "g")
+        await wait_until_dialog(pilot, "recovery-dialog")
+        await press(pilot, "y")
+        await wait_for_main(pilot)
+        control = region_text(app, "#control")
+        await run_until(pilot, lambda s: s.recovery.status == "done", 3, "recovery done")
+        assert "next: r fault reset" in region_text(app, "#banners")
+        await press(pilot, "r")
+        await wait_for_screen(pilot, ConfirmDialog)
+        await press(pilot, "y")
+        await wait_for_main(pilot)
+        await run_for(pilot, 3)
+        banners = region_text(app, "#banners")
+        assert "RECOVERY DONE" in banners and "next: m leave recovery" in banners
+        assert "fault reset" not in banners
+        snap = app.link.session.last
+        assert not snap.output_map["O"] and not snap.output_map["C"]
+        steps = [line for line in region_text(app, "#control").splitlines() if "X" in line]
+        assert steps and steps[0] in control  # the program waits where it was

@@ -358,7 +358,7 @@ class Engine:
 
     def _supervise(self) -> None:
         """The steps' supervision watched only while the program runs in automatic mode:
-        not while it waits (manual mode), nor in recovery mode (it runs blind, and restarts
+        not while it waits (manual mode), nor in recovery mode (it waits, and restarts
         from its initial steps after), nor observing a device (it does not run)."""
         grafcet = self._supervised
         if grafcet is not None:
@@ -400,7 +400,7 @@ class Engine:
             self.monitors.abandon()
         self.mode = "recovery"
         self.manual = {}
-        self.control.resume(self.now)  # (from manual mode: the law runs blind in recovery)
+        self.control.hold(self.now)  # the program waits while the procedure runs
         stage.start(name, self.now)
         self._supervise()
         return CommandResult.ok(
@@ -414,6 +414,7 @@ class Engine:
         reached = self.recovery.stop()
         self.mode = "auto"
         self.control.reset(self.image, self.now)
+        self.control.resume(self.now)  # from its initial steps, their times from now
         self._supervise()
         if active is not None and reached == "done":
             # The observers the procedure re-establishes (a turntable emptied: an observer
@@ -843,7 +844,7 @@ class Engine:
                 if self.observe:
                     fov = self.input_scan.readback
                 elif self.mode == "recovery" and recovery is not None:
-                    self.control_stage.fov(image, hist, now, None)  # the law runs blind
+                    # the program waits (held at the start): only the procedure drives
                     fov = recovery.fov(image, hist, now)
                     filter_stage = recovery.filter_stage or filter_stage
                     mask = recovery.unmask(mask)

@@ -168,8 +168,9 @@ class Control:
         """The law's vector; in manual mode (`manual`: the operator's requests) the program
         waits: the law does not run (no transition fires, no equation is evaluated, its steps
         and memories hold; its step times were held at stage 2, ControlRuntime.hold) and the
-        requests are the vector. A recovery runs the law blind (Engine._cycle: `manual` None,
-        the vector ignored), and leaving recovery restarts it from its initial steps."""
+        requests are the vector. In recovery mode the program waits too (the engine does not
+        call this: the procedure's vector is used), and leaving recovery restarts it from its
+        initial steps."""
         if manual is not None:
             return self.manual_fov(manual)
         self.runtime.run(image, history, now)
