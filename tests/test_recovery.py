@@ -383,3 +383,45 @@ async def test_the_recovery_banner_says_the_next_step_the_state_needs():
         assert not snap.output_map["O"] and not snap.output_map["C"]
         steps = [line for line in region_text(app, "#control").splitlines() if "X" in line]
         assert steps and steps[0] in control  # the program waits where it was
+
+
+def test_under_a_plant_loss_latch_the_reset_dialog_offers_no_recovery_the_engine_refuses():
+    """The valve stopped mid-travel by a lost connection: while the outputs are held safe the
+    engine refuses any recovery ("a fault reset first"), so the reset dialog offers none (no
+    `g`) and says the order: this reset first, then the recovery."""
+    project = load_project(VALVE)
+    plant = Outage(project)
+    plant.down = (int(2 * S), int(3 * S))
+    session = Session(Engine(project, plant))
+    snap = run_quietly(session, 12 * S)
+    assert snap.latched and snap.recovery.needed  # latched, and the valve between its ends
+    lines = reset_preview(snap)
+    assert not any(line.recovery for line in lines)
+    assert any("this reset first" in line.why for line in lines)
+    refused = session.command(StartRecovery("V1_close"))
+    assert not refused.accepted and "fault reset first" in refused.message
+    assert session.command(FaultReset()).accepted
+    snap = session.scan_once()
+    assert not snap.latched
+    assert any(line.recovery == "V1_close" for line in reset_preview(snap))  # now it is
+
+
+def test_a_reset_during_f7_while_the_valve_travels_does_not_call_for_a_recovery():
+    """F7 (closed switch made too early) while the valve closes: between its ends only
+    because it travels, and driven; waiting for its end is enough, then a reset
+    re-synchronises. The dialog says so, and offers no recovery."""
+    project = load_project(VALVE)
+    plant = SimPlant(project)
+    plant.inject(parse_injection("F7@14.5s"))
+    session = Session(Engine(project, plant))
+    snap = run_quietly(session, int(14.9 * S))
+    assert any(d.faulty and not d.resync for d in snap.diagnosers)
+    assert 0 < dict(snap.plant_state)["position"] < 100 and snap.output_map["C"]
+    lines = reset_preview(snap)
+    assert not any(line.recovery for line in lines)
+    assert any("still driven" in line.why and "no recovery" in line.why for line in lines)
+    # the valve reaches its closed end within the 2 s the issue measured
+    snap = run_until(session, lambda s: any(d.resync for d in s.diagnosers), 2 * S)
+    assert any(line.resets and line.target for line in reset_preview(snap))
+    assert session.command(FaultReset()).accepted
+    assert not any(d.faulty for d in session.scan_once().diagnosers)
