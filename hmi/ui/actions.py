@@ -20,6 +20,7 @@ class OperatorAction:
     title: str  # for the command palette
     help: str
     key_display: str | None = None
+    show: bool = True  # in the footer (False: a key and a palette entry, for the less common)
 
 
 ACTIONS: tuple[OperatorAction, ...] = (
@@ -51,10 +52,14 @@ ACTIONS: tuple[OperatorAction, ...] = (
                    "Pick the signals the timing diagram draws"),
     OperatorAction("window", "w", "Window", "Chronogram: next time window",
                    "Show the last 5, 10, 30 or 60 seconds"),
+    OperatorAction("engineering", "E", "Eng view", "View: engineering names on / off",
+                   "Show the model's names too (steps, diagnoser states and labels, flags, "
+                   "rules, timers, bounds), or the operator's words only; journalled",
+                   key_display="E", show=False),
     OperatorAction("quit", "q", "Quit", "Quit", "Stop the scan and leave the HMI"),
 )
 
 
 def bindings() -> list[Binding]:
-    return [Binding(a.key, a.action, a.label, key_display=a.key_display, tooltip=a.help)
-            for a in ACTIONS]
+    return [Binding(a.key, a.action, a.label, key_display=a.key_display, tooltip=a.help,
+                    show=a.show) for a in ACTIONS]

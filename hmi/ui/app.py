@@ -52,6 +52,7 @@ from hmi.engine.commands import (
     SetMode,
     SetPolicy,
     SetSpeed,
+    SetView,
     Shelve,
     StartRecovery,
     StepScans,
@@ -59,9 +60,11 @@ from hmi.engine.commands import (
     Unshelve,
     describe,
 )
+from hmi.engine.criteria import Wait
 from hmi.engine.scan import Engine
 from hmi.engine.snapshot import Snapshot
 from hmi.explain.model import Policy
+from hmi.explain.plain import PlainNames
 from hmi.explain.reset import ResetLine, reset_preview
 from hmi.link.base import CellLink, ResetGuard, View
 from hmi.link.local import SessionLink
@@ -183,6 +186,7 @@ class PlcHmiApp(ContainedPump, App):
         self.frames_shown = 0  # frames handed to the panels (the UI refresh count)
         self._key: tuple | None = None
         self._version = 0  # bumped when something the frame shows changes outside the scan
+        self.engineering = False  # the engineering view (E): internal names shown too
         self._stepping = False
         self._request: tuple[str, bool, int, str] | None = None  # pending manual verdict
         self._injected: list[InjectedFault] = []  # shown on the SIMULATION strip
@@ -223,6 +227,15 @@ class PlcHmiApp(ContainedPump, App):
         last = self.link.last
         return (last.scan, last.time_us) if last is not None else (0, 0)
 
+    def _wait_words(self, law) -> Callable[[Wait], str] | None:
+        """What a step waits for, in the words the explanations use."""
+        if law.grafcet is None:
+            return None
+        from hmi.explain.context import ExplanationContext
+        from hmi.explain.sequence import wait_words
+        context, grafcet = ExplanationContext(self.project), law.grafcet
+        return lambda wait: wait_words(context, grafcet, wait)
+
     def compose(self) -> ComposeResult:
         facts = self.facts
         project = self.project
@@ -238,8 +251,12 @@ class PlcHmiApp(ContainedPump, App):
         constraints = [ConstraintInfo(c.name, c.kind, c.expr.source, c.description)
                        for c in project.constraints]
         diagnosers = diagnosers_of(project)
-        partitions = {p.flag: PartitionInfo(p.flag, p.sensor, p.estimate, p.actuators)
-                      for spec in diagnosers for p in spec.partitions}
+        plain = PlainNames(project)
+        partitions = {p.flag: PartitionInfo(
+            p.flag, p.sensor, p.estimate, p.actuators, p.description or "",
+            plain.name(p.sensor) if p.sensor else "",
+            tuple(plain.name(a) for a in p.actuators))
+            for spec in diagnosers for p in spec.partitions}
         yield StatusBar(id="status")
         yield BannerStrip(id="banners")
         with Body(id="body"):
@@ -251,7 +268,8 @@ class PlcHmiApp(ContainedPump, App):
                                   partitions=tuple(partitions.values()))
                     yield ConstraintsPanel(constraints, id="constraints")
                 with Vertical(id="col-logic"):
-                    yield GrafcetPanel(facts.control, steps, timers, id="control")
+                    yield GrafcetPanel(facts.control, steps, timers, id="control",
+                                       words=self._wait_words(law))
                     yield DiagnosersPanel(partitions, len(diagnosers), id="diagnosers")
                     yield MonitorsPanel(len(monitors_of(project)), id="monitors")
             with Horizontal(id="bottom"):
@@ -418,7 +436,7 @@ class PlcHmiApp(ContainedPump, App):
             injected=tuple(self._injected), free_inputs=self.free_inputs,
             damage_count=view.damage_count, mode_commanded=self._mode_commanded,
             constraints=view.constraints, ui_fault=contained.latest,
-            ui_faults=contained.total, serving=serving)
+            ui_faults=contained.total, serving=serving, engineering=self.engineering)
         self.frame = frame
         for view in self._views:  # one panel failing leaves the others showing this frame
             try:
@@ -721,6 +739,9 @@ class PlcHmiApp(ContainedPump, App):
                 self.explanation_panel.forget_results()
             case FaultReset() if result.accepted:
                 self.explanation_panel.forget_results()  # what they answered has changed
+            case SetView(engineering=engineering) if result.accepted:
+                self.engineering = engineering
+                self._version += 1
         if result.accepted and not isinstance(command, RUN_STATE_COMMANDS) \
                 and not self.running:
             text.append(" — applies at the next scan (paused)", style=MUTED)
@@ -1164,6 +1185,10 @@ class PlcHmiApp(ContainedPump, App):
         else:
             order = [s.name for s in self.history.signals]
             self.set_signals(tuple(sorted((*current, name), key=order.index)))
+
+    def action_engineering(self) -> None:
+        """The engineering view on or off: one key, shown in the status bar, journalled."""
+        self.send(SetView(not self.engineering))
 
     def action_window(self, window_us: int | None = None) -> None:
         chrono = self.chronogram

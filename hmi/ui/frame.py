@@ -48,6 +48,9 @@ class Frame:
     ui_fault: UIFault | None = None  # the latest UI error contained (hmi.ui.containment)
     ui_faults: int = 0  # how many UI errors were contained this session
     serving: ServingStatus | None = None  # the cell's OPC UA server (--opcua), if any
+    # the engineering view: the panels show the model's names (steps, states, labels,
+    # flags, constraints, timers, bounds) beside the operator's words
+    engineering: bool = False
 
     @property
     def simulated(self) -> bool:

@@ -101,6 +101,35 @@ def detection_text(m: MonitorState) -> Text:
     return text
 
 
+PLAIN_LOCATIONS = {"waiting": "waiting", "executing": "running", "interrupted": "STOPPED",
+                   "faulty": "FAULT"}
+
+
+def plain_monitor_lines(m: MonitorState, width: int, detail: int) -> list[Text]:
+    """The operator's view of a task: its title, what it does, how long it has run against
+    the time it may take, and the fault in words; no stopwatch or label names."""
+    symbol, _word, level = LOCATIONS.get(m.location, ("?", m.location, Level.ATTENTION))
+    style = STYLE[level] if level is not Level.NORMAL else Style()
+    head = Text()
+    head.append(f"{symbol} ", style=style)
+    head.append(m.title, style=style + Style(bold=True) if level is not Level.NORMAL
+                else Style(bold=m.running))
+    head.append(f" · {PLAIN_LOCATIONS.get(m.location, m.location)}",
+                style=style if level is not Level.NORMAL else MUTED)
+    if detail == 0:
+        return [head]
+    times = Text("  time ")
+    times.append(window_bar(m.x_us, m), style=STYLE[Level.ALARM] if m.faulty else MUTED)
+    times.append(f" {_s(m.x_us)} of at most {_fmt(m.gamma_us)} s · worked {_s(m.y_us)} s, "
+                 f"needs {_fmt(m.alpha_us)}-{_fmt(m.beta_us)} s")
+    lines = [head, times]
+    if m.detection is not None and detail >= 2:
+        from hmi.explain.monitors import plain_reason
+        lines.append(Text("  ✗ ", style=STYLE[Level.ALARM]).append(
+            plain_reason(m.detection, m)))
+    return lines
+
+
 def monitor_lines(m: MonitorState, name_w: int, width: int, detail: int) -> list[Text]:
     """A task's lines: `detail` 2 = location, bars, detection; 1 = location and bars (the
     detection is in the explanation); 0 = one line (location, x bar, fault label)."""
@@ -161,5 +190,7 @@ class MonitorsPanel(ColumnPanel):
         set_title(self, f"Monitors · {len(monitors)}"
                   + (f" · {faulty} faulty" if faulty else ""))
         name_w = max(len(m.name) for m in monitors)
-        lines = [line for m in monitors for line in monitor_lines(m, name_w, width, detail)]
+        lines = [line for m in monitors for line in (
+            monitor_lines(m, name_w, width, detail) if frame.engineering
+            else plain_monitor_lines(m, width, detail))]
         return Text("\n", no_wrap=True, overflow="ellipsis").join(lines)

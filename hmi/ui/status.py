@@ -54,6 +54,8 @@ def status_fields(frame: Frame, wide: bool, compact: bool = False) -> list[Field
             fields.append(Field(tag(f"{where} DISCONNECTED", Level.ALARM), 0))
     if frame.serving is not None:
         fields.append(Field(*serving_field(frame.serving)))
+    if frame.engineering:  # never dropped: the screen then names the model's internals
+        fields.append(Field(tag("ENG" if compact else "ENG VIEW", Level.ATTENTION), 0))
     if snap.mode == "manual":
         fields.append(Field(tag("MANUAL", Level.ATTENTION), 0))
     elif snap.mode == "recovery":
