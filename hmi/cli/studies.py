@@ -23,6 +23,13 @@ def add_parsers(sub) -> None:
     p.add_argument("--no-closed-loop", action="store_true",
                    help="print the closed-loop diagnosability only if it is cached (no "
                    "exploration, which takes about a minute the first time)")
+    p.add_argument("--build", metavar="DEVICE",
+                   help="build a diagnoser for DEVICE (a plant device, or the device a "
+                   "diagnoser observes) from its plant model, fault models and the control "
+                   "law, write it and compare it with the project's on the closed loop")
+    p.add_argument("-o", "--out", metavar="FILE",
+                   help="with --build: where to write the diagnoser (default: "
+                   "DEVICE.built.yaml in the current folder)")
     add_farm_args(p)
 
     p = sub.add_parser("campaign", help="inject every fault under three configurations and "
@@ -74,10 +81,34 @@ def points(text: str) -> tuple[int, ...]:
 def cmd_diagnose(args: argparse.Namespace) -> int:
     from hmi.studies.diag_report import diagnose_report
     project = load(args.project, getattr(args, "diagnoser", None))
+    if args.build is not None:
+        return _build(args, project)
+    if args.out is not None:
+        raise UsageError("--out needs --build")
     with farm_of(args) as farm:
         report = diagnose_report(project, farm=farm, compute=not args.no_closed_loop)
     print_report(report, farm)
     return 0
+
+
+def _build(args: argparse.Namespace, project) -> int:
+    from pathlib import Path
+
+    from hmi.studies.loopstate import Unsupported
+    from hmi.studies.synth_report import build_report
+    from hmi.studies.synthesis import SynthesisError
+    out = Path(args.out) if args.out else Path(f"{args.build}.built.yaml")
+    if out.suffix.lower() not in (".yaml", ".yml"):
+        raise UsageError(f"--out {out}: a diagnosers file ends in .yaml (to load it with "
+                         "--diagnoser FILE.yaml)")
+    print(f"building the diagnoser of {args.build} (about half a minute)...", file=sys.stderr)
+    with farm_of(args) as farm:
+        try:
+            report, status = build_report(project, args.build, out, farm)
+        except (SynthesisError, Unsupported) as exc:
+            raise UsageError(f"--build {args.build}: {exc}") from None
+    print_report(report, farm)
+    return status
 
 
 def cmd_campaign(args: argparse.Namespace) -> int:

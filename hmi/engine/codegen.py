@@ -170,7 +170,7 @@ ATTRIBUTES = frozenset({
     "since", "q", "get", "current", "routes", "dirty", "step", "last_scan", "last_now",
     "period", "since_us", "_settle", "needed_since", "check_needed", "needed", "fire",
     "fired", "timed", "update_times", "phase", "last_us", "x_us", "y_us", "attempt_fault",
-    "watchdog", "_armed",
+    "watchdog", "_armed", "hld_armed", "refine",
 })
 
 

@@ -149,6 +149,9 @@ class CompiledScan:
             src.line(2, f"if su is None or {due}[r.current](v, h, now - su):")
             src.line(3, "if r.step(v, h, now, scan):")
             src.line(4, "changed = True")
+        if stage.high_level:  # the High Level Diagnoser, only while a decision it refines holds
+            src.line(2, f"if {d}.hld_armed and {d}.refine(v, h):")
+            src.line(3, "changed = True")
         src.line(2, "if changed:")
         src.line(3, f"{d}._settle(v)")
 

@@ -62,7 +62,14 @@ from hmi.logic.expr import (
     walk,
 )
 from hmi.project.diagnosers import diagnosers_of
-from hmi.project.model import DiagnoserSpec, DiagState, DiagTransition, Project, ResyncRule
+from hmi.project.model import (
+    DiagnoserSpec,
+    DiagState,
+    DiagTransition,
+    HighLevelSpec,
+    Project,
+    ResyncRule,
+)
 from hmi.timefmt import format_duration
 
 MODES = ("ftc", "observe", "off")
@@ -93,6 +100,9 @@ class DiagnoserState:
     # state a resync rule matches on the current I/O ("" if none), and the values tested.
     resync: str = ""
     resync_values: str = ""
+    # The High Level Diagnoser refined the local decision (hmi/project/high_level.py): why,
+    # in plain words; the labels above are the refined decision.
+    refined_by: str = ""
 
     @property
     def faulty(self) -> bool:
@@ -117,6 +127,8 @@ class DiagnoserState:
             return f"{self.name}: {where}"
         kind = "certain" if self.certain else ("ambiguous" if self.final else
                                                "ambiguous, not yet isolated")
+        if self.refined_by:
+            kind += ", by the high level diagnoser"
         return f"{self.name}: {where}: {self.decision()} [{kind}]"
 
 
@@ -176,6 +188,10 @@ class DiagnoserRuntime:
         self.state_flags = [tuple(bool(set(p.labels) & set(s.labels)) for p in spec.partitions)
                             for s in spec.states]
         self.final = [not leave for leave in leaves]
+        self.flags_of = {s.labels: self.state_flags[k] for k, s in enumerate(spec.states)}
+        # The High Level Diagnoser's refinement of the current decision: (labels, why,
+        # flags), until the diagnoser moves or a fault reset.
+        self.refined: tuple[tuple[str, ...], str, tuple[bool, ...]] | None = None
         self.initial = index[spec.initial]
         self.current = self.initial
         self.since_us: int | None = None
@@ -191,17 +207,35 @@ class DiagnoserRuntime:
 
     @property
     def flags(self) -> tuple[bool, ...]:
+        if self.refined is not None:
+            return self.refined[2]
         return self.state_flags[self.current]
+
+    @property
+    def labels(self) -> tuple[str, ...]:
+        """The decision: the state's, or the High Level Diagnoser's refinement of it."""
+        if self.refined is not None:
+            return self.refined[0]
+        return self.spec.states[self.current].labels
+
+    def refine(self, labels: tuple[str, ...], why: str) -> None:
+        """The High Level Diagnoser's decision replaces the state's (and its flags)."""
+        flags = tuple(bool(set(p.labels) & set(labels)) for p in self.spec.partitions)
+        self.refined = (labels, why, flags)
+        self.record = self._record()
 
     def _record(self) -> DiagnoserState:
         s = self.spec.states[self.current]
+        labels = self.labels
         return DiagnoserState(
-            self.spec.name, self.spec.device, s.name, s.description, s.labels,
-            tuple(self.spec.label_text(lab) for lab in s.labels), self.since_scan,
+            self.spec.name, self.spec.device, s.name, s.description, labels,
+            tuple(self.spec.label_text(lab) for lab in labels), self.since_scan,
             self.since_us or 0, self.via, tuple(zip(self.flag_names, self.flags, strict=True)),
-            self.final[self.current])
+            self.final[self.current],
+            refined_by=self.refined[1] if self.refined is not None else "")
 
     def enter(self, target: int, now: int, scan: int, via: str) -> None:
+        self.refined = None
         self.current = target
         self.since_us = now
         self.since_scan = scan
@@ -328,7 +362,7 @@ class DiagnosisStage:
     """Stage 3 of the scan: the diagnosers, their flags, and what stages 4 and 6 must do."""
 
     def __init__(self, specs: Sequence[DiagnoserSpec], layout: Layout, mode: str,
-                 period_us: int):
+                 period_us: int, high_level: Sequence[HighLevelSpec] = ()):
         if mode not in MODES:
             raise ValueError(f"unknown diagnosis mode {mode!r}")
         self.mode = mode
@@ -353,7 +387,19 @@ class DiagnosisStage:
             p.flag for spec in specs for p in spec.partitions if lay.outputs[k] in p.actuators)
             for k, _ in self.masks}
         self.outputs = lay.outputs
+        # The High Level Diagnoser (hmi/project/high_level.py): per specification, its
+        # diagnoser, the decision it refines and its compiled rules (label, why).
+        by_name = {rt.spec.name: rt for rt in self.runtimes}
+        self.high_level = [
+            (by_name[h.diagnoser], h.decision,
+             [(compile_bool(shift_outputs(r.when.root, outputs), slots), r.decide, r.because)
+              for r in h.rules])
+            for h in high_level]
+        self.hld_armed = False  # some specification's decision holds, not yet refined
         self.depth = max((rt.depth for rt in self.runtimes), default=1)
+        for h in high_level:
+            for r in h.rules:
+                self.depth = max(self.depth, _depth(shift_outputs(r.when.root, outputs)))
         self.dirty = True  # flags, routes and masks to recompute at the next scan
         self.last_scan: int | None = None  # the last scan the stage ran
         self.last_now = 0
@@ -371,9 +417,26 @@ class DiagnosisStage:
             for rt in self.runtimes:
                 if rt.step(image, history, now, scan):
                     changed = True
+            if self.hld_armed and self.refine(image, history):
+                changed = True
         if changed:  # flags, routes and masks only move when a diagnoser changes state
             self._settle(image)
         return self.current
+
+    def refine(self, image: Image, history: History) -> bool:
+        """The High Level Diagnoser, after the local diagnosers: a specification whose
+        decision a diagnoser holds tries its rules in order; the first that holds refines
+        the decision. True when a decision was refined (the flags must follow)."""
+        refined = False
+        for rt, decision, rules in self.high_level:
+            if rt.refined is not None or rt.labels != decision:
+                continue
+            for fn, label, why in rules:
+                if fn(image, history):
+                    rt.refine((label,), why)
+                    refined = True
+                    break
+        return refined
 
     def _lost_sight(self, now: int, scan: int, delta: int) -> bool:
         """The plant was not observed for `delta` (inputs unknown, or no scan: a pause).
@@ -417,6 +480,8 @@ class DiagnosisStage:
                 mask[k] = any(image[f] for f in flags)
         records = tuple(rt.record for rt in self.runtimes)
         self.faulty = any(r.faulty for r in records)
+        self.hld_armed = self.mode != "off" and any(
+            rt.refined is None and rt.labels == decision for rt, decision, _ in self.high_level)
         self.current = Diagnosis(
             tuple(routes), tuple(mask) if any(mask) else None, records, tuple(reconstructed),
             tuple(self.outputs[k] for k, m in enumerate(mask) if m))
@@ -432,15 +497,17 @@ class DiagnosisStage:
     def capture(self) -> tuple[Any, ...]:
         """The stage's and its diagnosers' state (Engine.capture)."""
         return (self.current, self.dirty, self.last_scan, self.last_now, self.faulty,
-                tuple((rt.current, rt.since_us, rt.since_scan, rt.via, rt.record)
+                self.hld_armed,
+                tuple((rt.current, rt.since_us, rt.since_scan, rt.via, rt.record, rt.refined)
                       for rt in self.runtimes))
 
     def restore(self, state: tuple[Any, ...]) -> None:
-        (self.current, self.dirty, self.last_scan, self.last_now, self.faulty, runtimes) = state
-        for rt, (current, since_us, since_scan, via, record) in zip(
+        (self.current, self.dirty, self.last_scan, self.last_now, self.faulty,
+         self.hld_armed, runtimes) = state
+        for rt, (current, since_us, since_scan, via, record, refined) in zip(
                 self.runtimes, runtimes, strict=True):
-            rt.current, rt.since_us, rt.since_scan, rt.via, rt.record = (
-                current, since_us, since_scan, via, record)
+            rt.current, rt.since_us, rt.since_scan, rt.via, rt.record, rt.refined = (
+                current, since_us, since_scan, via, record, refined)
 
     def resynchronise(self, devices: set[str], now: int, scan: int, why: str) -> None:
         """The devices' diagnosers in a normal state go back to their initial, synchronising
@@ -464,10 +531,14 @@ class DiagnosisStage:
         return lines
 
 
-def diagnosis_stage(project: Project, layout: Layout, mode: str = "ftc"
-                    ) -> DiagnosisStage | None:
-    """The project's diagnosers as a scan stage (None for a project without diagnosers)."""
+def diagnosis_stage(project: Project, layout: Layout, mode: str = "ftc",
+                    high_level: bool = True) -> DiagnosisStage | None:
+    """The project's diagnosers as a scan stage (None for a project without diagnosers),
+    with its High Level Diagnoser unless `high_level` is false (the campaign's "before")."""
     if mode not in MODES:
         raise ValueError(f"unknown diagnosis mode {mode!r}")
     specs = diagnosers_of(project)
-    return DiagnosisStage(specs, layout, mode, project.scan_period_us) if specs else None
+    if not specs:
+        return None
+    return DiagnosisStage(specs, layout, mode, project.scan_period_us,
+                          project.high_level if high_level else ())

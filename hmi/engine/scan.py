@@ -147,7 +147,8 @@ class Engine:
     def __init__(self, project: Project, plant: Plant, control: str | None = None,
                  policy: str | None = None, solver: str | None = None,
                  diagnosis: str = "ftc", solver_budget: int | None = None,
-                 allow_monitor_policy: bool = False, compiled: bool = True):
+                 allow_monitor_policy: bool = False, compiled: bool = True,
+                 high_level: bool = True):
         self.project = project
         self.plant = plant
         self.control_name = control or project.default_control
@@ -179,7 +180,8 @@ class Engine:
         # The stages, in scan order (hmi.engine.stages).
         self.input_scan = InputScan(plant, lay, read_back=self.observe)  # 1
         self.memory = Memory(project, lay, self.control)  # 2
-        self.diagnosis = diagnosis_stage(project, lay, diagnosis)  # 3 (None: no diagnosers)
+        # 3 (None: no diagnosers), with the High Level Diagnoser after the local ones
+        self.diagnosis = diagnosis_stage(project, lay, diagnosis, high_level)
         self.reconstruction = Reconstruction()  # 4
         self.control_stage = Control(self.control, lay)  # 5
         self.filter = SafetyFilter(project, lay.slots, lay.step_times,

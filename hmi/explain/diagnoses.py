@@ -42,7 +42,7 @@ def diagnosis_explanations(builder: ExplanationContext, snap: Snapshot) -> list[
         key = f"diagnosis:{state.name}"
         builder.onset(key, snap)
         out.append(builder.cached(
-            key, (state.state, state.labels, snap.masked, snap.policy),
+            key, (state.state, state.labels, state.refined_by, snap.masked, snap.policy),
             lambda s=state, sp=spec: _diagnosis(builder, snap, sp, s)))
         for partition in spec.partitions:
             if partition.sensor and partition.sensor in snap.reconstructed:
@@ -124,7 +124,10 @@ def _diagnosis(builder, snap: Snapshot, spec, state) -> Explanation:
     what = f"{device}: {hypotheses} — {short_action}"
     seen = lower_first(state.description) if state.description else "an abnormal behaviour"
     why = f"What was seen, at {seconds(state.since_us)} s: {seen}."
-    if certain:
+    if state.refined_by:
+        why += (" The device alone could not tell which fault it is; the cell as a whole "
+                f"did: {state.refined_by.rstrip('.')}.")
+    elif certain:
         why += f" Only one fault explains it: {hypotheses}."
     elif state.final:
         why += (f" {len(state.labels)} faults explain it and what can be seen cannot tell them "
@@ -153,6 +156,9 @@ def _diagnosis(builder, snap: Snapshot, spec, state) -> Explanation:
              "severity": severity, "alarm": True, "detail": detail}
     if certain:
         level = builder.apply_texts(builder.texts.get("labels", state.labels[0]), level, values)
+    if state.refined_by:
+        level["detail"] += (" The high level diagnoser refined the local decision "
+                            f"{{{', '.join(spec.state(state.state).labels)}}} to {label_list}.")
     return Explanation(f"diagnosis:{spec.name}", "diagnosis", level["severity"], device,
                        level["what"], level["why"], level["consequences"], level["policies"],
                        since.scan, since.time_us, level["alarm"], latched=True,

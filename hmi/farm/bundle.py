@@ -41,6 +41,9 @@ class Bundle:
     # as its `use:` reaches it, e.g. ../../components/valve.yaml; the file in the library)
     library: tuple[tuple[str, str], ...]
     digest: str  # sha256 of the project as loaded (see digest_of)
+    # A diagnosers file loaded in place of the project's (`--diagnoser FILE.yaml`): its
+    # content, written beside the worker's copy and loaded from there.
+    diagnosers: bytes | None = None
 
     @classmethod
     def of(cls, project: Project, variant: str | None = None) -> Bundle:
@@ -48,9 +51,13 @@ class Bundle:
         library_root = COMPONENTS.resolve()
         inside: list[tuple[str, bytes]] = []
         library: list[tuple[str, str]] = []
+        override = _diagnosers_file(variant)
+        diagnosers = None
         for name in project.files:
             path = Path(name).resolve()
-            if path.is_relative_to(folder):
+            if override is not None and path == override:
+                diagnosers = path.read_bytes()
+            elif path.is_relative_to(folder):
                 inside.append((path.relative_to(folder).as_posix(), path.read_bytes()))
             elif path.is_relative_to(library_root):
                 library.append((Path(os.path.relpath(path, folder)).as_posix(),
@@ -60,8 +67,8 @@ class Bundle:
                                   "nor in the component library")
         if not inside:
             raise BundleError(f"project {project.name}: no file of it lies in {folder}")
-        return cls(folder.name, inside[0][0], variant, tuple(inside), tuple(library),
-                   digest_of(project, variant))
+        return cls(folder.name, inside[0][0], None if override else variant, tuple(inside),
+                   tuple(library), digest_of(project, variant), diagnosers)
 
     def load(self) -> Project:
         """The project, loaded from a private copy of its files (kept until the process
@@ -85,8 +92,13 @@ class Bundle:
                         target.parent.mkdir(parents=True, exist_ok=True)
                         target.symlink_to(COMPONENTS.resolve() / in_library)
                 staging.rename(folder)
-        project = load_project(folder / self.project_file, self.variant)
-        found = digest_of(project, self.variant)
+            variant = self.variant
+            if self.diagnosers is not None:
+                variant = str(folder.with_name(folder.name + ".diagnosers.yaml"))
+                if not Path(variant).exists():
+                    Path(variant).write_bytes(self.diagnosers)
+        project = load_project(folder / self.project_file, variant)
+        found = digest_of(project, variant)
         if found != self.digest:
             raise BundleError(f"project {self.name} loads differently on this worker (digest "
                               f"{found[:12]}, sent {self.digest[:12]}): its component library "
@@ -107,10 +119,13 @@ def digest_of(project: Project, variant: str | None) -> str:
     """sha256 of the project's files, each named relative to its folder or to the component
     library (the same project gives the same digest wherever it is loaded from)."""
     folder = project.path.resolve()
-    h = hashlib.sha256(f"variant={variant or ''}\0".encode())
+    override = _diagnosers_file(variant)
+    h = hashlib.sha256(f"variant={'' if override else variant or ''}\0".encode())
     for name in project.files:
         path = Path(name).resolve()
-        if path.is_relative_to(folder):
+        if override is not None and path == override:
+            where = "diagnosers-file"
+        elif path.is_relative_to(folder):
             where = "project/" + path.relative_to(folder).as_posix()
         elif path.is_relative_to(COMPONENTS.resolve()):
             where = "library/" + path.relative_to(COMPONENTS.resolve()).as_posix()
@@ -123,6 +138,11 @@ def digest_of(project: Project, variant: str | None) -> str:
             h.update(b"?")
         h.update(b"\0")
     return h.hexdigest()
+
+
+def _diagnosers_file(variant: str | None) -> Path | None:
+    from hmi.project.loader import is_diagnosers_file
+    return Path(str(variant)).resolve() if is_diagnosers_file(variant) else None
 
 
 _SCRATCH: dict[int, Path] = {}  # per process id: a forked worker makes its own

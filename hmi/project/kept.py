@@ -31,7 +31,7 @@ from pathlib import Path
 
 from hmi.codecache import blake2b, read_file, write_file, writing
 from hmi.paths import COMPONENTS
-from hmi.project.loader import load_project, resolve_project_file
+from hmi.project.loader import is_diagnosers_file, load_project, resolve_project_file
 from hmi.project.model import Project
 
 PACKAGE = Path(__file__).resolve().parents[1]  # hmi/
@@ -53,6 +53,8 @@ def load(path: str | Path, diagnoser_variant: str | None = None,
     """``load_project(path, diagnoser_variant)``, read back from what an earlier process kept
     if everything the load depends on is unchanged (module docstring), else loaded and kept."""
     try:
+        if is_diagnosers_file(diagnoser_variant):  # a file the key does not cover
+            raise ValueError(diagnoser_variant)
         key = project_key(path, diagnoser_variant)
     except (OSError, ValueError, TooBig):  # loaded as usual (it reports what is wrong)
         return load_project(path, diagnoser_variant)
@@ -61,7 +63,7 @@ def load(path: str | Path, diagnoser_variant: str | None = None,
     if kept is not None:
         return kept
     project = load_project(path, diagnoser_variant)
-    if writing(write):
+    if writing(write) and not is_diagnosers_file(diagnoser_variant):
         write_file(file, HEADER, pickle.dumps(project, pickle.HIGHEST_PROTOCOL))
         _forget_old(folder)
     return project
@@ -74,6 +76,8 @@ def load_once(path: str | Path, diagnoser_variant: str | None = None) -> Project
     hundred times per process on the same few projects: each load took ~30 ms of an app
     start's ~0.26 s of CPU; the key, ~1 ms. The project is immutable data, shared."""
     try:
+        if is_diagnosers_file(diagnoser_variant):  # a file the key does not cover
+            raise ValueError(diagnoser_variant)
         key = project_key(path, diagnoser_variant, code=False)
     except (OSError, ValueError, TooBig):  # loaded as usual (it reports what is wrong)
         return load_project(path, diagnoser_variant)

@@ -18,6 +18,7 @@ from hmi.project.confine import Refused, confined_file, project_roots
 from hmi.project.constraints import parse_constraints
 from hmi.project.control import parse_controls
 from hmi.project.diagnosers import declare_diagnoser_names, parse_diagnosers
+from hmi.project.high_level import parse_high_level
 from hmi.project.model import (
     MAX_SOLVER_BUDGET,
     MIN_SOLVER_BUDGET,
@@ -48,7 +49,7 @@ TOP_KEYS = {
     "name", "description", "scan_period", "include", "inputs", "outputs", "memories",
     "timers", "observers", "control", "constraints", "policy", "solver", "solver_budget",
     "plant", "explanations", "monitors", "scenarios", "diagnosers", "campaign", "components",
-    "recovery",
+    "recovery", "high_level",
 }
 
 
@@ -91,13 +92,23 @@ def _confined(file: Path) -> Path:
     return file
 
 
+def is_diagnosers_file(choice: str | None) -> bool:
+    """Whether a `--diagnoser` choice names a file of diagnosers rather than a variant."""
+    return choice is not None and choice.lower().endswith((".yaml", ".yml"))
+
+
 def load_project(path: str | Path, diagnoser_variant: str | None = None) -> Project:
     """Load, validate and return the project at `path`; raise ProjectError listing problems.
 
     `diagnoser_variant` loads that variant of every diagnoser declaring `variants:` (by
-    default each loads its first)."""
+    default each loads its first); a path ending in .yaml loads the diagnosers of that file
+    (a `diagnosers:` section, e.g. one `plchmi diagnose --build` wrote) in place of the
+    project's of the same names."""
     loader = ProjectLoader(resolve_project_file(path))
-    loader.diagnoser_variant = diagnoser_variant
+    if is_diagnosers_file(diagnoser_variant):
+        loader.diagnosers_file = Path(str(diagnoser_variant))
+    else:
+        loader.diagnoser_variant = diagnoser_variant
     return loader.load()
 
 
@@ -107,6 +118,7 @@ class ProjectLoader(ProjectReader):
     def __init__(self, file: Path):
         super().__init__(file)
         self.pending_includes: list[YNode] = []
+        self.diagnosers_file: Path | None = None
 
     # -- top level --------------------------------------------------------------------------
     def load(self) -> Project:
@@ -121,8 +133,49 @@ class ProjectLoader(ProjectReader):
         self._collect_sections(root, top, display, allow_include=True)
         for item in self.pending_includes:
             self._include(item)
+        if self.diagnosers_file is not None:
+            self._override_diagnosers(self.diagnosers_file)
         self.diag.raise_if_errors()
         return self._build(root)
+
+    def _override_diagnosers(self, file: Path) -> None:
+        """The diagnosers of `file` (given on the command line, not by the project) replace
+        the project's of the same names; the project's others stay, in their order."""
+        from hmi.project.yamlcompose import load_yaml
+        display = display_path(file)
+        if not file.is_file():
+            self.diag.error(SourcePos(display), "no such diagnosers file",
+                            "a YAML file holding a 'diagnosers:' section")
+            return
+        try:
+            root = load_yaml(file, display)
+        except ProjectError as exc:
+            self.diag.items.extend(exc.errors)
+            return
+        top = self.guard(lambda: root.as_map("a diagnosers file"))
+        if top is None:
+            return
+        for key in top:
+            if key != "diagnosers":
+                self.diag.error(root.key_pos[key], f"a diagnosers file holds only the "
+                                f"'diagnosers:' section, not {excerpt(key)}",
+                                "diagnosers: {NAME: {...}}")
+        node = top.get("diagnosers")
+        if node is None:
+            self.diag.error(root.pos, "this diagnosers file has no 'diagnosers:' section",
+                            "diagnosers: {NAME: {...}}")
+            return
+        if node.kind != "map":
+            self.diag.error(node.pos, "'diagnosers:' must be a mapping", "NAME: {...}")
+            return
+        self.files.append(display)
+        old = self.sections.get("diagnosers")
+        if old is not None and old.kind == "map":
+            value = {**old.value, **node.value}
+            key_pos = {**old.key_pos, **node.key_pos}
+            node = YNode("map", value, node.pos, node.tag, key_pos)
+        self.sections["diagnosers"] = node
+        self.section_pos["diagnosers"] = root.key_pos["diagnosers"]
 
     def _collect_sections(self, root: YNode, top: dict[str, YNode], display: str,
                           allow_include: bool) -> None:
@@ -235,6 +288,7 @@ class ProjectLoader(ProjectReader):
         monitors = parse_monitors(self, period)  # stopwatch monitors: hmi/project/monitors.py
         scenarios = parse_scenarios(self, plant)
         diagnosers = parse_diagnosers(self)  # hmi/project/diagnosers.py
+        high_level = parse_high_level(self, diagnosers)  # hmi/project/high_level.py
         campaign = parse_campaign(self, plant)  # hmi/project/campaign.py
         recovery = parse_recovery(self, constraints, outputs, observers)  # hmi/project/recovery.py
         texts = None
@@ -262,10 +316,12 @@ class ProjectLoader(ProjectReader):
             timers=tuple(timers), observers=tuple(observers), controls=controls,
             default_control=default_control, constraints=tuple(constraints), policy=policy,
             plant=plant, pos=pos, files=tuple(self.files), solver=solver,
-            solver_budget=solver_budget, diagnosers=diagnosers, monitors=monitors,
+            solver_budget=solver_budget, diagnosers=diagnosers, high_level=high_level,
+            monitors=monitors,
             scenarios=scenarios, campaign=campaign, explanations=texts, recovery=recovery,
             components=tuple(self.components.instances), warnings=tuple(self.diag.warnings),
             check_sections=((tuple(self.components.check_lines()),)
                             if self.components.instances else ()),
+            diagnosers_file=str(self.diagnosers_file) if self.diagnosers_file else "",
         )
         return project

@@ -323,6 +323,30 @@ class ResyncRule:
 
 
 @dataclass(frozen=True)
+class HighLevelRule:
+    """One rule of a global specification: while the local decision holds, `when` decides
+    the label `decide`, for the reason `because` (plain words for the operator)."""
+
+    when: Expr
+    decide: str
+    because: str
+    pos: SourcePos
+
+
+@dataclass(frozen=True)
+class HighLevelSpec:
+    """A global specification of the High Level Diagnoser (000 §2.1 step 4): what several
+    devices show together refines one local diagnoser's ambiguous decision."""
+
+    name: str
+    description: str
+    diagnoser: str
+    decision: tuple[str, ...]  # the local decision it refines (exactly these labels)
+    rules: tuple[HighLevelRule, ...]
+    pos: SourcePos
+
+
+@dataclass(frozen=True)
 class DiagnoserSpec:
     name: str
     description: str
@@ -642,6 +666,7 @@ class Project:
     solver_budget: int | None = None
     # The sections read by their own modules (hmi/project/<section>.py).
     diagnosers: tuple[DiagnoserSpec, ...] = ()
+    high_level: tuple[HighLevelSpec, ...] = ()  # the High Level Diagnoser's specifications
     monitors: tuple[TaskMonitor, ...] = ()
     scenarios: tuple[Scenario, ...] = ()
     campaign: CampaignSpec | None = None
@@ -650,6 +675,8 @@ class Project:
     recovery: tuple[RecoveryProcedure, ...] = ()  # the ways back after a fault (issue 19)
     warnings: tuple[Diagnostic, ...] = ()  # what the loader warned about (plchmi check)
     check_sections: tuple[tuple[str, ...], ...] = ()  # more `plchmi check` sections
+    # The diagnosers file loaded in place of the project's (`--diagnoser FILE.yaml`), if any.
+    diagnosers_file: str = ""
 
     @property
     def simple_constraints(self) -> tuple[Constraint, ...]:

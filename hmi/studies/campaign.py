@@ -46,6 +46,7 @@ class Config:
     title: str
     policy: str | None  # None: the project's policy
     diagnosis: str  # hmi.engine.diagnoser.MODES
+    high_level: bool = True  # the project's High Level Diagnoser runs (if it has one)
 
 
 CONFIGS = (
@@ -53,6 +54,19 @@ CONFIGS = (
     Config("filter_no_diag", "No Diag Filter", None, "off"),
     Config("ftc", "FTC (Diag and Filter)", None, "ftc"),
 )
+
+# A project with a High Level Diagnoser also runs the configurations where diagnosers run
+# without it: its effect, before and after (not in the table).
+WITHOUT_HLD = (
+    Config("diag_no_filter_no_hld", "Diag no Filter, without the HLD", "monitor", "observe",
+           False),
+    Config("ftc_no_hld", "FTC, without the HLD", None, "ftc", False),
+)
+
+
+def configs_of(project: Project) -> tuple[Config, ...]:
+    return CONFIGS + (WITHOUT_HLD if project.high_level else ())
+
 
 # 000 Table 1, as published: (Blocked, Tolerant, Defect) per configuration.
 PAPER_TABLE = {
@@ -95,6 +109,9 @@ class RunResult:
     detected_us: int | None  # first scan a diagnoser left its normal states
     decision: tuple[str, ...]  # the final decision (labels) of the diagnoser(s)
     states: tuple[str, ...]  # the final state of each diagnoser
+    # The High Level Diagnoser's refinement, if any: (the local decision it refined, the
+    # label it chose, when the local decision started, when it was refined).
+    refined: tuple[tuple[str, ...], str, int, int] | None = None
 
     def line(self) -> str:
         return f"{self.outcome}: {self.reason}" + (f"; {self.context}" if self.context else "")
@@ -110,6 +127,9 @@ class RunResult:
                        for e in self.damage],
             "detected_s": None if self.detected_us is None else self.detected_us / 1e6,
             "decision": list(self.decision), "states": list(self.states),
+            "refined": None if self.refined is None else {
+                "from": list(self.refined[0]), "to": self.refined[1],
+                "ambiguous_s": self.refined[2] / 1e6, "refined_s": self.refined[3] / 1e6},
         }
 
 
@@ -146,8 +166,10 @@ def run_one(project: Project, spec: CampaignSpec, scenario: CampaignScenario, co
     """One scenario under one configuration, in virtual time."""
     plant = SimPlant(project)
     plant.inject(Injection(scenario.fault, scenario.at_us, scenario.device))
-    engine = Engine(project, plant, policy=config.policy, diagnosis=config.diagnosis)
+    engine = Engine(project, plant, policy=config.policy, diagnosis=config.diagnosis,
+                    high_level=config.high_level)
     period = period_us or project.scan_period_us
+    refined: tuple[tuple[str, ...], str, int, int] | None = None
     damage: list[PlantEvent] = []
     cycle_times: list[int] = []
     counter_index: int | None = None
@@ -179,12 +201,17 @@ def run_one(project: Project, spec: CampaignSpec, scenario: CampaignScenario, co
             count = value
         if detected is None and stage is not None and stage.faulty:
             detected = now  # (stage.faulty: some record of stage.current is faulty)
+        if refined is None and stage is not None and stage.high_level:
+            for rt in stage.runtimes:
+                if rt.refined is not None:
+                    local = rt.spec.states[rt.current]
+                    refined = (local.labels, rt.refined[0][0], rt.since_us or 0, now)
     assert snap is not None
     outcome, reason = classify(damage, cycle_times, spec.length_us, spec.window_us)
     decision = tuple(lab for d in snap.diagnosers for lab in d.labels)
     return RunResult(scenario, config, outcome, reason, _context(snap, config, detected),
                      tuple(damage), count, detected, decision,
-                     tuple(d.state for d in snap.diagnosers))
+                     tuple(d.state for d in snap.diagnosers), refined)
 
 
 def _context(snap: Snapshot, config: Config, detected: int | None) -> str:
@@ -243,7 +270,8 @@ def run_campaign(project: Project, spec: CampaignSpec,
 
 def campaign_study(project: Project, spec: CampaignSpec, period_us: int | None = None,
                    variant: str | None = None) -> Study:
-    tasks = [(i, j) for i in range(len(spec.scenarios)) for j in range(len(CONFIGS))]
+    configs = configs_of(project)
+    tasks = [(i, j) for i in range(len(spec.scenarios)) for j in range(len(configs))]
     period = period_us or project.scan_period_us
     per = max(1, -(-SHARD_SCANS // (spec.length_us // period + 1)))
     shards = tuple(tuple(tasks[k:k + per]) for k in range(0, len(tasks), per))
@@ -252,7 +280,7 @@ def campaign_study(project: Project, spec: CampaignSpec, period_us: int | None =
 
     def decode(shard: tuple[tuple[int, int], ...], data: list[dict[str, Any]]
                ) -> list[RunResult]:
-        return [_run_of(spec.scenarios[i], CONFIGS[j], r)
+        return [_run_of(spec.scenarios[i], configs[j], r)
                 for (i, j), r in zip(shard, data, strict=True)]
 
     return Study(f"the fault campaign of {project.name}", job, shards,
@@ -271,12 +299,15 @@ def _work(state: tuple[Project, CampaignSpec, int | None],
     """A shard's runs as plain data (the client rebuilds them with its own scenarios)."""
     project, spec, period = state
     out = []
+    configs = configs_of(project)
     for i, j in shard:
-        r = run_one(project, spec, spec.scenarios[i], CONFIGS[j], period)
+        r = run_one(project, spec, spec.scenarios[i], configs[j], period)
         out.append({"outcome": r.outcome, "reason": r.reason, "context": r.context,
                     "damage": [asdict(e) for e in r.damage], "cycles": r.cycles,
                     "detected_us": r.detected_us, "decision": list(r.decision),
-                    "states": list(r.states)})
+                    "states": list(r.states),
+                    "refined": None if r.refined is None else
+                    [list(r.refined[0]), r.refined[1], r.refined[2], r.refined[3]]})
     return out
 
 
@@ -285,9 +316,12 @@ def _same(data: Any) -> Any:
 
 
 def _run_of(scenario: CampaignScenario, config: Config, r: dict[str, Any]) -> RunResult:
+    refined = r.get("refined")
     return RunResult(scenario, config, r["outcome"], r["reason"], r["context"],
                      tuple(PlantEvent(**e) for e in r["damage"]), r["cycles"],
-                     r["detected_us"], tuple(r["decision"]), tuple(r["states"]))
+                     r["detected_us"], tuple(r["decision"]), tuple(r["states"]),
+                     None if refined is None else
+                     (tuple(refined[0]), refined[1], refined[2], refined[3]))
 
 
 def report_lines(result: CampaignResult) -> list[str]:
@@ -318,6 +352,9 @@ def report_lines(result: CampaignResult) -> list[str]:
                            for outcome in OUTCOMES]
         lines += _table(rows)
         lines.append("  (counted over the scenarios of the table, one per fault)")
+    if len(configs_of_result(result)) > len(CONFIGS):
+        lines.append("")
+        lines += hld_lines(result)
     lines.append("")
     lines.append("Per scenario (" + " | ".join(c.title for c in CONFIGS) + ")")
     width = max([10, *(len(s.name) for s in ran)])
@@ -334,6 +371,46 @@ def report_lines(result: CampaignResult) -> list[str]:
                          + (f"  {scenario.phase}" if scenario.phase else ""))
             for c, r in zip(CONFIGS, runs, strict=True):
                 lines.append(f"      {c.title}: {r.line()}")
+    return lines
+
+
+def configs_of_result(result: CampaignResult) -> tuple[Config, ...]:
+    keys = {r.config.key for r in result.runs}
+    return tuple(c for c in CONFIGS + WITHOUT_HLD if c.key in keys)
+
+
+def isolated(result: CampaignResult, config: str) -> list[str]:
+    """The scenarios (every one, extras too) whose run ends with exactly the injected fault
+    as its diagnosis."""
+    return [r.scenario.name for r in result.runs if r.config.key == config
+            and r.decision == (r.scenario.fault.split(".")[-1],)]
+
+
+def hld_lines(result: CampaignResult) -> list[str]:
+    """The High Level Diagnoser's effect: faults isolated before and after, per
+    configuration where the diagnosers run, and the ambiguities it resolved, how fast."""
+    scenarios = sorted({r.scenario.name for r in result.runs})
+    n = len(scenarios)
+    lines = [f"High Level Diagnoser: its effect over the {n} scenarios (extras included): "
+             "runs ending with the injected fault alone as their diagnosis"]
+    rows = [["", "without the HLD", "with the HLD"]]
+    for before, after in (("diag_no_filter_no_hld", "diag_no_filter"),
+                          ("ftc_no_hld", "ftc")):
+        title = next(c.title for c in CONFIGS if c.key == after)
+        a, b = isolated(result, before), isolated(result, after)
+        rows.append([title, f"{len(a)}/{n}, DC {100 * len(a) / n:.1f} %",
+                     f"{len(b)}/{n}, DC {100 * len(b) / n:.1f} %"])
+    lines += _table(rows)
+    resolved = [r for r in result.runs if r.refined is not None and
+                r.config.key in ("diag_no_filter", "ftc")]
+    if not resolved:
+        lines.append("  it resolved no ambiguity in these scenarios")
+    for r in resolved:
+        local, label, since, at = r.refined  # type: ignore[misc]
+        right = "right" if label == r.scenario.fault.split(".")[-1] else "WRONG"
+        lines.append(f"  {r.scenario.name} ({r.config.title}): {{{', '.join(local)}}} -> "
+                     f"{label} ({right}) at {seconds(at)} s, {seconds(at - since)} s after "
+                     "the local decision")
     return lines
 
 

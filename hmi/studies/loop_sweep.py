@@ -201,7 +201,10 @@ def _outcome(data: dict[str, Any]) -> Outcome:
 
 
 def project_variant(project) -> str:
+    """The diagnoser variant the project was loaded with, or the diagnosers file."""
     from hmi.project.diagnosers import diagnosers_of
+    if project.diagnosers_file:
+        return project.diagnosers_file
     return next((s.variant for s in diagnosers_of(project) if s.variant), "")
 
 

@@ -162,7 +162,8 @@ class LoopAccess:
         timers = tuple((rt.q, None if rt.since is None else min(now - rt.since, rt.preset))
                        for rt, _, _ in self.timers)
         diag = tuple((rt.current, None if rt.since_us is None else
-                      min(now - rt.since_us, caps[rt.current]))
+                      min(now - rt.since_us, caps[rt.current]),
+                      None if rt.refined is None else rt.refined[0])
                      for rt, caps in zip(self.runtimes, self.state_caps, strict=True))
         latched = tuple(r.source for r in e.latched)
         devices = tuple(_DEVICE_KEYS[type(d)](d, now) for d in self.plant.devices)

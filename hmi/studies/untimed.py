@@ -30,7 +30,7 @@ cycle of pairs has T in one copy and not in the other (Jiang, Huang, Chandra, Ku
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 from hmi.studies.explore import Graph
@@ -232,12 +232,12 @@ def diagnosable(gen: Generator, types: dict[str, set[str]]) -> bool:
     for i in range(len(names)):
         mask = 1 << i
         region = {v for v in succ if (v[1] ^ v[3]) & mask}
-        if _has_cycle(region, succ):
+        if has_cycle(region, succ):
             return False
     return True
 
 
-def _has_cycle(region: set, succ: dict) -> bool:
+def has_cycle(region: set, succ: dict) -> bool:
     """A cycle inside `region` (Kahn: what cannot be peeled off lies on or before a cycle)."""
     indegree = dict.fromkeys(region, 0)
     for v in region:
@@ -275,7 +275,8 @@ def to_faudes(gen: Generator):
     return system
 
 
-def faudes_diagnosable(gen: Generator, types: dict[str, set[str]]) -> bool:
+def failure_types(types: Mapping[str, set[str]]):
+    """The failure types (name -> fault events) as a libFAUDES FailureTypeMap."""
     import faudes
     mapping = faudes.FailureTypeMap()
     for name, evs in sorted(types.items()):
@@ -283,4 +284,9 @@ def faudes_diagnosable(gen: Generator, types: dict[str, set[str]]) -> bool:
         for ev in sorted(evs):
             events.Insert(ev)
         mapping.AddFailureTypeMapping(name, events)
-    return bool(faudes.IsEventDiagnosable(to_faudes(gen), mapping))
+    return mapping
+
+
+def faudes_diagnosable(gen: Generator, types: dict[str, set[str]]) -> bool:
+    import faudes
+    return bool(faudes.IsEventDiagnosable(to_faudes(gen), failure_types(types)))

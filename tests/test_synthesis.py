@@ -1,0 +1,150 @@
+"""The diagnoser built from the plant model, the fault models and the control law
+(hmi/studies/synthesis.py), and the diagnosers file that loads it (`--diagnoser FILE.yaml`).
+
+Fast: the diagnosers file replaces the project's diagnoser of the same name, bad files are
+reported at their line; the NBM of the valve is what the physics says. Slow: the whole
+construction is deterministic (it rebuilds projects/cispi_valve/diagnoser.built.yaml byte for
+byte), the file loads with `plchmi check`, and on the closed loop it isolates at least what
+the hand-written diagnoser does in each configuration, with no misdiagnosis."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from hmi.errors import ProjectError
+from hmi.project.loader import load_project
+from hmi.studies.explore import Explorer
+from hmi.studies.synth_build import synthesise
+from hmi.studies.synthesis import OBSERVING, View, build_nbm, find_target
+from tests.conftest import PROJECTS
+
+VALVE = PROJECTS / "cispi_valve"
+BUILT = VALVE / "diagnoser.built.yaml"
+
+
+def test_a_diagnosers_file_replaces_the_projects_diagnoser_of_that_name():
+    own = load_project(VALVE)
+    built = load_project(VALVE, str(BUILT))
+    assert [s.name for s in built.diagnosers] == ["V1"]
+    assert built.diagnosers[0].description != own.diagnosers[0].description
+    assert built.diagnosers_file == str(BUILT)
+    assert any(f.endswith("diagnoser.built.yaml") for f in built.files)
+    # The partitions are the project's (its observers read def_fso, def_fsc).
+    assert [(p.name, p.labels, p.sensor, p.estimate, p.actuators)
+            for p in built.diagnosers[0].partitions] == \
+        [(p.name, p.labels, p.sensor, p.estimate, p.actuators)
+         for p in own.diagnosers[0].partitions]
+
+
+@pytest.mark.parametrize("text,message", [
+    ("diagnosers:\n  V1: {}\nname: x\n", "holds only the 'diagnosers:' section"),
+    ("name: x\n", "holds only the 'diagnosers:' section"),
+    ("diagnosers: [1]\n", "'diagnosers:' must be a mapping"),
+])
+def test_a_bad_diagnosers_file_is_reported_at_its_line(tmp_path, text, message):
+    bad = tmp_path / "d.yaml"
+    bad.write_text(text)
+    with pytest.raises(ProjectError) as err:
+        load_project(VALVE, str(bad))
+    assert message in str(err.value) and "d.yaml:" in str(err.value)
+
+
+def test_a_missing_diagnosers_file_is_an_error_not_a_default(tmp_path):
+    with pytest.raises(ProjectError, match="no such diagnosers file"):
+        load_project(VALVE, str(tmp_path / "none.yaml"))
+
+
+def test_the_valves_normal_behaviour_model_is_its_physics():
+    project = load_project(VALVE)
+    target = find_target(project, "V1")
+    assert (target.device, target.sensors, target.actuators) == ("valve", ("fsc", "fso"),
+                                                                  ("C", "O"))
+    assert find_target(project, "valve").name == "V1"
+    ex = Explorer(project, OBSERVING, "cycles", settle=False)
+    nbm = build_nbm(ex.graph, View(ex.graph, target), target)
+    texts = [target.vector_text(v) for v in nbm.vectors[1:]]
+    assert texts[0] == "fsc=1 fso=0 C=0 O=0"  # closed at rest, first
+    travel = nbm.expected[nbm.state_of(0b1000)][0b1010]  # opening: fso made with O on
+    # fso is made 1.91 s after fsc broke in the fault-free loop (travel 2 s, switch band
+    # 40 ms), widened by two scans; the order's own events have no window.
+    assert (travel.dwell, travel.tmin, travel.tmax) == ((1_910_000,), 1_890_000, 1_930_000)
+    assert all(e.tmax is None for e in nbm.expected[nbm.state_of(0b0001)].values())
+
+
+@pytest.mark.slow
+def test_the_built_diagnoser_is_deterministic_and_meets_its_goal(tmp_path):
+    from hmi.studies.synth_report import loop_figures
+    project = load_project(VALVE)
+    built, text, loaded = synthesise(project, "V1")
+    assert built.converged
+    assert text == BUILT.read_text()  # same project, same YAML, byte for byte
+    out = tmp_path / "again.yaml"
+    out.write_text(text)
+    check = subprocess.run([sys.executable, "-m", "hmi.cli", "check", str(VALVE),
+                            "--diagnoser", str(out)], capture_output=True, text=True)
+    assert check.returncode == 0, check.stderr
+    mine, new = loop_figures(project), loop_figures(loaded)
+    for a, b in zip(mine, new, strict=True):
+        assert set(a.isolable) <= set(b.isolable), a.config.title
+        assert b.misdiagnoses == 0, b.config.title
+
+
+# -- the High Level Diagnoser (hmi/project/high_level.py, DiagnosisStage.refine) ----------------
+
+
+def _subsystem_run(name: str, key: str):
+    from hmi.studies.campaign import configs_of, run_one
+    project = load_project(PROJECTS / "cispi_subsystem")
+    spec = project.campaign
+    scenario = next(s for s in spec.scenarios if s.name == name)
+    config = next(c for c in configs_of(project) if c.key == key)
+    return run_one(project, spec, scenario, config)
+
+
+@pytest.mark.parametrize("scenario,label,at", [("V2.F1@25s", "F1", 32_140_000),
+                                               ("V2.F13@28.3s", "F13", 32_680_000)])
+def test_the_high_level_diagnoser_resolves_f1_f13_on_the_subsystem(scenario, label, at):
+    before = _subsystem_run(scenario, "ftc_no_hld")
+    after = _subsystem_run(scenario, "ftc")
+    assert before.decision == ("F1", "F13") and before.refined is None
+    assert after.decision == (label,)
+    assert after.refined == (("F1", "F13"), label, 29_230_000, at)
+    assert after.outcome == before.outcome == "Tolerant"  # and no damage from refining
+
+
+def test_the_refined_decision_is_explained_in_plain_words():
+    from hmi.engine.scan import Engine
+    from hmi.explain.builder import ExplanationBuilder
+    from hmi.plant.sim.plant import SimPlant
+    from hmi.project.injection import Injection
+    project = load_project(PROJECTS / "cispi_subsystem")
+    plant = SimPlant(project)
+    plant.inject(Injection("F1", 25_000_000, "V2"))
+    engine = Engine(project, plant)
+    snap = None
+    for now in range(0, 32_200_001, 10_000):
+        snap = engine.step(now)
+    record = next(d for d in snap.diagnosers if d.name == "V2")
+    assert record.labels == ("F1",) and "closed end switch is stuck" in record.refined_by
+    assert "by the high level diagnoser" in record.what()
+    texts = ExplanationBuilder(project).build(snap)
+    why = next(e.why for e in texts if e.key == "diagnosis:V2")
+    assert "the cell as a whole did: T2 filled" in why
+
+
+def test_a_high_level_rule_must_decide_a_label_of_its_decision(tmp_path):
+    import shutil
+    copy = tmp_path / "valve"
+    shutil.copytree(VALVE, copy)
+    (copy / "hl.yaml").write_text(
+        "high_level:\n  x:\n    diagnoser: V1\n    decision: [F1, F13]\n    rules:\n"
+        "      - {when: fsc, decide: F5, because: no}\n")
+    text = (copy / "project.yaml").read_text()
+    (copy / "project.yaml").write_text(text.replace("  - recovery.yaml\n",
+                                                    "  - recovery.yaml\n  - hl.yaml\n"))
+    with pytest.raises(ProjectError, match=r"hl.yaml:6:.*decides 'F5', not one of the "
+                       "decision it refines"):
+        load_project(copy)
