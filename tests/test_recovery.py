@@ -368,7 +368,7 @@ async def test_the_recovery_banner_says_the_next_step_the_state_needs():
         await wait_until_dialog(pilot, "recovery-dialog")
         await press(pilot, "y")
         await wait_for_main(pilot)
-        control = region_text(app, "#control")
+        active = [line for line in region_text(app, "#control").splitlines() if "●" in line]
         await run_until(pilot, lambda s: s.recovery.status == "done", 3, "recovery done")
         assert "next: r fault reset" in region_text(app, "#banners")
         await press(pilot, "r")
@@ -381,8 +381,9 @@ async def test_the_recovery_banner_says_the_next_step_the_state_needs():
         assert "fault reset" not in banners
         snap = app.link.session.last
         assert not snap.output_map["O"] and not snap.output_map["C"]
-        steps = [line for line in region_text(app, "#control").splitlines() if "X" in line]
-        assert steps and steps[0] in control  # the program waits where it was
+        # the program waits where it was: the same active steps, their times held
+        assert active and active == [line for line in region_text(app, "#control")
+                                     .splitlines() if "●" in line]
 
 
 def test_under_a_plant_loss_latch_the_reset_dialog_offers_no_recovery_the_engine_refuses():
