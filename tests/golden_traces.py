@@ -416,6 +416,7 @@ def run_case(case: Case, attach: Callable[[Any, Any], Callable[[], None]] | None
             entry = json.loads(line)
             entry.pop("wall", None)
             entry.pop("session", None)
+            entry.pop("prev", None)  # the chain link: follows the wall time
             lines.append(_dump({"journal": entry}))
     return "\n".join(lines) + "\n"
 

@@ -216,6 +216,7 @@ def journal(path: Path) -> list[dict]:
     for entry in entries:
         entry.pop("wall", None)
         entry.pop("session", None)
+        entry.pop("prev", None)  # the chain link: follows the wall time
     return entries
 
 

@@ -150,7 +150,10 @@ class Session:
 
     def report(self, key: str, explanation: Explanation | None) -> None:
         """A service's situation (None: over), from any thread: in the next scan's
-        explanations, hence its alarm and the journal."""
+        explanations, hence its alarm and the journal. Nothing new (a situation that is
+        over reported over again): nothing changes, and the scans stay quiet."""
+        if self._services.get(key) is explanation:
+            return
         services = dict(self._services)
         if explanation is None:
             services.pop(key, None)

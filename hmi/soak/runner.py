@@ -27,6 +27,8 @@ from textual.geometry import Size
 
 from hmi.engine.scan import Engine
 from hmi.explain.journal import Journal
+from hmi.history.historian import Historian
+from hmi.history.target import Target
 from hmi.plant.sim import SimPlant
 from hmi.project.loader import load_project
 from hmi.session.journal_recorder import JournalRecorder
@@ -76,11 +78,15 @@ class SoakResult:
         return not self.broken
 
 
-def make_app(config: SoakConfig) -> tuple[PlcHmiApp, Session]:
-    """The app, and the session it shows (run in this process, in virtual time)."""
+def make_app(config: SoakConfig, history: Path | None = None
+             ) -> tuple[PlcHmiApp, Session, Historian | None]:
+    """The app, the session it shows (run in this process, in virtual time) and, with a
+    `history` file, its historian: the trend screens then read a real history."""
     project = load_project(config.project)
     cell = Session(Engine(project, SimPlant(project), control=config.control))
-    return PlcHmiApp(cell, live=False, show_measured=False), cell
+    historian = Historian(cell, Target("sqlite", str(history)), source="soak").attach() \
+        if history is not None else None
+    return PlcHmiApp(cell, live=False, show_measured=False), cell, historian
 
 
 async def session(config: SoakConfig, replay: list[Step] | None = None,
@@ -93,8 +99,10 @@ async def session(config: SoakConfig, replay: list[Step] | None = None,
     result = SoakResult(config)
     folder = Path(journal_dir or tempfile.mkdtemp(prefix="plchmi-soak-"))
     result.journal = folder / "journal.jsonl"
-    app, cell = make_app(config)
+    app, cell, historian = make_app(config, folder / "history.sqlite")
     journal = JournalRecorder(cell, Journal(result.journal), "soak")
+    if historian is not None:
+        historian.hear(journal)
     app.containment.listeners.append(journal.on_ui_fault)
     checker = Invariants(app, cell, result.journal)
 
@@ -136,6 +144,8 @@ async def session(config: SoakConfig, replay: list[Step] | None = None,
                     progress(result)
     finally:
         journal.close(None if checker.ok else str(checker.broken[0]))
+        if historian is not None:
+            historian.close()
     checker.check_journal()  # its last lines (the session's end)
     _fill(result, checker, cell, started)
     if journal_dir is None and result.ok:  # a passing session's journal is not kept

@@ -55,9 +55,11 @@ def keep_clear(app) -> None:
     except ValueError:  # not composed yet
         return
     for screen in stack[1:]:
-        if not isinstance(screen, ModalScreen) or not screen.children:
+        # (in a real terminal Textual gives each screen its toast rack and tooltip first:
+        # the box is the first child of the screen's own)
+        box = next((c for c in screen.children if not c.has_class("-textual-system")), None)
+        if not isinstance(screen, ModalScreen) or box is None:
             continue
-        box = screen.children[0]
         base = box.__dict__.setdefault("_clear_base", box.styles.margin.top)  # palette: 3
         top = max(base, clear)
         margin = box.styles.margin
