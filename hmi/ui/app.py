@@ -234,6 +234,22 @@ class PlcHmiApp(ContainedPump, App):
         last = self.link.last
         return (last.scan, last.time_us) if last is not None else (0, 0)
 
+    def _row_descriptions(self, descriptions: dict[str, str]) -> dict[str, str]:
+        """The I/O table's Description cells: each without its device's name in front when
+        the device is the same on every row (the valve: "closed end switch", not "Valve
+        V1 closed end switch" cut to "Valve" at 80 columns); several devices keep theirs."""
+        io = (*self.project.inputs, *self.project.outputs)
+        devices = {v.device for v in io}
+        if len(devices) != 1 or None in devices:
+            return descriptions
+        device = next(iter(devices))
+        out = dict(descriptions)
+        for v in io:
+            text = v.description
+            if device and text.lower().startswith(device.lower()):
+                out[v.name] = text[len(device):].strip(" :-—,") or text
+        return out
+
     def _wait_words(self, law) -> Callable[[Wait], str] | None:
         """What a step waits for, in the words the explanations use."""
         if law.grafcet is None:
@@ -270,6 +286,7 @@ class PlcHmiApp(ContainedPump, App):
             with Horizontal(id="top"):
                 with Vertical(id="col-plant"):
                     yield IOPanel(facts.layout, descriptions, self.free_inputs, id="io",
+                                  row_descriptions=self._row_descriptions(descriptions),
                                   devices={v.name: v.device for v in project.outputs
                                            if v.device},
                                   partitions=tuple(partitions.values()))
@@ -1010,6 +1027,9 @@ class PlcHmiApp(ContainedPump, App):
         alarm = self._listed_alarm(key, "shelve")
         if alarm is None:
             return
+        if alarm.latched and alarm.active:  # refused before a duration is asked for
+            self.refuse("shelve", "latched: a fault reset clears it once its cause is gone")
+            return
         options = [("once", Text("once: until its condition clears")),
                    *((str(us), Text(f"for {label}")) for us, label in SHELVE_TIMES)]
 
@@ -1365,10 +1385,11 @@ class PlcHmiApp(ContainedPump, App):
                     f"{spec.device}: recovery mode, filtered by its own constraints",
                     partial(self.start_recovery, spec.name)))
         for alarm in snap.alarms:
-            entries.append(PaletteEntry(f"Alarms: shelve… {alarm.text}",
-                                        "Hide it from the list for a while or until it clears "
-                                        "(journalled meanwhile; not a latched safety alarm)",
-                                        partial(self.shelve, alarm.key)))
+            if not (alarm.latched and alarm.active):  # what would be refused is not offered
+                entries.append(PaletteEntry(f"Alarms: shelve… {alarm.text}",
+                                            "Hide it from the list for a while or until it "
+                                            "clears (journalled meanwhile)",
+                                            partial(self.shelve, alarm.key)))
             entries.append(PaletteEntry(f"Alarms: comment on {alarm.text}…",
                                         "A note on this alarm, in the journal",
                                         partial(self.comment, alarm.key)))

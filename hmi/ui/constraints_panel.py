@@ -116,8 +116,7 @@ class ConstraintsPanel(TextPanel):
             rows.append((rank, index, info, word))
             self.violated += rank < 2
         if not rows:
-            text.append(f"{OK_SYMBOL} none violated since the start "
-                        f"(policy {frame.snapshot.policy})", style=MUTED)
+            text.append(f"{OK_SYMBOL} none violated since the start", style=MUTED)
             return text
         # the rule's name only in the engineering view: its explanation (or description)
         # says what it is in words

@@ -25,7 +25,7 @@ from rich.text import Text
 
 from hmi.engine.monitors import MonitorState
 from hmi.engine.stopwatch import Window
-from hmi.timefmt import format_duration, seconds
+from hmi.timefmt import seconds
 from hmi.ui.frame import Frame
 from hmi.ui.panel import ColumnPanel, set_title
 from hmi.ui.style import MUTED, STYLE, Level
@@ -60,7 +60,8 @@ def _s(us: int) -> str:
 
 
 def _fmt(us: int) -> str:
-    return format_duration(us).removesuffix("s")
+    """A bound in seconds, for a figure followed by " s" ("0.2", not "200m" and "200m s")."""
+    return f"{us / 1_000_000:g}"
 
 
 def location_cell(m: MonitorState, name_w: int) -> Text:
