@@ -2,7 +2,7 @@
 automatic-mode cycle, the remembered corrections, a stretch of quiet scans handed to the
 engine at once) must do what one in the interpreter does: latch 'internal', write the safe
 outputs to the plant at that very scan, explain it, journal it, and never be skipped as a
-quiet scan; a fault reset once the cause is gone brings the cell back (issue 18: "it never
+quiet scan; a fault reset once the cause is gone brings the cell back ("it never
 crashes, never lies").
 
 Each case breaks one function once, at a virtual time in the middle of a quiet stretch (a

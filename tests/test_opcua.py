@@ -39,7 +39,7 @@ from tests.opcua_cells import serve, trust_list, users, valve_session  # noqa: E
 ROOT = Path(__file__).resolve().parent.parent
 PASSWORD = "correct horse"
 ACK = ua.NodeId(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge)
-WAIT_S = 30.0  # a safety net only: every wait ends on the state it waits for
+WAIT_S = 120.0  # a safety net only: every wait ends on the state it waits for
 FIRST_FAULT_US = 8_000_000  # before the F5 the plant starts with (8.2 s)
 
 

@@ -28,7 +28,7 @@ from hmi.ui.dialogs import InfoDialog
 from hmi.ui.headless import press, settle, wait_for_screen
 from tests.opcua_cells import ROOT, serve, trust_list, users, valve_session
 
-WAIT_S = 30.0  # a safety net only: every wait ends on the state it waits for
+WAIT_S = 120.0  # a safety net only: every wait ends on the state it waits for
 PASSWORD = "correct horse"
 
 

@@ -1,4 +1,4 @@
-"""`plchmi soak` (issue 13): the whole app driven by a seeded random operator, with its
+"""`plchmi soak`: the whole app driven by a seeded random operator, with its
 invariants checked after every step — a bounded part of it in CI, the failing step lists of
 the past as regressions, and proof that each invariant can fail.
 
@@ -104,7 +104,7 @@ VALVE = PROJECTS / "cispi_valve"
 
 
 def test_a_lowered_priority_is_caught(monkeypatch):
-    """Without the rule (the old behaviour: the latest severity wins), the issue's sequence
+    """Without the rule (the old behaviour: the latest severity wins), the reported sequence
     — P1 under monitor, then a refused manual order on the same constraint — breaks."""
     monkeypatch.setattr(alarms, "highest", lambda old, new: new)
     steps = [Palette("Filter policy: monitor…"), Press(("y",)), Run(3_000_000),

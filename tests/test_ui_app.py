@@ -134,7 +134,7 @@ async def test_frames_follow_the_engine_without_extra_scans():
 async def test_the_footer_forgets_the_keys_it_removed():
     """Textual's footer keys each watch the footer (data_bind); the footer recomposes at
     every change of the bindings (the focus moving, a dialog) and, unless it forgets them,
-    keeps every key it ever showed alive: memory grew without end in a soak (issue 13)."""
+    keeps every key it ever showed alive: memory grew without end in a soak."""
     from textual.widgets._footer import FooterKey
 
     from hmi.ui.footer import HmiFooter

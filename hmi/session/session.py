@@ -443,5 +443,5 @@ class Session:
         return last
 
 
-# The name before issue 14 ("controller" is 004's word for a filter use): one phase.
+# The former name ("controller" is 004's word for a filter use), for code that still uses it.
 Controller = Session

@@ -21,9 +21,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from textual import events
 from textual.command import CommandInput, CommandList, CommandPalette
-from textual.geometry import Size
 
 from hmi.engine.scan import Engine
 from hmi.explain.journal import Journal
@@ -196,9 +194,7 @@ async def perform(pilot, step: Step) -> bool:
                 await settle(pilot)
                 return False
         case Resize(width=width, height=height):
-            size = Size(width, height)
-            app._driver._size = size  # the headless driver's terminal size
-            app.post_message(events.Resize(size, size))
+            await pilot.resize_terminal(width, height)
     await settle(pilot)
     return True
 

@@ -102,6 +102,7 @@ from hmi.ui.serving import Served, serving_lines
 from hmi.ui.sim_panel import SimPanel
 from hmi.ui.status import BannerStrip, StatusBar
 from hmi.ui.style import ISA101, MUTED, OK_SYMBOL, Level, isa101_theme, tag
+from hmi.ui.textual_adapter import LastResort
 from hmi.ui.verdict import output_changes, request_verdict
 
 if TYPE_CHECKING:
@@ -150,7 +151,7 @@ class Body(ContainedPump, Vertical):
             panel.recheck()
 
 
-class PlcHmiApp(ContainedPump, App):
+class PlcHmiApp(LastResort, ContainedPump, App):
     CSS_PATH = ["app.tcss", "dialogs.tcss", "trend.tcss"]
     TITLE = "plchmi"
     # 1 / 0 / x also from outside the I/O table (an explanation's policy button, the alarm
@@ -200,7 +201,7 @@ class PlcHmiApp(ContainedPump, App):
         self.subject: str | None = None
         # faults scheduled before the app started (plchmi ui --inject)
         self._injected += [InjectedFault(i, self._fault_text(i)) for i in injected]
-        # --bell: the terminal bell on each new unacknowledged P1 alarm (issue 19, optional)
+        # --bell: the terminal bell on each new unacknowledged P1 alarm (optional)
         self.bell_on_p1 = bell
         self.bells = 0
         self._p1_unack: frozenset[str] = frozenset()
@@ -360,11 +361,10 @@ class PlcHmiApp(ContainedPump, App):
                 return None
         return run
 
-    def _handle_exception(self, error: Exception) -> None:
+    def last_resort(self, error: Exception) -> None:
         """Textual's last resort (an error in its own widgets or the compositor): the app
         cannot go on. Remembered as the reason of an abnormal end, then Textual ends it."""
         self.containment.record("the HMI (Textual)", error, fatal=True)
-        super()._handle_exception(error)
 
     async def run_action(self, action, default_namespace=None, namespaces=None) -> bool:
         """Every key's and palette's action goes through here: an error in it is contained."""

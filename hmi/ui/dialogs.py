@@ -19,7 +19,6 @@ from typing import TypeVar
 
 from rich.text import Text
 from textual import events, on
-from textual._time import get_time
 from textual.app import ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal, Vertical
@@ -29,6 +28,7 @@ from textual.widgets.option_list import Option
 
 from hmi.ui.containment import ContainedPump
 from hmi.ui.style import Level, banner
+from hmi.ui.textual_adapter import event_clock
 
 _R = TypeVar("_R")
 
@@ -83,7 +83,7 @@ class Dialog(ContainedPump, ModalScreen[_R]):
 
     def _painted(self) -> None:
         if self.shown_at is None:
-            self.shown_at = get_time()
+            self.shown_at = event_clock()
 
     def takes(self, event: events.Key) -> bool:
         """Whether a key is the dialog's: typed once the dialog was on screen."""
