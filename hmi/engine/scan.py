@@ -47,14 +47,7 @@ from hmi.engine.layout import Layout
 from hmi.engine.monitors import monitor_stage
 from hmi.engine.recovery import NO_RECOVERY, recovery_stage
 from hmi.engine.snapshot import INTERNAL_PARTS, LatchReason, Snapshot
-from hmi.engine.stages import (
-    Control,
-    InputScan,
-    Memory,
-    OutputScan,
-    Reconstruction,
-    plant_detail,
-)
+from hmi.engine.stages import InputScan, Memory, OutputScan, plant_detail
 from hmi.errors import UsageError
 from hmi.logic.expr import Expr, Image, max_depth
 from hmi.plant.base import Plant, PlantError, PlantStatus
@@ -179,11 +172,9 @@ class Engine:
         self._overdue: tuple[str, ...] = ()  # the overdue steps the last scan told of
         # The stages, in scan order (hmi.engine.stages).
         self.input_scan = InputScan(plant, lay, read_back=self.observe)  # 1
-        self.memory = Memory(project, lay, self.control)  # 2
-        # 3 (None: no diagnosers), with the High Level Diagnoser after the local ones
+        self.memory = Memory(project, lay)  # 2 (and the GRAFCET's step times: control)
+        # 3-4 (None: no diagnosers), with the High Level Diagnoser after the local ones
         self.diagnosis = diagnosis_stage(project, lay, diagnosis, high_level)
-        self.reconstruction = Reconstruction()  # 4
-        self.control_stage = Control(self.control, lay)  # 5
         self.filter = SafetyFilter(project, lay.slots, lay.step_times,
                                    solver or project.solver,
                                    solver_budget or project.solver_budget)
@@ -217,16 +208,14 @@ class Engine:
                         for v in project.outputs if v.device}
         self.stopped_devices: set[str] = set()
         self._stop_mask: tuple[int, ...] = ()
-        # The compiled scan (hmi.engine.compiled): the stages above, generated as flat
-        # functions over the same state. `compiled=False` keeps the interpreter alone (the
-        # reference the compiled scan is tested against). Observing a read-only device runs
-        # no control law: nothing to compile.
-        self.compiled = (CompiledScan(lay, self.memory, self.control, self.diagnosis,
-                                      self.recovery, self.filter, self.monitors,
-                                      f"{project.name}/{self.control_name}")
-                         if compiled and not self.observe else None)
-        if self.compiled is not None:  # the filter's first question, compiled
-            self.filter_stage.quick = self.compiled.violated
+        # The scan program (hmi.engine.compiled): the stages' lowerings in the order of a
+        # scan, per mode, printed as Python; `compiled=False` runs the same program through
+        # its evaluator (the reference the printed form is tested against).
+        self.compiled = CompiledScan(lay, self.memory, self.control, self.diagnosis,
+                                     self.recovery, self.filter, self.monitors,
+                                     f"{project.name}/{self.control_name}", python=compiled)
+        self.filter_stage.quick = self.compiled.violated  # the filter's first question
+        if self.compiled.active_bits is not None:
             self.filter.active_bits = self.compiled.active_bits
         self._bindings = self.input_scan.bindings
         self._period = project.scan_period_us
@@ -236,8 +225,7 @@ class Engine:
         self._pending = False  # whether _record holds a scan whose snapshot is not built
         self._news: ScanNews | None = None
         self._commanded = False
-        self._elapsed = (self.compiled.elapsed if self.compiled is not None
-                         else self.memory.elapsed)
+        self._elapsed = self.memory.elapsed
         self._clean = self.filter_stage.clean  # each policy's report of a clean scan
         # Whether scans measure their wall time (Snapshot.scan_wall_us, filter_wall_us): the
         # HMI's status bar and OPC UA show the scan's, the filter benches read the filter's.
@@ -589,7 +577,7 @@ class Engine:
         wall = time.perf_counter() if timed else 0.0
         self._pending = False  # the previous scan's snapshot, if never asked for: dropped
         fast = self.compiled
-        if fast is not None and self.started and self.mode == "auto" and not self._stop_mask:
+        if self.started and self.mode == "auto" and not self._stop_mask and not self.observe:
             self.scan += 1  # (what _cycle does first, and then this)
             self.now = now
             self._auto_cycle(now, fast)
@@ -792,14 +780,14 @@ class Engine:
         self.history.appendleft(tuple(self.image))
 
     def _cycle(self, now: int) -> None:
-        """Stages 1 to 8 (module docstring), in order. In automatic and manual mode stages
-        2-5, the filter's first test and the monitors run compiled (hmi.engine.compiled);
-        the stages' own methods run whatever else happens (a violation, masking, a latch, a
-        recovery), on the same state."""
+        """Stages 1 to 8 (module docstring), in order: stages 2-5 are the scan program of
+        the engine's mode (hmi.engine.compiled), the filter's first test and the monitors
+        too; the stages' own handlers run whatever else happens (a violation, masking, a
+        latch, a recovery), on the same state."""
         self.scan += 1
         self.now = now
         fast = self.compiled
-        if fast is not None and self.started and self.mode == "auto" and not self._stop_mask:
+        if self.started and self.mode == "auto" and not self._stop_mask and not self.observe:
             self._auto_cycle(now, fast)
             return
         image = self.image
@@ -820,39 +808,29 @@ class Engine:
             hist = self.history
             recovery = self.recovery
             filter_stage = self.filter_stage
-            if fast is not None and self.mode != "recovery":
-                # 2-5 compiled: memory, diagnosers, reconstruction, recoveries needed, law;
-                # in manual mode the program waits (neither its step times nor the law)
-                if self.mode == "manual":
+            # 2-5: memory, diagnosers, reconstruction, recoveries needed, and the law (or
+            # the operator's requests, or a recovery procedure): the mode's program
+            if self.observe:
+                fast.observed(image, hist, now, self.scan)
+                fov = self.input_scan.readback
+            elif self.mode == "manual":  # the program waits: neither its step times nor law
+                fast.held(image, hist, now, self.scan)
+                fov = self._manual_fov()
+            elif self.mode == "recovery" and recovery is not None:
+                active = recovery.active
+                if active is None:  # (none started: the program waits, the outputs safe)
                     fast.held(image, hist, now, self.scan)
-                    fov = self.control_stage.manual_fov(self.manual)
+                    fov = self.safe_vector
                 else:
-                    fov = fast.core(image, hist, now, self.scan)
-                if self.diagnosis is not None:
-                    diagnosis = self.diagnosis.current
-                mask = diagnosis.mask
+                    fov = fast.recovery(active.spec.name)(image, hist, now, self.scan)
+                filter_stage = recovery.filter_stage or filter_stage
             else:
-                # 2. memory
-                self.memory.update(image, hist, now)
-                # 3. diagnosers
-                if self.diagnosis is not None:
-                    diagnosis = self.diagnosis.step(image, hist, now, self.scan)
-                # 4. reconstruction
-                self.reconstruction.apply(image, diagnosis.routes)
-                if recovery is not None:
-                    recovery.check_needed(image, hist, now)
-                # 5. functional control (or the operator's requests, or a recovery procedure)
-                mask = diagnosis.mask
-                if self.observe:
-                    fov = self.input_scan.readback
-                elif self.mode == "recovery" and recovery is not None:
-                    # the program waits (held at the start): only the procedure drives
-                    fov = recovery.fov(image, hist, now)
-                    filter_stage = recovery.filter_stage or filter_stage
-                    mask = recovery.unmask(mask)
-                else:
-                    fov = self.control_stage.fov(image, hist, now, self.manual
-                                                 if self.mode == "manual" else None)
+                fov = fast.core(image, hist, now, self.scan)
+            if self.diagnosis is not None:
+                diagnosis = self.diagnosis.current
+            mask = diagnosis.mask
+            if self.mode == "recovery" and recovery is not None:
+                mask = recovery.unmask(mask)
             if self._stop_mask and not self.observe:
                 fov = tuple(self.safe_vector[k] if k in self._stop_mask else value
                             for k, value in enumerate(fov))
@@ -883,7 +861,7 @@ class Engine:
         # 7. output scan
         for slot, value in zip(self.output_slots, outputs, strict=True):
             image[slot] = value
-        monitored, error = self._output_scan(now, outputs, error, fast)
+        monitored, error = self._output_scan(now, outputs, error)
         self._keep(fov, outputs, report, diagnosis, monitored, error, filter_us)
 
     def _auto_cycle(self, now: int, fast: CompiledScan) -> None:
@@ -917,7 +895,7 @@ class Engine:
                     report = self._clean[policy]
                     if timed:
                         filter_us = (time.perf_counter() - started) * 1e6
-                    monitored, error = self._output_scan(now, fov, None, fast)
+                    monitored, error = self._output_scan(now, fov, None)
                     record = self._record  # (ScanRecord: written out, as at every scan)
                     record.fov = record.outputs = fov
                     record.report = report
@@ -947,7 +925,7 @@ class Engine:
             fov = outputs = self.safe_vector
         for slot, value in zip(self.output_slots, outputs, strict=True):  # 7. output scan
             image[slot] = value
-        monitored, error = self._output_scan(now, outputs, error, fast)
+        monitored, error = self._output_scan(now, outputs, error)
         record = self._record
         record.fov = fov
         record.outputs = outputs
@@ -970,8 +948,8 @@ class Engine:
         record.error = error
         record.filter_us = filter_us
 
-    def _output_scan(self, now: int, outputs: tuple[bool, ...], error: str | None,
-                     fast: CompiledScan | None) -> tuple[bool, str | None]:
+    def _output_scan(self, now: int, outputs: tuple[bool, ...], error: str | None
+                     ) -> tuple[bool, str | None]:
         """Stage 7's write to the plant (the image holds `outputs` already), then stage 8,
         the monitors, on the I/O this scan exchanged (their states: Engine.snapshot).
         Returns whether the monitors ran and the scan's error.
@@ -988,13 +966,11 @@ class Engine:
                 self.latch_safe("plant", plant_detail(exc))
             except Exception as exc:  # not a PlantError: a bug, in the plant or here
                 error = error or self._write_failed(now, outputs, exc)
-        if self.monitors is None:
+        monitors = self.compiled.monitors
+        if monitors is None:
             return False, error
         try:
-            if fast is not None and fast.monitors is not None:
-                fast.monitors(self.image, self.history, now, self.scan)
-            else:
-                self.monitors.step(self.image, self.history, now, self.scan)
+            monitors(self.image, self.history, now, self.scan)
         except Exception as exc:  # a broken monitor must not stop the scan silently
             message = f"{type(exc).__name__}: {exc}"
             self._latch_internal(message)
@@ -1030,6 +1006,12 @@ class Engine:
             return diagnosis.masked
         driven = recovery.active.spec.outputs
         return tuple(o for o in diagnosis.masked if o not in driven)
+
+    def _manual_fov(self) -> tuple[bool, ...]:
+        """Manual mode: the operator's requests as the vector (an output not requested:
+        off)."""
+        manual = self.manual
+        return tuple(manual.get(name, False) for name in self.layout.outputs)
 
     def _held_outputs(self) -> tuple[bool, ...]:
         """Outputs of a scan whose inputs are unknown: safe; observed ones as last seen."""
