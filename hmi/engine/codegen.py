@@ -121,6 +121,14 @@ def print_program(src: Source, program: tuple[ir.Stmt, ...], indent: int,
             _print_switch(src, stmt.value.name, cases, stmt.default, indent, slots, times)
         elif isinstance(stmt, ir.Do):
             src.line(indent, _value_source(src, stmt.call, slots, times))
+        elif isinstance(stmt, ir.Return):
+            src.line(indent, f"return {_value_source(src, stmt.value, slots, times)}")
+        elif isinstance(stmt, ir.Try):
+            src.line(indent, "try:")
+            print_program(src, stmt.body, indent + 1, slots, times)
+            for kind, name, handler in stmt.handlers:
+                src.line(indent, f"except {src.ref(kind)} as {name}:")
+                print_program(src, handler, indent + 1, slots, times)
         else:
             src.line(indent, f"{_value_source(src, stmt.target, slots, times)} = "
                              f"{_value_source(src, stmt.value, slots, times)}")
@@ -203,6 +211,9 @@ def _value_source(src: Source, value: ir.Value, slots: Mapping[str, int],
         case ir.And(operands=operands) | ir.Or(operands=operands):
             word = " and " if isinstance(value, ir.And) else " or "
             return "(" + word.join(_value_source(src, o, slots, times) for o in operands) + ")"
+        case ir.Call(owner=owner, method="__call__", args=args):
+            return (f"{src.ref(owner)}("
+                    + ", ".join(_value_source(src, a, slots, times) for a in args) + ")")
         case ir.Call(owner=owner, method=method, args=args):
             return (f"{src.ref(owner)}.{method}("
                     + ", ".join(_value_source(src, a, slots, times) for a in args) + ")")
@@ -232,13 +243,16 @@ _NODES = (ast.Module, ast.FunctionDef, ast.arguments, ast.arg, ast.Return, ast.A
           ast.Subscript, ast.Attribute, ast.Constant, ast.BoolOp, ast.And, ast.Or, ast.UnaryOp,
           ast.Not, ast.Compare, ast.Lt, ast.LtE, ast.Gt, ast.GtE, ast.Eq, ast.NotEq, ast.Is,
           ast.IsNot, ast.Call, ast.Tuple, ast.BinOp, ast.Sub, ast.Add, ast.Pass, ast.BitOr,
-          ast.LShift)
+          ast.LShift, ast.Try, ast.ExceptHandler)
 _ALLOWED = frozenset(_NODES)
 # Local names: the parameters and locals of the templates, the past images bound once
 # (_bind_past), and the objects handed over.
 LOCALS = frozenset({"v", "h", "f", "t", "now", "scan", "s", "q", "x", "b", "c", "ls",
                     "delta", "su", "changed", "fire", "moved", "p", "e", "el", "y",
-                    "verdict", "h0", "h1", "h2", "h3"})
+                    "verdict", "h0", "h1", "h2", "h3",
+                    # the automatic mode's frame (hmi.engine.compiled.auto_frame)
+                    "exc", "diag", "report", "error", "monitored", "marks", "events",
+                    "status", "last", "values", "diagnosers", "recovery"})
 _HANDED = re.compile(r"k[0-9]+\Z")
 # Attributes the templates read or set on the objects they are given.
 ATTRIBUTES = frozenset({
@@ -255,6 +269,14 @@ ATTRIBUTES = frozenset({
     # monitors
     "phase", "x_us", "y_us", "last_us", "attempt", "attempt_start_us", "attempt_fault",
     "changes", "completed", "watchdog", "_armed", "trip", "detect",
+    # the automatic mode's frame (hmi.engine.compiled.auto_frame): the engine, its plant,
+    # its scan record, its stages
+    "_pending", "scan", "now", "latched", "clean_report", "_news", "_commanded",
+    "_auto_lost", "_auto_failed", "_auto_filter", "_write_error", "_monitors_error",
+    "_finish", "_conclude", "read_into", "write_vector", "take_events", "status", "core",
+    "violated", "monitors", "faulty", "deadline", "active", "_idle", "marks", "appendleft",
+    "fov", "outputs", "report", "diagnosis", "monitored", "error", "filter_us", "values",
+    "diagnosers", "events", "recovery", "scan_us", "settled", "manual",
 })
 
 
@@ -277,6 +299,8 @@ def _check(tree: ast.AST) -> None:
             raise ValueError(f"generated code names {node.id!r}")
         if kind is ast.arg and not (node.arg in LOCALS or _HANDED.match(node.arg)):
             raise ValueError(f"generated code has the parameter {node.arg!r}")
+        if kind is ast.ExceptHandler and node.name not in LOCALS:
+            raise ValueError(f"generated code binds {node.name!r}")
         if kind is ast.Attribute and node.attr not in ATTRIBUTES:
             raise ValueError(f"generated code reads .{node.attr}")
         if kind is ast.Constant and not (

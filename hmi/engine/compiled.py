@@ -38,7 +38,10 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from hmi.engine.codegen import Source, build, build_function, expr_source
+from hmi.engine.diagnoser import NO_DIAGNOSIS
+from hmi.engine.recovery import NO_RECOVERY
 from hmi.logic.expr import History, Image, Var
+from hmi.plant.base import PlantError
 from hmi.program import ir
 from hmi.program.constraints import lower_violated
 from hmi.program.evaluate import function_evaluator
@@ -171,6 +174,11 @@ class CompiledScan:
             fn = self._recoveries[name] = self._form(self.program.recovery(name))
         return fn
 
+    def frame(self, engine: Any) -> Callable[[int], bool]:
+        """The automatic mode's scan (auto_frame), in this form."""
+        fn: Callable[[int], bool] = self._form(auto_frame(engine))
+        return fn
+
     def _active_bits(self, safety_filter: SafetyFilter) -> ActiveFn:
         """``active_bits(v, h)``: which constraints are active (their literals over inputs,
         memories and earlier scans all true), bit k for safety_filter.compiled[k]: the
@@ -203,3 +211,137 @@ class CompiledScan:
                              f"<plchmi compiled active_bits: {self.label}>")
         self.sources.append(fn.__doc__ or "")
         return fn
+
+
+def auto_frame(engine: Any) -> ir.Function:
+    """``auto(now) -> news``: `engine`'s (hmi.engine.scan.Engine, not imported: it imports
+    this module) Engine.run scan in automatic mode, once started, with no
+    device stopped and no wall time measured (most scans of a run), written out: stage 1,
+    the mode's program (``core``), the constraints' test, the output scan and the monitors,
+    then what Engine._conclude does for a quiet scan (nothing masked, latched nor violated,
+    no error, no plant event, no supervision due, no diagnoser faulty, no recovery needed,
+    nothing changed since the last scan with news but what moves by itself). Whatever is
+    not such a scan goes on where Engine._auto_cycle and Engine._conclude go on, through
+    the engine's own methods, from the point reached: the same scan, in both paths."""
+    e, plant, scan_program = engine, engine.plant, engine.compiled
+    image, history = ir.Ref(engine.image), ir.Ref(engine.history)
+    now, scan = ir.Local("now"), ir.Local("scan")
+    f, diag, report, error = (ir.Local(n) for n in ("f", "diag", "report", "error"))
+    monitored, exc, quiet = ir.Local("monitored"), ir.Local("exc"), ir.Local("q")
+    stage, monitors, recovery = engine.diagnosis, engine.monitors, engine.recovery
+    supervised = engine._supervised
+    record = engine._record
+
+    def cell(owner: Any, name: str) -> ir.Cell:
+        return ir.Cell(owner, name)
+
+    def call(owner: Any, method: str, *args: ir.Value) -> ir.Call:
+        return ir.Call(owner, method, args)
+
+    def conclude(*stmts: ir.Stmt) -> tuple[ir.Stmt, ...]:
+        return (*stmts, ir.Return(call(e, "_conclude", now)))
+
+    finish = ir.Return(call(e, "_finish", now, f, report, diag, monitored, error))
+    body: list[ir.Stmt] = [
+        ir.Assign(cell(e, "_pending"), ir.FALSE),  # (the last scan's snapshot: dropped)
+        ir.Assign(scan, ir.Add(cell(e, "scan"), ir.Const(1))),
+        ir.Assign(cell(e, "scan"), scan),
+        ir.Assign(cell(e, "now"), now),
+        ir.Assign(diag, cell(stage, "current") if stage is not None else ir.Ref(NO_DIAGNOSIS)),
+        # 1. input scan
+        ir.Try((ir.Do(call(plant, "read_into", now, image, ir.Ref(engine._bindings))),),
+               ((PlantError, "exc", conclude(ir.Do(call(e, "_auto_lost", now, exc)))),
+                (Exception, "exc", conclude(ir.Do(call(e, "_auto_failed", now, exc, diag)))))),
+        # 2-5, and stage 6's first question
+        ir.Try((
+            ir.Assign(f, call(scan_program, "core", image, history, now, scan)),
+            *((ir.Assign(diag, cell(stage, "current")),) if stage is not None else ()),
+            ir.Assign(quiet, ir.And((ir.IsNone(ir.Item(diag, 1)),
+                                     ir.Not(cell(e, "latched")),
+                                     ir.Not(call(scan_program, "violated", image, history,
+                                                 f))))),
+        ), ((Exception, "exc", conclude(ir.Do(call(e, "_auto_failed", now, exc, diag)))),)),
+        ir.If(ir.Not(quiet), conclude(ir.Do(call(e, "_auto_filter", now, f, diag)))),
+        ir.Assign(report, cell(e, "clean_report")),
+        ir.Assign(error, ir.NONE),
+        # 7. output scan
+        ir.Try((ir.Do(call(plant, "write_vector", now, ir.Ref(engine.output_scan.names), f)),),
+               ((Exception, "exc", (ir.Assign(error, call(e, "_write_error", now, f, error,
+                                                          exc)),)),)),
+    ]
+    # 8. monitors
+    if monitors is not None:
+        body += [
+            ir.Assign(monitored, ir.TRUE),
+            ir.Try((ir.Do(call(scan_program, "monitors", image, history, now, scan)),),
+                   ((Exception, "exc", (ir.Assign(monitored, ir.FALSE),
+                                        ir.Assign(error, call(e, "_monitors_error", now, error,
+                                                              exc)))),)),
+        ]
+    else:
+        body.append(ir.Assign(monitored, ir.FALSE))
+    # what Engine._conclude would find other than a quiet scan's: its own way
+    body.append(ir.If(ir.Not(ir.IsNone(error)), (finish,)))
+    if supervised is not None:
+        body.append(ir.If(ir.Compare(">", now, cell(supervised, "deadline")), (finish,)))
+    if stage is not None:
+        body.append(ir.If(cell(stage, "faulty"), (finish,)))
+    if recovery is not None:
+        body.append(ir.If(ir.Or((cell(recovery, "needed"),
+                                 ir.Not(ir.IsNone(cell(recovery, "active"))))), (finish,)))
+    marks = ir.Local("marks")
+    if monitors is not None:  # (monitored: else the error above)
+        body.append(ir.Try(
+            (ir.Assign(marks, call(monitors, "settle")),),
+            ((Exception, "exc", (ir.Return(call(e, "_finish", now, f, report, diag, monitored,
+                                                error, ir.NONE,
+                                                ir.Tuple((ir.Const(3), exc)))),)),)))
+    else:
+        body.append(ir.Assign(marks, ir.Const(0)))
+    events, status, values = ir.Local("events"), ir.Local("status"), ir.Local("values")
+    taken = ir.Return(call(e, "_finish", now, f, report, diag, monitored, error, events))
+    body += [
+        ir.Try((ir.Assign(events, call(plant, "take_events")),),
+               ((Exception, "exc", (ir.Return(call(e, "_finish", now, f, report, diag,
+                                                   monitored, error, ir.NONE,
+                                                   ir.Tuple((ir.Const(1), exc)))),)),)),
+        ir.If(events, (taken,)),
+        ir.Try((ir.Assign(status, cell(plant, "status")),),
+               ((Exception, "exc", (ir.Return(call(e, "_finish", now, f, report, diag,
+                                                   monitored, error, events,
+                                                   ir.Tuple((ir.Const(2), exc)))),)),)),
+    ]
+    # news: as Engine._conclude judges it (ScanNews by position)
+    diagnosers = ir.Item(diag, 2) if stage is not None else ir.Const(())
+    shown = cell(recovery, "_idle") if recovery is not None else ir.Ref(NO_RECOVERY)
+    last = ir.Local("last")
+    body += [
+        ir.Assign(last, cell(e, "_news")),
+        ir.If(ir.Or((ir.IsNone(last), cell(e, "_commanded"), ir.Item(diag, 3),
+                     cell(e, "manual"))), (taken,)),
+        ir.If(ir.Not(ir.And((
+            ir.Compare("is", report, ir.Item(last, 0)),
+            ir.Compare("is", status, ir.Item(last, 1)),
+            # (without diagnosers, both are the empty tuple)
+            *((ir.Compare("is", diagnosers, ir.Item(last, 2)),) if stage is not None else ()),
+            ir.Compare("==", marks, ir.Item(last, 3)),
+            ir.Compare("is", shown, ir.Item(last, 4))))), (taken,)),
+        # a quiet scan: the image into the history, the record
+        ir.Assign(values, call(tuple, "__call__", image)),
+        ir.Do(call(engine.history, "appendleft", values)),
+    ]
+    zero = ir.Ref(0.0)
+    fields: tuple[tuple[str, ir.Value], ...] = (
+        ("report", report), ("diagnosis", diag), ("monitored", monitored),
+        ("error", ir.NONE), ("filter_us", zero), ("diagnosers", diagnosers),
+        ("marks", marks), ("events", ir.Const(())), ("recovery", shown), ("scan_us", zero))
+    moving = (ir.Assign(cell(record, "fov"), f), ir.Assign(cell(record, "outputs"), f),
+              ir.Assign(cell(record, "values"), values))
+    body += [
+        ir.If(cell(record, "settled"), moving,
+              (*moving, *(ir.Assign(cell(record, name), value) for name, value in fields),
+               ir.Assign(cell(record, "settled"), ir.TRUE))),
+        ir.Assign(cell(e, "_pending"), ir.TRUE),
+        ir.Return(ir.FALSE),
+    ]
+    return ir.Function("auto", ("now",), tuple(body))

@@ -312,6 +312,9 @@ class Diagnosis(NamedTuple):
     masked: tuple[str, ...]  # outputs whose orders are masked
 
 
+NO_DIAGNOSIS = Diagnosis((), None, (), (), ())  # a scan without diagnosers (or before them)
+
+
 class DiagnosisStage:
     """Stage 3 of the scan: the diagnosers, their flags, and what stages 4 and 6 must do."""
 

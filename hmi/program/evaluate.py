@@ -30,6 +30,7 @@ from hmi.program.ir import (
     Now,
     Or,
     Ref,
+    Return,
     ScanNumber,
     Slot,
     Stmt,
@@ -38,6 +39,7 @@ from hmi.program.ir import (
     Test,
     TheHistory,
     TheImage,
+    Try,
     Tuple,
     Value,
 )
@@ -64,6 +66,14 @@ def evaluator(program: Sequence[Stmt], slots: Mapping[str, int],
     return run
 
 
+class _Returned(Exception):
+    """A Return statement leaving the function (its value in `value`)."""
+
+    def __init__(self, value: Any):
+        super().__init__()
+        self.value = value
+
+
 def function_evaluator(function: Function, slots: Mapping[str, int],
                        times: Mapping[str, int]) -> Callable[..., Any]:
     """`function` as a Python callable taking its parameters, in order."""
@@ -77,7 +87,10 @@ def function_evaluator(function: Function, slots: Mapping[str, int],
         env = {name: value for name, value in bound.items() if name not in special}
         v, h = bound.get("v", []), bound.get("h", ())
         now, scan = bound.get("now", 0), bound.get("scan", 0)
-        body(v, h, now, scan, env)
+        try:
+            body(v, h, now, scan, env)
+        except _Returned as returned:
+            return returned.value
         return None if result is None else result(v, h, now, scan, env)
 
     return run
@@ -123,6 +136,32 @@ def _stmt(stmt: Stmt, slots: Mapping[str, int], times: Mapping[str, int]) -> Stm
             cases.get(selector(v, h, now, scan, env), default)(v, h, now, scan, env)
 
         return switch
+    if isinstance(stmt, Return):
+        returned = _value(stmt.value, slots, times)
+
+        def return_(v: Image, h: History, now: int, scan: int, env: Env) -> None:
+            raise _Returned(returned(v, h, now, scan, env))
+
+        return return_
+    if isinstance(stmt, Try):
+        body = _block(stmt.body, slots, times)
+        handlers = [(kind, name, _block(block, slots, times))
+                    for kind, name, block in stmt.handlers]
+
+        def try_(v: Image, h: History, now: int, scan: int, env: Env) -> None:
+            try:
+                body(v, h, now, scan, env)
+            except _Returned:
+                raise
+            except Exception as exc:
+                for kind, name, handler in handlers:
+                    if isinstance(exc, kind):
+                        env[name] = exc
+                        handler(v, h, now, scan, env)
+                        return
+                raise
+
+        return try_
     if isinstance(stmt, Do):
         call = _value(stmt.call, slots, times)
 

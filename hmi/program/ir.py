@@ -203,7 +203,26 @@ class Switch:
     default: tuple[Stmt, ...] = ()
 
 
-Stmt = Assign | If | Do | Switch
+@dataclass(frozen=True)
+class Return:
+    """Leave the function with `value` (hmi.engine.compiled's frames only: a stage's
+    program runs to its end)."""
+
+    value: Value
+
+
+@dataclass(frozen=True, eq=False)
+class Try:
+    """`body`; an exception of one of the `handlers`' classes (tried in order) is bound to
+    the local named there and its statements run instead of the rest of `body`. Only the
+    engine's frame around a mode's program uses it (what fails there is the plant's I/O or
+    a stage's bug: the engine's own handlers say what to do)."""
+
+    body: tuple[Stmt, ...]
+    handlers: tuple[tuple[type[BaseException], str, tuple[Stmt, ...]], ...]
+
+
+Stmt = Assign | If | Do | Switch | Return | Try
 
 FALSE = Const(False)
 TRUE = Const(True)
