@@ -23,7 +23,8 @@ from hmi.timefmt import seconds
 from hmi.ui.alarm_list import urgent_count
 from hmi.ui.frame import Frame
 from hmi.ui.panel import TextPanel
-from hmi.ui.serving import serving_banner, serving_field
+from hmi.ui.presence import control_field, lost_banner, lost_field, lost_fields
+from hmi.ui.serving import gateway_banner, gateway_field, serving_banner, serving_field
 from hmi.ui.style import MUTED, Level, banner, tag
 
 SEPARATOR = " │ "
@@ -43,7 +44,11 @@ def status_fields(frame: Frame, wide: bool, compact: bool = False) -> list[Field
     """The status bar's fields; `compact` uses the short forms (80 columns)."""
     snap = frame.snapshot
     plant = snap.plant
+    if frame.lost:  # nothing is live: said first, and only what was last known
+        return [Field(*f) for f in lost_fields(frame)]
     fields: list[Field] = [Field(Text(frame.project, style="bold"), 2)]
+    if (gone := lost_field(frame)) is not None:  # first: what follows may be stale
+        fields.insert(0, Field(*gone))
     if plant.kind == "sim":
         fields.append(Field(tag("SIM", Level.SIMULATION), 2))
     else:
@@ -54,6 +59,10 @@ def status_fields(frame: Frame, wide: bool, compact: bool = False) -> list[Field
             fields.append(Field(tag(f"{where} DISCONNECTED", Level.ALARM), 0))
     if frame.serving is not None:
         fields.append(Field(*serving_field(frame.serving)))
+    elif frame.gateway is not None:
+        fields.append(Field(*gateway_field(frame.gateway)))
+    if (control := control_field(frame)) is not None:
+        fields.append(Field(*control))
     if frame.engineering:  # never dropped: the screen then names the model's internals
         fields.append(Field(tag("ENG" if compact else "ENG VIEW", Level.ATTENTION), 0))
     if snap.mode == "manual":
@@ -207,6 +216,8 @@ def recovery_banner(state: RecoveryState, reset_pending: bool = True) -> Text:
 def banner_lines(frame: Frame) -> list[Text]:
     snap = frame.snapshot
     lines: list[Text] = []
+    if (gone := lost_banner(frame)) is not None:
+        lines.append(gone)
     if snap.mode == "manual":
         line = banner("MANUAL / FORCES ACTIVE", Level.ATTENTION)
         requests = dict(snap.manual)
@@ -233,6 +244,9 @@ def banner_lines(frame: Frame) -> list[Text]:
         line.append(" " + "; ".join(r.detail for r in snap.latched)
                     + " · r: fault reset once the cause is gone")
         lines.append(line)
+    if frame.serving is None and frame.gateway is not None \
+            and (served := gateway_banner(frame.gateway)) is not None:
+        lines.append(served)
     if frame.serving is not None and (served := serving_banner(frame.serving)) is not None:
         lines.append(served)
     fault = frame.ui_fault
