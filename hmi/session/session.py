@@ -29,6 +29,7 @@ from hmi.engine.commands import (
     Pause,
     Resume,
     SetSpeed,
+    SetView,
     Shelve,
     StepScans,
     Unshelve,
@@ -205,6 +206,10 @@ class Session:
                     result = self._choose_policy(key, policy_id)
                 case Shelve() | Unshelve() | CommentAlarm():
                     result = self._alarm_note(command)
+                case SetView(engineering=engineering):
+                    result = CommandResult.ok(
+                        "engineering view: internal names, states, flags and bounds shown"
+                        if engineering else "operator view: devices and plain words")
                 case _:
                     result = self.engine.apply(command)
             self._tell(command, result)

@@ -52,6 +52,7 @@ from hmi.engine.commands import (
     SetMode,
     SetPolicy,
     SetSpeed,
+    SetView,
     Shelve,
     StartRecovery,
     StepScans,
@@ -59,9 +60,11 @@ from hmi.engine.commands import (
     Unshelve,
     describe,
 )
+from hmi.engine.criteria import Wait
 from hmi.engine.scan import Engine
 from hmi.engine.snapshot import Snapshot
 from hmi.explain.model import Policy
+from hmi.explain.plain import PlainNames
 from hmi.explain.reset import ResetLine, reset_preview
 from hmi.link.base import CellLink, ResetGuard, View
 from hmi.link.local import LocalLink, SessionLink
@@ -190,6 +193,7 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         self.frames_shown = 0  # frames handed to the panels (the UI refresh count)
         self._key: tuple | None = None
         self._version = 0  # bumped when something the frame shows changes outside the scan
+        self.engineering = False  # the engineering view (E): internal names shown too
         self._stepping = False
         self._request: tuple[str, bool, int, str] | None = None  # pending manual verdict
         self._injected: list[InjectedFault] = []  # shown on the SIMULATION strip
@@ -234,6 +238,31 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         last = self.link.last
         return (last.scan, last.time_us) if last is not None else (0, 0)
 
+    def _row_descriptions(self, descriptions: dict[str, str]) -> dict[str, str]:
+        """The I/O table's Description cells: each without its device's name in front when
+        the device is the same on every row (the valve: "closed end switch", not "Valve
+        V1 closed end switch" cut to "Valve" at 80 columns); several devices keep theirs."""
+        io = (*self.project.inputs, *self.project.outputs)
+        devices = {v.device for v in io}
+        if len(devices) != 1 or None in devices:
+            return descriptions
+        device = next(iter(devices))
+        out = dict(descriptions)
+        for v in io:
+            text = v.description
+            if device and text.lower().startswith(device.lower()):
+                out[v.name] = text[len(device):].strip(" :-—,") or text
+        return out
+
+    def _wait_words(self, law) -> Callable[[Wait], str] | None:
+        """What a step waits for, in the words the explanations use."""
+        if law.grafcet is None:
+            return None
+        from hmi.explain.context import ExplanationContext
+        from hmi.explain.sequence import wait_words
+        context, grafcet = ExplanationContext(self.project), law.grafcet
+        return lambda wait: wait_words(context, grafcet, wait)
+
     def compose(self) -> ComposeResult:
         facts = self.facts
         project = self.project
@@ -249,20 +278,26 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         constraints = [ConstraintInfo(c.name, c.kind, c.expr.source, c.description)
                        for c in project.constraints]
         diagnosers = diagnosers_of(project)
-        partitions = {p.flag: PartitionInfo(p.flag, p.sensor, p.estimate, p.actuators)
-                      for spec in diagnosers for p in spec.partitions}
+        plain = PlainNames(project)
+        partitions = {p.flag: PartitionInfo(
+            p.flag, p.sensor, p.estimate, p.actuators, p.description or "",
+            plain.name(p.sensor) if p.sensor else "",
+            tuple(plain.name(a) for a in p.actuators))
+            for spec in diagnosers for p in spec.partitions}
         yield StatusBar(id="status")
         yield BannerStrip(id="banners")
         with Body(id="body"):
             with Horizontal(id="top"):
                 with Vertical(id="col-plant"):
                     yield IOPanel(facts.layout, descriptions, self.free_inputs, id="io",
+                                  row_descriptions=self._row_descriptions(descriptions),
                                   devices={v.name: v.device for v in project.outputs
                                            if v.device},
                                   partitions=tuple(partitions.values()))
                     yield ConstraintsPanel(constraints, id="constraints")
                 with Vertical(id="col-logic"):
-                    yield GrafcetPanel(facts.control, steps, timers, id="control")
+                    yield GrafcetPanel(facts.control, steps, timers, id="control",
+                                       words=self._wait_words(law))
                     yield DiagnosersPanel(partitions, len(diagnosers), id="diagnosers")
                     yield MonitorsPanel(len(monitors_of(project)), id="monitors")
             with Horizontal(id="bottom"):
@@ -435,7 +470,8 @@ class PlcHmiApp(LastResort, ContainedPump, App):
             constraints=view.constraints, ui_fault=contained.latest,
             ui_faults=contained.total, serving=serving, gateway=gateway,
             control=view.control,
-            me=self.link.client, lost=lost, silent_s=silent)
+            me=self.link.client, lost=lost, silent_s=silent,
+            engineering=self.engineering)
         self._show_presence(frame)
         self.frame = frame
         for view in self._views:  # one panel failing leaves the others showing this frame
@@ -843,6 +879,9 @@ class PlcHmiApp(LastResort, ContainedPump, App):
                 self.explanation_panel.forget_results()
             case FaultReset() if result.accepted:
                 self.explanation_panel.forget_results()  # what they answered has changed
+            case SetView(engineering=engineering) if result.accepted:
+                self.engineering = engineering
+                self._version += 1
         if result.accepted and not isinstance(command, RUN_STATE_COMMANDS) \
                 and not self.running:
             text.append(" — applies at the next scan (paused)", style=MUTED)
@@ -1138,6 +1177,9 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         alarm = self._listed_alarm(key, "shelve")
         if alarm is None:
             return
+        if alarm.latched and alarm.active:  # refused before a duration is asked for
+            self.refuse("shelve", "latched: a fault reset clears it once its cause is gone")
+            return
         options = [("once", Text("once: until its condition clears")),
                    *((str(us), Text(f"for {label}")) for us, label in SHELVE_TIMES)]
 
@@ -1359,6 +1401,10 @@ class PlcHmiApp(LastResort, ContainedPump, App):
             order = [s.name for s in self.history.signals]
             self.set_signals(tuple(sorted((*current, name), key=order.index)))
 
+    def action_engineering(self) -> None:
+        """The engineering view on or off: one key, shown in the status bar, journalled."""
+        self.send(SetView(not self.engineering))
+
     def action_window(self, window_us: int | None = None) -> None:
         chrono = self.chronogram
         if window_us is None:
@@ -1494,10 +1540,11 @@ class PlcHmiApp(LastResort, ContainedPump, App):
                     f"{spec.device}: recovery mode, filtered by its own constraints",
                     partial(self.start_recovery, spec.name)))
         for alarm in snap.alarms:
-            entries.append(PaletteEntry(f"Alarms: shelve… {alarm.text}",
-                                        "Hide it from the list for a while or until it clears "
-                                        "(journalled meanwhile; not a latched safety alarm)",
-                                        partial(self.shelve, alarm.key)))
+            if not (alarm.latched and alarm.active):  # what would be refused is not offered
+                entries.append(PaletteEntry(f"Alarms: shelve… {alarm.text}",
+                                            "Hide it from the list for a while or until it "
+                                            "clears (journalled meanwhile)",
+                                            partial(self.shelve, alarm.key)))
             entries.append(PaletteEntry(f"Alarms: comment on {alarm.text}…",
                                         "A note on this alarm, in the journal",
                                         partial(self.comment, alarm.key)))

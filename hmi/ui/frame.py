@@ -55,6 +55,9 @@ class Frame:
     me: str | None = None  # this screen's id at the runtime
     lost: str | None = None  # why the runtime is gone: nothing shown is live
     silent_s: float = 0.0  # since the runtime last said anything
+    # the engineering view: the panels show the model's names (steps, states, labels,
+    # flags, constraints, timers, bounds) beside the operator's words
+    engineering: bool = False
 
     @property
     def simulated(self) -> bool:

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from rich.text import Text
 
 from hmi.engine.recovery import RecoveryState
+from hmi.explain.reset import reset_preview
 from hmi.timefmt import seconds
 from hmi.ui.alarm_list import urgent_count
 from hmi.ui.frame import Frame
@@ -62,6 +63,8 @@ def status_fields(frame: Frame, wide: bool, compact: bool = False) -> list[Field
         fields.append(Field(*gateway_field(frame.gateway)))
     if (control := control_field(frame)) is not None:
         fields.append(Field(*control))
+    if frame.engineering:  # never dropped: the screen then names the model's internals
+        fields.append(Field(tag("ENG" if compact else "ENG VIEW", Level.ATTENTION), 0))
     if snap.mode == "manual":
         fields.append(Field(tag("MANUAL", Level.ATTENTION), 0))
     elif snap.mode == "recovery":
@@ -190,8 +193,10 @@ class BannerStrip(TextPanel):
             self.show_text(Text("\n").join(lines))
 
 
-def recovery_banner(state: RecoveryState) -> Text:
-    """RECOVERY: what runs and how far it got, and the way out."""
+def recovery_banner(state: RecoveryState, reset_pending: bool = True) -> Text:
+    """RECOVERY: what runs and how far it got, and the way out. Done, the next key follows
+    what is left: a fault reset only while it has something to release (`reset_pending`),
+    then leaving recovery."""
     if state.status == "running":
         line = banner("RECOVERY", Level.ATTENTION)
         line.append(f" {state.step_text} {state.step}/{state.steps} · "
@@ -199,7 +204,9 @@ def recovery_banner(state: RecoveryState) -> Text:
                     f"{state.description} · m: leave")
     elif state.status == "done":
         line = banner("RECOVERY DONE", Level.ATTENTION)
-        line.append(f" next: r fault reset, then m leave recovery · {state.description}")
+        step = "r fault reset, then m leave recovery" if reset_pending else \
+            "m leave recovery"
+        line.append(f" next: {step} · {state.description}")
     else:
         line = banner("RECOVERY FAILED", Level.ALARM)
         line.append(f" {state.message} · m: leave recovery")
@@ -219,7 +226,8 @@ def banner_lines(frame: Frame) -> list[Text]:
                     f" · filtered ({snap.policy}) · m: leave")
         lines.append(line)
     if snap.mode == "recovery":
-        lines.append(recovery_banner(snap.recovery))
+        lines.append(recovery_banner(snap.recovery, snap.recovery.status == "done" and any(
+            line.resets for line in reset_preview(snap))))
     if not snap.plant.connected:
         line = banner("PLANT DISCONNECTED", Level.ALARM)
         line.append(f" {snap.plant.description}: {snap.plant.message or 'no answer'}")
