@@ -153,7 +153,7 @@ def test_operator_viewer_and_lockout_in_a_real_browser(tmp_path):
             assert alice.page.inner_text("#who").endswith("signed in as alice (operator)")
             seen = set()
             while len(seen) < 3:  # the GRAFCET's active step changes: the valve moves
-                seen.add(alice.wait_text(r"● (X\d) ", "the active step").group(1))
+                seen.add(alice.wait_text(r"│ ● (\S[^│]*?)\s{2,}", "the active step").group(1))
                 alice.page.wait_for_timeout(100)
             alice.page.screenshot(path=str(tmp_path / "browser.png"))
             # a viewer sees the same cell, and cannot acknowledge
