@@ -1,5 +1,5 @@
 """Code compiled from generated text, compiled once and kept like bytecode; and the file
-rules of every cache the HMI's start keeps (docs/performance.md, issue 18 goal 1).
+rules of every cache the HMI's start keeps (docs/performance.md).
 
 Python writes each module's bytecode to ``__pycache__`` so that a new process does not compile
 it again, but a dataclass's methods (``__init__``, ``__repr__``, ``__eq__``, ``__hash__``,

@@ -50,7 +50,7 @@ def _studies_left_out(config) -> bool:
     """The default run (no file or test named, no -m) is the everyday suite: it leaves out
     the tests marked `slow`, the long studies (agreement over every trace, an independent
     parser over every export, the fuzzing budgets, the soak's random runs, the closed loop's
-    sweeps). Issue 18 asks for a suite under 3 minutes and CI running everything: `.ci/run`
+    sweeps). The everyday suite is to stay under 3 minutes and CI runs everything: `.ci/run`
     runs the studies as a second step (`-m slow`). Naming a file or a test runs what it
     names, slow or not, so working on a study never silently skips it."""
     return config.args_source is pytest.Config.ArgsSource.TESTPATHS and not config.option.markexpr

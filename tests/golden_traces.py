@@ -1,6 +1,6 @@
 """Golden traces: recorded runs of every example project that the engine must reproduce.
 
-The safety net of refactorings that must not change behaviour (issue 14): each case runs a
+The safety net of refactorings that must not change behaviour: each case runs a
 project headless in virtual time (a control variant, a filter policy, a diagnosis mode, fault
 injections and, for some, a script of operator commands) and records, scan by scan, every
 deterministic field of the snapshot (the trace row of ``plchmi run --trace``, the filter's
@@ -416,6 +416,7 @@ def run_case(case: Case, attach: Callable[[Any, Any], Callable[[], None]] | None
             entry = json.loads(line)
             entry.pop("wall", None)
             entry.pop("session", None)
+            entry.pop("prev", None)  # the chain link: follows the wall time
             lines.append(_dump({"journal": entry}))
     return "\n".join(lines) + "\n"
 

@@ -22,7 +22,7 @@ from collections.abc import Callable
 import modbus_tk.defines as tk
 from modbus_tk import hooks, modbus_tcp
 
-WAIT = 30.0  # seconds: a deadline, not a sleep
+WAIT = 120.0  # seconds: a deadline on a state, not a sleep (loaded 2-core machines)
 
 def free_port() -> int:
     with socket.socket() as s:

@@ -13,8 +13,10 @@ from pathlib import Path
 
 from hmi.engine.scan import Engine
 from hmi.errors import UsageError
+from hmi.history.target import Target
 from hmi.opcua.server import CellServer, ServeOptions
 from hmi.opcua.status import ServingStatus
+from hmi.opcua.users import TrustList, Users
 from hmi.plant.select import open_plant
 from hmi.project.injection import parse_injection
 from hmi.project.loader import load_project
@@ -31,11 +33,13 @@ def free_port() -> int:
 
 
 def serve(session: Session, options: Callable[[int], ServeOptions],
-          listeners: Sequence[Callable[[ServingStatus], None]] = ()) -> CellServer:
+          listeners: Sequence[Callable[[ServingStatus], None]] = (),
+          history: Target | None = None) -> CellServer:
     """A started server for `session`, with the options `options(port)` on a free port;
-    `listeners` hear its changes of state from the start."""
+    `listeners` hear its changes of state from the start; `history`: the cell's history,
+    for HistoryRead."""
     for attempt in range(TRIES):
-        server = CellServer(session, options(free_port()))
+        server = CellServer(session, options(free_port()), history=history)
         server.listeners.extend(listeners)
         try:
             server.start()
@@ -45,6 +49,23 @@ def serve(session: Session, options: Callable[[int], ServeOptions],
             continue
         return server
     raise AssertionError("unreachable")
+
+
+def users(folder: Path, roles: dict[str, str], password: str,
+          certificates: dict[str, bytes] | None = None) -> Users:
+    """A real users file in `folder` (each user `password`, with their role), as the server
+    reads it."""
+    from hmi.access import users as users_file
+    from hmi.access.signin import Authenticator
+    path = folder / "users"
+    for name, role in roles.items():
+        users_file.add(path, name, role, password)
+    return Users(Authenticator(path), certificates)
+
+
+def trust_list(folder: Path) -> TrustList:
+    """A trust list of its own (never the machine's data folder)."""
+    return TrustList(folder / "pki-trust")
 
 
 def valve_session(faults: tuple[str, ...] = ("F5@8.2s",)) -> Session:

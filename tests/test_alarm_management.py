@@ -1,4 +1,4 @@
-"""Alarm management operators ask for (issue 19): shelving (timed and one-shot, ISA-18.2 §11
+"""Alarm management operators ask for: shelving (timed and one-shot, ISA-18.2 §11
 and OPC UA Part 9 semantics), comments, CSV export of the journal and alarm history with
 filters, and the optional bell on a new unacknowledged P1. Virtual time throughout.
 """

@@ -1,4 +1,4 @@
-"""ISA-18.2 in the alarm list (issue 13): the priority of an alarm that is active or
+"""ISA-18.2 in the alarm list: the priority of an alarm that is active or
 unacknowledged never goes down; it starts afresh only once the alarm has left the list."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The bench sections of issue 18 (startup, engine, campaign): what they measure is what they
+"""The bench sections (startup, engine, campaign): what they measure is what they
 say. Figures themselves are never asserted (speed is measured by `plchmi bench`, not here)."""
 
 from __future__ import annotations

@@ -128,7 +128,7 @@ def test_in_closed_loop_the_gliding_plant_runs_scan_for_scan_as_the_full_one(pro
 
 @pytest.mark.parametrize(("kind", "orders"), [("sorter", ("CONV_E",)), ("palletizer", ("FEED",))])
 def test_a_change_by_hand_then_touch_steps_in_full_from_there(kind, orders):
-    """A glide trusts the cell to change only through its own methods (issue 18: checking
+    """A glide trusts the cell to change only through its own methods (checking
     everything at every step cost a quarter of the cell's time); whoever moves a box by hand
     says so with touch(), and the gliding cell then goes on exactly as the full one."""
     glide, full = twins(kind, PARAMS[kind])

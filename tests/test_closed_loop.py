@@ -155,7 +155,7 @@ def _row(text: str, config: str, fault: str) -> str:
 
 @pytest.mark.slow
 def test_an_impossible_guard_moves_the_closed_loop_figures_not_the_diagram(tmp_path, valve):
-    """The issue's complaint: `O and not O` into S5 left 000's figure untouched. The diagram's
+    """The reported complaint: `O and not O` into S5 left 000's figure untouched. The diagram's
     figure still cannot see it; the closed loop's does (F5 never isolated any more)."""
     folder = tmp_path / "cispi_valve"
     shutil.copytree(VALVE, folder)

@@ -1,4 +1,4 @@
-"""The bounded corrector (issue 18, items 4-5).
+"""The bounded corrector.
 
 The exact search against an independent MaxSAT solver (RC2 of python-sat, given the
 tie-break as weights; brute force is in test_solver.py); infeasibility proved without
@@ -112,7 +112,7 @@ def test_a_prepared_problem_answers_like_a_fresh_one_for_any_start():
 
 @pytest.mark.parametrize("pairs,linked", [(11, False), (11, True), (31, False), (31, True)])
 def test_infeasibility_is_proved_in_a_bounded_number_of_steps(pairs, linked):
-    # The issue's family (22 outputs in violated pairs, two in all four sign patterns) took
+    # The reported family (22 outputs in violated pairs, two in all four sign patterns) took
     # seconds per scan by enumeration; each extra output doubled it. Steps are deterministic.
     inst = infeasible(pairs, linked)
     sol = exact_solve(inst.start, inst.combined, inst.unforced)

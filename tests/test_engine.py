@@ -108,7 +108,7 @@ def test_repair_is_refused_for_a_model_that_cannot_undo_its_faults(monkeypatch):
     from hmi.engine.commands import RepairFaults
     from hmi.plant.sim.conveyor import Conveyor
     from tests.conftest import PROJECTS, make_controller
-    # Every example model can be repaired now (issue 19); a model that could not is refused.
+    # Every example model can be repaired now; a model that could not is refused.
     monkeypatch.setattr(Conveyor, "REPAIRABLE", False)
     ctl = make_controller(PROJECTS / "conveyor_robot", inject=["C1.stop@0s"])
     ctl.scan_once()

@@ -53,7 +53,7 @@ def test_corrected_constraint_explanation_has_four_levels_from_descriptions():
     e = explanation(snap, "constraint:CSs5")
     assert e.what == ("Valve V1: close order blocked — start closing only from the open "
                       "position")
-    # Plain words first (issue 19): the rule and the values in words, the model one level
+    # Plain words first: the rule and the values in words, the model one level
     # deeper, in the engineering detail.
     assert "close order on, close order off just before, open end switch off" in e.why
     assert "CSs5" not in e.what + e.why + e.consequences

@@ -1,4 +1,4 @@
-"""The start caches from the outside (issue 18 goal 1: hmi/project/kept.py, hmi/codecache.py,
+"""The start caches from the outside (hmi/project/kept.py, hmi/codecache.py,
 hmi/ui/csscache.py): a damaged or truncated cache file never crashes a start and is never
 taken; a kept project says what a fresh load says (its warnings included, from wherever it is
 started); a change the key might miss is seen at the next load."""

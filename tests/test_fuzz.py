@@ -1,4 +1,4 @@
-"""Property-based fuzzing of everything plchmi reads from outside (issue 17).
+"""Property-based fuzzing of everything plchmi reads from outside.
 
 Four generators feed the real command, in-process, each case bounded in time and memory
 (tests/bounds.py): mutated example projects (`check`, then `run` when it loads), generated

@@ -26,6 +26,7 @@ from tests.conftest import PROJECTS, make_controller
 from tests.pgcluster import Cluster, Unavailable
 
 EPOCH = 1_790_000_000_000_000
+WRITER_CYCLE_S = 120.0  # a hang guard only: each wait ends on the writer's cycle
 
 
 def _alarm(session):
@@ -33,15 +34,21 @@ def _alarm(session):
 
 
 def _run_until(session, historian, condition, limit_s=60):
-    """Scan (virtual time, a second at a time) until `condition()`; the writer works in its
-    own thread meanwhile, so each second also waits for one of its cycles."""
+    """Scan (virtual time, 100 ms at a time) until `condition()`; the writer works in its
+    own thread meanwhile, so each step also waits for one of its cycles (its status is
+    replaced at the end of each, written or failed): the scans never run ahead of a writer
+    slowed by the load."""
+    writer = historian.writer
     for _ in range(limit_s * 10):
         session.run_for(100_000)
-        historian.writer._flush_now.set()
+        with writer._committed:
+            before = writer.status
+            writer._flush_now.set()
+            assert writer._committed.wait_for(lambda before=before: writer.status is not before,
+                                              WRITER_CYCLE_S), \
+                f"the writer did no cycle in {WRITER_CYCLE_S:g} s"
         if condition():
             return
-        import time
-        time.sleep(0.02)  # let the writer thread run (it is what the test waits for)
     raise AssertionError("the condition never came true")
 
 

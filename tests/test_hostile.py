@@ -1,4 +1,4 @@
-"""Hostile input (issue 17): every class of bad project, argument and journal gets a clear
+"""Hostile input: every class of bad project, argument and journal gets a clear
 error — exit status 2 naming file:line:column for file content, 1 for a failure at run
 time — never "internal error", a traceback, a hang, or a file read or written outside the
 project folder, the component library, the data folder and the paths given on the command
@@ -209,7 +209,7 @@ def many_constraints(count: int) -> str:
 
 def test_five_thousand_constraints_are_checked_and_run(tmp_path, capsys):
     """Loading and checking are linear in the constraints (the bound is generous for a shared
-    machine; bench-like figures are measured by hand, see the issue's report)."""
+    machine; bench-like figures are measured by `plchmi bench`)."""
     folder = write(tmp_path / "p", {"project.yaml": many_constraints(5000)})
     code, out, err = cli(["check", folder], capsys, seconds=60)
     assert code == 0 and "bounded: " in out, err
@@ -540,7 +540,7 @@ def test_a_failing_write_mid_run_stops_it_with_the_outputs_safe(tmp_path, capsys
     assert any(w != writes[-1] for w in writes)  # it had been driven before
     entries = read(journal).entries
     assert entries[0]["event"] == "start"
-    # never "ended normally" after an error (issue 13): an abnormal end, with the reason
+    # never "ended normally" after an error: an abnormal end, with the reason
     assert entries[-1]["event"] == "abnormal-end", entries[-1]
     assert "ended abnormally" in entries[-1]["message"]
     assert "cannot write the trace" in entries[-1]["message"], entries[-1]["message"]

@@ -67,7 +67,7 @@ def test_giving_up_journals_the_retries_summary(tmp_path):
     entries = plant_entries(path)
     assert [e["event"] for e in entries] == ["connect-failed", "connect-retries"]
     assert entries[1]["failed_attempts"] == proc.stderr.count("attempt ") + 1
-    last = read(path).entries[-1]  # never "ended normally" after an error (issue 13)
+    last = read(path).entries[-1]  # never "ended normally" after an error
     assert last["event"] == "abnormal-end" and "ended abnormally" in last["message"], last
 
 

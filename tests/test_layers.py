@@ -33,7 +33,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("hmi.plant", "hmi.engine", "hmi.farm"),
     ("hmi.studies", "hmi.export"),
     ("hmi.explain",),
-    ("hmi.session", "hmi.history"),
+    ("hmi.session", "hmi.history", "hmi.access"),
     ("hmi.link",),
     ("hmi.ui", "hmi.cli", "hmi.bench", "hmi.opcua", "hmi.soak"),
 )

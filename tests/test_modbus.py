@@ -35,25 +35,49 @@ from tests.conftest import PROJECTS, ROOT, make_controller, write_project
 
 VALVE = PROJECTS / "cispi_valve"
 S = 1_000_000
-WAIT = 30.0  # seconds: a deadline, not a sleep
+WAIT = 120.0  # seconds: a deadline on a state, not a sleep (loaded 2-core machines)
+
+
+# The diagnoser's travel windows, widened in quick_valve: an arrival between 1 s and 2.5 s
+# after the switch at the other end broke is a normal travel (the project: 1.5 s to 1.93 s).
+TRAVEL_WINDOWS = (
+    ("within: [1.5s, 1.93s]}", "within: [1s, 2.5s]}", 2),
+    ("within: [0ms, 1.5s], description: too early}",
+     "within: [0ms, 1s], description: too early}", 2),
+    ("after: 1.93s, description: fso never made}", "after: 2.5s, description: fso never made}",
+     1),
+    ("after: 1.93s, description: fsc never made}", "after: 2.5s, description: fsc never made}",
+     1),
+)
 
 
 def quick_valve(folder: Path) -> Path:
     """A copy of the valve, at `folder`, whose filling sequence rests 200 ms closed and holds
-    500 ms open instead of the project's 1 s and 3 s: settings of the process, not of what
-    the tests here check (the valve, its 2 s travel, the diagnosers, the filter and the
-    addresses are the project's). On a real server the tests wait in real time: the first
-    opening comes at 0.2 s instead of 1 s, a whole cycle takes 4.8 s instead of 7.9 s."""
+    500 ms open instead of the project's 1 s and 3 s, and whose diagnoser accepts a travel
+    seen to last 1 s to 2.5 s instead of 1.5 s to 1.93 s (TRAVEL_WINDOWS). The valve, its 2 s
+    travel, the filter and the addresses are the project's.
+
+    On a real server the tests wait in real time: the first opening comes at 0.2 s instead of
+    1 s, a whole cycle takes 4.8 s instead of 7.9 s. The windows: the project's 20 ms of slack
+    above the valve's 1.91 s are for a PLC that reads its switches on time; through Modbus on
+    a loaded machine a scan reads a switch tens to hundreds of milliseconds late (at a load
+    of 17 on 2 cores: Modbus I/O up to 84 ms a scan, 387 scan overruns in 40 s), and a travel
+    seen 20 ms too long is diagnosed as fso stuck (F3/F13): a healthy valve latched out of
+    its cycle, and the test waited for an opening that never came. What the tests here check
+    is the transport, not the diagnoser's timing (tests/test_diagnoser.py)."""
     shutil.copytree(VALVE, folder)
-    law = folder / "control.yaml"
-    text = law.read_text(encoding="utf-8")
-    for old, new in (("X0.t >= 1s, description: Closed and waited 1 s",
-                      "X0.t >= 200ms, description: Closed and waited 200 ms"),
-                     ("X2.t >= 3s, description: Filled for 3 s",
-                      "X2.t >= 500ms, description: Filled for 500 ms")):
-        assert text.count(old) == 1, f"the valve's law no longer says {old!r}"
-        text = text.replace(old, new)
-    law.write_text(text, encoding="utf-8")
+    for name, replacements in (
+            ("control.yaml", (("X0.t >= 1s, description: Closed and waited 1 s",
+                               "X0.t >= 200ms, description: Closed and waited 200 ms", 1),
+                              ("X2.t >= 3s, description: Filled for 3 s",
+                               "X2.t >= 500ms, description: Filled for 500 ms", 1))),
+            ("diagnoser.yaml", TRAVEL_WINDOWS)):
+        path = folder / name
+        text = path.read_text(encoding="utf-8")
+        for old, new, count in replacements:
+            assert text.count(old) == count, f"the valve's {name} no longer says {old!r}"
+            text = text.replace(old, new)
+        path.write_text(text, encoding="utf-8")
     return folder
 
 
@@ -115,7 +139,7 @@ class Live:
 
 
 def read_coils(port: int, count: int = 2) -> list[bool]:
-    client = ModbusTcpClient("127.0.0.1", port=port, timeout=5, retries=1)
+    client = ModbusTcpClient("127.0.0.1", port=port, timeout=WAIT, retries=1)
     assert client.connect()
     try:
         response = client.read_coils(0, count=count, device_id=1)
@@ -231,8 +255,13 @@ def test_a_headless_run_against_serve_plant_behaves_like_the_simulation(server, 
     try:
         def opening(line: str) -> bool:  # the valve off its closed end, the open order on
             return "fsc=0 fso=0" in line and line.endswith("C=0 O=1")
-        first = srv.wait_for(opening, 120)
-        srv.wait_for(opening, 120, start=srv.lines.index(first) + 1)
+        try:
+            first = srv.wait_for(opening, 120)
+            srv.wait_for(opening, 120, start=srv.lines.index(first) + 1)
+        except RuntimeError as exc:  # what the run saw, to say why
+            run.send_signal(signal.SIGTERM)
+            out, err = run.communicate(timeout=120)
+            raise AssertionError(f"{exc}\nthe run:\n{out}\n{err}") from None
         run.send_signal(signal.SIGTERM)
         out, err = run.communicate(timeout=120)
     finally:
@@ -278,7 +307,7 @@ def test_server_killed_and_restarted_mid_run(server, tmp_path):
         assert frozen.is_safe_latched and frozen.outputs == (True, False)
         assert frozen.latched == lost.latched  # one reason per outage, not one per retry
         assert frozen.fov == (True, False) and frozen.active_steps == ("X1",)
-        # The alarm the operator sees (issue 6's explanations), with the reason.
+        # The alarm the operator sees (its explanation), with the reason.
         alarm = next(e for e in frozen.explanations if e.kind == "plant")
         assert "plant connection lost" in alarm.what and alarm.latched
         assert "connection was closed" in alarm.why
@@ -354,7 +383,7 @@ REGISTER_VALVE = """
 def test_register_bits_and_scattered_addresses_end_to_end(server, tmp_path):
     write_project(tmp_path, {"project.yaml": REGISTER_VALVE})
     srv = server(tmp_path)
-    other = ModbusTcpClient("127.0.0.1", port=srv.port, timeout=5)
+    other = ModbusTcpClient("127.0.0.1", port=srv.port, timeout=WAIT)
     assert other.connect()
     assert not other.write_register(5, 0x8000, device_id=1).isError()  # not ours: bit 15
     with Live(tmp_path, srv.port) as live:
@@ -418,7 +447,7 @@ def test_a_device_that_stops_answering_times_out_and_is_reconnected(server):
 def test_read_only_mode_observes_and_writes_nothing(server):
     srv = server()
     # The "real PLC" (here a plain client) opens the valve.
-    other = ModbusTcpClient("127.0.0.1", port=srv.port, timeout=5)
+    other = ModbusTcpClient("127.0.0.1", port=srv.port, timeout=WAIT)
     assert other.connect()
     assert not other.write_coils(0, [False, True], device_id=1).isError()
     other.close()

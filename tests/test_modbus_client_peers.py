@@ -208,7 +208,7 @@ def test_an_invalid_write_echo_is_a_communication_fault():
 
 
 def test_the_scan_takes_an_invalid_answer_as_a_plant_fault_never_an_internal_error():
-    """The issue's case: FC 2 answered with byte count 0 used to raise IndexError inside
+    """The reported case: FC 2 answered with byte count 0 used to raise IndexError inside
     the scan (internal error, no plant journal entry, scans slowed to 65/s)."""
     with ScriptedDevice(lambda n, r: answer_to(r, b"\x02\x00")) as dev:
         plant = plant_for(VALVE, dev.port, clock=VirtualClock())
@@ -369,7 +369,7 @@ def test_the_stop_write_is_sent_and_counted():
 
 def test_the_run_report_counts_every_write_the_device_saw(tmp_path):
     """`plchmi run` against modbus-tk: the report's writes, the stop's included, are the
-    requests the device handled (the issue's 2025 reported vs 2026 seen)."""
+    requests the device handled (the reported 2025 reported vs 2026 seen)."""
     with TkDevice() as dev:
         dev.set("di", 0, [1, 0])
         proc = subprocess.run(
@@ -389,7 +389,7 @@ def test_the_run_report_counts_every_write_the_device_saw(tmp_path):
 
 
 def test_a_run_against_a_device_dropping_every_connection_journals_a_handful(tmp_path):
-    """The issue's storm, end to end: `plchmi run` for 1 s against a device that accepts
+    """The reported storm, end to end: `plchmi run` for 1 s against a device that accepts
     and closes every connection (before the back-off: a connection a scan, about 100 here
     and 200 journal lines)."""
     journal = tmp_path / "j.jsonl"

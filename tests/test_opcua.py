@@ -32,15 +32,14 @@ from hmi.engine.commands import (  # noqa: E402
 from hmi.explain.journal import Journal  # noqa: E402
 from hmi.opcua.options import server_certificate  # noqa: E402
 from hmi.opcua.server import ServeOptions  # noqa: E402
-from hmi.opcua.users import Users, hash_password  # noqa: E402
 from hmi.project.injection import parse_injection  # noqa: E402
 from hmi.session.journal_recorder import JournalRecorder  # noqa: E402
-from tests.opcua_cells import serve, valve_session  # noqa: E402
+from tests.opcua_cells import serve, trust_list, users, valve_session  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 PASSWORD = "correct horse"
 ACK = ua.NodeId(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge)
-WAIT_S = 30.0  # a safety net only: every wait ends on the state it waits for
+WAIT_S = 120.0  # a safety net only: every wait ends on the state it waits for
 FIRST_FAULT_US = 8_000_000  # before the F5 the plant starts with (8.2 s)
 
 
@@ -54,11 +53,13 @@ class Cell:
         # own certificate, so passwords travel encrypted and certificates can be checked.
         self.carol = _user_certificate(tmp / "carol", "carol")
         self.stranger = _user_certificate(tmp / "stranger", "stranger")
-        users = Users({"alice": hash_password("alice", PASSWORD)},
+        # alice an engineer (forcing, the policy), olga an operator, victor a viewer
+        known = users(tmp, {"alice": "engineer", "olga": "operator", "victor": "viewer",
+                            "carol": "operator"}, PASSWORD,
                       {"carol": self.carol[0].read_bytes()})
         cert, key = server_certificate(tmp / "pki", project.name, "127.0.0.1")
-        self.options = partial(ServeOptions, writable=True, users=users, certificate=cert,
-                               private_key=key)
+        self.options = partial(ServeOptions, writable=True, users=known, certificate=cert,
+                               private_key=key, trust=trust_list(tmp))
 
     def start(self) -> None:
         self.server = serve(self.session, lambda port: self.options(port=port))
@@ -375,7 +376,7 @@ async def test_a_trusted_user_certificate_names_the_user_an_unknown_one_does_not
     entry = cell.journal()[-1]
     assert (entry["event"], entry["by"]) == ("fault reset", "opcua:carol")
     with pytest.raises(UaStatusCodeError, match="BadUserAccessDenied"):
-        await reset_as(cell.stranger)  # an untrusted certificate: anonymous, reads only
+        await reset_as(cell.stranger)  # an untrusted certificate: refused at activation
     assert cell.journal()[-1] == entry
 
 

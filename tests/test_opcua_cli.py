@@ -15,7 +15,6 @@ from pathlib import Path
 import pytest
 
 from hmi.cli import main
-from hmi.opcua.users import read_password_file, write_user
 
 ROOT = Path(__file__).resolve().parent.parent
 VALVE = str(ROOT / "projects" / "cispi_valve")
@@ -49,7 +48,7 @@ def test_without_asyncua_the_hmi_says_how_to_install_it(monkeypatch, capsys):
     (["--opcua", "--opcua-cert", "x.der"], "--opcua-cert and --opcua-key go together"),
     # Checked once asyncua is known to be there:
     (["--opcua", "--opcua-interval", "fast"], "--opcua-interval 'fast'"),
-    (["--opcua", "--opcua-users", "/nonexistent/users"], "no such password file"),
+    (["--opcua", "--opcua-users", "/nonexistent/users"], "no such users file"),
 ])
 def test_bad_opcua_options_are_usage_errors(argv, expected, capsys):
     if "--opcua-interval" in argv or "--opcua-users" in argv:
@@ -59,24 +58,26 @@ def test_bad_opcua_options_are_usage_errors(argv, expected, capsys):
     assert expected in err and "Traceback" not in err
 
 
-def test_the_password_file_keeps_only_salted_hashes(tmp_path, monkeypatch, capsys):
-    path = tmp_path / "users"
-    monkeypatch.setattr(sys, "stdin", _Lines("s3cret-pass\n"))
-    assert main(["opcua-passwd", str(path), "alice", "--stdin"]) == 0
-    assert "Added user alice" in capsys.readouterr().out
-    text = path.read_text()
-    assert "s3cret-pass" not in text and text.startswith("alice:pbkdf2_sha256$")
-    assert os.stat(path).st_mode & 0o077 == 0, "the password file is readable by others"
-    users = read_password_file(path)
-    assert users["alice"].matches("s3cret-pass") and not users["alice"].matches("s3cret")
-    assert write_user(path, "alice", "another-pass") is False  # replaced, not added
-    assert read_password_file(path)["alice"].matches("another-pass")
-    path.write_text(text + "bob:plain-password\n")
-    with pytest.raises(Exception, match=r"users:2: expected NAME:pbkdf2_sha256"):
-        read_password_file(path)
-    monkeypatch.setattr(sys, "stdin", _Lines("short\n"))
-    assert main(["opcua-passwd", str(path), "carol", "--stdin"]) == 2
-    assert "at least 8 characters" in capsys.readouterr().err
+def test_the_trust_list_refuses_and_keeps_unknown_applications(tmp_path, capsys):
+    """plchmi opcua trust puts a client application's certificate in the machine's trust
+    list (and takes it out of the rejected folder); an unknown one is kept for review."""
+    pytest.importorskip("asyncua", reason="the [opcua] extra is not installed")
+    from hmi.opcua.options import server_certificate
+    from hmi.opcua.users import TrustList, certificate_der
+    cert, _ = server_certificate(tmp_path / "client", "some-client", "127.0.0.1")
+    der = certificate_der(cert, "")
+    trust = TrustList()  # the data folder's (PLCHMI_DATA: this test's own)
+    assert not trust.check(der)
+    rejected = list(trust.rejected_folder.iterdir())
+    assert len(rejected) == 1 and rejected[0].read_bytes() == der
+    assert main(["opcua", "trust", str(rejected[0])]) == 0
+    assert "Trusted" in capsys.readouterr().out
+    assert trust.check(der) and not list(trust.rejected_folder.iterdir())
+    assert main(["opcua", "list"]) == 0
+    assert rejected[0].name in capsys.readouterr().out
+    (tmp_path / "junk.der").write_bytes(b"not a certificate")
+    assert main(["opcua", "trust", str(tmp_path / "junk.der")]) == 2
+    assert "not an X.509 certificate" in capsys.readouterr().err
 
 
 class _Lines:
@@ -90,7 +91,8 @@ class _Lines:
 def test_writes_are_refused_on_a_real_plant_unless_allowed(tmp_path, capsys):
     pytest.importorskip("asyncua", reason="the [opcua] extra is not installed")
     users = tmp_path / "users"
-    write_user(users, "alice", "long enough")
+    from hmi.access.users import add
+    add(users, "alice", "operator", "long enough")
     port = _free_port()  # nobody listens there: the refusal comes before any connection
     argv = ["run", VALVE, "--for", "1s", "--plant", f"modbus://127.0.0.1:{port}",
             "--opcua", f"opc.tcp://127.0.0.1:{_free_port()}", "--opcua-writable",

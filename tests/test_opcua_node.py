@@ -25,9 +25,8 @@ pytest.importorskip("asyncua", reason="the [opcua] extra is not installed")
 from hmi.explain.journal import Journal
 from hmi.opcua.options import server_certificate
 from hmi.opcua.server import ServeOptions
-from hmi.opcua.users import Users, hash_password
 from hmi.session.journal_recorder import JournalRecorder
-from tests.opcua_cells import serve, valve_session
+from tests.opcua_cells import serve, trust_list, users, valve_session
 
 ROOT = Path(__file__).resolve().parent.parent
 NODE_OPCUA = "node-opcua-client@2.182.2"  # pinned: the version this test was written against
@@ -90,7 +89,8 @@ def test_node_opcua_browses_reads_and_acknowledges_as_a_user(node_modules, tmp_p
     cert, key = server_certificate(tmp_path / "pki", project.name, "127.0.0.1")
     server = serve(session, lambda port: ServeOptions(
         port=port, writable=True, certificate=cert, private_key=key,
-        users=Users({"bob": hash_password("bob", "node-secret")})))
+        users=users(tmp_path, {"bob": "operator"}, "node-secret"),
+        trust=trust_list(tmp_path)))
     for _ in range(1000):  # F5 at 8.2 s is diagnosed at 9.19 s
         session.scan_once()
     stop = threading.Event()

@@ -28,7 +28,7 @@ from opcua.common.events import get_filter_from_event_type  # noqa: E402
 from hmi.opcua.server import ServeOptions  # noqa: E402
 from tests.opcua_cells import serve, valve_session  # noqa: E402
 
-WAIT_S = 30.0  # a safety net only: every wait ends on the state it waits for
+WAIT_S = 120.0  # a safety net only: every wait ends on the state it waits for
 CELL = "cispi_valve"
 ALARM_TYPE_PATH = ["0:Types", "0:EventTypes", "0:BaseEventType", "0:ConditionType",
                    "0:AcknowledgeableConditionType", "0:AlarmConditionType"]

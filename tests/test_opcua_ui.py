@@ -22,14 +22,13 @@ from ui_harness import palette, region_text, run_for, screen_text, wait_for_main
 from hmi.explain.journal import Journal
 from hmi.opcua.options import journal_listener, server_certificate
 from hmi.opcua.server import ServeOptions
-from hmi.opcua.users import Users, hash_password
 from hmi.session.journal_recorder import JournalRecorder
 from hmi.ui.app import PlcHmiApp
 from hmi.ui.dialogs import InfoDialog
 from hmi.ui.headless import press, settle, wait_for_screen
-from tests.opcua_cells import ROOT, serve, valve_session
+from tests.opcua_cells import ROOT, serve, trust_list, users, valve_session
 
-WAIT_S = 30.0  # a safety net only: every wait ends on the state it waits for
+WAIT_S = 120.0  # a safety net only: every wait ends on the state it waits for
 PASSWORD = "correct horse"
 
 
@@ -51,9 +50,10 @@ class Served:
         self.journal_path = tmp / "journal.jsonl"
         self.recorder = JournalRecorder(self.session, Journal(self.journal_path), "test")
         cert, key = server_certificate(tmp / "pki", "cispi_valve", "127.0.0.1")
-        users = Users({"alice": hash_password("alice", PASSWORD)})
+        known = users(tmp, {"alice": "operator"}, PASSWORD)
         self.server = serve(self.session, lambda port: ServeOptions(
-            port=port, writable=True, users=users, certificate=cert, private_key=key),
+            port=port, writable=True, users=known, certificate=cert, private_key=key,
+            trust=trust_list(tmp)),
             listeners=[journal_listener(self.recorder)])
         self.app = PlcHmiApp(self.session, live=False, show_measured=False,
                              served=self.server)

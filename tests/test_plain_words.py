@@ -1,4 +1,4 @@
-"""Plain words first (issue 19): levels 1 to 3 of every explanation name no internal
+"""Plain words first: levels 1 to 3 of every explanation name no internal
 identifier; the engineering detail (level 5) keeps them.
 
 Every situation of every example project is built: each safety constraint violated under each

@@ -120,7 +120,7 @@ def test_the_pump_shares_its_flow_between_the_open_lines():
        min_opening=st.floats(0, 1))
 def test_the_pump_computes_in_integers_exactly_what_the_fractions_say(
         travels, bands, places, flow, dt, min_opening):
-    """The pump's step works on the openings' numerators over one denominator (issue 18);
+    """The pump's step works on the openings' numerators over one denominator;
     the reference is the fraction arithmetic it replaced, with `opening`, truncated the same."""
     tanks = {name: Tank(name, {"capacity": 10_000, "initial": 5_000 if name == "S" else 0,
                                "low": 1, "high": 9_999}) for name in ("S", "A", "B")}

@@ -1,4 +1,4 @@
-"""Recovery: a declared way back from every fault (issue 19), in virtual time.
+"""Recovery: a declared way back from every fault, in virtual time.
 
 The valve's 13 faults each end with the cell in automatic operation after fault, repair,
 recovery and reset (one test runs them all); the two dead ends of the issue (F13 repaired,

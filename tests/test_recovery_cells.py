@@ -1,4 +1,4 @@
-"""A way back from every fault of the sorting, palletizer and conveyor/robot cells (issue 19).
+"""A way back from every fault of the sorting, palletizer and conveyor/robot cells.
 
 One test per fault each cell's simulated plant can inject: the fault bites (an alarm, unless
 it is one of the few the cell cannot see), the technician repairs it, the operator runs the

@@ -39,6 +39,7 @@ def run(capsys, tmp_path, name: str, project: str, args: list[str]) -> tuple[lis
     for entry in entries:
         entry.pop("wall")
         entry.pop("session")
+        entry.pop("prev")
     return out, entries
 
 

@@ -1,4 +1,4 @@
-"""What the HMI's start keeps across processes (issue 18 goal 1, docs/performance.md): the
+"""What the HMI's start keeps across processes (docs/performance.md): the
 compiled scan's code (hmi.codecache.kept_codes), the loaded project (hmi.project.kept).
 Each is used only when what it stands for would come out the same, and then runs the same:
 checked here against the uncached path, scan by scan. How much faster the start is, is
@@ -385,18 +385,22 @@ def test_other_variables_another_textual_or_errors_are_not_taken_from_the_cache(
     # Textual's CSS code changed (another build of it): its rules are not read back
     monkeypatch.setattr(csscache, "FORMAT", b"another textual.css")
     assert parse({"accent": "red"})[1].parsed == 1
-    monkeypatch.setattr(csscache, "TEXTUAL", "0.0.1")
+    monkeypatch.setattr(csscache, "CHECKED", ((0, 0), (0, 1)))
     with kept_css(css) as kept:
         assert kept is None
         assert Stylesheet._parse_rules is vars(Stylesheet)["_parse_rules"]
         assert not getattr(Stylesheet._parse_rules, "kept_css", False)
 
 
-def test_the_stylesheet_cache_is_checked_against_the_pinned_textual():
-    """The cache wraps a private method of Textual: it was checked against this version;
-    another one turns it off (above), and this test says to check it again."""
+def test_the_stylesheet_cache_is_checked_against_the_installed_textual():
+    """The cache wraps a private method of Textual: it was checked with the versions of
+    CHECKED (pyproject.toml's range); another one turns it off (above), and this test says to
+    check it again."""
     import textual
-    assert csscache.textual_version() == textual.__version__ == csscache.TEXTUAL
+    assert csscache.textual_version() == textual.__version__
+    assert csscache.checked(textual.__version__)
+    assert not csscache.checked("7.5.0") and not csscache.checked("9.0.0")
+    assert not csscache.checked(None) and not csscache.checked("dev")
 
 
 async def test_the_first_frame_listeners_are_told_once_the_first_frame_is_shown():

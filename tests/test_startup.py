@@ -1,4 +1,4 @@
-"""The HMI's start path (issue 18 goal 1): what it imports, the dataclass code cache, the
+"""The HMI's start path (docs/performance.md): what it imports, the dataclass code cache, the
 garbage collector's pause, and an equivalent faster regular expression. How fast it starts
 is measured by `plchmi bench startup`, never here."""
 

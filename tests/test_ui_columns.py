@@ -1,4 +1,4 @@
-"""Columns that never run together (issue 19, 80x24 leftovers): the alarm list's priority and
+"""Columns that never run together (at 80x24): the alarm list's priority and
 time (`P1 10.830 s`, never `P110.830 s`), a diagnoser's name and state (`V1 A3`, never
 `V1A3`). Every gap closes the run before it: a viewer of the SVG screenshots that drops the
 spaces opening a run of text (librsvg, some browsers) still shows the gap. The I/O table

@@ -1,4 +1,4 @@
-"""Regressions of issue 13: the frame's snapshot and the recorder's history must be of the same
+"""Regressions: the frame's snapshot and the recorder's history must be of the same
 scan, whatever the scan thread does while the UI builds a frame.
 
 The live app scans in a thread; the UI reads the latest snapshot and the recorder's constraint
@@ -59,7 +59,7 @@ async def test_a_scan_landing_while_a_frame_is_built_does_not_mix_two_scans():
         await run_until(pilot, lambda s: s.scan == scan, 60, f"scan {scan}")
         assert name in app.link.session.last.filter.violated_names
         app.link.recorder._lock = ScanFirst(app.link.recorder._lock, app.link.session.scan_once)
-        app.poll(force=True)  # issue 13: TypeError in the constraints panel
+        app.poll(force=True)  # once a TypeError in the constraints panel
         await drain(pilot)
         frame = app.frame
         assert frame.snapshot.scan == scan + 1  # the newest scan, with its own history

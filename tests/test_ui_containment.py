@@ -1,4 +1,4 @@
-"""Fault containment (issue 13): a UI error never stops the scan and never ends the HMI
+"""Fault containment: a UI error never stops the scan and never ends the HMI
 silently; an error the app cannot carry on after ends it as an abnormal end.
 
 The deliberate errors come from tests/ui_faults.py (wrapped around the app's frame refresh)

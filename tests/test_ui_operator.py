@@ -1,4 +1,4 @@
-"""Readable at 80×24 (issue 19, item 3): the small things an operator tripped over, each
+"""Readable at 80×24: the small things an operator tripped over, each
 checked on the real app in virtual time."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""What a hands-on review of the HMI found (issue 13, item 4), one test each."""
+"""What a hands-on review of the HMI found, one test each."""
 
 from __future__ import annotations
 

@@ -18,6 +18,7 @@ from textual.pilot import Pilot
 from hmi.ui.app import PlcHmiApp
 from hmi.ui.driver import VirtualDriver
 from hmi.ui.headless import WaitTimeout, press, settle, wait_for_screen, wait_until
+from hmi.ui.textual_adapter import render_screen
 
 LIVE_HANG_GUARD_S = 300.0  # live tests: only against a dead thread; waits end on state
 
@@ -96,8 +97,7 @@ def screen_text(app: PlcHmiApp) -> str:
     width, height = app.size
     console = Console(width=width, height=height, file=io.StringIO(), force_terminal=True,
                       color_system=None, record=True, legacy_windows=False, safe_box=False)
-    console.print(app.screen._compositor.render_update(
-        full=True, screen_stack=app._background_screens))
+    console.print(render_screen(app))
     return console.export_text()
 
 

@@ -261,6 +261,58 @@ async def serving(pilot: Pilot) -> None:
     await run_for(pilot, 12.3)
 
 
+HISTORY_EPOCH_US = 1_790_000_000_000_000  # 2026-09-21 14:13:20 UTC: the trends' time 0
+
+
+def history_app() -> PlcHmiApp:
+    """The valve with its historian and journal (in a temporary folder kept with the app),
+    the run's time 0 fixed and the trends' times in UTC: the same picture on any machine."""
+    import tempfile
+    from datetime import UTC
+
+    from hmi.history.historian import Historian
+    from hmi.history.target import Target
+    from hmi.session.runio import open_journal
+
+    folder = tempfile.TemporaryDirectory(prefix="plchmi-trends-")
+    loaded = load_once(VALVE, None)
+    plant = SimPlant(loaded)
+    plant.inject(parse_injection("F13@8m"))
+    session = Session(Engine(loaded, plant))
+    session.epoch_us = HISTORY_EPOCH_US
+    journal = open_journal(session, Path(folder.name) / "journal.jsonl", "hmi")
+    historian = Historian(session, Target("sqlite", str(Path(folder.name) / "history.sqlite")),
+                          journal=journal, flush_s=0.05).attach()
+    app = PlcHmiApp(session, live=False, show_measured=False)
+    app.trend_zone = UTC
+    app.scenario_history = (folder, journal, historian)  # type: ignore[attr-defined]
+    return app
+
+
+async def trends(pilot: Pilot, signals: tuple[str, ...] | None = None) -> None:
+    """Ten minutes of the valve, F13 at 8 min (its alarm acknowledged), then the trends: the
+    last 15 min (the cell started 10 min ago: nothing known before, and said)."""
+    from hmi.ui.trend_screen import TrendScreen
+    await run_for(pilot, 510)
+    await press(pilot, "A")  # acknowledge all
+    await run_for(pilot, 90)
+    _, _, historian = pilot.app.scenario_history  # type: ignore[attr-defined]
+    historian.flush()
+    await press(pilot, "t")
+    screen = await wait_for_screen(pilot, TrendScreen)
+    if signals is not None:
+        screen.show(signals)
+        await wait_until(pilot, lambda: screen.reads > 1, "the picture of the signals")
+    else:
+        await wait_until(pilot, lambda: screen.reads > 0, "the first picture")
+    await press(pilot, "left", "left", "left", "left", "left", "left")
+
+
+TREND_SIGNALS_80x24 = ("O", "C", "fso", "fsc", "CSc1", "V1.state", "O.travel", "O.operations")
+TREND_SIGNALS = ("O", "C", "fso", "fsc", "O.fov", "C.fov", "CSc1", "V1.state", "O.travel",
+                 "O.operations", "C.travel", "cell.alarms", "plant.position")
+
+
 @dataclass(frozen=True)
 class Scenario:
     name: str
@@ -305,6 +357,12 @@ SCENARIOS: tuple[Scenario, ...] = (
     Scenario("alarms_80x24", (80, 24), alarms_80x24,
              "The alarm list at 80×24: five alarms in three rows, one acknowledged",
              partial(make_app, control="faulty")),
+    Scenario("trends_80x24", (80, 24), partial(trends, signals=TREND_SIGNALS_80x24),
+             "Trends at 80×24: the valve's last 15 min from its history, F13's alarm on the "
+             "time axis", history_app),
+    Scenario("trends_160x48", (160, 48), partial(trends, signals=TREND_SIGNALS),
+             "Trends at 160×48: I/O, what the program asked, a violation, the diagnoser's "
+             "state, the valve's opening time and operations", history_app),
     Scenario("serving_80x24", (80, 24), serving,
              "Served over OPC UA (--opcua): two SCADA clients, at 80×24",
              served_app),

@@ -47,7 +47,7 @@ def load_line() -> str:
 
 
 def goal_line(figure: float, goal: float, unit: str, higher_is_better: bool = True) -> str:
-    """The figure beside its goal (issue 18), and whether it is met."""
+    """The figure beside its goal, and whether it is met."""
     met = figure >= goal if higher_is_better else figure < goal
     ratio = figure / goal if goal else 0.0
     sign = ">=" if higher_is_better else "<"

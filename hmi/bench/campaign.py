@@ -6,7 +6,7 @@ process and on as many as the machine has cores (at most 2, the development mach
 and prints the virtual time simulated per second of wall time. The results are checked to be
 the same whatever the number of workers (each run is deterministic and independent).
 
-Issue 18's goal 3: the campaign at >= 1000x real time on both cores.
+The goal: the campaign at >= 1000x real time on both cores.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Corrector benchmark: the exact search at 64 outputs and 200 active combined constraints,
 infeasible situations, and what the step budget means in time on this machine.
 
-Families (issue 18, goal 4):
+Families:
 
 * **dense** — 64 outputs, 200 combined constraints of 2-3 outputs, all active. Planted: a
   random vector w is drawn first and only constraints w satisfies are kept, so a safe vector
@@ -9,7 +9,7 @@ Families (issue 18, goal 4):
   the row of its measured minimal distance d (1 to 4, 8, 12).
 * **infeasible** — outputs in violated pairs (`a and b`, both asked) plus two outputs in all
   four sign patterns (`x and y`, `x and not y`, `not x and y`, `not x and not y`): no vector
-  is safe. The issue's size (22 + 2 outputs) and a 64-output one; *linked* adds a constraint
+  is safe. 22 + 2 outputs and a 64-output one; *linked* adds a constraint
   per pair through x, so that the pairs and the contradiction form one problem that cannot be
   split into independent parts.
 

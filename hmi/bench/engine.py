@@ -8,7 +8,7 @@ drive; a third the engine without snapshots (``Engine.run``: what a reader that 
 only at scans with news pays). The run is deterministic; only the wall time varies, with the
 machine's load (printed). Each figure is the median of RUNS runs after one untimed run.
 
-Issue 18's goal 2: cispi_valve >= 100,000 scans/s, sorting and palletizer >= 50,000.
+The goal: cispi_valve >= 100,000 scans/s, sorting and palletizer >= 50,000.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ SECTION = "engine"
 HELP = "scans/s of each project headless without trace (goal: valve 100k, sorting/pallet 50k)"
 
 PROJECTS = Path(__file__).resolve().parents[2] / "projects"
-# project -> goal in scans/s (issue 18, goal 2); None: measured, no goal set
+# project -> goal in scans/s (the goal); None: measured, no goal set
 GOALS: dict[str, int | None] = {"cispi_valve": 100_000, "conveyor_robot": None,
                                 "cispi_subsystem": None, "sorting": 50_000,
                                 "palletizer": 50_000}

@@ -8,7 +8,7 @@ own ``session_rate`` (what ``plchmi run P --for S`` does without ``--trace``: th
 figure): once for FROM seconds of virtual time and once for TO seconds. The difference of
 the two totals over the difference of the scans is the cost of a scan, the start (imports,
 project, engine) cancelling out. With FROM 0 (the default) it is the average over the whole
-run, first scans included, as session 6 measured it; ``--from 60`` gives the steady state.
+run, first scans included; ``--from 60`` gives the steady state.
 
     python -m hmi.bench.instructions [--from 0] [--to 120] [PROJECT ...]
 

@@ -10,7 +10,7 @@ dataclass methods' code written as on an operator's machine, files in the OS cac
 printed: the time to import the HMI's module alone (in a fresh interpreter, without the
 start's caches), for comparison.
 
-Issue 18's goal 1: the first useful frame in under half a second on a quiet machine. The
+The goal: the first useful frame in under half a second on a quiet machine. The
 machine's load average is printed beside the figures: on a shared machine they are noisy.
 Beside the wall time, the CPU time the HMI's process had used when its first frame arrived
 (from /proc, in clock ticks): on a quiet machine the two are close (the start is one

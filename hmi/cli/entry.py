@@ -21,25 +21,30 @@ PARTS: tuple[tuple[tuple[str, ...], str, str], ...] = (
     (("diagnose", "campaign"), "studies", "add_parsers"),
     (("export",), "export", "add_parser"),
     (("journal",), "journal", "add_parser"),
+    (("journal-verify",), "journal", "add_verify_parser"),
     (("history",), "history", "add_parser"),
     (("sweep",), "studies", "add_sweep_parser"),
     (("soak",), "soak", "add_parser"),
     (("bench",), "bench", "add_parser"),
     (("ui",), "ui", "add_parser"),
-    (("opcua-passwd", "serve-plant"), "serve", "add_parsers"),
+    (("opcua", "serve-plant"), "serve", "add_parsers"),
+    (("users",), "users", "add_parser"),
 )
 SUBCOMMANDS = ("check", "run", "sweep", "ui", "serve-plant", "bench", "journal",
-               "diagnose", "campaign", "export", "opcua-passwd", "soak", "history")
+               "diagnose", "campaign", "export", "opcua", "soak", "history",
+               "users", "journal-verify")
 
 # command -> (its module, its function)
 COMMANDS = {
     "check": ("check", "cmd_check"), "run": ("run", "cmd_run"),
     "sweep": ("studies", "cmd_sweep"), "ui": ("ui", "cmd_ui"),
     "serve-plant": ("serve", "cmd_serve_plant"), "bench": ("bench", "cmd_bench"),
-    "journal": ("journal", "cmd_journal"), "history": ("history", "cmd_history"),
+    "journal": ("journal", "cmd_journal"),
+    "journal-verify": ("journal", "cmd_verify"), "history": ("history", "cmd_history"),
     "diagnose": ("studies", "cmd_diagnose"),
     "campaign": ("studies", "cmd_campaign"), "export": ("export", "cmd_export"),
-    "opcua-passwd": ("serve", "cmd_opcua_passwd"), "soak": ("soak", "cmd_soak"),
+    "opcua": ("serve", "cmd_opcua"), "soak": ("soak", "cmd_soak"),
+    "users": ("users", "cmd_users"),
 }
 
 
@@ -68,6 +73,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args_list = list(sys.argv[1:] if argv is None else argv)
     if args_list and args_list[0] not in SUBCOMMANDS and not args_list[0].startswith("-"):
         args_list.insert(0, "ui")
+    if args_list[:2] == ["journal", "verify"] and len(args_list) > 2:
+        args_list[:2] = ["journal-verify"]  # plchmi journal verify PROJECT
     if not args_list:
         build_parser().print_help()
         return 2

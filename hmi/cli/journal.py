@@ -34,6 +34,51 @@ def add_parser(sub) -> None:
     p.add_argument("--path", type=Path, metavar="FILE", help="journal file to read")
 
 
+def add_verify_parser(sub) -> None:
+    p = sub.add_parser(
+        "journal-verify", help=argparse.SUPPRESS, prog="plchmi journal verify",
+        description="Verify a journal's hash chain and anchor: every line must link to the "
+        "one before it, and the end must be where the anchor says. Names the first broken "
+        "link with its line. Exit status 0: intact; 1: broken, or no journal.")
+    project_arg(p)
+    p.add_argument("--path", type=Path, metavar="FILE", help="journal file to verify")
+
+
+def cmd_verify(args: argparse.Namespace) -> int:
+    from hmi.explain.chain import verify
+    from hmi.explain.journal import JournalError, JournalPathError, default_path
+    from hmi.project.loader import load_project
+    path = args.path or default_path(load_project(args.project).name)
+    try:
+        verdict = verify(path)
+    except JournalError as exc:
+        print(f"plchmi: {exc}", file=sys.stderr)
+        return 1
+    except JournalPathError as exc:
+        raise UsageError(f"--path {exc}" if args.path else str(exc)) from None
+    for problem in verdict.breaks:
+        where = f"{path}:{problem.line}" if problem.line else str(path)
+        print(_printable(f"{where}: broken: {problem.what}"))
+    for note in verdict.notes:
+        print(_printable(f"{path}: note: {note}"))
+    if verdict.crash_cuts:
+        print(f"{path}: note: lines cut by a killed writer (declared by the session that "
+              f"followed, or the last line): {', '.join(map(str, verdict.crash_cuts))}")
+    if verdict.unchained:
+        print(f"{path}: note: the first {verdict.unchained:,} lines were written before the "
+              "journal carried a hash chain: they cannot be verified")
+    if verdict.anchor:
+        print(_printable(f"{path}: {verdict.anchor}"))
+    if verdict.intact:
+        print(f"{path}: {verdict.lines:,} lines, the chain intact")
+        return 0
+    more = verdict.break_count - len(verdict.breaks)
+    print(f"{path}: NOT INTACT: {verdict.break_count:,} broken link"
+          f"{'s' if verdict.break_count != 1 else ''} in {verdict.lines:,} lines, the first at "
+          f"line {verdict.breaks[0].line}" + (f" ({more:,} more not listed)" if more else ""))
+    return 1
+
+
 def cmd_journal(args: argparse.Namespace) -> int:
     import csv
 

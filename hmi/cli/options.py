@@ -74,6 +74,31 @@ def positive(text: str) -> int:
     return int(text)
 
 
+_SIZE_UNITS = {"B": 1, "kB": 1000, "KB": 1000, "MB": 1000**2, "GB": 1000**3, "TB": 1000**4,
+               "KiB": 1024, "MiB": 1024**2, "GiB": 1024**3, "TiB": 1024**4}
+
+
+def size_bytes(text: str) -> int:
+    """A size such as 500MB, 2GB or 1GiB, in bytes."""
+    import re
+    match = re.fullmatch(r"([0-9]{1,9}(?:\.[0-9]{1,3})?)\s*([kKMGT]i?B|B)", text.strip())
+    if match is None or match[2] not in _SIZE_UNITS:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a size (expected e.g. 500MB, 2GB "
+                                         "or 1GiB)")
+    whole, _, frac = match[1].partition(".")
+    scale = _SIZE_UNITS[match[2]]
+    value = int(whole) * scale + (int(frac) * scale // 10 ** len(frac) if frac else 0)
+    if value < 1_000_000:
+        raise argparse.ArgumentTypeError(f"{text!r}: at least 1MB")
+    return value
+
+
+def journal_space_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--journal-space", type=size_bytes, default=1 << 30, metavar="SIZE",
+                   help="the space the journal may take (default 1GiB); an alarm at 80 %% "
+                   "of it, or of what its disk has left if that is less")
+
+
 def project_arg(p: argparse.ArgumentParser) -> None:
     p.add_argument("project", help="project folder (or its project.yaml)")
 

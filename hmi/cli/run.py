@@ -14,6 +14,7 @@ from hmi.cli.options import (
     duration,
     engine_args,
     historian_args,
+    journal_space_arg,
     period,
     plant_args,
     project_arg,
@@ -46,6 +47,7 @@ def add_parser(sub) -> None:
                    help="print the four levels of every alarm's explanation")
     p.add_argument("--journal", type=Path, metavar="FILE",
                    help="journal file (default: the user's data folder, see plchmi journal)")
+    journal_space_arg(p)
     historian_args(p, "off for a run in virtual time; in real time (a real plant, "
                    "--opcua) a SQLite file in the data folder")
     from hmi.opcua.options import add_arguments as opcua_args
@@ -75,6 +77,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     controller = Session(engine, args.period)
     collector = RunCollector()
     outputs = RunOutputs(controller, args.trace, args.journal, "run")
+    outputs.recorder.space(args.journal_space)
     try:
         historian = open_historian(controller, args, outputs.recorder, "run",
                                    default_on=False, run_us=duration)
@@ -160,6 +163,7 @@ def run_real_time(engine, args: argparse.Namespace, duration_us: int | None) -> 
     try:
         # The journal first, so that the connection attempts (and giving up) are in it.
         outputs = RunOutputs(controller, args.trace, args.journal, "run")
+        outputs.recorder.space(args.journal_space)
         historian = open_historian(controller, args, outputs.recorder, "run", default_on=True)
         server = start_server(controller, args, journal=outputs.recorder,
                               history=historian.target if historian else None)

@@ -1,10 +1,9 @@
 """The serving commands: ``plchmi serve-plant`` (the simulated plant as a Modbus TCP server)
-and ``plchmi opcua-passwd`` (the users of the OPC UA server)."""
+and ``plchmi opcua trust`` (the client applications the OPC UA server trusts)."""
 
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 from hmi.cli.common import load
@@ -13,14 +12,16 @@ from hmi.errors import ProjectError, UsageError
 
 
 def add_parsers(sub) -> None:
-    p = sub.add_parser("opcua-passwd", help="add a user to an OPC UA password file",
-                       description="Add (or replace) a user of a password file for "
-                       "--opcua-users: the password is read from the terminal, or from "
-                       "standard input with --stdin, and only a salted hash is stored.")
-    p.add_argument("file", type=Path, help="the password file (created if missing)")
-    p.add_argument("name", help="the user's name")
-    p.add_argument("--stdin", action="store_true",
-                   help="read the password from the first line of standard input")
+    p = sub.add_parser("opcua", help="the OPC UA server's trust list (docs/opcua.md)",
+                       description="The client applications (certificates) the OPC UA "
+                       "servers of this machine trust: an unknown one is refused and kept "
+                       "in the rejected folder for review. Users sign in with the users "
+                       "file (plchmi users).")
+    actions = p.add_subparsers(dest="action", metavar="ACTION", required=True)
+    trust = actions.add_parser("trust", help="trust a client application's certificate")
+    trust.add_argument("cert", type=Path, help="its certificate (DER or PEM), e.g. one from "
+                       "the rejected folder")
+    actions.add_parser("list", help="the trusted and the rejected certificates")
 
     p = sub.add_parser("serve-plant", help="serve the simulated plant over Modbus TCP")
     project_arg(p)
@@ -76,15 +77,20 @@ def check_host(host: str) -> None:
         raise UsageError(f"--host {host!r} is not a host name or address ({exc})") from None
 
 
-def cmd_opcua_passwd(args: argparse.Namespace) -> int:
-    from hmi.opcua.users import write_user
-    if args.stdin:
-        password = sys.stdin.readline().rstrip("\r\n")
-    else:
-        import getpass
-        password = getpass.getpass(f"Password for {args.name}: ")
-        if getpass.getpass("Again: ") != password:
-            raise UsageError("the two passwords differ; nothing was written")
-    new = write_user(args.file, args.name, password)
-    print(f"{'Added' if new else 'Replaced'} user {args.name} in {args.file}")
+def cmd_opcua(args: argparse.Namespace) -> int:
+    from hmi.opcua.users import TrustList, certificate_der, thumbprint
+    trust = TrustList()
+    if args.action == "trust":
+        target = trust.trust(args.cert)
+        print(f"Trusted {args.cert} ({target.stem}) in {trust.trusted_folder}")
+        return 0
+    for title, folder in (("trusted", trust.trusted_folder),
+                          ("rejected (for review)", trust.rejected_folder)):
+        names = sorted(folder.glob("*")) if folder.is_dir() else []
+        print(f"{title}: {folder}" + ("" if names else " (none)"))
+        for path in names:
+            try:
+                print(f"  {thumbprint(certificate_der(path, ''))}  {path.name}")
+            except UsageError:
+                print(f"  (not a certificate)  {path.name}")
     return 0

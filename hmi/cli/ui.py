@@ -13,6 +13,7 @@ from hmi.cli.options import (
     diagnoser_arg,
     engine_args,
     historian_args,
+    journal_space_arg,
     plant_args,
     project_arg,
 )
@@ -41,6 +42,7 @@ def add_parser(sub) -> None:
                    help="schedule a fault in the simulated plant")
     p.add_argument("--journal", type=Path, metavar="FILE",
                    help="journal file (default: the user's data folder, see plchmi journal)")
+    journal_space_arg(p)
     p.add_argument("--bell", action="store_true",
                    help="ring the terminal bell when a new unacknowledged P1 alarm appears")
     plant_args(p, "keep trying")
@@ -93,6 +95,7 @@ def _run_hmi(args: argparse.Namespace, controller, injections) -> int:
     server = None
     try:
         recorder = open_journal(controller, args.journal, "hmi")
+        recorder.space(args.journal_space)
         historian = open_historian(controller, args, recorder, "hmi", default_on=True)
         server = start_server(controller, args, log_file=True, journal=recorder,
                               history=historian.target if historian else None)

@@ -11,17 +11,29 @@ entry: the operator learns that entries may be missing. The reader never gives u
 readable entries because of a damaged line: each damaged line is reported (line number and
 what is wrong) and skipped.
 
+Each entry carries ``prev``, the SHA-256 of the line before it as it is in the file (64 zeros
+for the first): a hash chain, so a line changed, removed, inserted or moved breaks the link
+of the line after it (:mod:`hmi.explain.chain` verifies it, ``plchmi journal verify``).
+The end of the chain — the file's size and its last line's hash — is written to an anchor
+file beside the journal (``journal.jsonl.anchor``) when the writer closes and at most a
+minute after any entry (:meth:`Journal.tick`), so entries removed from the end are found
+too. Writers take an exclusive lock on the file for each write (several processes may
+journal at once and each links to the other's last line).
+
 The default place is the user's data folder: $PLCHMI_DATA, else $XDG_DATA_HOME/plchmi, else
 ~/.local/share/plchmi, then <project name>/journal.jsonl.
 """
 
 from __future__ import annotations
 
+import fcntl
+import hashlib
 import itertools
 import json
 import os
 import re
 import stat
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -63,6 +75,19 @@ def wall_now() -> str:
     return datetime.now(UTC).isoformat(timespec="milliseconds")
 
 
+GENESIS = "0" * 64  # the link of a journal's first line
+ANCHOR_EVERY_S = 60.0  # the anchor follows the journal's end at most this late
+
+
+def anchor_path(journal: Path) -> Path:
+    return journal.with_name(journal.name + ".anchor")
+
+
+def line_hash(line: bytes) -> str:
+    """The link to a line: the SHA-256 of its bytes as in the file, without its newline."""
+    return hashlib.sha256(line).hexdigest()
+
+
 _SESSIONS = itertools.count(1)
 
 
@@ -86,6 +111,10 @@ class Journal:
         self.path = path
         self._fd = -1
         self.session: str | None = None  # written into every entry once set (new_session_id)
+        self._end = -1  # the file's size after our last write (-1: unknown, read it again)
+        self._prev = GENESIS  # the link the next line carries
+        self._anchored_at = time.monotonic()
+        self._unanchored = False  # entries written since the anchor was
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             # Not a FIFO or a device: only a regular file (or a new one) is a journal.
@@ -104,7 +133,7 @@ class Journal:
             raise JournalWriteError("the journal", path, str(exc), bad_path=True) from None
         self.seq = 0
         if self.cut_bytes is not None:
-            self._write(b"\n")
+            self._write(b"\n")  # the cut line ends; the next entry links to it as it is
             self.append({"type": "session", "event": "abnormal-end", "cut_bytes": self.cut_bytes,
                          "message": f"the previous session ended abnormally while writing an "
                          f"entry ({self.cut_bytes} bytes cut short); entries may be missing"})
@@ -143,17 +172,121 @@ class Journal:
 
     def append_all(self, entries: list[dict[str, Any]]) -> None:
         """Several entries in one write and one fsync (a scan's alarm transitions: hundreds of
-        fsyncs a scan held a run to a scan a second)."""
+        fsyncs a scan held a run to a scan a second), each linked to the one before it."""
         if not entries:
             return
         self.seq += len(entries)
         wall = wall_now()
         session = {} if self.session is None else {"session": self.session}
-        text = "".join(json.dumps({"wall": wall, **entry, **session}, ensure_ascii=False,
-                                  separators=(",", ":")) + "\n" for entry in entries)
-        self._write(text.encode("utf-8"))
+        lines = []
+        for entry in entries:
+            record = {"wall": wall, **entry, **session}
+            record.pop("prev", None)  # the link is the writer's alone
+            lines.append(json.dumps(record, ensure_ascii=False,
+                                    separators=(",", ":")).encode("utf-8"))
+        self._write_entries(lines)
+
+    def _write_entries(self, lines: list[bytes]) -> None:
+        """Entries (JSON objects, no newline) written in order, each given its link, under
+        the file's lock: whoever wrote last, in this process or another, the chain goes on
+        from the file's real last line."""
+        try:
+            fcntl.flock(self._fd, fcntl.LOCK_EX)
+            try:
+                size = os.fstat(self._fd).st_size
+                out = []
+                if size != self._end:  # another writer (or our own failed write) moved it
+                    self._prev, ended = self._last_line(size)
+                    if not ended:
+                        out.append(b"\n")  # never glue an entry onto a cut line
+                prev = self._prev
+                for line in lines:
+                    chained = line[:-1] + b',"prev":"' + prev.encode("ascii") + b'"}'
+                    prev = line_hash(chained)
+                    out.append(chained + b"\n")
+                data = b"".join(out)
+                self._end = -1
+                self._write(data)
+                self._prev, self._end = prev, size + len(data)
+                self._unanchored = True
+            finally:
+                fcntl.flock(self._fd, fcntl.LOCK_UN)
+        except OSError as exc:
+            raise JournalWriteError("the journal", self.path, exc) from None
+
+    def _last_line(self, size: int) -> tuple[str, bool]:
+        """The link to the file's last line (GENESIS for an empty file) and whether a
+        newline ends it; read backwards to its start, then hashed forwards in blocks."""
+        if size == 0:
+            return GENESIS, True
+        ended = os.pread(self._fd, 1, size - 1) == b"\n"
+        end = size - 1 if ended else size
+        start = end
+        block = 65536
+        while start > 0:
+            chunk = os.pread(self._fd, min(block, start), max(0, start - block))
+            newline = chunk.rfind(b"\n")
+            if newline >= 0:
+                start = start - len(chunk) + newline + 1
+                break
+            start -= len(chunk)
+        digest = hashlib.sha256()
+        at = start
+        while at < end:
+            chunk = os.pread(self._fd, min(1 << 20, end - at), at)
+            if not chunk:
+                break
+            digest.update(chunk)
+            at += len(chunk)
+        return digest.hexdigest(), ended
+
+    def size(self) -> int:
+        """The file's size now (0 once closed)."""
+        try:
+            return os.fstat(self._fd).st_size if self._fd >= 0 else 0
+        except OSError:
+            return 0
+
+    def tick_due(self, now: float) -> bool:
+        return self._unanchored and now - self._anchored_at >= ANCHOR_EVERY_S
+
+    def tick(self) -> None:
+        """The anchor written again if entries came since it was and a minute has passed
+        (the session calls this often: it costs a clock read)."""
+        if self.tick_due(time.monotonic()):
+            self.write_anchor()
+
+    def write_anchor(self) -> None:
+        """The chain's end (size and last line's link) into the anchor file, atomically. A
+        failure is not the journal's (the entries are on disk): it is tried again later."""
+        if self._fd < 0:
+            return
+        self._anchored_at = time.monotonic()
+        try:
+            fcntl.flock(self._fd, fcntl.LOCK_SH)
+            try:
+                size = os.fstat(self._fd).st_size
+                head = self._prev if size == self._end else self._last_line(size)[0]
+                text = json.dumps({"size": size, "head": head, "wall": wall_now()})
+                target = anchor_path(self.path)
+                temporary = target.with_name(f".{target.name}.{os.getpid()}.tmp")
+                fd = os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC
+                             | os.O_NOFOLLOW, 0o644)
+                try:
+                    os.write(fd, text.encode("ascii") + b"\n")
+                    os.fsync(fd)
+                finally:
+                    os.close(fd)
+                os.replace(temporary, target)
+                self._unanchored = False
+            finally:
+                fcntl.flock(self._fd, fcntl.LOCK_UN)
+        except OSError:
+            self._unanchored = True
 
     def close(self) -> None:
+        if self._fd >= 0 and self._unanchored:
+            self.write_anchor()
         if self._fd >= 0:
             os.close(self._fd)
             self._fd = -1

@@ -1,7 +1,7 @@
 """Graduated explanations (000 §4): what, why, consequences, policies — for each abnormal
 situation, the same text for the HMI, the headless run and the journal.
 
-Plain words first (issue 19): levels 1 to 3 say what an operator says — the device, what is
+Plain words first: levels 1 to 3 say what an operator says — the device, what is
 physically wrong or suspected, what the system did, what happens next — and never name the
 model's internals (diagnoser states, constraint names, flags, estimates, timers, stopwatch
 parameters, scan numbers). Those are kept one level deeper, in the *engineering detail*.

@@ -1,4 +1,4 @@
-"""Plain words for the first three levels of an explanation (issue 19).
+"""Plain words for the first three levels of an explanation.
 
 An operator reads "the closed end switch of valve V1 is on", not `fsc_filter=1`, and "the
 estimated closed position", not `fsc_hat (TON2, or fsc while trusted)`. These helpers turn

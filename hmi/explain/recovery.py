@@ -1,4 +1,4 @@
-"""Explanations of recovery (issue 19): a way back that the cell needs, and the one running.
+"""Explanations of recovery: a way back that the cell needs, and the one running.
 
 * ``recovery_needed:<procedure>`` — the procedure's `needed` condition has held long enough
   (a valve stopped between its ends): an alarm whose recommended policy starts it.

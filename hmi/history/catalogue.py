@@ -133,6 +133,10 @@ class Catalogue:
     scan_time: int
     scan_late: int
     plant: dict[str, int] = field(default_factory=dict)  # simulated plant's state keys
+    # What each signal records, as "kind:thing" (value:fsc, fov:C, constraint:CSs1,
+    # diagnoser:V1, monitor.x:TASK, cell:mode...) -> its name: the OPC UA server finds the
+    # history of each variable it serves here, whatever name a clash gave the signal.
+    origin: dict[str, str] = field(default_factory=dict)
     index: dict[str, int] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -160,8 +164,9 @@ class _Builder:
     def __init__(self) -> None:
         self.signals: list[Signal] = []
         self.names: set[str] = set()
+        self.origin: dict[str, str] = {}
 
-    def add(self, signal: Signal) -> int:
+    def add(self, signal: Signal, origin: str = "") -> int:
         """Add a signal; a name already taken (a constraint named like a timer, a task like
         an output) gets its group in front: ``constraint.TON1``."""
         name = signal.name
@@ -173,6 +178,8 @@ class _Builder:
             signal = replace(signal, name=name)
         self.names.add(name)
         self.signals.append(signal)
+        if origin:
+            self.origin[origin] = name
         return len(self.signals) - 1
 
 
@@ -197,37 +204,37 @@ def catalogue(project: Project, layout: Layout, simulated: bool = False,
         what = steps.get(name) or project.describe(name)
         if name in steps:
             what = f"GRAFCET step {name}: {what}" if what != name else f"GRAFCET step {name}"
-        i = b.add(Signal(name, BOOL, what, "io", devices.get(name, "")))
+        i = b.add(Signal(name, BOOL, what, "io", devices.get(name, "")), f"value:{name}")
         values.append((i, layout.slots[name]))
     fov = []
     for k, name in enumerate(layout.outputs):
         i = b.add(Signal(name + FOV_SUFFIX, BOOL,
                          f"{project.describe(name)}, as the program asked (before the filter)",
-                         "fov", devices.get(name, "")))
+                         "fov", devices.get(name, "")), f"fov:{name}")
         fov.append((i, k))
     constraints = []
     for c in project.constraints:
         i = b.add(Signal(c.name, BOOL, f"{c.description or c.name} (violated by the request)",
-                         "constraint"))
+                         "constraint"), f"constraint:{c.name}")
         constraints.append((i, c.name))
     diagnosers = []
     for spec in diagnosers_of(project):
         labels = tuple(s.name for s in spec.states)
         i = b.add(Signal(f"{spec.name}.state", ENUM,
                          f"{spec.device or spec.name}: the diagnoser's state", "diagnoser",
-                         spec.device or "", labels=labels))
+                         spec.device or "", labels=labels), f"diagnoser:{spec.name}")
         diagnosers.append((i, {name: k for k, name in enumerate(labels)}))
     monitors = []
     for order, task in enumerate(monitors_of(project)):
         device = task.device or ""
         x = b.add(Signal(f"{task.name}.x", NUMBER, f"{task.title}: time since it started",
                          "monitor", device, "s", deadband=STOPWATCH_DEADBAND_S,
-                         settle_us=SETTLE_US))
+                         settle_us=SETTLE_US), f"monitor.x:{task.name}")
         y = b.add(Signal(f"{task.name}.y", NUMBER, f"{task.title}: effective work time",
                          "monitor", device, "s", deadband=STOPWATCH_DEADBAND_S,
-                         settle_us=SETTLE_US))
+                         settle_us=SETTLE_US), f"monitor.y:{task.name}")
         state = b.add(Signal(f"{task.name}.state", ENUM, f"{task.title}: its monitor's state",
-                             "monitor", device, labels=LOCATIONS))
+                             "monitor", device, labels=LOCATIONS), f"monitor.state:{task.name}")
         duration = b.add(Signal(f"{task.name}.duration", NUMBER,
                                 f"{task.title}: time each attempt took", "maintenance",
                                 device, "s"))
@@ -254,13 +261,16 @@ def catalogue(project: Project, layout: Layout, simulated: bool = False,
                                  device))
             movements.append(MovementPlan(layout.slots[order_name], layout.slots[end_name],
                                           travel, count))
-    mode = b.add(Signal("cell.mode", ENUM, "auto, manual or recovery mode", "cell", labels=MODES))
+    mode = b.add(Signal("cell.mode", ENUM, "auto, manual or recovery mode", "cell",
+                        labels=MODES), "cell:mode")
     policy = b.add(Signal("cell.policy", ENUM, "the safety filter's policy", "cell",
-                          labels=tuple(POLICIES)))
-    latched = b.add(Signal("cell.latched", BOOL, "outputs held safe until a fault reset", "cell"))
-    alarms = b.add(Signal("cell.alarms", NUMBER, "alarms in the list", "cell"))
+                          labels=tuple(POLICIES)), "cell:policy")
+    latched = b.add(Signal("cell.latched", BOOL, "outputs held safe until a fault reset",
+                           "cell"), "cell:latched")
+    alarms = b.add(Signal("cell.alarms", NUMBER, "alarms in the list", "cell"), "cell:alarms")
     scan_time = b.add(Signal("scan.time", NUMBER, "the longest scan of each second "
-                             "(measured in live runs)", "cell", unit="ms", deadband=0.1))
+                             "(measured in live runs)", "cell", unit="ms", deadband=0.1),
+                      "cell:scan_time")
     scan_late = b.add(Signal("scan.late", COUNTER, "scans started more than a period late",
                              "cell"))
     plant: dict[str, int] = {}
@@ -276,4 +286,4 @@ def catalogue(project: Project, layout: Layout, simulated: bool = False,
                                       "simulation", deadband=deadband, settle_us=settle))
     return Catalogue(project.name, tuple(b.signals), tuple(values), tuple(fov),
                      tuple(constraints), tuple(diagnosers), tuple(monitors), tuple(movements),
-                     mode, policy, latched, alarms, scan_time, scan_late, plant)
+                     mode, policy, latched, alarms, scan_time, scan_late, plant, b.origin)

@@ -77,14 +77,17 @@ class Historian:
         session.scan_listeners.append(self.on_scan)
         session.overrun_listeners.append(self.on_overrun)
         if self.journal is not None:
-            self.journal.taps.append(self.on_entry)
-            self.on_entry({**self.journal.start_entry,
-                           "message": f"{self.journal.start_entry['project']} started "
-                           f"({self.journal.start_entry['control']}, "
-                           f"{self.journal.start_entry['policy']}, "
-                           f"{self.journal.start_entry['plant']})"})
+            self.hear(self.journal)
         self._attached = True
         return self
+
+    def hear(self, journal: JournalRecorder) -> None:
+        """Keep the journal's entries as events (from its start entry on)."""
+        self.journal = journal
+        journal.taps.append(self.on_entry)
+        start = journal.start_entry
+        self.on_entry({**start, "message": f"{start['project']} started ({start['control']}, "
+                       f"{start['policy']}, {start['plant']})"})
 
     def detach(self) -> None:
         session = self.session

@@ -3,7 +3,8 @@
     model.py       the address space as plain data: objects, variables, how each is read
                    from a snapshot (no asyncua)
     conditions.py  plchmi's ISA-18.2 alarms as Part 9 AlarmConditionType events (no asyncua)
-    users.py       who may send commands: the password file, trusted certificates
+    users.py       who a client is: the users file, trusted certificates, the trust list
+    doors.py       who may open a session (checked off the loop), and the limits
     server.py      the asyncua server in its own thread, fed by a Session's snapshots
     options.py     --opcua and its companions, from the command line to ServeOptions
 
@@ -17,8 +18,8 @@ from hmi.errors import UsageError
 
 INSTALL_HINT = ("OPC UA needs the optional extra: pip install 'plchmi[opcua]' "
                 "(from a checkout: pip install -e '.[opcua]')")
-NEEDS_USERS = ("--opcua-writable needs users: --opcua-users FILE (a password file: plchmi "
-               "opcua-passwd FILE NAME) or --opcua-trust CERT")
+NEEDS_USERS = ("--opcua-writable needs users: plchmi users add NAME --role operator (the "
+               "users file; --opcua-users FILE names another) or --opcua-trust CERT")
 
 
 def require() -> None:

@@ -99,12 +99,32 @@ class ConditionTracker:
         self.sent: dict[str, tuple[str, int, str]] = {}
         self.alarms: dict[str, Alarm] = {}  # key -> the last alarm seen (for its texts)
         self.acks: dict[str, tuple[str, str]] = {}  # key -> (user, comment) of a pending ack
+        self.actors: dict[str, str] = {}  # key -> who shelved or unshelved it last
         self.shelves: dict[str, Shelf] = {}  # the shelved alarms, as last seen
         self.now_us = 0  # the time of the latest snapshot
 
     def acknowledged_by(self, key: str, user: str, comment: str) -> None:
         """An acknowledgement is on its way from an OPC UA client: name it in the event."""
         self.acks[key] = (user, comment)
+
+    def acted(self, key: str, user: str) -> None:
+        """Someone shelves or unshelves `key`: the shelving event names them."""
+        self.actors[key] = user
+
+    def commented(self, key: str, user: str, text: str) -> list[ConditionView]:
+        """A comment on a condition (Part 9 AddComment): an event of its own, the
+        condition's state as last sent, with the comment and who wrote it."""
+        alarm = self.alarms.get(key)
+        last = self.sent.get(key)
+        if alarm is None or last is None:
+            return []
+        state, returns, shelving = last
+        shelf = self.shelves.get(key)
+        remaining = 0.0
+        if shelf is not None and shelf.until_us is not None:
+            remaining = max(0.0, (shelf.until_us - self.now_us) / 1000)
+        return [_view(key, "comment", state, alarm, self.now_us, returns, user, text,
+                      shelving, remaining)]
 
     def update(self, batches: Iterable[tuple[tuple[AlarmEvent, ...], tuple[Alarm, ...]]],
                latest: tuple[Alarm, ...], now_us: int,
@@ -166,6 +186,8 @@ class ConditionTracker:
         user, comment = ("", "")
         if transition == "acknowledged":
             user, comment = self.acks.pop(key, (HMI_USER, ""))
+        elif transition in ("shelved", "unshelved"):
+            user = self.actors.pop(key, HMI_USER)
         remaining = 0.0
         if shelf is not None and shelf.until_us is not None:
             remaining = max(0.0, (shelf.until_us - self.now_us) / 1000)

@@ -43,6 +43,9 @@ class Point:
     read: Callable[[Snapshot], Any]
     unit: str | None = None
     from_plant: bool = False  # read from the plant: uncertain while it does not answer
+    # The historian's record of it ("kind:thing", hmi.history.catalogue.Catalogue.origin):
+    # the server answers HistoryRead for it from the cell's history ("" if none).
+    history: str = ""
 
     @property
     def name(self) -> str:
@@ -114,8 +117,8 @@ class _Builder:
 
     def point(self, path: tuple[str, ...], description: str, kind: str,
               read: Callable[[Snapshot], Any], unit: str | None = None,
-              from_plant: bool = False) -> None:
-        self.points.append(Point(path, description, kind, read, unit, from_plant))
+              from_plant: bool = False, history: str = "") -> None:
+        self.points.append(Point(path, description, kind, read, unit, from_plant, history))
 
 
 def _under(device: str | None, group: str, name: str) -> tuple[str, ...]:
@@ -124,6 +127,8 @@ def _under(device: str | None, group: str, name: str) -> tuple[str, ...]:
 
 def _status(b: _Builder, project: Project) -> None:
     b.folder(("Status",), f"How cell {project.name} runs: mode, policy, latch, scans")
+    history = {"Mode": "cell:mode", "Policy": "cell:policy", "Latched": "cell:latched",
+               "ScanTime": "cell:scan_time", "ActiveAlarms": "cell:alarms"}
     rows: list[tuple[str, str, str, Callable[[Snapshot], Any], str | None]] = [
         ("Mode", "auto, or manual (the operator's requests, still filtered)", STRING,
          lambda s: s.mode, None),
@@ -152,7 +157,7 @@ def _status(b: _Builder, project: Project) -> None:
          lambda s: len(s.alarms), None),
     ]
     for name, text, kind, read, unit in rows:
-        b.point(("Status", name), text, kind, read, unit)
+        b.point(("Status", name), text, kind, read, unit, history=history.get(name, ""))
 
 
 def _inputs(b: _Builder, project: Project, layout: Layout) -> None:
@@ -165,14 +170,14 @@ def _inputs(b: _Builder, project: Project, layout: Layout) -> None:
         b.folder(base, var.description or var.name)
         slot = layout.slots[var.name]
         b.point((*base, "Value"), f"{var.description or var.name}: the value read",
-                BOOL, _value_at(slot), from_plant=True)
+                BOOL, _value_at(slot), from_plant=True, history=f"value:{var.name}")
         partition = filtered.get(var.name)
         if partition is not None and partition.filtered is not None \
                 and partition.filtered in layout.slots:
             fslot = layout.slots[partition.filtered]
             b.point((*base, "FilteredValue"), f"{var.description or var.name}, as the safety "
                     "filter reads it (the estimate while the diagnoser distrusts it)", BOOL,
-                    _value_at(fslot))
+                    _value_at(fslot), history=f"value:{partition.filtered}")
             b.point((*base, "Reconstructed"), "the filter reads the estimate instead of the "
                     "sensor", BOOL, _named_in(var.name, lambda s: s.reconstructed))
 
@@ -187,9 +192,10 @@ def _outputs(b: _Builder, project: Project, layout: Layout) -> None:
         i = index[var.name]
         what = var.description or var.name
         b.point((*base, "ProgramValue"), f"{what}: what the program (or the operator in "
-                "manual mode) asked for", BOOL, _output_at(i, lambda s: s.fov))
+                "manual mode) asked for", BOOL, _output_at(i, lambda s: s.fov),
+                history=f"fov:{var.name}")
         b.point((*base, "WrittenValue"), f"{what}: what the safety filter wrote to the plant",
-                BOOL, _output_at(i, lambda s: s.outputs))
+                BOOL, _output_at(i, lambda s: s.outputs), history=f"value:{var.name}")
         b.point((*base, "FilterChanged"), "the filter wrote something else than asked", BOOL,
                 _changed(var.name))
         b.point((*base, "FilterConstraint"), "the constraints (or safe state) that changed it "
@@ -260,7 +266,7 @@ def _constraints(b: _Builder, project: Project) -> None:
     for c in project.constraints:
         b.point(("Constraints", c.name), f"{c.description or c.name} (true: violated by the "
                 "request at the last scan)", BOOL,
-                _violated(c.name))
+                _violated(c.name), history=f"constraint:{c.name}")
 
 
 def _diagnosers(b: _Builder, project: Project) -> None:
@@ -283,7 +289,8 @@ def _diagnosers(b: _Builder, project: Project) -> None:
              _diagnoser(order, lambda d: d.certain)),
         ]
         for name, text, kind, read in rows:
-            b.point((*group, name), text, kind, read)
+            b.point((*group, name), text, kind, read,
+                    history=f"diagnoser:{spec.name}" if name == "State" else "")
         b.folder((*group, "Flags"), "partition flags: the filter distrusts these components")
         for p in spec.partitions:
             b.point((*group, "Flags", p.flag), f"{p.description or p.name} distrusted", BOOL,
@@ -316,5 +323,7 @@ def _monitors(b: _Builder, project: Project) -> None:
             ("Faults", "faulty attempts so far", UINT,
              _monitor(order, lambda m: m.faults), None),
         ]
+        recorded = {"X": "monitor.x", "Y": "monitor.y", "State": "monitor.state"}
         for name, text, kind, read, unit in rows:
-            b.point((*group, name), text, kind, read, unit)
+            b.point((*group, name), text, kind, read, unit,
+                    history=f"{recorded[name]}:{task.name}" if name in recorded else "")

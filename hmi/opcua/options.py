@@ -58,8 +58,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                        "reset, manual requests, policy); needs --opcua-users or "
                        "--opcua-trust")
     group.add_argument("--opcua-users", type=Path, metavar="FILE",
-                       help="password file of the users who may send commands "
-                       "(plchmi opcua-passwd FILE NAME adds one)")
+                       help="the users file clients sign in against (default: the "
+                       "machine's, $PLCHMI_DATA/users; plchmi users add NAME --role ROLE)")
     group.add_argument("--opcua-trust", action="append", type=Path, default=[],
                        metavar="CERT", help="trust this client certificate (DER or PEM) as "
                        "a user named after its file (repeatable)")
@@ -90,8 +90,16 @@ def check_arguments(args: argparse.Namespace) -> None:
     parse_endpoint(url)
     if (args.opcua_cert is None) != (args.opcua_key is None):
         raise UsageError("--opcua-cert and --opcua-key go together")
-    if args.opcua_writable and not (args.opcua_users or args.opcua_trust):
-        raise UsageError(NEEDS_USERS)
+    if args.opcua_writable and not args.opcua_trust:
+        from hmi.access.users import default_path, read
+        found = read(args.opcua_users or default_path())
+        if found is None or not found.users:
+            raise UsageError(NEEDS_USERS)
+    elif args.opcua_users is not None:
+        from hmi.access.users import read
+        if read(args.opcua_users) is None:
+            raise UsageError(f"--opcua-users {args.opcua_users}: no such users file (plchmi "
+                             f"users --file {args.opcua_users} add NAME --role ROLE)")
     if len(args.opcua_trust) > MAX_TRUSTED:
         raise UsageError(f"--opcua-trust: at most {MAX_TRUSTED} certificates")
     from hmi.opcua import require
@@ -111,8 +119,10 @@ def start_server(session: Session, args: argparse.Namespace, log_file: bool = Fa
     if getattr(args, "opcua", None) is None:
         return None
     log_path = _route_logs(session.project.name, log_file)
+    from hmi.access.signin import Authenticator
+    from hmi.access.users import default_path, read
     from hmi.opcua.server import CellServer, ServeOptions
-    from hmi.opcua.users import Users, read_password_file
+    from hmi.opcua.users import Users, certificate_der
     from hmi.timefmt import DURATION_HINT, DurationError, parse_duration
 
     endpoint = parse_endpoint(args.opcua)
@@ -125,17 +135,22 @@ def start_server(session: Session, args: argparse.Namespace, log_file: bool = Fa
                              f"(expected {DURATION_HINT})") from None
         if interval <= 0:
             raise UsageError("--opcua-interval must be longer than zero")
-    passwords = read_password_file(args.opcua_users) if args.opcua_users else {}
-    certificates = {path.stem: _certificate(path) for path in args.opcua_trust}
+    users_path = args.opcua_users or default_path()
+    found = read(users_path)
+    authenticator = Authenticator(users_path) if found is not None else None
+    certificates = {path.stem: certificate_der(path, "--opcua-trust")
+                    for path in args.opcua_trust}
+    users = Users(authenticator, certificates)
     cert, key = args.opcua_cert, args.opcua_key
-    if cert is None and (passwords or certificates):
+    if cert is None and users.any:
         from hmi.explain.journal import safe_file_name
         from hmi.paths import data_folder
         folder = data_folder() / safe_file_name(session.project.name) / "opcua"
         cert, key = server_certificate(folder, session.project.name, endpoint.host)
     options = ServeOptions(host=endpoint.host, port=endpoint.port,
                            writable=args.opcua_writable,
-                           users=Users(passwords, certificates),
+                           users=users, sessions_per_user=(
+                               found.settings.sessions_per_user if found else 3),
                            allow_real_plant=args.opcua_allow_real_plant,
                            interval_us=interval, certificate=cert, private_key=key)
     server = CellServer(session, options, history=history)
@@ -192,23 +207,6 @@ def _route_logs(project_name: str, log_file: bool) -> Path | None:
     handler.setFormatter(logging.Formatter("%(asctime)s plchmi opcua: %(message)s"))
     ours.addHandler(handler)
     return path
-
-
-def _certificate(path: Path) -> bytes:
-    """A trusted client certificate as DER bytes (the file may be DER or PEM)."""
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise UsageError(f"--opcua-trust {path}: cannot be read ({exc.strerror})") from None
-    from cryptography import x509
-    from cryptography.hazmat.primitives.serialization import Encoding
-    try:
-        cert = (x509.load_pem_x509_certificate(data) if data.lstrip().startswith(b"-----")
-                else x509.load_der_x509_certificate(data))
-    except ValueError:
-        raise UsageError(f"--opcua-trust {path}: not an X.509 certificate (DER or PEM)"
-                         ) from None
-    return cert.public_bytes(Encoding.DER)
 
 
 def server_certificate(folder: Path, project_name: str, host: str) -> tuple[Path, Path]:

@@ -28,7 +28,7 @@ from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from asyncua import ua
 from asyncua.common.node import Node
@@ -60,16 +60,21 @@ from hmi.explain.alarms import ACTIVE_UNACK, CLEARED_UNACK, MAX_SHELVE_US, Alarm
 from hmi.history.target import Target
 from hmi.opcua import NEEDS_USERS
 from hmi.opcua.conditions import (
+    HMI_USER,
     ONE_SHOT,
     TIMED,
     UNSHELVED,
     ConditionTracker,
     ConditionView,
 )
+from hmi.opcua.doors import apply_limits, install, make_gate, verdict
 from hmi.opcua.model import BOOL, DOUBLE, STRING, STRINGS, UINT, AddressModel, build_model
 from hmi.opcua.status import FAILED, SERVING, STARTING, STOPPED, OpcClient, ServingStatus
-from hmi.opcua.users import Identity, Users
+from hmi.opcua.users import ANONYMOUS, Identity, TrustList, Users
 from hmi.session.session import Session
+
+if TYPE_CHECKING:
+    from hmi.opcua.history import CellHistory
 
 log = logging.getLogger("hmi.opcua")
 
@@ -119,6 +124,8 @@ class ServeOptions:
     port: int = 4840
     writable: bool = False
     users: Users = field(default_factory=Users)
+    trust: TrustList | None = None  # client applications (None: the machine's trust list)
+    sessions_per_user: int = 3
     allow_real_plant: bool = False
     interval_us: int | None = None  # publishing interval (None: the scan period)
     certificate: Path | None = None  # the server's own certificate and key (DER / PEM)
@@ -151,25 +158,24 @@ class _Rules(SimpleRoleRuleset):
 class _CellUser(User):
     """asyncua's user of a session, with who they are for the journal."""
 
-    identity: Identity = field(default_factory=lambda: Identity(None, "anonymous"))
+    identity: Identity = field(default_factory=lambda: ANONYMOUS)
 
 
 class _UserManager(UserManager):
-    def __init__(self, users: Users):
-        self.users = users
+    """asyncua asks it at activation: it only reads what the look before activation
+    decided (hmi.opcua.doors: the password checked off the loop). No verdict: refused."""
 
     def get_user(self, iserver: InternalServer, username: str | None = None,
                  password: str | None = None, certificate: Any = None) -> User | None:
-        der = certificate if isinstance(certificate, bytes | None) else None
-        identity = self.users.check(username, password, der)
-        if identity is None:
-            log.warning("OPC UA session refused: wrong credentials for %r", username)
+        decided = verdict()
+        if decided is None or decided[0] is None:
             return None
+        identity = decided[0]
         return _CellUser(role=UserRole.User, name=identity.name, identity=identity)
 
 
 def _identity(user: User | None) -> Identity:
-    return user.identity if isinstance(user, _CellUser) else Identity(None, "anonymous")
+    return user.identity if isinstance(user, _CellUser) else ANONYMOUS
 
 
 class CellServer:
@@ -180,11 +186,13 @@ class CellServer:
         self.session = session
         self.options = options
         self.history = history  # the cell's history, for HistoryRead (None: none kept)
+        self.storage: CellHistory | None = None  # what answers HistoryRead (with history)
+        self.recorded: dict[str, str] = {}  # the historian's signal of each record
         engine = session.engine
         if options.writable and engine.plant.is_real and not options.allow_real_plant:
             raise UsageError("--opcua-writable on a real plant: OPC UA clients could then "
                              "drive it; refused unless --opcua-allow-real-plant says so")
-        if options.writable and not (options.users.passwords or options.users.certificates):
+        if options.writable and not options.users.any:
             raise UsageError(NEEDS_USERS)
         self.model: AddressModel = build_model(session.project, engine.layout)
         self.interval_s = (options.interval_us or session.period_us) / 1e6
@@ -211,7 +219,9 @@ class CellServer:
             security += ["Basic256Sha256 Sign", "Basic256Sha256 SignAndEncrypt"]
         self.log_file = ""  # where the server's errors are written (hmi.opcua.options)
         self._status = ServingStatus(options.url, STARTING, tuple(security), options.writable,
-                                     len(users.passwords) + len(users.certificates))
+                                     users.count())
+        self._actions: deque[tuple[str, str, str]] = deque()  # comments: key, user, text
+        session.listeners.append(self.on_command)
         self.listeners: list[Callable[[ServingStatus], None]] = []
         self._clients_due = 0.0  # monotonic time of the next look at the connections
 
@@ -377,9 +387,24 @@ class CellServer:
     # -- the address space --------------------------------------------------------------------
 
     async def _build(self) -> Server:
-        self.server = server = Server(user_manager=_UserManager(self.options.users))
+        users = self.options.users
+        sessions = None
+        if users.authenticator is not None:
+            from hmi.access.sessions import SessionTable
+            sessions = SessionTable(users.authenticator.path)
+        install(make_gate(users, sessions, self.options.sessions_per_user),
+                sessions.close if sessions is not None else (lambda ticket: None),
+                self.options.trust or TrustList())
+        self.server = server = Server(user_manager=_UserManager())
         server.iserver.bind_condition_methods = True  # ConditionRefresh replays our alarms
+        if self.history is not None:  # HistoryRead from the cell's history (Part 11)
+            from hmi.history.catalogue import catalogue
+            from hmi.opcua.history import CellHistory
+            self.storage = CellHistory(self.history, self.model.cell)
+            self.recorded = catalogue(self.session.project, self.session.engine.layout).origin
+            server.iserver.history_manager.set_storage(self.storage)
         await server.init()
+        apply_limits(server.iserver, self.interval_s * 1000)
         server.set_server_name(f"plchmi {self.model.cell}")
         server.set_endpoint(self.url)
         await server.set_application_uri(f"urn:plchmi:{self.model.cell}")
@@ -391,17 +416,34 @@ class CellServer:
                          ua.SecurityPolicyType.Basic256Sha256_Sign]
         server.set_security_policy(policies, permission_ruleset=_Rules())
         tokens: list[type] = [ua.AnonymousIdentityToken]
-        if self.options.users.passwords:
-            tokens.append(ua.UserNameIdentityToken)
+        if self.options.users.passwords and self.options.certificate:
+            tokens.append(ua.UserNameIdentityToken)  # only with a key to encrypt it with
         if self.options.users.certificates:
             tokens.append(ua.X509IdentityToken)
         server.set_identity_tokens(tokens)
         self.ns = await server.register_namespace(f"urn:plchmi:{self.model.cell}")
         await self._build_nodes(server)
         await self._build_alarms(server)
+        if self.storage is not None:
+            self.storage.alarm_type = self.alarm_type.nodeid
+            self.storage.event_sources.add(server.nodes.server.nodeid)
+            await server.nodes.server.set_attr_bit(AttributeIds.EventNotifier,
+                                                   ua.EventNotifier.HistoryRead)
         if self.options.writable:
             await self._build_commands(server)
         return server
+
+    async def _historize(self, node: Node, origin: str, vtype: ua.VariantType) -> None:
+        """A variable the historian records: HistoryRead answered from the cell's history."""
+        signal = self.recorded.get(origin) if origin and self.storage is not None else None
+        if signal is None or self.storage is None:
+            return
+        from hmi.opcua.history import Historized
+        self.storage.nodes[node.nodeid] = Historized(signal, vtype)
+        for attribute in (AttributeIds.AccessLevel, AttributeIds.UserAccessLevel):
+            await node.set_attr_bit(attribute, ua.AccessLevel.HistoryRead)
+        await node.write_attribute(AttributeIds.Historizing, ua.DataValue(
+            ua.Variant(True, ua.VariantType.Boolean)))
 
     def _nodeid(self, path: tuple[str, ...]) -> ua.NodeId:
         return _id(".".join((self.model.cell, *path)), self.ns)
@@ -443,6 +485,7 @@ class CellServer:
                                      Description=ua.LocalizedText(long_name)))
             await server.write_attribute_value(node.nodeid, ua.DataValue(StatusCode=waiting))
             self.points.append(_Variable(node.nodeid, point.read, vtype, point.from_plant))
+            await self._historize(node, point.history, vtype)
         # The run state is the session's, not a scan's: a paused cell makes no snapshot, and
         # a SCADA must still learn that its values stopped moving.
         status = self.objects[("Status",)]
@@ -500,6 +543,10 @@ class CellServer:
         for view in self.tracker.update(batches, snapshot.alarms, snapshot.time_us,
                                         snapshot.shelved):
             await self._send(view)
+        while self._actions:  # comments: Part 9 sends each as an event of its condition
+            key, user, text = self._actions.popleft()
+            for view in self.tracker.commented(key, user, text):
+                await self._send(view)
 
     _published: Snapshot | None = None
     @property
@@ -623,7 +670,7 @@ class CellServer:
                            comment: ua.Variant) -> ua.StatusCode:
         """Part 9 Acknowledge on a condition: the session's Acknowledge, journalled with the
         client's identity."""
-        found = self._condition_call(parent, event_id)
+        found = self._condition_call(parent, event_id, Acknowledge(""))
         if isinstance(found, ua.StatusCode):
             return found
         who, key = found
@@ -652,13 +699,14 @@ class CellServer:
     async def _shelving(self, parent: ua.NodeId, make: Callable[[str], Command]
                         ) -> ua.StatusCode:
         who = _identity(_caller.get())
-        denied = self._denied(who)
+        key = self.shelving_keys.get(parent)
+        command = make(key or "")
+        denied = self._denied(who, command)
         if denied is not None:
             return denied
-        key = self.shelving_keys.get(parent)
         if key is None:
             return _status(StatusCodes.BadNodeIdUnknown)
-        command = make(key)
+        self.tracker.acted(key, who.name or "")
         result = await self._command(command, who)
         if result.accepted:
             return ua.StatusCode()
@@ -671,19 +719,19 @@ class CellServer:
     async def _add_comment(self, parent: ua.NodeId, event_id: ua.Variant,
                            comment: ua.Variant) -> ua.StatusCode:
         """Part 9 AddComment: the HMI's comment on an alarm, journalled with the user."""
-        found = self._condition_call(parent, event_id)
+        found = self._condition_call(parent, event_id, CommentAlarm("", ""))
         if isinstance(found, ua.StatusCode):
             return found
         who, key = found
         result = await self._command(CommentAlarm(key, _comment_text(comment)), who)
         return ua.StatusCode() if result.accepted else _status(StatusCodes.BadInvalidArgument)
 
-    def _condition_call(self, parent: ua.NodeId, event_id: ua.Variant
+    def _condition_call(self, parent: ua.NodeId, event_id: ua.Variant, kind: Command
                         ) -> tuple[Identity, str] | ua.StatusCode:
         """The caller and the alarm a Part 9 method on a condition names, or the refusal:
-        Acknowledge and AddComment check the same user, condition and event id."""
+        Acknowledge and AddComment check the same user, role, condition and event id."""
         who = _identity(_caller.get())
-        denied = self._denied(who)
+        denied = self._denied(who, kind)
         if denied is not None:
             return denied
         key = self.condition_keys.get(parent)
@@ -693,10 +741,30 @@ class CellServer:
             return _status(StatusCodes.BadEventIdUnknown)
         return who, key
 
-    def _denied(self, who: Identity) -> ua.StatusCode | None:
+    def _denied(self, who: Identity, command: Command | None = None
+                ) -> ua.StatusCode | None:
+        """Refused unless commands are on, the caller is named and their role may send
+        it (hmi.access.roles: fail closed)."""
+        from hmi.access.roles import may
         if not self.options.writable or who.name is None:
             return _status(StatusCodes.BadUserAccessDenied)
+        if command is not None and not may(who.role, command):
+            return _status(StatusCodes.BadUserAccessDenied)
         return None
+
+    def on_command(self, command: Command, result: CommandResult,
+                   snapshot: Snapshot | None) -> None:
+        """Every door's commands (in the session's thread: only noted here): who shelved
+        or commented names the condition's next event; a comment is an event itself."""
+        if not result.accepted:
+            return
+        origin = self.session.origin
+        user = (origin[6:].split(" (", 1)[0] if origin.startswith("opcua:")
+                else origin or HMI_USER)
+        if isinstance(command, CommentAlarm):
+            self._actions.append((command.key, user, command.text))
+        elif isinstance(command, Shelve | Unshelve):
+            self.tracker.acted(command.key, user)
 
     async def _command(self, command: Command, who: Identity, comment: str = ""
                        ) -> CommandResult:
@@ -769,6 +837,10 @@ class CellServer:
             except (TypeError, ValueError) as exc:  # refused in words, like the engine does
                 return [ua.Variant(False, ua.VariantType.Boolean),
                         ua.Variant(str(exc), ua.VariantType.String)]
+            if self._denied(who, command) is not None:
+                from hmi.access.roles import refusal
+                return [ua.Variant(False, ua.VariantType.Boolean),
+                        ua.Variant(refusal(who.role, command), ua.VariantType.String)]
             named = self._name_acknowledger(command, who)
             result = await self._command(command, who)
             if not result.accepted:

@@ -1,11 +1,15 @@
-"""Who may send operator commands over OPC UA: a password file, and trusted certificates.
+"""Who an OPC UA client is: the plchmi users file (one identity at every door), trusted user
+certificates, and the trust list of client applications.
 
-The password file holds one user per line, ``name:pbkdf2_sha256$ITERATIONS$SALT$HASH``
-(hex salt and hash; ``#`` starts a comment), written by ``plchmi opcua-passwd FILE NAME``.
-No password is ever stored in clear. A user may also present an X.509 certificate: the
-certificates given with ``--opcua-trust CERT`` are trusted, each under its file's name.
+A user signs in with a name and password of the users file (hmi/access: argon2id, the same
+lockout and the same roles as every other door), or with a user certificate given by
+``--opcua-trust CERT`` — the user named after the file, who must be in the users file too
+(their role is theirs there). A client that presents neither is anonymous: a viewer.
 
-Standard library only (hashlib, hmac): the check runs on the server's own event loop.
+Client *applications* (the certificate of a secure channel) are checked against a trust
+list, ``$PLCHMI_DATA/opcua/pki/trusted/`` (``plchmi opcua trust CERT`` puts one there); an
+unknown one is refused and copied to ``$PLCHMI_DATA/opcua/pki/rejected/`` for review, as
+OPC UA servers do.
 """
 
 from __future__ import annotations
@@ -13,133 +17,152 @@ from __future__ import annotations
 import hashlib
 import hmac
 import os
-import re
 from dataclasses import dataclass
 from pathlib import Path
 
+from hmi.access.signin import Authenticator
 from hmi.errors import UsageError
-
-ITERATIONS = 200_000
-_LINE = re.compile(r"^(?P<name>[A-Za-z0-9_.@-]{1,64}):pbkdf2_sha256\$(?P<n>[0-9]{1,7})"
-                   r"\$(?P<salt>[0-9a-f]{16,128})\$(?P<hash>[0-9a-f]{64})$")
-NAME = re.compile(r"^[A-Za-z0-9_.@-]{1,64}$")
-MAX_USERS_FILE_BYTES = 1_000_000
-
-
-@dataclass(frozen=True)
-class PasswordEntry:
-    name: str
-    iterations: int
-    salt: bytes
-    digest: bytes
-
-    def matches(self, password: str) -> bool:
-        candidate = hashlib.pbkdf2_hmac("sha256", password.encode("utf-8"), self.salt,
-                                        self.iterations)
-        return hmac.compare_digest(candidate, self.digest)
-
-    def line(self) -> str:
-        return (f"{self.name}:pbkdf2_sha256${self.iterations}${self.salt.hex()}"
-                f"${self.digest.hex()}")
-
-
-def hash_password(name: str, password: str, iterations: int = ITERATIONS) -> PasswordEntry:
-    salt = os.urandom(16)
-    digest = hashlib.pbkdf2_hmac("sha256", password.encode("utf-8"), salt, iterations)
-    return PasswordEntry(name, iterations, salt, digest)
-
-
-def read_password_file(path: Path) -> dict[str, PasswordEntry]:
-    """The users of a password file; a bad line is a usage error naming file:line."""
-    try:
-        if path.stat().st_size > MAX_USERS_FILE_BYTES:
-            raise UsageError(f"{path}: more than {MAX_USERS_FILE_BYTES:,} bytes; not a "
-                             "password file")
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise UsageError(f"{path}: no such password file (create it with "
-                         f"plchmi opcua-passwd {path} NAME)") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise UsageError(f"{path}: cannot be read as a password file ({exc})") from None
-    users: dict[str, PasswordEntry] = {}
-    for number, raw in enumerate(text.splitlines(), 1):
-        line = raw.strip()
-        if not line or line.startswith("#"):
-            continue
-        match = _LINE.match(line)
-        if match is None:
-            raise UsageError(f"{path}:{number}: expected NAME:pbkdf2_sha256$ITERATIONS$SALT$"
-                             "HASH (as plchmi opcua-passwd writes it)")
-        if match["name"] in users:
-            raise UsageError(f"{path}:{number}: user {match['name']} is named twice")
-        users[match["name"]] = PasswordEntry(match["name"], int(match["n"]),
-                                             bytes.fromhex(match["salt"]),
-                                             bytes.fromhex(match["hash"]))
-    if not users:
-        raise UsageError(f"{path}: no user in the password file")
-    return users
-
-
-def write_user(path: Path, name: str, password: str) -> bool:
-    """Add or replace one user's line; True if the user was new."""
-    if not NAME.match(name):
-        raise UsageError(f"user name {name!r}: 1 to 64 letters, digits, '_', '.', '@' or '-'")
-    if len(password) < 8:
-        raise UsageError("the password must be at least 8 characters long")
-    lines: list[str] = []
-    new = True
-    if path.exists():
-        try:
-            lines = path.read_text(encoding="utf-8").splitlines()
-        except (OSError, UnicodeDecodeError) as exc:
-            raise UsageError(f"{path}: cannot be read ({exc})") from None
-        kept = [line for line in lines if not line.startswith(f"{name}:")]
-        new = len(kept) == len(lines)
-        lines = kept
-    lines.append(hash_password(name, password).line())
-    try:
-        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-        with os.fdopen(fd, "w", encoding="utf-8") as out:
-            out.write("\n".join(lines) + "\n")
-    except OSError as exc:
-        raise UsageError(f"{path}: cannot be written ({exc.strerror})") from None
-    return new
+from hmi.paths import data_folder
 
 
 @dataclass(frozen=True)
 class Identity:
-    """Who a client is: a named user (password or certificate), or anonymous."""
+    """Who a client is: a named user (password or certificate) with a role, or anonymous."""
 
     name: str | None
     how: str  # "password", "certificate", "anonymous"
+    role: str = "viewer"
 
     @property
     def label(self) -> str:
-        return f"{self.name} ({self.how})" if self.name else "anonymous"
+        return f"{self.name} ({self.role}, {self.how})" if self.name else "anonymous"
+
+
+ANONYMOUS = Identity(None, "anonymous", "viewer")
 
 
 class Users:
-    """Checks a client's credentials against the password file and trusted certificates."""
+    """Checks a client's credentials: the users file's passwords, trusted user
+    certificates. The password check is argon2 (about 50 ms): :meth:`check_password` runs
+    it in the authenticator's own threads, never on the server's loop."""
 
-    def __init__(self, passwords: dict[str, PasswordEntry] | None = None,
+    def __init__(self, authenticator: Authenticator | None = None,
                  certificates: dict[str, bytes] | None = None):
-        self.passwords = passwords or {}
+        self.authenticator = authenticator
         self.certificates = certificates or {}  # name -> DER bytes
 
-    def check(self, username: str | None, password: str | None,
-              certificate: bytes | None) -> Identity | None:
-        """The identity, or None when the credentials are wrong (the session is refused).
+    @property
+    def passwords(self) -> bool:
+        """Whether names and passwords can sign in (a users file with users)."""
+        if self.authenticator is None:
+            return False
+        found = self.authenticator.users()
+        return found is not None and bool(found.users)
 
-        `certificate` is the client's certificate (DER): its user certificate, or, for any
-        other token, the certificate of its secure channel. A trusted one names the client;
-        an untrusted one changes nothing (an anonymous client may still read)."""
-        if certificate is not None and username is None:
-            for name, der in self.certificates.items():
-                if hmac.compare_digest(der, certificate):
-                    return Identity(name, "certificate")
-        if username is None:
-            return Identity(None, "anonymous")
-        entry = self.passwords.get(username)
-        if entry is None or password is None or not entry.matches(password):
-            return None
-        return Identity(username, "password")
+    @property
+    def any(self) -> bool:
+        return self.passwords or bool(self.certificates)
+
+    def count(self) -> int:
+        found = self.authenticator.users() if self.authenticator else None
+        return (len(found.users) if found else 0) + len(self.certificates)
+
+    async def check_password(self, name: str, password: str) -> tuple[Identity | None, str]:
+        """The identity, or None and why not."""
+        if self.authenticator is None:
+            return None, "no users file: nobody signs in with a password here"
+        result = await self.authenticator.check_async(name, password)
+        if not result.accepted or result.user is None:
+            return None, result.reason
+        return Identity(name, "password", result.user.role), ""
+
+    def check_certificate(self, der: bytes) -> tuple[Identity | None, str]:
+        """A user certificate: trusted, and its user in the users file (their role)."""
+        for name, trusted in self.certificates.items():
+            if hmac.compare_digest(trusted, der):
+                found = self.authenticator.users() if self.authenticator else None
+                user = found.users.get(name) if found else None
+                if user is None:
+                    return None, (f"the certificate of {name} is trusted, but {name} is not "
+                                  "in the users file (plchmi users add)")
+                if user.locked:
+                    return None, f"the account {name} is locked"
+                return Identity(name, "certificate", user.role), ""
+        return None, "an untrusted user certificate"
+
+
+def pki_folder() -> Path:
+    return data_folder() / "opcua" / "pki"
+
+
+def thumbprint(der: bytes) -> str:
+    return hashlib.sha1(der).hexdigest()
+
+
+class TrustList:
+    """The client applications trusted on this machine (DER files in `trusted/`); an
+    unknown one is copied to `rejected/` (named by its thumbprint) for review."""
+
+    def __init__(self, folder: Path | None = None):
+        self.folder = folder or pki_folder()
+        self.trusted_folder = self.folder / "trusted"
+        self.rejected_folder = self.folder / "rejected"
+
+    def trusted(self) -> set[str]:
+        """The thumbprints of the trusted certificates (read again at every check: a
+        certificate trusted while the server runs is trusted at once)."""
+        found: set[str] = set()
+        try:
+            names = sorted(os.listdir(self.trusted_folder))
+        except OSError:
+            return found
+        for name in names[:1000]:
+            der = _load_der(self.trusted_folder / name)
+            if der is not None:
+                found.add(thumbprint(der))
+        return found
+
+    def check(self, der: bytes) -> bool:
+        if thumbprint(der) in self.trusted():
+            return True
+        try:
+            self.rejected_folder.mkdir(parents=True, exist_ok=True)
+            target = self.rejected_folder / f"{thumbprint(der)}.der"
+            if not target.exists() and len(os.listdir(self.rejected_folder)) < 1000:
+                target.write_bytes(der)
+        except OSError:
+            pass  # the refusal stands; only the copy for review is missing
+        return False
+
+    def trust(self, path: Path) -> Path:
+        der = certificate_der(path, "plchmi opcua trust")
+        self.trusted_folder.mkdir(parents=True, exist_ok=True)
+        target = self.trusted_folder / f"{thumbprint(der)}.der"
+        target.write_bytes(der)
+        rejected = self.rejected_folder / target.name
+        if rejected.exists():
+            rejected.unlink()
+        return target
+
+
+def _load_der(path: Path) -> bytes | None:
+    try:
+        return certificate_der(path, "")
+    except UsageError:
+        return None
+
+
+def certificate_der(path: Path, what: str) -> bytes:
+    """A certificate file (DER or PEM) as DER bytes."""
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise UsageError(f"{what} {path}: cannot be read ({exc.strerror})") from None
+    from cryptography import x509
+    from cryptography.hazmat.primitives.serialization import Encoding
+    try:
+        cert = (x509.load_pem_x509_certificate(data) if data.lstrip().startswith(b"-----")
+                else x509.load_der_x509_certificate(data))
+    except ValueError:
+        raise UsageError(f"{what} {path}: not an X.509 certificate (DER or PEM)") from None
+    return cert.public_bytes(Encoding.DER)

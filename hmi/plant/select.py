@@ -21,7 +21,7 @@ if TYPE_CHECKING:
     from hmi.plant.modbus.client import ModbusPlant, ModbusSettings
 
 # The Modbus client (and pymodbus under it) is imported only for a Modbus plant: a simulated
-# one, the HMI's usual start, does not pay for it (issue 18, first frame).
+# one, the HMI's usual start, does not pay for it (the first frame).
 
 
 def plant_kind(project: Project, choice: str | None) -> str:

@@ -669,7 +669,7 @@ class Project:
     campaign: CampaignSpec | None = None
     explanations: ProjectTexts | None = None  # None: the built-in texts only
     components: tuple[ComponentInstance, ...] = ()
-    recovery: tuple[RecoveryProcedure, ...] = ()  # the ways back after a fault (issue 19)
+    recovery: tuple[RecoveryProcedure, ...] = ()  # the ways back after a fault
     warnings: tuple[Diagnostic, ...] = ()  # what the loader warned about (plchmi check)
     check_sections: tuple[tuple[str, ...], ...] = ()  # more `plchmi check` sections
     # The diagnosers file loaded in place of the project's (`--diagnoser FILE.yaml`), if any.

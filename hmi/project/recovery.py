@@ -1,4 +1,4 @@
-"""The `recovery:` section: declared ways back from a fault (issue 19).
+"""The `recovery:` section: declared ways back from a fault.
 
 A fault can leave a device where neither the control program nor the operator can move it:
 a valve stopped between its end positions (a jam, repaired; a lost plant connection) is

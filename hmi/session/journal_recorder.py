@@ -15,20 +15,31 @@ entry.
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable
 
 from hmi.engine.commands import Command, CommandResult, ManualOutput, describe
 from hmi.engine.snapshot import Snapshot
 from hmi.explain.journal import Journal, JournalWriteError, new_session_id
+from hmi.explain.model import Explanation, Policy
+from hmi.limits import describe_bytes
 from hmi.plant.modbus.link_log import Burst
 from hmi.session.session import Session
 from hmi.timefmt import seconds
 
+DEFAULT_SPACE = 1 << 30  # the journal's space unless told (--journal-space)
+SPACE_WARNING = 0.8  # the storage alarm from this share of it
+SPACE_KEY = "journal:space"
+SPACE_CHECK_S = 60.0
+
 
 class JournalRecorder:
-    def __init__(self, session: Session, journal: Journal, source: str = "hmi"):
+    def __init__(self, session: Session, journal: Journal, source: str = "hmi",
+                 space_bytes: int = DEFAULT_SPACE):
         self.session = session
+        self.space_bytes = space_bytes
+        self._space_checked = -SPACE_CHECK_S
         self.journal = journal
         self.pending_manual: list[tuple[ManualOutput, str]] = []  # with who sent it
         self.failure: JournalWriteError | None = None
@@ -102,9 +113,58 @@ class JournalRecorder:
         no plant link to drain nor overrun episode going on (their entries come with time),
         no manual request waiting for its filter result. Its alarm events are none and its
         recovery state the last one's, journalled then."""
-        return self.link is None and not self.overruns.active and not self.pending_manual
+        return (self.link is None and not self.overruns.active and not self.pending_manual
+                and not self._due())
+
+    def _due(self) -> bool:
+        """The anchor or the storage check is due (once a minute at most)."""
+        now = time.monotonic()
+        return (now - self._space_checked >= SPACE_CHECK_S
+                or self.journal.tick_due(now))
+
+    def space(self, space_bytes: int) -> None:
+        """The journal's configured space (the storage alarm's), checked now."""
+        self.space_bytes = space_bytes
+        self.check_space()
+
+    def check_space(self) -> None:
+        """The storage alarm: the journal has used SPACE_WARNING of its space, or of what
+        it can still have on its disk if that is less (the disk fills before the space)."""
+        self._space_checked = time.monotonic()
+        used = self.journal.size()
+        try:
+            disk = os.statvfs(self.journal.path.parent)
+            room = min(self.space_bytes, used + disk.f_bavail * disk.f_frsize)
+        except OSError:
+            room = self.space_bytes
+        if room <= 0 or used < SPACE_WARNING * room:
+            self.session.report(SPACE_KEY, None)
+            return
+        engine = self.session.engine
+        disk_bound = room < self.space_bytes
+        share = 100 * used / room
+        self.session.report(SPACE_KEY, Explanation(
+            key=SPACE_KEY, kind="journal", severity="high" if share >= 95 else "medium",
+            device="Journal", what=f"The journal has used {share:.0f} % of its space",
+            why=(f"The journal {self.journal.path} holds {describe_bytes(used)} of "
+                 + (f"{describe_bytes(room)}, all its disk has left" if disk_bound
+                    else f"the {describe_bytes(self.space_bytes)} configured for it")
+                 + "."),
+            consequences=("The cell keeps running and journalling. If the journal cannot be "
+                          "written (its disk full), the outputs are held safe and the cell "
+                          "stops until a fault reset: archive the journal or give it room "
+                          "before then."),
+            policies=(Policy("understood", "Understood", "Nothing is sent: archive the "
+                             "journal elsewhere, free disk space or configure more space "
+                             "(--journal-space)", recommended=True),),
+            since_scan=engine.scan, since_us=engine.now,
+            detail=f"used {used:,} bytes; space {self.space_bytes:,} bytes; warning at "
+                   f"{SPACE_WARNING:.0%}"))
 
     def on_scan(self, snapshot: Snapshot) -> None:
+        self.journal.tick()
+        if time.monotonic() - self._space_checked >= SPACE_CHECK_S:
+            self.check_space()
         self._drain_plant()
         for entry in self.overruns.tick(time.monotonic()):
             self._plant(entry)

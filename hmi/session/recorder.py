@@ -15,7 +15,7 @@ A frame must show one scan. The UI thread reads the recorder while the scan thre
 so the snapshot a frame shows and the history beside it are taken together, under the
 recorder's lock (:meth:`ScanRecorder.latest`): reading ``session.last`` first and the history
 a moment later mixed two scans — a constraint violated in the snapshot could be "not violated
-now" in a history one scan newer (issue 13: the HMI died on ``--control faulty``).
+now" in a history one scan newer (the HMI died of it on ``--control faulty``).
 """
 
 from __future__ import annotations

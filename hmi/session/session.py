@@ -149,7 +149,10 @@ class Session:
 
     def report(self, key: str, explanation: Explanation | None) -> None:
         """A service's situation (None: over), from any thread: in the next scan's
-        explanations, hence its alarm and the journal."""
+        explanations, hence its alarm and the journal. Nothing new (a situation that is
+        over reported over again): nothing changes, and the scans stay quiet."""
+        if self._services.get(key) is explanation:
+            return
         services = dict(self._services)
         if explanation is None:
             services.pop(key, None)
@@ -435,5 +438,5 @@ class Session:
         return last
 
 
-# The name before issue 14 ("controller" is 004's word for a filter use): one phase.
+# The former name ("controller" is 004's word for a filter use), for code that still uses it.
 Controller = Session

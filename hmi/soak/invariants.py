@@ -252,12 +252,10 @@ class Invariants:
     def _check_app(self) -> None:
         app = self.app
         contained = app.containment
+        # An error left to Textual's last resort is contained.fatal too (PlcHmiApp.last_resort)
         fault = contained.fatal or contained.latest
         if fault is not None and not any(b.invariant == "exception" for b in self.broken):
             self._break("exception", f"{fault.summary} (details in {fault.report})")
-        exception = getattr(app, "_exception", None)
-        if exception is not None and not any(b.invariant == "exception" for b in self.broken):
-            self._break("exception", f"Textual: {type(exception).__name__}: {exception}")
         if not app.is_running and not any(b.invariant == "exception" for b in self.broken):
             self._break("app-ended", f"the app stopped (return code {app.return_code})")
 

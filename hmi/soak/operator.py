@@ -27,6 +27,7 @@ from hmi.ui.actions import ACTIONS
 from hmi.ui.dialogs import ChoiceDialog, ConfirmDialog, StepDialog, TextDialog
 from hmi.ui.fault_dialog import FaultDialog
 from hmi.ui.signal_dialog import SignalDialog
+from hmi.ui.trend_screen import TrendScreen
 
 MAIN_KEYS = (*(a.key for a in ACTIONS), "1", "0", "x", "b", "tab", "shift+tab", "up", "down",
              "enter", "home", "end", "escape")
@@ -159,6 +160,10 @@ class RandomOperator:
                 return Press(("enter",))
             text = rng.choice(COMMENTS)
             return Press((*("space" if c == " " else c for c in text), "enter"))
+        if isinstance(screen, TrendScreen):  # the trends: look around, then back
+            keys = {"escape": 15, "left": 10, "right": 10, "shift+left": 8, "shift+right": 8,
+                    "plus": 8, "minus": 8, "end": 6, "home": 6, "g": 5, "left_square_bracket": 3}
+            return Press((rng.choices(list(keys), list(keys.values()))[0],))
         if isinstance(screen, SignalDialog):
             if rng.random() < 0.2:
                 return Press(("escape",))

@@ -21,12 +21,12 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from textual import events
 from textual.command import CommandInput, CommandList, CommandPalette
-from textual.geometry import Size
 
 from hmi.engine.scan import Engine
 from hmi.explain.journal import Journal
+from hmi.history.historian import Historian
+from hmi.history.target import Target
 from hmi.plant.sim import SimPlant
 from hmi.project.loader import load_project
 from hmi.session.journal_recorder import JournalRecorder
@@ -76,11 +76,15 @@ class SoakResult:
         return not self.broken
 
 
-def make_app(config: SoakConfig) -> tuple[PlcHmiApp, Session]:
-    """The app, and the session it shows (run in this process, in virtual time)."""
+def make_app(config: SoakConfig, history: Path | None = None
+             ) -> tuple[PlcHmiApp, Session, Historian | None]:
+    """The app, the session it shows (run in this process, in virtual time) and, with a
+    `history` file, its historian: the trend screens then read a real history."""
     project = load_project(config.project)
     cell = Session(Engine(project, SimPlant(project), control=config.control))
-    return PlcHmiApp(cell, live=False, show_measured=False), cell
+    historian = Historian(cell, Target("sqlite", str(history)), source="soak").attach() \
+        if history is not None else None
+    return PlcHmiApp(cell, live=False, show_measured=False), cell, historian
 
 
 async def session(config: SoakConfig, replay: list[Step] | None = None,
@@ -93,8 +97,10 @@ async def session(config: SoakConfig, replay: list[Step] | None = None,
     result = SoakResult(config)
     folder = Path(journal_dir or tempfile.mkdtemp(prefix="plchmi-soak-"))
     result.journal = folder / "journal.jsonl"
-    app, cell = make_app(config)
+    app, cell, historian = make_app(config, folder / "history.sqlite")
     journal = JournalRecorder(cell, Journal(result.journal), "soak")
+    if historian is not None:
+        historian.hear(journal)
     app.containment.listeners.append(journal.on_ui_fault)
     checker = Invariants(app, cell, result.journal)
 
@@ -136,6 +142,8 @@ async def session(config: SoakConfig, replay: list[Step] | None = None,
                     progress(result)
     finally:
         journal.close(None if checker.ok else str(checker.broken[0]))
+        if historian is not None:
+            historian.close()
     checker.check_journal()  # its last lines (the session's end)
     _fill(result, checker, cell, started)
     if journal_dir is None and result.ok:  # a passing session's journal is not kept
@@ -186,9 +194,7 @@ async def perform(pilot, step: Step) -> bool:
                 await settle(pilot)
                 return False
         case Resize(width=width, height=height):
-            size = Size(width, height)
-            app._driver._size = size  # the headless driver's terminal size
-            app.post_message(events.Resize(size, size))
+            await pilot.resize_terminal(width, height)
     await settle(pilot)
     return True
 

@@ -1,7 +1,8 @@
 """The operator's controls, declared once: each is a footer binding *and* a palette command.
 
 Declaring them in one table guarantees that nothing is reachable only by a key the operator
-has to remember, or only through the palette: the app builds its ``BINDINGS`` and the command
+has to remember, or only through the palette (an action kept out of the footer for room, the
+trends, is in the palette with its key): the app builds its ``BINDINGS`` and the command
 palette provider builds its entries from the same rows (a test checks both).
 """
 
@@ -20,6 +21,10 @@ class OperatorAction:
     title: str  # for the command palette
     help: str
     key_display: str | None = None
+    # Shown in the footer (at 80 columns two rows hold fourteen keys and no more). Off for a
+    # look-back that changes nothing in the cell (the trends): its key works, and the
+    # palette lists it with its key.
+    footer: bool = True
 
 
 ACTIONS: tuple[OperatorAction, ...] = (
@@ -51,10 +56,13 @@ ACTIONS: tuple[OperatorAction, ...] = (
                    "Pick the signals the timing diagram draws"),
     OperatorAction("window", "w", "Window", "Chronogram: next time window",
                    "Show the last 5, 10, 30 or 60 seconds"),
+    OperatorAction("trends", "t", "Trends", "Trends…",
+                   "The history of chosen signals over minutes to days, alarms on the time "
+                   "axis (the cell's historian)", footer=False),
     OperatorAction("quit", "q", "Quit", "Quit", "Stop the scan and leave the HMI"),
 )
 
 
 def bindings() -> list[Binding]:
-    return [Binding(a.key, a.action, a.label, key_display=a.key_display, tooltip=a.help)
-            for a in ACTIONS]
+    return [Binding(a.key, a.action, a.label, key_display=a.key_display, tooltip=a.help,
+                    show=a.footer) for a in ACTIONS]

@@ -251,7 +251,7 @@ class AlarmList(TextPanel):
             rows += 1  # the urgent rows pinned, and the selection's row under them
         width = max(20, self.content_size.width or self.app.size.width - 4)
         # The selected alarm's whole first sentence on its own line(s) when its row cuts it
-        # (80 columns): the device and the plain fault are always readable (issue 19).
+        # (80 columns): the device and the plain fault are always readable.
         detail: list[str] = []
         selected = self.selected_alarm
         if selected is not None:

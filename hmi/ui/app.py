@@ -99,10 +99,14 @@ from hmi.ui.serving import Served, serving_lines
 from hmi.ui.sim_panel import SimPanel
 from hmi.ui.status import BannerStrip, StatusBar
 from hmi.ui.style import ISA101, MUTED, OK_SYMBOL, Level, isa101_theme, tag
+from hmi.ui.textual_adapter import LastResort
 from hmi.ui.verdict import output_changes, request_verdict
 
 if TYPE_CHECKING:
+    from datetime import tzinfo
+
     from hmi.ui.palette import PaletteEntry
+    from hmi.ui.trend_screen import TrendScreen
 
 # The dialogs, the fault and signal pickers and the palette's provider are imported when
 # first opened: the first frame shows none of them (docs/performance.md).
@@ -144,8 +148,8 @@ class Body(ContainedPump, Vertical):
             panel.recheck()
 
 
-class PlcHmiApp(ContainedPump, App):
-    CSS_PATH = ["app.tcss", "dialogs.tcss"]
+class PlcHmiApp(LastResort, ContainedPump, App):
+    CSS_PATH = ["app.tcss", "dialogs.tcss", "trend.tcss"]
     TITLE = "plchmi"
     # 1 / 0 / x also from outside the I/O table (an explanation's policy button, the alarm
     # list): they act on the table's highlighted output; the table's own bindings come first
@@ -193,7 +197,7 @@ class PlcHmiApp(ContainedPump, App):
         self.subject: str | None = None
         # faults scheduled before the app started (plchmi ui --inject)
         self._injected += [InjectedFault(i, self._fault_text(i)) for i in injected]
-        # --bell: the terminal bell on each new unacknowledged P1 alarm (issue 19, optional)
+        # --bell: the terminal bell on each new unacknowledged P1 alarm (optional)
         self.bell_on_p1 = bell
         self.bells = 0
         self._p1_unack: frozenset[str] = frozenset()
@@ -204,6 +208,10 @@ class PlcHmiApp(ContainedPump, App):
                                              "the UI's scan recorder")
         # told once the first frame is on the screen (the start's caches save then)
         self.first_frame_listeners: list[Callable[[], None]] = []
+        # The trends open (hmi.ui.trend_screen), told of every frame; the zone their times
+        # are shown in (None: the machine's; the screenshots: UTC).
+        self.trends: TrendScreen | None = None
+        self.trend_zone: tzinfo | None = None
         self.set_class(True, f"-theme-{self.theme}", update=False)  # as a theme change sets
 
     def get_css_variables(self) -> dict[str, str]:
@@ -318,11 +326,10 @@ class PlcHmiApp(ContainedPump, App):
                 return None
         return run
 
-    def _handle_exception(self, error: Exception) -> None:
+    def last_resort(self, error: Exception) -> None:
         """Textual's last resort (an error in its own widgets or the compositor): the app
         cannot go on. Remembered as the reason of an abnormal end, then Textual ends it."""
         self.containment.record("the HMI (Textual)", error, fatal=True)
-        super()._handle_exception(error)
 
     async def run_action(self, action, default_namespace=None, namespaces=None) -> bool:
         """Every key's and palette's action goes through here: an error in it is contained."""
@@ -433,6 +440,12 @@ class PlcHmiApp(ContainedPump, App):
         except Exception as exc:
             self.contain("plant column layout", exc)
         self._ring(snap)
+        trends = self.trends
+        if trends is not None:
+            try:
+                trends.tick(self._history_now(snap))
+            except Exception as exc:
+                self.contain("the trends' refresh", exc)
         try:
             self._explain(frame)
         except Exception as exc:
@@ -1152,6 +1165,38 @@ class PlcHmiApp(ContainedPump, App):
         self.push_screen(SignalDialog(self.history.signals, chrono.signals, descriptions),
                          chosen)
 
+    def _history_now(self, snap: Snapshot | None = None) -> int:
+        """The newest scan on the history's time axis (Session.wall_us)."""
+        snap = snap or self.link.last
+        epoch = self.facts.epoch_us
+        if epoch is None:
+            import time
+            return time.time_ns() // 1000
+        return epoch + (snap.time_us if snap is not None else 0)
+
+    def action_trends(self) -> None:
+        self.open_trends()
+
+    def open_trends(self, signals: tuple[str, ...] | None = None,
+                    whole: bool = False) -> None:
+        """The trend screen (hmi.ui.trend_screen) on the chronogram's signals (or
+        `signals`); `whole`: zoomed out to all of the history."""
+        from hmi.ui.trend_screen import TrendScreen
+        history = self.facts.history
+        if not history:
+            self.refuse("trends", "no history is kept for this session (it was started "
+                        "with --historian off)")
+            return
+        chosen = signals if signals is not None else self.chronogram.signals
+        screen = TrendScreen(history, self.project.name, chosen, self._history_now(),
+                             zone=self.trend_zone, whole=whole)
+        self.trends = screen
+
+        def closed(_: object) -> None:
+            if self.trends is screen:
+                self.trends = None
+        self.push_screen(screen, closed)
+
     def set_signals(self, signals: tuple[str, ...]) -> None:
         self.chronogram.signals = signals
         self.chronogram.refresh(layout=True)
@@ -1234,6 +1279,14 @@ class PlcHmiApp(ContainedPump, App):
             entries.append(PaletteEntry(f"Chronogram: last {window // 1_000_000} s",
                                         "Time window of the timing diagram",
                                         partial(self.action_window, window)))
+        if self.facts.history:
+            from hmi.history.catalogue import catalogue
+            found = catalogue(self.project, self.facts.layout)
+            for device in found.devices():
+                entries.append(PaletteEntry(
+                    f"Trends: maintenance of {device}",
+                    "Its travel times and operations over the whole history",
+                    partial(self.open_trends, found.maintenance(device), True)))
         if self.served is not None:
             entries.append(PaletteEntry(
                 "OPC UA server: endpoint, clients, security",

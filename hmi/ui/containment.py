@@ -32,8 +32,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 from textual import events
+from textual.message import Message
 
 from hmi.crash import write_crash_report
+from hmi.ui.textual_adapter import GuardedDispatch
 
 
 @dataclass(frozen=True)
@@ -110,21 +112,19 @@ class Containment:
 _NOT_CONTAINED = (events.Compose, events.Mount, events.Unmount)
 
 
-class ContainedPump:
+class ContainedPump(GuardedDispatch):
     """Mixin for the app, its panels and its dialogs: an error in one of their handlers is
     contained (see the module docstring) instead of ending the app.
 
-    It wraps ``MessagePump._dispatch_message``, the one place every event and message of a
-    node is handled (Textual 8.2, pinned): wrapping each handler instead would leave out the
-    next one written."""
+    It hears every error of the node's handlers where Textual handles each event and message
+    (hmi.ui.textual_adapter.GuardedDispatch): wrapping each handler instead would leave out
+    the next one written."""
 
-    async def _dispatch_message(self, message) -> None:  # type: ignore[override]
-        try:
-            await super()._dispatch_message(message)  # type: ignore[misc]
-        except Exception as exc:
-            if isinstance(message, _NOT_CONTAINED):
-                raise
-            contain = getattr(self.app, "contain", None)  # type: ignore[attr-defined]
-            if contain is None:
-                raise
-            contain(f"{type(self).__name__} {message.handler_name}", exc)
+    def handler_failed(self, message: Message, error: Exception) -> bool:
+        if isinstance(message, _NOT_CONTAINED):
+            return False
+        contain = getattr(self.app, "contain", None)  # type: ignore[attr-defined]
+        if contain is None:
+            return False
+        contain(f"{type(self).__name__} {message.handler_name}", error)
+        return True

@@ -1,4 +1,4 @@
-"""Textual's parsed stylesheets, kept across starts (issue 18 goal 1, docs/performance.md).
+"""Textual's parsed stylesheets, kept across starts (docs/performance.md).
 
 At every start Textual parses the HMI's ``.tcss`` files and the default CSS of every widget
 class it mounts, with the theme's variables substituted: about 17 ms of the CPU time to the
@@ -10,11 +10,12 @@ of everything the parse reads: the CSS text, where it was read from, its default
 tie-breaker flags and every variable's value. A text that parses with errors is never kept
 (Textual reports it as usual).
 
-``_parse_rules`` is Textual's, not a public interface: the cache works with the Textual
-version it was checked against (TEXTUAL, the version pyproject.toml pins; read from the
-installed distribution's folder name: ``textual.__version__`` imports importlib.metadata,
-some 8 ms) and stays out of the way with any other. The parsed rules are Textual's objects:
-the file's header also names the size and time of each file of Textual's CSS package, so
+``_parse_rules`` is Textual's, not a public interface (hmi/ui/textual_adapter.py, which
+tests/test_textual_adapter.py checks): the cache works with the Textual versions it was
+checked with (CHECKED, pyproject.toml's range; the installed version is read from its
+distribution's folder name: ``textual.__version__`` imports importlib.metadata, some 8 ms)
+and stays out of the way with any other. The parsed rules are Textual's objects: the file's
+header names the version and the size and time of each file of Textual's CSS package, so
 rules parsed by other code are never read back. The file sits beside hmi's bytecode,
 written under the bytecode's rule (hmi/codecache.py) and trusted as it is.
 """
@@ -33,8 +34,11 @@ import textual.css
 from textual.css.stylesheet import Stylesheet
 
 from hmi.codecache import blake2b, read_file, write_file, writing
+from hmi.ui.textual_adapter import css_variables, parse_cache, parse_rules, set_parse_rules
 
-TEXTUAL = "8.2.8"  # the version whose Stylesheet._parse_rules this wraps
+# The Textual versions (major, minor; both ends included) whose Stylesheet._parse_rules this
+# was checked with: pyproject.toml's range.
+CHECKED = ((8, 0), (8, 2))
 DEFAULT_PATH = (Path(__file__).resolve().parents[1] / "__pycache__"
                 / f"textual-css.{sys.implementation.cache_tag}.pickle")
 FORMAT = b"plchmi kept css 2"
@@ -58,12 +62,12 @@ class KeptCss:
     def rules(self, parse: Any, stylesheet: Stylesheet, css: str, read_from: Any,
               is_default_rules: bool, tie_breaker: int, scope: str) -> list[Any]:
         """What ``parse`` (Textual's ``_parse_rules``) would return."""
-        in_process = stylesheet._parse_cache
+        in_process = parse_cache(stylesheet)
         cache_key = (css, read_from, is_default_rules, tie_breaker, scope)
         rules = in_process.get(cache_key)
         if rules is not None:  # as Textual's own method answers it
             return rules
-        key = blake2b(repr((*cache_key, sorted(stylesheet._variables.items())))
+        key = blake2b(repr((*cache_key, sorted(css_variables(stylesheet).items())))
                               .encode("utf-8", "surrogatepass"), digest_size=20).hexdigest()
         kept = self.entries.get(key)
         if kept is not None:
@@ -102,6 +106,15 @@ def textual_version() -> str | None:
     return found[0][len("textual-"):-len(".dist-info")] if len(found) == 1 else None
 
 
+def checked(version: str | None) -> bool:
+    """Whether this Textual version is one the cache was checked with (CHECKED)."""
+    try:
+        major, minor = (int(part) for part in (version or "").split(".")[:2])
+    except ValueError:
+        return False
+    return CHECKED[0] <= (major, minor) <= CHECKED[1]
+
+
 def header() -> bytes:
     """The file's first line: the format, and each file of Textual's CSS package by name,
     size and modification time (what parsed the rules, and what their classes are)."""
@@ -112,7 +125,8 @@ def header() -> bytes:
             if entry.name.endswith(".py"):
                 stat = entry.stat()
                 digest.update(f"{entry.name} {stat.st_size} {stat.st_mtime_ns}\0".encode())
-    return b"%s textual %s %s\n" % (FORMAT, TEXTUAL.encode(), digest.hexdigest().encode())
+    version = (textual_version() or "?").encode()
+    return b"%s textual %s %s\n" % (FORMAT, version, digest.hexdigest().encode())
 
 
 def _read(path: Path, header: bytes) -> dict[str, bytes]:
@@ -135,22 +149,22 @@ def kept_css(path: Path = DEFAULT_PATH, write: bool | None = None) -> Iterator[K
     once its first frame is shown: an operator's HMI is rarely quit cleanly). `write`:
     default, the bytecode's rule. Yields None and changes nothing with another Textual
     version, or when already inside."""
-    original = Stylesheet.__dict__["_parse_rules"]
-    if textual_version() != TEXTUAL or getattr(original, "kept_css", False):
+    original = parse_rules()
+    if not checked(textual_version()) or getattr(original, "kept_css", False):
         yield None
         return
     kept = KeptCss(path, header(), write)
 
-    def parse_rules(self: Stylesheet, css: str, read_from: Any,
-                    is_default_rules: bool = False, tie_breaker: int = 0,
-                    scope: str = "") -> list[Any]:
+    def kept_parse_rules(self: Stylesheet, css: str, read_from: Any,
+                         is_default_rules: bool = False, tie_breaker: int = 0,
+                         scope: str = "") -> list[Any]:
         return kept.rules(original, self, css, read_from, is_default_rules, tie_breaker,
                           scope)
 
-    parse_rules.kept_css = True  # type: ignore[attr-defined]
-    Stylesheet._parse_rules = parse_rules  # type: ignore[method-assign]
+    kept_parse_rules.kept_css = True  # type: ignore[attr-defined]
+    set_parse_rules(kept_parse_rules)
     try:
         yield kept
     finally:
-        Stylesheet._parse_rules = original  # type: ignore[method-assign]
+        set_parse_rules(original)
         kept.save()

@@ -19,7 +19,6 @@ from typing import TypeVar
 
 from rich.text import Text
 from textual import events, on
-from textual._time import get_time
 from textual.app import ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal, Vertical
@@ -29,6 +28,7 @@ from textual.widgets.option_list import Option
 
 from hmi.ui.containment import ContainedPump
 from hmi.ui.style import Level, banner
+from hmi.ui.textual_adapter import event_clock
 
 _R = TypeVar("_R")
 
@@ -55,9 +55,11 @@ def keep_clear(app) -> None:
     except ValueError:  # not composed yet
         return
     for screen in stack[1:]:
-        if not isinstance(screen, ModalScreen) or not screen.children:
+        # (in a real terminal Textual gives each screen its toast rack and tooltip first:
+        # the box is the first child of the screen's own)
+        box = next((c for c in screen.children if not c.has_class("-textual-system")), None)
+        if not isinstance(screen, ModalScreen) or box is None:
             continue
-        box = screen.children[0]
         base = box.__dict__.setdefault("_clear_base", box.styles.margin.top)  # palette: 3
         top = max(base, clear)
         margin = box.styles.margin
@@ -81,7 +83,7 @@ class Dialog(ContainedPump, ModalScreen[_R]):
 
     def _painted(self) -> None:
         if self.shown_at is None:
-            self.shown_at = get_time()
+            self.shown_at = event_clock()
 
     def takes(self, event: events.Key) -> bool:
         """Whether a key is the dialog's: typed once the dialog was on screen."""

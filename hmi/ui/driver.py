@@ -12,11 +12,9 @@
 from __future__ import annotations
 
 import gc
-from functools import partial
-
-from textual.screen import Screen
 
 from hmi.link.base import CellLink
+from hmi.ui.textual_adapter import hold_refresh, paint_changes, paint_later
 
 
 class LiveDriver:
@@ -51,36 +49,6 @@ class LiveDriver:
         return self.link.error
 
 
-class _Held:
-    """A screen's refresh timer that never fires: see :meth:`VirtualDriver.hold`."""
-
-    def pause(self) -> None:
-        pass
-
-    def resume(self) -> None:
-        pass
-
-
-HELD = _Held()
-MOST_DIRTY = 64  # regions kept to repaint; beyond, the whole screen's region instead
-
-
-def _unseen_refresh(screen) -> None:
-    """``Screen._compositor_refresh`` without the paint, for a headless screen: what is to be
-    repainted is kept for :meth:`VirtualDriver.paint`; the rest is Textual's (the screen
-    under a dialog passes its changes up, the mouse-over is updated)."""
-    app = screen.app
-    if screen is app.screen:
-        screen._dirty_widgets.clear()
-        dirty = screen._compositor._dirty_regions
-        if len(dirty) > MOST_DIRTY:
-            dirty.clear()
-            dirty.add(screen._compositor.size.region)
-        app._update_mouse_over(screen)
-    else:
-        Screen._compositor_refresh(screen)
-
-
 class VirtualDriver:
     live = False
     overruns = 0
@@ -93,7 +61,7 @@ class VirtualDriver:
         timer: that timer fires 1/60 s of wall clock after a change, so on a loaded machine
         it painted half-handled states a second time, and what ran depended on the load.
         Textual's ``Screen._update_timer`` (pause/resume, created at first use) is the one
-        thing it paces by the clock; this sets it before then (Textual pinned, 8.2.8).
+        thing it paces by the clock; this holds it before then (hmi/ui/textual_adapter.py).
 
         Headless (tests, the soak, screenshots), a layout does not paint either: a headless
         terminal throws every paint away, and whoever looks renders the screen then
@@ -101,9 +69,9 @@ class VirtualDriver:
         click's style, ``Widget.render_lines``), or what changed (:meth:`paint`). Painting
         each frame nobody could see was about a third of a pilot test's CPU, and more under
         a dialog (the screen below it re-tinted at each paint)."""
-        screen._Screen__update_timer = HELD
+        hold_refresh(screen)
         if screen.app.is_headless:
-            screen._compositor_refresh = partial(_unseen_refresh, screen)
+            paint_later(screen)
 
     @staticmethod
     def paint(app) -> bool:
@@ -111,12 +79,9 @@ class VirtualDriver:
         would have on a terminal; True if there was anything. For whoever wants every state
         drawn that it stops at (the soak, after each step: a widget that fails to draw fails
         there); a test that looks at the screen renders it whole anyway."""
-        screen = app.screen
-        compositor = screen._compositor
-        if app.driver.live or not app.is_headless or not compositor._dirty_regions:
+        if app.driver.live or not app.is_headless:
             return False
-        compositor.render_update(screen_stack=app._background_screens)
-        return True
+        return paint_changes(app)
 
     def __init__(self, link: CellLink):
         self.link = link

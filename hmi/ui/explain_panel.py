@@ -48,6 +48,7 @@ from hmi.timefmt import seconds
 from hmi.ui.containment import ContainedPump
 from hmi.ui.panel import set_title
 from hmi.ui.style import MUTED, OK_SYMBOL, STYLE, Level, tag
+from hmi.ui.textual_adapter import VirtualSizeHook
 
 LEVELS = ("What", "Why", "Consequences", "Policies", "Engineering detail")
 TOP = len(LEVELS)
@@ -149,7 +150,7 @@ def policy_effect(policy: Policy) -> Text:
     return text
 
 
-class ExplanationPanel(ContainedPump, VerticalScroll):
+class ExplanationPanel(VirtualSizeHook, ContainedPump, VerticalScroll):
     """The graduated explanation of one situation (the app says which: `key`)."""
 
     can_focus = True  # ↑↓ scroll it (its bindings); tab goes on to the policy buttons
@@ -307,10 +308,9 @@ class ExplanationPanel(ContainedPump, VerticalScroll):
         if self.border_subtitle != subtitle:
             self.border_subtitle = subtitle
 
-    def _scroll_update(self, virtual_size) -> None:
-        # Textual's hook (8.2) for a new virtual size: the first moment the new lines have a
-        # place, so the first moment scrolling to them reaches them.
-        super()._scroll_update(virtual_size)
+    def virtual_size_placed(self) -> None:
+        # A new virtual size has its place (hmi.ui.textual_adapter.VirtualSizeHook): the
+        # first moment the new lines can be scrolled to.
         if self.explanation is not None:
             self._set_subtitle()
         if self._pending_end:  # the answer's lines are laid out now

@@ -15,9 +15,14 @@ from rich.cells import cell_len
 from textual.app import ComposeResult
 from textual.screen import Screen
 from textual.widgets import Footer
-from textual.widgets._footer import FooterKey
 
 from hmi.ui.containment import ContainedPump
+from hmi.ui.textual_adapter import (
+    FooterKey,
+    bindings_ready,
+    drop_closed_watchers,
+    set_bindings_ready,
+)
 
 ROWS_WHEN_WRAPPED = 2
 MAX_ROWS = 4
@@ -42,7 +47,7 @@ class HmiFooter(ContainedPump, Footer):
         styled every key again: 4 recomposes before the valve's first frame, 2 now (with
         the keys below, 498 style applications in the app's start, 228 now). The one
         recompose reads the bindings as they are then, the last change included."""
-        self._bindings_ready = True
+        set_bindings_ready(self)
         if not screen.app.app_focus:
             return
         covered = screen is not screen.app.screen
@@ -71,7 +76,7 @@ class HmiFooter(ContainedPump, Footer):
         await self.recompose()
 
     def composed_from(self) -> tuple:
-        """Everything :meth:`Footer.compose` reads to build the keys (Textual 8.2, pinned):
+        """Everything :meth:`Footer.compose` reads to build the keys:
         each shown binding's key, display, description, action, group, whether it is
         enabled, its tooltip; the command palette's key."""
         app = self.app
@@ -80,7 +85,7 @@ class HmiFooter(ContainedPump, Footer):
                       enabled, tooltip)
                      for (_node, b, enabled, tooltip) in active.values() if b.show)
         palette = active.get(app.COMMAND_PALETTE_BINDING)
-        return (self._bindings_ready, self.show_command_palette and app.ENABLE_COMMAND_PALETTE,
+        return (bindings_ready(self), self.show_command_palette and app.ENABLE_COMMAND_PALETTE,
                 keys, palette and palette[1:])
 
     def compose(self) -> ComposeResult:
@@ -103,19 +108,14 @@ class HmiFooter(ContainedPump, Footer):
         self._wrap()
 
     def _forget_removed_keys(self) -> None:
-        """Drop the removed keys from the footer's watchers (Textual 8.2, pinned).
+        """Drop the removed keys from the footer's watchers (hmi.ui.textual_adapter).
 
         Each key binds the footer's ``compact`` (``data_bind``), which puts the key in the
         footer's list of watchers; Textual prunes that list only when ``compact`` changes,
         which it never does here. The footer recomposes whenever the bindings change (the
         focus moves, a dialog opens), so every key ever shown stayed alive: ~6 MB per
         virtual minute in a soak, without end in a long session."""
-        watchers = getattr(self, "__watchers", None)
-        if not watchers:
-            return
-        for entries in watchers.values():
-            entries[:] = [(node, callback) for node, callback in entries
-                          if not (node._closing or node._closed)]
+        drop_closed_watchers(self)
 
     def grid(self, rows: int) -> list[int]:
         """Column widths when the keys are laid out on `rows` lines (row-major, as the grid

@@ -13,24 +13,30 @@ repaint, the callbacks due after a refresh, running workers, animations — unti
 left (:func:`drain`), then looks. A condition still false on an idle app will never come true
 (nothing scans by itself), so the wait fails at once, saying so. Textual's own
 ``Pilot.press`` sleeps at least 20 ms per key to guess idleness from CPU time; :func:`press`
-posts the key and drains instead, which is exact and faster. This reads a few of Textual's
-private attributes (message queues, the screen's update flags): Textual is pinned (8.2.8).
+posts the key and drains instead, which is exact and faster. What this needs of Textual's
+insides (a screen's pending refresh, a node's next callbacks, handing a mouse event to a
+widget) is in hmi/ui/textual_adapter.py.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import time
 import unicodedata
 from collections.abc import Callable
 from typing import Any
 
 from textual import events
+from textual.app import App
 from textual.geometry import Offset
-from textual.keys import REPLACED_KEYS, _character_to_key, _get_unicode_name_from_key
+from textual.keys import ASCII_KEY_NAMES, KEY_NAME_REPLACEMENTS, REPLACED_KEYS, key_to_character
+from textual.message_pump import MessagePump
 from textual.pilot import Pilot
 from textual.worker import WorkerState
 
 from hmi.ui.app import PlcHmiApp
+from hmi.ui.textual_adapter import forward_mouse_event, next_callbacks_due, refresh, refresh_due
 
 MAX_ROUNDS = 10_000  # of message processing in one drain: only a guard against a loop
 # Textual's pilot gives up waiting for the screen's messages after 30 s of wall clock; a
@@ -43,46 +49,18 @@ class WaitTimeout(AssertionError):
     pass
 
 
-def screen_pending(screen) -> bool:
-    """The screen has a layout, a repaint or callbacks due at its next refresh."""
-    return bool(screen._layout_required or screen._repaint_required or screen._dirty_widgets
-                or screen._callbacks or screen._recompose_required)
-
-
-def refresh_due(app) -> list:
-    """The screens whose refresh timer would do something now (VirtualDriver.hold): the
-    active one with anything pending; one shown under a dialog with a layout, a widget to
-    repaint or callbacks due (its own refresh hands the repaint to the active screen, and
-    leaves itself marked for one more: not counted, or this would never end); any other
-    with callbacks due (its timer runs only those)."""
-    current = app.screen
-    shown = app._background_screens
-    due = []
-    for screen in app.screen_stack:
-        if screen is current:
-            pending = screen_pending(screen)
-        elif screen in shown:
-            pending = (screen._layout_required or screen._dirty_widgets
-                       or screen._callbacks or screen._recompose_required)
-        else:
-            pending = screen._callbacks
-        if pending:
-            due.append(screen)
-    return due
-
-
-def messages_pending(app) -> str:
+def messages_pending(app: App[Any]) -> str:
     """A node (on any screen of the stack, or the app) with messages or callbacks queued."""
-    nodes = [app]
+    nodes: list[MessagePump] = [app]
     for each in app.screen_stack:
         nodes.extend(each.walk_children(with_self=True))
     for node in nodes:
-        if not node._message_queue.empty() or node._next_callbacks:
+        if node.message_queue_size or next_callbacks_due(node):
             return f"{node!r}: messages pending"
     return ""
 
 
-def busy(app) -> str:
+def busy(app: App[Any]) -> str:
     """What the app has left to do that a test could be waiting for ('' if nothing)."""
     for screen in refresh_due(app):
         return f"{screen!r}: layout, repaint or callbacks pending"
@@ -92,20 +70,49 @@ def busy(app) -> str:
     for worker in app.workers:
         if worker.state in (WorkerState.PENDING, WorkerState.RUNNING):
             return f"worker {worker.name!r} running"
-    animator = app.animator
-    if animator._animations or animator._scheduled:
-        return f"animations {list(animator._animations) or list(animator._scheduled)}"
     return ""
 
 
-async def drain(pilot: Pilot) -> None:
+def ending(app: App[Any]) -> bool:
+    """The app was told to exit (it has a return code), or is no longer running."""
+    return app.return_code is not None or not app.is_running
+
+
+async def handled(app: App[Any]) -> None:
+    """Until the app and every node of its active screen have handled what was queued to
+    them before now (a callback queued behind it on each, ``call_later``), or the app ends.
+    The wall clock only notices an app that ended meanwhile (its nodes answer no more), and
+    a hang."""
+    done = asyncio.Event()
+    count = 0
+
+    def one_less() -> None:
+        nonlocal count
+        count -= 1
+        if count == 0:
+            done.set()
+
+    for node in (app, *app.screen.walk_children(with_self=True)):
+        if node.call_later(one_less):
+            count += 1
+    started = time.monotonic()
+    while count and not done.is_set():
+        if ending(app):
+            return
+        if time.monotonic() - started > SCREEN_HANG_GUARD_S:
+            raise WaitTimeout(f"the app's nodes did not answer in {SCREEN_HANG_GUARD_S:g} s")
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(done.wait(), timeout=0.1)
+
+
+async def drain(pilot: Pilot[Any]) -> None:
     """Let the app process everything it has queued, and lay out and repaint its screen."""
     app = pilot.app
     doing = ""
     for _ in range(MAX_ROUNDS):
-        if app._exit or not app.is_running:
+        if ending(app):
             return  # the app is ending: nothing more to wait for
-        await pilot._wait_for_screen(timeout=SCREEN_HANG_GUARD_S)
+        await handled(app)
         await asyncio.sleep(0)  # workers and tasks get their turn
         # Messages first: the screen is laid out and painted once they are all handled
         # (what its refresh timer would do, VirtualDriver.hold), so that one layout and one
@@ -116,34 +123,37 @@ async def drain(pilot: Pilot) -> None:
         due = refresh_due(app)
         if due:
             for screen in due:
-                screen._on_timer_update()
+                refresh(screen)
             continue
         doing = busy(app)
         if not doing:
-            return
+            await app.animator.wait_until_complete()  # none runs in virtual time, as a rule
+            if not busy(app):
+                return
     raise WaitTimeout(f"the app was still busy after {MAX_ROUNDS} rounds: {doing}")
 
 
-async def press(pilot: Pilot, *keys: str) -> None:
+async def press(pilot: Pilot[Any], *keys: str) -> None:
     """Press keys one after the other, each handled (and what it opened drawn) before the
     next; like ``Pilot.press`` without its CPU-idle sleeps."""
     app = pilot.app
     for key in keys:
         event = key_event(key)
         event.set_sender(app)
-        app._driver.send_message(event)
+        app.post_message(event)
         await drain(pilot)
 
 
 def key_event(key: str) -> events.Key:
-    """The event a terminal sends for `key`, built as ``Pilot.press`` builds it."""
+    """The event a terminal sends for `key`, as ``Pilot.press`` builds it: a printable
+    character that is not a letter or digit goes by its Unicode name (``+`` is ``plus``)."""
     if len(key) == 1 and not key.isalnum():
-        key = _character_to_key(key)
-    try:
-        char = unicodedata.lookup(_get_unicode_name_from_key(REPLACED_KEYS.get(key, key)))
-    except KeyError:
-        char = key if len(key) == 1 else None
-    return events.Key(key, char)
+        try:
+            name = unicodedata.name(key).lower().replace("-", "_").replace(" ", "_")
+        except ValueError:  # a control character
+            name = ASCII_KEY_NAMES.get(key, key)
+        key = KEY_NAME_REPLACEMENTS.get(name, name)
+    return events.Key(key, key_to_character(REPLACED_KEYS.get(key, key)))
 
 
 async def click(pilot: Pilot, selector: str, x: int = 0, y: int = 0) -> bool:
@@ -164,7 +174,7 @@ async def click(pilot: Pilot, selector: str, x: int = 0, y: int = 0) -> bool:
     for cls in (events.MouseDown, events.MouseUp, events.Click):
         kwargs = {**arguments, "chain": 1} if cls is events.Click else arguments
         app.mouse_position = point
-        screen._forward_event(cls(**kwargs))
+        forward_mouse_event(screen, cls(**kwargs))
         await drain(pilot)
     return True
 

@@ -28,7 +28,10 @@ class HmiCommands(Provider):
     """Offers the app's palette entries; fuzzy search on their titles."""
 
     def _entries(self) -> list[PaletteEntry]:
-        entries = getattr(self.app, "palette_entries", None)
+        """The entries of the screen the palette was opened on (the trends have their own),
+        else the app's."""
+        entries = getattr(self.screen, "palette_entries", None) or \
+            getattr(self.app, "palette_entries", None)
         return list(entries()) if entries else []
 
     def _run(self, entry: PaletteEntry) -> Callable[[], object]:

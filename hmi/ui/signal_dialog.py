@@ -24,6 +24,7 @@ KIND_WORDS = {"input": "input", "output": "output (written)", "fov": "output FOV
 
 
 class SignalDialog(Dialog[tuple[str, ...] | None]):
+    TITLE_TEXT = "Chronogram signals"
     BINDINGS = [
         Binding("escape", "cancel", "Cancel"),
         Binding("space", "toggle", "Tick / untick", priority=True),
@@ -48,7 +49,7 @@ class SignalDialog(Dialog[tuple[str, ...] | None]):
 
     def compose(self) -> ComposeResult:
         with Vertical(classes="dialog dialog-wide"):
-            yield Static(banner("Chronogram signals", Level.NORMAL), classes="dialog-title")
+            yield Static(banner(self.TITLE_TEXT, Level.NORMAL), classes="dialog-title")
             yield OptionList(*(Option(self._prompt(s), id=s.name) for s in self.signals),
                              id="signals")
             yield Label("space: tick / untick    enter: done    esc: cancel",

@@ -5,8 +5,8 @@
     device.py   what every device offers; valve.py, conveyor.py, ... the models
 
 Importing this package imports no device model. ``from hmi.plant.sim.plant import SimPlant`` (and
-``Injection``, ``parse_injection``) still works, resolved on use: the module was
-hmi/plant/sim/plant.py until issue 14 (phase A; the alias goes in phase B).
+``Injection``, ``parse_injection``) still works, resolved on use: an alias for the code that
+still imports it by that name.
 """
 
 from __future__ import annotations

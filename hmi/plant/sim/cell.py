@@ -10,7 +10,7 @@ clears both: the drives move again and the sensors read the truth, from where th
 A subclass may also say, after a step, for how many steps the next ones will only move things
 on in a straight line (:meth:`_plan_glide`: boxes gliding on a belt, clocks running): those
 steps then run as the glide's cheap :meth:`Glide.move`, with the sensors it kept, for exactly
-the same result as :meth:`_step` (issue 18: a step costs little while the cell only glides),
+the same result as :meth:`_step` (a step costs little while the cell only glides),
 several at once when one advance spans several steps.
 """
 
@@ -126,7 +126,7 @@ class SteppedCell(SimDevice):
         """The cell's physics was changed by hand (anything but its own methods: a box placed
         or moved, a travel moved): the glide it was in ends, the next step is a full one.
         Why a call and not a check at every step: comparing all a glide relies on with what
-        the cell holds was about a quarter of the palletizer's simulated time (issue 18)."""
+        the cell holds was about a quarter of the palletizer's simulated time."""
         self._glide = None
         self._vouched = None
 

@@ -10,7 +10,7 @@ be the suction tank: a recirculation). Water comes from the tank `suction`; belo
 step of the plant (one scan) from the valves' positions at the end of the step, in integer
 nanolitres (hmi/plant/sim/tank.py). The openings are exact fractions (:func:`opening`); a step
 computes with their numerators over one common denominator, in integers, for the very same
-results at a fraction of the cost (issue 18: the plant runs at every scan).
+results at a fraction of the cost (the plant runs at every scan).
 
 The order ``P`` starts and stops it; the sensor ``run`` is its running feedback (an auxiliary
 contact of the motor contactor).

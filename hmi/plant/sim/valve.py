@@ -22,7 +22,7 @@ Between two changes of its dynamics (a mark, a switch edge, the stall limit, a g
 :meth:`Valve._next_boundary`) the valve only glides: its position moves on in a straight line,
 or its stall clock runs, and its sensors stay as they are. After each advance it plans that
 glide (:meth:`Valve._plan_glide`), and an advance or a read that stays inside it moves the
-valve there at once (issue 18: the plant reads the valve at every scan, and its physics'
+valve there at once (the plant reads the valve at every scan, and its physics'
 step, calls and dictionary were over a quarter of the valve project's scan).
 """
 

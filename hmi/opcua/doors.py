@@ -1,0 +1,182 @@
+"""The OPC UA server's doors: who may open a session, and how much a client may ask.
+
+asyncua activates a session synchronously, on the loop that also publishes the cell: a
+password check there (argon2, ~50 ms) would freeze publishing for every client while
+anyone guesses. So each ActivateSession request is looked at *before* asyncua handles it
+(:class:`CellProcessor`, asyncua's per-connection processor with one method more): the
+identity token is decrypted and checked in the sign-in threads (hmi.access.signin), and
+asyncua's own activation then only reads the verdict (:func:`verdict`). The same look
+refuses what the token policy forbids: a password that comes in clear text on a channel
+that does not encrypt (asyncua would take it), an untrusted user certificate (asyncua would
+open an anonymous session), a user who already has the sessions the users file allows.
+
+The limits (:func:`apply_limits`): connections and sessions at once, the time a connection
+may stay without an activated session (a socket that never says HEL included), the
+subscriptions, and the shortest publishing interval granted (the cell's own: faster brings
+nothing and costs the server).
+"""
+
+from __future__ import annotations
+
+import contextvars
+import logging
+from collections.abc import Awaitable, Callable
+from typing import Any
+
+from asyncua import ua
+from asyncua.server import binary_server_asyncio
+from asyncua.server.internal_server import InternalServer
+from asyncua.server.internal_session import InternalSession
+from asyncua.server.uaprocessor import UaProcessor
+from asyncua.ua.object_ids import ObjectIds
+from asyncua.ua.status_codes import StatusCodes
+from asyncua.ua.ua_binary import nodeid_from_binary, struct_from_binary
+
+from hmi.access.sessions import SessionTable
+from hmi.opcua.users import ANONYMOUS, Identity, TrustList, Users
+
+log = logging.getLogger("hmi.opcua")
+
+MAX_CONNECTIONS = 32  # TCP connections at once, sessions or not
+MAX_SESSIONS = 16  # activated sessions at once
+ACTIVATION_S = 10.0  # a connection without an activated session after this is closed
+MAX_SUBSCRIPTIONS = 64
+MAX_MESSAGES_QUEUED = 64  # parsed requests waiting per connection
+
+# (identity or None, why not): what the look before activation decided, for get_user.
+_verdict: contextvars.ContextVar[tuple[Identity | None, str] | None] = \
+    contextvars.ContextVar("opcua_verdict", default=None)
+
+_ACTIVATE = ua.NodeId(ua.Int32(ObjectIds.ActivateSessionRequest_Encoding_DefaultBinary))
+_CLOSE = ua.NodeId(ua.Int32(ObjectIds.CloseSessionRequest_Encoding_DefaultBinary))
+_CREATE = ua.NodeId(ua.Int32(ObjectIds.CreateSessionRequest_Encoding_DefaultBinary))
+ENCRYPTED = ua.MessageSecurityMode.SignAndEncrypt
+
+Gate = Callable[["CellProcessor", ua.ActivateSessionParameters],
+                Awaitable[tuple[Identity | None, str]]]
+
+
+def verdict() -> tuple[Identity | None, str] | None:
+    return _verdict.get()
+
+
+class CellProcessor(UaProcessor):
+    """asyncua's processor of one connection, which looks at ActivateSession first."""
+
+    gate: Gate | None = None  # set by the server (one per process: one server per process)
+    trust: TrustList | None = None  # the client applications trusted on a secured channel
+    released: Callable[[str], None] | None = None  # a session's user gave it up
+    ticket: str | None = None  # this connection's entry in the sessions table
+
+    async def process_message(self, seqhdr: Any, body: Any) -> Any:
+        handle: Callable[[Any, Any], Awaitable[Any]] = super().process_message
+        gate = type(self).gate
+        if gate is None:
+            return await handle(seqhdr, body)
+        peek = body.copy()
+        typeid = nodeid_from_binary(peek)
+        if typeid == _CREATE and not self._trusted():
+            header = struct_from_binary(ua.RequestHeader, peek)
+            fault = ua.ServiceFault()
+            fault.ResponseHeader.ServiceResult = ua.StatusCode(
+                ua.UInt32(StatusCodes.BadCertificateUntrusted))
+            send: Callable[[Any, Any, Any], None] = self.send_response
+            send(header.RequestHandle, seqhdr, fault)
+            return True
+        if typeid == _ACTIVATE:
+            struct_from_binary(ua.RequestHeader, peek)
+            params = struct_from_binary(ua.ActivateSessionParameters, peek)
+            token = _verdict.set(await gate(self, params))
+            try:
+                return await handle(seqhdr, body)
+            finally:
+                _verdict.reset(token)
+        if typeid == _CLOSE:
+            self.release()
+        return await handle(seqhdr, body)
+
+    def _trusted(self) -> bool:
+        """A secured channel's client application must be in the trust list (on a None
+        channel its certificate proves nothing and is not looked at, as Part 4 says)."""
+        policy = self._connection.security_policy
+        trust = type(self).trust
+        if trust is None or policy.Mode == ua.MessageSecurityMode.None_:
+            return True
+        der = policy.peer_certificate
+        if der and trust.check(bytes(der)):
+            return True
+        log.warning("OPC UA client refused: its application certificate is not trusted (kept "
+                    "in %s for review; plchmi opcua trust FILE trusts it)",
+                    trust.rejected_folder)
+        return False
+
+    def release(self) -> None:
+        ticket, self.ticket = self.ticket, None
+        if ticket is not None and type(self).released is not None:
+            type(self).released(ticket)  # type: ignore[misc]
+
+    async def close(self) -> None:
+        self.release()
+        close: Callable[[], Awaitable[None]] = super().close
+        await close()
+
+
+def install(gate: Gate, released: Callable[[str], None], trust: TrustList) -> None:
+    """Every new connection of the process's OPC UA server gets a CellProcessor."""
+    CellProcessor.gate = gate
+    CellProcessor.released = released
+    CellProcessor.trust = trust
+    setattr(binary_server_asyncio, "UaProcessor", CellProcessor)  # noqa: B010
+
+
+def make_gate(users: Users, sessions: SessionTable | None, per_user: int) -> Gate:
+    async def gate(processor: CellProcessor, params: ua.ActivateSessionParameters
+                   ) -> tuple[Identity | None, str]:
+        token = params.UserIdentityToken
+        mode = processor._connection.security_policy.Mode
+        if isinstance(token, ua.UserNameIdentityToken):
+            if not token.EncryptionAlgorithm and mode != ENCRYPTED:
+                return None, ("a password sent in clear text on a channel that does not "
+                              "encrypt: refused (the token policy asks for it encrypted with "
+                              "the server's certificate)")
+            session = processor.session
+            if session is None:
+                return None, "no session to activate"
+            try:
+                name, password = processor.iserver.decrypt_user_token(session, token)
+            except Exception:
+                return None, "the password could not be decrypted"
+            found, why = await users.check_password(str(name or ""), str(password or ""))
+        elif isinstance(token, ua.X509IdentityToken):
+            found, why = users.check_certificate(bytes(token.CertificateData or b""))
+        else:
+            return ANONYMOUS, ""
+        if found is None or found.name is None:
+            log.warning("OPC UA session refused: %s", why)
+            return None, why
+        if sessions is not None and processor.ticket is None:
+            opened, why = sessions.open(found.name, "opcua", per_user)
+            if opened is None:
+                log.warning("OPC UA session refused: %s", why)
+                return None, why
+            processor.ticket = opened.id
+        return found, ""
+    return gate
+
+
+def apply_limits(iserver: InternalServer, min_interval_ms: float) -> None:
+    iserver.max_connections = MAX_CONNECTIONS
+    iserver.max_pending_activation_seconds = ACTIVATION_S
+    iserver.max_subscriptions = MAX_SUBSCRIPTIONS
+    iserver.max_pending_messages_per_connection = MAX_MESSAGES_QUEUED
+    InternalSession.max_connections = MAX_SESSIONS
+    service = iserver.subscription_service
+    create = service.create_subscription
+
+    async def create_subscription(params: ua.CreateSubscriptionParameters, *args: Any,
+                                  **kwargs: Any) -> ua.CreateSubscriptionResult:
+        if not params.RequestedPublishingInterval >= min_interval_ms:  # NaN too
+            params.RequestedPublishingInterval = min_interval_ms
+        return await create(params, *args, **kwargs)
+
+    service.create_subscription = create_subscription  # type: ignore[method-assign]

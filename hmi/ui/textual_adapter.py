@@ -1,0 +1,276 @@
+"""Textual's private members that plchmi relies on: every one of them is used here, and only
+here, behind a name that says what plchmi needs of it.
+
+Textual has no public interface for these. tests/test_textual_adapter.py checks each one
+against the installed Textual (it exists, and does what the code below counts on), so a
+release that renames or changes one fails there, naming the member, rather than in an
+operator's HMI or as a test that hangs; it also checks that no other module
+touches a private member of Textual. The Textual versions they were checked with are
+pyproject.toml's range.
+
+1. Containing errors: ``MessagePump._dispatch_message``, where every event and message of a
+   node is handled (:class:`GuardedDispatch`), and ``App._handle_exception``, Textual's
+   last resort before it ends the app (:class:`LastResort`).
+2. Scrolling to new lines: ``Widget._scroll_update``, the first moment a new virtual size
+   has its place (:class:`VirtualSizeHook`).
+3. The CSS parse: ``Stylesheet._parse_rules`` with the stylesheet's ``_parse_cache`` and
+   ``_variables`` (hmi/ui/csscache.py keeps parsed rules across starts).
+4. Screens refreshed in virtual time: the screen's refresh timer (``Screen.__update_timer``,
+   created at first use) and what it runs, ``Screen._on_timer_update``, with what that would
+   do (``_layout_required``, ``_repaint_required``, ``_recompose_required``,
+   ``_dirty_widgets``, ``_callbacks``); and a node's ``_next_callbacks`` (run after its
+   current message).
+5. Painting headless: ``Screen._compositor_refresh`` and the screen's ``_compositor`` (its
+   ``_dirty_regions``, ``render_update``), ``App._update_mouse_over``.
+6. The footer: a node's reactive watchers (``__watchers``) and whether a node is closed
+   (``_closing``/``_closed``), so that the footer drops the keys it removed; its keys'
+   class, ``FooterKey`` (``textual.widgets._footer``), and whether it may build them yet
+   (``Footer._bindings_ready``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from functools import partial
+from typing import Any
+
+from rich.console import RenderableType
+from textual.app import App
+from textual.css.stylesheet import Stylesheet
+from textual.message import Message
+from textual.message_pump import MessagePump
+from textual.screen import Screen
+from textual.widgets import Footer
+from textual.widgets._footer import FooterKey as FooterKey
+
+# -- 1. containing errors ------------------------------------------------------------------
+
+
+class GuardedDispatch:
+    """Mixin for a Textual node: :meth:`handler_failed` hears every exception one of its
+    handlers raises; it returns True if it dealt with it, else the exception goes on to
+    Textual (which ends the app)."""
+
+    async def _dispatch_message(self, message: Message) -> None:
+        try:
+            await super()._dispatch_message(message)  # type: ignore[misc]
+        except Exception as exc:
+            if not self.handler_failed(message, exc):
+                raise
+
+    def handler_failed(self, message: Message, error: Exception) -> bool:
+        return False
+
+
+class LastResort:
+    """Mixin for the app: :meth:`last_resort` hears an error that reached Textual's last
+    resort (an error in its own widgets, the compositor, a timer's callback), before
+    Textual ends the app."""
+
+    def _handle_exception(self, error: Exception) -> None:
+        self.last_resort(error)
+        super()._handle_exception(error)  # type: ignore[misc]
+
+    def last_resort(self, error: Exception) -> None:
+        pass
+
+
+# -- 2. scrolling to new lines ------------------------------------------------------------
+
+
+class VirtualSizeHook:
+    """Mixin for a scrolling widget: :meth:`virtual_size_placed` is called once a new virtual
+    size has its place (scroll bars and scroll limits updated), the first moment scrolling
+    to the new lines reaches them."""
+
+    def _scroll_update(self, virtual_size: Any) -> None:
+        super()._scroll_update(virtual_size)  # type: ignore[misc]
+        self.virtual_size_placed()
+
+    def virtual_size_placed(self) -> None:
+        pass
+
+
+# -- 3. the CSS parse ----------------------------------------------------------------------
+
+ParseRules = Callable[..., list[Any]]
+
+
+def parse_rules() -> ParseRules:
+    """Textual's own method that parses a CSS text into rules."""
+    method: ParseRules = Stylesheet.__dict__["_parse_rules"]
+    return method
+
+
+def set_parse_rules(method: ParseRules) -> None:
+    """Every stylesheet parses with `method` (``Stylesheet._parse_rules``) from now on."""
+    Stylesheet._parse_rules = method  # type: ignore[method-assign]
+
+
+def parse_cache(stylesheet: Stylesheet) -> Any:
+    """The stylesheet's own cache of parsed rules (``get``, ``[key] = rules``), by (css,
+    read_from, is_default_rules, tie_breaker, scope)."""
+    return stylesheet._parse_cache
+
+
+def css_variables(stylesheet: Stylesheet) -> dict[str, str]:
+    """The variables the stylesheet substitutes into the CSS it parses."""
+    variables: dict[str, str] = stylesheet._variables
+    return variables
+
+
+# -- 4. screens refreshed in virtual time --------------------------------------------------
+
+
+class _HeldTimer:
+    """A screen's refresh timer that never fires (see :func:`hold_refresh`)."""
+
+    def pause(self) -> None:
+        pass
+
+    def resume(self) -> None:
+        pass
+
+
+HELD = _HeldTimer()
+
+
+def hold_refresh(screen: Screen[Any]) -> None:
+    """The screen lays out, paints and runs its after-refresh callbacks only when
+    :func:`refresh` says so, never on its refresh timer (Textual's one thing paced by the
+    clock, 1/60 s after a change). Call before the screen first refreshes."""
+    screen._Screen__update_timer = HELD  # type: ignore[attr-defined]
+
+
+def refresh(screen: Screen[Any]) -> None:
+    """What the screen's refresh timer would do now: lay out, paint, run the callbacks due
+    after a refresh."""
+    screen._on_timer_update()
+
+
+def refresh_due(app: App[Any]) -> list[Screen[Any]]:
+    """The screens whose refresh would do something now: the active one with a layout, a
+    repaint, a recompose, a widget to repaint or callbacks due; one shown under a dialog with
+    a layout, a widget to repaint, a recompose or callbacks due (its own refresh hands the
+    repaint to the active screen and leaves itself marked for one more: not counted, or
+    this would never end); any other with callbacks due (its timer runs only those)."""
+    current = app.screen
+    shown = background_screens(app)
+    due = []
+    for screen in app.screen_stack:
+        if screen is current:
+            pending = (screen._layout_required or screen._repaint_required
+                       or screen._dirty_widgets or screen._callbacks
+                       or screen._recompose_required)
+        elif screen in shown:
+            pending = (screen._layout_required or screen._dirty_widgets
+                       or screen._callbacks or screen._recompose_required)
+        else:
+            pending = screen._callbacks
+        if pending:
+            due.append(screen)
+    return due
+
+
+def next_callbacks_due(node: MessagePump) -> bool:
+    """The node has callbacks to run after its current message (``call_next``)."""
+    return bool(node._next_callbacks)
+
+
+def background_screens(app: App[Any]) -> list[Screen[Any]]:
+    """The screens shown under the active one (a dialog's translucent background), lowest
+    first: those below it up to the first with an opaque background."""
+    screens: list[Screen[Any]] = []
+    for screen in reversed(app.screen_stack[:-1]):
+        screens.append(screen)
+        if screen.styles.background.a == 1:
+            break
+    return screens[::-1]
+
+
+# -- 5. painting headless ------------------------------------------------------------------
+
+MOST_DIRTY = 64  # regions kept to repaint; beyond, the whole screen's region instead
+
+
+def _unseen_refresh(screen: Screen[Any]) -> None:
+    """``Screen._compositor_refresh`` without the paint, for a headless screen: what is to be
+    repainted is kept for :func:`paint_changes`; the rest is Textual's (the screen under a
+    dialog passes its changes up, the mouse-over is updated)."""
+    app = screen.app
+    if screen is app.screen:
+        screen._dirty_widgets.clear()
+        dirty = screen._compositor._dirty_regions
+        if len(dirty) > MOST_DIRTY:
+            dirty.clear()
+            dirty.add(screen._compositor.size.region)
+        app._update_mouse_over(screen)
+    else:
+        Screen._compositor_refresh(screen)
+
+
+def paint_later(screen: Screen[Any]) -> None:
+    """The screen's layouts do not paint (a headless terminal throws every paint away):
+    what changed is kept, for :func:`paint_changes` or a full render."""
+    screen._compositor_refresh = partial(_unseen_refresh, screen)  # type: ignore[method-assign]
+
+
+def paint_changes(app: App[Any]) -> bool:
+    """Paint what changed on the active screen since it was last painted, as its refresh
+    would have on a terminal; True if there was anything."""
+    screen = app.screen
+    compositor = screen._compositor
+    if not compositor._dirty_regions:
+        return False
+    compositor.render_update(screen_stack=background_screens(app))
+    return True
+
+
+def render_screen(app: App[Any]) -> RenderableType:
+    """The whole active screen as the terminal would show it (with what shows under a
+    dialog), rendered now."""
+    rendered: RenderableType = app.screen._compositor.render_update(
+        full=True, screen_stack=background_screens(app))
+    return rendered
+
+
+# -- 6. reactive watchers ------------------------------------------------------------------
+
+
+def drop_closed_watchers(node: MessagePump) -> None:
+    """Forget the watchers of `node`'s reactives that belong to closed nodes: Textual prunes
+    them only when the reactive changes (a footer recomposed at every change of bindings
+    kept every key it ever showed alive)."""
+    watchers = getattr(node, "__watchers", None)
+    if not watchers:
+        return
+    for entries in watchers.values():
+        entries[:] = [(owner, callback) for owner, callback in entries
+                      if not (owner._closing or owner._closed)]
+
+
+def set_bindings_ready(footer: Footer) -> None:
+    """The footer may compose its keys (Textual's own ``bindings_changed`` says so; a footer
+    that replaces it must too)."""
+    footer._bindings_ready = True
+
+
+def bindings_ready(footer: Footer) -> bool:
+    """Whether the footer's compose builds keys yet (it builds none before the first change of
+    bindings)."""
+    return bool(footer._bindings_ready)
+
+
+# -- public replacements, kept here with the rest of what plchmi assumes of Textual ---------
+
+
+def event_clock() -> float:
+    """Now, on the clock Textual stamps its events with (``Message.time``)."""
+    return Message().time
+
+
+def forward_mouse_event(screen: Screen[Any], event: Any) -> None:
+    """Hand a mouse event to the widget under it, as the app does with one from the terminal
+    (``Screen._forward_event``), but without the app making a click of a press and a release
+    by the wall clock's click-chain timing."""
+    screen._forward_event(event)
