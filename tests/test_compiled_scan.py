@@ -1,7 +1,8 @@
-"""The compiled scan (hmi/engine/compiled.py) against the interpreter it replaces.
+"""The compiled scan (hmi/engine/compiled.py: the scan program printed as Python) against the
+program's evaluator (hmi/program/evaluate.py), the reference.
 
-Every example project runs twice on its simulated plant, once with the compiled scan and once
-with the stage objects alone (``Engine(compiled=False)``), under the same seeded random
+Every example project runs twice on its simulated plant, once with the printed scan program
+and once with its evaluator (``Engine(compiled=False)``), under the same seeded random
 script: a control variant, a policy and a diagnosis mode drawn at the start, then operator
 commands at random scans (manual mode and manual orders, policy changes, fault injections
 and repairs, fault resets, devices stopped and released, recoveries started and left).
@@ -84,7 +85,7 @@ def twin_run(name: str, seed: int) -> int:
     diagnosis = rng.choice(MODES)
     engines = [Engine(project, SimPlant(project), control=control, policy=policy,
                       diagnosis=diagnosis, compiled=flag) for flag in (True, False)]
-    assert engines[0].compiled is not None and engines[1].compiled is None
+    assert engines[0].compiled.python and not engines[1].compiled.python
     engines[1].filter.remember = False  # the reference searches every correction afresh
     period = project.scan_period_us
     seen: tuple[int, tuple] | None = None
@@ -108,7 +109,7 @@ def check_active_bits(engine: Engine) -> None:
     """The generated active_bits (the corrector's memory key) against the contexts as the
     filter evaluates them."""
     f, image, history = engine.filter, engine.image, engine.history
-    assert engine.compiled is not None
+    assert engine.compiled.active_bits is not None
     expected = sum(1 << k for k, c in enumerate(f.compiled)
                    if c.context is None or c.context(image, history))
     assert engine.compiled.active_bits(image, history) == expected
@@ -150,8 +151,7 @@ def test_advance_leaves_the_same_state_as_step(name):
 @pytest.mark.parametrize("name", ("cispi_valve", "cispi_subsystem"))
 def test_a_restored_state_runs_as_in_the_interpreter(name):
     """Engine.restore (the explorer's) puts back GRAFCET activation times from before later
-    firings: the compiled scan, which moves only the active steps' times
-    (GrafcetRuntime.timed), then writes every step time again, as the interpreter does."""
+    firings, and the image's step times with them: both forms go on from there alike."""
     project = load(PROJECTS / name)
     engines = [Engine(project, SimPlant(project), compiled=flag) for flag in (True, False)]
     period = project.scan_period_us
@@ -178,8 +178,11 @@ def test_generated_code_holds_only_slots_constants_and_operators():
         project = load(PROJECTS / name)
         for control in project.controls:
             engine = Engine(project, SimPlant(project), control=control)
-            assert engine.compiled is not None and engine.compiled.sources
+            assert engine.compiled.sources
             assert engine.compiled.held is not None  # (built at manual mode's first scan)
+            assert engine.compiled.observed is not None
+            for procedure in recoveries_of(project):
+                assert engine.compiled.recovery(procedure.name) is not None
             assert any(text.startswith("def held(") for text in engine.compiled.sources)
             for text in engine.compiled.sources:
                 for tok in tokenize.generate_tokens(io.StringIO(text).readline):

@@ -85,3 +85,58 @@ def test_an_assignment_in_both_forms():
             image = [s, False, not s]
             run(image, 0)
             assert image[2] == s, form
+
+
+class _Handler:
+    """What an engine frame calls: a method that raises when told to (step), one that
+    records (take); named as the checker of generated code allows."""
+
+    def __init__(self) -> None:
+        self.seen: list[object] = []
+
+    def step(self, x: int) -> int:
+        if x < 0:
+            raise KeyError(x)
+        if x == 0:
+            raise ValueError("zero")
+        return x + 1
+
+    def take(self, what: object) -> None:
+        self.seen.append(what)
+
+
+@pytest.mark.parametrize("x", [-1, 0, 1, 5])
+def test_try_and_return_in_both_forms(x):
+    """An engine frame's Try (handlers tried in order, the exception bound to a local, the
+    rest of the body skipped) and Return (leaving the function from inside a Try's body or
+    a handler) mean the same in the evaluator and in the printed Python; an exception no
+    handler names goes out of both."""
+    from hmi.engine.codegen import build_function
+    from hmi.program import ir
+    from hmi.program.evaluate import function_evaluator
+
+    results = []
+    for form in ("evaluator", "python"):
+        handler = _Handler()
+        y, exc = ir.Local("y"), ir.Local("exc")
+        body = (
+            ir.Try((ir.Assign(y, ir.Call(handler, "step", (ir.Local("x"),))),
+                    ir.If(ir.Compare(">", y, ir.Const(3)), (ir.Return(y),)),
+                    ir.Do(ir.Call(handler, "take", (y,)))),
+                   ((ValueError, "exc", (ir.Do(ir.Call(handler, "take", (exc,))),
+                                         ir.Return(ir.Const(7)))),)),
+            ir.Do(ir.Call(handler, "take", (ir.Const(99),))),
+        )
+        function = ir.Function("frame", ("x",), body, ir.Const(0))
+        run = (function_evaluator(function, {}, {}) if form == "evaluator"
+               else build_function(function, {}, {}, "test_program"))
+        try:
+            result: object = run(x)
+        except KeyError as raised:
+            result = ("raised", raised.args)
+        results.append((result, [s if isinstance(s, int) else repr(s)
+                                 for s in handler.seen]))
+    assert results[0] == results[1]
+    expected = {-1: (("raised", (-1,)), []), 0: (7, ["ValueError('zero')"]),
+                1: (0, [2, 99]), 5: (6, [])}
+    assert results[0] == expected[x]

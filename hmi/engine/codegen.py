@@ -87,18 +87,51 @@ class Source:
         return "".join(f", k{n}=k{n}" for n in range(len(self.objects)))
 
 
+def build_function(function: ir.Function, slots: Mapping[str, int],
+                   times: Mapping[str, int], label: str) -> Callable[..., Any]:
+    """`function` printed as Python and built (:func:`build`)."""
+    src = Source()
+    if function.body:
+        print_program(src, function.body, 1, slots, times)
+    if function.result is not None:
+        src.line(1, f"return {_value_source(src, function.result, slots, times)}")
+    return build(src, function.name, ", ".join(function.params),
+                 f"<plchmi compiled {function.name}: {label}>")
+
+
 def print_program(src: Source, program: tuple[ir.Stmt, ...], indent: int,
                   slots: Mapping[str, int], times: Mapping[str, int]) -> None:
     """`program`'s statements as Python lines of `src` (the compiled scan's printer of the
-    scan program, hmi.program.ir): a cell is an attribute of the object handed over, an
-    ``if`` whose else branch is one ``if`` an ``elif``."""
+    scan program, hmi.program.ir): a cell is an attribute of the object handed over, a
+    handler's call a method call, an ``if`` whose else branch is one ``if`` an ``elif``, a
+    switch a tree of comparisons (a chain up to three cases)."""
+    if not program:
+        src.line(indent, "pass")
+        return
     for stmt in program:
         if isinstance(stmt, ir.If):
             src.line(indent, f"if {_value_source(src, stmt.test, slots, times)}:")
             _print_branches(src, stmt, indent, slots, times)
-            continue
-        src.line(indent, f"{_value_source(src, stmt.target, slots, times)} = "
-                         f"{_value_source(src, stmt.value, slots, times)}")
+        elif isinstance(stmt, ir.Switch):
+            if not isinstance(stmt.value, ir.Local):
+                raise TypeError("a switch selects on a local")
+            cases = sorted(stmt.cases)
+            if len({key for key, _ in cases}) != len(cases):
+                raise ValueError("a switch with a case twice")
+            _print_switch(src, stmt.value.name, cases, stmt.default, indent, slots, times)
+        elif isinstance(stmt, ir.Do):
+            src.line(indent, _value_source(src, stmt.call, slots, times))
+        elif isinstance(stmt, ir.Return):
+            src.line(indent, f"return {_value_source(src, stmt.value, slots, times)}")
+        elif isinstance(stmt, ir.Try):
+            src.line(indent, "try:")
+            print_program(src, stmt.body, indent + 1, slots, times)
+            for kind, name, handler in stmt.handlers:
+                src.line(indent, f"except {src.ref(kind)} as {name}:")
+                print_program(src, handler, indent + 1, slots, times)
+        else:
+            src.line(indent, f"{_value_source(src, stmt.target, slots, times)} = "
+                             f"{_value_source(src, stmt.value, slots, times)}")
 
 
 def _print_branches(src: Source, stmt: ir.If, indent: int, slots: Mapping[str, int],
@@ -113,6 +146,28 @@ def _print_branches(src: Source, stmt: ir.If, indent: int, slots: Mapping[str, i
         print_program(src, orelse, indent + 1, slots, times)
 
 
+def _print_switch(src: Source, name: str, cases: list[tuple[int, tuple[ir.Stmt, ...]]],
+                  default: tuple[ir.Stmt, ...], indent: int, slots: Mapping[str, int],
+                  times: Mapping[str, int]) -> None:
+    """A chain of equality tests for up to three cases, else a comparison with the middle
+    key splitting the cases in two (some log2(n) comparisons instead of n/2)."""
+    if len(cases) <= 3:
+        for k, (key, body) in enumerate(cases):
+            src.line(indent, f"{'if' if k == 0 else 'elif'} {name} == {int(key)}:")
+            print_program(src, body, indent + 1, slots, times)
+        if default and cases:
+            src.line(indent, "else:")
+            print_program(src, default, indent + 1, slots, times)
+        elif default:
+            print_program(src, default, indent, slots, times)
+        return
+    middle = len(cases) // 2
+    src.line(indent, f"if {name} < {int(cases[middle][0])}:")
+    _print_switch(src, name, cases[:middle], default, indent + 1, slots, times)
+    src.line(indent, "else:")
+    _print_switch(src, name, cases[middle:], default, indent + 1, slots, times)
+
+
 def _value_source(src: Source, value: ir.Value, slots: Mapping[str, int],
                   times: Mapping[str, int]) -> str:
     match value:
@@ -120,57 +175,108 @@ def _value_source(src: Source, value: ir.Value, slots: Mapping[str, int],
             return expr_source(node, slots, times)
         case ir.Now():
             return "now"
+        case ir.ScanNumber():
+            return "scan"
+        case ir.TheImage():
+            return "v"
+        case ir.TheHistory():
+            return "h"
         case ir.Const(value=constant):
-            return repr(constant if constant is None or isinstance(constant, bool)
-                        else int(constant))
+            return _constant_source(constant)
         case ir.Local(name=name):
             return name
         case ir.Slot(index=index):
             return f"v[{int(index)}]"
         case ir.Cell(owner=owner, attr=attr):
             return f"{src.ref(owner)}.{attr}"
-        case ir.Sub(left=left, right=right):
-            return (f"{_operand_source(src, left, slots, times)} - "
+        case ir.Ref(obj=obj):
+            return src.ref(obj)
+        case ir.Item(base=base, index=index):
+            return f"{_operand_source(src, base, slots, times)}[{int(index)}]"
+        case ir.Tuple(items=items):
+            return "(" + "".join(f"{_value_source(src, i, slots, times)}, " for i in items) + ")"
+        case ir.Add(left=left, right=right) | ir.Sub(left=left, right=right):
+            sign = "+" if isinstance(value, ir.Add) else "-"
+            return (f"{_operand_source(src, left, slots, times)} {sign} "
                     f"{_operand_source(src, right, slots, times)}")
-        case ir.AtLeast(left=left, right=right):
-            return (f"{_operand_source(src, left, slots, times)} >= "
+        case ir.Compare(op=op, left=left, right=right):
+            if op not in ir.COMPARISONS:
+                raise ValueError(f"not a comparison of the scan program: {op!r}")
+            return (f"{_operand_source(src, left, slots, times)} {op} "
                     f"{_operand_source(src, right, slots, times)}")
         case ir.IsNone(operand=operand):
-            return f"{_value_source(src, operand, slots, times)} is None"
+            return f"{_operand_source(src, operand, slots, times)} is None"
         case ir.Not(operand=operand):
             return f"(not {_value_source(src, operand, slots, times)})"
         case ir.And(operands=operands) | ir.Or(operands=operands):
             word = " and " if isinstance(value, ir.And) else " or "
             return "(" + word.join(_value_source(src, o, slots, times) for o in operands) + ")"
+        case ir.Call(owner=owner, method="__call__", args=args):
+            return (f"{src.ref(owner)}("
+                    + ", ".join(_value_source(src, a, slots, times) for a in args) + ")")
+        case ir.Call(owner=owner, method=method, args=args):
+            return (f"{src.ref(owner)}.{method}("
+                    + ", ".join(_value_source(src, a, slots, times) for a in args) + ")")
     raise TypeError(f"not a value of the scan program: {value!r}")
+
+
+def _constant_source(constant: object) -> str:
+    if constant is None or isinstance(constant, bool):
+        return repr(constant)
+    if isinstance(constant, int):
+        return repr(int(constant))
+    if isinstance(constant, tuple):
+        return "(" + "".join(f"{int(k)}, " for k in constant) + ")"
+    raise TypeError(f"not a constant of the scan program: {constant!r}")
 
 
 def _operand_source(src: Source, value: ir.Value, slots: Mapping[str, int],
                     times: Mapping[str, int]) -> str:
     text = _value_source(src, value, slots, times)
-    return f"({text})" if isinstance(value, ir.Sub | ir.AtLeast | ir.IsNone) else text
+    return f"({text})" if isinstance(value, ir.Add | ir.Sub | ir.Compare | ir.IsNone) \
+        else text
 
 
 # What generated code may contain: the statements and expressions of the templates below.
 _NODES = (ast.Module, ast.FunctionDef, ast.arguments, ast.arg, ast.Return, ast.Assign,
-          ast.AugAssign, ast.If, ast.For, ast.Expr, ast.Name, ast.Load, ast.Store,
+          ast.AugAssign, ast.If, ast.Expr, ast.Name, ast.Load, ast.Store,
           ast.Subscript, ast.Attribute, ast.Constant, ast.BoolOp, ast.And, ast.Or, ast.UnaryOp,
           ast.Not, ast.Compare, ast.Lt, ast.LtE, ast.Gt, ast.GtE, ast.Eq, ast.NotEq, ast.Is,
-          ast.IsNot, ast.Call, ast.Tuple, ast.List, ast.BinOp, ast.Sub, ast.Add, ast.Pass,
-          ast.IfExp, ast.Mult, ast.BitOr, ast.LShift)
+          ast.IsNot, ast.Call, ast.Tuple, ast.BinOp, ast.Sub, ast.Add, ast.Pass, ast.BitOr,
+          ast.LShift, ast.Try, ast.ExceptHandler)
 _ALLOWED = frozenset(_NODES)
 # Local names: the parameters and locals of the templates, the past images bound once
 # (_bind_past), and the objects handed over.
-LOCALS = frozenset({"v", "h", "f", "t", "now", "scan", "r", "s", "q", "x", "a", "b", "c",
-                    "su", "changed", "fire", "moved", "p", "e", "el", "y",
-                    "h0", "h1", "h2", "h3"})
+LOCALS = frozenset({"v", "h", "f", "t", "now", "scan", "s", "q", "x", "b", "c", "ls",
+                    "delta", "su", "changed", "fire", "moved", "p", "e", "el", "y",
+                    "verdict", "h0", "h1", "h2", "h3",
+                    # the automatic mode's frame (hmi.engine.compiled.auto_frame)
+                    "exc", "diag", "report", "error", "monitored", "marks", "events",
+                    "status", "last", "values", "diagnosers", "recovery"})
 _HANDED = re.compile(r"k[0-9]+\Z")
 # Attributes the templates read or set on the objects they are given.
 ATTRIBUTES = frozenset({
-    "since", "q", "get", "current", "routes", "dirty", "step", "last_scan", "last_now",
-    "period", "since_us", "_settle", "needed_since", "check_needed", "needed", "fire",
-    "fired", "timed", "update_times", "phase", "last_us", "x_us", "y_us", "attempt_fault",
-    "watchdog", "_armed", "hld_armed", "refine",
+    # timers
+    "since", "q",
+    # diagnosers
+    "dirty", "last_scan", "last_now", "gap_us", "since_us", "current", "begin", "take",
+    "lost_sight", "settle", "hld_armed", "refine",
+    # GRAFCET
+    "fire", "fired",
+    # recovery
+    "needed_since", "needed", "judge_needed", "held_since", "step", "started_us", "running",
+    "finish", "fail",
+    # monitors
+    "phase", "x_us", "y_us", "last_us", "attempt", "attempt_start_us", "attempt_fault",
+    "changes", "completed", "watchdog", "_armed", "trip", "detect",
+    # the automatic mode's frame (hmi.engine.compiled.auto_frame): the engine, its plant,
+    # its scan record, its stages
+    "_pending", "scan", "now", "latched", "clean_report", "_news", "_commanded",
+    "_auto_lost", "_auto_failed", "_auto_filter", "_write_error", "_monitors_error",
+    "_finish", "_conclude", "read_into", "write_vector", "take_events", "status", "core",
+    "violated", "monitors", "faulty", "deadline", "active", "_idle", "marks", "appendleft",
+    "fov", "outputs", "report", "diagnosis", "monitored", "error", "filter_us", "values",
+    "diagnosers", "events", "recovery", "scan_us", "settled", "manual",
 })
 
 
@@ -193,6 +299,8 @@ def _check(tree: ast.AST) -> None:
             raise ValueError(f"generated code names {node.id!r}")
         if kind is ast.arg and not (node.arg in LOCALS or _HANDED.match(node.arg)):
             raise ValueError(f"generated code has the parameter {node.arg!r}")
+        if kind is ast.ExceptHandler and node.name not in LOCALS:
+            raise ValueError(f"generated code binds {node.name!r}")
         if kind is ast.Attribute and node.attr not in ATTRIBUTES:
             raise ValueError(f"generated code reads .{node.attr}")
         if kind is ast.Constant and not (

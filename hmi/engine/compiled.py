@@ -1,45 +1,53 @@
-"""The compiled scan: a project's stages as generated functions, built once per engine.
+"""The scan program of one engine, per mode, and the two forms that run it.
 
-Why: the stage objects (hmi.engine.stages, diagnoser, control, grafcet, filter, monitors)
-interpret the project at every scan: a closure per expression node, a loop per table. They
-stay, as the reference interpreter, and as the owners of every piece of state. What is
-compiled here is the same work written out flat (hmi.engine.codegen): for the automatic mode,
+Each stage lowers its rules once into the scan program's statements (hmi.program: timers and
+observers, the diagnosers and the reconstruction, which recovery procedures the cell needs,
+the GRAFCET and the equations, the running recovery procedure, the constraints' test, the
+stopwatch monitors); :class:`ScanProgram` puts them in the order of a scan for each mode,
+as functions (hmi.program.ir.Function):
 
-* ``core(v, h, now, scan)``: stage 2 (timers, observers, step times), stage 3's common case
-  (which diagnoser has a transition to fire), stage 4 (reconstruction), which recovery
-  procedures the cell may need, and stage 5 (GRAFCET evolution, continuous actions,
-  equations); it returns the functional output vector;
-* ``held(v, h, now, scan)``: the same in manual mode, where the program waits: neither the
-  step times nor stage 5 (the engine takes the operator's requests); built the first time
-  manual mode needs it, so an engine that never enters manual mode never generates it;
-* ``violated(v, h, f)``: whether the candidate `f` violates any safety constraint (stage 6's
-  first question: most scans violate none, and then the filter has nothing else to do);
-* ``monitors(v, h, now, scan)``: the stopwatch monitors after the output scan; True when an
-  automaton moved;
-* ``elapsed(now)``: the timers' ET for the snapshot;
-* ``active_bits(v, h)``: which constraints are active, the key of the corrector's memory.
+* ``core(v, h, now, scan)``, automatic mode: stage 2 (timers, observers, step times), stage
+  3 (the diagnosers), stage 4 (reconstruction), which recovery procedures the cell needs,
+  and stage 5 (GRAFCET evolution, continuous actions, equations); it returns the functional
+  output vector;
+* ``held(v, h, now, scan)``, manual mode, where the program waits: the same without the
+  step times and without stage 5 (the engine takes the operator's requests);
+* ``observed(v, h, now, scan)``, observing a read-only device: stages 2-4 with the step
+  times, no stage 5 (the device's own outputs are the vector);
+* ``recovery_<k>(v, h, now, scan)``, recovery mode with procedure k running: stages 2-5
+  (the program runs blind), then the procedure's step, whose vector it returns;
+* ``violated(v, h, f)``: whether the candidate `f` violates any safety constraint (stage
+  6's first question: most scans violate none, and then the filter has nothing else to do);
+* ``monitors(v, h, now, scan)``: the stopwatch monitors after the output scan.
 
-Every function works on the stage objects' own state (a timer's ``since``, a diagnoser's
-``current``, a GRAFCET's ``activated_at``) and hands the rare events to the stage's own
-method: a diagnoser transition that fires is fired by ``DiagnoserRuntime.step``, a GRAFCET
-firing by ``GrafcetRuntime.fire``, a violation by the filter itself. So the compiled scan and
-the interpreted one are interchangeable scan by scan (``Engine(..., compiled=False)`` runs
-the interpreter; tests/test_compiled_scan.py runs both on seeded random runs of every
-project and compares them).
+:class:`CompiledScan` holds one form of them: the Python printed from the statements
+(hmi.engine.codegen: slot indices, integer constants and a fixed set of operators, never
+text of a project file), what every engine runs, or the closures of the program's evaluator
+(hmi.program.evaluate), the reference ``Engine(..., compiled=False)`` runs and the tests
+compare with (tests/test_compiled_scan.py). Both work on the stage objects' own state (a
+timer's ``since``, a diagnoser's ``current``, a GRAFCET's activation times) and hand every
+rare event to the stage's own handler: a diagnoser's transition to ``take``, a GRAFCET
+firing to ``fire``, a violation to the filter itself. Functions a mode needs are built the
+first time it does (an engine that never enters manual mode never generates ``held``).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from hmi.engine.codegen import Source, build, expr_source, print_program
-from hmi.engine.diagnoser import GAP_SCANS, DiagnoserRuntime, DiagnosisStage, shift_outputs
-from hmi.engine.stopwatch import Phase
-from hmi.logic.expr import History, Image, Node, Var
+from hmi.engine.codegen import Source, build, build_function, expr_source
+from hmi.engine.diagnoser import NO_DIAGNOSIS
+from hmi.engine.recovery import NO_RECOVERY
+from hmi.logic.expr import History, Image, Var
+from hmi.plant.base import PlantError
+from hmi.program import ir
+from hmi.program.constraints import lower_violated
+from hmi.program.evaluate import function_evaluator
 
 if TYPE_CHECKING:
     from hmi.engine.control import ControlRuntime
+    from hmi.engine.diagnoser import DiagnosisStage
     from hmi.engine.filter import SafetyFilter
     from hmi.engine.layout import Layout
     from hmi.engine.monitors import MonitorStage
@@ -49,217 +57,125 @@ if TYPE_CHECKING:
 CoreFn = Callable[[Image, History, int, int], tuple[bool, ...]]
 HeldFn = Callable[[Image, History, int, int], None]
 ViolatedFn = Callable[[Image, History, tuple[bool, ...]], bool]
-MonitorFn = Callable[[Image, History, int, int], bool]
-ElapsedFn = Callable[[int], tuple[int, ...]]
+MonitorFn = Callable[[Image, History, int, int], None]
 ActiveFn = Callable[[Image, History], int]
 
+SCAN = ("v", "h", "now", "scan")
 
-class CompiledScan:
-    """The generated functions of one engine (see the module docstring)."""
+
+class ScanProgram:
+    """An engine's scan program per mode, assembled from its stages' lowerings (see the
+    module docstring)."""
 
     def __init__(self, layout: Layout, memory: Memory, control: ControlRuntime,
                  diagnosis: DiagnosisStage | None, recovery: RecoveryStage | None,
-                 safety_filter: SafetyFilter, monitors: MonitorStage | None, label: str):
+                 safety_filter: SafetyFilter, monitors: MonitorStage | None):
+        self.outputs = layout.outputs
+        self.memory = memory.program  # timers, observers
+        self.times = control.times  # the GRAFCET's step times
+        self.diagnosis = (diagnosis.program + diagnosis.reconstruction
+                          if diagnosis is not None else ())
+        self.needed = recovery.program if recovery is not None else ()
+        self.law = control.program
+        self._fov = ir.Tuple(tuple(ir.Slot(s) for s in layout.indices(layout.outputs)))
+        self._recovery = recovery
+        self._filter = safety_filter
+        self._monitors = monitors
+
+    def stages(self, times: bool) -> tuple[ir.Stmt, ...]:
+        """Stages 2 to 4 and the recovery procedures needed (the step times or not)."""
+        return (self.memory + (self.times if times else ()) + self.diagnosis
+                + self.needed)
+
+    def core(self) -> ir.Function:
+        return ir.Function("core", SCAN, self.stages(True) + self.law, self._fov)
+
+    def held(self) -> ir.Function:
+        return ir.Function("held", SCAN, self.stages(False))
+
+    def observed(self) -> ir.Function:
+        return ir.Function("observed", SCAN, self.stages(True))
+
+    def recovery(self, name: str) -> ir.Function:
+        """Recovery mode while procedure `name` is the one started."""
+        stage = self._recovery
+        assert stage is not None
+        number = list(stage.procedures).index(name)
+        return ir.Function(f"recovery_{number}", SCAN,
+                           self.stages(True) + self.law + stage.procedures[name].program,
+                           ir.Local("f"))
+
+    def violated(self) -> ir.Function:
+        return ir.Function("violated", ("v", "h", "f"), (),
+                           lower_violated([c.constraint for c in self._filter.compiled],
+                                          self._filter.outputs))
+
+    def monitors(self) -> ir.Function | None:
+        stage = self._monitors
+        return None if stage is None else ir.Function("monitors", SCAN, stage.program)
+
+
+class CompiledScan:
+    """One form of an engine's scan program (see the module docstring): `python` the printed
+    Python, else the evaluator's closures."""
+
+    def __init__(self, layout: Layout, memory: Memory, control: ControlRuntime,
+                 diagnosis: DiagnosisStage | None, recovery: RecoveryStage | None,
+                 safety_filter: SafetyFilter, monitors: MonitorStage | None, label: str,
+                 python: bool = True):
         self.slots = layout.slots
         self.times = layout.step_times
         self.label = label
-        self.sources: list[str] = []  # every function's generated text, in build order
-        self.core: CoreFn = self._core(layout, memory, control, diagnosis, recovery)
-        self._parts = (layout, memory, control, diagnosis, recovery)  # (for `held`)
+        self.python = python
+        self.program = ScanProgram(layout, memory, control, diagnosis, recovery,
+                                   safety_filter, monitors)
+        self.sources: list[str] = []  # every printed function's text, in build order
+        self.core: CoreFn = self._form(self.program.core())
+        self.violated: ViolatedFn = self._form(self.program.violated())
+        monitor = self.program.monitors()
+        self.monitors: MonitorFn | None = self._form(monitor) if monitor is not None else None
+        # the corrector's memory key (SafetyFilter.active_bits), printed (a template of the
+        # filter's own, see _active_bits); the evaluator's form leaves the filter's own
+        self.active_bits: ActiveFn | None = (self._active_bits(safety_filter) if python
+                                             else None)
         self._held: HeldFn | None = None
-        self.violated: ViolatedFn = self._violated(safety_filter)
-        self.active_bits: ActiveFn = self._active_bits(safety_filter)
-        self.monitors: MonitorFn | None = (self._monitors(monitors) if monitors is not None
-                                           else None)
-        self.elapsed: ElapsedFn = self._elapsed(memory)
+        self._observed: HeldFn | None = None
+        self._recoveries: dict[str, CoreFn] = {}
 
-    def _expr(self, node: Node, times: Mapping[str, int] | None = None) -> str:
-        return expr_source(node, self.slots, self.times if times is None else times)
-
-    def _build(self, src: Source, name: str, params: str) -> Callable[..., Any]:
-        fn = build(src, name, params, f"<plchmi compiled {name}: {self.label}>")
+    def _form(self, function: ir.Function) -> Any:
+        if not self.python:
+            return function_evaluator(function, self.slots, self.times)
+        fn = build_function(function, self.slots, self.times, self.label)
         self.sources.append(fn.__doc__ or "")
         return fn
 
-    # -- stages 2 to 5 -----------------------------------------------------------------------
     @property
     def held(self) -> HeldFn:
-        """``held(v, h, now, scan)``: stages 2-4 while the program waits in manual mode (see
-        the module docstring), generated at the first call."""
+        """Manual mode's (see the module docstring), built at the first call."""
         fn = self._held
         if fn is None:
-            fn = self._held = self._core(*self._parts, law=False)
+            fn = self._held = self._form(self.program.held())
         return fn
 
-    def _core(self, layout: Layout, memory: Memory, control: ControlRuntime,
-              diagnosis: DiagnosisStage | None, recovery: RecoveryStage | None,
-              law: bool = True) -> Any:
-        """``core``, or without the program (`law` False: ``held``)."""
-        src = Source()
-        self._memory(src, layout, memory, control, law)
-        if diagnosis is not None:
-            self._diagnosis(src, diagnosis)
-            src.line(1, f"for a, b in {src.ref(diagnosis)}.current.routes:")
-            src.line(2, "v[a] = v[b]")
-        if recovery is not None:
-            self._needed(src, recovery)
-        if not law:
-            return self._build(src, "held", "v, h, now, scan")
-        self._control(src, control)
-        outs = layout.indices(layout.outputs)
-        src.line(1, "return (" + "".join(f"v[{int(s)}], " for s in outs) + ")")
-        return self._build(src, "core", "v, h, now, scan")
-
-    def _memory(self, src: Source, layout: Layout, memory: Memory,
-                control: ControlRuntime, law: bool) -> None:
-        # the timers and observers: the stage's scan program (hmi.program), printed
-        print_program(src, memory.program, 1, self.slots, self.times)
-        grafcet = control.grafcet
-        if law and grafcet is not None and grafcet.time_slots:
-            # only the active steps' times move (GrafcetRuntime.timed); all of them after a
-            # reset or a restored state
-            g = src.ref(grafcet)
-            src.line(1, f"a = {g}.timed")
-            src.line(1, "if a is None:")
-            src.line(2, f"{g}.update_times(v, now)")
-            src.line(1, "else:")
-            src.line(2, "for s, x in a:")
-            src.line(3, "v[s] = now - x")
-
-    def _diagnosis(self, src: Source, stage: DiagnosisStage) -> None:
-        """Stage 3's common case inline: no gap, nothing dirty, and per diagnoser whether a
-        transition of its current state is due (then DiagnoserRuntime.step fires it)."""
-        d = src.ref(stage)
-        if stage.mode == "off":  # the diagnosers do not run; the stage settles once
-            src.line(1, f"if {d}.dirty:")
-            src.line(2, f"{d}.step(v, h, now, scan)")
-            return
-        src.line(1, f"s = {d}.last_scan")
-        src.line(1, f"if {d}.dirty or s is None or scan != s + 1 or "
-                 f"now - {d}.last_now > {int(GAP_SCANS)} * {d}.period:")
-        src.line(2, f"{d}.step(v, h, now, scan)")
-        src.line(1, "else:")
-        src.line(2, f"{d}.last_scan = scan")
-        src.line(2, f"{d}.last_now = now")
-        src.line(2, "changed = False")
-        for runtime in stage.runtimes:
-            due = src.ref(self._due(runtime))
-            src.line(2, f"r = {src.ref(runtime)}")
-            src.line(2, "su = r.since_us")
-            src.line(2, f"if su is None or {due}[r.current](v, h, now - su):")
-            src.line(3, "if r.step(v, h, now, scan):")
-            src.line(4, "changed = True")
-        if stage.high_level:  # the High Level Diagnoser, only while a decision it refines holds
-            src.line(2, f"if {d}.hld_armed and {d}.refine(v, h):")
-            src.line(3, "changed = True")
-        src.line(2, "if changed:")
-        src.line(3, f"{d}._settle(v)")
-
-    def _due(self, runtime: DiagnoserRuntime) -> tuple[Callable[..., bool], ...]:
-        """Per state of the diagnoser: ``due(v, h, t)``, whether a transition fires after
-        `t` in the state (the conditions as DiagnoserRuntime compiles them: outputs one scan
-        further back, no step times)."""
-        spec = runtime.spec
-        index = runtime.index
-        per_state: list[list[str]] = [[] for _ in spec.states]
-        timeouts: list[str] = ["" for _ in spec.states]
-        for tr in spec.transitions:
-            src_state = index[tr.source]
-            if tr.when is None:
-                timeouts[src_state] = f"t >= {int(tr.after_us or 0)}"
-            else:
-                root = shift_outputs(tr.when.root, runtime.outputs)
-                window = f"t >= {int(tr.tmin_us)}"
-                if tr.tmax_us is not None:
-                    window += f" and t < {int(tr.tmax_us)}"
-                per_state[src_state].append(f"({window} and {self._expr(root, {})})")
-        fns = []
-        for k, events in enumerate(per_state):
-            terms = events + ([timeouts[k]] if timeouts[k] else [])
-            src = Source()
-            src.line(1, "return " + (" or ".join(terms) if terms else "False"))
-            fns.append(self._build(src, f"due{k}", "v, h, t"))
-        return tuple(fns)
-
-    def _needed(self, src: Source, recovery: RecoveryStage) -> None:
-        """Which recovery procedures the cell may need: RecoveryStage.check_needed runs only
-        when some procedure's condition holds (it times how long)."""
-        procedures = [p for p in recovery.procedures.values() if p.spec.needed is not None]
-        if not procedures:
-            src.line(1, f"{src.ref(recovery)}.needed = ()")
-            return
-        src.line(1, "moved = False")
-        for proc in procedures:
-            needed = proc.spec.needed
-            assert needed is not None
-            src.line(1, f"if {self._expr(needed.when.root, {})}:")
-            src.line(2, "moved = True")
-            src.line(1, "else:")
-            src.line(2, f"{src.ref(proc)}.needed_since = None")
-        rec = src.ref(recovery)
-        src.line(1, "if moved:")
-        src.line(2, f"{rec}.check_needed(v, h, now)")
-        src.line(1, "else:")
-        src.line(2, f"{rec}.needed = ()")
-
-    def _control(self, src: Source, control: ControlRuntime) -> None:
-        grafcet = control.grafcet
-        if grafcet is not None:
-            g = src.ref(grafcet)
-            src.line(1, "fire = ()")  # (a tuple grown only when a transition fires: no list
-            for k, (sources, _, _) in enumerate(grafcet.transitions):  # built at every scan)
-                tr = grafcet.grafcet.transitions[k]
-                cond = " and ".join([f"v[{int(s)}]" for s in sources]
-                                    + [self._expr(tr.receptivity.root)])
-                src.line(1, f"if {cond}:")
-                src.line(2, f"fire += ({k},)")
-            src.line(1, "if fire:")
-            src.line(2, f"{g}.fire(fire, v, now)")
-            src.line(1, "else:")
-            src.line(2, f"{g}.fired = ()")
-            for slot in grafcet.driven:
-                src.line(1, f"v[{int(slot)}] = False")
-            for (step_slot, target, _), cond_node in zip(grafcet.continuous,
-                                                         grafcet.continuous_conditions,
-                                                         strict=True):
-                test = f"v[{int(step_slot)}]"
-                if cond_node is not None:
-                    test += f" and {self._expr(cond_node)}"
-                src.line(1, f"if {test}:")
-                src.line(2, f"v[{int(target)}] = True")
-        print_program(src, control.equations, 1, self.slots, self.times)
-
-    def _elapsed(self, memory: Memory) -> ElapsedFn:
-        """``elapsed(now)``: each timer's ET for the snapshot, as Memory.elapsed."""
-        src = Source()
-        parts = []
-        for runtime, _, _ in memory.timers:
-            r, preset = src.ref(runtime), int(runtime.preset)
-            parts.append(f"(0 if {r}.since is None else (now - {r}.since if now - {r}.since < "
-                         f"{preset} else {preset})), ")
-        src.line(1, "return (" + "".join(parts) + ")")
-        fn: ElapsedFn = self._build(src, "elapsed", "now")
+    @property
+    def observed(self) -> HeldFn:
+        """Observing a read-only device (see the module docstring), built at the first
+        call."""
+        fn = self._observed
+        if fn is None:
+            fn = self._observed = self._form(self.program.observed())
         return fn
 
-    # -- stage 6's first question ------------------------------------------------------------
-    def _violated(self, safety_filter: SafetyFilter) -> ViolatedFn:
-        """Whether the candidate violates a constraint: the outputs' literals read in `f`,
-        the others (inputs, memories, earlier scans) in the image and the history, as
-        hmi.engine.filter.compile_constraints splits them."""
-        index = {name: k for k, name in enumerate(safety_filter.outputs)}
-        terms = []
-        for c in safety_filter.compiled:
-            parts = []
-            for lit in c.constraint.literals:
-                if lit.depth == 0 and lit.name in index:
-                    read = f"f[{int(index[lit.name])}]"
-                else:
-                    read = self._expr(Var(0, lit.name, lit.depth))
-                parts.append(read if lit.positive else f"(not {read})")
-            terms.append("(" + " and ".join(parts) + ")" if parts else "True")
-        src = Source()
-        src.line(1, "return " + (" or ".join(terms) if terms else "False"))
-        fn: ViolatedFn = self._build(src, "violated", "v, h, f")
+    def recovery(self, name: str) -> CoreFn:
+        """Recovery mode with procedure `name` started, built at its first scan."""
+        fn = self._recoveries.get(name)
+        if fn is None:
+            fn = self._recoveries[name] = self._form(self.program.recovery(name))
+        return fn
+
+    def frame(self, engine: Any) -> Callable[[int], bool]:
+        """The automatic mode's scan (auto_frame), in this form."""
+        fn: Callable[[int], bool] = self._form(auto_frame(engine))
         return fn
 
     def _active_bits(self, safety_filter: SafetyFilter) -> ActiveFn:
@@ -274,7 +190,7 @@ class CompiledScan:
             for lit in c.constraint.literals:
                 if lit.depth == 0 and lit.name in index:
                     continue
-                read = self._expr(Var(0, lit.name, lit.depth))
+                read = expr_source(Var(0, lit.name, lit.depth), self.slots, self.times)
                 parts.append(read if lit.positive else f"(not {read})")
             if parts:
                 terms.append((k, " and ".join(parts)))
@@ -290,61 +206,141 @@ class CompiledScan:
             src.line(1, f"if {test}:")
             src.line(2, f"b |= 1 << {k}")
         src.line(1, "return b")
-        fn: ActiveFn = self._build(src, "active_bits", "v, h")
+        fn: ActiveFn = build(src, "active_bits", "v, h",
+                             f"<plchmi compiled active_bits: {self.label}>")
+        self.sources.append(fn.__doc__ or "")
         return fn
 
-    # -- after the output scan ----------------------------------------------------------------
-    def _monitors(self, stage: MonitorStage) -> MonitorFn:
-        """MonitorStage.step without its loop: a waiting task whose start is false is left
-        as it is; a running task that neither ends, changes phase, breaks a rule nor
-        trips its watchdog only has its stopwatches advanced (TaskAutomaton.step would do
-        nothing else, and the snapshot's states are then its base moved on, see
-        MonitorStage); any other calls TaskAutomaton.step with the conditions' values."""
-        src = Source()
-        idle, running, suspended = (src.ref(p) for p in (Phase.IDLE, Phase.RUNNING,
-                                                          Phase.SUSPENDED))
-        dirty = src.ref(stage._dirty)
-        src.line(1, "moved = False")
-        for k, (automaton, spec) in enumerate(zip(stage.automata, stage.specs, strict=True)):
-            start, end = self._expr(spec.start.root), self._expr(spec.end.root)
-            if spec.interrupted is not None:
-                sus, res = self._expr(spec.interrupted.root), "not s"
-            elif spec.interrupt is not None and spec.resume is not None:
-                sus, res = self._expr(spec.interrupt.root), self._expr(spec.resume.root)
-            else:
-                sus, res = "False", "False"
-            w = automaton.window
-            alpha, beta, gamma = int(w.alpha_us), int(w.beta_us), int(w.gamma_us)
-            src.line(1, f"a = {src.ref(automaton)}")
-            src.line(1, "p = a.phase")
-            src.line(1, f"if p is {idle}:")
-            src.line(2, f"if {start}:")
-            src.line(3, f"s = {sus}")
-            src.line(3, f"a.step(now, scan, True, {end}, s, {res})")
-            src.line(3, f"{dirty}[{k}] = True")
-            src.line(3, "moved = True")
-            # (a waiting task that does not start: TaskAutomaton.step would only note the
-            # time in last_us, which nothing reads before the task starts and step sets it)
-            src.line(1, "else:")
-            src.line(2, f"e = {end}")
-            src.line(2, f"s = {sus}")
-            src.line(2, f"r = {res}")
-            src.line(2, "el = now - a.last_us")
-            src.line(2, "x = a.x_us + el")
-            src.line(2, f"y = a.y_us + el if p is {running} else a.y_us")
-            stays = f"((p is {running} and not s) or (p is {suspended} and not r))"
-            rules = (f"(y < {alpha} and x + ({alpha} - y) >= {gamma}) or "
-                     f"(y >= {alpha} and x >= {gamma}) or y > {beta} or "
-                     f"(y == {beta} and p is {running})")
-            src.line(2, f"if not e and {stays} and (a.attempt_fault is not None or not "
-                        f"({rules})) and not (a.watchdog._armed and x >= {gamma}):")
-            src.line(3, "a.last_us = now")
-            src.line(3, "a.x_us = x")
-            src.line(3, "a.y_us = y")
-            src.line(2, "else:")
-            src.line(3, "a.step(now, scan, False, e, s, r)")
-            src.line(3, f"{dirty}[{k}] = True")
-            src.line(3, "moved = True")
-        src.line(1, "return moved")
-        fn: MonitorFn = self._build(src, "monitors", "v, h, now, scan")
-        return fn
+
+def auto_frame(engine: Any) -> ir.Function:
+    """``auto(now) -> news``: `engine`'s (hmi.engine.scan.Engine, not imported: it imports
+    this module) Engine.run scan in automatic mode, once started, with no
+    device stopped and no wall time measured (most scans of a run), written out: stage 1,
+    the mode's program (``core``), the constraints' test, the output scan and the monitors,
+    then what Engine._conclude does for a quiet scan (nothing masked, latched nor violated,
+    no error, no plant event, no supervision due, no diagnoser faulty, no recovery needed,
+    nothing changed since the last scan with news but what moves by itself). Whatever is
+    not such a scan goes on where Engine._auto_cycle and Engine._conclude go on, through
+    the engine's own methods, from the point reached: the same scan, in both paths."""
+    e, plant, scan_program = engine, engine.plant, engine.compiled
+    image, history = ir.Ref(engine.image), ir.Ref(engine.history)
+    now, scan = ir.Local("now"), ir.Local("scan")
+    f, diag, report, error = (ir.Local(n) for n in ("f", "diag", "report", "error"))
+    monitored, exc, quiet = ir.Local("monitored"), ir.Local("exc"), ir.Local("q")
+    stage, monitors, recovery = engine.diagnosis, engine.monitors, engine.recovery
+    supervised = engine._supervised
+    record = engine._record
+
+    def cell(owner: Any, name: str) -> ir.Cell:
+        return ir.Cell(owner, name)
+
+    def call(owner: Any, method: str, *args: ir.Value) -> ir.Call:
+        return ir.Call(owner, method, args)
+
+    def conclude(*stmts: ir.Stmt) -> tuple[ir.Stmt, ...]:
+        return (*stmts, ir.Return(call(e, "_conclude", now)))
+
+    finish = ir.Return(call(e, "_finish", now, f, report, diag, monitored, error))
+    body: list[ir.Stmt] = [
+        ir.Assign(cell(e, "_pending"), ir.FALSE),  # (the last scan's snapshot: dropped)
+        ir.Assign(scan, ir.Add(cell(e, "scan"), ir.Const(1))),
+        ir.Assign(cell(e, "scan"), scan),
+        ir.Assign(cell(e, "now"), now),
+        ir.Assign(diag, cell(stage, "current") if stage is not None else ir.Ref(NO_DIAGNOSIS)),
+        # 1. input scan
+        ir.Try((ir.Do(call(plant, "read_into", now, image, ir.Ref(engine._bindings))),),
+               ((PlantError, "exc", conclude(ir.Do(call(e, "_auto_lost", now, exc)))),
+                (Exception, "exc", conclude(ir.Do(call(e, "_auto_failed", now, exc, diag)))))),
+        # 2-5, and stage 6's first question
+        ir.Try((
+            ir.Assign(f, call(scan_program, "core", image, history, now, scan)),
+            *((ir.Assign(diag, cell(stage, "current")),) if stage is not None else ()),
+            ir.Assign(quiet, ir.And((ir.IsNone(ir.Item(diag, 1)),
+                                     ir.Not(cell(e, "latched")),
+                                     ir.Not(call(scan_program, "violated", image, history,
+                                                 f))))),
+        ), ((Exception, "exc", conclude(ir.Do(call(e, "_auto_failed", now, exc, diag)))),)),
+        ir.If(ir.Not(quiet), conclude(ir.Do(call(e, "_auto_filter", now, f, diag)))),
+        ir.Assign(report, cell(e, "clean_report")),
+        ir.Assign(error, ir.NONE),
+        # 7. output scan
+        ir.Try((ir.Do(call(plant, "write_vector", now, ir.Ref(engine.output_scan.names), f)),),
+               ((Exception, "exc", (ir.Assign(error, call(e, "_write_error", now, f, error,
+                                                          exc)),)),)),
+    ]
+    # 8. monitors
+    if monitors is not None:
+        body += [
+            ir.Assign(monitored, ir.TRUE),
+            ir.Try((ir.Do(call(scan_program, "monitors", image, history, now, scan)),),
+                   ((Exception, "exc", (ir.Assign(monitored, ir.FALSE),
+                                        ir.Assign(error, call(e, "_monitors_error", now, error,
+                                                              exc)))),)),
+        ]
+    else:
+        body.append(ir.Assign(monitored, ir.FALSE))
+    # what Engine._conclude would find other than a quiet scan's: its own way
+    body.append(ir.If(ir.Not(ir.IsNone(error)), (finish,)))
+    if supervised is not None:
+        body.append(ir.If(ir.Compare(">", now, cell(supervised, "deadline")), (finish,)))
+    if stage is not None:
+        body.append(ir.If(cell(stage, "faulty"), (finish,)))
+    if recovery is not None:
+        body.append(ir.If(ir.Or((cell(recovery, "needed"),
+                                 ir.Not(ir.IsNone(cell(recovery, "active"))))), (finish,)))
+    marks = ir.Local("marks")
+    if monitors is not None:  # (monitored: else the error above)
+        body.append(ir.Try(
+            (ir.Assign(marks, call(monitors, "settle")),),
+            ((Exception, "exc", (ir.Return(call(e, "_finish", now, f, report, diag, monitored,
+                                                error, ir.NONE,
+                                                ir.Tuple((ir.Const(3), exc)))),)),)))
+    else:
+        body.append(ir.Assign(marks, ir.Const(0)))
+    events, status, values = ir.Local("events"), ir.Local("status"), ir.Local("values")
+    taken = ir.Return(call(e, "_finish", now, f, report, diag, monitored, error, events))
+    body += [
+        ir.Try((ir.Assign(events, call(plant, "take_events")),),
+               ((Exception, "exc", (ir.Return(call(e, "_finish", now, f, report, diag,
+                                                   monitored, error, ir.NONE,
+                                                   ir.Tuple((ir.Const(1), exc)))),)),)),
+        ir.If(events, (taken,)),
+        ir.Try((ir.Assign(status, cell(plant, "status")),),
+               ((Exception, "exc", (ir.Return(call(e, "_finish", now, f, report, diag,
+                                                   monitored, error, events,
+                                                   ir.Tuple((ir.Const(2), exc)))),)),)),
+    ]
+    # news: as Engine._conclude judges it (ScanNews by position)
+    diagnosers = ir.Item(diag, 2) if stage is not None else ir.Const(())
+    shown = cell(recovery, "_idle") if recovery is not None else ir.Ref(NO_RECOVERY)
+    last = ir.Local("last")
+    body += [
+        ir.Assign(last, cell(e, "_news")),
+        ir.If(ir.Or((ir.IsNone(last), cell(e, "_commanded"), ir.Item(diag, 3),
+                     cell(e, "manual"))), (taken,)),
+        ir.If(ir.Not(ir.And((
+            ir.Compare("is", report, ir.Item(last, 0)),
+            ir.Compare("is", status, ir.Item(last, 1)),
+            # (without diagnosers, both are the empty tuple)
+            *((ir.Compare("is", diagnosers, ir.Item(last, 2)),) if stage is not None else ()),
+            ir.Compare("==", marks, ir.Item(last, 3)),
+            ir.Compare("is", shown, ir.Item(last, 4))))), (taken,)),
+        # a quiet scan: the image into the history, the record
+        ir.Assign(values, call(tuple, "__call__", image)),
+        ir.Do(call(engine.history, "appendleft", values)),
+    ]
+    zero = ir.Ref(0.0)
+    fields: tuple[tuple[str, ir.Value], ...] = (
+        ("report", report), ("diagnosis", diag), ("monitored", monitored),
+        ("error", ir.NONE), ("filter_us", zero), ("diagnosers", diagnosers),
+        ("marks", marks), ("events", ir.Const(())), ("recovery", shown), ("scan_us", zero))
+    moving = (ir.Assign(cell(record, "fov"), f), ir.Assign(cell(record, "outputs"), f),
+              ir.Assign(cell(record, "values"), values))
+    body += [
+        ir.If(cell(record, "settled"), moving,
+              (*moving, *(ir.Assign(cell(record, name), value) for name, value in fields),
+               ir.Assign(cell(record, "settled"), ir.TRUE))),
+        ir.Assign(cell(e, "_pending"), ir.TRUE),
+        ir.Return(ir.FALSE),
+    ]
+    return ir.Function("auto", ("now",), tuple(body))

@@ -19,8 +19,8 @@ from collections.abc import Mapping
 from typing import NamedTuple
 
 from hmi.engine.grafcet import GrafcetRuntime
-from hmi.logic.expr import History, Image
-from hmi.program.evaluate import evaluator
+from hmi.logic.expr import Image
+from hmi.program.ir import Stmt
 from hmi.program.memories import lower_equation
 from hmi.project.model import ControlLaw
 
@@ -39,11 +39,13 @@ class ControlRuntime:
         self.law = law
         self.grafcet = (GrafcetRuntime(law.grafcet, slots, step_time_slots)
                         if law.grafcet else None)
-        # the equations in the order written, as the scan program (hmi.program): the
-        # statements the compiled scan prints, evaluated here
+        # Stage 5 as the scan program (hmi.program): the GRAFCET's evolution and continuous
+        # actions, then the equations in the order written; and the step times of stage 2
         self.equations = tuple(stmt for eq in law.equations
                                for stmt in lower_equation(eq, slots[eq.target]))
-        self._equations = evaluator(self.equations, slots, step_time_slots)
+        self.program: tuple[Stmt, ...] = (
+            self.grafcet.evolution if self.grafcet is not None else ()) + self.equations
+        self.times: tuple[Stmt, ...] = self.grafcet.times if self.grafcet is not None else ()
         # The scan time the program has waited since (manual mode), None while it runs.
         self.held_since: int | None = None
 
@@ -52,11 +54,6 @@ class ControlRuntime:
             self.grafcet.reset(image, now)
         if self.held_since is not None:  # (the first scan, in manual mode: it waits from here)
             self.held_since = now
-
-    def update_times(self, image: Image, now: int) -> None:
-        """The step times, in the image; held (not written) while the program waits."""
-        if self.grafcet and self.held_since is None:
-            self.grafcet.update_times(image, now)
 
     def hold(self, now: int) -> None:
         """Manual mode: the program waits from `now` (the last scan's time). The engine no
@@ -77,12 +74,6 @@ class ControlRuntime:
     @property
     def held(self) -> bool:
         return self.held_since is not None
-
-    def run(self, image: Image, history: History, now: int) -> None:
-        if self.grafcet:
-            self.grafcet.evolve(image, history, now)
-            self.grafcet.apply_continuous(image, history)
-        self._equations(image, history, now)
 
     def capture(self) -> ControlState:
         """The GRAFCET's activation times and last firing (its steps live in the image), and

@@ -6,7 +6,7 @@ law; it decides what stages 4 and 6 do and returns it as a :class:`Diagnosis`:
 3. every diagnoser steps once on I(t), the orders written at t-1 and the clock; its state's
    decision sets the partition flags `def_<partition>`;
 4. a sensor whose flag is set is read from its estimate: `x_filter = not def and x or def and
-   x_hat` (000 eq. 7-8) — the routes, applied by hmi.engine.stages.Reconstruction; an
+   x_hat` (000 eq. 7-8) — the routes, hmi.program.diagnosers' lowering of stage 4; an
    actuator partition whose flag is set has its orders masked, `C_filter = not defV and C`
    (eq. 9-10) — the mask, applied by the filter stage (hmi.engine.filter_stage).
 
@@ -47,32 +47,17 @@ from dataclasses import dataclass, replace
 from typing import Any, NamedTuple, overload
 
 from hmi.engine.layout import Layout
-from hmi.logic.expr import (
-    And,
-    BoolFn,
-    Compare,
-    History,
-    Image,
-    Node,
-    Not,
-    Or,
-    Var,
-    compile_bool,
-    to_text,
-    walk,
+from hmi.logic.expr import BoolFn, History, Image, Node, Var, compile_bool, to_text, walk
+from hmi.program.diagnosers import (
+    MODES,
+    lower_diagnosis,
+    lower_reconstruction,
+    shift_outputs,
 )
 from hmi.project.diagnosers import diagnosers_of
-from hmi.project.model import (
-    DiagnoserSpec,
-    DiagState,
-    DiagTransition,
-    HighLevelSpec,
-    Project,
-    ResyncRule,
-)
+from hmi.project.model import DiagnoserSpec, DiagState, HighLevelSpec, Project, ResyncRule
 from hmi.timefmt import format_duration
 
-MODES = ("ftc", "observe", "off")
 GAP_SCANS = 10  # a step longer than this many nominal scan periods is a gap in the observation
 MODE_HELP = {
     "ftc": "diagnosers drive reconstruction and masking (fault-tolerant control)",
@@ -132,20 +117,6 @@ class DiagnoserState:
         return f"{self.name}: {where}: {self.decision()} [{kind}]"
 
 
-def shift_outputs(node: Node, outputs: frozenset[str]) -> Node:
-    """The same condition with every output read one scan further back (see module doc)."""
-    if isinstance(node, Var):
-        return replace(node, depth=node.depth + 1) if node.name in outputs else node
-    if isinstance(node, Not):
-        return replace(node, operand=shift_outputs(node.operand, outputs))
-    if isinstance(node, (And, Or)):
-        return replace(node, operands=tuple(shift_outputs(op, outputs)
-                                            for op in node.operands))
-    if isinstance(node, Compare):
-        return node
-    return node
-
-
 def _depth(node: Node) -> int:
     return max((n.depth for n in walk(node) if isinstance(n, Var)), default=0)
 
@@ -162,22 +133,11 @@ class DiagnoserRuntime:
         index = {name: k for k, name in enumerate(self.names)}
         self.index = index
         self.depth = 1
-        events: list[list[tuple[BoolFn, int, int | None, int, DiagTransition]]] = [
-            [] for _ in spec.states]
-        timeouts: list[tuple[int, int, DiagTransition] | None] = [None] * len(spec.states)
         leaves = [False] * len(spec.states)
         for tr in spec.transitions:
-            src = index[tr.source]
-            leaves[src] = True
-            if tr.when is None:
-                timeouts[src] = (tr.after_us or 0, index[tr.target], tr)
-            else:
-                root = shift_outputs(tr.when.root, outputs)
-                self.depth = max(self.depth, _depth(root))
-                events[src].append((compile_bool(root, slots), tr.tmin_us, tr.tmax_us,
-                                    index[tr.target], tr))
-        self.events = events
-        self.timeouts = timeouts
+            leaves[index[tr.source]] = True
+            if tr.when is not None:
+                self.depth = max(self.depth, _depth(shift_outputs(tr.when.root, outputs)))
         self.resync_rules: list[tuple[BoolFn, int, int, ResyncRule]] = []
         for k, rule in enumerate(spec.resync, start=1):
             root = shift_outputs(rule.when.root, outputs)
@@ -242,22 +202,16 @@ class DiagnoserRuntime:
         self.via = via
         self.record = self._record()
 
-    def step(self, image: Image, hist: History, now: int, scan: int) -> bool:
-        """One scan of the automaton; True when the state changed."""
-        if self.since_us is None:
-            self.since_us, self.since_scan = now, scan
-            self.record = self._record()
-        t = now - self.since_us
-        cur = self.current
-        for fn, tmin, tmax, target, tr in self.events[cur]:
-            if t >= tmin and (tmax is None or t < tmax) and fn(image, hist):
-                self.enter(target, now, scan, tr.text())
-                return True
-        timeout = self.timeouts[cur]
-        if timeout is not None and t >= timeout[0]:
-            self.enter(timeout[1], now, scan, timeout[2].text())
-            return True
-        return False
+    # -- the scan program's handlers (hmi.program.diagnosers: the transitions' tests) --------
+    def begin(self, now: int, scan: int) -> None:
+        """The first scan this diagnoser sees: its time in the initial state counts from now."""
+        self.since_us, self.since_scan = now, scan
+        self.record = self._record()
+
+    def take(self, k: int, now: int, scan: int) -> None:
+        """Transition k of the specification fires at this scan."""
+        tr = self.spec.transitions[k]
+        self.enter(self.index[tr.target], now, scan, tr.text())
 
     def resync_match(self, image: Image, hist: History) -> tuple[int, int, ResyncRule] | None:
         """The first resync rule the I/O satisfies: (target, rule number, rule), or None."""
@@ -358,6 +312,9 @@ class Diagnosis(NamedTuple):
     masked: tuple[str, ...]  # outputs whose orders are masked
 
 
+NO_DIAGNOSIS = Diagnosis((), None, (), (), ())  # a scan without diagnosers (or before them)
+
+
 class DiagnosisStage:
     """Stage 3 of the scan: the diagnosers, their flags, and what stages 4 and 6 must do."""
 
@@ -366,6 +323,7 @@ class DiagnosisStage:
         if mode not in MODES:
             raise ValueError(f"unknown diagnosis mode {mode!r}")
         self.mode = mode
+        self.gap_us = 0
         self.period = period_us  # nominal: a step longer than GAP_SCANS of it is a gap
         lay = layout
         slots = lay.slots
@@ -405,23 +363,22 @@ class DiagnosisStage:
         self.last_now = 0
         self.faulty = False  # some diagnoser holds a faulty decision
         self.current = Diagnosis((), None, (), (), ())  # nothing shown before the first run
+        # Stages 3 and 4 as the scan program (hmi.program.diagnosers): what runs at each
+        # scan, hmi.engine.compiled puts it in its place
+        self.program = lower_diagnosis(self, [(rt, rt.spec) for rt in self.runtimes], mode,
+                                       outputs, bool(self.high_level))
+        self.reconstruction = lower_reconstruction(
+            [(f, sensor, estimate, flag) for f, sensor, estimate, flag, _, _ in self.sensors],
+            mode)
 
-    def step(self, image: Image, history: History, now: int, scan: int) -> Diagnosis:
-        changed = self.dirty
-        if self.mode != "off":
-            if self.last_scan is not None:
-                delta = now - self.last_now
-                if scan != self.last_scan + 1 or delta > GAP_SCANS * self.period:
-                    changed = self._lost_sight(now, scan, delta) or changed
-            self.last_scan, self.last_now = scan, now
-            for rt in self.runtimes:
-                if rt.step(image, history, now, scan):
-                    changed = True
-            if self.hld_armed and self.refine(image, history):
-                changed = True
-        if changed:  # flags, routes and masks only move when a diagnoser changes state
-            self._settle(image)
-        return self.current
+    @property
+    def period(self) -> int:
+        return self._period
+
+    @period.setter
+    def period(self, period_us: int) -> None:
+        self._period = period_us
+        self.gap_us = GAP_SCANS * period_us  # (what the scan program compares a step with)
 
     def refine(self, image: Image, history: History) -> bool:
         """The High Level Diagnoser, after the local diagnosers: a specification whose
@@ -438,7 +395,7 @@ class DiagnosisStage:
                     break
         return refined
 
-    def _lost_sight(self, now: int, scan: int, delta: int) -> bool:
+    def lost_sight(self, now: int, scan: int, delta: int) -> bool:
         """The plant was not observed for `delta` (inputs unknown, or no scan: a pause).
 
         A normal state and its clock no longer describe the plant (the valve may have moved,
@@ -459,7 +416,7 @@ class DiagnosisStage:
                 changed = True
         return changed
 
-    def _settle(self, image: Image) -> None:
+    def settle(self, image: Image) -> None:
         self.dirty = False
         if self.mode != "off":
             for rt in self.runtimes:

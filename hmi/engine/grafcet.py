@@ -26,48 +26,52 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 
-from hmi.logic.expr import BoolFn, History, Image, Node, compile_bool
+from hmi.logic.expr import Image, Node
+from hmi.program.grafcet import lower_continuous, lower_evolution, lower_step_times
+from hmi.program.ir import Stmt
 from hmi.project.model import Grafcet
 
 
 class GrafcetRuntime:
+    """One GRAFCET's state: its steps live in the image, their activation times here
+    (`since`, one entry per step in declaration order, None while inactive). What runs at
+    each scan is hmi.program.grafcet's lowering (:attr:`times`, :attr:`evolution`); the
+    firings it finds come back to :meth:`fire`."""
+
     def __init__(self, grafcet: Grafcet, slots: Mapping[str, int],
                  step_time_slots: Mapping[str, int]):
         self.grafcet = grafcet
+        self.names = tuple(s.name for s in grafcet.steps)
+        self.number = {name: k for k, name in enumerate(self.names)}
         self.step_slots = {s.name: slots[s.name] for s in grafcet.steps}
         self.time_slots = {s.name: step_time_slots[s.name] for s in grafcet.steps}
         self.initial = tuple(s.name for s in grafcet.steps if s.initial)
-        self.transitions: list[tuple[tuple[int, ...], tuple[str, ...], BoolFn]] = [
-            (tuple(self.step_slots[s] for s in tr.sources), tr.targets,
-             compile_bool(tr.receptivity, slots, step_time_slots))
-            for tr in grafcet.transitions
-        ]
+        # (upstream steps' names, downstream steps' names) per transition
+        self.transitions = [(tr.sources, tr.targets) for tr in grafcet.transitions]
         self.transition_numbers = tuple(tr.number for tr in grafcet.transitions)
         self.stored: dict[str, list[tuple[int, bool]]] = {}
-        self.continuous: list[tuple[int, int, BoolFn | None]] = []  # step slot, target, cond
-        self.continuous_conditions: list[Node | None] = []  # their trees (compiled scan)
+        continuous: list[tuple[int, int, Node | None]] = []  # step slot, target, condition
         for step in grafcet.steps:
             for action in step.actions:
                 if action.kind == "N":
-                    cond = (compile_bool(action.condition, slots, step_time_slots)
-                            if action.condition else None)
-                    self.continuous.append((self.step_slots[step.name], slots[action.target],
-                                            cond))
-                    self.continuous_conditions.append(
-                        action.condition.root if action.condition else None)
+                    continuous.append((self.step_slots[step.name], slots[action.target],
+                                       action.condition.root if action.condition else None))
                 else:
                     self.stored.setdefault(step.name, []).append(
                         (slots[action.target], action.kind == "S"))
-        self.driven = sorted({target for _, target, _ in self.continuous})
-        self.activated_at: dict[str, int] = {}
-        # (time slot, activated at) of each active step, for the compiled scan's stage 2: an
-        # inactive step's time slot is 0 and stays 0 until it is activated (fire writes 0 in
-        # the slots of the steps it deactivates), so only the active steps' slots move. None
-        # when the image's time slots may not say so (a reset leaves the time of a step it
-        # deactivates in the image; a restored state): update_times writes them all then.
-        self.timed: tuple[tuple[int, int], ...] | None = None
+        self.driven = sorted({target for _, target, _ in continuous})
+        # The activation time of each step (None: inactive); the list itself is handed to
+        # the scan program, so it is only ever changed in place.
+        self.since: list[int | None] = [None] * len(self.names)
         self.fired: tuple[int, ...] = ()
         self._active: tuple[str, ...] | None = None  # cache of active(), None: to compute
+        # The scan program's parts (hmi.program.grafcet): stage 2's step times, stage 5's
+        # evolution and continuous actions.
+        self.times: tuple[Stmt, ...] = lower_step_times(
+            self.since, [(self.step_slots[n], self.time_slots[n]) for n in self.names])
+        self.evolution: tuple[Stmt, ...] = lower_evolution(self, [
+            (tuple(self.step_slots[s] for s in tr.sources), tr.receptivity.root)
+            for tr in grafcet.transitions]) + lower_continuous(self.driven, continuous)
         # Supervision: each supervised step's time; whether it is watched now (automatic
         # mode, the program running: the engine says, `supervise`); the active supervised
         # steps past their time, in step order; the scan time past which the next becomes
@@ -78,77 +82,59 @@ class GrafcetRuntime:
         self.overdue: tuple[str, ...] = ()
         self.deadline: float = NEVER
 
+    @property
+    def activated_at(self) -> dict[str, int]:
+        """The active steps' activation times, by name."""
+        return {name: since for name, since in zip(self.names, self.since, strict=True)
+                if since is not None}
+
+    @activated_at.setter
+    def activated_at(self, times: Mapping[str, int]) -> None:
+        self.since[:] = [times.get(name) for name in self.names]
+
     def reset(self, image: Image, now: int) -> None:
+        """Back to the initial steps at `now`: every other step inactive, its time 0."""
         for name, slot in self.step_slots.items():
             image[slot] = name in self.initial
+        for name, slot in self.time_slots.items():
+            if name not in self.initial:
+                image[slot] = 0
         self.activated_at = dict.fromkeys(self.initial, now)
-        self.timed = None
         self._active = None
         for name in self.initial:
             self._stored(image, name)
         if self.supervision:
             self.watch(now)
 
-    def update_times(self, image: Image, now: int) -> None:
-        for name, slot in self.time_slots.items():
-            since = self.activated_at.get(name)
-            image[slot] = 0 if since is None else now - since
-        self._timed()
-
     def shift(self, delta: int) -> None:
         """Every activation time `delta` later: the program waited that long (manual mode,
         hmi.engine.control.ControlRuntime.resume), its step times stopped meanwhile."""
-        self.activated_at = {name: since + delta for name, since in self.activated_at.items()}
-        if self.timed is not None:
-            self._timed()
-
-    def _timed(self) -> None:
-        """The active steps' (time slot, activation time), in the image's time slots' state
-        after update_times or fire (see `timed`)."""
-        slots = self.time_slots
-        self.timed = tuple((slots[name], since) for name, since in self.activated_at.items())
-
-    def evolve(self, image: Image, history: History, now: int) -> tuple[int, ...]:
-        """Fire every fireable transition at once; return the numbers of those fired."""
-        fire = []
-        for i, (sources, _, receptivity) in enumerate(self.transitions):
-            for s in sources:
-                if not image[s]:
-                    break
-            else:
-                if receptivity(image, history):
-                    fire.append(i)
-        if not fire:
-            self.fired = ()
-            return ()
-        return self.fire(fire, image, now)
+        self.since[:] = [None if since is None else since + delta for since in self.since]
 
     def fire(self, fire: Sequence[int], image: Image, now: int) -> tuple[int, ...]:
-        """Fire the transitions `fire` (indices, in order) together; the compiled scan
-        (hmi.engine.compiled) finds them itself and calls this only when there are some."""
+        """Fire the transitions `fire` (indices, in order) together: the scan program found
+        them fireable (hmi.program.grafcet)."""
         deactivate: set[str] = set()
         activate: set[str] = set()
         for i in fire:
-            sources, targets, _ = self.transitions[i]
-            deactivate.update(name for name, slot in self.step_slots.items() if slot in sources)
+            sources, targets = self.transitions[i]
+            deactivate.update(sources)
             activate.update(targets)
+        since = self.since
         for name in deactivate - activate:
             image[self.step_slots[name]] = False
-            self.activated_at.pop(name, None)
+            since[self.number[name]] = None
             image[self.time_slots[name]] = 0
         for name in sorted(activate):
             image[self.step_slots[name]] = True
-            self.activated_at[name] = now
+            since[self.number[name]] = now
             image[self.time_slots[name]] = 0
             self._stored(image, name)
         self.fired = tuple(self.transition_numbers[i] for i in fire)
         self._active = None
-        if self.timed is not None:  # (else the image's times are not all settled yet)
-            self._timed()
         if self.supervision:  # due now: Engine.run watches again after this scan's control
             self.deadline = DUE
         return self.fired
-
     def supervise(self, watching: bool, now: int) -> None:
         """Whether the supervision times are watched from `now` on (the engine: automatic
         mode, the program running; not while it waits in manual mode, nor in recovery mode,
@@ -183,13 +169,6 @@ class GrafcetRuntime:
         for slot, value in self.stored.get(step, ()):
             image[slot] = value
 
-    def apply_continuous(self, image: Image, history: History) -> None:
-        for slot in self.driven:
-            image[slot] = False
-        for step_slot, target, cond in self.continuous:
-            if image[step_slot] and (cond is None or cond(image, history)):
-                image[target] = True
-
     def active(self, image: Image) -> tuple[str, ...]:
         """The active steps, recomputed only after a change of steps (a firing, a reset, a
         restored state): read at every scan, they change at few."""
@@ -201,7 +180,6 @@ class GrafcetRuntime:
     def forget_active(self) -> None:
         """The steps in the image were changed from outside (a restored state)."""
         self._active = None
-        self.timed = None
 
 
 NEVER = float("inf")  # a deadline that never comes

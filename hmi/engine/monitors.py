@@ -21,7 +21,10 @@ from typing import NamedTuple
 
 from hmi.engine.layout import Layout
 from hmi.engine.stopwatch import FAULTY, Detection, Phase, TaskAutomaton, WatchdogTrip, Window
-from hmi.logic.expr import BoolFn, Expr, History, Image, compile_bool, max_depth
+from hmi.logic.expr import max_depth
+from hmi.program import ir
+from hmi.program.ir import Stmt
+from hmi.program.monitors import lower_task
 from hmi.project.model import Project, TaskMonitor
 from hmi.project.monitors import monitors_of
 from hmi.timefmt import format_duration, seconds
@@ -76,7 +79,6 @@ class MonitorStage:
     """
 
     def __init__(self, specs: tuple[TaskMonitor, ...], layout: Layout):
-        lay = layout
         self.specs = specs
         self.depth = max((max_depth(e) for s in specs for e in s.exprs), default=1)
         # The fields of MonitorState that never change, computed once (states() runs per scan).
@@ -85,7 +87,6 @@ class MonitorStage:
         self.tails = [(s.alpha_us, s.beta_us, s.gamma_us) for s in specs]
         self.automata = [TaskAutomaton(Window(s.alpha_us, s.beta_us, s.gamma_us))
                          for s in specs]
-        self.conditions: list[tuple[BoolFn, BoolFn, BoolFn | None, BoolFn | None, bool]] = []
         # Per task: its base (see the class docstring) and whether TaskAutomaton.step ran on
         # it since the base was taken (then the base is taken again).
         self._bases: list[Base | None] = [None] * len(specs)
@@ -93,36 +94,26 @@ class MonitorStage:
         self.marks = 0  # the automata's changes, summed when a base is taken again
         # The bases, and the states when no task runs (None: built per scan, lazily).
         self._capture: tuple[tuple[Base, ...], tuple[MonitorState, ...] | None] | None = None
-        for s in specs:
-            def fn(expr: Expr) -> BoolFn:
-                return compile_bool(expr, lay.slots, lay.step_times)
-            if s.interrupted is not None:
-                level = fn(s.interrupted)
-                self.conditions.append((fn(s.start), fn(s.end), level, level, True))
-            elif s.interrupt is not None and s.resume is not None:
-                self.conditions.append((fn(s.start), fn(s.end), fn(s.interrupt),
-                                        fn(s.resume), False))
+        # The tasks' automata at a scan, as the scan program (hmi.program.monitors): what
+        # runs after the output scan (hmi.engine.compiled)
+        program: list[Stmt] = []
+        for k, (spec, automaton) in enumerate(zip(specs, self.automata, strict=True)):
+            start, end = ir.Test(spec.start.root), ir.Test(spec.end.root)
+            suspend: ir.Value
+            resume: ir.Value
+            if spec.interrupted is not None:
+                suspend = ir.Test(spec.interrupted.root)
+                resume = ir.Not(suspend)
+            elif spec.interrupt is not None and spec.resume is not None:
+                suspend, resume = ir.Test(spec.interrupt.root), ir.Test(spec.resume.root)
             else:
-                self.conditions.append((fn(s.start), fn(s.end), None, None, False))
-
-    def step(self, image: Image, hist: History, now: int, scan: int) -> None:
-        for k, (automaton, (start, end, suspend, resume, level)) in enumerate(zip(
-                self.automata, self.conditions, strict=True)):
-            if automaton.phase is IDLE and not start(image, hist):
-                # A waiting task that does not start: the automaton only notes the time
-                # (TaskAutomaton.step does nothing else then) and its state is unchanged.
-                automaton.last_us = now
-                continue
-            if suspend is None or resume is None:
-                s = r = False
-            elif level:
-                s = suspend(image, hist)
-                r = not s
-            else:
-                s, r = suspend(image, hist), resume(image, hist)
-            # `start` is only read by a waiting automaton, and this one's is true
-            automaton.step(now, scan, automaton.phase is IDLE, end(image, hist), s, r)
-            self._dirty[k] = True
+                suspend = resume = ir.FALSE
+            window = (spec.alpha_us, spec.beta_us, spec.gamma_us)
+            mark = (ir.Assign(ir.Item(ir.Ref(self._dirty), k), ir.TRUE),)
+            program += lower_task(automaton, window, (Phase.IDLE, Phase.RUNNING,
+                                                      Phase.SUSPENDED),
+                                  start, end, suspend, resume, mark)
+        self.program = tuple(program)
 
     def settle(self) -> int:
         """Take again the bases of the tasks stepped since (at the end of a scan); returns

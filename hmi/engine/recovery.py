@@ -28,7 +28,8 @@ from typing import Any
 from hmi.engine.filter import SafetyFilter
 from hmi.engine.filter_stage import FilterStage
 from hmi.engine.layout import Layout
-from hmi.logic.expr import BoolFn, History, Image, compile_bool
+from hmi.program.ir import Stmt
+from hmi.program.recovery import lower_needed, lower_procedure
 from hmi.project.model import Project, RecoveryProcedure
 from hmi.project.recovery import recoveries_of
 from hmi.timefmt import seconds
@@ -72,15 +73,10 @@ class _Procedure:
         self.spec = spec
         slots = layout.slots
         index = {name: k for k, name in enumerate(layout.outputs)}
+        # stage 5 in recovery mode while it runs, as the scan program (hmi.program.recovery)
+        self.program: tuple[Stmt, ...] = ()
         self.driven = tuple(index[o] for o in spec.outputs)
-        self.steps: list[tuple[list[tuple[int, BoolFn | None]], BoolFn]] = [
-            ([(index[a.output], compile_bool(a.condition, slots) if a.condition else None)
-              for a in step.actions], compile_bool(step.until, slots))
-            for step in spec.steps]
-        self.hold = tuple(step.for_us for step in spec.steps)
-        self.needed: BoolFn | None = compile_bool(spec.needed.when, slots) \
-            if spec.needed else None
-        self.needed_since: int | None = None
+        self.needed_since: int | None = None  # its `needed` condition holds since then
         constraints = tuple(c for c in project.constraints if c.name not in spec.relaxes) \
             + spec.constraints
         self.filter = FilterStage(
@@ -98,7 +94,12 @@ class RecoveryStage:
                                                  mask_flags)
                            for spec in recoveries_of(project)}
         self.safe = safe
+        for proc in self.procedures.values():
+            proc.program = lower_procedure(self, proc.spec, layout.outputs, safe)
+        # which procedures the cell needs, as the scan program (hmi.program.recovery)
+        self.program = lower_needed(self, [(p, p.spec) for p in self.procedures.values()])
         self.active: _Procedure | None = None
+        self.running = False  # status == "running"
         self.status = ""
         self.step = 0
         self.started_us = 0
@@ -117,7 +118,7 @@ class RecoveryStage:
     # -- commands (through the engine) ------------------------------------------------------
     def start(self, name: str, now: int) -> None:
         self.active = self.procedures[name]
-        self.status = "running"
+        self._status("running")
         self.step = 0
         self.started_us = now
         self.message = ""
@@ -128,64 +129,45 @@ class RecoveryStage:
         """Leave recovery: what the procedure had reached, for the operator."""
         proc, status = self.active, self.status
         self.active = None
-        self.status = ""
+        self._status("")
         if proc is None:
             return ""
         return {"done": "done", "failed": "failed"}.get(status, "stopped before its end")
 
-    # -- every scan -------------------------------------------------------------------------
-    def check_needed(self, image: Image, history: History, now: int) -> None:
-        """Which procedures the cell needs now (their condition held for long enough)."""
+    def _status(self, status: str) -> None:
+        self.status = status
+        self.running = status == "running"
+
+    # -- the scan program's handlers (hmi.program.recovery) ----------------------------------
+    def judge_needed(self, now: int) -> None:
+        """Which procedures the cell needs now: their condition held for long enough (it
+        holds since ``needed_since``, written by the scan program)."""
         needed = []
         for name, proc in self.procedures.items():
-            if proc.needed is None:
-                continue
-            if proc.needed(image, history):
-                if proc.needed_since is None:
-                    proc.needed_since = now
-                spec = proc.spec
-                assert spec.needed is not None
-                if now - proc.needed_since >= spec.needed.for_us:
-                    needed.append((name, spec.device, spec.description, spec.needed.text))
-            else:
-                proc.needed_since = None
+            spec, since = proc.spec, proc.needed_since
+            if since is not None and spec.needed is not None \
+                    and now - since >= spec.needed.for_us:
+                needed.append((name, spec.device, spec.description, spec.needed.text))
         self.needed = tuple(needed)
 
-    def fov(self, image: Image, history: History, now: int) -> tuple[bool, ...]:
-        """Stage 5 in recovery mode: the procedure's vector (others safe)."""
+    def finish(self, now: int) -> None:
+        """The procedure went past its last step."""
         proc = self.active
-        vector = list(self.safe)
-        if proc is None or self.status != "running":
-            return tuple(vector)
-        while self.step < len(proc.steps):
-            if not proc.steps[self.step][1](image, history):
-                self.held_since = None
-                break
-            hold = proc.hold[self.step]
-            if hold:
-                if self.held_since is None:
-                    self.held_since = now
-                if now - self.held_since < hold:
-                    break
-            self.step += 1
-            self.held_since = None
-        if self.step >= len(proc.steps):
-            self.status = "done"
-            self.ended_us = now
-            self.message = (f"done in {seconds(now - self.started_us)} s: "
-                            f"{proc.spec.description}")
-            return tuple(vector)
-        if now - self.started_us >= proc.spec.timeout_us:
-            self.status = "failed"
-            self.ended_us = now
-            step = proc.spec.steps[self.step]
-            self.message = (f"not done within {seconds(proc.spec.timeout_us)} s (step "
-                            f"{self.step + 1}, {step.description.lower()}, did not end): "
-                            "outputs held safe")
-            return tuple(vector)
-        for slot, condition in proc.steps[self.step][0]:
-            vector[slot] = condition is None or condition(image, history)
-        return tuple(vector)
+        assert proc is not None
+        self._status("done")
+        self.ended_us = now
+        self.message = f"done in {seconds(now - self.started_us)} s: {proc.spec.description}"
+
+    def fail(self, now: int) -> None:
+        """The procedure is past its timeout: the outputs are held safe."""
+        proc = self.active
+        assert proc is not None
+        self._status("failed")
+        self.ended_us = now
+        step = proc.spec.steps[self.step]
+        self.message = (f"not done within {seconds(proc.spec.timeout_us)} s (step "
+                        f"{self.step + 1}, {step.description.lower()}, did not end): "
+                        "outputs held safe")
 
     @property
     def filter_stage(self) -> FilterStage | None:
@@ -224,8 +206,9 @@ class RecoveryStage:
                 tuple(p.needed_since for p in self.procedures.values()))
 
     def restore(self, state: tuple[Any, ...]) -> None:
-        (self.active, self.status, self.step, self.started_us, self.message, self.ended_us,
+        (self.active, status, self.step, self.started_us, self.message, self.ended_us,
          self.held_since, self.needed, since) = state
+        self._status(status)
         for proc, value in zip(self.procedures.values(), since, strict=True):
             proc.needed_since = value
 

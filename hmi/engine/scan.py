@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any, NamedTuple
 
 from hmi.engine.commands import (
@@ -40,29 +40,20 @@ from hmi.engine.commands import (
 )
 from hmi.engine.compiled import CompiledScan
 from hmi.engine.control import ControlRuntime
-from hmi.engine.diagnoser import DiagnoserState, Diagnosis, diagnosis_stage
+from hmi.engine.diagnoser import NO_DIAGNOSIS, DiagnoserState, Diagnosis, diagnosis_stage
 from hmi.engine.filter import FilterReport, SafetyFilter
 from hmi.engine.filter_stage import FilterStage
 from hmi.engine.layout import Layout
 from hmi.engine.monitors import monitor_stage
 from hmi.engine.recovery import NO_RECOVERY, recovery_stage
 from hmi.engine.snapshot import INTERNAL_PARTS, LatchReason, Snapshot
-from hmi.engine.stages import (
-    Control,
-    InputScan,
-    Memory,
-    OutputScan,
-    Reconstruction,
-    plant_detail,
-)
+from hmi.engine.stages import InputScan, Memory, OutputScan, plant_detail
 from hmi.errors import UsageError
 from hmi.logic.expr import Expr, Image, max_depth
 from hmi.plant.base import Plant, PlantError, PlantStatus
 from hmi.project.diagnosers import layout_names
 from hmi.project.model import POLICIES, Project
 from hmi.project.recovery import recoveries_of
-
-NO_DIAGNOSIS = Diagnosis((), None, (), (), ())
 
 
 class EngineState(NamedTuple):
@@ -105,6 +96,7 @@ class ScanRecord:
         "recovery",
         "report",
         "scan_us",
+        "settled",
         "values",
     )
 
@@ -122,6 +114,9 @@ class ScanRecord:
         self.events: tuple[Any, ...] = ()  # the plant's events
         self.recovery: Any = NO_RECOVERY  # the recovery's state
         self.scan_us = 0.0  # the scan's wall time
+        # Every field but fov, outputs and values is a quiet scan's (the printed frame, at a
+        # quiet scan after a quiet one, writes only those three: hmi.engine.compiled)
+        self.settled = False
 
 
 class ScanNews(NamedTuple):
@@ -151,6 +146,14 @@ class Engine:
                  high_level: bool = True):
         self.project = project
         self.plant = plant
+        # What decides a scan's path (run() reads it as one flag, _fast; the properties
+        # below keep it): the automatic mode's printed frame, once started, no device
+        # stopped, not measuring wall times.
+        self._frame: Callable[[int], bool] | None = None
+        self._mode, self._started, self._wall_times = "auto", False, True
+        self._stop_mask: tuple[int, ...] = ()
+        self._auto_ready = self._fast = False
+        self._clean: dict[str, FilterReport] = {}
         self.control_name = control or project.default_control
         if self.control_name not in project.controls:
             raise KeyError(self.control_name)
@@ -179,11 +182,9 @@ class Engine:
         self._overdue: tuple[str, ...] = ()  # the overdue steps the last scan told of
         # The stages, in scan order (hmi.engine.stages).
         self.input_scan = InputScan(plant, lay, read_back=self.observe)  # 1
-        self.memory = Memory(project, lay, self.control)  # 2
-        # 3 (None: no diagnosers), with the High Level Diagnoser after the local ones
+        self.memory = Memory(project, lay)  # 2 (and the GRAFCET's step times: control)
+        # 3-4 (None: no diagnosers), with the High Level Diagnoser after the local ones
         self.diagnosis = diagnosis_stage(project, lay, diagnosis, high_level)
-        self.reconstruction = Reconstruction()  # 4
-        self.control_stage = Control(self.control, lay)  # 5
         self.filter = SafetyFilter(project, lay.slots, lay.step_times,
                                    solver or project.solver,
                                    solver_budget or project.solver_budget)
@@ -216,17 +217,14 @@ class Engine:
                                         if o.device == v.device)
                         for v in project.outputs if v.device}
         self.stopped_devices: set[str] = set()
-        self._stop_mask: tuple[int, ...] = ()
-        # The compiled scan (hmi.engine.compiled): the stages above, generated as flat
-        # functions over the same state. `compiled=False` keeps the interpreter alone (the
-        # reference the compiled scan is tested against). Observing a read-only device runs
-        # no control law: nothing to compile.
-        self.compiled = (CompiledScan(lay, self.memory, self.control, self.diagnosis,
-                                      self.recovery, self.filter, self.monitors,
-                                      f"{project.name}/{self.control_name}")
-                         if compiled and not self.observe else None)
-        if self.compiled is not None:  # the filter's first question, compiled
-            self.filter_stage.quick = self.compiled.violated
+        # The scan program (hmi.engine.compiled): the stages' lowerings in the order of a
+        # scan, per mode, printed as Python; `compiled=False` runs the same program through
+        # its evaluator (the reference the printed form is tested against).
+        self.compiled = CompiledScan(lay, self.memory, self.control, self.diagnosis,
+                                     self.recovery, self.filter, self.monitors,
+                                     f"{project.name}/{self.control_name}", python=compiled)
+        self.filter_stage.quick = self.compiled.violated  # the filter's first question
+        if self.compiled.active_bits is not None:
             self.filter.active_bits = self.compiled.active_bits
         self._bindings = self.input_scan.bindings
         self._period = project.scan_period_us
@@ -236,15 +234,61 @@ class Engine:
         self._pending = False  # whether _record holds a scan whose snapshot is not built
         self._news: ScanNews | None = None
         self._commanded = False
-        self._elapsed = (self.compiled.elapsed if self.compiled is not None
-                         else self.memory.elapsed)
+        self._elapsed = self.memory.elapsed
         self._clean = self.filter_stage.clean  # each policy's report of a clean scan
-        # Whether scans measure their wall time (Snapshot.scan_wall_us, filter_wall_us): the
-        # HMI's status bar and OPC UA show the scan's, the filter benches read the filter's.
-        # Nothing decided reads them; a headless run in virtual time, where nobody watches
-        # them, turns this off (Session.run_for) and saves four clock reads a scan; they
-        # are 0.0 then.
+        self.policy = self.policy  # (its clean report, now that the filter is there)
         self.wall_times = True
+        if compiled and not self.observe:  # the automatic mode's scan, printed
+            self._frame = self.compiled.frame(self)
+            self._refresh()
+
+    # -- what decides a scan's path -----------------------------------------------------------
+    @property
+    def mode(self) -> str:
+        """auto, manual or recovery."""
+        return self._mode
+
+    @mode.setter
+    def mode(self, mode: str) -> None:
+        self._mode = mode
+        self._refresh()
+
+    @property
+    def started(self) -> bool:
+        """The first scan ran (the program started from its initial steps)."""
+        return self._started
+
+    @started.setter
+    def started(self, started: bool) -> None:
+        self._started = started
+        self._refresh()
+
+    @property
+    def wall_times(self) -> bool:
+        """Whether scans measure their wall time (Snapshot.scan_wall_us, filter_wall_us):
+        the HMI's status bar and OPC UA show the scan's, the filter benches read the
+        filter's. Nothing decided reads them; a headless run in virtual time, where nobody
+        watches them, turns this off (Session.run_for); they are 0.0 then."""
+        return self._wall_times
+
+    @wall_times.setter
+    def wall_times(self, timed: bool) -> None:
+        self._wall_times = timed
+        self._refresh()
+
+    @property
+    def policy(self) -> str:
+        return self._policy
+
+    @policy.setter
+    def policy(self, policy: str) -> None:
+        self._policy = policy
+        self.clean_report = self._clean.get(policy)  # the policy's report of a clean scan
+
+    def _refresh(self) -> None:
+        self._auto_ready = (self._started and self._mode == "auto" and not self._stop_mask
+                            and not self.observe)
+        self._fast = self._auto_ready and self._frame is not None and not self._wall_times
 
     # -- commands ----------------------------------------------------------------------------
     def apply(self, command: Command) -> CommandResult:
@@ -451,6 +495,7 @@ class Engine:
         stopped = {o for d in self.stopped_devices for o in self.devices[d]}
         self._stop_mask = tuple(k for k, v in enumerate(self.project.outputs)
                                 if v.name in stopped)
+        self._refresh()
 
     def _before_change(self) -> None:
         """Something other than a scan is about to change the engine or its plant: the last
@@ -584,16 +629,22 @@ class Engine:
         firings, timers, plant state and counters, monitors' stopwatches, wall times; a
         reader that counts reports per scan counts the same report again
         (hmi.session.run_report.RunCollector.quiet)."""
+        if self._fast:
+            return self._frame(now)  # type: ignore[misc]  # (the automatic mode's, printed)
         timed = self.wall_times
         wall = time.perf_counter() if timed else 0.0
         self._pending = False  # the previous scan's snapshot, if never asked for: dropped
-        fast = self.compiled
-        if fast is not None and self.started and self.mode == "auto" and not self._stop_mask:
-            self.scan += 1  # (what _cycle does first, and then this)
-            self.now = now
-            self._auto_cycle(now, fast)
-        else:
-            self._cycle(now)
+        self._cycle(now)
+        return self._conclude(now, wall)
+
+    def _conclude(self, now: int, wall: float = 0.0, taken: tuple[Any, ...] | None = None,
+                  raised: tuple[int, Exception] | None = None) -> bool:
+        """What run() does after stages 1 to 8 (the scan's record filled): the supervision,
+        what the scan left read for its snapshot, the history, whether the scan has news.
+        `taken`: the plant's events when they were taken already; `raised`: (1, exc) when
+        taking them raised exc, (2, exc) when reading the plant's status did, (3, exc) when
+        settling the monitors did (the printed frame took or read them,
+        hmi.engine.compiled)."""
         record = self._record
         report, diagnosis, monitored, error = (record.report, record.diagnosis,
                                                record.monitored, record.error)
@@ -629,12 +680,16 @@ class Engine:
         monitors = self.monitors
         if monitors is not None:
             try:
+                if raised is not None and raised[0] == 3:
+                    raise raised[1]
                 marks = monitors.settle() if monitored else monitors.marks
             except Exception as exc:
                 failed = self._failure("settling the monitors", exc)
                 marks = monitors.marks
         try:
-            events = plant.take_events()
+            if raised is not None and raised[0] == 1:
+                raise raised[1]
+            events = plant.take_events() if taken is None else taken
         except Exception as exc:
             failed = self._failure("reading the plant's events", exc)
             events = ()
@@ -646,6 +701,8 @@ class Engine:
             failed = self._failure("reading the recovery's state", exc)
             recovery = NO_RECOVERY
         try:
+            if raised is not None and raised[0] == 2:
+                raise raised[1]
             status = plant.status
         except Exception as exc:
             failed = self._failure("reading the plant's status", exc)
@@ -676,7 +733,8 @@ class Engine:
         record.marks = marks
         record.events = events
         record.recovery = recovery
-        record.scan_us = (time.perf_counter() - wall) * 1e6 if timed else 0.0
+        record.scan_us = (time.perf_counter() - wall) * 1e6 if self.wall_times else 0.0
+        record.settled = False
         self._pending = True
         return news
 
@@ -691,7 +749,10 @@ class Engine:
         now = start
         while now <= end:
             count += 1
-            if run(now):
+            if self._fast:  # (the printed frame, without run()'s call)
+                if self._frame(now):  # type: ignore[misc]
+                    return count, True
+            elif run(now):
                 return count, True
             now += period
         return count, False
@@ -791,15 +852,15 @@ class Engine:
         self.history.appendleft(tuple(self.image))
 
     def _cycle(self, now: int) -> None:
-        """Stages 1 to 8 (module docstring), in order. In automatic and manual mode stages
-        2-5, the filter's first test and the monitors run compiled (hmi.engine.compiled);
-        the stages' own methods run whatever else happens (a violation, masking, a latch, a
-        recovery), on the same state."""
+        """Stages 1 to 8 (module docstring), in order: stages 2-5 are the scan program of
+        the engine's mode (hmi.engine.compiled), the filter's first test and the monitors
+        too; the stages' own handlers run whatever else happens (a violation, masking, a
+        latch, a recovery), on the same state."""
         self.scan += 1
         self.now = now
         fast = self.compiled
-        if fast is not None and self.started and self.mode == "auto" and not self._stop_mask:
-            self._auto_cycle(now, fast)
+        if self._auto_ready:
+            self._auto_cycle(now)
             return
         image = self.image
         error = None
@@ -819,39 +880,29 @@ class Engine:
             hist = self.history
             recovery = self.recovery
             filter_stage = self.filter_stage
-            if fast is not None and self.mode != "recovery":
-                # 2-5 compiled: memory, diagnosers, reconstruction, recoveries needed, law;
-                # in manual mode the program waits (neither its step times nor the law)
-                if self.mode == "manual":
-                    fast.held(image, hist, now, self.scan)
-                    fov = self.control_stage.manual_fov(self.manual)
+            # 2-5: memory, diagnosers, reconstruction, recoveries needed, and the law (or
+            # the operator's requests, or a recovery procedure): the mode's program
+            if self.observe:
+                fast.observed(image, hist, now, self.scan)
+                fov = self.input_scan.readback
+            elif self.mode == "manual":  # the program waits: neither its step times nor law
+                fast.held(image, hist, now, self.scan)
+                fov = self._manual_fov()
+            elif self.mode == "recovery" and recovery is not None:
+                active = recovery.active
+                if active is None:  # (none started: the law runs blind, the outputs safe)
+                    fast.core(image, hist, now, self.scan)
+                    fov = self.safe_vector
                 else:
-                    fov = fast.core(image, hist, now, self.scan)
-                if self.diagnosis is not None:
-                    diagnosis = self.diagnosis.current
-                mask = diagnosis.mask
+                    fov = fast.recovery(active.spec.name)(image, hist, now, self.scan)
+                filter_stage = recovery.filter_stage or filter_stage
             else:
-                # 2. memory
-                self.memory.update(image, hist, now)
-                # 3. diagnosers
-                if self.diagnosis is not None:
-                    diagnosis = self.diagnosis.step(image, hist, now, self.scan)
-                # 4. reconstruction
-                self.reconstruction.apply(image, diagnosis.routes)
-                if recovery is not None:
-                    recovery.check_needed(image, hist, now)
-                # 5. functional control (or the operator's requests, or a recovery procedure)
-                mask = diagnosis.mask
-                if self.observe:
-                    fov = self.input_scan.readback
-                elif self.mode == "recovery" and recovery is not None:
-                    self.control_stage.fov(image, hist, now, None)  # the law runs blind
-                    fov = recovery.fov(image, hist, now)
-                    filter_stage = recovery.filter_stage or filter_stage
-                    mask = recovery.unmask(mask)
-                else:
-                    fov = self.control_stage.fov(image, hist, now, self.manual
-                                                 if self.mode == "manual" else None)
+                fov = fast.core(image, hist, now, self.scan)
+            if self.diagnosis is not None:
+                diagnosis = self.diagnosis.current
+            mask = diagnosis.mask
+            if self.mode == "recovery" and recovery is not None:
+                mask = recovery.unmask(mask)
             if self._stop_mask and not self.observe:
                 fov = tuple(self.safe_vector[k] if k in self._stop_mask else value
                             for k, value in enumerate(fov))
@@ -882,49 +933,83 @@ class Engine:
         # 7. output scan
         for slot, value in zip(self.output_slots, outputs, strict=True):
             image[slot] = value
-        monitored, error = self._output_scan(now, outputs, error, fast)
+        monitored, error = self._output_scan(now, outputs, error)
         self._keep(fov, outputs, report, diagnosis, monitored, error, filter_us)
 
-    def _auto_cycle(self, now: int, fast: CompiledScan) -> None:
-        """:meth:`_cycle` in automatic mode, compiled, once started, no device stopped: the
-        same stages with the branches that cannot apply left out (most scans of a run).
-        When the filter lets the law's vector through, the image already holds it."""
+    def _auto_cycle(self, now: int) -> None:
+        """:meth:`_cycle` in automatic mode, once started, no device stopped: the same
+        stages with the branches that cannot apply left out (most scans of a run). When the
+        filter lets the law's vector through, the image already holds it. The printed frame
+        (hmi.engine.compiled.auto_frame) is this and run() for an untimed scan; both hand
+        what is not a quiet scan to the same methods (_auto_lost, _auto_failed,
+        _auto_filter)."""
         image = self.image
         hist = self.history
         stage = self.diagnosis
         diagnosis = stage.current if stage is not None else NO_DIAGNOSIS
-        report: FilterReport | None = None
-        error = None
-        filter_us = 0.0
+        try:  # 1. input scan
+            self.plant.read_into(now, image, self._bindings)
+        except PlantError as exc:  # as in _cycle: memories, timers and steps hold
+            self._auto_lost(now, exc)
+            return
+        except Exception as exc:  # not the plant's: a bug, in the plant or here
+            self._auto_failed(now, exc, diagnosis)
+            return
+        timed = self.wall_times
+        started = 0.0
         try:
-            try:  # 1. input scan
-                self.plant.read_into(now, image, self._bindings)
-            except PlantError as exc:  # as in _cycle: memories, timers and steps hold
-                self.latch_safe("plant", plant_detail(exc))
-                raise _InputsUnknown from None
-            # 2-5 compiled: memory, diagnosers, reconstruction, recoveries needed, law
-            fov = fast.core(image, hist, now, self.scan)
+            # 2-5: memory, diagnosers, reconstruction, recoveries needed, law
+            fov = self.compiled.core(image, hist, now, self.scan)
             if stage is not None:
                 diagnosis = stage.current
-            mask = diagnosis.mask
             # 6. filter: given without its work when nothing is masked, latched nor violated
-            policy = self.policy
-            timed = self.wall_times
             started = time.perf_counter() if timed else 0.0
+            quiet = (diagnosis.mask is None and not self.latched
+                     and not self.compiled.violated(image, hist, fov))
+        except Exception as exc:  # never leave the plant driven by a half-computed scan
+            self._auto_failed(now, exc, diagnosis)
+            return
+        if not quiet:
+            self._auto_filter(now, fov, diagnosis, started)
+            return
+        report = self.clean_report
+        filter_us = (time.perf_counter() - started) * 1e6 if timed else 0.0
+        monitored, error = self._output_scan(now, fov, None)
+        self._keep(fov, fov, report, diagnosis, monitored, error, filter_us)
+
+    def _auto_lost(self, now: int, exc: PlantError) -> None:
+        """The automatic mode's input scan failed: as in _cycle, memories, timers and steps
+        hold, the outputs go safe (latched), the output scan and the monitors run."""
+        self.latch_safe("plant", plant_detail(exc))
+        stage = self.diagnosis
+        self._auto_safe(now, None, stage.current if stage is not None else NO_DIAGNOSIS)
+
+    def _auto_failed(self, now: int, exc: Exception, diagnosis: Diagnosis) -> None:
+        """An exception in the automatic mode's stages 2-6: latched, the outputs safe."""
+        error = f"{type(exc).__name__}: {exc}"
+        self._latch_internal(error)
+        self._auto_safe(now, error, diagnosis)
+
+    def _auto_safe(self, now: int, error: str | None, diagnosis: Diagnosis) -> None:
+        safe = self.safe_vector
+        image = self.image
+        for slot, value in zip(self.output_slots, safe, strict=True):  # 7. output scan
+            image[slot] = value
+        monitored, error = self._output_scan(now, safe, error)
+        self._keep(safe, safe, None, diagnosis, monitored, error, 0.0)
+
+    def _auto_filter(self, now: int, fov: tuple[bool, ...], diagnosis: Diagnosis,
+                     started: float = 0.0) -> None:
+        """The automatic mode's filter when the candidate is masked, latched or violated:
+        its decision, the latch, the output scan and the monitors."""
+        image = self.image
+        hist = self.history
+        mask = diagnosis.mask
+        policy = self.policy
+        timed = self.wall_times
+        filter_us = 0.0
+        try:
             if mask is None and not self.latched:
-                if not fast.violated(image, hist, fov):
-                    report = self._clean[policy]
-                    if timed:
-                        filter_us = (time.perf_counter() - started) * 1e6
-                    monitored, error = self._output_scan(now, fov, None, fast)
-                    record = self._record  # (ScanRecord: written out, as at every scan)
-                    record.fov = record.outputs = fov
-                    record.report = report
-                    record.diagnosis = diagnosis
-                    record.monitored = monitored
-                    record.error = error
-                    record.filter_us = filter_us
-                    return
                 # violated, nothing masked: what FilterStage.apply would hand the filter
                 decision = self.filter.apply(image, hist, fov, policy, False)
             else:
@@ -938,23 +1023,23 @@ class Engine:
             report = decision.report
             if self.latched:
                 outputs = self.safe_vector
-        except _InputsUnknown:
-            fov = outputs = self.safe_vector
         except Exception as exc:  # never leave the plant driven by a half-computed scan
-            error = f"{type(exc).__name__}: {exc}"
-            self._latch_internal(error)
-            fov = outputs = self.safe_vector
+            self._auto_failed(now, exc, diagnosis)
+            return
         for slot, value in zip(self.output_slots, outputs, strict=True):  # 7. output scan
             image[slot] = value
-        monitored, error = self._output_scan(now, outputs, error, fast)
-        record = self._record
-        record.fov = fov
-        record.outputs = outputs
-        record.report = report
-        record.diagnosis = diagnosis
-        record.monitored = monitored
-        record.error = error
-        record.filter_us = filter_us
+        monitored, error = self._output_scan(now, outputs, None)
+        self._keep(fov, outputs, report, diagnosis, monitored, error, filter_us)
+
+    def _finish(self, now: int, fov: tuple[bool, ...], report: FilterReport,
+                diagnosis: Diagnosis, monitored: bool, error: str | None,
+                taken: tuple[Any, ...] | None = None,
+                raised: tuple[int, Exception] | None = None) -> bool:
+        """An automatic-mode scan with nothing to filter, written and monitored, kept and
+        concluded (the printed frame's way out when the rest is not a quiet scan's:
+        _conclude's `taken` and `raised`)."""
+        self._keep(fov, fov, report, diagnosis, monitored, error, 0.0)
+        return self._conclude(now, 0.0, taken, raised)
 
     def _keep(self, fov: tuple[bool, ...], outputs: tuple[bool, ...],
               report: FilterReport | None, diagnosis: Diagnosis, monitored: bool,
@@ -969,39 +1054,48 @@ class Engine:
         record.error = error
         record.filter_us = filter_us
 
-    def _output_scan(self, now: int, outputs: tuple[bool, ...], error: str | None,
-                     fast: CompiledScan | None) -> tuple[bool, str | None]:
+    def _output_scan(self, now: int, outputs: tuple[bool, ...], error: str | None
+                     ) -> tuple[bool, str | None]:
         """Stage 7's write to the plant (the image holds `outputs` already), then stage 8,
         the monitors, on the I/O this scan exchanged (their states: Engine.snapshot).
         Returns whether the monitors ran and the scan's error.
 
         Both are written out here rather than called through OutputScan.write and a method
-        of their own, as _auto_cycle reads the plant itself: they run at every scan, and
-        each call cost some 650 instructions of a quiet scan's 37,000 (issue 18). The write
-        is OutputScan.write's (a PlantError latched as the plant's, with its detail), which
-        still writes the safe vector (_go_safe)."""
+        of their own: they run at every scan. The write is OutputScan.write's (a PlantError
+        latched as the plant's, with its detail), which still writes the safe vector
+        (_go_safe)."""
         if not self.observe:
             try:
                 self.plant.write_vector(now, self.output_scan.names, outputs)
-            except PlantError as exc:  # the plant's own: as OutputScan.write reports it
-                self.latch_safe("plant", plant_detail(exc))
-            except Exception as exc:  # not a PlantError: a bug, in the plant or here
-                error = error or self._write_failed(now, outputs, exc)
-        if self.monitors is None:
+            except Exception as exc:
+                error = self._write_error(now, outputs, error, exc)
+        monitors = self.compiled.monitors
+        if monitors is None:
             return False, error
         try:
-            if fast is not None and fast.monitors is not None:
-                fast.monitors(self.image, self.history, now, self.scan)
-            else:
-                self.monitors.step(self.image, self.history, now, self.scan)
-        except Exception as exc:  # a broken monitor must not stop the scan silently
-            message = f"{type(exc).__name__}: {exc}"
-            self._latch_internal(message)
-            # the outputs were written already (the monitors watch what was exchanged):
-            # safe at once, not from the next scan
-            self._go_safe(now)
-            return False, error or message
+            monitors(self.image, self.history, now, self.scan)
+        except Exception as exc:
+            return False, self._monitors_error(now, error, exc)
         return True, error
+
+    def _write_error(self, now: int, outputs: tuple[bool, ...], error: str | None,
+                     exc: Exception) -> str | None:
+        """Writing the outputs raised `exc`: a PlantError is the plant's own, latched as
+        OutputScan.write reports it; anything else a bug, in the plant or here. Returns the
+        scan's error."""
+        if isinstance(exc, PlantError):
+            self.latch_safe("plant", plant_detail(exc))
+            return error
+        return error or self._write_failed(now, outputs, exc)
+
+    def _monitors_error(self, now: int, error: str | None, exc: Exception) -> str:
+        """A broken monitor must not stop the scan silently: latched, and, the outputs
+        written already (the monitors watch what was exchanged), safe at once, not from the
+        next scan. Returns the scan's error."""
+        message = f"{type(exc).__name__}: {exc}"
+        self._latch_internal(message)
+        self._go_safe(now)
+        return error or message
 
     def _write_failed(self, now: int, outputs: tuple[bool, ...], exc: Exception) -> str:
         """Writing the scan's outputs raised something other than a PlantError: latched as an
@@ -1029,6 +1123,12 @@ class Engine:
             return diagnosis.masked
         driven = recovery.active.spec.outputs
         return tuple(o for o in diagnosis.masked if o not in driven)
+
+    def _manual_fov(self) -> tuple[bool, ...]:
+        """Manual mode: the operator's requests as the vector (an output not requested:
+        off)."""
+        manual = self.manual
+        return tuple(manual.get(name, False) for name in self.layout.outputs)
 
     def _held_outputs(self) -> tuple[bool, ...]:
         """Outputs of a scan whose inputs are unknown: safe; observed ones as last seen."""

@@ -1,20 +1,26 @@
 """The stages of one scan (000 Fig. 1, DESIGN.md), each a small object the engine owns.
 
     1 InputScan        plant -> input slots of the image
-    2 Memory           timers, observers, GRAFCET step times (held in manual mode)
+    2 Memory           timers, observers; the GRAFCET's step times (held in manual mode)
     3 diagnosers       hmi.engine.diagnoser.DiagnosisStage (optional)
-    4 Reconstruction   filtered sensors <- the sensor or its estimate, as the diagnosers route
-    5 Control          the control law -> FOV; in manual mode the operator's requests, and
-                       the program waits where it is (ControlRuntime.hold / resume)
+    4 reconstruction   filtered sensors <- the sensor or its estimate (DiagnosisStage)
+    5 control          hmi.engine.control.ControlRuntime: the control law -> FOV; in manual
+                       mode the operator's requests, and the program waits where it is
+                       (ControlRuntime.hold / resume); in recovery mode the procedure's
+                       vector (hmi.engine.recovery.RecoveryStage)
     6 filter           hmi.engine.filter_stage.FilterStage, given the diagnosers' mask
     7 OutputScan       written vector -> plant
     8 monitors         hmi.engine.monitors.MonitorStage (optional), on the I/O just exchanged
 
-The engine (hmi.engine.scan) calls them in that order in ``Engine._cycle`` (for Engine.step
-and Engine.advance) and passes each what it reads; a stage returns what it decided and never
-reaches back into the engine. The protocols below are the declared interfaces: a new stage
-implements one and is called from ``Engine._cycle`` at its place in the cycle
-(docs/architecture.md).
+What stages 2 to 5 and 8 do at each scan is their lowering into the scan program
+(hmi.program, :attr:`program` on each: ``Memory.program``, ``DiagnosisStage.program``,
+``ControlRuntime.program`` ...), which hmi.engine.compiled puts in a scan's order per mode
+and runs; the stage objects hold the state and the handlers of what happens rarely (a
+diagnoser's transition, a GRAFCET firing, a violation, a fault reset). The engine
+(hmi.engine.scan, ``Engine._cycle``) runs stage 1, the mode's program, the filter and the
+output scan, and passes each what it reads; a stage returns what it decided and never
+reaches back into the engine. The protocols below are the declared interfaces of the
+handlers the engine calls (docs/architecture.md: adding a stage).
 
 Every stage works on the image (a flat list of slot values, hmi.engine.layout) and its
 history (``history[0]`` the image at the end of the previous scan, and so on back).
@@ -22,15 +28,14 @@ history (``history[0]`` the image at the end of the previous scan, and so on bac
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Protocol
 
-from hmi.engine.control import ControlRuntime
 from hmi.engine.layout import Layout
 from hmi.logic.expr import History, Image
 from hmi.logic.timers import TimerRuntime
 from hmi.plant.base import Plant, PlantError
-from hmi.program.evaluate import evaluator
+from hmi.program.ir import Stmt
 from hmi.program.memories import lower_observer
 from hmi.program.timers import lower_timer
 from hmi.project.model import Project
@@ -47,8 +52,9 @@ class DiagnoserStage(Protocol):
     """Stage 3: steps the local diagnosers on I(t) and the orders of t-1, sets their flags."""
 
     depth: int  # how many past images its conditions read
-
-    def step(self, image: Image, history: History, now: int, scan: int) -> Diagnosis: ...
+    program: tuple[Stmt, ...]  # stage 3 at a scan (hmi.program.diagnosers)
+    reconstruction: tuple[Stmt, ...]  # stage 4
+    current: Diagnosis  # the routes, mask and records as the last scan left them
 
     def publish(self, image: Image, history: History) -> tuple[DiagnoserState, ...]: ...
 
@@ -66,8 +72,7 @@ class MonitorStageProtocol(Protocol):
     """After the output scan: the stopwatch monitors on the I/O the scan exchanged."""
 
     depth: int
-
-    def step(self, image: Image, history: History, now: int, scan: int) -> None: ...
+    program: tuple[Stmt, ...]  # the automata at a scan (hmi.program.monitors)
 
     def settle(self) -> int: ...
 
@@ -110,26 +115,19 @@ class InputScan:
 
 
 class Memory:
-    """Stage 2: timers (TON/TOF), observers, and the GRAFCET's step activity times (these
-    held while the program waits in manual mode: ControlRuntime.update_times)."""
+    """Stage 2: timers (TON/TOF) and observers (the GRAFCET's step times are its runtime's,
+    hmi.engine.grafcet). The rules are hmi.program's lowerings (:attr:`program`, the scan
+    program's part the compiled scan prints); this object holds the timers' state."""
 
-    def __init__(self, project: Project, layout: Layout, control: ControlRuntime):
-        slots, times = layout.slots, layout.step_times
-        # (runtime, slot, IN): the state of each timer; its rule is hmi.program.timers'
-        # lowering, which this stage runs through the scan program's evaluator
+    def __init__(self, project: Project, layout: Layout):
+        slots = layout.slots
+        # (runtime, slot, IN): the state of each timer
         self.timers = [(TimerRuntime(t.name, t.kind, t.preset_us), slots[t.name], t.input.root)
                        for t in project.timers]
-        # the timers, then the observers, as the scan program (hmi.program): the statements
-        # the compiled scan prints (self.program) and this stage evaluates
+        # the timers, then the observers, as the scan program (hmi.program)
         self.program = tuple(stmt for rt, slot, input_ in self.timers
                              for stmt in lower_timer(rt, slot, input_)) + tuple(
             stmt for o in project.observers for stmt in lower_observer(o, slots[o.name]))
-        self._program = evaluator(self.program, slots, times)
-        self.control = control
-
-    def update(self, image: Image, history: History, now: int) -> None:
-        self._program(image, history, now)
-        self.control.update_times(image, now)
 
     def capture(self) -> tuple[tuple[bool, int | None], ...]:
         """The timers' state (observers live in the image)."""
@@ -144,40 +142,6 @@ class Memory:
         if not self.timers:
             return ()
         return tuple([rt.elapsed(now) for rt, _, _ in self.timers])
-
-
-class Reconstruction:
-    """Stage 4: each filtered sensor slot takes the value the diagnosers route to it, the
-    sensor itself or its estimate (000 eq. 7-8)."""
-
-    def apply(self, image: Image, routes: Sequence[tuple[int, int]]) -> None:
-        for filtered, source in routes:
-            image[filtered] = image[source]
-
-
-class Control:
-    """Stage 5: the functional output vector, from the control law or the manual requests."""
-
-    def __init__(self, runtime: ControlRuntime, layout: Layout):
-        self.runtime = runtime
-        self.outputs = layout.outputs
-        self.slots = layout.indices(layout.outputs)
-
-    def fov(self, image: Image, history: History, now: int,
-            manual: Mapping[str, bool] | None) -> tuple[bool, ...]:
-        """The law's vector; in manual mode (`manual`: the operator's requests) the program
-        waits: the law does not run (no transition fires, no equation is evaluated, its steps
-        and memories hold; its step times were held at stage 2, ControlRuntime.hold) and the
-        requests are the vector. A recovery runs the law blind (Engine._cycle: `manual` None,
-        the vector ignored), and leaving recovery restarts it from its initial steps."""
-        if manual is not None:
-            return self.manual_fov(manual)
-        self.runtime.run(image, history, now)
-        return tuple(image[s] for s in self.slots)
-
-    def manual_fov(self, manual: Mapping[str, bool]) -> tuple[bool, ...]:
-        """The operator's requests as the vector (an output not requested: off)."""
-        return tuple(manual.get(name, False) for name in self.outputs)
 
 
 class OutputScan:

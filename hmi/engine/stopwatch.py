@@ -39,9 +39,13 @@ still hopeless, and so that the plain watchdog used for comparison keeps running
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from enum import Enum
 
+from hmi.program.evaluate import evaluator
+from hmi.program.ir import Local
+from hmi.program.monitors import VERDICTS, lower_task
 from hmi.timefmt import seconds as _s
 
 
@@ -138,13 +142,11 @@ class Watchdog:
         """The attempt was abandoned: nothing to trip on."""
         self._armed = False
 
-    def observe(self, now: int, scan: int, x_us: int, attempt: int, ended: bool) -> None:
-        """Called at every scan of an attempt (including the scan that sees its end)."""
-        if self._armed and x_us >= self.gamma_us:
-            self.last = WatchdogTrip(now, scan, x_us, attempt)
-            self._armed = False
-        if ended:
-            self._armed = False
+    def trip(self, now: int, scan: int, x_us: int, attempt: int) -> None:
+        """The armed watchdog saw x reach gamma (hmi.program.monitors: the scan program
+        watches it at every scan of an attempt, and disarms it at the attempt's end)."""
+        self.last = WatchdogTrip(now, scan, x_us, attempt)
+        self._armed = False
 
 
 class TaskAutomaton:
@@ -164,6 +166,7 @@ class TaskAutomaton:
         self.faults = 0  # attempts found faulty
         self.completed = 0  # attempts ended inside the acceptable window
         self.watchdog = Watchdog(window.gamma_us)
+        self._program: Callable[..., None] | None = None  # step's, built at its first call
         # Changes of what the operator sees apart from the stopwatches (phase, attempt,
         # detections, watchdog trips, counts, the latch): Snapshot.monitor_marks sums them.
         self.changes = 0
@@ -184,81 +187,31 @@ class TaskAutomaton:
 
         `suspend` is looked at while executing and `resume` while interrupted, so a level
         signal "task interrupted" is passed as (level, not level) and a pair of events as
-        they are.
-        """
-        elapsed = 0 if self.last_us is None else now - self.last_us
-        self.last_us = now
-        watchdog = self.watchdog
-        tripped = watchdog.last
-        if self.phase is Phase.IDLE:
-            if start:
-                self._begin(now)
-                if suspend:
-                    self.phase = Phase.SUSPENDED
-                watchdog.observe(now, scan, self.x_us, self.attempt, False)
-                self.changes += 1
-            return None
-        self.x_us += elapsed
-        if self.phase is Phase.RUNNING:
-            self.y_us += elapsed
-        if end:
-            verdict = self._judge_end()
-            self.phase = Phase.IDLE
-            self.changes += 1
-            if verdict is None and self.attempt_fault is None:
-                self.completed += 1
-        else:
-            if self.phase is Phase.RUNNING and suspend:
-                self.phase = Phase.SUSPENDED
-                self.changes += 1
-            elif self.phase is Phase.SUSPENDED and resume:
-                self.phase = Phase.RUNNING
-                self.changes += 1
-            verdict = self._judge_running()
-        watchdog.observe(now, scan, self.x_us, self.attempt, end)
-        if watchdog.last is not tripped:
-            self.changes += 1
-        if verdict is None or self.attempt_fault is not None:
-            return None
-        detection = Detection(verdict, now, scan, self.x_us, self.y_us, self.attempt,
-                              self.attempt_start_us)
+        they are. The rules are hmi.program.monitors' lowering, the one the engine's scan
+        runs too, here through the program's evaluator."""
+        program = self._program
+        if program is None:
+            lowered = lower_task(
+                self, (self.window.alpha_us, self.window.beta_us, self.window.gamma_us),
+                (Phase.IDLE, Phase.RUNNING, Phase.SUSPENDED),
+                Local("start"), Local("end"), Local("suspend"), Local("resume"))
+            program = self._program = evaluator(lowered, {}, {})
+        latched = self.latched
+        program([], (), now, scan, start=start, end=end, suspend=suspend, resume=resume)
+        return self.latched if self.latched is not latched else None
+
+    def detect(self, verdict: int, now: int, scan: int) -> None:
+        """The attempt in progress broke a rule (a verdict of hmi.program.monitors): the
+        evidence, counted, and latched unless a fault is latched already (the label keeps
+        its first evidence)."""
+        detection = Detection(VERDICTS[verdict - 1], now, scan, self.x_us, self.y_us,
+                              self.attempt, self.attempt_start_us)
         self.attempt_fault = detection
         self.last_detection = detection
         self.faults += 1
         self.changes += 1
         if self.latched is None:
             self.latched = detection
-            return detection
-        return None  # already faulty: counted, but the label keeps its first evidence
-
-    def _begin(self, now: int) -> None:
-        self.phase = Phase.RUNNING
-        self.x_us = 0
-        self.y_us = 0
-        self.attempt += 1
-        self.attempt_start_us = now
-        self.attempt_fault = None
-        self.watchdog.start()
-
-    def _judge_running(self) -> str | None:
-        w, x, y = self.window, self.x_us, self.y_us
-        if y < w.alpha_us and x + (w.alpha_us - y) >= w.gamma_us:
-            return "cannot_finish"
-        if y >= w.alpha_us and x >= w.gamma_us:
-            return "deadline"
-        if y > w.beta_us or (y == w.beta_us and self.phase is Phase.RUNNING):
-            return "overrun"
-        return None
-
-    def _judge_end(self) -> str | None:
-        w, x, y = self.window, self.x_us, self.y_us
-        if x >= w.gamma_us:
-            return "late_end"
-        if y > w.beta_us:
-            return "overrun"
-        if y < w.alpha_us:
-            return "too_fast"
-        return None
 
     def abandon(self) -> bool:
         """Forget the attempt in progress (True if there was one): a recovery is about to

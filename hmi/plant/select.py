@@ -10,6 +10,7 @@ cannot run on Modbus, and that is reported at each variable's file:line:column.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 from hmi.errors import ProjectError, UsageError
@@ -42,7 +43,7 @@ def modbus_settings(project: Project, choice: str | None) -> ModbusSettings:
 
 
 def open_plant(project: Project, choice: str | None = None, read_only: bool = False,
-               injections: list[Injection] = (), period_us: int | None = None
+               injections: Sequence[Injection] = (), period_us: int | None = None
                ) -> SimPlant | ModbusPlant:
     """The plant to run against; nothing is connected yet (see modbus_client.wait_connected)."""
     kind = plant_kind(project, choice)

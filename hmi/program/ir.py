@@ -1,16 +1,22 @@
 """The scan program's intermediate representation: statements over the image, the history,
-the scan's time and the state cells of the runtime objects the program is lowered for.
+the scan's time and number, and the state cells of the runtime objects the program is
+lowered for.
 
-Why: a rule of the scan (a TON, a TOF ...) is written once, as a lowering into these nodes
-(hmi.program.timers), and every form that runs it is printed from them: the Python the
-compiled scan runs (hmi.program.python) and the evaluator the reference interpreter runs
+Why: a rule of the scan (a TON, a diagnoser's transition, a GRAFCET's enabling ...) is
+written once, as a lowering into these nodes (hmi.program.timers, diagnosers, grafcet ...),
+and every form that runs it is printed from them: the Python the compiled scan runs
+(hmi.engine.codegen.print_program) and the closures of the reference evaluator
 (hmi.program.evaluate). A rule is then no longer kept in step by hand between a template
 and a method.
 
 The vocabulary is deliberately small: a project's Boolean expression (``Test``, the parsed
-tree of hmi.logic.expr), the scan's time, integer and Boolean constants, ``None``, a
-subtraction, a comparison ``>=``, a test for ``None``, not/and/or, locals, image slots and
-attributes of the objects handed over (``Cell``: a timer's ``since``), assignments and ``if``.
+tree of hmi.logic.expr), the scan's time and number, integer and Boolean constants and
+``None``, ``+``, ``-``, comparisons, a test for ``None``, not/and/or, locals, image slots,
+attributes of the runtime objects handed over (``Cell``: a timer's ``since``), items of a
+sequence, assignments, ``if`` and ``switch``. What happens rarely and needs the runtime's
+bookkeeping (a diagnoser entering a state builds the record the snapshot shows, a GRAFCET
+firing computes its new steps) is an explicit call of a handler object's method (``Call``,
+as a value, or ``Do`` as a statement).
 """
 
 from __future__ import annotations
@@ -36,10 +42,26 @@ class Now:
 
 
 @dataclass(frozen=True)
-class Const:
-    """An integer, a Boolean or None (no other constant: hmi.engine.codegen's vocabulary)."""
+class ScanNumber:
+    """The scan's number (1 for the first)."""
 
-    value: int | bool | None
+
+@dataclass(frozen=True)
+class TheImage:
+    """The image itself (a handler's argument)."""
+
+
+@dataclass(frozen=True)
+class TheHistory:
+    """The history itself (a handler's argument)."""
+
+
+@dataclass(frozen=True)
+class Const:
+    """An integer, a Boolean, None or a tuple of integers (no other constant:
+    hmi.engine.codegen's vocabulary)."""
+
+    value: int | bool | tuple[int, ...] | None
 
 
 @dataclass(frozen=True)
@@ -63,16 +85,49 @@ class Cell:
     attr: str
 
 
+@dataclass(frozen=True, eq=False)
+class Ref:
+    """A runtime object handed over as it is (a table, a constant the program compares
+    with by identity)."""
+
+    obj: Any
+
+
+@dataclass(frozen=True)
+class Item:
+    """``base[index]``: an item of a sequence, read or (a list) written."""
+
+    base: Value
+    index: int
+
+
+@dataclass(frozen=True)
+class Tuple:
+    """A tuple of values (a vector of outputs)."""
+
+    items: tuple[Value, ...]
+
+
+@dataclass(frozen=True)
+class Add:
+    left: Value
+    right: Value
+
+
 @dataclass(frozen=True)
 class Sub:
     left: Value
     right: Value
 
 
-@dataclass(frozen=True)
-class AtLeast:
-    """``left >= right``."""
+COMPARISONS = ("==", "!=", "<", "<=", ">", ">=", "is")
 
+
+@dataclass(frozen=True)
+class Compare:
+    """``left op right``, op one of COMPARISONS (``is``: the same object)."""
+
+    op: str
     left: Value
     right: Value
 
@@ -101,8 +156,19 @@ class Or:
     operands: tuple[Value, ...]
 
 
-Value = Test | Now | Const | Local | Slot | Cell | Sub | AtLeast | IsNone | Not | And | Or
-Target = Local | Slot | Cell
+@dataclass(frozen=True, eq=False)
+class Call:
+    """A handler's method called with `args`: a rare event, or the runtime's bookkeeping.
+    Its value is what the method returns."""
+
+    owner: Any
+    method: str
+    args: tuple[Value, ...] = ()
+
+
+Value = (Test | Now | ScanNumber | TheImage | TheHistory | Const | Local | Slot | Cell | Ref
+         | Item | Tuple | Add | Sub | Compare | IsNone | Not | And | Or | Call)
+Target = Local | Slot | Cell | Item
 
 # -- statements ------------------------------------------------------------------------------
 
@@ -120,8 +186,82 @@ class If:
     orelse: tuple[Stmt, ...] = ()
 
 
-Stmt = Assign | If
+@dataclass(frozen=True)
+class Do:
+    """A call whose value is not used."""
+
+    call: Call
+
+
+@dataclass(frozen=True)
+class Switch:
+    """The statements of the case whose integer equals `value` (at most one), else
+    `default`."""
+
+    value: Value
+    cases: tuple[tuple[int, tuple[Stmt, ...]], ...]
+    default: tuple[Stmt, ...] = ()
+
+
+@dataclass(frozen=True)
+class Return:
+    """Leave the function with `value` (hmi.engine.compiled's frames only: a stage's
+    program runs to its end)."""
+
+    value: Value
+
+
+@dataclass(frozen=True, eq=False)
+class Try:
+    """`body`; an exception of one of the `handlers`' classes (tried in order) is bound to
+    the local named there and its statements run instead of the rest of `body`. Only the
+    engine's frame around a mode's program uses it (what fails there is the plant's I/O or
+    a stage's bug: the engine's own handlers say what to do)."""
+
+    body: tuple[Stmt, ...]
+    handlers: tuple[tuple[type[BaseException], str, tuple[Stmt, ...]], ...]
+
+
+Stmt = Assign | If | Do | Switch | Return | Try
 
 FALSE = Const(False)
 TRUE = Const(True)
 NONE = Const(None)
+
+
+def at_least(left: Value, right: Value) -> Compare:
+    return Compare(">=", left, right)
+
+
+def all_of(*operands: Value) -> Value:
+    """The conjunction of `operands` (TRUE when none; the operand itself when one)."""
+    if not operands:
+        return TRUE
+    return operands[0] if len(operands) == 1 else And(tuple(operands))
+
+
+def any_of(*operands: Value) -> Value:
+    if not operands:
+        return FALSE
+    return operands[0] if len(operands) == 1 else Or(tuple(operands))
+
+
+def if_chain(branches: list[tuple[Value, tuple[Stmt, ...]]],
+             orelse: tuple[Stmt, ...] = ()) -> tuple[Stmt, ...]:
+    """``if a: ... elif b: ... else: ...`` as nested Ifs (printed as elif)."""
+    result = orelse
+    for test, then in reversed(branches):
+        result = (If(test, then, result),)
+    return result
+
+
+@dataclass(frozen=True)
+class Function:
+    """A program as one function: `params` (named as its locals; ``v``, ``h``, ``now`` and
+    ``scan`` are the image, the history, the scan's time and number), `body`, and the
+    value it returns (None: nothing)."""
+
+    name: str
+    params: tuple[str, ...]
+    body: tuple[Stmt, ...]
+    result: Value | None = None

@@ -14,7 +14,6 @@ from hmi.program.ir import (
     NONE,
     TRUE,
     Assign,
-    AtLeast,
     Cell,
     Const,
     If,
@@ -25,6 +24,7 @@ from hmi.program.ir import (
     Stmt,
     Sub,
     Test,
+    at_least,
 )
 
 
@@ -34,7 +34,7 @@ def lower_timer(runtime: TimerRuntime, slot: int, input_: Node) -> tuple[Stmt, .
     s = Local("s")
     # IN held since `since` (the first scan it was seen, when `since` is None: now)
     started = (Assign(s, since), If(IsNone(s), (Assign(s, Now()), Assign(since, Now()))))
-    reached = AtLeast(Sub(Now(), s), Const(int(runtime.preset)))
+    reached = at_least(Sub(Now(), s), Const(int(runtime.preset)))
     if runtime.kind == "TON":
         return (
             If(Test(input_),

@@ -25,6 +25,8 @@ command itself.
 
 from __future__ import annotations
 
+from typing import Any
+
 from rich.style import Style
 from rich.text import Text
 from textual import events
@@ -212,7 +214,7 @@ class AlarmList(TextPanel):
         self._on_screen: list[int] = []  # indices of the alarms on screen, top to bottom
         self._rows: tuple[int, bool] | None = None  # lines drawn and compact border, as set
         self._alarm_rows = 0  # of those lines, the alarm rows (then the selected one's line)
-        self._drawn: tuple | None = None
+        self._drawn: tuple[Any, ...] | None = None
 
     def on_mount(self) -> None:
         self.border_title = "Alarms"

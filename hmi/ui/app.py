@@ -1068,7 +1068,7 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         if panel.key is None:
             self.refuse("explanation", "no alarm selected, nothing to explain")
             return
-        panel.expand()
+        panel.open_next_level()
 
     def action_policy(self, policy: str | None = None) -> None:
         from hmi.ui.dialogs import ChoiceDialog

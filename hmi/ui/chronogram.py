@@ -16,6 +16,8 @@ lost however wide the window. A blank column is before the first recorded scan.
 
 from __future__ import annotations
 
+from typing import Any
+
 from rich.text import Text
 from textual.reactive import reactive
 from textual.widget import Widget
@@ -119,7 +121,7 @@ class Chronogram(ContainedPump, Widget):
         super().__init__(id=id)
         self.recorder = recorder
         self.frame: Frame | None = None
-        self._drawn: tuple | None = None
+        self._drawn: tuple[Any, ...] | None = None
         self.set_reactive(Chronogram.signals, signals)
 
     def show(self, frame: Frame) -> None:

@@ -64,7 +64,7 @@ class KeptCss:
         """What ``parse`` (Textual's ``_parse_rules``) would return."""
         in_process = parse_cache(stylesheet)
         cache_key = (css, read_from, is_default_rules, tie_breaker, scope)
-        rules = in_process.get(cache_key)
+        rules: list[Any] | None = in_process.get(cache_key)
         if rules is not None:  # as Textual's own method answers it
             return rules
         key = blake2b(repr((*cache_key, sorted(css_variables(stylesheet).items())))
@@ -77,13 +77,14 @@ class KeptCss:
             self.hits += 1
             in_process[cache_key] = rules
             return rules
-        rules = parse(stylesheet, css, read_from, is_default_rules, tie_breaker, scope)
+        parsed: list[Any] = parse(stylesheet, css, read_from, is_default_rules, tie_breaker,
+                                  scope)
         self.parsed += 1
-        if not any(rule.errors for rule in rules):
+        if not any(rule.errors for rule in parsed):
             # pickled now, before anything else holds (and might change) them
-            self.entries[key] = pickle.dumps(rules, pickle.HIGHEST_PROTOCOL)
+            self.entries[key] = pickle.dumps(parsed, pickle.HIGHEST_PROTOCOL)
             self._unsaved = True
-        return rules
+        return parsed
 
     def save(self) -> None:
         """Write the file if something was parsed since the last save."""

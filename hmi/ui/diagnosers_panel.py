@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from rich.style import Style
 from rich.text import Text
 
+from hmi.engine.diagnoser import DiagnoserState
 from hmi.timefmt import seconds
 from hmi.ui.frame import Frame
 from hmi.ui.panel import ColumnPanel, set_title
@@ -95,8 +96,9 @@ def effects_text(flags: tuple[tuple[str, bool], ...], partitions: dict[str, Part
     return text or None
 
 
-def diagnoser_lines(d, partitions: dict[str, PartitionInfo], reconstructed: set[str],
-                    masked: set[str], name_w: int, detail: int) -> list[Text]:
+def diagnoser_lines(d: DiagnoserState, partitions: dict[str, PartitionInfo],
+                    reconstructed: set[str], masked: set[str], name_w: int,
+                    detail: int) -> list[Text]:
     # Each gap ends the run before it (`V1 ` then `A3 `), so no viewer runs them together.
     head = Text()
     if d.faulty:

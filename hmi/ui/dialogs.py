@@ -15,11 +15,11 @@ moves the focus between its buttons, and the focus starts on Cancel.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TypeVar
+from typing import Any, TypeVar
 
 from rich.text import Text
 from textual import events, on
-from textual.app import ComposeResult
+from textual.app import App, ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal, Vertical
 from textual.screen import ModalScreen
@@ -39,7 +39,7 @@ def _title(text: str, level: Level) -> Static:
     return Static(title, classes="dialog-title", markup=False)
 
 
-def keep_clear(app) -> None:
+def keep_clear(app: App[Any]) -> None:
     """Keep the status bar and the banners of the main screen in view above every dialog
     (and the command palette): the dialog's box starts below them, so nothing the cell says
     about itself (SAFE STATE, MANUAL, a disconnected plant) is covered while the operator

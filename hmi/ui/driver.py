@@ -12,9 +12,14 @@
 from __future__ import annotations
 
 import gc
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
 from hmi.link.base import CellLink
 from hmi.ui.textual_adapter import hold_refresh, paint_changes, paint_later
+
+if TYPE_CHECKING:
+    from textual.screen import Screen
 
 
 class LiveDriver:
@@ -24,7 +29,7 @@ class LiveDriver:
         self.link = link
 
     @property
-    def runner(self):
+    def runner(self) -> Any:
         """The scan thread, when the scans run in this process (the single-process bench)."""
         return getattr(self.link, "runner", None)
 
@@ -55,7 +60,7 @@ class VirtualDriver:
     error = None
 
     @staticmethod
-    def hold(screen) -> None:
+    def hold(screen: Screen[Any]) -> None:
         """The screen lays out and paints when whoever drives virtual time says so
         (hmi.ui.headless.drain: once everything queued is handled), never on its refresh
         timer: that timer fires 1/60 s of wall clock after a change, so on a loaded machine
@@ -74,7 +79,7 @@ class VirtualDriver:
             paint_later(screen)
 
     @staticmethod
-    def paint(app) -> bool:
+    def paint(app: Any) -> bool:  # a PlcHmiApp (hmi.ui.app imports this module)
         """Paint what changed on the active screen since it was last painted, as its refresh
         would have on a terminal; True if there was anything. For whoever wants every state
         drawn that it stops at (the soak, after each step: a widget that fails to draw fails
@@ -96,6 +101,6 @@ class VirtualDriver:
         """Run the scans that `duration_us` of virtual time holds, if running; return how many."""
         return self.link.advance(duration_us)
 
-    def advance_until(self, predicate, limit_us: int) -> bool:
+    def advance_until(self, predicate: Callable[[Any], bool], limit_us: int) -> bool:
         """Run scans until `predicate(snapshot)` holds, at most `limit_us` of virtual time."""
         return self.link.advance_until(predicate, limit_us)

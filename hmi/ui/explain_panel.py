@@ -34,6 +34,8 @@ frame where nothing changed costs a comparison.
 
 from __future__ import annotations
 
+from typing import Any
+
 from rich.style import Style
 from rich.text import Text
 from textual import events, on
@@ -164,7 +166,7 @@ class ExplanationPanel(VirtualSizeHook, ContainedPump, VerticalScroll):
         # the last policy choice's answer, per situation, with the explanation it answered
         self.results: dict[str, tuple[Text, int]] = {}
         self.wide = True
-        self._drawn: tuple | None = None
+        self._drawn: tuple[Any, ...] | None = None
         self._policies: tuple[Policy, ...] | None = None
         self._focus_recommended = False
         self._answered: Text | None = None
@@ -201,7 +203,7 @@ class ExplanationPanel(VirtualSizeHook, ContainedPump, VerticalScroll):
         self.key, self.explanation, self.alarm, self.wide = key, explanation, alarm, wide
         self._draw()
 
-    def expand(self) -> None:
+    def open_next_level(self) -> None:
         """``e``: open the next level; after the last, fold back to the first."""
         if self.key is None or self.explanation is None:
             return
@@ -388,8 +390,8 @@ class ExplanationPanel(VirtualSizeHook, ContainedPump, VerticalScroll):
 
     def _focus_policy(self) -> None:
         buttons = list(self.query(".policy-button").results(Button))
-        chosen = next((b for b in buttons if getattr(b, "policy", None) is not None
-                       and b.policy.recommended), buttons[0] if buttons else None)
+        chosen = next((b for b in buttons if (policy := getattr(b, "policy", None)) is not None
+                       and policy.recommended), buttons[0] if buttons else None)
         if chosen is not None:
             chosen.focus(scroll_visible=False)  # the policies' heading is scrolled to
 

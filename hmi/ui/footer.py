@@ -10,6 +10,7 @@ each column as wide as its widest key, so every control stays visible.
 from __future__ import annotations
 
 from math import ceil
+from typing import Any
 
 from rich.cells import cell_len
 from textual.app import ComposeResult
@@ -37,9 +38,9 @@ def key_width(key: FooterKey) -> int:
 class HmiFooter(ContainedPump, Footer):
     needed = 0  # columns one line would need for every key
     _recompose_due = False
-    _shown: tuple | None = None  # what the keys on screen were composed from
+    _shown: tuple[Any, ...] | None = None  # what the keys on screen were composed from
 
-    def bindings_changed(self, screen: Screen) -> None:
+    def bindings_changed(self, screen: Screen[Any]) -> None:
         """One recompose for every change of the bindings until the next refresh.
 
         Textual's footer schedules a recompose per change; the start and a focus move
@@ -75,7 +76,7 @@ class HmiFooter(ContainedPump, Footer):
             return
         await self.recompose()
 
-    def composed_from(self) -> tuple:
+    def composed_from(self) -> tuple[Any, ...]:
         """Everything :meth:`Footer.compose` reads to build the keys:
         each shown binding's key, display, description, action, group, whether it is
         enabled, its tooltip; the command palette's key."""

@@ -68,7 +68,8 @@ class GrafcetPanel(TextPanel):
         self.steps = steps
         self.timers = timers
         self.frame: Frame | None = None
-        self._shown: dict[str, list[Wait]] = {}  # the waits shown under each active step
+        # the waits shown under each active step (TextPanel._shown is the text last shown)
+        self._waits_shown: dict[str, list[Wait]] = {}
 
     def on_mount(self) -> None:
         self.border_title = f"Control · {self.control}"
@@ -132,7 +133,7 @@ class GrafcetPanel(TextPanel):
     def render_frame(self, frame: Frame) -> Text:
         snap = frame.snapshot
         active = set(snap.active_steps)
-        self._shown = self._placed(snap.waits, active) if active else {}
+        self._waits_shown = self._placed(snap.waits, active) if active else {}
         width = max(20, self.content_size.width or 40)
         name_w = max((len(s.name) for s in self.steps), default=2)
         text = Text(no_wrap=True, overflow="ellipsis")
@@ -162,7 +163,7 @@ class GrafcetPanel(TextPanel):
                 text.append(f"{step.name.ljust(name_w)} ", style="bold")
                 text.append(desc, style="bold")
                 text.append(f" {_secs(int(elapsed))}\n", style=mark)
-                for wait in self._shown.get(step.name, ()):
+                for wait in self._waits_shown.get(step.name, ()):
                     late = any(s in snap.overdue_steps
                                for s in (wait.step, *self._sources(wait)))
                     self._wait_line(text, wait, late and not compact)

@@ -16,6 +16,8 @@ itself: it posts :class:`~hmi.ui.messages.CommandRequested` up to the app.
 
 from __future__ import annotations
 
+from typing import Any
+
 from rich.text import Text
 from textual.binding import Binding
 from textual.widgets import DataTable
@@ -34,7 +36,7 @@ MANUAL_ACTIONS = ("manual_on", "manual_off", "manual_release")
 NARROW = 60  # panel width (cells) under which the State marks take their short form
 
 
-class IOPanel(ContainedPump, DataTable):
+class IOPanel(ContainedPump, DataTable[Any]):
     BINDINGS = [
         Binding("1", "manual_on", "On", tooltip="Manual: request the highlighted output on"),
         Binding("0", "manual_off", "Off", tooltip="Manual: request the highlighted output off"),
@@ -46,7 +48,7 @@ class IOPanel(ContainedPump, DataTable):
 
     def __init__(self, layout: Layout, descriptions: dict[str, str],
                  free_inputs: tuple[str, ...], *, id: str | None = None,
-                 devices: dict[str, str] | None = None, partitions: tuple = ()):
+                 devices: dict[str, str] | None = None, partitions: tuple[Any, ...] = ()):
         super().__init__(id=id, cursor_type="row", zebra_stripes=False)
         self.layout_ = layout
         self.descriptions = descriptions

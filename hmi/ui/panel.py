@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from rich.text import Text
 from textual.css.query import NoMatches
+from textual.widget import Widget
 from textual.widgets import Static
 
 from hmi.ui.containment import ContainedPump
@@ -19,7 +20,7 @@ from hmi.ui.frame import Frame
 TOP_SHARE = 0.6  # app.tcss: #top { max-height: 60% } of #body
 
 
-def set_title(widget, title: str) -> None:
+def set_title(widget: Widget, title: str) -> None:
     """Set a border title only when it changes: setting it repaints the widget, and a panel
     that set it every frame would repaint every frame for nothing."""
     if widget.border_title != title:

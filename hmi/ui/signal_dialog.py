@@ -27,7 +27,7 @@ class SignalDialog(Dialog[tuple[str, ...] | None]):
     TITLE_TEXT = "Chronogram signals"
     BINDINGS = [
         Binding("escape", "cancel", "Cancel"),
-        Binding("space", "toggle", "Tick / untick", priority=True),
+        Binding("space", "tick", "Tick / untick", priority=True),
         Binding("enter", "done", "Done", priority=True),
     ]
 
@@ -60,7 +60,7 @@ class SignalDialog(Dialog[tuple[str, ...] | None]):
         options.highlighted = 0
         options.focus()
 
-    def action_toggle(self) -> None:
+    def action_tick(self) -> None:
         options = self.query_one(OptionList)
         index = options.highlighted
         if index is None:
@@ -71,7 +71,7 @@ class SignalDialog(Dialog[tuple[str, ...] | None]):
 
     @on(OptionList.OptionSelected)
     def _clicked(self, event: OptionList.OptionSelected) -> None:
-        self.action_toggle()
+        self.action_tick()
 
     def action_done(self) -> None:
         self.dismiss(tuple(s.name for s in self.signals if s.name in self.chosen))

@@ -225,8 +225,8 @@ def banner_lines(frame: Frame) -> list[Text]:
         line.append(" " + "; ".join(r.detail for r in snap.latched)
                     + " · r: fault reset once the cause is gone")
         lines.append(line)
-    if frame.serving is not None and (line := serving_banner(frame.serving)) is not None:
-        lines.append(line)
+    if frame.serving is not None and (served := serving_banner(frame.serving)) is not None:
+        lines.append(served)
     fault = frame.ui_fault
     if fault is not None:
         line = banner("UI ERROR", Level.ALARM)

@@ -16,9 +16,13 @@ operator:
 from __future__ import annotations
 
 from enum import Enum
+from typing import TYPE_CHECKING
 
 from rich.style import Style
 from rich.text import Text
+
+if TYPE_CHECKING:
+    from textual.theme import Theme
 
 
 class Level(Enum):
@@ -77,7 +81,7 @@ def bit(value: object) -> str:
 ISA101 = "isa101"  # the theme's name
 
 
-def isa101_theme():
+def isa101_theme() -> Theme:
     """A grey Textual theme: accents are greys, so only abnormal states carry colour."""
     from textual.theme import Theme
 

@@ -226,10 +226,10 @@ def paint_changes(app: App[Any]) -> bool:
     return True
 
 
-def render_screen(app: App[Any]) -> RenderableType:
+def render_screen(app: App[Any]) -> RenderableType | None:
     """The whole active screen as the terminal would show it (with what shows under a
     dialog), rendered now."""
-    rendered: RenderableType = app.screen._compositor.render_update(
+    rendered: RenderableType | None = app.screen._compositor.render_update(
         full=True, screen_stack=background_screens(app))
     return rendered
 

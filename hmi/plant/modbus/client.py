@@ -142,7 +142,7 @@ class ModbusPlant(Plant):
         self._backoff_s = BACKOFF_FIRST_S
         self._next_attempt = 0.0  # clock() of the next connection attempt
         self.attempts = 0
-        self._written: dict[object, tuple] = {}  # request plan entry -> values last written
+        self._written: dict[object, tuple[int, ...]] = {}  # plan entry -> values last written
         self._last_full_us: int | None = None
         self.stats = dict.fromkeys(
             ("requests", "reads", "writes", "stop_writes", "exceptions", "timeouts", "invalid",
@@ -151,7 +151,7 @@ class ModbusPlant(Plant):
         self.io_us: deque[float] = deque(maxlen=10_000)  # wall time of each scan's I/O
         self._scan_io = 0.0
         self._scan_ok = False
-        self.link = LinkLog(settings.where, clock)  # connection events for the journal
+        self.link: LinkLog = LinkLog(settings.where, clock)  # connection events for the journal
 
     # -- connection ----------------------------------------------------------------------
     def connect(self) -> bool:
@@ -213,7 +213,7 @@ class ModbusPlant(Plant):
             raise PlantError(self._down_reason)
         return self._conn
 
-    def _request(self, conn: ModbusLink, pdu: bytes, what: str) -> tuple:
+    def _request(self, conn: ModbusLink, pdu: bytes, what: str) -> tuple[int, ...]:
         """One request; its values, or a PlantError saying what went wrong."""
         self.stats["requests"] += 1
         try:

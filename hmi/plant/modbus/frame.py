@@ -167,7 +167,7 @@ class Answer:
     of an exception response."""
 
     function: int
-    values: tuple = ()
+    values: tuple[int, ...] = ()
     exception: int | None = None
 
 

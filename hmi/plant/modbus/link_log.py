@@ -85,7 +85,7 @@ class Outage:
     losses: int = 0  # connections lost, the first included
     failed: int = 0  # connection attempts that failed
     connects: int = 0  # connections made during the outage (that then did not hold)
-    window: Counter = field(default_factory=Counter)  # the same, since the last entry
+    window: Counter[str] = field(default_factory=Counter)  # the same, since the last entry
     last: str = ""  # the last problem, in plain words
 
     def add(self, what: str, reason: str) -> int:
@@ -93,7 +93,8 @@ class Outage:
         self.window[what] += 1
         if reason:
             self.last = reason
-        return getattr(self, what)
+        count: int = getattr(self, what)
+        return count
 
     @staticmethod
     def describe(counts: Mapping[str, int]) -> str:

@@ -26,7 +26,7 @@ import os
 import signal
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from hmi.errors import UsageError
@@ -77,7 +77,7 @@ def split_injections(injections: list[Injection]) -> tuple[list[Injection], list
 class PlantServer:
     """The simulated plant behind our Modbus TCP server (see the module docstring)."""
 
-    def __init__(self, project: Project, unit: int, injections: list[Injection] = (),
+    def __init__(self, project: Project, unit: int, injections: Sequence[Injection] = (),
                  delay_us: int = 0, out: Callable[[str], None] = print,
                  max_connections: int = MAX_CONNECTIONS, idle_s: float = IDLE_S,
                  warn: Callable[[str], None] | None = None):
@@ -98,7 +98,7 @@ class PlantServer:
         self.sensors = tuple(p for p in self.map.inputs if p.name in driven)
         self.orders = dict.fromkeys(self.plant.output_names, False)
         self._t0 = time.monotonic_ns()
-        self._shown: tuple | None = None
+        self._shown: tuple[object, ...] | None = None
         self._events_shown = 0
         self._comm_shown: set[tuple[str, bool]] = set()
         self.tables = Tables(self.served_sizes(), self._refresh, self._take_orders)

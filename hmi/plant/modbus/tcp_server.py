@@ -35,6 +35,7 @@ import time
 from collections import Counter
 from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 from hmi.plant.modbus.frame import (
     BIT_READS,
@@ -101,7 +102,7 @@ class Request:
     table: str
     address: int
     count: int
-    values: tuple = ()
+    values: tuple[Any, ...] = ()  # bools for coils, ints for registers
     write_address: int = 0
 
     @property
@@ -243,7 +244,7 @@ class ServerCounts:
     requests: int = 0
     reads: int = 0
     writes: int = 0
-    exceptions: Counter = field(default_factory=Counter)  # code -> answers sent
+    exceptions: Counter[int] = field(default_factory=Counter)  # code -> answers sent
     connections: int = 0
     refused: int = 0  # connections over the limit
     idle_closed: int = 0
@@ -278,7 +279,7 @@ class ModbusServer:
         self.request_s, self.write_s = request_s, write_s
         self.counts = ServerCounts()
         self._server: asyncio.Server | None = None
-        self._open: set[asyncio.Task] = set()
+        self._open: set[asyncio.Task[None]] = set()
         self._refused_logged_at = -1.0
         self._refused_unlogged = 0
 
@@ -323,7 +324,8 @@ class ModbusServer:
     async def start(self, host: str, port: int) -> int:
         """Listen; the port bound (0 picks one). OSError if it cannot listen."""
         self._server = await asyncio.start_server(self._accept, host, port)
-        return self._server.sockets[0].getsockname()[1]
+        bound: int = self._server.sockets[0].getsockname()[1]
+        return bound
 
     async def close(self) -> None:
         if self._server is not None:

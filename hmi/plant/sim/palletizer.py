@@ -91,7 +91,9 @@ class Palletizer(SteppedCell, model=PALLETIZER):
     # -- geometry ---------------------------------------------------------------------------
     def load_top(self) -> int:
         """Height (nm from the elevator's bottom) of the top of the pallet and its layers."""
-        return self.lift.pos * self.lift_speed + self.pallet_h + len(self.layers) * self.layer_h
+        top: int = (self.lift.pos * self.lift_speed + self.pallet_h
+                    + len(self.layers) * self.layer_h)
+        return top
 
     def _feed_line(self) -> Line:
         speed = int(self.params["feed_speed"]) if self.orders["FEED"] and \

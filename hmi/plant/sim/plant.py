@@ -50,7 +50,8 @@ class SimPlant(Plant):
         by_name = {d.name: d for d in self.devices}
         for device in self.devices:  # pipes and shafts between devices (device.link)
             device.link(by_name)
-        self.free_inputs = {name: False for name in self.input_names if name not in driven}
+        self.free_inputs: dict[str, bool] = {name: False for name in self.input_names
+                                             if name not in driven}
         self._values = dict.fromkeys(self.input_names, False)
         # read_into's plan for the engine's bindings (see _read_plan)
         self._plan: tuple[Any, ...] | None = None
