@@ -242,7 +242,9 @@ def trend(path: Path) -> list[str]:
                 read_times.append(t1 - t0)
                 cpu_times.append(c2 - c0)
             worst = max(times) * 1000
-            out.append(f"  24 h trend of {len(TREND_SIGNALS)} signals ({samples:,} samples) at "
+            held = (end - extent[0]) / HOUR_US
+            out.append(f"  24 h trend of {len(TREND_SIGNALS)} signals ({samples:,} samples"
+                       + (f"; the history holds {held:.2g} h" if held < 24 else "") + ") at "
                        f"{width}x{height} ({columns} columns): median "
                        f"{statistics.median(times) * 1000:.0f} ms (read "
                        f"{statistics.median(read_times) * 1000:.0f} ms; CPU "
