@@ -23,7 +23,7 @@ from hmi.project.loader import load_project
 from hmi.studies.campaign import campaign_study
 from hmi.studies.closed_loop import outcomes
 from hmi.studies.explore import Explorer
-from hmi.studies.loop_sweep import FTC
+from hmi.studies.loop_sweep import DIAG_NO_FILTER, FTC, SweepResult, cut, sweep
 from tests.conftest import PROJECTS
 
 VALVE = PROJECTS / "cispi_valve"
@@ -56,6 +56,49 @@ def test_a_small_sweep_is_the_same_on_one_process_and_two(capsys):
     assert one[0] == two[0] == again[0] == 0
     assert one[1] == again[1]
     assert json.loads(two[1])["shard_runs"] == 200
+
+
+def test_the_cut_by_cost_splits_heavy_blocks_and_gathers_light_ones():
+    blocks = [(c, start, start + 200) for c in range(2) for start in range(0, 1000, 200)]
+    assert cut(blocks, None) == tuple((b,) for b in blocks)
+    times = [0.01, 0.02, 30.0, 0.05, 0.01, 2.0, 0.01, 0.01, 0.01, 0.3]
+    shards = cut(blocks, times)
+    pieces = [p for s in shards for p in s]
+    # Every run once, in order; a piece never leaves its block.
+    assert [(c, r) for c, a, b in pieces for r in range(a, b)] == \
+        [(c, r) for c, a, b in blocks for r in range(a, b)]
+    assert all(a // 200 == (b - 1) // 200 for _, a, b in pieces)
+    cost = {b: t for b, t in zip(blocks, times, strict=True)}
+
+    def seconds(shard):  # a piece costs its share of its block's time
+        return sum(cost[(c, a - a % 200, a - a % 200 + 200)] * (b - a) / 200
+                   for c, a, b in shard)
+
+    target = max(0.4, sum(times) / 256)
+    assert max(seconds(s) for s in shards) <= target * 1.5
+    assert min(seconds(s) for s in shards) >= target / 2
+    heavy = [p for p in pieces if p[0] == 0 and 400 <= p[1] < 600]
+    assert len(heavy) == 75  # 30 s in pieces of 0.4 s
+
+
+def test_a_sweep_cut_by_its_measured_times_finds_the_same(monkeypatch):
+    project = load_project(VALVE)
+    counter = campaign_of(project).counter
+    monkeypatch.setattr("hmi.studies.loop_sweep.SHARD_RUNS", 10)
+
+    def run() -> tuple[SweepResult, int]:
+        farm = Farm(InProcess(), keep=False)
+        result = sweep(project, [DIAG_NO_FILTER, FTC], counter, 1_000_000, farm=farm,
+                       cache=False, faults=("F5", "F13"))
+        assert result is not None
+        return result, farm.stats[0].shards
+
+    first, blocks = run()  # one shard per block; measures the blocks
+    monkeypatch.setattr("hmi.studies.loop_sweep.SHARD_MIN_S", 0.0)
+    monkeypatch.setattr("hmi.studies.loop_sweep.SHARDS_WANTED", 4 * blocks)
+    second, shards = run()  # blocks split and gathered by their time
+    assert shards != blocks
+    assert first.runs == second.runs and first.states == second.states
 
 
 class Counting(InProcess):

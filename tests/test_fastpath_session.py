@@ -300,3 +300,37 @@ def test_quiet_full_and_interpreted_sessions_say_the_same(tmp_path, name, seed):
     figures = trio_run(name, seed, tmp_path)
     assert figures["commands"] >= 28  # every segment ended with a command
     assert figures["quiet"] > 0  # the quiet path was taken (else nothing was compared)
+
+
+@pytest.mark.parametrize("name", ["cispi_valve", "sorting", "cispi_subsystem"])
+def test_a_headless_run_takes_the_printed_frame_and_leaves_it_when_timed_or_stopped(name):
+    """The automatic mode's printed frame (hmi.engine.compiled.auto_frame) runs the quiet
+    scans of a headless run (what the fast-path comparisons above rely on: a frame never
+    taken would compare the general path with itself); a device stopped or wall times
+    measured send the scans back to the general path."""
+    project = load_project(PROJECTS / name)
+    engine = Engine(project, SimPlant(project))
+    frame = engine._frame
+    assert frame is not None
+    calls = [0]
+
+    def counted(now: int) -> bool:
+        calls[0] += 1
+        return frame(now)
+    engine._frame = counted
+    session = Session(engine)
+    session.run_for(2 * S, lambda snap: None, lambda count: None)
+    taken = calls[0]
+    assert taken > 0.9 * 2 * S / project.scan_period_us
+    period = project.scan_period_us
+    engine.wall_times = True  # (the HMI's: the scan's wall time measured)
+    engine.run(engine.now + period)
+    assert calls[0] == taken and engine.snapshot().scan_wall_us > 0
+    engine.wall_times = False
+    engine.run(engine.now + period)
+    assert calls[0] == taken + 1
+    taken = calls[0]
+    assert session.command(cmd.StopDevice(list(engine.devices)[-1])).accepted
+    assert not engine._fast
+    engine.run(engine.now + period)
+    assert calls[0] == taken

@@ -13,6 +13,7 @@ from hmi.history.query import Column, Drawn, Window
 from hmi.history.store import Event
 from hmi.ui.chronogram import FALL, HIGH, LOW, MULTI, RISE
 from hmi.ui.trend import (
+    NUMBER_ROWS_MAX,
     UNKNOWN,
     area,
     axis_line,
@@ -22,6 +23,7 @@ from hmi.ui.trend import (
     enum_glyphs,
     events_line,
     increments,
+    number_rows,
 )
 
 HOUR = 3_600_000_000
@@ -136,3 +138,18 @@ def test_the_axis_has_round_times_and_the_chart_fits_80_columns():
     # too little room: the signals that do not fit are counted, never silently dropped
     short = draw(window, cursor=10, height=5, zone=UTC).plain
     assert "+2 more" in short or "+1 more" in short
+
+
+def test_numbers_take_the_room_a_tall_terminal_gives():
+    """fso takes a line; the two numbers share the rest: one line each when three do not fit,
+    three at 80x24's room, up to NUMBER_ROWS_MAX on a tall terminal; every signal is shown
+    and each number's scale (greatest, least) is beside its first and last lines."""
+    window = _window()
+    for height, rows in ((6, 1), (10, 3), (18, NUMBER_ROWS_MAX), (42, NUMBER_ROWS_MAX)):
+        assert number_rows(window.drawn, height - 3) == rows
+        lines = draw(window, cursor=10, height=height, zone=UTC).plain.splitlines()
+        assert lines[0].startswith("fso")
+        assert lines[1].startswith("O.travel") and lines[1 + rows].startswith("O.operati")
+        assert len(lines) == 1 + 2 * rows + 3  # and the events, axis and cursor lines
+        if rows > 1:
+            assert lines[2].split()[0] == "1.959" and lines[rows].split()[0] == "1.900"

@@ -115,6 +115,18 @@ async def test_the_cell_goes_on_under_the_trends(tmp_path):
         # app keys do not reach the cell through the trends: 'm' is not manual mode here
         await press(pilot, "m")
         assert session.last.mode == "auto" and app.screen is screen
+        # zoomed in on now (the cell a little past the picture, less than a column), it
+        # stays on now and goes on following the cell
+        await run_for(pilot, 0.5)
+        assert screen.now_us > screen.end_us
+        await press(pilot, "plus")
+        await wait_until(pilot, lambda: screen.span_us == 5 * 60_000_000, "zoomed in")
+        assert screen.following
+        end = screen.end_us
+        await run_for(pilot, 10)
+        historian.flush()
+        await wait_until(pilot, lambda: screen.end_us >= end + 4_000_000,
+                         "the zoomed window moved")
     historian.close()
 
 
@@ -153,7 +165,9 @@ async def test_a_read_that_hangs_never_holds_the_ui(postgres):
     app, session, historian = _app(Target("postgresql", url))
     async with app.run_test(size=(80, 24)) as pilot:
         await run_for(pilot, 20)
-        assert historian.flush()
+        # the writer stopped first: its transactions take the same two tables' locks in
+        # the other order (a deadlock the server breaks by failing the LOCK)
+        historian.close()
         with psycopg.connect(url) as blocker:
             blocker.execute("LOCK TABLE plchmi_samples, plchmi_segments IN ACCESS EXCLUSIVE "
                             "MODE")
@@ -177,4 +191,24 @@ async def test_a_read_that_hangs_never_holds_the_ui(postgres):
         await wait_until(pilot, lambda: not any(w.is_running for w in app.workers),
                          "the worker to end")
         assert screen.reads == 0
-    historian.close()
+
+
+async def test_on_now_the_cursor_reads_the_newest_history(tmp_path):
+    """The history lags the cell (the writer commits every second; here it stopped 40 s
+    ago): on now, the cursor sits on the newest column the history covers and reads its
+    values, not "?" for every signal."""
+    app, _, historian = _app(Target("sqlite", str(tmp_path / "h.sqlite")))
+    async with app.run_test(size=(80, 24)) as pilot:
+        await run_for(pilot, 60)
+        historian.close()
+        await run_for(pilot, 40)  # more than a column (15 s) past the history's end
+        screen = await _trends(pilot)
+        window = screen.chart.window
+        cursor = screen.chart.cursor
+        assert cursor < window.width - 1
+        assert all(d.columns[cursor].known for d in window.drawn)
+        assert not any(d.columns[cursor + 1].known for d in window.drawn)
+        rows = {line.split()[0]: line.split()[1] for line in screen_text(app).splitlines()[2:]
+                if line.strip() and "│" in line}
+        for name in ("C", "O", "fsc", "fso"):
+            assert rows[name] in ("0", "1"), rows

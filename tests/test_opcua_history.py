@@ -2,16 +2,18 @@
 FreeOpcUa's python-opcua (its own client stack and encoding: an independent peer).
 
 The valve runs in virtual time with F5 (stuck) at 8.2 s, its alarm acknowledged, then a
-second session after a stop (two segments), all recorded by the historian into SQLite; a
-server serves the second session with that history. Every answer is compared with the store
-itself: the same samples at the same instants (SourceTimestamp), in the variable's own type,
-paged by continuation points, newest first when asked, the stop between the sessions marked
-BadDataLost; the alarms and actions as events.
+second session after a stop (two segments), all recorded by the historian into SQLite, and
+again into a real PostgreSQL; a server serves the second session with that history. Every
+answer is compared with the store itself: the same samples at the same instants
+(SourceTimestamp), in the variable's own type, paged by continuation points, newest first
+when asked, the stop between the sessions marked BadDataLost; the alarms and actions as
+events.
 """
 
 from __future__ import annotations
 
 import asyncio
+import uuid
 from datetime import UTC, datetime, timedelta
 
 import pytest
@@ -49,10 +51,17 @@ def _record(session, target: Target, folder, seconds: float, acknowledge_at: flo
     return journal, historian
 
 
-@pytest.fixture(scope="module")
-def served(tmp_path_factory):
+@pytest.fixture(scope="module", params=[
+    "sqlite", pytest.param("postgresql", marks=pytest.mark.xdist_group("postgres"))])
+def served(request, tmp_path_factory):
+    """The history in SQLite, then in a real PostgreSQL (a throwaway cluster): the server
+    reads either through the same store API."""
     folder = tmp_path_factory.mktemp("opcua-history")
-    target = Target("sqlite", str(folder / "history.sqlite"))
+    if request.param == "sqlite":
+        target = Target("sqlite", str(folder / "history.sqlite"))
+    else:
+        cluster = request.getfixturevalue("postgres")
+        target = Target("postgresql", cluster.database(f"opcua_{uuid.uuid4().hex[:8]}"))
     first = valve_session()
     first.epoch_us = EPOCH
     journal, historian = _record(first, target, folder, 40, acknowledge_at=20)

@@ -212,6 +212,11 @@ class Explorer:
         g.wall_s = 0.0
         self.memo = dict(memo)
 
+    def explored(self) -> list[tuple]:
+        """The states reached since the prefix (the keys of the nodes the runs added)."""
+        nodes = self._prefix[0]
+        return [key for key, node in self.memo.items() if node >= nodes]
+
     # -- injections ---------------------------------------------------------------------------
     def instants(self, extras: bool = True, every: int = 1, step_us: int | None = None
                  ) -> list[tuple[int, int, str]]:

@@ -2,18 +2,25 @@
 `plchmi campaign --sweep` and the closed-loop diagnosability of `check` / `diagnose`.
 
 :func:`sweep` explores the closed loop (hmi/studies/explore.py) and keeps the outcome of each
-run (hmi/studies/closed_loop.py). The work is cut into shards of :data:`SHARD_RUNS` runs —
-per configuration, the faults one after the other, each at every instant, taken in that order
-and cut every SHARD_RUNS runs — that any worker computes alone from the project's files
-(hmi/farm/): its explorer back at the fault-free prefix before each shard, the runs of the
-shard explored, their outcomes computed there. The outcomes come back in shard order, so the
-result does not depend on the workers; the states explored are counted per shard (a state two
-shards reach counts in both), so their number depends on the cut, which is fixed here.
+run (hmi/studies/closed_loop.py). The runs — per configuration, the faults one after the
+other, each at every instant, taken in that order — fall in **blocks** of :data:`SHARD_RUNS`
+runs: the states explored are counted per block (a state two blocks reach counts in both), so
+that count is fixed by the runs alone.
+
+The work is cut into shards that any worker computes alone from the project's files
+(hmi/farm/), by their cost: the blocks' compute times measured by the previous run of the same
+sweep (kept next to the cache, :func:`cut`). Light blocks go together in one shard, a heavy
+block is split into pieces of consecutive runs; with no times known, a shard is a block. A
+worker explores each piece from the fault-free prefix (its explorer reset) and returns its
+runs' outcomes and its states: their number for a whole block, their digests for a piece of
+one (the client counts the union: the states the whole block would have explored, since a
+run's path is fixed by its start). The outcomes come back in run order, so the report does
+not depend on the workers nor on the cut.
 
 An exact sweep (`exact`: every instant of the cycle, not a grid; hmi/studies/explore.py,
-Explorer.pieces) is cut the same way, its units being scan intervals instead of instants. A
-sweep of a band point (hmi/studies/band.py) names the point in its options: every worker
-applies it to the project it loaded.
+Explorer.pieces) is cut the same way, its units being scan intervals instead of instants
+(SHARD_RUNS // EXACT_COST of them to a block). A sweep of a band point (hmi/studies/band.py)
+names the point in its options: every worker applies it to the project it loaded.
 
 Results are cached on disk, keyed by the project's files, the diagnoser variant, the grid (or
 exactness), the band point and the code version, so a second `check` of an unchanged project
@@ -25,8 +32,10 @@ is simply recomputed.
 from __future__ import annotations
 
 import hashlib
+import itertools
 import json
 import os
+import time
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -46,10 +55,15 @@ FTC = LoopConfig("ftc", "FTC (Diag and Filter)", None, "ftc")
 CAMPAIGN_CONFIGS = (DIAG_NO_FILTER, FILTER_NO_DIAG, FTC)
 # Where the diagnosers run: observing only, and driving reconstruction and masking.
 DIAGNOSIS_CONFIGS = (DIAG_NO_FILTER, FTC)
-CACHE_VERSION = 3
-# Runs per shard: 0.3-3 s of work each on the valve (docs/studies.md), far above Dask's
-# per-task cost, and 156 shards for the valve's full sweep: enough to keep 64 workers busy.
+CACHE_VERSION = 4
+# Runs per block, the unit the states are counted in (and a shard when no times are known):
+# 156 blocks for the valve's full sweep, of 0.02-30 s each (docs/studies.md). An exact
+# sweep's blocks hold SHARD_RUNS // EXACT_COST scan intervals.
 SHARD_RUNS = 200
+# The cut by cost: shards of about the total / SHARDS_WANTED (4 per worker at 64 workers), and
+# never aimed under SHARD_MIN_S (well above Dask's per-task cost, hmi.farm.run.SHARD_GOAL_S).
+SHARDS_WANTED = 256
+SHARD_MIN_S = 0.4
 
 
 @dataclass
@@ -134,10 +148,22 @@ def sweep(project, configs: Sequence[LoopConfig], counter: str, every_us: int | 
         result.runs[c.key] = []
         result.states[c.key] = len(probe.graph.prefix)
         computed[c.key] = result
-    for (c, _, _), part in zip(study.shards, parts, strict=True):
-        key_c = missing[c].key
-        computed[key_c].runs[key_c] += part.outcomes
-        computed[key_c].states[key_c] += part.nodes
+    split: dict[tuple[int, int], set[str]] = {}
+    spent: dict[tuple[int, int], float] = {}
+    block = _block(exact)
+    for shard, part in zip(study.shards, parts, strict=True):
+        for (c, start, _), piece in zip(shard, part.pieces, strict=True):
+            key_c = missing[c].key
+            computed[key_c].runs[key_c] += piece.outcomes
+            if piece.states is None:
+                computed[key_c].states[key_c] += piece.nodes
+            else:
+                split.setdefault((c, start // block), set()).update(piece.states)
+            spent[(c, start // block)] = spent.get((c, start // block), 0.0) + piece.seconds
+    for (c, _), states in sorted(split.items()):
+        computed[missing[c].key].states[missing[c].key] += len(states)
+    _store_times(_times_key(project, variant, missing, counter, every, extras, faults,
+                            [exact, step_us, text]), missing, spent)
     out = []
     for group, key, part in zip(groups, keys, found, strict=True):
         if part is None:
@@ -176,33 +202,93 @@ def sweep_study(project, configs: Sequence[LoopConfig], counter: str, every: int
     units = ([list(i) for i in probe.intervals()] if exact
              else [list(i) for i in probe.instants(extras, every, step_us)])
     runs = len(faults) * len(units)
-    per = SHARD_RUNS // EXACT_COST if exact else SHARD_RUNS
-    shards = tuple((c, start, min(start + per, runs))
-                   for c in range(len(configs)) for start in range(0, runs, per))
+    per = _block(exact)
+    blocks = [(c, start, min(start + per, runs))
+              for c in range(len(configs)) for start in range(0, runs, per)]
+    times = _load_times(_times_key(project, variant, configs, counter, every, extras, faults,
+                                   [exact, step_us, point["text"] if point else ""]),
+                        configs, len(blocks) // max(1, len(configs)))
+    shards = cut(blocks, times)
     options = {"configs": [[c.key, c.title, c.policy, c.diagnosis] for c in configs],
-               "counter": counter, "faults": list(faults), "exact": exact,
+               "counter": counter, "faults": list(faults), "exact": exact, "block": per,
                "instants": units, "shape": _shape(probe), "point": point}
     job = make_job("sweep", Bundle.of(project, variant or None), _setup, _work, options,
                    shards)
     title = f"the closed-loop sweep of {project.name}" + (f" at {point['text']}" if point
                                                            else "")
-    study = Study(title, job, shards, tuple(end - start for _, start, end in shards),
-                  _encode, _decode)
+    study = Study(title, job, shards, tuple(sum(end - start for _, start, end in s)
+                                            for s in shards), _encode, _decode)
     return study, probe
 
 
 # An exact sweep's unit (a scan interval) costs about this many grid runs (two at least, the
-# interval's ends; more where it splits): its shards hold as many fewer units.
+# interval's ends; more where it splits): its blocks hold as many fewer units.
 EXACT_COST = 3
+
+
+def _block(exact: bool) -> int:
+    """Runs (units) per block: scan intervals for an exact sweep, else instants."""
+    return SHARD_RUNS // EXACT_COST if exact else SHARD_RUNS
+
+
+Piece = tuple[int, int, int]  # (configuration, first run, end): runs of one block
+
+
+def cut(blocks: list[Piece], times: list[float] | None) -> tuple[tuple[Piece, ...], ...]:
+    """The shards, each a tuple of pieces in run order, from the blocks (in run order) and
+    their measured compute times (None: one shard per block).
+
+    Shards aim at `target`, the total time over SHARDS_WANTED and SHARD_MIN_S or more: a
+    block above it is split into that many pieces of consecutive runs, lighter blocks go
+    together until the next would pass it; a light rest goes with its neighbour."""
+    if times is None or len(times) != len(blocks):
+        return tuple((b,) for b in blocks)
+    target = max(SHARD_MIN_S, sum(times) / SHARDS_WANTED)
+    shards: list[list[Piece]] = []
+    current: list[Piece] = []  # light blocks gathering
+    spent = 0.0
+    for (c, start, end), t in zip(blocks, times, strict=True):
+        if t > target and end - start > 1:
+            n = min(end - start, -int(-t // target))
+            bounds = [start + (end - start) * i // n for i in range(n + 1)]
+            pieces = [[(c, a, b)] for a, b in itertools.pairwise(bounds)]
+            if spent >= target / 2:
+                shards.append(current)
+            else:
+                pieces[0] = current + pieces[0]
+            shards += pieces
+            current, spent = [], 0.0
+            continue
+        if current and spent + t > target and spent >= target / 2:
+            shards.append(current)
+            current, spent = [], 0.0
+        current.append((c, start, end))
+        spent += t
+    if current:
+        if shards and spent < target / 2:
+            shards[-1] += current
+        else:
+            shards.append(current)
+    return tuple(tuple(s) for s in shards)
+
+
+@dataclass(frozen=True)
+class PiecePart:
+    """One piece's runs: their outcomes in order, the states it explored past the fault-free
+    prefix (their number; their digests too when the piece is part of a block), and its
+    compute time (for the next run's cut, never for the report)."""
+
+    outcomes: list[Outcome]
+    nodes: int
+    states: list[str] | None
+    seconds: float
 
 
 @dataclass(frozen=True)
 class SweepPart:
-    """One shard's runs: their outcomes in order, and the states it explored past the
-    fault-free prefix."""
+    """One shard's pieces, in order."""
 
-    outcomes: list[Outcome]
-    nodes: int
+    pieces: list[PiecePart]
 
 
 @dataclass
@@ -213,7 +299,8 @@ class _State:
     # (fault, k, at, why) in the order of the shards; exact: (fault, k, lo, hi)
     runs: list[tuple[Any, ...]]
     shape: str
-    exact: bool = False
+    exact: bool
+    block: int
     explorers: dict[int, Explorer] = field(default_factory=dict)
 
     def explorer(self, c: int) -> Explorer:
@@ -238,11 +325,15 @@ def _setup(project, options: dict[str, Any]) -> _State:
     units = [tuple(i) for i in options["instants"]]
     return _State(project, [LoopConfig(*c) for c in options["configs"]], options["counter"],
                   [(f, *unit) for f in options["faults"] for unit in units],
-                  options["shape"], bool(options.get("exact")))
+                  options["shape"], bool(options.get("exact")), options["block"])
 
 
-def _work(state: _State, shard: tuple[int, int, int]) -> SweepPart:
-    c, start, end = shard
+def _work(state: _State, shard: tuple[Piece, ...]) -> SweepPart:
+    return SweepPart([_piece(state, *piece) for piece in shard])
+
+
+def _piece(state: _State, c: int, start: int, end: int) -> PiecePart:
+    started = time.perf_counter()
     ex = state.explorer(c)
     if state.exact:
         for fault, k, lo, hi in state.runs[start:end]:
@@ -251,7 +342,17 @@ def _work(state: _State, shard: tuple[int, int, int]) -> SweepPart:
         for fault, k, at, why in state.runs[start:end]:
             ex.run(fault, k, at, why)
     g = ex.graph
-    return SweepPart(outcomes(g), len(g.obs) - len(g.prefix))
+    whole = start % state.block == 0 and end == min(start + state.block, len(state.runs))
+    states = None if whole else sorted(_digest(key) for key in ex.explored())
+    return PiecePart(outcomes(g), len(g.obs) - len(g.prefix), states,
+                     time.perf_counter() - started)
+
+
+def _digest(key: tuple) -> str:
+    """A state's name that is the same in every process (its key holds numbers, strings and
+    tuples only, whose repr is fixed): 64 bits, so that 10^5 states of a block collide with
+    odds of about 10^-10."""
+    return hashlib.blake2b(repr(key).encode(), digest_size=8).hexdigest()
 
 
 def _shape(ex: Explorer) -> str:
@@ -262,12 +363,17 @@ def _shape(ex: Explorer) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-def _encode(part: SweepPart) -> dict[str, Any]:
-    return {"nodes": part.nodes, "outcomes": [asdict(r) for r in part.outcomes]}
+def _encode(part: SweepPart) -> list[dict[str, Any]]:
+    return [{"nodes": p.nodes, "states": p.states, "seconds": p.seconds,
+             "outcomes": [asdict(r) for r in p.outcomes]} for p in part.pieces]
 
 
-def _decode(shard: Any, data: dict[str, Any]) -> SweepPart:
-    return SweepPart([_outcome(r) for r in data["outcomes"]], int(data["nodes"]))
+def _decode(shard: Any, data: list[dict[str, Any]]) -> SweepPart:
+    if len(data) != len(shard):
+        raise ValueError("a result of another cut")
+    return SweepPart([PiecePart([_outcome(r) for r in p["outcomes"]], int(p["nodes"]),
+                                None if p["states"] is None else list(p["states"]),
+                                float(p["seconds"])) for p in data])
 
 
 def _outcome(data: dict[str, Any]) -> Outcome:
@@ -297,6 +403,38 @@ def _cache_key(project, variant, configs, counter, every, extras, faults, more=(
                        [[c.key, c.policy, c.diagnosis] for c in configs],
                        digest_of(project, variant or None), code_version().digest, list(more)])
     return hashlib.sha256(text.encode()).hexdigest()[:32]
+
+
+def _times_key(project, variant, configs, counter, every, extras, faults, more=()) -> str:
+    """The sweep without the code version: the times measured before a change of the code
+    still cut the next run well enough (the cut changes the time, never the result)."""
+    text = json.dumps(["times", SHARD_RUNS, EXACT_COST, variant, counter, every, extras,
+                       list(faults), [[c.key, c.policy, c.diagnosis] for c in configs],
+                       digest_of(project, variant or None), list(more)])
+    return hashlib.sha256(text.encode()).hexdigest()[:32]
+
+
+def _load_times(key: str, configs, blocks: int) -> list[float] | None:
+    """The blocks' compute times the last run of this sweep measured, in block order."""
+    try:
+        data = json.loads((cache_folder() / "closed-loop" / f"times-{key}.json").read_text())
+        times = [float(t) for c in configs for t in data[c.key]]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return times if len(times) == blocks * len(configs) else None
+
+
+def _store_times(key: str, configs, spent: dict[tuple[int, int], float]) -> None:
+    data = {c.key: [t for (i, _), t in sorted(spent.items()) if i == n]
+            for n, c in enumerate(configs)}
+    folder = cache_folder() / "closed-loop"
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        tmp = folder / f"times-{key}.tmp{os.getpid()}"
+        tmp.write_text(json.dumps(data))
+        tmp.replace(folder / f"times-{key}.json")
+    except OSError:
+        pass  # times not kept only cost the next run its cut by cost
 
 
 def _load(key: str) -> SweepResult | None:

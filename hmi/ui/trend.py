@@ -44,6 +44,7 @@ UNKNOWN = "·"  # the history does not cover this column
 EIGHTHS = " ▁▂▃▄▅▆▇█"
 LABEL_W = 10
 VALUE_W = 9
+NUMBER_ROWS_MAX = 6  # a number's lines on a tall terminal
 SEPARATOR = "│"
 CURSOR = Style(reverse=True)
 ZOOMS_US = (60_000_000, 5 * 60_000_000, 15 * 60_000_000, 3_600_000_000, 4 * 3_600_000_000,
@@ -66,8 +67,15 @@ def zoom_text(window_us: int) -> str:
     return f"{hours} h" if hours < 24 else f"{hours // 24} d"
 
 
-def rows_needed(drawn: Sequence[Drawn], tall: bool) -> int:
-    return sum(3 if tall and d.signal.kind not in (BOOL, ENUM) else 1 for d in drawn)
+def number_rows(drawn: Sequence[Drawn], room: int) -> int:
+    """The lines each number (or counter) is drawn on: 3 or more when every signal then fits
+    (the room shared out, up to NUMBER_ROWS_MAX: a tall terminal shows a travel time's drift
+    finer), else 1."""
+    numbers = sum(1 for d in drawn if d.signal.kind not in (BOOL, ENUM))
+    if not numbers:
+        return 1
+    rows = (room - (len(drawn) - numbers)) // numbers
+    return 1 if rows < 3 else min(rows, NUMBER_ROWS_MAX)
 
 
 def plot_width(total: int) -> int:
@@ -80,17 +88,17 @@ def draw(window: Window, cursor: int, height: int, zone: tzinfo | None = None) -
     `zone` (None: the machine's)."""
     text = Text(no_wrap=True, overflow="crop")
     room = max(1, height - 3)  # events, axis, cursor line
-    tall = rows_needed(window.drawn, True) <= room
+    rows = number_rows(window.drawn, room)
     shown: list[Drawn] = []
     used = 0
     for d in window.drawn:
-        need = 3 if tall and d.signal.kind not in (BOOL, ENUM) else 1
+        need = rows if d.signal.kind not in (BOOL, ENUM) else 1
         if used + need > room - (1 if len(shown) < len(window.drawn) - 1 else 0):
             break
         shown.append(d)
         used += need
     for d in shown:
-        for line in signal_lines(d, cursor, tall):
+        for line in signal_lines(d, cursor, rows):
             text.append_text(line)
             text.append("\n")
     if len(shown) < len(window.drawn):
@@ -132,7 +140,9 @@ def value_at(columns: Sequence[Column], cursor: int) -> float | None:
     return column.last if column.known else None
 
 
-def signal_lines(d: Drawn, cursor: int, tall: bool) -> list[Text]:
+def signal_lines(d: Drawn, cursor: int, rows: int) -> list[Text]:
+    """A signal's lines: one for an on/off signal or a state, `rows` for a number (its name
+    and value, then its scale's greatest and, on the last, least value)."""
     signal, columns = d.signal, d.columns
     value = value_at(columns, cursor)
     shown = signal.text(value) if value is not None else "?"
@@ -146,7 +156,6 @@ def signal_lines(d: Drawn, cursor: int, tall: bool) -> list[Text]:
     if signal.kind == COUNTER and value is not None:
         per = increments(columns)[cursor] if 0 <= cursor < len(columns) else None
         shown = f"{int(value):,}" if per is None else f"+{int(per)}"
-    rows = 3 if tall else 1
     plots = area(bands, rows, low, high)
     lines = []
     for k, plot in enumerate(plots):
@@ -154,8 +163,10 @@ def signal_lines(d: Drawn, cursor: int, tall: bool) -> list[Text]:
             prefix = _prefix(signal.name, shown)
         elif k == 1:
             prefix = _prefix(_scale(signal, high), "", MUTED)
-        else:
+        elif k == rows - 1:
             prefix = _prefix(_scale(signal, low), "", MUTED)
+        else:
+            prefix = _prefix("", "", MUTED)
         lines.append(_with_cursor(prefix, plot, cursor))
     return lines
 

@@ -221,8 +221,17 @@ class TrendScreen(Dialog[None]):
         chart.refresh()
 
     def _cursor_column(self) -> int:
+        """The cursor's column; on now (None), the newest column the history covers: the
+        last second or so is not written yet, and the values read there would all be "?"."""
         width = self._width()
-        return width - 1 if self.cursor is None else max(0, min(width - 1, self.cursor))
+        if self.cursor is not None:
+            return max(0, min(width - 1, self.cursor))
+        window = self.chart.window
+        if window is not None and window.drawn:
+            for c in range(min(width, window.width) - 1, -1, -1):
+                if any(c < len(d.columns) and d.columns[c].known for d in window.drawn):
+                    return c
+        return width - 1
 
     # -- the cell goes on -----------------------------------------------------------------------
     def tick(self, now_us: int) -> None:
@@ -265,6 +274,10 @@ class TrendScreen(Dialog[None]):
         span = ZOOMS_US[index]
         if span == self.span_us:
             return
+        if self.following and self.cursor is None:  # on now: it stays on now, following
+            self.span_us = span
+            self._place(self.now_us)
+            return
         width = self._width()
         window = self.chart.window
         column = self._cursor_column()
@@ -302,7 +315,7 @@ class TrendScreen(Dialog[None]):
         self.signals = list(names)
         self.request()
 
-    def toggle(self, name: str) -> None:
+    def toggle_signal(self, name: str) -> None:
         self.show([n for n in self.signals if n != name] if name in self.signals
                   else [*self.signals, name])
 
@@ -338,7 +351,7 @@ class TrendScreen(Dialog[None]):
         for signal in self.known:
             verb = "hide" if signal.name in shown else "show"
             entries.append(PaletteEntry(f"Trends: {verb} {signal.name}", signal.description,
-                                        partial(self.toggle, signal.name)))
+                                        partial(self.toggle_signal, signal.name)))
         return entries
 
     def maintenance(self, names: Sequence[str]) -> None:
