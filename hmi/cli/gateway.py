@@ -78,7 +78,7 @@ def cmd_gateway(args: argparse.Namespace) -> int:
               flush=True)
         told = None
         with on_termination(lambda why: stop.set()):
-            while not stop.wait(LOOK_S):
+            while True:  # the server's state told at once, then at every change
                 status = server.status()
                 said = m.ServiceStatus("opcua", status.state, status_words(status),
                                        status.sessions)
@@ -91,6 +91,8 @@ def cmd_gateway(args: argparse.Namespace) -> int:
                     break
                 if not status.up:
                     why, failed = status_words(status), True
+                    break
+                if stop.wait(LOOK_S):
                     break
     finally:
         if server is not None:
