@@ -271,9 +271,9 @@ def agree_on(pool: Executor, runs: list[TraceRun], kind: type[Twin] | type[Matie
 
 
 def shorter_ton1(valve_text: str) -> str:
-    """The valve's export with TON1's preset 1.1 s instead of 2.1 s: a wrong program whose
+    """The valve's export with TON1's preset 1.1 s instead of 2.45 s: a wrong program whose
     first difference from the engine is known (TON1 true at t = 1.1 s of an opening)."""
-    tampered = valve_text.replace("T_TON1(IN := prev_O, PT := T#2s100ms);",
+    tampered = valve_text.replace("T_TON1(IN := prev_O, PT := T#2s450ms);",
                                   "T_TON1(IN := prev_O, PT := T#1s100ms);", 1)
     assert tampered != valve_text
     return tampered

@@ -146,7 +146,8 @@ def test_each_scenario_gives_what_the_documentation_says(name, damage, fills):
     ("T2.high_stuck0@20s", ("Defect", "Tolerant", "Tolerant")),
     ("P.welded@30s", ("Defect", "Defect", "Defect")),
     ("P.no_start@20s", ("Blocked", "Blocked", "Blocked")),
-    ("V1.F13@26.5s", ("Defect", "Defect", "Tolerant")),
+    ("V1.F3@20s", ("Defect", "Defect", "Blocked")),
+    ("V1.F13@26.9s", ("Defect", "Defect", "Blocked")),
 ])
 def test_campaign_rows_quoted_in_the_documentation(fault, outcomes):
     spec = project().campaign

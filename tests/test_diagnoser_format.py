@@ -234,8 +234,8 @@ def test_rise_of_an_output_in_a_diagnoser_is_the_order_written_at_the_previous_s
 
 
 @pytest.mark.parametrize("line, wrong, fragment", [
-    (65, ("[F4]", "[F99]"), "unknown label 'F99' in state 'S4'"),
-    (57, ("[F4, F6]", "[F4, F66]"), "unknown label 'F66' in state 'B4'"),
+    (68, ("[F4]", "[F99]"), "unknown label 'F99' in state 'S4'"),
+    (60, ("[F4, F6]", "[F4, F66]"), "unknown label 'F66' in state 'B4'"),
 ])
 def test_one_mistake_in_the_valve_diagnoser_is_one_error(tmp_path, line, wrong, fragment):
     """No knock-on errors: the state keeps its faulty decision (its transitions are not also

@@ -87,7 +87,7 @@ def test_diagnosis_alarm_is_journalled(tmp_path):
                  str(path)]) == 0
     raised = [e for e in read(path).entries if e.get("key") == "diagnosis:V1"]
     assert raised and raised[0]["event"] == "raised" and raised[0]["severity"] == "high"
-    assert raised[0]["t"] == "15.750"
+    assert raised[0]["t"] == "16.270"
 
 
 def test_masked_actuator_has_its_own_explanation_until_the_reset():

@@ -1,6 +1,6 @@
 """The journal's hash chain and anchor: a real journal, tampered with at 1,000 random places.
 
-The journal is written by real runs (plchmi run, four sessions into one file), closed as a
+The journal is written by real runs (plchmi run, five sessions into one file), closed as a
 session closes it (its anchor written). Each of the 1,000 cases edits a byte, deletes a
 line, swaps two lines, inserts a line (a copy, garbage, or a forged entry that links
 correctly to the line before it) or truncates the file at a random byte; every one must be
@@ -25,10 +25,10 @@ from hmi.explain.journal import GENESIS, Journal, anchor_path
 
 @pytest.fixture(scope="module")
 def real_journal(tmp_path_factory) -> tuple[bytes, bytes]:
-    """(journal bytes, anchor bytes) of four real runs."""
+    """(journal bytes, anchor bytes) of five real runs."""
     folder = tmp_path_factory.mktemp("chain")
     path = folder / "journal.jsonl"
-    for fault in ("F5@5s", "F1@3s", "F13@4s", "F9@2s"):
+    for fault in ("F5@5s", "F1@3s", "F13@4s", "F9@2s", "F3@3s"):
         assert main(["run", "projects/cispi_valve", "--for", "15s", "--inject", fault,
                      "--journal", str(path)]) == 0
     return path.read_bytes(), anchor_path(path).read_bytes()

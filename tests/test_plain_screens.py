@@ -11,6 +11,7 @@ own (a campaign fault or a scenario's injection), at 160×48 and 80×24.
 from __future__ import annotations
 
 import asyncio
+import re
 
 import pytest
 from ui_harness import region_text, run_for
@@ -120,8 +121,9 @@ def test_the_engineering_view_shows_the_names_says_so_and_is_journalled(tmp_path
         recorder.close()
         return plain, engineering, back, journal
     plain, engineering, back, journal = asyncio.run(run())
-    assert "X1" not in plain and "A3" not in plain and "F13" not in plain
-    assert "X1" in engineering and "A3" in engineering and "F13" in engineering
+    # (the active step's id: which step is active at 24 s depends on the valve's timing)
+    assert not re.search(r"\bX\d+\b", plain) and "A3" not in plain and "F13" not in plain
+    assert re.search(r"\bX\d+\b", engineering) and "A3" in engineering and "F13" in engineering
     assert "ENG" not in back
     events = [e["event"] for e in read(journal).entries if e.get("type") == "action"]
     assert events[-2:] == ["engineering view", "operator view"]

@@ -188,8 +188,8 @@ def test_a_recovery_is_still_filtered_by_its_own_constraints_and_times_out(long_
     assert snap.policy == policy
     assert snap.filter is not None and "R_V1_closed" in snap.filter.violated_names
     assert snap.output_map["C"] is False  # the close order withdrawn at the closed end
-    snap = run_until(session, lambda s: s.recovery.status != "running", 3 * S)
-    assert snap.recovery.status == "failed" and "not done within 2.500 s" in \
+    snap = run_until(session, lambda s: s.recovery.status != "running", 4 * S)
+    assert snap.recovery.status == "failed" and "not done within 3.000 s" in \
         snap.recovery.message
     assert not any(snap.outputs)
     assert not [e for e in plant.events() if e.damage]

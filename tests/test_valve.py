@@ -206,3 +206,69 @@ def test_every_declared_fault_is_injectable():
         v.inject(code, 0)
         open_fully(v)
         assert code in v.active_faults
+
+
+# -- the switches' own dynamics: delay and bounce (a project's tolerances) -----------------
+
+
+def readings(v: Valve, until: int, step: int = 100) -> list[tuple[int, bool, bool]]:
+    """(time, fsc, fso) at every change of the reading, sampled every `step` µs."""
+    out: list[tuple[int, bool, bool]] = []
+    t = v.t
+    while t < until:
+        t = min(until, t + step)
+        v.advance(t)
+        s = v.sensors()
+        if not out or out[-1][1:] != (s["fsc"], s["fso"]):
+            out.append((t, s["fsc"], s["fso"]))
+    return out
+
+
+def test_a_delayed_switch_reports_each_change_that_late():
+    v = valve(delay=7 * MS)
+    v.write(0, {"C": False, "O": True})
+    changes = readings(v, 2 * S, step=1)
+    # the contact of fsc opens after 40 ms + 1 µs of travel, fso closes at 1.96 s
+    assert changes[1] == (40 * MS + 1 + 7 * MS, False, False)
+    assert changes[2] == (1960 * MS + 7 * MS, False, True)
+    assert v.true_fso() and v.true_fsc() is False
+
+
+def test_a_bouncing_switch_flips_then_settles_exactly_bounce_after_its_change():
+    v = valve(bounce=20 * MS, bounce_seed=4)
+    v.write(0, {"C": False, "O": True})
+    changes = readings(v, 2 * S, step=1)
+    breaks = [c for c in changes if c[0] < 1 * S]
+    assert breaks[1][0] == 40 * MS + 1  # the first flip at the contact's change
+    assert len(breaks) >= 4 and breaks[-1] == (40 * MS + 1 + 20 * MS, False, False)
+    makes = [c for c in changes if c[0] > 1 * S]
+    assert makes[0] == (1960 * MS, False, True)
+    assert makes[-1] == (1980 * MS, False, True) and len(makes) >= 3
+
+
+def test_bounce_patterns_each_edge_its_own_or_every_edge_alike():
+    def makes(pattern: str) -> list[list[int]]:
+        v = valve(bounce=20 * MS, bounce_seed=1, bounce_pattern=pattern)
+        out = []
+        for _ in range(4):
+            v.write(v.t, {"C": False, "O": True})
+            start = v.t
+            changes = [t for t, _, _ in readings(v, start + 2 * S, step=1)][1:]
+            out.append([t - changes[0] for t in changes])  # from fsc's break on
+            v.write(v.t, {"C": False, "O": False})
+            close_fully(v)
+            v.advance(v.t + 100 * MS)
+        return out
+
+    same = makes("same")[1:]  # (the first opening starts at the end stop, 40 ms further)
+    assert all(flips == same[0] for flips in same)
+    each = makes("each")
+    assert len({tuple(flips) for flips in each}) > 1
+    assert makes("each") == each  # seeded: the same run again
+
+
+def test_a_stuck_switch_or_a_glitch_overrides_the_bounce():
+    v = valve(bounce=20 * MS, delay=3 * MS)
+    v.inject("F2", 1)  # fsc stuck at 1 before the valve leaves
+    v.write(0, {"C": False, "O": True})
+    assert all(fsc for _, fsc, _ in readings(v, 1 * S, step=1))

@@ -54,7 +54,13 @@ def runs(draw):
               "stall_tolerance": draw(st.integers(1, 300) | st.integers(300, 2 * S)),
               "glitch": draw(st.integers(1, 300) | st.integers(300, 500 * MS)),
               "block_at": draw(st.sampled_from((0.05, 0.5, 0.78, 0.95))),
-              "initial": draw(st.sampled_from(("closed", "open")))}
+              "initial": draw(st.sampled_from(("closed", "open"))),
+              # the switches' own dynamics (a project's tolerances): none, or a delay and
+              # a bounce, per edge or alike at every edge
+              "delay": draw(st.sampled_from((0, 0, 1, 5 * MS, 37))),
+              "bounce": draw(st.sampled_from((0, 0, 1, 2, 20 * MS, 333))),
+              "bounce_seed": draw(st.integers(0, 5)),
+              "bounce_pattern": draw(st.sampled_from(("each", "same")))}
     holds = []
     for _ in range(draw(st.integers(3, 10))):
         sample = draw(st.sampled_from((10 * MS, 7 * MS, 23 * MS, 333 * MS, 1, 3)))

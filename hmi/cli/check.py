@@ -10,6 +10,9 @@ from hmi.cli.options import diagnoser_arg, project_arg
 from hmi.timefmt import format_duration
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from hmi.errors import Diagnostic
     from hmi.project.model import Constraint, ControlLaw, Project
 
 
@@ -35,7 +38,11 @@ def cmd_check(args: argparse.Namespace) -> int:
             AddressMap.for_project(project, settings.read_gap).describe()])
     from hmi.studies.diag_report import check_sections
     sections += check_sections(project, args.closed_loop)
-    print(check_report(project, sections))
+    from hmi.studies.band_report import check_band
+    lines, warnings = check_band(project)
+    if lines:
+        sections.append(lines)
+    print(check_report(project, sections, warnings))
     return 0
 
 
@@ -76,7 +83,8 @@ def _law_summary(law: ControlLaw) -> str:
     return "; ".join(parts)
 
 
-def check_report(project: Project, sections: list[list[str]] = ()) -> str:
+def check_report(project: Project, sections: list[list[str]] = (),
+                 more_warnings: Sequence[Diagnostic] = ()) -> str:
     lines = [f"Project {project.name}: {project.description}".rstrip(": "),
              "  files: " + ", ".join(project.files),
              f"  scan period {format_duration(project.scan_period_us)}, "
@@ -120,7 +128,7 @@ def check_report(project: Project, sections: list[list[str]] = ()) -> str:
     for section in (*project.check_sections, *sections):
         lines.append("")
         lines.extend(section)
-    warnings = project.warnings
+    warnings = (*project.warnings, *more_warnings)
     if warnings:
         lines.append("")
         lines.append(f"Warnings ({len(warnings)})")

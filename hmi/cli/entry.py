@@ -19,6 +19,7 @@ PARTS: tuple[tuple[tuple[str, ...], str, str], ...] = (
     (("check",), "check", "add_parser"),
     (("run",), "run", "add_parser"),
     (("diagnose", "campaign"), "studies", "add_parsers"),
+    (("band",), "band", "add_parser"),
     (("export",), "export", "add_parser"),
     (("journal",), "journal", "add_parser"),
     (("journal-verify",), "journal", "add_verify_parser"),
@@ -34,8 +35,8 @@ PARTS: tuple[tuple[tuple[str, ...], str, str], ...] = (
     (("users",), "users", "add_parser"),
 )
 SUBCOMMANDS = ("check", "run", "sweep", "ui", "serve", "attach", "gateway", "web",
-               "serve-plant", "bench", "journal", "diagnose", "campaign", "export", "opcua", "soak",
-               "history", "users", "journal-verify")
+               "serve-plant", "bench", "journal", "diagnose", "campaign", "band", "export",
+               "opcua", "soak", "history", "users", "journal-verify")
 
 # command -> (its module, its function)
 COMMANDS = {
@@ -47,7 +48,7 @@ COMMANDS = {
     "serve-plant": ("serve", "cmd_serve_plant"), "bench": ("bench", "cmd_bench"),
     "journal": ("journal", "cmd_journal"),
     "journal-verify": ("journal", "cmd_verify"), "history": ("history", "cmd_history"),
-    "diagnose": ("studies", "cmd_diagnose"),
+    "diagnose": ("studies", "cmd_diagnose"), "band": ("band", "cmd_band"),
     "campaign": ("studies", "cmd_campaign"), "export": ("export", "cmd_export"),
     "opcua": ("serve", "cmd_opcua"), "soak": ("soak", "cmd_soak"),
     "users": ("users", "cmd_users"),

@@ -22,7 +22,8 @@ def add_parsers(sub) -> None:
     diagnoser_arg(p)
     p.add_argument("--no-closed-loop", action="store_true",
                    help="print the closed-loop diagnosability only if it is cached (no "
-                   "exploration, which takes about a minute the first time)")
+                   "exploration, which takes minutes the first time)")
+    band_args(p)
     p.add_argument("--build", metavar="DEVICE",
                    help="build a diagnoser for DEVICE (a plant device, or the device a "
                    "diagnoser observes) from its plant model, fault models and the control "
@@ -45,6 +46,33 @@ def add_parsers(sub) -> None:
                    help="with --sweep: the grid of instants (default: every scan period)")
     p.add_argument("--faults", metavar="F1,F2,...",
                    help="with --sweep: only these faults (default: every fault of the plant)")
+    band_args(p)
+
+
+def band_args(p) -> None:
+    """The options of a study over the declared tolerances."""
+    p.add_argument("--nominal", action="store_true",
+                   help="the project's own plant only, not its declared tolerances")
+    p.add_argument("--samples", type=int, default=None, metavar="N",
+                   help="seeded points of the band besides its corners (default: "
+                   f"{BAND_SAMPLES})")
+    p.add_argument("--seed", type=int, default=1, metavar="S",
+                   help="seed of those points (default 1)")
+
+
+BAND_SAMPLES = 4
+CAMPAIGN_CORNERS = 64  # the campaign over the band: at most this many corners (seeded)
+
+
+def _band_options(args: argparse.Namespace) -> tuple[bool, int, int]:
+    samples = BAND_SAMPLES if args.samples is None else args.samples
+    if not 0 <= samples <= 10_000:
+        raise UsageError(f"--samples {samples}: expected 0 to 10000")
+    if args.seed < 0:
+        raise UsageError(f"--seed {args.seed}: expected a whole number from 0")
+    if args.nominal and args.samples is not None:
+        raise UsageError("--samples is about the declared tolerances; --nominal leaves them out")
+    return not args.nominal, samples, args.seed
 
 
 DEFAULT_POINTS = "0.5s,1s,1.5s,2s,2.5s,3s"  # plchmi sweep's starts and lengths
@@ -85,8 +113,10 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         return _build(args, project)
     if args.out is not None:
         raise UsageError("--out needs --build")
+    band, samples, seed = _band_options(args)
     with farm_of(args) as farm:
-        report = diagnose_report(project, farm=farm, compute=not args.no_closed_loop)
+        report = diagnose_report(project, farm=farm, compute=not args.no_closed_loop,
+                                 band=band, samples=samples, seed=seed)
     print_report(report, farm)
     return 0
 
@@ -133,16 +163,45 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     if args.every is not None or args.faults is not None:
         raise UsageError("--every and --faults need --sweep")
 
+    band, samples, seed = _band_options(args)
+    points: list = []
+    if band:
+        from hmi.studies.band import band_of
+        declared = band_of(project)
+        corners, which = declared.some_corners(CAMPAIGN_CORNERS, seed)
+        points = [*corners, *declared.sample(samples, seed)] if not declared.empty else []
+        if scans * (1 + len(points)) > MAX_RUN_SCANS:
+            raise UsageError(f"the campaign over the declared tolerances is {runs} runs at "
+                             f"{len(points) + 1} plants: {scans * (1 + len(points)):,} scans, "
+                             f"more than the {MAX_RUN_SCANS:,} plchmi runs at once "
+                             "(--nominal, or fewer --samples)")
+
     def progress(done: int, total: int, run) -> None:
         print(f"[{done:>2}/{total}] {run.scenario.name:<10} {run.config.title:<22} "
               f"{run.outcome}", file=sys.stderr, flush=True)
 
+    variant = getattr(args, "diagnoser", None)
+    over = None
     with farm_of(args) as farm:
         farm.progress = None  # a line per run instead
-        result = run_campaign(project, spec, progress, farm=farm,
-                              variant=getattr(args, "diagnoser", None))
-    print_report(json.dumps(result.as_dict(), indent=2) if args.json
-                 else "\n".join(report_lines(result)), farm)
+        result = run_campaign(project, spec, progress, farm=farm, variant=variant)
+        if points:
+            from hmi.cli.farm import progress_line
+            from hmi.studies.campaign import run_campaign_band
+            farm.progress = progress_line()
+            over = run_campaign_band(project, spec, declared, points, farm, variant, which)
+    if args.json:
+        data = result.as_dict()
+        if over is not None:
+            data["band"] = over.as_dict()
+        text = json.dumps(data, indent=2)
+    else:
+        lines = report_lines(result)
+        if over is not None:
+            from hmi.studies.campaign import band_report_lines
+            lines += ["", *band_report_lines(result, over, samples, seed)]
+        text = "\n".join(lines)
+    print_report(text, farm)
     return 0
 
 
@@ -153,19 +212,40 @@ def _campaign_sweep(args: argparse.Namespace, project, spec) -> int:
     from hmi.studies.loopstate import Unsupported
     from hmi.studies.sweep_report import as_dict, report_lines
 
-    if args.every is not None and args.every % project.scan_period_us:
+    period = project.scan_period_us
+    if args.every is not None and args.every % period and period % args.every:
         raise UsageError(f"--every must be a multiple of the scan period "
-                         f"({project.scan_period_us // 1000} ms)")
+                         f"({format_duration(period)}) or divide it")
+    band, samples, seed = _band_options(args)
     faults = _faults(args, project)
+    over = None
     with farm_of(args) as farm:
         try:
             result = sweep(project, CAMPAIGN_CONFIGS, spec.counter, args.every, farm=farm,
-                           cache=False, faults=faults)
+                           cache=args.every is None, faults=faults, exact=args.every is None)
+            if band and args.every is None:
+                from hmi.studies.band import exploration_band
+                from hmi.studies.band_sweep import band_sweep, exploration_points
+                explored = exploration_band(project)
+                if not explored.empty:
+                    over = band_sweep(project, explored, CAMPAIGN_CONFIGS, spec.counter,
+                                      exploration_points(explored, samples, seed), faults,
+                                      farm=farm)
         except Unsupported as exc:
             raise UsageError(f"campaign --sweep: {exc}") from None
-    print_report(json.dumps(as_dict(result, spec.scenarios), indent=2) if args.json
-                 else "\n".join(report_lines(result, spec.scenarios, spec.paper,
-                                             project.name)), farm)
+    if args.json:
+        data = as_dict(result, spec.scenarios)
+        if over is not None:
+            from hmi.studies.sweep_report import band_as_dict
+            data["band"] = band_as_dict(over, spec.scenarios)
+        text = json.dumps(data, indent=2)
+    else:
+        lines = report_lines(result, spec.scenarios, spec.paper, project.name)
+        if over is not None:
+            from hmi.studies.sweep_report import band_lines
+            lines += ["", *band_lines(over, spec.scenarios, spec.paper, samples, seed)]
+        text = "\n".join(lines)
+    print_report(text, farm)
     return 0
 
 

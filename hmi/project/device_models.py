@@ -30,8 +30,18 @@ class ParamSpec:
     default: Any
     help: str
     choices: tuple[str, ...] = ()
-    minimum: float | None = None
+    minimum: float | None = None  # (a duration: 0 allows a zero duration)
     maximum: float | None = None
+    # A physical quantity a real device varies in (travel time, speed, bounce): a project
+    # may declare the range it is built for (`tolerances:`, hmi/project/tolerances.py).
+    tolerable: bool = False
+    # Parameters that vary in proportion with this one (a slower valve crosses its end
+    # switch's band more slowly too: `travel` scales `switch_band`).
+    scales: tuple[str, ...] = ()
+    # It matters only once a fault is injected (where F13 jams the valve): fault-free runs
+    # across the band leave it at its value, and it is varied for that fault alone.
+    faults_only: bool = False
+    fault: str = ""  # the fault it acts through (faults_only)
 
 
 @dataclass(frozen=True)
@@ -125,15 +135,26 @@ VALVE = DeviceModel(
     sensors=("fsc", "fso"),
     actuators=("C", "O"),
     params={
-        "travel": ParamSpec("duration", 2_000_000, "time to go from one end to the other"),
+        "travel": ParamSpec("duration", 2_000_000, "time to go from one end to the other",
+                            tolerable=True, scales=("switch_band",)),
         "switch_band": ParamSpec("duration", 40_000,
                                  "end switch made within this much travel of its end"),
         "stall_tolerance": ParamSpec("duration", 1_000_000,
                                      "an order held without motion longer than this is damage"),
         "glitch": ParamSpec("duration", 300_000, "length of an unexpected sensor change"),
         "block_at": ParamSpec("number", 0.5, "fraction of travel where F13 jams the valve",
-                              minimum=0.05, maximum=0.95),
+                              minimum=0.05, maximum=0.95, tolerable=True, faults_only=True,
+                              fault="F13"),
         "initial": ParamSpec("choice", "closed", "initial position", ("closed", "open")),
+        "delay": ParamSpec("duration", 0, "an end switch reports each change this late",
+                           minimum=0, tolerable=True),
+        "bounce": ParamSpec("duration", 0, "an end switch chatters this long after each "
+                            "change before it settles", minimum=0, tolerable=True),
+        "bounce_seed": ParamSpec("number", 0, "seed of the bounce's flips", minimum=0,
+                                 maximum=2**31),
+        "bounce_pattern": ParamSpec("choice", "each", "'each': every switch change bounces "
+                                    "its own way; 'same': every make (and every break) of a "
+                                    "switch alike", ("each", "same")),
     },
     faults={
         "F1": FaultSpec("F1", "sensor fsc stuck at 0", "fsc"),
@@ -163,7 +184,8 @@ CONVEYOR = DeviceModel(
     actuators=("d", "release"),
     params={
         "transport": ParamSpec("duration", 3_500_000,
-                               "travel time of a pallet from the pusher to B at full speed"),
+                               "travel time of a pallet from the pusher to B at full speed",
+                               tolerable=True),
         "slip_speed": ParamSpec("number", 0.5, "belt speed while slipping (fault slip), as a "
                                 "fraction of full speed", minimum=0.05, maximum=1.0),
         "initial": ParamSpec("choice", "empty", "'loaded': a pallet waits at B at start",
@@ -186,8 +208,10 @@ ROBOT = DeviceModel(
     sensors=("e", "R", "halted"),
     actuators=("G",),
     params={
-        "work": ParamSpec("duration", 2_500_000, "duration of a transfer (the robot task)"),
-        "return_time": ParamSpec("duration", 500_000, "time to return home after G drops"),
+        "work": ParamSpec("duration", 2_500_000, "duration of a transfer (the robot task)",
+                          tolerable=True),
+        "return_time": ParamSpec("duration", 500_000, "time to return home after G drops",
+                                 tolerable=True),
     },
     faults={
         "stop": FaultSpec("stop", "robot paused (for the injected duration, else for good)",
@@ -208,7 +232,7 @@ PUMP = DeviceModel(
     actuators=("P",),
     params={
         "flow": ParamSpec("number", 10.0, "delivery with a line fully open, in L/s",
-                          minimum=0.1, maximum=1000),
+                          minimum=0.1, maximum=1000, tolerable=True),
         "suction": ParamSpec("device", None, "the tank it draws from", ("tank",)),
         "valve_a": ParamSpec("device", None, "the valve on discharge line a", ("valve",)),
         "to_a": ParamSpec("device", None, "the tank line a leads into", ("tank",)),
@@ -244,7 +268,7 @@ TANK = DeviceModel(
         "low": ParamSpec("number", 20.0, "height of the low switch, in litres", minimum=0),
         "high": ParamSpec("number", 80.0, "height of the high switch, in litres", minimum=0),
         "drain": ParamSpec("number", 0.0, "gravity drain through the hand valve, in L/s",
-                           minimum=0, maximum=1000),
+                           minimum=0, maximum=1000, tolerable=True),
         "drain_to": ParamSpec("device", None, "the tank the drain runs into (default: out of "
                               "the cell)", ("tank",)),
     },
@@ -295,12 +319,13 @@ SORTING_CELL = DeviceModel(
                                 "is sheared when the table turns", 1, 200),
         "min_gap": _length(150, "room a new box needs behind the last one", 0, 2000),
         "entry_speed": ParamSpec("number", 300, "entry conveyor speed (mm/s)", minimum=10,
-                                 maximum=3000),
+                                 maximum=3000, tolerable=True),
         "roller_speed": ParamSpec("number", 300, "turntable roller speed (mm/s)", minimum=10,
-                                  maximum=3000),
+                                  maximum=3000, tolerable=True),
         "exit_speed": ParamSpec("number", 400, "exit conveyor speed (mm/s)", minimum=10,
-                                maximum=3000),
-        "turn_time": ParamSpec("duration", 1_200_000, "time for the table to turn 90°"),
+                                maximum=3000, tolerable=True),
+        "turn_time": ParamSpec("duration", 1_200_000, "time for the table to turn 90°",
+                               tolerable=True, scales=("turn_band",)),
         "turn_band": ParamSpec("duration", 20_000,
                                "an end switch is made (and the table in line) within this"),
         "stall_tolerance": ParamSpec("duration", 1_000_000,
@@ -341,8 +366,9 @@ _PALLETIZER_JAMS = {
 }
 
 
-def _number(default: float, text: str, low: float, high: float) -> ParamSpec:
-    return ParamSpec("number", default, text, minimum=low, maximum=high)
+def _number(default: float, text: str, low: float, high: float,
+            tolerable: bool = False) -> ParamSpec:
+    return ParamSpec("number", default, text, minimum=low, maximum=high, tolerable=tolerable)
 
 
 PALLETIZER = DeviceModel(
@@ -352,18 +378,20 @@ PALLETIZER = DeviceModel(
     actuators=PALLETIZER_ACTUATORS,
     params={
         "feed_length": _number(1500, "length of the feed conveyor (mm)", 500, 20_000),
-        "feed_speed": _number(300, "feed conveyor speed (mm/s)", 10, 3000),
+        "feed_speed": _number(300, "feed conveyor speed (mm/s)", 10, 3000, tolerable=True),
         "box_length": _number(300, "length of a box along the feed (mm)", 50, 2000),
         "box_height": _number(200, "height of a box, hence of a layer (mm)", 20, 2000),
         "per_layer": _number(3, "boxes in a full row on the plate (one layer)", 1, 12),
         "lift_range": _number(1000, "elevator travel (mm)", 100, 10_000),
         "pallet_height": _number(150, "height of an empty pallet (mm)", 10, 1000),
-        "elevator_speed": _number(100, "elevator speed (mm/s)", 10, 2000),
+        "elevator_speed": _number(100, "elevator speed (mm/s)", 10, 2000, tolerable=True),
         "eye_offset": _number(15, "the layer eye looks this far under the plate (mm)", 1, 200),
         "max_drop": _number(30, "a layer let go from higher than this is damage (mm)", 1, 500),
-        "push_time": ParamSpec("duration", 1_000_000, "pusher stroke time"),
-        "plate_time": ParamSpec("duration", 1_000_000, "time for the plate to open or close"),
-        "clamp_time": ParamSpec("duration", 500_000, "time for the clamp to close or open"),
+        "push_time": ParamSpec("duration", 1_000_000, "pusher stroke time", tolerable=True),
+        "plate_time": ParamSpec("duration", 1_000_000, "time for the plate to open or close",
+                                tolerable=True),
+        "clamp_time": ParamSpec("duration", 500_000, "time for the clamp to close or open",
+                                tolerable=True),
         "band": ParamSpec("duration", 20_000, "end switches are made within this much travel"),
         "crush_tolerance": ParamSpec("duration", 50_000, "the load pressed against the plate "
                                      "longer than this is damage"),

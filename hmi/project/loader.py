@@ -283,7 +283,7 @@ class ProjectLoader(ProjectReader):
         if "solver_budget" in s:
             solver_budget = self.guard(lambda: s["solver_budget"].as_int(
                 "solver_budget", MIN_SOLVER_BUDGET, MAX_SOLVER_BUDGET), None)
-        plant = parse_plant(self, pos, inputs, outputs)
+        plant = parse_plant(self, pos, inputs, outputs, period)
         check_addresses(self, inputs, outputs)
         monitors = parse_monitors(self, period)  # stopwatch monitors: hmi/project/monitors.py
         scenarios = parse_scenarios(self, plant)

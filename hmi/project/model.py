@@ -210,6 +210,28 @@ class Constraint:
 
 
 @dataclass(frozen=True)
+class Tolerance:
+    """The range a parameter of a real device spans (wear, temperature, supply, the part
+    bought), which the project is built for: every value from `low` to `high` (the nominal,
+    the parameter's value, among them). hmi/project/tolerances.py reads it."""
+
+    param: str
+    low: float
+    high: float
+    nominal: float
+    kind: str  # the parameter's: "duration" (µs) or "number"
+    text: str  # as written: "±20%", "[0ms, 20ms]"
+    pos: SourcePos
+
+    def span(self) -> str:
+        """`1.6s to 2.4s`, `0.05 to 0.95`."""
+        if self.kind == "duration":
+            from hmi.timefmt import format_duration
+            return f"{format_duration(int(self.low))} to {format_duration(int(self.high))}"
+        return f"{self.low:g} to {self.high:g}"
+
+
+@dataclass(frozen=True)
 class DeviceSpec:
     """One simulated device: a model, its parameters, and its ports bound to project variables."""
 
@@ -218,6 +240,7 @@ class DeviceSpec:
     params: dict[str, Any]
     ports: dict[str, str]  # model port -> project variable
     pos: SourcePos
+    tolerances: tuple[Tolerance, ...] = ()  # the ranges the project is built for
 
 
 @dataclass(frozen=True)
@@ -231,6 +254,15 @@ class PlantSpec:
     read_gap: int = 8  # unused addresses a read may span to save a request
     write_refresh_us: int = 1_000_000  # outputs are rewritten in full at least this often
     pos: SourcePos = field(default_factory=lambda: SourcePos("?"))
+    # How late a scan may start after its nominal instant (the controller's tolerance: a
+    # scan k reads its inputs somewhere in [k * period, k * period + scan_jitter)).
+    scan_jitter_us: int = 0
+    jitter_pos: SourcePos | None = None
+
+    @property
+    def tolerances(self) -> tuple[tuple[str, Tolerance], ...]:
+        """(device, tolerance) of every device, in declaration order."""
+        return tuple((d.name, t) for d in self.devices for t in d.tolerances)
 
 
 # --------------------------------------------------------------------------------------------

@@ -14,6 +14,7 @@ from hmi.project.device_models import DEVICE_MODELS, ParamSpec
 from hmi.project.model import (
     DeviceSpec,
     PlantSpec,
+    Tolerance,
     Variable,
 )
 from hmi.project.reader import ProjectReader
@@ -21,14 +22,15 @@ from hmi.project.yamlnodes import NodeError, YNode
 
 
 def parse_plant(reader: ProjectReader, pos: SourcePos, inputs: list[Variable],
-                outputs: list[Variable]) -> PlantSpec:
+                outputs: list[Variable], period_us: int = 10_000) -> PlantSpec:
     node = reader.sections.get("plant")
     if node is None:
         reader.diag.error(pos, "the project has no plant", "a 'plant:' section (kind: sim)")
         return PlantSpec("sim")
     fields = reader.guard(lambda: node.check_keys(
         "plant", {"kind", "model", "params", "ports", "devices", "host", "port", "unit",
-                  "timeout", "read_gap", "write_refresh"}, ["kind"]))
+                  "timeout", "read_gap", "write_refresh", "tolerances", "scan_jitter"},
+        ["kind"]))
     if fields is None:
         return PlantSpec("sim")
     kind = reader.guard(lambda: reader.choice(fields["kind"], "plant kind", ("sim", "modbus")),
@@ -46,9 +48,12 @@ def parse_plant(reader: ProjectReader, pos: SourcePos, inputs: list[Variable],
             devices.append(device)
     elif "devices" in fields:
         dmap = reader.guard(lambda: fields["devices"].as_map("devices"), {})
+        if "tolerances" in fields:
+            reader.diag.error(fields["tolerances"].pos, "the plant's 'tolerances' belong to "
+                              "one device", "'tolerances:' inside each device of 'devices:'")
         for dname, dnode in dmap.items():
             dfields = reader.guard(lambda n=dnode, d=dname: n.check_keys(
-                f"device {d!r}", {"model", "params", "ports"}, ["model"]))
+                f"device {d!r}", {"model", "params", "ports", "tolerances"}, ["model"]))
             if dfields is None:
                 continue
             device = _device(reader, str(dname), dnode, dfields, inputs, outputs,
@@ -58,6 +63,9 @@ def parse_plant(reader: ProjectReader, pos: SourcePos, inputs: list[Variable],
     elif kind == "sim":
         reader.diag.error(node.pos, "a simulated plant needs a model",
                           "'model: valve' or a 'devices:' mapping")
+    elif "tolerances" in fields:
+        reader.diag.error(fields["tolerances"].pos, "tolerances without a simulated device",
+                          "'model:' (or 'devices:') with the parameters they vary")
     _check_links(reader, devices, links)
     if kind == "sim":
         bound = {var for d in devices for var in d.ports.values()}
@@ -79,6 +87,11 @@ def parse_plant(reader: ProjectReader, pos: SourcePos, inputs: list[Variable],
     if "read_gap" in fields:
         spec_kwargs["read_gap"] = reader.guard(
             lambda: fields["read_gap"].as_int("read_gap", 0, 2000), 8)
+    if "scan_jitter" in fields:
+        from hmi.project.tolerances import parse_scan_jitter
+        spec_kwargs["scan_jitter_us"] = parse_scan_jitter(reader, fields["scan_jitter"],
+                                                          period_us)
+        spec_kwargs["jitter_pos"] = fields["scan_jitter"].pos
     if "write_refresh" in fields:
         spec_kwargs["write_refresh_us"] = reader.guard(
             lambda: fields["write_refresh"].as_duration("write_refresh", allow_zero=True),
@@ -157,7 +170,12 @@ def _device(reader: ProjectReader, name: str | None, node: YNode, fields: dict[s
         if port not in ports:
             reader.diag.warning(fields["model"].pos, f"{model_name} actuator {port!r} is not "
                                 "bound to any output; it is never driven")
-    return DeviceSpec(name or model_name, model_name, params, ports, node.pos)
+    tolerances: tuple[Tolerance, ...] = ()
+    if "tolerances" in fields:
+        from hmi.project.tolerances import parse_tolerances
+        tolerances = parse_tolerances(reader, fields["tolerances"], model, params,
+                                      f"device {name or model_name!r}")
+    return DeviceSpec(name or model_name, model_name, params, ports, node.pos, tolerances)
 
 
 def _check_links(reader: ProjectReader, devices: list[DeviceSpec],
@@ -179,7 +197,7 @@ def _check_links(reader: ProjectReader, devices: list[DeviceSpec],
 
 def _param_value(spec: ParamSpec, node: YNode, name: str) -> Any:
     if spec.kind == "duration":
-        return node.as_duration(f"parameter {name!r}")
+        return node.as_duration(f"parameter {name!r}", allow_zero=spec.minimum == 0)
     if spec.kind == "bool":
         return node.as_bool(f"parameter {name!r}")
     if spec.kind == "device":

@@ -21,7 +21,7 @@ Runs are in virtual time on the simulated plant; each is exactly repeatable.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -162,8 +162,9 @@ class CampaignResult:
 
 
 def run_one(project: Project, spec: CampaignSpec, scenario: CampaignScenario, config: Config,
-            period_us: int | None = None) -> RunResult:
-    """One scenario under one configuration, in virtual time."""
+            period_us: int | None = None, jitter_us: int = 0, seed: int = 0) -> RunResult:
+    """One scenario under one configuration, in virtual time (each scan up to `jitter_us`
+    late, drawn from `seed`: a band point's, hmi/studies/band.py)."""
     plant = SimPlant(project)
     plant.inject(Injection(scenario.fault, scenario.at_us, scenario.device))
     engine = Engine(project, plant, policy=config.policy, diagnosis=config.diagnosis,
@@ -176,7 +177,11 @@ def run_one(project: Project, spec: CampaignSpec, scenario: CampaignScenario, co
     count = 0
     detected: int | None = None
     snap = None
-    times = range(0, spec.length_us + 1, period)
+    times: Sequence[int] = range(0, spec.length_us + 1, period)
+    if jitter_us:
+        import random
+        late = random.Random(f"jitter:{seed}")
+        times = [t + late.randrange(jitter_us) for t in times]
     last = times[-1]
     stage = engine.diagnosis
     for now in times:
@@ -298,17 +303,19 @@ def _work(state: tuple[Project, CampaignSpec, int | None],
           shard: tuple[tuple[int, int], ...]) -> list[dict[str, Any]]:
     """A shard's runs as plain data (the client rebuilds them with its own scenarios)."""
     project, spec, period = state
-    out = []
     configs = configs_of(project)
-    for i, j in shard:
-        r = run_one(project, spec, spec.scenarios[i], configs[j], period)
-        out.append({"outcome": r.outcome, "reason": r.reason, "context": r.context,
-                    "damage": [asdict(e) for e in r.damage], "cycles": r.cycles,
-                    "detected_us": r.detected_us, "decision": list(r.decision),
-                    "states": list(r.states),
-                    "refined": None if r.refined is None else
-                    [list(r.refined[0]), r.refined[1], r.refined[2], r.refined[3]]})
-    return out
+    return [_data_of(run_one(project, spec, spec.scenarios[i], configs[j], period))
+            for i, j in shard]
+
+
+def _data_of(r: RunResult) -> dict[str, Any]:
+    """A run as plain data (the client rebuilds it with its own scenarios: _run_of)."""
+    return {"outcome": r.outcome, "reason": r.reason, "context": r.context,
+            "damage": [asdict(e) for e in r.damage], "cycles": r.cycles,
+            "detected_us": r.detected_us, "decision": list(r.decision),
+            "states": list(r.states),
+            "refined": None if r.refined is None else
+            [list(r.refined[0]), r.refined[1], r.refined[2], r.refined[3]]}
 
 
 def _same(data: Any) -> Any:
@@ -322,6 +329,127 @@ def _run_of(scenario: CampaignScenario, config: Config, r: dict[str, Any]) -> Ru
                      r["detected_us"], tuple(r["decision"]), tuple(r["states"]),
                      None if refined is None else
                      (tuple(refined[0]), refined[1], refined[2], refined[3]))
+
+
+# -- the campaign over the declared tolerances -------------------------------------------------
+
+
+@dataclass
+class BandCampaign:
+    """The campaign at every plant of a band (hmi/studies/band.py), in point order."""
+
+    band: Any  # hmi.studies.band.Band
+    points: list[Any]  # BandPoint
+    results: list[CampaignResult]
+    which: str = ""  # which corners: "its 32 corners", "64 of its 1024 corners (seed 1)"
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"band": self.band.describe(), "which": self.which,
+                "plants": [{"point": p.text(self.band), "label": p.label,
+                            "table": {c.key: r.table(c.key) for c in CONFIGS},
+                            "runs": [{"scenario": run.scenario.name, "config": run.config.key,
+                                      "outcome": run.outcome, "reason": run.reason}
+                                     for run in r.runs]}
+                           for p, r in zip(self.points, self.results, strict=True)]}
+
+
+def run_campaign_band(project: Project, spec: CampaignSpec, band: Any, points: list[Any],
+                      farm: Farm | None = None, variant: str | None = None,
+                      which: str = "") -> BandCampaign:
+    """Every scenario under every configuration at every point: the point's plant, its
+    scans late by up to its jitter (each run deterministic, from the point's seed), in
+    shards of a few runs like the campaign's."""
+    tasks = [(p, i, j) for p in range(len(points)) for i in range(len(spec.scenarios))
+             for j in range(len(CONFIGS))]
+    per = max(1, -(-SHARD_SCANS // (spec.length_us // project.scan_period_us + 1)))
+    shards = tuple(tuple(tasks[k:k + per]) for k in range(0, len(tasks), per))
+    options = {"dimensions": [d.name(True) for d in band.dimensions],
+               "points": [[list(p.values), p.seed] for p in points]}
+    job = make_job("campaign-band", Bundle.of(project, variant), _band_setup, _band_work,
+                   options, shards)
+
+    def decode(shard: tuple[tuple[int, int, int], ...], data: list[dict[str, Any]]
+               ) -> list[tuple[int, RunResult]]:
+        return [(p, _run_of(spec.scenarios[i], CONFIGS[j], r))
+                for (p, i, j), r in zip(shard, data, strict=True)]
+
+    study = Study(f"the fault campaign of {project.name} across its tolerances", job, shards,
+                  tuple(len(s) for s in shards), _same, decode)
+    parts = (farm or Farm()).run(study)
+    results = [CampaignResult(project.name, spec) for _ in points]
+    for part in parts:
+        for p, run in part:
+            results[p].runs.append(run)
+    return BandCampaign(band, list(points), results,
+                        which or f"its {len(band.corners())} corners")
+
+
+def _band_setup(project: Project, options: dict[str, Any]) -> tuple[Any, ...]:
+    from hmi.project.campaign import campaign_of
+    from hmi.studies.band import BandPoint, band_of
+    names = options["dimensions"]
+    band = band_of(project).restricted(lambda d: d.name(True) in names)
+    points = [BandPoint("", tuple(values), seed) for values, seed in options["points"]]
+    spec = campaign_of(project)
+    assert spec is not None, "the study was made from this project's campaign"
+    return [band.apply(project, p) for p in points], spec, band, points
+
+
+def _band_work(state: tuple[Any, ...], shard: tuple[tuple[int, int, int], ...]
+               ) -> list[dict[str, Any]]:
+    cells, spec, band, points = state
+    out = []
+    for p, i, j in shard:
+        r = run_one(cells[p], spec, spec.scenarios[i], CONFIGS[j],
+                    jitter_us=points[p].jitter_us(band), seed=points[p].seed)
+        out.append(_data_of(r))
+    return out
+
+
+SEVERITY = {TOLERANT: 0, BLOCKED: 1, DEFECT: 2}
+
+
+def band_report_lines(nominal: CampaignResult, over: BandCampaign, samples: int,
+                      seed: int) -> list[str]:
+    """Table 1 over the band: each count as its range, worst first, and per scenario the
+    classes it takes across the band, worst first."""
+    band = over.band
+    lines = [f"Over the declared tolerances: {len(over.points)} plants ({band.describe()}: "
+             f"{over.which} and {samples} points drawn with seed {seed}), every scenario "
+             "at each; counts worst .. best"]
+    header = ["", *[c.title for c in CONFIGS]]
+    rows = [header]
+    for outcome in OUTCOMES:
+        row = [outcome]
+        for c in CONFIGS:
+            values = [r.table(c.key)[outcome] for r in over.results]
+            worst, best = (max, min) if outcome != TOLERANT else (min, max)
+            low, high = worst(values), best(values)
+            row.append(str(low) if low == high else f"{low} .. {high}")
+        rows.append(row)
+    lines += _table(rows)
+    lines.append("")
+    lines.append("Per scenario, the classes across the band (plants), worst first; the worst "
+                 "plant named when it is worse than the nominal class")
+    for scenario in [s for s in nominal.spec.scenarios if s.table]:
+        cells = []
+        for c in CONFIGS:
+            seen: dict[str, int] = {}
+            for r in over.results:
+                outcome = r.result(scenario, c.key).outcome
+                seen[outcome] = seen.get(outcome, 0) + 1
+            cells.append(", ".join(f"{o} {n}" for o, n in sorted(
+                seen.items(), key=lambda kv: -SEVERITY[kv[0]])))
+        lines.append(f"  {scenario.name:<10} " + " | ".join(cells))
+        for c in CONFIGS:
+            base = nominal.result(scenario, c.key).outcome
+            for p, r in zip(over.points, over.results, strict=True):
+                run = r.result(scenario, c.key)
+                if SEVERITY[run.outcome] > SEVERITY[base]:
+                    lines.append(f"      {c.title}: {run.outcome} at {p.label} "
+                                 f"({p.text(band)}): {run.reason}")
+                    break
+    return lines
 
 
 def report_lines(result: CampaignResult) -> list[str]:

@@ -41,6 +41,23 @@ class Outcome:
     certain_label: str | None
     final: tuple[str, ...]  # the decision the run ends with (labels; () normal)
     final_state: str
+    # An exact sweep's run stands for every instant from lo_us to hi_us (at_us among them);
+    # a grid's for at_us alone (None).
+    lo_us: int | None = None
+    hi_us: int | None = None
+
+    @property
+    def first_us(self) -> int:
+        return self.at_us if self.lo_us is None else self.lo_us
+
+    @property
+    def last_us(self) -> int:
+        return self.at_us if self.hi_us is None else self.hi_us
+
+    @property
+    def weight(self) -> int:
+        """What the run counts for in a share: its instants in µs (exact), else 1."""
+        return 1 if self.lo_us is None or self.hi_us is None else self.hi_us - self.lo_us + 1
 
     @property
     def isolated(self) -> bool:
@@ -52,8 +69,15 @@ class Outcome:
 
     @property
     def delay_us(self) -> int | None:
+        """Fault to certain diagnosis (from the latest instant of the run's piece: the
+        shortest delay it stands for)."""
         return None if self.certain_us is None or not self.isolated else \
-            self.certain_us - self.at_us
+            self.certain_us - self.last_us
+
+    @property
+    def longest_delay_us(self) -> int | None:
+        return None if self.certain_us is None or not self.isolated else \
+            self.certain_us - self.first_us
 
 
 @dataclass
@@ -164,7 +188,8 @@ def outcome_of(start: Start, s: _Summary, period: int) -> Outcome:
     # Damage is recorded on the scan leaving a node: it is seen one scan after that node.
     damage = when(s.damage + 1) if s.damage < INF else None
     return Outcome(start.fault, start.at_us, start.extra, outcome, damage, s.kind,
-                   when(s.detect), when(s.certain), s.label, s.final, s.state)
+                   when(s.detect), when(s.certain), s.label, s.final, s.state, start.lo_us,
+                   start.hi_us)
 
 
 # --------------------------------------------------------------------------------------------
@@ -174,7 +199,8 @@ def outcome_of(start: Start, s: _Summary, period: int) -> Outcome:
 
 @dataclass(frozen=True)
 class FaultDiagnosis:
-    """How the diagnosers fared with one fault over every instant it was injected at."""
+    """How the diagnosers fared with one fault over every instant it was injected at (a run
+    of an exact sweep stands for its piece of instants: its `weight` in µs)."""
 
     fault: str
     runs: int
@@ -184,6 +210,9 @@ class FaultDiagnosis:
     ambiguous: tuple[tuple[tuple[str, ...], int], ...]  # final multi-label decision, runs
     delays_us: tuple[int, ...]  # fault -> certain diagnosis, isolated runs, sorted
     detect_us: tuple[int, ...]  # fault -> first faulty decision, detected runs, sorted
+    total_weight: int = 0  # the instants (µs of the cycle, or grid instants) the runs cover
+    isolated_weight: int = 0
+    longest_delay_us: int | None = None  # (an exact sweep: from the earliest instant)
 
     @property
     def always(self) -> bool:
@@ -192,6 +221,11 @@ class FaultDiagnosis:
     @property
     def ever(self) -> bool:
         return self.isolated > 0
+
+    @property
+    def share(self) -> float:
+        """The share of the instants at which the fault is isolated."""
+        return self.isolated_weight / self.total_weight if self.total_weight else 0.0
 
 
 @dataclass(frozen=True)
@@ -224,7 +258,7 @@ class LoopDiagnosability:
         fault alike and every phase alike)."""
         if not self.faults:
             return 0.0
-        return sum(f.isolated / f.runs for f in self.faults) / len(self.faults)
+        return sum(f.share for f in self.faults) / len(self.faults)
 
     def pairs(self) -> list[tuple[tuple[str, str], int]]:
         """Pairs of labels left together in a final decision, with the runs concerned."""
@@ -258,17 +292,23 @@ def diagnosability(config: LoopConfig, runs: Sequence[Outcome],
                 wrong[r.certain_label] = wrong.get(r.certain_label, 0) + 1
             elif not r.isolated and len(r.final) > 1:
                 ambiguous[r.final] = ambiguous.get(r.final, 0) + 1
+        longest = [r.longest_delay_us for r in mine if r.isolated]
         out.append(FaultDiagnosis(
             fault, len(mine), sum(r.isolated for r in mine), tuple(sorted(wrong.items())),
             sum(r.detected_us is None for r in mine),
             tuple(sorted(ambiguous.items(), key=lambda kv: -kv[1])),
             tuple(sorted(r.delay_us for r in mine if r.isolated)),
-            tuple(sorted(r.detected_us - r.at_us for r in mine if r.detected_us is not None))))
+            tuple(sorted(r.detected_us - r.last_us for r in mine if r.detected_us is not None)),
+            sum(r.weight for r in mine), sum(r.weight for r in mine if r.isolated),
+            max((d for d in longest if d is not None), default=None)))
     return LoopDiagnosability(config, tuple(out))
 
 
-def spread(values: Sequence[int]) -> tuple[int, int, int] | None:
-    """(min, median, max) of sorted values (the lower median for an even count)."""
+def spread(values: Sequence[int], longest: int | None = None
+           ) -> tuple[int, int, int] | None:
+    """(min, median, max) of sorted values (the lower median for an even count); `longest`
+    the maximum instead when the values are each a piece's shortest."""
     if not values:
         return None
-    return values[0], values[(len(values) - 1) // 2], values[-1]
+    top = values[-1] if longest is None else max(longest, values[-1])
+    return values[0], values[(len(values) - 1) // 2], top

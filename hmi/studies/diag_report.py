@@ -55,7 +55,8 @@ def check_sections(project: Project, closed_loop: bool = False) -> list[list[str
     return sections
 
 
-def diagnose_report(project: Project, farm=None, compute: bool = True) -> str:
+def diagnose_report(project: Project, farm=None, compute: bool = True, band: bool = False,
+                    samples: int = 0, seed: int = 1) -> str:
     """For `plchmi diagnose`: the automaton in full, then its diagnosability (the diagram's
     upper bound, then the closed loop's)."""
     specs = diagnosers_of(project)
@@ -94,7 +95,8 @@ def diagnose_report(project: Project, farm=None, compute: bool = True) -> str:
         out.append("")
         out += report.lines()
         out.append("")
-    out += closed_loop_lines(project, farm=farm, compute=compute)
+    out += closed_loop_lines(project, farm=farm, compute=compute, band=band, samples=samples,
+                             seed=seed)
     return "\n".join(out).rstrip()
 
 
@@ -170,16 +172,17 @@ def summary_lines(log: DiagnosisLog, engine, last) -> list[str]:
 
 # -- diagnosability on the closed loop (hmi/studies/loop_sweep.py) ------------------------------
 
-CLOSED_LOOP_EVERY_US = 200_000  # check / diagnose: every 200 ms of the cycle (+ transitions)
 
-
-def closed_loop_lines(project, every_us: int = CLOSED_LOOP_EVERY_US, farm=None,
-                      compute: bool = True, extras: bool = True) -> list[str]:
+def closed_loop_lines(project, farm=None, compute: bool = True, band: bool = False,
+                      samples: int = 0, seed: int = 1, every_us: int | None = None,
+                      extras: bool = True) -> list[str]:
     """Per configuration where the diagnosers run: isolated with certainty (at some instant,
-    and whatever the instant), delays, misdiagnoses, pairs left ambiguous, DC and band."""
+    and whatever the instant), delays, misdiagnoses, pairs left ambiguous, DC and band; at
+    every instant of the cycle (an exact sweep). With `band`, the same over the project's
+    declared tolerances (its corners and `samples` seeded points), each figure as its range,
+    worst first. `every_us`: a grid instead (and the extras around transitions), for
+    quick looks and tests."""
     from hmi.project.campaign import campaign_of
-    from hmi.studies.closed_loop import diagnosability
-    from hmi.studies.diagnosability import iso_band
     from hmi.studies.loop_sweep import DIAGNOSIS_CONFIGS, sweep
     from hmi.studies.loopstate import Unsupported
 
@@ -189,30 +192,56 @@ def closed_loop_lines(project, every_us: int = CLOSED_LOOP_EVERY_US, farm=None,
     title = "Diagnosability on the closed loop"
     try:
         result = sweep(project, DIAGNOSIS_CONFIGS, spec.counter, every_us, extras, farm=farm,
-                       compute=compute)
+                       compute=compute, exact=every_us is None)
     except Unsupported as exc:
         return [f"{title}: not computed ({exc})"]
     if result is None:
         return [f"{title}: not computed yet; `plchmi diagnose {project.path}` computes it "
                 "(or `plchmi check --closed-loop`), then `check` shows it too"]
+    lines = nominal_lines(project, result)
+    if band:
+        from hmi.studies.band import exploration_band
+        from hmi.studies.band_sweep import band_sweep, exploration_points
+        explored = exploration_band(project)
+        if not explored.empty:
+            points = exploration_points(explored, samples, seed)
+            try:
+                over = band_sweep(project, explored, DIAGNOSIS_CONFIGS, spec.counter, points,
+                                  farm=farm, compute=compute)
+            except Unsupported as exc:
+                return [*lines, f"  over the declared tolerances: not computed ({exc})"]
+            if over is None:
+                lines.append(f"  over the declared tolerances: not computed yet (`plchmi "
+                             f"diagnose {project.path}` computes it)")
+            else:
+                lines += ["", *band_lines(project, over, samples, seed)]
+    return lines
+
+
+def nominal_lines(project, result) -> list[str]:
+    """The closed loop's figures at one plant (the project's own, or a band point)."""
+    from hmi.studies.closed_loop import diagnosability
+    from hmi.studies.diagnosability import iso_band
+
     variant = f", diagnoser variant {result.variant}" if result.variant else ""
-    grid = format_duration(result.every * result.period_us)
-    lines = [f"{title} (plant model + control law + filter + diagnosers{variant}): every "
-             f"fault injected every {grid} of the {format_duration(result.cycle_us)} cycle"
-             + (" and 1 us before and after each diagnoser transition" if result.extras else "")
+    where = f" at {result.point}" if result.point else ""
+    lines = [f"Diagnosability on the closed loop{where} (plant model + control law + filter + "
+             f"diagnosers{variant}): " + instants_text(result)
              + ", each run followed until its loop closes"]
     for config in result.configs:
         d = diagnosability(config, result.of(config.key), result.faults)
         lines.append(f"  {config.title} (diagnosers {config.diagnosis}, filter "
                      f"{config.policy or project.policy}):")
-        rows = [["fault", "isolated", "fault -> certain (min/median/max)", "otherwise"]]
+        rows = [["fault", "isolated" + (" (share of instants)" if result.exact else ""),
+                 "fault -> certain (min/median/max)", "otherwise"]]
         for f in d.faults:
-            delays = _spread_text(f.delays_us)
+            delays = _spread_text(f.delays_us, f.longest_delay_us if result.exact else None)
             other = [f"{{{', '.join(labels)}}} {n}" for labels, n in f.ambiguous]
             other += [f"MISDIAGNOSED {label} {n}" for label, n in f.misdiagnosed]
             if f.undetected:
                 other.append(f"undetected {f.undetected}")
-            rows.append([f.fault, f"{f.isolated}/{f.runs}", delays, ", ".join(other)])
+            isolated = f"{100 * f.share:.1f} %" if result.exact else f"{f.isolated}/{f.runs}"
+            rows.append([f.fault, isolated, delays, ", ".join(other)])
         lines += _table(rows, "    ")
         n = len(d.faults)
         lines.append(f"    isolated with certainty at some instant: {len(d.isolable)}/{n}, DC "
@@ -221,16 +250,97 @@ def closed_loop_lines(project, every_us: int = CLOSED_LOOP_EVERY_US, farm=None,
                      f"({iso_band(d.dc_guaranteed)}); share of instants: "
                      f"{100 * d.dc_weighted:.1f} % ({iso_band(d.dc_weighted)})")
         pairs = d.pairs()
-        lines.append("    pairs left ambiguous (runs): " + (", ".join(
+        what = "pieces" if result.exact else "runs"
+        lines.append(f"    pairs left ambiguous ({what}): " + (", ".join(
             f"{{{a}, {b}}} {runs}" for (a, b), runs in pairs) or "none")
                      + f"; misdiagnoses: {d.misdiagnoses}")
     lines.append(f"  ({sum(result.states.values()):,} closed-loop states explored)")
     return lines
 
 
-def _spread_text(values) -> str:
+def instants_text(result) -> str:
+    """How the sweep chose its instants, in words."""
+    cycle = format_duration(result.cycle_us)
+    if result.exact:
+        pieces = len(next(iter(result.runs.values()))) // max(1, len(result.faults))
+        return (f"every fault injected at every instant of the {cycle} cycle, exactly (the "
+                f"cycle split into the pieces of instants that share a run: {pieces:,} per "
+                "fault on average)")
+    grid = format_duration(result.step_us or result.every * result.period_us)
+    return (f"every fault injected every {grid} of the {cycle} cycle"
+            + (" and 1 us before and after each diagnoser transition" if result.extras else ""))
+
+
+def band_lines(project, over, samples: int, seed: int) -> list[str]:
+    """The closed loop's figures over the band: each as its range, worst first, with the
+    point that gives the worst and the nominal value."""
+    from hmi.studies.closed_loop import diagnosability
+    from hmi.studies.diagnosability import iso_band
+
+    band = over.band
+    lines = [f"Over the declared tolerances: {len(over.points)} plants ({band.describe()}: "
+             f"the nominal one, {len(band.corners())} corners, {samples} points drawn with "
+             f"seed {seed}; scans on their grid, every switch change bouncing alike: the "
+             "scan jitter is covered by `plchmi band`), every instant of each; each figure "
+             "worst .. best, the worst plant named"]
+    for config in over.configs:
+        per = [(point, diagnosability(config, r.of(config.key), r.faults))
+               for point, r in zip(over.points, over.results, strict=True)]
+        n = len(per[0][1].faults)
+        lines.append(f"  {config.title}:")
+        figures = [
+            ("isolated with certainty at some instant", lambda d: len(d.isolable),
+             lambda v, n=n: f"{v}/{n}, DC {100 * v / n:.1f} % ({iso_band(v / n)})", False),
+            ("isolated whatever the instant", lambda d: len(d.guaranteed),
+             lambda v, n=n: f"{v}/{n}", False),
+            ("share of instants isolated", lambda d: d.dc_weighted,
+             lambda v: f"{100 * v:.1f} % ({iso_band(v)})", False),
+            ("wrong certain diagnoses (pieces of instants)", lambda d: d.misdiagnoses,
+             lambda v: str(v), True),
+        ]
+        for name, value, show, lower_is_better in figures:
+            lines.append("    " + name + ": " + range_text(per, value, show, lower_is_better,
+                                                          band))
+        rows = [["fault", "share of instants isolated, worst .. best", "worst at"]]
+        for k, fault in enumerate(per[0][1].faults):
+            shares = [(point, d.faults[k].share) for point, d in per]
+            worst = min(shares, key=lambda ps: ps[1])
+            best = max(s for _, s in shares)
+            rows.append([fault.fault, f"{100 * worst[1]:.1f} .. {100 * best:.1f} %",
+                         _point_name(worst[0], band) if worst[1] < best else "-"])
+        lines += _table(rows, "    ")
+        pairs: dict[tuple[str, str], int] = {}
+        for _, d in per:
+            for pair, _runs in d.pairs():
+                pairs[pair] = pairs.get(pair, 0) + 1
+        lines.append("    pairs left ambiguous somewhere in the band (plants): " + (", ".join(
+            f"{{{a}, {b}}} {count}" for (a, b), count in sorted(pairs.items())) or "none"))
+    lines.append(f"  ({over.states:,} closed-loop states explored)")
+    return lines
+
+
+def range_text(per, value, show, lower_is_better: bool, band) -> str:
+    """`worst .. best (worst at POINT; nominal V)` over the band's plants."""
+    values = [(point, value(d)) for point, d in per]
+    pick = max if lower_is_better else min
+    worst = pick(values, key=lambda pv: pv[1])
+    best = (min if lower_is_better else max)(v for _, v in values)
+    nominal = next((v for p, v in values if p.label == "nominal"), None)
+    text = show(worst[1]) if worst[1] == best else f"{show(worst[1])} .. {show(best)}"
+    if worst[1] != best:
+        text += f" (worst at {_point_name(worst[0], band)})"
+    if nominal is not None and worst[1] != best:
+        text += f"; nominal {show(nominal)}"
+    return text
+
+
+def _point_name(point, band) -> str:
+    return f"{point.label}: {point.text(band)}"
+
+
+def _spread_text(values, longest=None) -> str:
     from hmi.studies.closed_loop import spread
-    s = spread(values)
+    s = spread(values, longest)
     if s is None:
         return "-"
     return " / ".join(seconds(v) for v in s) + " s"

@@ -16,6 +16,18 @@ state these runs visit:
   scans instead of millions, and the class of a run is *proved* settled (the loop closed),
   not guessed from a time window.
 
+**Every instant, not a grid** (:meth:`Explorer.pieces`). A fault arriving anywhere in the
+scan interval (t_{k-1}, t_k] is first seen at scan k, but the plant's physics is exact to the
+microsecond: where a jam stops the valve, when a glitch ends, when a stalled motor counts as
+damage depend on the instant itself. Within an interval every such quantity moves linearly
+with the instant, and the run's course is decided by which side of each constant it lies on.
+So two runs of the interval that see the same inputs, decisions, damage and cycles and go
+through the same plant regions (hmi/studies/loopstate.py, LoopAccess.region) at every scan
+until they meet vouch for every instant between them; when they differ, the interval is
+halved until they do, down to a single microsecond. The result is a partition of the cycle
+into *pieces* (intervals of instants with one run each): shares are measured in time,
+"whatever the instant" means every piece, and nothing depends on a grid.
+
 Edges carry what happened during the scan: damage recorded by the plant, cycles completed.
 Nodes carry what was observed (inputs read, outputs written) and the diagnosers' decision.
 Everything else (classes, delays, ambiguities, observational equivalence, the libFAUDES
@@ -50,13 +62,16 @@ class LoopConfig:
 
 @dataclass(frozen=True)
 class Start:
-    """One injection: fault `fault` at `at_us`, branching after prefix scan `k`."""
+    """One injection: fault `fault` at `at_us`, branching after prefix scan `k`; or, in an
+    exact sweep, every instant from `lo_us` to `hi_us` (the run at `at_us` stands for them)."""
 
     fault: str
     at_us: int
     k: int  # index in the prefix: the state after scan k (time k * period)
     node: int  # the pending node the run starts from
     extra: str = ""  # why this instant besides the scan grid ("before N2 -> N3", ...)
+    lo_us: int | None = None  # the piece of instants it stands for (None: itself alone)
+    hi_us: int | None = None
 
 
 @dataclass
@@ -123,6 +138,9 @@ class Explorer:
         names = tuple(lay.inputs) + tuple(lay.outputs)
         self.graph = Graph(config, self.period, counter, names)
         self.memo: dict[tuple, int] = {}
+        # Per node, its plant region (interned): what the exact sweep compares runs by.
+        self.sig: list[int] = []
+        self.sigs: dict[tuple, int] = {}
         self.captures: list = []
         counters = [name for name, _ in plant.counters()]
         if counter not in counters:
@@ -169,6 +187,7 @@ class Explorer:
                 return
             obs, dec, state = self._observe()
             node = g.add(obs, dec, None, state)
+            self._sign()
             self.memo[key] = node
             if previous is not None:
                 g.nxt[previous] = node
@@ -185,7 +204,7 @@ class Explorer:
         and so what it reports, must not depend on the shards the worker ran before."""
         nodes, decisions, scans, memo = self._prefix
         g = self.graph
-        for column in (g.obs, g.dec, g.nxt, g.dmg, g.cyc, g.fault, g.state):
+        for column in (g.obs, g.dec, g.nxt, g.dmg, g.cyc, g.fault, g.state, self.sig):
             del column[nodes:]
         del g.decisions[decisions:]
         g.starts.clear()
@@ -199,11 +218,13 @@ class Explorer:
         return [key for key, node in self.memo.items() if node >= nodes]
 
     # -- injections ---------------------------------------------------------------------------
-    def instants(self, extras: bool = True, every: int = 1) -> list[tuple[int, int, str]]:
+    def instants(self, extras: bool = True, every: int = 1, step_us: int | None = None
+                 ) -> list[tuple[int, int, str]]:
         """(prefix index k, instant a, why) over one fault-free cycle.
 
         Every `every`-th scan instant of the cycle (the fault is there at that scan's input
-        read: `every` 1 is every scan period), and
+        read: `every` 1 is every scan period), or with `step_us` (a divisor of the period)
+        every `step_us` inside every scan interval; and
         when `extras`, 1 us before and 1 us after each scan where a diagnoser changes state
         in the fault-free cycle (the fault arriving just before / just after the transition,
         with the plant's physics at microsecond resolution).
@@ -212,8 +233,13 @@ class Explorer:
         out: list[tuple[int, int, str]] = []
         first = g.cycle_start
         last = len(g.prefix)
-        for j in range(first, last, every):
-            out.append((j - 1, j * self.period, ""))
+        if step_us is not None:
+            for j in range(first, last):
+                out += [(j - 1, (j - 1) * self.period + m * step_us, "")
+                        for m in range(1, self.period // step_us + 1)]
+        else:
+            for j in range(first, last, every):
+                out.append((j - 1, j * self.period, ""))
         if extras:
             for j in range(first, last):
                 before, now = g.state[g.prefix[j - 1]], g.state[g.prefix[j]]
@@ -223,8 +249,85 @@ class Explorer:
                     out.append((j, j * self.period + 1, f"1 us after {what}"))
         return out
 
-    def run(self, fault: str, k: int, at_us: int, extra: str = "") -> Start:
-        """Explore the run of `fault` injected at `at_us`, after prefix scan k."""
+    def _sign(self) -> None:
+        """The region of the node just added (Explorer.sig)."""
+        region = self.access.region()
+        self.sig.append(self.sigs.setdefault(region, len(self.sigs)))
+
+    def intervals(self) -> list[tuple[int, int, int]]:
+        """(prefix index k, first instant, last instant) of every scan interval of the
+        fault-free cycle: a fault arriving in (t_k, t_{k+1}] is first seen at scan k + 1."""
+        g = self.graph
+        return [(j - 1, (j - 1) * self.period + 1, j * self.period)
+                for j in range(g.cycle_start, len(g.prefix))]
+
+    def pieces(self, fault: str, k: int, lo: int, hi: int) -> list[Start]:
+        """Every instant from `lo` to `hi` (one scan interval, after prefix scan k), as the
+        pieces of instants that share a run (module docstring); recorded in the graph."""
+        runs: dict[int, Start] = {}
+
+        def at(instant: int) -> Start:
+            found = runs.get(instant)
+            if found is None:
+                found = runs[instant] = self.run(fault, k, instant, record=False)
+            return found
+
+        found = self._refine(at, lo, hi)
+        out = [Start(fault, run.at_us, k, run.node, "", a, b) for a, b, run in found]
+        self.graph.starts += out
+        return out
+
+    def _refine(self, at: Callable[[int], Start], lo: int, hi: int
+                ) -> list[tuple[int, int, Start]]:
+        if lo == hi:
+            return [(lo, hi, at(lo))]
+        if self.same(at(lo).node, at(hi).node):
+            return [(lo, hi, at(hi))]
+        if hi - lo <= 5:
+            return self._join([(t, t, at(t)) for t in range(lo, hi + 1)])
+        # Most intervals split near an end (the fault exactly at a scan instant, or a
+        # microsecond or two from it: strict comparisons with durations): a piece inside,
+        # and single instants at its ends, before halving.
+        for inner in range(1, 5):
+            for left in range(inner + 1):
+                a, b = lo + left, hi - (inner - left)
+                if self.same(at(a).node, at(b).node):
+                    ends = [(t, t, at(t)) for t in range(lo, a)]
+                    ends_hi = [(t, t, at(t)) for t in range(b + 1, hi + 1)]
+                    return self._join([*ends, (a, b, at(b)), *ends_hi])
+        mid = (lo + hi) // 2
+        return self._join([*self._refine(at, lo, mid), *self._refine(at, mid + 1, hi)])
+
+    def _join(self, pieces: list[tuple[int, int, Start]]) -> list[tuple[int, int, Start]]:
+        """Adjacent pieces whose runs go the same way, as one."""
+        out: list[tuple[int, int, Start]] = []
+        for piece in pieces:
+            if out and self.same(out[-1][2].node, piece[2].node):
+                out[-1] = (out[-1][0], piece[1], piece[2])
+            else:
+                out.append(piece)
+        return out
+
+    def same(self, n: int, m: int) -> bool:
+        """Whether two runs (from their first nodes) go the same way scan for scan — same
+        inputs, outputs, decisions, damage, cycles and plant regions — until they meet or
+        repeat together (module docstring)."""
+        g, sig = self.graph, self.sig
+        seen = set()
+        while n != m:
+            if n < 0 or m < 0 or (n, m) in seen:
+                return n >= 0 and m >= 0
+            seen.add((n, m))
+            if (g.obs[n] != g.obs[m] or g.dec[n] != g.dec[m] or g.dmg[n] != g.dmg[m]
+                    or g.cyc[n] != g.cyc[m] or sig[n] != sig[m]):
+                return False
+            n, m = g.nxt[n], g.nxt[m]
+        return True
+
+    def run(self, fault: str, k: int, at_us: int, extra: str = "",
+            record: bool = True) -> Start:
+        """Explore the run of `fault` injected at `at_us`, after prefix scan k (`record`:
+        list it among the graph's runs)."""
         g = self.graph
         self.access.restore(self.captures[k])
         self.plant.inject(Injection(fault, at_us))
@@ -232,13 +335,16 @@ class Explorer:
         node = self.memo.get(key)
         if node is not None:
             start = Start(fault, at_us, k, node, extra)
-            g.starts.append(start)
+            if record:
+                g.starts.append(start)
             return start
         base = g.prefix[k]
         node = g.add(g.obs[base], g.decision(base), fault, g.state[base])
+        self._sign()
         self.memo[key] = node
         start = Start(fault, at_us, k, node, extra)
-        g.starts.append(start)
+        if record:
+            g.starts.append(start)
         now = k * self.period
         for _ in range(MAX_RUN_SCANS):
             now += self.period
@@ -251,6 +357,7 @@ class Explorer:
                 return start
             obs, dec, state = self._observe()
             new = g.add(obs, dec, fault, state)
+            self._sign()
             self.memo[key] = new
             g.nxt[node] = new
             node = new
@@ -283,12 +390,19 @@ class Explorer:
             return False
         return all(_static(d, self.engine.now) for d in devices)
 
-    def explore(self, faults: Iterable[str], instants: list[tuple[int, int, str]],
+    def explore(self, faults: Iterable[str], instants: list[tuple[int, int, str]] | None,
                 progress: Callable[[int], None] | None = None) -> Graph:
         """Every fault at every instant (from :meth:`instants`, possibly another config's:
-        the fault-free run is the same in every configuration)."""
+        the fault-free run is the same in every configuration); None: at every instant of
+        the cycle, exactly (:meth:`intervals`, :meth:`pieces`)."""
         started = time.perf_counter()
         for fault in faults:
+            if instants is None:
+                for k, lo, hi in self.intervals():
+                    self.pieces(fault, k, lo, hi)
+                    if progress is not None:
+                        progress(1)
+                continue
             for k, at, why in instants:
                 self.run(fault, k, at, why)
                 if progress is not None:

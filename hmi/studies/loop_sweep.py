@@ -17,9 +17,16 @@ one (the client counts the union: the states the whole block would have explored
 run's path is fixed by its start). The outcomes come back in run order, so the report does
 not depend on the workers nor on the cut.
 
-Results are cached on disk, keyed by the project's files, the diagnoser variant, the grid and
-the code version, so a second `check` of an unchanged project does not explore again. The
-cache holds plain JSON (the outcomes), never code, and a damaged entry is simply recomputed.
+An exact sweep (`exact`: every instant of the cycle, not a grid; hmi/studies/explore.py,
+Explorer.pieces) is cut the same way, its units being scan intervals instead of instants
+(SHARD_RUNS // EXACT_COST of them to a block). A sweep of a band point (hmi/studies/band.py)
+names the point in its options: every worker applies it to the project it loaded.
+
+Results are cached on disk, keyed by the project's files, the diagnoser variant, the grid (or
+exactness), the band point and the code version, so a second `check` of an unchanged project
+does not explore again; an exact sweep is kept per configuration (diagnose's two are among
+campaign's three). The cache holds plain JSON (the outcomes), never code, and a damaged entry
+is simply recomputed.
 """
 
 from __future__ import annotations
@@ -48,9 +55,10 @@ FTC = LoopConfig("ftc", "FTC (Diag and Filter)", None, "ftc")
 CAMPAIGN_CONFIGS = (DIAG_NO_FILTER, FILTER_NO_DIAG, FTC)
 # Where the diagnosers run: observing only, and driving reconstruction and masking.
 DIAGNOSIS_CONFIGS = (DIAG_NO_FILTER, FTC)
-CACHE_VERSION = 2
+CACHE_VERSION = 4
 # Runs per block, the unit the states are counted in (and a shard when no times are known):
-# 156 blocks for the valve's full sweep, of 0.02-30 s each (docs/studies.md).
+# 156 blocks for the valve's full sweep, of 0.02-30 s each (docs/studies.md). An exact
+# sweep's blocks hold SHARD_RUNS // EXACT_COST scan intervals.
 SHARD_RUNS = 200
 # The cut by cost: shards of about the total / SHARDS_WANTED (4 per worker at 64 workers), and
 # never aimed under SHARD_MIN_S (well above Dask's per-task cost, hmi.farm.run.SHARD_GOAL_S).
@@ -72,6 +80,9 @@ class SweepResult:
     runs: dict[str, list[Outcome]] = field(default_factory=dict)
     states: dict[str, int] = field(default_factory=dict)  # nodes explored per config
     cached: bool = False  # read whole from the cache (how it ran is not part of the result)
+    exact: bool = False  # every instant (pieces of instants), not a grid
+    step_us: int | None = None  # a grid finer than the scan: every step_us of each interval
+    point: str = ""  # the band point explored ("" the project's own plant)
 
     def of(self, config: str) -> list[Outcome]:
         return self.runs[config]
@@ -84,80 +95,140 @@ class SweepResult:
         if at >= self.cycle_start_us:
             at = self.cycle_start_us + (at - self.cycle_start_us) % self.cycle_us
         runs = [r for r in self.runs[config] if r.fault == fault and not r.extra]
+        inside = [r for r in runs if r.first_us <= at <= r.last_us]
+        if inside:
+            return inside[0]
         return min(runs, key=lambda r: (abs(r.at_us - at), r.at_us))
 
 
 def sweep(project, configs: Sequence[LoopConfig], counter: str, every_us: int | None = None,
           extras: bool = True, farm: Farm | None = None, cache: bool = True,
-          compute: bool = True, faults: Sequence[str] | None = None) -> SweepResult | None:
+          compute: bool = True, faults: Sequence[str] | None = None, exact: bool = False,
+          point: dict[str, Any] | None = None) -> SweepResult | None:
     """The sweep, from the cache when it holds it; None when it does not and `compute` is
-    false. `farm` says where the shards run (default: this machine's processes)."""
+    false. `farm` says where the shards run (default: this machine's processes). `exact`:
+    every instant of the cycle, else a grid of `every_us` (a multiple of the scan period, or
+    a divisor of it: instants inside each interval). `point`: a band point's plant
+    ({"values", "seed", "text"}, hmi/studies/band_sweep.py); `project` is already that plant
+    here, and every worker makes it from the project's files."""
     period = project.scan_period_us
-    every = max(1, round((every_us or period) / period))
+    step_us = every_us if every_us is not None and every_us < period else None
+    every = max(1, round((every_us or period) / period)) if step_us is None else 1
+    if exact:
+        extras, every, step_us = False, 1, None
     variant = project_variant(project)
     faults = tuple(faults) if faults else faults_of(project)
-    key = _cache_key(project, variant, configs, counter, every, extras, faults)
-    if cache:
-        found = _load(key)
-        if found is not None:
-            if farm is not None:
-                farm.notes.append(f"the closed-loop sweep of {project.name} was read from the "
-                                  f"cache ({cache_folder() / 'closed-loop'})")
-            return found
+    text = point["text"] if point else ""
+    # An exact sweep is kept per configuration; a grid's instants depend on the
+    # configurations together (the extras around transitions come from one where the
+    # diagnosers run), so it is kept whole.
+    groups = [(c,) for c in configs] if exact else [tuple(configs)]
+    keys = [_cache_key(project, variant, group, counter, every, extras, faults,
+                       [exact, step_us, text]) for group in groups]
+    found = [_load(key) if cache else None for key in keys]
+    missing = [c for group, part in zip(groups, found, strict=True) if part is None
+               for c in group]
+    if not missing:
+        if farm is not None:
+            farm.notes.append(f"the closed-loop sweep of {project.name}"
+                              + (f" at {text}" if text else "") + " was read from the cache "
+                              f"({cache_folder() / 'closed-loop'})")
+        return _joined([p for p in found if p is not None], configs, cached=True)
     if not compute:
         return None
-    study, probe = sweep_study(project, configs, counter, every, extras, faults, variant)
+    study, probe = sweep_study(project, missing, counter, every, extras, faults, variant,
+                               exact, step_us, point)
     parts = (farm or Farm()).run(study)
-    result = SweepResult(project.name, variant, tuple(configs), faults, period, every, extras,
-                         probe.graph.cycle_start * period, probe.graph.cycle_length * period)
-    prefix = len(probe.graph.prefix)
-    for c in configs:
+    computed = {}
+    for c in missing:
+        result = SweepResult(project.name, variant, (c,), faults, period, every, extras,
+                             probe.graph.cycle_start * period,
+                             probe.graph.cycle_length * period, exact=exact,
+                             step_us=step_us, point=text)
         result.runs[c.key] = []
-        result.states[c.key] = prefix
+        result.states[c.key] = len(probe.graph.prefix)
+        computed[c.key] = result
     split: dict[tuple[int, int], set[str]] = {}
     spent: dict[tuple[int, int], float] = {}
+    block = _block(exact)
     for shard, part in zip(study.shards, parts, strict=True):
         for (c, start, _), piece in zip(shard, part.pieces, strict=True):
-            block = (c, start // SHARD_RUNS)
-            result.runs[configs[c].key] += piece.outcomes
+            key_c = missing[c].key
+            computed[key_c].runs[key_c] += piece.outcomes
             if piece.states is None:
-                result.states[configs[c].key] += piece.nodes
+                computed[key_c].states[key_c] += piece.nodes
             else:
-                split.setdefault(block, set()).update(piece.states)
-            spent[block] = spent.get(block, 0.0) + piece.seconds
+                split.setdefault((c, start // block), set()).update(piece.states)
+            spent[(c, start // block)] = spent.get((c, start // block), 0.0) + piece.seconds
     for (c, _), states in sorted(split.items()):
-        result.states[configs[c].key] += len(states)
-    _store_times(_times_key(project, variant, configs, counter, every, extras, faults),
-                 configs, spent)
-    if cache:
-        _store(key, result)
+        computed[missing[c].key].states[missing[c].key] += len(states)
+    _store_times(_times_key(project, variant, missing, counter, every, extras, faults,
+                            [exact, step_us, text]), missing, spent)
+    out = []
+    for group, key, part in zip(groups, keys, found, strict=True):
+        if part is None:
+            part = _joined([computed[c.key] for c in group], group, cached=False)
+            if cache:
+                _store(key, part)
+        out.append(part)
+    return _joined(out, configs, cached=False)
+
+
+def _joined(parts: list[SweepResult], configs: Sequence[LoopConfig], cached: bool
+            ) -> SweepResult:
+    """One result of the parts the configurations were kept in, in `configs` order."""
+    first = parts[0]
+    result = SweepResult(first.project, first.variant, tuple(configs), first.faults,
+                         first.period_us, first.every, first.extras, first.cycle_start_us,
+                         first.cycle_us, cached=cached, exact=first.exact,
+                         step_us=first.step_us, point=first.point)
+    for c in configs:
+        part = next(p for p in parts if c.key in p.runs)
+        result.runs[c.key] = part.runs[c.key]
+        result.states[c.key] = part.states[c.key]
     return result
 
 
 def sweep_study(project, configs: Sequence[LoopConfig], counter: str, every: int,
-                extras: bool, faults: tuple[str, ...], variant: str
+                extras: bool, faults: tuple[str, ...], variant: str, exact: bool = False,
+                step_us: int | None = None, point: dict[str, Any] | None = None
                 ) -> tuple[Study, Explorer]:
-    """The sweep as shards, and the explorer whose fault-free run gave the instants."""
+    """The sweep as shards, and the explorer whose fault-free run gave the instants (or the
+    intervals, exact)."""
     # The instants come from a configuration where the diagnosers run (their transitions in
     # the fault-free cycle add instants), and are the same for every configuration.
     first = next((c for c in configs if c.diagnosis != "off"), configs[0])
     probe = Explorer(project, first, counter)
-    instants = probe.instants(extras, every)
-    runs = len(faults) * len(instants)
-    blocks = [(c, start, min(start + SHARD_RUNS, runs))
-              for c in range(len(configs)) for start in range(0, runs, SHARD_RUNS)]
-    times = _load_times(_times_key(project, variant, configs, counter, every, extras, faults),
+    units = ([list(i) for i in probe.intervals()] if exact
+             else [list(i) for i in probe.instants(extras, every, step_us)])
+    runs = len(faults) * len(units)
+    per = _block(exact)
+    blocks = [(c, start, min(start + per, runs))
+              for c in range(len(configs)) for start in range(0, runs, per)]
+    times = _load_times(_times_key(project, variant, configs, counter, every, extras, faults,
+                                   [exact, step_us, point["text"] if point else ""]),
                         configs, len(blocks) // max(1, len(configs)))
     shards = cut(blocks, times)
     options = {"configs": [[c.key, c.title, c.policy, c.diagnosis] for c in configs],
-               "counter": counter, "faults": list(faults), "block": SHARD_RUNS,
-               "instants": [list(i) for i in instants], "shape": _shape(probe)}
+               "counter": counter, "faults": list(faults), "exact": exact, "block": per,
+               "instants": units, "shape": _shape(probe), "point": point}
     job = make_job("sweep", Bundle.of(project, variant or None), _setup, _work, options,
                    shards)
-    study = Study(f"the closed-loop sweep of {project.name}", job, shards,
-                  tuple(sum(end - start for _, start, end in s) for s in shards), _encode,
-                  _decode)
+    title = f"the closed-loop sweep of {project.name}" + (f" at {point['text']}" if point
+                                                           else "")
+    study = Study(title, job, shards, tuple(sum(end - start for _, start, end in s)
+                                            for s in shards), _encode, _decode)
     return study, probe
+
+
+# An exact sweep's unit (a scan interval) costs about this many grid runs (two at least, the
+# interval's ends; more where it splits): its blocks hold as many fewer units.
+EXACT_COST = 3
+
+
+def _block(exact: bool) -> int:
+    """Runs (units) per block: scan intervals for an exact sweep, else instants."""
+    return SHARD_RUNS // EXACT_COST if exact else SHARD_RUNS
 
 
 Piece = tuple[int, int, int]  # (configuration, first run, end): runs of one block
@@ -225,8 +296,10 @@ class _State:
     project: Any
     configs: list[LoopConfig]
     counter: str
-    runs: list[tuple[str, int, int, str]]  # (fault, k, at, why) in the order of the shards
+    # (fault, k, at, why) in the order of the shards; exact: (fault, k, lo, hi)
+    runs: list[tuple[Any, ...]]
     shape: str
+    exact: bool
     block: int
     explorers: dict[int, Explorer] = field(default_factory=dict)
 
@@ -245,10 +318,14 @@ class _State:
 
 
 def _setup(project, options: dict[str, Any]) -> _State:
-    instants = [tuple(i) for i in options["instants"]]
+    point = options.get("point")
+    if point:  # a band point's plant, made from the project the worker loaded
+        from hmi.studies.band import plant_at
+        project = plant_at(project, point)
+    units = [tuple(i) for i in options["instants"]]
     return _State(project, [LoopConfig(*c) for c in options["configs"]], options["counter"],
-                  [(f, k, at, why) for f in options["faults"] for k, at, why in instants],
-                  options["shape"], options["block"])
+                  [(f, *unit) for f in options["faults"] for unit in units],
+                  options["shape"], bool(options.get("exact")), options["block"])
 
 
 def _work(state: _State, shard: tuple[Piece, ...]) -> SweepPart:
@@ -258,8 +335,12 @@ def _work(state: _State, shard: tuple[Piece, ...]) -> SweepPart:
 def _piece(state: _State, c: int, start: int, end: int) -> PiecePart:
     started = time.perf_counter()
     ex = state.explorer(c)
-    for fault, k, at, why in state.runs[start:end]:
-        ex.run(fault, k, at, why)
+    if state.exact:
+        for fault, k, lo, hi in state.runs[start:end]:
+            ex.pieces(fault, k, lo, hi)
+    else:
+        for fault, k, at, why in state.runs[start:end]:
+            ex.run(fault, k, at, why)
     g = ex.graph
     whole = start % state.block == 0 and end == min(start + state.block, len(state.runs))
     states = None if whole else sorted(_digest(key) for key in ex.explored())
@@ -317,19 +398,19 @@ def cache_folder() -> Path:
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "plchmi"
 
 
-def _cache_key(project, variant, configs, counter, every, extras, faults) -> str:
+def _cache_key(project, variant, configs, counter, every, extras, faults, more=()) -> str:
     text = json.dumps([CACHE_VERSION, variant, counter, every, extras, list(faults),
                        [[c.key, c.policy, c.diagnosis] for c in configs],
-                       digest_of(project, variant or None), code_version().digest])
+                       digest_of(project, variant or None), code_version().digest, list(more)])
     return hashlib.sha256(text.encode()).hexdigest()[:32]
 
 
-def _times_key(project, variant, configs, counter, every, extras, faults) -> str:
+def _times_key(project, variant, configs, counter, every, extras, faults, more=()) -> str:
     """The sweep without the code version: the times measured before a change of the code
     still cut the next run well enough (the cut changes the time, never the result)."""
-    text = json.dumps(["times", SHARD_RUNS, variant, counter, every, extras, list(faults),
-                       [[c.key, c.policy, c.diagnosis] for c in configs],
-                       digest_of(project, variant or None)])
+    text = json.dumps(["times", SHARD_RUNS, EXACT_COST, variant, counter, every, extras,
+                       list(faults), [[c.key, c.policy, c.diagnosis] for c in configs],
+                       digest_of(project, variant or None), list(more)])
     return hashlib.sha256(text.encode()).hexdigest()[:32]
 
 
@@ -365,7 +446,8 @@ def _load(key: str) -> SweepResult | None:
         return SweepResult(data["project"], data["variant"], configs, tuple(data["faults"]),
                            data["period_us"], data["every"], data["extras"],
                            data["cycle_start_us"], data["cycle_us"], runs, data["states"],
-                           cached=True)
+                           cached=True, exact=data["exact"], step_us=data["step_us"],
+                           point=data["point"])
     except (OSError, ValueError, KeyError, TypeError):
         return None
 
@@ -378,7 +460,8 @@ def _store(key: str, result: SweepResult) -> None:
         "period_us": result.period_us, "every": result.every, "extras": result.extras,
         "cycle_start_us": result.cycle_start_us, "cycle_us": result.cycle_us,
         "runs": {k: [asdict(r) for r in v] for k, v in result.runs.items()},
-        "states": result.states,
+        "states": result.states, "exact": result.exact, "step_us": result.step_us,
+        "point": result.point,
     }
     try:
         folder.mkdir(parents=True, exist_ok=True)

@@ -123,6 +123,10 @@ class LoopAccess:
                 raise Unsupported(f"device model {device.MODEL!r} ({device.name}) is not "
                                   "supported by the closed-loop exploration (supported: "
                                   + ", ".join(sorted(c.MODEL for c in _DEVICE_KEYS)) + ")")
+            if getattr(device, "bounce", 0) and device.params["bounce_pattern"] == "each":
+                raise Unsupported(f"{device.name} bounces its own way at every switch change "
+                                  "(bounce_pattern: each): its loop never repeats; the "
+                                  "exploration needs bounce_pattern: same")
         layout = engine.layout
         law = engine.project.controls[engine.control_name]
         caps = step_caps(engine.project, law)
@@ -169,6 +173,17 @@ class LoopAccess:
         devices = tuple(_DEVICE_KEYS[type(d)](d, now) for d in self.plant.devices)
         return (image, history, timers, diag, latched, devices)
 
+    def region(self) -> tuple:
+        """The plant's discrete state: its key with every continuous quantity (a position, a
+        clock, an instant to come) replaced by the side it lies on of each constant it is
+        compared with. Runs of one fault injected at two instants of the same scan interval
+        see the same inputs at every scan and the same engine state; if they also go through
+        the same regions until they meet, every instant between them does (each comparison
+        is of a quantity moving linearly with the instant), which is what lets the exact
+        sweep (hmi/studies/explore.py, Explorer.pieces) vouch for a whole interval."""
+        now = self.engine.now
+        return tuple(_DEVICE_REGIONS[type(d)](d, now) for d in self.plant.devices)
+
 
 def _image_key(image, time_slots) -> tuple:
     if not time_slots:
@@ -208,9 +223,33 @@ def _valve_key(v: Valve, now: int) -> Any:
                             for sensor, (value, start, end) in v.glitches.items()
                             if end > now))
     where = (v.true_fsc(), v.true_fso()) if v.jammed else v.pos
+    # The switches' own dynamics (delay, bounce): what they read, and what is still to come
+    # out of them (bounce_pattern `same`: the patterns depend on nothing else).
+    switches = (tuple(v.reading.values()), tuple((t - now, sensor, value)
+                                                 for t, sensor, value in v.to_come)
+                ) if v.switching else ()
     return (where, v.jammed, v.self_drive, tuple(sorted(v.armed)), glitches,
             min(v.stall_us, tolerance + 1), v.stall_reported, v.both_on, v.was_open,
-            tuple(sorted(v.orders.items())), tuple(sorted(v.active_faults)), pending)
+            tuple(sorted(v.orders.items())), tuple(sorted(v.active_faults)), pending, switches)
+
+
+def _side(value: int, mark: int) -> int:
+    return (value > mark) - (value < mark)
+
+
+def _valve_region(v: Valve, now: int) -> Any:
+    tolerance = v.params["stall_tolerance"]
+    marks = (*v._marks, v._block_point())
+    where = (v.true_fsc(), v.true_fso()) if v.jammed else tuple(_side(v.pos, m) for m in marks)
+    glitches = tuple(sorted((sensor, value, start <= now) for sensor, (value, start, end)
+                            in v.glitches.items() if end > now))
+    switches = (tuple(v.reading.values()), tuple((sensor, value) for _, sensor, value
+                                                 in v.to_come)) if v.switching else ()
+    return (where, v.jammed, v.self_drive, tuple(sorted(v.armed)), glitches,
+            _side(v.stall_us, 0), _side(v.stall_us, tolerance), v.stall_reported, v.both_on,
+            v.was_open, tuple(sorted(v.orders.items())), tuple(sorted(v.active_faults)),
+            tuple(p.code for p in v.pending), switches)
 
 
 _DEVICE_KEYS = {Valve: _valve_key}
+_DEVICE_REGIONS = {Valve: _valve_region}

@@ -21,7 +21,7 @@ from hmi.studies.closed_loop import (
     diagnosability,
     spread,
 )
-from hmi.studies.loop_sweep import SHARD_RUNS, SweepResult
+from hmi.studies.loop_sweep import EXACT_COST, SHARD_RUNS, SweepResult
 from hmi.timefmt import format_duration, seconds
 
 OUTCOMES = (BLOCKED, TOLERANT, DEFECT)
@@ -46,12 +46,12 @@ def per_fault(result: SweepResult, config: str, scenarios) -> list[FaultSweep]:
     for fault in result.faults:
         runs = [r for r in result.of(config) if r.fault == fault]
         counts: dict[str, int] = {}
-        for r in runs:
-            counts[r.outcome] = counts.get(r.outcome, 0) + 1
+        for r in runs:  # (an exact sweep's runs weigh their piece of instants, in µs)
+            counts[r.outcome] = counts.get(r.outcome, 0) + r.weight
         worst = max(runs, key=lambda r: (SEVERITY[r.outcome], -r.at_us))
         scenario = tabled.get(fault)
         single = result.at_phase(config, fault, scenario.at_us) if scenario else None
-        out.append(FaultSweep(fault, counts, len(runs), worst, single))
+        out.append(FaultSweep(fault, counts, sum(r.weight for r in runs), worst, single))
     return out
 
 
@@ -70,24 +70,48 @@ def _decision(r: Outcome) -> str:
     return f"; ends in {r.final_state} {{{', '.join(r.final)}}}"
 
 
+def instant_text(r: Outcome) -> str:
+    """`2.969 s`, or a piece of instants: `2.960001 - 2.969999 s`."""
+    if r.lo_us is None or r.hi_us is None or r.lo_us == r.hi_us:
+        return f"{_at(r.at_us)} s"
+    return f"{_at(r.lo_us)} - {_at(r.hi_us)} s"
+
+
+def _at(us: int) -> str:
+    return seconds(us) if us % 1000 == 0 else f"{us / 1e6:.6f}"
+
+
 def report_lines(result: SweepResult, scenarios, paper: bool, title: str) -> list[str]:
     total = sum(len(v) for v in result.runs.values())
     per_config = total // max(1, len(result.configs))
-    grid = format_duration(result.every * result.period_us)
+    grid = format_duration(result.step_us or result.every * result.period_us)
     variant = f" (diagnoser variant {result.variant})" if result.variant else ""
+    where = f" at {result.point}" if result.point else ""
+    cycle = format_duration(result.cycle_us)
+    if result.exact:
+        head = (f"Fault campaign of {title}{where}, swept{variant}: {len(result.faults)} faults "
+                f"x every instant x {len(result.configs)} configurations ({total:,} runs, one "
+                "per piece of instants)")
+        instants = (f"  instants: every instant of the {cycle} fault-free cycle (from "
+                    f"{seconds(result.cycle_start_us)} s), exactly: the cycle split into the "
+                    "pieces of instants that share a run, shares measured in time")
+    else:
+        head = (f"Fault campaign of {title}{where}, swept{variant}: {len(result.faults)} "
+                f"faults x {per_config // max(1, len(result.faults))} instants x "
+                f"{len(result.configs)} configurations = {total:,} runs")
+        instants = (f"  instants: every {grid} of the {cycle} fault-free cycle (from "
+                    f"{seconds(result.cycle_start_us)} s)"
+                    + (", and 1 us before and after each diagnoser transition in it"
+                       if result.extras else ""))
     lines = [
-        f"Fault campaign of {title}, swept{variant}: {len(result.faults)} faults x "
-        f"{per_config // max(1, len(result.faults))} instants x {len(result.configs)} "
-        f"configurations = {total:,} runs",
-        f"  instants: every {grid} of the {format_duration(result.cycle_us)} fault-free cycle "
-        f"(from {seconds(result.cycle_start_us)} s)"
-        + (", and 1 us before and after each diagnoser transition in it" if result.extras
-           else ""),
+        head,
+        instants,
         "  every run is followed until its loop closes: Defect = damage at any time, Blocked = "
         "the cell never completes a cycle again, Tolerant = it keeps completing them",
         f"  {sum(result.states.values()):,} closed-loop states explored, in shards of "
-        f"{SHARD_RUNS} runs (how long it took, and where, is on stderr: not part of the "
-        "report)",
+        + (f"{SHARD_RUNS // EXACT_COST} scan intervals" if result.exact else
+           f"{SHARD_RUNS} runs")
+        + " (how long it took, and where, is on stderr: not part of the report)",
         "",
     ]
     sweeps = {c.key: per_fault(result, c.key, scenarios) for c in result.configs}
@@ -116,7 +140,7 @@ def report_lines(result: SweepResult, scenarios, paper: bool, title: str) -> lis
         for f in sweeps[c.key]:
             w = f.worst
             rows.append([f.fault, *(f"{100 * f.share(o):.1f}%" for o in OUTCOMES),
-                         f"{w.outcome} at {seconds(w.at_us)} s"
+                         f"{w.outcome} at {instant_text(w)}"
                          + (f" ({w.extra})" if w.extra else "") + f": {why(w)}"])
         lines += _table(rows, "  ", right=(1, 2, 3))
     lines.append("")
@@ -130,20 +154,29 @@ def report_lines(result: SweepResult, scenarios, paper: bool, title: str) -> lis
         rows = [["fault", "detected", "fault -> first decision", "isolated",
                  "fault -> certain diagnosis"]]
         for f in d.faults:
-            rows.append([f.fault, f"{len(f.detect_us)}/{f.runs}", _spread(f.detect_us),
-                         f"{f.isolated}/{f.runs}", _spread(f.delays_us)])
+            if result.exact:
+                detected = sum(r.weight for r in result.of(c.key)
+                               if r.fault == f.fault and r.detected_us is not None)
+                rows.append([f.fault, f"{100 * detected / max(1, f.total_weight):.1f}%",
+                             _spread(f.detect_us), f"{100 * f.share:.1f}%",
+                             _spread(f.delays_us, f.longest_delay_us)])
+            else:
+                rows.append([f.fault, f"{len(f.detect_us)}/{f.runs}", _spread(f.detect_us),
+                             f"{f.isolated}/{f.runs}", _spread(f.delays_us)])
         lines += _table(rows, "    ")
     return lines
 
 
-def _spread(values) -> str:
-    s = spread(values)
+def _spread(values, longest=None) -> str:
+    s = spread(values, longest)
     return "-" if s is None else " / ".join(seconds(v) for v in s) + " s"
 
 
 def as_dict(result: SweepResult, scenarios) -> dict:
     out: dict = {"project": result.project, "variant": result.variant,
-                 "every_s": result.every * result.period_us / 1e6,
+                 "exact": result.exact, "point": result.point,
+                 "every_s": None if result.exact else
+                 (result.step_us or result.every * result.period_us) / 1e6,
                  "cycle_s": result.cycle_us / 1e6, "cycle_start_s": result.cycle_start_us / 1e6,
                  "states": result.states, "shard_runs": SHARD_RUNS, "configurations": {}}
     for c in result.configs:
@@ -153,10 +186,12 @@ def as_dict(result: SweepResult, scenarios) -> dict:
             faults[f.fault] = {
                 "runs": f.runs, "counts": f.counts,
                 "worst": {"outcome": f.worst.outcome, "at_s": f.worst.at_us / 1e6,
+                          "from_s": f.worst.first_us / 1e6, "to_s": f.worst.last_us / 1e6,
                           "why": why(f.worst)},
                 "single": None if f.single is None else {
                     "outcome": f.single.outcome, "at_s": f.single.at_us / 1e6},
-                "isolated": fd.isolated, "misdiagnosed": dict(fd.misdiagnosed),
+                "isolated": fd.isolated, "isolated_share": fd.share,
+                "misdiagnosed": dict(fd.misdiagnosed),
                 "delay_s": _spread_s(fd.delays_us), "detect_s": _spread_s(fd.detect_us),
             }
         out["configurations"][c.key] = {"title": c.title, "faults": faults}
@@ -176,3 +211,65 @@ def _table(rows: list[list[str]], indent: str = "  ", right: tuple[int, ...] = (
                  for i, c in enumerate(r)]
         out.append((indent + "  ".join(cells)).rstrip())
     return out
+
+
+# -- over the declared tolerances (hmi/studies/band_sweep.py) ----------------------------------
+
+
+def band_lines(over, scenarios, paper: bool, samples: int, seed: int) -> list[str]:
+    """Table 1 at the worst instant, and each fault's shares of instants per class, as their
+    ranges over the band's plants, worst first, with the plant that gives the worst."""
+    band = over.band
+    lines = [f"Over the declared tolerances: {len(over.points)} plants ({band.describe()}: "
+             f"the nominal one, {len(band.corners())} corners, {samples} points drawn with "
+             f"seed {seed}; scans on their grid, every switch change bouncing alike: the scan "
+             "jitter is covered by `plchmi band`), every instant of each; each figure worst "
+             ".. best"]
+    sweeps = [{c.key: per_fault(r, c.key, scenarios) for c in over.configs}
+              for r in over.results]
+    lines.append("Table 1, each fault at its worst instant")
+    rows = [["", *[c.title for c in over.configs]]]
+    for outcome in OUTCOMES:
+        row = [outcome]
+        for c in over.configs:
+            values = [sum(1 for f in s[c.key] if f.worst.outcome == outcome) for s in sweeps]
+            worst, best = (min, max) if outcome == TOLERANT else (max, min)
+            low, high = worst(values), best(values)
+            row.append(str(low) if low == high else f"{low} .. {high}")
+        rows.append(row)
+    lines += _table(rows, "  ")
+    for c in over.configs:
+        lines.append("")
+        lines.append(f"{c.title}: share of instants per class, worst .. best, and the worst "
+                     "plant for the worst class")
+        rows = [["fault", "Blocked", "Tolerant", "Defect", "worst plant"]]
+        for k, fault in enumerate(over.results[0].faults):
+            per = [(p, s[c.key][k]) for p, s in zip(over.points, sweeps, strict=True)]
+            cells = []
+            for outcome in OUTCOMES:
+                shares = [f.share(outcome) for _, f in per]
+                worst, best = (min, max) if outcome == TOLERANT else (max, min)
+                if outcome == BLOCKED:
+                    worst, best = min, max
+                low, high = worst(shares), best(shares)
+                cells.append(f"{100 * low:.1f}%" if low == high else
+                             f"{100 * low:.1f} .. {100 * high:.1f}%")
+            worst_point = max(per, key=lambda pf: (SEVERITY[pf[1].worst.outcome],
+                                                   pf[1].share(DEFECT), -pf[1].share(TOLERANT)))
+            name = "-" if all(_same_shares(f, per[0][1]) for _, f in per) else \
+                f"{worst_point[0].label}: {worst_point[0].text(band)}"
+            rows.append([fault, *cells, name])
+        lines += _table(rows, "  ", right=(1, 2, 3))
+    lines.append(f"  ({over.states:,} closed-loop states explored)")
+    return lines
+
+
+def _same_shares(a: FaultSweep, b: FaultSweep) -> bool:
+    return all(abs(a.share(o) - b.share(o)) < 1e-12 for o in OUTCOMES)
+
+
+def band_as_dict(over, scenarios) -> dict:
+    return {"band": over.band.describe(),
+            "plants": [{"point": p.text(over.band), "label": p.label,
+                        "sweep": as_dict(r, scenarios)}
+                       for p, r in zip(over.points, over.results, strict=True)]}

@@ -7,6 +7,15 @@ orders together move nothing and are recorded as damage (the motor is driven bot
 End switches are made within `switch_band` of each end. An order held while the valve cannot
 move (at its end stop, or jammed) for longer than `stall_tolerance` is damage.
 
+A real switch is not a clean step (the tolerances a project declares, docs/project-format.md):
+it reports each change of the contact `delay` late, and then bounces for `bounce`: the reading
+flips back and forth a few times before it settles, the last flip exactly `bounce` after the
+first. The flips are drawn from `bounce_seed`, per edge (`bounce_pattern: each`: every edge its
+own pattern, seeded by its rank) or once per switch and direction (`same`: every make of fsc
+chatters alike, which keeps the valve time-invariant for the exhaustive exploration of the
+closed loop). A stuck switch or a glitch (the faults) overrides the reading; the physics
+(arrivals, jams, self-driving) follows the contact itself.
+
 Faults (000 §3.1), each injected at a time:
   F1/F2 fsc stuck at 0/1; F3/F4 fso stuck at 0/1;
   F5/F6 valve stuck at its closed / open position (it can still reach it, never leave it);
@@ -28,6 +37,7 @@ step, calls and dictionary were over a quarter of the valve project's scan).
 
 from __future__ import annotations
 
+import random
 from collections.abc import Hashable, Mapping
 from typing import Any
 
@@ -69,6 +79,15 @@ class Valve(SimDevice, model=VALVE):
         # changes its dynamics ends it (_settle: new orders, a fault, a repair, a mark
         # reached); whoever changes its physics by hand calls touch().
         self._glide: Glide | None = None
+        # The switches as they read before any fault (delay, bounce): the contact's value, and
+        # the changes still to come out of the switch, (time, sensor, value) in time order.
+        # Without delay nor bounce the reading is the contact itself (sensors() reads it).
+        self.delay: int = int(self.params["delay"])
+        self.bounce: int = int(self.params["bounce"])
+        self.contact = {"fsc": self.true_fsc(), "fso": self.true_fso()}
+        self.reading = dict(self.contact)
+        self.to_come: list[tuple[int, str, bool]] = []
+        self.edges = {"fsc": 0, "fso": 0}  # contact changes so far (seeds `each` patterns)
 
     # -- sensors ---------------------------------------------------------------------------
     def true_fsc(self) -> bool:
@@ -77,8 +96,16 @@ class Valve(SimDevice, model=VALVE):
     def true_fso(self) -> bool:
         return self.pos >= self.travel - self.band
 
+    @property
+    def switching(self) -> bool:
+        """Whether the switches have dynamics of their own (a delay or a bounce)."""
+        return bool(self.delay or self.bounce)
+
     def sensors(self) -> dict[str, bool]:
-        fsc, fso = self.true_fsc(), self.true_fso()
+        if self.switching:
+            fsc, fso = self.reading["fsc"], self.reading["fso"]
+        else:
+            fsc, fso = self.true_fsc(), self.true_fso()
         active = self.active_faults
         if "F1" in active:
             fsc = False
@@ -162,6 +189,8 @@ class Valve(SimDevice, model=VALVE):
             for edge in (start, end):
                 if edge > self.t:
                     dt = min(dt, edge - self.t)
+        if self.to_come:
+            dt = min(dt, self.to_come[0][0] - self.t)
         return max(dt, 1)
 
     def _block_point(self) -> int:
@@ -172,7 +201,8 @@ class Valve(SimDevice, model=VALVE):
         if glide is not None and t < glide[0]:
             self._glide_to(t, glide)
             return
-        if not (self.glitches or self.self_drive or self.orders["C"] or self.orders["O"]):
+        if not (self.glitches or self.self_drive or self.orders["C"] or self.orders["O"]
+                or self.to_come):
             # At rest, no glitch under way: nothing moves, and _settle, already applied after
             # the last change (a move, new orders, a fault, a repair), would change nothing,
             # armed faults included (they wait for a position or orders that do not change
@@ -227,6 +257,8 @@ class Valve(SimDevice, model=VALVE):
         """Apply what happens at the current instant: arrivals, armed faults, stalls."""
         self._glide = None  # (whatever changes here, the glide was planned without it)
         t = self.t
+        if self.switching:
+            self._switch(t)
         if self.true_fso() and not self.was_open:
             self.was_open = True
             self.opens += 1
@@ -267,6 +299,37 @@ class Valve(SimDevice, model=VALVE):
                 self.record(t, "end_stop_overrun", True,
                             f"order {order} held against the {stop} end stop for more than "
                             f"{seconds(self.params['stall_tolerance'])} s")
+
+    def _switch(self, t: int) -> None:
+        """The switches at `t`: a change of a contact schedules its reading (`delay` late,
+        then the bounce's flips); the changes due by `t` come out."""
+        for sensor, now in (("fsc", self.true_fsc()), ("fso", self.true_fso())):
+            if now != self.contact[sensor]:
+                self.contact[sensor] = now
+                self.edges[sensor] += 1
+                start = t + self.delay
+                # A change overtakes what its sensor still had to show from the last one.
+                self.to_come = [e for e in self.to_come if e[1] != sensor or e[0] < start]
+                self.to_come += [(start + offset, sensor, value)
+                                 for offset, value in self._flips(sensor, now)]
+                self.to_come.sort()
+        to_come = self.to_come
+        while to_come and to_come[0][0] <= t:
+            _, sensor, value = to_come.pop(0)
+            self.reading[sensor] = value
+
+    def _flips(self, sensor: str, value: bool) -> list[tuple[int, bool]]:
+        """(offset, reading) of one contact change: the new value at once, then, with a
+        bounce, 1 to 3 flips back and forth drawn from the seed, settling at `bounce`."""
+        if self.bounce < 2:  # (a flip needs room between the change and the settling)
+            return [(0, value)]
+        rank = self.edges[sensor] if self.params["bounce_pattern"] == "each" else int(value)
+        draw = random.Random(f"{int(self.params['bounce_seed'])}:{sensor}:{int(value)}:{rank}")
+        pairs = draw.randint(1, 3)
+        inner = sorted(draw.randint(1, self.bounce - 1) for _ in range(2 * pairs - 1))
+        offsets = [0, *inner, self.bounce]
+        return [(offset, value if k % 2 == 0 else not value)
+                for k, offset in enumerate(offsets)]
 
     def _arm_glitches(self) -> None:
         truth = {"fsc": self.true_fsc(), "fso": self.true_fso()}
