@@ -116,12 +116,12 @@ def loop(request):
         if which == "built" else load_project(valve)
     ex = Explorer(project, config, "cycles", settle=False)
     ex.explore(faults_of(project), ex.instants(extras=False, every=50))
-    return config, abstraction(ex.graph), faults_of(project)
+    return config, abstraction(ex.graph), faults_of(project), which
 
 
 @pytest.mark.slow
 def test_the_export_is_a_live_faudes_generator_without_silent_cycles(loop):
-    _, gen, faults = loop
+    _, gen, faults, _ = loop
     system = to_faudes(gen)
     assert system.Size() == gen.states and system.TransRelSize() == len(gen.transitions)
     assert {e for _, e, _ in gen.transitions} - gen.observable == {"tau", *faults}
@@ -131,22 +131,31 @@ def test_the_export_is_a_live_faudes_generator_without_silent_cycles(loop):
 
 @pytest.mark.slow
 def test_faudes_and_the_project_agree_fault_by_fault(loop):
-    config, gen, faults = loop
+    config, gen, faults, which = loop
     verdicts = {f: diagnosable(gen, {f: {f}}) for f in faults}
     assert verdicts == {f: faudes_diagnosable(gen, {f: {f}}) for f in faults}
     # Not a vacuous agreement: both kinds of verdict occur, and what masking hides (F5,
-    # F6 behind F2, F4) is non-diagnosable under FTC only (docs/cispi_valve.md quotes these;
-    # the built diagnoser's loop gives the same verdicts).
+    # F6 behind F2, F4) is non-diagnosable under FTC only (docs/cispi_valve.md quotes these).
     yes = {f for f, ok in verdicts.items() if ok}
     if config.diagnosis == "observe":
         assert yes == {"F2", "F4", "F5", "F6", "F11"}
+    elif which == "improved":
+        # F8 (F10) starting while the valve travels is a 300 ms fall of fsc (fso) at its
+        # arrival: the arrival seen 2.3 s after the order, a slower valve than the model's
+        # but inside its declared band (travel up to 2.4 s). The hand-written diagnoser,
+        # which holds across the band (2.45 s windows), lets it pass, so nothing in the
+        # loop changes and that run looks fault-free forever, in order and in time.
+        assert yes == {"F7", "F9", "F11", "F12"}
     else:
+        # The built diagnoser's windows come from the nominal 2 s travel: it takes that late
+        # arrival for F8 (F10) and masks, which tells it apart (and a slow healthy valve
+        # too: `plchmi check --diagnoser diagnoser.built.yaml` warns).
         assert yes == {"F7", "F8", "F9", "F10", "F11", "F12"}
 
 
 @pytest.mark.slow
 def test_faudes_and_the_project_agree_pair_by_pair(loop):
-    _, gen, faults = loop
+    _, gen, faults, _ = loop
     disagree = []
     for a, b in itertools.combinations(faults, 2):
         sub = gen.without_faults({a, b})
@@ -158,7 +167,7 @@ def test_faudes_and_the_project_agree_pair_by_pair(loop):
 
 @pytest.mark.slow
 def test_faudes_and_the_project_build_the_same_untimed_diagnoser(loop):
-    _, gen, faults = loop
+    _, gen, faults, _ = loop
     states, disagree = _same_diagnoser(gen, {f: {f} for f in faults})
     assert disagree == []
     ours = untimed_diagnoser(gen, {f: {f} for f in faults})

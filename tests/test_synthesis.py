@@ -95,7 +95,10 @@ def test_the_built_diagnoser_is_deterministic_and_meets_its_goal(tmp_path):
         assert set(a.isolable) <= set(b.isolable), a.config.title
         assert set(a.guaranteed) <= set(b.guaranteed), a.config.title
         assert b.misdiagnoses == 0, b.config.title
-    assert len(new[0].isolable) > len(mine[0].isolable)  # observing: F1 too
+    # Observing: F1 too, the most observation allows (F13 is told apart from F3 or F1 only
+    # by where the valve stopped); the hand-written diagnoser reaches it by its dwell at
+    # closed rest, the built one by construction.
+    assert "F1" in new[0].isolable and len(new[0].isolable) == 12
 
 
 # -- the High Level Diagnoser (hmi/project/high_level.py, DiagnosisStage.refine) ----------------

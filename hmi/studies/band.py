@@ -203,7 +203,11 @@ class Band:
 
 
 def variant_of(project: Project) -> str | None:
-    """The diagnoser variant the project was loaded with (None: the default)."""
+    """The diagnoser variant the project was loaded with, or the diagnosers file given in
+    place of its own (`--diagnoser FILE.yaml`, wherever it lies); None: the default. A study
+    sends this with the project (hmi/farm/bundle.py), so its workers load the same."""
+    if project.diagnosers_file:
+        return project.diagnosers_file
     return next((s.variant for s in project.diagnosers if s.variant), None)
 
 

@@ -29,6 +29,7 @@ from hmi.studies.band import (
     fault_free_points,
     run_band,
     run_point,
+    variant_of,
 )
 from hmi.timefmt import format_duration, seconds
 
@@ -267,8 +268,7 @@ def _key(project: Project, what: str, points: list[str], length: int) -> str:
 
     from hmi.farm.bundle import digest_of
     from hmi.farm.version import code_version
-    from hmi.studies.loop_sweep import project_variant
-    variant = project_variant(project) or None
+    variant = variant_of(project)
     text = json.dumps([CACHE_VERSION, what, length, points, digest_of(project, variant),
                        code_version().digest])
     return hashlib.sha256(text.encode()).hexdigest()[:32]

@@ -45,6 +45,7 @@ from hmi.farm.bundle import Bundle, digest_of
 from hmi.farm.job import Study, make_job
 from hmi.farm.run import Farm
 from hmi.farm.version import code_version
+from hmi.studies.band import variant_of
 from hmi.studies.closed_loop import Outcome, outcomes
 from hmi.studies.explore import Explorer, LoopConfig, faults_of
 
@@ -116,7 +117,7 @@ def sweep(project, configs: Sequence[LoopConfig], counter: str, every_us: int | 
     every = max(1, round((every_us or period) / period)) if step_us is None else 1
     if exact:
         extras, every, step_us = False, 1, None
-    variant = project_variant(project)
+    variant = variant_of(project) or ""
     faults = tuple(faults) if faults else faults_of(project)
     text = point["text"] if point else ""
     # An exact sweep is kept per configuration; a grid's instants depend on the
@@ -378,14 +379,6 @@ def _decode(shard: Any, data: list[dict[str, Any]]) -> SweepPart:
 
 def _outcome(data: dict[str, Any]) -> Outcome:
     return Outcome(**{**data, "final": tuple(data["final"])})
-
-
-def project_variant(project) -> str:
-    """The diagnoser variant the project was loaded with, or the diagnosers file."""
-    from hmi.project.diagnosers import diagnosers_of
-    if project.diagnosers_file:
-        return project.diagnosers_file
-    return next((s.variant for s in diagnosers_of(project) if s.variant), "")
 
 
 # -- the cache --------------------------------------------------------------------------------
