@@ -153,6 +153,10 @@ def _shard_workers(data: Path) -> dict[int, str]:
 
 
 def _run_killing(cluster: Cluster, capsys, argv: list[str]) -> tuple[str, str, Killer]:
+    # The local run's kept results go: its cut can differ from the cluster's (a sweep is cut
+    # by cost for the workers it has), so its study would sit beside the cluster's, with the
+    # same shard numbers, and _check_rerun would read whichever came last.
+    shutil.rmtree(Path(os.environ["PLCHMI_DATA"]) / "studies", ignore_errors=True)
     killer = Killer(cluster, "w2")
     killer.start()
     try:

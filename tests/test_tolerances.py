@@ -244,6 +244,20 @@ def test_check_warns_at_the_transition_of_a_diagnoser_too_tight_for_the_band(tmp
     assert "diagnosed faulty: V1 -> A3 {F3, F13}" in replay
 
 
+def test_check_takes_a_diagnosers_file_from_outside_the_project(tmp_path, capsys):
+    """`check --diagnoser FILE.yaml` with the file anywhere (here the built diagnoser, copied
+    out of the project): the band's runs load that file, and its windows, from the nominal
+    2 s travel, are too tight for the band: the warning points into that file."""
+    outside = tmp_path / "elsewhere" / "built.yaml"
+    outside.parent.mkdir()
+    shutil.copy(VALVE / "diagnoser.built.yaml", outside)
+    assert main(["check", str(VALVE), "--diagnoser", str(outside)]) == 0
+    out = capsys.readouterr().out
+    warning = next(line for line in out.splitlines()
+                   if "a fault-free run in the declared tolerances is diagnosed faulty" in line)
+    assert warning.strip().startswith(f"{outside}:") and "Replay: plchmi band" in warning
+
+
 def test_band_runs_the_corners_and_a_seeded_sample_and_shows_the_windows_used(capsys):
     assert main(["band", str(VALVE), "--runs", "8", "--for", "20s", "--jobs", "1"]) == 0
     out = capsys.readouterr().out

@@ -2,12 +2,13 @@
 (and warnings) `plchmi check` adds.
 
 `check` runs a project's diagnosers across its band: the nominal plant, the band's corners
-and CHECK_SAMPLES seeded points, runs of at most CHECK_LENGTH_US and CHECK_SCANS scans in all
-(a seeded choice of corners when they do not all fit), once per version of the project and of
-plchmi (cached like the closed-loop exploration). A design that diagnoses a healthy plant
-faulty somewhere in the band it declares is told at the transition that fired, with the run
-that does it and the command that replays it. `plchmi band` runs every corner and as many
-points as asked, and checks stopwatch monitors too.
+and up to CHECK_SAMPLES seeded points, runs of at most CHECK_LENGTH_US, CHECK_SCANS scans of a
+device in all (a scan of a cell of five devices counts five; a seeded choice of corners, and
+fewer points, when they do not all fit: check stays a matter of a second or two), once per
+version of the project and of plchmi (cached like the closed-loop exploration). A design that
+diagnoses a healthy plant faulty somewhere in the band it declares is told at the transition
+that fired, with the run that does it and the command that replays it. `plchmi band` runs
+every corner and as many points as asked, and checks stopwatch monitors too.
 """
 
 from __future__ import annotations
@@ -27,14 +28,13 @@ from hmi.studies.band import (
     band_of,
     counter_of,
     fault_free_points,
-    run_band,
     run_point,
     variant_of,
 )
 from hmi.timefmt import format_duration, seconds
 
 CHECK_SAMPLES = 16
-CHECK_SCANS = 150_000  # check's budget: about a second or two for the valve's 33 runs
+CHECK_SCANS = 150_000  # check's budget in scans of one device: the valve's 33 runs, 0.7 s
 CHECK_LENGTH_US = 40_000_000
 CHECK_SEED = 1
 DEFAULT_LENGTH_US = 60_000_000  # a run's length without a campaign to say it
@@ -52,10 +52,12 @@ def fault_free_band(project: Project) -> Band:
 
 
 def check_points(band: Band, runs: int) -> tuple[list[BandPoint], str]:
-    """What `check` runs (at most `runs` runs), and how to say it."""
-    chosen, which = band.some_corners(max(2, runs - 1 - CHECK_SAMPLES), CHECK_SEED)
-    points = [band.nominal(), *chosen, *band.sample(CHECK_SAMPLES, CHECK_SEED)]
-    return points, f"the nominal plant, {which}, {CHECK_SAMPLES} seeded points"
+    """What `check` runs (about `runs` runs, at least the nominal plant, two corners and two
+    seeded points), and how to say it."""
+    samples = min(CHECK_SAMPLES, max(2, runs // 2))
+    chosen, which = band.some_corners(max(2, runs - 1 - samples), CHECK_SEED)
+    points = [band.nominal(), *chosen, *band.sample(samples, CHECK_SEED)]
+    return points, f"the nominal plant, {which}, {samples} seeded points"
 
 
 def check_band(project: Project) -> tuple[list[str], list[Diagnostic]]:
@@ -69,13 +71,17 @@ def check_band(project: Project) -> tuple[list[str], list[Diagnostic]]:
                 "monitors, damage, cycles)"], []
     runnable = fault_free_band(project)
     length = min(run_length(project), CHECK_LENGTH_US)
-    points, what = check_points(runnable, CHECK_SCANS // (length // project.scan_period_us + 1))
+    devices = max(1, len(project.plant.devices))
+    points, what = check_points(runnable, CHECK_SCANS // (length // project.scan_period_us + 1)
+                                // devices)
     key = _key(project, "check", [p.text(runnable) for p in points], length)
     data = _load(key)
     if data is None:
-        from hmi.farm.executors import InProcess
-        from hmi.farm.run import Farm
-        runs = run_band(project, runnable, points, length, Farm(InProcess(), keep=False))
+        # Here, on the project as loaded: a study's workers would load it again from a
+        # copy of its files (hmi/farm/bundle.py), which check has no need of.
+        counter = counter_of(project)
+        runs = BandRuns(runnable, length, [run_point(project, runnable, point, length, counter)
+                                           for point in points])
         data = _summary(runs, project)
         _store(key, data)
     lines = [title, f"  fault-free across it: {data['runs']} runs of "
