@@ -1,7 +1,7 @@
 """The safety program: one PLC cycle in the engine's order (hmi/engine/scan.py).
 
     first cycle: the history is the engine's initial image
-    2 Memory   3-4 each Diag_<D>   5 Control (yours)   6 Filter   7 outputs
+    2 Memory   3-4 each Diag_<D>   5 Control   6 Filter   7 outputs
     8 each Mon_<task>   a fault reset (after the scan)   the history shifts
 
 The program holds the history its function blocks read: `prev_x` is x at the previous scan,
@@ -19,7 +19,7 @@ from hmi.export import source
 from hmi.export.diagnoser_pou import ftc_mode
 from hmi.export.image import Globals
 from hmi.export.names import Scope
-from hmi.export.views import Block, Durations, convert, view_name
+from hmi.export.views import TMAX_MS, Block, Durations, convert, view_name
 from hmi.project.model import Project
 
 
@@ -30,7 +30,7 @@ class Blocks:
     memory: Block | None
     diagnosers: list[Block]
     filter: Block
-    control: m.Pou
+    control: Block
     stopwatch: m.Pou
     stopwatch_ports: dict[str, str]
 
@@ -66,11 +66,16 @@ def build_program(project: Project, name: str, g: Globals, b: Blocks,
     p = _Program(g, g.scope.child())
     outputs = {v.name for v in source.outputs(project)}
     specs = source.diagnosers(project)
-    body: list[m.Stmt] = []
+    clock, now = p.scope.take("Clock"), p.scope.take("Now")
+    body: list[m.Stmt] = [
+        m.Comment("the scan's time: the program's clock, since its first scan"),
+        m.FbCall(clock, (("IN", m.TRUE), ("PT", m.TimeLit(TMAX_MS)))),
+        m.Assign(m.Name(now), m.Member(m.Name(clock), "ET"))]
     if b.memory is not None:
         inst = p.instance("Memory")
         body.append(m.Comment("2. Memory: timers and observers"))
-        body.append(m.FbCall(inst, p.wire(b.memory)))
+        body.append(m.FbCall(inst, ((b.memory.ports["Now"], m.Name(now)),
+                                    *p.wire(b.memory))))
         body += [m.Assign(g.name(n), m.Member(m.Name(inst), out))
                  for n, out in b.memory.outputs.items()]
     for spec, block in zip(specs, b.diagnosers, strict=True):
@@ -83,9 +88,8 @@ def build_program(project: Project, name: str, g: Globals, b: Blocks,
         body += [m.Assign(g.name(n), m.Member(m.Name(inst), out))
                  for n, out in block.outputs.items()]
     ctl = p.instance("Control")
-    body.append(m.Comment("5. The functional control (FB_..._Control: your program) writes "
-                          "the FOV_ variables"))
-    body.append(m.FbCall(ctl))
+    body.append(m.Comment("5. The functional control writes the FOV_ variables"))
+    body.append(m.FbCall(ctl, ((b.control.ports["Now"], m.Name(now)), *p.wire(b.control))))
     filt = b.filter
     finst = p.instance("Filter")
     body.append(m.Comment("6. The safety filter"))
@@ -120,12 +124,13 @@ def build_program(project: Project, name: str, g: Globals, b: Blocks,
                      for (n, _), ident in p.history.items()),
                    m.Assign(m.Name(started), m.TRUE))]
 
-    types = {"Memory": b.memory.pou.name if b.memory else "", "Control": b.control.name,
+    types = {"Memory": b.memory.pou.name if b.memory else "", "Control": b.control.pou.name,
              "Filter": filt.pou.name}
     types.update({f"Diag_{s.name}": blk.pou.name for s, blk in zip(specs, b.diagnosers,
                                                                    strict=True)})
     types.update({f"Mon_{t.name}": b.stopwatch.name for t in source.monitors(project)})
-    locals_ = [m.Var(started, m.BOOL)]
+    locals_ = [m.Var(started, m.BOOL), m.Var(clock, m.Derived("TON")),
+               m.Var(now, m.TIME, comment="the scan's time")]
     locals_ += [m.Var(ident, m.Derived(types[key])) for key, ident in p.instances.items()]
     locals_ += [m.Var(ident, m.BOOL, comment=f"{n}, {d} scan{'s' if d > 1 else ''} back")
                 for (n, d), ident in p.history.items()]
@@ -133,8 +138,7 @@ def build_program(project: Project, name: str, g: Globals, b: Blocks,
         m.VarBlock("external", tuple(m.Var(v.name, v.type) for v in g.all)),
         m.VarBlock("local", tuple(locals_))),
         tuple(g.read + first + body),
-        "The safety layer's cycle, in the engine's order. Call it once per PLC cycle from "
-        "the task; put the functional control in FB_..._Control.")
+        "The cell's cycle, in the engine's order. Call it once per PLC cycle from the task.")
     return pou, dict(p.instances)
 
 
