@@ -62,7 +62,7 @@ def test_the_cut_by_cost_splits_heavy_blocks_and_gathers_light_ones():
     blocks = [(c, start, start + 200) for c in range(2) for start in range(0, 1000, 200)]
     assert cut(blocks, None) == tuple((b,) for b in blocks)
     times = [0.01, 0.02, 30.0, 0.05, 0.01, 2.0, 0.01, 0.01, 0.01, 0.3]
-    shards = cut(blocks, times)
+    shards = cut(blocks, [t / 200 for t in times for _ in range(200)])
     pieces = [p for s in shards for p in s]
     # Every run once, in order; a piece never leaves its block.
     assert [(c, r) for c, a, b in pieces for r in range(a, b)] == \
@@ -79,6 +79,11 @@ def test_the_cut_by_cost_splits_heavy_blocks_and_gathers_light_ones():
     assert min(seconds(s) for s in shards) >= target / 2
     heavy = [p for p in pieces if p[0] == 0 and 400 <= p[1] < 600]
     assert len(heavy) == 75  # 30 s in pieces of 0.4 s
+    # Pieces of about the same time where the time is not spread evenly over the runs.
+    costs = [0.001] * 150 + [0.1] * 50  # 5.15 s, most in the last 50 runs
+    split = [p for s in cut([(0, 0, 200)], costs) for p in s]
+    assert len(split) == 13 and split[0] == (0, 0, 153)
+    assert all(sum(costs[a:b]) <= 0.55 for _, a, b in split)
 
 
 def test_a_sweep_cut_by_its_measured_times_finds_the_same(monkeypatch):
