@@ -130,8 +130,32 @@ def make_controller(project_path, control=None, policy=None, inject=()):
 
 @pytest.fixture(autouse=True)
 def data_folder(tmp_path, monkeypatch):
-    """Journals written by tests go to a temporary folder, never the user's data folder."""
+    """Journals written by tests go to a temporary folder, never the user's data folder;
+    a cell's runtime a test started (plchmi PROJECT starts one, detached) does not outlive
+    it, whatever the test did."""
     monkeypatch.setenv("PLCHMI_DATA", str(tmp_path / "data"))
+    yield
+    stop_runtimes(tmp_path)
+
+
+def stop_runtimes(folder: Path) -> None:
+    import signal
+    import time
+
+    from hmi.runtime.place import Place, running
+    for lock in folder.rglob("runtime.lock"):
+        pid = running(Place(lock.parent))
+        if pid is None or pid <= 0:
+            continue
+        try:
+            os.kill(pid, signal.SIGTERM)
+        except ProcessLookupError:
+            continue
+        deadline = time.monotonic() + 30
+        while running(Place(lock.parent)) is not None and time.monotonic() < deadline:
+            time.sleep(0.02)
+        if running(Place(lock.parent)) is not None:
+            os.kill(pid, signal.SIGKILL)
 
 
 @pytest.fixture(scope="session")

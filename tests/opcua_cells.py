@@ -15,6 +15,7 @@ from hmi.engine.scan import Engine
 from hmi.errors import UsageError
 from hmi.history.target import Target
 from hmi.opcua.server import CellServer, ServeOptions
+from hmi.opcua.source import CellSource
 from hmi.opcua.status import ServingStatus
 from hmi.opcua.users import TrustList, Users
 from hmi.plant.select import open_plant
@@ -32,12 +33,12 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def serve(session: Session, options: Callable[[int], ServeOptions],
+def serve(session: Session | CellSource, options: Callable[[int], ServeOptions],
           listeners: Sequence[Callable[[ServingStatus], None]] = (),
           history: Target | None = None) -> CellServer:
-    """A started server for `session`, with the options `options(port)` on a free port;
-    `listeners` hear its changes of state from the start; `history`: the cell's history,
-    for HistoryRead."""
+    """A started server for `session` (or a source: the runtime through a link), with the
+    options `options(port)` on a free port; `listeners` hear its changes of state from the
+    start; `history`: the cell's history, for HistoryRead."""
     for attempt in range(TRIES):
         server = CellServer(session, options(free_port()), history=history)
         server.listeners.extend(listeners)

@@ -258,3 +258,48 @@ def test_roles_fail_closed():
             c.SetMode(False), c.ManualOutput("O", False), c.StartRecovery("p"),
             c.Shelve("k", 10), c.Acknowledge(None))] == [True, True, False, True, True,
                                                           True, False]
+
+
+# -- tickets: a door's sign-in handed to the screen it starts ------------------------------
+
+def test_a_ticket_is_redeemed_once_and_expires(tmp_path):
+    from hmi.access import tickets
+    path = tmp_path / "users"
+    clock = Clock()
+    name = tickets.issue(path, "alice", "browser", "w1", clock=clock)
+    assert (tickets.folder(path).stat().st_mode & 0o777) == 0o700
+    assert ((tickets.folder(path) / name).stat().st_mode & 0o777) == 0o600
+    ticket, why = tickets.redeem(path, name, clock=clock)
+    assert ticket == tickets.Ticket("alice", "browser", "w1") and why == ""
+    again, why = tickets.redeem(path, name, clock=clock)
+    assert again is None and "used already" in why
+    late = tickets.issue(path, "alice", "browser", clock=clock)
+    clock.now += tickets.TICKET_S + 1
+    gone, why = tickets.redeem(path, late, clock=clock)
+    assert gone is None and "expired" in why
+    for bad in ("", "../users", "x" * 32, name.upper()):
+        assert tickets.redeem(path, bad, clock=clock)[0] is None
+    stale = tickets.issue(path, "bob", "browser", clock=clock)
+    clock.now += tickets.TICKET_S + 1
+    assert tickets.sweep(path, clock=clock) == 1
+    assert tickets.redeem(path, stale, clock=clock)[0] is None
+
+
+def test_two_redeemers_of_one_ticket_never_both_get_it(tmp_path):
+    from hmi.access import tickets
+    path = tmp_path / "users"
+    for _ in range(20):
+        name = tickets.issue(path, "alice", "browser")
+        got: list[object] = []
+        barrier = threading.Barrier(4)
+
+        def redeem(name: str = name, barrier: threading.Barrier = barrier,
+                   got: list[object] = got) -> None:
+            barrier.wait()
+            got.append(tickets.redeem(path, name)[0])
+        threads = [threading.Thread(target=redeem) for _ in range(4)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        assert sum(g is not None for g in got) == 1

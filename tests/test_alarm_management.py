@@ -198,3 +198,28 @@ async def test_the_operator_shelves_and_comments_from_the_palette():
         await settle(pilot)
         assert "1 shelved" in region_text(app, "#alarms")
         assert alarm.key not in [a.key for a in app.link.session.last.alarms]
+
+
+async def test_a_latched_alarm_is_not_offered_for_shelving_and_the_refusal_fits_80_columns():
+    """The palette offered to shelve a latched alarm, opened the duration picker, and
+    refused only after a choice, its reason cut at 80 columns: now it offers no shelving for
+    it, and the shelve action refuses before asking, in words that fit."""
+    from ui_harness import run_until
+    from ui_scenarios import make_app
+
+    from hmi.ui.headless import settle
+
+    app = make_app(inject=("F13@10.4s",))
+    async with app.run_test(size=(80, 24)) as pilot:
+        await run_until(pilot, lambda s: any(a.latched and a.active for a in s.alarms), 20,
+                        "a latched alarm")
+        alarm = first_active(app.link.session.last, latched=True)
+        titles = [entry.title for entry in app.palette_entries()]
+        assert f"Alarms: comment on {alarm.text}…" in titles
+        assert f"Alarms: shelve… {alarm.text}" not in titles
+        app.shelve(alarm.key)
+        await settle(pilot)
+        assert app.screen is app.screen_stack[0]  # no duration picker
+        said = app.message.plain
+        assert "NOT AVAILABLE" in said and "latched" in said and len(said) <= 80
+

@@ -555,8 +555,9 @@ def test_serve_plant_prints_its_map(server):
 
 def test_quitting_the_hmi_on_a_real_plant_leaves_its_outputs_safe(server, tmp_path,
                                                                    monkeypatch):
-    """`plchmi ui` on serve-plant: q asks, y quits, and the plant is left with the safe
-    vector written (the valve was being opened when the operator quit)."""
+    """`plchmi ui` on serve-plant: q asks, y stops the cell (its runtime) and quits, and the
+    plant is left with the safe vector written (the valve was being opened when the
+    operator quit): the command returns once the runtime has stopped."""
     from ui_harness import screen_text, wait_live
 
     from hmi.cli import main
@@ -571,8 +572,8 @@ def test_quitting_the_hmi_on_a_real_plant_leaves_its_outputs_safe(server, tmp_pa
 
     async def operator(pilot) -> None:
         app = pilot.app
-        await wait_live(pilot, lambda: app.link.session.last is not None and
-                        app.link.session.last.output_map["O"], "the valve opening")
+        await wait_live(pilot, lambda: app.link.last is not None and
+                        app.link.last.output_map["O"], "the valve opening")
         seen["coils_before"] = read_coils(srv.port)
         await press(pilot, "q")
         await wait_for_screen(pilot, ConfirmDialog)

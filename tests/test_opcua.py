@@ -1,6 +1,10 @@
 """The cell's OPC UA server, seen by an asyncua client: browse, subscribe, alarms, commands.
 
-One server for the module (it takes ~3 s to start). The session runs in virtual time: each
+One server for each way it reads the cell (it takes ~3 s to start): a session in this process
+(``plchmi run --opcua``), or the runtime's protocol as the gateway reads it (every message
+encoded and decoded as over the socket, its commands as the gateway's on behalf of its users:
+hmi.link.local.LocalLink); the same tests, the same address space and Part 9 behaviour. The
+session runs in virtual time: each
 test drives the scans itself (session.scan_once, in a worker thread so the client's loop
 keeps answering), then waits on the server's own state (the scan it last published) or on
 what the client received, never on the wall clock alone.
@@ -44,7 +48,8 @@ FIRST_FAULT_US = 8_000_000  # before the F5 the plant starts with (8.2 s)
 
 
 class Cell:
-    def __init__(self, tmp: Path):
+    def __init__(self, tmp: Path, through: str = "session"):
+        self.through = through
         self.session = valve_session()
         project = self.session.engine.project
         self.journal_path = tmp / "journal.jsonl"
@@ -62,7 +67,16 @@ class Cell:
                                private_key=key, trust=trust_list(tmp))
 
     def start(self) -> None:
-        self.server = serve(self.session, lambda port: self.options(port=port))
+        cell = self.session
+        if self.through == "protocol":  # the gateway's view: a screen of the runtime
+            from hmi.link.local import LocalLink
+            from hmi.opcua.source import LinkSource
+            from hmi.wire.messages import Identity
+            self.link = LocalLink(self.session, identity=Identity("gw", "operator", "opcua",
+                                                                  "gw"),
+                                  journal=self.recorder)
+            cell = LinkSource(self.link)
+        self.server = serve(cell, lambda port: self.options(port=port))
 
     async def scans(self, n: int) -> int:
         """Run n scans in virtual time; return once the server has published the last."""
@@ -131,9 +145,9 @@ async def until(predicate, what: str = "the expected state") -> None:
         await asyncio.sleep(0.01)
 
 
-@pytest.fixture(scope="module")
-def cell(tmp_path_factory):
-    cell = Cell(tmp_path_factory.mktemp("opcua"))
+@pytest.fixture(scope="module", params=["session", "protocol"])
+def cell(tmp_path_factory, request):
+    cell = Cell(tmp_path_factory.mktemp("opcua"), request.param)
     cell.start()
     yield cell
     cell.server.stop()
@@ -412,7 +426,8 @@ async def test_inputs_are_uncertain_while_the_plant_does_not_answer(cell):
         await cell.scans(1)
         last = cell.session.last
         lost = last._replace(scan=last.scan + 1, plant=replace(last.plant, connected=False))
-        cell.server.on_scan(lost)
+        for listener in list(cell.session.scan_listeners):  # as if the session scanned it
+            listener(lost)
         await until(lambda: cell.server.published_scan == lost.scan)
         read = await value.read_data_value(raise_on_bad_status=False)
         assert read.StatusCode.value == ua.StatusCodes.UncertainNoCommunicationLastUsableValue

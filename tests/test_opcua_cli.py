@@ -110,6 +110,12 @@ async def _read_served(url: str) -> dict:
         cell = await c.nodes.objects.get_child(f"{ns}:cispi_valve")
         names = {(await k.read_browse_name()).Name for k in await cell.get_children()}
         count = await cell.get_child([f"{ns}:Status", f"{ns}:ScanCount"])
+        for _ in range(3000):  # until the run published its first scan's values (before
+            # that the server answers BadWaitingForInitialData, as Part 8 asks)
+            value = await count.read_data_value(raise_on_bad_status=False)
+            if value.StatusCode.is_good():
+                break
+            await asyncio.sleep(0.01)
         first = await count.read_value()
         later = first
         for _ in range(3000):  # the run scans in real time: wait for it to move on

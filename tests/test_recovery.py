@@ -319,3 +319,110 @@ def test_the_subsystem_is_brought_back_to_its_initial_state_by_its_cell_recovery
     assert dict(snap.plant_counters)["T2.fills"] - fills >= 2
     assert not any(d.faulty for d in snap.diagnosers) and not snap.latched
     assert not [e for e in plant.events()[repaired_at:] if e.damage]
+
+
+def test_the_program_waits_while_a_recovery_runs_and_restarts_from_its_initial_steps():
+    """The recovery dialog says the control program waits: its steps and step times hold
+    through the whole procedure and the fault reset at its end (no step fires while the
+    procedure drives the valve), and leaving recovery starts it from its initial steps."""
+    project = load_project(VALVE)
+    plant = SimPlant(project)
+    plant.inject(parse_injection("F13@10.4s"))
+    session = Session(Engine(project, plant))
+    run_quietly(session, 22 * S)
+    session.command(RepairFaults())
+    before = session.scan_once()
+    assert session.command(StartRecovery("V1_close")).accepted
+    seen = set()
+    snap = run_until(session, lambda s: seen.add(s.active_steps) or
+                     s.recovery.status != "running", 5 * S)
+    assert snap.recovery.status == "done"
+    assert session.command(FaultReset()).accepted
+    snap = run_quietly(session, 10 * S, lambda s: seen.add(s.active_steps))
+    assert seen == {before.active_steps}, seen
+    assert not snap.output_map["O"]  # what the panel showed is what the valve does
+    assert session.command(EndRecovery()).accepted
+    snap = session.scan_once()
+    assert snap.mode == "auto"
+    initial = tuple(s.name for s in project.controls[snap.control].grafcet.steps
+                    if s.initial)
+    assert snap.active_steps == initial != before.active_steps
+
+
+async def test_the_recovery_banner_says_the_next_step_the_state_needs():
+    """RECOVERY DONE: "next: r fault reset" while a reset has something to release; after the
+    reset only leaving recovery is left, and the control panel has not moved meanwhile."""
+    from ui_harness import palette, region_text, run_for, run_until, wait_for_main
+    from ui_scenarios import make_app
+
+    from hmi.ui.dialogs import ConfirmDialog
+    from hmi.ui.headless import press, wait_for_screen
+
+    app = make_app(inject=("F13@10.4s",))
+    async with app.run_test(size=(80, 24)) as pilot:
+        await run_until(pilot, lambda s: s.recovery.needed, 20, "recovery needed")
+        await palette(pilot, "SIMULATION: repair")
+        await press(pilot, "r")
+        await wait_for_screen(pilot, ConfirmDialog)
+        await press(pilot, "g")
+        await wait_until_dialog(pilot, "recovery-dialog")
+        await press(pilot, "y")
+        await wait_for_main(pilot)
+        active = [line for line in region_text(app, "#control").splitlines() if "●" in line]
+        await run_until(pilot, lambda s: s.recovery.status == "done", 3, "recovery done")
+        assert "next: r fault reset" in region_text(app, "#banners")
+        await press(pilot, "r")
+        await wait_for_screen(pilot, ConfirmDialog)
+        await press(pilot, "y")
+        await wait_for_main(pilot)
+        await run_for(pilot, 3)
+        banners = region_text(app, "#banners")
+        assert "RECOVERY DONE" in banners and "next: m leave recovery" in banners
+        assert "fault reset" not in banners
+        snap = app.link.session.last
+        assert not snap.output_map["O"] and not snap.output_map["C"]
+        # the program waits where it was: the same active steps, their times held
+        assert active and active == [line for line in region_text(app, "#control")
+                                     .splitlines() if "●" in line]
+
+
+def test_under_a_plant_loss_latch_the_reset_dialog_offers_no_recovery_the_engine_refuses():
+    """The valve stopped mid-travel by a lost connection: while the outputs are held safe the
+    engine refuses any recovery ("a fault reset first"), so the reset dialog offers none (no
+    `g`) and says the order: this reset first, then the recovery."""
+    project = load_project(VALVE)
+    plant = Outage(project)
+    plant.down = (int(2 * S), int(3 * S))
+    session = Session(Engine(project, plant))
+    snap = run_quietly(session, 12 * S)
+    assert snap.latched and snap.recovery.needed  # latched, and the valve between its ends
+    lines = reset_preview(snap)
+    assert not any(line.recovery for line in lines)
+    assert any("this reset first" in line.why for line in lines)
+    refused = session.command(StartRecovery("V1_close"))
+    assert not refused.accepted and "fault reset first" in refused.message
+    assert session.command(FaultReset()).accepted
+    snap = session.scan_once()
+    assert not snap.latched
+    assert any(line.recovery == "V1_close" for line in reset_preview(snap))  # now it is
+
+
+def test_a_reset_during_f7_while_the_valve_travels_does_not_call_for_a_recovery():
+    """F7 (closed switch made too early) while the valve closes: between its ends only
+    because it travels, and driven; waiting for its end is enough, then a reset
+    re-synchronises. The dialog says so, and offers no recovery."""
+    project = load_project(VALVE)
+    plant = SimPlant(project)
+    plant.inject(parse_injection("F7@14.5s"))
+    session = Session(Engine(project, plant))
+    snap = run_quietly(session, int(14.9 * S))
+    assert any(d.faulty and not d.resync for d in snap.diagnosers)
+    assert 0 < dict(snap.plant_state)["position"] < 100 and snap.output_map["C"]
+    lines = reset_preview(snap)
+    assert not any(line.recovery for line in lines)
+    assert any("still driven" in line.why and "no recovery" in line.why for line in lines)
+    # the valve reaches its closed end within the 2 s the issue measured
+    snap = run_until(session, lambda s: any(d.resync for d in s.diagnosers), 2 * S)
+    assert any(line.resets and line.target for line in reset_preview(snap))
+    assert session.command(FaultReset()).accepted
+    assert not any(d.faulty for d in session.scan_once().diagnosers)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import asyncio
 import re
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -258,3 +259,15 @@ def test_a_dialog_over_the_status_bar_is_caught(monkeypatch):
     monkeypatch.setattr(dialogs, "keep_clear", opaque)
     result = _replay("comment_dialog_blank.steps")
     assert "dialog-hides-status-bar" in [b.invariant for b in result.broken]
+
+
+def test_over_the_runtimes_socket_the_same_seed_gives_the_same_session():
+    """The soak driving the app over the runtime's real socket (frames, commands and virtual
+    time as messages) keeps the invariants, and does exactly what the in-process protocol
+    does: the same steps, scans and alarm transitions."""
+    config = SoakConfig(VALVE, "faulty", (80, 24), 10.0, 11, 30)
+    here = soak(config)
+    over = soak(replace(config, split=True))
+    assert over.ok, "\n".join([str(over.broken[0]), format_steps(over.steps)])
+    assert over.steps == here.steps and over.scans == here.scans
+    assert over.transitions == here.transitions and over.commands == here.commands

@@ -317,9 +317,10 @@ def _options(parser) -> list[str]:
 
 
 def test_the_hmis_start_imports_no_other_commands_module():
+    """(hmi.cli.screens is the HMI's own: it starts the cell's runtime and attaches to it.)"""
     out = run_python("import json, sys\nfrom hmi.cli.entry import build_parser\n"
                      "build_parser('ui').parse_args(['ui', 'projects/cispi_valve'])\n"
                      "print(json.dumps(sorted(m for m in sys.modules if "
                      "m.startswith('hmi.cli.'))))")
     assert set(json.loads(out)) == {"hmi.cli.entry", "hmi.cli.common", "hmi.cli.ui",
-                                    "hmi.cli.options", "hmi.cli.session"}
+                                    "hmi.cli.options", "hmi.cli.screens"}

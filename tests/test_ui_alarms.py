@@ -473,6 +473,7 @@ async def test_policies_are_in_the_palette():
 async def test_monitors_panel_shows_windows_and_a_latched_fault():
     app = make_app(CONVEYOR)
     async with app.run_test(size=(160, 48)) as pilot:
+        await press(pilot, "E")  # the engineering view: the model's names
         await run_for(pilot, 0.5)
         text = region_text(app, "#monitors")
         assert "Monitors · 2" in text
@@ -490,6 +491,7 @@ async def test_monitors_panel_shows_windows_and_a_latched_fault():
 async def test_monitors_panel_gives_up_detail_rather_than_rows():
     app = make_app(CONVEYOR)
     async with app.run_test(size=WIDE) as pilot:
+        await press(pilot, "E")  # the engineering view: the model's names
         await conveyor_fault(pilot)
         # 120×36: no room for the detection line (it is in the explanation): the panel
         # keeps location, bars and label for both tasks, and its lower border shows
@@ -500,6 +502,7 @@ async def test_monitors_panel_gives_up_detail_rather_than_rows():
         assert "at 3.000 s" not in text
     app = make_app(CONVEYOR)
     async with app.run_test(size=(80, 24)) as pilot:
+        await press(pilot, "E")
         await conveyor_fault(pilot)
         lines = region_text(app, "#monitors").splitlines()
         assert any("✗ conveyor FAULTY conveyor_fault" in line for line in lines)

@@ -76,6 +76,11 @@ async def test_the_valve_is_seen_cycling():
         io = region_text(app, "#io")
         assert any(line.split()[1:2] == ["fso"] and " 1 " in line for line in io.splitlines())
         control = region_text(app, "#control")
+        assert "● Open, filling" in control and "○ Opening" in control
+        assert "X2" not in control  # the step names are the engineering view's
+        await press(pilot, "E")
+        await run_for(pilot, 0.01)
+        control = region_text(app, "#control")
         assert "● X2" in control and "○ X1" in control
         # A whole cycle later the chronogram holds both edges of the open order.
         await run_until(pilot, lambda s: s.plant_counters and dict(s.plant_counters)["cycles"]
@@ -395,7 +400,8 @@ async def test_in_manual_mode_the_control_panel_and_the_dialogs_say_the_program_
         await run_for(pilot, 5)
         control = region_text(app, "#control")
         assert "▲ waiting — manual mode" in control
-        assert "● X2" in control and "● X11" in control
+        assert "● Conveyor carries the pallet to B" in control
+        assert "● Robot transfers the pallet" in control
         assert app.link.session.last.active_steps == ("X2", "X11")
         await press(pilot, "m")
         dialog = await wait_for_screen(pilot, ConfirmDialog)
@@ -771,6 +777,7 @@ def _changed(snap) -> bool:
 async def test_filter_changes_are_shown_with_their_constraint():
     app = make_app(control="faulty")
     async with app.run_test(size=(120, 36)) as pilot:
+        await press(pilot, "E")  # the rules by their names
         await run_until(pilot, _changed, 10, "a filter correction")
         snap = app.link.session.last
         change = snap.filter.changes[0]
@@ -795,6 +802,7 @@ async def test_filter_changes_are_shown_with_their_constraint():
 async def test_a_past_violation_keeps_its_level_1_explanation():
     app = make_app(control="faulty")
     async with app.run_test(size=(200, 40)) as pilot:
+        await press(pilot, "E")  # the rules by their names
         await run_until(pilot, _changed, 10, "a filter correction")
         snap = app.link.session.last
         name = snap.filter.violated_names[0]

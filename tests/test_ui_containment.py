@@ -26,6 +26,7 @@ from hmi.ui.chronogram import Chronogram
 from hmi.ui.constraints_panel import ConstraintsPanel
 from hmi.ui.dialogs import ConfirmDialog
 from hmi.ui.headless import click, press, settle, wait_for_screen
+from tests.runtimes import wait_for
 from tests.test_modbus import server  # noqa: F401  (the fixture: real server processes)
 
 SIZE = (100, 30)
@@ -136,26 +137,43 @@ def run_hmi_headless(monkeypatch, argv: list[str]) -> int:
     return main(argv)
 
 
-def test_an_app_crash_exits_non_zero_with_an_abnormal_end_journalled(monkeypatch, tmp_path,
-                                                                     capsys):
+def cell_runs(project_name: str = "cispi_valve"):
+    """The pid of the project's runtime, if one runs (its lock is held)."""
+    from hmi.runtime.place import place, running
+    return running(place(project_name))
+
+
+def test_an_app_crash_exits_non_zero_the_runtime_journals_it_and_runs_on(monkeypatch,
+                                                                         tmp_path, capsys):
+    """A screen that crashes is the screen's end, not the cell's: its error is journalled by
+    the runtime (with who), the screen exits 1, and the cell runs on."""
     path = tmp_path / "j.jsonl"
     inject(monkeypatch, "fatal@0.5s")
     status = run_hmi_headless(monkeypatch, [str(VALVE), "--journal", str(path)])
     assert status == 1
     err = capsys.readouterr().err
     assert "the HMI ended on an error" in err and "deliberate error outside any handler" in err
-    entries = journal_entries(path)
+    assert "the cell runs on" in err
+    assert cell_runs() is not None
+    # (the runtime journals in the background: its entry of the screen leaving comes soon)
+    entries = wait_for(lambda: (found := journal_entries(path)) and any(
+        e["event"] == "client-left" for e in found) and found, "the screen's leaving")
     fatal = [e for e in entries if e["event"] == "ui-error"]
-    assert len(fatal) == 1 and fatal[0]["fatal"] is True
+    assert len(fatal) == 1 and fatal[0]["fatal"] is True and fatal[0]["by"].startswith(
+        "terminal:")
     assert Path(fatal[0]["crash_file"]).is_file()
-    last = entries[-1]
-    assert last["event"] == "abnormal-end" and "ended abnormally" in last["message"]
-    assert "DeliberateUIError" in last["message"]
-    assert not any("ended normally" in e.get("message", "") for e in entries)
+    assert "the cell runs on" in fatal[0]["message"]
+    assert not any(e["event"] in ("abnormal-end", "stop") for e in entries)
 
 
-def test_an_app_crash_on_a_real_plant_leaves_its_outputs_safe(monkeypatch, tmp_path,
-                                                              server):  # noqa: F811
+def test_an_app_crash_on_a_real_plant_leaves_the_cell_controlled(monkeypatch, tmp_path,
+                                                                 server):  # noqa: F811
+    """The screen crashes while the valve opens: the runtime goes on driving the plant (its
+    scans continue against the device); stopped, it leaves the outputs safe."""
+    from hmi.link.base import Identity
+    from hmi.link.client import SocketLink
+    from hmi.project.kept import fingerprint, load_once
+    from hmi.runtime.place import place
     srv = server(VALVE)
     path = tmp_path / "j.jsonl"
     # the valve's program opens it after 1 s: the crash comes while O is driven
@@ -164,8 +182,17 @@ def test_an_app_crash_on_a_real_plant_leaves_its_outputs_safe(monkeypatch, tmp_p
                                             f"modbus://127.0.0.1:{srv.port}",
                                             "--journal", str(path)])
     assert status == 1
+    project = load_once(VALVE)
+    link = SocketLink(project, place(project.name).socket, fingerprint(VALVE, None),
+                      Identity("after", "operator"))
+    assert link.first_frame.wait(60)
+    scan = link.last.scan
+    wait_for(lambda: link.last.scan > scan + 10, "the runtime scanning on")
+    assert link.last.plant.connected
+    link.leave(stop_cell=True)
+    wait_for(lambda: cell_runs() is None, "the runtime to stop")
     entries = journal_entries(path)
-    assert entries[-1]["event"] == "abnormal-end"
+    assert entries[-1]["event"] == "stop"
     client = ModbusTcpClient("127.0.0.1", port=srv.port, timeout=5)
     assert client.connect()
     try:
@@ -181,7 +208,9 @@ def test_the_hook_says_what_it_expects(monkeypatch):
         parse("everywhere")
 
 
-def test_a_dead_scan_thread_ends_the_hmi_abnormally(monkeypatch, tmp_path, capsys):
+def test_a_dead_scan_thread_ends_the_runtime_abnormally(monkeypatch, tmp_path, capsys):
+    """The runtime's scan thread dying ends the runtime as an abnormal end (exit 1, the
+    journal says why): nothing scans any more (plchmi serve, here in this process)."""
     path = tmp_path / "j.jsonl"
     on_scan = JournalRecorder.on_scan
 
@@ -190,8 +219,8 @@ def test_a_dead_scan_thread_ends_the_hmi_abnormally(monkeypatch, tmp_path, capsy
             raise OSError(28, "No space left on device")
         on_scan(self, snapshot)
     monkeypatch.setattr(JournalRecorder, "on_scan", failing)
-    assert run_hmi_headless(monkeypatch, [str(VALVE), "--journal", str(path)]) == 1
-    assert "the scan thread: OSError" in capsys.readouterr().err
+    assert main(["serve", str(VALVE), "--journal", str(path), "--no-realtime"]) == 1
+    assert "the scan thread stopped: OSError" in capsys.readouterr().err
     entries = journal_entries(path)
     assert entries[-1]["event"] == "abnormal-end"
     assert "the scan thread" in entries[-1]["message"]

@@ -43,6 +43,7 @@ async def inject(pilot, code: str, at_s: float, labels: tuple[str, ...]) -> None
 async def test_normal_diagnoser_is_quiet():
     app = make_app()
     async with app.run_test(size=WIDE) as pilot:
+        await press(pilot, "E")  # the engineering view: the model's names
         await run_until(pilot, lambda s: s.diagnosers and s.diagnosers[0].state == "N5", 10,
                         "open at rest")
         text = region_text(app, "#diagnosers")
@@ -55,6 +56,7 @@ async def test_normal_diagnoser_is_quiet():
 async def test_ambiguous_diagnosis_reads_as_such():
     app = make_app(diagnoser="paper")
     async with app.run_test(size=WIDE) as pilot:
+        await press(pilot, "E")  # the engineering view: the model's names
         await inject(pilot, "F1", 10, ("F1", "F13"))
         snap = app.link.session.last
         assert set(snap.masked) == {"C", "O"} and snap.reconstructed == ("fsc",)
@@ -93,6 +95,7 @@ async def test_certain_diagnosis_recommends_running_degraded():
     seen = []
     app.link.session.listeners.append(lambda cmd, result, snap: seen.append(cmd))
     async with app.run_test(size=WIDE) as pilot:
+        await press(pilot, "E")  # the engineering view: the model's names
         await inject(pilot, "F9", 10, ("F9",))
         snap = app.link.session.last
         assert snap.reconstructed == ("fso",) and snap.masked == ()
@@ -149,6 +152,7 @@ async def test_reset_re_synchronises_a_diagnoser_only_when_the_io_allows_it():
 async def test_diagnosers_panel_keeps_one_line_at_80x24():
     app = make_app(diagnoser="paper")  # A1 final: the longest decision text
     async with app.run_test(size=(80, 24)) as pilot:
+        await press(pilot, "E")  # the engineering view: the model's names
         await inject(pilot, "F1", 10, ("F1", "F13"))
         text = region_text(app, "#diagnosers")
         assert "✗ V1 A1 {F1, F13} ? ambiguous" in text

@@ -19,6 +19,7 @@ def transfers(snap) -> int:
 async def test_the_stuck_conveyor_says_what_it_waits_for_and_the_way_back_works():
     app = make_app(CONVEYOR)
     async with app.run_test(size=(80, 24)) as pilot:
+        await press(pilot, "E")  # the engineering view: the model's names
         session = app.link.session
         await run_for(pilot, 1)
         await press(pilot, "m", "y")  # manual mode mid-transfer (the soak's step list)

@@ -28,6 +28,7 @@ from hmi.engine.commands import (
     SetMode,
     SetPolicy,
     SetSpeed,
+    SetView,
     Shelve,
     StartRecovery,
     StepScans,
@@ -49,6 +50,7 @@ REQUIRED: dict[type, str] = {
     InjectFault: "operator", RepairFaults: "operator",
     ManualOutput: "operator",  # forcing on/off is an engineer's: required_role
     SetPolicy: "engineer",
+    SetView: "viewer",  # what this screen names; nothing in the cell changes
 }
 
 _WHAT = {"engineer": "an engineer's", "operator": "an operator's"}

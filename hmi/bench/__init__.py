@@ -13,7 +13,7 @@ from types import ModuleType
 # section (some import pymodbus or the whole engine: the HMI's start-up would pay for them;
 # for the same reason this module imports what its functions need only when they run).
 # tests/test_bench_sections.py checks it against sections().
-NAMES = ("campaign", "corrector", "engine", "filter", "history", "modbus", "opcua",
+NAMES = ("campaign", "corrector", "engine", "filter", "history", "live", "modbus", "opcua",
          "palletizer", "sorting", "startup", "ui")
 
 

@@ -3,7 +3,10 @@ time and why a session ended."""
 
 from __future__ import annotations
 
+import contextlib
+import signal
 import sys
+from collections.abc import Callable, Iterator
 
 from hmi.errors import ProjectError, UsageError
 
@@ -55,3 +58,17 @@ def printable(value) -> str:
     sequence written into a damaged or forged journal) shown as \\xNN, line separators and
     bidirectional controls as \\uNNNN, never sent to the terminal."""
     return str(value).translate(_CONTROL)
+
+
+@contextlib.contextmanager
+def on_termination(end: Callable[[str], None]) -> Iterator[None]:
+    """Within the block, SIGTERM (a service manager) and SIGINT (Ctrl-C) call `end` with
+    the signal's name instead of interrupting: the process then ends as asked."""
+    def handler(signum, frame) -> None:
+        end(f"{signal.Signals(signum).name} received")
+    previous = {s: signal.signal(s, handler) for s in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        yield
+    finally:
+        for s, old in previous.items():
+            signal.signal(s, old)

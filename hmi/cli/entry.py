@@ -27,17 +27,23 @@ PARTS: tuple[tuple[tuple[str, ...], str, str], ...] = (
     (("soak",), "soak", "add_parser"),
     (("bench",), "bench", "add_parser"),
     (("ui",), "ui", "add_parser"),
+    (("serve", "attach"), "cell", "add_parsers"),
+    (("gateway",), "gateway", "add_parser"),
+    (("web",), "web", "add_parser"),
     (("opcua", "serve-plant"), "serve", "add_parsers"),
     (("users",), "users", "add_parser"),
 )
-SUBCOMMANDS = ("check", "run", "sweep", "ui", "serve-plant", "bench", "journal",
-               "diagnose", "campaign", "export", "opcua", "soak", "history",
-               "users", "journal-verify")
+SUBCOMMANDS = ("check", "run", "sweep", "ui", "serve", "attach", "gateway", "web",
+               "serve-plant", "bench", "journal", "diagnose", "campaign", "export", "opcua", "soak",
+               "history", "users", "journal-verify")
 
 # command -> (its module, its function)
 COMMANDS = {
     "check": ("check", "cmd_check"), "run": ("run", "cmd_run"),
     "sweep": ("studies", "cmd_sweep"), "ui": ("ui", "cmd_ui"),
+    "serve": ("cell", "cmd_serve"), "attach": ("cell", "cmd_attach"),
+    "gateway": ("gateway", "cmd_gateway"),
+    "web": ("web", "cmd_web"),
     "serve-plant": ("serve", "cmd_serve_plant"), "bench": ("bench", "cmd_bench"),
     "journal": ("journal", "cmd_journal"),
     "journal-verify": ("journal", "cmd_verify"), "history": ("history", "cmd_history"),

@@ -37,6 +37,9 @@ def add_parsers(sub) -> None:
                    help="answer every request TIME late (a slow server)")
     p.add_argument("--max-connections", type=positive, default=16, metavar="N",
                    help="connections open at once; more are closed at once (16)")
+    p.add_argument("--watchdog", type=duration, metavar="TIME",
+                   help="a coupler's communication watchdog: no request for TIME sets every "
+                   "order to its safe value")
     p.add_argument("--idle-timeout", type=duration, default=60_000_000, metavar="TIME",
                    help="close a connection with no request for TIME (60s)")
 
@@ -58,7 +61,7 @@ def cmd_serve_plant(args: argparse.Namespace) -> int:
     check_host(args.host)
     try:
         return run_server(project, args.host, args.port, unit, injections, args.delay or 0,
-                          args.max_connections, args.idle_timeout / 1e6)
+                          args.max_connections, args.idle_timeout / 1e6, args.watchdog)
     except UsageError as exc:
         if "unknown fault" in str(exc):
             raise UsageError(f"{exc}; communication faults: {', '.join(COMM_FAULTS)}"

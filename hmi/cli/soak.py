@@ -29,6 +29,9 @@ def add_parser(sub) -> None:
                    help="terminal size at the start (default 80x24)")
     p.add_argument("--steps", type=int, metavar="N",
                    help="stop after N steps too (a bounded run, as the tests do)")
+    p.add_argument("--split", action="store_true",
+                   help="the HMI attached over the runtime's real socket (frames, commands "
+                   "and virtual time as messages), instead of the protocol in-process")
     p.add_argument("--replay", type=Path, metavar="FILE",
                    help="run the steps of FILE (as printed on a failure) instead")
     p.add_argument("--shrink", type=_seconds, default=None, metavar="TIME",

@@ -101,7 +101,8 @@ def _build(args: argparse.Namespace, project) -> int:
     if out.suffix.lower() not in (".yaml", ".yml"):
         raise UsageError(f"--out {out}: a diagnosers file ends in .yaml (to load it with "
                          "--diagnoser FILE.yaml)")
-    print(f"building the diagnoser of {args.build} (about half a minute)...", file=sys.stderr)
+    print(f"building the diagnoser of {args.build} (a few minutes: every fault at every scan "
+          "of the cycle)...", file=sys.stderr)
     with farm_of(args) as farm:
         try:
             report, status = build_report(project, args.build, out, farm)

@@ -137,10 +137,19 @@ class CommentAlarm:
     text: str
 
 
+@dataclass(frozen=True)
+class SetView:
+    """The HMI's view: the operator's (devices and plain words) or the engineering one (the
+    internal names, states, flags and bounds too). Changes nothing in the cell; journalled,
+    so the record says what the operator was shown."""
+
+    engineering: bool
+
+
 Command = (Pause | Resume | StepScans | SetSpeed | SetMode | ManualOutput | FaultReset
            | SetPolicy | InjectFault | RepairFaults | SetInput | Acknowledge | StopDevice
            | ReleaseDevice | ChoosePolicy | StartRecovery | EndRecovery | Shelve | Unshelve
-           | CommentAlarm)
+           | CommentAlarm | SetView)
 
 
 @dataclass(frozen=True)
@@ -201,4 +210,6 @@ def describe(command: Command) -> str:
             return f"unshelve alarm {k}"
         case CommentAlarm(key=k):
             return f"comment on alarm {k}"
+        case SetView(engineering=e):
+            return "engineering view" if e else "operator view"
     return repr(command)

@@ -14,8 +14,9 @@ as functions (hmi.program.ir.Function):
   step times and without stage 5 (the engine takes the operator's requests);
 * ``observed(v, h, now, scan)``, observing a read-only device: stages 2-4 with the step
   times, no stage 5 (the device's own outputs are the vector);
-* ``recovery_<k>(v, h, now, scan)``, recovery mode with procedure k running: stages 2-5
-  (the program runs blind), then the procedure's step, whose vector it returns;
+* ``recovery_<k>(v, h, now, scan)``, recovery mode with procedure k running: stages 2-4
+  without the step times (the program waits, as in manual mode), then the procedure's
+  step, whose vector it returns;
 * ``violated(v, h, f)``: whether the candidate `f` violates any safety constraint (stage
   6's first question: most scans violate none, and then the filter has nothing else to do);
 * ``monitors(v, h, now, scan)``: the stopwatch monitors after the output scan.
@@ -102,7 +103,7 @@ class ScanProgram:
         assert stage is not None
         number = list(stage.procedures).index(name)
         return ir.Function(f"recovery_{number}", SCAN,
-                           self.stages(True) + self.law + stage.procedures[name].program,
+                           self.stages(False) + stage.procedures[name].program,
                            ir.Local("f"))
 
     def violated(self) -> ir.Function:

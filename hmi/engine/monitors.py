@@ -58,6 +58,9 @@ class MonitorState(NamedTuple):
     watchdog: WatchdogTrip | None  # the last time a plain watchdog would have fired
     faults: int
     completed: int  # attempts that ended inside the acceptable window
+    # what the task is doing as observed, a latched fault or not (waiting, executing,
+    # interrupted): a faulty task halted with its load reads as stopped, not late
+    phase: str = "waiting"
 
     @property
     def faulty(self) -> bool:
@@ -236,7 +239,7 @@ def _state(head: tuple[str, str, str, str | None], a: TaskAutomaton,
            window: tuple[int, int, int]) -> MonitorState:
     return MonitorState(*head, a.location, a.x_us, a.y_us, *window, a.attempt,
                         a.attempt_start_us, a.running, a.latched, a.last_detection,
-                        a.watchdog.last, a.faults, a.completed)
+                        a.watchdog.last, a.faults, a.completed, a.phase.value)
 
 
 def monitor_stage(project: Project, layout: Layout) -> MonitorStage | None:

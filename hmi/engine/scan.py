@@ -404,7 +404,7 @@ class Engine:
 
     def _supervise(self) -> None:
         """The steps' supervision watched only while the program runs in automatic mode:
-        not while it waits (manual mode), nor in recovery mode (it runs blind, and restarts
+        not while it waits (manual mode), nor in recovery mode (it waits, and restarts
         from its initial steps after), nor observing a device (it does not run)."""
         grafcet = self._supervised
         if grafcet is not None:
@@ -446,7 +446,7 @@ class Engine:
             self.monitors.abandon()
         self.mode = "recovery"
         self.manual = {}
-        self.control.resume(self.now)  # (from manual mode: the law runs blind in recovery)
+        self.control.hold(self.now)  # the program waits while the procedure runs
         stage.start(name, self.now)
         self._supervise()
         return CommandResult.ok(
@@ -460,6 +460,7 @@ class Engine:
         reached = self.recovery.stop()
         self.mode = "auto"
         self.control.reset(self.image, self.now)
+        self.control.resume(self.now)  # from its initial steps, their times from now
         self._supervise()
         if active is not None and reached == "done":
             # The observers the procedure re-establishes (a turntable emptied: an observer
@@ -890,8 +891,8 @@ class Engine:
                 fov = self._manual_fov()
             elif self.mode == "recovery" and recovery is not None:
                 active = recovery.active
-                if active is None:  # (none started: the law runs blind, the outputs safe)
-                    fast.core(image, hist, now, self.scan)
+                if active is None:  # (none started: the program waits, the outputs safe)
+                    fast.held(image, hist, now, self.scan)
                     fov = self.safe_vector
                 else:
                     fov = fast.recovery(active.spec.name)(image, hist, now, self.scan)

@@ -16,6 +16,7 @@ from hmi.engine import commands as cmd
 from hmi.engine.snapshot import Snapshot
 from hmi.explain.alarms import highest
 from hmi.explain.context import ExplanationContext, Onset
+from hmi.explain.device_faults import device_fault_explanations
 from hmi.explain.diagnoses import diagnosis_explanations
 from hmi.explain.model import Explanation, Policy
 from hmi.explain.monitors import monitor_explanations
@@ -58,7 +59,8 @@ class ExplanationBuilder(ExplanationContext):
         report = snap.filter
         inputs = (snap.latched, snap.plant, snap.mode, snap.manual, snap.monitor_marks,
                   snap.diagnosers, snap.recovery, snap.reconstructed, snap.masked, snap.policy,
-                  snap.error, snap.overdue_steps)
+                  snap.error, snap.overdue_steps,
+                  tuple(snap.value(n) for n in self.fault_inputs))
         last = self._last
         if last is not None and snap.error is None and inputs == last[2] and (
                 report is last[0] or (report is not None and last[0] is not None
@@ -85,6 +87,7 @@ class ExplanationBuilder(ExplanationContext):
         if snap.mode == "manual" and snap.manual:
             found.append(self._manual(snap))
         # The situations of the stages that have their own explanations.
+        found.extend(device_fault_explanations(self, snap))
         found.extend(monitor_explanations(self, snap))
         found.extend(diagnosis_explanations(self, snap))
         found.extend(recovery_explanations(self, snap))

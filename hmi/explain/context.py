@@ -42,6 +42,8 @@ class ExplanationContext:
         self.stoppable = {v.device for v in project.outputs if v.device}
         self.diagnosers = {spec.name: spec for spec in diagnosers_of(project)}
         self.plain = PlainNames(project)
+        # Inputs that are a device's own fault signal (hmi.explain.device_faults).
+        self.fault_inputs = tuple(v.name for v in project.inputs if v.fault)
 
     def onset(self, key: str, snap: Snapshot) -> Onset:
         onset = self.onsets.get(key)

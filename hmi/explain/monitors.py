@@ -12,6 +12,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from hmi.engine.stopwatch import Window
+from hmi.explain.device_faults import halted_devices
 from hmi.explain.model import Explanation, Policy
 from hmi.explain.plain import lower_first
 from hmi.timefmt import format_duration, seconds
@@ -45,8 +46,10 @@ def monitor_explanations(builder: ExplanationContext, snap: Snapshot) -> list[Ex
             continue
         key = f"monitor:{m.name}"
         builder.onset(key, snap)  # so the builder forgets it once the label is released
-        out.append(builder.cached(key, (m.detection, m.running, m.attempt, m.location),
-                                  lambda m=m: _explain(builder, snap, m)))
+        halted = m.device is not None and m.device in halted_devices(builder, snap)
+        out.append(builder.cached(key, (m.detection, m.running, m.attempt, m.location,
+                                        m.phase, halted),
+                                  lambda m=m, h=halted: _explain(builder, snap, m, h)))
     return out
 
 
@@ -72,14 +75,18 @@ def plain_reason(d, m: MonitorState) -> str:
             f"{f(m.alpha_us)}.")
 
 
-def _explain(builder: ExplanationContext, snap: Snapshot, m: MonitorState) -> Explanation:
+def _explain(builder: ExplanationContext, snap: Snapshot, m: MonitorState,
+             device_halted: bool) -> Explanation:
     d = m.detection
     window = Window(m.alpha_us, m.beta_us, m.gamma_us)
     device = m.device or builder.project.name
     a, b, g = (format_duration(v) for v in (m.alpha_us, m.beta_us, m.gamma_us))
     # A task stopped with its load (a conveyor halted with a pallet on it) is not "late": it
-    # is a machine standing where it should move. Said so, in alarm colour, with a check.
-    halted = m.location == "interrupted" and m.running and m.attempt == d.attempt
+    # is a machine standing where it should move. Said so, in alarm colour, with a check;
+    # continuing is never advised. The phase, not the location: a latched task's location
+    # is "faulty" whatever it does. A device reporting its own fault is halted too.
+    halted = m.running and m.attempt == d.attempt and (
+        m.phase == "interrupted" or device_halted)
     if halted:
         what = (f"{device}: stopped in the middle of its task — {lower_first(m.title)} "
                 "cannot end in time")
@@ -114,8 +121,9 @@ def _explain(builder: ExplanationContext, snap: Snapshot, m: MonitorState) -> Ex
         policies.append(Policy("check", f"Check {device}",
                                f"find out why {device} stopped with its load and clear it; "
                                "the task resumes when it moves", None, True))
-    policies.append(builder.policy_continue("let the cell run; the task finishes when it can",
-                                            not halted))
+    policies.append(builder.policy_continue(
+        f"let the cell run as it is; the task finishes only once {device} moves again"
+        if halted else "let the cell run; the task finishes when it can", not halted))
     if m.device and m.device in builder.stoppable:
         policies.append(builder.policy_stop(m.device))
     policies.append(builder.policy_reset(reset))

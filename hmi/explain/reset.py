@@ -104,15 +104,24 @@ def diagnoser_preview(snap: Snapshot) -> Iterable[ResetLine]:
             yield ResetLine(what, resets=True, target=d.resync,
                             note=f"re-synchronised to {d.resync} on {d.resync_values}")
             continue
+        moving = _orders_on(snap, d.resync_values)
         procedures = [p for p in snap.recovery.procedures if d.device in p[3]]
-        if procedures and snap.mode != "recovery":
+        if moving:
+            # Between its ends because it is travelling (a switch seen too early, F7): it
+            # reaches its end by itself, and a reset then re-synchronises; no recovery.
+            yield ResetLine(what, resets=False,
+                            why=f"{d.device or 'the device'} is still driven (order "
+                                f"{', '.join(moving)} on): wait until it reaches its end, "
+                                "seconds if it moves, then reset again — no recovery for "
+                                "that")
+        elif procedures and snap.mode != "recovery":
             name, _, description, _ = procedures[0]
             yield ResetLine(what, resets=False,
                             why=f"reset needs {d.device or 'the device'} back at a known "
                                 f"position ({d.resync_values or 'the I/O'} match no normal "
-                                "state) — after the repair, start the recovery "
-                                f"\u201c{description}\u201d",
-                            recovery=name)
+                                "state) — " + _then_recovery(snap, "after the repair, ",
+                                                             description),
+                            recovery=_offered(snap, name))
         else:
             yield ResetLine(what, resets=False,
                             why=f"its cause is still present: {d.resync_values or 'the I/O'} "
@@ -130,8 +139,29 @@ def recovery_preview(snap: Snapshot) -> Iterable[ResetLine]:
         return
     for name, device, description, text in snap.recovery.needed:
         yield ResetLine(f"{device}: {text}", resets=False,
-                        why="a reset does not move it back — start the recovery "
-                            f"\u201c{description}\u201d", recovery=name)
+                        why="a reset does not move it back — " + _then_recovery(
+                            snap, "", description), recovery=_offered(snap, name))
+
+
+def _orders_on(snap: Snapshot, values: str) -> list[str]:
+    """The device's orders written on at this scan, of the I/O a diagnoser's resync reads
+    (`values`: 'fsc=1, fso=0, C=1, O=0')."""
+    written = snap.output_map
+    names = [part.partition("=")[0].strip() for part in values.split(",")]
+    return [n for n in names if written.get(n)]
+
+
+def _offered(snap: Snapshot, name: str) -> str:
+    """The recovery the dialog offers (its `g`): none while the outputs are held safe — the
+    engine starts no recovery under a safe-state latch, so the reset comes first."""
+    return "" if snap.latched else name
+
+
+def _then_recovery(snap: Snapshot, first: str, description: str) -> str:
+    if snap.latched:
+        return (f"{first}this reset first (the outputs are held safe: no recovery starts "
+                f"meanwhile), then start the recovery \u201c{description}\u201d")
+    return f"{first}start the recovery \u201c{description}\u201d"
 
 
 def _alarm_released(snap: Snapshot, key: str) -> bool | None:

@@ -14,121 +14,43 @@ link is made (:class:`Identity`), and carried into every command and the journal
 
 from __future__ import annotations
 
-import getpass
-import os
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Protocol
 
 from hmi.engine.commands import Command, CommandResult
-from hmi.engine.layout import Layout
 from hmi.engine.snapshot import Snapshot
-from hmi.explain.reset import ResetLine
 from hmi.plant.base import PlantEvent
 from hmi.project.model import Project
 from hmi.session.recorder import ConstraintStats, Signal, Trace
+from hmi.wire.messages import (
+    CellFacts,
+    ControlInfo,
+    Identity,
+    PlantFacts,
+    ResetGuard,
+    RunInfo,
+    ServiceStatus,
+    local_operator,
+)
 
-DOORS = ("terminal", "browser", "opcua", "cli")
-ROLES = ("viewer", "operator", "engineer")
-
-
-@dataclass(frozen=True)
-class Identity:
-    """Who is behind a link: the journal's `by` and the control shown to every screen.
-
-    `door` is how they came in (the local terminal, a browser, the OPC UA gateway, a
-    command); `session` tells two screens of the same user apart."""
-
-    user: str
-    role: str = "operator"  # viewer, operator, engineer
-    door: str = "terminal"
-    session: str = ""
-
-    @property
-    def by(self) -> str:
-        """As the journal writes it: ``terminal:alice``, ``opcua:bob``."""
-        return f"{self.door}:{self.user}"
-
-    @property
-    def may_command(self) -> bool:
-        return self.role != "viewer"
-
-
-def local_operator(role: str = "operator", door: str = "terminal") -> Identity:
-    """The operator at this terminal: the login name, a fresh session id."""
-    try:
-        user = getpass.getuser()
-    except Exception:  # no login name (a container without a passwd entry)
-        user = f"uid{os.getuid()}"
-    return Identity(user, role, door, os.urandom(4).hex())
-
-
-@dataclass(frozen=True)
-class PlantFacts:
-    """What the plant is and can do; fixed for a run."""
-
-    kind: str  # sim, modbus
-    description: str
-    is_real: bool
-    can_inject: bool
-    can_repair: bool
-    can_set_inputs: bool
-    free_inputs: tuple[str, ...]  # inputs no simulated device drives: push buttons
-    faults: tuple[tuple[str, str, str], ...]  # (device, code, description) it can simulate
-
-
-@dataclass(frozen=True)
-class CellFacts:
-    """What does not change while a cell runs: read once, when the link is made."""
-
-    project: str  # the project's name
-    control: str  # the control variant running
-    layout: Layout
-    safe_vector: tuple[bool, ...]
-    devices: Mapping[str, tuple[str, ...]]  # device -> its outputs
-    plant: PlantFacts
-    period_us: int
-    # Where the cell's history is kept (hmi.history.target.parse_target reads it back: a
-    # SQLite file's absolute path or a postgresql:// URL; "" if none): the trend screens
-    # open it read-only. And the wall time of the run's time 0 (Session.wall_us), which
-    # places a snapshot on the history's time axis.
-    history: str = ""
-    epoch_us: int | None = None
-
-    def safe_text(self) -> str:
-        return ", ".join(f"{n}={int(v)}" for n, v in
-                         zip(self.layout.outputs, self.safe_vector, strict=True))
-
-
-@dataclass(frozen=True)
-class RunInfo:
-    """The run state: running, paused or stepping, and at what speed."""
-
-    label: str  # running, paused, stepping
-    running: bool
-    speed: float | None  # 1.0 real time, 10.0, None as fast as possible
+__all__ = ["Answer", "CellFacts", "CellLink", "ControlInfo", "History", "Identity",
+           "PlantFacts", "ResetGuard", "RunInfo", "ServiceStatus", "View", "local_operator"]
 
 
 @dataclass(frozen=True)
 class View:
     """One scan as a screen shows it: the snapshot, the history as of that same scan (a
-    constraint violated in the snapshot is violated in the history too), the run state."""
+    constraint violated in the snapshot is violated in the history too), the run state, who
+    is in control."""
 
     snapshot: Snapshot
     constraints: Mapping[str, ConstraintStats]
     damage_count: int
     run: RunInfo
     overruns: int = 0  # scans that fell more than a period behind (live only)
-
-
-@dataclass(frozen=True)
-class ResetGuard:
-    """A fault reset confirmed on a dialog: carried out only if the reset still does what the
-    dialog showed (hmi.explain.reset.changes), checked where the scans run, with no scan
-    between the check and the reset."""
-
-    shown: tuple[ResetLine, ...]
-    seen_scan: int
+    control: ControlInfo | None = None  # None: a session in this process, no screens
+    services: tuple[ServiceStatus, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -160,6 +82,7 @@ class CellLink(Protocol):
     facts: CellFacts
     identity: Identity
     history: History
+    scans_here: bool  # the scans run in this process: they end with this screen
 
     def view(self) -> View | None:
         """The latest scan (None before the first)."""
@@ -170,6 +93,30 @@ class CellLink(Protocol):
 
     def command(self, command: Command, guard: ResetGuard | None = None) -> Answer:
         """Send one operator command and wait for its answer."""
+
+    # -- control (several screens) -------------------------------------------------------
+    @property
+    def client(self) -> str | None:
+        """This screen's id at the runtime (None: no runtime, a session in this process)."""
+
+    @property
+    def lost(self) -> str | None:
+        """Why the runtime is gone (None while it answers): nothing shown is live then."""
+
+    def silent_s(self) -> float:
+        """How long since the runtime last said anything (a tick comes every second)."""
+
+    def request_control(self) -> CommandResult:
+        """Ask for control (granted at once if nobody holds it, else the holder is asked)."""
+
+    def take_control(self) -> CommandResult:
+        """Take control over without the holder's consent (confirmed by the operator)."""
+
+    def release_control(self) -> CommandResult:
+        """Nobody in control after this."""
+
+    def hand_over(self, to: str) -> CommandResult:
+        """Hand control to screen `to` ("": keep it, refusing a request)."""
 
     # -- who runs the scans --------------------------------------------------------------
     def start(self) -> None:

@@ -5,7 +5,9 @@
     conditions.py  plchmi's ISA-18.2 alarms as Part 9 AlarmConditionType events (no asyncua)
     users.py       who a client is: the users file, trusted certificates, the trust list
     doors.py       who may open a session (checked off the loop), and the limits
-    server.py      the asyncua server in its own thread, fed by a Session's snapshots
+    server.py      the asyncua server in its own thread, fed by a cell source's snapshots
+    source.py      the cell it serves: the runtime through its socket (the gateway:
+                   hmi.cli.gateway) or a session in this process (a headless run)
     options.py     --opcua and its companions, from the command line to ServeOptions
 
 asyncua is an optional extra (``pip install 'plchmi[opcua]'``): nothing here imports it

@@ -20,6 +20,7 @@ from hmi.opcua import NEEDS_USERS
 if TYPE_CHECKING:
     from hmi.history.target import Target
     from hmi.opcua.server import CellServer
+    from hmi.opcua.source import CellSource
     from hmi.opcua.status import ServingStatus
     from hmi.session.journal_recorder import JournalRecorder
     from hmi.session.session import Session
@@ -74,6 +75,28 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                        help="the server's private key (PEM)")
 
 
+def passed_on(args: argparse.Namespace) -> list[str]:
+    """The --opcua options given, as ``plchmi gateway`` takes them (paths made absolute:
+    the gateway may run elsewhere)."""
+    if getattr(args, "opcua", None) is None:
+        return []
+    out = ["--opcua", args.opcua]
+    for flag, name in (("--opcua-writable", "opcua_writable"),
+                       ("--opcua-allow-real-plant", "opcua_allow_real_plant")):
+        if getattr(args, name, False):
+            out.append(flag)
+    for option, name in (("--opcua-users", "opcua_users"), ("--opcua-cert", "opcua_cert"),
+                         ("--opcua-key", "opcua_key")):
+        value = getattr(args, name, None)
+        if value is not None:
+            out += [option, str(Path(value).absolute())]
+    for path in getattr(args, "opcua_trust", []):
+        out += ["--opcua-trust", str(Path(path).absolute())]
+    if getattr(args, "opcua_interval", None):
+        out += ["--opcua-interval", args.opcua_interval]
+    return out
+
+
 def check_arguments(args: argparse.Namespace) -> None:
     """Options that need --opcua, or each other, before anything starts."""
     url = getattr(args, "opcua", None)
@@ -106,7 +129,7 @@ def check_arguments(args: argparse.Namespace) -> None:
     require()
 
 
-def start_server(session: Session, args: argparse.Namespace, log_file: bool = False,
+def start_server(cell: Session | CellSource, args: argparse.Namespace, log_file: bool = False,
                  journal: JournalRecorder | None = None,
                  history: Target | None = None) -> CellServer | None:
     """The cell's OPC UA server, started, if --opcua was given (None otherwise).
@@ -115,10 +138,12 @@ def start_server(session: Session, args: argparse.Namespace, log_file: bool = Fa
     failures go to stderr, or with `log_file` (the HMI: stderr is the screen) to
     opcua/server.log in the project's data folder. With `journal`, the journal says when
     the server starts serving, stops, or fails. With `history` (the cell's historian's
-    store), clients can read the variables' and the alarms' history (Part 11)."""
+    store), clients can read the variables' and the alarms' history (Part 11). `cell`: the
+    runtime through a link (the gateway), or a session in this process."""
     if getattr(args, "opcua", None) is None:
         return None
-    log_path = _route_logs(session.project.name, log_file)
+    name = cell.project.name
+    log_path = _route_logs(name, log_file)
     from hmi.access.signin import Authenticator
     from hmi.access.users import default_path, read
     from hmi.opcua.server import CellServer, ServeOptions
@@ -145,15 +170,15 @@ def start_server(session: Session, args: argparse.Namespace, log_file: bool = Fa
     if cert is None and users.any:
         from hmi.explain.journal import safe_file_name
         from hmi.paths import data_folder
-        folder = data_folder() / safe_file_name(session.project.name) / "opcua"
-        cert, key = server_certificate(folder, session.project.name, endpoint.host)
+        folder = data_folder() / safe_file_name(name) / "opcua"
+        cert, key = server_certificate(folder, name, endpoint.host)
     options = ServeOptions(host=endpoint.host, port=endpoint.port,
                            writable=args.opcua_writable,
                            users=users, sessions_per_user=(
                                found.settings.sessions_per_user if found else 3),
                            allow_real_plant=args.opcua_allow_real_plant,
                            interval_us=interval, certificate=cert, private_key=key)
-    server = CellServer(session, options, history=history)
+    server = CellServer(cell, options, history=history)
     server.log_file = str(log_path or "")
     if journal is not None:
         server.listeners.append(journal_listener(journal))
@@ -165,17 +190,21 @@ def journal_listener(journal: JournalRecorder) -> Callable[[ServingStatus], None
     """Journals each change of the server's state: serving (where, read-only or not),
     stopped, failed (why, and where the details are)."""
     def told(status: ServingStatus) -> None:
-        if status.up:
-            journal.on_service("opcua-serving", f"serving over OPC UA at {status.url}, "
-                               + ("operator commands enabled" if status.writable
-                                  else "read only"))
-        elif status.failed:
-            journal.on_service("opcua-failed", f"the OPC UA server at {status.url} failed: "
-                               f"{status.error}; the SCADA no longer sees this cell"
-                               + (f"; details in {status.log}" if status.log else ""))
-        else:
-            journal.on_service("opcua-stopped", f"the OPC UA server at {status.url} stopped")
+        journal.on_service(f"opcua-{'serving' if status.up else status.state}",
+                           status_words(status))
     return told
+
+
+def status_words(status: ServingStatus) -> str:
+    """The server's state in the journal's words (and the gateway's report to the runtime,
+    which journals it)."""
+    if status.up:
+        return (f"serving over OPC UA at {status.url}, "
+                + ("operator commands enabled" if status.writable else "read only"))
+    if status.failed:
+        return (f"the OPC UA server at {status.url} failed: {status.error}; the SCADA no "
+                "longer sees this cell" + (f"; details in {status.log}" if status.log else ""))
+    return f"the OPC UA server at {status.url} stopped"
 
 
 def _route_logs(project_name: str, log_file: bool) -> Path | None:

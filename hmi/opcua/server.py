@@ -1,15 +1,17 @@
-"""The OPC UA server of one cell (asyncua), fed by a Session's snapshots.
+"""The OPC UA server of one cell (asyncua), fed by a cell source's snapshots.
 
-It runs in a thread of its own with its own event loop, so the scan thread never waits for
-it: the scan listener only keeps a reference to the newest snapshot (and the alarm events
-of each scan, so none is lost when the publisher skips a snapshot). The publisher wakes at
-the publishing interval, reads the newest snapshot and writes the variables whose value
-changed, stamped with the scan's time (SourceTimestamp), then sends the condition events.
+The source (hmi.opcua.source) is the cell's runtime seen through its socket — the OPC UA
+gateway, a process of its own, so that no OPC UA client can slow the scan — or a session in
+this process (a headless ``plchmi run --opcua``). The server runs in a thread of its own with
+its own event loop: the source only keeps the newest snapshot (and the alarm events of each
+scan, so none is lost when the publisher skips a snapshot) and wakes the publisher, which
+writes the variables whose value changed, stamped with the scan's time (SourceTimestamp),
+then sends the condition events.
 
-Operator commands from OPC UA clients (only with ``writable``) are methods that call
-``Session.command`` — the HMI's door, where the journal listens — from a worker thread, with
-the client's identity as the command's origin; the engine checks them as it checks the HMI's
-(manual orders still go through the filter).
+Operator commands from OPC UA clients (only with ``writable``) are methods that go through
+the source's door from a worker thread — the runtime's, where the journal listens — with the
+client's identity as who sent it; the engine checks them as it checks the HMI's (manual
+orders still go through the filter).
 """
 
 from __future__ import annotations
@@ -56,7 +58,7 @@ from hmi.engine.commands import (
 )
 from hmi.engine.snapshot import Snapshot
 from hmi.errors import UsageError
-from hmi.explain.alarms import ACTIVE_UNACK, CLEARED_UNACK, MAX_SHELVE_US, Alarm, AlarmEvent
+from hmi.explain.alarms import ACTIVE_UNACK, CLEARED_UNACK, MAX_SHELVE_US
 from hmi.history.target import Target
 from hmi.opcua import NEEDS_USERS
 from hmi.opcua.conditions import (
@@ -69,6 +71,7 @@ from hmi.opcua.conditions import (
 )
 from hmi.opcua.doors import apply_limits, install, make_gate, verdict
 from hmi.opcua.model import BOOL, DOUBLE, STRING, STRINGS, UINT, AddressModel, build_model
+from hmi.opcua.source import CellSource, SessionSource
 from hmi.opcua.status import FAILED, SERVING, STARTING, STOPPED, OpcClient, ServingStatus
 from hmi.opcua.users import ANONYMOUS, Identity, TrustList, Users
 from hmi.session.session import Session
@@ -181,23 +184,22 @@ def _identity(user: User | None) -> Identity:
 class CellServer:
     """One cell as an OPC UA server. `start()` returns once it listens (or raises)."""
 
-    def __init__(self, session: Session, options: ServeOptions,
+    def __init__(self, cell: Session | CellSource, options: ServeOptions,
                  history: Target | None = None):
-        self.session = session
+        self.source: CellSource = SessionSource(cell) if isinstance(cell, Session) else cell
+        source = self.source
         self.options = options
         self.history = history  # the cell's history, for HistoryRead (None: none kept)
         self.storage: CellHistory | None = None  # what answers HistoryRead (with history)
         self.recorded: dict[str, str] = {}  # the historian's signal of each record
-        engine = session.engine
-        if options.writable and engine.plant.is_real and not options.allow_real_plant:
+        if options.writable and source.is_real and not options.allow_real_plant:
             raise UsageError("--opcua-writable on a real plant: OPC UA clients could then "
                              "drive it; refused unless --opcua-allow-real-plant says so")
         if options.writable and not options.users.any:
             raise UsageError(NEEDS_USERS)
-        self.model: AddressModel = build_model(session.project, engine.layout)
-        self.interval_s = (options.interval_us or session.period_us) / 1e6
+        self.model: AddressModel = build_model(source.project, source.layout)
+        self.interval_s = (options.interval_us or source.period_us) / 1e6
         self._latest: Snapshot | None = None
-        self._batches: deque[tuple[tuple[AlarmEvent, ...], tuple[Alarm, ...]]] = deque()
         self._thread: threading.Thread | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._stop: asyncio.Event | None = None
@@ -221,16 +223,13 @@ class CellServer:
         self._status = ServingStatus(options.url, STARTING, tuple(security), options.writable,
                                      users.count())
         self._actions: deque[tuple[str, str, str]] = deque()  # comments: key, user, text
-        session.listeners.append(self.on_command)
+        source.listen(self.on_command)
         self.listeners: list[Callable[[ServingStatus], None]] = []
         self._clients_due = 0.0  # monotonic time of the next look at the connections
 
-    # -- the scan thread's side: cheap, never waits -----------------------------------------
+    # -- the source's side (a scan thread in this process): cheap, never waits ---------------
 
-    def on_scan(self, snapshot: Snapshot) -> None:
-        if snapshot.alarm_events:
-            self._batches.append((snapshot.alarm_events, snapshot.alarms))
-        self._latest = snapshot
+    def _poke(self) -> None:
         # Wake the publisher right after a scan, when the scan thread has the most of a
         # period ahead of it: the two then rarely want the GIL at the same moment.
         now = time.monotonic()
@@ -248,11 +247,10 @@ class CellServer:
             raise RuntimeError(f"the OPC UA server did not start within {timeout:g} s")
         if self._failure is not None:
             raise self._failure
-        self.session.scan_listeners.append(self.on_scan)
+        self.source.start(self._poke)
 
     def stop(self, timeout: float = 10.0) -> None:
-        if self.on_scan in self.session.scan_listeners:
-            self.session.scan_listeners.remove(self.on_scan)
+        self.source.stop()
         loop, stop, wake = self._loop, self._stop, self._wake
         if loop is not None and stop is not None and wake is not None:
             with contextlib.suppress(RuntimeError):  # the loop already ended
@@ -401,7 +399,7 @@ class CellServer:
             from hmi.history.catalogue import catalogue
             from hmi.opcua.history import CellHistory
             self.storage = CellHistory(self.history, self.model.cell)
-            self.recorded = catalogue(self.session.project, self.session.engine.layout).origin
+            self.recorded = catalogue(self.source.project, self.source.layout).origin
             server.iserver.history_manager.set_storage(self.storage)
         await server.init()
         apply_limits(server.iserver, self.interval_s * 1000)
@@ -491,19 +489,17 @@ class CellServer:
         status = self.objects[("Status",)]
         self.run_state = await status.add_variable(
             self._nodeid(("Status", "RunState")), ua.QualifiedName("RunState", ns),
-            self.session.state.label, datatype=_id(ua.VariantType.String.value))
+            self.source.run_state(), datatype=_id(ua.VariantType.String.value))
         await _describe(self.run_state, "running, paused or stepping (a paused cell's values "
                         "stay as the last scan left them)")
-        self._run_state = self.session.state.label
+        self._run_state = self.source.run_state()
 
     # -- publishing ---------------------------------------------------------------------------
 
     async def publish(self) -> None:
         """Write what changed since the last publish, then send the condition events."""
-        batches = []
-        while self._batches:
-            batches.append(self._batches.popleft())
-        state = self.session.state.label
+        snapshot, batches = self.source.take()
+        state = self.source.run_state()
         if state != self._run_state:
             self._run_state = state
             now = ua.DateTime.now(UTC)
@@ -511,9 +507,9 @@ class CellServer:
                 self.run_state.nodeid, AttributeIds.Value,
                 ua.DataValue(ua.Variant(state, ua.VariantType.String), SourceTimestamp=now,
                              ServerTimestamp=now))
-        snapshot = self._latest
         if snapshot is None:
             return
+        self._latest = snapshot
         if snapshot is not self._published:
             self._published = snapshot
             stamp = self._stamp(snapshot.time_us)
@@ -558,7 +554,7 @@ class CellServer:
         """The wall time of a scan: the session's (Session.wall_us: the wall clock of a
         real plant, a simulation's time counted from its start), the time the historian
         stamps the same scan with."""
-        return _EPOCH + timedelta(microseconds=self.session.wall_us(time_us))
+        return _EPOCH + timedelta(microseconds=self.source.wall_us(time_us))
 
     # -- alarms as Part 9 conditions ----------------------------------------------------------
 
@@ -679,6 +675,8 @@ class CellServer:
         result = await self._command(Acknowledge(key), who, note or "")
         if not result.accepted:
             self.tracker.acks.pop(key, None)
+            if self.source.refused_for_control(result):
+                return _status(StatusCodes.BadUserAccessDenied)
             return _status(StatusCodes.BadConditionBranchAlreadyAcked)
         return ua.StatusCode()  # the acknowledged state goes out with the next scan
 
@@ -710,6 +708,8 @@ class CellServer:
         result = await self._command(command, who)
         if result.accepted:
             return ua.StatusCode()
+        if self.source.refused_for_control(result):
+            return _status(StatusCodes.BadUserAccessDenied)
         if isinstance(command, Unshelve):
             return _status(StatusCodes.BadConditionNotShelved)
         if "already shelved" in result.message:
@@ -752,13 +752,12 @@ class CellServer:
             return _status(StatusCodes.BadUserAccessDenied)
         return None
 
-    def on_command(self, command: Command, result: CommandResult,
-                   snapshot: Snapshot | None) -> None:
-        """Every door's commands (in the session's thread: only noted here): who shelved
-        or commented names the condition's next event; a comment is an event itself."""
+    def on_command(self, command: Command, result: CommandResult, origin: str) -> None:
+        """The commands the source hears (a session: every door's, in its thread; the
+        gateway: its own users'), only noted here: who shelved or commented names the
+        condition's next event; a comment is an event itself."""
         if not result.accepted:
             return
-        origin = self.session.origin
         user = (origin[6:].split(" (", 1)[0] if origin.startswith("opcua:")
                 else origin or HMI_USER)
         if isinstance(command, CommentAlarm):
@@ -768,10 +767,7 @@ class CellServer:
 
     async def _command(self, command: Command, who: Identity, comment: str = ""
                        ) -> CommandResult:
-        origin = f"opcua:{who.name}"
-        if comment:
-            origin += f" ({comment})"
-        return await asyncio.to_thread(self.session.command, command, origin)
+        return await asyncio.to_thread(self.source.command, command, who, comment)
 
     # -- operator commands as methods (writable only) -----------------------------------------
 

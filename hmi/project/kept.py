@@ -182,3 +182,38 @@ def _forget_old(folder: Path) -> None:
             old.unlink()
     except OSError:
         pass
+
+
+def fingerprint(path: str | Path, diagnoser_variant: str | None) -> str:
+    """Which project a process loaded, to compare with another process's: a digest of the
+    files the load reads (the project's folder and the component library, by their names
+    under those folders and their contents) and the diagnoser variant; not where the
+    folders are nor how the path was written, so a runtime and a screen started from
+    different folders agree on the same files. A folder beyond the limits of a kept project
+    (MAX_ENTRIES, MAX_BYTES) raises TooBig."""
+    digest = blake2b(digest_size=16)
+    project_file = resolve_project_file(path).resolve()
+    digest.update(repr(("variant", diagnoser_variant, project_file.name)).encode())
+    for label, root in (("project", project_file.parent), ("components", COMPONENTS.resolve())):
+        digest.update(f"tree {label}\0".encode())
+        size = 0
+        for count, entry in enumerate(_entries(root), start=1):
+            if count > MAX_ENTRIES:
+                raise TooBig(str(root))
+            name = os.path.relpath(entry.path, root)
+            if entry.is_symlink():
+                record = f"link {name} -> {os.readlink(entry.path)}"
+            elif entry.is_dir():
+                record = f"dir {name}"
+            elif entry.is_file():
+                with open(entry.path, "rb") as file:
+                    content = file.read(MAX_BYTES - size + 1)
+                size += len(content)
+                if size > MAX_BYTES:
+                    raise TooBig(str(root))
+                record = f"file {name} {len(content)}"
+                digest.update(content)
+            else:
+                continue  # a socket or a fifo (a runtime's own, in a data folder): not read
+            digest.update(f"{record}\0".encode("utf-8", "surrogateescape"))
+    return digest.hexdigest()

@@ -250,7 +250,8 @@ class ProjectLoader(ProjectReader):
         else:
             self.diag.error(pos, "the project has no scan period", "'scan_period: 10ms'")
 
-        inputs = read_variables(self, "inputs", "input", {"description", "address", "device"})
+        inputs = read_variables(self, "inputs", "input",
+                                {"description", "address", "device", "fault"})
         outputs = read_variables(self, "outputs", "output",
                                   {"description", "address", "safe", "device"})
         memories = read_variables(self, "memories", "memory", {"description", "initial"})
@@ -303,7 +304,8 @@ class ProjectLoader(ProjectReader):
                      "situations": {f"{prefix}_{r.name}" for r in recovery
                                     for prefix in RECOVERY_SITUATIONS}
                      | {f"step_{step.name}" for law in controls.values() if law.grafcet
-                        for step in law.grafcet.steps if step.supervision_us is not None}}
+                        for step in law.grafcet.steps if step.supervision_us is not None}
+                     | {f"fault_{v.name}" for v in inputs if v.fault}}
             texts = merge_texts(self, [
                 (owner, parse_explanations(node, self.guard, known, self.diag.error))
                 for owner, node in sources])

@@ -65,6 +65,9 @@ class Variable:
     address: PlantAddress | None = None
     pos: SourcePos = field(default_factory=lambda: SourcePos("?"))
     device: str | None = None  # the plant device this variable belongs to, for explanations
+    # inputs: the device's own fault signal (a drive fault relay): 1 means the device is
+    # halted by a malfunction, the root cause of whatever it then fails to do
+    fault: bool = False
 
 
 @dataclass(frozen=True)

@@ -65,7 +65,9 @@ def _variable(reader: ProjectReader, node: YNode, name: str, kind: VariableKind,
         address = guard(lambda: parse_address(fields["address"], kind))
     device = guard(lambda: fields["device"].as_str("device")) if "device" in fields \
         else None
-    return Variable(name, kind, description, safe, address, kpos, device)
+    fault = guard(lambda: fields["fault"].as_bool("fault"), False) if "fault" in fields \
+        else False
+    return Variable(name, kind, description, safe, address, kpos, device, bool(fault))
 
 
 def declare_items(reader: ProjectReader, key: str, kind: str) -> list[tuple[str, YNode, SourcePos]]:

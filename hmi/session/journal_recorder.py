@@ -78,6 +78,16 @@ class JournalRecorder:
             for entry in entries:
                 tap(entry)
 
+    def sync(self) -> None:
+        """Until every entry so far is on disk (a journal written in the background: a
+        command's answer waits for its entry, outside the session's lock)."""
+        try:
+            self.journal.flush()
+        except JournalWriteError as exc:
+            self.failure = exc
+            self.session.engine.latch_safe(
+                "journal", f"{exc}: operator actions and alarms cannot be recorded")
+
     def on_command(self, command: Command, result: CommandResult,
                    snapshot: Snapshot | None) -> None:
         engine = self.session.engine
@@ -85,6 +95,7 @@ class JournalRecorder:
                  "message": result.message, "scan": engine.scan, "t": seconds(engine.now)}
         if self.session.origin:
             entry["by"] = self.session.origin
+            entry.update(self.session.origin_details)
         self._append(entry)
         if isinstance(command, ManualOutput) and result.accepted and command.value is not None:
             self.pending_manual.append((command, self.session.origin))
@@ -237,21 +248,24 @@ class JournalRecorder:
             entry["by"] = by
         return entry
 
-    def on_ui_fault(self, fault) -> None:
-        """An error of the HMI (hmi.ui.containment.UIFault): contained, or fatal."""
+    def on_ui_fault(self, fault, **who: str) -> None:
+        """An error of the HMI (hmi.ui.containment.UIFault, or a screen's report of one):
+        contained, or fatal; `who`: the screen's (by, role, client)."""
         engine = self.session.engine
+        ended = "; the screen ended, the cell runs on" if who else ""
         self._append({
             "type": "session", "event": "ui-error", "what": fault.what, "fatal": fault.fatal,
             "message": f"{fault.error}; details in {fault.report}"
-                       + ("" if fault.fatal else "; contained, the scan goes on"),
-            "crash_file": fault.report, "scan": engine.scan, "t": seconds(engine.now)})
+                       + (ended if fault.fatal else "; contained, the scan goes on"),
+            "crash_file": fault.report, **who, "scan": engine.scan, "t": seconds(engine.now)})
 
-    def on_service(self, event: str, message: str) -> None:
+    def on_service(self, event: str, message: str, **fields: str) -> None:
         """A service beside the scan changed state (the OPC UA server: opcua-serving,
-        opcua-stopped, opcua-failed), told from its own thread."""
+        opcua-stopped, opcua-failed; a screen attached, lost, control handed over), told
+        from its own thread; `fields`: who (by, role, client)."""
         engine = self.session.engine
         with self.session.lock:
-            self._append({"type": "session", "event": event, "message": message,
+            self._append({"type": "session", "event": event, "message": message, **fields,
                           "scan": engine.scan, "t": seconds(engine.now)})
 
     def close(self, abnormal: str | None = None, note: str | None = None) -> None:

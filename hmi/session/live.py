@@ -7,6 +7,7 @@ against its schedule is kept as jitter samples for `plchmi bench ui`.
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 import traceback
@@ -17,10 +18,69 @@ from hmi.engine.snapshot import Snapshot
 from hmi.session.session import Session, settle_memory
 
 
+class Lateness:
+    """How late each scan started, as a histogram (10 µs bins to 10 ms, then 1 ms bins to
+    1 s): constant memory and a constant cost per scan, however long the run, and its
+    percentiles read at any time without sorting anything (a sort of a long run's samples
+    would hold the interpreter for milliseconds, in the scans' process)."""
+
+    FINE_US, FINE_BINS, COARSE_US, COARSE_BINS = 10, 1000, 1000, 990
+
+    def __init__(self) -> None:
+        self.bins = [0] * (self.FINE_BINS + self.COARSE_BINS + 1)
+        self.count = 0
+        self.most = 0.0
+
+    def add(self, us: float) -> None:
+        fine = self.FINE_US * self.FINE_BINS
+        if us < fine:
+            index = max(0, int(us // self.FINE_US))
+        else:
+            index = min(self.FINE_BINS + int((us - fine) // self.COARSE_US),
+                        len(self.bins) - 1)
+        self.bins[index] += 1
+        self.count += 1
+        if us > self.most:
+            self.most = us
+
+    def percentile(self, q: float) -> float:
+        """The upper edge of the bin holding the q-quantile (µs); 0 with no sample."""
+        if not self.count:
+            return 0.0
+        wanted = q * self.count
+        seen = 0
+        for index, n in enumerate(self.bins):
+            seen += n
+            if seen >= wanted and n:
+                if index < self.FINE_BINS:
+                    return float((index + 1) * self.FINE_US)
+                return float(self.FINE_US * self.FINE_BINS
+                             + (index - self.FINE_BINS + 1) * self.COARSE_US)
+        return self.most
+
+
+REALTIME_PRIORITY = 10  # SCHED_FIFO priority of a runtime's scan thread (1-99)
+
+
 class LiveRunner:
-    def __init__(self, controller: Session, keep_jitter: int = 100_000):
+    """Scans on the wall clock in a thread of its own.
+
+    `realtime`: the scan thread asks the kernel for SCHED_FIFO (Linux soft PLCs run their
+    scan at a real-time priority the same way: a runnable scan thread then takes its core
+    from any ordinary thread); refused (no privilege), it says so in :attr:`realtime_state`
+    and scans at normal priority. Running as fast as possible (a simulation's ``max``
+    speed), it gives the priority back: a thread that never sleeps must not hold a core
+    from everything else."""
+
+    def __init__(self, controller: Session, keep_jitter: int = 100_000,
+                 realtime: bool = False):
         self.controller = controller
+        self.realtime = realtime
+        self.realtime_state = "normal priority (not asked)"
+        self._realtime_now = False
+        self.realtime_known = threading.Event()  # realtime_state says what happened
         self.jitter_us: deque[float] = deque(maxlen=keep_jitter)
+        self.lateness = Lateness()
         self.overruns = 0
         # Why the scan thread died, if it did (a scan listener failed): whoever runs it must
         # end the run as an abnormal end, since nothing scans any more.
@@ -52,12 +112,35 @@ class LiveRunner:
             self.error = exc
             self.error_traceback = traceback.format_exc()
 
+    def _priority(self, wanted: bool) -> None:
+        """Ask for SCHED_FIFO (or give it back), from the scan thread itself."""
+        if wanted == self._realtime_now:
+            return
+        try:
+            if wanted:
+                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(REALTIME_PRIORITY))
+                self.realtime_state = f"SCHED_FIFO {REALTIME_PRIORITY}"
+            else:
+                os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+                self.realtime_state = "normal priority while running as fast as possible"
+            self._realtime_now = wanted
+        except (OSError, AttributeError) as exc:  # no privilege, or not Linux
+            reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+            self.realtime_state = f"normal priority: SCHED_FIFO refused ({reason})"
+            self.realtime = False  # not asked again at every scan
+        finally:
+            self.realtime_known.set()
+
     def _scan_loop(self) -> None:
         controller = self.controller
         period_s = controller.period_us / 1e6
         next_wall = time.perf_counter()
+        if not self.realtime:
+            self.realtime_known.set()
         while not self._stop.is_set():
             state = controller.state
+            if self.realtime:
+                self._priority(state.speed is not None)
             if not state.running:
                 self._stop.wait(0.02)
                 next_wall = time.perf_counter()
@@ -71,6 +154,7 @@ class LiveRunner:
                     now = time.perf_counter()
                     lateness = now - next_wall
                 self.jitter_us.append(lateness * 1e6)
+                self.lateness.add(lateness * 1e6)
             controller.scan_if_running()
             if speed is None:
                 next_wall = time.perf_counter()

@@ -11,6 +11,13 @@ It also keeps the plant's events (damage, glitches) which a snapshot carries onl
 scan in which they happened, and, per safety constraint, how often and when the filter found
 it violated (a one-scan violation between two frames still counts).
 
+The recorder runs where the scans run (the runtime). A screen elsewhere keeps a mirror of
+it (:meth:`ScanRecorder.apply`), fed by what changed since the screen's last frame
+(:meth:`ScanRecorder.since`): the same changes, events and constraint histories, so its
+chronogram draws what one in the runtime's process would. Each scan's alarm transitions are
+kept too (with the list as that scan left it), for a screen that must send every one of them
+(the OPC UA gateway's condition events).
+
 A frame must show one scan. The UI thread reads the recorder while the scan thread feeds it,
 so the snapshot a frame shows and the history beside it are taken together, under the
 recorder's lock (:meth:`ScanRecorder.latest`): reading ``session.last`` first and the history
@@ -24,6 +31,7 @@ import threading
 from bisect import bisect_right
 from collections import deque
 from dataclasses import dataclass
+from typing import Any
 
 from hmi.engine.layout import Layout
 from hmi.engine.snapshot import Snapshot
@@ -88,6 +96,31 @@ class Recorded:
 
 
 @dataclass(frozen=True)
+class Cursor:
+    """How far a screen's mirror has been told: the scan time, events and alarm batches."""
+
+    time_us: int
+    events: int
+    batches: int
+
+
+@dataclass(frozen=True)
+class Changes:
+    """What a recorder holds beyond a cursor, as of its last scan (a consistent view)."""
+
+    snapshot: Snapshot | None
+    full: bool  # everything kept (no cursor, or one older than what is kept)
+    edges: tuple[tuple[int, int, bool], ...]  # (signal, time, value), in time order
+    events: tuple[PlantEvent, ...]
+    event_count: int
+    damage_count: int
+    constraints: dict[str, ConstraintStats]
+    batches: tuple[tuple[tuple[Any, ...], tuple[Any, ...]], ...]  # (alarm events, alarms)
+    batches_lost: int
+    cursor: Cursor
+
+
+@dataclass(frozen=True)
 class Trace:
     """One signal over a window: its changes, and what was known before the window."""
 
@@ -99,7 +132,8 @@ class Trace:
 class ScanRecorder:
     """Edges of every Boolean signal and the plant's events, fed from the scan thread."""
 
-    def __init__(self, layout: Layout, keep_us: int = KEEP_US, keep_events: int = 500):
+    def __init__(self, layout: Layout, keep_us: int = KEEP_US, keep_events: int = 500,
+                 keep_batches: int = 2000):
         self.signals = boolean_signals(layout)
         self.by_name = {s.name: i for i, s in enumerate(self.signals)}
         self._value_slots = [(i, s.slot) for i, s in enumerate(self.signals) if s.kind != "fov"]
@@ -120,6 +154,10 @@ class ScanRecorder:
         self.first_us: int | None = None
         self.last_us: int | None = None
         self.snapshot: Snapshot | None = None  # the last scan recorded
+        # each scan's alarm transitions with the list it left (alarm events, alarms)
+        self.batches: deque[tuple[tuple[Any, ...], tuple[Any, ...]]] = deque(
+            maxlen=keep_batches)
+        self.batch_count = 0
         self._lock = threading.Lock()
 
     def on_scan(self, snap: Snapshot) -> None:
@@ -146,6 +184,9 @@ class ScanRecorder:
             report = snap.filter
             if report is not None and (report.violations or self._violated_now):
                 self._count_violations(report.violated_names, t, snap.explanations)
+            if snap.alarm_events:
+                self.batches.append((snap.alarm_events, snap.alarms))
+                self.batch_count += 1
             if self.first_us is None:
                 self.first_us = t
                 self._trim_at = t + self.keep_us
@@ -158,6 +199,7 @@ class ScanRecorder:
 
     def _trim(self, before_us: int) -> None:
         """Forget changes older than `before_us`, keeping the last one before it."""
+        self._trim_floor = before_us
         for points in self._changes:
             cut = bisect_right(points, before_us, key=_time) - 1
             if cut > 0:
@@ -205,3 +247,69 @@ class ScanRecorder:
     def recent_events(self, count: int = 20) -> list[PlantEvent]:
         with self._lock:
             return list(self.events)[-count:]
+
+    # -- a mirror elsewhere -------------------------------------------------------------
+    def since(self, cursor: Cursor | None) -> Changes:
+        """Everything recorded after `cursor`, up to the last scan (its snapshot included);
+        with no cursor, or one from before what is still kept, everything kept (`full`)."""
+        with self._lock:
+            snap = self.snapshot
+            upto = snap.time_us if snap is not None else -1
+            full = cursor is None or (self.first_us is not None and self._trimmed_after(
+                cursor.time_us))
+            edges: list[tuple[int, int, bool]] = []
+            for index, points in enumerate(self._changes):
+                start = 0 if full or cursor is None else bisect_right(points, cursor.time_us,
+                                                                      key=_time)
+                edges.extend((index, t, v) for t, v in points[start:])
+            edges.sort(key=lambda edge: edge[1])  # (a stable sort: signal order within a scan)
+            told_events = 0 if full or cursor is None else cursor.events
+            new_events = min(self.event_count - told_events, len(self.events))
+            events = tuple(self.events)[len(self.events) - new_events:] if new_events else ()
+            # (a first view starts from the alarm list as it is: no transitions from before)
+            told_batches = self.batch_count if cursor is None else cursor.batches
+            missing = self.batch_count - told_batches
+            kept = min(missing, len(self.batches))
+            batches = tuple(self.batches)[len(self.batches) - kept:] if kept else ()
+            return Changes(snap, full, tuple(edges), events, self.event_count,
+                           self.damage_count, dict(self._constraints), batches,
+                           missing - kept, Cursor(upto, self.event_count, self.batch_count))
+
+    def _trimmed_after(self, time_us: int) -> bool:
+        """Whether changes after `time_us` may have been forgotten (trimmed): the oldest kept
+        change of some signal is after it and is not the signal's first."""
+        return self._trim_floor is not None and time_us < self._trim_floor
+
+    _trim_floor: int | None = None  # changes before this time may be gone
+
+    def apply(self, changes: Changes) -> None:
+        """Take what another recorder recorded (:meth:`since`): this one then answers as
+        that one does (a screen's mirror of the runtime's recorder)."""
+        with self._lock:
+            if changes.full:
+                self._changes = [[] for _ in self.signals]
+                self._last = [None] * len(self.signals)
+                self.events.clear()
+            for index, t, value in changes.edges:
+                self._changes[index].append((t, value))
+                self._last[index] = value
+                self.change_count += 1
+            self.events.extend(changes.events)
+            self.event_count = changes.event_count
+            self.damage_count = changes.damage_count
+            self._constraints = dict(changes.constraints)
+            self._violated_now = {name for name, stats in changes.constraints.items()
+                                  if stats.since_us is not None}
+            self.batches.extend(changes.batches)
+            self.batch_count += len(changes.batches) + changes.batches_lost
+            snap = changes.snapshot
+            if snap is not None:
+                t = snap.time_us
+                if self.first_us is None:
+                    self.first_us = t
+                    self._trim_at = t + self.keep_us
+                elif self._trim_at is not None and t >= self._trim_at:
+                    self._trim(t - self.keep_us)
+                    self._trim_at = t + self.keep_us // 4
+                self.last_us = t
+                self.snapshot = snap

@@ -47,7 +47,7 @@ class RunOutputs:
     file is kept in `failure` and ends the run (see `stop_on_failure`)."""
 
     def __init__(self, controller: Session, trace: Path | None, journal: Path | None,
-                 source: str):
+                 source: str, background: bool = False):
         self.controller = controller
         self.failure: OutputError | None = None
         self.stopped_early = False
@@ -56,7 +56,7 @@ class RunOutputs:
                        ("--trace", "the trace", trace)], project_files(controller))
         self.writer = TraceWriter(trace) if trace else None
         try:
-            self.recorder = open_journal(controller, journal, source)
+            self.recorder = open_journal(controller, journal, source, background)
         except BaseException:
             if self.writer is not None:
                 self.writer.close()
@@ -112,14 +112,16 @@ class RunOutputs:
                 f"(t = {seconds(engine.now)} s) but what it wrote there is incomplete")
 
 
-def open_journal(controller: Session, path: Path | None, source: str):
+def open_journal(controller: Session, path: Path | None, source: str,
+                 background: bool = False):
     """The journal recorder of a session: `path`, else the project's default journal. A
-    journal that cannot be opened is an OutputError (hmi.errors)."""
+    journal that cannot be opened is an OutputError (hmi.errors). `background`: written by
+    a thread of its own (the runtime's: a scan never waits for the disk; hmi.explain.journal)."""
     from hmi.explain.journal import Journal
     from hmi.session.journal_recorder import JournalRecorder
     target = path or default_journal(controller)
     check_outputs([("--journal", "the journal", target)], project_files(controller))
-    journal = Journal(target)
+    journal = Journal(target, background)
     try:
         return JournalRecorder(controller, journal, source)
     except BaseException:

@@ -16,7 +16,7 @@ from __future__ import annotations
 import gc
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -29,6 +29,7 @@ from hmi.engine.commands import (
     Pause,
     Resume,
     SetSpeed,
+    SetView,
     Shelve,
     StepScans,
     Unshelve,
@@ -91,6 +92,7 @@ class Session:
         self._pending_alarm_events: list[AlarmEvent] = []  # acknowledgements between scans
         self.listeners: list[Listener] = []
         self.origin = ""  # who sent the command being carried out ("": the cell's operator)
+        self.origin_details: Mapping[str, str] = {}  # and what else the journal says of them
         self.scan_listeners: list[Callable[[Snapshot], None]] = []
         # A scan listener's check that it has nothing to do on a quiet scan now (see
         # run_for); a listener without one is given every scan's snapshot.
@@ -166,11 +168,14 @@ class Session:
             return self.clock()
         return 0 if not self.engine.scan else self.engine.now + self.period_us
 
-    def command(self, command: Command, origin: str = "") -> CommandResult:
-        """Carry out one operator command; `origin` says who sent it when it is not the
-        cell's own operator (an OPC UA client: "opcua:NAME"), for the journal."""
+    def command(self, command: Command, origin: str = "",
+                details: Mapping[str, str] | None = None) -> CommandResult:
+        """Carry out one operator command; `origin` says who sent it (``terminal:alice``,
+        an OPC UA user ``opcua:bob``; "" the cell's own operator), `details` what else the
+        journal writes of them (their role, their screen), for the journal."""
         with self.lock:
             self.origin = origin
+            self.origin_details = details or {}
             match command:
                 case Pause():
                     self.state.running = False
@@ -201,17 +206,24 @@ class Session:
                     result = self._choose_policy(key, policy_id)
                 case Shelve() | Unshelve() | CommentAlarm():
                     result = self._alarm_note(command)
+                case SetView(engineering=engineering):
+                    result = CommandResult.ok(
+                        "engineering view: internal names, states, flags and bounds shown"
+                        if engineering else "operator view: devices and plain words")
                 case _:
                     result = self.engine.apply(command)
             self._tell(command, result)
             return result
 
-    def decline(self, command: Command, why: str) -> CommandResult:
-        """An operator's confirmation not carried out: the dialog's promise had changed under
-        it (hmi.ui.reset.changes). Refused, and told to the listeners like any command, so
-        the journal says what the operator did and why nothing happened."""
+    def decline(self, command: Command, why: str, origin: str = "",
+                details: Mapping[str, str] | None = None) -> CommandResult:
+        """A command not carried out, for a reason outside the engine: a confirmation whose
+        dialog's promise had changed under it (hmi.explain.reset.changes), a screen not in
+        control. Refused, and told to the listeners like any command, so the journal says
+        what the operator did and why nothing happened."""
         with self.lock:
-            self.origin = ""
+            self.origin = origin
+            self.origin_details = details or {}
             result = CommandResult.refused(why)
             self._tell(command, result)
             return result

@@ -57,7 +57,7 @@ def cmd_soak(args: argparse.Namespace) -> int:
     if args.steps is not None and args.steps < 1:
         raise UsageError("--steps: at least 1")
     config = SoakConfig(Path(args.project), args.control, args.size, args.minutes, args.seed,
-                        args.steps)
+                        args.steps, split=getattr(args, "split", False))
     print(f"soak {project.name} (control {args.control or 'default'}, "
           f"{config.size[0]}x{config.size[1]}, seed {config.seed}): "
           + (f"replaying {len(replay)} steps" if replay is not None

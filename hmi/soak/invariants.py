@@ -283,7 +283,7 @@ class Invariants:
         list (its priority, time raised and the start of its text), as many as the list's
         rows allow, and the status bar counts them. Read from the alarm list's lines as
         drawn, recomputed from the frame's alarms."""
-        from hmi.ui.alarm_list import AlarmList, rows_for_height, without_device
+        from hmi.ui.alarm_list import AlarmList, rows_for_height
         from hmi.ui.status import StatusBar
         app = self.app
         frame = app.frame
@@ -298,20 +298,21 @@ class Invariants:
         self.checks["urgent-alarm"] += len(urgent)
         main = app.screen_stack[0]
         listing = main.query_one(AlarmList)
-        width = listing.size.width
-        if not width:
+        # the whole widget, border included: render_lines crops from its outer top-left,
+        # so its content's size would cut the last rows off (a list of one row, whose
+        # border takes 2 of its 3 lines, read as its top border only)
+        outer = listing.outer_size
+        if not outer.width:
             return
         lines = [strip.text for strip in listing.render_lines(
-            Region(0, 0, width, listing.size.height))]
+            Region(0, 0, outer.width, outer.height))]
         rows = rows_for_height(app.size.height)
         keys = [a.key for a in alarms]
         selected = keys.index(listing.selected) if listing.selected in keys else 0
         # the selection keeps a row: below the urgent ones it gets a row of its own, among
         # them but past the rows it takes the last pinned one
         room = rows - 1 if rows <= selected < len(urgent) else rows
-        seen = [a for a in urgent if any(
-            f"P{a.priority}" in line and f"{seconds(a.raised_us)} s" in line
-            and without_device(a.text, a.device)[:12] in line for line in lines)]
+        seen = [a for a in urgent if any(_row_shows(line, a) for line in lines)]
         if len(seen) < min(len(urgent), room):
             missing = [a.text for a in urgent if a not in seen]
             self._break("urgent-alarm-hidden",
@@ -391,3 +392,21 @@ class Invariants:
                 self._break("transition-not-journalled",
                             f"{key} became {state} at scan {scan}; no journal entry says so")
                 pending.clear()
+
+
+def _squeezed(text: str) -> str:
+    return re.sub(r"[\s:]+", "", text)
+
+
+def _row_shows(line: str, alarm) -> bool:
+    """Whether an alarm list line is this alarm's row: its priority, the time it was raised,
+    then the start of its text as the row fits it — the device in a column of its own or
+    not, the text cut with "…" at a narrow width (compared without spaces and colons)."""
+    stamp = f"P{alarm.priority} "
+    raised = f"{seconds(alarm.raised_us)} s  "
+    start = line.find(stamp)
+    at = line.find(raised, start) if start >= 0 else -1
+    if at < 0:
+        return False
+    shown = _squeezed(line[at + len(raised):].split("…")[0].split("  ")[0])
+    return bool(shown) and _squeezed(alarm.text).startswith(shown[:40])

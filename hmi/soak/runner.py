@@ -2,10 +2,15 @@
 
 The app is the one operators run (:class:`~hmi.ui.app.PlcHmiApp`, every panel, dialog and
 binding) on a :class:`~hmi.ui.driver.VirtualDriver`: scans run only when a ``run`` step says
-so, as fast as the machine goes, so a session is exactly repeatable. The journal is the real
-one (:class:`~hmi.session.journal_recorder.JournalRecorder`, to a file), told of UI errors as in
-``plchmi PROJECT``. After every step the invariants are checked (hmi.soak.invariants); the
-session stops at the first broken one.
+so, as fast as the machine goes, so a session is exactly repeatable. The app reads the cell
+through the runtime's protocol: in this process (:class:`~hmi.link.local.LocalLink`), or with
+``split`` over the runtime's real Unix socket (:class:`~hmi.link.client.SocketLink` to a
+:class:`~hmi.runtime.runtime.Runtime` in virtual time: its socket server and hub in threads
+of their own, every frame and command encoded, sent and decoded, each ``run`` step an
+``Advance``); either way the invariants listen to the runtime's session itself. The journal
+is the real one (:class:`~hmi.session.journal_recorder.JournalRecorder`, to a file), told of
+UI errors as in ``plchmi PROJECT``. After every step the invariants are checked
+(hmi.soak.invariants); the session stops at the first broken one.
 
 :func:`shrink` replays a failing step list without chunks of it, keeping every removal after
 which the same invariant still breaks: what is left is a short list that reproduces it.
@@ -49,6 +54,7 @@ class SoakConfig:
     minutes: float = 30.0
     seed: int = 1
     max_steps: int | None = None  # a bound on the steps too (the CI's budget)
+    split: bool = False  # the app attached over the runtime's socket (module docstring)
 
 
 @dataclass
@@ -76,15 +82,77 @@ class SoakResult:
         return not self.broken
 
 
-def make_app(config: SoakConfig, history: Path | None = None
-             ) -> tuple[PlcHmiApp, Session, Historian | None]:
-    """The app, the session it shows (run in this process, in virtual time) and, with a
-    `history` file, its historian: the trend screens then read a real history."""
+def make_cell(config: SoakConfig, history: Path | None = None
+              ) -> tuple[Session, Historian | None]:
+    """The session the app shows (its scans in virtual time) and, with a `history` file,
+    its historian: the trend screens then read a real history."""
     project = load_project(config.project)
     cell = Session(Engine(project, SimPlant(project), control=config.control))
     historian = Historian(cell, Target("sqlite", str(history)), source="soak").attach() \
         if history is not None else None
+    return cell, historian
+
+
+def make_app(config: SoakConfig, history: Path | None = None
+             ) -> tuple[PlcHmiApp, Session, Historian | None]:
+    """The app, the session it shows (in this process) and its historian (make_cell)."""
+    cell, historian = make_cell(config, history)
     return PlcHmiApp(cell, live=False, show_measured=False), cell, historian
+
+
+class SplitCell:
+    """The runtime of a soak over the socket (``split``): started on `cell` with its socket
+    in `folder`, the app attached to it; stopped at the end (the screen leaves first).
+
+    Virtual time is the soak's clock, not an operator's gesture: a ``run`` step goes as the
+    screen's ``Advance`` while it is in control, and while it is not (the random operator
+    released or handed control away) the scans run here and the step ends once the screen
+    has the frame of the last one (waited for on that state)."""
+
+    FINGERPRINT = "soak"
+    HANG_S = 120.0  # a frame the runtime never sends: a hang, not a slow machine
+
+    def __init__(self, cell: Session, folder: Path, journal: JournalRecorder):
+        from hmi.link.client import SocketLink
+        from hmi.runtime.runtime import Runtime
+        from hmi.wire.messages import Identity
+        self.cell = cell
+        self.runtime = Runtime(cell, self.FINGERPRINT, folder / "runtime.sock", journal,
+                               virtual=True)
+        self.runtime.start()
+        split = self
+
+        class SoakLink(SocketLink):
+            def advance(self, duration_us: int) -> int:
+                return split.advance(duration_us)
+
+        self.link = SoakLink(cell.project, folder / "runtime.sock", self.FINGERPRINT,
+                             Identity("soak", "operator", "terminal", "soak"))
+        self.link.first_frame.wait(self.HANG_S)
+
+    def advance(self, duration_us: int) -> int:
+        from hmi.link.client import SocketLink
+        from hmi.link.local import advance
+        link = self.link
+        control = link.receiver.control
+        if control is not None and control.holder is not None \
+                and control.holder.id == link.client:
+            return SocketLink.advance(link, duration_us)
+        count = advance(self.cell, duration_us)
+        last = self.cell.last
+        started = time.monotonic()
+        while last is not None and link.lost is None:
+            view = link.view()
+            if view is not None and view.snapshot.scan >= last.scan:
+                break
+            if time.monotonic() - started > self.HANG_S:
+                raise RuntimeError(f"no frame of scan {last.scan} within {self.HANG_S:g} s")
+            time.sleep(0.005)
+        return count
+
+    def stop(self) -> None:
+        self.link.leave()
+        self.runtime.stop("the soak ends")
 
 
 async def session(config: SoakConfig, replay: list[Step] | None = None,
@@ -97,11 +165,18 @@ async def session(config: SoakConfig, replay: list[Step] | None = None,
     result = SoakResult(config)
     folder = Path(journal_dir or tempfile.mkdtemp(prefix="plchmi-soak-"))
     result.journal = folder / "journal.jsonl"
-    app, cell, historian = make_app(config, folder / "history.sqlite")
+    split = None
+    cell, historian = make_cell(config, folder / "history.sqlite")
     journal = JournalRecorder(cell, Journal(result.journal), "soak")
     if historian is not None:
         historian.hear(journal)
-    app.containment.listeners.append(journal.on_ui_fault)
+    if config.split:
+        split = SplitCell(cell, folder, journal)
+        app = PlcHmiApp(split.link, live=False, show_measured=False)
+        app.containment.listeners.append(split.link.report_fault)  # the runtime journals
+    else:
+        app = PlcHmiApp(cell, live=False, show_measured=False)
+        app.containment.listeners.append(journal.on_ui_fault)
     checker = Invariants(app, cell, result.journal)
 
     def count(command, answer, snapshot) -> None:
@@ -141,6 +216,8 @@ async def session(config: SoakConfig, replay: list[Step] | None = None,
                     _fill(result, checker, cell, started)
                     progress(result)
     finally:
+        if split is not None:
+            split.stop()
         journal.close(None if checker.ok else str(checker.broken[0]))
         if historian is not None:
             historian.close()

@@ -36,7 +36,7 @@ def synthesise(project: Project, name: str, grid_us: int = GRID_US,
     campaign = project.campaign
     counter = campaign.counter if campaign is not None else first_counter(project)
     period = project.scan_period_us
-    every = max(1, round(grid_us / period))
+    every = max(1, round(grid_us / period))  # GRID_US (0): every scan
     # Steps 1-2: the fault-free loop (the same in every configuration: no fault, no flag).
     probe = Explorer(project, OBSERVING, counter, settle=False)
     nbm = build_nbm(probe.graph, View(probe.graph, target), target)

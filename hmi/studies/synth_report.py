@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from hmi.project.model import DiagnoserSpec, Project
-from hmi.studies.closed_loop import LoopDiagnosability, diagnosability, spread
+from hmi.studies.closed_loop import FaultDiagnosis, LoopDiagnosability, diagnosability, spread
 from hmi.studies.diag_report import CLOSED_LOOP_EVERY_US, _table
 from hmi.studies.diagnosability import analyse, iso_band
 from hmi.studies.synthesis import Diagnoser
@@ -91,10 +91,13 @@ def verdict(mine: LoopDiagnosability, new: LoopDiagnosability) -> list[str]:
               not a.ever]
     lost = [f.fault for a, f in zip(mine.faults, new.faults, strict=True) if a.ever and
             not f.ever]
-    more = [f"{f.fault} ({a.isolated} -> {f.isolated})" for a, f in
-            zip(mine.faults, new.faults, strict=True) if f.isolated > a.isolated]
-    fewer = [f"{f.fault} ({a.isolated} -> {f.isolated})" for a, f in
-             zip(mine.faults, new.faults, strict=True) if f.isolated < a.isolated]
+    # The two loops have their own instants (1 us around each diagnoser's own transitions):
+    # compare the share of runs isolated, not the count.
+    more = [f"{f.fault} ({_share(a)} -> {_share(f)})" for a, f in
+            zip(mine.faults, new.faults, strict=True) if f.isolated * a.runs > a.isolated * f.runs]
+    fewer = [f"{f.fault} ({_share(a)} -> {_share(f)})" for a, f in
+             zip(mine.faults, new.faults, strict=True)
+             if f.isolated * a.runs < a.isolated * f.runs]
     faster, slower = [], []
     for a, f in zip(mine.faults, new.faults, strict=True):
         if a.delays_us and f.delays_us:
@@ -107,12 +110,16 @@ def verdict(mine: LoopDiagnosability, new: LoopDiagnosability) -> list[str]:
            f"{'yes' if not lost else 'NO, not ' + ', '.join(lost)}"
            + (f"; and {', '.join(gained)} besides" if gained else "")]
     if more or fewer:
-        out.append("runs isolated: more for " + (", ".join(more) or "none") + "; fewer for "
-                   + (", ".join(fewer) or "none"))
+        out.append("share of runs isolated: more for " + (", ".join(more) or "none")
+                   + "; fewer for " + (", ".join(fewer) or "none"))
     if faster or slower:
         out.append("median delay: shorter for " + (", ".join(faster) or "none")
                    + "; longer for " + (", ".join(slower) or "none"))
     return out
+
+
+def _share(f: FaultDiagnosis) -> str:
+    return f"{100 * f.isolated / f.runs:.1f} %" if f.runs else "-"
 
 
 def _median(values: Sequence[int]) -> str:

@@ -9,7 +9,7 @@ import json
 
 from hmi.project.device_models import DEVICE_MODELS as MODELS
 from hmi.project.model import Project
-from hmi.studies.synthesis import SYNCH, TIMEOUT, Deviation, Diagnoser, Target
+from hmi.studies.synthesis import MARGIN_SCANS, SYNCH, TIMEOUT, Deviation, Diagnoser, Target
 from hmi.timefmt import format_duration
 
 
@@ -102,7 +102,7 @@ def to_yaml(project: Project, d: Diagnoser) -> str:
         f"# Step 2, normal behaviour: the fault-free closed loop (control law '{law}', filter "
         f"'{project.policy}') seen",
         f"#   through that vector; a window is the dwell observed widened by "
-        f"{_scans(2, period)} each side.",
+        f"{_scans(MARGIN_SCANS, period)} each side.",
         f"# Step 3, faults: every fault injected every {format_duration(d.grid_us)} of the "
         "cycle and 1 us before and after each",
         "#   normal event, observing only and under FTC "

@@ -7,7 +7,9 @@ A state is an *estimate*: the states of the generator the loop can be in after t
 word (entered by an observable event, or the initial state), each with the failure types that
 may have occurred on the way (Sampath et al. 1995). When runs with different failure types
 reach the same generator state, the state keeps the types common to all of them plus the
-label ``A`` (ambiguous): libFAUDES' label correction, reproduced here so the comparison can be
+label ``A`` (ambiguous); the next step keeps ``A`` only where it stands alone and no fault
+event is on the way (Sampath's label propagation: beside a failure type, or after a fault, the
+run is faulty for certain). This is what libFAUDES does, reproduced so the comparison can be
 exact. ``N`` (normal) is the empty label set.
 
 Built from the project's own abstraction with its own algorithm (a subset construction over
@@ -71,7 +73,9 @@ def untimed_diagnoser(gen: Generator, types: Mapping[str, set[str]]) -> UntimedD
                 if ev in gen.observable:
                     continue
                 kind = type_of.get(ev)
-                nxt = (z, ls | {kind} if kind is not None else ls)
+                # Sampath's label propagation: a fault on the way makes the state certain
+                # of it, so an ambiguity before it is dropped.
+                nxt = (z, (ls - {AMBIGUOUS}) | {kind} if kind is not None else ls)
                 if nxt not in seen:
                     seen.add(nxt)
                     stack.append(nxt)
@@ -80,7 +84,10 @@ def untimed_diagnoser(gen: Generator, types: Mapping[str, set[str]]) -> UntimedD
     def step(estimate: Estimate) -> dict[str, Estimate]:
         found: dict[str, dict[int, list[Labels]]] = {}
         for x, labels in estimate:
-            for y, ls in unobservable_reach(x, labels):
+            # Sampath's label propagation keeps A only alone ({A}: a fault may or may not
+            # have occurred); beside failure types it is dropped.
+            start = labels if labels == {AMBIGUOUS} else labels - {AMBIGUOUS}
+            for y, ls in unobservable_reach(x, start):
                 for ev, z in out.get(y, ()):
                     if ev in gen.observable:
                         found.setdefault(ev, {}).setdefault(z, []).append(ls)

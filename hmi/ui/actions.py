@@ -59,6 +59,10 @@ ACTIONS: tuple[OperatorAction, ...] = (
     OperatorAction("trends", "t", "Trends", "Trends…",
                    "The history of chosen signals over minutes to days, alarms on the time "
                    "axis (the cell's historian)", footer=False),
+    OperatorAction("engineering", "E", "Eng view", "View: engineering names on / off",
+                   "Show the model's names too (steps, diagnoser states and labels, flags, "
+                   "rules, timers, bounds), or the operator's words only; journalled",
+                   key_display="E", footer=False),
     OperatorAction("quit", "q", "Quit", "Quit", "Stop the scan and leave the HMI"),
 )
 

@@ -52,6 +52,7 @@ from hmi.engine.commands import (
     SetMode,
     SetPolicy,
     SetSpeed,
+    SetView,
     Shelve,
     StartRecovery,
     StepScans,
@@ -59,12 +60,14 @@ from hmi.engine.commands import (
     Unshelve,
     describe,
 )
+from hmi.engine.criteria import Wait
 from hmi.engine.scan import Engine
 from hmi.engine.snapshot import Snapshot
 from hmi.explain.model import Policy
+from hmi.explain.plain import PlainNames
 from hmi.explain.reset import ResetLine, reset_preview
 from hmi.link.base import CellLink, ResetGuard, View
-from hmi.link.local import SessionLink
+from hmi.link.local import LocalLink, SessionLink
 from hmi.project.diagnosers import diagnosers_of
 from hmi.project.injection import Injection
 from hmi.project.model import POLICIES
@@ -94,8 +97,9 @@ from hmi.ui.message_line import MessageLine, result_text, spoken, verdict_text
 from hmi.ui.messages import CommandRequested, ExplainRequested
 from hmi.ui.monitors_panel import MonitorsPanel
 from hmi.ui.panel import TOP_SHARE, ColumnPanel
+from hmi.ui.presence import SILENT_S
 from hmi.ui.reset import Asked, recovery_lines, reset_lines
-from hmi.ui.serving import Served, serving_lines
+from hmi.ui.serving import Served, gateway_lines, serving_lines
 from hmi.ui.sim_panel import SimPanel
 from hmi.ui.status import BannerStrip, StatusBar
 from hmi.ui.style import ISA101, MUTED, OK_SYMBOL, Level, isa101_theme, tag
@@ -173,7 +177,7 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         screen refreshes on a timer, else whoever runs virtual time shows the frames."""
         super().__init__()
         if isinstance(link, Session):
-            link = SessionLink(link, live=live)
+            link = LocalLink(link, live=live)
         self.link: CellLink = link
         self.facts = link.facts
         self.served = served  # the cell's OPC UA server (--opcua): its status is shown
@@ -183,10 +187,13 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         self.show_measured = live if show_measured is None else show_measured
         self.refresh_hz = refresh_hz
         self.history = link.history  # every scan's edges and plant events (chronogram)
+        self.stop_cell = False  # the operator quit and asked the cell to stop too
+        self._asked: str | None = None  # the screen whose control request was asked
         self.frame: Frame | None = None
         self.frames_shown = 0  # frames handed to the panels (the UI refresh count)
         self._key: tuple | None = None
         self._version = 0  # bumped when something the frame shows changes outside the scan
+        self.engineering = False  # the engineering view (E): internal names shown too
         self._stepping = False
         self._request: tuple[str, bool, int, str] | None = None  # pending manual verdict
         self._injected: list[InjectedFault] = []  # shown on the SIMULATION strip
@@ -231,6 +238,31 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         last = self.link.last
         return (last.scan, last.time_us) if last is not None else (0, 0)
 
+    def _row_descriptions(self, descriptions: dict[str, str]) -> dict[str, str]:
+        """The I/O table's Description cells: each without its device's name in front when
+        the device is the same on every row (the valve: "closed end switch", not "Valve
+        V1 closed end switch" cut to "Valve" at 80 columns); several devices keep theirs."""
+        io = (*self.project.inputs, *self.project.outputs)
+        devices = {v.device for v in io}
+        if len(devices) != 1 or None in devices:
+            return descriptions
+        device = next(iter(devices))
+        out = dict(descriptions)
+        for v in io:
+            text = v.description
+            if device and text.lower().startswith(device.lower()):
+                out[v.name] = text[len(device):].strip(" :-—,") or text
+        return out
+
+    def _wait_words(self, law) -> Callable[[Wait], str] | None:
+        """What a step waits for, in the words the explanations use."""
+        if law.grafcet is None:
+            return None
+        from hmi.explain.context import ExplanationContext
+        from hmi.explain.sequence import wait_words
+        context, grafcet = ExplanationContext(self.project), law.grafcet
+        return lambda wait: wait_words(context, grafcet, wait)
+
     def compose(self) -> ComposeResult:
         facts = self.facts
         project = self.project
@@ -246,20 +278,26 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         constraints = [ConstraintInfo(c.name, c.kind, c.expr.source, c.description)
                        for c in project.constraints]
         diagnosers = diagnosers_of(project)
-        partitions = {p.flag: PartitionInfo(p.flag, p.sensor, p.estimate, p.actuators)
-                      for spec in diagnosers for p in spec.partitions}
+        plain = PlainNames(project)
+        partitions = {p.flag: PartitionInfo(
+            p.flag, p.sensor, p.estimate, p.actuators, p.description or "",
+            plain.name(p.sensor) if p.sensor else "",
+            tuple(plain.name(a) for a in p.actuators))
+            for spec in diagnosers for p in spec.partitions}
         yield StatusBar(id="status")
         yield BannerStrip(id="banners")
         with Body(id="body"):
             with Horizontal(id="top"):
                 with Vertical(id="col-plant"):
                     yield IOPanel(facts.layout, descriptions, self.free_inputs, id="io",
+                                  row_descriptions=self._row_descriptions(descriptions),
                                   devices={v.name: v.device for v in project.outputs
                                            if v.device},
                                   partitions=tuple(partitions.values()))
                     yield ConstraintsPanel(constraints, id="constraints")
                 with Vertical(id="col-logic"):
-                    yield GrafcetPanel(facts.control, steps, timers, id="control")
+                    yield GrafcetPanel(facts.control, steps, timers, id="control",
+                                       words=self._wait_words(law))
                     yield DiagnosersPanel(partitions, len(diagnosers), id="diagnosers")
                     yield MonitorsPanel(len(monitors_of(project)), id="monitors")
             with Horizontal(id="bottom"):
@@ -412,9 +450,14 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         contained = self.containment
         frame_faults = contained.version
         serving = self.served.status() if self.served is not None else None
+        gateway = next((s for s in view.services if s.name == "opcua"), None)
         overruns = self.driver.overruns
-        key = (snap.scan, id(snap), run, view.run.speed, overruns,
-               self._version, self._mode_commanded, contained.version, serving)
+        lost = self.link.lost
+        silent = self.link.silent_s()
+        silent = float(int(silent)) if silent >= SILENT_S else 0.0
+        key = (snap.scan, id(snap), run, view.run.speed, overruns, view.control, lost,
+               silent, self._version, self._mode_commanded, contained.version, serving,
+               gateway)
         if not force and key == self._key:
             return False
         self._key = key
@@ -425,7 +468,11 @@ class PlcHmiApp(LastResort, ContainedPump, App):
             injected=tuple(self._injected), free_inputs=self.free_inputs,
             damage_count=view.damage_count, mode_commanded=self._mode_commanded,
             constraints=view.constraints, ui_fault=contained.latest,
-            ui_faults=contained.total, serving=serving)
+            ui_faults=contained.total, serving=serving, gateway=gateway,
+            control=view.control,
+            me=self.link.client, lost=lost, silent_s=silent,
+            engineering=self.engineering)
+        self._show_presence(frame)
         self.frame = frame
         for view in self._views:  # one panel failing leaves the others showing this frame
             try:
@@ -455,6 +502,104 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         self._judge_request(snap)
         self.frames_shown += 1
         return True
+
+    # -- among the cell's screens (hmi.ui.presence) --------------------------------------
+    def _show_presence(self, frame: Frame) -> None:
+        """The runtime lost (the screen dimmed: nothing is live), and control changing hands:
+        said on the message line; a request from another screen asked in a dialog."""
+        gone = bool(frame.lost or frame.silent_s)
+        if self.has_class("-lost") != gone:
+            self.set_class(gone, "-lost")
+        if frame.lost and (self.frame is None or not self.frame.lost):
+            self.message.say(tag(f"RUNTIME LOST: {frame.lost}", Level.ALARM))
+        before = self.frame.control if self.frame is not None else None
+        now = frame.control
+        if now is None or frame.lost:
+            return
+        me = frame.me
+        had = before is not None and before.holder is not None and before.holder.id == me
+        has = now.holder is not None and now.holder.id == me
+        if had and not has:
+            who = f"{now.holder} is in control now" if now.holder else "nobody is in control"
+            self.message.say(tag(f"{who}: this screen's commands are refused until it has "
+                                 "control again", Level.ATTENTION))
+        elif has and not had and before is not None:
+            self.message.say(Text(f"{OK_SYMBOL} this screen is in control"))
+        asked = now.asked_by
+        if has and asked is not None and asked.id != self._asked:
+            self._asked = asked.id
+            self._ask_hand_over(asked)
+        elif asked is None:
+            self._asked = None
+
+    def _ask_hand_over(self, asked) -> None:
+        from hmi.ui.dialogs import ConfirmDialog
+        who = asked
+
+        def answered(yes: bool | str | None) -> None:
+            result = self.link.hand_over(asked.id if yes else "")
+            self.message.say(result_text(
+                f"control handed over to {who}" if yes else "control kept", result))
+        self.push_screen(ConfirmDialog(
+            f"{who.identity.user} asks for control", [
+                f"{who} asks to take control of the cell.",
+                "y: hand control over — this screen's commands are refused from then on;",
+                "n: keep it — they are told you kept it, and may take it over anyway."],
+            "Hand over", dialog_id="control-request"), answered)
+
+    def request_control(self) -> None:
+        result = self.link.request_control()
+        self.message.say(result_text("request control", result))
+
+    def take_control(self) -> None:
+        from hmi.ui.dialogs import ConfirmDialog
+        view = self.link.view()
+        holder = view.control.holder if view is not None and view.control else None
+        lines: list[Text | str] = ["This screen takes control of the cell without waiting "
+                                   "for an answer."]
+        if holder is not None:
+            lines.append(f"{holder} loses it at once; their commands are refused from "
+                         "then on, and they are told.")
+
+        def answered(yes: bool | str | None) -> None:
+            if yes:
+                self.message.say(result_text("take control", self.link.take_control()))
+            else:
+                self.message.say(Text("cancelled: take control", style=MUTED))
+        self.push_screen(ConfirmDialog("Take control over?", lines, "Take control",
+                                       dialog_id="control-take"), answered)
+
+    def release_control(self) -> None:
+        self.message.say(result_text("release control", self.link.release_control()))
+
+    def hand_over(self, to: str, who: str) -> None:
+        self.message.say(result_text(f"hand control over to {who}", self.link.hand_over(to)))
+
+    def _control_entries(self) -> list[PaletteEntry]:
+        """Control among several screens: request, take over, release, hand over."""
+        from hmi.ui.palette import PaletteEntry
+        view = self.link.view()
+        control = view.control if view is not None else None
+        if control is None or self.link.client is None or self.link.lost:
+            return []
+        if not self.link.identity.may_command:
+            return []
+        holder = control.holder
+        if holder is None or holder.id != self.link.client:
+            held = f" from {holder}" if holder else ""
+            return [PaletteEntry("Control: request it", "Granted at once if nobody holds it; "
+                                 f"else {holder or 'the holder'} is asked",
+                                 self.request_control),
+                    PaletteEntry(f"Control: take it over{held}…", "Without waiting for an "
+                                 "answer (confirmed first)", self.take_control)]
+        entries = [PaletteEntry("Control: release it", "Nobody is in control until a "
+                                "screen takes it", self.release_control)]
+        for client in control.clients:
+            if client.id != self.link.client and client.identity.may_command:
+                entries.append(PaletteEntry(
+                    f"Control: hand over to {client}", f"screen {client.id}",
+                    partial(self.hand_over, client.id, str(client))))
+        return entries
 
     def _ring(self, snap) -> None:
         """The bell, once per P1 alarm that became active and unacknowledged since the last
@@ -734,6 +879,9 @@ class PlcHmiApp(LastResort, ContainedPump, App):
                 self.explanation_panel.forget_results()
             case FaultReset() if result.accepted:
                 self.explanation_panel.forget_results()  # what they answered has changed
+            case SetView(engineering=engineering) if result.accepted:
+                self.engineering = engineering
+                self._version += 1
         if result.accepted and not isinstance(command, RUN_STATE_COMMANDS) \
                 and not self.running:
             text.append(" — applies at the next scan (paused)", style=MUTED)
@@ -846,17 +994,57 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         self.action_manual_request(name, value)
 
     async def action_quit(self) -> None:
-        """Quitting ends control of the plant: asked, with what happens to the outputs."""
+        """Quitting ends control of the plant: asked, with what happens to the outputs. A
+        screen of a runtime in another process asks whether the cell stops too, or runs on
+        without it (only the screen in control may stop it)."""
         from hmi.ui.dialogs import ConfirmDialog
+        if not self.link.scans_here and not self.in_control:
+            self.push_screen(ConfirmDialog("Quit this screen?", self._leave_lines(), "Quit",
+                                           dialog_id="quit-dialog"), self._quit_confirmed)
+            return
         title, lines, level = self._quit_lines()
-        self.push_screen(ConfirmDialog(title, lines, "Quit", level=level,
-                                       dialog_id="quit-dialog"), self._quit_confirmed)
+        if self.link.scans_here:
+            self.push_screen(ConfirmDialog(title, lines, "Quit", level=level,
+                                           dialog_id="quit-dialog"), self._quit_confirmed)
+            return
+        lines = [Text("y: stop the cell", style="bold"), *lines,
+                 Text("g: leave it running", style="bold"), *self._leave_lines()]
+        self.push_screen(ConfirmDialog("Quit: stop the cell, or leave it running?", lines,
+                                       "Stop the cell", level=level,
+                                       dialog_id="quit-dialog",
+                                       alternative="Leave it running"), self._quit_confirmed)
 
-    def _quit_confirmed(self, yes: bool | None) -> None:
-        if yes:
+    def _quit_confirmed(self, yes: bool | str | None) -> None:
+        if yes == "alternative":
+            self.stop_cell = False
+            self.exit()
+        elif yes:
+            self.stop_cell = not self.link.scans_here and self.in_control
             self.exit()
         else:
             self.message.say(Text("cancelled: quit — the scan goes on", style=MUTED))
+
+    def _leave_lines(self) -> list[Text | str]:
+        """Leaving without stopping the cell: what goes on, and who is in control."""
+        view = self.link.view()
+        holder = view.control.holder if view and view.control else None
+        lines: list[Text | str] = ["The cell keeps running without this screen: its scan, "
+                                   "the safety filter, the alarms and the journal go on."]
+        if holder is None or holder.id == self.link.client:
+            lines.append("Nobody is in control until a screen takes it (plchmi attach "
+                         "shows the cell again).")
+        else:
+            lines.append(f"{holder} stays in control.")
+        return lines
+
+    @property
+    def in_control(self) -> bool:
+        """This screen is the one in control (the only one, for a session in this process)."""
+        if self.link.client is None:
+            return True
+        view = self.link.view()
+        holder = view.control.holder if view and view.control else None
+        return holder is not None and holder.id == self.link.client
 
     def _quit_lines(self) -> tuple[str, list[Text | str], Level]:
         snap = self.link.last
@@ -988,6 +1176,9 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         from hmi.ui.dialogs import ChoiceDialog
         alarm = self._listed_alarm(key, "shelve")
         if alarm is None:
+            return
+        if alarm.latched and alarm.active:  # refused before a duration is asked for
+            self.refuse("shelve", "latched: a fault reset clears it once its cause is gone")
             return
         options = [("once", Text("once: until its condition clears")),
                    *((str(us), Text(f"for {label}")) for us, label in SHELVE_TIMES)]
@@ -1210,6 +1401,10 @@ class PlcHmiApp(LastResort, ContainedPump, App):
             order = [s.name for s in self.history.signals]
             self.set_signals(tuple(sorted((*current, name), key=order.index)))
 
+    def action_engineering(self) -> None:
+        """The engineering view on or off: one key, shown in the status bar, journalled."""
+        self.send(SetView(not self.engineering))
+
     def action_window(self, window_us: int | None = None) -> None:
         chrono = self.chronogram
         if window_us is None:
@@ -1279,6 +1474,7 @@ class PlcHmiApp(LastResort, ContainedPump, App):
             entries.append(PaletteEntry(f"Chronogram: last {window // 1_000_000} s",
                                         "Time window of the timing diagram",
                                         partial(self.action_window, window)))
+        entries += self._control_entries()
         if self.facts.history:
             from hmi.history.catalogue import catalogue
             found = catalogue(self.project, self.facts.layout)
@@ -1287,7 +1483,8 @@ class PlcHmiApp(LastResort, ContainedPump, App):
                     f"Trends: maintenance of {device}",
                     "Its travel times and operations over the whole history",
                     partial(self.open_trends, found.maintenance(device), True)))
-        if self.served is not None:
+        if self.served is not None or (self.frame is not None
+                                       and self.frame.gateway is not None):
             entries.append(PaletteEntry(
                 "OPC UA server: endpoint, clients, security",
                 "What the SCADA sees of this cell: where it is served, who is connected",
@@ -1299,6 +1496,9 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         from hmi.ui.dialogs import InfoDialog
         if self.served is not None:
             self.push_screen(InfoDialog("OPC UA server", serving_lines(self.served.status()),
+                                        dialog_id="opcua-dialog"))
+        elif self.frame is not None and self.frame.gateway is not None:
+            self.push_screen(InfoDialog("OPC UA server", gateway_lines(self.frame.gateway),
                                         dialog_id="opcua-dialog"))
 
 
@@ -1340,10 +1540,11 @@ class PlcHmiApp(LastResort, ContainedPump, App):
                     f"{spec.device}: recovery mode, filtered by its own constraints",
                     partial(self.start_recovery, spec.name)))
         for alarm in snap.alarms:
-            entries.append(PaletteEntry(f"Alarms: shelve… {alarm.text}",
-                                        "Hide it from the list for a while or until it clears "
-                                        "(journalled meanwhile; not a latched safety alarm)",
-                                        partial(self.shelve, alarm.key)))
+            if not (alarm.latched and alarm.active):  # what would be refused is not offered
+                entries.append(PaletteEntry(f"Alarms: shelve… {alarm.text}",
+                                            "Hide it from the list for a while or until it "
+                                            "clears (journalled meanwhile)",
+                                            partial(self.shelve, alarm.key)))
             entries.append(PaletteEntry(f"Alarms: comment on {alarm.text}…",
                                         "A note on this alarm, in the journal",
                                         partial(self.comment, alarm.key)))

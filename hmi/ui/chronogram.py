@@ -134,6 +134,11 @@ class Chronogram(ContainedPump, Widget):
         if key != self._drawn:
             self._drawn = key
             self.refresh()
+        # the mark before a value, said where it shows
+        legend = "≠: the filter changed it" if any(
+            name in frame.changed for name in self.signals) else ""
+        if self.border_subtitle != legend:
+            self.border_subtitle = legend
 
     def watch_window_us(self) -> None:
         self.border_title = f"Chronogram · last {self.window_us // 1_000_000} s"
@@ -157,7 +162,9 @@ class Chronogram(ContainedPump, Widget):
             return text
         frame = self.frame
         width = self.size.width
-        label_w = min(MAX_LABEL, max(len(_label(n)) for n in self.signals))
+        # whole names (PLATE_CLOSED, not PLATE_CL) while 40 columns of plot are left
+        cap = 2 * MAX_LABEL if width - 2 * MAX_LABEL - 3 >= 40 else MAX_LABEL
+        label_w = min(cap, max(len(_label(n)) for n in self.signals))
         plot_w = max(1, width - label_w - 3)
         end = frame.snapshot.time_us if frame else 0
         start = max(0, end - self.window_us)

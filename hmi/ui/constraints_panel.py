@@ -116,16 +116,19 @@ class ConstraintsPanel(TextPanel):
             rows.append((rank, index, info, word))
             self.violated += rank < 2
         if not rows:
-            text.append(f"{OK_SYMBOL} none violated since the start "
-                        f"(policy {frame.snapshot.policy})", style=MUTED)
+            text.append(f"{OK_SYMBOL} none violated since the start", style=MUTED)
             return text
-        name_w = max(len(info.name) for _, _, info, _ in rows)
+        # the rule's name only in the engineering view: its explanation (or description)
+        # says what it is in words
+        name_w = max(len(info.name) for _, _, info, _ in rows) if frame.engineering else -1
         for i, (rank, _, info, word) in enumerate(sorted(rows, key=lambda r: r[:2])):
             if i:
                 text.append("\n")
             self.row_names.append(info.name)
             stats = frame.constraints.get(info.name)
-            text.append(info.name.ljust(name_w) + " ", style="bold" if rank < 2 else MUTED)
+            if frame.engineering:
+                text.append(info.name.ljust(name_w) + " ",
+                            style="bold" if rank < 2 else MUTED)
             cell = word.copy()
             cell.pad_right(12 - cell.cell_len)
             text.append_text(cell)

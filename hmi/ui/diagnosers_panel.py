@@ -42,6 +42,11 @@ class PartitionInfo:
     sensor: str | None
     estimate: str | None
     actuators: tuple[str, ...]
+    # the operator's words (hmi.explain.plain): the part ("closed end switch"), its sensor,
+    # its orders
+    words: str = ""
+    sensor_words: str = ""
+    actuator_words: tuple[str, ...] = ()
 
 
 def decision_cell(labels: tuple[str, ...], final: bool) -> Text:
@@ -71,8 +76,27 @@ def flags_text(flags: tuple[tuple[str, bool], ...], partitions: dict[str, Partit
     return text
 
 
+def plain_flags_text(flags: tuple[tuple[str, bool], ...],
+                     partitions: dict[str, PartitionInfo]) -> Text | None:
+    """The operator's flags line: only the parts distrusted, by their words."""
+    text = Text()
+    for name, value in flags:
+        info = partitions.get(name)
+        if not value or info is None:
+            continue
+        level = Level.ALARM if info.actuators else Level.ATTENTION
+        if text:
+            gap(text, 2)
+        else:
+            text.append("distrusted: ", style=MUTED)
+        text.append(f"{'✗' if level is Level.ALARM else '▲'} {info.words or name}",
+                    style=STYLE[level])
+    return text or None
+
+
 def effects_text(flags: tuple[tuple[str, bool], ...], partitions: dict[str, PartitionInfo],
-                 reconstructed: set[str], masked: set[str]) -> Text | None:
+                 reconstructed: set[str], masked: set[str], engineering: bool = True
+                 ) -> Text | None:
     """What the set flags do now: sensors read from their estimate, orders masked."""
     text = Text()
     for name, value in flags:
@@ -82,18 +106,59 @@ def effects_text(flags: tuple[tuple[str, bool], ...], partitions: dict[str, Part
         if info.sensor and info.sensor in reconstructed:
             if text:
                 gap(text, 3)
-            text.append(f"≈ {info.sensor} from {info.estimate}", style=STYLE[Level.ATTENTION])
+            text.append(f"≈ {info.sensor} from {info.estimate}" if engineering else
+                        f"≈ {info.sensor_words or info.sensor} estimated",
+                        style=STYLE[Level.ATTENTION])
         outs = [o for o in info.actuators if o in masked]
+        words = dict(zip(info.actuators, info.actuator_words, strict=False))
         if outs:
             if text:
                 gap(text, 3)
-            text.append(f"⊘ {', '.join(outs)} masked ({name})", style=STYLE[Level.ALARM])
+            text.append(f"⊘ {', '.join(outs)} masked ({name})" if engineering else
+                        f"⊘ {', '.join(words.get(o, o) for o in outs)} held at 0",
+                        style=STYLE[Level.ALARM])
         elif info.actuators:
             if text:
                 gap(text, 3)
             text.append(f"{', '.join(info.actuators)} not masked ({name}: monitor policy or "
-                        "observe mode)", style=MUTED)
+                        "observe mode)" if engineering else
+                        f"{', '.join(words.get(o, o) for o in info.actuators)} still driven "
+                        "(monitor policy or observe mode)", style=MUTED)
     return text or None
+
+
+def plain_lines(d: DiagnoserState, partitions: dict[str, PartitionInfo], reconstructed: set[str],
+                masked: set[str], detail: int) -> list[Text]:
+    """The operator's view of a diagnoser: its device, what it sees, the suspected faults
+    in words, what it distrusts and what that does; no state, label or flag names."""
+    head = Text()
+    device = d.device or d.name
+    if d.faulty:
+        head.append(f"✗ {device}: ", style=STYLE[Level.ALARM])
+    else:
+        head.append(f"● {device}: ", style=Style(bold=True))
+    head.append(d.description or ("fault suspected" if d.faulty else "normal"),
+                style=None if d.faulty else MUTED)
+    if detail == 0:
+        return [head]
+    head.append(f" · since {seconds(d.since_us)} s", style=MUTED)
+    lines = [head]
+    if d.faulty:
+        line = Text("  ")
+        if len(d.labels) == 1:
+            line.append("certain: ", style=STYLE[Level.ALARM])
+        else:
+            line.append("ambiguous: " if d.final else "not yet isolated: ",
+                        style=STYLE[Level.ATTENTION])
+        line.append(" or ".join(d.label_texts), style=STYLE[Level.ALARM])
+        lines.append(line)
+    flags = plain_flags_text(d.flags, partitions)
+    if flags is not None:
+        lines.append(Text("  ").append_text(flags))
+    effects = effects_text(d.flags, partitions, reconstructed, masked, engineering=False)
+    if effects is not None and detail >= 2:
+        lines.append(Text("  ").append_text(effects))
+    return lines
 
 
 def diagnoser_lines(d: DiagnoserState, partitions: dict[str, PartitionInfo],
@@ -159,6 +224,7 @@ class DiagnosersPanel(ColumnPanel):
         name_w = max(len(d.name) for d in snap.diagnosers)
         reconstructed, masked = set(snap.reconstructed), set(snap.masked)
         lines = [line for d in snap.diagnosers
-                 for line in diagnoser_lines(d, self.partitions, reconstructed, masked,
-                                             name_w, detail)]
+                 for line in (diagnoser_lines(d, self.partitions, reconstructed, masked,
+                                              name_w, detail) if frame.engineering else
+                              plain_lines(d, self.partitions, reconstructed, masked, detail))]
         return Text("\n", no_wrap=True, overflow="ellipsis").join(lines)

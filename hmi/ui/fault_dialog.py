@@ -62,7 +62,7 @@ class FaultDialog(Dialog[Injection | None]):
             yield Input("0", id="delay", placeholder="0, 5, 2.5s, 500ms", compact=True)
             yield Static("For how long (a halt...; empty = until repaired)",
                          classes="dialog-line")
-            yield Input("", id="duration", placeholder="empty, 2, 1.5s, 500ms", compact=True)
+            yield Input("", id="duration", placeholder="until repaired; or 2s, 500ms", compact=True)
             yield Label("", id="error", classes="dialog-error")
 
     def on_mount(self) -> None:

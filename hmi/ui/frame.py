@@ -14,9 +14,11 @@ from hmi.engine.snapshot import Snapshot
 from hmi.project.injection import Injection
 from hmi.session.recorder import ConstraintStats
 from hmi.ui.containment import UIFault
+from hmi.wire.messages import ControlInfo
 
 if TYPE_CHECKING:  # the HMI without --opcua never imports anything of OPC UA
     from hmi.opcua.status import ServingStatus
+    from hmi.wire.messages import ServiceStatus
 
 
 @dataclass(frozen=True)
@@ -48,6 +50,14 @@ class Frame:
     ui_fault: UIFault | None = None  # the latest UI error contained (hmi.ui.containment)
     ui_faults: int = 0  # how many UI errors were contained this session
     serving: ServingStatus | None = None  # the cell's OPC UA server (--opcua), if any
+    gateway: ServiceStatus | None = None  # the runtime's OPC UA gateway, if it has one
+    control: ControlInfo | None = None  # who is in control (None: no runtime, one screen)
+    me: str | None = None  # this screen's id at the runtime
+    lost: str | None = None  # why the runtime is gone: nothing shown is live
+    silent_s: float = 0.0  # since the runtime last said anything
+    # the engineering view: the panels show the model's names (steps, states, labels,
+    # flags, constraints, timers, bounds) beside the operator's words
+    engineering: bool = False
 
     @property
     def simulated(self) -> bool:

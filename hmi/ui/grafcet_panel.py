@@ -23,12 +23,14 @@ the alarm colour, instead of the arrow.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from rich.style import Style
 from rich.text import Text
 
 from hmi.engine.criteria import Wait
+from hmi.explain.plain import lower_first, without_notes
 from hmi.timefmt import format_duration
 from hmi.ui.frame import Frame
 from hmi.ui.panel import TextPanel, set_title
@@ -51,6 +53,11 @@ class TimerInfo:
     description: str
 
 
+def _plain_timer(info: TimerInfo) -> str:
+    """A timer in words: its description without its notes ('' without one)."""
+    return lower_first(without_notes(info.description))
+
+
 def _secs(us: int) -> str:
     return f"{us / 1_000_000:6.2f} s"
 
@@ -62,8 +69,11 @@ def timer_bar(elapsed_us: int, preset_us: int, width: int = BAR) -> str:
 
 class GrafcetPanel(TextPanel):
     def __init__(self, control: str, steps: list[StepInfo], timers: list[TimerInfo], *,
-                 id: str | None = None):
+                 words: Callable[[Wait], str] | None = None, id: str | None = None):
         super().__init__(id=id)
+        # what a step waits for in the operator's words (hmi.explain.sequence.wait_words);
+        # the engineering view prints the receptivity and its variables
+        self.words = words
         self.control = control
         self.steps = steps
         self.timers = timers
@@ -113,8 +123,7 @@ class GrafcetPanel(TextPanel):
         return next((t.sources for t in grafcet.transitions if t.number == wait.transition),
                     ())
 
-    @staticmethod
-    def _wait_line(text: Text, wait: Wait, stuck: bool) -> None:
+    def _wait_line(self, text: Text, wait: Wait, stuck: bool, engineering: bool) -> None:
         """`stuck`: said in words (on a short screen the step's ✗ and the title say it)."""
         if stuck:
             text.append("  ")
@@ -122,10 +131,13 @@ class GrafcetPanel(TextPanel):
             text.append(" ")
         else:
             text.append("  ↳ ", style=MUTED)
-        text.append(f"waits for {wait.condition}")
-        shown = wait.shown_values
-        if shown:
-            text.append(f" — {shown}")
+        if not engineering and self.words is not None:
+            text.append(f"waits for {self.words(wait)}")
+        else:
+            text.append(f"waits for {wait.condition}")
+            shown = wait.shown_values
+            if shown:
+                text.append(f" — {shown}")
         if wait.holds:
             text.append(f" {OK_SYMBOL} met", style=MUTED)
         text.append("\n")
@@ -135,7 +147,8 @@ class GrafcetPanel(TextPanel):
         active = set(snap.active_steps)
         self._waits_shown = self._placed(snap.waits, active) if active else {}
         width = max(20, self.content_size.width or 40)
-        name_w = max((len(s.name) for s in self.steps), default=2)
+        engineering = frame.engineering or self.words is None
+        name_w = max((len(s.name) for s in self.steps), default=2) if engineering else -1
         text = Text(no_wrap=True, overflow="ellipsis")
         if frame.manual_keys:  # (the program waits from the command on)
             text.append_text(tag("waiting — manual mode", Level.ATTENTION))
@@ -160,21 +173,32 @@ class GrafcetPanel(TextPanel):
                 stuck = step.name in snap.overdue_steps
                 mark = STYLE[Level.ALARM] if stuck else Style(bold=True)
                 text.append(f"{SYMBOL[Level.ALARM] if stuck else '●'} ", style=mark)
-                text.append(f"{step.name.ljust(name_w)} ", style="bold")
+                if engineering:
+                    text.append(f"{step.name.ljust(name_w)} ", style="bold")
                 text.append(desc, style="bold")
                 text.append(f" {_secs(int(elapsed))}\n", style=mark)
                 for wait in self._waits_shown.get(step.name, ()):
                     late = any(s in snap.overdue_steps
                                for s in (wait.step, *self._sources(wait)))
-                    self._wait_line(text, wait, late and not compact)
+                    self._wait_line(text, wait, late and not compact, engineering)
             else:
-                text.append(f"○ {step.name.ljust(name_w)} {desc}\n", style=MUTED)
+                text.append(f"○ {step.name.ljust(name_w) + ' ' if engineering else ''}{desc}"
+                            "\n", style=MUTED)
         timer_w = max((len(t.name) for t in self.timers), default=0)
+        plain_w = max((len(_plain_timer(t)) for t in self.timers), default=0)
         for state in snap.timers:
             if compact and not state.q and not state.elapsed_us:
                 continue  # short and shared: idle timers give their rows to the column
             info = next((t for t in self.timers if t.name == state.name), None)
             kind = info.kind if info else "TON"
+            if not engineering:  # a timer by what it times, not by its name and type
+                if info is None or not _plain_timer(info):
+                    continue
+                text.append(f"{_plain_timer(info).ljust(plain_w)} ", style=MUTED)
+                text.append(timer_bar(state.elapsed_us, state.preset_us))
+                text.append(f" {state.elapsed_us / 1e6:4.2f}/{format_duration(state.preset_us)}")
+                text.append("  done\n" if state.q else "\n", style="bold" if state.q else "")
+                continue
             text.append(f"{state.name.ljust(timer_w)} {kind} ", style=MUTED)
             text.append(timer_bar(state.elapsed_us, state.preset_us))
             text.append(f" {state.elapsed_us / 1e6:4.2f}/{format_duration(state.preset_us)}")

@@ -48,10 +48,15 @@ class IOPanel(ContainedPump, DataTable[Any]):
 
     def __init__(self, layout: Layout, descriptions: dict[str, str],
                  free_inputs: tuple[str, ...], *, id: str | None = None,
-                 devices: dict[str, str] | None = None, partitions: tuple[Any, ...] = ()):
+                 devices: dict[str, str] | None = None, partitions: tuple[Any, ...] = (),
+                 row_descriptions: dict[str, str] | None = None):
         super().__init__(id=id, cursor_type="row", zebra_stripes=False)
         self.layout_ = layout
         self.descriptions = descriptions
+        # the rows' Description cells (the app leaves out a device name every row repeats:
+        # at 80 columns "Valve" on every row said nothing); the border keeps the whole
+        # description of the highlighted row
+        self.row_descriptions = row_descriptions or descriptions
         self.free_inputs = free_inputs
         self.devices = devices or {}  # output -> its device (for devices the operator stops)
         # diagnoser partitions: sensor -> its estimate; output -> the flags that mask it
@@ -71,9 +76,10 @@ class IOPanel(ContainedPump, DataTable[Any]):
             self.add_column(label, key=key)
             self._widths[key] = len(label)
         for name in self.layout_.inputs:
-            self.add_row(name, "in", "", "", "", self.descriptions.get(name, ""), key=name)
+            self.add_row(name, "in", "", "", "", self.row_descriptions.get(name, ""), key=name)
         for name in self.layout_.outputs:
-            self.add_row(name, "out", "", "", "", self.descriptions.get(name, ""), key=name)
+            self.add_row(name, "out", "", "", "", self.row_descriptions.get(name, ""),
+                         key=name)
         if self.layout_.outputs:
             self.move_cursor(row=len(self.layout_.inputs))
 

@@ -25,7 +25,7 @@ from rich.text import Text
 
 from hmi.engine.monitors import MonitorState
 from hmi.engine.stopwatch import Window
-from hmi.timefmt import format_duration, seconds
+from hmi.timefmt import seconds
 from hmi.ui.frame import Frame
 from hmi.ui.panel import ColumnPanel, set_title
 from hmi.ui.style import MUTED, STYLE, Level
@@ -60,7 +60,8 @@ def _s(us: int) -> str:
 
 
 def _fmt(us: int) -> str:
-    return format_duration(us).removesuffix("s")
+    """A bound in seconds, for a figure followed by " s" ("0.2", not "200m" and "200m s")."""
+    return f"{us / 1_000_000:g}"
 
 
 def location_cell(m: MonitorState, name_w: int) -> Text:
@@ -99,6 +100,35 @@ def detection_text(m: MonitorState) -> Text:
     text.append(f" at {seconds(d.time_us)} s: x {seconds(d.x_us)} s, y {seconds(d.y_us)} s"
                 f" — {d.explain(window)}")
     return text
+
+
+PLAIN_LOCATIONS = {"waiting": "waiting", "executing": "running", "interrupted": "STOPPED",
+                   "faulty": "FAULT"}
+
+
+def plain_monitor_lines(m: MonitorState, width: int, detail: int) -> list[Text]:
+    """The operator's view of a task: its title, what it does, how long it has run against
+    the time it may take, and the fault in words; no stopwatch or label names."""
+    symbol, _word, level = LOCATIONS.get(m.location, ("?", m.location, Level.ATTENTION))
+    style = STYLE[level] if level is not Level.NORMAL else Style()
+    head = Text()
+    head.append(f"{symbol} ", style=style)
+    head.append(m.title, style=style + Style(bold=True) if level is not Level.NORMAL
+                else Style(bold=m.running))
+    head.append(f" · {PLAIN_LOCATIONS.get(m.location, m.location)}",
+                style=style if level is not Level.NORMAL else MUTED)
+    if detail == 0:
+        return [head]
+    times = Text("  time ")
+    times.append(window_bar(m.x_us, m), style=STYLE[Level.ALARM] if m.faulty else MUTED)
+    times.append(f" {_s(m.x_us)} of at most {_fmt(m.gamma_us)} s · worked {_s(m.y_us)} s, "
+                 f"needs {_fmt(m.alpha_us)}-{_fmt(m.beta_us)} s")
+    lines = [head, times]
+    if m.detection is not None and detail >= 2:
+        from hmi.explain.monitors import plain_reason
+        lines.append(Text("  ✗ ", style=STYLE[Level.ALARM]).append(
+            plain_reason(m.detection, m)))
+    return lines
 
 
 def monitor_lines(m: MonitorState, name_w: int, width: int, detail: int) -> list[Text]:
@@ -161,5 +191,7 @@ class MonitorsPanel(ColumnPanel):
         set_title(self, f"Monitors · {len(monitors)}"
                   + (f" · {faulty} faulty" if faulty else ""))
         name_w = max(len(m.name) for m in monitors)
-        lines = [line for m in monitors for line in monitor_lines(m, name_w, width, detail)]
+        lines = [line for m in monitors for line in (
+            monitor_lines(m, name_w, width, detail) if frame.engineering
+            else plain_monitor_lines(m, width, detail))]
         return Text("\n", no_wrap=True, overflow="ellipsis").join(lines)

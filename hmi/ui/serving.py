@@ -15,6 +15,7 @@ from hmi.ui.style import MUTED, Level, banner, tag
 
 if TYPE_CHECKING:
     from hmi.opcua.status import ServingStatus
+    from hmi.wire.messages import ServiceStatus
 
 
 class Served(Protocol):
@@ -84,4 +85,33 @@ def serving_lines(status: ServingStatus) -> list[Text]:
     lines.append(counts)
     if status.log:
         lines.append(Text(f"Server log: {status.log}", style=MUTED))
+    return lines
+
+
+# -- a gateway's server, as the runtime's frames tell it (hmi.cli.gateway) -----------------
+
+def gateway_field(status: ServiceStatus) -> tuple[Text, int]:
+    """The status bar's OPC UA field for the runtime's gateway (its clients with a
+    session, or that it is down), priority as serving_field's."""
+    if status.state in ("starting", "serving"):
+        return Text(f"OPC UA: {clients_text(status.clients)}"), 1
+    return tag(f"OPC UA {status.state.upper()}", Level.ATTENTION), 1
+
+
+def gateway_banner(status: ServiceStatus) -> Text | None:
+    if status.state in ("starting", "serving"):
+        return None
+    line = banner(f"OPC UA {status.state.upper()}", Level.ATTENTION)
+    line.append(f" {status.text} · the SCADA no longer sees this cell; the cell runs on")
+    return line
+
+
+def gateway_lines(status: ServiceStatus) -> list[Text]:
+    """The palette's page for the gateway: what it reported last."""
+    lines = [Text(status.text, style="bold")]
+    if status.state in ("starting", "serving"):
+        lines.append(Text(f"{clients_text(status.clients)} with a session"))
+    lines.append(Text("served by the OPC UA gateway, a process attached to the cell's "
+                      "runtime (plchmi gateway): its own log is gateway.log beside the "
+                      "runtime's", style=MUTED))
     return lines

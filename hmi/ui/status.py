@@ -18,11 +18,13 @@ from dataclasses import dataclass
 from rich.text import Text
 
 from hmi.engine.recovery import RecoveryState
+from hmi.explain.reset import reset_preview
 from hmi.timefmt import seconds
 from hmi.ui.alarm_list import urgent_count
 from hmi.ui.frame import Frame
 from hmi.ui.panel import TextPanel
-from hmi.ui.serving import serving_banner, serving_field
+from hmi.ui.presence import control_field, lost_banner, lost_field, lost_fields
+from hmi.ui.serving import gateway_banner, gateway_field, serving_banner, serving_field
 from hmi.ui.style import MUTED, Level, banner, tag
 
 SEPARATOR = " │ "
@@ -42,7 +44,11 @@ def status_fields(frame: Frame, wide: bool, compact: bool = False) -> list[Field
     """The status bar's fields; `compact` uses the short forms (80 columns)."""
     snap = frame.snapshot
     plant = snap.plant
+    if frame.lost:  # nothing is live: said first, and only what was last known
+        return [Field(*f) for f in lost_fields(frame)]
     fields: list[Field] = [Field(Text(frame.project, style="bold"), 2)]
+    if (gone := lost_field(frame)) is not None:  # first: what follows may be stale
+        fields.insert(0, Field(*gone))
     if plant.kind == "sim":
         fields.append(Field(tag("SIM", Level.SIMULATION), 2))
     else:
@@ -53,6 +59,12 @@ def status_fields(frame: Frame, wide: bool, compact: bool = False) -> list[Field
             fields.append(Field(tag(f"{where} DISCONNECTED", Level.ALARM), 0))
     if frame.serving is not None:
         fields.append(Field(*serving_field(frame.serving)))
+    elif frame.gateway is not None:
+        fields.append(Field(*gateway_field(frame.gateway)))
+    if (control := control_field(frame)) is not None:
+        fields.append(Field(*control))
+    if frame.engineering:  # never dropped: the screen then names the model's internals
+        fields.append(Field(tag("ENG" if compact else "ENG VIEW", Level.ATTENTION), 0))
     if snap.mode == "manual":
         fields.append(Field(tag("MANUAL", Level.ATTENTION), 0))
     elif snap.mode == "recovery":
@@ -181,8 +193,10 @@ class BannerStrip(TextPanel):
             self.show_text(Text("\n").join(lines))
 
 
-def recovery_banner(state: RecoveryState) -> Text:
-    """RECOVERY: what runs and how far it got, and the way out."""
+def recovery_banner(state: RecoveryState, reset_pending: bool = True) -> Text:
+    """RECOVERY: what runs and how far it got, and the way out. Done, the next key follows
+    what is left: a fault reset only while it has something to release (`reset_pending`),
+    then leaving recovery."""
     if state.status == "running":
         line = banner("RECOVERY", Level.ATTENTION)
         line.append(f" {state.step_text} {state.step}/{state.steps} · "
@@ -190,7 +204,9 @@ def recovery_banner(state: RecoveryState) -> Text:
                     f"{state.description} · m: leave")
     elif state.status == "done":
         line = banner("RECOVERY DONE", Level.ATTENTION)
-        line.append(f" next: r fault reset, then m leave recovery · {state.description}")
+        step = "r fault reset, then m leave recovery" if reset_pending else \
+            "m leave recovery"
+        line.append(f" next: {step} · {state.description}")
     else:
         line = banner("RECOVERY FAILED", Level.ALARM)
         line.append(f" {state.message} · m: leave recovery")
@@ -200,6 +216,8 @@ def recovery_banner(state: RecoveryState) -> Text:
 def banner_lines(frame: Frame) -> list[Text]:
     snap = frame.snapshot
     lines: list[Text] = []
+    if (gone := lost_banner(frame)) is not None:
+        lines.append(gone)
     if snap.mode == "manual":
         line = banner("MANUAL / FORCES ACTIVE", Level.ATTENTION)
         requests = dict(snap.manual)
@@ -208,7 +226,8 @@ def banner_lines(frame: Frame) -> list[Text]:
                     f" · filtered ({snap.policy}) · m: leave")
         lines.append(line)
     if snap.mode == "recovery":
-        lines.append(recovery_banner(snap.recovery))
+        lines.append(recovery_banner(snap.recovery, snap.recovery.status == "done" and any(
+            line.resets for line in reset_preview(snap))))
     if not snap.plant.connected:
         line = banner("PLANT DISCONNECTED", Level.ALARM)
         line.append(f" {snap.plant.description}: {snap.plant.message or 'no answer'}")
@@ -225,6 +244,9 @@ def banner_lines(frame: Frame) -> list[Text]:
         line.append(" " + "; ".join(r.detail for r in snap.latched)
                     + " · r: fault reset once the cause is gone")
         lines.append(line)
+    if frame.serving is None and frame.gateway is not None \
+            and (served := gateway_banner(frame.gateway)) is not None:
+        lines.append(served)
     if frame.serving is not None and (served := serving_banner(frame.serving)) is not None:
         lines.append(served)
     fault = frame.ui_fault

@@ -15,6 +15,11 @@ plant event as it happens.
 Communication faults are injected like device faults (`--inject busy@5s+2s`): `busy` answers
 every request with exception 6 (Server Device Busy), `mute` stops answering (the connection
 stays open, requests time out). `--delay 30ms` answers every request late (a slow server).
+
+`--watchdog 500ms` is the communication watchdog of a fieldbus coupler: if no request comes
+for that long (the controller died, its link broke), the device sets every order to the
+project's safe value by itself and says so, and keeps them there until a controller writes
+them again.
 """
 
 from __future__ import annotations
@@ -80,8 +85,12 @@ class PlantServer:
     def __init__(self, project: Project, unit: int, injections: Sequence[Injection] = (),
                  delay_us: int = 0, out: Callable[[str], None] = print,
                  max_connections: int = MAX_CONNECTIONS, idle_s: float = IDLE_S,
-                 warn: Callable[[str], None] | None = None):
+                 warn: Callable[[str], None] | None = None, watchdog_us: int | None = None):
         self.project = project
+        self.watchdog_us = watchdog_us
+        self._last_request_us = 0
+        self.watchdog_trips = 0
+        self._tripped = False
         self.unit = unit
         self.delay_us = delay_us
         self.out = out
@@ -122,6 +131,8 @@ class PlantServer:
     async def _gate(self, request: Request) -> None:
         """Communication faults and delay, before a request is carried out."""
         now = self.now_us()
+        self._last_request_us = now  # (the watchdog is fed by every request)
+        self._tripped = False
         for fault in self.comm_faults:
             if fault.active(now):
                 if fault.code == "busy":
@@ -187,6 +198,9 @@ class PlantServer:
             lines.append("Faults scheduled: " + ", ".join(str(i) for i in self.injections))
         if self.delay_us:
             lines.append(f"Every answer delayed by {format_duration(self.delay_us)}")
+        if self.watchdog_us is not None:
+            lines.append(f"Watchdog: no request for {format_duration(self.watchdog_us)} sets "
+                         "every order to its safe value")
         lines.append("Ctrl-C stops the server.")
         return lines
 
@@ -200,9 +214,36 @@ class PlantServer:
             orders = " ".join(f"{n}={int(v)}" for n, v in self.orders.items())
             self.out(f"{seconds(now):>10} s  {io}  |  {orders}")
 
+    def watch(self, now: int) -> None:
+        """The communication watchdog (module docstring): no request for its time, every
+        order goes to its safe value."""
+        if self.watchdog_us is None or self._tripped or \
+                now - self._last_request_us < self.watchdog_us:
+            return
+        self._tripped = True
+        self.watchdog_trips += 1
+        safe = {v.name: v.safe for v in self.project.outputs}
+        tables = set()
+        for p in self.map.outputs:
+            value = safe.get(p.name, False)
+            table = p.address.table
+            tables.add(table)
+            if table in BIT_TABLES:
+                self.tables.bits[table][p.address.index] = value
+            else:
+                registers = self.tables.registers[table]
+                mask = 1 << (p.address.bit or 0)
+                word = registers[p.address.index]
+                registers[p.address.index] = word | mask if value else word & ~mask
+        self.out(f"{seconds(now):>10} s  watchdog: no request for "
+                 f"{format_duration(self.watchdog_us)}: every order set to its safe value")
+        for table in sorted(tables):
+            self._take_orders(table)
+
     def tick(self) -> None:
         """Advance the physics to now and print what changed."""
         now = self.now_us()
+        self.watch(now)
         self._show(now)
         events = self.plant.events()
         for event in events[self._events_shown:]:
@@ -244,6 +285,7 @@ class PlantServer:
             reason = os.strerror(exc.errno) if exc.errno else str(exc)
             raise UsageError(f"cannot listen on {host}:{port}: {reason}") from None
         self._t0 = time.monotonic_ns()
+        self._last_request_us = 0
         if not is_loopback(host):
             self.warn(f"plchmi: warning: listening on {host}: the simulated plant can be read "
                       f"and driven by anyone who can reach port {bound} (Modbus has no "
@@ -273,12 +315,13 @@ def is_loopback(host: str) -> bool:
 
 def run_server(project: Project, host: str, port: int, unit: int,
                injections: list[Injection], delay_us: int = 0,
-               max_connections: int = MAX_CONNECTIONS, idle_s: float = IDLE_S) -> int:
+               max_connections: int = MAX_CONNECTIONS, idle_s: float = IDLE_S,
+               watchdog_us: int | None = None) -> int:
     def out(line: str) -> None:
         print(line, flush=True)
 
     def warn(line: str) -> None:
         print(line, file=sys.stderr, flush=True)
     server = PlantServer(project, unit, injections, delay_us, out, max_connections, idle_s,
-                         warn)
+                         warn, watchdog_us)
     return asyncio.run(server.serve(host, port))

@@ -1,0 +1,79 @@
+"""A cell's runtime: its scans, its screens' endpoint, and how it ends.
+
+The process runs the scan (a :class:`~hmi.session.live.LiveRunner` at real-time priority
+where the kernel allows it, or virtual time driven by the screen in control), the hub and
+the socket server, and nothing interactive: no Textual, no network server. It ends when the
+screen in control asks it to stop, on SIGTERM or SIGINT, or when its scan thread dies; the
+caller (hmi.cli.serve_cell) then leaves a real plant's outputs safe and closes the journal.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import threading
+from datetime import UTC, datetime
+from pathlib import Path
+
+from hmi.runtime.admission import Admission
+from hmi.runtime.hub import Hub
+from hmi.runtime.server import SocketServer
+from hmi.session.journal_recorder import JournalRecorder
+from hmi.session.live import LiveRunner
+from hmi.session.session import Session
+from hmi.wire import messages as m
+
+SWITCH_INTERVAL_S = 0.0005  # a waking scan thread waits at most this for the interpreter
+
+
+class Runtime:
+    def __init__(self, session: Session, fingerprint: str, socket: Path,
+                 journal: JournalRecorder | None = None, virtual: bool = False,
+                 realtime: bool = True, admission: Admission | None = None):
+        self.session = session
+        self.journal = journal
+        self.virtual = virtual
+        self.runner = None if virtual else LiveRunner(session, realtime=realtime)
+        info = m.RuntimeInfo(os.getpid(), datetime.now(UTC).isoformat(timespec="seconds"),
+                             virtual, "virtual time" if virtual else "starting")
+        # who may attach: the machine's users file (hmi.runtime.admission)
+        self.admission = admission or Admission()
+        self.hub = Hub(session, fingerprint, info, journal, self.runner, self.admission)
+        self.server = SocketServer(self.hub, socket)
+        self.ended = threading.Event()
+        self.why = ""
+        self.hub.on_stop.append(self.end)
+
+    def start(self) -> None:
+        """Listen, then scan (a real plant: connected before this is called)."""
+        self.server.start()
+        if self.runner is not None:
+            sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
+            self.runner.start()
+            self.runner.realtime_known.wait(5.0)
+            state = self.runner.realtime_state
+            self.hub.runtime = m.RuntimeInfo(
+                self.hub.runtime.pid, self.hub.runtime.started, False, state)
+            if self.journal is not None:
+                self.journal.on_service("runtime", f"the scan thread runs at {state}")
+
+    def end(self, why: str) -> None:
+        """Stop serving (every screen is told why) and let wait() return."""
+        if not self.ended.is_set():
+            self.why = why
+            self.ended.set()
+
+    def wait(self, poll_s: float = 0.2) -> str | None:
+        """Until the runtime is asked to end; the scan thread's death is an abnormal end:
+        returned as the reason (None: it ended as asked)."""
+        while not self.ended.wait(poll_s):
+            runner = self.runner
+            if runner is not None and runner.started and not runner.alive:
+                return f"the scan thread stopped: {runner.error!r}"
+        return None
+
+    def stop(self, why: str) -> None:
+        self.server.stop(why)
+        self.admission.close()
+        if self.runner is not None:
+            self.runner.stop()

@@ -1,0 +1,57 @@
+"""Readable at 80x24 and 160x48, the small defects: monitor bounds in seconds, the
+chronogram's mark explained and its names whole when wide, the I/O descriptions without a
+device name every row repeats."""
+
+from __future__ import annotations
+
+from tests.conftest import PROJECTS
+
+
+def test_monitor_bounds_are_seconds_not_a_unit_glued_to_s():
+    """The palletizer's 200 ms bounds read `0.2 s`, never `200m s`."""
+    from hmi.engine.monitors import MonitorState
+    from hmi.ui.monitors_panel import plain_monitor_lines, x_text, y_text
+
+    m = MonitorState("push", "push_fault", "Pusher pushing", "Pusher", "executing", 30_000,
+                     30_000, 100_000, 200_000, 300_000, 1, 0, True, None, None, None, 0, 0,
+                     "executing")
+    for text in (x_text(m).plain, y_text(m).plain,
+                 *(line.plain for line in plain_monitor_lines(m, 80, 2))):
+        assert "m s" not in text and "ms s" not in text, text
+    assert "0.03/0.3 s" in x_text(m).plain and "[0.1, 0.2]" in y_text(m).plain
+
+
+async def test_the_chronogram_says_what_its_mark_means_and_keeps_whole_names_when_wide():
+    from ui_harness import region_text, run_until
+    from ui_scenarios import make_app
+
+    app = make_app(control="faulty")
+    async with app.run_test(size=(160, 48)) as pilot:
+        await run_until(pilot, lambda s: s.filter is not None and bool(s.filter.changes), 10,
+                        "a filter correction")
+        await run_until(pilot, lambda s: True, 0.05, "a frame")
+        chrono = region_text(app, "#chronogram")
+        assert "≠" in chrono and "≠: the filter changed it" in chrono
+    from hmi.ui.chronogram import Chronogram
+    app = make_app(PROJECTS / "palletizer")
+    async with app.run_test(size=(160, 48)) as pilot:
+        await run_until(pilot, lambda s: s.scan > 2, 1, "a few scans")
+        chrono = app.query_one(Chronogram)
+        rows = [line.strip("│ ").split() for line in
+                region_text(app, "#chronogram").splitlines()[1:-2]]
+        labels = [row[0] for row in rows if row and not row[0].startswith("+")]
+        assert labels and any(len(label) > 8 for label in labels), labels
+        assert all(label in chrono.signals for label in labels), labels  # none cut
+
+
+async def test_the_io_descriptions_do_not_repeat_the_one_device_on_every_row():
+    from ui_harness import region_text, run_for
+    from ui_scenarios import make_app
+
+    app = make_app()
+    async with app.run_test(size=(160, 48)) as pilot:
+        await run_for(pilot, 0.1)
+        rows = region_text(app, "#io").splitlines()
+        fsc = next(line for line in rows if line.startswith("│ fsc "))
+        assert "closed end switch" in fsc and "Valve V1" not in fsc
+        assert any("C: Valve V1 close order" in line for line in rows)  # the border: whole
