@@ -8,7 +8,7 @@ runs: the states explored are counted per block (a state two blocks reach counts
 that count is fixed by the runs alone.
 
 The work is cut into shards that any worker computes alone from the project's files
-(hmi/farm/), by their cost: the blocks' compute times measured by the previous run of the same
+(hmi/farm/), by their cost: the blocks' CPU times measured by the previous run of the same
 sweep (kept next to the cache, :func:`cut`). Light blocks go together in one shard, a heavy
 block is split into pieces of consecutive runs; with no times known, a shard is a block. A
 worker explores each piece from the fault-free prefix (its explorer reset) and returns its
@@ -165,7 +165,7 @@ Piece = tuple[int, int, int]  # (configuration, first run, end): runs of one blo
 
 def cut(blocks: list[Piece], costs: list[float] | None) -> tuple[tuple[Piece, ...], ...]:
     """The shards, each a tuple of pieces in run order, from the blocks (in run order) and
-    each run's measured compute time, in the same order (None: one shard per block).
+    each run's measured CPU time, in the same order (None: one shard per block).
 
     Shards aim at `target`, the total time over SHARDS_WANTED and SHARD_MIN_S or more: a
     block above it is split into that many pieces of consecutive runs of about the same time,
@@ -217,8 +217,9 @@ def cut(blocks: list[Piece], costs: list[float] | None) -> tuple[tuple[Piece, ..
 @dataclass(frozen=True)
 class PiecePart:
     """One piece's runs: their outcomes in order, the states it explored past the fault-free
-    prefix (their number; their digests too when the piece is part of a block), and its
-    compute time (for the next run's cut, never for the report)."""
+    prefix (their number; their digests too when the piece is part of a block), and the CPU
+    time its thread spent on it (for the next run's cut, never for the report: unlike the
+    time from start to end, it does not grow with whatever else the machine runs)."""
 
     outcomes: list[Outcome]
     nodes: int
@@ -269,7 +270,7 @@ def _work(state: _State, shard: tuple[Piece, ...]) -> SweepPart:
 
 
 def _piece(state: _State, c: int, start: int, end: int) -> PiecePart:
-    started = time.perf_counter()
+    started = time.thread_time()
     ex = state.explorer(c)
     for fault, k, at, why in state.runs[start:end]:
         ex.run(fault, k, at, why)
@@ -277,7 +278,7 @@ def _piece(state: _State, c: int, start: int, end: int) -> PiecePart:
     whole = start % state.block == 0 and end == min(start + state.block, len(state.runs))
     states = None if whole else sorted(_digest(key) for key in ex.explored())
     return PiecePart(outcomes(g), len(g.obs) - len(g.prefix), states,
-                     time.perf_counter() - started)
+                     time.thread_time() - started)
 
 
 def _digest(key: tuple) -> str:
@@ -347,7 +348,7 @@ def _times_key(project, variant, configs, counter, every, extras, faults) -> str
 
 
 def _load_times(key: str, configs, runs: int) -> list[float] | None:
-    """Each run's compute time, as the last run of this sweep measured it (a piece's time
+    """Each run's CPU time, as the last run of this sweep measured it (a piece's time
     spread evenly over its runs), in run order; None if unknown."""
     try:
         data = json.loads((cache_folder() / "closed-loop" / f"times-{key}.json").read_text())
@@ -364,7 +365,7 @@ def _load_times(key: str, configs, runs: int) -> list[float] | None:
 
 
 def _store_times(key: str, configs, spent: list[tuple[int, int, int, float]]) -> None:
-    """Each piece's compute time: [first run, end, seconds] per configuration."""
+    """Each piece's CPU time: [first run, end, seconds] per configuration."""
     data = {c.key: [[start, end, t] for i, start, end, t in spent if i == n]
             for n, c in enumerate(configs)}
     folder = cache_folder() / "closed-loop"
