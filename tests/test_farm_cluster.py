@@ -154,6 +154,10 @@ def _shard_workers(data: Path) -> dict[int, str]:
 
 
 def _run_killing(cluster: Cluster, capsys, argv: list[str]) -> tuple[str, str, Killer]:
+    # Only the cluster's run in the data folder: the local run before it may have cut the
+    # study otherwise (a sweep is cut by the times the previous run measured), and its files,
+    # in a folder of their own, would say where they ran.
+    shutil.rmtree(Path(os.environ["PLCHMI_DATA"]) / "studies", ignore_errors=True)
     killer = Killer(cluster, "w2")
     killer.start()
     try:
