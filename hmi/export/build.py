@@ -4,7 +4,8 @@
     FB_<P>_Diag_<D>     each local diagnoser, with reconstruction    (steps 3-4)
     FB_<P>_Control      the control law, printed from the scan program (step 5)
     FB_<P>_Filter       the safety filter                            (step 6)
-    FB_Stopwatch        the stopwatch monitor of one task            (after the output scan)
+    FB_<P>_Mon_<T>      each stopwatch monitor, printed from the scan program (after the
+                        output scan)
     PRG_<P>_Safety      the cycle: calls them in the engine's order, keeps the previous
                         values (prev_x), applies a fault reset after the scan
 
@@ -16,6 +17,7 @@ One task at the project's scan period runs the program.
 from __future__ import annotations
 
 from hmi.engine.layout import Layout
+from hmi.engine.monitors import monitor_stage
 from hmi.errors import ProjectError
 from hmi.export import model as m
 from hmi.export import source
@@ -26,13 +28,11 @@ from hmi.export.image import CONTROL, Globals, build_globals
 from hmi.export.memory_pou import build_memory
 from hmi.export.names import Scope
 from hmi.export.program_pou import Blocks, build_program
-from hmi.export.stopwatch_pou import build_stopwatch
+from hmi.export.stopwatch_pou import build_monitor
 from hmi.export.views import Durations
 from hmi.project.diagnosers import layout_names
 from hmi.project.model import Project
 from hmi.timefmt import format_duration
-
-STOPWATCH = "FB_Stopwatch"
 
 
 def build(project: Project, control: str | None = None) -> m.PlcProject:
@@ -46,22 +46,24 @@ def build(project: Project, control: str | None = None) -> m.PlcProject:
     pous = Scope()
     names = {key: pous.take(name) for key, name in (
         ("memory", f"FB_{prefix}_Memory"), ("filter", f"FB_{prefix}_Filter"),
-        ("control", f"FB_{prefix}_Control"), ("program", f"PRG_{prefix}_Safety"),
-        ("stopwatch", STOPWATCH))}
+        ("control", f"FB_{prefix}_Control"), ("program", f"PRG_{prefix}_Safety"))}
     diag_names = {d.name: pous.take(f"FB_{prefix}_Diag_{d.name}")
                   for d in source.diagnosers(project)}
     bound = source.filter_bound(project)
     law = project.control(control)
     layout = Layout.build(project, law, extra=layout_names(project))
     g = build_globals(project, pous.child())
-    stopwatch, ports = build_stopwatch(names["stopwatch"], pous)
+    stage = monitor_stage(project, layout)
+    monitors = [build_monitor(stage, k, task, layout, pous.take(f"FB_{prefix}_Mon_{task.name}"),
+                              pous, durations)
+                for k, task in enumerate(source.monitors(project))] if stage is not None else []
     blocks = Blocks(
         memory=build_memory(project, layout, names["memory"], pous, durations),
         diagnosers=[build_diagnoser(project, d, diag_names[d.name], pous, durations)
                     for d in source.diagnosers(project)],
         filter=build_filter(project, names["filter"], pous, bound),
         control=build_control(project, law, layout, g, names["control"], pous, durations),
-        stopwatch=stopwatch, stopwatch_ports=ports)
+        monitors=monitors)
     program, instances = build_program(project, names["program"], g, blocks, durations)
     durations.raise_if_any()
 
@@ -72,8 +74,7 @@ def build(project: Project, control: str | None = None) -> m.PlcProject:
     all_pous = [blocks.memory.pou] if blocks.memory else []
     all_pous += [b.pou for b in blocks.diagnosers]
     all_pous += [blocks.control.pou, blocks.filter.pou]
-    if source.monitors(project):
-        all_pous.append(stopwatch)
+    all_pous += [b.pou for b in blocks.monitors]
     all_pous.append(program)
     summary = _summary(project, bound, all_pous, g, pous)
     symbols = {name: ident for name, ident in g.idents.items()}

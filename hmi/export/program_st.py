@@ -33,7 +33,8 @@ from hmi.export.views import Durations
 from hmi.logic.expr import And, Compare, Const, Duration, Node, Not, Or, StepTime, Var
 from hmi.program import ir
 
-BOOL, TIME, INT, NTIME, SET = "BOOL", "TIME", "INT", "NTIME", "SET"
+BOOL, TIME, INT, DINT, NTIME, SET = "BOOL", "TIME", "INT", "DINT", "NTIME", "SET"
+INTEGERS = (INT, DINT)
 _UNTYPED = "ANY_INT"  # an integer constant, typed by its use
 _NONE = "NONE"  # the constant None
 _COMPARE = {"==": "=", "!=": "<>", "<": "<", "<=": "<=", ">": ">", ">=": ">="}
@@ -46,8 +47,8 @@ class NotPrintable(Exception):
 
 @dataclass(frozen=True)
 class Place:
-    """Where a value lives in the POU: its variable, its type (BOOL, INT, TIME or NTIME) and,
-    for NTIME, the BOOL that says it holds no time."""
+    """Where a value lives in the POU: its variable, its type (BOOL, INT, DINT, TIME or
+    NTIME) and, for NTIME, the BOOL that says it holds no time."""
 
     name: str
     type: str
@@ -76,6 +77,8 @@ class Places:
     now: m.Expr
     cells: dict[tuple[int, Any], Place | None] = field(default_factory=dict)
     handlers: dict[tuple[int, str], Handler] = field(default_factory=dict)
+    # runtime objects the program compares by identity (``is``), as INT codes
+    codes: dict[int, int] = field(default_factory=dict)
 
     def cell(self, owner: Any, attr: Any, place: Place | None) -> None:
         """`owner`'s `attr` (an attribute name, or an index of a list handed over) lives at
@@ -84,6 +87,10 @@ class Places:
 
     def handler(self, owner: Any, method: str, handler: Handler) -> None:
         self.handlers[(id(owner), method)] = handler
+
+    def code(self, obj: Any, number: int) -> None:
+        """`obj` (a phase, compared with ``is``) is the INT `number` in the PLC."""
+        self.codes[id(obj)] = number
 
 
 class StPrinter:
@@ -133,7 +140,7 @@ class StPrinter:
             return self._call(stmt.call)
         if isinstance(stmt, ir.Switch):
             selector, kind = self.value(stmt.value)
-            if kind not in (INT, _UNTYPED):
+            if kind not in (*INTEGERS, _UNTYPED):
                 raise NotPrintable(f"a switch on a {kind}")
             return [m.Case(selector, tuple(((int(key),), self.block(body))
                                            for key, body in stmt.cases),
@@ -180,8 +187,10 @@ class StPrinter:
         for arg in call.args:
             if isinstance(arg, ir.Local) and arg.name in self._sets:
                 args.append(dict(self._sets[arg.name]))
-            elif isinstance(arg, ir.TheImage | ir.TheHistory):
-                args.append(None)  # (the handler's ST version reaches the places itself)
+            elif isinstance(arg, ir.TheImage | ir.TheHistory | ir.ScanNumber):
+                # (the handler's ST version reaches the places itself; a PLC numbers no
+                # scans)
+                args.append(None)
             else:
                 args.append(self.value(arg)[0])
         return handler.print(self, tuple(args))
@@ -190,11 +199,11 @@ class StPrinter:
     def _declare(self, name: str, kind: str) -> Place:
         if kind == _UNTYPED:
             kind = INT
-        if kind not in (BOOL, INT, TIME, NTIME):
+        if kind not in (BOOL, INT, DINT, TIME, NTIME):
             raise NotPrintable(f"the local {name!r} would be a {kind}")
         ident = self.scope.take(f"L_{name}")
         none = self.scope.take(f"L_{name}_none") if kind == NTIME else None
-        plc_type = {BOOL: m.BOOL, INT: m.INT, TIME: m.TIME, NTIME: m.TIME}[kind]
+        plc_type = {BOOL: m.BOOL, INT: m.INT, DINT: m.DINT, TIME: m.TIME, NTIME: m.TIME}[kind]
         self.locals.append(m.Var(ident, plc_type, comment=f"{self.what}: {name}"))
         if none is not None:
             self.locals.append(m.Var(none, m.BOOL, comment=f"{name} holds no time"))
@@ -243,14 +252,14 @@ class StPrinter:
         expr, found = self.value(value)
         if found == NTIME:
             found = TIME
-        if kind != found and not (kind == INT and found == _UNTYPED):
+        if kind != found and not (kind in INTEGERS and found == _UNTYPED):
             raise NotPrintable(f"{value!r} is a {found} where a {kind} is expected")
         return expr, found
 
     def _constant(self, number: int, kind: str) -> m.Expr:
         if kind == TIME:
             return self.durations.time(int(number), self.pos, self.what)
-        if kind in (INT, _UNTYPED):
+        if kind in (*INTEGERS, _UNTYPED):
             return m.IntLit(int(number))
         raise NotPrintable(f"the constant {number} where a {kind} is expected")
 
@@ -275,6 +284,8 @@ class StPrinter:
                 if isinstance(constant, int):
                     return m.IntLit(constant), _UNTYPED
                 raise NotPrintable(f"the constant {constant!r} has no ST form here")
+            case ir.Ref(obj=obj) if id(obj) in self.places.codes:
+                return m.IntLit(self.places.codes[id(obj)]), INT
             case ir.Local() | ir.Slot() | ir.Cell() | ir.Item():
                 place = self._place(value)
                 if place is None:
@@ -285,6 +296,12 @@ class StPrinter:
                 a, _ = self._typed(left, kind)
                 b, _ = self._typed(right, kind)
                 return m.Binary("+" if isinstance(value, ir.Add) else "-", a, b), kind
+            case ir.Compare(op="is", left=left, right=ir.Ref(obj=obj)):
+                code = self.places.codes.get(id(obj))
+                if code is None:
+                    raise NotPrintable(f"{obj!r} has no code in the PLC")
+                a, _ = self._typed(left, INT)
+                return m.Binary("=", a, m.IntLit(code)), BOOL
             case ir.Compare(op=op, left=left, right=right):
                 if op not in _COMPARE:
                     raise NotPrintable(f"the comparison {op!r} has no ST form")
