@@ -122,7 +122,8 @@ def diagnoser_preview(snap: Snapshot) -> Iterable[ResetLine]:
         state = f"diagnoser {d.name} in {d.state} {{{', '.join(d.labels)}}} and its flags"
         if d.resync:
             yield ResetLine(what, resets=True, target=d.resync,
-                            note="its watch starts again from what the sensors show now",
+                            note="its watch starts again from what the I/O show now: "
+                                 f"{d.resync_values}",
                             detail=f"{state}; re-synchronised to {d.resync} on "
                                    f"{d.resync_values}")
             continue
@@ -243,21 +244,23 @@ def changes(shown: list[ResetLine], now: list[ResetLine]
             [line for line in now if line.promise not in before])
 
 
-def line_text(line: ResetLine) -> str:
+def line_text(line: ResetLine, detail: bool = False) -> str:
     """One line of the fault reset dialog in plain words (the screen styles the same words:
-    hmi.ui.reset.reset_line): will be reset, or stays and why."""
+    hmi.ui.reset.reset_line): will be reset, or stays and why; `detail`: with the model's
+    names after them (the journal's)."""
     if line.resets:
         text = f"{OK_SYMBOL} will be reset: {line.what}"
     else:
         text = f"{STAYS}: {line.what}" + (f" — {line.why}" if line.why else "")
-    return text + (f" ({line.note})" if line.note else "")
+    return text + (f" ({line.note})" if line.note else "") + (
+        f" [{line.detail}]" if detail and line.detail else "")
 
 
 def declined_message(gone: list[ResetLine], new: list[ResetLine], seen_scan: int,
                      scan: int) -> str:
     """Why a confirmed fault reset was not carried out: what the operator read (as of
     `seen_scan`) no longer holds at `scan` (the journal's action entry, the screen's line)."""
-    told = "; ".join([*(f"was: {line_text(line)}" for line in gone),
-                      *(f"now: {line_text(line)}" for line in new)])
+    told = "; ".join([*(f"was: {line_text(line, True)}" for line in gone),
+                      *(f"now: {line_text(line, True)}" for line in new)])
     return (f"not done, asked again: what it would do changed while its dialog was open "
             f"(scan {seen_scan} to {scan}): {told}")

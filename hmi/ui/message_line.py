@@ -55,15 +55,24 @@ def spoken(command: Command, result: CommandResult,
     (`text_of`: a situation's key -> its one-line text), and leaves out what the answer
     already says in plain words (the recovery's title, the policy's label)."""
     what, message = describe(command), result.message
+    if words is not None and isinstance(command, FaultReset) and not result.accepted \
+            and message.startswith("not done, asked again"):  # the dialog says what changed
+        return "fault reset", message.split(" (scan", 1)[0] + "; the dialog says how"
     if words is not None and result.accepted:
         match command:
             case InjectFault(injection=i):
                 during = f" for {seconds(i.duration_us)} s" if i.duration_us else ""
                 return "SIMULATION", (f"fault at {seconds(i.at_us)} s{during}: "
                                       f"{without_notes(words.fault_text(i))}")
-            case RepairFaults():
-                return "SIMULATION", ("repaired; next: a fault reset (r), which says first "
-                                      "what it resets and what stays")
+            case RepairFaults():  # 'valve repaired (F13 removed)': by the faults' words
+                removed = [without_notes(words.fault_text(Injection(code.strip(), 0, device)))
+                           for device, codes in re.findall(r"(\S+) repaired \(([^()]*) removed\)",
+                                                           message)
+                           for code in codes.split(",")]
+                return "SIMULATION", ("repaired" + (f" ({'; '.join(removed)} removed)"
+                                                    if removed else "")
+                                      + "; next: a fault reset (r), which says first what it "
+                                        "resets and what stays")
             case SetMode() if words.steps:  # 'waits at X2': at “Open, filling”
                 message = re.sub(r"[\w.]+", lambda m: f"\u201c{words.steps[m.group(0)]}\u201d"
                                  if m.group(0) in words.steps else m.group(0), message)

@@ -37,6 +37,9 @@ def plant_text(frame: Frame, recorder: History | None, wide: bool) -> Text:
     for key, value in snap.plant_counters:
         if key.endswith("cycles"):
             text.append(f"  {key if eng else state_words(key)} {value}", style=MUTED)
+    if frame.damage_count:
+        text.append("  ")
+        text.append_text(tag(f"damage ×{frame.damage_count}", Level.ALARM))
     if frame.injected:
         text.append("  faults:", style=MUTED)
         for fault in frame.injected:
@@ -54,14 +57,11 @@ def plant_text(frame: Frame, recorder: History | None, wide: bool) -> Text:
                                      Level.ATTENTION))
             else:
                 text.append(f"{name} in {seconds(at - snap.time_us)} s")
-    if frame.damage_count:
-        text.append("  ")
-        text.append_text(tag(f"damage ×{frame.damage_count}", Level.ALARM))
-        if recorder is not None and wide:
-            last = [e for e in recorder.recent_events() if e.damage]
-            if last:
-                text.append(f" last: {last[-1].detail} at {seconds(last[-1].time_us)} s",
-                            style=MUTED)
+    if frame.damage_count and recorder is not None and wide:  # the count, then the faults
+        last = [e for e in recorder.recent_events() if e.damage]
+        if last:
+            text.append(f"  last damage: {last[-1].detail} at {seconds(last[-1].time_us)} s",
+                        style=MUTED)
     return text
 
 
