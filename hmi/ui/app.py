@@ -20,19 +20,20 @@ situation picked from the palette or by clicking a constraint.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
 from functools import partial
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from rich.text import Text
 from textual import events
-from textual.app import App, ComposeResult
+from textual.app import App, ComposeResult, SystemCommand
 from textual.binding import Binding
 from textual.command import Provider
 from textual.containers import Horizontal, Vertical
 from textual.css.scalar import Unit
-from textual.screen import ModalScreen
+from textual.screen import ModalScreen, Screen
 
 from hmi.engine.commands import (
     Acknowledge,
@@ -1285,7 +1286,10 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         if policy is not None:
             self._confirm_policy(current, policy)
             return
-        options = [(p, Text(f"{p:<8} {POLICY_HELP[p]}" + ("  (now)" if p == current else "")))
+        # the current one marked before its help, which may be cut at 80 columns
+        options = [(p, Text(f"{'●' if p == current else ' '} {p:<8}"
+                            f"{' now ' if p == current else '     '} {POLICY_HELP[p]}",
+                            no_wrap=True, overflow="ellipsis"))
                    for p in POLICIES]
 
         def chosen(policy: str | None) -> None:
@@ -1417,6 +1421,26 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         else:
             order = [s.name for s in self.history.signals]
             self.set_signals(tuple(sorted((*current, name), key=order.index)))
+
+    def get_system_commands(self, screen: Screen) -> Iterable[SystemCommand]:
+        """Textual's entries, its Screenshot replaced by one that says where it saved (or
+        why it could not) and keeps the words apart in every SVG viewer."""
+        for command in super().get_system_commands(screen):
+            if command.title != "Screenshot":
+                yield command
+        yield SystemCommand("Screenshot", "Save an SVG picture of the screen in the folder "
+                            "the HMI was started in", self.action_svg_screenshot)
+
+    def action_svg_screenshot(self) -> None:
+        from hmi.ui.screenshot import save_svg, screenshot_name
+        name = screenshot_name(self.project.name)
+        try:
+            path = save_svg(self.export_screenshot(), Path.cwd(), name)
+        except OSError as exc:  # (the folder gone, read-only, full)
+            self.refuse("screenshot", f"{name} not written: {exc.strerror or exc}"
+                        + (f" ({exc.filename})" if exc.filename else ""))
+            return
+        self.message.say(Text(f"{OK_SYMBOL} screenshot: {path}"))
 
     def action_engineering(self) -> None:
         """The engineering view on or off: one key, shown in the status bar, journalled."""
