@@ -105,3 +105,35 @@ async def test_the_palette_screenshot_says_where_it_saved_or_why_not(tmp_path, m
         await palette(pilot, "Screenshot")
         assert "NOT AVAILABLE" in app.message.plain and "not written" in app.message.plain
         assert "No such file or directory" in app.message.plain
+
+
+async def test_a_long_state_never_pushes_the_io_descriptions_off_a_wide_screen():
+    """Safe blocking at 160×48: the outputs' reason ("≠ held safe: a safety rule was broken —
+    …") widened the State column for good and the Description column was gone."""
+    from ui_harness import region_text, run_until
+    from ui_scenarios import make_app
+
+    app = make_app(control="faulty", policy="block")
+    async with app.run_test(size=(160, 48)) as pilot:
+        await run_until(pilot, lambda s: bool(s.latched), 20, "safe blocking")
+        await run_until(pilot, lambda s: True, 0.1, "a frame")
+        io = region_text(app, "#io")
+        assert "≠ held safe" in io
+        for description in ("closed end switch", "open end switch", "close order",
+                            "open order"):
+            assert description in io, io
+
+
+async def test_a_step_description_cut_to_fit_says_so():
+    """At 80×24 the faulty valve's "Closing for a fixed 3 s, open order still on at first"
+    read "Closing for a fixed 3 s," — a sentence that says something else."""
+    from ui_harness import region_text, run_until
+    from ui_scenarios import make_app
+
+    app = make_app(control="faulty")
+    async with app.run_test(size=(80, 24)) as pilot:
+        await run_until(pilot, lambda s: "X3" in s.active_steps, 12, "closing")
+        await run_until(pilot, lambda s: True, 0.05, "a frame")
+        line = next(line for line in region_text(app, "#control").splitlines()
+                    if "Closing for a fixed" in line)
+        assert "…" in line and "3 s, " not in line.replace("…", ""), line
