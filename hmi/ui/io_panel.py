@@ -152,7 +152,7 @@ class IOPanel(ContainedPump, DataTable[Any]):
             # ("≠ held safe: a safety rule was broken — …") pushed the Description column out
             # of a 160-column screen for good. A third of the panel; the rest is on the
             # explanation and the message line.
-            cap = max(24, self.size.width // 3)
+            cap = max(32, self.size.width // 3)
             if value.cell_len > cap:
                 value = value.copy()
                 value.truncate(cap, overflow="ellipsis")
