@@ -55,9 +55,9 @@ def load(name: str) -> Project:
 
 class Broken:
     """A session whose engine has one function replaced by one that raises from `at_us`.
-    `path` is the engine's way through the scan: "auto" the compiled automatic-mode cycle
-    (Engine._auto_cycle), "cycle" the general one (Engine._cycle, compiled: a device is
-    stopped), "interpreter" Engine(compiled=False)."""
+    `path` is the engine's way through the scan: "auto" the compiled automatic mode (the
+    printed frame when the scans are not timed, else Engine._cycle), "cycle" the general one
+    with a device stopped (Engine._cycle, compiled), "interpreter" Engine(compiled=False)."""
 
     def __init__(self, name: str, where: str, at_us: int, quiet: bool, tmp: Path,
                  times: int = 1, path: str = "auto", inject: str = ""):
