@@ -61,8 +61,9 @@ CACHE_VERSION = 4
 # 156 blocks for the valve's full sweep, of 0.02-30 s each (docs/studies.md). An exact
 # sweep's blocks hold SHARD_RUNS // EXACT_COST scan intervals.
 SHARD_RUNS = 200
-# The cut by cost: shards of about the total / SHARDS_WANTED (4 per worker at 64 workers), and
-# never aimed under SHARD_MIN_S (well above Dask's per-task cost, hmi.farm.run.SHARD_GOAL_S).
+# The cut by cost: shards of about the total CPU time / SHARDS_WANTED (4 per worker at 64
+# workers), and never aimed under SHARD_MIN_S: a piece cut finer than the one measured can take
+# a tenth of its expected time (docs/studies.md), and should still pass hmi.farm.run.SHARD_GOAL_S.
 SHARDS_WANTED = 256
 SHARD_MIN_S = 0.4
 
@@ -210,6 +211,10 @@ def sweep_study(project, configs: Sequence[LoopConfig], counter: str, every: int
                                    [exact, step_us, point["text"] if point else ""]),
                         configs, runs)
     shards = cut(blocks, costs)
+    expected = None
+    if costs is not None:  # cut by them: each shard's share, to send the heaviest first
+        expected = tuple(sum(sum(costs[c * runs + a:c * runs + b]) for c, a, b in s)
+                         for s in shards)
     options = {"configs": [[c.key, c.title, c.policy, c.diagnosis] for c in configs],
                "counter": counter, "faults": list(faults), "exact": exact, "block": per,
                "instants": units, "shape": _shape(probe), "point": point}
@@ -218,7 +223,7 @@ def sweep_study(project, configs: Sequence[LoopConfig], counter: str, every: int
     title = f"the closed-loop sweep of {project.name}" + (f" at {point['text']}" if point
                                                            else "")
     study = Study(title, job, shards, tuple(sum(end - start for _, start, end in s)
-                                            for s in shards), _encode, _decode)
+                                            for s in shards), _encode, _decode, expected)
     return study, probe
 
 
@@ -348,8 +353,8 @@ def _work(state: _State, shard: tuple[Piece, ...]) -> SweepPart:
 
 
 def _piece(state: _State, c: int, start: int, end: int) -> PiecePart:
+    ex = state.explorer(c)  # built at a worker's first piece of `c`: not the piece's cost
     started = time.thread_time()
-    ex = state.explorer(c)
     if state.exact:
         for fault, k, lo, hi in state.runs[start:end]:
             ex.pieces(fault, k, lo, hi)
