@@ -95,13 +95,18 @@ def test_screens_sign_in_and_the_users_file_says_the_role(tmp_path, sock, users_
     assert not any("not-her-password" in str(e) for e in entries)
 
 
-def test_the_sixth_wrong_password_is_refused_as_locked(sock, users_path):
-    with runtime(VALVE, sock):
+def test_the_sixth_wrong_password_is_refused_as_locked(tmp_path, sock, users_path):
+    with runtime(VALVE, sock, "--journal", str(tmp_path / "journal.jsonl")):
         for _ in range(5):
             with pytest.raises(AttachError, match="wrong user name or password"):
                 attach(sock, "alice", "guessing-wrong")
         with pytest.raises(AttachError, match="locked"):
             attach(sock, "alice", PASSWORDS["alice"])  # even the right one, now
+    events = [(e["event"], e["by"], e["source"]) for e in journal(tmp_path)
+              if e["event"] in ("sign-in-refused", "account-locked")]
+    assert events == [("sign-in-refused", "terminal:alice", "this machine")] * 4 + [
+        ("account-locked", "terminal:alice", "this machine"),
+        ("sign-in-refused", "terminal:alice", "this machine")]
 
 
 def test_a_ticket_lets_one_screen_in_once(sock, users_path):

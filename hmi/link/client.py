@@ -17,6 +17,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from hmi.access.audit import SignInRefusal
 from hmi.engine.commands import Command, CommandResult
 from hmi.engine.snapshot import Snapshot
 from hmi.link.base import Answer, Identity, ResetGuard, View
@@ -180,6 +181,10 @@ class SocketLink:
 
     def report(self, status: m.ServiceStatus) -> None:
         self._tell(m.Report(status))
+
+    def report_refusal(self, refused: SignInRefusal) -> None:
+        """Someone refused at this gateway's door, for the runtime's journal."""
+        self._tell(m.SignInRefused(refused))
 
     def report_fault(self, fault: object) -> None:
         """An error of this screen (hmi.ui.containment.UIFault), for the runtime's journal."""

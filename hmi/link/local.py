@@ -18,6 +18,7 @@ import sys
 from collections.abc import Callable
 from datetime import UTC, datetime
 
+from hmi.access.audit import SignInRefusal
 from hmi.engine.commands import Command, CommandResult
 from hmi.engine.snapshot import Snapshot
 from hmi.explain.reset import changes, declined_message, reset_preview
@@ -145,6 +146,9 @@ class LocalLink:
 
     def report(self, status: m.ServiceStatus) -> None:
         self._ask(m.Report(status))
+
+    def report_refusal(self, refused: SignInRefusal) -> None:
+        self._ask(m.SignInRefused(refused))
 
     def query(self) -> m.Stats:
         return self.hub.stats()

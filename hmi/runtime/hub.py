@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from hmi.access import roles
+from hmi.access.audit import SignInRefusal
 from hmi.engine.commands import Command, CommandResult, StepScans
 from hmi.explain.reset import changes, declined_message, reset_preview
 from hmi.runtime.admission import GATEWAY_DOORS, Admission
@@ -143,10 +144,10 @@ class Hub:
             return None, m.Refused(f"unknown role {identity.role!r} or door {identity.door!r}")
         table_id = ""
         if self.admission is not None:
-            admitted, why = self.admission.admit(hello)
-            if admitted is None:
-                self._journal_refusal(identity, why)
-                return None, m.Refused(f"not signed in: {why}")
+            admitted = self.admission.admit(hello)
+            if isinstance(admitted, SignInRefusal):
+                self.journal_refusal(admitted, identity.session)
+                return None, m.Refused(f"not signed in: {admitted.reason}")
             identity, table_id = admitted.identity, admitted.table_id
         with self.lock:
             client = Client(f"c{next(self._ids)}", identity, self.session.engine.now,
@@ -187,12 +188,12 @@ class Hub:
                     self.services[name] = gone
                     self._journal_service(client, gone)
 
-    def _journal_refusal(self, claimed: m.Identity, why: str) -> None:
-        """A screen refused at the door: who it said it was, and why (never the password)."""
+    def journal_refusal(self, refused: SignInRefusal, client: str = "") -> None:
+        """A sign-in refused at a door: the name tried, from where, why (never the
+        password); the attempt that locked the account as ``account-locked``."""
         if self.journal is not None:
-            self.journal.on_service("sign-in-refused", f"{claimed.door}:{claimed.user} was "
-                                    f"not let in: {why}", by=claimed.by, role="",
-                                    client=claimed.session)
+            self.journal.on_service(refused.event, refused.message, **refused.fields(),
+                                    client=client)
 
     def _journal(self, event: str, message: str, client: Client) -> None:
         if self.journal is not None:
@@ -269,6 +270,11 @@ class Hub:
                     self._reporters[status.name] = client.id
                 if before is None or before.state != status.state:
                     self._journal_service(client, status)
+                return None
+            case m.SignInRefused(refused=refused):
+                if client.identity.door not in GATEWAY_DOORS:
+                    raise ValueError("a sign-in refusal from a screen that is no gateway")
+                self.journal_refusal(refused, f"{client.id}/{client.identity.session}")
                 return None
             case m.Fault():
                 if self.journal is not None:

@@ -6,7 +6,8 @@ An aiohttp server (textual-serve's, with a door in front):
   :class:`~hmi.access.signin.Authenticator` in its own threads (never on this loop), the
   lockout shared with every other door. Accepted: a browser session (a random cookie,
   HttpOnly, SameSite=Strict, Secure over TLS), counted in the users file's session table
-  (``sessions-per-user``), ended when idle for ``idle-lock`` or at sign-out.
+  (``sessions-per-user``), ended when idle for ``idle-lock`` or at sign-out. Refused: the
+  name tried, the browser's address and why go to the cell's journal (hmi.access.audit).
 * ``/`` — textual-serve's terminal page, signed-in sessions only.
 * ``/ws`` — each tab's websocket, signed-in sessions only and from this server's own pages
   (the Origin checked): it starts one screen process (``plchmi attach``), handing it the
@@ -32,10 +33,12 @@ from aiohttp import WSMsgType, web
 from textual_serve.app_service import AppService
 from textual_serve.download_manager import DownloadManager
 
-from hmi.access import tickets
+from hmi.access import audit, tickets
+from hmi.access.audit import SignInRefusal, refusal
 from hmi.access.sessions import SessionTable
 from hmi.access.signin import Authenticator
 from hmi.access.users import Settings
+from hmi.errors import OutputError
 
 from . import pages
 
@@ -75,8 +78,9 @@ class _TabProcess(AppService):
 class WebDoor:
     def __init__(self, project_arg: str, project_name: str, users_path: Path,
                  socket: Path | None, banner: str = "", tls: bool = False,
-                 clock: Any = time.monotonic):
+                 clock: Any = time.monotonic, journal: Path | None = None):
         self.project_arg = project_arg
+        self.journal = journal  # the cell's: each refused sign-in is appended to it
         self.project_name = project_name
         self.users_path = users_path
         self.socket = socket
@@ -156,8 +160,21 @@ class WebDoor:
                                     secure=self.tls, path="/")
                 raise response
             problem = why
+        await self._journal(refusal(name, "browser", request.remote or "", problem,
+                                    result.locked_now))
         return web.Response(text=pages.sign_in(self.project_name, self._banner(), problem,
                                                name), content_type="text/html", status=401)
+
+    async def _journal(self, refused: SignInRefusal) -> None:
+        """A refused sign-in into the cell's journal (off this loop: it waits for the disk);
+        a journal that cannot be written is said on stderr, the refusal stands."""
+        if self.journal is None:
+            return
+        try:
+            await asyncio.to_thread(audit.append, self.journal, refused)
+        except OutputError as exc:
+            print(f"plchmi web: a refused sign-in could not be journalled: {exc}",
+                  file=sys.stderr, flush=True)
 
     async def sign_out(self, request: web.Request) -> web.Response:
         session = self.session_of(request)

@@ -26,6 +26,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from hmi.access.audit import SignInRefusal
 from hmi.engine.commands import Command, CommandResult
 from hmi.engine.layout import Layout
 from hmi.engine.monitors import MonitorState
@@ -283,6 +284,13 @@ class Report:
 
 
 @dataclass(frozen=True)
+class SignInRefused:
+    """A gateway refused someone at its door (the OPC UA server): for the journal."""
+
+    refused: SignInRefusal
+
+
+@dataclass(frozen=True)
 class Fault:
     """An error of the screen (its UI), for the journal: contained, or fatal (the screen
     ends; the cell runs on)."""
@@ -301,7 +309,7 @@ class Bye:
 
 
 ClientMessage = (Hello | Send | RequestControl | TakeControl | ReleaseControl | HandOver
-                 | Advance | Query | Report | Fault | Bye)
+                 | Advance | Query | Report | SignInRefused | Fault | Bye)
 
 
 # -- runtime to screen ------------------------------------------------------------------
