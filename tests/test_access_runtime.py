@@ -163,3 +163,51 @@ def test_a_gateways_users_are_checked_against_the_users_file(tmp_path, sock, use
     actions = [e for e in journal(tmp_path) if e["type"] == "action"]
     assert [(e["by"], e["role"]) for e in actions if e["event"] == "enter manual mode"] == [
         ("opcua:bob", "viewer"), ("opcua:mallory", "engineer"), ("opcua:alice", "operator")]
+
+
+def test_the_opcua_users_file_is_every_door_s_and_the_terminal_signs_in(tmp_path, sock):
+    """``--opcua-users FILE`` (no users file of the machine): the runtime's doors are FILE's
+    users too, so the terminal is a named user, never the login name with every right."""
+    pytest.importorskip("asyncua", reason="the [opcua] extra is not installed")
+    import socket as sockets
+    import subprocess
+    import sys
+
+    from tests.runtimes import ROOT
+    cell_users = tmp_path / "cell-users"
+    users.add(cell_users, "alice", "operator", PASSWORDS["alice"])
+    assert not users.default_path().exists()
+    with sockets.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    with runtime(VALVE, sock, "--journal", str(tmp_path / "journal.jsonl"), "--opcua",
+                 f"opc.tcp://127.0.0.1:{port}", "--opcua-users", str(cell_users)):
+        with pytest.raises(AttachError, match="sign in first"):
+            attach(sock, "root")
+        alice = attach(sock, "alice", PASSWORDS["alice"], role="engineer")
+        assert (alice.identity.user, alice.identity.role) == ("alice", "operator")
+        alice.leave()
+        # the terminal's screen (plchmi attach) finds it must sign in, and asks
+        tried = subprocess.run(
+            [sys.executable, "-m", "hmi.cli", "attach", str(VALVE), "--socket", str(sock)],
+            input="alice\nwrong-one\nalice\nwrong-two\nalice\nwrong-three\n", text=True,
+            capture_output=True, cwd=ROOT, timeout=120)
+    assert tried.returncode != 0
+    assert "sign in" in tried.stderr and "wrong user name or password (3 tries)" in \
+        tried.stderr, tried.stderr
+    refused = [e["by"] for e in journal(tmp_path) if e["event"] == "sign-in-refused"]
+    # (root here; then the screen's first try, under the login name, before it asked)
+    assert refused[0] == "terminal:root" and refused[1].startswith("terminal:")
+    assert refused[2:] == ["terminal:alice"] * 3
+
+
+def test_the_terminal_s_users_file_follows_opcua_users(tmp_path):
+    import argparse
+
+    from hmi.cli.screens import signs_in, users_file
+    given = tmp_path / "cell-users"
+    assert users_file(argparse.Namespace(opcua_users=given)) == given
+    assert users_file(argparse.Namespace()) == users.default_path()
+    assert not signs_in(given)  # no such file yet: nobody to sign in as
+    users.add(given, "alice", "operator", PASSWORDS["alice"])
+    assert signs_in(given)
