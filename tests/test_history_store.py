@@ -240,3 +240,30 @@ def test_a_reader_cannot_write(recorded):
     for reader in recorded.readers.values():
         with pytest.raises(StoreError):
             reader.store.delete_before("cispi_valve", recorded.end)
+
+
+@pytest.mark.parametrize("clock", ["right", "years ahead"])
+def test_the_writer_counts_retention_back_from_the_history_when_the_clock_is_ahead(
+        clock, tmp_path):
+    """The writer's retention: 30 days back from the wall clock when the history is up to
+    date; from the history's newest instant when the clock is far ahead of it (a clock set
+    wrong, a history on a fixed time axis) — never the whole history wiped."""
+    from dataclasses import replace
+
+    from hmi.history.writer import HistoryWriter
+    target = Target("sqlite", str(tmp_path / "w.sqlite"))
+    store, cat, _ = _month_store(target)
+    end = store.span("cell")[1]
+    store.close()
+    wall_us = end + 3_600_000_000 if clock == "right" else end + 5 * 365 * DAY
+    writer = HistoryWriter(target, replace(cat, cell="cell"), SampleQueue(100), source="test",
+                           clock="real", retention_us=30 * DAY, wall=lambda: wall_us / 1e6)
+    writer.start()
+    writer.stop()  # its first cycle (nothing queued) runs retention; stop waits for it
+    assert writer.status.state == "stopped"
+    reader = HistoryReader(open_store(target, read_only=True), "cell")
+    first, last = reader.span()
+    assert last == end
+    newest = min(wall_us, end)
+    assert newest - 30 * DAY <= first < newest - 29 * DAY  # the last 30 days are all kept
+    assert writer.status.deleted > 0

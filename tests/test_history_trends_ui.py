@@ -39,7 +39,7 @@ def _app(target: Target | None, folder=None):
 async def _trends(pilot) -> TrendScreen:
     await press(pilot, "t")
     screen = await wait_for_screen(pilot, TrendScreen)
-    await wait_until(pilot, lambda: screen.reads > 0, "the first picture")
+    await wait_until(pilot, lambda: screen.up_to_date, "the first picture")
     return screen
 
 
@@ -147,7 +147,7 @@ async def test_maintenance_from_the_palette(tmp_path):
         historian.flush()
         await palette(pilot, "Trends: maintenance of Valve V1")
         screen = await wait_for_screen(pilot, TrendScreen)
-        await wait_until(pilot, lambda: screen.reads > 1 and screen.chart.window
+        await wait_until(pilot, lambda: screen.up_to_date and screen.chart.window
                          and screen.chart.window.drawn, "the maintenance picture")
         assert screen.signals == ["O.travel", "O.operations", "C.travel", "C.operations"]
         assert screen.span_us == 60_000_000  # the whole history (a minute): the smallest zoom

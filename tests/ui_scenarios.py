@@ -302,9 +302,7 @@ async def trends(pilot: Pilot, signals: tuple[str, ...] | None = None) -> None:
     screen = await wait_for_screen(pilot, TrendScreen)
     if signals is not None:
         screen.show(signals)
-        await wait_until(pilot, lambda: screen.reads > 1, "the picture of the signals")
-    else:
-        await wait_until(pilot, lambda: screen.reads > 0, "the first picture")
+    await wait_until(pilot, lambda: screen.up_to_date, "the picture of the signals")
     await press(pilot, "left", "left", "left", "left", "left", "left")
 
 

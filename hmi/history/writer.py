@@ -13,7 +13,10 @@ queue is bounded: past its limit the history has a gap, recorded as one (the seg
 where the loss began and a new one starts with every signal's value once there is room).
 
 Retention runs in the same thread at the start and every hour: everything older than the
-retention (default 90 days, counted on the wall clock) is deleted (hmi.history.store).
+retention (default 90 days) is deleted (hmi.history.store). The 90 days are counted back
+from the wall clock, or from the history's newest instant when that is older: a clock set
+ahead by mistake does not delete the history, and a history on a fixed time axis keeps its
+own last 90 days.
 """
 
 from __future__ import annotations
@@ -186,7 +189,13 @@ class HistoryWriter:
         if now < self._retention_due:
             return
         self._retention_due = now + RETENTION_EVERY_S
-        cutoff = int(self.wall() * 1e6) - self.retention_us
+        span = store.span(self.catalogue.cell)
+        if span is None:
+            return
+        # Counted back from the older of the wall clock and the history's newest instant:
+        # a wall clock set years ahead must not wipe the history, and a history recorded on
+        # a fixed time axis (virtual time, tests, a replay) keeps its own last 90 days.
+        cutoff = min(int(self.wall() * 1e6), span[1]) - self.retention_us
         deleted = store.delete_before(self.catalogue.cell, cutoff)
         self._set(deleted=self._status.deleted + deleted)
 

@@ -121,6 +121,7 @@ class TrendScreen(Dialog[None]):
         self._wanted: tuple | None = None
         self._whole = whole
         self.reads = 0  # pictures read (tests, the bench)
+        self._shown: tuple | None = None  # the key of the picture on the screen
 
     # -- layout -----------------------------------------------------------------------------
     def compose(self) -> ComposeResult:
@@ -154,14 +155,22 @@ class TrendScreen(Dialog[None]):
         self.query_one("#trend-header", Static).update(line)
 
     # -- reading, in a worker thread ----------------------------------------------------------
+    def _key(self) -> tuple:
+        return (tuple(self.signals), self.end_us - self.span_us, self.end_us, self._width())
+
+    @property
+    def up_to_date(self) -> bool:
+        """The picture on the screen is the one it should show now: its signals, window and
+        width (a picture read before the screen was laid out, or for the signals chosen
+        before, is not; tests and the bench wait on this, not on a count of reads)."""
+        return self.is_attached and self._shown is not None and self._shown == self._key()
+
     def request(self) -> None:
         """Read the picture the screen should show now, unless it is the one shown (or
         being read)."""
         if not self.is_attached:
             return
-        width = self._width()
-        start = self.end_us - self.span_us
-        key = (tuple(self.signals), start, self.end_us, width)
+        key = self._key()
         if key == self._wanted:
             return
         self._wanted = key
@@ -200,6 +209,7 @@ class TrendScreen(Dialog[None]):
         if key != self._wanted or not self.is_attached:
             return  # a newer picture was asked for meanwhile
         self.reads += 1
+        self._shown = key
         chart = self.chart
         if isinstance(result, str):
             chart.message = tag("no history", Level.ATTENTION) + Text(f": {result}")
