@@ -83,6 +83,9 @@ class CellLink(Protocol):
     identity: Identity
     history: History
     scans_here: bool  # the scans run in this process: they end with this screen
+    # the runtime asks a reason (and for the riskiest, the password) before the commands
+    # that need one (hmi.access.roles): people sign in to it
+    accountable: bool
 
     def view(self) -> View | None:
         """The latest scan (None before the first)."""
@@ -91,8 +94,10 @@ class CellLink(Protocol):
     def last(self) -> Snapshot | None:
         """The newest snapshot known here (a dialog's contents; a frame shows view())."""
 
-    def command(self, command: Command, guard: ResetGuard | None = None) -> Answer:
-        """Send one operator command and wait for its answer."""
+    def command(self, command: Command, guard: ResetGuard | None = None, *,
+                reason: str = "", password: str = "") -> Answer:
+        """Send one operator command and wait for its answer; `reason` and `password`
+        where the command needs them (see `accountable`)."""
 
     # -- control (several screens) -------------------------------------------------------
     @property

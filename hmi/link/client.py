@@ -82,6 +82,7 @@ class SocketLink:
         receiver.welcome(answer)
         if answer.identity is not None:
             self.identity = answer.identity  # as let in: the users file's name and role
+        self.accountable = answer.accountable
         assert receiver.facts is not None and receiver.history is not None
         self.facts = receiver.facts
         self.history = receiver.history
@@ -155,9 +156,10 @@ class SocketLink:
         return None  # the scans are the runtime's: its loss is `lost`
 
     def command(self, command: Command, guard: ResetGuard | None = None,
-                on_behalf: Identity | None = None, note: str = "") -> Answer:
-        answer = self._ask(lambda ident: m.Send(ident, command, guard, on_behalf, note),
-                           type(command).__name__)
+                on_behalf: Identity | None = None, note: str = "", reason: str = "",
+                password: str = "") -> Answer:
+        answer = self._ask(lambda ident: m.Send(ident, command, guard, on_behalf, note,
+                                                reason, password), type(command).__name__)
         return self.receiver.result(answer, type(command).__name__)
 
     def _control(self, make: Callable[[int], m.ClientMessage], what: str) -> CommandResult:

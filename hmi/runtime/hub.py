@@ -25,11 +25,11 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from hmi.access import roles
+from hmi.access import audit, roles
 from hmi.access.audit import SignInRefusal
-from hmi.engine.commands import Command, CommandResult, StepScans
+from hmi.engine.commands import Command, CommandResult, StepScans, describe
 from hmi.explain.reset import changes, declined_message, reset_preview
-from hmi.runtime.admission import GATEWAY_DOORS, Admission
+from hmi.runtime.admission import GATEWAY_DOORS, LOCAL, Admission
 from hmi.session.journal_recorder import JournalRecorder
 from hmi.session.live import LiveRunner
 from hmi.session.recorder import Cursor, ScanRecorder
@@ -39,6 +39,8 @@ from hmi.wire.codec import Codec
 
 MAX_STEPS = 100_000  # scans one StepScans may ask for (the step dialog asks far fewer)
 MAX_ADVANCE_US = 3600 * 1_000_000  # virtual time one Advance may ask for
+MAX_REASON = 500  # characters of a reason given with a command
+REASON_DOORS = ("terminal", "browser")  # doors whose screens ask their person for a reason
 TICK_S = 1.0  # a screen hears from the runtime at least this often (a Tick if nothing new)
 
 
@@ -159,7 +161,7 @@ class Hub:
             self._control_version += 1
         # (the facts as they are now: a historian may have placed the run's time 0 since)
         return client, m.Welcome(m.PROTOCOL, client.id, cell_facts(self.session), self.runtime,
-                                 identity)
+                                 identity, self._accountable(identity))
 
     def detach(self, client: Client, event: str, why: str) -> None:
         """A screen left (`client-left`: as asked), or was lost (`client-lost`: its
@@ -333,6 +335,8 @@ class Hub:
         origin = who.by + (f" ({message.note})" if message.note else "")
         details = {"user": who.user, "role": who.role, "door": who.door,
                    "client": f"{client.id}/{client.identity.session}"}
+        if message.reason.strip():
+            details["reason"] = message.reason.strip()[:MAX_REASON]
         command = message.command
         # roles are the users file's: without one nobody signed in, and the terminal does
         # what it always did (a viewer still sends nothing: _refusal)
@@ -341,6 +345,8 @@ class Hub:
             refusal = (self._refusal(client) or (vouched if isinstance(vouched, str) else None)
                        or (self._role_refusal(who, command) if enforced else None)
                        or self._bounds(command))
+        if refusal is None:
+            refusal = self._accounted(who, message)  # (off the hub's lock: a password check)
         if refusal is not None:
             return m.Reply(message.id, session.decline(command, refusal, origin, details))
         guard = message.guard
@@ -355,6 +361,37 @@ class Hub:
             return m.Reply(message.id, session.decline(
                 command, declined_message(gone, new, guard.seen_scan, scan), origin, details),
                 declined=True)
+
+    def _accountable(self, who: m.Identity) -> bool:
+        """Whether a reason (and for the riskiest, the password) is asked of `who`: a person
+        signed in at a screen that can ask (the terminal, a browser). An OPC UA client's
+        methods carry no reason (its comment is journalled when it gives one)."""
+        return (who.door in REASON_DOORS and self.admission is not None
+                and self.admission.enforced())
+
+    def _accounted(self, who: m.Identity, message: m.Send) -> str | None:
+        """Why the command may not go without more from its sender: no reason given where
+        one is asked, or the password asked again and wrong (counted towards the lockout
+        like any wrong password). Blocking: an argon2 check (a worker thread's)."""
+        command = message.command
+        if len(message.reason) > MAX_REASON:
+            return f"refused: a reason of at most {MAX_REASON} characters"
+        if not self._accountable(who):
+            return None
+        if roles.needs_reason(command) and not message.reason.strip():
+            return (f"refused: {describe(command)} needs a reason (it goes to the journal "
+                    "with your name)")
+        if roles.needs_password(command):
+            if self.admission is None:
+                return None
+            result = self.admission.auth.submit(who.user, message.password).result()
+            if result.locked_now:
+                self.journal_refusal(audit.refusal(who.user, who.door, LOCAL, result.reason,
+                                                   True), who.session)
+            if not result.accepted:
+                return (f"refused: {describe(command)} asks for your password again: "
+                        f"{result.reason}")
+        return None
 
     @staticmethod
     def _role_refusal(who: m.Identity, command: Command) -> str | None:

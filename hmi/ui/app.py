@@ -34,6 +34,7 @@ from textual.containers import Horizontal, Vertical
 from textual.css.scalar import Unit
 from textual.screen import ModalScreen
 
+from hmi.access import roles
 from hmi.engine.commands import (
     Acknowledge,
     ChoosePolicy,
@@ -837,9 +838,32 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         return f"{policy.label}?", lines, level
 
     # -- sending commands --------------------------------------------------------------------
-    def send(self, command: Command) -> CommandResult:
+    def send(self, command: Command, reason: str = "", password: str = "") -> CommandResult:
         """The one place operator actions leave the UI: through ``Session.command``."""
-        return self._sent(command, self.link.command(command).result)
+        if reason or password:
+            answer = self.link.command(command, reason=reason, password=password)
+        else:
+            answer = self.link.command(command)
+        return self._sent(command, answer.result)
+
+    def act(self, command: Command) -> None:
+        """A command the operator chose: sent at once, or where the runtime asks it (people
+        sign in to it: ``link.accountable``) once its reason is given — and for the
+        riskiest, the password again (hmi.access.roles: needs_reason, needs_password).
+        Cancelled: nothing is sent, and the message line says so."""
+        if not (getattr(self.link, "accountable", False) and roles.needs_reason(command)):
+            self.send(command)
+            return
+        from hmi.ui.dialogs import ReasonDialog
+
+        def given(answer: tuple[str, str] | None) -> None:
+            if answer is None:
+                self.message.say(Text(f"cancelled: {describe(command)} (nothing sent)",
+                                      style=MUTED))
+                return
+            self.send(command, reason=answer[0], password=answer[1])
+        self.push_screen(ReasonDialog(describe(command), roles.needs_password(command)),
+                         given)
 
     def _sent(self, command: Command, result: CommandResult) -> CommandResult:
         """What the UI makes of a command's answer: the message line, the commanded mode."""
@@ -906,7 +930,7 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         return key
 
     def on_command_requested(self, message: CommandRequested) -> None:
-        self.send(message.command)
+        self.act(message.command)
 
     def _policy_command(self, key: str, policy_id: str) -> Command | None:
         """What choosing a policy sends, as the last explanation of `key` offered it."""
@@ -1129,7 +1153,7 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         return list(manual.leave_lines(self.project, law, snap))
 
     def action_manual_request(self, name: str, value: bool | None) -> None:
-        self.send(ManualOutput(name, value))
+        self.act(ManualOutput(name, value))
 
     def action_reset(self, asked: Asked | None = None) -> None:
         """The fault reset dialog: what the reset would do as of the last scan; y carries it
@@ -1185,7 +1209,7 @@ class PlcHmiApp(LastResort, ContainedPump, App):
 
         def chosen(answer: str | None) -> None:
             if answer is not None:
-                self.send(Shelve(alarm.key, None if answer == "once" else int(answer)))
+                self.act(Shelve(alarm.key, None if answer == "once" else int(answer)))
         self.push_screen(ChoiceDialog(f"Shelve: {alarm.text}", options, "once",
                                       dialog_id="shelve-dialog",
                                       note="Hidden from the list, journalled meanwhile, back "
@@ -1295,7 +1319,7 @@ class PlcHmiApp(LastResort, ContainedPump, App):
 
     def _confirmed(self, command: Command, yes: bool | None) -> None:
         if yes:
-            self.send(command)
+            self.act(command)
         else:
             self.message.say(Text(f"cancelled: {describe(command)}", style=MUTED))
 

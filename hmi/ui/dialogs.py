@@ -205,6 +205,62 @@ class TextDialog(Dialog[str | None]):
         self.dismiss(None)
 
 
+class ReasonDialog(Dialog[tuple[str, str] | None]):
+    """Why: asked before the commands whose reason goes to the journal with the person's
+    name (the filter policy, forcing, manual mode, recovery, shelving; EU GMP Annex 11
+    §9); with `password`, the person's password again too (switching the filter to
+    monitor). Enter on the reason moves to the password, enter there sends; escape
+    cancels: nothing is sent. Dismisses with (reason, password) — the password "" when
+    not asked — and the app sends them with the command (the runtime checks them)."""
+
+    BINDINGS = [Binding("escape", "cancel", "Cancel")]
+
+    def __init__(self, what: str, password: bool = False, *, max_length: int = 500):
+        super().__init__(id="reason-dialog")
+        self.what = what
+        self.password = password
+        self.max_length = max_length
+
+    def compose(self) -> ComposeResult:
+        with Vertical(classes="dialog dialog-wide"):
+            yield _title(f"Why: {self.what}?", Level.ATTENTION)
+            yield Label("enter: " + ("next" if self.password else "send") + "    esc: cancel",
+                        classes="dialog-hint")
+            yield Static("The reason goes to the journal with your name.",
+                         classes="dialog-line", markup=False)
+            yield Input("", id="reason", placeholder="reason", max_length=self.max_length,
+                        compact=True)
+            if self.password:
+                yield Static("Your password again (this lets unsafe orders through):",
+                             classes="dialog-line", markup=False)
+                yield Input("", id="password", placeholder="password", password=True,
+                            max_length=1024, compact=True)
+            yield Label("", id="error", classes="dialog-error")
+
+    def on_mount(self) -> None:
+        super().on_mount()
+        self.query_one("#reason", Input).focus()
+
+    @on(Input.Submitted)
+    def _submitted(self, event: Input.Submitted) -> None:
+        reason = self.query_one("#reason", Input).value.strip()
+        if not reason:
+            self.query_one("#error", Label).update("✗ write why, or esc to cancel")
+            self.query_one("#reason", Input).focus()
+            return
+        if not self.password:
+            self.dismiss((reason, ""))
+            return
+        password = self.query_one("#password", Input)
+        if event.input.id == "reason" or not password.value:
+            password.focus()
+            return
+        self.dismiss((reason, password.value))
+
+    def action_cancel(self) -> None:
+        self.dismiss(None)
+
+
 class StepDialog(Dialog[int | None]):
     """How many scans to step (1 to MAX_STEPS)."""
 

@@ -230,6 +230,11 @@ class Send:
     guard: ResetGuard | None = None
     on_behalf: Identity | None = None
     note: str = ""  # said with it in the journal (an OPC UA comment)
+    # Asked of the person before the commands that need it (hmi.access.roles): why, into
+    # the journal; their password again (switching the filter to monitor), checked, never
+    # kept or journalled.
+    reason: str = ""
+    password: str = ""
 
 
 @dataclass(frozen=True)
@@ -321,6 +326,9 @@ class Welcome:
     facts: CellFacts
     runtime: RuntimeInfo
     identity: Identity | None = None  # who the runtime let in (the users file's role)
+    # the runtime asks this screen for a reason (and the password) before the commands
+    # that need one: people sign in here (a users file exists)
+    accountable: bool = False
 
 
 @dataclass(frozen=True)
