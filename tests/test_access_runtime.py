@@ -63,8 +63,8 @@ def test_screens_sign_in_and_the_users_file_says_the_role(tmp_path, sock, users_
         # alice says engineer; the users file says operator
         alice = attach(sock, "alice", PASSWORDS["alice"], role="engineer")
         assert alice.identity.user == "alice" and alice.identity.role == "operator"
-        assert alice.command(SetMode(True)).result.accepted
-        refused = alice.command(SetPolicy("monitor")).result
+        assert alice.command(SetMode(True), reason="seat inspection").result.accepted
+        refused = alice.command(SetPolicy("monitor"), reason="trying").result
         assert not refused.accepted and "an engineer's command" in refused.message
         # a viewer sees and cannot act, nor take control
         bob = attach(sock, "bob", PASSWORDS["bob"])
@@ -75,15 +75,16 @@ def test_screens_sign_in_and_the_users_file_says_the_role(tmp_path, sock, users_
         # an engineer takes over and changes the policy
         carol = attach(sock, "carol", PASSWORDS["carol"])
         assert carol.take_control().accepted
-        assert carol.command(SetPolicy("block")).result.accepted
+        assert carol.command(SetPolicy("block"), reason="dry run over").result.accepted
         assert cell.process.poll() is None
         for link in (alice, bob, carol):
             link.leave()
     entries = journal(tmp_path)
     actions = [e for e in entries if e["type"] == "action"]
     manual = next(e for e in actions if e["event"] == "enter manual mode")
-    assert (manual["by"], manual["user"], manual["role"], manual["door"]) == (
-        "terminal:alice", "alice", "operator", "terminal")
+    assert (manual["by"], manual["user"], manual["role"], manual["door"],
+            manual["reason"]) == ("terminal:alice", "alice", "operator", "terminal",
+                                  "seat inspection")
     policy = [e for e in entries if "monitor" in e.get("event", "")]
     assert policy and all(e["by"] == "terminal:alice" for e in policy)
     assert any("refused" in str(e.get("result", "")) or e.get("accepted") is False
