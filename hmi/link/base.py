@@ -86,6 +86,8 @@ class CellLink(Protocol):
     # the runtime asks a reason (and for the riskiest, the password) before the commands
     # that need one (hmi.access.roles): people sign in to it
     accountable: bool
+    idle_lock_us: int  # the screen locks untouched after this (0: never), warning before
+    idle_warning_us: int
 
     def view(self) -> View | None:
         """The latest scan (None before the first)."""
@@ -110,6 +112,13 @@ class CellLink(Protocol):
 
     def silent_s(self) -> float:
         """How long since the runtime last said anything (a tick comes every second)."""
+
+    def lock(self) -> CommandResult:
+        """The screen was left untouched (idle_lock_us) and is covered: the runtime refuses
+        its commands until `unlock` with the person's password."""
+
+    def unlock(self, password: str) -> CommandResult:
+        """The person is back: their password, checked by the runtime."""
 
     def request_control(self) -> CommandResult:
         """Ask for control (granted at once if nobody holds it, else the holder is asked)."""

@@ -83,6 +83,7 @@ class SocketLink:
         if answer.identity is not None:
             self.identity = answer.identity  # as let in: the users file's name and role
         self.accountable = answer.accountable
+        self.idle_lock_us, self.idle_warning_us = answer.idle_lock_us, answer.idle_warning_us
         assert receiver.facts is not None and receiver.history is not None
         self.facts = receiver.facts
         self.history = receiver.history
@@ -164,6 +165,15 @@ class SocketLink:
 
     def _control(self, make: Callable[[int], m.ClientMessage], what: str) -> CommandResult:
         return self.receiver.result(self._ask(make, what), what).result
+
+    def lock(self) -> CommandResult:
+        """This screen was left untouched and is covered: the runtime refuses its commands
+        (and journals it) until :meth:`unlock`."""
+        return self._control(lambda ident: m.Idle(ident, "locked"), "locking the screen")
+
+    def unlock(self, password: str) -> CommandResult:
+        return self._control(lambda ident: m.Idle(ident, "unlock", password),
+                             "unlocking the screen")
 
     def request_control(self) -> CommandResult:
         return self._control(m.RequestControl, "the control request")

@@ -72,6 +72,8 @@ class LocalLink:
         if welcome.identity is not None:
             self.identity = welcome.identity
         self.accountable = welcome.accountable
+        self.idle_lock_us, self.idle_warning_us = (welcome.idle_lock_us,
+                                                   welcome.idle_warning_us)
         assert client is not None and receiver.facts is not None
         self._client: Client | None = client
         self.facts = receiver.facts
@@ -142,6 +144,12 @@ class LocalLink:
 
     def _control(self, message: m.ClientMessage, what: str) -> CommandResult:
         return self.receiver.result(self._ask(message), what).result
+
+    def lock(self) -> CommandResult:
+        return self._control(m.Idle(0, "locked"), "locking the screen")
+
+    def unlock(self, password: str) -> CommandResult:
+        return self._control(m.Idle(0, "unlock", password), "unlocking the screen")
 
     def request_control(self) -> CommandResult:
         return self._control(m.RequestControl(0), "the control request")
@@ -221,6 +229,7 @@ class SessionLink:
         self.facts = cell_facts(session)
         self.identity = identity or Identity("operator", session="local")
         self.accountable = False  # nobody signs in to a session in this process
+        self.idle_lock_us = self.idle_warning_us = 0
         self.recorder = ScanRecorder(session.engine.layout)
         self.history = self.recorder
         # Told of an error of the recorder (in the scan thread: the scan goes on).
@@ -257,6 +266,12 @@ class SessionLink:
     @property
     def error(self) -> BaseException | None:
         return self.runner.error if self.runner is not None else None
+
+    def lock(self) -> CommandResult:
+        return CommandResult.refused("nobody signs in to a cell in this process")
+
+    def unlock(self, password: str) -> CommandResult:
+        return self.lock()
 
     def command(self, command: Command, guard: ResetGuard | None = None, reason: str = "",
                 password: str = "") -> Answer:

@@ -28,6 +28,7 @@ from typing import Any
 from hmi.access import audit, roles
 from hmi.access.audit import SignInRefusal
 from hmi.engine.commands import Command, CommandResult, StepScans, describe
+from hmi.errors import UsageError
 from hmi.explain.reset import changes, declined_message, reset_preview
 from hmi.runtime.admission import GATEWAY_DOORS, LOCAL, Admission
 from hmi.session.journal_recorder import JournalRecorder
@@ -79,6 +80,7 @@ class Client:
     frames: int = 0
     dropped: int = 0  # frames it could not take (a later one went instead)
     table_id: str = ""  # its sign-in's entry in the users' session table
+    locked: bool = False  # left untouched (idle-lock): its commands refused until unlocked
     info: m.ClientInfo = field(init=False)
 
     def __post_init__(self) -> None:
@@ -160,8 +162,9 @@ class Hub:
                 self._grant(client, "control-granted", f"{client.info} is in control")
             self._control_version += 1
         # (the facts as they are now: a historian may have placed the run's time 0 since)
+        lock_us, warning_us = self._idle_settings(identity)
         return client, m.Welcome(m.PROTOCOL, client.id, cell_facts(self.session), self.runtime,
-                                 identity, self._accountable(identity))
+                                 identity, self._accountable(identity), lock_us, warning_us)
 
     def detach(self, client: Client, event: str, why: str) -> None:
         """A screen left (`client-left`: as asked), or was lost (`client-lost`: its
@@ -273,6 +276,8 @@ class Hub:
                 if before is None or before.state != status.state:
                     self._journal_service(client, status)
                 return None
+            case m.Idle(id=ident, event=event, password=password):
+                return m.Reply(ident, self._idle(client, event, password))
             case m.SignInRefused(refused=refused):
                 if client.identity.door not in GATEWAY_DOORS:
                     raise ValueError("a sign-in refusal from a screen that is no gateway")
@@ -306,6 +311,8 @@ class Hub:
         identity = client.identity
         if not identity.may_command:
             return "a viewer does not send commands (attached to view)"
+        if client.locked:
+            return "this screen is locked (left untouched): sign in again on it first"
         if self.holder == client.id:
             return None
         holder = self.clients.get(self.holder) if self.holder else None
@@ -368,6 +375,44 @@ class Hub:
         methods carry no reason (its comment is journalled when it gives one)."""
         return (who.door in REASON_DOORS and self.admission is not None
                 and self.admission.enforced())
+
+    def _idle_settings(self, who: m.Identity) -> tuple[int, int]:
+        """When a signed-in screen locks untouched, and warns before (the users file's)."""
+        if not self._accountable(who) or self.admission is None:
+            return 0, 0
+        try:
+            found = self.admission.auth.users()
+        except UsageError:
+            return 0, 0
+        if found is None:
+            return 0, 0
+        return found.settings.idle_lock_us, found.settings.idle_warning_us
+
+    def _idle(self, client: Client, event: str, password: str) -> CommandResult:
+        """A screen locked untouched, or its person back with their password."""
+        if event == "locked":
+            with self.lock:
+                client.locked = True
+            self._journal("session-locked", f"{client.info} locked: nobody touched it for "
+                          "the users file's idle-lock; the cell runs on", client)
+            return CommandResult.ok("locked")
+        if event != "unlock":
+            raise ValueError(f"unknown idle event {event!r}")
+        if not client.locked:
+            return CommandResult.ok("not locked")
+        who = client.identity
+        if self.admission is None:
+            return CommandResult.refused("nobody signs in here")
+        result = self.admission.auth.submit(who.user, password).result()
+        if not result.accepted:
+            self.journal_refusal(audit.refusal(who.user, who.door, LOCAL, result.reason,
+                                               result.locked_now),
+                                 f"{client.id}/{who.session}")
+            return CommandResult.refused(result.reason)
+        with self.lock:
+            client.locked = False
+        self._journal("session-unlocked", f"{client.info} unlocked with the password", client)
+        return CommandResult.ok("unlocked")
 
     def _accounted(self, who: m.Identity, message: m.Send) -> str | None:
         """Why the command may not go without more from its sender: no reason given where

@@ -20,6 +20,7 @@ situation picked from the palette or by clicking a constraint.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from functools import partial
@@ -35,6 +36,7 @@ from textual.css.scalar import Unit
 from textual.screen import ModalScreen
 
 from hmi.access import roles
+from hmi.access.sessions import IdleTimer
 from hmi.engine.commands import (
     Acknowledge,
     ChoosePolicy,
@@ -75,7 +77,7 @@ from hmi.project.model import POLICIES
 from hmi.project.monitors import monitors_of
 from hmi.project.recovery import recoveries_of
 from hmi.session.session import Session
-from hmi.timefmt import seconds
+from hmi.timefmt import format_duration, seconds
 from hmi.ui import manual
 from hmi.ui.actions import ACTIONS, bindings
 from hmi.ui.alarm_list import AlarmList, AlarmSelected
@@ -172,7 +174,8 @@ class PlcHmiApp(LastResort, ContainedPump, App):
     def __init__(self, link: CellLink | Session, live: bool = True, *,
                  show_measured: bool | None = None, refresh_hz: float = REFRESH_HZ,
                  injected: tuple[Injection, ...] = (), bell: bool = False,
-                 served: Served | None = None):
+                 served: Served | None = None,
+                 idle_clock: Callable[[], float] = time.monotonic):
         """`link`: the cell (a session given here runs in this process: the pilot tests and
         the single-process bench); `live`: its scans are paced by the wall clock and the
         screen refreshes on a timer, else whoever runs virtual time shows the frames."""
@@ -221,6 +224,12 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         self.trends: TrendScreen | None = None
         self.trend_zone: tzinfo | None = None
         self.set_class(True, f"-theme-{self.theme}", update=False)  # as a theme change sets
+        # The idle lock of a screen people sign in to (the users file's idle-lock and
+        # idle-warning, from the runtime): None where nobody signs in.
+        lock_us = link.idle_lock_us if link.accountable else 0
+        self.idle_timer: IdleTimer | None = IdleTimer(
+            lock_us / 1e6, link.idle_warning_us / 1e6, idle_clock) if lock_us > 0 else None
+        self.idle_state = "active"  # active, warning, locked (what the screen shows)
 
     def get_css_variables(self) -> dict[str, str]:
         """The ISA-101 theme from the start: App.__init__ builds the stylesheet from these
@@ -327,6 +336,8 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         self.poll(force=True)
         if self.driver.live:
             self.set_interval(1 / self.refresh_hz, self.poll)
+            if self.idle_timer is not None:
+                self.set_interval(1.0, self.check_idle_lock)
         # else: in virtual time (tests, screenshots, the soak) whoever runs the scans shows
         # the frames (hmi.ui.headless.settle); a refresh paced by the wall clock would make
         # what a test sees depend on the machine's load
@@ -851,7 +862,7 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         sign in to it: ``link.accountable``) once its reason is given — and for the
         riskiest, the password again (hmi.access.roles: needs_reason, needs_password).
         Cancelled: nothing is sent, and the message line says so."""
-        if not (getattr(self.link, "accountable", False) and roles.needs_reason(command)):
+        if not (self.link.accountable and roles.needs_reason(command)):
             self.send(command)
             return
         from hmi.ui.dialogs import ReasonDialog
@@ -979,12 +990,65 @@ class PlcHmiApp(LastResort, ContainedPump, App):
     async def on_event(self, event: events.Event) -> None:
         """A key typed before the dialog on top was painted is not the dialog's: dropped
         (a stray enter or y meant for the screen below must not answer it)."""
+        if self.idle_timer is not None and self.idle_state != "locked" and isinstance(
+                event, (events.Key, events.MouseDown, events.MouseScrollDown,
+                        events.MouseScrollUp)):
+            self._touched()
         if isinstance(event, events.Key) and not event.is_forwarded and \
                 isinstance(self.screen, ModalScreen):
             from hmi.ui.dialogs import Dialog
             if isinstance(self.screen, Dialog) and not self.screen.takes(event):
                 return
         await super().on_event(event)
+
+    # -- the idle lock (hmi.access.sessions.IdleTimer) ----------------------------------------
+    def _touched(self) -> None:
+        assert self.idle_timer is not None
+        self.idle_timer.touch()
+        if self.idle_state == "warning":
+            self.idle_state = "active"
+            self.message.say(Text("still here: this screen stays signed in", style=MUTED))
+
+    def check_idle_lock(self) -> None:
+        """Once a second (live): the warning `idle-warning` before the lock, then the lock
+        (the screen covered until the password is typed again; the runtime refuses this
+        screen's commands meanwhile and journals both)."""
+        idle = self.idle_timer
+        if idle is None or self.idle_state == "locked":
+            return
+        state = idle.state()
+        if state == "warning" and self.idle_state == "active":
+            self.idle_state = "warning"
+            left = max(1, round(idle.left()))
+            line = tag("LOCKS SOON", Level.ATTENTION)
+            line.append(f" nobody has touched this screen: it locks in {left} s; "
+                        "press any key to stay signed in")
+            self.message.say(line)
+            self.notify(f"This screen locks in {left} s: press any key to stay signed in.",
+                        title="Idle", severity="warning", timeout=min(left, 60))
+        elif state == "locked":
+            self._lock()
+
+    def _lock(self) -> None:
+        from hmi.ui.dialogs import LockScreen
+        assert self.idle_timer is not None
+        self.idle_state = "locked"
+        result = self.link.lock()
+        who = self.link.identity
+        idle = format_duration(round(self.idle_timer.lock_after_s * 1e6))
+        self.push_screen(LockScreen(f"{who.user} ({who.role})", idle, self._unlock))
+        line = tag("LOCKED", Level.ATTENTION)
+        line.append(f" left untouched for {idle}: sign in again to send anything")
+        self.message.say(line if result.accepted else result_text("lock", result))
+
+    def _unlock(self, password: str) -> CommandResult:
+        result = self.link.unlock(password)
+        if result.accepted:
+            assert self.idle_timer is not None
+            self.idle_timer.touch()
+            self.idle_state = "active"
+            self.message.say(Text("unlocked: signed in again", style=MUTED))
+        return result
 
     def on_key(self, event: events.Key) -> None:
         """1 / 0 / x outside manual mode, b without push buttons: said, not silently

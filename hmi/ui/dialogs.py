@@ -14,7 +14,7 @@ moves the focus between its buttons, and the focus starts on Cancel.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any, TypeVar
 
 from rich.text import Text
@@ -26,6 +26,7 @@ from textual.screen import ModalScreen
 from textual.widgets import Button, Input, Label, OptionList, Static
 from textual.widgets.option_list import Option
 
+from hmi.engine.commands import CommandResult
 from hmi.ui.containment import ContainedPump
 from hmi.ui.style import Level, banner
 from hmi.ui.textual_adapter import event_clock
@@ -259,6 +260,51 @@ class ReasonDialog(Dialog[tuple[str, str] | None]):
 
     def action_cancel(self) -> None:
         self.dismiss(None)
+
+
+class LockScreen(Dialog[None]):
+    """The screen left untouched for the users file's idle-lock: covered, the status bar
+    and the banners still in view above it (the cell runs on), until its person types
+    their password again — checked by the runtime (`unlock`: its answer). Escape does not
+    leave it; ctrl+q still ends the screen."""
+
+    BINDINGS = [Binding("escape", "stay", "Stay locked", show=False)]
+
+    def __init__(self, who: str, idle: str, unlock: Callable[[str], CommandResult]):
+        super().__init__(id="lock-screen")
+        self.who = who
+        self.idle = idle
+        self.unlock = unlock
+
+    def compose(self) -> ComposeResult:
+        with Vertical(classes="dialog"):
+            yield _title("LOCKED: sign in again", Level.ATTENTION)
+            yield Static(f"Nobody touched this screen for {self.idle}: it locked. The cell "
+                         "runs on; nothing can be sent from here until you sign in.",
+                         classes="dialog-line", markup=False)
+            yield Static(f"Signed in as {self.who}. Your password:", classes="dialog-line",
+                         markup=False)
+            yield Input("", id="password", placeholder="password", password=True,
+                        max_length=1024, compact=True)
+            yield Label("", id="error", classes="dialog-error")
+            yield Label("enter: unlock    ctrl+q: leave this screen", classes="dialog-hint")
+
+    def on_mount(self) -> None:
+        super().on_mount()
+        self.query_one("#password", Input).focus()
+
+    @on(Input.Submitted)
+    def _submitted(self, event: Input.Submitted) -> None:
+        field = self.query_one("#password", Input)
+        result = self.unlock(event.value)
+        field.value = ""
+        if result.accepted:
+            self.dismiss(None)
+        else:
+            self.query_one("#error", Label).update(f"✗ {result.message}")
+
+    def action_stay(self) -> None:
+        """(escape: the lock stays)"""
 
 
 class StepDialog(Dialog[int | None]):

@@ -6,7 +6,8 @@ An aiohttp server (textual-serve's, with a door in front):
   :class:`~hmi.access.signin.Authenticator` in its own threads (never on this loop), the
   lockout shared with every other door. Accepted: a browser session (a random cookie,
   HttpOnly, SameSite=Strict, Secure over TLS), counted in the users file's session table
-  (``sessions-per-user``), ended when idle for ``idle-lock`` or at sign-out. Refused: the
+  (``sessions-per-user``), ended at sign-out, or when idle for ``idle-lock`` with no tab
+  open (an open tab's screen locks itself instead: hmi.ui.app's idle lock). Refused: the
   name tried, the browser's address and why go to the cell's journal (hmi.access.audit).
 * ``/`` — textual-serve's terminal page, signed-in sessions only.
 * ``/ws`` — each tab's websocket, signed-in sessions only and from this server's own pages
@@ -128,10 +129,17 @@ class WebDoor:
         session = self.sessions.get(token) if token else None
         if session is None:
             return None
-        settings = self._settings()
-        if settings is None or self.clock() - session.last > settings.idle_lock_us / 1e6:
+        if self._expired(session, self.clock()):
             return None  # the reaper ends it
         return session
+
+    def _expired(self, session: WebSession, now: float) -> bool:
+        """A sign-in with no tab open ends after idle-lock untouched (sign in again); one
+        whose tabs are open lasts: each tab's screen warns, then locks itself and asks the
+        password again (the HMI's idle lock), the cell shown running meanwhile."""
+        settings = self._settings()
+        return settings is None or (not session.tabs and
+                                    now - session.last > settings.idle_lock_us / 1e6)
 
     # -- signing in and out ----------------------------------------------------------------
     async def sign_in_page(self, request: web.Request) -> web.Response:
@@ -275,13 +283,12 @@ class WebDoor:
         app[REAPER] = asyncio.create_task(self._reap())
 
     async def _reap(self) -> None:
-        """Idle sessions end (their tabs close: sign in again); stale tickets go."""
+        """Idle sessions without a tab end (sign in again); stale tickets go."""
         while True:
             await asyncio.sleep(1.0)
-            settings = self._settings()
             now = self.clock()
             for session in list(self.sessions.values()):
-                if settings is None or now - session.last > settings.idle_lock_us / 1e6:
+                if self._expired(session, now):
                     await self._end(session)
             await asyncio.to_thread(tickets.sweep, self.users_path)
 

@@ -289,6 +289,17 @@ class Report:
 
 
 @dataclass(frozen=True)
+class Idle:
+    """The screen's person left it untouched for the users file's ``idle-lock``: `locked`
+    (the screen is covered; the runtime refuses its commands until it is unlocked), or
+    `unlock` with their password again (checked like a sign-in)."""
+
+    id: int
+    event: str  # "locked" or "unlock"
+    password: str = ""
+
+
+@dataclass(frozen=True)
 class SignInRefused:
     """A gateway refused someone at its door (the OPC UA server): for the journal."""
 
@@ -314,7 +325,7 @@ class Bye:
 
 
 ClientMessage = (Hello | Send | RequestControl | TakeControl | ReleaseControl | HandOver
-                 | Advance | Query | Report | SignInRefused | Fault | Bye)
+                 | Advance | Query | Report | Idle | SignInRefused | Fault | Bye)
 
 
 # -- runtime to screen ------------------------------------------------------------------
@@ -329,6 +340,9 @@ class Welcome:
     # the runtime asks this screen for a reason (and the password) before the commands
     # that need one: people sign in here (a users file exists)
     accountable: bool = False
+    # the users file's idle-lock and idle-warning (0: this screen does not lock)
+    idle_lock_us: int = 0
+    idle_warning_us: int = 0
 
 
 @dataclass(frozen=True)

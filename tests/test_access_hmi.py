@@ -1,7 +1,9 @@
-"""Why, and who: the commands that need a reason (the filter policy, forcing, manual mode,
-recovery, shelving) carry one from the person who sent them into the journal, and switching
-the filter to monitor asks for their password again — checked at the runtime's hub (a real
-users file, real argon2 hashes, a real journal), and asked for by the HMI (pilot tests)."""
+"""Who is at the screen, and why: the commands that need a reason (the filter policy,
+forcing, manual mode, recovery, shelving) carry one from the person who sent them into the
+journal, switching the filter to monitor asks for their password again, and a screen left
+untouched warns, then locks until the password is typed again — checked at the runtime's hub
+(a real users file, real argon2 hashes, a real journal) and seen in the HMI (pilot tests,
+the idle clock injected)."""
 
 from __future__ import annotations
 
@@ -15,7 +17,7 @@ from ui_harness import run_for, wait_for_main
 from ui_scenarios import VALVE, select_row
 
 from hmi.access import users
-from hmi.engine.commands import ManualOutput, SetMode, SetPolicy, Shelve
+from hmi.engine.commands import ManualOutput, Pause, SetMode, SetPolicy, Shelve
 from hmi.engine.scan import Engine
 from hmi.explain.journal import Journal
 from hmi.link.base import Identity
@@ -26,7 +28,7 @@ from hmi.runtime.admission import Admission
 from hmi.session.journal_recorder import JournalRecorder
 from hmi.session.session import Session
 from hmi.ui.app import PlcHmiApp
-from hmi.ui.dialogs import ConfirmDialog, ReasonDialog
+from hmi.ui.dialogs import ConfirmDialog, LockScreen, ReasonDialog
 from hmi.ui.headless import press, settle, wait_for_screen
 
 PASSWORD = "carol-password"
@@ -155,3 +157,63 @@ async def test_the_hmi_asks_why_before_manual_mode_forcing_and_monitor(tmp_path,
         ("filter policy: monitor", "commissioning")], entries
     assert all(e["user"] == "carol" for e in entries if "reason" in e)
     assert PASSWORD not in journal.read_text()
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.now = 1000.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+async def test_an_untouched_screen_warns_then_locks_until_the_password(tmp_path, users_path):
+    users_path.write_text("idle-lock = 5m\nidle-warning = 1m\n" + users_path.read_text())
+    link, journal = cell(tmp_path, users_path)
+    assert (link.idle_lock_us, link.idle_warning_us) == (300_000_000, 60_000_000)
+    clock = Clock()
+    app = PlcHmiApp(link, live=False, show_measured=False, idle_clock=clock)
+    async with app.run_test(size=SIZE) as pilot:
+        clock.now += 3 * 60
+        app.check_idle_lock()
+        assert app.idle_state == "active"
+        clock.now += 61  # a minute before the lock: warned
+        app.check_idle_lock()
+        assert app.idle_state == "warning"
+        assert "LOCKS SOON" in app.message.plain and "locks in 59 s" in app.message.plain
+        await press(pilot, "down")  # the person is there: stays signed in
+        assert app.idle_state == "active" and "still here" in app.message.plain
+        clock.now += 4 * 60 + 30
+        app.check_idle_lock()
+        assert app.idle_state == "warning"
+        clock.now += 31
+        app.check_idle_lock()  # five minutes untouched: locked
+        lock = await wait_for_screen(pilot, LockScreen)
+        assert app.idle_state == "locked"
+        refused = link.command(Pause()).result  # the runtime refuses this screen meanwhile
+        assert not refused.accepted and "locked" in refused.message
+        await write(pilot, "not-her-password")
+        await press(pilot, "enter")
+        await settle(pilot)
+        assert isinstance(app.screen, LockScreen)
+        assert "wrong user name or password" in str(lock.query_one("#error").render())
+        await press(pilot, "escape")  # does not leave the lock
+        assert isinstance(app.screen, LockScreen)
+        await write(pilot, PASSWORD)
+        await press(pilot, "enter")
+        await wait_for_main(pilot)
+        assert app.idle_state == "active"
+        assert link.command(Pause()).result.accepted
+    link.stop()
+    entries = [json.loads(line) for line in journal.read_text().splitlines()]
+    events = [e["event"] for e in entries if e["event"] in (
+        "session-locked", "session-unlocked", "sign-in-refused")]
+    assert events == ["session-locked", "sign-in-refused", "session-unlocked"]
+    locked = next(e for e in entries if e["event"] == "session-locked")
+    assert locked["by"] == "terminal:carol" and locked["role"] == "engineer"
+    assert "not-her-password" not in journal.read_text()
+
+
+def test_a_screen_nobody_signs_in_to_never_locks(tmp_path):
+    link, _ = cell(tmp_path, tmp_path / "no-users")
+    assert PlcHmiApp(link, live=False, show_measured=False).idle_timer is None
