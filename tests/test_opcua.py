@@ -417,7 +417,10 @@ async def test_a_trusted_user_certificate_names_the_user_an_unknown_one_does_not
     assert (entry["event"], entry["by"]) == ("fault reset", "opcua:carol")
     with pytest.raises(UaStatusCodeError, match="BadUserAccessDenied"):
         await reset_as(cell.stranger)  # an untrusted certificate: refused at activation
-    assert cell.journal()[-1] == entry
+    refused = cell.journal()[-1]  # journalled as a refused sign-in, no action
+    assert refused["event"] == "sign-in-refused" and refused["door"] == "opcua"
+    assert "an untrusted user certificate" in refused["message"]
+    assert [e for e in cell.journal() if e["type"] == "action"][-1] == entry
 
 
 async def test_a_paused_cell_says_so_though_no_scan_comes(cell):

@@ -102,9 +102,9 @@ class Tab:
 
 
 @contextlib.contextmanager
-def web_door(sock: Path, log: Path):
+def web_door(sock: Path, log: Path, journal: Path):
     command = [sys.executable, "-m", "hmi.cli", "web", str(VALVE), "--bind", "127.0.0.1:0",
-               "--socket", str(sock)]
+               "--socket", str(sock), "--journal", str(journal)]
     with open(log, "wb") as out:
         process = subprocess.Popen(command, cwd=ROOT, stdin=subprocess.DEVNULL, stdout=out,
                                    stderr=out)
@@ -124,7 +124,7 @@ def acknowledgements(journal: Path) -> list[dict]:
             if e.get("type") == "action" and "acknowledge" in e.get("event", "")]
 
 
-def test_operator_viewer_and_lockout_in_a_real_browser(tmp_path):
+def test_operator_viewer_lockout_and_idle_lock_in_a_real_browser(tmp_path):
     sync_playwright = _browser_or_why()
     data = Path(os.environ["PLCHMI_DATA"])
     for name, password in PASSWORDS.items():
@@ -135,7 +135,7 @@ def test_operator_viewer_and_lockout_in_a_real_browser(tmp_path):
     cell = RuntimeProcess(VALVE, sock, "--journal", str(journal), "--inject", "F13@40s",
                           virtual=False)
     try:
-        with web_door(sock, tmp_path / "web.log") as url, sync_playwright() as p:
+        with web_door(sock, tmp_path / "web.log", journal) as url, sync_playwright() as p:
             browser = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
             # the sixth wrong password: five wrong lock the account, then even the right one
             # is refused
@@ -173,9 +173,34 @@ def test_operator_viewer_and_lockout_in_a_real_browser(tmp_path):
             assert entries[0]["role"] == "operator" and entries[0]["door"] == "browser"
             assert entries[0].get("accepted", True) is not False, entries[0]
             alice.wait_text(r"acknowledged", "the acknowledgement on alice's screen")
+            # a tab left untouched warns, stays when a key comes, then locks until the
+            # password (the users file's idle-lock, short here; given to screens that
+            # attach from now on)
+            settings = "idle-lock = 30s\nidle-warning = 20s\n"
+            users.write_atomically(data / "users", settings + (data / "users").read_text())
+            idle = Tab(browser, url)
+            assert idle.sign_in("alice", PASSWORDS["alice"]) == ""
+            idle.wait_text(r"LOCKS SOON", "the idle warning")
+            idle.press("ArrowDown")
+            idle.wait_text(r"still here", "staying signed in")
+            idle.wait_text(r"LOCKED: sign in again", "the idle lock")
+            idle.page.click("#terminal")
+            idle.page.keyboard.type(PASSWORDS["alice"], delay=20)
+            idle.wait_text(r"•{%d}" % len(PASSWORDS["alice"]), "the password typed")
+            idle.page.keyboard.press("Enter")
+            idle.wait_text(r"unlocked: signed in again", "unlocked")
             browser.close()
     finally:
         cell.stop()
+    entries = read(journal).entries
+    refused = [(e["event"], e["by"], e["source"]) for e in entries
+               if e["event"] in ("sign-in-refused", "account-locked")]
+    assert refused == [("sign-in-refused", "browser:carol", "127.0.0.1")] * 4 + [
+        ("account-locked", "browser:carol", "127.0.0.1"),
+        ("sign-in-refused", "browser:carol", "127.0.0.1")], refused
+    idle = [(e["event"], e["by"]) for e in entries
+            if e["event"] in ("session-locked", "session-unlocked")]
+    assert idle == [("session-locked", "browser:alice"), ("session-unlocked", "browser:alice")]
     verified = subprocess.run([sys.executable, "-m", "hmi.cli", "journal", "verify",
                                str(VALVE), "--path", str(journal)], cwd=ROOT,
                               capture_output=True, text=True)
