@@ -128,26 +128,34 @@ def _entries(root: Path, skip: str | None = None) -> Iterator[os.DirEntry[str]]:
             yield entry
 
 
-def _tree(root: Path, digest: blake2b) -> None:
+def _tree(root: Path, digest: blake2b, *, relative: bool = False,
+          others: str = "refuse") -> None:
     """Every entry under `root` (symlinks not followed: their targets are recorded, and
-    what they lead to must lie in a tree walked too): name, kind, content."""
+    what they lead to must lie in a tree walked too): name, kind, content. Names are the
+    full paths, or with `relative` the paths under `root` (a fingerprint that must not
+    depend on where the folder is). A fifo, a socket or a device: with `others="refuse"`
+    the tree cannot be kept (the loader refuses them); with "skip" it is not read (a
+    runtime's own socket in a data folder)."""
     size = 0
     for count, entry in enumerate(_entries(root), start=1):
         if count > MAX_ENTRIES:
             raise TooBig(str(root))
+        name = os.path.relpath(entry.path, root) if relative else entry.path
         if entry.is_symlink():
-            record = f"link {entry.path} -> {os.readlink(entry.path)}"
+            record = f"link {name} -> {os.readlink(entry.path)}"
         elif entry.is_dir():
-            record = f"dir {entry.path}"
+            record = f"dir {name}"
         elif entry.is_file():
             with open(entry.path, "rb") as file:
                 content = file.read(MAX_BYTES - size + 1)
             size += len(content)
             if size > MAX_BYTES:
                 raise TooBig(str(root))
-            record = f"file {entry.path} {len(content)}"
+            record = f"file {name} {len(content)}"
             digest.update(content)
-        else:  # a fifo, a socket, a device: the loader refuses them; not kept
+        elif others == "skip":
+            continue
+        else:
             raise TooBig(entry.path)
         digest.update(f"{record}\0".encode("utf-8", "surrogateescape"))
 
@@ -196,24 +204,5 @@ def fingerprint(path: str | Path, diagnoser_variant: str | None) -> str:
     digest.update(repr(("variant", diagnoser_variant, project_file.name)).encode())
     for label, root in (("project", project_file.parent), ("components", COMPONENTS.resolve())):
         digest.update(f"tree {label}\0".encode())
-        size = 0
-        for count, entry in enumerate(_entries(root), start=1):
-            if count > MAX_ENTRIES:
-                raise TooBig(str(root))
-            name = os.path.relpath(entry.path, root)
-            if entry.is_symlink():
-                record = f"link {name} -> {os.readlink(entry.path)}"
-            elif entry.is_dir():
-                record = f"dir {name}"
-            elif entry.is_file():
-                with open(entry.path, "rb") as file:
-                    content = file.read(MAX_BYTES - size + 1)
-                size += len(content)
-                if size > MAX_BYTES:
-                    raise TooBig(str(root))
-                record = f"file {name} {len(content)}"
-                digest.update(content)
-            else:
-                continue  # a socket or a fifo (a runtime's own, in a data folder): not read
-            digest.update(f"{record}\0".encode("utf-8", "surrogateescape"))
+        _tree(root, digest, relative=True, others="skip")
     return digest.hexdigest()
