@@ -186,7 +186,7 @@ def test_operator_viewer_lockout_and_idle_lock_in_a_real_browser(tmp_path):
             idle.wait_text(r"LOCKED: sign in again", "the idle lock")
             idle.page.click("#terminal")
             idle.page.keyboard.type(PASSWORDS["alice"], delay=20)
-            idle.wait_text(r"•{%d}" % len(PASSWORDS["alice"]), "the password typed")
+            idle.wait_text("•{" + str(len(PASSWORDS["alice"])) + "}", "the password typed")
             idle.page.keyboard.press("Enter")
             idle.wait_text(r"unlocked: signed in again", "unlocked")
             browser.close()
