@@ -17,12 +17,13 @@ from ui_harness import run_for, wait_for_main
 from ui_scenarios import VALVE, select_row
 
 from hmi.access import users
-from hmi.engine.commands import ManualOutput, Pause, SetMode, SetPolicy, Shelve
+from hmi.engine.commands import ChoosePolicy, ManualOutput, Pause, SetMode, SetPolicy, Shelve
 from hmi.engine.scan import Engine
 from hmi.explain.journal import Journal
 from hmi.link.base import Identity
 from hmi.link.local import LocalLink
 from hmi.plant.sim.plant import SimPlant
+from hmi.project.injection import parse_injection
 from hmi.project.kept import load_once
 from hmi.runtime.admission import Admission
 from hmi.session.journal_recorder import JournalRecorder
@@ -42,10 +43,13 @@ def users_path() -> Path:
     return path
 
 
-def cell(tmp_path: Path, users_path: Path) -> tuple[LocalLink, Path]:
+def cell(tmp_path: Path, users_path: Path, *faults: str) -> tuple[LocalLink, Path]:
     """The valve's session behind a hub that admits from `users_path`, carol signed in at
-    the terminal; its journal."""
-    session = Session(Engine(load_once(VALVE, None), SimPlant(load_once(VALVE, None))))
+    the terminal; its journal. `faults` injected as the command line writes them."""
+    plant = SimPlant(load_once(VALVE, None))
+    for fault in faults:
+        plant.inject(parse_injection(fault))
+    session = Session(Engine(load_once(VALVE, None), plant))
     journal = tmp_path / "journal.jsonl"
     recorder = JournalRecorder(session, Journal(journal))
     link = LocalLink(session, identity=Identity("carol", "engineer", "terminal", "s1"),
@@ -89,6 +93,28 @@ def test_the_runtime_refuses_these_commands_without_a_reason_or_the_password(
     assert [e["accepted"] for e in policy] == [False, False, True]
     text = journal.read_text()
     assert PASSWORD not in text and "not-hers-at-all" not in text
+
+
+def test_an_explanations_policy_needs_the_reason_of_what_it_carries_out(
+        tmp_path, users_path):
+    link, journal = cell(tmp_path, users_path, "F5@1s")
+    session = link.session
+    for _ in range(3000):
+        session.scan_once()
+        offered = [(e.key, p.id) for e in session.explanations for p in e.policies
+                   if p.id == "manual"]
+        if offered:
+            break
+    assert offered, "no explanation offered manual mode"
+    key, policy = offered[0]
+    refused = link.command(ChoosePolicy(key, policy)).result
+    assert not refused.accepted and "enter manual mode needs a reason" in refused.message
+    assert session.engine.mode == "auto"
+    assert link.command(ChoosePolicy(key, policy), reason="stuck sensor").result.accepted
+    assert session.engine.mode == "manual"
+    link.stop()
+    chosen = [e for e in actions(journal) if e.get("reason") == "stuck sensor"]
+    assert len(chosen) == 1 and chosen[0]["user"] == "carol"
 
 
 def test_without_a_users_file_nothing_more_is_asked(tmp_path):

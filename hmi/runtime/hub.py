@@ -27,7 +27,7 @@ from typing import Any
 
 from hmi.access import audit, roles
 from hmi.access.audit import SignInRefusal
-from hmi.engine.commands import Command, CommandResult, StepScans, describe
+from hmi.engine.commands import ChoosePolicy, Command, CommandResult, StepScans, describe
 from hmi.errors import UsageError
 from hmi.explain.reset import changes, declined_message, reset_preview
 from hmi.runtime.admission import GATEWAY_DOORS, LOCAL, Admission
@@ -423,6 +423,8 @@ class Hub:
             return f"refused: a reason of at most {MAX_REASON} characters"
         if not self._accountable(who):
             return None
+        if isinstance(command, ChoosePolicy):  # an explanation's policy: what it carries out
+            command = self.session.policy_command(command.key, command.policy) or command
         if roles.needs_reason(command) and not message.reason.strip():
             return (f"refused: {describe(command)} needs a reason (it goes to the journal "
                     "with your name)")

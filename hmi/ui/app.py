@@ -803,7 +803,7 @@ class PlcHmiApp(LastResort, ContainedPump, App):
             self.message.say(Text(f"cancelled: {policy.label} — {self._situation_text(key)}",
                                   style=MUTED))
             return
-        self._said(key, policy, self.send(ChoosePolicy(key, policy.id)))
+        self.act(ChoosePolicy(key, policy.id), partial(self._said, key, policy))
 
     def _said(self, key: str, policy: Policy, result: CommandResult) -> None:
         self.explanation_panel.say_result(key, result_line(key, policy, result.accepted,
@@ -857,23 +857,29 @@ class PlcHmiApp(LastResort, ContainedPump, App):
             answer = self.link.command(command)
         return self._sent(command, answer.result)
 
-    def act(self, command: Command) -> None:
+    def act(self, command: Command,
+            then: Callable[[CommandResult], None] | None = None) -> None:
         """A command the operator chose: sent at once, or where the runtime asks it (people
         sign in to it: ``link.accountable``) once its reason is given — and for the
-        riskiest, the password again (hmi.access.roles: needs_reason, needs_password).
-        Cancelled: nothing is sent, and the message line says so."""
-        if not (self.link.accountable and roles.needs_reason(command)):
-            self.send(command)
+        riskiest, the password again (hmi.access.roles: needs_reason, needs_password; an
+        explanation's policy as what it carries out). Cancelled: nothing is sent, and the
+        message line says so. `then` hears the answer."""
+        done = then or (lambda result: None)
+        carried = command
+        if isinstance(command, ChoosePolicy):
+            carried = self._policy_command(command.key, command.policy) or command
+        if not (self.link.accountable and roles.needs_reason(carried)):
+            done(self.send(command))
             return
         from hmi.ui.dialogs import ReasonDialog
 
         def given(answer: tuple[str, str] | None) -> None:
             if answer is None:
-                self.message.say(Text(f"cancelled: {describe(command)} (nothing sent)",
+                self.message.say(Text(f"cancelled: {describe(carried)} (nothing sent)",
                                       style=MUTED))
                 return
-            self.send(command, reason=answer[0], password=answer[1])
-        self.push_screen(ReasonDialog(describe(command), roles.needs_password(command)),
+            done(self.send(command, reason=answer[0], password=answer[1]))
+        self.push_screen(ReasonDialog(describe(carried), roles.needs_password(carried)),
                          given)
 
     def _sent(self, command: Command, result: CommandResult) -> CommandResult:
