@@ -96,6 +96,14 @@ class Tab:
                                      + self.text())
             self.page.wait_for_timeout(50)
 
+    def wait_gone(self, pattern: str, what: str) -> None:
+        started = time.monotonic()
+        while re.search(pattern, self.text()):
+            if time.monotonic() - started > GUARD_S:
+                raise AssertionError(f"{what}: still on the screen after {GUARD_S:g} s:\n"
+                                     + self.text())
+            self.page.wait_for_timeout(50)
+
     def press(self, key: str) -> None:
         self.page.click("#terminal")
         self.page.keyboard.press(key)
@@ -124,7 +132,7 @@ def acknowledgements(journal: Path) -> list[dict]:
             if e.get("type") == "action" and "acknowledge" in e.get("event", "")]
 
 
-def test_operator_viewer_lockout_and_idle_lock_in_a_real_browser(tmp_path):
+def test_operator_viewer_and_lockout_in_a_real_browser(tmp_path):
     sync_playwright = _browser_or_why()
     data = Path(os.environ["PLCHMI_DATA"])
     for name, password in PASSWORDS.items():
@@ -173,22 +181,6 @@ def test_operator_viewer_lockout_and_idle_lock_in_a_real_browser(tmp_path):
             assert entries[0]["role"] == "operator" and entries[0]["door"] == "browser"
             assert entries[0].get("accepted", True) is not False, entries[0]
             alice.wait_text(r"acknowledged", "the acknowledgement on alice's screen")
-            # a tab left untouched warns, stays when a key comes, then locks until the
-            # password (the users file's idle-lock, short here; given to screens that
-            # attach from now on)
-            settings = "idle-lock = 30s\nidle-warning = 20s\n"
-            users.write_atomically(data / "users", settings + (data / "users").read_text())
-            idle = Tab(browser, url)
-            assert idle.sign_in("alice", PASSWORDS["alice"]) == ""
-            idle.wait_text(r"LOCKS SOON", "the idle warning")
-            idle.press("ArrowDown")
-            idle.wait_text(r"still here", "staying signed in")
-            idle.wait_text(r"LOCKED: sign in again", "the idle lock")
-            idle.page.click("#terminal")
-            idle.page.keyboard.type(PASSWORDS["alice"], delay=20)
-            idle.wait_text("•{" + str(len(PASSWORDS["alice"])) + "}", "the password typed")
-            idle.page.keyboard.press("Enter")
-            idle.wait_text(r"unlocked: signed in again", "unlocked")
             browser.close()
     finally:
         cell.stop()
@@ -198,9 +190,6 @@ def test_operator_viewer_lockout_and_idle_lock_in_a_real_browser(tmp_path):
     assert refused == [("sign-in-refused", "browser:carol", "127.0.0.1")] * 4 + [
         ("account-locked", "browser:carol", "127.0.0.1"),
         ("sign-in-refused", "browser:carol", "127.0.0.1")], refused
-    idle = [(e["event"], e["by"]) for e in entries
-            if e["event"] in ("session-locked", "session-unlocked")]
-    assert idle == [("session-locked", "browser:alice"), ("session-unlocked", "browser:alice")]
     verified = subprocess.run([sys.executable, "-m", "hmi.cli", "journal", "verify",
                                str(VALVE), "--path", str(journal)], cwd=ROOT,
                               capture_output=True, text=True)
