@@ -11,7 +11,6 @@ and latched evidence.
 
 from __future__ import annotations
 
-import re
 from collections.abc import Callable, Iterable
 from concurrent.futures import Executor
 from dataclasses import dataclass, field
@@ -63,19 +62,26 @@ class Agreement:
 
 
 class Twin:
-    """The exported program of a project, loaded once, run beside engines."""
+    """The exported program of a project, loaded once, run beside engines: its control law
+    `control` (the project's default: None) exported too, its FOV compared with the engine's;
+    or, `engine_fov`, the engine's FOV given to the program in place of its control (manual
+    mode: the operator's requests are the FOV)."""
 
-    def __init__(self, project: Project, text: str | None = None):
+    def __init__(self, project: Project, text: str | None = None, control: str | None = None,
+                 engine_fov: bool = False):
         self.project = project
-        model = build(project)
+        self.control_name = control or project.default_control
+        model = build(project, control)
         self.text = text if text is not None else write_st(model)
         self.program = Program(self.text)
         # Which identifier holds which project value (IEC names are case-insensitive).
         self.sym = {k: v.upper() for k, v in model.symbols.items()}
         self.fov: tuple[bool, ...] = ()
         self.fov_names = [self.sym[f"FOV_{v.name}"] for v in project.outputs]
-        control = next(p.name for p in model.pous if p.name.endswith("_Control"))
-        self.program.set_native(control.upper(), self._control)
+        self.engine_fov = engine_fov
+        if engine_fov:
+            control_pou = next(p.name for p in model.pous if p.name.endswith("_Control"))
+            self.program.set_native(control_pou.upper(), self._control)
 
     def _control(self, inst: Instance, globals_: dict) -> None:
         """The functional control's stand-in: the engine's FOV of this scan."""
@@ -96,7 +102,10 @@ class Twin:
         """
         codes = codes or {}
         project, sym = self.project, self.sym
+        assert self.engine_fov or engine.control_name == self.control_name, (
+            f"the engine runs law {engine.control_name}, the export {self.control_name}")
         rt = Runtime(self.program)
+        read_fov = rt.reader(self.fov_names)
         rt.set(sym["FilterPolicy"], POLICIES[engine.policy])
         stage = engine.diagnosis
         rt.set(sym["DiagnosisMode"], codes.get("DiagnosisMode",
@@ -154,6 +163,9 @@ class Twin:
                 for name, mine_value, value in zip(value_names, mine_values, engine_values,
                                                    strict=True):
                     assert mine_value == value, f"{where}: {name} = {mine_value}, engine {value}"
+            if not self.engine_fov:
+                mine_fov = read_fov()
+                assert mine_fov == snap.fov, f"{where}: FOV {mine_fov}, engine {snap.fov}"
             report = snap.filter
             violated = set(report.violated_names) if report is not None else set()
             word = violations()
@@ -195,21 +207,6 @@ class Twin:
         return result
 
 
-def _engine_drives_fov(text: str, control: str, fov_names: list[str]) -> str:
-    """`text` with the control stub's assignments (`FOV_x := FALSE;`) made `FOV_x := FOV_x;`:
-    the driver writes the engine's FOV before each cycle, which the stub must keep (matiec
-    refuses a function block without a statement)."""
-    start = re.search(rf"^FUNCTION_BLOCK {re.escape(control)}\s*$", text, re.M | re.I)
-    assert start is not None, f"no {control} in the export"
-    end = text.index("END_FUNCTION_BLOCK", start.end())
-    body = text[start.end():end]
-    for name in fov_names:
-        body, count = re.subn(rf"^{re.escape(name)} := FALSE;$", f"{name} := {name};", body,
-                              flags=re.M | re.I)
-        assert count == 1, f"the control stub does not write {name} once"
-    return text[:start.end()] + body + text[end:]
-
-
 LONG_US = 30_000_000  # the faulty programs' runs
 # A campaign run is compared up to this long after its fault, not to the campaign's end: on
 # the valve's 48 runs, the last new situation (every Boolean of the image, the violations,
@@ -244,7 +241,7 @@ def export_traces(name: str, faulty_policies: tuple[str, ...] = ("correct", "blo
     return runs
 
 
-_TWINS: dict[tuple[type, str], Twin | MatiecTwin] = {}
+_TWINS: dict[tuple[type, str, str | None], Twin | MatiecTwin] = {}
 
 
 def run_trace(kind: type[Twin] | type[MatiecTwin], name: str,
@@ -252,9 +249,10 @@ def run_trace(kind: type[Twin] | type[MatiecTwin], name: str,
               diagnosis: str, control: str | None) -> Agreement:
     """One trace, in a worker: the engine and the export (`kind`: interpreted by
     tests/stsubset.py, or compiled by matiec) on the same scans; asserts inside."""
-    twin = _TWINS.get((kind, name))
+    twin = _TWINS.get((kind, name, control))
     if twin is None:
-        twin = _TWINS[kind, name] = kind(load_project(PROJECTS / name))
+        twin = _TWINS[kind, name, control] = kind(load_project(PROJECTS / name),
+                                                  control=control)
     engine = engine_for(twin.project, injections, policy=policy, control=control,
                         diagnosis=diagnosis)
     return twin.run(engine, until_us)
@@ -273,8 +271,9 @@ def agree_on(pool: Executor, runs: list[TraceRun], kind: type[Twin] | type[Matie
 def shorter_ton1(valve_text: str) -> str:
     """The valve's export with TON1's preset 1.1 s instead of 2.1 s: a wrong program whose
     first difference from the engine is known (TON1 true at t = 1.1 s of an opening)."""
-    tampered = valve_text.replace("T_TON1(IN := prev_O, PT := T#2s100ms);",
-                                  "T_TON1(IN := prev_O, PT := T#1s100ms);", 1)
+    # (TON1 is the memory's first timer: the first comparison with its preset)
+    tampered = valve_text.replace("L_q := (Now - L_s) >= T#2s100ms;",
+                                  "L_q := (Now - L_s) >= T#1s100ms;", 1)
     assert tampered != valve_text
     return tampered
 
@@ -285,7 +284,10 @@ def engine_for(project: Project, inject: Iterable[str | Injection] = (),
     plant = SimPlant(project)
     for item in inject:
         plant.inject(parse_injection(item) if isinstance(item, str) else item)
-    return Engine(project, plant, control=control, policy=policy, diagnosis=diagnosis)
+    # (the export carries the local diagnosers, not the High Level Diagnoser that refines
+    # their decisions: the engine it is compared with runs without it)
+    return Engine(project, plant, control=control, policy=policy, diagnosis=diagnosis,
+                  high_level=False)
 
 
 class MatiecTwin:
@@ -295,16 +297,15 @@ class MatiecTwin:
     recorded writes, and each scan's values are compared. The same comparisons as
     :meth:`Twin.run`; `mismatches` lists every scan that differs, not only the first."""
 
-    def __init__(self, project: Project, text: str | None = None):
+    def __init__(self, project: Project, text: str | None = None, control: str | None = None):
         from tests.matiec import CompiledPlc  # (needs matiec: tests skip without it)
 
         self.project = project
-        model = build(project)
+        self.control_name = control or project.default_control
+        model = build(project, control)
         sym = self.sym = {k: v.upper() for k, v in model.symbols.items()}
-        text = text if text is not None else write_st(model)
-        control = next(p.name for p in model.pous if p.name.endswith("_Control"))
+        self.text = text if text is not None else write_st(model)
         self.fov_names = [sym[f"FOV_{v.name}"] for v in project.outputs]
-        self.text = _engine_drives_fov(text, control, self.fov_names)
         lay_inputs = [v.name for v in project.inputs]
         self.input_names = lay_inputs
         # what Twin.run compares too: outputs, timers, observers, flags, filtered sensors
@@ -316,11 +317,11 @@ class MatiecTwin:
                                      for lab in d.labels])
                            for d in diagnosers_of(project)]
         self.monitor_specs = monitors_of(project)
-        writes = ([sym[n] for n in lay_inputs] + self.fov_names
+        writes = ([sym[n] for n in lay_inputs]
                   + [sym["FaultReset"], sym["FilterPolicy"], sym["DiagnosisMode"]])
         reads = ([sym[n] for n in self.value_names]
                  + [sym["Violations"], sym["FilterLatched"], sym["FilterFallback"],
-                    f"SAFETY.{sym['Filter']}.Tested"])
+                    f"SAFETY.{sym['Filter']}.Tested", *self.fov_names])
         for name, labels in self.diagnosers:
             reads += [f"SAFETY.{sym['Diag_' + name]}.State", *labels]
         for t in self.monitor_specs:
@@ -331,6 +332,8 @@ class MatiecTwin:
     def run(self, engine: Engine, until_us: int, resets_after: Iterable[int] = ()) -> Agreement:
         """Step `engine` every period up to `until_us`, run the compiled program on the same
         writes, compare. Raises an AssertionError naming the mismatches (all counted)."""
+        assert engine.control_name == self.control_name, (
+            f"the engine runs law {engine.control_name}, the export {self.control_name}")
         rows, expected, result = self.record(engine, until_us, resets_after)
         got = self.plc.run(rows)
         mismatches = self.compare(rows, expected, got)
@@ -369,14 +372,14 @@ class MatiecTwin:
             reset = snap.scan in resets
             inputs = input_slots(image)
             rows.append((now, *(inputs if isinstance(inputs, tuple) else (inputs,)),
-                         *snap.fov, reset, policy, mode))
+                         reset, policy, mode))
             report = snap.filter
             violated = set(report.violated_names) if report is not None else set()
             word = sum(1 << j for j, c in enumerate(constraints) if c in violated)
             latched = any(r.source == "filter" for r in snap.latched)
             fell_back = report is not None and report.fallback is not None
             want: list[int | None] = [int(image[s]) for s in value_slots]
-            want += [word, latched, fell_back, None]
+            want += [word, latched, fell_back, None, *snap.fov]
             if reset:
                 engine.apply(FaultReset())
                 result.resets += 1

@@ -86,7 +86,7 @@ def twin_run(name: str, seed: int) -> int:
     engines = [Engine(project, SimPlant(project), control=control, policy=policy,
                       diagnosis=diagnosis, compiled=flag) for flag in (True, False)]
     assert engines[0].compiled.python and not engines[1].compiled.python
-    engines[1].filter.remember = False  # the reference searches every correction afresh
+    engines[1].safety_filter.remember = False  # the reference searches every correction afresh
     period = project.scan_period_us
     seen: tuple[int, tuple] | None = None
     for k in range(SCANS):
@@ -108,7 +108,7 @@ def twin_run(name: str, seed: int) -> int:
 def check_active_bits(engine: Engine) -> None:
     """The generated active_bits (the corrector's memory key) against the contexts as the
     filter evaluates them."""
-    f, image, history = engine.filter, engine.image, engine.history
+    f, image, history = engine.safety_filter, engine.image, engine.history
     assert engine.compiled.active_bits is not None
     expected = sum(1 << k for k, c in enumerate(f.compiled)
                    if c.context is None or c.context(image, history))

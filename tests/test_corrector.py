@@ -205,7 +205,7 @@ def engine_for(folder, **kwargs) -> Engine:
 def test_past_its_budget_the_filter_writes_the_safe_state_and_says_so(tmp_path):
     folder = pairs_project(tmp_path, "solver_budget: 300\n")
     engine = engine_for(folder)
-    assert engine.filter.budget == 300
+    assert engine.safety_filter.budget == 300
     snap = Session(engine).scan_once()  # the session explains the scan
     report = snap.filter
     assert snap.outputs == (False,) * 12 and report.safe_state and not report.unsafe_written
@@ -253,16 +253,16 @@ def test_the_budget_is_checked_where_it_is_given(tmp_path, capsys):
             main(["run", str(good), "--for", "1s", "--solver-budget", value])
         assert exited.value.code == 2 and said in capsys.readouterr().err
     assert load_project(good).solver_budget is None
-    assert engine_for(good).filter.budget == 5_000  # half of the 10 ms period, in steps
+    assert engine_for(good).safety_filter.budget == 5_000  # half of the 10 ms period, in steps
 
 
 def test_only_a_live_runner_arms_the_wall_clock_net(tmp_path):
     engine = engine_for(pairs_project(tmp_path))
     controller = Session(engine)
-    assert engine.filter.wall_limit_us is None  # headless: traces depend on steps only
+    assert engine.safety_filter.wall_limit_us is None  # headless: traces depend on steps only
     arm_search_deadline(controller)
-    assert engine.filter.wall_limit_us == 5_000  # half the 10 ms period
-    engine.filter.wall_limit_us = 1e-6  # a machine far too slow: the net stops the search
+    assert engine.safety_filter.wall_limit_us == 5_000  # half the 10 ms period
+    engine.safety_filter.wall_limit_us = 1e-6  # a machine far too slow: the net stops the search
     snap = engine.step(0)
     assert snap.filter.stopped == "deadline" and snap.outputs == (False,) * 12
     assert "wall-clock limit" in snap.filter.fallback

@@ -109,7 +109,7 @@ def test_preparing_the_correction_counts_in_the_budget(tmp_path):
     and a problem whose preparation alone passes it is not searched."""
     text = every_output_asked(costly.short(9000, outputs=40), 40)
     project, engine = engine_of(text, tmp_path / "p")
-    budget = engine.filter.budget
+    budget = engine.safety_filter.budget
     reports = [engine.step(k * project.scan_period_us).filter for k in range(20)]
     searched = [r for r in reports if r is not None and r.steps]
     assert searched and all(r.steps <= budget * 1.02 for r in searched), \
@@ -139,8 +139,8 @@ def test_the_filter_caches_are_bounded_and_change_no_decision(tmp_path, monkeypa
         b = cleared.step(k * project.scan_period_us)
         assert (a.outputs, a.filter.steps, a.filter.fallback) == \
             (b.outputs, b.filter.steps, b.filter.fallback), k
-        assert cleared.filter._by_active_size <= 500 + 600
-        assert cleared.filter._corrections_size <= 300 + 600
+        assert cleared.safety_filter._by_active_size <= 500 + 600
+        assert cleared.safety_filter._corrections_size <= 300 + 600
 
 
 @pytest.mark.slow

@@ -46,6 +46,12 @@ def valve_twin(valve):
     return Twin(valve)
 
 
+@pytest.fixture(scope="module")
+def faulty_twin(valve):
+    """The export of the valve's deliberately wrong program (its control law `faulty`)."""
+    return Twin(valve, control="faulty")
+
+
 # -- the command ------------------------------------------------------------------------------
 
 
@@ -60,6 +66,24 @@ def test_export_writes_the_target_and_says_what_it_holds(tmp_path, capsys, fmt, 
     assert f"Wrote {path}" in text
     assert "FB_cispi_valve_Filter" in text and "PRG_cispi_valve_Safety" in text
     assert "at most 4 vectors tested per scan" in text and "search limit 2" in text
+
+
+def test_export_carries_the_control_law_asked_for(tmp_path, capsys):
+    """The default law, or the one named: its GRAFCET in FB_<P>_Control (the faulty program
+    keeps O on while closing, X3.t < 500ms); an unknown name is refused, naming the laws."""
+    assert main(["export", str(PROJECTS / "cispi_valve"), "--format", "st", "-o",
+                 str(tmp_path / "a")]) == 0
+    assert main(["export", str(PROJECTS / "cispi_valve"), "--format", "st", "-o",
+                 str(tmp_path / "b"), "--control", "faulty"]) == 0
+    normal = (tmp_path / "a" / "cispi_valve.st").read_text()
+    faulty = (tmp_path / "b" / "cispi_valve.st").read_text()
+    assert "law 'normal'" in normal and "X3_t < T#500ms" not in normal
+    assert "law 'faulty'" in faulty and "X3_t < T#500ms" in faulty
+    capsys.readouterr()
+    assert main(["export", str(PROJECTS / "cispi_valve"), "--format", "st", "-o",
+                 str(tmp_path / "c"), "--control", "nope"]) == 2
+    err = capsys.readouterr().err
+    assert "--control nope" in err and "faulty, normal" in err and "Traceback" not in err
 
 
 def test_export_bad_input_exits_2_without_a_traceback(tmp_path, capsys):
@@ -145,7 +169,8 @@ def test_plcopen_file_structure(valve):
 
 
 def test_the_xml_target_runs_like_the_engine(valve):
-    twin = Twin(valve, text=st_from_plcopen(write_plcopen(build(valve))))
+    twin = Twin(valve, text=st_from_plcopen(write_plcopen(build(valve, "faulty"))),
+                control="faulty")
     result = twin.run(engine_for(valve, control="faulty"), 15_000_000)
     assert result.scans == 1501 and result.corrected > 100
 
@@ -252,13 +277,13 @@ def test_fault_resets_agree_with_the_engine(valve, valve_twin):
     assert not engine.diagnosis.runtimes[0].state.faulty  # a reset brought it back
 
 
-def test_block_latch_and_reset_agree(valve, valve_twin):
+def test_block_latch_and_reset_agree(valve, faulty_twin):
     engine = engine_for(valve, control="faulty", policy="block")
-    result = valve_twin.run(engine, 20_000_000, resets_after=(400, 700, 1000, 1500))
+    result = faulty_twin.run(engine, 20_000_000, resets_after=(400, 700, 1000, 1500))
     assert result.latched > 100 and result.resets == 4
 
 
-def test_policy_switches_at_run_time_agree(valve, valve_twin):
+def test_policy_switches_at_run_time_agree(valve, faulty_twin):
     switches = {200: "correct", 500: "block", 800: "monitor", 1100: "correct"}
 
     def before(scan: int, engine) -> None:
@@ -266,7 +291,7 @@ def test_policy_switches_at_run_time_agree(valve, valve_twin):
             assert engine.apply(SetPolicy(switches[scan])).accepted
 
     engine = engine_for(valve, control="faulty", policy="monitor")
-    result = valve_twin.run(engine, 15_000_000, resets_after=(900,), before=before)
+    result = faulty_twin.run(engine, 15_000_000, resets_after=(900,), before=before)
     assert result.latched and result.corrected and result.violations
 
 
@@ -278,11 +303,11 @@ def test_masks_under_the_monitor_policy_agree(valve, valve_twin):
         assert "V1.A3" in result.diagnoser_states or "V1.A1" in result.diagnoser_states
 
 
-def test_an_unknown_policy_or_mode_value_protects_the_plant(valve, valve_twin):
+def test_an_unknown_policy_or_mode_value_protects_the_plant(valve, valve_twin, faulty_twin):
     """FilterPolicy 7 corrects and DiagnosisMode 9 is FTC: a wrong setting on the PLC never
     lets unsafe orders through nor drops the reconstruction."""
-    result = valve_twin.run(engine_for(valve, control="faulty", policy="correct"),
-                            10_000_000, codes={"FilterPolicy": 7})
+    result = faulty_twin.run(engine_for(valve, control="faulty", policy="correct"),
+                             10_000_000, codes={"FilterPolicy": 7})
     assert result.corrected > 100
     result = valve_twin.run(engine_for(valve, ["F13@9s"]), 15_000_000,
                             codes={"DiagnosisMode": 9})
@@ -411,7 +436,7 @@ def test_random_projects_agree_with_the_engine(tmp_path_factory, case):
         # the loader refuses some random sets (a constraint that is never true...): fine
         assert all("constraint" in e.message or "never" in e.message for e in exc.errors), exc
         return
-    twin = Twin(project)
+    twin = Twin(project, engine_fov=True)  # (manual mode: the operator's requests)
     names = [v.name for v in project.outputs]
 
     def before(scan: int, engine) -> None:

@@ -71,7 +71,7 @@ def units(text: str) -> list[str]:
 
 def _distinct_units() -> dict[str, str]:
     """Every distinct unit of the required projects' exports, named by project and POU: a
-    POU exported identically by two projects (FB_Stopwatch) is parsed once."""
+    POU exported identically by two projects is parsed once."""
     found: dict[str, str] = {}
     for name in REQUIRED:
         for unit in units(blark_view(write_st(build(load_project(PROJECTS / name))))):

@@ -42,7 +42,7 @@ def test_the_campaign_report_is_the_same_on_one_process_and_two(capsys):
         assert code == 0
         printed = re.search(r"report sha256 ([0-9a-f]{64})", err)
         assert printed and printed[1] == hashlib.sha256(out.encode()).hexdigest()
-        assert "shard times: min" in err and "64 workers" in err
+        assert "shard CPU times: min" in err and "64 workers" in err
         reports[jobs] = out
     assert reports["1"] == reports["2"]
     assert "s wall" not in reports["1"]  # how it ran is on stderr, not in the report
@@ -62,7 +62,7 @@ def test_the_cut_by_cost_splits_heavy_blocks_and_gathers_light_ones():
     blocks = [(c, start, start + 200) for c in range(2) for start in range(0, 1000, 200)]
     assert cut(blocks, None) == tuple((b,) for b in blocks)
     times = [0.01, 0.02, 30.0, 0.05, 0.01, 2.0, 0.01, 0.01, 0.01, 0.3]
-    shards = cut(blocks, times)
+    shards = cut(blocks, [t / 200 for t in times for _ in range(200)])
     pieces = [p for s in shards for p in s]
     # Every run once, in order; a piece never leaves its block.
     assert [(c, r) for c, a, b in pieces for r in range(a, b)] == \
@@ -79,6 +79,11 @@ def test_the_cut_by_cost_splits_heavy_blocks_and_gathers_light_ones():
     assert min(seconds(s) for s in shards) >= target / 2
     heavy = [p for p in pieces if p[0] == 0 and 400 <= p[1] < 600]
     assert len(heavy) == 75  # 30 s in pieces of 0.4 s
+    # Pieces of about the same time where the time is not spread evenly over the runs.
+    costs = [0.001] * 150 + [0.1] * 50  # 5.15 s, most in the last 50 runs
+    split = [p for s in cut([(0, 0, 200)], costs) for p in s]
+    assert len(split) == 13 and split[0] == (0, 0, 153)
+    assert all(sum(costs[a:b]) <= 0.55 for _, a, b in split)
 
 
 def test_a_sweep_cut_by_its_measured_times_finds_the_same(monkeypatch):
@@ -120,23 +125,23 @@ def test_an_interrupted_campaign_resumes_where_it_stopped(tmp_path):
     study = campaign_study(project, spec)
     fresh = run_study(study, InProcess(), root=tmp_path / "fresh").results
 
-    def stop_after_three(tick):
-        if tick.shards_done == 3:
+    def stop_after_two(tick):
+        if tick.shards_done == 2:
             raise KeyboardInterrupt
 
     with pytest.raises(Interrupted) as stopped:
-        run_study(study, InProcess(), stop_after_three, root=tmp_path / "kept")
-    assert (stopped.value.done, stopped.value.shards) == (3, len(study.shards))
+        run_study(study, InProcess(), stop_after_two, root=tmp_path / "kept")
+    assert (stopped.value.done, stopped.value.shards) == (2, len(study.shards))
     folder = stopped.value.folder
-    assert len(list(folder.glob("shard-*.json"))) == 3
+    assert len(list(folder.glob("shard-*.json"))) == 2
     # A damaged shard file is computed again, never trusted.
-    damaged = sorted(folder.glob("shard-*.json"))[1]
+    damaged = sorted(folder.glob("shard-*.json"))[0]
     data = json.loads(damaged.read_text())
     damaged.write_text(json.dumps({**data, "fingerprint": "0" * 64}))
     counting = Counting()
     resumed = run_study(study, counting, resume=True, root=tmp_path / "kept")
-    assert resumed.stats.from_store == 2
-    assert sorted(counting.computed) == [i for i in range(len(study.shards)) if i not in (0, 2)]
+    assert resumed.stats.from_store == 1
+    assert sorted(counting.computed) == [i for i in range(len(study.shards)) if i != 1]
     assert resumed.results == fresh
     # Without --resume a run starts afresh, whatever the folder holds.
     again = Counting()
@@ -162,7 +167,7 @@ def test_the_command_says_how_to_resume_and_does(tmp_path, capsys, monkeypatch):
     kept = tmp_path / "kept"
     code, out, err = _run(capsys, "campaign", str(VALVE), "--jobs", "1", "--resume", str(kept))
     assert code == 130 and out == ""
-    assert "interrupted: 2 of 10 shards done" in err and f"--resume {kept}" in err
+    assert "interrupted: 2 of 3 shards done" in err and f"--resume {kept}" in err
     code, out, err = _run(capsys, "campaign", str(VALVE), "--jobs", "1", "--resume", str(kept))
     assert code == 0 and "2 read back from" in err
     monkeypatch.setattr(farm_run, "run_study", real)
@@ -247,6 +252,30 @@ def test_farm_options_are_checked(capsys):
     assert "expected tcp://HOST:PORT" in capsys.readouterr().err
 
 
+def test_a_shards_cpu_time_is_measured_kept_and_read_back(tmp_path):
+    project = load_project(VALVE)
+    study = campaign_study(project, campaign_of(project))
+    run = run_study(study, InProcess(), root=tmp_path)
+    # A shard is one thread's work: its CPU time is positive, and within its wall time.
+    pairs = list(zip(run.stats.cpu, run.stats.seconds, strict=True))
+    assert all(cpu is not None and wall is not None and 0 < cpu <= wall + 1e-3
+               for cpu, wall in pairs), pairs
+    # A file of an older plchmi has no CPU time: read back without one, the others with theirs.
+    old = run.stats.folder / "shard-000001.json"
+    data = json.loads(old.read_text())
+    del data["cpu"]
+    old.write_text(json.dumps(data))
+    again = run_study(study, Counting(), resume=True, root=tmp_path).stats
+    assert again.from_store == len(study.shards)
+    assert again.cpu[1] is None
+    assert [c for i, c in enumerate(again.cpu) if i != 1] == \
+        [round(c, 6) for i, (c, _) in enumerate(pairs) if i != 1]
+    lines = again.lines()
+    assert lines[1].startswith("shard times, start to end: min")
+    assert lines[2].startswith("shard CPU times: min") and "under 0.1 s" in lines[2]
+    assert "64 workers" in lines[3] and "% of ideal" in lines[3]
+
+
 def test_the_time_on_n_workers_is_projected_from_the_shard_times():
     assert makespan([1.0, 1.0, 1.0, 1.0], 2) == 2.0
     assert makespan([3.0, 1.0, 1.0, 1.0], 2) == 3.0
@@ -257,7 +286,7 @@ def test_the_default_farm_runs_on_local_processes():
     farm = Farm(keep=False)
     project = load_project(VALVE)
     results = farm.run(campaign_study(project, campaign_of(project)))
-    assert len(results) == 10 and farm.stats[0].executor.endswith("local processes")
+    assert len(results) == 3 and farm.stats[0].executor.endswith("local processes")
 
 
 def test_the_data_folder_keeps_the_latest_studies_of_a_project(tmp_path, monkeypatch):

@@ -88,8 +88,8 @@ class Broken:
             "violated": (engine.compiled, "violated"),
             "monitors": (engine.compiled, "monitors"),
             "read_into": (plant, "read_into"),
-            "correction": (engine.filter, "apply"),
-            "active_bits": (engine.filter, "active_bits"),
+            "correction": (engine.safety_filter, "apply"),
+            "active_bits": (engine.safety_filter, "active_bits"),
             # outside the scan's own error handling (Engine.run, Engine.snapshot)
             "take_events": (plant, "take_events"),
             "state": (plant, "state"),
@@ -101,7 +101,7 @@ class Broken:
             "publish": (engine.diagnosis, "publish"),
             "recovery": (engine.recovery, "state"),
             "capture": (engine.monitors, "capture"),
-            "active": (engine.control.grafcet, "active"),
+            "active": (engine.law.grafcet, "active"),
             "masked": (engine, "_masked"),
         }[where]
         self.where = where

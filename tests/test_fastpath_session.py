@@ -84,7 +84,7 @@ class Twin:
         engine = Engine(project, plant, control=control, policy=policy,
                         compiled=kind != "reference")
         if kind == "reference":
-            engine.filter.remember = False
+            engine.safety_filter.remember = False
         self.session = Session(engine, period)
         if kind == "reference":  # every scan's situations found afresh (no reuse)
             self.session.explainer.build = self.session.explainer._build  # type: ignore

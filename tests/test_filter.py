@@ -230,7 +230,7 @@ def test_filter_output_is_safe_and_at_minimum_distance(case):
         image = engine.image
         for name, value in zip(("i0", "i1", "i2"), inputs, strict=True):
             assert image[engine.layout.slots[name]] == value
-        outputs, report, _ = engine.filter.apply(engine.image, engine.history, tuple(fov),
+        outputs, report, _ = engine.safety_filter.apply(engine.image, engine.history, tuple(fov),
                                                  engine.policy, False)
 
         def safe(vec):

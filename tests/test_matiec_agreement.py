@@ -64,7 +64,8 @@ def test_the_plcopen_xml_compiles_and_agrees_under_matiec(matiec):
     """The XML target's ST bodies, assembled back into a file (tests/plcopen_reader.py),
     compile and run the same."""
     valve = load_project(PROJECTS / "cispi_valve")
-    twin = MatiecTwin(valve, text=st_from_plcopen(write_plcopen(build(valve))))
+    twin = MatiecTwin(valve, text=st_from_plcopen(write_plcopen(build(valve, "faulty"))),
+                      control="faulty")
     result = twin.run(engine_for(valve, control="faulty"), 15_000_000, resets_after=(600,))
     assert result.scans == 1501 and result.corrected > 100 and result.resets == 1
 

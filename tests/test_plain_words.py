@@ -84,7 +84,7 @@ def situations(project):
     base = session.scan_once()._replace(explanations=(), alarms=())
     outputs = base.layout.outputs
     for c in project.constraints:
-        violation = next(v for v in session.engine.filter.compiled if v.constraint is c
+        violation = next(v for v in session.engine.safety_filter.compiled if v.constraint is c
                          ).violation
         out = c.outputs[0]
         for policy, how, written in (("correct", "F0", False), ("correct", "F1", True),
@@ -136,7 +136,7 @@ def situations(project):
     yield "plant not connected", base._replace(plant=PlantStatus("modbus", "modbus x",
                                                                  False, "refused"))
     names = tuple(c.name for c in project.constraints[:2])
-    violations = tuple(v.violation for v in session.engine.filter.compiled
+    violations = tuple(v.violation for v in session.engine.safety_filter.compiled
                        if v.constraint.name in names)
     for stopped in ("", "budget"):
         report = FilterReport("correct", "paper", violations, fallback="no safe vector",

@@ -23,7 +23,7 @@ class Twins:
     def __init__(self, project: Project, **kwargs: Any):
         self.engines = [Engine(project, SimPlant(project), compiled=flag, **kwargs)
                         for flag in (True, False)]
-        self.engines[1].filter.remember = False
+        self.engines[1].safety_filter.remember = False
         self.period = project.scan_period_us
         self.k = 0
         self.snaps: list[Snapshot] = []

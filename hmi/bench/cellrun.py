@@ -92,7 +92,7 @@ def measure(project: Project, control: str, duration_us: int, policy: str = "cor
     engine = Engine(project, plant, control=control, policy=policy, solver=strategy)
     # This bench measures the corrector: every correction is searched, none given again
     # from the filter's memory (SafetyFilter.remember).
-    engine.filter.remember = False
+    engine.safety_filter.remember = False
     run = CellRun(project.name, control, policy, strategy)
     filter_us = run.filter_us
     period = project.scan_period_us

@@ -42,7 +42,7 @@ from hmi.engine.diagnoser import NO_DIAGNOSIS
 from hmi.engine.recovery import NO_RECOVERY
 from hmi.logic.expr import History, Image, Var
 from hmi.plant.base import PlantError
-from hmi.program import ir
+from hmi.program import ir, order
 from hmi.program.constraints import lower_violated
 from hmi.program.evaluate import function_evaluator
 
@@ -72,30 +72,40 @@ class ScanProgram:
                  diagnosis: DiagnosisStage | None, recovery: RecoveryStage | None,
                  safety_filter: SafetyFilter, monitors: MonitorStage | None):
         self.outputs = layout.outputs
-        self.memory = memory.program  # timers, observers
-        self.times = control.times  # the GRAFCET's step times
-        self.diagnosis = (diagnosis.program + diagnosis.reconstruction
-                          if diagnosis is not None else ())
-        self.needed = recovery.program if recovery is not None else ()
-        self.law = control.program
+        # each part's statements, walked in the order hmi.program.order declares
+        self.parts: dict[str, tuple[ir.Stmt, ...]] = {
+            order.MEMORY: memory.program,  # timers, observers
+            order.STEP_TIMES: control.times,  # the GRAFCET's step times
+            order.DIAGNOSERS: diagnosis.program if diagnosis is not None else (),
+            order.RECONSTRUCTION: diagnosis.reconstruction if diagnosis is not None else (),
+            order.RECOVERIES_NEEDED: recovery.program if recovery is not None else (),
+            order.LAW: control.program,
+        }
         self._fov = ir.Tuple(tuple(ir.Slot(s) for s in layout.indices(layout.outputs)))
         self._recovery = recovery
         self._filter = safety_filter
         self._monitors = monitors
 
-    def stages(self, times: bool) -> tuple[ir.Stmt, ...]:
-        """Stages 2 to 4 and the recovery procedures needed (the step times or not)."""
-        return (self.memory + (self.times if times else ()) + self.diagnosis
-                + self.needed)
+    def walk(self, without: tuple[str, ...] = (), law: tuple[ir.Stmt, ...] | None = None
+             ) -> tuple[ir.Stmt, ...]:
+        """The parts of hmi.program.order.PROGRAM in order, but those `without`, the law
+        replaced by `law` when given."""
+        body: tuple[ir.Stmt, ...] = ()
+        for part in order.PROGRAM:
+            if part not in without:
+                body += law if part == order.LAW and law is not None else self.parts[part]
+        return body
 
     def core(self) -> ir.Function:
-        return ir.Function("core", SCAN, self.stages(True) + self.law, self._fov)
+        return ir.Function("core", SCAN, self.walk(), self._fov)
 
     def held(self) -> ir.Function:
-        return ir.Function("held", SCAN, self.stages(False))
+        """The program waits: neither its step times nor its law."""
+        return ir.Function("held", SCAN, self.walk((order.STEP_TIMES, order.LAW)))
 
     def observed(self) -> ir.Function:
-        return ir.Function("observed", SCAN, self.stages(True))
+        """A read-only device's own outputs are the vector: no law."""
+        return ir.Function("observed", SCAN, self.walk((order.LAW,)))
 
     def recovery(self, name: str) -> ir.Function:
         """Recovery mode while procedure `name` is the one started."""
@@ -103,7 +113,7 @@ class ScanProgram:
         assert stage is not None
         number = list(stage.procedures).index(name)
         return ir.Function(f"recovery_{number}", SCAN,
-                           self.stages(False) + stage.procedures[name].program,
+                           self.walk((order.STEP_TIMES,), stage.procedures[name].program),
                            ir.Local("f"))
 
     def violated(self) -> ir.Function:

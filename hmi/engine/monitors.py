@@ -93,13 +93,13 @@ class MonitorStage:
         # Per task: its base (see the class docstring) and whether TaskAutomaton.step ran on
         # it since the base was taken (then the base is taken again).
         self._bases: list[Base | None] = [None] * len(specs)
-        self._dirty = [True] * len(specs)
+        self.dirty = [True] * len(specs)
         self.marks = 0  # the automata's changes, summed when a base is taken again
         # The bases, and the states when no task runs (None: built per scan, lazily).
         self._capture: tuple[tuple[Base, ...], tuple[MonitorState, ...] | None] | None = None
         # The tasks' automata at a scan, as the scan program (hmi.program.monitors): what
         # runs after the output scan (hmi.engine.compiled)
-        program: list[Stmt] = []
+        programs: list[tuple[Stmt, ...]] = []
         for k, (spec, automaton) in enumerate(zip(specs, self.automata, strict=True)):
             start, end = ir.Test(spec.start.root), ir.Test(spec.end.root)
             suspend: ir.Value
@@ -112,16 +112,17 @@ class MonitorStage:
             else:
                 suspend = resume = ir.FALSE
             window = (spec.alpha_us, spec.beta_us, spec.gamma_us)
-            mark = (ir.Assign(ir.Item(ir.Ref(self._dirty), k), ir.TRUE),)
-            program += lower_task(automaton, window, (Phase.IDLE, Phase.RUNNING,
-                                                      Phase.SUSPENDED),
-                                  start, end, suspend, resume, mark)
-        self.program = tuple(program)
+            mark = (ir.Assign(ir.Item(ir.Ref(self.dirty), k), ir.TRUE),)
+            programs.append(lower_task(automaton, window, (Phase.IDLE, Phase.RUNNING,
+                                                           Phase.SUSPENDED),
+                                       start, end, suspend, resume, mark))
+        self.programs = tuple(programs)  # per task (the PLC export prints one FB each)
+        self.program = tuple(stmt for program in programs for stmt in program)
 
     def settle(self) -> int:
         """Take again the bases of the tasks stepped since (at the end of a scan); returns
         the marks (TaskAutomaton.changes summed)."""
-        if self._capture is None or True in self._dirty:
+        if self._capture is None or True in self.dirty:
             self._capture = self._rebase()
         return self.marks
 
@@ -142,7 +143,7 @@ class MonitorStage:
     def _rebase(self) -> tuple[tuple[Base, ...], tuple[MonitorState, ...] | None]:
         """Take again the base of every task stepped since its last one, and sum the
         automata's changes (TaskAutomaton.changes) in `marks`."""
-        bases, dirty = self._bases, self._dirty
+        bases, dirty = self._bases, self.dirty
         running = False
         for k, (head, tail, a) in enumerate(zip(self.heads, self.tails, self.automata,
                                                 strict=True)):
@@ -162,14 +163,14 @@ class MonitorStage:
         for k, (spec, a) in enumerate(zip(self.specs, self.automata, strict=True)):
             if a.abandon():
                 abandoned.append(spec.title)
-                self._dirty[k] = True
+                self.dirty[k] = True
         self._capture = None
         return abandoned
 
     def reset(self) -> list[str]:
         """Fault reset: release each latched label whose task is no longer faulty."""
         lines = []
-        self._dirty[:] = [True] * len(self.automata)  # in place: the compiled scan holds it
+        self.dirty[:] = [True] * len(self.automata)  # in place: the compiled scan holds it
         self._capture = None
         for spec, a in zip(self.specs, self.automata, strict=True):
             if a.latched is None:

@@ -174,22 +174,22 @@ class Engine:
         lay = self.layout
         self.output_slots = lay.indices(lay.outputs)
         self.safe_vector = tuple(v.safe for v in project.outputs)
-        self.control = ControlRuntime(law, lay.slots, lay.step_times)
+        self.law = ControlRuntime(law, lay.slots, lay.step_times)
         # The GRAFCET when it has supervised steps (hmi.engine.grafcet: the deadline compared
         # once per scan in run(), the overdue steps in the snapshot), else None.
-        self._supervised = (self.control.grafcet if self.control.grafcet is not None
-                            and self.control.grafcet.supervision else None)
+        self._supervised = (self.law.grafcet if self.law.grafcet is not None
+                            and self.law.grafcet.supervision else None)
         self._overdue: tuple[str, ...] = ()  # the overdue steps the last scan told of
         # The stages, in scan order (hmi.engine.stages).
         self.input_scan = InputScan(plant, lay, read_back=self.observe)  # 1
         self.memory = Memory(project, lay)  # 2 (and the GRAFCET's step times: control)
         # 3-4 (None: no diagnosers), with the High Level Diagnoser after the local ones
         self.diagnosis = diagnosis_stage(project, lay, diagnosis, high_level)
-        self.filter = SafetyFilter(project, lay.slots, lay.step_times,
+        self.safety_filter = SafetyFilter(project, lay.slots, lay.step_times,
                                    solver or project.solver,
                                    solver_budget or project.solver_budget)
         self.filter_stage = FilterStage(  # 6: the filter, given the diagnosers' mask
-            self.filter, self.diagnosis.mask_flags if self.diagnosis else {})
+            self.safety_filter, self.diagnosis.mask_flags if self.diagnosis else {})
         self.output_scan = OutputScan(plant, lay)  # 7
         self.monitors = monitor_stage(project, lay)  # 8 (None: no monitors)
         # Recovery procedures (replace stages 5-6's law and constraints while one runs).
@@ -220,12 +220,12 @@ class Engine:
         # The scan program (hmi.engine.compiled): the stages' lowerings in the order of a
         # scan, per mode, printed as Python; `compiled=False` runs the same program through
         # its evaluator (the reference the printed form is tested against).
-        self.compiled = CompiledScan(lay, self.memory, self.control, self.diagnosis,
-                                     self.recovery, self.filter, self.monitors,
+        self.compiled = CompiledScan(lay, self.memory, self.law, self.diagnosis,
+                                     self.recovery, self.safety_filter, self.monitors,
                                      f"{project.name}/{self.control_name}", python=compiled)
         self.filter_stage.quick = self.compiled.violated  # the filter's first question
         if self.compiled.active_bits is not None:
-            self.filter.active_bits = self.compiled.active_bits
+            self.safety_filter.active_bits = self.compiled.active_bits
         self._bindings = self.input_scan.bindings
         self._period = project.scan_period_us
         # The last run()'s results until snapshot() builds them into a Snapshot, and what
@@ -306,7 +306,7 @@ class Engine:
                     return CommandResult.refused("already in manual mode")
                 self.mode = "manual"
                 self.manual = {}
-                self.control.hold(self.now)  # the program waits where it is
+                self.law.hold(self.now)  # the program waits where it is
                 self._supervise()
                 return CommandResult.ok(f"manual mode: the control program waits{self._where()}"
                                         "; outputs follow operator requests, still through "
@@ -317,7 +317,7 @@ class Engine:
                 released = sorted(self.manual)
                 self.mode = "auto"
                 self.manual = {}
-                self.control.resume(self.now)  # from where it waited, at the next scan
+                self.law.resume(self.now)  # from where it waited, at the next scan
                 self._supervise()
                 extra = f"; released {', '.join(released)}" if released else ""
                 return CommandResult.ok("automatic mode: the control program resumes"
@@ -414,7 +414,7 @@ class Engine:
     def _where(self, word: str = "at") -> str:
         """' at X3, X10': the program's active steps for SetMode's answers ('' without a
         GRAFCET, or before the first scan: the program starts from its initial steps)."""
-        steps = self.control.active_steps(self.image) if self.started else ()
+        steps = self.law.active_steps(self.image) if self.started else ()
         return f" {word} {', '.join(steps)}" if steps else ""
 
     def _start_recovery(self, name: str) -> CommandResult:
@@ -446,7 +446,7 @@ class Engine:
             self.monitors.abandon()
         self.mode = "recovery"
         self.manual = {}
-        self.control.hold(self.now)  # the program waits while the procedure runs
+        self.law.hold(self.now)  # the program waits while the procedure runs
         stage.start(name, self.now)
         self._supervise()
         return CommandResult.ok(
@@ -459,8 +459,8 @@ class Engine:
         active = self.recovery.active
         reached = self.recovery.stop()
         self.mode = "auto"
-        self.control.reset(self.image, self.now)
-        self.control.resume(self.now)  # from its initial steps, their times from now
+        self.law.reset(self.image, self.now)
+        self.law.resume(self.now)  # from its initial steps, their times from now
         self._supervise()
         if active is not None and reached == "done":
             # The observers the procedure re-establishes (a turntable emptied: an observer
@@ -478,7 +478,7 @@ class Engine:
         """Live runs only: the corrector's search also stops after `wall_us` of wall time, a
         safety net on a loaded machine (a headless run never sets it: traces depend on the
         search's steps only; docs/filter.md, "Budget")."""
-        self.filter.wall_limit_us = wall_us
+        self.safety_filter.wall_limit_us = wall_us
 
     def set_nominal_period(self, period_us: int) -> None:
         """The period the scans are meant to run at, when a session runs at another than the
@@ -530,7 +530,7 @@ class Engine:
             list(self.image), tuple(self.history), self.scan, self.now,
             self.started, tuple(self.latched), self.mode, tuple(self.manual.items()),
             self.policy, frozenset(self.stopped_devices), self.input_scan.readback,
-            self.memory.capture(), self.control.capture(),
+            self.memory.capture(), self.law.capture(),
             self.diagnosis.capture() if self.diagnosis is not None else None,
             self.recovery.capture() if self.recovery is not None else None)
 
@@ -546,7 +546,7 @@ class Engine:
         self._update_stop_mask()
         self.input_scan.readback = state.readback
         self.memory.restore(state.memory)
-        self.control.restore(state.control)
+        self.law.restore(state.control)
         self._supervise()
         if self.diagnosis is not None and state.diagnosis is not None:
             self.diagnosis.restore(state.diagnosis)
@@ -769,7 +769,7 @@ class Engine:
         record = self._record
         plant = self.plant
         policy = self.policy
-        grafcet = self.control.grafcet
+        grafcet = self.law.grafcet
         now = self.now
         # What the snapshot reads of the engine and the plant, each guarded as in run(): one
         # that raises latches an internal error naming it, is shown empty (the timers'
@@ -1012,7 +1012,7 @@ class Engine:
         try:
             if mask is None and not self.latched:
                 # violated, nothing masked: what FilterStage.apply would hand the filter
-                decision = self.filter.apply(image, hist, fov, policy, False)
+                decision = self.safety_filter.apply(image, hist, fov, policy, False)
             else:
                 decision = self.filter_stage.apply(image, hist, fov, policy,
                                                    bool(self.latched), mask)
@@ -1108,7 +1108,7 @@ class Engine:
         return error
 
     def _start(self, now: int) -> None:
-        self.control.reset(self.image, now)
+        self.law.reset(self.image, now)
         self.history.clear()
         values = tuple(self.image)
         for _ in range(self.history.maxlen or 1):

@@ -1,4 +1,5 @@
-"""`plchmi export`: the project's safety layer as IEC 61131-3 code for a real PLC.
+"""`plchmi export`: the controlled cell (its control law and safety layer) as IEC 61131-3
+code for a real PLC.
 
 One PLC model (:mod:`hmi.export.model`, built by :mod:`hmi.export.build`), one writer per
 target: Structured Text (:mod:`hmi.export.st`) and PLCopen TC6 XML
@@ -35,9 +36,10 @@ def render(model: PlcProject, fmt: str) -> tuple[str, str]:
     raise ValueError(f"unknown format {fmt!r}")
 
 
-def export(project: Project, fmt: str, out_dir: Path) -> Written:
-    """Build the model and write it to `out_dir` (created if needed)."""
-    model = build(project)
+def export(project: Project, fmt: str, out_dir: Path, control: str | None = None) -> Written:
+    """Build the model (the control law `control`, else the project's default one) and
+    write it to `out_dir` (created if needed)."""
+    model = build(project, control)
     filename, text = render(model, fmt)
     path = out_dir / filename
     # never over a file the project was read from (-o the project's folder, a name alike)

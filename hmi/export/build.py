@@ -2,9 +2,10 @@
 
     FB_<P>_Memory       timers and observers                         (scan step 2)
     FB_<P>_Diag_<D>     each local diagnoser, with reconstruction    (steps 3-4)
-    FB_<P>_Control      a stub for the functional control: yours     (step 5)
+    FB_<P>_Control      the control law, printed from the scan program (step 5)
     FB_<P>_Filter       the safety filter                            (step 6)
-    FB_Stopwatch        the stopwatch monitor of one task            (after the output scan)
+    FB_<P>_Mon_<T>      each stopwatch monitor, printed from the scan program (after the
+                        output scan)
     PRG_<P>_Safety      the cycle: calls them in the engine's order, keeps the previous
                         values (prev_x), applies a fault reset after the scan
 
@@ -15,25 +16,28 @@ One task at the project's scan period runs the program.
 
 from __future__ import annotations
 
+from hmi.engine.layout import Layout
+from hmi.engine.monitors import monitor_stage
 from hmi.errors import ProjectError
 from hmi.export import model as m
 from hmi.export import source
+from hmi.export.control_pou import build_control
 from hmi.export.diagnoser_pou import build_diagnoser
 from hmi.export.filter_pou import build_filter, max_distance, vectors_bound
 from hmi.export.image import CONTROL, Globals, build_globals
 from hmi.export.memory_pou import build_memory
 from hmi.export.names import Scope
 from hmi.export.program_pou import Blocks, build_program
-from hmi.export.stopwatch_pou import build_stopwatch
+from hmi.export.stopwatch_pou import build_monitor
 from hmi.export.views import Durations
+from hmi.project.diagnosers import layout_names
 from hmi.project.model import Project
 from hmi.timefmt import format_duration
 
-STOPWATCH = "FB_Stopwatch"
 
-
-def build(project: Project) -> m.PlcProject:
-    """The project's filter, diagnosers and monitors as one PLC model."""
+def build(project: Project, control: str | None = None) -> m.PlcProject:
+    """The project's control law `control` (its default one: None), filter, diagnosers and
+    monitors as one PLC model."""
     if source.scan_period_us(project) % 1000:
         raise ProjectError.single(project.pos, "the scan period is not a whole number of "
                                   "milliseconds", "a scan period in whole milliseconds")
@@ -42,20 +46,24 @@ def build(project: Project) -> m.PlcProject:
     pous = Scope()
     names = {key: pous.take(name) for key, name in (
         ("memory", f"FB_{prefix}_Memory"), ("filter", f"FB_{prefix}_Filter"),
-        ("control", f"FB_{prefix}_Control"), ("program", f"PRG_{prefix}_Safety"),
-        ("stopwatch", STOPWATCH))}
+        ("control", f"FB_{prefix}_Control"), ("program", f"PRG_{prefix}_Safety"))}
     diag_names = {d.name: pous.take(f"FB_{prefix}_Diag_{d.name}")
                   for d in source.diagnosers(project)}
     bound = source.filter_bound(project)
+    law = project.control(control)
+    layout = Layout.build(project, law, extra=layout_names(project))
     g = build_globals(project, pous.child())
-    stopwatch, ports = build_stopwatch(names["stopwatch"], pous)
+    stage = monitor_stage(project, layout)
+    monitors = [build_monitor(stage, k, task, layout, pous.take(f"FB_{prefix}_Mon_{task.name}"),
+                              pous, durations)
+                for k, task in enumerate(source.monitors(project))] if stage is not None else []
     blocks = Blocks(
-        memory=build_memory(project, names["memory"], pous, durations),
+        memory=build_memory(project, layout, names["memory"], pous, durations),
         diagnosers=[build_diagnoser(project, d, diag_names[d.name], pous, durations)
                     for d in source.diagnosers(project)],
         filter=build_filter(project, names["filter"], pous, bound),
-        control=_control_stub(names["control"], g),
-        stopwatch=stopwatch, stopwatch_ports=ports)
+        control=build_control(project, law, layout, g, names["control"], pous, durations),
+        monitors=monitors)
     program, instances = build_program(project, names["program"], g, blocks, durations)
     durations.raise_if_any()
 
@@ -65,9 +73,8 @@ def build(project: Project) -> m.PlcProject:
         (m.ProgramInstance("Safety", "MainTask", program.name),))
     all_pous = [blocks.memory.pou] if blocks.memory else []
     all_pous += [b.pou for b in blocks.diagnosers]
-    all_pous += [blocks.control, blocks.filter.pou]
-    if source.monitors(project):
-        all_pous.append(stopwatch)
+    all_pous += [blocks.control.pou, blocks.filter.pou]
+    all_pous += [b.pou for b in blocks.monitors]
     all_pous.append(program)
     summary = _summary(project, bound, all_pous, g, pous)
     symbols = {name: ident for name, ident in g.idents.items()}
@@ -76,23 +83,8 @@ def build(project: Project) -> m.PlcProject:
         symbols.update({f"{spec.name}.{lab}": block.ports[f"label:{lab}"]
                         for lab in spec.labels})
     assert set(CONTROL) <= set(symbols)
-    return m.PlcProject(prefix, tuple(all_pous), config, _header(project, summary),
+    return m.PlcProject(prefix, tuple(all_pous), config, _header(project, law.name, summary),
                         tuple(summary), symbols)
-
-
-def _control_stub(name: str, g: Globals) -> m.Pou:
-    """Where the functional control goes: it reads the I/O and safety values, writes FOV_."""
-    readable = [v for v in g.vars if g.kind_of[v.name] in
-                ("input", "timer", "observer", "flag", "filtered", "fov")]
-    body: list[m.Stmt] = [m.Comment(
-        "Replace this body with the functional control (or call your program from here). It "
-        "reads the inputs, timers, observers, partition flags and filtered sensors (x_filter) "
-        "and writes the program's outputs FOV_x; the filter decides what reaches the plant. "
-        "As exported, every order is 0 (safe).")]
-    body += [m.Assign(m.Name(v.name), m.FALSE) for v in readable if g.kind_of[v.name] == "fov"]
-    return m.Pou(name, "functionBlock",
-                 (m.VarBlock("external", tuple(m.Var(v.name, v.type) for v in readable)),),
-                 tuple(body), "Scan step 5: the functional control (yours).")
 
 
 def _summary(project: Project, bound: source.FilterBound, pous: list[m.Pou], g: Globals,
@@ -119,12 +111,12 @@ def _summary(project: Project, bound: source.FilterBound, pous: list[m.Pou], g: 
     return lines
 
 
-def _header(project: Project, summary: list[str]) -> str:
+def _header(project: Project, law_name: str, summary: list[str]) -> str:
     files = ", ".join(source.source_files(project))
     return "\n".join([
         f"plchmi export of project {source.name(project)}: "
         f"{source.description(project)}".rstrip(": "),
         f"Generated from {files}; do not edit, export again.",
-        "The safety filter, local diagnosers and stopwatch monitors, run in the engine's "
-        "order by the program; see docs/plc-export.md.",
+        f"The control law {law_name!r}, the safety filter, local diagnosers and stopwatch "
+        "monitors, run in the engine's order by the program; see docs/plc-export.md.",
         *summary])

@@ -1,7 +1,7 @@
 """The safety program: one PLC cycle in the engine's order (hmi/engine/scan.py).
 
     first cycle: the history is the engine's initial image
-    2 Memory   3-4 each Diag_<D>   5 Control (yours)   6 Filter   7 outputs
+    2 Memory   3-4 each Diag_<D>   5 Control   6 Filter   7 outputs
     8 each Mon_<task>   a fault reset (after the scan)   the history shifts
 
 The program holds the history its function blocks read: `prev_x` is x at the previous scan,
@@ -19,7 +19,8 @@ from hmi.export import source
 from hmi.export.diagnoser_pou import ftc_mode
 from hmi.export.image import Globals
 from hmi.export.names import Scope
-from hmi.export.views import Block, Durations, convert, view_name
+from hmi.export.views import TMAX_MS, Block, Durations, view_name
+from hmi.program import order
 from hmi.project.model import Project
 
 
@@ -30,9 +31,8 @@ class Blocks:
     memory: Block | None
     diagnosers: list[Block]
     filter: Block
-    control: m.Pou
-    stopwatch: m.Pou
-    stopwatch_ports: dict[str, str]
+    control: Block
+    monitors: list[Block]
 
 
 @dataclass
@@ -66,46 +66,75 @@ def build_program(project: Project, name: str, g: Globals, b: Blocks,
     p = _Program(g, g.scope.child())
     outputs = {v.name for v in source.outputs(project)}
     specs = source.diagnosers(project)
-    body: list[m.Stmt] = []
-    if b.memory is not None:
+    clock, now = p.scope.take("Clock"), p.scope.take("Now")
+
+    def inputs() -> list[m.Stmt]:
+        # (the register bits are read first, before the first scan's history: g.read)
+        return [m.Comment("the scan's time: the program's clock, since its first scan"),
+                m.FbCall(clock, (("IN", m.TRUE), ("PT", m.TimeLit(TMAX_MS)))),
+                m.Assign(m.Name(now), m.Member(m.Name(clock), "ET"))]
+
+    def memory() -> list[m.Stmt]:
+        if b.memory is None:
+            return []
         inst = p.instance("Memory")
-        body.append(m.Comment("2. Memory: timers and observers"))
-        body.append(m.FbCall(inst, p.wire(b.memory)))
-        body += [m.Assign(g.name(n), m.Member(m.Name(inst), out))
-                 for n, out in b.memory.outputs.items()]
-    for spec, block in zip(specs, b.diagnosers, strict=True):
-        inst = p.instance(f"Diag_{spec.name}")
-        body.append(m.Comment(f"3-4. Diagnoser {spec.name}: an output is read as written at "
-                              "the previous scan"))
-        body.append(m.FbCall(inst, (
-            (block.ports["Reset"], m.FALSE), (block.ports["Mode"], g.name("DiagnosisMode")),
-            *p.wire(block, lambda n, d: p.value(n, d + (n in outputs))))))
-        body += [m.Assign(g.name(n), m.Member(m.Name(inst), out))
-                 for n, out in block.outputs.items()]
-    ctl = p.instance("Control")
-    body.append(m.Comment("5. The functional control (FB_..._Control: your program) writes "
-                          "the FOV_ variables"))
-    body.append(m.FbCall(ctl))
-    filt = b.filter
-    finst = p.instance("Filter")
-    body.append(m.Comment("6. The safety filter"))
-    body.append(m.FbCall(finst, (
-        (filt.ports["Reset"], m.FALSE), (filt.ports["Policy"], g.name("FilterPolicy")),
-        (filt.ports["Ftc"], ftc_mode(g.name("DiagnosisMode"))),
-        *((filt.ports[f"FOV_{v.name}"], g.name(f"FOV_{v.name}"))
-          for v in source.outputs(project)),
-        *p.wire(filt))))
-    body += [m.Assign(g.name(v.name), m.Member(m.Name(finst), filt.outputs[v.name]))
-             for v in source.outputs(project)]
-    body += [m.Assign(g.name(key), m.Member(m.Name(finst), filt.ports[port]))
-             for key, port in (("Violations", "Violations"), ("FilterLatched", "Latched"),
-                               ("FilterFallback", "Fallback"))]
-    body += g.write
-    monitors = _monitors(project, p, b, durations)
-    if monitors:
-        body.append(m.Comment("7. The output scan (the PLC writes the outputs after the "
-                              "cycle); 8. the stopwatch monitors, on the I/O of this scan"))
-        body += monitors
+        return [m.Comment("2. Memory: timers and observers"),
+                m.FbCall(inst, ((b.memory.ports["Now"], m.Name(now)), *p.wire(b.memory))),
+                *(m.Assign(g.name(n), m.Member(m.Name(inst), out))
+                  for n, out in b.memory.outputs.items())]
+
+    def diagnosers() -> list[m.Stmt]:  # (each with its reconstruction)
+        out: list[m.Stmt] = []
+        for spec, block in zip(specs, b.diagnosers, strict=True):
+            inst = p.instance(f"Diag_{spec.name}")
+            out.append(m.Comment(f"3-4. Diagnoser {spec.name}: an output is read as written "
+                                 "at the previous scan"))
+            out.append(m.FbCall(inst, (
+                (block.ports["Reset"], m.FALSE),
+                (block.ports["Mode"], g.name("DiagnosisMode")),
+                *p.wire(block, lambda n, d: p.value(n, d + (n in outputs))))))
+            out += [m.Assign(g.name(n), m.Member(m.Name(inst), o))
+                    for n, o in block.outputs.items()]
+        return out
+
+    def law() -> list[m.Stmt]:  # (with the step times: nothing before reads them)
+        ctl = p.instance("Control")
+        return [m.Comment("5. The functional control writes the FOV_ variables"),
+                m.FbCall(ctl, ((b.control.ports["Now"], m.Name(now)), *p.wire(b.control)))]
+
+    def filter_() -> list[m.Stmt]:
+        filt = b.filter
+        finst = p.instance("Filter")
+        return [
+            m.Comment("6. The safety filter"),
+            m.FbCall(finst, (
+                (filt.ports["Reset"], m.FALSE), (filt.ports["Policy"], g.name("FilterPolicy")),
+                (filt.ports["Ftc"], ftc_mode(g.name("DiagnosisMode"))),
+                *((filt.ports[f"FOV_{v.name}"], g.name(f"FOV_{v.name}"))
+                  for v in source.outputs(project)),
+                *p.wire(filt))),
+            *(m.Assign(g.name(v.name), m.Member(m.Name(finst), filt.outputs[v.name]))
+              for v in source.outputs(project)),
+            *(m.Assign(g.name(key), m.Member(m.Name(finst), filt.ports[port]))
+              for key, port in (("Violations", "Violations"), ("FilterLatched", "Latched"),
+                                ("FilterFallback", "Fallback")))]
+
+    def monitors() -> list[m.Stmt]:
+        calls = _monitors(project, p, b, now)
+        if not calls:
+            return []
+        return [m.Comment("7. The output scan (the PLC writes the outputs after the cycle); "
+                          "8. the stopwatch monitors, on the I/O of this scan"), *calls]
+
+    # The scan's parts in the engine's order (hmi.program.order), each the blocks that run
+    # it; the recovery procedures are not exported (no recovery mode on the PLC).
+    parts = {order.INPUTS: inputs, order.MEMORY: memory, order.DIAGNOSERS: diagnosers,
+             order.LAW: law, order.FILTER: filter_, order.OUTPUTS: lambda: list(g.write),
+             order.MONITORS: monitors}
+    body: list[m.Stmt] = []
+    for part in order.SCAN:
+        if part in parts:
+            body += parts[part]()
     body.append(m.Comment("A fault reset, after the scan (the engine resets between scans)"))
     body.append(m.if_(g.name("FaultReset"), *_reset(project, p, b)))
     body.append(m.Comment("The history: this scan's values become the previous ones"))
@@ -120,12 +149,14 @@ def build_program(project: Project, name: str, g: Globals, b: Blocks,
                      for (n, _), ident in p.history.items()),
                    m.Assign(m.Name(started), m.TRUE))]
 
-    types = {"Memory": b.memory.pou.name if b.memory else "", "Control": b.control.name,
-             "Filter": filt.pou.name}
+    types = {"Memory": b.memory.pou.name if b.memory else "", "Control": b.control.pou.name,
+             "Filter": b.filter.pou.name}
     types.update({f"Diag_{s.name}": blk.pou.name for s, blk in zip(specs, b.diagnosers,
                                                                    strict=True)})
-    types.update({f"Mon_{t.name}": b.stopwatch.name for t in source.monitors(project)})
-    locals_ = [m.Var(started, m.BOOL)]
+    types.update({f"Mon_{t.name}": blk.pou.name for t, blk in zip(source.monitors(project),
+                                                                  b.monitors, strict=True)})
+    locals_ = [m.Var(started, m.BOOL), m.Var(clock, m.Derived("TON")),
+               m.Var(now, m.TIME, comment="the scan's time")]
     locals_ += [m.Var(ident, m.Derived(types[key])) for key, ident in p.instances.items()]
     locals_ += [m.Var(ident, m.BOOL, comment=f"{n}, {d} scan{'s' if d > 1 else ''} back")
                 for (n, d), ident in p.history.items()]
@@ -133,35 +164,17 @@ def build_program(project: Project, name: str, g: Globals, b: Blocks,
         m.VarBlock("external", tuple(m.Var(v.name, v.type) for v in g.all)),
         m.VarBlock("local", tuple(locals_))),
         tuple(g.read + first + body),
-        "The safety layer's cycle, in the engine's order. Call it once per PLC cycle from "
-        "the task; put the functional control in FB_..._Control.")
+        "The cell's cycle, in the engine's order. Call it once per PLC cycle from the task.")
     return pou, dict(p.instances)
 
 
-def _monitors(project: Project, p: _Program, b: Blocks, durations: Durations
-              ) -> list[m.Stmt]:
-    ports = b.stopwatch_ports
+def _monitors(project: Project, p: _Program, b: Blocks, now: str) -> list[m.Stmt]:
     out: list[m.Stmt] = []
-    for task in source.monitors(project):
+    for task, block in zip(source.monitors(project), b.monitors, strict=True):
         inst = p.instance(f"Mon_{task.name}")
-
-        def cond(expr) -> m.Expr:
-            return convert(expr.root, p.value)
-        if task.interrupted is not None:
-            suspend, resume = cond(task.interrupted), m.not_(cond(task.interrupted))
-        elif task.interrupt is not None and task.resume is not None:
-            suspend, resume = cond(task.interrupt), cond(task.resume)
-        else:
-            suspend = resume = m.FALSE
-        what = f"the window of monitor {task.name!r}"
-        out.append(m.FbCall(inst, (
-            (ports["Reset"], m.FALSE), (ports["Start"], cond(task.start)),
-            (ports["Finish"], cond(task.end)), (ports["Suspend"], suspend),
-            (ports["Resume"], resume),
-            (ports["Alpha"], durations.time(task.alpha_us, task.pos, what)),
-            (ports["Beta"], durations.time(task.beta_us, task.pos, what)),
-            (ports["Gamma"], durations.time(task.gamma_us, task.pos, what)))))
-        out.append(m.Assign(p.g.name(task.label), m.Member(m.Name(inst), ports["Fault"])))
+        out.append(m.FbCall(inst, ((block.ports["Now"], m.Name(now)),
+                                   (block.ports["Reset"], m.FALSE), *p.wire(block))))
+        out.append(m.Assign(p.g.name(task.label), m.Member(m.Name(inst), block.ports["Fault"])))
     return out
 
 
@@ -180,7 +193,7 @@ def _reset(project: Project, p: _Program, b: Blocks) -> list[m.Stmt]:
         stmts.append(m.FbCall(p.instances[f"Diag_{spec.name}"], (
             (block.ports["Reset"], m.TRUE),
             *((block.inputs[key], back(*key)) for key in block.reset_reads))))
-    for task in source.monitors(project):
+    for task, block in zip(source.monitors(project), b.monitors, strict=True):
         stmts.append(m.FbCall(p.instances[f"Mon_{task.name}"],
-                              ((b.stopwatch_ports["Reset"], m.TRUE),)))
+                              ((block.ports["Reset"], m.TRUE),)))
     return stmts

@@ -57,6 +57,7 @@ class RunStats:
     from_store: int = 0
     wall_s: float = 0.0
     seconds: list[float | None] = field(default_factory=list)  # per shard, in shard order
+    cpu: list[float | None] = field(default_factory=list)  # per shard: its thread's CPU time
     workers: set[str] = field(default_factory=set)  # where shards ran (this run)
     notes: list[str] = field(default_factory=list)
     folder: Path | None = None
@@ -68,16 +69,27 @@ class RunStats:
                + (f" ({len(self.workers)} workers took part)" if len(self.workers) > 1 else "")
                + (f", {self.from_store} read back from {self.folder}" if self.from_store
                   else "")]
-        known = [x for x in self.seconds if x is not None]
-        if known:
-            s = sorted(known)
-            out.append(f"shard times: min {s[0]:.3f} s, median {s[(len(s) - 1) // 2]:.3f} s, "
-                       f"max {s[-1]:.3f} s, sum {sum(s):.1f} s; "
-                       f"{sum(1 for x in s if x < SHARD_GOAL_S)} under {SHARD_GOAL_S:g} s")
-            projected = ", ".join(f"{n} workers {makespan(known, n):.1f} s"
-                                  for n in (1, 2, 16, 64))
-            out.append(f"from these shard times, in shard order on idle workers: {projected}")
+        walls = [x for x in self.seconds if x is not None]
+        if walls:
+            out.append(f"shard times, start to end: {_spread(walls)}")
+        cpus = [x for x in self.cpu if x is not None]
+        if cpus:
+            out.append(f"shard CPU times: {_spread(cpus)}; "
+                       f"{sum(1 for x in cpus if x < SHARD_GOAL_S)} under {SHARD_GOAL_S:g} s")
+            ideal = sum(cpus)
+            projected = ", ".join(
+                f"{n} workers {makespan(cpus, n):.1f} s"
+                + (f" ({100 * ideal / n / makespan(cpus, n):.0f} % of ideal)" if n > 1 else "")
+                for n in (1, 2, 16, 64))
+            out.append("from these CPU times, in shard order on idle workers of a core each: "
+                       + projected)
         return out
+
+
+def _spread(seconds: list[float]) -> str:
+    s = sorted(seconds)
+    return (f"min {s[0]:.3f} s, median {s[(len(s) - 1) // 2]:.3f} s, max {s[-1]:.3f} s, "
+            f"sum {sum(s):.1f} s")
 
 
 def makespan(seconds: list[float], workers: int) -> float:
@@ -116,7 +128,7 @@ def run_study(study: Study, executor: Executor, progress: Progress | None = None
     read back does: a resumed run and a fresh one build their report from the same data."""
     started = time.perf_counter()
     n = len(study.shards)
-    stats = RunStats(executor.description, n, seconds=[None] * n)
+    stats = RunStats(executor.description, n, seconds=[None] * n, cpu=[None] * n)
     store = ShardStore(root or default_root(), study.job, study.title, n,
                        prune=root is None) if keep else None
     results: list[Any] = [None] * n
@@ -143,6 +155,7 @@ def run_study(study: Study, executor: Executor, progress: Progress | None = None
                     each(i, results[i])
                 stats.from_store += 1
                 stats.seconds[i] = kept.seconds
+                stats.cpu[i] = kept.cpu
                 runs_done += study.runs[i]
     done_shards = stats.from_store
 
@@ -161,10 +174,11 @@ def run_study(study: Study, executor: Executor, progress: Progress | None = None
             data = json.loads(json.dumps(study.encode(done.result)))  # as the store reads it
             results[done.index] = study.decode(study.shards[done.index], data)
             stats.seconds[done.index] = done.seconds
+            stats.cpu[done.index] = done.cpu
             stats.workers.add(done.worker)
             if store is not None:
                 try:
-                    store.save(done.index, data, done.seconds, done.worker)
+                    store.save(done.index, data, done.seconds, done.cpu, done.worker)
                 except OSError as exc:  # results not kept only cost a resume
                     tick(f"the results cannot be kept in {store.folder} ({exc.strerror}): "
                          "the study goes on, but --resume will find nothing")

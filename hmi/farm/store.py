@@ -2,7 +2,8 @@
 
 A study's results live in one folder named by its kind, project and fingerprint, in the data
 folder (``$PLCHMI_DATA/studies/``) or a folder given with ``--resume DIR``: one JSON file per
-shard, written whole (a temporary file renamed), with the time it took and where. Only a
+shard, written whole (a temporary file renamed), with the time it took (wall and CPU) and
+where. Only a
 file whose fingerprint matches is read back, and a damaged one is computed again. Files hold
 plain JSON, never code (pickle would run whatever a file says).
 """
@@ -28,6 +29,7 @@ def default_root() -> Path:
 class Kept:
     data: Any  # the study's JSON form of the shard's result
     seconds: float
+    cpu: float | None  # None in a file of an older plchmi
     worker: str
 
 
@@ -66,14 +68,16 @@ class ShardStore:
             data = json.loads((self.folder / f"shard-{index:06d}.json").read_text("utf-8"))
             if data["fingerprint"] != self.fingerprint or data["index"] != index:
                 return None
-            return Kept(data["result"], float(data["seconds"]), str(data["worker"]))
+            cpu = data.get("cpu")
+            return Kept(data["result"], float(data["seconds"]),
+                        None if cpu is None else float(cpu), str(data["worker"]))
         except (OSError, ValueError, KeyError, TypeError):
             return None
 
-    def save(self, index: int, data: Any, seconds: float, worker: str) -> None:
+    def save(self, index: int, data: Any, seconds: float, cpu: float, worker: str) -> None:
         self._write(self.folder / f"shard-{index:06d}.json", {
             "fingerprint": self.fingerprint, "index": index, "seconds": round(seconds, 6),
-            "worker": worker, "result": data})
+            "cpu": round(cpu, 6), "worker": worker, "result": data})
 
     def _write(self, path: Path, data: Any) -> None:
         tmp = path.with_name(f"{path.name}.tmp{os.getpid()}")

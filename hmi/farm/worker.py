@@ -28,7 +28,10 @@ class WrongVersion(Exception):
 class Done:
     index: int
     result: Any
-    seconds: float  # the shard's compute time on its worker (setup excluded)
+    seconds: float  # the shard's compute time on its worker, start to end (setup excluded)
+    # The CPU time its thread spent on it: what a worker with a core of its own would take,
+    # whatever else the machine ran meanwhile (the cut and the projections use it).
+    cpu: float
     worker: str  # where it ran: a Dask worker's address, or a process id
 
 
@@ -69,9 +72,10 @@ def state_of(job: Job) -> Any:
 def run_shard(job: Job, index: int, shard: Any) -> Done:
     check_version(job.code)
     state = state_of(job)
-    started = time.perf_counter()
+    started, cpu = time.perf_counter(), time.thread_time()
     result = job.work(state, shard)
-    return Done(index, result, time.perf_counter() - started, where())
+    return Done(index, result, time.perf_counter() - started, time.thread_time() - cpu,
+                where())
 
 
 # -- a local pool's processes --------------------------------------------------------------

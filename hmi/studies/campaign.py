@@ -21,6 +21,7 @@ Runs are in virtual time on the simulated plant; each is exactly repeatable.
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Any
@@ -236,9 +237,10 @@ def _context(snap: Snapshot, config: Config, detected: int | None) -> str:
     return "; ".join(parts)
 
 
-# A shard of the campaign holds runs for this many scans or more (0.1-0.5 s of work: Dask's
-# per-task cost stays negligible): 5 runs of 40 s for the valve, 10 shards in all.
-SHARD_SCANS = 20_000
+# A shard of the campaign holds runs for this many scans or more: a scan costs the valve
+# about 4 us of CPU, so a shard is 0.2 s or more of work, and Dask's per-task cost stays
+# negligible (docs/studies.md): 48 runs of 40 s, 3 shards of 16.
+SHARD_SCANS = 50_000
 
 
 def run_campaign(project: Project, spec: CampaignSpec,
@@ -273,8 +275,10 @@ def campaign_study(project: Project, spec: CampaignSpec, period_us: int | None =
     configs = configs_of(project)
     tasks = [(i, j) for i in range(len(spec.scenarios)) for j in range(len(configs))]
     period = period_us or project.scan_period_us
-    per = max(1, -(-SHARD_SCANS // (spec.length_us // period + 1)))
-    shards = tuple(tuple(tasks[k:k + per]) for k in range(0, len(tasks), per))
+    per = max(1, -(-SHARD_SCANS // (spec.length_us // period + 1)))  # runs, at least
+    n = max(1, len(tasks) // per)  # shards of `per` runs or more, as even as can be
+    bounds = [len(tasks) * k // n for k in range(n + 1)]
+    shards = tuple(tuple(tasks[a:b]) for a, b in itertools.pairwise(bounds))
     job = make_job("campaign", Bundle.of(project, variant), _setup, _work,
                    {"period_us": period_us}, shards)
 

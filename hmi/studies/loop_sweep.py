@@ -8,7 +8,7 @@ runs: the states explored are counted per block (a state two blocks reach counts
 that count is fixed by the runs alone.
 
 The work is cut into shards that any worker computes alone from the project's files
-(hmi/farm/), by their cost: the blocks' compute times measured by the previous run of the same
+(hmi/farm/), by their cost: the blocks' CPU times measured by the previous run of the same
 sweep (kept next to the cache, :func:`cut`). Light blocks go together in one shard, a heavy
 block is split into pieces of consecutive runs; with no times known, a shard is a block. A
 worker explores each piece from the fault-free prefix (its explorer reset) and returns its
@@ -115,16 +115,16 @@ def sweep(project, configs: Sequence[LoopConfig], counter: str, every_us: int | 
         result.runs[c.key] = []
         result.states[c.key] = prefix
     split: dict[tuple[int, int], set[str]] = {}
-    spent: dict[tuple[int, int], float] = {}
+    spent: list[tuple[int, int, int, float]] = []
     for shard, part in zip(study.shards, parts, strict=True):
-        for (c, start, _), piece in zip(shard, part.pieces, strict=True):
+        for (c, start, end), piece in zip(shard, part.pieces, strict=True):
             block = (c, start // SHARD_RUNS)
             result.runs[configs[c].key] += piece.outcomes
             if piece.states is None:
                 result.states[configs[c].key] += piece.nodes
             else:
                 split.setdefault(block, set()).update(piece.states)
-            spent[block] = spent.get(block, 0.0) + piece.seconds
+            spent.append((c, start, end, piece.seconds))
     for (c, _), states in sorted(split.items()):
         result.states[configs[c].key] += len(states)
     _store_times(_times_key(project, variant, configs, counter, every, extras, faults),
@@ -146,9 +146,9 @@ def sweep_study(project, configs: Sequence[LoopConfig], counter: str, every: int
     runs = len(faults) * len(instants)
     blocks = [(c, start, min(start + SHARD_RUNS, runs))
               for c in range(len(configs)) for start in range(0, runs, SHARD_RUNS)]
-    times = _load_times(_times_key(project, variant, configs, counter, every, extras, faults),
-                        configs, len(blocks) // max(1, len(configs)))
-    shards = cut(blocks, times)
+    costs = _load_times(_times_key(project, variant, configs, counter, every, extras, faults),
+                        configs, runs)
+    shards = cut(blocks, costs)
     options = {"configs": [[c.key, c.title, c.policy, c.diagnosis] for c in configs],
                "counter": counter, "faults": list(faults), "block": SHARD_RUNS,
                "instants": [list(i) for i in instants], "shape": _shape(probe)}
@@ -163,23 +163,36 @@ def sweep_study(project, configs: Sequence[LoopConfig], counter: str, every: int
 Piece = tuple[int, int, int]  # (configuration, first run, end): runs of one block
 
 
-def cut(blocks: list[Piece], times: list[float] | None) -> tuple[tuple[Piece, ...], ...]:
+def cut(blocks: list[Piece], costs: list[float] | None) -> tuple[tuple[Piece, ...], ...]:
     """The shards, each a tuple of pieces in run order, from the blocks (in run order) and
-    their measured compute times (None: one shard per block).
+    each run's measured CPU time, in the same order (None: one shard per block).
 
     Shards aim at `target`, the total time over SHARDS_WANTED and SHARD_MIN_S or more: a
-    block above it is split into that many pieces of consecutive runs, lighter blocks go
-    together until the next would pass it; a light rest goes with its neighbour."""
-    if times is None or len(times) != len(blocks):
+    block above it is split into that many pieces of consecutive runs of about the same time,
+    lighter blocks go together until the next would pass it; a light rest goes with its
+    neighbour."""
+    if costs is None or len(costs) != sum(end - start for _, start, end in blocks):
         return tuple((b,) for b in blocks)
-    target = max(SHARD_MIN_S, sum(times) / SHARDS_WANTED)
+    target = max(SHARD_MIN_S, sum(costs) / SHARDS_WANTED)
     shards: list[list[Piece]] = []
     current: list[Piece] = []  # light blocks gathering
     spent = 0.0
-    for (c, start, end), t in zip(blocks, times, strict=True):
+    first = 0  # the block's first run in `costs`
+    for c, start, end in blocks:
+        runs = costs[first:first + end - start]
+        first += end - start
+        t = sum(runs)
         if t > target and end - start > 1:
             n = min(end - start, -int(-t // target))
-            bounds = [start + (end - start) * i // n for i in range(n + 1)]
+            bounds = [start]
+            total = 0.0
+            for r, x in enumerate(runs):
+                total += x
+                # a bound where the time so far passes the next n-th, leaving a run a piece
+                if len(bounds) < n and total >= t * len(bounds) / n and \
+                        start + r + 1 > bounds[-1] and end - (start + r + 1) >= n - len(bounds):
+                    bounds.append(start + r + 1)
+            bounds.append(end)
             pieces = [[(c, a, b)] for a, b in itertools.pairwise(bounds)]
             if spent >= target / 2:
                 shards.append(current)
@@ -204,8 +217,9 @@ def cut(blocks: list[Piece], times: list[float] | None) -> tuple[tuple[Piece, ..
 @dataclass(frozen=True)
 class PiecePart:
     """One piece's runs: their outcomes in order, the states it explored past the fault-free
-    prefix (their number; their digests too when the piece is part of a block), and its
-    compute time (for the next run's cut, never for the report)."""
+    prefix (their number; their digests too when the piece is part of a block), and the CPU
+    time its thread spent on it (for the next run's cut, never for the report: unlike the
+    time from start to end, it does not grow with whatever else the machine runs)."""
 
     outcomes: list[Outcome]
     nodes: int
@@ -256,7 +270,7 @@ def _work(state: _State, shard: tuple[Piece, ...]) -> SweepPart:
 
 
 def _piece(state: _State, c: int, start: int, end: int) -> PiecePart:
-    started = time.perf_counter()
+    started = time.thread_time()
     ex = state.explorer(c)
     for fault, k, at, why in state.runs[start:end]:
         ex.run(fault, k, at, why)
@@ -264,7 +278,7 @@ def _piece(state: _State, c: int, start: int, end: int) -> PiecePart:
     whole = start % state.block == 0 and end == min(start + state.block, len(state.runs))
     states = None if whole else sorted(_digest(key) for key in ex.explored())
     return PiecePart(outcomes(g), len(g.obs) - len(g.prefix), states,
-                     time.perf_counter() - started)
+                     time.thread_time() - started)
 
 
 def _digest(key: tuple) -> str:
@@ -333,18 +347,26 @@ def _times_key(project, variant, configs, counter, every, extras, faults) -> str
     return hashlib.sha256(text.encode()).hexdigest()[:32]
 
 
-def _load_times(key: str, configs, blocks: int) -> list[float] | None:
-    """The blocks' compute times the last run of this sweep measured, in block order."""
+def _load_times(key: str, configs, runs: int) -> list[float] | None:
+    """Each run's CPU time, as the last run of this sweep measured it (a piece's time
+    spread evenly over its runs), in run order; None if unknown."""
     try:
         data = json.loads((cache_folder() / "closed-loop" / f"times-{key}.json").read_text())
-        times = [float(t) for c in configs for t in data[c.key]]
-    except (OSError, ValueError, KeyError, TypeError):
+        costs: list[float] = []
+        for c in configs:
+            spread = [0.0] * runs
+            for start, end, seconds in data[c.key]:
+                for r in range(int(start), int(end)):
+                    spread[r] = float(seconds) / (int(end) - int(start))
+            costs += spread
+    except (OSError, ValueError, KeyError, TypeError, IndexError, ZeroDivisionError):
         return None
-    return times if len(times) == blocks * len(configs) else None
+    return costs
 
 
-def _store_times(key: str, configs, spent: dict[tuple[int, int], float]) -> None:
-    data = {c.key: [t for (i, _), t in sorted(spent.items()) if i == n]
+def _store_times(key: str, configs, spent: list[tuple[int, int, int, float]]) -> None:
+    """Each piece's CPU time: [first run, end, seconds] per configuration."""
+    data = {c.key: [[start, end, t] for i, start, end, t in spent if i == n]
             for n, c in enumerate(configs)}
     folder = cache_folder() / "closed-loop"
     try:
