@@ -243,3 +243,22 @@ async def test_an_untouched_screen_warns_then_locks_until_the_password(tmp_path,
 def test_a_screen_nobody_signs_in_to_never_locks(tmp_path):
     link, _ = cell(tmp_path, tmp_path / "no-users")
     assert PlcHmiApp(link, live=False, show_measured=False).idle_timer is None
+
+
+def test_a_terminal_given_its_role_by_the_users_file_never_locks(tmp_path, users_path):
+    """local-terminal = ROLE: nobody signed in at that terminal, so nothing can be asked
+    again — it never locks, and monitor needs a screen that signed in."""
+    users_path.write_text("local-terminal = engineer\nidle-lock = 5m\n"
+                          + users_path.read_text())
+    session = Session(Engine(load_once(VALVE, None), SimPlant(load_once(VALVE, None))))
+    link = LocalLink(session, identity=Identity("kiosk", "engineer", "terminal", "k1"),
+                     admission=Admission(users_path))
+    assert link.identity.role == "engineer" and link.accountable
+    assert (link.idle_lock_us, link.idle_warning_us) == (0, 0)
+    assert PlcHmiApp(link, live=False, show_measured=False).idle_timer is None
+    assert not link.command(SetMode(True)).result.accepted  # a reason is still asked
+    assert link.command(SetMode(True), reason="kiosk test").result.accepted
+    monitor = link.command(SetPolicy("monitor"), reason="commissioning",
+                           password=PASSWORD).result
+    assert not monitor.accepted and "did not sign in" in monitor.message
+    link.stop()

@@ -40,6 +40,9 @@ LOCAL = "this machine"  # where a screen on the runtime's socket comes from
 class Admitted:
     identity: m.Identity
     table_id: str = ""  # its entry in the session table ("" if it counts elsewhere)
+    # a person proved who they are (a password, a ticket): the screen can ask it again
+    # (the idle lock, the monitor password); not so for local-terminal = ROLE
+    signed_in: bool = True
 
 
 class Admission:
@@ -96,7 +99,7 @@ class Admission:
         opened, why = self.table.open(identity.user, door, settings.sessions_per_user)
         if opened is None:
             return None, why, False
-        return Admitted(identity, opened.id), "", False
+        return Admitted(identity, opened.id, bool(hello.password)), "", False
 
     def enforced(self) -> bool:
         """Whether roles are checked: a users file exists (or cannot be read: fail closed)."""

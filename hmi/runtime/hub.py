@@ -81,6 +81,7 @@ class Client:
     dropped: int = 0  # frames it could not take (a later one went instead)
     table_id: str = ""  # its sign-in's entry in the users' session table
     locked: bool = False  # left untouched (idle-lock): its commands refused until unlocked
+    signed_in: bool = True  # its person gave a password or a ticket (not local-terminal)
     info: m.ClientInfo = field(init=False)
 
     def __post_init__(self) -> None:
@@ -146,23 +147,24 @@ class Hub:
         identity = hello.identity
         if identity.role not in m.ROLES or identity.door not in m.DOORS:
             return None, m.Refused(f"unknown role {identity.role!r} or door {identity.door!r}")
-        table_id = ""
+        table_id, signed_in = "", True
         if self.admission is not None:
             admitted = self.admission.admit(hello)
             if isinstance(admitted, SignInRefusal):
                 self.journal_refusal(admitted, identity.session)
                 return None, m.Refused(f"not signed in: {admitted.reason}")
             identity, table_id = admitted.identity, admitted.table_id
+            signed_in = admitted.signed_in
         with self.lock:
             client = Client(f"c{next(self._ids)}", identity, self.session.engine.now,
-                            table_id=table_id)
+                            table_id=table_id, signed_in=signed_in)
             self.clients[client.id] = client
             self._journal("client-attached", f"{client.info} attached", client)
             if hello.want_control and identity.may_command and self.holder is None:
                 self._grant(client, "control-granted", f"{client.info} is in control")
             self._control_version += 1
         # (the facts as they are now: a historian may have placed the run's time 0 since)
-        lock_us, warning_us = self._idle_settings(identity)
+        lock_us, warning_us = self._idle_settings(identity) if signed_in else (0, 0)
         return client, m.Welcome(m.PROTOCOL, client.id, cell_facts(self.session), self.runtime,
                                  identity, self._accountable(identity), lock_us, warning_us)
 
@@ -353,7 +355,9 @@ class Hub:
                        or (self._role_refusal(who, command) if enforced else None)
                        or self._bounds(command))
         if refusal is None:
-            refusal = self._accounted(who, message)  # (off the hub's lock: a password check)
+            # (off the hub's lock: a password check)
+            refusal = self._accounted(who, message, client.signed_in
+                                      or message.on_behalf is not None)
         if refusal is not None:
             return m.Reply(message.id, session.decline(command, refusal, origin, details))
         guard = message.guard
@@ -414,7 +418,8 @@ class Hub:
         self._journal("session-unlocked", f"{client.info} unlocked with the password", client)
         return CommandResult.ok("unlocked")
 
-    def _accounted(self, who: m.Identity, message: m.Send) -> str | None:
+    def _accounted(self, who: m.Identity, message: m.Send,
+                   signed_in: bool = True) -> str | None:
         """Why the command may not go without more from its sender: no reason given where
         one is asked, or the password asked again and wrong (counted towards the lockout
         like any wrong password). Blocking: an argon2 check (a worker thread's)."""
@@ -431,6 +436,10 @@ class Hub:
         if roles.needs_password(command):
             if self.admission is None:
                 return None
+            if not signed_in:
+                return (f"refused: {describe(command)} asks for your password again, and "
+                        "this terminal did not sign in (local-terminal): attach with a name "
+                        "and password to do this")
             result = self.admission.auth.submit(who.user, message.password).result()
             if result.locked_now:
                 self.journal_refusal(audit.refusal(who.user, who.door, LOCAL, result.reason,
