@@ -58,7 +58,8 @@ def test_a_small_sweep_is_the_same_on_one_process_and_two(capsys):
     assert json.loads(two[1])["shard_runs"] == 200
 
 
-def test_the_cut_by_cost_splits_heavy_blocks_and_gathers_light_ones():
+def test_the_cut_by_cost_splits_heavy_blocks_and_gathers_light_ones(monkeypatch):
+    monkeypatch.setattr("hmi.studies.loop_sweep.SHARD_MIN_S", 0.4)
     blocks = [(c, start, start + 200) for c in range(2) for start in range(0, 1000, 200)]
     assert cut(blocks, None) == tuple((b,) for b in blocks)
     times = [0.01, 0.02, 30.0, 0.05, 0.01, 2.0, 0.01, 0.01, 0.01, 0.3]
@@ -274,6 +275,21 @@ def test_a_shards_cpu_time_is_measured_kept_and_read_back(tmp_path):
     assert lines[1].startswith("shard times, start to end: min")
     assert lines[2].startswith("shard CPU times: min") and "under 0.1 s" in lines[2]
     assert "64 workers" in lines[3] and "% of ideal" in lines[3]
+
+
+def test_the_heaviest_shards_are_sent_first_and_the_projection_follows(tmp_path):
+    project = load_project(VALVE)
+    study = campaign_study(project, campaign_of(project))
+    assert study.costs is None  # no costs known: sent in shard order
+    counting = Counting()
+    stats = run_study(replace(study, costs=(0.1, 0.05, 0.3)), counting, root=tmp_path).stats
+    assert counting.computed == stats.order == [2, 0, 1]
+    # The projection gives the shards out in that order: with CPU times 1, 1 and 2 s on two
+    # workers, 2 s (2 | 1 + 1), where shard order would take 3 s (1 + 2 | 1).
+    stats.cpu = [1.0, 1.0, 2.0]
+    assert "2 workers 2.0 s (100 % of ideal)" in stats.lines()[3]
+    stats.order = []
+    assert "2 workers 3.0 s (67 % of ideal)" in stats.lines()[3]
 
 
 def test_the_time_on_n_workers_is_projected_from_the_shard_times():

@@ -35,7 +35,9 @@ class Job:
 @dataclass(frozen=True)
 class Study:
     """A job, its shards (plain data, in the order their results merge), how many runs each
-    holds (for the progress), and the results' form on disk (JSON, never code)."""
+    holds (for the progress), the results' form on disk (JSON, never code), and, when the
+    study can tell, each shard's expected cost: the heaviest are sent first, so that the
+    workers do not end waiting on one long shard sent last (results still merge in order)."""
 
     title: str  # "campaign --sweep of cispi_valve", for messages
     job: Job
@@ -43,6 +45,7 @@ class Study:
     runs: tuple[int, ...]
     encode: Callable[[Any], Any]  # a shard's result -> JSON data
     decode: Callable[[Any, Any], Any]  # (shard, JSON data) -> the shard's result
+    costs: tuple[float, ...] | None = None  # expected seconds per shard; None: sent in order
 
     @property
     def total_runs(self) -> int:

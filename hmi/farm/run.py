@@ -58,6 +58,7 @@ class RunStats:
     wall_s: float = 0.0
     seconds: list[float | None] = field(default_factory=list)  # per shard, in shard order
     cpu: list[float | None] = field(default_factory=list)  # per shard: its thread's CPU time
+    order: list[int] = field(default_factory=list)  # the shards in the order they are sent
     workers: set[str] = field(default_factory=set)  # where shards ran (this run)
     notes: list[str] = field(default_factory=list)
     folder: Path | None = None
@@ -72,7 +73,8 @@ class RunStats:
         walls = [x for x in self.seconds if x is not None]
         if walls:
             out.append(f"shard times, start to end: {_spread(walls)}")
-        cpus = [x for x in self.cpu if x is not None]
+        cpus = [x for x in (self.cpu[i] for i in self.order or range(len(self.cpu)))
+                if x is not None]
         if cpus:
             out.append(f"shard CPU times: {_spread(cpus)}; "
                        f"{sum(1 for x in cpus if x < SHARD_GOAL_S)} under {SHARD_GOAL_S:g} s")
@@ -81,8 +83,8 @@ class RunStats:
                 f"{n} workers {makespan(cpus, n):.1f} s"
                 + (f" ({100 * ideal / n / makespan(cpus, n):.0f} % of ideal)" if n > 1 else "")
                 for n in (1, 2, 16, 64))
-            out.append("from these CPU times, in shard order on idle workers of a core each: "
-                       + projected)
+            out.append("from these CPU times, each shard in the order sent to the first idle "
+                       f"worker of a core: {projected}")
         return out
 
 
@@ -94,7 +96,7 @@ def _spread(seconds: list[float]) -> str:
 
 def makespan(seconds: list[float], workers: int) -> float:
     """The time `workers` idle workers take over shards of these compute times, each shard
-    given in order to the first worker free (as a scheduler fed in shard order does; the
+    given in order to the first worker free (as a scheduler fed in that order does; the
     per-task overhead and the workers' start left out)."""
     free = [0.0] * workers
     for s in seconds:
@@ -128,7 +130,10 @@ def run_study(study: Study, executor: Executor, progress: Progress | None = None
     read back does: a resumed run and a fresh one build their report from the same data."""
     started = time.perf_counter()
     n = len(study.shards)
-    stats = RunStats(executor.description, n, seconds=[None] * n, cpu=[None] * n)
+    # The heaviest first when the study knows the costs (sorted is stable: ties in order).
+    costs = study.costs
+    order = sorted(range(n), key=lambda i: -costs[i]) if costs else list(range(n))
+    stats = RunStats(executor.description, n, seconds=[None] * n, cpu=[None] * n, order=order)
     store = ShardStore(root or default_root(), study.job, study.title, n,
                        prune=root is None) if keep else None
     results: list[Any] = [None] * n
@@ -168,7 +173,7 @@ def run_study(study: Study, executor: Executor, progress: Progress | None = None
 
     if stats.from_store:
         tick(f"{stats.from_store} of {n} shards read back from {store and store.folder}")
-    pending = [(i, study.shards[i]) for i in range(n) if not found[i]]
+    pending = [(i, study.shards[i]) for i in order if not found[i]]
     try:
         for done in executor.map(study.job, pending, tick):
             data = json.loads(json.dumps(study.encode(done.result)))  # as the store reads it

@@ -52,8 +52,9 @@ CACHE_VERSION = 2
 # Runs per block, the unit the states are counted in (and a shard when no times are known):
 # 156 blocks for the valve's full sweep, of 0.02-30 s each (docs/studies.md).
 SHARD_RUNS = 200
-# The cut by cost: shards of about the total / SHARDS_WANTED (4 per worker at 64 workers), and
-# never aimed under SHARD_MIN_S (well above Dask's per-task cost, hmi.farm.run.SHARD_GOAL_S).
+# The cut by cost: shards of about the total CPU time / SHARDS_WANTED (4 per worker at 64
+# workers), and never aimed under SHARD_MIN_S: a piece cut finer than the one measured can take
+# a tenth of its expected time (docs/studies.md), and should still pass hmi.farm.run.SHARD_GOAL_S.
 SHARDS_WANTED = 256
 SHARD_MIN_S = 0.4
 
@@ -149,6 +150,10 @@ def sweep_study(project, configs: Sequence[LoopConfig], counter: str, every: int
     costs = _load_times(_times_key(project, variant, configs, counter, every, extras, faults),
                         configs, runs)
     shards = cut(blocks, costs)
+    expected = None
+    if costs is not None:  # cut by them: each shard's share, to send the heaviest first
+        expected = tuple(sum(sum(costs[c * runs + a:c * runs + b]) for c, a, b in s)
+                         for s in shards)
     options = {"configs": [[c.key, c.title, c.policy, c.diagnosis] for c in configs],
                "counter": counter, "faults": list(faults), "block": SHARD_RUNS,
                "instants": [list(i) for i in instants], "shape": _shape(probe)}
@@ -156,7 +161,7 @@ def sweep_study(project, configs: Sequence[LoopConfig], counter: str, every: int
                    shards)
     study = Study(f"the closed-loop sweep of {project.name}", job, shards,
                   tuple(sum(end - start for _, start, end in s) for s in shards), _encode,
-                  _decode)
+                  _decode, expected)
     return study, probe
 
 
@@ -270,8 +275,8 @@ def _work(state: _State, shard: tuple[Piece, ...]) -> SweepPart:
 
 
 def _piece(state: _State, c: int, start: int, end: int) -> PiecePart:
+    ex = state.explorer(c)  # built at a worker's first piece of `c`: not the piece's cost
     started = time.thread_time()
-    ex = state.explorer(c)
     for fault, k, at, why in state.runs[start:end]:
         ex.run(fault, k, at, why)
     g = ex.graph
