@@ -27,6 +27,7 @@ from textual.pilot import Pilot
 from ui_scenarios import SCENARIOS, Scenario
 
 from hmi.ui.headless import drain
+from hmi.ui.screenshot import preserve_spaces
 
 DEFAULT_OUT = Path(__file__).resolve().parents[1] / "screenshots"
 
@@ -48,21 +49,14 @@ def shoot(scenario: Scenario, out: Path) -> Path:
     return path
 
 
-PRESERVE = '<svg xml:space="preserve" '
-
-
 def preserve(svg: Path) -> None:
     """Say on the SVG's root that its spaces are text (see above); idempotent."""
-    text = svg.read_text(encoding="utf-8")
-    if PRESERVE not in text:
-        svg.write_text(text.replace("<svg ", PRESERVE, 1), encoding="utf-8")
+    svg.write_text(preserve_spaces(svg.read_text(encoding="utf-8")), encoding="utf-8")
 
 
 def to_png(svg: Path, png: Path, width: int = 1400) -> None:
     """Convert with rsvg-convert, keeping the spaces that open a text run (see above)."""
-    text = svg.read_text(encoding="utf-8")
-    if PRESERVE not in text:
-        text = text.replace("<svg ", PRESERVE, 1)
+    text = preserve_spaces(svg.read_text(encoding="utf-8"))
     with tempfile.NamedTemporaryFile("w", suffix=".svg", encoding="utf-8") as tmp:
         tmp.write(text)
         tmp.flush()

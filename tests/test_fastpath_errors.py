@@ -55,9 +55,9 @@ def load(name: str) -> Project:
 
 class Broken:
     """A session whose engine has one function replaced by one that raises from `at_us`.
-    `path` is the engine's way through the scan: "auto" the compiled automatic-mode cycle
-    (Engine._auto_cycle), "cycle" the general one (Engine._cycle, compiled: a device is
-    stopped), "interpreter" Engine(compiled=False)."""
+    `path` is the engine's way through the scan: "auto" the compiled automatic mode (the
+    printed frame when the scans are not timed, else Engine._cycle), "cycle" the general one
+    with a device stopped (Engine._cycle, compiled), "interpreter" Engine(compiled=False)."""
 
     def __init__(self, name: str, where: str, at_us: int, quiet: bool, tmp: Path,
                  times: int = 1, path: str = "auto", inject: str = ""):
@@ -460,7 +460,8 @@ async def test_the_hmi_latches_an_error_outside_the_scan_and_the_operator_resets
         assert "internal error reading the plant's" in screen_text(app)
         await press(pilot, "r")
         await wait_for_screen(pilot, ConfirmDialog)
-        assert "reading the plant's state failed" in screen_text(app)
+        said = " ".join(getattr(line, "plain", str(line)) for line in app.screen.lines)
+        assert "outputs held safe: internal error reading the plant's state" in said
         await press(pilot, "y")
         await wait_for_main(pilot)
         assert engine.latched == []

@@ -125,3 +125,96 @@ def test_the_engineering_view_shows_the_names_says_so_and_is_journalled(tmp_path
     assert "ENG" not in back
     events = [e["event"] for e in read(journal).entries if e.get("type") == "action"]
     assert events[-2:] == ["engineering view", "operator view"]
+
+
+async def _looked(app: PlcHmiApp, names: set[str], found: dict[str, list[str]],
+                  what: str) -> None:
+    """The whole screen as it is now (the panels, the banners, the SIMULATION strip, the
+    message line, an open dialog) checked for the model's names."""
+    from ui_harness import screen_text
+    hits = offences(screen_text(app), names)
+    if hits:
+        found.setdefault(f"{app.size.width}x{app.size.height} {what}", []).extend(hits)
+
+
+@pytest.mark.parametrize("size", [(160, 48), (80, 24)], ids=["160x48", "80x24"])
+def test_dialogs_message_line_and_every_state_speak_plain_words(size):
+    """The valve through its situations as an operator meets them: F13 (a diagnosis
+    latched, the recovery needed), the fault injection dialog, the repair's answer, the
+    fault reset dialog, the recovery's confirmation, recovery mode, leaving it, manual mode,
+    a shelved alarm, the policy dialog; then safe blocking under `block` (latched) and its
+    reset dialog. Every screen, dialogs included, names no internal identifier."""
+    from ui_harness import palette, run_until
+    from ui_scenarios import make_app
+
+    from hmi.ui.dialogs import ChoiceDialog, ConfirmDialog
+    from hmi.ui.fault_dialog import FaultDialog
+    from hmi.ui.headless import wait_for_screen, wait_until
+    names = identifiers(load_once(PROJECTS / "cispi_valve"))
+
+    async def run() -> dict[str, list[str]]:
+        found: dict[str, list[str]] = {}
+        app = make_app(inject=("F13@10.4s",))
+        async with app.run_test(size=size) as pilot:
+            await run_until(pilot, lambda s: s.recovery.needed, 20, "the recovery needed")
+            await _looked(app, names, found, "diagnosis latched, recovery needed")
+            await press(pilot, "f")
+            await wait_for_screen(pilot, FaultDialog)
+            await _looked(app, names, found, "fault dialog")
+            await press(pilot, "escape")
+            await palette(pilot, "SIMULATION: repair")
+            await _looked(app, names, found, "repaired")
+            await press(pilot, "r")
+            await wait_for_screen(pilot, ConfirmDialog)
+            await _looked(app, names, found, "reset dialog")
+            await press(pilot, "g")
+            await wait_until(pilot, lambda: app.screen.id == "recovery-dialog",
+                             "the recovery dialog")
+            await _looked(app, names, found, "recovery dialog")
+            await press(pilot, "y")
+            await run_for(pilot, 0.8)
+            await _looked(app, names, found, "recovery running")
+            await run_until(pilot, lambda s: s.recovery.status == "done", 10,
+                            "the recovery done")
+            await _looked(app, names, found, "recovery done")
+            await press(pilot, "r")
+            await wait_for_screen(pilot, ConfirmDialog)
+            await _looked(app, names, found, "reset dialog after the recovery")
+            await press(pilot, "y")
+            await run_for(pilot, 0.1)
+            await _looked(app, names, found, "reset done")
+            await press(pilot, "m")
+            await wait_for_screen(pilot, ConfirmDialog)
+            await _looked(app, names, found, "leave recovery dialog")
+            await press(pilot, "y")
+            await run_for(pilot, 3)
+            await press(pilot, "m")
+            await wait_for_screen(pilot, ConfirmDialog)
+            await _looked(app, names, found, "manual dialog")
+            await press(pilot, "y")
+            await run_for(pilot, 1)
+            await _looked(app, names, found, "manual mode")
+            await press(pilot, "m", "y")
+            await run_for(pilot, 1)
+            alarm = next(a for a in app.link.last.alarms if not a.latched)
+            app.shelve(alarm.key)
+            await wait_for_screen(pilot, ChoiceDialog)
+            await _looked(app, names, found, "shelve dialog")
+            await press(pilot, "enter")
+            await run_for(pilot, 0.1)
+            await _looked(app, names, found, "an alarm shelved")
+            await press(pilot, "p")
+            await wait_for_screen(pilot, ChoiceDialog)
+            await _looked(app, names, found, "policy dialog")
+            await press(pilot, "escape")
+        app = make_app(control="faulty", policy="block")
+        async with app.run_test(size=size) as pilot:
+            await run_until(pilot, lambda s: bool(s.latched), 20, "safe blocking latched")
+            await run_for(pilot, 0.5)
+            await _looked(app, names, found, "safe blocking latched")
+            await press(pilot, "r")
+            await wait_for_screen(pilot, ConfirmDialog)
+            await _looked(app, names, found, "reset dialog under safe blocking")
+        return found
+    found = asyncio.run(run())
+    assert not found, found

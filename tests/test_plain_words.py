@@ -197,3 +197,48 @@ def test_the_engineering_detail_keeps_the_identifiers():
     assert "F1, F13" in diagnosis.detail and "def_V masks C, O" in diagnosis.detail
     assert "A1" not in diagnosis.what + diagnosis.why + diagnosis.consequences
     assert diagnosis.render(5).splitlines()[-2].strip() == "Engineering detail:"
+
+
+@pytest.mark.parametrize("name", PROJECT_NAMES)
+def test_the_reset_and_recovery_dialogs_and_output_reasons_name_no_internal_identifier(name):
+    """Every situation's fault reset dialog (what it releases, what stays and why), each
+    recovery procedure's confirmation, why an output was not written as the program asked
+    (the I/O table, the message line) and each simulated fault as the operator view names
+    it: plain words; the engineering view's lines keep the names."""
+    from hmi.plant.sim.plant import SimPlant
+    from hmi.ui.fault_dialog import fault_words
+    from hmi.ui.reset import recovery_lines, reset_lines
+    from hmi.ui.verdict import output_changes
+
+    project = load_project(PROJECTS / name)
+    names = identifiers(project)
+    named = any_name(names)
+
+    def bad_words(text: str) -> list[str]:  # a scan number is a count the screen may quote
+        return [b for b in offences(text, names, named) if not b.startswith("scan ")]
+    problems = []
+    engineering = ""
+    for what, snap in situations(project):
+        texts = [("reset", str(getattr(line, "plain", line))) for line in reset_lines(snap)]
+        engineering += " ".join(getattr(line, "plain", str(line))
+                                for line in reset_lines(snap, engineering=True))
+        for written in (True, False):  # every output changed, by this situation's report
+            changed = snap._replace(outputs=tuple(not v for v in snap.fov) if written
+                                    else snap.outputs)
+            texts += [("output", why) for why in output_changes(changed, False, True).values()]
+        problems += [f"{what} / {kind}: {sorted(set(bad))}: {text}" for kind, text in texts
+                     if (bad := bad_words(text))]
+    for r in recoveries_of(project):
+        for line in recovery_lines(project, r):
+            if bad := bad_words(line):
+                problems.append(f"recovery {r.name}: {sorted(set(bad))}: {line}")
+    plant = SimPlant(project)
+    for device in plant.devices:
+        for spec in device.FAULTS.values():
+            text = fault_words(device.name, spec.description, len(plant.devices) > 1)
+            if bad := bad_words(text):
+                problems.append(f"fault {device.name}.{spec.code}: {sorted(set(bad))}: {text}")
+    assert not problems, f"{len(problems)} texts name identifiers:\n" + "\n".join(problems[:40])
+    if diagnosers_of(project):  # the engineering view names the states it resets
+        assert any(s.name in engineering for spec in diagnosers_of(project)
+                   for s in spec.states if s.labels)

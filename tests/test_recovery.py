@@ -268,7 +268,7 @@ async def test_the_operator_finds_the_way_back_from_f13_through_the_reset_dialog
         await press(pilot, "g")
         await wait_until_dialog(pilot, "recovery-dialog")
         text = screen_text(app)
-        assert "Start recovery: Close valve V1" in text and "Only C move" in text
+        assert "Start recovery: Close valve V1" in text and "Only the close order acts" in text
         await press(pilot, "y")
         await wait_for_main(pilot)
         # the message line names the procedure by its title, not by its identifier

@@ -126,17 +126,7 @@ def faulty_cell(cell: Cell, fault: str) -> tuple[Session, SimPlant, list[str]]:
 TASKS_END_US = 20 * S
 
 
-# Found once the palletizer's nuisance alarm no longer cut these faults short (repaired
-# 2 s after they began): after a fault that lasts until it is seen, the way back is not
-# there yet. pusher_home stuck at 1: the retract task's label stays ("still interrupted …
-# reset again once it ends", and it never ends); layer_eye stuck at 1: the raise_to_layer
-# monitor fires again after the reset. Strict: a fix makes them pass, and this list shrinks.
-OPEN = {("palletizer", "pusher_home_stuck1"): "the retract task never ends after repair",
-        ("palletizer", "layer_eye_stuck1"): "raise_to_layer fires again after the reset"}
-
-CASES = [pytest.param(name, fault, id=f"{name}-{fault}",
-                      marks=[pytest.mark.xfail(reason=OPEN[name, fault], strict=True)]
-                      if (name, fault) in OPEN else [])
+CASES = [pytest.param(name, fault, id=f"{name}-{fault}")
          for name in CELLS for fault in faults_of(name)]
 
 

@@ -362,7 +362,7 @@ async def test_policy_fault_reset_is_confirmed_with_the_reset_preview():
         await press(pilot, "enter")  # the recommended: fault reset
         await wait_for_screen(pilot, ConfirmDialog)
         text = screen_text(app)
-        assert "Fault reset?" in text and "will be reset: safe-state latch (filter)" in text
+        assert "Fault reset?" in text and "will be reset: outputs held safe: a safety rule" in text
         await press(pilot, "y")
         await wait_for_main(pilot)
         assert engine(app).latched == []
@@ -517,7 +517,7 @@ async def test_monitor_fault_reset_preview_and_policies():
         await wait_for_screen(pilot, ConfirmDialog)
         text = screen_text(app)
         # the condemned attempt still runs: the label stays
-        assert "stays: monitor label conveyor_fault" in text
+        assert "stays: Conveyor C1 carrying a pallet" in text and "conveyor_fault" not in text
         assert "can no longer end in time" in text
         await press(pilot, "n")
         await wait_for_main(pilot)
@@ -529,7 +529,7 @@ async def test_monitor_fault_reset_preview_and_policies():
         await press(pilot, "r")
         await wait_for_screen(pilot, ConfirmDialog)
         text = screen_text(app)
-        assert "will be reset: monitor label conveyor_fault" in text
+        assert "will be reset: Conveyor C1 carrying a pallet" in text
         assert "1 latched alarm clears with its latch" in text
         assert "stays: Robot R1 stopped by the operator" in text
         await press(pilot, "y")

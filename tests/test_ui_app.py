@@ -388,8 +388,8 @@ async def test_in_manual_mode_the_control_panel_and_the_dialogs_say_the_program_
         dialog = await wait_for_screen(pilot, ConfirmDialog)
         said = " ".join(map(str, dialog.lines))
         assert ("The control program waits at the steps it is in when you confirm (when "
-                "this opened, at 1.000 s: X2 (Conveyor carries the pallet to B), X11 (Robot "
-                "transfers the pallet to the assembly station)): no step changes, and its "
+                "this opened, at 1.000 s: “Conveyor carries the pallet to B”, “Robot "
+                "transfers the pallet to the assembly station”): no step changes, and its "
                 "step times and memories hold until you leave manual mode; it then resumes "
                 "from there."
                 ) in said
@@ -406,14 +406,15 @@ async def test_in_manual_mode_the_control_panel_and_the_dialogs_say_the_program_
         await press(pilot, "m")
         dialog = await wait_for_screen(pilot, ConfirmDialog)
         said = " ".join(map(str, dialog.lines))
-        assert ("The program resumes from X2 (Conveyor carries the pallet to B), X11 (Robot "
-                "transfers the pallet to the assembly station), its step times going on from "
+        assert ("The program resumes from “Conveyor carries the pallet to B”, “Robot "
+                "transfers the pallet to the assembly station”, its step times going on from "
                 "where they stopped, and drives the outputs again.") in said
         assert "These steps order G again at the next scan." in said
-        assert "The program resumes from X2 (Conveyor" in screen_text(app)
+        assert "The program resumes from “Conveyor" in screen_text(app)
         await press(pilot, "y")
         await wait_for_main(pilot)
-        assert "the control program resumes from X2, X11" in app.message.plain
+        assert "the control program resumes from “Conveyor carries the pallet to B”, “Robot" \
+            in app.message.plain
         assert "waiting" not in region_text(app, "#control")  # (commanded: resumes)
         await run_for(pilot, 0.05)
         assert "waiting" not in region_text(app, "#control")
@@ -433,7 +434,7 @@ async def test_a_request_not_written_as_asked_says_why():
         await run_for(pilot, 0.01)
         message = app.message.plain
         assert "NOT AS REQUESTED" in message and "written 0" in message
-        assert "held safe: test latch" in message
+        assert "held safe: internal error" in message
         io = region_text(app, "#io")
         assert "≠ held safe" in io  # FOV 1, written 0, with the reason
 
@@ -472,11 +473,11 @@ async def test_fault_reset_lists_what_it_resets_and_releases_the_latch():
         await press(pilot, "r")
         await wait_for_screen(pilot, ConfirmDialog)
         text = screen_text(app)
-        assert "will be reset: safe-state latch (internal): simulated internal error" in text
+        assert "will be reset: outputs held safe: internal error" in text
         await press(pilot, "y")
         await wait_for_main(pilot)
         assert engine(app).latched == []
-        assert "safe-state latch released" in app.message.plain
+        assert "released: outputs held safe: internal error" in app.message.plain
         await run_for(pilot, 0.1)
         assert "SAFE STATE" not in region_text(app, "#status")
 
@@ -547,13 +548,14 @@ async def test_fault_injection_now_jams_the_valve():
         assert "SIMULATION" in screen_text(app)
         await press(pilot, "end", "enter", "enter")
         await wait_for_main(pilot)
-        assert "F13" in app.message.plain and "SIMULATION" in app.message.plain
+        assert "valve blocked between fsc and fso" in app.message.plain
+        assert "SIMULATION" in app.message.plain
         await run_for(pilot, 3.0)
         snap = app.link.session.last
         assert dict(snap.plant_state)["jammed"] is True
         assert "X1" in snap.active_steps  # the sequence waits for fso for ever
         sim = region_text(app, "#sim")
-        assert "SIMULATION" in sim and "JAMMED" in sim and "F13 since" in sim
+        assert "SIMULATION" in sim and "JAMMED" in sim and "blocked between fsc and fso" in sim
         assert "damage" in sim  # the motor stalled against the jam
 
 
@@ -567,9 +569,9 @@ async def test_fault_injection_later():
         assert dialog.query_one("#delay").has_focus
         await press(pilot, "backspace", "2", "enter")
         await wait_for_main(pilot)
-        assert "F1 in 2.000 s" in region_text(app, "#sim")
+        assert "stuck at 0 in 2.000 s" in region_text(app, "#sim")
         await run_for(pilot, 2.1)
-        assert "F1 since 2.000 s" in region_text(app, "#sim")
+        assert "stuck at 0 since 2.000 s" in region_text(app, "#sim")
 
 
 async def test_fault_delay_counts_from_the_confirmation():
@@ -587,9 +589,9 @@ async def test_fault_delay_counts_from_the_confirmation():
         (fault,) = app._injected
         assert fault.injection.at_us == confirmed_at + 3_000_000
         await run_for(pilot, 2.9)
-        assert "F1 in" in region_text(app, "#sim")  # not yet: 3 s after the confirmation
+        assert "stuck at 0 in" in region_text(app, "#sim")  # not yet: 3 s after confirming
         await run_for(pilot, 0.2)
-        assert "F1 since" in region_text(app, "#sim")
+        assert "stuck at 0 since" in region_text(app, "#sim")
 
 
 async def test_fault_dialog_rejects_a_bad_delay():
@@ -637,7 +639,7 @@ async def test_choose_chronogram_signals_with_the_key():
     app = make_app()
     async with app.run_test(size=SIZE) as pilot:
         before = app.query_one(Chronogram).signals
-        assert before == ("C", "O", "fsc", "fso", "TON1", "TON2")
+        assert before == ("C", "O", "fsc", "fso")  # the timers: in the engineering view
         await press(pilot, "g")
         await wait_for_screen(pilot, SignalDialog)
         await press(pilot, "space")  # untick the first (C)
@@ -688,10 +690,12 @@ async def test_palette_runs_commands():
         assert "▲ filter monitor" in region_text(app, "#status")
         await palette(pilot, "Chronogram: show X1")
         assert "X1" in app.query_one(Chronogram).signals
-        await palette(pilot, "SIMULATION: inject valve.F5 now", "inject valve.F5")
+        await palette(pilot, "SIMULATION: inject now: Valve stuck at the closed position",
+                      "stuck at the closed")
         assert any(f.injection.code == "F5" for f in app.frame.injected)
         await palette(pilot, "SIMULATION: repair the faulty devices")
-        assert not app._injected and "F5 removed" in region_text(app, "#message")
+        assert not app._injected and "stuck at the closed position removed" in \
+            region_text(app, "#message")
         await palette(pilot, "Run speed: as fast as possible")
         assert app.link.session.state.speed is None
 
@@ -828,8 +832,11 @@ async def test_manual_request_refused_by_the_filter_names_the_constraint():
         await run_for(pilot, 0.05)
         message = app.message.plain
         assert "NOT AS REQUESTED" in message and "written 0" in message
-        assert "CSs2" in message
+        assert "never hold the open order when the valve is open" in message
         assert app.link.session.last.output_map["O"] is False
+        assert "≠ safety filter" in region_text(app, "#io")
+        await press(pilot, "E")  # the engineering view: the constraint's name
+        await run_for(pilot, 0.01)
         assert "≠ filter CSs2" in region_text(app, "#io")
 
 
@@ -849,7 +856,7 @@ async def test_reset_under_safe_blocking_says_what_stays():
                         10, "the program no longer violating")
         await press(pilot, "r")
         await wait_for_screen(pilot, ConfirmDialog)
-        assert "will be reset: safe-state latch (filter)" in screen_text(app)
+        assert "will be reset: outputs held safe: a safety rule was broken" in screen_text(app)
         await press(pilot, "y")
         await wait_for_main(pilot)
         assert engine(app).latched == []
@@ -965,14 +972,14 @@ async def test_late_scans_are_explained_on_the_status_bar():
 async def test_the_same_fault_is_not_injected_twice():
     app = make_app()
     async with app.run_test(size=(120, 36)) as pilot:
-        await palette(pilot, "SIMULATION: inject F13 now", expect="F13 now")
+        await palette(pilot, "SIMULATION: inject now: Valve blocked", expect="blocked")
         await run_for(pilot, 0.5)
         assert len(app._injected) == 1
-        await palette(pilot, "SIMULATION: inject F13 now", expect="F13 now")
+        await palette(pilot, "SIMULATION: inject now: Valve blocked", expect="blocked")
         assert len(app._injected) == 1
         assert "NOT AVAILABLE" in app.message.plain and "already in effect" in \
             app.message.plain
-        assert region_text(app, "#sim").count("F13") == 1
+        assert region_text(app, "#sim").count("blocked between") == 1
 
 
 async def test_home_and_end_in_the_io_table_go_to_the_first_and_last_signal():

@@ -123,13 +123,14 @@ async def test_reset_re_synchronises_a_diagnoser_only_when_the_io_allows_it():
         await press(pilot, "r")
         await wait_for_screen(pilot, ConfirmDialog)
         text = screen_text(app)
-        assert "stays: diagnoser V1 in A1 {F1, F13}" in text
-        assert "reset needs Valve V1 back at a known" in text
+        assert "stays: Valve V1's diagnosis: sensor fsc stuck at 0 or valve blocked" in text
+        said = " ".join(getattr(line, "plain", str(line)) for line in app.screen.lines)
+        assert "reset needs Valve V1 back at a known position" in said
         assert "g: start recovery" in text  # the way back is offered (tests/test_recovery.py)
         await press(pilot, "y")
         await wait_for_main(pilot)
         assert engine(app).diagnosis.runtimes[0].state.name == "A1"
-        assert "stays in A1" in app.message.plain
+        assert "stays: Valve V1's diagnosis" in app.message.plain
     app = make_app()
     async with app.run_test(size=WIDE) as pilot:
         await inject(pilot, "F9", 10, ("F9",))
@@ -138,8 +139,11 @@ async def test_reset_re_synchronises_a_diagnoser_only_when_the_io_allows_it():
         await press(pilot, "r")
         await wait_for_screen(pilot, ConfirmDialog)
         text = screen_text(app)
-        assert "will be reset: diagnoser V1 in S9 {F9}" in text
-        assert "re-synchronised to N5 on fsc=0, fso=1, C=0, O=0" in text
+        assert "will be reset: Valve V1's diagnosis: unexpected fso" in text
+        said = " ".join(getattr(line, "plain", str(line)) for line in app.screen.lines)
+        assert "its watch starts again from what the I/O show now: fsc=0, fso=1, C=0, O=0" \
+            in said
+        assert "N5" not in text and "S9" not in text  # the model's names: engineering view
         assert "1 latched alarm clears with its latch" in text
         await press(pilot, "y")
         await wait_for_main(pilot)

@@ -41,7 +41,7 @@ async def test_the_fault_dialog_says_its_keys_first_and_takes_a_duration():
         await wait_for_screen(pilot, FaultDialog)
         lines = screen_text(app).splitlines()
         hint = next(k for k, line in enumerate(lines) if "enter again: inject" in line)
-        first_fault = next(k for k, line in enumerate(lines) if ".stop" in line)
+        first_fault = next(k for k, line in enumerate(lines) if "C1: conveyor halted" in line)
         assert hint < first_fault  # on screen when the dialog opens, above the list
         await press(pilot, "enter")  # the first fault (C1.stop); then its time
         await press(pilot, "tab")  # to the duration

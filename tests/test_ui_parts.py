@@ -128,7 +128,9 @@ def test_banner_lines_for_manual_and_latch():
                      latched=(LatchReason("filter", "CSc1 violated", 5, 50_000),))
     lines = [line.plain for line in banner_lines(_frame(snap))]
     assert "MANUAL / FORCES ACTIVE" in lines[0] and "O=1" in lines[0]
-    assert "OUTPUTS HELD IN SAFE STATE" in lines[1] and "CSc1 violated" in lines[1]
+    assert "OUTPUTS HELD IN SAFE STATE" in lines[1] and "a safety rule was broken" in lines[1]
+    assert "CSc1" not in lines[1]  # the model's name: the engineering view's
+    assert "CSc1 violated" in banner_lines(_frame(snap, engineering=True))[1].plain
     assert banner_lines(_frame(_snapshot())) == []
     lost = _snapshot(plant=PlantStatus("modbus", "modbus 127.0.0.1:5020", connected=False,
                                        message="connection refused"))
@@ -142,7 +144,8 @@ def test_reset_preview_says_what_stays_and_why():
                      plant=PlantStatus("modbus", "m", connected=False, message="timeout"))
     lines = reset_preview(snap)
     assert [line.resets for line in lines] == [True, False]  # resets first
-    assert "error at scan 4" in lines[0].what
+    assert lines[0].what == "outputs held safe: internal error"
+    assert "error at scan 4" in lines[0].detail  # the engineering view's
     assert "still disconnected" in lines[1].why and "timeout" in lines[1].why
 
 

@@ -55,3 +55,85 @@ async def test_the_io_descriptions_do_not_repeat_the_one_device_on_every_row():
         fsc = next(line for line in rows if line.startswith("│ fsc "))
         assert "closed end switch" in fsc and "Valve V1" not in fsc
         assert any("C: Valve V1 close order" in line for line in rows)  # the border: whole
+
+
+async def test_the_policy_dialog_marks_the_current_policy_whole_and_its_list_stops_at_its_ends():
+    """At 80×24 the current policy's marker came last and was cut ("(…"), and ↓ on the last
+    policy jumped back to the first."""
+    from ui_harness import run_for, screen_text
+    from ui_scenarios import make_app
+
+    from hmi.ui.dialogs import ChoiceDialog
+    from hmi.ui.headless import press, settle, wait_for_screen
+
+    app = make_app()
+    async with app.run_test(size=(80, 24)) as pilot:
+        await run_for(pilot, 0.5)
+        await press(pilot, "p")
+        dialog = await wait_for_screen(pilot, ChoiceDialog)
+        await settle(pilot)
+        rows = [line for line in screen_text(app).splitlines()[1:]  # (the status bar's)
+                if any(f" {p} " in line for p in ("monitor", "block", "correct"))]
+        assert len(rows) == 3, rows  # one line each, no wrapped help
+        assert any("● correct  now" in row for row in rows), rows
+        options = dialog.query_one("#choices")
+        assert options.highlighted == 2  # correct, the last
+        await press(pilot, "down")
+        assert options.highlighted == 2
+        await press(pilot, "home", "up")
+        assert options.highlighted == 0
+
+
+async def test_the_palette_screenshot_says_where_it_saved_or_why_not(tmp_path, monkeypatch):
+    """Textual's own entry saved to ~/Downloads, failed without a word when it was missing,
+    and its SVGs ran coloured words together in viewers that drop a run's first spaces."""
+    from ui_harness import palette, run_for
+    from ui_scenarios import make_app
+
+    monkeypatch.chdir(tmp_path)
+    app = make_app()
+    async with app.run_test(size=(80, 24)) as pilot:
+        await run_for(pilot, 0.5)
+        await palette(pilot, "Screenshot")
+        (svg,) = tmp_path.glob("plchmi_cispi_valve_*.svg")
+        assert f"screenshot: {svg}" in app.message.plain
+        assert '<svg xml:space="preserve" ' in svg.read_text(encoding="utf-8")
+        gone = tmp_path / "gone"
+        gone.mkdir()
+        monkeypatch.chdir(gone)
+        gone.rmdir()
+        await palette(pilot, "Screenshot")
+        assert "NOT AVAILABLE" in app.message.plain and "not written" in app.message.plain
+        assert "No such file or directory" in app.message.plain
+
+
+async def test_a_long_state_never_pushes_the_io_descriptions_off_a_wide_screen():
+    """Safe blocking at 160×48: the outputs' reason ("≠ held safe: a safety rule was broken —
+    …") widened the State column for good and the Description column was gone."""
+    from ui_harness import region_text, run_until
+    from ui_scenarios import make_app
+
+    app = make_app(control="faulty", policy="block")
+    async with app.run_test(size=(160, 48)) as pilot:
+        await run_until(pilot, lambda s: bool(s.latched), 20, "safe blocking")
+        await run_until(pilot, lambda s: True, 0.1, "a frame")
+        io = region_text(app, "#io")
+        assert "≠ held safe" in io
+        for description in ("closed end switch", "open end switch", "close order",
+                            "open order"):
+            assert description in io, io
+
+
+async def test_a_step_description_cut_to_fit_says_so():
+    """At 80×24 the faulty valve's "Closing for a fixed 3 s, open order still on at first"
+    read "Closing for a fixed 3 s," — a sentence that says something else."""
+    from ui_harness import region_text, run_until
+    from ui_scenarios import make_app
+
+    app = make_app(control="faulty")
+    async with app.run_test(size=(80, 24)) as pilot:
+        await run_until(pilot, lambda s: "X3" in s.active_steps, 12, "closing")
+        await run_until(pilot, lambda s: True, 0.05, "a frame")
+        line = next(line for line in region_text(app, "#control").splitlines()
+                    if "Closing for a fixed" in line)
+        assert "…" in line and "3 s, " not in line.replace("…", ""), line

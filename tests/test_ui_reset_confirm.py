@@ -38,7 +38,8 @@ async def dialog_text(pilot, since: ConfirmDialog | None = None) -> str:
     await wait_until(pilot, lambda: isinstance(pilot.app.screen, ConfirmDialog)
                      and pilot.app.screen is not since
                      and pilot.app.screen.shown_at is not None, "a new confirmation")
-    return " ".join(screen_text(pilot.app).split())
+    lines = " ".join(getattr(line, "plain", str(line)) for line in pilot.app.screen.lines)
+    return " ".join(screen_text(pilot.app).split()) + " " + " ".join(lines.split())
 
 
 def actions(path: Path) -> list[dict]:
@@ -56,8 +57,8 @@ async def test_a_reset_confirmed_after_the_cell_moved_is_asked_again_with_what_c
         opened_at = app.link.session.last.scan
         await press(pilot, "r")
         text = await dialog_text(pilot)
-        assert "will be reset: diagnoser V1 in S9 {F9}" in text
-        assert "re-synchronised to N5" in text
+        assert "will be reset: Valve V1's diagnosis: unexpected fso" in text
+        assert "show now: fsc=0, fso=1, C=0, O=0" in text
         first = app.screen
         # the valve moves on while the operator reads: a reset would now go to N1
         await run_until(pilot, resync_to("N1"), 8, "V1 open: a reset would go to N1")
@@ -68,20 +69,21 @@ async def test_a_reset_confirmed_after_the_cell_moved_is_asked_again_with_what_c
         assert diagnoser(app).faulty and diagnoser(app).state == "S9"
         assert f"CHANGED The cell moved since you read this (scan {opened_at}" in text
         assert "nothing was done" in text
-        assert "no longer: ✓ will be reset: diagnoser V1 in S9 {F9}" in text
-        assert "► ✓ will be reset: diagnoser V1 in S9 {F9}" in text
-        assert text.index("re-synchronised to N5") < text.index("re-synchronised to N1")
+        assert "no longer: ✓ will be reset: Valve V1's diagnosis: unexpected fso" in text
+        assert "► ✓ will be reset: Valve V1's diagnosis: unexpected fso" in text
+        assert text.index("show now: fsc=0, fso=1, C=0, O=0") < \
+            text.index("show now: fsc=1, fso=0, C=0, O=0")
         assert "REFUSED" in app.message.plain and "asked again" in app.message.plain
         # this promise still holds: y carries it out, to the state it names
         await press(pilot, "y")
         await wait_for_main(pilot)
-        assert "re-synchronised to N1" in app.message.plain
+        assert "released: Valve V1's diagnosis" in app.message.plain
         await run_for(pilot, 0.01)  # the next scan shows it
         assert not diagnoser(app).faulty and diagnoser(app).state == "N1"
     resets = [e for e in actions(journal) if e["event"] == "fault reset"]
     assert [e["accepted"] for e in resets] == [False, True]
     assert "not done, asked again: what it would do changed" in resets[0]["message"]
-    assert "was: ✓ will be reset: diagnoser V1" in resets[0]["message"]
+    assert "was: ✓ will be reset: Valve V1's diagnosis" in resets[0]["message"]
     assert "re-synchronised to N5" in resets[0]["message"]
     assert "re-synchronised to N1" in resets[1]["message"]
 
@@ -100,7 +102,7 @@ async def test_a_reset_that_would_now_do_nothing_is_not_sent_as_if_it_would(tmp_
                                              for d in s.diagnosers), 5, "V1 travelling")
         await press(pilot, "y")
         text = await dialog_text(pilot, since=first)
-        assert "► ▲ stays: diagnoser V1 in S9 {F9}" in text
+        assert "► ▲ stays: Valve V1's diagnosis: unexpected fso" in text
         assert [r.accepted for r in seen] == [False]
         # the operator cancels the new dialog: nothing more is sent
         await press(pilot, "n")
@@ -133,13 +135,13 @@ async def test_the_fault_reset_policy_checks_its_promise_too(tmp_path):
         reset = next(p for p in explanation.policies if p.id == "reset")
         app.choose_policy("diagnosis:V1", reset)
         text = await dialog_text(pilot)
-        assert "re-synchronised to N5" in text
+        assert "show now: fsc=0, fso=1, C=0, O=0" in text
         first = app.screen
         await run_until(pilot, resync_to("N1"), 8, "V1 open: a reset would go to N1")
         await press(pilot, "y")
         text = await dialog_text(pilot, since=first)
         assert app.screen.id == "policy-choice"
-        assert "CHANGED" in text and "► ✓ will be reset: diagnoser V1" in text
+        assert "CHANGED" in text and "► ✓ will be reset: Valve V1's diagnosis" in text
         assert [(type(c).__name__, r.accepted) for c, r in seen] == [("ChoosePolicy", False)]
         await press(pilot, "y")
         await wait_for_main(pilot)
@@ -159,6 +161,6 @@ async def test_a_reset_confirmed_on_nothing_latched_after_a_fault_came_is_asked_
         await press(pilot, "y")
         text = await dialog_text(pilot, since=first)
         assert "no longer: nothing latched, the reset changing nothing" in text
-        assert "► ✓ will be reset: diagnoser V1 in S9 {F9}" in text
+        assert "► ✓ will be reset: Valve V1's diagnosis: unexpected fso" in text
         assert "Reset (y)" in text  # the dialog still fits at 80×24, its buttons too
         assert diagnoser(app).faulty

@@ -113,7 +113,7 @@ async def test_a_policy_answer_is_forgotten_after_a_successful_reset():
         await wait_for_screen(pilot, ConfirmDialog)
         await press(pilot, "y")
         await wait_for_main(pilot)
-        assert "re-synchronised" in app.message.plain
+        assert "released: Valve V1's diagnosis" in app.message.plain
         await run_for(pilot, 1.0)
         shown = words(region_text(app, "#explain"))
         assert "Valve V1" in shown and "stays in A1" not in shown

@@ -43,7 +43,8 @@ async def test_the_repair_message_promises_nothing_the_reset_then_refuses():
         await run_for(pilot, 14)
         await palette(pilot, "SIMULATION: repair the faulty devices")
         said = region_text(app, "#message")
-        assert "F13 removed" in said and "re-synchronises" not in said, said
+        assert "blocked between fsc and fso removed" in said and "re-synchronises" not in said, \
+            said
         await press(pilot, "r")
         await wait_for_screen(pilot, ConfirmDialog)
         assert "recovery" in screen_text(app).lower()  # the reset cannot: it says so

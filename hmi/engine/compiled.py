@@ -231,7 +231,7 @@ def auto_frame(engine: Any) -> ir.Function:
     then what Engine._conclude does for a quiet scan (nothing masked, latched nor violated,
     no error, no plant event, no supervision due, no diagnoser faulty, no recovery needed,
     nothing changed since the last scan with news but what moves by itself). Whatever is
-    not such a scan goes on where Engine._auto_cycle and Engine._conclude go on, through
+    not such a scan goes on where Engine._cycle and Engine._conclude go on, through
     the engine's own methods, from the point reached: the same scan, in both paths."""
     e, plant, scan_program = engine, engine.plant, engine.compiled
     image, history = ir.Ref(engine.image), ir.Ref(engine.history)

@@ -860,9 +860,6 @@ class Engine:
         self.scan += 1
         self.now = now
         fast = self.compiled
-        if self._auto_ready:
-            self._auto_cycle(now)
-            return
         image = self.image
         error = None
         report: FilterReport | None = None
@@ -936,47 +933,6 @@ class Engine:
             image[slot] = value
         monitored, error = self._output_scan(now, outputs, error)
         self._keep(fov, outputs, report, diagnosis, monitored, error, filter_us)
-
-    def _auto_cycle(self, now: int) -> None:
-        """:meth:`_cycle` in automatic mode, once started, no device stopped: the same
-        stages with the branches that cannot apply left out (most scans of a run). When the
-        filter lets the law's vector through, the image already holds it. The printed frame
-        (hmi.engine.compiled.auto_frame) is this and run() for an untimed scan; both hand
-        what is not a quiet scan to the same methods (_auto_lost, _auto_failed,
-        _auto_filter)."""
-        image = self.image
-        hist = self.history
-        stage = self.diagnosis
-        diagnosis = stage.current if stage is not None else NO_DIAGNOSIS
-        try:  # 1. input scan
-            self.plant.read_into(now, image, self._bindings)
-        except PlantError as exc:  # as in _cycle: memories, timers and steps hold
-            self._auto_lost(now, exc)
-            return
-        except Exception as exc:  # not the plant's: a bug, in the plant or here
-            self._auto_failed(now, exc, diagnosis)
-            return
-        timed = self.wall_times
-        started = 0.0
-        try:
-            # 2-5: memory, diagnosers, reconstruction, recoveries needed, law
-            fov = self.compiled.core(image, hist, now, self.scan)
-            if stage is not None:
-                diagnosis = stage.current
-            # 6. filter: given without its work when nothing is masked, latched nor violated
-            started = time.perf_counter() if timed else 0.0
-            quiet = (diagnosis.mask is None and not self.latched
-                     and not self.compiled.violated(image, hist, fov))
-        except Exception as exc:  # never leave the plant driven by a half-computed scan
-            self._auto_failed(now, exc, diagnosis)
-            return
-        if not quiet:
-            self._auto_filter(now, fov, diagnosis, started)
-            return
-        report = self.clean_report
-        filter_us = (time.perf_counter() - started) * 1e6 if timed else 0.0
-        monitored, error = self._output_scan(now, fov, None)
-        self._keep(fov, fov, report, diagnosis, monitored, error, filter_us)
 
     def _auto_lost(self, now: int, exc: PlantError) -> None:
         """The automatic mode's input scan failed: as in _cycle, memories, timers and steps

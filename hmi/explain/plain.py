@@ -11,9 +11,13 @@ from __future__ import annotations
 
 import re
 from collections.abc import Iterable
+from typing import TYPE_CHECKING
 
 from hmi.project.diagnosers import diagnosers_of
 from hmi.project.model import Project
+
+if TYPE_CHECKING:
+    from hmi.engine.snapshot import LatchReason
 
 _PARENS = re.compile(r"\s*\([^()]*\)")
 
@@ -85,3 +89,23 @@ class PlainNames:
 
     def orders(self, names: Iterable[str]) -> str:
         return " and ".join(self.name(n) for n in names)
+
+
+def latch_words(reason: LatchReason) -> str:
+    """Why the outputs are held safe (a LatchReason), in the operator's words: the rule the
+    program broke by its description, not "safe blocking on CSs1"; the reason's own detail
+    (constraint names, exception texts) is the engineering detail."""
+    detail = reason.detail
+    match reason.source:
+        case "filter":
+            rule = detail.split(": ", 1)[1] if ": " in detail else ""
+            return "a safety rule was broken" + (f" — {lower_first(rule)}" if rule else "")
+        case "plant" if detail.startswith("plant error"):
+            return "the plant refused a request"
+        case "plant":
+            return "the plant connection was lost"
+        case "internal":
+            return "internal error" + (f" {reason.part}" if reason.part else "")
+        case "journal":
+            return "the journal cannot be written"
+    return detail

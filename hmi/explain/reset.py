@@ -24,6 +24,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 from hmi.engine.snapshot import LatchReason, Snapshot
+from hmi.explain.plain import latch_words, lower_first, without_notes
 from hmi.timefmt import seconds
 
 OK_SYMBOL = "✓"  # the reset releases it
@@ -38,6 +39,10 @@ class ResetLine:
     note: str = ""  # anything else the operator should know about it
     recovery: str = ""  # the recovery procedure that would let it reset (offered)
     target: str = ""  # a diagnoser's: the normal state the reset re-synchronises it to
+    # The engineering detail: the model's names (diagnoser state and labels, monitor label,
+    # constraints, the I/O values a resync reads), shown after the plain words in the
+    # engineering view only.
+    detail: str = ""
 
     @property
     def promise(self) -> tuple[str, bool, str, str]:
@@ -57,18 +62,28 @@ def _latch_cause_present(snap: Snapshot, reason: LatchReason) -> str:
             f" ({snap.plant.message})" if snap.plant.message else "")
     if reason.source == "filter":
         report = snap.filter
-        violated = tuple(getattr(report, "violated_names", ()) or ()) if report else ()
-        if violated:
-            return "constraint still violated by the program's orders: " + ", ".join(violated)
+        violations = tuple(getattr(report, "violations", ()) or ()) if report else ()
+        if violations:
+            rules = "; ".join(dict.fromkeys(lower_first(v.description or v.name)
+                                            for v in violations))
+            return f"the program still asks for what a safety rule forbids: {rules}"
     return ""
+
+
+def _violated_names(snap: Snapshot) -> str:
+    report = snap.filter
+    return ", ".join(getattr(report, "violated_names", ()) or ()) if report else ""
 
 
 def latch_preview(snap: Snapshot) -> Iterable[ResetLine]:
     for reason in snap.latched:
-        what = f"safe-state latch ({reason.source}): {reason.detail}"
+        what = f"outputs held safe: {latch_words(reason)}"
         cause = _latch_cause_present(snap, reason)
+        names = _violated_names(snap) if cause and reason.source == "filter" else ""
         yield ResetLine(what, resets=not cause,
-                        why=f"its cause is still present: {cause}" if cause else "")
+                        why=f"its cause is still present: {cause}" if cause else "",
+                        detail=f"safe-state latch ({reason.source}): {reason.detail}"
+                               + (f"; still violated: {names}" if names else ""))
 
 
 def _condemned(m) -> bool:
@@ -83,13 +98,15 @@ def monitor_preview(snap: Snapshot) -> Iterable[ResetLine]:
         d = m.detection
         if d is None:
             continue
-        what = f"monitor label {m.label} ({m.title}, since {seconds(d.time_us)} s)"
+        what = f"{m.title}: fault seen at {seconds(d.time_us)} s"
+        detail = f"monitor label {m.label} ({d.rule}, x = {seconds(d.x_us)} s)"
         if _condemned(m):
             yield ResetLine(what, resets=False,
-                            why=f"the task is still in progress (x = {seconds(m.x_us)} s) and "
-                                "can no longer end in time; reset again once it has ended")
+                            why=f"the task is still in progress ({seconds(m.x_us)} s of work "
+                                "so far) and can no longer end in time; reset again once it "
+                                "has ended", detail=detail)
         else:
-            yield ResetLine(what, resets=True)
+            yield ResetLine(what, resets=True, detail=detail)
 
 
 def diagnoser_preview(snap: Snapshot) -> Iterable[ResetLine]:
@@ -98,35 +115,41 @@ def diagnoser_preview(snap: Snapshot) -> Iterable[ResetLine]:
     for d in snap.diagnosers:
         if not d.faulty:
             continue
-        what = (f"diagnoser {d.name} in {d.state} {{{', '.join(d.labels)}}} and its flags "
-                f"(since {seconds(d.since_us)} s)")
+        device = d.device or "the device"
+        suspected = " or ".join(dict.fromkeys(without_notes(t) for t in d.label_texts if t))
+        what = (f"{device}'s diagnosis: {suspected or 'a fault'} (since "
+                f"{seconds(d.since_us)} s)")
+        state = f"diagnoser {d.name} in {d.state} {{{', '.join(d.labels)}}} and its flags"
         if d.resync:
             yield ResetLine(what, resets=True, target=d.resync,
-                            note=f"re-synchronised to {d.resync} on {d.resync_values}")
+                            note="its watch starts again from what the I/O show now: "
+                                 f"{d.resync_values}",
+                            detail=f"{state}; re-synchronised to {d.resync} on "
+                                   f"{d.resync_values}")
             continue
+        detail = f"{state}; {d.resync_values or 'the I/O'} match no normal state"
         moving = _orders_on(snap, d.resync_values)
         procedures = [p for p in snap.recovery.procedures if d.device in p[3]]
         if moving:
             # Between its ends because it is travelling (a switch seen too early, F7): it
             # reaches its end by itself, and a reset then re-synchronises; no recovery.
             yield ResetLine(what, resets=False,
-                            why=f"{d.device or 'the device'} is still driven (order "
+                            why=f"{device} is still driven (order "
                                 f"{', '.join(moving)} on): wait until it reaches its end, "
                                 "seconds if it moves, then reset again — no recovery for "
-                                "that")
+                                "that", detail=detail)
         elif procedures and snap.mode != "recovery":
             name, _, description, _ = procedures[0]
             yield ResetLine(what, resets=False,
-                            why=f"reset needs {d.device or 'the device'} back at a known "
-                                f"position ({d.resync_values or 'the I/O'} match no normal "
-                                "state) — " + _then_recovery(snap, "after the repair, ",
-                                                             description),
-                            recovery=_offered(snap, name))
+                            why=f"reset needs {device} back at a known position (its sensors "
+                                "and orders match none it knows) — "
+                                + _then_recovery(snap, "after the repair, ", description),
+                            recovery=_offered(snap, name), detail=detail)
         else:
             yield ResetLine(what, resets=False,
-                            why=f"its cause is still present: {d.resync_values or 'the I/O'} "
-                                "match no normal state; reset once the device is repaired or "
-                                "back at rest")
+                            why="its cause is still present: the sensors and orders match "
+                                "no normal position; reset once the device is repaired or "
+                                "back at rest", detail=detail)
 
 
 def recovery_preview(snap: Snapshot) -> Iterable[ResetLine]:
@@ -221,21 +244,23 @@ def changes(shown: list[ResetLine], now: list[ResetLine]
             [line for line in now if line.promise not in before])
 
 
-def line_text(line: ResetLine) -> str:
+def line_text(line: ResetLine, detail: bool = False) -> str:
     """One line of the fault reset dialog in plain words (the screen styles the same words:
-    hmi.ui.reset.reset_line): will be reset, or stays and why."""
+    hmi.ui.reset.reset_line): will be reset, or stays and why; `detail`: with the model's
+    names after them (the journal's)."""
     if line.resets:
         text = f"{OK_SYMBOL} will be reset: {line.what}"
     else:
         text = f"{STAYS}: {line.what}" + (f" — {line.why}" if line.why else "")
-    return text + (f" ({line.note})" if line.note else "")
+    return text + (f" ({line.note})" if line.note else "") + (
+        f" [{line.detail}]" if detail and line.detail else "")
 
 
 def declined_message(gone: list[ResetLine], new: list[ResetLine], seen_scan: int,
                      scan: int) -> str:
     """Why a confirmed fault reset was not carried out: what the operator read (as of
     `seen_scan`) no longer holds at `scan` (the journal's action entry, the screen's line)."""
-    told = "; ".join([*(f"was: {line_text(line)}" for line in gone),
-                      *(f"now: {line_text(line)}" for line in new)])
+    told = "; ".join([*(f"was: {line_text(line, True)}" for line in gone),
+                      *(f"now: {line_text(line, True)}" for line in new)])
     return (f"not done, asked again: what it would do changed while its dialog was open "
             f"(scan {seen_scan} to {scan}): {told}")

@@ -21,19 +21,20 @@ situation picked from the palette or by clicking a constraint.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
 from functools import partial
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from rich.text import Text
 from textual import events
-from textual.app import App, ComposeResult
+from textual.app import App, ComposeResult, SystemCommand
 from textual.binding import Binding
 from textual.command import Provider
 from textual.containers import Horizontal, Vertical
 from textual.css.scalar import Unit
-from textual.screen import ModalScreen
+from textual.screen import ModalScreen, Screen
 
 from hmi.access import roles
 from hmi.access.sessions import IdleTimer
@@ -92,11 +93,12 @@ from hmi.ui.explain_panel import (
     PolicyRequested,
     result_line,
 )
+from hmi.ui.fault_dialog import fault_words
 from hmi.ui.footer import HmiFooter
 from hmi.ui.frame import Frame, InjectedFault
 from hmi.ui.grafcet_panel import GrafcetPanel, StepInfo, TimerInfo
 from hmi.ui.io_panel import IOPanel
-from hmi.ui.message_line import MessageLine, result_text, spoken, verdict_text
+from hmi.ui.message_line import MessageLine, Words, result_text, spoken, verdict_text
 from hmi.ui.messages import CommandRequested, ExplainRequested
 from hmi.ui.monitors_panel import MonitorsPanel
 from hmi.ui.panel import TOP_SHARE, ColumnPanel
@@ -284,7 +286,8 @@ class PlcHmiApp(LastResort, ContainedPump, App):
             if law.grafcet else []
         timers = [TimerInfo(t.name, t.kind, t.description) for t in project.timers]
         default_signals = tuple(s.name for s in self.history.signals
-                                if s.kind in ("output", "input", "timer"))
+                                if s.kind in ("output", "input"))
+        timer_signals = tuple(s.name for s in self.history.signals if s.kind == "timer")
         constraints = [ConstraintInfo(c.name, c.kind, c.expr.source, c.description)
                        for c in project.constraints]
         diagnosers = diagnosers_of(project)
@@ -312,7 +315,8 @@ class PlcHmiApp(LastResort, ContainedPump, App):
                     yield MonitorsPanel(len(monitors_of(project)), id="monitors")
             with Horizontal(id="bottom"):
                 with Vertical(id="col-time"):
-                    yield Chronogram(self.history, default_signals, id="chronogram")
+                    yield Chronogram(self.history, default_signals, engineering=timer_signals,
+                                     id="chronogram")
                 yield ExplanationPanel(id="explain")
         yield AlarmList(id="alarms")
         yield SimPanel(self.history, id="sim")
@@ -476,7 +480,7 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         frame = Frame(
             snapshot=snap, run=run, speed=view.run.speed, live=self.driver.live,
             project=self.project.name, show_measured=self.show_measured,
-            overruns=overruns, changed=output_changes(snap),
+            overruns=overruns, changed=output_changes(snap, self.engineering),
             injected=tuple(self._injected), free_inputs=self.free_inputs,
             damage_count=view.damage_count, mode_commanded=self._mode_commanded,
             constraints=view.constraints, ui_fault=contained.latest,
@@ -687,7 +691,7 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         if snap.mode != "manual":
             return  # left manual mode before a scan ran the request
         device = next((o.device for o in self.project.outputs if o.name == name), None)
-        ok, line = request_verdict(snap, name, requested, device)
+        ok, line = request_verdict(snap, name, requested, device, self.engineering)
         self.message.say(verdict_text(ok, f"{what} → {line}"))
 
     # -- the explanation's subject -----------------------------------------------------------
@@ -822,7 +826,7 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         level = Level.ATTENTION
         match policy.command:
             case FaultReset():
-                lines += reset_lines(snap, asked) if snap else []
+                lines += reset_lines(snap, asked, self.engineering) if snap else []
             case SetMode(manual=True):
                 lines += self._manual_lines(snap) if snap else []
             case SetMode(manual=False):
@@ -831,7 +835,7 @@ class PlcHmiApp(LastResort, ContainedPump, App):
             case StartRecovery(procedure=name):
                 spec = next((p for p in recoveries_of(self.project) if p.name == name), None)
                 if spec is not None:
-                    lines += recovery_lines(self.project, spec)
+                    lines += recovery_lines(self.project, spec, self.engineering)
                 level = Level.ALARM
             case EndRecovery():
                 lines.append("The control program starts again from its initial steps.")
@@ -882,10 +886,16 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         self.push_screen(ReasonDialog(describe(carried), roles.needs_password(carried)),
                          given)
 
-    def _sent(self, command: Command, result: CommandResult) -> CommandResult:
-        """What the UI makes of a command's answer: the message line, the commanded mode."""
+    def _sent(self, command: Command, result: CommandResult,
+              reset_shown: list[ResetLine] | None = None) -> CommandResult:
+        """What the UI makes of a command's answer: the message line, the commanded mode.
+        `reset_shown`: a fault reset's preview the operator confirmed (and the engine found
+        unchanged): the answer in its plain words, not the engine's names."""
         what = describe(command)
-        said, answer = spoken(command, result, self._situation_text)
+        said, answer = spoken(command, result, self._situation_text,
+                              None if self.engineering else Words(self._fault_text,
+                                                                  reset_shown,
+                                                                  self._step_words()))
         text = result_text(said, result, answer)
         match command:
             case Pause() | Resume():
@@ -929,6 +939,12 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         self.message.say(text)
         self.poll(force=True)
         return result
+
+    def _step_words(self) -> dict[str, str]:
+        """The program's steps by their descriptions, for the answers that name them."""
+        law = self.project.controls[self.facts.control]
+        return {s.name: s.description for s in law.grafcet.steps if s.description} \
+            if law.grafcet else {}
 
     def _situation_text(self, key: str) -> str:
         """A situation as the operator reads it in the alarm list (its one-line text), for
@@ -1214,13 +1230,13 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         law = self.project.controls[self.facts.control]
         return ["The control law stops driving the outputs: they follow your requests,",
                 "and an output you have not requested is 0.",
-                *manual.enter_lines(self.project, law, snap),
+                *manual.enter_lines(self.project, law, snap, self.engineering),
                 f"Every request still goes through the safety filter ({snap.policy}).",
                 "Select an output in the I/O table: 1 on, 0 off, x release."]
 
     def _leave_manual_lines(self, snap: Snapshot) -> list[Text | str]:
         law = self.project.controls[self.facts.control]
-        return list(manual.leave_lines(self.project, law, snap))
+        return list(manual.leave_lines(self.project, law, snap, self.engineering))
 
     def action_manual_request(self, name: str, value: bool | None) -> None:
         self.act(ManualOutput(name, value))
@@ -1243,8 +1259,9 @@ class PlcHmiApp(LastResort, ContainedPump, App):
                 self._reset_if_unchanged(FaultReset(), shown, snap, self.action_reset)
             else:
                 self._confirmed(FaultReset(), False)
-        self.push_screen(ConfirmDialog("Fault reset?", reset_lines(snap, asked),
-                                       "Reset", dialog_id="reset-dialog",
+        self.push_screen(ConfirmDialog("Fault reset?",
+                                       reset_lines(snap, asked, self.engineering), "Reset",
+                                       dialog_id="reset-dialog",
                                        alternative="Start recovery" if recovery else None),
                          answered)
 
@@ -1258,7 +1275,7 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         changed first; None then."""
         answer = self.link.command(command, ResetGuard(tuple(shown), seen.scan))
         if not answer.declined:
-            return self._sent(command, answer.result)
+            return self._sent(command, answer.result, shown)
         self._sent(command, answer.result)
         # (once the dialog answered is gone: the new one takes its place and its id)
         self.call_later(ask_again, Asked(tuple(shown), seen.scan, seen.time_us))
@@ -1317,7 +1334,8 @@ class PlcHmiApp(LastResort, ContainedPump, App):
             self.refuse("recovery", f"no recovery procedure {name!r}")
             return
         self.push_screen(ConfirmDialog(f"Start recovery: {spec.description}?",
-                                       recovery_lines(self.project, spec), "Start recovery",
+                                       recovery_lines(self.project, spec, self.engineering),
+                                       "Start recovery",
                                        level=Level.ALARM, dialog_id="recovery-dialog"),
                          partial(self._confirmed, StartRecovery(name)))
 
@@ -1362,7 +1380,10 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         if policy is not None:
             self._confirm_policy(current, policy)
             return
-        options = [(p, Text(f"{p:<8} {POLICY_HELP[p]}" + ("  (now)" if p == current else "")))
+        # the current one marked before its help, which may be cut at 80 columns
+        options = [(p, Text(f"{'●' if p == current else ' '} {p:<8}"
+                            f"{' now ' if p == current else '     '} {POLICY_HELP[p]}",
+                            no_wrap=True, overflow="ellipsis"))
                    for p in POLICIES]
 
         def chosen(policy: str | None) -> None:
@@ -1403,8 +1424,8 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         def chosen(injection: Injection | None) -> None:
             if injection is not None:
                 self._inject(injection)
-        self.push_screen(FaultDialog(self._faults(), self._now, len(devices) <= 1),
-                         chosen)
+        self.push_screen(FaultDialog(self._faults(), self._now, len(devices) <= 1,
+                                     self.engineering), chosen)
 
     def action_inject_now(self, device: str, code: str) -> None:
         devices = {d for d, _, _ in self._faults()}
@@ -1495,6 +1516,26 @@ class PlcHmiApp(LastResort, ContainedPump, App):
             order = [s.name for s in self.history.signals]
             self.set_signals(tuple(sorted((*current, name), key=order.index)))
 
+    def get_system_commands(self, screen: Screen) -> Iterable[SystemCommand]:
+        """Textual's entries, its Screenshot replaced by one that says where it saved (or
+        why it could not) and keeps the words apart in every SVG viewer."""
+        for command in super().get_system_commands(screen):
+            if command.title != "Screenshot":
+                yield command
+        yield SystemCommand("Screenshot", "Save an SVG picture of the screen in the folder "
+                            "the HMI was started in", self.action_svg_screenshot)
+
+    def action_svg_screenshot(self) -> None:
+        from hmi.ui.screenshot import save_svg, screenshot_name
+        name = screenshot_name(self.project.name)
+        try:
+            path = save_svg(self.export_screenshot(), Path.cwd(), name)
+        except OSError as exc:  # (the folder gone, read-only, full)
+            self.refuse("screenshot", f"{name} not written: {exc.strerror or exc}"
+                        + (f" ({exc.filename})" if exc.filename else ""))
+            return
+        self.message.say(Text(f"{OK_SYMBOL} screenshot: {path}"))
+
     def action_engineering(self) -> None:
         """The engineering view on or off: one key, shown in the status bar, journalled."""
         self.send(SetView(not self.engineering))
@@ -1543,10 +1584,12 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         if snap is not None:
             entries += self._situation_entries(snap)
         if self.simulated:
+            several = len({device for device, _, _ in self._faults()}) > 1
             for device, code, description in self._faults():
                 entries.append(PaletteEntry(
-                    f"SIMULATION: inject {device}.{code} now", description,
-                    partial(self.action_inject_now, device, code)))
+                    f"SIMULATION: inject {device}.{code} now" if self.engineering else
+                    f"SIMULATION: inject now: {fault_words(device, description, several)}",
+                    description, partial(self.action_inject_now, device, code)))
             entries.append(PaletteEntry(
                 "SIMULATION: repair the faulty devices",
                 "The technician's repair: injected faults removed; then a fault reset, "

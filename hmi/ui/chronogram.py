@@ -117,12 +117,22 @@ class Chronogram(ContainedPump, Widget):
     window_us: reactive[int] = reactive(WINDOWS_US[1])
 
     def __init__(self, recorder: History, signals: tuple[str, ...], *,
-                 id: str | None = None):
+                 engineering: tuple[str, ...] = (), id: str | None = None):
+        """`engineering`: signals drawn after the chosen ones in the engineering view only
+        (the timers: TON1 is the model's name, not a signal of the machine)."""
         super().__init__(id=id)
         self.recorder = recorder
         self.frame: Frame | None = None
         self._drawn: tuple[Any, ...] | None = None
+        self.engineering = engineering
         self.set_reactive(Chronogram.signals, signals)
+
+    @property
+    def drawn(self) -> tuple[str, ...]:
+        """The signals drawn: the chosen ones, and in the engineering view the timers."""
+        if self.frame is None or not self.frame.engineering:
+            return self.signals
+        return self.signals + tuple(n for n in self.engineering if n not in self.signals)
 
     def show(self, frame: Frame) -> None:
         """Redraw only when something visible moved: a new edge, or time crossing a column
@@ -130,13 +140,13 @@ class Chronogram(ContainedPump, Widget):
         self.frame = frame
         width = max(1, self.content_size.width)
         key = (frame.snapshot.time_us * width // self.window_us, self.recorder.change_count,
-               tuple(sorted(frame.changed)))
+               tuple(sorted(frame.changed)), frame.engineering)
         if key != self._drawn:
             self._drawn = key
             self.refresh()
         # the mark before a value, said where it shows
         legend = "≠: the filter changed it" if any(
-            name in frame.changed for name in self.signals) else ""
+            name in frame.changed for name in self.drawn) else ""
         if self.border_subtitle != legend:
             self.border_subtitle = legend
 
@@ -157,20 +167,21 @@ class Chronogram(ContainedPump, Widget):
 
     def _draw_text(self) -> Text:
         text = Text(no_wrap=True, overflow="crop")
-        if not self.signals:
+        signals = self.drawn
+        if not signals:
             text.append("no signals chosen: press g to choose", style=MUTED)
             return text
         frame = self.frame
         width = self.size.width
         # whole names (PLATE_CLOSED, not PLATE_CL) while 40 columns of plot are left
         cap = 2 * MAX_LABEL if width - 2 * MAX_LABEL - 3 >= 40 else MAX_LABEL
-        label_w = min(cap, max(len(_label(n)) for n in self.signals))
+        label_w = min(cap, max(len(_label(n)) for n in signals))
         plot_w = max(1, width - label_w - 3)
         end = frame.snapshot.time_us if frame else 0
         start = max(0, end - self.window_us)
         outputs_changed = frame.changed if frame else {}
-        rows = max(1, (self.content_size.height or len(self.signals) + 1) - 1)
-        shown = self.signals if len(self.signals) <= rows else self.signals[: rows - 1]
+        rows = max(1, (self.content_size.height or len(signals) + 1) - 1)
+        shown = signals if len(signals) <= rows else signals[: rows - 1]
         spaced = 2 * len(shown) <= rows  # room to spare: a blank line between signals
         for name in shown:
             value_now = self._now(name)
@@ -184,8 +195,8 @@ class Chronogram(ContainedPump, Widget):
             trace = self.recorder.trace(name, start, end)
             text.append(columns(trace, start, self.window_us, plot_w, end))
             text.append("\n\n" if spaced else "\n")
-        if len(shown) < len(self.signals):
-            text.append(f"+{len(self.signals) - len(shown)} more signals: "
+        if len(shown) < len(signals):
+            text.append(f"+{len(signals) - len(shown)} more signals: "
                         "g to choose, or a taller terminal\n", style=MUTED)
         text.append(" " * (label_w + 3), style=MUTED)
         text.append(axis(start, self.window_us, plot_w), style=MUTED)

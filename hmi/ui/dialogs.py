@@ -343,6 +343,19 @@ class StepDialog(Dialog[int | None]):
         self.dismiss(None)
 
 
+class StoppingOptionList(OptionList):
+    """An option list whose cursor stops at the first and last option: ↓ on the last one
+    does not jump back to the top (a short list read as a loop, the choice lost)."""
+
+    def action_cursor_down(self) -> None:
+        if self.highlighted is None or self.highlighted < self.option_count - 1:
+            super().action_cursor_down()
+
+    def action_cursor_up(self) -> None:
+        if self.highlighted is None or self.highlighted > 0:
+            super().action_cursor_up()
+
+
 class ChoiceDialog(Dialog[str | None]):
     """Pick one of a few options (filter policy, speed...); enter picks, escape cancels."""
 
@@ -363,8 +376,8 @@ class ChoiceDialog(Dialog[str | None]):
             yield _title(self.title_text, self.level)
             if self.note:
                 yield Static(self.note, classes="dialog-line", markup=False)
-            yield OptionList(*(Option(prompt, id=key) for key, prompt in self.options),
-                             id="choices")
+            yield StoppingOptionList(*(Option(prompt, id=key) for key, prompt in self.options),
+                                     id="choices")
             yield Label("↑↓ choose    enter: select    esc: cancel", classes="dialog-hint")
 
     def on_mount(self) -> None:

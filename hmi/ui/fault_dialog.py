@@ -17,6 +17,7 @@ from textual.containers import Vertical
 from textual.widgets import Input, Label, OptionList, Static
 from textual.widgets.option_list import Option
 
+from hmi.explain.plain import without_notes
 from hmi.project.injection import Injection
 from hmi.timefmt import parse_duration
 from hmi.ui.dialogs import Dialog
@@ -34,17 +35,25 @@ def parse_delay(text: str) -> int:
         return parse_duration(text)
 
 
+def fault_words(device: str, description: str, several: bool) -> str:
+    """A fault as the operator view names it: its description (the device first when the
+    plant has several), not the simulation's code (`valve.F13`: the engineering view's)."""
+    text = without_notes(description)
+    return f"{device}: {text}" if several else text[:1].upper() + text[1:]
+
+
 class FaultDialog(Dialog[Injection | None]):
     BINDINGS = [Binding("escape", "cancel", "Cancel")]
 
     def __init__(self, faults: list[tuple[str, str, str]], now_us: Callable[[], int],
-                 single_device: bool):
+                 single_device: bool, engineering: bool = False):
         """`now_us` reads the engine's time: a delay counts from the confirmation, not from
         when the dialog opened (the cell keeps running while it is open)."""
         super().__init__(id="fault-dialog")
         self.faults = faults
         self.now_us = now_us
         self.single_device = single_device
+        self.engineering = engineering
 
     def compose(self) -> ComposeResult:
         with Vertical(classes="dialog dialog-wide"):
@@ -54,7 +63,9 @@ class FaultDialog(Dialog[Injection | None]):
             # first enter chooses the fault and moves to its time, the second injects it.
             yield Label("↑↓ fault · enter: choose · enter again: inject · esc: cancel",
                         classes="dialog-hint")
-            yield OptionList(*(Option(f"{device}.{code}  {description}",
+            yield OptionList(*(Option(f"{device}.{code}  {description}" if self.engineering
+                                      else fault_words(device, description,
+                                                       not self.single_device),
                                       id=f"{device}.{code}")
                                for device, code, description in self.faults), id="faults")
             yield Static("When: in how many seconds (0 or empty = at the next scan)",

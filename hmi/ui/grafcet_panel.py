@@ -166,7 +166,7 @@ class GrafcetPanel(TextPanel):
             if compact and not on:
                 continue
             desc_w = max(0, width - name_w - 3 - 10)
-            desc = step.description[:desc_w].ljust(desc_w)
+            desc = cut(step.description, desc_w).ljust(desc_w)
             if on:
                 elapsed = snap.value(step.name + ".t") if (step.name + ".t") in \
                     snap.layout.slots else 0
@@ -205,3 +205,10 @@ class GrafcetPanel(TextPanel):
             text.append(f"  Q {int(state.q)}\n", style="bold" if state.q else "")
         text.rstrip()
         return text
+
+
+def cut(text: str, width: int) -> str:
+    """`text` in `width` columns, ending in … when cut ("Closing for a fixed 3 s, open order
+    still on at first" read "Closing for a fixed 3 s," at 80 columns: a sentence that says
+    something else, not one visibly cut)."""
+    return text if len(text) <= width else (text[: width - 1] + "…" if width > 0 else "")

@@ -147,6 +147,15 @@ class IOPanel(ContainedPump, DataTable[Any]):
             self.show(self.frame)
 
     def _set(self, row: str, column: str, value: object) -> None:
+        if column == "state" and isinstance(value, Text) and self.size.width >= NARROW:
+            # A column widens to its longest text and never narrows: one long reason
+            # ("≠ held safe: a safety rule was broken — …") pushed the Description column out
+            # of a 160-column screen for good. A third of the panel; the rest is on the
+            # explanation and the message line.
+            cap = max(32, self.size.width // 3)
+            if value.cell_len > cap:
+                value = value.copy()
+                value.truncate(cap, overflow="ellipsis")
         key = (row, column)
         if self._cells.get(key) != value:
             self._cells[key] = value

@@ -15,10 +15,14 @@ from hmi.project.model import ControlLaw, Project
 from hmi.timefmt import seconds
 
 
-def steps_text(law: ControlLaw, active: tuple[str, ...]) -> str:
+def steps_text(law: ControlLaw, active: tuple[str, ...], engineering: bool = True) -> str:
     """'X3 (A pallet waits at B), X11 (Robot transfers the pallet…)': the steps, each with
-    its description when it has one."""
+    its description when it has one; in the operator view the descriptions alone
+    ('“A pallet waits at B”')."""
     described = {s.name: s.description for s in law.grafcet.steps} if law.grafcet else {}
+    if not engineering:
+        return ", ".join(f"\u201c{described[name]}\u201d" if described.get(name) else
+                         "a step" for name in active)
     return ", ".join(f"{name} ({described[name]})" if described.get(name) else name
                      for name in active)
 
@@ -34,12 +38,13 @@ def ordered_again(project: Project, law: ControlLaw, active: tuple[str, ...]
     return tuple(v.name for v in project.outputs if v.name in targets)
 
 
-def enter_lines(project: Project, law: ControlLaw, snap: Snapshot) -> list[str]:
+def enter_lines(project: Project, law: ControlLaw, snap: Snapshot,
+                engineering: bool = True) -> list[str]:
     """The program's part of the enter-manual dialog (one sentence a line: each wraps)."""
     if law.grafcet is None:
         return ["The control program waits: its equations are not evaluated and its "
                 "memories hold until you leave manual mode; it then resumes from there."]
-    where = steps_text(law, snap.active_steps) or "its initial steps"
+    where = steps_text(law, snap.active_steps, engineering) or "its initial steps"
     # (the cell keeps running while the dialog is open: the steps are those of its scan,
     # and the program waits at the ones it is in when the operator confirms)
     return ["The control program waits at the steps it is in when you confirm (when this "
@@ -47,13 +52,15 @@ def enter_lines(project: Project, law: ControlLaw, snap: Snapshot) -> list[str]:
             "times and memories hold until you leave manual mode; it then resumes from there."]
 
 
-def leave_lines(project: Project, law: ControlLaw, snap: Snapshot) -> list[str]:
+def leave_lines(project: Project, law: ControlLaw, snap: Snapshot,
+                engineering: bool = True) -> list[str]:
     """The program's part of the leave-manual dialog."""
     if law.grafcet is None:
         return ["The control program resumes with its memories as they were, and drives "
                 "the outputs again."]
     active = snap.active_steps
-    lines = [f"The program resumes from {steps_text(law, active) or 'its initial steps'}, "
+    where = steps_text(law, active, engineering) or "its initial steps"
+    lines = [f"The program resumes from {where}, "
              "its step times going on from where they stopped, and drives the outputs "
              "again."]
     again = ordered_again(project, law, active)

@@ -7,7 +7,9 @@ whether the value written to the plant is the one requested, and if not, why.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import re
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 
 from rich.text import Text
 
@@ -17,24 +19,70 @@ from hmi.engine.commands import (
     Command,
     CommandResult,
     CommentAlarm,
+    FaultReset,
+    InjectFault,
+    RepairFaults,
     SetMode,
     Shelve,
     StartRecovery,
     Unshelve,
     describe,
 )
+from hmi.explain.plain import without_notes
+from hmi.explain.reset import ResetLine
+from hmi.project.injection import Injection
+from hmi.timefmt import seconds
 from hmi.ui.panel import TextPanel
 from hmi.ui.style import OK_SYMBOL, Level, tag
 
 
+@dataclass(frozen=True)
+class Words:
+    """What the operator view says instead of the model's names (None: the engineering
+    view, the engine's own answers): a simulated fault by its description, a fault reset by
+    the preview the operator confirmed."""
+
+    fault_text: Callable[[Injection], str]
+    reset_shown: list[ResetLine] | None = None
+    steps: Mapping[str, str] = field(default_factory=dict)  # step -> its description
+
+
 def spoken(command: Command, result: CommandResult,
-           text_of: Callable[[str], str]) -> tuple[str, str]:
+           text_of: Callable[[str], str], words: Words | None = None) -> tuple[str, str]:
     """(what, answer) as the operator reads them. The journal keeps the commands' stable
     identifiers (``describe``: "acknowledge alarm constraint:CSs2", "start recovery
     V1_close"); the message line names a situation by its text, as the alarm list does
     (`text_of`: a situation's key -> its one-line text), and leaves out what the answer
     already says in plain words (the recovery's title, the policy's label)."""
     what, message = describe(command), result.message
+    if words is not None and isinstance(command, FaultReset) and not result.accepted \
+            and message.startswith("not done, asked again"):  # the dialog says what changed
+        return "fault reset", message.split(" (scan", 1)[0] + "; the dialog says how"
+    if words is not None and result.accepted:
+        match command:
+            case InjectFault(injection=i):
+                during = f" for {seconds(i.duration_us)} s" if i.duration_us else ""
+                return "SIMULATION", (f"fault at {seconds(i.at_us)} s{during}: "
+                                      f"{without_notes(words.fault_text(i))}")
+            case RepairFaults():  # 'valve repaired (F13 removed)': by the faults' words
+                removed = [without_notes(words.fault_text(Injection(code.strip(), 0, device)))
+                           for device, codes in re.findall(r"(\S+) repaired \(([^()]*) removed\)",
+                                                           message)
+                           for code in codes.split(",")]
+                return "SIMULATION", ("repaired" + (f" ({'; '.join(removed)} removed)"
+                                                    if removed else "")
+                                      + "; next: a fault reset (r), which says first what it "
+                                        "resets and what stays")
+            case SetMode() if words.steps:  # 'waits at X2': at “Open, filling”
+                message = re.sub(r"[\w.]+", lambda m: f"\u201c{words.steps[m.group(0)]}\u201d"
+                                 if m.group(0) in words.steps else m.group(0), message)
+                return message.split(":", 1)[0], message
+            case FaultReset() if words.reset_shown is not None:
+                done = [line.what for line in words.reset_shown if line.resets]
+                kept = [line.what for line in words.reset_shown if not line.resets]
+                return "fault reset", "; ".join(
+                    [*(["released: " + "; ".join(done)] if done else []),
+                     *(["stays: " + "; ".join(kept)] if kept else [])]) or "nothing was latched"
     match command:
         case ChoosePolicy(key=key):  # "policy 'Continue' chosen for KEY: ...": the panel
             return "policy", message.replace(f" for {key}", "", 1)  # shows the subject

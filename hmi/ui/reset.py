@@ -12,21 +12,31 @@ from dataclasses import dataclass
 from rich.text import Text
 
 from hmi.engine.snapshot import Snapshot
+from hmi.explain.plain import PlainNames
 from hmi.explain.reset import ResetLine, changes, reset_preview
 from hmi.project.model import Project, RecoveryProcedure
 from hmi.timefmt import seconds
 from hmi.ui.style import MUTED, OK_SYMBOL, Level, tag
 
 
-def recovery_lines(project: Project, spec: RecoveryProcedure) -> list[str]:
-    """What starting a recovery procedure does, for its confirmation dialog."""
+def recovery_lines(project: Project, spec: RecoveryProcedure,
+                   engineering: bool = False) -> list[str]:
+    """What starting a recovery procedure does, for its confirmation dialog: the orders by
+    their descriptions ("the close order"), their names in the engineering view."""
+    plain = PlainNames(project)
     steps = "; ".join(f"{k}. {step.description}" for k, step in enumerate(spec.steps, 1))
     others = [v.name for v in project.outputs if v.name not in spec.outputs]
     relaxed = [c for c in project.constraints if c.name in spec.relaxes]
+
+    def orders(names: list[str]) -> str:
+        return ", ".join(names if engineering else (f"the {plain.name(n)}" for n in names))
+
+    held = len(others) > 1
     lines = [f"{spec.device or project.name}: {steps} (it stops by itself at the end, or "
              f"after {seconds(spec.timeout_us)} s with every output safe).",
-             f"Only {', '.join(spec.outputs)} move"
-             + (f"; {', '.join(others)} held at their safe values" if others else "")
+             f"Only {orders(list(spec.outputs))} {'act' if len(spec.outputs) > 1 else 'acts'}"
+             + (f"; {orders(others)} held at {'their safe values' if held else 'its safe value'}"
+                if others else "")
              + "; the control program waits."]
     rules = [c.description or c.name for c in spec.constraints]
     if rules:
@@ -52,8 +62,9 @@ class Asked:
     time_us: int
 
 
-def reset_line(line: ResetLine) -> Text:
-    """One line of the fault reset dialog: will be reset, or stays and why."""
+def reset_line(line: ResetLine, engineering: bool = False) -> Text:
+    """One line of the fault reset dialog: will be reset, or stays and why; in the
+    engineering view, the model's names after the plain words."""
     if line.resets:
         text = Text(f"{OK_SYMBOL} will be reset: {line.what}")
     else:
@@ -63,10 +74,13 @@ def reset_line(line: ResetLine) -> Text:
             text.append(f" — {line.why}")
     if line.note:
         text.append(f" ({line.note})", style=MUTED)
+    if engineering and line.detail:
+        text.append(f" [{line.detail}]", style=MUTED)
     return text
 
 
-def reset_lines(snap: Snapshot, asked: Asked | None = None) -> list[Text | str]:
+def reset_lines(snap: Snapshot, asked: Asked | None = None,
+                engineering: bool = False) -> list[Text | str]:
     """The fault reset dialog's lines: what a reset would release and what stays, as of
     `snap`. Asked again (`asked`), first that nothing was done and what no longer holds, then
     the lines, those that changed since marked."""
@@ -80,14 +94,15 @@ def reset_lines(snap: Snapshot, asked: Asked | None = None) -> list[Text | str]:
         head.append(f" The cell moved since you read this (scan {asked.scan}, t = "
                     f"{seconds(asked.time_us)} s): nothing was done.")
         lines.append(head)
-        lines += [Text("  no longer: ", style=MUTED) + reset_line(line) for line in gone]
+        lines += [Text("  no longer: ", style=MUTED) + reset_line(line, engineering)
+                  for line in gone]
         if not asked.shown:
             lines.append(Text("  no longer: nothing latched, the reset changing nothing",
                               style=MUTED))
         lines.append(Text("What the reset would do now" + (" (► changed):" if fresh else ":"),
                           style="bold"))
     for line in now:
-        shown = reset_line(line)
+        shown = reset_line(line, engineering)
         lines.append(Text("► ", style="bold") + shown if line.promise in fresh
                      else Text("  ") + shown if asked is not None else shown)
     if not now:

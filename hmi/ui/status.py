@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from rich.text import Text
 
 from hmi.engine.recovery import RecoveryState
+from hmi.explain.plain import latch_words
 from hmi.explain.reset import reset_preview
 from hmi.timefmt import seconds
 from hmi.ui.alarm_list import urgent_count
@@ -241,7 +242,8 @@ def banner_lines(frame: Frame) -> list[Text]:
         lines.append(line)
     if snap.latched:
         line = banner("OUTPUTS HELD IN SAFE STATE", Level.ALARM)
-        line.append(" " + "; ".join(r.detail for r in snap.latched)
+        line.append(" " + "; ".join(r.detail if frame.engineering else latch_words(r)
+                                    for r in snap.latched)
                     + " · r: fault reset once the cause is gone")
         lines.append(line)
     if frame.serving is None and frame.gateway is not None \
