@@ -11,6 +11,7 @@ import socket
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+from hmi.access.audit import SignInRefusal
 from hmi.engine.scan import Engine
 from hmi.errors import UsageError
 from hmi.history.target import Target
@@ -35,13 +36,17 @@ def free_port() -> int:
 
 def serve(session: Session | CellSource, options: Callable[[int], ServeOptions],
           listeners: Sequence[Callable[[ServingStatus], None]] = (),
-          history: Target | None = None) -> CellServer:
+          history: Target | None = None,
+          refused: Callable[[SignInRefusal], None] | None = None) -> CellServer:
     """A started server for `session` (or a source: the runtime through a link), with the
     options `options(port)` on a free port; `listeners` hear its changes of state from the
-    start; `history`: the cell's history, for HistoryRead."""
+    start; `history`: the cell's history, for HistoryRead; `refused` hears each refused
+    sign-in."""
     for attempt in range(TRIES):
         server = CellServer(session, options(free_port()), history=history)
         server.listeners.extend(listeners)
+        if refused is not None:
+            server.refusal_listeners.append(refused)
         try:
             server.start()
         except UsageError as exc:  # taken between the look and the bind: another port

@@ -63,8 +63,8 @@ def test_screens_sign_in_and_the_users_file_says_the_role(tmp_path, sock, users_
         # alice says engineer; the users file says operator
         alice = attach(sock, "alice", PASSWORDS["alice"], role="engineer")
         assert alice.identity.user == "alice" and alice.identity.role == "operator"
-        assert alice.command(SetMode(True)).result.accepted
-        refused = alice.command(SetPolicy("monitor")).result
+        assert alice.command(SetMode(True), reason="seat inspection").result.accepted
+        refused = alice.command(SetPolicy("monitor"), reason="trying").result
         assert not refused.accepted and "an engineer's command" in refused.message
         # a viewer sees and cannot act, nor take control
         bob = attach(sock, "bob", PASSWORDS["bob"])
@@ -75,15 +75,16 @@ def test_screens_sign_in_and_the_users_file_says_the_role(tmp_path, sock, users_
         # an engineer takes over and changes the policy
         carol = attach(sock, "carol", PASSWORDS["carol"])
         assert carol.take_control().accepted
-        assert carol.command(SetPolicy("block")).result.accepted
+        assert carol.command(SetPolicy("block"), reason="dry run over").result.accepted
         assert cell.process.poll() is None
         for link in (alice, bob, carol):
             link.leave()
     entries = journal(tmp_path)
     actions = [e for e in entries if e["type"] == "action"]
     manual = next(e for e in actions if e["event"] == "enter manual mode")
-    assert (manual["by"], manual["user"], manual["role"], manual["door"]) == (
-        "terminal:alice", "alice", "operator", "terminal")
+    assert (manual["by"], manual["user"], manual["role"], manual["door"],
+            manual["reason"]) == ("terminal:alice", "alice", "operator", "terminal",
+                                  "seat inspection")
     policy = [e for e in entries if "monitor" in e.get("event", "")]
     assert policy and all(e["by"] == "terminal:alice" for e in policy)
     assert any("refused" in str(e.get("result", "")) or e.get("accepted") is False
@@ -95,13 +96,18 @@ def test_screens_sign_in_and_the_users_file_says_the_role(tmp_path, sock, users_
     assert not any("not-her-password" in str(e) for e in entries)
 
 
-def test_the_sixth_wrong_password_is_refused_as_locked(sock, users_path):
-    with runtime(VALVE, sock):
+def test_the_sixth_wrong_password_is_refused_as_locked(tmp_path, sock, users_path):
+    with runtime(VALVE, sock, "--journal", str(tmp_path / "journal.jsonl")):
         for _ in range(5):
             with pytest.raises(AttachError, match="wrong user name or password"):
                 attach(sock, "alice", "guessing-wrong")
         with pytest.raises(AttachError, match="locked"):
             attach(sock, "alice", PASSWORDS["alice"])  # even the right one, now
+    events = [(e["event"], e["by"], e["source"]) for e in journal(tmp_path)
+              if e["event"] in ("sign-in-refused", "account-locked")]
+    assert events == [("sign-in-refused", "terminal:alice", "this machine")] * 4 + [
+        ("account-locked", "terminal:alice", "this machine"),
+        ("sign-in-refused", "terminal:alice", "this machine")]
 
 
 def test_a_ticket_lets_one_screen_in_once(sock, users_path):
@@ -158,3 +164,51 @@ def test_a_gateways_users_are_checked_against_the_users_file(tmp_path, sock, use
     actions = [e for e in journal(tmp_path) if e["type"] == "action"]
     assert [(e["by"], e["role"]) for e in actions if e["event"] == "enter manual mode"] == [
         ("opcua:bob", "viewer"), ("opcua:mallory", "engineer"), ("opcua:alice", "operator")]
+
+
+def test_the_opcua_users_file_is_every_door_s_and_the_terminal_signs_in(tmp_path, sock):
+    """``--opcua-users FILE`` (no users file of the machine): the runtime's doors are FILE's
+    users too, so the terminal is a named user, never the login name with every right."""
+    pytest.importorskip("asyncua", reason="the [opcua] extra is not installed")
+    import socket as sockets
+    import subprocess
+    import sys
+
+    from tests.runtimes import ROOT
+    cell_users = tmp_path / "cell-users"
+    users.add(cell_users, "alice", "operator", PASSWORDS["alice"])
+    assert not users.default_path().exists()
+    with sockets.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    with runtime(VALVE, sock, "--journal", str(tmp_path / "journal.jsonl"), "--opcua",
+                 f"opc.tcp://127.0.0.1:{port}", "--opcua-users", str(cell_users)):
+        with pytest.raises(AttachError, match="sign in first"):
+            attach(sock, "root")
+        alice = attach(sock, "alice", PASSWORDS["alice"], role="engineer")
+        assert (alice.identity.user, alice.identity.role) == ("alice", "operator")
+        alice.leave()
+        # the terminal's screen (plchmi attach) finds it must sign in, and asks
+        tried = subprocess.run(
+            [sys.executable, "-m", "hmi.cli", "attach", str(VALVE), "--socket", str(sock)],
+            input="alice\nwrong-one\nalice\nwrong-two\nalice\nwrong-three\n", text=True,
+            capture_output=True, cwd=ROOT, timeout=120)
+    assert tried.returncode != 0
+    assert "sign in" in tried.stderr and "wrong user name or password (3 tries)" in \
+        tried.stderr, tried.stderr
+    refused = [e["by"] for e in journal(tmp_path) if e["event"] == "sign-in-refused"]
+    # (root here; then the screen's first try, under the login name, before it asked)
+    assert refused[0] == "terminal:root" and refused[1].startswith("terminal:")
+    assert refused[2:] == ["terminal:alice"] * 3
+
+
+def test_the_terminal_s_users_file_follows_opcua_users(tmp_path):
+    import argparse
+
+    from hmi.cli.screens import signs_in, users_file
+    given = tmp_path / "cell-users"
+    assert users_file(argparse.Namespace(opcua_users=given)) == given
+    assert users_file(argparse.Namespace()) == users.default_path()
+    assert not signs_in(given)  # no such file yet: nobody to sign in as
+    users.add(given, "alice", "operator", PASSWORDS["alice"])
+    assert signs_in(given)

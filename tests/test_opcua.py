@@ -34,7 +34,7 @@ from hmi.engine.commands import (  # noqa: E402
     SetMode,
 )
 from hmi.explain.journal import Journal  # noqa: E402
-from hmi.opcua.options import server_certificate  # noqa: E402
+from hmi.opcua.options import journal_refusals, server_certificate  # noqa: E402
 from hmi.opcua.server import ServeOptions  # noqa: E402
 from hmi.project.injection import parse_injection  # noqa: E402
 from hmi.session.journal_recorder import JournalRecorder  # noqa: E402
@@ -60,7 +60,7 @@ class Cell:
         self.stranger = _user_certificate(tmp / "stranger", "stranger")
         # alice an engineer (forcing, the policy), olga an operator, victor a viewer
         known = users(tmp, {"alice": "engineer", "olga": "operator", "victor": "viewer",
-                            "carol": "operator"}, PASSWORD,
+                            "carol": "operator", "dave": "operator"}, PASSWORD,
                       {"carol": self.carol[0].read_bytes()})
         cert, key = server_certificate(tmp / "pki", project.name, "127.0.0.1")
         self.options = partial(ServeOptions, writable=True, users=known, certificate=cert,
@@ -76,7 +76,10 @@ class Cell:
                                                                   "gw"),
                                   journal=self.recorder)
             cell = LinkSource(self.link)
-        self.server = serve(cell, lambda port: self.options(port=port))
+            refused = self.link.report_refusal  # the runtime journals it (the gateway's way)
+        else:
+            refused = journal_refusals(self.recorder)
+        self.server = serve(cell, lambda port: self.options(port=port), refused=refused)
 
     async def scans(self, n: int) -> int:
         """Run n scans in virtual time; return once the server has published the last."""
@@ -322,13 +325,36 @@ async def test_an_anonymous_client_reads_but_cannot_acknowledge_command_or_write
     assert cell.session.engine.mode == "auto"
 
 
-async def test_a_wrong_password_is_refused_at_the_door(cell):
+async def test_a_wrong_password_is_refused_at_the_door_and_journalled(cell):
+    before = len(cell.journal())
     with pytest.raises(UaStatusCodeError, match=r"BadUserAccessDenied|BadIdentityToken"):
         async with client(cell, "alice", "not the password"):
             pass
     with pytest.raises(UaStatusCodeError, match=r"BadUserAccessDenied|BadIdentityToken"):
         async with client(cell, "mallory", PASSWORD):
             pass
+    refused = [e for e in cell.journal()[before:] if e["event"] == "sign-in-refused"]
+    assert [e["by"] for e in refused] == ["opcua:alice", "opcua:mallory"]
+    for entry in refused:
+        assert entry["source"].startswith("127.0.0.1:") and entry["door"] == "opcua"
+        assert "wrong user name or password" in entry["message"]
+        assert "not the password" not in json.dumps(entry)
+
+
+async def test_the_attempt_that_locks_an_account_is_journalled(cell):
+    before = len(cell.journal())
+    for _ in range(5):
+        with pytest.raises(UaStatusCodeError, match=r"BadUserAccessDenied|BadIdentityToken"):
+            async with client(cell, "dave", "guessing wrong"):
+                pass
+    with pytest.raises(UaStatusCodeError, match=r"BadUserAccessDenied|BadIdentityToken"):
+        async with client(cell, "dave", PASSWORD):  # the right one, now locked
+            pass
+    events = [(e["event"], e["by"]) for e in cell.journal()[before:]
+              if e["event"] in ("sign-in-refused", "account-locked")]
+    assert events == [("sign-in-refused", "opcua:dave")] * 4 + [
+        ("account-locked", "opcua:dave"), ("sign-in-refused", "opcua:dave")]
+    assert "locked" in cell.journal()[-1]["message"]
 
 
 async def test_operator_commands_are_methods_that_go_through_the_filter(cell):
@@ -391,7 +417,10 @@ async def test_a_trusted_user_certificate_names_the_user_an_unknown_one_does_not
     assert (entry["event"], entry["by"]) == ("fault reset", "opcua:carol")
     with pytest.raises(UaStatusCodeError, match="BadUserAccessDenied"):
         await reset_as(cell.stranger)  # an untrusted certificate: refused at activation
-    assert cell.journal()[-1] == entry
+    refused = cell.journal()[-1]  # journalled as a refused sign-in, no action
+    assert refused["event"] == "sign-in-refused" and refused["door"] == "opcua"
+    assert "an untrusted user certificate" in refused["message"]
+    assert [e for e in cell.journal() if e["type"] == "action"][-1] == entry
 
 
 async def test_a_paused_cell_says_so_though_no_scan_comes(cell):

@@ -105,6 +105,39 @@ async def test_an_idle_session_ends(users_path):
         await server.close()
 
 
+async def test_refused_sign_ins_and_the_lockout_go_to_the_journal(users_path, tmp_path):
+    from hmi.explain.chain import verify
+    from hmi.explain.journal import read
+    journal = tmp_path / "journal.jsonl"
+    door = WebDoor(str(VALVE), "cispi_valve", users_path, None, clock=Clock(),
+                   journal=journal)
+    server = await started(door)
+    base = str(server.make_url("/"))
+    tries = [("mallory", "whatever-it-is")] + [("alice", "guessing-wrong")] * 5 + [
+        ("alice", "alice-password"), ("\x1b[2Jeve", "x")]
+    try:
+        async with aiohttp.ClientSession() as web:
+            for name, password in tries:
+                async with web.post(base + "signin", data={"name": name,
+                                                           "password": password},
+                                    allow_redirects=False) as r:
+                    assert r.status == 401
+    finally:
+        await server.close()
+    entries = [e for e in read(journal).entries
+               if e["event"] in ("sign-in-refused", "account-locked")]
+    assert [(e["event"], e["user"]) for e in entries] == (
+        [("sign-in-refused", "mallory")] + [("sign-in-refused", "alice")] * 4
+        + [("account-locked", "alice"), ("sign-in-refused", "alice"),
+           ("sign-in-refused", "?[2Jeve")])
+    assert all(e["door"] == "browser" and e["source"] == "127.0.0.1" and e["wall"]
+               for e in entries)
+    assert "locked for" in entries[5]["message"] and "locked" in entries[6]["message"]
+    text = journal.read_text()
+    assert "guessing-wrong" not in text and "alice-password" not in text
+    assert verify(journal).intact  # linked like every other entry
+
+
 def test_plchmi_web_refuses_what_cannot_be_served(capsys, tmp_path):
     assert main(["web", str(VALVE)]) == 2  # no users file: nobody could sign in
     assert "no users file" in capsys.readouterr().err

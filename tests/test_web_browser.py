@@ -96,15 +96,23 @@ class Tab:
                                      + self.text())
             self.page.wait_for_timeout(50)
 
+    def wait_gone(self, pattern: str, what: str) -> None:
+        started = time.monotonic()
+        while re.search(pattern, self.text()):
+            if time.monotonic() - started > GUARD_S:
+                raise AssertionError(f"{what}: still on the screen after {GUARD_S:g} s:\n"
+                                     + self.text())
+            self.page.wait_for_timeout(50)
+
     def press(self, key: str) -> None:
         self.page.click("#terminal")
         self.page.keyboard.press(key)
 
 
 @contextlib.contextmanager
-def web_door(sock: Path, log: Path):
+def web_door(sock: Path, log: Path, journal: Path):
     command = [sys.executable, "-m", "hmi.cli", "web", str(VALVE), "--bind", "127.0.0.1:0",
-               "--socket", str(sock)]
+               "--socket", str(sock), "--journal", str(journal)]
     with open(log, "wb") as out:
         process = subprocess.Popen(command, cwd=ROOT, stdin=subprocess.DEVNULL, stdout=out,
                                    stderr=out)
@@ -135,7 +143,7 @@ def test_operator_viewer_and_lockout_in_a_real_browser(tmp_path):
     cell = RuntimeProcess(VALVE, sock, "--journal", str(journal), "--inject", "F13@40s",
                           virtual=False)
     try:
-        with web_door(sock, tmp_path / "web.log") as url, sync_playwright() as p:
+        with web_door(sock, tmp_path / "web.log", journal) as url, sync_playwright() as p:
             browser = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
             # the sixth wrong password: five wrong lock the account, then even the right one
             # is refused
@@ -176,6 +184,12 @@ def test_operator_viewer_and_lockout_in_a_real_browser(tmp_path):
             browser.close()
     finally:
         cell.stop()
+    entries = read(journal).entries
+    refused = [(e["event"], e["by"], e["source"]) for e in entries
+               if e["event"] in ("sign-in-refused", "account-locked")]
+    assert refused == [("sign-in-refused", "browser:carol", "127.0.0.1")] * 4 + [
+        ("account-locked", "browser:carol", "127.0.0.1"),
+        ("sign-in-refused", "browser:carol", "127.0.0.1")], refused
     verified = subprocess.run([sys.executable, "-m", "hmi.cli", "journal", "verify",
                                str(VALVE), "--path", str(journal)], cwd=ROOT,
                               capture_output=True, text=True)

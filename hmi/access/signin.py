@@ -41,6 +41,7 @@ class SignInResult:
     accepted: bool
     reason: str  # plain words; "" when accepted
     user: User | None = None
+    locked_now: bool = False  # this wrong password locked the account (journalled so)
 
     @property
     def role(self) -> str | None:
@@ -117,7 +118,8 @@ class Authenticator:
             if not ok:
                 count = count + 1 if until == 0 else 1  # a lock that ran out starts again
                 reason = WRONG
-                if count >= settings.lockout_after:
+                locked_now = count >= settings.lockout_after
+                if locked_now:
                     until = now + settings.lockout_us / 1e6
                     reason += (f"; {count} wrong in a row: sign-in to this account is locked "
                                f"for {format_duration(settings.lockout_us)}")
@@ -125,7 +127,7 @@ class Authenticator:
                     until = 0.0
                 state[key] = (count, until, now)
                 self._save(state)
-                return SignInResult(False, reason)
+                return SignInResult(False, reason, locked_now=locked_now)
             if key in state:
                 del state[key]
                 self._save(state)

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from hmi.cli.common import RunFailure, ended_by, on_termination
 from hmi.cli.options import diagnoser_arg, project_arg
-from hmi.cli.screens import run_screen, runtime_args
+from hmi.cli.screens import run_screen, runtime_args, users_file
 from hmi.errors import UsageError
 
 
@@ -103,8 +103,12 @@ def cmd_serve(args: argparse.Namespace) -> int:
                     if runtime is not None:
                         runtime.end(f"the trace could not be written: {outputs.failure}")
             session.scan_listeners.append(traced)
+        # who may attach: the users file the OPC UA door signs in against (one identity at
+        # every door of this cell), else the machine's
+        from hmi.runtime.admission import Admission
         runtime = Runtime(session, print_, where.socket, outputs.recorder,
-                          virtual=args.virtual, realtime=not args.no_realtime)
+                          virtual=args.virtual, realtime=not args.no_realtime,
+                          admission=Admission(users_file(args)))
         with on_termination(runtime.end):  # (ended as asked: safe outputs, journal closed)
             runtime.start()
             scan = runtime.runner.realtime_state if runtime.runner else "virtual time"

@@ -71,7 +71,7 @@ def cmd_gateway(args: argparse.Namespace) -> int:
     failed = False
     try:
         link.first_frame.wait(30.0)
-        server = start_server(LinkSource(link), args)
+        server = start_server(LinkSource(link), args, refused=link.report_refusal)
         assert server is not None
         print(f"plchmi: serving {project.name} over OPC UA at {server.url} (gateway pid "
               f"{os.getpid()}, screen {link.client} of the runtime)", file=sys.stderr,

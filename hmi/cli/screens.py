@@ -53,12 +53,20 @@ def run_screen(args: argparse.Namespace, project, socket: Path, view: bool = Fal
     ticket = os.environ.pop("PLCHMI_TICKET", "")  # a browser tab's (hmi.web.server)
     if ticket:
         identity = Identity("browser", identity.role, "browser", identity.session)
+    path = users_file(args)
     try:
-        if ticket or not signs_in():
-            link = SocketLink(project, socket, print_, identity, want_control=not view,
-                              ticket=ticket)
+        if ticket or not signs_in(path):
+            try:
+                link = SocketLink(project, socket, print_, identity, want_control=not view,
+                                  ticket=ticket)
+            except AttachError as exc:
+                # the runtime has users this screen did not know of (started with
+                # --opcua-users FILE): the terminal asks who is there, as it would have
+                if ticket or "sign in first" not in str(exc):
+                    raise
+                link = signed_in(project, socket, print_, identity, view, None)
         else:
-            link = signed_in(project, socket, print_, identity, view)
+            link = signed_in(project, socket, print_, identity, view, path)
     except AttachError as exc:
         raise RunFailure(str(exc)) from None
     app = PlcHmiApp(link, live=True, bell=getattr(args, "bell", False))
@@ -84,25 +92,35 @@ def run_screen(args: argparse.Namespace, project, socket: Path, view: bool = Fal
 SIGN_IN_TRIES = 3
 
 
-def signs_in() -> bool:
+def users_file(args: argparse.Namespace) -> Path:
+    """The users file of the cell's doors: ``--opcua-users FILE`` where given (the OPC UA
+    door's users are the terminal's and the runtime's too), else the machine's."""
+    from hmi.access import users
+    return getattr(args, "opcua_users", None) or users.default_path()
+
+
+def signs_in(path: Path) -> bool:
     """Whether this terminal asks who is there: a users file exists and does not give the
     local terminal a role of its own (local-terminal = ROLE)."""
     from hmi.access import users
-    found = users.read(users.default_path())
+    found = users.read(path)
     return found is not None and found.settings.local_terminal == "sign-in"
 
 
-def signed_in(project, socket: Path, print_: str, identity, view: bool):
+def signed_in(project, socket: Path, print_: str, identity, view: bool,
+              path: Path | None):
     """The terminal's sign-in: a name and a password (not echoed), checked by the runtime
-    against the users file; a few tries, then the screen ends."""
+    against its users file (`path`, where this screen knows it: its banner is shown); a
+    few tries, then the screen ends."""
     import getpass
     from dataclasses import replace
 
     from hmi.access import users
     from hmi.link.client import AttachError, SocketLink
-    found = users.read(users.default_path())
+    found = users.read(path) if path is not None else None
     banner = found.settings.banner if found is not None else ""
-    print(f"{project.name}: sign in (the users of {users.default_path()})", file=sys.stderr)
+    whose = f"the users of {path}" if path is not None else "a user of the cell's runtime"
+    print(f"{project.name}: sign in ({whose})", file=sys.stderr)
     if banner:
         print(banner, file=sys.stderr)
     why = ""

@@ -32,6 +32,9 @@ def add_parser(sub) -> None:
     p.add_argument("--key", type=Path, metavar="FILE", help="the certificate's private key")
     p.add_argument("--socket", type=Path, metavar="PATH",
                    help="the runtime's socket (default: the project's)")
+    p.add_argument("--journal", type=Path, metavar="FILE",
+                   help="the cell's journal, where refused sign-ins are written (default: "
+                   "the project's, as plchmi serve's)")
 
 
 def parse_bind(text: str) -> tuple[str, int]:
@@ -90,8 +93,10 @@ def cmd_web(args: argparse.Namespace) -> int:
     if not loopback(host) and context is None:
         print(f"plchmi: warning: serving {host} without TLS: passwords and the screens "
               "cross the network in clear text (give --cert and --key)", file=sys.stderr)
+    from hmi.explain.journal import default_path
     door = WebDoor(str(args.project), project.name, users_path, args.socket,
-                   tls=context is not None)
+                   tls=context is not None,
+                   journal=args.journal or default_path(project.name))
 
     def ready(url: str) -> None:
         print(f"plchmi: {project.name}'s operator screens at {url} (sign in with a user "

@@ -83,6 +83,11 @@ class CellLink(Protocol):
     identity: Identity
     history: History
     scans_here: bool  # the scans run in this process: they end with this screen
+    # the runtime asks a reason (and for the riskiest, the password) before the commands
+    # that need one (hmi.access.roles): people sign in to it
+    accountable: bool
+    idle_lock_us: int  # the screen locks untouched after this (0: never), warning before
+    idle_warning_us: int
 
     def view(self) -> View | None:
         """The latest scan (None before the first)."""
@@ -91,8 +96,10 @@ class CellLink(Protocol):
     def last(self) -> Snapshot | None:
         """The newest snapshot known here (a dialog's contents; a frame shows view())."""
 
-    def command(self, command: Command, guard: ResetGuard | None = None) -> Answer:
-        """Send one operator command and wait for its answer."""
+    def command(self, command: Command, guard: ResetGuard | None = None, *,
+                reason: str = "", password: str = "") -> Answer:
+        """Send one operator command and wait for its answer; `reason` and `password`
+        where the command needs them (see `accountable`)."""
 
     # -- control (several screens) -------------------------------------------------------
     @property
@@ -105,6 +112,13 @@ class CellLink(Protocol):
 
     def silent_s(self) -> float:
         """How long since the runtime last said anything (a tick comes every second)."""
+
+    def lock(self) -> CommandResult:
+        """The screen was left untouched (idle_lock_us) and is covered: the runtime refuses
+        its commands until `unlock` with the person's password."""
+
+    def unlock(self, password: str) -> CommandResult:
+        """The person is back: their password, checked by the runtime."""
 
     def request_control(self) -> CommandResult:
         """Ask for control (granted at once if nobody holds it, else the holder is asked)."""

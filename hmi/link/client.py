@@ -17,6 +17,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from hmi.access.audit import SignInRefusal
 from hmi.engine.commands import Command, CommandResult
 from hmi.engine.snapshot import Snapshot
 from hmi.link.base import Answer, Identity, ResetGuard, View
@@ -81,6 +82,8 @@ class SocketLink:
         receiver.welcome(answer)
         if answer.identity is not None:
             self.identity = answer.identity  # as let in: the users file's name and role
+        self.accountable = answer.accountable
+        self.idle_lock_us, self.idle_warning_us = answer.idle_lock_us, answer.idle_warning_us
         assert receiver.facts is not None and receiver.history is not None
         self.facts = receiver.facts
         self.history = receiver.history
@@ -154,13 +157,23 @@ class SocketLink:
         return None  # the scans are the runtime's: its loss is `lost`
 
     def command(self, command: Command, guard: ResetGuard | None = None,
-                on_behalf: Identity | None = None, note: str = "") -> Answer:
-        answer = self._ask(lambda ident: m.Send(ident, command, guard, on_behalf, note),
-                           type(command).__name__)
+                on_behalf: Identity | None = None, note: str = "", reason: str = "",
+                password: str = "") -> Answer:
+        answer = self._ask(lambda ident: m.Send(ident, command, guard, on_behalf, note,
+                                                reason, password), type(command).__name__)
         return self.receiver.result(answer, type(command).__name__)
 
     def _control(self, make: Callable[[int], m.ClientMessage], what: str) -> CommandResult:
         return self.receiver.result(self._ask(make, what), what).result
+
+    def lock(self) -> CommandResult:
+        """This screen was left untouched and is covered: the runtime refuses its commands
+        (and journals it) until :meth:`unlock`."""
+        return self._control(lambda ident: m.Idle(ident, "locked"), "locking the screen")
+
+    def unlock(self, password: str) -> CommandResult:
+        return self._control(lambda ident: m.Idle(ident, "unlock", password),
+                             "unlocking the screen")
 
     def request_control(self) -> CommandResult:
         return self._control(m.RequestControl, "the control request")
@@ -180,6 +193,10 @@ class SocketLink:
 
     def report(self, status: m.ServiceStatus) -> None:
         self._tell(m.Report(status))
+
+    def report_refusal(self, refused: SignInRefusal) -> None:
+        """Someone refused at this gateway's door, for the runtime's journal."""
+        self._tell(m.SignInRefused(refused))
 
     def report_fault(self, fault: object) -> None:
         """An error of this screen (hmi.ui.containment.UIFault), for the runtime's journal."""

@@ -18,11 +18,14 @@ import sys
 from collections.abc import Callable
 from datetime import UTC, datetime
 
+from hmi.access.audit import SignInRefusal
 from hmi.engine.commands import Command, CommandResult
 from hmi.engine.snapshot import Snapshot
 from hmi.explain.reset import changes, declined_message, reset_preview
 from hmi.link.base import Answer, Identity, ResetGuard, View
+from hmi.link.client import AttachError
 from hmi.link.receiver import Receiver
+from hmi.runtime.admission import Admission
 from hmi.runtime.hub import Client, Hub, cell_facts, run_info
 from hmi.session.journal_recorder import JournalRecorder
 from hmi.session.live import LiveRunner
@@ -45,7 +48,8 @@ class LocalLink:
 
     def __init__(self, session: Session, live: bool = False,
                  identity: Identity | None = None, want_control: bool = True,
-                 journal: JournalRecorder | None = None):
+                 journal: JournalRecorder | None = None, admission: Admission | None = None,
+                 password: str = ""):
         self.session = session
         self.live = live
         self.project = session.project
@@ -53,14 +57,23 @@ class LocalLink:
         self.runner = LiveRunner(session) if live else None
         info = m.RuntimeInfo(os.getpid(), datetime.now(UTC).isoformat(timespec="seconds"),
                              not live, "in this process")
-        self.hub = Hub(session, "in-process", info, journal, self.runner)
+        self.hub = Hub(session, "in-process", info, journal, self.runner, admission)
         self.receiver = receiver = Receiver(session.project)
         hello = m.Hello(m.PROTOCOL, self.hub.schema, "in-process", self.identity,
-                        want_control)
+                        want_control, password)
         sent = self._over(hello)
         assert isinstance(sent, m.Hello)
         client, answer = self.hub.attach(sent)
-        receiver.welcome(self._back(answer))  # type: ignore[arg-type]
+        if isinstance(answer, m.Refused):
+            raise AttachError(answer.reason)
+        welcome = self._back(answer)
+        assert isinstance(welcome, m.Welcome)
+        receiver.welcome(welcome)
+        if welcome.identity is not None:
+            self.identity = welcome.identity
+        self.accountable = welcome.accountable
+        self.idle_lock_us, self.idle_warning_us = (welcome.idle_lock_us,
+                                                   welcome.idle_warning_us)
         assert client is not None and receiver.facts is not None
         self._client: Client | None = client
         self.facts = receiver.facts
@@ -124,12 +137,19 @@ class LocalLink:
         return self._back(answer) if answer is not None else None
 
     def command(self, command: Command, guard: ResetGuard | None = None,
-                on_behalf: Identity | None = None, note: str = "") -> Answer:
-        answer = self._ask(m.Send(0, command, guard, on_behalf, note))
+                on_behalf: Identity | None = None, note: str = "", reason: str = "",
+                password: str = "") -> Answer:
+        answer = self._ask(m.Send(0, command, guard, on_behalf, note, reason, password))
         return self.receiver.result(answer, type(command).__name__)
 
     def _control(self, message: m.ClientMessage, what: str) -> CommandResult:
         return self.receiver.result(self._ask(message), what).result
+
+    def lock(self) -> CommandResult:
+        return self._control(m.Idle(0, "locked"), "locking the screen")
+
+    def unlock(self, password: str) -> CommandResult:
+        return self._control(m.Idle(0, "unlock", password), "unlocking the screen")
 
     def request_control(self) -> CommandResult:
         return self._control(m.RequestControl(0), "the control request")
@@ -145,6 +165,9 @@ class LocalLink:
 
     def report(self, status: m.ServiceStatus) -> None:
         self._ask(m.Report(status))
+
+    def report_refusal(self, refused: SignInRefusal) -> None:
+        self._ask(m.SignInRefused(refused))
 
     def query(self) -> m.Stats:
         return self.hub.stats()
@@ -205,6 +228,8 @@ class SessionLink:
         self.project = session.project
         self.facts = cell_facts(session)
         self.identity = identity or Identity("operator", session="local")
+        self.accountable = False  # nobody signs in to a session in this process
+        self.idle_lock_us = self.idle_warning_us = 0
         self.recorder = ScanRecorder(session.engine.layout)
         self.history = self.recorder
         # Told of an error of the recorder (in the scan thread: the scan goes on).
@@ -242,10 +267,19 @@ class SessionLink:
     def error(self) -> BaseException | None:
         return self.runner.error if self.runner is not None else None
 
-    def command(self, command: Command, guard: ResetGuard | None = None) -> Answer:
+    def lock(self) -> CommandResult:
+        return CommandResult.refused("nobody signs in to a cell in this process")
+
+    def unlock(self, password: str) -> CommandResult:
+        return self.lock()
+
+    def command(self, command: Command, guard: ResetGuard | None = None, reason: str = "",
+                password: str = "") -> Answer:
+        """(`password`: nobody signs in here, none is checked; `reason`: journalled.)"""
         session = self.session
         if guard is None:
-            return Answer(session.command(command, self.origin))
+            details = {"reason": reason.strip()} if reason.strip() else None
+            return Answer(session.command(command, self.origin, details))
         with session.lock:  # no scan between the check and the command
             now = session.last
             gone, new = changes(list(guard.shown), reset_preview(now) if now else [])

@@ -32,6 +32,7 @@ from asyncua.ua.object_ids import ObjectIds
 from asyncua.ua.status_codes import StatusCodes
 from asyncua.ua.ua_binary import nodeid_from_binary, struct_from_binary
 
+from hmi.access.audit import SignInRefusal, refusal
 from hmi.access.sessions import SessionTable
 from hmi.opcua.users import ANONYMOUS, Identity, TrustList, Users
 
@@ -129,38 +130,61 @@ def install(gate: Gate, released: Callable[[str], None], trust: TrustList) -> No
     setattr(binary_server_asyncio, "UaProcessor", CellProcessor)  # noqa: B010
 
 
-def make_gate(users: Users, sessions: SessionTable | None, per_user: int) -> Gate:
+def peer(processor: UaProcessor) -> str:
+    """The client's address as the journal writes it (HOST:PORT)."""
+    name = processor.name
+    if isinstance(name, tuple) and len(name) >= 2:
+        return f"[{name[0]}]:{name[1]}" if ":" in str(name[0]) else f"{name[0]}:{name[1]}"
+    return str(name or "")
+
+
+def make_gate(users: Users, sessions: SessionTable | None, per_user: int,
+              refused: Callable[[SignInRefusal], None] = lambda r: None) -> Gate:
+    """The look before activation; each refusal of a named user or a certificate is told
+    to `refused` (the journal), with the name tried and the client's address."""
     async def gate(processor: CellProcessor, params: ua.ActivateSessionParameters
                    ) -> tuple[Identity | None, str]:
         token = params.UserIdentityToken
+        tried, why, locked = "", "", False
+        found = await _look(processor, token)
+        if isinstance(found, tuple):
+            tried, why, locked = found
+        elif found.name is not None and sessions is not None and processor.ticket is None:
+            tried = found.name
+            opened, why = sessions.open(found.name, "opcua", per_user)
+            if opened is not None:
+                processor.ticket = opened.id
+        if why:
+            log.warning("OPC UA session refused: %s", why)
+            refused(refusal(tried, "opcua", peer(processor), why, locked))
+            return None, why
+        assert not isinstance(found, tuple)
+        return found, ""
+
+    async def _look(processor: CellProcessor, token: Any
+                    ) -> Identity | tuple[str, str, bool]:
+        """Who the token names, or (the name tried, why not, whether it locked)."""
         mode = processor._connection.security_policy.Mode
         if isinstance(token, ua.UserNameIdentityToken):
             if not token.EncryptionAlgorithm and mode != ENCRYPTED:
-                return None, ("a password sent in clear text on a channel that does not "
-                              "encrypt: refused (the token policy asks for it encrypted with "
-                              "the server's certificate)")
+                return str(token.UserName or ""), (
+                    "a password sent in clear text on a channel that does not encrypt: "
+                    "refused (the token policy asks for it encrypted with the server's "
+                    "certificate)"), False
             session = processor.session
             if session is None:
-                return None, "no session to activate"
+                return str(token.UserName or ""), "no session to activate", False
             try:
                 name, password = processor.iserver.decrypt_user_token(session, token)
             except Exception:
-                return None, "the password could not be decrypted"
-            found, why = await users.check_password(str(name or ""), str(password or ""))
-        elif isinstance(token, ua.X509IdentityToken):
+                return str(token.UserName or ""), "the password could not be decrypted", False
+            found, why, locked = await users.check_password(str(name or ""),
+                                                            str(password or ""))
+            return found if found is not None else (str(name or ""), why, locked)
+        if isinstance(token, ua.X509IdentityToken):
             found, why = users.check_certificate(bytes(token.CertificateData or b""))
-        else:
-            return ANONYMOUS, ""
-        if found is None or found.name is None:
-            log.warning("OPC UA session refused: %s", why)
-            return None, why
-        if sessions is not None and processor.ticket is None:
-            opened, why = sessions.open(found.name, "opcua", per_user)
-            if opened is None:
-                log.warning("OPC UA session refused: %s", why)
-                return None, why
-            processor.ticket = opened.id
-        return found, ""
+            return found if found is not None else ("(a user certificate)", why, False)
+        return ANONYMOUS
     return gate
 
 

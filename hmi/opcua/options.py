@@ -18,6 +18,7 @@ from hmi.errors import UsageError
 from hmi.opcua import NEEDS_USERS
 
 if TYPE_CHECKING:
+    from hmi.access.audit import SignInRefusal
     from hmi.history.target import Target
     from hmi.opcua.server import CellServer
     from hmi.opcua.source import CellSource
@@ -131,15 +132,19 @@ def check_arguments(args: argparse.Namespace) -> None:
 
 def start_server(cell: Session | CellSource, args: argparse.Namespace, log_file: bool = False,
                  journal: JournalRecorder | None = None,
-                 history: Target | None = None) -> CellServer | None:
+                 history: Target | None = None,
+                 refused: Callable[[SignInRefusal], None] | None = None
+                 ) -> CellServer | None:
     """The cell's OPC UA server, started, if --opcua was given (None otherwise).
 
     asyncua's own log is silenced (its notices are for its developers). The server's
     failures go to stderr, or with `log_file` (the HMI: stderr is the screen) to
     opcua/server.log in the project's data folder. With `journal`, the journal says when
-    the server starts serving, stops, or fails. With `history` (the cell's historian's
-    store), clients can read the variables' and the alarms' history (Part 11). `cell`: the
-    runtime through a link (the gateway), or a session in this process."""
+    the server starts serving, stops, or fails, and each sign-in it refuses (or `refused`
+    hears those: the gateway sends them to the runtime's journal). With `history` (the
+    cell's historian's store), clients can read the variables' and the alarms' history
+    (Part 11). `cell`: the runtime through a link (the gateway), or a session in this
+    process."""
     if getattr(args, "opcua", None) is None:
         return None
     name = cell.project.name
@@ -182,6 +187,9 @@ def start_server(cell: Session | CellSource, args: argparse.Namespace, log_file:
     server.log_file = str(log_path or "")
     if journal is not None:
         server.listeners.append(journal_listener(journal))
+        server.refusal_listeners.append(journal_refusals(journal))
+    if refused is not None:
+        server.refusal_listeners.append(refused)
     server.start()
     return server
 
@@ -192,6 +200,14 @@ def journal_listener(journal: JournalRecorder) -> Callable[[ServingStatus], None
     def told(status: ServingStatus) -> None:
         journal.on_service(f"opcua-{'serving' if status.up else status.state}",
                            status_words(status))
+    return told
+
+
+def journal_refusals(journal: JournalRecorder) -> Callable[[SignInRefusal], None]:
+    """Journals each sign-in the server refused: the name tried, the client's address, why;
+    the attempt that locked the account as account-locked."""
+    def told(refused: SignInRefusal) -> None:
+        journal.on_service(refused.event, refused.message, **refused.fields())
     return told
 
 

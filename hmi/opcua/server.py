@@ -43,6 +43,7 @@ from asyncua.ua.attribute_ids import AttributeIds
 from asyncua.ua.object_ids import ObjectIds
 from asyncua.ua.status_codes import StatusCodes
 
+from hmi.access.audit import SignInRefusal
 from hmi.engine.commands import (
     Acknowledge,
     ChoosePolicy,
@@ -225,6 +226,8 @@ class CellServer:
         self._actions: deque[tuple[str, str, str]] = deque()  # comments: key, user, text
         source.listen(self.on_command)
         self.listeners: list[Callable[[ServingStatus], None]] = []
+        # each sign-in refused at the door (the journal), in the server's thread
+        self.refusal_listeners: list[Callable[[SignInRefusal], None]] = []
         self._clients_due = 0.0  # monotonic time of the next look at the connections
 
     # -- the source's side (a scan thread in this process): cheap, never waits ---------------
@@ -382,6 +385,13 @@ class CellServer:
             found.append(OpcClient(where, user, security))
         return tuple(found)
 
+    def _refused(self, refused: SignInRefusal) -> None:
+        for listener in list(self.refusal_listeners):
+            try:
+                listener(refused)
+            except Exception:  # the journal's trouble is told where it happens
+                log.exception("a refused sign-in could not be journalled")
+
     # -- the address space --------------------------------------------------------------------
 
     async def _build(self) -> Server:
@@ -390,7 +400,7 @@ class CellServer:
         if users.authenticator is not None:
             from hmi.access.sessions import SessionTable
             sessions = SessionTable(users.authenticator.path)
-        install(make_gate(users, sessions, self.options.sessions_per_user),
+        install(make_gate(users, sessions, self.options.sessions_per_user, self._refused),
                 sessions.close if sessions is not None else (lambda ticket: None),
                 self.options.trust or TrustList())
         self.server = server = Server(user_manager=_UserManager())

@@ -67,14 +67,15 @@ class Users:
         found = self.authenticator.users() if self.authenticator else None
         return (len(found.users) if found else 0) + len(self.certificates)
 
-    async def check_password(self, name: str, password: str) -> tuple[Identity | None, str]:
-        """The identity, or None and why not."""
+    async def check_password(self, name: str, password: str
+                             ) -> tuple[Identity | None, str, bool]:
+        """The identity, or None and why not; whether this attempt locked the account."""
         if self.authenticator is None:
-            return None, "no users file: nobody signs in with a password here"
+            return None, "no users file: nobody signs in with a password here", False
         result = await self.authenticator.check_async(name, password)
         if not result.accepted or result.user is None:
-            return None, result.reason
-        return Identity(name, "password", result.user.role), ""
+            return None, result.reason, result.locked_now
+        return Identity(name, "password", result.user.role), "", False
 
     def check_certificate(self, der: bytes) -> tuple[Identity | None, str]:
         """A user certificate: trusted, and its user in the users file (their role)."""

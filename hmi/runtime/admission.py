@@ -24,6 +24,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from hmi.access import tickets
+from hmi.access.audit import SignInRefusal, refusal
 from hmi.access.sessions import SessionTable
 from hmi.access.signin import Authenticator
 from hmi.access.users import default_path
@@ -32,12 +33,16 @@ from hmi.wire import messages as m
 
 GATEWAY_DOORS = ("opcua",)  # doors whose screens send commands on behalf of their users
 REMOTE_DOORS = ("browser", "opcua")
+LOCAL = "this machine"  # where a screen on the runtime's socket comes from
 
 
 @dataclass(frozen=True)
 class Admitted:
     identity: m.Identity
     table_id: str = ""  # its entry in the session table ("" if it counts elsewhere)
+    # a person proved who they are (a password, a ticket): the screen can ask it again
+    # (the idle lock, the monitor password); not so for local-terminal = ROLE
+    signed_in: bool = True
 
 
 class Admission:
@@ -46,47 +51,55 @@ class Admission:
         self.auth = Authenticator(self.users_path)
         self.table = SessionTable(self.users_path)
 
-    def admit(self, hello: m.Hello) -> tuple[Admitted | None, str]:
-        """Blocking (a password costs an argon2 check): the hub calls it off the loop."""
+    def admit(self, hello: m.Hello) -> Admitted | SignInRefusal:
+        """Blocking (a password costs an argon2 check): the hub calls it off the loop. A
+        refusal is what the journal keeps (the name tried, never the password)."""
+        claimed = hello.identity
+        found, why, locked = self._admit(hello)
+        if found is None:
+            return refusal(claimed.user, claimed.door, LOCAL, why, locked)
+        return found
+
+    def _admit(self, hello: m.Hello) -> tuple[Admitted | None, str, bool]:
         claimed = hello.identity
         try:
             users = self.auth.users()
         except UsageError as exc:  # a damaged users file: nobody is let in on a guess
-            return None, f"the users file cannot be read: {exc}"
+            return None, f"the users file cannot be read: {exc}", False
         if users is None:
             if claimed.door == "browser":
                 return None, ("nobody can sign in from a browser: there is no users file "
-                              "(plchmi users add NAME --role ROLE creates it)")
-            return Admitted(claimed), ""
+                              "(plchmi users add NAME --role ROLE creates it)"), False
+            return Admitted(claimed), "", False
         settings = users.settings
         door = claimed.door
         if hello.ticket:
             ticket, why = tickets.redeem(self.users_path, hello.ticket)
             if ticket is None:
-                return None, why
+                return None, why, False
             user = users.users.get(ticket.user)
             if user is None or user.locked:
-                return None, f"{ticket.user} may not sign in (removed or locked since)"
+                return None, f"{ticket.user} may not sign in (removed or locked since)", False
             identity = m.Identity(user.name, _least(user.role, claimed.role), ticket.door,
                                   claimed.session or ticket.web_session)
-            return Admitted(identity), ""  # (the door's own session is counted)
+            return Admitted(identity), "", False  # (the door's own session is counted)
         if hello.password:
             result = self.auth.submit(claimed.user, hello.password).result()
             if not result.accepted or result.user is None:
-                return None, result.reason
+                return None, result.reason, result.locked_now
             role = result.user.role
         elif door == "terminal" and settings.local_terminal != "sign-in":
             role = settings.local_terminal
         elif door in GATEWAY_DOORS:
-            return Admitted(claimed), ""  # its users are checked command by command
+            return Admitted(claimed), "", False  # its users: checked command by command
         else:
             return None, ("sign in first: this machine has a users file (the terminal asks "
-                          "for a user name and password)")
+                          "for a user name and password)"), False
         identity = replace(claimed, role=_least(role, claimed.role))
         opened, why = self.table.open(identity.user, door, settings.sessions_per_user)
         if opened is None:
-            return None, why
-        return Admitted(identity, opened.id), ""
+            return None, why, False
+        return Admitted(identity, opened.id, bool(hello.password)), "", False
 
     def enforced(self) -> bool:
         """Whether roles are checked: a users file exists (or cannot be read: fail closed)."""

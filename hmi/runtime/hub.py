@@ -25,10 +25,12 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from hmi.access import roles
-from hmi.engine.commands import Command, CommandResult, StepScans
+from hmi.access import audit, roles
+from hmi.access.audit import SignInRefusal
+from hmi.engine.commands import ChoosePolicy, Command, CommandResult, StepScans, describe
+from hmi.errors import UsageError
 from hmi.explain.reset import changes, declined_message, reset_preview
-from hmi.runtime.admission import GATEWAY_DOORS, Admission
+from hmi.runtime.admission import GATEWAY_DOORS, LOCAL, Admission
 from hmi.session.journal_recorder import JournalRecorder
 from hmi.session.live import LiveRunner
 from hmi.session.recorder import Cursor, ScanRecorder
@@ -38,6 +40,8 @@ from hmi.wire.codec import Codec
 
 MAX_STEPS = 100_000  # scans one StepScans may ask for (the step dialog asks far fewer)
 MAX_ADVANCE_US = 3600 * 1_000_000  # virtual time one Advance may ask for
+MAX_REASON = 500  # characters of a reason given with a command
+REASON_DOORS = ("terminal", "browser")  # doors whose screens ask their person for a reason
 TICK_S = 1.0  # a screen hears from the runtime at least this often (a Tick if nothing new)
 
 
@@ -76,6 +80,8 @@ class Client:
     frames: int = 0
     dropped: int = 0  # frames it could not take (a later one went instead)
     table_id: str = ""  # its sign-in's entry in the users' session table
+    locked: bool = False  # left untouched (idle-lock): its commands refused until unlocked
+    signed_in: bool = True  # its person gave a password or a ticket (not local-terminal)
     info: m.ClientInfo = field(init=False)
 
     def __post_init__(self) -> None:
@@ -141,24 +147,26 @@ class Hub:
         identity = hello.identity
         if identity.role not in m.ROLES or identity.door not in m.DOORS:
             return None, m.Refused(f"unknown role {identity.role!r} or door {identity.door!r}")
-        table_id = ""
+        table_id, signed_in = "", True
         if self.admission is not None:
-            admitted, why = self.admission.admit(hello)
-            if admitted is None:
-                self._journal_refusal(identity, why)
-                return None, m.Refused(f"not signed in: {why}")
+            admitted = self.admission.admit(hello)
+            if isinstance(admitted, SignInRefusal):
+                self.journal_refusal(admitted, identity.session)
+                return None, m.Refused(f"not signed in: {admitted.reason}")
             identity, table_id = admitted.identity, admitted.table_id
+            signed_in = admitted.signed_in
         with self.lock:
             client = Client(f"c{next(self._ids)}", identity, self.session.engine.now,
-                            table_id=table_id)
+                            table_id=table_id, signed_in=signed_in)
             self.clients[client.id] = client
             self._journal("client-attached", f"{client.info} attached", client)
             if hello.want_control and identity.may_command and self.holder is None:
                 self._grant(client, "control-granted", f"{client.info} is in control")
             self._control_version += 1
         # (the facts as they are now: a historian may have placed the run's time 0 since)
+        lock_us, warning_us = self._idle_settings(identity) if signed_in else (0, 0)
         return client, m.Welcome(m.PROTOCOL, client.id, cell_facts(self.session), self.runtime,
-                                 identity)
+                                 identity, self._accountable(identity), lock_us, warning_us)
 
     def detach(self, client: Client, event: str, why: str) -> None:
         """A screen left (`client-left`: as asked), or was lost (`client-lost`: its
@@ -187,12 +195,12 @@ class Hub:
                     self.services[name] = gone
                     self._journal_service(client, gone)
 
-    def _journal_refusal(self, claimed: m.Identity, why: str) -> None:
-        """A screen refused at the door: who it said it was, and why (never the password)."""
+    def journal_refusal(self, refused: SignInRefusal, client: str = "") -> None:
+        """A sign-in refused at a door: the name tried, from where, why (never the
+        password); the attempt that locked the account as ``account-locked``."""
         if self.journal is not None:
-            self.journal.on_service("sign-in-refused", f"{claimed.door}:{claimed.user} was "
-                                    f"not let in: {why}", by=claimed.by, role="",
-                                    client=claimed.session)
+            self.journal.on_service(refused.event, refused.message, **refused.fields(),
+                                    client=client)
 
     def _journal(self, event: str, message: str, client: Client) -> None:
         if self.journal is not None:
@@ -270,6 +278,13 @@ class Hub:
                 if before is None or before.state != status.state:
                     self._journal_service(client, status)
                 return None
+            case m.Idle(id=ident, event=event, password=password):
+                return m.Reply(ident, self._idle(client, event, password))
+            case m.SignInRefused(refused=refused):
+                if client.identity.door not in GATEWAY_DOORS:
+                    raise ValueError("a sign-in refusal from a screen that is no gateway")
+                self.journal_refusal(refused, f"{client.id}/{client.identity.session}")
+                return None
             case m.Fault():
                 if self.journal is not None:
                     identity = client.identity
@@ -298,6 +313,8 @@ class Hub:
         identity = client.identity
         if not identity.may_command:
             return "a viewer does not send commands (attached to view)"
+        if client.locked:
+            return "this screen is locked (left untouched): sign in again on it first"
         if self.holder == client.id:
             return None
         holder = self.clients.get(self.holder) if self.holder else None
@@ -327,6 +344,8 @@ class Hub:
         origin = who.by + (f" ({message.note})" if message.note else "")
         details = {"user": who.user, "role": who.role, "door": who.door,
                    "client": f"{client.id}/{client.identity.session}"}
+        if message.reason.strip():
+            details["reason"] = message.reason.strip()[:MAX_REASON]
         command = message.command
         # roles are the users file's: without one nobody signed in, and the terminal does
         # what it always did (a viewer still sends nothing: _refusal)
@@ -335,6 +354,10 @@ class Hub:
             refusal = (self._refusal(client) or (vouched if isinstance(vouched, str) else None)
                        or (self._role_refusal(who, command) if enforced else None)
                        or self._bounds(command))
+        if refusal is None:
+            # (off the hub's lock: a password check)
+            refusal = self._accounted(who, message, client.signed_in
+                                      or message.on_behalf is not None)
         if refusal is not None:
             return m.Reply(message.id, session.decline(command, refusal, origin, details))
         guard = message.guard
@@ -349,6 +372,82 @@ class Hub:
             return m.Reply(message.id, session.decline(
                 command, declined_message(gone, new, guard.seen_scan, scan), origin, details),
                 declined=True)
+
+    def _accountable(self, who: m.Identity) -> bool:
+        """Whether a reason (and for the riskiest, the password) is asked of `who`: a person
+        signed in at a screen that can ask (the terminal, a browser). An OPC UA client's
+        methods carry no reason (its comment is journalled when it gives one)."""
+        return (who.door in REASON_DOORS and self.admission is not None
+                and self.admission.enforced())
+
+    def _idle_settings(self, who: m.Identity) -> tuple[int, int]:
+        """When a signed-in screen locks untouched, and warns before (the users file's)."""
+        if not self._accountable(who) or self.admission is None:
+            return 0, 0
+        try:
+            found = self.admission.auth.users()
+        except UsageError:
+            return 0, 0
+        if found is None:
+            return 0, 0
+        return found.settings.idle_lock_us, found.settings.idle_warning_us
+
+    def _idle(self, client: Client, event: str, password: str) -> CommandResult:
+        """A screen locked untouched, or its person back with their password."""
+        if event == "locked":
+            with self.lock:
+                client.locked = True
+            self._journal("session-locked", f"{client.info} locked: nobody touched it for "
+                          "the users file's idle-lock; the cell runs on", client)
+            return CommandResult.ok("locked")
+        if event != "unlock":
+            raise ValueError(f"unknown idle event {event!r}")
+        if not client.locked:
+            return CommandResult.ok("not locked")
+        who = client.identity
+        if self.admission is None:
+            return CommandResult.refused("nobody signs in here")
+        result = self.admission.auth.submit(who.user, password).result()
+        if not result.accepted:
+            self.journal_refusal(audit.refusal(who.user, who.door, LOCAL, result.reason,
+                                               result.locked_now),
+                                 f"{client.id}/{who.session}")
+            return CommandResult.refused(result.reason)
+        with self.lock:
+            client.locked = False
+        self._journal("session-unlocked", f"{client.info} unlocked with the password", client)
+        return CommandResult.ok("unlocked")
+
+    def _accounted(self, who: m.Identity, message: m.Send,
+                   signed_in: bool = True) -> str | None:
+        """Why the command may not go without more from its sender: no reason given where
+        one is asked, or the password asked again and wrong (counted towards the lockout
+        like any wrong password). Blocking: an argon2 check (a worker thread's)."""
+        command = message.command
+        if len(message.reason) > MAX_REASON:
+            return f"refused: a reason of at most {MAX_REASON} characters"
+        if not self._accountable(who):
+            return None
+        if isinstance(command, ChoosePolicy):  # an explanation's policy: what it carries out
+            command = self.session.policy_command(command.key, command.policy) or command
+        if roles.needs_reason(command) and not message.reason.strip():
+            return (f"refused: {describe(command)} needs a reason (it goes to the journal "
+                    "with your name)")
+        if roles.needs_password(command):
+            if self.admission is None:
+                return None
+            if not signed_in:
+                return (f"refused: {describe(command)} asks for your password again, and "
+                        "this terminal did not sign in (local-terminal): attach with a name "
+                        "and password to do this")
+            result = self.admission.auth.submit(who.user, message.password).result()
+            if result.locked_now:
+                self.journal_refusal(audit.refusal(who.user, who.door, LOCAL, result.reason,
+                                                   True), who.session)
+            if not result.accepted:
+                return (f"refused: {describe(command)} asks for your password again: "
+                        f"{result.reason}")
+        return None
 
     @staticmethod
     def _role_refusal(who: m.Identity, command: Command) -> str | None:

@@ -275,11 +275,25 @@ class Session:
         events, self._pending_alarm_events = self._pending_alarm_events, []
         return events
 
-    def _choose_policy(self, key: str, policy_id: str) -> CommandResult:
+    def _explanation(self, key: str) -> Explanation | None:
         explanation = next((e for e in self.explanations if e.key == key), None)
         if explanation is None:
             alarm = self.alarms.alarms.get(key)
             explanation = alarm.explanation if alarm else None
+        return explanation
+
+    def policy_command(self, key: str, policy_id: str) -> Command | None:
+        """What choosing policy `policy_id` of situation `key` would carry out now (None:
+        nothing, or no such policy): the runtime asks a reason for it as for the command
+        itself."""
+        with self.lock:
+            explanation = self._explanation(key)
+            policy = next((p for p in explanation.policies if p.id == policy_id),
+                          None) if explanation is not None else None
+            return policy.command if policy is not None else None
+
+    def _choose_policy(self, key: str, policy_id: str) -> CommandResult:
+        explanation = self._explanation(key)
         if explanation is None:
             return CommandResult.refused(f"no situation {key} to act on")
         policy = next((p for p in explanation.policies if p.id == policy_id), None)

@@ -20,6 +20,7 @@ situation picked from the palette or by clicking a constraint.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
 from functools import partial
@@ -35,6 +36,8 @@ from textual.containers import Horizontal, Vertical
 from textual.css.scalar import Unit
 from textual.screen import ModalScreen, Screen
 
+from hmi.access import roles
+from hmi.access.sessions import IdleTimer
 from hmi.engine.commands import (
     Acknowledge,
     ChoosePolicy,
@@ -75,7 +78,7 @@ from hmi.project.model import POLICIES
 from hmi.project.monitors import monitors_of
 from hmi.project.recovery import recoveries_of
 from hmi.session.session import Session
-from hmi.timefmt import seconds
+from hmi.timefmt import format_duration, seconds
 from hmi.ui import manual
 from hmi.ui.actions import ACTIONS, bindings
 from hmi.ui.alarm_list import AlarmList, AlarmSelected
@@ -173,7 +176,8 @@ class PlcHmiApp(LastResort, ContainedPump, App):
     def __init__(self, link: CellLink | Session, live: bool = True, *,
                  show_measured: bool | None = None, refresh_hz: float = REFRESH_HZ,
                  injected: tuple[Injection, ...] = (), bell: bool = False,
-                 served: Served | None = None):
+                 served: Served | None = None,
+                 idle_clock: Callable[[], float] = time.monotonic):
         """`link`: the cell (a session given here runs in this process: the pilot tests and
         the single-process bench); `live`: its scans are paced by the wall clock and the
         screen refreshes on a timer, else whoever runs virtual time shows the frames."""
@@ -222,6 +226,12 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         self.trends: TrendScreen | None = None
         self.trend_zone: tzinfo | None = None
         self.set_class(True, f"-theme-{self.theme}", update=False)  # as a theme change sets
+        # The idle lock of a screen people sign in to (the users file's idle-lock and
+        # idle-warning, from the runtime): None where nobody signs in.
+        lock_us = link.idle_lock_us if link.accountable else 0
+        self.idle_timer: IdleTimer | None = IdleTimer(
+            lock_us / 1e6, link.idle_warning_us / 1e6, idle_clock) if lock_us > 0 else None
+        self.idle_state = "active"  # active, warning, locked (what the screen shows)
 
     def get_css_variables(self) -> dict[str, str]:
         """The ISA-101 theme from the start: App.__init__ builds the stylesheet from these
@@ -330,6 +340,8 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         self.poll(force=True)
         if self.driver.live:
             self.set_interval(1 / self.refresh_hz, self.poll)
+            if self.idle_timer is not None:
+                self.set_interval(1.0, self.check_idle_lock)
         # else: in virtual time (tests, screenshots, the soak) whoever runs the scans shows
         # the frames (hmi.ui.headless.settle); a refresh paced by the wall clock would make
         # what a test sees depend on the machine's load
@@ -795,7 +807,7 @@ class PlcHmiApp(LastResort, ContainedPump, App):
             self.message.say(Text(f"cancelled: {policy.label} — {self._situation_text(key)}",
                                   style=MUTED))
             return
-        self._said(key, policy, self.send(ChoosePolicy(key, policy.id)))
+        self.act(ChoosePolicy(key, policy.id), partial(self._said, key, policy))
 
     def _said(self, key: str, policy: Policy, result: CommandResult) -> None:
         self.explanation_panel.say_result(key, result_line(key, policy, result.accepted,
@@ -841,9 +853,38 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         return f"{policy.label}?", lines, level
 
     # -- sending commands --------------------------------------------------------------------
-    def send(self, command: Command) -> CommandResult:
+    def send(self, command: Command, reason: str = "", password: str = "") -> CommandResult:
         """The one place operator actions leave the UI: through ``Session.command``."""
-        return self._sent(command, self.link.command(command).result)
+        if reason or password:
+            answer = self.link.command(command, reason=reason, password=password)
+        else:
+            answer = self.link.command(command)
+        return self._sent(command, answer.result)
+
+    def act(self, command: Command,
+            then: Callable[[CommandResult], None] | None = None) -> None:
+        """A command the operator chose: sent at once, or where the runtime asks it (people
+        sign in to it: ``link.accountable``) once its reason is given — and for the
+        riskiest, the password again (hmi.access.roles: needs_reason, needs_password; an
+        explanation's policy as what it carries out). Cancelled: nothing is sent, and the
+        message line says so. `then` hears the answer."""
+        done = then or (lambda result: None)
+        carried = command
+        if isinstance(command, ChoosePolicy):
+            carried = self._policy_command(command.key, command.policy) or command
+        if not (self.link.accountable and roles.needs_reason(carried)):
+            done(self.send(command))
+            return
+        from hmi.ui.dialogs import ReasonDialog
+
+        def given(answer: tuple[str, str] | None) -> None:
+            if answer is None:
+                self.message.say(Text(f"cancelled: {describe(carried)} (nothing sent)",
+                                      style=MUTED))
+                return
+            done(self.send(command, reason=answer[0], password=answer[1]))
+        self.push_screen(ReasonDialog(describe(carried), roles.needs_password(carried)),
+                         given)
 
     def _sent(self, command: Command, result: CommandResult,
               reset_shown: list[ResetLine] | None = None) -> CommandResult:
@@ -922,7 +963,7 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         return key
 
     def on_command_requested(self, message: CommandRequested) -> None:
-        self.send(message.command)
+        self.act(message.command)
 
     def _policy_command(self, key: str, policy_id: str) -> Command | None:
         """What choosing a policy sends, as the last explanation of `key` offered it."""
@@ -971,12 +1012,65 @@ class PlcHmiApp(LastResort, ContainedPump, App):
     async def on_event(self, event: events.Event) -> None:
         """A key typed before the dialog on top was painted is not the dialog's: dropped
         (a stray enter or y meant for the screen below must not answer it)."""
+        if self.idle_timer is not None and self.idle_state != "locked" and isinstance(
+                event, (events.Key, events.MouseDown, events.MouseScrollDown,
+                        events.MouseScrollUp)):
+            self._touched()
         if isinstance(event, events.Key) and not event.is_forwarded and \
                 isinstance(self.screen, ModalScreen):
             from hmi.ui.dialogs import Dialog
             if isinstance(self.screen, Dialog) and not self.screen.takes(event):
                 return
         await super().on_event(event)
+
+    # -- the idle lock (hmi.access.sessions.IdleTimer) ----------------------------------------
+    def _touched(self) -> None:
+        assert self.idle_timer is not None
+        self.idle_timer.touch()
+        if self.idle_state == "warning":
+            self.idle_state = "active"
+            self.message.say(Text("still here: this screen stays signed in", style=MUTED))
+
+    def check_idle_lock(self) -> None:
+        """Once a second (live): the warning `idle-warning` before the lock, then the lock
+        (the screen covered until the password is typed again; the runtime refuses this
+        screen's commands meanwhile and journals both)."""
+        idle = self.idle_timer
+        if idle is None or self.idle_state == "locked":
+            return
+        state = idle.state()
+        if state == "warning" and self.idle_state == "active":
+            self.idle_state = "warning"
+            left = max(1, round(idle.left()))
+            line = tag("LOCKS SOON", Level.ATTENTION)
+            line.append(f" nobody has touched this screen: it locks in {left} s; "
+                        "press any key to stay signed in")
+            self.message.say(line)
+            self.notify(f"This screen locks in {left} s: press any key to stay signed in.",
+                        title="Idle", severity="warning", timeout=min(left, 60))
+        elif state == "locked":
+            self._lock()
+
+    def _lock(self) -> None:
+        from hmi.ui.dialogs import LockScreen
+        assert self.idle_timer is not None
+        self.idle_state = "locked"
+        result = self.link.lock()
+        who = self.link.identity
+        idle = format_duration(round(self.idle_timer.lock_after_s * 1e6))
+        self.push_screen(LockScreen(f"{who.user} ({who.role})", idle, self._unlock))
+        line = tag("LOCKED", Level.ATTENTION)
+        line.append(f" left untouched for {idle}: sign in again to send anything")
+        self.message.say(line if result.accepted else result_text("lock", result))
+
+    def _unlock(self, password: str) -> CommandResult:
+        result = self.link.unlock(password)
+        if result.accepted:
+            assert self.idle_timer is not None
+            self.idle_timer.touch()
+            self.idle_state = "active"
+            self.message.say(Text("unlocked: signed in again", style=MUTED))
+        return result
 
     def on_key(self, event: events.Key) -> None:
         """1 / 0 / x outside manual mode, b without push buttons: said, not silently
@@ -1145,7 +1239,7 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         return list(manual.leave_lines(self.project, law, snap, self.engineering))
 
     def action_manual_request(self, name: str, value: bool | None) -> None:
-        self.send(ManualOutput(name, value))
+        self.act(ManualOutput(name, value))
 
     def action_reset(self, asked: Asked | None = None) -> None:
         """The fault reset dialog: what the reset would do as of the last scan; y carries it
@@ -1202,7 +1296,7 @@ class PlcHmiApp(LastResort, ContainedPump, App):
 
         def chosen(answer: str | None) -> None:
             if answer is not None:
-                self.send(Shelve(alarm.key, None if answer == "once" else int(answer)))
+                self.act(Shelve(alarm.key, None if answer == "once" else int(answer)))
         self.push_screen(ChoiceDialog(f"Shelve: {alarm.text}", options, "once",
                                       dialog_id="shelve-dialog",
                                       note="Hidden from the list, journalled meanwhile, back "
@@ -1316,7 +1410,7 @@ class PlcHmiApp(LastResort, ContainedPump, App):
 
     def _confirmed(self, command: Command, yes: bool | None) -> None:
         if yes:
-            self.send(command)
+            self.act(command)
         else:
             self.message.say(Text(f"cancelled: {describe(command)}", style=MUTED))
 

@@ -14,7 +14,7 @@ moves the focus between its buttons, and the focus starts on Cancel.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any, TypeVar
 
 from rich.text import Text
@@ -26,6 +26,7 @@ from textual.screen import ModalScreen
 from textual.widgets import Button, Input, Label, OptionList, Static
 from textual.widgets.option_list import Option
 
+from hmi.engine.commands import CommandResult
 from hmi.ui.containment import ContainedPump
 from hmi.ui.style import Level, banner
 from hmi.ui.textual_adapter import event_clock
@@ -203,6 +204,107 @@ class TextDialog(Dialog[str | None]):
 
     def action_cancel(self) -> None:
         self.dismiss(None)
+
+
+class ReasonDialog(Dialog[tuple[str, str] | None]):
+    """Why: asked before the commands whose reason goes to the journal with the person's
+    name (the filter policy, forcing, manual mode, recovery, shelving; EU GMP Annex 11
+    §9); with `password`, the person's password again too (switching the filter to
+    monitor). Enter on the reason moves to the password, enter there sends; escape
+    cancels: nothing is sent. Dismisses with (reason, password) — the password "" when
+    not asked — and the app sends them with the command (the runtime checks them)."""
+
+    BINDINGS = [Binding("escape", "cancel", "Cancel")]
+
+    def __init__(self, what: str, password: bool = False, *, max_length: int = 500):
+        super().__init__(id="reason-dialog")
+        self.what = what
+        self.password = password
+        self.max_length = max_length
+
+    def compose(self) -> ComposeResult:
+        with Vertical(classes="dialog dialog-wide"):
+            yield _title(f"Why: {self.what}?", Level.ATTENTION)
+            yield Label("enter: " + ("next" if self.password else "send") + "    esc: cancel",
+                        classes="dialog-hint")
+            yield Static("The reason goes to the journal with your name.",
+                         classes="dialog-line", markup=False)
+            yield Input("", id="reason", placeholder="reason", max_length=self.max_length,
+                        compact=True)
+            if self.password:
+                yield Static("Your password again (this lets unsafe orders through):",
+                             classes="dialog-line", markup=False)
+                yield Input("", id="password", placeholder="password", password=True,
+                            max_length=1024, compact=True)
+            yield Label("", id="error", classes="dialog-error")
+
+    def on_mount(self) -> None:
+        super().on_mount()
+        self.query_one("#reason", Input).focus()
+
+    @on(Input.Submitted)
+    def _submitted(self, event: Input.Submitted) -> None:
+        reason = self.query_one("#reason", Input).value.strip()
+        if not reason:
+            self.query_one("#error", Label).update("✗ write why, or esc to cancel")
+            self.query_one("#reason", Input).focus()
+            return
+        if not self.password:
+            self.dismiss((reason, ""))
+            return
+        password = self.query_one("#password", Input)
+        if event.input.id == "reason" or not password.value:
+            password.focus()
+            return
+        self.dismiss((reason, password.value))
+
+    def action_cancel(self) -> None:
+        self.dismiss(None)
+
+
+class LockScreen(Dialog[None]):
+    """The screen left untouched for the users file's idle-lock: covered, the status bar
+    and the banners still in view above it (the cell runs on), until its person types
+    their password again — checked by the runtime (`unlock`: its answer). Escape does not
+    leave it; ctrl+q still ends the screen."""
+
+    BINDINGS = [Binding("escape", "stay", "Stay locked", show=False)]
+
+    def __init__(self, who: str, idle: str, unlock: Callable[[str], CommandResult]):
+        super().__init__(id="lock-screen")
+        self.who = who
+        self.idle = idle
+        self.unlock = unlock
+
+    def compose(self) -> ComposeResult:
+        with Vertical(classes="dialog"):
+            yield _title("LOCKED: sign in again", Level.ATTENTION)
+            yield Static(f"Nobody touched this screen for {self.idle}: it locked. The cell "
+                         "runs on; nothing can be sent from here until you sign in.",
+                         classes="dialog-line", markup=False)
+            yield Static(f"Signed in as {self.who}. Your password:", classes="dialog-line",
+                         markup=False)
+            yield Input("", id="password", placeholder="password", password=True,
+                        max_length=1024, compact=True)
+            yield Label("", id="error", classes="dialog-error")
+            yield Label("enter: unlock    ctrl+q: leave this screen", classes="dialog-hint")
+
+    def on_mount(self) -> None:
+        super().on_mount()
+        self.query_one("#password", Input).focus()
+
+    @on(Input.Submitted)
+    def _submitted(self, event: Input.Submitted) -> None:
+        field = self.query_one("#password", Input)
+        result = self.unlock(event.value)
+        field.value = ""
+        if result.accepted:
+            self.dismiss(None)
+        else:
+            self.query_one("#error", Label).update(f"✗ {result.message}")
+
+    def action_stay(self) -> None:
+        """(escape: the lock stays)"""
 
 
 class StepDialog(Dialog[int | None]):

@@ -6,7 +6,9 @@ An aiohttp server (textual-serve's, with a door in front):
   :class:`~hmi.access.signin.Authenticator` in its own threads (never on this loop), the
   lockout shared with every other door. Accepted: a browser session (a random cookie,
   HttpOnly, SameSite=Strict, Secure over TLS), counted in the users file's session table
-  (``sessions-per-user``), ended when idle for ``idle-lock`` or at sign-out.
+  (``sessions-per-user``), ended at sign-out, or when idle for ``idle-lock`` with no tab
+  open (an open tab's screen locks itself instead: hmi.ui.app's idle lock). Refused: the
+  name tried, the browser's address and why go to the cell's journal (hmi.access.audit).
 * ``/`` — textual-serve's terminal page, signed-in sessions only.
 * ``/ws`` — each tab's websocket, signed-in sessions only and from this server's own pages
   (the Origin checked): it starts one screen process (``plchmi attach``), handing it the
@@ -32,10 +34,12 @@ from aiohttp import WSMsgType, web
 from textual_serve.app_service import AppService
 from textual_serve.download_manager import DownloadManager
 
-from hmi.access import tickets
+from hmi.access import audit, tickets
+from hmi.access.audit import SignInRefusal, refusal
 from hmi.access.sessions import SessionTable
 from hmi.access.signin import Authenticator
 from hmi.access.users import Settings
+from hmi.errors import OutputError
 
 from . import pages
 
@@ -75,8 +79,9 @@ class _TabProcess(AppService):
 class WebDoor:
     def __init__(self, project_arg: str, project_name: str, users_path: Path,
                  socket: Path | None, banner: str = "", tls: bool = False,
-                 clock: Any = time.monotonic):
+                 clock: Any = time.monotonic, journal: Path | None = None):
         self.project_arg = project_arg
+        self.journal = journal  # the cell's: each refused sign-in is appended to it
         self.project_name = project_name
         self.users_path = users_path
         self.socket = socket
@@ -124,10 +129,17 @@ class WebDoor:
         session = self.sessions.get(token) if token else None
         if session is None:
             return None
-        settings = self._settings()
-        if settings is None or self.clock() - session.last > settings.idle_lock_us / 1e6:
+        if self._expired(session, self.clock()):
             return None  # the reaper ends it
         return session
+
+    def _expired(self, session: WebSession, now: float) -> bool:
+        """A sign-in with no tab open ends after idle-lock untouched (sign in again); one
+        whose tabs are open lasts: each tab's screen warns, then locks itself and asks the
+        password again (the HMI's idle lock), the cell shown running meanwhile."""
+        settings = self._settings()
+        return settings is None or (not session.tabs and
+                                    now - session.last > settings.idle_lock_us / 1e6)
 
     # -- signing in and out ----------------------------------------------------------------
     async def sign_in_page(self, request: web.Request) -> web.Response:
@@ -156,8 +168,21 @@ class WebDoor:
                                     secure=self.tls, path="/")
                 raise response
             problem = why
+        await self._journal(refusal(name, "browser", request.remote or "", problem,
+                                    result.locked_now))
         return web.Response(text=pages.sign_in(self.project_name, self._banner(), problem,
                                                name), content_type="text/html", status=401)
+
+    async def _journal(self, refused: SignInRefusal) -> None:
+        """A refused sign-in into the cell's journal (off this loop: it waits for the disk);
+        a journal that cannot be written is said on stderr, the refusal stands."""
+        if self.journal is None:
+            return
+        try:
+            await asyncio.to_thread(audit.append, self.journal, refused)
+        except OutputError as exc:
+            print(f"plchmi web: a refused sign-in could not be journalled: {exc}",
+                  file=sys.stderr, flush=True)
 
     async def sign_out(self, request: web.Request) -> web.Response:
         session = self.session_of(request)
@@ -258,13 +283,12 @@ class WebDoor:
         app[REAPER] = asyncio.create_task(self._reap())
 
     async def _reap(self) -> None:
-        """Idle sessions end (their tabs close: sign in again); stale tickets go."""
+        """Idle sessions without a tab end (sign in again); stale tickets go."""
         while True:
             await asyncio.sleep(1.0)
-            settings = self._settings()
             now = self.clock()
             for session in list(self.sessions.values()):
-                if settings is None or now - session.last > settings.idle_lock_us / 1e6:
+                if self._expired(session, now):
                     await self._end(session)
             await asyncio.to_thread(tickets.sweep, self.users_path)
 

@@ -26,6 +26,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from hmi.access.audit import SignInRefusal
 from hmi.engine.commands import Command, CommandResult
 from hmi.engine.layout import Layout
 from hmi.engine.monitors import MonitorState
@@ -229,6 +230,11 @@ class Send:
     guard: ResetGuard | None = None
     on_behalf: Identity | None = None
     note: str = ""  # said with it in the journal (an OPC UA comment)
+    # Asked of the person before the commands that need it (hmi.access.roles): why, into
+    # the journal; their password again (switching the filter to monitor), checked, never
+    # kept or journalled.
+    reason: str = ""
+    password: str = ""
 
 
 @dataclass(frozen=True)
@@ -283,6 +289,24 @@ class Report:
 
 
 @dataclass(frozen=True)
+class Idle:
+    """The screen's person left it untouched for the users file's ``idle-lock``: `locked`
+    (the screen is covered; the runtime refuses its commands until it is unlocked), or
+    `unlock` with their password again (checked like a sign-in)."""
+
+    id: int
+    event: str  # "locked" or "unlock"
+    password: str = ""
+
+
+@dataclass(frozen=True)
+class SignInRefused:
+    """A gateway refused someone at its door (the OPC UA server): for the journal."""
+
+    refused: SignInRefusal
+
+
+@dataclass(frozen=True)
 class Fault:
     """An error of the screen (its UI), for the journal: contained, or fatal (the screen
     ends; the cell runs on)."""
@@ -301,7 +325,7 @@ class Bye:
 
 
 ClientMessage = (Hello | Send | RequestControl | TakeControl | ReleaseControl | HandOver
-                 | Advance | Query | Report | Fault | Bye)
+                 | Advance | Query | Report | Idle | SignInRefused | Fault | Bye)
 
 
 # -- runtime to screen ------------------------------------------------------------------
@@ -313,6 +337,12 @@ class Welcome:
     facts: CellFacts
     runtime: RuntimeInfo
     identity: Identity | None = None  # who the runtime let in (the users file's role)
+    # the runtime asks this screen for a reason (and the password) before the commands
+    # that need one: people sign in here (a users file exists)
+    accountable: bool = False
+    # the users file's idle-lock and idle-warning (0: this screen does not lock)
+    idle_lock_us: int = 0
+    idle_warning_us: int = 0
 
 
 @dataclass(frozen=True)
