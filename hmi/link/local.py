@@ -40,6 +40,17 @@ from hmi.wire import messages as m
 SWITCH_INTERVAL_S = 0.0005
 
 
+
+def start_runner(runner: LiveRunner | None) -> None:
+    """Start the scans in this process (none: virtual time, driven by whoever steps it),
+    with a short switch interval so the scan thread gets the interpreter back soon.
+    LiveRunner.start freezes what exists (a UI's widgets included) out of the garbage
+    collector's sight: a full collection over them took ~40 ms here."""
+    if runner is not None:
+        sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
+        runner.start()
+
+
 class LocalLink:
     """A :class:`~hmi.link.base.CellLink` speaking the protocol to a hub in this process
     (module docstring). `journal`: the hub journals screens and control as a runtime does."""
@@ -174,9 +185,7 @@ class LocalLink:
 
     # -- who runs the scans: this process --------------------------------------------------
     def start(self) -> None:
-        if self.runner is not None:
-            sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
-            self.runner.start()
+        start_runner(self.runner)
 
     def stop(self) -> None:
         if self.runner is not None:
@@ -295,11 +304,7 @@ class SessionLink:
 
     # -- who runs the scans --------------------------------------------------------------
     def start(self) -> None:
-        if self.runner is not None:
-            sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
-            # LiveRunner.start freezes what exists (a UI's widgets included) out of the
-            # garbage collector's sight: a full collection over them took ~40 ms here.
-            self.runner.start()
+        start_runner(self.runner)
 
     def stop(self) -> None:
         if self.runner is not None:
