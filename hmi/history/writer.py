@@ -79,6 +79,11 @@ class HistoryWriter:
         self._retry = 0
         self._trouble: str | None = None
         self._dropped_told = 0
+        # cycles begun and ended (empty ones too): a flush waits for a cycle begun after it
+        # was asked, the first one sure to take what was queued before; counting batches
+        # let a batch already being written answer for entries queued after its take
+        self._begun = 0
+        self._ended = 0
 
     # -- life cycle -----------------------------------------------------------------------
     def start(self) -> None:
@@ -95,10 +100,10 @@ class HistoryWriter:
         """Ask for a write now and wait until what was queued before is committed (tests,
         the bench, the CSV export of a running cell). False if it could not be."""
         with self._committed:
-            wanted = self._status.batches + 1
+            wanted = self._begun + 1
             self._flush_now.set()
             return self._committed.wait_for(
-                lambda: self._status.batches >= wanted or self._status.state == "failing"
+                lambda: self._ended >= wanted or self._status.state == "failing"
                 or not self._thread.is_alive(), timeout) and \
                 self._status.state != "failing"
 
@@ -133,6 +138,16 @@ class HistoryWriter:
             self._set(state="stopped")
 
     def _cycle(self) -> None:
+        with self._committed:
+            self._begun += 1
+        try:
+            self._write_queued()
+        finally:
+            with self._committed:
+                self._ended += 1
+                self._committed.notify_all()
+
+    def _write_queued(self) -> None:
         try:
             store = self._connect()
             taken = self.queue.take()
