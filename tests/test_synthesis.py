@@ -58,6 +58,12 @@ def test_a_missing_diagnosers_file_is_an_error_not_a_default(tmp_path):
         load_project(VALVE, str(tmp_path / "none.yaml"))
 
 
+def test_the_comparison_grid_goes_with_build_only(capsys):
+    from hmi.cli import main
+    assert main(["diagnose", str(VALVE), "--every", "10ms"]) == 2
+    assert "--every needs --build" in capsys.readouterr().err
+
+
 def test_the_valves_normal_behaviour_model_is_its_physics():
     project = load_project(VALVE)
     target = find_target(project, "V1")
