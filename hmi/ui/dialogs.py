@@ -41,7 +41,7 @@ def _title(text: str, level: Level) -> Static:
     return Static(title, classes="dialog-title", markup=False)
 
 
-def top_rows(main: Screen) -> int:
+def top_rows(main: Screen[Any]) -> int:
     """How many lines the status bar and the banners take at the top of the main screen,
     from what they hold now rather than from the last layout: a banner that appears while a
     dialog is open (manual mode taking effect, a safe-state latch) is drawn with the frame
