@@ -284,10 +284,7 @@ def engine_for(project: Project, inject: Iterable[str | Injection] = (),
     plant = SimPlant(project)
     for item in inject:
         plant.inject(parse_injection(item) if isinstance(item, str) else item)
-    # (the export carries the local diagnosers, not the High Level Diagnoser that refines
-    # their decisions: the engine it is compared with runs without it)
-    return Engine(project, plant, control=control, policy=policy, diagnosis=diagnosis,
-                  high_level=False)
+    return Engine(project, plant, control=control, policy=policy, diagnosis=diagnosis)
 
 
 class MatiecTwin:

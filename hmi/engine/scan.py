@@ -865,7 +865,9 @@ class Engine:
         self.scan += 1
         self.now = now
         s = self._parts
-        s.begin(self.diagnosis.current if self.diagnosis else NO_DIAGNOSIS)
+        s.diagnosis = self.diagnosis.current if self.diagnosis else NO_DIAGNOSIS
+        s.report = s.error = None
+        s.filter_us = 0.0
         try:
             for part in _GUARDED:
                 part(self, s, now)
@@ -888,7 +890,7 @@ class Engine:
             # control law never acts on stale inputs; the outputs go safe (latched).
             self.latch_safe("plant", lost)
             raise _InputsUnknown
-        if not self.started:
+        if not self._started:
             self._start(now)
 
     def _scan_program(self, s: _Parts, now: int) -> None:
@@ -900,10 +902,10 @@ class Engine:
         if self.observe:
             fast.observed(image, hist, now, self.scan)
             fov = self.input_scan.readback
-        elif self.mode == "manual":  # the program waits: neither its step times nor law
+        elif self._mode == "manual":  # the program waits: neither its step times nor law
             fast.held(image, hist, now, self.scan)
             fov = self._manual_fov()
-        elif self.mode == "recovery" and recovery is not None:
+        elif self._mode == "recovery" and recovery is not None:
             active = recovery.active
             if active is None:  # (none started: the program waits, the outputs safe)
                 fast.held(image, hist, now, self.scan)
@@ -924,12 +926,13 @@ class Engine:
         filter_stage = self.filter_stage
         recovery = self.recovery
         mask = s.diagnosis.mask
-        if self.mode == "recovery" and recovery is not None:
-            filter_stage = recovery.filter_stage or filter_stage
-            mask = recovery.unmask(mask)
-        policy = self.policy
-        if self.mode == "recovery" and policy == "monitor":
-            policy = "correct"
+        policy = self._policy
+        if self._mode == "recovery":
+            if recovery is not None:
+                filter_stage = recovery.filter_stage or filter_stage
+                mask = recovery.unmask(mask)
+            if policy == "monitor":
+                policy = "correct"
         timed = self.wall_times
         started = time.perf_counter() if timed else 0.0
         decision = filter_stage.apply(self.image, self.history, s.fov, policy,
@@ -964,12 +967,13 @@ class Engine:
     def _scan_monitors(self, s: _Parts, now: int) -> None:
         """8. the monitors, on the I/O this scan exchanged (their states: Engine.snapshot)"""
         monitors = self.compiled.monitors
-        s.monitored = False
         if monitors is None:
+            s.monitored = False
             return
         try:
             monitors(self.image, self.history, now, self.scan)
         except Exception as exc:
+            s.monitored = False
             s.error = self._monitors_error(now, s.error, exc)
             return
         s.monitored = True
@@ -1127,10 +1131,7 @@ class _Parts:
     __slots__ = ("diagnosis", "error", "filter_us", "fov", "monitored", "outputs", "report")
 
     def __init__(self) -> None:
-        self.begin(NO_DIAGNOSIS)
-
-    def begin(self, diagnosis: Diagnosis) -> None:
-        self.diagnosis = diagnosis  # routes, mask and records (stage 3)
+        self.diagnosis = NO_DIAGNOSIS  # routes, mask and records (stage 3)
         self.fov: tuple[bool, ...] = ()  # the functional output vector (stage 5)
         self.outputs: tuple[bool, ...] = ()  # what is written (stage 7)
         self.report: FilterReport | None = None  # the filter's (None: not reached)

@@ -56,15 +56,14 @@ def build(project: Project, control: str | None = None) -> m.PlcProject:
     layout = Layout.build(project, law, extra=layout_names(project))
     g = build_globals(project, pous.child())
     stage = monitor_stage(project, layout)
-    # (the local diagnosers without the High Level Diagnoser: not exported)
-    diagnosis = diagnosis_stage(project, layout, "ftc", high_level=False)
+    diagnosis = diagnosis_stage(project, layout, "ftc")
     monitors = [build_monitor(stage, k, task, layout, pous.take(f"FB_{prefix}_Mon_{task.name}"),
                               pous, durations)
                 for k, task in enumerate(source.monitors(project))] if stage is not None else []
     blocks = Blocks(
         memory=build_memory(project, layout, names["memory"], pous, durations),
         diagnosers=[build_diagnoser(diagnosis, k, layout, diag_names[rt.spec.name], pous,
-                                    durations)
+                                    durations, project.high_level)
                     for k, rt in enumerate(diagnosis.runtimes)] if diagnosis is not None else [],
         filter=build_filter(project, names["filter"], pous, bound),
         control=build_control(project, law, layout, g, names["control"], pous, durations),

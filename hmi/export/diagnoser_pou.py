@@ -30,6 +30,7 @@ the plant). A change of mode settles the block again (its flags follow the new m
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 from hmi.engine.diagnoser import DiagnoserRuntime, DiagnosisStage
@@ -50,7 +51,8 @@ from hmi.export.program_st import (
     StPrinter,
 )
 from hmi.export.views import Block, Durations, Views, convert
-from hmi.program.diagnosers import lower_diagnosis, lower_reconstruction
+from hmi.program.diagnosers import lower_diagnosis, lower_reconstruction, shift_outputs
+from hmi.project.model import HighLevelSpec
 
 FTC, OBSERVE, OFF = 0, 1, 2
 MODE_CODES = {"ftc": FTC, "observe": OBSERVE, "off": OFF}
@@ -62,16 +64,20 @@ def ftc_mode(mode: m.Expr) -> m.Expr:
 
 
 FIXED = ("Now", "Mode", "Reset", "State", "Faulty", "Scan", "LastMode", "Dirty", "LastScan",
-         "LastScanNone", "LastNow", "Gap", "Period", "Since", "SinceNone")
+         "LastScanNone", "LastNow", "Gap", "Period", "Since", "SinceNone", "Armed", "Refined",
+         "RefinedTo")
 
 
 def build_diagnoser(stage: DiagnosisStage, k: int, layout: Layout, pou_name: str,
-                    scope: Scope, durations: Durations) -> Block:
+                    scope: Scope, durations: Durations,
+                    high_level: Sequence[HighLevelSpec] = ()) -> Block:
     """Diagnoser `k` of `stage` as FB `pou_name`: its inputs (the values its conditions
     read, by (name, depth) as written in the project: the program shifts the outputs) for
-    the program to wire."""
+    the program to wire. `high_level`: the High Level Diagnoser's specifications that
+    refine this diagnoser's decisions (the stage's ``refine``, after its transitions)."""
     rt = stage.runtimes[k]
     spec = rt.spec
+    hld = tuple(h for h in high_level if h.diagnoser == spec.name)
     sc = scope.child()
     t = {key: sc.take(key) for key in FIXED}
     labels = {lab: sc.take(lab) for lab in spec.labels}
@@ -104,14 +110,18 @@ def build_diagnoser(stage: DiagnosisStage, k: int, layout: Layout, pou_name: str
     places.cell(stage, "gap_us", Place(t["Gap"], TIME))
     places.cell(rt, "since_us", Place(t["Since"], NTIME, t["SinceNone"]))
     places.cell(rt, "current", Place(t["State"], INT))
-    entered = _entered(v)
-    places.handler(rt, "begin", Handler(lambda printer, args: entered(args[0])))
+    places.cell(stage, "hld_armed", Place(t["Armed"], BOOL))
+    began = _entered(v, False)
+    entered = _entered(v, bool(hld))  # (entering a state drops a refinement)
+    places.handler(rt, "begin", Handler(lambda printer, args: began(args[0])))
     places.handler(rt, "take", Handler(lambda printer, args: [
         m.Comment(spec.transitions[args[0].value].text()),
         m.Assign(v("State"), m.IntLit(rt.index[spec.transitions[args[0].value].target])),
         *entered(args[1])]))
     places.handler(stage, "lost_sight", Handler(
-        value=lambda printer, args, result: _lost_sight(rt, v, args, result)))
+        value=lambda printer, args, result: _lost_sight(rt, v, args, result, entered)))
+    places.handler(stage, "refine", Handler(
+        value=lambda printer, args, result: _refine(rt, v, hld, printer, outputs, result)))
     printer = StPrinter(places, sc, durations, spec.pos, f"a window of diagnoser {spec.name!r}")
     sensors = [(layout.slots[p.filtered], layout.slots[p.sensor], layout.slots[p.estimate],
                 layout.slots[p.flag])
@@ -119,9 +129,9 @@ def build_diagnoser(stage: DiagnosisStage, k: int, layout: Layout, pou_name: str
     per_mode: dict[str, list[m.Stmt]] = {}
     for mode in ("observe", "off", "ftc"):
         places.handler(stage, "settle", Handler(
-            lambda printer, args, mode=mode: _settle(rt, v, labels, flags, mode)))
+            lambda printer, args, mode=mode: _settle(rt, v, labels, flags, mode, hld)))
         per_mode[mode] = printer.program(
-            lower_diagnosis(stage, [(rt, spec)], mode, outputs)
+            lower_diagnosis(stage, [(rt, spec)], mode, outputs, bool(hld))
             + lower_reconstruction(sensors, mode))
 
     resync: list[tuple[m.Expr, tuple[m.Stmt, ...]]] = []
@@ -182,6 +192,12 @@ def build_diagnoser(stage: DiagnosisStage, k: int, layout: Layout, pou_name: str
                   comment="the task's nominal period (the project's scan period)"),
             m.Var(t["Since"], m.TIME, comment="when the current state was entered"),
             m.Var(t["SinceNone"], m.BOOL, m.TRUE, comment="the diagnoser has not run yet"),
+            *((m.Var(t["Armed"], m.BOOL, comment="a decision the High Level Diagnoser "
+                     "refines holds, not yet refined"),
+               m.Var(t["Refined"], m.BOOL, comment="the High Level Diagnoser refined the "
+                     "decision"),
+               m.Var(t["RefinedTo"], m.INT, comment="to this label (its number in the "
+                     "list of labels, from 1)")) if hld else ()),
             *printer.locals,
         )),
     )
@@ -196,10 +212,12 @@ def build_diagnoser(stage: DiagnosisStage, k: int, layout: Layout, pou_name: str
     return Block(pou, dict(views.idents), {**flags, **filtered}, ports, tuple(reset_reads))
 
 
-def _entered(v: Any) -> Any:
-    """The statements entering a state at `now` (DiagnoserRuntime.enter, begin)."""
+def _entered(v: Any, refined: bool) -> Any:
+    """The statements entering a state at `now` (DiagnoserRuntime.enter, begin), and
+    dropping a refinement (`refined`: the diagnoser has one)."""
     def entered(now: m.Expr) -> list[m.Stmt]:
-        return [m.Assign(v("Since"), now), m.Assign(v("SinceNone"), m.FALSE)]
+        return [m.Assign(v("Since"), now), m.Assign(v("SinceNone"), m.FALSE),
+                *((m.Assign(v("Refined"), m.FALSE),) if refined else ())]
     return entered
 
 
@@ -212,8 +230,8 @@ def _faulty(rt: DiagnoserRuntime, v: Any) -> m.Expr:
     return _in_states(v, [n for n, s in enumerate(rt.spec.states) if s.faulty])
 
 
-def _lost_sight(rt: DiagnoserRuntime, v: Any, args: tuple[Any, ...], result: m.Name
-                ) -> list[m.Stmt]:
+def _lost_sight(rt: DiagnoserRuntime, v: Any, args: tuple[Any, ...], result: m.Name,
+                entered: Any) -> list[m.Stmt]:
     """DiagnosisStage.lost_sight for this diagnoser, its value into `result`: a faulty state
     keeps its decision, its clock moved on by the gap less one period; a normal state
     other than the initial one goes back to it, entered now."""
@@ -227,25 +245,57 @@ def _lost_sight(rt: DiagnoserRuntime, v: Any, args: tuple[Any, ...], result: m.N
                                           m.Binary("-", delta, v("Period"))))),)))
     branches.append((m.Binary("<>", v("State"), m.IntLit(rt.initial)), (
         m.Comment("the plant was not observed: re-synchronising"),
-        m.Assign(v("State"), m.IntLit(rt.initial)), m.Assign(v("Since"), now),
-        m.Assign(v("SinceNone"), m.FALSE), m.Assign(result, m.TRUE))))
+        m.Assign(v("State"), m.IntLit(rt.initial)), *entered(now), m.Assign(result, m.TRUE))))
     return [m.Assign(result, m.FALSE), m.If(tuple(branches))]
 
 
 def _settle(rt: DiagnoserRuntime, v: Any, labels: dict[str, str], flags: dict[str, str],
-            mode: str) -> list[m.Stmt]:
-    """DiagnosisStage.settle for this diagnoser: the flags of the state's decision (0 when
-    off), its labels; the routes are the reconstruction's, after it."""
+            mode: str, hld: tuple[HighLevelSpec, ...]) -> list[m.Stmt]:
+    """DiagnosisStage.settle for this diagnoser: the flags of its decision (the state's, or
+    the High Level Diagnoser's refinement of it; 0 when off), its labels, whether a
+    decision to refine holds; the routes are the reconstruction's, after it."""
     spec = rt.spec
+    numbers = {lab: n for n, lab in enumerate(spec.labels, start=1)}
+
+    def holds(lab: str) -> m.Expr:
+        by_state = _in_states(v, [n for n, s in enumerate(spec.states) if lab in s.labels])
+        if not hld:
+            return by_state
+        return m.or_(m.and_(m.not_(v("Refined")), by_state),
+                     m.and_(v("Refined"), m.eq(v("RefinedTo"), m.IntLit(numbers[lab]))))
+
     out: list[m.Stmt] = [m.Assign(v("Dirty"), m.FALSE)]
     for p, ident in zip(spec.partitions, flags.values(), strict=True):
-        value = m.FALSE if mode == "off" else _in_states(
-            v, [n for n, fl in enumerate(rt.state_flags) if fl[spec.partitions.index(p)]])
+        value = m.FALSE if mode == "off" else m.or_(*(holds(lab) for lab in p.labels))
         out.append(m.Assign(m.Name(ident), value))
     for lab, ident in labels.items():
-        out.append(m.Assign(m.Name(ident), _in_states(
-            v, [n for n, s in enumerate(spec.states) if lab in s.labels])))
-    out.append(m.Assign(v("Faulty"), _faulty(rt, v)))
+        out.append(m.Assign(m.Name(ident), holds(lab)))
+    out.append(m.Assign(v("Faulty"), m.or_(*(m.Name(ident) for ident in labels.values()))))
+    if hld:
+        armed = m.FALSE if mode == "off" else m.and_(m.not_(v("Refined")), _in_states(
+            v, [n for n, s in enumerate(spec.states) if any(s.labels == h.decision
+                                                            for h in hld)]))
+        out.append(m.Assign(v("Armed"), armed))
+    return out
+
+
+def _refine(rt: DiagnoserRuntime, v: Any, hld: tuple[HighLevelSpec, ...], printer: StPrinter,
+            outputs: frozenset[str], result: m.Name) -> list[m.Stmt]:
+    """DiagnosisStage.refine for this diagnoser's specifications, its value into `result`:
+    while the decision a specification refines holds, not yet refined, its rules in order;
+    the first that holds decides its label."""
+    spec = rt.spec
+    numbers = {lab: n for n, lab in enumerate(spec.labels, start=1)}
+    out: list[m.Stmt] = [m.Assign(result, m.FALSE)]
+    for h in hld:
+        states = [n for n, s in enumerate(spec.states) if s.labels == h.decision]
+        rules = tuple((printer.test(shift_outputs(r.when.root, outputs)), (
+            m.Comment(f"{h.name}: {r.when} -> {r.decide}"),
+            m.Assign(v("Refined"), m.TRUE), m.Assign(v("RefinedTo"), m.IntLit(numbers[r.decide])),
+            m.Assign(result, m.TRUE))) for r in h.rules)
+        if states and rules:
+            out.append(m.if_(m.and_(m.not_(v("Refined")), _in_states(v, states)),
+                             m.If(rules)))
     return out
 
 

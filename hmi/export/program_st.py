@@ -20,7 +20,8 @@ stage ran) is a TIME or DINT with a BOOL beside it saying "none" (no literal sta
 time"); a local that collects constant tuples (the fireable transitions) is one BOOL per
 element it can hold. The scan's number, where a program compares it, is a DINT the block
 counts itself (``Places.scan``); a handler whose value a program tests (``if
-stage.lost_sight(...)``) writes it to a BOOL local (``Handler.value``).
+stage.lost_sight(...)``, ``armed and stage.refine(...)``: called only when ``armed``)
+writes it to a BOOL local (``Handler.value``).
 """
 
 from __future__ import annotations
@@ -137,9 +138,20 @@ class StPrinter:
             return self._assign(stmt.target, stmt.value)
         if isinstance(stmt, ir.If):
             before: list[m.Stmt] = []
-            if isinstance(stmt.test, ir.Call):  # a handler's value: written, then tested
-                local = self._result(stmt.test.method)
-                before = self._call(stmt.test, self._locals[local].expr)
+            test = stmt.test
+            if isinstance(test, ir.Call):  # a handler's value: written, then tested
+                local = self._result(test.method)
+                before = self._call(test, self._locals[local].expr)
+                stmt = ir.If(ir.Local(local), stmt.then, stmt.orelse)
+            elif isinstance(test, ir.And) and isinstance(test.operands[-1], ir.Call):
+                # `a and handler(...)`: the handler runs only when `a` holds
+                call = test.operands[-1]
+                local = self._result(call.method)
+                result = self._locals[local].expr
+                guard = self.boolean(ir.And(test.operands[:-1]) if len(test.operands) > 2
+                                     else test.operands[0])
+                before = [m.Assign(result, m.FALSE),
+                          m.if_(guard, *self._call(call, result))]
                 stmt = ir.If(ir.Local(local), stmt.then, stmt.orelse)
             branches: list[tuple[m.Expr, tuple[m.Stmt, ...]]] = []
             node: ir.If = stmt
