@@ -382,7 +382,7 @@ class MatiecTwin:
                 result.resets += 1
             for runtime in runtimes:
                 want.append(runtime.current)
-                held = runtime.state.labels
+                held = runtime.labels  # (the decision: the High Level Diagnoser's if refined)
                 want += [lab in held for lab in runtime.spec.labels]
                 result.diagnoser_states.add(f"{runtime.spec.name}.{runtime.names[runtime.current]}")
             for a in automata:
