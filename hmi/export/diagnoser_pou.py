@@ -257,20 +257,21 @@ def _settle(rt: DiagnoserRuntime, v: Any, labels: dict[str, str], flags: dict[st
     spec = rt.spec
     numbers = {lab: n for n, lab in enumerate(spec.labels, start=1)}
 
-    def holds(lab: str) -> m.Expr:
-        by_state = _in_states(v, [n for n, s in enumerate(spec.states) if lab in s.labels])
+    def decides(labs: set[str]) -> m.Expr:
+        """The decision holds one of `labs`: the state's, or the refined one."""
+        by_state = _in_states(v, [n for n, s in enumerate(spec.states) if labs & set(s.labels)])
         if not hld:
             return by_state
-        return m.or_(m.and_(m.not_(v("Refined")), by_state),
-                     m.and_(v("Refined"), m.eq(v("RefinedTo"), m.IntLit(numbers[lab]))))
+        refined = m.or_(*(m.eq(v("RefinedTo"), m.IntLit(numbers[lab]))
+                          for lab in spec.labels if lab in labs))
+        return m.or_(m.and_(m.not_(v("Refined")), by_state), m.and_(v("Refined"), refined))
 
     out: list[m.Stmt] = [m.Assign(v("Dirty"), m.FALSE)]
     for p, ident in zip(spec.partitions, flags.values(), strict=True):
-        value = m.FALSE if mode == "off" else m.or_(*(holds(lab) for lab in p.labels))
-        out.append(m.Assign(m.Name(ident), value))
+        out.append(m.Assign(m.Name(ident), m.FALSE if mode == "off" else decides(set(p.labels))))
     for lab, ident in labels.items():
-        out.append(m.Assign(m.Name(ident), holds(lab)))
-    out.append(m.Assign(v("Faulty"), m.or_(*(m.Name(ident) for ident in labels.values()))))
+        out.append(m.Assign(m.Name(ident), decides({lab})))
+    out.append(m.Assign(v("Faulty"), decides(set(spec.labels))))
     if hld:
         armed = m.FALSE if mode == "off" else m.and_(m.not_(v("Refined")), _in_states(
             v, [n for n, s in enumerate(spec.states) if any(s.labels == h.decision
