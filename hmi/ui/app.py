@@ -200,6 +200,7 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         self._key: tuple | None = None
         self._version = 0  # bumped when something the frame shows changes outside the scan
         self.engineering = False  # the engineering view (E): internal names shown too
+        self.answer = ""  # the last command's answer as the message line said it
         self._stepping = False
         self._request: tuple[str, bool, int, str] | None = None  # pending manual verdict
         self._injected: list[InjectedFault] = []  # shown on the SIMULATION strip
@@ -811,7 +812,7 @@ class PlcHmiApp(LastResort, ContainedPump, App):
 
     def _said(self, key: str, policy: Policy, result: CommandResult) -> None:
         self.explanation_panel.say_result(key, result_line(key, policy, result.accepted,
-                                                           result.message))
+                                                           self.answer))
 
     def _policy_confirmation(self, key: str, policy: Policy, snap: Snapshot | None,
                              asked: Asked | None = None
@@ -892,10 +893,15 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         `reset_shown`: a fault reset's preview the operator confirmed (and the engine found
         unchanged): the answer in its plain words, not the engine's names."""
         what = describe(command)
+        inner = None
+        if isinstance(command, ChoosePolicy):  # the policy's answer in that command's words
+            inner = FaultReset() if reset_shown is not None else \
+                self._policy_command(command.key, command.policy)
         said, answer = spoken(command, result, self._situation_text,
                               None if self.engineering else Words(self._fault_text,
                                                                   reset_shown,
-                                                                  self._step_words()))
+                                                                  self._step_words(), inner))
+        self.answer = answer
         text = result_text(said, result, answer)
         match command:
             case Pause() | Resume():
@@ -1228,7 +1234,7 @@ class PlcHmiApp(LastResort, ContainedPump, App):
 
     def _manual_lines(self, snap: Snapshot) -> list[Text | str]:
         law = self.project.controls[self.facts.control]
-        return ["The control law stops driving the outputs: they follow your requests,",
+        return ["The control program stops driving the outputs: they follow your requests,",
                 "and an output you have not requested is 0.",
                 *manual.enter_lines(self.project, law, snap, self.engineering),
                 f"Every request still goes through the safety filter ({snap.policy}).",
