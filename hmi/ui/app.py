@@ -67,7 +67,7 @@ from hmi.engine.commands import (
 from hmi.engine.criteria import Wait
 from hmi.engine.scan import Engine
 from hmi.engine.snapshot import Snapshot
-from hmi.explain.model import Policy
+from hmi.explain.model import Explanation, Policy
 from hmi.explain.plain import PlainNames
 from hmi.explain.reset import ResetLine, reset_preview
 from hmi.link.base import CellLink, ResetGuard, View
@@ -201,6 +201,7 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         self._version = 0  # bumped when something the frame shows changes outside the scan
         self.engineering = False  # the engineering view (E): internal names shown too
         self.answer = ""  # the last command's answer as the message line said it
+        self._revealed: tuple | None = None  # the subject whose I/O rows were scrolled to
         self._stepping = False
         self._request: tuple[str, bool, int, str] | None = None  # pending manual verdict
         self._injected: list[InjectedFault] = []  # shown on the SIMULATION strip
@@ -722,6 +723,25 @@ class PlcHmiApp(LastResort, ContainedPump, App):
                 explanation = alarm.explanation
         self.explanation_panel.show(key if explanation else None, explanation, alarm,
                                     self.size.width >= WIDE)
+        revealed = (explanation.key if explanation else None, self.size)
+        if explanation is not None and revealed != self._revealed:
+            self._revealed = revealed  # once per subject (and size): the operator may scroll
+            self.query_one(IOPanel).reveal_subject(self._subject_rows(explanation))
+
+    def _subject_rows(self, explanation: Explanation) -> list[str]:
+        """The I/O rows a situation is about: a constraint's signals (a filtered sensor as
+        its sensor), else its device's I/O."""
+        project = self.project
+        if explanation.key.startswith("constraint:"):
+            name = explanation.key.split(":", 1)[1]
+            constraint = next((c for c in project.constraints if c.name == name), None)
+            if constraint is not None:
+                sensors = {p.filtered: p.sensor for spec in project.diagnosers
+                           for p in spec.partitions if p.filtered and p.sensor}
+                names = [sensors.get(lit.name, lit.name) for lit in constraint.literals]
+                return [*constraint.outputs, *names]  # what it blocks first
+        return [v.name for v in (*project.inputs, *project.outputs)
+                if v.device == explanation.device]
 
     def on_alarm_selected(self, message: AlarmSelected) -> None:
         self.subject = None
