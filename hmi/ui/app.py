@@ -730,7 +730,9 @@ class PlcHmiApp(LastResort, ContainedPump, App):
 
     def _subject_rows(self, explanation: Explanation) -> list[str]:
         """The I/O rows a situation is about: a constraint's signals (a filtered sensor as
-        its sensor), else its device's I/O."""
+        its sensor), else its device's I/O, those the State column marks first (an estimated
+        sensor, a masked or changed order: at 80x24 the valve's F13 showed fsc, fso and C,
+        and not the masked open order)."""
         project = self.project
         if explanation.key.startswith("constraint:"):
             name = explanation.key.split(":", 1)[1]
@@ -740,8 +742,14 @@ class PlcHmiApp(LastResort, ContainedPump, App):
                            for p in spec.partitions if p.filtered and p.sensor}
                 names = [sensors.get(lit.name, lit.name) for lit in constraint.literals]
                 return [*constraint.outputs, *names]  # what it blocks first
-        return [v.name for v in (*project.inputs, *project.outputs)
+        rows = [v.name for v in (*project.inputs, *project.outputs)
                 if v.device == explanation.device]
+        frame = self.frame
+        if frame is None:
+            return rows
+        snap = frame.snapshot  # the rows marked now first: estimated, masked, changed
+        marked = {*snap.reconstructed, *snap.masked, *frame.changed}
+        return sorted(rows, key=lambda name: name not in marked)
 
     def on_alarm_selected(self, message: AlarmSelected) -> None:
         self.subject = None

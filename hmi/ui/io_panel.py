@@ -168,8 +168,8 @@ class IOPanel(ContainedPump, DataTable[Any]):
             return sum(top <= r < top + height for r in rows)
         top = round(self.scroll_y)
         starts = range(max(0, first - height + 1), first + 1)
-        best = max(starts, key=lambda start: (seen(start), -abs(start - top)))
-        if top <= first < top + height and seen(top) >= seen(best):
+        best = max(starts, key=lambda start: (seen(start), start))  # the first on top
+        if top == best:
             return False
         self.scroll_to(y=best, animate=False, immediate=True)
         return True
