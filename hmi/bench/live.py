@@ -17,8 +17,12 @@ client that sends a HEL claiming 2 GiB, then streams data into it for the whole 
 runtime's scans and memory, the gateway's memory.
 
 Memory is sampled every second after a warm-up; its growth is per minute of the measured
-window. Attaching is timed too (connect to first frame). The machine is shared: its load is
-printed beside the figures. ``--quick`` shortens each set-up.
+window, and over its second half alone (what is left once the bounded caches have filled).
+Attaching is timed too (connect to first frame). The machine is shared: its load is
+printed beside the figures. ``--quick`` shortens each set-up; ``--minutes``, ``--screens``,
+``--dialog-every`` and ``--split-only`` set up the issue's own goal (``--minutes 10
+--screens 4 --dialog-every 0.25 --split-only``: one screen opening and closing a dialog every
+quarter second, three more attached, ten minutes).
 """
 
 from __future__ import annotations
@@ -46,8 +50,18 @@ SECONDS, QUICK_SECONDS = 120.0, 20.0
 WARM_S, QUICK_WARM_S = 10.0, 4.0  # after the screens started: not measured
 SIZE = (80, 24)
 KEYS = ("f", "Escape", "C-p", "Escape")  # the fault dialog, then the palette
-KEY_EVERY_S = 0.25
+DIALOG_EVERY_S = 0.5  # a key every half of it: open, then close
 START_S = 120.0  # a hang guard only (a loaded machine starts slowly)
+
+
+@dataclass(frozen=True)
+class Setup:
+    """How long, how many screens, how often a dialog."""
+
+    seconds: float
+    warm_s: float
+    screens: int = 2
+    dialog_every: float = DIALOG_EVERY_S
 
 
 @dataclass
@@ -65,8 +79,10 @@ class Sampled:
             return f"  {label:<22} no memory sample"
         first, last = self.rss_kb[0], self.rss_kb[-1]
         growth = (last - first) / 1024
+        half = (last - self.rss_kb[len(self.rss_kb) // 2]) / 1024
         return (f"  {label:<22} RSS {first / 1024:6.1f} -> {last / 1024:6.1f} MB "
-                f"({growth:+.1f} MB in {seconds:.0f} s, {growth * 60 / seconds:+.2f} MB/min,"
+                f"({growth:+.1f} MB in {seconds:.0f} s, {growth * 60 / seconds:+.2f} MB/min;"
+                f" second half {half * 120 / seconds:+.2f} MB/min;"
                 f" peak {max(self.rss_kb) / 1024:.1f} MB)")
 
 
@@ -117,9 +133,9 @@ def _wait(predicate, what: str) -> None:
 
 
 def _drive(terminals: Terminals, name: str, seconds: float, samplers: list[Sampled],
-           ) -> None:
-    """Press the dialog keys in `name` every KEY_EVERY_S for `seconds`, sampling memory
-    every second."""
+           dialog_every: float) -> None:
+    """Press the dialog keys in `name` (one every half of `dialog_every`) for `seconds`,
+    sampling memory every second."""
     start = time.monotonic()
     next_sample = start
     pressed = 0
@@ -130,7 +146,7 @@ def _drive(terminals: Terminals, name: str, seconds: float, samplers: list[Sampl
             next_sample += 1.0
         terminals.press(name, KEYS[pressed % len(KEYS)])
         pressed += 1
-        time.sleep(KEY_EVERY_S)
+        time.sleep(dialog_every / 2)
     for sampler in samplers:
         sampler.sample()
 
@@ -192,34 +208,35 @@ class Runtime:
             f"{after.frames_dropped - before.frames_dropped}; {after.realtime}"]
 
 
-def measure_split(folder: Path, env: dict[str, str], seconds: float, warm_s: float,
-                  tally: dict[str, int]) -> list[str]:
+def measure_split(folder: Path, env: dict[str, str], setup: Setup, tally: dict[str, int]
+                  ) -> list[str]:
     runtime = Runtime(folder / "split", env)
     terminals = Terminals()
+    names = ["busy", *(f"idle{n}" for n in range(1, setup.screens))]
     try:
         attach = [sys.executable, "-m", "hmi.cli", "attach", str(PROJECT), "--socket",
                   str(runtime.sock)]
-        busy = terminals.open("busy", attach, env)
-        idle = terminals.open("idle", attach, env)
-        for name in ("busy", "idle"):
+        pids = [terminals.open(name, attach, env) for name in names]
+        for name in names:
             _wait(lambda name=name: _started(terminals, name), f"the {name} screen")
-        time.sleep(warm_s)
+        time.sleep(setup.warm_s)
         before = runtime.viewer.query()
-        samplers = [Sampled(runtime.process.pid), Sampled(busy), Sampled(idle)]
+        samplers = [Sampled(runtime.process.pid), *(Sampled(pid) for pid in pids)]
         t0 = time.monotonic()
-        _drive(terminals, "busy", seconds, samplers)
+        _drive(terminals, "busy", setup.seconds, samplers, setup.dialog_every)
         elapsed = time.monotonic() - t0
         after = runtime.viewer.query()
         runtime.viewer.leave()
     finally:
         terminals.close()
         runtime.stop()
-    return [f"  split: one runtime, 2 screens attached + the bench's viewer; attach to "
-            f"first frame {runtime.first_frame_s * 1000:.0f} ms",
+    idle = [samplers[n + 1].line(f"idle screen {n}" if len(names) > 2 else "idle screen",
+                                 elapsed) for n in range(1, len(names))]
+    return [f"  split: one runtime, {len(names)} screens attached + the bench's viewer; "
+            f"attach to first frame {runtime.first_frame_s * 1000:.0f} ms",
             *runtime.figures(before, after, elapsed, tally, "split runtime"),
             samplers[0].line("runtime memory", elapsed),
-            samplers[1].line("screen with dialogs", elapsed),
-            samplers[2].line("idle screen", elapsed)]
+            samplers[1].line("screen with dialogs", elapsed), *idle]
 
 
 HEL_CLAIM = 2 ** 31 - 1  # bytes the hostile HEL's header says its message has
@@ -250,8 +267,8 @@ def hostile_hel(port: int, seconds: float) -> tuple[int, int]:
     return sent, connections
 
 
-def measure_attack(folder: Path, env: dict[str, str], seconds: float, warm_s: float,
-                   tally: dict[str, int]) -> list[str]:
+def measure_attack(folder: Path, env: dict[str, str], setup: Setup, tally: dict[str, int]
+                   ) -> list[str]:
     """The runtime with its OPC UA gateway, one hostile client streaming into a HEL that
     claims 2 GiB for the whole window."""
     from hmi.bench.opcua import _free_port
@@ -265,10 +282,11 @@ def measure_attack(folder: Path, env: dict[str, str], seconds: float, warm_s: fl
         stdin=subprocess.DEVNULL, stdout=log, stderr=log, env={**os.environ, **env})
     try:
         _wait(lambda: "serving" in (folder / "gateway.log").read_text(), "the gateway")
-        time.sleep(warm_s)
+        time.sleep(setup.warm_s)
         samplers = [Sampled(runtime.process.pid), Sampled(gateway.pid)]
         sent: list[tuple[int, int]] = []
-        attack = threading.Thread(target=lambda: sent.append(hostile_hel(port, seconds)))
+        attack = threading.Thread(
+            target=lambda: sent.append(hostile_hel(port, setup.seconds)))
         before = runtime.viewer.query()
         t0 = time.monotonic()
         attack.start()
@@ -328,8 +346,8 @@ def single_screen(stats: str) -> None:
     app.run()
 
 
-def measure_single(folder: Path, env: dict[str, str], seconds: float, warm_s: float,
-                   tally: dict[str, int]) -> list[str]:
+def measure_single(folder: Path, env: dict[str, str], setup: Setup, tally: dict[str, int]
+                   ) -> list[str]:
     terminals = Terminals()
     stats = {name: folder / f"{name}.json" for name in ("busy", "idle")}
     try:
@@ -340,11 +358,11 @@ def measure_single(folder: Path, env: dict[str, str], seconds: float, warm_s: fl
         for name in ("busy", "idle"):
             _wait(lambda name=name: _started(terminals, name) and stats[name].exists(),
                   f"the {name} HMI")
-        time.sleep(warm_s)
+        time.sleep(setup.warm_s)
         before = {name: json.loads(path.read_text()) for name, path in stats.items()}
         samplers = [Sampled(pids["busy"]), Sampled(pids["idle"])]
         t0 = time.monotonic()
-        _drive(terminals, "busy", seconds, samplers)
+        _drive(terminals, "busy", setup.seconds, samplers, setup.dialog_every)
         elapsed = time.monotonic() - t0
         time.sleep(0.6)  # (their figures as of the end)
         after = {name: json.loads(path.read_text()) for name, path in stats.items()}
@@ -377,24 +395,29 @@ def run(args) -> None:
         print("  tmux is not installed: this section runs the HMIs in real terminals")
         return
     quick = getattr(args, "quick", False)
-    seconds = QUICK_SECONDS if quick else SECONDS
-    warm_s = QUICK_WARM_S if quick else WARM_S
-    print(f"  {PROJECT.name}, scan period {PERIOD_US // 1000} ms, {seconds:g} s measured per "
-          f"set-up after {warm_s:g} s of warm-up; terminals {SIZE[0]}x{SIZE[1]}; "
-          f"{load_line()}", flush=True)
+    minutes = getattr(args, "minutes", None)
+    setup = Setup(seconds=minutes * 60 if minutes else QUICK_SECONDS if quick else SECONDS,
+                  warm_s=QUICK_WARM_S if quick else WARM_S,
+                  screens=max(1, getattr(args, "screens", 2)),
+                  dialog_every=max(0.05, getattr(args, "dialog_every", DIALOG_EVERY_S)))
+    print(f"  {PROJECT.name}, scan period {PERIOD_US // 1000} ms, {setup.seconds:g} s measured "
+          f"per set-up after {setup.warm_s:g} s of warm-up; terminals {SIZE[0]}x{SIZE[1]}; a "
+          f"dialog opened and closed every {setup.dialog_every:g} s; {load_line()}",
+          flush=True)
     tally: dict[str, int] = {}
     with tempfile.TemporaryDirectory(prefix="plchmi-bench-live-") as tmp:
         folder = Path(tmp)
         env = {"PLCHMI_DATA": str(folder / "data")}
-        for line in measure_split(folder, env, seconds, warm_s, tally):
+        for line in measure_split(folder, env, setup, tally):
             print(line, flush=True)
-        for line in measure_single(folder, env, seconds, warm_s, tally):
-            print(line, flush=True)
-        if _has_opcua():
-            for line in measure_attack(folder, env, seconds, warm_s, tally):
+        if not getattr(args, "split_only", False):
+            for line in measure_single(folder, env, setup, tally):
                 print(line, flush=True)
-        else:
-            print("  OPC UA HEL attack: not measured (asyncua is not installed)")
+            if _has_opcua():
+                for line in measure_attack(folder, env, setup, tally):
+                    print(line, flush=True)
+            else:
+                print("  OPC UA HEL attack: not measured (asyncua is not installed)")
     print("  overruns in the measured window: " + "; ".join(
         f"{label} {count}" for label, count in tally.items()), flush=True)
     print(f"  after: {load_line()}", flush=True)
