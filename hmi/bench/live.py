@@ -240,13 +240,13 @@ def measure_split(folder: Path, env: dict[str, str], setup: Setup, tally: dict[s
 
 
 HEL_CLAIM = 2 ** 31 - 1  # bytes the hostile HEL's header says its message has
-ATTACK_MOST = 1 << 30  # bytes the hostile client streams at most
+STREAM_MOST = 64 << 20  # bytes the hostile client streams into one connection at most
 
 
 def hostile_hel(port: int, seconds: float) -> tuple[int, int]:
-    """An OPC UA client that sends a HEL claiming ~2 GiB, then streams data into it, over
-    and over for `seconds` (or ATTACK_MOST bytes): as soon as a connection is closed, it
-    opens the next. The bytes it sent and the connections it opened."""
+    """An OPC UA client that sends a HEL claiming ~2 GiB, then streams data into it (at most
+    STREAM_MOST a connection), over and over for `seconds`: as soon as a connection is
+    closed, it opens the next. The bytes it sent and the connections it opened."""
     import contextlib
     import socket
 
@@ -256,13 +256,15 @@ def hostile_hel(port: int, seconds: float) -> tuple[int, int]:
     sent = connections = 0
     end = time.monotonic() + seconds
     chunk = b"\0" * (1 << 16)
-    while sent < ATTACK_MOST and time.monotonic() < end:
+    while time.monotonic() < end:
         with contextlib.suppress(OSError), \
                 socket.create_connection(("127.0.0.1", port), timeout=5.0) as s:
             connections += 1
             s.sendall(header + body)
-            while sent < ATTACK_MOST and time.monotonic() < end:
+            streamed = 0
+            while streamed < STREAM_MOST and time.monotonic() < end:
                 s.sendall(chunk)
+                streamed += len(chunk)
                 sent += len(chunk)
     return sent, connections
 
