@@ -42,9 +42,9 @@ from hmi.bench import load_line
 from hmi.bench.ui import PERIOD_US, PROJECT
 
 SECTION = "live"
-HELP = ("two HMIs at 80x24 on cispi_valve (10 ms scan), one opening and closing dialogs "
-        "every 0.5 s: scan overruns and memory, the runtime and its screens vs one process "
-        "per HMI")
+HELP = ("HMIs at 80x24 on cispi_valve (10 ms scan), one opening and closing dialogs: scan "
+        "overruns and memory, the runtime and its screens vs one process per HMI, and under "
+        "an OPC UA HEL attack")
 
 SECONDS, QUICK_SECONDS = 120.0, 20.0
 WARM_S, QUICK_WARM_S = 10.0, 4.0  # after the screens started: not measured
