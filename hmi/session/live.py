@@ -94,6 +94,11 @@ class LiveRunner:
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, name="plchmi-scan", daemon=True)
 
+    @property
+    def thread_id(self) -> int | None:
+        """The scan thread's id for the kernel (None before it starts)."""
+        return self._thread.native_id
+
     def start(self) -> None:
         settle_memory()
         arm_search_deadline(self.controller)
