@@ -16,7 +16,8 @@ Then ``OPC UA HEL attack``: the runtime with its OPC UA gateway (``plchmi gatewa
 client that sends a HEL claiming 2 GiB, then streams data into it for the whole window: the
 runtime's scans and memory, the gateway's memory.
 
-Memory is sampled every second after a warm-up; its growth is per minute of the measured
+Memory is sampled every second after a warm-up (the screen opening its dialogs already);
+its growth is per minute of the measured
 window, and over its second half alone (what is left once the bounded caches have filled).
 Attaching is timed too (connect to first frame). The machine is shared: its load is
 printed beside the figures. ``--quick`` shortens each set-up; ``--minutes``, ``--screens``,
@@ -219,7 +220,7 @@ def measure_split(folder: Path, env: dict[str, str], setup: Setup, tally: dict[s
         pids = [terminals.open(name, attach, env) for name in names]
         for name in names:
             _wait(lambda name=name: _started(terminals, name), f"the {name} screen")
-        time.sleep(setup.warm_s)
+        _drive(terminals, "busy", setup.warm_s, [], setup.dialog_every)  # (warm-up)
         before = runtime.viewer.query()
         samplers = [Sampled(runtime.process.pid), *(Sampled(pid) for pid in pids)]
         t0 = time.monotonic()
@@ -360,7 +361,7 @@ def measure_single(folder: Path, env: dict[str, str], setup: Setup, tally: dict[
         for name in ("busy", "idle"):
             _wait(lambda name=name: _started(terminals, name) and stats[name].exists(),
                   f"the {name} HMI")
-        time.sleep(setup.warm_s)
+        _drive(terminals, "busy", setup.warm_s, [], setup.dialog_every)  # (warm-up)
         before = {name: json.loads(path.read_text()) for name, path in stats.items()}
         samplers = [Sampled(pids["busy"]), Sampled(pids["idle"])]
         t0 = time.monotonic()
@@ -398,8 +399,9 @@ def run(args) -> None:
         return
     quick = getattr(args, "quick", False)
     minutes = getattr(args, "minutes", None)
+    warm = getattr(args, "warm_minutes", None)
     setup = Setup(seconds=minutes * 60 if minutes else QUICK_SECONDS if quick else SECONDS,
-                  warm_s=QUICK_WARM_S if quick else WARM_S,
+                  warm_s=warm * 60 if warm else QUICK_WARM_S if quick else WARM_S,
                   screens=max(1, getattr(args, "screens", 2)),
                   dialog_every=max(0.05, getattr(args, "dialog_every", DIALOG_EVERY_S)))
     print(f"  {PROJECT.name}, scan period {PERIOD_US // 1000} ms, {setup.seconds:g} s measured "

@@ -16,6 +16,8 @@ def add_parser(sub) -> None:
     p.add_argument("--seed", type=int, default=1, help="random seed for generated problems")
     p.add_argument("--minutes", type=float, metavar="M",
                    help="live only: minutes measured per set-up (default 2; --quick: 1/3)")
+    p.add_argument("--warm-minutes", type=float, metavar="M",
+                   help="live only: minutes of warm-up before measuring (default 1/6)")
     p.add_argument("--screens", type=int, default=2, metavar="N",
                    help="live only: screens attached to the runtime, one of them opening "
                    "and closing dialogs (default 2)")
