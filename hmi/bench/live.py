@@ -113,7 +113,15 @@ class Terminals:
         settings = " ".join(f"{k}={shlex.quote(v)}" for k, v in env.items())
         self.tmux("new-session", "-d", "-s", name, "-x", str(SIZE[0]), "-y", str(SIZE[1]),
                   f"exec env {settings} {shlex.join(command)}")
+        self.tmux("set-option", "-t", name, "remain-on-exit", "on")  # (to say why it ended)
         return int(self.tmux("display-message", "-p", "-t", name, "#{pane_pid}"))
+
+    def ended(self, name: str) -> str | None:
+        """What a terminal whose program ended shows last (None while it runs)."""
+        if self.tmux("display-message", "-p", "-t", name, "#{pane_dead}") != "1":
+            return None
+        lines = [line for line in self.screen(name).splitlines() if line.strip()]
+        return " / ".join(lines[-3:]) or "(nothing)"
 
     def press(self, name: str, key: str) -> None:
         self.tmux("send-keys", "-t", name, key)
@@ -134,14 +142,18 @@ def _wait(predicate, what: str) -> None:
 
 
 def _drive(terminals: Terminals, name: str, seconds: float, samplers: list[Sampled],
-           dialog_every: float) -> None:
+           dialog_every: float) -> str | None:
     """Press the dialog keys in `name` (one every half of `dialog_every`) for `seconds`,
-    sampling memory every second."""
+    sampling memory every second; stopped early if the screen ends (what it shows last is
+    returned)."""
     start = time.monotonic()
     next_sample = start
     pressed = 0
     while (now := time.monotonic()) - start < seconds:
         if now >= next_sample:
+            ended = terminals.ended(name)
+            if ended is not None:
+                return f"the screen with dialogs ENDED after {now - start:.0f} s: {ended}"
             for sampler in samplers:
                 sampler.sample()
             next_sample += 1.0
@@ -150,6 +162,7 @@ def _drive(terminals: Terminals, name: str, seconds: float, samplers: list[Sampl
         time.sleep(dialog_every / 2)
     for sampler in samplers:
         sampler.sample()
+    return None
 
 
 def _started(terminals: Terminals, name: str) -> bool:
@@ -220,12 +233,13 @@ def measure_split(folder: Path, env: dict[str, str], setup: Setup, tally: dict[s
         pids = [terminals.open(name, attach, env) for name in names]
         for name in names:
             _wait(lambda name=name: _started(terminals, name), f"the {name} screen")
-        _drive(terminals, "busy", setup.warm_s, [], setup.dialog_every)  # (warm-up)
+        ended = _drive(terminals, "busy", setup.warm_s, [], setup.dialog_every)  # (warm-up)
         before = runtime.viewer.query()
         samplers = [Sampled(runtime.process.pid), *(Sampled(pid) for pid in pids)]
         t0 = time.monotonic()
-        _drive(terminals, "busy", setup.seconds, samplers, setup.dialog_every)
-        elapsed = time.monotonic() - t0
+        ended = ended or _drive(terminals, "busy", setup.seconds, samplers,
+                                setup.dialog_every)
+        elapsed = max(time.monotonic() - t0, 1e-3)
         after = runtime.viewer.query()
         runtime.viewer.leave()
     finally:
@@ -237,7 +251,8 @@ def measure_split(folder: Path, env: dict[str, str], setup: Setup, tally: dict[s
             f"attach to first frame {runtime.first_frame_s * 1000:.0f} ms",
             *runtime.figures(before, after, elapsed, tally, "split runtime"),
             samplers[0].line("runtime memory", elapsed),
-            samplers[1].line("screen with dialogs", elapsed), *idle]
+            samplers[1].line("screen with dialogs", elapsed), *idle,
+            *([f"  {ended}"] if ended else [])]
 
 
 HEL_CLAIM = 2 ** 31 - 1  # bytes the hostile HEL's header says its message has
@@ -297,7 +312,7 @@ def measure_attack(folder: Path, env: dict[str, str], setup: Setup, tally: dict[
             for sampler in samplers:
                 sampler.sample()
             attack.join(1.0)
-        elapsed = time.monotonic() - t0
+        elapsed = max(time.monotonic() - t0, 1e-3)
         for sampler in samplers:
             sampler.sample()
         after = runtime.viewer.query()
@@ -361,12 +376,13 @@ def measure_single(folder: Path, env: dict[str, str], setup: Setup, tally: dict[
         for name in ("busy", "idle"):
             _wait(lambda name=name: _started(terminals, name) and stats[name].exists(),
                   f"the {name} HMI")
-        _drive(terminals, "busy", setup.warm_s, [], setup.dialog_every)  # (warm-up)
+        ended = _drive(terminals, "busy", setup.warm_s, [], setup.dialog_every)  # (warm-up)
         before = {name: json.loads(path.read_text()) for name, path in stats.items()}
         samplers = [Sampled(pids["busy"]), Sampled(pids["idle"])]
         t0 = time.monotonic()
-        _drive(terminals, "busy", setup.seconds, samplers, setup.dialog_every)
-        elapsed = time.monotonic() - t0
+        ended = ended or _drive(terminals, "busy", setup.seconds, samplers,
+                                setup.dialog_every)
+        elapsed = max(time.monotonic() - t0, 1e-3)
         time.sleep(0.6)  # (their figures as of the end)
         after = {name: json.loads(path.read_text()) for name, path in stats.items()}
     finally:
@@ -383,7 +399,7 @@ def measure_single(folder: Path, env: dict[str, str], setup: Setup, tally: dict[
             f"max {after[name]['max'] / 1000:.1f} ms")
     lines.append(samplers[0].line("HMI with dialogs memory", elapsed))
     lines.append(samplers[1].line("idle HMI memory", elapsed))
-    return lines
+    return lines + ([f"  {ended}"] if ended else [])
 
 
 def _has_opcua() -> bool:
