@@ -318,3 +318,43 @@ def test_the_data_folder_keeps_the_latest_studies_of_a_project(tmp_path, monkeyp
         folders.append(kept.folder)
     left = sorted((tmp_path / "data" / "studies").iterdir())
     assert len(left) == store.KEPT_STUDIES and folders[-1] in left and folders[0] not in left
+
+
+def test_a_seed_that_raises_is_reported_failing_and_the_farm_goes_on(tmp_path, capsys,
+                                                                     monkeypatch):
+    """Seed 2's session raises; seed 3 breaks an invariant and a replay of its shrink raises
+    (as a headless drain's WaitTimeout once did): both are failing seeds, with what raised,
+    seed 3 with the shortest list found before; seeds 1 and 4 are reported as usual."""
+    from hmi.soak import farm as soak_farm
+    from hmi.soak import runner
+    from hmi.soak.invariants import Broken
+
+    real = runner.session
+    replays = []
+
+    async def flaky(config, replay=None, journal_dir=None, progress=None):
+        if config.seed == 2:
+            raise RuntimeError("deliberate: the session")
+        if replay is not None:
+            replays.append(len(replay))
+            if len(replays) == 2:
+                raise TimeoutError("deliberate: a replay")
+        result = await real(config, replay, journal_dir, progress)
+        if config.seed == 3 and replay is None:
+            result.broken.append(Broken("exception", "deliberate", 1, 0))
+        return result
+    monkeypatch.setattr(runner, "session", flaky)
+    monkeypatch.setattr(soak_farm, "session", flaky)
+    monkeypatch.setenv("PLCHMI_DATA", str(tmp_path))
+    code, out, err = _run(capsys, "soak", str(VALVE), "--seeds", "1-4", "--steps", "4",
+                          "--jobs", "1")
+    assert code == 1, err
+    assert "4 seeds (1-4)" in out and "2 kept every invariant, 1 broke one, 1 raised" in out
+    assert "Seed 2: RAISED the session raised RuntimeError: deliberate: the session" in out
+    assert f"run again: plchmi soak {VALVE} --size 80x24 --seed 2 --minutes 30 --steps 4" in out
+    assert "Seed 3: BROKEN exception at scan 1" in out
+    assert "the shrink stopped: replay 2 raised TimeoutError: deliberate: a replay" in out
+    assert "after 4 steps; shrunk to 4 in 2 replays" in out  # nothing dropped before
+    assert "Seed 1" not in out and "Seed 4" not in out
+    saved = list(tmp_path.rglob("seed3.steps"))
+    assert len(saved) == 1 and len(saved[0].read_text().splitlines()) == 2 + 4

@@ -18,7 +18,7 @@ from pathlib import Path
 from hmi.errors import UsageError
 from hmi.limits import MAX_FILE_BYTES, MAX_RUN_SCANS
 from hmi.project.loader import load_project
-from hmi.soak.runner import SoakConfig, SoakResult, session, shrink
+from hmi.soak.runner import ShrinkStopped, SoakConfig, SoakResult, session, shrink
 from hmi.soak.steps import StepError, format_steps, parse_steps
 from hmi.textfile import FileProblem, read_text
 from hmi.timefmt import format_duration
@@ -72,7 +72,11 @@ def cmd_soak(args: argparse.Namespace) -> int:
     steps = result.steps
     if args.shrink > 0 and len(steps) > 1:
         print(f"shrinking the step list (up to {args.shrink:g} s)…", flush=True)
-        steps, replays = asyncio.run(shrink(config, steps, broken.invariant, args.shrink))
+        try:
+            steps, replays = asyncio.run(shrink(config, steps, broken.invariant, args.shrink))
+        except ShrinkStopped as stop:
+            steps, replays = stop.best, stop.replays
+            print(f"the shrink stopped: {stop}")
         print(f"shrunk from {len(result.steps)} to {len(steps)} steps in {replays} replays")
     saved = save_steps(config, steps, str(broken))
     print(f"\nSteps that reproduce it (saved in {saved}):")

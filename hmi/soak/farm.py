@@ -22,7 +22,7 @@ from hmi.farm.bundle import Bundle
 from hmi.farm.job import Study, make_job
 from hmi.farm.run import Farm
 from hmi.project.model import Project
-from hmi.soak.runner import SoakConfig, session, shrink
+from hmi.soak.runner import ShrinkStopped, SoakConfig, session, shrink, what_raised
 from hmi.soak.steps import format_steps
 
 
@@ -48,6 +48,7 @@ class SeedResult:
     shrunk: str | None = None  # the step list that reproduces it (steps.py's text form)
     shrunk_steps: int = 0
     replays: int = 0
+    error: str | None = None  # what raised: the session (no figures then) or a shrink replay
 
     @property
     def ok(self) -> bool:
@@ -81,10 +82,17 @@ def _setup(project: Project, options: dict[str, Any]) -> tuple[SoakConfig, int]:
 
 
 def _work(state: tuple[SoakConfig, int], seed: int) -> SeedResult:
+    """One seed. What raises in it is that seed's failure, reported as such: the other
+    seeds' results, and the farm, go on."""
     template, replays_allowed = state
     config = replace(template, seed=seed)
-    with tempfile.TemporaryDirectory(prefix="plchmi-soak-farm-") as folder:
-        result = asyncio.run(session(config, journal_dir=Path(folder)))
+    try:
+        with tempfile.TemporaryDirectory(prefix="plchmi-soak-farm-") as folder:
+            result = asyncio.run(session(config, journal_dir=Path(folder)))
+    except Exception as exc:
+        error = f"the session raised {what_raised(exc)}"
+        return SeedResult(seed, 0, 0, 0, {}, {}, 0, 0, 0, 0, 0, {}, 0, broken=error,
+                          invariant="raised", error=error)
     g = result.gestures
     base = SeedResult(seed, len(result.steps), result.virtual_us, result.scans,
                       dict(sorted(g.items())), dict(sorted(result.commands.items())),
@@ -93,12 +101,16 @@ def _work(state: tuple[SoakConfig, int], seed: int) -> SeedResult:
     if result.ok:
         return base
     broken = result.broken[0]
-    steps, replays = result.steps, 0
+    steps, replays, error = result.steps, 0, None
     if replays_allowed > 0 and len(steps) > 1:
-        steps, replays = asyncio.run(shrink(config, steps, broken.invariant, float("inf"),
-                                            replays_allowed))
+        try:
+            steps, replays = asyncio.run(shrink(config, steps, broken.invariant, float("inf"),
+                                                replays_allowed))
+        except ShrinkStopped as stop:
+            steps, replays, error = stop.best, stop.replays, f"the shrink stopped: {stop}"
     return replace(base, broken=str(broken), invariant=broken.invariant,
-                   shrunk=format_steps(steps), shrunk_steps=len(steps), replays=replays)
+                   shrunk=format_steps(steps), shrunk_steps=len(steps), replays=replays,
+                   error=error)
 
 
 def _encode(result: SeedResult) -> dict[str, Any]:
@@ -123,12 +135,16 @@ def report_lines(results: list[SeedResult], project: Project, config: SoakConfig
     checks = Counter[str]()
     for r in results:
         checks.update(r.checks)
+    raised = sum(1 for r in broken if r.shrunk is None)
     limit = f" or {config.max_steps} steps" if config.max_steps else ""
+    options = ((f" --control {config.control}" if config.control else "")
+               + f" --size {config.size[0]}x{config.size[1]}")
     lines = [
         f"Soak farm of {project.name} (control {config.control or 'default'}, "
         f"{config.size[0]}x{config.size[1]}): {len(results)} seeds ({_ranges(seeds)}), "
         f"{config.minutes:g} virtual minutes{limit} each",
-        f"  {len(results) - len(broken)} kept every invariant, {len(broken)} broke one",
+        f"  {len(results) - len(broken)} kept every invariant, {len(broken) - raised} broke one"
+        + (f", {raised} raised" if raised else ""),
         f"  in all: {sum(r.virtual_us for r in results) / 1e6:,.1f} s virtual in "
         f"{sum(r.steps for r in results):,} steps and {sum(r.scans for r in results):,} "
         f"scans; {sum(r.skipped for r in results):,} steps not possible",
@@ -142,14 +158,19 @@ def report_lines(results: list[SeedResult], project: Project, config: SoakConfig
         "  invariants checked: " + ", ".join(f"{k} {n:,}" for k, n in sorted(checks.items())),
     ]
     for r in broken:
+        if r.shrunk is None:  # the session itself raised: no step list, the seed re-runs it
+            lines += ["", f"Seed {r.seed}: RAISED {r.error}",
+                      f"  run again: plchmi soak {typed_path}{options} --seed {r.seed} "
+                      f"--minutes {config.minutes:g}"
+                      + (f" --steps {config.max_steps}" if config.max_steps else "")]
+            continue
         lines += ["", f"Seed {r.seed}: BROKEN {r.broken}",
                   f"  after {r.steps} steps; shrunk to {r.shrunk_steps} in {r.replays} replays "
                   f"(at most {shrink_replays}):"]
-        lines += [f"    {line}" for line in (r.shrunk or "").splitlines()]
-        lines.append(f"  replay: plchmi soak {typed_path}"
-                     + (f" --control {config.control}" if config.control else "")
-                     + f" --size {config.size[0]}x{config.size[1]} --replay "
-                     f"seed{r.seed}.steps")
+        if r.error:
+            lines.insert(-1, f"  {r.error}")
+        lines += [f"    {line}" for line in r.shrunk.splitlines()]
+        lines.append(f"  replay: plchmi soak {typed_path}{options} --replay seed{r.seed}.steps")
     return lines
 
 

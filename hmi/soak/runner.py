@@ -321,13 +321,27 @@ async def click_row(pilot, name: str) -> bool:
     return await click(pilot, "#io", 3, y)
 
 
+class ShrinkStopped(Exception):
+    """A replay raised while shrinking: the shortest list found so far still reproduces the
+    failure, so it is kept (with what raised) rather than lost with the whole shrink."""
+
+    def __init__(self, best: list[Step], replays: int, error: BaseException):
+        super().__init__(f"replay {replays} raised {what_raised(error)}")
+        self.best, self.replays, self.error = best, replays, error
+
+
+def what_raised(error: BaseException) -> str:
+    return f"{type(error).__name__}: {error}"
+
+
 async def shrink(config: SoakConfig, steps: list[Step], invariant: str,
                  budget_s: float = 300.0, max_replays: int | None = None
                  ) -> tuple[list[Step], int]:
     """The shortest step list found within `budget_s` (and `max_replays` replays) that still
     breaks `invariant`, and the number of replays tried (ddmin: drop chunks, halving them
     when none can go). Bounded by replays alone (`budget_s` infinite), the result does not
-    depend on the machine's speed: the soak farm's reports are the same wherever it ran."""
+    depend on the machine's speed: the soak farm's reports are the same wherever it ran.
+    A replay that raises stops the shrink: :class:`ShrinkStopped` carries the best so far."""
     deadline = time.perf_counter() + budget_s
     replays = 0
 
@@ -351,7 +365,10 @@ async def shrink(config: SoakConfig, steps: list[Step], invariant: str,
         for start in range(0, len(best), size):
             if out_of_budget():
                 break
-            found = await breaks(best[:start] + best[start + size:])
+            try:
+                found = await breaks(best[:start] + best[start + size:])
+            except Exception as exc:
+                raise ShrinkStopped(best, replays, exc) from exc
             if found is not None:
                 best = found
                 chunks = max(chunks - 1, 2)
