@@ -63,6 +63,7 @@ class Setup:
     warm_s: float
     screens: int = 2
     dialog_every: float = DIALOG_EVERY_S
+    realtime: bool = True  # the runtime's scan at SCHED_FIFO where the kernel allows it
 
 
 @dataclass
@@ -175,7 +176,7 @@ class Runtime:
     """``plchmi serve`` on the bench's project, with this bench's viewer attached (its
     figures: Query), stopped at the end."""
 
-    def __init__(self, folder: Path, env: dict[str, str]):
+    def __init__(self, folder: Path, env: dict[str, str], realtime: bool = True):
         from hmi.link.client import SocketLink
         from hmi.project.kept import fingerprint, load_once
         from hmi.wire import messages as m
@@ -185,7 +186,8 @@ class Runtime:
         self.log = open(folder / "runtime.log", "wb")  # noqa: SIM115 (closed by stop)
         self.process = subprocess.Popen(
             [sys.executable, "-m", "hmi.cli", "serve", str(PROJECT), "--socket",
-             str(self.sock)], stdin=subprocess.DEVNULL, stdout=self.log, stderr=self.log,
+             str(self.sock), *([] if realtime else ["--no-realtime"])],
+            stdin=subprocess.DEVNULL, stdout=self.log, stderr=self.log,
             env={**os.environ, **env})
         try:
             _wait(self.sock.exists, "the runtime's socket")
@@ -224,7 +226,7 @@ class Runtime:
 
 def measure_split(folder: Path, env: dict[str, str], setup: Setup, tally: dict[str, int]
                   ) -> list[str]:
-    runtime = Runtime(folder / "split", env)
+    runtime = Runtime(folder / "split", env, setup.realtime)
     terminals = Terminals()
     names = ["busy", *(f"idle{n}" for n in range(1, setup.screens))]
     try:
@@ -291,7 +293,7 @@ def measure_attack(folder: Path, env: dict[str, str], setup: Setup, tally: dict[
     claims 2 GiB for the whole window."""
     from hmi.bench.opcua import _free_port
 
-    runtime = Runtime(folder / "attack", env)
+    runtime = Runtime(folder / "attack", env, setup.realtime)
     port = _free_port()
     log = open(folder / "gateway.log", "wb")  # noqa: SIM115 (closed below)
     gateway = subprocess.Popen(
@@ -419,7 +421,8 @@ def run(args) -> None:
     setup = Setup(seconds=minutes * 60 if minutes else QUICK_SECONDS if quick else SECONDS,
                   warm_s=warm * 60 if warm else QUICK_WARM_S if quick else WARM_S,
                   screens=max(1, getattr(args, "screens", 2)),
-                  dialog_every=max(0.05, getattr(args, "dialog_every", DIALOG_EVERY_S)))
+                  dialog_every=max(0.05, getattr(args, "dialog_every", DIALOG_EVERY_S)),
+                  realtime=not getattr(args, "no_realtime", False))
     print(f"  {PROJECT.name}, scan period {PERIOD_US // 1000} ms, {setup.seconds:g} s measured "
           f"per set-up after {setup.warm_s:g} s of warm-up; terminals {SIZE[0]}x{SIZE[1]}; a "
           f"dialog opened and closed every {setup.dialog_every:g} s; {load_line()}",

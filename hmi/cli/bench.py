@@ -23,6 +23,9 @@ def add_parser(sub) -> None:
                    "and closing dialogs (default 2)")
     p.add_argument("--dialog-every", type=float, default=0.5, metavar="S",
                    help="live only: a dialog opened and closed every S seconds (default 0.5)")
+    p.add_argument("--no-realtime", action="store_true",
+                   help="live only: the runtime at normal priority (plchmi serve "
+                   "--no-realtime), e.g. beside another real-time measurement")
     p.add_argument("--split-only", action="store_true",
                    help="live only: the runtime and its screens alone (no one-process "
                    "comparison, no OPC UA attack)")
