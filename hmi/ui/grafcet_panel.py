@@ -19,6 +19,10 @@ come, ``…, and X10 active``; ``✓ met`` once it holds (in manual mode: it goe
 program resumes). A join whose steps are all active is shown once, under the last of them.
 A step past its supervision time (the program stuck there, an alarm) reads ``✗ stuck``, in
 the alarm colour, instead of the arrow.
+
+In recovery mode the procedure drives the outputs and the program waits, to start again from
+its initial steps when recovery is left: the first line says so, and the steps it was in read
+``‖ … (held)``, with no time running and nothing they wait for.
 """
 
 from __future__ import annotations
@@ -150,10 +154,17 @@ class GrafcetPanel(TextPanel):
         engineering = frame.engineering or self.words is None
         name_w = max((len(s.name) for s in self.steps), default=2) if engineering else -1
         text = Text(no_wrap=True, overflow="ellipsis")
+        # in recovery mode the procedure drives the outputs and the program waits; it starts
+        # again from its initial steps when recovery is left: its steps are held, not running
+        held = (frame.mode_commanded or snap.mode) == "recovery"
         if frame.manual_keys:  # (the program waits from the command on)
             text.append_text(tag("waiting — manual mode", Level.ATTENTION))
             text.append(": resumes from here\n" if self.steps else ": memories held\n",
                         style=MUTED)
+        elif held:
+            text.append_text(tag("waiting — recovery", Level.ATTENTION))
+            text.append(": it drives the outputs; the program starts again at its first "
+                        "step when you leave recovery\n", style=MUTED)
         if not self.steps:
             text.append("no GRAFCET (equations only)\n", style=MUTED)
         compact = self.compact
@@ -172,6 +183,10 @@ class GrafcetPanel(TextPanel):
                     snap.layout.slots else 0
                 stuck = step.name in snap.overdue_steps
                 mark = STYLE[Level.ALARM] if stuck else Style(bold=True)
+                if held:  # where the program stopped: held, and nothing it waits for counts
+                    text.append(f"‖ {step.name.ljust(name_w) + ' ' if engineering else ''}"
+                                f"{cut(step.description, desc_w)} (held)\n", style=MUTED)
+                    continue
                 text.append(f"{SYMBOL[Level.ALARM] if stuck else '●'} ", style=mark)
                 if engineering:
                     text.append(f"{step.name.ljust(name_w)} ", style="bold")
