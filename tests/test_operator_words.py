@@ -102,3 +102,14 @@ async def test_in_recovery_mode_the_control_panel_says_the_program_waits(size):
         assert "‖ Open, filling" in text and "(held)" in text
         await run_for(pilot, 5)  # done: still waiting until recovery is left
         assert "waiting — recovery" in control(app)
+
+
+async def test_a_timer_reads_its_time_and_preset_in_one_unit():
+    """The control panel's timers read `0.03/200ms` (the palletizer) and `0.78/2.45s`: the
+    time run in seconds without a unit, the preset in the project's own notation. Both are
+    seconds now, with the unit once: `0.00/2.45 s`."""
+    app = make_app()
+    async with app.run_test(size=(160, 48)) as pilot:
+        await run_for(pilot, 12.3)
+        text = control(app)
+        assert "/2.45 s" in text and "/2.45s" not in text, text

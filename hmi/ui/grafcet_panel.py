@@ -35,7 +35,6 @@ from rich.text import Text
 
 from hmi.engine.criteria import Wait
 from hmi.explain.plain import lower_first, without_notes
-from hmi.timefmt import format_duration
 from hmi.ui.frame import Frame
 from hmi.ui.panel import TextPanel, set_title
 from hmi.ui.style import MUTED, OK_SYMBOL, STYLE, SYMBOL, Level, tag
@@ -64,6 +63,11 @@ def _plain_timer(info: TimerInfo) -> str:
 
 def _secs(us: int) -> str:
     return f"{us / 1_000_000:6.2f} s"
+
+
+def timer_time(elapsed_us: int, preset_us: int) -> str:
+    """'0.03/0.2 s': the time run and the preset in one unit (it read '0.03/200ms')."""
+    return f"{elapsed_us / 1e6:4.2f}/{preset_us / 1e6:g} s"
 
 
 def timer_bar(elapsed_us: int, preset_us: int, width: int = BAR) -> str:
@@ -211,12 +215,12 @@ class GrafcetPanel(TextPanel):
                     continue
                 text.append(f"{_plain_timer(info).ljust(plain_w)} ", style=MUTED)
                 text.append(timer_bar(state.elapsed_us, state.preset_us))
-                text.append(f" {state.elapsed_us / 1e6:4.2f}/{format_duration(state.preset_us)}")
+                text.append(f" {timer_time(state.elapsed_us, state.preset_us)}")
                 text.append("  done\n" if state.q else "\n", style="bold" if state.q else "")
                 continue
             text.append(f"{state.name.ljust(timer_w)} {kind} ", style=MUTED)
             text.append(timer_bar(state.elapsed_us, state.preset_us))
-            text.append(f" {state.elapsed_us / 1e6:4.2f}/{format_duration(state.preset_us)}")
+            text.append(f" {timer_time(state.elapsed_us, state.preset_us)}")
             text.append(f"  Q {int(state.q)}\n", style="bold" if state.q else "")
         text.rstrip()
         return text
