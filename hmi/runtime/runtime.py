@@ -40,13 +40,19 @@ def helpers_realtime(scan_thread: int | None) -> bool:
     switch interval. They mostly wait (sockets, queues, a disk); threads they start inherit
     the priority, except the sign-in checks (hmi.access.signin), which give it back."""
     raised = False
-    for thread in threading.enumerate():
-        tid = thread.native_id
-        if tid is None or tid == scan_thread:
-            continue
-        with contextlib.suppress(OSError):
-            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(HELPERS_PRIORITY))
-            raised = True
+    done: set[int] = set()
+    # twice: a thread started meanwhile by one not yet raised (a screen attaching at once) was
+    # born at normal priority and is raised by the second pass; after it every parent is
+    # raised and its new threads inherit the priority
+    for _ in range(2):
+        for thread in threading.enumerate():
+            tid = thread.native_id
+            if tid is None or tid == scan_thread or tid in done:
+                continue
+            done.add(tid)
+            with contextlib.suppress(OSError):
+                os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(HELPERS_PRIORITY))
+                raised = True
     return raised
 
 
