@@ -249,6 +249,32 @@ def test_an_urgent_alarm_out_of_sight_is_caught(monkeypatch):
     assert "urgent-alarm-hidden" in [b.invariant for b in result.broken]
 
 
+def test_the_urgent_check_reads_a_row_as_the_alarm_list_draws_it():
+    """`urgent-alarm-hidden` finds an alarm's row with the device in a column of its own or
+    not. From 110 columns the cell's row reads `cispi_valve Cell: stopped safe — …` (its
+    text does not start with its device): the check read the device as the text's start
+    and missed a row on screen. Another alarm's row, at the same time, is not this one's."""
+    from hmi.soak.invariants import _row_shows
+    from hmi.ui.alarm_list import DEVICE_W, alarm_row
+
+    def alarm(text: str, device: str) -> alarms.Alarm:
+        return alarms.Alarm("k", alarms.ACTIVE_UNACK, "medium", text, device, "latch",
+                            1, 6_960_000, 6_960_000, latched=True)
+    cell = alarm("Cell: stopped safe — a safety rule was broken", "cispi_valve")
+    valve = alarm("Valve V1: seen between its end positions, its position unknown",
+                  "Valve V1")
+    arm = alarm("Robot arm gripper A2: part lost on the way to the table",
+                "Robot arm gripper A2")
+    other = alarm("Valve V1: all outputs held at their safe values", "Valve V1")
+    for shown in (cell, valve, arm, other):
+        for device_w in (0, min(DEVICE_W, len(shown.device)), DEVICE_W):
+            for width in (60, 118):
+                row = "  " + alarm_row(shown, width, device_w).plain
+                assert _row_shows(row, shown), row
+                assert not any(_row_shows(row, a) for a in (cell, valve, arm, other)
+                               if a is not shown and a.device == shown.device), row
+
+
 def test_a_dialog_over_the_status_bar_is_caught(monkeypatch):
     """A dialog whose screen is opaque (as the comment dialog's was) or whose box starts
     over the status bar: caught."""

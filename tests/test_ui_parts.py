@@ -6,6 +6,7 @@ from __future__ import annotations
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from rich.text import Text
 
 from hmi.engine.snapshot import LatchReason
 from hmi.explain.reset import PREVIEWS, ResetLine, reset_preview
@@ -14,7 +15,7 @@ from hmi.session.recorder import ScanRecorder, Trace
 from hmi.ui.chronogram import FALL, HIGH, LOW, MULTI, RISE, UNKNOWN, axis, columns
 from hmi.ui.fault_dialog import parse_delay
 from hmi.ui.frame import Frame
-from hmi.ui.status import banner_lines, fit, late_help, status_fields
+from hmi.ui.status import Field, banner_lines, fit, join, late_help, status_fields
 from hmi.ui.style import MUTED
 from hmi.ui.verdict import output_changes, request_verdict
 from tests.conftest import PROJECTS, make_controller
@@ -107,6 +108,34 @@ def test_status_at_80_columns_keeps_the_project_and_the_late_flag_over_scan_time
     assert "1 scan late" in fit(status_fields(_frame(snap, show_measured=True, overruns=1),
                                               wide=True), 200).plain
     assert "more than a whole scan period behind" in late_help(3)
+
+
+def _cropped(line: str, width: int) -> str:
+    """The status bar as drawn: a line too wide ends in "…" at its last cell."""
+    return line if len(line) <= width else line[:width - 1] + "…"
+
+
+@given(st.lists(st.tuples(st.integers(1, 24), st.integers(0, 3), st.integers(0, 2)),
+                max_size=9), st.integers(0, 9), st.integers(24, 130))
+def test_the_status_bar_keeps_the_alarm_count_whole(specs, at, width):
+    """Whatever the other fields: the count of the most urgent alarms is whole on screen
+    whenever it fits after the fields that never give way before it (before, the crop cut
+    it to `✗ 1 P1 un…` when the fields kept longest were too wide), and those fields are
+    all in the line."""
+    fields = [Field(Text(f"f{i}" + "x" * n), priority, gives_way=yields if not priority else 0)
+              for i, (n, priority, yields) in enumerate(specs)]
+    count = Field(Text("✗ 3 P1 unack"), 0, alarm_count=True)
+    fields.insert(min(at, len(fields)), count)
+    line = fit(fields, width).plain
+    place = next(i for i, f in enumerate(fields) if f is count)
+    never = [f for f in fields if f.priority == 0 and not f.gives_way]
+    assert all(f.text.plain in line for f in never)
+    before = never[:next(i for i, f in enumerate(never) if f is count)]
+    if join([*before, count]).cell_len <= width - 1 or \
+            join(fields[:place + 1]).cell_len <= width:
+        assert "✗ 3 P1 unack" in _cropped(line, width), (line, width)
+    if join(fields).cell_len <= width:  # room for all: nothing dropped
+        assert line == join(fields).plain
 
 
 def test_every_coloured_status_field_carries_a_symbol_or_word():

@@ -11,7 +11,7 @@ from __future__ import annotations
 import pytest
 from textual.command import CommandPalette
 from textual.screen import ModalScreen
-from ui_harness import driver, region_text, run_for, run_until, screen_text
+from ui_harness import driver, palette, region_text, run_for, run_until, screen_text
 from ui_scenarios import VALVE, make_app
 
 from hmi.engine.commands import InjectFault, StopDevice
@@ -197,6 +197,30 @@ async def test_the_urgent_count_and_the_late_flag_never_drop_from_the_status_bar
         status = top_lines(app, 1)[0]
         assert "1 P1 unack" in status and "7 " in status and "late" in status, status
         assert "AUTO" in status and "correct" in status, status
+
+
+@pytest.mark.parametrize("width", [60, 64, 72, 80])
+async def test_the_urgent_count_is_whole_when_the_fields_always_kept_are_too_wide(width):
+    """In recovery, with the engineering view and nobody in control, the fields kept at
+    every width were wider than 64 columns, and the crop cut the count to `✗ 1 P1 un…`.
+    The engineering view, then who is in control, give way to the cell's state: the count
+    is whole, and so are the mode, the policy and the run state."""
+    app = make_app(inject=("F13@2s",))
+    async with app.run_test(size=(width, 24)) as pilot:
+        await press(pilot, "E")
+        await run_for(pilot, 4)
+        await palette(pilot, "Recovery: start", "Recovery: start")
+        await press(pilot, "y")
+        app.release_control()
+        await run_for(pilot, 0.1)
+        snap = app.link.last
+        assert snap.mode == "recovery" and app.frame.control.holder is None
+        assert sum(a.priority == 1 and a.state == ACTIVE_UNACK for a in snap.alarms) == 1
+        status = top_lines(app, 1)[0]
+        for word in ("✗ 1 P1 unack", "▲ RECOVERY", "correct", "▶ run ×1"):
+            assert word in status, status
+        if width >= 80:  # room for all: nothing gives way
+            assert "▲ nobody in control │ ▲ ENG │" in status, status
 
 
 @pytest.mark.parametrize("size", SIZES, ids=lambda s: f"{s[0]}x{s[1]}")

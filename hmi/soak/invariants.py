@@ -400,13 +400,20 @@ def _squeezed(text: str) -> str:
 
 def _row_shows(line: str, alarm) -> bool:
     """Whether an alarm list line is this alarm's row: its priority, the time it was raised,
-    then the start of its text as the row fits it — the device in a column of its own or
-    not, the text cut with "…" at a narrow width (compared without spaces and colons)."""
+    then the start of its text as the row fits it, the text cut with "…" at a narrow width
+    (compared without spaces and colons). From 110 columns the device has a column of its
+    own (cut to its width) and the text then leaves out a leading device name; a text that
+    does not start with it ("Cell: stopped safe" of the device "cispi_valve") is whole."""
+    from hmi.ui.alarm_list import DEVICE_W, without_device
     stamp = f"P{alarm.priority} "
     raised = f"{seconds(alarm.raised_us)} s  "
     start = line.find(stamp)
     at = line.find(raised, start) if start >= 0 else -1
     if at < 0:
         return False
-    shown = _squeezed(line[at + len(raised):].split("…")[0].split("  ")[0])
-    return bool(shown) and _squeezed(alarm.text).startswith(shown[:40])
+    rest, text = line[at + len(raised):].lstrip(), alarm.text
+    column = alarm.device[:DEVICE_W]
+    if column and rest.startswith(column + " "):
+        rest, text = rest[len(column):].lstrip(), without_device(alarm.text, alarm.device)
+    shown = _squeezed(rest.split("…")[0].split("  ")[0])
+    return bool(shown) and _squeezed(text).startswith(shown[:40])

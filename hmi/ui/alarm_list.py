@@ -48,6 +48,7 @@ STATE_WIDTH = max(len(f"{s} {w}") for s, w in STATES.values())
 PRIORITY_LEVEL = {1: Level.ALARM, 2: Level.ATTENTION, 3: Level.ATTENTION}
 SELECTED = Style(bgcolor="#4a4a4a")
 WIDE = 110  # from this width on, a device column
+DEVICE_W = 16  # the device column's widest (a longer name is cut)
 
 
 SHORT = 30  # below this height: three rows, and a top border only (see app.tcss)
@@ -302,7 +303,7 @@ class AlarmList(TextPanel):
         set_title(self, " · ".join((title, *hidden)))  # on the top line: always shown
         device_w = 0
         if width >= WIDE:
-            device_w = min(16, max(len(a.device) for a in self.alarms))
+            device_w = min(DEVICE_W, max(len(a.device) for a in self.alarms))
         time_w = max(len(seconds(a.raised_us)) for a in self.alarms)
         text = Text(no_wrap=True, overflow="ellipsis")
         for i, alarm in enumerate(self.alarms[k] for k in shown):

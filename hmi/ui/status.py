@@ -3,7 +3,10 @@
 The status bar is one line. When the terminal is narrow it uses short forms, then drops its
 least important fields first (measured scan time, plant details; the project name among
 the last) and never the mode, the filter policy, the run state, the count of the most urgent
-unacknowledged alarms (``✗ 3 P1 unack``) nor the late-scan flag. The banner
+unacknowledged alarms (``✗ 3 P1 unack``) nor the late-scan flag — unless these alone are
+still too wide. Then the words on how this screen is used give way to the cell's state
+(the engineering view, then who is in control), and, last, what follows the alarm count, so
+that the count is whole: a new P1 is never out of sight. The banner
 strip appears only while something abnormal is in effect: manual mode
 (MANUAL / FORCES ACTIVE), recovery mode (RECOVERY, with its step), a device the operator
 stopped, outputs latched in the safe state, and, for the rest of the session, an error of the
@@ -35,6 +38,9 @@ SEPARATOR = " │ "
 class Field:
     text: Text
     priority: int  # 0 is kept longest
+    # among the fields kept longest, which go first when they alone are too wide (0: never)
+    gives_way: int = 0
+    alarm_count: bool = False  # the count of the most urgent unacknowledged alarms
 
 
 def speed_text(speed: float | None) -> str:
@@ -62,10 +68,14 @@ def status_fields(frame: Frame, wide: bool, compact: bool = False) -> list[Field
         fields.append(Field(*serving_field(frame.serving)))
     elif frame.gateway is not None:
         fields.append(Field(*gateway_field(frame.gateway)))
+    # Who is in control and the engineering view are kept as long as the cell's state fits
+    # beside them; then they give way to it, the view first (its panels show it anyway),
+    # then control (the message line says when it changes, and every refused command why)
     if (control := control_field(frame)) is not None:
-        fields.append(Field(*control))
-    if frame.engineering:  # never dropped: the screen then names the model's internals
-        fields.append(Field(tag("ENG" if compact else "ENG VIEW", Level.ATTENTION), 0))
+        fields.append(Field(*control, gives_way=1))
+    if frame.engineering:  # the screen then names the model's internals
+        fields.append(Field(tag("ENG" if compact else "ENG VIEW", Level.ATTENTION), 0,
+                            gives_way=2))
     if snap.mode == "manual":
         fields.append(Field(tag("MANUAL", Level.ATTENTION), 0))
     elif snap.mode == "recovery":
@@ -79,13 +89,15 @@ def status_fields(frame: Frame, wide: bool, compact: bool = False) -> list[Field
         fields.append(Field(tag(f"{filter_word}monitor", Level.ATTENTION), 0))
     else:
         fields.append(Field(Text(f"{filter_word}{snap.policy}"), 0))
-    # The most urgent unacknowledged alarms, counted: never dropped, whatever the list shows
+    # The most urgent unacknowledged alarms, counted: never dropped nor cut, whatever the
+    # list shows (a soak invariant)
     urgent = urgent_count(tuple(snap.alarms))
     if urgent:
         priority = snap.alarms[0].priority
         word = "unack" if compact else "unacknowledged"
         fields.append(Field(tag(f"{urgent} P{priority} {word}",
-                                Level.ALARM if priority == 1 else Level.ATTENTION), 0))
+                                Level.ALARM if priority == 1 else Level.ATTENTION), 0,
+                            alarm_count=True))
     report = snap.filter
     if report is not None and report.violations:
         count = len(report.violations)
@@ -137,16 +149,36 @@ def join(fields: list[Field]) -> Text:
 
 
 def fit(fields: list[Field], width: int) -> Text:
-    """Join fields with separators, dropping the least important until the line fits."""
+    """Join fields with separators, dropping the least important until the line fits.
+
+    When only the fields kept longest are left and they are still too wide, those that give
+    way go (the highest `gives_way` first, and back in if it fits once a later one went);
+    then, if the alarm count would still be cut, the fields after it; what is left is
+    cropped at the right edge."""
     kept = list(fields)
-    while True:
-        line = join(kept)
-        if line.cell_len <= width or len(kept) <= 1:
-            return line
+
+    def too_wide(upto: int) -> bool:
+        return join(kept[:upto]).cell_len > width
+
+    while too_wide(len(kept)) and len(kept) > 1:
         worst = max(range(len(kept)), key=lambda i: (kept[i].priority, i))
         if kept[worst].priority == 0:
-            return line  # only essentials left: let it crop rather than hide them
+            break
         kept.pop(worst)
+    place = {id(f): i for i, f in enumerate(fields)}
+    gone: list[Field] = []
+    while too_wide(len(kept)) and any(f.gives_way for f in kept):
+        gone.append(kept.pop(max(range(len(kept)), key=lambda i: kept[i].gives_way)))
+    for field in reversed(gone[:-1]):  # one that went first may fit once a later one went
+        back = sorted([*kept, field], key=lambda f: place[id(f)])
+        if join(back).cell_len <= width:
+            kept = back
+    count = next((i for i, f in enumerate(kept) if f.alarm_count), None)
+    # a cropped line ends in "…" at its last cell: the count is whole if it ends before
+    while count is not None and len(kept) > count + 1 and too_wide(len(kept)) \
+            and join(kept[:count + 1]).cell_len > width - 1:
+        kept.pop()
+    return join(kept)
 
 
 class StatusBar(TextPanel):
