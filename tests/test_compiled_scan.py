@@ -323,7 +323,10 @@ def test_printed_code_names_only_what_the_stages_declare():
 
     class Stray:
         PRINTED = Vocabulary()
-        parts = {"filter": ()}  # the engine's own part, not the program's
+
+        @property
+        def parts(self) -> dict[str, tuple[()]]:
+            return {"filter": ()}  # the engine's own part, not the program's
 
     project = load(PROJECTS / "cispi_valve")
     engine = Engine(project, SimPlant(project))

@@ -29,7 +29,7 @@ history (``history[0]`` the image at the end of the previous scan, and so on bac
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import TYPE_CHECKING, ClassVar, Protocol
+from typing import TYPE_CHECKING, Protocol
 
 from hmi.engine.codegen import Vocabulary
 from hmi.engine.layout import Layout
@@ -56,7 +56,7 @@ class ProgramStage(Protocol):
     allow-list, hmi.engine.codegen). The engine lists its program's stages once
     (Engine.__init__); the scan program puts their parts in order (hmi.engine.compiled)."""
 
-    PRINTED: ClassVar[Vocabulary]
+    PRINTED: Vocabulary  # (a class attribute)
 
     @property
     def parts(self) -> Mapping[str, tuple[Stmt, ...]]: ...
