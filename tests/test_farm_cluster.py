@@ -115,28 +115,53 @@ def cluster(tmp_path_factory):
         c.close()
 
 
+def _hold(name: str, marker: Path):
+    """A worker plugin that holds worker `name` on the first shard it starts: its event
+    loop stops there, before the shard runs (as a machine that hangs), after writing the
+    shard's key to `marker`. The shard can then only end by being computed again elsewhere,
+    however fast or slow the machine: the study cannot finish before the worker is killed.
+    Bounded (START_S), so that a failing test leaves no worker held for ever. A class made
+    here, so that it travels to the workers by value (they cannot import the tests)."""
+
+    class Hold(distributed.WorkerPlugin):
+        name = "plchmi-test-hold"
+
+        def __init__(self, target: str, marker: str):
+            self.target, self.marker = target, marker
+
+        def setup(self, worker):
+            self.worker = worker
+
+        def transition(self, key, start, finish, **kwargs):
+            if finish == "executing" and "-shard" in str(key) and \
+                    self.worker.name == self.target and not Path(self.marker).exists():
+                Path(self.marker).write_text(str(key))
+                time.sleep(START_S)
+
+    return Hold(name, str(marker))
+
+
 class Killer(threading.Thread):
-    """Kills worker `name` once it has been computing a shard for half a second: its shards
-    then have to be computed again by the other worker. Remembers which shards it held."""
+    """Kills worker `name` while it holds a shard (:func:`_hold`): its shards then have to be
+    computed again by the other worker. Remembers which shards it held."""
 
     def __init__(self, cluster: Cluster, name: str):
         super().__init__(daemon=True)
         self.cluster, self.name = cluster, name
         self.address = cluster.address_of(name)
+        self.marker = cluster.folder / f"{name}-holds"
+        self.marker.unlink(missing_ok=True)
         self.held: list[str] = []
         self.stop = threading.Event()
 
     def run(self) -> None:
         client = distributed.Client(self.cluster.address, timeout=START_S)
         try:
-            busy_since = None
             while not self.stop.wait(0.05):
-                held = [str(k) for k in client.processing().get(self.address, ())]
-                if not held:
-                    busy_since = None
+                if not self.marker.exists():
                     continue
-                busy_since = busy_since or time.monotonic()
-                if time.monotonic() - busy_since >= 0.5:
+                held = [str(k) for k in client.processing().get(self.address, ())]
+                if self.marker.read_text() in held:
                     self.held = held
                     self.cluster.processes[self.name].send_signal(signal.SIGKILL)
                     return
@@ -159,12 +184,14 @@ def _run_killing(cluster: Cluster, capsys, argv: list[str]) -> tuple[str, str, K
     # in a folder of their own, would say where they ran.
     shutil.rmtree(Path(os.environ["PLCHMI_DATA"]) / "studies", ignore_errors=True)
     killer = Killer(cluster, "w2")
+    cluster.client.register_plugin(_hold("w2", killer.marker))
     killer.start()
     try:
         code = main([*argv, "--cluster", cluster.address])
     finally:
         killer.stop.set()
         killer.join(10)
+        cluster.client.unregister_worker_plugin("plchmi-test-hold")
     out, err = capsys.readouterr()
     assert code in (0, 1), err
     assert killer.held, "the worker was never seen computing a shard: nothing was killed"
@@ -181,7 +208,7 @@ def _check_rerun(killer: Killer, survivor: str) -> None:
 def test_a_sweep_on_the_cluster_is_the_local_report_though_a_worker_dies(cluster, capsys,
                                                                          monkeypatch):
     cluster.ensure("w1", "w2")
-    # Small shards (20 runs, ~0.2 s), so that the run is still going when w2 dies.
+    # Small shards (20 runs, ~0.2 s): more of them than the two workers hold at once.
     monkeypatch.setattr("hmi.studies.loop_sweep.SHARD_RUNS", 20)
     argv = ["campaign", str(VALVE), "--sweep", "--every", "400ms", "--faults", "F5,F8,F13"]
     assert main([*argv, "--jobs", "1"]) == 0
