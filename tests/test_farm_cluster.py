@@ -69,7 +69,16 @@ class Cluster:
                 self.client.scheduler_info()["workers"].items()}
 
     def address_of(self, name: str) -> str:
-        return next(address for address, n in self.names().items() if n == name)
+        names = self.names()
+        found = [address for address, n in names.items() if n == name]
+        assert found, f"worker {name} is not in the cluster ({names}); {self.logs()}"
+        return found[0]
+
+    def logs(self) -> str:
+        """The end of each process's log, for a failure's message."""
+        return "\n".join(f"-- {path.name} (last 2,000 characters):\n"
+                         + path.read_text(errors="replace")[-2000:]
+                         for path in sorted(self.folder.glob("*.log")))
 
     def ensure(self, *names: str) -> None:
         """These workers, and only these: a killed or extra one restarted or stopped."""
