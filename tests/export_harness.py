@@ -284,10 +284,7 @@ def engine_for(project: Project, inject: Iterable[str | Injection] = (),
     plant = SimPlant(project)
     for item in inject:
         plant.inject(parse_injection(item) if isinstance(item, str) else item)
-    # (the export carries the local diagnosers, not the High Level Diagnoser that refines
-    # their decisions: the engine it is compared with runs without it)
-    return Engine(project, plant, control=control, policy=policy, diagnosis=diagnosis,
-                  high_level=False)
+    return Engine(project, plant, control=control, policy=policy, diagnosis=diagnosis)
 
 
 class MatiecTwin:
@@ -385,7 +382,7 @@ class MatiecTwin:
                 result.resets += 1
             for runtime in runtimes:
                 want.append(runtime.current)
-                held = runtime.state.labels
+                held = runtime.labels  # (the decision: the High Level Diagnoser's if refined)
                 want += [lab in held for lab in runtime.spec.labels]
                 result.diagnoser_states.add(f"{runtime.spec.name}.{runtime.names[runtime.current]}")
             for a in automata:

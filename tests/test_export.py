@@ -314,6 +314,56 @@ def test_an_unknown_policy_or_mode_value_protects_the_plant(valve, valve_twin, f
     assert "V1.A3" in result.diagnoser_states
 
 
+def test_the_diagnosis_mode_switches_at_run_time_on_the_plc(valve):
+    """The PLC switches DiagnosisMode at run time (the engine lowers a diagnoser for one mode;
+    the export holds each mode's lowering under a CASE on it): off clears the flags and reads
+    each sensor as itself, the state kept; back to FTC, the flags and the reconstruction
+    follow the state again, whose decision the calls missed while off did not undo."""
+    model = build(valve)
+    sym = {k: v.upper() for k, v in model.symbols.items()}
+    rt = Runtime(Program(write_st(model)))
+    rt.set(sym["FilterPolicy"], 2)
+    engine = engine_for(valve, ["F3@9s"])  # fso stuck at 0: V1 decides A3 {F3, F13}
+    lay = engine.layout
+    state = rt.getter(f"Safety.{sym['Diag_V1']}.State")
+    names = engine.diagnosis.runtimes[0].names
+
+    def scan(k: int, mode: int) -> None:
+        rt.set(sym["DiagnosisMode"], mode)
+        snap = engine.step(k * 10_000)
+        for n in lay.inputs:
+            rt.globals[sym[n]] = snap.values[lay.slots[n]]
+        rt.scan(k * 10_000)
+
+    def seen() -> tuple[str, bool, bool, bool]:
+        return (names[state()], rt.get(sym["def_fso"]), rt.get(sym["fso_filter"]),
+                rt.get(sym["fso"]))
+
+    for k in range(1500):
+        scan(k, 0)
+    assert seen() == ("A3", True, True, False)  # fso read from its estimate
+    for k in range(1500, 1600):
+        scan(k, 2)
+        assert seen() == ("A3", False, False, False)  # off: flags 0, fso as read
+    for k in range(1600, 1700):
+        scan(k, 0)
+        assert seen() == ("A3", True, True, False)
+    assert engine.diagnosis.runtimes[0].state.name == "A3"
+
+
+def test_the_high_level_diagnoser_is_exported():
+    """V2 of the subsystem cannot tell a stuck fsc2 (F1) from V2 jammed part open (F13); the
+    High Level Diagnoser refines that on T2's fill time. The exported V2 block refines it
+    too, at the same scan, to the same label, with the same flags: scan by scan."""
+    subsystem = load_project(PROJECTS / "cispi_subsystem")
+    twin = Twin(subsystem)
+    for fault, label in (("V2.F1@25s", "F1"), ("V2.F13@28.8s", "F13")):
+        engine = engine_for(subsystem, [fault])
+        twin.run(engine, 40_000_000)
+        v2 = engine.diagnosis.current.records[1]
+        assert v2.labels == (label,) and v2.refined_by, v2
+
+
 def test_gaps_in_the_observation_agree(valve, valve_twin):
     # Time jumps (a paused live run): normal states re-synchronise, faulty ones freeze.
     times = [t * 10_000 for t in range(0, 300)]  # to 3 s: the valve opening

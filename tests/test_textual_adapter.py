@@ -264,6 +264,57 @@ def test_a_footer_builds_its_keys_once_its_bindings_are_ready():
     assert ta.bindings_ready(footer)
 
 
+# -- rendered lines freed -------------------------------------------------------------------
+
+
+def test_a_styles_cache_is_freed_once_asked_for_its_colours():
+    import gc
+    import weakref
+
+    from textual._styles_cache import StylesCache
+    from textual.color import Color
+    from textual.style import Style
+
+    method = ta.StylesCache.__dict__["get_inner_outer"]
+    assert getattr(method, "plchmi_released", False)  # (done at the adapter's import)
+    cache = StylesCache()
+    base, background = Color.parse("#202020"), Color.parse("red").with_alpha(0.5)
+    inner, outer = cache.get_inner_outer(base, background)
+    assert (inner, outer) == (Style(background=base + background),
+                              Style(background=base))  # Textual's own computation
+    kept = weakref.ref(cache)
+    del cache
+    gc.collect()
+    assert kept() is None  # Textual's lru_cache on the method would hold it
+
+
+async def test_a_data_tables_render_caches_are_keyed_by_its_update_count():
+    from textual.widgets import DataTable
+
+    class Table(App):
+        def compose(self) -> ComposeResult:
+            yield DataTable()
+
+    app = Table()
+    async with app.run_test(size=(40, 8)) as pilot:
+        table = app.query_one(DataTable)
+        table.add_columns("a", "b")
+        table.add_rows([("1", "2"), ("3", "4")])
+        await pilot.pause()
+        caches = (table._row_render_cache, table._cell_render_cache,
+                  table._row_renderable_cache, table._line_cache)
+        ta.drop_stale_renders(table)
+        lines = [table.render_line(y).text for y in range(3)]  # drawn at one update count
+        count = table._update_count
+        assert all(len(cache) for cache in caches)
+        assert all(count in key for cache in caches for key in cache.keys())  # noqa: SIM118 (no __iter__)
+        table.update_cell_at((0, 0), "5")
+        assert table._update_count > count  # every older key is dead
+        ta.drop_stale_renders(table)
+        assert not any(len(cache) for cache in caches)
+        assert "5" in table.render_line(1).text and "5" not in lines[1]
+
+
 # -- input ---------------------------------------------------------------------------------
 
 

@@ -83,6 +83,38 @@ async def test_alarm_list_shows_state_priority_time_and_text_and_a_click_selects
         assert panel(app).key == listed[2].key
 
 
+async def test_a_click_on_the_emptied_alarm_list_is_harmless():
+    """The conveyor's monitor latches, a fault reset releases it and `A` acknowledges what
+    cleared: the list empties. A click where its rows were raised a contained IndexError
+    (the soak farm's seed 93): the rows on screen were remembered as indices into the list
+    as it was. Now the click on "no alarm" does nothing, and a click on a row still selects
+    the alarm drawn there."""
+    app = make_app(CONVEYOR)
+    async with app.run_test(size=(80, 24)) as pilot:
+        await conveyor_fault(pilot)
+        await run_for(pilot, 5)
+        listed = app.link.session.last.alarms
+        assert len(listed) == 2
+        alarm_list = app.query_one(AlarmList)
+        assert await click(pilot, "#alarms", 10, 2)  # the border, then rows 0, 1
+        await settle(pilot)
+        assert alarm_list.selected == listed[1].key
+        await press(pilot, "r")
+        await wait_for_screen(pilot, ConfirmDialog)
+        await press(pilot, "y")
+        await wait_for_main(pilot)
+        await run_for(pilot, 0.5)
+        await press(pilot, "A")
+        await run_for(pilot, 0.1)
+        assert app.link.session.last.alarms == (), app.message.plain
+        assert "no alarm" in region_text(app, "#alarms")
+        for row in (1, 2):
+            assert await click(pilot, "#alarms", 10, row)
+            await settle(pilot)
+        assert app.containment.latest is None, app.containment.latest
+        assert alarm_list.selected is None
+
+
 async def test_acknowledge_the_selected_alarm_with_a():
     app = make_app(control="faulty")
     async with app.run_test(size=WIDE) as pilot:

@@ -16,10 +16,14 @@ from ui_scenarios import VALVE, make_app
 
 from hmi.engine.commands import InjectFault, StopDevice
 from hmi.explain.alarms import ACTIVE_UNACK, CLEARED_UNACK
+from hmi.history.historian import Historian
+from hmi.history.target import Target
 from hmi.project.injection import parse_injection
 from hmi.timefmt import seconds
 from hmi.ui.alarm_list import AlarmList, without_device
+from hmi.ui.app import PlcHmiApp
 from hmi.ui.headless import press, wait_until
+from tests.conftest import make_controller
 
 SIZES = [(80, 24), (160, 48)]
 
@@ -86,6 +90,47 @@ async def test_no_dialog_hides_the_status_bar_nor_the_banners(size, opener):
             f"{type(app.screen).__name__} hides the top of the screen: {after}"
         if not isinstance(app.screen, CommandPalette):
             assert app.screen.styles.background.a < 1
+
+
+async def open_trends(pilot) -> None:
+    await press(pilot, "t")
+
+
+@pytest.mark.parametrize("size", [(80, 24), (160, 54), (60, 24)],
+                         ids=lambda s: f"{s[0]}x{s[1]}")
+@pytest.mark.parametrize("opener", [open_trends, open_fault, open_step],
+                         ids=lambda f: f.__name__[5:])
+async def test_a_banner_that_appears_under_an_open_dialog_stays_in_view(size, opener,
+                                                                       tmp_path):
+    """Manual mode asked, then a dialog (or the trend screen) opened before the next scan:
+    the MANUAL banner appears with the dialog already open. The dialog was placed from the
+    banners' last layout (none) and drew over the new banner on line 1 (the soak farm's
+    seeds 68, 105, 143, 162 and 189); it now moves below the banner with the frame that
+    shows it."""
+    session = make_controller(VALVE)
+    historian = Historian(session, Target("sqlite", str(tmp_path / "h.sqlite")),
+                          flush_s=0.05).attach()
+    app = PlcHmiApp(session, live=False, show_measured=False)
+    try:
+        async with app.run_test(size=size) as pilot:
+            await run_for(pilot, 1)
+            assert "MANUAL" not in top_lines(app, 2)[1]
+            await press(pilot, "m")
+            await wait_until(pilot, lambda: isinstance(app.screen, ModalScreen),
+                             "the manual dialog")
+            await press(pilot, "y")
+            await wait_until(pilot, lambda: not isinstance(app.screen, ModalScreen),
+                             "the manual dialog to close")
+            await opener(pilot)
+            await wait_until(pilot, lambda: isinstance(app.screen, ModalScreen),
+                             "the dialog to open")
+            assert "MANUAL" not in top_lines(app, 2)[1]  # not scanned yet
+            await run_for(pilot, 0.01)  # one scan: manual mode takes effect
+            top = top_lines(app, 2)
+            assert "MANUAL" in top[0] and "MANUAL / FORCES ACTIVE" in top[1], \
+                f"{type(app.screen).__name__} hides the banner: {top}"
+    finally:
+        historian.close()
 
 
 # -- the most urgent alarms ------------------------------------------------------------------
@@ -177,3 +222,22 @@ async def test_the_selection_stays_and_the_urgent_rows_are_pinned_above_it(size)
         seen = [a for a in top if shows(rows, a)]
         assert len(seen) == len(top) or len(seen) == len(rows) - 1, \
             region_text(app, "#alarms")
+
+
+def test_every_screen_the_app_opens_is_a_dialog_kept_below_the_banners():
+    """Every modal screen of the HMI is a Dialog: it is placed below the status bar and the
+    banners (hmi.ui.dialogs.keep_clear) when it mounts and with every frame, and the soak's
+    `dialog-hides-status-bar` checks every screen on the stack over the main one."""
+    import importlib
+    import pkgutil
+
+    import hmi.ui
+    from hmi.ui.dialogs import Dialog
+    screens = []
+    for info in pkgutil.iter_modules(hmi.ui.__path__):
+        module = importlib.import_module(f"hmi.ui.{info.name}")
+        screens += [value for value in vars(module).values()
+                    if isinstance(value, type) and issubclass(value, ModalScreen)
+                    and value.__module__ == module.__name__]
+    assert len(screens) >= 10
+    assert [s.__name__ for s in screens if not issubclass(s, Dialog)] == []

@@ -272,6 +272,7 @@ def history_read(path: Path) -> list[str]:
     from hmi.history.query import HistoryReader
     from hmi.history.target import Target, open_store
     from hmi.opcua.server import CellServer, ServeOptions
+    from hmi.session.session import settle_memory
 
     logging.getLogger("asyncua").setLevel(logging.ERROR)  # its session timeout notice
     target = Target("sqlite", str(path))
@@ -284,6 +285,7 @@ def history_read(path: Path) -> list[str]:
     start = end - HOUR_US
     server = CellServer(_session(), ServeOptions(port=_free_port()), history=target)
     server.start()  # raises if it cannot serve
+    settle_memory()  # as the gateway does once its address space is built
     try:
         if server.storage is None:
             return ["  HistoryRead not measured: the server serves no history"]

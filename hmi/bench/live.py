@@ -226,25 +226,28 @@ HEL_CLAIM = 2 ** 31 - 1  # bytes the hostile HEL's header says its message has
 ATTACK_MOST = 1 << 30  # bytes the hostile client streams at most
 
 
-def hostile_hel(port: int, seconds: float) -> int:
-    """An OPC UA client that sends a HEL claiming ~2 GiB, then streams data into it for
-    `seconds` (or ATTACK_MOST bytes); the bytes it sent."""
+def hostile_hel(port: int, seconds: float) -> tuple[int, int]:
+    """An OPC UA client that sends a HEL claiming ~2 GiB, then streams data into it, over
+    and over for `seconds` (or ATTACK_MOST bytes): as soon as a connection is closed, it
+    opens the next. The bytes it sent and the connections it opened."""
     import contextlib
     import socket
 
     header = b"HELF" + HEL_CLAIM.to_bytes(4, "little")
     body = (0).to_bytes(4, "little") + (65536).to_bytes(4, "little") * 2 \
         + (0).to_bytes(4, "little") * 2
-    sent = 0
+    sent = connections = 0
     end = time.monotonic() + seconds
-    with socket.create_connection(("127.0.0.1", port), timeout=5.0) as s:
-        s.sendall(header + body)
-        chunk = b"\0" * (1 << 16)
-        with contextlib.suppress(OSError):
+    chunk = b"\0" * (1 << 16)
+    while sent < ATTACK_MOST and time.monotonic() < end:
+        with contextlib.suppress(OSError), \
+                socket.create_connection(("127.0.0.1", port), timeout=5.0) as s:
+            connections += 1
+            s.sendall(header + body)
             while sent < ATTACK_MOST and time.monotonic() < end:
                 s.sendall(chunk)
                 sent += len(chunk)
-    return sent
+    return sent, connections
 
 
 def measure_attack(folder: Path, env: dict[str, str], seconds: float, warm_s: float,
@@ -264,7 +267,7 @@ def measure_attack(folder: Path, env: dict[str, str], seconds: float, warm_s: fl
         _wait(lambda: "serving" in (folder / "gateway.log").read_text(), "the gateway")
         time.sleep(warm_s)
         samplers = [Sampled(runtime.process.pid), Sampled(gateway.pid)]
-        sent: list[int] = []
+        sent: list[tuple[int, int]] = []
         attack = threading.Thread(target=lambda: sent.append(hostile_hel(port, seconds)))
         before = runtime.viewer.query()
         t0 = time.monotonic()
@@ -286,9 +289,11 @@ def measure_attack(folder: Path, env: dict[str, str], seconds: float, warm_s: fl
             gateway.kill()
             gateway.wait()
         log.close()
-    mib = (sent[0] if sent else 0) / (1 << 20)
+    sent_bytes, connections = sent[0] if sent else (0, 0)
     return [f"  OPC UA HEL attack: the runtime, its gateway (plchmi gateway) and a client "
-            f"whose HEL claims 2 GiB, then streams ({mib:.0f} MiB sent in {elapsed:.1f} s)",
+            f"whose HEL claims 2 GiB, then streams, reconnecting whenever closed "
+            f"({sent_bytes / (1 << 20):.0f} MiB sent over {connections} connections in "
+            f"{elapsed:.1f} s)",
             *runtime.figures(before, after, elapsed, tally, "runtime under the HEL attack"),
             samplers[0].line("runtime memory", elapsed),
             samplers[1].line("gateway memory", elapsed)]

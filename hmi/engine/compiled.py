@@ -258,38 +258,55 @@ def auto_frame(engine: Any) -> ir.Function:
         ir.Assign(cell(e, "scan"), scan),
         ir.Assign(cell(e, "now"), now),
         ir.Assign(diag, cell(stage, "current") if stage is not None else ir.Ref(NO_DIAGNOSIS)),
-        # 1. input scan
-        ir.Try((ir.Do(call(plant, "read_into", now, image, ir.Ref(engine._bindings))),),
-               ((PlantError, "exc", conclude(ir.Do(call(e, "_auto_lost", now, exc)))),
-                (Exception, "exc", conclude(ir.Do(call(e, "_auto_failed", now, exc, diag)))))),
-        # 2-5, and stage 6's first question
-        ir.Try((
-            ir.Assign(f, call(scan_program, "core", image, history, now, scan)),
-            *((ir.Assign(diag, cell(stage, "current")),) if stage is not None else ()),
-            ir.Assign(quiet, ir.And((ir.IsNone(ir.Item(diag, 1)),
-                                     ir.Not(cell(e, "latched")),
-                                     ir.Not(call(scan_program, "violated", image, history,
-                                                 f))))),
-        ), ((Exception, "exc", conclude(ir.Do(call(e, "_auto_failed", now, exc, diag)))),)),
-        ir.If(ir.Not(quiet), conclude(ir.Do(call(e, "_auto_filter", now, f, diag)))),
-        ir.Assign(report, cell(e, "clean_report")),
-        ir.Assign(error, ir.NONE),
-        # 7. output scan
-        ir.Try((ir.Do(call(plant, "write_vector", now, ir.Ref(engine.output_scan.names), f)),),
-               ((Exception, "exc", (ir.Assign(error, call(e, "_write_error", now, f, error,
-                                                          exc)),)),)),
     ]
-    # 8. monitors
-    if monitors is not None:
-        body += [
+    # Stages 2-6's statements, under one guard (an exception there: _auto_failed)
+    guarded: list[ir.Stmt] = []
+
+    def inputs() -> None:  # 1. input scan
+        body.append(ir.Try(
+            (ir.Do(call(plant, "read_into", now, image, ir.Ref(engine._bindings))),),
+            ((PlantError, "exc", conclude(ir.Do(call(e, "_auto_lost", now, exc)))),
+             (Exception, "exc", conclude(ir.Do(call(e, "_auto_failed", now, exc, diag)))))))
+
+    def program() -> None:  # 2-5, the mode's program
+        guarded.append(ir.Assign(f, call(scan_program, "core", image, history, now, scan)))
+        if stage is not None:
+            guarded.append(ir.Assign(diag, cell(stage, "current")))
+
+    def filter_() -> None:  # 6: its first question; the filter itself if not quiet
+        guarded.append(ir.Assign(quiet, ir.And((
+            ir.IsNone(ir.Item(diag, 1)), ir.Not(cell(e, "latched")),
+            ir.Not(call(scan_program, "violated", image, history, f))))))
+        body.append(ir.Try(tuple(guarded), ((Exception, "exc", conclude(
+            ir.Do(call(e, "_auto_failed", now, exc, diag)))),)))
+        body.append(ir.If(ir.Not(quiet), conclude(ir.Do(call(e, "_auto_filter", now, f,
+                                                                diag)))))
+        body.append(ir.Assign(report, cell(e, "clean_report")))
+        body.append(ir.Assign(error, ir.NONE))
+
+    def outputs() -> None:  # 7. output scan
+        body.append(ir.Try(
+            (ir.Do(call(plant, "write_vector", now, ir.Ref(engine.output_scan.names), f)),),
+            ((Exception, "exc", (ir.Assign(error, call(e, "_write_error", now, f, error,
+                                                       exc)),)),)))
+
+    def monitors_() -> None:  # 8. monitors
+        if monitors is None:
+            body.append(ir.Assign(monitored, ir.FALSE))
+            return
+        body.extend((
             ir.Assign(monitored, ir.TRUE),
             ir.Try((ir.Do(call(scan_program, "monitors", image, history, now, scan)),),
                    ((Exception, "exc", (ir.Assign(monitored, ir.FALSE),
                                         ir.Assign(error, call(e, "_monitors_error", now, error,
-                                                              exc)))),)),
-        ]
-    else:
-        body.append(ir.Assign(monitored, ir.FALSE))
+                                                              exc)))),))))
+
+    # the parts in the order hmi.program.order declares (as Engine._cycle walks them)
+    parts: dict[str, Callable[[], None]] = {
+        order.INPUTS: inputs, order.MODE_PROGRAM: program, order.FILTER: filter_,
+        order.OUTPUTS: outputs, order.MONITORS: monitors_}
+    for part in order.ENGINE:
+        parts[part]()
     # what Engine._conclude would find other than a quiet scan's: its own way
     body.append(ir.If(ir.Not(ir.IsNone(error)), (finish,)))
     if supervised is not None:

@@ -51,6 +51,7 @@ from hmi.engine.stages import InputScan, Memory, OutputScan, plant_detail
 from hmi.errors import UsageError
 from hmi.logic.expr import Expr, Image, max_depth
 from hmi.plant.base import Plant, PlantError, PlantStatus
+from hmi.program import order
 from hmi.project.diagnosers import layout_names
 from hmi.project.model import POLICIES, Project
 from hmi.project.recovery import recoveries_of
@@ -153,6 +154,7 @@ class Engine:
         self._mode, self._started, self._wall_times = "auto", False, True
         self._stop_mask: tuple[int, ...] = ()
         self._auto_ready = self._fast = False
+        self._parts = _Parts()  # what _cycle's parts hand on
         self._clean: dict[str, FilterReport] = {}
         self.control_name = control or project.default_control
         if self.control_name not in project.controls:
@@ -853,86 +855,128 @@ class Engine:
         self.history.appendleft(tuple(self.image))
 
     def _cycle(self, now: int) -> None:
-        """Stages 1 to 8 (module docstring), in order: stages 2-5 are the scan program of
-        the engine's mode (hmi.engine.compiled), the filter's first test and the monitors
-        too; the stages' own handlers run whatever else happens (a violation, masking, a
-        latch, a recovery), on the same state."""
+        """Stages 1 to 8 (module docstring): the parts hmi.program.order.ENGINE names, in
+        its order (_GUARDED, then _EXCHANGED): stages 2-5 are the scan program of the
+        engine's mode (hmi.engine.compiled), the filter's first test and the monitors too;
+        the stages' own handlers run whatever else happens (a violation, masking, a latch,
+        a recovery), on the same state. A part before the output scan that fails leaves
+        the outputs safe (the inputs unknown: held); the output scan and the monitors run
+        whatever happened before them."""
         self.scan += 1
         self.now = now
-        fast = self.compiled
-        image = self.image
-        error = None
-        report: FilterReport | None = None
-        diagnosis = self.diagnosis.current if self.diagnosis else NO_DIAGNOSIS
-        filter_us = 0.0
+        s = self._parts
+        s.diagnosis = self.diagnosis.current if self.diagnosis else NO_DIAGNOSIS
+        s.report = s.error = None
+        s.filter_us = 0.0
         try:
-            # 1. input scan
-            lost = self.input_scan.read(image, now)
-            if lost is not None:
-                # The inputs are unknown (plant lost): memories, timers and steps hold, so
-                # the control law never acts on stale inputs; the outputs go safe (latched).
-                self.latch_safe("plant", lost)
-                raise _InputsUnknown
-            if not self.started:
-                self._start(now)
-            hist = self.history
-            recovery = self.recovery
-            filter_stage = self.filter_stage
-            # 2-5: memory, diagnosers, reconstruction, recoveries needed, and the law (or
-            # the operator's requests, or a recovery procedure): the mode's program
-            if self.observe:
-                fast.observed(image, hist, now, self.scan)
-                fov = self.input_scan.readback
-            elif self.mode == "manual":  # the program waits: neither its step times nor law
-                fast.held(image, hist, now, self.scan)
-                fov = self._manual_fov()
-            elif self.mode == "recovery" and recovery is not None:
-                active = recovery.active
-                if active is None:  # (none started: the program waits, the outputs safe)
-                    fast.held(image, hist, now, self.scan)
-                    fov = self.safe_vector
-                else:
-                    fov = fast.recovery(active.spec.name)(image, hist, now, self.scan)
-                filter_stage = recovery.filter_stage or filter_stage
-            else:
-                fov = fast.core(image, hist, now, self.scan)
-            if self.diagnosis is not None:
-                diagnosis = self.diagnosis.current
-            mask = diagnosis.mask
-            if self.mode == "recovery" and recovery is not None:
-                mask = recovery.unmask(mask)
-            if self._stop_mask and not self.observe:
-                fov = tuple(self.safe_vector[k] if k in self._stop_mask else value
-                            for k, value in enumerate(fov))
-            # 6. filter, given the diagnosers' mask (a recovery is never unfiltered)
-            policy = self.policy
-            if self.mode == "recovery" and policy == "monitor":
-                policy = "correct"
-            timed = self.wall_times
-            started = time.perf_counter() if timed else 0.0
-            decision = filter_stage.apply(image, hist, fov, policy, bool(self.latched), mask)
-            if timed:
-                filter_us = (time.perf_counter() - started) * 1e6
-            if decision.latch is not None:
-                self.latch_safe("filter", decision.latch)
-            outputs = decision.outputs
-            report = decision.report
-            if self.observe:
-                outputs = fov  # what the device has: it is observed, never driven
-            elif self.latched:
-                outputs = self.safe_vector
+            for part in _GUARDED:
+                part(self, s, now)
         except _InputsUnknown:
-            fov = outputs = self._held_outputs()
+            s.fov = s.outputs = self._held_outputs()
         except Exception as exc:  # never leave the plant driven by a half-computed scan
-            error = f"{type(exc).__name__}: {exc}"
-            self._latch_internal(error)
-            fov = self.safe_vector
+            s.error = f"{type(exc).__name__}: {exc}"
+            self._latch_internal(s.error)
+            s.fov = s.outputs = self.safe_vector
+        for part in _EXCHANGED:
+            part(self, s, now)
+        self._keep(s.fov, s.outputs, s.report, s.diagnosis, s.monitored, s.error,
+                   s.filter_us)
+
+    def _scan_inputs(self, s: _Parts, now: int) -> None:
+        """1. input scan"""
+        lost = self.input_scan.read(self.image, now)
+        if lost is not None:
+            # The inputs are unknown (plant lost): memories, timers and steps hold, so the
+            # control law never acts on stale inputs; the outputs go safe (latched).
+            self.latch_safe("plant", lost)
+            raise _InputsUnknown
+        if not self._started:
+            self._start(now)
+
+    def _scan_program(self, s: _Parts, now: int) -> None:
+        """2-5: memory, diagnosers, reconstruction, recoveries needed, and the law (or the
+        operator's requests, or a recovery procedure): the mode's program"""
+        fast = self.compiled
+        image, hist = self.image, self.history
+        recovery = self.recovery
+        if self.observe:
+            fast.observed(image, hist, now, self.scan)
+            fov = self.input_scan.readback
+        elif self._mode == "manual":  # the program waits: neither its step times nor law
+            fast.held(image, hist, now, self.scan)
+            fov = self._manual_fov()
+        elif self._mode == "recovery" and recovery is not None:
+            active = recovery.active
+            if active is None:  # (none started: the program waits, the outputs safe)
+                fast.held(image, hist, now, self.scan)
+                fov = self.safe_vector
+            else:
+                fov = fast.recovery(active.spec.name)(image, hist, now, self.scan)
+        else:
+            fov = fast.core(image, hist, now, self.scan)
+        if self.diagnosis is not None:
+            s.diagnosis = self.diagnosis.current
+        if self._stop_mask and not self.observe:
+            fov = tuple(self.safe_vector[k] if k in self._stop_mask else value
+                        for k, value in enumerate(fov))
+        s.fov = fov
+
+    def _scan_filter(self, s: _Parts, now: int) -> None:
+        """6. filter, given the diagnosers' mask (a recovery is never unfiltered)"""
+        filter_stage = self.filter_stage
+        recovery = self.recovery
+        mask = s.diagnosis.mask
+        policy = self._policy
+        if self._mode == "recovery":
+            if recovery is not None:
+                filter_stage = recovery.filter_stage or filter_stage
+                mask = recovery.unmask(mask)
+            if policy == "monitor":
+                policy = "correct"
+        timed = self.wall_times
+        started = time.perf_counter() if timed else 0.0
+        decision = filter_stage.apply(self.image, self.history, s.fov, policy,
+                                      bool(self.latched), mask)
+        if timed:
+            s.filter_us = (time.perf_counter() - started) * 1e6
+        if decision.latch is not None:
+            self.latch_safe("filter", decision.latch)
+        outputs = decision.outputs
+        s.report = decision.report
+        if self.observe:
+            outputs = s.fov  # what the device has: it is observed, never driven
+        elif self.latched:
             outputs = self.safe_vector
-        # 7. output scan
+        s.outputs = outputs
+
+    def _scan_outputs(self, s: _Parts, now: int) -> None:
+        """7. output scan: the outputs into the image, and written to the plant (unless it
+        is observed). The write is OutputScan.write's (a PlantError latched as the plant's,
+        with its detail, which still writes the safe vector: _go_safe), written out here
+        rather than called: it runs at every scan."""
+        image = self.image
+        outputs = s.outputs
         for slot, value in zip(self.output_slots, outputs, strict=True):
             image[slot] = value
-        monitored, error = self._output_scan(now, outputs, error)
-        self._keep(fov, outputs, report, diagnosis, monitored, error, filter_us)
+        if not self.observe:
+            try:
+                self.plant.write_vector(now, self.output_scan.names, outputs)
+            except Exception as exc:
+                s.error = self._write_error(now, outputs, s.error, exc)
+
+    def _scan_monitors(self, s: _Parts, now: int) -> None:
+        """8. the monitors, on the I/O this scan exchanged (their states: Engine.snapshot)"""
+        monitors = self.compiled.monitors
+        if monitors is None:
+            s.monitored = False
+            return
+        try:
+            monitors(self.image, self.history, now, self.scan)
+        except Exception as exc:
+            s.monitored = False
+            s.error = self._monitors_error(now, s.error, exc)
+            return
+        s.monitored = True
 
     def _auto_lost(self, now: int, exc: PlantError) -> None:
         """The automatic mode's input scan failed: as in _cycle, memories, timers and steps
@@ -949,9 +993,6 @@ class Engine:
 
     def _auto_safe(self, now: int, error: str | None, diagnosis: Diagnosis) -> None:
         safe = self.safe_vector
-        image = self.image
-        for slot, value in zip(self.output_slots, safe, strict=True):  # 7. output scan
-            image[slot] = value
         monitored, error = self._output_scan(now, safe, error)
         self._keep(safe, safe, None, diagnosis, monitored, error, 0.0)
 
@@ -983,8 +1024,6 @@ class Engine:
         except Exception as exc:  # never leave the plant driven by a half-computed scan
             self._auto_failed(now, exc, diagnosis)
             return
-        for slot, value in zip(self.output_slots, outputs, strict=True):  # 7. output scan
-            image[slot] = value
         monitored, error = self._output_scan(now, outputs, None)
         self._keep(fov, outputs, report, diagnosis, monitored, error, filter_us)
 
@@ -1013,27 +1052,15 @@ class Engine:
 
     def _output_scan(self, now: int, outputs: tuple[bool, ...], error: str | None
                      ) -> tuple[bool, str | None]:
-        """Stage 7's write to the plant (the image holds `outputs` already), then stage 8,
-        the monitors, on the I/O this scan exchanged (their states: Engine.snapshot).
-        Returns whether the monitors ran and the scan's error.
-
-        Both are written out here rather than called through OutputScan.write and a method
-        of their own: they run at every scan. The write is OutputScan.write's (a PlantError
-        latched as the plant's, with its detail), which still writes the safe vector
-        (_go_safe)."""
-        if not self.observe:
-            try:
-                self.plant.write_vector(now, self.output_scan.names, outputs)
-            except Exception as exc:
-                error = self._write_error(now, outputs, error, exc)
-        monitors = self.compiled.monitors
-        if monitors is None:
-            return False, error
-        try:
-            monitors(self.image, self.history, now, self.scan)
-        except Exception as exc:
-            return False, self._monitors_error(now, error, exc)
-        return True, error
+        """The parts from the output scan on (_EXCHANGED: stage 7 then 8) for `outputs`,
+        after the rest of a scan ran its own way (the printed frame's exits). Returns whether
+        the monitors ran and the scan's error."""
+        s = self._parts
+        s.outputs = outputs
+        s.error = error
+        for part in _EXCHANGED:
+            part(self, s, now)
+        return s.monitored, s.error
 
     def _write_error(self, now: int, outputs: tuple[bool, ...], error: str | None,
                      exc: Exception) -> str | None:
@@ -1095,6 +1122,31 @@ class Engine:
 
 class _InputsUnknown(Exception):
     """The input scan failed: skip to the output scan with the outputs safe."""
+
+
+class _Parts:
+    """What a scan's parts hand on to the next ones (Engine._cycle): one per engine, filled
+    in place by every scan, as ScanRecord is."""
+
+    __slots__ = ("diagnosis", "error", "filter_us", "fov", "monitored", "outputs", "report")
+
+    def __init__(self) -> None:
+        self.diagnosis = NO_DIAGNOSIS  # routes, mask and records (stage 3)
+        self.fov: tuple[bool, ...] = ()  # the functional output vector (stage 5)
+        self.outputs: tuple[bool, ...] = ()  # what is written (stage 7)
+        self.report: FilterReport | None = None  # the filter's (None: not reached)
+        self.error: str | None = None  # an internal error of the scan, latched
+        self.filter_us = 0.0  # the filter's wall time (0.0 unless Engine.wall_times)
+        self.monitored = False  # whether the monitors ran (stage 8)
+
+
+# Engine's part for each part of hmi.program.order.ENGINE, and the two walks Engine._cycle
+# takes of them
+_PART = {order.INPUTS: Engine._scan_inputs, order.MODE_PROGRAM: Engine._scan_program,
+         order.FILTER: Engine._scan_filter, order.OUTPUTS: Engine._scan_outputs,
+         order.MONITORS: Engine._scan_monitors}
+_GUARDED = tuple(_PART[part] for part in order.GUARDED)
+_EXCHANGED = tuple(_PART[part] for part in order.EXCHANGED)
 
 
 def _all_exprs(project: Project) -> Iterator[Expr]:

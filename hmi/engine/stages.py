@@ -146,7 +146,7 @@ class Memory:
 
 class OutputScan:
     """Stage 7: write the vector the filter decided to the plant. The engine's scan writes it
-    the same way itself (Engine._output_scan, at every scan: a call less); this writes the
+    the same way itself (Engine._scan_outputs, at every scan: a call less); this writes the
     safe vector when an error puts the outputs safe at once (Engine._go_safe)."""
 
     def __init__(self, plant: Plant, layout: Layout):

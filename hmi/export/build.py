@@ -1,7 +1,8 @@
 """A project's safety layer as one PLC model: the POUs, the global variables and the task.
 
     FB_<P>_Memory       timers and observers                         (scan step 2)
-    FB_<P>_Diag_<D>     each local diagnoser, with reconstruction    (steps 3-4)
+    FB_<P>_Diag_<D>     each local diagnoser, with reconstruction, printed from the scan
+                        program (steps 3-4)
     FB_<P>_Control      the control law, printed from the scan program (step 5)
     FB_<P>_Filter       the safety filter                            (step 6)
     FB_<P>_Mon_<T>      each stopwatch monitor, printed from the scan program (after the
@@ -16,6 +17,7 @@ One task at the project's scan period runs the program.
 
 from __future__ import annotations
 
+from hmi.engine.diagnoser import diagnosis_stage
 from hmi.engine.layout import Layout
 from hmi.engine.monitors import monitor_stage
 from hmi.errors import ProjectError
@@ -54,13 +56,15 @@ def build(project: Project, control: str | None = None) -> m.PlcProject:
     layout = Layout.build(project, law, extra=layout_names(project))
     g = build_globals(project, pous.child())
     stage = monitor_stage(project, layout)
+    diagnosis = diagnosis_stage(project, layout, "ftc")
     monitors = [build_monitor(stage, k, task, layout, pous.take(f"FB_{prefix}_Mon_{task.name}"),
                               pous, durations)
                 for k, task in enumerate(source.monitors(project))] if stage is not None else []
     blocks = Blocks(
         memory=build_memory(project, layout, names["memory"], pous, durations),
-        diagnosers=[build_diagnoser(project, d, diag_names[d.name], pous, durations)
-                    for d in source.diagnosers(project)],
+        diagnosers=[build_diagnoser(diagnosis, k, layout, diag_names[rt.spec.name], pous,
+                                    durations, project.high_level)
+                    for k, rt in enumerate(diagnosis.runtimes)] if diagnosis is not None else [],
         filter=build_filter(project, names["filter"], pous, bound),
         control=build_control(project, law, layout, g, names["control"], pous, durations),
         monitors=monitors)

@@ -90,7 +90,7 @@ def build_program(project: Project, name: str, g: Globals, b: Blocks,
             out.append(m.Comment(f"3-4. Diagnoser {spec.name}: an output is read as written "
                                  "at the previous scan"))
             out.append(m.FbCall(inst, (
-                (block.ports["Reset"], m.FALSE),
+                (block.ports["Now"], m.Name(now)), (block.ports["Reset"], m.FALSE),
                 (block.ports["Mode"], g.name("DiagnosisMode")),
                 *p.wire(block, lambda n, d: p.value(n, d + (n in outputs))))))
             out += [m.Assign(g.name(n), m.Member(m.Name(inst), o))

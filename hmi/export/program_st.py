@@ -15,9 +15,13 @@ time as its initial value) and the ST version of each handler the program calls
 Types: Boolean values are BOOL; the scan's time and everything computed from it TIME (the
 program's clock, ``Now``, a TIME that only ever grows); integer constants take the type of
 what they are compared with or added to (a TIME constant must be whole milliseconds:
-Durations says where one is not); a value that may be None (a timer's start) is a TIME with
-a BOOL beside it saying "none" (no TIME literal stands for "no time"); a local that collects
-constant tuples (the fireable transitions) is one BOOL per element it can hold.
+Durations says where one is not); a value that may be None (a timer's start, the last scan a
+stage ran) is a TIME or DINT with a BOOL beside it saying "none" (no literal stands for "no
+time"); a local that collects constant tuples (the fireable transitions) is one BOOL per
+element it can hold. The scan's number, where a program compares it, is a DINT the block
+counts itself (``Places.scan``); a handler whose value a program tests (``if
+stage.lost_sight(...)``, ``armed and stage.refine(...)``: called only when ``armed``)
+writes it to a BOOL local (``Handler.value``).
 """
 
 from __future__ import annotations
@@ -33,8 +37,10 @@ from hmi.export.views import Durations
 from hmi.logic.expr import And, Compare, Const, Duration, Node, Not, Or, StepTime, Var
 from hmi.program import ir
 
-BOOL, TIME, INT, DINT, NTIME, SET = "BOOL", "TIME", "INT", "DINT", "NTIME", "SET"
+BOOL, TIME, INT, DINT, NTIME, NDINT, SET = ("BOOL", "TIME", "INT", "DINT", "NTIME", "NDINT",
+                                            "SET")
 INTEGERS = (INT, DINT)
+NULLABLE = {NTIME: TIME, NDINT: DINT}  # a value that may be None, and its type when not
 _UNTYPED = "ANY_INT"  # an integer constant, typed by its use
 _NONE = "NONE"  # the constant None
 _COMPARE = {"==": "=", "!=": "<>", "<": "<", "<=": "<=", ">": ">", ">=": ">="}
@@ -47,8 +53,8 @@ class NotPrintable(Exception):
 
 @dataclass(frozen=True)
 class Place:
-    """Where a value lives in the POU: its variable, its type (BOOL, INT, DINT, TIME or
-    NTIME) and, for NTIME, the BOOL that says it holds no time."""
+    """Where a value lives in the POU: its variable, its type (BOOL, INT, DINT, TIME, NTIME
+    or NDINT) and, for NTIME and NDINT, the BOOL that says it holds None."""
 
     name: str
     type: str
@@ -62,9 +68,12 @@ class Place:
 @dataclass
 class Handler:
     """The ST version of one handler method: ``print(printer, args) -> statements``, each
-    argument printed (:meth:`StPrinter.value`, or the element names of a collected set)."""
+    argument printed (:meth:`StPrinter.value`, or the element names of a collected set).
+    A handler whose value the program tests has ``value(printer, args, result)`` instead:
+    the statements that write the value to the BOOL variable `result`."""
 
-    print: Callable[[StPrinter, tuple[Any, ...]], list[m.Stmt]]
+    print: Callable[[StPrinter, tuple[Any, ...]], list[m.Stmt]] | None = None
+    value: Callable[[StPrinter, tuple[Any, ...], m.Name], list[m.Stmt]] | None = None
 
 
 @dataclass
@@ -75,6 +84,7 @@ class Places:
     read: Callable[[str, int], m.Expr]  # a project name at a depth, as this POU reads it
     step_time: Callable[[str], m.Expr]  # a step's activity time (TIME)
     now: m.Expr
+    scan: m.Expr | None = None  # the scan's number (DINT), where the program compares it
     cells: dict[tuple[int, Any], Place | None] = field(default_factory=dict)
     handlers: dict[tuple[int, str], Handler] = field(default_factory=dict)
     # runtime objects the program compares by identity (``is``), as INT codes
@@ -127,6 +137,22 @@ class StPrinter:
         if isinstance(stmt, ir.Assign):
             return self._assign(stmt.target, stmt.value)
         if isinstance(stmt, ir.If):
+            before: list[m.Stmt] = []
+            test = stmt.test
+            if isinstance(test, ir.Call):  # a handler's value: written, then tested
+                local = self._result(test.method)
+                before = self._call(test, self._locals[local].expr)
+                stmt = ir.If(ir.Local(local), stmt.then, stmt.orelse)
+            elif isinstance(test, ir.And) and isinstance(test.operands[-1], ir.Call):
+                # `a and handler(...)`: the handler runs only when `a` holds
+                call = test.operands[-1]
+                local = self._result(call.method)
+                result = self._locals[local].expr
+                guard = self.boolean(ir.And(test.operands[:-1]) if len(test.operands) > 2
+                                     else test.operands[0])
+                before = [m.Assign(result, m.FALSE),
+                          m.if_(guard, *self._call(call, result))]
+                stmt = ir.If(ir.Local(local), stmt.then, stmt.orelse)
             branches: list[tuple[m.Expr, tuple[m.Stmt, ...]]] = []
             node: ir.If = stmt
             while True:
@@ -135,7 +161,7 @@ class StPrinter:
                 if len(orelse) == 1 and isinstance(orelse[0], ir.If):
                     node = orelse[0]
                     continue
-                return [m.If(tuple(branches), self.block(orelse))]
+                return [*before, m.If(tuple(branches), self.block(orelse))]
         if isinstance(stmt, ir.Do):
             return self._call(stmt.call)
         if isinstance(stmt, ir.Switch):
@@ -155,7 +181,7 @@ class StPrinter:
         place = self._place(target)
         if place is None:
             return []  # a cell the PLC does not keep
-        if place.type == NTIME:
+        if place.type in NULLABLE:
             assert place.none is not None
             if isinstance(value, ir.Const) and value.value is None:
                 return [m.Assign(m.Name(place.none), m.TRUE)]
@@ -164,7 +190,7 @@ class StPrinter:
                 assert source.none is not None
                 return [m.Assign(place.expr, source.expr),
                         m.Assign(m.Name(place.none), m.Name(source.none))]
-            expr, _ = self._typed(value, TIME)
+            expr, _ = self._typed(value, NULLABLE[place.type])
             return [m.Assign(place.expr, expr), m.Assign(m.Name(place.none), m.FALSE)]
         expr, _ = self._typed(value, place.type)
         return [m.Assign(place.expr, expr)]
@@ -179,10 +205,24 @@ class StPrinter:
             return [m.Assign(m.Name(elements[k]), m.TRUE) for k in value.right.value]
         raise NotPrintable(f"the collected local {name!r} is given {value!r}")
 
-    def _call(self, call: ir.Call) -> list[m.Stmt]:
+    def _result(self, method: str) -> str:
+        """The BOOL local for a handler's value (one per method: it is written right before
+        it is tested)."""
+        if method not in self._locals:
+            self._declare(method, BOOL)
+        elif self._locals[method].type != BOOL:
+            raise NotPrintable(f"the local {method!r} is not a BOOL")
+        return method
+
+    def _call(self, call: ir.Call, result: m.Name | None = None) -> list[m.Stmt]:
         handler = self.places.handlers.get((id(call.owner), call.method))
+        what = f"{type(call.owner).__name__}.{call.method}"
         if handler is None:
-            raise NotPrintable(f"{type(call.owner).__name__}.{call.method} has no ST version")
+            raise NotPrintable(f"{what} has no ST version")
+        printer = handler.print if result is None else None
+        if (handler.value if result is not None else printer) is None:
+            raise NotPrintable(f"{what} has no ST version "
+                               + ("giving its value" if result is not None else "as a call"))
         args: list[Any] = []
         for arg in call.args:
             if isinstance(arg, ir.Local) and arg.name in self._sets:
@@ -193,20 +233,26 @@ class StPrinter:
                 args.append(None)
             else:
                 args.append(self.value(arg)[0])
-        return handler.print(self, tuple(args))
+        if result is not None:
+            assert handler.value is not None
+            return handler.value(self, tuple(args), result)
+        assert printer is not None
+        return printer(self, tuple(args))
 
     # -- places ------------------------------------------------------------------------------
     def _declare(self, name: str, kind: str) -> Place:
         if kind == _UNTYPED:
             kind = INT
-        if kind not in (BOOL, INT, DINT, TIME, NTIME):
+        if kind not in (BOOL, INT, DINT, TIME, NTIME, NDINT):
             raise NotPrintable(f"the local {name!r} would be a {kind}")
         ident = self.scope.take(f"L_{name}")
-        none = self.scope.take(f"L_{name}_none") if kind == NTIME else None
-        plc_type = {BOOL: m.BOOL, INT: m.INT, DINT: m.DINT, TIME: m.TIME, NTIME: m.TIME}[kind]
+        none = self.scope.take(f"L_{name}_none") if kind in NULLABLE else None
+        plc_type = {BOOL: m.BOOL, INT: m.INT, DINT: m.DINT, TIME: m.TIME, NTIME: m.TIME,
+                    NDINT: m.DINT}[kind]
         self.locals.append(m.Var(ident, plc_type, comment=f"{self.what}: {name}"))
         if none is not None:
-            self.locals.append(m.Var(none, m.BOOL, comment=f"{name} holds no time"))
+            self.locals.append(m.Var(none, m.BOOL, comment=f"{name} holds no "
+                                     + ("time" if kind == NTIME else "number")))
         place = self._locals[name] = Place(ident, kind, none)
         return place
 
@@ -233,7 +279,7 @@ class StPrinter:
     def _nullable(self, value: ir.Value) -> Place | None:
         if isinstance(value, ir.Local | ir.Slot | ir.Cell | ir.Item):
             place = self._place(value)
-            if place is not None and place.type == NTIME:
+            if place is not None and place.type in NULLABLE:
                 return place
         return None
 
@@ -250,8 +296,7 @@ class StPrinter:
                 and not isinstance(value.value, bool):
             return self._constant(value.value, kind), kind
         expr, found = self.value(value)
-        if found == NTIME:
-            found = TIME
+        found = NULLABLE.get(found, found)
         if kind != found and not (kind in INTEGERS and found == _UNTYPED):
             raise NotPrintable(f"{value!r} is a {found} where a {kind} is expected")
         return expr, found
@@ -268,7 +313,7 @@ class StPrinter:
             return NTIME
         nullable = self._nullable(value)
         if nullable is not None:
-            return NTIME
+            return nullable.type
         return self.value(value)[1]
 
     def value(self, value: ir.Value) -> tuple[m.Expr, str]:
@@ -278,6 +323,10 @@ class StPrinter:
                 return self.test(node), BOOL
             case ir.Now():
                 return self.places.now, TIME
+            case ir.ScanNumber():
+                if self.places.scan is None:
+                    raise NotPrintable("the scan's number is read but not counted here")
+                return self.places.scan, DINT
             case ir.Const(value=constant):
                 if isinstance(constant, bool):
                     return m.BoolLit(constant), BOOL
@@ -324,7 +373,7 @@ class StPrinter:
 
     def _arith_type(self, left: ir.Value, right: ir.Value) -> str:
         # (a value that may be None is read where the program knows it is not)
-        kinds = {TIME if k == NTIME else k for k in (self._peek(left), self._peek(right))}
+        kinds = {NULLABLE.get(k, k) for k in (self._peek(left), self._peek(right))}
         kinds.discard(_UNTYPED)
         if not kinds:
             return INT

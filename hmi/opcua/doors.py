@@ -13,7 +13,10 @@ open an anonymous session), a user who already has the sessions the users file a
 The limits (:func:`apply_limits`): connections and sessions at once, the time a connection
 may stay without an activated session (a socket that never says HEL included), the
 subscriptions, and the shortest publishing interval granted (the cell's own: faster brings
-nothing and costs the server).
+nothing and costs the server). And the bytes a connection may have the server hold
+(:class:`BoundedProtocol`): no message chunk is larger than the server's receive buffer, so
+a header that claims more (a HEL claiming 2 GiB) closes the connection at once instead of
+being buffered while its data streams in.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ from typing import Any
 
 from asyncua import ua
 from asyncua.server import binary_server_asyncio
+from asyncua.server.binary_server_asyncio import OPCUAProtocol
 from asyncua.server.internal_server import InternalServer
 from asyncua.server.internal_session import InternalSession
 from asyncua.server.uaprocessor import UaProcessor
@@ -122,17 +126,53 @@ class CellProcessor(UaProcessor):
         await close()
 
 
+CHUNK_HEADER = 8  # bytes of a chunk's header up to and with its size (Part 6, 7.1.2)
+
+
+class BoundedProtocol(OPCUAProtocol):
+    """asyncua's connection, which never holds more than one chunk of unparsed bytes.
+
+    asyncua buffers whatever a header says is coming: a HEL claiming 2 GiB and the data
+    streamed after it stayed in memory (+78 MB in 10 s in the gateway) until the activation
+    limit closed the socket. Part 6 bounds every chunk by the receiver's buffer size
+    (``ReceiveBufferSize``; asyncua checks it only once a whole chunk has arrived), and the
+    one a client may negotiate is never larger than the server's own: a chunk that claims
+    more, or unparsed bytes beyond it, close the connection."""
+
+    def data_received(self, data: bytes) -> None:
+        transport = self.transport
+        if transport is None or transport.is_closing():
+            self._buffer = b""  # (closed for its size: what still arrives is dropped)
+            return
+        super().data_received(data)
+        pending = self._buffer
+        most = self.limits.max_recv_buffer
+        claimed = (int.from_bytes(pending[4:CHUNK_HEADER], "little")
+                   if len(pending) >= CHUNK_HEADER else 0)
+        if claimed > most or len(pending) > most:
+            log.warning("OPC UA connection from %s closed: a message chunk of %d bytes "
+                        "claimed, at most %d accepted", peer_name(self.peer_name),
+                        max(claimed, len(pending)), most)
+            self._buffer = b""
+            transport.close()
+
+
 def install(gate: Gate, released: Callable[[str], None], trust: TrustList) -> None:
-    """Every new connection of the process's OPC UA server gets a CellProcessor."""
+    """Every new connection of the process's OPC UA server gets a CellProcessor, and a
+    BoundedProtocol."""
     CellProcessor.gate = gate
     CellProcessor.released = released
     CellProcessor.trust = trust
     setattr(binary_server_asyncio, "UaProcessor", CellProcessor)  # noqa: B010
+    setattr(binary_server_asyncio, "OPCUAProtocol", BoundedProtocol)  # noqa: B010
 
 
 def peer(processor: UaProcessor) -> str:
     """The client's address as the journal writes it (HOST:PORT)."""
-    name = processor.name
+    return peer_name(processor.name)
+
+
+def peer_name(name: Any) -> str:
     if isinstance(name, tuple) and len(name) >= 2:
         return f"[{name[0]}]:{name[1]}" if ":" in str(name[0]) else f"{name[0]}:{name[1]}"
     return str(name or "")

@@ -1,12 +1,11 @@
 """The order of a scan's parts, declared once.
 
 Why here: the engine's scan program (hmi.engine.compiled.ScanProgram: which parts each
-mode's function runs, in this order) and the PLC program of the export
-(hmi.export.program_pou: which function block it calls, in this order) are both walks of
-this tuple, so a part moved here moves in both. What runs between them in the engine (the
-input scan, the filter, the output scan) is named too: the export's walk places its blocks
-by it, the engine's frame (hmi.engine.compiled.auto_frame) and Engine._cycle call them where
-a part says.
+mode's function runs, in this order), the engine's two ways of running a scan
+(Engine._cycle, and the printed frame of hmi.engine.compiled.auto_frame) and the PLC program
+of the export (hmi.export.program_pou: which function block it calls, in this order) are
+all walks of this tuple, so a part moved here moves in each. What runs between the
+program's parts in the engine (the input scan, the filter, the output scan) is named too.
 """
 
 from __future__ import annotations
@@ -27,3 +26,22 @@ SCAN = (INPUTS, MEMORY, STEP_TIMES, DIAGNOSERS, RECONSTRUCTION, RECOVERIES_NEEDE
 # The parts of the scan program's function for a mode (stages 2 to 5): the rest of SCAN is
 # the engine's own (stage 1, 6, 7) or a function of its own (the monitors).
 PROGRAM = (MEMORY, STEP_TIMES, DIAGNOSERS, RECONSTRUCTION, RECOVERIES_NEEDED, LAW)
+# The engine's part that calls the mode's function (the parts of PROGRAM, at once)
+MODE_PROGRAM = "program"
+
+
+def _engine_parts() -> tuple[str, ...]:
+    parts: list[str] = []
+    for part in SCAN:
+        name = MODE_PROGRAM if part in PROGRAM else part
+        if name not in parts:
+            parts.append(name)
+    return tuple(parts)
+
+
+# SCAN as the engine runs it: the parts of PROGRAM one call, where the first of them stands
+ENGINE = _engine_parts()
+# Before the output scan, a part may fail (inputs unknown, an internal error): the outputs go
+# safe; from the output scan on, the parts run whatever happened before them.
+GUARDED = ENGINE[:ENGINE.index(OUTPUTS)]
+EXCHANGED = ENGINE[ENGINE.index(OUTPUTS):]

@@ -211,7 +211,9 @@ class AlarmList(TextPanel):
         self.selected: str | None = None  # the selected alarm's key
         self.shelved = 0  # alarms shelved (not listed): said on the border
         self.top = 0  # index of the first row of the scrolled part
-        self._on_screen: list[int] = []  # indices of the alarms on screen, top to bottom
+        # the keys of the alarms on screen, top to bottom: what a click on a row means (keys,
+        # not indices: the list may have changed, or emptied, since it was drawn)
+        self._on_screen: tuple[str, ...] = ()
         self._rows: tuple[int, bool] | None = None  # lines drawn and compact border, as set
         self._alarm_rows = 0  # of those lines, the alarm rows (then the selected one's line)
         self._drawn: tuple[Any, ...] | None = None
@@ -279,11 +281,12 @@ class AlarmList(TextPanel):
         if self.shelved:
             title += f" · {self.shelved} shelved"
         if not self.alarms:
+            self._on_screen = ()
             set_title(self, title)
             self.show_text(Text(f"{OK_SYMBOL} no alarm", style=MUTED))
             return
         shown, self.top = rows_shown(len(self.alarms), urgent, self._index(), rows, self.top)
-        self._on_screen = shown
+        self._on_screen = tuple(self.alarms[k].key for k in shown)
         pinned = min(urgent, len(shown))
         above = shown[-1] + 1 - len(shown)  # out of view between the pinned and the rest
         below = len(self.alarms) - shown[-1] - 1
@@ -354,5 +357,7 @@ class AlarmList(TextPanel):
             return
         row = offset.y
         if 0 <= row < min(self._alarm_rows, len(self._on_screen)):
-            self._select(self.alarms[self._on_screen[row]].key, open=True)
-            self._draw()
+            key = self._on_screen[row]
+            if any(a.key == key for a in self.alarms):
+                self._select(key, open=True)
+                self._draw()

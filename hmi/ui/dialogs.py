@@ -22,7 +22,8 @@ from textual import events, on
 from textual.app import App, ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal, Vertical
-from textual.screen import ModalScreen
+from textual.css.scalar import Unit
+from textual.screen import ModalScreen, Screen
 from textual.widgets import Button, Input, Label, OptionList, Static
 from textual.widgets.option_list import Option
 
@@ -40,6 +41,31 @@ def _title(text: str, level: Level) -> Static:
     return Static(title, classes="dialog-title", markup=False)
 
 
+def top_rows(main: Screen[Any]) -> int:
+    """How many lines the status bar and the banners take at the top of the main screen,
+    from what they hold now rather than from the last layout: a banner that appears while a
+    dialog is open (manual mode taking effect, a safe-state latch) is drawn with the frame
+    that shows it, before its region is laid out, and the dialog must already be below it."""
+    rows = 0
+    width = main.size.width
+    for widget in main.query("#status, #banners"):
+        if not widget.display:
+            continue
+        styles = widget.styles
+        height = styles.height
+        if height is not None and height.unit is Unit.CELLS:
+            lines = int(height.value)
+        else:
+            gutter = styles.gutter
+            lines = widget.get_content_height(main.size, main.size,
+                                              max(0, width - gutter.width)) + gutter.height
+            limit = styles.max_height
+            if limit is not None and limit.unit is Unit.CELLS:
+                lines = min(lines, int(limit.value))
+        rows += lines
+    return rows
+
+
 def keep_clear(app: App[Any]) -> None:
     """Keep the status bar and the banners of the main screen in view above every dialog
     (and the command palette): the dialog's box starts below them, so nothing the cell says
@@ -50,10 +76,8 @@ def keep_clear(app: App[Any]) -> None:
     stack = app.screen_stack
     if len(stack) < 2:
         return
-    try:
-        clear = max(w.region.bottom for w in stack[0].query("#status, #banners")
-                    if w.display)
-    except ValueError:  # not composed yet
+    clear = top_rows(stack[0])
+    if not clear:  # not composed yet
         return
     for screen in stack[1:]:
         # (in a real terminal Textual gives each screen its toast rack and tooltip first:

@@ -29,6 +29,7 @@ from hmi.ui.containment import ContainedPump
 from hmi.ui.frame import Frame
 from hmi.ui.messages import CommandRequested
 from hmi.ui.style import MUTED, STYLE, Level, bit, tag
+from hmi.ui.textual_adapter import drop_stale_renders
 
 COLUMNS = (("signal", "Signal"), ("dir", "I/O"), ("fov", "FOV"), ("value", "Value"),
            ("state", "State"), ("description", "Description"))
@@ -68,6 +69,7 @@ class IOPanel(ContainedPump, DataTable[Any]):
         self.frame: Frame | None = None
         self._cells: dict[tuple[str, str], object] = {}
         self._widths: dict[str, int] = {}
+        self._changed = False  # (a cell changed in this frame)
         self._manual = False
 
     def on_mount(self) -> None:
@@ -86,6 +88,7 @@ class IOPanel(ContainedPump, DataTable[Any]):
     # -- display -----------------------------------------------------------------------------
     def show(self, frame: Frame) -> None:
         self.frame = frame
+        self._changed = False
         snap = frame.snapshot
         if frame.manual_keys != self._manual:
             self._manual = frame.manual_keys
@@ -139,6 +142,8 @@ class IOPanel(ContainedPump, DataTable[Any]):
             self._set(name, "fov", Text(bit(fov), style=fov_style))
             self._set(name, "value", Text(bit(written), style="bold" if written else ""))
             self._set(name, "state", _join(state))
+        if self._changed:
+            drop_stale_renders(self)
 
     def on_resize(self) -> None:
         # The short or long form of the marks depends on the width: redraw on the last frame
@@ -165,6 +170,7 @@ class IOPanel(ContainedPump, DataTable[Any]):
             if wider:
                 self._widths[column] = width
             self.update_cell(row, column, value, update_width=wider)
+            self._changed = True
 
     def on_data_table_row_highlighted(self, event: DataTable.RowHighlighted) -> None:
         """The highlighted signal's whole description on the border (a narrow table cuts

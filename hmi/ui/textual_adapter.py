@@ -26,21 +26,28 @@ pyproject.toml's range.
    (``_closing``/``_closed``), so that the footer drops the keys it removed; its keys'
    class, ``FooterKey`` (``textual.widgets._footer``), and whether it may build them yet
    (``Footer._bindings_ready``).
+7. Widgets' rendered lines freed with their widgets: ``StylesCache.get_inner_outer``
+   (``textual._styles_cache``), whose ``lru_cache`` keeps the widget's StylesCache alive
+   (:func:`release_styles_caches`); a DataTable's render caches of cells, rows and lines
+   (``_row_render_cache``, ``_cell_render_cache``, ``_row_renderable_cache``,
+   ``_line_cache``), whose keys all hold the table's ``_update_count``
+   (:func:`drop_stale_renders`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from functools import partial
+from functools import lru_cache, partial
 from typing import Any
 
 from rich.console import RenderableType
+from textual._styles_cache import StylesCache
 from textual.app import App
 from textual.css.stylesheet import Stylesheet
 from textual.message import Message
 from textual.message_pump import MessagePump
 from textual.screen import Screen
-from textual.widgets import Footer
+from textual.widgets import DataTable, Footer
 from textual.widgets._footer import FooterKey as FooterKey
 
 # -- 1. containing errors ------------------------------------------------------------------
@@ -259,6 +266,55 @@ def bindings_ready(footer: Footer) -> bool:
     """Whether the footer's compose builds keys yet (it builds none before the first change of
     bindings)."""
     return bool(footer._bindings_ready)
+
+
+# -- 7. widgets' rendered lines freed with their widgets ------------------------------------
+
+INNER_OUTER_KEPT = 1024  # colour pairs (Textual's own bound)
+
+
+def release_styles_caches() -> None:
+    """Every widget's StylesCache (its rendered lines, and the lines derived from them) is
+    freed with the widget.
+
+    Textual caches ``StylesCache.get_inner_outer`` with ``functools.lru_cache`` on the method,
+    so its key holds ``self``: the cache keeps the last 1,024 StylesCaches it was called on
+    alive, with every line they rendered (Textualize/textual#6665). Each dialog an operator
+    opened left its widgets' lines there: the screen grew by about 13 MB a minute with a
+    dialog every half second, until 1,024 widgets' worth were kept. The same computation
+    (Textual's own function), cached by the two colours alone."""
+    method = StylesCache.__dict__["get_inner_outer"]
+    if getattr(method, "plchmi_released", False):
+        return
+    compute = method.__wrapped__  # (uses its colours only: `cls` is never read)
+
+    @lru_cache(INNER_OUTER_KEPT)
+    def inner_outer(base_background: Any, background: Any) -> Any:
+        return compute(None, base_background, background)
+
+    def get_inner_outer(self: StylesCache, base_background: Any, background: Any) -> Any:
+        return inner_outer(base_background, background)
+
+    get_inner_outer.plchmi_released = True  # type: ignore[attr-defined]
+    get_inner_outer.cache_info = inner_outer.cache_info  # type: ignore[attr-defined]
+    StylesCache.get_inner_outer = get_inner_outer  # type: ignore[method-assign,assignment]
+
+
+release_styles_caches()  # (before any widget renders: hmi/ui imports this module first)
+
+
+def drop_stale_renders(table: DataTable[Any]) -> None:
+    """Forget what `table` rendered before its cells last changed.
+
+    A DataTable caches each cell, row and line it renders under a key that holds its update
+    count, which every changed cell moves on: what was cached before can never be asked for
+    again, yet stays until the caches are full (10,000 cells, 1,000 rows and lines). The
+    I/O table changes a few cells every frame, so its caches grew by a few MB over the
+    minutes of any screen, idle or not. Called once its cells changed, this keeps only the
+    current generation (the cursor's and the mouse's variants of it come back as drawn)."""
+    for cache in (table._row_render_cache, table._cell_render_cache,
+                  table._row_renderable_cache, table._line_cache):
+        cache.clear()
 
 
 # -- public replacements, kept here with the rest of what plchmi assumes of Textual ---------
