@@ -115,6 +115,23 @@ def test_blocked_and_monitor_explanations_differ():
     assert e.recommended.id == "correct"
 
 
+def test_whole_cell_explanations_say_cell_not_the_project_identifier():
+    """The cell's own situations (a latch, manual forces, an internal error) are the cell's,
+    said as such: the project's `name:` is an identifier (a folder's name), not a device an
+    operator knows."""
+    snap = run_until(make_controller(VALVE, control="faulty", policy="block"),
+                     lambda s: s.latched)
+    latch = explanation(snap, "safe_state:filter")
+    assert latch.what.startswith("Cell: stopped safe")
+    ctl = make_controller(VALVE)
+    ctl.scan_once()
+    ctl.command(SetMode(True))
+    ctl.command(ManualOutput("O", True))
+    manual = explanation(ctl.scan_once(), "manual")
+    for e in (latch, manual):
+        assert "cispi_valve" not in e.what
+
+
 def test_manual_forces_are_explained_without_an_alarm():
     ctl = make_controller(VALVE)
     ctl.scan_once()

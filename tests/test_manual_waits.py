@@ -262,7 +262,9 @@ def test_the_conveyor_dead_end_is_said_and_the_way_back_works():
     before = transfers(snap)
     # the way back: the recommended policy (manual mode), d until B, release, leave manual
     result = session.command(cmd.ChoosePolicy("step:X3", "manual"))
-    assert result.accepted and "waits at X3, X10" in result.message
+    # the steps by their descriptions (the journal keeps this answer), their names after
+    assert result.accepted and ("waits at “A pallet waits at B” (X3), “Robot free at home” "
+                                "(X10);") in result.message
     assert session.command(cmd.ManualOutput("d", True)).accepted
     pushed_at = session.last.time_us
     session.run_for(0.5 * S)
@@ -274,7 +276,8 @@ def test_the_conveyor_dead_end_is_said_and_the_way_back_works():
     assert [w.holds for w in session.last.waits] == [True, True]
     assert session.command(cmd.ManualOutput("d", None)).accepted
     result = session.command(cmd.SetMode(False))
-    assert result.message.startswith("automatic mode: the control program resumes from X3, X10")
+    assert result.message.startswith("automatic mode: the control program resumes from "
+                                     "“A pallet waits at B” (X3), “Robot free at home” (X10)")
     steps = set()
 
     def seen(s):

@@ -368,7 +368,8 @@ async def test_the_recovery_banner_says_the_next_step_the_state_needs():
         await wait_until_dialog(pilot, "recovery-dialog")
         await press(pilot, "y")
         await wait_for_main(pilot)
-        active = [line for line in region_text(app, "#control").splitlines() if "●" in line]
+        # (the program waits: its steps read held, not running)
+        active = [line for line in region_text(app, "#control").splitlines() if "‖" in line]
         await run_until(pilot, lambda s: s.recovery.status == "done", 3, "recovery done")
         assert "next: r fault reset" in region_text(app, "#banners")
         await press(pilot, "r")
@@ -381,9 +382,10 @@ async def test_the_recovery_banner_says_the_next_step_the_state_needs():
         assert "fault reset" not in banners
         snap = app.link.session.last
         assert not snap.output_map["O"] and not snap.output_map["C"]
-        # the program waits where it was: the same active steps, their times held
-        assert active and active == [line for line in region_text(app, "#control")
-                                     .splitlines() if "●" in line]
+        # the program waits where it was: the same steps, held, none running
+        control = region_text(app, "#control").splitlines()
+        assert active and active == [line for line in control if "‖" in line]
+        assert "(held)" in active[0] and not [line for line in control if "●" in line]
 
 
 def test_under_a_plant_loss_latch_the_reset_dialog_offers_no_recovery_the_engine_refuses():

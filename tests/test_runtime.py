@@ -195,3 +195,50 @@ def test_the_runtime_serves_frames_to_json_readers(sock):
         assert first[2][0] == 1  # the snapshot's scan: the first, as nothing ran since
         raw.close()
         cell.attach().leave()
+
+
+def _policies(pid: int) -> list[tuple[int, int]]:
+    """Each thread of `pid`: (its scheduling policy, its real-time priority)."""
+    import contextlib
+    import os
+    from pathlib import Path
+    found = []
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        with contextlib.suppress(OSError):  # (a thread that ended meanwhile)
+            found.append((os.sched_getscheduler(int(task.name)),
+                          os.sched_getparam(int(task.name)).sched_priority))
+    return found
+
+
+def test_the_runtimes_other_threads_run_below_its_scan_at_real_time_priority(sock):
+    """A real-time scan (where the kernel allows it) with every other thread of the runtime
+    at SCHED_FIFO below it: a thread holding the interpreter lock is never descheduled by
+    ordinary processes while the scan waits for the lock."""
+    import os
+    import time
+
+    from hmi.runtime.runtime import HELPERS_PRIORITY
+    from hmi.session.live import REALTIME_PRIORITY
+
+    def settled(policies: list[tuple[int, int]]) -> bool:
+        return not any(policy == os.SCHED_FIFO for policy, _ in policies) or all(
+            p in ((os.SCHED_FIFO, HELPERS_PRIORITY), (os.SCHED_FIFO, REALTIME_PRIORITY))
+            for p in policies)
+
+    with runtime(VALVE, sock, virtual=False) as cell:
+        alice = cell.attach("alice")
+        # a thread that ends soon may be read at normal priority (a sign-in check gives its
+        # priority back by design): read again until none is, or a guard against a hang
+        # (a thread left at normal priority for good fails below)
+        started = time.monotonic()
+        policies = _policies(cell.process.pid)
+        while not settled(policies) and time.monotonic() - started < 10.0:
+            time.sleep(0.05)
+            policies = _policies(cell.process.pid)
+        alice.leave()
+    if not any(policy == os.SCHED_FIFO for policy, _ in policies):
+        pytest.skip("SCHED_FIFO is refused on this machine")
+    assert policies.count((os.SCHED_FIFO, REALTIME_PRIORITY)) == 1, policies  # the scan
+    assert all(p == (os.SCHED_FIFO, HELPERS_PRIORITY) for p in policies
+               if p != (os.SCHED_FIFO, REALTIME_PRIORITY)), policies
+    assert len(policies) >= 3, policies  # (the main thread, the screens' server, ...)

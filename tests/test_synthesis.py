@@ -58,6 +58,12 @@ def test_a_missing_diagnosers_file_is_an_error_not_a_default(tmp_path):
         load_project(VALVE, str(tmp_path / "none.yaml"))
 
 
+def test_the_comparison_grid_goes_with_build_only(capsys):
+    from hmi.cli import main
+    assert main(["diagnose", str(VALVE), "--every", "10ms"]) == 2
+    assert "--every needs --build" in capsys.readouterr().err
+
+
 def test_the_valves_normal_behaviour_model_is_its_physics():
     project = load_project(VALVE)
     target = find_target(project, "V1")
@@ -73,6 +79,36 @@ def test_the_valves_normal_behaviour_model_is_its_physics():
     # 40 ms), widened by two scans; the order's own events have no window.
     assert (travel.dwell, travel.tmin, travel.tmax) == ((1_910_000,), 1_890_000, 1_930_000)
     assert all(e.tmax is None for e in nbm.expected[nbm.state_of(0b0001)].values())
+
+
+def test_the_normal_behaviour_is_measured_over_the_band_and_lets_switches_settle():
+    """The windows hold the fault-free runs of every corner of the valve's declared
+    tolerances (travel 1.6-2.4 s, bounce 0-20 ms, delay 0-5 ms), widened by two scans and
+    the scan jitter (10 ms) each side; a switch that changed may read its old value for its
+    bounce and a scan (30 ms) without leaving the normal behaviour."""
+    from hmi.studies.synthesis import band_plants, deviation_of, settle_of
+    project = load_project(VALVE)
+    target = find_target(project, "V1")
+    ex = Explorer(project, OBSERVING, "cycles", settle=False)
+    plants = band_plants(project, target, "cycles")
+    assert [label for label, _, _ in plants][::7] == ["travel=1.6s,bounce=0s,delay=0s",
+                                                      "travel=2.4s,bounce=20ms,delay=5ms"]
+    nbm = build_nbm(ex.graph, View(ex.graph, target), target, plants,
+                    project.plant.scan_jitter_us, settle_of(project, target))
+    opening, open_ = nbm.state_of(0b1000), nbm.state_of(0b1010)
+    travel = nbm.expected[opening][0b1010]
+    # fso made 1.51 s after fsc broke at the fast corner, 2.33 s at the slow one.
+    assert (travel.dwell[0], travel.dwell[-1]) == (1_510_000, 2_330_000)
+    assert (travel.tmin, travel.tmax) == (1_480_000, 2_360_000)
+    assert nbm.settle == 30_000 and nbm.margin == 30_000
+    # Opening, fsc reads 1 again within 30 ms: its bounce, no event; after: a deviation.
+    assert deviation_of(nbm, target, opening, 20_000, 0b1001) is None
+    assert deviation_of(nbm, target, opening, 30_000, 0b1001) is not None
+    # Just arrived open, O dropped as fso bounced to 0: the control law's event all the same.
+    assert deviation_of(nbm, target, open_, 10_000, 0b0000) == nbm.state_of(0b0010)
+    # Without a band (no tolerance declared), the windows are the nominal run's alone.
+    bare = build_nbm(ex.graph, View(ex.graph, target), target)
+    assert bare.settle == 0 and bare.expected[opening][0b1010].tmax == 1_930_000
 
 
 @pytest.mark.slow

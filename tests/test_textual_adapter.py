@@ -315,6 +315,28 @@ async def test_a_data_tables_render_caches_are_keyed_by_its_update_count():
         assert "5" in table.render_line(1).text and "5" not in lines[1]
 
 
+async def test_the_palettes_no_matches_countdown_after_its_list_is_gone_does_nothing():
+    from functools import partial
+
+    from textual.command import CommandInput, CommandList, CommandPalette
+
+    app = App()
+    async with app.run_test() as pilot:
+        app.action_command_palette()
+        await pilot.pause()
+        palette = app.screen
+        assert isinstance(palette, CommandPalette)
+        palette._start_no_matches_countdown("zzz")
+        timer = palette._no_matches_timer
+        assert timer is not None and isinstance(timer._callback, partial)
+        timer.stop()
+        await palette.query_one(CommandList).remove()  # (as a dismissed palette's)
+        timer._callback()  # what the timer does when it fires: queue the showing
+        await pilot.pause()
+        assert not app._exit  # Textual's own showing would fail on the list and end the app
+        assert palette.query_one(CommandInput)
+
+
 # -- input ---------------------------------------------------------------------------------
 
 

@@ -398,8 +398,11 @@ async def test_policy_fault_reset_is_confirmed_with_the_reset_preview():
         await press(pilot, "y")
         await wait_for_main(pilot)
         assert engine(app).latched == []
-        assert "✓ Fault reset chosen: fault reset: safe-state latch released" in \
-            flat(app, "#explain")
+        # the answer in the words of the preview confirmed, not the engine's (safe blocking
+        # on CSs…)
+        said = flat(app, "#explain")
+        assert "✓ Fault reset chosen: fault reset: released: outputs held safe" in said, said
+        assert "safe blocking" not in said and "CSs" not in said
 
 
 async def test_policy_cancelled_sends_nothing():

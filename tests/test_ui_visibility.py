@@ -241,3 +241,20 @@ def test_every_screen_the_app_opens_is_a_dialog_kept_below_the_banners():
                     and value.__module__ == module.__name__]
     assert len(screens) >= 10
     assert [s.__name__ for s in screens if not issubclass(s, Dialog)] == []
+
+
+async def test_the_io_rows_the_selected_alarm_is_about_are_on_screen_at_80x24():
+    """The sorting cell at 80x24 has room for three of its 19 I/O rows. Its faulty program's
+    selected alarm ("turn refused, a box lies across the table's edge") is about the turn
+    order ROT90 and the edge beam: the table showed tt_front, tt_0, tt_90. It now scrolls to
+    the order the rule blocks (the rows around it as they fit), the cursor left alone."""
+    app = make_app(SORTING, control="faulty")
+    async with app.run_test(size=(80, 24)) as pilot:
+        await run_for(pilot, 25)
+        selected = app.query_one(AlarmList).selected
+        assert selected is not None and selected.startswith("constraint:")
+        rows = [line.split()[1] for line in region_text(app, "#io").splitlines()[2:-1]
+                if len(line.split()) > 1]
+        assert "ROT90" in rows, rows
+        table = app.query_one("#io")
+        assert table.cursor_row == len(app.link.last.layout.inputs)  # where it starts

@@ -36,6 +36,14 @@ MAX_WAITING = 16  # sign-in attempts queued or running at once, every door of th
 MAX_FAILURE_NAMES = 10_000  # names whose failures are kept (the oldest forgotten first)
 
 
+def normal_priority() -> None:
+    """A sign-in thread runs at normal priority: a password's hash is CPU work that a thread
+    started by a runtime's real-time server thread would otherwise do at real-time priority
+    (hmi.runtime.runtime.helpers_realtime)."""
+    with contextlib.suppress(OSError, AttributeError):
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+
+
 @dataclass(frozen=True)
 class SignInResult:
     accepted: bool
@@ -165,7 +173,8 @@ class Authenticator:
         with self._guard:
             if self._executor is None:
                 self._executor = ThreadPoolExecutor(max_workers=2,
-                                                    thread_name_prefix="plchmi-signin")
+                                                    thread_name_prefix="plchmi-signin",
+                                                    initializer=normal_priority)
         try:
             future = self._executor.submit(self.check, name, password)
         except BaseException:

@@ -61,14 +61,14 @@ def jitter_round(seconds: float, folder: Path | None) -> dict:
     from hmi.bench.ui import SETTLE_S
     from hmi.history.historian import Historian
     from hmi.history.target import Target
-    from hmi.session.live import LiveRunner
+    from hmi.session.live import BENCH_JITTER, LiveRunner
 
     session = _session()
     historian = None
     if folder is not None:
         historian = Historian(session, Target("sqlite", str(folder / "live.sqlite")),
                               source="bench").attach()
-    runner = LiveRunner(session)
+    runner = LiveRunner(session, keep_jitter=BENCH_JITTER)
     runner.start()
     try:
         time.sleep(SETTLE_S)

@@ -16,9 +16,14 @@ Then ``OPC UA HEL attack``: the runtime with its OPC UA gateway (``plchmi gatewa
 client that sends a HEL claiming 2 GiB, then streams data into it for the whole window: the
 runtime's scans and memory, the gateway's memory.
 
-Memory is sampled every second after a warm-up; its growth is per minute of the measured
-window. Attaching is timed too (connect to first frame). The machine is shared: its load is
-printed beside the figures. ``--quick`` shortens each set-up.
+Memory is sampled every second after a warm-up (the screen opening its dialogs already);
+its growth is per minute of the measured
+window, and over its second half alone (what is left once the bounded caches have filled).
+Attaching is timed too (connect to first frame). The machine is shared: its load is
+printed beside the figures. ``--quick`` shortens each set-up; ``--minutes``, ``--screens``,
+``--dialog-every`` and ``--split-only`` set up the issue's own goal (``--minutes 10
+--screens 4 --dialog-every 0.25 --split-only``: one screen opening and closing a dialog every
+quarter second, three more attached, ten minutes).
 """
 
 from __future__ import annotations
@@ -38,16 +43,27 @@ from hmi.bench import load_line
 from hmi.bench.ui import PERIOD_US, PROJECT
 
 SECTION = "live"
-HELP = ("two HMIs at 80x24 on cispi_valve (10 ms scan), one opening and closing dialogs "
-        "every 0.5 s: scan overruns and memory, the runtime and its screens vs one process "
-        "per HMI")
+HELP = ("HMIs at 80x24 on cispi_valve (10 ms scan), one opening and closing dialogs: scan "
+        "overruns and memory, the runtime and its screens vs one process per HMI, and under "
+        "an OPC UA HEL attack")
 
 SECONDS, QUICK_SECONDS = 120.0, 20.0
 WARM_S, QUICK_WARM_S = 10.0, 4.0  # after the screens started: not measured
 SIZE = (80, 24)
 KEYS = ("f", "Escape", "C-p", "Escape")  # the fault dialog, then the palette
-KEY_EVERY_S = 0.25
+DIALOG_EVERY_S = 0.5  # a key every half of it: open, then close
 START_S = 120.0  # a hang guard only (a loaded machine starts slowly)
+
+
+@dataclass(frozen=True)
+class Setup:
+    """How long, how many screens, how often a dialog."""
+
+    seconds: float
+    warm_s: float
+    screens: int = 2
+    dialog_every: float = DIALOG_EVERY_S
+    realtime: bool = True  # the runtime's scan at SCHED_FIFO where the kernel allows it
 
 
 @dataclass
@@ -65,8 +81,10 @@ class Sampled:
             return f"  {label:<22} no memory sample"
         first, last = self.rss_kb[0], self.rss_kb[-1]
         growth = (last - first) / 1024
+        half = (last - self.rss_kb[len(self.rss_kb) // 2]) / 1024
         return (f"  {label:<22} RSS {first / 1024:6.1f} -> {last / 1024:6.1f} MB "
-                f"({growth:+.1f} MB in {seconds:.0f} s, {growth * 60 / seconds:+.2f} MB/min,"
+                f"({growth:+.1f} MB in {seconds:.0f} s, {growth * 60 / seconds:+.2f} MB/min;"
+                f" second half {half * 120 / seconds:+.2f} MB/min;"
                 f" peak {max(self.rss_kb) / 1024:.1f} MB)")
 
 
@@ -96,7 +114,15 @@ class Terminals:
         settings = " ".join(f"{k}={shlex.quote(v)}" for k, v in env.items())
         self.tmux("new-session", "-d", "-s", name, "-x", str(SIZE[0]), "-y", str(SIZE[1]),
                   f"exec env {settings} {shlex.join(command)}")
+        self.tmux("set-option", "-t", name, "remain-on-exit", "on")  # (to say why it ended)
         return int(self.tmux("display-message", "-p", "-t", name, "#{pane_pid}"))
+
+    def ended(self, name: str) -> str | None:
+        """What a terminal whose program ended shows last (None while it runs)."""
+        if self.tmux("display-message", "-p", "-t", name, "#{pane_dead}") != "1":
+            return None
+        lines = [line for line in self.screen(name).splitlines() if line.strip()]
+        return " / ".join(lines[-3:]) or "(nothing)"
 
     def press(self, name: str, key: str) -> None:
         self.tmux("send-keys", "-t", name, key)
@@ -117,22 +143,27 @@ def _wait(predicate, what: str) -> None:
 
 
 def _drive(terminals: Terminals, name: str, seconds: float, samplers: list[Sampled],
-           ) -> None:
-    """Press the dialog keys in `name` every KEY_EVERY_S for `seconds`, sampling memory
-    every second."""
+           dialog_every: float) -> str | None:
+    """Press the dialog keys in `name` (one every half of `dialog_every`) for `seconds`,
+    sampling memory every second; stopped early if the screen ends (what it shows last is
+    returned)."""
     start = time.monotonic()
     next_sample = start
     pressed = 0
     while (now := time.monotonic()) - start < seconds:
         if now >= next_sample:
+            ended = terminals.ended(name)
+            if ended is not None:
+                return f"the screen with dialogs ENDED after {now - start:.0f} s: {ended}"
             for sampler in samplers:
                 sampler.sample()
             next_sample += 1.0
         terminals.press(name, KEYS[pressed % len(KEYS)])
         pressed += 1
-        time.sleep(KEY_EVERY_S)
+        time.sleep(dialog_every / 2)
     for sampler in samplers:
         sampler.sample()
+    return None
 
 
 def _started(terminals: Terminals, name: str) -> bool:
@@ -145,7 +176,7 @@ class Runtime:
     """``plchmi serve`` on the bench's project, with this bench's viewer attached (its
     figures: Query), stopped at the end."""
 
-    def __init__(self, folder: Path, env: dict[str, str]):
+    def __init__(self, folder: Path, env: dict[str, str], realtime: bool = True):
         from hmi.link.client import SocketLink
         from hmi.project.kept import fingerprint, load_once
         from hmi.wire import messages as m
@@ -155,7 +186,8 @@ class Runtime:
         self.log = open(folder / "runtime.log", "wb")  # noqa: SIM115 (closed by stop)
         self.process = subprocess.Popen(
             [sys.executable, "-m", "hmi.cli", "serve", str(PROJECT), "--socket",
-             str(self.sock)], stdin=subprocess.DEVNULL, stdout=self.log, stderr=self.log,
+             str(self.sock), *([] if realtime else ["--no-realtime"])],
+            stdin=subprocess.DEVNULL, stdout=self.log, stderr=self.log,
             env={**os.environ, **env})
         try:
             _wait(self.sock.exists, "the runtime's socket")
@@ -192,44 +224,47 @@ class Runtime:
             f"{after.frames_dropped - before.frames_dropped}; {after.realtime}"]
 
 
-def measure_split(folder: Path, env: dict[str, str], seconds: float, warm_s: float,
-                  tally: dict[str, int]) -> list[str]:
-    runtime = Runtime(folder / "split", env)
+def measure_split(folder: Path, env: dict[str, str], setup: Setup, tally: dict[str, int]
+                  ) -> list[str]:
+    runtime = Runtime(folder / "split", env, setup.realtime)
     terminals = Terminals()
+    names = ["busy", *(f"idle{n}" for n in range(1, setup.screens))]
     try:
         attach = [sys.executable, "-m", "hmi.cli", "attach", str(PROJECT), "--socket",
                   str(runtime.sock)]
-        busy = terminals.open("busy", attach, env)
-        idle = terminals.open("idle", attach, env)
-        for name in ("busy", "idle"):
+        pids = [terminals.open(name, attach, env) for name in names]
+        for name in names:
             _wait(lambda name=name: _started(terminals, name), f"the {name} screen")
-        time.sleep(warm_s)
+        ended = _drive(terminals, "busy", setup.warm_s, [], setup.dialog_every)  # (warm-up)
         before = runtime.viewer.query()
-        samplers = [Sampled(runtime.process.pid), Sampled(busy), Sampled(idle)]
+        samplers = [Sampled(runtime.process.pid), *(Sampled(pid) for pid in pids)]
         t0 = time.monotonic()
-        _drive(terminals, "busy", seconds, samplers)
-        elapsed = time.monotonic() - t0
+        ended = ended or _drive(terminals, "busy", setup.seconds, samplers,
+                                setup.dialog_every)
+        elapsed = max(time.monotonic() - t0, 1e-3)
         after = runtime.viewer.query()
         runtime.viewer.leave()
     finally:
         terminals.close()
         runtime.stop()
-    return [f"  split: one runtime, 2 screens attached + the bench's viewer; attach to "
-            f"first frame {runtime.first_frame_s * 1000:.0f} ms",
+    idle = [samplers[n + 1].line(f"idle screen {n}" if len(names) > 2 else "idle screen",
+                                 elapsed) for n in range(1, len(names))]
+    return [f"  split: one runtime, {len(names)} screens attached + the bench's viewer; "
+            f"attach to first frame {runtime.first_frame_s * 1000:.0f} ms",
             *runtime.figures(before, after, elapsed, tally, "split runtime"),
             samplers[0].line("runtime memory", elapsed),
-            samplers[1].line("screen with dialogs", elapsed),
-            samplers[2].line("idle screen", elapsed)]
+            samplers[1].line("screen with dialogs", elapsed), *idle,
+            *([f"  {ended}"] if ended else [])]
 
 
 HEL_CLAIM = 2 ** 31 - 1  # bytes the hostile HEL's header says its message has
-ATTACK_MOST = 1 << 30  # bytes the hostile client streams at most
+STREAM_MOST = 64 << 20  # bytes the hostile client streams into one connection at most
 
 
 def hostile_hel(port: int, seconds: float) -> tuple[int, int]:
-    """An OPC UA client that sends a HEL claiming ~2 GiB, then streams data into it, over
-    and over for `seconds` (or ATTACK_MOST bytes): as soon as a connection is closed, it
-    opens the next. The bytes it sent and the connections it opened."""
+    """An OPC UA client that sends a HEL claiming ~2 GiB, then streams data into it (at most
+    STREAM_MOST a connection), over and over for `seconds`: as soon as a connection is
+    closed, it opens the next. The bytes it sent and the connections it opened."""
     import contextlib
     import socket
 
@@ -239,24 +274,26 @@ def hostile_hel(port: int, seconds: float) -> tuple[int, int]:
     sent = connections = 0
     end = time.monotonic() + seconds
     chunk = b"\0" * (1 << 16)
-    while sent < ATTACK_MOST and time.monotonic() < end:
+    while time.monotonic() < end:
         with contextlib.suppress(OSError), \
                 socket.create_connection(("127.0.0.1", port), timeout=5.0) as s:
             connections += 1
             s.sendall(header + body)
-            while sent < ATTACK_MOST and time.monotonic() < end:
+            streamed = 0
+            while streamed < STREAM_MOST and time.monotonic() < end:
                 s.sendall(chunk)
+                streamed += len(chunk)
                 sent += len(chunk)
     return sent, connections
 
 
-def measure_attack(folder: Path, env: dict[str, str], seconds: float, warm_s: float,
-                   tally: dict[str, int]) -> list[str]:
+def measure_attack(folder: Path, env: dict[str, str], setup: Setup, tally: dict[str, int]
+                   ) -> list[str]:
     """The runtime with its OPC UA gateway, one hostile client streaming into a HEL that
     claims 2 GiB for the whole window."""
     from hmi.bench.opcua import _free_port
 
-    runtime = Runtime(folder / "attack", env)
+    runtime = Runtime(folder / "attack", env, setup.realtime)
     port = _free_port()
     log = open(folder / "gateway.log", "wb")  # noqa: SIM115 (closed below)
     gateway = subprocess.Popen(
@@ -265,10 +302,11 @@ def measure_attack(folder: Path, env: dict[str, str], seconds: float, warm_s: fl
         stdin=subprocess.DEVNULL, stdout=log, stderr=log, env={**os.environ, **env})
     try:
         _wait(lambda: "serving" in (folder / "gateway.log").read_text(), "the gateway")
-        time.sleep(warm_s)
+        time.sleep(setup.warm_s)
         samplers = [Sampled(runtime.process.pid), Sampled(gateway.pid)]
         sent: list[tuple[int, int]] = []
-        attack = threading.Thread(target=lambda: sent.append(hostile_hel(port, seconds)))
+        attack = threading.Thread(
+            target=lambda: sent.append(hostile_hel(port, setup.seconds)))
         before = runtime.viewer.query()
         t0 = time.monotonic()
         attack.start()
@@ -276,7 +314,7 @@ def measure_attack(folder: Path, env: dict[str, str], seconds: float, warm_s: fl
             for sampler in samplers:
                 sampler.sample()
             attack.join(1.0)
-        elapsed = time.monotonic() - t0
+        elapsed = max(time.monotonic() - t0, 1e-3)
         for sampler in samplers:
             sampler.sample()
         after = runtime.viewer.query()
@@ -328,8 +366,8 @@ def single_screen(stats: str) -> None:
     app.run()
 
 
-def measure_single(folder: Path, env: dict[str, str], seconds: float, warm_s: float,
-                   tally: dict[str, int]) -> list[str]:
+def measure_single(folder: Path, env: dict[str, str], setup: Setup, tally: dict[str, int]
+                   ) -> list[str]:
     terminals = Terminals()
     stats = {name: folder / f"{name}.json" for name in ("busy", "idle")}
     try:
@@ -340,12 +378,13 @@ def measure_single(folder: Path, env: dict[str, str], seconds: float, warm_s: fl
         for name in ("busy", "idle"):
             _wait(lambda name=name: _started(terminals, name) and stats[name].exists(),
                   f"the {name} HMI")
-        time.sleep(warm_s)
+        ended = _drive(terminals, "busy", setup.warm_s, [], setup.dialog_every)  # (warm-up)
         before = {name: json.loads(path.read_text()) for name, path in stats.items()}
         samplers = [Sampled(pids["busy"]), Sampled(pids["idle"])]
         t0 = time.monotonic()
-        _drive(terminals, "busy", seconds, samplers)
-        elapsed = time.monotonic() - t0
+        ended = ended or _drive(terminals, "busy", setup.seconds, samplers,
+                                setup.dialog_every)
+        elapsed = max(time.monotonic() - t0, 1e-3)
         time.sleep(0.6)  # (their figures as of the end)
         after = {name: json.loads(path.read_text()) for name, path in stats.items()}
     finally:
@@ -362,7 +401,7 @@ def measure_single(folder: Path, env: dict[str, str], seconds: float, warm_s: fl
             f"max {after[name]['max'] / 1000:.1f} ms")
     lines.append(samplers[0].line("HMI with dialogs memory", elapsed))
     lines.append(samplers[1].line("idle HMI memory", elapsed))
-    return lines
+    return lines + ([f"  {ended}"] if ended else [])
 
 
 def _has_opcua() -> bool:
@@ -377,24 +416,31 @@ def run(args) -> None:
         print("  tmux is not installed: this section runs the HMIs in real terminals")
         return
     quick = getattr(args, "quick", False)
-    seconds = QUICK_SECONDS if quick else SECONDS
-    warm_s = QUICK_WARM_S if quick else WARM_S
-    print(f"  {PROJECT.name}, scan period {PERIOD_US // 1000} ms, {seconds:g} s measured per "
-          f"set-up after {warm_s:g} s of warm-up; terminals {SIZE[0]}x{SIZE[1]}; "
-          f"{load_line()}", flush=True)
+    minutes = getattr(args, "minutes", None)
+    warm = getattr(args, "warm_minutes", None)
+    setup = Setup(seconds=minutes * 60 if minutes else QUICK_SECONDS if quick else SECONDS,
+                  warm_s=warm * 60 if warm else QUICK_WARM_S if quick else WARM_S,
+                  screens=max(1, getattr(args, "screens", 2)),
+                  dialog_every=max(0.05, getattr(args, "dialog_every", DIALOG_EVERY_S)),
+                  realtime=not getattr(args, "no_realtime", False))
+    print(f"  {PROJECT.name}, scan period {PERIOD_US // 1000} ms, {setup.seconds:g} s measured "
+          f"per set-up after {setup.warm_s:g} s of warm-up; terminals {SIZE[0]}x{SIZE[1]}; a "
+          f"dialog opened and closed every {setup.dialog_every:g} s; {load_line()}",
+          flush=True)
     tally: dict[str, int] = {}
     with tempfile.TemporaryDirectory(prefix="plchmi-bench-live-") as tmp:
         folder = Path(tmp)
         env = {"PLCHMI_DATA": str(folder / "data")}
-        for line in measure_split(folder, env, seconds, warm_s, tally):
+        for line in measure_split(folder, env, setup, tally):
             print(line, flush=True)
-        for line in measure_single(folder, env, seconds, warm_s, tally):
-            print(line, flush=True)
-        if _has_opcua():
-            for line in measure_attack(folder, env, seconds, warm_s, tally):
+        if not getattr(args, "split_only", False):
+            for line in measure_single(folder, env, setup, tally):
                 print(line, flush=True)
-        else:
-            print("  OPC UA HEL attack: not measured (asyncua is not installed)")
+            if _has_opcua():
+                for line in measure_attack(folder, env, setup, tally):
+                    print(line, flush=True)
+            else:
+                print("  OPC UA HEL attack: not measured (asyncua is not installed)")
     print("  overruns in the measured window: " + "; ".join(
         f"{label} {count}" for label, count in tally.items()), flush=True)
     print(f"  after: {load_line()}", flush=True)

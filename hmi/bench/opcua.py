@@ -93,7 +93,7 @@ def _free_port() -> int:
 
 def measure(seconds: float, server: bool, client: bool) -> dict:
     """One set-up: the live scan loop for `seconds`, with or without server and client."""
-    from hmi.session.live import LiveRunner
+    from hmi.session.live import BENCH_JITTER, LiveRunner
 
     session = _controller(PERIOD_US)
     ends: dict[int, float] = {}
@@ -109,7 +109,7 @@ def measure(seconds: float, server: bool, client: bool) -> dict:
         from hmi.opcua.server import CellServer, ServeOptions
         cell = CellServer(session, ServeOptions(port=_free_port()))
         cell.start()
-    runner = LiveRunner(session)
+    runner = LiveRunner(session, keep_jitter=BENCH_JITTER)
     runner.start()
     result: dict = {}
     try:

@@ -64,10 +64,10 @@ def jitter_line(label: str, jitter: list[float], scans: int, seconds: float,
 
 def baseline(seconds: float, period_us: int = PERIOD_US) -> str:
     """The scan loop alone, paced by the wall clock: what the UI is compared with."""
-    from hmi.session.live import LiveRunner
+    from hmi.session.live import BENCH_JITTER, LiveRunner
 
     controller = _controller(period_us)
-    runner = LiveRunner(controller)
+    runner = LiveRunner(controller, keep_jitter=BENCH_JITTER)
     runner.start()
     time.sleep(SETTLE_S)
     samples0, scans0, overruns0 = len(runner.jitter_us), controller.engine.scan, \

@@ -31,6 +31,9 @@ def add_parsers(sub) -> None:
     p.add_argument("-o", "--out", metavar="FILE",
                    help="with --build: where to write the diagnoser (default: "
                    "DEVICE.built.yaml in the current folder)")
+    p.add_argument("--every", type=duration, default=None, metavar="TIME",
+                   help="with --build: the grid of the closed-loop comparison (default: "
+                   "200ms; 10ms on the valve is every scan)")
     add_farm_args(p)
 
     p = sub.add_parser("campaign", help="inject every fault under three configurations and "
@@ -113,6 +116,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         return _build(args, project)
     if args.out is not None:
         raise UsageError("--out needs --build")
+    if args.every is not None:
+        raise UsageError("--every needs --build (diagnose computes every instant exactly)")
     band, samples, seed = _band_options(args)
     with farm_of(args) as farm:
         report = diagnose_report(project, farm=farm, compute=not args.no_closed_loop,
@@ -135,7 +140,7 @@ def _build(args: argparse.Namespace, project) -> int:
           "of the cycle)...", file=sys.stderr)
     with farm_of(args) as farm:
         try:
-            report, status = build_report(project, args.build, out, farm)
+            report, status = build_report(project, args.build, out, farm, args.every)
         except (SynthesisError, Unsupported) as exc:
             raise UsageError(f"--build {args.build}: {exc}") from None
     print_report(report, farm)

@@ -414,10 +414,17 @@ class Engine:
                               self.now)
 
     def _where(self, word: str = "at") -> str:
-        """' at X3, X10': the program's active steps for SetMode's answers ('' without a
-        GRAFCET, or before the first scan: the program starts from its initial steps)."""
+        """' at “Closing” (X3), X10': the program's active steps for SetMode's answers, by
+        their descriptions for the operator and the journal, their names for the engineer (''
+        without a GRAFCET, or before the first scan: the program starts from its initial
+        steps)."""
         steps = self.law.active_steps(self.image) if self.started else ()
-        return f" {word} {', '.join(steps)}" if steps else ""
+        if not steps:
+            return ""
+        grafcet = self.project.controls[self.control_name].grafcet
+        said = {s.name: s.description for s in grafcet.steps} if grafcet else {}
+        return f" {word} " + ", ".join(f"\u201c{said[s]}\u201d ({s})" if said.get(s) else s
+                                       for s in steps)
 
     def _start_recovery(self, name: str) -> CommandResult:
         stage = self.recovery

@@ -267,14 +267,14 @@ class ExplanationBuilder(ExplanationContext):
                 # The device answered, refusing a request (a Modbus exception response).
                 named = re.search(r"answered (.+?) \(exception", reason.detail)
                 refusal = named.group(1) if named else "an error"
-                what = f"{self.project.name}: the plant answered {refusal} — outputs held safe"
+                what = f"Cell: the plant answered {refusal} — outputs held safe"
                 why = (f"At {at} s the plant refused a request instead of answering it: the "
                        "inputs could not all be read.")
                 consequences = ("Every output is held off while the device refuses; "
                                 "automatic operation resumes only after a fault reset.")
                 severity = "high"
             elif reason.source == "plant":
-                what = f"{self.project.name}: plant connection lost — outputs held safe"
+                what = "Cell: plant connection lost — outputs held safe"
                 cause = reason.detail.split(": ", 1)[-1]
                 why = (f"At {at} s the plant stopped answering ({cause}): its inputs can no "
                        "longer be trusted.")
@@ -284,7 +284,7 @@ class ExplanationBuilder(ExplanationContext):
                                 "halfway may need its recovery.")
                 severity = "high"
             elif reason.source == "internal" and reason.part:
-                what = (f"{self.project.name}: internal error {reason.part} — outputs held "
+                what = (f"Cell: internal error {reason.part} — outputs held "
                         "safe")
                 why = (f"At {at} s {reason.part} failed unexpectedly; the engineering detail "
                        "says how, for the engineer.")
@@ -293,14 +293,14 @@ class ExplanationBuilder(ExplanationContext):
                                 "(if it is still there, the error latches again).")
                 severity = "high"
             elif reason.source == "internal":
-                what = f"{self.project.name}: internal error — outputs held safe"
+                what = "Cell: internal error — outputs held safe"
                 why = (f"At {at} s a part of the scan failed unexpectedly; the engineering "
                        "detail says what, for the engineer.")
                 consequences = ("The scan could not be completed safely, so every output went "
                                 "to its safe value and stays there until a fault reset.")
                 severity = "high"
             elif reason.source == "journal":
-                what = f"{self.project.name}: the journal cannot be written — outputs held safe"
+                what = "Cell: the journal cannot be written — outputs held safe"
                 why = (f"At {at} s the operator journal could not be written (a full disk, "
                        "an input/output error): actions and alarms would not be recorded.")
                 consequences = ("Every output is held at its safe value until a fault reset; "
@@ -308,7 +308,7 @@ class ExplanationBuilder(ExplanationContext):
                 severity = "high"
             else:
                 rule = reason.detail.split(": ", 1)[1] if ": " in reason.detail else ""
-                what = f"{self.project.name}: cell stopped safe — a safety rule was broken"
+                what = "Cell: stopped safe — a safety rule was broken"
                 why = (f"Under safe blocking the first unsafe order stops the whole cell: at "
                        f"{at} s the program asked for orders that break "
                        + (f"the rule \u201c{lower_first(rule)}\u201d." if rule
@@ -365,7 +365,7 @@ class ExplanationBuilder(ExplanationContext):
 
         def make() -> Explanation:
             violated = ", ".join(report.violated_names)
-            what = f"{self.project.name}: no safe set of orders — safe state written"
+            what = "Cell: no safe set of orders — safe state written"
             why = (f"At {seconds(snap.time_us)} s no combination of orders kept every safety "
                    f"rule; the program's orders broke {self._rules(report.violated_names)}. "
                    f"Since {seconds(onset.time_us)} s.")
@@ -391,7 +391,7 @@ class ExplanationBuilder(ExplanationContext):
 
         def make() -> Explanation:
             violated = ", ".join(report.violated_names)
-            what = (f"{self.project.name}: correction not found within the search budget — "
+            what = ("Cell: correction not found within the search budget — "
                     "safe state written")
             why = (f"At {seconds(snap.time_us)} s the search for safe orders used up its "
                    "budget of work for one scan; "
@@ -424,7 +424,7 @@ class ExplanationBuilder(ExplanationContext):
         onset = self.onset(key, snap)
 
         def make() -> Explanation:
-            what = f"{self.project.name}: plant not connected — {message or 'no connection'}"
+            what = f"Cell: plant not connected — {message or 'no connection'}"
             why = (f"{snap.plant.description}: {message or 'no answer'}. Since "
                    f"{seconds(onset.time_us)} s.")
             consequences = ("No output is written until the connection is established; "
@@ -442,7 +442,7 @@ class ExplanationBuilder(ExplanationContext):
         def make() -> Explanation:
             listed = ", ".join(f"{self.plain.name(n)} {'on' if v else 'off'}"
                                for n, v in forces)
-            what = f"{self.project.name}: MANUAL — forces active ({listed})"
+            what = f"Cell: MANUAL — forces active ({listed})"
             why = f"Manual mode since {seconds(onset.time_us)} s; requested: {listed}."
             consequences = ("The control program waits where it is and does not drive the "
                             "outputs; every request still goes through the safety filter.")

@@ -26,10 +26,11 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 from hmi.engine import commands as cmd
-from hmi.engine.criteria import Wait, value_text
+from hmi.engine.criteria import Wait, receptivity_text, value_text
 from hmi.explain.model import Explanation, Policy
 from hmi.explain.plain import lower_first, without_notes
 from hmi.explain.recovery import start_policy
+from hmi.logic.expr import And, Compare, Const, Duration, Node, Not, Or, StepTime, Var
 from hmi.project.recovery import recoveries_of
 from hmi.timefmt import format_duration, seconds
 
@@ -100,21 +101,91 @@ def _reads_only_io(builder: ExplanationContext, wait: Wait) -> bool:
 
 
 def wait_words(builder: ExplanationContext, grafcet: Grafcet, wait: Wait) -> str:
-    """One way on from the step, in words: the transition's description (or its condition
-    when it reads only inputs and outputs), the values, the steps of a join still to come."""
-    if wait.description:
-        what = _quoted(wait.description)
-    elif _reads_only_io(builder, wait):
-        what = _quoted(wait.receptivity)
+    """One way on from the step, in words: the transition's description and the values it
+    reads, else its condition said with the descriptions of what it reads (each with its
+    value now); the steps of a join still to come. The expression itself is engineering
+    detail (the control panel's engineering view)."""
+    condition = next((t.receptivity.root for t in grafcet.transitions
+                      if t.number == wait.transition), None)
+    if wait.description or condition is None:
+        what = _quoted(wait.description) if wait.description else "its condition"
+        values = ", ".join(_variable_words(builder, grafcet, n, v, wait.step)
+                           for n, v in wait.values)
+        text = what + (f" ({values})" if values else "")
     else:
-        what = "its condition"
-    values = ", ".join(_variable_words(builder, grafcet, n, v, wait.step)
-                       for n, v in wait.values)
-    text = what + (f" ({values})" if values else "")
+        text = condition_words(builder, grafcet, condition, dict(wait.values), wait.step)
     if wait.joins:
         text += " and for " + " and ".join(_quoted(step_words(grafcet, s))
                                            for s in wait.joins) + " to be reached too"
     return text
+
+
+_COMPARED = {">=": "{} or more", ">": "more than {}", "<=": "at most {}", "<": "less than {}",
+             "==": "exactly {}", "!=": "other than {}"}
+_SWAPPED = {">=": "<=", ">": "<", "<=": ">=", "<": ">", "==": "==", "!=": "!="}
+
+
+def condition_words(builder: ExplanationContext, grafcet: Grafcet, node: Node,
+                    values: dict[str, Any], step: str) -> str:
+    """A transition's condition with each signal, memory or step by its description and
+    its value now: `the end of “box across the turntable's back edge” (tt_back now 1)` for
+    fall(tt_back), `3 s or more in this step (now 0.80 s)` for X2.t >= 3s."""
+    def thing(name: str) -> str:
+        if any(s.name == name for s in grafcet.steps):
+            return _quoted(step_words(grafcet, name))
+        described = builder.describe(name)
+        return _quoted(lower_first(without_notes(described))) if described != name \
+            else _quoted(name)
+
+    def now(name: str) -> str:
+        if name not in values:
+            return ""
+        shown = value_text(name, values[name])
+        if any(s.name == name for s in grafcet.steps):
+            return f" (now {'active' if values[name] else 'not active'})"
+        return f" ({name} now {shown})" if name in builder.devices else f" (now {shown})"
+
+    def words(n: Node, inner: bool = False) -> str:
+        if isinstance(n, Const):
+            return "nothing more (always true)" if n.value else "never"
+        if isinstance(n, Var):
+            step_var = any(s.name == n.name for s in grafcet.steps)
+            said = thing(n.name) + (" active" if step_var else "")
+            return said + (" just before" if n.depth else "") + now(n.name)
+        if isinstance(n, Not):
+            if isinstance(n.operand, Var) and any(s.name == n.operand.name
+                                                  for s in grafcet.steps):
+                return thing(n.operand.name) + " not active" + now(n.operand.name)
+            return "not " + words(n.operand, True)
+        if isinstance(n, And) and len(n.operands) == 2:
+            edge = _edge(n)
+            if edge is not None:
+                kind, name = edge
+                return f"the {kind} of {thing(name)}{now(name)}"
+        if isinstance(n, (And, Or)):
+            joined = (" and " if isinstance(n, And) else " or ").join(
+                words(op, True) for op in n.operands)
+            return f"({joined})" if inner else joined
+        if isinstance(n, Compare):
+            left, op, right = n.left, n.op, n.right
+            if isinstance(left, Duration) and isinstance(right, StepTime):
+                left, op, right = right, _SWAPPED[op], left
+            if isinstance(left, StepTime) and isinstance(right, Duration):
+                where = "this step" if left.step == step else thing(left.step)
+                said = _COMPARED[op].format(f"{right.us / 1e6:g} s") + f" in {where}"
+                return said + now(f"{left.step}.t")
+        return _quoted(receptivity_text(n))
+
+    return words(node)
+
+
+def _edge(node: And) -> tuple[str, str] | None:
+    """("start", x) for rise(x) (x and not prev(x)), ("end", x) for fall(x)."""
+    a, b = node.operands
+    if isinstance(a, Var) and isinstance(b, Not) and isinstance(b.operand, Var) \
+            and a.name == b.operand.name and {a.depth, b.operand.depth} == {0, 1}:
+        return ("start" if a.depth == 0 else "end"), a.name
+    return None
 
 
 def _explain(builder: ExplanationContext, snap: Snapshot, grafcet: Grafcet, name: str,

@@ -59,6 +59,7 @@ class Lateness:
         return self.most
 
 
+BENCH_JITTER = 100_000  # scans whose lateness a bench keeps, one by one
 REALTIME_PRIORITY = 10  # SCHED_FIFO priority of a runtime's scan thread (1-99)
 
 
@@ -72,13 +73,16 @@ class LiveRunner:
     speed), it gives the priority back: a thread that never sleeps must not hold a core
     from everything else."""
 
-    def __init__(self, controller: Session, keep_jitter: int = 100_000,
+    def __init__(self, controller: Session, keep_jitter: int = 0,
                  realtime: bool = False):
         self.controller = controller
         self.realtime = realtime
         self.realtime_state = "normal priority (not asked)"
         self._realtime_now = False
         self.realtime_known = threading.Event()  # realtime_state says what happened
+        # Each scan's lateness, the last `keep_jitter` (the benches' samples). None by default:
+        # a runtime's figures are `lateness`, in constant memory (100,000 kept samples were
+        # 3 MB that a runtime grew by over its first 17 minutes).
         self.jitter_us: deque[float] = deque(maxlen=keep_jitter)
         self.lateness = Lateness()
         self.overruns = 0
@@ -89,6 +93,11 @@ class LiveRunner:
         self.started = False
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, name="plchmi-scan", daemon=True)
+
+    @property
+    def thread_id(self) -> int | None:
+        """The scan thread's id for the kernel (None before it starts)."""
+        return self._thread.native_id
 
     def start(self) -> None:
         settle_memory()
@@ -203,7 +212,7 @@ def run_live_for(controller: Session, duration_us: int,
     `on_scan` returns True (a failure that ends the run early).
 
     A headless run against a real plant: the same LiveRunner as the HMI, without a UI.
-    Returns the (stopped) runner, whose `overruns` and `jitter_us` the caller may report.
+    Returns the (stopped) runner, whose `overruns` and `lateness` the caller may report.
     """
     done = threading.Event()
 

@@ -19,11 +19,13 @@ from hmi.studies.synthesis import (
     Runs,
     SynthesisError,
     View,
+    band_plants,
     build_faulty,
     build_nbm,
     explore_runs,
     find_target,
     minimise,
+    settle_of,
 )
 
 
@@ -39,7 +41,11 @@ def synthesise(project: Project, name: str, grid_us: int = GRID_US,
     every = max(1, round(grid_us / period))  # GRID_US (0): every scan
     # Steps 1-2: the fault-free loop (the same in every configuration: no fault, no flag).
     probe = Explorer(project, OBSERVING, counter, settle=False)
-    nbm = build_nbm(probe.graph, View(probe.graph, target), target)
+    # ... at the nominal plant (its states and changes) and at each corner of the device's
+    # declared tolerances (the windows), settling each switch's bounce.
+    nbm = build_nbm(probe.graph, View(probe.graph, target), target,
+                    band_plants(project, target, counter), project.plant.scan_jitter_us,
+                    settle_of(project, target))
     observing = explore_runs(project, [OBSERVING], target, every, counter)
     ftc_config = LoopConfig("ftc", "FTC", None, "off")  # round 0: the diagnoser acts on nothing
     loop_project = project

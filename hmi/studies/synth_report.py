@@ -132,19 +132,21 @@ def _median(values: Sequence[int]) -> str:
     return "-" if s is None else f"{seconds(s[1])} s"
 
 
-def build_report(project: Project, name: str, out_file: Path, farm: Any = None
-                 ) -> tuple[str, int]:
-    """Build, write, compare: the report and the exit status (0, or 1 when the built
-    diagnoser misdiagnoses or did not converge)."""
+def build_report(project: Project, name: str, out_file: Path, farm: Any = None,
+                 every_us: int | None = None) -> tuple[str, int]:
+    """Build, write, compare (on a grid of `every_us`, default CLOSED_LOOP_EVERY_US): the
+    report and the exit status (0, or 1 when the built diagnoser misdiagnoses or did not
+    converge)."""
     from hmi.studies.synth_build import synthesise
     built, text, loaded = synthesise(project, name)
     out_file.write_text(text)
     spec = next(s for s in loaded.diagnosers if s.name == built.target.name)
     own = built.target.existing
-    mine = loop_figures(project, farm) if own is not None else None
-    new = loop_figures(loaded, farm)
+    every = every_us or CLOSED_LOOP_EVERY_US
+    mine = loop_figures(project, farm, every) if own is not None else None
+    new = loop_figures(loaded, farm, every)
     lines = [header(built, out_file), ""]
-    lines += comparison_lines(built.target.name, own, spec, mine, new)
+    lines += comparison_lines(built.target.name, own, spec, mine, new, every)
     bad = sum(d.misdiagnoses for d in new)
     status = 0 if built.converged and not bad else 1
     return "\n".join(lines), status

@@ -101,14 +101,14 @@ def to_yaml(project: Project, d: Diagnoser) -> str:
         f"{', '.join(f.code for f in t.faults)} of the {t.model} model.",
         f"# Step 2, normal behaviour: the fault-free closed loop (control law '{law}', filter "
         f"'{project.policy}') seen",
-        f"#   through that vector; a window is the dwell observed widened by "
-        f"{_scans(MARGIN_SCANS, period)} each side.",
+        *_normal_text(d, period),
         f"# Step 3, faults: every fault injected every {format_duration(d.grid_us)} of the "
         "cycle and 1 us before and after each",
         "#   normal event, observing only and under FTC "
         f"({d.runs_used} runs); under FTC iterated with the diagnoser built until",
         f"#   it is the one the loop was explored with: {d.iterations} rounds"
         + ("" if d.converged else " (NOT converged: the last round's diagnoser)") + ".",
+        *_split_text(d),
         "diagnosers:",
         f"  {t.name}:",
         "    description: " + _q(f"Diagnoser of {t.operator_name or t.device} built from its "
@@ -155,7 +155,10 @@ def to_yaml(project: Project, d: Diagnoser) -> str:
     n_orders = len(t.actuators)
     for k in range(1, len(nbm.vectors)):
         own = nbm.vectors[k]
-        lines.append(f"      # N{k}: {t.vector_text(own)}")
+        bouncing = nbm.settling.get(k, 0) if nbm.settle else 0
+        lines.append(f"      # N{k}: {t.vector_text(own)}" + (
+            f"; {_bits(t, bouncing)} may still bounce for {format_duration(nbm.settle)}: its "
+            "old value is no event until then" if bouncing else ""))
         exp = nbm.expected.get(k, {})
         for vec in sorted(exp):
             e = exp[vec]
@@ -168,6 +171,13 @@ def to_yaml(project: Project, d: Diagnoser) -> str:
                        "runs")
             lines.append(f"      - {{from: N{k}, to: N{nbm.state_of(vec)}, when: "
                          f"{_q(t.condition(vec))}{_window(e.tmin, e.tmax)}}}  # {why}")
+        if nbm.settling.get(k) and nbm.settle:
+            for vec in range(1 << len(t.names)):
+                settled = nbm.settle_target(k, vec)
+                if settled is not None and settled != k:
+                    lines.append(f"      - {{from: N{k}, to: N{settled}, when: "
+                                 f"{_q(t.condition(vec))}{_window(0, nbm.settle)}}}  # the "
+                                 "control law's event, a switch still bouncing")
         timeout = None
         for dev, target_name in sorted(deviations.get(k, []), key=lambda x: x[0]):
             if dev.vec == TIMEOUT:
@@ -202,6 +212,42 @@ def to_yaml(project: Project, d: Diagnoser) -> str:
     for k in at_rest:
         lines.append(f"      - {{when: {_q(t.condition(nbm.vectors[k]))}, to: N{k}}}")
     return "\n".join(lines) + "\n"
+
+
+def _normal_text(d: Diagnoser, period: int) -> list[str]:
+    """How the windows were measured: the nominal plant's run alone, or over the band."""
+    nbm = d.nbm
+    jitter = nbm.margin - MARGIN_SCANS * period
+    if not nbm.band:
+        return [f"#   through that vector; a window is the dwell observed widened by "
+                f"{_scans(MARGIN_SCANS, period)} each side."]
+    lines = [f"#   through that vector, at the nominal plant and at the {len(nbm.band)} corners "
+             "of the device's declared",
+             "#   tolerances (each switch change of a kind bouncing alike):"]
+    lines += [f"#     {text}" for text in nbm.band]
+    lines.append(f"#   a window is the dwell observed over them widened by "
+                 f"{_scans(MARGIN_SCANS, period)}"
+                 + (f" and the scan jitter ({format_duration(jitter)})" if jitter else "")
+                 + " each side.")
+    if nbm.settle:
+        lines.append(f"#   A switch that changed may read its old value for "
+                     f"{format_duration(nbm.settle)} (its bounce, and a scan): no event "
+                     "until then.")
+    return lines
+
+
+def _split_text(d: Diagnoser) -> list[str]:
+    if not d.nbm.margin:
+        return []
+    return ["#   The faults are injected at the nominal plant. Runs leaving the normal behaviour "
+            "by one change at",
+            "#   different times are told apart by when: each fault's times widened by "
+            f"{format_duration(d.nbm.margin)} each side, the",
+            "#   window cut where the faults it holds change."]
+
+
+def _bits(t: Target, bits: int) -> str:
+    return ", ".join(n for k, n in enumerate(t.sensors) if bits >> k & 1)
 
 
 def _scans(n: int, period: int) -> str:

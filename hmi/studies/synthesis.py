@@ -45,7 +45,7 @@ is compared and checked is the file.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from hmi.project.device_models import DEVICE_MODELS as MODELS
 from hmi.project.device_models import FaultSpec
@@ -227,6 +227,13 @@ class Nbm:
     expected: dict[int, dict[int, Expected]]  # state -> vector -> expected transition
     first_seen: dict[int, int]  # state -> time (us) it is first entered in the fault-free run
     period: int
+    # A switch that changed may read its old value for `settle` us (its bounce): per state,
+    # the sensor bits that changed on entering it (or just before, across the control law's
+    # event that followed at once), whose old value is its bounce there.
+    settle: int = 0
+    settling: dict[int, int] = field(default_factory=dict)
+    band: tuple[str, ...] = ()  # the band's plants the windows were measured on (their texts)
+    margin: int = 0  # us each window was widened by (scans and scan jitter)
 
     def state_of(self, vec: int) -> int:
         return self.vectors.index(vec)
@@ -238,12 +245,43 @@ class Nbm:
     def rest_states(self, target: Target) -> list[int]:
         return [k for k in range(1, len(self.vectors)) if target.at_rest(self.vectors[k])]
 
+    def settle_target(self, state: int, vec: int) -> int | None:
+        """What `vec` stands for in `state` while its switches settle, if it differs from a
+        normal reading only by the old value of a switch that just changed: the state itself
+        (the bounce is no event) or the next normal state (the control law's event, seen
+        with the bounce); None if it is not a bounce."""
+        bits = self.settling.get(state, 0)
+        if not bits or not self.settle:
+            return None
+        own = self.vectors[state]
+        masked = (vec & ~bits) | (own & bits)
+        if masked == vec or vec in self.expected.get(state, {}):
+            return None  # no switch's old value, or a change the state expects
+        if masked == own:
+            return state
+        e = self.expected.get(state, {}).get(masked)
+        if e is not None and e.tmin == 0 and (e.tmax is None or e.tmax >= self.settle):
+            return self.state_of(masked)
+        return None
 
-def build_nbm(g: Graph, view: View, target: Target) -> Nbm:
-    """The NBM from the fault-free run: its prefix, then its cycle once more (so the
-    cycle's closing change is seen too)."""
+
+def cycle_path(g: Graph) -> list[int]:
+    """The fault-free run: its prefix, then its cycle once more (so the cycle's closing
+    change is seen too)."""
+    return list(g.prefix) + list(g.prefix[g.cycle_start:])
+
+
+def build_nbm(g: Graph, view: View, target: Target,
+              band: Sequence[tuple[str, Graph, View]] = (), jitter_us: int = 0,
+              settle_us: int = 0) -> Nbm:
+    """The NBM from the fault-free run of the nominal plant (its states and transitions),
+    with the plant's windows measured over it and over the fault-free runs of the band's
+    plants (`band`: (label, graph, view) per plant), widened by MARGIN_SCANS scans and the
+    scan jitter each side. A switch's old value read within `settle_us` of its change is its
+    bounce, not an event. A band plant showing a change the nominal run does not is an error
+    (the nominal run must hold the behaviour's structure)."""
     period = g.period_us
-    path = list(g.prefix) + list(g.prefix[g.cycle_start:])
+    path = cycle_path(g)
     vectors = [-1]
     first_seen: dict[int, int] = {}
     dwell: dict[tuple[int, int], list[int]] = {}
@@ -259,15 +297,13 @@ def build_nbm(g: Graph, view: View, target: Target) -> Nbm:
         if state != current:
             current, since = state, i
     expected: dict[int, dict[int, Expected]] = {}
-    margin = MARGIN_SCANS * period
+    mids: set[tuple[int, int]] = set()  # (order seen, the plant's answer): the mid states'
+    width = len(target.sensors)
     for (a, b), times in sorted(dwell.items()):
         va, vb = vectors[a], vectors[b]
         seen = tuple(sorted(set(times)))
-        orders_changed = va >> len(target.sensors) != vb >> len(target.sensors)
-        if not orders_changed:  # the plant's event: its window
-            lo = seen[0] - margin
-            expected.setdefault(a, {})[vb] = Expected(vb, lo if lo > period else 0,
-                                                      seen[-1] + margin, seen)
+        if va >> width == vb >> width:  # the plant's event: its window (set below)
+            expected.setdefault(a, {})[vb] = Expected(vb, 0, 0, seen)
             continue
         # The control law's event: no window.
         expected.setdefault(a, {})[vb] = Expected(vb, 0, None, seen)
@@ -275,13 +311,129 @@ def build_nbm(g: Graph, view: View, target: Target) -> Nbm:
             # The order and the plant's answer seen at one scan (the diagnoser sees the
             # orders one scan late): a plant answering later shows the order first. That
             # vector is a normal state too, left by the plant's event within the margin.
-            mid = target.sensor_bits(va) | (vb >> len(target.sensors) << len(target.sensors))
+            mid = target.sensor_bits(va) | (vb >> width << width)
             if mid not in vectors:
                 vectors.append(mid)
             m = vectors.index(mid)
             expected[a][mid] = Expected(mid, 0, None, ())
-            expected.setdefault(m, {})[vb] = Expected(vb, 0, margin, (0,))
-    return Nbm(vectors, expected, first_seen, period)
+            mids.add((m, vb))
+    for m, vb in sorted(mids):
+        expected.setdefault(m, {}).setdefault(vb, Expected(vb, 0, 0, ()))
+    settling = _settling(vectors, expected, dwell, mids, target, settle_us)
+    nbm = Nbm(vectors, expected, first_seen, period, settle_us, settling,
+              tuple(label for label, _, _ in band), MARGIN_SCANS * period + jitter_us)
+    # The band's plants: every change they show, walked through the NBM (windows open, the
+    # bounce settling), adds its dwell to the plant's windows.
+    for label, bg, bview in band:
+        for (a, b), times in _walk(nbm, target, bg, bview, label, relaxed=True).items():
+            dwell.setdefault((a, b), []).extend(times)
+    margin = nbm.margin
+    for a, exp in expected.items():
+        for vb, e in list(exp.items()):
+            if e.tmax is None:
+                continue  # the control law's event
+            seen = tuple(sorted(set(dwell.get((a, vectors.index(vb)), []))))
+            if (a, vb) in mids:  # the plant's answer to an order: from the order on
+                last = seen[-1] if seen else 0
+                exp[vb] = Expected(vb, 0, last + margin, seen or (0,))
+            else:
+                lo = seen[0] - margin
+                exp[vb] = Expected(vb, lo if lo > period else 0, seen[-1] + margin, seen)
+    # Every fault-free run, nominal and across the band, stays in the NBM built.
+    _walk(nbm, target, g, view, "nominal", relaxed=False)
+    for label, bg, bview in band:
+        _walk(nbm, target, bg, bview, label, relaxed=False)
+    return nbm
+
+
+def _settling(vectors: list[int], expected: dict[int, dict[int, Expected]],
+              dwell: dict[tuple[int, int], list[int]], mids: set[tuple[int, int]],
+              target: Target, settle_us: int) -> dict[int, int]:
+    """Per normal state, the switches still settling when it is entered: those that changed
+    on entering it, and those settling in the state before when the control law's event that
+    left it came within the settling time."""
+    if not settle_us:
+        return {}
+    out: dict[int, int] = {}
+    edges = [(a, vectors.index(vb)) for a, exp in expected.items() for vb in exp]
+    edges += [(m, vectors.index(vb)) for m, vb in mids]
+    for a, b in edges:
+        changed = target.sensor_bits(vectors[a] ^ vectors[b])
+        if changed:
+            out[b] = out.get(b, 0) | changed
+    while True:
+        grown = False
+        for a, b in edges:
+            if target.sensor_bits(vectors[a] ^ vectors[b]) or not out.get(a):
+                continue
+            if max(dwell.get((a, b), [settle_us])) >= settle_us:
+                continue
+            bits = out.get(b, 0) | out[a]
+            if bits != out.get(b, 0):
+                out[b], grown = bits, True
+        if not grown:
+            return out
+
+
+def _walk(nbm: Nbm, target: Target, g: Graph, view: View, label: str, relaxed: bool
+          ) -> dict[tuple[int, int], list[int]]:
+    """The dwell before each change of one plant's fault-free run, walked through the NBM
+    (`relaxed`: its windows open, any expected change at any time), its switches settling.
+    A deviation is an error: a fault-free run must stay in the normal behaviour."""
+    if relaxed:
+        nbm = replace(nbm, expected={a: {v: Expected(v, 0, None, e.dwell)
+                                         for v, e in exp.items()}
+                                     for a, exp in nbm.expected.items()})
+    period = g.period_us
+    path = cycle_path(g)
+    out: dict[tuple[int, int], list[int]] = {}
+    state, since = 0, 0
+    for i, node in enumerate(path):
+        vec = view.vector(node, path[i - 1]) if i else view.sensors(node)
+        result = deviation_of(nbm, target, state, (i - since) * period, vec)
+        if isinstance(result, Deviation) or (result == 0 and state):
+            why = ("which the nominal plant's fault-free run never does: the normal behaviour "
+                   "cannot be built from it") if relaxed else "outside the windows built"
+            raise SynthesisError(
+                f"the fault-free run of the plant {label} shows {target.vector_text(vec)} "
+                f"at {i * period} us in N{state} ({target.vector_text(nbm.vectors[state])}) "
+                f"after {(i - since) * period} us, {why}")
+        if result is not None and result != state:
+            if state:
+                out.setdefault((state, result), []).append((i - since) * period)
+            state, since = result, i
+    return out
+
+
+def band_plants(project: Project, target: Target, counter: str
+                ) -> list[tuple[str, Graph, View]]:
+    """The fault-free closed loop at each corner of the device's declared tolerances (those
+    a fault-free run depends on: not the block point, F13's alone), every switch change of a
+    kind bouncing alike (the exploration needs a loop that repeats): (the corner's text, its
+    graph, the device's view of it). The scan jitter is not explored (scans off their grid
+    never repeat): the windows are widened by it instead."""
+    from hmi.studies.band import band_of
+    band = band_of(project).restricted(
+        lambda d: d.device == target.device and not d.faults_only)
+    out = []
+    for corner in band.corners():
+        cell = band.apply(project, corner, "same")
+        g = Explorer(cell, OBSERVING, counter, settle=False).graph
+        out.append((corner.text(band).rsplit(",seed=", 1)[0], g, View(g, target)))
+    return out
+
+
+def settle_of(project: Project, target: Target) -> int:
+    """How long a switch of the device may read its old value after a change: its bounce
+    (the most its declared tolerances allow) and a scan, as the scan reading the first new
+    value may come anywhere in the bounce's first period; 0 for switches that do not
+    bounce."""
+    bounce = int(str(target.params.get("bounce", 0) or 0))
+    device = next(d for d in project.plant.devices if d.name == target.device)
+    for t in device.tolerances:
+        if t.param == "bounce":
+            bounce = max(bounce, int(t.high))
+    return bounce + project.scan_period_us if bounce else 0
 
 
 # --------------------------------------------------------------------------------------------
@@ -308,6 +460,18 @@ def deviation_of(nbm: Nbm, target: Target, state: int, t: int, vec: int
     deviation, or None (nothing: the vector is the state's own and no timeout is due)."""
     if state == 0:
         return nbm.state_of(vec) if vec in nbm.vectors[1:] and target.at_rest(vec) else None
+    settled = nbm.settle_target(state, vec)
+    if settled is not None and t < nbm.settle:
+        return None if settled == state else settled
+    result = _deviation_of(nbm, target, state, t, vec)
+    if settled is not None and isinstance(result, Deviation) and result.vec != TIMEOUT:
+        # A switch's old value past its settling time: the deviation it was, from then on.
+        return replace(result, tmin=max(result.tmin, nbm.settle))
+    return result
+
+
+def _deviation_of(nbm: Nbm, target: Target, state: int, t: int, vec: int
+                  ) -> Deviation | int | None:
     own = nbm.vectors[state]
     timeout = nbm.timeout(state)
     exp = nbm.expected.get(state, {})
@@ -340,9 +504,10 @@ class Runs:
 
 
 def first_deviations(nbm: Nbm, target: Target, runs: Runs
-                     ) -> dict[Deviation, list[Cursor]]:
-    """Per deviation, the cursors of the runs leaving the NBM there (at that scan)."""
-    out: dict[Deviation, list[Cursor]] = {}
+                     ) -> dict[Deviation, list[tuple[int, Cursor]]]:
+    """Per deviation, the runs leaving the NBM there: (time in the normal state, the cursor
+    at that scan)."""
+    out: dict[Deviation, list[tuple[int, Cursor]]] = {}
     period = nbm.period
     for c, (g, view) in enumerate(zip(runs.graphs, runs.views, strict=True)):
         prefix = g.prefix
@@ -370,7 +535,8 @@ def first_deviations(nbm: Nbm, target: Target, runs: Runs
                 vec = view.vector(nxt, node)
                 result = deviation_of(nbm, target, state, (i - since) * period, vec)
                 if isinstance(result, Deviation):
-                    out.setdefault(result, []).append(Cursor(c, nxt, vec, fault))
+                    out.setdefault(result, []).append(((i - since) * period,
+                                                       Cursor(c, nxt, vec, fault)))
                     break
                 if result is not None and result != state:
                     state, since = result, i
@@ -385,7 +551,7 @@ def first_deviations(nbm: Nbm, target: Target, runs: Runs
 def _cap(nbm: Nbm, state: int) -> int:
     timeout = nbm.timeout(state)
     ends = [e.tmin for e in nbm.expected.get(state, {}).values()]
-    return max([timeout or 0, *ends]) + 1
+    return max([timeout or 0, nbm.settle, *ends]) + 1
 
 
 # --------------------------------------------------------------------------------------------
@@ -636,13 +802,63 @@ def build_faulty(target: Target, nbm: Nbm, runs: Runs
     builder = _Builder(target, runs, order)
     deviations = []
     found = first_deviations(nbm, target, runs)
-    for dev in sorted(found):
-        cursors = found[dev]
+    pieces = [piece for dev in sorted(found) for piece in split_by_time(dev, found[dev],
+                                                                         nbm.margin)]
+    for dev, cursors in pieces:
         what = ("no change" if dev.vec == TIMEOUT else target.vector_text(dev.vec))
         origin = f"from N{dev.state}: {what}"
         name = builder.state_for(cursors, None if dev.vec == TIMEOUT else dev.vec, origin, 0)
         deviations.append((dev, name))
     return deviations, builder.states
+
+
+def split_by_time(dev: Deviation, items: Sequence[tuple[int, Cursor]], margin: int
+                  ) -> list[tuple[Deviation, list[Cursor]]]:
+    """The runs leaving the NBM at one deviation, told apart by when they left: each fault
+    covers the times its runs left at, widened by `margin` each side (the band's plants
+    leave a little earlier or later than the nominal one the runs were explored on); the
+    deviation's window is cut where the set of faults covering it changes, and each piece
+    enters its own faulty state. A fault seen at a time no other fault comes near is told
+    apart from the first scan (a switch broken long after the dwell a glitch explains)."""
+    if dev.vec == TIMEOUT or not margin:
+        return [(dev, [c for _, c in items])]
+    extents: dict[str, list[tuple[int, int]]] = {}
+    for t, c in sorted(items, key=lambda x: (x[1].fault, x[0])):
+        spans = extents.setdefault(c.fault, [])
+        lo, hi = t - margin, t + margin
+        if spans and lo <= spans[-1][1]:
+            spans[-1] = (spans[-1][0], max(spans[-1][1], hi))
+        else:
+            spans.append((lo, hi))
+    cuts = sorted({x for spans in extents.values() for span in spans for x in span
+                   if dev.tmin < x and (dev.tmax is None or x < dev.tmax)})
+    bounds: list[tuple[int, int | None]] = list(zip([dev.tmin, *cuts],
+                                                    [*cuts, dev.tmax], strict=True))
+
+    def covering(lo: int) -> frozenset[str]:
+        return frozenset(f for f, spans in extents.items()
+                         if any(a <= lo < b for a, b in spans))
+
+    pieces: list[tuple[int, int | None, frozenset[str]]] = []
+    for start, end in bounds:
+        faults = covering(start)
+        if pieces and pieces[-1][2] == faults:
+            pieces[-1] = (pieces[-1][0], end, faults)
+        else:
+            pieces.append((start, end, faults))
+    out: list[tuple[Deviation, list[Cursor]]] = []
+    for start, end, _ in pieces:
+        mine = [c for t, c in items if start <= t and (end is None or t < end)]
+        if not mine and out:  # a time no run left at: the piece before takes it
+            prev, cursors = out[-1]
+            out[-1] = (replace(prev, tmax=end), cursors)
+        elif not mine:  # before the first run: the piece after takes it
+            out.append((Deviation(dev.state, dev.vec, start, end), []))
+        elif out and not out[-1][1]:
+            out[-1] = (replace(out[-1][0], tmax=end), mine)
+        else:
+            out.append((Deviation(dev.state, dev.vec, start, end), mine))
+    return out
 
 
 # --------------------------------------------------------------------------------------------

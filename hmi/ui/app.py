@@ -67,7 +67,7 @@ from hmi.engine.commands import (
 from hmi.engine.criteria import Wait
 from hmi.engine.scan import Engine
 from hmi.engine.snapshot import Snapshot
-from hmi.explain.model import Policy
+from hmi.explain.model import Explanation, Policy
 from hmi.explain.plain import PlainNames
 from hmi.explain.reset import ResetLine, reset_preview
 from hmi.link.base import CellLink, ResetGuard, View
@@ -200,6 +200,8 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         self._key: tuple | None = None
         self._version = 0  # bumped when something the frame shows changes outside the scan
         self.engineering = False  # the engineering view (E): internal names shown too
+        self.answer = ""  # the last command's answer as the message line said it
+        self._revealed: tuple | None = None  # the subject whose I/O rows were scrolled to
         self._stepping = False
         self._request: tuple[str, bool, int, str] | None = None  # pending manual verdict
         self._injected: list[InjectedFault] = []  # shown on the SIMULATION strip
@@ -721,6 +723,33 @@ class PlcHmiApp(LastResort, ContainedPump, App):
                 explanation = alarm.explanation
         self.explanation_panel.show(key if explanation else None, explanation, alarm,
                                     self.size.width >= WIDE)
+        revealed = (explanation.key if explanation else None, self.size)
+        if explanation is not None and revealed != self._revealed:
+            self._revealed = revealed  # once per subject (and size): the operator may scroll
+            self.query_one(IOPanel).reveal_subject(self._subject_rows(explanation))
+
+    def _subject_rows(self, explanation: Explanation) -> list[str]:
+        """The I/O rows a situation is about: a constraint's signals (a filtered sensor as
+        its sensor), else its device's I/O, those the State column marks first (an estimated
+        sensor, a masked or changed order: at 80x24 the valve's F13 showed fsc, fso and C,
+        and not the masked open order)."""
+        project = self.project
+        if explanation.key.startswith("constraint:"):
+            name = explanation.key.split(":", 1)[1]
+            constraint = next((c for c in project.constraints if c.name == name), None)
+            if constraint is not None:
+                sensors = {p.filtered: p.sensor for spec in project.diagnosers
+                           for p in spec.partitions if p.filtered and p.sensor}
+                names = [sensors.get(lit.name, lit.name) for lit in constraint.literals]
+                return [*constraint.outputs, *names]  # what it blocks first
+        rows = [v.name for v in (*project.inputs, *project.outputs)
+                if v.device == explanation.device]
+        frame = self.frame
+        if frame is None:
+            return rows
+        snap = frame.snapshot  # the rows marked now first: estimated, masked, changed
+        marked = {*snap.reconstructed, *snap.masked, *frame.changed}
+        return sorted(rows, key=lambda name: name not in marked)
 
     def on_alarm_selected(self, message: AlarmSelected) -> None:
         self.subject = None
@@ -811,7 +840,7 @@ class PlcHmiApp(LastResort, ContainedPump, App):
 
     def _said(self, key: str, policy: Policy, result: CommandResult) -> None:
         self.explanation_panel.say_result(key, result_line(key, policy, result.accepted,
-                                                           result.message))
+                                                           self.answer))
 
     def _policy_confirmation(self, key: str, policy: Policy, snap: Snapshot | None,
                              asked: Asked | None = None
@@ -892,10 +921,15 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         `reset_shown`: a fault reset's preview the operator confirmed (and the engine found
         unchanged): the answer in its plain words, not the engine's names."""
         what = describe(command)
+        inner = None
+        if isinstance(command, ChoosePolicy):  # the policy's answer in that command's words
+            inner = FaultReset() if reset_shown is not None else \
+                self._policy_command(command.key, command.policy)
         said, answer = spoken(command, result, self._situation_text,
                               None if self.engineering else Words(self._fault_text,
                                                                   reset_shown,
-                                                                  self._step_words()))
+                                                                  self._step_words(), inner))
+        self.answer = answer
         text = result_text(said, result, answer)
         match command:
             case Pause() | Resume():
@@ -1228,7 +1262,7 @@ class PlcHmiApp(LastResort, ContainedPump, App):
 
     def _manual_lines(self, snap: Snapshot) -> list[Text | str]:
         law = self.project.controls[self.facts.control]
-        return ["The control law stops driving the outputs: they follow your requests,",
+        return ["The control program stops driving the outputs: they follow your requests,",
                 "and an output you have not requested is 0.",
                 *manual.enter_lines(self.project, law, snap, self.engineering),
                 f"Every request still goes through the safety filter ({snap.policy}).",

@@ -404,9 +404,12 @@ class ExplanationPanel(VirtualSizeHook, ContainedPump, VerticalScroll):
 
 
 def result_line(key: str, policy: Policy, accepted: bool, message: str) -> Text:
-    """The answer to a policy choice, for the panel (the message line has its own): the
-    engine's answer without the part that repeats the policy and the situation."""
+    """The answer to a policy choice, for the panel: the message line's (`message`: "policy
+    'Fault reset' chosen: released: …", or the engine's, "… chosen for KEY: …") without the
+    part that repeats the policy and the situation."""
     _, found, rest = message.partition(f" for {key}: ")
+    if not found and message.startswith(f"policy '{policy.label}' "):
+        _, found, rest = message.partition(": ")
     answer = rest if found else message
     if accepted:
         return Text(f"{OK_SYMBOL} {policy.label} chosen: {answer}")

@@ -19,6 +19,10 @@ come, ``…, and X10 active``; ``✓ met`` once it holds (in manual mode: it goe
 program resumes). A join whose steps are all active is shown once, under the last of them.
 A step past its supervision time (the program stuck there, an alarm) reads ``✗ stuck``, in
 the alarm colour, instead of the arrow.
+
+In recovery mode the procedure drives the outputs and the program waits, to start again from
+its initial steps when recovery is left: the first line says so, and the steps it was in read
+``‖ … (held)``, with no time running and nothing they wait for.
 """
 
 from __future__ import annotations
@@ -31,7 +35,6 @@ from rich.text import Text
 
 from hmi.engine.criteria import Wait
 from hmi.explain.plain import lower_first, without_notes
-from hmi.timefmt import format_duration
 from hmi.ui.frame import Frame
 from hmi.ui.panel import TextPanel, set_title
 from hmi.ui.style import MUTED, OK_SYMBOL, STYLE, SYMBOL, Level, tag
@@ -60,6 +63,11 @@ def _plain_timer(info: TimerInfo) -> str:
 
 def _secs(us: int) -> str:
     return f"{us / 1_000_000:6.2f} s"
+
+
+def timer_time(elapsed_us: int, preset_us: int) -> str:
+    """'0.03/0.2 s': the time run and the preset in one unit (it read '0.03/200ms')."""
+    return f"{elapsed_us / 1e6:4.2f}/{preset_us / 1e6:g} s"
 
 
 def timer_bar(elapsed_us: int, preset_us: int, width: int = BAR) -> str:
@@ -150,10 +158,17 @@ class GrafcetPanel(TextPanel):
         engineering = frame.engineering or self.words is None
         name_w = max((len(s.name) for s in self.steps), default=2) if engineering else -1
         text = Text(no_wrap=True, overflow="ellipsis")
+        # in recovery mode the procedure drives the outputs and the program waits; it starts
+        # again from its initial steps when recovery is left: its steps are held, not running
+        held = (frame.mode_commanded or snap.mode) == "recovery"
         if frame.manual_keys:  # (the program waits from the command on)
             text.append_text(tag("waiting — manual mode", Level.ATTENTION))
             text.append(": resumes from here\n" if self.steps else ": memories held\n",
                         style=MUTED)
+        elif held:
+            text.append_text(tag("waiting — recovery", Level.ATTENTION))
+            text.append(": it drives the outputs; the program starts again at its first "
+                        "step when you leave recovery\n", style=MUTED)
         if not self.steps:
             text.append("no GRAFCET (equations only)\n", style=MUTED)
         compact = self.compact
@@ -172,6 +187,10 @@ class GrafcetPanel(TextPanel):
                     snap.layout.slots else 0
                 stuck = step.name in snap.overdue_steps
                 mark = STYLE[Level.ALARM] if stuck else Style(bold=True)
+                if held:  # where the program stopped: held, and nothing it waits for counts
+                    text.append(f"‖ {step.name.ljust(name_w) + ' ' if engineering else ''}"
+                                f"{cut(step.description, desc_w)} (held)\n", style=MUTED)
+                    continue
                 text.append(f"{SYMBOL[Level.ALARM] if stuck else '●'} ", style=mark)
                 if engineering:
                     text.append(f"{step.name.ljust(name_w)} ", style="bold")
@@ -196,12 +215,12 @@ class GrafcetPanel(TextPanel):
                     continue
                 text.append(f"{_plain_timer(info).ljust(plain_w)} ", style=MUTED)
                 text.append(timer_bar(state.elapsed_us, state.preset_us))
-                text.append(f" {state.elapsed_us / 1e6:4.2f}/{format_duration(state.preset_us)}")
+                text.append(f" {timer_time(state.elapsed_us, state.preset_us)}")
                 text.append("  done\n" if state.q else "\n", style="bold" if state.q else "")
                 continue
             text.append(f"{state.name.ljust(timer_w)} {kind} ", style=MUTED)
             text.append(timer_bar(state.elapsed_us, state.preset_us))
-            text.append(f" {state.elapsed_us / 1e6:4.2f}/{format_duration(state.preset_us)}")
+            text.append(f" {timer_time(state.elapsed_us, state.preset_us)}")
             text.append(f"  Q {int(state.q)}\n", style="bold" if state.q else "")
         text.rstrip()
         return text

@@ -71,6 +71,7 @@ class IOPanel(ContainedPump, DataTable[Any]):
         self._widths: dict[str, int] = {}
         self._changed = False  # (a cell changed in this frame)
         self._manual = False
+        self.subject_rows: list[str] = []  # what the alarm explained is about (reveal)
 
     def on_mount(self) -> None:
         self.border_title = "I/O"
@@ -145,11 +146,41 @@ class IOPanel(ContainedPump, DataTable[Any]):
         if self._changed:
             drop_stale_renders(self)
 
+    def reveal_subject(self, names: list[str]) -> None:
+        """The rows the alarm explained is about: scrolled to now, and again when the table's
+        height changes (the layout settles after the frame that changed the subject)."""
+        self.subject_rows = names
+        self.call_after_refresh(self.reveal, names)
+
+    def reveal(self, names: list[str]) -> bool:
+        """Scroll so that the rows of `names` (what the alarm explained is about, the most
+        important first) are on screen: the first for sure, and as many of the others as
+        fit around it; the cursor stays where the operator left it. At 80x24 the table may
+        show one to three rows. False if nothing had to move (or none is a row)."""
+        rows = [self.get_row_index(n) for n in dict.fromkeys(names) if n in self.rows]
+        height = self.scrollable_content_region.height - (self.header_height
+                                                          if self.show_header else 0)
+        if not rows or height <= 0:
+            return False
+        first = rows[0]
+
+        def seen(top: int) -> int:
+            return sum(top <= r < top + height for r in rows)
+        top = round(self.scroll_y)
+        starts = range(max(0, first - height + 1), first + 1)
+        best = max(starts, key=lambda start: (seen(start), start))  # the first on top
+        if top == best:
+            return False
+        self.scroll_to(y=best, animate=False, immediate=True)
+        return True
+
     def on_resize(self) -> None:
         # The short or long form of the marks depends on the width: redraw on the last frame
         # (the layout may change after it was shown: a wider screen class, a resized terminal).
         if self.frame is not None:
             self.show(self.frame)
+        if self.subject_rows:
+            self.call_after_refresh(self.reveal, self.subject_rows)
 
     def _set(self, row: str, column: str, value: object) -> None:
         if column == "state" and isinstance(value, Text) and self.size.width >= NARROW:

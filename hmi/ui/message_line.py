@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from rich.text import Text
 
@@ -45,6 +45,8 @@ class Words:
     fault_text: Callable[[Injection], str]
     reset_shown: list[ResetLine] | None = None
     steps: Mapping[str, str] = field(default_factory=dict)  # step -> its description
+    # a policy's answer: what it carried out (its answer then said as that command's)
+    inner: Command | None = None
 
 
 def spoken(command: Command, result: CommandResult,
@@ -55,6 +57,12 @@ def spoken(command: Command, result: CommandResult,
     (`text_of`: a situation's key -> its one-line text), and leaves out what the answer
     already says in plain words (the recovery's title, the policy's label)."""
     what, message = describe(command), result.message
+    if words is not None and words.inner is not None and isinstance(command, ChoosePolicy):
+        head, found, rest = message.partition(f" for {command.key}: ")
+        if found:  # "policy 'Fault reset' chosen: released: …", not the engine's words
+            inner_what, inner_answer = spoken(words.inner, CommandResult(result.accepted, rest),
+                                              text_of, replace(words, inner=None))
+            return "policy", f"{head}: {said(inner_what, inner_answer)}"
     if words is not None and isinstance(command, FaultReset) and not result.accepted \
             and message.startswith("not done, asked again"):  # the dialog says what changed
         return "fault reset", message.split(" (scan", 1)[0] + "; the dialog says how"
@@ -73,7 +81,9 @@ def spoken(command: Command, result: CommandResult,
                                                     if removed else "")
                                       + "; next: a fault reset (r), which says first what it "
                                         "resets and what stays")
-            case SetMode() if words.steps:  # 'waits at X2': at “Open, filling”
+            case SetMode() if words.steps:  # 'waits at “Open, filling” (X2)': its words
+                message = re.sub(r" \((\w+)\)", lambda m: "" if m.group(1) in words.steps
+                                 else m.group(0), message)
                 message = re.sub(r"[\w.]+", lambda m: f"\u201c{words.steps[m.group(0)]}\u201d"
                                  if m.group(0) in words.steps else m.group(0), message)
                 return message.split(":", 1)[0], message
@@ -104,14 +114,17 @@ def spoken(command: Command, result: CommandResult,
     return what, message
 
 
+def said(what: str, message: str) -> str:
+    """'what: message', or the message alone when it starts with what it answers."""
+    return message if message.lower().startswith(what.lower()) else f"{what}: {message}"
+
+
 def result_text(what: str, result: CommandResult, message: str | None = None) -> Text:
     """'✓ fault reset: nothing was latched'; the command's words once, not twice when the
     answer already starts with them ('fault reset: fault reset: ...', 'speed: x1: speed:
     x1'). `message`: the answer as the operator reads it (:func:`spoken`), if not the
     command's own."""
-    message = result.message if message is None else message
-    said = message.lower().startswith(what.lower())
-    body = message if said else f"{what}: {message}"
+    body = said(what, result.message if message is None else message)
     if result.accepted:
         return Text(f"{OK_SYMBOL} {body}")
     line = tag("REFUSED", Level.ALARM)

@@ -32,6 +32,9 @@ pyproject.toml's range.
    (``_row_render_cache``, ``_cell_render_cache``, ``_row_renderable_cache``,
    ``_line_cache``), whose keys all hold the table's ``_update_count``
    (:func:`drop_stale_renders`).
+8. The command palette's "no matches" countdown (``CommandPalette._start_no_matches_countdown``,
+   the timer it keeps in ``_no_matches_timer`` and that timer's ``_callback``), which could
+   run after the palette was dismissed (:func:`guard_palette_countdown`).
 """
 
 from __future__ import annotations
@@ -43,6 +46,7 @@ from typing import Any
 from rich.console import RenderableType
 from textual._styles_cache import StylesCache
 from textual.app import App
+from textual.command import CommandList, CommandPalette
 from textual.css.stylesheet import Stylesheet
 from textual.message import Message
 from textual.message_pump import MessagePump
@@ -315,6 +319,41 @@ def drop_stale_renders(table: DataTable[Any]) -> None:
     for cache in (table._row_render_cache, table._cell_render_cache,
                   table._row_renderable_cache, table._line_cache):
         cache.clear()
+
+
+# -- 8. the palette's countdown -------------------------------------------------------------
+
+
+def guard_palette_countdown() -> None:
+    """The palette shows "No matches found" half a second after a search found nothing, by a
+    timer that queues the showing as the palette's next callback; escape does not stop it.
+    Typed fast on a loaded machine (a search, then escape), the callback ran once the
+    palette's list was gone, and its error ended the whole HMI (seen in ``plchmi bench
+    live``, a key every 1/8 s at load 20). The queued showing now runs only while the list is
+    there."""
+    start = CommandPalette.__dict__["_start_no_matches_countdown"]
+    if getattr(start, "plchmi_guarded", False):
+        return
+
+    def start_guarded(self: CommandPalette, search_value: str) -> None:
+        start(self, search_value)
+        timer = self._no_matches_timer
+        scheduled = getattr(timer, "_callback", None)
+        if not isinstance(scheduled, partial) or not scheduled.args:
+            return
+        show = scheduled.args[0]
+
+        def show_while_open() -> None:
+            if self.query(CommandList):
+                show()
+
+        timer._callback = partial(self.call_next, show_while_open)  # type: ignore[union-attr]
+
+    start_guarded.plchmi_guarded = True  # type: ignore[attr-defined]
+    CommandPalette._start_no_matches_countdown = start_guarded  # type: ignore[method-assign]
+
+
+guard_palette_countdown()
 
 
 # -- public replacements, kept here with the rest of what plchmi assumes of Textual ---------
