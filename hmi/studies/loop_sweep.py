@@ -152,7 +152,7 @@ def sweep(project, configs: Sequence[LoopConfig], counter: str, every_us: int | 
         computed[c.key] = result
     split: dict[tuple[int, int], set[str]] = {}
     spent: list[Spent] = []
-    block = _block(exact)
+    block = block_units(exact)
     for shard, part in zip(study.shards, parts, strict=True):
         for (c, start, end), piece in zip(shard, part.pieces, strict=True):
             key_c = missing[c].key
@@ -204,7 +204,7 @@ def sweep_study(project, configs: Sequence[LoopConfig], counter: str, every: int
     units = ([list(i) for i in probe.intervals()] if exact
              else [list(i) for i in probe.instants(extras, every, step_us)])
     runs = len(faults) * len(units)
-    per = _block(exact)
+    per = block_units(exact)
     blocks = [(c, start, min(start + per, runs))
               for c in range(len(configs)) for start in range(0, runs, per)]
     times = _load_times(_times_key(project, variant, configs, counter, every, extras, faults,
@@ -233,8 +233,9 @@ def sweep_study(project, configs: Sequence[LoopConfig], counter: str, every: int
 EXACT_COST = 3
 
 
-def _block(exact: bool) -> int:
-    """Runs (units) per block: scan intervals for an exact sweep, else instants."""
+def block_units(exact: bool) -> int:
+    """Runs (units) per block: scan intervals for an exact sweep, else instants. Read at each
+    call, not imported as a value: a report states the blocks its sweep was cut in."""
     return SHARD_RUNS // EXACT_COST if exact else SHARD_RUNS
 
 
