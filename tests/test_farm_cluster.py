@@ -187,7 +187,10 @@ def _shard_workers(data: Path) -> dict[int, str]:
     return found
 
 
-def _run_killing(cluster: Cluster, capsys, argv: list[str]) -> tuple[str, str, Killer]:
+def _run_killing(cluster: Cluster, capsys, argv: list[str],
+                 code: int) -> tuple[str, str, Killer]:
+    """The study on the cluster, w2 killed while it holds a shard; it must end with `code`
+    (the local run's), its stderr and the cluster's logs shown when it does not."""
     # Only the cluster's run in the data folder: the local run before it may have cut the
     # study otherwise (a sweep is cut by the times the previous run measured), and its files,
     # in a folder of their own, would say where they ran.
@@ -196,13 +199,13 @@ def _run_killing(cluster: Cluster, capsys, argv: list[str]) -> tuple[str, str, K
     cluster.client.register_plugin(_hold("w2", killer.marker))
     killer.start()
     try:
-        code = main([*argv, "--cluster", cluster.address])
+        ended = main([*argv, "--cluster", cluster.address])
     finally:
         killer.stop.set()
         killer.join(10)
         cluster.client.unregister_worker_plugin("plchmi-test-hold")
     out, err = capsys.readouterr()
-    assert code in (0, 1), err
+    assert ended == code, f"exit {ended}, not {code}; stderr:\n{err}\n{cluster.logs()}"
     assert killer.held, "the worker was never seen computing a shard: nothing was killed"
     return out, err, killer
 
@@ -223,8 +226,9 @@ def test_a_sweep_on_the_cluster_is_the_local_report_though_a_worker_dies(cluster
     assert main([*argv, "--jobs", "1"]) == 0
     local, _ = capsys.readouterr()
     survivor = cluster.address_of("w1")
-    out, err, killer = _run_killing(cluster, capsys, argv)
-    assert out == local
+    out, err, killer = _run_killing(cluster, capsys, argv, 0)
+    assert out == local, err
+    assert "in shards of 20 runs" in local  # the blocks it was cut in, read when it reports
     assert f"worker {killer.address} left the cluster" in err
     _check_rerun(killer, survivor)
 
@@ -232,11 +236,11 @@ def test_a_sweep_on_the_cluster_is_the_local_report_though_a_worker_dies(cluster
 def test_a_soak_farm_on_the_cluster_is_the_local_report_though_a_worker_dies(cluster, capsys):
     cluster.ensure("w1", "w2")
     argv = ["soak", str(VALVE), "--seeds", "1-6", "--steps", "6"]
-    code = main([*argv, "--jobs", "1"])
+    assert main([*argv, "--jobs", "1"]) == 0
     local, _ = capsys.readouterr()
     survivor = cluster.address_of("w1")
-    out, err, killer = _run_killing(cluster, capsys, argv)
-    assert code == 0 and out == local
+    out, err, killer = _run_killing(cluster, capsys, argv, 0)
+    assert out == local, err
     assert f"worker {killer.address} left the cluster" in err
     assert "6 seeds (1-6)" in out and "6 kept every invariant" in out
     _check_rerun(killer, survivor)
