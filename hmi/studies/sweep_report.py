@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from hmi.studies import loop_sweep
 from hmi.studies.campaign import PAPER_TABLE
 from hmi.studies.closed_loop import (
     BLOCKED,
@@ -21,7 +22,6 @@ from hmi.studies.closed_loop import (
     diagnosability,
     spread,
 )
-from hmi.studies import loop_sweep
 from hmi.studies.loop_sweep import SweepResult, block_units
 from hmi.timefmt import format_duration, seconds
 
