@@ -31,7 +31,7 @@ from hmi.plant.modbus.server_process import ServerProcess
 from hmi.project.loader import load_project
 from hmi.session.live import LiveRunner, WallClock
 from hmi.session.session import Session
-from tests.conftest import PROJECTS, ROOT, make_controller, write_project
+from tests.conftest import PROJECTS, ROOT, make_session, write_project
 
 VALVE = PROJECTS / "cispi_valve"
 S = 1_000_000
@@ -91,10 +91,10 @@ class Live:
                                  read_only=read_only)
         assert wait_connected(self.plant, WAIT, lambda line: None), self.plant.message
         self.engine = Engine(self.project, self.plant)
-        self.controller = Session(self.engine, clock=WallClock())
+        self.session = Session(self.engine, clock=WallClock())
         self.snaps: list[Snapshot] = []
-        self.controller.scan_listeners.append(self.snaps.append)
-        self.runner = LiveRunner(self.controller)
+        self.session.scan_listeners.append(self.snaps.append)
+        self.runner = LiveRunner(self.session)
 
     def __enter__(self) -> Live:
         self.runner.start()
@@ -311,7 +311,7 @@ def test_server_killed_and_restarted_mid_run(server, tmp_path):
         settle = live.wait(lambda s: s.time_us >= back.time_us + 500_000, "half a second")
         assert all(s.is_safe_latched and s.outputs == (True, False)
                    for s in live.snaps if back.scan <= s.scan <= settle.scan)
-        result = live.controller.command(FaultReset())
+        result = live.session.command(FaultReset())
         assert result.accepted and "plant connection lost" in result.message
         resumed = live.wait(lambda s: not s.latched and s.output_map["O"], "the law to resume",
                             since=len(live.snaps))
@@ -324,19 +324,19 @@ def test_pausing_a_real_plant_holds_it_safe(server, tmp_path):
     srv = server(valve)
     with Live(valve, srv.port) as live:
         live.wait(lambda s: s.output_map["O"], "the valve opening")
-        result = live.controller.command(Pause())
+        result = live.session.command(Pause())
         assert "outputs written safe while paused" in result.message
         assert read_coils(srv.port) == [False, False]
         paused_at = live.engine.scan
         opened = srv.lines.index(srv.wait_for("C=0 O=1", WAIT))
         parked = srv.lines.index(srv.wait_for("C=0 O=0", WAIT, start=opened + 1))
         mark = parked + 1
-        assert not live.controller.command(StepScans(1)).accepted
+        assert not live.session.command(StepScans(1)).accepted
         deadline = time.monotonic() + 0.3
         while time.monotonic() < deadline:  # no scan drives it while paused
             assert read_coils(srv.port) == [False, False]
         assert live.engine.scan == paused_at
-        assert live.controller.command(Resume()).accepted
+        assert live.session.command(Resume()).accepted
         live.wait(lambda s: s.output_map["O"], "the valve opening again", since=len(live.snaps))
         srv.wait_for("C=0 O=1", WAIT, start=mark)
 
@@ -413,7 +413,7 @@ def test_a_busy_device_is_reported_and_operation_resumes_after_reset(server):
         busy = live.wait(lambda s: "Server Device Busy" in s.plant.message, "busy answers")
         assert busy.latched and "Server Device Busy (exception 6)" in busy.latched[0].detail
         live.wait(lambda s: s.plant.message.startswith("connected"), "the end of busy")
-        assert live.controller.command(FaultReset()).accepted
+        assert live.session.command(FaultReset()).accepted
         live.wait(lambda s: not s.latched and s.output_map["O"], "the valve opening",
                   since=len(live.snaps))
 
@@ -445,7 +445,7 @@ def test_read_only_mode_observes_and_writes_nothing(server):
         assert "CSs2" in snap.filter.violated_names and snap.filter.policy == "monitor"
         assert snap.outputs == (False, True) and not snap.filter.changes
         assert live.engine.policy == "monitor"
-        assert not live.controller.command(SetMode(True)).accepted
+        assert not live.session.command(SetMode(True)).accepted
         live.wait(lambda s: s.scan >= snap.scan + 30, "more scans")
         seen = list(live.snaps)
     assert all(s.outputs == (False, True) and s.fov == (False, True) for s in seen)
@@ -527,10 +527,10 @@ def test_bench_prints_both_round_trips():
 
 def test_the_sim_run_is_unchanged_by_the_clock_option():
     # The engine is deterministic; a Session without a clock keeps virtual time.
-    ctl = make_controller(VALVE)
-    assert ctl.clock is None
-    ctl.run_for(1 * S)
-    assert ctl.engine.now == 1 * S
+    session = make_session(VALVE)
+    assert session.clock is None
+    session.run_for(1 * S)
+    assert session.engine.now == 1 * S
 
 
 def test_serve_plant_prints_its_map(server):
