@@ -267,3 +267,22 @@ def test_the_writer_counts_retention_back_from_the_history_when_the_clock_is_ahe
     newest = min(wall_us, end)
     assert newest - 30 * DAY <= first < newest - 29 * DAY  # the last 30 days are all kept
     assert writer.status.deleted > 0
+
+
+def test_the_sqlite_writer_bounds_its_page_cache(tmp_path):
+    """The runtime's memory grew by SQLite's page cache filling to its default 2,000 KiB (about
+    0.8 MB an hour of history): the writer's connection holds at most WRITER_CACHE_KIB; a
+    reader (the trend screens, the CLI) keeps SQLite's default."""
+    from hmi.history.sqlite import WRITER_CACHE_KIB, SqliteStore
+    path = tmp_path / "h.sqlite"
+    writer = SqliteStore(path)
+    try:
+        assert writer.db.execute("PRAGMA cache_size").fetchone()[0] == -WRITER_CACHE_KIB
+        assert WRITER_CACHE_KIB < 1000
+        reader = SqliteStore(path, read_only=True)
+        try:
+            assert reader.db.execute("PRAGMA cache_size").fetchone()[0] == -2000
+        finally:
+            reader.close()
+    finally:
+        writer.close()
