@@ -7,7 +7,12 @@ Each module of this package that defines SECTION (its name), HELP (one line) and
 from __future__ import annotations
 
 import os
+import time
+from collections.abc import Callable, Sequence
 from types import ModuleType
+from typing import TypeVar
+
+R = TypeVar("R")
 
 # The sections' names, for `plchmi --help` and argument checks without importing every
 # section (some import pymodbus or the whole engine: the HMI's start-up would pay for them;
@@ -29,7 +34,14 @@ def sections() -> dict[str, ModuleType]:
     return dict(sorted(found.items()))
 
 
-def percentile(values: list[float], p: float) -> float:
+def timed(fn: Callable[..., R], *args: object) -> tuple[R, float]:
+    """`fn(*args)` and how long it took, in microseconds of wall clock."""
+    started = time.perf_counter()
+    result = fn(*args)
+    return result, (time.perf_counter() - started) * 1e6
+
+
+def percentile(values: Sequence[float], p: float) -> float:
     """Nearest-rank percentile (p in 0..100) of a non-empty list."""
     ordered = sorted(values)
     rank = max(1, min(len(ordered), round(p / 100 * len(ordered) + 0.5)))

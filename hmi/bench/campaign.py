@@ -11,6 +11,7 @@ The goal: the campaign at >= 1000x real time on both cores.
 
 from __future__ import annotations
 
+import argparse
 import os
 import time
 from pathlib import Path
@@ -24,7 +25,7 @@ GOAL = 1000
 PROJECT = Path(__file__).resolve().parents[2] / "projects" / "cispi_valve"
 
 
-def run(args) -> None:
+def run(args: argparse.Namespace) -> None:
     from hmi.farm.executors import executor_for
     from hmi.farm.run import Farm
     from hmi.project.campaign import campaign_of

@@ -7,13 +7,16 @@ machine and vary with its load.
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import gc
 import time
 from collections import Counter
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 from hmi.bench import percentile
+from hmi.project.injection import Injection
 from hmi.project.model import Project
 
 
@@ -25,7 +28,7 @@ class CellRun:
     strategy: str
     scans: int = 0
     virtual_us: int = 0
-    distances: Counter = field(default_factory=Counter)  # Hamming distance -> scans
+    distances: Counter[int] = field(default_factory=Counter)  # Hamming distance -> scans
     violated_scans: int = 0
     corrected_scans: int = 0
     fallbacks: int = 0
@@ -34,7 +37,7 @@ class CellRun:
     tested: list[int] = field(default_factory=list)  # vectors tested by each of those runs
     filter_us: list[float] = field(default_factory=list)  # the whole filter stage, per scan
     counters: dict[str, int] = field(default_factory=dict)
-    damage: Counter = field(default_factory=Counter)  # damage event kind -> count
+    damage: Counter[str] = field(default_factory=Counter)  # damage event kind -> count
     wall_s: float = 0.0
 
     @property
@@ -42,8 +45,9 @@ class CellRun:
         return max(self.distances, default=0)
 
 
-def run_cell_bench(args, folder: str, title: str, work, strategies=("exact",),
-                   footnote: str | None = None) -> None:
+def run_cell_bench(args: argparse.Namespace, folder: str, title: str,
+                   work: Callable[[dict[str, int]], str],
+                   strategies: Sequence[str] = ("exact",), footnote: str | None = None) -> None:
     """The body of a cell's bench section: each program (and strategy) for 10 virtual
     minutes (1 with --quick), one block of figures per row."""
     from hmi.paths import PROJECTS
@@ -75,7 +79,8 @@ def with_seed(project: Project, seed: int) -> Project:
 
 
 def measure(project: Project, control: str, duration_us: int, policy: str = "correct",
-            strategy: str = "exact", timed: bool = True, inject: tuple = ()) -> CellRun:
+            strategy: str = "exact", timed: bool = True,
+            inject: Sequence[Injection | str] = ()) -> CellRun:
     """Run the cell headless on its simulated plant, scan by scan, and collect the figures.
 
     `inject` holds fault injections: Injection objects (a scenario's), or text as written on

@@ -22,12 +22,13 @@ machine's, now.
 
 from __future__ import annotations
 
+import argparse
 import gc
 import random
-import time
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
-from hmi.bench import percentile
+from hmi.bench import percentile, timed
 from hmi.engine.solver import Problem, default_budget, exact_solve, paper_solve, violates
 
 SECTION = "corrector"
@@ -90,22 +91,16 @@ def infeasible(pairs: int, linked: bool = False) -> Instance:
     return Instance((1 << 2 * pairs) - 1, combined, (1 << n) - 1)
 
 
-def _timed(fn, *args):
-    started = time.perf_counter()
-    result = fn(*args)
-    return result, (time.perf_counter() - started) * 1e6
-
-
 def _t(us: float) -> str:
     return f"{us:.0f} us" if us < 1000 else f"{us / 1000:.2f} ms"
 
 
-def _three(values: list[float], fmt=_t) -> str:
+def _three(values: Sequence[float], fmt: Callable[[float], str] = _t) -> str:
     return (f"{fmt(percentile(values, 50))} {fmt(percentile(values, 99))} "
             f"{fmt(max(values))}")
 
 
-def _counts(values: list[int]) -> str:
+def _counts(values: Sequence[int]) -> str:
     return f"{percentile(values, 50):.0f}/{percentile(values, 99):.0f}/{max(values)}"
 
 
@@ -131,17 +126,17 @@ def measure(instances: list[Instance], budget: int | None = None) -> Row:
     gc.disable()
     try:
         for inst in instances:
-            sol, raw = _timed(exact_solve, inst.start, inst.combined, inst.unforced, budget)
+            sol, raw = timed(exact_solve, inst.start, inst.combined, inst.unforced, budget)
             cold = [raw]
             for _ in range(REPEAT - 1):
-                again, us = _timed(exact_solve, inst.start, inst.combined, inst.unforced,
+                again, us = timed(exact_solve, inst.start, inst.combined, inst.unforced,
                                    budget)
                 assert again == sol
                 cold.append(us)
             problem = Problem(inst.combined, inst.unforced, inst.start & ~inst.unforced)
             prepared = []
             for _ in range(REPEAT):
-                again, us = _timed(problem.solve, inst.start, budget)
+                again, us = timed(problem.solve, inst.start, budget)
                 assert again.vector == sol.vector and again.steps == sol.steps
                 prepared.append(us)
             row.raw.append(raw)
@@ -156,7 +151,7 @@ def measure(instances: list[Instance], budget: int | None = None) -> Row:
     return row
 
 
-def run_dense(count: int, seed: int):
+def run_dense(count: int, seed: int) -> Iterator[str]:
     yield (f"Exact search, {N_OUTPUTS} outputs, {N_CONSTRAINTS} active combined constraints "
            f"(planted), {count} instances per row, seed {seed}")
     yield (f"  {'d':>3} | {'cold p50':>9} {'p99':>9} {'max':>9} | {'prepared p50':>12} "
@@ -185,7 +180,7 @@ def run_dense(count: int, seed: int):
                f"{_counts(row.steps):>18} | < {_t(goal)}: {verdict} (raw p99 {_t(raw99)})")
 
 
-def run_paper(count: int, seed: int):
+def run_paper(count: int, seed: int) -> Iterator[str]:
     yield (f"Algorithm 1 (paper) on the same instances, d <= 4, capped at {PAPER_BUDGET:,} "
            "steps")
     yield (f"  {'d':>3} | {'finished':>8} | {'p50':>9} {'p99':>9} {'max':>9} | "
@@ -196,7 +191,7 @@ def run_paper(count: int, seed: int):
         gc.disable()
         try:
             for inst in instances:
-                sol, us = _timed(paper_solve, inst.start, inst.combined, inst.unforced, 0, 0,
+                sol, us = timed(paper_solve, inst.start, inst.combined, inst.unforced, 0, 0,
                                  "active", PAPER_BUDGET)
                 times.append(us)
                 tested.append(sol.tested)
@@ -209,14 +204,14 @@ def run_paper(count: int, seed: int):
                f"{percentile(tested, 50):>7.0f}/{max(tested):<7} | {same}/{done}")
 
 
-def run_infeasible(repeat: int):
+def run_infeasible(repeat: int) -> Iterator[str]:
     yield "Infeasible situations (no safe vector): proved without enumerating"
     yield (f"  {'family':<45} | {'verdict':<8} | {'cold p50':>9} {'max':>9} | "
            f"{'nodes':>5} {'steps':>6} | paper ({PAPER_BUDGET:,} steps)")
     for pairs, linked in ((11, False), (11, True), (31, False), (31, True)):
         inst = infeasible(pairs, linked)
         row = measure([inst] * repeat)
-        paper, _ = _timed(paper_solve, inst.start, inst.combined, inst.unforced, 0, 0,
+        paper, _ = timed(paper_solve, inst.start, inst.combined, inst.unforced, 0, 0,
                           "active", PAPER_BUDGET)
         name = (f"{2 * pairs} outputs in pairs + 2 contradictory"
                 + (", linked" if linked else ""))
@@ -226,7 +221,7 @@ def run_infeasible(repeat: int):
                f"{_t(max(row.cold)):>9} | {row.nodes[0]:>5} {row.steps[0]:>6} | {paper_text}")
 
 
-def run_budget(count: int, seed: int):
+def run_budget(count: int, seed: int) -> Iterator[str]:
     """What the default budget costs in time: far-off starts (about 32 outputs to change)
     under the budget of a 10 ms scan, timed cold; and the same run twice."""
     budget = default_budget(10_000)
@@ -251,7 +246,7 @@ def run_budget(count: int, seed: int):
            "stop a search at half the scan period of wall time)")
 
 
-def run(args) -> None:
+def run(args: argparse.Namespace) -> None:
     quick = getattr(args, "quick", False)
     seed = getattr(args, "seed", 1)
     count = 10 if quick else 100

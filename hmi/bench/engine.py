@@ -13,6 +13,7 @@ The goal: cispi_valve >= 100,000 scans/s, sorting and palletizer >= 50,000.
 
 from __future__ import annotations
 
+import argparse
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -100,7 +101,7 @@ def _settled() -> Iterator[None]:
         gc.unfreeze()
 
 
-def run(args) -> None:
+def run(args: argparse.Namespace) -> None:
     from hmi.project.loader import load_project
 
     seconds = QUICK_SECONDS if getattr(args, "quick", False) else SECONDS

@@ -10,12 +10,14 @@ instances are kept by distance 1..4, so each row has a controlled distance.
 
 from __future__ import annotations
 
+import argparse
 import gc
 import random
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 
-from hmi.bench import percentile, summary
+from hmi.bench import percentile, summary, timed
 from hmi.engine.solver import exact_solve, paper_solve
 from hmi.session.session import settle_memory
 
@@ -43,7 +45,7 @@ def random_instance(rng: random.Random, n: int) -> Instance:
     constraints: list[tuple[int, int, bool]] = []  # pos, neg, simple
     while slots:
         size = 1 if rng.random() < 0.15 else rng.choice((2, 2, 3))
-        group = []
+        group: list[int] = []
         while slots and len(group) < size:
             k = slots.pop()
             if k not in group:
@@ -86,13 +88,7 @@ def collect(n: int, per_distance: int, seed: int, max_tries: int = 200_000
     return buckets
 
 
-def timed(fn, *args) -> tuple[object, float]:
-    started = time.perf_counter()
-    result = fn(*args)
-    return result, (time.perf_counter() - started) * 1e6
-
-
-def run_strategies(samples: int, seed: int):
+def run_strategies(samples: int, seed: int) -> Iterator[str]:
     lines = [f"Corrector on random constraint sets ({samples} instances per row, context "
              f"active with p={ACTIVE}, seed {seed})",
              f"  {'No':>3} {'d':>2} {'n':>3} | {'exact p50':>10} {'p99':>9} {'tested':>11} |"
@@ -139,7 +135,7 @@ def _us(value: float) -> str:
     return f"{value:.0f} us" if value < 1000 else f"{value / 1000:.2f} ms"
 
 
-def run_valve(scans: int):
+def run_valve(scans: int) -> Iterator[str]:
     from hmi.engine.scan import Engine
     from hmi.paths import PROJECTS
     from hmi.plant.sim.plant import SimPlant
@@ -168,7 +164,7 @@ def run_valve(scans: int):
                f"{s99:6.1f} us  | filter p50 {f50:5.1f} us  p99 {f99:5.1f} us")
 
 
-def run(args) -> None:
+def run(args: argparse.Namespace) -> None:
     quick = getattr(args, "quick", False)
     samples = 5 if quick else 20
     for line in run_valve(2_000 if quick else 20_000):

@@ -21,13 +21,23 @@ Four figures, each against the issue's goal:
 
 from __future__ import annotations
 
+import argparse
 import asyncio
 import statistics
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from hmi.bench import goal_line, load_line, percentile
+
+if TYPE_CHECKING:
+    from asyncua import ua
+    from asyncua.client.client import Client
+
+    from hmi.engine.snapshot import Snapshot
+    from hmi.session.session import Session
 
 SECTION = "history"
 HELP = ("historian: scan jitter p99 with/without at 10 ms, its cost per scan, SQLite size of "
@@ -45,7 +55,7 @@ BIN_NS = 100  # the scan listener's histogram
 BINS = 20_000  # up to 2 ms; longer ones counted in the last
 
 
-def _session():
+def _session() -> Session:
     from hmi.bench.ui import valve_session
     return valve_session(PERIOD_US)
 
@@ -56,7 +66,7 @@ def _size(path: Path) -> int:
 
 
 # -- jitter, live ------------------------------------------------------------------------------
-def jitter_round(seconds: float, folder: Path | None) -> dict:
+def jitter_round(seconds: float, folder: Path | None) -> dict[str, Any]:
     """The live scan loop for `seconds`, with a historian into `folder` (None: without)."""
     from hmi.bench.ui import SETTLE_S
     from hmi.history.historian import Historian
@@ -106,14 +116,14 @@ def jitter(seconds: float, rounds: int) -> list[str]:
                 if on:
                     line += f"  ({r['written']} samples written)"
                 out.append(line)
-    off, on = percentile(pooled[False], 99), percentile(pooled[True], 99)
-    out.append(f"  jitter p99 pooled: off {off:.0f} us, with the historian {on:.0f} us "
-               f"({on / off:.3f}x); " + goal_line(on / off, 1.05, "x off", False))
+    p99_off, p99_on = percentile(pooled[False], 99), percentile(pooled[True], 99)
+    out.append(f"  jitter p99 pooled: off {p99_off:.0f} us, with the historian {p99_on:.0f} us "
+               f"({p99_on / p99_off:.3f}x); " + goal_line(p99_on / p99_off, 1.05, "x off", False))
     return out
 
 
 # -- recording, virtual time -------------------------------------------------------------------
-def record(length_us: int, path: Path) -> dict:
+def record(length_us: int, path: Path) -> dict[str, Any]:
     """The valve for `length_us` of virtual time, recorded into `path`, the scan listener
     timed."""
     from hmi.history.historian import Historian
@@ -127,7 +137,7 @@ def record(length_us: int, path: Path) -> dict:
     clock = time.perf_counter_ns
     inner = historian.on_scan
 
-    def timed(snap) -> None:
+    def timed(snap: Snapshot) -> None:
         nonlocal worst
         t0 = clock()
         inner(snap)
@@ -180,7 +190,8 @@ def bare_run(hours: int, folder: Path | None) -> float:
     elapsed = time.perf_counter() - start
     if historian is not None:
         historian.close(timeout=120)
-    return elapsed / max(1, session.engine.scan)
+    per_scan: float = elapsed / max(1, session.engine.scan)
+    return per_scan
 
 
 def recording(hours: int, path: Path) -> list[str]:
@@ -266,7 +277,7 @@ def history_read(path: Path) -> list[str]:
         return [f"  HistoryRead not measured: {exc}"]
     import logging
 
-    from asyncua import Client
+    from asyncua.client.client import Client
 
     from hmi.bench.opcua import _free_port
     from hmi.history.query import HistoryReader
@@ -304,13 +315,14 @@ def history_read(path: Path) -> list[str]:
             f"max {worst:.0f} ms of {REPEATS}; " + goal_line(worst, 500, "ms", False)]
 
 
-async def _read_raw(client_type, url: str, node_id, start_us: int, end_us: int
-                    ) -> tuple[list[float], list[float], int]:
+async def _read_raw(client_type: type[Client], url: str, node_id: ua.NodeId, start_us: int,
+                    end_us: int) -> tuple[list[float], list[float], int]:
     from datetime import UTC, datetime, timedelta
     epoch = datetime(1970, 1, 1, tzinfo=UTC)
     start = epoch + timedelta(microseconds=start_us)
     end = epoch + timedelta(microseconds=end_us)
-    times, cpu = [], []
+    times: list[float] = []
+    cpu: list[float] = []
     got = 0
     async with client_type(url, timeout=60) as client:
         node = client.get_node(node_id)
@@ -323,7 +335,7 @@ async def _read_raw(client_type, url: str, node_id, start_us: int, end_us: int
     return times, cpu, got
 
 
-def run(args) -> None:
+def run(args: argparse.Namespace) -> None:
     quick = getattr(args, "quick", False)
     hours = QUICK_HOURS if quick else HOURS
     print(f"  cispi_valve, scan period {PERIOD_US // 1000} ms, SQLite; {load_line()}",
@@ -332,7 +344,8 @@ def run(args) -> None:
         print(line, flush=True)
     with tempfile.TemporaryDirectory(prefix="plchmi-bench-history-") as tmp:
         path = Path(tmp) / "history.sqlite"
-        for part in (lambda: recording(hours, path), lambda: trend(path),
-                     lambda: history_read(path)):
+        parts: tuple[Callable[[], list[str]], ...] = (
+            lambda: recording(hours, path), lambda: trend(path), lambda: history_read(path))
+        for part in parts:
             for line in part():
                 print(line, flush=True)

@@ -28,6 +28,7 @@ quarter second, three more attached, ten minutes).
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import shlex
@@ -36,11 +37,17 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from hmi.bench import load_line
 from hmi.bench.ui import PERIOD_US, PROJECT
+
+if TYPE_CHECKING:
+    from hmi.wire.messages import Stats
 
 SECTION = "live"
 HELP = ("HMIs at 80x24 on cispi_valve (10 ms scan), one opening and closing dialogs: scan "
@@ -134,7 +141,7 @@ class Terminals:
         subprocess.run(["tmux", "-L", self.socket, "kill-server"], capture_output=True)
 
 
-def _wait(predicate, what: str) -> None:
+def _wait(predicate: Callable[[], object], what: str) -> None:
     started = time.monotonic()
     while not predicate():
         if time.monotonic() - started > START_S:
@@ -168,6 +175,11 @@ def _drive(terminals: Terminals, name: str, seconds: float, samplers: list[Sampl
 
 def _started(terminals: Terminals, name: str) -> bool:
     return "Mode" in terminals.screen(name) or "AUTO" in terminals.screen(name)
+
+
+def _started_with_stats(terminals: Terminals, name: str, stats: Path) -> bool:
+    """The screen is up and its HMI has written its figures' file."""
+    return _started(terminals, name) and stats.exists()
 
 
 # -- the split -------------------------------------------------------------------------------
@@ -208,8 +220,8 @@ class Runtime:
         self.process.wait(START_S)
         self.log.close()
 
-    def figures(self, before, after, elapsed: float, tally: dict[str, int], label: str
-                ) -> list[str]:
+    def figures(self, before: Stats | None, after: Stats | None, elapsed: float,
+                tally: dict[str, int], label: str) -> list[str]:
         if before is None or after is None:
             return ["  the runtime did not answer the bench's queries"]
         tally[label] = after.overruns - before.overruns
@@ -234,7 +246,7 @@ def measure_split(folder: Path, env: dict[str, str], setup: Setup, tally: dict[s
                   str(runtime.sock)]
         pids = [terminals.open(name, attach, env) for name in names]
         for name in names:
-            _wait(lambda name=name: _started(terminals, name), f"the {name} screen")
+            _wait(partial(_started, terminals, name), f"the {name} screen")
         ended = _drive(terminals, "busy", setup.warm_s, [], setup.dialog_every)  # (warm-up)
         before = runtime.viewer.query()
         samplers = [Sampled(runtime.process.pid), *(Sampled(pid) for pid in pids)]
@@ -376,8 +388,7 @@ def measure_single(folder: Path, env: dict[str, str], setup: Setup, tally: dict[
             code = f"from hmi.bench.live import single_screen; single_screen({str(stats[name])!r})"
             pids[name] = terminals.open(name, [sys.executable, "-c", code], env)
         for name in ("busy", "idle"):
-            _wait(lambda name=name: _started(terminals, name) and stats[name].exists(),
-                  f"the {name} HMI")
+            _wait(partial(_started_with_stats, terminals, name, stats[name]), f"the {name} HMI")
         ended = _drive(terminals, "busy", setup.warm_s, [], setup.dialog_every)  # (warm-up)
         before = {name: json.loads(path.read_text()) for name, path in stats.items()}
         samplers = [Sampled(pids["busy"]), Sampled(pids["idle"])]
@@ -409,7 +420,7 @@ def _has_opcua() -> bool:
     return importlib.util.find_spec("asyncua") is not None
 
 
-def run(args) -> None:
+def run(args: argparse.Namespace) -> None:
     import shutil
 
     if shutil.which("tmux") is None:

@@ -11,6 +11,7 @@ over loopback, alternating in blocks of 100 so that machine load affects both al
 
 from __future__ import annotations
 
+import argparse
 import tempfile
 import textwrap
 import time
@@ -48,7 +49,7 @@ SECTION = "modbus"
 HELP = "one scan's Modbus I/O over loopback (plchmi's plant vs bare pymodbus), p50/p99/max"
 
 
-def run(args) -> None:
+def run(args: argparse.Namespace) -> None:
     """Print the figures; if they cannot be measured, say why (a bench never fails)."""
     scans = 300 if getattr(args, "quick", False) else 2000
     try:
@@ -83,7 +84,8 @@ def measure(scans: int, out: Callable[[str], None]) -> None:
         out(f"  {label:<62} {p50 / 1000:6.3f} / {p99 / 1000:6.3f} / {worst / 1000:6.3f} ms")
 
 
-def _measure(plant: ModbusPlant, bare: ModbusTcpClient, scans: int):
+def _measure(plant: ModbusPlant, bare: ModbusTcpClient, scans: int
+             ) -> list[tuple[str, list[float]]]:
     changing: list[float] = []
     steady: list[float] = []
     raw: list[float] = []

@@ -18,14 +18,19 @@ clock), and the notifications per second. ``--quick`` shortens every set-up.
 
 from __future__ import annotations
 
+import argparse
 import json
 import socket
 import subprocess
 import sys
 import time
+from typing import TYPE_CHECKING, Any
 
 from hmi.bench import percentile
 from hmi.bench.ui import PERIOD_US, PROJECT, SETTLE_S, jitter_line, valve_session, with_ui
+
+if TYPE_CHECKING:
+    from hmi.engine.snapshot import Snapshot
 
 SECTION = "opcua"
 HELP = ("OPC UA server at a 10 ms scan: jitter and scan time without/with the server and a "
@@ -91,7 +96,7 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def measure(seconds: float, server: bool, client: bool) -> dict:
+def measure(seconds: float, server: bool, client: bool) -> dict[str, Any]:
     """One set-up: the live scan loop for `seconds`, with or without server and client."""
     from hmi.session.live import BENCH_JITTER, LiveRunner
 
@@ -99,7 +104,7 @@ def measure(seconds: float, server: bool, client: bool) -> dict:
     ends: dict[int, float] = {}
     walls: list[float] = []
 
-    def listener(snap) -> None:  # the bench's own cost, the same in every set-up
+    def listener(snap: Snapshot) -> None:  # the bench's own cost, the same in every set-up
         ends[snap.scan] = time.monotonic()
         walls.append(snap.scan_wall_us)
 
@@ -111,7 +116,7 @@ def measure(seconds: float, server: bool, client: bool) -> dict:
         cell.start()
     runner = LiveRunner(session, keep_jitter=BENCH_JITTER)
     runner.start()
-    result: dict = {}
+    result: dict[str, Any] = {}  # the figures, some read from the client's JSON
     try:
         if client:
             assert cell is not None
@@ -149,7 +154,7 @@ def measure(seconds: float, server: bool, client: bool) -> dict:
     return result
 
 
-def lines(label: str, r: dict) -> list[str]:
+def lines(label: str, r: dict[str, Any]) -> list[str]:
     out = [jitter_line(label, r["jitter"], r["scans"], r["elapsed"], PERIOD_US,
                        r["overruns"])]
     walls = r["walls"]
@@ -170,7 +175,7 @@ def lines(label: str, r: dict) -> list[str]:
     return out
 
 
-def run(args) -> None:
+def run(args: argparse.Namespace) -> None:
     from hmi.errors import UsageError
     from hmi.opcua import require
     try:

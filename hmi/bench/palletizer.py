@@ -4,6 +4,8 @@ the sorting section (distance histogram, solver and filter times), with pallets 
 
 from __future__ import annotations
 
+import argparse
+
 SECTION = "palletizer"
 HELP = "the palletizer (001): max Hamming distance, solver p50/p99, pallets built"
 
@@ -14,6 +16,6 @@ def work(counters: dict[str, int]) -> str:
             f"layers {counters.get('layers', 0)}, lost {counters.get('lost', 0)}")
 
 
-def run(args) -> None:
+def run(args: argparse.Namespace) -> None:
     from hmi.bench.cellrun import run_cell_bench
     run_cell_bench(args, "palletizer", "palletizer", work, strategies=("exact",))

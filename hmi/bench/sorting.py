@@ -11,6 +11,8 @@ vectors it tested), the whole filter stage's time per scan, the boxes sorted and
 
 from __future__ import annotations
 
+import argparse
+
 SECTION = "sorting"
 HELP = "the sorting cell (004 §5.3): max Hamming distance, solver p50/p99, boxes sorted"
 
@@ -26,7 +28,7 @@ FOOTNOTE = ("  (combined search: the solver proper, timed only in scans where a 
             "constraint had to be repaired; times measured on this machine)")
 
 
-def run(args) -> None:
+def run(args: argparse.Namespace) -> None:
     from hmi.bench.cellrun import run_cell_bench
     run_cell_bench(args, "sorting", "sorting cell", work, strategies=("exact", "paper"),
                    footnote=FOOTNOTE)

@@ -20,6 +20,7 @@ it is the figure to compare between runs when no quiet machine is to be had.
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import os
 import select
@@ -170,7 +171,7 @@ def checkouts(against: str | None) -> list[Checkout]:
     return found
 
 
-def run(args) -> None:
+def run(args: argparse.Namespace) -> None:
     from hmi.project.loader import load_project
 
     runs = QUICK_RUNS if getattr(args, "quick", False) else RUNS

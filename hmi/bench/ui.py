@@ -20,12 +20,18 @@ scan, only between scans. The jitter with the UI on is the honest figure for tha
 
 from __future__ import annotations
 
+import argparse
 import asyncio
 import gc
 import time
+from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from hmi.bench import percentile
+
+if TYPE_CHECKING:
+    from hmi.session.session import Session
 
 SECTION = "ui"
 HELP = ("HMI headless at a 10 ms scan, 30 s (wall) and 30 s more opening dialogs: scan "
@@ -41,7 +47,7 @@ DIALOG_KEYS = ("f", "escape")  # open the fault dialog, close it
 DIALOG_EVERY_S = 0.25
 
 
-def valve_session(period_us: int):
+def valve_session(period_us: int) -> Session:
     from hmi.engine.scan import Engine
     from hmi.plant.sim.plant import SimPlant
     from hmi.project.loader import load_project
@@ -89,7 +95,7 @@ class FullCollections:
         self.pauses_ms: list[float] = []
         self._started = 0.0
 
-    def __call__(self, phase: str, info: dict) -> None:
+    def __call__(self, phase: str, info: dict[str, Any]) -> None:
         if info["generation"] != 2:
             return
         if phase == "start":
@@ -113,20 +119,34 @@ class FullCollections:
                 f"{percentile(pauses, 50):.1f} ms, longest {max(pauses):.1f} ms")
 
 
+@dataclass(frozen=True)
+class _UIRun:
+    """What one run of the live app measured."""
+
+    elapsed: float
+    frames: int
+    jitter: list[float]
+    scans: int
+    overruns: int
+    collections: FullCollections
+
+
 def with_ui(seconds: float, period_us: int = PERIOD_US, size: tuple[int, int] = SIZE,
             keys: tuple[str, ...] = ()) -> list[str]:
     """The live app, headless: scans in their thread, the UI polling and rendering; `keys`
     pressed in turn every DIALOG_EVERY_S meanwhile, as an operator would."""
     from hmi.ui.app import PlcHmiApp
+    from hmi.ui.driver import LiveDriver
 
     session = valve_session(period_us)
     app = PlcHmiApp(session, live=True)
-    result: dict = {}
 
-    async def measure() -> None:
+    async def measure() -> _UIRun:
         async with app.run_test(size=size) as pilot:
             await asyncio.sleep(SETTLE_S)
-            runner = app.driver.runner
+            driver = app.driver
+            assert isinstance(driver, LiveDriver)  # live=True
+            runner = driver.runner
             samples0, scans0, overruns0 = (len(runner.jitter_us), session.engine.scan,
                                            runner.overruns)
             start, frames0 = time.perf_counter(), app.frames_shown
@@ -139,26 +159,26 @@ def with_ui(seconds: float, period_us: int = PERIOD_US, size: tuple[int, int] = 
                         await asyncio.sleep(DIALOG_EVERY_S)
                 else:
                     await asyncio.sleep(seconds)  # the measurement: let the live app run
-            result.update(elapsed=time.perf_counter() - start,
+            return _UIRun(elapsed=time.perf_counter() - start,
                           frames=app.frames_shown - frames0,
                           jitter=list(runner.jitter_us)[samples0:],
                           scans=session.engine.scan - scans0,
                           overruns=runner.overruns - overruns0,
                           collections=collections)
 
-    asyncio.run(measure())
-    elapsed, frames = result["elapsed"], result["frames"]
+    result = asyncio.run(measure())
+    elapsed, frames = result.elapsed, result.frames
     label = "dialogs" if keys else "with UI"
     return [
-        jitter_line(label, result["jitter"], result["scans"], elapsed, period_us,
-                    result["overruns"]),
+        jitter_line(label, result.jitter, result.scans, elapsed, period_us,
+                    result.overruns),
         f"  {'UI':<8} {frames} frames in {elapsed:.1f} s: {frames / elapsed:.1f} frames/s "
         f"(cap {app.refresh_hz:g}/s), app {size[0]}x{size[1]} headless",
-        result["collections"].line(),
+        result.collections.line(),
     ]
 
 
-def run(args) -> None:
+def run(args: argparse.Namespace) -> None:
     quick = getattr(args, "quick", False)
     base_s = QUICK_BASELINE_SECONDS if quick else BASELINE_SECONDS
     ui_s = QUICK_UI_SECONDS if quick else UI_SECONDS

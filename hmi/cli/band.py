@@ -4,6 +4,7 @@ band's corners and a seeded sample), or one point of the band replayed (``--poin
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
 
 from hmi.cli.common import load
 from hmi.cli.farm import add_farm_args, farm_of, print_report
@@ -11,11 +12,14 @@ from hmi.cli.options import diagnoser_arg, duration, project_arg
 from hmi.errors import UsageError
 from hmi.limits import MAX_RUN_SCANS
 
+if TYPE_CHECKING:
+    from hmi.cli.common import Subparsers
+
 DEFAULT_SAMPLES = 1000
 MAX_SAMPLES = 1_000_000
 
 
-def add_parser(sub) -> None:
+def add_parser(sub: Subparsers) -> None:
     p = sub.add_parser("band", help="run the cell fault-free across its declared tolerances: "
                        "false diagnoses, monitor faults, damage, and the windows' margins")
     project_arg(p)

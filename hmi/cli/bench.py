@@ -4,11 +4,15 @@ the sections themselves are in hmi/bench/."""
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
 
 from hmi.errors import UsageError
 
+if TYPE_CHECKING:
+    from hmi.cli.common import Subparsers
 
-def add_parser(sub) -> None:
+
+def add_parser(sub: Subparsers) -> None:
     p = sub.add_parser("bench", help="measure and print performance figures (never fails)")
     p.add_argument("sections", nargs="*", metavar="SECTION",
                    help="sections to run (default: all): " + ", ".join(_bench_sections()))

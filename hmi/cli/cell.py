@@ -10,14 +10,20 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from hmi.cli.common import RunFailure, ended_by, on_termination
 from hmi.cli.options import diagnoser_arg, project_arg
 from hmi.cli.screens import run_screen, runtime_args, users_file
 from hmi.errors import UsageError
 
+if TYPE_CHECKING:
+    from hmi.cli.common import Subparsers
+    from hmi.engine.snapshot import Snapshot
+    from hmi.runtime.place import Place
 
-def add_parsers(sub) -> None:
+
+def add_parsers(sub: Subparsers) -> None:
     p = sub.add_parser("serve", help="run the cell: the runtime its screens attach to",
                        description="The cell's runtime: the scan, the plant, the alarms and "
                        "the journal, in a process of its own; operator screens attach to it "
@@ -97,7 +103,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
                                    default_on=not args.virtual)
         connect_plant(engine, args.connect_timeout)
         if outputs.writer is not None:  # (before the runtime's first scan: it is traced too)
-            def traced(snap) -> None:
+            def traced(snap: Snapshot) -> None:
                 if outputs is not None and outputs.write(snap):
                     outputs.leave_safe()
                     if runtime is not None:
@@ -141,7 +147,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
 GATEWAY_END_S = 10.0  # a gateway told the runtime stops ends by itself within this
 
 
-def start_gateway(args: argparse.Namespace, where) -> subprocess.Popen | None:
+def start_gateway(args: argparse.Namespace, where: Place) -> subprocess.Popen[bytes] | None:
     """With --opcua: the OPC UA gateway (plchmi gateway), a process of its own attached to
     this runtime as a screen; its output in gateway.log beside the runtime's."""
     from hmi.opcua.options import passed_on
@@ -160,7 +166,7 @@ def start_gateway(args: argparse.Namespace, where) -> subprocess.Popen | None:
     return process
 
 
-def stop_gateway(process: subprocess.Popen) -> None:
+def stop_gateway(process: subprocess.Popen[bytes]) -> None:
     """It ends by itself once the runtime closed its screens; else it is told to."""
     try:
         process.wait(GATEWAY_END_S)

@@ -12,11 +12,12 @@ from hmi.timefmt import format_duration
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
+    from hmi.cli.common import Subparsers
     from hmi.errors import Diagnostic
     from hmi.project.model import Constraint, ControlLaw, Project
 
 
-def add_parser(sub) -> None:
+def add_parser(sub: Subparsers) -> None:
     p = sub.add_parser("check", help="load and validate a project, print a summary")
     project_arg(p)
     diagnoser_arg(p)
@@ -83,7 +84,7 @@ def _law_summary(law: ControlLaw) -> str:
     return "; ".join(parts)
 
 
-def check_report(project: Project, sections: list[list[str]] = (),
+def check_report(project: Project, sections: Sequence[Sequence[str]] = (),
                  more_warnings: Sequence[Diagnostic] = ()) -> str:
     lines = [f"Project {project.name}: {project.description}".rstrip(": "),
              "  files: " + ", ".join(project.files),

@@ -7,8 +7,18 @@ import contextlib
 import signal
 import sys
 from collections.abc import Callable, Iterator
+from types import FrameType
+from typing import TYPE_CHECKING, TypeAlias
 
 from hmi.errors import ProjectError, UsageError
+
+if TYPE_CHECKING:
+    import argparse
+
+    from hmi.project.model import Project
+
+    # What `add_parser(s)` of a command's module is given (argparse's own type for it).
+    Subparsers: TypeAlias = argparse._SubParsersAction[argparse.ArgumentParser]
 
 MAX_ERRORS_SHOWN = 25
 
@@ -24,7 +34,7 @@ def print_project_error(exc: ProjectError) -> None:
           file=sys.stderr)
 
 
-def load(path: str, diagnoser: str | None = None):
+def load(path: str, diagnoser: str | None = None) -> Project:
     from hmi.project.loader import load_project
     return load_project(path, diagnoser)
 
@@ -53,7 +63,7 @@ _CONTROL = str.maketrans({
                                    *range(0x202A, 0x202F), *range(0x2066, 0x206A)]}})
 
 
-def printable(value) -> str:
+def printable(value: object) -> str:
     """A text read from a file or a database, for the terminal: control characters (an ESC
     sequence written into a damaged or forged journal) shown as \\xNN, line separators and
     bidirectional controls as \\uNNNN, never sent to the terminal."""
@@ -64,7 +74,7 @@ def printable(value) -> str:
 def on_termination(end: Callable[[str], None]) -> Iterator[None]:
     """Within the block, SIGTERM (a service manager) and SIGINT (Ctrl-C) call `end` with
     the signal's name instead of interrupting: the process then ends as asked."""
-    def handler(signum, frame) -> None:
+    def handler(signum: int, frame: FrameType | None) -> None:
         end(f"{signal.Signals(signum).name} received")
     previous = {s: signal.signal(s, handler) for s in (signal.SIGTERM, signal.SIGINT)}
     try:

@@ -58,7 +58,8 @@ COMMANDS = {
 def _part(module: str, function: str) -> Callable[..., Any]:
     """A function of a command's module, imported when wanted (a command imports its own
     module only)."""
-    return getattr(importlib.import_module(f"hmi.cli.{module}"), function)
+    part: Callable[..., Any] = getattr(importlib.import_module(f"hmi.cli.{module}"), function)
+    return part
 
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
@@ -91,7 +92,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(args_list)
     try:
         if args.command in COMMANDS:
-            return _part(*COMMANDS[args.command])(args)
+            status: int = _part(*COMMANDS[args.command])(args)
+            return status
     except ProjectError as exc:
         print_project_error(exc)
         return 2

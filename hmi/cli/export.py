@@ -5,13 +5,17 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from hmi.cli.common import load
 from hmi.cli.options import project_arg
 from hmi.errors import UsageError
 
+if TYPE_CHECKING:
+    from hmi.cli.common import Subparsers
 
-def add_parser(sub) -> None:
+
+def add_parser(sub: Subparsers) -> None:
     p = sub.add_parser(
         "export", help="the control law, safety filter, diagnosers and monitors as IEC 61131-3 "
         "code",

@@ -11,8 +11,12 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from hmi.cli.common import RunFailure
+
+if TYPE_CHECKING:
+    from hmi.farm.run import Farm, Progress, Tick
 
 
 def add_farm_args(p: argparse.ArgumentParser) -> None:
@@ -30,7 +34,7 @@ def add_farm_args(p: argparse.ArgumentParser) -> None:
 
 
 @contextmanager
-def farm_of(args: argparse.Namespace) -> Iterator:
+def farm_of(args: argparse.Namespace) -> Iterator[Farm]:
     """The farm the options say, its executor entered (a cluster connected, its workers'
     versions checked) for the command's length; Ctrl-C says what was kept."""
     from hmi.farm.executors import FarmError, executor_for
@@ -52,7 +56,7 @@ def farm_of(args: argparse.Namespace) -> Iterator:
         raise RunFailure(f"the study stopped: {exc}") from None
 
 
-def print_report(text: str, farm) -> None:
+def print_report(text: str, farm: Farm) -> None:
     """The report on stdout; its sha256 and how the study ran on stderr."""
     data = text if text.endswith("\n") else text + "\n"
     sys.stdout.write(data)
@@ -67,7 +71,7 @@ def print_report(text: str, farm) -> None:
     sys.stderr.flush()
 
 
-def progress_line():
+def progress_line() -> Progress:
     """One line on stderr, rewritten after each shard: shards and runs done, runs per
     second, time left; what happens on the way (a worker lost) on a line of its own. When
     stderr is a file, not a terminal, a line at each tenth of the runs instead."""
@@ -75,7 +79,7 @@ def progress_line():
     tenth = [-1]
     terminal = sys.stderr.isatty()
 
-    def progress(tick) -> None:
+    def progress(tick: Tick) -> None:
         if tick.note:
             print(f"\n{tick.note}" if shown[0] >= 0 and terminal else tick.note,
                   file=sys.stderr, flush=True)

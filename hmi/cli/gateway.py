@@ -20,14 +20,18 @@ import os
 import sys
 import threading
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from hmi.cli.common import RunFailure, on_termination
 from hmi.cli.options import diagnoser_arg, project_arg
 
+if TYPE_CHECKING:
+    from hmi.cli.common import Subparsers
+
 LOOK_S = 0.25  # how often the gateway looks at its server and its link (a change is told)
 
 
-def add_parser(sub) -> None:
+def add_parser(sub: Subparsers) -> None:
     p = sub.add_parser("gateway", help="serve a running cell over OPC UA (a process of its "
                        "own, attached to the cell's runtime)",
                        description="The cell's OPC UA server as a gateway process attached "

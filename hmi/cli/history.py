@@ -5,13 +5,21 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import TYPE_CHECKING
 
 from hmi.cli.common import load, printable
 from hmi.cli.options import project_arg
 from hmi.errors import UsageError
 
+if TYPE_CHECKING:
+    from collections.abc import Sequence
 
-def add_parser(sub) -> None:
+    from hmi.cli.common import Subparsers
+    from hmi.history.catalogue import Signal
+    from hmi.history.query import HistoryReader
+
+
+def add_parser(sub: Subparsers) -> None:
     p = sub.add_parser(
         "history", help="print or export a cell's history (values, alarms, actions)",
         description="Print or export what the historian kept of a cell: the values of "
@@ -91,7 +99,7 @@ def cmd_history(args: argparse.Namespace) -> int:
     return 0
 
 
-def _names(text: str, signals) -> list[str]:
+def _names(text: str, signals: Sequence[Signal]) -> list[str]:
     known = {s.name for s in signals}
     if not text.strip():
         return [s.name for s in signals if s.group == "io" and s.kind == "bool"][:8]
@@ -109,7 +117,7 @@ def _names(text: str, signals) -> list[str]:
     return names
 
 
-def _list(signals) -> None:
+def _list(signals: Sequence[Signal]) -> None:
     width = max(len(s.name) for s in signals)
     for s in signals:
         unit = f" ({s.unit})" if s.unit else ""
@@ -119,16 +127,18 @@ def _list(signals) -> None:
                         f"{s.description}{unit}{labels}"))
 
 
-def _table(reader, names: list[str], start: int, end: int) -> None:
+def _table(reader: HistoryReader, names: list[str], start: int, end: int) -> None:
     from hmi.history.query import export_rows, local_time
     signals = [reader.signal(n) for n in names]
+    known = [s for s in signals if s is not None]
+    assert len(known) == len(signals)  # _names keeps the known ones only
     widths = [max(len(n), 5) for n in names]
     print(printable("time                  " + "  ".join(
         n.rjust(w) for n, w in zip(names, widths, strict=True))))
     rows = 0
     for t, values in export_rows(reader, names, start, end):
         cells = [(s.text(v) if v is not None else "-").rjust(w)
-                 for s, v, w in zip(signals, values, widths, strict=True)]
+                 for s, v, w in zip(known, values, widths, strict=True)]
         frac = f".{(t % 1_000_000) // 1000:03d}"
         print(printable(f"{local_time(t)}{frac}  " + "  ".join(cells)))
         rows += 1
@@ -136,7 +146,7 @@ def _table(reader, names: list[str], start: int, end: int) -> None:
         print(f"(nothing recorded between {local_time(start)} and {local_time(end)})")
 
 
-def _events(reader, start: int, end: int, as_csv: bool) -> None:
+def _events(reader: HistoryReader, start: int, end: int, as_csv: bool) -> None:
     from hmi.history.query import iso, local_time
     events = reader.events(start, end)
     if as_csv:

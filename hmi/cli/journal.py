@@ -5,7 +5,10 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Iterable, Iterator
+from datetime import datetime
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from hmi.cli.common import printable as _printable
 from hmi.cli.options import project_arg
@@ -13,11 +16,15 @@ from hmi.errors import UsageError
 from hmi.limits import MAX_DAMAGED_SHOWN
 from hmi.timefmt import DurationError, parse_duration
 
+if TYPE_CHECKING:
+    from hmi.cli.common import Subparsers
+    from hmi.explain.journal import Damaged, Entry
+
 JOURNAL_KINDS = ("action", "alarm", "recovery", "plant", "session")
 
 
 
-def add_parser(sub) -> None:
+def add_parser(sub: Subparsers) -> None:
     p = sub.add_parser(
         "journal", help="print or export a project's operator journal",
         description="Print or export a project's operator journal. A damaged line (an entry "
@@ -34,7 +41,7 @@ def add_parser(sub) -> None:
     p.add_argument("--path", type=Path, metavar="FILE", help="journal file to read")
 
 
-def add_verify_parser(sub) -> None:
+def add_verify_parser(sub: Subparsers) -> None:
     p = sub.add_parser(
         "journal-verify", help=argparse.SUPPRESS, prog="plchmi journal verify",
         description="Verify a journal's hash chain and anchor: every line must link to the "
@@ -132,13 +139,13 @@ class DamagedLines:
     Exit status 0 even with damaged lines: the readable entries are what the operator needs
     (docs/journal.md)."""
 
-    def __init__(self, path) -> None:
+    def __init__(self, path: Path | str) -> None:
         self.path = path
         self.more = 0
         self.shown = 0
         self.truncated = False
 
-    def skipped(self, items):
+    def skipped(self, items: Iterable[Entry | Damaged]) -> Iterator[Entry]:
         """The entries of `items`, each Damaged among them said (or counted) and left out."""
         from hmi.explain.journal import Damaged
         for item in items:
@@ -162,10 +169,10 @@ class DamagedLines:
                   "killed while writing it); it is ignored", file=sys.stderr)
 
 
-def parse_since(text: str):
+def parse_since(text: str) -> datetime:
     """--since: a duration ago (2h) or an ISO date/time (local time unless it says its zone);
     anything else, or a time out of range, is a usage error."""
-    from datetime import UTC, datetime, timedelta
+    from datetime import UTC, timedelta
     hint = "an ISO date/time (2026-11-22T15:00) or a duration ago (30m, 2h)"
     try:
         ago = parse_duration(text)
@@ -196,7 +203,7 @@ CSV_COLUMNS = ("wall", "scan", "t", "type", "event", "key", "state", "severity",
                "message", "by", "accepted", "session")
 
 
-def started(entry: dict) -> str:
+def started(entry: Entry) -> str:
     """A session's start in words: project, control program, filter policy, plant (what the
     JSON entry holds in fields of its own); "" for any other entry."""
     if entry.get("type") != "session" or entry.get("event") != "start":
@@ -207,7 +214,7 @@ def started(entry: dict) -> str:
     return "started: " + ", ".join(parts) if parts else ""
 
 
-def _csv_field(entry: dict, name: str):
+def _csv_field(entry: Entry, name: str) -> object:
     if name == "accepted":
         value = entry.get("accepted")
         return "" if not isinstance(value, bool) else ("true" if value else "false")
@@ -216,7 +223,7 @@ def _csv_field(entry: dict, name: str):
     return _field(entry, name)
 
 
-def _field(entry: dict, name: str):
+def _field(entry: Entry, name: str) -> object:
     """A field of a journal entry for display: "" when absent or null (the reader has checked
     the type of the fields it knows)."""
     value = entry.get(name)

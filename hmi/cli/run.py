@@ -7,6 +7,7 @@ import argparse
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from hmi.cli.common import RunFailure, ended_by, load
 from hmi.cli.options import (
@@ -23,8 +24,16 @@ from hmi.cli.session import announce, connect_plant, make_engine, open_historian
 from hmi.cli.summary import alarm_summary, plant_report
 from hmi.errors import UsageError
 
+if TYPE_CHECKING:
+    from types import FrameType
 
-def add_parser(sub) -> None:
+    from hmi.cli.common import Subparsers
+    from hmi.engine.scan import Engine
+    from hmi.engine.snapshot import Snapshot
+    from hmi.history.historian import Historian
+
+
+def add_parser(sub: Subparsers) -> None:
     p = sub.add_parser("run", help="run headless in virtual time")
     project_arg(p)
     diagnoser_arg(p)
@@ -64,7 +73,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.scenario:
         from hmi.project.scenarios import find_scenario
         scenario = find_scenario(project, args.scenario)
-    duration = args.duration or (scenario.duration_us if scenario else None)
+    duration: int | None = args.duration or (scenario.duration_us if scenario else None)
     from hmi.opcua.options import check_arguments
     check_arguments(args)
     if duration is None and args.opcua is None:
@@ -74,6 +83,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     engine, injections = make_engine(project, args, scenario.injections if scenario else ())
     if engine.plant.is_real or args.opcua is not None:
         return run_real_time(engine, args, duration)
+    assert duration is not None  # checked above: a run without one serves in real time
     session = Session(engine, args.period)
     collector = RunCollector()
     outputs = RunOutputs(session, args.trace, args.journal, "run")
@@ -86,7 +96,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise
     settle_memory()
     started = time.perf_counter()
-    def on_scan(snap) -> None:
+    def on_scan(snap: Snapshot) -> None:
         collector.add(snap)
         if outputs.write(snap):
             raise _OutputFailed
@@ -97,7 +107,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         last = session.run_for(duration, on_scan, quiet)
     except _OutputFailed:
         outputs.leave_safe()
-        last = session.last
+        failed = session.last
+        assert failed is not None  # set before the listener that raised ran
+        last = failed
     finally:
         outputs.close(ended_by(sys.exc_info()[1]))
         if historian is not None:
@@ -115,7 +127,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
-def history_line(historian) -> None:
+def history_line(historian: Historian | None) -> None:
     """Where the run's history went, and how much of it (or why not all)."""
     if historian is None:
         return
@@ -143,7 +155,7 @@ def run_length_notice(duration_us: int, period_us: int) -> None:
         print(f"plchmi: {notice}", file=sys.stderr, flush=True)
 
 
-def run_real_time(engine, args: argparse.Namespace, duration_us: int | None) -> int:
+def run_real_time(engine: Engine, args: argparse.Namespace, duration_us: int | None) -> int:
     """A headless run paced by the wall clock: against a real plant (scans stamped by the
     wall clock), or serving the cell over OPC UA (--opcua: a simulated plant runs in real
     time too). Without a duration it runs until interrupted (Ctrl-C, SIGTERM)."""
@@ -170,7 +182,7 @@ def run_real_time(engine, args: argparse.Namespace, duration_us: int | None) -> 
         announce(server, engine.project.name)
         connect_plant(engine, args.connect_timeout or 10_000_000)
 
-        def on_scan(snap) -> bool:
+        def on_scan(snap: Snapshot) -> bool:
             collector.add(snap)
             if outputs.write(snap):
                 outputs.leave_safe()
@@ -202,6 +214,8 @@ def run_real_time(engine, args: argparse.Namespace, duration_us: int | None) -> 
                       time_kind="real"))
     print(alarm_summary(collector, args.explain))
     if plant.is_real:
+        from hmi.plant.modbus.client import ModbusPlant
+        assert isinstance(plant, ModbusPlant)  # the one real plant
         # After the stop: its write of the safe vector is counted like any other request.
         print(plant_report(plant, at_end, runner.overruns if runner else 0))
         print(f"Stopped: {plant.message}")
@@ -221,10 +235,10 @@ class _terminate_as_interrupt:
         import signal
         self.previous = signal.signal(signal.SIGTERM, self._raise)
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         import signal
         signal.signal(signal.SIGTERM, self.previous)
 
     @staticmethod
-    def _raise(signum, frame) -> None:
+    def _raise(signum: int, frame: FrameType | None) -> None:
         raise KeyboardInterrupt

@@ -11,6 +11,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from hmi.cli.common import RunFailure
 from hmi.cli.options import (
@@ -20,6 +21,12 @@ from hmi.cli.options import (
     journal_space_arg,
     plant_args,
 )
+
+if TYPE_CHECKING:
+    from hmi.link.base import Identity
+    from hmi.link.client import SocketLink
+    from hmi.project.model import Project
+    from hmi.runtime.place import Place
 
 START_S = 60.0  # a runtime starting (a real plant's connection included) is waited for
 
@@ -40,7 +47,8 @@ def runtime_args(p: argparse.ArgumentParser) -> None:
     historian_args(p, "a SQLite file in the data folder, beside the journal")
 
 
-def run_screen(args: argparse.Namespace, project, socket: Path, view: bool = False) -> int:
+def run_screen(args: argparse.Namespace, project: Project, socket: Path,
+               view: bool = False) -> int:
     """The HMI attached to the runtime at `socket`; what its quit asked (stop the cell or
     leave it running) is done on the way out."""
     from hmi.link.base import Identity, local_operator
@@ -107,8 +115,8 @@ def signs_in(path: Path) -> bool:
     return found is not None and found.settings.local_terminal == "sign-in"
 
 
-def signed_in(project, socket: Path, print_: str, identity, view: bool,
-              path: Path | None):
+def signed_in(project: Project, socket: Path, print_: str, identity: Identity, view: bool,
+              path: Path | None) -> SocketLink:
     """The terminal's sign-in: a name and a password (not echoed), checked by the runtime
     against its users file (`path`, where this screen knows it: its banner is shown); a
     few tries, then the screen ends."""
@@ -154,7 +162,7 @@ def wait_stopped(folder: Path | None, name: str, guard_s: float = 60.0) -> bool:
     return True
 
 
-def start_runtime(args: argparse.Namespace, project, where) -> None:
+def start_runtime(args: argparse.Namespace, project: Project, where: Place) -> None:
     """Start `plchmi serve` for the project, detached (it outlives this screen), and wait
     until it accepts screens; RunFailure with its last words if it ends instead."""
     from hmi.link.client import AttachError, connect

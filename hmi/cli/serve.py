@@ -5,13 +5,17 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from hmi.cli.common import load
 from hmi.cli.options import duration, positive, project_arg, tcp_port, unit_id
 from hmi.errors import ProjectError, UsageError
 
+if TYPE_CHECKING:
+    from hmi.cli.common import Subparsers
 
-def add_parsers(sub) -> None:
+
+def add_parsers(sub: Subparsers) -> None:
     p = sub.add_parser("opcua", help="the OPC UA server's trust list (docs/opcua.md)",
                        description="The client applications (certificates) the OPC UA "
                        "servers of this machine trust: an unknown one is refused and kept "

@@ -5,14 +5,26 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Iterable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from hmi.cli.common import RunFailure
 from hmi.errors import UsageError
 from hmi.timefmt import format_duration
 
+if TYPE_CHECKING:
+    from hmi.engine.scan import Engine
+    from hmi.history.historian import Historian
+    from hmi.opcua.server import CellServer
+    from hmi.project.injection import Injection
+    from hmi.project.model import Project
+    from hmi.session.journal_recorder import JournalRecorder
+    from hmi.session.session import Session
 
-def make_engine(project, args: argparse.Namespace, extra_injections=()):
+
+def make_engine(project: Project, args: argparse.Namespace,
+                extra_injections: Iterable[Injection] = ()) -> tuple[Engine, list[Injection]]:
     """The engine for a command's --control/--policy/--inject/--plant options."""
     from hmi.engine.scan import Engine
     from hmi.plant.select import open_plant
@@ -34,23 +46,24 @@ def make_engine(project, args: argparse.Namespace, extra_injections=()):
     return engine, injections
 
 
-def connect_plant(engine, timeout_us: int | None) -> None:
+def connect_plant(engine: Engine, timeout_us: int | None) -> None:
     """Connect a real plant before the first scan, saying what happens; exit 1 if it fails."""
     plant = engine.plant
     if not plant.is_real:
         return
-    from hmi.plant.modbus.client import wait_connected
+    from hmi.plant.modbus.client import ModbusPlant, wait_connected
+    assert isinstance(plant, ModbusPlant)  # the one real plant
 
     def report(line: str) -> None:
         print(f"plchmi: {line}", file=sys.stderr, flush=True)
     timeout_s = None if timeout_us is None else timeout_us / 1e6
     if not wait_connected(plant, timeout_s, report):
         plant.close()
-        raise RunFailure(f"no connection to the plant within {format_duration(timeout_us)}: "
-                         f"{plant.message}")
+        waited = "the wait" if timeout_us is None else format_duration(timeout_us)
+        raise RunFailure(f"no connection to the plant within {waited}: {plant.message}")
 
 
-def announce(server, name: str) -> None:
+def announce(server: CellServer | None, name: str) -> None:
     """Say where the cell is served (on stderr: a served run's stdout is its summary)."""
     if server is not None:
         print(f"plchmi: serving {name} over OPC UA at {server.url}"
@@ -58,19 +71,20 @@ def announce(server, name: str) -> None:
               file=sys.stderr, flush=True)
 
 
-def stop_plant(engine) -> None:
+def stop_plant(engine: Engine) -> None:
     """At the end of a run on a real plant, leave its outputs safe, as a stopping PLC does."""
     safe = dict(zip(engine.layout.outputs, engine.safe_vector, strict=True))
     engine.plant.stop(engine.now, safe)
 
 
-def open_journal(session, path: Path | None, source: str):
+def open_journal(session: Session, path: Path | None, source: str) -> JournalRecorder:
     from hmi.session.runio import open_journal as open_recorder
     return open_recorder(session, path, source)
 
 
-def open_historian(session, args: argparse.Namespace, journal, source: str,
-                   default_on: bool, run_us: int | None = None):
+def open_historian(session: Session, args: argparse.Namespace, journal: JournalRecorder | None,
+                   source: str, default_on: bool, run_us: int | None = None
+                   ) -> Historian | None:
     """The cell's historian (hmi.history), attached, or None: `--historian off`, or a
     headless run in virtual time that did not ask for one (`default_on` False: its hours
     of simulated time would sit in the cell's history as if they had happened; asked for,

@@ -6,17 +6,21 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from hmi.cli.farm import add_farm_args
 from hmi.cli.options import project_arg
 from hmi.errors import UsageError
 from hmi.timefmt import parse_duration
 
+if TYPE_CHECKING:
+    from hmi.cli.common import Subparsers
+
 DEFAULT_SHRINK_REPLAYS = 200
 MAX_SEEDS = 100_000
 
 
-def add_parser(sub) -> None:
+def add_parser(sub: Subparsers) -> None:
     p = sub.add_parser("soak", help="drive the whole HMI with a seeded random operator and "
                        "check its invariants after every step (virtual time)")
     project_arg(p)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import TYPE_CHECKING
 
 from hmi.cli.common import load
 from hmi.cli.farm import add_farm_args, farm_of, print_report
@@ -14,8 +15,14 @@ from hmi.errors import UsageError
 from hmi.limits import MAX_RUN_SCANS
 from hmi.timefmt import format_duration, parse_duration
 
+if TYPE_CHECKING:
+    from hmi.cli.common import Subparsers
+    from hmi.project.model import CampaignSpec, Project
+    from hmi.studies.band import BandPoint
+    from hmi.studies.campaign import RunResult
 
-def add_parsers(sub) -> None:
+
+def add_parsers(sub: Subparsers) -> None:
     """diagnose and campaign (sweep is added later: the help lists commands in order)."""
     p = sub.add_parser("diagnose", help="print the diagnosers' automata and diagnosability")
     project_arg(p)
@@ -52,7 +59,7 @@ def add_parsers(sub) -> None:
     band_args(p)
 
 
-def band_args(p) -> None:
+def band_args(p: argparse.ArgumentParser) -> None:
     """The options of a study over the declared tolerances."""
     p.add_argument("--nominal", action="store_true",
                    help="the project's own plant only, not its declared tolerances")
@@ -81,7 +88,7 @@ def _band_options(args: argparse.Namespace) -> tuple[bool, int, int]:
 DEFAULT_POINTS = "0.5s,1s,1.5s,2s,2.5s,3s"  # plchmi sweep's starts and lengths
 
 
-def add_sweep_parser(sub) -> None:
+def add_sweep_parser(sub: Subparsers) -> None:
     p = sub.add_parser("sweep", help="stopwatch monitor vs plain watchdog over a sweep of "
                        "interruption starts and lengths")
     project_arg(p)
@@ -126,7 +133,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     return 0
 
 
-def _build(args: argparse.Namespace, project) -> int:
+def _build(args: argparse.Namespace, project: Project) -> int:
     from pathlib import Path
 
     from hmi.studies.loopstate import Unsupported
@@ -169,7 +176,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
         raise UsageError("--every and --faults need --sweep")
 
     band, samples, seed = _band_options(args)
-    points: list = []
+    points: list[BandPoint] = []
     if band:
         from hmi.studies.band import band_of
         declared = band_of(project)
@@ -181,7 +188,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
                              f"more than the {MAX_RUN_SCANS:,} plchmi runs at once "
                              "(--nominal, or fewer --samples)")
 
-    def progress(done: int, total: int, run) -> None:
+    def progress(done: int, total: int, run: RunResult) -> None:
         print(f"[{done:>2}/{total}] {run.scenario.name:<10} {run.config.title:<22} "
               f"{run.outcome}", file=sys.stderr, flush=True)
 
@@ -210,7 +217,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     return 0
 
 
-def _campaign_sweep(args: argparse.Namespace, project, spec) -> int:
+def _campaign_sweep(args: argparse.Namespace, project: Project, spec: CampaignSpec) -> int:
     import json
 
     from hmi.studies.loop_sweep import CAMPAIGN_CONFIGS, sweep
@@ -228,6 +235,7 @@ def _campaign_sweep(args: argparse.Namespace, project, spec) -> int:
         try:
             result = sweep(project, CAMPAIGN_CONFIGS, spec.counter, args.every, farm=farm,
                            cache=args.every is None, faults=faults, exact=args.every is None)
+            assert result is not None  # None only when asked not to compute
             if band and args.every is None:
                 from hmi.studies.band import exploration_band
                 from hmi.studies.band_sweep import band_sweep, exploration_points
@@ -254,7 +262,7 @@ def _campaign_sweep(args: argparse.Namespace, project, spec) -> int:
     return 0
 
 
-def _faults(args: argparse.Namespace, project) -> tuple[str, ...] | None:
+def _faults(args: argparse.Namespace, project: Project) -> tuple[str, ...] | None:
     from hmi.studies.explore import faults_of
     if args.faults is None:
         return None

@@ -6,6 +6,8 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:  # the report's model, imported by the commands that run
+    from hmi.plant.base import PlantStatus
+    from hmi.plant.modbus.client import ModbusPlant
     from hmi.session.run_report import RunCollector
 
 
@@ -34,7 +36,7 @@ def alarm_summary(collector: RunCollector, explain: bool) -> str:
     return "\n".join(lines)
 
 
-def plant_report(plant, at_end, overruns: int) -> str:
+def plant_report(plant: ModbusPlant, at_end: PlantStatus, overruns: int) -> str:
     """What a run against a Modbus plant saw of it: the link as it was when the run ended
     (`at_end`), and every request sent, the stop's included."""
     d = plant.status.details

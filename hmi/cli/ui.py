@@ -7,12 +7,16 @@ from __future__ import annotations
 
 import argparse
 import gc
+from typing import TYPE_CHECKING
 
 from hmi.cli.options import project_arg
 from hmi.codecache import dataclass_code
 
+if TYPE_CHECKING:
+    from hmi.cli.common import Subparsers
 
-def add_parser(sub) -> None:
+
+def add_parser(sub: Subparsers) -> None:
     from hmi.cli.screens import runtime_args
     p = sub.add_parser("ui", help="open the operator HMI (the default command): the cell's "
                        "runtime is started if none runs, and this screen attaches to it")

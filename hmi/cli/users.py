@@ -14,11 +14,15 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from hmi.errors import UsageError
 
+if TYPE_CHECKING:
+    from hmi.cli.common import Subparsers
 
-def add_parser(sub) -> None:
+
+def add_parser(sub: Subparsers) -> None:
     p = sub.add_parser("users", help="who may sign in, and their roles (docs/security.md)",
                        description="Manage the users file that every door (terminal, "
                        "browser, OPC UA) signs in against. There are no default users: "

@@ -8,15 +8,19 @@ import argparse
 import ipaddress
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from hmi.cli.common import RunFailure
 from hmi.cli.options import project_arg
 from hmi.errors import UsageError
 
+if TYPE_CHECKING:
+    from hmi.cli.common import Subparsers
+
 DEFAULT_BIND = "127.0.0.1:8080"
 
 
-def add_parser(sub) -> None:
+def add_parser(sub: Subparsers) -> None:
     p = sub.add_parser("web", help="the operator HMI in a browser, behind a sign-in page",
                        description="Serve the operator HMI to browsers: a sign-in page "
                        "against the users file (plchmi users add), then the same screens as "

@@ -10,12 +10,14 @@ constraint violated for a thousand scans costs one set of sentences.
 from __future__ import annotations
 
 import re
-from typing import Any
+from dataclasses import dataclass, replace
+from functools import partial
 
 from hmi.engine import commands as cmd
-from hmi.engine.snapshot import Snapshot
+from hmi.engine.filter import Change, FilterReport, Violation
+from hmi.engine.snapshot import LatchReason, Snapshot
 from hmi.explain.alarms import highest
-from hmi.explain.context import ExplanationContext, Onset
+from hmi.explain.context import ExplanationContext, Levels, Onset
 from hmi.explain.device_faults import device_fault_explanations
 from hmi.explain.diagnoses import diagnosis_explanations
 from hmi.explain.model import Explanation, Policy
@@ -23,12 +25,23 @@ from hmi.explain.monitors import monitor_explanations
 from hmi.explain.plain import lower_first
 from hmi.explain.recovery import recovery_explanations
 from hmi.explain.sequence import sequence_explanations
-from hmi.project.model import Project
+from hmi.project.model import Constraint, Project
 from hmi.project.recovery import recoveries_of
 from hmi.project.texts import ProjectTexts
 from hmi.timefmt import seconds
 
 RULES_NAMED = 3  # rules quoted by name in one sentence; the others are counted
+
+
+@dataclass(frozen=True, slots=True)
+class _Explained:
+    """The last scan's explanations and what they were made from: its filter report, the
+    fields read from that report (_read), and the other fields read (see build)."""
+
+    report: FilterReport | None
+    read: tuple[object, ...] | None
+    inputs: tuple[object, ...]
+    found: tuple[Explanation, ...]
 
 
 class ExplanationBuilder(ExplanationContext):
@@ -41,10 +54,8 @@ class ExplanationBuilder(ExplanationContext):
         # reports them too).
         self.constraints = {c.name: c for c in (*project.constraints, *(
             c for r in recoveries_of(project) for c in r.constraints))}
-        self._last_constraints: tuple[tuple, tuple[Explanation, ...]] | None = None
-        # The last scan's: its report, the fields read from it, the other fields read, and
-        # what they explained (see build).
-        self._last: tuple[Any, Any, tuple[Any, ...], tuple[Explanation, ...]] | None = None
+        self._last_constraints: tuple[tuple[object, ...], tuple[Explanation, ...]] | None = None
+        self._last: _Explained | None = None
 
     # -- public ------------------------------------------------------------------------------
     def build(self, snap: Snapshot) -> tuple[Explanation, ...]:
@@ -62,12 +73,13 @@ class ExplanationBuilder(ExplanationContext):
                   snap.error, snap.overdue_steps,
                   tuple(snap.value(n) for n in self.fault_inputs))
         last = self._last
-        if last is not None and snap.error is None and inputs == last[2] and (
-                report is last[0] or (report is not None and last[0] is not None
-                                      and _read(report) == last[1])):
-            return last[3]
+        if last is not None and snap.error is None and inputs == last.inputs and (
+                report is last.report or (report is not None and last.report is not None
+                                          and _read(report) == last.read)):
+            return last.found
         found = self._build(snap)
-        self._last = (report, None if report is None else _read(report), inputs, found)
+        self._last = _Explained(report, None if report is None else _read(report), inputs,
+                                found)
         return found
 
     def _build(self, snap: Snapshot) -> tuple[Explanation, ...]:
@@ -100,16 +112,16 @@ class ExplanationBuilder(ExplanationContext):
         return tuple(found)
 
     # -- constraints ------------------------------------------------------------------------
-    def _constraints(self, snap: Snapshot, report) -> list[Explanation]:
+    def _constraints(self, snap: Snapshot, report: FilterReport) -> list[Explanation]:
         # A violation usually lasts many scans: when nothing the texts depend on has changed
         # since the last scan, the explanations are last scan's (what the cache would give).
-        whole = (report.policy, report.violations, report.changes, bool(snap.latched),
-                 snap.mode)
+        whole: tuple[object, ...] = (report.policy, report.violations, report.changes,
+                                     bool(snap.latched), snap.mode)
         last = self._last_constraints
         if last is not None and last[0] == whole and all(
                 self.cache.get(e.key, (None, None))[1] is e for e in last[1]):
             return list(last[1])
-        out = []
+        out: list[Explanation] = []
         changes_by_output = {c.output: c for c in report.changes}
         for violation in report.violations:
             constraint = self.constraints[violation.name]
@@ -120,13 +132,12 @@ class ExplanationBuilder(ExplanationContext):
             signature = (report.policy, violation.literals, tuple(
                 (c.output, c.written, c.how) for c in changed), bool(snap.latched),
                 snap.mode)
-            out.append(self.cached(key, signature, lambda v=violation, c=constraint,
-                                   ch=changed, o=onset: self._constraint(snap, report, v, c,
-                                                                         ch, o)))
+            out.append(self.cached(key, signature, partial(
+                self._constraint, snap, report, violation, constraint, changed, onset)))
         self._last_constraints = (whole, tuple(out))
         return out
 
-    def _action_text(self, report, changed) -> str:
+    def _action_text(self, report: FilterReport, changed: tuple[Change, ...]) -> str:
         """What the filter did, in words: 'close order blocked', 'open order kept on'."""
         if report.policy == "monitor":
             return "NOT corrected (monitor policy)"
@@ -134,7 +145,7 @@ class ExplanationBuilder(ExplanationContext):
             return "all outputs held at their safe values"
         if not changed:
             return "corrected"
-        parts = []
+        parts: list[str] = []
         for change in changed:
             desc = self.plain.name(change.output)
             if change.how == "masked":
@@ -145,8 +156,9 @@ class ExplanationBuilder(ExplanationContext):
                 parts.append(f"{desc} blocked")
         return ", ".join(parts)
 
-    def _constraint(self, snap: Snapshot, report, violation, constraint, changed,
-                    onset) -> Explanation:
+    def _constraint(self, snap: Snapshot, report: FilterReport, violation: Violation,
+                    constraint: Constraint, changed: tuple[Change, ...],
+                    onset: Onset) -> Explanation:
         device = self.device_of(constraint.outputs)
         rule = constraint.description or "a safety rule of the project"
         if device != self.project.name and rule.lower().startswith(device.lower()):
@@ -173,7 +185,7 @@ class ExplanationBuilder(ExplanationContext):
                             "damage is possible. The monitor policy only reports; nothing "
                             "protects the plant.")
             severity = "high"
-            policies = (
+            policies: tuple[Policy, ...] = (
                 Policy("correct", "Switch the filter to correct",
                        "the filter corrects unsafe orders from the next scan on",
                        cmd.SetPolicy("correct"), True),
@@ -228,9 +240,9 @@ class ExplanationBuilder(ExplanationContext):
             policies = (
                 self.policy_continue("let the filter keep correcting this order", True),
                 self.policy_manual(), self.policy_stop(device))
-        defaults = {"what": f"{device}: {action} — {rule}",
-                    "why": why, "consequences": consequences, "policies": policies,
-                    "severity": severity, "alarm": True, "detail": detail}
+        defaults = Levels(what=f"{device}: {action} — {rule}",
+                          why=why, consequences=consequences, policies=policies,
+                          severity=severity, alarm=True, detail=detail)
         fields = {"device": device, "time": seconds(snap.time_us), "scan": snap.scan,
                   "since_time": seconds(onset.time_us), "since_scan": onset.scan,
                   "action": action, "name": constraint.name, "expr": constraint.expr.source,
@@ -245,14 +257,14 @@ class ExplanationBuilder(ExplanationContext):
             # Unsafe orders were sent: every such violation is high, whatever the project
             # rates it under a protecting filter (the valve's CSc1, "open and close ordered
             # together", stayed medium under monitor while lesser ones were P1).
-            level = {**level, "severity": highest(level["severity"], "high")}
-        return Explanation(f"constraint:{constraint.name}", "constraint", level["severity"],
-                           device, level["what"], level["why"], level["consequences"],
-                           level["policies"], onset.scan, onset.time_us, level["alarm"],
-                           detail=level["detail"])
+            level = replace(level, severity=highest(level.severity, "high"))
+        return Explanation(f"constraint:{constraint.name}", "constraint", level.severity,
+                           device, level.what, level.why, level.consequences,
+                           level.policies, onset.scan, onset.time_us, level.alarm,
+                           detail=level.detail)
 
     # -- safe state, fallback, plant, manual -------------------------------------------------
-    def _latch(self, snap: Snapshot, reason, nth: int = 1) -> Explanation:
+    def _latch(self, snap: Snapshot, reason: LatchReason, nth: int = 1) -> Explanation:
         """The `nth` latch reason of its source: each its own key (the first keeps the plain
         one), so that two different internal errors, or a plant lost then refusing, are two
         explanations and two alarms, neither hiding the other."""
@@ -320,23 +332,23 @@ class ExplanationBuilder(ExplanationContext):
                                           "drive the outputs again", True),
                         self.policy_manual())
             spec = self.texts.get("situations", f"safe_state_{reason.source}")
-            level = self.apply_texts(spec, {"what": what, "why": why,
-                                            "consequences": consequences,
-                                            "policies": policies, "severity": severity,
-                                            "alarm": True, "detail": detail},
+            level = self.apply_texts(spec, Levels(what=what, why=why,
+                                                  consequences=consequences,
+                                                  policies=policies, severity=severity,
+                                                  alarm=True, detail=detail),
                                      {"device": self.project.name,
                                       "time": seconds(snap.time_us), "scan": snap.scan,
                                       "since_time": seconds(reason.time_us),
                                       "since_scan": reason.scan, "action": "outputs held safe",
                                       "reason": reason.source, "detail": reason.detail})
             return Explanation(key, "safe_state" if reason.source != "plant" else "plant",
-                               level["severity"], self.project.name, level["what"],
-                               level["why"], level["consequences"], level["policies"],
-                               reason.scan, reason.time_us, level["alarm"], latched=True,
-                               detail=level["detail"])
+                               level.severity, self.project.name, level.what,
+                               level.why, level.consequences, level.policies,
+                               reason.scan, reason.time_us, level.alarm, latched=True,
+                               detail=level.detail)
         return self.cached(key, (reason.detail,), make)
 
-    def _rules(self, names) -> str:
+    def _rules(self, names: tuple[str, ...]) -> str:
         """Constraint names as their rules, in words: the first RULES_NAMED described ones
         quoted, the others counted (hundreds of constraints broken at once are a number,
         not "a safety rule" said hundreds of times)."""
@@ -357,7 +369,7 @@ class ExplanationBuilder(ExplanationContext):
                 "a safety rule" if others == 1 else f"{others} safety rules")
         return "; ".join(quoted) + (" and " if quoted else "") + rest
 
-    def _fallback(self, snap: Snapshot, report) -> Explanation:
+    def _fallback(self, snap: Snapshot, report: FilterReport) -> Explanation:
         if report.stopped:
             return self._search_stopped(snap, report)
         key = "fallback"
@@ -383,7 +395,7 @@ class ExplanationBuilder(ExplanationContext):
                                detail=detail)
         return self.cached(key, (report.fallback, report.violated_names), make)
 
-    def _search_stopped(self, snap: Snapshot, report) -> Explanation:
+    def _search_stopped(self, snap: Snapshot, report: FilterReport) -> Explanation:
         """The corrector's search was cut short by its budget: the safe state, said plainly,
         with what the engineer can change (the budget is a project setting)."""
         key = "search_budget"
@@ -458,7 +470,7 @@ class ExplanationBuilder(ExplanationContext):
         return self.cached(key, forces, make)
 
 
-def _read(report) -> tuple[Any, ...]:
+def _read(report: FilterReport) -> tuple[object, ...]:
     """The fields of a filter report the explanations read (all but the search's counts and
     its measured time)."""
     return (report.policy, report.strategy, report.violations, report.changes,

@@ -5,8 +5,9 @@ situations (diagnoses, monitors, recovery, sequence) are given it as this."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, replace
+from typing import Any
 
 from hmi.engine import commands as cmd
 from hmi.engine.snapshot import Snapshot
@@ -25,6 +26,20 @@ class Onset:
     time_us: int
 
 
+@dataclass(frozen=True)
+class Levels:
+    """An explanation's words before it is made: the generated ones, which the project's
+    texts (explanations.yaml) may replace level by level."""
+
+    what: str
+    why: str
+    consequences: str
+    policies: tuple[Policy, ...]
+    severity: str
+    alarm: bool
+    detail: str
+
+
 class ExplanationContext:
     """What every kind of explanation reads besides the snapshot: the project's names and
     texts, each situation's onset (scan, time) while it lasts, and the explanations already
@@ -34,7 +49,7 @@ class ExplanationContext:
         self.project = project
         self.texts = texts or project.explanations or ProjectTexts()
         self.onsets: dict[str, Onset] = {}
-        self.cache: dict[str, tuple[tuple, Explanation]] = {}
+        self.cache: dict[str, tuple[tuple[object, ...], Explanation]] = {}
         self.devices = {v.name: (v.device or project.name)
                         for v in (*project.inputs, *project.outputs)}
         self.describe = project.describe
@@ -51,7 +66,8 @@ class ExplanationContext:
             onset = self.onsets[key] = Onset(snap.scan, snap.time_us)
         return onset
 
-    def cached(self, key: str, signature: tuple, make: Callable[[], Explanation]) -> Explanation:
+    def cached(self, key: str, signature: tuple[object, ...],
+               make: Callable[[], Explanation]) -> Explanation:
         hit = self.cache.get(key)
         if hit is not None and hit[0] == signature:
             return hit[1]
@@ -59,36 +75,38 @@ class ExplanationContext:
         self.cache[key] = (signature, explanation)
         return explanation
 
-    def apply_texts(self, spec: TextSpec, defaults: dict, values: dict) -> dict:
+    def apply_texts(self, spec: TextSpec, defaults: Levels, values: dict[str, Any]) -> Levels:
         """The four levels, each from the project's text when it has one, else the default."""
-        out = dict(defaults)
-        for level in ("what", "why", "consequences", "detail"):
-            text = getattr(spec, level)
-            if text:
-                out[level] = fill(text, values)
+        out = replace(
+            defaults,
+            what=fill(spec.what, values) if spec.what else defaults.what,
+            why=fill(spec.why, values) if spec.why else defaults.why,
+            consequences=(fill(spec.consequences, values) if spec.consequences
+                          else defaults.consequences),
+            detail=fill(spec.detail, values) if spec.detail else defaults.detail)
         if spec.severity:
-            out["severity"] = spec.severity
+            out = replace(out, severity=spec.severity)
         if spec.alarm is not None:
-            out["alarm"] = spec.alarm
+            out = replace(out, alarm=spec.alarm)
         if spec.policies or spec.recommend:
             policies = []
-            for policy in out["policies"]:
+            for policy in out.policies:
                 effect = spec.policies.get(policy.id)
                 recommended = (policy.id == spec.recommend) if spec.recommend else \
                     policy.recommended
                 policies.append(Policy(policy.id, policy.label,
                                        fill(effect, values) if effect else policy.effect,
                                        policy.command, recommended))
-            out["policies"] = tuple(policies)
+            out = replace(out, policies=tuple(policies))
         return out
 
-    def device_of(self, names) -> str:
+    def device_of(self, names: Iterable[str]) -> str:
         for name in names:
             if name in self.devices:
                 return self.devices[name]
         return self.project.name
 
-    def devices_of(self, names) -> set[str]:
+    def devices_of(self, names: Iterable[str]) -> set[str]:
         """The devices these variables belong to."""
         return {self.devices[n] for n in names if n in self.devices}
 
@@ -101,7 +119,7 @@ class ExplanationContext:
             desc = desc[len(device):].strip(" :-—")
         return desc or name
 
-    def literal_values(self, literals) -> str:
+    def literal_values(self, literals: Iterable[tuple[str, object]]) -> str:
         """`C=1 (close order); prev(C)=0; fso=0 (open end switch)` from a violation."""
         parts = []
         seen: set[str] = set()
@@ -115,7 +133,7 @@ class ExplanationContext:
             parts.append(text)
         return "; ".join(parts)
 
-    def var_text(self, name: str, value) -> str:
+    def var_text(self, name: str, value: object) -> str:
         desc = self.describe(name)
         shown = int(value) if isinstance(value, bool) else value
         return f"{name}={shown}" + (f" ({desc})" if desc != name else "")

@@ -10,8 +10,10 @@ input returns to 0 (the device tells when it runs again). A project's
 
 from __future__ import annotations
 
+from functools import partial
 from typing import TYPE_CHECKING
 
+from hmi.explain.context import Levels
 from hmi.explain.model import Explanation, Policy
 from hmi.timefmt import seconds
 
@@ -26,14 +28,14 @@ def halted_devices(builder: ExplanationContext, snap: Snapshot) -> set[str]:
 
 
 def device_fault_explanations(builder: ExplanationContext, snap: Snapshot) -> list[Explanation]:
-    out = []
+    out: list[Explanation] = []
     for name in builder.fault_inputs:
         if not snap.value(name):
             continue
         key = f"fault:{name}"
         onset = builder.onset(key, snap)
-        out.append(builder.cached(key, (onset.scan,), lambda n=name, o=onset: _explain(
-            builder, snap, n, o.scan, o.time_us)))
+        out.append(builder.cached(key, (onset.scan,), partial(
+            _explain, builder, snap, name, onset.scan, onset.time_us)))
     return out
 
 
@@ -56,14 +58,13 @@ def _explain(builder: ExplanationContext, snap: Snapshot, name: str, scan: int,
         policies.append(builder.policy_stop(device))
     detail = (f"Fault input {name} = 1 ({builder.describe(name)}) since scan {scan} "
               f"({seconds(time_us)} s).")
-    defaults = {"what": what, "why": why, "consequences": consequences,
-                "policies": tuple(policies), "severity": "high", "alarm": True,
-                "detail": detail}
+    defaults = Levels(what=what, why=why, consequences=consequences,
+                      policies=tuple(policies), severity="high", alarm=True, detail=detail)
     fields = {"device": device, "time": seconds(snap.time_us), "scan": snap.scan,
               "since_time": seconds(time_us), "since_scan": scan,
               "action": "none (the device stopped itself)", "reason": said, "detail": detail}
     level = builder.apply_texts(builder.texts.get("situations", f"fault_{name}"), defaults,
                                 fields)
-    return Explanation(f"fault:{name}", "device_fault", level["severity"], device,
-                       level["what"], level["why"], level["consequences"], level["policies"],
-                       scan, time_us, level["alarm"], detail=level["detail"])
+    return Explanation(f"fault:{name}", "device_fault", level.severity, device,
+                       level.what, level.why, level.consequences, level.policies,
+                       scan, time_us, level.alarm, detail=level.detail)

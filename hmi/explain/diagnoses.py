@@ -17,8 +17,11 @@ partition's orders are masked (key ``masked:<partition>``, no alarm): which orde
 
 from __future__ import annotations
 
+from dataclasses import replace
+from functools import partial
 from typing import TYPE_CHECKING
 
+from hmi.explain.context import Levels
 from hmi.explain.model import Explanation, Policy
 from hmi.explain.plain import lower_first
 from hmi.explain.recovery import start_policy
@@ -26,8 +29,10 @@ from hmi.project.recovery import recoveries_of
 from hmi.timefmt import seconds
 
 if TYPE_CHECKING:
+    from hmi.engine.diagnoser import DiagnoserState
     from hmi.engine.snapshot import Snapshot
-    from hmi.explain.context import ExplanationContext
+    from hmi.explain.context import ExplanationContext, Onset
+    from hmi.project.model import DiagnoserSpec, Partition
 
 
 def diagnosis_explanations(builder: ExplanationContext, snap: Snapshot) -> list[Explanation]:
@@ -43,34 +48,36 @@ def diagnosis_explanations(builder: ExplanationContext, snap: Snapshot) -> list[
         builder.onset(key, snap)
         out.append(builder.cached(
             key, (state.state, state.labels, state.refined_by, snap.masked, snap.policy),
-            lambda s=state, sp=spec: _diagnosis(builder, snap, sp, s)))
+            partial(_diagnosis, builder, snap, spec, state)))
         for partition in spec.partitions:
             if partition.sensor and partition.sensor in snap.reconstructed:
                 rkey = f"reconstruction:{partition.sensor}"
                 builder.onset(rkey, snap)
                 out.append(builder.cached(
                     rkey, (state.labels,),
-                    lambda s=state, sp=spec, p=partition: _reconstruction(builder, snap, sp,
-                                                                        p, s)))
+                    partial(_reconstruction, builder, snap, spec, partition, partition.sensor,
+                            state)))
             held = tuple(o for o in partition.actuators if o in snap.masked)
             if held:
                 mkey = f"masked:{partition.name}"
                 builder.onset(mkey, snap)
                 out.append(builder.cached(
                     mkey, (state.labels, held),
-                    lambda s=state, sp=spec, p=partition, h=held: _masked(builder, snap, sp,
-                                                                          p, s, h)))
+                    partial(_masked, builder, snap, spec, partition, state, held)))
     return out
 
 
-def _effects(builder, snap: Snapshot, spec, state) -> tuple[list[str], list[str], list[str]]:
+def _effects(builder: ExplanationContext, snap: Snapshot, spec: DiagnoserSpec,
+             state: DiagnoserState) -> tuple[list[str], list[str], list[str]]:
     """What the flags are doing: plain sentences, short forms for the first line, and the
     engineering detail (flags, estimates, masks)."""
     masked = set(snap.masked)
     reconstructed = set(snap.reconstructed)
     plain = builder.plain
     device = spec.device or spec.name
-    doing, short, detail = [], [], []
+    doing: list[str] = []
+    short: list[str] = []
+    detail: list[str] = []
     for partition in spec.partitions:
         if not set(partition.labels) & set(state.labels):
             continue
@@ -83,7 +90,7 @@ def _effects(builder, snap: Snapshot, spec, state) -> tuple[list[str], list[str]
                              "instead")
                 short.append(f"{sensor} ignored")
                 detail.append(f"{partition.flag} set: {partition.sensor} read from "
-                              f"{partition.estimate} ({builder.describe(partition.estimate)})")
+                              f"{partition.estimate} ({_described(builder, partition.estimate)})")
             else:
                 doing.append(f"the {sensor} is suspected but still read as is (the diagnosis "
                              "only observes in this mode)")
@@ -106,12 +113,13 @@ def _effects(builder, snap: Snapshot, spec, state) -> tuple[list[str], list[str]
     return doing, short, detail
 
 
-def _is_actuator(spec, label: str) -> bool:
+def _is_actuator(spec: DiagnoserSpec, label: str) -> bool:
     partition = spec.partition_of(label)
     return bool(partition and partition.actuators)
 
 
-def _diagnosis(builder, snap: Snapshot, spec, state) -> Explanation:
+def _diagnosis(builder: ExplanationContext, snap: Snapshot, spec: DiagnoserSpec,
+               state: DiagnoserState) -> Explanation:
     device = spec.device or builder.project.name
     texts = dict(zip(state.labels, state.label_texts, strict=True))
     certain = state.certain
@@ -152,21 +160,23 @@ def _diagnosis(builder, snap: Snapshot, spec, state) -> Explanation:
               "labels": label_list, "label_text": hypotheses, "state": state.state,
               "state_text": state.description, "diagnoser": spec.name,
               "transition": state.via, "values": ""}
-    level = {"what": what, "why": why, "consequences": consequences, "policies": policies,
-             "severity": severity, "alarm": True, "detail": detail}
+    level = Levels(what=what, why=why, consequences=consequences, policies=policies,
+                   severity=severity, alarm=True, detail=detail)
     if certain:
         level = builder.apply_texts(builder.texts.get("labels", state.labels[0]), level, values)
     if state.refined_by:
-        level["detail"] += (" The high level diagnoser refined the local decision "
-                            f"{{{', '.join(spec.state(state.state).labels)}}} to {label_list}.")
-    return Explanation(f"diagnosis:{spec.name}", "diagnosis", level["severity"], device,
-                       level["what"], level["why"], level["consequences"], level["policies"],
-                       since.scan, since.time_us, level["alarm"], latched=True,
-                       ambiguous=not certain, detail=level["detail"])
+        level = replace(level, detail=level.detail + (
+            " The high level diagnoser refined the local decision "
+            f"{{{', '.join(spec.state(state.state).labels)}}} to {label_list}."))
+    return Explanation(f"diagnosis:{spec.name}", "diagnosis", level.severity, device,
+                       level.what, level.why, level.consequences, level.policies,
+                       since.scan, since.time_us, level.alarm, latched=True,
+                       ambiguous=not certain, detail=level.detail)
 
 
-def _consequences(spec, state, texts, action: str) -> str:
-    parts = []
+def _consequences(spec: DiagnoserSpec, state: DiagnoserState, texts: dict[str, str],
+                  action: str) -> str:
+    parts: list[str] = []
     if state.certain:
         label = state.labels[0]
         if _is_actuator(spec, label):
@@ -191,7 +201,8 @@ def _consequences(spec, state, texts, action: str) -> str:
     return " ".join(parts)
 
 
-def _policies(builder, spec, state, texts, device: str) -> tuple[Policy, ...]:
+def _policies(builder: ExplanationContext, spec: DiagnoserSpec, state: DiagnoserState,
+              texts: dict[str, str], device: str) -> tuple[Policy, ...]:
     actuator = [lab for lab in state.labels if _is_actuator(spec, lab)]
     sensor = [lab for lab in state.labels if not _is_actuator(spec, lab)]
     policies: list[Policy] = []
@@ -221,13 +232,15 @@ def _policies(builder, spec, state, texts, device: str) -> tuple[Policy, ...]:
     return tuple(policies)
 
 
-def _reconstruction(builder, snap: Snapshot, spec, partition, state) -> Explanation:
+def _reconstruction(builder: ExplanationContext, snap: Snapshot, spec: DiagnoserSpec,
+                    partition: Partition, sensor: str, state: DiagnoserState) -> Explanation:
+    """`sensor`: the partition's (a reconstruction is only of a sensor partition)."""
     device = spec.device or builder.project.name
-    key = f"reconstruction:{partition.sensor}"
+    key = f"reconstruction:{sensor}"
     since = builder.onsets[key]
     estimate = partition.estimate
     plain = builder.plain
-    sensor_text = plain.name(partition.sensor)
+    sensor_text = plain.name(sensor)
     estimate_text = plain.name(estimate) if estimate else "an estimate"
     suspected = " or ".join(state.label_texts)
     what = f"{device}: {sensor_text} ignored, {estimate_text} used — running degraded"
@@ -239,8 +252,8 @@ def _reconstruction(builder, snap: Snapshot, spec, partition, state) -> Explanat
                     "assumes (a jam), the estimate will be wrong and only the other sensors and "
                     "the diagnosis can tell.")
     detail = (f"{_flag_since(spec, partition, state, since)}. {partition.filtered} = not "
-              f"{partition.flag} and {partition.sensor} or {partition.flag} and {estimate} "
-              f"(000 eq. 7-8); {estimate}: {builder.describe(estimate)}.")
+              f"{partition.flag} and {sensor} or {partition.flag} and {estimate} "
+              f"(000 eq. 7-8); {estimate}: {_described(builder, estimate)}.")
     policies = (
         Policy("continue", "Continue degraded",
                f"keep running on the {estimate_text}; plan the sensor's replacement", None,
@@ -251,12 +264,13 @@ def _reconstruction(builder, snap: Snapshot, spec, partition, state) -> Explanat
     )
     return _partition_explanation(
         builder, snap, key, "reconstruction", partition, state, since, device,
-        (what, why, consequences, policies, detail),
-        {"action": "reconstructed", "sensor": partition.sensor, "estimate": estimate or "",
+        _partition_levels(what, why, consequences, policies, detail),
+        {"action": "reconstructed", "sensor": sensor, "estimate": estimate or "",
          "outputs": ""})
 
 
-def _masked(builder, snap: Snapshot, spec, partition, state, held: tuple[str, ...]) -> Explanation:
+def _masked(builder: ExplanationContext, snap: Snapshot, spec: DiagnoserSpec,
+            partition: Partition, state: DiagnoserState, held: tuple[str, ...]) -> Explanation:
     device = spec.device or builder.project.name
     key = f"masked:{partition.name}"
     since = builder.onsets[key]
@@ -280,30 +294,40 @@ def _masked(builder, snap: Snapshot, spec, partition, state, held: tuple[str, ..
     )
     return _partition_explanation(
         builder, snap, key, "masked", partition, state, since, device,
-        (what, why, consequences, policies, detail),
+        _partition_levels(what, why, consequences, policies, detail),
         {"action": "masked", "sensor": "", "estimate": "", "outputs": ", ".join(held)})
 
 
-def _flag_since(spec, partition, state, since) -> str:
+def _described(builder: ExplanationContext, estimate: str | None) -> str:
+    """An estimate's description (the loader gives every sensor partition one)."""
+    return builder.describe(estimate) if estimate is not None else "none"
+
+
+def _partition_levels(what: str, why: str, consequences: str, policies: tuple[Policy, ...],
+                      detail: str) -> Levels:
+    """A partition flag's words: no alarm (the diagnosis raised one), medium."""
+    return Levels(what=what, why=why, consequences=consequences, policies=policies,
+                  severity="medium", alarm=False, detail=detail)
+
+
+def _flag_since(spec: DiagnoserSpec, partition: Partition, state: DiagnoserState,
+                since: Onset) -> str:
     return (f"{partition.flag} is set since scan {since.scan} ({seconds(since.time_us)} s): "
             f"the decision of {spec.name} ({', '.join(state.labels)}) holds a label of "
             f"partition {partition.name}")
 
 
-def _partition_explanation(builder, snap: Snapshot, key: str, kind: str, partition, state, since,
-                           device: str, levels: tuple, extra: dict) -> Explanation:
+def _partition_explanation(builder: ExplanationContext, snap: Snapshot, key: str, kind: str,
+                           partition: Partition, state: DiagnoserState, since: Onset,
+                           device: str, levels: Levels, extra: dict[str, str]) -> Explanation:
     """What a set partition flag does (a sensor on its estimate, orders masked): the generated
     levels, replaced by the project's `partitions:` texts where it has them; no alarm (the
     diagnosis raised one), latched like the decision."""
-    what, why, consequences, policies, detail = levels
     values = {"device": device, "time": seconds(snap.time_us), "scan": snap.scan,
               "since_time": seconds(since.time_us), "since_scan": since.scan,
               "partition": partition.name, "labels": ", ".join(state.labels), **extra}
     level = builder.apply_texts(builder.texts.get("partitions", partition.name),
-                                {"what": what, "why": why, "consequences": consequences,
-                                 "policies": policies, "severity": "medium", "alarm": False,
-                                 "detail": detail},
-                                values)
-    return Explanation(key, kind, level["severity"], device, level["what"], level["why"],
-                       level["consequences"], level["policies"], since.scan, since.time_us,
-                       level["alarm"], latched=True, detail=level["detail"])
+                                levels, values)
+    return Explanation(key, kind, level.severity, device, level.what, level.why,
+                       level.consequences, level.policies, since.scan, since.time_us,
+                       level.alarm, latched=True, detail=level.detail)

@@ -36,17 +36,21 @@ import re
 import stat
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 from hmi.errors import OutputError
 from hmi.limits import MAX_JOURNAL_LINE_BYTES, describe_bytes
 from hmi.paths import data_folder
 from hmi.textfile import FileProblem, open_regular
 from hmi.timefmt import seconds
+
+# One journal line: a JSON object whose values are what its "type" says (text, numbers,
+# flags, lists), read back from a file as data.
+Entry = dict[str, Any]
 
 
 def default_path(project_name: str) -> Path:
@@ -448,7 +452,7 @@ def stream(path: Path) -> Iterator[dict[str, Any] | Damaged]:
     return _stream(os.fdopen(fd, "rb"))
 
 
-def _stream(file) -> Iterator[dict[str, Any] | Damaged]:
+def _stream(file: BinaryIO) -> Iterator[Entry | Damaged]:
     with file:
         for number, line, complete in _lines(file):
             if not line.strip():
@@ -464,7 +468,7 @@ def _stream(file) -> Iterator[dict[str, Any] | Damaged]:
                 yield Damaged(number, reason, not complete)
 
 
-def _lines(file) -> Iterator[tuple[int, bytes, bool]]:
+def _lines(file: BinaryIO) -> Iterator[tuple[int, bytes, bool]]:
     """(number, line without its newline, whether a newline ended it); a line longer than the
     limit is returned as its first MAX_JOURNAL_LINE_BYTES + 1 bytes, the rest skipped."""
     number = 0
@@ -536,7 +540,7 @@ def _has_surrogate(value: Any) -> bool:
     return False
 
 
-def since_filter(entries: list[dict], since: datetime | None) -> Iterator[dict]:
+def since_filter(entries: Iterable[Entry], since: datetime | None) -> Iterator[Entry]:
     for entry in entries:
         if since is None:
             yield entry

@@ -9,9 +9,11 @@ replace any level; their placeholders are those of hmi.project.texts.PLACEHOLDER
 
 from __future__ import annotations
 
+from functools import partial
 from typing import TYPE_CHECKING
 
-from hmi.engine.stopwatch import Window
+from hmi.engine.stopwatch import Detection, Window
+from hmi.explain.context import Levels
 from hmi.explain.device_faults import halted_devices
 from hmi.explain.model import Explanation, Policy
 from hmi.explain.plain import lower_first
@@ -40,7 +42,7 @@ AFTER = {
 
 def monitor_explanations(builder: ExplanationContext, snap: Snapshot) -> list[Explanation]:
     """An explanation for each faulty monitor of this scan."""
-    out = []
+    out: list[Explanation] = []
     for m in snap.monitors:
         if m.detection is None:
             continue
@@ -49,11 +51,11 @@ def monitor_explanations(builder: ExplanationContext, snap: Snapshot) -> list[Ex
         halted = m.device is not None and m.device in halted_devices(builder, snap)
         out.append(builder.cached(key, (m.detection, m.running, m.attempt, m.location,
                                         m.phase, halted),
-                                  lambda m=m, h=halted: _explain(builder, snap, m, h)))
+                                  partial(_explain, builder, snap, m, m.detection, halted)))
     return out
 
 
-def plain_reason(d, m: MonitorState) -> str:
+def plain_reason(d: Detection, m: MonitorState) -> str:
     """The detection in words, with the numbers an operator checks against the task."""
     f = format_duration
     stopped = d.x_us - d.y_us
@@ -75,9 +77,9 @@ def plain_reason(d, m: MonitorState) -> str:
             f"{f(m.alpha_us)}.")
 
 
-def _explain(builder: ExplanationContext, snap: Snapshot, m: MonitorState,
+def _explain(builder: ExplanationContext, snap: Snapshot, m: MonitorState, d: Detection,
              device_halted: bool) -> Explanation:
-    d = m.detection
+    """`d`: the monitor's detection (only a monitor with one is explained)."""
     window = Window(m.alpha_us, m.beta_us, m.gamma_us)
     device = m.device or builder.project.name
     a, b, g = (format_duration(v) for v in (m.alpha_us, m.beta_us, m.gamma_us))
@@ -116,7 +118,7 @@ def _explain(builder: ExplanationContext, snap: Snapshot, m: MonitorState,
         state, AFTER.get(d.rule, ""),
         "The monitor stops nothing: the outputs follow the program. The alarm stays until a "
         "fault reset.")))
-    policies = []
+    policies: list[Policy] = []
     if halted:
         policies.append(Policy("check", f"Check {device}",
                                f"find out why {device} stopped with its load and clear it; "
@@ -127,15 +129,15 @@ def _explain(builder: ExplanationContext, snap: Snapshot, m: MonitorState,
     if m.device and m.device in builder.stoppable:
         policies.append(builder.policy_stop(m.device))
     policies.append(builder.policy_reset(reset))
-    defaults = {"what": what, "why": why, "consequences": consequences,
-                "policies": tuple(policies), "severity": "high" if halted else "medium",
-                "alarm": True, "detail": detail}
+    defaults = Levels(what=what, why=why, consequences=consequences,
+                      policies=tuple(policies), severity="high" if halted else "medium",
+                      alarm=True, detail=detail)
     fields = {"device": device, "time": seconds(snap.time_us), "scan": snap.scan,
               "since_time": seconds(d.time_us), "since_scan": d.scan,
               "action": "none (monitoring only)", "task": m.title, "label": m.label,
               "x": seconds(d.x_us), "y": seconds(d.y_us), "alpha": a, "beta": b, "gamma": g,
               "reason": d.explain(window)}
     level = builder.apply_texts(builder.texts.get("monitors", m.name), defaults, fields)
-    return Explanation(f"monitor:{m.name}", "monitor", level["severity"], device,
-                       level["what"], level["why"], level["consequences"], level["policies"],
-                       d.scan, d.time_us, level["alarm"], latched=True, detail=level["detail"])
+    return Explanation(f"monitor:{m.name}", "monitor", level.severity, device,
+                       level.what, level.why, level.consequences, level.policies,
+                       d.scan, d.time_us, level.alarm, latched=True, detail=level.detail)

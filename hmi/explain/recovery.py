@@ -12,16 +12,18 @@ generated sentences.
 
 from __future__ import annotations
 
+from functools import partial
 from typing import TYPE_CHECKING
 
 from hmi.engine import commands as cmd
+from hmi.explain.context import Levels
 from hmi.explain.model import Explanation, Policy
 from hmi.project.recovery import recoveries_of
 from hmi.timefmt import seconds
 
 if TYPE_CHECKING:
     from hmi.engine.snapshot import Snapshot
-    from hmi.explain.context import ExplanationContext
+    from hmi.explain.context import ExplanationContext, Onset
 
 
 def start_policy(name: str, description: str, recommended: bool = True) -> Policy:
@@ -46,42 +48,45 @@ def recovery_explanations(builder: ExplanationContext, snap: Snapshot) -> list[E
             continue
         key = f"recovery_needed:{name}"
         onset = builder.onset(key, snap)
-
-        def make(name=name, device=device, description=description, text=text,
-                 onset=onset, key=key) -> Explanation:
-            what = f"{device}: {text} — recovery needed"
-            why = (f"Since {seconds(onset.time_us)} s {text}. From there the control "
-                   "program cannot bring it back by itself, and the safety rules refuse "
-                   "the orders that would.")
-            consequences = ("The cell cannot go on in automatic operation until the device "
-                            f"is back. The recovery \u201c{description}\u201d does that in "
-                            "recovery mode: only it moves, still checked by its own safety "
-                            "rules. Repair the cause first (a jam, a dead switch), then start "
-                            "it; after it, a fault reset and leaving recovery restart the "
-                            "cycle.")
-            # stop the device if it is one (not "Valves V1 and V2"), and manual mode: each
-            # offered once
-            stop = (builder.policy_stop(device),) if device in builder.stoppable else ()
-            policies = (start_policy(name, description), *stop, builder.policy_manual())
-            return _with_texts(builder, snap, key, f"recovery_needed_{name}", device,
-                               (what, why, consequences, policies), "medium", True, onset)
-        out.append(builder.cached(key, (text,), make))
+        out.append(builder.cached(key, (text,), partial(
+            _needed, builder, snap, key, name, device, description, text, onset)))
     if state.active is None or snap.mode != "recovery":
         return out
     name = state.active
     key = f"recovery:{name}"
     onset = builder.onset(key, snap)
     out.append(builder.cached(key, (state.status, state.step),
-                              lambda: _running(builder, snap, key, onset)))
+                              partial(_running, builder, snap, key, onset)))
     if state.status == "failed":
         fkey = f"recovery_failed:{name}"
         fonset = builder.onset(fkey, snap)
         out.append(builder.cached(fkey, (state.message,),
-                                  lambda: _failed(builder, snap, fkey, fonset)))
+                                  partial(_failed, builder, snap, fkey, fonset)))
     return out
 
 
-def _running(builder: ExplanationContext, snap: Snapshot, key: str, onset) -> Explanation:
+def _needed(builder: ExplanationContext, snap: Snapshot, key: str, name: str, device: str,
+            description: str, text: str, onset: Onset) -> Explanation:
+    what = f"{device}: {text} — recovery needed"
+    why = (f"Since {seconds(onset.time_us)} s {text}. From there the control "
+           "program cannot bring it back by itself, and the safety rules refuse "
+           "the orders that would.")
+    consequences = ("The cell cannot go on in automatic operation until the device "
+                    f"is back. The recovery \u201c{description}\u201d does that in "
+                    "recovery mode: only it moves, still checked by its own safety "
+                    "rules. Repair the cause first (a jam, a dead switch), then start "
+                    "it; after it, a fault reset and leaving recovery restart the "
+                    "cycle.")
+    # stop the device if it is one (not "Valves V1 and V2"), and manual mode: each
+    # offered once
+    stop = (builder.policy_stop(device),) if device in builder.stoppable else ()
+    policies = (start_policy(name, description), *stop, builder.policy_manual())
+    return _with_texts(builder, snap, key, f"recovery_needed_{name}", device,
+                       (what, why, consequences, policies), "medium", True, onset)
+
+
+def _running(builder: ExplanationContext, snap: Snapshot, key: str,
+             onset: Onset) -> Explanation:
     state = snap.recovery
     device = state.device or builder.project.name
     if state.status == "running":
@@ -92,7 +97,7 @@ def _running(builder: ExplanationContext, snap: Snapshot, key: str, onset) -> Ex
         consequences = ("Only the recovery moves the device; every other output is held safe "
                         "and the control program waits. Its own safety rules still filter "
                         "every order.")
-        policies = (leave_policy(False),)
+        policies: tuple[Policy, ...] = (leave_policy(False),)
     elif state.status == "done":
         what = f"{device}: recovery done — {state.description}"
         why = f"The recovery {state.message}."
@@ -112,7 +117,7 @@ def _running(builder: ExplanationContext, snap: Snapshot, key: str, onset) -> Ex
                        (what, why, consequences, policies), "low", False, onset)
 
 
-def _failed(builder: ExplanationContext, snap: Snapshot, key: str, onset) -> Explanation:
+def _failed(builder: ExplanationContext, snap: Snapshot, key: str, onset: Onset) -> Explanation:
     state = snap.recovery
     device = state.device or builder.project.name
     name = state.active or ""
@@ -147,17 +152,17 @@ def _detail(builder: ExplanationContext, name: str) -> str:
 
 
 def _with_texts(builder: ExplanationContext, snap: Snapshot, key: str, text_name: str,
-                device: str, levels: tuple, severity: str, alarm: bool, onset
-                ) -> Explanation:
+                device: str, levels: tuple[str, str, str, tuple[Policy, ...]], severity: str,
+                alarm: bool, onset: Onset) -> Explanation:
     what, why, consequences, policies = levels
     name = key.split(":", 1)[1]
     level = builder.apply_texts(
         builder.texts.get("situations", text_name),
-        {"what": what, "why": why, "consequences": consequences, "policies": policies,
-         "severity": severity, "alarm": alarm, "detail": _detail(builder, name)},
+        Levels(what=what, why=why, consequences=consequences, policies=policies,
+               severity=severity, alarm=alarm, detail=_detail(builder, name)),
         {"device": device, "time": seconds(snap.time_us), "scan": snap.scan,
          "since_time": seconds(onset.time_us), "since_scan": onset.scan,
          "action": "recovery", "reason": "recovery", "detail": snap.recovery.message})
-    return Explanation(key, "recovery", level["severity"], device, level["what"],
-                       level["why"], level["consequences"], level["policies"], onset.scan,
-                       onset.time_us, level["alarm"], detail=level["detail"])
+    return Explanation(key, "recovery", level.severity, device, level.what,
+                       level.why, level.consequences, level.policies, onset.scan,
+                       onset.time_us, level.alarm, detail=level.detail)

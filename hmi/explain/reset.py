@@ -23,6 +23,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
+from hmi.engine.monitors import MonitorState
 from hmi.engine.snapshot import LatchReason, Snapshot
 from hmi.explain.plain import latch_words, lower_first, without_notes
 from hmi.timefmt import seconds
@@ -86,7 +87,7 @@ def latch_preview(snap: Snapshot) -> Iterable[ResetLine]:
                                + (f"; still violated: {names}" if names else ""))
 
 
-def _condemned(m) -> bool:
+def _condemned(m: MonitorState) -> bool:
     """A monitor whose latched fault a reset cannot release: the condemned attempt still runs
     (hmi.engine.stopwatch.TaskAutomaton.reset; x - y never decreases within an attempt)."""
     return bool(m.running and m.last_detection is not None

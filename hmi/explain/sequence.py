@@ -23,10 +23,12 @@ time in this step".
 
 from __future__ import annotations
 
+from functools import partial
 from typing import TYPE_CHECKING, Any
 
 from hmi.engine import commands as cmd
 from hmi.engine.criteria import Wait, receptivity_text, value_text
+from hmi.explain.context import Levels
 from hmi.explain.model import Explanation, Policy
 from hmi.explain.plain import lower_first, without_notes
 from hmi.explain.recovery import start_policy
@@ -58,7 +60,7 @@ def sequence_explanations(builder: ExplanationContext, snap: Snapshot) -> list[E
             waits = snap.waits
         own = tuple(w for w in waits if w.step == name)
         out.append(builder.cached(key, (name, onset.scan),
-                                  lambda n=name, o=own: _explain(builder, snap, grafcet, n, o)))
+                                  partial(_explain, builder, snap, grafcet, name, own)))
     return out
 
 
@@ -254,15 +256,14 @@ def _explain(builder: ExplanationContext, snap: Snapshot, grafcet: Grafcet, name
     detail = (f"Step {name} active since {seconds(since)} s, supervision "
               f"{format_duration(limit)}: overdue at scan {onset.scan} "
               f"({seconds(onset.time_us)} s). Waits for: {conditions}.")
-    defaults = {"what": what, "why": why, "consequences": consequences,
-                "policies": tuple(policies), "severity": "medium", "alarm": True,
-                "detail": detail}
+    defaults = Levels(what=what, why=why, consequences=consequences,
+                      policies=tuple(policies), severity="medium", alarm=True, detail=detail)
     fields = {"device": project, "time": seconds(snap.time_us), "scan": snap.scan,
               "since_time": seconds(since), "since_scan": onset.scan,
               "action": "none (the program waits)", "reason": reason, "detail": detail}
     level = builder.apply_texts(builder.texts.get("situations", f"step_{name}"), defaults,
                                 fields)
-    return Explanation(f"step:{name}", "sequence", level["severity"], project,
-                       level["what"], level["why"], level["consequences"], level["policies"],
-                       onset.scan, onset.time_us, level["alarm"], detail=level["detail"])
+    return Explanation(f"step:{name}", "sequence", level.severity, project,
+                       level.what, level.why, level.consequences, level.policies,
+                       onset.scan, onset.time_us, level.alarm, detail=level.detail)
 

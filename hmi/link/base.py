@@ -81,7 +81,6 @@ class CellLink(Protocol):
     project: Project
     facts: CellFacts
     identity: Identity
-    history: History
     scans_here: bool  # the scans run in this process: they end with this screen
     # the runtime asks a reason (and for the riskiest, the password) before the commands
     # that need one (hmi.access.roles): people sign in to it
@@ -91,6 +90,10 @@ class CellLink(Protocol):
 
     def view(self) -> View | None:
         """The latest scan (None before the first)."""
+
+    @property
+    def history(self) -> History:
+        """The per-scan history between views (read-only here: each link keeps its own)."""
 
     @property
     def last(self) -> Snapshot | None:

@@ -85,7 +85,7 @@ class LocalLink:
         self.accountable = welcome.accountable
         self.idle_lock_us, self.idle_warning_us = (welcome.idle_lock_us,
                                                    welcome.idle_warning_us)
-        assert client is not None and receiver.facts is not None
+        assert client is not None and receiver.facts is not None and receiver.history is not None
         self._client: Client | None = client
         self.facts = receiver.facts
         self.history = receiver.history

@@ -18,10 +18,12 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Callable
+from typing import Protocol
 
 from hmi.engine.commands import Command, CommandResult, ManualOutput, describe
 from hmi.engine.snapshot import Snapshot
-from hmi.explain.journal import Journal, JournalWriteError, new_session_id
+from hmi.explain.alarms import AlarmEvent
+from hmi.explain.journal import Entry, Journal, JournalWriteError, new_session_id
 from hmi.explain.model import Explanation, Policy
 from hmi.limits import describe_bytes
 from hmi.plant.modbus.link_log import Burst
@@ -32,6 +34,20 @@ DEFAULT_SPACE = 1 << 30  # the journal's space unless told (--journal-space)
 SPACE_WARNING = 0.8  # the storage alarm from this share of it
 SPACE_KEY = "journal:space"
 SPACE_CHECK_S = 60.0
+
+
+class Fault(Protocol):
+    """An error of a screen, for the journal: hmi.ui.containment.UIFault (this process's
+    screen) or hmi.wire.messages.Fault (a remote screen's report of one)."""
+
+    @property
+    def what(self) -> str: ...
+    @property
+    def error(self) -> str: ...
+    @property
+    def report(self) -> str: ...
+    @property
+    def fatal(self) -> bool: ...
 
 
 class JournalRecorder:
@@ -46,7 +62,7 @@ class JournalRecorder:
         self.recovery_status = ""  # the last recovery status journalled (done, failed)
         # Told of every entry once it is in the journal (the historian keeps the alarms and
         # actions beside its samples); from the thread that journalled it, so never waiting.
-        self.taps: list[Callable[[dict], None]] = []
+        self.taps: list[Callable[[Entry], None]] = []
         engine = session.engine
         journal.session = new_session_id()
         # (kept for whoever taps the journal later: the historian records it too)
@@ -63,10 +79,10 @@ class JournalRecorder:
         session.idle_checks[self.on_scan] = self.idle
         session.overrun_listeners.append(self.on_overrun)
 
-    def _append(self, entry: dict) -> None:
+    def _append(self, entry: Entry) -> None:
         self._append_all([entry])
 
-    def _append_all(self, entries: list[dict]) -> None:
+    def _append_all(self, entries: list[Entry]) -> None:
         try:
             self.journal.append_all(entries)
         except JournalWriteError as exc:
@@ -109,7 +125,7 @@ class JournalRecorder:
                 "re-anchored its schedule")):
             self._plant(entry)
 
-    def _plant(self, entry: dict) -> None:
+    def _plant(self, entry: Entry) -> None:
         engine = self.session.engine
         self._append({"type": "plant", **entry, "scan": engine.scan,
                       "t": seconds(engine.now)})
@@ -180,7 +196,7 @@ class JournalRecorder:
         for entry in self.overruns.tick(time.monotonic()):
             self._plant(entry)
         if snapshot.alarm_events:  # one write and one fsync for the scan's transitions
-            batch: list[dict] = []
+            batch: list[Entry] = []
             for event in snapshot.alarm_events:
                 self._alarm(event, batch=batch)
             self._append_all(batch)
@@ -218,7 +234,7 @@ class JournalRecorder:
                       None)
         if change is not None:
             return f"refused: written {written} because of {', '.join(change.by)}"
-        if written == int(request.value):
+        if request.value is not None and written == int(request.value):
             return f"written {written} as requested"
         device = next((d for d, outs in self.session.engine.devices.items() if name in outs),
                       None)
@@ -228,7 +244,7 @@ class JournalRecorder:
             return f"refused: written {written}: masked by the diagnosis"
         return f"refused: written {written}, not as requested"
 
-    def _alarm(self, event, by: str = "", batch: list[dict] | None = None) -> None:
+    def _alarm(self, event: AlarmEvent, by: str = "", batch: list[Entry] | None = None) -> None:
         """Journal one alarm transition now, or add it to `batch` (written by the caller)."""
         entry = self._alarm_entry(event, by)
         if batch is None:
@@ -237,18 +253,18 @@ class JournalRecorder:
             batch.append(entry)
 
     @staticmethod
-    def _alarm_entry(event, by: str = "") -> dict:
-        entry = {
+    def _alarm_entry(event: AlarmEvent, by: str = "") -> Entry:
+        entry: Entry = {
             "type": "alarm", "event": event.event, "key": event.key, "state": event.state,
             "severity": event.severity, "text": event.text, "returns": event.returns,
             "scan": event.scan, "t": seconds(event.time_us)}
-        if getattr(event, "note", ""):
+        if event.note:
             entry["message"] = event.note
         if by:
             entry["by"] = by
         return entry
 
-    def on_ui_fault(self, fault, **who: str) -> None:
+    def on_ui_fault(self, fault: Fault, **who: str) -> None:
         """An error of the HMI (hmi.ui.containment.UIFault, or a screen's report of one):
         contained, or fatal; `who`: the screen's (by, role, client)."""
         engine = self.session.engine

@@ -30,11 +30,13 @@ from __future__ import annotations
 import threading
 from bisect import bisect_right
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
 from hmi.engine.layout import Layout
 from hmi.engine.snapshot import Snapshot
+from hmi.explain.model import Explanation
 from hmi.plant.base import PlantEvent
 
 FOV_SUFFIX = ".fov"
@@ -190,7 +192,7 @@ class ScanRecorder:
             if self.first_us is None:
                 self.first_us = t
                 self._trim_at = t + self.keep_us
-            elif t >= self._trim_at:
+            elif self._trim_at is not None and t >= self._trim_at:
                 self._trim(t - self.keep_us)
                 self._trim_at = t + self.keep_us // 4
             self.last_us = t
@@ -205,7 +207,8 @@ class ScanRecorder:
             if cut > 0:
                 del points[:cut]
 
-    def _count_violations(self, names: tuple[str, ...], t: int, explanations=()) -> None:
+    def _count_violations(self, names: tuple[str, ...], t: int,
+                          explanations: Sequence[Explanation] = ()) -> None:
         stats = self._constraints
         now = set(names)
         whats = {e.key: e.what for e in explanations

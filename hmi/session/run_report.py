@@ -3,11 +3,25 @@ scan, what that summary needs without keeping every snapshot."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING
+
 from hmi.timefmt import seconds
 
+if TYPE_CHECKING:
+    from hmi.engine.filter import FilterReport
+    from hmi.engine.scan import Engine
+    from hmi.engine.snapshot import Snapshot
+    from hmi.explain.alarms import AlarmEvent
+    from hmi.explain.model import Explanation
+    from hmi.plant.base import PlantEvent
+    from hmi.project.injection import Injection
 
-def run_summary(engine, last, collector, injections, wall_s: float, trace=None,
-                time_kind: str = "virtual") -> str:
+
+def run_summary(engine: Engine, last: Snapshot, collector: RunCollector,
+                injections: Sequence[Injection], wall_s: float,
+                trace: tuple[Path, int] | None = None, time_kind: str = "virtual") -> str:
     project = engine.project
     scans = collector.scans
     rate = scans / wall_s if wall_s > 0 else float("inf")
@@ -41,17 +55,13 @@ def run_summary(engine, last, collector, injections, wall_s: float, trace=None,
                      f"{_search_stops(collector)}), "
                      f"max Hamming distance {collector.max_distance}, "
                      f"unsafe outputs {unsafe_verb} {collector.unsafe_written}")
-    monitors = getattr(collector, "monitors", None)
-    if monitors is not None:
-        from hmi.studies.monitor_report import monitor_summary_lines
-        lines += monitor_summary_lines(monitors)
+    from hmi.studies.monitor_report import monitor_summary_lines
+    lines += monitor_summary_lines(collector.monitors)
     if collector.first_latch:
         scan, t, detail = collector.first_latch
         lines.append(f"Outputs latched safe from scan {scan} ({seconds(t)} s): {detail}")
-    diagnosis = getattr(collector, "diagnosis", None)
-    if diagnosis is not None:
-        from hmi.studies.diag_report import summary_lines
-        lines += summary_lines(diagnosis, engine, last)
+    from hmi.studies.diag_report import summary_lines
+    lines += summary_lines(collector.diagnosis, engine, last)
     outputs = " ".join(f"{n}={int(v)}" for n, v in zip(last.layout.outputs, last.outputs,
                                                        strict=True))
     lines.append(f"Final: steps {'+'.join(last.active_steps) or '-'}; outputs {outputs}; "
@@ -62,9 +72,9 @@ def run_summary(engine, last, collector, injections, wall_s: float, trace=None,
     return "\n".join(lines)
 
 
-def _search_stops(collector) -> str:
+def _search_stops(collector: RunCollector) -> str:
     """", 3 search budget stops" when the corrector's search was cut short, else ""."""
-    stops = getattr(collector, "search_stops", 0)
+    stops = collector.search_stops
     return f", {stops} at the search budget" if stops else ""
 
 
@@ -80,20 +90,21 @@ class RunCollector:
         self.fallbacks = 0
         self.search_stops = 0  # fallbacks because the corrector's search used its budget
         self.first_latch: tuple[int, int, str] | None = None
-        self.events = []
+        self.events: list[PlantEvent] = []
         self.step_changes = 0
         self.max_distance = 0
         from hmi.studies.monitor_report import MonitorLog
         self.monitors = MonitorLog()
-        self.alarm_events = []
-        self.explanations = {}
+        self.alarm_events: list[AlarmEvent] = []
+        self.explanations: dict[str, Explanation] = {}
         from hmi.studies.diag_report import DiagnosisLog
         self.diagnosis = DiagnosisLog()
-        self._nothing = None  # the last filter report that counted nothing (reports are
-        # immutable: the same one counts nothing again)
-        self._report = None  # the last scan's added (a quiet scan has the very same)
+        # The last filter report that counted nothing (reports are immutable: the same one
+        # counts nothing again), and the last scan's added (a quiet scan has the very same).
+        self._nothing: FilterReport | None = None
+        self._report: FilterReport | None = None
 
-    def add(self, snap) -> None:
+    def add(self, snap: Snapshot) -> None:
         self.scans += 1
         self.monitors.add(snap)
         self.diagnosis.add(snap)
@@ -121,12 +132,12 @@ class RunCollector:
         if report is not None and report is not self._nothing:
             self._count(report, count)
 
-    def finish(self, last) -> None:
+    def finish(self, last: Snapshot) -> None:
         """The run's last snapshot (built at its end if its scan was quiet): the monitors'
         states the summary shows are its."""
         self.monitors.add(last)
 
-    def _count(self, report, scans: int = 1) -> None:
+    def _count(self, report: FilterReport | None, scans: int = 1) -> None:
         """What `scans` scans with this filter report count."""
         # (a report with nothing violated, changed, left or fallen back on counts nothing:
         # most scans' report, tested in a few reads; and a scan that reuses the very report
@@ -147,5 +158,5 @@ class RunCollector:
             self.unsafe_written += scans
         if report.fallback:
             self.fallbacks += scans
-            self.search_stops += scans * bool(getattr(report, "stopped", ""))
+            self.search_stops += scans * bool(report.stopped)
         self.max_distance = max(self.max_distance, report.distance)

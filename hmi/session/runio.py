@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from hmi.engine.snapshot import Snapshot
 from hmi.errors import OutputError
@@ -20,6 +21,9 @@ from hmi.plant.base import PlantError
 from hmi.session.session import Session
 from hmi.session.trace import TraceWriter
 from hmi.timefmt import format_duration, seconds
+
+if TYPE_CHECKING:
+    from hmi.session.journal_recorder import JournalRecorder
 
 
 class RunLengthError(Exception):
@@ -113,7 +117,7 @@ class RunOutputs:
 
 
 def open_journal(session: Session, path: Path | None, source: str,
-                 background: bool = False):
+                 background: bool = False) -> JournalRecorder:
     """The journal recorder of a session: `path`, else the project's default journal. A
     journal that cannot be opened is an OutputError (hmi.errors). `background`: written by
     a thread of its own (the runtime's: a scan never waits for the disk; hmi.explain.journal)."""

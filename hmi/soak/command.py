@@ -19,12 +19,12 @@ from hmi.errors import UsageError
 from hmi.limits import MAX_FILE_BYTES, MAX_RUN_SCANS
 from hmi.project.loader import load_project
 from hmi.soak.runner import ShrinkStopped, SoakConfig, SoakResult, session, shrink
-from hmi.soak.steps import StepError, format_steps, parse_steps
+from hmi.soak.steps import Step, StepError, format_steps, parse_steps
 from hmi.textfile import FileProblem, read_text
 from hmi.timefmt import format_duration
 
 
-def read_replay(path: Path, period_us: int) -> list:
+def read_replay(path: Path, period_us: int) -> list[Step]:
     """The steps of a replay file, read as every file from outside is (a regular file of
     at most MAX_FILE_BYTES, strict UTF-8: hmi.textfile), their virtual time in all at most
     MAX_RUN_SCANS scans of `period_us`. Anything else is a usage error at the file's line and
@@ -104,7 +104,7 @@ class Progress:
               f"{len(result.broken)} broken", flush=True)
 
 
-def save_steps(config: SoakConfig, steps, why: str) -> Path:
+def save_steps(config: SoakConfig, steps: list[Step], why: str) -> Path:
     from hmi.paths import data_folder
     stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S")
     path = data_folder() / "soak" / f"{config.project.name}-seed{config.seed}-{stamp}.steps"

@@ -90,9 +90,9 @@ def _work(state: tuple[SoakConfig, int], seed: int) -> SeedResult:
         with tempfile.TemporaryDirectory(prefix="plchmi-soak-farm-") as folder:
             result = asyncio.run(session(config, journal_dir=Path(folder)))
     except Exception as exc:
-        error = f"the session raised {what_raised(exc)}"
-        return SeedResult(seed, 0, 0, 0, {}, {}, 0, 0, 0, 0, 0, {}, 0, broken=error,
-                          invariant="raised", error=error)
+        raised = f"the session raised {what_raised(exc)}"
+        return SeedResult(seed, 0, 0, 0, {}, {}, 0, 0, 0, 0, 0, {}, 0, broken=raised,
+                          invariant="raised", error=raised)
     g = result.gestures
     base = SeedResult(seed, len(result.steps), result.virtual_us, result.scans,
                       dict(sorted(g.items())), dict(sorted(result.commands.items())),
@@ -101,7 +101,8 @@ def _work(state: tuple[SoakConfig, int], seed: int) -> SeedResult:
     if result.ok:
         return base
     broken = result.broken[0]
-    steps, replays, error = result.steps, 0, None
+    steps, replays = result.steps, 0
+    error: str | None = None
     if replays_allowed > 0 and len(steps) > 1:
         try:
             steps, replays = asyncio.run(shrink(config, steps, broken.invariant, float("inf"),

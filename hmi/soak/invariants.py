@@ -38,15 +38,24 @@ from __future__ import annotations
 import json
 import re
 from collections import Counter, deque
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from textual.geometry import Region
 
-from hmi.engine.commands import Acknowledge
-from hmi.explain.alarms import ACTIVE_ACK, ACTIVE_UNACK, CLEARED_UNACK
+from hmi.engine.commands import Acknowledge, Command, CommandResult
+from hmi.engine.snapshot import Snapshot
+from hmi.explain.alarms import ACTIVE_ACK, ACTIVE_UNACK, CLEARED_UNACK, Alarm
+from hmi.explain.journal import Entry
+from hmi.project.model import Constraint
 from hmi.project.recovery import recoveries_of
+from hmi.session.session import Session
 from hmi.timefmt import seconds
+
+if TYPE_CHECKING:
+    from hmi.ui.app import PlcHmiApp
 
 UNACKNOWLEDGED = (ACTIVE_UNACK, CLEARED_UNACK)
 MANUAL_RESULT = re.compile(r"manual (\S+) (on|off): filter result")
@@ -80,13 +89,14 @@ class _Term:
 
 
 class Invariants:
-    def __init__(self, app, session, journal_path: Path):
+    def __init__(self, app: PlcHmiApp, session: Session, journal_path: Path):
         self.app = app
         self.session = session
         self.engine = engine = session.engine
         layout = engine.layout
         outputs = {name: k for k, name in enumerate(layout.outputs)}
-        def checked(constraints) -> list[tuple[str, frozenset[str], tuple[_Term, ...]]]:
+        def checked(constraints: Iterable[Constraint]
+                    ) -> list[tuple[str, frozenset[str], tuple[_Term, ...]]]:
             return [(c.name, frozenset(c.outputs),
                      tuple(_Term(outputs.get(lit.name) if lit.depth == 0 else None,
                                  layout.slots[lit.name], lit.depth, lit.positive)
@@ -105,8 +115,8 @@ class Invariants:
         depth = max([1] + [t.depth for group in (self.constraints,
                                                  *self.recovery_constraints.values())
                            for _, _, terms in group for t in terms])
-        self.history: deque[tuple] = deque(maxlen=depth)  # values of the scans before
-        self.alarms: dict[str, object] = {}  # the list as last seen, by key
+        self.history: deque[tuple[object, ...]] = deque(maxlen=depth)  # values of the scans before
+        self.alarms: dict[str, Alarm] = {}  # the list as last seen, by key
         self.hidden: set[str] = set()  # alarms that left the list for a shelf
         self.expected: dict[str, deque[tuple[str, int]]] = {}  # transitions to find
         self.journal_path = journal_path
@@ -134,7 +144,7 @@ class Invariants:
         self.broken.append(Broken(invariant, detail, self.engine.scan, self.engine.now))
 
     # -- every scan ---------------------------------------------------------------------------
-    def on_scan(self, snap) -> None:
+    def on_scan(self, snap: Snapshot) -> None:
         self.scans += 1
         if snap.error:
             self._break("engine-error", snap.error)
@@ -159,20 +169,23 @@ class Invariants:
         self.history.appendleft(snap.values)
         self._observe(snap.alarms, acknowledged=())
 
-    def _safe_state_by_decision(self, snap) -> bool:
+    def _safe_state_by_decision(self, snap: Snapshot) -> bool:
         """The outputs written are the safe state, and the engine says it chose it."""
         report = snap.filter
         decided = bool(snap.latched) or (report is not None and report.safe_state)
         return decided and tuple(snap.outputs) == self.safe_vector
 
-    def _violated(self, snap, constraints) -> list[tuple[str, frozenset[str]]]:
+    def _violated(self, snap: Snapshot,
+                  constraints: Sequence[tuple[str, frozenset[str], tuple[_Term, ...]]]
+                  ) -> list[tuple[str, frozenset[str]]]:
         history = self.history
         values, written = snap.values, snap.outputs
-        found = []
+        found: list[tuple[str, frozenset[str]]] = []
         for name, outs, terms in constraints:
             for term in terms:
                 if term.depth > len(history):
                     break  # a value from before the first scan seen: not judged
+                value: object
                 if term.output is not None:
                     value = written[term.output]
                 elif term.depth == 0:
@@ -186,7 +199,8 @@ class Invariants:
         return found
 
     # -- every command ------------------------------------------------------------------------
-    def on_command(self, command, result, snapshot) -> None:
+    def on_command(self, command: Command, result: CommandResult,
+                   snapshot: Snapshot | None) -> None:
         # the alarm list as the next scan will show it (the session owns it)
         manager = self.session.alarms
         acknowledged: tuple[str, ...] = ()
@@ -195,7 +209,7 @@ class Invariants:
         self._observe(manager.listed(), acknowledged)
 
     # -- the alarm list -----------------------------------------------------------------------
-    def _observe(self, alarms, acknowledged: tuple[str, ...]) -> None:
+    def _observe(self, alarms: Iterable[Alarm], acknowledged: tuple[str, ...]) -> None:
         now = {a.key: a for a in alarms}
         self.max_alarms = max(self.max_alarms, len(now))
         self.checks["alarm"] += len(now) + len(self.alarms)
@@ -218,19 +232,19 @@ class Invariants:
                             f"{old.state}")
             self._expect(key, "normal")
         for key, alarm in now.items():
-            old = self.alarms.get(key)
-            if old is None:
+            seen = self.alarms.get(key)
+            if seen is None:
                 if key in self.hidden:  # back from its shelf (its "unshelved" line)
                     self.hidden.discard(key)
                 else:
                     self.raised += 1
                 self._expect(key, alarm.state)
                 continue
-            if alarm.priority > old.priority:
+            if alarm.priority > seen.priority:
                 self._break("priority-lowered",
-                            f"{key} went from P{old.priority} to P{alarm.priority} while "
-                            f"{old.state} → {alarm.state} ({old.text!r} → {alarm.text!r})")
-            if alarm.state != old.state:
+                            f"{key} went from P{seen.priority} to P{alarm.priority} while "
+                            f"{seen.state} → {alarm.state} ({seen.text!r} → {alarm.text!r})")
+            if alarm.state != seen.state:
                 self._expect(key, alarm.state)
         self.alarms = now
 
@@ -349,7 +363,7 @@ class Invariants:
                                 f"banners (lines 0-{clear - 1}) at {app.size.width}×"
                                 f"{app.size.height}")
 
-    def _check_manual_outcome(self, entry: dict) -> None:
+    def _check_manual_outcome(self, entry: Entry) -> None:
         """A manual request's outcome in the journal never says "as requested" of a value
         other than the one requested (`manual O on: filter result` / `written 0 as
         requested` was journalled when the mode changed before the scan, or the device was
@@ -398,7 +412,7 @@ def _squeezed(text: str) -> str:
     return re.sub(r"[\s:]+", "", text)
 
 
-def _row_shows(line: str, alarm) -> bool:
+def _row_shows(line: str, alarm: Alarm) -> bool:
     """Whether an alarm list line is this alarm's row: its priority, the time it was raised,
     then the start of its text as the row fits it, the text cut with "…" at a narrow width
     (compared without spaces and colons). From 110 columns the device has a column of its

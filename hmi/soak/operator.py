@@ -18,9 +18,10 @@ answered after what it said has changed.
 from __future__ import annotations
 
 import random
+from typing import TYPE_CHECKING, Any
 
 from textual.command import CommandPalette
-from textual.screen import ModalScreen
+from textual.screen import ModalScreen, Screen
 
 from hmi.soak.steps import Click, Palette, Press, Resize, Row, Run, Step
 from hmi.ui.actions import ACTIONS
@@ -28,6 +29,9 @@ from hmi.ui.dialogs import ChoiceDialog, ConfirmDialog, StepDialog, TextDialog
 from hmi.ui.fault_dialog import FaultDialog
 from hmi.ui.signal_dialog import SignalDialog
 from hmi.ui.trend_screen import TrendScreen
+
+if TYPE_CHECKING:
+    from hmi.ui.app import PlcHmiApp
 
 MAIN_KEYS = (*(a.key for a in ACTIONS), "1", "0", "x", "b", "tab", "shift+tab", "up", "down",
              "enter", "home", "end", "escape")
@@ -49,7 +53,7 @@ class RandomOperator:
         self.seed = seed
         self.rng = random.Random(seed)
 
-    def next(self, app) -> Step:
+    def next(self, app: PlcHmiApp) -> Step:
         screen = app.screen
         if isinstance(screen, CommandPalette):
             return Press(("escape",))
@@ -62,7 +66,7 @@ class RandomOperator:
         return self._main(app)
 
     # -- the main screen ----------------------------------------------------------------------
-    def _main(self, app) -> Step:
+    def _main(self, app: PlcHmiApp) -> Step:
         rng = self.rng
         paused = not app.running
         weights = {
@@ -110,7 +114,7 @@ class RandomOperator:
         operator watches the cell for a minute as often as for a scan)."""
         return int(10_000 * 6000 ** self.rng.random())
 
-    def _palette(self, app) -> Step:
+    def _palette(self, app: PlcHmiApp) -> Step:
         """Any palette entry, by group first (the text before ':' — manual, alarms, policy,
         simulation, chronogram...) so that the long groups do not drown the others."""
         entries = app.palette_entries()
@@ -121,7 +125,7 @@ class RandomOperator:
         return Palette(self.rng.choice(groups[group]))
 
     # -- a dialog on top ----------------------------------------------------------------------
-    def _answer(self, screen) -> Step:
+    def _answer(self, screen: Screen[Any]) -> Step:
         rng = self.rng
         if isinstance(screen, ConfirmDialog):
             answers = {"y": 40, "n": 20, "escape": 15, "enter": 12, "tab": 5, "stray": 8}
@@ -167,8 +171,8 @@ class RandomOperator:
         if isinstance(screen, SignalDialog):
             if rng.random() < 0.2:
                 return Press(("escape",))
-            keys: list[str] = []
+            presses: list[str] = []
             for _ in range(rng.randrange(1, 5)):
-                keys += ["down"] * rng.randrange(0, 4) + ["space"]
-            return Press((*keys, "enter"))
+                presses += ["down"] * rng.randrange(0, 4) + ["space"]
+            return Press((*presses, "enter"))
         return Press(("escape",))  # a screen of Textual's own (help...): back

@@ -25,10 +25,14 @@ from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from textual.command import CommandInput, CommandList, CommandPalette
+from textual.pilot import Pilot
 
+from hmi.engine.commands import Command, CommandResult
 from hmi.engine.scan import Engine
+from hmi.engine.snapshot import Snapshot
 from hmi.explain.journal import Journal
 from hmi.history.historian import Historian
 from hmi.history.target import Target
@@ -40,6 +44,7 @@ from hmi.soak.invariants import Broken, Invariants
 from hmi.soak.operator import RandomOperator
 from hmi.soak.steps import Click, Palette, Press, Resize, Row, Run, Step
 from hmi.ui.app import PlcHmiApp
+from hmi.ui.driver import VirtualDriver
 from hmi.ui.headless import click, drain, press, settle, wait_for_screen
 from hmi.ui.io_panel import IOPanel
 
@@ -65,15 +70,15 @@ class SoakResult:
     scans: int = 0
     virtual_us: int = 0
     wall_s: float = 0.0
-    gestures: Counter = field(default_factory=Counter)  # step kinds, dialog answers
-    commands: Counter = field(default_factory=Counter)  # accepted commands by type
+    gestures: Counter[str] = field(default_factory=Counter)  # step kinds, dialog answers
+    commands: Counter[str] = field(default_factory=Counter)  # accepted commands by type
     refused: int = 0
     transitions: int = 0  # alarm state changes seen in the list (all found in the journal)
     raised: int = 0
     journal_lines: int = 0
     max_alarms: int = 0
-    safe_state_violations: Counter = field(default_factory=Counter)
-    checks: Counter = field(default_factory=Counter)  # invariant checks run, by kind
+    safe_state_violations: Counter[str] = field(default_factory=Counter)
+    checks: Counter[str] = field(default_factory=Counter)  # invariant checks run, by kind
     skipped: int = 0  # palette entries not there (replays of a shrunk list)
     journal: Path | None = None
 
@@ -179,7 +184,7 @@ async def session(config: SoakConfig, replay: list[Step] | None = None,
         app.containment.listeners.append(journal.on_ui_fault)
     checker = Invariants(app, cell, result.journal)
 
-    def count(command, answer, snapshot) -> None:
+    def count(command: Command, answer: CommandResult, snapshot: Snapshot | None) -> None:
         if answer.accepted:
             result.commands[type(command).__name__] += 1
         else:
@@ -208,7 +213,7 @@ async def session(config: SoakConfig, replay: list[Step] | None = None,
                     result.skipped += 1
                 # the screen as the step left it is painted (a headless one is not by
                 # itself, hmi.ui.driver): a widget that fails to draw breaks "exception"
-                if app.driver.paint(app):
+                if VirtualDriver.paint(app):
                     await drain(pilot)
                 if checker.check_step() or not app.is_running:
                     break
@@ -250,12 +255,21 @@ def _gesture(app: PlcHmiApp, step: Step) -> str:
     return type(step).__name__.lower()
 
 
-async def perform(pilot, step: Step) -> bool:
-    """Do one step on the app; False if it could not be done (and nothing happened)."""
+def _app(pilot: Pilot[Any]) -> PlcHmiApp:
+    """The app a soak's pilot drives (always the HMI's, run headless)."""
     app = pilot.app
+    assert isinstance(app, PlcHmiApp)
+    return app
+
+
+async def perform(pilot: Pilot[Any], step: Step) -> bool:
+    """Do one step on the app; False if it could not be done (and nothing happened)."""
+    app = _app(pilot)
     match step:
         case Run(us=us):
-            app.driver.advance(us)
+            driver = app.driver
+            assert isinstance(driver, VirtualDriver)  # a soak runs in virtual time
+            driver.advance(us)
         case Press(keys=keys):
             await press(pilot, *keys)
         case Palette(title=title):
@@ -276,7 +290,7 @@ async def perform(pilot, step: Step) -> bool:
     return True
 
 
-async def palette_entry(pilot, title: str) -> bool:
+async def palette_entry(pilot: Pilot[Any], title: str) -> bool:
     """Open the palette, search for `title` and run the entry with exactly that title."""
     app = pilot.app
     if app.screen is not app.screen_stack[0]:
@@ -287,7 +301,7 @@ async def palette_entry(pilot, title: str) -> bool:
     screen = await wait_for_screen(pilot, CommandPalette)
     screen.query_one(CommandInput).value = title
     await drain(pilot)
-    if app.driver.paint(app):  # the hits as the operator sees them (drawn, tinted screen below)
+    if VirtualDriver.paint(app):  # the hits as the operator sees them (drawn, tinted screen below)
         await drain(pilot)
     commands = screen.query_one(CommandList)
     for index in range(commands.option_count):
@@ -302,7 +316,7 @@ async def palette_entry(pilot, title: str) -> bool:
     return False
 
 
-async def click_row(pilot, name: str) -> bool:
+async def click_row(pilot: Pilot[Any], name: str) -> bool:
     """Click the I/O table's row of `name`, scrolled into view first (a mouse wheel)."""
     table = pilot.app.query_one(IOPanel)
     if pilot.app.screen is not pilot.app.screen_stack[0] or not table.region:

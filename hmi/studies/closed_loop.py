@@ -102,6 +102,7 @@ def summarise(g: Graph) -> list[_Summary | None]:
         if out[origin] is not None:
             continue
         path: list[int] = []
+        after: _Summary | None
         node = origin
         while node >= 0 and out[node] is None and on_path[node] < 0:
             on_path[node] = len(path)
@@ -136,6 +137,7 @@ def _prepend(g: Graph, x: int, s: _Summary) -> _Summary:
     damage = 0 if g.dmg[x] else (s.damage + 1 if s.damage < INF else INF)
     kind = g.dmg[x] if g.dmg[x] else s.kind
     detect = 0 if dec else (s.detect + 1 if s.detect < INF else INF)
+    label: str | None
     if len(dec) == 1:
         certain, label = 0, dec[0]
     else:
@@ -144,7 +146,7 @@ def _prepend(g: Graph, x: int, s: _Summary) -> _Summary:
     return _Summary(damage, kind, detect, certain, label, s.cycling, s.final, s.state, s.horizon)
 
 
-def _summarise_cycle(g: Graph, cycle: list[int], out: list) -> None:
+def _summarise_cycle(g: Graph, cycle: list[int], out: list[_Summary | None]) -> None:
     cycling = any(g.cyc[x] for x in cycle)
     decisions = {g.decision(x) for x in cycle}
     final = decisions.pop() if len(decisions) == 1 else tuple(sorted(
@@ -153,7 +155,7 @@ def _summarise_cycle(g: Graph, cycle: list[int], out: list) -> None:
     state = states.pop() if len(states) == 1 else "cycling"
     seed = _Summary(INF, None, INF, INF, None, cycling, final, state, False)
     # Two passes backwards around the cycle give every node its first occurrences.
-    summaries = {}
+    summaries: dict[int, _Summary] = {}
     current = seed
     for _ in range(2):
         for x in reversed(cycle):
@@ -169,7 +171,9 @@ def outcomes(g: Graph) -> list[Outcome]:
     period = g.period_us
     result = []
     for s in g.starts:
-        result.append(outcome_of(s, summaries[s.node], period))
+        summary = summaries[s.node]
+        assert summary is not None  # summarise gives every node one
+        result.append(outcome_of(s, summary, period))
     return result
 
 
@@ -276,7 +280,7 @@ class LoopDiagnosability:
         return sum(n for f in self.faults for _, n in f.misdiagnosed)
 
 
-def _label_order(pair: tuple[str, str]) -> tuple:
+def _label_order(pair: tuple[str, str]) -> tuple[tuple[int, str], ...]:
     return tuple((len(x), x) for x in pair)
 
 
@@ -288,7 +292,7 @@ def diagnosability(config: LoopConfig, runs: Sequence[Outcome],
         wrong: dict[str, int] = {}
         ambiguous: dict[tuple[str, ...], int] = {}
         for r in mine:
-            if r.misdiagnosed:
+            if r.misdiagnosed and r.certain_label is not None:
                 wrong[r.certain_label] = wrong.get(r.certain_label, 0) + 1
             elif not r.isolated and len(r.final) > 1:
                 ambiguous[r.final] = ambiguous.get(r.final, 0) + 1
@@ -297,7 +301,7 @@ def diagnosability(config: LoopConfig, runs: Sequence[Outcome],
             fault, len(mine), sum(r.isolated for r in mine), tuple(sorted(wrong.items())),
             sum(r.detected_us is None for r in mine),
             tuple(sorted(ambiguous.items(), key=lambda kv: -kv[1])),
-            tuple(sorted(r.delay_us for r in mine if r.isolated)),
+            tuple(sorted(d for r in mine if r.isolated and (d := r.delay_us) is not None)),
             tuple(sorted(r.detected_us - r.last_us for r in mine if r.detected_us is not None)),
             sum(r.weight for r in mine), sum(r.weight for r in mine if r.isolated),
             max((d for d in longest if d is not None), default=None)))

@@ -6,12 +6,29 @@ through two calls (check sections, run summary lines) rather than by editing the
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from functools import partial
+from typing import TYPE_CHECKING
 
 from hmi.project.diagnosers import diagnosers_of
 from hmi.project.model import DiagnoserSpec, Project
 from hmi.studies.diagnosability import analyse
 from hmi.timefmt import format_duration, seconds
+
+if TYPE_CHECKING:
+    from hmi.engine.diagnoser import DiagnoserState
+    from hmi.engine.scan import Engine
+    from hmi.engine.snapshot import Snapshot
+    from hmi.farm.run import Farm
+    from hmi.studies.band import Band, BandPoint
+    from hmi.studies.band_sweep import BandSweep
+    from hmi.studies.closed_loop import LoopDiagnosability
+    from hmi.studies.loop_sweep import SweepResult
+
+    # A figure over the band: its name, how to read it, how to say a value, and whether
+    # lower is better.
+    Figure = tuple[str, Callable[[LoopDiagnosability], float], Callable[[float], str], bool]
 
 
 def _table(rows: list[list[str]], indent: str = "  ") -> list[str]:
@@ -55,7 +72,8 @@ def check_sections(project: Project, closed_loop: bool = False) -> list[list[str
     return sections
 
 
-def diagnose_report(project: Project, farm=None, compute: bool = True, band: bool = False,
+def diagnose_report(project: Project, farm: Farm | None = None, compute: bool = True,
+                    band: bool = False,
                     samples: int = 0, seed: int = 1) -> str:
     """For `plchmi diagnose`: the automaton in full, then its diagnosability (the diagram's
     upper bound, then the closed loop's)."""
@@ -110,9 +128,9 @@ class DiagnosisLog:
     masked_requests: int = 0  # scans where the program asked for an order the mask withdrew
     reconstructed_since: dict[str, int] = field(default_factory=dict)
     masked_since: dict[str, int] = field(default_factory=dict)
-    _last: tuple = ()
+    _last: tuple[DiagnoserState, ...] = ()
 
-    def add(self, snap) -> None:
+    def add(self, snap: Snapshot) -> None:
         records = snap.diagnosers
         if records is not self._last:
             previous = {d.name: d for d in self._last}
@@ -136,7 +154,7 @@ class DiagnosisLog:
             self.masked_requests += 1
 
 
-def summary_lines(log: DiagnosisLog, engine, last) -> list[str]:
+def summary_lines(log: DiagnosisLog, engine: Engine, last: Snapshot) -> list[str]:
     """Diagnoser lines of the run summary: faulty states reached, flags, what they drive."""
     stage = engine.diagnosis
     if stage is None:
@@ -173,7 +191,8 @@ def summary_lines(log: DiagnosisLog, engine, last) -> list[str]:
 # -- diagnosability on the closed loop (hmi/studies/loop_sweep.py) ------------------------------
 
 
-def closed_loop_lines(project, farm=None, compute: bool = True, band: bool = False,
+def closed_loop_lines(project: Project, farm: Farm | None = None, compute: bool = True,
+                      band: bool = False,
                       samples: int = 0, seed: int = 1, every_us: int | None = None,
                       extras: bool = True) -> list[str]:
     """Per configuration where the diagnosers run: isolated with certainty (at some instant,
@@ -218,7 +237,7 @@ def closed_loop_lines(project, farm=None, compute: bool = True, band: bool = Fal
     return lines
 
 
-def nominal_lines(project, result) -> list[str]:
+def nominal_lines(project: Project, result: SweepResult) -> list[str]:
     """The closed loop's figures at one plant (the project's own, or a band point)."""
     from hmi.studies.closed_loop import diagnosability
     from hmi.studies.diagnosability import iso_band
@@ -258,7 +277,7 @@ def nominal_lines(project, result) -> list[str]:
     return lines
 
 
-def instants_text(result) -> str:
+def instants_text(result: SweepResult) -> str:
     """How the sweep chose its instants, in words."""
     cycle = format_duration(result.cycle_us)
     if result.exact:
@@ -271,7 +290,7 @@ def instants_text(result) -> str:
             + (" and 1 us before and after each diagnoser transition" if result.extras else ""))
 
 
-def band_lines(project, over, samples: int, seed: int) -> list[str]:
+def band_lines(project: Project, over: BandSweep, samples: int, seed: int) -> list[str]:
     """The closed loop's figures over the band: each as its range, worst first, with the
     point that gives the worst and the nominal value."""
     from hmi.studies.closed_loop import diagnosability
@@ -288,11 +307,11 @@ def band_lines(project, over, samples: int, seed: int) -> list[str]:
                for point, r in zip(over.points, over.results, strict=True)]
         n = len(per[0][1].faults)
         lines.append(f"  {config.title}:")
-        figures = [
+        figures: list[Figure] = [
             ("isolated with certainty at some instant", lambda d: len(d.isolable),
-             lambda v, n=n: f"{v}/{n}, DC {100 * v / n:.1f} % ({iso_band(v / n)})", False),
+             partial(_of_with_dc, n), False),
             ("isolated whatever the instant", lambda d: len(d.guaranteed),
-             lambda v, n=n: f"{v}/{n}", False),
+             partial(_of, n), False),
             ("share of instants isolated", lambda d: d.dc_weighted,
              lambda v: f"{100 * v:.1f} % ({iso_band(v)})", False),
             ("wrong certain diagnoses (pieces of instants)", lambda d: d.misdiagnoses,
@@ -319,7 +338,18 @@ def band_lines(project, over, samples: int, seed: int) -> list[str]:
     return lines
 
 
-def range_text(per, value, show, lower_is_better: bool, band) -> str:
+def _of(n: int, v: float) -> str:
+    return f"{v}/{n}"
+
+
+def _of_with_dc(n: int, v: float) -> str:
+    from hmi.studies.diagnosability import iso_band
+    return f"{v}/{n}, DC {100 * v / n:.1f} % ({iso_band(v / n)})"
+
+
+def range_text(per: Sequence[tuple[BandPoint, LoopDiagnosability]],
+               value: Callable[[LoopDiagnosability], float], show: Callable[[float], str],
+               lower_is_better: bool, band: Band) -> str:
     """`worst .. best (worst at POINT; nominal V)` over the band's plants."""
     values = [(point, value(d)) for point, d in per]
     pick = max if lower_is_better else min
@@ -334,11 +364,11 @@ def range_text(per, value, show, lower_is_better: bool, band) -> str:
     return text
 
 
-def _point_name(point, band) -> str:
+def _point_name(point: BandPoint, band: Band) -> str:
     return f"{point.label}: {point.text(band)}"
 
 
-def _spread_text(values, longest=None) -> str:
+def _spread_text(values: Sequence[int], longest: int | None = None) -> str:
     from hmi.studies.closed_loop import spread
     s = spread(values, longest)
     if s is None:

@@ -41,9 +41,11 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 from hmi.engine.scan import Engine
+from hmi.plant.sim.device import SimDevice
 from hmi.plant.sim.plant import SimPlant
 from hmi.project.injection import Injection
-from hmi.studies.loopstate import LoopAccess
+from hmi.project.model import Project
+from hmi.studies.loopstate import LoopAccess, LoopState
 
 HORIZON = -1  # successor of a node whose run hit the step limit without closing its loop
 SETTLED = -2  # successor of a node whose future is settled (see Explorer.settled)
@@ -122,7 +124,8 @@ class Graph:
 class Explorer:
     """Builds the graph of one configuration: the prefix, then the runs of given faults."""
 
-    def __init__(self, project, config: LoopConfig, counter: str, settle: bool = True):
+    def __init__(self, project: Project, config: LoopConfig, counter: str,
+                 settle: bool = True):
         self.project = project
         self.config = config
         self.settle = settle
@@ -137,11 +140,11 @@ class Explorer:
         self.obs_slots = lay.indices(lay.inputs) + lay.indices(lay.outputs)
         names = tuple(lay.inputs) + tuple(lay.outputs)
         self.graph = Graph(config, self.period, counter, names)
-        self.memo: dict[tuple, int] = {}
+        self.memo: dict[tuple[object, ...], int] = {}
         # Per node, its plant region (interned): what the exact sweep compares runs by.
         self.sig: list[int] = []
-        self.sigs: dict[tuple, int] = {}
-        self.captures: list = []
+        self.sigs: dict[tuple[object, ...], int] = {}
+        self.captures: list[LoopState] = []
         counters = [name for name, _ in plant.counters()]
         if counter not in counters:
             raise ValueError(f"the plant has no counter {counter!r}")
@@ -181,6 +184,7 @@ class Explorer:
             if previous is not None:
                 g.dmg[previous], g.cyc[previous] = damage, done
             if key in self.memo:
+                assert previous is not None  # the memo holds the nodes before this one
                 g.nxt[previous] = self.memo[key]
                 g.cycle_start = g.prefix.index(self.memo[key])
                 self._prefix = (len(g.obs), len(g.decisions), g.scans, dict(self.memo))
@@ -212,7 +216,7 @@ class Explorer:
         g.wall_s = 0.0
         self.memo = dict(memo)
 
-    def explored(self) -> list[tuple]:
+    def explored(self) -> list[tuple[object, ...]]:
         """The states reached since the prefix (the keys of the nodes the runs added)."""
         nodes = self._prefix[0]
         return [key for key, node in self.memo.items() if node >= nodes]
@@ -411,21 +415,22 @@ class Explorer:
         return self.graph
 
 
-def _damaged(device) -> bool:
+def _damaged(device: SimDevice) -> bool:
     """The device's own state records damage (set only by a damaging event, see valve.py)."""
     return bool(getattr(device, "stall_reported", False) or getattr(device, "both_on", False))
 
 
-def _static(device, now: int) -> bool:
+def _static(device: SimDevice, now: int) -> bool:
     """With every order off, the valve never moves or changes a switch again."""
-    if device.pending or getattr(device, "self_drive", 0):
+    self_drive: object = getattr(device, "self_drive", 0)
+    if device.pending or self_drive:
         return False
     if getattr(device, "armed", set()) & {"F11", "F12"}:  # they start moving at rest
         return False
     return all(end <= now for _, _, end in getattr(device, "glitches", {}).values())
 
 
-def faults_of(project) -> tuple[str, ...]:
+def faults_of(project: Project) -> tuple[str, ...]:
     """The fault codes of the plant, in the model's order (F1..F13 for the valve)."""
     plant = SimPlant(project)
     return tuple(code for device in plant.devices for code in device.FAULTS)

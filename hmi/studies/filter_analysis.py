@@ -18,10 +18,10 @@ from __future__ import annotations
 
 import itertools
 import random
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 
-from hmi.engine.solver import Problem
+from hmi.engine.solver import Problem, Solution
 from hmi.limits import MAX_ANALYSIS_STEPS
 from hmi.logic.expr import Literal
 from hmi.program.constraints import lower_constraints
@@ -140,7 +140,7 @@ def analyse(project: Project, seed: int = 0) -> FilterAnalysis:
     analysis.conflicts_stopped = steps >= MAX_ANALYSIS_STEPS // 2
 
     # A situation is a bit mask over `variables`; a set of literals is (mask, wanted bits).
-    def literals_mask(pairs) -> tuple[int, int] | None:
+    def literals_mask(pairs: Iterable[tuple[tuple[str, int], bool]]) -> tuple[int, int] | None:
         mask = want = 0
         for key, value in pairs:
             i = var_index.get(key)
@@ -160,8 +160,11 @@ def analyse(project: Project, seed: int = 0) -> FilterAnalysis:
                                    for k, name in enumerate(outputs) if (pos | neg) >> k & 1])
             if found is not None:
                 unreachable_masks.append(found)
-    contexts = [(c, pos, neg, literals_mask(((lit.name, lit.depth), lit.positive)
-                                            for lit in ctx)) for c, pos, neg, ctx in items]
+    contexts: list[tuple[Constraint, int, int, tuple[int, int]]] = []
+    for c, pos, neg, ctx in items:
+        mask_want = literals_mask(((lit.name, lit.depth), lit.positive) for lit in ctx)
+        assert mask_want is not None  # `variables` are those of the contexts
+        contexts.append((c, pos, neg, mask_want))
 
     situations: Iterator[tuple[bool, ...]]
     if analysis.exhaustive:
@@ -183,7 +186,7 @@ def analyse(project: Project, seed: int = 0) -> FilterAnalysis:
         analysis.steps += len(combined) + sum((p | n).bit_count() for p, n in combined)
         return Problem(combined, unforced, forced)
 
-    def solve(problem: Problem, start: int):
+    def solve(problem: Problem, start: int) -> Solution | None:
         """The exact search within what is left of the work limit; None once it is used
         up."""
         left = MAX_ANALYSIS_STEPS - analysis.steps
@@ -260,17 +263,18 @@ def analyse(project: Project, seed: int = 0) -> FilterAnalysis:
     return analysis
 
 
-def _conflicts(items, outputs, invariants, budget: int) -> tuple[list[str], int, int]:
+def _conflicts(items: list[_Item], outputs: list[str], invariants: list[tuple[str, int, int]],
+               budget: int) -> tuple[list[str], int, int]:
     """The pairs of simple constraints forcing one output both ways in a common context:
     the first MAX_CONFLICTS_SHOWN described, how many there are in all, and the steps spent
     (a literal read is one). Only pairs on the same output are compared (grouped by output,
     not every pair of constraints); still, 5,000 forcing one output each way are 25 million
     pairs, so the comparison stops once `budget` steps are spent."""
-    found = []
+    found: list[str] = []
     total = 0
     steps = 0
     simple = [item for item in items if item[0].kind == "simple"]
-    forcing1: dict[int, list] = {}  # output bit -> the constraints forcing it to 1
+    forcing1: dict[int, list[_Item]] = {}  # output bit -> the constraints forcing it to 1
     for item in simple:
         if item[2]:
             forcing1.setdefault(item[2], []).append(item)

@@ -45,6 +45,7 @@ from hmi.farm.bundle import Bundle, digest_of
 from hmi.farm.job import Study, make_job
 from hmi.farm.run import Farm
 from hmi.farm.version import code_version
+from hmi.project.model import Project
 from hmi.studies.band import variant_of
 from hmi.studies.closed_loop import Outcome, outcomes
 from hmi.studies.explore import Explorer, LoopConfig, faults_of
@@ -103,10 +104,10 @@ class SweepResult:
         return min(runs, key=lambda r: (abs(r.at_us - at), r.at_us))
 
 
-def sweep(project, configs: Sequence[LoopConfig], counter: str, every_us: int | None = None,
-          extras: bool = True, farm: Farm | None = None, cache: bool = True,
-          compute: bool = True, faults: Sequence[str] | None = None, exact: bool = False,
-          point: dict[str, Any] | None = None) -> SweepResult | None:
+def sweep(project: Project, configs: Sequence[LoopConfig], counter: str,
+          every_us: int | None = None, extras: bool = True, farm: Farm | None = None,
+          cache: bool = True, compute: bool = True, faults: Sequence[str] | None = None,
+          exact: bool = False, point: dict[str, Any] | None = None) -> SweepResult | None:
     """The sweep, from the cache when it holds it; None when it does not and `compute` is
     false. `farm` says where the shards run (default: this machine's processes). `exact`:
     every instant of the cycle, else a grid of `every_us` (a multiple of the scan period, or
@@ -162,8 +163,8 @@ def sweep(project, configs: Sequence[LoopConfig], counter: str, every_us: int | 
             else:
                 split.setdefault((c, start // block), set()).update(piece.states)
             spent.append((c, start, end, piece.seconds, piece.run_seconds))
-    for (c, _), states in sorted(split.items()):
-        computed[missing[c].key].states[missing[c].key] += len(states)
+    for (index, _), states in sorted(split.items()):
+        computed[missing[index].key].states[missing[index].key] += len(states)
     _store_times(_times_key(project, variant, missing, counter, every, extras, faults,
                             [exact, step_us, text]), missing, spent)
     out = []
@@ -191,7 +192,7 @@ def _joined(parts: list[SweepResult], configs: Sequence[LoopConfig], cached: boo
     return result
 
 
-def sweep_study(project, configs: Sequence[LoopConfig], counter: str, every: int,
+def sweep_study(project: Project, configs: Sequence[LoopConfig], counter: str, every: int,
                 extras: bool, faults: tuple[str, ...], variant: str, exact: bool = False,
                 step_us: int | None = None, point: dict[str, Any] | None = None
                 ) -> tuple[Study, Explorer]:
@@ -381,7 +382,7 @@ class _State:
         return ex
 
 
-def _setup(project, options: dict[str, Any]) -> _State:
+def _setup(project: Project, options: dict[str, Any]) -> _State:
     point = options.get("point")
     if point:  # a band point's plant, made from the project the worker loaded
         from hmi.studies.band import plant_at
@@ -416,7 +417,7 @@ def _piece(state: _State, c: int, start: int, end: int) -> PiecePart:
                      time.thread_time() - started, each)
 
 
-def _digest(key: tuple) -> str:
+def _digest(key: tuple[object, ...]) -> str:
     """A state's name that is the same in every process (its key holds numbers, strings and
     tuples only, whose repr is fixed): 64 bits, so that 10^5 states of a block collide with
     odds of about 10^-10."""
@@ -459,14 +460,18 @@ def cache_folder() -> Path:
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "plchmi"
 
 
-def _cache_key(project, variant, configs, counter, every, extras, faults, more=()) -> str:
+def _cache_key(project: Project, variant: str, configs: Sequence[LoopConfig], counter: str,
+               every: int | None, extras: bool, faults: Sequence[str],
+               more: Sequence[object] = ()) -> str:
     text = json.dumps([CACHE_VERSION, variant, counter, every, extras, list(faults),
                        [[c.key, c.policy, c.diagnosis] for c in configs],
                        digest_of(project, variant or None), code_version().digest, list(more)])
     return hashlib.sha256(text.encode()).hexdigest()[:32]
 
 
-def _times_key(project, variant, configs, counter, every, extras, faults, more=()) -> str:
+def _times_key(project: Project, variant: str, configs: Sequence[LoopConfig], counter: str,
+               every: int | None, extras: bool, faults: Sequence[str],
+               more: Sequence[object] = ()) -> str:
     """The sweep without the code version: the times measured before a change of the code
     still cut the next run well enough (the cut changes the time, never the result)."""
     text = json.dumps(["times", SHARD_RUNS, EXACT_COST, variant, counter, every, extras,
@@ -483,7 +488,7 @@ class Times:
     pieces: frozenset[tuple[int, int]]  # (configuration, first run) of each piece measured
 
 
-def _load_times(key: str, configs, runs: int) -> Times | None:
+def _load_times(key: str, configs: Sequence[LoopConfig], runs: int) -> Times | None:
     """Each run's CPU time, as the last run of this sweep measured it (what a piece spent
     around its runs spread evenly over them; a file of pieces' times only, all of it), and
     its pieces; None if unknown."""
@@ -514,7 +519,7 @@ def _load_times(key: str, configs, runs: int) -> Times | None:
 Spent = tuple[int, int, int, float, list[float] | None]
 
 
-def _store_times(key: str, configs, spent: list[Spent]) -> None:
+def _store_times(key: str, configs: Sequence[LoopConfig], spent: list[Spent]) -> None:
     """Each piece's CPU time: [first run, end, seconds, each run's] per configuration."""
     data = {c.key: [[start, end, t, each] for i, start, end, t, each in spent if i == n]
             for n, c in enumerate(configs)}

@@ -36,20 +36,23 @@ compare.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 from hmi.engine.scan import Engine, EngineState
-from hmi.logic.expr import Compare, Duration, StepTime, walk
+from hmi.logic.expr import Compare, Duration, Expr, StepTime, walk
+from hmi.plant.sim.device import SimDevice
 from hmi.plant.sim.plant import SimPlant
 from hmi.plant.sim.valve import Valve
+from hmi.project.model import ControlLaw, DiagnoserSpec, Project
 
 
 class Unsupported(Exception):
     """The closed loop holds state this module does not know how to capture or compare."""
 
 
-def step_caps(project, law) -> dict[str, int]:
+def step_caps(project: Project, law: ControlLaw) -> dict[str, int]:
     """Per GRAFCET step: a time past which every comparison of its activity time agrees.
 
     A step time is only ever compared with a duration (`X2.t >= 3s`): every value above the
@@ -72,14 +75,14 @@ def step_caps(project, law) -> dict[str, int]:
                         caps[step] = max(caps.get(step, 0), limits[0] + 1)
                 else:
                     unbounded.update(steps)
-    out = {}
-    for step in law.grafcet.steps:
-        if step.name not in unbounded:
-            out[step.name] = caps.get(step.name, 0)
+    out: dict[str, int] = {}
+    for each in law.grafcet.steps:
+        if each.name not in unbounded:
+            out[each.name] = caps.get(each.name, 0)
     return out
 
 
-def state_caps(spec) -> list[int]:
+def state_caps(spec: DiagnoserSpec) -> list[int]:
     """Per diagnoser state: the time in state past which no window or timeout differs."""
     caps = {s.name: 0 for s in spec.states}
     for tr in spec.transitions:
@@ -89,7 +92,7 @@ def state_caps(spec) -> list[int]:
     return [caps[s.name] for s in spec.states]
 
 
-def _expressions(project):
+def _expressions(project: Project) -> Iterator[Expr]:
     from hmi.engine.scan import _all_exprs
     from hmi.project.diagnosers import diagnosers_of
     yield from _all_exprs(project)
@@ -157,7 +160,7 @@ class LoopAccess:
         p.forget_writes()  # the devices' orders are the captured ones now
 
     # -- the key --------------------------------------------------------------------------
-    def key(self) -> tuple:
+    def key(self) -> tuple[object, ...]:
         e = self.engine
         now = e.now
         slots = self.time_slots
@@ -173,7 +176,7 @@ class LoopAccess:
         devices = tuple(_DEVICE_KEYS[type(d)](d, now) for d in self.plant.devices)
         return (image, history, timers, diag, latched, devices)
 
-    def region(self) -> tuple:
+    def region(self) -> tuple[object, ...]:
         """The plant's discrete state: its key with every continuous quantity (a position, a
         clock, an instant to come) replaced by the side it lies on of each constant it is
         compared with. Runs of one fault injected at two instants of the same scan interval
@@ -185,7 +188,8 @@ class LoopAccess:
         return tuple(_DEVICE_REGIONS[type(d)](d, now) for d in self.plant.devices)
 
 
-def _image_key(image, time_slots) -> tuple:
+def _image_key(image: Sequence[Any], time_slots: Sequence[tuple[int, int]]
+               ) -> tuple[object, ...]:
     if not time_slots:
         return tuple(image)
     values = list(image)
@@ -198,8 +202,8 @@ def _image_key(image, time_slots) -> tuple:
 _SKIP = frozenset({"name", "params", "travel", "band"})  # constant after construction
 
 
-def _copy_vars(device) -> tuple:
-    out = []
+def _copy_vars(device: SimDevice) -> tuple[tuple[str, object], ...]:
+    out: list[tuple[str, object]] = []
     for name, value in vars(device).items():
         if name in _SKIP:
             continue
@@ -209,7 +213,7 @@ def _copy_vars(device) -> tuple:
     return tuple(out)
 
 
-def _restore_vars(device, saved: tuple) -> None:
+def _restore_vars(device: SimDevice, saved: tuple[tuple[str, object], ...]) -> None:
     for name, value in saved:
         if isinstance(value, (list, dict, set)):
             value = value.copy()
@@ -251,5 +255,6 @@ def _valve_region(v: Valve, now: int) -> Any:
             tuple(p.code for p in v.pending), switches)
 
 
-_DEVICE_KEYS = {Valve: _valve_key}
-_DEVICE_REGIONS = {Valve: _valve_region}
+# By the device's exact class: each function takes that class's devices (hence Any).
+_DEVICE_KEYS: dict[type[SimDevice], Callable[[Any, int], object]] = {Valve: _valve_key}
+_DEVICE_REGIONS: dict[type[SimDevice], Callable[[Any, int], object]] = {Valve: _valve_region}

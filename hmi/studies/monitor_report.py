@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from hmi.engine.monitors import MonitorState
+from hmi.engine.snapshot import Snapshot
 from hmi.engine.stopwatch import Detection, WatchdogTrip, Window
 from hmi.project.model import Project, TaskMonitor
 from hmi.project.monitors import monitors_of
@@ -79,14 +80,14 @@ class MonitorLog:
         self.detections: dict[tuple[str, int], Detection] = {}
         self.trips: dict[tuple[str, int], WatchdogTrip] = {}
         self._marks: int | None = None  # monitor_marks of the last states read
-        self._latest = None  # the latest snapshot with the monitors' states
+        self._latest: Snapshot | None = None  # the latest snapshot with the monitors' states
 
     @property
     def last(self) -> tuple[MonitorState, ...]:
         """The monitors' states at the latest scan that had them."""
         return self._latest.monitors if self._latest is not None else ()
 
-    def add(self, snap) -> None:
+    def add(self, snap: Snapshot) -> None:
         marks = snap.monitor_marks
         if marks == self._marks and snap.error is None:  # only stopwatches ran on
             self._latest = snap

@@ -21,13 +21,22 @@ exits 1 when a row breaks one of them.
 from __future__ import annotations
 
 import argparse
-from collections.abc import Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from hmi.engine.stopwatch import Detection, WatchdogTrip
 from hmi.errors import UsageError
 from hmi.limits import MAX_RUN_SCANS
 from hmi.timefmt import format_duration, seconds
+
+if TYPE_CHECKING:
+    from hmi.engine.monitors import MonitorState
+    from hmi.engine.scan import Engine
+    from hmi.engine.snapshot import Snapshot
+    from hmi.plant.sim.tasks import TaskRecord
+    from hmi.project.injection import Injection
+    from hmi.project.model import Project, TaskMonitor
 
 BASELINE_LIMIT_US = 600_000_000  # give up finding the task's start after 10 virtual minutes
 
@@ -78,7 +87,7 @@ class SweepResult:
         return not any(r.false_alarm or r.missed or r.later_than_watchdog for r in self.rows)
 
 
-def cmd_sweep(args: argparse.Namespace, project) -> int:
+def cmd_sweep(args: argparse.Namespace, project: Project) -> int:
     result = run_sweep(project, args.task, args.fault, args.starts, args.lengths,
                        attempt=args.attempt, control=args.control)
     print(format_sweep(result))
@@ -90,7 +99,7 @@ def cmd_sweep(args: argparse.Namespace, project) -> int:
 # --------------------------------------------------------------------------------------------
 
 
-def _pick_task(project, name: str | None):
+def _pick_task(project: Project, name: str | None) -> TaskMonitor:
     from hmi.project.monitors import monitors_of
     monitors = monitors_of(project)
     if not monitors:
@@ -104,13 +113,13 @@ def _pick_task(project, name: str | None):
         m.name for m in monitors))
 
 
-def _default_fault(project, task) -> str:
+def _default_fault(project: Project, task: TaskMonitor) -> str:
     """The interruption fault of the device whose sensor the task's interruption reads."""
     from hmi.logic.expr import variables
     from hmi.project.device_models import DEVICE_MODELS
     exprs = [e for e in (task.interrupted, task.interrupt, task.resume) if e is not None]
     names = {v.name for e in exprs for v in variables(e)}
-    found = []
+    found: list[str] = []
     for spec in project.plant.devices:
         model = DEVICE_MODELS.get(spec.model)
         code = model.interruption_fault if model is not None else None
@@ -122,7 +131,8 @@ def _default_fault(project, task) -> str:
     return found[0]
 
 
-def _engine(project, control, injections=()):
+def _engine(project: Project, control: str | None, injections: Iterable[Injection] = ()
+            ) -> Engine:
     from hmi.engine.scan import Engine
     from hmi.plant.sim.plant import SimPlant
     plant = SimPlant(project)
@@ -131,17 +141,18 @@ def _engine(project, control, injections=()):
     return Engine(project, plant, control=control)
 
 
-def _scan(engine):
+def _scan(engine: Engine) -> Snapshot:
     """The next scan's snapshot, one period after the last in virtual time (the first at 0),
     as a headless run scans."""
     return engine.step(engine.now + engine.project.scan_period_us if engine.scan else 0)
 
 
-def _state(snap, name: str):
+def _state(snap: Snapshot, name: str) -> MonitorState:
     return next(m for m in snap.monitors if m.name == name)
 
 
-def find_task_start(project, task: str, attempt: int = 1, control: str | None = None) -> int:
+def find_task_start(project: Project, task: str, attempt: int = 1,
+                    control: str | None = None) -> int:
     """When the task starts for the `attempt`-th time in an undisturbed run (µs)."""
     engine = _engine(project, control)
     while True:
@@ -153,15 +164,19 @@ def find_task_start(project, task: str, attempt: int = 1, control: str | None = 
                              f"{seconds(BASELINE_LIMIT_US)} s of an undisturbed run")
 
 
-def run_one(project, task, fault: str, t0: int, start_us: int, length_us: int,
+def run_one(project: Project, task: TaskMonitor, fault: str, t0: int, start_us: int, length_us: int,
             attempt: int, control: str | None = None) -> SweepRow:
     """One run of the sweep: the task interrupted `start_us` after t0 for `length_us`."""
     from hmi.project.injection import parse_injection
     from hmi.studies.monitor_report import MonitorLog
     injection = parse_injection(f"{fault}@{t0 + start_us}us+{length_us}us")
     engine = _engine(project, control, [injection])
-    device = engine.plant.resolve(injection)
-    records = getattr(device, "task_records", None)
+    from hmi.plant.sim.plant import SimPlant
+    plant = engine.plant
+    assert isinstance(plant, SimPlant)  # _engine's
+    device = plant.resolve(injection)
+    records: Callable[[], tuple[TaskRecord, ...]] | None = getattr(device, "task_records",
+                                                                   None)
     if records is None:
         raise UsageError(f"device {device.name!r} ({device.MODEL}) keeps no task record, so "
                          "the sweep has no ground truth for it")
@@ -184,11 +199,11 @@ def run_one(project, task, fault: str, t0: int, start_us: int, length_us: int,
                     log.detection(task.name, attempt), log.trip(task.name, attempt))
 
 
-def _record(records, t0: int):
+def _record(records: Iterable[TaskRecord], t0: int) -> TaskRecord | None:
     return next((r for r in records if r.start_us == t0), None)
 
 
-def run_sweep(project, task_name: str | None, fault: str | None, starts: Sequence[int],
+def run_sweep(project: Project, task_name: str | None, fault: str | None, starts: Sequence[int],
               lengths: Sequence[int], attempt: int = 1,
               control: str | None = None) -> SweepResult:
     if project.plant.kind != "sim":

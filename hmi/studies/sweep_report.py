@@ -9,7 +9,9 @@ bounded delay").
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 from hmi.studies import loop_sweep
 from hmi.studies.campaign import PAPER_TABLE
@@ -24,6 +26,10 @@ from hmi.studies.closed_loop import (
 )
 from hmi.studies.loop_sweep import SweepResult, block_units
 from hmi.timefmt import format_duration, seconds
+
+if TYPE_CHECKING:
+    from hmi.project.model import CampaignScenario
+    from hmi.studies.band_sweep import BandSweep
 
 OUTCOMES = (BLOCKED, TOLERANT, DEFECT)
 SEVERITY = {TOLERANT: 0, BLOCKED: 1, DEFECT: 2, UNDECIDED: 3}
@@ -41,8 +47,9 @@ class FaultSweep:
         return self.counts.get(outcome, 0) / self.runs if self.runs else 0.0
 
 
-def per_fault(result: SweepResult, config: str, scenarios) -> list[FaultSweep]:
-    out = []
+def per_fault(result: SweepResult, config: str, scenarios: Sequence[CampaignScenario]
+              ) -> list[FaultSweep]:
+    out: list[FaultSweep] = []
     tabled = {s.fault: s for s in scenarios if s.table}
     for fault in result.faults:
         runs = [r for r in result.of(config) if r.fault == fault]
@@ -57,7 +64,7 @@ def per_fault(result: SweepResult, config: str, scenarios) -> list[FaultSweep]:
 
 
 def why(r: Outcome) -> str:
-    if r.outcome == DEFECT:
+    if r.outcome == DEFECT and r.damage_us is not None:
         return (f"{r.damage_kind} {format_duration(r.damage_us - r.at_us)} after the fault"
                 + _decision(r))
     if r.outcome == UNDECIDED:
@@ -82,7 +89,8 @@ def _at(us: int) -> str:
     return seconds(us) if us % 1000 == 0 else f"{us / 1e6:.6f}"
 
 
-def report_lines(result: SweepResult, scenarios, paper: bool, title: str) -> list[str]:
+def report_lines(result: SweepResult, scenarios: Sequence[CampaignScenario], paper: bool,
+                 title: str) -> list[str]:
     total = sum(len(v) for v in result.runs.values())
     per_config = total // max(1, len(result.configs))
     grid = format_duration(result.step_us or result.every * result.period_us)
@@ -153,27 +161,28 @@ def report_lines(result: SweepResult, scenarios, paper: bool, title: str) -> lis
         lines.append(f"  {c.title}")
         rows = [["fault", "detected", "fault -> first decision", "isolated",
                  "fault -> certain diagnosis"]]
-        for f in d.faults:
+        for fd in d.faults:
             if result.exact:
                 detected = sum(r.weight for r in result.of(c.key)
-                               if r.fault == f.fault and r.detected_us is not None)
-                rows.append([f.fault, f"{100 * detected / max(1, f.total_weight):.1f}%",
-                             _spread(f.detect_us), f"{100 * f.share:.1f}%",
-                             _spread(f.delays_us, f.longest_delay_us)])
+                               if r.fault == fd.fault and r.detected_us is not None)
+                rows.append([fd.fault, f"{100 * detected / max(1, fd.total_weight):.1f}%",
+                             _spread(fd.detect_us), f"{100 * fd.share:.1f}%",
+                             _spread(fd.delays_us, fd.longest_delay_us)])
             else:
-                rows.append([f.fault, f"{len(f.detect_us)}/{f.runs}", _spread(f.detect_us),
-                             f"{f.isolated}/{f.runs}", _spread(f.delays_us)])
+                rows.append([fd.fault, f"{len(fd.detect_us)}/{fd.runs}", _spread(fd.detect_us),
+                             f"{fd.isolated}/{fd.runs}", _spread(fd.delays_us)])
         lines += _table(rows, "    ")
     return lines
 
 
-def _spread(values, longest=None) -> str:
+def _spread(values: Sequence[int], longest: int | None = None) -> str:
     s = spread(values, longest)
     return "-" if s is None else " / ".join(seconds(v) for v in s) + " s"
 
 
-def as_dict(result: SweepResult, scenarios) -> dict:
-    out: dict = {"project": result.project, "variant": result.variant,
+def as_dict(result: SweepResult, scenarios: Sequence[CampaignScenario]) -> dict[str, Any]:
+    """The sweep as JSON data (`plchmi campaign --sweep --json`)."""
+    out: dict[str, Any] = {"project": result.project, "variant": result.variant,
                  "exact": result.exact, "point": result.point,
                  "every_s": None if result.exact else
                  (result.step_us or result.every * result.period_us) / 1e6,
@@ -181,7 +190,7 @@ def as_dict(result: SweepResult, scenarios) -> dict:
                  "states": result.states, "shard_runs": loop_sweep.SHARD_RUNS, "configurations": {}}
     for c in result.configs:
         d = diagnosability(c, result.of(c.key), result.faults)
-        faults = {}
+        faults: dict[str, dict[str, Any]] = {}
         for f, fd in zip(per_fault(result, c.key, scenarios), d.faults, strict=True):
             faults[f.fault] = {
                 "runs": f.runs, "counts": f.counts,
@@ -198,7 +207,7 @@ def as_dict(result: SweepResult, scenarios) -> dict:
     return out
 
 
-def _spread_s(values):
+def _spread_s(values: Sequence[int]) -> list[float] | None:
     s = spread(values)
     return None if s is None else [v / 1e6 for v in s]
 
@@ -216,7 +225,8 @@ def _table(rows: list[list[str]], indent: str = "  ", right: tuple[int, ...] = (
 # -- over the declared tolerances (hmi/studies/band_sweep.py) ----------------------------------
 
 
-def band_lines(over, scenarios, paper: bool, samples: int, seed: int) -> list[str]:
+def band_lines(over: BandSweep, scenarios: Sequence[CampaignScenario], paper: bool,
+               samples: int, seed: int) -> list[str]:
     """Table 1 at the worst instant, and each fault's shares of instants per class, as their
     ranges over the band's plants, worst first, with the plant that gives the worst."""
     band = over.band
@@ -251,9 +261,9 @@ def band_lines(over, scenarios, paper: bool, samples: int, seed: int) -> list[st
                 worst, best = (min, max) if outcome == TOLERANT else (max, min)
                 if outcome == BLOCKED:
                     worst, best = min, max
-                low, high = worst(shares), best(shares)
-                cells.append(f"{100 * low:.1f}%" if low == high else
-                             f"{100 * low:.1f} .. {100 * high:.1f}%")
+                share_lo, share_hi = worst(shares), best(shares)
+                cells.append(f"{100 * share_lo:.1f}%" if share_lo == share_hi else
+                             f"{100 * share_lo:.1f} .. {100 * share_hi:.1f}%")
             worst_point = max(per, key=lambda pf: (SEVERITY[pf[1].worst.outcome],
                                                    pf[1].share(DEFECT), -pf[1].share(TOLERANT)))
             name = "-" if all(_same_shares(f, per[0][1]) for _, f in per) else \
@@ -268,7 +278,7 @@ def _same_shares(a: FaultSweep, b: FaultSweep) -> bool:
     return all(abs(a.share(o) - b.share(o)) < 1e-12 for o in OUTCOMES)
 
 
-def band_as_dict(over, scenarios) -> dict:
+def band_as_dict(over: BandSweep, scenarios: Sequence[CampaignScenario]) -> dict[str, Any]:
     return {"band": over.band.describe(),
             "plants": [{"point": p.text(over.band), "label": p.label,
                         "sweep": as_dict(r, scenarios)}

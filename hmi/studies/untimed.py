@@ -32,8 +32,12 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 from hmi.studies.explore import Graph
+
+# A pair of runs of the twin plant: (state, fault bits) of each.
+_Pair = tuple[int, int, int, int]
 
 TAU = "tau"
 QUIET = "quiet"
@@ -113,9 +117,9 @@ class _Futures:
     def __init__(self, g: Graph, gen: Generator):
         self.g, self.gen = g, gen
         self.of_node: dict[int, int] = {}
-        self.by_key: dict[tuple, int] = {}
+        self.by_key: dict[tuple[object, ...], int] = {}
 
-    def _intern(self, key: tuple) -> tuple[int, bool]:
+    def _intern(self, key: tuple[object, ...]) -> tuple[int, bool]:
         found = self.by_key.get(key)
         if found is not None:
             return found, False
@@ -205,14 +209,15 @@ def diagnosable(gen: Generator, types: dict[str, set[str]]) -> bool:
     out: dict[int, list[tuple[str, int]]] = {}
     for a, ev, b in gen.transitions:
         out.setdefault(a, []).append((ev, b))
-    start = (gen.initial, 0, gen.initial, 0)
-    succ: dict[tuple, list[tuple]] = {}
+    # (state of the first copy, its fault bits, state of the second, its fault bits)
+    start: _Pair = (gen.initial, 0, gen.initial, 0)
+    succ: dict[_Pair, list[_Pair]] = {}
     stack = [start]
     succ[start] = []
     while stack:
         v = stack.pop()
         x, fx, y, fy = v
-        nexts = []
+        nexts: list[_Pair] = []
         for ev, x2 in out.get(x, ()):
             if ev not in gen.observable:
                 nexts.append((x2, fx | bit.get(ev, 0), y, fy))
@@ -237,7 +242,7 @@ def diagnosable(gen: Generator, types: dict[str, set[str]]) -> bool:
     return True
 
 
-def has_cycle(region: set, succ: dict) -> bool:
+def has_cycle(region: set[_Pair], succ: dict[_Pair, list[_Pair]]) -> bool:
     """A cycle inside `region` (Kahn: what cannot be peeled off lies on or before a cycle)."""
     indegree = dict.fromkeys(region, 0)
     for v in region:
@@ -257,7 +262,7 @@ def has_cycle(region: set, succ: dict) -> bool:
     return removed < len(region)
 
 
-def to_faudes(gen: Generator):
+def to_faudes(gen: Generator) -> Any:  # a faudes.System (faudes ships no types)
     """The generator as a libFAUDES System (the `faudes` package, a test dependency)."""
     import faudes
     system = faudes.System()
@@ -275,7 +280,7 @@ def to_faudes(gen: Generator):
     return system
 
 
-def failure_types(types: Mapping[str, set[str]]):
+def failure_types(types: Mapping[str, set[str]]) -> Any:  # a faudes.FailureTypeMap
     """The failure types (name -> fault events) as a libFAUDES FailureTypeMap."""
     import faudes
     mapping = faudes.FailureTypeMap()

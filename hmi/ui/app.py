@@ -20,21 +20,25 @@ situation picked from the palette or by clicking a constraint.
 
 from __future__ import annotations
 
+import asyncio
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, replace
 from functools import partial
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal, Protocol, TypeVar, overload
 
 from rich.text import Text
 from textual import events
+from textual.actions import ActionParseResult
 from textual.app import App, ComposeResult, SystemCommand
 from textual.binding import Binding
 from textual.command import Provider
 from textual.containers import Horizontal, Vertical
 from textual.css.scalar import Unit
-from textual.screen import ModalScreen, Screen
+from textual.dom import DOMNode
+from textual.screen import ModalScreen, Screen, ScreenResultCallbackType
+from textual.widget import AwaitMount
 
 from hmi.access import roles
 from hmi.access.sessions import IdleTimer
@@ -67,6 +71,7 @@ from hmi.engine.commands import (
 from hmi.engine.criteria import Wait
 from hmi.engine.scan import Engine
 from hmi.engine.snapshot import Snapshot
+from hmi.explain.alarms import Alarm
 from hmi.explain.model import Explanation, Policy
 from hmi.explain.plain import PlainNames
 from hmi.explain.reset import ResetLine, reset_preview
@@ -74,7 +79,7 @@ from hmi.link.base import CellLink, ResetGuard, View
 from hmi.link.local import LocalLink, SessionLink
 from hmi.project.diagnosers import diagnosers_of
 from hmi.project.injection import Injection
-from hmi.project.model import POLICIES
+from hmi.project.model import POLICIES, ControlLaw
 from hmi.project.monitors import monitors_of
 from hmi.project.recovery import recoveries_of
 from hmi.session.session import Session
@@ -110,6 +115,7 @@ from hmi.ui.status import BannerStrip, StatusBar
 from hmi.ui.style import ISA101, MUTED, OK_SYMBOL, Level, isa101_theme, tag
 from hmi.ui.textual_adapter import LastResort
 from hmi.ui.verdict import output_changes, request_verdict
+from hmi.wire.messages import ClientInfo
 
 if TYPE_CHECKING:
     from datetime import tzinfo
@@ -157,7 +163,17 @@ class Body(ContainedPump, Vertical):
             panel.recheck()
 
 
-class PlcHmiApp(LastResort, ContainedPump, App):
+_R = TypeVar("_R")
+_S = TypeVar("_S", bound=Screen[Any])
+
+
+class _Shows(Protocol):
+    """A panel the frame is handed to."""
+
+    def show(self, frame: Frame) -> None: ...
+
+
+class PlcHmiApp(LastResort, ContainedPump, App[None]):
     CSS_PATH = ["app.tcss", "dialogs.tcss", "trend.tcss"]
     TITLE = "plchmi"
     # 1 / 0 / x also from outside the I/O table (an explanation's policy button, the alarm
@@ -182,26 +198,26 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         the single-process bench); `live`: its scans are paced by the wall clock and the
         screen refreshes on a timer, else whoever runs virtual time shows the frames."""
         super().__init__()
-        if isinstance(link, Session):
-            link = LocalLink(link, live=live)
-        self.link: CellLink = link
-        self.facts = link.facts
+        cell: CellLink = LocalLink(link, live=live) if isinstance(link, Session) else link
+        self.link = cell
+        self.facts = cell.facts
         self.served = served  # the cell's OPC UA server (--opcua): its status is shown
-        self.project = link.project
-        self.driver: LiveDriver | VirtualDriver = (LiveDriver(link) if live
-                                                   else VirtualDriver(link))
+        self.project = cell.project
+        self.driver: LiveDriver | VirtualDriver = (LiveDriver(cell) if live
+                                                   else VirtualDriver(cell))
         self.show_measured = live if show_measured is None else show_measured
         self.refresh_hz = refresh_hz
-        self.history = link.history  # every scan's edges and plant events (chronogram)
+        self.history = cell.history  # every scan's edges and plant events (chronogram)
         self.stop_cell = False  # the operator quit and asked the cell to stop too
         self._asked: str | None = None  # the screen whose control request was asked
         self.frame: Frame | None = None
         self.frames_shown = 0  # frames handed to the panels (the UI refresh count)
-        self._key: tuple | None = None
+        self._key: tuple[object, ...] | None = None  # what the last frame was made of
         self._version = 0  # bumped when something the frame shows changes outside the scan
         self.engineering = False  # the engineering view (E): internal names shown too
         self.answer = ""  # the last command's answer as the message line said it
-        self._revealed: tuple | None = None  # the subject whose I/O rows were scrolled to
+        # the subject whose I/O rows were scrolled to, and the size then
+        self._revealed: tuple[object, ...] | None = None
         self._stepping = False
         self._request: tuple[str, bool, int, str] | None = None  # pending manual verdict
         self._injected: list[InjectedFault] = []  # shown on the SIMULATION strip
@@ -218,9 +234,8 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         self._p1_unack: frozenset[str] = frozenset()
         # UI errors: contained and shown (banner, journal), or the reason the app ended
         self.containment = Containment(self._scan_time)
-        if isinstance(link, SessionLink):  # the recorder runs in this process's scans
-            link.on_recorder_error = partial(self.containment.record,
-                                             "the UI's scan recorder")
+        if isinstance(cell, SessionLink):  # the recorder runs in this process's scans
+            cell.on_recorder_error = self._recorder_failed
         # told once the first frame is on the screen (the start's caches save then)
         self.first_frame_listeners: list[Callable[[], None]] = []
         # The trends open (hmi.ui.trend_screen), told of every frame; the zone their times
@@ -230,9 +245,9 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         self.set_class(True, f"-theme-{self.theme}", update=False)  # as a theme change sets
         # The idle lock of a screen people sign in to (the users file's idle-lock and
         # idle-warning, from the runtime): None where nobody signs in.
-        lock_us = link.idle_lock_us if link.accountable else 0
+        lock_us = cell.idle_lock_us if cell.accountable else 0
         self.idle_timer: IdleTimer | None = IdleTimer(
-            lock_us / 1e6, link.idle_warning_us / 1e6, idle_clock) if lock_us > 0 else None
+            lock_us / 1e6, cell.idle_warning_us / 1e6, idle_clock) if lock_us > 0 else None
         self.idle_state = "active"  # active, warning, locked (what the screen shows)
 
     def get_css_variables(self) -> dict[str, str]:
@@ -268,7 +283,7 @@ class PlcHmiApp(LastResort, ContainedPump, App):
                 out[v.name] = text[len(device):].strip(" :-—,") or text
         return out
 
-    def _wait_words(self, law) -> Callable[[Wait], str] | None:
+    def _wait_words(self, law: ControlLaw) -> Callable[[Wait], str] | None:
         """What a step waits for, in the words the explanations use."""
         if law.grafcet is None:
             return None
@@ -281,8 +296,9 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         facts = self.facts
         project = self.project
         # the I/O's, and the estimates' (an I/O row says "≈ estimated open position")
-        descriptions = {v.name: v.description for v in (*project.inputs, *project.outputs,
-                                                         *project.timers, *project.observers)}
+        descriptions = {v.name: v.description for v in (*project.inputs, *project.outputs)}
+        descriptions |= {t.name: t.description for t in project.timers}
+        descriptions |= {o.name: o.description for o in project.observers}
         law = project.controls[facts.control]
         steps = [StepInfo(s.name, s.description) for s in law.grafcet.steps] \
             if law.grafcet else []
@@ -328,7 +344,7 @@ class PlcHmiApp(LastResort, ContainedPump, App):
     def on_mount(self) -> None:
         # the panels that set their own height first (banners, alarm rows): the column
         # panels measure their room after them
-        self._views = [self.query_one(StatusBar), self.query_one(BannerStrip),
+        self._views: list[_Shows] = [self.query_one(StatusBar), self.query_one(BannerStrip),
                        self.query_one(AlarmList), self.query_one(IOPanel),
                        self.query_one(ConstraintsPanel), self.query_one(GrafcetPanel),
                        self.query_one(DiagnosersPanel), self.query_one(MonitorsPanel),
@@ -360,6 +376,10 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         self.driver.stop()
 
     # -- fault containment (see hmi.ui.containment) ------------------------------------------
+    def _recorder_failed(self, exc: BaseException) -> None:
+        """The scan recorder failed in this process's scan thread (the scan goes on)."""
+        self.containment.record("the UI's scan recorder", exc)
+
     def contain(self, what: str, exc: BaseException) -> UIFault:
         """An error in the UI: remembered, shown (banner, message line), journalled; the
         screen goes on refreshing and the scan never noticed."""
@@ -387,7 +407,9 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         cannot go on. Remembered as the reason of an abnormal end, then Textual ends it."""
         self.containment.record("the HMI (Textual)", error, fatal=True)
 
-    async def run_action(self, action, default_namespace=None, namespaces=None) -> bool:
+    async def run_action(self, action: str | ActionParseResult,
+                         default_namespace: DOMNode | None = None,
+                         namespaces: Mapping[str, DOMNode] | None = None) -> bool:
         """Every key's and palette's action goes through here: an error in it is contained."""
         try:
             return await super().run_action(action, default_namespace, namespaces)
@@ -395,17 +417,27 @@ class PlcHmiApp(LastResort, ContainedPump, App):
             self.contain(f"action {action}", exc)
             return True
 
-    def get_default_screen(self):
+    def get_default_screen(self) -> Screen[Any]:
         """The main screen; like every screen (get_screen: the dialogs, the palette), in
         virtual time it is drawn at rest, never by the wall clock (VirtualDriver.hold)."""
         screen = super().get_default_screen()
-        if not self.driver.live:
+        if isinstance(self.driver, VirtualDriver):
             self.driver.hold(screen)
         return screen
 
-    def get_screen(self, screen):
-        found = super().get_screen(screen)
-        if not self.driver.live:
+    @overload
+    def get_screen(self, screen: _S) -> _S: ...
+    @overload
+    def get_screen(self, screen: str) -> Screen[Any]: ...
+    @overload
+    def get_screen(self, screen: str, screen_class: type[_S] | None = None) -> _S: ...
+    @overload
+    def get_screen(self, screen: _S, screen_class: type[_S] | None = None) -> _S: ...
+
+    def get_screen(self, screen: Screen[Any] | str,
+                   screen_class: type[Screen[Any]] | None = None) -> Screen[Any]:
+        found = super().get_screen(screen, screen_class)
+        if isinstance(self.driver, VirtualDriver):
             self.driver.hold(found)
         return found
 
@@ -416,12 +448,28 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         if self.driver.live:
             super().delay_update(delay)
 
-    def push_screen(self, screen, callback=None, wait_for_dismiss=False, *, mode=None):
+    @overload
+    def push_screen(self, screen: Screen[_R] | str,
+                    callback: ScreenResultCallbackType[_R] | None = None,
+                    wait_for_dismiss: Literal[False] = False, *,
+                    mode: str | None = None) -> AwaitMount: ...
+    @overload
+    def push_screen(self, screen: Screen[_R] | str,
+                    callback: ScreenResultCallbackType[_R] | None = None,
+                    wait_for_dismiss: Literal[True] = True, *,
+                    mode: str | None = None) -> asyncio.Future[_R]: ...
+
+    def push_screen(self, screen: Screen[_R] | str,
+                    callback: ScreenResultCallbackType[_R] | None = None,
+                    wait_for_dismiss: bool = False, *,
+                    mode: str | None = None) -> AwaitMount | asyncio.Future[_R]:
         """Dialogs: the answer's handling is contained like any other action."""
         if callback is not None:
             callback = self.guarded(f"answer to {getattr(screen, 'id', None) or screen}",
                                     callback)
-        return super().push_screen(screen, callback, wait_for_dismiss, mode=mode)
+        if wait_for_dismiss:
+            return super().push_screen(screen, callback, True, mode=mode)
+        return super().push_screen(screen, callback, False, mode=mode)
 
     @property
     def message(self) -> MessageLine:
@@ -492,11 +540,11 @@ class PlcHmiApp(LastResort, ContainedPump, App):
             engineering=self.engineering)
         self._show_presence(frame)
         self.frame = frame
-        for view in self._views:  # one panel failing leaves the others showing this frame
+        for panel in self._views:  # one panel failing leaves the others showing this frame
             try:
-                view.show(frame)
+                panel.show(frame)
             except Exception as exc:
-                self.contain(f"{type(view).__name__} refresh", exc)
+                self.contain(f"{type(panel).__name__} refresh", exc)
         try:
             self._fit_plant_column()
             if len(self.screen_stack) > 1:
@@ -550,7 +598,7 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         elif asked is None:
             self._asked = None
 
-    def _ask_hand_over(self, asked) -> None:
+    def _ask_hand_over(self, asked: ClientInfo) -> None:
         from hmi.ui.dialogs import ConfirmDialog
         who = asked
 
@@ -619,7 +667,7 @@ class PlcHmiApp(LastResort, ContainedPump, App):
                     partial(self.hand_over, client.id, str(client))))
         return entries
 
-    def _ring(self, snap) -> None:
+    def _ring(self, snap: Snapshot) -> None:
         """The bell, once per P1 alarm that became active and unacknowledged since the last
         frame (a returning one counts again); nothing without --bell."""
         now = frozenset(a.key for a in snap.alarms
@@ -683,7 +731,7 @@ class PlcHmiApp(LastResort, ContainedPump, App):
             self.containment.record("the scan thread", error, fatal=True)
             self.exit(return_code=1)
 
-    def _judge_request(self, snap) -> None:
+    def _judge_request(self, snap: Snapshot) -> None:
         if self._request is None:
             return
         name, requested, scan, what = self._request
@@ -987,13 +1035,13 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         if snap is not None:
             for alarm in snap.alarms:
                 if alarm.key == key:
-                    return alarm.text
+                    return str(alarm.text)
             for alarm, _shelf in snap.shelved:
                 if alarm.key == key:
-                    return alarm.text
+                    return str(alarm.text)
             for explanation in snap.explanations:
                 if explanation.key == key:
-                    return explanation.what
+                    return str(explanation.what)
         return key
 
     def on_command_requested(self, message: CommandRequested) -> None:
@@ -1337,7 +1385,7 @@ class PlcHmiApp(LastResort, ContainedPump, App):
                                            "by itself; a latched safety alarm cannot be "
                                            "shelved."), chosen)
 
-    def _listed_alarm(self, key: str | None, what: str):
+    def _listed_alarm(self, key: str | None, what: str) -> Alarm | None:
         """The listed alarm `key` (default: the selected one), or None, said."""
         key = key or self.alarm_list.selected
         snap = self.link.last
@@ -1379,7 +1427,8 @@ class PlcHmiApp(LastResort, ContainedPump, App):
         state = snap.recovery if snap else None
         reached = {"done": "The recovery is done.", "failed": "The recovery failed."}.get(
             state.status if state else "", "The recovery is stopped where it is.")
-        lines = [reached,
+        lines: list[Text | str] = [
+                 reached,
                  "Automatic mode: the control program starts again from its initial steps,",
                  "through the safety filter "
                  f"({snap.policy if snap else 'unchanged'})."]
@@ -1550,7 +1599,7 @@ class PlcHmiApp(LastResort, ContainedPump, App):
             order = [s.name for s in self.history.signals]
             self.set_signals(tuple(sorted((*current, name), key=order.index)))
 
-    def get_system_commands(self, screen: Screen) -> Iterable[SystemCommand]:
+    def get_system_commands(self, screen: Screen[Any]) -> Iterable[SystemCommand]:
         """Textual's entries, its Screenshot replaced by one that says where it saved (or
         why it could not) and keeps the words apart in every SVG viewer."""
         for command in super().get_system_commands(screen):
@@ -1673,7 +1722,7 @@ class PlcHmiApp(LastResort, ContainedPump, App):
                                         dialog_id="opcua-dialog"))
 
 
-    def _situation_entries(self, snap) -> list[PaletteEntry]:
+    def _situation_entries(self, snap: Snapshot) -> list[PaletteEntry]:
         """Per alarm and situation: acknowledge, explain, its policies; stopped devices."""
         from hmi.ui.palette import PaletteEntry
         entries: list[PaletteEntry] = []
@@ -1744,7 +1793,8 @@ class AppEnd:
     note: str | None = None
 
 
-def run_app(target: Engine | Session, clock=None, injected: tuple[Injection, ...] = (),
+def run_app(target: Engine | Session, clock: Callable[[], int] | None = None,
+            injected: tuple[Injection, ...] = (),
             on_fault: Callable[[UIFault], None] | None = None, bell: bool = False,
             served: Served | None = None,
             on_first_frame: Callable[[], None] | None = None) -> AppEnd:

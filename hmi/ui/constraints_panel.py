@@ -42,8 +42,7 @@ def _state(frame: Frame, name: str) -> tuple[Text, int]:
     snap = frame.snapshot
     report = snap.filter
     stats = frame.constraints.get(name)
-    violated = report is not None and name in report.violated_names
-    if violated:
+    if report is not None and name in report.violated_names:
         if name in report.residual and not report.safe_state:
             return tag("UNSAFE", Level.ALARM), 0
         if report.safe_state:
@@ -132,8 +131,8 @@ class ConstraintsPanel(TextPanel):
             cell = word.copy()
             cell.pad_right(12 - cell.cell_len)
             text.append_text(cell)
-            if stats is not None and stats.last_us is not None:
-                since = stats.since_us if rank < 2 else stats.last_us
+            since = None if stats is None else stats.since_us if rank < 2 else stats.last_us
+            if since is not None:
                 word_t = "since" if rank < 2 else "last"
                 text.append(f"{word_t} {seconds(since)} s ", style=MUTED)
             style = "" if rank < 2 else MUTED

@@ -25,7 +25,7 @@ import contextlib
 import time
 import unicodedata
 from collections.abc import Callable
-from typing import Any
+from typing import Any, TypeVar
 
 from textual import events
 from textual.app import App
@@ -33,10 +33,13 @@ from textual.geometry import Offset
 from textual.keys import ASCII_KEY_NAMES, KEY_NAME_REPLACEMENTS, REPLACED_KEYS, key_to_character
 from textual.message_pump import MessagePump
 from textual.pilot import Pilot
+from textual.screen import Screen
 from textual.worker import WorkerState
 
 from hmi.ui.app import PlcHmiApp
 from hmi.ui.textual_adapter import forward_mouse_event, next_callbacks_due, refresh, refresh_due
+
+S = TypeVar("S", bound=Screen[Any])
 
 MAX_ROUNDS = 10_000  # of message processing in one drain: only a guard against a loop
 # Textual's pilot gives up waiting for the screen's messages after 30 s of wall clock; a
@@ -177,7 +180,7 @@ def key_event(key: str) -> events.Key:
     return events.Key(key, key_to_character(REPLACED_KEYS.get(key, key)))
 
 
-async def click(pilot: Pilot, selector: str, x: int = 0, y: int = 0) -> bool:
+async def click(pilot: Pilot[Any], selector: str, x: int = 0, y: int = 0) -> bool:
     """A mouse click at (x, y) from a widget's top-left corner, as a terminal sends it (down,
     up, click), each handled before the next; like ``Pilot.click`` without its sleeps.
     False (nothing clicked) if the point is off the screen or the widget is not shown."""
@@ -186,21 +189,19 @@ async def click(pilot: Pilot, selector: str, x: int = 0, y: int = 0) -> bool:
     widget = screen.query_one(selector)
     if not widget.display or not widget.region:
         return False
-    arguments = {"widget": widget, "delta_x": 0, "delta_y": 0, "button": 1, "shift": False,
-                 "meta": False, "ctrl": False}
     point = widget.region.offset + Offset(x, y)
-    if point not in screen.size.region:
+    if not screen.size.region.contains_point(point):
         return False
-    arguments.update(x=point.x, y=point.y, screen_x=point.x, screen_y=point.y)
-    for cls in (events.MouseDown, events.MouseUp, events.Click):
-        kwargs = {**arguments, "chain": 1} if cls is events.Click else arguments
+    kinds: tuple[type[events.MouseEvent], ...] = (events.MouseDown, events.MouseUp, events.Click)
+    for cls in kinds:  # button 1, no modifier; a click's chain is 1 (a single click)
         app.mouse_position = point
-        forward_mouse_event(screen, cls(**kwargs))
+        forward_mouse_event(screen, cls(widget, point.x, point.y, 0, 0, 1, False, False, False,
+                                        screen_x=point.x, screen_y=point.y))
         await drain(pilot)
     return True
 
 
-async def settle(pilot: Pilot) -> None:
+async def settle(pilot: Pilot[Any]) -> None:
     """Hand the latest snapshot to the panels and let Textual process what is queued."""
     app = pilot.app
     assert isinstance(app, PlcHmiApp)
@@ -208,7 +209,7 @@ async def settle(pilot: Pilot) -> None:
     await drain(pilot)
 
 
-async def wait_until(pilot: Pilot, predicate: Callable[[], Any], what: str = "condition"
+async def wait_until(pilot: Pilot[Any], predicate: Callable[[], Any], what: str = "condition"
                      ) -> Any:
     """Let the app work until `predicate()` is truthy; fail once the app is idle without it.
 
@@ -224,12 +225,14 @@ async def wait_until(pilot: Pilot, predicate: Callable[[], Any], what: str = "co
     raise WaitTimeout(f"{what} did not happen: the app has nothing left to do")
 
 
-async def wait_for_screen(pilot: Pilot, screen_type: type):
+async def wait_for_screen(pilot: Pilot[Any], screen_type: type[S]) -> S:
     """Wait until the active screen is a `screen_type` and return it (mounted)."""
-    screen = await wait_until(
-        pilot, lambda: isinstance(pilot.app.screen, screen_type) and pilot.app.screen,
-        f"a {screen_type.__name__}")
+    def shown() -> S | None:
+        screen = pilot.app.screen
+        return screen if isinstance(screen, screen_type) else None
+    screen = await wait_until(pilot, shown, f"a {screen_type.__name__}")
     await drain(pilot)
+    assert isinstance(screen, screen_type)
     return screen
 
 

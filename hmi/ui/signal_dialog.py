@@ -6,6 +6,8 @@ and an unticked one ``[ ]``, so the list reads on a monochrome terminal too.
 
 from __future__ import annotations
 
+from typing import Generic, Protocol, TypeVar
+
 from rich.text import Text
 from textual import on
 from textual.app import ComposeResult
@@ -14,7 +16,7 @@ from textual.containers import Vertical
 from textual.widgets import Label, OptionList, Static
 from textual.widgets.option_list import Option
 
-from hmi.session.recorder import FOV_SUFFIX, Signal
+from hmi.session.recorder import FOV_SUFFIX
 from hmi.ui.dialogs import Dialog
 from hmi.ui.style import Level, banner
 
@@ -23,7 +25,20 @@ KIND_WORDS = {"input": "input", "output": "output (written)", "fov": "output FOV
               "step": "GRAFCET step"}
 
 
-class SignalDialog(Dialog[tuple[str, ...] | None]):
+class _Named(Protocol):
+    """What the list needs of a signal: its name and kind (the chronogram's signals,
+    hmi.session.recorder.Signal; the history's, hmi.history.catalogue.Signal)."""
+
+    @property
+    def name(self) -> str: ...
+    @property
+    def kind(self) -> str: ...
+
+
+SignalT = TypeVar("SignalT", bound=_Named)
+
+
+class SignalDialog(Dialog[tuple[str, ...] | None], Generic[SignalT]):
     TITLE_TEXT = "Chronogram signals"
     BINDINGS = [
         Binding("escape", "cancel", "Cancel"),
@@ -31,14 +46,14 @@ class SignalDialog(Dialog[tuple[str, ...] | None]):
         Binding("enter", "done", "Done", priority=True),
     ]
 
-    def __init__(self, signals: tuple[Signal, ...], chosen: tuple[str, ...],
+    def __init__(self, signals: tuple[SignalT, ...], chosen: tuple[str, ...],
                  descriptions: dict[str, str]):
         super().__init__(id="signal-dialog")
         self.signals = signals
         self.chosen = set(chosen)
         self.descriptions = descriptions
 
-    def _prompt(self, signal: Signal) -> Text:
+    def _prompt(self, signal: SignalT) -> Text:
         base = signal.name[: -len(FOV_SUFFIX)] if signal.kind == "fov" else signal.name
         desc = self.descriptions.get(base, "")
         if desc == base:

@@ -19,6 +19,7 @@ from __future__ import annotations
 import threading
 from collections.abc import Sequence
 from datetime import tzinfo
+from typing import TYPE_CHECKING, NamedTuple
 
 from rich.text import Text
 from textual.app import ComposeResult
@@ -43,6 +44,9 @@ from hmi.ui.trend import (
     window_title,
     zoom_text,
 )
+
+if TYPE_CHECKING:
+    from hmi.ui.palette import PaletteEntry
 
 DEFAULT_ZOOM_US = ZOOMS_US[2]  # 15 min
 FOLLOW_EVERY_US = 1_000_000  # following now: read again at most once a second of the cell
@@ -72,12 +76,25 @@ class TrendChart(ContainedPump, Widget):
             return Text(f"✗ trend not drawn: {fault.error}", style=MUTED)
 
 
-class TrendSignalDialog(SignalDialog):
+class _Picture(NamedTuple):
+    """What a picture shows: its signals, its window and its width in columns."""
+
+    names: tuple[str, ...]
+    start_us: int
+    end_us: int
+    width: int
+
+
+# A picture read: the window, the signals the history holds and its extent; or why not.
+_Read = tuple[Window, list[Signal], tuple[int, int] | None] | str
+
+
+class TrendSignalDialog(SignalDialog[Signal]):
     """The trend's signals: every signal the history holds, with its kind and meaning."""
 
     TITLE_TEXT = "Trend signals"
 
-    def _prompt(self, signal: Signal) -> Text:  # type: ignore[override]
+    def _prompt(self, signal: Signal) -> Text:
         mark = "[✓]" if signal.name in self.chosen else "[ ]"
         kind = {"bool": "on/off", "number": signal.unit or "number", "enum": "state",
                 "counter": "count"}.get(signal.kind, signal.kind)
@@ -118,10 +135,10 @@ class TrendScreen(Dialog[None]):
         self.extent: tuple[int, int] | None = None  # the history's first and last instant
         self._reader: HistoryReader | None = None
         self._reader_lock = threading.Lock()
-        self._wanted: tuple | None = None
+        self._wanted: _Picture | None = None
         self._whole = whole
         self.reads = 0  # pictures read (tests, the bench)
-        self._shown: tuple | None = None  # the key of the picture on the screen
+        self._shown: _Picture | None = None  # the key of the picture on the screen
 
     # -- layout -----------------------------------------------------------------------------
     def compose(self) -> ComposeResult:
@@ -155,8 +172,9 @@ class TrendScreen(Dialog[None]):
         self.query_one("#trend-header", Static).update(line)
 
     # -- reading, in a worker thread ----------------------------------------------------------
-    def _key(self) -> tuple:
-        return (tuple(self.signals), self.end_us - self.span_us, self.end_us, self._width())
+    def _key(self) -> _Picture:
+        return _Picture(tuple(self.signals), self.end_us - self.span_us, self.end_us,
+                        self._width())
 
     @property
     def up_to_date(self) -> bool:
@@ -186,7 +204,7 @@ class TrendScreen(Dialog[None]):
                                                         read_only=True), self.cell)
             return self._reader
 
-    def _read(self, key: tuple) -> None:
+    def _read(self, key: _Picture) -> None:
         """In a worker thread: the picture of `key`, handed to the UI thread."""
         names, start, end, width = key
         try:
@@ -195,8 +213,7 @@ class TrendScreen(Dialog[None]):
             extent = reader.span()
             names = tuple(n for n in names if reader.signal(n) is not None)
             window = reader.window(names, start, end, width)
-            result: tuple[Window, list[Signal], tuple[int, int] | None] | str = \
-                (window, known, extent)
+            result: _Read = (window, known, extent)
         except StoreError as exc:
             result = str(exc)
         except Exception as exc:  # a bug: contained in the UI thread, said on the screen
@@ -205,7 +222,7 @@ class TrendScreen(Dialog[None]):
                                       "reading the history", exc)
         self.app.call_from_thread(self._arrived, key, result)
 
-    def _arrived(self, key: tuple, result: object) -> None:
+    def _arrived(self, key: _Picture, result: _Read) -> None:
         if key != self._wanted or not self.is_attached:
             return  # a newer picture was asked for meanwhile
         self.reads += 1
@@ -215,7 +232,7 @@ class TrendScreen(Dialog[None]):
             chart.message = tag("no history", Level.ATTENTION) + Text(f": {result}")
             chart.window = None
         else:
-            window, self.known, self.extent = result  # type: ignore[misc]
+            window, self.known, self.extent = result
             chart.window = window
             chart.message = None
             if self._whole:
@@ -334,7 +351,7 @@ class TrendScreen(Dialog[None]):
         self._place(self.end_us)
 
     # -- the command palette -------------------------------------------------------------------
-    def palette_entries(self) -> list:
+    def palette_entries(self) -> list[PaletteEntry]:
         from functools import partial
 
         from hmi.ui.palette import PaletteEntry
