@@ -96,7 +96,8 @@ def twin_run(name: str, seed: int) -> int:
             results = [e.apply(command) for e in engines]
             assert results[0] == results[1], (name, seed, k, command)
         fast, reference = (e.step(now) for e in engines)
-        check_active_bits(engines[0])
+        for engine in engines:
+            check_active_bits(engine)
         if comparable(fast) != comparable(reference):
             for field in Snapshot._fields:
                 a, b = getattr(comparable(fast), field), getattr(comparable(reference), field)
@@ -106,10 +107,9 @@ def twin_run(name: str, seed: int) -> int:
 
 
 def check_active_bits(engine: Engine) -> None:
-    """The generated active_bits (the corrector's memory key) against the contexts as the
-    filter evaluates them."""
+    """active_bits (the corrector's memory key), printed or evaluated, against the contexts
+    as the filter evaluates them."""
     f, image, history = engine.safety_filter, engine.image, engine.history
-    assert engine.compiled.active_bits is not None
     expected = sum(1 << k for k, c in enumerate(f.compiled)
                    if c.context is None or c.context(image, history))
     assert engine.compiled.active_bits(image, history) == expected

@@ -140,3 +140,40 @@ def test_try_and_return_in_both_forms(x):
     expected = {-1: (("raised", (-1,)), []), 0: (7, ["ValueError('zero')"]),
                 1: (0, [2, 99]), 5: (6, [])}
     assert results[0] == expected[x]
+
+
+@pytest.mark.parametrize("name", ["cispi_valve", "cispi_subsystem", "sorting"])
+def test_the_active_constraints_in_both_forms(name):
+    """Which constraints are active (the corrector's memory key, the PLC filter's word Act),
+    printed and evaluated from the one lowering, against each row's context read literal by
+    literal, on seeded random images and histories; a row without a context is always
+    active."""
+    import random
+
+    from hmi.engine.codegen import build_function
+    from hmi.program import ir
+    from hmi.program.constraints import ACTIVE, lower_active, lower_constraints
+    from hmi.program.evaluate import function_evaluator
+    from hmi.project.loader import load_project
+    from tests.conftest import PROJECTS
+
+    table = lower_constraints(load_project(PROJECTS / name))
+    names = sorted({lit.name for row in table.rows for lit in row.context})
+    slots = {n: k for k, n in enumerate(names)}
+    depth = max((lit.depth for row in table.rows for lit in row.context), default=0)
+    function = ir.Function("active_bits", ("v", "h"), lower_active(table).body, ACTIVE)
+    forms = (function_evaluator(function, slots, {}),
+             build_function(function, slots, {}, "test_program"))
+    rng = random.Random(32)
+    seen = set()
+    for _ in range(400):
+        v = [rng.random() < 0.5 for _ in names]
+        h = [[rng.random() < 0.5 for _ in names] for _ in range(max(depth, 1))]
+        want = 0
+        for j, row in enumerate(table.rows):
+            if all((v if lit.depth == 0 else h[lit.depth - 1])[slots[lit.name]]
+                   == lit.positive for lit in row.context):
+                want |= 1 << j
+        assert [form(v, h) for form in forms] == [want, want]
+        seen.add(want)
+    assert len(seen) > 1  # the contexts were exercised, not one word throughout

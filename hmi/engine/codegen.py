@@ -104,7 +104,8 @@ def print_program(src: Source, program: tuple[ir.Stmt, ...], indent: int,
     """`program`'s statements as Python lines of `src` (the compiled scan's printer of the
     scan program, hmi.program.ir): a cell is an attribute of the object handed over, a
     handler's call a method call, an ``if`` whose else branch is one ``if`` an ``elif``, a
-    switch a tree of comparisons (a chain up to three cases)."""
+    switch a tree of comparisons (a chain up to three cases), a local or-ed with a word
+    ``|=``."""
     if not program:
         src.line(indent, "pass")
         return
@@ -129,6 +130,10 @@ def print_program(src: Source, program: tuple[ir.Stmt, ...], indent: int,
             for kind, name, handler in stmt.handlers:
                 src.line(indent, f"except {src.ref(kind)} as {name}:")
                 print_program(src, handler, indent + 1, slots, times)
+        elif (isinstance(stmt.value, ir.BitOr) and isinstance(stmt.target, ir.Local)
+              and stmt.value.left == stmt.target):
+            src.line(indent, f"{stmt.target.name} |= "
+                             f"{_value_source(src, stmt.value.right, slots, times)}")
         else:
             src.line(indent, f"{_value_source(src, stmt.target, slots, times)} = "
                              f"{_value_source(src, stmt.value, slots, times)}")
@@ -195,6 +200,15 @@ def _value_source(src: Source, value: ir.Value, slots: Mapping[str, int],
             return f"{_operand_source(src, base, slots, times)}[{int(index)}]"
         case ir.Tuple(items=items):
             return "(" + "".join(f"{_value_source(src, i, slots, times)}, " for i in items) + ")"
+        case ir.Bits(value=bits):
+            # (handed over: thousands of constraints make a word of thousands of digits)
+            return src.ref(bits)
+        case ir.Bit(index=index):
+            # (a shift, folded by the compiler: not the value, thousands of digits long)
+            return f"1 << {int(index)}"
+        case ir.BitOr(left=left, right=right):
+            return (f"{_operand_source(src, left, slots, times)} | "
+                    f"{_operand_source(src, right, slots, times)}")
         case ir.Add(left=left, right=right) | ir.Sub(left=left, right=right):
             sign = "+" if isinstance(value, ir.Add) else "-"
             return (f"{_operand_source(src, left, slots, times)} {sign} "
@@ -233,8 +247,8 @@ def _constant_source(constant: object) -> str:
 def _operand_source(src: Source, value: ir.Value, slots: Mapping[str, int],
                     times: Mapping[str, int]) -> str:
     text = _value_source(src, value, slots, times)
-    return f"({text})" if isinstance(value, ir.Add | ir.Sub | ir.Compare | ir.IsNone) \
-        else text
+    return f"({text})" if isinstance(value, ir.Add | ir.Sub | ir.Compare | ir.IsNone
+                                     | ir.Bit | ir.BitOr) else text
 
 
 # What generated code may contain: the statements and expressions of the templates below.

@@ -19,6 +19,8 @@ as functions (hmi.program.ir.Function):
   step, whose vector it returns;
 * ``violated(v, h, f)``: whether the candidate `f` violates any safety constraint (stage
   6's first question: most scans violate none, and then the filter has nothing else to do);
+* ``active_bits(v, h)``: which constraints are active (the corrector's memory key; the PLC's
+  filter prints the same lowering, hmi.export.filter_pou);
 * ``monitors(v, h, now, scan)``: the stopwatch monitors after the output scan.
 
 :class:`CompiledScan` holds one form of them: the Python printed from the statements
@@ -37,13 +39,13 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from hmi.engine.codegen import Source, build, build_function, expr_source
+from hmi.engine.codegen import build_function
 from hmi.engine.diagnoser import NO_DIAGNOSIS
 from hmi.engine.recovery import NO_RECOVERY
-from hmi.logic.expr import History, Image, Var
+from hmi.logic.expr import History, Image
 from hmi.plant.base import PlantError
 from hmi.program import ir, order
-from hmi.program.constraints import lower_violated
+from hmi.program.constraints import ACTIVE, lower_active, lower_violated
 from hmi.program.evaluate import function_evaluator
 
 if TYPE_CHECKING:
@@ -121,6 +123,12 @@ class ScanProgram:
                            lower_violated([c.constraint for c in self._filter.compiled],
                                           self._filter.outputs))
 
+    def active_bits(self) -> ir.Function:
+        """Which constraints are active (bit k: safety_filter.compiled[k]), the corrector's
+        memory key (SafetyFilter.active_bits): the lowering the PLC's filter prints too."""
+        return ir.Function("active_bits", ("v", "h"),
+                           lower_active(self._filter.table).body, ACTIVE)
+
     def monitors(self) -> ir.Function | None:
         stage = self._monitors
         return None if stage is None else ir.Function("monitors", SCAN, stage.program)
@@ -145,10 +153,8 @@ class CompiledScan:
         self.violated: ViolatedFn = self._form(self.program.violated())
         monitor = self.program.monitors()
         self.monitors: MonitorFn | None = self._form(monitor) if monitor is not None else None
-        # the corrector's memory key (SafetyFilter.active_bits), printed (a template of the
-        # filter's own, see _active_bits); the evaluator's form leaves the filter's own
-        self.active_bits: ActiveFn | None = (self._active_bits(safety_filter) if python
-                                             else None)
+        # the corrector's memory key (SafetyFilter.active_bits)
+        self.active_bits: ActiveFn = self._form(self.program.active_bits())
         self._held: HeldFn | None = None
         self._observed: HeldFn | None = None
         self._recoveries: dict[str, CoreFn] = {}
@@ -187,39 +193,6 @@ class CompiledScan:
     def frame(self, engine: Any) -> Callable[[int], bool]:
         """The automatic mode's scan (auto_frame), in this form."""
         fn: Callable[[int], bool] = self._form(auto_frame(engine))
-        return fn
-
-    def _active_bits(self, safety_filter: SafetyFilter) -> ActiveFn:
-        """``active_bits(v, h)``: which constraints are active (their literals over inputs,
-        memories and earlier scans all true), bit k for safety_filter.compiled[k]: the
-        corrector's memory is keyed on it (SafetyFilter.active_bits)."""
-        index = {name: k for k, name in enumerate(safety_filter.outputs)}
-        always = 0
-        terms = []
-        for k, c in enumerate(safety_filter.compiled):
-            parts = []
-            for lit in c.constraint.literals:
-                if lit.depth == 0 and lit.name in index:
-                    continue
-                read = expr_source(Var(0, lit.name, lit.depth), self.slots, self.times)
-                parts.append(read if lit.positive else f"(not {read})")
-            if parts:
-                terms.append((k, " and ".join(parts)))
-            else:
-                always |= 1 << k
-        # One statement per constraint: a project may have thousands. A bit is written as a
-        # shift, not as its value (folded by the compiler up to bit 127): constraint
-        # 5,000's bit has 1,506 decimal digits, and 5,000 such literals made the text
-        # megabytes long (seconds to parse and check); the constant part is handed over.
-        src = Source()
-        src.line(1, f"b = {src.ref(always)}")
-        for k, test in terms:
-            src.line(1, f"if {test}:")
-            src.line(2, f"b |= 1 << {k}")
-        src.line(1, "return b")
-        fn: ActiveFn = build(src, "active_bits", "v, h",
-                             f"<plchmi compiled active_bits: {self.label}>")
-        self.sources.append(fn.__doc__ or "")
         return fn
 
 

@@ -25,7 +25,8 @@ from hmi.engine.solver import (
     is_safe,
     paper_solve,
 )
-from hmi.logic.expr import And, BoolFn, History, Image, Not, Var, compile_bool
+from hmi.logic.expr import BoolFn, History, Image, compile_bool
+from hmi.program.constraints import ConstraintTable, lower_constraints
 from hmi.project.model import Constraint, Project
 
 # --------------------------------------------------------------------------------------------
@@ -126,31 +127,19 @@ class CompiledConstraint:
         return self.constraint.kind == "simple"
 
 
-def compile_constraints(project: Project, slots: Mapping[str, int],
+def compile_constraints(table: ConstraintTable, slots: Mapping[str, int],
                         step_times: Mapping[str, int] | None = None
                         ) -> list[CompiledConstraint]:
-    index = {v.name: k for k, v in enumerate(project.outputs)}
+    """The rows of `table` (hmi.program.constraints: the masks and contexts the PLC's filter
+    reads too), each with its context compiled and its report built once."""
     compiled = []
-    for c in project.constraints:
-        pos = neg = 0
-        context_nodes = []
-        for lit in c.literals:
-            if lit.depth == 0 and lit.name in index:
-                bit = 1 << index[lit.name]
-                if lit.positive:
-                    pos |= bit
-                else:
-                    neg |= bit
-            else:
-                context_nodes.append(lit)
-        context = None
-        if context_nodes:
-            nodes = tuple(Var(0, lit.name, lit.depth) if lit.positive
-                          else Not(0, Var(0, lit.name, lit.depth)) for lit in context_nodes)
-            context = compile_bool(And(0, nodes), slots, step_times)
+    for row in table.rows:
+        c = row.constraint
+        node = row.context_node
+        context = compile_bool(node, slots, step_times) if node is not None else None
         violation = Violation(c.name, c.kind, tuple((str(lit), lit.positive)
                                                     for lit in c.literals), c.description)
-        compiled.append(CompiledConstraint(c, context, pos, neg, violation))
+        compiled.append(CompiledConstraint(c, context, row.pos, row.neg, violation))
     return compiled
 
 
@@ -243,8 +232,9 @@ class SafetyFilter:
         self.wall_limit_us: float | None = None
         self.outputs = tuple(v.name for v in project.outputs)
         self.n = len(self.outputs)
-        self.compiled = compile_constraints(project, slots, step_times)
-        self.safe = pack(v.safe for v in project.outputs)
+        self.table = lower_constraints(project)
+        self.compiled = compile_constraints(self.table, slots, step_times)
+        self.safe = self.table.safe
         self.all_bits = (1 << self.n) - 1
         # What depends only on which constraints are active, built once per active set: a
         # cell has few distinct active sets, and a violation scan should not rebuild them.
@@ -257,8 +247,9 @@ class SafetyFilter:
         # function of these (its search is bounded in steps, not in time, unless a live run
         # set wall_limit_us), and a cell asks for the same repair scan after scan.
         self._corrections: dict[tuple[int, int], tuple[tuple[bool, ...], FilterReport]] = {}
-        # Which constraints are active, as bits in self.compiled's order (hmi.engine.compiled
-        # gives a generated one; None: the contexts evaluated here).
+        # Which constraints are active, as bits in self.compiled's order: the scan
+        # program's (hmi.program.constraints.lower_active, printed by hmi.engine.compiled);
+        # None: the contexts evaluated here.
         self.active_bits: Callable[[Image, History], int] | None = None
         self.remember = True  # False: every correction searched afresh (the tests' reference)
         # The report of a scan with nothing violated, per policy: immutable, built once.

@@ -226,8 +226,7 @@ class Engine:
                                      self.recovery, self.safety_filter, self.monitors,
                                      f"{project.name}/{self.control_name}", python=compiled)
         self.filter_stage.quick = self.compiled.violated  # the filter's first question
-        if self.compiled.active_bits is not None:
-            self.safety_filter.active_bits = self.compiled.active_bits
+        self.safety_filter.active_bits = self.compiled.active_bits  # its memory's key
         self._bindings = self.input_scan.bindings
         self._period = project.scan_period_us
         # The last run()'s results until snapshot() builds them into a Snapshot, and what

@@ -6,7 +6,10 @@ MaskedOutputStage) do, in the same order:
 1. the candidate vector is the program's outputs (FOV), with the orders of a masked actuator
    partition forced to 0 (not under the monitor policy, which alters nothing);
 2. a constraint is violated when its context (the literals over Y) holds and the candidate
-   makes its output literals true; the violation word has bit j for constraint j;
+   makes its output literals true; the violation word has bit j for constraint j. The
+   constraints' table (POS, NEG, SIMPLE, SAFE) and which are active (the word Act) are the
+   scan program's (hmi.program.constraints), Act printed from the lowering the engine
+   prints as its ``active_bits``: the contexts are written once;
 3. `monitor` passes the candidate; `block` latches the safe vector on the first violation
    until a fault reset; `correct` applies the simple constraints' F0/F1 (004 eq. 6) and then
    searches the safe vector at minimum Hamming distance over the unforced outputs of the
@@ -33,7 +36,9 @@ from hmi.errors import ProjectError
 from hmi.export import model as m
 from hmi.export import source
 from hmi.export.names import Scope
-from hmi.export.views import Block, Views
+from hmi.export.program_st import NotPrintable, Place, Places, StPrinter
+from hmi.export.views import Block, Durations, Views
+from hmi.program.constraints import ACTIVE, lower_active, lower_constraints
 from hmi.project.model import Project
 
 MONITOR, BLOCK, CORRECT = 0, 1, 2
@@ -87,10 +92,15 @@ class _Code:
         end = m.IntLit(last) if isinstance(last, int) else last
         return m.For(self.t[var], m.IntLit(0), end, tuple(body))
 
+    def active(self, index: m.Expr) -> m.Expr:
+        """Constraint `index` is active (its bit of the word Act)."""
+        one, zero = m.BitsLit(1, self.vword), m.BitsLit(0, self.vword)
+        return m.Binary("<>", band(self("Act"), m.Call("SHL", (one, index))), zero)
+
     def violated(self, vec: str, only_combined: bool) -> m.Expr:
         """Constraint J (active) is made true by the vector `vec`."""
         j = self("J")
-        terms: list[m.Expr] = [self.at("Act", j)]
+        terms: list[m.Expr] = [self.active(j)]
         if only_combined:
             terms.append(m.not_(self.at("SIMPLE", j)))
         terms.append(m.eq(band(self(vec), self.at("POS", j)), self.at("POS", j)))
@@ -116,9 +126,10 @@ def minus(a: m.Expr, b: m.Expr | int) -> m.Expr:
 
 def build_filter(project: Project, pou_name: str, scope: Scope, bound: source.FilterBound
                  ) -> Block:
+    table = lower_constraints(project)
     outputs = source.outputs(project)
-    constraints = source.constraints(project)
-    no, nc = len(outputs), len(constraints)
+    rows = table.rows
+    no, nc = len(table.outputs), len(rows)
     for count, what in ((no, "outputs"), (nc, "safety constraints")):
         if count > 64:
             raise ProjectError.single(project.pos, f"the project has {count} {what}: the "
@@ -129,21 +140,19 @@ def build_filter(project: Project, pou_name: str, scope: Scope, bound: source.Fi
     fov = {v.name: sc.take(f"FOV_{v.name}") for v in outputs}
     out = {v.name: sc.take(v.name) for v in outputs}
     views = Views(sc)
-    index = {v.name: k for k, v in enumerate(outputs)}
-
-    def mask(con, positive: bool) -> int:
-        return sum(1 << index[lit.name] for lit in con.output_literals
-                   if lit.positive == positive)
-
-    def literal(lit) -> m.Expr:
-        ref = views.name(lit.name, lit.depth)
-        return ref if lit.positive else m.not_(ref)
-
-    pos_masks = [mask(con, True) for con in constraints]
-    neg_masks = [mask(con, False) for con in constraints]
-    simple = [con.kind == "simple" for con in constraints]
-    contexts = [m.and_(*(literal(lit) for lit in con.context_literals))
-                for con in constraints]
+    index = {name: k for k, name in enumerate(table.outputs)}
+    # Which constraints are active: the scan program's lowering (the engine's active_bits),
+    # printed into the word Act, row by row
+    active = lower_active(table)
+    printer = StPrinter(Places(slot=_no_slot, read=views.name, step_time=_no_step_time,
+                               locals={ACTIVE.name: Place(c.t["Act"], c.vword)}),
+                        sc, Durations(), project.pos, "the safety filter")
+    contexts: list[m.Stmt] = list(printer.block((active.start,)))
+    for row, stmts in zip(rows, active.rows, strict=True):
+        con = row.constraint
+        always = "" if stmts else " (always active)"
+        contexts.append(m.Comment(f"{con.name} ({con.kind}): {con.expr}{always}"))
+        contexts += printer.block(stmts)
     masks = [(p.flag, sum(1 << index[o] for o in p.actuators))
              for spec in source.diagnosers(project) for p in spec.partitions if p.actuators]
     limit = max_distance(bound)
@@ -165,10 +174,9 @@ def build_filter(project: Project, pou_name: str, scope: Scope, bound: source.Fi
     scan += [c.set("Violations", m.BitsLit(0, c.vword)), c.set("Tested", m.IntLit(0)),
              c.set("Fallback", m.FALSE), c.set("OutV", c("Cand"))]
     if nc:
-        scan.append(m.Comment("2. Contexts (the literals over Y) and detection"))
-        for j, (con, ctx) in enumerate(zip(constraints, contexts, strict=True)):
-            scan.append(m.Comment(f"{con.name} ({con.kind}): {con.expr}"))
-            scan.append(m.Assign(c.at("Act", m.IntLit(j)), ctx))
+        scan.append(m.Comment("2. Contexts (the literals over Y: bit j of Act, constraint j "
+                              "active) and detection"))
+        scan += contexts
         scan.append(c.loop("J", nc - 1, m.if_(
             c.violated("Cand", False),
             c.set("Violations", bor(c("Violations"),
@@ -218,7 +226,7 @@ def build_filter(project: Project, pou_name: str, scope: Scope, bound: source.Fi
         )),
         m.VarBlock("local", (
             *(m.Var(c.t[k], nout) for k in WORDS),
-            m.Var(c.t["Act"], m.Array(0, last, m.BOOL), comment="constraint j is active"),
+            m.Var(c.t["Act"], m.Elementary(c.vword), comment="bit j: constraint j is active"),
             m.Var(c.t["Idx"], m.Array(0, max(no, 1) - 1, m.INT), comment="the free outputs"),
             m.Var(c.t["Comb"], m.Array(0, max(no, 1) - 1, m.INT),
                   comment="a k-subset of Idx"),
@@ -227,21 +235,22 @@ def build_filter(project: Project, pou_name: str, scope: Scope, bound: source.Fi
         )),
         m.VarBlock("local", (
             m.Var(c.t["POS"], m.Array(0, last, nout),
-                  m.ArrayInit(tuple(c.bits(v) for v in pos_masks or [0])),
+                  m.ArrayInit(tuple(c.bits(row.pos) for row in rows) or (c.bits(0),)),
                   comment="outputs at 1 in constraint j"),
             m.Var(c.t["NEG"], m.Array(0, last, nout),
-                  m.ArrayInit(tuple(c.bits(v) for v in neg_masks or [0])),
+                  m.ArrayInit(tuple(c.bits(row.neg) for row in rows) or (c.bits(0),)),
                   comment="outputs at 0 in constraint j"),
             m.Var(c.t["SIMPLE"], m.Array(0, last, m.BOOL),
-                  m.ArrayInit(tuple(m.BoolLit(s) for s in simple or [False]))),
-            m.Var(c.t["SAFE"], nout, c.bits(sum(1 << k for k, v in enumerate(outputs)
-                                                  if v.safe)), comment="the safe vector"),
+                  m.ArrayInit(tuple(m.BoolLit(row.simple) for row in rows)
+                              or (m.BoolLit(False),))),
+            m.Var(c.t["SAFE"], nout, c.bits(table.safe), comment="the safe vector"),
             m.Var(c.t["MAX_DISTANCE"], m.INT, m.IntLit(limit),
                   comment="search limit: plchmi check's worst case"),
         ), constant=True),
     )
-    order = ", ".join(f"{k} {v.name}" for k, v in enumerate(outputs))
-    cons = ", ".join(f"{j} {con.name}" for j, con in enumerate(constraints))
+    order = ", ".join(f"{k} {name}" for k, name in enumerate(table.outputs))
+    cons = ", ".join(f"{j} {row.constraint.name}" for j, row in enumerate(rows))
+    simple = [row.simple for row in rows]
     comment = (
         "Scan step 6, the safety filter (004): detection, policy, exact corrector.\n"
         f"Output bits: {order}.\nViolation bits: {cons}.\n"
@@ -254,6 +263,14 @@ def build_filter(project: Project, pou_name: str, scope: Scope, bound: source.Fi
                                  "Reset", "Ftc")}
     return Block(pou, dict(views.idents), out,
                  {**ports, **{f"FOV_{k}": v for k, v in fov.items()}})
+
+
+def _no_slot(index: int) -> Place:
+    raise NotPrintable(f"the safety filter reads no image slot ({index})")
+
+
+def _no_step_time(step: str) -> m.Expr:
+    raise NotPrintable(f"the safety filter reads no step time ({step})")
 
 
 def _correct(c: _Code) -> tuple[m.Stmt, ...]:
@@ -304,10 +321,10 @@ def _correct(c: _Code) -> tuple[m.Stmt, ...]:
     return (
         c.set("F0", c.bits(0)), c.set("F1", c.bits(0)), c.set("Free", c.bits(0)),
         c.loop("J", c.nc - 1, m.If((
-            (m.and_(c.at("Act", j), c.at("SIMPLE", j)),
+            (m.and_(c.active(j), c.at("SIMPLE", j)),
              (c.set("F0", bor(c("F0"), c.at("POS", j))),
               c.set("F1", bor(c("F1"), c.at("NEG", j))))),
-            (c.at("Act", j), (c.set("Free", bor(c("Free"), bor(c.at("POS", j),
+            (c.active(j), (c.set("Free", bor(c("Free"), bor(c.at("POS", j),
                                                                c.at("NEG", j)))),)),
         ))),
         m.If(((c.nonzero(band(c("F0"), c("F1"))),

@@ -21,7 +21,9 @@ time"); a local that collects constant tuples (the fireable transitions) is one 
 element it can hold. The scan's number, where a program compares it, is a DINT the block
 counts itself (``Places.scan``); a handler whose value a program tests (``if
 stage.lost_sight(...)``, ``armed and stage.refine(...)``: called only when ``armed``)
-writes it to a BOOL local (``Handler.value``).
+writes it to a BOOL local (``Handler.value``). A word of bits (the filter's active
+constraints) is a DWORD or LWORD variable of the POU the program's local is bound to
+(``Places.locals``); its constants take that type.
 """
 
 from __future__ import annotations
@@ -40,8 +42,10 @@ from hmi.program import ir
 BOOL, TIME, INT, DINT, NTIME, NDINT, SET = ("BOOL", "TIME", "INT", "DINT", "NTIME", "NDINT",
                                             "SET")
 INTEGERS = (INT, DINT)
+WORDS = ("DWORD", "LWORD")  # words of bits (hmi.program.ir.Bits)
 NULLABLE = {NTIME: TIME, NDINT: DINT}  # a value that may be None, and its type when not
 _UNTYPED = "ANY_INT"  # an integer constant, typed by its use
+_UNTYPED_BITS = "ANY_BIT"  # a constant word of bits, typed by its use
 _NONE = "NONE"  # the constant None
 _COMPARE = {"==": "=", "!=": "<>", "<": "<", "<=": "<=", ">": ">", ">=": ">="}
 
@@ -83,8 +87,10 @@ class Places:
     slot: Callable[[int], Place]
     read: Callable[[str, int], m.Expr]  # a project name at a depth, as this POU reads it
     step_time: Callable[[str], m.Expr]  # a step's activity time (TIME)
-    now: m.Expr
+    now: m.Expr | None = None  # the scan's time (None: the program reads none)
     scan: m.Expr | None = None  # the scan's number (DINT), where the program compares it
+    # locals of the program that are variables of the POU (the filter's active word)
+    locals: dict[str, Place] = field(default_factory=dict)
     cells: dict[tuple[int, Any], Place | None] = field(default_factory=dict)
     handlers: dict[tuple[int, str], Handler] = field(default_factory=dict)
     # runtime objects the program compares by identity (``is``), as INT codes
@@ -115,7 +121,7 @@ class StPrinter:
         self.pos = pos  # where a duration that is not whole milliseconds is reported
         self.what = what
         self.locals: list[m.Var] = []
-        self._locals: dict[str, Place] = {}
+        self._locals: dict[str, Place] = dict(places.locals)
         self._sets: dict[str, dict[int, str]] = {}
 
     # -- statements --------------------------------------------------------------------------
@@ -291,10 +297,18 @@ class StPrinter:
         return expr
 
     def _typed(self, value: ir.Value, kind: str) -> tuple[m.Expr, str]:
-        """`value` where a `kind` is expected (an integer constant takes it)."""
+        """`value` where a `kind` is expected (an integer constant or a constant word of
+        bits takes it)."""
         if isinstance(value, ir.Const) and isinstance(value.value, int) \
                 and not isinstance(value.value, bool):
             return self._constant(value.value, kind), kind
+        if isinstance(value, ir.Bits | ir.Bit):
+            if kind not in WORDS:
+                raise NotPrintable(f"a word of bits where a {kind} is expected")
+            word = value.value if isinstance(value, ir.Bits) else 1 << value.index
+            if word >> (32 if kind == "DWORD" else 64):
+                raise NotPrintable(f"the word {word:#x} does not fit a {kind}")
+            return m.BitsLit(word, kind), kind
         expr, found = self.value(value)
         found = NULLABLE.get(found, found)
         if kind != found and not (kind in INTEGERS and found == _UNTYPED):
@@ -322,6 +336,8 @@ class StPrinter:
             case ir.Test(node=node):
                 return self.test(node), BOOL
             case ir.Now():
+                if self.places.now is None:
+                    raise NotPrintable("the scan's time is read but not wired here")
                 return self.places.now, TIME
             case ir.ScanNumber():
                 if self.places.scan is None:
@@ -340,6 +356,13 @@ class StPrinter:
                 if place is None:
                     raise NotPrintable(f"{value!r} is read but not kept in the PLC")
                 return place.expr, place.type
+            case ir.Bits() | ir.Bit():
+                raise NotPrintable("a word of bits where no word is expected")
+            case ir.BitOr(left=left, right=right):
+                kind = self._word_type(left, right)
+                a, _ = self._typed(left, kind)
+                b, _ = self._typed(right, kind)
+                return m.Binary("OR", a, b), kind
             case ir.Add(left=left, right=right) | ir.Sub(left=left, right=right):
                 kind = self._arith_type(left, right)
                 a, _ = self._typed(left, kind)
@@ -382,7 +405,16 @@ class StPrinter:
         (kind,) = kinds
         return kind
 
+    def _word_type(self, left: ir.Value, right: ir.Value) -> str:
+        kinds = {self._peek(left), self._peek(right)} - {_UNTYPED_BITS}
+        if len(kinds) != 1 or not kinds <= set(WORDS):
+            raise NotPrintable(f"{left!r} and {right!r} are not words of one type")
+        (kind,) = kinds
+        return kind
+
     def _peek(self, value: ir.Value) -> str:
+        if isinstance(value, ir.Bits | ir.Bit):
+            return _UNTYPED_BITS
         if isinstance(value, ir.Const) and isinstance(value.value, int) \
                 and not isinstance(value.value, bool):
             return _UNTYPED

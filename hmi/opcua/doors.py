@@ -21,6 +21,7 @@ being buffered while its data streams in.
 
 from __future__ import annotations
 
+import asyncio
 import contextvars
 import logging
 from collections.abc import Awaitable, Callable
@@ -155,6 +156,28 @@ class BoundedProtocol(OPCUAProtocol):
                         max(claimed, len(pending)), most)
             self._buffer = b""
             transport.close()
+
+    def connection_lost(self, exc: BaseException | None) -> None:
+        """asyncua keeps each closed connection's closing task, and with it the connection's
+        processor, buffers and session, in a list it empties every 10 s: a flood of short
+        connections (thousands a second) held tens of megabytes that way. The task is
+        forgotten as soon as it has finished."""
+        tasks = self.closing_tasks
+        before = len(tasks)
+        super().connection_lost(exc)
+        if len(tasks) > before:
+            tasks[-1].add_done_callback(lambda task: _forget(tasks, task))
+
+
+def _forget(tasks: list[asyncio.Task[Any]], task: asyncio.Task[Any]) -> None:
+    """A finished closing task out of asyncua's list; its error logged here, as asyncua
+    would have when it emptied the list."""
+    if task not in tasks:
+        return  # (asyncua took it first and reports it)
+    tasks.remove(task)
+    if not task.cancelled() and task.exception() is not None:
+        log.error("OPC UA: a closed connection's session could not be closed: %r",
+                  task.exception())
 
 
 def install(gate: Gate, released: Callable[[str], None], trust: TrustList) -> None:

@@ -16,6 +16,9 @@ from hmi.program.ir import (
     Add,
     And,
     Assign,
+    Bit,
+    BitOr,
+    Bits,
     Call,
     Cell,
     Compare,
@@ -228,6 +231,15 @@ def _value(value: Value, slots: Mapping[str, int], times: Mapping[str, int]) -> 
         case Tuple(items=items):
             fns = [_value(i, slots, times) for i in items]
             return lambda v, h, now, scan, env: tuple([fn(v, h, now, scan, env) for fn in fns])
+        case Bits(value=bits):
+            return lambda v, h, now, scan, env: bits
+        case Bit(index=index):
+            word = 1 << index
+            return lambda v, h, now, scan, env: word
+        case BitOr(left=left, right=right):
+            a, b = _value(left, slots, times), _value(right, slots, times)
+            return lambda v, h, now, scan, env: (a(v, h, now, scan, env)
+                                                 | b(v, h, now, scan, env))
         case Add(left=left, right=right) | Sub(left=left, right=right):
             a, b = _value(left, slots, times), _value(right, slots, times)
             if isinstance(value, Add):

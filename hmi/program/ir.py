@@ -11,12 +11,13 @@ and a method.
 
 The vocabulary is deliberately small: a project's Boolean expression (``Test``, the parsed
 tree of hmi.logic.expr), the scan's time and number, integer and Boolean constants and
-``None``, ``+``, ``-``, comparisons, a test for ``None``, not/and/or, locals, image slots,
-attributes of the runtime objects handed over (``Cell``: a timer's ``since``), items of a
-sequence, assignments, ``if`` and ``switch``. What happens rarely and needs the runtime's
-bookkeeping (a diagnoser entering a state builds the record the snapshot shows, a GRAFCET
-firing computes its new steps) is an explicit call of a handler object's method (``Call``,
-as a value, or ``Do`` as a statement).
+``None``, words of bits (a constant word, one bit, their or), ``+``, ``-``, comparisons, a
+test for ``None``, not/and/or, locals, image slots, attributes of the runtime objects handed
+over (``Cell``: a timer's ``since``), items of a sequence, assignments, ``if`` and
+``switch``. What happens rarely and needs the runtime's bookkeeping (a diagnoser entering a
+state builds the record the snapshot shows, a GRAFCET firing computes its new steps) is an
+explicit call of a handler object's method (``Call``, as a value, or ``Do`` as a
+statement).
 """
 
 from __future__ import annotations
@@ -109,6 +110,30 @@ class Tuple:
 
 
 @dataclass(frozen=True)
+class Bits:
+    """A word of bits (bit k says one thing of the k-th: a constraint active ...), as an
+    integer. A project's thousands of constraints make it thousands of digits: the Python
+    form is handed it whole; the PLC's is a bit string (DWORD, LWORD)."""
+
+    value: int
+
+
+@dataclass(frozen=True)
+class Bit:
+    """The word with bit `index` alone set (``1 << index``)."""
+
+    index: int
+
+
+@dataclass(frozen=True)
+class BitOr:
+    """The bits set in `left` or in `right` (two words)."""
+
+    left: Value
+    right: Value
+
+
+@dataclass(frozen=True)
 class Add:
     left: Value
     right: Value
@@ -167,7 +192,8 @@ class Call:
 
 
 Value = (Test | Now | ScanNumber | TheImage | TheHistory | Const | Local | Slot | Cell | Ref
-         | Item | Tuple | Add | Sub | Compare | IsNone | Not | And | Or | Call)
+         | Item | Tuple | Bits | Bit | BitOr | Add | Sub | Compare | IsNone | Not | And | Or
+         | Call)
 Target = Local | Slot | Cell | Item
 
 # -- statements ------------------------------------------------------------------------------
