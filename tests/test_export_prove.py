@@ -49,7 +49,7 @@ def test_the_exported_filter_is_the_engines_for_every_input_and_state(name):
     ("Mem := (Cand AND NOT F0) OR F1;", "Mem := (Cand AND NOT F1) OR F0;",
      {"correct: the exact strategy's unique vector, masked, or the safe state"}),
     # a context's literal: AND read as OR
-    ("Act[1] := NOT prev_G AND NOT e;", "Act[1] := NOT prev_G OR NOT e;",
+    ("IF NOT prev_G AND NOT e THEN", "IF NOT prev_G OR NOT e THEN",
      {"the violation word is the constraints violated by the candidate",
       "the block latch is set by a violation and kept",
       "monitor, block and a clean candidate: the candidate, masked, the latch safe"}),
