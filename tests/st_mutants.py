@@ -250,9 +250,11 @@ class RandomRun:
     seed: int
     scans: int = 3000
     manual: bool = False
+    flip: float = 0.03  # each input's chance to change at a scan
 
     def __str__(self) -> str:
-        return f"random {'manual' if self.manual else 'auto'} seed {self.seed}"
+        return (f"random {'manual' if self.manual else 'auto'} seed {self.seed}"
+                + (f" flip {self.flip}" if self.flip != 0.03 else ""))
 
 
 Run = TraceRun | RandomRun
@@ -261,7 +263,7 @@ POLICY_NAMES = ("monitor", "block", "correct")
 
 def _random_engine(project: Project, run: RandomRun) -> tuple[Engine, Callable, set[int]]:
     rnd = random.Random(run.seed * 7919 + 1)
-    engine = Engine(project, RandomPlant(project, run.seed), policy="correct")
+    engine = Engine(project, RandomPlant(project, run.seed, run.flip), policy="correct")
     outputs = [v.name for v in project.outputs]
     switches = {k: rnd.choice(POLICY_NAMES) for k in range(2, run.scans) if rnd.random() < 0.004}
     resets = {k for k in range(2, run.scans) if rnd.random() < 0.01}
@@ -371,12 +373,18 @@ def replay(rec: Recording, traces: Sequence[Trace], text: str) -> tuple[str | No
         rt = Runtime(program)
         g = rt.globals
         places = _places(rt, rec.reads)
-        writes = rec.writes
+        # what the Twin writes: the inputs and the policy at every scan, the diagnosis mode
+        # once, a fault reset at its scans (the program clears FaultReset itself)
+        every = rec.writes[:-2]
+        mode, reset = rec.writes[-2], rec.writes[-1]
+        g[mode] = trace.scans[0][1][-2] if trace.scans else g[mode]
         skip = trace.skip
         expected = trace.values
         for k, (now, given) in enumerate(trace.scans):
-            for w, value in zip(writes, given, strict=True):
+            for w, value in zip(every, given, strict=False):
                 g[w] = value
+            if given[-1]:
+                g[reset] = True
             ran += 1
             if trace.manual:
                 fov[0] = trace.fov[k]
@@ -411,8 +419,10 @@ def sample(items: Sequence[Mutant], k: int, seed: int) -> list[Mutant]:
     return sorted(random.Random(seed).sample(list(items), k), key=lambda m: m.start)
 
 
+# (the slow ones let a task run for seconds: a monitor's verdicts at their bounds)
 RANDOM_RUNS = ([RandomRun(seed) for seed in (1, 2, 3)]
-               + [RandomRun(seed, manual=True) for seed in (11, 12, 13)])
+               + [RandomRun(seed, manual=True) for seed in (11, 12, 13)]
+               + [RandomRun(4, 6000, flip=0.004), RandomRun(14, 6000, manual=True, flip=0.004)])
 
 
 def study_runs(name: str) -> list[Run]:

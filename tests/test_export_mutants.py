@@ -33,6 +33,11 @@ _UNREAD_STEP_TIME = ("a step time no receptivity, action or equation reads (only
                      "read): not a value of the cell")
 _X1_T_RESET = ("X1.t is computed again (Now - X1_since) at the start of the next scan, "
                "before anything reads it")
+_FTC = "Ftc := (DiagnosisMode <> 1) AND (DiagnosisMode <> 2),"
+_ARMED = ("Armed is the plain watchdog kept beside the monitor only to measure its lead "
+          "(docs/monitors.md): not a value the engine's monitor decides with, not compared")
+_RULE = ("a released fault's Rule: the evidence is compared only while the monitor holds a "
+         "fault, and the next fault sets it")
 EQUIVALENT: dict[str, dict[str, str]] = {
     "conveyor_robot": {
         "FB_conveyor_robot_Control: IF NOT Started THEN [NOT -> (dropped)]": (
@@ -48,11 +53,63 @@ EQUIVALENT: dict[str, dict[str, str]] = {
         **{f"FB_conveyor_robot_Control: X{n}_t := T#0ms; [T#0ms -> T#1ms]": _UNREAD_STEP_TIME
            for n in (3, 10, 2, 11, 12)},
         "FB_conveyor_robot_Control: X1_t := T#0ms; [T#0ms -> T#1ms]": _X1_T_RESET,
+        **{f"PRG_conveyor_robot_Safety: {_FTC} [{old} -> {new}]": (
+            "Ftc gates the masks of the diagnosers' actuator partitions; the cell has no "
+            "diagnoser, so the filter never reads it")
+           for old, new in (("<>", "="), ("1", "0"), ("AND", "OR"), ("2", "1"))},
+        **{f"FB_conveyor_robot_Mon_{m}: {line} [{old} -> {new}]": _ARMED
+           for m in ("conveyor", "robot")
+           for line, old, new in (("Armed := TRUE;", "TRUE", "FALSE"),
+                                  ("Armed := FALSE;", "FALSE", "TRUE"))},
+        **{f"FB_conveyor_robot_Mon_{m}: IF Armed AND (L_x >= T#{t}s) THEN [{old} -> {new}]":
+           _ARMED for m, t in (("conveyor", 5), ("robot", 4))
+           for old, new in (("AND", "OR"), (">=", ">"), (f"T#{t}s", f"T#{t}001ms"))},
+        **{f"FB_conveyor_robot_Mon_{m}: Rule := 0; [0 -> 1]": _RULE
+           for m in ("conveyor", "robot")},
     },
 }
-# The POUs whose every survivor has been judged (the filter's by z3, the others above): the
-# slow study asserts on these; the survivors of the others are printed, not yet judged.
-JUDGED = {"conveyor_robot": ("FB_conveyor_robot_Control", "FB_conveyor_robot_Filter")}
+
+_END = ("an end verdict (late_end, overrun, too_fast) needs its bound crossed at the very scan "
+        "the task ends (while it runs, the running verdicts fire first): no trace does")
+_BOUND = ("a running verdict's bound met exactly (y = alpha or beta at the scan x reaches "
+          "gamma, ...): no trace meets it")
+_PHASE = ("the phase just set is read only by `y = beta AND p = 1`, a bound no trace meets")
+
+
+def _monitor_gaps(m: str, alpha: int, beta: int, gamma: int) -> dict[str, str]:
+    a, b, g = (f"T#{v}s" for v in (alpha, beta, gamma))
+    m1 = {v: f"T#{v[2:-1]}001ms" for v in (a, b, g)}
+    pou = f"FB_conveyor_robot_Mon_{m}"
+    out = {}
+    for line, changes, why in (
+            (f"IF L_x >= {g} THEN", ((">=", ">"), (g, m1[g])), _END),
+            ("L_verdict := 4;", (("4", "3"),), _END),
+            (f"ELSIF L_y > {b} THEN", ((">", ">="), (b, m1[b])), _END),
+            ("L_verdict := 3;", (("3", "2"),), _END),
+            (f"ELSIF L_y < {a} THEN", (("<", "<="), (a, m1[a])), _END),
+            ("L_p := 2;", (("2", "1"),), _PHASE),
+            ("L_p := 1;", (("1", "0"),), _PHASE),
+            (f"IF (L_y < {a}) AND ((L_x + ({a} - L_y)) >= {g}) THEN", (("<", "<="), (a, m1[a])),
+             _BOUND),
+            (f"ELSIF (L_y >= {a}) AND (L_x >= {g}) THEN", ((">=", ">"), (a, m1[a])), _BOUND),
+            (f"ELSIF (L_y > {b}) OR ((L_y = {b}) AND (L_p = 1)) THEN", ((">", ">="), (b, m1[b])),
+             _BOUND)):
+        for old, new in changes:
+            out[f"{pou}: {line} [{old} -> {new}]"] = why
+    return out
+
+
+# Survivors that are gaps in the traces, not equivalent mutants: what no recorded trace
+# reaches. Listed so that a new survivor fails the study and these stay in sight.
+GAPS: dict[str, dict[str, str]] = {
+    "conveyor_robot": {
+        **_monitor_gaps("conveyor", 3, 4, 5), **_monitor_gaps("robot", 2, 3, 4),
+        "PRG_conveyor_robot_Safety: Clock(IN := TRUE, PT := T#24d); "
+        "[T#24d -> T#2073600001ms]": (
+            "the program's clock saturates at 24 days: one millisecond later is beyond any "
+            "run a test makes"),
+    },
+}
 
 
 def _proved_equivalent(name: str, text: str) -> bool:
@@ -77,7 +134,8 @@ def _report(name: str, found, verdicts) -> tuple[Counter, list[str]]:
           f"{counts['survived']} survived, {counts['stillborn']} stillborn")
     for v in verdicts:
         if v.outcome == "survived":
-            why = EQUIVALENT.get(name, {}).get(v.mutant.key(), "not listed")
+            why = (EQUIVALENT.get(name, {}).get(v.mutant.key())
+                   or GAPS.get(name, {}).get(v.mutant.key(), "not listed"))
             print(f"  survived: {v.mutant.describe()}  ({why})")
     return counts, survivors
 
@@ -135,15 +193,19 @@ def test_every_mutant_of_the_conveyor_robot_export_is_caught_or_equivalent():
     counts, _survivors = _report(name, found, verdicts)
     assert counts["caught"] + counts["survived"] + counts["stillborn"] == len(found)
     # a survivor in the filter FB: z3 proves it equivalent; elsewhere: listed, with the reason
-    unexplained = []
+    # (an equivalent mutant, or a gap in the traces)
+    unexplained, proved, gaps = [], 0, 0
     for v in verdicts:
         if v.outcome != "survived":
             continue
-        if v.mutant.pou not in JUDGED[name]:
-            continue
         if v.mutant.pou.endswith("_Filter"):
-            if not _proved_equivalent(name, v.mutant.apply(rec.text)):
+            if _proved_equivalent(name, v.mutant.apply(rec.text)):
+                proved += 1
+            else:
                 unexplained.append(f"{v.mutant.describe()} (z3: not equivalent)")
+        elif v.mutant.key() in GAPS[name]:
+            gaps += 1
         elif v.mutant.key() not in EQUIVALENT[name]:
             unexplained.append(v.mutant.key())
+    print(f"  {proved} filter survivors proved equivalent by z3, {gaps} gaps in the traces")
     assert unexplained == []
