@@ -185,8 +185,10 @@ EXIT = "$exit"
 class Symbolic:
     """One call of a function block on symbolic inputs and state."""
 
-    def __init__(self, fb: Any, initial: dict[str, Any] | None = None):
+    def __init__(self, fb: Any, initial: dict[str, Any] | None = None,
+                 loop_limit: int = LOOP_LIMIT):
         self.fb = fb
+        self.loop_limit = loop_limit
         self.decl = declarations(fb)
         self.solver = z3.Solver()
         self.checks = 0
@@ -453,8 +455,8 @@ class Symbolic:
             decided = self._decide(cond, pc)
             if decided is False:
                 return st
-            if count > LOOP_LIMIT:
-                raise Unsupported(f"FOR {name} runs more than {LOOP_LIMIT} times")
+            if count > self.loop_limit:
+                raise Unsupported(f"FOR {name} runs more than {self.loop_limit} times")
             if decided is None:
                 go = self._iteration(s.statements, name, step, st, [*pc, cond])
                 rest = (self._for_rest(name, s, step, go, [*pc, cond, z3.Not(go[EXIT])],
@@ -499,8 +501,8 @@ class Symbolic:
             decided = self._decide(cond, pc)
             if decided is False:
                 return st
-            if count > LOOP_LIMIT:
-                raise Unsupported(f"WHILE runs more than {LOOP_LIMIT} times")
+            if count > self.loop_limit:
+                raise Unsupported(f"WHILE runs more than {self.loop_limit} times")
             if decided is None:
                 go = self._iteration(s.statements, None, 0, st, [*pc, cond])
                 rest = (self._while(s, go, [*pc, cond, z3.Not(go[EXIT])], count + 1)
@@ -530,8 +532,8 @@ def merge(cond: Any, yes: dict[str, Any], no: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def execute(fb: Any) -> tuple[Symbolic, dict[str, Any]]:
-    sym = Symbolic(fb)
+def execute(fb: Any, loop_limit: int = LOOP_LIMIT) -> tuple[Symbolic, dict[str, Any]]:
+    sym = Symbolic(fb, loop_limit=loop_limit)
     sym.obligations = []
     return sym, sym.run()
 
@@ -589,7 +591,8 @@ def _popcount(v: Any, n: int) -> Any:
 
 
 def prove_filter(project: Any, text: str, max_distance: int,
-                 tamper: Callable[[str], str] | None = None) -> list[Proof]:
+                 tamper: Callable[[str], str] | None = None,
+                 loop_limit: int = LOOP_LIMIT) -> list[Proof]:
     """The exported filter FB of `project` (in the exported `text`, `tamper`ed if given)
     against the engine's filter: a list of proved (or refuted) properties."""
     fb_name, wiring = filter_wiring(project)
@@ -597,7 +600,7 @@ def prove_filter(project: Any, text: str, max_distance: int,
     if tamper is not None:
         fb_text = tamper(fb_text)
     fb = parse_fb(fb_text)
-    sym, out = execute(fb)
+    sym, out = execute(fb, loop_limit)
     init = sym.initial
     outputs = [v.name for v in project.outputs]
     n = len(outputs)
