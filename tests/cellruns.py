@@ -22,7 +22,7 @@ from hmi.engine.snapshot import Snapshot
 from hmi.project.loader import load_project
 from hmi.project.scenarios import scenarios_of
 from hmi.session.session import Session
-from tests.conftest import PROJECTS, make_controller
+from tests.conftest import PROJECTS, make_session
 
 S = 1_000_000
 SHARED = pytest.mark.xdist_group("cell-runs")
@@ -48,7 +48,7 @@ def run(name: str, control: str = "normal", seconds: int = 60,
         inject: tuple[str, ...] = ()) -> CellSession:
     """A headless session of `seconds` virtual seconds, with faults as the command line
     writes them."""
-    ctl = make_controller(PROJECTS / name, control=control, inject=inject)
+    session = make_session(PROJECTS / name, control=control, inject=inject)
     damage: list[tuple[int, str]] = []
     unsafe = 0
     report_unsafe = 0  # the last built scan's; a quiet scan gave that very report again
@@ -64,7 +64,7 @@ def run(name: str, control: str = "normal", seconds: int = 60,
         unsafe += report_unsafe * count
     # on the quiet path, as `plchmi run` without a trace (hmi.session.run_report.RunCollector.quiet
     # counts a quiet scan's report the same way)
-    last = ctl.run_for(seconds * S, on_scan, on_quiet)
+    last = session.run_for(seconds * S, on_scan, on_quiet)
     return CellSession(last, tuple(damage), unsafe)
 
 

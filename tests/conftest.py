@@ -119,7 +119,7 @@ def write_project(folder: Path, files: dict[str, str]) -> Path:
     return folder
 
 
-def make_controller(project_path, control=None, policy=None, inject=()):
+def make_session(project_path, control=None, policy=None, inject=()):
     project = load_project(project_path)
     plant = SimPlant(project)
     for text in inject:

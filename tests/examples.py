@@ -13,7 +13,8 @@ from pathlib import Path
 
 from hmi.project.model import Project
 from hmi.session.session import Session
-from tests.conftest import PROJECTS, make_controller
+from tests import conftest
+from tests.conftest import PROJECTS
 
 
 @cache
@@ -22,12 +23,12 @@ def example(name: str) -> Project:
     return load_project(PROJECTS / name)
 
 
-def controller(path: Path, control: str | None = None, policy: str | None = None,
-               inject=()) -> Session:
-    """conftest.make_controller, with an example project's load shared (any other folder
+def make_session(path: Path, control: str | None = None, policy: str | None = None,
+                 inject=()) -> Session:
+    """conftest.make_session, with an example project's load shared (any other folder
     is loaded afresh)."""
     if Path(path).parent != PROJECTS:
-        return make_controller(path, control, policy, inject)
+        return conftest.make_session(path, control, policy, inject)
     from hmi.engine.scan import Engine
     from hmi.plant.sim.plant import SimPlant
     from hmi.project.injection import parse_injection

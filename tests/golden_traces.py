@@ -268,8 +268,8 @@ def _dump(obj: Any) -> str:
 
 # -- running a case -------------------------------------------------------------------------
 
-def open_controller(case: Case):
-    """The controller of a case: its project on the simulated plant, as `plchmi run` does."""
+def open_session(case: Case):
+    """The session of a case: its project on the simulated plant, as `plchmi run` does."""
     from hmi.engine.scan import Engine
     from hmi.plant.sim.plant import SimPlant
     from hmi.project.loader import load_project
@@ -288,10 +288,10 @@ def open_controller(case: Case):
     return Session(engine)
 
 
-def open_journal(controller, path: Path):
+def open_journal(session, path: Path):
     from hmi.explain.journal import Journal
     from hmi.session.journal_recorder import JournalRecorder
-    return JournalRecorder(controller, Journal(path), "golden")
+    return JournalRecorder(session, Journal(path), "golden")
 
 
 # Fields that move at almost every scan (the clock, timers' elapsed time, stopwatches): kept
@@ -362,14 +362,14 @@ def run_case(case: Case, attach: Callable[[Any, Any], Callable[[], None]] | None
     historian, tests/test_history_recorder.py), which must change nothing; it returns what
     closes it."""
     _MEMO.clear()
-    controller = open_controller(case)
+    session = open_session(case)
     lines: list[str] = []
     previous: dict[str, tuple[Any, Any]] = {}  # field -> (raw, plain) at the previous scan
     digest = hashlib.sha256()
     with tempfile.TemporaryDirectory() as folder:
         journal_path = Path(folder) / "journal.jsonl"
-        recorder = open_journal(controller, journal_path)
-        close = attach(controller, recorder) if attach is not None else None
+        recorder = open_journal(session, journal_path)
+        close = attach(session, recorder) if attach is not None else None
         script = list(case.script)
         end = int(case.seconds * S)
 
@@ -398,20 +398,20 @@ def run_case(case: Case, attach: Callable[[Any, Any], Callable[[], None]] | None
             if len(line) > 1 or snap.scan == 1:
                 lines.append(_dump(line))
 
-        controller.scan_listeners.append(on_scan)
-        while controller.next_time <= end:
-            while script and script[0][0] <= controller.next_time:
+        session.scan_listeners.append(on_scan)
+        while session.next_time <= end:
+            while script and script[0][0] <= session.next_time:
                 _, command = script.pop(0)
                 if callable(command) and not isinstance(command, cmd.Command):
-                    command = command(controller.last)
-                result = controller.command(command)
+                    command = command(session.last)
+                result = session.command(command)
                 lines.append(_dump({"command": cmd.describe(command),
                                     "accepted": result.accepted, "message": result.message}))
-            controller.scan_once()
+            session.scan_once()
         recorder.close()
         if close is not None:
             close()
-        lines.append(_dump({"end": controller.engine.scan, "digest": digest.hexdigest()}))
+        lines.append(_dump({"end": session.engine.scan, "digest": digest.hexdigest()}))
         for line in journal_path.read_text(encoding="utf-8").splitlines():
             entry = json.loads(line)
             entry.pop("wall", None)

@@ -22,14 +22,14 @@ from hmi.explain.journal import Journal, read
 from hmi.explain.model import Explanation
 from hmi.session.journal_recorder import JournalRecorder
 from tests.conftest import PROJECTS
-from tests.examples import controller as make_controller
+from tests.examples import make_session
 
 S = 1_000_000
 VALVE = PROJECTS / "cispi_valve"
 
 
 def journalled(tmp_path, **kwargs):
-    session = make_controller(VALVE, **kwargs)
+    session = make_session(VALVE, **kwargs)
     journal = Journal(tmp_path / "journal.jsonl")
     return session, JournalRecorder(session, journal), journal.path
 
@@ -76,7 +76,7 @@ def test_a_one_shot_shelf_ends_when_the_condition_clears_and_unshelve_works(tmp_
     assert unshelved and unshelved[0]["message"] in (
         "condition cleared: one-shot shelving over", "returned to normal")
     assert not session.alarms.shelved
-    session2 = make_controller(VALVE, control="faulty")
+    session2 = make_session(VALVE, control="faulty")
     snap = session2.run_for(3 * S)
     alarm = first_active(snap)
     session2.command(Shelve(alarm.key))
@@ -86,7 +86,7 @@ def test_a_one_shot_shelf_ends_when_the_condition_clears_and_unshelve_works(tmp_
 
 
 def test_a_latched_safety_alarm_cannot_be_shelved():
-    session = make_controller(VALVE, control="faulty", policy="block")
+    session = make_session(VALVE, control="faulty", policy="block")
     snap = session.run_for(4 * S)
     latched = next(a for a in snap.alarms if a.latched and a.active)
     result = session.command(Shelve(latched.key, 60 * S))

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from hmi.engine.commands import Acknowledge, ManualOutput, SetMode, SetPolicy
 from hmi.explain.alarms import ACTIVE_UNACK, AlarmManager
-from tests.conftest import PROJECTS, make_controller
+from tests.conftest import PROJECTS, make_session
 from tests.test_explain import make_exp
 
 KEY = "constraint:CSs2"  # never hold the open order when the valve is open
@@ -16,7 +16,7 @@ def test_a_refused_manual_order_does_not_demote_an_unacknowledged_p1():
     an open valve is written (P1, NOT corrected); switched to correct and manual, the same
     order requested by hand is refused by the filter (a P3 situation). The row stayed the
     same alarm and became P3, unacknowledged; the journal said high → low."""
-    session = make_controller(PROJECTS / "cispi_valve", control="faulty", policy="monitor")
+    session = make_session(PROJECTS / "cispi_valve", control="faulty", policy="monitor")
     for _ in range(2000):
         snap = session.scan_once()
         alarm = next((a for a in snap.alarms if a.key == KEY), None)

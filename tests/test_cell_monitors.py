@@ -15,7 +15,7 @@ from hmi.project.loader import load_project
 from hmi.project.monitors import monitors_of
 from hmi.project.scenarios import scenarios_of
 from tests.cellruns import SHARED, run, scenario_run
-from tests.conftest import PROJECTS, make_controller
+from tests.conftest import PROJECTS, make_session
 
 MS = 1_000
 S = 1_000_000
@@ -129,15 +129,15 @@ def test_the_operator_reads_the_cells_own_explanation_of_a_monitor_fault(capsys)
 def act_on_alarm(name: str, inject: str, label: str, device: str, seconds: int = 30):
     """Run with `inject`; at the scan `label` is raised, stop `device` as the operator would.
     Returns that instant and the damage events (plant time, kind)."""
-    ctl = make_controller(PROJECTS / name, inject=[inject])
+    session = make_session(PROJECTS / name, inject=[inject])
     stopped, damage = [], []
 
     def on_scan(snap):
         damage.extend((e.time_us, e.kind) for e in snap.plant_events if e.damage)
         if not stopped and any(m.label == label and m.detection for m in snap.monitors):
             stopped.append(snap.time_us)
-            assert ctl.command(StopDevice(device)).accepted
-    ctl.run_for(seconds * S, on_scan)
+            assert session.command(StopDevice(device)).accepted
+    session.run_for(seconds * S, on_scan)
     return stopped[0], damage
 
 

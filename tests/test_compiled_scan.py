@@ -26,7 +26,7 @@ from functools import cache
 import pytest
 
 from hmi.engine import commands as cmd
-from hmi.engine.codegen import ATTRIBUTES, LOCALS, Source, build
+from hmi.engine.codegen import PARAMETERS, Source, build
 from hmi.engine.diagnoser import MODES
 from hmi.engine.scan import Engine
 from hmi.engine.snapshot import Snapshot
@@ -170,9 +170,10 @@ def test_a_restored_state_runs_as_in_the_interpreter(name):
 
 def test_generated_code_holds_only_slots_constants_and_operators():
     """No project text reaches generated code: every name in every function an engine
-    generates is one of the templates' locals, a handed-over object (k0, k1...) or a
-    keyword, and every literal a number (hmi.engine.codegen refuses anything else at build
-    time too; this reads the sources independently, token by token)."""
+    generates is a parameter, one of the names its stages declare (their PRINTED, the
+    frame's), a handed-over object (k0, k1...) or a keyword, and every literal a number
+    (hmi.engine.codegen refuses anything else at build time too; this reads the sources
+    independently, token by token)."""
     handed = re.compile(r"k[0-9]+\Z")
     for name in NAMES:
         project = load(PROJECTS / name)
@@ -184,12 +185,13 @@ def test_generated_code_holds_only_slots_constants_and_operators():
             for procedure in recoveries_of(project):
                 assert engine.compiled.recovery(procedure.name) is not None
             assert any(text.startswith("def held(") for text in engine.compiled.sources)
+            names = PARAMETERS.union(engine.compiled.vocabulary)
             for text in engine.compiled.sources:
                 for tok in tokenize.generate_tokens(io.StringIO(text).readline):
                     if tok.type == tokenize.NAME and tok.start[0] > 1:  # after the def line
-                        assert (tok.string in LOCALS or handed.match(tok.string)
+                        assert (tok.string in names.locals or handed.match(tok.string)
                                 or keyword.iskeyword(tok.string)
-                                or tok.string in ATTRIBUTES), (name, tok.string)
+                                or tok.string in names.attributes), (name, tok.string)
                     assert tok.type != tokenize.STRING, (name, tok.string)
                     if tok.type == tokenize.NUMBER:
                         assert tok.string.isdigit(), (name, tok.string)
@@ -300,3 +302,33 @@ def test_run_while_quiet_stops_at_the_first_news(name):
             seen.append(now // period - 1)
     assert seen == news_at and news_at, name
     assert comparable(batched.snapshot()) == comparable(single.snapshot())
+
+
+def test_printed_code_names_only_what_the_stages_declare():
+    """The allow-list is the stages' declared names (ProgramStage.PRINTED): a name nobody
+    declared is refused at build time, a name that would reach Python's machinery cannot be
+    declared, and a stage's statements go only to a part of the mode's program."""
+    from hmi.engine.codegen import Vocabulary, allow
+    from hmi.engine.compiled import ScanProgram
+
+    src = Source()
+    src.line(1, "return v.undeclared_by_any_stage")
+    with pytest.raises(ValueError, match="undeclared_by_any_stage"):
+        build(src, "f", "v", "<allow-list test>")
+    for bad in ("__class__", "k7", "Import", "a.b"):
+        with pytest.raises(ValueError, match="not a name"):
+            allow(Vocabulary(frozenset({bad})))
+        with pytest.raises(ValueError, match="not a name"):
+            allow(Vocabulary(locals=frozenset({bad})))
+
+    class Stray:
+        PRINTED = Vocabulary()
+
+        @property
+        def parts(self) -> dict[str, tuple[()]]:
+            return {"filter": ()}  # the engine's own part, not the program's
+
+    project = load(PROJECTS / "cispi_valve")
+    engine = Engine(project, SimPlant(project))
+    with pytest.raises(ValueError, match="not a part of the mode's program"):
+        ScanProgram(engine.layout, [Stray()], None, engine.safety_filter, None)

@@ -258,9 +258,9 @@ def test_the_budget_is_checked_where_it_is_given(tmp_path, capsys):
 
 def test_only_a_live_runner_arms_the_wall_clock_net(tmp_path):
     engine = engine_for(pairs_project(tmp_path))
-    controller = Session(engine)
+    session = Session(engine)
     assert engine.safety_filter.wall_limit_us is None  # headless: traces depend on steps only
-    arm_search_deadline(controller)
+    arm_search_deadline(session)
     assert engine.safety_filter.wall_limit_us == 5_000  # half the 10 ms period
     engine.safety_filter.wall_limit_us = 1e-6  # a machine far too slow: the net stops the search
     snap = engine.step(0)
@@ -323,10 +323,10 @@ def test_the_paper_strategy_stops_the_pump_where_the_project_keeps_it_running():
     project = load_project(PROJECTS / "cispi_subsystem")
     written = {}
     for solver in ("exact", "paper"):
-        controller = Session(Engine(project, SimPlant(project), control="faulty",
+        session = Session(Engine(project, SimPlant(project), control="faulty",
                                        solver=solver))
         snaps = []
-        controller.run_for(4 * S + 1, snaps.append)
+        session.run_for(4 * S + 1, snaps.append)
         snap = next(s for s in snaps if "CSc2" in s.filter.violated_names)
         assert snap.time_us == 4 * S
         written[solver] = dict(zip(snap.layout.outputs, snap.outputs, strict=True))
@@ -339,9 +339,9 @@ def test_the_paper_strategy_stops_the_pump_where_the_project_keeps_it_running():
 def test_manual_requests_meet_the_same_bounded_corrector(tmp_path):
     folder = pairs_project(tmp_path, "solver_budget: 300\n", n=12)
     engine = engine_for(folder)
-    controller = Session(engine)
-    controller.command(SetMode(True))
+    session = Session(engine)
+    session.command(SetMode(True))
     for k in range(12):
-        controller.command(ManualOutput(f"o{k}", True))
-    snap = controller.scan_once()
+        session.command(ManualOutput(f"o{k}", True))
+    snap = session.scan_once()
     assert snap.filter.stopped == "budget" and snap.outputs == (False,) * 12

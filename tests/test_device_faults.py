@@ -7,13 +7,13 @@ stopwatch monitor's fault on the halted task reads "stopped in the middle of its
 from __future__ import annotations
 
 from hmi.project.loader import load_project
-from tests.conftest import PROJECTS, make_controller
+from tests.conftest import PROJECTS, make_session
 
 S = 1_000_000
 
 
 def _run(inject, seconds):
-    session = make_controller(PROJECTS / "conveyor_robot", inject=inject)
+    session = make_session(PROJECTS / "conveyor_robot", inject=inject)
     return session.run_for(seconds * S)
 
 

@@ -33,16 +33,16 @@ def project():
     return load_project(VALVE)
 
 
-def controller(project, inject=(), diagnosis="ftc", policy=None) -> Session:
+def make_session(project, inject=(), diagnosis="ftc", policy=None) -> Session:
     plant = SimPlant(project)
     for text in inject:
         plant.inject(parse_injection(text))
     return Session(Engine(project, plant, policy=policy, diagnosis=diagnosis))
 
 
-def run(ctl: Session, seconds: float):
+def run(session: Session, seconds: float):
     snaps = []
-    ctl.run_for(int(seconds * S), snaps.append)
+    session.run_for(int(seconds * S), snaps.append)
     return snaps
 
 
@@ -51,7 +51,7 @@ def first_faulty(snaps):
 
 
 def test_normal_cycle_visits_the_nine_normal_states_and_never_a_faulty_one(project):
-    snaps = run(controller(project), 40)
+    snaps = run(make_session(project), 40)
     states = [s.diagnosers[0].state for s in snaps]
     # N0 (synchronising) is left at the first scan: the valve starts closed with no order;
     # N8 waits for fsc held 500 ms before the valve is closed at rest (N1).
@@ -66,7 +66,7 @@ def test_normal_cycle_visits_the_nine_normal_states_and_never_a_faulty_one(proje
 
 def test_outputs_are_read_one_scan_back_so_the_order_is_seen_the_scan_after_it_is_written(
         project):
-    snaps = run(controller(project), 1.1)
+    snaps = run(make_session(project), 1.1)
     written = next(s for s in snaps if s.outputs[1])  # O written at 1.000 s
     seen = next(s for s in snaps if s.diagnosers[0].state == "N2")
     assert seen.scan == written.scan + 1 and seen.diagnosers[0].via == "N1 -> N2 on O"
@@ -98,7 +98,7 @@ DIAGNOSES = [
                          ids=[d[0] for d in DIAGNOSES])
 def test_each_fault_is_diagnosed_within_the_windows_of_the_model(
         project, inject, state, labels, symptom_us, max_delay_us):
-    snaps = run(controller(project, [inject], diagnosis="observe"), 20)
+    snaps = run(make_session(project, [inject], diagnosis="observe"), 20)
     final = snaps[-1].diagnosers[0]
     assert (final.state, final.labels) == (state, labels)
     reached = next(s for s in snaps if s.diagnosers[0].state == state)
@@ -115,7 +115,7 @@ def test_each_fault_is_diagnosed_within_the_windows_of_the_model(
 def test_under_ftc_the_mask_withdraws_the_order_that_would_refine_b2_b4(project, inject, state):
     """{F2, F5} and {F4, F6} masks the valve at once (a stuck valve stalls the motor in 1 s);
     without the order the valve cannot show which it was, so the decision stays ambiguous."""
-    snaps = run(controller(project, [inject]), 25)
+    snaps = run(make_session(project, [inject]), 25)
     final = snaps[-1].diagnosers[0]
     assert final.state == state and not final.certain and not final.final
     assert snaps[-1].masked == ("C", "O") and snaps[-1].outputs == (False, False)
@@ -123,7 +123,7 @@ def test_under_ftc_the_mask_withdraws_the_order_that_would_refine_b2_b4(project,
 
 
 def test_a_sensor_flag_reconstructs_the_sensor_and_the_cycle_goes_on(project):
-    snaps = run(controller(project, ["F9@9.5s"]), 30)
+    snaps = run(make_session(project, ["F9@9.5s"]), 30)
     at = next(s for s in snaps if s.time_us == 9_500 * MS)
     d = at.diagnosers[0]
     # A glitch or a stuck switch: both are fso's partition, so fso is reconstructed at once.
@@ -143,7 +143,7 @@ def test_a_sensor_flag_reconstructs_the_sensor_and_the_cycle_goes_on(project):
 
 
 def test_an_actuator_flag_masks_the_orders_before_the_filter_and_after_it(project):
-    snaps = run(controller(project, ["F2@8.2s"]), 12)
+    snaps = run(make_session(project, ["F2@8.2s"]), 12)
     onset = next(s for s in snaps if s.masked)
     assert onset.time_us == 9_190 * MS and onset.diagnosers[0].state == "B2"
     # The program still asks to open; the filter judged the masked candidate (O = 0): the
@@ -159,15 +159,15 @@ def test_an_actuator_flag_masks_the_orders_before_the_filter_and_after_it(projec
 
 
 def test_monitor_policy_never_applies_a_mask_but_says_it_would(project):
-    snaps = run(controller(project, ["F2@8.2s"], policy="monitor"), 10)
+    snaps = run(make_session(project, ["F2@8.2s"], policy="monitor"), 10)
     onset = next(s for s in snaps if s.diagnosers[0].state == "B2")
     assert onset.masked == () and onset.outputs == onset.fov == (False, True)
     assert "def_V would mask C, O" in onset.filter.note
 
 
 def test_observe_and_off_modes_leave_the_sensors_alone(project):
-    observe = run(controller(project, ["F9@9.5s"], diagnosis="observe"), 11)
-    off = run(controller(project, ["F9@9.5s"], diagnosis="off"), 11)
+    observe = run(make_session(project, ["F9@9.5s"], diagnosis="observe"), 11)
+    off = run(make_session(project, ["F9@9.5s"], diagnosis="off"), 11)
     assert observe[-1].diagnosers[0].state == "S9" and observe[-1].value("def_fso")
     assert all(s.value("fso_filter") == s.value("fso") for s in observe + off)
     assert not any(s.reconstructed or s.masked for s in observe + off)
@@ -175,45 +175,45 @@ def test_observe_and_off_modes_leave_the_sensors_alone(project):
 
 
 def test_fault_reset_resynchronises_to_the_normal_state_the_io_shows(project):
-    ctl = controller(project, ["F8@8.2s"])
-    snaps = run(ctl, 9)
+    session = make_session(project, ["F8@8.2s"])
+    snaps = run(session, 9)
     assert snaps[-1].diagnosers[0].state == "S8"
     # Wait until the valve rests closed with no order, then reset.
     while True:
-        s = ctl.scan_once()
+        s = session.scan_once()
         if s.time_us > 20 * S and s.active_steps == ("X0",) and s.outputs == (False, False) \
                 and s.value("fsc") and s.time_us % S == 500 * MS:
             break
-    message = ctl.command(FaultReset()).message
+    message = session.command(FaultReset()).message
     assert "diagnoser V1: S8 {F8} reset, re-synchronised to N1 (Closed at rest) on " \
            "fsc=1, fso=0, C=0, O=0; flags cleared" in message
-    after = ctl.scan_once()
+    after = session.scan_once()
     d = after.diagnosers[0]
     assert (d.state, d.labels) == ("N1", ()) and d.via.startswith("fault reset (resync rule 1")
     assert not any(v for _, v in d.flags) and after.reconstructed == ()
     # ... and it follows the next cycle again.
-    more = run(ctl, 10)
+    more = run(session, 10)
     assert {"N2", "N3", "N4", "N5"} <= {s.diagnosers[0].state for s in more}
     assert not any(s.diagnosers[0].faulty for s in more)
 
 
 def test_fault_reset_leaves_the_diagnoser_faulty_while_the_fault_is_visible(project):
-    ctl = controller(project, ["F1@12s"])
-    snaps = run(ctl, 20)
+    session = make_session(project, ["F1@12s"])
+    snaps = run(session, 20)
     assert snaps[-1].diagnosers[0].state == "A1"
-    message = ctl.command(FaultReset()).message
+    message = session.command(FaultReset()).message
     assert ("diagnoser V1 stays in A1 {F1, F13}: fsc=0, fso=0, C=0, O=0 match no normal "
             "state: the fault is still visible") in message
-    after = ctl.scan_once()
+    after = session.scan_once()
     assert after.diagnosers[0].state == "A1" and after.masked == ("C", "O")
 
 
 def test_the_trace_has_the_diagnoser_state_and_the_flags(project, tmp_path):
     from hmi.session.trace import TraceWriter
-    ctl = controller(project, ["F9@9.5s"])
+    session = make_session(project, ["F9@9.5s"])
     path = tmp_path / "t.csv"
     with TraceWriter(path) as writer:
-        ctl.run_for(10 * S, writer.write)
+        session.run_for(10 * S, writer.write)
     header, *rows = path.read_text().splitlines()
     columns = header.split(",")
     for name in ("diag.V1", "def_fsc", "def_fso", "def_V", "fsc_filter", "fso_filter"):
@@ -244,18 +244,18 @@ def test_run_summary_counts_masked_orders_apart_from_corrections(capsys):
 
 
 def test_an_order_withdrawn_mid_travel_by_a_latch_resynchronises_instead_of_faulting(project):
-    ctl = controller(project)
-    run(ctl, 2)  # opening since 1.000 s
-    assert ctl.last.diagnosers[0].state == "N3"
-    ctl.engine.latch_safe("test", "an operator emergency stop")
-    snaps = run(ctl, 5)  # much longer than the travel window: no arrival, no fault
+    session = make_session(project)
+    run(session, 2)  # opening since 1.000 s
+    assert session.last.diagnosers[0].state == "N3"
+    session.engine.latch_safe("test", "an operator emergency stop")
+    snaps = run(session, 5)  # much longer than the travel window: no arrival, no fault
     assert snaps[1].diagnosers[0].state == "N0"
     assert snaps[1].diagnosers[0].via == "N3 -> N0 on not O and not fsc and not fso"
     assert not any(s.diagnosers[0].faulty for s in snaps)
     # After the reset the filter refuses to restart the opening from mid-travel (CSs6), so
     # the valve stays where the latch left it; the diagnoser waits, synchronising, no fault.
-    assert "safe-state latch released" in ctl.command(FaultReset()).message
-    after = run(ctl, 10)
+    assert "safe-state latch released" in session.command(FaultReset()).message
+    after = run(session, 10)
     assert {s.diagnosers[0].state for s in after} == {"N0"}
     assert not any(s.masked for s in after)
 
@@ -285,8 +285,8 @@ def test_a_plant_outage_keeps_a_faulty_decision_and_resynchronises_a_normal_one(
 
     plant = Flaky(project)
     plant.down = (int(1.5 * S), int(2.5 * S))
-    ctl = Session(Engine(project, plant))
-    snaps = run(ctl, 3)
+    session = Session(Engine(project, plant))
+    snaps = run(session, 3)
     during = next(s for s in snaps if s.time_us == 2 * S)
     assert during.diagnosers[0].state == "N3"  # shown as it stood, not stepped
     back = next(s for s in snaps if s.time_us == 2_500 * MS)
@@ -296,8 +296,8 @@ def test_a_plant_outage_keeps_a_faulty_decision_and_resynchronises_a_normal_one(
     plant = Flaky(project)
     plant.inject(parse_injection("F9@1.5s"))
     plant.down = (int(2 * S), int(3 * S))
-    ctl = Session(Engine(project, plant))
-    assert run(ctl, 4)[-1].diagnosers[0].state == "S9"
+    session = Session(Engine(project, plant))
+    assert run(session, 4)[-1].diagnosers[0].state == "S9"
 
 
 def test_a_catch_up_scan_does_not_make_the_next_normal_step_a_gap(project):

@@ -221,14 +221,14 @@ def test_rise_of_an_output_in_a_diagnoser_is_the_order_written_at_the_previous_s
     and never be true; read one scan back it is true the scan after O was written."""
     project = load_project(write(tmp_path / "p"))
     engine = Engine(project, SimPlant(project))
-    ctl = Session(engine)
+    session = Session(engine)
     for _ in range(5):
-        s = ctl.scan_once()
+        s = session.scan_once()
     assert s.diagnosers[0].state == "N1"
-    ctl.command(SetInput("go", True))
-    written = ctl.scan_once()
+    session.command(SetInput("go", True))
+    written = session.scan_once()
     assert written.outputs == (False, True) and written.diagnosers[0].state == "N1"
-    seen = ctl.scan_once()
+    seen = session.scan_once()
     assert seen.diagnosers[0].state == "N2" and seen.diagnosers[0].via == \
         "N1 -> N2 on rise(O)"
 

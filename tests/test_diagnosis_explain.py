@@ -24,10 +24,10 @@ S = 1_000_000
 
 def run(code: str, until_s: float) -> Session:
     project = load_project(VALVE)
-    controller = Session(Engine(project, SimPlant(project)))
-    controller.command(InjectFault(Injection(code, 10 * S)))
-    controller.run_for(int(until_s * S))
-    return controller
+    session = Session(Engine(project, SimPlant(project)))
+    session.command(InjectFault(Injection(code, 10 * S)))
+    session.run_for(int(until_s * S))
+    return session
 
 
 def test_record_previews_what_a_reset_would_do():

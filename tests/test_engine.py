@@ -7,13 +7,13 @@ import pytest
 from hmi.engine.commands import FaultReset, ManualOutput, SetMode
 from hmi.session.trace import TraceWriter
 from tests.conftest import PROJECTS
-from tests.examples import controller as make_controller
+from tests.examples import make_session
 
 VALVE = PROJECTS / "cispi_valve"
 S = 1_000_000
 
 
-def run(ctl, seconds, *traces):
+def run(session, seconds, *traces):
     """The run's snapshots, each also written to every trace file given (its format by its
     suffix)."""
     writers = [TraceWriter(trace) for trace in traces]
@@ -23,15 +23,15 @@ def run(ctl, seconds, *traces):
         snaps.append(s)
         for writer in writers:
             writer.write(s)
-    ctl.run_for(seconds * S, on_scan)
+    session.run_for(seconds * S, on_scan)
     for writer in writers:
         writer.close()
     return snaps
 
 
 def test_valve_cycles_and_scans_follow_the_period():
-    ctl = make_controller(VALVE)
-    snaps = run(ctl, 60)
+    session = make_session(VALVE)
+    snaps = run(session, 60)
     assert len(snaps) == 6001 and snaps[-1].time_us == 60 * S
     assert [s.time_us for s in snaps[:3]] == [0, 10_000, 20_000]
     counters = dict(snaps[-1].plant_counters)
@@ -43,7 +43,7 @@ def test_valve_cycles_and_scans_follow_the_period():
 
 def test_two_runs_give_byte_identical_traces(tmp_path):
     for name in ("a", "b"):  # two runs, each traced in both formats
-        run(make_controller(VALVE, inject=["F4@10s"]), 30, tmp_path / f"{name}.csv",
+        run(make_session(VALVE, inject=["F4@10s"]), 30, tmp_path / f"{name}.csv",
             tmp_path / f"{name}.jsonl")
     assert (tmp_path / "a.csv").read_bytes() == (tmp_path / "b.csv").read_bytes()
     assert (tmp_path / "a.jsonl").read_bytes() == (tmp_path / "b.jsonl").read_bytes()
@@ -51,7 +51,7 @@ def test_two_runs_give_byte_identical_traces(tmp_path):
 
 
 def test_f13_leaves_the_valve_between_positions():
-    snaps = run(make_controller(VALVE, inject=["F13@20s"]), 60)
+    snaps = run(make_session(VALVE, inject=["F13@20s"]), 60)
     after = [s for s in snaps if s.time_us >= 30 * S]
     assert all(dict(s.plant_state)["jammed"] for s in after)
     assert all(not s.value("fsc") and not s.value("fso") for s in after)
@@ -60,70 +60,70 @@ def test_f13_leaves_the_valve_between_positions():
 
 def test_faulty_control_without_filter_damages_the_valve():
     # The faulty program holds orders against the stops; the monitor policy lets it through.
-    snaps = run(make_controller(VALVE, control="faulty", policy="monitor"), 30)
+    snaps = run(make_session(VALVE, control="faulty", policy="monitor"), 30)
     kinds = {e.kind for s in snaps for e in s.plant_events if e.damage}
     assert "both_orders" in kinds
 
 
 def test_manual_mode_replaces_the_functional_vector():
-    ctl = make_controller(VALVE)
-    ctl.scan_once()
-    assert ctl.command(ManualOutput("O", True)).accepted is False  # needs manual mode
-    assert ctl.command(SetMode(True)).accepted
-    assert ctl.command(ManualOutput("O", True)).accepted
-    s = ctl.scan_once()
+    session = make_session(VALVE)
+    session.scan_once()
+    assert session.command(ManualOutput("O", True)).accepted is False  # needs manual mode
+    assert session.command(SetMode(True)).accepted
+    assert session.command(ManualOutput("O", True)).accepted
+    s = session.scan_once()
     assert s.mode == "manual" and s.fov == (False, True) and s.manual == (("O", True),)
-    result = ctl.command(SetMode(False))
+    result = session.command(SetMode(False))
     assert "released O" in result.message
-    s = ctl.scan_once()
+    s = session.scan_once()
     assert s.mode == "auto" and s.manual == ()
 
 
 def test_an_internal_error_puts_outputs_safe_and_says_so():
-    ctl = make_controller(VALVE)
-    run(ctl, 2)  # opening: O is on
-    assert ctl.last.outputs == (False, True)
+    session = make_session(VALVE)
+    run(session, 2)  # opening: O is on
+    assert session.last.outputs == (False, True)
 
     def broken(*args):
         raise RuntimeError("solver bug")
-    working = ctl.engine.filter_stage.apply
-    ctl.engine.filter_stage.apply = broken
-    compiled = ctl.engine.compiled  # the filter's first question, asked by the scan itself
+    working = session.engine.filter_stage.apply
+    session.engine.filter_stage.apply = broken
+    compiled = session.engine.compiled  # the filter's first question, asked by the scan itself
     assert compiled is not None
     test = compiled.violated
     compiled.violated = broken
-    s = ctl.scan_once()
+    s = session.scan_once()
     assert s.outputs == (False, False) and s.latched[0].source == "internal"
     assert "solver bug" in s.error
-    assert ctl.engine.plant.devices[0].orders == {"C": False, "O": False}
-    s = ctl.scan_once()
+    assert session.engine.plant.devices[0].orders == {"C": False, "O": False}
+    s = session.scan_once()
     assert s.outputs == (False, False)  # stays safe until a fault reset
-    ctl.engine.filter_stage.apply = working
+    session.engine.filter_stage.apply = working
     compiled.violated = test
-    assert "safe-state latch released" in ctl.command(FaultReset()).message
-    assert ctl.scan_once().latched == ()
+    assert "safe-state latch released" in session.command(FaultReset()).message
+    assert session.scan_once().latched == ()
 
 
 def test_repair_is_refused_for_a_model_that_cannot_undo_its_faults(monkeypatch):
     from hmi.engine.commands import RepairFaults
     from hmi.plant.sim.conveyor import Conveyor
-    from tests.conftest import PROJECTS, make_controller
+    from tests.conftest import PROJECTS, make_session
     # Every example model can be repaired now; a model that could not is refused.
     monkeypatch.setattr(Conveyor, "REPAIRABLE", False)
-    ctl = make_controller(PROJECTS / "conveyor_robot", inject=["C1.stop@0s"])
-    ctl.scan_once()
-    result = ctl.command(RepairFaults())
+    session = make_session(PROJECTS / "conveyor_robot", inject=["C1.stop@0s"])
+    session.scan_once()
+    result = session.command(RepairFaults())
     assert not result.accepted and "repair is not modelled for C1" in result.message
-    assert not ctl.command(RepairFaults("nowhere")).accepted
+    assert not session.command(RepairFaults("nowhere")).accepted
 
 
 def test_an_internal_error_that_repeats_latches_once_and_a_new_one_adds_a_reason():
     """A stage broken for good raises at every scan: one latch reason (dated from its first
     scan) and one explanation, not one per scan; another error adds its own; after a fault
     reset, once the cause is gone, the cell runs again."""
-    ctl = make_controller(VALVE)
-    ctl.run_for(2 * S)
-    engine = ctl.engine
+    session = make_session(VALVE)
+    session.run_for(2 * S)
+    engine = session.engine
     real = engine.compiled.core
     failing = {"error": "first"}
 
@@ -131,21 +131,21 @@ def test_an_internal_error_that_repeats_latches_once_and_a_new_one_adds_a_reason
         raise RuntimeError(failing["error"])
 
     engine.compiled.core = broken
-    last = ctl.run_for(1 * S)
+    last = session.run_for(1 * S)
     first = engine.latched[0].scan
     assert [(r.source, r.detail) for r in engine.latched] == [
         ("internal", f"internal error at scan {first}: RuntimeError: first")]
     assert [e.key for e in last.explanations].count("safe_state:internal") == 1
     assert last.outputs == engine.safe_vector
     failing["error"] = "second"
-    last = ctl.run_for(1 * S)
+    last = session.run_for(1 * S)
     assert [(r.source, r.detail) for r in engine.latched] == [
         ("internal", f"internal error at scan {first}: RuntimeError: first"),
         ("internal", f"internal error at scan {first + 101}: RuntimeError: second")]
     assert last.outputs == engine.safe_vector
     engine.compiled.core = real
-    ctl.command(FaultReset())
-    assert not ctl.run_for(1 * S).latched
+    session.command(FaultReset())
+    assert not session.run_for(1 * S).latched
 
 
 def test_the_wall_time_is_measured_where_someone_watches_it_only():
@@ -154,7 +154,7 @@ def test_the_wall_time_is_measured_where_someone_watches_it_only():
     headless run in virtual time (Session.run_for) does not measure it (four clock reads a
     scan) and gives the same snapshots but for those two fields, and the engine measures
     again afterwards, also after a run that raised."""
-    live, headless = make_controller(VALVE), make_controller(VALVE)
+    live, headless = make_session(VALVE), make_session(VALVE)
     watched = [live.scan_once() for _ in range(300)]
     assert all(s.scan_wall_us > 0 and s.filter_wall_us > 0 for s in watched[1:])
     run_ = run(headless, 3)

@@ -26,16 +26,16 @@ from hmi.explain.model import Explanation
 from hmi.project.loader import load_project
 from hmi.session.journal_recorder import JournalRecorder
 from tests.conftest import PROJECTS, write_project
-from tests.examples import controller as make_controller
+from tests.examples import make_session
 
 VALVE = PROJECTS / "cispi_valve"
 S = 1_000_000
 
 
-def run_until(ctl, predicate, seconds=30):
-    end = ctl.engine.now + seconds * S
-    while ctl.engine.now < end:
-        snap = ctl.scan_once()
+def run_until(session, predicate, seconds=30):
+    end = session.engine.now + seconds * S
+    while session.engine.now < end:
+        snap = session.scan_once()
         if predicate(snap):
             return snap
     raise AssertionError("condition not reached")
@@ -48,8 +48,8 @@ def explanation(snap, key):
 # -- explanations of each kind ---------------------------------------------------------------
 
 def test_corrected_constraint_explanation_has_four_levels_from_descriptions():
-    ctl = make_controller(VALVE, control="faulty", policy="correct")
-    snap = run_until(ctl, lambda s: "CSs5" in s.filter.violated_names)
+    session = make_session(VALVE, control="faulty", policy="correct")
+    snap = run_until(session, lambda s: "CSs5" in s.filter.violated_names)
     e = explanation(snap, "constraint:CSs5")
     assert e.what == ("Valve V1: close order blocked — start closing only from the open "
                       "position")
@@ -68,32 +68,32 @@ def test_corrected_constraint_explanation_has_four_levels_from_descriptions():
 
 def test_a_violation_that_returns_is_explained_from_its_new_onset():
     """Explanations are reused while a violation lasts, never across two episodes."""
-    ctl = make_controller(VALVE, control="faulty", policy="correct")
-    first = run_until(ctl, lambda s: "CSs5" in s.filter.violated_names)
-    held = ctl.scan_once()  # the program keeps asking: the episode goes on
+    session = make_session(VALVE, control="faulty", policy="correct")
+    first = run_until(session, lambda s: "CSs5" in s.filter.violated_names)
+    held = session.scan_once()  # the program keeps asking: the episode goes on
     assert "CSs5" in held.filter.violated_names
     assert explanation(held, "constraint:CSs5") is explanation(first, "constraint:CSs5")
-    run_until(ctl, lambda s: "CSs5" not in s.filter.violated_names)
-    again = run_until(ctl, lambda s: "CSs5" in s.filter.violated_names)
+    run_until(session, lambda s: "CSs5" not in s.filter.violated_names)
+    again = run_until(session, lambda s: "CSs5" in s.filter.violated_names)
     e = explanation(again, "constraint:CSs5")
     assert f"Violated since scan {again.scan}" in e.detail
     assert f"Violated since scan {first.scan}" not in e.detail
 
 
 def test_explanation_follows_a_policy_change_during_a_violation():
-    ctl = make_controller(VALVE, control="faulty", policy="correct")
-    before = run_until(ctl, lambda s: "CSs5" in s.filter.violated_names)
+    session = make_session(VALVE, control="faulty", policy="correct")
+    before = run_until(session, lambda s: "CSs5" in s.filter.violated_names)
     assert "NOT corrected" not in explanation(before, "constraint:CSs5").what
-    assert ctl.command(SetPolicy("monitor")).accepted
-    snap = ctl.scan_once()
+    assert session.command(SetPolicy("monitor")).accepted
+    snap = session.scan_once()
     assert "CSs5" in snap.filter.violated_names  # the same episode, under another policy
     e = explanation(snap, "constraint:CSs5")
     assert "NOT corrected" in e.what and e.severity == "high"
 
 
 def test_project_texts_fill_their_placeholders():
-    ctl = make_controller(VALVE, control="faulty", policy="correct")
-    snap = run_until(ctl, lambda s: "CSc1" in s.filter.violated_names)
+    session = make_session(VALVE, control="faulty", policy="correct")
+    snap = run_until(session, lambda s: "CSc1" in s.filter.violated_names)
     e = explanation(snap, "constraint:CSc1")
     assert e.what == "Valve V1: open and close ordered together - open order blocked"
     assert "kept the orders apart (open order blocked)" in e.consequences
@@ -101,14 +101,14 @@ def test_project_texts_fill_their_placeholders():
 
 
 def test_blocked_and_monitor_explanations_differ():
-    snap = run_until(make_controller(VALVE, control="faulty", policy="block"),
+    snap = run_until(make_session(VALVE, control="faulty", policy="block"),
                      lambda s: s.latched)
     keys = {e.key for e in snap.explanations}
     assert {"constraint:CSs2", "safe_state:filter"} <= keys
     latch = explanation(snap, "safe_state:filter")
     assert latch.latched and latch.recommended.id == "reset"
     assert "Check the control program before resetting" in latch.consequences
-    snap = run_until(make_controller(VALVE, control="faulty", policy="monitor"),
+    snap = run_until(make_session(VALVE, control="faulty", policy="monitor"),
                      lambda s: s.filter.violations)
     e = snap.explanations[0]
     assert "NOT corrected" in e.what and e.severity == "high"
@@ -119,25 +119,25 @@ def test_whole_cell_explanations_say_cell_not_the_project_identifier():
     """The cell's own situations (a latch, manual forces, an internal error) are the cell's,
     said as such: the project's `name:` is an identifier (a folder's name), not a device an
     operator knows."""
-    snap = run_until(make_controller(VALVE, control="faulty", policy="block"),
+    snap = run_until(make_session(VALVE, control="faulty", policy="block"),
                      lambda s: s.latched)
     latch = explanation(snap, "safe_state:filter")
     assert latch.what.startswith("Cell: stopped safe")
-    ctl = make_controller(VALVE)
-    ctl.scan_once()
-    ctl.command(SetMode(True))
-    ctl.command(ManualOutput("O", True))
-    manual = explanation(ctl.scan_once(), "manual")
+    session = make_session(VALVE)
+    session.scan_once()
+    session.command(SetMode(True))
+    session.command(ManualOutput("O", True))
+    manual = explanation(session.scan_once(), "manual")
     for e in (latch, manual):
         assert "cispi_valve" not in e.what
 
 
 def test_manual_forces_are_explained_without_an_alarm():
-    ctl = make_controller(VALVE)
-    ctl.scan_once()
-    ctl.command(SetMode(True))
-    ctl.command(ManualOutput("O", True))
-    snap = ctl.scan_once()
+    session = make_session(VALVE)
+    session.scan_once()
+    session.command(SetMode(True))
+    session.command(ManualOutput("O", True))
+    snap = session.scan_once()
     e = explanation(snap, "manual")
     assert "MANUAL" in e.what and "open order on" in e.what and not e.alarm
     assert "O=1" in e.detail
@@ -145,12 +145,12 @@ def test_manual_forces_are_explained_without_an_alarm():
 
 
 def test_fallback_and_internal_error_are_explained(tmp_path):
-    ctl = make_controller(VALVE)
-    ctl.scan_once()
-    ctl.engine.filter_stage.apply = lambda *args: 1 / 0
-    assert ctl.engine.compiled is not None  # the filter's first question, asked by the scan
-    ctl.engine.compiled.violated = lambda *args: 1 / 0
-    snap = ctl.scan_once()
+    session = make_session(VALVE)
+    session.scan_once()
+    session.engine.filter_stage.apply = lambda *args: 1 / 0
+    assert session.engine.compiled is not None  # the filter's first question, asked by the scan
+    session.engine.compiled.violated = lambda *args: 1 / 0
+    snap = session.scan_once()
     e = explanation(snap, "safe_state:internal")
     assert "internal error" in e.what and "ZeroDivisionError" in e.detail
     assert "ZeroDivisionError" not in e.why and e.severity == "high"
@@ -289,15 +289,15 @@ def test_alarms_are_settled_only_when_the_same_update_would_change_nothing():
 
 
 def test_latched_alarm_stays_until_fault_reset():
-    ctl = make_controller(VALVE, control="faulty", policy="block")
-    snap = run_until(ctl, lambda s: s.latched)
+    session = make_session(VALVE, control="faulty", policy="block")
+    snap = run_until(session, lambda s: s.latched)
     for _ in range(200):
-        snap = ctl.scan_once()
+        snap = session.scan_once()
     alarm = next(a for a in snap.alarms if a.key == "safe_state:filter")
     assert alarm.active and alarm.latched
-    ctl.command(Acknowledge("safe_state:filter"))
-    ctl.command(FaultReset())
-    snap = ctl.scan_once()
+    session.command(Acknowledge("safe_state:filter"))
+    session.command(FaultReset())
+    snap = session.scan_once()
     assert not [a for a in snap.alarms if a.key == "safe_state:filter"]
     assert any(e.event == "cleared" and e.key == "safe_state:filter" for e in snap.alarm_events)
 
@@ -305,40 +305,40 @@ def test_latched_alarm_stays_until_fault_reset():
 # -- policy choices --------------------------------------------------------------------------
 
 def test_choosing_stop_device_masks_its_outputs_and_release_restores():
-    ctl = make_controller(VALVE, control="faulty", policy="correct")
-    run_until(ctl, lambda s: "CSs2" in s.filter.violated_names)
-    result = ctl.command(ChoosePolicy("constraint:CSs2", "stop_device"))
+    session = make_session(VALVE, control="faulty", policy="correct")
+    run_until(session, lambda s: "CSs2" in s.filter.violated_names)
+    result = session.command(ChoosePolicy("constraint:CSs2", "stop_device"))
     assert result.accepted and "Valve V1 stopped" in result.message
-    snaps = [ctl.scan_once() for _ in range(500)]
+    snaps = [session.scan_once() for _ in range(500)]
     assert all(s.outputs == (False, False) for s in snaps)
     assert snaps[-1].stopped_devices == ("Valve V1",)
     from hmi.engine.commands import ReleaseDevice
-    assert ctl.command(ReleaseDevice("Valve V1")).accepted
-    assert not ctl.command(ChoosePolicy("constraint:CSs2", "teleport")).accepted
+    assert session.command(ReleaseDevice("Valve V1")).accepted
+    assert not session.command(ChoosePolicy("constraint:CSs2", "teleport")).accepted
 
 
 def test_choosing_manual_and_reset_policies_send_their_commands():
-    ctl = make_controller(VALVE, control="faulty", policy="block")
-    run_until(ctl, lambda s: s.latched)
-    assert ctl.command(ChoosePolicy("safe_state:filter", "reset")).accepted
-    assert not ctl.engine.latched
-    snap = run_until(ctl, lambda s: s.latched)
-    assert ctl.command(ChoosePolicy("safe_state:filter", "manual")).accepted
-    assert ctl.engine.mode == "manual"
+    session = make_session(VALVE, control="faulty", policy="block")
+    run_until(session, lambda s: s.latched)
+    assert session.command(ChoosePolicy("safe_state:filter", "reset")).accepted
+    assert not session.engine.latched
+    snap = run_until(session, lambda s: s.latched)
+    assert session.command(ChoosePolicy("safe_state:filter", "manual")).accepted
+    assert session.engine.mode == "manual"
     assert snap.scan
 
 
 # -- journal ---------------------------------------------------------------------------------
 
 def test_journal_records_actions_alarm_transitions_and_manual_outcomes(tmp_path):
-    ctl = make_controller(VALVE)
-    recorder = JournalRecorder(ctl, Journal(tmp_path / "j.jsonl"), "test")
-    ctl.scan_once()
-    ctl.command(SetMode(True))
-    ctl.command(ManualOutput("C", True))  # closing a closed valve: refused by CSs1 and CSs5
-    ctl.scan_once()
-    ctl.command(Acknowledge(None))
-    ctl.scan_once()
+    session = make_session(VALVE)
+    recorder = JournalRecorder(session, Journal(tmp_path / "j.jsonl"), "test")
+    session.scan_once()
+    session.command(SetMode(True))
+    session.command(ManualOutput("C", True))  # closing a closed valve: refused by CSs1 and CSs5
+    session.scan_once()
+    session.command(Acknowledge(None))
+    session.scan_once()
     recorder.close()
     entries = read(tmp_path / "j.jsonl").entries
     events = [(e["type"], e["event"]) for e in entries]
@@ -356,21 +356,21 @@ def test_journal_judges_a_manual_request_against_what_it_asked(tmp_path):
     """Soak seed 200 (sorting, faulty): 'manual CONV_R on' then a recovery started before
     the next scan; the journal said 'written 0 as requested'. The outcome is judged against
     the request: a scan outside manual mode did not apply it, a stopped device refused it."""
-    ctl = make_controller(VALVE)
-    recorder = JournalRecorder(ctl, Journal(tmp_path / "j.jsonl"), "test")
-    ctl.scan_once()
-    assert ctl.command(SetMode(True)).accepted
-    ctl.scan_once()
-    ctl.command(ManualOutput("O", True))
-    assert ctl.command(SetMode(False)).accepted  # left before a scan ran the request
-    assert ctl.scan_once().output_map["O"] is False
-    assert ctl.command(SetMode(True)).accepted
-    ctl.scan_once()
-    assert ctl.command(StopDevice("Valve V1")).accepted
-    ctl.command(ManualOutput("O", True))
-    assert ctl.scan_once().output_map["O"] is False
-    ctl.command(ManualOutput("O", False))  # what it asked: the stop changes nothing
-    ctl.scan_once()
+    session = make_session(VALVE)
+    recorder = JournalRecorder(session, Journal(tmp_path / "j.jsonl"), "test")
+    session.scan_once()
+    assert session.command(SetMode(True)).accepted
+    session.scan_once()
+    session.command(ManualOutput("O", True))
+    assert session.command(SetMode(False)).accepted  # left before a scan ran the request
+    assert session.scan_once().output_map["O"] is False
+    assert session.command(SetMode(True)).accepted
+    session.scan_once()
+    assert session.command(StopDevice("Valve V1")).accepted
+    session.command(ManualOutput("O", True))
+    assert session.scan_once().output_map["O"] is False
+    session.command(ManualOutput("O", False))  # what it asked: the stop changes nothing
+    session.scan_once()
     recorder.close()
     outcomes = [e["message"] for e in read(tmp_path / "j.jsonl").entries
                 if e["event"].endswith(": filter result")]

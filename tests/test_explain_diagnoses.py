@@ -5,17 +5,17 @@ from __future__ import annotations
 from hmi.cli import main
 from hmi.engine.commands import ChoosePolicy, FaultReset
 from tests.conftest import PROJECTS
-from tests.examples import controller as make_controller
+from tests.examples import make_session
 
 VALVE = PROJECTS / "cispi_valve"
 S = 1_000_000
 
 
-def run_to(ctl, seconds):
+def run_to(session, seconds):
     snap = None
-    end = ctl.engine.now + seconds * S
-    while ctl.engine.now < end:
-        snap = ctl.scan_once()
+    end = session.engine.now + seconds * S
+    while session.engine.now < end:
+        snap = session.scan_once()
     return snap
 
 
@@ -40,8 +40,8 @@ def test_ambiguous_diagnosis_reads_as_such_and_recommends_checking_the_valve_fir
 
 
 def test_certain_sensor_fault_recommends_continuing_degraded_with_project_texts():
-    ctl = make_controller(VALVE, inject=["F4@10s"])
-    snap = run_to(ctl, 12)
+    session = make_session(VALVE, inject=["F4@10s"])
+    snap = run_to(session, 12)
     e = find(snap, "diagnosis:V1")
     assert e.what == "Valve V1: sensor fso stuck at 1 — open end switch ignored"
     assert not e.ambiguous and e.latched and e.severity == "medium"
@@ -58,8 +58,8 @@ def test_certain_sensor_fault_recommends_continuing_degraded_with_project_texts(
 
 
 def test_certain_actuator_fault_recommends_reset_after_repair():
-    ctl = make_controller(VALVE, inject=["F11@8.2s"])
-    snap = run_to(ctl, 12)
+    session = make_session(VALVE, inject=["F11@8.2s"])
+    snap = run_to(session, 12)
     e = find(snap, "diagnosis:V1")
     assert "unexpected movement from closed to open — no longer driven" in e.what
     assert "{F11}" in e.detail
@@ -68,13 +68,13 @@ def test_certain_actuator_fault_recommends_reset_after_repair():
 
 
 def test_a_diagnosis_alarm_stays_until_reset_and_reset_keeps_a_visible_fault():
-    ctl = make_controller(VALVE, inject=["F4@10s"])
-    snap = run_to(ctl, 12)
+    session = make_session(VALVE, inject=["F4@10s"])
+    snap = run_to(session, 12)
     assert any(a.key == "diagnosis:V1" and a.latched for a in snap.alarms)
-    result = ctl.command(ChoosePolicy("diagnosis:V1", "continue"))
+    result = session.command(ChoosePolicy("diagnosis:V1", "continue"))
     assert result.accepted and "Continue degraded" in result.message
-    result = ctl.command(FaultReset())
-    snap = ctl.scan_once()
+    result = session.command(FaultReset())
+    snap = session.scan_once()
     # fso is still stuck at 1: the diagnoser cannot re-synchronise and says why.
     assert "V1" in result.message
     assert any(a.key == "diagnosis:V1" for a in snap.alarms)
@@ -91,8 +91,8 @@ def test_diagnosis_alarm_is_journalled(tmp_path):
 
 
 def test_masked_actuator_has_its_own_explanation_until_the_reset():
-    ctl = make_controller(VALVE, inject=["F5@5s"])
-    snap = run_to(ctl, 12)
+    session = make_session(VALVE, inject=["F5@5s"])
+    snap = run_to(session, 12)
     assert set(snap.masked) == {"C", "O"}
     e = find(snap, "masked:V")
     assert e.kind == "masked" and not e.alarm and e.latched
@@ -104,8 +104,8 @@ def test_masked_actuator_has_its_own_explanation_until_the_reset():
     assert e.since_us == find(snap, "diagnosis:V1").since_us
     assert [p.id for p in e.policies] == ["continue", "stop_device", "reset"]
     assert not [a for a in snap.alarms if a.key == "masked:V"]
-    ctl.command(FaultReset())  # F5 is still there: the diagnoser stays faulty, mask and all
-    snap = run_to(ctl, 1)
+    session.command(FaultReset())  # F5 is still there: the diagnoser stays faulty, mask and all
+    snap = run_to(session, 1)
     assert snap.masked and find(snap, "masked:V")
-    healthy = run_to(make_controller(VALVE), 12)
+    healthy = run_to(make_session(VALVE), 12)
     assert not [e for e in healthy.explanations if e.kind == "masked"]

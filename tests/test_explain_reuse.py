@@ -10,7 +10,7 @@ import pytest
 from hmi.engine import commands as cmd
 from hmi.explain.builder import ExplanationBuilder
 from tests.conftest import PROJECTS
-from tests.examples import controller as make_controller
+from tests.examples import make_session
 
 S = 1_000_000
 
@@ -46,7 +46,7 @@ OPERATOR = [(6, cmd.SetPolicy("block")), (9, cmd.FaultReset()), (10, cmd.SetPoli
 @pytest.mark.parametrize(("project", "faults", "seconds", "script"), [
     *((*run, ()) for run in RUNS), ("cispi_valve", ("F5@5s",), 30, OPERATOR)])
 def test_reused_explanations_are_what_a_fresh_build_gives(project, faults, seconds, script):
-    session = make_controller(PROJECTS / project, inject=faults)
+    session = make_session(PROJECTS / project, inject=faults)
     reference = AlwaysAfresh(session.project)
     built = session.explainer.build
     seen: set[str] = set()

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import random
 import re
 from dataclasses import replace
 
@@ -105,6 +106,69 @@ def test_a_sweep_cut_by_its_measured_times_finds_the_same(monkeypatch):
     second, shards = run()  # blocks split and gathered by their time
     assert shards != blocks
     assert first.runs == second.runs and first.states == second.states
+
+
+def _lumpy_sweep(seed: int, runs: int):
+    """A cost model of a sweep's configuration: most runs cost a millisecond or two, but in
+    every third block a fifth of the runs cost 0.05-0.4 s, and runs share states in groups
+    of 5-40 consecutive runs that only the group's first run in a piece pays for (up to
+    0.3 s). A piece's CPU time is its runs' plus 4 ms, and each run's is known, as a worker
+    measures them."""
+    rnd = random.Random(seed)
+    private, group, shared = [], [], {}
+    for r in range(runs):
+        heavy = (r // 200) % 3 == 1
+        private.append(rnd.choice([0.0005, 0.001, 0.002]) if not heavy or rnd.random() < 0.8
+                       else rnd.uniform(0.05, 0.4))
+        group.append(r // rnd.choice([5, 10, 40]) if heavy else r // 50)
+        shared.setdefault(group[-1], rnd.uniform(0.01, 0.3) if heavy else 0.003)
+
+    def piece(a: int, b: int) -> tuple[float, list[float]]:
+        seen: set[int] = set()
+        each = []
+        for r in range(a, b):
+            each.append(private[r] + (shared[group[r]] if group[r] not in seen else 0.0))
+            seen.add(group[r])
+        return 0.004 + sum(each), each
+    return piece
+
+
+def test_shards_cut_by_each_runs_time_stay_over_the_goal(tmp_path, monkeypatch):
+    """Cut, measured, cut again by what was measured, five times over, on 8 lumpy sweeps of
+    about 100 s of CPU: not one shard under 0.2 s (the 0.1 s goal twice over) once the cut
+    has times to go by. With a piece's time spread evenly over its runs (what a times file
+    of pieces only says), the same sweeps give shards of 0.015-0.13 s."""
+    from hmi.farm.run import SHARD_GOAL_S
+    from hmi.studies import loop_sweep
+
+    monkeypatch.setenv("PLCHMI_CACHE", str(tmp_path))
+    runs = 2000
+    blocks = [(0, start, start + 200) for start in range(0, runs, 200)]
+
+    def shortest(seed: int, each_run: bool) -> float:
+        piece = _lumpy_sweep(seed, runs)
+        times, least = None, float("inf")
+        for attempt in range(5):
+            shards = cut(blocks, times.costs if times else None,
+                         times.pieces if times else frozenset())
+            spent, times = [], []
+            for shard in shards:
+                measured = [(c, a, b, *piece(a, b)) for c, a, b in shard]
+                times.append(sum(m[3] for m in measured))
+                spent += [(c, a, b, t, each if each_run else None)
+                          for c, a, b, t, each in measured]
+            if attempt:  # the first cut has no times: one shard per block
+                least = min(least, *times)
+            loop_sweep._store_times("model", [DIAG_NO_FILTER], spent)
+            times = loop_sweep._load_times("model", [DIAG_NO_FILTER], runs)
+            assert times is not None and len(times.costs) == runs
+        return least
+
+    # The floor the cut aims at (target / 2) holds for what ran, not only for what it
+    # expected: a piece within a measured one costs at least its runs' measured sum.
+    monkeypatch.setattr(loop_sweep, "SHARD_MIN_S", 0.4)
+    assert min(shortest(seed, True) for seed in range(8)) >= 0.2 > SHARD_GOAL_S
+    assert min(shortest(seed, False) for seed in range(8)) < SHARD_GOAL_S
 
 
 class Counting(InProcess):

@@ -69,7 +69,16 @@ class Cluster:
                 self.client.scheduler_info()["workers"].items()}
 
     def address_of(self, name: str) -> str:
-        return next(address for address, n in self.names().items() if n == name)
+        names = self.names()
+        found = [address for address, n in names.items() if n == name]
+        assert found, f"worker {name} is not in the cluster ({names}); {self.logs()}"
+        return found[0]
+
+    def logs(self) -> str:
+        """The end of each process's log, for a failure's message."""
+        return "\n".join(f"-- {path.name} (last 2,000 characters):\n"
+                         + path.read_text(errors="replace")[-2000:]
+                         for path in sorted(self.folder.glob("*.log")))
 
     def ensure(self, *names: str) -> None:
         """These workers, and only these: a killed or extra one restarted or stopped."""
@@ -115,28 +124,53 @@ def cluster(tmp_path_factory):
         c.close()
 
 
+def _hold(name: str, marker: Path):
+    """A worker plugin that holds worker `name` on the first shard it starts: its event
+    loop stops there, before the shard runs (as a machine that hangs), after writing the
+    shard's key to `marker`. The shard can then only end by being computed again elsewhere,
+    however fast or slow the machine: the study cannot finish before the worker is killed.
+    Bounded (START_S), so that a failing test leaves no worker held for ever. A class made
+    here, so that it travels to the workers by value (they cannot import the tests)."""
+
+    class Hold(distributed.WorkerPlugin):
+        name = "plchmi-test-hold"
+
+        def __init__(self, target: str, marker: str):
+            self.target, self.marker = target, marker
+
+        def setup(self, worker):
+            self.worker = worker
+
+        def transition(self, key, start, finish, **kwargs):
+            if finish == "executing" and "-shard" in str(key) and \
+                    self.worker.name == self.target and not Path(self.marker).exists():
+                Path(self.marker).write_text(str(key))
+                time.sleep(START_S)
+
+    return Hold(name, str(marker))
+
+
 class Killer(threading.Thread):
-    """Kills worker `name` once it has been computing a shard for half a second: its shards
-    then have to be computed again by the other worker. Remembers which shards it held."""
+    """Kills worker `name` while it holds a shard (:func:`_hold`): its shards then have to be
+    computed again by the other worker. Remembers which shards it held."""
 
     def __init__(self, cluster: Cluster, name: str):
         super().__init__(daemon=True)
         self.cluster, self.name = cluster, name
         self.address = cluster.address_of(name)
+        self.marker = cluster.folder / f"{name}-holds"
+        self.marker.unlink(missing_ok=True)
         self.held: list[str] = []
         self.stop = threading.Event()
 
     def run(self) -> None:
         client = distributed.Client(self.cluster.address, timeout=START_S)
         try:
-            busy_since = None
             while not self.stop.wait(0.05):
-                held = [str(k) for k in client.processing().get(self.address, ())]
-                if not held:
-                    busy_since = None
+                if not self.marker.exists():
                     continue
-                busy_since = busy_since or time.monotonic()
-                if time.monotonic() - busy_since >= 0.5:
+                held = [str(k) for k in client.processing().get(self.address, ())]
+                if self.marker.read_text() in held:
                     self.held = held
                     self.cluster.processes[self.name].send_signal(signal.SIGKILL)
                     return
@@ -153,20 +187,25 @@ def _shard_workers(data: Path) -> dict[int, str]:
     return found
 
 
-def _run_killing(cluster: Cluster, capsys, argv: list[str]) -> tuple[str, str, Killer]:
+def _run_killing(cluster: Cluster, capsys, argv: list[str],
+                 code: int) -> tuple[str, str, Killer]:
+    """The study on the cluster, w2 killed while it holds a shard; it must end with `code`
+    (the local run's), its stderr and the cluster's logs shown when it does not."""
     # Only the cluster's run in the data folder: the local run before it may have cut the
     # study otherwise (a sweep is cut by the times the previous run measured), and its files,
     # in a folder of their own, would say where they ran.
     shutil.rmtree(Path(os.environ["PLCHMI_DATA"]) / "studies", ignore_errors=True)
     killer = Killer(cluster, "w2")
+    cluster.client.register_plugin(_hold("w2", killer.marker))
     killer.start()
     try:
-        code = main([*argv, "--cluster", cluster.address])
+        ended = main([*argv, "--cluster", cluster.address])
     finally:
         killer.stop.set()
         killer.join(10)
+        cluster.client.unregister_worker_plugin("plchmi-test-hold")
     out, err = capsys.readouterr()
-    assert code in (0, 1), err
+    assert ended == code, f"exit {ended}, not {code}; stderr:\n{err}\n{cluster.logs()}"
     assert killer.held, "the worker was never seen computing a shard: nothing was killed"
     return out, err, killer
 
@@ -181,14 +220,15 @@ def _check_rerun(killer: Killer, survivor: str) -> None:
 def test_a_sweep_on_the_cluster_is_the_local_report_though_a_worker_dies(cluster, capsys,
                                                                          monkeypatch):
     cluster.ensure("w1", "w2")
-    # Small shards (20 runs, ~0.2 s), so that the run is still going when w2 dies.
+    # Small shards (20 runs, ~0.2 s): more of them than the two workers hold at once.
     monkeypatch.setattr("hmi.studies.loop_sweep.SHARD_RUNS", 20)
     argv = ["campaign", str(VALVE), "--sweep", "--every", "400ms", "--faults", "F5,F8,F13"]
     assert main([*argv, "--jobs", "1"]) == 0
     local, _ = capsys.readouterr()
     survivor = cluster.address_of("w1")
-    out, err, killer = _run_killing(cluster, capsys, argv)
-    assert out == local
+    out, err, killer = _run_killing(cluster, capsys, argv, 0)
+    assert out == local, err
+    assert "in shards of 20 runs" in local  # the blocks it was cut in, read when it reports
     assert f"worker {killer.address} left the cluster" in err
     _check_rerun(killer, survivor)
 
@@ -196,11 +236,11 @@ def test_a_sweep_on_the_cluster_is_the_local_report_though_a_worker_dies(cluster
 def test_a_soak_farm_on_the_cluster_is_the_local_report_though_a_worker_dies(cluster, capsys):
     cluster.ensure("w1", "w2")
     argv = ["soak", str(VALVE), "--seeds", "1-6", "--steps", "6"]
-    code = main([*argv, "--jobs", "1"])
+    assert main([*argv, "--jobs", "1"]) == 0
     local, _ = capsys.readouterr()
     survivor = cluster.address_of("w1")
-    out, err, killer = _run_killing(cluster, capsys, argv)
-    assert code == 0 and out == local
+    out, err, killer = _run_killing(cluster, capsys, argv, 0)
+    assert out == local, err
     assert f"worker {killer.address} left the cluster" in err
     assert "6 seeds (1-6)" in out and "6 kept every invariant" in out
     _check_rerun(killer, survivor)

@@ -14,20 +14,20 @@ from hmi.engine.commands import FaultReset, ManualOutput, SetMode, SetPolicy
 from hmi.project.loader import load_project
 from hmi.studies.filter_analysis import analyse
 from tests.conftest import PROJECTS, write_project
-from tests.examples import controller as make_controller
+from tests.examples import make_session
 
 VALVE = PROJECTS / "cispi_valve"
 S = 1_000_000
 
 
-def run(ctl, seconds):
+def run(session, seconds):
     snaps = []
-    ctl.run_for(seconds * S, snaps.append)
+    session.run_for(seconds * S, snaps.append)
     return snaps
 
 
 def test_detection_names_the_constraint_and_its_literals():
-    snaps = run(make_controller(VALVE, control="faulty", policy="monitor"), 8)
+    snaps = run(make_session(VALVE, control="faulty", policy="monitor"), 8)
     both = next(s for s in snaps if "CSc1" in s.filter.violated_names)
     violation = next(v for v in both.filter.violations if v.name == "CSc1")
     assert violation.kind == "combined" and violation.literals == (("C", True), ("O", True))
@@ -38,13 +38,13 @@ def test_detection_names_the_constraint_and_its_literals():
 
 
 def test_monitor_passes_everything_through_and_says_it_is_unsafe():
-    snaps = run(make_controller(VALVE, control="faulty", policy="monitor"), 8)
+    snaps = run(make_session(VALVE, control="faulty", policy="monitor"), 8)
     unsafe = [s for s in snaps if s.filter.unsafe_written]
     assert unsafe and all(s.outputs == s.fov for s in snaps)
 
 
 def test_correct_keeps_the_faulty_program_safe_and_the_valve_cycling():
-    snaps = run(make_controller(VALVE, control="faulty", policy="correct"), 120)
+    snaps = run(make_session(VALVE, control="faulty", policy="correct"), 120)
     assert sum(1 for s in snaps if s.filter.violations) > 100
     assert all(not s.filter.residual for s in snaps)
     assert all(not (s.outputs[0] and s.outputs[1]) for s in snaps)  # never C and O
@@ -53,7 +53,7 @@ def test_correct_keeps_the_faulty_program_safe_and_the_valve_cycling():
 
 
 def test_correct_reports_each_change_with_its_reason():
-    snaps = run(make_controller(VALVE, control="faulty", policy="correct"), 8)
+    snaps = run(make_session(VALVE, control="faulty", policy="correct"), 8)
     # Opening held on a fixed time: at fso, CSs2 forces O to 0.
     s = next(s for s in snaps if any(c.by == ("CSs2",) for c in s.filter.changes))
     change = next(c for c in s.filter.changes if c.output == "O")
@@ -62,49 +62,49 @@ def test_correct_reports_each_change_with_its_reason():
 
 
 def test_block_latches_every_output_safe_until_a_fault_reset():
-    ctl = make_controller(VALVE, control="faulty", policy="block")
-    snaps = run(ctl, 10)
+    session = make_session(VALVE, control="faulty", policy="block")
+    snaps = run(session, 10)
     first = next(i for i, s in enumerate(snaps) if s.filter.violations)
     assert snaps[first].latched[0].source == "filter"
     assert "safe blocking on CSs2" in snaps[first].latched[0].detail
     assert all(s.outputs == (False, False) for s in snaps[first:])
-    assert "safe-state latch released" in ctl.command(FaultReset()).message
-    s = ctl.scan_once()
+    assert "safe-state latch released" in session.command(FaultReset()).message
+    s = session.scan_once()
     assert not s.latched or s.filter.violations  # re-latches only on a new violation
 
 
 def test_manual_requests_go_through_the_filter():
-    ctl = make_controller(VALVE)
-    ctl.scan_once()  # closed, waiting
-    ctl.command(SetMode(True))
-    ctl.command(ManualOutput("C", True))  # close a closed valve: CSs1 refuses it
-    s = ctl.scan_once()
+    session = make_session(VALVE)
+    session.scan_once()  # closed, waiting
+    session.command(SetMode(True))
+    session.command(ManualOutput("C", True))  # close a closed valve: CSs1 refuses it
+    s = session.scan_once()
     assert s.fov == (True, False) and s.outputs == (False, False)
     # Closing a closed valve: CSs1 (closed) and CSs5 (closing may only start when open).
     assert [(c.output, c.by) for c in s.filter.changes] == [("C", ("CSs1", "CSs5"))]
-    ctl.command(ManualOutput("C", None))
-    ctl.command(ManualOutput("O", True))  # opening from closed is allowed
-    s = ctl.scan_once()
+    session.command(ManualOutput("C", None))
+    session.command(ManualOutput("O", True))  # opening from closed is allowed
+    s = session.scan_once()
     assert s.outputs == (False, True) and not s.filter.changes
 
 
 def test_policy_switch_at_run_time():
-    ctl = make_controller(VALVE, control="faulty", policy="monitor")
-    assert ctl.command(SetPolicy("correct")).accepted
-    assert ctl.engine.policy == "correct"
-    assert not ctl.command(SetPolicy("stop")).accepted
+    session = make_session(VALVE, control="faulty", policy="monitor")
+    assert session.command(SetPolicy("correct")).accepted
+    assert session.engine.policy == "correct"
+    assert not session.command(SetPolicy("stop")).accepted
     # the policy in effect again: the answer (and so the journal) does not read as a switch
-    same = ctl.command(SetPolicy("correct"))
+    same = session.command(SetPolicy("correct"))
     assert same.accepted and same.message == "filter policy stays correct: already in effect"
 
 
 # The monitor policy on a real plant: tests/test_plant_contract.py (a real ModbusPlant).
 
 
-def _unsafe_scans(ctl, seconds: int) -> list[int]:
+def _unsafe_scans(session, seconds: int) -> list[int]:
     """The scans of a run that wrote an unsafe vector (without keeping every snapshot)."""
     unsafe: list[int] = []
-    ctl.run_for(seconds * S, lambda s: s.filter.unsafe_written and unsafe.append(s.scan))
+    session.run_for(seconds * S, lambda s: s.filter.unsafe_written and unsafe.append(s.scan))
     return unsafe
 
 
@@ -113,8 +113,8 @@ def test_the_filter_never_writes_an_unsafe_vector_in_example_runs():
     # latch, the diagnoser's state and labels) appears by 19 s (measured over 40 s runs).
     for control in ("normal", "faulty"):
         for fault in ("F1@5s", "F2@5s", "F3@5s", "F4@5s", "F7@5s", "F10@9s", "F13@5s"):
-            ctl = make_controller(VALVE, control=control, policy="correct", inject=[fault])
-            unsafe = _unsafe_scans(ctl, 25)
+            session = make_session(VALVE, control=control, policy="correct", inject=[fault])
+            unsafe = _unsafe_scans(session, 25)
             assert not unsafe, (control, fault)
 
 
@@ -133,10 +133,10 @@ def test_no_safe_vector_falls_back_to_the_safe_state(tmp_path):
         plant: {kind: sim, model: valve, ports: {fsc: a, fso: b, C: P, O: Q}}
     """}
     folder = write_project(tmp_path / "f", files)
-    ctl = make_controller(folder)
-    ctl.engine.plant.devices[0].inject("F2", 0)  # fsc (a) stuck at 1
-    ctl.engine.plant.devices[0].inject("F4", 0)  # fso (b) stuck at 1
-    s = ctl.scan_once()
+    session = make_session(folder)
+    session.engine.plant.devices[0].inject("F2", 0)  # fsc (a) stuck at 1
+    session.engine.plant.devices[0].inject("F4", 0)  # fso (b) stuck at 1
+    s = session.scan_once()
     assert s.filter.fallback and s.filter.safe_state and s.outputs == (False, False)
     assert not s.filter.unsafe_written
     report = analyse(load_project(folder))

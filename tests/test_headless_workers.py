@@ -8,14 +8,14 @@ import time
 
 from hmi.ui.app import PlcHmiApp
 from hmi.ui.headless import drain
-from tests.conftest import PROJECTS, make_controller
+from tests.conftest import PROJECTS, make_session
 
 
 async def test_a_slow_worker_thread_is_waited_for_not_counted_in_rounds(monkeypatch):
     # few rounds allowed: a driver that spins rounds while the thread works runs out of
     # them long before the thread ends (a soak farm's replay did with 10,000, at load 15)
     monkeypatch.setattr("hmi.ui.headless.MAX_ROUNDS", 50)
-    app = PlcHmiApp(make_controller(PROJECTS / "cispi_valve"), live=False, show_measured=False)
+    app = PlcHmiApp(make_session(PROJECTS / "cispi_valve"), live=False, show_measured=False)
     release = threading.Event()
     waited = 0
 

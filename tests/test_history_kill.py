@@ -26,7 +26,7 @@ from hmi.history.query import HistoryReader
 from hmi.history.recorder import HistoryRecorder, SampleQueue
 from hmi.history.target import Target, open_store
 from hmi.history.writer import FLUSH_S
-from tests.conftest import PROJECTS, make_controller
+from tests.conftest import PROJECTS, make_session
 
 CHILD = Path(__file__).resolve().parent / "history_child.py"
 EPOCH = 1_790_000_000_000_000
@@ -59,7 +59,7 @@ def _kill_after(target: Target, seconds: float) -> int:
 
 
 def _replay(until_us: int) -> tuple[list[str], list[tuple[int, int, float]]]:
-    session = make_controller(PROJECTS / "cispi_valve")
+    session = make_session(PROJECTS / "cispi_valve")
     c = catalogue(session.project, session.engine.layout, True,
                   tuple(session.engine.plant.state()))
     queue = SampleQueue(10**9)

@@ -33,7 +33,7 @@ from hmi.history.target import Target
 from hmi.project.device_models import DEVICE_MODELS
 from hmi.project.injection import Injection
 from hmi.project.model import POLICIES
-from tests.conftest import PROJECTS, make_controller
+from tests.conftest import PROJECTS, make_session
 from tests.golden_traces import CASES, golden_path, run_case
 
 EPOCH = 1_790_000_000_000_000
@@ -76,7 +76,7 @@ def _truth(c, snap) -> dict[int, float | None]:
 
 def _replay(project: str, control: str | None, seed: int, seconds: int) -> None:
     rng = random.Random(seed)
-    session = make_controller(PROJECTS / project, control=control)
+    session = make_session(PROJECTS / project, control=control)
     layout = session.engine.layout
     c = catalogue(session.project, layout)
     queue = SampleQueue(10**9)
@@ -153,7 +153,7 @@ def test_the_golden_traces_are_the_same_with_the_historian(name, tmp_path):
 
 
 def test_valve_travel_times_and_operations_agree_with_the_plant():
-    session = make_controller(PROJECTS / "cispi_valve")
+    session = make_session(PROJECTS / "cispi_valve")
     c = catalogue(session.project, session.engine.layout)
     queue = SampleQueue(10**9)
     recorder = HistoryRecorder(c, queue, 0)

@@ -26,7 +26,7 @@ from hmi.history.recorder import HistoryRecorder, SampleQueue
 from hmi.history.store import Batch, Event
 from hmi.history.target import Target, open_store
 from hmi.session.runio import open_journal
-from tests.conftest import PROJECTS, make_controller
+from tests.conftest import PROJECTS, make_session
 
 EPOCH = 1_790_000_000_000_000  # 2026-09-21, a fixed wall time for the run's time 0
 RUN_US = 180_000_000
@@ -44,7 +44,7 @@ class Recorded:
 
 
 def record(targets: dict[str, Target], journal_path) -> Recorded:
-    session = make_controller(PROJECTS / "cispi_valve", control="faulty", inject=["F13@40s"])
+    session = make_session(PROJECTS / "cispi_valve", control="faulty", inject=["F13@40s"])
     session.epoch_us = EPOCH
     journal = open_journal(session, journal_path, "test")
     historians = {kind: Historian(session, target, source="test", flush_s=0.05,

@@ -19,14 +19,14 @@ from hmi.ui.app import PlcHmiApp
 from hmi.ui.headless import drain, press, wait_for_screen, wait_until
 from hmi.ui.trend import column_end
 from hmi.ui.trend_screen import TrendScreen, TrendSignalDialog
-from tests.conftest import PROJECTS, make_controller
+from tests.conftest import PROJECTS, make_session
 from tests.ui_harness import palette, run_for, screen_text
 
 EPOCH = 1_790_000_000_000_000  # 2026-09-21 14:13:20 UTC
 
 
 def _app(target: Target | None, folder=None):
-    session = make_controller(PROJECTS / "cispi_valve")
+    session = make_session(PROJECTS / "cispi_valve")
     session.epoch_us = EPOCH
     journal = open_journal(session, folder / "journal.jsonl", "test") if folder else None
     historian = Historian(session, target, flush_s=0.05, journal=journal).attach() \

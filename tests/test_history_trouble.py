@@ -22,7 +22,7 @@ from hmi.history.historian import KEY, Historian
 from hmi.history.query import HistoryReader
 from hmi.history.recorder import HistoryRecorder, SampleQueue
 from hmi.history.target import Target, open_store
-from tests.conftest import PROJECTS, make_controller
+from tests.conftest import PROJECTS, make_session
 from tests.pgcluster import Cluster, Unavailable
 
 EPOCH = 1_790_000_000_000_000
@@ -67,7 +67,7 @@ def tiny_disk(tmp_path):
 
 
 def test_a_full_disk_raises_the_alarm_and_the_cell_goes_on(tiny_disk):
-    session = make_controller(PROJECTS / "cispi_valve", control="faulty")
+    session = make_session(PROJECTS / "cispi_valve", control="faulty")
     session.epoch_us = EPOCH
     historian = Historian(session, Target("sqlite", str(tiny_disk / "h.sqlite")),
                           flush_s=0.05).attach()
@@ -105,7 +105,7 @@ def test_a_lost_database_raises_the_alarm_and_nothing_is_lost():
         pytest.skip(f"no PostgreSQL here: {exc}")
     try:
         url = cluster.database(f"lost_{uuid.uuid4().hex[:8]}")
-        session = make_controller(PROJECTS / "cispi_valve")
+        session = make_session(PROJECTS / "cispi_valve")
         session.epoch_us = EPOCH
         historian = Historian(session, Target("postgresql", url), flush_s=0.05).attach()
         reference = HistoryRecorder(historian.catalogue, SampleQueue(10**9), EPOCH)
@@ -143,7 +143,7 @@ def _fill(disk) -> None:
 
 def test_a_loss_longer_than_the_queue_is_a_gap(tiny_disk):
     """The disk full for longer than the queue holds (400 samples here)."""
-    session = make_controller(PROJECTS / "cispi_valve")
+    session = make_session(PROJECTS / "cispi_valve")
     session.epoch_us = EPOCH
     historian = Historian(session, Target("sqlite", str(tiny_disk / "h.sqlite")),
                           flush_s=0.05, queue_limit=400).attach()

@@ -77,7 +77,7 @@ def test_loss_and_reconnection_are_journalled(server, tmp_path):
     srv = server(valve)
     port = srv.port
     live = Live(valve, port)
-    recorder = JournalRecorder(live.controller, Journal(path), "test")
+    recorder = JournalRecorder(live.session, Journal(path), "test")
     with live:
         live.wait(lambda s: s.output_map["O"], "the valve opening")
         srv.kill()
@@ -85,7 +85,7 @@ def test_loss_and_reconnection_are_journalled(server, tmp_path):
         srv.port = port
         srv.start(WAIT)
         live.wait(lambda s: s.plant.connected, "the reconnection", since=len(live.snaps))
-        assert live.controller.command(FaultReset()).accepted
+        assert live.session.command(FaultReset()).accepted
     recorder.close()
     entries = plant_entries(path)
     events = [e["event"] for e in entries]
@@ -100,7 +100,7 @@ def test_exception_responses_are_one_entry_then_a_count(server, tmp_path):
     path = tmp_path / "j.jsonl"
     srv = server(VALVE, "--inject", "busy@0s+2s")
     live = Live(VALVE, srv.port)
-    recorder = JournalRecorder(live.controller, Journal(path), "test")
+    recorder = JournalRecorder(live.session, Journal(path), "test")
     with live:
         live.wait(lambda s: "Server Device Busy" in s.plant.message, "busy answers")
         back = live.wait(lambda s: s.plant.message.startswith("connected"), "the end of busy")
@@ -119,7 +119,7 @@ def test_scan_overruns_are_one_entry_then_a_count(server, tmp_path):
     path = tmp_path / "j.jsonl"
     srv = server(VALVE, "--delay", "25ms")
     live = Live(VALVE, srv.port)
-    recorder = JournalRecorder(live.controller, Journal(path), "test")
+    recorder = JournalRecorder(live.session, Journal(path), "test")
     with live:
         live.wait(lambda s: live.runner.overruns >= 5, "overruns")
     overruns = live.runner.overruns

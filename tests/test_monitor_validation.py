@@ -129,18 +129,18 @@ def test_durations_off_the_scan_grid_are_a_warning(tmp_path):
 
 def test_a_monitor_reading_deep_history_gets_it(tmp_path):
     # prev(a, 5) needs five past images; the engine's history grows to fit the monitors.
-    from tests.conftest import make_controller
+    from tests.conftest import make_session
     folder = tmp_path / "p"
     folder.mkdir()
     (folder / "project.yaml").write_text(project_text() + GOOD.lstrip("\n").replace(
         "start: rise(Y)", "start: prev(Y, 5) and not prev(Y, 6)"))
-    ctl = make_controller(folder)
-    assert ctl.engine.history.maxlen >= 6
-    ctl.run_for(3_000_000)
-    (m,) = ctl.last.monitors
+    session = make_session(folder)
+    assert session.engine.history.maxlen >= 6
+    session.run_for(3_000_000)
+    (m,) = session.last.monitors
     # Y is written from the first scan (t = 0): five scans later is the 50 ms scan.
-    assert m.attempt >= 1 and ctl.last.error is None
-    first = make_controller(folder)
+    assert m.attempt >= 1 and session.last.error is None
+    first = make_session(folder)
     starts = []
     first.run_for(200_000, lambda s: starts.append(s.time_us) if s.monitors[0].attempt else None)
     assert starts[0] == 50_000

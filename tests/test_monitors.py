@@ -10,7 +10,7 @@ from hmi.project.loader import load_project
 from hmi.session.trace import TraceWriter
 from hmi.studies.monitor_sweep import run_sweep
 from tests.conftest import PROJECTS
-from tests.examples import controller as make_controller
+from tests.examples import make_session
 
 CELL = PROJECTS / "conveyor_robot"
 MS = 1_000
@@ -18,10 +18,10 @@ S = 1_000_000
 
 
 def run(inject=(), seconds=12):
-    ctl = make_controller(CELL, inject=inject)
+    session = make_session(CELL, inject=inject)
     snaps = []
-    ctl.run_for(seconds * S, snaps.append)
-    return ctl, snaps
+    session.run_for(seconds * S, snaps.append)
+    return session, snaps
 
 
 def monitor(snap, name):
@@ -33,14 +33,14 @@ def at(snaps, t_us):
 
 
 def test_the_cell_cycles_and_every_task_is_in_time_without_faults():
-    ctl, snaps = run(seconds=30)
+    session, snaps = run(seconds=30)
     last = snaps[-1]
     conveyor, robot = monitor(last, "conveyor"), monitor(last, "robot")
     assert conveyor.faults == robot.faults == 0
     assert conveyor.completed >= 8 and robot.completed >= 8
     assert not any(e.damage for s in snaps for e in s.plant_events)
     # Each conveyor attempt measured by the monitor equals the device's own record.
-    device = ctl.engine.plant.devices[0]
+    device = session.engine.plant.devices[0]
     assert all(r.work_us == 3_500 * MS for r in device.task_records() if r.end_us)
 
 
@@ -93,25 +93,25 @@ def test_interruptions_that_still_fit_raise_nothing(inject):
 
 
 def test_fault_reset_keeps_a_hopeless_task_faulty_then_releases_it():
-    ctl = make_controller(CELL, inject=["C1.stop@1s+2s"])
-    ctl.run_for(4 * S)  # fault at 3 s; the late pallet is still on its way (arrives 5.5 s)
-    result = ctl.command(FaultReset())
+    session = make_session(CELL, inject=["C1.stop@1s+2s"])
+    session.run_for(4 * S)  # fault at 3 s; the late pallet is still on its way (arrives 5.5 s)
+    result = session.command(FaultReset())
     assert "conveyor_fault stays" in result.message and "still executing" in result.message
-    assert monitor(ctl.scan_once(), "conveyor").location == "faulty"
-    ctl.run_for(2 * S)  # the pallet arrived at 5.5 s, the next one started at 5.51 s
-    result = ctl.command(FaultReset())
+    assert monitor(session.scan_once(), "conveyor").location == "faulty"
+    session.run_for(2 * S)  # the pallet arrived at 5.5 s, the next one started at 5.51 s
+    result = session.command(FaultReset())
     assert "conveyor_fault released" in result.message
-    m = monitor(ctl.scan_once(), "conveyor")
+    m = monitor(session.scan_once(), "conveyor")
     assert m.location == "executing" and m.detection is None and m.attempt == 2
-    ctl.run_for(4 * S)
-    m = monitor(ctl.last, "conveyor")
+    session.run_for(4 * S)
+    m = monitor(session.last, "conveyor")
     assert m.completed == 1 and m.faults == 1 and m.detection is None
 
 
 def test_a_reset_with_nothing_latched_says_so():
-    ctl = make_controller(CELL)
-    ctl.run_for(1 * S)
-    assert ctl.command(FaultReset()).message == "fault reset: nothing was latched"
+    session = make_session(CELL)
+    session.run_for(1 * S)
+    assert session.command(FaultReset()).message == "fault reset: nothing was latched"
 
 
 def test_monitor_faults_do_not_force_outputs_safe():
@@ -122,9 +122,9 @@ def test_monitor_faults_do_not_force_outputs_safe():
 
 def test_traces_carry_the_monitors_and_are_deterministic(tmp_path):
     for name in ("a.csv", "b.csv"):
-        ctl = make_controller(CELL, inject=["C1.stop@1s+2s"])
+        session = make_session(CELL, inject=["C1.stop@1s+2s"])
         with TraceWriter(tmp_path / name) as writer:
-            ctl.run_for(8 * S, writer.write)
+            session.run_for(8 * S, writer.write)
     a = (tmp_path / "a.csv").read_text()
     assert a == (tmp_path / "b.csv").read_text()
     header, *rows = a.splitlines()
@@ -134,8 +134,8 @@ def test_traces_carry_the_monitors_and_are_deterministic(tmp_path):
 
 
 def test_a_project_without_monitors_has_no_stage(valve_project):
-    ctl = make_controller(PROJECTS / "cispi_valve")
-    assert ctl.engine.monitors is None and ctl.scan_once().monitors == ()
+    session = make_session(PROJECTS / "cispi_valve")
+    assert session.engine.monitors is None and session.scan_once().monitors == ()
 
 
 # --------------------------------------------------------------------------------------------
@@ -243,9 +243,9 @@ def test_sweep_bad_arguments_exit_2(capsys):
 
 
 def test_a_monitor_fault_is_explained_and_raises_a_latched_alarm():
-    ctl = make_controller(CELL, inject=["C1.stop@1s+2s"])
+    session = make_session(CELL, inject=["C1.stop@1s+2s"])
     snaps = []
-    ctl.run_for(4 * S, snaps.append)
+    session.run_for(4 * S, snaps.append)
     assert not any(e.key == "monitor:conveyor" for e in at(snaps, 2_990 * MS).explanations)
     snap = at(snaps, 3 * S)
     e = next(e for e in snap.explanations if e.key == "monitor:conveyor")
@@ -259,9 +259,9 @@ def test_a_monitor_fault_is_explained_and_raises_a_latched_alarm():
     assert [p.id for p in e.policies] == ["continue", "stop_device", "reset"]
     raised = [a for a in snap.alarm_events if a.key == "monitor:conveyor"]
     assert [a.event for a in raised] == ["raised"]
-    ctl.run_for(2 * S)  # the late task ended; the next one runs normally
-    ctl.command(FaultReset())
-    snap = ctl.scan_once()
+    session.run_for(2 * S)  # the late task ended; the next one runs normally
+    session.command(FaultReset())
+    snap = session.scan_once()
     assert not any(e.key == "monitor:conveyor" for e in snap.explanations)
     assert not any(a.key == "monitor:conveyor" and a.active for a in snap.alarms)
 
@@ -274,9 +274,9 @@ def test_project_texts_replace_a_monitor_explanation(tmp_path):
         f.write('explanations:\n  monitors:\n    conveyor:\n'
                 '      what: "{task} late: x={x}, y={y}, gamma={gamma} ({label})"\n'
                 '      severity: high\n')
-    ctl = make_controller(folder, inject=["C1.stop@1s+2s"])
-    ctl.run_for(3 * S)
-    e = next(e for e in ctl.last.explanations if e.key == "monitor:conveyor")
+    session = make_session(folder, inject=["C1.stop@1s+2s"])
+    session.run_for(3 * S)
+    e = next(e for e in session.last.explanations if e.key == "monitor:conveyor")
     assert e.what == ("Conveyor C1 carrying a pallet from the pusher to B late: x=3.000, "
                       "y=1.000, gamma=5s (conveyor_fault)")
     assert e.severity == "high"

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import pytest
 
-from tests.conftest import PROJECTS, make_controller
+from tests.conftest import PROJECTS, make_session
 
 EXAMPLES = sorted(p.name for p in PROJECTS.iterdir() if (p / "project.yaml").exists())
 TEN_MINUTES_US = 600_000_000
@@ -17,7 +17,7 @@ TEN_MINUTES_US = 600_000_000
 
 @pytest.mark.parametrize("name", EXAMPLES)
 def test_the_normal_program_raises_no_alarm_in_ten_minutes(name):
-    session = make_controller(PROJECTS / name)
+    session = make_session(PROJECTS / name)
     raised: list[str] = []
 
     def scanned(snap) -> None:

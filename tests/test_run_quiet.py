@@ -12,7 +12,7 @@ from hmi.cli import main
 from hmi.engine import commands as cmd
 from hmi.session.run_report import RunCollector
 from hmi.session.session import Session
-from tests.conftest import PROJECTS, make_controller
+from tests.conftest import PROJECTS, make_session
 
 S = 1_000_000
 
@@ -72,7 +72,7 @@ def test_last_builds_a_quiet_scans_snapshot_as_a_scan_would_have(project, faults
     def comparable(snap):
         return snap._replace(scan_wall_us=0.0, filter_wall_us=0.0)
 
-    lazy, full = (make_controller(PROJECTS / project, inject=faults) for _ in range(2))
+    lazy, full = (make_session(PROJECTS / project, inject=faults) for _ in range(2))
     quiet = []
     for until in (4, 7, 13, 21, 30):
         lazy.run_for(until * S - lazy.next_time, None, quiet.append)
@@ -89,10 +89,10 @@ def test_the_collector_counts_quiet_scans_as_the_scans_they_repeat(project):
     """RunCollector.quiet(n) against the same run adding every scan's snapshot."""
     lazy, full = RunCollector(), RunCollector()
     quiet = []
-    last = make_controller(PROJECTS / project).run_for(
+    last = make_session(PROJECTS / project).run_for(
         30 * S, lazy.add, lambda n: (quiet.append(n), lazy.quiet(n)))
     lazy.finish(last)
-    full.finish(make_controller(PROJECTS / project).run_for(30 * S, full.add))
+    full.finish(make_session(PROJECTS / project).run_for(30 * S, full.add))
     assert lazy.scans == full.scans and sum(quiet) > full.scans // 2
     for field in ("violations", "corrections", "safe_scans", "unsafe_written", "fallbacks",
                   "max_distance", "first_latch", "events", "alarm_events", "step_changes",

@@ -77,8 +77,8 @@ def test_the_history_between_frames_is_kept_one_scan_pulses_included(sock):
 def load_twin_recorder(until_us: int):
     """The same run in this process, recorded by a recorder of its own."""
     from hmi.session.recorder import ScanRecorder
-    from tests.conftest import make_controller
-    session = make_controller(VALVE, control="faulty")
+    from tests.conftest import make_session
+    session = make_session(VALVE, control="faulty")
     recorder = ScanRecorder(session.engine.layout)
     session.scan_listeners.append(recorder.on_scan)
     while session.next_time <= until_us:

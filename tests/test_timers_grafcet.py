@@ -3,7 +3,7 @@ timer step by step: tests/test_program.py)."""
 
 from __future__ import annotations
 
-from tests.conftest import make_controller, write_project
+from tests.conftest import make_session, write_project
 
 GRAFCET_PROJECT = {
     "project.yaml": """
@@ -34,37 +34,37 @@ GRAFCET_PROJECT = {
 }
 
 
-def run_scans(controller, n, inputs=None):
+def run_scans(session, n, inputs=None):
     snaps = []
     for _ in range(n):
         for name, value in (inputs or {}).items():
-            controller.engine.plant.set_input(name, value)
-        snaps.append(controller.scan_once())
+            session.engine.plant.set_input(name, value)
+        snaps.append(session.scan_once())
     return snaps
 
 
 def test_grafcet_evolution_fork_join_one_clearing_per_scan(tmp_path):
-    ctl = make_controller(write_project(tmp_path / "g", GRAFCET_PROJECT))
-    plant = ctl.engine.plant
-    s = ctl.scan_once()
+    session = make_session(write_project(tmp_path / "g", GRAFCET_PROJECT))
+    plant = session.engine.plant
+    s = session.scan_once()
     assert s.active_steps == ("X0",)
     plant.set_input("a", True)
-    s = ctl.scan_once()  # fork: 0 -> 1 and 2 together
+    s = session.scan_once()  # fork: 0 -> 1 and 2 together
     assert s.active_steps == ("X1", "X2") and s.fired == (1,)
     assert s.fov == (True, True, False)  # C from X1, O from X2 (X2.t < 30ms)
-    s = ctl.scan_once()  # 1 -> 3 and 2 -> 4 fire together, once (no chain within a scan)
+    s = session.scan_once()  # 1 -> 3 and 2 -> 4 fire together, once (no chain within a scan)
     assert s.active_steps == ("X3", "X4") and s.fired == (2, 3)
     assert s.value("M") is True  # stored action on activation of X3
     assert s.fov == (False, False, True)  # P = M and X4
-    s = ctl.scan_once()
+    s = session.scan_once()
     assert s.active_steps == ("X3", "X4")  # join waits for b
     plant.set_input("b", True)
-    s = ctl.scan_once()
+    s = session.scan_once()
     assert s.active_steps == ("X5",) and s.value("M") is False
     plant.set_input("a", False)
-    s = ctl.scan_once()  # X5.t = 10ms
+    s = session.scan_once()  # X5.t = 10ms
     assert s.active_steps == ("X5",)
-    s = ctl.scan_once()  # X5.t = 20ms -> back to X0
+    s = session.scan_once()  # X5.t = 20ms -> back to X0
     assert s.active_steps == ("X0",)
 
 
@@ -81,8 +81,8 @@ def test_conditional_action_follows_step_time(tmp_path):
             transitions: []
         plant: {kind: sim, model: valve}
     """}
-    ctl = make_controller(write_project(tmp_path / "c", files))
-    got = [(s.value("X0.t"), s.fov[1]) for s in run_scans(ctl, 5)]
+    session = make_session(write_project(tmp_path / "c", files))
+    got = [(s.value("X0.t"), s.fov[1]) for s in run_scans(session, 5)]
     assert got == [(0, True), (10_000, True), (20_000, True), (30_000, False), (40_000, False)]
 
 
@@ -100,14 +100,14 @@ def test_equations_set_reset_and_prev_through_engine(tmp_path):
             Z: prev(a, 2) and not a
         plant: {kind: sim, model: valve, ports: {C: Y, O: Z}}
     """}
-    ctl = make_controller(write_project(tmp_path / "eq", files))
-    p = ctl.engine.plant
+    session = make_session(write_project(tmp_path / "eq", files))
+    p = session.engine.plant
     seq = [(0, 0), (1, 0), (1, 0), (0, 0), (0, 1), (1, 1)]
     got = []
     for a, b in seq:
         p.set_input("a", bool(a))
         p.set_input("b", bool(b))
-        s = ctl.scan_once()
+        s = session.scan_once()
         got.append((s.value("M"), s.fov[1]))
     # M set on the rise of a (scan 2), kept, reset by b (scan 5), reset wins at scan 6.
     assert [m for m, _ in got] == [False, True, True, True, False, False]

@@ -590,7 +590,7 @@ async def test_monitor_fault_explanation_offers_its_policies():
         assert "★ Continue" in text and "recommended" in text
 
 
-async def test_new_controls_reach_the_controller_listeners(tmp_path: Path):
+async def test_new_controls_reach_the_session_listeners(tmp_path: Path):
     app = make_app(control="faulty")
     seen = []
     app.link.session.listeners.append(lambda cmd, result, snap: seen.append(type(cmd).__name__))

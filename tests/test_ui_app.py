@@ -724,7 +724,7 @@ async def test_palette_closes_without_running_anything():
 # -- every action goes through Session.command -----------------------------------------
 
 
-async def test_operator_actions_reach_the_controller_listeners():
+async def test_operator_actions_reach_the_session_listeners():
     app = make_app()
     seen = []
     app.link.session.listeners.append(lambda cmd, result, snap: seen.append(type(cmd).__name__))
@@ -757,7 +757,7 @@ async def test_live_mode_scans_in_a_thread_and_refreshes():
         # the measured scan time: "µs/scan", or "µs" when a loaded machine adds "n scans
         # late" and the bar takes its short forms
         assert re.search(r"\d+ µs", region_text(live, "#status"))
-        live.send(Pause())  # under the controller's lock: no scan starts after it
+        live.send(Pause())  # under the session's lock: no scan starts after it
         scan = live.link.session.engine.scan
         await pilot.pause(0.1)  # (a check that nothing happens: a sleep cannot make it flaky)
         assert live.link.session.engine.scan == scan

@@ -14,7 +14,7 @@ from rich.text import Text
 from hmi.project.diagnosers import diagnosers_of
 from hmi.ui.alarm_list import alarm_row
 from hmi.ui.diagnosers_panel import PartitionInfo, diagnoser_lines
-from tests.conftest import PROJECTS, make_controller
+from tests.conftest import PROJECTS, make_session
 
 S = 1_000_000
 
@@ -30,7 +30,7 @@ def opening_gaps(text: Text) -> list[str]:
 
 
 def faulty_valve():
-    session = make_controller(PROJECTS / "cispi_valve", inject=["F13@10.4s"])
+    session = make_session(PROJECTS / "cispi_valve", inject=["F13@10.4s"])
     session.run_for(22 * S)
     return session
 

@@ -17,7 +17,7 @@ from ui_scenarios import VALVE, make_app
 
 from hmi.ui.constraints_panel import ConstraintsPanel
 from hmi.ui.headless import drain
-from tests.conftest import make_controller
+from tests.conftest import make_session
 
 
 class ScanFirst:
@@ -41,7 +41,7 @@ class ScanFirst:
 
 def last_scan_of_an_episode(control: str = "faulty", limit: int = 3000) -> tuple[int, str]:
     """A scan after which a violation episode ends (the same run, replayed on a twin engine)."""
-    twin = make_controller(VALVE, control=control)
+    twin = make_session(VALVE, control=control)
     before = twin.scan_once()
     for _ in range(limit):
         after = twin.scan_once()

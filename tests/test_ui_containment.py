@@ -37,7 +37,7 @@ def journal_entries(path: Path) -> list[dict]:
 
 
 def journalled(app: PlcHmiApp, path: Path) -> JournalRecorder:
-    """The journal listening to the app's controller and to its UI errors, as cmd_ui does."""
+    """The journal listening to the app's session and to its UI errors, as cmd_ui does."""
     recorder = JournalRecorder(app.link.session, Journal(path), "test")
     app.containment.listeners.append(recorder.on_ui_fault)
     return recorder

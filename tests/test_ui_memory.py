@@ -20,7 +20,7 @@ from ui_harness import run_for, screen_text, wait_for_main
 from hmi.ui.app import PlcHmiApp
 from hmi.ui.fault_dialog import FaultDialog
 from hmi.ui.headless import press, wait_for_screen
-from tests.conftest import PROJECTS, make_controller
+from tests.conftest import PROJECTS, make_session
 
 WARM = 12  # cycles that fill the bounded caches (Textual's, rich's)
 MEASURED = 24  # cycles after them: more than the ~20 widgets' StylesCaches one leaves
@@ -40,7 +40,7 @@ def styles_caches_without_widget() -> int:
 
 
 async def test_dialogs_opened_and_closed_leave_nothing_that_grows_with_their_number():
-    app = PlcHmiApp(make_controller(PROJECTS / "cispi_valve"), live=False,
+    app = PlcHmiApp(make_session(PROJECTS / "cispi_valve"), live=False,
                     show_measured=False)
 
     async def cycle() -> None:

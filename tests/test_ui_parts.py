@@ -17,7 +17,7 @@ from hmi.ui.frame import Frame
 from hmi.ui.status import banner_lines, fit, late_help, status_fields
 from hmi.ui.style import MUTED
 from hmi.ui.verdict import output_changes, request_verdict
-from tests.conftest import PROJECTS, make_controller
+from tests.conftest import PROJECTS, make_session
 
 
 def test_columns_draw_levels_edges_and_short_pulses():
@@ -43,10 +43,10 @@ def test_axis_labels_round_times_on_their_column():
 
 
 def test_recorder_keeps_every_edge_even_between_frames():
-    controller = make_controller(PROJECTS / "cispi_valve", inject=["F7@3s"])
-    recorder = ScanRecorder(controller.engine.layout)
-    controller.scan_listeners.append(recorder.on_scan)
-    controller.run_for(10_000_000)
+    session = make_session(PROJECTS / "cispi_valve", inject=["F7@3s"])
+    recorder = ScanRecorder(session.engine.layout)
+    session.scan_listeners.append(recorder.on_scan)
+    session.run_for(10_000_000)
     # F7: fsc reads 1 for 300 ms while the valve is away from closed: two edges, recorded
     trace = recorder.trace("fsc", 0, 10_000_000)
     times = [t for t, v in trace.changes]
@@ -54,16 +54,16 @@ def test_recorder_keeps_every_edge_even_between_frames():
     assert [v for _, v in glitch] == [True, False]
     assert glitch[1][0] - glitch[0][0] == 300_000
     assert times == sorted(times)
-    assert recorder.scans == controller.engine.scan
+    assert recorder.scans == session.engine.scan
     o_fov = recorder.trace("O.fov", 0, 10_000_000)
     assert o_fov.changes == recorder.trace("O", 0, 10_000_000).changes  # no filter yet
 
 
 def test_recorder_trace_initial_value_and_window():
-    controller = make_controller(PROJECTS / "cispi_valve")
-    recorder = ScanRecorder(controller.engine.layout)
-    controller.scan_listeners.append(recorder.on_scan)
-    controller.run_for(6_000_000)
+    session = make_session(PROJECTS / "cispi_valve")
+    recorder = ScanRecorder(session.engine.layout)
+    session.scan_listeners.append(recorder.on_scan)
+    session.run_for(6_000_000)
     trace = recorder.trace("fso", 4_000_000, 6_000_000)
     assert trace.initial is True  # open at 4 s
     assert all(4_000_000 < t <= 6_000_000 for t, _ in trace.changes)
@@ -75,9 +75,9 @@ def _frame(snap, **kw) -> Frame:
 
 
 def _snapshot(**changes):
-    controller = make_controller(PROJECTS / "cispi_valve")
-    controller.run_for(1_500_000)
-    return controller.last._replace(**changes)
+    session = make_session(PROJECTS / "cispi_valve")
+    session.run_for(1_500_000)
+    return session.last._replace(**changes)
 
 
 def test_status_keeps_alarms_and_mode_when_narrow():
@@ -197,16 +197,16 @@ def test_parse_delay_rejects_words():
 
 
 def test_recorder_counts_violation_episodes_from_every_scan():
-    controller = make_controller(PROJECTS / "cispi_valve", control="faulty")
-    recorder = ScanRecorder(controller.engine.layout)
+    session = make_session(PROJECTS / "cispi_valve", control="faulty")
+    recorder = ScanRecorder(session.engine.layout)
     violated_scans: dict[str, int] = {}
 
     def count(snap):
         for name in snap.filter.violated_names:
             violated_scans[name] = violated_scans.get(name, 0) + 1
 
-    controller.scan_listeners.extend([recorder.on_scan, count])
-    controller.run_for(20_000_000)
+    session.scan_listeners.extend([recorder.on_scan, count])
+    session.run_for(20_000_000)
     stats = recorder.constraint_stats()
     assert violated_scans and set(stats) == set(violated_scans)
     for name, scans in violated_scans.items():
@@ -252,15 +252,15 @@ def test_columns_agree_with_the_plain_definition(times, initial, width, window, 
 
 
 def test_recorder_forgets_old_history_but_keeps_the_level():
-    controller = make_controller(PROJECTS / "cispi_valve")
-    recorder = ScanRecorder(controller.engine.layout, keep_us=10_000_000)
-    controller.scan_listeners.append(recorder.on_scan)
-    controller.run_for(60_000_000)
+    session = make_session(PROJECTS / "cispi_valve")
+    recorder = ScanRecorder(session.engine.layout, keep_us=10_000_000)
+    session.scan_listeners.append(recorder.on_scan)
+    session.run_for(60_000_000)
     kept = recorder._changes[recorder.by_name["O"]]
     assert kept[0][0] <= 60_000_000 - 10_000_000  # the level before the kept window...
     assert len(kept) <= 6  # ...and about 12.5 s of an 8 s cycle, not 60 s of it
-    full = ScanRecorder(controller.engine.layout)  # a fresh run, never trimmed, agrees
-    again = make_controller(PROJECTS / "cispi_valve")
+    full = ScanRecorder(session.engine.layout)  # a fresh run, never trimmed, agrees
+    again = make_session(PROJECTS / "cispi_valve")
     again.scan_listeners.append(full.on_scan)
     again.run_for(60_000_000)
     window = (50_000_000, 60_000_000)
@@ -322,10 +322,10 @@ def test_manual_dialog_lines_name_the_steps_and_the_orders_given_again(tmp_path)
     says its memories hold."""
     from hmi.ui import manual
     from tests.conftest import write_project
-    ctl = make_controller(PROJECTS / "conveyor_robot")
-    project = ctl.engine.project
-    law = project.controls[ctl.engine.control_name]
-    snap = ctl.scan_once()
+    session = make_session(PROJECTS / "conveyor_robot")
+    project = session.engine.project
+    law = project.controls[session.engine.control_name]
+    snap = session.scan_once()
     assert snap.active_steps == ("X1", "X11")
     assert manual.ordered_again(project, law, snap.active_steps) == ("d", "G")
     assert manual.steps_text(law, ("X3", "X10")) == (
@@ -347,10 +347,10 @@ def test_manual_dialog_lines_name_the_steps_and_the_orders_given_again(tmp_path)
             C: M
         plant: {kind: sim, model: valve, ports: {C: C, O: O}}
     """})
-    ctl = make_controller(folder)
-    project = ctl.engine.project
-    law = project.controls[ctl.engine.control_name]
-    snap = ctl.scan_once()
+    session = make_session(folder)
+    project = session.engine.project
+    law = project.controls[session.engine.control_name]
+    snap = session.scan_once()
     assert manual.enter_lines(project, law, snap) == [
         "The control program waits: its equations are not evaluated and its memories hold "
         "until you leave manual mode; it then resumes from there."]

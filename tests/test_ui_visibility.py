@@ -23,7 +23,7 @@ from hmi.timefmt import seconds
 from hmi.ui.alarm_list import AlarmList, without_device
 from hmi.ui.app import PlcHmiApp
 from hmi.ui.headless import press, wait_until
-from tests.conftest import make_controller
+from tests.conftest import make_session
 
 SIZES = [(80, 24), (160, 48)]
 
@@ -107,7 +107,7 @@ async def test_a_banner_that_appears_under_an_open_dialog_stays_in_view(size, op
     banners' last layout (none) and drew over the new banner on line 1 (the soak farm's
     seeds 68, 105, 143, 162 and 189); it now moves below the banner with the frame that
     shows it."""
-    session = make_controller(VALVE)
+    session = make_session(VALVE)
     historian = Historian(session, Target("sqlite", str(tmp_path / "h.sqlite")),
                           flush_s=0.05).attach()
     app = PlcHmiApp(session, live=False, show_measured=False)

@@ -34,7 +34,7 @@ from hmi.project.kept import fingerprint
 from hmi.wire import messages as m
 from hmi.wire.codec import Codec, WireError
 from hmi.wire.framing import MAX_OUT, frame, read_message
-from tests.conftest import PROJECTS, make_controller
+from tests.conftest import PROJECTS, make_session
 from tests.runtimes import runtime, wait_for
 
 VALVE = PROJECTS / "cispi_valve"
@@ -42,7 +42,7 @@ EXAMPLES = int(os.environ.get("PLCHMI_FUZZ_EXAMPLES", "150"))
 
 
 def snapshots(project, control=None, inject=(), scans=2000, commands=()):
-    session = make_controller(PROJECTS / project, control=control, inject=inject)
+    session = make_session(PROJECTS / project, control=control, inject=inject)
     taken = []
     for k in range(scans):
         for at, command in commands:

@@ -46,8 +46,8 @@ BINS = 20_000  # up to 2 ms; longer ones counted in the last
 
 
 def _session():
-    from hmi.bench.ui import _controller
-    return _controller(PERIOD_US)
+    from hmi.bench.ui import valve_session
+    return valve_session(PERIOD_US)
 
 
 def _size(path: Path) -> int:

@@ -342,11 +342,11 @@ def measure_attack(folder: Path, env: dict[str, str], setup: Setup, tally: dict[
 def single_screen(stats: str) -> None:
     """One HMI with its cell's scans in its own process (SessionLink: the session read
     directly, as before the split), writing its figures to `stats` every half second."""
-    from hmi.bench.ui import _controller
+    from hmi.bench.ui import valve_session
     from hmi.link.local import SessionLink
     from hmi.ui.app import PlcHmiApp
 
-    session = _controller(PERIOD_US)
+    session = valve_session(PERIOD_US)
     link = SessionLink(session, live=True)
     app = PlcHmiApp(link, live=True)
 

@@ -25,7 +25,7 @@ import sys
 import time
 
 from hmi.bench import percentile
-from hmi.bench.ui import PERIOD_US, PROJECT, SETTLE_S, _controller, jitter_line, with_ui
+from hmi.bench.ui import PERIOD_US, PROJECT, SETTLE_S, jitter_line, valve_session, with_ui
 
 SECTION = "opcua"
 HELP = ("OPC UA server at a 10 ms scan: jitter and scan time without/with the server and a "
@@ -95,7 +95,7 @@ def measure(seconds: float, server: bool, client: bool) -> dict:
     """One set-up: the live scan loop for `seconds`, with or without server and client."""
     from hmi.session.live import BENCH_JITTER, LiveRunner
 
-    session = _controller(PERIOD_US)
+    session = valve_session(PERIOD_US)
     ends: dict[int, float] = {}
     walls: list[float] = []
 

@@ -41,7 +41,7 @@ DIALOG_KEYS = ("f", "escape")  # open the fault dialog, close it
 DIALOG_EVERY_S = 0.25
 
 
-def _controller(period_us: int):
+def valve_session(period_us: int):
     from hmi.engine.scan import Engine
     from hmi.plant.sim.plant import SimPlant
     from hmi.project.loader import load_project
@@ -66,17 +66,17 @@ def baseline(seconds: float, period_us: int = PERIOD_US) -> str:
     """The scan loop alone, paced by the wall clock: what the UI is compared with."""
     from hmi.session.live import BENCH_JITTER, LiveRunner
 
-    controller = _controller(period_us)
-    runner = LiveRunner(controller, keep_jitter=BENCH_JITTER)
+    session = valve_session(period_us)
+    runner = LiveRunner(session, keep_jitter=BENCH_JITTER)
     runner.start()
     time.sleep(SETTLE_S)
-    samples0, scans0, overruns0 = len(runner.jitter_us), controller.engine.scan, \
+    samples0, scans0, overruns0 = len(runner.jitter_us), session.engine.scan, \
         runner.overruns
     start = time.perf_counter()
     time.sleep(seconds)  # the measurement itself: the runner paces by the wall clock
     elapsed = time.perf_counter() - start
     jitter = list(runner.jitter_us)[samples0:]
-    scans, overruns = controller.engine.scan - scans0, runner.overruns - overruns0
+    scans, overruns = session.engine.scan - scans0, runner.overruns - overruns0
     runner.stop()
     return jitter_line("no UI", jitter, scans, elapsed, period_us, overruns)
 
@@ -119,15 +119,15 @@ def with_ui(seconds: float, period_us: int = PERIOD_US, size: tuple[int, int] = 
     pressed in turn every DIALOG_EVERY_S meanwhile, as an operator would."""
     from hmi.ui.app import PlcHmiApp
 
-    controller = _controller(period_us)
-    app = PlcHmiApp(controller, live=True)
+    session = valve_session(period_us)
+    app = PlcHmiApp(session, live=True)
     result: dict = {}
 
     async def measure() -> None:
         async with app.run_test(size=size) as pilot:
             await asyncio.sleep(SETTLE_S)
             runner = app.driver.runner
-            samples0, scans0, overruns0 = (len(runner.jitter_us), controller.engine.scan,
+            samples0, scans0, overruns0 = (len(runner.jitter_us), session.engine.scan,
                                            runner.overruns)
             start, frames0 = time.perf_counter(), app.frames_shown
             with FullCollections() as collections:
@@ -142,7 +142,7 @@ def with_ui(seconds: float, period_us: int = PERIOD_US, size: tuple[int, int] = 
             result.update(elapsed=time.perf_counter() - start,
                           frames=app.frames_shown - frames0,
                           jitter=list(runner.jitter_us)[samples0:],
-                          scans=controller.engine.scan - scans0,
+                          scans=session.engine.scan - scans0,
                           overruns=runner.overruns - overruns0,
                           collections=collections)
 

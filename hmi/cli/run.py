@@ -74,12 +74,12 @@ def cmd_run(args: argparse.Namespace) -> int:
     engine, injections = make_engine(project, args, scenario.injections if scenario else ())
     if engine.plant.is_real or args.opcua is not None:
         return run_real_time(engine, args, duration)
-    controller = Session(engine, args.period)
+    session = Session(engine, args.period)
     collector = RunCollector()
-    outputs = RunOutputs(controller, args.trace, args.journal, "run")
+    outputs = RunOutputs(session, args.trace, args.journal, "run")
     outputs.recorder.space(args.journal_space)
     try:
-        historian = open_historian(controller, args, outputs.recorder, "run",
+        historian = open_historian(session, args, outputs.recorder, "run",
                                    default_on=False, run_us=duration)
     except BaseException:
         outputs.close(ended_by(sys.exc_info()[1]))
@@ -94,10 +94,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     # Without a trace, a quiet scan (nothing new: Session.run_for) is only counted.
     quiet = collector.quiet if outputs.writer is None else None
     try:
-        last = controller.run_for(duration, on_scan, quiet)
+        last = session.run_for(duration, on_scan, quiet)
     except _OutputFailed:
         outputs.leave_safe()
-        last = controller.last
+        last = session.last
     finally:
         outputs.close(ended_by(sys.exc_info()[1]))
         if historian is not None:
@@ -155,17 +155,17 @@ def run_real_time(engine, args: argparse.Namespace, duration_us: int | None) -> 
 
     plant = engine.plant
     collector = RunCollector()
-    controller = Session(engine, args.period, clock=WallClock() if plant.is_real else None)
+    session = Session(engine, args.period, clock=WallClock() if plant.is_real else None)
     outputs = None
     historian = None
     server = None
     interrupted = False
     try:
         # The journal first, so that the connection attempts (and giving up) are in it.
-        outputs = RunOutputs(controller, args.trace, args.journal, "run")
+        outputs = RunOutputs(session, args.trace, args.journal, "run")
         outputs.recorder.space(args.journal_space)
-        historian = open_historian(controller, args, outputs.recorder, "run", default_on=True)
-        server = start_server(controller, args, journal=outputs.recorder,
+        historian = open_historian(session, args, outputs.recorder, "run", default_on=True)
+        server = start_server(session, args, journal=outputs.recorder,
                               history=historian.target if historian else None)
         announce(server, engine.project.name)
         connect_plant(engine, args.connect_timeout or 10_000_000)
@@ -179,7 +179,7 @@ def run_real_time(engine, args: argparse.Namespace, duration_us: int | None) -> 
         started = time.perf_counter()
         try:
             with _terminate_as_interrupt():
-                runner = run_live_for(controller, duration_us or MAX_SERVE_US, on_scan)
+                runner = run_live_for(session, duration_us or MAX_SERVE_US, on_scan)
         except KeyboardInterrupt:
             interrupted = True
             runner = None
@@ -195,7 +195,7 @@ def run_real_time(engine, args: argparse.Namespace, duration_us: int | None) -> 
             historian.close()
     if outputs.failure is not None:
         raise RunFailure(outputs.failure_message())
-    last = controller.last
+    last = session.last
     if last is None:
         return 130 if interrupted else 0
     print(run_summary(engine, last, collector, [], wall, trace=outputs.trace,

@@ -64,12 +64,12 @@ def stop_plant(engine) -> None:
     engine.plant.stop(engine.now, safe)
 
 
-def open_journal(controller, path: Path | None, source: str):
+def open_journal(session, path: Path | None, source: str):
     from hmi.session.runio import open_journal as open_recorder
-    return open_recorder(controller, path, source)
+    return open_recorder(session, path, source)
 
 
-def open_historian(controller, args: argparse.Namespace, journal, source: str,
+def open_historian(session, args: argparse.Namespace, journal, source: str,
                    default_on: bool, run_us: int | None = None):
     """The cell's historian (hmi.history), attached, or None: `--historian off`, or a
     headless run in virtual time that did not ask for one (`default_on` False: its hours
@@ -80,7 +80,7 @@ def open_historian(controller, args: argparse.Namespace, journal, source: str,
     if text == "off" or (text is None and not default_on):
         return None
     try:
-        target = parse_target(text) if text else default_target(controller.project.name)
+        target = parse_target(text) if text else default_target(session.project.name)
     except ValueError as exc:
         raise UsageError(f"--historian: {exc}") from None
     if target.kind == "postgresql":
@@ -92,5 +92,5 @@ def open_historian(controller, args: argparse.Namespace, journal, source: str,
     from hmi.history.historian import Historian
     from hmi.history.writer import DEFAULT_RETENTION_US
     retention = getattr(args, "history_retention", None) or DEFAULT_RETENTION_US
-    return Historian(controller, target, source=source, journal=journal,
+    return Historian(session, target, source=source, journal=journal,
                      retention_us=retention, run_us=run_us).attach()

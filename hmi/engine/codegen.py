@@ -20,6 +20,7 @@ from __future__ import annotations
 import ast
 import re
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from types import CodeType
 from typing import Any
 
@@ -259,39 +260,47 @@ _NODES = (ast.Module, ast.FunctionDef, ast.arguments, ast.arg, ast.Return, ast.A
           ast.IsNot, ast.Call, ast.Tuple, ast.BinOp, ast.Sub, ast.Add, ast.Pass, ast.BitOr,
           ast.LShift, ast.Try, ast.ExceptHandler)
 _ALLOWED = frozenset(_NODES)
-# Local names: the parameters and locals of the templates, the past images bound once
-# (_bind_past), and the objects handed over.
-LOCALS = frozenset({"v", "h", "f", "t", "now", "scan", "s", "q", "x", "b", "c", "ls",
-                    "delta", "su", "changed", "fire", "moved", "p", "e", "el", "y",
-                    "verdict", "h0", "h1", "h2", "h3",
-                    # the automatic mode's frame (hmi.engine.compiled.auto_frame)
-                    "exc", "diag", "report", "error", "monitored", "marks", "events",
-                    "status", "last", "values", "diagnosers", "recovery"})
+
+
+@dataclass(frozen=True)
+class Vocabulary:
+    """The names one stage's printed statements use: the attributes and methods of its
+    objects (a timer's ``since``, a diagnoser's ``take``) and its locals. Declared by the
+    stage's class beside the handlers they name (``PRINTED``: code, never a project's text),
+    and allowed when the compiled scan prints that stage (:func:`allow`)."""
+
+    attributes: frozenset[str] = frozenset()
+    locals: frozenset[str] = frozenset()
+
+    def union(self, *others: Vocabulary) -> Vocabulary:
+        return Vocabulary(self.attributes.union(*(o.attributes for o in others)),
+                          self.locals.union(*(o.locals for o in others)))
+
+
+# Every function's parameters (the image, the history, the scan's time and number, a
+# candidate vector) and the past images bound once (_bind_past)
+PARAMETERS = Vocabulary(locals=frozenset({"v", "h", "now", "scan", "f", "h0", "h1", "h2",
+                                          "h3"}))
+# Local names: the parameters and the names of every stage allowed so far (allow), what
+# generated code may name besides the objects handed over.
+LOCALS: set[str] = set(PARAMETERS.locals)
 _HANDED = re.compile(r"k[0-9]+\Z")
-# Attributes the templates read or set on the objects they are given.
-ATTRIBUTES = frozenset({
-    # timers
-    "since", "q",
-    # diagnosers
-    "dirty", "last_scan", "last_now", "gap_us", "since_us", "current", "begin", "take",
-    "lost_sight", "settle", "hld_armed", "refine",
-    # GRAFCET
-    "fire", "fired",
-    # recovery
-    "needed_since", "needed", "judge_needed", "held_since", "step", "started_us", "running",
-    "finish", "fail",
-    # monitors
-    "phase", "x_us", "y_us", "last_us", "attempt", "attempt_start_us", "attempt_fault",
-    "changes", "completed", "watchdog", "_armed", "trip", "detect",
-    # the automatic mode's frame (hmi.engine.compiled.auto_frame): the engine, its plant,
-    # its scan record, its stages
-    "_pending", "scan", "now", "latched", "clean_report", "_news", "_commanded",
-    "_auto_lost", "_auto_failed", "_auto_filter", "_write_error", "_monitors_error",
-    "_finish", "_conclude", "read_into", "write_vector", "take_events", "status", "core",
-    "violated", "monitors", "faulty", "deadline", "active", "_idle", "marks", "appendleft",
-    "fov", "outputs", "report", "diagnosis", "monitored", "error", "filter_us", "values",
-    "diagnosers", "events", "recovery", "scan_us", "settled", "manual",
-})
+# Attributes the printed code reads, sets or calls on the objects it is given: the stages'
+# (allow), none of its own.
+ATTRIBUTES: set[str] = set()
+_NAME = re.compile(r"[a-z_][a-z0-9_]*\Z")
+
+
+def allow(vocabulary: Vocabulary) -> None:
+    """Let printed code use `vocabulary`'s names (hmi.engine.compiled, for each stage it
+    prints and for its own frame). The vocabulary only grows, by names declared in code;
+    a name the checker would let reach Python's machinery (a dunder, a builtin: the code
+    runs without builtins) or the handed-over objects' pattern is refused."""
+    for name in (*vocabulary.attributes, *vocabulary.locals):
+        if not _NAME.match(name) or name.startswith("__") or _HANDED.match(name):
+            raise ValueError(f"not a name printed code may use: {name!r}")
+    ATTRIBUTES.update(vocabulary.attributes)
+    LOCALS.update(vocabulary.locals)
 
 
 def _check(tree: ast.AST) -> None:

@@ -36,10 +36,10 @@ first time it does (an engine that never enters manual mode never generates ``he
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
-from hmi.engine.codegen import build_function
+from hmi.engine.codegen import Vocabulary, allow, build_function
 from hmi.engine.diagnoser import NO_DIAGNOSIS
 from hmi.engine.recovery import NO_RECOVERY
 from hmi.logic.expr import History, Image
@@ -49,13 +49,11 @@ from hmi.program.constraints import ACTIVE, lower_active, lower_violated
 from hmi.program.evaluate import function_evaluator
 
 if TYPE_CHECKING:
-    from hmi.engine.control import ControlRuntime
-    from hmi.engine.diagnoser import DiagnosisStage
     from hmi.engine.filter import SafetyFilter
     from hmi.engine.layout import Layout
     from hmi.engine.monitors import MonitorStage
     from hmi.engine.recovery import RecoveryStage
-    from hmi.engine.stages import Memory
+    from hmi.engine.stages import ProgramStage
 
 CoreFn = Callable[[Image, History, int, int], tuple[bool, ...]]
 HeldFn = Callable[[Image, History, int, int], None]
@@ -70,19 +68,19 @@ class ScanProgram:
     """An engine's scan program per mode, assembled from its stages' lowerings (see the
     module docstring)."""
 
-    def __init__(self, layout: Layout, memory: Memory, control: ControlRuntime,
-                 diagnosis: DiagnosisStage | None, recovery: RecoveryStage | None,
-                 safety_filter: SafetyFilter, monitors: MonitorStage | None):
+    def __init__(self, layout: Layout, stages: Sequence[ProgramStage],
+                 recovery: RecoveryStage | None, safety_filter: SafetyFilter,
+                 monitors: MonitorStage | None):
         self.outputs = layout.outputs
-        # each part's statements, walked in the order hmi.program.order declares
-        self.parts: dict[str, tuple[ir.Stmt, ...]] = {
-            order.MEMORY: memory.program,  # timers, observers
-            order.STEP_TIMES: control.times,  # the GRAFCET's step times
-            order.DIAGNOSERS: diagnosis.program if diagnosis is not None else (),
-            order.RECONSTRUCTION: diagnosis.reconstruction if diagnosis is not None else (),
-            order.RECOVERIES_NEEDED: recovery.program if recovery is not None else (),
-            order.LAW: control.program,
-        }
+        # each part's statements (the stages' in the order given), walked in the order
+        # hmi.program.order declares
+        self.parts: dict[str, tuple[ir.Stmt, ...]] = dict.fromkeys(order.PROGRAM, ())
+        for stage in stages:
+            for part, stmts in stage.parts.items():
+                if part not in self.parts:
+                    raise ValueError(f"{type(stage).__name__}: {part!r} is not a part of the "
+                                     "mode's program (hmi.program.order.PROGRAM)")
+                self.parts[part] += stmts
         self._fov = ir.Tuple(tuple(ir.Slot(s) for s in layout.indices(layout.outputs)))
         self._recovery = recovery
         self._filter = safety_filter
@@ -138,16 +136,19 @@ class CompiledScan:
     """One form of an engine's scan program (see the module docstring): `python` the printed
     Python, else the evaluator's closures."""
 
-    def __init__(self, layout: Layout, memory: Memory, control: ControlRuntime,
-                 diagnosis: DiagnosisStage | None, recovery: RecoveryStage | None,
-                 safety_filter: SafetyFilter, monitors: MonitorStage | None, label: str,
-                 python: bool = True):
+    def __init__(self, layout: Layout, stages: Sequence[ProgramStage],
+                 recovery: RecoveryStage | None, safety_filter: SafetyFilter,
+                 monitors: MonitorStage | None, label: str, python: bool = True):
         self.slots = layout.slots
         self.times = layout.step_times
         self.label = label
         self.python = python
-        self.program = ScanProgram(layout, memory, control, diagnosis, recovery,
-                                   safety_filter, monitors)
+        self.program = ScanProgram(layout, stages, recovery, safety_filter, monitors)
+        # what the printed code may name: every stage's names (their PRINTED), the frame's
+        printed = (*stages, safety_filter, *((monitors,) if monitors is not None else ()))
+        self.vocabulary = FRAME.union(*(stage.PRINTED for stage in printed))
+        if python:
+            allow(self.vocabulary)
         self.sources: list[str] = []  # every printed function's text, in build order
         self.core: CoreFn = self._form(self.program.core())
         self.violated: ViolatedFn = self._form(self.program.violated())
@@ -194,6 +195,21 @@ class CompiledScan:
         """The automatic mode's scan (auto_frame), in this form."""
         fn: Callable[[int], bool] = self._form(auto_frame(engine))
         return fn
+
+
+# What the frame (auto_frame) names: its locals, and what it reads or calls on the engine, its
+# plant, its scan record and its stages
+FRAME = Vocabulary(
+    frozenset({"_pending", "scan", "now", "latched", "clean_report", "_news", "_commanded",
+               "_auto_lost", "_auto_failed", "_auto_filter", "_write_error",
+               "_monitors_error", "_finish", "_conclude", "read_into", "write_vector",
+               "take_events", "status", "core", "violated", "monitors", "faulty", "deadline",
+               "active", "_idle", "marks", "appendleft", "fov", "outputs", "report",
+               "diagnosis", "monitored", "error", "filter_us", "values", "diagnosers",
+               "events", "recovery", "scan_us", "settled", "manual", "current", "settle",
+               "needed"}),
+    frozenset({"exc", "diag", "report", "error", "monitored", "marks", "events", "status",
+               "last", "values", "q"}))
 
 
 def auto_frame(engine: Any) -> ir.Function:

@@ -18,8 +18,10 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import NamedTuple
 
+from hmi.engine.codegen import Vocabulary
 from hmi.engine.grafcet import GrafcetRuntime
 from hmi.logic.expr import Image
+from hmi.program import order
 from hmi.program.ir import Stmt
 from hmi.program.memories import lower_equation
 from hmi.project.model import ControlLaw
@@ -34,6 +36,9 @@ class ControlState(NamedTuple):
 
 
 class ControlRuntime:
+    # the GRAFCET's firing (hmi.program.grafcet; the equations are slots alone)
+    PRINTED = Vocabulary(frozenset({"fire", "fired"}), frozenset({"fire"}))
+
     def __init__(self, law: ControlLaw, slots: Mapping[str, int],
                  step_time_slots: Mapping[str, int]):
         self.law = law
@@ -48,6 +53,10 @@ class ControlRuntime:
         self.times: tuple[Stmt, ...] = self.grafcet.times if self.grafcet is not None else ()
         # The scan time the program has waited since (manual mode), None while it runs.
         self.held_since: int | None = None
+
+    @property
+    def parts(self) -> dict[str, tuple[Stmt, ...]]:
+        return {order.STEP_TIMES: self.times, order.LAW: self.program}
 
     def reset(self, image: Image, now: int) -> None:
         if self.grafcet:

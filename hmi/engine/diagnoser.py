@@ -46,14 +46,17 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any, NamedTuple, overload
 
+from hmi.engine.codegen import Vocabulary
 from hmi.engine.layout import Layout
 from hmi.logic.expr import BoolFn, History, Image, Node, Var, compile_bool, to_text, walk
+from hmi.program import order
 from hmi.program.diagnosers import (
     MODES,
     lower_diagnosis,
     lower_reconstruction,
     shift_outputs,
 )
+from hmi.program.ir import Stmt
 from hmi.project.diagnosers import diagnosers_of
 from hmi.project.model import DiagnoserSpec, DiagState, HighLevelSpec, Project, ResyncRule
 from hmi.timefmt import format_duration
@@ -318,6 +321,12 @@ NO_DIAGNOSIS = Diagnosis((), None, (), (), ())  # a scan without diagnosers (or 
 class DiagnosisStage:
     """Stage 3 of the scan: the diagnosers, their flags, and what stages 4 and 6 must do."""
 
+    # the stage's and each diagnoser's state and handlers (hmi.program.diagnosers)
+    PRINTED = Vocabulary(
+        frozenset({"dirty", "last_scan", "last_now", "gap_us", "since_us", "current", "begin",
+                   "take", "lost_sight", "settle", "hld_armed", "refine"}),
+        frozenset({"c", "changed", "ls", "delta", "su", "t"}))
+
     def __init__(self, specs: Sequence[DiagnoserSpec], layout: Layout, mode: str,
                  period_us: int, high_level: Sequence[HighLevelSpec] = ()):
         if mode not in MODES:
@@ -370,6 +379,10 @@ class DiagnosisStage:
         self.reconstruction = lower_reconstruction(
             [(f, sensor, estimate, flag) for f, sensor, estimate, flag, _, _ in self.sensors],
             mode)
+
+    @property
+    def parts(self) -> dict[str, tuple[Stmt, ...]]:
+        return {order.DIAGNOSERS: self.program, order.RECONSTRUCTION: self.reconstruction}
 
     @property
     def period(self) -> int:

@@ -17,6 +17,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import NamedTuple
 
+from hmi.engine.codegen import Vocabulary
 from hmi.engine.solver import (
     Problem,
     Solution,
@@ -26,7 +27,7 @@ from hmi.engine.solver import (
     paper_solve,
 )
 from hmi.logic.expr import BoolFn, History, Image, compile_bool
-from hmi.program.constraints import ConstraintTable, lower_constraints
+from hmi.program.constraints import ACTIVE, ConstraintTable, lower_constraints
 from hmi.project.model import Constraint, Project
 
 # --------------------------------------------------------------------------------------------
@@ -216,6 +217,9 @@ class _ActiveSet:
 
 class SafetyFilter:
     """Stateless between scans except for what the engine holds (policy, latch)."""
+
+    # which constraints are active (hmi.program.constraints; the candidate is a parameter)
+    PRINTED = Vocabulary(frozenset(), frozenset({ACTIVE.name}))
 
     def __init__(self, project: Project, slots: Mapping[str, int],
                  step_times: Mapping[str, int] | None = None, strategy: str = "exact",

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+from hmi.engine.codegen import Vocabulary
 from hmi.engine.layout import Layout
 from hmi.engine.stopwatch import FAULTY, Detection, Phase, TaskAutomaton, WatchdogTrip, Window
 from hmi.logic.expr import max_depth
@@ -80,6 +81,13 @@ class MonitorStage:
     compiled scan's common case, hmi.engine.compiled) is shown as its base with ``x`` and
     ``y`` moved on by the elapsed time, exactly what :meth:`TaskAutomaton.step` adds.
     """
+
+    # each task's automaton, its watchdog and detection (hmi.program.monitors)
+    PRINTED = Vocabulary(
+        frozenset({"phase", "x_us", "y_us", "last_us", "attempt", "attempt_start_us",
+                   "attempt_fault", "changes", "completed", "watchdog", "_armed", "trip",
+                   "detect"}),
+        frozenset({"p", "x", "y", "el", "e", "verdict"}))
 
     def __init__(self, specs: tuple[TaskMonitor, ...], layout: Layout):
         self.specs = specs

@@ -25,9 +25,11 @@ from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
+from hmi.engine.codegen import Vocabulary
 from hmi.engine.filter import SafetyFilter
 from hmi.engine.filter_stage import FilterStage
 from hmi.engine.layout import Layout
+from hmi.program import order
 from hmi.program.ir import Stmt
 from hmi.program.recovery import lower_needed, lower_procedure
 from hmi.project.model import Project, RecoveryProcedure
@@ -87,6 +89,12 @@ class _Procedure:
 class RecoveryStage:
     """The project's recovery procedures and the one running, if any."""
 
+    # the stage's and each procedure's state and handlers (hmi.program.recovery)
+    PRINTED = Vocabulary(
+        frozenset({"needed_since", "needed", "judge_needed", "held_since", "step",
+                   "started_us", "running", "finish", "fail"}),
+        frozenset({"moved", "s"}))
+
     def __init__(self, project: Project, layout: Layout, safe: tuple[bool, ...],
                  filter_args: tuple[str, int | None],
                  mask_flags: Mapping[str, tuple[str, ...]]):
@@ -115,7 +123,12 @@ class RecoveryStage:
         self._idle = RecoveryState(procedures=self.catalogue)
         self._shown_needed: RecoveryState | None = None
 
+    @property
+    def parts(self) -> dict[str, tuple[Stmt, ...]]:
+        return {order.RECOVERIES_NEEDED: self.program}
+
     # -- commands (through the engine) ------------------------------------------------------
+
     def start(self, name: str, now: int) -> None:
         self.active = self.procedures[name]
         self._status("running")

@@ -222,8 +222,11 @@ class Engine:
         # The scan program (hmi.engine.compiled): the stages' lowerings in the order of a
         # scan, per mode, printed as Python; `compiled=False` runs the same program through
         # its evaluator (the reference the printed form is tested against).
-        self.compiled = CompiledScan(lay, self.memory, self.law, self.diagnosis,
-                                     self.recovery, self.safety_filter, self.monitors,
+        # The mode's program's stages (hmi.engine.stages.ProgramStage): the one list a stage
+        # joins (its parts go where hmi.program.order says, its names to the allow-list).
+        stages = (self.memory, self.law, self.diagnosis, self.recovery)
+        self.compiled = CompiledScan(lay, [s for s in stages if s is not None], self.recovery,
+                                     self.safety_filter, self.monitors,
                                      f"{project.name}/{self.control_name}", python=compiled)
         self.filter_stage.quick = self.compiled.violated  # the filter's first question
         self.safety_filter.active_bits = self.compiled.active_bits  # its memory's key

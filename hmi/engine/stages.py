@@ -28,13 +28,15 @@ history (``history[0]`` the image at the end of the previous scan, and so on bac
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Protocol
 
+from hmi.engine.codegen import Vocabulary
 from hmi.engine.layout import Layout
 from hmi.logic.expr import History, Image
 from hmi.logic.timers import TimerRuntime
 from hmi.plant.base import Plant, PlantError
+from hmi.program import order
 from hmi.program.ir import Stmt
 from hmi.program.memories import lower_observer
 from hmi.program.timers import lower_timer
@@ -47,6 +49,18 @@ if TYPE_CHECKING:
 
 
 # -- the declared interfaces ------------------------------------------------------------------
+
+class ProgramStage(Protocol):
+    """A stage of the mode's program (hmi.program.order.PROGRAM): its lowering, by the parts
+    of the scan it runs at, and the names its printed statements use (the compiled scan's
+    allow-list, hmi.engine.codegen). The engine lists its program's stages once
+    (Engine.__init__); the scan program puts their parts in order (hmi.engine.compiled)."""
+
+    PRINTED: Vocabulary  # (a class attribute)
+
+    @property
+    def parts(self) -> Mapping[str, tuple[Stmt, ...]]: ...
+
 
 class DiagnoserStage(Protocol):
     """Stage 3: steps the local diagnosers on I(t) and the orders of t-1, sets their flags."""
@@ -119,6 +133,9 @@ class Memory:
     hmi.engine.grafcet). The rules are hmi.program's lowerings (:attr:`program`, the scan
     program's part the compiled scan prints); this object holds the timers' state."""
 
+    # a timer's state, and the TON's locals (hmi.program.timers)
+    PRINTED = Vocabulary(frozenset({"since", "q"}), frozenset({"s", "q"}))
+
     def __init__(self, project: Project, layout: Layout):
         slots = layout.slots
         # (runtime, slot, IN): the state of each timer
@@ -128,6 +145,10 @@ class Memory:
         self.program = tuple(stmt for rt, slot, input_ in self.timers
                              for stmt in lower_timer(rt, slot, input_)) + tuple(
             stmt for o in project.observers for stmt in lower_observer(o, slots[o.name]))
+
+    @property
+    def parts(self) -> dict[str, tuple[Stmt, ...]]:
+        return {order.MEMORY: self.program}
 
     def capture(self) -> tuple[tuple[bool, int | None], ...]:
         """The timers' state (observers live in the image)."""

@@ -1,6 +1,6 @@
 """Running the engine against the wall clock, in a thread of its own.
 
-The scan thread never waits for a UI: it steps the controller on schedule and leaves the
+The scan thread never waits for a UI: it steps the session on schedule and leaves the
 latest snapshot in the engine, where a UI reads it at its own pace. Lateness of each scan
 against its schedule is kept as jitter samples for `plchmi bench ui`.
 """
@@ -73,9 +73,9 @@ class LiveRunner:
     speed), it gives the priority back: a thread that never sleeps must not hold a core
     from everything else."""
 
-    def __init__(self, controller: Session, keep_jitter: int = 0,
+    def __init__(self, session: Session, keep_jitter: int = 0,
                  realtime: bool = False):
-        self.controller = controller
+        self.session = session
         self.realtime = realtime
         self.realtime_state = "normal priority (not asked)"
         self._realtime_now = False
@@ -101,7 +101,7 @@ class LiveRunner:
 
     def start(self) -> None:
         settle_memory()
-        arm_search_deadline(self.controller)
+        arm_search_deadline(self.session)
         self._thread.start()
         self.started = True
 
@@ -141,13 +141,13 @@ class LiveRunner:
             self.realtime_known.set()
 
     def _scan_loop(self) -> None:
-        controller = self.controller
-        period_s = controller.period_us / 1e6
+        session = self.session
+        period_s = session.period_us / 1e6
         next_wall = time.perf_counter()
         if not self.realtime:
             self.realtime_known.set()
         while not self._stop.is_set():
-            state = controller.state
+            state = session.state
             if self.realtime:
                 self._priority(state.speed is not None)
             if not state.running:
@@ -164,7 +164,7 @@ class LiveRunner:
                     lateness = now - next_wall
                 self.jitter_us.append(lateness * 1e6)
                 self.lateness.add(lateness * 1e6)
-            controller.scan_if_running()
+            session.scan_if_running()
             if speed is None:
                 next_wall = time.perf_counter()
                 continue
@@ -172,18 +172,18 @@ class LiveRunner:
             if time.perf_counter() > next_wall + period_s:
                 # More than a whole period late: count it and re-anchor rather than burst.
                 self.overruns += 1
-                for listener in controller.overrun_listeners:
+                for listener in session.overrun_listeners:
                     listener(self.overruns)
                 next_wall = time.perf_counter()
 
 
-def arm_search_deadline(controller: Session) -> None:
+def arm_search_deadline(session: Session) -> None:
     """Live runs only: the corrector's search also stops at half the scan period of wall time.
 
     The search's own budget is in steps (deterministic); on a machine slower or busier than
     the one the budget was chosen on, this net keeps the scan on time. A headless run never
     arms it, so it cannot change a trace (docs/filter.md, "Budget")."""
-    controller.engine.limit_search_time(controller.period_us / 2)
+    session.engine.limit_search_time(session.period_us / 2)
 
 
 class WallClock:
@@ -206,7 +206,7 @@ class WallClock:
         return t
 
 
-def run_live_for(controller: Session, duration_us: int,
+def run_live_for(session: Session, duration_us: int,
                  on_scan: Callable[[Snapshot], bool | None] | None = None) -> LiveRunner:
     """Run scans paced by the wall clock until the scan time reaches `duration_us`, or until
     `on_scan` returns True (a failure that ends the run early).
@@ -224,8 +224,8 @@ def run_live_for(controller: Session, duration_us: int,
         if snap.time_us >= duration_us:
             done.set()
 
-    controller.scan_listeners.append(listener)
-    runner = LiveRunner(controller)
+    session.scan_listeners.append(listener)
+    runner = LiveRunner(session)
     runner.start()
     try:
         while not done.wait(0.1):
@@ -234,5 +234,5 @@ def run_live_for(controller: Session, duration_us: int,
                                    ) from runner.error
     finally:
         runner.stop()
-        controller.scan_listeners.remove(listener)
+        session.scan_listeners.remove(listener)
     return runner

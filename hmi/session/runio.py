@@ -46,17 +46,17 @@ class RunOutputs:
     """The trace and the journal of one run. `on_scan` writes the trace; a failure of either
     file is kept in `failure` and ends the run (see `stop_on_failure`)."""
 
-    def __init__(self, controller: Session, trace: Path | None, journal: Path | None,
+    def __init__(self, session: Session, trace: Path | None, journal: Path | None,
                  source: str, background: bool = False):
-        self.controller = controller
+        self.session = session
         self.failure: OutputError | None = None
         self.stopped_early = False
-        journal = journal or default_journal(controller)
+        journal = journal or default_journal(session)
         check_outputs([("--journal", "the journal of this run", journal),
-                       ("--trace", "the trace", trace)], project_files(controller))
+                       ("--trace", "the trace", trace)], project_files(session))
         self.writer = TraceWriter(trace) if trace else None
         try:
-            self.recorder = open_journal(controller, journal, source, background)
+            self.recorder = open_journal(session, journal, source, background)
         except BaseException:
             if self.writer is not None:
                 self.writer.close()
@@ -81,7 +81,7 @@ class RunOutputs:
         """After a failure: latch the engine safe and write the safe vector to the plant now
         (a real plant is also stopped safe by the caller)."""
         self.stopped_early = True
-        engine = self.controller.engine
+        engine = self.session.engine
         engine.latch_safe("output", f"run stopped: {self.failure}")
         if engine.started:
             safe = dict(zip(engine.layout.outputs, engine.safe_vector, strict=True))
@@ -104,7 +104,7 @@ class RunOutputs:
             self.failure = self.recorder.failure
 
     def failure_message(self) -> str:
-        engine = self.controller.engine
+        engine = self.session.engine
         if self.stopped_early:
             return (f"{self.failure}; the run stopped at scan {engine.scan} "
                     f"(t = {seconds(engine.now)} s) with the outputs written safe")
@@ -112,29 +112,29 @@ class RunOutputs:
                 f"(t = {seconds(engine.now)} s) but what it wrote there is incomplete")
 
 
-def open_journal(controller: Session, path: Path | None, source: str,
+def open_journal(session: Session, path: Path | None, source: str,
                  background: bool = False):
     """The journal recorder of a session: `path`, else the project's default journal. A
     journal that cannot be opened is an OutputError (hmi.errors). `background`: written by
     a thread of its own (the runtime's: a scan never waits for the disk; hmi.explain.journal)."""
     from hmi.explain.journal import Journal
     from hmi.session.journal_recorder import JournalRecorder
-    target = path or default_journal(controller)
-    check_outputs([("--journal", "the journal", target)], project_files(controller))
+    target = path or default_journal(session)
+    check_outputs([("--journal", "the journal", target)], project_files(session))
     journal = Journal(target, background)
     try:
-        return JournalRecorder(controller, journal, source)
+        return JournalRecorder(session, journal, source)
     except BaseException:
         journal.close()
         raise
 
 
-def default_journal(controller: Session) -> Path:
+def default_journal(session: Session) -> Path:
     from hmi.explain.journal import default_path
-    return default_path(controller.engine.project.name)
+    return default_path(session.engine.project.name)
 
 
-def project_files(controller: Session) -> list[tuple[str, Path]]:
+def project_files(session: Session) -> list[tuple[str, Path]]:
     """Every file the project was read from (its own, its includes, its components')."""
     return [("a file of the project", Path(name))
-            for name in controller.engine.project.files]
+            for name in session.engine.project.files]

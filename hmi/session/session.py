@@ -463,6 +463,3 @@ class Session:
         assert last is not None
         return last
 
-
-# The former name ("controller" is 004's word for a filter use), for code that still uses it.
-Controller = Session

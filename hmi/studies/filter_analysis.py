@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 from hmi.engine.solver import Problem
 from hmi.limits import MAX_ANALYSIS_STEPS
 from hmi.logic.expr import Literal
+from hmi.program.constraints import lower_constraints
 from hmi.project.model import Constraint, Project
 
 # A constraint with its output masks (must be 1, must be 0) and its literals over Y.
@@ -104,22 +105,11 @@ def _lit_text(name: str, depth: int, value: bool) -> str:
 
 def analyse(project: Project, seed: int = 0) -> FilterAnalysis:
     outputs = [v.name for v in project.outputs]
-    index = {name: k for k, name in enumerate(outputs)}
-    safe = sum(1 << k for k, v in enumerate(project.outputs) if v.safe)
-    # Each constraint: output masks and context literals.
-    items: list[_Item] = []
-    for c in project.constraints:
-        pos = neg = 0
-        context: list[Literal] = []
-        for lit in c.literals:
-            if lit.depth == 0 and lit.name in index:
-                if lit.positive:
-                    pos |= 1 << index[lit.name]
-                else:
-                    neg |= 1 << index[lit.name]
-            else:
-                context.append(lit)
-        items.append((c, pos, neg, tuple(context)))
+    # Each constraint: output masks and context literals (the filters' own table)
+    table = lower_constraints(project)
+    safe = table.safe
+    items: list[_Item] = [(row.constraint, row.pos, row.neg, row.context)
+                          for row in table.rows]
     variables = sorted({(lit.name, lit.depth) for _, _, _, ctx in items for lit in ctx})
     var_index = {v: i for i, v in enumerate(variables)}
     # Output-only constraints the safe state satisfies can be shifted to previous scans.

@@ -151,8 +151,8 @@ def sweep(project, configs: Sequence[LoopConfig], counter: str, every_us: int | 
         result.states[c.key] = len(probe.graph.prefix)
         computed[c.key] = result
     split: dict[tuple[int, int], set[str]] = {}
-    spent: list[tuple[int, int, int, float]] = []
-    block = _block(exact)
+    spent: list[Spent] = []
+    block = block_units(exact)
     for shard, part in zip(study.shards, parts, strict=True):
         for (c, start, end), piece in zip(shard, part.pieces, strict=True):
             key_c = missing[c].key
@@ -161,7 +161,7 @@ def sweep(project, configs: Sequence[LoopConfig], counter: str, every_us: int | 
                 computed[key_c].states[key_c] += piece.nodes
             else:
                 split.setdefault((c, start // block), set()).update(piece.states)
-            spent.append((c, start, end, piece.seconds))
+            spent.append((c, start, end, piece.seconds, piece.run_seconds))
     for (c, _), states in sorted(split.items()):
         computed[missing[c].key].states[missing[c].key] += len(states)
     _store_times(_times_key(project, variant, missing, counter, every, extras, faults,
@@ -204,13 +204,14 @@ def sweep_study(project, configs: Sequence[LoopConfig], counter: str, every: int
     units = ([list(i) for i in probe.intervals()] if exact
              else [list(i) for i in probe.instants(extras, every, step_us)])
     runs = len(faults) * len(units)
-    per = _block(exact)
+    per = block_units(exact)
     blocks = [(c, start, min(start + per, runs))
               for c in range(len(configs)) for start in range(0, runs, per)]
-    costs = _load_times(_times_key(project, variant, configs, counter, every, extras, faults,
+    times = _load_times(_times_key(project, variant, configs, counter, every, extras, faults,
                                    [exact, step_us, point["text"] if point else ""]),
                         configs, runs)
-    shards = cut(blocks, costs)
+    costs = times.costs if times else None
+    shards = cut(blocks, costs, times.pieces if times else frozenset())
     expected = None
     if costs is not None:  # cut by them: each shard's share, to send the heaviest first
         expected = tuple(sum(sum(costs[c * runs + a:c * runs + b]) for c, a, b in s)
@@ -232,22 +233,32 @@ def sweep_study(project, configs: Sequence[LoopConfig], counter: str, every: int
 EXACT_COST = 3
 
 
-def _block(exact: bool) -> int:
-    """Runs (units) per block: scan intervals for an exact sweep, else instants."""
+def block_units(exact: bool) -> int:
+    """Runs (units) per block: scan intervals for an exact sweep, else instants. Read at each
+    call, not imported as a value: a report states the blocks its sweep was cut in."""
     return SHARD_RUNS // EXACT_COST if exact else SHARD_RUNS
 
 
 Piece = tuple[int, int, int]  # (configuration, first run, end): runs of one block
 
 
-def cut(blocks: list[Piece], costs: list[float] | None) -> tuple[tuple[Piece, ...], ...]:
+def cut(blocks: list[Piece], costs: list[float] | None,
+        measured: frozenset[tuple[int, int]] = frozenset()) -> tuple[tuple[Piece, ...], ...]:
     """The shards, each a tuple of pieces in run order, from the blocks (in run order) and
     each run's measured CPU time, in the same order (None: one shard per block).
 
     Shards aim at `target`, the total time over SHARDS_WANTED and SHARD_MIN_S or more: a
-    block above it is split into that many pieces of consecutive runs of about the same time,
-    lighter blocks go together until the next would pass it; a light rest goes with its
-    neighbour."""
+    block above it is split into pieces of consecutive runs of about the same time, lighter
+    blocks go together until the next would pass it; a light rest goes with its neighbour.
+    `measured` holds the (configuration, first run) of the pieces the times were measured
+    in: a split block keeps those bounds, its pieces only split further or join a neighbour
+    when light. Why: runs share states, and a piece pays for its shared states once, so a
+    piece that spans two measured ones can cost much less than their runs' sum, while a
+    piece within a measured one costs at least its runs' sum (it reaches none of their
+    states before them); a piece joined to its neighbour costs at least the heavier of the
+    two. Every piece then costs at least what the cut expected of it, or than a piece that
+    was measured: the floor of target / 2 holds for what runs, not only for what was
+    expected."""
     if costs is None or len(costs) != sum(end - start for _, start, end in blocks):
         return tuple((b,) for b in blocks)
     target = max(SHARD_MIN_S, sum(costs) / SHARDS_WANTED)
@@ -260,16 +271,11 @@ def cut(blocks: list[Piece], costs: list[float] | None) -> tuple[tuple[Piece, ..
         first += end - start
         t = sum(runs)
         if t > target and end - start > 1:
-            n = min(end - start, -int(-t // target))
+            kept = sorted(a for cc, a in measured if cc == c and start < a < end)
             bounds = [start]
-            total = 0.0
-            for r, x in enumerate(runs):
-                total += x
-                # a bound where the time so far passes the next n-th, leaving a run a piece
-                if len(bounds) < n and total >= t * len(bounds) / n and \
-                        start + r + 1 > bounds[-1] and end - (start + r + 1) >= n - len(bounds):
-                    bounds.append(start + r + 1)
-            bounds.append(end)
+            for a, b in itertools.pairwise([start, *kept, end]):
+                bounds += _shares(runs[a - start:b - start], a, target)[1:]
+            _merge_light(bounds, runs, start, target / 2)
             pieces = [[(c, a, b)] for a, b in itertools.pairwise(bounds)]
             if spent >= target / 2:
                 shards.append(current)
@@ -291,17 +297,55 @@ def cut(blocks: list[Piece], costs: list[float] | None) -> tuple[tuple[Piece, ..
     return tuple(tuple(s) for s in shards)
 
 
+def _shares(runs: list[float], start: int, target: float) -> list[int]:
+    """The bounds of `runs` (the first at `start`) cut into as many pieces of about the same
+    time as `target` goes into their sum, each of a run at least: [start, ..., end]."""
+    t = sum(runs)
+    end = start + len(runs)
+    n = min(len(runs), max(1, -int(-t // target)))
+    bounds = [start]
+    total = 0.0
+    for r, x in enumerate(runs):
+        total += x
+        # a bound where the time so far passes the next n-th, leaving a run a piece
+        if len(bounds) < n and total >= t * len(bounds) / n and \
+                start + r + 1 > bounds[-1] and end - (start + r + 1) >= n - len(bounds):
+            bounds.append(start + r + 1)
+    return [*bounds, end]
+
+
+def _merge_light(bounds: list[int], runs: list[float], start: int, floor: float) -> None:
+    """Pieces of a split block expected under `floor` go with their lighter neighbour (the
+    bounds changed in place): where a block's time sits in a few runs, the bounds by equal
+    shares of time can leave a piece of almost nothing beside them."""
+    def seconds(k: int) -> float:
+        return sum(runs[bounds[k] - start:bounds[k + 1] - start])
+    while len(bounds) > 2:
+        times = [seconds(k) for k in range(len(bounds) - 1)]
+        k = min(range(len(times)), key=times.__getitem__)
+        if times[k] >= floor:
+            return
+        if k == 0 or (k < len(times) - 1 and times[k + 1] < times[k - 1]):
+            del bounds[k + 1]  # with the next piece
+        else:
+            del bounds[k]  # with the one before
+
+
 @dataclass(frozen=True)
 class PiecePart:
     """One piece's runs: their outcomes in order, the states it explored past the fault-free
     prefix (their number; their digests too when the piece is part of a block), and the CPU
     time its thread spent on it (for the next run's cut, never for the report: unlike the
-    time from start to end, it does not grow with whatever else the machine runs)."""
+    time from start to end, it does not grow with whatever else the machine runs), and each
+    run's share of it: a piece's time sits in a few of its runs, where they reach states the
+    runs before them did not, and the next cut splits by it (spread evenly over the piece, a
+    piece cut from a cheap stretch took a tenth of its expected time)."""
 
     outcomes: list[Outcome]
     nodes: int
     states: list[str] | None
     seconds: float
+    run_seconds: list[float] | None = None
 
 
 @dataclass(frozen=True)
@@ -355,17 +399,21 @@ def _work(state: _State, shard: tuple[Piece, ...]) -> SweepPart:
 def _piece(state: _State, c: int, start: int, end: int) -> PiecePart:
     ex = state.explorer(c)  # built at a worker's first piece of `c`: not the piece's cost
     started = time.thread_time()
-    if state.exact:
-        for fault, k, lo, hi in state.runs[start:end]:
-            ex.pieces(fault, k, lo, hi)
-    else:
-        for fault, k, at, why in state.runs[start:end]:
-            ex.run(fault, k, at, why)
+    each = []
+    before = started
+    for run in state.runs[start:end]:
+        if state.exact:
+            ex.pieces(*run)
+        else:
+            ex.run(*run)
+        now = time.thread_time()
+        each.append(round(now - before, 6))
+        before = now
     g = ex.graph
     whole = start % state.block == 0 and end == min(start + state.block, len(state.runs))
     states = None if whole else sorted(_digest(key) for key in ex.explored())
     return PiecePart(outcomes(g), len(g.obs) - len(g.prefix), states,
-                     time.thread_time() - started)
+                     time.thread_time() - started, each)
 
 
 def _digest(key: tuple) -> str:
@@ -385,7 +433,8 @@ def _shape(ex: Explorer) -> str:
 
 def _encode(part: SweepPart) -> list[dict[str, Any]]:
     return [{"nodes": p.nodes, "states": p.states, "seconds": p.seconds,
-             "outcomes": [asdict(r) for r in p.outcomes]} for p in part.pieces]
+             "run_seconds": p.run_seconds, "outcomes": [asdict(r) for r in p.outcomes]}
+            for p in part.pieces]
 
 
 def _decode(shard: Any, data: list[dict[str, Any]]) -> SweepPart:
@@ -393,7 +442,7 @@ def _decode(shard: Any, data: list[dict[str, Any]]) -> SweepPart:
         raise ValueError("a result of another cut")
     return SweepPart([PiecePart([_outcome(r) for r in p["outcomes"]], int(p["nodes"]),
                                 None if p["states"] is None else list(p["states"]),
-                                float(p["seconds"])) for p in data])
+                                float(p["seconds"]), p.get("run_seconds")) for p in data])
 
 
 def _outcome(data: dict[str, Any]) -> Outcome:
@@ -426,26 +475,48 @@ def _times_key(project, variant, configs, counter, every, extras, faults, more=(
     return hashlib.sha256(text.encode()).hexdigest()[:32]
 
 
-def _load_times(key: str, configs, runs: int) -> list[float] | None:
-    """Each run's CPU time, as the last run of this sweep measured it (a piece's time
-    spread evenly over its runs), in run order; None if unknown."""
+@dataclass(frozen=True)
+class Times:
+    """What the last run of a sweep measured, for the next one's cut."""
+
+    costs: list[float]  # each run's CPU time, in run order, configuration after configuration
+    pieces: frozenset[tuple[int, int]]  # (configuration, first run) of each piece measured
+
+
+def _load_times(key: str, configs, runs: int) -> Times | None:
+    """Each run's CPU time, as the last run of this sweep measured it (what a piece spent
+    around its runs spread evenly over them; a file of pieces' times only, all of it), and
+    its pieces; None if unknown."""
     try:
         data = json.loads((cache_folder() / "closed-loop" / f"times-{key}.json").read_text())
         costs: list[float] = []
-        for c in configs:
+        pieces: set[tuple[int, int]] = set()
+        for n, c in enumerate(configs):
             spread = [0.0] * runs
-            for start, end, seconds in data[c.key]:
-                for r in range(int(start), int(end)):
-                    spread[r] = float(seconds) / (int(end) - int(start))
+            for start, end, seconds, *each in data[c.key]:
+                start, end = int(start), int(end)
+                measured = [float(x) for x in each[0]] if each and each[0] else [0.0] * (
+                    end - start)
+                if len(measured) != end - start or not 0 <= start < end <= runs:
+                    return None
+                rest = (float(seconds) - sum(measured)) / (end - start)
+                spread[start:end] = [x + rest for x in measured]
+                if each and each[0]:  # bounds worth keeping only with the runs' own times
+                    pieces.add((n, start))
             costs += spread
     except (OSError, ValueError, KeyError, TypeError, IndexError, ZeroDivisionError):
         return None
-    return costs
+    return Times(costs, frozenset(pieces))
 
 
-def _store_times(key: str, configs, spent: list[tuple[int, int, int, float]]) -> None:
-    """Each piece's CPU time: [first run, end, seconds] per configuration."""
-    data = {c.key: [[start, end, t] for i, start, end, t in spent if i == n]
+# A piece's CPU time as the next cut reads it: (configuration, first run, end, seconds,
+# each run's seconds or None).
+Spent = tuple[int, int, int, float, list[float] | None]
+
+
+def _store_times(key: str, configs, spent: list[Spent]) -> None:
+    """Each piece's CPU time: [first run, end, seconds, each run's] per configuration."""
+    data = {c.key: [[start, end, t, each] for i, start, end, t, each in spent if i == n]
             for n, c in enumerate(configs)}
     folder = cache_folder() / "closed-loop"
     try:

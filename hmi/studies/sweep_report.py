@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from hmi.studies import loop_sweep
 from hmi.studies.campaign import PAPER_TABLE
 from hmi.studies.closed_loop import (
     BLOCKED,
@@ -21,7 +22,7 @@ from hmi.studies.closed_loop import (
     diagnosability,
     spread,
 )
-from hmi.studies.loop_sweep import EXACT_COST, SHARD_RUNS, SweepResult
+from hmi.studies.loop_sweep import SweepResult, block_units
 from hmi.timefmt import format_duration, seconds
 
 OUTCOMES = (BLOCKED, TOLERANT, DEFECT)
@@ -109,8 +110,7 @@ def report_lines(result: SweepResult, scenarios, paper: bool, title: str) -> lis
         "  every run is followed until its loop closes: Defect = damage at any time, Blocked = "
         "the cell never completes a cycle again, Tolerant = it keeps completing them",
         f"  {sum(result.states.values()):,} closed-loop states explored, in shards of "
-        + (f"{SHARD_RUNS // EXACT_COST} scan intervals" if result.exact else
-           f"{SHARD_RUNS} runs")
+        + f"{block_units(result.exact)} " + ("scan intervals" if result.exact else "runs")
         + " (how long it took, and where, is on stderr: not part of the report)",
         "",
     ]
@@ -178,7 +178,7 @@ def as_dict(result: SweepResult, scenarios) -> dict:
                  "every_s": None if result.exact else
                  (result.step_us or result.every * result.period_us) / 1e6,
                  "cycle_s": result.cycle_us / 1e6, "cycle_start_s": result.cycle_start_us / 1e6,
-                 "states": result.states, "shard_runs": SHARD_RUNS, "configurations": {}}
+                 "states": result.states, "shard_runs": loop_sweep.SHARD_RUNS, "configurations": {}}
     for c in result.configs:
         d = diagnosability(c, result.of(c.key), result.faults)
         faults = {}

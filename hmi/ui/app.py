@@ -1748,14 +1748,14 @@ def run_app(target: Engine | Session, clock=None, injected: tuple[Injection, ...
             on_fault: Callable[[UIFault], None] | None = None, bell: bool = False,
             served: Served | None = None,
             on_first_frame: Callable[[], None] | None = None) -> AppEnd:
-    """Run the HMI live on an engine, or on a controller others listen to (the journal).
+    """Run the HMI live on an engine, or on a session others listen to (the journal).
 
     A real plant passes a wall clock to stamp its scans (see hmi.session.live.WallClock);
     `injected` are the faults the command line scheduled in a simulated plant; `on_fault`
     is told of every UI error (the journal); `served` is the cell's OPC UA server, whose
     state the screen shows; `on_first_frame` is called once the first frame is shown."""
-    controller = target if isinstance(target, Session) else Session(target, clock=clock)
-    app = PlcHmiApp(controller, injected=injected, bell=bell, served=served)
+    session = target if isinstance(target, Session) else Session(target, clock=clock)
+    app = PlcHmiApp(session, injected=injected, bell=bell, served=served)
     if on_fault is not None:
         app.containment.listeners.append(on_fault)
     if on_first_frame is not None:

@@ -1,6 +1,6 @@
 """Messages the panels send up to the app ("attributes down, messages up").
 
-A panel never calls the controller: it asks the app to send a command, so that every operator
+A panel never calls the session: it asks the app to send a command, so that every operator
 action goes through one place (``PlcHmiApp.send`` → ``Session.command``), where the
 journal will listen.
 """
@@ -13,7 +13,7 @@ from hmi.engine.commands import Command
 
 
 class CommandRequested(Message):
-    """A panel asks the app to send an operator command to the controller."""
+    """A panel asks the app to send an operator command to the session."""
 
     def __init__(self, command: Command) -> None:
         super().__init__()
