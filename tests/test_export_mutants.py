@@ -1,13 +1,15 @@
 """Mutation testing of the exported Structured Text (tests/st_mutants.py): every single-operator
 change to an exported POU body must be caught by the agreement with the engine on recorded
-traces, or be shown equivalent (listed below with the reason: an honest list, not a skip).
+traces, or be shown equivalent (a filter survivor by z3, the others listed below with the
+reason), or be listed as a gap in the traces (what no trace reaches): an honest list, not a
+skip.
 
-The traces: each project's scenarios (tests/export_harness.py, export_traces without the
-fault campaign, whose runs repeat the scenarios' situations, nor the faulty program's runs,
-which are another export), and
-seeded runs on a plant of random inputs, with policy switches and fault resets, three with the
-project's control law and three in manual mode with random requests (RandomRun: the corrector
-meets vectors no control law writes; the control FB is replaced by the requests there).
+The traces (tests/st_mutants.py, study_runs): each project's scenarios (export_traces
+without the fault campaign, nor the faulty program's runs, which are another export), and
+eight seeded runs on a plant of random inputs, with policy switches and fault resets: three
+with the project's control law, three in manual mode with random requests (RandomRun: the
+corrector meets vectors no control law writes; the control FB is replaced by the requests
+there), two with slow input changes (a task runs for seconds: the monitors' verdicts).
 """
 
 from __future__ import annotations
