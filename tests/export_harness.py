@@ -79,6 +79,7 @@ class Twin:
         self.fov: tuple[bool, ...] = ()
         self.fov_names = [self.sym[f"FOV_{v.name}"] for v in project.outputs]
         self.engine_fov = engine_fov
+        self.runtime = Runtime  # (tests/st_mutants.py records what it is given and holds)
         if engine_fov:
             control_pou = next(p.name for p in model.pous if p.name.endswith("_Control"))
             self.program.set_native(control_pou.upper(), self._control)
@@ -104,7 +105,7 @@ class Twin:
         project, sym = self.project, self.sym
         assert self.engine_fov or engine.control_name == self.control_name, (
             f"the engine runs law {engine.control_name}, the export {self.control_name}")
-        rt = Runtime(self.program)
+        rt = self.runtime(self.program)
         read_fov = rt.reader(self.fov_names)
         rt.set(sym["FilterPolicy"], POLICIES[engine.policy])
         stage = engine.diagnosis

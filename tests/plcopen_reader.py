@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import re
 import xml.etree.ElementTree as ET
+from dataclasses import dataclass
 
 NS = {"p": "http://www.plcopen.org/xml/tc6_0201", "x": "http://www.w3.org/1999/xhtml"}
 SECTIONS = {"inputVars": "VAR_INPUT", "outputVars": "VAR_OUTPUT", "localVars": "VAR",
@@ -62,6 +63,8 @@ def st_from_plcopen(text: str) -> str:
     root = ET.fromstring(text)
     lines: list[str] = []
     for pou in root.findall("p:types/p:pous/p:pou", NS):
+        if pou.find("p:body/p:SFC", NS) is not None:
+            continue  # a chart for the editor (read by sfc_from_plcopen), not in the cycle
         word = KINDS[pou.attrib["pouType"]]
         lines.append(f"{word} {pou.attrib['name']}")
         lines += _lists(pou.find("p:interface", NS))
@@ -91,3 +94,65 @@ def code_only(st_text: str) -> list[str]:
         if line.strip():
             out.append(line.strip())
     return out
+
+
+@dataclass(frozen=True)
+class Chart:
+    """An SFC body read back: steps (name -> initial), transitions (sources, targets,
+    condition in ST, in file order), actions (step -> (qualifier, variable or inline ST))."""
+
+    steps: dict[str, bool]
+    transitions: list[tuple[frozenset[str], frozenset[str], str]]
+    actions: dict[str, list[tuple[str, str]]]
+
+
+def sfc_from_plcopen(text: str) -> dict[str, Chart]:
+    """Every POU with an SFC body, its network followed through the connections."""
+    root = ET.fromstring(text)
+    return {pou.attrib["name"]: _read_chart(pou.find("p:body/p:SFC", NS))
+            for pou in root.findall("p:types/p:pous/p:pou", NS)
+            if pou.find("p:body/p:SFC", NS) is not None}
+
+
+def _read_chart(sfc: ET.Element) -> Chart:
+    """A transition's sources are the steps reached going back through divergences and
+    convergences, its targets the steps whose inputs lead back to it."""
+    elements = {e.attrib["localId"]: e for e in sfc}
+    kind = {i: e.tag.split("}")[1] for i, e in elements.items()}
+
+    def inputs(e: ET.Element) -> list[str]:
+        return [c.attrib["refLocalId"] for c in e.findall("p:connectionPointIn/p:connection", NS)]
+
+    def before(i: str, wanted: str, stop: str) -> set[str]:
+        """The elements of kind `wanted` an element's inputs come from, through the
+        divergences and convergences (not through `stop`)."""
+        out: set[str] = set()
+        for ref in inputs(elements[i]):
+            if kind[ref] == wanted:
+                out.add(ref)
+            elif kind[ref] != stop:
+                out |= before(ref, wanted, stop)
+        return out
+
+    step_of = {i: e.attrib["name"] for i, e in elements.items() if kind[i] == "step"}
+    steps = {e.attrib["name"]: e.attrib.get("initialStep") == "true"
+             for i, e in elements.items() if kind[i] == "step"}
+    transitions = []
+    for i, e in elements.items():
+        if kind[i] != "transition":
+            continue
+        sources = frozenset(step_of[j] for j in before(i, "step", "transition"))
+        targets = frozenset(step_of[j] for j in step_of if i in before(j, "transition", "step"))
+        condition = e.find("p:condition/p:inline/p:ST/x:p", NS).text or ""
+        transitions.append((sources, targets, condition))
+    actions: dict[str, list[tuple[str, str]]] = {}
+    for i, e in elements.items():
+        if kind[i] != "actionBlock":
+            continue
+        (step_id,) = inputs(e)
+        for a in e.findall("p:action", NS):
+            ref = a.find("p:reference", NS)
+            body = (ref.attrib["name"] if ref is not None
+                    else a.find("p:inline/p:ST/x:p", NS).text or "")
+            actions.setdefault(step_of[step_id], []).append((a.attrib["qualifier"], body))
+    return Chart(steps, transitions, actions)

@@ -151,11 +151,16 @@ def test_plcopen_file_structure(valve):
                     "FB_cispi_valve_Diag_V1": "functionBlock",
                     "FB_cispi_valve_Control": "functionBlock",
                     "FB_cispi_valve_Filter": "functionBlock",
-                    "PRG_cispi_valve_Safety": "program"}
+                    "PRG_cispi_valve_Safety": "program",
+                    "SFC_cispi_valve_Grafcet": "functionBlock"}
     for pou in root.findall("p:types/p:pous/p:pou", NS):
         children = [c.tag.split("}")[1] for c in pou]
         assert children == ["interface", "body", "documentation"]  # the schema's order
-        assert pou.find("p:body/p:ST/x:p", NS).text.strip()
+        body = pou.find("p:body/p:ST/x:p", NS)
+        if pou.attrib["name"] == "SFC_cispi_valve_Grafcet":  # the GRAFCET as a chart
+            assert body is None and pou.find("p:body/p:SFC/p:step", NS) is not None
+        else:
+            assert body.text.strip()
     config = root.find("p:instances/p:configurations/p:configuration", NS)
     assert [c.tag.split("}")[1] for c in config] == ["resource", "globalVars"]
     task = config.find("p:resource/p:task", NS)

@@ -30,6 +30,8 @@ from hmi.export.image import CONTROL, Globals, build_globals
 from hmi.export.memory_pou import build_memory
 from hmi.export.names import Scope
 from hmi.export.program_pou import Blocks, build_program
+from hmi.export.sfc import build_chart
+from hmi.export.st import time_text
 from hmi.export.stopwatch_pou import build_monitor
 from hmi.export.views import Durations
 from hmi.project.diagnosers import layout_names
@@ -69,6 +71,9 @@ def build(project: Project, control: str | None = None) -> m.PlcProject:
         control=build_control(project, law, layout, g, names["control"], pous, durations),
         monitors=monitors)
     program, instances = build_program(project, names["program"], g, blocks, durations)
+    types = {v.name: v.type for v in g.vars}
+    chart = build_chart(law, pous.take(f"SFC_{prefix}_Grafcet"), g.idents, types,
+                        lambda us: time_text(us // 1000))
     durations.raise_if_any()
 
     config = m.Configuration(
@@ -88,7 +93,7 @@ def build(project: Project, control: str | None = None) -> m.PlcProject:
                         for lab in spec.labels})
     assert set(CONTROL) <= set(symbols)
     return m.PlcProject(prefix, tuple(all_pous), config, _header(project, law.name, summary),
-                        tuple(summary), symbols)
+                        tuple(summary), symbols, (chart,) if chart is not None else ())
 
 
 def _summary(project: Project, bound: source.FilterBound, pous: list[m.Pou], g: Globals,

@@ -299,6 +299,47 @@ class PlcProject:
     # -> its global; "Filter", "Memory", "Diag_<D>", "Mon_<task>" -> the program's instance;
     # "<D>.<label>" -> that diagnoser FB's output for the label.
     symbols: dict[str, str] = field(default_factory=dict, compare=False)
+    # The control law's GRAFCET as an SFC chart (hmi/export/sfc.py): the PLCopen XML carries
+    # it as a POU of its own, for the PLC's editor; the cycle runs the control FB.
+    charts: tuple[SfcChart, ...] = ()
 
     def pou(self, name: str) -> Pou:
         return next(p for p in self.pous if p.name == name)
+
+
+# SFC charts (hmi/export/sfc.py builds them, hmi/export/plcopen.py writes them)
+
+
+@dataclass(frozen=True)
+class SfcAction:
+    qualifier: str  # N, S, R
+    variable: str  # the variable it drives (FOV_x, a memory)
+    condition: str | None = None  # a conditional N action's condition, in ST
+
+
+@dataclass(frozen=True)
+class SfcStep:
+    name: str
+    initial: bool
+    actions: tuple[SfcAction, ...]
+    comment: str = ""
+
+
+@dataclass(frozen=True)
+class SfcTransition:
+    sources: tuple[str, ...]
+    targets: tuple[str, ...]
+    condition: str  # ST
+    comment: str = ""
+
+
+@dataclass(frozen=True)
+class SfcChart:
+    """A GRAFCET as an SFC POU: its variables (the globals it reads and drives, the values
+    back in time as inputs) and its network."""
+
+    name: str
+    steps: tuple[SfcStep, ...]
+    transitions: tuple[SfcTransition, ...]
+    blocks: tuple[VarBlock, ...]
+    comment: str = ""

@@ -13,6 +13,7 @@ from __future__ import annotations
 from xml.sax.saxutils import escape, quoteattr
 
 from hmi.export import model as m
+from hmi.export.sfc import network
 from hmi.export.st import ascii_text, body_text, expr_text, time_text
 
 NAMESPACE = "http://www.plcopen.org/xml/tc6_0201"
@@ -107,6 +108,77 @@ def _pou(x: _Xml, p: m.Pou) -> None:
     x.close("pou")
 
 
+def _connections(x: _Xml, inputs: tuple[tuple[int, str], ...], apart: bool) -> None:
+    """An element's inputs: one connectionPointIn holding them (a step, a transition), or
+    one per branch (`apart`: a convergence)."""
+    groups = [(i,) for i in inputs] if apart else [inputs]
+    for group in groups:
+        x.open("<connectionPointIn>")
+        for ref, formal in group:
+            parameter = f" formalParameter={_attr(formal)}" if formal else ""
+            x.line(f"<connection refLocalId={_attr(ref)}{parameter}/>")
+        x.close("connectionPointIn")
+
+
+def _chart(x: _Xml, chart: m.SfcChart) -> None:
+    """A GRAFCET as a POU whose body is an SFC network (hmi/export/sfc.py)."""
+    x.open(f"<pou name={_attr(chart.name)} pouType=\"functionBlock\">")
+    x.open("<interface>")
+    _var_lists(x, chart.blocks)
+    x.close("interface")
+    x.open("<body>")
+    x.open("<SFC>")
+    for e in network(chart):
+        position = f'<position x="0" y={_attr(40 * e.local_id)}/>'
+        if e.kind == "step":
+            initial = ' initialStep="true"' if e.initial else ""
+            x.open(f"<step localId={_attr(e.local_id)} name={_attr(e.name)}{initial}>")
+            x.line(position)
+            if e.inputs:
+                _connections(x, e.inputs, apart=False)
+            x.line('<connectionPointOut formalParameter=""/>')
+            x.documentation(e.comment)
+            x.close("step")
+        elif e.kind == "transition":
+            x.open(f"<transition localId={_attr(e.local_id)}>")
+            x.line(position)
+            _connections(x, e.inputs, apart=False)
+            x.line("<connectionPointOut/>")
+            x.open("<condition>")
+            x.line(f'<inline name=""><ST><xhtml:p>{_cdata(e.condition)}</xhtml:p></ST></inline>')
+            x.close("condition")
+            x.documentation(e.comment)
+            x.close("transition")
+        elif e.kind == "actionBlock":
+            x.open(f"<actionBlock localId={_attr(e.local_id)}>")
+            x.line(position)
+            _connections(x, e.inputs, apart=False)
+            for k, a in enumerate(e.actions):
+                x.open(f"<action localId={_attr(k)} qualifier={_attr(a.qualifier)}>")
+                x.line('<relPosition x="0" y="0"/>')
+                if a.condition is None:
+                    x.line(f"<reference name={_attr(a.variable)}/>")
+                else:
+                    x.line(f"<inline><ST><xhtml:p>{_cdata(f'{a.variable} := {a.condition};')}"
+                           "</xhtml:p></ST></inline>")
+                x.close("action")
+            x.close("actionBlock")
+        else:  # the divergences and convergences
+            x.open(f"<{e.kind} localId={_attr(e.local_id)}>")
+            x.line(position)
+            _connections(x, e.inputs, apart=e.kind.endswith("Convergence"))
+            if e.kind.endswith("Divergence"):
+                for branch in range(e.outputs):
+                    x.line(f"<connectionPointOut formalParameter={_attr(f'out{branch}')}/>")
+            else:
+                x.line("<connectionPointOut/>")
+            x.close(e.kind)
+    x.close("SFC")
+    x.close("body")
+    x.documentation(chart.comment)
+    x.close("pou")
+
+
 def write_plcopen(project: m.PlcProject) -> str:
     x = _Xml()
     x.open(f"<project xmlns={_attr(NAMESPACE)} xmlns:xhtml={_attr(XHTML)}>")
@@ -125,6 +197,8 @@ def write_plcopen(project: m.PlcProject) -> str:
     x.open("<pous>")
     for p in project.pous:
         _pou(x, p)
+    for chart in project.charts:
+        _chart(x, chart)
     x.close("pous")
     x.close("types")
     c = project.configuration

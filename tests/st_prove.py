@@ -1,0 +1,749 @@
+"""A proof, with z3, that one call of an exported function block, as blark parses it, does
+what the engine does, for every input and every state.
+
+The exported Structured Text is parsed by blark (an independent IEC 61131-3 parser); its
+syntax tree is executed symbolically (:class:`Symbolic`): every input and every variable the
+block keeps between calls starts as an unconstrained z3 value, so the result is a formula of
+them. BOOL is a z3 Bool, WORD/DWORD/LWORD a bit-vector of their width, INT/DINT a
+mathematical integer (the values the block computes are small counts and indices; an
+overflow is not modelled). IF merges its branches (z3 If); FOR and WHILE are unrolled, a
+symbolic loop condition split into the world where the loop goes on and the one where it
+stops, each kept only while z3 finds it satisfiable under the path that leads to it (no bound
+is assumed: a loop still running after LOOP_LIMIT iterations fails the proof); EXIT leaves
+the loop in the world where it runs. The property is then checked valid by z3 (its negation
+unsatisfiable); a counterexample is printed when it is not.
+
+`prove_filter` states the engine's safety filter (hmi/engine/filter.py, docs/filter.md) from
+the project's constraints directly, not from the exporter: the violation word, the block
+latch, the masks, the F0/F1 forcing and conflict, and the exact corrector's unique answer
+(the safe vector at minimum Hamming distance over the unforced outputs, then fewest outputs
+switched on, then the outputs declared first spared), or the safe state when that vector is
+farther than MAX_DISTANCE.
+"""
+
+from __future__ import annotations
+
+import importlib
+import re
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from functools import cache
+from typing import Any
+
+import z3
+
+LOOP_LIMIT = 2000
+BITS = {"BOOL": 1, "BYTE": 8, "WORD": 16, "DWORD": 32, "LWORD": 64}
+INTS = ("SINT", "INT", "DINT", "LINT", "UINT", "UDINT", "USINT")
+
+
+class Unsupported(Exception):
+    """A construct the symbolic executor does not model: the proof is not claimed."""
+
+
+@dataclass(frozen=True)
+class VarType:
+    name: str  # BOOL, DWORD, INT, ...
+    low: int | None = None  # an array's bounds
+    high: int | None = None
+
+
+@dataclass
+class Declared:
+    """A function block's variables: sections, types, the constants' values (as z3 terms)."""
+
+    types: dict[str, VarType] = field(default_factory=dict)
+    sections: dict[str, str] = field(default_factory=dict)
+    constants: dict[str, Any] = field(default_factory=dict)
+    order: list[str] = field(default_factory=list)
+
+
+# --------------------------------------------------------------------------------------------
+# blark
+# --------------------------------------------------------------------------------------------
+
+
+@cache
+def _parser() -> Any:
+    from blark.parse import new_parser
+    return new_parser()
+
+
+def pou_text(text: str, name: str) -> str:
+    """The text of FUNCTION_BLOCK `name` in an exported file."""
+    start = re.search(rf"^FUNCTION_BLOCK {re.escape(name)}\s*$", text, re.MULTILINE)
+    if start is None:
+        raise KeyError(name)
+    end = text.index("END_FUNCTION_BLOCK", start.start()) + len("END_FUNCTION_BLOCK")
+    return text[start.start():end] + "\n"
+
+
+def parse_fb(text: str) -> Any:
+    """blark's tree of the one function block in `text` (an error if blark refuses it)."""
+    from blark.parse import parse_source_code
+    result = parse_source_code(text, parser=_parser())
+    if result.exception is not None:
+        raise SyntaxError(f"blark: {result.exception}")
+    items = result.transform().items
+    assert len(items) == 1, items
+    return items[0]
+
+
+def _type(spec: Any) -> VarType:
+    from blark import transform as tf
+    if isinstance(spec, tf.ArraySpecification):
+        (sub,) = spec.subranges
+        base = _type_name(spec.type)
+        return VarType(base, int(str(sub.start)), int(str(sub.stop)))
+    return VarType(_type_name(spec))
+
+
+def _type_name(spec: Any) -> str:
+    text = str(getattr(spec, "type", spec))
+    return text.strip().upper()
+
+
+def declarations(fb: Any) -> Declared:
+    from blark import transform as tf
+    out = Declared()
+    section_of = {tf.InputDeclarations: "input", tf.OutputDeclarations: "output",
+                  tf.VariableDeclarations: "local"}
+    for block in fb.declarations:
+        section = section_of.get(type(block))
+        if section is None:
+            raise Unsupported(f"declarations {type(block).__name__}")
+        constant = "CONSTANT" in str(block.attrs or "").upper()
+        for item in block.items:
+            init = item.init
+            vtype = _type(init.spec)
+            for v in item.variables:
+                name = str(getattr(v, "name", v)).upper()
+                out.types[name] = vtype
+                out.sections[name] = "constant" if constant else section
+                out.order.append(name)
+                if constant:
+                    out.constants[name] = _constant(init.value, vtype)
+    return out
+
+
+def _flat(init: Any) -> list[Any]:
+    """An array initialisation's elements in order (blark nests `[a, b, c]` as a, then the
+    rest as an initialisation of its own; `n(x)` repeats x n times)."""
+    from blark import transform as tf
+    out: list[Any] = []
+    for e in init.elements:
+        element = getattr(e, "element", e)
+        items = _flat(element) if isinstance(element, tf.ArrayInitialization) else [element]
+        count = getattr(e, "count", None)
+        out += items * (int(str(count)) if count is not None else 1)
+    return out
+
+
+def _constant(value: Any, vtype: VarType) -> Any:
+    from blark import transform as tf
+    ex = Symbolic.literal_of
+    if vtype.low is not None:
+        assert isinstance(value, tf.ArrayInitialization), value
+        items = [ex(e, vtype.name) for e in _flat(value)]
+        assert len(items) == vtype.high - vtype.low + 1, (len(items), vtype)  # type: ignore[operator]
+        return items
+    return ex(value, vtype.name)
+
+
+# --------------------------------------------------------------------------------------------
+# Symbolic execution
+# --------------------------------------------------------------------------------------------
+
+
+def _fresh(name: str, vtype: str) -> Any:
+    if vtype == "BOOL":
+        return z3.Bool(name)
+    if vtype in BITS:
+        return z3.BitVec(name, BITS[vtype])
+    if vtype in INTS:
+        return z3.Int(name)
+    raise Unsupported(f"type {vtype}")
+
+
+def _concrete(value: Any) -> Any:
+    """A Python bool/int when `value` simplifies to a constant, else None."""
+    v = z3.simplify(value)
+    if z3.is_true(v):
+        return True
+    if z3.is_false(v):
+        return False
+    if z3.is_int_value(v):
+        return v.as_long()
+    if z3.is_bv_value(v):
+        return v.as_long()
+    return None
+
+
+EXIT = "$exit"
+
+
+class Symbolic:
+    """One call of a function block on symbolic inputs and state."""
+
+    def __init__(self, fb: Any, initial: dict[str, Any] | None = None,
+                 loop_limit: int = LOOP_LIMIT):
+        self.fb = fb
+        self.loop_limit = loop_limit
+        self.decl = declarations(fb)
+        self.solver = z3.Solver()
+        self.checks = 0
+        state: dict[str, Any] = {}
+        for name in self.decl.order:
+            t = self.decl.types[name]
+            if self.decl.sections[name] == "constant":
+                state[name] = self.decl.constants[name]
+            elif t.low is not None:
+                state[name] = [_fresh(f"{name}[{k}]", t.name)
+                               for k in range(t.low, t.high + 1)]  # type: ignore[operator]
+            else:
+                state[name] = _fresh(name, t.name)
+        state.update({k.upper(): v for k, v in (initial or {}).items()})
+        state[EXIT] = z3.BoolVal(False)
+        self.initial = dict(state)
+
+    def run(self) -> dict[str, Any]:
+        return self.block(self.fb.body.statements, dict(self.initial), [])
+
+    # -- values --------------------------------------------------------------------------------
+    @staticmethod
+    def literal_of(node: Any, want: str | None = None) -> Any:
+        from blark import transform as tf
+        if isinstance(node, tf.Boolean):
+            return z3.BoolVal(str(node.value).upper() == "TRUE")
+        if isinstance(node, tf.Integer | tf.HexBitString | tf.BinaryBitString
+                      | tf.OctalBitString | tf.BitString):
+            base = {tf.HexBitString: 16, tf.BinaryBitString: 2, tf.OctalBitString: 8
+                    }.get(type(node), 10)
+            value = int(str(node.value).replace("_", ""), base)
+            tname = str(node.type_name).upper() if node.type_name else want
+            if tname in BITS and tname != "BOOL":
+                return z3.BitVecVal(value, BITS[tname])
+            return z3.IntVal(value)
+        raise Unsupported(f"literal {type(node).__name__}: {node}")
+
+    def value(self, node: Any, st: dict[str, Any]) -> Any:
+        from blark import transform as tf
+        if isinstance(node, tf.ParenthesizedExpression):
+            return self.value(node.expr, st)
+        if isinstance(node, tf.SimpleVariable):
+            v = st[str(node.name).upper()]
+            if isinstance(v, list):
+                raise Unsupported(f"a whole array {node.name}")
+            return v
+        if isinstance(node, tf.MultiElementVariable):
+            array, index = self._element(node, st)
+            return self._select(array, index, st, str(node.name))
+        if isinstance(node, tf.UnaryOperation):
+            inner = self.value(node.expr, st)
+            op = str(node.op).upper()
+            if op == "NOT":
+                return z3.Not(inner) if z3.is_bool(inner) else ~inner
+            if op == "-":
+                return -inner
+            raise Unsupported(f"unary {op}")
+        if isinstance(node, tf.BinaryOperation):
+            return self._binary(str(node.op).upper(), node.left, node.right, st)
+        if isinstance(node, tf.FunctionCall):
+            name = str(node.name).upper()
+            args = [self.value(p.value, st) for p in node.parameters]
+            if name == "SHL" and len(args) == 2:
+                word, count = args
+                return word << self._as_bv(count, word.size())
+            raise Unsupported(f"function {name}")
+        return self.literal_of(node)
+
+    @staticmethod
+    def _as_bv(value: Any, width: int) -> Any:
+        return z3.Int2BV(value, width) if z3.is_int(value) else value
+
+    def _binary(self, op: str, left: Any, right: Any, st: dict[str, Any]) -> Any:
+        a, b = self.value(left, st), self.value(right, st)
+        if z3.is_bv(a) and z3.is_int(b):
+            b = self._as_bv(b, a.size())
+        elif z3.is_bv(b) and z3.is_int(a):
+            a = self._as_bv(a, b.size())
+        if op in ("AND", "AND_THEN", "&"):
+            return z3.And(a, b) if z3.is_bool(a) else a & b
+        if op in ("OR", "OR_ELSE"):
+            return z3.Or(a, b) if z3.is_bool(a) else a | b
+        if op == "XOR":
+            return z3.Xor(a, b) if z3.is_bool(a) else a ^ b
+        if op == "=":
+            return a == b
+        if op == "<>":
+            return a != b
+        if op in ("<", "<=", ">", ">="):
+            if z3.is_bv(a):
+                return {"<": z3.ULT, "<=": z3.ULE, ">": z3.UGT, ">=": z3.UGE}[op](a, b)
+            return {"<": a < b, "<=": a <= b, ">": a > b, ">=": a >= b}[op]
+        if op == "+":
+            return a + b
+        if op == "-":
+            return a - b
+        if op == "*":
+            return a * b
+        raise Unsupported(f"operator {op}")
+
+    def _element(self, node: Any, st: dict[str, Any]) -> tuple[str, Any]:
+        from blark import transform as tf
+        if len(node.elements) != 1 or not isinstance(node.elements[0], tf.SubscriptList):
+            raise Unsupported(f"member access {node}")
+        (sub,) = node.elements[0].subscripts
+        return str(node.name).upper(), self.value(sub, st)
+
+    def _select(self, name: str, index: Any, st: dict[str, Any], shown: str) -> Any:
+        items = st[name]
+        low = self.decl.types[name].low or 0
+        k = _concrete(index)
+        if k is not None:
+            if not low <= k < low + len(items):
+                raise Unsupported(f"{shown}[{k}] out of bounds on a reachable path")
+            return items[k - low]
+        out = items[-1]  # (an index out of bounds: the obligation below says it is not)
+        for j in range(len(items) - 2, -1, -1):
+            out = z3.If(index == low + j, items[j], out)
+        self._in_bounds(index, low, len(items), shown)
+        return out
+
+    def _in_bounds(self, index: Any, low: int, n: int, shown: str) -> None:
+        self.obligations.append((z3.And(index >= low, index < low + n),
+                                 f"{shown} index in bounds"))
+
+    obligations: list[tuple[Any, str]]
+
+    # -- statements ----------------------------------------------------------------------------
+    def block(self, stmts: Any, st: dict[str, Any], pc: list[Any]) -> dict[str, Any]:
+        if stmts is None:
+            return st
+        for s in getattr(stmts, "statements", stmts):
+            leaving = _concrete(st[EXIT])
+            if leaving is True:
+                break
+            if leaving is False:
+                st = self.stmt(s, st, pc)
+            else:
+                st = merge(st[EXIT], st, self.stmt(s, st, [*pc, z3.Not(st[EXIT])]))
+        return st
+
+    def stmt(self, s: Any, st: dict[str, Any], pc: list[Any]) -> dict[str, Any]:
+        from blark import transform as tf
+        if isinstance(s, tf.StatementList):
+            return self.block(s.statements, st, pc)
+        if isinstance(s, tf.AssignmentStatement):
+            (target,) = s.variables
+            value = self.value(s.expression, st)
+            return self.assign(target, value, st)
+        if isinstance(s, tf.IfStatement):
+            branches = [(s.if_expression, s.statements)]
+            branches += [(e.if_expression, e.statements) for e in s.else_ifs]
+            orelse = s.else_clause.statements if s.else_clause is not None else None
+            return self._if(branches, orelse, st, pc)
+        if isinstance(s, tf.ForStatement):
+            return self._for(s, st, pc)
+        if isinstance(s, tf.WhileStatement):
+            return self._while(s, st, pc, 0)
+        if isinstance(s, tf.ExitStatement):
+            out = dict(st)
+            out[EXIT] = z3.BoolVal(True)
+            return out
+        if isinstance(s, tf.CaseStatement):
+            return self._case(s, st, pc)
+        raise Unsupported(f"statement {type(s).__name__}")
+
+    def assign(self, target: Any, value: Any, st: dict[str, Any]) -> dict[str, Any]:
+        from blark import transform as tf
+        out = dict(st)
+        if isinstance(target, tf.SimpleVariable):
+            name = str(target.name).upper()
+            if self.decl.sections.get(name) == "constant":
+                raise Unsupported(f"assignment to the constant {name}")
+            out[name] = value
+            return out
+        name, index = self._element(target, st)
+        items = list(st[name])
+        low = self.decl.types[name].low or 0
+        k = _concrete(index)
+        if k is not None:
+            if not low <= k < low + len(items):
+                raise Unsupported(f"{name}[{k}] := out of bounds on a reachable path")
+            items[k - low] = value
+        else:
+            self._in_bounds(index, low, len(items), name)
+            items = [z3.If(index == low + j, value, item) for j, item in enumerate(items)]
+        out[name] = items
+        return out
+
+    def _if(self, branches: list[tuple[Any, Any]], orelse: Any, st: dict[str, Any],
+            pc: list[Any]) -> dict[str, Any]:
+        if not branches:
+            return self.block(orelse, st, pc) if orelse is not None else st
+        (cond_node, body), rest = branches[0], branches[1:]
+        cond = self.value(cond_node, st)
+        known = _concrete(cond)
+        if known is True:
+            return self.block(body, st, pc)
+        if known is False:
+            return self._if(rest, orelse, st, pc)
+        yes = self.block(body, st, [*pc, cond])
+        no = self._if(rest, orelse, st, [*pc, z3.Not(cond)])
+        return merge(cond, yes, no)
+
+    def _case(self, s: Any, st: dict[str, Any], pc: list[Any]) -> dict[str, Any]:
+        selector = self.value(s.expression, st)
+        branches = []
+        for case in s.cases:
+            tests = [selector == self.literal_of(m) for m in case.matches]
+            branches.append((z3.Or(*tests), case.statements))
+        orelse = s.else_clause.statements if s.else_clause is not None else None
+        return self._if_values(branches, orelse, st, pc)
+
+    def _if_values(self, branches: list[tuple[Any, Any]], orelse: Any, st: dict[str, Any],
+                   pc: list[Any]) -> dict[str, Any]:
+        if not branches:
+            return self.block(orelse, st, pc) if orelse is not None else st
+        (cond, body), rest = branches[0], branches[1:]
+        known = _concrete(cond)
+        if known is True:
+            return self.block(body, st, pc)
+        if known is False:
+            return self._if_values(rest, orelse, st, pc)
+        return merge(cond, self.block(body, st, [*pc, cond]),
+                     self._if_values(rest, orelse, st, [*pc, z3.Not(cond)]))
+
+    def _feasible(self, pc: list[Any], cond: Any) -> bool:
+        self.checks += 1
+        self.solver.push()
+        self.solver.add(*pc, cond)
+        found = self.solver.check()
+        self.solver.pop()
+        if found == z3.unknown:
+            raise Unsupported("z3 could not decide a loop condition")
+        return found == z3.sat
+
+    def _decide(self, cond: Any, pc: list[Any]) -> bool | None:
+        """True/False when the loop condition is fixed on this path, None when both worlds
+        are possible."""
+        known = _concrete(cond)
+        if known is not None:
+            return bool(known)
+        go, stop = self._feasible(pc, cond), self._feasible(pc, z3.Not(cond))
+        if go and stop:
+            return None
+        return go
+
+    def _for(self, s: Any, st: dict[str, Any], pc: list[Any]) -> dict[str, Any]:
+        control = s.control
+        name = str(getattr(control, "name", control)).upper()
+        first = self.value(s.from_, st)
+        step = _concrete(self.value(s.step, st)) if s.step is not None else 1
+        if step is None or step == 0:
+            raise Unsupported("a FOR step that is not a constant")
+        st = dict(st)
+        st[name] = first
+        return self._for_rest(name, s, step, st, pc, 0)
+
+    def _for_rest(self, name: str, s: Any, step: int, st: dict[str, Any], pc: list[Any],
+                  count: int) -> dict[str, Any]:
+        while True:
+            last = self.value(s.to, st)
+            cond = st[name] <= last if step > 0 else st[name] >= last
+            decided = self._decide(cond, pc)
+            if decided is False:
+                return st
+            if count > self.loop_limit:
+                raise Unsupported(f"FOR {name} runs more than {self.loop_limit} times")
+            if decided is None:
+                go = self._iteration(s.statements, name, step, st, [*pc, cond])
+                rest = (self._for_rest(name, s, step, go, [*pc, cond, z3.Not(go[EXIT])],
+                                       count + 1) if _concrete(go[EXIT]) is not True else go)
+                rest = self._leave(go, rest)
+                return merge(cond, rest, st)
+            after = self._iteration(s.statements, name, step, st, pc)
+            leaving = _concrete(after[EXIT])
+            if leaving is True:
+                after[EXIT] = z3.BoolVal(False)
+                return after
+            if leaving is None:
+                rest = self._for_rest(name, s, step, after, [*pc, z3.Not(after[EXIT])],
+                                      count + 1)
+                return self._leave(after, rest)
+            st, count = after, count + 1
+
+    def _iteration(self, body: Any, name: str | None, step: int, st: dict[str, Any],
+                   pc: list[Any]) -> dict[str, Any]:
+        """One pass of a loop's body, then (FOR) the control variable stepped, unless the
+        body left the loop: EXIT leaves the variable as it was."""
+        after = self.block(body, st, pc)
+        if name is not None:
+            stepped = after[name] + step
+            after = dict(after)
+            after[name] = z3.If(after[EXIT], after[name], stepped)
+            if _concrete(after[EXIT]) is False:
+                after[name] = stepped
+        return after
+
+    @staticmethod
+    def _leave(after: dict[str, Any], rest: dict[str, Any]) -> dict[str, Any]:
+        """Where the body left (EXIT) `after`, else the rest of the loop; the EXIT spent."""
+        out = merge(after[EXIT], after, rest)
+        out[EXIT] = z3.BoolVal(False)
+        return out
+
+    def _while(self, s: Any, st: dict[str, Any], pc: list[Any], count: int
+               ) -> dict[str, Any]:
+        while True:
+            cond = self.value(s.expression, st)
+            decided = self._decide(cond, pc)
+            if decided is False:
+                return st
+            if count > self.loop_limit:
+                raise Unsupported(f"WHILE runs more than {self.loop_limit} times")
+            if decided is None:
+                go = self._iteration(s.statements, None, 0, st, [*pc, cond])
+                rest = (self._while(s, go, [*pc, cond, z3.Not(go[EXIT])], count + 1)
+                        if _concrete(go[EXIT]) is not True else go)
+                return merge(cond, self._leave(go, rest), st)
+            after = self._iteration(s.statements, None, 0, st, pc)
+            leaving = _concrete(after[EXIT])
+            if leaving is True:
+                after[EXIT] = z3.BoolVal(False)
+                return after
+            if leaving is None:
+                return self._leave(after, self._while(s, after, [*pc, z3.Not(after[EXIT])],
+                                                      count + 1))
+            st, count = after, count + 1
+
+
+def merge(cond: Any, yes: dict[str, Any], no: dict[str, Any]) -> dict[str, Any]:
+    out = {}
+    for key, a in yes.items():
+        b = no[key]
+        if a is b:
+            out[key] = a
+        elif isinstance(a, list):
+            out[key] = [x if x is y else z3.If(cond, x, y) for x, y in zip(a, b, strict=True)]
+        else:
+            out[key] = z3.If(cond, a, b)
+    return out
+
+
+def execute(fb: Any, loop_limit: int = LOOP_LIMIT) -> tuple[Symbolic, dict[str, Any]]:
+    sym = Symbolic(fb, loop_limit=loop_limit)
+    sym.obligations = []
+    return sym, sym.run()
+
+
+# --------------------------------------------------------------------------------------------
+# The filter's specification: the engine's, from the project
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class FilterWiring:
+    """Which identifier of the filter FB stands for what (the exporter's naming: a wrong
+    wiring inside the block shows as a failed proof, since the specification reads the
+    project values through these names)."""
+
+    inputs: dict[tuple[str, int], str]  # (project name, depth) -> FB input
+    outputs: dict[str, str]  # project output -> FB output
+    ports: dict[str, str]  # role (Policy, Reset, Ftc, Violations, Latched, Fallback, FOV_x)
+
+
+def filter_wiring(project: Any) -> tuple[str, FilterWiring]:
+    """The filter FB's name and wiring, as hmi.export.build builds it."""
+    b = importlib.import_module("hmi.export.build")
+    seen: list[Any] = []
+    real = b.build_filter
+
+    def spy(*args: Any, **kwargs: Any) -> Any:
+        block = real(*args, **kwargs)
+        seen.append(block)
+        return block
+
+    b.build_filter = spy  # type: ignore[assignment]
+    try:
+        b.build(project)
+    finally:
+        b.build_filter = real  # type: ignore[assignment]
+    (block,) = seen
+    up = str.upper
+    return block.pou.name, FilterWiring({k: up(v) for k, v in block.inputs.items()},
+                                        {k: up(v) for k, v in block.outputs.items()},
+                                        {k: up(v) for k, v in block.ports.items()})
+
+
+@dataclass
+class Proof:
+    name: str
+    proved: bool
+    detail: str
+    loop_checks: int = 0
+    obligations: int = 0
+
+
+def _popcount(v: Any, n: int) -> Any:
+    return z3.Sum([z3.ZeroExt(8, z3.Extract(k, k, v)) for k in range(n)])
+
+
+def prove_filter(project: Any, text: str, max_distance: int,
+                 tamper: Callable[[str], str] | None = None,
+                 loop_limit: int = LOOP_LIMIT) -> list[Proof]:
+    """The exported filter FB of `project` (in the exported `text`, `tamper`ed if given)
+    against the engine's filter: a list of proved (or refuted) properties."""
+    fb_name, wiring = filter_wiring(project)
+    fb_text = pou_text(text, fb_name)
+    if tamper is not None:
+        fb_text = tamper(fb_text)
+    fb = parse_fb(fb_text)
+    sym, out = execute(fb, loop_limit)
+    init = sym.initial
+    outputs = [v.name for v in project.outputs]
+    n = len(outputs)
+    index = {name: k for k, name in enumerate(outputs)}
+    width = init[wiring.ports["Violations"]].size()
+    wword = next(sym.decl.types[wiring.outputs[o]] for o in outputs)  # (BOOL outputs)
+    assert wword.name == "BOOL"
+
+    def read(name: str, depth: int) -> Any:
+        return init[wiring.inputs[(name, depth)]]
+
+    def bit(k: int, w: int = n) -> Any:
+        return z3.BitVecVal(1 << k, w)
+
+    policy = init[wiring.ports["Policy"]]
+    reset = init[wiring.ports["Reset"]]
+    ftc = init[wiring.ports["Ftc"]]
+    latched0 = init[wiring.ports["Latched"]]
+    fov = z3.Concat(*[z3.If(init[wiring.ports[f"FOV_{o}"]], z3.BitVecVal(1, 1),
+                            z3.BitVecVal(0, 1)) for o in reversed(outputs)]) if n > 1 else \
+        z3.If(init[wiring.ports[f"FOV_{outputs[0]}"]], z3.BitVecVal(1, 1), z3.BitVecVal(0, 1))
+    # the constraints: output literals (depth 0, an output) and their context (the rest)
+    cons = []
+    for c in project.constraints:
+        pos = neg = 0
+        context = []
+        for lit in c.literals:
+            if lit.depth == 0 and lit.name in index:
+                if lit.positive:
+                    pos |= 1 << index[lit.name]
+                else:
+                    neg |= 1 << index[lit.name]
+            else:
+                value = read(lit.name, lit.depth)
+                context.append(value if lit.positive else z3.Not(value))
+        cons.append((z3.And(*context) if context else z3.BoolVal(True), pos, neg,
+                     c.kind == "simple"))
+
+    def violated(v: Any, j: int) -> Any:
+        ctx, pos, neg, _ = cons[j]
+        return z3.And(ctx, v & pos == pos, v & neg == 0)
+
+    # masks: an actuator partition the diagnosers distrust, in FTC mode
+    from hmi.project.diagnosers import diagnosers_of
+    mask = z3.BitVecVal(0, n)
+    for d in diagnosers_of(project):
+        for p in d.partitions:
+            if p.actuators:
+                bits = sum(1 << index[o] for o in p.actuators)
+                mask = z3.If(z3.And(ftc, read(p.flag, 0)), mask | bits, mask)
+    monitor, block = policy == 0, policy == 1
+    cand = z3.If(monitor, fov, fov & ~mask)
+    word = z3.BitVecVal(0, width)
+    for j in range(len(cons)):
+        word = z3.If(violated(cand, j), word | bit(j, width), word)
+    any_violation = word != 0
+    safe = z3.BitVecVal(sum(1 << k for k, v in enumerate(project.outputs) if v.safe), n)
+    # the correct policy
+    f0 = f1 = z3.BitVecVal(0, n)
+    for ctx, pos, neg, simple in cons:
+        if simple:
+            f0 = z3.If(ctx, f0 | pos, f0)
+            f1 = z3.If(ctx, f1 | neg, f1)
+    conflict = f0 & f1 != 0
+    mem = (cand & ~f0) | f1
+    unforced = ~(f0 | f1)
+
+    def admissible(w: Any) -> Any:
+        """w keeps the forced outputs, is within MAX_DISTANCE, violates no active combined
+        constraint (the simple ones hold by the forcing)."""
+        return z3.And((w ^ mem) & ~unforced == 0,
+                      _popcount(w ^ mem, n) <= max_distance,
+                      *[z3.Not(violated(w, j)) for j, (_, _, _, s) in enumerate(cons) if not s])
+
+    def better(w: Any, x: Any) -> Any:
+        """w before x in the exact strategy's order: distance, outputs switched on, then the
+        lowest output where they differ is spared by w."""
+        dw, dx = _popcount(w ^ mem, n), _popcount(x ^ mem, n)
+        ow, ox = _popcount(w & ~mem, n), _popcount(x & ~mem, n)
+        diff = (w ^ mem) ^ (x ^ mem)
+        lowest = diff & -diff
+        return z3.Or(dw < dx, z3.And(dw == dx, ow < ox),
+                     z3.And(dw == dx, ow == ox, diff != 0, (x ^ mem) & lowest != 0))
+
+    written = z3.Concat(*[z3.If(out[wiring.outputs[o]], z3.BitVecVal(1, 1), z3.BitVecVal(0, 1))
+                          for o in reversed(outputs)]) if n > 1 else \
+        z3.If(out[wiring.outputs[outputs[0]]], z3.BitVecVal(1, 1), z3.BitVecVal(0, 1))
+    before = z3.Concat(*[z3.If(init[wiring.outputs[o]], z3.BitVecVal(1, 1), z3.BitVecVal(0, 1))
+                         for o in reversed(outputs)]) if n > 1 else \
+        z3.If(init[wiring.outputs[outputs[0]]], z3.BitVecVal(1, 1), z3.BitVecVal(0, 1))
+    latched = out[wiring.ports["Latched"]]
+    fallback = out[wiring.ports["Fallback"]]
+    correcting = z3.And(z3.Not(monitor), z3.Not(block), any_violation)
+    all_vectors = [z3.BitVecVal(v, n) for v in range(1 << n)]
+    none_admissible = z3.And(*[z3.Not(admissible(v)) for v in all_vectors])
+    # (the corrector's vector, before the mask and the latch, as the spec's x)
+    x = z3.BitVec("x", n)
+    chosen = z3.And(admissible(x), *[z3.Not(z3.And(admissible(v), better(v, x)))
+                                     for v in all_vectors])
+    expected_fallback = z3.And(correcting, z3.Or(conflict, none_admissible))
+    expected_latch = z3.Or(latched0, z3.And(block, any_violation))
+
+    def final(v: Any) -> Any:
+        v = z3.If(monitor, v, v & ~mask)
+        return z3.If(expected_latch, safe, v)
+
+    props = {
+        "a fault reset releases the latch and changes no output": z3.Implies(
+            reset, z3.And(z3.Not(latched), written == before)),
+        "the violation word is the constraints violated by the candidate": z3.Implies(
+            z3.Not(reset), out[wiring.ports["Violations"]] == word),
+        "the block latch is set by a violation and kept": z3.Implies(
+            z3.Not(reset), latched == expected_latch),
+        "the fallback: F0/F1 conflict or no safe vector within MAX_DISTANCE": z3.Implies(
+            z3.Not(reset), fallback == expected_fallback),
+        "monitor, block and a clean candidate: the candidate, masked, the latch safe":
+            z3.Implies(z3.And(z3.Not(reset), z3.Not(correcting)), written == final(cand)),
+        "correct: the exact strategy's unique vector, masked, or the safe state":
+            z3.Implies(z3.And(z3.Not(reset), correcting, z3.Not(expected_fallback), chosen),
+                       written == final(x)),
+        "correct without a safe vector: the safe state": z3.Implies(
+            z3.And(z3.Not(reset), expected_fallback), written == z3.If(
+                expected_latch, safe, safe & ~z3.If(monitor, z3.BitVecVal(0, n), mask))),
+    }
+    side = [ob for ob, _ in sym.obligations]
+    proofs = []
+    for name, prop in props.items():
+        proofs.append(_valid(name, prop, sym))
+    if side:
+        proofs.append(_valid("every symbolic array index is in bounds",
+                             z3.And(*side), sym))
+    return proofs
+
+
+def _valid(name: str, prop: Any, sym: Symbolic) -> Proof:
+    solver = z3.Solver()
+    solver.add(z3.Not(prop))
+    found = solver.check()
+    if found == z3.unsat:
+        return Proof(name, True, "proved", sym.checks, len(sym.obligations))
+    if found == z3.sat:
+        model = solver.model()
+        shown = ", ".join(f"{d.name()} = {model[d]}" for d in sorted(
+            model.decls(), key=lambda d: d.name()) if not d.name().startswith("$"))
+        return Proof(name, False, f"counterexample: {shown[:600]}", sym.checks)
+    return Proof(name, False, f"z3: {solver.reason_unknown()}", sym.checks)
