@@ -422,3 +422,5 @@ def test_a_seed_that_raises_is_reported_failing_and_the_farm_goes_on(tmp_path, c
     assert "Seed 1" not in out and "Seed 4" not in out
     saved = list(tmp_path.rglob("seed3.steps"))
     assert len(saved) == 1 and len(saved[0].read_text().splitlines()) == 2 + 4
+    # its first line is a command to copy: no --control the project does not have
+    assert saved[0].read_text().splitlines()[0] == f"# plchmi soak {VALVE} --size 80x24 --seed 3"

@@ -109,7 +109,8 @@ def save_steps(config: SoakConfig, steps: list[Step], why: str) -> Path:
     stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S")
     path = data_folder() / "soak" / f"{config.project.name}-seed{config.seed}-{stamp}.steps"
     path.parent.mkdir(parents=True, exist_ok=True)
-    head = (f"# plchmi soak {config.project} --control {config.control or 'default'} "
+    control = f" --control {config.control}" if config.control else ""  # (a command to copy)
+    head = (f"# plchmi soak {config.project}{control} "
             f"--size {config.size[0]}x{config.size[1]} --seed {config.seed}\n# {why}\n")
     path.write_text(head + format_steps(steps), encoding="utf-8")
     return path

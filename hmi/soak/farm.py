@@ -184,7 +184,8 @@ def save_steps(folder: Path, results: list[SeedResult], typed_path: str,
             continue
         path = folder / f"seed{r.seed}.steps"
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(f"# plchmi soak {typed_path} --control {config.control or 'default'} "
+        control = f" --control {config.control}" if config.control else ""  # (to copy)
+        path.write_text(f"# plchmi soak {typed_path}{control} "
                         f"--size {config.size[0]}x{config.size[1]} --seed {r.seed}\n"
                         f"# {r.broken}\n{r.shrunk}", encoding="utf-8")
         saved.append(path)
