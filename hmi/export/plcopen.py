@@ -96,12 +96,17 @@ def _var_lists(x: _Xml, blocks: tuple[m.VarBlock, ...]) -> None:
         x.close(LISTS[b.section])
 
 
-def _pou(x: _Xml, p: m.Pou) -> None:
-    x.open(f"<pou name={_attr(p.name)} pouType={_attr(p.kind)}>")
+def _pou_head(x: _Xml, name: str, kind: str, blocks: tuple[m.VarBlock, ...]) -> None:
+    """A POU's opening, its interface and the opening of its body."""
+    x.open(f"<pou name={_attr(name)} pouType={_attr(kind)}>")
     x.open("<interface>")
-    _var_lists(x, p.blocks)
+    _var_lists(x, blocks)
     x.close("interface")
     x.open("<body>")
+
+
+def _pou(x: _Xml, p: m.Pou) -> None:
+    _pou_head(x, p.name, p.kind, p.blocks)
     x.line(f"<ST><xhtml:p>{_cdata(chr(10).join(body_text(p.body)))}</xhtml:p></ST>")
     x.close("body")
     x.documentation(p.comment)
@@ -122,11 +127,7 @@ def _connections(x: _Xml, inputs: tuple[tuple[int, str], ...], apart: bool) -> N
 
 def _chart(x: _Xml, chart: m.SfcChart) -> None:
     """A GRAFCET as a POU whose body is an SFC network (hmi/export/sfc.py)."""
-    x.open(f"<pou name={_attr(chart.name)} pouType=\"functionBlock\">")
-    x.open("<interface>")
-    _var_lists(x, chart.blocks)
-    x.close("interface")
-    x.open("<body>")
+    _pou_head(x, chart.name, "functionBlock", chart.blocks)
     x.open("<SFC>")
     for e in network(chart):
         position = f'<position x="0" y={_attr(40 * e.local_id)}/>'

@@ -19,7 +19,7 @@ from hmi.errors import UsageError
 from hmi.limits import MAX_FILE_BYTES, MAX_RUN_SCANS
 from hmi.project.loader import load_project
 from hmi.soak.runner import ShrinkStopped, SoakConfig, SoakResult, session, shrink
-from hmi.soak.steps import Step, StepError, format_steps, parse_steps
+from hmi.soak.steps import Step, StepError, format_steps, parse_steps, steps_header
 from hmi.textfile import FileProblem, read_text
 from hmi.timefmt import format_duration
 
@@ -109,9 +109,7 @@ def save_steps(config: SoakConfig, steps: list[Step], why: str) -> Path:
     stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S")
     path = data_folder() / "soak" / f"{config.project.name}-seed{config.seed}-{stamp}.steps"
     path.parent.mkdir(parents=True, exist_ok=True)
-    control = f" --control {config.control}" if config.control else ""  # (a command to copy)
-    head = (f"# plchmi soak {config.project}{control} "
-            f"--size {config.size[0]}x{config.size[1]} --seed {config.seed}\n# {why}\n")
+    head = steps_header(config.project, config.control, config.size, config.seed, why)
     path.write_text(head + format_steps(steps), encoding="utf-8")
     return path
 

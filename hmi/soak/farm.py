@@ -23,7 +23,7 @@ from hmi.farm.job import Study, make_job
 from hmi.farm.run import Farm
 from hmi.project.model import Project
 from hmi.soak.runner import ShrinkStopped, SoakConfig, session, shrink, what_raised
-from hmi.soak.steps import format_steps
+from hmi.soak.steps import format_steps, steps_header
 
 
 @dataclass(frozen=True)
@@ -184,10 +184,8 @@ def save_steps(folder: Path, results: list[SeedResult], typed_path: str,
             continue
         path = folder / f"seed{r.seed}.steps"
         path.parent.mkdir(parents=True, exist_ok=True)
-        control = f" --control {config.control}" if config.control else ""  # (to copy)
-        path.write_text(f"# plchmi soak {typed_path}{control} "
-                        f"--size {config.size[0]}x{config.size[1]} --seed {r.seed}\n"
-                        f"# {r.broken}\n{r.shrunk}", encoding="utf-8")
+        path.write_text(steps_header(typed_path, config.control, config.size, r.seed,
+                                     str(r.broken)) + r.shrunk, encoding="utf-8")
         saved.append(path)
     return saved
 

@@ -155,3 +155,11 @@ def parse_steps(text: str, source: str = "steps", period_us: int | None = None) 
 
 def format_steps(steps: list[Step]) -> str:
     return "".join(step.text() + "\n" for step in steps)
+
+
+def steps_header(project: object, control: str | None, size: tuple[int, int], seed: int,
+                 why: str) -> str:
+    """A saved step list's first two lines: the soak command that found it, to copy (no
+    --control for the project's default variant), then what broke."""
+    option = f" --control {control}" if control else ""
+    return f"# plchmi soak {project}{option} --size {size[0]}x{size[1]} --seed {seed}\n# {why}\n"
