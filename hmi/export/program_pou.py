@@ -12,6 +12,7 @@ plant received), and its reset call reads the scan just ended (see :func:`build_
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from hmi.export import model as m
@@ -56,7 +57,8 @@ class _Program:
                 self.history[(name, d)] = self.scope.take(view_name(name, d))
         return m.Name(self.history[(name, depth)])
 
-    def wire(self, block: Block, shift=None) -> list[tuple[str, m.Expr]]:
+    def wire(self, block: Block, shift: Callable[[str, int], m.Expr] | None = None
+             ) -> list[tuple[str, m.Expr]]:
         return [(ident, self.value(name, depth) if shift is None else shift(name, depth))
                 for (name, depth), ident in block.inputs.items()]
 
@@ -142,12 +144,13 @@ def build_program(project: Project, name: str, g: Globals, b: Blocks,
         newer = g.name(n) if depth == 1 else m.Name(p.history[(n, depth - 1)])
         body.append(m.Assign(m.Name(ident), newer))
     started = p.scope.take("Started")
-    first = [m.Comment("The first scan: the history is the initial image (inputs as read, "
-                       "outputs safe, observers initial, the rest 0)"),
-             m.if_(m.not_(m.Name(started)),
-                   *(m.Assign(m.Name(ident), g.initial.get(n, m.FALSE))
-                     for (n, _), ident in p.history.items()),
-                   m.Assign(m.Name(started), m.TRUE))]
+    first: list[m.Stmt] = [
+        m.Comment("The first scan: the history is the initial image (inputs as read, "
+                  "outputs safe, observers initial, the rest 0)"),
+        m.if_(m.not_(m.Name(started)),
+              *(m.Assign(m.Name(ident), g.initial.get(n, m.FALSE))
+                for (n, _), ident in p.history.items()),
+              m.Assign(m.Name(started), m.TRUE))]
 
     types = {"Memory": b.memory.pou.name if b.memory else "", "Control": b.control.pou.name,
              "Filter": b.filter.pou.name}
