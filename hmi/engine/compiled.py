@@ -224,7 +224,7 @@ FRAME = Vocabulary(
                "events", "recovery", "scan_us", "settled", "manual", "current", "settle",
                "needed"}),
     frozenset({"exc", "diag", "report", "error", "monitored", "marks", "events", "status",
-               "last", "values", "q"}))
+               "last", "values", "w"}))
 
 
 def auto_frame(engine: Any) -> ir.Function:
@@ -241,7 +241,7 @@ def auto_frame(engine: Any) -> ir.Function:
     image, history = ir.Ref(engine.image), ir.Ref(engine.history)
     now, scan = ir.Local("now"), ir.Local("scan")
     f, diag, report, error = (ir.Local(n) for n in ("f", "diag", "report", "error"))
-    monitored, exc, quiet = ir.Local("monitored"), ir.Local("exc"), ir.Local("q")
+    monitored, exc, unquiet = ir.Local("monitored"), ir.Local("exc"), ir.Local("w")
     stage, monitors, recovery = engine.diagnosis, engine.monitors, engine.recovery
     supervised = engine._supervised
     record = engine._record
@@ -278,13 +278,16 @@ def auto_frame(engine: Any) -> ir.Function:
             guarded.append(ir.Assign(diag, cell(stage, "current")))
 
     def filter_() -> None:  # 6: its first question; the filter itself if not quiet
-        guarded.append(ir.Assign(quiet, ir.And((
-            ir.IsNone(ir.Item(diag, 1)), ir.Not(cell(e, "latched")),
-            ir.Not(call(scan_program, "violated", image, history, f))))))
+        # masked, latched, or else the violation word: not quiet unless 0 (the filter is
+        # handed the word, which it does not compute again, when nothing is masked nor
+        # latched)
+        guarded.append(ir.Assign(unquiet, ir.Or((
+            ir.Not(ir.IsNone(ir.Item(diag, 1))), cell(e, "latched"),
+            call(scan_program, "violated", image, history, f)))))
         body.append(ir.Try(tuple(guarded), ((Exception, "exc", conclude(
             ir.Do(call(e, "_auto_failed", now, exc, diag)))),)))
-        body.append(ir.If(ir.Not(quiet), conclude(ir.Do(call(e, "_auto_filter", now, f,
-                                                                diag)))))
+        body.append(ir.If(unquiet, conclude(ir.Do(call(e, "_auto_filter", now, f, diag,
+                                                        unquiet)))))
         body.append(ir.Assign(report, cell(e, "clean_report")))
         body.append(ir.Assign(error, ir.NONE))
 

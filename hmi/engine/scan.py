@@ -1012,9 +1012,10 @@ class Engine:
         self._keep(safe, safe, None, diagnosis, monitored, error, 0.0)
 
     def _auto_filter(self, now: int, fov: tuple[bool, ...], diagnosis: Diagnosis,
-                     started: float = 0.0) -> None:
-        """The automatic mode's filter when the candidate is masked, latched or violated:
-        its decision, the latch, the output scan and the monitors."""
+                     unquiet: object = None, started: float = 0.0) -> None:
+        """The automatic mode's filter when the candidate is masked, latched or violated
+        (`unquiet`: the frame's test, the violation word when nothing is masked nor
+        latched): its decision, the latch, the output scan and the monitors."""
         image = self.image
         hist = self.history
         mask = diagnosis.mask
@@ -1024,7 +1025,8 @@ class Engine:
         try:
             if mask is None and not self.latched:
                 # violated, nothing masked: what FilterStage.apply would hand the filter
-                decision = self.safety_filter.apply(image, hist, fov, policy, False)
+                word = unquiet if type(unquiet) is int else None
+                decision = self.safety_filter.apply(image, hist, fov, policy, False, word)
             else:
                 decision = self.filter_stage.apply(image, hist, fov, policy,
                                                    bool(self.latched), mask)
