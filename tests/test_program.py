@@ -9,6 +9,8 @@ import itertools
 from collections.abc import Callable
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from hmi.engine.codegen import Source, build, print_program
 from hmi.logic.expr import Var
@@ -177,3 +179,32 @@ def test_the_active_constraints_in_both_forms(name):
         assert [form(v, h) for form in forms] == [want, want]
         seen.add(want)
     assert len(seen) > 1  # the contexts were exercised, not one word throughout
+
+
+_LITERALS = [(k, positive) for k in range(4) for positive in (True, False)]
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.lists(st.lists(st.sampled_from(_LITERALS), min_size=1, max_size=4),
+                min_size=3, max_size=9))
+def test_a_sum_of_products_printed_factored_is_the_same_truth(terms):
+    """The printer gathers the terms of a disjunction of pure reads that begin with the same
+    operand (the constraints' violation test: codegen._factored); printed that way it gives
+    the evaluator's truth for every assignment of its operands, terms repeated or absorbing
+    each other included."""
+    from hmi.engine.codegen import build_function
+    from hmi.program import ir
+    from hmi.program.evaluate import function_evaluator
+
+    f = ir.Local("f")
+
+    def literal(k: int, positive: bool) -> ir.Value:
+        return ir.Item(f, k) if positive else ir.Not(ir.Item(f, k))
+
+    test = ir.any_of(*(ir.all_of(*(literal(k, p) for k, p in term)) for term in terms))
+    function = ir.Function("violated", ("f",), (), test)
+    forms = (function_evaluator(function, {}, {}),
+             build_function(function, {}, {}, "test_program"))
+    for f_values in itertools.product((False, True), repeat=4):
+        assert [bool(form(f_values)) for form in forms] == [
+            any(all(f_values[k] == p for k, p in term) for term in terms)] * 2

@@ -223,6 +223,11 @@ def _value_source(src: Source, value: ir.Value, slots: Mapping[str, int],
             return f"{_operand_source(src, operand, slots, times)} is None"
         case ir.Not(operand=operand):
             return f"(not {_value_source(src, operand, slots, times)})"
+        case ir.Or(operands=operands) if len(operands) > 2 and all(map(_pure, operands)):
+            factored = _factored(operands)
+            if factored != operands:
+                return _value_source(src, ir.any_of(*factored), slots, times)
+            return "(" + " or ".join(_value_source(src, o, slots, times) for o in operands) + ")"
         case ir.And(operands=operands) | ir.Or(operands=operands):
             word = " and " if isinstance(value, ir.And) else " or "
             return "(" + word.join(_value_source(src, o, slots, times) for o in operands) + ")"
@@ -233,6 +238,50 @@ def _value_source(src: Source, value: ir.Value, slots: Mapping[str, int],
             return (f"{src.ref(owner)}.{method}("
                     + ", ".join(_value_source(src, a, slots, times) for a in args) + ")")
     raise TypeError(f"not a value of the scan program: {value!r}")
+
+
+def _pure(value: ir.Value) -> bool:
+    """Whether reading `value` only reads (no call): its parts may be read in another order,
+    or once for several places, without changing what anything sees."""
+    match value:
+        case ir.Test() | ir.Now() | ir.ScanNumber() | ir.Const() | ir.Local() | ir.Slot() \
+                | ir.Ref() | ir.Bit():
+            return True
+        case ir.Item(base=base):
+            return _pure(base)
+        case ir.Not(operand=operand) | ir.IsNone(operand=operand):
+            return _pure(operand)
+        case ir.And(operands=operands) | ir.Or(operands=operands):
+            return all(map(_pure, operands))
+        case ir.Compare(left=left, right=right) | ir.Add(left=left, right=right) \
+                | ir.Sub(left=left, right=right):
+            return _pure(left) and _pure(right)
+    return False
+
+
+def _factored(terms: tuple[ir.Value, ...]) -> tuple[ir.Value, ...]:
+    """A disjunction of conjunctions of pure reads (`terms`: the constraints' violation
+    test, a sum of products), the terms that begin with the same operand gathered under it:
+    ``a and b or c or a and d`` becomes ``a and (b or d) or c`` (each group where its
+    operand first appears, recursively inside). The same truth for Boolean operands, with
+    each leading operand read once: where it is false (most outputs are off at most scans),
+    its whole group is passed over by one test instead of one per term."""
+    groups: dict[ir.Value, list[tuple[ir.Value, ...]]] = {}
+    for term in terms:
+        factors = term.operands if isinstance(term, ir.And) else (term,)
+        groups.setdefault(factors[0], []).append(factors[1:])
+    if len(groups) == len(terms):
+        return terms
+    out: list[ir.Value] = []
+    for head, rests in groups.items():
+        if any(not rest for rest in rests):  # (head alone is one of the terms: it decides)
+            out.append(head)
+        elif len(rests) == 1:
+            out.append(ir.all_of(head, *rests[0]))
+        else:
+            inner = _factored(tuple(ir.all_of(*rest) for rest in rests))
+            out.append(ir.all_of(head, ir.any_of(*inner)))
+    return tuple(out)
 
 
 def _constant_source(constant: object) -> str:
