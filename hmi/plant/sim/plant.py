@@ -56,7 +56,9 @@ class SimPlant(Plant):
         # read_into's plan for the engine's bindings (see _read_plan)
         self._plan: tuple[Any, ...] | None = None
         self._read_at: int | None = None  # the time every device was last brought to
-        self._written: tuple[tuple[str, ...], tuple[bool, ...]] | None = None
+        # the last write_vector's names and values (None: the next one writes, forget_writes)
+        self._written_names: tuple[str, ...] | None = None
+        self._written_values: tuple[bool, ...] | None = None
         # Several devices: their items last time, and the plant's tuple made of them.
         self._state_parts: tuple[list[PlantState], PlantState] | None = None
         self._counter_parts: tuple[list[tuple[tuple[str, int], ...]],
@@ -136,14 +138,14 @@ class SimPlant(Plant):
                 None if simple else tuple(readers), free)
 
     def write(self, now_us: int, outputs: Mapping[str, bool]) -> None:
-        self._written = None
+        self._written_values = None
         for device, binding in self._actuator_bind:
             device.write(now_us, {port: outputs[var] for port, var in binding})
 
     def forget_writes(self) -> None:
         """The devices' orders were set from outside (a restored closed-loop state): the next
         write_vector writes whatever it is given."""
-        self._written = None
+        self._written_values = None
 
     def write_vector(self, now_us: int, names: tuple[str, ...],
                      values: tuple[bool, ...]) -> None:
@@ -151,12 +153,11 @@ class SimPlant(Plant):
         every device already brought to `now_us` by this scan's read (then each device's
         write would only find its orders unchanged). Whoever sets the devices' orders
         otherwise calls :meth:`forget_writes`."""
-        written = self._written
-        if written is not None and now_us == self._read_at and written[1] == values \
-                and written[0] is names:
+        if values == self._written_values and now_us == self._read_at \
+                and names is self._written_names:
             return
         self.write(now_us, dict(zip(names, values, strict=True)))
-        self._written = (names, tuple(values))
+        self._written_names, self._written_values = names, tuple(values)
 
     @property
     def status(self) -> PlantStatus:
