@@ -18,6 +18,7 @@ in a generator cannot turn into arbitrary code either.
 from __future__ import annotations
 
 import ast
+import dataclasses
 import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -101,16 +102,27 @@ def build_function(function: ir.Function, slots: Mapping[str, int],
 
 
 def print_program(src: Source, program: tuple[ir.Stmt, ...], indent: int,
-                  slots: Mapping[str, int], times: Mapping[str, int]) -> None:
+                  slots: Mapping[str, int], times: Mapping[str, int],
+                  words: bool = True) -> None:
     """`program`'s statements as Python lines of `src` (the compiled scan's printer of the
     scan program, hmi.program.ir): a cell is an attribute of the object handed over, a
     handler's call a method call, an ``if`` whose else branch is one ``if`` an ``elif``, a
     switch a tree of comparisons (a chain up to three cases), a local or-ed with a word
-    ``|=``."""
+    ``|=``, a run of them under one test (_word_run; not again inside it: `words`)."""
     if not program:
         src.line(indent, "pass")
         return
-    for stmt in program:
+    at = 0
+    while at < len(program):
+        stmt = program[at]
+        run = _word_run(program, at) if words else ()
+        if len(run) >= 3:  # (a word's bits: most scans set none, one test passes them over)
+            tests = tuple(test.test for test in run)
+            src.line(indent, f"if {_value_source(src, ir.any_of(*tests), slots, times)}:")
+            print_program(src, run, indent + 1, slots, times, words=False)
+            at += len(run)
+            continue
+        at += 1
         if isinstance(stmt, ir.If):
             src.line(indent, f"if {_value_source(src, stmt.test, slots, times)}:")
             _print_branches(src, stmt, indent, slots, times)
@@ -138,6 +150,41 @@ def print_program(src: Source, program: tuple[ir.Stmt, ...], indent: int,
         else:
             src.line(indent, f"{_value_source(src, stmt.target, slots, times)} = "
                              f"{_value_source(src, stmt.value, slots, times)}")
+
+
+def _word_run(program: tuple[ir.Stmt, ...], at: int) -> tuple[ir.If, ...]:
+    """The ``if`` statements from `at` on that each only or a bit into one local word (a
+    word of the constraints: active, violated), their tests pure reads that do not read it:
+    printed under one test, the disjunction of theirs (factored: _factored), the word as it
+    was when none holds."""
+    run: list[ir.If] = []
+    word: ir.Local | None = None
+    for stmt in program[at:]:
+        if not (isinstance(stmt, ir.If) and not stmt.orelse and len(stmt.then) == 1):
+            break
+        (body,) = stmt.then
+        if not (isinstance(body, ir.Assign) and isinstance(body.target, ir.Local)
+                and isinstance(body.value, ir.BitOr) and body.value.left == body.target
+                and isinstance(body.value.right, ir.Bit)
+                and (word is None or body.target == word)):
+            break
+        word = body.target
+        if not _pure(stmt.test) or _mentions(stmt.test, word):
+            break
+        run.append(stmt)
+    return tuple(run)
+
+
+def _mentions(value: object, local: ir.Local) -> bool:
+    """Whether the scan program's `value` reads `local`."""
+    if value == local:
+        return True
+    if isinstance(value, tuple):
+        return any(_mentions(item, local) for item in value)
+    if dataclasses.is_dataclass(value) and type(value).__module__ == ir.__name__:
+        return any(_mentions(getattr(value, field.name), local)
+                   for field in dataclasses.fields(value))
+    return False
 
 
 def _print_branches(src: Source, stmt: ir.If, indent: int, slots: Mapping[str, int],
