@@ -280,25 +280,28 @@ _LITERALS = [(k, positive) for k in range(4) for positive in (True, False)]
 
 @settings(max_examples=150, deadline=None)
 @given(st.lists(st.lists(st.sampled_from(_LITERALS), min_size=1, max_size=4),
-                min_size=3, max_size=9))
-def test_a_sum_of_products_printed_factored_is_the_same_truth(terms):
-    """The printer gathers the terms of a disjunction of pure reads that begin with the same
-    operand (the constraints' violation test: codegen._factored); printed that way it gives
-    the evaluator's truth for every assignment of its operands, terms repeated or absorbing
-    each other included."""
+                min_size=3, max_size=12))
+def test_a_word_of_bits_printed_grouped_is_the_same_word(terms):
+    """The printer gathers the ifs that or bits into one word (the violation word, the
+    active constraints) under the first operand of their tests, recursively
+    (codegen._grouped); printed that way the word is the evaluator's for every assignment of
+    the operands, tests repeated, prefixes of each other or alone included."""
     from hmi.engine.codegen import build_function
     from hmi.program import ir
     from hmi.program.evaluate import function_evaluator
 
-    f = ir.Local("f")
+    f, w = ir.Local("f"), ir.Local("w")
 
     def literal(k: int, positive: bool) -> ir.Value:
         return ir.Item(f, k) if positive else ir.Not(ir.Item(f, k))
 
-    test = ir.any_of(*(ir.all_of(*(literal(k, p) for k, p in term)) for term in terms))
-    function = ir.Function("violated", ("f",), (), test)
+    body = (ir.Assign(w, ir.Const(0)),
+            *(ir.If(ir.all_of(*(literal(k, p) for k, p in term)),
+                    (ir.Assign(w, ir.BitOr(w, ir.Bit(j))),)) for j, term in enumerate(terms)))
+    function = ir.Function("violated", ("f",), body, w)
     forms = (function_evaluator(function, {}, {}),
              build_function(function, {}, {}, "test_program"))
     for f_values in itertools.product((False, True), repeat=4):
-        assert [bool(form(f_values)) for form in forms] == [
-            any(all(f_values[k] == p for k, p in term) for term in terms)] * 2
+        want = sum(1 << j for j, term in enumerate(terms)
+                   if all(f_values[k] == p for k, p in term))
+        assert [form(f_values) for form in forms] == [want, want]

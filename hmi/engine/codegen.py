@@ -116,10 +116,8 @@ def print_program(src: Source, program: tuple[ir.Stmt, ...], indent: int,
     while at < len(program):
         stmt = program[at]
         run = _word_run(program, at) if words else ()
-        if len(run) >= 3:  # (a word's bits: most scans set none, one test passes them over)
-            tests = tuple(test.test for test in run)
-            src.line(indent, f"if {_value_source(src, ir.any_of(*tests), slots, times)}:")
-            print_program(src, run, indent + 1, slots, times, words=False)
+        if len(run) >= 3:  # (a word's bits: most scans set none)
+            print_program(src, _grouped(run), indent, slots, times, words=False)
             at += len(run)
             continue
         at += 1
@@ -155,8 +153,7 @@ def print_program(src: Source, program: tuple[ir.Stmt, ...], indent: int,
 def _word_run(program: tuple[ir.Stmt, ...], at: int) -> tuple[ir.If, ...]:
     """The ``if`` statements from `at` on that each only or a bit into one local word (a
     word of the constraints: active, violated), their tests pure reads that do not read it:
-    printed under one test, the disjunction of theirs (factored: _factored), the word as it
-    was when none holds."""
+    in any order they set the same bits (_grouped)."""
     run: list[ir.If] = []
     word: ir.Local | None = None
     for stmt in program[at:]:
@@ -173,6 +170,31 @@ def _word_run(program: tuple[ir.Stmt, ...], at: int) -> tuple[ir.If, ...]:
             break
         run.append(stmt)
     return tuple(run)
+
+
+def _grouped(run: tuple[ir.If, ...]) -> tuple[ir.Stmt, ...]:
+    """A word's ifs (_word_run) gathered under the first operand of their tests, recursively:
+    ``if a and b: w |= 1`` and ``if a and c: w |= 2`` become ``if a:`` over ``if b: w |= 1``
+    and ``if c: w |= 2``; where `a` is false (an output off, a step inactive) one test passes
+    the group over. Groups where their operand first appears."""
+    groups: dict[ir.Value, list[tuple[tuple[ir.Value, ...], tuple[ir.Stmt, ...]]]] = {}
+    for stmt in run:
+        factors = stmt.test.operands if isinstance(stmt.test, ir.And) else (stmt.test,)
+        groups.setdefault(factors[0], []).append((factors[1:], stmt.then))
+    out: list[ir.Stmt] = []
+    for head, members in groups.items():
+        if len(members) == 1:
+            rest, then = members[0]
+            out.append(ir.If(ir.all_of(head, *rest), then))
+            continue
+        inner: list[ir.Stmt] = []
+        for rest, then in members:
+            inner.extend(then if not rest else (ir.If(ir.all_of(*rest), then),))
+        body = tuple(inner)
+        ifs = tuple(stmt for stmt in body if isinstance(stmt, ir.If))
+        out.append(ir.If(head, (*(stmt for stmt in body if not isinstance(stmt, ir.If)),
+                                *(_grouped(ifs) if len(ifs) > 1 else ifs))))
+    return tuple(out)
 
 
 def _mentions(value: object, local: ir.Local) -> bool:
@@ -270,11 +292,6 @@ def _value_source(src: Source, value: ir.Value, slots: Mapping[str, int],
             return f"{_operand_source(src, operand, slots, times)} is None"
         case ir.Not(operand=operand):
             return f"(not {_value_source(src, operand, slots, times)})"
-        case ir.Or(operands=operands) if len(operands) > 2 and all(map(_pure, operands)):
-            factored = _factored(operands)
-            if factored != operands:
-                return _value_source(src, ir.any_of(*factored), slots, times)
-            return "(" + " or ".join(_value_source(src, o, slots, times) for o in operands) + ")"
         case ir.And(operands=operands) | ir.Or(operands=operands):
             word = " and " if isinstance(value, ir.And) else " or "
             return "(" + word.join(_value_source(src, o, slots, times) for o in operands) + ")"
@@ -304,31 +321,6 @@ def _pure(value: ir.Value) -> bool:
                 | ir.Sub(left=left, right=right):
             return _pure(left) and _pure(right)
     return False
-
-
-def _factored(terms: tuple[ir.Value, ...]) -> tuple[ir.Value, ...]:
-    """A disjunction of conjunctions of pure reads (`terms`: the constraints' violation
-    test, a sum of products), the terms that begin with the same operand gathered under it:
-    ``a and b or c or a and d`` becomes ``a and (b or d) or c`` (each group where its
-    operand first appears, recursively inside). The same truth for Boolean operands, with
-    each leading operand read once: where it is false (most outputs are off at most scans),
-    its whole group is passed over by one test instead of one per term."""
-    groups: dict[ir.Value, list[tuple[ir.Value, ...]]] = {}
-    for term in terms:
-        factors = term.operands if isinstance(term, ir.And) else (term,)
-        groups.setdefault(factors[0], []).append(factors[1:])
-    if len(groups) == len(terms):
-        return terms
-    out: list[ir.Value] = []
-    for head, rests in groups.items():
-        if any(not rest for rest in rests):  # (head alone is one of the terms: it decides)
-            out.append(head)
-        elif len(rests) == 1:
-            out.append(ir.all_of(head, *rests[0]))
-        else:
-            inner = _factored(tuple(ir.all_of(*rest) for rest in rests))
-            out.append(ir.all_of(head, ir.any_of(*inner)))
-    return tuple(out)
 
 
 def _constant_source(constant: object) -> str:
