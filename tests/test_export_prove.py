@@ -8,7 +8,7 @@ the fault reset; the monitor and block policies and a clean candidate; under `co
 F0/F1 forcing and its conflict, the exact strategy's unique vector (minimum Hamming distance,
 fewest outputs switched on, the outputs declared first spared) within MAX_DISTANCE or the
 safe state past it (the engine searches without that limit: docs/plc-export.md, "The scan
-budget", says where they can differ); the masks; every symbolic array index in bounds. Not
+budget", says where they can differ); the masks; every array index in bounds. Not
 proved here: the other blocks (memory, diagnosers, control, monitors) and the program's
 wiring of the blocks, which the agreement and mutation tests check on traces.
 """
@@ -27,11 +27,7 @@ from tests.st_prove import prove_filter
 
 pytestmark = pytest.mark.slow  # a long study: tests/conftest.py, _studies_left_out
 
-# The projects whose proof was run to its end here. The sorting cell (7 outputs in combined
-# constraints, MAX_DISTANCE 5) and the palletizer (8, 7) unroll the corrector's search over
-# up to 120 and 255 vectors; on this shared machine their symbolic execution had not ended
-# after minutes of CPU, so they are not claimed (docs/plc-export.md says so).
-NAMES = ("cispi_valve", "conveyor_robot")
+NAMES = sorted(p.name for p in PROJECTS.iterdir() if (p / "project.yaml").exists())
 
 
 def _proofs(name: str, tamper=None):
