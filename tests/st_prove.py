@@ -53,7 +53,7 @@ class NeedSplit(Exception):
     """A split variable read while the case's assumptions leave it several values."""
 
     def __init__(self, value: Any):
-        super().__init__(str(value))
+        super().__init__("a split value")  # (not the term: printing it costs seconds)
         self.value = value
 
 
@@ -182,23 +182,35 @@ def _fresh(name: str, vtype: str) -> Any:
 
 
 def _literal(v: Any) -> bool:
-    return bool(z3.is_true(v) or z3.is_false(v) or z3.is_int_value(v) or z3.is_bv_value(v))
+    """A numeral, TRUE or FALSE (z3's C API asked directly: the Python predicates cost a
+    dozen calls each, and the executor asks this of every term it builds)."""
+    ctx, ast = v.ctx_ref(), v.as_ast()
+    kind = z3.Z3_get_ast_kind(ctx, ast)
+    if kind == z3.Z3_NUMERAL_AST:
+        return True
+    if kind != z3.Z3_APP_AST:
+        return False
+    op = z3.Z3_get_decl_kind(ctx, z3.Z3_get_app_decl(ctx, ast))
+    return bool(op == z3.Z3_OP_TRUE or op == z3.Z3_OP_FALSE)
 
 
 def _fold(v: Any) -> Any:
     """`v` as a literal when its operands are literals (terms are folded as they are built,
     so a value is concrete exactly when it is a literal: no walk over a large term)."""
-    if not _literal(v) and v.num_args() > 0 and all(_literal(c) for c in v.children()):
+    if _literal(v) or not z3.is_app(v):
+        return v
+    ctx, ast = v.ctx_ref(), v.as_ast()
+    count = z3.Z3_get_app_num_args(ctx, ast)
+    if count and all(_literal(z3.ExprRef(z3.Z3_get_app_arg(ctx, ast, k), v.ctx))
+                     for k in range(count)):
         return z3.simplify(v)
     return v
 
 
 def _ite(cond: Any, yes: Any, no: Any) -> Any:
     """z3's If, folded when the condition is a literal or both sides are the same term."""
-    if z3.is_true(cond):
-        return yes
-    if z3.is_false(cond):
-        return no
+    if _literal(cond):
+        return yes if z3.is_true(cond) else no
     return yes if yes.eq(no) else z3.If(cond, yes, no)
 
 
@@ -650,12 +662,12 @@ def execute_cases(fb: Any, split: frozenset[str], loop_limit: int = LOOP_LIMIT,
         solver.add(*assume)
         while (found := solver.check()) != z3.unsat:
             if found != z3.sat:
-                raise Unsupported(f"z3 could not enumerate {need.value}: {found}") from None
+                raise Unsupported(f"z3 could not enumerate a split value: {found}") from None
             c = solver.model().eval(need.value, model_completion=True)
             values.append(c)
             solver.add(need.value != c)
             if len(values) > 4096:
-                raise Unsupported(f"more than 4096 cases of {need.value}") from None
+                raise Unsupported("more than 4096 cases of a split value") from None
         return [case for c in values
                 for case in execute_cases(fb, split, loop_limit, (*assume, need.value == c))]
     return [Case(assume, sym, out)]

@@ -15,6 +15,8 @@ wiring of the blocks, which the agreement and mutation tests check on traces.
 
 from __future__ import annotations
 
+import time
+
 import pytest
 
 from hmi.export import source
@@ -38,7 +40,9 @@ def _proofs(name: str, tamper=None):
 
 @pytest.mark.parametrize("name", NAMES)
 def test_the_exported_filter_is_the_engines_for_every_input_and_state(name):
+    start = time.process_time()
     proofs = _proofs(name)
+    print(f"\n{name}: {proofs[0].detail}, {time.process_time() - start:.0f} s CPU")
     failed = [f"{p.name}: {p.detail}" for p in proofs if not p.proved]
     assert not failed, "\n".join(failed)
     assert len(proofs) == 8  # the seven properties and the array bounds
