@@ -17,8 +17,11 @@ as functions (hmi.program.ir.Function):
 * ``recovery_<k>(v, h, now, scan)``, recovery mode with procedure k running: stages 2-4
   without the step times (the program waits, as in manual mode), then the procedure's
   step, whose vector it returns;
-* ``violated(v, h, f)``: whether the candidate `f` violates any safety constraint (stage
-  6's first question: most scans violate none, and then the filter has nothing else to do);
+* ``violated(v, h, f)``: the constraints the candidate `f` violates, as a word (stage 6's
+  first question: most scans violate none, 0, and then the filter has nothing else to do);
+* ``decide(v, h, f, w, p, latched)``: the policy applied to that word, calling the filter's
+  handler when it has something to decide (the PLC's filter prints the same two lowerings,
+  hmi.export.filter_pou);
 * ``active_bits(v, h)``: which constraints are active (the corrector's memory key; the PLC's
   filter prints the same lowering, hmi.export.filter_pou);
 * ``monitors(v, h, now, scan)``: the stopwatch monitors after the output scan.
@@ -45,7 +48,11 @@ from hmi.engine.recovery import NO_RECOVERY
 from hmi.logic.expr import History, Image
 from hmi.plant.base import PlantError
 from hmi.program import ir, order
-from hmi.program.constraints import ACTIVE, lower_active, lower_violated
+from hmi.program.constraints import (
+    active_function,
+    policy_function,
+    violations_function,
+)
 from hmi.program.evaluate import function_evaluator
 
 if TYPE_CHECKING:
@@ -57,7 +64,8 @@ if TYPE_CHECKING:
 
 CoreFn = Callable[[Image, History, int, int], tuple[bool, ...]]
 HeldFn = Callable[[Image, History, int, int], None]
-ViolatedFn = Callable[[Image, History, tuple[bool, ...]], bool]
+ViolatedFn = Callable[[Image, History, tuple[bool, ...]], int]
+DecideFn = Callable[[Image, History, tuple[bool, ...], int, int, bool], Any]
 MonitorFn = Callable[[Image, History, int, int], None]
 ActiveFn = Callable[[Image, History], int]
 
@@ -117,15 +125,15 @@ class ScanProgram:
                            ir.Local("f"))
 
     def violated(self) -> ir.Function:
-        return ir.Function("violated", ("v", "h", "f"), (),
-                           lower_violated([c.constraint for c in self._filter.compiled],
-                                          self._filter.outputs))
+        return violations_function(self._filter.table)
+
+    def decide(self) -> ir.Function:
+        return policy_function(self._filter)
 
     def active_bits(self) -> ir.Function:
         """Which constraints are active (bit k: safety_filter.compiled[k]), the corrector's
         memory key (SafetyFilter.active_bits): the lowering the PLC's filter prints too."""
-        return ir.Function("active_bits", ("v", "h"),
-                           lower_active(self._filter.table).body, ACTIVE)
+        return active_function(self._filter.table)
 
     def monitors(self) -> ir.Function | None:
         stage = self._monitors
@@ -152,6 +160,7 @@ class CompiledScan:
         self.sources: list[str] = []  # every printed function's text, in build order
         self.core: CoreFn = self._form(self.program.core())
         self.violated: ViolatedFn = self._form(self.program.violated())
+        self.decide: DecideFn = self._form(self.program.decide())
         monitor = self.program.monitors()
         self.monitors: MonitorFn | None = self._form(monitor) if monitor is not None else None
         # the corrector's memory key (SafetyFilter.active_bits)

@@ -228,8 +228,10 @@ class Engine:
         self.compiled = CompiledScan(lay, [s for s in stages if s is not None], self.recovery,
                                      self.safety_filter, self.monitors,
                                      f"{project.name}/{self.control_name}", python=compiled)
-        self.filter_stage.quick = self.compiled.violated  # the filter's first question
-        self.safety_filter.active_bits = self.compiled.active_bits  # its memory's key
+        # the filter's first question, its policy and its memory's key, printed
+        self.safety_filter.violations = self.compiled.violated
+        self.safety_filter.decide = self.compiled.decide
+        self.safety_filter.active_bits = self.compiled.active_bits
         self._bindings = self.input_scan.bindings
         self._period = project.scan_period_us
         # The last run()'s results until snapshot() builds them into a Snapshot, and what
