@@ -30,13 +30,12 @@ from typing import Any
 from textual.command import CommandInput, CommandList, CommandPalette
 from textual.pilot import Pilot
 
+from hmi.engine.build import EngineOptions, build_engine
 from hmi.engine.commands import Command, CommandResult
-from hmi.engine.scan import Engine
 from hmi.engine.snapshot import Snapshot
 from hmi.explain.journal import Journal
 from hmi.history.historian import Historian
 from hmi.history.target import Target
-from hmi.plant.sim import SimPlant
 from hmi.project.loader import load_project
 from hmi.session.journal_recorder import JournalRecorder
 from hmi.session.session import Session
@@ -92,7 +91,7 @@ def make_cell(config: SoakConfig, history: Path | None = None
     """The session the app shows (its scans in virtual time) and, with a `history` file,
     its historian: the trend screens then read a real history."""
     project = load_project(config.project)
-    cell = Session(Engine(project, SimPlant(project), control=config.control))
+    cell = Session(build_engine(project, options=EngineOptions(control=config.control)))
     historian = Historian(cell, Target("sqlite", str(history)), source="soak").attach() \
         if history is not None else None
     return cell, historian
