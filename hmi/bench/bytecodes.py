@@ -30,14 +30,13 @@ from hmi.bench.instructions import window_parser
 def bytecodes(project: str, start: int, end: int) -> tuple[int, Counter[str]]:
     """(scans, bytecodes by function) of `project`'s run from `start` to `end` seconds of
     virtual time (the run up to `start` is not counted: the start and its first scans)."""
-    from hmi.engine.scan import Engine
-    from hmi.plant.sim.plant import SimPlant
+    from hmi.engine.build import build_engine
     from hmi.project.loader import load_project
     from hmi.session.run_report import RunCollector
     from hmi.session.session import Session
 
     loaded = load_project(PROJECTS / project)
-    session = Session(Engine(loaded, SimPlant(loaded)))
+    session = Session(build_engine(loaded))
     collector = RunCollector()
     collector.finish(session.run_for(start * 1_000_000, collector.add, collector.quiet))
     before = collector.scans
