@@ -115,9 +115,9 @@ def print_program(src: Source, program: tuple[ir.Stmt, ...], indent: int,
     at = 0
     while at < len(program):
         stmt = program[at]
-        run = _word_run(program, at) if words else ()
+        run = _word_run(program, at) if words and indent < MAX_GROUP_INDENT else ()
         if len(run) >= 3:  # (a word's bits: most scans set none)
-            print_program(src, _grouped(run), indent, slots, times, words=False)
+            print_program(src, _grouped(run, indent), indent, slots, times, words=False)
             at += len(run)
             continue
         at += 1
@@ -172,11 +172,20 @@ def _word_run(program: tuple[ir.Stmt, ...], at: int) -> tuple[ir.If, ...]:
     return tuple(run)
 
 
-def _grouped(run: tuple[ir.If, ...]) -> tuple[ir.Stmt, ...]:
-    """A word's ifs (_word_run) gathered under the first operand of their tests, recursively:
-    ``if a and b: w |= 1`` and ``if a and c: w |= 2`` become ``if a:`` over ``if b: w |= 1``
-    and ``if c: w |= 2``; where `a` is false (an output off, a step inactive) one test passes
-    the group over. Groups where their operand first appears."""
+# The indentation down to which a word's ifs are grouped: Python compiles at most 100 nested
+# blocks, and a project's constraints may share many literals (tests/test_costs.py's project
+# at the limits nested past it); the first levels are where the scans' savings are.
+MAX_GROUP_INDENT = 16
+
+
+def _grouped(run: tuple[ir.If, ...], depth: int) -> tuple[ir.Stmt, ...]:
+    """A word's ifs (_word_run) gathered under the first operand of their tests, recursively
+    while `depth` (the indentation) is under MAX_GROUP_INDENT: ``if a and b: w |= 1`` and
+    ``if a and c: w |= 2`` become ``if a:`` over ``if b: w |= 1`` and ``if c: w |= 2``;
+    where `a` is false (an output off, a step inactive) one test passes the group over.
+    Groups where their operand first appears."""
+    if depth >= MAX_GROUP_INDENT:
+        return run
     groups: dict[ir.Value, list[tuple[tuple[ir.Value, ...], tuple[ir.Stmt, ...]]]] = {}
     for stmt in run:
         factors = stmt.test.operands if isinstance(stmt.test, ir.And) else (stmt.test,)
@@ -193,7 +202,7 @@ def _grouped(run: tuple[ir.If, ...]) -> tuple[ir.Stmt, ...]:
         body = tuple(inner)
         ifs = tuple(stmt for stmt in body if isinstance(stmt, ir.If))
         out.append(ir.If(head, (*(stmt for stmt in body if not isinstance(stmt, ir.If)),
-                                *(_grouped(ifs) if len(ifs) > 1 else ifs))))
+                                *(_grouped(ifs, depth + 1) if len(ifs) > 1 else ifs))))
     return tuple(out)
 
 
