@@ -12,7 +12,9 @@ import pytest
 
 from hmi.engine import program_stages
 from hmi.engine.codegen import Vocabulary
+from hmi.engine.commands import FaultReset
 from hmi.engine.layout import Layout
+from hmi.engine.program_stages import Moment
 from hmi.engine.scan import Engine
 from hmi.export import model as m
 from hmi.export import stage_blocks
@@ -55,6 +57,23 @@ class Counting:
     def fifth(self, now: int) -> None:
         self.fifths.append(now)
 
+    # what a fault reset, an exploration's capture/restore and the snapshot ask of it
+    def reset(self, moment: Moment) -> list[str]:
+        if not self.count:
+            return []
+        self.count = 0
+        return [f"the count restarted at scan {moment.scan}"]
+
+    def capture(self) -> tuple[int, tuple[int, ...]]:
+        return self.count, tuple(self.fifths)
+
+    def restore(self, state: tuple[int, tuple[int, ...]]) -> None:
+        self.count, fifths = state
+        self.fifths = list(fifths)
+
+    def state(self) -> int:
+        return self.count
+
     @classmethod
     def build(cls, project: Project, layout: Layout) -> Counting:
         return cls()
@@ -62,18 +81,21 @@ class Counting:
 
 def counting_block(stage: Counting, layout: Layout, name: str, scope: Scope,
                    durations: Durations) -> Block:
-    """Its ST handler: the count a DINT of the block, the fifth scan a comment."""
+    """Its ST handler: the count a DINT of the block, the fifth scan a comment; a fault
+    reset sets the count to 0."""
     sc = scope.child()
-    count = sc.take("Count")
+    count, reset = sc.take("Count"), sc.take("Reset")
     places = Places(slot=_no_slot, read=_no_read, step_time=_no_read, now=m.Name("Now"))
     places.cell(stage, "count", Place(count, DINT))
     places.handler(stage, "fifth", Handler(print=lambda printer, args: [
         m.Comment("a fifth scan")]))
     body = StPrinter(places, sc, durations, None, "the counting stage").program(stage.program)
-    blocks = (m.VarBlock("input", (m.Var("Now", m.TIME),)),
+    blocks = (m.VarBlock("input", (m.Var("Now", m.TIME), m.Var(reset, m.BOOL))),
               m.VarBlock("local", (m.Var(count, m.DINT),)))
-    return Block(m.Pou(name, "functionBlock", blocks, tuple(body), "counts the scans"), {}, {},
-                 {"Now": "Now"})
+    reset_or_scan = m.if_(m.Name(reset), m.Assign(m.Name(count), m.IntLit(0)),
+                          orelse=tuple(body))
+    return Block(m.Pou(name, "functionBlock", blocks, (reset_or_scan,), "counts the scans"),
+                 {}, {}, {"Now": "Now", "Reset": reset})
 
 
 def _no_slot(index: int) -> Place:
@@ -107,6 +129,34 @@ def test_an_added_stage_runs_where_it_declares_in_both_forms(added, compiled):
     assert stage.fifths == [k * period for k in (4, 9, 14, 19)]
 
 
+@pytest.mark.parametrize("compiled", [True, False])
+def test_an_added_stage_is_reset_captured_and_shown_by_its_declaration(added, compiled):
+    project = load_project(PROJECTS / "cispi_subsystem")
+    engine = Engine(project, SimPlant(project), compiled=compiled)
+    (stage,) = engine.added
+    period = project.scan_period_us
+    shown = [engine.step(k * period).stages for k in range(7)]
+    # the snapshot shows its state at the end of each scan, by its role
+    assert shown == [((PART, (k + 1) % 5),) for k in range(7)]
+    # the fault reset resets it and says so
+    said = engine.apply(FaultReset()).message
+    assert "the count restarted at scan 7" in said and stage.count == 0
+    assert engine.apply(FaultReset()).message == "fault reset: nothing was latched"
+
+    # capture, run on, restore: the same scans again, the stage's state included
+    def run_on(start: int) -> list[tuple[object, ...]]:
+        return [(snap.stages, snap.values, snap.outputs)
+                for snap in (engine.step(k * period) for k in range(start, start + 9))]
+
+    state = engine.capture()
+    first = run_on(7)
+    assert stage.fifths == [4 * period, 11 * period]
+    engine.restore(state)
+    assert stage.count == 0 and stage.fifths == [4 * period]
+    assert run_on(7) == first
+    assert stage.fifths == [4 * period, 11 * period]
+
+
 def test_an_added_stage_is_called_by_the_plc_program_at_its_place(added):
     text = write_st(build(load_project(PROJECTS / "cispi_subsystem")))
     program = text[text.index("PROGRAM PRG_"):]
@@ -119,6 +169,10 @@ def test_an_added_stage_is_called_by_the_plc_program_at_its_place(added):
     assert "Stage_counting : FB_cispi_subsystem_Counting;" in program
     block = text[text.index("FUNCTION_BLOCK FB_cispi_subsystem_Counting"):]
     assert "Count := Count + 1;" in block and "(* a fifth scan *)" in block
+    # a fault reset calls it again with Reset, after the scan
+    assert "Stage_counting(Now := Now, Reset := FALSE);" in program
+    fault_reset = program[program.index("IF FaultReset THEN"):]
+    assert "Stage_counting(Reset := TRUE);" in fault_reset
 
 
 def test_an_added_part_is_placed_once_after_a_part_of_the_scan():

@@ -1,38 +1,98 @@
-"""The stages added to the mode's program, declared once: the one list a new stage joins.
+"""The stages of the mode's program, declared once: the one list a stage joins.
 
 A stage of the mode's program is its lowering (``hmi/program/<stage>.py``: its rules as the
 scan program's statements, its rare events as calls of its handler) and its handler (the
-object holding its state and those methods, ``hmi/engine/<stage>.py``). Beyond those, an
-added stage declares, on its own class (:class:`AddedStage`), where it runs (``PLACE``: its
-part of the scan and the part it runs after) and how the engine builds it from the project
-(``build``); its class named in :data:`ADDED` is then all that places it:
+object holding its state and those methods, ``hmi/engine/<stage>.py``). Each is declared by
+a :class:`Declaration` (:func:`stage_declarations`: :data:`BUILT_IN`, then those of
+:data:`ADDED`): its role (the name the engine and the PLC export
+address it by), how it is built from the project and the engine's choices, where it runs
+(the built-in stages' parts are hmi.program.order's own; an added stage's ``PLACE`` puts its
+part after one of them), how deep a history it reads, what a fault reset does to it, how its
+state is captured and restored (an exploration forking the engine: Engine.capture) and what
+of it a snapshot shows. Everything else derives from the declarations:
 
-* the engine builds it (``Engine.__init__``, :func:`added_stages`) and lists it among the
-  stages of the mode's program: the compiled scan puts its part where ``PLACE`` says
-  (:func:`hmi.program.order.placed`), in every mode's function, printed and evaluated, and
-  allows its names (``PRINTED``); the history is as deep as its ``depth``;
-* the PLC export builds its function block (hmi.export.stage_blocks, its ST handler) and
-  the PLC program calls it at the same place (hmi.export.program_pou).
+* the engine builds every declared stage (``Engine.__init__``, :func:`build_stages`), in
+  this order, each given those built before it; the compiled scan puts each stage's parts
+  in the scan's order (:func:`hmi.program.order.placed`), in every mode's function, printed
+  and evaluated, and allows their names (``PRINTED``); the history is as deep as the
+  deepest stage; a fault reset, Engine.capture/restore and the snapshot walk the
+  declarations;
+* the PLC export builds each stage's function blocks (hmi.export.stage_blocks, keyed by
+  role) and the PLC program calls them at the stage's place (hmi.export.program_pou).
 
-The built-in stages (the memory, the diagnosers, the control law, the recovery procedures)
-are built by ``Engine.__init__`` itself: the engine addresses each by its role (the
-diagnosers' mask for the filter, a recovery procedure in place of the law), and their parts
-are hmi.program.order's own.
+The engine addresses a built-in stage by its role where it needs that one (the diagnosers'
+mask for the filter, a recovery procedure in place of the law): :meth:`Stages.of`.
+
+A stage added beyond the built-in ones (:class:`AddedStage`) declares all of that on its own
+class; naming the class in :data:`ADDED` declares it (:func:`declared`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import ClassVar, Protocol
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+from typing import Any, ClassVar, Generic, NamedTuple, Protocol, TypeVar, cast
 
+from hmi.engine.control import ControlRuntime
+from hmi.engine.diagnoser import DiagnosisStage, diagnosis_stage
 from hmi.engine.layout import Layout
-from hmi.engine.stages import ProgramStage
+from hmi.engine.recovery import RecoveryStage, recovery_stage
+from hmi.engine.stages import Memory, ProgramStage
+from hmi.logic.expr import History, Image
 from hmi.program import order
-from hmi.project.model import Project
+from hmi.project.model import ControlLaw, Project
+
+S = TypeVar("S")
+
+
+@dataclass(frozen=True)
+class StageContext:
+    """What a stage is built from: the project, its layout, the control law that runs and
+    the engine's choices, and the stages declared before it, by role (filled as they are
+    built: :func:`build_stages`)."""
+
+    project: Project
+    layout: Layout
+    law: ControlLaw
+    safe_vector: tuple[bool, ...]
+    solver: tuple[str, int | None]  # the corrector (strategy, budget)
+    diagnosis: str = "ftc"  # the diagnosers' mode
+    high_level: bool = True  # the High Level Diagnoser's rules
+    built: dict[str, Any] = field(default_factory=dict)
+
+
+class Moment(NamedTuple):
+    """The engine between scans, as a fault reset hands it to a stage."""
+
+    image: Image
+    history: History
+    now: int
+    scan: int
+    started: bool  # a scan ran (before it, nothing has a state to reset)
+
+
+@dataclass(frozen=True)
+class Declaration(Generic[S]):
+    """A stage of the mode's program (see the module docstring). Every hook is optional: a
+    stage without one has nothing of that kind."""
+
+    role: str
+    build: Callable[[StageContext], S | None]  # (None: the project has nothing for it)
+    # (its part, the part of hmi.program.order it runs right after); None: the stage's parts
+    # are hmi.program.order.PROGRAM's own
+    place: tuple[str, str] | None = None
+    depth: Callable[[S], int] | None = None  # how many past images its statements read
+    # a fault reset: what it did, in plain words (Engine.fault_reset)
+    reset: Callable[[S, Moment], list[str]] | None = None
+    capture: Callable[[S], Any] | None = None  # its state, copied (Engine.capture)
+    restore: Callable[[S, Any], None] | None = None
+    shown: Callable[[S], Any] | None = None  # what a snapshot shows of it (Snapshot.stages)
 
 
 class AddedStage(ProgramStage, Protocol):
-    """A stage added to the mode's program (see the module docstring)."""
+    """A stage added to the mode's program beyond the built-in ones: its handler, declaring
+    on its class where it runs and how it is built, and holding the methods a fault reset,
+    an exploration's capture/restore and the snapshot call (see the module docstring)."""
 
     # (its part of the scan, the part of hmi.program.order it runs right after)
     PLACE: ClassVar[tuple[str, str]]
@@ -43,23 +103,149 @@ class AddedStage(ProgramStage, Protocol):
         """The stage for `project` (None: the project has nothing for it to do)."""
         ...
 
+    def reset(self, moment: Moment) -> list[str]:
+        """A fault reset: what it reset, in plain words ([]: nothing)."""
+        ...
 
-# The added stages, in the order they are placed (several after one part: in this order).
+    def capture(self) -> Any:
+        """Its state, copied: :meth:`restore` continues exactly from there."""
+        ...
+
+    def restore(self, state: Any) -> None: ...
+
+    def state(self) -> Any:
+        """What a snapshot shows of it (immutable: the snapshot outlives the scan)."""
+        ...
+
+
+def declared(kind: type[AddedStage]) -> Declaration[AddedStage]:
+    """The declaration of an added stage: all of it read from its class."""
+    return Declaration(
+        kind.PLACE[0], lambda c: kind.build(c.project, c.layout), place=kind.PLACE,
+        depth=lambda s: s.depth, reset=lambda s, m: s.reset(m), capture=lambda s: s.capture(),
+        restore=lambda s, state: s.restore(state), shown=lambda s: s.state())
+
+
+# -- the built-in stages ----------------------------------------------------------------------
+
+def _reset_diagnosers(stage: DiagnosisStage, m: Moment) -> list[str]:
+    return stage.reset(m.image, m.history, m.now, m.scan) if m.started else []
+
+
+def _recovery(c: StageContext) -> RecoveryStage | None:
+    # a procedure's own filter is given the diagnosers' mask, as the cell's filter is
+    diagnosers = cast("DiagnosisStage | None", c.built.get(DIAGNOSERS.role))
+    return recovery_stage(c.project, c.layout, c.safe_vector, c.solver,
+                          diagnosers.mask_flags if diagnosers is not None else {})
+
+
+MEMORY: Declaration[Memory] = Declaration(
+    "memory", lambda c: Memory(c.project, c.layout),
+    capture=Memory.capture, restore=Memory.restore)
+DIAGNOSERS: Declaration[DiagnosisStage] = Declaration(
+    "diagnosers", lambda c: diagnosis_stage(c.project, c.layout, c.diagnosis, c.high_level),
+    depth=lambda s: s.depth, reset=_reset_diagnosers, capture=DiagnosisStage.capture,
+    restore=DiagnosisStage.restore)
+LAW: Declaration[ControlRuntime] = Declaration(
+    "law", lambda c: ControlRuntime(c.law, c.layout.slots, c.layout.step_times),
+    capture=ControlRuntime.capture, restore=ControlRuntime.restore)
+RECOVERY: Declaration[RecoveryStage] = Declaration(
+    "recovery", _recovery, capture=RecoveryStage.capture, restore=RecoveryStage.restore)
+
+# The built-in stages, in the scan's order (the order they are built in: a stage is given
+# those before it)
+BUILT_IN: tuple[Declaration[Any], ...] = (MEMORY, DIAGNOSERS, LAW, RECOVERY)
+
+# The added stages, in the order they are placed (several after one part: in this order)
 ADDED: tuple[type[AddedStage], ...] = ()
 
 
-def added_stages(project: Project, layout: Layout) -> tuple[AddedStage, ...]:
-    """The added stages `project` has, built (ADDED, read at each call)."""
-    built = (kind.build(project, layout) for kind in ADDED)
-    return tuple(stage for stage in built if stage is not None)
+def stage_declarations() -> tuple[Declaration[Any], ...]:
+    """Every declared stage: the built-in ones, then the added ones (ADDED, read at each
+    call)."""
+    return (*BUILT_IN, *(declared(kind) for kind in ADDED))
+
+
+class Stages:
+    """The declared stages one engine (or one export) built, in declaration order: those a
+    project has nothing for are left out."""
+
+    def __init__(self, built: Sequence[tuple[Declaration[Any], Any]]):
+        self.built = tuple(built)
+        self._by_role = {d.role: stage for d, stage in self.built}
+
+    def of(self, declaration: Declaration[S]) -> S | None:
+        """The stage built for `declaration`'s role (None: the project has none)."""
+        return cast("S | None", self._by_role.get(declaration.role))
+
+    def need(self, declaration: Declaration[S]) -> S:
+        """The stage built for a role every project has."""
+        stage = self.of(declaration)
+        if stage is None:
+            raise ValueError(f"no {declaration.role} stage was built")
+        return stage
+
+    def __iter__(self) -> Iterator[tuple[Declaration[Any], Any]]:
+        return iter(self.built)
+
+    @property
+    def program(self) -> tuple[ProgramStage, ...]:
+        """The stages whose parts are hmi.program.order.PROGRAM's own."""
+        return tuple(stage for d, stage in self.built if d.place is None)
+
+    @property
+    def added(self) -> tuple[AddedStage, ...]:
+        """The stages that declare their own place (hmi.program.order.placed)."""
+        return tuple(stage for d, stage in self.built if d.place is not None)
+
+    @property
+    def places(self) -> list[tuple[str, str]]:
+        return [d.place for d, _ in self.built if d.place is not None]
+
+    @property
+    def depth(self) -> int:
+        """The deepest history any stage's statements read."""
+        return max((d.depth(stage) for d, stage in self.built if d.depth is not None),
+                   default=0)
+
+    def reset(self, moment: Moment) -> list[str]:
+        """A fault reset of every stage that has one: what each did, in order."""
+        done: list[str] = []
+        for d, stage in self.built:
+            if d.reset is not None:
+                done.extend(d.reset(stage, moment))
+        return done
+
+    def capture(self) -> tuple[Any, ...]:
+        """Each stage's state (None for a stage that has none to capture)."""
+        return tuple(d.capture(stage) if d.capture is not None else None
+                     for d, stage in self.built)
+
+    def restore(self, states: Sequence[Any]) -> None:
+        for (d, stage), state in zip(self.built, states, strict=True):
+            if d.restore is not None:
+                d.restore(stage, state)
+
+    def shown(self) -> tuple[tuple[str, Any], ...]:
+        """What a snapshot shows of the stages that show something, by role."""
+        return tuple((d.role, d.shown(stage)) for d, stage in self.built
+                     if d.shown is not None)
+
+
+def build_stages(context: StageContext,
+                 declarations: Sequence[Declaration[Any]] | None = None) -> Stages:
+    """Every declared stage (or those of `declarations`) `context`'s project has, built in
+    order."""
+    built = []
+    for declaration in stage_declarations() if declarations is None else declarations:
+        stage = declaration.build(context)
+        if stage is not None:
+            context.built[declaration.role] = stage
+            built.append((declaration, stage))
+    return Stages(built)
 
 
 def program_order(added: Sequence[AddedStage]) -> tuple[str, ...]:
     """The parts of the mode's program with the added stages' (hmi.program.order.PROGRAM,
     each added part right after the part it declares)."""
     return order.placed(order.PROGRAM, [stage.PLACE for stage in added])
-
-
-def scan_order(added: Sequence[AddedStage]) -> tuple[str, ...]:
-    """The parts of a scan with the added stages' (hmi.program.order.SCAN)."""
-    return order.placed(order.SCAN, [stage.PLACE for stage in added])

@@ -39,16 +39,23 @@ from hmi.engine.commands import (
     StopDevice,
 )
 from hmi.engine.compiled import CompiledScan
-from hmi.engine.control import ControlRuntime
-from hmi.engine.diagnoser import NO_DIAGNOSIS, DiagnoserState, Diagnosis, diagnosis_stage
+from hmi.engine.diagnoser import NO_DIAGNOSIS, DiagnoserState, Diagnosis
 from hmi.engine.filter import FilterReport, SafetyFilter
 from hmi.engine.filter_stage import FilterStage
 from hmi.engine.layout import Layout
 from hmi.engine.monitors import monitor_stage
-from hmi.engine.program_stages import added_stages
-from hmi.engine.recovery import NO_RECOVERY, recovery_stage
+from hmi.engine.program_stages import (
+    DIAGNOSERS,
+    LAW,
+    MEMORY,
+    RECOVERY,
+    Moment,
+    StageContext,
+    build_stages,
+)
+from hmi.engine.recovery import NO_RECOVERY
 from hmi.engine.snapshot import INTERNAL_PARTS, LatchReason, Snapshot
-from hmi.engine.stages import InputScan, Memory, OutputScan, plant_detail
+from hmi.engine.stages import InputScan, OutputScan, plant_detail
 from hmi.errors import UsageError
 from hmi.logic.expr import Expr, Image, max_depth
 from hmi.plant.base import Plant, PlantError, PlantStatus
@@ -72,10 +79,7 @@ class EngineState(NamedTuple):
     policy: str
     stopped_devices: frozenset[str]
     readback: tuple[bool, ...]
-    memory: tuple[Any, ...]
-    control: Any
-    diagnosis: Any
-    recovery: Any = None
+    stages: tuple[Any, ...]  # each declared stage's (Engine.stages, in its order)
 
 
 class ScanRecord:
@@ -177,7 +181,13 @@ class Engine:
         lay = self.layout
         self.output_slots = lay.indices(lay.outputs)
         self.safe_vector = tuple(v.safe for v in project.outputs)
-        self.law = ControlRuntime(law, lay.slots, lay.step_times)
+        solver_args = (solver or project.solver, solver_budget or project.solver_budget)
+        # The stages of the mode's program, built from their declarations in the scan's
+        # order (hmi.engine.program_stages); the engine addresses the built-in ones
+        # by their role where it needs that one.
+        self.stages = build_stages(StageContext(project, lay, law, self.safe_vector,
+                                                solver_args, diagnosis, high_level))
+        self.law = self.stages.need(LAW)  # 5 (and the GRAFCET's step times, 2)
         # The GRAFCET when it has supervised steps (hmi.engine.grafcet: the deadline compared
         # once per scan in run(), the overdue steps in the snapshot), else None.
         self._supervised = (self.law.grafcet if self.law.grafcet is not None
@@ -185,28 +195,22 @@ class Engine:
         self._overdue: tuple[str, ...] = ()  # the overdue steps the last scan told of
         # The stages, in scan order (hmi.engine.stages).
         self.input_scan = InputScan(plant, lay, read_back=self.observe)  # 1
-        self.memory = Memory(project, lay)  # 2 (and the GRAFCET's step times: control)
+        self.memory = self.stages.need(MEMORY)  # 2 (and the GRAFCET's step times: control)
         # 3-4 (None: no diagnosers), with the High Level Diagnoser after the local ones
-        self.diagnosis = diagnosis_stage(project, lay, diagnosis, high_level)
-        self.safety_filter = SafetyFilter(project, lay.slots, lay.step_times,
-                                   solver or project.solver,
-                                   solver_budget or project.solver_budget)
+        self.diagnosis = self.stages.of(DIAGNOSERS)
+        self.safety_filter = SafetyFilter(project, lay.slots, lay.step_times, *solver_args)
         self.filter_stage = FilterStage(  # 6: the filter, given the diagnosers' mask
             self.safety_filter, self.diagnosis.mask_flags if self.diagnosis else {})
         self.output_scan = OutputScan(plant, lay)  # 7
         self.monitors = monitor_stage(project, lay)  # 8 (None: no monitors)
         # Recovery procedures (replace stages 5-6's law and constraints while one runs).
-        self.recovery = recovery_stage(project, lay, self.safe_vector,
-                                       (solver or project.solver,
-                                        solver_budget or project.solver_budget),
-                                       self.filter_stage.mask_flags)
-        # The stages added to the mode's program (hmi.engine.program_stages.ADDED)
-        self.added = added_stages(project, lay)
+        self.recovery = self.stages.of(RECOVERY)
+        # The stages added to the mode's program (each declares its own place)
+        self.added = self.stages.added
+        self._shows = any(d.shown is not None for d, _ in self.stages)  # (Snapshot.stages)
         # The history is as deep as the deepest expression of any stage reads.
         depth = max((max_depth(expr) for expr in _all_exprs(project)), default=1)
-        for stage in (self.diagnosis, self.monitors, *self.added):
-            if stage is not None:
-                depth = max(depth, stage.depth)
+        depth = max(depth, self.stages.depth, self.monitors.depth if self.monitors else 0)
         self.history: deque[tuple[Any, ...]] = deque(maxlen=max(depth, 1))
         self.image: Image = lay.initial_image(project)
         self.scan = 0
@@ -225,10 +229,9 @@ class Engine:
         # The scan program (hmi.engine.compiled): the stages' lowerings in the order of a
         # scan, per mode, printed as Python; `compiled=False` runs the same program through
         # its evaluator (the reference the printed form is tested against).
-        # The mode's program's stages (hmi.engine.stages.ProgramStage): the one list a stage
-        # joins (its parts go where hmi.program.order says, its names to the allow-list).
-        stages = (self.memory, self.law, self.diagnosis, self.recovery)
-        self.compiled = CompiledScan(lay, [s for s in stages if s is not None], self.recovery,
+        # Its stages are the declared ones (those placed by hmi.program.order, then those
+        # that declare their own place), their names allowed in the printed code.
+        self.compiled = CompiledScan(lay, self.stages.program, self.recovery,
                                      self.safety_filter, self.monitors,
                                      f"{project.name}/{self.control_name}", python=compiled,
                                      added=self.added)
@@ -531,8 +534,8 @@ class Engine:
             self.latched = []
         if self.monitors is not None:
             parts.extend(self.monitors.reset())
-        if self.diagnosis is not None and self.started:
-            parts.extend(self.diagnosis.reset(self.image, self.history, self.now, self.scan))
+        parts.extend(self.stages.reset(Moment(self.image, self.history, self.now, self.scan,
+                                              self.started)))
         return CommandResult.ok("fault reset: " + ("; ".join(parts) if parts
                                                    else "nothing was latched"))
 
@@ -547,9 +550,7 @@ class Engine:
             list(self.image), tuple(self.history), self.scan, self.now,
             self.started, tuple(self.latched), self.mode, tuple(self.manual.items()),
             self.policy, frozenset(self.stopped_devices), self.input_scan.readback,
-            self.memory.capture(), self.law.capture(),
-            self.diagnosis.capture() if self.diagnosis is not None else None,
-            self.recovery.capture() if self.recovery is not None else None)
+            self.stages.capture())
 
     def restore(self, state: EngineState) -> None:
         self._before_change()
@@ -562,13 +563,8 @@ class Engine:
         self.stopped_devices = set(state.stopped_devices)
         self._update_stop_mask()
         self.input_scan.readback = state.readback
-        self.memory.restore(state.memory)
-        self.law.restore(state.control)
+        self.stages.restore(state.stages)
         self._supervise()
-        if self.diagnosis is not None and state.diagnosis is not None:
-            self.diagnosis.restore(state.diagnosis)
-        if self.recovery is not None and state.recovery is not None:
-            self.recovery.restore(state.recovery)
 
     def latch_safe(self, source: str, detail: str) -> None:
         self._before_change()  # (between scans: a runner or the journal latching)
@@ -850,7 +846,8 @@ class Engine:
                              else ()),
             recovery=record.recovery, error=record.error, scan_wall_us=record.scan_us,
             filter_wall_us=record.filter_us, monitor_marks=record.marks,
-            overdue_steps=self._supervised.overdue if self._supervised is not None else ())
+            overdue_steps=self._supervised.overdue if self._supervised is not None else (),
+            stages=self.stages.shown() if self._shows else ())
         return snapshot
 
     def _status_unknown(self) -> PlantStatus:

@@ -99,6 +99,9 @@ class _Fields(NamedTuple):
     # The active GRAFCET steps past their supervision time, the program running in automatic
     # mode (hmi.engine.grafcet: the program is stuck there; what each waits for: `waits`).
     overdue_steps: tuple[str, ...] = ()
+    # What each stage that shows something shows (hmi.engine.program_stages, a declaration's
+    # `shown`), by role: an added stage's state at the end of the scan.
+    stages: tuple[tuple[str, Any], ...] = ()
 
 
 class Snapshot(_Fields):

@@ -17,25 +17,22 @@ One task at the project's scan period runs the program.
 
 from __future__ import annotations
 
-from hmi.engine.diagnoser import diagnosis_stage
 from hmi.engine.layout import Layout
 from hmi.engine.monitors import monitor_stage
-from hmi.engine.program_stages import added_stages
+from hmi.engine.program_stages import StageContext, build_stages
 from hmi.errors import ProjectError
 from hmi.export import model as m
 from hmi.export import source
-from hmi.export.control_pou import build_control
-from hmi.export.diagnoser_pou import build_diagnoser
 from hmi.export.filter_pou import build_filter, max_distance, vectors_bound
 from hmi.export.image import CONTROL, Globals, build_globals
-from hmi.export.memory_pou import build_memory
 from hmi.export.names import Scope
 from hmi.export.program_pou import Blocks, build_program
 from hmi.export.sfc import build_chart
 from hmi.export.st import time_text
-from hmi.export.stage_blocks import block_of
+from hmi.export.stage_blocks import ExportContext, exported, stage_calls
 from hmi.export.stopwatch_pou import build_monitor
 from hmi.export.views import Durations
+from hmi.program import order
 from hmi.project.diagnosers import layout_names
 from hmi.project.model import Project
 from hmi.timefmt import format_duration
@@ -51,31 +48,26 @@ def build(project: Project, control: str | None = None) -> m.PlcProject:
     prefix = Scope().take(source.name(project))
     pous = Scope()
     names = {key: pous.take(name) for key, name in (
-        ("memory", f"FB_{prefix}_Memory"), ("filter", f"FB_{prefix}_Filter"),
-        ("control", f"FB_{prefix}_Control"), ("program", f"PRG_{prefix}_Safety"))}
-    diag_names = {d.name: pous.take(f"FB_{prefix}_Diag_{d.name}")
-                  for d in source.diagnosers(project)}
+        ("filter", f"FB_{prefix}_Filter"), ("program", f"PRG_{prefix}_Safety"))}
     bound = source.filter_bound(project)
     law = project.control(control)
     layout = Layout.build(project, law, extra=layout_names(project))
     g = build_globals(project, pous.child())
     stage = monitor_stage(project, layout)
-    diagnosis = diagnosis_stage(project, layout, "ftc")
     monitors = [build_monitor(stage, k, task, layout, pous.take(f"FB_{prefix}_Mon_{task.name}"),
                               pous, durations)
                 for k, task in enumerate(source.monitors(project))] if stage is not None else []
-    added = [(stage.PLACE, block_of(stage, layout,
-                                    pous.take(f"FB_{prefix}_{type(stage).__name__}"), pous,
-                                    durations))
-             for stage in added_stages(project, layout)]
-    blocks = Blocks(
-        memory=build_memory(project, layout, names["memory"], pous, durations),
-        diagnosers=[build_diagnoser(diagnosis, k, layout, diag_names[rt.spec.name], pous,
-                                    durations, project.high_level)
-                    for k, rt in enumerate(diagnosis.runtimes)] if diagnosis is not None else [],
-        filter=build_filter(project, names["filter"], pous, bound),
-        control=build_control(project, law, layout, g, names["control"], pous, durations),
-        monitors=monitors, added=added)
+    # The declared stages as the engine builds them (the diagnosers in their ftc mode), each
+    # with the blocks hmi.export.stage_blocks builds for it
+    context = ExportContext(project, layout, g, prefix, pous, durations)
+    stages = build_stages(StageContext(project, layout, law,
+                                       tuple(v.safe for v in project.outputs),
+                                       (project.solver, project.solver_budget)), exported())
+    calls = [(d, called) for d, s in stages
+             if (called := stage_calls(d, s, context)) is not None]
+    blocks = Blocks(filter=build_filter(project, names["filter"], pous, bound),
+                    monitors=monitors, stages=[called for _, called in calls],
+                    places=stages.places)
     program, instances = build_program(project, names["program"], g, blocks, durations)
     types = {v.name: v.type for v in g.vars}
     chart = build_chart(law, pous.take(f"SFC_{prefix}_Grafcet"), g.idents, types,
@@ -86,16 +78,18 @@ def build(project: Project, control: str | None = None) -> m.PlcProject:
         "Config0", "Res0", (m.VarBlock("global", g.all),),
         (m.Task("MainTask", source.scan_period_us(project) // 1000, 1),),
         (m.ProgramInstance("Safety", "MainTask", program.name),))
-    all_pous = [blocks.memory.pou] if blocks.memory else []
-    all_pous += [b.pou for b in blocks.diagnosers]
-    all_pous += [blocks.control.pou, blocks.filter.pou]
+    # the built-in stages' blocks, the filter, the monitors, the added stages' blocks
+    all_pous = [c.block.pou for d, (_, called) in calls if d.place is None for c in called]
+    all_pous.append(blocks.filter.pou)
     all_pous += [b.pou for b in blocks.monitors]
-    all_pous += [b.pou for _, b in blocks.added]
+    all_pous += [c.block.pou for d, (_, called) in calls if d.place is not None
+                 for c in called]
     all_pous.append(program)
     summary = _summary(project, bound, all_pous, g, pous)
     symbols = {name: ident for name, ident in g.idents.items()}
     symbols.update(instances)
-    for spec, block in zip(source.diagnosers(project), blocks.diagnosers, strict=True):
+    for spec, block in zip(source.diagnosers(project), blocks.of(order.DIAGNOSERS),
+                           strict=True):
         symbols.update({f"{spec.name}.{lab}": block.ports[f"label:{lab}"]
                         for lab in spec.labels})
     assert set(CONTROL) <= set(symbols)

@@ -39,11 +39,11 @@ from hmi.project.model import ControlLaw, Project
 OWN = ("memory", "step", "step_time")  # the image's kinds this block keeps itself
 
 
-def build_control(project: Project, law: ControlLaw, layout: Layout, g: Globals,
+def build_control(runtime: ControlRuntime, project: Project, layout: Layout, g: Globals,
                   pou_name: str, scope: Scope, durations: Durations) -> Block:
-    """`law` as FB `pou_name`: its inputs (Now and the values read back in time, by (name,
-    depth)) for the program to wire."""
-    runtime = ControlRuntime(law, layout.slots, layout.step_times)
+    """`runtime`'s law as FB `pou_name`: its inputs (Now and the values read back in time,
+    by (name, depth)) for the program to wire."""
+    law = runtime.law
     sc = scope.child()
     now = sc.take("Now")
     started = sc.take("Started")

@@ -23,14 +23,13 @@ from hmi.export.views import Block, Durations, Views
 from hmi.project.model import Project
 
 
-def build_memory(project: Project, layout: Layout, pou_name: str, scope: Scope,
-                 durations: Durations) -> Block | None:
+def build_memory(memory: Memory, project: Project, layout: Layout, pou_name: str,
+                 scope: Scope, durations: Durations) -> Block | None:
     timers, observers = source.timers(project), source.observers(project)
     if not timers and not observers:
         return None
     for t in timers:  # (each reported at its timer; the printer then finds them whole)
         durations.time(t.preset_us, t.pos, f"the preset of timer {t.name!r}")
-    memory = Memory(project, layout)
     sc = scope.child()
     now = sc.take("Now")
     outputs = {name: sc.take(name) for name in [t.name for t in timers]

@@ -4,6 +4,10 @@
     2 Memory   3-4 each Diag_<D>   5 Control   6 Filter   7 outputs
     8 each Mon_<task>   a fault reset (after the scan)   the history shifts
 
+The declared stages' blocks (2-5, and each added stage's, hmi.export.stage_blocks) are
+called at their part of the scan as their StageCall says; the filter, the output scan and
+the monitors are the program's own.
+
 The program holds the history its function blocks read: `prev_x` is x at the previous scan,
 `prev2_x` two scans back. Each FB input standing for (x, depth) is wired to the value it
 means at that point of the cycle; a diagnoser reads outputs one scan further back (what the
@@ -20,6 +24,7 @@ from hmi.export import source
 from hmi.export.diagnoser_pou import ftc_mode
 from hmi.export.image import Globals
 from hmi.export.names import Scope
+from hmi.export.stage_blocks import StageCall
 from hmi.export.views import TMAX_MS, Block, Durations, view_name
 from hmi.program import order
 from hmi.project.model import Project
@@ -29,13 +34,17 @@ from hmi.project.model import Project
 class Blocks:
     """The function blocks the program calls."""
 
-    memory: Block | None
-    diagnosers: list[Block]
     filter: Block
-    control: Block
     monitors: list[Block]
-    # each added stage's block (hmi.export.stage_blocks) with its PLACE (part, after)
-    added: list[tuple[tuple[str, str], Block]] = field(default_factory=list)
+    # each exported stage's blocks (hmi.export.stage_blocks) by the part they are called at,
+    # in the stages' order
+    stages: list[tuple[str, list[StageCall]]] = field(default_factory=list)
+    # the added stages' places (part, after): hmi.program.order.placed
+    places: list[tuple[str, str]] = field(default_factory=list)
+
+    def of(self, part: str) -> list[Block]:
+        """The blocks called at `part`."""
+        return [c.block for at, calls in self.stages if at == part for c in calls]
 
 
 @dataclass
@@ -69,7 +78,6 @@ def build_program(project: Project, name: str, g: Globals, b: Blocks,
                   durations: Durations) -> tuple[m.Pou, dict[str, str]]:
     p = _Program(g, g.scope.child())
     outputs = {v.name for v in source.outputs(project)}
-    specs = source.diagnosers(project)
     clock, now = p.scope.take("Clock"), p.scope.take("Now")
 
     def inputs() -> list[m.Stmt]:
@@ -77,34 +85,6 @@ def build_program(project: Project, name: str, g: Globals, b: Blocks,
         return [m.Comment("the scan's time: the program's clock, since its first scan"),
                 m.FbCall(clock, (("IN", m.TRUE), ("PT", m.TimeLit(TMAX_MS)))),
                 m.Assign(m.Name(now), m.Member(m.Name(clock), "ET"))]
-
-    def memory() -> list[m.Stmt]:
-        if b.memory is None:
-            return []
-        inst = p.instance("Memory")
-        return [m.Comment("2. Memory: timers and observers"),
-                m.FbCall(inst, ((b.memory.ports["Now"], m.Name(now)), *p.wire(b.memory))),
-                *(m.Assign(g.name(n), m.Member(m.Name(inst), out))
-                  for n, out in b.memory.outputs.items())]
-
-    def diagnosers() -> list[m.Stmt]:  # (each with its reconstruction)
-        out: list[m.Stmt] = []
-        for spec, block in zip(specs, b.diagnosers, strict=True):
-            inst = p.instance(f"Diag_{spec.name}")
-            out.append(m.Comment(f"3-4. Diagnoser {spec.name}: an output is read as written "
-                                 "at the previous scan"))
-            out.append(m.FbCall(inst, (
-                (block.ports["Now"], m.Name(now)), (block.ports["Reset"], m.FALSE),
-                (block.ports["Mode"], g.name("DiagnosisMode")),
-                *p.wire(block, lambda n, d: p.value(n, d + (n in outputs))))))
-            out += [m.Assign(g.name(n), m.Member(m.Name(inst), o))
-                    for n, o in block.outputs.items()]
-        return out
-
-    def law() -> list[m.Stmt]:  # (with the step times: nothing before reads them)
-        ctl = p.instance("Control")
-        return [m.Comment("5. The functional control writes the FOV_ variables"),
-                m.FbCall(ctl, ((b.control.ports["Now"], m.Name(now)), *p.wire(b.control)))]
 
     def filter_() -> list[m.Stmt]:
         filt = b.filter
@@ -130,16 +110,20 @@ def build_program(project: Project, name: str, g: Globals, b: Blocks,
         return [m.Comment("7. The output scan (the PLC writes the outputs after the cycle); "
                           "8. the stopwatch monitors, on the I/O of this scan"), *calls]
 
-    # The scan's parts in the engine's order (hmi.program.order), each the blocks that run
-    # it; the recovery procedures are not exported (no recovery mode on the PLC).
-    parts = {order.INPUTS: inputs, order.MEMORY: memory, order.DIAGNOSERS: diagnosers,
-             order.LAW: law, order.FILTER: filter_, order.OUTPUTS: lambda: list(g.write),
-             order.MONITORS: monitors}
-    parts.update((part, _added(p, part, block, now)) for (part, _), block in b.added)
+    # The scan's parts in the engine's order (hmi.program.order, with the added stages'
+    # places), each the blocks that run it: the declared stages' (hmi.export.stage_blocks)
+    # and the program's own.
+    parts = {order.INPUTS: inputs, order.FILTER: filter_,
+             order.OUTPUTS: lambda: list(g.write), order.MONITORS: monitors}
+    calls: dict[str, list[StageCall]] = {}
+    for at, stage in b.stages:
+        calls.setdefault(at, []).extend(stage)
     body: list[m.Stmt] = []
-    for part in order.placed(order.SCAN, [place for place, _ in b.added]):
+    for part in order.placed(order.SCAN, b.places):
         if part in parts:
             body += parts[part]()
+        for call in calls.get(part, ()):
+            body += _call(p, call, now, outputs)
     body.append(m.Comment("A fault reset, after the scan (the engine resets between scans)"))
     body.append(m.if_(g.name("FaultReset"), *_reset(project, p, b)))
     body.append(m.Comment("The history: this scan's values become the previous ones"))
@@ -155,13 +139,10 @@ def build_program(project: Project, name: str, g: Globals, b: Blocks,
                 for (n, _), ident in p.history.items()),
               m.Assign(m.Name(started), m.TRUE))]
 
-    types = {"Memory": b.memory.pou.name if b.memory else "", "Control": b.control.pou.name,
-             "Filter": b.filter.pou.name}
-    types.update({f"Diag_{s.name}": blk.pou.name for s, blk in zip(specs, b.diagnosers,
-                                                                   strict=True)})
+    types = {"Filter": b.filter.pou.name}
+    types.update({c.key: c.block.pou.name for _, stage in b.stages for c in stage})
     types.update({f"Mon_{t.name}": blk.pou.name for t, blk in zip(source.monitors(project),
                                                                   b.monitors, strict=True)})
-    types.update({f"Stage_{part}": blk.pou.name for (part, _), blk in b.added})
     locals_ = [m.Var(started, m.BOOL), m.Var(clock, m.Derived("TON")),
                m.Var(now, m.TIME, comment="the scan's time")]
     locals_ += [m.Var(ident, m.Derived(types[key])) for key, ident in p.instances.items()]
@@ -175,17 +156,19 @@ def build_program(project: Project, name: str, g: Globals, b: Blocks,
     return pou, dict(p.instances)
 
 
-def _added(p: _Program, part: str, block: Block, now: str) -> Callable[[], list[m.Stmt]]:
-    """An added stage's call (hmi.engine.program_stages): its block with the scan's time
-    and what it reads, its outputs to the globals."""
-    def call() -> list[m.Stmt]:
-        inst = p.instance(f"Stage_{part}")
-        clock = ((block.ports["Now"], m.Name(now)),) if "Now" in block.ports else ()
-        return [m.Comment(f"The added stage {part} ({block.pou.name})"),
-                m.FbCall(inst, (*clock, *p.wire(block))),
-                *(m.Assign(p.g.name(n), m.Member(m.Name(inst), out))
-                  for n, out in block.outputs.items())]
-    return call
+def _call(p: _Program, call: StageCall, now: str, outputs: set[str]) -> list[m.Stmt]:
+    """A declared stage's block called (hmi.export.stage_blocks.StageCall): the scan's
+    time, its fixed ports, what it reads wired, its outputs to the globals."""
+    block = call.block
+    inst = p.instance(call.key)
+    shift = (lambda n, d: p.value(n, d + (n in outputs))) if call.outputs_back else None
+    return [m.Comment(call.comment),
+            m.FbCall(inst, (*(((block.ports["Now"], m.Name(now)),) if call.now else ()),
+                            *((block.ports[port], value) for port, value in call.consts),
+                            *((block.ports[port], p.g.name(key)) for port, key in call.reads),
+                            *p.wire(block, shift))),
+            *(m.Assign(p.g.name(n), m.Member(m.Name(inst), out))
+              for n, out in block.outputs.items())]
 
 
 def _monitors(project: Project, p: _Program, b: Blocks, now: str) -> list[m.Stmt]:
@@ -209,8 +192,9 @@ def _reset(project: Project, p: _Program, b: Blocks) -> list[m.Stmt]:
     def back(n: str, d: int) -> m.Expr:
         return p.value(n, max(d + (n in outputs) - 1, 0))
 
-    for spec, block in zip(source.diagnosers(project), b.diagnosers, strict=True):
-        stmts.append(m.FbCall(p.instances[f"Diag_{spec.name}"], (
+    for call in (c for _, stage in b.stages for c in stage if c.resets):
+        block = call.block
+        stmts.append(m.FbCall(p.instances[call.key], (
             (block.ports["Reset"], m.TRUE),
             *((block.inputs[key], back(*key)) for key in block.reset_reads))))
     for task, block in zip(source.monitors(project), b.monitors, strict=True):

@@ -6,8 +6,9 @@ mode's function runs, in this order), the engine's two ways of running a scan
 of the export (hmi.export.program_pou: which function block it calls, in this order) are
 all walks of this tuple, so a part moved here moves in each. What runs between the
 program's parts in the engine (the input scan, the filter, the output scan) is named too.
-A stage added beyond the built-in ones declares its own part and where it runs
-(hmi.engine.program_stages): :func:`placed` puts it there, for the engine and the PLC.
+The stages that run these parts are declared in hmi.engine.program_stages; a stage added
+beyond the built-in ones declares its own part and where it runs: :func:`placed` puts it
+there, for the engine and the PLC.
 """
 
 from __future__ import annotations
