@@ -207,8 +207,8 @@ def test_past_its_budget_the_filter_writes_the_safe_state_and_says_so(tmp_path):
     engine = engine_for(folder)
     assert engine.safety_filter.budget == 300
     snap = Session(engine).scan_once()  # the session explains the scan
-    report = snap.filter
-    assert snap.outputs == (False,) * 12 and report.safe_state and not report.unsafe_written
+    report = snap.snapshot.filter
+    assert snap.snapshot.outputs == (False,) * 12 and report.safe_state and not report.unsafe_written
     assert report.stopped == "budget" and report.steps > 300 and report.budget == 300
     assert "used its budget" in report.fallback and "of 300 steps" in report.fallback
     explanation = next(e for e in snap.explanations if e.key == "search_budget")
@@ -327,10 +327,10 @@ def test_the_paper_strategy_stops_the_pump_where_the_project_keeps_it_running():
                                        solver=solver))
         snaps = []
         session.run_for(4 * S + 1, snaps.append)
-        snap = next(s for s in snaps if "CSc2" in s.filter.violated_names)
-        assert snap.time_us == 4 * S
-        written[solver] = dict(zip(snap.layout.outputs, snap.outputs, strict=True))
-        note = snap.filter.note
+        snap = next(s for s in snaps if "CSc2" in s.snapshot.filter.violated_names)
+        assert snap.snapshot.time_us == 4 * S
+        written[solver] = dict(zip(snap.snapshot.layout.outputs, snap.snapshot.outputs, strict=True))
+        note = snap.snapshot.filter.note
         assert ("ties go to switching orders off" in note) == (solver == "exact")
     assert written["exact"]["P"] and not written["exact"]["C2"]
     assert not written["paper"]["P"] and written["paper"]["C2"]
@@ -344,4 +344,4 @@ def test_manual_requests_meet_the_same_bounded_corrector(tmp_path):
     for k in range(12):
         session.command(ManualOutput(f"o{k}", True))
     snap = session.scan_once()
-    assert snap.filter.stopped == "budget" and snap.outputs == (False,) * 12
+    assert snap.snapshot.filter.stopped == "budget" and snap.snapshot.outputs == (False,) * 12

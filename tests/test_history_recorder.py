@@ -98,7 +98,7 @@ def _replay(project: str, control: str | None, seed: int, seconds: int) -> None:
             session.command(InjectFault(Injection(code, session.engine.now, device)))
         elif roll < 0.5:
             session.command(rng.choice(commands))
-        elif roll < 0.6 and session.last and session.last.mode == "manual":
+        elif roll < 0.6 and session.last and session.last.snapshot.mode == "manual":
             session.command(ManualOutput(rng.choice(layout.outputs), rng.random() < 0.5))
     samples: dict[int, list[tuple[int, float]]] = {}
     for i, t, v in queue.take().samples:
@@ -159,7 +159,7 @@ def test_valve_travel_times_and_operations_agree_with_the_plant():
     recorder = HistoryRecorder(c, queue, 0)
     session.scan_listeners.append(recorder.on_scan)
     session.run_for(120_000_000)
-    counters = dict(session.last.plant_counters)
+    counters = dict(session.last.snapshot.plant_counters)
     taken = queue.take().samples
     index = {s.name: i for i, s in enumerate(c.signals)}
     travel = [v for i, _, v in taken if i == index["O.travel"]]

@@ -560,7 +560,7 @@ def test_quitting_the_hmi_on_a_real_plant_leaves_its_outputs_safe(server, tmp_pa
     async def operator(pilot) -> None:
         app = pilot.app
         await wait_live(pilot, lambda: app.link.last is not None and
-                        app.link.last.output_map["O"], "the valve opening")
+                        app.link.last.snapshot.output_map["O"], "the valve opening")
         seen["coils_before"] = read_coils(srv.port)
         await press(pilot, "q")
         await wait_for_screen(pilot, ConfirmDialog)

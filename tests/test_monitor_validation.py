@@ -137,7 +137,7 @@ def test_a_monitor_reading_deep_history_gets_it(tmp_path):
     session = make_session(folder)
     assert session.engine.history.maxlen >= 6
     session.run_for(3_000_000)
-    (m,) = session.last.monitors
+    (m,) = session.last.snapshot.monitors
     # Y is written from the first scan (t = 0): five scans later is the 50 ms scan.
     assert m.attempt >= 1 and session.last.error is None
     first = make_session(folder)

@@ -51,10 +51,10 @@ def test_diagnoser_rows_keep_a_gap_between_name_state_and_decision():
     project = session.engine.project
     partitions = {p.flag: PartitionInfo(p.flag, p.sensor, p.estimate, p.actuators)
                   for spec in diagnosers_of(project) for p in spec.partitions}
-    (d,) = snap.diagnosers
+    (d,) = snap.snapshot.diagnosers
     assert d.faulty
     for detail in (0, 1, 2):
-        lines = diagnoser_lines(d, partitions, set(snap.reconstructed), set(snap.masked), 2,
+        lines = diagnoser_lines(d, partitions, set(snap.snapshot.reconstructed), set(snap.snapshot.masked), 2,
                                 detail)
         for line in lines:
             assert not opening_gaps(line), (detail, runs(line))

@@ -12,6 +12,7 @@ from hmi.engine.snapshot import LatchReason
 from hmi.explain.reset import PREVIEWS, ResetLine, reset_preview
 from hmi.plant.base import PlantStatus
 from hmi.session.recorder import ScanRecorder, Trace
+from hmi.session.view import CellView
 from hmi.ui.chronogram import FALL, HIGH, LOW, MULTI, RISE, UNKNOWN, axis, columns
 from hmi.ui.fault_dialog import parse_delay
 from hmi.ui.frame import Frame
@@ -71,14 +72,14 @@ def test_recorder_trace_initial_value_and_window():
 
 
 def _frame(snap, **kw) -> Frame:
-    return Frame(snapshot=snap, run=kw.pop("run", "running"), speed=1.0, live=False,
+    return Frame(cell=CellView(snap), run=kw.pop("run", "running"), speed=1.0, live=False,
                  project="cispi_valve", **kw)
 
 
 def _snapshot(**changes):
     session = make_session(PROJECTS / "cispi_valve")
     session.run_for(1_500_000)
-    return session.last._replace(**changes)
+    return session.last.snapshot._replace(**changes)
 
 
 def test_status_keeps_alarms_and_mode_when_narrow():
@@ -355,8 +356,8 @@ def test_manual_dialog_lines_name_the_steps_and_the_orders_given_again(tmp_path)
     project = session.engine.project
     law = project.controls[session.engine.control_name]
     snap = session.scan_once()
-    assert snap.active_steps == ("X1", "X11")
-    assert manual.ordered_again(project, law, snap.active_steps) == ("d", "G")
+    assert snap.snapshot.active_steps == ("X1", "X11")
+    assert manual.ordered_again(project, law, snap.snapshot.active_steps) == ("d", "G")
     assert manual.steps_text(law, ("X3", "X10")) == (
         "X3 (A pallet waits at B), X10 (Robot free at home)")
     assert manual.leave_lines(project, law, snap)[-1] == (

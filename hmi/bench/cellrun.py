@@ -86,7 +86,7 @@ def measure(project: Project, control: str, duration_us: int, policy: str = "cor
     `inject` holds fault injections: Injection objects (a scenario's), or text as written on
     the command line (`table_jam@30s`).
     """
-    from hmi.engine.scan import Engine
+    from hmi.engine.build import EngineOptions, build_engine
     from hmi.plant.sim.plant import SimPlant
     from hmi.project.injection import Injection, parse_injection
     from hmi.session.session import settle_memory
@@ -94,7 +94,8 @@ def measure(project: Project, control: str, duration_us: int, policy: str = "cor
     plant = SimPlant(project)
     for item in inject:
         plant.inject(item if isinstance(item, Injection) else parse_injection(item))
-    engine = Engine(project, plant, control=control, policy=policy, solver=strategy)
+    engine = build_engine(project, plant, EngineOptions(control=control, policy=policy,
+                                                        solver=strategy))
     # This bench measures the corrector: every correction is searched, none given again
     # from the filter's memory (SafetyFilter.remember).
     engine.safety_filter.remember = False

@@ -42,12 +42,11 @@ Measure = tuple[int, float, float]  # scans, wall seconds, CPU seconds
 def session_rate(project: Project, duration_us: int) -> tuple[int, float, float]:
     """(scans, wall seconds, CPU seconds) of a `plchmi run` without trace: session and
     summary collector, a quiet scan only counted as that command does (Session.run_for)."""
-    from hmi.engine.scan import Engine
-    from hmi.plant.sim.plant import SimPlant
+    from hmi.engine.build import build_engine
     from hmi.session.run_report import RunCollector
     from hmi.session.session import Session
 
-    session = Session(Engine(project, SimPlant(project)))
+    session = Session(build_engine(project))
     collector = RunCollector()
     with _settled():
         started, cpu = time.perf_counter(), time.process_time()
@@ -61,10 +60,9 @@ def engine_rate(project: Project, duration_us: int, snapshots: bool = True
     """(scans, wall seconds, CPU seconds) of the engine alone stepping in virtual time;
     without `snapshots`, scans run by Engine.run (no snapshot built: what a reader that
     asks for them only at scans with news pays)."""
-    from hmi.engine.scan import Engine
-    from hmi.plant.sim.plant import SimPlant
+    from hmi.engine.build import build_engine
 
-    engine = Engine(project, SimPlant(project))
+    engine = build_engine(project)
     period = project.scan_period_us
     with _settled():
         started, cpu = time.perf_counter(), time.process_time()

@@ -136,16 +136,15 @@ def _us(value: float) -> str:
 
 
 def run_valve(scans: int) -> Iterator[str]:
-    from hmi.engine.scan import Engine
+    from hmi.engine.build import EngineOptions, build_engine
     from hmi.paths import PROJECTS
-    from hmi.plant.sim.plant import SimPlant
     from hmi.project.loader import load_project
 
     project = load_project(PROJECTS / "cispi_valve")
     yield f"cispi_valve, {scans} scans per row (10 ms virtual period, policy correct)"
     for control, frozen in (("normal", False), ("faulty", False), ("normal", True),
                             ("faulty", True)):
-        engine = Engine(project, SimPlant(project), control=control, policy="correct")
+        engine = build_engine(project, options=EngineOptions(control=control, policy="correct"))
         if frozen:
             settle_memory()
         filter_us: list[float] = []

@@ -48,13 +48,11 @@ DIALOG_EVERY_S = 0.25
 
 
 def valve_session(period_us: int) -> Session:
-    from hmi.engine.scan import Engine
-    from hmi.plant.sim.plant import SimPlant
+    from hmi.engine.build import build_engine
     from hmi.project.loader import load_project
     from hmi.session.session import Session
 
-    project = load_project(PROJECT)
-    return Session(Engine(project, SimPlant(project)), period_us)
+    return Session(build_engine(load_project(PROJECT)), period_us)
 
 
 def jitter_line(label: str, jitter: list[float], scans: int, seconds: float,

@@ -26,7 +26,7 @@ if TYPE_CHECKING:
 def make_engine(project: Project, args: argparse.Namespace,
                 extra_injections: Iterable[Injection] = ()) -> tuple[Engine, list[Injection]]:
     """The engine for a command's --control/--policy/--inject/--plant options."""
-    from hmi.engine.scan import Engine
+    from hmi.engine.build import EngineOptions, build_engine
     from hmi.plant.select import open_plant
     from hmi.project.injection import parse_injection
 
@@ -39,10 +39,11 @@ def make_engine(project: Project, args: argparse.Namespace,
     plant = open_plant(project, getattr(args, "plant", None), read_only, injections,
                        getattr(args, "period", None))
     # The engine refuses the monitor policy on a real plant unless --allow-monitor.
-    engine = Engine(project, plant, control=args.control, policy=args.policy,
-                    solver=args.solver, diagnosis=getattr(args, "diagnosis", None) or "ftc",
-                    solver_budget=getattr(args, "solver_budget", None),
-                    allow_monitor_policy=getattr(args, "allow_monitor", False))
+    engine = build_engine(project, plant, EngineOptions(
+        control=args.control, policy=args.policy, solver=args.solver,
+        diagnosis=getattr(args, "diagnosis", None) or "ftc",
+        solver_budget=getattr(args, "solver_budget", None),
+        allow_monitor_policy=getattr(args, "allow_monitor", False)))
     return engine, injections
 
 

@@ -329,12 +329,12 @@ def run_point(project: Project, band: Band, point: BandPoint, length_us: int,
               log: list[tuple[int, str]] | None = None) -> PointRun:
     """The cell at `point`, fault-free, for `length_us` of virtual time (scans late by up to
     the point's jitter, drawn from its seed)."""
-    from hmi.engine.scan import Engine
+    from hmi.engine.build import EngineOptions, build_engine
     from hmi.plant.sim.plant import SimPlant
 
     cell = band.apply(project, point)
     plant = SimPlant(cell)
-    engine = Engine(cell, plant, diagnosis=diagnosis)
+    engine = build_engine(cell, plant, EngineOptions(diagnosis=diagnosis))
     period = cell.scan_period_us
     jitter = point.jitter_us(band)
     late = random.Random(f"jitter:{point.seed}")

@@ -26,7 +26,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from hmi.engine.scan import Engine
+from hmi.engine.build import EngineOptions, build_engine
 from hmi.engine.snapshot import Snapshot
 from hmi.farm.bundle import Bundle
 from hmi.farm.job import Study, make_job
@@ -168,8 +168,8 @@ def run_one(project: Project, spec: CampaignSpec, scenario: CampaignScenario, co
     late, drawn from `seed`: a band point's, hmi/studies/band.py)."""
     plant = SimPlant(project)
     plant.inject(Injection(scenario.fault, scenario.at_us, scenario.device))
-    engine = Engine(project, plant, policy=config.policy, diagnosis=config.diagnosis,
-                    high_level=config.high_level)
+    engine = build_engine(project, plant, EngineOptions(
+        policy=config.policy, diagnosis=config.diagnosis, high_level=config.high_level))
     period = period_us or project.scan_period_us
     refined: tuple[tuple[str, ...], str, int, int] | None = None
     damage: list[PlantEvent] = []

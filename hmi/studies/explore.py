@@ -40,7 +40,7 @@ import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
-from hmi.engine.scan import Engine
+from hmi.engine.build import EngineOptions, build_engine
 from hmi.plant.sim.device import SimDevice
 from hmi.plant.sim.plant import SimPlant
 from hmi.project.injection import Injection
@@ -131,7 +131,8 @@ class Explorer:
         self.settle = settle
         self.period = project.scan_period_us
         plant = SimPlant(project)
-        engine = Engine(project, plant, policy=config.policy, diagnosis=config.diagnosis)
+        engine = build_engine(project, plant, EngineOptions(policy=config.policy,
+                                                            diagnosis=config.diagnosis))
         # The exploration advances the engine without snapshots (Engine.advance): what is
         # shown to people never feeds back into the scan (the state key leaves it out too).
         self.engine, self.plant = engine, plant

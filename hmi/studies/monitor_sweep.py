@@ -133,12 +133,12 @@ def _default_fault(project: Project, task: TaskMonitor) -> str:
 
 def _engine(project: Project, control: str | None, injections: Iterable[Injection] = ()
             ) -> Engine:
-    from hmi.engine.scan import Engine
+    from hmi.engine.build import EngineOptions, build_engine
     from hmi.plant.sim.plant import SimPlant
     plant = SimPlant(project)
     for injection in injections:
         plant.inject(injection)
-    return Engine(project, plant, control=control)
+    return build_engine(project, plant, EngineOptions(control=control))
 
 
 def _scan(engine: Engine) -> Snapshot:
