@@ -43,6 +43,7 @@ def _truth(c, snap) -> dict[int, float | None]:
     """What each signal of catalogue `c` is at this scan, read from the snapshot directly
     (not through the recorder's plan)."""
     truth: dict[int, float | None] = {}
+    cell, snap = snap, snap.snapshot
     layout = snap.layout
     for s_index, s in enumerate(c.signals):
         name = s.name
@@ -65,7 +66,7 @@ def _truth(c, snap) -> dict[int, float | None]:
         elif name == "cell.latched":
             truth[s_index] = float(bool(snap.latched))
         elif name == "cell.alarms":
-            truth[s_index] = float(len(snap.alarms))
+            truth[s_index] = float(len(cell.alarms))
         elif s.group == "monitor":
             task, field = name.rsplit(".", 1)
             m = next(m for m in snap.monitors if m.name == task)
@@ -83,9 +84,9 @@ def _replay(project: str, control: str | None, seed: int, seconds: int) -> None:
     recorder = HistoryRecorder(c, queue, EPOCH)
     truths: list[tuple[int, dict[int, float | None]]] = []
 
-    def listen(snap) -> None:
-        recorder.on_scan(snap)
-        truths.append((EPOCH + snap.time_us, _truth(c, snap)))
+    def listen(cell) -> None:
+        recorder.on_scan(cell)
+        truths.append((EPOCH + cell.snapshot.time_us, _truth(c, cell)))
     session.scan_listeners.append(listen)
     faults = session.engine.plant.faults()
     commands = [Acknowledge(None), FaultReset(), RepairFaults(), SetMode(True), SetMode(False),

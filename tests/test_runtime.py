@@ -45,7 +45,7 @@ def test_a_screen_attaches_sees_frames_and_commands_with_its_name_in_the_journal
         assert link.advance(2 * S) == 200
         assert link.last.snapshot.time_us == 2 * S  # the frame showing them came before the answer
         answer = link.command(SetMode(True))
-        assert answer.result.accepted and link.view().snapshot.mode in ("auto", "manual")
+        assert answer.result.accepted and link.view().cell.snapshot.mode in ("auto", "manual")
         link.advance(10_000)
         assert link.last.snapshot.mode == "manual"
         stats = link.query()

@@ -776,8 +776,8 @@ async def test_wait_helpers_are_bounded():
 # -- the safety filter's report ------------------------------------------------------------
 
 
-def _changed(snap) -> bool:
-    return snap.filter is not None and bool(snap.filter.changes)
+def _changed(cell) -> bool:
+    return cell.snapshot.filter is not None and bool(cell.snapshot.filter.changes)
 
 
 async def test_filter_changes_are_shown_with_their_constraint():
