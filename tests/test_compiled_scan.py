@@ -30,6 +30,7 @@ from hmi.engine.codegen import PARAMETERS, Source, build
 from hmi.engine.diagnoser import MODES
 from hmi.engine.scan import Engine
 from hmi.engine.snapshot import Snapshot
+from hmi.logic.expr import compile_bool
 from hmi.plant.sim.plant import SimPlant
 from hmi.project.injection import Injection
 from hmi.project.loader import load_project
@@ -96,8 +97,10 @@ def twin_run(name: str, seed: int) -> int:
             results = [e.apply(command) for e in engines]
             assert results[0] == results[1], (name, seed, k, command)
         fast, reference = (e.step(now) for e in engines)
-        for engine in engines:
+        for engine, snap in zip(engines, (fast, reference), strict=True):
             check_active_bits(engine)
+            check_violations(engine, snap.fov)
+            check_violations(engine, tuple(rng.random() < 0.5 for _ in snap.fov))
         if comparable(fast) != comparable(reference):
             for field in Snapshot._fields:
                 a, b = getattr(comparable(fast), field), getattr(comparable(reference), field)
@@ -106,13 +109,42 @@ def twin_run(name: str, seed: int) -> int:
     return SCANS
 
 
+_CONTEXTS: dict[int, tuple[Engine, list]] = {}
+
+
+def _contexts(engine: Engine) -> list:
+    """Each constraint's context as hmi.logic.expr compiles it (None: always active): the
+    reference the scan program's words are checked against."""
+    found = _CONTEXTS.get(id(engine))
+    if found is None or found[0] is not engine:
+        layout = engine.layout
+        found = _CONTEXTS[id(engine)] = (engine, [
+            None if row.context_node is None
+            else compile_bool(row.context_node, layout.slots, layout.step_times)
+            for row in engine.safety_filter.table.rows])
+    return found[1]
+
+
 def check_active_bits(engine: Engine) -> None:
     """active_bits (the corrector's memory key), printed or evaluated, against the contexts
-    as the filter evaluates them."""
-    f, image, history = engine.safety_filter, engine.image, engine.history
-    expected = sum(1 << k for k, c in enumerate(f.compiled)
-                   if c.context is None or c.context(image, history))
+    as hmi.logic.expr evaluates them."""
+    image, history = engine.image, engine.history
+    expected = sum(1 << k for k, context in enumerate(_contexts(engine))
+                   if context is None or context(image, history))
     assert engine.compiled.active_bits(image, history) == expected
+
+
+def check_violations(engine: Engine, candidate: tuple[bool, ...]) -> None:
+    """The violation word of `candidate`, printed or evaluated, against each row's masks and
+    context."""
+    image, history = engine.image, engine.history
+    packed = sum(1 << k for k, value in enumerate(candidate) if value)
+    rows = engine.safety_filter.table.rows
+    expected = sum(1 << j for j, (row, context) in enumerate(zip(rows, _contexts(engine),
+                                                                 strict=True))
+                   if packed & row.pos == row.pos and not packed & row.neg
+                   and (context is None or context(image, history)))
+    assert engine.compiled.violated(image, history, candidate) == expected
 
 
 def check_marks(snap: Snapshot, seen: tuple[int, tuple] | None) -> tuple[int, tuple] | None:

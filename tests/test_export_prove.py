@@ -52,8 +52,9 @@ def test_the_exported_filter_is_the_engines_for_every_input_and_state(name):
     # the candidate's forcing: F0 and F1 swapped
     ("Mem := (Cand AND NOT F0) OR F1;", "Mem := (Cand AND NOT F1) OR F0;",
      {"correct: the exact strategy's unique vector, masked, or the safe state"}),
-    # a context's literal: AND read as OR
-    ("IF NOT prev_G AND NOT e THEN", "IF NOT prev_G OR NOT e THEN",
+    # a context's literal in the detection (the printed violation word): AND read as OR
+    ("<> DWORD#16#0) AND NOT prev_G AND NOT e THEN",
+     "<> DWORD#16#0) AND NOT prev_G OR NOT e THEN",
      {"the violation word is the constraints violated by the candidate",
       "the block latch is set by a violation and kept",
       "monitor, block and a clean candidate: the candidate, masked, the latch safe"}),

@@ -424,3 +424,35 @@ def test_a_seed_that_raises_is_reported_failing_and_the_farm_goes_on(tmp_path, c
     assert len(saved) == 1 and len(saved[0].read_text().splitlines()) == 2 + 4
     # its first line is a command to copy: no --control the project does not have
     assert saved[0].read_text().splitlines()[0] == f"# plchmi soak {VALVE} --size 80x24 --seed 3"
+
+
+def test_a_soak_farm_over_the_socket_says_so_and_its_replays_do_too(tmp_path, capsys,
+                                                                    monkeypatch):
+    """--split reaches every seed's session (the HMI attached over the runtime's socket), the
+    report says so, and a failing seed's saved list and replay line carry --split: a replay
+    without it would run another protocol than the one that failed."""
+    from hmi.soak import farm as soak_farm
+    from hmi.soak import runner
+    from hmi.soak.invariants import Broken
+
+    real = runner.session
+    seen = []
+
+    async def marked(config, replay=None, journal_dir=None, progress=None):
+        seen.append(config.split)
+        result = await real(config, replay, journal_dir, progress)
+        if config.seed == 2 and replay is None:
+            result.broken.append(Broken("exception", "deliberate", 1, 0))
+        return result
+    monkeypatch.setattr(soak_farm, "session", marked)
+    monkeypatch.setenv("PLCHMI_DATA", str(tmp_path))
+    code, out, err = _run(capsys, "soak", str(VALVE), "--seeds", "1-2", "--steps", "3",
+                          "--jobs", "1", "--split", "--shrink-replays", "0")
+    assert code == 1, err
+    assert seen and all(seen), seen
+    assert "(control default, 80x24, over the socket): 2 seeds (1-2)" in out
+    assert f"replay: plchmi soak {VALVE} --split --size 80x24 --replay seed2.steps" in out
+    saved = list(tmp_path.rglob("seed2.steps"))
+    assert len(saved) == 1
+    assert saved[0].read_text().splitlines()[0] == (
+        f"# plchmi soak {VALVE} --split --size 80x24 --seed 2")

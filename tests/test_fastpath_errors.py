@@ -89,6 +89,7 @@ class Broken:
             "monitors": (engine.compiled, "monitors"),
             "read_into": (plant, "read_into"),
             "correction": (engine.safety_filter, "apply"),
+            "decide": (engine.safety_filter, "decide"),
             "active_bits": (engine.safety_filter, "active_bits"),
             # outside the scan's own error handling (Engine.run, Engine.snapshot)
             "take_events": (plant, "take_events"),
@@ -119,7 +120,7 @@ class Broken:
         else:
             setattr(owner, attribute, broken)
         if where == "violated":  # the filter stage's first question is the same function
-            engine.filter_stage.quick = broken
+            engine.safety_filter.violations = broken
 
     def fail(self) -> None:
         """Raise the planted fault, `times` times from `at_us` on, while armed."""
@@ -142,13 +143,13 @@ CASES += [(name, "monitors") for name in ("sorting", "palletizer", "conveyor_rob
 # palletizer's and sorting's laws ask for corrections from about 10 s on, scan after scan
 # (the filter remembers them: its memory's key is active_bits)
 CASES += [(name, where) for name in ("palletizer", "sorting")
-          for where in ("correction", "active_bits")]
+          for where in ("correction", "decide", "active_bits")]
 
 
 @pytest.mark.parametrize(("name", "where"), CASES)
 def test_an_error_inside_a_fast_path_latches_writes_safe_and_is_explained(tmp_path, name,
                                                                           where):
-    start = 10 * S if where in ("correction", "active_bits") else 3 * S
+    start = 10 * S if where in ("correction", "decide", "active_bits") else 3 * S
     at_us = start + 3 * load(name).scan_period_us  # inside a stretch of quiet scans
     runs = [Broken(name, where, at_us, quiet, tmp_path) for quiet in (False, True)]
     for run in runs:

@@ -21,6 +21,23 @@ from hmi.program.timers import lower_timer
 Runner = Callable[[list, int], None]
 
 
+@pytest.fixture(autouse=True, scope="module")
+def _printed_names() -> None:
+    """The names the lowerings tested here print, allowed as an engine allows its stages'
+    (hmi.engine.codegen.allow): a run of this module alone builds no engine first."""
+    from hmi.engine.codegen import allow
+    from hmi.engine.compiled import FRAME
+    from hmi.engine.control import ControlRuntime
+    from hmi.engine.diagnoser import DiagnosisStage
+    from hmi.engine.filter import SafetyFilter
+    from hmi.engine.monitors import MonitorStage
+    from hmi.engine.recovery import RecoveryStage
+    from hmi.engine.stages import Memory
+
+    allow(FRAME.union(*(stage.PRINTED for stage in (
+        Memory, ControlRuntime, DiagnosisStage, RecoveryStage, MonitorStage, SafetyFilter))))
+
+
 def both_forms(program: tuple[Stmt, ...], slots: dict[str, int]) -> dict[str, Runner]:
     """`program` as the evaluator runs it and as the compiled scan runs it."""
     run_evaluated = evaluator(program, slots, {})
@@ -142,38 +159,115 @@ def test_try_and_return_in_both_forms(x):
     assert results[0] == expected[x]
 
 
+class _Constraints:
+    """A project's constraint table, a function of it (`function_of`) in both forms, and
+    random images and histories over the names its contexts read."""
+
+    def __init__(self, name: str, function_of: Callable) -> None:
+        import random
+
+        from hmi.engine.codegen import build_function
+        from hmi.program.constraints import lower_constraints
+        from hmi.program.evaluate import function_evaluator
+        from hmi.project.loader import load_project
+        from tests.conftest import PROJECTS
+
+        self.table = table = lower_constraints(load_project(PROJECTS / name))
+        self.names = sorted({lit.name for row in table.rows for lit in row.context})
+        self.slots = {n: k for k, n in enumerate(self.names)}
+        self.depth = max((lit.depth for row in table.rows for lit in row.context), default=0)
+        function = function_of(table)
+        self.forms = (function_evaluator(function, self.slots, {}),
+                      build_function(function, self.slots, {}, "test_program"))
+        self.rng = random.Random(32)
+
+    def situation(self) -> tuple[list[bool], list[list[bool]]]:
+        rng = self.rng
+        return ([rng.random() < 0.5 for _ in self.names],
+                [[rng.random() < 0.5 for _ in self.names] for _ in range(max(self.depth, 1))])
+
+    def active(self, row, v, h) -> bool:
+        return all((v if lit.depth == 0 else h[lit.depth - 1])[self.slots[lit.name]]
+                   == lit.positive for lit in row.context)
+
+
 @pytest.mark.parametrize("name", ["cispi_valve", "cispi_subsystem", "sorting"])
 def test_the_active_constraints_in_both_forms(name):
     """Which constraints are active (the corrector's memory key, the PLC filter's word Act),
     printed and evaluated from the one lowering, against each row's context read literal by
     literal, on seeded random images and histories; a row without a context is always
     active."""
-    import random
+    from hmi.program.constraints import active_function
 
-    from hmi.engine.codegen import build_function
-    from hmi.program import ir
-    from hmi.program.constraints import ACTIVE, lower_active, lower_constraints
-    from hmi.program.evaluate import function_evaluator
-    from hmi.project.loader import load_project
-    from tests.conftest import PROJECTS
-
-    table = lower_constraints(load_project(PROJECTS / name))
-    names = sorted({lit.name for row in table.rows for lit in row.context})
-    slots = {n: k for k, n in enumerate(names)}
-    depth = max((lit.depth for row in table.rows for lit in row.context), default=0)
-    function = ir.Function("active_bits", ("v", "h"), lower_active(table).body, ACTIVE)
-    forms = (function_evaluator(function, slots, {}),
-             build_function(function, slots, {}, "test_program"))
-    rng = random.Random(32)
+    c = _Constraints(name, active_function)
     seen = set()
     for _ in range(400):
-        v = [rng.random() < 0.5 for _ in names]
-        h = [[rng.random() < 0.5 for _ in names] for _ in range(max(depth, 1))]
-        want = 0
-        for j, row in enumerate(table.rows):
-            if all((v if lit.depth == 0 else h[lit.depth - 1])[slots[lit.name]]
-                   == lit.positive for lit in row.context):
-                want |= 1 << j
-        assert [form(v, h) for form in forms] == [want, want]
+        v, h = c.situation()
+        want = sum(1 << j for j, row in enumerate(c.table.rows) if c.active(row, v, h))
+        assert [form(v, h) for form in c.forms] == [want, want]
         seen.add(want)
     assert len(seen) > 1  # the contexts were exercised, not one word throughout
+
+
+@pytest.mark.parametrize("name", ["cispi_valve", "cispi_subsystem", "sorting"])
+def test_the_violation_word_in_both_forms(name):
+    """Which constraints a candidate violates (the filter's first question, the PLC filter's
+    word Violations), printed and evaluated from the one lowering, against each row's masks
+    and context, on seeded random candidates, images and histories."""
+    from hmi.program.constraints import violations_function
+
+    c = _Constraints(name, violations_function)
+    rows, rng = c.table.rows, c.rng
+    seen = set()
+    for _ in range(400):
+        v, h = c.situation()
+        # mostly candidates that make some row's output literals true
+        row = rng.choice(rows)
+        f = tuple(bool(row.pos >> k & 1) if (row.pos | row.neg) >> k & 1
+                  else rng.random() < 0.5 for k in range(len(c.table.outputs)))
+        packed = sum(1 << k for k, value in enumerate(f) if value)
+        want = sum(1 << j for j, r in enumerate(rows) if packed & r.pos == r.pos
+                   and not packed & r.neg and c.active(r, v, h))
+        assert [form(v, h, f) for form in c.forms] == [want, want]
+        seen.add(want)
+    assert len(seen) > 2 and 0 in seen  # rows violated and not, not one word throughout
+
+
+def test_the_policy_in_both_forms():
+    """The policy (hmi.program.constraints.lower_policy), printed and evaluated, for every
+    code, latch and word: `block` calls its handler when latched or violated, any other code
+    but monitor corrects a violated candidate, monitor reports it, and a clean candidate
+    with no latch calls nothing (None)."""
+    from hmi.engine.codegen import build_function
+    from hmi.program.constraints import (
+        BLOCK,
+        CORRECT,
+        MONITOR,
+        policy_function,
+    )
+    from hmi.program.evaluate import function_evaluator
+
+    class Handler:
+        def blocked(self, v, h, f, w, latched):
+            return ("blocked", f, w, latched)
+
+        def corrected(self, v, h, f, w):
+            return ("corrected", f, w)
+
+        def monitored(self, f, w):
+            return ("monitored", f, w)
+
+    handler = Handler()
+    function = policy_function(handler)
+    forms = (function_evaluator(function, {}, {}),
+             build_function(function, {}, {}, "test_program"))
+    f = (True, False)
+    for p, latched, w in itertools.product((MONITOR, BLOCK, CORRECT, 7), (False, True),
+                                           (0, 0b101)):
+        if p == BLOCK:
+            want = ("blocked", f, w, latched) if latched or w else None
+        elif w:
+            want = ("monitored", f, w) if p == MONITOR else ("corrected", f, w)
+        else:
+            want = None
+        assert [form([], (), f, w, p, latched) for form in forms] == [want, want], (p, latched, w)

@@ -139,7 +139,7 @@ def _farm(args: argparse.Namespace) -> int:
         raise UsageError("--steps: at least 1")
     replays = DEFAULT_SHRINK_REPLAYS if args.shrink_replays is None else args.shrink_replays
     config = SoakConfig(Path(args.project), args.control, args.size, args.minutes, 1,
-                        args.steps)
+                        args.steps, split=args.split)
     with farm_of(args) as farm:
         results = run_farm(project, config, args.seeds, replays, farm)
     print_report("\n".join(report_lines(results, project, config, args.project, replays)),

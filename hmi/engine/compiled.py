@@ -17,8 +17,11 @@ as functions (hmi.program.ir.Function):
 * ``recovery_<k>(v, h, now, scan)``, recovery mode with procedure k running: stages 2-4
   without the step times (the program waits, as in manual mode), then the procedure's
   step, whose vector it returns;
-* ``violated(v, h, f)``: whether the candidate `f` violates any safety constraint (stage
-  6's first question: most scans violate none, and then the filter has nothing else to do);
+* ``violated(v, h, f)``: the constraints the candidate `f` violates, as a word (stage 6's
+  first question: most scans violate none, 0, and then the filter has nothing else to do);
+* ``decide(v, h, f, w, p, latched)``: the policy applied to that word, calling the filter's
+  handler when it has something to decide (the PLC's filter prints the same two lowerings,
+  hmi.export.filter_pou);
 * ``active_bits(v, h)``: which constraints are active (the corrector's memory key; the PLC's
   filter prints the same lowering, hmi.export.filter_pou);
 * ``monitors(v, h, now, scan)``: the stopwatch monitors after the output scan.
@@ -41,11 +44,16 @@ from typing import TYPE_CHECKING, Any
 
 from hmi.engine.codegen import Vocabulary, allow, build_function
 from hmi.engine.diagnoser import NO_DIAGNOSIS
+from hmi.engine.program_stages import AddedStage, program_order
 from hmi.engine.recovery import NO_RECOVERY
 from hmi.logic.expr import History, Image
 from hmi.plant.base import PlantError
 from hmi.program import ir, order
-from hmi.program.constraints import ACTIVE, lower_active, lower_violated
+from hmi.program.constraints import (
+    active_function,
+    policy_function,
+    violations_function,
+)
 from hmi.program.evaluate import function_evaluator
 
 if TYPE_CHECKING:
@@ -57,7 +65,8 @@ if TYPE_CHECKING:
 
 CoreFn = Callable[[Image, History, int, int], tuple[bool, ...]]
 HeldFn = Callable[[Image, History, int, int], None]
-ViolatedFn = Callable[[Image, History, tuple[bool, ...]], bool]
+ViolatedFn = Callable[[Image, History, tuple[bool, ...]], int]
+DecideFn = Callable[[Image, History, tuple[bool, ...], int, int, bool], Any]
 MonitorFn = Callable[[Image, History, int, int], None]
 ActiveFn = Callable[[Image, History], int]
 
@@ -70,16 +79,19 @@ class ScanProgram:
 
     def __init__(self, layout: Layout, stages: Sequence[ProgramStage],
                  recovery: RecoveryStage | None, safety_filter: SafetyFilter,
-                 monitors: MonitorStage | None):
+                 monitors: MonitorStage | None, added: Sequence[AddedStage] = ()):
         self.outputs = layout.outputs
-        # each part's statements (the stages' in the order given), walked in the order
-        # hmi.program.order declares
-        self.parts: dict[str, tuple[ir.Stmt, ...]] = dict.fromkeys(order.PROGRAM, ())
-        for stage in stages:
+        # the parts of the mode's program in order: hmi.program.order's, with each added
+        # stage's where it declares (hmi.engine.program_stages)
+        self.order = program_order(added)
+        # each part's statements (the stages' in the order given), walked in that order
+        self.parts: dict[str, tuple[ir.Stmt, ...]] = dict.fromkeys(self.order, ())
+        for stage in (*stages, *added):
             for part, stmts in stage.parts.items():
                 if part not in self.parts:
                     raise ValueError(f"{type(stage).__name__}: {part!r} is not a part of the "
-                                     "mode's program (hmi.program.order.PROGRAM)")
+                                     "mode's program (hmi.program.order.PROGRAM, or an "
+                                     "added stage's PLACE)")
                 self.parts[part] += stmts
         self._fov = ir.Tuple(tuple(ir.Slot(s) for s in layout.indices(layout.outputs)))
         self._recovery = recovery
@@ -88,10 +100,10 @@ class ScanProgram:
 
     def walk(self, without: tuple[str, ...] = (), law: tuple[ir.Stmt, ...] | None = None
              ) -> tuple[ir.Stmt, ...]:
-        """The parts of hmi.program.order.PROGRAM in order, but those `without`, the law
-        replaced by `law` when given."""
+        """The parts of the mode's program in order, but those `without`, the law replaced by
+        `law` when given."""
         body: tuple[ir.Stmt, ...] = ()
-        for part in order.PROGRAM:
+        for part in self.order:
             if part not in without:
                 body += law if part == order.LAW and law is not None else self.parts[part]
         return body
@@ -117,15 +129,15 @@ class ScanProgram:
                            ir.Local("f"))
 
     def violated(self) -> ir.Function:
-        return ir.Function("violated", ("v", "h", "f"), (),
-                           lower_violated([c.constraint for c in self._filter.compiled],
-                                          self._filter.outputs))
+        return violations_function(self._filter.table)
+
+    def decide(self) -> ir.Function:
+        return policy_function(self._filter)
 
     def active_bits(self) -> ir.Function:
         """Which constraints are active (bit k: safety_filter.compiled[k]), the corrector's
         memory key (SafetyFilter.active_bits): the lowering the PLC's filter prints too."""
-        return ir.Function("active_bits", ("v", "h"),
-                           lower_active(self._filter.table).body, ACTIVE)
+        return active_function(self._filter.table)
 
     def monitors(self) -> ir.Function | None:
         stage = self._monitors
@@ -138,20 +150,23 @@ class CompiledScan:
 
     def __init__(self, layout: Layout, stages: Sequence[ProgramStage],
                  recovery: RecoveryStage | None, safety_filter: SafetyFilter,
-                 monitors: MonitorStage | None, label: str, python: bool = True):
+                 monitors: MonitorStage | None, label: str, python: bool = True,
+                 added: Sequence[AddedStage] = ()):
         self.slots = layout.slots
         self.times = layout.step_times
         self.label = label
         self.python = python
-        self.program = ScanProgram(layout, stages, recovery, safety_filter, monitors)
+        self.program = ScanProgram(layout, stages, recovery, safety_filter, monitors, added)
         # what the printed code may name: every stage's names (their PRINTED), the frame's
-        printed = (*stages, safety_filter, *((monitors,) if monitors is not None else ()))
+        printed = (*stages, *added, safety_filter,
+                   *((monitors,) if monitors is not None else ()))
         self.vocabulary = FRAME.union(*(stage.PRINTED for stage in printed))
         if python:
             allow(self.vocabulary)
         self.sources: list[str] = []  # every printed function's text, in build order
         self.core: CoreFn = self._form(self.program.core())
         self.violated: ViolatedFn = self._form(self.program.violated())
+        self.decide: DecideFn = self._form(self.program.decide())
         monitor = self.program.monitors()
         self.monitors: MonitorFn | None = self._form(monitor) if monitor is not None else None
         # the corrector's memory key (SafetyFilter.active_bits)
@@ -209,7 +224,7 @@ FRAME = Vocabulary(
                "events", "recovery", "scan_us", "settled", "manual", "current", "settle",
                "needed"}),
     frozenset({"exc", "diag", "report", "error", "monitored", "marks", "events", "status",
-               "last", "values", "q"}))
+               "last", "values", "w"}))
 
 
 def auto_frame(engine: Any) -> ir.Function:
@@ -226,7 +241,7 @@ def auto_frame(engine: Any) -> ir.Function:
     image, history = ir.Ref(engine.image), ir.Ref(engine.history)
     now, scan = ir.Local("now"), ir.Local("scan")
     f, diag, report, error = (ir.Local(n) for n in ("f", "diag", "report", "error"))
-    monitored, exc, quiet = ir.Local("monitored"), ir.Local("exc"), ir.Local("q")
+    monitored, exc, unquiet = ir.Local("monitored"), ir.Local("exc"), ir.Local("w")
     stage, monitors, recovery = engine.diagnosis, engine.monitors, engine.recovery
     supervised = engine._supervised
     record = engine._record
@@ -263,13 +278,16 @@ def auto_frame(engine: Any) -> ir.Function:
             guarded.append(ir.Assign(diag, cell(stage, "current")))
 
     def filter_() -> None:  # 6: its first question; the filter itself if not quiet
-        guarded.append(ir.Assign(quiet, ir.And((
-            ir.IsNone(ir.Item(diag, 1)), ir.Not(cell(e, "latched")),
-            ir.Not(call(scan_program, "violated", image, history, f))))))
+        # masked, latched, or else the violation word: not quiet unless 0 (the filter is
+        # handed the word, which it does not compute again, when nothing is masked nor
+        # latched)
+        guarded.append(ir.Assign(unquiet, ir.Or((
+            ir.Not(ir.IsNone(ir.Item(diag, 1))), cell(e, "latched"),
+            call(scan_program, "violated", image, history, f)))))
         body.append(ir.Try(tuple(guarded), ((Exception, "exc", conclude(
             ir.Do(call(e, "_auto_failed", now, exc, diag)))),)))
-        body.append(ir.If(ir.Not(quiet), conclude(ir.Do(call(e, "_auto_filter", now, f,
-                                                                diag)))))
+        body.append(ir.If(unquiet, conclude(ir.Do(call(e, "_auto_filter", now, f, diag,
+                                                        unquiet)))))
         body.append(ir.Assign(report, cell(e, "clean_report")))
         body.append(ir.Assign(error, ir.NONE))
 

@@ -1,10 +1,11 @@
 """The control filter between the control law and the plant (000 §2.2, 001 §2, 004 §2-5).
 
-Every scan it evaluates each safety constraint on the candidate output vector (the FOV, or
-the operator's manual requests) and the uncontrollable variables Y, reports the violated
-constraints with the literals that made them true, and — according to the policy — passes
-the vector through (`monitor`), latches every output to its safe value (`block`), or corrects
-it (`correct`): first the simple constraints' set/reset form (004 eq. 6, `mem = not F0 and
+Every scan the scan program (hmi.program.constraints) tests each safety constraint on the
+candidate output vector (the FOV, or the operator's manual requests) and the uncontrollable
+variables Y and applies the policy; this filter's handlers report the violated constraints
+with the literals that made them true and — according to the policy — pass the vector
+through (`monitor`), latch every output to its safe value (`block`), or correct it
+(`correct`): first the simple constraints' set/reset form (004 eq. 6, `mem = not F0 and
 FOV or F1`), then the safe vector at minimum Hamming distance for the combined constraints
 (:mod:`hmi.engine.solver`); when no safe vector exists, or the search uses up its budget
 of steps for the scan, it writes the safe state and says so.
@@ -23,11 +24,24 @@ from hmi.engine.solver import (
     Solution,
     default_budget,
     free_indices,
-    is_safe,
     paper_solve,
 )
-from hmi.logic.expr import BoolFn, History, Image, compile_bool
-from hmi.program.constraints import ACTIVE, ConstraintTable, lower_constraints
+from hmi.logic.expr import History, Image
+from hmi.program.constraints import (
+    ACTIVE,
+    DECISION,
+    HANDLERS,
+    LATCHED,
+    POLICY,
+    POLICY_CODES,
+    VIOLATIONS,
+    ConstraintTable,
+    active_function,
+    lower_constraints,
+    policy_function,
+    violations_function,
+)
+from hmi.program.evaluate import function_evaluator
 from hmi.project.model import Constraint, Project
 
 # --------------------------------------------------------------------------------------------
@@ -106,7 +120,6 @@ class FilterDecision(NamedTuple):
 @dataclass(frozen=True)
 class CompiledConstraint:
     constraint: Constraint
-    context: BoolFn | None  # the product of the literals over Y (None: always true)
     pos: int  # outputs that must be 1 for the monomial to be true
     neg: int  # outputs that must be 0
     # How it reads when violated. A monomial is true only when every literal is, so each
@@ -128,19 +141,16 @@ class CompiledConstraint:
         return self.constraint.kind == "simple"
 
 
-def compile_constraints(table: ConstraintTable, slots: Mapping[str, int],
-                        step_times: Mapping[str, int] | None = None
-                        ) -> list[CompiledConstraint]:
-    """The rows of `table` (hmi.program.constraints: the masks and contexts the PLC's filter
-    reads too), each with its context compiled and its report built once."""
+def compile_constraints(table: ConstraintTable) -> list[CompiledConstraint]:
+    """The rows of `table` (hmi.program.constraints: the masks the PLC's filter reads too),
+    each with its report built once. Which are active and which violated, the scan
+    program says (its contexts are tested there, never here)."""
     compiled = []
     for row in table.rows:
         c = row.constraint
-        node = row.context_node
-        context = compile_bool(node, slots, step_times) if node is not None else None
         violation = Violation(c.name, c.kind, tuple((str(lit), lit.positive)
                                                     for lit in c.literals), c.description)
-        compiled.append(CompiledConstraint(c, context, row.pos, row.neg, violation))
+        compiled.append(CompiledConstraint(c, row.pos, row.neg, violation))
     return compiled
 
 
@@ -216,10 +226,17 @@ class _ActiveSet:
 
 
 class SafetyFilter:
-    """Stateless between scans except for what the engine holds (policy, latch)."""
+    """The policy's handlers (what a violated candidate becomes, with its report) and the
+    corrector. Which constraints the candidate violates, which are active and what the
+    policy does with them are the scan program's (hmi.program.constraints): printed by the
+    engine's compiled scan into `violations`, `decide` and `active_bits`, evaluated here
+    until then (a recovery's filter keeps the evaluator's). Stateless between scans except
+    for what the engine holds (policy, latch)."""
 
-    # which constraints are active (hmi.program.constraints; the candidate is a parameter)
-    PRINTED = Vocabulary(frozenset(), frozenset({ACTIVE.name}))
+    # the policy's handlers, and the locals of the constraints' functions (the candidate is
+    # a parameter)
+    PRINTED = Vocabulary(frozenset(HANDLERS), frozenset(
+        local.name for local in (ACTIVE, VIOLATIONS, POLICY, LATCHED, DECISION)))
 
     def __init__(self, project: Project, slots: Mapping[str, int],
                  step_times: Mapping[str, int] | None = None, strategy: str = "exact",
@@ -237,9 +254,20 @@ class SafetyFilter:
         self.outputs = tuple(v.name for v in project.outputs)
         self.n = len(self.outputs)
         self.table = lower_constraints(project)
-        self.compiled = compile_constraints(self.table, slots, step_times)
+        self.compiled = compile_constraints(self.table)
         self.safe = self.table.safe
         self.all_bits = (1 << self.n) - 1
+        # The scan program's functions of the constraints, as its evaluator runs them; the
+        # engine gives its compiled scan's (hmi.engine.compiled): the violation word of a
+        # candidate, the policy applied to it (calling this filter's handlers), and which
+        # constraints are active (bit j: self.compiled[j]).
+        times = step_times or {}
+        self.violations: Callable[[Image, History, tuple[bool, ...]], int] = \
+            function_evaluator(violations_function(self.table), slots, times)
+        self.decide: Callable[..., FilterDecision | None] = function_evaluator(
+            policy_function(self), slots, times)
+        self.active_bits: Callable[[Image, History], int] = function_evaluator(
+            active_function(self.table), slots, times)
         # What depends only on which constraints are active, built once per active set: a
         # cell has few distinct active sets, and a violation scan should not rebuild them.
         self._by_active: dict[tuple[int, ...], _ActiveSet] = {}
@@ -251,74 +279,79 @@ class SafetyFilter:
         # function of these (its search is bounded in steps, not in time, unless a live run
         # set wall_limit_us), and a cell asks for the same repair scan after scan.
         self._corrections: dict[tuple[int, int], tuple[tuple[bool, ...], FilterReport]] = {}
-        # Which constraints are active, as bits in self.compiled's order: the scan
-        # program's (hmi.program.constraints.lower_active, printed by hmi.engine.compiled);
-        # None: the contexts evaluated here.
-        self.active_bits: Callable[[Image, History], int] | None = None
         self.remember = True  # False: every correction searched afresh (the tests' reference)
         # The report of a scan with nothing violated, per policy: immutable, built once.
         self._clean_monitor = FilterReport("monitor", strategy)
         self._clean_block = FilterReport("block", strategy)
         self._clean_correct = FilterReport("correct", strategy)
-
-    def _active_bits(self, image: Image, history: History) -> int:
-        fn = self.active_bits
-        if fn is not None:
-            return fn(image, history)
-        return sum(1 << k for k, c in enumerate(self.compiled)
-                   if c.context is None or c.context(image, history))
+        self.clean = {"monitor": self._clean_monitor, "block": self._clean_block,
+                      "correct": self._clean_correct}
 
     def active(self, image: Image, history: History) -> list[CompiledConstraint]:
-        return [c for c in self.compiled if c.context is None or c.context(image, history)]
+        bits = self.active_bits(image, history)
+        return [c for j, c in enumerate(self.compiled) if bits >> j & 1]
+
+    def _violated(self, word: int) -> list[CompiledConstraint]:
+        compiled = self.compiled
+        found = []
+        while word:
+            low = word & -word
+            found.append(compiled[low.bit_length() - 1])
+            word ^= low
+        return found
 
     def apply(self, image: Image, history: History, fov: tuple[bool, ...], policy: str,
-              latched: bool) -> FilterDecision:
-        """The filter's decision on the candidate `fov`. Under `block`, a first violation
-        returns the reason to latch (`latched`: the engine's outputs already are) and the
-        engine latches; the filter itself holds no state between scans."""
+              latched: bool, word: int | None = None) -> FilterDecision:
+        """The filter's decision on the candidate `fov` (`word`: its violation word, when the
+        caller has it): the scan program's policy (`decide`), which calls the handlers
+        below when it has something to decide. Under `block`, a first violation returns the
+        reason to latch (`latched`: the engine's outputs already are) and the engine
+        latches; the filter itself holds no state between scans."""
+        if word is None:
+            word = self.violations(image, history, fov)
+        decision = self.decide(image, history, fov, word, POLICY_CODES[policy], latched)
+        return FilterDecision(fov, self.clean[policy]) if decision is None else decision
+
+    # -- the policy's handlers (hmi.program.constraints.lower_policy calls them) -------------
+    def monitored(self, fov: tuple[bool, ...], word: int) -> FilterDecision:
+        """`monitor`, something violated: the candidate passes; the report says what."""
+        violated = self._violated(word)
+        return FilterDecision(fov, FilterReport(
+            "monitor", self.strategy, tuple(c.violation for c in violated),
+            residual=tuple(c.name for c in violated)))
+
+    def blocked(self, image: Image, history: History, fov: tuple[bool, ...], word: int,
+                latched: bool) -> FilterDecision:
+        """`block`, something violated or the outputs latched: the safe state, and on a
+        first violation the reason to latch."""
+        violated = self._violated(word)
+        latch = None
+        if violated and not latched:
+            first = violated[0].constraint
+            why = f": {first.description}" if first.description else ""
+            latch = f"safe blocking on {first.name}{why}"
+        written, report = self._safe_state(fov, tuple(c.violation for c in violated),
+                                           self.active(image, history), "block",
+                                           "outputs latched safe")
+        return FilterDecision(written, report, latch)
+
+    def corrected(self, image: Image, history: History, fov: tuple[bool, ...], word: int
+                  ) -> FilterDecision:
+        """`correct`, something violated: the corrector's vector (a correction found before
+        for the same candidate and active constraints is given again)."""
         candidate = self._packed.get(fov)
         if candidate is None:
             if len(self._packed) >= PACKED_CACHE:
                 self._packed.clear()
             candidate = self._packed[fov] = pack(fov)
         key = None
-        if policy == "correct" and self.remember and self.wall_limit_us is None:
+        if self.remember and self.wall_limit_us is None:
             # (a search cut by wall time depends on the machine: never given again)
-            key = (candidate, self._active_bits(image, history))
+            key = (candidate, self.active_bits(image, history))
             found = self._corrections.get(key)
             if found is not None:
                 return FilterDecision(*found)
-        # The outputs' literals first (two integer tests), the context over Y only for the
-        # constraints they make true: most constraints are ruled out without evaluating it.
-        violated = [c for c in self.compiled if candidate & c.pos == c.pos
-                    and not candidate & c.neg and (c.context is None
-                                                   or c.context(image, history))]
-        if policy == "monitor":
-            if not violated:
-                return FilterDecision(fov, self._clean_monitor)
-            report = FilterReport(policy, self.strategy,
-                                  tuple(c.violation for c in violated),
-                                  residual=tuple(c.name for c in violated))
-            return FilterDecision(fov, report)
-        violations = tuple(c.violation for c in violated)
-        if policy == "block":
-            latch = None
-            if violated and not latched:
-                first = violated[0].constraint
-                why = f": {first.description}" if first.description else ""
-                latch = f"safe blocking on {first.name}{why}"
-            if latched or latch:
-                written, report = self._safe_state(fov, violations,
-                                                   self.active(image, history), policy,
-                                                   "outputs latched safe")
-                return FilterDecision(written, report, latch)
-            if not violated:
-                return FilterDecision(fov, self._clean_block)
-            return FilterDecision(fov, FilterReport(policy, self.strategy, violations))
-        if not violated:
-            # Common case: the candidate violates nothing, so it is written unchanged (a
-            # conflict between simple constraints would show as a violation).
-            return FilterDecision(fov, self._clean_correct)
+        violations = tuple(c.violation for c in self._violated(word))
         written, report = self._correct(fov, candidate, self.active(image, history),
                                         violations)
         if key is None:
@@ -488,9 +521,3 @@ class SafetyFilter:
             fallback=fallback, residual=residual, safe_state=True, conflicts=conflicts,
             note=why, steps=steps, budget=self.budget if steps else 0, stopped=stopped)
 
-
-def safe_for_all(vector: tuple[bool, ...], compiled: Sequence[CompiledConstraint], image: Image,
-                 history: History) -> bool:
-    v = pack(vector)
-    active = [c for c in compiled if c.context is None or c.context(image, history)]
-    return is_safe(v, [(c.pos, c.neg) for c in active])

@@ -14,13 +14,10 @@ filter").
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Iterable, Mapping
 
 from hmi.engine.filter import Change, FilterDecision, FilterReport, SafetyFilter, pack
 from hmi.logic.expr import History, Image
-
-# Whether a candidate vector violates any constraint (hmi.engine.compiled).
-QuickTest = Callable[[Image, History, tuple[bool, ...]], bool]
 
 
 class FilterStage:
@@ -30,13 +27,7 @@ class FilterStage:
         self.filter = safety_filter
         self.outputs = safety_filter.outputs
         self.mask_flags = mask_flags  # masked output -> the flags that mask it
-        # The compiled scan's test of the candidate (None: the filter tests it itself). When
-        # nothing is masked nor violated, and no block latch holds, the filter's answer is
-        # its clean report with the candidate unchanged: given without its work.
-        self.quick: QuickTest | None = None
-        self.clean = {"monitor": safety_filter._clean_monitor,
-                      "block": safety_filter._clean_block,
-                      "correct": safety_filter._clean_correct}
+        self.clean = safety_filter.clean
         # The last masked scan's report when the mask had the last word on nothing the
         # filter wrote: ((report, fov, written, mask), the report shown).
         self._masked_report: tuple[tuple[object, ...], FilterReport] | None = None
@@ -45,21 +36,22 @@ class FilterStage:
               latched: bool, mask: tuple[bool, ...] | None) -> FilterDecision:
         inner = self.filter
         if mask is None:
-            quick = self.quick
-            if quick is not None and not (latched and policy == "block") and not quick(
-                    image, history, fov):
+            # the scan program's violation word; nothing violated and no block latch: the
+            # candidate unchanged with the clean report, without the policy's call
+            word = inner.violations(image, history, fov)
+            if not word and not (latched and policy == "block"):
                 return FilterDecision(fov, self.clean[policy])
-            return inner.apply(image, history, fov, policy, latched)
+            return inner.apply(image, history, fov, policy, latched, word)
         if policy == "monitor":  # monitor alters nothing, masks included: it says so
             decision = inner.apply(image, history, fov, policy, latched)
             return decision._replace(report=self._unapplied(decision.report, mask))
         candidate = tuple(v and not m for v, m in zip(fov, mask, strict=True))
-        quick = self.quick
-        if quick is not None and not (latched and policy == "block") and not quick(
-                image, history, candidate):
+        word = inner.violations(image, history, candidate)
+        if not word and not (latched and policy == "block"):
             written, report, latch = candidate, self.clean[policy], None
         else:
-            written, report, latch = inner.apply(image, history, candidate, policy, latched)
+            written, report, latch = inner.apply(image, history, candidate, policy, latched,
+                                                 word)
         forced = tuple(bool(w) and not m for w, m in zip(written, mask, strict=True))
         if forced == tuple(written):
             # The report then depends on these only: a device masked for many scans with the

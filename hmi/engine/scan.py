@@ -45,6 +45,7 @@ from hmi.engine.filter import FilterReport, SafetyFilter
 from hmi.engine.filter_stage import FilterStage
 from hmi.engine.layout import Layout
 from hmi.engine.monitors import monitor_stage
+from hmi.engine.program_stages import added_stages
 from hmi.engine.recovery import NO_RECOVERY, recovery_stage
 from hmi.engine.snapshot import INTERNAL_PARTS, LatchReason, Snapshot
 from hmi.engine.stages import InputScan, Memory, OutputScan, plant_detail
@@ -199,9 +200,11 @@ class Engine:
                                        (solver or project.solver,
                                         solver_budget or project.solver_budget),
                                        self.filter_stage.mask_flags)
+        # The stages added to the mode's program (hmi.engine.program_stages.ADDED)
+        self.added = added_stages(project, lay)
         # The history is as deep as the deepest expression of any stage reads.
         depth = max((max_depth(expr) for expr in _all_exprs(project)), default=1)
-        for stage in (self.diagnosis, self.monitors):
+        for stage in (self.diagnosis, self.monitors, *self.added):
             if stage is not None:
                 depth = max(depth, stage.depth)
         self.history: deque[tuple[Any, ...]] = deque(maxlen=max(depth, 1))
@@ -227,9 +230,12 @@ class Engine:
         stages = (self.memory, self.law, self.diagnosis, self.recovery)
         self.compiled = CompiledScan(lay, [s for s in stages if s is not None], self.recovery,
                                      self.safety_filter, self.monitors,
-                                     f"{project.name}/{self.control_name}", python=compiled)
-        self.filter_stage.quick = self.compiled.violated  # the filter's first question
-        self.safety_filter.active_bits = self.compiled.active_bits  # its memory's key
+                                     f"{project.name}/{self.control_name}", python=compiled,
+                                     added=self.added)
+        # the filter's first question, its policy and its memory's key, printed
+        self.safety_filter.violations = self.compiled.violated
+        self.safety_filter.decide = self.compiled.decide
+        self.safety_filter.active_bits = self.compiled.active_bits
         self._bindings = self.input_scan.bindings
         self._period = project.scan_period_us
         # The last run()'s results until snapshot() builds them into a Snapshot, and what
@@ -1006,9 +1012,10 @@ class Engine:
         self._keep(safe, safe, None, diagnosis, monitored, error, 0.0)
 
     def _auto_filter(self, now: int, fov: tuple[bool, ...], diagnosis: Diagnosis,
-                     started: float = 0.0) -> None:
-        """The automatic mode's filter when the candidate is masked, latched or violated:
-        its decision, the latch, the output scan and the monitors."""
+                     unquiet: object = None, started: float = 0.0) -> None:
+        """The automatic mode's filter when the candidate is masked, latched or violated
+        (`unquiet`: the frame's test, the violation word when nothing is masked nor
+        latched): its decision, the latch, the output scan and the monitors."""
         image = self.image
         hist = self.history
         mask = diagnosis.mask
@@ -1018,7 +1025,8 @@ class Engine:
         try:
             if mask is None and not self.latched:
                 # violated, nothing masked: what FilterStage.apply would hand the filter
-                decision = self.safety_filter.apply(image, hist, fov, policy, False)
+                word = unquiet if type(unquiet) is int else None
+                decision = self.safety_filter.apply(image, hist, fov, policy, False, word)
             else:
                 decision = self.filter_stage.apply(image, hist, fov, policy,
                                                    bool(self.latched), mask)

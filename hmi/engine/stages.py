@@ -54,7 +54,8 @@ class ProgramStage(Protocol):
     """A stage of the mode's program (hmi.program.order.PROGRAM): its lowering, by the parts
     of the scan it runs at, and the names its printed statements use (the compiled scan's
     allow-list, hmi.engine.codegen). The engine lists its program's stages once
-    (Engine.__init__); the scan program puts their parts in order (hmi.engine.compiled)."""
+    (Engine.__init__, with the added ones of hmi.engine.program_stages); the scan program
+    puts their parts in order (hmi.engine.compiled)."""
 
     PRINTED: Vocabulary  # (a class attribute)
 

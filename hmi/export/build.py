@@ -20,6 +20,7 @@ from __future__ import annotations
 from hmi.engine.diagnoser import diagnosis_stage
 from hmi.engine.layout import Layout
 from hmi.engine.monitors import monitor_stage
+from hmi.engine.program_stages import added_stages
 from hmi.errors import ProjectError
 from hmi.export import model as m
 from hmi.export import source
@@ -32,6 +33,7 @@ from hmi.export.names import Scope
 from hmi.export.program_pou import Blocks, build_program
 from hmi.export.sfc import build_chart
 from hmi.export.st import time_text
+from hmi.export.stage_blocks import block_of
 from hmi.export.stopwatch_pou import build_monitor
 from hmi.export.views import Durations
 from hmi.project.diagnosers import layout_names
@@ -62,6 +64,10 @@ def build(project: Project, control: str | None = None) -> m.PlcProject:
     monitors = [build_monitor(stage, k, task, layout, pous.take(f"FB_{prefix}_Mon_{task.name}"),
                               pous, durations)
                 for k, task in enumerate(source.monitors(project))] if stage is not None else []
+    added = [(stage.PLACE, block_of(stage, layout,
+                                    pous.take(f"FB_{prefix}_{type(stage).__name__}"), pous,
+                                    durations))
+             for stage in added_stages(project, layout)]
     blocks = Blocks(
         memory=build_memory(project, layout, names["memory"], pous, durations),
         diagnosers=[build_diagnoser(diagnosis, k, layout, diag_names[rt.spec.name], pous,
@@ -69,7 +75,7 @@ def build(project: Project, control: str | None = None) -> m.PlcProject:
                     for k, rt in enumerate(diagnosis.runtimes)] if diagnosis is not None else [],
         filter=build_filter(project, names["filter"], pous, bound),
         control=build_control(project, law, layout, g, names["control"], pous, durations),
-        monitors=monitors)
+        monitors=monitors, added=added)
     program, instances = build_program(project, names["program"], g, blocks, durations)
     types = {v.name: v.type for v in g.vars}
     chart = build_chart(law, pous.take(f"SFC_{prefix}_Grafcet"), g.idents, types,
@@ -84,6 +90,7 @@ def build(project: Project, control: str | None = None) -> m.PlcProject:
     all_pous += [b.pou for b in blocks.diagnosers]
     all_pous += [blocks.control.pou, blocks.filter.pou]
     all_pous += [b.pou for b in blocks.monitors]
+    all_pous += [b.pou for _, b in blocks.added]
     all_pous.append(program)
     summary = _summary(project, bound, all_pous, g, pous)
     symbols = {name: ident for name, ident in g.idents.items()}

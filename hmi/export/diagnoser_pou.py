@@ -128,8 +128,10 @@ def build_diagnoser(stage: DiagnosisStage, k: int, layout: Layout, pou_name: str
                for p in spec.partitions if p.sensor and p.estimate and p.filtered]
     per_mode: dict[str, list[m.Stmt]] = {}
     for mode in ("observe", "off", "ftc"):
-        places.handler(stage, "settle", Handler(
-            lambda printer, args, mode=mode: _settle(rt, v, labels, flags, mode, hld)))
+        def settle(printer: StPrinter, args: tuple[Any, ...], mode: str = mode
+                   ) -> list[m.Stmt]:
+            return _settle(rt, v, labels, flags, mode, hld)
+        places.handler(stage, "settle", Handler(settle))
         per_mode[mode] = printer.program(
             lower_diagnosis(stage, [(rt, spec)], mode, outputs, bool(hld))
             + lower_reconstruction(sensors, mode))

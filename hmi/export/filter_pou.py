@@ -7,11 +7,13 @@ MaskedOutputStage) do, in the same order:
    partition forced to 0 (not under the monitor policy, which alters nothing);
 2. a constraint is violated when its context (the literals over Y) holds and the candidate
    makes its output literals true; the violation word has bit j for constraint j. The
-   constraints' table (POS, NEG, SIMPLE, SAFE) and which are active (the word Act) are the
-   scan program's (hmi.program.constraints), Act printed from the lowering the engine
-   prints as its ``active_bits``: the contexts are written once;
+   constraints' table (POS, NEG, SIMPLE, SAFE), the detection (the word Violations), which
+   are active (the word Act) and the policy are the scan program's
+   (hmi.program.constraints), printed from the lowerings the engine prints as its
+   ``violated``, ``active_bits`` and ``decide``: they are written once;
 3. `monitor` passes the candidate; `block` latches the safe vector on the first violation
-   until a fault reset; `correct` applies the simple constraints' F0/F1 (004 eq. 6) and then
+   until a fault reset (the policy's handler ``blocked``: ``Latched := TRUE``); `correct`
+   (the handler ``corrected``) applies the simple constraints' F0/F1 (004 eq. 6) and then
    searches the safe vector at minimum Hamming distance over the unforced outputs of the
    active combined constraints, by increasing distance (every k-subset at distance k), and
    keeps, among those at the first distance that has any, the one the engine's tie-break
@@ -36,13 +38,24 @@ from hmi.errors import ProjectError
 from hmi.export import model as m
 from hmi.export import source
 from hmi.export.names import Scope
-from hmi.export.program_st import NotPrintable, Place, Places, StPrinter
+from hmi.export.program_st import Handler, NotPrintable, Place, Places, StPrinter
 from hmi.export.views import Block, Durations, Views
-from hmi.program.constraints import ACTIVE, lower_active, lower_constraints
+from hmi.program.constraints import (
+    ACTIVE,
+    CANDIDATE,
+    DECISION,
+    LATCHED,
+    MONITOR,
+    POLICY,
+    POLICY_CODES,
+    VIOLATIONS,
+    lower_active,
+    lower_constraints,
+    lower_policy,
+    lower_violations,
+)
 from hmi.project.model import Project
 
-MONITOR, BLOCK, CORRECT = 0, 1, 2
-POLICY_CODES = {"monitor": MONITOR, "block": BLOCK, "correct": CORRECT}
 FIXED = ("Policy", "Reset", "Ftc", "Violations", "Latched", "Fallback", "Tested", "Cand",
          "Mem", "F0", "F1", "Mask", "Free", "Flip", "Vec", "Best", "Diff", "OutV", "Act",
          "Idx", "Comb", "N", "K", "I", "J", "OnCount", "BestOn", "Found", "More", "Ok", "Better",
@@ -97,15 +110,12 @@ class _Code:
         one, zero = m.BitsLit(1, self.vword), m.BitsLit(0, self.vword)
         return m.Binary("<>", band(self("Act"), m.Call("SHL", (one, index))), zero)
 
-    def violated(self, vec: str, only_combined: bool) -> m.Expr:
-        """Constraint J (active) is made true by the vector `vec`."""
+    def violated(self, vec: str) -> m.Expr:
+        """Combined constraint J (active) is made true by the vector `vec`."""
         j = self("J")
-        terms: list[m.Expr] = [self.active(j)]
-        if only_combined:
-            terms.append(m.not_(self.at("SIMPLE", j)))
-        terms.append(m.eq(band(self(vec), self.at("POS", j)), self.at("POS", j)))
-        terms.append(m.eq(band(self(vec), self.at("NEG", j)), self.bits(0)))
-        return m.and_(*terms)
+        return m.and_(self.active(j), m.not_(self.at("SIMPLE", j)),
+                      m.eq(band(self(vec), self.at("POS", j)), self.at("POS", j)),
+                      m.eq(band(self(vec), self.at("NEG", j)), self.bits(0)))
 
 
 def band(a: m.Expr, b: m.Expr) -> m.Expr:
@@ -141,12 +151,25 @@ def build_filter(project: Project, pou_name: str, scope: Scope, bound: source.Fi
     out = {v.name: sc.take(v.name) for v in outputs}
     views = Views(sc)
     index = {name: k for k, name in enumerate(table.outputs)}
-    # Which constraints are active: the scan program's lowering (the engine's active_bits),
-    # printed into the word Act, row by row
+    # Which constraints are active, which the candidate violates and what the policy does:
+    # the scan program's lowerings (the engine's active_bits, violated and decide), printed
+    # into the words Act and Violations and the policy's IF; the corrector, the policy's
+    # handler, is the search below (_correct)
     active = lower_active(table)
-    printer = StPrinter(Places(slot=_no_slot, read=views.name, step_time=_no_step_time,
-                               locals={ACTIVE.name: Place(c.t["Act"], c.vword)}),
-                        sc, Durations(), project.pos, "the safety filter")
+    handler = _PolicyHandler()
+    places = Places(slot=_no_slot, read=views.name, step_time=_no_step_time,
+                    locals={ACTIVE.name: Place(c.t["Act"], c.vword),
+                            VIOLATIONS.name: Place(c.t["Violations"], c.vword),
+                            CANDIDATE.name: Place(c.t["Cand"], c.word),
+                            POLICY.name: Place(c.t["Policy"], "INT"),
+                            LATCHED.name: Place(c.t["Latched"], "BOOL")},
+                    unkept=frozenset({DECISION.name}))
+    places.handler(handler, "blocked", Handler(print=lambda printer, args: [
+        c.set("Latched", m.TRUE)]))
+    places.handler(handler, "corrected", Handler(print=lambda printer, args: list(
+        _correct(c))))
+    places.handler(handler, "monitored", Handler(print=lambda printer, args: []))
+    printer = StPrinter(places, sc, Durations(), project.pos, "the safety filter")
     contexts: list[m.Stmt] = list(printer.block((active.start,)))
     for row, stmts in zip(rows, active.rows, strict=True):
         con = row.constraint
@@ -171,27 +194,18 @@ def build_filter(project: Project, pou_name: str, scope: Scope, bound: source.Fi
                               c.set("Mask", bor(c("Mask"), c.bits(mask)))))
         scan.append(m.if_(m.Binary("<>", c("Policy"), m.IntLit(MONITOR)),
                           c.set("Cand", band(c("Cand"), m.not_(c("Mask"))))))
-    scan += [c.set("Violations", m.BitsLit(0, c.vword)), c.set("Tested", m.IntLit(0)),
-             c.set("Fallback", m.FALSE), c.set("OutV", c("Cand"))]
+    scan += [c.set("Tested", m.IntLit(0)), c.set("Fallback", m.FALSE),
+             c.set("OutV", c("Cand"))]
+    scan.append(m.Comment("2. Detection: bit j of Violations, constraint j violated by the "
+                          "candidate (its literals over the outputs and over Y)"))
+    scan += printer.block(lower_violations(table))
     if nc:
-        scan.append(m.Comment("2. Contexts (the literals over Y: bit j of Act, constraint j "
-                              "active) and detection"))
+        scan.append(m.Comment("Contexts (the literals over Y): bit j of Act, constraint j "
+                              "active (what the corrector searches against)"))
         scan += contexts
-        scan.append(c.loop("J", nc - 1, m.if_(
-            c.violated("Cand", False),
-            c.set("Violations", bor(c("Violations"),
-                                    m.Call("SHL", (m.BitsLit(1, c.vword), c("J"))))))))
-        any_violation = m.Binary("<>", c("Violations"), m.BitsLit(0, c.vword))
         scan.append(m.Comment("3. The policy: 0 monitor, 1 block, 2 (or anything else) "
                               "correct"))
-        scan.append(m.If((
-            (m.eq(c("Policy"), m.IntLit(BLOCK)),
-             (m.if_(any_violation, c.set("Latched", m.TRUE)),)),
-            # any value but monitor and block corrects: a wrong setting never passes unsafe
-            # orders through
-            (m.and_(m.Binary("<>", c("Policy"), m.IntLit(MONITOR)), any_violation),
-             _correct(c)),
-        )))
+        scan += printer.block(lower_policy(handler))
     scan.append(m.Comment("4. No safe vector: the safe state; the mask has the last word; "
                           "a latched filter writes the safe state"))
     scan.append(m.if_(c("Fallback"), c.set("OutV", c("SAFE"))))
@@ -265,6 +279,11 @@ def build_filter(project: Project, pou_name: str, scope: Scope, bound: source.Fi
                  {**ports, **{f"FOV_{k}": v for k, v in fov.items()}})
 
 
+class _PolicyHandler:
+    """What the policy's lowering calls (hmi.program.constraints.HANDLERS): in this block,
+    `blocked` sets the latch, `corrected` is the search (_correct), `monitored` nothing."""
+
+
 def _no_slot(index: int) -> Place:
     raise NotPrintable(f"the safety filter reads no image slot ({index})")
 
@@ -299,7 +318,7 @@ def _correct(c: _Code) -> tuple[m.Stmt, ...]:
                 c.set("Vec", m.Binary("XOR", c("Mem"), c("Flip"))),
                 c.set("Tested", plus(c("Tested"), 1)),
                 c.set("Ok", m.TRUE),
-                c.loop("J", c.nc - 1, m.if_(c.violated("Vec", True),
+                c.loop("J", c.nc - 1, m.if_(c.violated("Vec"),
                                             c.set("Ok", m.FALSE), m.Exit())),
                 m.if_(c("Ok"), *_keep_best(c)),
                 m.Comment("the next k-subset (lexicographic order)"),

@@ -14,8 +14,8 @@ from hmi.errors import ProjectError
 from hmi.export import model as m
 from hmi.export import source
 from hmi.export.diagnoser_pou import MODE_CODES
-from hmi.export.filter_pou import POLICY_CODES
 from hmi.export.names import Scope
+from hmi.program.constraints import POLICY_CODES
 from hmi.project.model import PlantAddress, Project, Variable
 
 CONTROL = ("FaultReset", "FilterPolicy", "DiagnosisMode", "Violations", "FilterLatched",
@@ -77,8 +77,8 @@ def build_globals(project: Project, scope: Scope) -> Globals:
                 g.add(p.filtered, "filtered", comment=f"{p.sensor} as the filter reads it")
     for v in source.outputs(project):
         g.add(f"FOV_{v.name}", "fov", comment=f"the program's {v.name}, before the filter")
-    for t in source.monitors(project):
-        g.add(t.label, "label", comment=f"stopwatch monitor of task {t.name}: fault")
+    for task in source.monitors(project):
+        g.add(task.label, "label", comment=f"stopwatch monitor of task {task.name}: fault")
     for key, type_, initial, comment in (
             ("FaultReset", m.BOOL, None, "set TRUE to reset; the safety program clears it"),
             ("FilterPolicy", m.INT, m.IntLit(POLICY_CODES[source.policy(project)]),

@@ -12,6 +12,7 @@ plant received), and its reset call reads the scan just ended (see :func:`build_
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from hmi.export import model as m
@@ -33,6 +34,8 @@ class Blocks:
     filter: Block
     control: Block
     monitors: list[Block]
+    # each added stage's block (hmi.export.stage_blocks) with its PLACE (part, after)
+    added: list[tuple[tuple[str, str], Block]] = field(default_factory=list)
 
 
 @dataclass
@@ -56,7 +59,8 @@ class _Program:
                 self.history[(name, d)] = self.scope.take(view_name(name, d))
         return m.Name(self.history[(name, depth)])
 
-    def wire(self, block: Block, shift=None) -> list[tuple[str, m.Expr]]:
+    def wire(self, block: Block, shift: Callable[[str, int], m.Expr] | None = None
+             ) -> list[tuple[str, m.Expr]]:
         return [(ident, self.value(name, depth) if shift is None else shift(name, depth))
                 for (name, depth), ident in block.inputs.items()]
 
@@ -131,8 +135,9 @@ def build_program(project: Project, name: str, g: Globals, b: Blocks,
     parts = {order.INPUTS: inputs, order.MEMORY: memory, order.DIAGNOSERS: diagnosers,
              order.LAW: law, order.FILTER: filter_, order.OUTPUTS: lambda: list(g.write),
              order.MONITORS: monitors}
+    parts.update((part, _added(p, part, block, now)) for (part, _), block in b.added)
     body: list[m.Stmt] = []
-    for part in order.SCAN:
+    for part in order.placed(order.SCAN, [place for place, _ in b.added]):
         if part in parts:
             body += parts[part]()
     body.append(m.Comment("A fault reset, after the scan (the engine resets between scans)"))
@@ -142,12 +147,13 @@ def build_program(project: Project, name: str, g: Globals, b: Blocks,
         newer = g.name(n) if depth == 1 else m.Name(p.history[(n, depth - 1)])
         body.append(m.Assign(m.Name(ident), newer))
     started = p.scope.take("Started")
-    first = [m.Comment("The first scan: the history is the initial image (inputs as read, "
-                       "outputs safe, observers initial, the rest 0)"),
-             m.if_(m.not_(m.Name(started)),
-                   *(m.Assign(m.Name(ident), g.initial.get(n, m.FALSE))
-                     for (n, _), ident in p.history.items()),
-                   m.Assign(m.Name(started), m.TRUE))]
+    first: list[m.Stmt] = [
+        m.Comment("The first scan: the history is the initial image (inputs as read, "
+                  "outputs safe, observers initial, the rest 0)"),
+        m.if_(m.not_(m.Name(started)),
+              *(m.Assign(m.Name(ident), g.initial.get(n, m.FALSE))
+                for (n, _), ident in p.history.items()),
+              m.Assign(m.Name(started), m.TRUE))]
 
     types = {"Memory": b.memory.pou.name if b.memory else "", "Control": b.control.pou.name,
              "Filter": b.filter.pou.name}
@@ -155,6 +161,7 @@ def build_program(project: Project, name: str, g: Globals, b: Blocks,
                                                                    strict=True)})
     types.update({f"Mon_{t.name}": blk.pou.name for t, blk in zip(source.monitors(project),
                                                                   b.monitors, strict=True)})
+    types.update({f"Stage_{part}": blk.pou.name for (part, _), blk in b.added})
     locals_ = [m.Var(started, m.BOOL), m.Var(clock, m.Derived("TON")),
                m.Var(now, m.TIME, comment="the scan's time")]
     locals_ += [m.Var(ident, m.Derived(types[key])) for key, ident in p.instances.items()]
@@ -166,6 +173,19 @@ def build_program(project: Project, name: str, g: Globals, b: Blocks,
         tuple(g.read + first + body),
         "The cell's cycle, in the engine's order. Call it once per PLC cycle from the task.")
     return pou, dict(p.instances)
+
+
+def _added(p: _Program, part: str, block: Block, now: str) -> Callable[[], list[m.Stmt]]:
+    """An added stage's call (hmi.engine.program_stages): its block with the scan's time
+    and what it reads, its outputs to the globals."""
+    def call() -> list[m.Stmt]:
+        inst = p.instance(f"Stage_{part}")
+        clock = ((block.ports["Now"], m.Name(now)),) if "Now" in block.ports else ()
+        return [m.Comment(f"The added stage {part} ({block.pou.name})"),
+                m.FbCall(inst, (*clock, *p.wire(block))),
+                *(m.Assign(p.g.name(n), m.Member(m.Name(inst), out))
+                  for n, out in block.outputs.items())]
+    return call
 
 
 def _monitors(project: Project, p: _Program, b: Blocks, now: str) -> list[m.Stmt]:

@@ -89,8 +89,11 @@ class Places:
     step_time: Callable[[str], m.Expr]  # a step's activity time (TIME)
     now: m.Expr | None = None  # the scan's time (None: the program reads none)
     scan: m.Expr | None = None  # the scan's number (DINT), where the program compares it
-    # locals of the program that are variables of the POU (the filter's active word)
+    # locals of the program that are variables of the POU (the filter's words, its policy)
     locals: dict[str, Place] = field(default_factory=dict)
+    # locals the PLC does not keep (a handler's decision only the engine reads): a handler's
+    # value given to one is its ST version's statements, any other value nothing
+    unkept: frozenset[str] = frozenset()
     cells: dict[tuple[int, Any], Place | None] = field(default_factory=dict)
     handlers: dict[tuple[int, str], Handler] = field(default_factory=dict)
     # runtime objects the program compares by identity (``is``), as INT codes
@@ -167,7 +170,12 @@ class StPrinter:
                 if len(orelse) == 1 and isinstance(orelse[0], ir.If):
                     node = orelse[0]
                     continue
-                return [*before, m.If(tuple(branches), self.block(orelse))]
+                last = self.block(orelse)
+                # (a last branch with nothing to do, e.g. a handler with no ST statements,
+                # changes nothing: left out)
+                while branches and not branches[-1][1] and not last:
+                    branches.pop()
+                return [*before, m.If(tuple(branches), last)] if branches else before
         if isinstance(stmt, ir.Do):
             return self._call(stmt.call)
         if isinstance(stmt, ir.Switch):
@@ -180,6 +188,8 @@ class StPrinter:
         raise NotPrintable(f"{type(stmt).__name__} has no ST form in a stage's program")
 
     def _assign(self, target: ir.Target, value: ir.Value) -> list[m.Stmt]:
+        if isinstance(target, ir.Local) and target.name in self.places.unkept:
+            return self._call(value) if isinstance(value, ir.Call) else []
         if isinstance(target, ir.Local) and target.name in self._sets:
             return self._assign_set(target.name, value)
         if isinstance(target, ir.Local) and target.name not in self._locals:
@@ -320,6 +330,8 @@ class StPrinter:
             return self.durations.time(int(number), self.pos, self.what)
         if kind in (*INTEGERS, _UNTYPED):
             return m.IntLit(int(number))
+        if kind in WORDS:
+            return m.BitsLit(int(number), kind)
         raise NotPrintable(f"the constant {number} where a {kind} is expected")
 
     def _type_of(self, value: ir.Value) -> str:
@@ -351,6 +363,13 @@ class StPrinter:
                 raise NotPrintable(f"the constant {constant!r} has no ST form here")
             case ir.Ref(obj=obj) if id(obj) in self.places.codes:
                 return m.IntLit(self.places.codes[id(obj)]), INT
+            case ir.Item(base=ir.Local(name=name), index=index) if (
+                    name in self._locals and self._locals[name].type in WORDS):
+                # bit `index` of a word (the filter's candidate vector)
+                word = self._locals[name]
+                return m.Binary("<>", m.Binary("AND", word.expr, m.BitsLit(1 << index,
+                                                                            word.type)),
+                                m.BitsLit(0, word.type)), BOOL
             case ir.Local() | ir.Slot() | ir.Cell() | ir.Item():
                 place = self._place(value)
                 if place is None:

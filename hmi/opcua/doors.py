@@ -16,7 +16,8 @@ subscriptions, and the shortest publishing interval granted (the cell's own: fas
 nothing and costs the server). And the bytes a connection may have the server hold
 (:class:`BoundedProtocol`): no message chunk is larger than the server's receive buffer, so
 a header that claims more (a HEL claiming 2 GiB) closes the connection at once instead of
-being buffered while its data streams in.
+being buffered while its data streams in; and no request, all its chunks together, is larger
+than :data:`MAX_REQUEST_BYTES` (an ERR message, then the connection closed).
 """
 
 from __future__ import annotations
@@ -28,10 +29,11 @@ from collections.abc import Awaitable, Callable
 from typing import Any
 
 from asyncua import ua
+from asyncua.common.connection import TransportLimits
 from asyncua.server import binary_server_asyncio
 from asyncua.server.binary_server_asyncio import OPCUAProtocol
-from asyncua.server.internal_server import InternalServer
 from asyncua.server.internal_session import InternalSession
+from asyncua.server.server import Server
 from asyncua.server.uaprocessor import UaProcessor
 from asyncua.ua.object_ids import ObjectIds
 from asyncua.ua.status_codes import StatusCodes
@@ -48,6 +50,12 @@ MAX_SESSIONS = 16  # activated sessions at once
 ACTIVATION_S = 10.0  # a connection without an activated session after this is closed
 MAX_SUBSCRIPTIONS = 64
 MAX_MESSAGES_QUEUED = 64  # parsed requests waiting per connection
+# The largest request a client may send, all its chunks together. asyncua's own is 100 MB,
+# held in memory until the last chunk: any client with a channel (anonymous ones too) could
+# have the gateway hold 32 x 100 MB. What a client of the cell asks (reads, browses, a
+# method's arguments, history reads) is a few kilobytes.
+MAX_REQUEST_BYTES = 1 << 20
+CHUNK_BYTES = 65535  # the receive and send buffers (asyncua's, and the spec's usual)
 
 # (identity or None, why not): what the look before activation decided, for get_user.
 _verdict: contextvars.ContextVar[tuple[Identity | None, str] | None] = \
@@ -251,7 +259,13 @@ def make_gate(users: Users, sessions: SessionTable | None, per_user: int,
     return gate
 
 
-def apply_limits(iserver: InternalServer, min_interval_ms: float) -> None:
+def apply_limits(server: Server, min_interval_ms: float) -> None:
+    """Before the server starts: its transport limits are given to each connection then."""
+    server.limits = TransportLimits(
+        max_recv_buffer=CHUNK_BYTES, max_send_buffer=CHUNK_BYTES,
+        max_chunk_count=-(-MAX_REQUEST_BYTES // CHUNK_BYTES),
+        max_message_size=MAX_REQUEST_BYTES)
+    iserver = server.iserver
     iserver.max_connections = MAX_CONNECTIONS
     iserver.max_pending_activation_seconds = ACTIVATION_S
     iserver.max_subscriptions = MAX_SUBSCRIPTIONS

@@ -412,7 +412,7 @@ class CellServer:
             self.recorded = catalogue(self.source.project, self.source.layout).origin
             server.iserver.history_manager.set_storage(self.storage)
         await server.init()
-        apply_limits(server.iserver, self.interval_s * 1000)
+        apply_limits(server, self.interval_s * 1000)
         server.set_server_name(f"plchmi {self.model.cell}")
         server.set_endpoint(self.url)
         await server.set_application_uri(f"urn:plchmi:{self.model.cell}")

@@ -10,14 +10,16 @@ combined, the safe vector) and which rows are active (:func:`lower_active`, a wo
 Both the engine's filter (hmi.engine.filter, the memory key the compiled scan prints) and the
 PLC's (hmi.export.filter_pou, the same lowering printed as ST) read them from here.
 
-:func:`lower_violated` is stage 6's first question for the engine: whether a candidate
-vector violates any constraint (most scans violate none, and then the filter has nothing
-else to do; when one is violated, the filter's own handler reports and decides).
+:func:`lower_violations` is stage 6's first question: which constraints a candidate vector
+violates, as a word (0 on most scans, and then the filter has nothing else to do);
+:func:`lower_policy` what the policy does with that word, calling a handler for what it
+decides (the engine's SafetyFilter builds the report and runs its corrector; the PLC's
+block latches or runs its search). The engine prints them as ``violated`` and ``decide``,
+the PLC's filter block as its word ``Violations`` and the IF on its ``Policy``.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 from hmi.logic.expr import And, Literal, Node, Not, Var
@@ -26,6 +28,18 @@ from hmi.project.model import Constraint, Project
 
 CANDIDATE = ir.Local("f")
 ACTIVE = ir.Local("b")  # the active word: bit j, row j of the table is active
+VIOLATIONS = ir.Local("w")  # the violation word: bit j, row j is violated by the candidate
+POLICY = ir.Local("p")  # the policy's code (POLICY_CODES)
+LATCHED = ir.Local("latched")  # the outputs are latched safe (the block policy's latch)
+DECISION = ir.Local("d")  # the handler's decision (None: the candidate passes, clean)
+
+# The policies as the program compares them (the PLC's filter reads any other value of its
+# Policy input as `correct`: a wrong setting never passes unsafe orders through)
+MONITOR, BLOCK, CORRECT = 0, 1, 2
+POLICY_CODES = {"monitor": MONITOR, "block": BLOCK, "correct": CORRECT}
+# What the policy program calls on its handler (the engine's SafetyFilter; the PLC's filter
+# block has their ST versions, hmi.export.filter_pou)
+HANDLERS = ("blocked", "corrected", "monitored")
 
 
 @dataclass(frozen=True)
@@ -113,25 +127,72 @@ def lower_active(table: ConstraintTable) -> ActiveWord:
     return ActiveWord(ir.Assign(ACTIVE, ir.Bits(always)), tuple(rows))
 
 
-def lower_violated(constraints: Sequence[Constraint], outputs: Sequence[str]) -> ir.Value:
-    """True when the candidate vector (the local ``f``, `outputs` in order) violates one of
-    `constraints`, tested in order: a literal over an output at this scan reads the
-    candidate (``f[k]``), any other the image and the history."""
-    index = {name: k for k, name in enumerate(outputs)}
-    terms: list[ir.Value] = []
-    for c in constraints:
+def lower_violations(table: ConstraintTable) -> tuple[ir.Stmt, ...]:
+    """Which rows of `table` the candidate vector (the local ``f``: bit k or item k, output
+    k) violates, into the local ``w`` (bit j: row j), one statement per row: a row is
+    violated when every literal is true, tested in the constraint's order (a literal over an
+    output at this scan reads the candidate, any other the image and the history). Stage
+    6's first question: ``w`` is 0 on most scans, and then the filter has nothing else to
+    do."""
+    index = {name: k for k, name in enumerate(table.outputs)}
+    body: list[ir.Stmt] = [ir.Assign(VIOLATIONS, ir.Const(0))]
+    for j, row in enumerate(table.rows):
         parts: list[ir.Value] = []
-        for lit in c.literals:
-            read: ir.Value
+        for lit in row.constraint.literals:
             if lit.depth == 0 and lit.name in index:
                 read = ir.Item(CANDIDATE, index[lit.name])
                 parts.append(read if lit.positive else ir.Not(read))
             else:
                 parts.append(_read(lit))
-        terms.append(ir.all_of(*parts))
-    return ir.any_of(*terms)
+        body.append(ir.If(ir.all_of(*parts),
+                          (ir.Assign(VIOLATIONS, ir.BitOr(VIOLATIONS, ir.Bit(j))),)))
+    return tuple(body)
+
+
+def lower_policy(handler: object) -> tuple[ir.Stmt, ...]:
+    """The policy (``p``) applied to the violation word ``w``, into the local ``d``: the
+    handler's decision, or None when the candidate passes as it is. `block` latches the
+    outputs safe on a violation and keeps them so (``latched``) until a fault reset;
+    `correct` (any code but monitor and block) hands a violated candidate to the corrector
+    (the rare, expensive part: a handler); `monitor` passes it and says what it violates.
+    The handler is called only when it has something to decide; its methods are HANDLERS,
+    called with the image, the history, the candidate and the word."""
+    def call(method: str, *args: ir.Value) -> ir.Call:
+        return ir.Call(handler, method, args)
+
+    violated = ir.Compare("!=", VIOLATIONS, ir.Const(0))
+    image, history = ir.TheImage(), ir.TheHistory()
+    return (
+        ir.Assign(DECISION, ir.NONE),
+        *ir.if_chain([
+            (ir.Compare("==", POLICY, ir.Const(BLOCK)),
+             (ir.If(ir.Or((LATCHED, violated)), (ir.Assign(DECISION, call(
+                 "blocked", image, history, CANDIDATE, VIOLATIONS, LATCHED)),)),)),
+            (ir.And((ir.Compare("!=", POLICY, ir.Const(MONITOR)), violated)),
+             (ir.Assign(DECISION, call("corrected", image, history, CANDIDATE, VIOLATIONS)),)),
+            (violated, (ir.Assign(DECISION, call("monitored", CANDIDATE, VIOLATIONS)),)),
+        ]),
+    )
 
 
 def _read(lit: Literal) -> ir.Value:
     read = ir.Test(Var(0, lit.name, lit.depth))
     return read if lit.positive else ir.Not(read)
+
+
+def violations_function(table: ConstraintTable) -> ir.Function:
+    """``violated(v, h, f) -> w``: the violation word of the candidate `f` (the outputs in
+    order), :func:`lower_violations`."""
+    return ir.Function("violated", ("v", "h", "f"), lower_violations(table), VIOLATIONS)
+
+
+def policy_function(handler: object) -> ir.Function:
+    """``decide(v, h, f, w, p, latched) -> decision or None``: :func:`lower_policy`,
+    calling `handler`'s methods."""
+    return ir.Function("decide", ("v", "h", "f", "w", "p", "latched"),
+                       lower_policy(handler), DECISION)
+
+
+def active_function(table: ConstraintTable) -> ir.Function:
+    """``active_bits(v, h) -> b``: which rows of `table` are active, :func:`lower_active`."""
+    return ir.Function("active_bits", ("v", "h"), lower_active(table).body, ACTIVE)

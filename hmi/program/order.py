@@ -6,9 +6,13 @@ mode's function runs, in this order), the engine's two ways of running a scan
 of the export (hmi.export.program_pou: which function block it calls, in this order) are
 all walks of this tuple, so a part moved here moves in each. What runs between the
 program's parts in the engine (the input scan, the filter, the output scan) is named too.
+A stage added beyond the built-in ones declares its own part and where it runs
+(hmi.engine.program_stages): :func:`placed` puts it there, for the engine and the PLC.
 """
 
 from __future__ import annotations
+
+from collections.abc import Iterable
 
 INPUTS = "inputs"  # 1. the input scan
 MEMORY = "memory"  # 2. timers, observers
@@ -45,3 +49,20 @@ ENGINE = _engine_parts()
 # safe; from the output scan on, the parts run whatever happened before them.
 GUARDED = ENGINE[:ENGINE.index(OUTPUTS)]
 EXCHANGED = ENGINE[ENGINE.index(OUTPUTS):]
+
+
+def placed(base: tuple[str, ...], added: Iterable[tuple[str, str]]) -> tuple[str, ...]:
+    """`base` with each added part, given as (part, the part it runs after), right after
+    that part (several after one part: in the order given). How a stage beyond the built-in
+    ones takes its place (hmi.engine.program_stages): the engine's program and the PLC's
+    both walk the result."""
+    parts = list(base)
+    last: dict[str, str] = {}  # the part added last after each part
+    for part, after in added:
+        if part in parts:
+            raise ValueError(f"{part!r} is a part of the scan already")
+        if after not in parts:
+            raise ValueError(f"{part!r} runs after {after!r}, not a part of {base}")
+        parts.insert(parts.index(last.get(after, after)) + 1, part)
+        last[after] = part
+    return tuple(parts)

@@ -109,7 +109,8 @@ def save_steps(config: SoakConfig, steps: list[Step], why: str) -> Path:
     stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S")
     path = data_folder() / "soak" / f"{config.project.name}-seed{config.seed}-{stamp}.steps"
     path.parent.mkdir(parents=True, exist_ok=True)
-    head = steps_header(config.project, config.control, config.size, config.seed, why)
+    head = steps_header(config.project, config.control, config.size, config.seed, why,
+                        split=config.split)
     path.write_text(head + format_steps(steps), encoding="utf-8")
     return path
 

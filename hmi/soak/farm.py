@@ -61,7 +61,8 @@ def farm_study(project: Project, config: SoakConfig, seeds: list[int],
     bundle = Bundle.of(project)
     options = {"project_file": bundle.project_file, "control": config.control,
                "size": list(config.size), "minutes": config.minutes,
-               "max_steps": config.max_steps, "shrink_replays": shrink_replays}
+               "max_steps": config.max_steps, "shrink_replays": shrink_replays,
+               "split": config.split}
     shards = tuple(seeds)
     job = make_job("soak", bundle, _setup, _work, options, shards)
     return Study(f"the soak farm of {project.name}", job, shards, tuple(1 for _ in shards),
@@ -77,7 +78,7 @@ def _setup(project: Project, options: dict[str, Any]) -> tuple[SoakConfig, int]:
     size = tuple(options["size"])
     config = SoakConfig(project.path / options["project_file"], options["control"],
                         (int(size[0]), int(size[1])), options["minutes"], 1,
-                        options["max_steps"])
+                        options["max_steps"], split=bool(options["split"]))
     return config, int(options["shrink_replays"])
 
 
@@ -139,10 +140,12 @@ def report_lines(results: list[SeedResult], project: Project, config: SoakConfig
     raised = sum(1 for r in broken if r.shrunk is None)
     limit = f" or {config.max_steps} steps" if config.max_steps else ""
     options = ((f" --control {config.control}" if config.control else "")
+               + (" --split" if config.split else "")
                + f" --size {config.size[0]}x{config.size[1]}")
     lines = [
         f"Soak farm of {project.name} (control {config.control or 'default'}, "
-        f"{config.size[0]}x{config.size[1]}): {len(results)} seeds ({_ranges(seeds)}), "
+        f"{config.size[0]}x{config.size[1]}{', over the socket' if config.split else ''}): "
+        f"{len(results)} seeds ({_ranges(seeds)}), "
         f"{config.minutes:g} virtual minutes{limit} each",
         f"  {len(results) - len(broken)} kept every invariant, {len(broken) - raised} broke one"
         + (f", {raised} raised" if raised else ""),
@@ -185,7 +188,8 @@ def save_steps(folder: Path, results: list[SeedResult], typed_path: str,
         path = folder / f"seed{r.seed}.steps"
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(steps_header(typed_path, config.control, config.size, r.seed,
-                                     str(r.broken)) + r.shrunk, encoding="utf-8")
+                                     str(r.broken), split=config.split) + r.shrunk,
+                        encoding="utf-8")
         saved.append(path)
     return saved
 

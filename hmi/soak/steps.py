@@ -158,8 +158,9 @@ def format_steps(steps: list[Step]) -> str:
 
 
 def steps_header(project: object, control: str | None, size: tuple[int, int], seed: int,
-                 why: str) -> str:
+                 why: str, split: bool = False) -> str:
     """A saved step list's first two lines: the soak command that found it, to copy (no
-    --control for the project's default variant), then what broke."""
-    option = f" --control {control}" if control else ""
+    --control for the project's default variant; --split when the HMI was attached over
+    the socket, whose timing of frames a replay must reproduce), then what broke."""
+    option = (f" --control {control}" if control else "") + (" --split" if split else "")
     return f"# plchmi soak {project}{option} --size {size[0]}x{size[1]} --seed {seed}\n# {why}\n"

@@ -71,7 +71,7 @@ class FaultDialog(Dialog[Injection | None]):
             yield Static("When: in how many seconds (0 or empty = at the next scan)",
                          classes="dialog-line")
             yield Input("0", id="delay", placeholder="0, 5, 2.5s, 500ms", compact=True)
-            yield Static("For how long (a halt...; empty = until repaired)",
+            yield Static("For how long (empty = until repaired; a halt that ends: 2s)",
                          classes="dialog-line")
             yield Input("", id="duration", placeholder="until repaired; or 2s, 500ms", compact=True)
             yield Label("", id="error", classes="dialog-error")

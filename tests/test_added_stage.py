@@ -1,0 +1,130 @@
+"""A stage added to the mode's program is its lowering, its handler and its class named in
+hmi.engine.program_stages.ADDED (and, for the PLC, its block's builder in
+hmi.export.stage_blocks.BLOCKS): the engine builds it, runs its part where it declares in
+both forms, and the exported PLC program calls its block at the same place. The stage here
+counts the scans and, every fifth, calls its handler (a rare event)."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+
+from hmi.engine import program_stages
+from hmi.engine.codegen import Vocabulary
+from hmi.engine.layout import Layout
+from hmi.engine.scan import Engine
+from hmi.export import model as m
+from hmi.export import stage_blocks
+from hmi.export.build import build
+from hmi.export.names import Scope
+from hmi.export.program_st import DINT, Handler, NotPrintable, Place, Places, StPrinter
+from hmi.export.st import write_st
+from hmi.export.views import Block, Durations
+from hmi.plant.sim.plant import SimPlant
+from hmi.program import ir, order
+from hmi.project.loader import load_project
+from hmi.project.model import Project
+from tests.conftest import PROJECTS
+
+PART = "counting"
+
+
+class Counting:
+    """The handler: the count (its state) and what happens every fifth scan."""
+
+    PLACE = (PART, order.DIAGNOSERS)
+    PRINTED = Vocabulary(frozenset({"count", "fifth"}))
+    depth = 0
+
+    def __init__(self) -> None:
+        self.count = 0
+        self.fifths: list[int] = []
+        count = ir.Cell(self, "count")
+        # the lowering: one more scan; every fifth, the handler
+        self.program: tuple[ir.Stmt, ...] = (
+            ir.Assign(count, ir.Add(count, ir.Const(1))),
+            ir.If(ir.Compare("==", count, ir.Const(5)),
+                  (ir.Assign(count, ir.Const(0)), ir.Do(ir.Call(self, "fifth", (ir.Now(),))))),
+        )
+
+    @property
+    def parts(self) -> dict[str, tuple[ir.Stmt, ...]]:
+        return {PART: self.program}
+
+    def fifth(self, now: int) -> None:
+        self.fifths.append(now)
+
+    @classmethod
+    def build(cls, project: Project, layout: Layout) -> Counting:
+        return cls()
+
+
+def counting_block(stage: Counting, layout: Layout, name: str, scope: Scope,
+                   durations: Durations) -> Block:
+    """Its ST handler: the count a DINT of the block, the fifth scan a comment."""
+    sc = scope.child()
+    count = sc.take("Count")
+    places = Places(slot=_no_slot, read=_no_read, step_time=_no_read, now=m.Name("Now"))
+    places.cell(stage, "count", Place(count, DINT))
+    places.handler(stage, "fifth", Handler(print=lambda printer, args: [
+        m.Comment("a fifth scan")]))
+    body = StPrinter(places, sc, durations, None, "the counting stage").program(stage.program)
+    blocks = (m.VarBlock("input", (m.Var("Now", m.TIME),)),
+              m.VarBlock("local", (m.Var(count, m.DINT),)))
+    return Block(m.Pou(name, "functionBlock", blocks, tuple(body), "counts the scans"), {}, {},
+                 {"Now": "Now"})
+
+
+def _no_slot(index: int) -> Place:
+    raise NotPrintable("no slot")
+
+
+def _no_read(*args: object) -> m.Expr:
+    raise NotPrintable("no read")
+
+
+@pytest.fixture
+def added(monkeypatch):
+    monkeypatch.setattr(program_stages, "ADDED", (Counting,))
+    monkeypatch.setitem(stage_blocks.BLOCKS, Counting, counting_block)
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_an_added_stage_runs_where_it_declares_in_both_forms(added, compiled):
+    project = load_project(PROJECTS / "cispi_subsystem")
+    engine = Engine(project, SimPlant(project), compiled=compiled)
+    (stage,) = engine.added
+    assert isinstance(stage, Counting)
+    program = engine.compiled.program
+    parts = program.order
+    assert parts.index(PART) == parts.index(order.DIAGNOSERS) + 1
+    assert program.parts[PART] == stage.program
+    period = project.scan_period_us
+    for k in range(23):
+        engine.step(k * period)
+    assert stage.count == 23 % 5
+    assert stage.fifths == [k * period for k in (4, 9, 14, 19)]
+
+
+def test_an_added_stage_is_called_by_the_plc_program_at_its_place(added):
+    text = write_st(build(load_project(PROJECTS / "cispi_subsystem")))
+    program = text[text.index("PROGRAM PRG_"):]
+    calls = [line.strip().split("(")[0] for line in program.splitlines()
+             if re.match(r"\s*\w+\(", line)]
+    # the scan's calls, in order (before the fault reset's): the diagnosers, then the stage
+    scan = calls[:calls.index("Filter") + 1]
+    assert scan == ["Clock", "Memory", "Diag_V1", "Diag_V2", "Stage_counting", "Control",
+                    "Filter"]
+    assert "Stage_counting : FB_cispi_subsystem_Counting;" in program
+    block = text[text.index("FUNCTION_BLOCK FB_cispi_subsystem_Counting"):]
+    assert "Count := Count + 1;" in block and "(* a fifth scan *)" in block
+
+
+def test_an_added_part_is_placed_once_after_a_part_of_the_scan():
+    assert order.placed(order.PROGRAM, [("a", order.MEMORY), ("b", order.MEMORY),
+                                        ("c", "a")])[:4] == (order.MEMORY, "a", "c", "b")
+    with pytest.raises(ValueError, match="already"):
+        order.placed(order.PROGRAM, [(order.LAW, order.MEMORY)])
+    with pytest.raises(ValueError, match="not a part"):
+        order.placed(order.PROGRAM, [("a", "nowhere")])
