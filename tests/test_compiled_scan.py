@@ -49,10 +49,10 @@ def load(path):
 
 def comparable(snap: Snapshot) -> Snapshot:
     """The snapshot without what is measured rather than computed."""
-    report = snap.snapshot.filter
+    report = snap.filter
     if report is not None:
         report = report._replace(solver_us=0.0)
-    return snap.snapshot._replace(scan_wall_us=0.0, filter_wall_us=0.0, filter=report)
+    return snap._replace(scan_wall_us=0.0, filter_wall_us=0.0, filter=report)
 
 
 def random_command(rng: random.Random, project: Project, engine: Engine, now: int
