@@ -6,12 +6,19 @@ syntax tree is executed symbolically (:class:`Symbolic`): every input and every 
 block keeps between calls starts as an unconstrained z3 value, so the result is a formula of
 them. BOOL is a z3 Bool, WORD/DWORD/LWORD a bit-vector of their width, INT/DINT a
 mathematical integer (the values the block computes are small counts and indices; an
-overflow is not modelled). IF merges its branches (z3 If); FOR and WHILE are unrolled, a
-symbolic loop condition split into the world where the loop goes on and the one where it
-stops, each kept only while z3 finds it satisfiable under the path that leads to it (no bound
-is assumed: a loop still running after LOOP_LIMIT iterations fails the proof); EXIT leaves
-the loop in the world where it runs. The property is then checked valid by z3 (its negation
-unsatisfiable); a counterexample is printed when it is not.
+overflow is not modelled). Terms are folded as they are built, so a concrete value is a
+literal. IF merges its branches (z3 If); FOR and WHILE are unrolled: a loop condition that is
+not a constant keeps both worlds (the loop goes on under the condition, stops under its
+negation) and, past UNCHECKED passes, asks z3 which of them the path allows (no bound is
+assumed: a loop still running after LOOP_LIMIT iterations fails the proof); EXIT leaves the
+loop in the world where it runs, and the next pass starts from the world where it did not.
+
+A *split* variable (the filter's set of free outputs) is pinned to a constant where it is
+read: when the case's assumptions leave it several values, the run is started again once per
+value z3 finds (every one, until none is left: the cases cover every input and state), so the
+loops it bounds (the corrector's search over k-subsets) run concretely. A property is proved
+when it is valid in every case, under that case's assumption. The property is checked valid
+by z3 (its negation unsatisfiable); a counterexample is printed when it is not.
 
 `prove_filter` states the engine's safety filter (hmi/engine/filter.py, docs/filter.md) from
 the project's constraints directly, not from the exporter: the violation word, the block
@@ -33,12 +40,21 @@ from typing import Any
 import z3
 
 LOOP_LIMIT = 2000
+UNCHECKED = 64
 BITS = {"BOOL": 1, "BYTE": 8, "WORD": 16, "DWORD": 32, "LWORD": 64}
 INTS = ("SINT", "INT", "DINT", "LINT", "UINT", "UDINT", "USINT")
 
 
 class Unsupported(Exception):
     """A construct the symbolic executor does not model: the proof is not claimed."""
+
+
+class NeedSplit(Exception):
+    """A split variable read while the case's assumptions leave it several values."""
+
+    def __init__(self, value: Any):
+        super().__init__("a split value")  # (not the term: printing it costs seconds)
+        self.value = value
 
 
 @dataclass(frozen=True)
@@ -165,9 +181,42 @@ def _fresh(name: str, vtype: str) -> Any:
     raise Unsupported(f"type {vtype}")
 
 
+def _literal(v: Any) -> bool:
+    """A numeral, TRUE or FALSE (z3's C API asked directly: the Python predicates cost a
+    dozen calls each, and the executor asks this of every term it builds)."""
+    ctx, ast = v.ctx_ref(), v.as_ast()
+    kind = z3.Z3_get_ast_kind(ctx, ast)
+    if kind == z3.Z3_NUMERAL_AST:
+        return True
+    if kind != z3.Z3_APP_AST:
+        return False
+    op = z3.Z3_get_decl_kind(ctx, z3.Z3_get_app_decl(ctx, ast))
+    return bool(op == z3.Z3_OP_TRUE or op == z3.Z3_OP_FALSE)
+
+
+def _fold(v: Any) -> Any:
+    """`v` as a literal when its operands are literals (terms are folded as they are built,
+    so a value is concrete exactly when it is a literal: no walk over a large term)."""
+    if _literal(v) or not z3.is_app(v):
+        return v
+    ctx, ast = v.ctx_ref(), v.as_ast()
+    count = z3.Z3_get_app_num_args(ctx, ast)
+    if count and all(_literal(z3.ExprRef(z3.Z3_get_app_arg(ctx, ast, k), v.ctx))
+                     for k in range(count)):
+        return z3.simplify(v)
+    return v
+
+
+def _ite(cond: Any, yes: Any, no: Any) -> Any:
+    """z3's If, folded when the condition is a literal or both sides are the same term."""
+    if _literal(cond):
+        return yes if z3.is_true(cond) else no
+    return yes if yes.eq(no) else z3.If(cond, yes, no)
+
+
 def _concrete(value: Any) -> Any:
-    """A Python bool/int when `value` simplifies to a constant, else None."""
-    v = z3.simplify(value)
+    """A Python bool/int when `value` is a constant, else None."""
+    v = _fold(value)
     if z3.is_true(v):
         return True
     if z3.is_false(v):
@@ -186,11 +235,17 @@ class Symbolic:
     """One call of a function block on symbolic inputs and state."""
 
     def __init__(self, fb: Any, initial: dict[str, Any] | None = None,
-                 loop_limit: int = LOOP_LIMIT):
+                 loop_limit: int = LOOP_LIMIT, split: frozenset[str] = frozenset(),
+                 assume: tuple[Any, ...] = ()):
         self.fb = fb
         self.loop_limit = loop_limit
         self.decl = declarations(fb)
         self.solver = z3.Solver()
+        self.solver.add(*assume)
+        self.assume = assume
+        self.split = split
+        self.pinned: dict[int, Any] = {}
+        self.target: str | None = None
         self.checks = 0
         state: dict[str, Any] = {}
         for name in self.decl.order:
@@ -227,13 +282,19 @@ class Symbolic:
         raise Unsupported(f"literal {type(node).__name__}: {node}")
 
     def value(self, node: Any, st: dict[str, Any]) -> Any:
+        return _fold(self._value(node, st))
+
+    def _value(self, node: Any, st: dict[str, Any]) -> Any:
         from blark import transform as tf
         if isinstance(node, tf.ParenthesizedExpression):
             return self.value(node.expr, st)
         if isinstance(node, tf.SimpleVariable):
-            v = st[str(node.name).upper()]
+            name = str(node.name).upper()
+            v = st[name]
             if isinstance(v, list):
                 raise Unsupported(f"a whole array {node.name}")
+            if name in self.split and name != self.target:
+                return self._pin(v)
             return v
         if isinstance(node, tf.MultiElementVariable):
             array, index = self._element(node, st)
@@ -259,6 +320,8 @@ class Symbolic:
 
     @staticmethod
     def _as_bv(value: Any, width: int) -> Any:
+        if z3.is_int_value(value):
+            return z3.BitVecVal(value.as_long(), width)
         return z3.Int2BV(value, width) if z3.is_int(value) else value
 
     def _binary(self, op: str, left: Any, right: Any, st: dict[str, Any]) -> Any:
@@ -268,9 +331,17 @@ class Symbolic:
         elif z3.is_bv(b) and z3.is_int(a):
             a = self._as_bv(a, b.size())
         if op in ("AND", "AND_THEN", "&"):
-            return z3.And(a, b) if z3.is_bool(a) else a & b
+            if z3.is_bool(a):
+                if z3.is_false(a) or z3.is_false(b):
+                    return z3.BoolVal(False)
+                return b if z3.is_true(a) else a if z3.is_true(b) else z3.And(a, b)
+            return a & b
         if op in ("OR", "OR_ELSE"):
-            return z3.Or(a, b) if z3.is_bool(a) else a | b
+            if z3.is_bool(a):
+                if z3.is_true(a) or z3.is_true(b):
+                    return z3.BoolVal(True)
+                return b if z3.is_false(a) else a if z3.is_false(b) else z3.Or(a, b)
+            return a | b
         if op == "XOR":
             return z3.Xor(a, b) if z3.is_bool(a) else a ^ b
         if op == "=":
@@ -289,6 +360,27 @@ class Symbolic:
             return a * b
         raise Unsupported(f"operator {op}")
 
+    def _pin(self, v: Any) -> Any:
+        """A split variable read (other than by its own update): its value as a constant, the
+        one the case's assumptions leave it; when they leave it several, the case is split."""
+        if _concrete(v) is not None:
+            return v
+        key = v.get_id()
+        if key not in self.pinned:
+            self.checks += 1
+            self.solver.push()
+            found = self.solver.check()
+            if found != z3.sat:
+                raise Unsupported(f"z3 could not pin a split value: {found}")
+            c = self.solver.model().eval(v, model_completion=True)
+            self.solver.add(v != c)
+            unique = self.solver.check()
+            self.solver.pop()
+            if unique != z3.unsat:
+                raise NeedSplit(v)
+            self.pinned[key] = c
+        return self.pinned[key]
+
     def _element(self, node: Any, st: dict[str, Any]) -> tuple[str, Any]:
         from blark import transform as tf
         if len(node.elements) != 1 or not isinstance(node.elements[0], tf.SubscriptList):
@@ -306,7 +398,7 @@ class Symbolic:
             return items[k - low]
         out = items[-1]  # (an index out of bounds: the obligation below says it is not)
         for j in range(len(items) - 2, -1, -1):
-            out = z3.If(index == low + j, items[j], out)
+            out = _ite(index == low + j, items[j], out)
         self._in_bounds(index, low, len(items), shown)
         return out
 
@@ -336,7 +428,11 @@ class Symbolic:
             return self.block(s.statements, st, pc)
         if isinstance(s, tf.AssignmentStatement):
             (target,) = s.variables
-            value = self.value(s.expression, st)
+            self.target = str(getattr(target, "name", "")).upper()
+            try:
+                value = self.value(s.expression, st)
+            finally:
+                self.target = None
             return self.assign(target, value, st)
         if isinstance(s, tf.IfStatement):
             branches = [(s.if_expression, s.statements)]
@@ -374,7 +470,7 @@ class Symbolic:
             items[k - low] = value
         else:
             self._in_bounds(index, low, len(items), name)
-            items = [z3.If(index == low + j, value, item) for j, item in enumerate(items)]
+            items = [_ite(index == low + j, value, item) for j, item in enumerate(items)]
         out[name] = items
         return out
 
@@ -425,12 +521,17 @@ class Symbolic:
             raise Unsupported("z3 could not decide a loop condition")
         return found == z3.sat
 
-    def _decide(self, cond: Any, pc: list[Any]) -> bool | None:
+    def _decide(self, cond: Any, pc: list[Any], count: int) -> bool | None:
         """True/False when the loop condition is fixed on this path, None when both worlds
-        are possible."""
+        are possible. For the first UNCHECKED passes of a loop, a symbolic condition is not
+        put to z3: both worlds are kept (a world the path excludes is merged under a
+        condition that never holds there: sound, and cheaper than the question while the
+        loop's own bound ends it)."""
         known = _concrete(cond)
         if known is not None:
             return bool(known)
+        if count < UNCHECKED:
+            return None
         go, stop = self._feasible(pc, cond), self._feasible(pc, z3.Not(cond))
         if go and stop:
             return None
@@ -451,46 +552,42 @@ class Symbolic:
                   count: int) -> dict[str, Any]:
         while True:
             last = self.value(s.to, st)
-            cond = st[name] <= last if step > 0 else st[name] >= last
-            decided = self._decide(cond, pc)
+            cond = _fold(st[name] <= last if step > 0 else st[name] >= last)
+            decided = self._decide(cond, pc, count)
             if decided is False:
                 return st
             if count > self.loop_limit:
                 raise Unsupported(f"FOR {name} runs more than {self.loop_limit} times")
-            if decided is None:
-                go = self._iteration(s.statements, name, step, st, [*pc, cond])
-                rest = (self._for_rest(name, s, step, go, [*pc, cond, z3.Not(go[EXIT])],
-                                       count + 1) if _concrete(go[EXIT]) is not True else go)
-                rest = self._leave(go, rest)
-                return merge(cond, rest, st)
-            after = self._iteration(s.statements, name, step, st, pc)
-            leaving = _concrete(after[EXIT])
-            if leaving is True:
-                after[EXIT] = z3.BoolVal(False)
-                return after
-            if leaving is None:
-                rest = self._for_rest(name, s, step, after, [*pc, z3.Not(after[EXIT])],
+            inner = pc if decided else [*pc, cond]
+            after = self.block(s.statements, st, inner)
+            left = _concrete(after[EXIT])
+            if decided and left is False:  # the loop goes on, on this path
+                st, count = self._stepped(after, name, step), count + 1
+                continue
+            if left is True:
+                out = self._spent(after)
+            else:
+                rest = self._for_rest(name, s, step, self._stepped(after, name, step),
+                                      inner if left is False else [*inner, z3.Not(after[EXIT])],
                                       count + 1)
-                return self._leave(after, rest)
-            st, count = after, count + 1
-
-    def _iteration(self, body: Any, name: str | None, step: int, st: dict[str, Any],
-                   pc: list[Any]) -> dict[str, Any]:
-        """One pass of a loop's body, then (FOR) the control variable stepped, unless the
-        body left the loop: EXIT leaves the variable as it was."""
-        after = self.block(body, st, pc)
-        if name is not None:
-            stepped = after[name] + step
-            after = dict(after)
-            after[name] = z3.If(after[EXIT], after[name], stepped)
-            if _concrete(after[EXIT]) is False:
-                after[name] = stepped
-        return after
+                out = rest if left is False else merge(after[EXIT], self._spent(after), rest)
+            return out if decided else merge(cond, out, st)
 
     @staticmethod
-    def _leave(after: dict[str, Any], rest: dict[str, Any]) -> dict[str, Any]:
-        """Where the body left (EXIT) `after`, else the rest of the loop; the EXIT spent."""
-        out = merge(after[EXIT], after, rest)
+    def _stepped(after: dict[str, Any], name: str | None, step: int) -> dict[str, Any]:
+        """The state the next pass starts from, where the body did not leave the loop: the
+        EXIT not taken and (FOR) the control variable stepped. (Where the body left, the
+        other world, the control variable stays as it was: :meth:`_spent`.)"""
+        on = dict(after)
+        on[EXIT] = z3.BoolVal(False)
+        if name is not None:
+            on[name] = _fold(after[name] + step)
+        return on
+
+    @staticmethod
+    def _spent(after: dict[str, Any]) -> dict[str, Any]:
+        """The state after an EXIT: the loop left, the EXIT spent."""
+        out = dict(after)
         out[EXIT] = z3.BoolVal(False)
         return out
 
@@ -498,25 +595,25 @@ class Symbolic:
                ) -> dict[str, Any]:
         while True:
             cond = self.value(s.expression, st)
-            decided = self._decide(cond, pc)
+            decided = self._decide(cond, pc, count)
             if decided is False:
                 return st
             if count > self.loop_limit:
                 raise Unsupported(f"WHILE runs more than {self.loop_limit} times")
-            if decided is None:
-                go = self._iteration(s.statements, None, 0, st, [*pc, cond])
-                rest = (self._while(s, go, [*pc, cond, z3.Not(go[EXIT])], count + 1)
-                        if _concrete(go[EXIT]) is not True else go)
-                return merge(cond, self._leave(go, rest), st)
-            after = self._iteration(s.statements, None, 0, st, pc)
-            leaving = _concrete(after[EXIT])
-            if leaving is True:
-                after[EXIT] = z3.BoolVal(False)
-                return after
-            if leaving is None:
-                return self._leave(after, self._while(s, after, [*pc, z3.Not(after[EXIT])],
-                                                      count + 1))
-            st, count = after, count + 1
+            inner = pc if decided else [*pc, cond]
+            after = self.block(s.statements, st, inner)
+            left = _concrete(after[EXIT])
+            if decided and left is False:
+                st, count = after, count + 1
+                continue
+            if left is True:
+                out = self._spent(after)
+            else:
+                rest = self._while(s, self._stepped(after, None, 0),
+                                   inner if left is False else [*inner, z3.Not(after[EXIT])],
+                                   count + 1)
+                out = rest if left is False else merge(after[EXIT], self._spent(after), rest)
+            return out if decided else merge(cond, out, st)
 
 
 def merge(cond: Any, yes: dict[str, Any], no: dict[str, Any]) -> dict[str, Any]:
@@ -526,9 +623,9 @@ def merge(cond: Any, yes: dict[str, Any], no: dict[str, Any]) -> dict[str, Any]:
         if a is b:
             out[key] = a
         elif isinstance(a, list):
-            out[key] = [x if x is y else z3.If(cond, x, y) for x, y in zip(a, b, strict=True)]
+            out[key] = [_ite(cond, x, y) for x, y in zip(a, b, strict=True)]
         else:
-            out[key] = z3.If(cond, a, b)
+            out[key] = _ite(cond, a, b)
     return out
 
 
@@ -536,6 +633,44 @@ def execute(fb: Any, loop_limit: int = LOOP_LIMIT) -> tuple[Symbolic, dict[str, 
     sym = Symbolic(fb, loop_limit=loop_limit)
     sym.obligations = []
     return sym, sym.run()
+
+
+@dataclass(frozen=True)
+class Case:
+    """One run of the block under assumptions over its inputs and state (a case of a split):
+    the cases of a split cover every input and state, so a property valid in each case is
+    valid."""
+
+    assume: tuple[Any, ...]
+    sym: Symbolic
+    out: dict[str, Any]
+
+
+def execute_cases(fb: Any, split: frozenset[str], loop_limit: int = LOOP_LIMIT,
+                  assume: tuple[Any, ...] = ()) -> list[Case]:
+    """Runs of `fb`, one per value of the split variables where the block reads them: a run
+    that reads a split variable with several possible values is started again once per
+    value (every value z3 finds under the assumptions, then none left: the cases are
+    exhaustive), so the loops those variables bound run concretely."""
+    sym = Symbolic(fb, loop_limit=loop_limit, split=split, assume=assume)
+    sym.obligations = []
+    try:
+        out = sym.run()
+    except NeedSplit as need:
+        values = []
+        solver = z3.Solver()
+        solver.add(*assume)
+        while (found := solver.check()) != z3.unsat:
+            if found != z3.sat:
+                raise Unsupported(f"z3 could not enumerate a split value: {found}") from None
+            c = solver.model().eval(need.value, model_completion=True)
+            values.append(c)
+            solver.add(need.value != c)
+            if len(values) > 4096:
+                raise Unsupported("more than 4096 cases of a split value") from None
+        return [case for c in values
+                for case in execute_cases(fb, split, loop_limit, (*assume, need.value == c))]
+    return [Case(assume, sym, out)]
 
 
 # --------------------------------------------------------------------------------------------
@@ -592,7 +727,8 @@ def _popcount(v: Any, n: int) -> Any:
 
 def prove_filter(project: Any, text: str, max_distance: int,
                  tamper: Callable[[str], str] | None = None,
-                 loop_limit: int = LOOP_LIMIT) -> list[Proof]:
+                 loop_limit: int = LOOP_LIMIT, split: tuple[str, ...] = ("FREE",)
+                 ) -> list[Proof]:
     """The exported filter FB of `project` (in the exported `text`, `tamper`ed if given)
     against the engine's filter: a list of proved (or refuted) properties."""
     fb_name, wiring = filter_wiring(project)
@@ -600,7 +736,8 @@ def prove_filter(project: Any, text: str, max_distance: int,
     if tamper is not None:
         fb_text = tamper(fb_text)
     fb = parse_fb(fb_text)
-    sym, out = execute(fb, loop_limit)
+    cases = execute_cases(fb, frozenset(split), loop_limit)
+    sym = cases[0].sym
     init = sym.initial
     outputs = [v.name for v in project.outputs]
     n = len(outputs)
@@ -685,14 +822,13 @@ def prove_filter(project: Any, text: str, max_distance: int,
         return z3.Or(dw < dx, z3.And(dw == dx, ow < ox),
                      z3.And(dw == dx, ow == ox, diff != 0, (x ^ mem) & lowest != 0))
 
-    written = z3.Concat(*[z3.If(out[wiring.outputs[o]], z3.BitVecVal(1, 1), z3.BitVecVal(0, 1))
-                          for o in reversed(outputs)]) if n > 1 else \
-        z3.If(out[wiring.outputs[outputs[0]]], z3.BitVecVal(1, 1), z3.BitVecVal(0, 1))
-    before = z3.Concat(*[z3.If(init[wiring.outputs[o]], z3.BitVecVal(1, 1), z3.BitVecVal(0, 1))
-                         for o in reversed(outputs)]) if n > 1 else \
-        z3.If(init[wiring.outputs[outputs[0]]], z3.BitVecVal(1, 1), z3.BitVecVal(0, 1))
-    latched = out[wiring.ports["Latched"]]
-    fallback = out[wiring.ports["Fallback"]]
+    def vector(values: dict[str, Any]) -> Any:
+        return z3.Concat(*[z3.If(values[wiring.outputs[o]], z3.BitVecVal(1, 1),
+                                 z3.BitVecVal(0, 1)) for o in reversed(outputs)]) if n > 1 \
+            else z3.If(values[wiring.outputs[outputs[0]]], z3.BitVecVal(1, 1),
+                       z3.BitVecVal(0, 1))
+
+    before = vector(init)
     correcting = z3.And(z3.Not(monitor), z3.Not(block), any_violation)
     all_vectors = [z3.BitVecVal(v, n) for v in range(1 << n)]
     none_admissible = z3.And(*[z3.Not(admissible(v)) for v in all_vectors])
@@ -707,32 +843,49 @@ def prove_filter(project: Any, text: str, max_distance: int,
         v = z3.If(monitor, v, v & ~mask)
         return z3.If(expected_latch, safe, v)
 
-    props = {
-        "a fault reset releases the latch and changes no output": z3.Implies(
-            reset, z3.And(z3.Not(latched), written == before)),
-        "the violation word is the constraints violated by the candidate": z3.Implies(
-            z3.Not(reset), out[wiring.ports["Violations"]] == word),
-        "the block latch is set by a violation and kept": z3.Implies(
-            z3.Not(reset), latched == expected_latch),
-        "the fallback: F0/F1 conflict or no safe vector within MAX_DISTANCE": z3.Implies(
-            z3.Not(reset), fallback == expected_fallback),
-        "monitor, block and a clean candidate: the candidate, masked, the latch safe":
-            z3.Implies(z3.And(z3.Not(reset), z3.Not(correcting)), written == final(cand)),
-        "correct: the exact strategy's unique vector, masked, or the safe state":
-            z3.Implies(z3.And(z3.Not(reset), correcting, z3.Not(expected_fallback), chosen),
-                       written == final(x)),
-        "correct without a safe vector: the safe state": z3.Implies(
-            z3.And(z3.Not(reset), expected_fallback), written == z3.If(
-                expected_latch, safe, safe & ~z3.If(monitor, z3.BitVecVal(0, n), mask))),
-    }
-    side = [ob for ob, _ in sym.obligations]
+    def properties(out: dict[str, Any]) -> dict[str, Any]:
+        written = vector(out)
+        latched = out[wiring.ports["Latched"]]
+        fallback = out[wiring.ports["Fallback"]]
+        return {
+            "a fault reset releases the latch and changes no output": z3.Implies(
+                reset, z3.And(z3.Not(latched), written == before)),
+            "the violation word is the constraints violated by the candidate": z3.Implies(
+                z3.Not(reset), out[wiring.ports["Violations"]] == word),
+            "the block latch is set by a violation and kept": z3.Implies(
+                z3.Not(reset), latched == expected_latch),
+            "the fallback: F0/F1 conflict or no safe vector within MAX_DISTANCE": z3.Implies(
+                z3.Not(reset), fallback == expected_fallback),
+            "monitor, block and a clean candidate: the candidate, masked, the latch safe":
+                z3.Implies(z3.And(z3.Not(reset), z3.Not(correcting)),
+                           written == final(cand)),
+            "correct: the exact strategy's unique vector, masked, or the safe state":
+                z3.Implies(z3.And(z3.Not(reset), correcting, z3.Not(expected_fallback),
+                                  chosen), written == final(x)),
+            "correct without a safe vector: the safe state": z3.Implies(
+                z3.And(z3.Not(reset), expected_fallback), written == z3.If(
+                    expected_latch, safe, safe & ~z3.If(monitor, z3.BitVecVal(0, n), mask))),
+        }
+
+    per_case = [(case, properties(case.out)) for case in cases]
     proofs = []
-    for name, prop in props.items():
-        proofs.append(_valid(name, prop, sym))
-    if side:
-        proofs.append(_valid("every symbolic array index is in bounds",
-                             z3.And(*side), sym))
+    for name in per_case[0][1]:
+        proofs.append(_valid_cases(name, [(case, props[name]) for case, props in per_case]))
+    # (a constant index is checked as it is executed: out of bounds, the run stops)
+    proofs.append(_valid_cases("every array index is in bounds", [
+        (case, z3.And(*[ob for ob, _ in case.sym.obligations])) for case in cases]))
     return proofs
+
+
+def _valid_cases(name: str, cases: list[tuple[Case, Any]]) -> Proof:
+    """`name` proved when it holds in every case (each under its assumptions)."""
+    checks = sum(case.sym.checks for case, _ in cases)
+    obligations = sum(len(case.sym.obligations) for case, _ in cases)
+    for case, prop in cases:
+        proof = _valid(name, z3.Implies(z3.And(*case.assume), prop), case.sym)
+        if not proof.proved:
+            return proof
+    return Proof(name, True, f"proved in {len(cases)} case(s)", checks, obligations)
 
 
 def _valid(name: str, prop: Any, sym: Symbolic) -> Proof:

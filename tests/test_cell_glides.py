@@ -32,7 +32,9 @@ FullSorter, FullPalletizer = _full(SortingCell), _full(Palletizer)
 
 def physics(cell: SteppedCell, sensors: dict | None = None) -> dict:
     """Everything the cell's physics holds, but the glide itself and the reporting caches
-    (`sensors`: the cell's `sensors()` already read at this instant, not computed again)."""
+    (`sensors`: the cell's `sensors()` already read at this instant, not computed again),
+    the motion its reads owe carried first (SteppedCell.settle)."""
+    cell.settle()
     state = {k: v for k, v in vars(cell).items()
              if k not in ("_glide", "_vouched", "_state_cache", "_counter_cache", "source")}
     source = cell.source

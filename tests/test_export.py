@@ -66,6 +66,10 @@ def test_export_writes_the_target_and_says_what_it_holds(tmp_path, capsys, fmt, 
     assert f"Wrote {path}" in text
     assert "FB_cispi_valve_Filter" in text and "PRG_cispi_valve_Safety" in text
     assert "at most 4 vectors tested per scan" in text and "search limit 2" in text
+    # the SFC chart is in the XML only, and the summary says so where it is written
+    chart = "SFC chart SFC_cispi_valve_Grafcet"
+    assert (chart in text) == (fmt == "plcopen")
+    assert (chart.split()[-1] in path.read_text()) == (fmt == "plcopen")
 
 
 def test_export_carries_the_control_law_asked_for(tmp_path, capsys):

@@ -9,6 +9,8 @@ import itertools
 from collections.abc import Callable
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from hmi.engine.codegen import Source, build, print_program
 from hmi.logic.expr import Var
@@ -271,3 +273,35 @@ def test_the_policy_in_both_forms():
         else:
             want = None
         assert [form([], (), f, w, p, latched) for form in forms] == [want, want], (p, latched, w)
+
+
+_LITERALS = [(k, positive) for k in range(4) for positive in (True, False)]
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.lists(st.lists(st.sampled_from(_LITERALS), min_size=1, max_size=4),
+                min_size=3, max_size=12))
+def test_a_word_of_bits_printed_grouped_is_the_same_word(terms):
+    """The printer gathers the ifs that or bits into one word (the violation word, the
+    active constraints) under the first operand of their tests, recursively
+    (codegen._grouped); printed that way the word is the evaluator's for every assignment of
+    the operands, tests repeated, prefixes of each other or alone included."""
+    from hmi.engine.codegen import build_function
+    from hmi.program import ir
+    from hmi.program.evaluate import function_evaluator
+
+    f, w = ir.Local("f"), ir.Local("w")
+
+    def literal(k: int, positive: bool) -> ir.Value:
+        return ir.Item(f, k) if positive else ir.Not(ir.Item(f, k))
+
+    body = (ir.Assign(w, ir.Const(0)),
+            *(ir.If(ir.all_of(*(literal(k, p) for k, p in term)),
+                    (ir.Assign(w, ir.BitOr(w, ir.Bit(j))),)) for j, term in enumerate(terms)))
+    function = ir.Function("violated", ("f",), body, w)
+    forms = (function_evaluator(function, {}, {}),
+             build_function(function, {}, {}, "test_program"))
+    for f_values in itertools.product((False, True), repeat=4):
+        want = sum(1 << j for j, term in enumerate(terms)
+                   if all(f_values[k] == p for k, p in term))
+        assert [form(f_values) for form in forms] == [want, want]

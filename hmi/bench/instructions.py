@@ -63,14 +63,23 @@ def per_scan(project: Path, start: int, end: int) -> tuple[int, float]:
     return scans, (total_b - total_a) / scans
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m hmi.bench.instructions",
-                                     description=__doc__.splitlines()[0])
+def window_parser(prog: str, doc: str, start: tuple[int, str], end: tuple[int, str]
+                  ) -> argparse.ArgumentParser:
+    """The command line of a count between two virtual times (this bench's, and
+    hmi.bench.bytecodes'): projects, --from and --to, each (default, help)."""
+    parser = argparse.ArgumentParser(prog=prog, description=doc.splitlines()[0])
     parser.add_argument("projects", nargs="*", default=list(GOALS))
-    parser.add_argument("--from", dest="start", type=int, default=0,
-                        help="seconds of virtual time of the first run (default 0)")
-    parser.add_argument("--to", dest="end", type=int, default=120,
-                        help="seconds of virtual time of the second run (default 120)")
+    parser.add_argument("--from", dest="start", type=int, default=start[0],
+                        help=f"{start[1]} (default {start[0]})")
+    parser.add_argument("--to", dest="end", type=int, default=end[0],
+                        help=f"{end[1]} (default {end[0]})")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = window_parser("python -m hmi.bench.instructions", __doc__ or "",
+                           (0, "seconds of virtual time of the first run"),
+                           (120, "seconds of virtual time of the second run"))
     args = parser.parse_args(argv)
     if shutil.which("valgrind") is None:
         print("valgrind is not installed (apt-get install valgrind)", file=sys.stderr)

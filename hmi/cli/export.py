@@ -46,4 +46,9 @@ def cmd_export(args: argparse.Namespace) -> int:
     print(f"Wrote {written.path}")
     for line in written.model.summary:
         print(f"  {line}")
+    if args.format == "plcopen":
+        for chart in written.model.charts:
+            print(f"  SFC chart {chart.name}: the control law's GRAFCET ({len(chart.steps)} "
+                  f"steps, {len(chart.transitions)} transitions) for the PLC's editor; the "
+                  "task does not call it, it runs the control FB")
     return 0

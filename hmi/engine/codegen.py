@@ -18,6 +18,7 @@ in a generator cannot turn into arbitrary code either.
 from __future__ import annotations
 
 import ast
+import dataclasses
 import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -101,16 +102,25 @@ def build_function(function: ir.Function, slots: Mapping[str, int],
 
 
 def print_program(src: Source, program: tuple[ir.Stmt, ...], indent: int,
-                  slots: Mapping[str, int], times: Mapping[str, int]) -> None:
+                  slots: Mapping[str, int], times: Mapping[str, int],
+                  words: bool = True) -> None:
     """`program`'s statements as Python lines of `src` (the compiled scan's printer of the
     scan program, hmi.program.ir): a cell is an attribute of the object handed over, a
     handler's call a method call, an ``if`` whose else branch is one ``if`` an ``elif``, a
     switch a tree of comparisons (a chain up to three cases), a local or-ed with a word
-    ``|=``."""
+    ``|=``, a run of them under one test (_word_run; not again inside it: `words`)."""
     if not program:
         src.line(indent, "pass")
         return
-    for stmt in program:
+    at = 0
+    while at < len(program):
+        stmt = program[at]
+        run = _word_run(program, at) if words and indent < MAX_GROUP_INDENT else ()
+        if len(run) >= 3:  # (a word's bits: most scans set none)
+            print_program(src, _grouped(run, indent), indent, slots, times, words=False)
+            at += len(run)
+            continue
+        at += 1
         if isinstance(stmt, ir.If):
             src.line(indent, f"if {_value_source(src, stmt.test, slots, times)}:")
             _print_branches(src, stmt, indent, slots, times)
@@ -138,6 +148,74 @@ def print_program(src: Source, program: tuple[ir.Stmt, ...], indent: int,
         else:
             src.line(indent, f"{_value_source(src, stmt.target, slots, times)} = "
                              f"{_value_source(src, stmt.value, slots, times)}")
+
+
+def _word_run(program: tuple[ir.Stmt, ...], at: int) -> tuple[ir.If, ...]:
+    """The ``if`` statements from `at` on that each only or a bit into one local word (a
+    word of the constraints: active, violated), their tests pure reads that do not read it:
+    in any order they set the same bits (_grouped)."""
+    run: list[ir.If] = []
+    word: ir.Local | None = None
+    for stmt in program[at:]:
+        if not (isinstance(stmt, ir.If) and not stmt.orelse and len(stmt.then) == 1):
+            break
+        (body,) = stmt.then
+        if not (isinstance(body, ir.Assign) and isinstance(body.target, ir.Local)
+                and isinstance(body.value, ir.BitOr) and body.value.left == body.target
+                and isinstance(body.value.right, ir.Bit)
+                and (word is None or body.target == word)):
+            break
+        word = body.target
+        if not _pure(stmt.test) or _mentions(stmt.test, word):
+            break
+        run.append(stmt)
+    return tuple(run)
+
+
+# The indentation down to which a word's ifs are grouped: Python compiles at most 100 nested
+# blocks, and a project's constraints may share many literals (tests/test_costs.py's project
+# at the limits nested past it); the first levels are where the scans' savings are.
+MAX_GROUP_INDENT = 16
+
+
+def _grouped(run: tuple[ir.If, ...], depth: int) -> tuple[ir.Stmt, ...]:
+    """A word's ifs (_word_run) gathered under the first operand of their tests, recursively
+    while `depth` (the indentation) is under MAX_GROUP_INDENT: ``if a and b: w |= 1`` and
+    ``if a and c: w |= 2`` become ``if a:`` over ``if b: w |= 1`` and ``if c: w |= 2``;
+    where `a` is false (an output off, a step inactive) one test passes the group over.
+    Groups where their operand first appears."""
+    if depth >= MAX_GROUP_INDENT:
+        return run
+    groups: dict[ir.Value, list[tuple[tuple[ir.Value, ...], tuple[ir.Stmt, ...]]]] = {}
+    for stmt in run:
+        factors = stmt.test.operands if isinstance(stmt.test, ir.And) else (stmt.test,)
+        groups.setdefault(factors[0], []).append((factors[1:], stmt.then))
+    out: list[ir.Stmt] = []
+    for head, members in groups.items():
+        if len(members) == 1:
+            rest, then = members[0]
+            out.append(ir.If(ir.all_of(head, *rest), then))
+            continue
+        inner: list[ir.Stmt] = []
+        for rest, then in members:
+            inner.extend(then if not rest else (ir.If(ir.all_of(*rest), then),))
+        body = tuple(inner)
+        ifs = tuple(stmt for stmt in body if isinstance(stmt, ir.If))
+        out.append(ir.If(head, (*(stmt for stmt in body if not isinstance(stmt, ir.If)),
+                                *(_grouped(ifs, depth + 1) if len(ifs) > 1 else ifs))))
+    return tuple(out)
+
+
+def _mentions(value: object, local: ir.Local) -> bool:
+    """Whether the scan program's `value` reads `local`."""
+    if value == local:
+        return True
+    if isinstance(value, tuple):
+        return any(_mentions(item, local) for item in value)
+    if dataclasses.is_dataclass(value) and type(value).__module__ == ir.__name__:
+        return any(_mentions(getattr(value, field.name), local)
+                   for field in dataclasses.fields(value))
+    return False
 
 
 def _print_branches(src: Source, stmt: ir.If, indent: int, slots: Mapping[str, int],
@@ -233,6 +311,25 @@ def _value_source(src: Source, value: ir.Value, slots: Mapping[str, int],
             return (f"{src.ref(owner)}.{method}("
                     + ", ".join(_value_source(src, a, slots, times) for a in args) + ")")
     raise TypeError(f"not a value of the scan program: {value!r}")
+
+
+def _pure(value: ir.Value) -> bool:
+    """Whether reading `value` only reads (no call): its parts may be read in another order,
+    or once for several places, without changing what anything sees."""
+    match value:
+        case ir.Test() | ir.Now() | ir.ScanNumber() | ir.Const() | ir.Local() | ir.Slot() \
+                | ir.Ref() | ir.Bit():
+            return True
+        case ir.Item(base=base):
+            return _pure(base)
+        case ir.Not(operand=operand) | ir.IsNone(operand=operand):
+            return _pure(operand)
+        case ir.And(operands=operands) | ir.Or(operands=operands):
+            return all(map(_pure, operands))
+        case ir.Compare(left=left, right=right) | ir.Add(left=left, right=right) \
+                | ir.Sub(left=left, right=right):
+            return _pure(left) and _pure(right)
+    return False
 
 
 def _constant_source(constant: object) -> str:

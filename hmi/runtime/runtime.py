@@ -38,22 +38,36 @@ def helpers_realtime(scan_thread: int | None) -> bool:
     10 minutes at load 20-24 with five screens attached, lateness up to 44 ms). At real-time
     priority below the scan's, the holder runs again at once and gives the lock up within the
     switch interval. They mostly wait (sockets, queues, a disk); threads they start inherit
-    the priority, except the sign-in checks (hmi.access.signin), which give it back."""
-    raised = False
-    done: set[int] = set()
-    # twice: a thread started meanwhile by one not yet raised (a screen attaching at once) was
-    # born at normal priority and is raised by the second pass; after it every parent is
-    # raised and its new threads inherit the priority
-    for _ in range(2):
-        for thread in threading.enumerate():
-            tid = thread.native_id
-            if tid is None or tid == scan_thread or tid in done:
-                continue
-            done.add(tid)
+    the priority, except the sign-in checks (hmi.access.signin), which give it back.
+
+    Called from the main thread before it starts the server and the scan (:meth:`Runtime.start`):
+    raising an existing thread from outside races with the threads it is starting (one still
+    starting has no kernel id yet and was missed, its connection's thread then ran at normal
+    priority for good), but a thread started by a raised one inherits the priority, so only
+    the threads started before this call are raised here: their `start()` has returned, every
+    one has its id."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(HELPERS_PRIORITY))
+    except (OSError, AttributeError):  # no privilege, or not Linux
+        return False
+    me = threading.get_native_id()
+    for thread in threading.enumerate():
+        tid = thread.native_id
+        if tid is not None and tid not in (me, scan_thread):
             with contextlib.suppress(OSError):
                 os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(HELPERS_PRIORITY))
-                raised = True
-    return raised
+    return True
+
+
+def helpers_normal(scan_thread: int | None) -> None:
+    """Every thread but the scan (which sets its own) back at normal priority: the scan did
+    not get its real-time priority above theirs. The kernel's list of the process's threads,
+    so none is missed."""
+    with contextlib.suppress(OSError):
+        for task in Path("/proc/self/task").iterdir():
+            with contextlib.suppress(OSError, ValueError):
+                if int(task.name) != scan_thread:
+                    os.sched_setscheduler(int(task.name), os.SCHED_OTHER, os.sched_param(0))
 
 
 class Runtime:
@@ -76,14 +90,18 @@ class Runtime:
 
     def start(self) -> None:
         """Listen, then scan (a real plant: connected before this is called)."""
+        # raised first: the server's and the scan's threads, and theirs, inherit the priority
+        raised = self.runner is not None and self.runner.realtime and helpers_realtime(None)
         self.server.start()
         if self.runner is not None:
             sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
             self.runner.start()
             self.runner.realtime_known.wait(5.0)
             state = self.runner.realtime_state
-            if state.startswith("SCHED_FIFO") and helpers_realtime(self.runner.thread_id):
+            if raised and state.startswith("SCHED_FIFO"):
                 state += f", its other threads SCHED_FIFO {HELPERS_PRIORITY}"
+            elif raised:
+                helpers_normal(self.runner.thread_id)
             self.hub.runtime = m.RuntimeInfo(
                 self.hub.runtime.pid, self.hub.runtime.started, False, state)
             if self.journal is not None:

@@ -7,6 +7,7 @@ against its schedule is kept as jitter samples for `plchmi bench ui`.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import threading
 import time
@@ -78,7 +79,8 @@ class LiveRunner:
         self.session = session
         self.realtime = realtime
         self.realtime_state = "normal priority (not asked)"
-        self._realtime_now = False
+        # None until the scan thread sets its own policy (it may inherit a real-time one)
+        self._realtime_now: bool | None = None
         self.realtime_known = threading.Event()  # realtime_state says what happened
         # Each scan's lateness, the last `keep_jitter` (the benches' samples). None by default:
         # a runtime's figures are `lateness`, in constant memory (100,000 kept samples were
@@ -136,6 +138,9 @@ class LiveRunner:
         except (OSError, AttributeError) as exc:  # no privilege, or not Linux
             reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
             self.realtime_state = f"normal priority: SCHED_FIFO refused ({reason})"
+            with contextlib.suppress(OSError, AttributeError):  # a policy inherited is given back
+                os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+            self._realtime_now = False
             self.realtime = False  # not asked again at every scan
         finally:
             self.realtime_known.set()

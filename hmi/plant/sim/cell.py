@@ -24,9 +24,9 @@ from hmi.plant.sim.device import PendingFault, SimDevice
 
 
 class Glide(Protocol):
-    """Steps a cell vouched for: `steps` more of `dt` that :meth:`move` makes exactly as
-    :meth:`SteppedCell._step` would, while :meth:`holds`; `sensors`, the true sensors all
-    along.
+    """Steps a cell vouched for: `steps` more of `dt` whose motion :meth:`carry` makes
+    exactly as :meth:`SteppedCell._step` would, while :meth:`holds`; `sensors`, the true
+    sensors all along.
 
     A glide relies on the cell changing only through its own methods: new orders, a fault
     and a repair end it, and so does :meth:`SteppedCell.touch`, which whoever changes a
@@ -40,7 +40,9 @@ class Glide(Protocol):
 
     def holds(self, cell: Any) -> bool: ...
 
-    def move(self, cell: Any, count: int) -> None: ...
+    def carry(self, cell: Any, count: int) -> None:
+        """The bodies, travels and clocks where `count` steps bring them (each moves by the
+        same at every step: `count` at once is `count` one by one)."""
 
 
 class SteppedCell(SimDevice):
@@ -55,12 +57,32 @@ class SteppedCell(SimDevice):
         # The glide the last advance left the cell in (None: it did not move, or no glide):
         # right after that advance it holds without checking again (read_sensors).
         self._vouched: Glide | None = None
+        # Steps of the glide that reads already went through but whose motion is not carried
+        # yet (settle): a read inside a glide needs only the glide's sensors.
+        self._owed = 0
+
+    def settle(self) -> None:
+        """The motion the glide owes carried: the bodies where the steps read so far brought
+        them. Whatever reads or changes the cell's physics other than a read inside the
+        glide (an advance, a write, a fault, a repair, its state, touch) settles first; a
+        test that looks at its fields does too."""
+        owed = self._owed
+        if owed:
+            self._owed = 0
+            glide = self._glide
+            assert glide is not None  # (owed only inside a glide: whatever ends it settles)
+            glide.carry(self, owed)
+
+    def advance(self, t: int) -> None:
+        self.settle()
+        super().advance(t)
 
     @abstractmethod
     def true_sensors(self) -> dict[str, bool]:
         """The sensors as the physics has them, before any stuck fault."""
 
     def sensors(self) -> dict[str, bool]:
+        self.settle()
         glide = self._glide
         if glide is not None and glide.holds(self):
             values = dict(glide.sensors)
@@ -95,7 +117,8 @@ class SteppedCell(SimDevice):
             if count > 0 and count * dt == span and count <= glide.steps and \
                     (count == 1 or dt == self.MAX_STEP_US) and \
                     (not self.pending or self.pending[0].at_us > t) and glide.holds(self):
-                glide.move(self, count)
+                glide.steps -= count
+                self._owed += count  # (carried when anything needs more than the sensors)
                 self.t = t
                 self._vouched = glide
                 # (a stuck sensor, rare: read_sensors lays it over the glide's)
@@ -113,7 +136,8 @@ class SteppedCell(SimDevice):
             if glide is not None and glide.steps and glide.dt == dt and glide.holds(self):
                 # every whole step of dt up to t that the glide vouches for, at once
                 count = min(glide.steps, (t - self.t) // dt)
-                glide.move(self, count)
+                glide.steps -= count
+                glide.carry(self, count)
                 self.t += count * dt
                 continue
             self.t += dt
@@ -126,7 +150,10 @@ class SteppedCell(SimDevice):
         """The cell's physics was changed by hand (anything but its own methods: a box placed
         or moved, a travel moved): the glide it was in ends, the next step is a full one.
         Why a call and not a check at every step: comparing all a glide relies on with what
-        the cell holds was about a quarter of the palletizer's simulated time."""
+        the cell holds was about a quarter of the palletizer's simulated time. The motion the
+        glide still owes is carried first (settle): whoever sets a position by hand settles
+        before, a change that adds to one may come before or after."""
+        self.settle()
         self._glide = None
         self._vouched = None
 

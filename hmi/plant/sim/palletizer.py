@@ -312,6 +312,7 @@ class Palletizer(SteppedCell, model=PALLETIZER):
 
     # -- reporting --------------------------------------------------------------------------
     def state(self) -> dict[str, Any]:
+        self.settle()
         return {
             "feed": len(self.feed) + (self.pushing is not None),
             "row": len(self.row),
@@ -328,6 +329,7 @@ class Palletizer(SteppedCell, model=PALLETIZER):
         return dict(self.count)
 
     def state_key(self) -> Hashable:
+        self.settle()
         return (len(self.feed), self.pushing is None, len(self.row), len(self.hanging),
                 len(self.layers), self.lift.pos, self.pusher.pos, self.plate.pos, self.clamp.pos,
                 len(self.source.queued))
@@ -381,11 +383,10 @@ class _Glide:
         a change by hand ends the glide: SteppedCell.touch)."""
         return cell.feed is self.feed
 
-    def move(self, cell: Palletizer, count: int) -> None:
+    def carry(self, cell: Palletizer, count: int) -> None:
         """`count` steps of _step when only clocks and gliding boxes change: each adds the
         same to a position or a clock, and the flags it sets or clears are the same at every
         one of them (nothing they test changes during the glide)."""
-        self.steps -= count
         dt = self.dt * count
         for box, delta in self.movers:
             box.lo += delta * count

@@ -56,7 +56,9 @@ class SimPlant(Plant):
         # read_into's plan for the engine's bindings (see _read_plan)
         self._plan: tuple[Any, ...] | None = None
         self._read_at: int | None = None  # the time every device was last brought to
-        self._written: tuple[tuple[str, ...], tuple[bool, ...]] | None = None
+        # the last write_vector's names and values (None: the next one writes, forget_writes)
+        self._written_names: tuple[str, ...] | None = None
+        self._written_values: tuple[bool, ...] | None = None
         # Several devices: their items last time, and the plant's tuple made of them.
         self._state_parts: tuple[list[PlantState], PlantState] | None = None
         self._counter_parts: tuple[list[tuple[tuple[str, int], ...]],
@@ -85,61 +87,65 @@ class SimPlant(Plant):
 
         Each device's sensors go in as one vector: the values in its ports' slot order,
         kept while the device gives the very same mapping again (a gliding cell's), and
-        stored as a slice when its slots follow each other."""
-        if type(self).read is not SimPlant.read or "read" in self.__dict__:
-            super().read_into(now_us, image, bindings)
-            return
+        stored as a slice when its slots follow each other. This is the plant's part of
+        every scan: the plan (:meth:`_read_plan`) leaves it only the devices to read."""
         plan = self._plan
         if plan is None or plan[0] is not bindings:
             plan = self._plan = self._read_plan(bindings)
-        for reader in plan[1]:  # (each item read only where it is used: a scan's cost)
-            device = reader[0]
-            if not reader[1]:
-                device.advance(now_us)
-                continue
-            sensed = device.sense(now_us)
-            if sensed is reader[5]:
-                values = reader[6]
-            else:
-                values = tuple([bool(sensed[port]) for port in reader[1]])
-                reader[5], reader[6] = sensed, values
-            first = reader[3]
-            if first is not None:
-                image[first:reader[4]] = values
-            else:
-                for index, value in zip(reader[2], values):  # noqa: B905 - same length
-                    image[index] = value
-        free = self.free_inputs
-        for name, index in plan[2]:
-            image[index] = bool(free[name])
+        if plan[1] or "read" in self.__dict__:
+            super().read_into(now_us, image, bindings)
+            return
+        if plan[3] is None:  # (each device's slots follow each other, every input is
+            # driven: most plants; _read_device written out, this is every scan's read)
+            for device, ports, first, end, last in plan[2]:
+                sensed = device.sense(now_us)
+                if sensed is not last[0]:
+                    last[0], last[1] = sensed, tuple([bool(sensed[port]) for port in ports])
+                image[first:end] = last[1]
+        else:
+            for device, ports, slots, first, end, last in plan[3]:
+                if ports:
+                    _read_device(device.sense(now_us), image, ports, slots, first, end, last)
+                else:
+                    device.advance(now_us)
+            free = self.free_inputs
+            for name, index in plan[4]:
+                image[index] = bool(free[name])
         self._read_at = now_us
 
     def _read_plan(self, bindings: tuple[tuple[str, int], ...]) -> tuple[Any, ...]:
-        """read_into's plan for the engine's bindings: per device [device, its sensor ports
-        in slot order, their slots, the first and end slot when they follow each other
-        (else None), the mapping last read and the vector made of it]; the free inputs'
-        (name, slot) pairs."""
+        """read_into's plan for the engine's bindings: whether the plant is read through its
+        own read (a subclass's); per device (in the plant's order: one may drive another)
+        (device, its sensor ports in slot order, their slots, the first and end slot when
+        they follow each other (else None), [the mapping last read, the vector made of it]),
+        as (device, ports, first, end, last) when every device has sensors in slots that
+        follow each other and no input is free, else None and the full ones; the free
+        inputs' (name, slot) pairs."""
         slot = dict(bindings)
         readers = []
         for device, binding in self._sensor_bind:
             pairs = sorted((slot[var], port) for port, var in binding)
             slots = tuple(index for index, _ in pairs)
             contiguous = bool(slots) and slots == tuple(range(slots[0], slots[0] + len(slots)))
-            readers.append([device, tuple(port for _, port in pairs), slots,
+            readers.append((device, tuple(port for _, port in pairs), slots,
                             slots[0] if contiguous else None,
-                            slots[0] + len(slots) if contiguous else None, None, ()])
-        return (bindings, readers,
-                tuple((name, slot[name]) for name in self.free_inputs))
+                            slots[0] + len(slots) if contiguous else None, [None, ()]))
+        free = tuple((name, slot[name]) for name in self.free_inputs)
+        simple = not free and all(reader[3] is not None for reader in readers)
+        return (bindings, type(self).read is not SimPlant.read,
+                tuple((d, ports, first, end, last)
+                      for d, ports, _, first, end, last in readers) if simple else (),
+                None if simple else tuple(readers), free)
 
     def write(self, now_us: int, outputs: Mapping[str, bool]) -> None:
-        self._written = None
+        self._written_values = None
         for device, binding in self._actuator_bind:
             device.write(now_us, {port: outputs[var] for port, var in binding})
 
     def forget_writes(self) -> None:
         """The devices' orders were set from outside (a restored closed-loop state): the next
         write_vector writes whatever it is given."""
-        self._written = None
+        self._written_values = None
 
     def write_vector(self, now_us: int, names: tuple[str, ...],
                      values: tuple[bool, ...]) -> None:
@@ -147,12 +153,11 @@ class SimPlant(Plant):
         every device already brought to `now_us` by this scan's read (then each device's
         write would only find its orders unchanged). Whoever sets the devices' orders
         otherwise calls :meth:`forget_writes`."""
-        written = self._written
-        if written is not None and now_us == self._read_at and written[1] == values \
-                and written[0] is names:
+        if values == self._written_values and now_us == self._read_at \
+                and names is self._written_names:
             return
         self.write(now_us, dict(zip(names, values, strict=True)))
-        self._written = (names, tuple(values))
+        self._written_names, self._written_values = names, tuple(values)
 
     @property
     def status(self) -> PlantStatus:
@@ -251,6 +256,23 @@ class SimPlant(Plant):
 
     def damage(self) -> list[PlantEvent]:
         return [e for e in self.events() if e.damage]
+
+
+def _read_device(sensed: Mapping[str, bool], image: list[Any], ports: tuple[str, ...],
+                 slots: tuple[int, ...], first: int | None, end: int | None,
+                 last: list[Any]) -> None:
+    """One device's sensors into the image (SimPlant.read_into): the vector made of the
+    mapping the device gave last time while it gives the very same again."""
+    if sensed is last[0]:
+        values = last[1]
+    else:
+        values = tuple([bool(sensed[port]) for port in ports])
+        last[0], last[1] = sensed, values
+    if first is not None:
+        image[first:end] = values
+    else:
+        for index, value in zip(slots, values):  # noqa: B905 - same length
+            image[index] = value
 
 
 def _joined(parts: list[tuple[Any, ...]], last: tuple[list[Any], tuple[Any, ...]] | None

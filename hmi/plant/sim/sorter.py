@@ -319,6 +319,7 @@ class SortingCell(SteppedCell, model=SORTING_CELL):
 
     # -- reporting --------------------------------------------------------------------------
     def state(self) -> dict[str, Any]:
+        self.settle()
         where = {"entry": 0, "table": 0, "left": 0, "right": 0}
         for box in self.boxes:
             where[box.segment] += 1
@@ -329,6 +330,7 @@ class SortingCell(SteppedCell, model=SORTING_CELL):
         return dict(self.count)
 
     def state_key(self) -> Hashable:
+        self.settle()
         return (self.turn.pos, len(self.source.queued), tuple([b.segment for b in self.boxes]))
 
     def counters_key(self) -> Hashable:
@@ -369,10 +371,9 @@ class _Glide:
         from copies; a change by hand ends the glide: SteppedCell.touch)."""
         return cell.boxes is self.boxes and cell.lines is self.lines
 
-    def move(self, cell: SortingCell, count: int) -> None:
+    def carry(self, cell: SortingCell, count: int) -> None:
         """`count` steps: each box on a running surface moves on, the table turns on (or its
         stall clock runs); nothing else happens."""
-        self.steps -= count
         for box, delta in self.movers:
             box.lo += delta * count
         turn = cell.turn
