@@ -41,35 +41,36 @@ def make_session(project, inject=(), diagnosis="ftc", policy=None) -> Session:
 
 
 def run(session: Session, seconds: float):
+    """The engine's snapshots of `seconds` of scans (the diagnoser's state is the engine's)."""
     snaps = []
-    session.run_for(int(seconds * S), snaps.append)
+    session.run_for(int(seconds * S), lambda cell: snaps.append(cell.snapshot))
     return snaps
 
 
 def first_faulty(snaps):
-    return next((s for s in snaps if s.snapshot.diagnosers[0].faulty), None)
+    return next((s for s in snaps if s.diagnosers[0].faulty), None)
 
 
 def test_normal_cycle_visits_the_nine_normal_states_and_never_a_faulty_one(project):
     snaps = run(make_session(project), 40)
-    states = [s.snapshot.diagnosers[0].state for s in snaps]
+    states = [s.diagnosers[0].state for s in snaps]
     # N0 (synchronising) is left at the first scan: the valve starts closed with no order;
     # N8 waits for fsc held 500 ms before the valve is closed at rest (N1).
-    assert snaps[0].snapshot.diagnosers[0].via.startswith("N0 -> N8")
-    assert snaps[50].snapshot.diagnosers[0].via.startswith("N8 -> N1")
+    assert snaps[0].diagnosers[0].via.startswith("N0 -> N8")
+    assert snaps[50].diagnosers[0].via.startswith("N8 -> N1")
     assert set(states) == {f"N{k}" for k in range(1, 9)}
-    assert not any(s.snapshot.diagnosers[0].faulty for s in snaps)
-    assert not any(s.snapshot.value("def_fsc") or s.snapshot.value("def_fso") or s.snapshot.value("def_V") for s in snaps)
-    assert all(s.snapshot.value("fsc_filter") == s.snapshot.value("fsc") for s in snaps)
-    assert dict(snaps[-1].snapshot.plant_counters)["cycles"] == 5
+    assert not any(s.diagnosers[0].faulty for s in snaps)
+    assert not any(s.value("def_fsc") or s.value("def_fso") or s.value("def_V") for s in snaps)
+    assert all(s.value("fsc_filter") == s.value("fsc") for s in snaps)
+    assert dict(snaps[-1].plant_counters)["cycles"] == 5
 
 
 def test_outputs_are_read_one_scan_back_so_the_order_is_seen_the_scan_after_it_is_written(
         project):
     snaps = run(make_session(project), 1.1)
-    written = next(s for s in snaps if s.snapshot.outputs[1])  # O written at 1.000 s
-    seen = next(s for s in snaps if s.snapshot.diagnosers[0].state == "N2")
-    assert seen.snapshot.scan == written.snapshot.scan + 1 and seen.snapshot.diagnosers[0].via == "N1 -> N2 on O"
+    written = next(s for s in snaps if s.outputs[1])  # O written at 1.000 s
+    seen = next(s for s in snaps if s.diagnosers[0].state == "N2")
+    assert seen.scan == written.scan + 1 and seen.diagnosers[0].via == "N1 -> N2 on O"
 
 
 # (injection, state reached with the orders as the program gives them (observe), decision,
@@ -99,13 +100,13 @@ DIAGNOSES = [
 def test_each_fault_is_diagnosed_within_the_windows_of_the_model(
         project, inject, state, labels, symptom_us, max_delay_us):
     snaps = run(make_session(project, [inject], diagnosis="observe"), 20)
-    final = snaps[-1].snapshot.diagnosers[0]
+    final = snaps[-1].diagnosers[0]
     assert (final.state, final.labels) == (state, labels)
-    reached = next(s for s in snaps if s.snapshot.diagnosers[0].state == state)
+    reached = next(s for s in snaps if s.diagnosers[0].state == state)
     detected = first_faulty(snaps)
-    assert symptom_us <= detected.snapshot.time_us <= reached.snapshot.time_us <= symptom_us + max_delay_us
+    assert symptom_us <= detected.time_us <= reached.time_us <= symptom_us + max_delay_us
     # A faulty decision is latched: once faulty, the diagnoser never shows a normal state.
-    after = [s.snapshot.diagnosers[0] for s in snaps if s.snapshot.time_us >= detected.snapshot.time_us]
+    after = [s.diagnosers[0] for s in snaps if s.time_us >= detected.time_us]
     assert all(d.faulty for d in after)
     assert final.certain == (len(labels) == 1)
 
@@ -116,96 +117,96 @@ def test_under_ftc_the_mask_withdraws_the_order_that_would_refine_b2_b4(project,
     """{F2, F5} and {F4, F6} masks the valve at once (a stuck valve stalls the motor in 1 s);
     without the order the valve cannot show which it was, so the decision stays ambiguous."""
     snaps = run(make_session(project, [inject]), 25)
-    final = snaps[-1].snapshot.diagnosers[0]
+    final = snaps[-1].diagnosers[0]
     assert final.state == state and not final.certain and not final.final
-    assert snaps[-1].snapshot.masked == ("C", "O") and snaps[-1].snapshot.outputs == (False, False)
-    assert not [e for s in snaps for e in s.snapshot.plant_events if e.damage]
+    assert snaps[-1].masked == ("C", "O") and snaps[-1].outputs == (False, False)
+    assert not [e for s in snaps for e in s.plant_events if e.damage]
 
 
 def test_a_sensor_flag_reconstructs_the_sensor_and_the_cycle_goes_on(project):
     snaps = run(make_session(project, ["F9@9.5s"]), 30)
-    at = next(s for s in snaps if s.snapshot.time_us == 9_500 * MS)
-    d = at.snapshot.diagnosers[0]
+    at = next(s for s in snaps if s.time_us == 9_500 * MS)
+    d = at.diagnosers[0]
     # A glitch or a stuck switch: both are fso's partition, so fso is reconstructed at once.
     assert (d.state, d.labels, dict(d.flags)) == ("R9", ("F4", "F9"),
                                                   {"def_fsc": False, "def_fso": True,
                                                    "def_V": False})
-    glitch_over = next(s for s in snaps if s.snapshot.diagnosers[0].state == "S9")
-    assert glitch_over.snapshot.time_us == 9_800 * MS  # fso broke again after its 300 ms glitch
-    assert at.snapshot.value("fso") and not at.snapshot.value("fso_filter")  # the glitch is not believed ...
-    assert at.snapshot.reconstructed == ("fso",) and at.snapshot.masked == ()
-    assert at.snapshot.active_steps == ("X1",) and at.snapshot.outputs == (False, True)  # ... so O stays on
-    later = [s for s in snaps if s.snapshot.time_us > 9_500 * MS]
-    assert all(s.snapshot.value("fso_filter") == s.snapshot.value("fso_hat") for s in later)
-    assert all(s.snapshot.value("fsc_filter") == s.snapshot.value("fsc") for s in later)
-    assert dict(snaps[-1].snapshot.plant_counters)["cycles"] >= 3
-    assert not [e for s in snaps for e in s.snapshot.plant_events if e.damage]
+    glitch_over = next(s for s in snaps if s.diagnosers[0].state == "S9")
+    assert glitch_over.time_us == 9_800 * MS  # fso broke again after its 300 ms glitch
+    assert at.value("fso") and not at.value("fso_filter")  # the glitch is not believed ...
+    assert at.reconstructed == ("fso",) and at.masked == ()
+    assert at.active_steps == ("X1",) and at.outputs == (False, True)  # ... so O stays on
+    later = [s for s in snaps if s.time_us > 9_500 * MS]
+    assert all(s.value("fso_filter") == s.value("fso_hat") for s in later)
+    assert all(s.value("fsc_filter") == s.value("fsc") for s in later)
+    assert dict(snaps[-1].plant_counters)["cycles"] >= 3
+    assert not [e for s in snaps for e in s.plant_events if e.damage]
 
 
 def test_an_actuator_flag_masks_the_orders_before_the_filter_and_after_it(project):
     snaps = run(make_session(project, ["F2@8.2s"]), 12)
-    onset = next(s for s in snaps if s.snapshot.masked)
-    assert onset.snapshot.time_us == 9_190 * MS and onset.snapshot.diagnosers[0].state == "B2"
+    onset = next(s for s in snaps if s.masked)
+    assert onset.time_us == 9_190 * MS and onset.diagnosers[0].state == "B2"
     # The program still asks to open; the filter judged the masked candidate (O = 0): the
     # drop of O before fso is what CSs4 forbids, and the mask has the last word.
-    assert onset.snapshot.fov == (False, True) and onset.snapshot.outputs == (False, False)
-    report = onset.snapshot.filter
+    assert onset.fov == (False, True) and onset.outputs == (False, False)
+    report = onset.filter
     assert "CSs4" in report.violated_names
     masked = [c for c in report.changes if c.how == "masked"]
     assert [(c.output, c.requested, c.written, c.by) for c in masked] == [
         ("O", True, False, ("def_V",))]
     assert "accepted: CSs4" in report.note and not report.residual
-    assert all(s.snapshot.outputs == (False, False) for s in snaps if s.snapshot.time_us >= onset.snapshot.time_us)
+    assert all(s.outputs == (False, False) for s in snaps if s.time_us >= onset.time_us)
 
 
 def test_monitor_policy_never_applies_a_mask_but_says_it_would(project):
     snaps = run(make_session(project, ["F2@8.2s"], policy="monitor"), 10)
-    onset = next(s for s in snaps if s.snapshot.diagnosers[0].state == "B2")
-    assert onset.snapshot.masked == () and onset.snapshot.outputs == onset.snapshot.fov == (False, True)
-    assert "def_V would mask C, O" in onset.snapshot.filter.note
+    onset = next(s for s in snaps if s.diagnosers[0].state == "B2")
+    assert onset.masked == () and onset.outputs == onset.fov == (False, True)
+    assert "def_V would mask C, O" in onset.filter.note
 
 
 def test_observe_and_off_modes_leave_the_sensors_alone(project):
     observe = run(make_session(project, ["F9@9.5s"], diagnosis="observe"), 11)
     off = run(make_session(project, ["F9@9.5s"], diagnosis="off"), 11)
-    assert observe[-1].snapshot.diagnosers[0].state == "S9" and observe[-1].snapshot.value("def_fso")
-    assert all(s.snapshot.value("fso_filter") == s.snapshot.value("fso") for s in observe + off)
-    assert not any(s.snapshot.reconstructed or s.snapshot.masked for s in observe + off)
-    assert off[-1].snapshot.diagnosers[0].state == "N0" and not off[-1].value("def_fso")
+    assert observe[-1].diagnosers[0].state == "S9" and observe[-1].value("def_fso")
+    assert all(s.value("fso_filter") == s.value("fso") for s in observe + off)
+    assert not any(s.reconstructed or s.masked for s in observe + off)
+    assert off[-1].diagnosers[0].state == "N0" and not off[-1].value("def_fso")
 
 
 def test_fault_reset_resynchronises_to_the_normal_state_the_io_shows(project):
     session = make_session(project, ["F8@8.2s"])
     snaps = run(session, 9)
-    assert snaps[-1].snapshot.diagnosers[0].state == "S8"
+    assert snaps[-1].diagnosers[0].state == "S8"
     # Wait until the valve rests closed with no order, then reset.
     while True:
-        s = session.scan_once()
-        if s.snapshot.time_us > 20 * S and s.snapshot.active_steps == ("X0",) and s.snapshot.outputs == (False, False) \
-                and s.snapshot.value("fsc") and s.snapshot.time_us % S == 500 * MS:
+        s = session.scan_once().snapshot
+        if s.time_us > 20 * S and s.active_steps == ("X0",) and s.outputs == (False, False) \
+                and s.value("fsc") and s.time_us % S == 500 * MS:
             break
     message = session.command(FaultReset()).message
     assert "diagnoser V1: S8 {F8} reset, re-synchronised to N1 (Closed at rest) on " \
            "fsc=1, fso=0, C=0, O=0; flags cleared" in message
-    after = session.scan_once()
-    d = after.snapshot.diagnosers[0]
+    after = session.scan_once().snapshot
+    d = after.diagnosers[0]
     assert (d.state, d.labels) == ("N1", ()) and d.via.startswith("fault reset (resync rule 1")
-    assert not any(v for _, v in d.flags) and after.snapshot.reconstructed == ()
+    assert not any(v for _, v in d.flags) and after.reconstructed == ()
     # ... and it follows the next cycle again.
     more = run(session, 10)
-    assert {"N2", "N3", "N4", "N5"} <= {s.snapshot.diagnosers[0].state for s in more}
-    assert not any(s.snapshot.diagnosers[0].faulty for s in more)
+    assert {"N2", "N3", "N4", "N5"} <= {s.diagnosers[0].state for s in more}
+    assert not any(s.diagnosers[0].faulty for s in more)
 
 
 def test_fault_reset_leaves_the_diagnoser_faulty_while_the_fault_is_visible(project):
     session = make_session(project, ["F1@12s"])
     snaps = run(session, 20)
-    assert snaps[-1].snapshot.diagnosers[0].state == "A1"
+    assert snaps[-1].diagnosers[0].state == "A1"
     message = session.command(FaultReset()).message
     assert ("diagnoser V1 stays in A1 {F1, F13}: fsc=0, fso=0, C=0, O=0 match no normal "
             "state: the fault is still visible") in message
-    after = session.scan_once()
-    assert after.snapshot.diagnosers[0].state == "A1" and after.snapshot.masked == ("C", "O")
+    after = session.scan_once().snapshot
+    assert after.diagnosers[0].state == "A1" and after.masked == ("C", "O")
 
 
 def test_the_trace_has_the_diagnoser_state_and_the_flags(project, tmp_path):
@@ -249,15 +250,15 @@ def test_an_order_withdrawn_mid_travel_by_a_latch_resynchronises_instead_of_faul
     assert session.last.snapshot.diagnosers[0].state == "N3"
     session.engine.latch_safe("test", "an operator emergency stop")
     snaps = run(session, 5)  # much longer than the travel window: no arrival, no fault
-    assert snaps[1].snapshot.diagnosers[0].state == "N0"
-    assert snaps[1].snapshot.diagnosers[0].via == "N3 -> N0 on not O and not fsc and not fso"
-    assert not any(s.snapshot.diagnosers[0].faulty for s in snaps)
+    assert snaps[1].diagnosers[0].state == "N0"
+    assert snaps[1].diagnosers[0].via == "N3 -> N0 on not O and not fsc and not fso"
+    assert not any(s.diagnosers[0].faulty for s in snaps)
     # After the reset the filter refuses to restart the opening from mid-travel (CSs6), so
     # the valve stays where the latch left it; the diagnoser waits, synchronising, no fault.
     assert "safe-state latch released" in session.command(FaultReset()).message
     after = run(session, 10)
-    assert {s.snapshot.diagnosers[0].state for s in after} == {"N0"}
-    assert not any(s.snapshot.masked for s in after)
+    assert {s.diagnosers[0].state for s in after} == {"N0"}
+    assert not any(s.masked for s in after)
 
 
 def test_a_gap_in_the_observation_sends_a_normal_diagnoser_back_to_synchronising(project):
@@ -287,17 +288,17 @@ def test_a_plant_outage_keeps_a_faulty_decision_and_resynchronises_a_normal_one(
     plant.down = (int(1.5 * S), int(2.5 * S))
     session = Session(Engine(project, plant))
     snaps = run(session, 3)
-    during = next(s for s in snaps if s.snapshot.time_us == 2 * S)
-    assert during.snapshot.diagnosers[0].state == "N3"  # shown as it stood, not stepped
-    back = next(s for s in snaps if s.snapshot.time_us == 2_500 * MS)
-    assert back.snapshot.diagnosers[0].state == "N0"
-    assert back.snapshot.diagnosers[0].via.startswith("plant not observed for")
+    during = next(s for s in snaps if s.time_us == 2 * S)
+    assert during.diagnosers[0].state == "N3"  # shown as it stood, not stepped
+    back = next(s for s in snaps if s.time_us == 2_500 * MS)
+    assert back.diagnosers[0].state == "N0"
+    assert back.diagnosers[0].via.startswith("plant not observed for")
     # A faulty decision outlives an outage.
     plant = Flaky(project)
     plant.inject(parse_injection("F9@1.5s"))
     plant.down = (int(2 * S), int(3 * S))
     session = Session(Engine(project, plant))
-    assert run(session, 4)[-1].snapshot.diagnosers[0].state == "S9"
+    assert run(session, 4)[-1].diagnosers[0].state == "S9"
 
 
 def test_a_catch_up_scan_does_not_make_the_next_normal_step_a_gap(project):

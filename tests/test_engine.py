@@ -71,12 +71,12 @@ def test_manual_mode_replaces_the_functional_vector():
     assert session.command(ManualOutput("O", True)).accepted is False  # needs manual mode
     assert session.command(SetMode(True)).accepted
     assert session.command(ManualOutput("O", True)).accepted
-    s = session.scan_once()
-    assert s.snapshot.mode == "manual" and s.snapshot.fov == (False, True) and s.snapshot.manual == (("O", True),)
+    s = session.scan_once().snapshot
+    assert s.mode == "manual" and s.fov == (False, True) and s.manual == (("O", True),)
     result = session.command(SetMode(False))
     assert "released O" in result.message
-    s = session.scan_once()
-    assert s.snapshot.mode == "auto" and s.snapshot.manual == ()
+    s = session.scan_once().snapshot
+    assert s.mode == "auto" and s.manual == ()
 
 
 def test_an_internal_error_puts_outputs_safe_and_says_so():

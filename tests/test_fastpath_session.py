@@ -36,7 +36,6 @@ import pytest
 from hmi.engine import commands as cmd
 from hmi.engine.scan import Engine
 from hmi.engine.snapshot import Snapshot
-from hmi.session.view import CellView
 from hmi.explain.journal import Journal
 from hmi.plant.sim.plant import SimPlant
 from hmi.project.injection import Injection
@@ -46,6 +45,7 @@ from hmi.project.recovery import recoveries_of
 from hmi.session.journal_recorder import JournalRecorder
 from hmi.session.run_report import RunCollector, run_summary
 from hmi.session.session import Session
+from hmi.session.view import CellView
 from tests.conftest import PROJECTS
 
 S = 1_000_000

@@ -47,7 +47,8 @@ def test_correct_keeps_the_faulty_program_safe_and_the_valve_cycling():
     snaps = run(make_session(VALVE, control="faulty", policy="correct"), 120)
     assert sum(1 for s in snaps if s.snapshot.filter.violations) > 100
     assert all(not s.snapshot.filter.residual for s in snaps)
-    assert all(not (s.snapshot.outputs[0] and s.snapshot.outputs[1]) for s in snaps)  # never C and O
+    assert all(not (s.snapshot.outputs[0] and s.snapshot.outputs[1])
+               for s in snaps)  # never C and O
     assert not [e for s in snaps for e in s.snapshot.plant_events if e.damage]
     assert dict(snaps[-1].snapshot.plant_counters)["cycles"] >= 10
 
@@ -69,8 +70,8 @@ def test_block_latches_every_output_safe_until_a_fault_reset():
     assert "safe blocking on CSs2" in snaps[first].snapshot.latched[0].detail
     assert all(s.snapshot.outputs == (False, False) for s in snaps[first:])
     assert "safe-state latch released" in session.command(FaultReset()).message
-    s = session.scan_once()
-    assert not s.snapshot.latched or s.snapshot.filter.violations  # re-latches only on a new violation
+    s = session.scan_once().snapshot
+    assert not s.latched or s.filter.violations  # re-latches only on a new violation
 
 
 def test_manual_requests_go_through_the_filter():
@@ -104,7 +105,12 @@ def test_policy_switch_at_run_time():
 def _unsafe_scans(session, seconds: int) -> list[int]:
     """The scans of a run that wrote an unsafe vector (without keeping every snapshot)."""
     unsafe: list[int] = []
-    session.run_for(seconds * S, lambda s: s.snapshot.filter.unsafe_written and unsafe.append(s.snapshot.scan))
+
+    def on_scan(cell):
+        if cell.snapshot.filter.unsafe_written:
+            unsafe.append(cell.snapshot.scan)
+
+    session.run_for(seconds * S, on_scan)
     return unsafe
 
 
@@ -136,9 +142,9 @@ def test_no_safe_vector_falls_back_to_the_safe_state(tmp_path):
     session = make_session(folder)
     session.engine.plant.devices[0].inject("F2", 0)  # fsc (a) stuck at 1
     session.engine.plant.devices[0].inject("F4", 0)  # fso (b) stuck at 1
-    s = session.scan_once()
-    assert s.snapshot.filter.fallback and s.snapshot.filter.safe_state and s.snapshot.outputs == (False, False)
-    assert not s.snapshot.filter.unsafe_written
+    s = session.scan_once().snapshot
+    assert s.filter.fallback and s.filter.safe_state and s.outputs == (False, False)
+    assert not s.filter.unsafe_written
     report = analyse(load_project(folder))
     assert report.no_solution_count == 1 and "a, b" in report.no_solution[0]
 

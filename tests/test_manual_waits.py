@@ -248,7 +248,8 @@ def test_the_conveyor_dead_end_is_said_and_the_way_back_works():
     session.run_for(5 * S)
     assert session.command(cmd.SetMode(False)).accepted
     session.run_for(9 * S, on_quiet=lambda n: None)
-    assert session.last.snapshot.active_steps == ("X3", "X10") and session.last.snapshot.overdue_steps == ()
+    last = session.last.snapshot
+    assert last.active_steps == ("X3", "X10") and last.overdue_steps == ()
     session.run_for(4 * S, on_quiet=lambda n: None)  # X3 since 6.02 s, X10 since 9.02 s
     snap = session.last
     assert snap.snapshot.overdue_steps == ("X3", "X10")

@@ -142,5 +142,10 @@ def test_a_monitor_reading_deep_history_gets_it(tmp_path):
     assert m.attempt >= 1 and session.last.error is None
     first = make_session(folder)
     starts = []
-    first.run_for(200_000, lambda s: starts.append(s.time_us) if s.monitors[0].attempt else None)
+
+    def on_scan(cell):
+        if cell.snapshot.monitors[0].attempt:
+            starts.append(cell.snapshot.time_us)
+
+    first.run_for(200_000, on_scan)
     assert starts[0] == 50_000

@@ -454,13 +454,15 @@ async def test_inputs_are_uncertain_while_the_plant_does_not_answer(cell):
         mode = await node.get_child([f"{ns}:Status", f"{ns}:Mode"])
         await cell.scans(1)
         last = cell.session.last
-        lost = last._replace(scan=last.snapshot.scan + 1, plant=replace(last.snapshot.plant, connected=False))
+        lost_snap = last.snapshot._replace(scan=last.snapshot.scan + 1,
+                                           plant=replace(last.snapshot.plant, connected=False))
+        lost = last._replace(snapshot=lost_snap)
         for listener in list(cell.session.scan_listeners):  # as if the session scanned it
             listener(lost)
-        await until(lambda: cell.server.published_scan == lost.scan)
+        await until(lambda: cell.server.published_scan == lost_snap.scan)
         read = await value.read_data_value(raise_on_bad_status=False)
         assert read.StatusCode.value == ua.StatusCodes.UncertainNoCommunicationLastUsableValue
-        assert read.Value.Value == lost.value("fsc")
+        assert read.Value.Value == lost_snap.value("fsc")
         assert (await mode.read_data_value()).StatusCode.is_good()  # the cell's own: good
         await cell.scans(2)  # connected again (past the scan number the fake one took)
         assert (await value.read_data_value()).StatusCode.is_good()

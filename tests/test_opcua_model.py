@@ -167,13 +167,13 @@ def test_an_acknowledgement_seen_only_in_the_list_is_sent_with_who_did_it():
     tracker = ConditionTracker()
     batches = []
     for _ in range(1000):
-        snap = session.scan_once()
-        if snap.alarm_events:
-            batches.append((snap.alarm_events, snap.alarms))
-    raised = tracker.update(batches, snap.alarms, snap.snapshot.time_us)
+        cell = session.scan_once()
+        if cell.alarm_events:
+            batches.append((cell.alarm_events, cell.alarms))
+    raised = tracker.update(batches, cell.alarms, cell.snapshot.time_us)
     high = next(v for v in raised if v.key == "diagnosis:V1")
     assert high.state == ACTIVE_UNACK and high.severity == 900 and high.retain
-    alarm = next(a for a in snap.alarms if a.key == "diagnosis:V1")
+    alarm = next(a for a in cell.alarms if a.key == "diagnosis:V1")
     assert high.message == alarm.text and high.why == alarm.explanation.why
     assert high.consequences == alarm.explanation.consequences
     assert high.policies == alarm.explanation.policies_text()
@@ -181,14 +181,15 @@ def test_an_acknowledgement_seen_only_in_the_list_is_sent_with_who_did_it():
     tracker.acknowledged_by("diagnosis:V1", "alice", "on my way")
     session.command(Acknowledge("diagnosis:V1"))
     session.command(Acknowledge("constraint:CSs4"))  # from the HMI
-    snap = session.scan_once()  # no alarm event: the journal took the acknowledgements
-    views = {v.key: v for v in tracker.update([], snap.alarms, snap.snapshot.time_us)}
+    cell = session.scan_once()  # no alarm event: the journal took the acknowledgements
+    views = {v.key: v for v in tracker.update([], cell.alarms, cell.snapshot.time_us)}
     assert views["diagnosis:V1"].state == ACTIVE_ACK
     assert (views["diagnosis:V1"].user, views["diagnosis:V1"].comment) == ("alice",
                                                                           "on my way")
     cleared = views["constraint:CSs4"]
     assert cleared.state == NORMAL and not cleared.retain and cleared.user == HMI_USER
-    assert tracker.update([], snap.alarms, snap.snapshot.time_us) == []  # nothing changed: nothing sent
+    # nothing changed: nothing sent
+    assert tracker.update([], cell.alarms, cell.snapshot.time_us) == []
     assert CLEARED_UNACK not in {sent[0] for sent in tracker.sent.values()}
 
 

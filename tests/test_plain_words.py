@@ -81,8 +81,8 @@ def offences(text: str, names: set[str], named: re.Pattern[str]) -> list[str]:
 def situations(project):
     """(what, snapshot) for every situation of the project."""
     session = Session(Engine(project, SimPlant(project)))
-    base = session.scan_once()._replace(explanations=(), alarms=())
-    outputs = base.snapshot.layout.outputs
+    base = session.scan_once().snapshot  # the engine's part: no explanations, no alarms
+    outputs = base.layout.outputs
     for c in project.constraints:
         violation = next(v for v in session.engine.safety_filter.compiled if v.constraint is c
                          ).violation
@@ -96,25 +96,25 @@ def situations(project):
                        how),)
             report = FilterReport(policy, "exact", (violation,), changes, 1,
                                   safe_state=policy == "block", note="tie-break note")
-            yield f"constraint {c.name} {policy} {how}", base.snapshot._replace(filter=report,
+            yield f"constraint {c.name} {policy} {how}", base._replace(filter=report,
                                                                        policy=policy)
     for spec in diagnosers_of(project):
-        index = next(k for k, d in enumerate(base.snapshot.diagnosers) if d.name == spec.name)
+        index = next(k for k, d in enumerate(base.diagnosers) if d.name == spec.name)
         for state in spec.states:
             if not state.labels:
                 continue
-            record = base.snapshot.diagnosers[index].__class__(
+            record = base.diagnosers[index].__class__(
                 spec.name, spec.device, state.name, state.description, state.labels,
                 tuple(spec.label_text(lab) for lab in state.labels), 5, 50_000,
                 "N7 -> A1 after 1.93s", (), final=True)
             flagged = [p for p in spec.partitions if set(p.labels) & set(state.labels)]
             sensors = tuple(p.sensor for p in flagged if p.sensor)
             masked = tuple(o for p in flagged for o in p.actuators)
-            diagnosers = list(base.snapshot.diagnosers)
+            diagnosers = list(base.diagnosers)
             diagnosers[index] = record
             for mode, rec, mask in (("ftc", sensors, masked), ("observe", (), ())):
                 yield (f"diagnoser {spec.name} {state.name} {mode}",
-                       base.snapshot._replace(diagnosers=tuple(diagnosers), reconstructed=rec,
+                       base._replace(diagnosers=tuple(diagnosers), reconstructed=rec,
                                      masked=mask))
     for m in monitors_of(project):
         for rule in ("cannot_finish", "deadline", "overrun", "late_end", "too_fast"):
@@ -125,15 +125,15 @@ def situations(project):
                                      1_000_000, m.alpha_us, m.beta_us, m.gamma_us, 1, 0,
                                      running, d, d, None, 1, 0)
                 yield (f"monitor {m.name} {rule} {location}",
-                       base.snapshot._replace(monitors=(state,)))
+                       base._replace(monitors=(state,)))
     for source, detail in (("filter", "safe blocking on X: never do that"),
                            ("plant", "plant connection lost: timed out"),
                            ("plant", "plant error: the device answered illegal address "
                                      "(exception 2)"),
                            ("internal", "internal error at scan 3: KeyError: 'O'"),
                            ("journal", "journal.jsonl: disk full")):
-        yield f"latch {source}", base.snapshot._replace(latched=(LatchReason(source, detail, 3, 30),))
-    yield "plant not connected", base.snapshot._replace(plant=PlantStatus("modbus", "modbus x",
+        yield f"latch {source}", base._replace(latched=(LatchReason(source, detail, 3, 30),))
+    yield "plant not connected", base._replace(plant=PlantStatus("modbus", "modbus x",
                                                                  False, "refused"))
     names = tuple(c.name for c in project.constraints[:2])
     violations = tuple(v.violation for v in session.engine.safety_filter.compiled
@@ -141,22 +141,22 @@ def situations(project):
     for stopped in ("", "budget"):
         report = FilterReport("correct", "paper", violations, fallback="no safe vector",
                               stopped=stopped)
-        yield f"fallback {stopped}", base.snapshot._replace(filter=report)
-    yield "manual", base.snapshot._replace(mode="manual", manual=((outputs[0], True),))
-    grafcet = base.snapshot.layout.grafcet
+        yield f"fallback {stopped}", base._replace(filter=report)
+    yield "manual", base._replace(mode="manual", manual=((outputs[0], True),))
+    grafcet = base.layout.grafcet
     for step in grafcet.steps if grafcet is not None else ():
         # a step past its supervision time (every step: their receptivities read timers,
         # memories, step times, other steps; a step with none written says 0)
         yield (f"step {step.name} overdue",
-               base.snapshot._replace(active_steps=(step.name,), overdue_steps=(step.name,)))
+               base._replace(active_steps=(step.name,), overdue_steps=(step.name,)))
     for r in recoveries_of(project):
         needed = ((r.name, r.device, r.description, r.needed.text if r.needed else "x"),)
-        yield f"recovery {r.name} needed", base.snapshot._replace(recovery=RecoveryState(needed=needed))
+        yield f"recovery {r.name} needed", base._replace(recovery=RecoveryState(needed=needed))
         for status in ("running", "done", "failed"):
             state = RecoveryState(r.name, r.device, r.description, status, 1, len(r.steps),
                                   r.steps[0].description, 0, 1_000_000, r.timeout_us,
                                   f"{status} in 1.000 s: {r.description}")
-            yield f"recovery {r.name} {status}", base.snapshot._replace(mode="recovery", recovery=state)
+            yield f"recovery {r.name} {status}", base._replace(mode="recovery", recovery=state)
 
 
 @pytest.mark.parametrize("name", PROJECT_NAMES)
@@ -206,8 +206,8 @@ def test_the_reset_and_recovery_dialogs_and_output_reasons_name_no_internal_iden
     (the I/O table, the message line) and each simulated fault as the operator view names
     it: plain words; the engineering view's lines keep the names."""
     from hmi.plant.sim.plant import SimPlant
-    from hmi.ui.fault_dialog import fault_words
     from hmi.session.view import CellView
+    from hmi.ui.fault_dialog import fault_words
     from hmi.ui.reset import recovery_lines, reset_lines
     from hmi.ui.verdict import output_changes
 
@@ -220,9 +220,10 @@ def test_the_reset_and_recovery_dialogs_and_output_reasons_name_no_internal_iden
     problems = []
     engineering = ""
     for what, snap in situations(project):
-        texts = [("reset", str(getattr(line, "plain", line))) for line in reset_lines(CellView(snap))]
+        cell = CellView(snap)
+        texts = [("reset", str(getattr(line, "plain", line))) for line in reset_lines(cell)]
         engineering += " ".join(getattr(line, "plain", str(line))
-                                for line in reset_lines(CellView(snap), engineering=True))
+                                for line in reset_lines(cell, engineering=True))
         for written in (True, False):  # every output changed, by this situation's report
             changed = snap._replace(outputs=tuple(not v for v in snap.fov) if written
                                     else snap.outputs)

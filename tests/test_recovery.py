@@ -79,8 +79,8 @@ def test_every_valve_fault_ends_in_automatic_operation_after_repair_recovery_and
         session = Session(Engine(project, plant))
         faulty = []
         snap = run_quietly(session, scenario.at_us + 12 * S,
-                           lambda s, seen=faulty: seen.extend(d.labels for d in s.snapshot.diagnosers
-                                                              if d.faulty))
+                           lambda s, seen=faulty: seen.extend(
+                               d.labels for d in s.snapshot.diagnosers if d.faulty))
         assert faulty, f"{scenario.fault} was never diagnosed"
         if snap.snapshot.recovery.needed:
             needed_for.append(scenario.fault)
@@ -91,7 +91,8 @@ def test_every_valve_fault_ends_in_automatic_operation_after_repair_recovery_and
         snap = run_quietly(session, 20 * S)
         assert snap.snapshot.mode == "auto", scenario.fault
         assert not snap.snapshot.latched and not snap.error, scenario.fault
-        assert not any(d.faulty for d in snap.snapshot.diagnosers), (scenario.fault, snap.snapshot.diagnosers)
+        diagnosers = snap.snapshot.diagnosers
+        assert not any(d.faulty for d in diagnosers), (scenario.fault, diagnosers)
         assert cycles(snap) - before >= 2, f"{scenario.fault}: the cycle did not resume"
         assert not [e for e in plant.events()[repaired_at:] if e.damage], scenario.fault
         assert not snap.snapshot.recovery.needed
@@ -397,7 +398,8 @@ def test_under_a_plant_loss_latch_the_reset_dialog_offers_no_recovery_the_engine
     plant.down = (int(2 * S), int(3 * S))
     session = Session(Engine(project, plant))
     snap = run_quietly(session, 12 * S)
-    assert snap.snapshot.latched and snap.snapshot.recovery.needed  # latched, and the valve between its ends
+    # latched, and the valve between its ends
+    assert snap.snapshot.latched and snap.snapshot.recovery.needed
     lines = reset_preview(snap.snapshot, snap.alarms)
     assert not any(line.recovery for line in lines)
     assert any("this reset first" in line.why for line in lines)
@@ -406,7 +408,8 @@ def test_under_a_plant_loss_latch_the_reset_dialog_offers_no_recovery_the_engine
     assert session.command(FaultReset()).accepted
     snap = session.scan_once()
     assert not snap.snapshot.latched
-    assert any(line.recovery == "V1_close" for line in reset_preview(snap.snapshot, snap.alarms))  # now it is
+    now = reset_preview(snap.snapshot, snap.alarms)
+    assert any(line.recovery == "V1_close" for line in now)  # now it is
 
 
 def test_a_reset_during_f7_while_the_valve_travels_does_not_call_for_a_recovery():

@@ -192,7 +192,7 @@ def test_the_runtime_serves_frames_to_json_readers(sock):
         welcome = json.loads(read_message(raw, MAX_OUT))
         first = json.loads(read_message(raw, MAX_OUT))
         assert welcome[0] == "Welcome" and first[0] == "Frame"
-        assert first[2][0] == 1  # the snapshot's scan: the first, as nothing ran since
+        assert first[2][0][0] == 1  # the cell's snapshot's scan: the first, nothing ran since
         raw.close()
         cell.attach().leave()
 

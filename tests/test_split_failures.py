@@ -48,8 +48,8 @@ SCREEN = textwrap.dedent("""
     link.advance(20_000)
     last = link.last
     print(json.dumps({"acked": alarms[0].key, "alarms": [[a.key, a.state] for a in last.alarms],
-                      "shelved": [a.key for a, _ in last.shelved], "mode": last.mode,
-                      "scan": last.scan}), flush=True)
+                      "shelved": [a.key for a, _ in last.shelved],
+                      "mode": last.snapshot.mode, "scan": last.snapshot.scan}), flush=True)
     time.sleep(3600)
 """)
 

@@ -8,7 +8,15 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ui_harness import palette, region_text, run_for, run_until, screen_text, wait_for_main
+from ui_harness import (
+    not_violating,
+    palette,
+    region_text,
+    run_for,
+    run_until,
+    screen_text,
+    wait_for_main,
+)
 from ui_scenarios import VALVE, make_app
 
 from hmi.engine.commands import InjectFault, StopDevice
@@ -388,8 +396,7 @@ async def test_policy_fault_reset_is_confirmed_with_the_reset_preview():
     app = make_app(control="faulty", policy="block")
     async with app.run_test(size=WIDE) as pilot:
         await run_until(pilot, lambda s: bool(s.snapshot.latched), 5, "safe blocking")
-        await run_until(pilot, lambda s: s.snapshot.filter is not None and not s.snapshot.filter.violations,
-                        10, "the program no longer violating")
+        await run_until(pilot, not_violating, 10, "the program no longer violating")
         await open_policies(pilot, "safe_state:filter")
         await press(pilot, "enter")  # the recommended: fault reset
         await wait_for_screen(pilot, ConfirmDialog)

@@ -13,11 +13,13 @@ from pathlib import Path
 import pytest
 from textual.command import CommandPalette
 from ui_harness import (
+    not_violating,
     palette,
     region_text,
     run_for,
     run_until,
     screen_text,
+    violating,
     wait_for_main,
     wait_live,
 )
@@ -83,8 +85,8 @@ async def test_the_valve_is_seen_cycling():
         control = region_text(app, "#control")
         assert "● X2" in control and "○ X1" in control
         # A whole cycle later the chronogram holds both edges of the open order.
-        await run_until(pilot, lambda s: s.snapshot.plant_counters and dict(s.snapshot.plant_counters)["cycles"]
-                        >= 1, 20, "a full cycle")
+        await run_until(pilot, lambda s: bool(s.snapshot.plant_counters)
+                        and dict(s.snapshot.plant_counters)["cycles"] >= 1, 20, "a full cycle")
         chrono = region_text(app, "#chronogram")
         o_row = next(line for line in chrono.splitlines() if line.strip("│ ").startswith("O "))
         assert "▐" in o_row and "█" in o_row and "▌" in o_row and "▁" in o_row
@@ -340,7 +342,8 @@ async def test_manual_request_is_written_and_shown():
         assert "forced 1" in region_text(app, "#io")
         assert "O=1" in region_text(app, "#banners")
         await run_for(pilot, 2.5)
-        assert app.link.session.last.snapshot.value("fso") is True  # the valve opened under the force
+        # the valve opened under the force
+        assert app.link.session.last.snapshot.value("fso") is True
         await press(pilot, "x")
         await settle(pilot)
         assert engine(app).manual == {}
@@ -555,7 +558,8 @@ async def test_fault_injection_now_jams_the_valve():
         assert dict(snap.snapshot.plant_state)["jammed"] is True
         # {F3, F13} masks the valve; fso is read from its estimate, which says "open" once
         # the open order was held a full travel (2.45 s): the program goes on, masked.
-        assert snap.snapshot.diagnosers[0].labels == ("F3", "F13") and snap.snapshot.masked == ("C", "O")
+        assert snap.snapshot.diagnosers[0].labels == ("F3", "F13")
+        assert snap.snapshot.masked == ("C", "O")
         sim = region_text(app, "#sim")
         assert "SIMULATION" in sim and "JAMMED" in sim and "blocked between fsc and fso" in sim
         assert "damage" in sim  # the motor stalled against the jam
@@ -799,8 +803,7 @@ async def test_filter_changes_are_shown_with_their_constraint():
         assert any(line.strip("│ ").startswith(f"{change.output}") and "≠" in line
                    for line in chrono.splitlines())
         # later, the history stays: counted, with its last time
-        await run_until(pilot, lambda s: s.snapshot.filter is not None and not s.snapshot.filter.violations, 10,
-                        "a scan without violation")
+        await run_until(pilot, not_violating, 10, "a scan without violation")
         constraints = region_text(app, "#constraints")
         assert f"{change.by[0]} · ×" in constraints and "last" in constraints
 
@@ -815,8 +818,7 @@ async def test_a_past_violation_keeps_its_level_1_explanation():
         what = next(e.what for e in snap.explanations if e.key == f"constraint:{name}")
         description = next(c.description for c in app.project.constraints if c.name == name)
         assert what != description
-        await run_until(pilot, lambda s: s.snapshot.filter is not None and not s.snapshot.filter.violations, 10,
-                        "a scan without violation")
+        await run_until(pilot, not_violating, 10, "a scan without violation")
         assert app.link.recorder.constraint_stats()[name].what == what
         row = next(line for line in region_text(app, "#constraints").splitlines()
                    if f" {name} " in line)
@@ -846,16 +848,14 @@ async def test_reset_under_safe_blocking_says_what_stays():
     app = make_app(control="faulty", policy="block")
     async with app.run_test(size=(120, 36)) as pilot:
         await run_until(pilot, lambda s: bool(s.snapshot.latched), 10, "safe blocking")
-        await run_until(pilot, lambda s: s.snapshot.filter is not None and bool(s.snapshot.filter.violations),
-                        10, "the program still violating")
+        await run_until(pilot, violating, 10, "the program still violating")
         await press(pilot, "r")
         await wait_for_screen(pilot, ConfirmDialog)
         text = screen_text(app)
         assert "stays" in text and "its cause is still present" in text
         await press(pilot, "n")
         await wait_for_main(pilot)
-        await run_until(pilot, lambda s: s.snapshot.filter is not None and not s.snapshot.filter.violations,
-                        10, "the program no longer violating")
+        await run_until(pilot, not_violating, 10, "the program no longer violating")
         await press(pilot, "r")
         await wait_for_screen(pilot, ConfirmDialog)
         assert "will be reset: outputs held safe: a safety rule was broken" in screen_text(app)

@@ -47,14 +47,14 @@ def test_alarm_rows_keep_a_gap_between_every_column_at_every_width():
 
 def test_diagnoser_rows_keep_a_gap_between_name_state_and_decision():
     session = faulty_valve()
-    snap = session.last
+    snap = session.last.snapshot
     project = session.engine.project
     partitions = {p.flag: PartitionInfo(p.flag, p.sensor, p.estimate, p.actuators)
                   for spec in diagnosers_of(project) for p in spec.partitions}
-    (d,) = snap.snapshot.diagnosers
+    (d,) = snap.diagnosers
     assert d.faulty
     for detail in (0, 1, 2):
-        lines = diagnoser_lines(d, partitions, set(snap.snapshot.reconstructed), set(snap.snapshot.masked), 2,
+        lines = diagnoser_lines(d, partitions, set(snap.reconstructed), set(snap.masked), 2,
                                 detail)
         for line in lines:
             assert not opening_gaps(line), (detail, runs(line))

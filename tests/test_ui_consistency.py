@@ -42,10 +42,10 @@ class ScanFirst:
 def last_scan_of_an_episode(control: str = "faulty", limit: int = 3000) -> tuple[int, str]:
     """A scan after which a violation episode ends (the same run, replayed on a twin engine)."""
     twin = make_session(VALVE, control=control)
-    before = twin.scan_once()
+    before = twin.scan_once().snapshot
     for _ in range(limit):
-        after = twin.scan_once()
-        ended = set(before.filter.violated_names) - set(after.snapshot.filter.violated_names)
+        after = twin.scan_once().snapshot
+        ended = set(before.filter.violated_names) - set(after.filter.violated_names)
         if ended:
             return before.scan, sorted(ended)[0]
         before = after

@@ -214,10 +214,10 @@ def test_a_dead_scan_thread_ends_the_runtime_abnormally(monkeypatch, tmp_path, c
     path = tmp_path / "j.jsonl"
     on_scan = JournalRecorder.on_scan
 
-    def failing(self, snapshot):
-        if snapshot.scan == 30:
+    def failing(self, cell):
+        if cell.snapshot.scan == 30:
             raise OSError(28, "No space left on device")
-        on_scan(self, snapshot)
+        on_scan(self, cell)
     monkeypatch.setattr(JournalRecorder, "on_scan", failing)
     assert main(["serve", str(VALVE), "--journal", str(path), "--no-realtime"]) == 1
     assert "the scan thread stopped: OSError" in capsys.readouterr().err

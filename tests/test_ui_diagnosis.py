@@ -31,8 +31,15 @@ def flat(app, selector: str) -> str:
     return " ".join(" ".join(lines).split())
 
 
+def at_rest_open(cell) -> bool:
+    """No order, and the valve reads open."""
+    s = cell.snapshot
+    return not s.output_map["C"] and not s.output_map["O"] and s.value("fso") \
+        and not s.value("fsc")
+
+
 def decided(labels: tuple[str, ...]):
-    return lambda s: bool(s.diagnosers) and s.diagnosers[0].labels == labels
+    return lambda s: bool(s.snapshot.diagnosers) and s.snapshot.diagnosers[0].labels == labels
 
 
 async def inject(pilot, code: str, at_s: float, labels: tuple[str, ...]) -> None:
@@ -44,8 +51,8 @@ async def test_normal_diagnoser_is_quiet():
     app = make_app()
     async with app.run_test(size=WIDE) as pilot:
         await press(pilot, "E")  # the engineering view: the model's names
-        await run_until(pilot, lambda s: s.snapshot.diagnosers and s.snapshot.diagnosers[0].state == "N5", 10,
-                        "open at rest")
+        await run_until(pilot, lambda s: s.snapshot.diagnosers
+                        and s.snapshot.diagnosers[0].state == "N5", 10, "open at rest")
         text = region_text(app, "#diagnosers")
         assert "Diagnosers · 1" in text and "faulty" not in text
         assert "● V1 N5 Open at rest" in text
@@ -134,8 +141,7 @@ async def test_reset_re_synchronises_a_diagnoser_only_when_the_io_allows_it():
     app = make_app()
     async with app.run_test(size=WIDE) as pilot:
         await inject(pilot, "F9", 10, ("F9",))
-        await run_until(pilot, lambda s: not s.snapshot.output_map["C"] and not s.snapshot.output_map["O"]
-                        and s.snapshot.value("fso") and not s.snapshot.value("fsc"), 10, "the valve at rest")
+        await run_until(pilot, at_rest_open, 10, "the valve at rest")
         await press(pilot, "r")
         await wait_for_screen(pilot, ConfirmDialog)
         text = screen_text(app)

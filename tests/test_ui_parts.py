@@ -231,8 +231,8 @@ def test_recorder_counts_violation_episodes_from_every_scan():
     recorder = ScanRecorder(session.engine.layout)
     violated_scans: dict[str, int] = {}
 
-    def count(snap):
-        for name in snap.filter.violated_names:
+    def count(cell):
+        for name in cell.snapshot.filter.violated_names:
             violated_scans[name] = violated_scans.get(name, 0) + 1
 
     session.scan_listeners.extend([recorder.on_scan, count])
@@ -355,9 +355,9 @@ def test_manual_dialog_lines_name_the_steps_and_the_orders_given_again(tmp_path)
     session = make_session(PROJECTS / "conveyor_robot")
     project = session.engine.project
     law = project.controls[session.engine.control_name]
-    snap = session.scan_once()
-    assert snap.snapshot.active_steps == ("X1", "X11")
-    assert manual.ordered_again(project, law, snap.snapshot.active_steps) == ("d", "G")
+    snap = session.scan_once().snapshot
+    assert snap.active_steps == ("X1", "X11")
+    assert manual.ordered_again(project, law, snap.active_steps) == ("d", "G")
     assert manual.steps_text(law, ("X3", "X10")) == (
         "X3 (A pallet waits at B), X10 (Robot free at home)")
     assert manual.leave_lines(project, law, snap)[-1] == (
@@ -380,7 +380,7 @@ def test_manual_dialog_lines_name_the_steps_and_the_orders_given_again(tmp_path)
     session = make_session(folder)
     project = session.engine.project
     law = project.controls[session.engine.control_name]
-    snap = session.scan_once()
+    snap = session.scan_once().snapshot
     assert manual.enter_lines(project, law, snap) == [
         "The control program waits: its equations are not evaluated and its memories hold "
         "until you leave manual mode; it then resumes from there."]

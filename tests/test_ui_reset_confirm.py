@@ -30,7 +30,7 @@ def diagnoser(app):
 
 def resync_to(target: str):
     return lambda s: any(d.name == "V1" and d.faulty and d.resync == target
-                         for d in s.diagnosers)
+                         for d in s.snapshot.diagnosers)
 
 
 async def dialog_text(pilot, since: ConfirmDialog | None = None) -> str:

@@ -79,7 +79,8 @@ class Elsewhere:
 
 async def caught_up(pilot, app: PlcHmiApp, scan: int) -> None:
     """Until this screen's frames show `scan` (pushed by the runtime: a wait on state)."""
-    wait_for(lambda: app.link.last.snapshot.scan >= scan, f"scan {scan} on {app.link.identity.user}")
+    wait_for(lambda: app.link.last.snapshot.scan >= scan,
+             f"scan {scan} on {app.link.identity.user}")
     await settle(pilot)
 
 

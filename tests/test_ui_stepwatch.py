@@ -12,8 +12,8 @@ from hmi.ui.alarm_list import AlarmList
 from hmi.ui.headless import press, settle, wait_until
 
 
-def transfers(snap) -> int:
-    return dict(snap.plant_counters)["R1.transfers"]
+def transfers(cell) -> int:
+    return dict(cell.snapshot.plant_counters)["R1.transfers"]
 
 
 async def test_the_stuck_conveyor_says_what_it_waits_for_and_the_way_back_works():

@@ -26,11 +26,11 @@ from hmi.engine.commands import (
     Shelve,
     StepScans,
 )
-from hmi.session.view import CellView
 from hmi.explain.reset import ResetLine
 from hmi.link.base import Identity
 from hmi.project.injection import Injection
 from hmi.project.kept import fingerprint
+from hmi.session.view import CellView
 from hmi.wire import messages as m
 from hmi.wire.codec import Codec, WireError
 from hmi.wire.framing import MAX_OUT, frame, read_message

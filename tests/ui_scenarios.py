@@ -123,7 +123,7 @@ async def inject_by_dialog(pilot: Pilot, index: int, delay: str) -> None:
 
 
 def decided(labels: tuple[str, ...]):
-    return lambda s: bool(s.diagnosers) and s.diagnosers[0].labels == labels
+    return lambda s: bool(s.snapshot.diagnosers) and s.snapshot.diagnosers[0].labels == labels
 
 
 async def diagnosis_certain(pilot: Pilot) -> None:
