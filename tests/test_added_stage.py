@@ -16,6 +16,7 @@ from hmi.engine.commands import FaultReset
 from hmi.engine.layout import Layout
 from hmi.engine.program_stages import Moment
 from hmi.engine.scan import Engine
+from hmi.engine.snapshot import Snapshot
 from hmi.export import model as m
 from hmi.export import stage_blocks
 from hmi.export.build import build
@@ -27,6 +28,7 @@ from hmi.plant.sim.plant import SimPlant
 from hmi.program import ir, order
 from hmi.project.loader import load_project
 from hmi.project.model import Project
+from hmi.wire import messages
 from tests.conftest import PROJECTS
 
 PART = "counting"
@@ -138,6 +140,10 @@ def test_an_added_stage_is_reset_captured_and_shown_by_its_declaration(added, co
     shown = [engine.step(k * period).stages for k in range(7)]
     # the snapshot shows its state at the end of each scan, by its role
     assert shown == [((PART, (k + 1) % 5),) for k in range(7)]
+    # and a screen receives it (hmi.wire)
+    snap = engine.snapshot()
+    wire = messages.codec(layout=lambda: engine.layout)
+    assert wire.loads(wire.dumps(snap, Snapshot), Snapshot).stages == ((PART, 2),)
     # the fault reset resets it and says so
     said = engine.apply(FaultReset()).message
     assert "the count restarted at scan 7" in said and stage.count == 0

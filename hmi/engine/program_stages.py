@@ -114,7 +114,9 @@ class AddedStage(ProgramStage, Protocol):
     def restore(self, state: Any) -> None: ...
 
     def state(self) -> Any:
-        """What a snapshot shows of it (immutable: the snapshot outlives the scan)."""
+        """What a snapshot shows of it: a plain scalar (a bool, int, float or str: immutable,
+        as the snapshot outlives the scan, and what hmi.wire carries for a value typed Any to
+        a screen)."""
         ...
 
 
