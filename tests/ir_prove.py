@@ -216,10 +216,12 @@ class IrSymbolic:
         raise Unsupported(f"expression {type(node).__name__}")
 
 
-def built_blocks(project: Any, builder: str) -> list[tuple[tuple[Any, ...], Any]]:
-    """Each call of hmi.export.build's `builder` (e.g. "build_monitor") when the project is
-    exported: its arguments and the Block it built (the export's own wiring and objects)."""
-    b = importlib.import_module("hmi.export.build")
+def built_blocks(project: Any, builder: str, module: str = "hmi.export.build"
+                 ) -> list[tuple[tuple[Any, ...], Any]]:
+    """Each call of `module`'s `builder` (e.g. hmi.export.build's "build_monitor") when the
+    project is exported: its arguments and the Block it built (the export's own wiring and
+    objects)."""
+    b = importlib.import_module(module)
     seen: list[tuple[tuple[Any, ...], Any]] = []
     real = getattr(b, builder)
 
@@ -230,7 +232,7 @@ def built_blocks(project: Any, builder: str) -> list[tuple[tuple[Any, ...], Any]
 
     setattr(b, builder, spy)
     try:
-        b.build(project)
+        importlib.import_module("hmi.export.build").build(project)
     finally:
         setattr(b, builder, real)
     return seen
@@ -363,10 +365,11 @@ def prove_memory(project: Any, text: str, tamper: Callable[[str], str] | None = 
     from hmi.engine.layout import Layout
     from hmi.engine.stages import Memory
     from hmi.project.diagnosers import layout_names
-    ((args, block),) = built_blocks(project, "build_memory")
+    # (the memory stage's block: hmi.export.stage_blocks builds it)
+    ((args, block),) = built_blocks(project, "build_memory", "hmi.export.stage_blocks")
     if block is None:
         return []  # (no timer, no observer: no memory block)
-    layout = args[1]
+    layout = args[2]
     assert isinstance(layout, Layout)
     assert layout == Layout.build(project, project.control(None), extra=layout_names(project))
     memory = Memory(project, layout)
