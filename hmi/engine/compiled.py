@@ -215,7 +215,7 @@ class CompiledScan:
 # What the frame (auto_frame) names: its locals, and what it reads or calls on the engine, its
 # plant, its scan record and its stages
 FRAME = Vocabulary(
-    frozenset({"_pending", "scan", "now", "latched", "clean_report", "_news", "_commanded",
+    frozenset({"_pending", "scan", "now", "latched", "clean_report", "_news",
                "_auto_lost", "_auto_failed", "_auto_filter", "_write_error",
                "_monitors_error", "_finish", "_conclude", "read_into", "write_vector",
                "take_events", "status", "core", "violated", "monitors", "faulty", "deadline",
@@ -224,7 +224,7 @@ FRAME = Vocabulary(
                "events", "recovery", "scan_us", "settled", "manual", "current", "settle",
                "needed"}),
     frozenset({"exc", "diag", "report", "error", "monitored", "marks", "events", "status",
-               "last", "values", "w"}))
+               "last", "values", "w", "none_waiting"}))
 
 
 def auto_frame(engine: Any) -> ir.Function:
@@ -241,6 +241,8 @@ def auto_frame(engine: Any) -> ir.Function:
     image, history = ir.Ref(engine.image), ir.Ref(engine.history)
     now, scan = ir.Local("now"), ir.Local("scan")
     f, diag, report, error = (ir.Local(n) for n in ("f", "diag", "report", "error"))
+    events, status, values = ir.Local("events"), ir.Local("status"), ir.Local("values")
+    calm = ir.Local("none_waiting")
     monitored, exc, unquiet = ir.Local("monitored"), ir.Local("exc"), ir.Local("w")
     stage, monitors, recovery = engine.diagnosis, engine.monitors, engine.recovery
     supervised = engine._supervised
@@ -291,11 +293,13 @@ def auto_frame(engine: Any) -> ir.Function:
         body.append(ir.Assign(report, cell(e, "clean_report")))
         body.append(ir.Assign(error, ir.NONE))
 
-    def outputs() -> None:  # 7. output scan
+    def outputs() -> None:  # 7. output scan (and whether the plant says no event waits)
         body.append(ir.Try(
-            (ir.Do(call(plant, "write_vector", now, ir.Ref(engine.output_scan.names), f)),),
-            ((Exception, "exc", (ir.Assign(error, call(e, "_write_error", now, f, error,
-                                                       exc)),)),)))
+            (ir.Assign(calm, call(plant, "write_vector", now,
+                                  ir.Ref(engine.output_scan.names), f)),),
+            ((Exception, "exc", (ir.Assign(calm, ir.FALSE),
+                                 ir.Assign(error, call(e, "_write_error", now, f, error,
+                                                       exc)))),)))
 
     def monitors_() -> None:  # 8. monitors
         if monitors is None:
@@ -332,14 +336,15 @@ def auto_frame(engine: Any) -> ir.Function:
                                                 ir.Tuple((ir.Const(3), exc)))),)),)))
     else:
         body.append(ir.Assign(marks, ir.Const(0)))
-    events, status, values = ir.Local("events"), ir.Local("status"), ir.Local("values")
     taken = ir.Return(call(e, "_finish", now, f, report, diag, monitored, error, events))
+    # the plant's events, unless the write said none waits (Plant.write_vector), its status
     body += [
-        ir.Try((ir.Assign(events, call(plant, "take_events")),),
-               ((Exception, "exc", (ir.Return(call(e, "_finish", now, f, report, diag,
-                                                   monitored, error, ir.NONE,
-                                                   ir.Tuple((ir.Const(1), exc)))),)),)),
-        ir.If(events, (taken,)),
+        ir.If(calm, (ir.Assign(events, ir.Const(())),), (
+            ir.Try((ir.Assign(events, call(plant, "take_events")),),
+                   ((Exception, "exc", (ir.Return(call(e, "_finish", now, f, report, diag,
+                                                       monitored, error, ir.NONE,
+                                                       ir.Tuple((ir.Const(1), exc)))),)),)),
+            ir.If(events, (taken,)))),
         ir.Try((ir.Assign(status, cell(plant, "status")),),
                ((Exception, "exc", (ir.Return(call(e, "_finish", now, f, report, diag,
                                                    monitored, error, events,
@@ -351,7 +356,7 @@ def auto_frame(engine: Any) -> ir.Function:
     last = ir.Local("last")
     body += [
         ir.Assign(last, cell(e, "_news")),
-        ir.If(ir.Or((ir.IsNone(last), cell(e, "_commanded"), ir.Item(diag, 3),
+        ir.If(ir.Or((ir.IsNone(last), ir.Item(diag, 3),
                      cell(e, "manual"))), (taken,)),
         ir.If(ir.Not(ir.And((
             ir.Compare("is", report, ir.Item(last, 0)),
