@@ -1009,26 +1009,24 @@ class Engine:
         self._keep(safe, safe, None, diagnosis, monitored, error, 0.0)
 
     def _auto_filter(self, now: int, fov: tuple[bool, ...], diagnosis: Diagnosis,
-                     unquiet: object = None, started: float = 0.0) -> None:
+                     unquiet: object = None) -> tuple[tuple[bool, ...], FilterReport] | None:
         """The automatic mode's filter when the candidate is masked, latched or violated
         (`unquiet`: the frame's test, the violation word when nothing is masked nor
-        latched): its decision, the latch, the output scan and the monitors."""
+        latched). Nothing masked nor latched, before the decision or by it: the decision's
+        outputs, in the image, and its report, which the printed frame writes, monitors and
+        concludes as it does a clean candidate's. Otherwise the output scan and the
+        monitors run here and the scan is kept (None: the frame concludes it)."""
         image = self.image
-        hist = self.history
         mask = diagnosis.mask
-        policy = self.policy
-        timed = self.wall_times
-        filter_us = 0.0
         try:
             if mask is None and not self.latched:
                 # violated, nothing masked: what FilterStage.apply would hand the filter
                 word = unquiet if type(unquiet) is int else None
-                decision = self.safety_filter.apply(image, hist, fov, policy, False, word)
+                decision = self.safety_filter.apply(image, self.history, fov, self.policy,
+                                                    False, word)
             else:
-                decision = self.filter_stage.apply(image, hist, fov, policy,
+                decision = self.filter_stage.apply(image, self.history, fov, self.policy,
                                                    bool(self.latched), mask)
-            if timed:
-                filter_us = (time.perf_counter() - started) * 1e6
             if decision.latch is not None:
                 self.latch_safe("filter", decision.latch)
             outputs = decision.outputs
@@ -1037,18 +1035,23 @@ class Engine:
                 outputs = self.safe_vector
         except Exception as exc:  # never leave the plant driven by a half-computed scan
             self._auto_failed(now, exc, diagnosis)
-            return
+            return None
+        if mask is None and not self.latched:
+            for slot, value in zip(self.output_slots, outputs, strict=True):
+                image[slot] = value  # (the output scan's first half: _scan_outputs)
+            return outputs, report
         monitored, error = self._output_scan(now, outputs, None)
-        self._keep(fov, outputs, report, diagnosis, monitored, error, filter_us)
+        self._keep(fov, outputs, report, diagnosis, monitored, error, 0.0)
+        return None
 
-    def _finish(self, now: int, fov: tuple[bool, ...], report: FilterReport,
-                diagnosis: Diagnosis, monitored: bool, error: str | None,
-                taken: tuple[Any, ...] | None = None,
+    def _finish(self, now: int, fov: tuple[bool, ...], outputs: tuple[bool, ...],
+                report: FilterReport, diagnosis: Diagnosis, monitored: bool,
+                error: str | None, taken: tuple[Any, ...] | None = None,
                 raised: tuple[int, Exception] | None = None) -> bool:
-        """An automatic-mode scan with nothing to filter, written and monitored, kept and
-        concluded (the printed frame's way out when the rest is not a quiet scan's:
-        _conclude's `taken` and `raised`)."""
-        self._keep(fov, fov, report, diagnosis, monitored, error, 0.0)
+        """An automatic-mode scan filtered, written and monitored, kept and concluded (the
+        printed frame's way out when the rest is not a quiet scan's: _conclude's `taken`
+        and `raised`)."""
+        self._keep(fov, outputs, report, diagnosis, monitored, error, 0.0)
         return self._conclude(now, 0.0, taken, raised)
 
     def _keep(self, fov: tuple[bool, ...], outputs: tuple[bool, ...],
