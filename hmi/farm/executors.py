@@ -33,7 +33,7 @@ from hmi.errors import UsageError
 from hmi.farm.bundle import BundleError
 from hmi.farm.job import Job
 from hmi.farm.version import code_version
-from hmi.farm.worker import Done, WrongVersion, install, run_installed, run_shard, who
+from hmi.farm.worker import Done, WrongVersion, hold, install, run_installed, run_shard, who
 from hmi.limits import MAX_JOBS
 
 Note = Callable[[str], None]
@@ -197,10 +197,16 @@ class DaskCluster:
 
         client = self.client
         token = uuid.uuid4().hex[:8]
-        job_ref = client.scatter(job, broadcast=True, hash=False)
-        futures = [client.submit(run_shard, job_ref, index, shard, pure=False,
+        # the job once per worker, each copy a task of its own (hmi.farm.worker.hold), and the
+        # shards dealt out over the copies: a shard runs where its copy is, so the work
+        # spreads from the start (idle workers steal the rest)
+        holds = [client.submit(hold, job, pure=False, workers=[address],
+                               allow_other_workers=True,
+                               key=f"plchmi-{job.kind}-{token}-job{n}")
+                 for n, address in enumerate(sorted(self._workers()))]
+        futures = [client.submit(run_shard, holds[n % len(holds)], index, shard, pure=False,
                                  key=f"plchmi-{job.kind}-{token}-shard{index}")
-                   for index, shard in items]
+                   for n, (index, shard) in enumerate(items)]
         known = self._workers()
         try:
             for future in dask_completed(futures):
@@ -218,9 +224,9 @@ class DaskCluster:
         except OSError as exc:  # distributed's CommClosedError: the scheduler is gone
             raise FarmError(f"the connection to the scheduler was lost ({exc})") from None
         except BaseException:
-            client.cancel([*futures, job_ref], force=True)
+            client.cancel([*futures, *holds], force=True)
             raise
-        client.cancel([job_ref])
+        client.cancel(holds)
 
     def _workers(self) -> set[str]:
         return set(self.client.scheduler_info()["workers"])

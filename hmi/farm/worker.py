@@ -1,9 +1,9 @@
 """What runs on a worker: the version check, the job's state kept between shards, a shard.
 
 The same functions serve this process (one job), a local pool's processes (the job installed
-once by the pool's initializer) and a Dask worker (the job scattered to it once, then each
-shard a task). A worker whose code differs from the job's refuses every shard with
-:class:`WrongVersion` before computing anything.
+once by the pool's initializer) and a Dask worker (the job a task of its own, :func:`hold`,
+then each shard a task that depends on it). A worker whose code differs from the job's
+refuses every shard with :class:`WrongVersion` before computing anything.
 """
 
 from __future__ import annotations
@@ -67,6 +67,15 @@ def state_of(job: Job) -> Any:
     state = job.setup(job.bundle.load(), job.options)
     _STATES.kept = (job.fingerprint, state)
     return state
+
+
+def hold(job: Job) -> Job:
+    """The job, as a Dask task's result that the shards depend on. Scattered data has no
+    recipe: broadcast to every worker, its copies were then reduced by the scheduler's memory
+    manager, and when the worker left holding the only one died, the scheduler cancelled the
+    whole study ("lose scattered data"). A task's result is computed again on a surviving
+    worker, from the job kept in the task."""
+    return job
 
 
 def run_shard(job: Job, index: int, shard: Any) -> Done:
