@@ -22,6 +22,7 @@ from hmi.engine.snapshot import Snapshot
 from hmi.project.loader import load_project
 from hmi.project.scenarios import scenarios_of
 from hmi.session.session import Session
+from hmi.session.view import CellView
 from tests.conftest import PROJECTS, make_session
 
 S = 1_000_000
@@ -53,8 +54,9 @@ def run(name: str, control: str = "normal", seconds: int = 60,
     unsafe = 0
     report_unsafe = 0  # the last built scan's; a quiet scan gave that very report again
 
-    def on_scan(snap: Snapshot) -> None:
+    def on_scan(cell: CellView) -> None:
         nonlocal unsafe, report_unsafe
+        snap = cell.snapshot
         damage.extend((e.time_us, e.kind) for e in snap.plant_events if e.damage)
         report_unsafe = snap.filter.unsafe_written if snap.filter is not None else 0
         unsafe += report_unsafe
@@ -65,7 +67,7 @@ def run(name: str, control: str = "normal", seconds: int = 60,
     # on the quiet path, as `plchmi run` without a trace (hmi.session.run_report.RunCollector.quiet
     # counts a quiet scan's report the same way)
     last = session.run_for(seconds * S, on_scan, on_quiet)
-    return CellSession(last, tuple(damage), unsafe)
+    return CellSession(last.snapshot, tuple(damage), unsafe)
 
 
 def scenario_run(name: str, scenario: str) -> CellSession:
@@ -76,7 +78,7 @@ def scenario_run(name: str, scenario: str) -> CellSession:
 
 
 def run_quietly(session: Session, duration_us: int,
-                on_scan: Callable[[Snapshot], None] | None = None) -> Snapshot:
+                on_scan: Callable[[CellView], None] | None = None) -> CellView:
     """`session.run_for` on the quiet path (as `plchmi run` without a trace): the same scans,
     but the snapshot of a scan with no news is not built (it would be the last one's again;
     tests/test_fastpath_session.py holds both paths to the same results). Its `on_scan`

@@ -236,9 +236,11 @@ def _alarms(alarms) -> Any:
     return [{k: v for k, v in plain(a).items() if k != "explanation"} for a in alarms]
 
 
-def snapshot_fields(snap) -> list[tuple[str, Any, Callable[[Any], Any]]]:
-    """Every deterministic field of a snapshot (measured times left out): (name, the raw
-    value, how to make it plain). Raw values are compared first: most do not change."""
+def snapshot_fields(cell) -> list[tuple[str, Any, Callable[[Any], Any]]]:
+    """Every deterministic field of a scan, the session's view of it (measured times left
+    out): (name, the raw value, how to make it plain). Raw values are compared first: most
+    do not change."""
+    snap = cell.snapshot
     fields: list[tuple[str, Any, Callable[[Any], Any]]] = [
         ("row", snap, _row),
         ("filter", snap.filter, _filter),
@@ -252,10 +254,10 @@ def snapshot_fields(snap) -> list[tuple[str, Any, Callable[[Any], Any]]]:
         ("diagnosers", len(snap.diagnosers), plain),
         ("monitors", len(snap.monitors), plain),
         ("flags", (snap.reconstructed, snap.masked), plain),
-        ("explanations", snap.explanations, plain),
-        ("alarms", snap.alarms, _alarms),
-        ("alarm_events", snap.alarm_events, plain),
-        ("error", snap.error, plain),
+        ("explanations", cell.explanations, plain),
+        ("alarms", cell.alarms, _alarms),
+        ("alarm_events", cell.alarm_events, plain),
+        ("error", cell.error, plain),
     ]
     fields += [(f"diagnosers.{k}", d, plain) for k, d in enumerate(snap.diagnosers)]
     fields += [(f"monitors.{k}", m, plain) for k, m in enumerate(snap.monitors)]
@@ -373,10 +375,11 @@ def run_case(case: Case, attach: Callable[[Any, Any], Callable[[], None]] | None
         script = list(case.script)
         end = int(case.seconds * S)
 
-        def on_scan(snap) -> None:
+        def on_scan(cell) -> None:
+            snap = cell.snapshot
             changed: dict[str, Any] = {}
             gone: dict[str, Any] = {}
-            for key, raw, make in snapshot_fields(snap):
+            for key, raw, make in snapshot_fields(cell):
                 last = previous.get(key)
                 if last is not None and key != "row" and type(last[0]) is type(raw) and \
                         last[0] == raw:

@@ -31,8 +31,8 @@ def main() -> None:
     Historian(session, target, source="test").attach()
     out = sys.stdout
 
-    def told(snap) -> None:  # after the historian's listener: this scan is queued
-        out.write(f"{epoch + snap.time_us}\n")
+    def told(cell) -> None:  # after the historian's listener: this scan is queued
+        out.write(f"{epoch + cell.snapshot.time_us}\n")
         out.flush()
     session.scan_listeners.append(told)
     LiveRunner(session).start()

@@ -64,7 +64,7 @@ def run_twins(project: Project, full: Mapping[type, type], injections: Iterable[
         sessions.append(Session(Engine(project, plant)))
     a, b = sessions
     for _ in range(scans):
-        snap_a, snap_b = a.scan_once(), b.scan_once()
+        snap_a, snap_b = a.scan_once().snapshot, b.scan_once().snapshot
         assert (snap_a.values, snap_a.plant_state, snap_a.plant_counters,
                 snap_a.plant_events) == (snap_b.values, snap_b.plant_state,
                                          snap_b.plant_counters, snap_b.plant_events)

@@ -69,7 +69,7 @@ def test_screens_sign_in_and_the_users_file_says_the_role(tmp_path, sock, users_
         # a viewer sees and cannot act, nor take control
         bob = attach(sock, "bob", PASSWORDS["bob"])
         assert bob.identity.role == "viewer"
-        assert bob.view().snapshot is not None
+        assert bob.view().cell is not None
         assert not bob.take_control().accepted
         assert not bob.command(Acknowledge(None)).result.accepted
         # an engineer takes over and changes the policy

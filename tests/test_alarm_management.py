@@ -161,7 +161,7 @@ async def test_the_bell_rings_once_per_new_unacknowledged_p1(bell):
     app = make_app(inject=("F13@10.4s",))
     app.bell_on_p1 = bell
     rung = []
-    app.bell = lambda: rung.append(app.link.session.last.scan)  # the terminal's, counted
+    app.bell = lambda: rung.append(app.link.session.last.snapshot.scan)  # the terminal's, counted
     async with app.run_test(size=(100, 30)) as pilot:
         await run_for(pilot, 9)
         assert rung == []

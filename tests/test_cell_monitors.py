@@ -132,7 +132,8 @@ def act_on_alarm(name: str, inject: str, label: str, device: str, seconds: int =
     session = make_session(PROJECTS / name, inject=[inject])
     stopped, damage = [], []
 
-    def on_scan(snap):
+    def on_scan(cell):
+        snap = cell.snapshot
         damage.extend((e.time_us, e.kind) for e in snap.plant_events if e.damage)
         if not stopped and any(m.label == label and m.detection for m in snap.monitors):
             stopped.append(snap.time_us)

@@ -36,6 +36,7 @@ from hmi.project.injection import Injection
 from hmi.project.loader import load_project
 from hmi.project.model import POLICIES, Project
 from hmi.project.recovery import recoveries_of
+from hmi.session.view import CellView
 from tests.conftest import PROJECTS
 
 NAMES = ("cispi_valve", "sorting", "palletizer", "conveyor_robot", "cispi_subsystem")
@@ -53,6 +54,12 @@ def comparable(snap: Snapshot) -> Snapshot:
     if report is not None:
         report = report._replace(solver_us=0.0)
     return snap._replace(scan_wall_us=0.0, filter_wall_us=0.0, filter=report)
+
+
+def comparable_cell(cell: CellView) -> CellView:
+    """The session's view of a scan without what is measured: its snapshot's, and the
+    time explaining it took."""
+    return cell._replace(snapshot=comparable(cell.snapshot), explain_wall_us=0.0)
 
 
 def random_command(rng: random.Random, project: Project, engine: Engine, now: int

@@ -206,16 +206,17 @@ def test_past_its_budget_the_filter_writes_the_safe_state_and_says_so(tmp_path):
     folder = pairs_project(tmp_path, "solver_budget: 300\n")
     engine = engine_for(folder)
     assert engine.safety_filter.budget == 300
-    snap = Session(engine).scan_once()  # the session explains the scan
-    report = snap.filter
-    assert snap.outputs == (False,) * 12 and report.safe_state and not report.unsafe_written
+    cell = Session(engine).scan_once()  # the session explains the scan
+    report = cell.snapshot.filter
+    assert cell.snapshot.outputs == (False,) * 12
+    assert report.safe_state and not report.unsafe_written
     assert report.stopped == "budget" and report.steps > 300 and report.budget == 300
     assert "used its budget" in report.fallback and "of 300 steps" in report.fallback
-    explanation = next(e for e in snap.explanations if e.key == "search_budget")
+    explanation = next(e for e in cell.explanations if e.key == "search_budget")
     assert explanation.alarm and explanation.severity == "high"
     assert "safe state written" in explanation.what
     assert {p.id for p in explanation.policies} >= {"manual", "budget"}
-    assert any(a.key == "search_budget" for a in snap.alarms)
+    assert any(a.key == "search_budget" for a in cell.alarms)
     # With the budget it needs, the same situation is corrected: one output kept, o0 (the
     # first listed) spared.
     roomy = engine_for(folder, solver_budget=5_000).step(0)
@@ -325,9 +326,9 @@ def test_the_paper_strategy_stops_the_pump_where_the_project_keeps_it_running():
     for solver in ("exact", "paper"):
         session = Session(Engine(project, SimPlant(project), control="faulty",
                                        solver=solver))
-        snaps = []
-        session.run_for(4 * S + 1, snaps.append)
-        snap = next(s for s in snaps if "CSc2" in s.filter.violated_names)
+        cells = []
+        session.run_for(4 * S + 1, cells.append)
+        snap = next(c.snapshot for c in cells if "CSc2" in c.snapshot.filter.violated_names)
         assert snap.time_us == 4 * S
         written[solver] = dict(zip(snap.layout.outputs, snap.outputs, strict=True))
         note = snap.filter.note
@@ -344,4 +345,4 @@ def test_manual_requests_meet_the_same_bounded_corrector(tmp_path):
     for k in range(12):
         session.command(ManualOutput(f"o{k}", True))
     snap = session.scan_once()
-    assert snap.filter.stopped == "budget" and snap.outputs == (False,) * 12
+    assert snap.snapshot.filter.stopped == "budget" and snap.snapshot.outputs == (False,) * 12

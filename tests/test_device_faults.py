@@ -23,9 +23,9 @@ def test_the_drive_fault_input_is_declared_a_fault():
 
 
 def test_a_halted_drive_raises_its_own_p1_and_nothing_recommends_continue():
-    snap = _run(["C1.stop@5s"], 20)
-    assert snap.value("Hc")
-    alarms = {a.key: a for a in snap.alarms}
+    cell = _run(["C1.stop@5s"], 20)
+    assert cell.snapshot.value("Hc")
+    alarms = {a.key: a for a in cell.alarms}
     drive = alarms["fault:Hc"]
     assert drive.severity == "high" and drive.active
     assert drive.text.startswith("Conveyor C1: halted by a malfunction")
@@ -35,18 +35,18 @@ def test_a_halted_drive_raises_its_own_p1_and_nothing_recommends_continue():
     assert monitor.severity == "high"
     assert monitor.recommended.label == "Check Conveyor C1"
     assert "run late" not in monitor.consequences
-    for e in snap.explanations:
+    for e in cell.explanations:
         assert e.recommended is None or e.recommended.id != "continue", (e.key, e.what)
 
 
 def test_the_drive_alarm_clears_when_the_drive_runs_again():
-    snap = _run(["C1.stop@1s+2s"], 6)  # the paper's 2 s stop: it runs again at 3 s
-    assert not snap.value("Hc")
-    drive = next(a for a in snap.alarms if a.key == "fault:Hc")
+    cell = _run(["C1.stop@1s+2s"], 6)  # the paper's 2 s stop: it runs again at 3 s
+    assert not cell.snapshot.value("Hc")
+    drive = next(a for a in cell.alarms if a.key == "fault:Hc")
     assert not drive.active  # cleared, waiting for its acknowledgement
-    assert not any(e.key == "fault:Hc" for e in snap.explanations)
+    assert not any(e.key == "fault:Hc" for e in cell.explanations)
 
 
 def test_a_normal_run_raises_no_drive_alarm():
-    snap = _run([], 30)
-    assert not any(a.key.startswith("fault:") for a in snap.alarms)
+    cell = _run([], 30)
+    assert not any(a.key.startswith("fault:") for a in cell.alarms)

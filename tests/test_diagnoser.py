@@ -41,8 +41,9 @@ def make_session(project, inject=(), diagnosis="ftc", policy=None) -> Session:
 
 
 def run(session: Session, seconds: float):
+    """The engine's snapshots of `seconds` of scans (the diagnoser's state is the engine's)."""
     snaps = []
-    session.run_for(int(seconds * S), snaps.append)
+    session.run_for(int(seconds * S), lambda cell: snaps.append(cell.snapshot))
     return snaps
 
 
@@ -180,14 +181,14 @@ def test_fault_reset_resynchronises_to_the_normal_state_the_io_shows(project):
     assert snaps[-1].diagnosers[0].state == "S8"
     # Wait until the valve rests closed with no order, then reset.
     while True:
-        s = session.scan_once()
+        s = session.scan_once().snapshot
         if s.time_us > 20 * S and s.active_steps == ("X0",) and s.outputs == (False, False) \
                 and s.value("fsc") and s.time_us % S == 500 * MS:
             break
     message = session.command(FaultReset()).message
     assert "diagnoser V1: S8 {F8} reset, re-synchronised to N1 (Closed at rest) on " \
            "fsc=1, fso=0, C=0, O=0; flags cleared" in message
-    after = session.scan_once()
+    after = session.scan_once().snapshot
     d = after.diagnosers[0]
     assert (d.state, d.labels) == ("N1", ()) and d.via.startswith("fault reset (resync rule 1")
     assert not any(v for _, v in d.flags) and after.reconstructed == ()
@@ -204,7 +205,7 @@ def test_fault_reset_leaves_the_diagnoser_faulty_while_the_fault_is_visible(proj
     message = session.command(FaultReset()).message
     assert ("diagnoser V1 stays in A1 {F1, F13}: fsc=0, fso=0, C=0, O=0 match no normal "
             "state: the fault is still visible") in message
-    after = session.scan_once()
+    after = session.scan_once().snapshot
     assert after.diagnosers[0].state == "A1" and after.masked == ("C", "O")
 
 
@@ -213,7 +214,7 @@ def test_the_trace_has_the_diagnoser_state_and_the_flags(project, tmp_path):
     session = make_session(project, ["F9@9.5s"])
     path = tmp_path / "t.csv"
     with TraceWriter(path) as writer:
-        session.run_for(10 * S, writer.write)
+        session.run_for(10 * S, lambda cell: writer.write(cell.snapshot))
     header, *rows = path.read_text().splitlines()
     columns = header.split(",")
     for name in ("diag.V1", "def_fsc", "def_fso", "def_V", "fsc_filter", "fso_filter"):
@@ -246,7 +247,7 @@ def test_run_summary_counts_masked_orders_apart_from_corrections(capsys):
 def test_an_order_withdrawn_mid_travel_by_a_latch_resynchronises_instead_of_faulting(project):
     session = make_session(project)
     run(session, 2)  # opening since 1.000 s
-    assert session.last.diagnosers[0].state == "N3"
+    assert session.last.snapshot.diagnosers[0].state == "N3"
     session.engine.latch_safe("test", "an operator emergency stop")
     snaps = run(session, 5)  # much longer than the travel window: no arrival, no fault
     assert snaps[1].diagnosers[0].state == "N0"

@@ -224,11 +224,11 @@ def test_rise_of_an_output_in_a_diagnoser_is_the_order_written_at_the_previous_s
     session = Session(engine)
     for _ in range(5):
         s = session.scan_once()
-    assert s.diagnosers[0].state == "N1"
+    assert s.snapshot.diagnosers[0].state == "N1"
     session.command(SetInput("go", True))
-    written = session.scan_once()
+    written = session.scan_once().snapshot
     assert written.outputs == (False, True) and written.diagnosers[0].state == "N1"
-    seen = session.scan_once()
+    seen = session.scan_once().snapshot
     assert seen.diagnosers[0].state == "N2" and seen.diagnosers[0].via == \
         "N1 -> N2 on rise(O)"
 

@@ -32,7 +32,7 @@ def run(code: str, until_s: float) -> Session:
 
 def test_record_previews_what_a_reset_would_do():
     c = run("F1", 17)
-    record = c.last.diagnosers[0]
+    record = c.last.snapshot.diagnosers[0]
     assert record.resync == "" and record.resync_values == "fsc=0, fso=0, C=0, O=0"
     message = c.command(FaultReset()).message
     assert "stays in A1" in message
@@ -40,9 +40,9 @@ def test_record_previews_what_a_reset_would_do():
 
     c = run("F9", 11)
     # wait for the valve at rest, open, no order: the rule that re-synchronises to N5
-    while not c.last.diagnosers[0].resync:
+    while not c.last.snapshot.diagnosers[0].resync:
         c.run_for(10_000)
-    record = c.last.diagnosers[0]
+    record = c.last.snapshot.diagnosers[0]
     assert record.resync == "N5" and record.resync_values == "fsc=0, fso=1, C=0, O=0"
     message = c.command(FaultReset()).message
     assert "re-synchronised to N5" in message
@@ -51,7 +51,7 @@ def test_record_previews_what_a_reset_would_do():
 
 def test_normal_records_carry_no_preview():
     c = run("F9", 5)  # before the fault
-    record = c.last.diagnosers[0]
+    record = c.last.snapshot.diagnosers[0]
     assert not record.faulty and record.resync == "" and record.resync_values == ""
     assert not any(e.key.startswith("diagnosis:") for e in c.last.explanations)
 

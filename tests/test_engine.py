@@ -22,7 +22,7 @@ def run(session, seconds, *traces):
     def on_scan(s):
         snaps.append(s)
         for writer in writers:
-            writer.write(s)
+            writer.write(s.snapshot)
     session.run_for(seconds * S, on_scan)
     for writer in writers:
         writer.close()
@@ -32,13 +32,13 @@ def run(session, seconds, *traces):
 def test_valve_cycles_and_scans_follow_the_period():
     session = make_session(VALVE)
     snaps = run(session, 60)
-    assert len(snaps) == 6001 and snaps[-1].time_us == 60 * S
-    assert [s.time_us for s in snaps[:3]] == [0, 10_000, 20_000]
-    counters = dict(snaps[-1].plant_counters)
+    assert len(snaps) == 6001 and snaps[-1].snapshot.time_us == 60 * S
+    assert [s.snapshot.time_us for s in snaps[:3]] == [0, 10_000, 20_000]
+    counters = dict(snaps[-1].snapshot.plant_counters)
     assert counters["cycles"] == 7  # 8 s per cycle: open 2 s, hold 3 s, close 2 s, wait 1 s
-    assert not any(e.damage for s in snaps for e in s.plant_events)
-    opening = [s for s in snaps if s.active_steps == ("X1",)]
-    assert opening and all(s.outputs == (False, True) for s in opening)
+    assert not any(e.damage for s in snaps for e in s.snapshot.plant_events)
+    opening = [s for s in snaps if s.snapshot.active_steps == ("X1",)]
+    assert opening and all(s.snapshot.outputs == (False, True) for s in opening)
 
 
 def test_two_runs_give_byte_identical_traces(tmp_path):
@@ -52,16 +52,16 @@ def test_two_runs_give_byte_identical_traces(tmp_path):
 
 def test_f13_leaves_the_valve_between_positions():
     snaps = run(make_session(VALVE, inject=["F13@20s"]), 60)
-    after = [s for s in snaps if s.time_us >= 30 * S]
-    assert all(dict(s.plant_state)["jammed"] for s in after)
-    assert all(not s.value("fsc") and not s.value("fso") for s in after)
-    assert {dict(s.plant_state)["position"] for s in after} == {50.0}
+    after = [s for s in snaps if s.snapshot.time_us >= 30 * S]
+    assert all(dict(s.snapshot.plant_state)["jammed"] for s in after)
+    assert all(not s.snapshot.value("fsc") and not s.snapshot.value("fso") for s in after)
+    assert {dict(s.snapshot.plant_state)["position"] for s in after} == {50.0}
 
 
 def test_faulty_control_without_filter_damages_the_valve():
     # The faulty program holds orders against the stops; the monitor policy lets it through.
     snaps = run(make_session(VALVE, control="faulty", policy="monitor"), 30)
-    kinds = {e.kind for s in snaps for e in s.plant_events if e.damage}
+    kinds = {e.kind for s in snaps for e in s.snapshot.plant_events if e.damage}
     assert "both_orders" in kinds
 
 
@@ -71,18 +71,18 @@ def test_manual_mode_replaces_the_functional_vector():
     assert session.command(ManualOutput("O", True)).accepted is False  # needs manual mode
     assert session.command(SetMode(True)).accepted
     assert session.command(ManualOutput("O", True)).accepted
-    s = session.scan_once()
+    s = session.scan_once().snapshot
     assert s.mode == "manual" and s.fov == (False, True) and s.manual == (("O", True),)
     result = session.command(SetMode(False))
     assert "released O" in result.message
-    s = session.scan_once()
+    s = session.scan_once().snapshot
     assert s.mode == "auto" and s.manual == ()
 
 
 def test_an_internal_error_puts_outputs_safe_and_says_so():
     session = make_session(VALVE)
     run(session, 2)  # opening: O is on
-    assert session.last.outputs == (False, True)
+    assert session.last.snapshot.outputs == (False, True)
 
     def broken(*args):
         raise RuntimeError("solver bug")
@@ -93,15 +93,15 @@ def test_an_internal_error_puts_outputs_safe_and_says_so():
     test = compiled.violated
     compiled.violated = broken
     s = session.scan_once()
-    assert s.outputs == (False, False) and s.latched[0].source == "internal"
+    assert s.snapshot.outputs == (False, False) and s.snapshot.latched[0].source == "internal"
     assert "solver bug" in s.error
     assert session.engine.plant.devices[0].orders == {"C": False, "O": False}
     s = session.scan_once()
-    assert s.outputs == (False, False)  # stays safe until a fault reset
+    assert s.snapshot.outputs == (False, False)  # stays safe until a fault reset
     session.engine.filter_stage.apply = working
     compiled.violated = test
     assert "safe-state latch released" in session.command(FaultReset()).message
-    assert session.scan_once().latched == ()
+    assert session.scan_once().snapshot.latched == ()
 
 
 def test_repair_is_refused_for_a_model_that_cannot_undo_its_faults(monkeypatch):
@@ -136,16 +136,16 @@ def test_an_internal_error_that_repeats_latches_once_and_a_new_one_adds_a_reason
     assert [(r.source, r.detail) for r in engine.latched] == [
         ("internal", f"internal error at scan {first}: RuntimeError: first")]
     assert [e.key for e in last.explanations].count("safe_state:internal") == 1
-    assert last.outputs == engine.safe_vector
+    assert last.snapshot.outputs == engine.safe_vector
     failing["error"] = "second"
     last = session.run_for(1 * S)
     assert [(r.source, r.detail) for r in engine.latched] == [
         ("internal", f"internal error at scan {first}: RuntimeError: first"),
         ("internal", f"internal error at scan {first + 101}: RuntimeError: second")]
-    assert last.outputs == engine.safe_vector
+    assert last.snapshot.outputs == engine.safe_vector
     engine.compiled.core = real
     session.command(FaultReset())
-    assert not session.run_for(1 * S).latched
+    assert not session.run_for(1 * S).snapshot.latched
 
 
 def test_the_wall_time_is_measured_where_someone_watches_it_only():
@@ -156,10 +156,11 @@ def test_the_wall_time_is_measured_where_someone_watches_it_only():
     again afterwards, also after a run that raised."""
     live, headless = make_session(VALVE), make_session(VALVE)
     watched = [live.scan_once() for _ in range(300)]
-    assert all(s.scan_wall_us > 0 and s.filter_wall_us > 0 for s in watched[1:])
+    assert all(s.scan_wall_us > 0 and s.snapshot.filter_wall_us > 0 for s in watched[1:])
     run_ = run(headless, 3)
-    assert all(s.scan_wall_us == s.filter_wall_us == 0.0 for s in run_)
-    assert [s._replace(scan_wall_us=0.0, filter_wall_us=0.0) for s in watched] == run_[:300]
+    assert all(s.scan_wall_us == s.snapshot.filter_wall_us == 0.0 for s in run_)
+    assert [s._replace(snapshot=s.snapshot._replace(scan_wall_us=0.0, filter_wall_us=0.0),
+                       explain_wall_us=0.0) for s in watched] == run_[:300]
     assert headless.engine.wall_times and headless.scan_once().scan_wall_us > 0
 
     def stop(snap):

@@ -49,7 +49,7 @@ def explanation(snap, key):
 
 def test_corrected_constraint_explanation_has_four_levels_from_descriptions():
     session = make_session(VALVE, control="faulty", policy="correct")
-    snap = run_until(session, lambda s: "CSs5" in s.filter.violated_names)
+    snap = run_until(session, lambda s: "CSs5" in s.snapshot.filter.violated_names)
     e = explanation(snap, "constraint:CSs5")
     assert e.what == ("Valve V1: close order blocked — start closing only from the open "
                       "position")
@@ -60,7 +60,7 @@ def test_corrected_constraint_explanation_has_four_levels_from_descriptions():
     assert "`rise(C) and not fso_filter`" in e.detail and "C=1 (close order); prev(C)=0" in \
         e.detail
     assert "fso_filter=0 (Valve V1 open end switch, as the filter reads it)" in e.detail
-    assert f"scan {snap.scan}" in e.detail and "CSs5" in e.detail
+    assert f"scan {snap.snapshot.scan}" in e.detail and "CSs5" in e.detail
     assert "The filter sent close order off instead" in e.consequences
     assert e.severity == "low" and e.recommended.id == "continue"
     assert [p.id for p in e.policies] == ["continue", "manual", "stop_device"]
@@ -69,31 +69,31 @@ def test_corrected_constraint_explanation_has_four_levels_from_descriptions():
 def test_a_violation_that_returns_is_explained_from_its_new_onset():
     """Explanations are reused while a violation lasts, never across two episodes."""
     session = make_session(VALVE, control="faulty", policy="correct")
-    first = run_until(session, lambda s: "CSs5" in s.filter.violated_names)
+    first = run_until(session, lambda s: "CSs5" in s.snapshot.filter.violated_names)
     held = session.scan_once()  # the program keeps asking: the episode goes on
-    assert "CSs5" in held.filter.violated_names
+    assert "CSs5" in held.snapshot.filter.violated_names
     assert explanation(held, "constraint:CSs5") is explanation(first, "constraint:CSs5")
-    run_until(session, lambda s: "CSs5" not in s.filter.violated_names)
-    again = run_until(session, lambda s: "CSs5" in s.filter.violated_names)
+    run_until(session, lambda s: "CSs5" not in s.snapshot.filter.violated_names)
+    again = run_until(session, lambda s: "CSs5" in s.snapshot.filter.violated_names)
     e = explanation(again, "constraint:CSs5")
-    assert f"Violated since scan {again.scan}" in e.detail
-    assert f"Violated since scan {first.scan}" not in e.detail
+    assert f"Violated since scan {again.snapshot.scan}" in e.detail
+    assert f"Violated since scan {first.snapshot.scan}" not in e.detail
 
 
 def test_explanation_follows_a_policy_change_during_a_violation():
     session = make_session(VALVE, control="faulty", policy="correct")
-    before = run_until(session, lambda s: "CSs5" in s.filter.violated_names)
+    before = run_until(session, lambda s: "CSs5" in s.snapshot.filter.violated_names)
     assert "NOT corrected" not in explanation(before, "constraint:CSs5").what
     assert session.command(SetPolicy("monitor")).accepted
     snap = session.scan_once()
-    assert "CSs5" in snap.filter.violated_names  # the same episode, under another policy
+    assert "CSs5" in snap.snapshot.filter.violated_names  # the same episode, under another policy
     e = explanation(snap, "constraint:CSs5")
     assert "NOT corrected" in e.what and e.severity == "high"
 
 
 def test_project_texts_fill_their_placeholders():
     session = make_session(VALVE, control="faulty", policy="correct")
-    snap = run_until(session, lambda s: "CSc1" in s.filter.violated_names)
+    snap = run_until(session, lambda s: "CSc1" in s.snapshot.filter.violated_names)
     e = explanation(snap, "constraint:CSc1")
     assert e.what == "Valve V1: open and close ordered together - open order blocked"
     assert "kept the orders apart (open order blocked)" in e.consequences
@@ -102,14 +102,14 @@ def test_project_texts_fill_their_placeholders():
 
 def test_blocked_and_monitor_explanations_differ():
     snap = run_until(make_session(VALVE, control="faulty", policy="block"),
-                     lambda s: s.latched)
+                     lambda s: s.snapshot.latched)
     keys = {e.key for e in snap.explanations}
     assert {"constraint:CSs2", "safe_state:filter"} <= keys
     latch = explanation(snap, "safe_state:filter")
     assert latch.latched and latch.recommended.id == "reset"
     assert "Check the control program before resetting" in latch.consequences
     snap = run_until(make_session(VALVE, control="faulty", policy="monitor"),
-                     lambda s: s.filter.violations)
+                     lambda s: s.snapshot.filter.violations)
     e = snap.explanations[0]
     assert "NOT corrected" in e.what and e.severity == "high"
     assert e.recommended.id == "correct"
@@ -120,7 +120,7 @@ def test_whole_cell_explanations_say_cell_not_the_project_identifier():
     said as such: the project's `name:` is an identifier (a folder's name), not a device an
     operator knows."""
     snap = run_until(make_session(VALVE, control="faulty", policy="block"),
-                     lambda s: s.latched)
+                     lambda s: s.snapshot.latched)
     latch = explanation(snap, "safe_state:filter")
     assert latch.what.startswith("Cell: stopped safe")
     session = make_session(VALVE)
@@ -290,7 +290,7 @@ def test_alarms_are_settled_only_when_the_same_update_would_change_nothing():
 
 def test_latched_alarm_stays_until_fault_reset():
     session = make_session(VALVE, control="faulty", policy="block")
-    snap = run_until(session, lambda s: s.latched)
+    snap = run_until(session, lambda s: s.snapshot.latched)
     for _ in range(200):
         snap = session.scan_once()
     alarm = next(a for a in snap.alarms if a.key == "safe_state:filter")
@@ -306,12 +306,12 @@ def test_latched_alarm_stays_until_fault_reset():
 
 def test_choosing_stop_device_masks_its_outputs_and_release_restores():
     session = make_session(VALVE, control="faulty", policy="correct")
-    run_until(session, lambda s: "CSs2" in s.filter.violated_names)
+    run_until(session, lambda s: "CSs2" in s.snapshot.filter.violated_names)
     result = session.command(ChoosePolicy("constraint:CSs2", "stop_device"))
     assert result.accepted and "Valve V1 stopped" in result.message
     snaps = [session.scan_once() for _ in range(500)]
-    assert all(s.outputs == (False, False) for s in snaps)
-    assert snaps[-1].stopped_devices == ("Valve V1",)
+    assert all(s.snapshot.outputs == (False, False) for s in snaps)
+    assert snaps[-1].snapshot.stopped_devices == ("Valve V1",)
     from hmi.engine.commands import ReleaseDevice
     assert session.command(ReleaseDevice("Valve V1")).accepted
     assert not session.command(ChoosePolicy("constraint:CSs2", "teleport")).accepted
@@ -319,13 +319,13 @@ def test_choosing_stop_device_masks_its_outputs_and_release_restores():
 
 def test_choosing_manual_and_reset_policies_send_their_commands():
     session = make_session(VALVE, control="faulty", policy="block")
-    run_until(session, lambda s: s.latched)
+    run_until(session, lambda s: s.snapshot.latched)
     assert session.command(ChoosePolicy("safe_state:filter", "reset")).accepted
     assert not session.engine.latched
-    snap = run_until(session, lambda s: s.latched)
+    snap = run_until(session, lambda s: s.snapshot.latched)
     assert session.command(ChoosePolicy("safe_state:filter", "manual")).accepted
     assert session.engine.mode == "manual"
-    assert snap.scan
+    assert snap.snapshot.scan
 
 
 # -- journal ---------------------------------------------------------------------------------
@@ -363,12 +363,12 @@ def test_journal_judges_a_manual_request_against_what_it_asked(tmp_path):
     session.scan_once()
     session.command(ManualOutput("O", True))
     assert session.command(SetMode(False)).accepted  # left before a scan ran the request
-    assert session.scan_once().output_map["O"] is False
+    assert session.scan_once().snapshot.output_map["O"] is False
     assert session.command(SetMode(True)).accepted
     session.scan_once()
     assert session.command(StopDevice("Valve V1")).accepted
     session.command(ManualOutput("O", True))
-    assert session.scan_once().output_map["O"] is False
+    assert session.scan_once().snapshot.output_map["O"] is False
     session.command(ManualOutput("O", False))  # what it asked: the stop changes nothing
     session.scan_once()
     recorder.close()

@@ -93,7 +93,7 @@ def test_diagnosis_alarm_is_journalled(tmp_path):
 def test_masked_actuator_has_its_own_explanation_until_the_reset():
     session = make_session(VALVE, inject=["F5@5s"])
     snap = run_to(session, 12)
-    assert set(snap.masked) == {"C", "O"}
+    assert set(snap.snapshot.masked) == {"C", "O"}
     e = find(snap, "masked:V")
     assert e.kind == "masked" and not e.alarm and e.latched
     assert e.what == ("Valve V1: close order and open order held off — the device is not "
@@ -106,6 +106,6 @@ def test_masked_actuator_has_its_own_explanation_until_the_reset():
     assert not [a for a in snap.alarms if a.key == "masked:V"]
     session.command(FaultReset())  # F5 is still there: the diagnoser stays faulty, mask and all
     snap = run_to(session, 1)
-    assert snap.masked and find(snap, "masked:V")
+    assert snap.snapshot.masked and find(snap, "masked:V")
     healthy = run_to(make_session(VALVE), 12)
     assert not [e for e in healthy.explanations if e.kind == "masked"]

@@ -129,8 +129,8 @@ class Broken:
 
     def run_for(self, duration: int) -> None:
         def on_scan(snap):
-            self.built.add(snap.scan)
-            if snap.latched and self.first_latched is None:
+            self.built.add(snap.snapshot.scan)
+            if snap.snapshot.latched and self.first_latched is None:
                 self.first_latched = snap
         self.session.run_for(duration, on_scan, (lambda count: None) if self.quiet else None)
 
@@ -168,7 +168,7 @@ def test_an_error_inside_a_fast_path_latches_writes_safe_and_is_explained(tmp_pa
         after = [values for now, values in run.written if now > first.time_us]
         assert after and all(values == safe for values in after)
         last = session.last
-        assert last is not None and last.outputs == safe and last.is_safe_latched
+        assert last is not None and last.snapshot.outputs == safe and last.snapshot.is_safe_latched
         keys = [e for e in last.explanations if e.key == "safe_state:internal"]
         assert keys and "Injected" in keys[0].detail
         assert "internal" in " ".join(a.key for a in last.alarms)
@@ -195,7 +195,7 @@ def test_an_error_inside_a_fast_path_latches_writes_safe_and_is_explained(tmp_pa
         assert raised, "the internal error is not in the journal"
     assert journals[0] == journals[1]
     assert full.session.last is not None and quiet.session.last is not None
-    assert full.session.last.outputs == quiet.session.last.outputs
+    assert full.session.last.snapshot.outputs == quiet.session.last.snapshot.outputs
 
 
 def test_a_persistent_internal_error_keeps_one_latch_and_one_explanation():
@@ -289,13 +289,13 @@ def test_an_error_outside_the_scans_handling_latches_writes_safe_and_is_explaine
         assert all(values == safe for values in after), case
         assert after or first.time_us == engine.now, case
         last = session.last
-        assert last is not None and last.outputs == safe and last.is_safe_latched
+        assert last is not None and last.snapshot.outputs == safe and last.snapshot.is_safe_latched
         # the failing scan's snapshot shows the outputs it left the plant with: safe
         snap = run.first_latched if run.first_latched is not None else last
-        assert snap.scan == first.scan and snap.outputs == safe, case
-        assert tuple(snap.named(snap.layout.outputs).values()) == safe, case
-        if engine.scan - snap.scan < len(engine.history):  # the next scans read it so
-            assert engine.history[engine.scan - snap.scan] == snap.values, case
+        assert snap.snapshot.scan == first.scan and snap.snapshot.outputs == safe, case
+        assert tuple(snap.snapshot.named(snap.snapshot.layout.outputs).values()) == safe, case
+        if engine.scan - snap.snapshot.scan < len(engine.history):  # the next scans read it so
+            assert engine.history[engine.scan - snap.snapshot.scan] == snap.snapshot.values, case
         shown = [e for e in last.explanations if e.key.startswith("safe_state:internal")]
         assert len(shown) == 1, (case, [e.key for e in last.explanations])
         assert part in shown[0].what and part in shown[0].why
@@ -385,7 +385,7 @@ def test_two_different_internal_errors_are_two_explanations_and_two_alarms(tmp_p
     engine.compiled.core = real
     run.armed = False
     assert run.session.command(cmd.FaultReset()).accepted
-    assert not run.session.run_for(S).latched
+    assert not run.session.run_for(S).snapshot.latched
     run.recorder.close()
     entries = [json.loads(line) for line in run.journal_path.read_text().splitlines()]
     raised = [e["key"] for e in entries if e["type"] == "alarm" and e["event"] == "raised"
@@ -455,7 +455,7 @@ async def test_the_hmi_latches_an_error_outside_the_scan_and_the_operator_resets
         assert app.is_running and calls["n"] > 1000
         assert [r.source for r in engine.latched] == ["internal"]
         assert engine.latched[0].time_us == S
-        assert app.link.session.last.outputs == engine.safe_vector
+        assert app.link.session.last.snapshot.outputs == engine.safe_vector
         assert "SAFE STATE" in region_text(app, "#status")
         assert "internal error reading the plant's" in screen_text(app)
         await press(pilot, "r")
@@ -468,7 +468,7 @@ async def test_the_hmi_latches_an_error_outside_the_scan_and_the_operator_resets
         shown = set()
         for _ in range(12):
             await run_for(pilot, 0.5)
-            shown.add(app.link.session.last.outputs)
+            shown.add(app.link.session.last.snapshot.outputs)
         assert engine.latched == [] and "SAFE STATE" not in region_text(app, "#status")
         assert shown - {engine.safe_vector}, "the valve does not cycle again"
     recorder.close()
@@ -493,7 +493,7 @@ def test_the_live_scan_thread_latches_an_error_outside_the_scan_and_keeps_scanni
     assert run.hits == 1 and run.engine.now >= 2 * S
     assert [r.part for r in run.engine.latched] == [part]
     last = run.session.last
-    assert last is not None and last.outputs == run.engine.safe_vector
+    assert last is not None and last.snapshot.outputs == run.engine.safe_vector
     assert "safe_state:internal" in {a.key for a in last.alarms}
 
 
@@ -510,7 +510,7 @@ def test_a_write_that_fails_and_the_safe_write_too_are_both_said(tmp_path, times
         ("writing the outputs to the plant", at_us),
         ("writing the safe outputs to the plant", at_us)]
     last = run.session.last
-    assert last is not None and last.outputs == engine.safe_vector
+    assert last is not None and last.snapshot.outputs == engine.safe_vector
     keys = [e.key for e in last.explanations if e.kind == "safe_state"]
     assert keys == ["safe_state:internal", "safe_state:internal:2"]
     written = [values for now, values in run.written if now >= at_us]

@@ -45,6 +45,7 @@ from hmi.project.recovery import recoveries_of
 from hmi.session.journal_recorder import JournalRecorder
 from hmi.session.run_report import RunCollector, run_summary
 from hmi.session.session import Session
+from hmi.session.view import CellView
 from tests.conftest import PROJECTS
 
 S = 1_000_000
@@ -57,10 +58,14 @@ def load(name: str) -> Project:
     return load_project(PROJECTS / name)
 
 
-def comparable(snap: Snapshot) -> dict[str, Any]:
-    """Every field but the measured ones; monitors built (a lazy value compares as built)."""
+def comparable(cell: CellView) -> dict[str, Any]:
+    """Every field but the measured ones, the session's too; monitors built (a lazy value
+    compares as built)."""
+    snap = cell.snapshot
     out = {field: getattr(snap, field) for field in Snapshot._fields}
-    out["scan_wall_us"] = out["filter_wall_us"] = 0.0
+    out.update((field, getattr(cell, field)) for field in CellView._fields
+               if field != "snapshot")
+    out["scan_wall_us"] = out["filter_wall_us"] = out["explain_wall_us"] = 0.0
     report = out["filter"]
     if report is not None:
         out["filter"] = report._replace(solver_us=0.0)
@@ -119,8 +124,8 @@ class Twin:
 
     def on_scan(self, snap: Snapshot) -> None:
         self.collector.add(snap)
-        assert snap.scan not in self.built
-        self.built[snap.scan] = comparable(snap)
+        assert snap.snapshot.scan not in self.built
+        self.built[snap.snapshot.scan] = comparable(snap)
 
     def run_for(self, duration: int, peek: random.Random) -> None:
         session = self.session
@@ -133,7 +138,7 @@ class Twin:
             self.collector.quiet(count)
             if peek.random() < 0.2:  # an operator's screen reading the last scan meanwhile
                 last = session.last
-                assert last is not None and last.scan == session.engine.scan
+                assert last is not None and last.snapshot.scan == session.engine.scan
                 self.peeked.append(comparable(last))
 
         self.peeked: list[dict[str, Any]] = []
@@ -221,7 +226,7 @@ def journal(path: Path) -> list[dict]:
 
 
 def summary(twin: Twin, last: Snapshot) -> str:
-    text = run_summary(twin.session.engine, last, twin.collector, [], 0.0)
+    text = run_summary(twin.session.engine, last.snapshot, twin.collector, [], 0.0)
     return "\n".join(line.split(" scans in ")[0] if line.startswith("Ran ") else line
                      for line in text.splitlines())
 

@@ -43,6 +43,7 @@ def _truth(c, snap) -> dict[int, float | None]:
     """What each signal of catalogue `c` is at this scan, read from the snapshot directly
     (not through the recorder's plan)."""
     truth: dict[int, float | None] = {}
+    cell, snap = snap, snap.snapshot
     layout = snap.layout
     for s_index, s in enumerate(c.signals):
         name = s.name
@@ -65,7 +66,7 @@ def _truth(c, snap) -> dict[int, float | None]:
         elif name == "cell.latched":
             truth[s_index] = float(bool(snap.latched))
         elif name == "cell.alarms":
-            truth[s_index] = float(len(snap.alarms))
+            truth[s_index] = float(len(cell.alarms))
         elif s.group == "monitor":
             task, field = name.rsplit(".", 1)
             m = next(m for m in snap.monitors if m.name == task)
@@ -83,9 +84,9 @@ def _replay(project: str, control: str | None, seed: int, seconds: int) -> None:
     recorder = HistoryRecorder(c, queue, EPOCH)
     truths: list[tuple[int, dict[int, float | None]]] = []
 
-    def listen(snap) -> None:
-        recorder.on_scan(snap)
-        truths.append((EPOCH + snap.time_us, _truth(c, snap)))
+    def listen(cell) -> None:
+        recorder.on_scan(cell)
+        truths.append((EPOCH + cell.snapshot.time_us, _truth(c, cell)))
     session.scan_listeners.append(listen)
     faults = session.engine.plant.faults()
     commands = [Acknowledge(None), FaultReset(), RepairFaults(), SetMode(True), SetMode(False),
@@ -98,7 +99,7 @@ def _replay(project: str, control: str | None, seed: int, seconds: int) -> None:
             session.command(InjectFault(Injection(code, session.engine.now, device)))
         elif roll < 0.5:
             session.command(rng.choice(commands))
-        elif roll < 0.6 and session.last and session.last.mode == "manual":
+        elif roll < 0.6 and session.last and session.last.snapshot.mode == "manual":
             session.command(ManualOutput(rng.choice(layout.outputs), rng.random() < 0.5))
     samples: dict[int, list[tuple[int, float]]] = {}
     for i, t, v in queue.take().samples:
@@ -159,7 +160,7 @@ def test_valve_travel_times_and_operations_agree_with_the_plant():
     recorder = HistoryRecorder(c, queue, 0)
     session.scan_listeners.append(recorder.on_scan)
     session.run_for(120_000_000)
-    counters = dict(session.last.plant_counters)
+    counters = dict(session.last.snapshot.plant_counters)
     taken = queue.take().samples
     index = {s.name: i for i, s in enumerate(c.signals)}
     travel = [v for i, _, v in taken if i == index["O.travel"]]

@@ -114,7 +114,7 @@ async def test_the_cell_goes_on_under_the_trends(tmp_path):
         await wait_until(pilot, lambda: screen.end_us >= end + 29_000_000, "the window moved")
         # app keys do not reach the cell through the trends: 'm' is not manual mode here
         await press(pilot, "m")
-        assert session.last.mode == "auto" and app.screen is screen
+        assert session.last.snapshot.mode == "auto" and app.screen is screen
         # zoomed in on now (the cell a little past the picture, less than a column), it
         # stays on now and goes on following the cell
         await run_for(pilot, 0.5)

@@ -80,7 +80,7 @@ def test_a_full_disk_raises_the_alarm_and_the_cell_goes_on(tiny_disk):
     assert "disk is full" in alarm.explanation.why and alarm.priority == 3
     scan = session.engine.scan
     session.run_for(5_000_000)  # the cell goes on: scans, nothing latched, no error
-    assert session.engine.scan >= scan + 500 and not session.last.latched
+    assert session.engine.scan >= scan + 500 and not session.last.snapshot.latched
     assert session.last.error is None
     (tiny_disk / "filler").unlink()
     _run_until(session, historian, lambda: _alarm(session) is None or
@@ -116,7 +116,7 @@ def test_a_lost_database_raises_the_alarm_and_nothing_is_lost():
         assert "cannot be written" in _alarm(session).explanation.why.lower() or \
             "history" in _alarm(session).text.lower()
         session.run_for(10_000_000)
-        assert not session.last.latched and session.last.error is None
+        assert not session.last.snapshot.latched and session.last.error is None
         cluster.start()
         _run_until(session, historian, lambda: historian.status.state == "writing"
                    and _alarm(session).state != "active-unacknowledged")

@@ -196,7 +196,7 @@ def test_compiled_and_interpreted_scans_agree_through_manual_mode(manual_at):
 
 
 def transfers(snap) -> int:
-    return dict(snap.plant_counters)["R1.transfers"]
+    return dict(snap.snapshot.plant_counters)["R1.transfers"]
 
 
 def test_conveyor_cycles_after_manual_mode():
@@ -215,10 +215,10 @@ def test_conveyor_cycles_after_manual_mode():
     project = example("conveyor_robot")
     session = Session(Engine(project, SimPlant(project)))
     session.run_for(2.8 * S)
-    assert session.last.active_steps == ("X2", "X12")
+    assert session.last.snapshot.active_steps == ("X2", "X12")
     assert session.command(cmd.SetMode(True)).accepted
     session.run_for(5 * S)
-    assert session.last.active_steps == ("X2", "X12")  # waited (B and e both came)
+    assert session.last.snapshot.active_steps == ("X2", "X12")  # waited (B and e both came)
     assert session.command(cmd.SetMode(False)).accepted
     session.run_for(60 * S)
     assert session.command(cmd.FaultReset()).accepted
@@ -227,7 +227,7 @@ def test_conveyor_cycles_after_manual_mode():
     steps = set()
 
     def seen(snap):
-        steps.add(snap.active_steps)
+        steps.add(snap.snapshot.active_steps)
     session.run_for(59 * S, on_scan=seen)
     assert transfers(session.last) >= after_reset + 10
     assert {("X3", "X10"), ("X1", "X11"), ("X2", "X12")} <= steps
@@ -248,16 +248,17 @@ def test_the_conveyor_dead_end_is_said_and_the_way_back_works():
     session.run_for(5 * S)
     assert session.command(cmd.SetMode(False)).accepted
     session.run_for(9 * S, on_quiet=lambda n: None)
-    assert session.last.active_steps == ("X3", "X10") and session.last.overdue_steps == ()
+    last = session.last.snapshot
+    assert last.active_steps == ("X3", "X10") and last.overdue_steps == ()
     session.run_for(4 * S, on_quiet=lambda n: None)  # X3 since 6.02 s, X10 since 9.02 s
     snap = session.last
-    assert snap.overdue_steps == ("X3", "X10")
+    assert snap.snapshot.overdue_steps == ("X3", "X10")
     alarms = {a.key: a for a in snap.alarms}
     stuck = alarms["step:X3"]
     assert stuck.state == "active-unacknowledged" and stuck.raised_us == 16_030_000
     assert stuck.text == "Program stuck at “A pallet waits at B” — waiting more than 10s"
     assert "(B) 0" in stuck.explanation.why and "(e) 1" in stuck.explanation.why
-    assert [w.text for w in snap.waits] == ["X3 waits for B and e — B 0, e 1",
+    assert [w.text for w in snap.snapshot.waits] == ["X3 waits for B and e — B 0, e 1",
                                             "X10 waits for B and e — B 0, e 1"]
     before = transfers(snap)
     # the way back: the recommended policy (manual mode), d until B, release, leave manual
@@ -266,14 +267,14 @@ def test_the_conveyor_dead_end_is_said_and_the_way_back_works():
     assert result.accepted and ("waits at “A pallet waits at B” (X3), “Robot free at home” "
                                 "(X10);") in result.message
     assert session.command(cmd.ManualOutput("d", True)).accepted
-    pushed_at = session.last.time_us
+    pushed_at = session.last.snapshot.time_us
     session.run_for(0.5 * S)
-    assert session.last.overdue_steps == ()  # the program waits on purpose
-    assert session.last.waits[0].values == (("B", False), ("e", True))
-    while not session.last.value("B"):
+    assert session.last.snapshot.overdue_steps == ()  # the program waits on purpose
+    assert session.last.snapshot.waits[0].values == (("B", False), ("e", True))
+    while not session.last.snapshot.value("B"):
         session.scan_once()
-    assert 3.5 * S <= session.last.time_us - pushed_at <= 3.6 * S  # the belt's transport
-    assert [w.holds for w in session.last.waits] == [True, True]
+    assert 3.5 * S <= session.last.snapshot.time_us - pushed_at <= 3.6 * S  # the belt's transport
+    assert [w.holds for w in session.last.snapshot.waits] == [True, True]
     assert session.command(cmd.ManualOutput("d", None)).accepted
     result = session.command(cmd.SetMode(False))
     assert result.message.startswith("automatic mode: the control program resumes from "
@@ -281,10 +282,10 @@ def test_the_conveyor_dead_end_is_said_and_the_way_back_works():
     steps = set()
 
     def seen(s):
-        steps.add(s.active_steps)
+        steps.add(s.snapshot.active_steps)
     session.run_for(30 * S, on_scan=seen)
     assert {("X1", "X11"), ("X2", "X12"), ("X3", "X10")} <= steps
     assert transfers(session.last) >= before + 7
-    assert session.last.overdue_steps == ()
+    assert session.last.snapshot.overdue_steps == ()
     assert not [a for a in session.last.alarms
                 if a.key.startswith("step:") and a.state.startswith("active")]

@@ -31,6 +31,7 @@ from hmi.plant.modbus.server_process import ServerProcess
 from hmi.project.loader import load_project
 from hmi.session.live import LiveRunner, WallClock
 from hmi.session.session import Session
+from hmi.session.view import CellView
 from tests.conftest import PROJECTS, ROOT, make_session, write_project
 
 VALVE = PROJECTS / "cispi_valve"
@@ -92,13 +93,22 @@ class Live:
         assert wait_connected(self.plant, WAIT, lambda line: None), self.plant.message
         self.engine = Engine(self.project, self.plant)
         self.session = Session(self.engine, clock=WallClock())
-        self.snaps: list[Snapshot] = []
-        self.session.scan_listeners.append(self.snaps.append)
+        self.cells: list[CellView] = []  # what the session handed out, scan by scan
+        self.snaps: list[Snapshot] = []  # the engine's part of each
+        self.session.scan_listeners.append(self._keep)
         self.runner = LiveRunner(self.session)
 
     def __enter__(self) -> Live:
         self.runner.start()
         return self
+
+    def _keep(self, cell: CellView) -> None:
+        self.cells.append(cell)
+        self.snaps.append(cell.snapshot)
+
+    def cell(self, snap: Snapshot) -> CellView:
+        """The session's view of the scan `snap` is the engine's part of."""
+        return next(c for c in self.cells if c.snapshot is snap)
 
     def __exit__(self, *exc: object) -> None:
         self.runner.stop(5)
@@ -295,10 +305,11 @@ def test_server_killed_and_restarted_mid_run(server, tmp_path):
         assert frozen.latched == lost.latched  # one reason per outage, not one per retry
         assert frozen.fov == (True, False) and frozen.active_steps == ("X1",)
         # The alarm the operator sees (its explanation), with the reason.
-        alarm = next(e for e in frozen.explanations if e.kind == "plant")
+        seen = live.cell(frozen)
+        alarm = next(e for e in seen.explanations if e.kind == "plant")
         assert "plant connection lost" in alarm.what and alarm.latched
         assert "connection was closed" in alarm.why
-        assert any(a.key == alarm.key for a in frozen.alarms)
+        assert any(a.key == alarm.key for a in seen.alarms)
 
         mark = len(srv.lines)
         srv.port = port
@@ -402,7 +413,7 @@ def test_exception_responses_are_reported_by_name(server, tmp_path):
         assert "to read discrete inputs 100" in snap.latched[0].detail
         assert snap.outputs == (False, False)
         assert snap.plant.details["exceptions"] >= 1
-        alarm = next(e for e in snap.explanations if e.kind == "plant")
+        alarm = next(e for e in live.cell(snap).explanations if e.kind == "plant")
         assert "the plant answered Illegal Data Address" in alarm.what
         live.wait(lambda s: s.scan >= snap.scan + 20, "more scans")  # still scanning
 
@@ -560,7 +571,7 @@ def test_quitting_the_hmi_on_a_real_plant_leaves_its_outputs_safe(server, tmp_pa
     async def operator(pilot) -> None:
         app = pilot.app
         await wait_live(pilot, lambda: app.link.last is not None and
-                        app.link.last.output_map["O"], "the valve opening")
+                        app.link.last.snapshot.output_map["O"], "the valve opening")
         seen["coils_before"] = read_coils(srv.port)
         await press(pilot, "q")
         await wait_for_screen(pilot, ConfirmDialog)

@@ -137,10 +137,15 @@ def test_a_monitor_reading_deep_history_gets_it(tmp_path):
     session = make_session(folder)
     assert session.engine.history.maxlen >= 6
     session.run_for(3_000_000)
-    (m,) = session.last.monitors
+    (m,) = session.last.snapshot.monitors
     # Y is written from the first scan (t = 0): five scans later is the 50 ms scan.
     assert m.attempt >= 1 and session.last.error is None
     first = make_session(folder)
     starts = []
-    first.run_for(200_000, lambda s: starts.append(s.time_us) if s.monitors[0].attempt else None)
+
+    def on_scan(cell):
+        if cell.snapshot.monitors[0].attempt:
+            starts.append(cell.snapshot.time_us)
+
+    first.run_for(200_000, on_scan)
     assert starts[0] == 50_000

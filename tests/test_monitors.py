@@ -25,11 +25,11 @@ def run(inject=(), seconds=12):
 
 
 def monitor(snap, name):
-    return next(m for m in snap.monitors if m.name == name)
+    return next(m for m in snap.snapshot.monitors if m.name == name)
 
 
 def at(snaps, t_us):
-    return next(s for s in snaps if s.time_us == t_us)
+    return next(s for s in snaps if s.snapshot.time_us == t_us)
 
 
 def test_the_cell_cycles_and_every_task_is_in_time_without_faults():
@@ -38,7 +38,7 @@ def test_the_cell_cycles_and_every_task_is_in_time_without_faults():
     conveyor, robot = monitor(last, "conveyor"), monitor(last, "robot")
     assert conveyor.faults == robot.faults == 0
     assert conveyor.completed >= 8 and robot.completed >= 8
-    assert not any(e.damage for s in snaps for e in s.plant_events)
+    assert not any(e.damage for s in snaps for e in s.snapshot.plant_events)
     # Each conveyor attempt measured by the monitor equals the device's own record.
     device = session.engine.plant.devices[0]
     assert all(r.work_us == 3_500 * MS for r in device.task_records() if r.end_us)
@@ -48,7 +48,7 @@ def test_the_papers_scenario_fault_at_x2_3_y2_1_and_watchdog_at_5():
     _, snaps = run(["C1.stop@1s+2s"])
     # Conveyor and robot start together at the first scan (location L7 of 002 Fig. 9).
     first = snaps[0]
-    assert [m.location for m in first.monitors] == ["executing", "executing"]
+    assert [m.location for m in first.snapshot.monitors] == ["executing", "executing"]
     assert monitor(at(snaps, 2_990 * MS), "conveyor").location == "interrupted"
     m = monitor(at(snaps, 3 * S), "conveyor")
     assert m.location == "faulty" and m.labels == ("conveyor_fault",)
@@ -89,7 +89,7 @@ def test_each_rule_through_the_simulated_plant(inject, task, rule, t_us, x_us, y
 @pytest.mark.parametrize("inject", [["C1.stop@1s+1s"], ["R1.stop@1s+1s"], []])
 def test_interruptions_that_still_fit_raise_nothing(inject):
     _, snaps = run(inject)
-    assert all(m.faults == 0 for m in snaps[-1].monitors)
+    assert all(m.faults == 0 for m in snaps[-1].snapshot.monitors)
 
 
 def test_fault_reset_keeps_a_hopeless_task_faulty_then_releases_it():
@@ -116,7 +116,7 @@ def test_a_reset_with_nothing_latched_says_so():
 
 def test_monitor_faults_do_not_force_outputs_safe():
     _, snaps = run(["C1.stop@1s+2s"])
-    assert not any(s.latched for s in snaps)
+    assert not any(s.snapshot.latched for s in snaps)
     assert monitor(snaps[-1], "robot").completed == 3  # the cell kept working
 
 
@@ -124,7 +124,7 @@ def test_traces_carry_the_monitors_and_are_deterministic(tmp_path):
     for name in ("a.csv", "b.csv"):
         session = make_session(CELL, inject=["C1.stop@1s+2s"])
         with TraceWriter(tmp_path / name) as writer:
-            session.run_for(8 * S, writer.write)
+            session.run_for(8 * S, lambda cell: writer.write(cell.snapshot))
     a = (tmp_path / "a.csv").read_text()
     assert a == (tmp_path / "b.csv").read_text()
     header, *rows = a.splitlines()
@@ -135,7 +135,7 @@ def test_traces_carry_the_monitors_and_are_deterministic(tmp_path):
 
 def test_a_project_without_monitors_has_no_stage(valve_project):
     session = make_session(PROJECTS / "cispi_valve")
-    assert session.engine.monitors is None and session.scan_once().monitors == ()
+    assert session.engine.monitors is None and session.scan_once().snapshot.monitors == ()
 
 
 # --------------------------------------------------------------------------------------------

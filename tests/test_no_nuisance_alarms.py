@@ -25,6 +25,6 @@ def test_the_normal_program_raises_no_alarm_in_ten_minutes(name):
                       if a.raised_us == snap.time_us)
 
     last = session.run_for(TEN_MINUTES_US, on_scan=scanned, on_quiet=lambda scan: None)
-    assert last.time_us >= TEN_MINUTES_US
+    assert last.snapshot.time_us >= TEN_MINUTES_US
     everything = [f"P{a.priority} {a.text}" for a in session.alarms.alarms.values()]
     assert not raised and not everything, raised[:5] or everything[:5]

@@ -84,7 +84,7 @@ class Cell:
     async def scans(self, n: int) -> int:
         """Run n scans in virtual time; return once the server has published the last."""
         await asyncio.to_thread(lambda: [self.session.scan_once() for _ in range(n)])
-        scan = self.session.last.scan
+        scan = self.session.last.snapshot.scan
         await until(lambda: self.server.published_scan >= scan)
         return scan
 
@@ -228,12 +228,12 @@ async def test_values_follow_the_scans_with_the_scans_time_as_source_timestamp(c
         await until(lambda: any(v == scan for n, v, _ in handler.changes if n == count),
                     "the last scan count")
         value = await count.read_data_value()
-        assert value.Value.Value == snap.scan
+        assert value.Value.Value == snap.snapshot.scan
         epoch = cell.server.epoch
-        assert value.SourceTimestamp == epoch + timedelta(microseconds=snap.time_us)
-        assert await written.read_value() == snap.output_map["O"]
+        assert value.SourceTimestamp == epoch + timedelta(microseconds=snap.snapshot.time_us)
+        assert await written.read_value() == snap.snapshot.output_map["O"]
         opened = [(v, dv.SourceTimestamp) for n, v, dv in handler.changes if n == written]
-        assert opened[-1][0] is snap.output_map["O"]
+        assert opened[-1][0] is snap.snapshot.output_map["O"]
         await sub.delete()
 
 
@@ -359,9 +359,9 @@ async def test_the_attempt_that_locks_an_account_is_journalled(cell):
 
 async def test_operator_commands_are_methods_that_go_through_the_filter(cell):
     await cell.scans(1)
-    if "O" not in cell.session.last.masked:  # the diagnoser distrusts the valve (F5)
+    if "O" not in cell.session.last.snapshot.masked:  # the diagnoser distrusts the valve (F5)
         await cell.fresh_alarm()
-    assert "O" in cell.session.last.masked
+    assert "O" in cell.session.last.snapshot.masked
     async with client(cell, "alice") as c:
         ns, node = await _cell_node(c)
         commands = await node.get_child(f"{ns}:Commands")
@@ -383,7 +383,7 @@ async def test_operator_commands_are_methods_that_go_through_the_filter(cell):
             await cell.scans(2)
             # The diagnoser distrusts the valve (F5): the filter masks the open order.
             snap = cell.session.last
-            assert snap.fov_map["O"] is True and snap.output_map["O"] is False
+            assert snap.snapshot.fov_map["O"] is True and snap.snapshot.output_map["O"] is False
             written = await node.get_child([f"{ns}:Valve V1", f"{ns}:Outputs", f"{ns}:O"])
             assert await (await written.get_child(f"{ns}:WrittenValue")).read_value() is False
             assert await (await written.get_child(f"{ns}:Masked")).read_value() is True
@@ -454,13 +454,15 @@ async def test_inputs_are_uncertain_while_the_plant_does_not_answer(cell):
         mode = await node.get_child([f"{ns}:Status", f"{ns}:Mode"])
         await cell.scans(1)
         last = cell.session.last
-        lost = last._replace(scan=last.scan + 1, plant=replace(last.plant, connected=False))
+        lost_snap = last.snapshot._replace(scan=last.snapshot.scan + 1,
+                                           plant=replace(last.snapshot.plant, connected=False))
+        lost = last._replace(snapshot=lost_snap)
         for listener in list(cell.session.scan_listeners):  # as if the session scanned it
             listener(lost)
-        await until(lambda: cell.server.published_scan == lost.scan)
+        await until(lambda: cell.server.published_scan == lost_snap.scan)
         read = await value.read_data_value(raise_on_bad_status=False)
         assert read.StatusCode.value == ua.StatusCodes.UncertainNoCommunicationLastUsableValue
-        assert read.Value.Value == lost.value("fsc")
+        assert read.Value.Value == lost_snap.value("fsc")
         assert (await mode.read_data_value()).StatusCode.is_good()  # the cell's own: good
         await cell.scans(2)  # connected again (past the scan number the fake one took)
         assert (await value.read_data_value()).StatusCode.is_good()

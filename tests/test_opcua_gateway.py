@@ -119,7 +119,7 @@ def test_the_gateway_serves_the_runtimes_cell_and_its_commands_follow_control(tm
             accepted, message = asyncio.run(_call(gateway.url, "bob", "SetMode", True))
             assert accepted, message
             alice = cell.attach("alice", want_control=True)
-            wait_for(lambda: alice.last.mode == "manual", "manual mode seen by alice")
+            wait_for(lambda: alice.last.snapshot.mode == "manual", "manual mode seen by alice")
             assert not alice.command(Pause()).result.accepted  # the gateway is in control
             assert alice.take_control().accepted
             accepted, message = asyncio.run(_call(gateway.url, "bob", "SetMode", False))
@@ -193,8 +193,8 @@ def test_a_hostile_hel_is_refused_before_the_gateway_buffers_it(tmp_path):
                 assert sent < SENT_AT_MOST, sent  # closed: the stream was not taken in
             wait_for(lambda: gateway.output().count("a message chunk of") >= 2,
                      "the gateway saying why it closed the connections")
-            scan = alice.last.scan
-            wait_for(lambda: alice.last.scan > scan + 100, "the scans going on")
+            scan = alice.last.snapshot.scan
+            wait_for(lambda: alice.last.snapshot.scan > scan + 100, "the scans going on")
             gateway_grew = _rss_kb(gateway.process.pid) - gateway_before
             runtime_grew = _rss_kb(cell.process.pid) - runtime_before
             assert gateway_grew < 16 * 1024, gateway_grew  # not the attack's 64 MiB

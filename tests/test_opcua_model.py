@@ -80,14 +80,14 @@ def test_the_model_follows_the_filter_and_the_diagnoser_of_a_faulty_valve():
     for _ in range(1100):
         snap = session.scan_once()
         state = points[("Valve V1", "Diagnosers", "V1", "State")].read(snap)
-        assert state == snap.diagnosers[0].state
+        assert state == snap.snapshot.diagnosers[0].state
         flag = points[("Valve V1", "Diagnosers", "V1", "Flags", "def_V")].read(snap)
-        assert flag == dict(snap.diagnosers[0].flags)["def_V"]
+        assert flag == dict(snap.snapshot.diagnosers[0].flags)["def_V"]
         state_seen |= state == "B2"
         for out in ("C", "O"):
             base = ("Valve V1", "Outputs", out)
-            assert points[(*base, "WrittenValue")].read(snap) == snap.output_map[out]
-            assert points[(*base, "ProgramValue")].read(snap) == snap.fov_map[out]
+            assert points[(*base, "WrittenValue")].read(snap) == snap.snapshot.output_map[out]
+            assert points[(*base, "ProgramValue")].read(snap) == snap.snapshot.fov_map[out]
             masked = points[(*base, "Masked")].read(snap)
             masked_seen |= masked
             if points[(*base, "FilterChanged")].read(snap):
@@ -125,7 +125,7 @@ def _run_with_acks(seed: int, journal: Path, scans: int = 2500):
             duration = rng.choice([None, 500_000, 5_000_000])
             session.command(Unshelve(key) if rng.random() < 0.3 else Shelve(key, duration))
         if rng.random() < 0.3:  # the publisher wakes now and then, never every scan
-            views = tracker.update(batches, snap.alarms, snap.time_us, snap.shelved)
+            views = tracker.update(batches, snap.alarms, snap.snapshot.time_us, snap.shelved)
             batches = []
             sent.extend(views)
             yield snap, views, tracker, sent
@@ -167,13 +167,13 @@ def test_an_acknowledgement_seen_only_in_the_list_is_sent_with_who_did_it():
     tracker = ConditionTracker()
     batches = []
     for _ in range(1000):
-        snap = session.scan_once()
-        if snap.alarm_events:
-            batches.append((snap.alarm_events, snap.alarms))
-    raised = tracker.update(batches, snap.alarms, snap.time_us)
+        cell = session.scan_once()
+        if cell.alarm_events:
+            batches.append((cell.alarm_events, cell.alarms))
+    raised = tracker.update(batches, cell.alarms, cell.snapshot.time_us)
     high = next(v for v in raised if v.key == "diagnosis:V1")
     assert high.state == ACTIVE_UNACK and high.severity == 900 and high.retain
-    alarm = next(a for a in snap.alarms if a.key == "diagnosis:V1")
+    alarm = next(a for a in cell.alarms if a.key == "diagnosis:V1")
     assert high.message == alarm.text and high.why == alarm.explanation.why
     assert high.consequences == alarm.explanation.consequences
     assert high.policies == alarm.explanation.policies_text()
@@ -181,14 +181,15 @@ def test_an_acknowledgement_seen_only_in_the_list_is_sent_with_who_did_it():
     tracker.acknowledged_by("diagnosis:V1", "alice", "on my way")
     session.command(Acknowledge("diagnosis:V1"))
     session.command(Acknowledge("constraint:CSs4"))  # from the HMI
-    snap = session.scan_once()  # no alarm event: the journal took the acknowledgements
-    views = {v.key: v for v in tracker.update([], snap.alarms, snap.time_us)}
+    cell = session.scan_once()  # no alarm event: the journal took the acknowledgements
+    views = {v.key: v for v in tracker.update([], cell.alarms, cell.snapshot.time_us)}
     assert views["diagnosis:V1"].state == ACTIVE_ACK
     assert (views["diagnosis:V1"].user, views["diagnosis:V1"].comment) == ("alice",
                                                                           "on my way")
     cleared = views["constraint:CSs4"]
     assert cleared.state == NORMAL and not cleared.retain and cleared.user == HMI_USER
-    assert tracker.update([], snap.alarms, snap.time_us) == []  # nothing changed: nothing sent
+    # nothing changed: nothing sent
+    assert tracker.update([], cell.alarms, cell.snapshot.time_us) == []
     assert CLEARED_UNACK not in {sent[0] for sent in tracker.sent.values()}
 
 

@@ -107,16 +107,16 @@ def test_python_opcua_browses_reads_live_values_and_receives_the_alarm():
         for _ in range(150):  # the valve starts opening at 1 s
             session.scan_once()
         snap = session.last
-        until(lambda: server.published_scan >= snap.scan, "the server's publish")
+        until(lambda: server.published_scan >= snap.snapshot.scan, "the server's publish")
         count_id = count.nodeid.to_string()
-        until(lambda: handler.seen(lambda c: c == (count_id, snap.scan)),
+        until(lambda: handler.seen(lambda c: c == (count_id, snap.snapshot.scan)),
               "the scan count's notification")
         value = count.get_data_value()
-        assert value.Value.Value == snap.scan
-        stamp = server.epoch + timedelta(microseconds=snap.time_us)
+        assert value.Value.Value == snap.snapshot.scan
+        stamp = server.epoch + timedelta(microseconds=snap.snapshot.time_us)
         assert _utc(value.SourceTimestamp) == stamp
-        assert opened.get_value() is snap.output_map["O"] is True
-        assert fsc.get_value() is snap.value("fsc")
+        assert opened.get_value() is snap.snapshot.output_map["O"] is True
+        assert fsc.get_value() is snap.snapshot.value("fsc")
 
         # The alarm: raised while the client is subscribed, sent with the SCADA's fields.
         while session.engine.scan < 1000:

@@ -34,18 +34,18 @@ async def test_a_condition_with_no_description_is_said_with_what_it_reads():
     step are said in words too (it read `its condition (…)`)."""
     app = make_app(SORTING, control="faulty")
     async with app.run_test(size=(200, 48)) as pilot:
-        await run_until(pilot, lambda s: s.active_steps == ("X1",), 30, "step 1")
+        await run_until(pilot, lambda s: s.snapshot.active_steps == ("X1",), 30, "step 1")
         text = control(app)
         assert "waits for the end of “box across the turntable's back edge" in text, text
         # the whole line, before the panel cuts it to fit
-        words = [app.query_one(GrafcetPanel).words(w) for w in app.link.last.waits]
+        words = [app.query_one(GrafcetPanel).words(w) for w in app.link.last.snapshot.waits]
         assert words == ["the end of “box across the turntable's back edge” (tt_back now 0)"]
         assert "prev(" not in text and "tt_back and" not in text
-        await run_until(pilot, lambda s: s.active_steps == ("X2",), 30, "step 2")
+        await run_until(pilot, lambda s: s.snapshot.active_steps == ("X2",), 30, "step 2")
         text = control(app)
         assert "waits for 3 s or more in this step (now 0." in text, text
         assert "its condition" not in text and "M_high" not in text and "X2.t" not in text
-        words = [app.query_one(GrafcetPanel).words(w) for w in app.link.last.waits]
+        words = [app.query_one(GrafcetPanel).words(w) for w in app.link.last.snapshot.waits]
         assert [w.split(" (now 0.")[0] + " | " + w.split(" s) ")[1] for w in words] == [
             "3 s or more in this step | and “the box being handled is high” (now 1)",
             "3 s or more in this step | and not “the box being handled is high” (now 1)"], words
@@ -76,7 +76,7 @@ async def test_entering_manual_mode_names_the_step_by_its_description():
     answers: list[str] = []  # the session's answers, as the journal records them
     app.link.session.listeners.append(lambda cmd, result, snap: answers.append(result.message))
     async with app.run_test(size=(160, 48)) as pilot:
-        await run_until(pilot, lambda s: s.active_steps == ("X1",), 20, "opening")
+        await run_until(pilot, lambda s: s.snapshot.active_steps == ("X1",), 20, "opening")
         await press(pilot, "m")
         await wait_for_screen(pilot, ConfirmDialog)
         await press(pilot, "y")

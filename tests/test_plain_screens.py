@@ -158,7 +158,7 @@ def test_dialogs_message_line_and_every_state_speak_plain_words(size):
         found: dict[str, list[str]] = {}
         app = make_app(inject=("F13@10.4s",))
         async with app.run_test(size=size) as pilot:
-            await run_until(pilot, lambda s: s.recovery.needed, 20, "the recovery needed")
+            await run_until(pilot, lambda s: s.snapshot.recovery.needed, 20, "the recovery needed")
             await _looked(app, names, found, "diagnosis latched, recovery needed")
             await press(pilot, "f")
             await wait_for_screen(pilot, FaultDialog)
@@ -176,7 +176,7 @@ def test_dialogs_message_line_and_every_state_speak_plain_words(size):
             await press(pilot, "y")
             await run_for(pilot, 0.8)
             await _looked(app, names, found, "recovery running")
-            await run_until(pilot, lambda s: s.recovery.status == "done", 10,
+            await run_until(pilot, lambda s: s.snapshot.recovery.status == "done", 10,
                             "the recovery done")
             await _looked(app, names, found, "recovery done")
             await press(pilot, "r")
@@ -211,7 +211,7 @@ def test_dialogs_message_line_and_every_state_speak_plain_words(size):
             await press(pilot, "escape")
         app = make_app(control="faulty", policy="block")
         async with app.run_test(size=size) as pilot:
-            await run_until(pilot, lambda s: bool(s.latched), 20, "safe blocking latched")
+            await run_until(pilot, lambda s: bool(s.snapshot.latched), 20, "safe blocking latched")
             await run_for(pilot, 0.5)
             await _looked(app, names, found, "safe blocking latched")
             await press(pilot, "r")

@@ -81,7 +81,7 @@ def offences(text: str, names: set[str], named: re.Pattern[str]) -> list[str]:
 def situations(project):
     """(what, snapshot) for every situation of the project."""
     session = Session(Engine(project, SimPlant(project)))
-    base = session.scan_once()._replace(explanations=(), alarms=())
+    base = session.scan_once().snapshot  # the engine's part: no explanations, no alarms
     outputs = base.layout.outputs
     for c in project.constraints:
         violation = next(v for v in session.engine.safety_filter.compiled if v.constraint is c
@@ -206,6 +206,7 @@ def test_the_reset_and_recovery_dialogs_and_output_reasons_name_no_internal_iden
     (the I/O table, the message line) and each simulated fault as the operator view names
     it: plain words; the engineering view's lines keep the names."""
     from hmi.plant.sim.plant import SimPlant
+    from hmi.session.view import CellView
     from hmi.ui.fault_dialog import fault_words
     from hmi.ui.reset import recovery_lines, reset_lines
     from hmi.ui.verdict import output_changes
@@ -219,9 +220,10 @@ def test_the_reset_and_recovery_dialogs_and_output_reasons_name_no_internal_iden
     problems = []
     engineering = ""
     for what, snap in situations(project):
-        texts = [("reset", str(getattr(line, "plain", line))) for line in reset_lines(snap)]
+        cell = CellView(snap)
+        texts = [("reset", str(getattr(line, "plain", line))) for line in reset_lines(cell)]
         engineering += " ".join(getattr(line, "plain", str(line))
-                                for line in reset_lines(snap, engineering=True))
+                                for line in reset_lines(cell, engineering=True))
         for written in (True, False):  # every output changed, by this situation's report
             changed = snap._replace(outputs=tuple(not v for v in snap.fov) if written
                                     else snap.outputs)

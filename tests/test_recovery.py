@@ -41,7 +41,7 @@ VALVE = PROJECTS / "cispi_valve"
 
 
 def cycles(snap) -> int:
-    return dict(snap.plant_counters)["cycles"]
+    return dict(snap.snapshot.plant_counters)["cycles"]
 
 
 def run_until(session: Session, predicate, limit_us: int):
@@ -58,8 +58,8 @@ def recover(session: Session, name: str = "V1_close"):
     """Repair done: start the recovery, wait for its end, fault reset, leave recovery."""
     result = session.command(StartRecovery(name))
     assert result.accepted, result.message
-    snap = run_until(session, lambda s: s.recovery.status != "running", 5 * S)
-    assert snap.recovery.status == "done", snap.recovery.message
+    snap = run_until(session, lambda s: s.snapshot.recovery.status != "running", 5 * S)
+    assert snap.snapshot.recovery.status == "done", snap.snapshot.recovery.message
     reset = session.command(FaultReset())
     assert reset.accepted
     left = session.command(EndRecovery())
@@ -79,22 +79,23 @@ def test_every_valve_fault_ends_in_automatic_operation_after_repair_recovery_and
         session = Session(Engine(project, plant))
         faulty = []
         snap = run_quietly(session, scenario.at_us + 12 * S,
-                           lambda s, seen=faulty: seen.extend(d.labels for d in s.diagnosers
-                                                              if d.faulty))
+                           lambda s, seen=faulty: seen.extend(
+                               d.labels for d in s.snapshot.diagnosers if d.faulty))
         assert faulty, f"{scenario.fault} was never diagnosed"
-        if snap.recovery.needed:
+        if snap.snapshot.recovery.needed:
             needed_for.append(scenario.fault)
         assert session.command(RepairFaults()).accepted
         repaired_at = len(plant.events())
         recover(session)
         before = cycles(session.last)
         snap = run_quietly(session, 20 * S)
-        assert snap.mode == "auto", scenario.fault
-        assert not snap.latched and not snap.error, scenario.fault
-        assert not any(d.faulty for d in snap.diagnosers), (scenario.fault, snap.diagnosers)
+        assert snap.snapshot.mode == "auto", scenario.fault
+        assert not snap.snapshot.latched and not snap.error, scenario.fault
+        diagnosers = snap.snapshot.diagnosers
+        assert not any(d.faulty for d in diagnosers), (scenario.fault, diagnosers)
         assert cycles(snap) - before >= 2, f"{scenario.fault}: the cycle did not resume"
         assert not [e for e in plant.events()[repaired_at:] if e.damage], scenario.fault
-        assert not snap.recovery.needed
+        assert not snap.snapshot.recovery.needed
     # The faults that leave the valve between its ends are the ones that called for it.
     assert {"F1", "F3", "F13"} <= set(needed_for)
 
@@ -107,25 +108,25 @@ def test_f13_repaired_is_a_dead_end_without_the_recovery_and_the_reset_says_so()
     run_quietly(session, 22 * S)
     session.command(RepairFaults())
     snap = session.scan_once()
-    lines = reset_preview(snap)
+    lines = reset_preview(snap.snapshot, snap.alarms)
     advice = [line for line in lines if line.recovery]
     assert advice and all(line.recovery == "V1_close" for line in advice)
     assert any("known position" in line.why for line in advice)
     session.command(FaultReset())
     stuck = run_quietly(session, 20 * S)
-    assert any(d.faulty for d in stuck.diagnosers)  # the reset alone cannot re-synchronise
-    assert 0 < dict(stuck.plant_state)["position"] < 100
-    assert [n[0] for n in stuck.recovery.needed] == ["V1_close"]
+    assert any(d.faulty for d in stuck.snapshot.diagnosers)  # the reset alone cannot re-synchronise
+    assert 0 < dict(stuck.snapshot.plant_state)["position"] < 100
+    assert [n[0] for n in stuck.snapshot.recovery.needed] == ["V1_close"]
     assert any(e.key == "recovery_needed:V1_close" and e.alarm and any(
         p.id == "recovery" and p.recommended for p in e.policies)
         for e in stuck.explanations)
     # Manual mode does not get it out either: the mask holds the orders at 0.
     session.command(SetMode(True))
-    assert "C" in session.scan_once().masked
+    assert "C" in session.scan_once().snapshot.masked
     session.command(SetMode(False))
     recover(session)
     snap = run_quietly(session, 20 * S)
-    assert cycles(snap) >= 2 and not any(d.faulty for d in snap.diagnosers)
+    assert cycles(snap) >= 2 and not any(d.faulty for d in snap.snapshot.diagnosers)
 
 
 class Outage(SimPlant):
@@ -147,18 +148,18 @@ def test_a_connection_lost_mid_travel_is_a_dead_end_without_the_recovery():
     plant.down = (int(2 * S), int(3 * S))  # the valve is opening (1 s to 2.96 s)
     session = Session(Engine(project, plant))
     run_quietly(session, 4 * S)
-    assert session.last.latched
+    assert session.last.snapshot.latched
     assert session.command(FaultReset()).accepted
     snap = run_quietly(session, 10 * S)
-    assert not snap.latched
-    assert cycles(snap) == 0 and 0 < dict(snap.plant_state)["position"] < 100
-    assert snap.filter is not None and "CSs6" in snap.filter.violated_names
-    assert [n[0] for n in snap.recovery.needed] == ["V1_close"]
-    assert any(line.recovery == "V1_close" for line in reset_preview(snap))
+    assert not snap.snapshot.latched
+    assert cycles(snap) == 0 and 0 < dict(snap.snapshot.plant_state)["position"] < 100
+    assert snap.snapshot.filter is not None and "CSs6" in snap.snapshot.filter.violated_names
+    assert [n[0] for n in snap.snapshot.recovery.needed] == ["V1_close"]
+    assert any(line.recovery == "V1_close" for line in reset_preview(snap.snapshot, snap.alarms))
     events = len(plant.events())
     recover(session)
     snap = run_quietly(session, 20 * S)
-    assert cycles(snap) >= 2 and snap.mode == "auto"
+    assert cycles(snap) >= 2 and snap.snapshot.mode == "auto"
     assert not [e for e in plant.events()[events:] if e.damage]
 
 
@@ -184,14 +185,14 @@ def test_a_recovery_is_still_filtered_by_its_own_constraints_and_times_out(long_
     session.run_for(S // 2)  # closed, at rest
     assert session.command(StartRecovery("V1_close")).accepted
     snap = session.scan_once()
-    assert snap.fov_map["C"] is True and snap.value("fsc")
-    assert snap.policy == policy
-    assert snap.filter is not None and "R_V1_closed" in snap.filter.violated_names
-    assert snap.output_map["C"] is False  # the close order withdrawn at the closed end
-    snap = run_until(session, lambda s: s.recovery.status != "running", 4 * S)
-    assert snap.recovery.status == "failed" and "not done within 3.000 s" in \
-        snap.recovery.message
-    assert not any(snap.outputs)
+    assert snap.snapshot.fov_map["C"] is True and snap.snapshot.value("fsc")
+    assert snap.snapshot.policy == policy
+    assert snap.snapshot.filter is not None and "R_V1_closed" in snap.snapshot.filter.violated_names
+    assert snap.snapshot.output_map["C"] is False  # the close order withdrawn at the closed end
+    snap = run_until(session, lambda s: s.snapshot.recovery.status != "running", 4 * S)
+    assert snap.snapshot.recovery.status == "failed" and "not done within 3.000 s" in \
+        snap.snapshot.recovery.message
+    assert not any(snap.snapshot.outputs)
     assert not [e for e in plant.events() if e.damage]
     assert any(e.key == "recovery_failed:V1_close" and e.alarm and e.severity == "high"
                for e in snap.explanations)
@@ -211,11 +212,11 @@ def test_recovery_is_refused_where_it_must_be_and_journalled(tmp_path):
     assert not session.command(EndRecovery()).accepted
     session.command(FaultReset())
     assert session.command(StartRecovery("V1_close")).accepted
-    assert session.scan_once().mode == "recovery"
+    assert session.scan_once().snapshot.mode == "recovery"
     assert not session.command(SetMode(True)).accepted
     assert not session.command(StartRecovery("V1_close")).accepted  # one at a time
     assert session.command(SetPolicy("block")).accepted  # the policy still applies
-    run_until(session, lambda s: s.recovery.status == "done", 3 * S)
+    run_until(session, lambda s: s.snapshot.recovery.status == "done", 3 * S)
     assert session.command(EndRecovery()).accepted
     recorder.close()
     entries = read(journal.path).entries
@@ -258,7 +259,7 @@ async def test_the_operator_finds_the_way_back_from_f13_through_the_reset_dialog
 
     app = make_app(inject=("F13@10.4s",))
     async with app.run_test(size=(80, 24)) as pilot:
-        await run_until(pilot, lambda s: s.recovery.needed, 20, "recovery needed")
+        await run_until(pilot, lambda s: s.snapshot.recovery.needed, 20, "recovery needed")
         await palette(pilot, "SIMULATION: repair")
         await press(pilot, "r")
         dialog = await wait_for_screen(pilot, ConfirmDialog)
@@ -277,7 +278,7 @@ async def test_the_operator_finds_the_way_back_from_f13_through_the_reset_dialog
         await run_for(pilot, 0.5)
         assert "RECOVERY" in region_text(app, "#status")
         assert "▲ RECOVERY ▲" in region_text(app, "#banners")
-        await run_until(pilot, lambda s: s.recovery.status == "done", 3, "recovery done")
+        await run_until(pilot, lambda s: s.snapshot.recovery.status == "done", 3, "recovery done")
         assert "RECOVERY DONE" in region_text(app, "#banners")
         await press(pilot, "r")
         await wait_for_screen(pilot, ConfirmDialog)
@@ -290,8 +291,8 @@ async def test_the_operator_finds_the_way_back_from_f13_through_the_reset_dialog
         await wait_for_main(pilot)
         await run_for(pilot, 20)
         snap = app.link.session.last
-        assert snap.mode == "auto" and "AUTO" in region_text(app, "#status")
-        assert cycles(snap) >= 2 and not any(d.faulty for d in snap.diagnosers)
+        assert snap.snapshot.mode == "auto" and "AUTO" in region_text(app, "#status")
+        assert cycles(snap) >= 2 and not any(d.faulty for d in snap.snapshot.diagnosers)
         assert not app.query_one("#banners").display
 
 
@@ -310,14 +311,14 @@ def test_the_subsystem_is_brought_back_to_its_initial_state_by_its_cell_recovery
     session = Session(Engine(project, plant))
     snap = run_quietly(session, injection.at_us + 15 * S)
     if "F13" in fault or "F1@" in fault:
-        assert [n[0] for n in snap.recovery.needed] == ["cell_home"]
+        assert [n[0] for n in snap.snapshot.recovery.needed] == ["cell_home"]
     assert session.command(RepairFaults()).accepted
     repaired_at = len(plant.events())
     recover(session, "cell_home")
-    fills = dict(session.last.plant_counters)["T2.fills"]
+    fills = dict(session.last.snapshot.plant_counters)["T2.fills"]
     snap = run_quietly(session, 60 * S)
-    assert dict(snap.plant_counters)["T2.fills"] - fills >= 2
-    assert not any(d.faulty for d in snap.diagnosers) and not snap.latched
+    assert dict(snap.snapshot.plant_counters)["T2.fills"] - fills >= 2
+    assert not any(d.faulty for d in snap.snapshot.diagnosers) and not snap.snapshot.latched
     assert not [e for e in plant.events()[repaired_at:] if e.damage]
 
 
@@ -334,19 +335,19 @@ def test_the_program_waits_while_a_recovery_runs_and_restarts_from_its_initial_s
     before = session.scan_once()
     assert session.command(StartRecovery("V1_close")).accepted
     seen = set()
-    snap = run_until(session, lambda s: seen.add(s.active_steps) or
-                     s.recovery.status != "running", 5 * S)
-    assert snap.recovery.status == "done"
+    snap = run_until(session, lambda s: seen.add(s.snapshot.active_steps) or
+                     s.snapshot.recovery.status != "running", 5 * S)
+    assert snap.snapshot.recovery.status == "done"
     assert session.command(FaultReset()).accepted
-    snap = run_quietly(session, 10 * S, lambda s: seen.add(s.active_steps))
-    assert seen == {before.active_steps}, seen
-    assert not snap.output_map["O"]  # what the panel showed is what the valve does
+    snap = run_quietly(session, 10 * S, lambda s: seen.add(s.snapshot.active_steps))
+    assert seen == {before.snapshot.active_steps}, seen
+    assert not snap.snapshot.output_map["O"]  # what the panel showed is what the valve does
     assert session.command(EndRecovery()).accepted
     snap = session.scan_once()
-    assert snap.mode == "auto"
-    initial = tuple(s.name for s in project.controls[snap.control].grafcet.steps
+    assert snap.snapshot.mode == "auto"
+    initial = tuple(s.name for s in project.controls[snap.snapshot.control].grafcet.steps
                     if s.initial)
-    assert snap.active_steps == initial != before.active_steps
+    assert snap.snapshot.active_steps == initial != before.snapshot.active_steps
 
 
 async def test_the_recovery_banner_says_the_next_step_the_state_needs():
@@ -360,7 +361,7 @@ async def test_the_recovery_banner_says_the_next_step_the_state_needs():
 
     app = make_app(inject=("F13@10.4s",))
     async with app.run_test(size=(80, 24)) as pilot:
-        await run_until(pilot, lambda s: s.recovery.needed, 20, "recovery needed")
+        await run_until(pilot, lambda s: s.snapshot.recovery.needed, 20, "recovery needed")
         await palette(pilot, "SIMULATION: repair")
         await press(pilot, "r")
         await wait_for_screen(pilot, ConfirmDialog)
@@ -370,7 +371,7 @@ async def test_the_recovery_banner_says_the_next_step_the_state_needs():
         await wait_for_main(pilot)
         # (the program waits: its steps read held, not running)
         active = [line for line in region_text(app, "#control").splitlines() if "‖" in line]
-        await run_until(pilot, lambda s: s.recovery.status == "done", 3, "recovery done")
+        await run_until(pilot, lambda s: s.snapshot.recovery.status == "done", 3, "recovery done")
         assert "next: r fault reset" in region_text(app, "#banners")
         await press(pilot, "r")
         await wait_for_screen(pilot, ConfirmDialog)
@@ -381,7 +382,7 @@ async def test_the_recovery_banner_says_the_next_step_the_state_needs():
         assert "RECOVERY DONE" in banners and "next: m leave recovery" in banners
         assert "fault reset" not in banners
         snap = app.link.session.last
-        assert not snap.output_map["O"] and not snap.output_map["C"]
+        assert not snap.snapshot.output_map["O"] and not snap.snapshot.output_map["C"]
         # the program waits where it was: the same steps, held, none running
         control = region_text(app, "#control").splitlines()
         assert active and active == [line for line in control if "‖" in line]
@@ -397,16 +398,18 @@ def test_under_a_plant_loss_latch_the_reset_dialog_offers_no_recovery_the_engine
     plant.down = (int(2 * S), int(3 * S))
     session = Session(Engine(project, plant))
     snap = run_quietly(session, 12 * S)
-    assert snap.latched and snap.recovery.needed  # latched, and the valve between its ends
-    lines = reset_preview(snap)
+    # latched, and the valve between its ends
+    assert snap.snapshot.latched and snap.snapshot.recovery.needed
+    lines = reset_preview(snap.snapshot, snap.alarms)
     assert not any(line.recovery for line in lines)
     assert any("this reset first" in line.why for line in lines)
     refused = session.command(StartRecovery("V1_close"))
     assert not refused.accepted and "fault reset first" in refused.message
     assert session.command(FaultReset()).accepted
     snap = session.scan_once()
-    assert not snap.latched
-    assert any(line.recovery == "V1_close" for line in reset_preview(snap))  # now it is
+    assert not snap.snapshot.latched
+    now = reset_preview(snap.snapshot, snap.alarms)
+    assert any(line.recovery == "V1_close" for line in now)  # now it is
 
 
 def test_a_reset_during_f7_while_the_valve_travels_does_not_call_for_a_recovery():
@@ -418,13 +421,13 @@ def test_a_reset_during_f7_while_the_valve_travels_does_not_call_for_a_recovery(
     plant.inject(parse_injection("F7@14.5s"))
     session = Session(Engine(project, plant))
     snap = run_quietly(session, int(14.9 * S))
-    assert any(d.faulty and not d.resync for d in snap.diagnosers)
-    assert 0 < dict(snap.plant_state)["position"] < 100 and snap.output_map["C"]
-    lines = reset_preview(snap)
+    assert any(d.faulty and not d.resync for d in snap.snapshot.diagnosers)
+    assert 0 < dict(snap.snapshot.plant_state)["position"] < 100 and snap.snapshot.output_map["C"]
+    lines = reset_preview(snap.snapshot, snap.alarms)
     assert not any(line.recovery for line in lines)
     assert any("still driven" in line.why and "no recovery" in line.why for line in lines)
     # the valve reaches its closed end within the 2 s the issue measured
-    snap = run_until(session, lambda s: any(d.resync for d in s.diagnosers), 2 * S)
-    assert any(line.resets and line.target for line in reset_preview(snap))
+    snap = run_until(session, lambda s: any(d.resync for d in s.snapshot.diagnosers), 2 * S)
+    assert any(line.resets and line.target for line in reset_preview(snap.snapshot, snap.alarms))
     assert session.command(FaultReset()).accepted
-    assert not any(d.faulty for d in session.scan_once().diagnosers)
+    assert not any(d.faulty for d in session.scan_once().snapshot.diagnosers)

@@ -83,16 +83,16 @@ def faults_of(name: str) -> list[str]:
 
 
 def work(cell: Cell, snap) -> int:
-    return sum(v for k, v in snap.plant_counters if k.rsplit(".", 1)[-1] in cell.work)
+    return sum(v for k, v in snap.snapshot.plant_counters if k.rsplit(".", 1)[-1] in cell.work)
 
 
 def running(snap) -> set[tuple[str, int]]:
     """The monitored tasks in progress, as (task, attempt)."""
-    return {(m.name, m.attempt) for m in snap.monitors if m.running}
+    return {(m.name, m.attempt) for m in snap.snapshot.monitors if m.running}
 
 
 def needed(snap) -> list[str]:
-    return [name for name, *_ in snap.recovery.needed]
+    return [name for name, *_ in snap.snapshot.recovery.needed]
 
 
 def run_while(session: Session, predicate, limit_us: int):
@@ -145,8 +145,8 @@ def test_every_fault_ends_in_automatic_operation_after_repair_recovery_and_reset
     caught = running(session.scan_once())  # tasks the fault may have made late
     if procedure is not None:
         assert session.command(StartRecovery(procedure)).accepted
-        snap = run_while(session, lambda s: s.recovery.status == "running", 20 * S)
-        assert snap.recovery.status == "done", snap.recovery.message
+        snap = run_while(session, lambda s: s.snapshot.recovery.status == "running", 20 * S)
+        assert snap.snapshot.recovery.status == "done", snap.snapshot.recovery.message
         assert session.command(EndRecovery()).accepted
     run_while(session, lambda s: caught & running(s), TASKS_END_US)
     reset = session.command(FaultReset())
@@ -155,9 +155,9 @@ def test_every_fault_ends_in_automatic_operation_after_repair_recovery_and_reset
     # a minute: after 20 s of a silent fault the palletizer may first finish a pallet's
     # exchange (lowering, a new pallet raised 10 s) before it pushes again
     snap = run_quietly(session, 60 * S)
-    assert snap.mode == "auto" and not snap.latched and not snap.error
-    assert not [m.name for m in snap.monitors if m.detection]
-    assert not snap.recovery.needed
+    assert snap.snapshot.mode == "auto" and not snap.snapshot.latched and not snap.error
+    assert not [m.name for m in snap.snapshot.monitors if m.detection]
+    assert not snap.snapshot.recovery.needed
     assert work(cell, snap) - before >= 2, f"{fault}: the cell did not go on working"
     assert plant.damage()[damage:] == []
 
@@ -191,14 +191,14 @@ def test_the_conveyor_cells_transient_faults_recover_without_repair(fault):
     plant.inject(parse_injection(fault))
     session = Session(Engine(project, plant))
     snap = run_quietly(session, 6 * S)
-    assert [m.name for m in snap.monitors if m.detection], "the interruption was not seen"
-    assert not dict(snap.plant_state).get("C1.halted") and \
-        not dict(snap.plant_state).get("R1.halted")  # over by itself
+    assert [m.name for m in snap.snapshot.monitors if m.detection], "the interruption was not seen"
+    assert not dict(snap.snapshot.plant_state).get("C1.halted") and \
+        not dict(snap.snapshot.plant_state).get("R1.halted")  # over by itself
     caught = running(snap)
     run_while(session, lambda s: caught & running(s), 10 * S)
     reset = session.command(FaultReset())
     assert "released" in reset.message and "stays" not in reset.message, reset.message
     before = work(cell, session.last)
     snap = run_quietly(session, 12 * S)
-    assert not [m.name for m in snap.monitors if m.detection]
+    assert not [m.name for m in snap.snapshot.monitors if m.detection]
     assert work(cell, snap) - before >= 2 and not plant.damage()

@@ -69,8 +69,9 @@ def test_a_run_prints_and_journals_what_building_every_snapshot_does(
 def test_last_builds_a_quiet_scans_snapshot_as_a_scan_would_have(project, faults):
     """Session.last after quiet scans: the snapshot scan_once gives (measured times apart),
     alarms and explanations included; a command between scans sees it too."""
-    def comparable(snap):
-        return snap._replace(scan_wall_us=0.0, filter_wall_us=0.0)
+    def comparable(cell):
+        snap = cell.snapshot._replace(scan_wall_us=0.0, filter_wall_us=0.0)
+        return cell._replace(snapshot=snap, explain_wall_us=0.0)
 
     lazy, full = (make_session(PROJECTS / project, inject=faults) for _ in range(2))
     quiet = []

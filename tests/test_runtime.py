@@ -43,11 +43,11 @@ def test_a_screen_attaches_sees_frames_and_commands_with_its_name_in_the_journal
         assert link.facts.project == "cispi_valve" and link.facts.layout.outputs == ("C", "O")
         assert link.view().control.holder.identity.user == "alice"
         assert link.advance(2 * S) == 200
-        assert link.last.time_us == 2 * S  # the frame showing them came before the answer
+        assert link.last.snapshot.time_us == 2 * S  # the frame showing them came before the answer
         answer = link.command(SetMode(True))
-        assert answer.result.accepted and link.view().snapshot.mode in ("auto", "manual")
+        assert answer.result.accepted and link.view().cell.snapshot.mode in ("auto", "manual")
         link.advance(10_000)
-        assert link.last.mode == "manual"
+        assert link.last.snapshot.mode == "manual"
         stats = link.query()
         assert stats is not None and stats.clients == 1 and stats.frames_sent >= 2
         link.leave()
@@ -91,7 +91,7 @@ def test_a_viewer_sees_but_its_commands_are_refused_and_journalled(tmp_path, soc
         operator = cell.attach("alice")
         viewer = cell.attach("bob", role="viewer", want_control=False)
         operator.advance(S)
-        wait_for(lambda: viewer.last.time_us == S, "the viewer's frame of t = 1 s")
+        wait_for(lambda: viewer.last.snapshot.time_us == S, "the viewer's frame of t = 1 s")
         answer = viewer.command(Pause())
         assert not answer.result.accepted
         assert "viewer" in answer.result.message
@@ -192,7 +192,7 @@ def test_the_runtime_serves_frames_to_json_readers(sock):
         welcome = json.loads(read_message(raw, MAX_OUT))
         first = json.loads(read_message(raw, MAX_OUT))
         assert welcome[0] == "Welcome" and first[0] == "Frame"
-        assert first[2][0] == 1  # the snapshot's scan: the first, as nothing ran since
+        assert first[2][0][0] == 1  # the cell's snapshot's scan: the first, nothing ran since
         raw.close()
         cell.attach().leave()
 

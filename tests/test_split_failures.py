@@ -48,8 +48,8 @@ SCREEN = textwrap.dedent("""
     link.advance(20_000)
     last = link.last
     print(json.dumps({"acked": alarms[0].key, "alarms": [[a.key, a.state] for a in last.alarms],
-                      "shelved": [a.key for a, _ in last.shelved], "mode": last.mode,
-                      "scan": last.scan}), flush=True)
+                      "shelved": [a.key for a, _ in last.shelved],
+                      "mode": last.snapshot.mode, "scan": last.snapshot.scan}), flush=True)
     time.sleep(3600)
 """)
 
@@ -73,10 +73,10 @@ def test_kill_9_of_a_screen_leaves_the_cell_as_it_was_for_the_next(tmp_path):
         after = cell.attach("next")  # control is free: the next screen takes it
         assert after.view().control.holder.identity.user == "next"
         last = after.last
-        assert last.scan == seen["scan"]  # virtual time: nothing ran since
+        assert last.snapshot.scan == seen["scan"]  # virtual time: nothing ran since
         assert [[a.key, a.state] for a in last.alarms] == seen["alarms"]
         assert [a.key for a, _ in last.shelved] == seen["shelved"]
-        assert last.mode == "manual"
+        assert last.snapshot.mode == "manual"
         acked = [a.state for a in last.alarms if a.key == seen["acked"]]
         assert acked in ([], [ACTIVE_ACK])  # acknowledged (or since cleared)
         after.leave()
@@ -104,8 +104,8 @@ def test_a_screen_that_never_reads_loses_frames_never_the_scan(tmp_path):
                          "frames dropped for the stuck screen")
         from hmi.runtime.server import HIGH_WATER
         assert stats.backlog_bytes <= 2 * HIGH_WATER  # bounded: one frame over the mark
-        scan = good.last.scan
-        wait_for(lambda: good.last.scan > scan + 50, "the good screen's frames going on")
+        scan = good.last.snapshot.scan
+        wait_for(lambda: good.last.snapshot.scan > scan + 50, "the good screen's frames going on")
         assert good.command(Pause()).result.accepted  # and its commands answered
         assert stats.clients == 2
         stuck.close()
@@ -126,7 +126,7 @@ def test_loss_of_the_runtime_is_shown_at_once_and_the_device_watchdog_makes_it_s
         cell = RuntimeProcess(VALVE, sock, "--plant", f"modbus://127.0.0.1:{plant.port}",
                               virtual=False)
         link = cell.attach("alice")
-        wait_for(lambda: link.last.output_map["O"], "the valve's opening order")
+        wait_for(lambda: link.last.snapshot.output_map["O"], "the valve's opening order")
         wait_for(lambda: read_coils(plant.port) == [False, True], "O on at the device")
         def trips() -> int:
             return sum("watchdog: no request for 300ms" in line for line in plant.lines)

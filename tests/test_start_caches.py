@@ -44,8 +44,8 @@ def trace(project, scans: int = SCANS) -> list:
     session = Session(Engine(project, SimPlant(project)))
     rows = []
     for _ in range(scans):
-        snap = session.scan_once()
-        rows.append((_row(snap), [(a.key, a.state) for a in snap.alarms]))
+        cell = session.scan_once()
+        rows.append((_row(cell.snapshot), [(a.key, a.state) for a in cell.alarms]))
     return rows
 
 

@@ -18,7 +18,7 @@ from hmi.plant.sim.plant import SimPlant
 from hmi.project.loader import load_project
 from hmi.session.session import Session
 from tests.conftest import write_project
-from tests.test_compiled_scan import comparable
+from tests.test_compiled_scan import comparable_cell
 from tests.twins import Twins
 
 MS = 1000
@@ -147,19 +147,19 @@ def test_on_the_quiet_path_the_deadline_is_news(seq):
     _, every = session_run(seq, 2, quiet=False)
     session, news = session_run(seq, 2, quiet=True)
     assert len(news) < len(every) // 10  # (most scans were quiet)
-    raised = [s for s in every if s.overdue_steps]
-    assert raised[0].time_us == 510 * MS
-    first = next(s for s in news if s.overdue_steps)
-    assert first.time_us == 510 * MS
+    raised = [s for s in every if s.snapshot.overdue_steps]
+    assert raised[0].snapshot.time_us == 510 * MS
+    first = next(s for s in news if s.snapshot.overdue_steps)
+    assert first.snapshot.time_us == 510 * MS
     assert [a.key for a in first.alarms] == ["step:X0"]
-    assert comparable(first) == comparable(raised[0])
-    assert session.last.overdue_steps == ("X0",)
+    assert comparable_cell(first) == comparable_cell(raised[0])
+    assert session.last.snapshot.overdue_steps == ("X0",)
     # left on the quiet path: the scan that leaves it is news, the alarm clears there
     session.engine.plant.set_input("a", True)
     built = []
     session.run_for(1 * S, on_scan=built.append, on_quiet=lambda n: None)
     left = built[0]
-    assert left.active_steps == ("X1", "X5") and left.overdue_steps == ()
+    assert left.snapshot.active_steps == ("X1", "X5") and left.snapshot.overdue_steps == ()
     assert [(a.key, a.state) for a in left.alarms] == [("step:X0", "cleared-unacknowledged")]
 
 

@@ -47,25 +47,25 @@ def test_grafcet_evolution_fork_join_one_clearing_per_scan(tmp_path):
     session = make_session(write_project(tmp_path / "g", GRAFCET_PROJECT))
     plant = session.engine.plant
     s = session.scan_once()
-    assert s.active_steps == ("X0",)
+    assert s.snapshot.active_steps == ("X0",)
     plant.set_input("a", True)
     s = session.scan_once()  # fork: 0 -> 1 and 2 together
-    assert s.active_steps == ("X1", "X2") and s.fired == (1,)
-    assert s.fov == (True, True, False)  # C from X1, O from X2 (X2.t < 30ms)
+    assert s.snapshot.active_steps == ("X1", "X2") and s.snapshot.fired == (1,)
+    assert s.snapshot.fov == (True, True, False)  # C from X1, O from X2 (X2.t < 30ms)
     s = session.scan_once()  # 1 -> 3 and 2 -> 4 fire together, once (no chain within a scan)
-    assert s.active_steps == ("X3", "X4") and s.fired == (2, 3)
-    assert s.value("M") is True  # stored action on activation of X3
-    assert s.fov == (False, False, True)  # P = M and X4
+    assert s.snapshot.active_steps == ("X3", "X4") and s.snapshot.fired == (2, 3)
+    assert s.snapshot.value("M") is True  # stored action on activation of X3
+    assert s.snapshot.fov == (False, False, True)  # P = M and X4
     s = session.scan_once()
-    assert s.active_steps == ("X3", "X4")  # join waits for b
+    assert s.snapshot.active_steps == ("X3", "X4")  # join waits for b
     plant.set_input("b", True)
     s = session.scan_once()
-    assert s.active_steps == ("X5",) and s.value("M") is False
+    assert s.snapshot.active_steps == ("X5",) and s.snapshot.value("M") is False
     plant.set_input("a", False)
     s = session.scan_once()  # X5.t = 10ms
-    assert s.active_steps == ("X5",)
+    assert s.snapshot.active_steps == ("X5",)
     s = session.scan_once()  # X5.t = 20ms -> back to X0
-    assert s.active_steps == ("X0",)
+    assert s.snapshot.active_steps == ("X0",)
 
 
 def test_conditional_action_follows_step_time(tmp_path):
@@ -82,7 +82,7 @@ def test_conditional_action_follows_step_time(tmp_path):
         plant: {kind: sim, model: valve}
     """}
     session = make_session(write_project(tmp_path / "c", files))
-    got = [(s.value("X0.t"), s.fov[1]) for s in run_scans(session, 5)]
+    got = [(s.snapshot.value("X0.t"), s.snapshot.fov[1]) for s in run_scans(session, 5)]
     assert got == [(0, True), (10_000, True), (20_000, True), (30_000, False), (40_000, False)]
 
 
@@ -108,7 +108,7 @@ def test_equations_set_reset_and_prev_through_engine(tmp_path):
         p.set_input("a", bool(a))
         p.set_input("b", bool(b))
         s = session.scan_once()
-        got.append((s.value("M"), s.fov[1]))
+        got.append((s.snapshot.value("M"), s.snapshot.fov[1]))
     # M set on the rise of a (scan 2), kept, reset by b (scan 5), reset wins at scan 6.
     assert [m for m, _ in got] == [False, True, True, True, False, False]
     # Z = a two scans ago and not a now: scans 4 (a at 2) and 5 (a at 3), not 6 (a is 1).

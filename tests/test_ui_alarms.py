@@ -8,7 +8,15 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ui_harness import palette, region_text, run_for, run_until, screen_text, wait_for_main
+from ui_harness import (
+    not_violating,
+    palette,
+    region_text,
+    run_for,
+    run_until,
+    screen_text,
+    wait_for_main,
+)
 from ui_scenarios import VALVE, make_app
 
 from hmi.engine.commands import InjectFault, StopDevice
@@ -48,7 +56,7 @@ async def conveyor_fault(pilot) -> None:
     """002 §4 (paper scenario): the conveyor stops for 2 s after 1 s of work; its monitor
     fires at x = 3 s, y = 1 s."""
     pilot.app.send(InjectFault(Injection("stop", 1_000_000, "C1", 2_000_000)))
-    await run_until(pilot, lambda s: any(m.detection for m in s.monitors), 5,
+    await run_until(pilot, lambda s: any(m.detection for m in s.snapshot.monitors), 5,
                     "the conveyor monitor's fault")
 
 
@@ -243,7 +251,7 @@ def footer_with(app, label: str, rows: int = 2) -> str | None:
 async def test_expand_the_explanation_level_by_level():
     app = make_app(control="faulty", policy="block")
     async with app.run_test(size=WIDE) as pilot:
-        await run_until(pilot, lambda s: bool(s.latched), 5, "safe blocking")
+        await run_until(pilot, lambda s: bool(s.snapshot.latched), 5, "safe blocking")
         app.explain("safe_state:filter", open_level=1)
         await settle(pilot)
         exp = next(e for e in app.link.session.last.explanations if e.key == "safe_state:filter")
@@ -299,7 +307,7 @@ async def test_the_explanation_heading_gives_the_priority_the_alarm_list_shows()
 async def test_click_a_level_heading_opens_and_folds_it():
     app = make_app(control="faulty", policy="block")
     async with app.run_test(size=WIDE) as pilot:
-        await run_until(pilot, lambda s: bool(s.latched), 5, "safe blocking")
+        await run_until(pilot, lambda s: bool(s.snapshot.latched), 5, "safe blocking")
         app.explain("safe_state:filter", open_level=1)
         await settle(pilot)
         assert await click(pilot, "#explain-consequences")
@@ -344,8 +352,8 @@ async def test_explain_with_nothing_to_explain_is_refused():
 async def test_click_a_constraint_opens_its_explanation():
     app = make_app(control="faulty")
     async with app.run_test(size=WIDE) as pilot:
-        await run_until(pilot, lambda s: s.filter is not None and "CSs2" in
-                        s.filter.violated_names, 5, "CSs2 violated")
+        await run_until(pilot, lambda s: s.snapshot.filter is not None and "CSs2" in
+                        s.snapshot.filter.violated_names, 5, "CSs2 violated")
         rows = app.query_one("#constraints").row_names
         assert await click(pilot, "#constraints", 3, 1 + rows.index("CSs2"))
         await settle(pilot)
@@ -387,9 +395,8 @@ async def test_policy_without_a_command_is_chosen_at_once():
 async def test_policy_fault_reset_is_confirmed_with_the_reset_preview():
     app = make_app(control="faulty", policy="block")
     async with app.run_test(size=WIDE) as pilot:
-        await run_until(pilot, lambda s: bool(s.latched), 5, "safe blocking")
-        await run_until(pilot, lambda s: s.filter is not None and not s.filter.violations,
-                        10, "the program no longer violating")
+        await run_until(pilot, lambda s: bool(s.snapshot.latched), 5, "safe blocking")
+        await run_until(pilot, not_violating, 10, "the program no longer violating")
         await open_policies(pilot, "safe_state:filter")
         await press(pilot, "enter")  # the recommended: fault reset
         await wait_for_screen(pilot, ConfirmDialog)
@@ -410,7 +417,7 @@ async def test_policy_cancelled_sends_nothing():
     seen = []
     app.link.session.listeners.append(lambda cmd, result, snap: seen.append(cmd))
     async with app.run_test(size=WIDE) as pilot:
-        await run_until(pilot, lambda s: bool(s.latched), 5, "safe blocking")
+        await run_until(pilot, lambda s: bool(s.snapshot.latched), 5, "safe blocking")
         await open_policies(pilot, "safe_state:filter")
         await press(pilot, "enter")
         await wait_for_screen(pilot, ConfirmDialog)
@@ -423,7 +430,7 @@ async def test_policy_cancelled_sends_nothing():
 async def test_policy_manual_enters_manual_mode_after_confirmation():
     app = make_app(control="faulty", policy="block")
     async with app.run_test(size=WIDE) as pilot:
-        await run_until(pilot, lambda s: bool(s.latched), 5, "safe blocking")
+        await run_until(pilot, lambda s: bool(s.snapshot.latched), 5, "safe blocking")
         await open_policies(pilot, "safe_state:filter")
         await press(pilot, "tab")  # the next policy
         assert app.focused.policy.id == "manual"
@@ -457,7 +464,7 @@ async def test_policy_stop_device_then_release_it_from_the_palette():
         assert engine(app).stopped_devices == {"Valve V1"}
         await run_for(pilot, 0.05)
         snap = app.link.session.last
-        assert snap.outputs == (False, False) and snap.fov == (False, False)
+        assert snap.snapshot.outputs == (False, False) and snap.snapshot.fov == (False, False)
         assert "DEVICE STOPPED" in region_text(app, "#banners")
         assert region_text(app, "#io").count("▲ stopped") == 2
         await palette(pilot, "Release device Valve V1")
@@ -489,7 +496,7 @@ async def test_policy_switch_the_filter_to_correct_under_monitor():
 async def test_policies_are_in_the_palette():
     app = make_app(control="faulty", policy="block")
     async with app.run_test(size=WIDE) as pilot:
-        await run_until(pilot, lambda s: bool(s.latched), 5, "safe blocking")
+        await run_until(pilot, lambda s: bool(s.snapshot.latched), 5, "safe blocking")
         app.explain("safe_state:filter", open_level=1)
         await settle(pilot)
         titles = [e.title for e in app.palette_entries()]
@@ -556,7 +563,7 @@ async def test_monitor_fault_reset_preview_and_policies():
         assert "can no longer end in time" in text
         await press(pilot, "n")
         await wait_for_main(pilot)
-        await run_until(pilot, lambda s: not next(m for m in s.monitors
+        await run_until(pilot, lambda s: not next(m for m in s.snapshot.monitors
                                                    if m.name == "conveyor").running,
                         5, "the late pallet arrives")
         app.send(StopDevice("Robot R1"))
@@ -571,8 +578,8 @@ async def test_monitor_fault_reset_preview_and_policies():
         await wait_for_main(pilot)
         await run_for(pilot, 0.01)
         snap = app.link.session.last
-        assert not any(m.detection for m in snap.monitors)
-        assert "Robot R1" in snap.stopped_devices
+        assert not any(m.detection for m in snap.snapshot.monitors)
+        assert "Robot R1" in snap.snapshot.stopped_devices
         assert "○ CLEARED-UNACK" in region_text(app, "#alarms")
 
 
@@ -625,7 +632,7 @@ async def test_every_key_stays_in_the_footer_at_80_columns_in_manual_mode():
 async def test_manual_keys_work_with_the_focus_on_a_policy_button():
     app = make_app(control="faulty", policy="block")
     async with app.run_test(size=(80, 24)) as pilot:
-        await run_until(pilot, lambda s: bool(s.latched), 5, "safe blocking")
+        await run_until(pilot, lambda s: bool(s.snapshot.latched), 5, "safe blocking")
         await press(pilot, "m")
         await wait_for_screen(pilot, ConfirmDialog)
         await press(pilot, "y")

@@ -13,11 +13,13 @@ from pathlib import Path
 import pytest
 from textual.command import CommandPalette
 from ui_harness import (
+    not_violating,
     palette,
     region_text,
     run_for,
     run_until,
     screen_text,
+    violating,
     wait_for_main,
     wait_live,
 )
@@ -68,11 +70,11 @@ def button_project(tmp_path: Path) -> Path:
 async def test_the_valve_is_seen_cycling():
     app = make_app()
     async with app.run_test(size=SIZE) as pilot:
-        await run_until(pilot, lambda s: "X2" in s.active_steps, 10, "the valve open")
+        await run_until(pilot, lambda s: "X2" in s.snapshot.active_steps, 10, "the valve open")
         snap = app.link.session.last
-        assert snap.value("fso") is True
+        assert snap.snapshot.value("fso") is True
         status = region_text(app, "#status")
-        assert f"scan {snap.scan}" in status and "AUTO" in status and "running" in status
+        assert f"scan {snap.snapshot.scan}" in status and "AUTO" in status and "running" in status
         io = region_text(app, "#io")
         assert any(line.split()[1:2] == ["fso"] and " 1 " in line for line in io.splitlines())
         control = region_text(app, "#control")
@@ -83,8 +85,8 @@ async def test_the_valve_is_seen_cycling():
         control = region_text(app, "#control")
         assert "● X2" in control and "○ X1" in control
         # A whole cycle later the chronogram holds both edges of the open order.
-        await run_until(pilot, lambda s: s.plant_counters and dict(s.plant_counters)["cycles"]
-                        >= 1, 20, "a full cycle")
+        await run_until(pilot, lambda s: bool(s.snapshot.plant_counters)
+                        and dict(s.snapshot.plant_counters)["cycles"] >= 1, 20, "a full cycle")
         chrono = region_text(app, "#chronogram")
         o_row = next(line for line in chrono.splitlines() if line.strip("│ ").startswith("O "))
         assert "▐" in o_row and "█" in o_row and "▌" in o_row and "▁" in o_row
@@ -336,16 +338,17 @@ async def test_manual_request_is_written_and_shown():
         assert "O requested on" in app.message.plain  # the answer comes at once
         await run_for(pilot, 0.05)
         assert "written 1" in app.message.plain
-        assert app.link.session.last.output_map["O"] is True
+        assert app.link.session.last.snapshot.output_map["O"] is True
         assert "forced 1" in region_text(app, "#io")
         assert "O=1" in region_text(app, "#banners")
         await run_for(pilot, 2.5)
-        assert app.link.session.last.value("fso") is True  # the valve opened under the force
+        # the valve opened under the force
+        assert app.link.session.last.snapshot.value("fso") is True
         await press(pilot, "x")
         await settle(pilot)
         assert engine(app).manual == {}
         await run_for(pilot, 0.05)
-        assert app.link.session.last.output_map["O"] is False
+        assert app.link.session.last.snapshot.output_map["O"] is False
 
 
 async def test_manual_request_on_an_input_is_refused_with_its_reason():
@@ -382,7 +385,7 @@ async def test_in_manual_mode_the_control_panel_and_the_dialogs_say_the_program_
     app = make_app(CONVEYOR)
     async with app.run_test(size=SIZE) as pilot:
         await run_for(pilot, 1.0)
-        assert app.link.session.last.active_steps == ("X2", "X11")
+        assert app.link.session.last.snapshot.active_steps == ("X2", "X11")
         assert "waiting" not in region_text(app, "#control")
         await press(pilot, "m")
         dialog = await wait_for_screen(pilot, ConfirmDialog)
@@ -402,7 +405,7 @@ async def test_in_manual_mode_the_control_panel_and_the_dialogs_say_the_program_
         assert "▲ waiting — manual mode" in control
         assert "● Conveyor carries the pallet to B" in control
         assert "● Robot transfers the pallet" in control
-        assert app.link.session.last.active_steps == ("X2", "X11")
+        assert app.link.session.last.snapshot.active_steps == ("X2", "X11")
         await press(pilot, "m")
         dialog = await wait_for_screen(pilot, ConfirmDialog)
         said = " ".join(map(str, dialog.lines))
@@ -418,7 +421,7 @@ async def test_in_manual_mode_the_control_panel_and_the_dialogs_say_the_program_
         assert "waiting" not in region_text(app, "#control")  # (commanded: resumes)
         await run_for(pilot, 0.05)
         assert "waiting" not in region_text(app, "#control")
-        assert app.link.session.last.active_steps == ("X3", "X11")
+        assert app.link.session.last.snapshot.active_steps == ("X3", "X11")
 
 
 async def test_a_request_not_written_as_asked_says_why():
@@ -541,7 +544,7 @@ async def test_policy_switch_is_confirmed():
 async def test_fault_injection_now_jams_the_valve():
     app = make_app()
     async with app.run_test(size=(120, 36)) as pilot:
-        await run_until(pilot, lambda s: "X1" in s.active_steps, 5, "opening")
+        await run_until(pilot, lambda s: "X1" in s.snapshot.active_steps, 5, "opening")
         await run_for(pilot, 0.5)
         await press(pilot, "f")
         await wait_for_screen(pilot, FaultDialog)
@@ -552,10 +555,11 @@ async def test_fault_injection_now_jams_the_valve():
         assert "SIMULATION" in app.message.plain
         await run_for(pilot, 3.0)
         snap = app.link.session.last
-        assert dict(snap.plant_state)["jammed"] is True
+        assert dict(snap.snapshot.plant_state)["jammed"] is True
         # {F3, F13} masks the valve; fso is read from its estimate, which says "open" once
         # the open order was held a full travel (2.45 s): the program goes on, masked.
-        assert snap.diagnosers[0].labels == ("F3", "F13") and snap.masked == ("C", "O")
+        assert snap.snapshot.diagnosers[0].labels == ("F3", "F13")
+        assert snap.snapshot.masked == ("C", "O")
         sim = region_text(app, "#sim")
         assert "SIMULATION" in sim and "JAMMED" in sim and "blocked between fsc and fso" in sim
         assert "damage" in sim  # the motor stalled against the jam
@@ -611,17 +615,17 @@ async def test_push_button_for_a_free_input(button_project):
     app = make_app(button_project)
     async with app.run_test(size=SIZE) as pilot:
         await run_for(pilot, 2.0)
-        assert app.link.session.last.active_steps == ("X0",)  # waits for the button
+        assert app.link.session.last.snapshot.active_steps == ("X0",)  # waits for the button
         assert "button up" in region_text(app, "#io")
         await select_row(pilot, "start")
         await press(pilot, "b")
         await run_for(pilot, 0.05)
-        assert app.link.session.last.value("start") is True
+        assert app.link.session.last.snapshot.value("start") is True
         assert "button pressed" in region_text(app, "#io")
-        assert "X1" in app.link.session.last.active_steps
+        assert "X1" in app.link.session.last.snapshot.active_steps
         await press(pilot, "b")
         await run_for(pilot, 0.05)
-        assert app.link.session.last.value("start") is False
+        assert app.link.session.last.snapshot.value("start") is False
 
 
 async def test_push_button_on_a_driven_input_is_refused(button_project):
@@ -776,8 +780,8 @@ async def test_wait_helpers_are_bounded():
 # -- the safety filter's report ------------------------------------------------------------
 
 
-def _changed(snap) -> bool:
-    return snap.filter is not None and bool(snap.filter.changes)
+def _changed(cell) -> bool:
+    return cell.snapshot.filter is not None and bool(cell.snapshot.filter.changes)
 
 
 async def test_filter_changes_are_shown_with_their_constraint():
@@ -786,12 +790,12 @@ async def test_filter_changes_are_shown_with_their_constraint():
         await press(pilot, "E")  # the rules by their names
         await run_until(pilot, _changed, 10, "a filter correction")
         snap = app.link.session.last
-        change = snap.filter.changes[0]
+        change = snap.snapshot.filter.changes[0]
         io = region_text(app, "#io")
         row = next(line for line in io.splitlines() if f"│ {change.output} " in line)
         assert "≠ filter" in row and change.by[0] in row
         constraints = region_text(app, "#constraints")
-        for name in snap.filter.violated_names:
+        for name in snap.snapshot.filter.violated_names:
             line = next(line for line in constraints.splitlines() if f" {name} " in line)
             assert "▲ corrected" in line
         assert "violated" in region_text(app, "#status")
@@ -799,8 +803,7 @@ async def test_filter_changes_are_shown_with_their_constraint():
         assert any(line.strip("│ ").startswith(f"{change.output}") and "≠" in line
                    for line in chrono.splitlines())
         # later, the history stays: counted, with its last time
-        await run_until(pilot, lambda s: s.filter is not None and not s.filter.violations, 10,
-                        "a scan without violation")
+        await run_until(pilot, not_violating, 10, "a scan without violation")
         constraints = region_text(app, "#constraints")
         assert f"{change.by[0]} · ×" in constraints and "last" in constraints
 
@@ -811,12 +814,11 @@ async def test_a_past_violation_keeps_its_level_1_explanation():
         await press(pilot, "E")  # the rules by their names
         await run_until(pilot, _changed, 10, "a filter correction")
         snap = app.link.session.last
-        name = snap.filter.violated_names[0]
+        name = snap.snapshot.filter.violated_names[0]
         what = next(e.what for e in snap.explanations if e.key == f"constraint:{name}")
         description = next(c.description for c in app.project.constraints if c.name == name)
         assert what != description
-        await run_until(pilot, lambda s: s.filter is not None and not s.filter.violations, 10,
-                        "a scan without violation")
+        await run_until(pilot, not_violating, 10, "a scan without violation")
         assert app.link.recorder.constraint_stats()[name].what == what
         row = next(line for line in region_text(app, "#constraints").splitlines()
                    if f" {name} " in line)
@@ -827,7 +829,7 @@ async def test_a_past_violation_keeps_its_level_1_explanation():
 async def test_manual_request_refused_by_the_filter_names_the_constraint():
     app = make_app()
     async with app.run_test(size=(120, 36)) as pilot:
-        await run_until(pilot, lambda s: "X2" in s.active_steps, 10, "the valve open")
+        await run_until(pilot, lambda s: "X2" in s.snapshot.active_steps, 10, "the valve open")
         await enter_manual(pilot)
         await select_row(pilot, "O")
         await press(pilot, "1")  # open order on an open valve: CSs2
@@ -835,7 +837,7 @@ async def test_manual_request_refused_by_the_filter_names_the_constraint():
         message = app.message.plain
         assert "NOT AS REQUESTED" in message and "written 0" in message
         assert "never hold the open order when the valve is open" in message
-        assert app.link.session.last.output_map["O"] is False
+        assert app.link.session.last.snapshot.output_map["O"] is False
         assert "≠ safety filter" in region_text(app, "#io")
         await press(pilot, "E")  # the engineering view: the constraint's name
         await run_for(pilot, 0.01)
@@ -845,17 +847,15 @@ async def test_manual_request_refused_by_the_filter_names_the_constraint():
 async def test_reset_under_safe_blocking_says_what_stays():
     app = make_app(control="faulty", policy="block")
     async with app.run_test(size=(120, 36)) as pilot:
-        await run_until(pilot, lambda s: bool(s.latched), 10, "safe blocking")
-        await run_until(pilot, lambda s: s.filter is not None and bool(s.filter.violations),
-                        10, "the program still violating")
+        await run_until(pilot, lambda s: bool(s.snapshot.latched), 10, "safe blocking")
+        await run_until(pilot, violating, 10, "the program still violating")
         await press(pilot, "r")
         await wait_for_screen(pilot, ConfirmDialog)
         text = screen_text(app)
         assert "stays" in text and "its cause is still present" in text
         await press(pilot, "n")
         await wait_for_main(pilot)
-        await run_until(pilot, lambda s: s.filter is not None and not s.filter.violations,
-                        10, "the program no longer violating")
+        await run_until(pilot, not_violating, 10, "the program no longer violating")
         await press(pilot, "r")
         await wait_for_screen(pilot, ConfirmDialog)
         assert "will be reset: outputs held safe: a safety rule was broken" in screen_text(app)
@@ -924,7 +924,7 @@ async def test_quit_asks_first_and_says_what_happens():
         assert app.is_running and app.return_code is None
         assert "cancelled: quit" in app.message.plain
         await run_for(pilot, 0.1)
-        assert app.link.session.last.output_map["O"] is True  # still in control
+        assert app.link.session.last.snapshot.output_map["O"] is True  # still in control
         await press(pilot, "q")
         await wait_for_screen(pilot, ConfirmDialog)
         await press(pilot, "y")

@@ -47,7 +47,7 @@ def test_alarm_rows_keep_a_gap_between_every_column_at_every_width():
 
 def test_diagnoser_rows_keep_a_gap_between_name_state_and_decision():
     session = faulty_valve()
-    snap = session.last
+    snap = session.last.snapshot
     project = session.engine.project
     partitions = {p.flag: PartitionInfo(p.flag, p.sensor, p.estimate, p.actuators)
                   for spec in diagnosers_of(project) for p in spec.partitions}

@@ -42,9 +42,9 @@ class ScanFirst:
 def last_scan_of_an_episode(control: str = "faulty", limit: int = 3000) -> tuple[int, str]:
     """A scan after which a violation episode ends (the same run, replayed on a twin engine)."""
     twin = make_session(VALVE, control=control)
-    before = twin.scan_once()
+    before = twin.scan_once().snapshot
     for _ in range(limit):
-        after = twin.scan_once()
+        after = twin.scan_once().snapshot
         ended = set(before.filter.violated_names) - set(after.filter.violated_names)
         if ended:
             return before.scan, sorted(ended)[0]
@@ -56,8 +56,8 @@ async def test_a_scan_landing_while_a_frame_is_built_does_not_mix_two_scans():
     scan, name = last_scan_of_an_episode()
     app = make_app(control="faulty")
     async with app.run_test(size=(100, 30)) as pilot:
-        await run_until(pilot, lambda s: s.scan == scan, 60, f"scan {scan}")
-        assert name in app.link.session.last.filter.violated_names
+        await run_until(pilot, lambda s: s.snapshot.scan == scan, 60, f"scan {scan}")
+        assert name in app.link.session.last.snapshot.filter.violated_names
         app.link.recorder._lock = ScanFirst(app.link.recorder._lock, app.link.session.scan_once)
         app.poll(force=True)  # once a TypeError in the constraints panel
         await drain(pilot)

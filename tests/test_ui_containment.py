@@ -186,9 +186,9 @@ def test_an_app_crash_on_a_real_plant_leaves_the_cell_controlled(monkeypatch, tm
     link = SocketLink(project, place(project.name).socket, fingerprint(VALVE, None),
                       Identity("after", "operator"))
     assert link.first_frame.wait(60)
-    scan = link.last.scan
-    wait_for(lambda: link.last.scan > scan + 10, "the runtime scanning on")
-    assert link.last.plant.connected
+    scan = link.last.snapshot.scan
+    wait_for(lambda: link.last.snapshot.scan > scan + 10, "the runtime scanning on")
+    assert link.last.snapshot.plant.connected
     link.leave(stop_cell=True)
     wait_for(lambda: cell_runs() is None, "the runtime to stop")
     entries = journal_entries(path)
@@ -214,10 +214,10 @@ def test_a_dead_scan_thread_ends_the_runtime_abnormally(monkeypatch, tmp_path, c
     path = tmp_path / "j.jsonl"
     on_scan = JournalRecorder.on_scan
 
-    def failing(self, snapshot):
-        if snapshot.scan == 30:
+    def failing(self, cell):
+        if cell.snapshot.scan == 30:
             raise OSError(28, "No space left on device")
-        on_scan(self, snapshot)
+        on_scan(self, cell)
     monkeypatch.setattr(JournalRecorder, "on_scan", failing)
     assert main(["serve", str(VALVE), "--journal", str(path), "--no-realtime"]) == 1
     assert "the scan thread stopped: OSError" in capsys.readouterr().err

@@ -31,8 +31,15 @@ def flat(app, selector: str) -> str:
     return " ".join(" ".join(lines).split())
 
 
+def at_rest_open(cell) -> bool:
+    """No order, and the valve reads open."""
+    s = cell.snapshot
+    return not s.output_map["C"] and not s.output_map["O"] and s.value("fso") \
+        and not s.value("fsc")
+
+
 def decided(labels: tuple[str, ...]):
-    return lambda s: bool(s.diagnosers) and s.diagnosers[0].labels == labels
+    return lambda s: bool(s.snapshot.diagnosers) and s.snapshot.diagnosers[0].labels == labels
 
 
 async def inject(pilot, code: str, at_s: float, labels: tuple[str, ...]) -> None:
@@ -44,8 +51,8 @@ async def test_normal_diagnoser_is_quiet():
     app = make_app()
     async with app.run_test(size=WIDE) as pilot:
         await press(pilot, "E")  # the engineering view: the model's names
-        await run_until(pilot, lambda s: s.diagnosers and s.diagnosers[0].state == "N5", 10,
-                        "open at rest")
+        await run_until(pilot, lambda s: s.snapshot.diagnosers
+                        and s.snapshot.diagnosers[0].state == "N5", 10, "open at rest")
         text = region_text(app, "#diagnosers")
         assert "Diagnosers · 1" in text and "faulty" not in text
         assert "● V1 N5 Open at rest" in text
@@ -59,7 +66,7 @@ async def test_ambiguous_diagnosis_reads_as_such():
         await press(pilot, "E")  # the engineering view: the model's names
         await inject(pilot, "F1", 10, ("F1", "F13"))
         snap = app.link.session.last
-        assert set(snap.masked) == {"C", "O"} and snap.reconstructed == ("fsc",)
+        assert set(snap.snapshot.masked) == {"C", "O"} and snap.snapshot.reconstructed == ("fsc",)
         text = region_text(app, "#diagnosers")
         assert "✗ V1 A1" in text and "1 faulty" in text
         assert "{F1, F13} ? ambiguous" in text
@@ -98,7 +105,7 @@ async def test_certain_diagnosis_recommends_running_degraded():
         await press(pilot, "E")  # the engineering view: the model's names
         await inject(pilot, "F9", 10, ("F9",))
         snap = app.link.session.last
-        assert snap.reconstructed == ("fso",) and snap.masked == ()
+        assert snap.snapshot.reconstructed == ("fso",) and snap.snapshot.masked == ()
         assert "F9 ✗ certain  unexpected fso rise" in region_text(app, "#diagnosers")
         assert "≈ estimated open position" in region_text(app, "#io")
         explained = flat(app, "#explain")
@@ -134,8 +141,7 @@ async def test_reset_re_synchronises_a_diagnoser_only_when_the_io_allows_it():
     app = make_app()
     async with app.run_test(size=WIDE) as pilot:
         await inject(pilot, "F9", 10, ("F9",))
-        await run_until(pilot, lambda s: not s.output_map["C"] and not s.output_map["O"]
-                        and s.value("fso") and not s.value("fsc"), 10, "the valve at rest")
+        await run_until(pilot, at_rest_open, 10, "the valve at rest")
         await press(pilot, "r")
         await wait_for_screen(pilot, ConfirmDialog)
         text = screen_text(app)
@@ -148,7 +154,7 @@ async def test_reset_re_synchronises_a_diagnoser_only_when_the_io_allows_it():
         await press(pilot, "y")
         await wait_for_main(pilot)
         assert engine(app).diagnosis.runtimes[0].state.name == "N5"
-        await run_until(pilot, lambda s: not s.diagnosers[0].faulty, 1, "the next scan")
+        await run_until(pilot, lambda s: not s.snapshot.diagnosers[0].faulty, 1, "the next scan")
         assert "faulty" not in region_text(app, "#diagnosers")
         assert "○ CLEARED-UNACK" in region_text(app, "#alarms")
 

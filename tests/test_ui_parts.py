@@ -12,6 +12,7 @@ from hmi.engine.snapshot import LatchReason
 from hmi.explain.reset import PREVIEWS, ResetLine, reset_preview
 from hmi.plant.base import PlantStatus
 from hmi.session.recorder import ScanRecorder, Trace
+from hmi.session.view import CellView
 from hmi.ui.chronogram import FALL, HIGH, LOW, MULTI, RISE, UNKNOWN, axis, columns
 from hmi.ui.fault_dialog import parse_delay
 from hmi.ui.frame import Frame
@@ -71,14 +72,14 @@ def test_recorder_trace_initial_value_and_window():
 
 
 def _frame(snap, **kw) -> Frame:
-    return Frame(snapshot=snap, run=kw.pop("run", "running"), speed=1.0, live=False,
+    return Frame(cell=CellView(snap), run=kw.pop("run", "running"), speed=1.0, live=False,
                  project="cispi_valve", **kw)
 
 
 def _snapshot(**changes):
     session = make_session(PROJECTS / "cispi_valve")
     session.run_for(1_500_000)
-    return session.last._replace(**changes)
+    return session.last.snapshot._replace(**changes)
 
 
 def test_status_keeps_alarms_and_mode_when_narrow():
@@ -230,8 +231,8 @@ def test_recorder_counts_violation_episodes_from_every_scan():
     recorder = ScanRecorder(session.engine.layout)
     violated_scans: dict[str, int] = {}
 
-    def count(snap):
-        for name in snap.filter.violated_names:
+    def count(cell):
+        for name in cell.snapshot.filter.violated_names:
             violated_scans[name] = violated_scans.get(name, 0) + 1
 
     session.scan_listeners.extend([recorder.on_scan, count])
@@ -354,7 +355,7 @@ def test_manual_dialog_lines_name_the_steps_and_the_orders_given_again(tmp_path)
     session = make_session(PROJECTS / "conveyor_robot")
     project = session.engine.project
     law = project.controls[session.engine.control_name]
-    snap = session.scan_once()
+    snap = session.scan_once().snapshot
     assert snap.active_steps == ("X1", "X11")
     assert manual.ordered_again(project, law, snap.active_steps) == ("d", "G")
     assert manual.steps_text(law, ("X3", "X10")) == (
@@ -379,7 +380,7 @@ def test_manual_dialog_lines_name_the_steps_and_the_orders_given_again(tmp_path)
     session = make_session(folder)
     project = session.engine.project
     law = project.controls[session.engine.control_name]
-    snap = session.scan_once()
+    snap = session.scan_once().snapshot
     assert manual.enter_lines(project, law, snap) == [
         "The control program waits: its equations are not evaluated and its memories hold "
         "until you leave manual mode; it then resumes from there."]

@@ -27,15 +27,15 @@ async def test_the_chronogram_says_what_its_mark_means_and_keeps_whole_names_whe
 
     app = make_app(control="faulty")
     async with app.run_test(size=(160, 48)) as pilot:
-        await run_until(pilot, lambda s: s.filter is not None and bool(s.filter.changes), 10,
-                        "a filter correction")
+        await run_until(pilot, lambda s: s.snapshot.filter is not None
+                        and bool(s.snapshot.filter.changes), 10, "a filter correction")
         await run_until(pilot, lambda s: True, 0.05, "a frame")
         chrono = region_text(app, "#chronogram")
         assert "≠" in chrono and "≠: the filter changed it" in chrono
     from hmi.ui.chronogram import Chronogram
     app = make_app(PROJECTS / "palletizer")
     async with app.run_test(size=(160, 48)) as pilot:
-        await run_until(pilot, lambda s: s.scan > 2, 1, "a few scans")
+        await run_until(pilot, lambda s: s.snapshot.scan > 2, 1, "a few scans")
         chrono = app.query_one(Chronogram)
         rows = [line.strip("│ ").split() for line in
                 region_text(app, "#chronogram").splitlines()[1:-2]]
@@ -115,7 +115,7 @@ async def test_a_long_state_never_pushes_the_io_descriptions_off_a_wide_screen()
 
     app = make_app(control="faulty", policy="block")
     async with app.run_test(size=(160, 48)) as pilot:
-        await run_until(pilot, lambda s: bool(s.latched), 20, "safe blocking")
+        await run_until(pilot, lambda s: bool(s.snapshot.latched), 20, "safe blocking")
         await run_until(pilot, lambda s: True, 0.1, "a frame")
         io = region_text(app, "#io")
         assert "≠ held safe" in io
@@ -132,7 +132,7 @@ async def test_a_step_description_cut_to_fit_says_so():
 
     app = make_app(control="faulty")
     async with app.run_test(size=(80, 24)) as pilot:
-        await run_until(pilot, lambda s: "X3" in s.active_steps, 12, "closing")
+        await run_until(pilot, lambda s: "X3" in s.snapshot.active_steps, 12, "closing")
         await run_until(pilot, lambda s: True, 0.05, "a frame")
         line = next(line for line in region_text(app, "#control").splitlines()
                     if "Closing for a fixed" in line)

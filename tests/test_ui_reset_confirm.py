@@ -25,12 +25,12 @@ SIZE = (100, 30)
 
 
 def diagnoser(app):
-    return next(d for d in app.link.session.last.diagnosers if d.name == "V1")
+    return next(d for d in app.link.session.last.snapshot.diagnosers if d.name == "V1")
 
 
 def resync_to(target: str):
     return lambda s: any(d.name == "V1" and d.faulty and d.resync == target
-                         for d in s.diagnosers)
+                         for d in s.snapshot.diagnosers)
 
 
 async def dialog_text(pilot, since: ConfirmDialog | None = None) -> str:
@@ -54,7 +54,7 @@ async def test_a_reset_confirmed_after_the_cell_moved_is_asked_again_with_what_c
     JournalRecorder(app.link.session, Journal(journal), "test")
     async with app.run_test(size=SIZE) as pilot:
         await run_until(pilot, resync_to("N5"), 13, "V1 faulty, a reset re-synchronising it")
-        opened_at = app.link.session.last.scan
+        opened_at = app.link.session.last.snapshot.scan
         await press(pilot, "r")
         text = await dialog_text(pilot)
         assert "will be reset: Valve V1's diagnosis: unexpected fso" in text
@@ -99,7 +99,7 @@ async def test_a_reset_that_would_now_do_nothing_is_not_sent_as_if_it_would(tmp_
         first = app.screen
         # travelling: no normal state matches, a reset would leave the diagnoser where it is
         await run_until(pilot, lambda s: any(d.name == "V1" and d.faulty and not d.resync
-                                             for d in s.diagnosers), 5, "V1 travelling")
+                                             for d in s.snapshot.diagnosers), 5, "V1 travelling")
         await press(pilot, "y")
         text = await dialog_text(pilot, since=first)
         assert "► ▲ stays: Valve V1's diagnosis: unexpected fso" in text

@@ -79,7 +79,8 @@ class Elsewhere:
 
 async def caught_up(pilot, app: PlcHmiApp, scan: int) -> None:
     """Until this screen's frames show `scan` (pushed by the runtime: a wait on state)."""
-    wait_for(lambda: app.link.last.scan >= scan, f"scan {scan} on {app.link.identity.user}")
+    wait_for(lambda: app.link.last.snapshot.scan >= scan,
+             f"scan {scan} on {app.link.identity.user}")
     await settle(pilot)
 
 
@@ -94,7 +95,7 @@ async def test_two_hmis_see_the_alarm_the_other_acknowledged_and_who_is_in_contr
             bob_screen = Elsewhere(bob)
             alice.driver.advance(8_000_000)
             await settle(pa)
-            scan = alice.link.last.scan
+            scan = alice.link.last.snapshot.scan
             bob_screen.do(caught_up, bob, scan)
             first = next(a for a in alice.link.last.alarms if a.state == ACTIVE_UNACK)
             assert "▲ UNACK" in region_text(bob, "#alarms")
@@ -108,7 +109,7 @@ async def test_two_hmis_see_the_alarm_the_other_acknowledged_and_who_is_in_contr
             await press(pa, "A")
             alice.driver.advance(10_000)
             await settle(pa)
-            bob_screen.do(caught_up, bob, alice.link.last.scan)
+            bob_screen.do(caught_up, bob, alice.link.last.snapshot.scan)
             states = {a.key: a.state for a in bob.link.last.alarms}
             assert states[first.key] == ACTIVE_ACK
             assert "● ACK" in region_text(bob, "#alarms")
@@ -132,7 +133,7 @@ async def test_two_hmis_see_the_alarm_the_other_acknowledged_and_who_is_in_contr
             # now bob acknowledges what is left, and alice sees it
             bob_screen.do(press, "A")
             bob.link.advance(10_000)
-            await caught_up(pa, alice, bob.link.last.scan)
+            await caught_up(pa, alice, bob.link.last.snapshot.scan)
             assert all(a.state != ACTIVE_UNACK for a in alice.link.last.alarms)
             assert "▲ UNACK" not in region_text(alice, "#alarms")
     finally:

@@ -12,8 +12,8 @@ from hmi.ui.alarm_list import AlarmList
 from hmi.ui.headless import press, settle, wait_until
 
 
-def transfers(snap) -> int:
-    return dict(snap.plant_counters)["R1.transfers"]
+def transfers(cell) -> int:
+    return dict(cell.snapshot.plant_counters)["R1.transfers"]
 
 
 async def test_the_stuck_conveyor_says_what_it_waits_for_and_the_way_back_works():
@@ -27,7 +27,7 @@ async def test_the_stuck_conveyor_says_what_it_waits_for_and_the_way_back_works(
         await run_for(pilot, 5)
         await press(pilot, "m", "y")
         await wait_for_main(pilot)
-        await run_until(pilot, lambda s: "X3" in s.overdue_steps, 12, "X3 overdue")
+        await run_until(pilot, lambda s: "X3" in s.snapshot.overdue_steps, 12, "X3 overdue")
         await settle(pilot)
         control = region_text(app, "#control")
         assert "✗ stuck" in control and "✗ X3  A pallet waits at B" in control
@@ -55,7 +55,7 @@ async def test_the_stuck_conveyor_says_what_it_waits_for_and_the_way_back_works(
         assert "stuck" not in region_text(app, "#control")
         await select_row(pilot, "d")
         await press(pilot, "1")
-        await run_until(pilot, lambda s: s.value("B"), 5, "a pallet at B")
+        await run_until(pilot, lambda s: s.snapshot.value("B"), 5, "a pallet at B")
         await settle(pilot)
         assert "waits for B and e — B 1, e 1 ✓" in region_text(app, "#control")
         await press(pilot, "x")
@@ -63,7 +63,7 @@ async def test_the_stuck_conveyor_says_what_it_waits_for_and_the_way_back_works(
         await wait_for_main(pilot)
         await run_for(pilot, 20)
         assert transfers(session.last) >= before + 5
-        assert session.last.overdue_steps == ()
+        assert session.last.snapshot.overdue_steps == ()
         assert not any(a.key.startswith("step:") and a.state.startswith("active")
                        for a in session.last.alarms)
         assert "stuck" not in region_text(app, "#control")

@@ -15,7 +15,7 @@ SIZE = (160, 48)
 
 
 def texts(app) -> list[str]:
-    return [a.text for a in app.frame.snapshot.alarms]
+    return [a.text for a in app.frame.cell.alarms]
 
 
 async def test_a_valve_seen_between_its_ends_is_not_said_to_be_stopped_there():
@@ -70,7 +70,7 @@ async def test_under_monitor_every_unprotected_violation_is_p1():
         await run_until(pilot, lambda s: any(a.key == "constraint:CSc1" for a in s.alarms),
                         30, "open and close ordered together")
         await run_for(pilot, 0.1)
-        alarms = {a.key: a for a in app.frame.snapshot.alarms}
+        alarms = {a.key: a for a in app.frame.cell.alarms}
         both = alarms["constraint:CSc1"]
         assert "NOT corrected" in both.text and both.priority == 1, both
         assert all(a.priority == 1 for k, a in alarms.items() if k.startswith("constraint:"))

@@ -214,7 +214,7 @@ async def test_the_urgent_count_is_whole_when_the_fields_always_kept_are_too_wid
         app.release_control()
         await run_for(pilot, 0.1)
         snap = app.link.last
-        assert snap.mode == "recovery" and app.frame.control.holder is None
+        assert snap.snapshot.mode == "recovery" and app.frame.control.holder is None
         assert sum(a.priority == 1 and a.state == ACTIVE_UNACK for a in snap.alarms) == 1
         status = top_lines(app, 1)[0]
         for word in ("✗ 1 P1 unack", "▲ RECOVERY", "correct", "▶ run ×1"):
@@ -281,4 +281,4 @@ async def test_the_io_rows_the_selected_alarm_is_about_are_on_screen_at_80x24():
                 if len(line.split()) > 1]
         assert "ROT90" in rows, rows
         table = app.query_one("#io")
-        assert table.cursor_row == len(app.link.last.layout.inputs)  # where it starts
+        assert table.cursor_row == len(app.link.last.snapshot.layout.inputs)  # where it starts

@@ -15,6 +15,7 @@ from rich.console import Console
 from textual.command import CommandInput, CommandList, CommandPalette
 from textual.pilot import Pilot
 
+from hmi.session.view import CellView
 from hmi.ui.app import PlcHmiApp
 from hmi.ui.driver import VirtualDriver
 from hmi.ui.headless import WaitTimeout, press, settle, wait_for_screen, wait_until
@@ -63,10 +64,23 @@ async def run_for(pilot: Pilot, seconds: float) -> int:
 
 
 async def run_until(pilot: Pilot, predicate: Callable, limit_s: float, what: str) -> None:
-    """Run virtual time until `predicate(snapshot)`; fail if `limit_s` virtual seconds pass."""
+    """Run virtual time until `predicate(cell)` (the session's CellView of a scan); fail if
+    `limit_s` virtual seconds pass."""
     if not driver(pilot).advance_until(predicate, int(limit_s * 1_000_000)):
         raise WaitTimeout(f"{what} did not happen within {limit_s:g} s of virtual time")
     await settle(pilot)
+
+
+def violating(cell: CellView) -> bool:
+    """A run_until predicate: the filter checked this scan and found a rule violated."""
+    report = cell.snapshot.filter
+    return report is not None and bool(report.violations)
+
+
+def not_violating(cell: CellView) -> bool:
+    """A run_until predicate: the filter checked this scan and found no rule violated."""
+    report = cell.snapshot.filter
+    return report is not None and not report.violations
 
 
 async def palette(pilot: Pilot, query: str, expect: str | None = None) -> None:

@@ -89,7 +89,7 @@ async def fault_f13(pilot: Pilot) -> None:
     """SIMULATION: F13 injected while opening; the valve jams at 40 % (the motor stalls
     before any arrival deadline can expire), the diagnoser concludes {F3, F13} when fso does
     not come: fso reconstructed, both orders masked."""
-    await run_until(pilot, lambda s: "X1" in s.active_steps, 5, "the opening step")
+    await run_until(pilot, lambda s: "X1" in s.snapshot.active_steps, 5, "the opening step")
     await run_for(pilot, 0.8)
     await press(pilot, "f")
     await wait_for_screen(pilot, FaultDialog)
@@ -123,7 +123,7 @@ async def inject_by_dialog(pilot: Pilot, index: int, delay: str) -> None:
 
 
 def decided(labels: tuple[str, ...]):
-    return lambda s: bool(s.diagnosers) and s.diagnosers[0].labels == labels
+    return lambda s: bool(s.snapshot.diagnosers) and s.snapshot.diagnosers[0].labels == labels
 
 
 async def diagnosis_certain(pilot: Pilot) -> None:
@@ -165,7 +165,7 @@ async def diagnosis_ambiguous_state(pilot: Pilot) -> None:
 async def manual_refused(pilot: Pilot) -> None:
     """Manual mode, the valve open: the operator asks for the open order, the filter refuses
     it (CSs2: never hold the open order on an open valve) and the answer says so."""
-    await run_until(pilot, lambda s: "X2" in s.active_steps, 10, "the valve open")
+    await run_until(pilot, lambda s: "X2" in s.snapshot.active_steps, 10, "the valve open")
     await press(pilot, "m")
     await wait_for_screen(pilot, ConfirmDialog)
     await press(pilot, "y")
@@ -178,7 +178,7 @@ async def manual_refused(pilot: Pilot) -> None:
 async def monitor_fault(pilot: Pilot) -> None:
     """Conveyor/robot, 002 §4 paper scenario (C1.stop@1s+2s): the conveyor's monitor fires
     at x = 3 s, y = 1 s, two seconds before a watchdog would; its explanation opened."""
-    await run_until(pilot, lambda s: any(m.detection for m in s.monitors), 5,
+    await run_until(pilot, lambda s: any(m.detection for m in s.snapshot.monitors), 5,
                     "the conveyor monitor's fault")
     await run_for(pilot, 0.5)
     await press(pilot, "e")
@@ -196,7 +196,7 @@ async def conveyor_stuck(pilot: Pilot) -> None:
     await run_for(pilot, 5)
     await press(pilot, "m", "y")
     await wait_for_main(pilot)
-    await run_until(pilot, lambda s: "X3" in s.overdue_steps, 12, "X3 overdue")
+    await run_until(pilot, lambda s: "X3" in s.snapshot.overdue_steps, 12, "X3 overdue")
     await run_for(pilot, 0.5)
     await press(pilot, "tab")
     await wait_until(pilot, lambda: isinstance(pilot.app.focused, AlarmList), "the list")
@@ -218,7 +218,7 @@ async def alarms_80x24(pilot: Pilot) -> None:
 async def recovery(pilot: Pilot) -> None:
     """F13 at 10.4 s jams the valve 78 % open; repaired, the fault reset cannot re-synchronise
     the diagnoser and offers the recovery (g); confirmed, the valve closes in recovery mode."""
-    await run_until(pilot, lambda s: s.recovery.needed, 20, "recovery needed")
+    await run_until(pilot, lambda s: s.snapshot.recovery.needed, 20, "recovery needed")
     await palette(pilot, "SIMULATION: repair")
     await press(pilot, "r")
     await wait_for_screen(pilot, ConfirmDialog)

@@ -36,8 +36,8 @@ if TYPE_CHECKING:
     from asyncua import ua
     from asyncua.client.client import Client
 
-    from hmi.engine.snapshot import Snapshot
     from hmi.session.session import Session
+    from hmi.session.view import CellView
 
 SECTION = "history"
 HELP = ("historian: scan jitter p99 with/without at 10 ms, its cost per scan, SQLite size of "
@@ -137,10 +137,10 @@ def record(length_us: int, path: Path) -> dict[str, Any]:
     clock = time.perf_counter_ns
     inner = historian.on_scan
 
-    def timed(snap: Snapshot) -> None:
+    def timed(cell: CellView) -> None:
         nonlocal worst
         t0 = clock()
-        inner(snap)
+        inner(cell)
         spent = clock() - t0
         bins[min(BINS - 1, spent // BIN_NS)] += 1
         if spent > worst:

@@ -30,7 +30,7 @@ from hmi.bench import percentile
 from hmi.bench.ui import PERIOD_US, PROJECT, SETTLE_S, jitter_line, valve_session, with_ui
 
 if TYPE_CHECKING:
-    from hmi.engine.snapshot import Snapshot
+    from hmi.session.view import CellView
 
 SECTION = "opcua"
 HELP = ("OPC UA server at a 10 ms scan: jitter and scan time without/with the server and a "
@@ -104,9 +104,9 @@ def measure(seconds: float, server: bool, client: bool) -> dict[str, Any]:
     ends: dict[int, float] = {}
     walls: list[float] = []
 
-    def listener(snap: Snapshot) -> None:  # the bench's own cost, the same in every set-up
-        ends[snap.scan] = time.monotonic()
-        walls.append(snap.scan_wall_us)
+    def listener(cell: CellView) -> None:  # the bench's own cost, the same in every set-up
+        ends[cell.snapshot.scan] = time.monotonic()
+        walls.append(cell.scan_wall_us)
 
     session.scan_listeners.append(listener)
     cell = proc = None

@@ -19,8 +19,8 @@ from hmi.errors import UsageError
 
 if TYPE_CHECKING:
     from hmi.cli.common import Subparsers
-    from hmi.engine.snapshot import Snapshot
     from hmi.runtime.place import Place
+    from hmi.session.view import CellView
 
 
 def add_parsers(sub: Subparsers) -> None:
@@ -103,8 +103,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
                                    default_on=not args.virtual)
         connect_plant(engine, args.connect_timeout)
         if outputs.writer is not None:  # (before the runtime's first scan: it is traced too)
-            def traced(snap: Snapshot) -> None:
-                if outputs is not None and outputs.write(snap):
+            def traced(cell: CellView) -> None:
+                if outputs is not None and outputs.write(cell.snapshot):
                     outputs.leave_safe()
                     if runtime is not None:
                         runtime.end(f"the trace could not be written: {outputs.failure}")

@@ -29,8 +29,8 @@ if TYPE_CHECKING:
 
     from hmi.cli.common import Subparsers
     from hmi.engine.scan import Engine
-    from hmi.engine.snapshot import Snapshot
     from hmi.history.historian import Historian
+    from hmi.session.view import CellView
 
 
 def add_parser(sub: Subparsers) -> None:
@@ -96,9 +96,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise
     settle_memory()
     started = time.perf_counter()
-    def on_scan(snap: Snapshot) -> None:
-        collector.add(snap)
-        if outputs.write(snap):
+    def on_scan(cell: CellView) -> None:
+        collector.add(cell)
+        if outputs.write(cell.snapshot):
             raise _OutputFailed
 
     # Without a trace, a quiet scan (nothing new: Session.run_for) is only counted.
@@ -120,7 +120,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     collector.finish(last)
     if scenario:
         print(f"Scenario {scenario.name}: {scenario.description}")
-    print(run_summary(engine, last, collector, injections, wall, trace=outputs.trace))
+    print(run_summary(engine, last.snapshot, collector, injections, wall,
+                      trace=outputs.trace))
     print(alarm_summary(collector, args.explain))
     print(f"Journal: {outputs.recorder.journal.path}")
     history_line(historian)
@@ -182,9 +183,9 @@ def run_real_time(engine: Engine, args: argparse.Namespace, duration_us: int | N
         announce(server, engine.project.name)
         connect_plant(engine, args.connect_timeout or 10_000_000)
 
-        def on_scan(snap: Snapshot) -> bool:
-            collector.add(snap)
-            if outputs.write(snap):
+        def on_scan(cell: CellView) -> bool:
+            collector.add(cell)
+            if outputs.write(cell.snapshot):
                 outputs.leave_safe()
                 return True
             return False
@@ -210,7 +211,7 @@ def run_real_time(engine: Engine, args: argparse.Namespace, duration_us: int | N
     last = session.last
     if last is None:
         return 130 if interrupted else 0
-    print(run_summary(engine, last, collector, [], wall, trace=outputs.trace,
+    print(run_summary(engine, last.snapshot, collector, [], wall, trace=outputs.trace,
                       time_kind="real"))
     print(alarm_summary(collector, args.explain))
     if plant.is_real:

@@ -75,18 +75,12 @@ class _Fields(NamedTuple):
     plant_state: tuple[tuple[str, Any], ...] = ()
     plant_counters: tuple[tuple[str, int], ...] = ()
     plant_events: tuple[PlantEvent, ...] = ()  # events that happened during this scan
-    # Filled by the safety filter, diagnosers, monitors and (hmi.session) explanations.
+    # Filled by the safety filter, diagnosers and monitors.
     filter: FilterReport | None = None
     diagnosers: tuple[DiagnoserState, ...] = ()
     monitors: tuple[MonitorState, ...] | LazyMonitors = ()
     reconstructed: tuple[str, ...] = ()  # sensors running on their reconstruction
     masked: tuple[str, ...] = ()  # outputs masked by a faulty actuator's flag
-    # hmi.explain's Explanation, Alarm, AlarmEvent: the session fills them (the engine does
-    # not import the layer above it).
-    explanations: tuple[Any, ...] = ()
-    alarms: tuple[Any, ...] = ()
-    alarm_events: tuple[Any, ...] = ()  # alarm transitions during this scan (for the journal)
-    shelved: tuple[Any, ...] = ()  # (Alarm, Shelf) of the alarms shelved, not listed
     stopped_devices: tuple[str, ...] = ()  # devices the operator stopped
     recovery: RecoveryState = NO_RECOVERY  # the recovery procedure running, and those needed
     error: str | None = None  # an internal error caught during this scan
@@ -156,22 +150,4 @@ class Snapshot(_Fields):
         return bool(self.latched)
 
 
-_EXPLANATIONS, _ALARMS, _ALARM_EVENTS, _SHELVED, _ERROR, _SCAN_WALL, _MONITORS = (
-    Snapshot._fields.index(name)
-    for name in ("explanations", "alarms", "alarm_events", "shelved", "error",
-                 "scan_wall_us", "monitors"))
-
-
-def explained(core: Snapshot, explanations: tuple[Any, ...], alarms: tuple[Any, ...],
-              alarm_events: tuple[Any, ...], error: str | None, scan_wall_us: float,
-              shelved: tuple[Any, ...] = ()) -> Snapshot:
-    """`core` with the session's fields set: ``core._replace(...)`` without its cost (it
-    runs once per scan, and _replace builds a dict and maps every field)."""
-    fields = list(core)
-    fields[_EXPLANATIONS] = explanations
-    fields[_ALARMS] = alarms
-    fields[_ALARM_EVENTS] = alarm_events
-    fields[_SHELVED] = shelved
-    fields[_ERROR] = error
-    fields[_SCAN_WALL] = scan_wall_us
-    return tuple.__new__(Snapshot, fields)
+_MONITORS = Snapshot._fields.index("monitors")

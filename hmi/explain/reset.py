@@ -8,7 +8,9 @@ changes. It also names what a reset does *not* touch although the operator may e
 to: devices the operator stopped (released from the palette).
 
 Each feature that latches something adds a *preview* function to :data:`PREVIEWS`; the
-dialog shows the lines of all of them. A preview only reads the snapshot.
+dialog shows the lines of all of them, then those of the latched alarms (:func:`alarm_preview`
+reads the session's alarm list, which the snapshot does not carry) and of the stopped
+devices. A preview only reads the snapshot.
 
 The cell keeps running while the dialog is open, so what the operator read can stop being
 true before they confirm (a valve moving on: the diagnoser would now re-synchronise to
@@ -25,6 +27,7 @@ from dataclasses import dataclass
 
 from hmi.engine.monitors import MonitorState
 from hmi.engine.snapshot import LatchReason, Snapshot
+from hmi.explain.alarms import Alarm
 from hmi.explain.plain import latch_words, lower_first, without_notes
 from hmi.timefmt import seconds
 
@@ -202,9 +205,10 @@ def _alarm_released(snap: Snapshot, key: str) -> bool | None:
     return None
 
 
-def alarm_preview(snap: Snapshot) -> Iterable[ResetLine]:
-    """Latched alarms clear with what latched them; they stay listed until acknowledged."""
-    latched = [a for a in snap.alarms if getattr(a, "latched", False) and a.active]
+def alarm_preview(snap: Snapshot, alarms: tuple[Alarm, ...]) -> Iterable[ResetLine]:
+    """Latched alarms (of the alarm list `alarms`) clear with what latched them; they stay
+    listed until acknowledged."""
+    latched = [a for a in alarms if a.latched and a.active]
     released = [a for a in latched if _alarm_released(snap, a.key) is not False]
     kept = len(latched) - len(released)
     if released:
@@ -226,12 +230,16 @@ def stopped_preview(snap: Snapshot) -> Iterable[ResetLine]:
 
 
 PREVIEWS: list[ResetPreview] = [latch_preview, diagnoser_preview, monitor_preview,
-                                 recovery_preview, alarm_preview, stopped_preview]
+                                 recovery_preview]
 
 
-def reset_preview(snap: Snapshot) -> list[ResetLine]:
-    """Every line the registered previews give for this snapshot, resets first."""
+def reset_preview(snap: Snapshot, alarms: tuple[Alarm, ...] = ()) -> list[ResetLine]:
+    """Every line the registered previews give for this snapshot; then the latched alarms
+    of the alarm list `alarms` (they clear with those latches, so they follow them) and the
+    devices the operator stopped (a reset never releases them); resets first."""
     lines = [line for preview in PREVIEWS for line in preview(snap)]
+    lines += alarm_preview(snap, alarms)
+    lines += stopped_preview(snap)
     return sorted(lines, key=lambda line: not line.resets)
 
 

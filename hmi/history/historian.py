@@ -24,7 +24,6 @@ from decimal import Decimal, InvalidOperation
 from pathlib import Path
 from typing import Any
 
-from hmi.engine.snapshot import Snapshot
 from hmi.explain.model import Explanation, Policy
 from hmi.history.catalogue import Catalogue, catalogue
 from hmi.history.recorder import QUEUE_LIMIT, HistoryRecorder, SampleQueue
@@ -33,6 +32,7 @@ from hmi.history.target import Target, open_store
 from hmi.history.writer import DEFAULT_RETENTION_US, FLUSH_S, HistoryWriter, WriterStatus
 from hmi.session.journal_recorder import JournalRecorder
 from hmi.session.session import Session
+from hmi.session.view import CellView
 
 KEY = "history"  # the situation's key, hence the alarm's (Session.report)
 
@@ -114,9 +114,9 @@ class Historian:
         return self.writer.status
 
     # -- what it hears ------------------------------------------------------------------------
-    def on_scan(self, snap: Snapshot) -> None:
+    def on_scan(self, view: CellView) -> None:
         try:
-            self.recorder.on_scan(snap)
+            self.recorder.on_scan(view)
         except Exception as exc:
             self._broken("recording a scan", exc)
 

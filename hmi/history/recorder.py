@@ -30,6 +30,7 @@ from hmi.engine.snapshot import Snapshot
 from hmi.history.catalogue import LOCATIONS, MODES, Catalogue
 from hmi.history.store import Event
 from hmi.project.model import POLICIES
+from hmi.session.view import CellView
 
 QUEUE_LIMIT = 200_000  # samples and events held for the writer (a few MB)
 MONITOR_LOOK_US = 50_000  # a running task's stopwatches are looked at this often
@@ -176,8 +177,9 @@ class HistoryRecorder:
         self._window_end: int | None = None
         self._window_max = 0.0
 
-    def on_scan(self, snap: Snapshot) -> None:
+    def on_scan(self, view: CellView) -> None:
         """One scan, on the scan thread: cheap when nothing moved."""
+        snap = view.snapshot
         if self.queue.resync:
             self.queue.resync = False
             self._reset()
@@ -228,14 +230,14 @@ class HistoryRecorder:
                     out.append((i, t, v))
         if c.monitors:
             self._monitors(snap, t, out)
-        cell = (snap.mode, snap.policy, bool(snap.latched), len(snap.alarms))
+        cell = (snap.mode, snap.policy, bool(snap.latched), len(view.alarms))
         if cell != self._cell:
             self._cell = cell
             self._level(c.mode, _MODES.get(snap.mode, -1.0), t, out)
             self._level(c.policy, _POLICIES.get(snap.policy, -1.0), t, out)
             self._level(c.latched, 1.0 if cell[2] else 0.0, t, out)
             self._level(c.alarms, float(cell[3]), t, out)
-        wall = snap.scan_wall_us
+        wall = view.scan_wall_us
         if wall:  # 0.0: not measured (a headless run in virtual time)
             self._scan_time(wall, t, out)
         if c.plant:

@@ -19,10 +19,10 @@ from dataclasses import dataclass
 from typing import Protocol
 
 from hmi.engine.commands import Command, CommandResult
-from hmi.engine.snapshot import Snapshot
 from hmi.plant.base import PlantEvent
 from hmi.project.model import Project
 from hmi.session.recorder import ConstraintStats, Signal, Trace
+from hmi.session.view import CellView
 from hmi.wire.messages import (
     CellFacts,
     ControlInfo,
@@ -40,11 +40,11 @@ __all__ = ["Answer", "CellFacts", "CellLink", "ControlInfo", "History", "Identit
 
 @dataclass(frozen=True)
 class View:
-    """One scan as a screen shows it: the snapshot, the history as of that same scan (a
-    constraint violated in the snapshot is violated in the history too), the run state, who
-    is in control."""
+    """One scan as a screen shows it: the scan (the engine's snapshot, explained), the
+    history as of that same scan (a constraint violated in the snapshot is violated in the
+    history too), the run state, who is in control."""
 
-    snapshot: Snapshot
+    cell: CellView
     constraints: Mapping[str, ConstraintStats]
     damage_count: int
     run: RunInfo
@@ -96,8 +96,8 @@ class CellLink(Protocol):
         """The per-scan history between views (read-only here: each link keeps its own)."""
 
     @property
-    def last(self) -> Snapshot | None:
-        """The newest snapshot known here (a dialog's contents; a frame shows view())."""
+    def last(self) -> CellView | None:
+        """The newest scan known here (a dialog's contents; a frame shows view())."""
 
     def command(self, command: Command, guard: ResetGuard | None = None, *,
                 reason: str = "", password: str = "") -> Answer:
@@ -149,5 +149,5 @@ class CellLink(Protocol):
     def advance(self, duration_us: int) -> int:
         """Virtual time: run the scans `duration_us` holds (none while paused)."""
 
-    def advance_until(self, predicate: Callable[[Snapshot], bool], limit_us: int) -> bool:
+    def advance_until(self, predicate: Callable[[CellView], bool], limit_us: int) -> bool:
         """Virtual time: run scans until `predicate` holds, at most `limit_us`."""

@@ -19,11 +19,11 @@ from pathlib import Path
 
 from hmi.access.audit import SignInRefusal
 from hmi.engine.commands import Command, CommandResult
-from hmi.engine.snapshot import Snapshot
 from hmi.link.base import Answer, Identity, ResetGuard, View
 from hmi.link.receiver import Receiver
 from hmi.project.model import Project
 from hmi.runtime.place import socket_address
+from hmi.session.view import CellView
 from hmi.wire import messages as m
 from hmi.wire.framing import MAX_OUT, frame, read_message
 
@@ -136,9 +136,9 @@ class SocketLink:
         return self.receiver.view()
 
     @property
-    def last(self) -> Snapshot | None:
+    def last(self) -> CellView | None:
         view = self.receiver.view()
-        return view.snapshot if view is not None else None
+        return view.cell if view is not None else None
 
     @property
     def client(self) -> str | None:
@@ -243,5 +243,5 @@ class SocketLink:
             raise RuntimeError(result.message)
         return int(result.message.split()[0])
 
-    def advance_until(self, predicate: Callable[[Snapshot], bool], limit_us: int) -> bool:
+    def advance_until(self, predicate: Callable[[CellView], bool], limit_us: int) -> bool:
         raise NotImplementedError("a predicate cannot cross the socket: advance(duration)")

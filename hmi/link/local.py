@@ -20,7 +20,6 @@ from datetime import UTC, datetime
 
 from hmi.access.audit import SignInRefusal
 from hmi.engine.commands import Command, CommandResult
-from hmi.engine.snapshot import Snapshot
 from hmi.explain.reset import changes, declined_message, reset_preview
 from hmi.link.base import Answer, Identity, ResetGuard, View
 from hmi.link.client import AttachError
@@ -31,6 +30,7 @@ from hmi.session.journal_recorder import JournalRecorder
 from hmi.session.live import LiveRunner
 from hmi.session.recorder import ScanRecorder
 from hmi.session.session import Session
+from hmi.session.view import CellView
 from hmi.wire import messages as m
 
 # The scan thread and a UI share one interpreter lock. When the scan thread wakes up for
@@ -120,9 +120,9 @@ class LocalLink:
         return self.receiver.view()
 
     @property
-    def last(self) -> Snapshot | None:
+    def last(self) -> CellView | None:
         view = self.view()
-        return view.snapshot if view is not None else None
+        return view.cell if view is not None else None
 
     @property
     def client(self) -> str | None:
@@ -199,7 +199,7 @@ class LocalLink:
     def advance(self, duration_us: int) -> int:
         return advance(self.session, duration_us)
 
-    def advance_until(self, predicate: Callable[[Snapshot], bool], limit_us: int) -> bool:
+    def advance_until(self, predicate: Callable[[CellView], bool], limit_us: int) -> bool:
         return advance_until(self.session, predicate, limit_us)
 
 
@@ -215,7 +215,7 @@ def advance(session: Session, duration_us: int) -> int:
     return count
 
 
-def advance_until(session: Session, predicate: Callable[[Snapshot], bool],
+def advance_until(session: Session, predicate: Callable[[CellView], bool],
                   limit_us: int) -> bool:
     """Run scans until `predicate` holds, at most `limit_us` of virtual time."""
     end = session.engine.now + limit_us
@@ -250,22 +250,22 @@ class SessionLink:
         else:
             self._record(session.last)
 
-    def _record(self, snapshot: Snapshot) -> None:
+    def _record(self, cell: CellView) -> None:
         try:
-            self.recorder.on_scan(snapshot)
+            self.recorder.on_scan(cell)
         except Exception as exc:
             if self.on_recorder_error is not None:
                 self.on_recorder_error(exc)
 
     def view(self) -> View | None:
         recorded = self.recorder.latest()
-        if recorded.snapshot is None:
+        if recorded.cell is None:
             return None
-        return View(recorded.snapshot, recorded.constraints, recorded.damage_count,
+        return View(recorded.cell, recorded.constraints, recorded.damage_count,
                     run_info(self.session), self.overruns)
 
     @property
-    def last(self) -> Snapshot | None:
+    def last(self) -> CellView | None:
         return self.session.last
 
     @property
@@ -291,10 +291,11 @@ class SessionLink:
             return Answer(session.command(command, self.origin, details))
         with session.lock:  # no scan between the check and the command
             now = session.last
-            gone, new = changes(list(guard.shown), reset_preview(now) if now else [])
+            gone, new = changes(list(guard.shown),
+                                reset_preview(now.snapshot, now.alarms) if now else [])
             if not gone and not new:
                 return Answer(session.command(command, self.origin))
-            scan = now.scan if now is not None else guard.seen_scan
+            scan = now.snapshot.scan if now is not None else guard.seen_scan
             return Answer(session.decline(command, declined_message(
                 gone, new, guard.seen_scan, scan)), declined=True)
 
@@ -315,7 +316,7 @@ class SessionLink:
     def advance(self, duration_us: int) -> int:
         return advance(self.session, duration_us)
 
-    def advance_until(self, predicate: Callable[[Snapshot], bool], limit_us: int) -> bool:
+    def advance_until(self, predicate: Callable[[CellView], bool], limit_us: int) -> bool:
         return advance_until(self.session, predicate, limit_us)
 
     # -- control: no other screen ------------------------------------------------------------

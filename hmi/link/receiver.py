@@ -87,12 +87,12 @@ class Receiver:
         assert history is not None, "a frame before the Welcome"
         delta = frame.history
         history.apply(Changes(
-            frame.snapshot, delta.full, delta.edges, delta.events, delta.event_count,
+            frame.cell, delta.full, delta.edges, delta.events, delta.event_count,
             delta.damage_count, dict(delta.constraints),
             tuple((b.events, b.alarms) for b in delta.alarm_batches), delta.batches_lost,
-            Cursor(frame.snapshot.time_us, delta.event_count, 0)))
+            Cursor(frame.cell.snapshot.time_us, delta.event_count, 0)))
         self.control = frame.control
-        self._view = View(frame.snapshot, delta.constraints, delta.damage_count, frame.run,
+        self._view = View(frame.cell, delta.constraints, delta.damage_count, frame.run,
                           frame.overruns, frame.control, frame.services)
         self.frames += 1
         for listener in list(self.listeners):

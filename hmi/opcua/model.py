@@ -25,6 +25,7 @@ from hmi.engine.snapshot import Snapshot
 from hmi.project.diagnosers import diagnosers_of
 from hmi.project.model import Project
 from hmi.project.monitors import monitors_of
+from hmi.session.view import CellView
 
 # OPC UA data types the model uses (the server maps them onto asyncua's variant types).
 BOOL, STRING, STRINGS, DOUBLE, UINT = "Boolean", "String", "String[]", "Double", "UInt64"
@@ -40,7 +41,7 @@ class Point:
     path: tuple[str, ...]  # browse names below the cell object; the last is the variable's
     description: str
     kind: str  # BOOL, STRING, STRINGS, DOUBLE, UINT
-    read: Callable[[Snapshot], Any]
+    read: Callable[[CellView], Any]
     unit: str | None = None
     from_plant: bool = False  # read from the plant: uncertain while it does not answer
     # The historian's record of it ("kind:thing", hmi.history.catalogue.Catalogue.origin):
@@ -118,7 +119,18 @@ class _Builder:
     def point(self, path: tuple[str, ...], description: str, kind: str,
               read: Callable[[Snapshot], Any], unit: str | None = None,
               from_plant: bool = False, history: str = "") -> None:
+        """A variable read from the engine's snapshot."""
+        self.cell_point(path, description, kind, _of_snapshot(read), unit, from_plant, history)
+
+    def cell_point(self, path: tuple[str, ...], description: str, kind: str,
+                   read: Callable[[CellView], Any], unit: str | None = None,
+                   from_plant: bool = False, history: str = "") -> None:
+        """A variable read from the whole scan (the session's alarms too)."""
         self.points.append(Point(path, description, kind, read, unit, from_plant, history))
+
+
+def _of_snapshot(read: Callable[[Snapshot], Any]) -> Callable[[CellView], Any]:
+    return lambda c: read(c.snapshot)
 
 
 def _under(device: str | None, group: str, name: str) -> tuple[str, ...]:
@@ -129,35 +141,38 @@ def _status(b: _Builder, project: Project) -> None:
     b.folder(("Status",), f"How cell {project.name} runs: mode, policy, latch, scans")
     history = {"Mode": "cell:mode", "Policy": "cell:policy", "Latched": "cell:latched",
                "ScanTime": "cell:scan_time", "ActiveAlarms": "cell:alarms"}
-    rows: list[tuple[str, str, str, Callable[[Snapshot], Any], str | None]] = [
+    rows: list[tuple[str, str, str, Callable[[CellView], Any], str | None]] = [
         ("Mode", "auto, or manual (the operator's requests, still filtered)", STRING,
-         lambda s: s.mode, None),
+         lambda c: c.snapshot.mode, None),
         ("Policy", "the safety filter's policy: monitor, block or correct", STRING,
-         lambda s: s.policy, None),
-        ("Control", "the control program variant running", STRING, lambda s: s.control, None),
+         lambda c: c.snapshot.policy, None),
+        ("Control", "the control program variant running", STRING,
+         lambda c: c.snapshot.control, None),
         ("Latched", "the outputs are held in their safe state until a fault reset", BOOL,
-         lambda s: bool(s.latched), None),
+         lambda c: bool(c.snapshot.latched), None),
         ("LatchReasons", "why the outputs are held safe (empty when not latched)", STRINGS,
-         lambda s: [f"{r.source}: {r.detail}" for r in s.latched], None),
-        ("ScanCount", "scans run since the start", UINT, lambda s: s.scan, None),
+         lambda c: [f"{r.source}: {r.detail}" for r in c.snapshot.latched], None),
+        ("ScanCount", "scans run since the start", UINT, lambda c: c.snapshot.scan, None),
         ("ScanTime", "how long the last scan took (measured)", DOUBLE,
-         lambda s: round(s.scan_wall_us / 1000, 3), MILLISECOND),
-        ("ScanPeriod", "the scan period", DOUBLE, lambda s: s.period_us / 1000, MILLISECOND),
+         lambda c: round(c.scan_wall_us / 1000, 3), MILLISECOND),
+        ("ScanPeriod", "the scan period", DOUBLE, lambda c: c.snapshot.period_us / 1000,
+         MILLISECOND),
         ("RunTime", "the run's time at the last scan (virtual in a simulation)", DOUBLE,
-         lambda s: s.time_us / 1e6, SECOND),
+         lambda c: c.snapshot.time_us / 1e6, SECOND),
         ("PlantConnected", "the plant answers (always true for a simulated plant)", BOOL,
-         lambda s: s.plant.connected, None),
+         lambda c: c.snapshot.plant.connected, None),
         ("Plant", "the plant: simulated, or where the real one is", STRING,
-         lambda s: s.plant.description, None),
+         lambda c: c.snapshot.plant.description, None),
         ("StoppedDevices", "devices the operator stopped (outputs held safe)", STRINGS,
-         lambda s: list(s.stopped_devices), None),
+         lambda c: list(c.snapshot.stopped_devices), None),
         ("Error", "an internal error caught during the last scan (empty: none)", STRING,
-         lambda s: s.error or "", None),
+         lambda c: c.error or "", None),
         ("ActiveAlarms", "alarms in the list (active, or cleared but not acknowledged)", UINT,
-         lambda s: len(s.alarms), None),
+         lambda c: len(c.alarms), None),
     ]
     for name, text, kind, read, unit in rows:
-        b.point(("Status", name), text, kind, read, unit, history=history.get(name, ""))
+        b.cell_point(("Status", name), text, kind, read, unit,
+                     history=history.get(name, ""))
 
 
 def _inputs(b: _Builder, project: Project, layout: Layout) -> None:

@@ -57,7 +57,6 @@ from hmi.engine.commands import (
     Shelve,
     Unshelve,
 )
-from hmi.engine.snapshot import Snapshot
 from hmi.errors import UsageError
 from hmi.explain.alarms import ACTIVE_UNACK, CLEARED_UNACK, MAX_SHELVE_US
 from hmi.history.target import Target
@@ -76,6 +75,7 @@ from hmi.opcua.source import CellSource, SessionSource
 from hmi.opcua.status import FAILED, SERVING, STARTING, STOPPED, OpcClient, ServingStatus
 from hmi.opcua.users import ANONYMOUS, Identity, TrustList, Users
 from hmi.session.session import Session
+from hmi.session.view import CellView
 
 if TYPE_CHECKING:
     from hmi.opcua.history import CellHistory
@@ -200,7 +200,7 @@ class CellServer:
             raise UsageError(NEEDS_USERS)
         self.model: AddressModel = build_model(source.project, source.layout)
         self.interval_s = (options.interval_us or source.period_us) / 1e6
-        self._latest: Snapshot | None = None
+        self._latest: CellView | None = None
         self._thread: threading.Thread | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._stop: asyncio.Event | None = None
@@ -508,7 +508,7 @@ class CellServer:
 
     async def publish(self) -> None:
         """Write what changed since the last publish, then send the condition events."""
-        snapshot, batches = self.source.take()
+        cell, batches = self.source.take()
         state = self.source.run_state()
         if state != self._run_state:
             self._run_state = state
@@ -517,18 +517,19 @@ class CellServer:
                 self.run_state.nodeid, AttributeIds.Value,
                 ua.DataValue(ua.Variant(state, ua.VariantType.String), SourceTimestamp=now,
                              ServerTimestamp=now))
-        if snapshot is None:
+        if cell is None:
             return
-        self._latest = snapshot
-        if snapshot is not self._published:
-            self._published = snapshot
+        self._latest = cell
+        snapshot = cell.snapshot
+        if cell is not self._published:
+            self._published = cell
             stamp = self._stamp(snapshot.time_us)
             now = ua.DateTime.now(UTC)
             write = self.server.iserver.aspace.write_attribute_value
             connected = snapshot.plant.connected
             for variable in self.points:
                 try:
-                    value = variable.read(snapshot)
+                    value = variable.read(cell)
                 except Exception:  # a value this run does not have (diagnosis off, ...)
                     value = _BAD
                 stale = variable.from_plant and not connected
@@ -546,15 +547,14 @@ class CellServer:
                 await write(variable.nodeid, AttributeIds.Value, dv)
             self.published += 1
             self.published_scan = snapshot.scan
-        for view in self.tracker.update(batches, snapshot.alarms, snapshot.time_us,
-                                        snapshot.shelved):
+        for view in self.tracker.update(batches, cell.alarms, snapshot.time_us, cell.shelved):
             await self._send(view)
         while self._actions:  # comments: Part 9 sends each as an event of its condition
             key, user, text = self._actions.popleft()
             for view in self.tracker.commented(key, user, text):
                 await self._send(view)
 
-    _published: Snapshot | None = None
+    _published: CellView | None = None
     @property
     def epoch(self) -> datetime:
         """The wall time of the run's time 0 (what SourceTimestamps count from)."""
@@ -874,11 +874,11 @@ _UNSET = object()
 
 @dataclass(slots=True)
 class _Variable:
-    """A published variable: how to read it from a snapshot, and what was last written
+    """A published variable: how to read it from a scan, and what was last written
     (value, stale) so that only changes are written."""
 
     nodeid: ua.NodeId
-    read: Callable[[Snapshot], Any]
+    read: Callable[[CellView], Any]
     vtype: ua.VariantType
     from_plant: bool
     last: object = _UNSET

@@ -26,13 +26,13 @@ from typing import Protocol
 
 from hmi.engine.commands import Command, CommandResult
 from hmi.engine.layout import Layout
-from hmi.engine.snapshot import Snapshot
 from hmi.explain.alarms import Alarm, AlarmEvent
 from hmi.link.client import SocketLink
 from hmi.link.local import LocalLink
 from hmi.opcua.users import Identity
 from hmi.project.model import Project
 from hmi.session.session import Session
+from hmi.session.view import CellView
 from hmi.wire import messages as m
 
 Batch = tuple[tuple[AlarmEvent, ...], tuple[Alarm, ...]]
@@ -54,8 +54,8 @@ class CellSource(Protocol):
 
     def stop(self) -> None: ...
 
-    def take(self) -> tuple[Snapshot | None, list[Batch]]:
-        """The newest snapshot, and every scan's alarm transitions since the last take."""
+    def take(self) -> tuple[CellView | None, list[Batch]]:
+        """The newest scan, and every scan's alarm transitions since the last take."""
 
     def run_state(self) -> str:
         """running, paused or stepping."""
@@ -83,15 +83,15 @@ class SessionSource:
         self.layout = session.engine.layout
         self.is_real = session.engine.plant.is_real
         self.period_us = session.period_us
-        self._latest: Snapshot | None = None
+        self._latest: CellView | None = None
         self._batches: deque[Batch] = deque()
         self._wake: Callable[[], None] | None = None
 
-    def _on_scan(self, snapshot: Snapshot) -> None:
+    def _on_scan(self, cell: CellView) -> None:
         """In the scan thread: cheap, never waits (a reference kept, the batch queued)."""
-        if snapshot.alarm_events:
-            self._batches.append((snapshot.alarm_events, snapshot.alarms))
-        self._latest = snapshot
+        if cell.alarm_events:
+            self._batches.append((cell.alarm_events, cell.alarms))
+        self._latest = cell
         if self._wake is not None:
             self._wake()
 
@@ -104,7 +104,7 @@ class SessionSource:
             self.session.scan_listeners.remove(self._on_scan)
         self._wake = None
 
-    def take(self) -> tuple[Snapshot | None, list[Batch]]:
+    def take(self) -> tuple[CellView | None, list[Batch]]:
         batches = []
         while self._batches:
             batches.append(self._batches.popleft())
@@ -165,12 +165,12 @@ class LinkSource:
         with contextlib.suppress(ValueError):
             self.link.receiver.listeners.remove(self._on_frame)
 
-    def take(self) -> tuple[Snapshot | None, list[Batch]]:
+    def take(self) -> tuple[CellView | None, list[Batch]]:
         view = self.link.view()  # (in-process: the frame is pulled now)
         with self._lock:
             batches = list(self._batches)
             self._batches.clear()
-        return (view.snapshot if view is not None else None), batches
+        return (view.cell if view is not None else None), batches
 
     def run_state(self) -> str:
         view = self.link.view()

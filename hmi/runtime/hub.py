@@ -222,13 +222,13 @@ class Hub:
         Tick once a second, else None). Called when the screen can take it: its cursor moves
         on, so what this frame carries is never sent again."""
         changes_ = self.recorder.since(client.cursor)
-        snap = changes_.snapshot
-        if snap is None:
+        cell = changes_.cell
+        if cell is None:
             return None
         run = run_info(self.session)
         overruns = self.runner.overruns if self.runner is not None else 0
         services = tuple(self.services.values())
-        key = (id(snap), snap.scan, run, overruns, self._control_version, services)
+        key = (id(cell), cell.snapshot.scan, run, overruns, self._control_version, services)
         now = time.monotonic()
         if key == client.shown and not force and not changes_.edges and not changes_.events:
             if now - client.sent_at < TICK_S:
@@ -240,7 +240,7 @@ class Hub:
             changes_.full, changes_.edges, changes_.events, changes_.event_count,
             changes_.damage_count, changes_.constraints,
             tuple(m.AlarmBatch(e, a) for e, a in changes_.batches), changes_.batches_lost)
-        data = self.encode(m.Frame(client.seq, snap, run, overruns, delta, self.control(),
+        data = self.encode(m.Frame(client.seq, cell, run, overruns, delta, self.control(),
                                    services))
         client.cursor = changes_.cursor
         client.shown = key
@@ -365,10 +365,11 @@ class Hub:
             return m.Reply(message.id, session.command(command, origin, details))
         with session.lock:  # no scan between the check and the command
             now = session.last
-            gone, new = changes(list(guard.shown), reset_preview(now) if now else [])
+            gone, new = changes(list(guard.shown),
+                                reset_preview(now.snapshot, now.alarms) if now else [])
             if not gone and not new:
                 return m.Reply(message.id, session.command(command, origin, details))
-            scan = now.scan if now is not None else guard.seen_scan
+            scan = now.snapshot.scan if now is not None else guard.seen_scan
             return m.Reply(message.id, session.decline(
                 command, declined_message(gone, new, guard.seen_scan, scan), origin, details),
                 declined=True)

@@ -28,6 +28,7 @@ from hmi.explain.model import Explanation, Policy
 from hmi.limits import describe_bytes
 from hmi.plant.modbus.link_log import Burst
 from hmi.session.session import Session
+from hmi.session.view import CellView
 from hmi.timefmt import seconds
 
 DEFAULT_SPACE = 1 << 30  # the journal's space unless told (--journal-space)
@@ -105,7 +106,7 @@ class JournalRecorder:
                 "journal", f"{exc}: operator actions and alarms cannot be recorded")
 
     def on_command(self, command: Command, result: CommandResult,
-                   snapshot: Snapshot | None) -> None:
+                   cell: CellView | None) -> None:
         engine = self.session.engine
         entry = {"type": "action", "event": describe(command), "accepted": result.accepted,
                  "message": result.message, "scan": engine.scan, "t": seconds(engine.now)}
@@ -188,16 +189,17 @@ class JournalRecorder:
             detail=f"used {used:,} bytes; space {self.space_bytes:,} bytes; warning at "
                    f"{SPACE_WARNING:.0%}"))
 
-    def on_scan(self, snapshot: Snapshot) -> None:
+    def on_scan(self, cell: CellView) -> None:
+        snapshot = cell.snapshot
         self.journal.tick()
         if time.monotonic() - self._space_checked >= SPACE_CHECK_S:
             self.check_space()
         self._drain_plant()
         for entry in self.overruns.tick(time.monotonic()):
             self._plant(entry)
-        if snapshot.alarm_events:  # one write and one fsync for the scan's transitions
+        if cell.alarm_events:  # one write and one fsync for the scan's transitions
             batch: list[Entry] = []
-            for event in snapshot.alarm_events:
+            for event in cell.alarm_events:
                 self._alarm(event, batch=batch)
             self._append_all(batch)
         recovery = snapshot.recovery

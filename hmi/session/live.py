@@ -15,8 +15,8 @@ import traceback
 from collections import deque
 from collections.abc import Callable
 
-from hmi.engine.snapshot import Snapshot
 from hmi.session.session import Session, settle_memory
+from hmi.session.view import CellView
 
 
 class Lateness:
@@ -212,7 +212,7 @@ class WallClock:
 
 
 def run_live_for(session: Session, duration_us: int,
-                 on_scan: Callable[[Snapshot], bool | None] | None = None) -> LiveRunner:
+                 on_scan: Callable[[CellView], bool | None] | None = None) -> LiveRunner:
     """Run scans paced by the wall clock until the scan time reaches `duration_us`, or until
     `on_scan` returns True (a failure that ends the run early).
 
@@ -221,12 +221,12 @@ def run_live_for(session: Session, duration_us: int,
     """
     done = threading.Event()
 
-    def listener(snap: Snapshot) -> None:
+    def listener(cell: CellView) -> None:
         if done.is_set():
             return
-        if on_scan is not None and on_scan(snap):
+        if on_scan is not None and on_scan(cell):
             done.set()
-        if snap.time_us >= duration_us:
+        if cell.snapshot.time_us >= duration_us:
             done.set()
 
     session.scan_listeners.append(listener)

@@ -32,12 +32,12 @@ from bisect import bisect_right
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
 from hmi.engine.layout import Layout
-from hmi.engine.snapshot import Snapshot
+from hmi.explain.alarms import Alarm, AlarmEvent
 from hmi.explain.model import Explanation
 from hmi.plant.base import PlantEvent
+from hmi.session.view import CellView
 
 FOV_SUFFIX = ".fov"
 KEEP_US = 120_000_000  # history kept: twice the chronogram's widest window
@@ -92,7 +92,7 @@ class ConstraintStats:
 class Recorded:
     """The last scan recorded and the history as of that same scan (one consistent view)."""
 
-    snapshot: Snapshot | None
+    cell: CellView | None
     constraints: dict[str, ConstraintStats]
     damage_count: int
 
@@ -110,14 +110,14 @@ class Cursor:
 class Changes:
     """What a recorder holds beyond a cursor, as of its last scan (a consistent view)."""
 
-    snapshot: Snapshot | None
+    cell: CellView | None
     full: bool  # everything kept (no cursor, or one older than what is kept)
     edges: tuple[tuple[int, int, bool], ...]  # (signal, time, value), in time order
     events: tuple[PlantEvent, ...]
     event_count: int
     damage_count: int
     constraints: dict[str, ConstraintStats]
-    batches: tuple[tuple[tuple[Any, ...], tuple[Any, ...]], ...]  # (alarm events, alarms)
+    batches: tuple[tuple[tuple[AlarmEvent, ...], tuple[Alarm, ...]], ...]  # (events, list)
     batches_lost: int
     cursor: Cursor
 
@@ -155,15 +155,16 @@ class ScanRecorder:
         self._constraints: dict[str, ConstraintStats] = {}
         self.first_us: int | None = None
         self.last_us: int | None = None
-        self.snapshot: Snapshot | None = None  # the last scan recorded
+        self.cell: CellView | None = None  # the last scan recorded
         # each scan's alarm transitions with the list it left (alarm events, alarms)
-        self.batches: deque[tuple[tuple[Any, ...], tuple[Any, ...]]] = deque(
+        self.batches: deque[tuple[tuple[AlarmEvent, ...], tuple[Alarm, ...]]] = deque(
             maxlen=keep_batches)
         self.batch_count = 0
         self._lock = threading.Lock()
 
-    def on_scan(self, snap: Snapshot) -> None:
+    def on_scan(self, cell: CellView) -> None:
         """Called once per scan, in the scan thread: keep it cheap."""
+        snap = cell.snapshot
         values, fov, last, changes = snap.values, snap.fov, self._last, self._changes
         t = snap.time_us
         with self._lock:
@@ -185,9 +186,9 @@ class ScanRecorder:
                 self.damage_count += sum(1 for e in snap.plant_events if e.damage)
             report = snap.filter
             if report is not None and (report.violations or self._violated_now):
-                self._count_violations(report.violated_names, t, snap.explanations)
-            if snap.alarm_events:
-                self.batches.append((snap.alarm_events, snap.alarms))
+                self._count_violations(report.violated_names, t, cell.explanations)
+            if cell.alarm_events:
+                self.batches.append((cell.alarm_events, cell.alarms))
                 self.batch_count += 1
             if self.first_us is None:
                 self.first_us = t
@@ -197,7 +198,7 @@ class ScanRecorder:
                 self._trim_at = t + self.keep_us // 4
             self.last_us = t
             self.scans += 1
-            self.snapshot = snap
+            self.cell = cell
 
     def _trim(self, before_us: int) -> None:
         """Forget changes older than `before_us`, keeping the last one before it."""
@@ -233,7 +234,7 @@ class ScanRecorder:
     def latest(self) -> Recorded:
         """The last snapshot recorded with the history as of it: what a frame shows."""
         with self._lock:
-            return Recorded(self.snapshot, dict(self._constraints), self.damage_count)
+            return Recorded(self.cell, dict(self._constraints), self.damage_count)
 
     def trace(self, name: str, start_us: int, end_us: int) -> Trace:
         """The signal `name` between start and end (virtual time, inclusive of the end)."""
@@ -256,8 +257,8 @@ class ScanRecorder:
         """Everything recorded after `cursor`, up to the last scan (its snapshot included);
         with no cursor, or one from before what is still kept, everything kept (`full`)."""
         with self._lock:
-            snap = self.snapshot
-            upto = snap.time_us if snap is not None else -1
+            cell = self.cell
+            upto = cell.snapshot.time_us if cell is not None else -1
             full = cursor is None or (self.first_us is not None and self._trimmed_after(
                 cursor.time_us))
             edges: list[tuple[int, int, bool]] = []
@@ -274,7 +275,7 @@ class ScanRecorder:
             missing = self.batch_count - told_batches
             kept = min(missing, len(self.batches))
             batches = tuple(self.batches)[len(self.batches) - kept:] if kept else ()
-            return Changes(snap, full, tuple(edges), events, self.event_count,
+            return Changes(cell, full, tuple(edges), events, self.event_count,
                            self.damage_count, dict(self._constraints), batches,
                            missing - kept, Cursor(upto, self.event_count, self.batch_count))
 
@@ -305,9 +306,9 @@ class ScanRecorder:
                                   if stats.since_us is not None}
             self.batches.extend(changes.batches)
             self.batch_count += len(changes.batches) + changes.batches_lost
-            snap = changes.snapshot
-            if snap is not None:
-                t = snap.time_us
+            cell = changes.cell
+            if cell is not None:
+                t = cell.snapshot.time_us
                 if self.first_us is None:
                     self.first_us = t
                     self._trim_at = t + self.keep_us
@@ -315,4 +316,4 @@ class ScanRecorder:
                     self._trim(t - self.keep_us)
                     self._trim_at = t + self.keep_us // 4
                 self.last_us = t
-                self.snapshot = snap
+                self.cell = cell

@@ -17,6 +17,7 @@ if TYPE_CHECKING:
     from hmi.explain.model import Explanation
     from hmi.plant.base import PlantEvent
     from hmi.project.injection import Injection
+    from hmi.session.view import CellView
 
 
 def run_summary(engine: Engine, last: Snapshot, collector: RunCollector,
@@ -104,16 +105,17 @@ class RunCollector:
         self._nothing: FilterReport | None = None
         self._report: FilterReport | None = None
 
-    def add(self, snap: Snapshot) -> None:
+    def add(self, cell: CellView) -> None:
+        snap = cell.snapshot
         self.scans += 1
         self.monitors.add(snap)
         self.diagnosis.add(snap)
         if snap.plant_events:
             self.events.extend(snap.plant_events)
-        if snap.alarm_events:
-            self.alarm_events.extend(snap.alarm_events)
-        if snap.explanations:
-            for explanation in snap.explanations:
+        if cell.alarm_events:
+            self.alarm_events.extend(cell.alarm_events)
+        if cell.explanations:
+            for explanation in cell.explanations:
                 if explanation.alarm:
                     self.explanations[explanation.key] = explanation
         self._report = snap.filter
@@ -132,10 +134,10 @@ class RunCollector:
         if report is not None and report is not self._nothing:
             self._count(report, count)
 
-    def finish(self, last: Snapshot) -> None:
-        """The run's last snapshot (built at its end if its scan was quiet): the monitors'
+    def finish(self, last: CellView) -> None:
+        """The run's last scan (built at its end if its scan was quiet): the monitors'
         states the summary shows are its."""
-        self.monitors.add(last)
+        self.monitors.add(last.snapshot)
 
     def _count(self, report: FilterReport | None, scans: int = 1) -> None:
         """What `scans` scans with this filter report count."""

@@ -5,7 +5,7 @@ It owns the engine, the explanation builder and the alarm list, and the run stat
 paused, stepping); every operator action enters through :meth:`Session.command` (listeners,
 such as the journal, hear each one with its result). Each scan is the engine's core
 snapshot, explained (hmi.explain reads the snapshot, never the engine) and given the alarms
-it raised: :attr:`Session.last` is that complete snapshot.
+it raised: a :class:`~hmi.session.view.CellView`, and :attr:`Session.last` is the last one.
 
 It never sleeps: the live app paces it from a worker thread (hmi.session.live); headless
 runs call :meth:`Session.run_for` in virtual time.
@@ -18,7 +18,6 @@ import threading
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any
 
 from hmi.engine.commands import (
     Acknowledge,
@@ -36,11 +35,12 @@ from hmi.engine.commands import (
     describe,
 )
 from hmi.engine.scan import Engine
-from hmi.engine.snapshot import Snapshot, explained
-from hmi.explain.alarms import AlarmEvent, AlarmManager
+from hmi.engine.snapshot import Snapshot
+from hmi.explain.alarms import Alarm, AlarmEvent, AlarmManager
 from hmi.explain.builder import ExplanationBuilder
 from hmi.explain.model import Explanation
 from hmi.plant.base import PlantError
+from hmi.session.view import CellView
 
 
 def settle_memory() -> None:
@@ -65,7 +65,7 @@ class RunState:
         return "running" if self.running else "paused"
 
 
-Listener = Callable[[Command, CommandResult, Snapshot | None], None]
+Listener = Callable[[Command, CommandResult, CellView | None], None]
 
 
 class Session:
@@ -86,17 +86,17 @@ class Session:
         self.explainer = ExplanationBuilder(engine.project)
         self.alarms = AlarmManager()
         self.explanations: tuple[Explanation, ...] = ()  # the last scan's
-        self._last: Snapshot | None = None  # the last scan, explained (see last)
-        self._quiet = False  # the last scan was quiet: its snapshot is built when read
-        self._quiet_alarms: tuple[Any, ...] = ()  # the alarm list at that scan
+        self._last: CellView | None = None  # the last scan, explained (see last)
+        self._quiet = False  # the last scan was quiet: its view is built when read
+        self._quiet_alarms: tuple[Alarm, ...] = ()  # the alarm list at that scan
         self._pending_alarm_events: list[AlarmEvent] = []  # acknowledgements between scans
         self.listeners: list[Listener] = []
         self.origin = ""  # who sent the command being carried out ("": the cell's operator)
         self.origin_details: Mapping[str, str] = {}  # and what else the journal says of them
-        self.scan_listeners: list[Callable[[Snapshot], None]] = []
+        self.scan_listeners: list[Callable[[CellView], None]] = []
         # A scan listener's check that it has nothing to do on a quiet scan now (see
-        # run_for); a listener without one is given every scan's snapshot.
-        self.idle_checks: dict[Callable[[Snapshot], None], Callable[[], bool]] = {}
+        # run_for); a listener without one is given every scan's view.
+        self.idle_checks: dict[Callable[[CellView], None], Callable[[], bool]] = {}
         # Told of each scan overrun (a real-time runner more than a period late), for the
         # journal; called from the scan thread with the runner's overrun count.
         self.overrun_listeners: list[Callable[[int], None]] = []
@@ -114,7 +114,7 @@ class Session:
         self._services_seen: dict[str, Explanation] | None = None
 
     @property
-    def last(self) -> Snapshot | None:
+    def last(self) -> CellView | None:
         """The last scan, explained; a quiet scan's (run_for) is built here, when read."""
         if self._quiet:
             with self.lock:
@@ -127,15 +127,14 @@ class Session:
                     # What _explained makes of a quiet scan: the last scan's explanations,
                     # the alarm list as it was, no alarm event, no error, nothing shelved;
                     # the session added no time to the engine's.
-                    self._last = explained(core, self.explanations, self._quiet_alarms, (),
-                                           core.error, core.scan_wall_us)
+                    self._last = CellView(core, self.explanations, self._quiet_alarms)
                     self._quiet = False
         return self._last
 
     @last.setter
-    def last(self, snapshot: Snapshot | None) -> None:
+    def last(self, view: CellView | None) -> None:
         with self.lock:
-            self._last = snapshot
+            self._last = view
             self._quiet = False
 
     def wall_us(self, time_us: int) -> int:
@@ -271,7 +270,7 @@ class Session:
 
     def take_alarm_events(self) -> list[AlarmEvent]:
         """Alarm transitions since the last scan (acknowledgements), for whoever journals
-        them now; those not taken go into the next snapshot's alarm_events."""
+        them now; those not taken go into the next view's alarm_events."""
         events, self._pending_alarm_events = self._pending_alarm_events, []
         return events
 
@@ -321,26 +320,26 @@ class Session:
             return f"; the safe outputs could not be written ({exc})"
         return "; real plant: outputs written safe while paused"
 
-    def scan_if_running(self) -> Snapshot | None:
+    def scan_if_running(self) -> CellView | None:
         """One scan unless paused meanwhile (checked under the lock, so no scan follows a
         pause: a paused real plant keeps the safe outputs the pause wrote)."""
         with self.lock:
             return self.scan_once() if self.state.running else None
 
-    def scan_once(self) -> Snapshot:
+    def scan_once(self) -> CellView:
         with self.lock:
             return self._scanned(self.engine.step(self.next_time))
 
-    def _scanned(self, core: Snapshot) -> Snapshot:
-        snapshot = self._explained(core)
-        self._last = snapshot
+    def _scanned(self, core: Snapshot) -> CellView:
+        view = self._explained(core)
+        self._last = view
         self._quiet = False
         for listener in self.scan_listeners:
-            listener(snapshot)
-        return snapshot
+            listener(view)
+        return view
 
-    def _scan_unless_quiet(self, now: int) -> Snapshot | None:
-        """One scan at `now`; None when it is quiet (its snapshot built only if `last` is
+    def _scan_unless_quiet(self, now: int) -> CellView | None:
+        """One scan at `now`; None when it is quiet (its view built only if `last` is
         read): the engine says the scan has no news (hmi.engine.scan.Engine.run) and the
         session is ready for one (:meth:`_ready_for_quiet`)."""
         with self.lock:
@@ -367,7 +366,7 @@ class Session:
             not self.scan_listeners or self._listeners_idle())
 
     def _quiet_from_here(self) -> None:
-        """The last scan was quiet: `last` builds its snapshot when read."""
+        """The last scan was quiet: `last` builds its view when read."""
         self._quiet = True
         # the list as it is now (a command may change it before `last` is read)
         self._quiet_alarms = self.alarms.listed() if self.alarms.alarms else ()
@@ -380,17 +379,17 @@ class Session:
                 return False
         return True
 
-    def _explained(self, core: Snapshot) -> Snapshot:
-        """The engine's snapshot with its explanations, the alarm list and its changes; the
-        time explaining took is added to the scan's wall time, when the engine measures it."""
+    def _explained(self, core: Snapshot) -> CellView:
+        """The engine's snapshot with its explanations, the alarm list and its changes, and
+        the time explaining took, when the engine measures the scan's."""
         timed = self.engine.wall_times
         started = time.perf_counter() if timed else 0.0
-        error = core.error
+        error = None
         try:
             explanations = self.explainer.build(core)
         except Exception as exc:  # explanations must never stop the scan
             explanations = ()
-            error = error or f"explanations: {type(exc).__name__}: {exc}"
+            error = f"explanations: {type(exc).__name__}: {exc}"
         services = self._services
         self._services_seen = services
         if services:
@@ -403,26 +402,24 @@ class Session:
         if explanations or alarms.alarms or alarms.shelved:
             # (with no situation, no alarm and nothing shelved the update has nothing to do)
             events = events + alarms.update(explanations, core.scan, core.time_us)
-        return explained(core, explanations, alarms.listed(),
-                         tuple(events) if events else (), error,
-                         core.scan_wall_us + (time.perf_counter() - started) * 1e6
-                         if timed else core.scan_wall_us,
-                         alarms.shelved_listed() if alarms.shelved else ())
+        return CellView(core, explanations, alarms.listed(), tuple(events) if events else (),
+                        alarms.shelved_listed() if alarms.shelved else (), error,
+                        (time.perf_counter() - started) * 1e6 if timed else 0.0)
 
-    def run_for(self, duration_us: int, on_scan: Callable[[Snapshot], None] | None = None,
-                on_quiet: Callable[[int], None] | None = None) -> Snapshot:
+    def run_for(self, duration_us: int, on_scan: Callable[[CellView], None] | None = None,
+                on_quiet: Callable[[int], None] | None = None) -> CellView:
         """Run scans in virtual time from now until `duration_us` more has elapsed.
 
         With `on_quiet`, quiet scans (no news from the engine and the session ready for them,
         :meth:`_ready_for_quiet`: most scans of a working cell) are told to it by their
-        number instead of to `on_scan`, and their snapshots are not built (`last` builds the
+        number instead of to `on_scan`, and their views are not built (`last` builds the
         last one if read); a stretch of them runs in the engine at once
         (Engine.run_while_quiet), up to the first scan with news. For a caller that needs no
-        snapshot where nothing happened (plchmi run without a trace counts the scans).
+        view where nothing happened (plchmi run without a trace counts the scans).
 
         In virtual time nobody watches the scans' wall time (the HMI and OPC UA drive
         scan_once): the engine does not measure it meanwhile (Engine.wall_times; the
-        snapshots' scan_wall_us and filter_wall_us are 0.0)."""
+        snapshots' scan_wall_us and filter_wall_us are 0.0, and so is explain_wall_us)."""
         if self.clock is not None:
             return self._run_for(duration_us, on_scan, on_quiet)
         engine = self.engine
@@ -432,14 +429,14 @@ class Session:
         finally:
             engine.wall_times = timed
 
-    def _run_for(self, duration_us: int, on_scan: Callable[[Snapshot], None] | None,
-                 on_quiet: Callable[[int], None] | None) -> Snapshot:
+    def _run_for(self, duration_us: int, on_scan: Callable[[CellView], None] | None,
+                 on_quiet: Callable[[int], None] | None) -> CellView:
         end = self.next_time + duration_us
         if on_quiet is None:
             while self.next_time <= end:
-                snapshot = self.scan_once()
+                view = self.scan_once()
                 if on_scan is not None:
-                    on_scan(snapshot)
+                    on_scan(view)
         else:
             engine = self.engine
             while (now := self.next_time) <= end:

@@ -52,6 +52,7 @@ from hmi.explain.journal import Entry
 from hmi.project.model import Constraint
 from hmi.project.recovery import recoveries_of
 from hmi.session.session import Session
+from hmi.session.view import CellView
 from hmi.timefmt import seconds
 
 if TYPE_CHECKING:
@@ -144,10 +145,11 @@ class Invariants:
         self.broken.append(Broken(invariant, detail, self.engine.scan, self.engine.now))
 
     # -- every scan ---------------------------------------------------------------------------
-    def on_scan(self, snap: Snapshot) -> None:
+    def on_scan(self, view: CellView) -> None:
         self.scans += 1
-        if snap.error:
-            self._break("engine-error", snap.error)
+        snap = view.snapshot
+        if view.error:
+            self._break("engine-error", view.error)
         if snap.policy != "monitor":
             constraints = self.recovery_constraints.get(snap.recovery.active or "",
                                                         self.constraints)
@@ -167,7 +169,7 @@ class Invariants:
                             f"{', '.join(snap.masked) or 'none'}, latched "
                             f"{'; '.join(r.detail for r in snap.latched) or 'no'})")
         self.history.appendleft(snap.values)
-        self._observe(snap.alarms, acknowledged=())
+        self._observe(view.alarms, acknowledged=())
 
     def _safe_state_by_decision(self, snap: Snapshot) -> bool:
         """The outputs written are the safe state, and the engine says it chose it."""
@@ -200,7 +202,7 @@ class Invariants:
 
     # -- every command ------------------------------------------------------------------------
     def on_command(self, command: Command, result: CommandResult,
-                   snapshot: Snapshot | None) -> None:
+                   view: CellView | None) -> None:
         # the alarm list as the next scan will show it (the session owns it)
         manager = self.session.alarms
         acknowledged: tuple[str, ...] = ()
@@ -303,7 +305,7 @@ class Invariants:
         frame = app.frame
         if frame is None:
             return
-        alarms = frame.snapshot.alarms
+        alarms = frame.cell.alarms
         active = [a for a in alarms if a.state == ACTIVE_UNACK]
         if not active:
             return

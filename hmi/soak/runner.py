@@ -32,13 +32,13 @@ from textual.pilot import Pilot
 
 from hmi.engine.build import EngineOptions, build_engine
 from hmi.engine.commands import Command, CommandResult
-from hmi.engine.snapshot import Snapshot
 from hmi.explain.journal import Journal
 from hmi.history.historian import Historian
 from hmi.history.target import Target
 from hmi.project.loader import load_project
 from hmi.session.journal_recorder import JournalRecorder
 from hmi.session.session import Session
+from hmi.session.view import CellView
 from hmi.soak.invariants import Broken, Invariants
 from hmi.soak.operator import RandomOperator
 from hmi.soak.steps import Click, Palette, Press, Resize, Row, Run, Step
@@ -147,10 +147,11 @@ class SplitCell:
         started = time.monotonic()
         while last is not None and link.lost is None:
             view = link.view()
-            if view is not None and view.snapshot.scan >= last.scan:
+            if view is not None and view.cell.snapshot.scan >= last.snapshot.scan:
                 break
             if time.monotonic() - started > self.HANG_S:
-                raise RuntimeError(f"no frame of scan {last.scan} within {self.HANG_S:g} s")
+                raise RuntimeError(f"no frame of scan {last.snapshot.scan} within "
+                                   f"{self.HANG_S:g} s")
             time.sleep(0.005)
         return count
 
@@ -183,7 +184,7 @@ async def session(config: SoakConfig, replay: list[Step] | None = None,
         app.containment.listeners.append(journal.on_ui_fault)
     checker = Invariants(app, cell, result.journal)
 
-    def count(command: Command, answer: CommandResult, snapshot: Snapshot | None) -> None:
+    def count(command: Command, answer: CommandResult, view: CellView | None) -> None:
         if answer.accepted:
             result.commands[type(command).__name__] += 1
         else:

@@ -224,8 +224,8 @@ class AlarmList(TextPanel):
 
     # -- display -----------------------------------------------------------------------------
     def show(self, frame: Frame) -> None:
-        alarms = tuple(frame.snapshot.alarms)
-        shelved = len(frame.snapshot.shelved)
+        alarms = frame.cell.alarms
+        shelved = len(frame.cell.shelved)
         changed = alarms != self.alarms or shelved != self.shelved
         self.alarms = alarms
         self.shelved = shelved

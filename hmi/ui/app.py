@@ -83,6 +83,7 @@ from hmi.project.model import POLICIES, ControlLaw
 from hmi.project.monitors import monitors_of
 from hmi.project.recovery import recoveries_of
 from hmi.session.session import Session
+from hmi.session.view import CellView
 from hmi.timefmt import format_duration, seconds
 from hmi.ui import manual
 from hmi.ui.actions import ACTIONS, bindings
@@ -265,7 +266,7 @@ class PlcHmiApp(LastResort, ContainedPump, App[None]):
     def _scan_time(self) -> tuple[int, int]:
         """The scan and time of the newest snapshot (where a UI error is placed)."""
         last = self.link.last
-        return (last.scan, last.time_us) if last is not None else (0, 0)
+        return (last.snapshot.scan, last.snapshot.time_us) if last is not None else (0, 0)
 
     def _row_descriptions(self, descriptions: dict[str, str]) -> dict[str, str]:
         """The I/O table's Description cells: each without its device's name in front when
@@ -509,7 +510,8 @@ class PlcHmiApp(LastResort, ContainedPump, App[None]):
         view = self.link.view()
         if view is None:
             return False
-        snap = view.snapshot
+        cell = view.cell
+        snap = cell.snapshot
         run = self.run_label(view)
         if self._mode_commanded == snap.mode:
             self._mode_commanded = None
@@ -521,14 +523,14 @@ class PlcHmiApp(LastResort, ContainedPump, App[None]):
         lost = self.link.lost
         silent = self.link.silent_s()
         silent = float(int(silent)) if silent >= SILENT_S else 0.0
-        key = (snap.scan, id(snap), run, view.run.speed, overruns, view.control, lost,
+        key = (snap.scan, id(cell), run, view.run.speed, overruns, view.control, lost,
                silent, self._version, self._mode_commanded, contained.version, serving,
                gateway)
         if not force and key == self._key:
             return False
         self._key = key
         frame = Frame(
-            snapshot=snap, run=run, speed=view.run.speed, live=self.driver.live,
+            cell=cell, run=run, speed=view.run.speed, live=self.driver.live,
             project=self.project.name, show_measured=self.show_measured,
             overruns=overruns, changed=output_changes(snap, self.engineering),
             injected=tuple(self._injected), free_inputs=self.free_inputs,
@@ -552,7 +554,7 @@ class PlcHmiApp(LastResort, ContainedPump, App[None]):
                 keep_clear(self)
         except Exception as exc:
             self.contain("plant column layout", exc)
-        self._ring(snap)
+        self._ring(cell)
         trends = self.trends
         if trends is not None:
             try:
@@ -667,10 +669,10 @@ class PlcHmiApp(LastResort, ContainedPump, App[None]):
                     partial(self.hand_over, client.id, str(client))))
         return entries
 
-    def _ring(self, snap: Snapshot) -> None:
+    def _ring(self, cell: CellView) -> None:
         """The bell, once per P1 alarm that became active and unacknowledged since the last
         frame (a returning one counts again); nothing without --bell."""
-        now = frozenset(a.key for a in snap.alarms
+        now = frozenset(a.key for a in cell.alarms
                         if a.priority == 1 and a.state == "active-unacknowledged")
         new = now - self._p1_unack
         self._p1_unack = now
@@ -756,17 +758,17 @@ class PlcHmiApp(LastResort, ContainedPump, App[None]):
     def _explain(self, frame: Frame) -> None:
         """Hand the subject's explanation to the panel (the current one, else the alarm's
         last: a cleared alarm still explains what happened until it is acknowledged)."""
-        snap = frame.snapshot
+        cell = frame.cell
         key = self.subject or self.alarm_list.selected
-        explanation = next((e for e in snap.explanations if e.key == key), None)
-        alarm = next((a for a in snap.alarms if a.key == key), None)
+        explanation = next((e for e in cell.explanations if e.key == key), None)
+        alarm = next((a for a in cell.alarms if a.key == key), None)
         if explanation is None and alarm is not None:
             explanation = alarm.explanation
         if explanation is None and key != self.alarm_list.selected:
             self.subject = None  # the situation picked is over: back to the selected alarm
             key = self.alarm_list.selected
-            explanation = next((e for e in snap.explanations if e.key == key), None)
-            alarm = next((a for a in snap.alarms if a.key == key), None)
+            explanation = next((e for e in cell.explanations if e.key == key), None)
+            alarm = next((a for a in cell.alarms if a.key == key), None)
             if explanation is None and alarm is not None:
                 explanation = alarm.explanation
         self.explanation_panel.show(key if explanation else None, explanation, alarm,
@@ -812,11 +814,11 @@ class PlcHmiApp(LastResort, ContainedPump, App[None]):
 
     def explain(self, key: str, open_level: int = 2) -> None:
         """Explain `key` (select its alarm when it has one) and open it to `open_level`."""
-        snap = self.link.last
-        if snap is None:
+        cell = self.link.last
+        if cell is None:
             return
-        if not any(e.key == key for e in snap.explanations) and \
-                not any(a.key == key for a in snap.alarms):
+        if not any(e.key == key for e in cell.explanations) and \
+                not any(a.key == key for a in cell.alarms):
             self.message.say(Text(f"nothing to explain for {key} now", style=MUTED))
             return
         if not self.alarm_list.select(key):
@@ -862,15 +864,15 @@ class PlcHmiApp(LastResort, ContainedPump, App[None]):
         if policy.command is None:
             self._choose(key, policy, True)
             return
-        snap = self.link.last
-        shown = reset_preview(snap) if snap and isinstance(policy.command, FaultReset) \
-            else None
-        title, lines, level = self._policy_confirmation(key, policy, snap, asked)
+        cell = self.link.last
+        shown = reset_preview(cell.snapshot, cell.alarms) \
+            if cell and isinstance(policy.command, FaultReset) else None
+        title, lines, level = self._policy_confirmation(key, policy, cell, asked)
 
         def answered(yes: bool | None) -> None:
-            if yes and shown is not None and snap is not None:
+            if yes and shown is not None and cell is not None:
                 result = self._reset_if_unchanged(
-                    ChoosePolicy(key, policy.id), shown, snap,
+                    ChoosePolicy(key, policy.id), shown, cell.snapshot,
                     partial(self.choose_policy, key, policy))
                 if result is not None:
                     self._said(key, policy, result)
@@ -890,11 +892,12 @@ class PlcHmiApp(LastResort, ContainedPump, App[None]):
         self.explanation_panel.say_result(key, result_line(key, policy, result.accepted,
                                                            self.answer))
 
-    def _policy_confirmation(self, key: str, policy: Policy, snap: Snapshot | None,
+    def _policy_confirmation(self, key: str, policy: Policy, cell: CellView | None,
                              asked: Asked | None = None
                              ) -> tuple[str, list[Text | str], Level]:
-        explanation = next((e for e in snap.explanations if e.key == key), None) \
-            if snap else None
+        explanation = next((e for e in cell.explanations if e.key == key), None) \
+            if cell else None
+        snap = cell.snapshot if cell else None
         lines: list[Text | str] = []
         if explanation is not None:
             lines.append(Text(f"For: {explanation.what}", style=MUTED))
@@ -903,7 +906,7 @@ class PlcHmiApp(LastResort, ContainedPump, App[None]):
         level = Level.ATTENTION
         match policy.command:
             case FaultReset():
-                lines += reset_lines(snap, asked, self.engineering) if snap else []
+                lines += reset_lines(cell, asked, self.engineering) if cell else []
             case SetMode(manual=True):
                 lines += self._manual_lines(snap) if snap else []
             case SetMode(manual=False):
@@ -986,7 +989,7 @@ class PlcHmiApp(LastResort, ContainedPump, App[None]):
                 self._stepping = self._stepping or result.accepted
             case ManualOutput(name=name, value=value) if result.accepted:
                 last = self.link.last
-                self._request = (name, bool(value), last.scan if last else 0, what)
+                self._request = (name, bool(value), last.snapshot.scan if last else 0, what)
             case SetMode(manual=manual) if result.accepted:
                 self._mode_commanded = "manual" if manual else "auto"
             case StartRecovery() if result.accepted:
@@ -1031,15 +1034,15 @@ class PlcHmiApp(LastResort, ContainedPump, App[None]):
     def _situation_text(self, key: str) -> str:
         """A situation as the operator reads it in the alarm list (its one-line text), for
         the message line; its key where nothing shows it any more."""
-        snap = self.link.last
-        if snap is not None:
-            for alarm in snap.alarms:
+        cell = self.link.last
+        if cell is not None:
+            for alarm in cell.alarms:
                 if alarm.key == key:
                     return str(alarm.text)
-            for alarm, _shelf in snap.shelved:
+            for alarm, _shelf in cell.shelved:
                 if alarm.key == key:
                     return str(alarm.text)
-            for explanation in snap.explanations:
+            for explanation in cell.explanations:
                 if explanation.key == key:
                     return str(explanation.what)
         return key
@@ -1049,12 +1052,12 @@ class PlcHmiApp(LastResort, ContainedPump, App[None]):
 
     def _policy_command(self, key: str, policy_id: str) -> Command | None:
         """What choosing a policy sends, as the last explanation of `key` offered it."""
-        snap = self.link.last
-        if snap is None:
+        cell = self.link.last
+        if cell is None:
             return None
-        explanation = next((e for e in snap.explanations if e.key == key), None)
+        explanation = next((e for e in cell.explanations if e.key == key), None)
         if explanation is None:
-            alarm = next((a for a in snap.alarms if a.key == key), None)
+            alarm = next((a for a in cell.alarms if a.key == key), None)
             explanation = alarm.explanation if alarm else None
         policy = next((p for p in explanation.policies if p.id == policy_id), None) \
             if explanation else None
@@ -1239,7 +1242,8 @@ class PlcHmiApp(LastResort, ContainedPump, App[None]):
         return holder is not None and holder.id == self.link.client
 
     def _quit_lines(self) -> tuple[str, list[Text | str], Level]:
-        snap = self.link.last
+        last = self.link.last
+        snap = last.snapshot if last is not None else None
         lines: list[Text | str] = [
             "The scan stops: the control program and the safety filter no longer run."]
         level = Level.ATTENTION
@@ -1287,9 +1291,10 @@ class PlcHmiApp(LastResort, ContainedPump, App[None]):
 
     def action_manual(self) -> None:
         from hmi.ui.dialogs import ConfirmDialog
-        snap = self.link.last
-        if snap is None:
+        last = self.link.last
+        if last is None:
             return
+        snap = last.snapshot
         if snap.mode == "recovery" or self._mode_commanded == "recovery":
             self.leave_recovery()
             return
@@ -1328,21 +1333,21 @@ class PlcHmiApp(LastResort, ContainedPump, App[None]):
         out only if it still does that (`asked`: the dialog the operator confirmed before,
         when asked again; see :meth:`_reset_if_unchanged`)."""
         from hmi.ui.dialogs import ConfirmDialog
-        snap = self.link.last
-        if snap is None:
+        cell = self.link.last
+        if cell is None:
             return
-        shown = reset_preview(snap)
+        shown = reset_preview(cell.snapshot, cell.alarms)
         recovery = next((line.recovery for line in shown if line.recovery), "")
 
         def answered(answer: bool | str | None) -> None:
             if answer == "alternative":
                 self.start_recovery(recovery)
             elif answer:
-                self._reset_if_unchanged(FaultReset(), shown, snap, self.action_reset)
+                self._reset_if_unchanged(FaultReset(), shown, cell.snapshot, self.action_reset)
             else:
                 self._confirmed(FaultReset(), False)
         self.push_screen(ConfirmDialog("Fault reset?",
-                                       reset_lines(snap, asked, self.engineering), "Reset",
+                                       reset_lines(cell, asked, self.engineering), "Reset",
                                        dialog_id="reset-dialog",
                                        alternative="Start recovery" if recovery else None),
                          answered)
@@ -1388,8 +1393,8 @@ class PlcHmiApp(LastResort, ContainedPump, App[None]):
     def _listed_alarm(self, key: str | None, what: str) -> Alarm | None:
         """The listed alarm `key` (default: the selected one), or None, said."""
         key = key or self.alarm_list.selected
-        snap = self.link.last
-        alarm = next((a for a in snap.alarms if a.key == key), None) if snap and key else None
+        cell = self.link.last
+        alarm = next((a for a in cell.alarms if a.key == key), None) if cell and key else None
         if alarm is None:
             self.refuse(what, "no alarm selected")
         return alarm
@@ -1423,7 +1428,8 @@ class PlcHmiApp(LastResort, ContainedPump, App[None]):
 
     def leave_recovery(self) -> None:
         from hmi.ui.dialogs import ConfirmDialog
-        snap = self.link.last
+        last = self.link.last
+        snap = last.snapshot if last is not None else None
         state = snap.recovery if snap else None
         reached = {"done": "The recovery is done.", "failed": "The recovery failed."}.get(
             state.status if state else "", "The recovery is stopped where it is.")
@@ -1459,7 +1465,7 @@ class PlcHmiApp(LastResort, ContainedPump, App[None]):
     def action_policy(self, policy: str | None = None) -> None:
         from hmi.ui.dialogs import ChoiceDialog
         last = self.link.last
-        current = last.policy if last is not None else ""
+        current = last.snapshot.policy if last is not None else ""
         if policy is not None:
             self._confirm_policy(current, policy)
             return
@@ -1535,7 +1541,7 @@ class PlcHmiApp(LastResort, ContainedPump, App[None]):
     def _now(self) -> int:
         """The cell's time as of the newest snapshot (a fault injected now, in N s)."""
         last = self.link.last
-        return last.time_us if last is not None else 0
+        return last.snapshot.time_us if last is not None else 0
 
     def action_button(self, name: str, value: bool) -> None:
         self.send(SetInput(name, value))
@@ -1556,7 +1562,9 @@ class PlcHmiApp(LastResort, ContainedPump, App[None]):
 
     def _history_now(self, snap: Snapshot | None = None) -> int:
         """The newest scan on the history's time axis (Session.wall_us)."""
-        snap = snap or self.link.last
+        if snap is None:
+            last = self.link.last
+            snap = last.snapshot if last is not None else None
         epoch = self.facts.epoch_us
         if epoch is None:
             import time
@@ -1643,7 +1651,7 @@ class PlcHmiApp(LastResort, ContainedPump, App[None]):
                 continue
             entries.append(PaletteEntry(f"{a.title}  [{a.key_display or a.key}]", a.help,
                                         getattr(self, f"action_{a.action}"), a.action))
-        snap = self.link.last
+        cell = self.link.last
         if self.simulated:
             for factor, word in ((1.0, "real time"), (10.0, "×10"),
                                  (None, "as fast as possible")):
@@ -1652,8 +1660,8 @@ class PlcHmiApp(LastResort, ContainedPump, App[None]):
         for count in (10, 100):
             entries.append(PaletteEntry(f"Step {count} scans", "Run them, then stay paused",
                                         partial(self.send, StepScans(count))))
-        if snap is not None and self.frame is not None and self.frame.manual_keys:
-            for name in snap.layout.outputs:
+        if cell is not None and self.frame is not None and self.frame.manual_keys:
+            for name in cell.snapshot.layout.outputs:
                 for value, word, key in ((True, "on", "1"), (False, "off", "0"),
                                          (None, "release", "x")):
                     entries.append(PaletteEntry(
@@ -1664,8 +1672,8 @@ class PlcHmiApp(LastResort, ContainedPump, App[None]):
         for policy in POLICIES:
             entries.append(PaletteEntry(f"Filter policy: {policy}…", POLICY_HELP[policy],
                                         partial(self.action_policy, policy)))
-        if snap is not None:
-            entries += self._situation_entries(snap)
+        if cell is not None:
+            entries += self._situation_entries(cell)
         if self.simulated:
             several = len({device for device, _, _ in self._faults()}) > 1
             for device, code, description in self._faults():
@@ -1722,17 +1730,17 @@ class PlcHmiApp(LastResort, ContainedPump, App[None]):
                                         dialog_id="opcua-dialog"))
 
 
-    def _situation_entries(self, snap: Snapshot) -> list[PaletteEntry]:
+    def _situation_entries(self, cell: CellView) -> list[PaletteEntry]:
         """Per alarm and situation: acknowledge, explain, its policies; stopped devices."""
         from hmi.ui.palette import PaletteEntry
         entries: list[PaletteEntry] = []
-        for alarm in snap.alarms:
+        for alarm in cell.alarms:
             if alarm.state != "active-acknowledged":
                 entries.append(PaletteEntry(f"Alarms: acknowledge {alarm.text}",
                                             f"{alarm.state}, P{alarm.priority}",
                                             partial(self.send, Acknowledge(alarm.key))))
-        explained = {e.key: e for e in snap.explanations}
-        for alarm in snap.alarms:
+        explained = {e.key: e for e in cell.explanations}
+        for alarm in cell.alarms:
             if alarm.key not in explained and alarm.explanation is not None:
                 explained[alarm.key] = alarm.explanation
         for key, explanation in explained.items():
@@ -1747,19 +1755,19 @@ class PlcHmiApp(LastResort, ContainedPump, App[None]):
                     f"Policy: {policy.label}{mark} — {panel.explanation.device}"
                     + ("…" if policy.command is not None else ""),
                     policy.effect, partial(self.choose_policy, panel.key, policy)))
-        if snap.mode == "recovery":
+        if cell.snapshot.mode == "recovery":
             entries.append(PaletteEntry("Recovery: leave…", "Automatic mode again; the "
                                         "program starts from its initial steps",
                                         self.leave_recovery))
         else:
-            needed = {n[0] for n in snap.recovery.needed}
+            needed = {n[0] for n in cell.snapshot.recovery.needed}
             for spec in recoveries_of(self.project):
                 mark = " (needed now)" if spec.name in needed else ""
                 entries.append(PaletteEntry(
                     f"Recovery: start — {spec.description}{mark}…",
                     f"{spec.device}: recovery mode, filtered by its own constraints",
                     partial(self.start_recovery, spec.name)))
-        for alarm in snap.alarms:
+        for alarm in cell.alarms:
             if not (alarm.latched and alarm.active):  # what would be refused is not offered
                 entries.append(PaletteEntry(f"Alarms: shelve… {alarm.text}",
                                             "Hide it from the list for a while or until it "
@@ -1768,11 +1776,11 @@ class PlcHmiApp(LastResort, ContainedPump, App[None]):
             entries.append(PaletteEntry(f"Alarms: comment on {alarm.text}…",
                                         "A note on this alarm, in the journal",
                                         partial(self.comment, alarm.key)))
-        for alarm, shelf in snap.shelved:
+        for alarm, shelf in cell.shelved:
             entries.append(PaletteEntry(f"Alarms: unshelve {alarm.text}",
                                         f"shelved {shelf.describe()}",
                                         partial(self.send, Unshelve(alarm.key))))
-        for device in snap.stopped_devices:
+        for device in cell.snapshot.stopped_devices:
             entries.append(PaletteEntry(f"Release device {device}",
                                         "Its outputs follow the program (and the filter) again",
                                         partial(self.send, ReleaseDevice(device))))

@@ -57,9 +57,9 @@ def explanation_line(frame: Frame, info: ConstraintInfo) -> str:
     """The level-1 explanation: the engine's now while violated, else the last one of its
     last violation (kept by the recorder); the description for a constraint never violated
     (or one whose violations came without an explanation)."""
-    for explanation in frame.snapshot.explanations:
-        if getattr(explanation, "key", None) == f"constraint:{info.name}":
-            return str(getattr(explanation, "what", "")) or info.description
+    for explanation in frame.cell.explanations:
+        if explanation.key == f"constraint:{info.name}":
+            return explanation.what or info.description
     stats = frame.constraints.get(info.name)
     if stats is not None and stats.what:
         return stats.what

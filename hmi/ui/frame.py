@@ -1,4 +1,4 @@
-"""One frame of the display: a snapshot plus the few things around it that the UI shows.
+"""One frame of the display: a scan plus the few things around it that the UI shows.
 
 The app builds a frame at most ~20 times a second and hands it down to every panel; a panel
 only reads its frame, never the engine, so the whole screen shows one consistent scan.
@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 from hmi.engine.snapshot import Snapshot
 from hmi.project.injection import Injection
 from hmi.session.recorder import ConstraintStats
+from hmi.session.view import CellView
 from hmi.ui.containment import UIFault
 from hmi.wire.messages import ControlInfo
 
@@ -31,7 +32,7 @@ class InjectedFault:
 
 @dataclass(frozen=True, eq=False)
 class Frame:
-    snapshot: Snapshot
+    cell: CellView  # the scan shown: the engine's snapshot, its explanations and alarms
     run: str  # "running", "paused" or "stepping"
     speed: float | None  # 1.0 real time, 10.0, None as fast as possible
     live: bool  # scans paced by the wall clock (False: a test or a screenshot drives them)
@@ -58,6 +59,11 @@ class Frame:
     # the engineering view: the panels show the model's names (steps, states, labels,
     # flags, constraints, timers, bounds) beside the operator's words
     engineering: bool = False
+
+    @property
+    def snapshot(self) -> Snapshot:
+        """The engine's snapshot of the scan shown."""
+        return self.cell.snapshot
 
     @property
     def simulated(self) -> bool:

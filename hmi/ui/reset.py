@@ -11,10 +11,10 @@ from dataclasses import dataclass
 
 from rich.text import Text
 
-from hmi.engine.snapshot import Snapshot
 from hmi.explain.plain import PlainNames
 from hmi.explain.reset import ResetLine, changes, reset_preview
 from hmi.project.model import Project, RecoveryProcedure
+from hmi.session.view import CellView
 from hmi.timefmt import seconds
 from hmi.ui.style import MUTED, OK_SYMBOL, Level, tag
 
@@ -79,12 +79,13 @@ def reset_line(line: ResetLine, engineering: bool = False) -> Text:
     return text
 
 
-def reset_lines(snap: Snapshot, asked: Asked | None = None,
+def reset_lines(cell: CellView, asked: Asked | None = None,
                 engineering: bool = False) -> list[Text | str]:
     """The fault reset dialog's lines: what a reset would release and what stays, as of
-    `snap`. Asked again (`asked`), first that nothing was done and what no longer holds, then
+    `cell`. Asked again (`asked`), first that nothing was done and what no longer holds, then
     the lines, those that changed since marked."""
-    now = reset_preview(snap)
+    snap = cell.snapshot
+    now = reset_preview(snap, cell.alarms)
     lines: list[Text | str] = []
     fresh: set[tuple[str, bool, str, str]] = set()
     if asked is not None:

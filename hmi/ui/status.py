@@ -91,9 +91,10 @@ def status_fields(frame: Frame, wide: bool, compact: bool = False) -> list[Field
         fields.append(Field(Text(f"{filter_word}{snap.policy}"), 0))
     # The most urgent unacknowledged alarms, counted: never dropped nor cut, whatever the
     # list shows (a soak invariant)
-    urgent = urgent_count(tuple(snap.alarms))
+    alarms = frame.cell.alarms
+    urgent = urgent_count(alarms)
     if urgent:
-        priority = snap.alarms[0].priority
+        priority = alarms[0].priority
         word = "unack" if compact else "unacknowledged"
         fields.append(Field(tag(f"{urgent} P{priority} {word}",
                                 Level.ALARM if priority == 1 else Level.ATTENTION), 0,
@@ -108,7 +109,7 @@ def status_fields(frame: Frame, wide: bool, compact: bool = False) -> list[Field
                             1))
     if snap.latched:
         fields.append(Field(tag("SAFE STATE", Level.ALARM), 0))
-    if snap.error:
+    if frame.cell.error:
         fields.append(Field(tag("INTERNAL ERROR", Level.ALARM), 0))
     if frame.run == "running":
         word = "run" if compact else "running"
@@ -124,7 +125,7 @@ def status_fields(frame: Frame, wide: bool, compact: bool = False) -> list[Field
                              else f"t {seconds(snap.time_us)} s"), 1))
     if frame.show_measured:
         unit = "µs" if compact else "µs/scan"
-        fields.append(Field(Text(f"{snap.scan_wall_us:.0f} {unit}", style=MUTED), 5))
+        fields.append(Field(Text(f"{frame.cell.scan_wall_us:.0f} {unit}", style=MUTED), 5))
     return fields
 
 
@@ -260,7 +261,7 @@ def banner_lines(frame: Frame) -> list[Text]:
         lines.append(line)
     if snap.mode == "recovery":
         lines.append(recovery_banner(snap.recovery, snap.recovery.status == "done" and any(
-            line.resets for line in reset_preview(snap))))
+            line.resets for line in reset_preview(snap, frame.cell.alarms))))
     if not snap.plant.connected:
         line = banner("PLANT DISCONNECTED", Level.ALARM)
         line.append(f" {snap.plant.description}: {snap.plant.message or 'no answer'}")

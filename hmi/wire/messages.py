@@ -31,12 +31,13 @@ from hmi.engine.commands import Command, CommandResult
 from hmi.engine.layout import Layout
 from hmi.engine.monitors import MonitorState
 from hmi.engine.snapshot import Snapshot
-from hmi.explain.alarms import Alarm, AlarmEvent, Shelf
-from hmi.explain.model import Explanation, Policy
+from hmi.explain.alarms import Alarm, AlarmEvent
+from hmi.explain.model import Policy
 from hmi.explain.reset import ResetLine
 from hmi.plant.base import PlantEvent
 from hmi.project.model import Grafcet
 from hmi.session.recorder import ConstraintStats
+from hmi.session.view import CellView
 from hmi.wire.codec import LOCAL, Codec
 
 PROTOCOL = 1
@@ -355,7 +356,7 @@ class Refused:
 @dataclass(frozen=True)
 class Frame:
     seq: int
-    snapshot: Snapshot
+    cell: CellView
     run: RunInfo
     overruns: int
     history: HistoryDelta
@@ -411,10 +412,7 @@ RuntimeMessage = Welcome | Refused | Frame | Tick | Reply | Stats | Closing
 # -- the codec ---------------------------------------------------------------------------
 
 CODEC_OVERRIDES: dict[type, dict[str, Any]] = {
-    Snapshot: {"layout": LOCAL, "explanations": tuple[Explanation, ...],
-               "alarms": tuple[Alarm, ...], "alarm_events": tuple[AlarmEvent, ...],
-               "shelved": tuple[tuple[Alarm, Shelf], ...],
-               "monitors": tuple[MonitorState, ...]},
+    Snapshot: {"layout": LOCAL, "monitors": tuple[MonitorState, ...]},
     Policy: {"command": Command | None},
     Layout: {"grafcet": LOCAL},
 }
@@ -423,14 +421,14 @@ CODEC_OVERRIDES: dict[type, dict[str, Any]] = {
 def codec(layout: Callable[[], Layout] | None = None,
           grafcet: Callable[[], Grafcet | None] | None = None, memo: bool = False) -> Codec:
     """The protocol's codec. A screen gives what is not sent: the layout of every snapshot
-    (the Welcome's), the GRAFCET of its own project's control variant. `memo`: a snapshot
+    (the Welcome's), the GRAFCET of its own project's control variant. `memo`: a scan
     encoded again (for another screen) is not walked again (the runtime's)."""
     fills: dict[type, dict[str, Callable[[], Any]]] = {}
     if layout is not None:
         fills[Snapshot] = {"layout": layout}
     if grafcet is not None:
         fills[Layout] = {"grafcet": grafcet}
-    return Codec(CODEC_OVERRIDES, fills, memo=(Snapshot,) if memo else ())
+    return Codec(CODEC_OVERRIDES, fills, memo=(CellView, Snapshot) if memo else ())
 
 
 def schema_digest() -> str:
