@@ -20,7 +20,6 @@ from datetime import UTC, datetime
 
 from hmi.access.audit import SignInRefusal
 from hmi.engine.commands import Command, CommandResult
-from hmi.explain.reset import changes, declined_message, reset_preview
 from hmi.link.base import Answer, Identity, ResetGuard, View
 from hmi.link.client import AttachError
 from hmi.link.receiver import Receiver
@@ -29,6 +28,7 @@ from hmi.runtime.hub import Client, Hub, cell_facts, run_info
 from hmi.session.journal_recorder import JournalRecorder
 from hmi.session.live import LiveRunner
 from hmi.session.recorder import ScanRecorder
+from hmi.session.reset_guard import command_as_shown
 from hmi.session.session import Session
 from hmi.session.view import CellView
 from hmi.wire import messages as m
@@ -286,18 +286,12 @@ class SessionLink:
                 password: str = "") -> Answer:
         """(`password`: nobody signs in here, none is checked; `reason`: journalled.)"""
         session = self.session
+        details = {"reason": reason.strip()} if reason.strip() else None
         if guard is None:
-            details = {"reason": reason.strip()} if reason.strip() else None
             return Answer(session.command(command, self.origin, details))
-        with session.lock:  # no scan between the check and the command
-            now = session.last
-            gone, new = changes(list(guard.shown),
-                                reset_preview(now.snapshot, now.alarms) if now else [])
-            if not gone and not new:
-                return Answer(session.command(command, self.origin))
-            scan = now.snapshot.scan if now is not None else guard.seen_scan
-            return Answer(session.decline(command, declined_message(
-                gone, new, guard.seen_scan, scan)), declined=True)
+        result, declined = command_as_shown(session, command, guard.shown, guard.seen_scan,
+                                            self.origin, details)
+        return Answer(result, declined=declined)
 
     @property
     def origin(self) -> str:

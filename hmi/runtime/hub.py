@@ -29,11 +29,11 @@ from hmi.access import audit, roles
 from hmi.access.audit import SignInRefusal
 from hmi.engine.commands import ChoosePolicy, Command, CommandResult, StepScans, describe
 from hmi.errors import UsageError
-from hmi.explain.reset import changes, declined_message, reset_preview
 from hmi.runtime.admission import GATEWAY_DOORS, LOCAL, Admission
 from hmi.session.journal_recorder import JournalRecorder
 from hmi.session.live import LiveRunner
 from hmi.session.recorder import Cursor, ScanRecorder
+from hmi.session.reset_guard import command_as_shown
 from hmi.session.session import Session
 from hmi.wire import messages as m
 from hmi.wire.codec import Codec
@@ -363,16 +363,9 @@ class Hub:
         guard = message.guard
         if guard is None:
             return m.Reply(message.id, session.command(command, origin, details))
-        with session.lock:  # no scan between the check and the command
-            now = session.last
-            gone, new = changes(list(guard.shown),
-                                reset_preview(now.snapshot, now.alarms) if now else [])
-            if not gone and not new:
-                return m.Reply(message.id, session.command(command, origin, details))
-            scan = now.snapshot.scan if now is not None else guard.seen_scan
-            return m.Reply(message.id, session.decline(
-                command, declined_message(gone, new, guard.seen_scan, scan), origin, details),
-                declined=True)
+        result, declined = command_as_shown(session, command, guard.shown, guard.seen_scan,
+                                            origin, details)
+        return m.Reply(message.id, result, declined=declined)
 
     def _accountable(self, who: m.Identity) -> bool:
         """Whether a reason (and for the riskiest, the password) is asked of `who`: a person
