@@ -50,10 +50,10 @@ def load(path):
 
 def comparable(snap: Snapshot) -> Snapshot:
     """The snapshot without what is measured rather than computed."""
-    report = snap.filter
+    report = snap.filter_report
     if report is not None:
         report = report._replace(solver_us=0.0)
-    return snap._replace(scan_wall_us=0.0, filter_wall_us=0.0, filter=report)
+    return snap._replace(scan_wall_us=0.0, filter_wall_us=0.0, filter_report=report)
 
 
 def comparable_cell(cell: CellView) -> CellView:
@@ -308,7 +308,7 @@ def test_run_builds_the_snapshot_on_demand_and_says_when_a_scan_has_news(name, s
         if before is not None and not news:
             quiet += 1
             assert expected.plant_events == (), (name, seed, k)
-            assert expected.filter is before.filter, (name, seed, k)
+            assert expected.filter_report is before.filter_report, (name, seed, k)
             for field in EVENT_FIELDS:
                 assert getattr(expected, field) == getattr(before, field), (name, seed, k, field)
         before = expected
