@@ -271,9 +271,9 @@ def test_the_checker_refuses_what_no_template_writes(line):
 
 
 # What a quiet scan (Engine.run returning False) keeps from the scan before.
-EVENT_FIELDS = ("filter", "latched", "plant", "mode", "manual", "policy", "diagnosers",
+EVENT_FIELDS = ("filter_report", "latched", "plant", "mode", "manual", "policy", "diagnosers",
                 "reconstructed", "masked", "stopped_devices", "recovery", "error",
-                "monitor_marks", "control")
+                "monitor_marks", "control_name")
 
 
 @pytest.mark.parametrize("name", NAMES)
