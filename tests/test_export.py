@@ -526,3 +526,27 @@ if __name__ == "__main__" and "--record" in sys.argv:
         name, text = render(model, fmt)
         (GOLDEN / name).write_text(text, encoding="utf-8")
         print(f"wrote {GOLDEN / name}")
+
+
+CLOCK = "Clock(IN := TRUE, PT := T#24d);"
+
+
+@pytest.mark.parametrize(("text_of", "at_24d_1ms"), [
+    (lambda t: t, 24 * 86_400_000_000),
+    # the clock's preset one millisecond longer (a mutation the recorded traces never reach)
+    (lambda t: t.replace(CLOCK, CLOCK.replace("T#24d", "T#2073600001ms")),
+     24 * 86_400_000_000 + 1000),
+])
+def test_the_programs_clock_saturates_at_24_days(text_of, at_24d_1ms):
+    """The exported program's clock counts the time since its first scan and stops at
+    exactly 24 days (docs/plc-export.md: a 32-bit TIME); a preset one millisecond longer is
+    seen at 24 days and 1 ms."""
+    text = write_st(build(load_project(PROJECTS / "conveyor_robot")))
+    assert CLOCK in text
+    rt = Runtime(Program(text_of(text)))
+    day = 86_400_000_000
+    seen = []
+    for now in (0, 10_000, 24 * day - 1000, 24 * day, 24 * day + 1000, 30 * day):
+        rt.scan(now)
+        seen.append(rt.get("Safety.Now"))
+    assert seen == [0, 10_000, 24 * day - 1000, 24 * day, at_24d_1ms, at_24d_1ms]

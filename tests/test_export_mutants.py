@@ -1,8 +1,9 @@
 """Mutation testing of the exported Structured Text (tests/st_mutants.py): every single-operator
 change to an exported POU body must be caught by the agreement with the engine on recorded
-traces, or be shown equivalent (a filter survivor by z3, the others listed below with the
-reason), or be listed as a gap in the traces (what no trace reaches): an honest list, not a
-skip.
+traces, or be judged by z3 (a survivor in the filter or in a stopwatch monitor: proved
+equivalent to the engine's, or refuted with a counterexample, which catches it), or be listed
+below with the reason, as an equivalent mutant or a gap in the traces (what no trace reaches):
+an honest list, not a skip.
 
 The traces (tests/st_mutants.py, study_runs): each project's scenarios (export_traces
 without the fault campaign, nor the faulty program's runs, which are another export), and
@@ -23,12 +24,13 @@ from hmi.export.filter_pou import max_distance
 from hmi.project.loader import load_project
 from tests.conftest import PROJECTS
 from tests.export_harness import export_traces
+from tests.ir_prove import prove_monitor
 from tests.st_mutants import RandomRun, judge, mutants, record, replay, sample, study_runs
-from tests.st_prove import Unsupported, prove_filter
+from tests.st_prove import Unsupported, indices_not_negative, prove_filter
 
-# Survivors of the whole study that are equivalent mutants: the block computes the same
-# values whatever the inputs and state (checked by hand; the filter's are also proved
-# equivalent by z3, tests/test_export_prove.py). Keyed by Mutant.describe().
+# Survivors of the whole study that are equivalent mutants, outside the blocks z3 judges: the
+# block computes the same values whatever the inputs and state (checked by hand). Keyed by
+# Mutant.key().
 # What the study compares is what the engine holds (outputs, FOV, violations, latch,
 # timers, observers, flags, diagnosers, monitors): a step's time is the control FB's own.
 _UNREAD_STEP_TIME = ("a step time no receptivity, action or equation reads (only X1.t is "
@@ -36,10 +38,6 @@ _UNREAD_STEP_TIME = ("a step time no receptivity, action or equation reads (only
 _X1_T_RESET = ("X1.t is computed again (Now - X1_since) at the start of the next scan, "
                "before anything reads it")
 _FTC = "Ftc := (DiagnosisMode <> 1) AND (DiagnosisMode <> 2),"
-_ARMED = ("Armed is the plain watchdog kept beside the monitor only to measure its lead "
-          "(docs/monitors.md): not a value the engine's monitor decides with, not compared")
-_RULE = ("a released fault's Rule: the evidence is compared only while the monitor holds a "
-         "fault, and the next fault sets it")
 EQUIVALENT: dict[str, dict[str, str]] = {
     "conveyor_robot": {
         "FB_conveyor_robot_Control: IF NOT Started THEN [NOT -> (dropped)]": (
@@ -59,81 +57,61 @@ EQUIVALENT: dict[str, dict[str, str]] = {
             "Ftc gates the masks of the diagnosers' actuator partitions; the cell has no "
             "diagnoser, so the filter never reads it")
            for old, new in (("<>", "="), ("1", "0"), ("AND", "OR"), ("2", "1"))},
-        **{f"FB_conveyor_robot_Mon_{m}: {line} [{old} -> {new}]": _ARMED
-           for m in ("conveyor", "robot")
-           for line, old, new in (("Armed := TRUE;", "TRUE", "FALSE"),
-                                  ("Armed := FALSE;", "FALSE", "TRUE"))},
-        **{f"FB_conveyor_robot_Mon_{m}: IF Armed AND (L_x >= T#{t}s) THEN [{old} -> {new}]":
-           _ARMED for m, t in (("conveyor", 5), ("robot", 4))
-           for old, new in (("AND", "OR"), (">=", ">"), (f"T#{t}s", f"T#{t}001ms"))},
-        **{f"FB_conveyor_robot_Mon_{m}: Rule := 0; [0 -> 1]": _RULE
-           for m in ("conveyor", "robot")},
     },
 }
 
-_END = ("an end verdict (late_end, overrun, too_fast) needs its bound crossed at the very scan "
-        "the task ends (while it runs, the running verdicts fire first): no trace does")
-_BOUND = ("a running verdict's bound met exactly (y = alpha or beta at the scan x reaches "
-          "gamma, ...): no trace meets it")
-_PHASE = ("the phase just set is read only by `y = beta AND p = 1`, a bound no trace meets")
-
-
-def _monitor_gaps(m: str, alpha: int, beta: int, gamma: int) -> dict[str, str]:
-    a, b, g = (f"T#{v}s" for v in (alpha, beta, gamma))
-    m1 = {v: f"T#{v[2:-1]}001ms" for v in (a, b, g)}
-    pou = f"FB_conveyor_robot_Mon_{m}"
-    out = {}
-    for line, changes, why in (
-            (f"IF L_x >= {g} THEN", ((">=", ">"), (g, m1[g])), _END),
-            ("L_verdict := 4;", (("4", "3"),), _END),
-            (f"ELSIF L_y > {b} THEN", ((">", ">="), (b, m1[b])), _END),
-            ("L_verdict := 3;", (("3", "2"),), _END),
-            (f"ELSIF L_y < {a} THEN", (("<", "<="), (a, m1[a])), _END),
-            ("L_p := 2;", (("2", "1"),), _PHASE),
-            ("L_p := 1;", (("1", "0"),), _PHASE),
-            (f"IF (L_y < {a}) AND ((L_x + ({a} - L_y)) >= {g}) THEN", (("<", "<="), (a, m1[a])),
-             _BOUND),
-            (f"ELSIF (L_y >= {a}) AND (L_x >= {g}) THEN", ((">=", ">"), (a, m1[a])), _BOUND),
-            (f"ELSIF (L_y > {b}) OR ((L_y = {b}) AND (L_p = 1)) THEN", ((">", ">="), (b, m1[b])),
-             _BOUND)):
-        for old, new in changes:
-            out[f"{pou}: {line} [{old} -> {new}]"] = why
-    return out
-
-
-# How many of the filter's survivors z3 leaves unproved (above: why); a new one fails. The
-# conveyor's three are the k-subset enumerator's: FOR I := K - 1 -> K - 0 in the next-subset
-# step (its WHILE runs past the executor's 100 passes), and two that let the search write
-# Comb[K] (FOR I := 0 TO K - 0 in the first subset, and the WHILE's first AND -> OR, which
-# lets K pass N): the executor stops at the concrete index out of bounds without asking
-# whether its path is feasible, so neither equivalence nor a counterexample is claimed.
-FILTER_UNPROVED = {"conveyor_robot": 3}
+# How many of the filter's survivors z3 leaves unproved; a new one fails.
+FILTER_UNPROVED = {"conveyor_robot": 0}
 
 # Survivors that are gaps in the traces, not equivalent mutants: what no recorded trace
 # reaches. Listed so that a new survivor fails the study and these stay in sight.
-GAPS: dict[str, dict[str, str]] = {
+GAPS: dict[str, dict[str, str]] = {"conveyor_robot": {}}
+
+# Survivors of the traces that a test of their own catches (the test named).
+CAUGHT_BY_TESTS: dict[str, dict[str, str]] = {
     "conveyor_robot": {
-        **_monitor_gaps("conveyor", 3, 4, 5), **_monitor_gaps("robot", 2, 3, 4),
         "PRG_conveyor_robot_Safety: Clock(IN := TRUE, PT := T#24d); "
         "[T#24d -> T#2073600001ms]": (
-            "the program's clock saturates at 24 days: one millisecond later is beyond any "
-            "run a test makes"),
+            "tests/test_export.py::test_the_programs_clock_saturates_at_24_days: the clock "
+            "read at 24 days and 1 ms (no recorded trace runs 24 days)"),
     },
 }
 
 
 def _proved_equivalent(name: str, text: str) -> bool:
-    """A mutated filter FB proved equal to the engine's filter by z3, for every input and
-    state (tests/st_prove.py): an equivalent mutant, not a gap in the traces. A loop the
-    mutant leaves running more than 100 times (the block's own run at most 4 times here) is
-    not proved: e.g. a k-subset enumerator that reads a Comb element left from an earlier
-    call, which "every state" lets hold anything."""
+    """A mutated filter FB proved equal to the engine's filter by z3 (tests/st_prove.py): an
+    equivalent mutant, not a gap in the traces. First for every input and state; when a
+    loop of the mutant then runs more than 100 times (the block's own run at most 4 times
+    here: e.g. a next-subset step that counts up a Comb element left from an earlier call,
+    which "every state" lets hold any negative number), for every state where the kept index
+    lists hold no negative value, an invariant the proof shows the mutant keeps (they start
+    at 0 on a PLC): every state the PLC reaches."""
     project = load_project(PROJECTS / name)
     limit = max_distance(source.filter_bound(project))
     try:
         return all(p.proved for p in prove_filter(project, text, limit, loop_limit=100))
     except Unsupported:
+        pass
+    try:
+        return all(p.proved for p in prove_filter(project, text, limit, loop_limit=100,
+                                                  invariant=indices_not_negative,
+                                                  unchecked=2))
+    except Unsupported:
         return False
+
+
+def _monitor_judged(name: str, text: str, pou: str) -> bool | None:
+    """A mutated stopwatch monitor FB against the scan program's monitor (tests/ir_prove.py):
+    True proved equivalent, False refuted (a counterexample: the mutant is caught), None
+    when z3 or the executor cannot say."""
+    project = load_project(PROJECTS / name)
+    try:
+        proofs = prove_monitor(project, text, pou.split("_Mon_", 1)[1])
+    except Unsupported:
+        return None
+    if any(not p.proved and "counterexample" in p.detail for p in proofs):
+        return False
+    return True if all(p.proved for p in proofs) else None
 
 
 def _study(name: str, runs, k: int | None = None, seed: int = 0):
@@ -151,6 +129,7 @@ def _report(name: str, found, verdicts) -> tuple[Counter, list[str]]:
     for v in verdicts:
         if v.outcome == "survived":
             why = (EQUIVALENT.get(name, {}).get(v.mutant.key())
+                   or CAUGHT_BY_TESTS.get(name, {}).get(v.mutant.key())
                    or GAPS.get(name, {}).get(v.mutant.key(), "not listed"))
             print(f"  survived: {v.mutant.describe()}  ({why})")
     return counts, survivors
@@ -208,25 +187,34 @@ def test_every_mutant_of_the_conveyor_robot_export_is_caught_or_equivalent():
     rec, _traces, found, verdicts = _study(name, study_runs(name))
     counts, _survivors = _report(name, found, verdicts)
     assert counts["caught"] + counts["survived"] + counts["stillborn"] == len(found)
-    # a survivor in the filter FB: z3 proves it equivalent; elsewhere: listed, with the reason
-    # (an equivalent mutant, or a gap in the traces)
-    unexplained, proved, gaps = [], 0, 0
+    # a survivor in the filter FB: z3 proves it equivalent; in a monitor FB: z3 proves it
+    # equivalent or refutes it; elsewhere: listed, with the reason (an equivalent mutant, or a
+    # gap in the traces)
+    unexplained, proved, gaps, refuted, tested = [], 0, 0, 0, 0
     unproved = []
     for v in verdicts:
         if v.outcome != "survived":
             continue
-        if v.mutant.pou.endswith("_Filter"):
+        if "_Mon_" in v.mutant.pou:
+            judged = _monitor_judged(name, v.mutant.apply(rec.text), v.mutant.pou)
+            if judged is None:
+                unexplained.append(v.mutant.key())
+            proved += judged is True
+            refuted += judged is False
+        elif v.mutant.pou.endswith("_Filter"):
             if _proved_equivalent(name, v.mutant.apply(rec.text)):
                 proved += 1
             else:
                 unproved.append(v.mutant.describe())
+        elif v.mutant.key() in CAUGHT_BY_TESTS[name]:
+            tested += 1
         elif v.mutant.key() in GAPS[name]:
             gaps += 1
         elif v.mutant.key() not in EQUIVALENT[name]:
             unexplained.append(v.mutant.key())
-    print(f"  {proved} filter survivors proved equivalent by z3, {gaps} gaps in the traces")
-    # Not yet judged: the filter survivors z3 does not prove equal under "every state" (the
-    # k-subset enumerator's mutants); printed, and held to the ones known (FILTER_UNPROVED)
+    print(f"  {proved} survivors proved equivalent by z3, {refuted} refuted by z3 (caught), "
+          f"{tested} caught by a test of their own, {gaps} gaps in the traces")
+    # the filter survivors z3 does not prove equal: printed, held to FILTER_UNPROVED
     print("  filter survivors not proved equivalent: " + "; ".join(unproved))
     assert len(unproved) <= FILTER_UNPROVED[name], unproved
     assert unexplained == []

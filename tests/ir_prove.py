@@ -1,0 +1,412 @@
+"""A proof, with z3, that one call of an exported stopwatch monitor FB, as blark parses it,
+does what the scan program (hmi.program, the reference) does, for every input and every state
+the monitor can be in.
+
+The program's side is the monitor's lowering itself (``MonitorStage.programs[k]``, the
+statements hmi.program.evaluate runs), executed symbolically here (:class:`IrSymbolic`): the
+automaton's cells start as z3 values made from the FB's state (the correspondence below), the
+task's conditions (``Test`` nodes: the project's expressions) read the FB's inputs, and the two
+handlers the lowering calls are stated from hmi.engine.stopwatch (``TaskAutomaton.detect``:
+the attempt's fault, counted, latched with its evidence unless a fault is latched;
+``Watchdog.trip``: disarmed). The FB's side is tests/st_prove.py's executor on blark's tree.
+
+The correspondence, FB variable = program state: Phase = phase (0 waiting, 1 executing,
+2 interrupted); X, Y, LastUs, AttemptStart = x_us, y_us, last_us, attempt_start_us in ms
+(times are whole milliseconds: the program's clock is a TIME); AttemptFaultNone = attempt_fault
+is None, AttemptFault = its time; Attempt, Faults, Completed = the counts; Armed = the
+watchdog's _armed; Fault = a latched detection, Rule/FaultX/FaultY = its rule, x, y (compared
+while Fault holds: the evidence of a released fault is not a value of the cell); Location =
+3 when Fault, else Phase (MonitorState.location). The state invariant is 0 <= Phase <= 2
+(the program's phase is one of three objects); a call keeps it. The fault-reset call (Reset)
+is compared with ``TaskAutomaton.reset``: the label released unless the attempt that failed
+still runs, nothing else changed.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import z3
+
+from hmi.logic import expr as ex
+from hmi.program import ir
+from tests.st_prove import (
+    Proof,
+    Symbolic,
+    Unsupported,
+    _concrete,
+    _ite,
+    _valid,
+    in_bounds,
+    parse_fb,
+    pou_text,
+)
+
+
+@dataclass(frozen=True)
+class Opt:
+    """A value that may be None (the program's ``attempt_fault``, ``latched``): `none`, and
+    the fields that matter when it is not."""
+
+    none: Any
+    fields: tuple[Any, ...] = ()
+
+
+NONE = Opt(z3.BoolVal(True))
+
+
+def _merge_value(cond: Any, a: Any, b: Any) -> Any:
+    if isinstance(a, Opt) or isinstance(b, Opt):
+        a = a if isinstance(a, Opt) else Opt(z3.BoolVal(False), (a,))
+        b = b if isinstance(b, Opt) else Opt(z3.BoolVal(False), (b,))
+        width = max(len(a.fields), len(b.fields))
+        fa = (*a.fields, *[z3.IntVal(0)] * (width - len(a.fields)))
+        fb = (*b.fields, *[z3.IntVal(0)] * (width - len(b.fields)))
+        return Opt(_ite(cond, a.none, b.none),
+                   tuple(_ite(cond, x, y) for x, y in zip(fa, fb, strict=True)))
+    return _ite(cond, a, b)
+
+
+Handler = Callable[["IrSymbolic", list[Any]], None]
+
+
+class IrSymbolic:
+    """The scan program's statements run on z3 values: `cells` by (id(owner), attr), the
+    conditions' reads through `read(name, depth)`, `codes` the objects compared by identity
+    (a phase) as integers, `handlers` the calls by (id(owner), method), `ignored` the cells
+    that only mark the snapshot (written, never read back by the program)."""
+
+    def __init__(self, cells: dict[tuple[int, Any], Any], read: Callable[[str, int], Any],
+                 now: Any, codes: dict[int, int], handlers: dict[tuple[int, str], Handler],
+                 ignored: set[tuple[int, Any]], image: dict[int, Any] | None = None,
+                 slots: dict[str, int] | None = None):
+        # (the image: its slots by index, the values of this scan; `slots` names them)
+        self.cells = dict(cells)
+        self.image = dict(image or {})
+        self.slots = slots or {}
+        self.env: dict[str, Any] = {}
+        self.read, self.now, self.codes = read, now, codes
+        self.handlers, self.ignored = handlers, ignored
+
+    def run(self, stmts: tuple[ir.Stmt, ...]) -> None:
+        for s in stmts:
+            self.stmt(s)
+
+    def stmt(self, s: ir.Stmt) -> None:
+        if isinstance(s, ir.If):
+            cond = self.value(s.test)
+            known = _concrete(cond)
+            if known is not None:
+                self.run(s.then if known else s.orelse)
+                return
+            cells, env, image = dict(self.cells), dict(self.env), dict(self.image)
+            self.run(s.then)
+            yes = (self.cells, self.env, self.image)
+            self.cells, self.env, self.image = cells, env, image
+            self.run(s.orelse)
+            self.cells = {k: _merge_value(cond, yes[0][k], v) for k, v in self.cells.items()}
+            self.image = {k: _merge_value(cond, yes[2][k], v) for k, v in self.image.items()}
+            # (a local set on one side only is read only on that side)
+            self.env = {k: _merge_value(cond, yes[1][k], self.env[k])
+                        if k in yes[1] and k in self.env else yes[1].get(k, self.env.get(k))
+                        for k in {*yes[1], *self.env}}
+            return
+        if isinstance(s, ir.Do):
+            call = s.call
+            handler = self.handlers.get((id(call.owner), call.method))
+            if handler is None:
+                raise Unsupported(f"a call of {call.method}")
+            handler(self, [self.value(a) for a in call.args])
+            return
+        if isinstance(s, ir.Assign):
+            target = s.target
+            if isinstance(target, ir.Item) and isinstance(target.base, ir.Ref) \
+                    and (id(target.base.obj), target.index) in self.ignored:
+                return
+            if isinstance(target, ir.Cell) and (id(target.owner), target.attr) in self.ignored:
+                return
+            value = self.value(s.value)
+            if isinstance(target, ir.Local):
+                self.env[target.name] = value
+            elif isinstance(target, ir.Slot):
+                if target.index not in self.image:
+                    raise Unsupported(f"slot {target.index} with no counterpart")
+                self.image[target.index] = value
+            elif isinstance(target, ir.Cell):
+                key = (id(target.owner), target.attr)
+                if key not in self.cells:
+                    raise Unsupported(f"a cell {target.attr} with no counterpart")
+                self.cells[key] = value
+            else:
+                raise Unsupported(f"an assignment to {type(target).__name__}")
+            return
+        raise Unsupported(f"statement {type(s).__name__}")
+
+    def value(self, v: ir.Value) -> Any:
+        match v:
+            case ir.Test(node=node):
+                return self.expression(node)
+            case ir.Now():
+                return self.now
+            case ir.ScanNumber():
+                return z3.IntVal(0)  # (only the handlers' evidence reads it: not compared)
+            case ir.Const(value=None):
+                return NONE
+            case ir.Const(value=bool() as b):
+                return z3.BoolVal(b)
+            case ir.Const(value=int() as n):
+                return z3.IntVal(n)
+            case ir.Ref(obj=obj) if id(obj) in self.codes:
+                return z3.IntVal(self.codes[id(obj)])
+            case ir.Local(name=name):
+                return self.env[name]
+            case ir.Slot(index=index) if index in self.image:
+                return self.image[index]
+            case ir.Cell(owner=owner, attr=attr):
+                key = (id(owner), attr)
+                if key in self.ignored or key not in self.cells:
+                    raise Unsupported(f"a read of the cell {attr}")
+                return self.cells[key]
+            case ir.Add(left=a, right=b):
+                return self.number(a) + self.number(b)
+            case ir.Sub(left=a, right=b):
+                return self.number(a) - self.number(b)
+            case ir.Compare(op=op, left=a, right=b):
+                x, y = self.number(a), self.number(b)
+                return {"==": lambda: x == y, "is": lambda: x == y, "!=": lambda: x != y,
+                        "<": lambda: x < y, "<=": lambda: x <= y, ">": lambda: x > y,
+                        ">=": lambda: x >= y}[op]()
+            case ir.IsNone(operand=operand):
+                found = self.value(operand)
+                return found.none if isinstance(found, Opt) else z3.BoolVal(False)
+            case ir.Not(operand=operand):
+                return z3.Not(self.value(operand))
+            case ir.And(operands=operands):
+                return z3.And(*[self.value(o) for o in operands])
+            case ir.Or(operands=operands):
+                return z3.Or(*[self.value(o) for o in operands])
+        raise Unsupported(f"value {type(v).__name__}")
+
+    def number(self, v: ir.Value) -> Any:
+        """A value in arithmetic: a maybe-None one is its value (Python would stop on None:
+        the program reads it only where it is set)."""
+        found = self.value(v)
+        if isinstance(found, Opt):
+            return found.fields[0] if found.fields else z3.IntVal(0)
+        return found
+
+    def expression(self, node: ex.Node) -> Any:
+        """A project expression (hmi.logic.expr) on the FB's inputs."""
+        match node:
+            case ex.Const(value=value):
+                return z3.BoolVal(bool(value))
+            case ex.Var(name=name, depth=0) if self.slots.get(name) in self.image:
+                return self.image[self.slots[name]]  # (this scan's value so far)
+            case ex.Var(name=name, depth=depth):
+                return self.read(name, depth)
+            case ex.Not(operand=operand):
+                return z3.Not(self.expression(operand))
+            case ex.And(operands=operands):
+                return z3.And(*[self.expression(o) for o in operands])
+            case ex.Or(operands=operands):
+                return z3.Or(*[self.expression(o) for o in operands])
+        raise Unsupported(f"expression {type(node).__name__}")
+
+
+def built_blocks(project: Any, builder: str) -> list[tuple[tuple[Any, ...], Any]]:
+    """Each call of hmi.export.build's `builder` (e.g. "build_monitor") when the project is
+    exported: its arguments and the Block it built (the export's own wiring and objects)."""
+    b = importlib.import_module("hmi.export.build")
+    seen: list[tuple[tuple[Any, ...], Any]] = []
+    real = getattr(b, builder)
+
+    def spy(*args: Any, **kwargs: Any) -> Any:
+        block = real(*args, **kwargs)
+        seen.append((args, block))
+        return block
+
+    setattr(b, builder, spy)
+    try:
+        b.build(project)
+    finally:
+        setattr(b, builder, real)
+    return seen
+
+
+MS = 1000  # µs per ms: the program's times are the FB's, in µs
+
+
+def prove_monitor(project: Any, text: str, task: str,
+                  tamper: Callable[[str], str] | None = None) -> list[Proof]:
+    """The exported monitor FB of `task` (in `text`, `tamper`ed if given) against the scan
+    program's lowering of that task: a list of proved (or refuted) properties."""
+    from hmi.engine.stopwatch import Phase
+    from hmi.export.stopwatch_pou import PHASES
+    calls = [(args, block) for args, block in built_blocks(project, "build_monitor")
+             if args[2].name == task]
+    ((stage, k, _spec, *_rest), block), = calls
+    automaton = stage.automata[k]
+    fb_text = pou_text(text, block.pou.name)
+    if tamper is not None:
+        fb_text = tamper(fb_text)
+    fb = parse_fb(fb_text)
+    sym = Symbolic(fb)
+    sym.obligations = []
+    out = sym.run()
+    st = sym.initial
+
+    def v(name: str) -> Any:
+        return st[name.upper()]
+
+    def read(name: str, depth: int) -> Any:
+        return st[block.inputs[(name, depth)].upper()]
+
+    a, w = automaton, automaton.watchdog
+    cells = {
+        (id(a), "phase"): v("Phase"), (id(a), "x_us"): MS * v("X"),
+        (id(a), "y_us"): MS * v("Y"), (id(a), "last_us"): MS * v("LastUs"),
+        (id(a), "attempt"): v("Attempt"), (id(a), "attempt_start_us"): MS * v("AttemptStart"),
+        (id(a), "attempt_fault"): Opt(v("AttemptFaultNone"), (MS * v("AttemptFault"),)),
+        (id(a), "completed"): v("Completed"), (id(a), "faults"): v("Faults"),
+        (id(a), "latched"): Opt(z3.Not(v("Fault")),
+                                (v("Rule"), MS * v("FaultX"), MS * v("FaultY"))),
+        (id(w), "_armed"): v("Armed"),
+    }
+
+    def detect(run: IrSymbolic, args: list[Any]) -> None:
+        """TaskAutomaton.detect: the attempt's fault, counted; latched (rule, x, y) unless a
+        fault is latched already."""
+        verdict, now, _scan = args
+        c = run.cells
+        c[(id(a), "attempt_fault")] = Opt(z3.BoolVal(False), (now,))
+        c[(id(a), "faults")] = c[(id(a), "faults")] + 1
+        latched = c[(id(a), "latched")]
+        mine = Opt(z3.BoolVal(False), (verdict, c[(id(a), "x_us")], c[(id(a), "y_us")]))
+        c[(id(a), "latched")] = _merge_value(latched.none, mine, latched)
+
+    def trip(run: IrSymbolic, args: list[Any]) -> None:
+        """Watchdog.trip: disarmed (the trip's record is the engine's yardstick)."""
+        run.cells[(id(w), "_armed")] = z3.BoolVal(False)
+
+    program = IrSymbolic(cells, read, MS * v("Now"),
+                         {id(p): code for p, code in PHASES.items()},
+                         {(id(a), "detect"): detect, (id(w), "trip"): trip},
+                         {(id(a), "changes"), (id(stage.dirty), k)})
+    program.run(stage.programs[k])
+    after = program.cells
+    assert Phase.IDLE in PHASES
+    invariant = z3.And(v("Phase") >= 0, v("Phase") <= 2)
+
+    def o(name: str) -> Any:
+        return out[name.upper()]
+
+    reset, fault = v("Reset"), out["FAULT"]
+    latched = after[(id(a), "latched")]
+    scan = {
+        "the task's phase": o("Phase") == after[(id(a), "phase")],
+        "the stopwatch x": MS * o("X") == after[(id(a), "x_us")],
+        "the stopwatch y": MS * o("Y") == after[(id(a), "y_us")],
+        "the time of the last scan": MS * o("LastUs") == after[(id(a), "last_us")],
+        "the attempt and its start": z3.And(
+            o("Attempt") == after[(id(a), "attempt")],
+            MS * o("AttemptStart") == after[(id(a), "attempt_start_us")]),
+        "the attempt's fault": z3.And(
+            o("AttemptFaultNone") == after[(id(a), "attempt_fault")].none,
+            z3.Implies(z3.Not(o("AttemptFaultNone")),
+                       MS * o("AttemptFault") == after[(id(a), "attempt_fault")].fields[0])),
+        "the counts of faults and completed attempts": z3.And(
+            o("Faults") == after[(id(a), "faults")],
+            o("Completed") == after[(id(a), "completed")]),
+        "the watchdog armed": o("Armed") == after[(id(w), "_armed")],
+        "the fault label and its evidence (rule, x, y)": z3.And(
+            fault == z3.Not(latched.none),
+            z3.Implies(fault, z3.And(o("Rule") == latched.fields[0],
+                                     MS * o("FaultX") == latched.fields[1],
+                                     MS * o("FaultY") == latched.fields[2]))),
+    }
+    kept = [n for n in ("Phase", "X", "Y", "LastUs", "Attempt", "AttemptStart",
+                        "AttemptFaultNone", "AttemptFault", "Faults", "Completed", "Armed")]
+    released = z3.And(v("Fault"), z3.Not(z3.And(v("Phase") != 0,
+                                                  z3.Not(v("AttemptFaultNone")))))
+    properties = {
+        **{f"a scan: {name}": z3.Implies(z3.Not(reset), p) for name, p in scan.items()},
+        "a fault reset: the label released unless the attempt that failed still runs":
+            z3.Implies(reset, z3.And(fault == z3.And(v("Fault"), z3.Not(released)),
+                                     z3.Implies(fault, z3.And(o("Rule") == v("Rule"),
+                                                              o("FaultX") == v("FaultX"),
+                                                              o("FaultY") == v("FaultY"))))),
+        "a fault reset changes nothing else": z3.Implies(
+            reset, z3.And(*[o(n) == v(n) for n in kept])),
+        "the location: faulty while the label holds, else the phase":
+            o("Location") == z3.If(fault, 3, o("Phase")),
+        "a call keeps the state invariant (0 <= Phase <= 2)":
+            z3.And(o("Phase") >= 0, o("Phase") <= 2),
+    }
+    proofs = [_valid(name, z3.Implies(invariant, p), sym) for name, p in properties.items()]
+    proofs.append(in_bounds([_case(sym, out)]))
+    return proofs
+
+
+def _case(sym: Symbolic, out: dict[str, Any]) -> Any:
+    from tests.st_prove import Case
+    return Case((), sym, out)
+
+
+def prove_memory(project: Any, text: str, tamper: Callable[[str], str] | None = None
+                 ) -> list[Proof]:
+    """The exported memory FB (timers and observers) against the scan program's memory
+    stage (hmi.engine.stages.Memory.program: hmi.program.timers, hmi.program.memories), for
+    every input and every state: each output, and each timer's state (q; since, or none)."""
+    from hmi.engine.layout import Layout
+    from hmi.engine.stages import Memory
+    from hmi.project.diagnosers import layout_names
+    ((args, block),) = built_blocks(project, "build_memory")
+    if block is None:
+        return []  # (no timer, no observer: no memory block)
+    layout = args[1]
+    assert isinstance(layout, Layout)
+    assert layout == Layout.build(project, project.control(None), extra=layout_names(project))
+    memory = Memory(project, layout)
+    fb_text = pou_text(text, block.pou.name)
+    if tamper is not None:
+        fb_text = tamper(fb_text)
+    fb = parse_fb(fb_text)
+    sym = Symbolic(fb)
+    sym.obligations = []
+    out = sym.run()
+    st = sym.initial
+
+    def read(name: str, depth: int) -> Any:
+        if depth == 0 and name in block.outputs:
+            return st[block.outputs[name].upper()]
+        return st[block.inputs[(name, depth)].upper()]
+
+    slots = dict(layout.slots)
+    # the image as this stage finds it: what it writes (kept by the FB), what it reads now
+    image = {slots[name]: st[ident.upper()] for name, ident in block.outputs.items()}
+    image.update({slots[name]: st[ident.upper()] for (name, depth), ident in block.inputs.items()
+                  if depth == 0 and name in slots})
+    cells: dict[tuple[int, Any], Any] = {}
+    names: dict[str, tuple[Any, str]] = {}
+    for runtime, _slot, _input in memory.timers:
+        prefix = runtime.name.upper()
+        cells[(id(runtime), "since")] = Opt(st[f"{prefix}_NONE"], (MS * st[f"{prefix}_SINCE"],))
+        cells[(id(runtime), "q")] = st[f"{prefix}_Q"]
+        names[runtime.name] = (runtime, prefix)
+    program = IrSymbolic(cells, read, MS * st["NOW"], {}, {}, set(), image, slots)
+    program.run(memory.program)
+    properties = {}
+    for name, ident in block.outputs.items():
+        properties[f"{name}: the value written"] = out[ident.upper()] == program.image[slots[name]]
+    for name, (runtime, prefix) in names.items():
+        since = program.cells[(id(runtime), "since")]
+        properties[f"timer {name}: its state (q, since)"] = z3.And(
+            out[f"{prefix}_Q"] == program.cells[(id(runtime), "q")],
+            out[f"{prefix}_NONE"] == since.none,
+            z3.Implies(z3.Not(since.none), MS * out[f"{prefix}_SINCE"] == since.fields[0]))
+    proofs = [_valid(name, p, sym) for name, p in properties.items()]
+    proofs.append(in_bounds([_case(sym, out)]))
+    return proofs

@@ -1,0 +1,76 @@
+"""The symbolic executor of tests/st_prove.py on small function blocks: a path that indexes an
+array out of bounds is refuted with a counterexample when some input takes it, and dropped
+when none does; a state invariant bounds a loop over kept state (every test here can fail:
+the feasible variant of each block is refuted)."""
+
+from __future__ import annotations
+
+import pytest
+import z3
+
+from tests.st_prove import Unsupported, declarations, execute_cases, in_bounds, parse_fb
+
+# K counts up to X (at most 3 passes); at K = 3 the block writes A[3], out of bounds, on the
+# path `guard`: infeasible when the guard contradicts K < X, feasible otherwise.
+_COUNTING = """FUNCTION_BLOCK FB_T
+VAR_INPUT
+    X : INT;
+END_VAR
+VAR
+    A : ARRAY[0..2] OF INT;
+    K : INT;
+END_VAR
+K := 0;
+WHILE (K < X) AND (K < 3) DO
+    K := K + 1;
+    IF (K = 3) AND ({guard}) THEN
+        A[K] := 1;
+    END_IF;
+END_WHILE;
+END_FUNCTION_BLOCK
+"""
+
+
+@pytest.mark.parametrize(("guard", "proved"), [("X < 3", True), ("X > 4", False)])
+def test_a_constant_index_out_of_bounds_is_refuted_only_on_a_path_some_input_takes(guard,
+                                                                                  proved):
+    cases = execute_cases(parse_fb(_COUNTING.format(guard=guard)), frozenset())
+    proof = in_bounds(cases)
+    assert proof.proved is proved, proof.detail
+    if not proved:
+        # the counterexample takes the path: X past 3 and the guard
+        value = int(proof.detail.split("X = ")[1].split(",")[0])
+        assert value > 4
+
+
+# `next` counts C up to 2 from its kept value: without a bound on that state the loop has no
+# bound the executor can see; with C >= 0 assumed, it runs at most three times.
+_KEPT = """FUNCTION_BLOCK FB_K
+VAR
+    C : ARRAY[0..0] OF INT;
+    Runs : INT;
+END_VAR
+Runs := 0;
+WHILE C[0] < 2 DO
+    C[0] := C[0] + 1;
+    Runs := Runs + 1;
+END_WHILE;
+END_FUNCTION_BLOCK
+"""
+
+
+def test_a_state_invariant_bounds_a_loop_over_kept_state():
+    fb = parse_fb(_KEPT)
+    with pytest.raises(Unsupported, match="runs more than"):
+        execute_cases(fb, frozenset(), loop_limit=20, unchecked=2)
+    decl = declarations(fb)
+    assert decl.types["C"].low == 0
+    c0 = z3.Int("C[0]")
+    (case,) = execute_cases(fb, frozenset(), loop_limit=20, assume=(c0 >= 0,), unchecked=2)
+    runs, kept = case.out["RUNS"], case.out["C"][0]
+    solver = z3.Solver()
+    solver.add(c0 >= 0, z3.Not(z3.And(runs <= 2, kept >= 0, kept == z3.If(c0 < 2, 2, c0))))
+    assert solver.check() == z3.unsat
+    solver = z3.Solver()  # and the bound is tight: C[0] = 0 runs twice
+    solver.add(c0 == 0, runs != 2)
+    assert solver.check() == z3.unsat
