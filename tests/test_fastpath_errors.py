@@ -112,11 +112,10 @@ class Broken:
         def broken(*args, **kwargs):
             self.fail()
             return real(*args, **kwargs)
-        if where == "status":  # a property: on a class of this plant's own
+        if where == "status":  # an attribute: a property on a class of this plant's own
             plant_class = type(plant)
-            status = plant_class.status.fget  # type: ignore[attr-defined]
             plant.__class__ = type("BrokenStatus", (plant_class,), {
-                "status": property(lambda this: self.fail() or status(this))})
+                "status": property(lambda this: self.fail() or real)})
         else:
             setattr(owner, attribute, broken)
         if where == "violated":  # the filter stage's first question is the same function

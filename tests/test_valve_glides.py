@@ -69,13 +69,17 @@ def runs(draw):
     span = sum(duration for duration, _, _ in holds)
     faults = draw(st.lists(st.tuples(st.sampled_from(sorted(Valve.FAULTS)),
                                      st.integers(0, span)), max_size=3))
+    # faults injected on the way (inside a glide: it ends where the fault is due)
+    late = draw(st.lists(st.tuples(st.sampled_from(sorted(Valve.FAULTS)),
+                                   st.integers(0, span), st.integers(0, 3 * S)), max_size=2))
     repair = draw(st.none() | st.integers(0, span))
-    return params, holds, faults, repair
+    return params, holds, faults, repair, late
 
 
-def drive(params, holds, faults, repair: int | None) -> int:
+def drive(params, holds, faults, repair: int | None, late=()) -> int:
     """Both valves through the run; returns how many reads the gliding one answered from a
-    glide it was already in."""
+    glide it was already in. `late`: (fault, when it is injected, how long after it is
+    due)."""
     glide, full = Valve("V", params), FullValve("V", params)
     for code, at in faults:
         glide.inject(code, at)
@@ -91,6 +95,10 @@ def drive(params, holds, faults, repair: int | None) -> int:
             now = min(end, glide.t + sample)
             if repair is not None and glide.t < repair <= now:
                 assert glide.repair(repair) == full.repair(repair)
+            for code, when, after in late:
+                if glide.t <= when < now:
+                    glide.inject(code, glide.t + after)
+                    full.inject(code, full.t + after)
             reads += 1
             # the plant's read (Valve.sense: the glide's shortcut), an advance then the
             # sensors read right after it (the pump advances a valve, the plant then reads

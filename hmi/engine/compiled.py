@@ -215,7 +215,7 @@ class CompiledScan:
 # What the frame (auto_frame) names: its locals, and what it reads or calls on the engine, its
 # plant, its scan record and its stages
 FRAME = Vocabulary(
-    frozenset({"_pending", "scan", "now", "latched", "clean_report", "_news", "_commanded",
+    frozenset({"_pending", "scan", "now", "latched", "clean_report", "_news",
                "_auto_lost", "_auto_failed", "_auto_filter", "_write_error",
                "_monitors_error", "_finish", "_conclude", "read_into", "write_vector",
                "take_events", "status", "core", "violated", "monitors", "faulty", "deadline",
@@ -224,23 +224,28 @@ FRAME = Vocabulary(
                "events", "recovery", "scan_us", "settled", "manual", "current", "settle",
                "needed"}),
     frozenset({"exc", "diag", "report", "error", "monitored", "marks", "events", "status",
-               "last", "values", "w"}))
+               "last", "values", "w", "none_waiting", "out", "decided"}))
 
 
 def auto_frame(engine: Any) -> ir.Function:
     """``auto(now) -> news``: `engine`'s (hmi.engine.scan.Engine, not imported: it imports
     this module) Engine.run scan in automatic mode, once started, with no
     device stopped and no wall time measured (most scans of a run), written out: stage 1,
-    the mode's program (``core``), the constraints' test, the output scan and the monitors,
-    then what Engine._conclude does for a quiet scan (nothing masked, latched nor violated,
-    no error, no plant event, no supervision due, no diagnoser faulty, no recovery needed,
-    nothing changed since the last scan with news but what moves by itself). Whatever is
+    the mode's program (``core``), the constraints' test (the filter's decision when the
+    candidate violates a constraint, nothing masked nor latched: Engine._auto_filter), the
+    output scan and the monitors, then what Engine._conclude does for a quiet scan (nothing
+    masked nor latched, no error, no plant event, no supervision due, no diagnoser faulty,
+    no recovery needed, nothing changed since the last scan with news but what moves by
+    itself: a remembered correction is the very same report). Whatever is
     not such a scan goes on where Engine._cycle and Engine._conclude go on, through
     the engine's own methods, from the point reached: the same scan, in both paths."""
     e, plant, scan_program = engine, engine.plant, engine.compiled
     image, history = ir.Ref(engine.image), ir.Ref(engine.history)
     now, scan = ir.Local("now"), ir.Local("scan")
     f, diag, report, error = (ir.Local(n) for n in ("f", "diag", "report", "error"))
+    events, status, values = ir.Local("events"), ir.Local("status"), ir.Local("values")
+    out, decided = ir.Local("out"), ir.Local("decided")
+    calm = ir.Local("none_waiting")
     monitored, exc, unquiet = ir.Local("monitored"), ir.Local("exc"), ir.Local("w")
     stage, monitors, recovery = engine.diagnosis, engine.monitors, engine.recovery
     supervised = engine._supervised
@@ -255,7 +260,7 @@ def auto_frame(engine: Any) -> ir.Function:
     def conclude(*stmts: ir.Stmt) -> tuple[ir.Stmt, ...]:
         return (*stmts, ir.Return(call(e, "_conclude", now)))
 
-    finish = ir.Return(call(e, "_finish", now, f, report, diag, monitored, error))
+    finish = ir.Return(call(e, "_finish", now, f, out, report, diag, monitored, error))
     body: list[ir.Stmt] = [
         ir.Assign(cell(e, "_pending"), ir.FALSE),  # (the last scan's snapshot: dropped)
         ir.Assign(scan, ir.Add(cell(e, "scan"), ir.Const(1))),
@@ -286,16 +291,22 @@ def auto_frame(engine: Any) -> ir.Function:
             call(scan_program, "violated", image, history, f)))))
         body.append(ir.Try(tuple(guarded), ((Exception, "exc", conclude(
             ir.Do(call(e, "_auto_failed", now, exc, diag)))),)))
-        body.append(ir.If(unquiet, conclude(ir.Do(call(e, "_auto_filter", now, f, diag,
-                                                        unquiet)))))
-        body.append(ir.Assign(report, cell(e, "clean_report")))
+        # the filter's decision when it is not the candidate (what it writes: `out`); it
+        # concludes the scan itself unless that goes on as a clean candidate's would
+        body.append(ir.If(unquiet, (
+            ir.Assign(decided, call(e, "_auto_filter", now, f, diag, unquiet)),
+            ir.If(ir.IsNone(decided), (ir.Return(call(e, "_conclude", now)),)),
+            ir.Assign(out, ir.Item(decided, 0)), ir.Assign(report, ir.Item(decided, 1))),
+            (ir.Assign(out, f), ir.Assign(report, cell(e, "clean_report")))))
         body.append(ir.Assign(error, ir.NONE))
 
-    def outputs() -> None:  # 7. output scan
+    def outputs() -> None:  # 7. output scan (and whether the plant says no event waits)
         body.append(ir.Try(
-            (ir.Do(call(plant, "write_vector", now, ir.Ref(engine.output_scan.names), f)),),
-            ((Exception, "exc", (ir.Assign(error, call(e, "_write_error", now, f, error,
-                                                       exc)),)),)))
+            (ir.Assign(calm, call(plant, "write_vector", now,
+                                  ir.Ref(engine.output_scan.names), out)),),
+            ((Exception, "exc", (ir.Assign(calm, ir.FALSE),
+                                 ir.Assign(error, call(e, "_write_error", now, out, error,
+                                                       exc)))),)))
 
     def monitors_() -> None:  # 8. monitors
         if monitors is None:
@@ -327,21 +338,22 @@ def auto_frame(engine: Any) -> ir.Function:
     if monitors is not None:  # (monitored: else the error above)
         body.append(ir.Try(
             (ir.Assign(marks, call(monitors, "settle")),),
-            ((Exception, "exc", (ir.Return(call(e, "_finish", now, f, report, diag, monitored,
+            ((Exception, "exc", (ir.Return(call(e, "_finish", now, f, out, report, diag, monitored,
                                                 error, ir.NONE,
                                                 ir.Tuple((ir.Const(3), exc)))),)),)))
     else:
         body.append(ir.Assign(marks, ir.Const(0)))
-    events, status, values = ir.Local("events"), ir.Local("status"), ir.Local("values")
-    taken = ir.Return(call(e, "_finish", now, f, report, diag, monitored, error, events))
+    taken = ir.Return(call(e, "_finish", now, f, out, report, diag, monitored, error, events))
+    # the plant's events, unless the write said none waits (Plant.write_vector), its status
     body += [
-        ir.Try((ir.Assign(events, call(plant, "take_events")),),
-               ((Exception, "exc", (ir.Return(call(e, "_finish", now, f, report, diag,
-                                                   monitored, error, ir.NONE,
-                                                   ir.Tuple((ir.Const(1), exc)))),)),)),
-        ir.If(events, (taken,)),
+        ir.If(calm, (ir.Assign(events, ir.Const(())),), (
+            ir.Try((ir.Assign(events, call(plant, "take_events")),),
+                   ((Exception, "exc", (ir.Return(call(e, "_finish", now, f, out, report, diag,
+                                                       monitored, error, ir.NONE,
+                                                       ir.Tuple((ir.Const(1), exc)))),)),)),
+            ir.If(events, (taken,)))),
         ir.Try((ir.Assign(status, cell(plant, "status")),),
-               ((Exception, "exc", (ir.Return(call(e, "_finish", now, f, report, diag,
+               ((Exception, "exc", (ir.Return(call(e, "_finish", now, f, out, report, diag,
                                                    monitored, error, events,
                                                    ir.Tuple((ir.Const(2), exc)))),)),)),
     ]
@@ -351,7 +363,7 @@ def auto_frame(engine: Any) -> ir.Function:
     last = ir.Local("last")
     body += [
         ir.Assign(last, cell(e, "_news")),
-        ir.If(ir.Or((ir.IsNone(last), cell(e, "_commanded"), ir.Item(diag, 3),
+        ir.If(ir.Or((ir.IsNone(last), ir.Item(diag, 3),
                      cell(e, "manual"))), (taken,)),
         ir.If(ir.Not(ir.And((
             ir.Compare("is", report, ir.Item(last, 0)),
@@ -369,7 +381,7 @@ def auto_frame(engine: Any) -> ir.Function:
         ("report", report), ("diagnosis", diag), ("monitored", monitored),
         ("error", ir.NONE), ("filter_us", zero), ("diagnosers", diagnosers),
         ("marks", marks), ("events", ir.Const(())), ("recovery", shown), ("scan_us", zero))
-    moving = (ir.Assign(cell(record, "fov"), f), ir.Assign(cell(record, "outputs"), f),
+    moving = (ir.Assign(cell(record, "fov"), f), ir.Assign(cell(record, "outputs"), out),
               ir.Assign(cell(record, "values"), values))
     body += [
         ir.If(cell(record, "settled"), moving,

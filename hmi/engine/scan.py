@@ -242,8 +242,8 @@ class Engine:
         # news is judged against (hmi.engine.scan.Engine.run).
         self._record = ScanRecord()
         self._pending = False  # whether _record holds a scan whose snapshot is not built
+        # (None: the next scan has news whatever it finds: none yet, or a command since)
         self._news: ScanNews | None = None
-        self._commanded = False
         self._elapsed = self.memory.elapsed
         self._clean = self.filter_stage.clean  # each policy's report of a clean scan
         self.policy = self.policy  # (its clean report, now that the filter is there)
@@ -520,7 +520,7 @@ class Engine:
         scan's snapshot, if still pending, is built now from what that scan left."""
         if self._pending:
             self.snapshot()
-        self._commanded = True
+        self._news = None  # (the next scan has news)
 
     def fault_reset(self) -> CommandResult:
         self._before_change()
@@ -676,7 +676,7 @@ class Engine:
             supervised.watch(now)
             if supervised.overdue is not self._overdue:
                 self._overdue = supervised.overdue
-                self._commanded = True  # (news, as after a command)
+                self._news = None  # (news, as after a command)
         stage = self.diagnosis
         plant = self.plant
         # What the scan left, read for its snapshot: each read outside the stages' own error
@@ -734,18 +734,17 @@ class Engine:
             error = record.error
         last = self._news
         # (a command since, a new policy included, makes this scan news and compares the
-        # next with this one)
+        # next with this one: _news None)
         if (last is not None and report is last.report and status is last.status
                 and diagnosers is last.diagnosers and marks == last.marks
                 and recovery is last.recovery
-                and not self._commanded and error is None and not events
+                and error is None and not events
                 and not self.latched and not diagnosis.masked
                 and not diagnosis.reconstructed and not self.manual):
             news = False
         else:
             news = True
             self._news = ScanNews(report, status, diagnosers, marks, recovery)
-        self._commanded = False
         record.values = values
         record.diagnosers = diagnosers
         record.marks = marks
@@ -762,18 +761,16 @@ class Engine:
         had news. A headless run hands the engine a stretch of scans at once when nothing
         it reads can change at a quiet scan (hmi.session.Session.run_for); the last scan's
         snapshot is pending as after run()."""
-        run = self.run
-        count = 0
+        run, frame = self.run, self._frame
         now = start
-        while now <= end:
-            count += 1
+        while now <= end:  # (the scans counted from the times: one addition a scan)
             if self._fast:  # (the printed frame, without run()'s call)
-                if self._frame(now):  # type: ignore[misc]
-                    return count, True
+                if frame(now):  # type: ignore[misc]
+                    return (now - start) // period + 1, True
             elif run(now):
-                return count, True
+                return (now - start) // period + 1, True
             now += period
-        return count, False
+        return (now - start) // period, False
 
     def snapshot(self) -> Snapshot:
         """The last scan's snapshot (:meth:`run`), built now if not yet: the engine's
@@ -865,7 +862,7 @@ class Engine:
         closed-loop exploration, hmi.studies.explore, only follows the state). The plant's
         events stay with the plant (take_events)."""
         self._pending = False
-        self._commanded = True  # (the next run() cannot compare with this scan)
+        self._news = None  # (the next run() cannot compare with this scan)
         self._cycle(now)
         self.history.appendleft(tuple(self.image))
 
@@ -1012,26 +1009,24 @@ class Engine:
         self._keep(safe, safe, None, diagnosis, monitored, error, 0.0)
 
     def _auto_filter(self, now: int, fov: tuple[bool, ...], diagnosis: Diagnosis,
-                     unquiet: object = None, started: float = 0.0) -> None:
+                     unquiet: object = None) -> tuple[tuple[bool, ...], FilterReport] | None:
         """The automatic mode's filter when the candidate is masked, latched or violated
         (`unquiet`: the frame's test, the violation word when nothing is masked nor
-        latched): its decision, the latch, the output scan and the monitors."""
+        latched). Nothing masked nor latched, before the decision or by it: the decision's
+        outputs, in the image, and its report, which the printed frame writes, monitors and
+        concludes as it does a clean candidate's. Otherwise the output scan and the
+        monitors run here and the scan is kept (None: the frame concludes it)."""
         image = self.image
-        hist = self.history
         mask = diagnosis.mask
-        policy = self.policy
-        timed = self.wall_times
-        filter_us = 0.0
         try:
             if mask is None and not self.latched:
                 # violated, nothing masked: what FilterStage.apply would hand the filter
                 word = unquiet if type(unquiet) is int else None
-                decision = self.safety_filter.apply(image, hist, fov, policy, False, word)
+                decision = self.safety_filter.apply(image, self.history, fov, self.policy,
+                                                    False, word)
             else:
-                decision = self.filter_stage.apply(image, hist, fov, policy,
+                decision = self.filter_stage.apply(image, self.history, fov, self.policy,
                                                    bool(self.latched), mask)
-            if timed:
-                filter_us = (time.perf_counter() - started) * 1e6
             if decision.latch is not None:
                 self.latch_safe("filter", decision.latch)
             outputs = decision.outputs
@@ -1040,18 +1035,23 @@ class Engine:
                 outputs = self.safe_vector
         except Exception as exc:  # never leave the plant driven by a half-computed scan
             self._auto_failed(now, exc, diagnosis)
-            return
+            return None
+        if mask is None and not self.latched:
+            for slot, value in zip(self.output_slots, outputs, strict=True):
+                image[slot] = value  # (the output scan's first half: _scan_outputs)
+            return outputs, report
         monitored, error = self._output_scan(now, outputs, None)
-        self._keep(fov, outputs, report, diagnosis, monitored, error, filter_us)
+        self._keep(fov, outputs, report, diagnosis, monitored, error, 0.0)
+        return None
 
-    def _finish(self, now: int, fov: tuple[bool, ...], report: FilterReport,
-                diagnosis: Diagnosis, monitored: bool, error: str | None,
-                taken: tuple[Any, ...] | None = None,
+    def _finish(self, now: int, fov: tuple[bool, ...], outputs: tuple[bool, ...],
+                report: FilterReport, diagnosis: Diagnosis, monitored: bool,
+                error: str | None, taken: tuple[Any, ...] | None = None,
                 raised: tuple[int, Exception] | None = None) -> bool:
-        """An automatic-mode scan with nothing to filter, written and monitored, kept and
-        concluded (the printed frame's way out when the rest is not a quiet scan's:
-        _conclude's `taken` and `raised`)."""
-        self._keep(fov, fov, report, diagnosis, monitored, error, 0.0)
+        """An automatic-mode scan filtered, written and monitored, kept and concluded (the
+        printed frame's way out when the rest is not a quiet scan's: _conclude's `taken`
+        and `raised`)."""
+        self._keep(fov, outputs, report, diagnosis, monitored, error, 0.0)
         return self._conclude(now, 0.0, taken, raised)
 
     def _keep(self, fov: tuple[bool, ...], outputs: tuple[bool, ...],

@@ -108,10 +108,13 @@ class Plant(ABC):
             image[slot] = bool(values[name])
 
     def write_vector(self, now_us: int, names: tuple[str, ...],
-                     values: tuple[bool, ...]) -> None:
-        """:meth:`write` given the outputs as a vector in `names`' order (the engine's). A
-        simulated plant skips a write that changes nothing."""
+                     values: tuple[bool, ...]) -> bool:
+        """:meth:`write` given the outputs as a vector in `names`' order (the engine's).
+        Returns True when the plant knows that :meth:`take_events` would give nothing now
+        (the engine then does not ask it), False when it does not say (a simulated plant
+        says, and skips a write that changes nothing)."""
         self.write(now_us, dict(zip(names, values, strict=True)))
+        return False
 
     @property
     @abstractmethod
@@ -125,7 +128,8 @@ class Plant(ABC):
         return ()
 
     def take_events(self) -> tuple[PlantEvent, ...]:
-        """Events recorded since the previous call (the engine calls it once per scan)."""
+        """Events recorded since the previous call (the engine calls it once per scan,
+        unless the scan's write_vector said none waits)."""
         return ()
 
     def events(self) -> list[PlantEvent]:

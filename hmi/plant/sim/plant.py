@@ -28,6 +28,9 @@ class SimPlant(Plant):
     can_inject = True
     can_repair = True
     can_set_inputs = True
+    # (each plant's own, set when it is built: a plain attribute the engine reads at every
+    # scan, not a property)
+    status = PlantStatus("sim", "simulated")
 
     def __init__(self, project: Project):
         self.project = project
@@ -65,8 +68,15 @@ class SimPlant(Plant):
                                    tuple[tuple[str, int], ...]] | None = None
         self._taken = [0] * len(self.devices)
         self._one = self.devices[0] if len(self.devices) == 1 else None
+        # read_into's plan when every device has sensors in slots that follow each other, no
+        # input is free and read is the plant's own: (bindings, (device, ports, first, end,
+        # last) per device); else None (see _read_plan)
+        self._simple: tuple[Any, ...] | None = None
+        # whether write_vector may answer for take_events (its own, not replaced; the plan)
+        self._says_events = False
         models = ", ".join(f"{d.name} ({d.MODEL})" for d in self.devices) or "no devices"
-        self._status = PlantStatus("sim", f"simulated: {models}")
+        # (a plain attribute, not a property: the engine reads it at every scan)
+        self.status = PlantStatus("sim", f"simulated: {models}")
 
     # -- engine side -------------------------------------------------------------------------
     def read(self, now_us: int) -> Mapping[str, bool]:
@@ -89,28 +99,35 @@ class SimPlant(Plant):
         kept while the device gives the very same mapping again (a gliding cell's), and
         stored as a slice when its slots follow each other. This is the plant's part of
         every scan: the plan (:meth:`_read_plan`) leaves it only the devices to read."""
+        simple = self._simple
+        if simple is not None and simple[0] is bindings and "read" not in self.__dict__:
+            # (each device's slots follow each other, every input is driven: most plants;
+            # _read_device written out, this is every scan's read)
+            for device, ports, first, end, last in simple[1]:
+                sensed = device.sense(now_us)
+                if sensed is not last[0]:
+                    last[0], last[1] = sensed, _vector(sensed, ports)
+                image[first:end] = last[1]
+            self._read_at = now_us
+            return
         plan = self._plan
         if plan is None or plan[0] is not bindings:
             plan = self._plan = self._read_plan(bindings)
+            self._simple = None if plan[2] is None else (bindings, plan[2])
+            if self._simple is not None:
+                self.read_into(now_us, image, bindings)
+                return
         if plan[1] or "read" in self.__dict__:
             super().read_into(now_us, image, bindings)
             return
-        if plan[3] is None:  # (each device's slots follow each other, every input is
-            # driven: most plants; _read_device written out, this is every scan's read)
-            for device, ports, first, end, last in plan[2]:
-                sensed = device.sense(now_us)
-                if sensed is not last[0]:
-                    last[0], last[1] = sensed, tuple([bool(sensed[port]) for port in ports])
-                image[first:end] = last[1]
-        else:
-            for device, ports, slots, first, end, last in plan[3]:
-                if ports:
-                    _read_device(device.sense(now_us), image, ports, slots, first, end, last)
-                else:
-                    device.advance(now_us)
-            free = self.free_inputs
-            for name, index in plan[4]:
-                image[index] = bool(free[name])
+        for device, ports, slots, first, end, last in plan[3]:
+            if ports:
+                _read_device(device.sense(now_us), image, ports, slots, first, end, last)
+            else:
+                device.advance(now_us)
+        free = self.free_inputs
+        for name, index in plan[4]:
+            image[index] = bool(free[name])
         self._read_at = now_us
 
     def _read_plan(self, bindings: tuple[tuple[str, int], ...]) -> tuple[Any, ...]:
@@ -119,8 +136,13 @@ class SimPlant(Plant):
         (device, its sensor ports in slot order, their slots, the first and end slot when
         they follow each other (else None), [the mapping last read, the vector made of it]),
         as (device, ports, first, end, last) when every device has sensors in slots that
-        follow each other and no input is free, else None and the full ones; the free
-        inputs' (name, slot) pairs."""
+        follow each other, no input is free and the plant's read is its own, else None; the
+        full ones; the free inputs' (name, slot) pairs.
+
+        It also decides whether write_vector may say that no event is waiting: when
+        take_events is the plant's own, as the plant is now (a take_events replaced on the
+        instance or in a subclass is asked at every scan; one replaced after the plant's
+        first read is asked at the scans with news)."""
         slot = dict(bindings)
         readers = []
         for device, binding in self._sensor_bind:
@@ -131,11 +153,14 @@ class SimPlant(Plant):
                             slots[0] if contiguous else None,
                             slots[0] + len(slots) if contiguous else None, [None, ()]))
         free = tuple((name, slot[name]) for name in self.free_inputs)
-        simple = not free and all(reader[3] is not None for reader in readers)
-        return (bindings, type(self).read is not SimPlant.read,
+        own = type(self).read is SimPlant.read
+        simple = own and not free and all(reader[3] is not None for reader in readers)
+        self._says_events = (type(self).take_events is _TAKE_EVENTS
+                             and "take_events" not in self.__dict__)
+        return (bindings, not own,
                 tuple((d, ports, first, end, last)
-                      for d, ports, _, first, end, last in readers) if simple else (),
-                None if simple else tuple(readers), free)
+                      for d, ports, _, first, end, last in readers) if simple else None,
+                tuple(readers), free)
 
     def write(self, now_us: int, outputs: Mapping[str, bool]) -> None:
         self._written_values = None
@@ -148,20 +173,27 @@ class SimPlant(Plant):
         self._written_values = None
 
     def write_vector(self, now_us: int, names: tuple[str, ...],
-                     values: tuple[bool, ...]) -> None:
+                     values: tuple[bool, ...]) -> bool:
         """Skips the write when it changes nothing: the same vector as the last write, and
         every device already brought to `now_us` by this scan's read (then each device's
         write would only find its orders unchanged). Whoever sets the devices' orders
-        otherwise calls :meth:`forget_writes`."""
-        if values == self._written_values and now_us == self._read_at \
-                and names is self._written_names:
-            return
-        self.write(now_us, dict(zip(names, values, strict=True)))
-        self._written_names, self._written_values = names, tuple(values)
+        otherwise calls :meth:`forget_writes`.
 
-    @property
-    def status(self) -> PlantStatus:
-        return self._status
+        True when no device has recorded an event since the last :meth:`take_events` (it
+        would give nothing), which the plan (:meth:`_read_plan`) lets it say."""
+        if values != self._written_values or now_us != self._read_at \
+                or names is not self._written_names:
+            self.write(now_us, dict(zip(names, values, strict=True)))
+            self._written_names, self._written_values = names, tuple(values)
+        one = self._one
+        if one is not None:
+            return len(one.events) == self._taken[0] and self._says_events
+        if self._says_events:
+            for device, seen in zip(self.devices, self._taken):  # noqa: B905 - same length
+                if len(device.events) > seen:
+                    return False
+            return True
+        return False
 
     def close(self) -> None:
         pass
@@ -229,7 +261,8 @@ class SimPlant(Plant):
         return last[1]
 
     def take_events(self) -> tuple[PlantEvent, ...]:
-        """Events recorded since the previous call (once per scan, by the engine)."""
+        """Events recorded since the previous call (once per scan, by the engine, unless
+        the scan's write_vector said none waits)."""
         one = self._one
         if one is not None:  # (a plant of one device: one test, no loop)
             if len(one.events) == self._taken[0]:
@@ -258,6 +291,10 @@ class SimPlant(Plant):
         return [e for e in self.events() if e.damage]
 
 
+# (the plant's own take_events, whatever replaces it later on the class)
+_TAKE_EVENTS = SimPlant.take_events
+
+
 def _read_device(sensed: Mapping[str, bool], image: list[Any], ports: tuple[str, ...],
                  slots: tuple[int, ...], first: int | None, end: int | None,
                  last: list[Any]) -> None:
@@ -266,13 +303,19 @@ def _read_device(sensed: Mapping[str, bool], image: list[Any], ports: tuple[str,
     if sensed is last[0]:
         values = last[1]
     else:
-        values = tuple([bool(sensed[port]) for port in ports])
+        values = _vector(sensed, ports)
         last[0], last[1] = sensed, values
     if first is not None:
         image[first:end] = values
     else:
         for index, value in zip(slots, values):  # noqa: B905 - same length
             image[index] = value
+
+
+def _vector(sensed: Mapping[str, bool], ports: tuple[str, ...]) -> tuple[bool, ...]:
+    """A device's sensors as the vector of its ports' values in slot order (a function of
+    its own: read_into keeps no closure cell for it)."""
+    return tuple([bool(sensed[port]) for port in ports])
 
 
 def _joined(parts: list[tuple[Any, ...]], last: tuple[list[Any], tuple[Any, ...]] | None

@@ -131,12 +131,12 @@ class Valve(SimDevice, model=VALVE):
         return glide[3] if glide is not None else self.sensors()
 
     def sense(self, t: int) -> Mapping[str, bool]:
-        """:meth:`SimDevice.sense` taking the common case first: no fault due by t and t
-        inside the glide (one call, no step loop: most of the plant's reads, one a scan),
-        exactly what :meth:`advance` would do there (:meth:`_glide_to`)."""
+        """:meth:`SimDevice.sense` taking the common case first: t inside the glide, so no
+        fault due by t either (a glide ends at the next one: :meth:`_plan_glide`; one
+        call, no step loop: most of the plant's reads, one a scan), exactly what
+        :meth:`advance` would do there (:meth:`_glide_to`)."""
         glide = self._glide
-        if glide is not None and t < glide[0] and (
-                not self.pending or self.pending[0].at_us > t):
+        if glide is not None and t < glide[0]:
             step = t - self.t
             if step > 0:  # (_glide_to, written out: this is the plant's read at every scan)
                 if glide[1]:
@@ -151,6 +151,13 @@ class Valve(SimDevice, model=VALVE):
     def touch(self) -> None:
         """The valve's physics was changed by hand (a test placing it): the glide it was in
         ends, the next advance steps in full."""
+        self._glide = None
+
+    def inject(self, code: str, at_us: int, duration_us: int | None = None,
+               **options: Any) -> None:
+        """A glide ends at the first fault due (:meth:`_plan_glide`): a new one may be due
+        before, so the glide ends here (the next advance steps in full)."""
+        super().inject(code, at_us, duration_us, **options)
         self._glide = None
 
     # -- physics ---------------------------------------------------------------------------
@@ -234,13 +241,17 @@ class Valve(SimDevice, model=VALVE):
         of that changes, and it comes nearer by exactly the time that passes; where
         _next_boundary raised it to 1 µs, the glide holds at self.t only, where the loop does
         nothing either). None when a step in full would also reset the stall clock (the next
-        one does, then glides)."""
+        one does, then glides). It also ends at the first fault due (sense need not look
+        for one: the advance there activates it; the loop in _advance_to steps there, short
+        of every boundary, as the glide would)."""
         drive = self._drive()
         can = self._can_move(drive)
         if can and (self.stall_us or self.stall_reported):
             return None
-        return (self.t + self._next_boundary(drive), drive if can else 0,
-                bool(drive) and not can, self.sensors())
+        end = self.t + self._next_boundary(drive)
+        if self.pending and self.pending[0].at_us < end:
+            end = self.pending[0].at_us
+        return (end, drive if can else 0, bool(drive) and not can, self.sensors())
 
     def _glide_to(self, t: int, glide: Glide) -> None:
         """Move to `t` inside `glide`, as the loop in _advance_to would (one step short of
