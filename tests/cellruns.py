@@ -58,7 +58,7 @@ def run(name: str, control: str = "normal", seconds: int = 60,
         nonlocal unsafe, report_unsafe
         snap = cell.snapshot
         damage.extend((e.time_us, e.kind) for e in snap.plant_events if e.damage)
-        report_unsafe = snap.filter.unsafe_written if snap.filter is not None else 0
+        report_unsafe = snap.filter_report.unsafe_written if snap.filter_report is not None else 0
         unsafe += report_unsafe
 
     def on_quiet(count: int) -> None:  # (no plant event at a quiet scan: Engine.run)

@@ -167,7 +167,7 @@ class Twin:
             if not self.engine_fov:
                 mine_fov = read_fov()
                 assert mine_fov == snap.fov, f"{where}: FOV {mine_fov}, engine {snap.fov}"
-            report = snap.filter
+            report = snap.filter_report
             violated = set(report.violated_names) if report is not None else set()
             word = violations()
             mine = {c for j, c in enumerate(constraints) if word >> j & 1}
@@ -371,7 +371,7 @@ class MatiecTwin:
             inputs = input_slots(image)
             rows.append((now, *(inputs if isinstance(inputs, tuple) else (inputs,)),
                          reset, policy, mode))
-            report = snap.filter
+            report = snap.filter_report
             violated = set(report.violated_names) if report is not None else set()
             word = sum(1 << j for j, c in enumerate(constraints) if c in violated)
             latched = any(r.source == "filter" for r in snap.latched)

@@ -243,9 +243,9 @@ def snapshot_fields(cell) -> list[tuple[str, Any, Callable[[Any], Any]]]:
     snap = cell.snapshot
     fields: list[tuple[str, Any, Callable[[Any], Any]]] = [
         ("row", snap, _row),
-        ("filter", snap.filter, _filter),
+        ("filter", snap.filter_report, _filter),
         ("steps", (snap.active_steps, snap.fired, snap.timer_elapsed), plain),
-        ("mode", (snap.control, snap.mode, snap.manual, snap.policy, snap.stopped_devices),
+        ("mode", (snap.control_name, snap.mode, snap.manual, snap.policy, snap.stopped_devices),
          plain),
         ("latched", snap.latched, plain),
         ("plant", snap.plant, plain),

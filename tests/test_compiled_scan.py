@@ -50,10 +50,10 @@ def load(path):
 
 def comparable(snap: Snapshot) -> Snapshot:
     """The snapshot without what is measured rather than computed."""
-    report = snap.filter
+    report = snap.filter_report
     if report is not None:
         report = report._replace(solver_us=0.0)
-    return snap._replace(scan_wall_us=0.0, filter_wall_us=0.0, filter=report)
+    return snap._replace(scan_wall_us=0.0, filter_wall_us=0.0, filter_report=report)
 
 
 def comparable_cell(cell: CellView) -> CellView:
@@ -271,9 +271,9 @@ def test_the_checker_refuses_what_no_template_writes(line):
 
 
 # What a quiet scan (Engine.run returning False) keeps from the scan before.
-EVENT_FIELDS = ("filter", "latched", "plant", "mode", "manual", "policy", "diagnosers",
+EVENT_FIELDS = ("filter_report", "latched", "plant", "mode", "manual", "policy", "diagnosers",
                 "reconstructed", "masked", "stopped_devices", "recovery", "error",
-                "monitor_marks", "control")
+                "monitor_marks", "control_name")
 
 
 @pytest.mark.parametrize("name", NAMES)
@@ -308,7 +308,7 @@ def test_run_builds_the_snapshot_on_demand_and_says_when_a_scan_has_news(name, s
         if before is not None and not news:
             quiet += 1
             assert expected.plant_events == (), (name, seed, k)
-            assert expected.filter is before.filter, (name, seed, k)
+            assert expected.filter_report is before.filter_report, (name, seed, k)
             for field in EVENT_FIELDS:
                 assert getattr(expected, field) == getattr(before, field), (name, seed, k, field)
         before = expected

@@ -207,7 +207,7 @@ def test_past_its_budget_the_filter_writes_the_safe_state_and_says_so(tmp_path):
     engine = engine_for(folder)
     assert engine.safety_filter.budget == 300
     cell = Session(engine).scan_once()  # the session explains the scan
-    report = cell.snapshot.filter
+    report = cell.snapshot.filter_report
     assert cell.snapshot.outputs == (False,) * 12
     assert report.safe_state and not report.unsafe_written
     assert report.stopped == "budget" and report.steps > 300 and report.budget == 300
@@ -220,7 +220,7 @@ def test_past_its_budget_the_filter_writes_the_safe_state_and_says_so(tmp_path):
     # With the budget it needs, the same situation is corrected: one output kept, o0 (the
     # first listed) spared.
     roomy = engine_for(folder, solver_budget=5_000).step(0)
-    assert roomy.outputs == (True,) + (False,) * 11 and not roomy.filter.stopped
+    assert roomy.outputs == (True,) + (False,) * 11 and not roomy.filter_report.stopped
 
 
 def test_a_budget_stop_is_counted_journalled_and_repeatable(tmp_path, capsys):
@@ -265,8 +265,8 @@ def test_only_a_live_runner_arms_the_wall_clock_net(tmp_path):
     assert engine.safety_filter.wall_limit_us == 5_000  # half the 10 ms period
     engine.safety_filter.wall_limit_us = 1e-6  # a machine far too slow: the net stops the search
     snap = engine.step(0)
-    assert snap.filter.stopped == "deadline" and snap.outputs == (False,) * 12
-    assert "wall-clock limit" in snap.filter.fallback
+    assert snap.filter_report.stopped == "deadline" and snap.outputs == (False,) * 12
+    assert "wall-clock limit" in snap.filter_report.fallback
 
 
 # -- each strategy's note states its own rule ------------------------------------------------
@@ -288,7 +288,7 @@ def ab_report(tmp_path, solver: str):
     folder = write_project(tmp_path / f"ab_{solver}", {"project.yaml": AB})
     engine = engine_for(folder, solver=solver)
     snap = engine.step(0)
-    return snap.outputs, snap.filter
+    return snap.outputs, snap.filter_report
 
 
 def test_the_exact_note_states_the_exact_tie_break(tmp_path):
@@ -313,8 +313,8 @@ def test_the_paper_note_names_a_farthest_repair(tmp_path):
     # farthest vector of Algorithm 1 reaches it.
     folder = pairs_project(tmp_path, "", n=4)
     snap = engine_for(folder, solver="paper").step(0)
-    assert snap.filter.distance == 3
-    assert "the memorised farthest vector" in snap.filter.note
+    assert snap.filter_report.distance == 3
+    assert "the memorised farthest vector" in snap.filter_report.note
 
 
 def test_the_paper_strategy_stops_the_pump_where_the_project_keeps_it_running():
@@ -328,10 +328,10 @@ def test_the_paper_strategy_stops_the_pump_where_the_project_keeps_it_running():
                                        solver=solver))
         cells = []
         session.run_for(4 * S + 1, cells.append)
-        snap = next(c.snapshot for c in cells if "CSc2" in c.snapshot.filter.violated_names)
+        snap = next(c.snapshot for c in cells if "CSc2" in c.snapshot.filter_report.violated_names)
         assert snap.time_us == 4 * S
         written[solver] = dict(zip(snap.layout.outputs, snap.outputs, strict=True))
-        note = snap.filter.note
+        note = snap.filter_report.note
         assert ("ties go to switching orders off" in note) == (solver == "exact")
     assert written["exact"]["P"] and not written["exact"]["C2"]
     assert not written["paper"]["P"] and written["paper"]["C2"]
@@ -345,4 +345,5 @@ def test_manual_requests_meet_the_same_bounded_corrector(tmp_path):
     for k in range(12):
         session.command(ManualOutput(f"o{k}", True))
     snap = session.scan_once()
-    assert snap.snapshot.filter.stopped == "budget" and snap.snapshot.outputs == (False,) * 12
+    assert snap.snapshot.filter_report.stopped == "budget"
+    assert snap.snapshot.outputs == (False,) * 12

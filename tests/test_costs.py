@@ -110,7 +110,7 @@ def test_preparing_the_correction_counts_in_the_budget(tmp_path):
     text = every_output_asked(costly.short(9000, outputs=40), 40)
     project, engine = engine_of(text, tmp_path / "p")
     budget = engine.safety_filter.budget
-    reports = [engine.step(k * project.scan_period_us).filter for k in range(20)]
+    reports = [engine.step(k * project.scan_period_us).filter_report for k in range(20)]
     searched = [r for r in reports if r is not None and r.steps]
     assert searched and all(r.steps <= budget * 1.02 for r in searched), \
         [r.steps for r in searched]
@@ -118,7 +118,7 @@ def test_preparing_the_correction_counts_in_the_budget(tmp_path):
                for r in searched), searched[0].fallback
     text = every_output_asked(costly.short(2000, outputs=40), 40)
     project, engine = engine_of(text, tmp_path / "q")
-    reports = [engine.step(k * project.scan_period_us).filter for k in range(20)]
+    reports = [engine.step(k * project.scan_period_us).filter_report for k in range(20)]
     assert all(r.steps <= budget * 1.02 for r in reports if r is not None), \
         [r.steps for r in reports if r is not None]
     assert any("of them preparing it" in (r.fallback or "") for r in reports if r is not None)
@@ -137,8 +137,8 @@ def test_the_filter_caches_are_bounded_and_change_no_decision(tmp_path, monkeypa
     for k in range(60):
         a = kept.step(k * project.scan_period_us)
         b = cleared.step(k * project.scan_period_us)
-        assert (a.outputs, a.filter.steps, a.filter.fallback) == \
-            (b.outputs, b.filter.steps, b.filter.fallback), k
+        assert (a.outputs, a.filter_report.steps, a.filter_report.fallback) == \
+            (b.outputs, b.filter_report.steps, b.filter_report.fallback), k
         assert cleared.safety_filter._by_active_size <= 500 + 600
         assert cleared.safety_filter._corrections_size <= 300 + 600
 

@@ -150,7 +150,7 @@ def test_an_actuator_flag_masks_the_orders_before_the_filter_and_after_it(projec
     # The program still asks to open; the filter judged the masked candidate (O = 0): the
     # drop of O before fso is what CSs4 forbids, and the mask has the last word.
     assert onset.fov == (False, True) and onset.outputs == (False, False)
-    report = onset.filter
+    report = onset.filter_report
     assert "CSs4" in report.violated_names
     masked = [c for c in report.changes if c.how == "masked"]
     assert [(c.output, c.requested, c.written, c.by) for c in masked] == [
@@ -163,7 +163,7 @@ def test_monitor_policy_never_applies_a_mask_but_says_it_would(project):
     snaps = run(make_session(project, ["F2@8.2s"], policy="monitor"), 10)
     onset = next(s for s in snaps if s.diagnosers[0].state == "B2")
     assert onset.masked == () and onset.outputs == onset.fov == (False, True)
-    assert "def_V would mask C, O" in onset.filter.note
+    assert "def_V would mask C, O" in onset.filter_report.note
 
 
 def test_observe_and_off_modes_leave_the_sensors_alone(project):

@@ -49,7 +49,7 @@ def explanation(snap, key):
 
 def test_corrected_constraint_explanation_has_four_levels_from_descriptions():
     session = make_session(VALVE, control="faulty", policy="correct")
-    snap = run_until(session, lambda s: "CSs5" in s.snapshot.filter.violated_names)
+    snap = run_until(session, lambda s: "CSs5" in s.snapshot.filter_report.violated_names)
     e = explanation(snap, "constraint:CSs5")
     assert e.what == ("Valve V1: close order blocked — start closing only from the open "
                       "position")
@@ -69,12 +69,12 @@ def test_corrected_constraint_explanation_has_four_levels_from_descriptions():
 def test_a_violation_that_returns_is_explained_from_its_new_onset():
     """Explanations are reused while a violation lasts, never across two episodes."""
     session = make_session(VALVE, control="faulty", policy="correct")
-    first = run_until(session, lambda s: "CSs5" in s.snapshot.filter.violated_names)
+    first = run_until(session, lambda s: "CSs5" in s.snapshot.filter_report.violated_names)
     held = session.scan_once()  # the program keeps asking: the episode goes on
-    assert "CSs5" in held.snapshot.filter.violated_names
+    assert "CSs5" in held.snapshot.filter_report.violated_names
     assert explanation(held, "constraint:CSs5") is explanation(first, "constraint:CSs5")
-    run_until(session, lambda s: "CSs5" not in s.snapshot.filter.violated_names)
-    again = run_until(session, lambda s: "CSs5" in s.snapshot.filter.violated_names)
+    run_until(session, lambda s: "CSs5" not in s.snapshot.filter_report.violated_names)
+    again = run_until(session, lambda s: "CSs5" in s.snapshot.filter_report.violated_names)
     e = explanation(again, "constraint:CSs5")
     assert f"Violated since scan {again.snapshot.scan}" in e.detail
     assert f"Violated since scan {first.snapshot.scan}" not in e.detail
@@ -82,18 +82,19 @@ def test_a_violation_that_returns_is_explained_from_its_new_onset():
 
 def test_explanation_follows_a_policy_change_during_a_violation():
     session = make_session(VALVE, control="faulty", policy="correct")
-    before = run_until(session, lambda s: "CSs5" in s.snapshot.filter.violated_names)
+    before = run_until(session, lambda s: "CSs5" in s.snapshot.filter_report.violated_names)
     assert "NOT corrected" not in explanation(before, "constraint:CSs5").what
     assert session.command(SetPolicy("monitor")).accepted
     snap = session.scan_once()
-    assert "CSs5" in snap.snapshot.filter.violated_names  # the same episode, under another policy
+    # the same episode, under another policy
+    assert "CSs5" in snap.snapshot.filter_report.violated_names
     e = explanation(snap, "constraint:CSs5")
     assert "NOT corrected" in e.what and e.severity == "high"
 
 
 def test_project_texts_fill_their_placeholders():
     session = make_session(VALVE, control="faulty", policy="correct")
-    snap = run_until(session, lambda s: "CSc1" in s.snapshot.filter.violated_names)
+    snap = run_until(session, lambda s: "CSc1" in s.snapshot.filter_report.violated_names)
     e = explanation(snap, "constraint:CSc1")
     assert e.what == "Valve V1: open and close ordered together - open order blocked"
     assert "kept the orders apart (open order blocked)" in e.consequences
@@ -109,7 +110,7 @@ def test_blocked_and_monitor_explanations_differ():
     assert latch.latched and latch.recommended.id == "reset"
     assert "Check the control program before resetting" in latch.consequences
     snap = run_until(make_session(VALVE, control="faulty", policy="monitor"),
-                     lambda s: s.snapshot.filter.violations)
+                     lambda s: s.snapshot.filter_report.violations)
     e = snap.explanations[0]
     assert "NOT corrected" in e.what and e.severity == "high"
     assert e.recommended.id == "correct"
@@ -306,7 +307,7 @@ def test_latched_alarm_stays_until_fault_reset():
 
 def test_choosing_stop_device_masks_its_outputs_and_release_restores():
     session = make_session(VALVE, control="faulty", policy="correct")
-    run_until(session, lambda s: "CSs2" in s.snapshot.filter.violated_names)
+    run_until(session, lambda s: "CSs2" in s.snapshot.filter_report.violated_names)
     result = session.command(ChoosePolicy("constraint:CSs2", "stop_device"))
     assert result.accepted and "Valve V1 stopped" in result.message
     snaps = [session.scan_once() for _ in range(500)]

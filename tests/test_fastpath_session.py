@@ -66,9 +66,9 @@ def comparable(cell: CellView) -> dict[str, Any]:
     out.update((field, getattr(cell, field)) for field in CellView._fields
                if field != "snapshot")
     out["scan_wall_us"] = out["filter_wall_us"] = out["explain_wall_us"] = 0.0
-    report = out["filter"]
+    report = out["filter_report"]
     if report is not None:
-        out["filter"] = report._replace(solver_us=0.0)
+        out["filter_report"] = report._replace(solver_us=0.0)
     out["monitors"] = tuple(snap.monitors)
     return out
 
@@ -208,7 +208,7 @@ def check_quiet_scans_told_nothing(full: Twin, quiet: Twin) -> None:
             assert snap["error"] is None, f"{where} had an error {snap['error']}"
             for field in ("explanations", "alarms", "shelved", "latched", "mode", "manual",
                           "policy", "diagnosers", "recovery", "masked", "reconstructed",
-                          "stopped_devices", "plant", "filter"):
+                          "stopped_devices", "plant", "filter_report"):
                 assert snap[field] == previous[field], f"{where} its {field} changed"
             moved = [(m._replace(x_us=0, y_us=0), n._replace(x_us=0, y_us=0))
                      for m, n in zip(snap["monitors"], previous["monitors"], strict=True)]

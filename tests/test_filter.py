@@ -28,25 +28,26 @@ def run(session, seconds):
 
 def test_detection_names_the_constraint_and_its_literals():
     snaps = run(make_session(VALVE, control="faulty", policy="monitor"), 8)
-    both = next(s for s in snaps if "CSc1" in s.snapshot.filter.violated_names)
-    violation = next(v for v in both.snapshot.filter.violations if v.name == "CSc1")
+    both = next(s for s in snaps if "CSc1" in s.snapshot.filter_report.violated_names)
+    violation = next(v for v in both.snapshot.filter_report.violations if v.name == "CSc1")
     assert violation.kind == "combined" and violation.literals == (("C", True), ("O", True))
     assert violation.description == "Never order open and close together"
-    rise = next(s for s in snaps if "CSs6" in s.snapshot.filter.violated_names)
-    literals = dict(next(v for v in rise.snapshot.filter.violations if v.name == "CSs6").literals)
+    rise = next(s for s in snaps if "CSs6" in s.snapshot.filter_report.violated_names)
+    literals = dict(next(v for v in rise.snapshot.filter_report.violations
+                         if v.name == "CSs6").literals)
     assert literals == {"O": True, "not prev(O)": False, "not fsc_filter": False}
 
 
 def test_monitor_passes_everything_through_and_says_it_is_unsafe():
     snaps = run(make_session(VALVE, control="faulty", policy="monitor"), 8)
-    unsafe = [s for s in snaps if s.snapshot.filter.unsafe_written]
+    unsafe = [s for s in snaps if s.snapshot.filter_report.unsafe_written]
     assert unsafe and all(s.snapshot.outputs == s.snapshot.fov for s in snaps)
 
 
 def test_correct_keeps_the_faulty_program_safe_and_the_valve_cycling():
     snaps = run(make_session(VALVE, control="faulty", policy="correct"), 120)
-    assert sum(1 for s in snaps if s.snapshot.filter.violations) > 100
-    assert all(not s.snapshot.filter.residual for s in snaps)
+    assert sum(1 for s in snaps if s.snapshot.filter_report.violations) > 100
+    assert all(not s.snapshot.filter_report.residual for s in snaps)
     assert all(not (s.snapshot.outputs[0] and s.snapshot.outputs[1])
                for s in snaps)  # never C and O
     assert not [e for s in snaps for e in s.snapshot.plant_events if e.damage]
@@ -56,22 +57,22 @@ def test_correct_keeps_the_faulty_program_safe_and_the_valve_cycling():
 def test_correct_reports_each_change_with_its_reason():
     snaps = run(make_session(VALVE, control="faulty", policy="correct"), 8)
     # Opening held on a fixed time: at fso, CSs2 forces O to 0.
-    s = next(s for s in snaps if any(c.by == ("CSs2",) for c in s.snapshot.filter.changes))
-    change = next(c for c in s.snapshot.filter.changes if c.output == "O")
+    s = next(s for s in snaps if any(c.by == ("CSs2",) for c in s.snapshot.filter_report.changes))
+    change = next(c for c in s.snapshot.filter_report.changes if c.output == "O")
     assert (change.requested, change.written, change.how) == (True, False, "F0")
-    assert s.snapshot.filter.distance >= 1
+    assert s.snapshot.filter_report.distance >= 1
 
 
 def test_block_latches_every_output_safe_until_a_fault_reset():
     session = make_session(VALVE, control="faulty", policy="block")
     snaps = run(session, 10)
-    first = next(i for i, s in enumerate(snaps) if s.snapshot.filter.violations)
+    first = next(i for i, s in enumerate(snaps) if s.snapshot.filter_report.violations)
     assert snaps[first].snapshot.latched[0].source == "filter"
     assert "safe blocking on CSs2" in snaps[first].snapshot.latched[0].detail
     assert all(s.snapshot.outputs == (False, False) for s in snaps[first:])
     assert "safe-state latch released" in session.command(FaultReset()).message
     s = session.scan_once().snapshot
-    assert not s.latched or s.filter.violations  # re-latches only on a new violation
+    assert not s.latched or s.filter_report.violations  # re-latches only on a new violation
 
 
 def test_manual_requests_go_through_the_filter():
@@ -82,11 +83,11 @@ def test_manual_requests_go_through_the_filter():
     s = session.scan_once()
     assert s.snapshot.fov == (True, False) and s.snapshot.outputs == (False, False)
     # Closing a closed valve: CSs1 (closed) and CSs5 (closing may only start when open).
-    assert [(c.output, c.by) for c in s.snapshot.filter.changes] == [("C", ("CSs1", "CSs5"))]
+    assert [(c.output, c.by) for c in s.snapshot.filter_report.changes] == [("C", ("CSs1", "CSs5"))]
     session.command(ManualOutput("C", None))
     session.command(ManualOutput("O", True))  # opening from closed is allowed
     s = session.scan_once()
-    assert s.snapshot.outputs == (False, True) and not s.snapshot.filter.changes
+    assert s.snapshot.outputs == (False, True) and not s.snapshot.filter_report.changes
 
 
 def test_policy_switch_at_run_time():
@@ -107,7 +108,7 @@ def _unsafe_scans(session, seconds: int) -> list[int]:
     unsafe: list[int] = []
 
     def on_scan(cell):
-        if cell.snapshot.filter.unsafe_written:
+        if cell.snapshot.filter_report.unsafe_written:
             unsafe.append(cell.snapshot.scan)
 
     session.run_for(seconds * S, on_scan)
@@ -143,8 +144,8 @@ def test_no_safe_vector_falls_back_to_the_safe_state(tmp_path):
     session.engine.plant.devices[0].inject("F2", 0)  # fsc (a) stuck at 1
     session.engine.plant.devices[0].inject("F4", 0)  # fso (b) stuck at 1
     s = session.scan_once().snapshot
-    assert s.filter.fallback and s.filter.safe_state and s.outputs == (False, False)
-    assert not s.filter.unsafe_written
+    assert s.filter_report.fallback and s.filter_report.safe_state and s.outputs == (False, False)
+    assert not s.filter_report.unsafe_written
     report = analyse(load_project(folder))
     assert report.no_solution_count == 1 and "a, b" in report.no_solution[0]
 

@@ -53,7 +53,7 @@ def _truth(c, snap) -> dict[int, float | None]:
             out = name[:-len(".fov")]
             truth[s_index] = float(bool(snap.fov[layout.outputs.index(out)]))
         elif s.group == "constraint":
-            violated = snap.filter.violated_names if snap.filter else ()
+            violated = snap.filter_report.violated_names if snap.filter_report else ()
             truth[s_index] = float(name.split(".")[-1] in violated)
         elif s.group == "diagnoser":
             spec = name[:-len(".state")]

@@ -453,8 +453,9 @@ def test_read_only_mode_observes_and_writes_nothing(server):
         snap = live.wait(lambda s: s.value("fso"), "the valve open")
         # Detection only: the PLC holds O on the open valve; CSs2 (O and fso) is reported,
         # and what the device has is shown as it is, not corrected.
-        assert "CSs2" in snap.filter.violated_names and snap.filter.policy == "monitor"
-        assert snap.outputs == (False, True) and not snap.filter.changes
+        report = snap.filter_report
+        assert "CSs2" in report.violated_names and report.policy == "monitor"
+        assert snap.outputs == (False, True) and not snap.filter_report.changes
         assert live.engine.policy == "monitor"
         assert not live.session.command(SetMode(True)).accepted
         live.wait(lambda s: s.scan >= snap.scan + 30, "more scans")

@@ -96,7 +96,7 @@ def situations(project):
                        how),)
             report = FilterReport(policy, "exact", (violation,), changes, 1,
                                   safe_state=policy == "block", note="tie-break note")
-            yield f"constraint {c.name} {policy} {how}", base._replace(filter=report,
+            yield f"constraint {c.name} {policy} {how}", base._replace(filter_report=report,
                                                                        policy=policy)
     for spec in diagnosers_of(project):
         index = next(k for k, d in enumerate(base.diagnosers) if d.name == spec.name)
@@ -141,7 +141,7 @@ def situations(project):
     for stopped in ("", "budget"):
         report = FilterReport("correct", "paper", violations, fallback="no safe vector",
                               stopped=stopped)
-        yield f"fallback {stopped}", base._replace(filter=report)
+        yield f"fallback {stopped}", base._replace(filter_report=report)
     yield "manual", base._replace(mode="manual", manual=((outputs[0], True),))
     grafcet = base.layout.grafcet
     for step in grafcet.steps if grafcet is not None else ():

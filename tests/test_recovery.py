@@ -153,7 +153,8 @@ def test_a_connection_lost_mid_travel_is_a_dead_end_without_the_recovery():
     snap = run_quietly(session, 10 * S)
     assert not snap.snapshot.latched
     assert cycles(snap) == 0 and 0 < dict(snap.snapshot.plant_state)["position"] < 100
-    assert snap.snapshot.filter is not None and "CSs6" in snap.snapshot.filter.violated_names
+    report = snap.snapshot.filter_report
+    assert report is not None and "CSs6" in report.violated_names
     assert [n[0] for n in snap.snapshot.recovery.needed] == ["V1_close"]
     assert any(line.recovery == "V1_close" for line in reset_preview(snap.snapshot, snap.alarms))
     events = len(plant.events())
@@ -187,7 +188,8 @@ def test_a_recovery_is_still_filtered_by_its_own_constraints_and_times_out(long_
     snap = session.scan_once()
     assert snap.snapshot.fov_map["C"] is True and snap.snapshot.value("fsc")
     assert snap.snapshot.policy == policy
-    assert snap.snapshot.filter is not None and "R_V1_closed" in snap.snapshot.filter.violated_names
+    report = snap.snapshot.filter_report
+    assert report is not None and "R_V1_closed" in report.violated_names
     assert snap.snapshot.output_map["C"] is False  # the close order withdrawn at the closed end
     snap = run_until(session, lambda s: s.snapshot.recovery.status != "running", 4 * S)
     assert snap.snapshot.recovery.status == "failed" and "not done within 3.000 s" in \
@@ -345,7 +347,7 @@ def test_the_program_waits_while_a_recovery_runs_and_restarts_from_its_initial_s
     assert session.command(EndRecovery()).accepted
     snap = session.scan_once()
     assert snap.snapshot.mode == "auto"
-    initial = tuple(s.name for s in project.controls[snap.snapshot.control].grafcet.steps
+    initial = tuple(s.name for s in project.controls[snap.snapshot.control_name].grafcet.steps
                     if s.initial)
     assert snap.snapshot.active_steps == initial != before.snapshot.active_steps
 

@@ -18,7 +18,7 @@ def latched_session():
     session = make_session(VALVE, control="faulty", policy="block")
     while True:
         snap = session.scan_once().snapshot
-        if snap.latched and snap.filter is not None and not snap.filter.violations:
+        if snap.latched and snap.filter_report is not None and not snap.filter_report.violations:
             return session
         assert session.engine.now < 20_000_000, "no latch left without its cause"
 

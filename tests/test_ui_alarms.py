@@ -352,8 +352,8 @@ async def test_explain_with_nothing_to_explain_is_refused():
 async def test_click_a_constraint_opens_its_explanation():
     app = make_app(control="faulty")
     async with app.run_test(size=WIDE) as pilot:
-        await run_until(pilot, lambda s: s.snapshot.filter is not None and "CSs2" in
-                        s.snapshot.filter.violated_names, 5, "CSs2 violated")
+        await run_until(pilot, lambda s: s.snapshot.filter_report is not None and "CSs2" in
+                        s.snapshot.filter_report.violated_names, 5, "CSs2 violated")
         rows = app.query_one("#constraints").row_names
         assert await click(pilot, "#constraints", 3, 1 + rows.index("CSs2"))
         await settle(pilot)

@@ -781,7 +781,7 @@ async def test_wait_helpers_are_bounded():
 
 
 def _changed(cell) -> bool:
-    return cell.snapshot.filter is not None and bool(cell.snapshot.filter.changes)
+    return cell.snapshot.filter_report is not None and bool(cell.snapshot.filter_report.changes)
 
 
 async def test_filter_changes_are_shown_with_their_constraint():
@@ -790,12 +790,12 @@ async def test_filter_changes_are_shown_with_their_constraint():
         await press(pilot, "E")  # the rules by their names
         await run_until(pilot, _changed, 10, "a filter correction")
         snap = app.link.session.last
-        change = snap.snapshot.filter.changes[0]
+        change = snap.snapshot.filter_report.changes[0]
         io = region_text(app, "#io")
         row = next(line for line in io.splitlines() if f"│ {change.output} " in line)
         assert "≠ filter" in row and change.by[0] in row
         constraints = region_text(app, "#constraints")
-        for name in snap.snapshot.filter.violated_names:
+        for name in snap.snapshot.filter_report.violated_names:
             line = next(line for line in constraints.splitlines() if f" {name} " in line)
             assert "▲ corrected" in line
         assert "violated" in region_text(app, "#status")
@@ -814,7 +814,7 @@ async def test_a_past_violation_keeps_its_level_1_explanation():
         await press(pilot, "E")  # the rules by their names
         await run_until(pilot, _changed, 10, "a filter correction")
         snap = app.link.session.last
-        name = snap.snapshot.filter.violated_names[0]
+        name = snap.snapshot.filter_report.violated_names[0]
         what = next(e.what for e in snap.explanations if e.key == f"constraint:{name}")
         description = next(c.description for c in app.project.constraints if c.name == name)
         assert what != description

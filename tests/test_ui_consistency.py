@@ -45,7 +45,7 @@ def last_scan_of_an_episode(control: str = "faulty", limit: int = 3000) -> tuple
     before = twin.scan_once().snapshot
     for _ in range(limit):
         after = twin.scan_once().snapshot
-        ended = set(before.filter.violated_names) - set(after.filter.violated_names)
+        ended = set(before.filter_report.violated_names) - set(after.filter_report.violated_names)
         if ended:
             return before.scan, sorted(ended)[0]
         before = after
@@ -57,17 +57,17 @@ async def test_a_scan_landing_while_a_frame_is_built_does_not_mix_two_scans():
     app = make_app(control="faulty")
     async with app.run_test(size=(100, 30)) as pilot:
         await run_until(pilot, lambda s: s.snapshot.scan == scan, 60, f"scan {scan}")
-        assert name in app.link.session.last.snapshot.filter.violated_names
+        assert name in app.link.session.last.snapshot.filter_report.violated_names
         app.link.recorder._lock = ScanFirst(app.link.recorder._lock, app.link.session.scan_once)
         app.poll(force=True)  # once a TypeError in the constraints panel
         await drain(pilot)
         frame = app.frame
         assert frame.snapshot.scan == scan + 1  # the newest scan, with its own history
-        assert name not in frame.snapshot.filter.violated_names
+        assert name not in frame.snapshot.filter_report.violated_names
         stats = frame.constraints[name]
         assert stats.since_us is None and stats.last_us == frame.snapshot.time_us - \
             app.link.session.period_us
-        for violated in frame.snapshot.filter.violated_names:
+        for violated in frame.snapshot.filter_report.violated_names:
             assert frame.constraints[violated].since_us is not None
         assert name in app.query_one(ConstraintsPanel).row_names
         assert "last" in region_text(app, "#constraints")

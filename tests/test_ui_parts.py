@@ -232,7 +232,7 @@ def test_recorder_counts_violation_episodes_from_every_scan():
     violated_scans: dict[str, int] = {}
 
     def count(cell):
-        for name in cell.snapshot.filter.violated_names:
+        for name in cell.snapshot.filter_report.violated_names:
             violated_scans[name] = violated_scans.get(name, 0) + 1
 
     session.scan_listeners.extend([recorder.on_scan, count])

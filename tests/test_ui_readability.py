@@ -27,8 +27,8 @@ async def test_the_chronogram_says_what_its_mark_means_and_keeps_whole_names_whe
 
     app = make_app(control="faulty")
     async with app.run_test(size=(160, 48)) as pilot:
-        await run_until(pilot, lambda s: s.snapshot.filter is not None
-                        and bool(s.snapshot.filter.changes), 10, "a filter correction")
+        await run_until(pilot, lambda s: s.snapshot.filter_report is not None
+                        and bool(s.snapshot.filter_report.changes), 10, "a filter correction")
         await run_until(pilot, lambda s: True, 0.05, "a frame")
         chrono = region_text(app, "#chronogram")
         assert "≠" in chrono and "≠: the filter changed it" in chrono

@@ -73,13 +73,13 @@ async def run_until(pilot: Pilot, predicate: Callable, limit_s: float, what: str
 
 def violating(cell: CellView) -> bool:
     """A run_until predicate: the filter checked this scan and found a rule violated."""
-    report = cell.snapshot.filter
+    report = cell.snapshot.filter_report
     return report is not None and bool(report.violations)
 
 
 def not_violating(cell: CellView) -> bool:
     """A run_until predicate: the filter checked this scan and found no rule violated."""
-    report = cell.snapshot.filter
+    report = cell.snapshot.filter_report
     return report is not None and not report.violations
 
 

@@ -109,7 +109,7 @@ def measure(project: Project, control: str, duration_us: int, policy: str = "cor
         while k * period <= duration_us:
             snap = engine.step(k * period)
             k += 1
-            report = snap.filter
+            report = snap.filter_report
             if timed:
                 filter_us.append(snap.filter_wall_us)
             for event in snap.plant_events:

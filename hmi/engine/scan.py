@@ -833,11 +833,11 @@ class Engine:
             scan=self.scan, time_us=now, period_us=self._period, layout=self.layout,
             values=record.values, fov=tuple(record.fov), outputs=tuple(record.outputs),
             active_steps=active, fired=grafcet.fired if grafcet is not None else (),
-            timer_elapsed=elapsed, control=self.control_name, mode=self.mode,
+            timer_elapsed=elapsed, control_name=self.control_name, mode=self.mode,
             manual=tuple(sorted(self.manual.items())) if self.manual else (), policy=policy,
             latched=tuple(self.latched) if self.latched else (), plant=status,
             plant_state=state, plant_counters=counters, plant_events=record.events,
-            filter=record.report, diagnosers=record.diagnosers, monitors=monitors,
+            filter_report=record.report, diagnosers=record.diagnosers, monitors=monitors,
             reconstructed=diagnosis.reconstructed, masked=masked,
             stopped_devices=(tuple(sorted(self.stopped_devices)) if self.stopped_devices
                              else ()),

@@ -66,7 +66,7 @@ class _Fields(NamedTuple):
     active_steps: tuple[str, ...]
     fired: tuple[int, ...]  # GRAFCET transitions fired this scan
     timer_elapsed: tuple[int, ...]  # ET of each timer (its Q is in `values`)
-    control: str  # the control variant running
+    control_name: str  # the control variant running, by name
     mode: str  # "auto", "manual" or "recovery"
     manual: tuple[tuple[str, bool], ...]  # manual requests in effect
     policy: str
@@ -76,7 +76,7 @@ class _Fields(NamedTuple):
     plant_counters: tuple[tuple[str, int], ...] = ()
     plant_events: tuple[PlantEvent, ...] = ()  # events that happened during this scan
     # Filled by the safety filter, diagnosers and monitors.
-    filter: FilterReport | None = None
+    filter_report: FilterReport | None = None  # the safety filter's, of this scan
     diagnosers: tuple[DiagnoserState, ...] = ()
     monitors: tuple[MonitorState, ...] | LazyMonitors = ()
     reconstructed: tuple[str, ...] = ()  # sensors running on their reconstruction

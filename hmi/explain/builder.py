@@ -67,7 +67,7 @@ class ExplanationBuilder(ExplanationContext):
         # the fields read from it (not its measured solver time), the monitors by their marks
         # (Snapshot.monitor_marks: a detection, a location, a count changed; their stopwatches
         # explain nothing), and a scan with an error (a stage that did not run) never matches.
-        report = snap.filter
+        report = snap.filter_report
         inputs = (snap.latched, snap.plant, snap.mode, snap.manual, snap.monitor_marks,
                   snap.diagnosers, snap.recovery, snap.reconstructed, snap.masked, snap.policy,
                   snap.error, snap.overdue_steps,
@@ -84,7 +84,7 @@ class ExplanationBuilder(ExplanationContext):
 
     def _build(self, snap: Snapshot) -> tuple[Explanation, ...]:
         found: list[Explanation] = []
-        report = snap.filter
+        report = snap.filter_report
         if report is not None and report.violations:
             found.extend(self._constraints(snap, report))
         if report is not None and report.fallback:

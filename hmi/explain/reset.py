@@ -65,7 +65,7 @@ def _latch_cause_present(snap: Snapshot, reason: LatchReason) -> str:
         return "the plant is still disconnected" + (
             f" ({snap.plant.message})" if snap.plant.message else "")
     if reason.source == "filter":
-        report = snap.filter
+        report = snap.filter_report
         violations = tuple(getattr(report, "violations", ()) or ()) if report else ()
         if violations:
             rules = "; ".join(dict.fromkeys(lower_first(v.description or v.name)
@@ -75,7 +75,7 @@ def _latch_cause_present(snap: Snapshot, reason: LatchReason) -> str:
 
 
 def _violated_names(snap: Snapshot) -> str:
-    report = snap.filter
+    report = snap.filter_report
     return ", ".join(getattr(report, "violated_names", ()) or ()) if report else ""
 
 

@@ -209,7 +209,7 @@ class HistoryRecorder:
                     stored[i] = v
                     out.append((i, t, v))
             self._fov = fov
-        report = snap.filter
+        report = snap.filter_report
         if report is not self._report:
             self._report = report
             violated = report.violated_names if report is not None else ()

@@ -147,7 +147,7 @@ def _status(b: _Builder, project: Project) -> None:
         ("Policy", "the safety filter's policy: monitor, block or correct", STRING,
          lambda c: c.snapshot.policy, None),
         ("Control", "the control program variant running", STRING,
-         lambda c: c.snapshot.control, None),
+         lambda c: c.snapshot.control_name, None),
         ("Latched", "the outputs are held in their safe state until a fault reset", BOOL,
          lambda c: bool(c.snapshot.latched), None),
         ("LatchReasons", "why the outputs are held safe (empty when not latched)", STRINGS,
@@ -246,7 +246,7 @@ def _changed_by(output: str) -> Callable[[Snapshot], str]:
 
 
 def _violated(name: str) -> Callable[[Snapshot], bool]:
-    return lambda s: name in s.filter.violated_names if s.filter else False
+    return lambda s: name in s.filter_report.violated_names if s.filter_report else False
 
 
 def _diagnoser(order: int, field: Callable[[DiagnoserState], Any]
@@ -261,7 +261,7 @@ def _monitor(order: int, field: Callable[[MonitorState], Any]) -> Callable[[Snap
 
 
 def _change(snapshot: Snapshot, output: str) -> Change | None:
-    report = snapshot.filter
+    report = snapshot.filter_report
     if report is None:
         return None
     return next((c for c in report.changes if c.output == output), None)
@@ -277,7 +277,7 @@ def _constraints(b: _Builder, project: Project) -> None:
              "false at the end of every scan")
     b.point(("Constraints", "Violated"), "constraints the program's (or operator's) request "
             "violated at the last scan, before the filter", STRINGS,
-            lambda s: list(s.filter.violated_names) if s.filter else [])
+            lambda s: list(s.filter_report.violated_names) if s.filter_report else [])
     for c in project.constraints:
         b.point(("Constraints", c.name), f"{c.description or c.name} (true: violated by the "
                 "request at the last scan)", BOOL,

@@ -231,7 +231,7 @@ class JournalRecorder:
         written = int(snapshot.outputs[snapshot.layout.outputs.index(name)])
         if snapshot.mode != "manual":
             return f"not applied: the scan ran in {snapshot.mode} mode (written {written})"
-        report = snapshot.filter
+        report = snapshot.filter_report
         change = next((c for c in (report.changes if report else ()) if c.output == name),
                       None)
         if change is not None:

@@ -184,7 +184,7 @@ class ScanRecorder:
                 self.events.extend(snap.plant_events)
                 self.event_count += len(snap.plant_events)
                 self.damage_count += sum(1 for e in snap.plant_events if e.damage)
-            report = snap.filter
+            report = snap.filter_report
             if report is not None and (report.violations or self._violated_now):
                 self._count_violations(report.violated_names, t, cell.explanations)
             if cell.alarm_events:

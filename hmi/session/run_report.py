@@ -118,8 +118,8 @@ class RunCollector:
             for explanation in cell.explanations:
                 if explanation.alarm:
                     self.explanations[explanation.key] = explanation
-        self._report = snap.filter
-        self._count(snap.filter)
+        self._report = snap.filter_report
+        self._count(snap.filter_report)
         if snap.latched and self.first_latch is None:
             reason = snap.latched[0]
             self.first_latch = (reason.scan, reason.time_us, reason.detail)

@@ -36,7 +36,7 @@ def _row(snap: Snapshot) -> dict[str, Any]:
     row["steps"] = "+".join(snap.active_steps)
     row["mode"] = snap.mode
     row["latched"] = int(bool(snap.latched))
-    report = snap.filter
+    report = snap.filter_report
     row["violated"] = "+".join(report.violated_names) if report else ""
     row["changed"] = "+".join(report.changed_names) if report else ""
     for diag in snap.diagnosers:

@@ -173,7 +173,7 @@ class Invariants:
 
     def _safe_state_by_decision(self, snap: Snapshot) -> bool:
         """The outputs written are the safe state, and the engine says it chose it."""
-        report = snap.filter
+        report = snap.filter_report
         decided = bool(snap.latched) or (report is not None and report.safe_state)
         return decided and tuple(snap.outputs) == self.safe_vector
 

@@ -40,7 +40,7 @@ class ConstraintInfo:
 def _state(frame: Frame, name: str) -> tuple[Text, int]:
     """The state word of a constraint now, and a sort rank (0 most urgent)."""
     snap = frame.snapshot
-    report = snap.filter
+    report = snap.filter_report
     stats = frame.constraints.get(name)
     if report is not None and name in report.violated_names:
         if name in report.residual and not report.safe_state:
@@ -104,7 +104,7 @@ class ConstraintsPanel(TextPanel):
         text = Text(no_wrap=True, overflow="ellipsis")
         self.row_names = []
         self.violated = 0
-        if frame.snapshot.filter is None and not frame.constraints:
+        if frame.snapshot.filter_report is None and not frame.constraints:
             text.append("no filter report yet", style=MUTED)
             return text
         rows = []

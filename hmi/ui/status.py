@@ -99,7 +99,7 @@ def status_fields(frame: Frame, wide: bool, compact: bool = False) -> list[Field
         fields.append(Field(tag(f"{urgent} P{priority} {word}",
                                 Level.ALARM if priority == 1 else Level.ATTENTION), 0,
                             alarm_count=True))
-    report = snap.filter
+    report = snap.filter_report
     if report is not None and report.violations:
         count = len(report.violations)
         unsafe = report.unsafe_written or report.safe_state

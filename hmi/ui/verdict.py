@@ -27,7 +27,7 @@ def filter_changes(snap: Snapshot, engineering: bool = True,
     """Outputs the filter changed this scan -> "filter CSs2, CSs6 (forced 0)" (engineering
     view), "safety filter (forced 0)" in the operator's (`rules`: followed by the rules'
     descriptions, where there is room: the message line)."""
-    report = snap.filter
+    report = snap.filter_report
     if report is None:
         return {}
     described = {v.name: v.description for v in report.violations}
