@@ -843,8 +843,9 @@ class Engine:
                              else ()),
             recovery=record.recovery, error=record.error, scan_wall_us=record.scan_us,
             filter_wall_us=record.filter_us, monitor_marks=record.marks,
-            overdue_steps=self._supervised.overdue if self._supervised is not None else (),
-            stages=self.stages.shown() if self._shows else ())
+            overdue_steps=self._supervised.overdue if self._supervised is not None else ())
+        if self._shows:  # (the stages that show something: Snapshot.stages)
+            snapshot = self.last = snapshot._replace(stages=self.stages.shown())
         return snapshot
 
     def _status_unknown(self) -> PlantStatus:
