@@ -24,6 +24,7 @@ import argparse
 import asyncio
 import gc
 import time
+from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -133,6 +134,7 @@ def with_ui(seconds: float, period_us: int = PERIOD_US, size: tuple[int, int] = 
             keys: tuple[str, ...] = ()) -> list[str]:
     """The live app, headless: scans in their thread, the UI polling and rendering; `keys`
     pressed in turn every DIALOG_EVERY_S meanwhile, as an operator would."""
+    from hmi.session.live import BENCH_JITTER
     from hmi.ui.app import PlcHmiApp
     from hmi.ui.driver import LiveDriver
 
@@ -145,8 +147,10 @@ def with_ui(seconds: float, period_us: int = PERIOD_US, size: tuple[int, int] = 
             driver = app.driver
             assert isinstance(driver, LiveDriver)  # live=True
             runner = driver.runner
-            samples0, scans0, overruns0 = (len(runner.jitter_us), session.engine.scan,
-                                           runner.overruns)
+            # the app's runner keeps no lateness samples (a runtime's figures are in constant
+            # memory): the bench gives it room for this window's, read from the first
+            runner.jitter_us = deque(maxlen=BENCH_JITTER)
+            scans0, overruns0 = session.engine.scan, runner.overruns
             start, frames0 = time.perf_counter(), app.frames_shown
             with FullCollections() as collections:
                 if keys:
@@ -159,7 +163,7 @@ def with_ui(seconds: float, period_us: int = PERIOD_US, size: tuple[int, int] = 
                     await asyncio.sleep(seconds)  # the measurement: let the live app run
             return _UIRun(elapsed=time.perf_counter() - start,
                           frames=app.frames_shown - frames0,
-                          jitter=list(runner.jitter_us)[samples0:],
+                          jitter=list(runner.jitter_us),
                           scans=session.engine.scan - scans0,
                           overruns=runner.overruns - overruns0,
                           collections=collections)
