@@ -241,6 +241,17 @@ def built_blocks(project: Any, builder: str, module: str = "hmi.export.build"
 MS = 1000  # µs per ms: the program's times are the FB's, in µs
 
 
+def _executed(text: str, block: Any, tamper: Callable[[str], str] | None
+              ) -> tuple[Symbolic, dict[str, Any]]:
+    """The exported block's ST (tampered with, when a test asks), run symbolically once."""
+    fb_text = pou_text(text, block.pou.name)
+    if tamper is not None:
+        fb_text = tamper(fb_text)
+    sym = Symbolic(parse_fb(fb_text))
+    sym.obligations = []
+    return sym, sym.run()
+
+
 def prove_monitor(project: Any, text: str, task: str,
                   tamper: Callable[[str], str] | None = None) -> list[Proof]:
     """The exported monitor FB of `task` (in `text`, `tamper`ed if given) against the scan
@@ -251,13 +262,7 @@ def prove_monitor(project: Any, text: str, task: str,
              if args[2].name == task]
     ((stage, k, _spec, *_rest), block), = calls
     automaton = stage.automata[k]
-    fb_text = pou_text(text, block.pou.name)
-    if tamper is not None:
-        fb_text = tamper(fb_text)
-    fb = parse_fb(fb_text)
-    sym = Symbolic(fb)
-    sym.obligations = []
-    out = sym.run()
+    sym, out = _executed(text, block, tamper)
     st = sym.initial
 
     def v(name: str) -> Any:
@@ -373,13 +378,7 @@ def prove_memory(project: Any, text: str, tamper: Callable[[str], str] | None = 
     assert isinstance(layout, Layout)
     assert layout == Layout.build(project, project.control(None), extra=layout_names(project))
     memory = Memory(project, layout)
-    fb_text = pou_text(text, block.pou.name)
-    if tamper is not None:
-        fb_text = tamper(fb_text)
-    fb = parse_fb(fb_text)
-    sym = Symbolic(fb)
-    sym.obligations = []
-    out = sym.run()
+    sym, out = _executed(text, block, tamper)
     st = sym.initial
 
     def read(name: str, depth: int) -> Any:
