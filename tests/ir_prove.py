@@ -70,7 +70,7 @@ def _merge_value(cond: Any, a: Any, b: Any) -> Any:
     return _ite(cond, a, b)
 
 
-Handler = Callable[["IrSymbolic", list[Any]], None]
+Handler = Callable[["IrSymbolic", list[Any]], Any]  # (its value: a call in a test)
 
 
 class IrSymbolic:
@@ -82,8 +82,10 @@ class IrSymbolic:
     def __init__(self, cells: dict[tuple[int, Any], Any], read: Callable[[str, int], Any],
                  now: Any, codes: dict[int, int], handlers: dict[tuple[int, str], Handler],
                  ignored: set[tuple[int, Any]], image: dict[int, Any] | None = None,
-                 slots: dict[str, int] | None = None):
-        # (the image: its slots by index, the values of this scan; `slots` names them)
+                 slots: dict[str, int] | None = None, scan: Any = None):
+        # (the image: its slots by index, the values of this scan; `slots` names them;
+        # `scan`: the scan's number, when something compares it)
+        self.scan = z3.IntVal(0) if scan is None else scan
         self.cells = dict(cells)
         self.image = dict(image or {})
         self.slots = slots or {}
@@ -102,24 +104,13 @@ class IrSymbolic:
             if known is not None:
                 self.run(s.then if known else s.orelse)
                 return
-            cells, env, image = dict(self.cells), dict(self.env), dict(self.image)
-            self.run(s.then)
-            yes = (self.cells, self.env, self.image)
-            self.cells, self.env, self.image = cells, env, image
-            self.run(s.orelse)
-            self.cells = {k: _merge_value(cond, yes[0][k], v) for k, v in self.cells.items()}
-            self.image = {k: _merge_value(cond, yes[2][k], v) for k, v in self.image.items()}
-            # (a local set on one side only is read only on that side)
-            self.env = {k: _merge_value(cond, yes[1][k], self.env[k])
-                        if k in yes[1] and k in self.env else yes[1].get(k, self.env.get(k))
-                        for k in {*yes[1], *self.env}}
+            self.branch(cond, lambda: self.run(s.then), lambda: self.run(s.orelse))
+            return
+        if isinstance(s, ir.Switch):
+            self._switch(self.number(s.value), list(s.cases), s.default)
             return
         if isinstance(s, ir.Do):
-            call = s.call
-            handler = self.handlers.get((id(call.owner), call.method))
-            if handler is None:
-                raise Unsupported(f"a call of {call.method}")
-            handler(self, [self.value(a) for a in call.args])
+            self.call(s.call)
             return
         if isinstance(s, ir.Assign):
             target = s.target
@@ -145,14 +136,71 @@ class IrSymbolic:
             return
         raise Unsupported(f"statement {type(s).__name__}")
 
+    def branch(self, cond: Any, then: Callable[[], Any], orelse: Callable[[], Any]) -> None:
+        """Both worlds of `cond` run, then merged (a local set on one side only is read only
+        on that side)."""
+        cells, env, image = dict(self.cells), dict(self.env), dict(self.image)
+        then()
+        yes = (self.cells, self.env, self.image)
+        self.cells, self.env, self.image = cells, env, image
+        orelse()
+        self.cells = {k: _merge_value(cond, yes[0][k], v) for k, v in self.cells.items()}
+        self.image = {k: _merge_value(cond, yes[2][k], v) for k, v in self.image.items()}
+        self.env = {k: _merge_value(cond, yes[1][k], self.env[k])
+                    if k in yes[1] and k in self.env else yes[1].get(k, self.env.get(k))
+                    for k in {*yes[1], *self.env}}
+
+    def _switch(self, chosen: Any, cases: list[tuple[int, tuple[ir.Stmt, ...]]],
+                default: tuple[ir.Stmt, ...]) -> None:
+        if not cases:
+            self.run(default)
+            return
+        (n, body), rest = cases[0], cases[1:]
+        test = chosen == n
+        known = _concrete(test)
+        if known is not None:
+            self.run(body) if known else self._switch(chosen, rest, default)
+            return
+        self.branch(test, lambda: self.run(body), lambda: self._switch(chosen, rest, default))
+
+    def call(self, call: ir.Call) -> Any:
+        """A handler's call: its value (what it returns), its effects on the cells."""
+        handler = self.handlers.get((id(call.owner), call.method))
+        if handler is None:
+            raise Unsupported(f"a call of {call.method}")
+        return handler(self, [self.value(a) for a in call.args])
+
+    def _guarded(self, cond: Any, operand: ir.Value) -> Any:
+        """`operand` evaluated only where `cond` holds (Python's `and`/`or` stop early: a
+        call after them runs only then); its value where it ran, False elsewhere."""
+        found: list[Any] = []
+        self.branch(cond, lambda: found.append(self.value(operand)), lambda: None)
+        return z3.And(cond, found[0])
+
+    def _short(self, operands: tuple[ir.Value, ...], conj: bool) -> Any:
+        if not any(isinstance(o, ir.Call) for o in operands[1:]):
+            values = [self.value(o) for o in operands]
+            return z3.And(*values) if conj else z3.Or(*values)
+        so_far = self.value(operands[0])
+        for o in operands[1:]:
+            if conj:
+                so_far = self._guarded(so_far, o)
+            else:
+                so_far = z3.Or(so_far, self._guarded(z3.Not(so_far), o))
+        return so_far
+
     def value(self, v: ir.Value) -> Any:
         match v:
+            case ir.Call():
+                return self.call(v)
+            case ir.TheImage() | ir.TheHistory():
+                return None  # (a handler's argument: the handlers here read their own)
             case ir.Test(node=node):
                 return self.expression(node)
             case ir.Now():
                 return self.now
             case ir.ScanNumber():
-                return z3.IntVal(0)  # (only the handlers' evidence reads it: not compared)
+                return self.scan
             case ir.Const(value=None):
                 return NONE
             case ir.Const(value=bool() as b):
@@ -185,9 +233,9 @@ class IrSymbolic:
             case ir.Not(operand=operand):
                 return z3.Not(self.value(operand))
             case ir.And(operands=operands):
-                return z3.And(*[self.value(o) for o in operands])
+                return self._short(operands, True)
             case ir.Or(operands=operands):
-                return z3.Or(*[self.value(o) for o in operands])
+                return self._short(operands, False)
         raise Unsupported(f"value {type(v).__name__}")
 
     def number(self, v: ir.Value) -> Any:
@@ -412,3 +460,253 @@ def prove_memory(project: Any, text: str, tamper: Callable[[str], str] | None = 
     proofs = [_valid(name, p, sym) for name, p in properties.items()]
     proofs.append(in_bounds([_case(sym, out)]))
     return proofs
+
+
+MODE_CODES = {"observe": 1, "off": 2}  # (hmi.export.diagnoser_pou: any other value is FTC)
+
+
+def prove_diagnoser(project: Any, text: str, name: str,
+                    tamper: Callable[[str], str] | None = None) -> list[Proof]:
+    """The exported diagnoser FB of `name` (in `text`, `tamper`ed if given) against the scan
+    program's lowering of that diagnoser in each mode (hmi.program.diagnosers: the gap test,
+    the current state's transitions, the High Level Diagnoser's refinement, the settling and
+    the reconstruction), with the handlers stated from hmi.engine.diagnoser; the fault-reset
+    call against DiagnosisStage.reset. For every input and every state where the block's
+    constants (Gap, Period) hold their values and State names a state (a call keeps both).
+
+    The correspondence, FB variable = program state (the stage restricted to this diagnoser,
+    as the export lowers it): State = current; Since/SinceNone = since_us (ms, None);
+    Dirty = the stage's dirty (or a change of Mode: the block's own, the engine's mode is
+    fixed); LastScan/LastScanNone = last_scan; LastNow = last_now; Scan + 1 = the scan's
+    number (the block counts its calls); Refined/RefinedTo = the High Level Diagnoser's
+    refinement (the label's number from 1), Armed = hld_armed; the flag, filtered and label
+    outputs = the image's flag and filtered slots and the record's labels, which keep their
+    values until the stage settles. Mode: 1 observe, 2 off, any other value FTC; off never
+    sets a flag (the engine's off stage never writes them: they keep their initial 0), so
+    the block's settling in off writes 0."""
+    from hmi.program.diagnosers import lower_diagnosis, lower_reconstruction, shift_outputs
+    calls = [(args, block) for args, block in
+             built_blocks(project, "build_diagnoser", "hmi.export.stage_blocks")
+             if args[0].runtimes[args[1]].spec.name == name]
+    ((stage, k, layout, *_rest), block), = calls
+    rt = stage.runtimes[k]
+    spec = rt.spec
+    hld = tuple(h for h in project.high_level if h.diagnoser == spec.name)
+    outputs = frozenset(layout.outputs)
+    slots = dict(layout.slots)
+    sym, out = _executed(text, block, tamper)
+    st = sym.initial
+    up: dict[str, str] = {key: ident.upper() for key, ident in block.ports.items()}
+
+    def v(key: str) -> Any:
+        return st[key.upper()]
+
+    def o(key: str) -> Any:
+        return out[key.upper()]
+
+    def read(name: str, depth: int) -> Any:
+        # (the lowering reads an output one scan back; the block's input is the output as
+        # written in the project, wired one scan back by the program)
+        return st[block.inputs[(name, depth - (name in outputs))].upper()]
+
+    sensors = [(slots[p.filtered], slots[p.sensor], slots[p.estimate], slots[p.flag])
+               for p in spec.partitions if p.sensor and p.estimate and p.filtered]
+    flag_idents = {slots[p]: ident.upper() for p, ident in block.outputs.items()}
+    image = {slot: st[ident] for slot, ident in flag_idents.items()}
+    for _f, sensor, estimate, _flag in sensors:
+        for slot in (sensor, estimate):
+            image[slot] = st[block.inputs[(layout.names[slot], 0)].upper()]
+    numbers = {lab: n for n, lab in enumerate(spec.labels, start=1)}
+    faulty_states = [n for n, s in enumerate(spec.states) if s.faulty]
+    mode = v("Mode")
+    in_mode = {"observe": mode == 1, "off": mode == 2,
+               "ftc": z3.And(mode != 1, mode != 2)}
+    DIRTY, LAST, LAST_NOW, GAP = ((id(stage), a) for a in ("dirty", "last_scan", "last_now",
+                                                           "gap_us"))
+    ARMED, SINCE, CURRENT = (id(stage), "hld_armed"), (id(rt), "since_us"), (id(rt), "current")
+    REFINED = (id(rt), "refined")
+    label_cells = {lab: (id(rt), f"label {lab}") for lab in spec.labels}
+    FAULTY = (id(rt), "faulty")
+
+    def one_of(value: Any, states: list[int]) -> Any:
+        return z3.Or(False, *[value == n for n in states])
+
+    def enter(run: IrSymbolic, target: Any, now: Any) -> None:
+        """DiagnoserRuntime.enter: the target state, entered now, its refinement dropped."""
+        run.cells[CURRENT] = target
+        run.cells[SINCE] = Opt(z3.BoolVal(False), (now,))
+        run.cells[REFINED] = NONE
+
+    def begin(run: IrSymbolic, args: list[Any]) -> None:
+        """DiagnoserRuntime.begin: the time in the initial state counts from now."""
+        run.cells[SINCE] = Opt(z3.BoolVal(False), (args[0],))
+
+    def take(run: IrSymbolic, args: list[Any]) -> None:
+        """DiagnoserRuntime.take: transition k's target entered now."""
+        number, now, _scan = args
+        enter(run, z3.IntVal(rt.index[spec.transitions[_concrete(number)].target]), now)
+
+    def lost_sight(run: IrSymbolic, args: list[Any]) -> Any:
+        """DiagnosisStage.lost_sight: a faulty state keeps its decision, its clock moved on
+        by max(0, delta - period); a normal state other than the initial one goes back to
+        it, entered now (True: a state changed)."""
+        now, _scan, delta = args
+        current = run.cells[CURRENT]
+        faulty = one_of(current, faulty_states)
+        moved = delta - stage.period
+
+        def keep() -> None:
+            since = run.cells[SINCE]
+            run.cells[SINCE] = Opt(since.none, (since.fields[0] + z3.If(moved > 0, moved, 0),))
+
+        def back() -> None:
+            run.branch(current != rt.initial,
+                       lambda: enter(run, z3.IntVal(rt.initial), now), lambda: None)
+
+        run.branch(faulty, keep, back)
+        return z3.And(z3.Not(faulty), current != rt.initial)
+
+    def holds(run: IrSymbolic, lab: str) -> Any:
+        """`lab` is in the decision: the state's labels, or the refinement's."""
+        current, refined = run.cells[CURRENT], run.cells[REFINED]
+        by_state = one_of(current, [n for n, s in enumerate(spec.states) if lab in s.labels])
+        if not hld:
+            return by_state
+        return z3.If(refined.none, by_state, refined.fields[0] == numbers[lab])
+
+    def settler(mode_name: str) -> Handler:
+        def settle(run: IrSymbolic, args: list[Any]) -> None:
+            """DiagnosisStage.settle: clean; the flags of the decision (0 when off), the
+            record's labels, whether a decision to refine holds."""
+            run.cells[DIRTY] = z3.BoolVal(False)
+            for p in spec.partitions:
+                run.image[slots[p.flag]] = (z3.BoolVal(False) if mode_name == "off" else
+                                            z3.Or(False, *[holds(run, lab) for lab in p.labels]))
+            for lab in spec.labels:
+                run.cells[label_cells[lab]] = holds(run, lab)
+            run.cells[FAULTY] = z3.Or(False, *[holds(run, lab) for lab in spec.labels])
+            if hld:
+                decisions = [n for n, s in enumerate(spec.states)
+                             if any(s.labels == h.decision for h in hld)]
+                run.cells[ARMED] = z3.BoolVal(False) if mode_name == "off" else z3.And(
+                    run.cells[REFINED].none, one_of(run.cells[CURRENT], decisions))
+        return settle
+
+    def refine(run: IrSymbolic, args: list[Any]) -> Any:
+        """DiagnosisStage.refine: while a decision a specification refines holds, not yet
+        refined, its rules in order; the first that holds decides its label (True: a
+        decision was refined)."""
+        was = run.cells[REFINED].none
+        for h in hld:
+            states = [n for n, s in enumerate(spec.states) if s.labels == h.decision]
+
+            def rules(rest: list[Any]) -> None:
+                if rest:
+                    label = z3.IntVal(numbers[rest[0].decide])
+                    run.branch(run.expression(shift_outputs(rest[0].when.root, outputs)),
+                               lambda: run.cells.__setitem__(
+                                   REFINED, Opt(z3.BoolVal(False), (label,))),
+                               lambda: rules(rest[1:]))
+
+            run.branch(z3.And(run.cells[REFINED].none, one_of(run.cells[CURRENT], states)),
+                       lambda h=h: rules(list(h.rules)), lambda: None)
+        return z3.And(was, z3.Not(run.cells[REFINED].none))
+
+    cells: dict[tuple[int, Any], Any] = {
+        DIRTY: z3.Or(v("Dirty"), mode != v("LastMode")),
+        LAST: Opt(v("LastScanNone"), (v("LastScan"),)),
+        LAST_NOW: MS * v("LastNow"), GAP: z3.IntVal(stage.gap_us),
+        CURRENT: v("State"), SINCE: Opt(v("SinceNone"), (MS * v("Since"),)),
+        REFINED: Opt(z3.Not(v("Refined")), (v("RefinedTo"),)) if hld else NONE,
+        ARMED: v("Armed") if hld else z3.BoolVal(False),
+        FAULTY: v("Faulty"),
+        **{cell: st[up[f"label:{lab}"]] for lab, cell in label_cells.items()},
+    }
+    runs: dict[str, IrSymbolic] = {}
+    for mode_name in ("observe", "off", "ftc"):
+        handlers = {(id(rt), "begin"): begin, (id(rt), "take"): take,
+                    (id(stage), "lost_sight"): lost_sight, (id(stage), "refine"): refine,
+                    (id(stage), "settle"): settler(mode_name)}
+        run = IrSymbolic(cells, read, MS * v("Now"), {}, handlers, set(), image, slots,
+                         scan=v("Scan") + 1)
+        run.run(lower_diagnosis(stage, [(rt, spec)], mode_name, outputs, bool(hld))
+                + lower_reconstruction(sensors, mode_name))
+        runs[mode_name] = run
+
+    def after(get: Callable[[IrSymbolic], Any]) -> Any:
+        """What the program leaves, in the block's mode."""
+        return _merge_value(in_mode["observe"], get(runs["observe"]),
+                            _merge_value(in_mode["off"], get(runs["off"]), get(runs["ftc"])))
+
+    since, last = after(lambda r: r.cells[SINCE]), after(lambda r: r.cells[LAST])
+    scan = {
+        "the state": o("State") == after(lambda r: r.cells[CURRENT]),
+        "the time the state was entered": z3.And(
+            o("SinceNone") == since.none,
+            z3.Implies(z3.Not(since.none), MS * o("Since") == since.fields[0])),
+        "the flags must follow (dirty)": o("Dirty") == after(lambda r: r.cells[DIRTY]),
+        "the last scan seen (its number and time)": z3.And(
+            o("LastScanNone") == last.none, z3.Implies(z3.Not(last.none),
+                                                        o("LastScan") == last.fields[0]),
+            MS * o("LastNow") == after(lambda r: r.cells[LAST_NOW])),
+        "the scan counted, the mode remembered": z3.And(o("Scan") == v("Scan") + 1,
+                                                         o("LastMode") == mode),
+        "the decision's labels and Faulty": z3.And(
+            o("Faulty") == after(lambda r: r.cells[FAULTY]),
+            *[out[up[f"label:{lab}"]] == after(lambda r, c=cell: r.cells[c])
+              for lab, cell in label_cells.items()]),
+        **{f"{p}: the value written (flag or route)": out[ident] == after(
+            lambda r, s=slot: r.image[s]) for slot, ident in flag_idents.items()
+           for p in [layout.names[slot]]},
+    }
+    if hld:
+        refined = after(lambda r: r.cells[REFINED])
+        scan["the High Level Diagnoser's refinement (Refined, RefinedTo, Armed)"] = z3.And(
+            o("Refined") == z3.Not(refined.none),
+            z3.Implies(o("Refined"), o("RefinedTo") == refined.fields[0]),
+            o("Armed") == after(lambda r: r.cells[ARMED]))
+
+    # the fault reset (DiagnosisStage.reset, DiagnoserRuntime.resync): not when off; a
+    # faulty diagnoser re-synchronised to the first resync rule that holds on the block's
+    # inputs (the values of the scan just ended, as the program wires them), entered now
+    reset = IrSymbolic({CURRENT: v("State"), SINCE: Opt(v("SinceNone"), (v("Since"),)),
+                        REFINED: Opt(z3.Not(v("Refined")), (v("RefinedTo"),)) if hld else NONE},
+                       lambda n, d: st[block.inputs[(n, d)].upper()], v("Now"), {}, {}, set())
+
+    def resync(rules: list[Any]) -> None:
+        if rules:
+            reset.branch(reset.expression(rules[0].when.root),
+                         lambda: enter(reset, z3.IntVal(rt.index[rules[0].target]), v("Now")),
+                         lambda: resync(rules[1:]))
+
+    running = mode != 2
+    reset.branch(z3.And(running, one_of(v("State"), faulty_states)),
+                 lambda: resync(list(spec.resync)), lambda: None)
+    r_since, r_refined = reset.cells[SINCE], reset.cells[REFINED]
+    fixed = ["Scan", "LastScan", "LastScanNone", "LastNow", "LastMode", "Faulty",
+             *[up[f"label:{lab}"] for lab in spec.labels], *flag_idents.values(),
+             *(["Armed"] if hld else [])]
+    properties = {
+        **{f"a scan: {n}": z3.Implies(z3.Not(v("Reset")), p) for n, p in scan.items()},
+        "a fault reset: re-synchronised by the first resync rule that holds": z3.Implies(
+            v("Reset"), z3.And(
+                o("State") == reset.cells[CURRENT], o("SinceNone") == r_since.none,
+                z3.Implies(z3.Not(r_since.none), o("Since") == r_since.fields[0]),
+                *([o("Refined") == z3.Not(r_refined.none),
+                   z3.Implies(o("Refined"), o("RefinedTo") == r_refined.fields[0])]
+                  if hld else []))),
+        "a fault reset: the flags follow at the next scan (not when off)": z3.Implies(
+            v("Reset"), o("Dirty") == z3.Or(v("Dirty"), running)),
+        "a fault reset changes nothing else": z3.Implies(
+            v("Reset"), z3.And(*[o(n) == v(n) for n in fixed])),
+    }
+    invariant = z3.And(MS * v("Gap") == stage.gap_us, MS * v("Period") == stage.period,
+                       v("State") >= 0, v("State") < len(spec.states))
+    properties[f"a call keeps the state invariant (Gap, Period; 0 <= State < "
+               f"{len(spec.states)})"] = z3.And(
+        MS * o("Gap") == stage.gap_us, MS * o("Period") == stage.period,
+        o("State") >= 0, o("State") < len(spec.states))
+    proofs = [_valid(n, z3.Implies(invariant, p), sym) for n, p in properties.items()]
+    proofs.append(in_bounds([_case(sym, out)]))
+    return proofs
+

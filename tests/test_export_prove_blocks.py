@@ -1,9 +1,10 @@
 """z3 proves that exported blocks, as blark parses them, are the scan program's (the
 statements the engine runs, hmi.program): each stopwatch monitor FB (hmi.program.monitors)
-for every input and every state with its phase one of the three, and the memory FB (the
-timers and observers: hmi.program.timers, hmi.program.memories) for every input and every
-state (tests/ir_prove.py says how and what corresponds); tampered blocks are refuted with a
-counterexample."""
+for every input and every state with its phase one of the three, the memory FB (the timers
+and observers: hmi.program.timers, hmi.program.memories) for every input and every state, and
+each diagnoser FB (hmi.program.diagnosers, in each of its modes, and its fault reset) for
+every input and every state naming a state (tests/ir_prove.py says how and what
+corresponds); tampered blocks are refuted with a counterexample."""
 
 from __future__ import annotations
 
@@ -13,10 +14,11 @@ import pytest
 
 from hmi.export.build import build
 from hmi.export.st import write_st
+from hmi.project.diagnosers import diagnosers_of
 from hmi.project.loader import load_project
 from hmi.project.monitors import monitors_of
 from tests.conftest import PROJECTS
-from tests.ir_prove import prove_memory, prove_monitor
+from tests.ir_prove import prove_diagnoser, prove_memory, prove_monitor
 
 NAMES = sorted(p.name for p in PROJECTS.iterdir() if (p / "project.yaml").exists())
 
@@ -124,5 +126,104 @@ def test_the_valves_memory_is_proved_and_a_wrong_one_refuted(old, new, refuted):
 
     proofs = prove_memory(project, text, tamper)
     assert len(proofs) == 7
+    assert {p.name for p in proofs if not p.proved} == refuted
+    assert all("counterexample" in p.detail for p in proofs if not p.proved)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", NAMES)
+def test_every_exported_diagnoser_is_the_programs_for_every_input_and_state(name):
+    project, text = _export(name)
+    failed = []
+    for spec in diagnosers_of(project):
+        start = time.process_time()
+        proofs = prove_diagnoser(project, text, spec.name)
+        hld = any(h.diagnoser == spec.name for h in project.high_level)
+        flags = sum(1 + bool(p.filtered) for p in spec.partitions)
+        # 6 of a scan, one per flag or route, the refinement, 3 of a reset, invariant, bounds
+        assert len(proofs) == 6 + flags + hld + 3 + 2
+        failed += [f"{spec.name}: {p.name}: {p.detail}" for p in proofs if not p.proved]
+        print(f"\n{name}: diagnoser {spec.name}, {len(proofs)} properties, "
+              f"{time.process_time() - start:.0f} s CPU")
+    assert not failed, "\n".join(failed)
+
+
+_STATE = {"a scan: the state", "a scan: the decision's labels and Faulty"}
+_FLAGS = {f"a scan: {f}: the value written (flag or route)" for f in ("def_fsc", "def_fso",
+                                                                      "def_V")}
+_SLOW_CHANGE = pytest.mark.slow  # (each change costs a parse of the block: ~12 s CPU)
+
+
+# The valve's diagnoser V1 (36 states): each change refuted on what it breaks.
+@pytest.mark.parametrize(("old", "new", "refuted"), [
+    (None, None, set()),
+    # a faulty state's clock moved on by the whole gap, not the gap less one period
+    ("Since := Since + (L_delta - Period);", "Since := Since + L_delta;",
+     _STATE | _FLAGS | {"a scan: the time the state was entered"}),
+    # a step of exactly 10 periods read as a gap
+    ("IF (Scan <> (L_ls + 1)) OR (L_delta > Gap) THEN",
+     "IF (Scan <> (L_ls + 1)) OR (L_delta >= Gap) THEN",
+     _STATE | _FLAGS | {"a scan: the time the state was entered"}),
+    # a window [0, 300 ms) closed at 300 ms
+    ("IF (L_t < T#300ms) AND NOT fsc AND NOT fso THEN",
+     "IF (L_t <= T#300ms) AND NOT fsc AND NOT fso THEN",
+     _STATE | _FLAGS - {"a scan: def_fso: the value written (flag or route)"}),
+    # a label forgotten in one state (B1A holds F7)
+    ("F7 := (State = 13) OR (State = 21) OR (State = 27) OR (State = 30);",
+     "F7 := (State = 13) OR (State = 21) OR (State = 27);",
+     {"a scan: the decision's labels and Faulty"}),
+    pytest.param(  # a timeout into the wrong state
+        "(* N2 -> B2 after 300ms *)\n                        State := 10;",
+        "(* N2 -> B2 after 300ms *)\n                        State := 11;",
+        _STATE | _FLAGS - {"a scan: def_V: the value written (flag or route)"},
+        marks=_SLOW_CHANGE),
+    pytest.param(  # a fault reset whose flags never follow
+        "        Dirty := TRUE;\n    END_IF;\nELSE", "    END_IF;\nELSE",
+        {"a fault reset: the flags follow at the next scan (not when off)"},
+        marks=_SLOW_CHANGE),
+    pytest.param(  # a resync rule that forgets a condition
+        "ELSIF fso AND NOT fsc AND NOT C AND NOT O THEN\n                (* resync rule 2",
+        "ELSIF fso AND NOT C AND NOT O THEN\n                (* resync rule 2",
+        {"a fault reset: re-synchronised by the first resync rule that holds"},
+        marks=_SLOW_CHANGE),
+    pytest.param(  # observe read as FTC: the sensors reconstructed
+        "CASE Mode OF\n        1:", "CASE Mode OF\n        3:",
+        {"a scan: fsc_filter: the value written (flag or route)",
+         "a scan: fso_filter: the value written (flag or route)"},
+        marks=_SLOW_CHANGE),
+])
+def test_the_valves_diagnoser_is_proved_and_a_wrong_one_refuted(old, new, refuted):
+    project, text = _export("cispi_valve")
+
+    def tamper(fb: str) -> str:
+        if old is None:
+            return fb
+        assert old in fb
+        return fb.replace(old, new, 1)
+
+    proofs = prove_diagnoser(project, text, "V1", tamper)
+    assert len(proofs) == 16
+    assert {p.name for p in proofs if not p.proved} == refuted
+    assert all("counterexample" in p.detail for p in proofs if not p.proved)
+
+
+# The subsystem's V2 with its High Level Diagnoser (the decision {F1, F13} refined).
+@pytest.mark.slow
+@pytest.mark.parametrize(("old", "new", "refuted"), [
+    ("RefinedTo := 13;", "RefinedTo := 12;",
+     {"a scan: the High Level Diagnoser's refinement (Refined, RefinedTo, Armed)",
+      "a scan: the decision's labels and Faulty"}),
+    # armed again once refined
+    ("Armed := NOT Refined AND (State = 15);", "Armed := (State = 15);",
+     {"a scan: the High Level Diagnoser's refinement (Refined, RefinedTo, Armed)"}),
+])
+def test_a_wrong_refinement_is_refuted(old, new, refuted):
+    project, text = _export("cispi_subsystem")
+
+    def tamper(fb: str) -> str:
+        assert old in fb
+        return fb.replace(old, new, 1)
+
+    proofs = prove_diagnoser(project, text, "V2", tamper)
     assert {p.name for p in proofs if not p.proved} == refuted
     assert all("counterexample" in p.detail for p in proofs if not p.proved)
