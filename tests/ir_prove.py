@@ -58,7 +58,29 @@ class Opt:
 NONE = Opt(z3.BoolVal(True))
 
 
+@dataclass(frozen=True)
+class Members:
+    """A tuple of small integers the program grows (the GRAFCET's fireable transitions):
+    whether each one is in it."""
+
+    flags: tuple[tuple[int, Any], ...] = ()
+
+    def has(self, k: int) -> Any:
+        return dict(self.flags).get(k, z3.BoolVal(False))
+
+    def any(self) -> Any:
+        return z3.Or(False, *[f for _, f in self.flags])
+
+
+def _truth(value: Any) -> Any:
+    """A value tested by an If (a tuple is true when not empty)."""
+    return value.any() if isinstance(value, Members) else value
+
+
 def _merge_value(cond: Any, a: Any, b: Any) -> Any:
+    if isinstance(a, Members) or isinstance(b, Members):
+        keys = sorted({k for k, _ in (*a.flags, *b.flags)})
+        return Members(tuple((k, _ite(cond, a.has(k), b.has(k))) for k in keys))
     if isinstance(a, Opt) or isinstance(b, Opt):
         a = a if isinstance(a, Opt) else Opt(z3.BoolVal(False), (a,))
         b = b if isinstance(b, Opt) else Opt(z3.BoolVal(False), (b,))
@@ -82,10 +104,12 @@ class IrSymbolic:
     def __init__(self, cells: dict[tuple[int, Any], Any], read: Callable[[str, int], Any],
                  now: Any, codes: dict[int, int], handlers: dict[tuple[int, str], Handler],
                  ignored: set[tuple[int, Any]], image: dict[int, Any] | None = None,
-                 slots: dict[str, int] | None = None, scan: Any = None):
+                 slots: dict[str, int] | None = None, scan: Any = None,
+                 step_times: dict[str, int] | None = None):
         # (the image: its slots by index, the values of this scan; `slots` names them;
         # `scan`: the scan's number, when something compares it)
         self.scan = z3.IntVal(0) if scan is None else scan
+        self.step_times = step_times or {}  # a step's name -> its time's slot
         self.cells = dict(cells)
         self.image = dict(image or {})
         self.slots = slots or {}
@@ -99,7 +123,7 @@ class IrSymbolic:
 
     def stmt(self, s: ir.Stmt) -> None:
         if isinstance(s, ir.If):
-            cond = self.value(s.test)
+            cond = _truth(self.value(s.test))
             known = _concrete(cond)
             if known is not None:
                 self.run(s.then if known else s.orelse)
@@ -122,6 +146,11 @@ class IrSymbolic:
             value = self.value(s.value)
             if isinstance(target, ir.Local):
                 self.env[target.name] = value
+            elif isinstance(target, ir.Item) and isinstance(target.base, ir.Ref):
+                key = (id(target.base.obj), target.index)
+                if key not in self.cells:
+                    raise Unsupported("an item with no counterpart")
+                self.cells[key] = value
             elif isinstance(target, ir.Slot):
                 if target.index not in self.image:
                     raise Unsupported(f"slot {target.index} with no counterpart")
@@ -207,6 +236,15 @@ class IrSymbolic:
                 return z3.BoolVal(b)
             case ir.Const(value=int() as n):
                 return z3.IntVal(n)
+            case ir.Const(value=tuple() as items):
+                return Members(tuple((k, z3.BoolVal(True)) for k in items))
+            case ir.Add(left=a, right=ir.Const(value=tuple() as items)):
+                grown = self.value(a)
+                assert isinstance(grown, Members)
+                return Members(tuple(sorted({**dict(grown.flags),
+                                             **{k: z3.BoolVal(True) for k in items}}.items())))
+            case ir.Item(base=ir.Ref(obj=obj), index=index) if (id(obj), index) in self.cells:
+                return self.cells[(id(obj), index)]
             case ir.Ref(obj=obj) if id(obj) in self.codes:
                 return z3.IntVal(self.codes[id(obj)])
             case ir.Local(name=name):
@@ -261,6 +299,14 @@ class IrSymbolic:
                 return z3.And(*[self.expression(o) for o in operands])
             case ex.Or(operands=operands):
                 return z3.Or(*[self.expression(o) for o in operands])
+            case ex.StepTime(step=step) if step in self.step_times:
+                return self.image[self.step_times[step]]
+            case ex.Duration(us=us):
+                return z3.IntVal(us)
+            case ex.Compare(left=left, op=op, right=right):
+                x, y = self.expression(left), self.expression(right)
+                return {"==": lambda: x == y, "!=": lambda: x != y, "<": lambda: x < y,
+                        "<=": lambda: x <= y, ">": lambda: x > y, ">=": lambda: x >= y}[op]()
         raise Unsupported(f"expression {type(node).__name__}")
 
 
@@ -710,3 +756,188 @@ def prove_diagnoser(project: Any, text: str, name: str,
     proofs.append(in_bounds([_case(sym, out)]))
     return proofs
 
+
+
+MARKINGS = 512  # more situations than this (or every set of steps): no invariant on them
+
+
+def markings(grafcet: Any) -> list[frozenset[str]] | None:
+    """The situations (sets of active steps) reachable from the initial one when any
+    subset of the enabled transitions fires together (the receptivities left free: a
+    superset of what the GRAFCET reaches), or None when they are too many or every set of
+    steps (then they say nothing)."""
+    from itertools import combinations
+    initial = frozenset(grafcet.initial)
+    seen, todo = {initial}, [initial]
+    while todo:
+        marking = todo.pop()
+        enabled = [(set(a), set(b)) for a, b in grafcet.transitions if set(a) <= marking]
+        for r in range(1, len(enabled) + 1):
+            for chosen in combinations(enabled, r):
+                off = set().union(*[a for a, _ in chosen])
+                on = set().union(*[b for _, b in chosen])
+                found = frozenset((marking - (off - on)) | on)
+                if found not in seen:
+                    seen.add(found)
+                    todo.append(found)
+                    if len(seen) > MARKINGS:
+                        return None
+    return None if len(seen) >= 2 ** len(grafcet.names) - 1 else sorted(seen, key=sorted)
+
+
+def prove_control(project: Any, text: str, tamper: Callable[[str], str] | None = None
+                  ) -> list[Proof]:
+    """The exported control FB (hmi.export.control_pou) against the scan program's control
+    law (ControlRuntime.times + .program: hmi.program.grafcet's step times, evolution and
+    continuous actions, hmi.program.memories' equations), for every input and every
+    reachable state: each output FOV_x, step, step time and memory, each active step's
+    activation time, the block's own history, with the handler ``fire`` stated from
+    GrafcetRuntime.fire and the first call (``Started`` false) from the engine's first scan
+    (GrafcetRuntime.reset, then the history filled with the image).
+
+    The correspondence, FB variable = program state: the image's output slot = the order
+    written at the previous scan (the block's reading of the output's global) until the law
+    writes it, FOV_x after; a step, a memory = the block's own variable; a step's time
+    slot = X_t (ms, the program's µs / 1,000); the runtime's `since` = Xk_since while Xk is
+    active, None while inactive; a value of the block's own back in time = its prev_ variable;
+    the inputs, timers, flags and filtered sensors = the globals. The reachable states: an
+    inactive step's time is 0 (the runtime writes 0 when it deactivates one), and before
+    the first call every step is as the GRAFCET's initial situation (the block's initial
+    values); a call keeps both (after it, Started holds)."""
+    from hmi.export.views import view_name
+    ((args, block),) = built_blocks(project, "build_control", "hmi.export.stage_blocks")
+    runtime, _project, layout, g = args[:4]
+    sym, out = _executed(text, block, tamper)
+    st = sym.initial
+    grafcet = runtime.grafcet
+    kinds = dict(zip(layout.names, layout.kinds, strict=True))
+    slots = dict(layout.slots)
+
+    def own(name: str) -> str:
+        return (name.replace(".t", "_t") if kinds[name] == "step_time" else name).upper()
+
+    def ident(name: str) -> str:
+        """The block's variable for the image's slot `name`."""
+        kind = kinds[name]
+        if kind == "output":
+            return g.idents[f"FOV_{name}"].upper()
+        if kind in ("memory", "step", "step_time"):
+            return own(name)
+        return g.idents[name].upper()
+
+    held = [n for n in layout.names if ident(n) in st]
+    history = {(n, d): view_name(n, d).upper() for n in held if kinds[n] in ("memory", "step")
+               for d in range(1, 8) if view_name(n, d).upper() in st}
+    # the image as the law finds it: an output holds the order written at the previous scan
+    image = {slots[n]: st[g.idents[n].upper()] if kinds[n] == "output" else st[ident(n)]
+             for n in held}
+    for n in held:
+        if kinds[n] == "step_time":
+            image[slots[n]] = MS * image[slots[n]]
+
+    def read(name: str, depth: int) -> Any:
+        if (name, depth) in history:
+            return first[(name, depth)]  # (the block's own history, once started)
+        return st[block.inputs[(name, depth)].upper()]
+
+    steps = grafcet.names if grafcet is not None else ()
+    started = st["STARTED"]
+    since_cells: dict[tuple[int, Any], Any] = {}
+    if grafcet is not None:
+        for k, step in enumerate(steps):
+            since_cells[(id(grafcet.since), k)] = Opt(z3.Not(st[own(step)]),
+                                                       (MS * st[f"{step}_since".upper()],))
+
+    def fire(run: IrSymbolic, args: list[Any]) -> None:
+        """GrafcetRuntime.fire: the transitions in `fire` together; the steps upstream of
+        one and downstream of none deactivated (time 0, since None), the steps downstream
+        of one activated now (time 0), their stored actions in the order of their names."""
+        assert grafcet is not None
+        chosen, _image, now = args
+        deact = {s: z3.Or(False, *[chosen.has(k) for k, (src, _t) in
+                                   enumerate(grafcet.transitions) if s in src]) for s in steps}
+        act = {s: z3.Or(False, *[chosen.has(k) for k, (_s, tgt) in
+                                 enumerate(grafcet.transitions) if s in tgt]) for s in steps}
+        for s in steps:
+            k = grafcet.number[s]
+            off = z3.And(deact[s], z3.Not(act[s]))
+            step, time_ = grafcet.step_slots[s], grafcet.time_slots[s]
+            run.image[step] = z3.If(act[s], True, z3.If(off, False, run.image[step]))
+            run.image[time_] = z3.If(z3.Or(act[s], off), 0, run.image[time_])
+            run.cells[(id(grafcet.since), k)] = _merge_value(
+                act[s], Opt(z3.BoolVal(False), (now,)),
+                _merge_value(off, NONE, run.cells[(id(grafcet.since), k)]))
+        for s in sorted(steps):
+            for slot, value in grafcet.stored.get(s, ()):
+                run.image[slot] = z3.If(act[s], value, run.image[slot])
+
+    program = IrSymbolic(since_cells, read, MS * st["NOW"], {},
+                         {(id(grafcet), "fire"): fire} if grafcet is not None else {},
+                         {(id(grafcet), "fired")} if grafcet is not None else set(),
+                         image, slots, step_times=dict(layout.step_times))
+
+    def reset() -> None:
+        """The engine's first scan (Engine._start): GrafcetRuntime.reset at now, the
+        history filled with the image."""
+        if grafcet is not None:
+            for s in steps:
+                program.image[grafcet.step_slots[s]] = z3.BoolVal(s in grafcet.initial)
+                if s not in grafcet.initial:
+                    program.image[grafcet.time_slots[s]] = z3.IntVal(0)
+                program.cells[(id(grafcet.since), grafcet.number[s])] = (
+                    Opt(z3.BoolVal(False), (program.now,)) if s in grafcet.initial else NONE)
+            for s in grafcet.initial:
+                for slot, value in grafcet.stored.get(s, ()):
+                    program.image[slot] = z3.BoolVal(value)
+
+    program.branch(z3.Not(started), reset, lambda: None)
+    # the history as the law reads it: the block's, or the image after the reset (the
+    # engine's first scan fills it with that image)
+    first: dict[tuple[str, int], Any] = {}
+    first.update({(n, d): z3.If(started, st[var], program.image[slots[n]])
+                  for (n, d), var in history.items()})
+    program.run(runtime.times + runtime.program)
+    after = program.image
+
+    def value_of(name: str) -> Any:
+        v = out[ident(name)]
+        return MS * v if kinds[name] == "step_time" else v
+
+    properties: dict[str, Any] = {}
+    for n in held:
+        if kinds[n] in ("output", "memory", "step", "step_time"):
+            properties[f"{n}: its value after the call"] = value_of(n) == after[slots[n]]
+    unchanged = [ident(n) for n in held if kinds[n] not in ("output", "memory", "step",
+                                                            "step_time")]
+    properties["the inputs, timers and flags are not written"] = z3.And(
+        True, *[out[i] == st[i] for i in unchanged])
+    for k, step in enumerate(steps):
+        since = program.cells[(id(grafcet.since), k)]
+        properties[f"{step}: active with its activation time, or inactive"] = z3.And(
+            out[own(step)] == z3.Not(since.none),
+            z3.Implies(z3.Not(since.none), MS * out[f"{step}_since".upper()] == since.fields[0]))
+    for (n, d), var in history.items():
+        # the history after the call: this call's image, then the history it read, shifted
+        newer = after[slots[n]] if d == 1 else first[(n, d - 1)]
+        properties[f"{view_name(n, d)}: the value {d} scan(s) back"] = out[var] == newer
+
+    def time_var(s: str) -> str:
+        return own(layout.names[layout.step_times[s]])
+
+    found = markings(grafcet) if grafcet is not None else None
+
+    def reachable(values: dict[str, Any]) -> Any:
+        initial = grafcet.initial if grafcet is not None else ()
+        return z3.And(True, *[z3.Implies(z3.Not(values[own(s)]), values[time_var(s)] == 0)
+                              for s in steps],
+                      z3.Implies(z3.Not(values["STARTED"]), z3.And(True, *[
+                          values[own(s)] == (s in initial) for s in steps])),
+                      *([z3.Or(*[z3.And(*[values[own(s)] == (s in marking) for s in steps])
+                                 for marking in found])] if found else []))
+    invariant = reachable(st)
+    properties["a call keeps the reachable states (inactive steps' times 0; started" + (
+        f"; the active steps one of {len(found)} situations)" if found else ")")] = \
+        z3.And(reachable(out), out["STARTED"])
+    proofs = [_valid(name, z3.Implies(invariant, p), sym) for name, p in properties.items()]
+    proofs.append(in_bounds([_case(sym, out)]))
+    return proofs

@@ -144,6 +144,12 @@ def declarations(fb: Any) -> Declared:
             raise Unsupported(f"declarations {type(block).__name__}")
         constant = "CONSTANT" in str(block.attrs or "").upper()
         for item in block.items:
+            if isinstance(item, tf.ExternalVariableDeclaration):  # (one name, no value)
+                name = str(item.name).upper()
+                out.types[name] = _type(item.spec)
+                out.sections[name] = section
+                out.order.append(name)
+                continue
             init = item.init
             vtype = _type(init.spec)
             for v in item.variables:

@@ -3,8 +3,10 @@ statements the engine runs, hmi.program): each stopwatch monitor FB (hmi.program
 for every input and every state with its phase one of the three, the memory FB (the timers
 and observers: hmi.program.timers, hmi.program.memories) for every input and every state, and
 each diagnoser FB (hmi.program.diagnosers, in each of its modes, and its fault reset) for
-every input and every state naming a state (tests/ir_prove.py says how and what
-corresponds); tampered blocks are refuted with a counterexample."""
+every input and every state naming a state, and the control FB (the GRAFCET's step times,
+evolution and actions, the equations: hmi.program.grafcet, hmi.program.memories, and the
+first call's reset) for every input and every reachable state (tests/ir_prove.py says how
+and what corresponds); tampered blocks are refuted with a counterexample."""
 
 from __future__ import annotations
 
@@ -18,7 +20,7 @@ from hmi.project.diagnosers import diagnosers_of
 from hmi.project.loader import load_project
 from hmi.project.monitors import monitors_of
 from tests.conftest import PROJECTS
-from tests.ir_prove import prove_diagnoser, prove_memory, prove_monitor
+from tests.ir_prove import prove_control, prove_diagnoser, prove_memory, prove_monitor
 
 NAMES = sorted(p.name for p in PROJECTS.iterdir() if (p / "project.yaml").exists())
 
@@ -227,3 +229,78 @@ def test_a_wrong_refinement_is_refuted(old, new, refuted):
     proofs = prove_diagnoser(project, text, "V2", tamper)
     assert {p.name for p in proofs if not p.proved} == refuted
     assert all("counterexample" in p.detail for p in proofs if not p.proved)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", NAMES)
+def test_the_exported_control_is_the_programs_for_every_input_and_reachable_state(name):
+    project, text = _export(name)
+    start = time.process_time()
+    proofs = prove_control(project, text)
+    print(f"\n{name}: control, {len(proofs)} properties, {time.process_time() - start:.1f} s "
+          "CPU")
+    grafcet = project.control(None).grafcet
+    steps = len(grafcet.steps) if grafcet is not None else 0
+    # outputs, memories, steps and their times, their activation, the history; the
+    # globals not written, the invariant, the bounds
+    assert len(proofs) >= len(project.outputs) + 3 * steps + 3
+    failed = [f"{p.name}: {p.detail}" for p in proofs if not p.proved]
+    assert not failed, "\n".join(failed)
+
+
+_SITUATIONS = ("a call keeps the reachable states (inactive steps' times 0; started; the "
+               "active steps one of 4 situations)")
+_X0_FIRED = {"O: its value after the call", "X0.t: its value after the call",
+             "X0: active with its activation time, or inactive", "X0: its value after the call",
+             "X1: active with its activation time, or inactive", "X1: its value after the call"}
+
+
+# The valve's GRAFCET (X0 -> X1 -> X2 -> X3 -> X0): each change refuted on what it breaks,
+# or proved equivalent for every reachable state.
+@pytest.mark.parametrize(("old", "new", "refuted"), [
+    (None, None, set()),
+    # a receptivity's step time read with > (X0 left one scan late at exactly 1 s)
+    ("IF X0 AND fsc_filter AND (X0_t >= T#1s) THEN",
+     "IF X0 AND fsc_filter AND (X0_t > T#1s) THEN", _X0_FIRED),
+    # the first call without the initial step's activation time
+    ("    Started := TRUE;\n    X0_since := Now;\n", "    Started := TRUE;\n", _X0_FIRED),
+    # the first call never remembered: the GRAFCET reset at every call
+    ("    Started := TRUE;\n", "", {_SITUATIONS}),
+    # a deactivated step keeping its time
+    ("        X3 := FALSE;\n        X3_t := T#0ms;\n", "        X3 := FALSE;\n",
+     {"X3.t: its value after the call", _SITUATIONS}),
+    # an activation time 1 ms early
+    ("        X1_since := Now;", "        X1_since := Now - T#1ms;",
+     {"X1: active with its activation time, or inactive"}),
+    # a continuous action on the wrong step
+    ("IF X3 THEN\n    FOV_C := TRUE;", "IF X2 THEN\n    FOV_C := TRUE;",
+     {"C: its value after the call"}),
+    # equivalent: O is driven by a continuous action, its previous order never read
+    ("FOV_O := O;", "FOV_O := FALSE;", set()),
+    # equivalent in every reachable situation: X0 and X3 are never active together, so
+    # rule 5 (a step deactivated and activated stays active) is not needed for X0
+    ("IF L_fire_0 AND NOT L_fire_3 THEN", "IF L_fire_0 THEN", set()),
+])
+def test_the_valves_control_is_proved_and_a_wrong_one_refuted(old, new, refuted):
+    project, text = _export("cispi_valve")
+
+    def tamper(fb: str) -> str:
+        if old is None:
+            return fb
+        assert old in fb
+        return fb.replace(old, new, 1)
+
+    proofs = prove_control(project, text, tamper)
+    assert len(proofs) == 17
+    assert {p.name for p in proofs if not p.proved} == refuted
+    assert all("counterexample" in p.detail for p in proofs if not p.proved)
+
+
+def test_the_controls_own_history_is_proved():
+    """The palletizer's law reads prev(X7), a step of its own: the block keeps it; not
+    shifting it at the end of the call is refuted."""
+    project, text = _export("palletizer")
+    assert all(p.proved for p in prove_control(project, text))
+    old = "(* this block's values back in time *)\nprev_X7 := X7;\n"
+    proofs = prove_control(project, text, lambda fb: fb.replace(old, "", 1))
+    assert {p.name for p in proofs if not p.proved} == {"prev_X7: the value 1 scan(s) back"}
