@@ -41,6 +41,7 @@ from tests.st_prove import (
     _ite,
     _valid,
     in_bounds,
+    parse_changed,
     parse_fb,
     pou_text,
 )
@@ -339,15 +340,15 @@ def _executed(text: str, block: Any, tamper: Callable[[str], str] | None
               ) -> tuple[Symbolic, dict[str, Any]]:
     """The exported block's ST (tampered with, when a test asks), run symbolically once."""
     fb_text = pou_text(text, block.pou.name)
-    if tamper is not None:
-        fb_text = tamper(fb_text)
-    sym = Symbolic(parse_fb(fb_text))
+    tree = parse_fb(fb_text) if tamper is None else parse_changed(fb_text, tamper(fb_text))
+    sym = Symbolic(tree)
     sym.obligations = []
     return sym, sym.run()
 
 
 def prove_monitor(project: Any, text: str, task: str,
-                  tamper: Callable[[str], str] | None = None) -> list[Proof]:
+                  tamper: Callable[[str], str] | None = None, at_once: bool = False
+                  ) -> list[Proof]:
     """The exported monitor FB of `task` (in `text`, `tamper`ed if given) against the scan
     program's lowering of that task: a list of proved (or refuted) properties."""
     from hmi.engine.stopwatch import Phase
@@ -446,9 +447,8 @@ def prove_monitor(project: Any, text: str, task: str,
         "a call keeps the state invariant (0 <= Phase <= 2)":
             z3.And(o("Phase") >= 0, o("Phase") <= 2),
     }
-    proofs = [_valid(name, z3.Implies(invariant, p), sym) for name, p in properties.items()]
-    proofs.append(in_bounds([_case(sym, out)]))
-    return proofs
+    return _proofs(properties, invariant, sym, out, at_once)
+
 
 
 def _case(sym: Symbolic, out: dict[str, Any]) -> Any:
@@ -512,7 +512,8 @@ MODE_CODES = {"observe": 1, "off": 2}  # (hmi.export.diagnoser_pou: any other va
 
 
 def prove_diagnoser(project: Any, text: str, name: str,
-                    tamper: Callable[[str], str] | None = None) -> list[Proof]:
+                    tamper: Callable[[str], str] | None = None, at_once: bool = False
+                    ) -> list[Proof]:
     """The exported diagnoser FB of `name` (in `text`, `tamper`ed if given) against the scan
     program's lowering of that diagnoser in each mode (hmi.program.diagnosers: the gap test,
     the current state's transitions, the High Level Diagnoser's refinement, the settling and
@@ -752,9 +753,7 @@ def prove_diagnoser(project: Any, text: str, name: str,
                f"{len(spec.states)})"] = z3.And(
         MS * o("Gap") == stage.gap_us, MS * o("Period") == stage.period,
         o("State") >= 0, o("State") < len(spec.states))
-    proofs = [_valid(n, z3.Implies(invariant, p), sym) for n, p in properties.items()]
-    proofs.append(in_bounds([_case(sym, out)]))
-    return proofs
+    return _proofs(properties, invariant, sym, out, at_once)
 
 
 
@@ -785,8 +784,8 @@ def markings(grafcet: Any) -> list[frozenset[str]] | None:
     return None if len(seen) >= 2 ** len(grafcet.names) - 1 else sorted(seen, key=sorted)
 
 
-def prove_control(project: Any, text: str, tamper: Callable[[str], str] | None = None
-                  ) -> list[Proof]:
+def prove_control(project: Any, text: str, tamper: Callable[[str], str] | None = None,
+                  at_once: bool = False) -> list[Proof]:
     """The exported control FB (hmi.export.control_pou) against the scan program's control
     law (ControlRuntime.times + .program: hmi.program.grafcet's step times, evolution and
     continuous actions, hmi.program.memories' equations), for every input and every
@@ -938,6 +937,17 @@ def prove_control(project: Any, text: str, tamper: Callable[[str], str] | None =
     properties["a call keeps the reachable states (inactive steps' times 0; started" + (
         f"; the active steps one of {len(found)} situations)" if found else ")")] = \
         z3.And(reachable(out), out["STARTED"])
+    return _proofs(properties, invariant, sym, out, at_once)
+
+
+def _proofs(properties: dict[str, Any], invariant: Any, sym: Symbolic, out: dict[str, Any],
+            at_once: bool) -> list[Proof]:
+    """Each property proved under the invariant, and the bounds; `at_once`: all of them as
+    one property (what the mutation study asks: equal, or refuted somewhere)."""
+    if at_once:
+        bounds = z3.And(True, *[ob for ob, _ in sym.obligations])
+        return [_valid("every property", z3.Implies(invariant, z3.And(*properties.values(),
+                                                                      bounds)), sym)]
     proofs = [_valid(name, z3.Implies(invariant, p), sym) for name, p in properties.items()]
     proofs.append(in_bounds([_case(sym, out)]))
     return proofs

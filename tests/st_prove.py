@@ -119,6 +119,103 @@ def parse_fb(text: str) -> Any:
     return items[0]
 
 
+@cache
+def _parsed(text: str) -> Any:
+    return parse_fb(text)
+
+
+def parse_changed(original: str, changed: str) -> Any:
+    """blark's tree of `changed`, a function block that differs from `original` within one
+    line (a mutant, a tampered block): the original's tree (parsed once) with the node that
+    holds the change parsed again on its own (blark's Earley parser takes seconds on a block
+    of a thousand lines, a line takes milliseconds). The node is the largest one that lies
+    on that line and covers the change (a one-line statement, a condition, a CASE label);
+    when there is none, the whole block is parsed."""
+    import dataclasses
+    old_lines, new_lines = original.splitlines(), changed.splitlines()
+    differ = [k for k, (a, b) in enumerate(zip(old_lines, new_lines, strict=False)) if a != b]
+    if len(old_lines) != len(new_lines) or len(differ) != 1:
+        return parse_fb(changed)
+    k = differ[0]
+    old, new = old_lines[k], new_lines[k]
+    head = len(_common_prefix(old, new))
+    tail = len(_common_prefix(old[head:][::-1], new[head:][::-1]))
+    line = k + 1
+    tree = _parsed(original)
+    # (width, the path to the node: (field, index) from the root)
+    best: tuple[int, tuple[tuple[str, int | None], ...]] | None = None
+    from blark import transform as tf
+
+    def covers(node: Any) -> bool:
+        if not isinstance(node, tf.Statement | tf.Expression):
+            return False
+        meta = getattr(node, "meta", None)
+        if meta is None or getattr(meta, "line", None) != line or meta.end_line != line:
+            return False
+        return meta.column - 1 <= head and len(old) - tail <= meta.end_column - 1
+
+    def visit(node: Any, path: tuple[tuple[str, int | None], ...]) -> None:
+        nonlocal best
+        if not dataclasses.is_dataclass(node):
+            return
+        meta = getattr(node, "meta", None)
+        if meta is not None and getattr(meta, "line", None) is not None and not (
+                meta.line <= line <= meta.end_line):
+            return  # (the change is not under this node)
+        for f in dataclasses.fields(node):
+            value = getattr(node, f.name)
+            items = list(enumerate(value)) if isinstance(value, list) else [(None, value)]
+            for index, child in items:
+                here = (*path, (f.name, index))
+                if covers(child):
+                    width = child.meta.end_column - child.meta.column
+                    if best is None or width > best[0]:
+                        best = (width, here)
+                visit(child, here)
+
+    visit(tree, ())
+    if best is None:
+        return parse_fb(changed)
+    node = tree
+    for name, index in best[1]:
+        node = getattr(node, name) if index is None else getattr(node, name)[index]
+    start, end = node.meta.column - 1, node.meta.end_column - 1 + len(new) - len(old)
+    piece = new[start:end]
+    statement = isinstance(node, tf.Statement)
+    try:
+        wrapped = parse_fb("FUNCTION_BLOCK F\n" + (piece if statement else f"X := {piece};")
+                           + "\nEND_FUNCTION_BLOCK\n").body.statements
+    except SyntaxError:
+        wrapped = []
+    if len(wrapped) != 1:
+        return parse_fb(changed)
+    return _replaced(tree, best[1], wrapped[0] if statement else wrapped[0].expression)
+
+
+def _replaced(node: Any, path: tuple[tuple[str, int | None], ...], replacement: Any) -> Any:
+    """`node` with the node at `path` replaced: the nodes on the path copied, the rest
+    shared with the original tree (which is cached: never changed)."""
+    import copy
+    if not path:
+        return replacement
+    (name, index), rest = path[0], path[1:]
+    new = copy.copy(node)
+    if index is None:
+        setattr(new, name, _replaced(getattr(node, name), rest, replacement))
+    else:
+        items = list(getattr(node, name))
+        items[index] = _replaced(items[index], rest, replacement)
+        setattr(new, name, items)
+    return new
+
+
+def _common_prefix(a: str, b: str) -> str:
+    n = 0
+    while n < min(len(a), len(b)) and a[n] == b[n]:
+        n += 1
+    return a[:n]
+
+
 def _type(spec: Any) -> VarType:
     from blark import transform as tf
     if isinstance(spec, tf.ArraySpecification):
