@@ -96,7 +96,7 @@ class Broken:
             "state": (plant, "state"),
             "counters": (plant, "counters"),
             "write_vector": (plant, "write_vector"),
-            "elapsed": (engine, "_elapsed"),
+            "elapsed": (engine.memory, "elapsed"),
             "settle": (engine.monitors, "settle"),
             "status": (plant, "status"),
             "publish": (engine.diagnosis, "publish"),

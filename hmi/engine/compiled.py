@@ -45,7 +45,7 @@ from typing import TYPE_CHECKING, Any
 from hmi.engine.codegen import Vocabulary, allow, build_function
 from hmi.engine.diagnoser import NO_DIAGNOSIS
 from hmi.engine.program_stages import AddedStage, program_order
-from hmi.engine.recovery import NO_RECOVERY
+from hmi.engine.scan_record import ScanNews
 from hmi.logic.expr import History, Image
 from hmi.plant.base import PlantError
 from hmi.program import ir, order
@@ -221,8 +221,8 @@ FRAME = Vocabulary(
                "take_events", "status", "core", "violated", "monitors", "faulty", "deadline",
                "active", "_idle", "marks", "appendleft", "fov", "outputs", "report",
                "diagnosis", "monitored", "error", "filter_us", "values", "diagnosers",
-               "events", "recovery", "scan_us", "settled", "manual", "current", "settle",
-               "needed"}),
+               "events", "published", "scan_us", "settled", "manual", "current",
+               "settle", "needed"}),
     frozenset({"exc", "diag", "report", "error", "monitored", "marks", "events", "status",
                "last", "values", "w", "none_waiting", "out", "decided"}))
 
@@ -247,7 +247,7 @@ def auto_frame(engine: Any) -> ir.Function:
     out, decided = ir.Local("out"), ir.Local("decided")
     calm = ir.Local("none_waiting")
     monitored, exc, unquiet = ir.Local("monitored"), ir.Local("exc"), ir.Local("w")
-    stage, monitors, recovery = engine.diagnosis, engine.monitors, engine.recovery
+    stage, monitors = engine.diagnosis, engine.monitors
     supervised = engine._supervised
     record = engine._record
 
@@ -329,11 +329,12 @@ def auto_frame(engine: Any) -> ir.Function:
     body.append(ir.If(ir.Not(ir.IsNone(error)), (finish,)))
     if supervised is not None:
         body.append(ir.If(ir.Compare(">", now, cell(supervised, "deadline")), (finish,)))
-    if stage is not None:
-        body.append(ir.If(cell(stage, "faulty"), (finish,)))
-    if recovery is not None:
-        body.append(ir.If(ir.Or((cell(recovery, "needed"),
-                                 ir.Not(ir.IsNone(cell(recovery, "active"))))), (finish,)))
+    # each publishing stage's (its declaration's `news`): whether the scan is not quiet for
+    # it, and what it gives at a quiet scan
+    quiet = [news.quiet(stage_, diag) for news, stage_ in engine.stages.publishing]
+    for unquiet_, _ in quiet:
+        if unquiet_ is not None:
+            body.append(ir.If(unquiet_, (finish,)))
     marks = ir.Local("marks")
     if monitors is not None:  # (monitored: else the error above)
         body.append(ir.Try(
@@ -358,8 +359,6 @@ def auto_frame(engine: Any) -> ir.Function:
                                                    ir.Tuple((ir.Const(2), exc)))),)),)),
     ]
     # news: as Engine._conclude judges it (ScanNews by position)
-    diagnosers = ir.Item(diag, 2) if stage is not None else ir.Const(())
-    shown = cell(recovery, "_idle") if recovery is not None else ir.Ref(NO_RECOVERY)
     last = ir.Local("last")
     body += [
         ir.Assign(last, cell(e, "_news")),
@@ -368,10 +367,9 @@ def auto_frame(engine: Any) -> ir.Function:
         ir.If(ir.Not(ir.And((
             ir.Compare("is", report, ir.Item(last, 0)),
             ir.Compare("is", status, ir.Item(last, 1)),
-            # (without diagnosers, both are the empty tuple)
-            *((ir.Compare("is", diagnosers, ir.Item(last, 2)),) if stage is not None else ()),
-            ir.Compare("==", marks, ir.Item(last, 3)),
-            ir.Compare("is", shown, ir.Item(last, 4))))), (taken,)),
+            ir.Compare("==", marks, ir.Item(last, 2)),
+            *(ir.Compare("is", given, ir.Item(last, k))
+              for k, (_, given) in enumerate(quiet, ScanNews.PUBLISHED))))), (taken,)),
         # a quiet scan: the image into the history, the record
         ir.Assign(values, call(tuple, "__call__", image)),
         ir.Do(call(engine.history, "appendleft", values)),
@@ -379,8 +377,9 @@ def auto_frame(engine: Any) -> ir.Function:
     zero = ir.Ref(0.0)
     fields: tuple[tuple[str, ir.Value], ...] = (
         ("report", report), ("diagnosis", diag), ("monitored", monitored),
-        ("error", ir.NONE), ("filter_us", zero), ("diagnosers", diagnosers),
-        ("marks", marks), ("events", ir.Const(())), ("recovery", shown), ("scan_us", zero))
+        ("error", ir.NONE), ("filter_us", zero),
+        ("published", ir.Tuple(tuple(given for _, given in quiet))),
+        ("marks", marks), ("events", ir.Const(())), ("scan_us", zero))
     moving = (ir.Assign(cell(record, "fov"), f), ir.Assign(cell(record, "outputs"), out),
               ir.Assign(cell(record, "values"), values))
     body += [

@@ -8,15 +8,18 @@ a :class:`Declaration` (:func:`stage_declarations`: :data:`BUILT_IN`, then those
 address it by), how it is built from the project and the engine's choices, where it runs
 (the built-in stages' parts are hmi.program.order's own; an added stage's ``PLACE`` puts its
 part after one of them), how deep a history it reads, what a fault reset does to it, how its
-state is captured and restored (an exploration forking the engine: Engine.capture) and what
-of it a snapshot shows. Everything else derives from the declarations:
+state is captured and restored (an exploration forking the engine: Engine.capture), what
+it gives every scan with news (its snapshot field, compared to say whether a scan has news:
+:class:`Publication`) and what else a snapshot reads of it (:class:`Shown`). Everything else
+derives from the declarations:
 
 * the engine builds every declared stage (``Engine.__init__``, :func:`build_stages`), in
   this order, each given those built before it; the compiled scan puts each stage's parts
   in the scan's order (:func:`hmi.program.order.placed`), in every mode's function, printed
   and evaluated, and allows their names (``PRINTED``); the history is as deep as the
-  deepest stage; a fault reset, Engine.capture/restore and the snapshot walk the
-  declarations;
+  deepest stage; a fault reset, Engine.capture/restore, the end of a scan
+  (Engine._conclude: each publication read, news judged on them), the printed frame's
+  quiet test (each publication's, printed) and the snapshot walk the declarations;
 * the PLC export builds each stage's function blocks (hmi.export.stage_blocks, keyed by
   role) and the PLC program calls them at the stage's place (hmi.export.program_pou).
 
@@ -36,10 +39,10 @@ from typing import Any, ClassVar, Generic, NamedTuple, Protocol, TypeVar, cast
 from hmi.engine.control import ControlRuntime
 from hmi.engine.diagnoser import DiagnosisStage, diagnosis_stage
 from hmi.engine.layout import Layout
-from hmi.engine.recovery import RecoveryStage, recovery_stage
+from hmi.engine.recovery import NO_RECOVERY, RecoveryStage, recovery_stage
 from hmi.engine.stages import Memory, ProgramStage
 from hmi.logic.expr import History, Image
-from hmi.program import order
+from hmi.program import ir, order
 from hmi.project.model import ControlLaw, Project
 
 S = TypeVar("S")
@@ -72,6 +75,37 @@ class Moment(NamedTuple):
 
 
 @dataclass(frozen=True)
+class Publication(Generic[S]):
+    """What a stage gives every scan with news, for its snapshot field: read at the end of
+    the scan (Engine._conclude), the very same object again while nothing changed. A scan is
+    quiet for the stage (no news) only when it gives the object the last scan with news
+    gave; the printed frame, which concludes a quiet scan without reading it, asks `quiet`
+    once, when it is printed (hmi.engine.compiled.auto_frame)."""
+
+    field: str  # the Snapshot field it fills
+    # (the stage, the image as the scan left it, the history without it yet, the scan's time)
+    read: Callable[[S, Image, History, int], Any]
+    reading: str  # what failed, in plain words, when `read` raises (snapshot.INTERNAL_PARTS)
+    failed: Any  # what the snapshot shows then
+    # Given the stage and the frame's local holding the diagnosers' decision of the scan
+    # (Diagnosis): the test that says the scan is not quiet for the stage (None: it always
+    # is, but for what it gives) and the value `read` gives at a quiet scan, both as
+    # scan-program values
+    quiet: Callable[[S, ir.Value], tuple[ir.Value | None, ir.Value]]
+
+
+@dataclass(frozen=True)
+class Shown(Generic[S]):
+    """What a snapshot shows of a stage besides its publication, read when the snapshot is
+    built (Engine.snapshot): never news."""
+
+    fields: tuple[str, ...]  # the Snapshot fields it fills
+    read: Callable[[S, Image, int], tuple[Any, ...]]  # (the stage, the image, the scan's time)
+    reading: str  # what failed, in plain words, when `read` raises (snapshot.INTERNAL_PARTS)
+    failed: Callable[[S], tuple[Any, ...]]  # what the snapshot shows then
+
+
+@dataclass(frozen=True)
 class Declaration(Generic[S]):
     """A stage of the mode's program (see the module docstring). Every hook is optional: a
     stage without one has nothing of that kind."""
@@ -87,6 +121,8 @@ class Declaration(Generic[S]):
     capture: Callable[[S], Any] | None = None  # its state, copied (Engine.capture)
     restore: Callable[[S, Any], None] | None = None
     shown: Callable[[S], Any] | None = None  # what a snapshot shows of it (Snapshot.stages)
+    news: Publication[S] | None = None  # what it gives a scan with news (Engine._conclude)
+    fields: Shown[S] | None = None  # what a snapshot reads of it besides (Engine.snapshot)
 
 
 class AddedStage(ProgramStage, Protocol):
@@ -141,18 +177,64 @@ def _recovery(c: StageContext) -> RecoveryStage | None:
                           diagnosers.mask_flags if diagnosers is not None else {})
 
 
+def _elapsed(memory: Memory, image: Image, now: int) -> tuple[Any, ...]:
+    return (memory.elapsed(now),)
+
+
+def _no_elapsed(memory: Memory) -> tuple[Any, ...]:
+    return ((0,) * len(memory.timers),)
+
+
+def _steps(law: ControlRuntime, image: Image, now: int) -> tuple[Any, ...]:
+    grafcet = law.grafcet
+    return ((), ()) if grafcet is None else (grafcet.active(image), grafcet.fired)
+
+
+def _no_steps(law: ControlRuntime) -> tuple[Any, ...]:
+    return ((), law.grafcet.fired if law.grafcet is not None else ())
+
+
+def _diagnosers(stage: DiagnosisStage, image: Image, history: History, now: int) -> Any:
+    # (DiagnosisStage.publish: the records themselves unless one is faulty)
+    return stage.publish(image, history) if stage.faulty else stage.current.records
+
+
+def _diagnosers_quiet(stage: DiagnosisStage, diagnosis: ir.Value
+                      ) -> tuple[ir.Value | None, ir.Value]:
+    # faulty: DiagnosisStage.publish previews what a fault reset would do (Diagnosis.records)
+    return ir.Cell(stage, "faulty"), ir.Item(diagnosis, 2)
+
+
+def _recovery_state(stage: RecoveryStage, image: Image, history: History, now: int) -> Any:
+    # (RecoveryStage.state: the idle state itself when none runs nor is needed)
+    return stage._idle if stage.active is None and not stage.needed else stage.state(now)
+
+
+def _recovery_quiet(stage: RecoveryStage, diagnosis: ir.Value
+                    ) -> tuple[ir.Value | None, ir.Value]:
+    return (ir.Or((ir.Cell(stage, "needed"), ir.Not(ir.IsNone(ir.Cell(stage, "active"))))),
+            ir.Cell(stage, "_idle"))
+
+
 MEMORY: Declaration[Memory] = Declaration(
     "memory", lambda c: Memory(c.project, c.layout),
-    capture=Memory.capture, restore=Memory.restore)
+    capture=Memory.capture, restore=Memory.restore,
+    fields=Shown(("timer_elapsed",), _elapsed, "computing the timers' elapsed times",
+                 _no_elapsed))
 DIAGNOSERS: Declaration[DiagnosisStage] = Declaration(
     "diagnosers", lambda c: diagnosis_stage(c.project, c.layout, c.diagnosis, c.high_level),
     depth=lambda s: s.depth, reset=_reset_diagnosers, capture=DiagnosisStage.capture,
-    restore=DiagnosisStage.restore)
+    restore=DiagnosisStage.restore,
+    news=Publication("diagnosers", _diagnosers, "reading the diagnosers' states", (),
+                     _diagnosers_quiet))
 LAW: Declaration[ControlRuntime] = Declaration(
     "law", lambda c: ControlRuntime(c.law, c.layout.slots, c.layout.step_times),
-    capture=ControlRuntime.capture, restore=ControlRuntime.restore)
+    capture=ControlRuntime.capture, restore=ControlRuntime.restore,
+    fields=Shown(("active_steps", "fired"), _steps, "reading the active steps", _no_steps))
 RECOVERY: Declaration[RecoveryStage] = Declaration(
-    "recovery", _recovery, capture=RecoveryStage.capture, restore=RecoveryStage.restore)
+    "recovery", _recovery, capture=RecoveryStage.capture, restore=RecoveryStage.restore,
+    news=Publication("recovery", _recovery_state, "reading the recovery's state",
+                     NO_RECOVERY, _recovery_quiet))
 
 # The built-in stages, in the scan's order (the order they are built in: a stage is given
 # those before it)
@@ -203,6 +285,17 @@ class Stages:
     @property
     def places(self) -> list[tuple[str, str]]:
         return [d.place for d, _ in self.built if d.place is not None]
+
+    @property
+    def publishing(self) -> tuple[tuple[Publication[Any], Any], ...]:
+        """The stages that publish something at a scan with news, with what they publish,
+        in declaration order."""
+        return tuple((d.news, stage) for d, stage in self.built if d.news is not None)
+
+    @property
+    def showing(self) -> tuple[tuple[Shown[Any], Any], ...]:
+        """The stages a snapshot reads something of besides, with what it reads."""
+        return tuple((d.fields, stage) for d, stage in self.built if d.fields is not None)
 
     @property
     def depth(self) -> int:

@@ -21,6 +21,7 @@ from __future__ import annotations
 import time
 from collections import deque
 from collections.abc import Callable, Iterator
+from operator import is_
 from typing import Any, NamedTuple
 
 from hmi.engine.commands import (
@@ -39,7 +40,7 @@ from hmi.engine.commands import (
     StopDevice,
 )
 from hmi.engine.compiled import CompiledScan
-from hmi.engine.diagnoser import NO_DIAGNOSIS, DiagnoserState, Diagnosis
+from hmi.engine.diagnoser import NO_DIAGNOSIS, Diagnosis
 from hmi.engine.filter import FilterReport, SafetyFilter
 from hmi.engine.filter_stage import FilterStage
 from hmi.engine.layout import Layout
@@ -53,7 +54,7 @@ from hmi.engine.program_stages import (
     StageContext,
     build_stages,
 )
-from hmi.engine.recovery import NO_RECOVERY
+from hmi.engine.scan_record import ScanNews, ScanRecord
 from hmi.engine.snapshot import INTERNAL_PARTS, LatchReason, Snapshot
 from hmi.engine.stages import InputScan, OutputScan, plant_detail
 from hmi.errors import UsageError
@@ -80,60 +81,6 @@ class EngineState(NamedTuple):
     stopped_devices: frozenset[str]
     readback: tuple[bool, ...]
     stages: tuple[Any, ...]  # each declared stage's (Engine.stages, in its order)
-
-
-class ScanRecord:
-    """The last scan's results, from stages 1 to 8 (Engine._cycle) and what Engine.run read
-    after them, until Engine.snapshot builds them into a Snapshot. One per engine, filled in
-    place by every scan: a record built per scan (a NamedTuple, by its constructor or by
-    tuple.__new__) cost 1,400 to 3,500 instructions a scan more than the positional tuples
-    it replaced (python -m hmi.bench.instructions), slot stores about as much as a tuple."""
-
-    __slots__ = (
-        "diagnosers",
-        "diagnosis",
-        "error",
-        "events",
-        "filter_us",
-        "fov",
-        "marks",
-        "monitored",
-        "outputs",
-        "recovery",
-        "report",
-        "scan_us",
-        "settled",
-        "values",
-    )
-
-    def __init__(self) -> None:
-        self.fov: tuple[bool, ...] = ()  # the functional output vector (stage 5)
-        self.outputs: tuple[bool, ...] = ()  # what was written (stage 7)
-        self.report: FilterReport | None = None  # the filter's (None: not reached)
-        self.diagnosis: Diagnosis = NO_DIAGNOSIS  # routes, mask and records (stage 3)
-        self.monitored = False  # whether the monitors ran (stage 8)
-        self.error: str | None = None  # an internal error of the scan, latched
-        self.filter_us = 0.0  # the filter's wall time (0.0 unless Engine.wall_times)
-        self.values: tuple[Any, ...] = ()  # the image as the scan left it (history[0])
-        self.diagnosers: tuple[DiagnoserState, ...] = ()
-        self.marks = 0  # the monitors' marks (Snapshot.monitor_marks)
-        self.events: tuple[Any, ...] = ()  # the plant's events
-        self.recovery: Any = NO_RECOVERY  # the recovery's state
-        self.scan_us = 0.0  # the scan's wall time
-        # Every field but fov, outputs and values is a quiet scan's (the printed frame, at a
-        # quiet scan after a quiet one, writes only those three: hmi.engine.compiled)
-        self.settled = False
-
-
-class ScanNews(NamedTuple):
-    """What a scan is compared with to say whether the next one has news (Engine.run): the
-    very objects the last scan with news gave."""
-
-    report: FilterReport | None
-    status: PlantStatus
-    diagnosers: tuple[DiagnoserState, ...]
-    marks: int
-    recovery: Any
 
 
 MONITOR_POLICY_REFUSED = ("the monitor policy passes unsafe orders through to a real plant; "
@@ -208,6 +155,13 @@ class Engine:
         # The stages added to the mode's program (each declares its own place)
         self.added = self.stages.added
         self._shows = any(d.shown is not None for d, _ in self.stages)  # (Snapshot.stages)
+        # What the stages give a scan with news and what a snapshot reads of them besides
+        # (their declarations' `news` and `fields`): Engine._conclude and Engine.snapshot
+        # walk them.
+        self._publishing = tuple((news.read, stage, news.reading, news.failed)
+                                 for news, stage in self.stages.publishing)
+        self._published_fields = tuple(news.field for news, _ in self.stages.publishing)
+        self._showing = self.stages.showing
         # The history is as deep as the deepest expression of any stage reads.
         depth = max((max_depth(expr) for expr in _all_exprs(project)), default=1)
         depth = max(depth, self.stages.depth, self.monitors.depth if self.monitors else 0)
@@ -247,7 +201,6 @@ class Engine:
         self._pending = False  # whether _record holds a scan whose snapshot is not built
         # (None: the next scan has news whatever it finds: none yet, or a command since)
         self._news: ScanNews | None = None
-        self._elapsed = self.memory.elapsed
         self._clean = self.filter_stage.clean  # each policy's report of a clean scan
         self.policy = self.policy  # (its clean report, now that the filter is there)
         self.wall_times = True
@@ -673,23 +626,26 @@ class Engine:
             if supervised.overdue is not self._overdue:
                 self._overdue = supervised.overdue
                 self._news = None  # (news, as after a command)
-        stage = self.diagnosis
         plant = self.plant
+        history = self.history
         # What the scan left, read for its snapshot: each read outside the stages' own error
         # handling is guarded (free in Python 3.11 when nothing raises); one that fails
         # latches an internal error naming it and puts the outputs safe at once (_go_safe).
+        # First what each publishing stage gives (its declaration's `news`), before the
+        # scan's image joins the history.
         failed: str | None = None
-        diagnosers: tuple[DiagnoserState, ...] = ()
-        if stage is not None:  # (DiagnosisStage.publish: the records unless one is faulty)
+        given: list[Any] = []
+        for read, stage, reading, unread in self._publishing:
             try:
-                diagnosers = stage.publish(image, self.history) if stage.faulty else \
-                    stage.current.records
+                given.append(read(stage, image, history, now))
             except Exception as exc:
-                failed = self._failure("reading the diagnosers' states", exc)
+                failed = self._failure(reading, exc)
+                given.append(unread)
+        published = tuple(given)
         # The image as the scan left it: the snapshot's values and the history's newest
         # entry are one tuple (an image in the history is never changed).
         values = tuple(image)
-        self.history.appendleft(values)
+        history.appendleft(values)
         marks = 0
         monitors = self.monitors
         if monitors is not None:
@@ -707,13 +663,6 @@ class Engine:
         except Exception as exc:
             failed = self._failure("reading the plant's events", exc)
             events = ()
-        rec = self.recovery
-        try:
-            recovery = NO_RECOVERY if rec is None else (
-                rec._idle if rec.active is None and not rec.needed else rec.state(now))
-        except Exception as exc:
-            failed = self._failure("reading the recovery's state", exc)
-            recovery = NO_RECOVERY
         try:
             if raised is not None and raised[0] == 2:
                 raise raised[1]
@@ -731,21 +680,18 @@ class Engine:
         last = self._news
         # (a command since, a new policy included, makes this scan news and compares the
         # next with this one: _news None)
-        if (last is not None and report is last.report and status is last.status
-                and diagnosers is last.diagnosers and marks == last.marks
-                and recovery is last.recovery
-                and error is None and not events
-                and not self.latched and not diagnosis.masked
-                and not diagnosis.reconstructed and not self.manual):
-            news = False
-        else:
-            news = True
-            self._news = ScanNews(report, status, diagnosers, marks, recovery)
+        news = not (last is not None and report is last[0] and status is last[1]
+                    and marks == last[2] and error is None and not events
+                    and not self.latched and not diagnosis.masked
+                    and not diagnosis.reconstructed and not self.manual)
+        if not news:  # (and each stage gives the very object it gave then)
+            news = not all(map(is_, published, last[ScanNews.PUBLISHED:]))  # type: ignore[index]
+        if news:
+            self._news = ScanNews((report, status, marks, *published))
         record.values = values
-        record.diagnosers = diagnosers
+        record.published = published
         record.marks = marks
         record.events = events
-        record.recovery = recovery
         record.scan_us = (time.perf_counter() - wall) * 1e6 if self.wall_times else 0.0
         record.settled = False
         self._pending = True
@@ -779,7 +725,6 @@ class Engine:
         record = self._record
         plant = self.plant
         policy = self.policy
-        grafcet = self.law.grafcet
         now = self.now
         # What the snapshot reads of the engine and the plant, each guarded as in run(): one
         # that raises latches an internal error naming it, is shown empty (the timers'
@@ -793,17 +738,17 @@ class Engine:
                 monitors = self.monitors.capture(now)
             except Exception as exc:
                 failed = self._failure("reading the monitors' states", exc)
-        active: tuple[str, ...] = ()
-        if grafcet is not None:
+        # What the stages gave the scan (their declarations' `news`) and what is read of
+        # them now (their `fields`), by the snapshot's field
+        shown = dict(zip(self._published_fields, record.published, strict=True))
+        image = self.image
+        for fields, stage in self._showing:
             try:
-                active = grafcet.active(self.image)
+                values = fields.read(stage, image, now)
             except Exception as exc:
-                failed = self._failure("reading the active steps", exc)
-        try:
-            elapsed = self._elapsed(now)
-        except Exception as exc:
-            failed = self._failure("computing the timers' elapsed times", exc)
-            elapsed = (0,) * len(self.layout.timers)
+                failed = self._failure(fields.reading, exc)
+                values = fields.failed(stage)
+            shown.update(zip(fields.fields, values, strict=True))
         try:
             status = plant.status
         except Exception as exc:
@@ -832,18 +777,18 @@ class Engine:
         snapshot = self.last = Snapshot(
             scan=self.scan, time_us=now, period_us=self._period, layout=self.layout,
             values=record.values, fov=tuple(record.fov), outputs=tuple(record.outputs),
-            active_steps=active, fired=grafcet.fired if grafcet is not None else (),
-            timer_elapsed=elapsed, control_name=self.control_name, mode=self.mode,
+            control_name=self.control_name, mode=self.mode,
             manual=tuple(sorted(self.manual.items())) if self.manual else (), policy=policy,
             latched=tuple(self.latched) if self.latched else (), plant=status,
             plant_state=state, plant_counters=counters, plant_events=record.events,
-            filter_report=record.report, diagnosers=record.diagnosers, monitors=monitors,
+            filter_report=record.report, monitors=monitors,
             reconstructed=diagnosis.reconstructed, masked=masked,
             stopped_devices=(tuple(sorted(self.stopped_devices)) if self.stopped_devices
                              else ()),
-            recovery=record.recovery, error=record.error, scan_wall_us=record.scan_us,
+            error=record.error, scan_wall_us=record.scan_us,
             filter_wall_us=record.filter_us, monitor_marks=record.marks,
-            overdue_steps=self._supervised.overdue if self._supervised is not None else ())
+            overdue_steps=self._supervised.overdue if self._supervised is not None else (),
+            **shown)
         if self._shows:  # (the stages that show something: Snapshot.stages)
             snapshot = self.last = snapshot._replace(stages=self.stages.shown())
         return snapshot
