@@ -45,7 +45,7 @@ from typing import TYPE_CHECKING, Any
 from hmi.engine.codegen import Vocabulary, allow, build_function
 from hmi.engine.diagnoser import NO_DIAGNOSIS
 from hmi.engine.program_stages import AddedStage, program_order
-from hmi.engine.scan_record import ScanNews
+from hmi.engine.scan_record import EVENTS, SETTLING, STATUS, Raised, ScanNews
 from hmi.logic.expr import History, Image
 from hmi.plant.base import PlantError
 from hmi.program import ir, order
@@ -224,7 +224,7 @@ FRAME = Vocabulary(
                "events", "published", "scan_us", "settled", "manual", "current",
                "settle", "needed"}),
     frozenset({"exc", "diag", "report", "error", "monitored", "marks", "events", "status",
-               "last", "values", "w", "none_waiting", "out", "decided"}))
+               "last", "values", "w", "none_waiting", "out"}))
 
 
 def auto_frame(engine: Any) -> ir.Function:
@@ -244,7 +244,7 @@ def auto_frame(engine: Any) -> ir.Function:
     now, scan = ir.Local("now"), ir.Local("scan")
     f, diag, report, error = (ir.Local(n) for n in ("f", "diag", "report", "error"))
     events, status, values = ir.Local("events"), ir.Local("status"), ir.Local("values")
-    out, decided = ir.Local("out"), ir.Local("decided")
+    out = ir.Local("out")
     calm = ir.Local("none_waiting")
     monitored, exc, unquiet = ir.Local("monitored"), ir.Local("exc"), ir.Local("w")
     stage, monitors = engine.diagnosis, engine.monitors
@@ -256,6 +256,9 @@ def auto_frame(engine: Any) -> ir.Function:
 
     def call(owner: Any, method: str, *args: ir.Value) -> ir.Call:
         return ir.Call(owner, method, args)
+
+    def raised(part: str) -> ir.Call:  # (Engine._conclude's `raised`: this read raised exc)
+        return call(Raised, "__call__", ir.Ref(part), exc)
 
     def conclude(*stmts: ir.Stmt) -> tuple[ir.Stmt, ...]:
         return (*stmts, ir.Return(call(e, "_conclude", now)))
@@ -294,9 +297,9 @@ def auto_frame(engine: Any) -> ir.Function:
         # the filter's decision when it is not the candidate (what it writes: `out`); it
         # concludes the scan itself unless that goes on as a clean candidate's would
         body.append(ir.If(unquiet, (
-            ir.Assign(decided, call(e, "_auto_filter", now, f, diag, unquiet)),
-            ir.If(ir.IsNone(decided), (ir.Return(call(e, "_conclude", now)),)),
-            ir.Assign(out, ir.Item(decided, 0)), ir.Assign(report, ir.Item(decided, 1))),
+            ir.Assign(report, call(e, "_auto_filter", now, f, diag, unquiet)),
+            ir.If(ir.IsNone(report), (ir.Return(call(e, "_conclude", now)),)),
+            ir.Assign(out, cell(record, "outputs"))),
             (ir.Assign(out, f), ir.Assign(report, cell(e, "clean_report")))))
         body.append(ir.Assign(error, ir.NONE))
 
@@ -340,8 +343,7 @@ def auto_frame(engine: Any) -> ir.Function:
         body.append(ir.Try(
             (ir.Assign(marks, call(monitors, "settle")),),
             ((Exception, "exc", (ir.Return(call(e, "_finish", now, f, out, report, diag, monitored,
-                                                error, ir.NONE,
-                                                ir.Tuple((ir.Const(3), exc)))),)),)))
+                                                error, ir.NONE, raised(SETTLING))),)),)))
     else:
         body.append(ir.Assign(marks, ir.Const(0)))
     taken = ir.Return(call(e, "_finish", now, f, out, report, diag, monitored, error, events))
@@ -351,12 +353,12 @@ def auto_frame(engine: Any) -> ir.Function:
             ir.Try((ir.Assign(events, call(plant, "take_events")),),
                    ((Exception, "exc", (ir.Return(call(e, "_finish", now, f, out, report, diag,
                                                        monitored, error, ir.NONE,
-                                                       ir.Tuple((ir.Const(1), exc)))),)),)),
+                                                       raised(EVENTS))),)),)),
             ir.If(events, (taken,)))),
         ir.Try((ir.Assign(status, cell(plant, "status")),),
                ((Exception, "exc", (ir.Return(call(e, "_finish", now, f, out, report, diag,
                                                    monitored, error, events,
-                                                   ir.Tuple((ir.Const(2), exc)))),)),)),
+                                                   raised(STATUS))),)),)),
     ]
     # news: as Engine._conclude judges it (ScanNews by position)
     last = ir.Local("last")

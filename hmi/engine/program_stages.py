@@ -40,6 +40,7 @@ from hmi.engine.control import ControlRuntime
 from hmi.engine.diagnoser import DiagnosisStage, diagnosis_stage
 from hmi.engine.layout import Layout
 from hmi.engine.recovery import NO_RECOVERY, RecoveryStage, recovery_stage
+from hmi.engine.snapshot import StageState
 from hmi.engine.stages import Memory, ProgramStage
 from hmi.logic.expr import History, Image
 from hmi.program import ir, order
@@ -321,9 +322,9 @@ class Stages:
             if d.restore is not None:
                 d.restore(stage, state)
 
-    def shown(self) -> tuple[tuple[str, Any], ...]:
+    def shown(self) -> tuple[StageState, ...]:
         """What a snapshot shows of the stages that show something, by role."""
-        return tuple((d.role, d.shown(stage)) for d, stage in self.built
+        return tuple(StageState(d.role, d.shown(stage)) for d, stage in self.built
                      if d.shown is not None)
 
 

@@ -54,7 +54,15 @@ from hmi.engine.program_stages import (
     StageContext,
     build_stages,
 )
-from hmi.engine.scan_record import ScanNews, ScanRecord
+from hmi.engine.scan_record import (
+    EVENTS,
+    SETTLING,
+    STATUS,
+    QuietRun,
+    Raised,
+    ScanNews,
+    ScanRecord,
+)
 from hmi.engine.snapshot import INTERNAL_PARTS, LatchReason, Snapshot
 from hmi.engine.stages import InputScan, OutputScan, plant_detail
 from hmi.errors import UsageError
@@ -605,13 +613,12 @@ class Engine:
         return self._conclude(now, wall)
 
     def _conclude(self, now: int, wall: float = 0.0, taken: tuple[Any, ...] | None = None,
-                  raised: tuple[int, Exception] | None = None) -> bool:
+                  raised: Raised | None = None) -> bool:
         """What run() does after stages 1 to 8 (the scan's record filled): the supervision,
         what the scan left read for its snapshot, the history, whether the scan has news.
-        `taken`: the plant's events when they were taken already; `raised`: (1, exc) when
-        taking them raised exc, (2, exc) when reading the plant's status did, (3, exc) when
-        settling the monitors did (the printed frame took or read them,
-        hmi.engine.compiled)."""
+        `taken`: the plant's events when they were taken already; `raised`: the read the
+        printed frame made (settling the monitors, taking the plant's events or reading its
+        status: hmi.engine.compiled) that raised, handled here as if this one had."""
         record = self._record
         report, diagnosis, monitored, error = (record.report, record.diagnosis,
                                                record.monitored, record.error)
@@ -650,25 +657,25 @@ class Engine:
         monitors = self.monitors
         if monitors is not None:
             try:
-                if raised is not None and raised[0] == 3:
-                    raise raised[1]
+                if raised is not None and raised.part is SETTLING:
+                    raise raised.exc
                 marks = monitors.settle() if monitored else monitors.marks
             except Exception as exc:
-                failed = self._failure("settling the monitors", exc)
+                failed = self._failure(SETTLING, exc)
                 marks = monitors.marks
         try:
-            if raised is not None and raised[0] == 1:
-                raise raised[1]
+            if raised is not None and raised.part is EVENTS:
+                raise raised.exc
             events = plant.take_events() if taken is None else taken
         except Exception as exc:
-            failed = self._failure("reading the plant's events", exc)
+            failed = self._failure(EVENTS, exc)
             events = ()
         try:
-            if raised is not None and raised[0] == 2:
-                raise raised[1]
+            if raised is not None and raised.part is STATUS:
+                raise raised.exc
             status = plant.status
         except Exception as exc:
-            failed = self._failure("reading the plant's status", exc)
+            failed = self._failure(STATUS, exc)
             status = self._status_unknown()
         if failed is not None or error is not None:
             if failed is not None:
@@ -692,12 +699,12 @@ class Engine:
         record.published = published
         record.marks = marks
         record.events = events
-        record.scan_us = (time.perf_counter() - wall) * 1e6 if self.wall_times else 0.0
+        record.scan_us = (time.perf_counter() - wall) * 1e6 if self._wall_times else 0.0
         record.settled = False
         self._pending = True
         return news
 
-    def run_while_quiet(self, start: int, end: int, period: int) -> tuple[int, bool]:
+    def run_while_quiet(self, start: int, end: int, period: int) -> QuietRun:
         """Scans at `start`, `start + period`, ... up to `end` included, by :meth:`run`,
         stopping after the first that has news. Returns how many ran and whether the last
         had news. A headless run hands the engine a stretch of scans at once when nothing
@@ -708,11 +715,11 @@ class Engine:
         while now <= end:  # (the scans counted from the times: one addition a scan)
             if self._fast:  # (the printed frame, without run()'s call)
                 if frame(now):  # type: ignore[misc]
-                    return (now - start) // period + 1, True
+                    return QuietRun((now - start) // period + 1, True)
             elif run(now):
-                return (now - start) // period + 1, True
+                return QuietRun((now - start) // period + 1, True)
             now += period
-        return (now - start) // period, False
+        return QuietRun((now - start) // period, False)
 
     def snapshot(self) -> Snapshot:
         """The last scan's snapshot (:meth:`run`), built now if not yet: the engine's
@@ -724,7 +731,7 @@ class Engine:
         self._pending = False
         record = self._record
         plant = self.plant
-        policy = self.policy
+        policy = self._policy
         now = self.now
         # What the snapshot reads of the engine and the plant, each guarded as in run(): one
         # that raises latches an internal error naming it, is shown empty (the timers'
@@ -777,7 +784,7 @@ class Engine:
         snapshot = self.last = Snapshot(
             scan=self.scan, time_us=now, period_us=self._period, layout=self.layout,
             values=record.values, fov=tuple(record.fov), outputs=tuple(record.outputs),
-            control_name=self.control_name, mode=self.mode,
+            control_name=self.control_name, mode=self._mode,
             manual=tuple(sorted(self.manual.items())) if self.manual else (), policy=policy,
             latched=tuple(self.latched) if self.latched else (), plant=status,
             plant_state=state, plant_counters=counters, plant_events=record.events,
@@ -888,7 +895,7 @@ class Engine:
                 mask = recovery.unmask(mask)
             if policy == "monitor":
                 policy = "correct"
-        timed = self.wall_times
+        timed = self._wall_times
         started = time.perf_counter() if timed else 0.0
         decision = filter_stage.apply(self.image, self.history, s.fov, policy,
                                       bool(self.latched), mask)
@@ -952,23 +959,24 @@ class Engine:
         self._keep(safe, safe, None, diagnosis, monitored, error, 0.0)
 
     def _auto_filter(self, now: int, fov: tuple[bool, ...], diagnosis: Diagnosis,
-                     unquiet: object = None) -> tuple[tuple[bool, ...], FilterReport] | None:
+                     unquiet: object = None) -> FilterReport | None:
         """The automatic mode's filter when the candidate is masked, latched or violated
         (`unquiet`: the frame's test, the violation word when nothing is masked nor
         latched). Nothing masked nor latched, before the decision or by it: the decision's
-        outputs, in the image, and its report, which the printed frame writes, monitors and
-        concludes as it does a clean candidate's. Otherwise the output scan and the
-        monitors run here and the scan is kept (None: the frame concludes it)."""
+        report, its outputs in the image and the scan's record (ScanRecord.outputs), which
+        the printed frame writes, monitors and concludes as it does a clean candidate's.
+        Otherwise the output scan and the monitors run here and the scan is kept (None: the
+        frame concludes it)."""
         image = self.image
         mask = diagnosis.mask
         try:
             if mask is None and not self.latched:
                 # violated, nothing masked: what FilterStage.apply would hand the filter
                 word = unquiet if type(unquiet) is int else None
-                decision = self.safety_filter.apply(image, self.history, fov, self.policy,
+                decision = self.safety_filter.apply(image, self.history, fov, self._policy,
                                                     False, word)
             else:
-                decision = self.filter_stage.apply(image, self.history, fov, self.policy,
+                decision = self.filter_stage.apply(image, self.history, fov, self._policy,
                                                    bool(self.latched), mask)
             if decision.latch is not None:
                 self.latch_safe("filter", decision.latch)
@@ -982,7 +990,8 @@ class Engine:
         if mask is None and not self.latched:
             for slot, value in zip(self.output_slots, outputs, strict=True):
                 image[slot] = value  # (the output scan's first half: _scan_outputs)
-            return outputs, report
+            self._record.outputs = outputs
+            return report
         monitored, error = self._output_scan(now, outputs, None)
         self._keep(fov, outputs, report, diagnosis, monitored, error, 0.0)
         return None
@@ -990,7 +999,7 @@ class Engine:
     def _finish(self, now: int, fov: tuple[bool, ...], outputs: tuple[bool, ...],
                 report: FilterReport, diagnosis: Diagnosis, monitored: bool,
                 error: str | None, taken: tuple[Any, ...] | None = None,
-                raised: tuple[int, Exception] | None = None) -> bool:
+                raised: Raised | None = None) -> bool:
         """An automatic-mode scan filtered, written and monitored, kept and concluded (the
         printed frame's way out when the rest is not a quiet scan's: _conclude's `taken`
         and `raised`)."""
@@ -1063,7 +1072,7 @@ class Engine:
         """The outputs the diagnosers' mask holds at 0 (a running recovery lifts it from the
         outputs it drives)."""
         recovery = self.recovery
-        if self.mode != "recovery" or recovery is None or recovery.active is None:
+        if self._mode != "recovery" or recovery is None or recovery.active is None:
             return diagnosis.masked
         driven = recovery.active.spec.outputs
         return tuple(o for o in diagnosis.masked if o not in driven)

@@ -53,6 +53,14 @@ INTERNAL_PARTS = (
     "writing the outputs to the plant", "writing the safe outputs to the plant")
 
 
+class StageState(NamedTuple):
+    """What a stage shows in a snapshot (Snapshot.stages): its role and its state, a plain
+    scalar (hmi.engine.program_stages, a declaration's `shown`)."""
+
+    role: str
+    state: Any
+
+
 class _Fields(NamedTuple):
     """A snapshot's fields as stored (Snapshot reads some of them lazily)."""
 
@@ -95,7 +103,7 @@ class _Fields(NamedTuple):
     overdue_steps: tuple[str, ...] = ()
     # What each stage that shows something shows (hmi.engine.program_stages, a declaration's
     # `shown`), by role: an added stage's state at the end of the scan.
-    stages: tuple[tuple[str, Any], ...] = ()
+    stages: tuple[StageState, ...] = ()
 
 
 class Snapshot(_Fields):
