@@ -338,14 +338,15 @@ def auto_frame(engine: Any) -> ir.Function:
     for unquiet_, _ in quiet:
         if unquiet_ is not None:
             body.append(ir.If(unquiet_, (finish,)))
-    marks = ir.Local("marks")
+    # (without monitors, the marks are 0 at every scan, the last with news's too: not
+    # compared)
+    marks: ir.Value = ir.Const(0)
     if monitors is not None:  # (monitored: else the error above)
+        marks = ir.Local("marks")
         body.append(ir.Try(
-            (ir.Assign(marks, call(monitors, "settle")),),
+            (ir.Assign(ir.Local("marks"), call(monitors, "settle")),),
             ((Exception, "exc", (ir.Return(call(e, "_finish", now, f, out, report, diag, monitored,
                                                 error, ir.NONE, raised(SETTLING))),)),)))
-    else:
-        body.append(ir.Assign(marks, ir.Const(0)))
     taken = ir.Return(call(e, "_finish", now, f, out, report, diag, monitored, error, events))
     # the plant's events, unless the write said none waits (Plant.write_vector), its status
     body += [
@@ -369,7 +370,7 @@ def auto_frame(engine: Any) -> ir.Function:
         ir.If(ir.Not(ir.And((
             ir.Compare("is", report, ir.Item(last, 0)),
             ir.Compare("is", status, ir.Item(last, 1)),
-            ir.Compare("==", marks, ir.Item(last, 2)),
+            *((ir.Compare("==", marks, ir.Item(last, 2)),) if monitors is not None else ()),
             *(ir.Compare("is", given, ir.Item(last, k))
               for k, (_, given) in enumerate(quiet, ScanNews.PUBLISHED))))), (taken,)),
         # a quiet scan: the image into the history, the record
