@@ -10,6 +10,12 @@ and keeps what it returns. No stage reaches back into the engine: the filter ret
 decision and the engine latches, the diagnosers return their routes and mask and the engine
 passes them on.
 
+The stages of the mode's program are declared (hmi.engine.program_stages): what each gives a
+scan with news, what a snapshot reads of it, its fault reset, capture and restore come from
+its declaration, which the engine walks without naming the stage. What the engine holds of
+its own: the commands, the latches, running the program (the parts of a scan, the mode's
+function, the filter's hand-over) and deciding news.
+
 The engine never reads a clock for what it decides: :meth:`Engine.step` is given the scan's
 time. It only measures how long its scans take in wall time, for the people watching a live
 run (:attr:`Engine.wall_times`). Everything it computes lands in an immutable
@@ -657,21 +663,21 @@ class Engine:
         monitors = self.monitors
         if monitors is not None:
             try:
-                if raised is not None and raised.part is SETTLING:
+                if raised is not None and raised.part == SETTLING:
                     raise raised.exc
                 marks = monitors.settle() if monitored else monitors.marks
             except Exception as exc:
                 failed = self._failure(SETTLING, exc)
                 marks = monitors.marks
         try:
-            if raised is not None and raised.part is EVENTS:
+            if raised is not None and raised.part == EVENTS:
                 raise raised.exc
             events = plant.take_events() if taken is None else taken
         except Exception as exc:
             failed = self._failure(EVENTS, exc)
             events = ()
         try:
-            if raised is not None and raised.part is STATUS:
+            if raised is not None and raised.part == STATUS:
                 raise raised.exc
             status = plant.status
         except Exception as exc:
