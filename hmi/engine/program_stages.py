@@ -38,6 +38,7 @@ from typing import Any, ClassVar, Generic, NamedTuple, Protocol, TypeVar, cast
 
 from hmi.engine.control import ControlRuntime
 from hmi.engine.diagnoser import DiagnosisStage, diagnosis_stage
+from hmi.engine.filter import Solver
 from hmi.engine.layout import Layout
 from hmi.engine.recovery import NO_RECOVERY, RecoveryStage, recovery_stage
 from hmi.engine.snapshot import StageState
@@ -59,7 +60,7 @@ class StageContext:
     layout: Layout
     law: ControlLaw
     safe_vector: tuple[bool, ...]
-    solver: tuple[str, int | None]  # the corrector (strategy, budget)
+    solver: Solver  # the corrector
     diagnosis: str = "ftc"  # the diagnosers' mode
     high_level: bool = True  # the High Level Diagnoser's rules
     built: dict[str, Any] = field(default_factory=dict)

@@ -47,7 +47,7 @@ from hmi.engine.commands import (
 )
 from hmi.engine.compiled import CompiledScan
 from hmi.engine.diagnoser import NO_DIAGNOSIS, Diagnosis
-from hmi.engine.filter import FilterReport, SafetyFilter
+from hmi.engine.filter import FilterReport, SafetyFilter, Solver
 from hmi.engine.filter_stage import FilterStage
 from hmi.engine.layout import Layout
 from hmi.engine.monitors import monitor_stage
@@ -142,7 +142,7 @@ class Engine:
         lay = self.layout
         self.output_slots = lay.indices(lay.outputs)
         self.safe_vector = tuple(v.safe for v in project.outputs)
-        solver_args = (solver or project.solver, solver_budget or project.solver_budget)
+        solver_args = Solver(solver or project.solver, solver_budget or project.solver_budget)
         # The stages of the mode's program, built from their declarations in the scan's
         # order (hmi.engine.program_stages); the engine addresses the built-in ones
         # by their role where it needs that one.
