@@ -248,7 +248,6 @@ def auto_frame(engine: Any) -> ir.Function:
     calm = ir.Local("none_waiting")
     monitored, exc, unquiet = ir.Local("monitored"), ir.Local("exc"), ir.Local("w")
     stage, monitors = engine.diagnosis, engine.monitors
-    supervised = engine._supervised
     record = engine._record
 
     def cell(owner: Any, name: str) -> ir.Cell:
@@ -330,8 +329,6 @@ def auto_frame(engine: Any) -> ir.Function:
         parts[part]()
     # what Engine._conclude would find other than a quiet scan's: its own way
     body.append(ir.If(ir.Not(ir.IsNone(error)), (finish,)))
-    if supervised is not None:
-        body.append(ir.If(ir.Compare(">", now, cell(supervised, "deadline")), (finish,)))
     # each publishing stage's (its declaration's `news`): whether the scan is not quiet for
     # it, and what it gives at a quiet scan
     quiet = [news.quiet(stage_, diag) for news, stage_ in engine.stages.publishing]
@@ -372,7 +369,8 @@ def auto_frame(engine: Any) -> ir.Function:
             ir.Compare("is", status, ir.Item(last, 1)),
             *((ir.Compare("==", marks, ir.Item(last, 2)),) if monitors is not None else ()),
             *(ir.Compare("is", given, ir.Item(last, k))
-              for k, (_, given) in enumerate(quiet, ScanNews.PUBLISHED))))), (taken,)),
+              for k, (_, given) in enumerate(quiet, ScanNews.PUBLISHED)
+              if given is not None)))), (taken,)),
         # a quiet scan: the image into the history, the record
         ir.Assign(values, call(tuple, "__call__", image)),
         ir.Do(call(engine.history, "appendleft", values)),
@@ -381,7 +379,9 @@ def auto_frame(engine: Any) -> ir.Function:
     fields: tuple[tuple[str, ir.Value], ...] = (
         ("report", report), ("diagnosis", diag), ("monitored", monitored),
         ("error", ir.NONE), ("filter_us", zero),
-        ("published", ir.Tuple(tuple(given for _, given in quiet))),
+        ("published", ir.Tuple(tuple(ir.Item(last, k) if given is None else given
+                                     for k, (_, given) in enumerate(quiet,
+                                                                    ScanNews.PUBLISHED)))),
         ("marks", marks), ("events", ir.Const(())), ("scan_us", zero))
     moving = (ir.Assign(cell(record, "fov"), f), ir.Assign(cell(record, "outputs"), out),
               ir.Assign(cell(record, "values"), values))

@@ -56,6 +56,7 @@ from hmi.engine.program_stages import (
     LAW,
     MEMORY,
     RECOVERY,
+    SUPERVISION,
     Moment,
     StageContext,
     build_stages,
@@ -149,11 +150,11 @@ class Engine:
         self.stages = build_stages(StageContext(project, lay, law, self.safe_vector,
                                                 solver_args, diagnosis, high_level))
         self.law = self.stages.need(LAW)  # 5 (and the GRAFCET's step times, 2)
-        # The GRAFCET when it has supervised steps (hmi.engine.grafcet: the deadline compared
-        # once per scan in run(), the overdue steps in the snapshot), else None.
-        self._supervised = (self.law.grafcet if self.law.grafcet is not None
-                            and self.law.grafcet.supervision else None)
-        self._overdue: tuple[str, ...] = ()  # the overdue steps the last scan told of
+        # The GRAFCET when it has supervised steps, else None: the commands say when its
+        # supervision is watched (_supervise); its stage watches it after a scan
+        # (program_stages.SUPERVISION).
+        supervision = self.stages.of(SUPERVISION)
+        self._supervised = supervision.grafcet if supervision is not None else None
         # The stages, in scan order (hmi.engine.stages).
         self.input_scan = InputScan(plant, lay, read_back=self.observe)  # 1
         self.memory = self.stages.need(MEMORY)  # 2 (and the GRAFCET's step times: control)
@@ -629,16 +630,6 @@ class Engine:
         report, diagnosis, monitored, error = (record.report, record.diagnosis,
                                                record.monitored, record.error)
         image = self.image
-        # Step supervision: one comparison a scan. Past the deadline (a step's supervision
-        # time, or a firing: hmi.engine.grafcet) the overdue steps are found again, and a
-        # change of them is news, even on a scan that has no other (an alarm raised or
-        # cleared). Nothing to do without supervision.
-        supervised = self._supervised
-        if supervised is not None and now > supervised.deadline:
-            supervised.watch(now)
-            if supervised.overdue is not self._overdue:
-                self._overdue = supervised.overdue
-                self._news = None  # (news, as after a command)
         plant = self.plant
         history = self.history
         # What the scan left, read for its snapshot: each read outside the stages' own error
@@ -800,7 +791,6 @@ class Engine:
                              else ()),
             error=record.error, scan_wall_us=record.scan_us,
             filter_wall_us=record.filter_us, monitor_marks=record.marks,
-            overdue_steps=self._supervised.overdue if self._supervised is not None else (),
             **shown)
         if self._shows:  # (the stages that show something: Snapshot.stages)
             snapshot = self.last = snapshot._replace(stages=self.stages.shown())
