@@ -204,8 +204,7 @@ def test_what_a_declared_stage_publishes_decides_news_in_both_paths(monkeypatch,
     project = load_project(PROJECTS / "cispi_subsystem")
     monkeypatch.setattr(program_stages, "ADDED", (Counting,))
     plain = Engine(project, SimPlant(project), compiled=compiled)
-    monkeypatch.setattr(program_stages, "stage_declarations",
-                        lambda: (*program_stages.BUILT_IN, LAPS))
+    monkeypatch.setattr(program_stages, "ADDED", (LAPS,))
     engine = Engine(project, SimPlant(project), compiled=compiled)
     assert engine.compiled.program.parts[PART] == engine.added[0].program
     for e in (plain, engine):

@@ -283,14 +283,17 @@ RECOVERY: Declaration[RecoveryStage] = Declaration(
 # those before it)
 BUILT_IN: tuple[Declaration[Any], ...] = (MEMORY, DIAGNOSERS, LAW, SUPERVISION, RECOVERY)
 
-# The added stages, in the order they are placed (several after one part: in this order)
-ADDED: tuple[type[AddedStage], ...] = ()
+# The added stages, in the order they are placed (several after one part: in this order):
+# each its class (declared()), or a declaration of its own (one with `news`: its state
+# makes a scan news)
+ADDED: tuple[type[AddedStage] | Declaration[Any], ...] = ()
 
 
 def stage_declarations() -> tuple[Declaration[Any], ...]:
     """Every declared stage: the built-in ones, then the added ones (ADDED, read at each
     call)."""
-    return (*BUILT_IN, *(declared(kind) for kind in ADDED))
+    return (*BUILT_IN, *(kind if isinstance(kind, Declaration) else declared(kind)
+                         for kind in ADDED))
 
 
 class Stages:
