@@ -45,7 +45,7 @@ from typing import TYPE_CHECKING, Any
 from hmi.engine.codegen import Vocabulary, allow, build_function
 from hmi.engine.diagnoser import NO_DIAGNOSIS
 from hmi.engine.program_stages import AddedStage, program_order
-from hmi.engine.scan_record import ScanNews
+from hmi.engine.scan_record import EVENTS, SETTLING, STATUS, Raised, ScanNews
 from hmi.logic.expr import History, Image
 from hmi.plant.base import PlantError
 from hmi.program import ir, order
@@ -224,7 +224,7 @@ FRAME = Vocabulary(
                "events", "published", "scan_us", "settled", "manual", "current",
                "settle", "needed"}),
     frozenset({"exc", "diag", "report", "error", "monitored", "marks", "events", "status",
-               "last", "values", "w", "none_waiting", "out", "decided"}))
+               "last", "values", "w", "none_waiting", "out"}))
 
 
 def auto_frame(engine: Any) -> ir.Function:
@@ -244,11 +244,10 @@ def auto_frame(engine: Any) -> ir.Function:
     now, scan = ir.Local("now"), ir.Local("scan")
     f, diag, report, error = (ir.Local(n) for n in ("f", "diag", "report", "error"))
     events, status, values = ir.Local("events"), ir.Local("status"), ir.Local("values")
-    out, decided = ir.Local("out"), ir.Local("decided")
+    out = ir.Local("out")
     calm = ir.Local("none_waiting")
     monitored, exc, unquiet = ir.Local("monitored"), ir.Local("exc"), ir.Local("w")
     stage, monitors = engine.diagnosis, engine.monitors
-    supervised = engine._supervised
     record = engine._record
 
     def cell(owner: Any, name: str) -> ir.Cell:
@@ -256,6 +255,9 @@ def auto_frame(engine: Any) -> ir.Function:
 
     def call(owner: Any, method: str, *args: ir.Value) -> ir.Call:
         return ir.Call(owner, method, args)
+
+    def raised(part: str) -> ir.Call:  # (Engine._conclude's `raised`: this read raised exc)
+        return call(Raised, "__call__", ir.Ref(part), exc)
 
     def conclude(*stmts: ir.Stmt) -> tuple[ir.Stmt, ...]:
         return (*stmts, ir.Return(call(e, "_conclude", now)))
@@ -294,9 +296,9 @@ def auto_frame(engine: Any) -> ir.Function:
         # the filter's decision when it is not the candidate (what it writes: `out`); it
         # concludes the scan itself unless that goes on as a clean candidate's would
         body.append(ir.If(unquiet, (
-            ir.Assign(decided, call(e, "_auto_filter", now, f, diag, unquiet)),
-            ir.If(ir.IsNone(decided), (ir.Return(call(e, "_conclude", now)),)),
-            ir.Assign(out, ir.Item(decided, 0)), ir.Assign(report, ir.Item(decided, 1))),
+            ir.Assign(report, call(e, "_auto_filter", now, f, diag, unquiet)),
+            ir.If(ir.IsNone(report), (ir.Return(call(e, "_conclude", now)),)),
+            ir.Assign(out, cell(record, "outputs"))),
             (ir.Assign(out, f), ir.Assign(report, cell(e, "clean_report")))))
         body.append(ir.Assign(error, ir.NONE))
 
@@ -327,23 +329,21 @@ def auto_frame(engine: Any) -> ir.Function:
         parts[part]()
     # what Engine._conclude would find other than a quiet scan's: its own way
     body.append(ir.If(ir.Not(ir.IsNone(error)), (finish,)))
-    if supervised is not None:
-        body.append(ir.If(ir.Compare(">", now, cell(supervised, "deadline")), (finish,)))
     # each publishing stage's (its declaration's `news`): whether the scan is not quiet for
     # it, and what it gives at a quiet scan
     quiet = [news.quiet(stage_, diag) for news, stage_ in engine.stages.publishing]
     for unquiet_, _ in quiet:
         if unquiet_ is not None:
             body.append(ir.If(unquiet_, (finish,)))
-    marks = ir.Local("marks")
+    # (without monitors, the marks are 0 at every scan, the last with news's too: not
+    # compared)
+    marks: ir.Value = ir.Const(0)
     if monitors is not None:  # (monitored: else the error above)
+        marks = ir.Local("marks")
         body.append(ir.Try(
-            (ir.Assign(marks, call(monitors, "settle")),),
+            (ir.Assign(ir.Local("marks"), call(monitors, "settle")),),
             ((Exception, "exc", (ir.Return(call(e, "_finish", now, f, out, report, diag, monitored,
-                                                error, ir.NONE,
-                                                ir.Tuple((ir.Const(3), exc)))),)),)))
-    else:
-        body.append(ir.Assign(marks, ir.Const(0)))
+                                                error, ir.NONE, raised(SETTLING))),)),)))
     taken = ir.Return(call(e, "_finish", now, f, out, report, diag, monitored, error, events))
     # the plant's events, unless the write said none waits (Plant.write_vector), its status
     body += [
@@ -351,12 +351,12 @@ def auto_frame(engine: Any) -> ir.Function:
             ir.Try((ir.Assign(events, call(plant, "take_events")),),
                    ((Exception, "exc", (ir.Return(call(e, "_finish", now, f, out, report, diag,
                                                        monitored, error, ir.NONE,
-                                                       ir.Tuple((ir.Const(1), exc)))),)),)),
+                                                       raised(EVENTS))),)),)),
             ir.If(events, (taken,)))),
         ir.Try((ir.Assign(status, cell(plant, "status")),),
                ((Exception, "exc", (ir.Return(call(e, "_finish", now, f, out, report, diag,
                                                    monitored, error, events,
-                                                   ir.Tuple((ir.Const(2), exc)))),)),)),
+                                                   raised(STATUS))),)),)),
     ]
     # news: as Engine._conclude judges it (ScanNews by position)
     last = ir.Local("last")
@@ -367,9 +367,10 @@ def auto_frame(engine: Any) -> ir.Function:
         ir.If(ir.Not(ir.And((
             ir.Compare("is", report, ir.Item(last, 0)),
             ir.Compare("is", status, ir.Item(last, 1)),
-            ir.Compare("==", marks, ir.Item(last, 2)),
+            *((ir.Compare("==", marks, ir.Item(last, 2)),) if monitors is not None else ()),
             *(ir.Compare("is", given, ir.Item(last, k))
-              for k, (_, given) in enumerate(quiet, ScanNews.PUBLISHED))))), (taken,)),
+              for k, (_, given) in enumerate(quiet, ScanNews.PUBLISHED)
+              if given is not None)))), (taken,)),
         # a quiet scan: the image into the history, the record
         ir.Assign(values, call(tuple, "__call__", image)),
         ir.Do(call(engine.history, "appendleft", values)),
@@ -378,7 +379,9 @@ def auto_frame(engine: Any) -> ir.Function:
     fields: tuple[tuple[str, ir.Value], ...] = (
         ("report", report), ("diagnosis", diag), ("monitored", monitored),
         ("error", ir.NONE), ("filter_us", zero),
-        ("published", ir.Tuple(tuple(given for _, given in quiet))),
+        ("published", ir.Tuple(tuple(ir.Item(last, k) if given is None else given
+                                     for k, (_, given) in enumerate(quiet,
+                                                                    ScanNews.PUBLISHED)))),
         ("marks", marks), ("events", ir.Const(())), ("scan_us", zero))
     moving = (ir.Assign(cell(record, "fov"), f), ir.Assign(cell(record, "outputs"), out),
               ir.Assign(cell(record, "values"), values))

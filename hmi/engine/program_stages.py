@@ -32,14 +32,18 @@ class; naming the class in :data:`ADDED` declares it (:func:`declared`).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Generic, NamedTuple, Protocol, TypeVar, cast
 
+from hmi.engine.codegen import Vocabulary
 from hmi.engine.control import ControlRuntime
 from hmi.engine.diagnoser import DiagnosisStage, diagnosis_stage
+from hmi.engine.filter import Solver
+from hmi.engine.grafcet import GrafcetRuntime
 from hmi.engine.layout import Layout
 from hmi.engine.recovery import NO_RECOVERY, RecoveryStage, recovery_stage
+from hmi.engine.snapshot import StageState
 from hmi.engine.stages import Memory, ProgramStage
 from hmi.logic.expr import History, Image
 from hmi.program import ir, order
@@ -58,7 +62,7 @@ class StageContext:
     layout: Layout
     law: ControlLaw
     safe_vector: tuple[bool, ...]
-    solver: tuple[str, int | None]  # the corrector (strategy, budget)
+    solver: Solver  # the corrector
     diagnosis: str = "ftc"  # the diagnosers' mode
     high_level: bool = True  # the High Level Diagnoser's rules
     built: dict[str, Any] = field(default_factory=dict)
@@ -89,9 +93,10 @@ class Publication(Generic[S]):
     failed: Any  # what the snapshot shows then
     # Given the stage and the frame's local holding the diagnosers' decision of the scan
     # (Diagnosis): the test that says the scan is not quiet for the stage (None: it always
-    # is, but for what it gives) and the value `read` gives at a quiet scan, both as
-    # scan-program values
-    quiet: Callable[[S, ir.Value], tuple[ir.Value | None, ir.Value]]
+    # is, but for what it gives) and the value `read` gives at a quiet scan (None: the test
+    # alone says, and at a quiet scan the stage gives what it gave the last scan with
+    # news), both as scan-program values (the scan's time: ir.Now)
+    quiet: Callable[[S, ir.Value], tuple[ir.Value | None, ir.Value | None]]
 
 
 @dataclass(frozen=True)
@@ -200,9 +205,43 @@ def _diagnosers(stage: DiagnosisStage, image: Image, history: History, now: int)
 
 
 def _diagnosers_quiet(stage: DiagnosisStage, diagnosis: ir.Value
-                      ) -> tuple[ir.Value | None, ir.Value]:
+                      ) -> tuple[ir.Value | None, ir.Value | None]:
     # faulty: DiagnosisStage.publish previews what a fault reset would do (Diagnosis.records)
     return ir.Cell(stage, "faulty"), ir.Item(diagnosis, 2)
+
+
+class Supervision:
+    """The GRAFCET's steps' supervision times as a stage: no part of the mode's program; at
+    the end of a scan past its deadline (a step's supervision time, or a firing:
+    hmi.engine.grafcet) the overdue steps are found again, one comparison a scan otherwise.
+    A change of them is news (an alarm raised or cleared: Snapshot.overdue_steps). The
+    engine says when they are watched (Engine._supervise: the program running in automatic
+    mode)."""
+
+    PRINTED = Vocabulary(frozenset({"deadline"}))
+    parts: Mapping[str, tuple[ir.Stmt, ...]] = {}
+
+    def __init__(self, grafcet: GrafcetRuntime):
+        self.grafcet = grafcet
+
+
+def _supervision(c: StageContext) -> Supervision | None:
+    law = cast("ControlRuntime | None", c.built.get(LAW.role))
+    grafcet = law.grafcet if law is not None else None
+    return Supervision(grafcet) if grafcet is not None and grafcet.supervision else None
+
+
+def _overdue(stage: Supervision, image: Image, history: History, now: int) -> Any:
+    grafcet = stage.grafcet
+    if now > grafcet.deadline:
+        grafcet.watch(now)  # (the overdue steps keep their identity while unchanged)
+    return grafcet.overdue
+
+
+def _overdue_quiet(stage: Supervision, diagnosis: ir.Value
+                   ) -> tuple[ir.Value | None, ir.Value | None]:
+    # (before the deadline, the overdue steps are those the last watch found)
+    return ir.Compare(">", ir.Now(), ir.Cell(stage.grafcet, "deadline")), None
 
 
 def _recovery_state(stage: RecoveryStage, image: Image, history: History, now: int) -> Any:
@@ -211,7 +250,7 @@ def _recovery_state(stage: RecoveryStage, image: Image, history: History, now: i
 
 
 def _recovery_quiet(stage: RecoveryStage, diagnosis: ir.Value
-                    ) -> tuple[ir.Value | None, ir.Value]:
+                    ) -> tuple[ir.Value | None, ir.Value | None]:
     return (ir.Or((ir.Cell(stage, "needed"), ir.Not(ir.IsNone(ir.Cell(stage, "active"))))),
             ir.Cell(stage, "_idle"))
 
@@ -231,6 +270,10 @@ LAW: Declaration[ControlRuntime] = Declaration(
     "law", lambda c: ControlRuntime(c.law, c.layout.slots, c.layout.step_times),
     capture=ControlRuntime.capture, restore=ControlRuntime.restore,
     fields=Shown(("active_steps", "fired"), _steps, "reading the active steps", _no_steps))
+SUPERVISION: Declaration[Supervision] = Declaration(
+    "supervision", _supervision,
+    news=Publication("overdue_steps", _overdue, "watching the steps' supervision times", (),
+                     _overdue_quiet))
 RECOVERY: Declaration[RecoveryStage] = Declaration(
     "recovery", _recovery, capture=RecoveryStage.capture, restore=RecoveryStage.restore,
     news=Publication("recovery", _recovery_state, "reading the recovery's state",
@@ -238,16 +281,19 @@ RECOVERY: Declaration[RecoveryStage] = Declaration(
 
 # The built-in stages, in the scan's order (the order they are built in: a stage is given
 # those before it)
-BUILT_IN: tuple[Declaration[Any], ...] = (MEMORY, DIAGNOSERS, LAW, RECOVERY)
+BUILT_IN: tuple[Declaration[Any], ...] = (MEMORY, DIAGNOSERS, LAW, SUPERVISION, RECOVERY)
 
-# The added stages, in the order they are placed (several after one part: in this order)
-ADDED: tuple[type[AddedStage], ...] = ()
+# The added stages, in the order they are placed (several after one part: in this order):
+# each its class (declared()), or a declaration of its own (one with `news`: its state
+# makes a scan news)
+ADDED: tuple[type[AddedStage] | Declaration[Any], ...] = ()
 
 
 def stage_declarations() -> tuple[Declaration[Any], ...]:
     """Every declared stage: the built-in ones, then the added ones (ADDED, read at each
     call)."""
-    return (*BUILT_IN, *(declared(kind) for kind in ADDED))
+    return (*BUILT_IN, *(kind if isinstance(kind, Declaration) else declared(kind)
+                         for kind in ADDED))
 
 
 class Stages:
@@ -321,9 +367,9 @@ class Stages:
             if d.restore is not None:
                 d.restore(stage, state)
 
-    def shown(self) -> tuple[tuple[str, Any], ...]:
+    def shown(self) -> tuple[StageState, ...]:
         """What a snapshot shows of the stages that show something, by role."""
-        return tuple((d.role, d.shown(stage)) for d, stage in self.built
+        return tuple(StageState(d.role, d.shown(stage)) for d, stage in self.built
                      if d.shown is not None)
 
 

@@ -10,6 +10,12 @@ and keeps what it returns. No stage reaches back into the engine: the filter ret
 decision and the engine latches, the diagnosers return their routes and mask and the engine
 passes them on.
 
+The stages of the mode's program are declared (hmi.engine.program_stages): what each gives a
+scan with news, what a snapshot reads of it, its fault reset, capture and restore come from
+its declaration, which the engine walks without naming the stage. What the engine holds of
+its own: the commands, the latches, running the program (the parts of a scan, the mode's
+function, the filter's hand-over) and deciding news.
+
 The engine never reads a clock for what it decides: :meth:`Engine.step` is given the scan's
 time. It only measures how long its scans take in wall time, for the people watching a live
 run (:attr:`Engine.wall_times`). Everything it computes lands in an immutable
@@ -41,7 +47,7 @@ from hmi.engine.commands import (
 )
 from hmi.engine.compiled import CompiledScan
 from hmi.engine.diagnoser import NO_DIAGNOSIS, Diagnosis
-from hmi.engine.filter import FilterReport, SafetyFilter
+from hmi.engine.filter import FilterReport, SafetyFilter, Solver
 from hmi.engine.filter_stage import FilterStage
 from hmi.engine.layout import Layout
 from hmi.engine.monitors import monitor_stage
@@ -50,11 +56,20 @@ from hmi.engine.program_stages import (
     LAW,
     MEMORY,
     RECOVERY,
+    SUPERVISION,
     Moment,
     StageContext,
     build_stages,
 )
-from hmi.engine.scan_record import ScanNews, ScanRecord
+from hmi.engine.scan_record import (
+    EVENTS,
+    SETTLING,
+    STATUS,
+    QuietRun,
+    Raised,
+    ScanNews,
+    ScanRecord,
+)
 from hmi.engine.snapshot import INTERNAL_PARTS, LatchReason, Snapshot
 from hmi.engine.stages import InputScan, OutputScan, plant_detail
 from hmi.errors import UsageError
@@ -128,18 +143,18 @@ class Engine:
         lay = self.layout
         self.output_slots = lay.indices(lay.outputs)
         self.safe_vector = tuple(v.safe for v in project.outputs)
-        solver_args = (solver or project.solver, solver_budget or project.solver_budget)
+        solver_args = Solver(solver or project.solver, solver_budget or project.solver_budget)
         # The stages of the mode's program, built from their declarations in the scan's
         # order (hmi.engine.program_stages); the engine addresses the built-in ones
         # by their role where it needs that one.
         self.stages = build_stages(StageContext(project, lay, law, self.safe_vector,
                                                 solver_args, diagnosis, high_level))
         self.law = self.stages.need(LAW)  # 5 (and the GRAFCET's step times, 2)
-        # The GRAFCET when it has supervised steps (hmi.engine.grafcet: the deadline compared
-        # once per scan in run(), the overdue steps in the snapshot), else None.
-        self._supervised = (self.law.grafcet if self.law.grafcet is not None
-                            and self.law.grafcet.supervision else None)
-        self._overdue: tuple[str, ...] = ()  # the overdue steps the last scan told of
+        # The GRAFCET when it has supervised steps, else None: the commands say when its
+        # supervision is watched (_supervise); its stage watches it after a scan
+        # (program_stages.SUPERVISION).
+        supervision = self.stages.of(SUPERVISION)
+        self._supervised = supervision.grafcet if supervision is not None else None
         # The stages, in scan order (hmi.engine.stages).
         self.input_scan = InputScan(plant, lay, read_back=self.observe)  # 1
         self.memory = self.stages.need(MEMORY)  # 2 (and the GRAFCET's step times: control)
@@ -605,27 +620,16 @@ class Engine:
         return self._conclude(now, wall)
 
     def _conclude(self, now: int, wall: float = 0.0, taken: tuple[Any, ...] | None = None,
-                  raised: tuple[int, Exception] | None = None) -> bool:
+                  raised: Raised | None = None) -> bool:
         """What run() does after stages 1 to 8 (the scan's record filled): the supervision,
         what the scan left read for its snapshot, the history, whether the scan has news.
-        `taken`: the plant's events when they were taken already; `raised`: (1, exc) when
-        taking them raised exc, (2, exc) when reading the plant's status did, (3, exc) when
-        settling the monitors did (the printed frame took or read them,
-        hmi.engine.compiled)."""
+        `taken`: the plant's events when they were taken already; `raised`: the read the
+        printed frame made (settling the monitors, taking the plant's events or reading its
+        status: hmi.engine.compiled) that raised, handled here as if this one had."""
         record = self._record
         report, diagnosis, monitored, error = (record.report, record.diagnosis,
                                                record.monitored, record.error)
         image = self.image
-        # Step supervision: one comparison a scan. Past the deadline (a step's supervision
-        # time, or a firing: hmi.engine.grafcet) the overdue steps are found again, and a
-        # change of them is news, even on a scan that has no other (an alarm raised or
-        # cleared). Nothing to do without supervision.
-        supervised = self._supervised
-        if supervised is not None and now > supervised.deadline:
-            supervised.watch(now)
-            if supervised.overdue is not self._overdue:
-                self._overdue = supervised.overdue
-                self._news = None  # (news, as after a command)
         plant = self.plant
         history = self.history
         # What the scan left, read for its snapshot: each read outside the stages' own error
@@ -650,25 +654,25 @@ class Engine:
         monitors = self.monitors
         if monitors is not None:
             try:
-                if raised is not None and raised[0] == 3:
-                    raise raised[1]
+                if raised is not None and raised.part == SETTLING:
+                    raise raised.exc
                 marks = monitors.settle() if monitored else monitors.marks
             except Exception as exc:
-                failed = self._failure("settling the monitors", exc)
+                failed = self._failure(SETTLING, exc)
                 marks = monitors.marks
         try:
-            if raised is not None and raised[0] == 1:
-                raise raised[1]
+            if raised is not None and raised.part == EVENTS:
+                raise raised.exc
             events = plant.take_events() if taken is None else taken
         except Exception as exc:
-            failed = self._failure("reading the plant's events", exc)
+            failed = self._failure(EVENTS, exc)
             events = ()
         try:
-            if raised is not None and raised[0] == 2:
-                raise raised[1]
+            if raised is not None and raised.part == STATUS:
+                raise raised.exc
             status = plant.status
         except Exception as exc:
-            failed = self._failure("reading the plant's status", exc)
+            failed = self._failure(STATUS, exc)
             status = self._status_unknown()
         if failed is not None or error is not None:
             if failed is not None:
@@ -692,12 +696,12 @@ class Engine:
         record.published = published
         record.marks = marks
         record.events = events
-        record.scan_us = (time.perf_counter() - wall) * 1e6 if self.wall_times else 0.0
+        record.scan_us = (time.perf_counter() - wall) * 1e6 if self._wall_times else 0.0
         record.settled = False
         self._pending = True
         return news
 
-    def run_while_quiet(self, start: int, end: int, period: int) -> tuple[int, bool]:
+    def run_while_quiet(self, start: int, end: int, period: int) -> QuietRun:
         """Scans at `start`, `start + period`, ... up to `end` included, by :meth:`run`,
         stopping after the first that has news. Returns how many ran and whether the last
         had news. A headless run hands the engine a stretch of scans at once when nothing
@@ -708,11 +712,11 @@ class Engine:
         while now <= end:  # (the scans counted from the times: one addition a scan)
             if self._fast:  # (the printed frame, without run()'s call)
                 if frame(now):  # type: ignore[misc]
-                    return (now - start) // period + 1, True
+                    return QuietRun((now - start) // period + 1, True)
             elif run(now):
-                return (now - start) // period + 1, True
+                return QuietRun((now - start) // period + 1, True)
             now += period
-        return (now - start) // period, False
+        return QuietRun((now - start) // period, False)
 
     def snapshot(self) -> Snapshot:
         """The last scan's snapshot (:meth:`run`), built now if not yet: the engine's
@@ -724,7 +728,7 @@ class Engine:
         self._pending = False
         record = self._record
         plant = self.plant
-        policy = self.policy
+        policy = self._policy
         now = self.now
         # What the snapshot reads of the engine and the plant, each guarded as in run(): one
         # that raises latches an internal error naming it, is shown empty (the timers'
@@ -777,7 +781,7 @@ class Engine:
         snapshot = self.last = Snapshot(
             scan=self.scan, time_us=now, period_us=self._period, layout=self.layout,
             values=record.values, fov=tuple(record.fov), outputs=tuple(record.outputs),
-            control_name=self.control_name, mode=self.mode,
+            control_name=self.control_name, mode=self._mode,
             manual=tuple(sorted(self.manual.items())) if self.manual else (), policy=policy,
             latched=tuple(self.latched) if self.latched else (), plant=status,
             plant_state=state, plant_counters=counters, plant_events=record.events,
@@ -787,7 +791,6 @@ class Engine:
                              else ()),
             error=record.error, scan_wall_us=record.scan_us,
             filter_wall_us=record.filter_us, monitor_marks=record.marks,
-            overdue_steps=self._supervised.overdue if self._supervised is not None else (),
             **shown)
         if self._shows:  # (the stages that show something: Snapshot.stages)
             snapshot = self.last = snapshot._replace(stages=self.stages.shown())
@@ -888,7 +891,7 @@ class Engine:
                 mask = recovery.unmask(mask)
             if policy == "monitor":
                 policy = "correct"
-        timed = self.wall_times
+        timed = self._wall_times
         started = time.perf_counter() if timed else 0.0
         decision = filter_stage.apply(self.image, self.history, s.fov, policy,
                                       bool(self.latched), mask)
@@ -952,23 +955,24 @@ class Engine:
         self._keep(safe, safe, None, diagnosis, monitored, error, 0.0)
 
     def _auto_filter(self, now: int, fov: tuple[bool, ...], diagnosis: Diagnosis,
-                     unquiet: object = None) -> tuple[tuple[bool, ...], FilterReport] | None:
+                     unquiet: object = None) -> FilterReport | None:
         """The automatic mode's filter when the candidate is masked, latched or violated
         (`unquiet`: the frame's test, the violation word when nothing is masked nor
         latched). Nothing masked nor latched, before the decision or by it: the decision's
-        outputs, in the image, and its report, which the printed frame writes, monitors and
-        concludes as it does a clean candidate's. Otherwise the output scan and the
-        monitors run here and the scan is kept (None: the frame concludes it)."""
+        report, its outputs in the image and the scan's record (ScanRecord.outputs), which
+        the printed frame writes, monitors and concludes as it does a clean candidate's.
+        Otherwise the output scan and the monitors run here and the scan is kept (None: the
+        frame concludes it)."""
         image = self.image
         mask = diagnosis.mask
         try:
             if mask is None and not self.latched:
                 # violated, nothing masked: what FilterStage.apply would hand the filter
                 word = unquiet if type(unquiet) is int else None
-                decision = self.safety_filter.apply(image, self.history, fov, self.policy,
+                decision = self.safety_filter.apply(image, self.history, fov, self._policy,
                                                     False, word)
             else:
-                decision = self.filter_stage.apply(image, self.history, fov, self.policy,
+                decision = self.filter_stage.apply(image, self.history, fov, self._policy,
                                                    bool(self.latched), mask)
             if decision.latch is not None:
                 self.latch_safe("filter", decision.latch)
@@ -982,7 +986,8 @@ class Engine:
         if mask is None and not self.latched:
             for slot, value in zip(self.output_slots, outputs, strict=True):
                 image[slot] = value  # (the output scan's first half: _scan_outputs)
-            return outputs, report
+            self._record.outputs = outputs
+            return report
         monitored, error = self._output_scan(now, outputs, None)
         self._keep(fov, outputs, report, diagnosis, monitored, error, 0.0)
         return None
@@ -990,7 +995,7 @@ class Engine:
     def _finish(self, now: int, fov: tuple[bool, ...], outputs: tuple[bool, ...],
                 report: FilterReport, diagnosis: Diagnosis, monitored: bool,
                 error: str | None, taken: tuple[Any, ...] | None = None,
-                raised: tuple[int, Exception] | None = None) -> bool:
+                raised: Raised | None = None) -> bool:
         """An automatic-mode scan filtered, written and monitored, kept and concluded (the
         printed frame's way out when the rest is not a quiet scan's: _conclude's `taken`
         and `raised`)."""
@@ -1063,7 +1068,7 @@ class Engine:
         """The outputs the diagnosers' mask holds at 0 (a running recovery lifts it from the
         outputs it drives)."""
         recovery = self.recovery
-        if self.mode != "recovery" or recovery is None or recovery.active is None:
+        if self._mode != "recovery" or recovery is None or recovery.active is None:
             return diagnosis.masked
         driven = recovery.active.spec.outputs
         return tuple(o for o in diagnosis.masked if o not in driven)

@@ -7,11 +7,32 @@ position: they live here, below both.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, NamedTuple
 
 from hmi.engine.diagnoser import NO_DIAGNOSIS, Diagnosis
 from hmi.engine.filter import FilterReport
 from hmi.plant.base import PlantStatus
+
+
+class Raised(NamedTuple):
+    """A read the printed frame made for the scan's conclusion raised (Engine._conclude,
+    which latches it as its own would have): which, in plain words (one of SETTLING, EVENTS,
+    STATUS, in snapshot.INTERNAL_PARTS), and what."""
+
+    part: str
+    exc: Exception
+
+
+SETTLING = "settling the monitors"
+EVENTS = "reading the plant's events"
+STATUS = "reading the plant's status"
+
+
+class QuietRun(NamedTuple):
+    """What Engine.run_while_quiet ran: how many scans, and whether the last had news."""
+
+    scans: int
+    news: bool
 
 
 class ScanRecord:
