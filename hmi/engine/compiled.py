@@ -222,9 +222,10 @@ FRAME = Vocabulary(
                "active", "_idle", "marks", "appendleft", "fov", "outputs", "report",
                "diagnosis", "monitored", "error", "filter_us", "values", "diagnosers",
                "events", "recovery", "scan_us", "settled", "manual", "current", "settle",
-               "needed"}),
+               "needed", "mask", "reconstructed", "records"}),
     frozenset({"exc", "diag", "report", "error", "monitored", "marks", "events", "status",
-               "last", "values", "w", "none_waiting", "out", "decided"}))
+               "last", "values", "w", "none_waiting", "out", "decided", "run_core",
+               "run_violated", "run_monitors"}))
 
 
 def auto_frame(engine: Any) -> ir.Function:
@@ -247,6 +248,9 @@ def auto_frame(engine: Any) -> ir.Function:
     out, decided = ir.Local("out"), ir.Local("decided")
     calm = ir.Local("none_waiting")
     monitored, exc, unquiet = ir.Local("monitored"), ir.Local("exc"), ir.Local("w")
+    # (the compiled scan's functions, read at each scan: whoever replaces one is called)
+    core, violated, monitor = (ir.Local(n) for n in ("run_core", "run_violated",
+                                                      "run_monitors"))
     stage, monitors, recovery = engine.diagnosis, engine.monitors, engine.recovery
     supervised = engine._supervised
     record = engine._record
@@ -278,7 +282,8 @@ def auto_frame(engine: Any) -> ir.Function:
              (Exception, "exc", conclude(ir.Do(call(e, "_auto_failed", now, exc, diag)))))))
 
     def program() -> None:  # 2-5, the mode's program
-        guarded.append(ir.Assign(f, call(scan_program, "core", image, history, now, scan)))
+        guarded.append(ir.Assign(core, cell(scan_program, "core")))
+        guarded.append(ir.Assign(f, ir.Apply(core, (image, history, now, scan))))
         if stage is not None:
             guarded.append(ir.Assign(diag, cell(stage, "current")))
 
@@ -286,9 +291,10 @@ def auto_frame(engine: Any) -> ir.Function:
         # masked, latched, or else the violation word: not quiet unless 0 (the filter is
         # handed the word, which it does not compute again, when nothing is masked nor
         # latched)
+        guarded.append(ir.Assign(violated, cell(scan_program, "violated")))
         guarded.append(ir.Assign(unquiet, ir.Or((
-            ir.Not(ir.IsNone(ir.Item(diag, 1))), cell(e, "latched"),
-            call(scan_program, "violated", image, history, f)))))
+            ir.Not(ir.IsNone(ir.Field(diag, "mask"))), cell(e, "latched"),
+            ir.Apply(violated, (image, history, f))))))
         body.append(ir.Try(tuple(guarded), ((Exception, "exc", conclude(
             ir.Do(call(e, "_auto_failed", now, exc, diag)))),)))
         # the filter's decision when it is not the candidate (what it writes: `out`); it
@@ -314,7 +320,8 @@ def auto_frame(engine: Any) -> ir.Function:
             return
         body.extend((
             ir.Assign(monitored, ir.TRUE),
-            ir.Try((ir.Do(call(scan_program, "monitors", image, history, now, scan)),),
+            ir.Try((ir.Assign(monitor, cell(scan_program, "monitors")),
+                    ir.Do(ir.Apply(monitor, (image, history, now, scan)))),
                    ((Exception, "exc", (ir.Assign(monitored, ir.FALSE),
                                         ir.Assign(error, call(e, "_monitors_error", now, error,
                                                               exc)))),))))
@@ -357,21 +364,22 @@ def auto_frame(engine: Any) -> ir.Function:
                                                    monitored, error, events,
                                                    ir.Tuple((ir.Const(2), exc)))),)),)),
     ]
-    # news: as Engine._conclude judges it (ScanNews by position)
-    diagnosers = ir.Item(diag, 2) if stage is not None else ir.Const(())
+    # news: as Engine._conclude judges it
+    diagnosers = ir.Field(diag, "records") if stage is not None else ir.Const(())
     shown = cell(recovery, "_idle") if recovery is not None else ir.Ref(NO_RECOVERY)
     last = ir.Local("last")
     body += [
         ir.Assign(last, cell(e, "_news")),
-        ir.If(ir.Or((ir.IsNone(last), ir.Item(diag, 3),
+        ir.If(ir.Or((ir.IsNone(last), ir.Field(diag, "reconstructed"),
                      cell(e, "manual"))), (taken,)),
         ir.If(ir.Not(ir.And((
-            ir.Compare("is", report, ir.Item(last, 0)),
-            ir.Compare("is", status, ir.Item(last, 1)),
+            ir.Compare("is", report, ir.Field(last, "report")),
+            ir.Compare("is", status, ir.Field(last, "status")),
             # (without diagnosers, both are the empty tuple)
-            *((ir.Compare("is", diagnosers, ir.Item(last, 2)),) if stage is not None else ()),
-            ir.Compare("==", marks, ir.Item(last, 3)),
-            ir.Compare("is", shown, ir.Item(last, 4))))), (taken,)),
+            *((ir.Compare("is", diagnosers, ir.Field(last, "diagnosers")),)
+              if stage is not None else ()),
+            ir.Compare("==", marks, ir.Field(last, "marks")),
+            ir.Compare("is", shown, ir.Field(last, "recovery"))))), (taken,)),
         # a quiet scan: the image into the history, the record
         ir.Assign(values, call(tuple, "__call__", image)),
         ir.Do(call(engine.history, "appendleft", values)),
