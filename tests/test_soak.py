@@ -297,3 +297,36 @@ def test_over_the_runtimes_socket_the_same_seed_gives_the_same_session():
     assert over.ok, "\n".join([str(over.broken[0]), format_steps(over.steps)])
     assert over.steps == here.steps and over.scans == here.scans
     assert over.transitions == here.transitions and over.commands == here.commands
+
+
+def test_an_operator_out_of_control_asks_for_it_back():
+    """Released control, the random operator draws "Control: request it" often (drawn by its
+    palette group alone it came so seldom that seeds spent most of a session refused); in
+    control it never does, so the draws of a session in control are those of before."""
+    from hmi.soak.operator import RECLAIM, RandomOperator
+    from hmi.soak.runner import make_app, perform
+
+    async def draws() -> tuple[list, list, bool]:
+        app, _, _ = make_app(SoakConfig(VALVE, "normal"))
+        async with app.run_test(size=(100, 30)) as pilot:
+            await pilot.pause()
+            operator = RandomOperator(5)
+            held = [operator.next(app) for _ in range(300)]
+            assert await perform(pilot, Palette("Control: release it"))
+            out = app.in_control
+            operator = RandomOperator(5)
+            released = [operator.next(app) for _ in range(300)]
+        return held, released, out
+
+    held, released, still_in_control = asyncio.run(draws())
+    assert not still_in_control
+    assert Palette(RECLAIM) not in held
+    assert released.count(Palette(RECLAIM)) >= 10  # weight 8 of ~125: ~19 expected in 300
+
+
+def test_the_summary_says_why_commands_were_refused(tmp_path, capsys):
+    steps = tmp_path / "steps.txt"
+    steps.write_text("palette Control: release it\npress m\npress y\nrun 1s\n")
+    assert main(["soak", str(VALVE), "--replay", str(steps), "--shrink", "0"]) == 0
+    out = capsys.readouterr().out
+    assert "refused most: SetMode: nobody is in control" in out, out

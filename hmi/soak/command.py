@@ -128,6 +128,9 @@ def summary(result: SoakResult) -> str:
         f"{answers}" + (f"; {result.skipped} not possible" if result.skipped else ""),
         "  commands accepted: " + (", ".join(f"{k} {n}" for k, n in sorted(c.items()))
                                    or "none") + f"; refused {result.refused}",
+        *(["  refused most: " + "; ".join(f"{why} ({n})" for why, n
+                                          in result.refusals.most_common(3))]
+          if result.refusals else []),
         f"  alarms: {result.raised} raised, {result.transitions} state changes (all in the "
         f"journal), at most {result.max_alarms} listed; journal {result.journal_lines} lines",
         f"  invariants: {len(result.broken)} broken; checked: {k['step']} times after a step "

@@ -41,6 +41,7 @@ CLICK_TARGETS = ("#constraints", "#alarms", "#explain", "#io", "#chronogram", "#
                  "#banners", "#sim")
 MIN_SIZE, MAX_SIZE = (60, 20), (200, 60)
 REPAIR = "SIMULATION: repair the faulty devices"
+RECLAIM = "Control: request it"
 READING = 0.15  # how often virtual time runs while a dialog is open, before its answer
 # what an operator writes on an alarm: plain words, and text that looks like markup, quotes,
 # a backslash, non-ASCII letters, one long line
@@ -83,6 +84,12 @@ class RandomOperator:
             # ~30 injections, and the way back (repair, fault reset, automatic operation)
             # was seldom walked. Last, with no weight otherwise: the other draws unchanged.
             "repair": 3 if app.frame is not None and app.frame.injected else 0,
+            # an operator who released control (or had it taken) asks for it back: drawn by
+            # its group alone, "Control: request it" came seldom, and seeds spent most of
+            # their session with every command refused ("nobody is in control"). Last, with
+            # no weight while in control: the other draws unchanged.
+            "reclaim": 8 if not app.in_control and any(
+                e.title == RECLAIM for e in app.palette_entries()) else 0,
         }
         kind = rng.choices(list(weights), list(weights.values()))[0]
         match kind:
@@ -103,6 +110,8 @@ class RandomOperator:
                 return row
             case "repair":
                 return Palette(REPAIR)
+            case "reclaim":
+                return Palette(RECLAIM)
             case "click":
                 target = rng.choice(CLICK_TARGETS)
                 return Click(target, rng.randrange(0, 60), rng.randrange(0, 8))

@@ -72,6 +72,9 @@ class SoakResult:
     gestures: Counter[str] = field(default_factory=Counter)  # step kinds, dialog answers
     commands: Counter[str] = field(default_factory=Counter)  # accepted commands by type
     refused: int = 0
+    # why commands were refused ("Type: the cell's answer"): a seed whose operator is mostly
+    # refused exercises little, and the summary says so instead of a bare count
+    refusals: Counter[str] = field(default_factory=Counter)
     transitions: int = 0  # alarm state changes seen in the list (all found in the journal)
     raised: int = 0
     journal_lines: int = 0
@@ -189,6 +192,7 @@ async def session(config: SoakConfig, replay: list[Step] | None = None,
             result.commands[type(command).__name__] += 1
         else:
             result.refused += 1
+            result.refusals[f"{type(command).__name__}: {answer.message}"] += 1
     cell.listeners.append(count)
     operator = RandomOperator(config.seed)
     limit_us = int(config.minutes * 60_000_000)
