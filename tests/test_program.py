@@ -6,6 +6,7 @@ same image and the same state at every step, and the rule's own truth table."""
 from __future__ import annotations
 
 import itertools
+import operator
 from collections.abc import Callable
 
 import pytest
@@ -349,3 +350,26 @@ def test_a_cell_tested_by_identity_is_printed_without_its_local_where_nothing_re
     lines = texts[0].splitlines()
     assert (lines[1].strip() == "p = k0.phase") is read_after, texts[0]
     assert ("if k0.phase is k1:" in texts[0]) is not read_after, texts[0]
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(-10**7, 10**7), st.integers(-10**7, 10**7), st.integers(0, 10**7),
+       st.integers(0, 10**7), st.sampled_from(["<", "<=", ">", ">=", "==", "!="]))
+def test_a_sum_with_a_difference_against_a_constant_is_printed_folded(a, b, c1, c2, op):
+    """``a + (c1 - b) op c2`` (a monitor's cannot-finish rule) is printed ``(a - b) op
+    c2 - c1`` (unless that constant is negative: printed code holds none): the same truth as
+    the evaluator's, on any integers."""
+    from hmi.engine.codegen import Vocabulary, allow, build_function
+    from hmi.program import ir
+    from hmi.program.evaluate import function_evaluator
+
+    allow(Vocabulary(locals=frozenset({"x", "y"})))
+    x, y = ir.Local("x"), ir.Local("y")
+    test = ir.Compare(op, ir.Add(x, ir.Sub(ir.Const(c1), y)), ir.Const(c2))
+    function = ir.Function("frame", ("x", "y"), (), test)
+    printed = build_function(function, {}, {}, "test_program")
+    folded = f"(x - y) {op} {c2 - c1}" in (printed.__doc__ or "")
+    assert folded is (c2 >= c1)
+    expected = {"<": operator.lt, "<=": operator.le, ">": operator.gt, ">=": operator.ge,
+                "==": operator.eq, "!=": operator.ne}[op](a + (c1 - b), c2)
+    assert printed(a, b) == function_evaluator(function, {}, {})(a, b) == expected

@@ -334,6 +334,7 @@ def _value_source(src: Source, value: ir.Value, slots: Mapping[str, int],
         case ir.Compare(op=op, left=left, right=right):
             if op not in ir.COMPARISONS:
                 raise ValueError(f"not a comparison of the scan program: {op!r}")
+            left, right = _folded(left, right)
             return (f"{_operand_source(src, left, slots, times)} {op} "
                     f"{_operand_source(src, right, slots, times)}")
         case ir.IsNone(operand=operand):
@@ -353,6 +354,25 @@ def _value_source(src: Source, value: ir.Value, slots: Mapping[str, int],
             return (f"{src.ref(owner)}.{method}("
                     + ", ".join(_value_source(src, a, slots, times) for a in args) + ")")
     raise TypeError(f"not a value of the scan program: {value!r}")
+
+
+def _folded(left: ir.Value, right: ir.Value) -> tuple[ir.Value, ir.Value]:
+    """A comparison's sides with ``a + (c1 - b)`` against a constant c2 (a monitor's
+    cannot-finish rule: x + (alpha - y) >= gamma) as ``a - b`` against c2 - c1 when that is
+    not negative: the same truth on Python's integers, one subtraction and one new integer
+    (an allocation) fewer."""
+    if (isinstance(left, ir.Add) and isinstance(left.right, ir.Sub)
+            and isinstance(left.right.left, ir.Const) and isinstance(right, ir.Const)
+            and _integer(left.right.left.value) and _integer(right.value)):
+        c1, c2 = left.right.left.value, right.value
+        assert isinstance(c1, int) and isinstance(c2, int)
+        if c2 >= c1:  # (printed code holds no negative constant: its vocabulary)
+            return ir.Sub(left.left, left.right.right), ir.Const(c2 - c1)
+    return left, right
+
+
+def _integer(value: object) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
 
 
 def _pure(value: ir.Value) -> bool:
