@@ -14,9 +14,9 @@ from hmi.engine import program_stages
 from hmi.engine.codegen import Vocabulary
 from hmi.engine.commands import FaultReset
 from hmi.engine.layout import Layout
-from hmi.engine.program_stages import Moment
+from hmi.engine.program_stages import Declaration, Moment, Publication, declared
 from hmi.engine.scan import Engine
-from hmi.engine.snapshot import Snapshot
+from hmi.engine.snapshot import Snapshot, StageState
 from hmi.export import model as m
 from hmi.export import stage_blocks
 from hmi.export.build import build
@@ -161,6 +161,64 @@ def test_an_added_stage_is_reset_captured_and_shown_by_its_declaration(added, co
     assert stage.count == 0 and stage.fifths == [4 * period]
     assert run_on(7) == first
     assert stage.fifths == [4 * period, 11 * period]
+
+
+class Laps(Counting):
+    """The counting stage, whose laps (every fifth scan) make a scan news."""
+
+    PRINTED = Vocabulary(frozenset({"count", "fifth", "laps"}))
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.laps: tuple[StageState, ...] = ()  # a new object at each lap only
+
+    def fifth(self, now: int) -> None:
+        super().fifth(now)
+        self.laps = (StageState(PART, len(self.fifths)),)
+
+
+def _laps(stage: Laps, image: object, history: object, now: int) -> tuple[StageState, ...]:
+    return stage.laps
+
+
+# Its declaration: the added stage's, and what it gives a scan with news (Snapshot.stages),
+# what a quiet scan gives (its laps, unchanged) and no test of its own for the printed frame
+LAPS: Declaration[Laps] = Declaration(
+    PART, lambda c: Laps(), place=Laps.PLACE,
+    news=Publication("stages", _laps, "reading the laps", (),
+                     lambda stage, diagnosis: (None, ir.Cell(stage, "laps"))))
+
+
+def _news(engine: Engine, scans: int) -> list[int]:
+    """The scans Engine.run says have news, of `scans` from 0 on."""
+    period = engine.project.scan_period_us
+    return [k for k in range(scans) if engine.run(k * period)]
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_what_a_declared_stage_publishes_decides_news_in_both_paths(monkeypatch, compiled):
+    """A declaration's `news`, with no edit of the engine or of the printed frame: the scans
+    with news are those the cell has anyway and those where the stage gave something new;
+    its snapshot field shows what it gave. Both of the engine's paths: the printed frame
+    (compiled, scans untimed) and the general one."""
+    project = load_project(PROJECTS / "cispi_subsystem")
+    monkeypatch.setattr(program_stages, "ADDED", (Counting,))
+    plain = Engine(project, SimPlant(project), compiled=compiled)
+    monkeypatch.setattr(program_stages, "ADDED", (LAPS,))
+    engine = Engine(project, SimPlant(project), compiled=compiled)
+    assert engine.compiled.program.parts[PART] == engine.added[0].program
+    for e in (plain, engine):
+        e.wall_times = False  # (the printed frame runs untimed scans)
+    scans = 60
+    without, with_laps = _news(plain, scans), _news(engine, scans)
+    laps = [k for k in range(scans) if k % 5 == 4]
+    assert set(with_laps) == set(without) | set(laps)
+    assert set(laps) - set(without)  # (the laps alone made some scans news)
+    assert engine.snapshot().stages == ((PART, len(laps)),)
+    # the frame printed the stage's quiet value, and no test of its own
+    assert not compiled or any("laps" in source for source in engine.compiled.sources)
+    # an AddedStage class declares no news: what it shows is no news
+    assert declared(Counting).news is None
 
 
 def test_an_added_stage_is_called_by_the_plc_program_at_its_place(added):

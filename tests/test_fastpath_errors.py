@@ -96,7 +96,7 @@ class Broken:
             "state": (plant, "state"),
             "counters": (plant, "counters"),
             "write_vector": (plant, "write_vector"),
-            "elapsed": (engine, "_elapsed"),
+            "elapsed": (engine.memory, "elapsed"),
             "settle": (engine.monitors, "settle"),
             "status": (plant, "status"),
             "publish": (engine.diagnosis, "publish"),
@@ -104,6 +104,7 @@ class Broken:
             "capture": (engine.monitors, "capture"),
             "active": (engine.law.grafcet, "active"),
             "masked": (engine, "_masked"),
+            "watch": (engine.law.grafcet, "watch"),
         }[where]
         self.where = where
         real = getattr(owner, attribute)
@@ -518,3 +519,35 @@ def test_a_write_that_fails_and_the_safe_write_too_are_both_said(tmp_path, times
         assert written and all(values == engine.safe_vector for values in written)
     else:
         assert not written and run.hits > 100
+
+
+def test_an_error_watching_the_steps_supervision_latches_on_every_path(tmp_path):
+    """conveyor_robot (supervised steps): watching the supervision times after a scan (a
+    firing, or a deadline past: the supervision stage's publication, Engine._conclude) that
+    raises latches an internal error naming it, at the same scan and with the same writes on
+    each engine path, building every scan or not; the outputs go safe and a fault reset
+    brings the cell back."""
+    name, part = "conveyor_robot", "watching the steps' supervision times"
+    at_us = 2 * S
+    runs = {(path, quiet): Broken(name, "watch", at_us, quiet, tmp_path, path=path)
+            for path in ("auto", "interpreter") for quiet in (False, True)}
+    for run in runs.values():
+        run.run_for(3 * S)
+        assert run.hits == 1
+        (latch,) = [r for r in run.engine.latched if r.source == "internal"]
+        assert latch.part == part and latch.time_us >= at_us
+        assert run.session.last is not None and run.session.last.snapshot.outputs == \
+            run.engine.safe_vector
+    first = runs["auto", False]
+    for run in runs.values():
+        assert run.written == first.written
+        assert [r.scan for r in run.engine.latched] == [r.scan for r in first.engine.latched]
+    for run in runs.values():
+        run.armed = False
+        assert run.session.command(cmd.FaultReset()).accepted
+        reset_at = run.engine.now
+        run.run_for(S)
+        assert not run.engine.latched
+        assert any(values != run.engine.safe_vector for now, values in run.written
+                   if now > reset_at)
+        run.recorder.close()

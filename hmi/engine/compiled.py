@@ -45,7 +45,7 @@ from typing import TYPE_CHECKING, Any
 from hmi.engine.codegen import Vocabulary, allow, build_function
 from hmi.engine.diagnoser import NO_DIAGNOSIS
 from hmi.engine.program_stages import AddedStage, program_order
-from hmi.engine.recovery import NO_RECOVERY
+from hmi.engine.scan_record import EVENTS, SETTLING, STATUS, Raised
 from hmi.logic.expr import History, Image
 from hmi.plant.base import PlantError
 from hmi.program import ir, order
@@ -221,11 +221,11 @@ FRAME = Vocabulary(
                "take_events", "status", "core", "violated", "monitors", "faulty", "deadline",
                "active", "_idle", "marks", "appendleft", "fov", "outputs", "report",
                "diagnosis", "monitored", "error", "filter_us", "values", "diagnosers",
-               "events", "recovery", "scan_us", "settled", "manual", "current", "settle",
-               "needed", "mask", "reconstructed", "records"}),
+               "events", "published", "scan_us", "settled", "manual", "current",
+               "settle", "needed", "mask", "reconstructed", "records"}),
     frozenset({"exc", "diag", "report", "error", "monitored", "marks", "events", "status",
-               "last", "values", "w", "none_waiting", "out", "decided", "run_core",
-               "run_violated", "run_monitors"}))
+               "last", "values", "w", "none_waiting", "out", "run_core", "run_violated",
+               "run_monitors"}))
 
 
 def auto_frame(engine: Any) -> ir.Function:
@@ -245,14 +245,13 @@ def auto_frame(engine: Any) -> ir.Function:
     now, scan = ir.Local("now"), ir.Local("scan")
     f, diag, report, error = (ir.Local(n) for n in ("f", "diag", "report", "error"))
     events, status, values = ir.Local("events"), ir.Local("status"), ir.Local("values")
-    out, decided = ir.Local("out"), ir.Local("decided")
+    out = ir.Local("out")
     calm = ir.Local("none_waiting")
     monitored, exc, unquiet = ir.Local("monitored"), ir.Local("exc"), ir.Local("w")
     # (the compiled scan's functions, read at each scan: whoever replaces one is called)
     core, violated, monitor = (ir.Local(n) for n in ("run_core", "run_violated",
                                                       "run_monitors"))
-    stage, monitors, recovery = engine.diagnosis, engine.monitors, engine.recovery
-    supervised = engine._supervised
+    stage, monitors = engine.diagnosis, engine.monitors
     record = engine._record
 
     def cell(owner: Any, name: str) -> ir.Cell:
@@ -260,6 +259,9 @@ def auto_frame(engine: Any) -> ir.Function:
 
     def call(owner: Any, method: str, *args: ir.Value) -> ir.Call:
         return ir.Call(owner, method, args)
+
+    def raised(part: str) -> ir.Call:  # (Engine._conclude's `raised`: this read raised exc)
+        return call(Raised, "__call__", ir.Ref(part), exc)
 
     def conclude(*stmts: ir.Stmt) -> tuple[ir.Stmt, ...]:
         return (*stmts, ir.Return(call(e, "_conclude", now)))
@@ -300,9 +302,9 @@ def auto_frame(engine: Any) -> ir.Function:
         # the filter's decision when it is not the candidate (what it writes: `out`); it
         # concludes the scan itself unless that goes on as a clean candidate's would
         body.append(ir.If(unquiet, (
-            ir.Assign(decided, call(e, "_auto_filter", now, f, diag, unquiet)),
-            ir.If(ir.IsNone(decided), (ir.Return(call(e, "_conclude", now)),)),
-            ir.Assign(out, ir.Item(decided, 0)), ir.Assign(report, ir.Item(decided, 1))),
+            ir.Assign(report, call(e, "_auto_filter", now, f, diag, unquiet)),
+            ir.If(ir.IsNone(report), (ir.Return(call(e, "_conclude", now)),)),
+            ir.Assign(out, cell(record, "outputs"))),
             (ir.Assign(out, f), ir.Assign(report, cell(e, "clean_report")))))
         body.append(ir.Assign(error, ir.NONE))
 
@@ -334,22 +336,21 @@ def auto_frame(engine: Any) -> ir.Function:
         parts[part]()
     # what Engine._conclude would find other than a quiet scan's: its own way
     body.append(ir.If(ir.Not(ir.IsNone(error)), (finish,)))
-    if supervised is not None:
-        body.append(ir.If(ir.Compare(">", now, cell(supervised, "deadline")), (finish,)))
-    if stage is not None:
-        body.append(ir.If(cell(stage, "faulty"), (finish,)))
-    if recovery is not None:
-        body.append(ir.If(ir.Or((cell(recovery, "needed"),
-                                 ir.Not(ir.IsNone(cell(recovery, "active"))))), (finish,)))
-    marks = ir.Local("marks")
+    # each publishing stage's (its declaration's `news`): whether the scan is not quiet for
+    # it, and what it gives at a quiet scan
+    quiet = [news.quiet(stage_, diag) for news, stage_ in engine.stages.publishing]
+    for unquiet_, _ in quiet:
+        if unquiet_ is not None:
+            body.append(ir.If(unquiet_, (finish,)))
+    # (without monitors, the marks are 0 at every scan, the last with news's too: not
+    # compared)
+    marks: ir.Value = ir.Const(0)
     if monitors is not None:  # (monitored: else the error above)
+        marks = ir.Local("marks")
         body.append(ir.Try(
-            (ir.Assign(marks, call(monitors, "settle")),),
+            (ir.Assign(ir.Local("marks"), call(monitors, "settle")),),
             ((Exception, "exc", (ir.Return(call(e, "_finish", now, f, out, report, diag, monitored,
-                                                error, ir.NONE,
-                                                ir.Tuple((ir.Const(3), exc)))),)),)))
-    else:
-        body.append(ir.Assign(marks, ir.Const(0)))
+                                                error, ir.NONE, raised(SETTLING))),)),)))
     taken = ir.Return(call(e, "_finish", now, f, out, report, diag, monitored, error, events))
     # the plant's events, unless the write said none waits (Plant.write_vector), its status
     body += [
@@ -357,16 +358,14 @@ def auto_frame(engine: Any) -> ir.Function:
             ir.Try((ir.Assign(events, call(plant, "take_events")),),
                    ((Exception, "exc", (ir.Return(call(e, "_finish", now, f, out, report, diag,
                                                        monitored, error, ir.NONE,
-                                                       ir.Tuple((ir.Const(1), exc)))),)),)),
+                                                       raised(EVENTS))),)),)),
             ir.If(events, (taken,)))),
         ir.Try((ir.Assign(status, cell(plant, "status")),),
                ((Exception, "exc", (ir.Return(call(e, "_finish", now, f, out, report, diag,
                                                    monitored, error, events,
-                                                   ir.Tuple((ir.Const(2), exc)))),)),)),
+                                                   raised(STATUS))),)),)),
     ]
-    # news: as Engine._conclude judges it
-    diagnosers = ir.Field(diag, "records") if stage is not None else ir.Const(())
-    shown = cell(recovery, "_idle") if recovery is not None else ir.Ref(NO_RECOVERY)
+    # news: as Engine._conclude judges it (ScanNews: its fields, each stage's by position)
     last = ir.Local("last")
     body += [
         ir.Assign(last, cell(e, "_news")),
@@ -375,11 +374,11 @@ def auto_frame(engine: Any) -> ir.Function:
         ir.If(ir.Not(ir.And((
             ir.Compare("is", report, ir.Field(last, "report")),
             ir.Compare("is", status, ir.Field(last, "status")),
-            # (without diagnosers, both are the empty tuple)
-            *((ir.Compare("is", diagnosers, ir.Field(last, "diagnosers")),)
-              if stage is not None else ()),
-            ir.Compare("==", marks, ir.Field(last, "marks")),
-            ir.Compare("is", shown, ir.Field(last, "recovery"))))), (taken,)),
+            *((ir.Compare("==", marks, ir.Field(last, "marks")),) if monitors is not None
+              else ()),
+            *(ir.Compare("is", given, ir.Item(ir.Field(last, "published"), k))
+              for k, (_, given) in enumerate(quiet)
+              if given is not None)))), (taken,)),
         # a quiet scan: the image into the history, the record
         ir.Assign(values, call(tuple, "__call__", image)),
         ir.Do(call(engine.history, "appendleft", values)),
@@ -387,8 +386,11 @@ def auto_frame(engine: Any) -> ir.Function:
     zero = ir.Ref(0.0)
     fields: tuple[tuple[str, ir.Value], ...] = (
         ("report", report), ("diagnosis", diag), ("monitored", monitored),
-        ("error", ir.NONE), ("filter_us", zero), ("diagnosers", diagnosers),
-        ("marks", marks), ("events", ir.Const(())), ("recovery", shown), ("scan_us", zero))
+        ("error", ir.NONE), ("filter_us", zero),
+        ("published", ir.Tuple(tuple(ir.Item(ir.Field(last, "published"), k)
+                                     if given is None else given
+                                     for k, (_, given) in enumerate(quiet)))),
+        ("marks", marks), ("events", ir.Const(())), ("scan_us", zero))
     moving = (ir.Assign(cell(record, "fov"), f), ir.Assign(cell(record, "outputs"), out),
               ir.Assign(cell(record, "values"), values))
     body += [

@@ -71,6 +71,14 @@ class Change(NamedTuple):
     how: str  # "F0" (forced 0 by a simple constraint), "F1", "combined", "safe state"
 
 
+class Solver(NamedTuple):
+    """The corrector a filter uses: its strategy and its budget per scan (None: the
+    project's scan period's default), SafetyFilter's last two arguments."""
+
+    strategy: str
+    budget: int | None
+
+
 class FilterReport(NamedTuple):
     policy: str
     strategy: str

@@ -8,15 +8,18 @@ a :class:`Declaration` (:func:`stage_declarations`: :data:`BUILT_IN`, then those
 address it by), how it is built from the project and the engine's choices, where it runs
 (the built-in stages' parts are hmi.program.order's own; an added stage's ``PLACE`` puts its
 part after one of them), how deep a history it reads, what a fault reset does to it, how its
-state is captured and restored (an exploration forking the engine: Engine.capture) and what
-of it a snapshot shows. Everything else derives from the declarations:
+state is captured and restored (an exploration forking the engine: Engine.capture), what
+it gives every scan with news (its snapshot field, compared to say whether a scan has news:
+:class:`Publication`) and what else a snapshot reads of it (:class:`Shown`). Everything else
+derives from the declarations:
 
 * the engine builds every declared stage (``Engine.__init__``, :func:`build_stages`), in
   this order, each given those built before it; the compiled scan puts each stage's parts
   in the scan's order (:func:`hmi.program.order.placed`), in every mode's function, printed
   and evaluated, and allows their names (``PRINTED``); the history is as deep as the
-  deepest stage; a fault reset, Engine.capture/restore and the snapshot walk the
-  declarations;
+  deepest stage; a fault reset, Engine.capture/restore, the end of a scan
+  (Engine._conclude: each publication read, news judged on them), the printed frame's
+  quiet test (each publication's, printed) and the snapshot walk the declarations;
 * the PLC export builds each stage's function blocks (hmi.export.stage_blocks, keyed by
   role) and the PLC program calls them at the stage's place (hmi.export.program_pou).
 
@@ -29,17 +32,21 @@ class; naming the class in :data:`ADDED` declares it (:func:`declared`).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Generic, NamedTuple, Protocol, TypeVar, cast
 
+from hmi.engine.codegen import Vocabulary
 from hmi.engine.control import ControlRuntime
 from hmi.engine.diagnoser import DiagnosisStage, diagnosis_stage
+from hmi.engine.filter import Solver
+from hmi.engine.grafcet import GrafcetRuntime
 from hmi.engine.layout import Layout
-from hmi.engine.recovery import RecoveryStage, recovery_stage
+from hmi.engine.recovery import NO_RECOVERY, RecoveryStage, recovery_stage
+from hmi.engine.snapshot import StageState
 from hmi.engine.stages import Memory, ProgramStage
 from hmi.logic.expr import History, Image
-from hmi.program import order
+from hmi.program import ir, order
 from hmi.project.model import ControlLaw, Project
 
 S = TypeVar("S")
@@ -55,7 +62,7 @@ class StageContext:
     layout: Layout
     law: ControlLaw
     safe_vector: tuple[bool, ...]
-    solver: tuple[str, int | None]  # the corrector (strategy, budget)
+    solver: Solver  # the corrector
     diagnosis: str = "ftc"  # the diagnosers' mode
     high_level: bool = True  # the High Level Diagnoser's rules
     built: dict[str, Any] = field(default_factory=dict)
@@ -69,6 +76,38 @@ class Moment(NamedTuple):
     now: int
     scan: int
     started: bool  # a scan ran (before it, nothing has a state to reset)
+
+
+@dataclass(frozen=True)
+class Publication(Generic[S]):
+    """What a stage gives every scan with news, for its snapshot field: read at the end of
+    the scan (Engine._conclude), the very same object again while nothing changed. A scan is
+    quiet for the stage (no news) only when it gives the object the last scan with news
+    gave; the printed frame, which concludes a quiet scan without reading it, asks `quiet`
+    once, when it is printed (hmi.engine.compiled.auto_frame)."""
+
+    field: str  # the Snapshot field it fills
+    # (the stage, the image as the scan left it, the history without it yet, the scan's time)
+    read: Callable[[S, Image, History, int], Any]
+    reading: str  # what failed, in plain words, when `read` raises (snapshot.INTERNAL_PARTS)
+    failed: Any  # what the snapshot shows then
+    # Given the stage and the frame's local holding the diagnosers' decision of the scan
+    # (Diagnosis): the test that says the scan is not quiet for the stage (None: it always
+    # is, but for what it gives) and the value `read` gives at a quiet scan (None: the test
+    # alone says, and at a quiet scan the stage gives what it gave the last scan with
+    # news), both as scan-program values (the scan's time: ir.Now)
+    quiet: Callable[[S, ir.Value], tuple[ir.Value | None, ir.Value | None]]
+
+
+@dataclass(frozen=True)
+class Shown(Generic[S]):
+    """What a snapshot shows of a stage besides its publication, read when the snapshot is
+    built (Engine.snapshot): never news."""
+
+    fields: tuple[str, ...]  # the Snapshot fields it fills
+    read: Callable[[S, Image, int], tuple[Any, ...]]  # (the stage, the image, the scan's time)
+    reading: str  # what failed, in plain words, when `read` raises (snapshot.INTERNAL_PARTS)
+    failed: Callable[[S], tuple[Any, ...]]  # what the snapshot shows then
 
 
 @dataclass(frozen=True)
@@ -87,6 +126,8 @@ class Declaration(Generic[S]):
     capture: Callable[[S], Any] | None = None  # its state, copied (Engine.capture)
     restore: Callable[[S, Any], None] | None = None
     shown: Callable[[S], Any] | None = None  # what a snapshot shows of it (Snapshot.stages)
+    news: Publication[S] | None = None  # what it gives a scan with news (Engine._conclude)
+    fields: Shown[S] | None = None  # what a snapshot reads of it besides (Engine.snapshot)
 
 
 class AddedStage(ProgramStage, Protocol):
@@ -141,31 +182,118 @@ def _recovery(c: StageContext) -> RecoveryStage | None:
                           diagnosers.mask_flags if diagnosers is not None else {})
 
 
+def _elapsed(memory: Memory, image: Image, now: int) -> tuple[Any, ...]:
+    return (memory.elapsed(now),)
+
+
+def _no_elapsed(memory: Memory) -> tuple[Any, ...]:
+    return ((0,) * len(memory.timers),)
+
+
+def _steps(law: ControlRuntime, image: Image, now: int) -> tuple[Any, ...]:
+    grafcet = law.grafcet
+    return ((), ()) if grafcet is None else (grafcet.active(image), grafcet.fired)
+
+
+def _no_steps(law: ControlRuntime) -> tuple[Any, ...]:
+    return ((), law.grafcet.fired if law.grafcet is not None else ())
+
+
+def _diagnosers(stage: DiagnosisStage, image: Image, history: History, now: int) -> Any:
+    # (DiagnosisStage.publish: the records themselves unless one is faulty)
+    return stage.publish(image, history) if stage.faulty else stage.current.records
+
+
+def _diagnosers_quiet(stage: DiagnosisStage, diagnosis: ir.Value
+                      ) -> tuple[ir.Value | None, ir.Value | None]:
+    # faulty: DiagnosisStage.publish previews what a fault reset would do (Diagnosis.records)
+    return ir.Cell(stage, "faulty"), ir.Field(diagnosis, "records")
+
+
+class Supervision:
+    """The GRAFCET's steps' supervision times as a stage: no part of the mode's program; at
+    the end of a scan past its deadline (a step's supervision time, or a firing:
+    hmi.engine.grafcet) the overdue steps are found again, one comparison a scan otherwise.
+    A change of them is news (an alarm raised or cleared: Snapshot.overdue_steps). The
+    engine says when they are watched (Engine._supervise: the program running in automatic
+    mode)."""
+
+    PRINTED = Vocabulary(frozenset({"deadline"}))
+    parts: Mapping[str, tuple[ir.Stmt, ...]] = {}
+
+    def __init__(self, grafcet: GrafcetRuntime):
+        self.grafcet = grafcet
+
+
+def _supervision(c: StageContext) -> Supervision | None:
+    law = cast("ControlRuntime | None", c.built.get(LAW.role))
+    grafcet = law.grafcet if law is not None else None
+    return Supervision(grafcet) if grafcet is not None and grafcet.supervision else None
+
+
+def _overdue(stage: Supervision, image: Image, history: History, now: int) -> Any:
+    grafcet = stage.grafcet
+    if now > grafcet.deadline:
+        grafcet.watch(now)  # (the overdue steps keep their identity while unchanged)
+    return grafcet.overdue
+
+
+def _overdue_quiet(stage: Supervision, diagnosis: ir.Value
+                   ) -> tuple[ir.Value | None, ir.Value | None]:
+    # (before the deadline, the overdue steps are those the last watch found)
+    return ir.Compare(">", ir.Now(), ir.Cell(stage.grafcet, "deadline")), None
+
+
+def _recovery_state(stage: RecoveryStage, image: Image, history: History, now: int) -> Any:
+    # (RecoveryStage.state: the idle state itself when none runs nor is needed)
+    return stage._idle if stage.active is None and not stage.needed else stage.state(now)
+
+
+def _recovery_quiet(stage: RecoveryStage, diagnosis: ir.Value
+                    ) -> tuple[ir.Value | None, ir.Value | None]:
+    return (ir.Or((ir.Cell(stage, "needed"), ir.Not(ir.IsNone(ir.Cell(stage, "active"))))),
+            ir.Cell(stage, "_idle"))
+
+
 MEMORY: Declaration[Memory] = Declaration(
     "memory", lambda c: Memory(c.project, c.layout),
-    capture=Memory.capture, restore=Memory.restore)
+    capture=Memory.capture, restore=Memory.restore,
+    fields=Shown(("timer_elapsed",), _elapsed, "computing the timers' elapsed times",
+                 _no_elapsed))
 DIAGNOSERS: Declaration[DiagnosisStage] = Declaration(
     "diagnosers", lambda c: diagnosis_stage(c.project, c.layout, c.diagnosis, c.high_level),
     depth=lambda s: s.depth, reset=_reset_diagnosers, capture=DiagnosisStage.capture,
-    restore=DiagnosisStage.restore)
+    restore=DiagnosisStage.restore,
+    news=Publication("diagnosers", _diagnosers, "reading the diagnosers' states", (),
+                     _diagnosers_quiet))
 LAW: Declaration[ControlRuntime] = Declaration(
     "law", lambda c: ControlRuntime(c.law, c.layout.slots, c.layout.step_times),
-    capture=ControlRuntime.capture, restore=ControlRuntime.restore)
+    capture=ControlRuntime.capture, restore=ControlRuntime.restore,
+    fields=Shown(("active_steps", "fired"), _steps, "reading the active steps", _no_steps))
+SUPERVISION: Declaration[Supervision] = Declaration(
+    "supervision", _supervision,
+    news=Publication("overdue_steps", _overdue, "watching the steps' supervision times", (),
+                     _overdue_quiet))
 RECOVERY: Declaration[RecoveryStage] = Declaration(
-    "recovery", _recovery, capture=RecoveryStage.capture, restore=RecoveryStage.restore)
+    "recovery", _recovery, capture=RecoveryStage.capture, restore=RecoveryStage.restore,
+    news=Publication("recovery", _recovery_state, "reading the recovery's state",
+                     NO_RECOVERY, _recovery_quiet))
 
 # The built-in stages, in the scan's order (the order they are built in: a stage is given
 # those before it)
-BUILT_IN: tuple[Declaration[Any], ...] = (MEMORY, DIAGNOSERS, LAW, RECOVERY)
+BUILT_IN: tuple[Declaration[Any], ...] = (MEMORY, DIAGNOSERS, LAW, SUPERVISION, RECOVERY)
 
-# The added stages, in the order they are placed (several after one part: in this order)
-ADDED: tuple[type[AddedStage], ...] = ()
+# The added stages, in the order they are placed (several after one part: in this order):
+# each its class (declared()), or a declaration of its own (one with `news`: its state
+# makes a scan news)
+ADDED: tuple[type[AddedStage] | Declaration[Any], ...] = ()
 
 
 def stage_declarations() -> tuple[Declaration[Any], ...]:
     """Every declared stage: the built-in ones, then the added ones (ADDED, read at each
     call)."""
-    return (*BUILT_IN, *(declared(kind) for kind in ADDED))
+    return (*BUILT_IN, *(kind if isinstance(kind, Declaration) else declared(kind)
+                         for kind in ADDED))
 
 
 class Stages:
@@ -205,6 +333,17 @@ class Stages:
         return [d.place for d, _ in self.built if d.place is not None]
 
     @property
+    def publishing(self) -> tuple[tuple[Publication[Any], Any], ...]:
+        """The stages that publish something at a scan with news, with what they publish,
+        in declaration order."""
+        return tuple((d.news, stage) for d, stage in self.built if d.news is not None)
+
+    @property
+    def showing(self) -> tuple[tuple[Shown[Any], Any], ...]:
+        """The stages a snapshot reads something of besides, with what it reads."""
+        return tuple((d.fields, stage) for d, stage in self.built if d.fields is not None)
+
+    @property
     def depth(self) -> int:
         """The deepest history any stage's statements read."""
         return max((d.depth(stage) for d, stage in self.built if d.depth is not None),
@@ -228,9 +367,9 @@ class Stages:
             if d.restore is not None:
                 d.restore(stage, state)
 
-    def shown(self) -> tuple[tuple[str, Any], ...]:
+    def shown(self) -> tuple[StageState, ...]:
         """What a snapshot shows of the stages that show something, by role."""
-        return tuple((d.role, d.shown(stage)) for d, stage in self.built
+        return tuple(StageState(d.role, d.shown(stage)) for d, stage in self.built
                      if d.shown is not None)
 
 

@@ -26,7 +26,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from hmi.engine.codegen import Vocabulary
-from hmi.engine.filter import SafetyFilter
+from hmi.engine.filter import SafetyFilter, Solver
 from hmi.engine.filter_stage import FilterStage
 from hmi.engine.layout import Layout
 from hmi.program import order
@@ -70,7 +70,7 @@ class _Procedure:
     """One compiled procedure."""
 
     def __init__(self, spec: RecoveryProcedure, project: Project, layout: Layout,
-                 filter_args: tuple[str, int | None],
+                 filter_args: Solver,
                  mask_flags: Mapping[str, tuple[str, ...]]):
         self.spec = spec
         slots = layout.slots
@@ -96,7 +96,7 @@ class RecoveryStage:
         frozenset({"moved", "s"}))
 
     def __init__(self, project: Project, layout: Layout, safe: tuple[bool, ...],
-                 filter_args: tuple[str, int | None],
+                 filter_args: Solver,
                  mask_flags: Mapping[str, tuple[str, ...]]):
         self.procedures = {spec.name: _Procedure(spec, project, layout, filter_args,
                                                  mask_flags)
@@ -227,7 +227,7 @@ class RecoveryStage:
 
 
 def recovery_stage(project: Project, layout: Layout, safe: tuple[bool, ...],
-                   filter_args: tuple[str, int | None],
+                   filter_args: Solver,
                    mask_flags: Mapping[str, tuple[str, ...]]) -> RecoveryStage | None:
     """The project's recovery procedures as a stage (None: it declares none)."""
     return RecoveryStage(project, layout, safe, filter_args, mask_flags) \

@@ -10,6 +10,12 @@ and keeps what it returns. No stage reaches back into the engine: the filter ret
 decision and the engine latches, the diagnosers return their routes and mask and the engine
 passes them on.
 
+The stages of the mode's program are declared (hmi.engine.program_stages): what each gives a
+scan with news, what a snapshot reads of it, its fault reset, capture and restore come from
+its declaration, which the engine walks without naming the stage. What the engine holds of
+its own: the commands, the latches, running the program (the parts of a scan, the mode's
+function, the filter's hand-over) and deciding news.
+
 The engine never reads a clock for what it decides: :meth:`Engine.step` is given the scan's
 time. It only measures how long its scans take in wall time, for the people watching a live
 run (:attr:`Engine.wall_times`). Everything it computes lands in an immutable
@@ -21,7 +27,7 @@ from __future__ import annotations
 import time
 from collections import deque
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from operator import is_
 from typing import Any, NamedTuple
 
 from hmi.engine.commands import (
@@ -40,8 +46,8 @@ from hmi.engine.commands import (
     StopDevice,
 )
 from hmi.engine.compiled import CompiledScan
-from hmi.engine.diagnoser import NO_DIAGNOSIS, DiagnoserState, Diagnosis
-from hmi.engine.filter import FilterReport, SafetyFilter
+from hmi.engine.diagnoser import NO_DIAGNOSIS, Diagnosis
+from hmi.engine.filter import FilterReport, SafetyFilter, Solver
 from hmi.engine.filter_stage import FilterStage
 from hmi.engine.layout import Layout
 from hmi.engine.monitors import monitor_stage
@@ -50,11 +56,20 @@ from hmi.engine.program_stages import (
     LAW,
     MEMORY,
     RECOVERY,
+    SUPERVISION,
     Moment,
     StageContext,
     build_stages,
 )
-from hmi.engine.recovery import NO_RECOVERY
+from hmi.engine.scan_record import (
+    EVENTS,
+    SETTLING,
+    STATUS,
+    QuietRun,
+    Raised,
+    ScanNews,
+    ScanRecord,
+)
 from hmi.engine.snapshot import INTERNAL_PARTS, LatchReason, Snapshot
 from hmi.engine.stages import InputScan, OutputScan, plant_detail
 from hmi.errors import UsageError
@@ -81,63 +96,6 @@ class EngineState(NamedTuple):
     stopped_devices: frozenset[str]
     readback: tuple[bool, ...]
     stages: tuple[Any, ...]  # each declared stage's (Engine.stages, in its order)
-
-
-class ScanRecord:
-    """The last scan's results, from stages 1 to 8 (Engine._cycle) and what Engine.run read
-    after them, until Engine.snapshot builds them into a Snapshot. One per engine, filled in
-    place by every scan: a record built per scan (a NamedTuple, by its constructor or by
-    tuple.__new__) cost 1,400 to 3,500 instructions a scan more than the positional tuples
-    it replaced (python -m hmi.bench.instructions), slot stores about as much as a tuple."""
-
-    __slots__ = (
-        "diagnosers",
-        "diagnosis",
-        "error",
-        "events",
-        "filter_us",
-        "fov",
-        "marks",
-        "monitored",
-        "outputs",
-        "recovery",
-        "report",
-        "scan_us",
-        "settled",
-        "values",
-    )
-
-    def __init__(self) -> None:
-        self.fov: tuple[bool, ...] = ()  # the functional output vector (stage 5)
-        self.outputs: tuple[bool, ...] = ()  # what was written (stage 7)
-        self.report: FilterReport | None = None  # the filter's (None: not reached)
-        self.diagnosis: Diagnosis = NO_DIAGNOSIS  # routes, mask and records (stage 3)
-        self.monitored = False  # whether the monitors ran (stage 8)
-        self.error: str | None = None  # an internal error of the scan, latched
-        self.filter_us = 0.0  # the filter's wall time (0.0 unless Engine.wall_times)
-        self.values: tuple[Any, ...] = ()  # the image as the scan left it (history[0])
-        self.diagnosers: tuple[DiagnoserState, ...] = ()
-        self.marks = 0  # the monitors' marks (Snapshot.monitor_marks)
-        self.events: tuple[Any, ...] = ()  # the plant's events
-        self.recovery: Any = NO_RECOVERY  # the recovery's state
-        self.scan_us = 0.0  # the scan's wall time
-        # Every field but fov, outputs and values is a quiet scan's (the printed frame, at a
-        # quiet scan after a quiet one, writes only those three: hmi.engine.compiled)
-        self.settled = False
-
-
-@dataclass(frozen=True, slots=True)
-class ScanNews:
-    """What a scan is compared with to say whether the next one has news (Engine.run): the
-    very objects the last scan with news gave. Slotted, not a named tuple: every quiet scan
-    reads its five fields (the printed frame), a named tuple's item is some 100
-    instructions on CPython 3.11, a slot's a few."""
-
-    report: FilterReport | None
-    status: PlantStatus
-    diagnosers: tuple[DiagnoserState, ...]
-    marks: int
-    recovery: Any
 
 
 MONITOR_POLICY_REFUSED = ("the monitor policy passes unsafe orders through to a real plant; "
@@ -191,18 +149,18 @@ class Engine:
                             if self.output_slots == tuple(range(first, first + len(
                                 self.output_slots))) else None)
         self.safe_vector = tuple(v.safe for v in project.outputs)
-        solver_args = (solver or project.solver, solver_budget or project.solver_budget)
+        solver_args = Solver(solver or project.solver, solver_budget or project.solver_budget)
         # The stages of the mode's program, built from their declarations in the scan's
         # order (hmi.engine.program_stages); the engine addresses the built-in ones
         # by their role where it needs that one.
         self.stages = build_stages(StageContext(project, lay, law, self.safe_vector,
                                                 solver_args, diagnosis, high_level))
         self.law = self.stages.need(LAW)  # 5 (and the GRAFCET's step times, 2)
-        # The GRAFCET when it has supervised steps (hmi.engine.grafcet: the deadline compared
-        # once per scan in run(), the overdue steps in the snapshot), else None.
-        self._supervised = (self.law.grafcet if self.law.grafcet is not None
-                            and self.law.grafcet.supervision else None)
-        self._overdue: tuple[str, ...] = ()  # the overdue steps the last scan told of
+        # The GRAFCET when it has supervised steps, else None: the commands say when its
+        # supervision is watched (_supervise); its stage watches it after a scan
+        # (program_stages.SUPERVISION).
+        supervision = self.stages.of(SUPERVISION)
+        self._supervised = supervision.grafcet if supervision is not None else None
         # The stages, in scan order (hmi.engine.stages).
         self.input_scan = InputScan(plant, lay, read_back=self.observe)  # 1
         self.memory = self.stages.need(MEMORY)  # 2 (and the GRAFCET's step times: control)
@@ -218,6 +176,13 @@ class Engine:
         # The stages added to the mode's program (each declares its own place)
         self.added = self.stages.added
         self._shows = any(d.shown is not None for d, _ in self.stages)  # (Snapshot.stages)
+        # What the stages give a scan with news and what a snapshot reads of them besides
+        # (their declarations' `news` and `fields`): Engine._conclude and Engine.snapshot
+        # walk them.
+        self._publishing = tuple((news.read, stage, news.reading, news.failed)
+                                 for news, stage in self.stages.publishing)
+        self._published_fields = tuple(news.field for news, _ in self.stages.publishing)
+        self._showing = self.stages.showing
         # The history is as deep as the deepest expression of any stage reads.
         depth = max((max_depth(expr) for expr in _all_exprs(project)), default=1)
         depth = max(depth, self.stages.depth, self.monitors.depth if self.monitors else 0)
@@ -257,7 +222,6 @@ class Engine:
         self._pending = False  # whether _record holds a scan whose snapshot is not built
         # (None: the next scan has news whatever it finds: none yet, or a command since)
         self._news: ScanNews | None = None
-        self._elapsed = self.memory.elapsed
         self._clean = self.filter_stage.clean  # each policy's report of a clean scan
         self.policy = self.policy  # (its clean report, now that the filter is there)
         self.wall_times = True
@@ -662,74 +626,59 @@ class Engine:
         return self._conclude(now, wall)
 
     def _conclude(self, now: int, wall: float = 0.0, taken: tuple[Any, ...] | None = None,
-                  raised: tuple[int, Exception] | None = None) -> bool:
+                  raised: Raised | None = None) -> bool:
         """What run() does after stages 1 to 8 (the scan's record filled): the supervision,
         what the scan left read for its snapshot, the history, whether the scan has news.
-        `taken`: the plant's events when they were taken already; `raised`: (1, exc) when
-        taking them raised exc, (2, exc) when reading the plant's status did, (3, exc) when
-        settling the monitors did (the printed frame took or read them,
-        hmi.engine.compiled)."""
+        `taken`: the plant's events when they were taken already; `raised`: the read the
+        printed frame made (settling the monitors, taking the plant's events or reading its
+        status: hmi.engine.compiled) that raised, handled here as if this one had."""
         record = self._record
         report, diagnosis, monitored, error = (record.report, record.diagnosis,
                                                record.monitored, record.error)
         image = self.image
-        # Step supervision: one comparison a scan. Past the deadline (a step's supervision
-        # time, or a firing: hmi.engine.grafcet) the overdue steps are found again, and a
-        # change of them is news, even on a scan that has no other (an alarm raised or
-        # cleared). Nothing to do without supervision.
-        supervised = self._supervised
-        if supervised is not None and now > supervised.deadline:
-            supervised.watch(now)
-            if supervised.overdue is not self._overdue:
-                self._overdue = supervised.overdue
-                self._news = None  # (news, as after a command)
-        stage = self.diagnosis
         plant = self.plant
+        history = self.history
         # What the scan left, read for its snapshot: each read outside the stages' own error
         # handling is guarded (free in Python 3.11 when nothing raises); one that fails
         # latches an internal error naming it and puts the outputs safe at once (_go_safe).
+        # First what each publishing stage gives (its declaration's `news`), before the
+        # scan's image joins the history.
         failed: str | None = None
-        diagnosers: tuple[DiagnoserState, ...] = ()
-        if stage is not None:  # (DiagnosisStage.publish: the records unless one is faulty)
+        given: list[Any] = []
+        for read, stage, reading, unread in self._publishing:
             try:
-                diagnosers = stage.publish(image, self.history) if stage.faulty else \
-                    stage.current.records
+                given.append(read(stage, image, history, now))
             except Exception as exc:
-                failed = self._failure("reading the diagnosers' states", exc)
+                failed = self._failure(reading, exc)
+                given.append(unread)
+        published = tuple(given)
         # The image as the scan left it: the snapshot's values and the history's newest
         # entry are one tuple (an image in the history is never changed).
         values = tuple(image)
-        self.history.appendleft(values)
+        history.appendleft(values)
         marks = 0
         monitors = self.monitors
         if monitors is not None:
             try:
-                if raised is not None and raised[0] == 3:
-                    raise raised[1]
+                if raised is not None and raised.part == SETTLING:
+                    raise raised.exc
                 marks = monitors.settle() if monitored else monitors.marks
             except Exception as exc:
-                failed = self._failure("settling the monitors", exc)
+                failed = self._failure(SETTLING, exc)
                 marks = monitors.marks
         try:
-            if raised is not None and raised[0] == 1:
-                raise raised[1]
+            if raised is not None and raised.part == EVENTS:
+                raise raised.exc
             events = plant.take_events() if taken is None else taken
         except Exception as exc:
-            failed = self._failure("reading the plant's events", exc)
+            failed = self._failure(EVENTS, exc)
             events = ()
-        rec = self.recovery
         try:
-            recovery = NO_RECOVERY if rec is None else (
-                rec._idle if rec.active is None and not rec.needed else rec.state(now))
-        except Exception as exc:
-            failed = self._failure("reading the recovery's state", exc)
-            recovery = NO_RECOVERY
-        try:
-            if raised is not None and raised[0] == 2:
-                raise raised[1]
+            if raised is not None and raised.part == STATUS:
+                raise raised.exc
             status = plant.status
         except Exception as exc:
-            failed = self._failure("reading the plant's status", exc)
+            failed = self._failure(STATUS, exc)
             status = self._status_unknown()
         if failed is not None or error is not None:
             if failed is not None:
@@ -741,27 +690,24 @@ class Engine:
         last = self._news
         # (a command since, a new policy included, makes this scan news and compares the
         # next with this one: _news None)
-        if (last is not None and report is last.report and status is last.status
-                and diagnosers is last.diagnosers and marks == last.marks
-                and recovery is last.recovery
-                and error is None and not events
-                and not self.latched and not diagnosis.masked
-                and not diagnosis.reconstructed and not self.manual):
-            news = False
-        else:
-            news = True
-            self._news = ScanNews(report, status, diagnosers, marks, recovery)
+        news = not (last is not None and report is last.report and status is last.status
+                    and marks == last.marks and error is None and not events
+                    and not self.latched and not diagnosis.masked
+                    and not diagnosis.reconstructed and not self.manual)
+        if not news:  # (and each stage gives the very object it gave then)
+            news = not all(map(is_, published, last.published))  # type: ignore[union-attr]
+        if news:
+            self._news = ScanNews(report, status, marks, published)
         record.values = values
-        record.diagnosers = diagnosers
+        record.published = published
         record.marks = marks
         record.events = events
-        record.recovery = recovery
-        record.scan_us = (time.perf_counter() - wall) * 1e6 if self.wall_times else 0.0
+        record.scan_us = (time.perf_counter() - wall) * 1e6 if self._wall_times else 0.0
         record.settled = False
         self._pending = True
         return news
 
-    def run_while_quiet(self, start: int, end: int, period: int) -> tuple[int, bool]:
+    def run_while_quiet(self, start: int, end: int, period: int) -> QuietRun:
         """Scans at `start`, `start + period`, ... up to `end` included, by :meth:`run`,
         stopping after the first that has news. Returns how many ran and whether the last
         had news. A headless run hands the engine a stretch of scans at once when nothing
@@ -772,11 +718,11 @@ class Engine:
         while now <= end:  # (the scans counted from the times: one addition a scan)
             if self._fast:  # (the printed frame, without run()'s call)
                 if frame(now):  # type: ignore[misc]
-                    return (now - start) // period + 1, True
+                    return QuietRun((now - start) // period + 1, True)
             elif run(now):
-                return (now - start) // period + 1, True
+                return QuietRun((now - start) // period + 1, True)
             now += period
-        return (now - start) // period, False
+        return QuietRun((now - start) // period, False)
 
     def snapshot(self) -> Snapshot:
         """The last scan's snapshot (:meth:`run`), built now if not yet: the engine's
@@ -788,8 +734,7 @@ class Engine:
         self._pending = False
         record = self._record
         plant = self.plant
-        policy = self.policy
-        grafcet = self.law.grafcet
+        policy = self._policy
         now = self.now
         # What the snapshot reads of the engine and the plant, each guarded as in run(): one
         # that raises latches an internal error naming it, is shown empty (the timers'
@@ -803,17 +748,17 @@ class Engine:
                 monitors = self.monitors.capture(now)
             except Exception as exc:
                 failed = self._failure("reading the monitors' states", exc)
-        active: tuple[str, ...] = ()
-        if grafcet is not None:
+        # What the stages gave the scan (their declarations' `news`) and what is read of
+        # them now (their `fields`), by the snapshot's field
+        shown = dict(zip(self._published_fields, record.published, strict=True))
+        image = self.image
+        for fields, stage in self._showing:
             try:
-                active = grafcet.active(self.image)
+                values = fields.read(stage, image, now)
             except Exception as exc:
-                failed = self._failure("reading the active steps", exc)
-        try:
-            elapsed = self._elapsed(now)
-        except Exception as exc:
-            failed = self._failure("computing the timers' elapsed times", exc)
-            elapsed = (0,) * len(self.layout.timers)
+                failed = self._failure(fields.reading, exc)
+                values = fields.failed(stage)
+            shown.update(zip(fields.fields, values, strict=True))
         try:
             status = plant.status
         except Exception as exc:
@@ -842,18 +787,17 @@ class Engine:
         snapshot = self.last = Snapshot(
             scan=self.scan, time_us=now, period_us=self._period, layout=self.layout,
             values=record.values, fov=tuple(record.fov), outputs=tuple(record.outputs),
-            active_steps=active, fired=grafcet.fired if grafcet is not None else (),
-            timer_elapsed=elapsed, control_name=self.control_name, mode=self.mode,
+            control_name=self.control_name, mode=self._mode,
             manual=tuple(sorted(self.manual.items())) if self.manual else (), policy=policy,
             latched=tuple(self.latched) if self.latched else (), plant=status,
             plant_state=state, plant_counters=counters, plant_events=record.events,
-            filter_report=record.report, diagnosers=record.diagnosers, monitors=monitors,
+            filter_report=record.report, monitors=monitors,
             reconstructed=diagnosis.reconstructed, masked=masked,
             stopped_devices=(tuple(sorted(self.stopped_devices)) if self.stopped_devices
                              else ()),
-            recovery=record.recovery, error=record.error, scan_wall_us=record.scan_us,
+            error=record.error, scan_wall_us=record.scan_us,
             filter_wall_us=record.filter_us, monitor_marks=record.marks,
-            overdue_steps=self._supervised.overdue if self._supervised is not None else ())
+            **shown)
         if self._shows:  # (the stages that show something: Snapshot.stages)
             snapshot = self.last = snapshot._replace(stages=self.stages.shown())
         return snapshot
@@ -953,7 +897,7 @@ class Engine:
                 mask = recovery.unmask(mask)
             if policy == "monitor":
                 policy = "correct"
-        timed = self.wall_times
+        timed = self._wall_times
         started = time.perf_counter() if timed else 0.0
         decision = filter_stage.apply(self.image, self.history, s.fov, policy,
                                       bool(self.latched), mask)
@@ -1021,23 +965,24 @@ class Engine:
         self._keep(safe, safe, None, diagnosis, monitored, error, 0.0)
 
     def _auto_filter(self, now: int, fov: tuple[bool, ...], diagnosis: Diagnosis,
-                     unquiet: object = None) -> tuple[tuple[bool, ...], FilterReport] | None:
+                     unquiet: object = None) -> FilterReport | None:
         """The automatic mode's filter when the candidate is masked, latched or violated
         (`unquiet`: the frame's test, the violation word when nothing is masked nor
         latched). Nothing masked nor latched, before the decision or by it: the decision's
-        outputs, in the image, and its report, which the printed frame writes, monitors and
-        concludes as it does a clean candidate's. Otherwise the output scan and the
-        monitors run here and the scan is kept (None: the frame concludes it)."""
+        report, its outputs in the image and the scan's record (ScanRecord.outputs), which
+        the printed frame writes, monitors and concludes as it does a clean candidate's.
+        Otherwise the output scan and the monitors run here and the scan is kept (None: the
+        frame concludes it)."""
         image = self.image
         mask = diagnosis.mask
         try:
             if mask is None and not self.latched:
                 # violated, nothing masked: what FilterStage.apply would hand the filter
                 word = unquiet if type(unquiet) is int else None
-                decision = self.safety_filter.apply(image, self.history, fov, self.policy,
+                decision = self.safety_filter.apply(image, self.history, fov, self._policy,
                                                     False, word)
             else:
-                decision = self.filter_stage.apply(image, self.history, fov, self.policy,
+                decision = self.filter_stage.apply(image, self.history, fov, self._policy,
                                                    bool(self.latched), mask)
             if decision.latch is not None:
                 self.latch_safe("filter", decision.latch)
@@ -1056,7 +1001,8 @@ class Engine:
             else:
                 for slot, value in zip(self.output_slots, outputs, strict=True):
                     image[slot] = value
-            return outputs, report
+            self._record.outputs = outputs
+            return report
         monitored, error = self._output_scan(now, outputs, None)
         self._keep(fov, outputs, report, diagnosis, monitored, error, 0.0)
         return None
@@ -1064,7 +1010,7 @@ class Engine:
     def _finish(self, now: int, fov: tuple[bool, ...], outputs: tuple[bool, ...],
                 report: FilterReport, diagnosis: Diagnosis, monitored: bool,
                 error: str | None, taken: tuple[Any, ...] | None = None,
-                raised: tuple[int, Exception] | None = None) -> bool:
+                raised: Raised | None = None) -> bool:
         """An automatic-mode scan filtered, written and monitored, kept and concluded (the
         printed frame's way out when the rest is not a quiet scan's: _conclude's `taken`
         and `raised`)."""
@@ -1137,7 +1083,7 @@ class Engine:
         """The outputs the diagnosers' mask holds at 0 (a running recovery lifts it from the
         outputs it drives)."""
         recovery = self.recovery
-        if self.mode != "recovery" or recovery is None or recovery.active is None:
+        if self._mode != "recovery" or recovery is None or recovery.active is None:
             return diagnosis.masked
         driven = recovery.active.spec.outputs
         return tuple(o for o in diagnosis.masked if o not in driven)

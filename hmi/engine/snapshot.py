@@ -49,8 +49,17 @@ INTERNAL_PARTS = (
     "reading the diagnosers' states", "settling the monitors", "reading the plant's events",
     "reading the recovery's state", "reading the plant's status", "reading the monitors' states",
     "reading the active steps", "computing the timers' elapsed times",
+    "watching the steps' supervision times",
     "reading the plant's state", "reading the plant's counters", "reading the masked outputs",
     "writing the outputs to the plant", "writing the safe outputs to the plant")
+
+
+class StageState(NamedTuple):
+    """What a stage shows in a snapshot (Snapshot.stages): its role and its state, a plain
+    scalar (hmi.engine.program_stages, a declaration's `shown`)."""
+
+    role: str
+    state: Any
 
 
 class _Fields(NamedTuple):
@@ -95,7 +104,7 @@ class _Fields(NamedTuple):
     overdue_steps: tuple[str, ...] = ()
     # What each stage that shows something shows (hmi.engine.program_stages, a declaration's
     # `shown`), by role: an added stage's state at the end of the scan.
-    stages: tuple[tuple[str, Any], ...] = ()
+    stages: tuple[StageState, ...] = ()
 
 
 class Snapshot(_Fields):

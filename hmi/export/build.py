@@ -17,6 +17,7 @@ One task at the project's scan period runs the program.
 
 from __future__ import annotations
 
+from hmi.engine.filter import Solver
 from hmi.engine.layout import Layout
 from hmi.engine.monitors import monitor_stage
 from hmi.engine.program_stages import StageContext, build_stages
@@ -62,7 +63,8 @@ def build(project: Project, control: str | None = None) -> m.PlcProject:
     context = ExportContext(project, layout, g, prefix, pous, durations)
     stages = build_stages(StageContext(project, layout, law,
                                        tuple(v.safe for v in project.outputs),
-                                       (project.solver, project.solver_budget)), exported())
+                                       Solver(project.solver, project.solver_budget)),
+                          exported())
     calls = [(d, called) for d, s in stages
              if (called := stage_calls(d, s, context)) is not None]
     blocks = Blocks(filter=build_filter(project, names["filter"], pous, bound),

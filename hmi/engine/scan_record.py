@@ -1,0 +1,94 @@
+"""The last scan's results, and what the next scan's news is judged against (Engine.run).
+
+Both are read and written by the engine (hmi.engine.scan) and by its printed frame
+(hmi.engine.compiled.auto_frame), which writes the record's fields and reads the news':
+they live here, below both.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+from hmi.engine.diagnoser import NO_DIAGNOSIS, Diagnosis
+from hmi.engine.filter import FilterReport
+from hmi.plant.base import PlantStatus
+
+
+class Raised(NamedTuple):
+    """A read the printed frame made for the scan's conclusion raised (Engine._conclude,
+    which latches it as its own would have): which, in plain words (one of SETTLING, EVENTS,
+    STATUS, in snapshot.INTERNAL_PARTS), and what."""
+
+    part: str
+    exc: Exception
+
+
+SETTLING = "settling the monitors"
+EVENTS = "reading the plant's events"
+STATUS = "reading the plant's status"
+
+
+class QuietRun(NamedTuple):
+    """What Engine.run_while_quiet ran: how many scans, and whether the last had news."""
+
+    scans: int
+    news: bool
+
+
+class ScanRecord:
+    """The last scan's results, from stages 1 to 8 (Engine._cycle) and what Engine.run read
+    after them, until Engine.snapshot builds them into a Snapshot. One per engine, filled in
+    place by every scan: a record built per scan (a NamedTuple, by its constructor or by
+    tuple.__new__) cost 1,400 to 3,500 instructions a scan more than the positional tuples
+    it replaced (python -m hmi.bench.instructions), slot stores about as much as a tuple."""
+
+    __slots__ = (
+        "diagnosis",
+        "error",
+        "events",
+        "filter_us",
+        "fov",
+        "marks",
+        "monitored",
+        "outputs",
+        "published",
+        "report",
+        "scan_us",
+        "settled",
+        "values",
+    )
+
+    def __init__(self) -> None:
+        self.fov: tuple[bool, ...] = ()  # the functional output vector (stage 5)
+        self.outputs: tuple[bool, ...] = ()  # what was written (stage 7)
+        self.report: FilterReport | None = None  # the filter's (None: not reached)
+        self.diagnosis: Diagnosis = NO_DIAGNOSIS  # routes, mask and records (stage 3)
+        self.monitored = False  # whether the monitors ran (stage 8)
+        self.error: str | None = None  # an internal error of the scan, latched
+        self.filter_us = 0.0  # the filter's wall time (0.0 unless Engine.wall_times)
+        self.values: tuple[Any, ...] = ()  # the image as the scan left it (history[0])
+        # what each publishing stage gave (Engine.stages.publishing, in its order)
+        self.published: tuple[Any, ...] = ()
+        self.marks = 0  # the monitors' marks (Snapshot.monitor_marks)
+        self.events: tuple[Any, ...] = ()  # the plant's events
+        self.scan_us = 0.0  # the scan's wall time
+        # Every field but fov, outputs and values is a quiet scan's (the printed frame, at a
+        # quiet scan after a quiet one, writes only those three: hmi.engine.compiled)
+        self.settled = False
+
+
+@dataclass(frozen=True, slots=True)
+class ScanNews:
+    """What a scan is compared with to say whether the next one has news (Engine.run): the
+    very objects the last scan with news gave: its filter report, the plant's status, the
+    monitors' marks, and what each publishing stage gave (Engine.stages.publishing, in its
+    order). Slotted, not a tuple of our own class: the printed frame reads its fields at
+    every quiet scan (hmi.engine.compiled), and on CPython 3.11 an item of a tuple subclass
+    is a generic subscript (some 100 instructions), a slot's field and an item of a plain
+    tuple a few; built at the scans with news only."""
+
+    report: FilterReport | None
+    status: PlantStatus
+    marks: int
+    published: tuple[Any, ...]
