@@ -68,3 +68,35 @@ def test_a_replaced_take_events_is_asked_at_every_scan():
     engine = Engine(project, plant)
     plant.read_into(0, engine.image, engine._bindings)
     assert plant.write_vector(0, engine.output_scan.names, (False, False)) is False
+
+
+def test_a_read_replaced_on_one_plant_is_read_through_until_it_is_given_back():
+    """SimPlant.read set on the plant (a test's lost link, mid-run), then given back as
+    monkeypatch's undo does (its own bound method again) or deleted: read_into reads
+    through the replacement exactly while it is set, and another plant is not touched."""
+    project = load("cispi_valve")
+    plant, other = SimPlant(project), SimPlant(project)
+    engine = Engine(project, plant)
+    image, bindings = engine.image, engine._bindings
+    plant.read_into(0, image, bindings)  # (the read plan made: the fast path from here)
+    own = plant.read
+    asked: list[int] = []
+
+    def lost(now_us: int) -> dict[str, bool]:
+        asked.append(now_us)
+        return dict.fromkeys(plant.input_names, True)
+
+    plant.read = lost  # type: ignore[method-assign]
+    plant.read_into(10_000, image, bindings)
+    assert asked == [10_000]
+    assert all(image[slot] for _, slot in bindings)
+    assert other.read is not lost and other._read_replaced is None
+    plant.read = own  # type: ignore[method-assign]  # (monkeypatch's undo)
+    plant.read_into(20_000, image, bindings)
+    assert asked == [10_000] and plant._read_replaced is None
+    assert image[bindings[0][1]] == plant.read(20_000)[bindings[0][0]]
+    plant.read = lost  # type: ignore[method-assign]
+    del plant.read
+    plant.read_into(30_000, image, bindings)
+    assert asked == [10_000]
+    assert SimPlant.read is type(plant).read  # (the class's own: the read plan's test)

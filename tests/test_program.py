@@ -6,6 +6,7 @@ same image and the same state at every step, and the rule's own truth table."""
 from __future__ import annotations
 
 import itertools
+import operator
 from collections.abc import Callable
 
 import pytest
@@ -305,3 +306,70 @@ def test_a_word_of_bits_printed_grouped_is_the_same_word(terms):
         want = sum(1 << j for j, term in enumerate(terms)
                    if all(f_values[k] == p for k, p in term))
         assert [form(f_values) for form in forms] == [want, want]
+
+
+class _Task:
+    """A monitor's automaton as the printed code sees it: its phase, compared by identity."""
+
+    def __init__(self, phase: object) -> None:
+        self.phase = phase
+
+
+@pytest.mark.parametrize("read_after", [False, True])
+@pytest.mark.parametrize("idle", [False, True])
+def test_a_cell_tested_by_identity_is_printed_without_its_local_where_nothing_reads_it(
+        idle, read_after):
+    """``p = cell; if p is x: A else: B`` (a monitor's phase test) is printed as ``if cell
+    is x: A else: p = cell; B`` when nothing after reads p, as it is otherwise; both print
+    what the evaluator does."""
+    from hmi.engine.codegen import Vocabulary, allow, build_function
+    from hmi.program import ir
+    from hmi.program.evaluate import function_evaluator
+
+    allow(Vocabulary(frozenset({"phase"}), frozenset({"p"})))
+    waiting, working = object(), object()
+    results, texts = [], []
+    for form in ("evaluator", "python"):
+        handler, task = _Handler(), _Task(waiting if idle else working)
+        p = ir.Local("p")
+        body = (ir.Assign(p, ir.Cell(task, "phase")),
+                ir.If(ir.Compare("is", p, ir.Ref(waiting)),
+                      (ir.Do(ir.Call(handler, "take", (ir.Const(1),))),),
+                      (ir.Do(ir.Call(handler, "take", (p,))),)),
+                *((ir.Do(ir.Call(handler, "take", (p,))),) if read_after else ()))
+        function = ir.Function("frame", ("x",), body)
+        if form == "evaluator":
+            run = function_evaluator(function, {}, {})
+        else:
+            run = build_function(function, {}, {}, "test_program")
+            texts.append(run.__doc__ or "")
+        run(0)
+        results.append([s if isinstance(s, int) else s is working for s in handler.seen])
+    assert results[0] == results[1] == ([1] if idle else [True]) + (
+        [idle is False] if read_after else [])
+    lines = texts[0].splitlines()
+    assert (lines[1].strip() == "p = k0.phase") is read_after, texts[0]
+    assert ("if k0.phase is k1:" in texts[0]) is not read_after, texts[0]
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(-10**7, 10**7), st.integers(-10**7, 10**7), st.integers(0, 10**7),
+       st.integers(0, 10**7), st.sampled_from(["<", "<=", ">", ">=", "==", "!="]))
+def test_a_sum_with_a_difference_against_a_constant_is_printed_folded(a, b, c1, c2, op):
+    """``a + (c1 - b) op c2`` (a monitor's cannot-finish rule) is printed ``(a - b) op
+    c2 - c1`` (unless that constant is negative: printed code holds none): the same truth as
+    the evaluator's, on any integers."""
+    from hmi.engine.codegen import Vocabulary, allow, build_function
+    from hmi.program import ir
+    from hmi.program.evaluate import function_evaluator
+
+    allow(Vocabulary(locals=frozenset({"x", "y"})))
+    x, y = ir.Local("x"), ir.Local("y")
+    test = ir.Compare(op, ir.Add(x, ir.Sub(ir.Const(c1), y)), ir.Const(c2))
+    function = ir.Function("frame", ("x", "y"), (), test)
+    printed = build_function(function, {}, {}, "test_program")
+    folded = f"(x - y) {op} {c2 - c1}" in (printed.__doc__ or "")
+    assert folded is (c2 >= c1)
+    expected = {"<": operator.lt, "<=": operator.le, ">": operator.gt, ">=": operator.ge,
+                "==": operator.eq, "!=": operator.ne}[op](a + (c1 - b), c2)
+    assert printed(a, b) == function_evaluator(function, {}, {})(a, b) == expected

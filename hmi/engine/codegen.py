@@ -94,11 +94,48 @@ def build_function(function: ir.Function, slots: Mapping[str, int],
     """`function` printed as Python and built (:func:`build`)."""
     src = Source()
     if function.body:
-        print_program(src, function.body, 1, slots, times)
+        print_program(src, _cell_tests(function.body, function.result), 1, slots, times)
     if function.result is not None:
         src.line(1, f"return {_value_source(src, function.result, slots, times)}")
     return build(src, function.name, ", ".join(function.params),
                  f"<plchmi compiled {function.name}: {label}>")
+
+
+def _cell_tests(body: tuple[ir.Stmt, ...], result: ir.Value | None) -> tuple[ir.Stmt, ...]:
+    """`body` (a function's, returning `result`) with each ``p = cell`` followed by ``if p
+    is x: A else: B``, where neither x nor A reads p and nothing after reads it before
+    setting it again, printed as ``if cell is x: A else: p = cell; B``: a monitor's test of
+    its phase (hmi.program.monitors), whose idle branch most scans of most monitors take,
+    without the local (two bytecodes a monitor). The cell is read where the local was
+    used, nothing running in between: the same value."""
+    out: list[ir.Stmt] = []
+    at = 0
+    while at < len(body):
+        stmt, test = body[at], body[at + 1] if at + 1 < len(body) else None
+        if (isinstance(stmt, ir.Assign) and isinstance(stmt.target, ir.Local)
+                and isinstance(stmt.value, ir.Cell) and isinstance(test, ir.If)
+                and isinstance(test.test, ir.Compare) and test.test.op == "is"
+                and test.test.left == stmt.target
+                and not _mentions((test.test.right, test.then), stmt.target)
+                and not _read_later(body[at + 2:], result, stmt.target)):
+            out.append(ir.If(ir.Compare("is", stmt.value, test.test.right), test.then,
+                             (stmt, *test.orelse)))
+            at += 2
+            continue
+        out.append(stmt)
+        at += 1
+    return tuple(out)
+
+
+def _read_later(rest: tuple[ir.Stmt, ...], result: ir.Value | None, local: ir.Local) -> bool:
+    """Whether `local` may be read by `rest` or `result` before `rest` sets it again."""
+    for stmt in rest:
+        if (isinstance(stmt, ir.Assign) and stmt.target == local
+                and not _mentions(stmt.value, local)):
+            return False
+        if _mentions(stmt, local):
+            return True
+    return result is not None and _mentions(result, local)
 
 
 def print_program(src: Source, program: tuple[ir.Stmt, ...], indent: int,
@@ -277,6 +314,8 @@ def _value_source(src: Source, value: ir.Value, slots: Mapping[str, int],
             return src.ref(obj)
         case ir.Item(base=base, index=index):
             return f"{_operand_source(src, base, slots, times)}[{int(index)}]"
+        case ir.Field(base=base, name=name):
+            return f"{_operand_source(src, base, slots, times)}.{name}"
         case ir.Tuple(items=items):
             return "(" + "".join(f"{_value_source(src, i, slots, times)}, " for i in items) + ")"
         case ir.Bits(value=bits):
@@ -295,6 +334,7 @@ def _value_source(src: Source, value: ir.Value, slots: Mapping[str, int],
         case ir.Compare(op=op, left=left, right=right):
             if op not in ir.COMPARISONS:
                 raise ValueError(f"not a comparison of the scan program: {op!r}")
+            left, right = _folded(left, right)
             return (f"{_operand_source(src, left, slots, times)} {op} "
                     f"{_operand_source(src, right, slots, times)}")
         case ir.IsNone(operand=operand):
@@ -304,6 +344,9 @@ def _value_source(src: Source, value: ir.Value, slots: Mapping[str, int],
         case ir.And(operands=operands) | ir.Or(operands=operands):
             word = " and " if isinstance(value, ir.And) else " or "
             return "(" + word.join(_value_source(src, o, slots, times) for o in operands) + ")"
+        case ir.Apply(function=function, args=args):
+            return (f"{_operand_source(src, function, slots, times)}("
+                    + ", ".join(_value_source(src, a, slots, times) for a in args) + ")")
         case ir.Call(owner=owner, method="__call__", args=args):
             return (f"{src.ref(owner)}("
                     + ", ".join(_value_source(src, a, slots, times) for a in args) + ")")
@@ -313,6 +356,25 @@ def _value_source(src: Source, value: ir.Value, slots: Mapping[str, int],
     raise TypeError(f"not a value of the scan program: {value!r}")
 
 
+def _folded(left: ir.Value, right: ir.Value) -> tuple[ir.Value, ir.Value]:
+    """A comparison's sides with ``a + (c1 - b)`` against a constant c2 (a monitor's
+    cannot-finish rule: x + (alpha - y) >= gamma) as ``a - b`` against c2 - c1 when that is
+    not negative: the same truth on Python's integers, one subtraction and one new integer
+    (an allocation) fewer."""
+    if (isinstance(left, ir.Add) and isinstance(left.right, ir.Sub)
+            and isinstance(left.right.left, ir.Const) and isinstance(right, ir.Const)
+            and _integer(left.right.left.value) and _integer(right.value)):
+        c1, c2 = left.right.left.value, right.value
+        assert isinstance(c1, int) and isinstance(c2, int)
+        if c2 >= c1:  # (printed code holds no negative constant: its vocabulary)
+            return ir.Sub(left.left, left.right.right), ir.Const(c2 - c1)
+    return left, right
+
+
+def _integer(value: object) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
 def _pure(value: ir.Value) -> bool:
     """Whether reading `value` only reads (no call): its parts may be read in another order,
     or once for several places, without changing what anything sees."""
@@ -320,7 +382,7 @@ def _pure(value: ir.Value) -> bool:
         case ir.Test() | ir.Now() | ir.ScanNumber() | ir.Const() | ir.Local() | ir.Slot() \
                 | ir.Ref() | ir.Bit():
             return True
-        case ir.Item(base=base):
+        case ir.Item(base=base) | ir.Field(base=base):
             return _pure(base)
         case ir.Not(operand=operand) | ir.IsNone(operand=operand):
             return _pure(operand)

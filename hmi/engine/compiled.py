@@ -45,7 +45,7 @@ from typing import TYPE_CHECKING, Any
 from hmi.engine.codegen import Vocabulary, allow, build_function
 from hmi.engine.diagnoser import NO_DIAGNOSIS
 from hmi.engine.program_stages import AddedStage, program_order
-from hmi.engine.scan_record import EVENTS, SETTLING, STATUS, Raised, ScanNews
+from hmi.engine.scan_record import EVENTS, SETTLING, STATUS, Raised
 from hmi.logic.expr import History, Image
 from hmi.plant.base import PlantError
 from hmi.program import ir, order
@@ -222,9 +222,10 @@ FRAME = Vocabulary(
                "active", "_idle", "marks", "appendleft", "fov", "outputs", "report",
                "diagnosis", "monitored", "error", "filter_us", "values", "diagnosers",
                "events", "published", "scan_us", "settled", "manual", "current",
-               "settle", "needed"}),
+               "settle", "needed", "mask", "reconstructed", "records"}),
     frozenset({"exc", "diag", "report", "error", "monitored", "marks", "events", "status",
-               "last", "values", "w", "none_waiting", "out"}))
+               "last", "values", "w", "none_waiting", "out", "run_core", "run_violated",
+               "run_monitors"}))
 
 
 def auto_frame(engine: Any) -> ir.Function:
@@ -247,6 +248,9 @@ def auto_frame(engine: Any) -> ir.Function:
     out = ir.Local("out")
     calm = ir.Local("none_waiting")
     monitored, exc, unquiet = ir.Local("monitored"), ir.Local("exc"), ir.Local("w")
+    # (the compiled scan's functions, read at each scan: whoever replaces one is called)
+    core, violated, monitor = (ir.Local(n) for n in ("run_core", "run_violated",
+                                                      "run_monitors"))
     stage, monitors = engine.diagnosis, engine.monitors
     record = engine._record
 
@@ -280,7 +284,8 @@ def auto_frame(engine: Any) -> ir.Function:
              (Exception, "exc", conclude(ir.Do(call(e, "_auto_failed", now, exc, diag)))))))
 
     def program() -> None:  # 2-5, the mode's program
-        guarded.append(ir.Assign(f, call(scan_program, "core", image, history, now, scan)))
+        guarded.append(ir.Assign(core, cell(scan_program, "core")))
+        guarded.append(ir.Assign(f, ir.Apply(core, (image, history, now, scan))))
         if stage is not None:
             guarded.append(ir.Assign(diag, cell(stage, "current")))
 
@@ -288,9 +293,10 @@ def auto_frame(engine: Any) -> ir.Function:
         # masked, latched, or else the violation word: not quiet unless 0 (the filter is
         # handed the word, which it does not compute again, when nothing is masked nor
         # latched)
+        guarded.append(ir.Assign(violated, cell(scan_program, "violated")))
         guarded.append(ir.Assign(unquiet, ir.Or((
-            ir.Not(ir.IsNone(ir.Item(diag, 1))), cell(e, "latched"),
-            call(scan_program, "violated", image, history, f)))))
+            ir.Not(ir.IsNone(ir.Field(diag, "mask"))), cell(e, "latched"),
+            ir.Apply(violated, (image, history, f))))))
         body.append(ir.Try(tuple(guarded), ((Exception, "exc", conclude(
             ir.Do(call(e, "_auto_failed", now, exc, diag)))),)))
         # the filter's decision when it is not the candidate (what it writes: `out`); it
@@ -316,7 +322,8 @@ def auto_frame(engine: Any) -> ir.Function:
             return
         body.extend((
             ir.Assign(monitored, ir.TRUE),
-            ir.Try((ir.Do(call(scan_program, "monitors", image, history, now, scan)),),
+            ir.Try((ir.Assign(monitor, cell(scan_program, "monitors")),
+                    ir.Do(ir.Apply(monitor, (image, history, now, scan)))),
                    ((Exception, "exc", (ir.Assign(monitored, ir.FALSE),
                                         ir.Assign(error, call(e, "_monitors_error", now, error,
                                                               exc)))),))))
@@ -358,18 +365,19 @@ def auto_frame(engine: Any) -> ir.Function:
                                                    monitored, error, events,
                                                    raised(STATUS))),)),)),
     ]
-    # news: as Engine._conclude judges it (ScanNews by position)
+    # news: as Engine._conclude judges it (ScanNews: its fields, each stage's by position)
     last = ir.Local("last")
     body += [
         ir.Assign(last, cell(e, "_news")),
-        ir.If(ir.Or((ir.IsNone(last), ir.Item(diag, 3),
+        ir.If(ir.Or((ir.IsNone(last), ir.Field(diag, "reconstructed"),
                      cell(e, "manual"))), (taken,)),
         ir.If(ir.Not(ir.And((
-            ir.Compare("is", report, ir.Item(last, 0)),
-            ir.Compare("is", status, ir.Item(last, 1)),
-            *((ir.Compare("==", marks, ir.Item(last, 2)),) if monitors is not None else ()),
-            *(ir.Compare("is", given, ir.Item(last, k))
-              for k, (_, given) in enumerate(quiet, ScanNews.PUBLISHED)
+            ir.Compare("is", report, ir.Field(last, "report")),
+            ir.Compare("is", status, ir.Field(last, "status")),
+            *((ir.Compare("==", marks, ir.Field(last, "marks")),) if monitors is not None
+              else ()),
+            *(ir.Compare("is", given, ir.Item(ir.Field(last, "published"), k))
+              for k, (_, given) in enumerate(quiet)
               if given is not None)))), (taken,)),
         # a quiet scan: the image into the history, the record
         ir.Assign(values, call(tuple, "__call__", image)),
@@ -379,9 +387,9 @@ def auto_frame(engine: Any) -> ir.Function:
     fields: tuple[tuple[str, ir.Value], ...] = (
         ("report", report), ("diagnosis", diag), ("monitored", monitored),
         ("error", ir.NONE), ("filter_us", zero),
-        ("published", ir.Tuple(tuple(ir.Item(last, k) if given is None else given
-                                     for k, (_, given) in enumerate(quiet,
-                                                                    ScanNews.PUBLISHED)))),
+        ("published", ir.Tuple(tuple(ir.Item(ir.Field(last, "published"), k)
+                                     if given is None else given
+                                     for k, (_, given) in enumerate(quiet)))),
         ("marks", marks), ("events", ir.Const(())), ("scan_us", zero))
     moving = (ir.Assign(cell(record, "fov"), f), ir.Assign(cell(record, "outputs"), out),
               ir.Assign(cell(record, "values"), values))

@@ -44,7 +44,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
-from typing import Any, NamedTuple, overload
+from typing import Any, overload
 
 from hmi.engine.codegen import Vocabulary
 from hmi.engine.layout import Layout
@@ -304,9 +304,11 @@ class _Shifted(Sequence[Image]):
         return self.image if k == 0 else self.hist[k - 1]
 
 
-class Diagnosis(NamedTuple):
+@dataclass(frozen=True, slots=True)
+class Diagnosis:
     """What stage 3 decided, for stages 4 and 6 and the snapshot. The stage keeps returning
-    the same object while no diagnoser changes state."""
+    the same object while no diagnoser changes state. Slotted, not a named tuple: the
+    printed frame reads three of its fields at every scan (ScanNews says why)."""
 
     routes: tuple[tuple[int, int], ...]  # filtered slot <- sensor or estimate slot
     mask: tuple[bool, ...] | None  # per output: forced to 0 (ftc only); None: nothing masked

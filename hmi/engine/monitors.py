@@ -99,9 +99,12 @@ class MonitorStage:
         self.automata = [TaskAutomaton(Window(s.alpha_us, s.beta_us, s.gamma_us))
                          for s in specs]
         # Per task: its base (see the class docstring) and whether TaskAutomaton.step ran on
-        # it since the base was taken (then the base is taken again).
+        # it since the base was taken (then the base is taken again). A bytearray of 0 and 1,
+        # not a list of bools: settle asks at every scan whether any is set, and ``True in``
+        # a bytearray is one memchr where a list compares its items one by one (some 70
+        # instructions each).
         self._bases: list[Base | None] = [None] * len(specs)
-        self.dirty = [True] * len(specs)
+        self.dirty = bytearray([True] * len(specs))
         self.marks = 0  # the automata's changes, summed when a base is taken again
         # The bases, and the states when no task runs (None: built per scan, lazily).
         self._capture: tuple[tuple[Base, ...], tuple[MonitorState, ...] | None] | None = None

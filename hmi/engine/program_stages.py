@@ -207,7 +207,7 @@ def _diagnosers(stage: DiagnosisStage, image: Image, history: History, now: int)
 def _diagnosers_quiet(stage: DiagnosisStage, diagnosis: ir.Value
                       ) -> tuple[ir.Value | None, ir.Value | None]:
     # faulty: DiagnosisStage.publish previews what a fault reset would do (Diagnosis.records)
-    return ir.Cell(stage, "faulty"), ir.Item(diagnosis, 2)
+    return ir.Cell(stage, "faulty"), ir.Field(diagnosis, "records")
 
 
 class Supervision:

@@ -142,6 +142,12 @@ class Engine:
         self.layout = Layout.build(project, law, extra=layout_names(project))
         lay = self.layout
         self.output_slots = lay.indices(lay.outputs)
+        # the outputs' slots as one slice when they follow each other (every example
+        # project's): a vector of as many outputs goes into the image at once, not one by one
+        first = self.output_slots[0] if self.output_slots else 0
+        self._outputs_at = (slice(first, first + len(self.output_slots))
+                            if self.output_slots == tuple(range(first, first + len(
+                                self.output_slots))) else None)
         self.safe_vector = tuple(v.safe for v in project.outputs)
         solver_args = Solver(solver or project.solver, solver_budget or project.solver_budget)
         # The stages of the mode's program, built from their declarations in the scan's
@@ -684,14 +690,14 @@ class Engine:
         last = self._news
         # (a command since, a new policy included, makes this scan news and compares the
         # next with this one: _news None)
-        news = not (last is not None and report is last[0] and status is last[1]
-                    and marks == last[2] and error is None and not events
+        news = not (last is not None and report is last.report and status is last.status
+                    and marks == last.marks and error is None and not events
                     and not self.latched and not diagnosis.masked
                     and not diagnosis.reconstructed and not self.manual)
         if not news:  # (and each stage gives the very object it gave then)
-            news = not all(map(is_, published, last[ScanNews.PUBLISHED:]))  # type: ignore[index]
+            news = not all(map(is_, published, last.published))  # type: ignore[union-attr]
         if news:
-            self._news = ScanNews((report, status, marks, *published))
+            self._news = ScanNews(report, status, marks, published)
         record.values = values
         record.published = published
         record.marks = marks
@@ -914,8 +920,12 @@ class Engine:
         rather than called: it runs at every scan."""
         image = self.image
         outputs = s.outputs
-        for slot, value in zip(self.output_slots, outputs, strict=True):
-            image[slot] = value
+        at = self._outputs_at
+        if at is not None and len(outputs) == len(self.output_slots):
+            image[at] = outputs
+        else:
+            for slot, value in zip(self.output_slots, outputs, strict=True):
+                image[slot] = value
         if not self.observe:
             try:
                 self.plant.write_vector(now, self.output_scan.names, outputs)
@@ -984,8 +994,13 @@ class Engine:
             self._auto_failed(now, exc, diagnosis)
             return None
         if mask is None and not self.latched:
-            for slot, value in zip(self.output_slots, outputs, strict=True):
-                image[slot] = value  # (the output scan's first half: _scan_outputs)
+            # (the output scan's first half: _scan_outputs)
+            at = self._outputs_at
+            if at is not None and len(outputs) == len(self.output_slots):
+                image[at] = outputs
+            else:
+                for slot, value in zip(self.output_slots, outputs, strict=True):
+                    image[slot] = value
             self._record.outputs = outputs
             return report
         monitored, error = self._output_scan(now, outputs, None)

@@ -1,12 +1,13 @@
 """The last scan's results, and what the next scan's news is judged against (Engine.run).
 
 Both are read and written by the engine (hmi.engine.scan) and by its printed frame
-(hmi.engine.compiled.auto_frame), which writes the record's fields and reads the news by
-position: they live here, below both.
+(hmi.engine.compiled.auto_frame), which writes the record's fields and reads the news':
+they live here, below both.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 from hmi.engine.diagnoser import NO_DIAGNOSIS, Diagnosis
@@ -77,30 +78,17 @@ class ScanRecord:
         self.settled = False
 
 
-class ScanNews(tuple[Any, ...]):
+@dataclass(frozen=True, slots=True)
+class ScanNews:
     """What a scan is compared with to say whether the next one has news (Engine.run): the
     very objects the last scan with news gave: its filter report, the plant's status, the
-    monitors' marks, then what each publishing stage gave (Engine.stages.publishing). One
-    flat tuple, as the printed frame reads it by position (hmi.engine.compiled: an item of
-    a tuple is two bytecodes, an item of an item four), built as one:
-    ``ScanNews((report, status, marks, *published))`` (a constructor of its own would be one
-    more Python call at every scan with news)."""
+    monitors' marks, and what each publishing stage gave (Engine.stages.publishing, in its
+    order). Slotted, not a tuple of our own class: the printed frame reads its fields at
+    every quiet scan (hmi.engine.compiled), and on CPython 3.11 an item of a tuple subclass
+    is a generic subscript (some 100 instructions), a slot's field and an item of a plain
+    tuple a few; built at the scans with news only."""
 
-    __slots__ = ()
-    PUBLISHED = 3  # the position of the first stage's
-
-    @property
-    def report(self) -> FilterReport | None:
-        return self[0]  # type: ignore[no-any-return]
-
-    @property
-    def status(self) -> PlantStatus:
-        return self[1]  # type: ignore[no-any-return]
-
-    @property
-    def marks(self) -> int:
-        return self[2]  # type: ignore[no-any-return]
-
-    @property
-    def published(self) -> tuple[Any, ...]:
-        return self[self.PUBLISHED:]
+    report: FilterReport | None
+    status: PlantStatus
+    marks: int
+    published: tuple[Any, ...]

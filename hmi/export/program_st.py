@@ -176,7 +176,7 @@ class StPrinter:
                 while branches and not branches[-1][1] and not last:
                     branches.pop()
                 return [*before, m.If(tuple(branches), last)] if branches else before
-        if isinstance(stmt, ir.Do):
+        if isinstance(stmt, ir.Do) and isinstance(stmt.call, ir.Call):
             return self._call(stmt.call)
         if isinstance(stmt, ir.Switch):
             selector, kind = self.value(stmt.value)

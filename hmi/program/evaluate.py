@@ -15,6 +15,7 @@ from hmi.logic.expr import History, Image, compile_bool
 from hmi.program.ir import (
     Add,
     And,
+    Apply,
     Assign,
     Bit,
     BitOr,
@@ -24,6 +25,7 @@ from hmi.program.ir import (
     Compare,
     Const,
     Do,
+    Field,
     Function,
     If,
     IsNone,
@@ -228,6 +230,9 @@ def _value(value: Value, slots: Mapping[str, int], times: Mapping[str, int]) -> 
         case Item(base=base, index=index):
             b = _value(base, slots, times)
             return lambda v, h, now, scan, env: b(v, h, now, scan, env)[index]
+        case Field(base=base, name=name):
+            r = _value(base, slots, times)
+            return lambda v, h, now, scan, env: getattr(r(v, h, now, scan, env), name)
         case Tuple(items=items):
             fns = [_value(i, slots, times) for i in items]
             return lambda v, h, now, scan, env: tuple([fn(v, h, now, scan, env) for fn in fns])
@@ -268,6 +273,11 @@ def _value(value: Value, slots: Mapping[str, int], times: Mapping[str, int]) -> 
             fns = [_value(a, slots, times) for a in args]
             # (looked up at each call, as the printed form does)
             return lambda v, h, now, scan, env: getattr(owner, method)(
+                *[fn(v, h, now, scan, env) for fn in fns])
+        case Apply(function=function, args=args):
+            held = _value(function, slots, times)
+            fns = [_value(a, slots, times) for a in args]
+            return lambda v, h, now, scan, env: held(v, h, now, scan, env)(
                 *[fn(v, h, now, scan, env) for fn in fns])
     raise TypeError(f"not a value of the scan program: {value!r}")
 

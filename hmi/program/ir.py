@@ -103,6 +103,16 @@ class Item:
 
 
 @dataclass(frozen=True)
+class Field:
+    """``base.name``: a field of a record (hmi.engine.compiled's frame reads its own
+    records', a diagnosis's or the last news'; a slotted record's field is read as fast as a
+    tuple's item, a named tuple's item on CPython 3.11 several times slower)."""
+
+    base: Value
+    name: str
+
+
+@dataclass(frozen=True)
 class Tuple:
     """A tuple of values (a vector of outputs)."""
 
@@ -191,9 +201,20 @@ class Call:
     args: tuple[Value, ...] = ()
 
 
+@dataclass(frozen=True)
+class Apply:
+    """The function `function` holds (a local the frame read from a cell: the compiled
+    scan's ``core``, whoever replaces it) called with `args`. Why not a Call of the cell's
+    owner: CPython 3.11 looks up an object's attribute that is not a method the slow way
+    at every call (some 100 instructions), a local's function it calls straight."""
+
+    function: Value
+    args: tuple[Value, ...] = ()
+
+
 Value = (Test | Now | ScanNumber | TheImage | TheHistory | Const | Local | Slot | Cell | Ref
-         | Item | Tuple | Bits | Bit | BitOr | Add | Sub | Compare | IsNone | Not | And | Or
-         | Call)
+         | Item | Field | Tuple | Bits | Bit | BitOr | Add | Sub | Compare | IsNone | Not | And | Or
+         | Call | Apply)
 Target = Local | Slot | Cell | Item
 
 # -- statements ------------------------------------------------------------------------------
@@ -216,7 +237,7 @@ class If:
 class Do:
     """A call whose value is not used."""
 
-    call: Call
+    call: Call | Apply
 
 
 @dataclass(frozen=True)

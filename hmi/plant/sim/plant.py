@@ -7,7 +7,7 @@ buttons on a simulated cell.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 from hmi.errors import UsageError
@@ -20,6 +20,33 @@ from hmi.project.model import Project
 __all__ = ["Injection", "SimPlant", "parse_injection"]  # Injection: hmi.project.injection
 
 
+class _Replaceable:
+    """SimPlant.read, which a caller may replace on one plant (``plant.read = f``, and
+    monkeypatch's undo: a test's lost link), the replacement noted in the plant's
+    ``_read_replaced`` (None: its own read). Why not a look at the plant's ``__dict__`` at
+    every scan (SimPlant.read_into must read through a replaced read): reading an object's
+    ``__dict__`` makes CPython 3.11 keep its attributes in a dictionary for good, and every
+    read and write of them then goes the slow way (some 2,800 instructions a scan, the
+    engine's frame reading ``status`` too)."""
+
+    def __init__(self, method: Callable[[SimPlant, int], Mapping[str, bool]]):
+        self.method = method
+
+    def __get__(self, plant: SimPlant | None, owner: type | None = None) -> Any:
+        if plant is None:  # (on the class: the function, as a method's)
+            return self.method
+        replaced = plant._read_replaced
+        return self.method.__get__(plant) if replaced is None else replaced
+
+    def __set__(self, plant: SimPlant, value: Callable[[int], Mapping[str, bool]]) -> None:
+        own = (getattr(value, "__func__", None) is self.method
+               and getattr(value, "__self__", None) is plant)  # (its own again: an undo)
+        plant._read_replaced = None if own else value
+
+    def __delete__(self, plant: SimPlant) -> None:
+        plant._read_replaced = None
+
+
 class SimPlant(Plant):
     """The project's simulated devices: faults can be injected and repaired, and the inputs
     no device drives set by the operator."""
@@ -29,10 +56,13 @@ class SimPlant(Plant):
     can_repair = True
     can_set_inputs = True
     # (each plant's own, set when it is built: a plain attribute the engine reads at every
-    # scan, not a property)
-    status = PlantStatus("sim", "simulated")
+    # scan, not a property; None on the class, not a PlantStatus: CPython 3.11 reads an
+    # instance attribute the slow way when the class holds an object of a class of ours
+    # under the same name, some 100 instructions a scan)
+    status: PlantStatus = None  # type: ignore[assignment]
 
     def __init__(self, project: Project):
+        self._read_replaced: Callable[[int], Mapping[str, bool]] | None = None  # (read)
         self.project = project
         self.input_names = tuple(v.name for v in project.inputs)
         self.output_names = tuple(v.name for v in project.outputs)
@@ -79,7 +109,7 @@ class SimPlant(Plant):
         self.status = PlantStatus("sim", f"simulated: {models}")
 
     # -- engine side -------------------------------------------------------------------------
-    def read(self, now_us: int) -> Mapping[str, bool]:
+    def _read(self, now_us: int) -> Mapping[str, bool]:
         values = self._values
         for device, binding in self._sensor_bind:
             device.advance(now_us)
@@ -88,6 +118,9 @@ class SimPlant(Plant):
                 values[var] = sensed[port]
         values.update(self.free_inputs)
         return values
+
+    # (a read set on one plant, a test's lost link, noted in _read_replaced: _Replaceable)
+    read = _Replaceable(_read)
 
     def read_into(self, now_us: int, image: list[Any],
                   bindings: tuple[tuple[str, int], ...]) -> None:
@@ -100,7 +133,7 @@ class SimPlant(Plant):
         stored as a slice when its slots follow each other. This is the plant's part of
         every scan: the plan (:meth:`_read_plan`) leaves it only the devices to read."""
         simple = self._simple
-        if simple is not None and simple[0] is bindings and "read" not in self.__dict__:
+        if simple is not None and simple[0] is bindings and self._read_replaced is None:
             # (each device's slots follow each other, every input is driven: most plants;
             # _read_device written out, this is every scan's read)
             for device, ports, first, end, last in simple[1]:
@@ -117,7 +150,7 @@ class SimPlant(Plant):
             if self._simple is not None:
                 self.read_into(now_us, image, bindings)
                 return
-        if plan[1] or "read" in self.__dict__:
+        if plan[1] or self._read_replaced is not None:
             super().read_into(now_us, image, bindings)
             return
         for device, ports, slots, first, end, last in plan[3]:
@@ -155,8 +188,11 @@ class SimPlant(Plant):
         free = tuple((name, slot[name]) for name in self.free_inputs)
         own = type(self).read is SimPlant.read
         simple = own and not free and all(reader[3] is not None for reader in readers)
+        # (the bound method's function, not a look at the plant's __dict__: _Replaceable)
+        taken = self.take_events
         self._says_events = (type(self).take_events is _TAKE_EVENTS
-                             and "take_events" not in self.__dict__)
+                             and getattr(taken, "__func__", None) is _TAKE_EVENTS
+                             and getattr(taken, "__self__", None) is self)
         return (bindings, not own,
                 tuple((d, ports, first, end, last)
                       for d, ports, _, first, end, last in readers) if simple else None,
