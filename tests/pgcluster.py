@@ -36,10 +36,48 @@ def binaries() -> Path:
                       "(Debian: apt-get install postgresql; .ci/run installs it)")
 
 
+OWNER = "owner.pid"  # in a cluster's folder: the test process that started it
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process: alive
+        return True
+    return True
+
+
+def stop_orphans(bin: Path, as_user: list[str]) -> list[Path]:
+    """Stop and remove the clusters whose test process is gone (killed by a timeout, or a
+    worker that crashed: its teardown never ran, and the server would run on for good,
+    holding memory on a shared machine). A folder without its owner's pid is being created
+    by a live process, or is not ours: left alone. Returns the folders removed."""
+    removed = []
+    for owner in Path(tempfile.gettempdir()).glob(f"plchmi-pg-*/{OWNER}"):
+        try:
+            pid = int(owner.read_text())
+        except (OSError, ValueError):
+            continue
+        if _alive(pid):
+            continue
+        folder = owner.parent
+        if (folder / "db" / "postmaster.pid").exists():
+            with contextlib.suppress(OSError, subprocess.TimeoutExpired):
+                subprocess.run([*as_user, str(bin / "pg_ctl"), "-D", str(folder / "db"), "-m",
+                                "immediate", "-w", "stop"], capture_output=True, timeout=60,
+                               cwd=folder)
+        shutil.rmtree(folder, ignore_errors=True)
+        removed.append(folder)
+    return removed
+
+
 class Cluster:
     def __init__(self) -> None:
         self.bin = binaries()
         self.folder = Path(tempfile.mkdtemp(prefix="plchmi-pg-"))
+        (self.folder / OWNER).write_text(str(os.getpid()))
         self.data = self.folder / "db"
         self.log = self.folder / "log"
         self.as_user: list[str] = []
@@ -49,6 +87,7 @@ class Cluster:
                                   "run as root")
             self.as_user = ["runuser", "-u", "nobody", "--"]
             shutil.chown(self.folder, "nobody")
+        stop_orphans(self.bin, self.as_user)
         self.started = False
 
     def _run(self, *args: str, timeout: float = 120) -> None:
