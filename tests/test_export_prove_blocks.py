@@ -30,6 +30,17 @@ def _export(name: str):
     return project, write_st(build(project))
 
 
+def _replacing(old: str | None, new: str | None):
+    """The tampering of a block: its first `old` replaced by `new` (None: the block as
+    exported); `old` must be there, or the test would prove the untouched block."""
+    def tamper(fb: str) -> str:
+        if old is None or new is None:
+            return fb
+        assert old in fb
+        return fb.replace(old, new, 1)
+    return tamper
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("name", NAMES)
 def test_every_exported_monitor_is_the_programs_for_every_input_and_state(name):
@@ -72,11 +83,7 @@ def test_the_conveyor_monitor_is_proved():
 def test_a_wrong_monitor_is_refuted_with_a_counterexample(old, new, refuted):
     project, text = _export("conveyor_robot")
 
-    def tamper(fb: str) -> str:
-        assert old in fb
-        return fb.replace(old, new, 1)
-
-    proofs = prove_monitor(project, text, "conveyor", tamper)
+    proofs = prove_monitor(project, text, "conveyor", _replacing(old, new))
     assert {p.name for p in proofs if not p.proved} == refuted
     assert all("counterexample" in p.detail for p in proofs if not p.proved)
 
@@ -120,13 +127,7 @@ def test_the_exported_memory_is_the_programs_for_every_input_and_state(name):
 def test_the_valves_memory_is_proved_and_a_wrong_one_refuted(old, new, refuted):
     project, text = _export("cispi_valve")
 
-    def tamper(fb: str) -> str:
-        if old is None:
-            return fb
-        assert old in fb
-        return fb.replace(old, new, 1)
-
-    proofs = prove_memory(project, text, tamper)
+    proofs = prove_memory(project, text, _replacing(old, new))
     assert len(proofs) == 7
     assert {p.name for p in proofs if not p.proved} == refuted
     assert all("counterexample" in p.detail for p in proofs if not p.proved)
@@ -197,13 +198,7 @@ _SLOW_CHANGE = pytest.mark.slow  # (each change costs a parse of the block: ~12 
 def test_the_valves_diagnoser_is_proved_and_a_wrong_one_refuted(old, new, refuted):
     project, text = _export("cispi_valve")
 
-    def tamper(fb: str) -> str:
-        if old is None:
-            return fb
-        assert old in fb
-        return fb.replace(old, new, 1)
-
-    proofs = prove_diagnoser(project, text, "V1", tamper)
+    proofs = prove_diagnoser(project, text, "V1", _replacing(old, new))
     assert len(proofs) == 16
     assert {p.name for p in proofs if not p.proved} == refuted
     assert all("counterexample" in p.detail for p in proofs if not p.proved)
@@ -222,11 +217,7 @@ def test_the_valves_diagnoser_is_proved_and_a_wrong_one_refuted(old, new, refute
 def test_a_wrong_refinement_is_refuted(old, new, refuted):
     project, text = _export("cispi_subsystem")
 
-    def tamper(fb: str) -> str:
-        assert old in fb
-        return fb.replace(old, new, 1)
-
-    proofs = prove_diagnoser(project, text, "V2", tamper)
+    proofs = prove_diagnoser(project, text, "V2", _replacing(old, new))
     assert {p.name for p in proofs if not p.proved} == refuted
     assert all("counterexample" in p.detail for p in proofs if not p.proved)
 
@@ -284,13 +275,7 @@ _X0_FIRED = {"O: its value after the call", "X0.t: its value after the call",
 def test_the_valves_control_is_proved_and_a_wrong_one_refuted(old, new, refuted):
     project, text = _export("cispi_valve")
 
-    def tamper(fb: str) -> str:
-        if old is None:
-            return fb
-        assert old in fb
-        return fb.replace(old, new, 1)
-
-    proofs = prove_control(project, text, tamper)
+    proofs = prove_control(project, text, _replacing(old, new))
     assert len(proofs) == 17
     assert {p.name for p in proofs if not p.proved} == refuted
     assert all("counterexample" in p.detail for p in proofs if not p.proved)

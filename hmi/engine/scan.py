@@ -918,19 +918,22 @@ class Engine:
         is observed). The write is OutputScan.write's (a PlantError latched as the plant's,
         with its detail, which still writes the safe vector: _go_safe), written out here
         rather than called: it runs at every scan."""
-        image = self.image
         outputs = s.outputs
-        at = self._outputs_at
-        if at is not None and len(outputs) == len(self.output_slots):
-            image[at] = outputs
-        else:
-            for slot, value in zip(self.output_slots, outputs, strict=True):
-                image[slot] = value
+        self._image_outputs(outputs)
         if not self.observe:
             try:
                 self.plant.write_vector(now, self.output_scan.names, outputs)
             except Exception as exc:
                 s.error = self._write_error(now, outputs, s.error, exc)
+
+    def _image_outputs(self, outputs: tuple[bool, ...]) -> None:
+        """The outputs into the image: one slice when they sit together, else slot by slot."""
+        at = self._outputs_at
+        if at is not None and len(outputs) == len(self.output_slots):
+            self.image[at] = outputs
+        else:
+            for slot, value in zip(self.output_slots, outputs, strict=True):
+                self.image[slot] = value
 
     def _scan_monitors(self, s: _Parts, now: int) -> None:
         """8. the monitors, on the I/O this scan exchanged (their states: Engine.snapshot)"""
@@ -994,13 +997,7 @@ class Engine:
             self._auto_failed(now, exc, diagnosis)
             return None
         if mask is None and not self.latched:
-            # (the output scan's first half: _scan_outputs)
-            at = self._outputs_at
-            if at is not None and len(outputs) == len(self.output_slots):
-                image[at] = outputs
-            else:
-                for slot, value in zip(self.output_slots, outputs, strict=True):
-                    image[slot] = value
+            self._image_outputs(outputs)  # (the output scan's first half: _scan_outputs)
             self._record.outputs = outputs
             return report
         monitored, error = self._output_scan(now, outputs, None)
