@@ -185,7 +185,7 @@ def _laps(stage: Laps, image: object, history: object, now: int) -> tuple[StageS
 # what a quiet scan gives (its laps, unchanged) and no test of its own for the printed frame
 LAPS: Declaration[Laps] = Declaration(
     PART, lambda c: Laps(), place=Laps.PLACE,
-    news=Publication("stages", _laps, "reading the laps", (),
+    news=Publication("stages", _laps, "reading the laps", lambda stage: (),
                      lambda stage, diagnosis: (None, ir.Cell(stage, "laps"))))
 
 

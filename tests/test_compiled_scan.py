@@ -370,4 +370,4 @@ def test_printed_code_names_only_what_the_stages_declare():
     project = load(PROJECTS / "cispi_valve")
     engine = Engine(project, SimPlant(project))
     with pytest.raises(ValueError, match="not a part of the mode's program"):
-        ScanProgram(engine.layout, [Stray()], None, engine.safety_filter, None)
+        ScanProgram(engine.layout, [Stray()], None, engine.safety_filter)

@@ -44,8 +44,8 @@ from typing import TYPE_CHECKING, Any
 
 from hmi.engine.codegen import Vocabulary, allow, build_function
 from hmi.engine.diagnoser import NO_DIAGNOSIS
-from hmi.engine.program_stages import AddedStage, program_order
-from hmi.engine.scan_record import EVENTS, SETTLING, STATUS, Raised
+from hmi.engine.program_stages import AddedStage, Handed, program_order
+from hmi.engine.scan_record import EVENTS, STATUS, Raised
 from hmi.logic.expr import History, Image
 from hmi.plant.base import PlantError
 from hmi.program import ir, order
@@ -59,7 +59,6 @@ from hmi.program.evaluate import function_evaluator
 if TYPE_CHECKING:
     from hmi.engine.filter import SafetyFilter
     from hmi.engine.layout import Layout
-    from hmi.engine.monitors import MonitorStage
     from hmi.engine.recovery import RecoveryStage
     from hmi.engine.stages import ProgramStage
 
@@ -79,24 +78,26 @@ class ScanProgram:
 
     def __init__(self, layout: Layout, stages: Sequence[ProgramStage],
                  recovery: RecoveryStage | None, safety_filter: SafetyFilter,
-                 monitors: MonitorStage | None, added: Sequence[AddedStage] = ()):
+                 added: Sequence[AddedStage] = ()):
         self.outputs = layout.outputs
         # the parts of the mode's program in order: hmi.program.order's, with each added
         # stage's where it declares (hmi.engine.program_stages)
         self.order = program_order(added)
-        # each part's statements (the stages' in the order given), walked in that order
-        self.parts: dict[str, tuple[ir.Stmt, ...]] = dict.fromkeys(self.order, ())
+        # each part's statements (the stages' in the order given), walked in that order;
+        # and those of the part after the output scan, a function of its own
+        self.parts: dict[str, tuple[ir.Stmt, ...]] = dict.fromkeys(
+            (*self.order, order.MONITORS), ())
         for stage in (*stages, *added):
             for part, stmts in stage.parts.items():
                 if part not in self.parts:
                     raise ValueError(f"{type(stage).__name__}: {part!r} is not a part of the "
                                      "mode's program (hmi.program.order.PROGRAM, or an "
-                                     "added stage's PLACE)")
+                                     "added stage's PLACE) nor the part after the output "
+                                     "scan (hmi.program.order.MONITORS)")
                 self.parts[part] += stmts
         self._fov = ir.Tuple(tuple(ir.Slot(s) for s in layout.indices(layout.outputs)))
         self._recovery = recovery
         self._filter = safety_filter
-        self._monitors = monitors
 
     def walk(self, without: tuple[str, ...] = (), law: tuple[ir.Stmt, ...] | None = None
              ) -> tuple[ir.Stmt, ...]:
@@ -140,8 +141,10 @@ class ScanProgram:
         return active_function(self._filter.table)
 
     def monitors(self) -> ir.Function | None:
-        stage = self._monitors
-        return None if stage is None else ir.Function("monitors", SCAN, stage.program)
+        """The part after the output scan, on the I/O just exchanged (None: no stage has
+        statements there)."""
+        body = self.parts[order.MONITORS]
+        return ir.Function("monitors", SCAN, body) if body else None
 
 
 class CompiledScan:
@@ -149,18 +152,16 @@ class CompiledScan:
     Python, else the evaluator's closures."""
 
     def __init__(self, layout: Layout, stages: Sequence[ProgramStage],
-                 recovery: RecoveryStage | None, safety_filter: SafetyFilter,
-                 monitors: MonitorStage | None, label: str, python: bool = True,
-                 added: Sequence[AddedStage] = ()):
+                 recovery: RecoveryStage | None, safety_filter: SafetyFilter, label: str,
+                 python: bool = True, added: Sequence[AddedStage] = ()):
         self.slots = layout.slots
         self.times = layout.step_times
         self.label = label
         self.python = python
-        self.program = ScanProgram(layout, stages, recovery, safety_filter, monitors, added)
+        self.program = ScanProgram(layout, stages, recovery, safety_filter, added)
         # what the printed code may name: every stage's names (their PRINTED), the frame's
-        printed = (*stages, *added, safety_filter,
-                   *((monitors,) if monitors is not None else ()))
-        self.vocabulary = FRAME.union(*(stage.PRINTED for stage in printed))
+        self.vocabulary = FRAME.union(*(stage.PRINTED for stage in (*stages, *added)),
+                                      safety_filter.PRINTED)
         if python:
             allow(self.vocabulary)
         self.sources: list[str] = []  # every printed function's text, in build order
@@ -208,22 +209,29 @@ class CompiledScan:
 
     def frame(self, engine: Any) -> Callable[[int], bool]:
         """The automatic mode's scan (auto_frame), in this form."""
+        # (a guarded publication's read: a local named after its field)
+        guarded = Vocabulary(locals=frozenset(news.field for news, _ in engine.stages.publishing
+                                              if news.guarded))
+        self.vocabulary = self.vocabulary.union(guarded)
+        if self.python:
+            allow(guarded)
         fn: Callable[[int], bool] = self._form(auto_frame(engine))
         return fn
 
 
 # What the frame (auto_frame) names: its locals, and what it reads or calls on the engine, its
-# plant, its scan record and its stages
+# plant, its scan record and the diagnosers' decision (what a stage's publication reads of
+# it is the stage's PRINTED; a guarded publication's local is named after its field:
+# CompiledScan.frame)
 FRAME = Vocabulary(
     frozenset({"_pending", "scan", "now", "latched", "clean_report", "_news",
                "_auto_lost", "_auto_failed", "_auto_filter", "_write_error",
                "_monitors_error", "_finish", "_conclude", "read_into", "write_vector",
-               "take_events", "status", "core", "violated", "monitors", "faulty", "deadline",
-               "active", "_idle", "marks", "appendleft", "fov", "outputs", "report",
-               "diagnosis", "monitored", "error", "filter_us", "values", "diagnosers",
-               "events", "published", "scan_us", "settled", "manual", "current",
-               "settle", "needed", "mask", "reconstructed", "records"}),
-    frozenset({"exc", "diag", "report", "error", "monitored", "marks", "events", "status",
+               "take_events", "status", "core", "violated", "monitors", "appendleft", "fov",
+               "outputs", "diagnosis", "monitored", "error", "filter_us", "values", "events",
+               "published", "scan_us", "settled", "manual", "current", "mask",
+               "reconstructed"}),
+    frozenset({"exc", "diag", "report", "error", "monitored", "events", "status",
                "last", "values", "w", "none_waiting", "out", "run_core", "run_violated",
                "run_monitors"}))
 
@@ -251,7 +259,7 @@ def auto_frame(engine: Any) -> ir.Function:
     # (the compiled scan's functions, read at each scan: whoever replaces one is called)
     core, violated, monitor = (ir.Local(n) for n in ("run_core", "run_violated",
                                                       "run_monitors"))
-    stage, monitors = engine.diagnosis, engine.monitors
+    stage = engine.diagnosis
     record = engine._record
 
     def cell(owner: Any, name: str) -> ir.Cell:
@@ -316,8 +324,8 @@ def auto_frame(engine: Any) -> ir.Function:
                                  ir.Assign(error, call(e, "_write_error", now, out, error,
                                                        exc)))),)))
 
-    def monitors_() -> None:  # 8. monitors
-        if monitors is None:
+    def monitors_() -> None:  # 8. the part after the output scan (the monitors)
+        if scan_program.monitors is None:  # (no stage has statements there)
             body.append(ir.Assign(monitored, ir.FALSE))
             return
         body.extend((
@@ -337,20 +345,21 @@ def auto_frame(engine: Any) -> ir.Function:
     # what Engine._conclude would find other than a quiet scan's: its own way
     body.append(ir.If(ir.Not(ir.IsNone(error)), (finish,)))
     # each publishing stage's (its declaration's `news`): whether the scan is not quiet for
-    # it, and what it gives at a quiet scan
-    quiet = [news.quiet(stage_, diag) for news, stage_ in engine.stages.publishing]
+    # it, and what it gives at a quiet scan (a guarded one read here, once: its local)
+    publishing = engine.stages.publishing
+    quiet = [news.quiet(stage_, Handed(diag, report)) for news, stage_ in publishing]
     for unquiet_, _ in quiet:
         if unquiet_ is not None:
             body.append(ir.If(unquiet_, (finish,)))
-    # (without monitors, the marks are 0 at every scan, the last with news's too: not
-    # compared)
-    marks: ir.Value = ir.Const(0)
-    if monitors is not None:  # (monitored: else the error above)
-        marks = ir.Local("marks")
-        body.append(ir.Try(
-            (ir.Assign(ir.Local("marks"), call(monitors, "settle")),),
-            ((Exception, "exc", (ir.Return(call(e, "_finish", now, f, out, report, diag, monitored,
-                                                error, ir.NONE, raised(SETTLING))),)),)))
+    given: list[ir.Value | None] = []
+    for (news, _), (_, value) in zip(publishing, quiet, strict=True):
+        if news.guarded and value is not None:
+            local = ir.Local(news.field)
+            body.append(ir.Try((ir.Assign(local, value),), ((Exception, "exc", (ir.Return(
+                call(e, "_finish", now, f, out, report, diag, monitored, error, ir.NONE,
+                     raised(news.reading))),)),)))
+            value = local
+        given.append(value)
     taken = ir.Return(call(e, "_finish", now, f, out, report, diag, monitored, error, events))
     # the plant's events, unless the write said none waits (Plant.write_vector), its status
     body += [
@@ -372,25 +381,21 @@ def auto_frame(engine: Any) -> ir.Function:
         ir.If(ir.Or((ir.IsNone(last), ir.Field(diag, "reconstructed"),
                      cell(e, "manual"))), (taken,)),
         ir.If(ir.Not(ir.And((
-            ir.Compare("is", report, ir.Field(last, "report")),
             ir.Compare("is", status, ir.Field(last, "status")),
-            *((ir.Compare("==", marks, ir.Field(last, "marks")),) if monitors is not None
-              else ()),
-            *(ir.Compare("is", given, ir.Item(ir.Field(last, "published"), k))
-              for k, (_, given) in enumerate(quiet)
-              if given is not None)))), (taken,)),
+            *(ir.Compare("is", value, ir.Item(ir.Field(last, "published"), k))
+              for k, value in enumerate(given) if value is not None)))), (taken,)),
         # a quiet scan: the image into the history, the record
         ir.Assign(values, call(tuple, "__call__", image)),
         ir.Do(call(engine.history, "appendleft", values)),
     ]
     zero = ir.Ref(0.0)
     fields: tuple[tuple[str, ir.Value], ...] = (
-        ("report", report), ("diagnosis", diag), ("monitored", monitored),
-        ("error", ir.NONE), ("filter_us", zero),
+        ("diagnosis", diag), ("monitored", monitored), ("error", ir.NONE),
+        ("filter_us", zero),
         ("published", ir.Tuple(tuple(ir.Item(ir.Field(last, "published"), k)
-                                     if given is None else given
-                                     for k, (_, given) in enumerate(quiet)))),
-        ("marks", marks), ("events", ir.Const(())), ("scan_us", zero))
+                                     if value is None else value
+                                     for k, value in enumerate(given)))),
+        ("events", ir.Const(())), ("scan_us", zero))
     moving = (ir.Assign(cell(record, "fov"), f), ir.Assign(cell(record, "outputs"), out),
               ir.Assign(cell(record, "values"), values))
     body += [

@@ -326,7 +326,9 @@ class DiagnosisStage:
     # the stage's and each diagnoser's state and handlers (hmi.program.diagnosers)
     PRINTED = Vocabulary(
         frozenset({"dirty", "last_scan", "last_now", "gap_us", "since_us", "current", "begin",
-                   "take", "lost_sight", "settle", "hld_armed", "refine"}),
+                   "take", "lost_sight", "settle", "hld_armed", "refine",
+                   # (its publication's quiet test, printed in the frame: program_stages)
+                   "faulty", "records"}),
         frozenset({"c", "changed", "ls", "delta", "su", "t"}))
 
     def __init__(self, specs: Sequence[DiagnoserSpec], layout: Layout, mode: str,

@@ -15,16 +15,28 @@ filter").
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
+from typing import ClassVar
 
 from hmi.engine.filter import Change, FilterDecision, FilterReport, SafetyFilter, pack
 from hmi.logic.expr import History, Image
+from hmi.program import ir
 
 
 class FilterStage:
-    """The safety filter and the masking around it; returns its decision to the engine."""
+    """The safety filter and the masking around it; returns its decision to the engine.
+
+    A declared stage (hmi.engine.program_stages.FILTER) whose part of the scan the engine
+    runs itself (hmi.program.order.FILTER): none of the mode's program (its lowerings are
+    the filter's own functions, hmi.program.constraints, printed by the compiled scan)."""
+
+    PRINTED = SafetyFilter.PRINTED  # (the handlers its functions call)
+    parts: ClassVar[Mapping[str, tuple[ir.Stmt, ...]]] = {}
 
     def __init__(self, safety_filter: SafetyFilter, mask_flags: Mapping[str, tuple[str, ...]]):
         self.filter = safety_filter
+        # The scan's report, as the engine's part of the scan decided it (None: the filter
+        # was not reached): what the stage publishes (Engine._keep hands it over)
+        self.report: FilterReport | None = None
         self.outputs = safety_filter.outputs
         self.mask_flags = mask_flags  # masked output -> the flags that mask it
         self.clean = safety_filter.clean

@@ -17,13 +17,14 @@ operator decides.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import NamedTuple
 
 from hmi.engine.codegen import Vocabulary
 from hmi.engine.layout import Layout
 from hmi.engine.stopwatch import FAULTY, Detection, Phase, TaskAutomaton, WatchdogTrip, Window
 from hmi.logic.expr import max_depth
-from hmi.program import ir
+from hmi.program import ir, order
 from hmi.program.ir import Stmt
 from hmi.program.monitors import lower_task
 from hmi.project.model import Project, TaskMonitor
@@ -82,11 +83,12 @@ class MonitorStage:
     ``y`` moved on by the elapsed time, exactly what :meth:`TaskAutomaton.step` adds.
     """
 
-    # each task's automaton, its watchdog and detection (hmi.program.monitors)
+    # each task's automaton, its watchdog and detection (hmi.program.monitors), and the
+    # marks settled at the end of a scan (hmi.engine.program_stages.MONITORS)
     PRINTED = Vocabulary(
         frozenset({"phase", "x_us", "y_us", "last_us", "attempt", "attempt_start_us",
                    "attempt_fault", "changes", "completed", "watchdog", "_armed", "trip",
-                   "detect"}),
+                   "detect", "settle"}),
         frozenset({"p", "x", "y", "el", "e", "verdict"}))
 
     def __init__(self, specs: tuple[TaskMonitor, ...], layout: Layout):
@@ -130,6 +132,12 @@ class MonitorStage:
         self.programs = tuple(programs)  # per task (the PLC export prints one FB each)
         self.program = tuple(stmt for program in programs for stmt in program)
 
+    @property
+    def parts(self) -> Mapping[str, tuple[Stmt, ...]]:
+        """Its statements, at the part of the scan after the output scan (a function of the
+        scan program of its own: hmi.engine.compiled)."""
+        return {order.MONITORS: self.program}
+
     def settle(self) -> int:
         """Take again the bases of the tasks stepped since (at the end of a scan); returns
         the marks (TaskAutomaton.changes summed)."""
@@ -163,7 +171,9 @@ class MonitorStage:
                 base = bases[k] = (_state(head, a, tail), a.last_us or 0, a.phase)
                 dirty[k] = False
             running = running or base[2] is not IDLE
-        self.marks = sum(a.changes for a in self.automata)
+        marks = sum(a.changes for a in self.automata)
+        if marks != self.marks:  # (unchanged, the very same object: compared by identity)
+            self.marks = marks
         frozen: tuple[Base, ...] = tuple(bases)  # type: ignore[arg-type]  # every one is set
         return frozen, None if running else tuple(b[0] for b in frozen)
 

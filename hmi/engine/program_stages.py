@@ -23,8 +23,15 @@ derives from the declarations:
 * the PLC export builds each stage's function blocks (hmi.export.stage_blocks, keyed by
   role) and the PLC program calls them at the stage's place (hmi.export.program_pou).
 
+Besides the stages of the mode's program, the filter (:data:`FILTER`: its part of the scan
+the engine runs itself, between the program and the output scan) and the monitors
+(:data:`MONITORS`: their statements at the part after the output scan, a function of the
+scan program of its own) are declared the same way: what they publish and show is read by
+the same walks, with no branch of their own in the engine or its printed frame.
+
 The engine addresses a built-in stage by its role where it needs that one (the diagnosers'
-mask for the filter, a recovery procedure in place of the law): :meth:`Stages.of`.
+mask for the filter, a recovery procedure in place of the law, the filter its part runs,
+the monitors a recovery abandons): :meth:`Stages.of`.
 
 A stage added beyond the built-in ones (:class:`AddedStage`) declares all of that on its own
 class; naming the class in :data:`ADDED` declares it (:func:`declared`).
@@ -39,9 +46,11 @@ from typing import Any, ClassVar, Generic, NamedTuple, Protocol, TypeVar, cast
 from hmi.engine.codegen import Vocabulary
 from hmi.engine.control import ControlRuntime
 from hmi.engine.diagnoser import DiagnosisStage, diagnosis_stage
-from hmi.engine.filter import Solver
+from hmi.engine.filter import SafetyFilter, Solver
+from hmi.engine.filter_stage import FilterStage
 from hmi.engine.grafcet import GrafcetRuntime
 from hmi.engine.layout import Layout
+from hmi.engine.monitors import MonitorStage, monitor_stage
 from hmi.engine.recovery import NO_RECOVERY, RecoveryStage, recovery_stage
 from hmi.engine.snapshot import StageState
 from hmi.engine.stages import Memory, ProgramStage
@@ -78,25 +87,39 @@ class Moment(NamedTuple):
     started: bool  # a scan ran (before it, nothing has a state to reset)
 
 
+class Handed(NamedTuple):
+    """What the printed frame hands a publication's quiet test (Publication.quiet): its
+    locals holding the scan's hand-overs, as scan-program values."""
+
+    diagnosis: ir.Value  # the diagnosers' decision of the scan (Diagnosis)
+    report: ir.Value  # the filter's report of the scan (FilterReport)
+
+
 @dataclass(frozen=True)
 class Publication(Generic[S]):
     """What a stage gives every scan with news, for its snapshot field: read at the end of
     the scan (Engine._conclude), the very same object again while nothing changed. A scan is
     quiet for the stage (no news) only when it gives the object the last scan with news
-    gave; the printed frame, which concludes a quiet scan without reading it, asks `quiet`
-    once, when it is printed (hmi.engine.compiled.auto_frame)."""
+    gave; the printed frame, which concludes a quiet scan without calling `read`, asks
+    `quiet` once, when it is printed (hmi.engine.compiled.auto_frame)."""
 
     field: str  # the Snapshot field it fills
     # (the stage, the image as the scan left it, the history without it yet, the scan's time)
     read: Callable[[S, Image, History, int], Any]
     reading: str  # what failed, in plain words, when `read` raises (snapshot.INTERNAL_PARTS)
-    failed: Any  # what the snapshot shows then
-    # Given the stage and the frame's local holding the diagnosers' decision of the scan
-    # (Diagnosis): the test that says the scan is not quiet for the stage (None: it always
-    # is, but for what it gives) and the value `read` gives at a quiet scan (None: the test
-    # alone says, and at a quiet scan the stage gives what it gave the last scan with
-    # news), both as scan-program values (the scan's time: ir.Now)
-    quiet: Callable[[S, ir.Value], tuple[ir.Value | None, ir.Value | None]]
+    # what the snapshot shows then, given the stage (also when the stage's own part of the
+    # scan raised: Engine._conclude does not read it then)
+    failed: Callable[[S], Any]
+    # Given the stage and the frame's hand-overs (Handed): the test that says the scan is
+    # not quiet for the stage (None: it always is, but for what it gives) and the value
+    # `read` gives at a quiet scan (None: the test alone says, and at a quiet scan the stage
+    # gives what it gave the last scan with news), both as scan-program values (the scan's
+    # time: ir.Now)
+    quiet: Callable[[S, Handed], tuple[ir.Value | None, ir.Value | None]]
+    # The value `quiet` gives is a read that may raise, made at every scan (no cheaper test
+    # says the scan is quiet: the monitors' marks): the printed frame makes it once, guarded
+    # as Engine._conclude's read, into a local
+    guarded: bool = False
 
 
 @dataclass(frozen=True)
@@ -204,10 +227,10 @@ def _diagnosers(stage: DiagnosisStage, image: Image, history: History, now: int)
     return stage.publish(image, history) if stage.faulty else stage.current.records
 
 
-def _diagnosers_quiet(stage: DiagnosisStage, diagnosis: ir.Value
+def _diagnosers_quiet(stage: DiagnosisStage, handed: Handed
                       ) -> tuple[ir.Value | None, ir.Value | None]:
     # faulty: DiagnosisStage.publish previews what a fault reset would do (Diagnosis.records)
-    return ir.Cell(stage, "faulty"), ir.Field(diagnosis, "records")
+    return ir.Cell(stage, "faulty"), ir.Field(handed.diagnosis, "records")
 
 
 class Supervision:
@@ -238,7 +261,7 @@ def _overdue(stage: Supervision, image: Image, history: History, now: int) -> An
     return grafcet.overdue
 
 
-def _overdue_quiet(stage: Supervision, diagnosis: ir.Value
+def _overdue_quiet(stage: Supervision, handed: Handed
                    ) -> tuple[ir.Value | None, ir.Value | None]:
     # (before the deadline, the overdue steps are those the last watch found)
     return ir.Compare(">", ir.Now(), ir.Cell(stage.grafcet, "deadline")), None
@@ -249,10 +272,46 @@ def _recovery_state(stage: RecoveryStage, image: Image, history: History, now: i
     return stage._idle if stage.active is None and not stage.needed else stage.state(now)
 
 
-def _recovery_quiet(stage: RecoveryStage, diagnosis: ir.Value
+def _recovery_quiet(stage: RecoveryStage, handed: Handed
                     ) -> tuple[ir.Value | None, ir.Value | None]:
     return (ir.Or((ir.Cell(stage, "needed"), ir.Not(ir.IsNone(ir.Cell(stage, "active"))))),
             ir.Cell(stage, "_idle"))
+
+
+def _filter(c: StageContext) -> FilterStage:
+    # the cell's filter, given the diagnosers' mask
+    diagnosers = cast("DiagnosisStage | None", c.built.get(DIAGNOSERS.role))
+    return FilterStage(SafetyFilter(c.project, c.layout.slots, c.layout.step_times, *c.solver),
+                       diagnosers.mask_flags if diagnosers is not None else {})
+
+
+def _report(stage: FilterStage, image: Image, history: History, now: int) -> Any:
+    return stage.report
+
+
+def _report_quiet(stage: FilterStage, handed: Handed
+                  ) -> tuple[ir.Value | None, ir.Value | None]:
+    # (the clean candidate's report, or the decision's: the frame's local)
+    return None, handed.report
+
+
+def _marks(stage: MonitorStage, image: Image, history: History, now: int) -> Any:
+    return stage.settle()
+
+
+def _marks_quiet(stage: MonitorStage, handed: Handed
+                 ) -> tuple[ir.Value | None, ir.Value | None]:
+    # (the marks move at any scan a task's automaton changes: settled at every scan)
+    return None, ir.Call(stage, "settle", ())
+
+
+def _monitor_states(stage: MonitorStage, image: Image, now: int) -> tuple[Any, ...]:
+    # (the bases change only in a scan or a command, which builds the snapshot first)
+    return (stage.capture(now),)
+
+
+def _no_capture(stage: MonitorStage) -> Any:
+    raise NotImplementedError("an engine with stopwatch monitors cannot be captured")
 
 
 MEMORY: Declaration[Memory] = Declaration(
@@ -264,24 +323,36 @@ DIAGNOSERS: Declaration[DiagnosisStage] = Declaration(
     "diagnosers", lambda c: diagnosis_stage(c.project, c.layout, c.diagnosis, c.high_level),
     depth=lambda s: s.depth, reset=_reset_diagnosers, capture=DiagnosisStage.capture,
     restore=DiagnosisStage.restore,
-    news=Publication("diagnosers", _diagnosers, "reading the diagnosers' states", (),
-                     _diagnosers_quiet))
+    news=Publication("diagnosers", _diagnosers, "reading the diagnosers' states",
+                     lambda s: (), _diagnosers_quiet))
 LAW: Declaration[ControlRuntime] = Declaration(
     "law", lambda c: ControlRuntime(c.law, c.layout.slots, c.layout.step_times),
     capture=ControlRuntime.capture, restore=ControlRuntime.restore,
     fields=Shown(("active_steps", "fired"), _steps, "reading the active steps", _no_steps))
 SUPERVISION: Declaration[Supervision] = Declaration(
     "supervision", _supervision,
-    news=Publication("overdue_steps", _overdue, "watching the steps' supervision times", (),
-                     _overdue_quiet))
+    news=Publication("overdue_steps", _overdue, "watching the steps' supervision times",
+                     lambda s: (), _overdue_quiet))
 RECOVERY: Declaration[RecoveryStage] = Declaration(
     "recovery", _recovery, capture=RecoveryStage.capture, restore=RecoveryStage.restore,
     news=Publication("recovery", _recovery_state, "reading the recovery's state",
-                     NO_RECOVERY, _recovery_quiet))
+                     lambda s: NO_RECOVERY, _recovery_quiet))
+FILTER: Declaration[FilterStage] = Declaration(
+    "filter", _filter,
+    news=Publication("filter_report", _report, "reading the filter's report", lambda s: None,
+                     _report_quiet))
+MONITORS: Declaration[MonitorStage] = Declaration(
+    "monitors", lambda c: monitor_stage(c.project, c.layout),
+    depth=lambda s: s.depth, reset=lambda s, m: s.reset(), capture=_no_capture,
+    news=Publication("monitor_marks", _marks, "settling the monitors", lambda s: s.marks,
+                     _marks_quiet, guarded=True),
+    fields=Shown(("monitors",), _monitor_states, "reading the monitors' states",
+                 lambda s: ((),)))
 
 # The built-in stages, in the scan's order (the order they are built in: a stage is given
 # those before it)
-BUILT_IN: tuple[Declaration[Any], ...] = (MEMORY, DIAGNOSERS, LAW, SUPERVISION, RECOVERY)
+BUILT_IN: tuple[Declaration[Any], ...] = (MEMORY, DIAGNOSERS, LAW, SUPERVISION, RECOVERY,
+                                          FILTER, MONITORS)
 
 # The added stages, in the order they are placed (several after one part: in this order):
 # each its class (declared()), or a declaration of its own (one with `news`: its state

@@ -92,7 +92,9 @@ class RecoveryStage:
     # the stage's and each procedure's state and handlers (hmi.program.recovery)
     PRINTED = Vocabulary(
         frozenset({"needed_since", "needed", "judge_needed", "held_since", "step",
-                   "started_us", "running", "finish", "fail"}),
+                   "started_us", "running", "finish", "fail",
+                   # (its publication's quiet test, printed in the frame: program_stages)
+                   "active", "_idle"}),
         frozenset({"moved", "s"}))
 
     def __init__(self, project: Project, layout: Layout, safe: tuple[bool, ...],

@@ -47,14 +47,14 @@ from hmi.engine.commands import (
 )
 from hmi.engine.compiled import CompiledScan
 from hmi.engine.diagnoser import NO_DIAGNOSIS, Diagnosis
-from hmi.engine.filter import FilterReport, SafetyFilter, Solver
-from hmi.engine.filter_stage import FilterStage
+from hmi.engine.filter import FilterReport, Solver
 from hmi.engine.layout import Layout
-from hmi.engine.monitors import monitor_stage
 from hmi.engine.program_stages import (
     DIAGNOSERS,
+    FILTER,
     LAW,
     MEMORY,
+    MONITORS,
     RECOVERY,
     SUPERVISION,
     Moment,
@@ -63,7 +63,6 @@ from hmi.engine.program_stages import (
 )
 from hmi.engine.scan_record import (
     EVENTS,
-    SETTLING,
     STATUS,
     QuietRun,
     Raised,
@@ -166,11 +165,10 @@ class Engine:
         self.memory = self.stages.need(MEMORY)  # 2 (and the GRAFCET's step times: control)
         # 3-4 (None: no diagnosers), with the High Level Diagnoser after the local ones
         self.diagnosis = self.stages.of(DIAGNOSERS)
-        self.safety_filter = SafetyFilter(project, lay.slots, lay.step_times, *solver_args)
-        self.filter_stage = FilterStage(  # 6: the filter, given the diagnosers' mask
-            self.safety_filter, self.diagnosis.mask_flags if self.diagnosis else {})
+        self.filter_stage = self.stages.need(FILTER)  # 6: the filter, given the diagnosers' mask
+        self.safety_filter = self.filter_stage.filter
         self.output_scan = OutputScan(plant, lay)  # 7
-        self.monitors = monitor_stage(project, lay)  # 8 (None: no monitors)
+        self.monitors = self.stages.of(MONITORS)  # 8 (None: no monitors)
         # Recovery procedures (replace stages 5-6's law and constraints while one runs).
         self.recovery = self.stages.of(RECOVERY)
         # The stages added to the mode's program (each declares its own place)
@@ -178,14 +176,16 @@ class Engine:
         self._shows = any(d.shown is not None for d, _ in self.stages)  # (Snapshot.stages)
         # What the stages give a scan with news and what a snapshot reads of them besides
         # (their declarations' `news` and `fields`): Engine._conclude and Engine.snapshot
-        # walk them.
-        self._publishing = tuple((news.read, stage, news.reading, news.failed)
+        # walk them, each with whether the stage runs after the output scan (not read at a
+        # scan where that part raised: _scan_monitors).
+        self._publishing = tuple((news.read, stage, news.reading, news.failed, _after(stage))
                                  for news, stage in self.stages.publishing)
         self._published_fields = tuple(news.field for news, _ in self.stages.publishing)
-        self._showing = self.stages.showing
+        self._showing = tuple((fields, stage, _after(stage))
+                              for fields, stage in self.stages.showing)
         # The history is as deep as the deepest expression of any stage reads.
         depth = max((max_depth(expr) for expr in _all_exprs(project)), default=1)
-        depth = max(depth, self.stages.depth, self.monitors.depth if self.monitors else 0)
+        depth = max(depth, self.stages.depth)
         self.history: deque[tuple[Any, ...]] = deque(maxlen=max(depth, 1))
         self.image: Image = lay.initial_image(project)
         self.scan = 0
@@ -207,9 +207,8 @@ class Engine:
         # Its stages are the declared ones (those placed by hmi.program.order, then those
         # that declare their own place), their names allowed in the printed code.
         self.compiled = CompiledScan(lay, self.stages.program, self.recovery,
-                                     self.safety_filter, self.monitors,
-                                     f"{project.name}/{self.control_name}", python=compiled,
-                                     added=self.added)
+                                     self.safety_filter, f"{project.name}/{self.control_name}",
+                                     python=compiled, added=self.added)
         # the filter's first question, its policy and its memory's key, printed
         self.safety_filter.violations = self.compiled.violated
         self.safety_filter.decide = self.compiled.decide
@@ -506,8 +505,6 @@ class Engine:
             parts.append("safe-state latch released (" + "; ".join(
                 r.detail for r in self.latched) + ")")
             self.latched = []
-        if self.monitors is not None:
-            parts.extend(self.monitors.reset())
         parts.extend(self.stages.reset(Moment(self.image, self.history, self.now, self.scan,
                                               self.started)))
         return CommandResult.ok("fault reset: " + ("; ".join(parts) if parts
@@ -516,9 +513,8 @@ class Engine:
     # -- the state, for the closed-loop exploration ----------------------------------------
     def capture(self) -> EngineState:
         """Everything a scan or a command changes, copied: :meth:`restore` makes the engine
-        continue exactly as from here (the project's compiled parts are shared)."""
-        if self.monitors is not None:
-            raise NotImplementedError("an engine with stopwatch monitors cannot be captured")
+        continue exactly as from here (the project's compiled parts are shared). A stage that
+        cannot be captured raises NotImplementedError (the monitors)."""
         return EngineState(
             # The history's images are never changed once in it: shared, not copied.
             list(self.image), tuple(self.history), self.scan, self.now,
@@ -633,8 +629,7 @@ class Engine:
         printed frame made (settling the monitors, taking the plant's events or reading its
         status: hmi.engine.compiled) that raised, handled here as if this one had."""
         record = self._record
-        report, diagnosis, monitored, error = (record.report, record.diagnosis,
-                                               record.monitored, record.error)
+        diagnosis, monitored, error = record.diagnosis, record.monitored, record.error
         image = self.image
         plant = self.plant
         history = self.history
@@ -642,30 +637,27 @@ class Engine:
         # handling is guarded (free in Python 3.11 when nothing raises); one that fails
         # latches an internal error naming it and puts the outputs safe at once (_go_safe).
         # First what each publishing stage gives (its declaration's `news`), before the
-        # scan's image joins the history.
+        # scan's image joins the history; a stage that runs after the output scan is not
+        # read when that part raised (latched already): it gives what it gives when its
+        # read fails.
         failed: str | None = None
         given: list[Any] = []
-        for read, stage, reading, unread in self._publishing:
+        for read, stage, reading, unread, after in self._publishing:
+            if after and not monitored:
+                given.append(unread(stage))
+                continue
             try:
+                if raised is not None and raised.part == reading:
+                    raise raised.exc
                 given.append(read(stage, image, history, now))
             except Exception as exc:
                 failed = self._failure(reading, exc)
-                given.append(unread)
+                given.append(unread(stage))
         published = tuple(given)
         # The image as the scan left it: the snapshot's values and the history's newest
         # entry are one tuple (an image in the history is never changed).
         values = tuple(image)
         history.appendleft(values)
-        marks = 0
-        monitors = self.monitors
-        if monitors is not None:
-            try:
-                if raised is not None and raised.part == SETTLING:
-                    raise raised.exc
-                marks = monitors.settle() if monitored else monitors.marks
-            except Exception as exc:
-                failed = self._failure(SETTLING, exc)
-                marks = monitors.marks
         try:
             if raised is not None and raised.part == EVENTS:
                 raise raised.exc
@@ -690,17 +682,16 @@ class Engine:
         last = self._news
         # (a command since, a new policy included, makes this scan news and compares the
         # next with this one: _news None)
-        news = not (last is not None and report is last.report and status is last.status
-                    and marks == last.marks and error is None and not events
-                    and not self.latched and not diagnosis.masked
+        news = not (last is not None and status is last.status and error is None
+                    and not events and not self.latched and not diagnosis.masked
                     and not diagnosis.reconstructed and not self.manual)
-        if not news:  # (and each stage gives the very object it gave then)
+        if not news:  # (and each stage gives the very object it gave then: the filter its
+            # report, the monitors their marks, ...)
             news = not all(map(is_, published, last.published))  # type: ignore[union-attr]
         if news:
-            self._news = ScanNews(report, status, marks, published)
+            self._news = ScanNews(status, published)
         record.values = values
         record.published = published
-        record.marks = marks
         record.events = events
         record.scan_us = (time.perf_counter() - wall) * 1e6 if self._wall_times else 0.0
         record.settled = False
@@ -740,24 +731,21 @@ class Engine:
         # that raises latches an internal error naming it, is shown empty (the timers'
         # elapsed times as 0), and the outputs go safe at once.
         failed: str | None = None
-        monitors: Any = ()
-        if record.monitored and self.monitors is not None:
-            # (the monitors' bases change only in a scan or a command, which builds this
-            # first)
-            try:
-                monitors = self.monitors.capture(now)
-            except Exception as exc:
-                failed = self._failure("reading the monitors' states", exc)
         # What the stages gave the scan (their declarations' `news`) and what is read of
-        # them now (their `fields`), by the snapshot's field
+        # them now (their `fields`; one that runs after the output scan, not when that part
+        # raised, as in run()), by the snapshot's field
         shown = dict(zip(self._published_fields, record.published, strict=True))
         image = self.image
-        for fields, stage in self._showing:
-            try:
-                values = fields.read(stage, image, now)
-            except Exception as exc:
-                failed = self._failure(fields.reading, exc)
+        monitored = record.monitored
+        for fields, stage, after in self._showing:
+            if after and not monitored:
                 values = fields.failed(stage)
+            else:
+                try:
+                    values = fields.read(stage, image, now)
+                except Exception as exc:
+                    failed = self._failure(fields.reading, exc)
+                    values = fields.failed(stage)
             shown.update(zip(fields.fields, values, strict=True))
         try:
             status = plant.status
@@ -791,13 +779,11 @@ class Engine:
             manual=tuple(sorted(self.manual.items())) if self.manual else (), policy=policy,
             latched=tuple(self.latched) if self.latched else (), plant=status,
             plant_state=state, plant_counters=counters, plant_events=record.events,
-            filter_report=record.report, monitors=monitors,
             reconstructed=diagnosis.reconstructed, masked=masked,
             stopped_devices=(tuple(sorted(self.stopped_devices)) if self.stopped_devices
                              else ()),
             error=record.error, scan_wall_us=record.scan_us,
-            filter_wall_us=record.filter_us, monitor_marks=record.marks,
-            **shown)
+            filter_wall_us=record.filter_us, **shown)
         if self._shows:  # (the stages that show something: Snapshot.stages)
             snapshot = self.last = snapshot._replace(stages=self.stages.shown())
         return snapshot
@@ -1017,11 +1003,12 @@ class Engine:
     def _keep(self, fov: tuple[bool, ...], outputs: tuple[bool, ...],
               report: FilterReport | None, diagnosis: Diagnosis, monitored: bool,
               error: str | None, filter_us: float) -> None:
-        """What stages 1 to 8 decided, into the scan's record (ScanRecord)."""
+        """What stages 1 to 8 decided, into the scan's record (ScanRecord), the filter's
+        report into its stage (what it publishes: program_stages.FILTER)."""
         record = self._record
+        self.filter_stage.report = report
         record.fov = fov
         record.outputs = outputs
-        record.report = report
         record.diagnosis = diagnosis
         record.monitored = monitored
         record.error = error
@@ -1124,6 +1111,11 @@ _PART = {order.INPUTS: Engine._scan_inputs, order.MODE_PROGRAM: Engine._scan_pro
          order.MONITORS: Engine._scan_monitors}
 _GUARDED = tuple(_PART[part] for part in order.GUARDED)
 _EXCHANGED = tuple(_PART[part] for part in order.EXCHANGED)
+
+
+def _after(stage: Any) -> bool:
+    """Whether a declared stage runs after the output scan (hmi.program.order.MONITORS)."""
+    return order.MONITORS in stage.parts
 
 
 def _all_exprs(project: Project) -> Iterator[Expr]:

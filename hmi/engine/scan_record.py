@@ -11,20 +11,19 @@ from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 from hmi.engine.diagnoser import NO_DIAGNOSIS, Diagnosis
-from hmi.engine.filter import FilterReport
 from hmi.plant.base import PlantStatus
 
 
 class Raised(NamedTuple):
     """A read the printed frame made for the scan's conclusion raised (Engine._conclude,
-    which latches it as its own would have): which, in plain words (one of SETTLING, EVENTS,
-    STATUS, in snapshot.INTERNAL_PARTS), and what."""
+    which latches it as its own would have): which, in plain words (EVENTS, STATUS or a
+    publication's `reading`: hmi.engine.program_stages, in snapshot.INTERNAL_PARTS), and
+    what."""
 
     part: str
     exc: Exception
 
 
-SETTLING = "settling the monitors"
 EVENTS = "reading the plant's events"
 STATUS = "reading the plant's status"
 
@@ -49,11 +48,9 @@ class ScanRecord:
         "events",
         "filter_us",
         "fov",
-        "marks",
         "monitored",
         "outputs",
         "published",
-        "report",
         "scan_us",
         "settled",
         "values",
@@ -62,15 +59,16 @@ class ScanRecord:
     def __init__(self) -> None:
         self.fov: tuple[bool, ...] = ()  # the functional output vector (stage 5)
         self.outputs: tuple[bool, ...] = ()  # what was written (stage 7)
-        self.report: FilterReport | None = None  # the filter's (None: not reached)
         self.diagnosis: Diagnosis = NO_DIAGNOSIS  # routes, mask and records (stage 3)
-        self.monitored = False  # whether the monitors ran (stage 8)
+        # whether the part after the output scan (hmi.program.order.MONITORS: the stages'
+        # statements there) ran to its end: False when it raised, or no stage has any
+        self.monitored = False
         self.error: str | None = None  # an internal error of the scan, latched
         self.filter_us = 0.0  # the filter's wall time (0.0 unless Engine.wall_times)
         self.values: tuple[Any, ...] = ()  # the image as the scan left it (history[0])
-        # what each publishing stage gave (Engine.stages.publishing, in its order)
+        # what each publishing stage gave (Engine.stages.publishing, in its order): the
+        # filter's report, the diagnosers' states, the monitors' marks, ...
         self.published: tuple[Any, ...] = ()
-        self.marks = 0  # the monitors' marks (Snapshot.monitor_marks)
         self.events: tuple[Any, ...] = ()  # the plant's events
         self.scan_us = 0.0  # the scan's wall time
         # Every field but fov, outputs and values is a quiet scan's (the printed frame, at a
@@ -81,14 +79,12 @@ class ScanRecord:
 @dataclass(frozen=True, slots=True)
 class ScanNews:
     """What a scan is compared with to say whether the next one has news (Engine.run): the
-    very objects the last scan with news gave: its filter report, the plant's status, the
-    monitors' marks, and what each publishing stage gave (Engine.stages.publishing, in its
-    order). Slotted, not a tuple of our own class: the printed frame reads its fields at
+    very objects the last scan with news gave: the plant's status and what each publishing
+    stage gave (Engine.stages.publishing, in its order: the filter's report, the monitors'
+    marks, ...). Slotted, not a tuple of our own class: the printed frame reads its fields at
     every quiet scan (hmi.engine.compiled), and on CPython 3.11 an item of a tuple subclass
     is a generic subscript (some 100 instructions), a slot's field and an item of a plain
     tuple a few; built at the scans with news only."""
 
-    report: FilterReport | None
     status: PlantStatus
-    marks: int
     published: tuple[Any, ...]

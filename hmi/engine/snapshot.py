@@ -49,7 +49,7 @@ INTERNAL_PARTS = (
     "reading the diagnosers' states", "settling the monitors", "reading the plant's events",
     "reading the recovery's state", "reading the plant's status", "reading the monitors' states",
     "reading the active steps", "computing the timers' elapsed times",
-    "watching the steps' supervision times",
+    "watching the steps' supervision times", "reading the filter's report",
     "reading the plant's state", "reading the plant's counters", "reading the masked outputs",
     "writing the outputs to the plant", "writing the safe outputs to the plant")
 
