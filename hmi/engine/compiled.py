@@ -374,15 +374,16 @@ def auto_frame(engine: Any) -> ir.Function:
                                                    monitored, error, events,
                                                    raised(STATUS))),)),)),
     ]
-    # news: as Engine._conclude judges it (ScanNews: its fields, each stage's by position)
+    # news: as Engine._conclude judges it (ScanNews: the plant's status, then each stage's,
+    # by position)
     last = ir.Local("last")
     body += [
         ir.Assign(last, cell(e, "_news")),
         ir.If(ir.Or((ir.IsNone(last), ir.Field(diag, "reconstructed"),
                      cell(e, "manual"))), (taken,)),
         ir.If(ir.Not(ir.And((
-            ir.Compare("is", status, ir.Field(last, "status")),
-            *(ir.Compare("is", value, ir.Item(ir.Field(last, "published"), k))
+            ir.Compare("is", status, ir.Item(last, 0)),
+            *(ir.Compare("is", value, ir.Item(last, k + 1))
               for k, value in enumerate(given) if value is not None)))), (taken,)),
         # a quiet scan: the image into the history, the record
         ir.Assign(values, call(tuple, "__call__", image)),
@@ -392,8 +393,7 @@ def auto_frame(engine: Any) -> ir.Function:
     fields: tuple[tuple[str, ir.Value], ...] = (
         ("diagnosis", diag), ("monitored", monitored), ("error", ir.NONE),
         ("filter_us", zero),
-        ("published", ir.Tuple(tuple(ir.Item(ir.Field(last, "published"), k)
-                                     if value is None else value
+        ("published", ir.Tuple(tuple(ir.Item(last, k + 1) if value is None else value
                                      for k, value in enumerate(given)))),
         ("events", ir.Const(())), ("scan_us", zero))
     moving = (ir.Assign(cell(record, "fov"), f), ir.Assign(cell(record, "outputs"), out),

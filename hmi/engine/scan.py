@@ -682,14 +682,15 @@ class Engine:
         last = self._news
         # (a command since, a new policy included, makes this scan news and compares the
         # next with this one: _news None)
-        news = not (last is not None and status is last.status and error is None
-                    and not events and not self.latched and not diagnosis.masked
+        news = not (last is not None and error is None and not events
+                    and not self.latched and not diagnosis.masked
                     and not diagnosis.reconstructed and not self.manual)
-        if not news:  # (and each stage gives the very object it gave then: the filter its
-            # report, the monitors their marks, ...)
-            news = not all(map(is_, published, last.published))  # type: ignore[union-attr]
+        compared = (status, *published)
+        if not news:  # (and the plant's status and what each stage gives are the very
+            # objects of then: the filter's report, the monitors' marks, ...)
+            news = not all(map(is_, compared, last))  # type: ignore[arg-type]
         if news:
-            self._news = ScanNews(status, published)
+            self._news = compared
         record.values = values
         record.published = published
         record.events = events

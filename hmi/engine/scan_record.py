@@ -7,11 +7,9 @@ they live here, below both.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 from hmi.engine.diagnoser import NO_DIAGNOSIS, Diagnosis
-from hmi.plant.base import PlantStatus
 
 
 class Raised(NamedTuple):
@@ -76,15 +74,12 @@ class ScanRecord:
         self.settled = False
 
 
-@dataclass(frozen=True, slots=True)
-class ScanNews:
-    """What a scan is compared with to say whether the next one has news (Engine.run): the
-    very objects the last scan with news gave: the plant's status and what each publishing
-    stage gave (Engine.stages.publishing, in its order: the filter's report, the monitors'
-    marks, ...). Slotted, not a tuple of our own class: the printed frame reads its fields at
-    every quiet scan (hmi.engine.compiled), and on CPython 3.11 an item of a tuple subclass
-    is a generic subscript (some 100 instructions), a slot's field and an item of a plain
-    tuple a few; built at the scans with news only."""
-
-    status: PlantStatus
-    published: tuple[Any, ...]
+# What a scan is compared with to say whether the next one has news (Engine.run): the very
+# objects the last scan with news gave: the plant's status, then what each publishing stage
+# gave (Engine.stages.publishing, in its order: the filter's report, the monitors' marks,
+# ...). A plain tuple: the printed frame reads its items at every quiet scan
+# (hmi.engine.compiled), and on CPython 3.11 an item of a plain tuple by a constant index
+# is one specialized instruction, as a slot's field is (an item of a tuple subclass is a
+# generic subscript, some 100 instructions); one item a stage where a field holding the
+# stages' tuple took two. Built at the scans with news only.
+ScanNews = tuple[Any, ...]
