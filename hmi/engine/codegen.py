@@ -1,4 +1,4 @@
-"""Python source for a project's scan, generated from its parsed expressions (issue 18).
+"""Python source for a project's scan, generated from its parsed expressions.
 
 Why generate code: a scan that calls one closure per node of every expression (hmi.logic.expr's
 ``compile_bool``) spends most of its time in calls. Here each expression becomes one Python
