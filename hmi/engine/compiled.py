@@ -375,12 +375,11 @@ def auto_frame(engine: Any) -> ir.Function:
                                                    raised(STATUS))),)),)),
     ]
     # news: as Engine._conclude judges it (ScanNews: the plant's status, then each stage's,
-    # by position)
+    # by position; Engine._unmatched after a command: no scan's)
     last = ir.Local("last")
     body += [
         ir.Assign(last, cell(e, "_news")),
-        ir.If(ir.Or((ir.IsNone(last), ir.Field(diag, "reconstructed"),
-                     cell(e, "manual"))), (taken,)),
+        ir.If(ir.Or((ir.Field(diag, "reconstructed"), cell(e, "manual"))), (taken,)),
         ir.If(ir.Not(ir.And((
             ir.Compare("is", status, ir.Item(last, 0)),
             *(ir.Compare("is", value, ir.Item(last, k + 1))

@@ -219,8 +219,10 @@ class Engine:
         # news is judged against (hmi.engine.scan.Engine.run).
         self._record = ScanRecord()
         self._pending = False  # whether _record holds a scan whose snapshot is not built
-        # (None: the next scan has news whatever it finds: none yet, or a command since)
-        self._news: ScanNews | None = None
+        # (_unmatched: the next scan has news whatever it finds: none yet, or a command
+        # since; a tuple of what no scan gives, so that the comparison itself says so)
+        self._unmatched: ScanNews = (_NEVER,) * (1 + len(self._published_fields))
+        self._news: ScanNews = self._unmatched
         self._clean = self.filter_stage.clean  # each policy's report of a clean scan
         self.policy = self.policy  # (its clean report, now that the filter is there)
         self.wall_times = True
@@ -496,7 +498,7 @@ class Engine:
         scan's snapshot, if still pending, is built now from what that scan left."""
         if self._pending:
             self.snapshot()
-        self._news = None  # (the next scan has news)
+        self._news = self._unmatched  # (the next scan has news)
 
     def fault_reset(self) -> CommandResult:
         self._before_change()
@@ -681,14 +683,14 @@ class Engine:
             error = record.error
         last = self._news
         # (a command since, a new policy included, makes this scan news and compares the
-        # next with this one: _news None)
-        news = not (last is not None and error is None and not events
-                    and not self.latched and not diagnosis.masked
-                    and not diagnosis.reconstructed and not self.manual)
+        # next with this one: _news _unmatched)
+        news = not (error is None and not events and not self.latched
+                    and not diagnosis.masked and not diagnosis.reconstructed
+                    and not self.manual)
         compared = (status, *published)
         if not news:  # (and the plant's status and what each stage gives are the very
             # objects of then: the filter's report, the monitors' marks, ...)
-            news = not all(map(is_, compared, last))  # type: ignore[arg-type]
+            news = not all(map(is_, compared, last))
         if news:
             self._news = compared
         record.values = values
@@ -801,7 +803,7 @@ class Engine:
         closed-loop exploration, hmi.studies.explore, only follows the state). The plant's
         events stay with the plant (take_events)."""
         self._pending = False
-        self._news = None  # (the next run() cannot compare with this scan)
+        self._news = self._unmatched  # (the next run() cannot compare with this scan)
         self._cycle(now)
         self.history.appendleft(tuple(self.image))
 
@@ -1084,6 +1086,10 @@ class Engine:
         if self.observe:
             return tuple(self.image[s] for s in self.output_slots)
         return self.safe_vector
+
+# What no scan gives (Engine._unmatched)
+_NEVER = object()
+
 
 class _InputsUnknown(Exception):
     """The input scan failed: skip to the output scan with the outputs safe."""
