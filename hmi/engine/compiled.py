@@ -209,12 +209,13 @@ class CompiledScan:
 
     def frame(self, engine: Any) -> Callable[[int], bool]:
         """The automatic mode's scan (auto_frame), in this form."""
-        # (a guarded publication's read: a local named after its field)
-        guarded = Vocabulary(locals=frozenset(news.field for news, _ in engine.stages.publishing
-                                              if news.guarded))
-        self.vocabulary = self.vocabulary.union(guarded)
+        # (each publication's field: ScanNews's, and a guarded one's local)
+        publishing = engine.stages.publishing
+        fields = Vocabulary(frozenset(news.field for news, _ in publishing),
+                            frozenset(news.field for news, _ in publishing if news.guarded))
+        self.vocabulary = self.vocabulary.union(fields)
         if self.python:
-            allow(guarded)
+            allow(fields)
         fn: Callable[[int], bool] = self._form(auto_frame(engine))
         return fn
 
@@ -375,15 +376,16 @@ def auto_frame(engine: Any) -> ir.Function:
                                                    raised(STATUS))),)),)),
     ]
     # news: as Engine._conclude judges it (ScanNews: the plant's status, then each stage's,
-    # by position; Engine._unmatched after a command: no scan's)
+    # by its field; Engine._unmatched after a command: no scan's)
     last = ir.Local("last")
     body += [
         ir.Assign(last, cell(e, "_news")),
         ir.If(ir.Or((ir.Field(diag, "reconstructed"), cell(e, "manual"))), (taken,)),
         ir.If(ir.Not(ir.And((
-            ir.Compare("is", status, ir.Item(last, 0)),
-            *(ir.Compare("is", value, ir.Item(last, k + 1))
-              for k, value in enumerate(given) if value is not None)))), (taken,)),
+            ir.Compare("is", status, ir.Field(last, "status")),
+            *(ir.Compare("is", value, ir.Field(last, news.field))
+              for (news, _), value in zip(publishing, given, strict=True)
+              if value is not None)))), (taken,)),
         # a quiet scan: the image into the history, the record
         ir.Assign(values, call(tuple, "__call__", image)),
         ir.Do(call(engine.history, "appendleft", values)),
@@ -392,8 +394,9 @@ def auto_frame(engine: Any) -> ir.Function:
     fields: tuple[tuple[str, ir.Value], ...] = (
         ("diagnosis", diag), ("monitored", monitored), ("error", ir.NONE),
         ("filter_us", zero),
-        ("published", ir.Tuple(tuple(ir.Item(last, k + 1) if value is None else value
-                                     for k, value in enumerate(given)))),
+        ("published", ir.Tuple(tuple(ir.Field(last, news.field) if value is None else value
+                                     for (news, _), value in zip(publishing, given,
+                                                                 strict=True)))),
         ("events", ir.Const(())), ("scan_us", zero))
     moving = (ir.Assign(cell(record, "fov"), f), ir.Assign(cell(record, "outputs"), out),
               ir.Assign(cell(record, "values"), values))

@@ -221,7 +221,8 @@ class Engine:
         self._pending = False  # whether _record holds a scan whose snapshot is not built
         # (_unmatched: the next scan has news whatever it finds: none yet, or a command
         # since; a tuple of what no scan gives, so that the comparison itself says so)
-        self._unmatched: ScanNews = (_NEVER,) * (1 + len(self._published_fields))
+        self._news_kind = ScanNews.kind(self._published_fields)
+        self._unmatched = self._news_kind((_NEVER,) * (1 + len(self._published_fields)))
         self._news: ScanNews = self._unmatched
         self._clean = self.filter_stage.clean  # each policy's report of a clean scan
         self.policy = self.policy  # (its clean report, now that the filter is there)
@@ -690,9 +691,9 @@ class Engine:
         compared = (status, *published)
         if not news:  # (and the plant's status and what each stage gives are the very
             # objects of then: the filter's report, the monitors' marks, ...)
-            news = not all(map(is_, compared, last))
+            news = not all(map(is_, compared, last.given))
         if news:
-            self._news = compared
+            self._news = self._news_kind(compared)
         record.values = values
         record.published = published
         record.events = events
@@ -925,7 +926,8 @@ class Engine:
                 self.image[slot] = value
 
     def _scan_monitors(self, s: _Parts, now: int) -> None:
-        """8. the monitors, on the I/O this scan exchanged (their states: Engine.snapshot)"""
+        """8. the part after the output scan (the stages' statements there: the monitors'),
+        on the I/O this scan exchanged (what they publish and show: their declarations)"""
         monitors = self.compiled.monitors
         if monitors is None:
             s.monitored = False

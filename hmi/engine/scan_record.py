@@ -74,12 +74,28 @@ class ScanRecord:
         self.settled = False
 
 
-# What a scan is compared with to say whether the next one has news (Engine.run): the very
-# objects the last scan with news gave: the plant's status, then what each publishing stage
-# gave (Engine.stages.publishing, in its order: the filter's report, the monitors' marks,
-# ...). A plain tuple: the printed frame reads its items at every quiet scan
-# (hmi.engine.compiled), and on CPython 3.11 an item of a plain tuple by a constant index
-# is one specialized instruction, as a slot's field is (an item of a tuple subclass is a
-# generic subscript, some 100 instructions); one item a stage where a field holding the
-# stages' tuple took two. Built at the scans with news only.
-ScanNews = tuple[Any, ...]
+class ScanNews:
+    """What a scan is compared with to say whether the next one has news (Engine.run): the
+    very objects the last scan with news gave: the plant's status, then what each publishing
+    stage gave (Engine.stages.publishing, in its order: the filter's report, the monitors'
+    marks, ...), as one tuple (`given`: Engine._conclude compares it) and each in a slot
+    named after its snapshot field, which the printed frame reads at every quiet scan
+    (hmi.engine.compiled): on CPython 3.11 a slot's field is one specialized instruction, an
+    item of a tuple by a constant index two (an item of a tuple subclass a generic subscript,
+    some 100 instructions). The class with those slots is one engine's (:meth:`kind`: its
+    stages' publications); one is built at the scans with news only."""
+
+    __slots__ = ("given", "status")
+    FIELDS: tuple[str, ...] = ("status",)  # the slots `given` fills, in its order
+    status: Any
+
+    def __init__(self, given: tuple[Any, ...]):
+        self.given = given
+        for name, value in zip(self.FIELDS, given, strict=True):
+            setattr(self, name, value)
+
+    @classmethod
+    def kind(cls, fields: tuple[str, ...]) -> type[ScanNews]:
+        """The class whose slots are `fields` besides the status (the snapshot fields of an
+        engine's publications, in their order)."""
+        return type("ScanNews", (cls,), {"__slots__": fields, "FIELDS": ("status", *fields)})
