@@ -311,11 +311,11 @@ class IrSymbolic:
         raise Unsupported(f"expression {type(node).__name__}")
 
 
-def built_blocks(project: Any, builder: str, module: str = "hmi.export.build"
+def built_blocks(project: Any, builder: str, module: str = "hmi.export.stage_blocks"
                  ) -> list[tuple[tuple[Any, ...], Any]]:
-    """Each call of `module`'s `builder` (e.g. hmi.export.build's "build_monitor") when the
-    project is exported: its arguments and the Block it built (the export's own wiring and
-    objects)."""
+    """Each call of `module`'s `builder` (e.g. hmi.export.stage_blocks's "build_monitor")
+    when the project is exported: its arguments and the Block it built (the export's own
+    wiring and objects)."""
     b = importlib.import_module(module)
     seen: list[tuple[tuple[Any, ...], Any]] = []
     real = getattr(b, builder)

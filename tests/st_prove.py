@@ -854,8 +854,8 @@ class FilterWiring:
 
 
 def filter_wiring(project: Any) -> tuple[str, FilterWiring]:
-    """The filter FB's name and wiring, as hmi.export.build builds it."""
-    b = importlib.import_module("hmi.export.build")
+    """The filter FB's name and wiring, as the export builds it (hmi.export.stage_blocks)."""
+    b = importlib.import_module("hmi.export.stage_blocks")
     seen: list[Any] = []
     real = b.build_filter
 
@@ -866,7 +866,7 @@ def filter_wiring(project: Any) -> tuple[str, FilterWiring]:
 
     b.build_filter = spy  # type: ignore[assignment]
     try:
-        b.build(project)
+        importlib.import_module("hmi.export.build").build(project)
     finally:
         b.build_filter = real  # type: ignore[assignment]
     (block,) = seen

@@ -20,8 +20,9 @@ derives from the declarations:
   deepest stage; a fault reset, Engine.capture/restore, the end of a scan
   (Engine._conclude: each publication read, news judged on them), the printed frame's
   quiet test (each publication's, printed) and the snapshot walk the declarations;
-* the PLC export builds each stage's function blocks (hmi.export.stage_blocks, keyed by
-  role) and the PLC program calls them at the stage's place (hmi.export.program_pou).
+* the PLC export builds the same stages from the same declarations, each stage's function
+  blocks (hmi.export.stage_blocks, keyed by role, an added stage's by class), and the PLC
+  program calls them at the stage's place (hmi.export.program_pou).
 
 Besides the stages of the mode's program, the filter (:data:`FILTER`: its part of the scan
 the engine runs itself, between the program and the output scan) and the monitors

@@ -10,6 +10,9 @@
     PRG_<P>_Safety      the cycle: calls them in the engine's order, keeps the previous
                         values (prev_x), applies a fault reset after the scan
 
+Each block is a declared stage's (hmi.engine.program_stages: the stages the engine runs,
+built here from the same declarations; hmi.export.stage_blocks builds their blocks).
+
 The global variables (hmi/export/image.py) hold the project's values: the I/O at the plant
 map's addresses, timers, observers, flags, filtered sensors, the program's outputs FOV_x.
 One task at the project's scan period runs the program.
@@ -19,19 +22,17 @@ from __future__ import annotations
 
 from hmi.engine.filter import Solver
 from hmi.engine.layout import Layout
-from hmi.engine.monitors import monitor_stage
 from hmi.engine.program_stages import StageContext, build_stages
 from hmi.errors import ProjectError
 from hmi.export import model as m
 from hmi.export import source
-from hmi.export.filter_pou import build_filter, max_distance, vectors_bound
+from hmi.export.filter_pou import max_distance, vectors_bound
 from hmi.export.image import CONTROL, Globals, build_globals
 from hmi.export.names import Scope
 from hmi.export.program_pou import Blocks, build_program
 from hmi.export.sfc import build_chart
 from hmi.export.st import time_text
-from hmi.export.stage_blocks import ExportContext, exported, stage_calls
-from hmi.export.stopwatch_pou import build_monitor
+from hmi.export.stage_blocks import ExportContext, stage_calls
 from hmi.export.views import Durations
 from hmi.program import order
 from hmi.project.diagnosers import layout_names
@@ -48,29 +49,21 @@ def build(project: Project, control: str | None = None) -> m.PlcProject:
     durations = Durations()
     prefix = Scope().take(source.name(project))
     pous = Scope()
-    names = {key: pous.take(name) for key, name in (
-        ("filter", f"FB_{prefix}_Filter"), ("program", f"PRG_{prefix}_Safety"))}
+    program_name = pous.take(f"PRG_{prefix}_Safety")
     bound = source.filter_bound(project)
     law = project.control(control)
     layout = Layout.build(project, law, extra=layout_names(project))
     g = build_globals(project, pous.child())
-    stage = monitor_stage(project, layout)
-    monitors = [build_monitor(stage, k, task, layout, pous.take(f"FB_{prefix}_Mon_{task.name}"),
-                              pous, durations)
-                for k, task in enumerate(source.monitors(project))] if stage is not None else []
-    # The declared stages as the engine builds them (the diagnosers in their ftc mode), each
-    # with the blocks hmi.export.stage_blocks builds for it
-    context = ExportContext(project, layout, g, prefix, pous, durations)
+    # The declared stages, built as the engine builds them (the diagnosers in their ftc
+    # mode), each with the blocks hmi.export.stage_blocks builds for it (none: not on the PLC)
+    context = ExportContext(project, layout, g, prefix, pous, durations, bound)
     stages = build_stages(StageContext(project, layout, law,
                                        tuple(v.safe for v in project.outputs),
-                                       Solver(project.solver, project.solver_budget)),
-                          exported())
+                                       Solver(project.solver, project.solver_budget)))
     calls = [(d, called) for d, s in stages
              if (called := stage_calls(d, s, context)) is not None]
-    blocks = Blocks(filter=build_filter(project, names["filter"], pous, bound),
-                    monitors=monitors, stages=[called for _, called in calls],
-                    places=stages.places)
-    program, instances = build_program(project, names["program"], g, blocks, durations)
+    blocks = Blocks(stages=[called for _, called in calls], places=stages.places)
+    program, instances = build_program(project, program_name, g, blocks, durations)
     types = {v.name: v.type for v in g.vars}
     chart = build_chart(law, pous.take(f"SFC_{prefix}_Grafcet"), g.idents, types,
                         lambda us: time_text(us // 1000))
@@ -80,10 +73,9 @@ def build(project: Project, control: str | None = None) -> m.PlcProject:
         "Config0", "Res0", (m.VarBlock("global", g.all),),
         (m.Task("MainTask", source.scan_period_us(project) // 1000, 1),),
         (m.ProgramInstance("Safety", "MainTask", program.name),))
-    # the built-in stages' blocks, the filter, the monitors, the added stages' blocks
+    # the built-in stages' blocks (the filter's and the monitors' among them), the added
+    # stages' blocks
     all_pous = [c.block.pou for d, (_, called) in calls if d.place is None for c in called]
-    all_pous.append(blocks.filter.pou)
-    all_pous += [b.pou for b in blocks.monitors]
     all_pous += [c.block.pou for d, (_, called) in calls if d.place is not None
                  for c in called]
     all_pous.append(program)

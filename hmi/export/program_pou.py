@@ -4,9 +4,9 @@
     2 Memory   3-4 each Diag_<D>   5 Control   6 Filter   7 outputs
     8 each Mon_<task>   a fault reset (after the scan)   the history shifts
 
-The declared stages' blocks (2-5, and each added stage's, hmi.export.stage_blocks) are
-called at their part of the scan as their StageCall says; the filter, the output scan and
-the monitors are the program's own.
+The declared stages' blocks (2-6 and 8, and each added stage's, hmi.export.stage_blocks) are
+called at their part of the scan as their StageCall says; the scan's time and the output
+scan are the program's own.
 
 The program holds the history its function blocks read: `prev_x` is x at the previous scan,
 `prev2_x` two scans back. Each FB input standing for (x, depth) is wired to the value it
@@ -21,7 +21,6 @@ from dataclasses import dataclass, field
 
 from hmi.export import model as m
 from hmi.export import source
-from hmi.export.diagnoser_pou import ftc_mode
 from hmi.export.image import Globals
 from hmi.export.names import Scope
 from hmi.export.stage_blocks import StageCall
@@ -34,8 +33,6 @@ from hmi.project.model import Project
 class Blocks:
     """The function blocks the program calls."""
 
-    filter: Block
-    monitors: list[Block]
     # each exported stage's blocks (hmi.export.stage_blocks) by the part they are called at,
     # in the stages' order
     stages: list[tuple[str, list[StageCall]]] = field(default_factory=list)
@@ -86,35 +83,11 @@ def build_program(project: Project, name: str, g: Globals, b: Blocks,
                 m.FbCall(clock, (("IN", m.TRUE), ("PT", m.TimeLit(TMAX_MS)))),
                 m.Assign(m.Name(now), m.Member(m.Name(clock), "ET"))]
 
-    def filter_() -> list[m.Stmt]:
-        filt = b.filter
-        finst = p.instance("Filter")
-        return [
-            m.Comment("6. The safety filter"),
-            m.FbCall(finst, (
-                (filt.ports["Reset"], m.FALSE), (filt.ports["Policy"], g.name("FilterPolicy")),
-                (filt.ports["Ftc"], ftc_mode(g.name("DiagnosisMode"))),
-                *((filt.ports[f"FOV_{v.name}"], g.name(f"FOV_{v.name}"))
-                  for v in source.outputs(project)),
-                *p.wire(filt))),
-            *(m.Assign(g.name(v.name), m.Member(m.Name(finst), filt.outputs[v.name]))
-              for v in source.outputs(project)),
-            *(m.Assign(g.name(key), m.Member(m.Name(finst), filt.ports[port]))
-              for key, port in (("Violations", "Violations"), ("FilterLatched", "Latched"),
-                                ("FilterFallback", "Fallback")))]
-
-    def monitors() -> list[m.Stmt]:
-        calls = _monitors(project, p, b, now)
-        if not calls:
-            return []
-        return [m.Comment("7. The output scan (the PLC writes the outputs after the cycle); "
-                          "8. the stopwatch monitors, on the I/O of this scan"), *calls]
-
     # The scan's parts in the engine's order (hmi.program.order, with the added stages'
     # places), each the blocks that run it: the declared stages' (hmi.export.stage_blocks)
     # and the program's own.
-    parts = {order.INPUTS: inputs, order.FILTER: filter_,
-             order.OUTPUTS: lambda: list(g.write), order.MONITORS: monitors}
+    parts: dict[str, Callable[[], list[m.Stmt]]] = {
+        order.INPUTS: inputs, order.OUTPUTS: lambda: list(g.write)}
     calls: dict[str, list[StageCall]] = {}
     for at, stage in b.stages:
         calls.setdefault(at, []).extend(stage)
@@ -139,10 +112,7 @@ def build_program(project: Project, name: str, g: Globals, b: Blocks,
                 for (n, _), ident in p.history.items()),
               m.Assign(m.Name(started), m.TRUE))]
 
-    types = {"Filter": b.filter.pou.name}
-    types.update({c.key: c.block.pou.name for _, stage in b.stages for c in stage})
-    types.update({f"Mon_{t.name}": blk.pou.name for t, blk in zip(source.monitors(project),
-                                                                  b.monitors, strict=True)})
+    types = {c.key: c.block.pou.name for _, stage in b.stages for c in stage}
     locals_ = [m.Var(started, m.BOOL), m.Var(clock, m.Derived("TON")),
                m.Var(now, m.TIME, comment="the scan's time")]
     locals_ += [m.Var(ident, m.Derived(types[key])) for key, ident in p.instances.items()]
@@ -158,33 +128,24 @@ def build_program(project: Project, name: str, g: Globals, b: Blocks,
 
 def _call(p: _Program, call: StageCall, now: str, outputs: set[str]) -> list[m.Stmt]:
     """A declared stage's block called (hmi.export.stage_blocks.StageCall): the scan's
-    time, its fixed ports, what it reads wired, its outputs to the globals."""
+    time, its fixed ports, what it reads wired, its outputs and results to the globals."""
     block = call.block
     inst = p.instance(call.key)
     shift = (lambda n, d: p.value(n, d + (n in outputs))) if call.outputs_back else None
-    return [m.Comment(call.comment),
+    return [*((m.Comment(call.comment),) if call.comment is not None else ()),
             m.FbCall(inst, (*(((block.ports["Now"], m.Name(now)),) if call.now else ()),
                             *((block.ports[port], value) for port, value in call.consts),
                             *((block.ports[port], p.g.name(key)) for port, key in call.reads),
                             *p.wire(block, shift))),
             *(m.Assign(p.g.name(n), m.Member(m.Name(inst), out))
-              for n, out in block.outputs.items())]
-
-
-def _monitors(project: Project, p: _Program, b: Blocks, now: str) -> list[m.Stmt]:
-    out: list[m.Stmt] = []
-    for task, block in zip(source.monitors(project), b.monitors, strict=True):
-        inst = p.instance(f"Mon_{task.name}")
-        out.append(m.FbCall(inst, ((block.ports["Now"], m.Name(now)),
-                                   (block.ports["Reset"], m.FALSE), *p.wire(block))))
-        out.append(m.Assign(p.g.name(task.label), m.Member(m.Name(inst), block.ports["Fault"])))
-    return out
+              for n, out in block.outputs.items()),
+            *(m.Assign(p.g.name(key), m.Member(m.Name(inst), block.ports[port]))
+              for key, port in call.results)]
 
 
 def _reset(project: Project, p: _Program, b: Blocks) -> list[m.Stmt]:
     outputs = {v.name for v in source.outputs(project)}
-    stmts: list[m.Stmt] = [m.Assign(p.g.name("FaultReset"), m.FALSE),
-                           m.FbCall(p.instances["Filter"], ((b.filter.ports["Reset"], m.TRUE),))]
+    stmts: list[m.Stmt] = [m.Assign(p.g.name("FaultReset"), m.FALSE)]
 
     # The engine resets between scans, on the image of the scan just ended, which is also
     # the newest history entry: a read at depth d (outputs one deeper) is the value d - 1
@@ -192,12 +153,13 @@ def _reset(project: Project, p: _Program, b: Blocks) -> list[m.Stmt]:
     def back(n: str, d: int) -> m.Expr:
         return p.value(n, max(d + (n in outputs) - 1, 0))
 
-    for call in (c for _, stage in b.stages for c in stage if c.resets):
+    # the latch first (as Engine.fault_reset releases it before the stages), then each stage
+    # in order
+    resets = sorted((c for _, stage in b.stages for c in stage if c.resets),
+                    key=lambda c: not c.latch)
+    for call in resets:
         block = call.block
         stmts.append(m.FbCall(p.instances[call.key], (
             (block.ports["Reset"], m.TRUE),
             *((block.inputs[key], back(*key)) for key in block.reset_reads))))
-    for task, block in zip(source.monitors(project), b.monitors, strict=True):
-        stmts.append(m.FbCall(p.instances[f"Mon_{task.name}"],
-                              ((block.ports["Reset"], m.TRUE),)))
     return stmts
