@@ -68,6 +68,7 @@ from hmi.engine.scan_record import (
     Raised,
     ScanNews,
     ScanRecord,
+    news_kind,
 )
 from hmi.engine.snapshot import INTERNAL_PARTS, LatchReason, Snapshot
 from hmi.engine.stages import InputScan, OutputScan, plant_detail
@@ -181,6 +182,7 @@ class Engine:
         self._publishing = tuple((news.read, stage, news.reading, news.failed, _after(stage))
                                  for news, stage in self.stages.publishing)
         self._published_fields = tuple(news.field for news, _ in self.stages.publishing)
+        self._reads = tuple((news.read, stage) for news, stage in self.stages.publishing)
         self._showing = tuple((fields, stage, _after(stage))
                               for fields, stage in self.stages.showing)
         # The history is as deep as the deepest expression of any stage reads.
@@ -221,8 +223,9 @@ class Engine:
         self._pending = False  # whether _record holds a scan whose snapshot is not built
         # (_unmatched: the next scan has news whatever it finds: none yet, or a command
         # since; a tuple of what no scan gives, so that the comparison itself says so)
-        self._news_kind = ScanNews.kind(self._published_fields)
-        self._unmatched = self._news_kind((_NEVER,) * (1 + len(self._published_fields)))
+        self._news_kind = news_kind(self._published_fields)
+        never = (_NEVER,) * (1 + len(self._published_fields))
+        self._unmatched = self._news_kind(never, *never)  # type: ignore[call-arg]
         self._news: ScanNews = self._unmatched
         self._clean = self.filter_stage.clean  # each policy's report of a clean scan
         self.policy = self.policy  # (its clean report, now that the filter is there)
@@ -645,17 +648,17 @@ class Engine:
         # read fails.
         failed: str | None = None
         given: list[Any] = []
-        for read, stage, reading, unread, after in self._publishing:
-            if after and not monitored:
-                given.append(unread(stage))
-                continue
+        if raised is None and monitored:  # (most scans: each read once, none raising)
             try:
-                if raised is not None and raised.part == reading:
-                    raise raised.exc
-                given.append(read(stage, image, history, now))
-            except Exception as exc:
+                for read, stage in self._reads:
+                    given.append(read(stage, image, history, now))
+            except Exception as exc:  # (the one that raised, then the rest one by one)
+                _, stage, reading, unread, _ = self._publishing[len(given)]
                 failed = self._failure(reading, exc)
                 given.append(unread(stage))
+                failed = self._publish_carefully(now, monitored, raised, given) or failed
+        else:
+            failed = self._publish_carefully(now, monitored, raised, given)
         published = tuple(given)
         # The image as the scan left it: the snapshot's values and the history's newest
         # entry are one tuple (an image in the history is never changed).
@@ -693,7 +696,7 @@ class Engine:
             # objects of then: the filter's report, the monitors' marks, ...)
             news = not all(map(is_, compared, last.given))
         if news:
-            self._news = self._news_kind(compared)
+            self._news = self._news_kind(compared, *compared)  # type: ignore[call-arg]
         record.values = values
         record.published = published
         record.events = events
@@ -701,6 +704,28 @@ class Engine:
         record.settled = False
         self._pending = True
         return news
+
+    def _publish_carefully(self, now: int, monitored: bool, raised: Raised | None,
+                           given: list[Any]) -> str | None:
+        """What each publishing stage not in `given` yet gives (into `given`), each read on
+        its own: one that raises (or whose printed read raised: `raised`) is latched under
+        what it reads and gives what it gives when it fails; one that runs after the output
+        scan is not read when that part raised (`monitored` False: latched already).
+        Returns the error of the last that failed."""
+        image, history = self.image, self.history
+        failed: str | None = None
+        for read, stage, reading, unread, after in self._publishing[len(given):]:
+            try:
+                if after and not monitored:
+                    given.append(unread(stage))
+                    continue
+                if raised is not None and raised.part == reading:
+                    raise raised.exc
+                given.append(read(stage, image, history, now))
+            except Exception as exc:
+                failed = self._failure(reading, exc)
+                given.append(unread(stage))
+        return failed
 
     def run_while_quiet(self, start: int, end: int, period: int) -> QuietRun:
         """Scans at `start`, `start + period`, ... up to `end` included, by :meth:`run`,
@@ -1091,6 +1116,7 @@ class Engine:
 
 # What no scan gives (Engine._unmatched)
 _NEVER = object()
+
 
 
 class _InputsUnknown(Exception):

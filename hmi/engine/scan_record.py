@@ -7,7 +7,8 @@ they live here, below both.
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from dataclasses import make_dataclass
+from typing import Any, NamedTuple, cast
 
 from hmi.engine.diagnoser import NO_DIAGNOSIS, Diagnosis
 
@@ -82,20 +83,17 @@ class ScanNews:
     named after its snapshot field, which the printed frame reads at every quiet scan
     (hmi.engine.compiled): on CPython 3.11 a slot's field is one specialized instruction, an
     item of a tuple by a constant index two (an item of a tuple subclass a generic subscript,
-    some 100 instructions). The class with those slots is one engine's (:meth:`kind`: its
-    stages' publications); one is built at the scans with news only."""
+    some 100 instructions). The class with those slots is one engine's (:func:`news_kind`:
+    its stages' publications, a slotted dataclass whose generated __init__ stores each
+    field); one is built at the scans with news only, ``kind(given, *given)``."""
 
-    __slots__ = ("given", "status")
-    FIELDS: tuple[str, ...] = ("status",)  # the slots `given` fills, in its order
+    given: tuple[Any, ...]
     status: Any
 
-    def __init__(self, given: tuple[Any, ...]):
-        self.given = given
-        for name, value in zip(self.FIELDS, given, strict=True):
-            setattr(self, name, value)
 
-    @classmethod
-    def kind(cls, fields: tuple[str, ...]) -> type[ScanNews]:
-        """The class whose slots are `fields` besides the status (the snapshot fields of an
-        engine's publications, in their order)."""
-        return type("ScanNews", (cls,), {"__slots__": fields, "FIELDS": ("status", *fields)})
+def news_kind(fields: tuple[str, ...]) -> type[ScanNews]:
+    """The class of ScanNews whose slots are `fields` besides the status (the snapshot
+    fields of an engine's publications, in their order)."""
+    kind = make_dataclass("ScanNews", ("given", "status", *fields), bases=(ScanNews,),
+                          slots=True)
+    return cast("type[ScanNews]", kind)
