@@ -36,10 +36,11 @@ from __future__ import annotations
 
 import importlib
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from functools import cache
-from typing import Any
+from typing import Any, TypeVar
 
 import z3
 
@@ -855,25 +856,68 @@ class FilterWiring:
 
 def filter_wiring(project: Any) -> tuple[str, FilterWiring]:
     """The filter FB's name and wiring, as hmi.export.build builds it."""
-    b = importlib.import_module("hmi.export.build")
-    seen: list[Any] = []
-    real = b.build_filter
-
-    def spy(*args: Any, **kwargs: Any) -> Any:
-        block = real(*args, **kwargs)
-        seen.append(block)
-        return block
-
-    b.build_filter = spy  # type: ignore[assignment]
-    try:
-        b.build(project)
-    finally:
-        b.build_filter = real  # type: ignore[assignment]
-    (block,) = seen
+    ((_args, block),) = built_blocks(project, "build_filter")
     up = str.upper
     return block.pou.name, FilterWiring({k: up(v) for k, v in block.inputs.items()},
                                         {k: up(v) for k, v in block.outputs.items()},
                                         {k: up(v) for k, v in block.ports.items()})
+
+
+# What a study keeps while `builds_kept()` is active (it judges thousands of mutants of one
+# export): (id(project), key) -> (the project, held so that its id stays its own, the value).
+_KEPT: dict[tuple[Any, ...], tuple[Any, Any]] | None = None
+T = TypeVar("T")
+
+
+@contextmanager
+def builds_kept() -> Iterator[None]:
+    """Within it, what `kept` is asked is made once per project (each project's export
+    built once per builder, the program's side of a proof lowered once): the projects
+    must not change meanwhile."""
+    global _KEPT
+    saved, _KEPT = _KEPT, {} if _KEPT is None else _KEPT
+    try:
+        yield
+    finally:
+        _KEPT = saved
+
+
+def kept(project: Any, key: tuple[Any, ...], make: Callable[[], T]) -> T:
+    """`make()`, or, within `builds_kept()`, what it made for `project` and `key` already."""
+    if _KEPT is None:
+        return make()
+    hit = _KEPT.get((id(project), *key))
+    if hit is None or hit[0] is not project:
+        hit = _KEPT[(id(project), *key)] = (project, make())
+    return hit[1]
+
+
+def built_blocks(project: Any, builder: str, module: str = "hmi.export.build"
+                 ) -> list[tuple[tuple[Any, ...], Any]]:
+    """Each call of `module`'s `builder` (e.g. hmi.export.build's "build_monitor") when the
+    project is exported: its arguments and the Block it built (the export's own wiring and
+    objects)."""
+    return kept(project, ("built", builder, module),
+                lambda: _spied_build(project, builder, module))
+
+
+def _spied_build(project: Any, builder: str, module: str
+                 ) -> list[tuple[tuple[Any, ...], Any]]:
+    b = importlib.import_module(module)
+    seen: list[tuple[tuple[Any, ...], Any]] = []
+    real = getattr(b, builder)
+
+    def spy(*args: Any, **kwargs: Any) -> Any:
+        block = real(*args, **kwargs)
+        seen.append((args, block))
+        return block
+
+    setattr(b, builder, spy)
+    try:
+        importlib.import_module("hmi.export.build").build(project)
+    finally:
+        setattr(b, builder, real)
+    return seen
 
 
 @dataclass
@@ -911,9 +955,7 @@ def prove_filter(project: Any, text: str, max_distance: int,
     property says a call keeps it: together, for every state a PLC reaches."""
     fb_name, wiring = filter_wiring(project)
     fb_text = pou_text(text, fb_name)
-    if tamper is not None:
-        fb_text = tamper(fb_text)
-    fb = parse_fb(fb_text)
+    fb = parse_fb(fb_text) if tamper is None else parse_changed(fb_text, tamper(fb_text))
     decl = declarations(fb)
     kept = (invariant(decl, Symbolic(fb).initial),) if invariant is not None else ()
     cases = execute_cases(fb, frozenset(split), loop_limit, kept, unchecked)
