@@ -150,3 +150,71 @@ def test_a_diagnoser_reading_the_order_not_yet_written_is_proved_the_same():
     proofs = prove_program(project, text, _replacing("        O := prev_O,\n        TON2",
                                                      "        O := O,\n        TON2"))
     assert [p.name for p in proofs if not p.proved] == []
+
+
+# A small cell that reads values two scans back (no example project does): a timer on
+# prev(o0, 2), an observer reset by prev(i1, 2), constraints on prev(i0, 2), prev(o1, 2).
+_DEEP = {
+    "name": "deep", "scan_period": "10ms",
+    "inputs": {"i0": "input 0", "i1": "input 1", "vfsc": "valve closed",
+               "vfso": "valve open"},
+    "outputs": {"o0": {"description": "output 0", "safe": 0},
+                "o1": {"description": "output 1", "safe": 1},
+                "vC": "valve close", "vO": "valve open"},
+    "timers": {"t0": {"type": "TON", "input": "prev(o0, 2)", "preset": "30ms"}},
+    "observers": {"b1": {"set": "i0 and t0", "reset": "prev(i1, 2)", "initial": 1}},
+    "control": {"equations": {"o0": "i0", "o1": "b1"}},
+    "constraints": {"c0": "o0 and prev(i0, 2)", "c1": "o1 and not prev(o1, 2)"},
+    "plant": {"kind": "sim", "model": "valve",
+              "ports": {"fsc": "vfsc", "fso": "vfso", "C": "vC", "O": "vO"}},
+    "monitors": {"task": {"start": "rise(i0)", "end": "fall(i0)", "normal": ["10ms", "20ms"],
+                          "acceptable": ["10ms", "40ms"]}},
+}
+_SHIFTED = "the history: each value kept d scans back, shifted"
+_DEEP_TAMPERED = [
+    # the filter given prev_i0 where its constraint reads prev(i0, 2) (the same at the first
+    # cycle: both are i0 as first read)
+    ("the filter reads prev for prev2", _replacing("prev2_i0 := prev2_i0,", "prev2_i0 := prev_i0,"),
+     {"Filter: called once, at its point of the scan, with the engine's values",
+      "Filter: after a fault reset", "the output image: each output the filter's",
+      "the monitors' labels and the filter's words", _SHIFTED}),
+    # the timer's input prev(o0, 2) given prev_o0: the memory, and all that reads its timer
+    ("the memory reads prev for prev2", _replacing("prev2_o0 := prev2_o0,",
+                                                   "prev2_o0 := prev_o0,"),
+     {f"{b}: {what}" for b in ("Memory", "Control", "Filter") for what in (
+         "called once, at its point of the scan, with the engine's values",
+         "after a fault reset")} | {
+        "the output image: each output the filter's",
+        "the image: timers, observers, flags, filtered sensors, FOV_x as the scan wrote them",
+        "the monitors' labels and the filter's words", _SHIFTED}),
+    # the shift in the wrong order: prev2_i0 takes this scan's i0
+    ("the shift's order", _replacing("prev2_i0 := prev_i0;\nprev_i0 := i0;",
+                                     "prev_i0 := i0;\nprev2_i0 := prev_i0;"), {_SHIFTED}),
+    ("the first cycle's prev2", _replacing("    prev2_i0 := i0;", "    prev2_i0 := FALSE;"),
+     {FIRST}),
+]
+
+
+@pytest.fixture(scope="module")
+def deep(tmp_path_factory):
+    import yaml
+    folder = tmp_path_factory.mktemp("deep")
+    (folder / "project.yaml").write_text(yaml.safe_dump(_DEEP, sort_keys=False))
+    project = load_project(folder)
+    return project, write_st(build(project))
+
+
+def test_a_program_reading_two_scans_back_is_one_engine_scan(deep):
+    project, text = deep
+    proofs = prove_program(project, text)
+    assert "prev2_i0 := prev_i0;" in text  # (what the tampering below changes)
+    assert [f"{p.name}: {p.detail}" for p in proofs if not p.proved] == []
+
+
+@pytest.mark.parametrize(("what", "tamper", "refuted"), _DEEP_TAMPERED,
+                         ids=[c[0] for c in _DEEP_TAMPERED])
+def test_a_tampered_history_two_scans_back_is_refuted(deep, what, tamper, refuted):
+    project, text = deep
+    proofs = prove_program(project, text, tamper)
+    assert {p.name for p in proofs if not p.proved} == refuted
+    assert all("counterexample: " in p.detail for p in proofs if not p.proved)
