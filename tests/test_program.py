@@ -373,3 +373,29 @@ def test_a_sum_with_a_difference_against_a_constant_is_printed_folded(a, b, c1, 
     expected = {"<": operator.lt, "<=": operator.le, ">": operator.gt, ">=": operator.ge,
                 "==": operator.eq, "!=": operator.ne}[op](a + (c1 - b), c2)
     assert printed(a, b) == function_evaluator(function, {}, {})(a, b) == expected
+
+
+def test_a_function_without_parameters_is_built_and_runs_as_evaluated():
+    """A function of no parameters that calls a handler prints ``def f(k0=k0)`` (the
+    handler bound as a default), not ``def f(, k0=k0)``; it runs as the evaluator does."""
+    from hmi.engine.codegen import build_function
+    from hmi.program import ir
+    from hmi.program.evaluate import function_evaluator
+
+    class Handler:
+        def __init__(self) -> None:
+            self.calls = 0
+
+        def take(self) -> int:
+            self.calls += 1
+            return 7
+
+    results = []
+    for form in ("evaluator", "python"):
+        handler = Handler()
+        function = ir.Function("tick", (), (ir.Do(ir.Call(handler, "take")),),
+                               ir.Call(handler, "take"))
+        run = (function_evaluator(function, {}, {}) if form == "evaluator"
+               else build_function(function, {}, {}, "test_program"))
+        results.append((run(), handler.calls))
+    assert results == [(7, 2), (7, 2)]

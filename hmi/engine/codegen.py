@@ -1,4 +1,4 @@
-"""Python source for a project's scan, generated from its parsed expressions (issue 18).
+"""Python source for a project's scan, generated from its parsed expressions.
 
 Why generate code: a scan that calls one closure per node of every expression (hmi.logic.expr's
 ``compile_bool``) spends most of its time in calls. Here each expression becomes one Python
@@ -583,7 +583,10 @@ def build(source: Source, name: str, params: str, filename: str) -> Callable[...
     lines = source.lines
     if "h" in (param.strip() for param in params.split(",")):
         lines = _bind_past(lines)
-    text = f"def {name}({params}{source.defaults()}):\n" + "\n".join(lines) + "\n"
+    # the objects' defaults follow the parameters; with none, they are the whole signature
+    signature = ", ".join(part for part in (params, source.defaults().removeprefix(", "))
+                          if part)
+    text = f"def {name}({signature}):\n" + "\n".join(lines) + "\n"
     if not source.lines:
         text += "    pass\n"
     key = (text, filename)

@@ -1,4 +1,4 @@
-"""Recovery mode in the scan: a declared procedure brings a device back (issue 19).
+"""Recovery mode in the scan: a declared procedure brings a device back.
 
 The procedures are the project's (hmi.project.recovery). The engine owns one
 :class:`RecoveryStage`; while the operator has one running (recovery mode, entered with

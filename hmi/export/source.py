@@ -1,8 +1,7 @@
 """Everything the export reads from a loaded project, in one place.
 
 The builders never reach into `Project` themselves, they call these functions, so a change
-of the project model (such as phase B of issue 14's typed fields replacing `Project.extra`)
-is one edit here.
+of the project model (a section's fields renamed or retyped) is one edit here.
 """
 
 from __future__ import annotations

@@ -1315,8 +1315,8 @@ class PlcHmiApp(LastResort, ContainedPump, App[None]):
 
     def _manual_lines(self, snap: Snapshot) -> list[Text | str]:
         law = self.project.controls[self.facts.control]
-        return ["The control program stops driving the outputs: they follow your requests,",
-                "and an output you have not requested is 0.",
+        return [("The control program stops driving the outputs: they follow your "
+                 "requests, and an output you have not requested is 0."),
                 *manual.enter_lines(self.project, law, snap, self.engineering),
                 f"Every request still goes through the safety filter ({snap.policy}).",
                 "Select an output in the I/O table: 1 on, 0 off, x release."]
