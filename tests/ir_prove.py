@@ -24,7 +24,6 @@ still runs, nothing else changed.
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -40,7 +39,9 @@ from tests.st_prove import (
     _concrete,
     _ite,
     _valid,
+    built_blocks,
     in_bounds,
+    kept,
     parse_changed,
     parse_fb,
     pou_text,
@@ -311,28 +312,6 @@ class IrSymbolic:
         raise Unsupported(f"expression {type(node).__name__}")
 
 
-def built_blocks(project: Any, builder: str, module: str = "hmi.export.stage_blocks"
-                 ) -> list[tuple[tuple[Any, ...], Any]]:
-    """Each call of `module`'s `builder` (e.g. hmi.export.stage_blocks's "build_monitor")
-    when the project is exported: its arguments and the Block it built (the export's own
-    wiring and objects)."""
-    b = importlib.import_module(module)
-    seen: list[tuple[tuple[Any, ...], Any]] = []
-    real = getattr(b, builder)
-
-    def spy(*args: Any, **kwargs: Any) -> Any:
-        block = real(*args, **kwargs)
-        seen.append((args, block))
-        return block
-
-    setattr(b, builder, spy)
-    try:
-        importlib.import_module("hmi.export.build").build(project)
-    finally:
-        setattr(b, builder, real)
-    return seen
-
-
 MS = 1000  # µs per ms: the program's times are the FB's, in µs
 
 
@@ -353,7 +332,8 @@ def prove_monitor(project: Any, text: str, task: str,
     program's lowering of that task: a list of proved (or refuted) properties."""
     from hmi.engine.stopwatch import Phase
     from hmi.export.stopwatch_pou import PHASES
-    calls = [(args, block) for args, block in built_blocks(project, "build_monitor")
+    calls = [(args, block) for args, block
+             in built_blocks(project, "build_monitor", "hmi.export.stage_blocks")
              if args[2].name == task]
     ((stage, k, _spec, *_rest), block), = calls
     automaton = stage.automata[k]
@@ -456,8 +436,8 @@ def _case(sym: Symbolic, out: dict[str, Any]) -> Any:
     return Case((), sym, out)
 
 
-def prove_memory(project: Any, text: str, tamper: Callable[[str], str] | None = None
-                 ) -> list[Proof]:
+def prove_memory(project: Any, text: str, tamper: Callable[[str], str] | None = None,
+                 at_once: bool = False) -> list[Proof]:
     """The exported memory FB (timers and observers) against the scan program's memory
     stage (hmi.engine.stages.Memory.program: hmi.program.timers, hmi.program.memories), for
     every input and every state: each output, and each timer's state (q; since, or none)."""
@@ -503,9 +483,7 @@ def prove_memory(project: Any, text: str, tamper: Callable[[str], str] | None = 
             out[f"{prefix}_Q"] == program.cells[(id(runtime), "q")],
             out[f"{prefix}_NONE"] == since.none,
             z3.Implies(z3.Not(since.none), MS * out[f"{prefix}_SINCE"] == since.fields[0]))
-    proofs = [_valid(name, p, sym) for name, p in properties.items()]
-    proofs.append(in_bounds([_case(sym, out)]))
-    return proofs
+    return _proofs(properties, z3.BoolVal(True), sym, out, at_once)
 
 
 MODE_CODES = {"observe": 1, "off": 2}  # (hmi.export.diagnoser_pou: any other value is FTC)
@@ -669,16 +647,22 @@ def prove_diagnoser(project: Any, text: str, name: str,
         FAULTY: v("Faulty"),
         **{cell: st[up[f"label:{lab}"]] for lab, cell in label_cells.items()},
     }
-    runs: dict[str, IrSymbolic] = {}
-    for mode_name in ("observe", "off", "ftc"):
-        handlers = {(id(rt), "begin"): begin, (id(rt), "take"): take,
-                    (id(stage), "lost_sight"): lost_sight, (id(stage), "refine"): refine,
-                    (id(stage), "settle"): settler(mode_name)}
-        run = IrSymbolic(cells, read, MS * v("Now"), {}, handlers, set(), image, slots,
-                         scan=v("Scan") + 1)
-        run.run(lower_diagnosis(stage, [(rt, spec)], mode_name, outputs, bool(hld))
-                + lower_reconstruction(sensors, mode_name))
-        runs[mode_name] = run
+    def lowered() -> dict[str, IrSymbolic]:
+        """The program's side, in each mode (the same for every text of the block: its
+        variables are z3 constants named after the declarations, which a mutant keeps)."""
+        runs: dict[str, IrSymbolic] = {}
+        for mode_name in ("observe", "off", "ftc"):
+            handlers = {(id(rt), "begin"): begin, (id(rt), "take"): take,
+                        (id(stage), "lost_sight"): lost_sight, (id(stage), "refine"): refine,
+                        (id(stage), "settle"): settler(mode_name)}
+            run = IrSymbolic(cells, read, MS * v("Now"), {}, handlers, set(), image, slots,
+                             scan=v("Scan") + 1)
+            run.run(lower_diagnosis(stage, [(rt, spec)], mode_name, outputs, bool(hld))
+                    + lower_reconstruction(sensors, mode_name))
+            runs[mode_name] = run
+        return runs
+
+    runs = kept(project, ("lowered diagnoser", name), lowered)
 
     def after(get: Callable[[IrSymbolic], Any]) -> Any:
         """What the program leaves, in the block's mode."""

@@ -19,14 +19,14 @@ after it (outputs, FOV, violation word, latch, fallback, timers, observers, flag
 sensors, each diagnoser's state and labels, each monitor's ports and label). A mutant is
 replayed on those writes alone and compared with the same values (with the Twin's two
 exceptions: a monitor's evidence only while it holds a fault, its global label not at a
-reset's scan). `python -m tests.st_mutants PROJECT...` prints the figures and the survivors.
+reset's scan). The survivors are judged by tests/mutant_study.py, whose `python -m
+tests.mutant_study PROJECT...` prints the figures.
 """
 
 from __future__ import annotations
 
 import random
 import re
-import sys
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import ClassVar
@@ -430,25 +430,3 @@ def study_runs(name: str) -> list[Run]:
     the faulty program's runs are another export) and the random runs."""
     from tests.export_harness import export_traces
     return [r for r in export_traces(name, campaign=False) if r[5] is None] + RANDOM_RUNS
-
-
-def main(argv: list[str]) -> int:
-    for name in argv or [p.name for p in sorted(PROJECTS.iterdir()) if p.is_dir()]:
-        rec, traces = record(name, study_runs(name))
-        found = mutants(rec.text)
-        verdicts = [judge(rec, traces, m) for m in found]
-        counts = {o: sum(v.outcome == o for v in verdicts)
-                  for o in ("caught", "survived", "stillborn")}
-        scans = sum(len(t.scans) for t in traces)
-        print(f"{name}: {len(found)} mutants, {counts['caught']} caught, "
-              f"{counts['survived']} survived, {counts['stillborn']} stillborn "
-              f"({len(traces)} traces, {scans} scans)")
-        for v in verdicts:
-            if v.outcome == "survived":
-                print(f"  survived: {v.mutant.describe()}")
-        sys.stdout.flush()
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))

@@ -36,10 +36,11 @@ from __future__ import annotations
 
 import importlib
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from functools import cache
-from typing import Any
+from typing import Any, Protocol, TypeVar
 
 import z3
 
@@ -86,6 +87,22 @@ class Declared:
     sections: dict[str, str] = field(default_factory=dict)
     constants: dict[str, Any] = field(default_factory=dict)
     order: list[str] = field(default_factory=list)
+
+
+class BlockModel(Protocol):
+    """What a call of a function block instance does, for a program that calls it (a
+    PROGRAM's `Inst(Port := value, ...)` and its reads `Inst.Out`): the block's variables
+    (inputs, outputs and locals: an instance keeps them all between calls, an input a call
+    does not give keeps its last value), the globals it reads and those it writes
+    (VAR_EXTERNAL), and one call: the instance's variables and the globals it reads before,
+    its variables and the globals it writes after."""
+
+    variables: dict[str, VarType]
+    reads: tuple[str, ...]
+    writes: tuple[str, ...]
+
+    def call(self, variables: dict[str, Any], globals_: dict[str, Any]
+             ) -> tuple[dict[str, Any], dict[str, Any]]: ...
 
 
 # --------------------------------------------------------------------------------------------
@@ -183,10 +200,11 @@ def parse_changed(original: str, changed: str) -> Any:
     piece = new[start:end]
     statement = isinstance(node, tf.Statement)
     try:
-        wrapped = parse_fb("FUNCTION_BLOCK F\n" + (piece if statement else f"X := {piece};")
-                           + "\nEND_FUNCTION_BLOCK\n").body.statements
+        body = parse_fb("FUNCTION_BLOCK F\n" + (piece if statement else f"X := {piece};")
+                        + "\nEND_FUNCTION_BLOCK\n").body
     except SyntaxError:
-        wrapped = []
+        body = None
+    wrapped = body.statements if body is not None else []  # (none: a statement removed)
     if len(wrapped) != 1:
         return parse_fb(changed)
     return _replaced(tree, best[1], wrapped[0] if statement else wrapped[0].expression)
@@ -353,8 +371,12 @@ class Symbolic:
 
     def __init__(self, fb: Any, initial: dict[str, Any] | None = None,
                  loop_limit: int = LOOP_LIMIT, split: frozenset[str] = frozenset(),
-                 assume: tuple[Any, ...] = (), unchecked: int = UNCHECKED):
+                 assume: tuple[Any, ...] = (), unchecked: int = UNCHECKED,
+                 blocks: dict[str, BlockModel] | None = None):
+        # (`blocks`: the function blocks a program's instances are of, by type name in upper
+        # case; an instance's variable V is the state's "INST.V")
         self.fb = fb
+        self.blocks = {k.upper(): v for k, v in (blocks or {}).items()}
         self.loop_limit = loop_limit
         self.unchecked = unchecked
         self.decl = declarations(fb)
@@ -371,6 +393,12 @@ class Symbolic:
             t = self.decl.types[name]
             if self.decl.sections[name] == "constant":
                 state[name] = self.decl.constants[name]
+            elif t.name in self.blocks and t.low is None:
+                for var, vt in self.blocks[t.name].variables.items():
+                    state[f"{name}.{var}"] = (
+                        [_fresh(f"{name}.{var}[{k}]", vt.name)
+                         for k in range(vt.low, vt.high + 1)]  # type: ignore[operator]
+                        if vt.low is not None else _fresh(f"{name}.{var}", vt.name))
             elif t.low is not None:
                 state[name] = [_fresh(f"{name}[{k}]", t.name)
                                for k in range(t.low, t.high + 1)]  # type: ignore[operator]
@@ -432,6 +460,10 @@ class Symbolic:
             if name in self.split and name != self.target:
                 return self._pin(v)
             return v
+        if isinstance(node, tf.MultiElementVariable) and self._instance(node.name):
+            if len(node.elements) != 1 or not isinstance(node.elements[0], tf.FieldSelector):
+                raise Unsupported(f"member access {node}")
+            return st[f"{str(node.name).upper()}.{str(node.elements[0].field).upper()}"]
         if isinstance(node, tf.MultiElementVariable):
             array, index = self._element(node, st)
             return self._select(array, index, st, str(node.name))
@@ -596,7 +628,40 @@ class Symbolic:
             return out
         if isinstance(s, tf.CaseStatement):
             return self._case(s, st, pc)
+        if isinstance(s, tf.FunctionCallStatement) and self._instance(s.name):
+            return self._call(s, st)
         raise Unsupported(f"statement {type(s).__name__}")
+
+    def _instance(self, node: Any) -> bool:
+        """`node` names an instance of a function block in `blocks`."""
+        t = self.decl.types.get(str(getattr(node, "name", node)).upper())
+        return t is not None and t.low is None and t.name in self.blocks
+
+    def _call(self, s: Any, st: dict[str, Any]) -> dict[str, Any]:
+        """`Inst(Port := value, ...)`: the values (all read before any is given), the ports
+        given them, then the block's call on the instance's variables and the globals it
+        reads; an input not given keeps its value."""
+        from blark import transform as tf
+        inst = str(s.name.name).upper()
+        model = self.blocks[self.decl.types[inst].name]
+        given = []
+        for p in s.parameters:
+            if not isinstance(p, tf.InputParameterAssignment) or p.name is None:
+                raise Unsupported(f"a call parameter {p}")
+            port = str(p.name.name).upper()
+            if port not in model.variables:
+                raise Unsupported(f"{inst} has no port {port}")
+            given.append((port, self.value(p.value, st)))
+        out = dict(st)
+        for port, value in given:
+            out[f"{inst}.{port}"] = value
+        variables = {v: out[f"{inst}.{v}"] for v in model.variables}
+        after, written = model.call(variables, {g: out[g] for g in model.reads})
+        for v in model.variables:
+            out[f"{inst}.{v}"] = after[v]
+        for g in model.writes:
+            out[g] = written[g]
+        return out
 
     def assign(self, target: Any, value: Any, st: dict[str, Any]) -> dict[str, Any]:
         from blark import transform as tf
@@ -855,25 +920,68 @@ class FilterWiring:
 
 def filter_wiring(project: Any) -> tuple[str, FilterWiring]:
     """The filter FB's name and wiring, as the export builds it (hmi.export.stage_blocks)."""
-    b = importlib.import_module("hmi.export.stage_blocks")
-    seen: list[Any] = []
-    real = b.build_filter
-
-    def spy(*args: Any, **kwargs: Any) -> Any:
-        block = real(*args, **kwargs)
-        seen.append(block)
-        return block
-
-    b.build_filter = spy  # type: ignore[assignment]
-    try:
-        importlib.import_module("hmi.export.build").build(project)
-    finally:
-        b.build_filter = real  # type: ignore[assignment]
-    (block,) = seen
+    ((_args, block),) = built_blocks(project, "build_filter", "hmi.export.stage_blocks")
     up = str.upper
     return block.pou.name, FilterWiring({k: up(v) for k, v in block.inputs.items()},
                                         {k: up(v) for k, v in block.outputs.items()},
                                         {k: up(v) for k, v in block.ports.items()})
+
+
+# What a study keeps while `builds_kept()` is active (it judges thousands of mutants of one
+# export): (id(project), key) -> (the project, held so that its id stays its own, the value).
+_KEPT: dict[tuple[Any, ...], tuple[Any, Any]] | None = None
+T = TypeVar("T")
+
+
+@contextmanager
+def builds_kept() -> Iterator[None]:
+    """Within it, what `kept` is asked is made once per project (each project's export
+    built once per builder, the program's side of a proof lowered once): the projects
+    must not change meanwhile."""
+    global _KEPT
+    saved, _KEPT = _KEPT, {} if _KEPT is None else _KEPT
+    try:
+        yield
+    finally:
+        _KEPT = saved
+
+
+def kept(project: Any, key: tuple[Any, ...], make: Callable[[], T]) -> T:
+    """`make()`, or, within `builds_kept()`, what it made for `project` and `key` already."""
+    if _KEPT is None:
+        return make()
+    hit = _KEPT.get((id(project), *key))
+    if hit is None or hit[0] is not project:
+        hit = _KEPT[(id(project), *key)] = (project, make())
+    return hit[1]
+
+
+def built_blocks(project: Any, builder: str, module: str = "hmi.export.build"
+                 ) -> list[tuple[tuple[Any, ...], Any]]:
+    """Each call of `module`'s `builder` (e.g. hmi.export.build's "build_monitor") when the
+    project is exported: its arguments and the Block it built (the export's own wiring and
+    objects)."""
+    return kept(project, ("built", builder, module),
+                lambda: _spied_build(project, builder, module))
+
+
+def _spied_build(project: Any, builder: str, module: str
+                 ) -> list[tuple[tuple[Any, ...], Any]]:
+    b = importlib.import_module(module)
+    seen: list[tuple[tuple[Any, ...], Any]] = []
+    real = getattr(b, builder)
+
+    def spy(*args: Any, **kwargs: Any) -> Any:
+        block = real(*args, **kwargs)
+        seen.append((args, block))
+        return block
+
+    setattr(b, builder, spy)
+    try:
+        importlib.import_module("hmi.export.build").build(project)
+    finally:
+        setattr(b, builder, real)
+    return seen
 
 
 @dataclass
@@ -911,9 +1019,7 @@ def prove_filter(project: Any, text: str, max_distance: int,
     property says a call keeps it: together, for every state a PLC reaches."""
     fb_name, wiring = filter_wiring(project)
     fb_text = pou_text(text, fb_name)
-    if tamper is not None:
-        fb_text = tamper(fb_text)
-    fb = parse_fb(fb_text)
+    fb = parse_fb(fb_text) if tamper is None else parse_changed(fb_text, tamper(fb_text))
     decl = declarations(fb)
     kept = (invariant(decl, Symbolic(fb).initial),) if invariant is not None else ()
     cases = execute_cases(fb, frozenset(split), loop_limit, kept, unchecked)
@@ -1076,7 +1182,10 @@ def _valid_cases(name: str, cases: list[tuple[Case, Any]]) -> Proof:
     return Proof(name, True, f"proved in {len(cases)} case(s)", checks, obligations)
 
 
-def _valid(name: str, prop: Any, sym: Symbolic) -> Proof:
+def _valid(name: str, prop: Any, sym: Symbolic,
+           shown_if: Callable[[str], bool] | None = None) -> Proof:
+    """`prop` proved valid, or refuted with a counterexample (the values of the constants
+    `shown_if` accepts: all but the executor's own, when None)."""
     solver = z3.Solver()
     solver.add(z3.Not(prop))
     found = solver.check()
@@ -1085,6 +1194,7 @@ def _valid(name: str, prop: Any, sym: Symbolic) -> Proof:
     if found == z3.sat:
         model = solver.model()
         shown = ", ".join(f"{d.name()} = {model[d]}" for d in sorted(
-            model.decls(), key=lambda d: d.name()) if not d.name().startswith("$"))
+            model.decls(), key=lambda d: d.name()) if not d.name().startswith("$")
+            and d.arity() == 0 and (shown_if is None or shown_if(d.name())))
         return Proof(name, False, f"counterexample: {shown[:600]}", sym.checks)
     return Proof(name, False, f"z3: {solver.reason_unknown()}", sym.checks)

@@ -8,10 +8,9 @@ the fault reset; the monitor and block policies and a clean candidate; under `co
 F0/F1 forcing and its conflict, the exact strategy's unique vector (minimum Hamming distance,
 fewest outputs switched on, the outputs declared first spared) within MAX_DISTANCE or the
 safe state past it (the engine searches without that limit: docs/plc-export.md, "The scan
-budget", says where they can differ); the masks; every array index in bounds. The memory
-and monitor blocks are proved in tests/test_export_prove_blocks.py; not proved: the
-diagnosers, the control FB and the program's wiring of the blocks, which the agreement and
-mutation tests check on traces.
+budget", says where they can differ); the masks; every array index in bounds. The other
+blocks are proved in tests/test_export_prove_blocks.py, the program that calls them in
+tests/test_export_prove_program.py.
 """
 
 from __future__ import annotations

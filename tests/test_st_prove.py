@@ -8,7 +8,15 @@ from __future__ import annotations
 import pytest
 import z3
 
-from tests.st_prove import Unsupported, declarations, execute_cases, in_bounds, parse_fb
+from tests.st_prove import (
+    Symbolic,
+    Unsupported,
+    VarType,
+    declarations,
+    execute_cases,
+    in_bounds,
+    parse_fb,
+)
 
 # K counts up to X (at most 3 passes); at K = 3 the block writes A[3], out of bounds, on the
 # path `guard`: infeasible when the guard contradicts K < X, feasible otherwise.
@@ -74,3 +82,51 @@ def test_a_state_invariant_bounds_a_loop_over_kept_state():
     solver = z3.Solver()  # and the bound is tight: C[0] = 0 runs twice
     solver.add(c0 == 0, runs != 2)
     assert solver.check() == z3.unsat
+
+
+# A program calling an instance of a block twice: the second call gives A only (B keeps the
+# value the first gave it), reads its output between the calls, and the block writes a
+# global it reads (VAR_EXTERNAL).
+_PROGRAM = """PROGRAM P
+VAR_EXTERNAL
+    G : INT;
+END_VAR
+VAR
+    Adder : FB_ADD;
+    X : INT;
+    Y : INT;
+END_VAR
+Adder(A := 1, B := G);
+X := Adder.S;
+Adder(A := {second});
+Y := Adder.S;
+END_PROGRAM
+"""
+
+
+class _Adder:
+    """FB_ADD: S := A + B, N counts the calls, the global G counted up too."""
+
+    def __init__(self) -> None:
+        self.variables = {v: VarType("INT") for v in ("A", "B", "S", "N")}
+        self.reads = self.writes = ("G",)
+
+    def call(self, variables, globals_):
+        return ({**variables, "S": variables["A"] + variables["B"], "N": variables["N"] + 1},
+                {"G": globals_["G"] + 1})
+
+
+def test_a_program_calls_block_instances_an_input_not_given_keeping_its_value():
+    sym = Symbolic(parse_fb(_PROGRAM.format(second="2")), blocks={"FB_ADD": _Adder()})
+    out = sym.run()
+    g, n = z3.Int("G"), z3.Int("ADDER.N")  # (the instance's N before)
+    solver = z3.Solver()
+    solver.add(z3.Not(z3.And(out["X"] == 1 + g, out["Y"] == 2 + g, out["G"] == g + 2,
+                             out["ADDER.N"] == n + 2, out["ADDER.B"] == g)))
+    assert solver.check() == z3.unsat
+
+
+def test_a_call_of_a_port_the_block_does_not_have_is_not_modelled():
+    with pytest.raises(Unsupported, match="no port"):
+        Symbolic(parse_fb(_PROGRAM.format(second="2, C := 3")),
+                 blocks={"FB_ADD": _Adder()}).run()

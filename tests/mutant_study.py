@@ -1,0 +1,276 @@
+"""The mutation study of one project's export: every single-operator mutant of the exported
+Structured Text (tests/st_mutants.py) replayed on the recorded traces, and every survivor
+judged.
+
+A survivor is handed to the block proof of the function block it changes (z3, for every
+input and every state the proof's invariant admits): the filter FB to tests/st_prove.py's
+`prove_filter`, a monitor, the memory, a diagnoser, the control law to tests/ir_prove.py's
+`prove_monitor`, `prove_memory`, `prove_diagnoser`, `prove_control`. Proved equal to the
+engine's (or the scan program's lowering): an *equivalent* mutant. Refuted with a
+counterexample: *refuted*, i.e. caught (it differs from the engine on some input and state
+the invariant admits, or leaves the invariant, or indexes out of bounds). Neither (z3 cannot
+say, or the proof does not cover the mutated text): *unexplained*, unless listed below. A
+survivor in the program (PRG_..._Safety: the blocks' wiring, which no block proof covers) is
+listed with its reason or unexplained. A study with an unexplained survivor fails.
+
+The lists (by Mutant.key()): EQUIVALENT, equivalent mutants z3 cannot judge, each with why;
+CAUGHT_BY_TESTS, survivors a test of their own catches (the test named); GAPS, what no trace
+reaches and no proof judges (listed so that they stay in sight).
+
+`python -m tests.mutant_study PROJECT... [--sample N]` prints each project's figures (every
+mutant; `--sample N`: N seeded mutants of each diagnoser FB, every other mutant) and the
+CPU time they took.
+"""
+
+from __future__ import annotations
+
+import random
+import sys
+import time
+from collections import Counter
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from hmi.export import source
+from hmi.export.filter_pou import max_distance
+from hmi.project.loader import load_project
+from hmi.project.model import Project
+from tests.conftest import PROJECTS
+from tests.ir_prove import prove_control, prove_diagnoser, prove_memory, prove_monitor
+from tests.st_mutants import Mutant, Recording, Run, Trace, judge, mutants, record, study_runs
+from tests.st_prove import (
+    Proof,
+    Unsupported,
+    builds_kept,
+    indices_not_negative,
+    pou_text,
+    prove_filter,
+)
+
+_FTC = "Ftc := (DiagnosisMode <> 1) AND (DiagnosisMode <> 2),"
+
+EQUIVALENT: dict[str, dict[str, str]] = {
+    "conveyor_robot": {
+        f"PRG_conveyor_robot_Safety: {_FTC} [{old} -> {new}]": (
+            "Ftc gates the masks of the diagnosers' actuator partitions; the cell has no "
+            "diagnoser, so the filter never reads it")
+        for old, new in (("<>", "="), ("1", "0"), ("AND", "OR"), ("2", "1"))},
+}
+
+GAPS: dict[str, dict[str, str]] = {}
+
+CAUGHT_BY_TESTS: dict[str, dict[str, str]] = {
+    "conveyor_robot": {
+        "PRG_conveyor_robot_Safety: Clock(IN := TRUE, PT := T#24d); "
+        "[T#24d -> T#2073600001ms]": (
+            "tests/test_export.py::test_the_programs_clock_saturates_at_24_days: the clock "
+            "read at 24 days and 1 ms (no recorded trace runs 24 days)"),
+    },
+}
+
+OUTCOMES = ("caught", "stillborn", "equivalent", "refuted", "tested", "listed", "gap",
+            "unexplained")
+
+
+@dataclass(frozen=True)
+class Judged:
+    """A mutant's outcome (one of OUTCOMES), and how it was reached: the trace and scan that
+    caught it, the proof that judged it, the reason it is listed."""
+
+    mutant: Mutant
+    outcome: str
+    how: str = ""
+
+
+@dataclass
+class Study:
+    """One project's study: every mutant found, those judged (all, or a sample), the CPU
+    seconds it took."""
+
+    name: str
+    found: int
+    judged: list[Judged] = field(default_factory=list)
+    cpu_s: float = 0.0
+    traces: int = 0
+    scans: int = 0
+
+    def counts(self) -> Counter[str]:
+        return Counter(j.outcome for j in self.judged)
+
+    def by_proof(self) -> Counter[str]:
+        """The equivalent and refuted survivors, by the proof that judged them."""
+        return Counter(f"{j.outcome} by {j.how.split(':')[0]}" for j in self.judged
+                       if j.outcome in ("equivalent", "refuted"))
+
+    def unexplained(self) -> list[Judged]:
+        return [j for j in self.judged if j.outcome == "unexplained"]
+
+    def report(self) -> str:
+        c = self.counts()
+        lines = [f"{self.name}: {self.found} mutants, {len(self.judged)} judged "
+                 f"({self.traces} traces, {self.scans} scans, {self.cpu_s:.0f} s CPU): "
+                 + ", ".join(f"{c[o]} {o}" for o in OUTCOMES)]
+        lines += [f"  {n} {what}" for what, n in sorted(self.by_proof().items())]
+        lines += [f"  {j.outcome}: {j.mutant.describe()} ({j.how})" for j in self.judged
+                  if j.outcome in ("tested", "listed", "gap", "unexplained")]
+        return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------------------------
+# The block proofs, as judges of a mutated text
+# --------------------------------------------------------------------------------------------
+
+Judge = Callable[[Project, str, Mutant], list[Proof]]
+
+
+def _tamper(mutated: str, pou: str) -> Callable[[str], str]:
+    """The block's text replaced by the mutant's (the proof parses only the changed line
+    again: tests/st_prove.py, parse_changed)."""
+    return lambda _original: pou_text(mutated, pou)
+
+
+def _filter(project: Project, text: str, m: Mutant) -> list[Proof]:
+    """prove_filter on the mutant, first for every input and state; when a loop of the
+    mutant then runs more than 100 times (the block's own run at most 4 times: e.g. a
+    next-subset step that counts up a Comb element left from an earlier call, which "every
+    state" lets hold any negative number), for every state whose kept index lists hold no
+    negative value, an invariant the proof shows the mutant keeps (they start at 0 on a
+    PLC): every state the PLC reaches."""
+    limit = max_distance(source.filter_bound(project))
+    tamper = _tamper(m.apply(text), m.pou)
+    try:
+        proofs = prove_filter(project, text, limit, tamper, loop_limit=100)
+        if all(p.proved for p in proofs):
+            return proofs
+    except Unsupported:
+        pass
+    return prove_filter(project, text, limit, tamper, loop_limit=100,
+                        invariant=indices_not_negative, unchecked=2)
+
+
+def _block(kind: str) -> Judge:
+    def judge_block(project: Project, text: str, m: Mutant) -> list[Proof]:
+        tamper = _tamper(m.apply(text), m.pou)
+        if kind == "monitor":
+            return prove_monitor(project, text, m.pou.split("_Mon_", 1)[1], tamper, True)
+        if kind == "diagnoser":
+            return prove_diagnoser(project, text, m.pou.split("_Diag_", 1)[1], tamper, True)
+        if kind == "control":
+            return prove_control(project, text, tamper, True)
+        return prove_memory(project, text, tamper, True)
+    return judge_block
+
+
+def block_of(pou: str) -> tuple[str, Judge] | None:
+    """The proof that judges a mutant of `pou` (its name says what the exporter built it
+    for), or None (the program: the blocks' wiring)."""
+    if pou.endswith("_Filter"):
+        return "prove_filter", _filter
+    for marker, kind in (("_Mon_", "monitor"), ("_Diag_", "diagnoser")):
+        if marker in pou:
+            return f"prove_{kind}", _block(kind)
+    for suffix, kind in (("_Control", "control"), ("_Memory", "memory")):
+        if pou.endswith(suffix):
+            return f"prove_{kind}", _block(kind)
+    return None
+
+
+def judge_survivor(name: str, project: Project, text: str, m: Mutant) -> Judged:
+    """A mutant no trace caught: by its block's proof, else by the lists."""
+    for outcome, listed in (("tested", CAUGHT_BY_TESTS), ("gap", GAPS),
+                            ("listed", EQUIVALENT)):
+        why = listed.get(name, {}).get(m.key())
+        if why is not None:
+            return Judged(m, outcome, why)
+    found = block_of(m.pou)
+    if found is None:
+        return Judged(m, "unexplained", "no block proof covers the program; not listed")
+    proof_name, judge_block = found
+    try:
+        proofs = judge_block(project, text, m)
+    except (Unsupported, SyntaxError, RecursionError) as error:
+        return Judged(m, "unexplained", f"{proof_name}: cannot judge ({error})")
+    refuted = next((p for p in proofs if not p.proved and "counterexample" in p.detail), None)
+    if refuted is not None:
+        return Judged(m, "refuted", f"{proof_name}: {refuted.name}, {refuted.detail[:200]}")
+    if all(p.proved for p in proofs):
+        return Judged(m, "equivalent", f"{proof_name}: proved")
+    unproved = next(p for p in proofs if not p.proved)
+    return Judged(m, "unexplained", f"{proof_name}: {unproved.name}, {unproved.detail}")
+
+
+# --------------------------------------------------------------------------------------------
+# The study
+# --------------------------------------------------------------------------------------------
+
+
+def chosen(found: Sequence[Mutant], per_diagnoser: int | None, seed: int) -> list[Mutant]:
+    """Every mutant, or (`per_diagnoser`) a seeded sample of that many of each diagnoser
+    FB's and every other one, in file order."""
+    if per_diagnoser is None:
+        return list(found)
+    by_pou: dict[str, list[Mutant]] = {}
+    for m in found:
+        by_pou.setdefault(m.pou, []).append(m)
+    out: list[Mutant] = []
+    for pou, items in by_pou.items():
+        if "_Diag_" in pou and len(items) > per_diagnoser:
+            items = random.Random(f"{seed} {pou}").sample(items, per_diagnoser)
+        out += items
+    return sorted(out, key=lambda m: m.start)
+
+
+def run_study(name: str, runs: Sequence[Run] | None = None, per_diagnoser: int | None = None,
+              seed: int = 0, progress: Callable[[Judged], Any] | None = None) -> Study:
+    """Record `name`'s traces (its study runs by default), judge its mutants (all, or a
+    sample: `chosen`), each survivor by its block's proof or the lists."""
+    start = time.process_time()
+    project = load_project(PROJECTS / name)
+    rec, traces = record(name, study_runs(name) if runs is None else runs)
+    found = mutants(rec.text)
+    study = Study(name, len(found), traces=len(traces),
+                  scans=sum(len(t.scans) for t in traces))
+    with builds_kept():
+        for m in chosen(found, per_diagnoser, seed):
+            study.judged.append(judge_mutant(name, project, rec, traces, m))
+            if progress is not None:
+                progress(study.judged[-1])
+    study.cpu_s = time.process_time() - start
+    return study
+
+
+def judge_mutant(name: str, project: Project, rec: Recording, traces: Sequence[Trace],
+                 m: Mutant) -> Judged:
+    verdict = judge(rec, traces, m)
+    if verdict.outcome != "survived":
+        return Judged(m, verdict.outcome, verdict.why)
+    return judge_survivor(name, project, rec.text, m)
+
+
+def _progress(name: str) -> Callable[[Judged], None]:
+    """A line on stderr every 100 mutants judged, and at each unexplained survivor."""
+    done = [0]
+
+    def progress(j: Judged) -> None:
+        done[0] += 1
+        if j.outcome == "unexplained" or done[0] % 100 == 0:
+            print(f"{name}: {done[0]} judged, {time.process_time():.0f} s CPU"
+                  + (f"; unexplained: {j.mutant.describe()} ({j.how})"
+                     if j.outcome == "unexplained" else ""), file=sys.stderr, flush=True)
+    return progress
+
+
+def main(argv: list[str]) -> int:
+    per: int | None = None
+    if "--sample" in argv:
+        k = argv.index("--sample")
+        per, argv = int(argv[k + 1]), argv[:k] + argv[k + 2:]
+    for name in argv or [p.name for p in sorted(PROJECTS.iterdir()) if p.is_dir()]:
+        study = run_study(name, per_diagnoser=per, progress=_progress(name))
+        print(study.report(), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
