@@ -54,12 +54,16 @@ from tests.st_prove import (
 
 _FTC = "Ftc := (DiagnosisMode <> 1) AND (DiagnosisMode <> 2),"
 
+
+def _no_diagnoser(project: str) -> dict[str, str]:
+    return {f"PRG_{project}_Safety: {_FTC} [{old} -> {new}]": (
+        "Ftc gates the masks of the diagnosers' actuator partitions; the cell has no "
+        "diagnoser, so the filter never reads it")
+        for old, new in (("<>", "="), ("1", "0"), ("AND", "OR"), ("2", "1"))}
+
+
 EQUIVALENT: dict[str, dict[str, str]] = {
-    "conveyor_robot": {
-        f"PRG_conveyor_robot_Safety: {_FTC} [{old} -> {new}]": (
-            "Ftc gates the masks of the diagnosers' actuator partitions; the cell has no "
-            "diagnoser, so the filter never reads it")
-        for old, new in (("<>", "="), ("1", "0"), ("AND", "OR"), ("2", "1"))},
+    **{name: _no_diagnoser(name) for name in ("conveyor_robot", "palletizer", "sorting")},
     "cispi_valve": {
         f"PRG_cispi_valve_Safety: {_FTC} [2 -> 1]": (
             "Ftc := DiagnosisMode <> 1: TRUE in off mode too, where it gates masks that are "
@@ -78,7 +82,7 @@ def _clock(project: str) -> dict[str, str]:
 
 
 CAUGHT_BY_TESTS: dict[str, dict[str, str]] = {
-    "conveyor_robot": _clock("conveyor_robot"),
+    **{name: _clock(name) for name in ("conveyor_robot", "palletizer", "sorting")},
     "cispi_valve": {
         **_clock("cispi_valve"),
         f"PRG_cispi_valve_Safety: {_FTC} [AND -> OR]": (
