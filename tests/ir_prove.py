@@ -33,14 +33,17 @@ import z3
 from hmi.logic import expr as ex
 from hmi.program import ir
 from tests.st_prove import (
+    KeptRuns,
     Proof,
     Symbolic,
     Unsupported,
     _concrete,
     _ite,
+    _parsed,
     _valid,
     built_blocks,
     in_bounds,
+    keeping,
     kept,
     parse_changed,
     parse_fb,
@@ -319,10 +322,24 @@ def _executed(text: str, block: Any, tamper: Callable[[str], str] | None
               ) -> tuple[Symbolic, dict[str, Any]]:
     """The exported block's ST (tampered with, when a test asks), run symbolically once."""
     fb_text = pou_text(text, block.pou.name)
-    tree = parse_fb(fb_text) if tamper is None else parse_changed(fb_text, tamper(fb_text))
-    sym = Symbolic(tree)
+    if tamper is None:
+        sym = Symbolic(parse_fb(fb_text))
+    else:
+        sym = Symbolic(parse_changed(fb_text, tamper(fb_text)))
+        if keeping():  # (a study: the original's blocks, run once, reused)
+            sym.runs = kept(block, ("runs", fb_text), lambda: _recorded(fb_text))
     sym.obligations = []
     return sym, sym.run()
+
+
+def _recorded(fb_text: str) -> KeptRuns:
+    """The blocks of one run of the block as exported, kept for its mutants' runs."""
+    sym = Symbolic(_parsed(fb_text))  # (the tree parse_changed shares its nodes with)
+    sym.obligations = []
+    sym.runs = KeptRuns()
+    sym.run()
+    sym.runs.recording = False
+    return sym.runs
 
 
 def prove_monitor(project: Any, text: str, task: str,

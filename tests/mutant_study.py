@@ -10,8 +10,11 @@ engine's (or the scan program's lowering): an *equivalent* mutant. Refuted with 
 counterexample: *refuted*, i.e. caught (it differs from the engine on some input and state
 the invariant admits, or leaves the invariant, or indexes out of bounds). Neither (z3 cannot
 say, or the proof does not cover the mutated text): *unexplained*, unless listed below. A
-survivor in the program (PRG_..._Safety: the blocks' wiring, which no block proof covers) is
-listed with its reason or unexplained. A study with an unexplained survivor fails.
+survivor in the program (PRG_..._Safety: the blocks' wiring) is handed to
+tests/program_prove.py's `prove_program`, every block taken as any function: proved, an
+equivalent mutant; refuted, it hands some block another value, which the block may never
+read (not caught): listed with its reason, or unexplained. A study with an unexplained
+survivor fails.
 
 The lists (by Mutant.key()): EQUIVALENT, equivalent mutants z3 cannot judge, each with why;
 CAUGHT_BY_TESTS, survivors a test of their own catches (the test named); GAPS, what no trace
@@ -38,6 +41,7 @@ from hmi.project.loader import load_project
 from hmi.project.model import Project
 from tests.conftest import PROJECTS
 from tests.ir_prove import prove_control, prove_diagnoser, prove_memory, prove_monitor
+from tests.program_prove import _section, prove_program
 from tests.st_mutants import Mutant, Recording, Run, Trace, judge, mutants, record, study_runs
 from tests.st_prove import (
     Proof,
@@ -50,22 +54,41 @@ from tests.st_prove import (
 
 _FTC = "Ftc := (DiagnosisMode <> 1) AND (DiagnosisMode <> 2),"
 
+
+def _no_diagnoser(project: str) -> dict[str, str]:
+    return {f"PRG_{project}_Safety: {_FTC} [{old} -> {new}]": (
+        "Ftc gates the masks of the diagnosers' actuator partitions; the cell has no "
+        "diagnoser, so the filter never reads it")
+        for old, new in (("<>", "="), ("1", "0"), ("AND", "OR"), ("2", "1"))}
+
+
 EQUIVALENT: dict[str, dict[str, str]] = {
-    "conveyor_robot": {
-        f"PRG_conveyor_robot_Safety: {_FTC} [{old} -> {new}]": (
-            "Ftc gates the masks of the diagnosers' actuator partitions; the cell has no "
-            "diagnoser, so the filter never reads it")
-        for old, new in (("<>", "="), ("1", "0"), ("AND", "OR"), ("2", "1"))},
+    **{name: _no_diagnoser(name) for name in ("conveyor_robot", "palletizer", "sorting")},
+    "cispi_valve": {
+        f"PRG_cispi_valve_Safety: {_FTC} [2 -> 1]": (
+            "Ftc := DiagnosisMode <> 1: TRUE in off mode too, where it gates masks that are "
+            "all 0 (a diagnoser off writes its flags 0, at the scan the mode changes too: "
+            "its Dirty is set then), and the filter is its only reader"),
+    },
 }
 
 GAPS: dict[str, dict[str, str]] = {}
 
+
+def _clock(project: str) -> dict[str, str]:
+    return {f"PRG_{project}_Safety: Clock(IN := TRUE, PT := T#24d); [T#24d -> T#2073600001ms]": (
+        "tests/test_export.py::test_the_programs_clock_saturates_at_24_days: the clock read "
+        "at 24 days and 1 ms (no recorded trace runs 24 days)")}
+
+
 CAUGHT_BY_TESTS: dict[str, dict[str, str]] = {
-    "conveyor_robot": {
-        "PRG_conveyor_robot_Safety: Clock(IN := TRUE, PT := T#24d); "
-        "[T#24d -> T#2073600001ms]": (
-            "tests/test_export.py::test_the_programs_clock_saturates_at_24_days: the clock "
-            "read at 24 days and 1 ms (no recorded trace runs 24 days)"),
+    **{name: _clock(name) for name in ("conveyor_robot", "palletizer", "sorting")},
+    "cispi_valve": {
+        **_clock("cispi_valve"),
+        f"PRG_cispi_valve_Safety: {_FTC} [AND -> OR]": (
+            "tests/test_export_mutants.py::test_observe_mode_masks_no_order_on_the_plc: Ftc "
+            "always TRUE, the filter masks the orders of a flagged actuator in observe mode "
+            "too (the study's runs are in FTC mode)"),
     },
 }
 
@@ -162,9 +185,19 @@ def _block(kind: str) -> Judge:
     return judge_block
 
 
-def block_of(pou: str) -> tuple[str, Judge] | None:
+def _program(project: Project, text: str, m: Mutant) -> list[Proof]:
+    """prove_program on the mutant (tests/program_prove.py: the program against one engine
+    scan, every block any function): proved, the mutant is equivalent; refuted, it hands
+    some block another value, which that block may never read: not caught."""
+    mutated = m.apply(text)
+    return prove_program(project, text, lambda _original: _section(mutated, "PROGRAM", m.pou))
+
+
+def block_of(pou: str) -> tuple[str, Judge]:
     """The proof that judges a mutant of `pou` (its name says what the exporter built it
-    for), or None (the program: the blocks' wiring)."""
+    for; the program's: prove_program)."""
+    if pou.startswith("PRG_"):
+        return "prove_program", _program
     if pou.endswith("_Filter"):
         return "prove_filter", _filter
     for marker, kind in (("_Mon_", "monitor"), ("_Diag_", "diagnoser")):
@@ -173,31 +206,31 @@ def block_of(pou: str) -> tuple[str, Judge] | None:
     for suffix, kind in (("_Control", "control"), ("_Memory", "memory")):
         if pou.endswith(suffix):
             return f"prove_{kind}", _block(kind)
-    return None
+    raise KeyError(f"no block proof for {pou}")
 
 
 def judge_survivor(name: str, project: Project, text: str, m: Mutant) -> Judged:
-    """A mutant no trace caught: by its block's proof, else by the lists."""
+    """A mutant no trace caught: by its block's proof (a program's mutant only when proved
+    equivalent), else by the lists."""
+    proof_name, judge_block = block_of(m.pou)
+    try:
+        proofs = judge_block(project, text, m)
+        unproved = next((p for p in proofs if not p.proved), None)
+        said = "" if unproved is None else f"{proof_name}: {unproved.name}, {unproved.detail}"
+    except (Unsupported, SyntaxError, RecursionError) as error:
+        unproved, said = None, f"{proof_name}: cannot judge ({error})"
+        proofs = []
+    if proofs and unproved is None:
+        return Judged(m, "equivalent", f"{proof_name}: proved")
+    if (unproved is not None and "counterexample" in unproved.detail
+            and proof_name != "prove_program"):
+        return Judged(m, "refuted", said[:300])
     for outcome, listed in (("tested", CAUGHT_BY_TESTS), ("gap", GAPS),
                             ("listed", EQUIVALENT)):
         why = listed.get(name, {}).get(m.key())
         if why is not None:
             return Judged(m, outcome, why)
-    found = block_of(m.pou)
-    if found is None:
-        return Judged(m, "unexplained", "no block proof covers the program; not listed")
-    proof_name, judge_block = found
-    try:
-        proofs = judge_block(project, text, m)
-    except (Unsupported, SyntaxError, RecursionError) as error:
-        return Judged(m, "unexplained", f"{proof_name}: cannot judge ({error})")
-    refuted = next((p for p in proofs if not p.proved and "counterexample" in p.detail), None)
-    if refuted is not None:
-        return Judged(m, "refuted", f"{proof_name}: {refuted.name}, {refuted.detail[:200]}")
-    if all(p.proved for p in proofs):
-        return Judged(m, "equivalent", f"{proof_name}: proved")
-    unproved = next(p for p in proofs if not p.proved)
-    return Judged(m, "unexplained", f"{proof_name}: {unproved.name}, {unproved.detail}")
+    return Judged(m, "unexplained", said[:300])
 
 
 # --------------------------------------------------------------------------------------------

@@ -367,7 +367,10 @@ EXIT = "$exit"
 
 
 class Symbolic:
-    """One call of a function block on symbolic inputs and state."""
+    """One call of a function block on symbolic inputs and state (`runs`: blocks of
+    statements run before, reused)."""
+
+    runs: KeptRuns | None = None
 
     def __init__(self, fb: Any, initial: dict[str, Any] | None = None,
                  loop_limit: int = LOOP_LIMIT, split: frozenset[str] = frozenset(),
@@ -588,6 +591,11 @@ class Symbolic:
     def block(self, stmts: Any, st: dict[str, Any], pc: list[Any]) -> dict[str, Any]:
         if stmts is None:
             return st
+        if self.runs is not None:
+            return self.runs.block(self, stmts, st, pc)
+        return self.statements(stmts, st, pc)
+
+    def statements(self, stmts: Any, st: dict[str, Any], pc: list[Any]) -> dict[str, Any]:
         for s in getattr(stmts, "statements", stmts):
             leaving = _concrete(st[EXIT])
             if leaving is True:
@@ -844,6 +852,73 @@ class Symbolic:
         return self._loop(s, st, pc, count, None, 0)
 
 
+def _id(value: Any) -> Any:
+    if isinstance(value, z3.AstRef):
+        return value.get_id()
+    if isinstance(value, list):
+        return tuple(_id(v) for v in value)
+    return value
+
+
+def _lines(stmts: Any) -> int:
+    """How many lines a block of statements spans (0: unknown)."""
+    items = getattr(stmts, "statements", stmts)
+    if not items:
+        return 0
+    first, last = getattr(items[0], "meta", None), getattr(items[-1], "meta", None)
+    if first is None or last is None or first.line is None or last.end_line is None:
+        return 0
+    return int(last.end_line - first.line + 1)
+
+
+@dataclass
+class KeptRuns:
+    """The blocks of statements (of at least LINES lines) one run of a function block ran,
+    each with the state and path it started from, what it left and the obligations it
+    added (or the Dead it ended in), reused by the runs of its mutants: parse_changed's
+    tree shares every node the change is not under, and a z3 term is the same object
+    whenever it is the same term, so a block the change is not under, started from the
+    same state on the same path, leaves what it left (a diagnoser's three modes: the two
+    the change is not in are not run again). `recording`: the original's run, which keeps
+    them (a mutant's own blocks are not kept)."""
+
+    LINES = 10
+    recording: bool = True
+    kept: dict[tuple[Any, ...], tuple[Any, ...]] = field(default_factory=dict)
+    sizes: dict[int, tuple[Any, int]] = field(default_factory=dict)
+    hits: int = 0
+
+    def block(self, sym: Symbolic, stmts: Any, st: dict[str, Any], pc: list[Any]
+              ) -> dict[str, Any]:
+        size = self.sizes.get(id(stmts))
+        if size is None or size[0] is not stmts:
+            if not self.recording:
+                return sym.statements(stmts, st, pc)
+            size = self.sizes[id(stmts)] = (stmts, _lines(stmts))
+        if size[1] < self.LINES:
+            return sym.statements(stmts, st, pc)
+        key = (id(stmts), tuple((k, _id(v)) for k, v in st.items()),
+               tuple(c.get_id() for c in pc))
+        hit = self.kept.get(key)
+        if hit is not None and hit[0] is stmts:
+            self.hits += 1
+            _stmts, _held, out, obligations, dead = hit
+            sym.obligations.extend(obligations)
+            if dead is not None:
+                raise Dead(dead)
+            return dict(out)
+        if not self.recording:
+            return sym.statements(stmts, st, pc)
+        before = len(sym.obligations)
+        try:
+            out = sym.statements(stmts, st, pc)
+        except Dead as end:
+            self.kept[key] = (stmts, (st, pc), None, sym.obligations[before:], str(end))
+            raise
+        self.kept[key] = (stmts, (st, pc), dict(out), sym.obligations[before:], None)
+        return out
+
+
 def merge(cond: Any, yes: dict[str, Any], no: dict[str, Any]) -> dict[str, Any]:
     out = {}
     for key, a in yes.items():
@@ -944,6 +1019,11 @@ def builds_kept() -> Iterator[None]:
         yield
     finally:
         _KEPT = saved
+
+
+def keeping() -> bool:
+    """Whether `builds_kept()` is active."""
+    return _KEPT is not None
 
 
 def kept(project: Any, key: tuple[Any, ...], make: Callable[[], T]) -> T:

@@ -531,17 +531,18 @@ if __name__ == "__main__" and "--record" in sys.argv:
 CLOCK = "Clock(IN := TRUE, PT := T#24d);"
 
 
+@pytest.mark.parametrize("name", ["conveyor_robot", "cispi_valve", "palletizer", "sorting"])
 @pytest.mark.parametrize(("text_of", "at_24d_1ms"), [
     (lambda t: t, 24 * 86_400_000_000),
     # the clock's preset one millisecond longer (a mutation the recorded traces never reach)
     (lambda t: t.replace(CLOCK, CLOCK.replace("T#24d", "T#2073600001ms")),
      24 * 86_400_000_000 + 1000),
 ])
-def test_the_programs_clock_saturates_at_24_days(text_of, at_24d_1ms):
+def test_the_programs_clock_saturates_at_24_days(name, text_of, at_24d_1ms):
     """The exported program's clock counts the time since its first scan and stops at
     exactly 24 days (docs/plc-export.md: a 32-bit TIME); a preset one millisecond longer is
     seen at 24 days and 1 ms."""
-    text = write_st(build(load_project(PROJECTS / "conveyor_robot")))
+    text = write_st(build(load_project(PROJECTS / name)))
     assert CLOCK in text
     rt = Runtime(Program(text_of(text)))
     day = 86_400_000_000
