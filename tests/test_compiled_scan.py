@@ -138,7 +138,9 @@ def check_active_bits(engine: Engine) -> None:
     image, history = engine.image, engine.history
     expected = sum(1 << k for k, context in enumerate(_contexts(engine))
                    if context is None or context(image, history))
-    assert engine.compiled.active_bits(image, history) == expected
+    # (the compiled scan's form, handed to the filter stage: FilterStage.bind)
+    assert engine.safety_filter.active_bits is engine.compiled.functions["active_bits"]
+    assert engine.safety_filter.active_bits(image, history) == expected
 
 
 def check_violations(engine: Engine, candidate: tuple[bool, ...]) -> None:
@@ -151,7 +153,8 @@ def check_violations(engine: Engine, candidate: tuple[bool, ...]) -> None:
                                                                  strict=True))
                    if packed & row.pos == row.pos and not packed & row.neg
                    and (context is None or context(image, history)))
-    assert engine.compiled.violated(image, history, candidate) == expected
+    assert engine.safety_filter.violations is engine.compiled.functions["violated"]
+    assert engine.safety_filter.violations(image, history, candidate) == expected
 
 
 def check_marks(snap: Snapshot, seen: tuple[int, tuple] | None) -> tuple[int, tuple] | None:
@@ -370,4 +373,4 @@ def test_printed_code_names_only_what_the_stages_declare():
     project = load(PROJECTS / "cispi_valve")
     engine = Engine(project, SimPlant(project))
     with pytest.raises(ValueError, match="not a part of the mode's program"):
-        ScanProgram(engine.layout, [Stray()], None, engine.safety_filter)
+        ScanProgram(engine.layout, [Stray()], None)

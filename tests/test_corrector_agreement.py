@@ -13,8 +13,9 @@ import random
 
 import pytest
 
-from hmi.engine.filter import SafetyFilter
+from hmi.engine.filter import SafetyFilter, Solver
 from hmi.engine.layout import Layout
+from hmi.engine.program_stages import FILTER, StageContext, build_stages
 from hmi.export import source
 from hmi.export.filter_pou import build_filter, max_distance
 from hmi.export.names import Scope
@@ -32,12 +33,16 @@ def test_the_plc_search_and_the_engine_search_give_the_same_vector(name):
     project = load_project(PROJECTS / name)
     bound = source.filter_bound(project)
     limit = max_distance(bound)
-    # the exported filter block (as hmi.export.build builds it), alone
-    block = build_filter(project, "FB_Filter", Scope(), bound)
+    # the exported filter block (as hmi.export.build builds it: from the filter stage the
+    # engine builds), alone
+    layout = Layout.build(project, project.control(None), extra=layout_names(project))
+    stages = build_stages(StageContext(project, layout, project.control(None),
+                                       tuple(v.safe for v in project.outputs),
+                                       Solver(project.solver, project.solver_budget)))
+    block = build_filter(stages.need(FILTER), project, "FB_Filter", Scope(), bound)
     program = Program("\n".join(pou_text(block.pou)) + "\n")
     fb = next(iter(program.pous))
     run = program.fbs[fb]
-    layout = Layout.build(project, project.control(None), extra=layout_names(project))
     engine = SafetyFilter(project, layout.slots, layout.step_times)
     engine.remember = False
     rows = engine.table.rows

@@ -88,10 +88,11 @@ def test_an_internal_error_puts_outputs_safe_and_says_so():
         raise RuntimeError("solver bug")
     working = session.engine.filter_stage.apply
     session.engine.filter_stage.apply = broken
-    compiled = session.engine.compiled  # the filter's first question, asked by the scan itself
-    assert compiled is not None
-    test = compiled.violated
-    compiled.violated = broken
+    # the filter's first question, asked by the scan itself (the compiled scan's, handed to
+    # the filter stage)
+    inner = session.engine.safety_filter
+    test = inner.violations
+    inner.violations = broken
     s = session.scan_once()
     assert s.snapshot.outputs == (False, False) and s.snapshot.latched[0].source == "internal"
     assert "solver bug" in s.error
@@ -99,7 +100,7 @@ def test_an_internal_error_puts_outputs_safe_and_says_so():
     s = session.scan_once()
     assert s.snapshot.outputs == (False, False)  # stays safe until a fault reset
     session.engine.filter_stage.apply = working
-    compiled.violated = test
+    inner.violations = test
     assert "safe-state latch released" in session.command(FaultReset()).message
     assert session.scan_once().snapshot.latched == ()
 

@@ -149,8 +149,8 @@ def test_fallback_and_internal_error_are_explained(tmp_path):
     session = make_session(VALVE)
     session.scan_once()
     session.engine.filter_stage.apply = lambda *args: 1 / 0
-    assert session.engine.compiled is not None  # the filter's first question, asked by the scan
-    session.engine.compiled.violated = lambda *args: 1 / 0
+    # the filter's first question, asked by the scan
+    session.engine.safety_filter.violations = lambda *args: 1 / 0
     snap = session.scan_once()
     e = explanation(snap, "safe_state:internal")
     assert "internal error" in e.what and "ZeroDivisionError" in e.detail

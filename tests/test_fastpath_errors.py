@@ -85,7 +85,7 @@ class Broken:
         owner: Any
         owner, attribute = {
             "core": (engine.compiled, "core"),
-            "violated": (engine.compiled, "violated"),
+            "violated": (engine.safety_filter, "violations"),
             "monitors": (engine.compiled, "monitors"),
             "read_into": (plant, "read_into"),
             "correction": (engine.safety_filter, "apply"),
@@ -119,8 +119,6 @@ class Broken:
                 "status": property(lambda this: self.fail() or real)})
         else:
             setattr(owner, attribute, broken)
-        if where == "violated":  # the filter stage's first question is the same function
-            engine.safety_filter.violations = broken
 
     def fail(self) -> None:
         """Raise the planted fault, `times` times from `at_us` on, while armed."""

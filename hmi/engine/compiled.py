@@ -17,14 +17,13 @@ as functions (hmi.program.ir.Function):
 * ``recovery_<k>(v, h, now, scan)``, recovery mode with procedure k running: stages 2-4
   without the step times (the program waits, as in manual mode), then the procedure's
   step, whose vector it returns;
-* ``violated(v, h, f)``: the constraints the candidate `f` violates, as a word (stage 6's
-  first question: most scans violate none, 0, and then the filter has nothing else to do);
-* ``decide(v, h, f, w, p, latched)``: the policy applied to that word, calling the filter's
-  handler when it has something to decide (the PLC's filter prints the same two lowerings,
-  hmi.export.filter_pou);
-* ``active_bits(v, h)``: which constraints are active (the corrector's memory key; the PLC's
-  filter prints the same lowering, hmi.export.filter_pou);
-* ``monitors(v, h, now, scan)``: the stopwatch monitors after the output scan.
+* ``monitors(v, h, now, scan)``: the part after the output scan (the stopwatch monitors);
+* a stage's functions of its own (its declaration's ``functions``: the filter stage's
+  ``violated(v, h, f)``, the constraints the candidate `f` violates as a word, stage 6's
+  first question, 0 on most scans; ``decide(v, h, f, w, p, latched)``, the policy applied to
+  that word, calling the filter's handler when it has something to decide; and
+  ``active_bits(v, h)``, the corrector's memory key; the PLC's filter block prints the same
+  lowerings, hmi.export.filter_pou), each handed back to its stage.
 
 :class:`CompiledScan` holds one form of them: the Python printed from the statements
 (hmi.engine.codegen: slot indices, integer constants and a fixed set of operators, never
@@ -39,7 +38,7 @@ first time it does (an engine that never enters manual mode never generates ``he
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 from hmi.engine.codegen import Vocabulary, allow, build_function
@@ -49,25 +48,19 @@ from hmi.engine.scan_record import EVENTS, STATUS, Raised
 from hmi.logic.expr import History, Image
 from hmi.plant.base import PlantError
 from hmi.program import ir, order
-from hmi.program.constraints import (
-    active_function,
-    policy_function,
-    violations_function,
-)
 from hmi.program.evaluate import function_evaluator
 
 if TYPE_CHECKING:
-    from hmi.engine.filter import SafetyFilter
     from hmi.engine.layout import Layout
     from hmi.engine.recovery import RecoveryStage
     from hmi.engine.stages import ProgramStage
 
 CoreFn = Callable[[Image, History, int, int], tuple[bool, ...]]
 HeldFn = Callable[[Image, History, int, int], None]
-ViolatedFn = Callable[[Image, History, tuple[bool, ...]], int]
-DecideFn = Callable[[Image, History, tuple[bool, ...], int, int, bool], Any]
 MonitorFn = Callable[[Image, History, int, int], None]
-ActiveFn = Callable[[Image, History], int]
+# a stage's functions of its own (hmi.engine.program_stages.Stages.functions): by name, and
+# what takes the compiled form of them
+StageFunctions = tuple[Mapping[str, ir.Function], Callable[[Mapping[str, Any]], None]]
 
 SCAN = ("v", "h", "now", "scan")
 
@@ -77,8 +70,7 @@ class ScanProgram:
     module docstring)."""
 
     def __init__(self, layout: Layout, stages: Sequence[ProgramStage],
-                 recovery: RecoveryStage | None, safety_filter: SafetyFilter,
-                 added: Sequence[AddedStage] = ()):
+                 recovery: RecoveryStage | None, added: Sequence[AddedStage] = ()):
         self.outputs = layout.outputs
         # the parts of the mode's program in order: hmi.program.order's, with each added
         # stage's where it declares (hmi.engine.program_stages)
@@ -97,7 +89,6 @@ class ScanProgram:
                 self.parts[part] += stmts
         self._fov = ir.Tuple(tuple(ir.Slot(s) for s in layout.indices(layout.outputs)))
         self._recovery = recovery
-        self._filter = safety_filter
 
     def walk(self, without: tuple[str, ...] = (), law: tuple[ir.Stmt, ...] | None = None
              ) -> tuple[ir.Stmt, ...]:
@@ -129,17 +120,6 @@ class ScanProgram:
                            self.walk((order.STEP_TIMES,), stage.procedures[name].program),
                            ir.Local("f"))
 
-    def violated(self) -> ir.Function:
-        return violations_function(self._filter.table)
-
-    def decide(self) -> ir.Function:
-        return policy_function(self._filter)
-
-    def active_bits(self) -> ir.Function:
-        """Which constraints are active (bit k: safety_filter.compiled[k]), the corrector's
-        memory key (SafetyFilter.active_bits): the lowering the PLC's filter prints too."""
-        return active_function(self._filter.table)
-
     def monitors(self) -> ir.Function | None:
         """The part after the output scan, on the I/O just exchanged (None: no stage has
         statements there)."""
@@ -152,26 +132,28 @@ class CompiledScan:
     Python, else the evaluator's closures."""
 
     def __init__(self, layout: Layout, stages: Sequence[ProgramStage],
-                 recovery: RecoveryStage | None, safety_filter: SafetyFilter, label: str,
-                 python: bool = True, added: Sequence[AddedStage] = ()):
+                 recovery: RecoveryStage | None, label: str, python: bool = True,
+                 added: Sequence[AddedStage] = (), functions: Sequence[StageFunctions] = ()):
         self.slots = layout.slots
         self.times = layout.step_times
         self.label = label
         self.python = python
-        self.program = ScanProgram(layout, stages, recovery, safety_filter, added)
+        self.program = ScanProgram(layout, stages, recovery, added)
         # what the printed code may name: every stage's names (their PRINTED), the frame's
-        self.vocabulary = FRAME.union(*(stage.PRINTED for stage in (*stages, *added)),
-                                      safety_filter.PRINTED)
+        self.vocabulary = FRAME.union(*(stage.PRINTED for stage in (*stages, *added)))
         if python:
             allow(self.vocabulary)
         self.sources: list[str] = []  # every printed function's text, in build order
         self.core: CoreFn = self._form(self.program.core())
-        self.violated: ViolatedFn = self._form(self.program.violated())
-        self.decide: DecideFn = self._form(self.program.decide())
         monitor = self.program.monitors()
         self.monitors: MonitorFn | None = self._form(monitor) if monitor is not None else None
-        # the corrector's memory key (SafetyFilter.active_bits)
-        self.active_bits: ActiveFn = self._form(self.program.active_bits())
+        # the stages' functions of their own (the filter's questions), in this form, by
+        # name, each handed to its stage
+        self.functions: dict[str, Any] = {}
+        for declared, bind in functions:
+            built = {name: self._form(function) for name, function in declared.items()}
+            self.functions.update(built)
+            bind(built)
         self._held: HeldFn | None = None
         self._observed: HeldFn | None = None
         self._recoveries: dict[str, CoreFn] = {}
@@ -228,7 +210,7 @@ FRAME = Vocabulary(
     frozenset({"_pending", "scan", "now", "latched", "clean_report", "_news",
                "_auto_lost", "_auto_failed", "_auto_filter", "_write_error",
                "_monitors_error", "_finish", "_conclude", "read_into", "write_vector",
-               "take_events", "status", "core", "violated", "monitors", "appendleft", "fov",
+               "take_events", "status", "core", "monitors", "appendleft", "fov",
                "outputs", "diagnosis", "monitored", "error", "filter_us", "values", "events",
                "published", "scan_us", "settled", "manual", "current", "mask",
                "reconstructed"}),
@@ -261,6 +243,7 @@ def auto_frame(engine: Any) -> ir.Function:
     core, violated, monitor = (ir.Local(n) for n in ("run_core", "run_violated",
                                                       "run_monitors"))
     stage = engine.diagnosis
+    filter_stage = engine.filter_stage  # (its part of the scan: order.FILTER)
     record = engine._record
 
     def cell(owner: Any, name: str) -> ir.Cell:
@@ -298,14 +281,14 @@ def auto_frame(engine: Any) -> ir.Function:
         if stage is not None:
             guarded.append(ir.Assign(diag, cell(stage, "current")))
 
-    def filter_() -> None:  # 6: its first question; the filter itself if not quiet
+    def filter_() -> None:  # 6: the filter stage's first question; its handler if not quiet
         # masked, latched, or else the violation word: not quiet unless 0 (the filter is
         # handed the word, which it does not compute again, when nothing is masked nor
         # latched)
-        guarded.append(ir.Assign(violated, cell(scan_program, "violated")))
+        read, word = filter_stage.question(image, history, f, violated)
+        guarded.append(read)
         guarded.append(ir.Assign(unquiet, ir.Or((
-            ir.Not(ir.IsNone(ir.Field(diag, "mask"))), cell(e, "latched"),
-            ir.Apply(violated, (image, history, f))))))
+            ir.Not(ir.IsNone(ir.Field(diag, "mask"))), cell(e, "latched"), word))))
         body.append(ir.Try(tuple(guarded), ((Exception, "exc", conclude(
             ir.Do(call(e, "_auto_failed", now, exc, diag)))),)))
         # the filter's decision when it is not the candidate (what it writes: `out`); it

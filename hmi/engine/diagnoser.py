@@ -353,9 +353,13 @@ class DiagnosisStage:
                 for out in p.actuators:
                     masks.setdefault(lay.outputs.index(out), []).append(slots[p.flag])
         self.masks = sorted(masks.items())
-        # Which flags mask each masked output, for the filter's report.
+        # Each actuator partition's flag and the orders it masks, in the diagnosers' order
+        # (the PLC's filter block masks them so), and which flags mask each masked output,
+        # for the filter's report.
+        self.masking = tuple((p.flag, tuple(p.actuators)) for spec in specs
+                             for p in spec.partitions if p.actuators)
         self.mask_flags = {lay.outputs[k]: tuple(
-            p.flag for spec in specs for p in spec.partitions if lay.outputs[k] in p.actuators)
+            flag for flag, actuators in self.masking if lay.outputs[k] in actuators)
             for k, _ in self.masks}
         self.outputs = lay.outputs
         # The High Level Diagnoser (hmi/project/high_level.py): per specification, its

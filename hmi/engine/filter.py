@@ -36,10 +36,8 @@ from hmi.program.constraints import (
     POLICY_CODES,
     VIOLATIONS,
     ConstraintTable,
-    active_function,
     lower_constraints,
-    policy_function,
-    violations_function,
+    lower_filter,
 )
 from hmi.program.evaluate import function_evaluator
 from hmi.project.model import Constraint, Project
@@ -236,8 +234,9 @@ class _ActiveSet:
 class SafetyFilter:
     """The policy's handlers (what a violated candidate becomes, with its report) and the
     corrector. Which constraints the candidate violates, which are active and what the
-    policy does with them are the scan program's (hmi.program.constraints): printed by the
-    engine's compiled scan into `violations`, `decide` and `active_bits`, evaluated here
+    policy does with them are the scan program's (hmi.program.constraints, lowered once:
+    `program`): printed by the engine's compiled scan into `violations`, `decide` and
+    `active_bits` (handed over by its filter stage, hmi.engine.filter_stage), evaluated here
     until then (a recovery's filter keeps the evaluator's). Stateless between scans except
     for what the engine holds (policy, latch)."""
 
@@ -265,17 +264,20 @@ class SafetyFilter:
         self.compiled = compile_constraints(self.table)
         self.safe = self.table.safe
         self.all_bits = (1 << self.n) - 1
-        # The scan program's functions of the constraints, as its evaluator runs them; the
-        # engine gives its compiled scan's (hmi.engine.compiled): the violation word of a
-        # candidate, the policy applied to it (calling this filter's handlers), and which
-        # constraints are active (bit j: self.compiled[j]).
+        # The scan program's functions of the constraints (its lowering, once: the filter
+        # stage's, which the PLC's filter block prints too), as its evaluator runs them; the
+        # engine's compiled scan hands its own form of them to the stage (FilterStage.bind):
+        # the violation word of a candidate, the policy applied to it (calling this filter's
+        # handlers), and which constraints are active (bit j: self.compiled[j]).
+        self.program = lower_filter(self.table, self)
         times = step_times or {}
+        functions = self.program.functions()
         self.violations: Callable[[Image, History, tuple[bool, ...]], int] = \
-            function_evaluator(violations_function(self.table), slots, times)
+            function_evaluator(functions["violated"], slots, times)
         self.decide: Callable[..., FilterDecision | None] = function_evaluator(
-            policy_function(self), slots, times)
+            functions["decide"], slots, times)
         self.active_bits: Callable[[Image, History], int] = function_evaluator(
-            active_function(self.table), slots, times)
+            functions["active_bits"], slots, times)
         # What depends only on which constraints are active, built once per active set: a
         # cell has few distinct active sets, and a violation scan should not rebuild them.
         self._by_active: dict[tuple[int, ...], _ActiveSet] = {}

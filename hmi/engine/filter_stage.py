@@ -14,45 +14,111 @@ filter").
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
-from typing import ClassVar
+from collections.abc import Callable, Iterable, Mapping
+from typing import Any, ClassVar, Protocol
 
+from hmi.engine.codegen import Vocabulary
 from hmi.engine.filter import Change, FilterDecision, FilterReport, SafetyFilter, pack
 from hmi.logic.expr import History, Image
 from hmi.program import ir
+
+
+class Recoveries(Protocol):
+    """What takes the filter's place in recovery mode (hmi.engine.recovery.RecoveryStage):
+    the running procedure's own filter stage, and the diagnosers' mask without the orders
+    that procedure drives."""
+
+    @property
+    def filter_stage(self) -> FilterStage | None: ...
+
+    def unmask(self, mask: tuple[bool, ...] | None) -> tuple[bool, ...] | None: ...
 
 
 class FilterStage:
     """The safety filter and the masking around it; returns its decision to the engine.
 
     A declared stage (hmi.engine.program_stages.FILTER) whose part of the scan the engine
-    runs itself (hmi.program.order.FILTER): none of the mode's program (its lowerings are
-    the filter's own functions, hmi.program.constraints, printed by the compiled scan)."""
+    runs itself (hmi.program.order.FILTER), between the mode's program and the output scan:
+    none of the mode's program. Its lowering is the filter's own (:attr:`functions`,
+    hmi.program.constraints), which the compiled scan builds in its form and hands back
+    (:meth:`bind`) and the PLC's filter block prints (hmi.export.filter_pou); its handler
+    at that part is :meth:`decide` (the engine's scan) and :meth:`apply` (the printed frame's
+    when its first question, :meth:`question`, is not quiet)."""
 
-    PRINTED = SafetyFilter.PRINTED  # (the handlers its functions call)
+    # the handlers its functions call, and the first question the printed frame reads
+    PRINTED = SafetyFilter.PRINTED.union(Vocabulary(frozenset({"violations"})))
     parts: ClassVar[Mapping[str, tuple[ir.Stmt, ...]]] = {}
 
-    def __init__(self, safety_filter: SafetyFilter, mask_flags: Mapping[str, tuple[str, ...]]):
+    def __init__(self, safety_filter: SafetyFilter, mask_flags: Mapping[str, tuple[str, ...]],
+                 masking: tuple[tuple[str, tuple[str, ...]], ...] = (),
+                 recovery: Recoveries | None = None):
         self.filter = safety_filter
         # The scan's report, as the engine's part of the scan decided it (None: the filter
         # was not reached): what the stage publishes (Engine._keep hands it over)
         self.report: FilterReport | None = None
         self.outputs = safety_filter.outputs
         self.mask_flags = mask_flags  # masked output -> the flags that mask it
+        # each actuator partition's flag and the orders it masks (the PLC's block masks so)
+        self.masking = masking
+        # the recovery procedures, whose running one's filter replaces this one in recovery
+        # mode (its own constraints), the orders it drives unmasked
+        self.recovery = recovery
         self.clean = safety_filter.clean
         # The last masked scan's report when the mask had the last word on nothing the
         # filter wrote: ((report, fov, written, mask), the report shown).
         self._masked_report: tuple[tuple[object, ...], FilterReport] | None = None
 
+    @property
+    def functions(self) -> dict[str, ir.Function]:
+        """Its lowering as the scan program's functions of its own (outside the mode's
+        program), by name: the candidate's violation word, the policy, the active word."""
+        return self.filter.program.functions()
+
+    def bind(self, built: Mapping[str, Callable[..., Any]]) -> None:
+        """The compiled scan's form of :attr:`functions`, which the filter then calls."""
+        inner = self.filter
+        inner.violations = built["violated"]
+        inner.decide = built["decide"]
+        inner.active_bits = built["active_bits"]
+
+    def question(self, image: ir.Value, history: ir.Value, candidate: ir.Value,
+                 local: ir.Local) -> tuple[ir.Stmt, ir.Value]:
+        """Its first question at a scan, as the printed frame asks it: the statement that
+        reads its function into `local` (at each scan: whoever replaces it is called) and the
+        violation word of `candidate` (0: nothing violated, the candidate passes clean)."""
+        return (ir.Assign(local, ir.Cell(self.filter, "violations")),
+                ir.Apply(local, (image, history, candidate)))
+
+    def decide(self, image: Image, history: History, fov: tuple[bool, ...], policy: str,
+               latched: bool, mask: tuple[bool, ...] | None, recovering: bool
+               ) -> FilterDecision:
+        """Its part of the engine's scan (Engine._cycle): :meth:`apply`, or in recovery mode
+        the running procedure's filter, never under the monitor policy (a recovery is never
+        unfiltered), given the mask without the orders the procedure drives."""
+        recovery = self.recovery
+        if recovering:
+            stage = self
+            if recovery is not None:
+                stage = recovery.filter_stage or self
+                mask = recovery.unmask(mask)
+            if policy == "monitor":
+                policy = "correct"
+            return stage.apply(image, history, fov, policy, latched, mask)
+        return self.apply(image, history, fov, policy, latched, mask)
+
     def apply(self, image: Image, history: History, fov: tuple[bool, ...], policy: str,
-              latched: bool, mask: tuple[bool, ...] | None) -> FilterDecision:
+              latched: bool, mask: tuple[bool, ...] | None, word: int | None = None
+              ) -> FilterDecision:
+        """The decision on the candidate `fov` (`word`: its violation word, when the caller
+        has it and nothing is masked)."""
         inner = self.filter
         if mask is None:
             # the scan program's violation word; nothing violated and no block latch: the
             # candidate unchanged with the clean report, without the policy's call
-            word = inner.violations(image, history, fov)
-            if not word and not (latched and policy == "block"):
-                return FilterDecision(fov, self.clean[policy])
+            if word is None:
+                word = inner.violations(image, history, fov)
+                if not word and not (latched and policy == "block"):
+                    return FilterDecision(fov, self.clean[policy])
             return inner.apply(image, history, fov, policy, latched, word)
         if policy == "monitor":  # monitor alters nothing, masks included: it says so
             decision = inner.apply(image, history, fov, policy, latched)

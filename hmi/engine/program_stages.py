@@ -42,6 +42,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any, ClassVar, Generic, NamedTuple, Protocol, TypeVar, cast
 
 from hmi.engine.codegen import Vocabulary
@@ -152,6 +153,11 @@ class Declaration(Generic[S]):
     shown: Callable[[S], Any] | None = None  # what a snapshot shows of it (Snapshot.stages)
     news: Publication[S] | None = None  # what it gives a scan with news (Engine._conclude)
     fields: Shown[S] | None = None  # what a snapshot reads of it besides (Engine.snapshot)
+    # its scan program's functions of its own, outside the mode's program, by name (the
+    # filter's questions), and what takes the compiled scan's form of them: the compiled
+    # scan builds each in its form (printed or evaluated) and hands them over
+    functions: Callable[[S], Mapping[str, ir.Function]] | None = None
+    bind: Callable[[S, Mapping[str, Any]], None] | None = None
 
 
 class AddedStage(ProgramStage, Protocol):
@@ -280,10 +286,13 @@ def _recovery_quiet(stage: RecoveryStage, handed: Handed
 
 
 def _filter(c: StageContext) -> FilterStage:
-    # the cell's filter, given the diagnosers' mask
+    # the cell's filter, given the diagnosers' mask, and the recovery procedures (whose
+    # running one's filter takes its place in recovery mode)
     diagnosers = cast("DiagnosisStage | None", c.built.get(DIAGNOSERS.role))
     return FilterStage(SafetyFilter(c.project, c.layout.slots, c.layout.step_times, *c.solver),
-                       diagnosers.mask_flags if diagnosers is not None else {})
+                       diagnosers.mask_flags if diagnosers is not None else {},
+                       diagnosers.masking if diagnosers is not None else (),
+                       cast("RecoveryStage | None", c.built.get(RECOVERY.role)))
 
 
 def _report(stage: FilterStage, image: Image, history: History, now: int) -> Any:
@@ -339,7 +348,7 @@ RECOVERY: Declaration[RecoveryStage] = Declaration(
     news=Publication("recovery", _recovery_state, "reading the recovery's state",
                      lambda s: NO_RECOVERY, _recovery_quiet))
 FILTER: Declaration[FilterStage] = Declaration(
-    "filter", _filter,
+    "filter", _filter, functions=lambda s: s.functions, bind=FilterStage.bind,
     news=Publication("filter_report", _report, "reading the filter's report", lambda s: None,
                      _report_quiet))
 MONITORS: Declaration[MonitorStage] = Declaration(
@@ -414,6 +423,14 @@ class Stages:
     def showing(self) -> tuple[tuple[Shown[Any], Any], ...]:
         """The stages a snapshot reads something of besides, with what it reads."""
         return tuple((d.fields, stage) for d, stage in self.built if d.fields is not None)
+
+    @property
+    def functions(self) -> tuple[tuple[Mapping[str, ir.Function],
+                                       Callable[[Mapping[str, Any]], None]], ...]:
+        """The stages' scan-program functions of their own (their declarations'
+        `functions`), each stage's by name, with what takes the compiled form of them."""
+        return tuple((d.functions(stage), partial(d.bind, stage)) for d, stage in self.built
+                     if d.functions is not None and d.bind is not None)
 
     @property
     def depth(self) -> int:

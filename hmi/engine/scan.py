@@ -208,13 +208,11 @@ class Engine:
         # its evaluator (the reference the printed form is tested against).
         # Its stages are the declared ones (those placed by hmi.program.order, then those
         # that declare their own place), their names allowed in the printed code.
+        # A stage's functions of its own (the filter's questions) are built in the same
+        # form and handed to it (its declaration's `functions` and `bind`).
         self.compiled = CompiledScan(lay, self.stages.program, self.recovery,
-                                     self.safety_filter, f"{project.name}/{self.control_name}",
-                                     python=compiled, added=self.added)
-        # the filter's first question, its policy and its memory's key, printed
-        self.safety_filter.violations = self.compiled.violated
-        self.safety_filter.decide = self.compiled.decide
-        self.safety_filter.active_bits = self.compiled.active_bits
+                                     f"{project.name}/{self.control_name}", python=compiled,
+                                     added=self.added, functions=self.stages.functions)
         self._bindings = self.input_scan.bindings
         self._period = project.scan_period_us
         # The last run()'s results until snapshot() builds them into a Snapshot, and what
@@ -901,21 +899,13 @@ class Engine:
         s.fov = fov
 
     def _scan_filter(self, s: _Parts, now: int) -> None:
-        """6. filter, given the diagnosers' mask (a recovery is never unfiltered)"""
-        filter_stage = self.filter_stage
-        recovery = self.recovery
-        mask = s.diagnosis.mask
-        policy = self._policy
-        if self._mode == "recovery":
-            if recovery is not None:
-                filter_stage = recovery.filter_stage or filter_stage
-                mask = recovery.unmask(mask)
-            if policy == "monitor":
-                policy = "correct"
+        """6. filter: its stage's decision (FilterStage.decide), given the policy, the latch,
+        the diagnosers' mask and whether a recovery runs"""
         timed = self._wall_times
         started = time.perf_counter() if timed else 0.0
-        decision = filter_stage.apply(self.image, self.history, s.fov, policy,
-                                      bool(self.latched), mask)
+        decision = self.filter_stage.decide(self.image, self.history, s.fov, self._policy,
+                                            bool(self.latched), s.diagnosis.mask,
+                                            self._mode == "recovery")
         if timed:
             s.filter_us = (time.perf_counter() - started) * 1e6
         if decision.latch is not None:
@@ -992,17 +982,12 @@ class Engine:
         the printed frame writes, monitors and concludes as it does a clean candidate's.
         Otherwise the output scan and the monitors run here and the scan is kept (None: the
         frame concludes it)."""
-        image = self.image
         mask = diagnosis.mask
         try:
-            if mask is None and not self.latched:
-                # violated, nothing masked: what FilterStage.apply would hand the filter
-                word = unquiet if type(unquiet) is int else None
-                decision = self.safety_filter.apply(image, self.history, fov, self._policy,
-                                                    False, word)
-            else:
-                decision = self.filter_stage.apply(image, self.history, fov, self._policy,
-                                                   bool(self.latched), mask)
+            # (violated, nothing masked nor latched: the word, not computed again)
+            decision = self.filter_stage.apply(self.image, self.history, fov, self._policy,
+                                               bool(self.latched), mask,
+                                               unquiet if type(unquiet) is int else None)
             if decision.latch is not None:
                 self.latch_safe("filter", decision.latch)
             outputs = decision.outputs

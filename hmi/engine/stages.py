@@ -28,8 +28,8 @@ history (``history[0]`` the image at the end of the previous scan, and so on bac
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
-from typing import TYPE_CHECKING, Protocol
+from collections.abc import Callable, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Protocol
 
 from hmi.engine.codegen import Vocabulary
 from hmi.engine.layout import Layout
@@ -37,7 +37,7 @@ from hmi.logic.expr import History, Image
 from hmi.logic.timers import TimerRuntime
 from hmi.plant.base import Plant, PlantError
 from hmi.program import order
-from hmi.program.ir import Stmt
+from hmi.program.ir import Function, Local, Stmt, Value
 from hmi.program.memories import lower_observer
 from hmi.program.timers import lower_timer
 from hmi.project.model import Project
@@ -77,10 +77,26 @@ class DiagnoserStage(Protocol):
 
 
 class FilterStageProtocol(Protocol):
-    """Stage 6: the safety filter on the candidate vector, orders masked by the diagnosers."""
+    """Stage 6: the safety filter on the candidate vector, orders masked by the diagnosers.
+    Its lowering is its own (`functions`, built by the compiled scan and handed back by
+    `bind`); the engine's part calls `decide`, the printed frame `question` and then, when
+    that is not quiet, `apply`."""
+
+    @property
+    def functions(self) -> Mapping[str, Function]: ...
+
+    def bind(self, built: Mapping[str, Callable[..., Any]]) -> None: ...
+
+    def question(self, image: Value, history: Value, candidate: Value, local: Local
+                 ) -> tuple[Stmt, Value]: ...
+
+    def decide(self, image: Image, history: History, fov: tuple[bool, ...], policy: str,
+               latched: bool, mask: tuple[bool, ...] | None, recovering: bool
+               ) -> FilterDecision: ...
 
     def apply(self, image: Image, history: History, fov: tuple[bool, ...], policy: str,
-              latched: bool, mask: tuple[bool, ...] | None) -> FilterDecision: ...
+              latched: bool, mask: tuple[bool, ...] | None, word: int | None = None
+              ) -> FilterDecision: ...
 
 
 class MonitorStageProtocol(Protocol):

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from math import comb
+from typing import TYPE_CHECKING
 
 from hmi.errors import ProjectError
 from hmi.export import model as m
@@ -49,12 +50,11 @@ from hmi.program.constraints import (
     POLICY,
     POLICY_CODES,
     VIOLATIONS,
-    lower_active,
-    lower_constraints,
-    lower_policy,
-    lower_violations,
 )
 from hmi.project.model import Project
+
+if TYPE_CHECKING:
+    from hmi.engine.filter_stage import FilterStage
 
 FIXED = ("Policy", "Reset", "Ftc", "Violations", "Latched", "Fallback", "Tested", "Cand",
          "Mem", "F0", "F1", "Mask", "Free", "Flip", "Vec", "Best", "Diff", "OutV", "Act",
@@ -134,9 +134,15 @@ def minus(a: m.Expr, b: m.Expr | int) -> m.Expr:
     return m.Binary("-", a, m.IntLit(b) if isinstance(b, int) else b)
 
 
-def build_filter(project: Project, pou_name: str, scope: Scope, bound: source.FilterBound
-                 ) -> Block:
-    table = lower_constraints(project)
+def build_filter(stage: FilterStage, project: Project, pou_name: str, scope: Scope,
+                 bound: source.FilterBound) -> Block:
+    """The engine's filter stage `stage` (of `project`) as FB `pou_name`: its lowering
+    printed (the table, the active word, the violation word and the policy the engine's
+    compiled scan prints as Python: FilterStage.functions), its policy's handler's calls as
+    the statements below, its masking partitions as the mask, the search limited by
+    `bound`."""
+    lowered = stage.filter.program
+    table = lowered.table
     outputs = source.outputs(project)
     rows = table.rows
     no, nc = len(table.outputs), len(rows)
@@ -152,11 +158,11 @@ def build_filter(project: Project, pou_name: str, scope: Scope, bound: source.Fi
     views = Views(sc)
     index = {name: k for k, name in enumerate(table.outputs)}
     # Which constraints are active, which the candidate violates and what the policy does:
-    # the scan program's lowerings (the engine's active_bits, violated and decide), printed
-    # into the words Act and Violations and the policy's IF; the corrector, the policy's
-    # handler, is the search below (_correct)
-    active = lower_active(table)
-    handler = _PolicyHandler()
+    # the stage's lowerings (the engine's active_bits, violated and decide), printed into
+    # the words Act and Violations and the policy's IF; the corrector, the policy's handler
+    # (the engine's SafetyFilter, which its calls name), is the search below (_correct)
+    active = lowered.active
+    handler = stage.filter
     places = Places(slot=_no_slot, read=views.name, step_time=_no_step_time,
                     locals={ACTIVE.name: Place(c.t["Act"], c.vword),
                             VIOLATIONS.name: Place(c.t["Violations"], c.vword),
@@ -164,6 +170,8 @@ def build_filter(project: Project, pou_name: str, scope: Scope, bound: source.Fi
                             POLICY.name: Place(c.t["Policy"], "INT"),
                             LATCHED.name: Place(c.t["Latched"], "BOOL")},
                     unkept=frozenset({DECISION.name}))
+    # the policy's handlers (hmi.program.constraints.HANDLERS) in this block: `blocked`
+    # sets the latch, `corrected` is the search (_correct), `monitored` nothing
     places.handler(handler, "blocked", Handler(print=lambda printer, args: [
         c.set("Latched", m.TRUE)]))
     places.handler(handler, "corrected", Handler(print=lambda printer, args: list(
@@ -176,8 +184,8 @@ def build_filter(project: Project, pou_name: str, scope: Scope, bound: source.Fi
         always = "" if stmts else " (always active)"
         contexts.append(m.Comment(f"{con.name} ({con.kind}): {con.expr}{always}"))
         contexts += printer.block(stmts)
-    masks = [(p.flag, sum(1 << index[o] for o in p.actuators))
-             for spec in source.diagnosers(project) for p in spec.partitions if p.actuators]
+    masks = [(flag, sum(1 << index[o] for o in actuators))
+             for flag, actuators in stage.masking]
     limit = max_distance(bound)
 
     scan: list[m.Stmt] = [m.Comment("1. The candidate vector: bit k is output k"),
@@ -198,14 +206,14 @@ def build_filter(project: Project, pou_name: str, scope: Scope, bound: source.Fi
              c.set("OutV", c("Cand"))]
     scan.append(m.Comment("2. Detection: bit j of Violations, constraint j violated by the "
                           "candidate (its literals over the outputs and over Y)"))
-    scan += printer.block(lower_violations(table))
+    scan += printer.block(lowered.violations)
     if nc:
         scan.append(m.Comment("Contexts (the literals over Y): bit j of Act, constraint j "
                               "active (what the corrector searches against)"))
         scan += contexts
         scan.append(m.Comment("3. The policy: 0 monitor, 1 block, 2 (or anything else) "
                               "correct"))
-        scan += printer.block(lower_policy(handler))
+        scan += printer.block(lowered.policy)
     scan.append(m.Comment("4. No safe vector: the safe state; the mask has the last word; "
                           "a latched filter writes the safe state"))
     scan.append(m.if_(c("Fallback"), c.set("OutV", c("SAFE"))))
@@ -277,11 +285,6 @@ def build_filter(project: Project, pou_name: str, scope: Scope, bound: source.Fi
                                  "Reset", "Ftc")}
     return Block(pou, dict(views.idents), out,
                  {**ports, **{f"FOV_{k}": v for k, v in fov.items()}})
-
-
-class _PolicyHandler:
-    """What the policy's lowering calls (hmi.program.constraints.HANDLERS): in this block,
-    `blocked` sets the latch, `corrected` is the search (_correct), `monitored` nothing."""
 
 
 def _no_slot(index: int) -> Place:

@@ -112,7 +112,8 @@ def _law(stage: ControlRuntime, c: ExportContext) -> list[StageCall]:
 
 
 def _filter(stage: FilterStage, c: ExportContext) -> list[StageCall]:
-    block = build_filter(c.project, c.pous.take(f"FB_{c.prefix}_Filter"), c.pous, c.bound)
+    block = build_filter(stage, c.project, c.pous.take(f"FB_{c.prefix}_Filter"), c.pous,
+                         c.bound)
     g = c.g
     return [StageCall(
         "Filter", "6. The safety filter", block, now=False,

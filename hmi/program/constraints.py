@@ -15,7 +15,9 @@ violates, as a word (0 on most scans, and then the filter has nothing else to do
 :func:`lower_policy` what the policy does with that word, calling a handler for what it
 decides (the engine's SafetyFilter builds the report and runs its corrector; the PLC's
 block latches or runs its search). The engine prints them as ``violated`` and ``decide``,
-the PLC's filter block as its word ``Violations`` and the IF on its ``Policy``.
+the PLC's filter block as its word ``Violations`` and the IF on its ``Policy``. The three
+are lowered together once per filter (:func:`lower_filter`, :class:`FilterProgram`): the
+filter stage owns them (hmi.engine.filter_stage), and the PLC's block prints that stage's.
 """
 
 from __future__ import annotations
@@ -180,19 +182,54 @@ def _read(lit: Literal) -> ir.Value:
     return read if lit.positive else ir.Not(read)
 
 
+@dataclass(frozen=True)
+class FilterProgram:
+    """The safety filter's lowering, once: its table and the statements of its three
+    questions. The engine's filter stage prints or evaluates them as its functions
+    (:meth:`functions`: ``violated``, ``decide``, ``active_bits``); the PLC's filter block
+    prints the same statements (hmi.export.filter_pou), its handler's calls as ST."""
+
+    table: ConstraintTable
+    active: ActiveWord  # which rows are active (lower_active)
+    violations: tuple[ir.Stmt, ...]  # the candidate's violation word (lower_violations)
+    policy: tuple[ir.Stmt, ...]  # the policy, calling the handler (lower_policy)
+
+    def functions(self) -> dict[str, ir.Function]:
+        """The three questions as the scan program's functions, by name."""
+        return {"violated": _violated(self.violations), "decide": _decide(self.policy),
+                "active_bits": _active(self.active.body)}
+
+
+def lower_filter(table: ConstraintTable, handler: object) -> FilterProgram:
+    """The filter of `table` whose policy calls `handler`'s HANDLERS."""
+    return FilterProgram(table, lower_active(table), lower_violations(table),
+                         lower_policy(handler))
+
+
+def _violated(body: tuple[ir.Stmt, ...]) -> ir.Function:
+    return ir.Function("violated", ("v", "h", "f"), body, VIOLATIONS)
+
+
+def _decide(body: tuple[ir.Stmt, ...]) -> ir.Function:
+    return ir.Function("decide", ("v", "h", "f", "w", "p", "latched"), body, DECISION)
+
+
+def _active(body: tuple[ir.Stmt, ...]) -> ir.Function:
+    return ir.Function("active_bits", ("v", "h"), body, ACTIVE)
+
+
 def violations_function(table: ConstraintTable) -> ir.Function:
     """``violated(v, h, f) -> w``: the violation word of the candidate `f` (the outputs in
     order), :func:`lower_violations`."""
-    return ir.Function("violated", ("v", "h", "f"), lower_violations(table), VIOLATIONS)
+    return _violated(lower_violations(table))
 
 
 def policy_function(handler: object) -> ir.Function:
     """``decide(v, h, f, w, p, latched) -> decision or None``: :func:`lower_policy`,
     calling `handler`'s methods."""
-    return ir.Function("decide", ("v", "h", "f", "w", "p", "latched"),
-                       lower_policy(handler), DECISION)
+    return _decide(lower_policy(handler))
 
 
 def active_function(table: ConstraintTable) -> ir.Function:
     """``active_bits(v, h) -> b``: which rows of `table` are active, :func:`lower_active`."""
-    return ir.Function("active_bits", ("v", "h"), lower_active(table).body, ACTIVE)
+    return _active(lower_active(table).body)
