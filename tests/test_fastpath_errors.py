@@ -88,7 +88,8 @@ class Broken:
             "violated": (engine.safety_filter, "violations"),
             "monitors": (engine.compiled, "monitors"),
             "read_into": (plant, "read_into"),
-            "correction": (engine.safety_filter, "apply"),
+            # (the filter stage's decision on a violated candidate nothing masks)
+            "correction": (engine.filter_stage, "unmasked"),
             "decide": (engine.safety_filter, "decide"),
             "active_bits": (engine.safety_filter, "active_bits"),
             # outside the scan's own error handling (Engine.run, Engine.snapshot)

@@ -42,8 +42,9 @@ class FilterStage:
     none of the mode's program. Its lowering is the filter's own (:attr:`functions`,
     hmi.program.constraints), which the compiled scan builds in its form and hands back
     (:meth:`bind`) and the PLC's filter block prints (hmi.export.filter_pou); its handler
-    at that part is :meth:`decide` (the engine's scan) and :meth:`apply` (the printed frame's
-    when its first question, :meth:`question`, is not quiet)."""
+    at that part is :meth:`decide` (the engine's scan), and the printed frame's, when its
+    first question (:meth:`question`) is not quiet, :attr:`unmasked` (nothing masked nor
+    latched: given the word) or :meth:`apply`."""
 
     # the handlers its functions call, and the first question the printed frame reads
     PRINTED = SafetyFilter.PRINTED.union(Vocabulary(frozenset({"violations"})))
@@ -64,6 +65,10 @@ class FilterStage:
         # mode (its own constraints), the orders it drives unmasked
         self.recovery = recovery
         self.clean = safety_filter.clean
+        # The decision on a candidate nothing masks, given its violation word when the caller
+        # has it (the printed frame's, not computed again): the filter's own, handed out
+        # whole so that a violated scan makes one call (Engine._auto_filter)
+        self.unmasked: Callable[..., FilterDecision] = safety_filter.apply
         # The last masked scan's report when the mask had the last word on nothing the
         # filter wrote: ((report, fov, written, mask), the report shown).
         self._masked_report: tuple[tuple[object, ...], FilterReport] | None = None
@@ -107,18 +112,15 @@ class FilterStage:
         return self.apply(image, history, fov, policy, latched, mask)
 
     def apply(self, image: Image, history: History, fov: tuple[bool, ...], policy: str,
-              latched: bool, mask: tuple[bool, ...] | None, word: int | None = None
-              ) -> FilterDecision:
-        """The decision on the candidate `fov` (`word`: its violation word, when the caller
-        has it and nothing is masked)."""
+              latched: bool, mask: tuple[bool, ...] | None) -> FilterDecision:
+        """The decision on the candidate `fov`, masked by `mask`."""
         inner = self.filter
         if mask is None:
             # the scan program's violation word; nothing violated and no block latch: the
             # candidate unchanged with the clean report, without the policy's call
-            if word is None:
-                word = inner.violations(image, history, fov)
-                if not word and not (latched and policy == "block"):
-                    return FilterDecision(fov, self.clean[policy])
+            word = inner.violations(image, history, fov)
+            if not word and not (latched and policy == "block"):
+                return FilterDecision(fov, self.clean[policy])
             return inner.apply(image, history, fov, policy, latched, word)
         if policy == "monitor":  # monitor alters nothing, masks included: it says so
             decision = inner.apply(image, history, fov, policy, latched)

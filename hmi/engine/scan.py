@@ -982,12 +982,17 @@ class Engine:
         the printed frame writes, monitors and concludes as it does a clean candidate's.
         Otherwise the output scan and the monitors run here and the scan is kept (None: the
         frame concludes it)."""
+        image = self.image
         mask = diagnosis.mask
         try:
-            # (violated, nothing masked nor latched: the word, not computed again)
-            decision = self.filter_stage.apply(self.image, self.history, fov, self._policy,
-                                               bool(self.latched), mask,
-                                               unquiet if type(unquiet) is int else None)
+            if mask is None and not self.latched:
+                # violated, nothing masked: the stage's decision given the word
+                word = unquiet if type(unquiet) is int else None
+                unmasked = self.filter_stage.unmasked
+                decision = unmasked(image, self.history, fov, self._policy, False, word)
+            else:
+                decision = self.filter_stage.apply(image, self.history, fov, self._policy,
+                                                   bool(self.latched), mask)
             if decision.latch is not None:
                 self.latch_safe("filter", decision.latch)
             outputs = decision.outputs

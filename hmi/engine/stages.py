@@ -80,7 +80,7 @@ class FilterStageProtocol(Protocol):
     """Stage 6: the safety filter on the candidate vector, orders masked by the diagnosers.
     Its lowering is its own (`functions`, built by the compiled scan and handed back by
     `bind`); the engine's part calls `decide`, the printed frame `question` and then, when
-    that is not quiet, `apply`."""
+    that is not quiet, `unmasked` (nothing masked nor latched) or `apply`."""
 
     @property
     def functions(self) -> Mapping[str, Function]: ...
@@ -94,9 +94,12 @@ class FilterStageProtocol(Protocol):
                latched: bool, mask: tuple[bool, ...] | None, recovering: bool
                ) -> FilterDecision: ...
 
+    # (nothing masked: the image, history, candidate, policy, latch and the candidate's
+    # violation word, or None)
+    unmasked: Callable[..., FilterDecision]
+
     def apply(self, image: Image, history: History, fov: tuple[bool, ...], policy: str,
-              latched: bool, mask: tuple[bool, ...] | None, word: int | None = None
-              ) -> FilterDecision: ...
+              latched: bool, mask: tuple[bool, ...] | None) -> FilterDecision: ...
 
 
 class MonitorStageProtocol(Protocol):
