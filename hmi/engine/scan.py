@@ -986,10 +986,10 @@ class Engine:
         mask = diagnosis.mask
         try:
             if mask is None and not self.latched:
-                # violated, nothing masked: the stage's decision given the word
-                word = unquiet if type(unquiet) is int else None
+                # violated, nothing masked: the stage's decision given the word (the frame's
+                # test is the word itself then)
                 unmasked = self.filter_stage.unmasked
-                decision = unmasked(image, self.history, fov, self._policy, False, word)
+                decision = unmasked(image, self.history, fov, self._policy, False, unquiet)
             else:
                 decision = self.filter_stage.apply(image, self.history, fov, self._policy,
                                                    bool(self.latched), mask)
