@@ -310,6 +310,10 @@ def _open(cluster: Cluster) -> None:
     cluster.wait_for(lambda: _statuses(cluster) == {"running"}, "the workers to run again")
 
 
+def _terminal_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 class HeldSoak:
     """`plchmi soak` of 12 seeds on the cluster, a process of its own, held by the gate
     (:func:`_gate`): each of the two workers pauses after its first shard, having finished
@@ -322,8 +326,11 @@ class HeldSoak:
         self.argv = [sys.executable, "-m", "hmi.cli", "soak", str(VALVE), "--seeds", "1-12",
                      "--steps", "4", "--cluster", cluster.address]
         cluster.client.register_plugin(_gate())
+        # SIGINT as a terminal leaves it, whatever this run inherited (a background job
+        # ignores it, and so would the command)
         self.command = subprocess.Popen(self.argv, stdout=subprocess.PIPE,
-                                        stderr=subprocess.PIPE, env=self.env, cwd=ROOT)
+                                        stderr=subprocess.PIPE, env=self.env, cwd=ROOT,
+                                        preexec_fn=_terminal_sigint)
         # Work under way and held: a shard kept by the command, every worker paused.
         cluster.wait_for(lambda: any(data.glob("studies/*/shard-*.json")) and
                          _statuses(cluster) == {"paused"},
