@@ -7,8 +7,11 @@ from __future__ import annotations
 
 import hashlib
 import json
+import multiprocessing
+import os
 import random
 import re
+import signal
 from dataclasses import replace
 
 import pytest
@@ -212,6 +215,32 @@ def test_an_interrupted_campaign_resumes_where_it_stopped(tmp_path):
     again = Counting()
     run_study(study, again, root=tmp_path / "kept")
     assert len(again.computed) == len(study.shards)
+
+
+def test_ctrl_c_on_a_pool_stops_its_processes_before_the_run_gives_up(tmp_path):
+    """SIGINT to this process (as a terminal's Ctrl-C) while a pool of 2 processes computes
+    the campaign's 3 shards, sent as the first shard is kept: the pool, which defers Ctrl-C
+    while it waits (hmi/farm/interrupt.py), takes it at its next look, so the run stops
+    with 1 shard done; its processes are gone when run_study gives up, and Python's own
+    SIGINT handler is back."""
+    project = load_project(VALVE)
+    study = campaign_study(project, campaign_of(project))
+    before = set(multiprocessing.active_children())
+
+    def ctrl_c(tick):
+        if tick.shards_done == 1:
+            os.kill(os.getpid(), signal.SIGINT)
+
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(Interrupted) as stopped:
+            run_study(study, LocalPool(2), ctrl_c, root=tmp_path)
+        left = [p for p in multiprocessing.active_children() if p not in before]
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert (stopped.value.done, stopped.value.shards) == (1, 3)
+    assert left == []
+    assert signal.getsignal(signal.SIGINT) is previous
 
 
 def test_the_command_says_how_to_resume_and_does(tmp_path, capsys, monkeypatch):

@@ -310,43 +310,167 @@ def _open(cluster: Cluster) -> None:
     cluster.wait_for(lambda: _statuses(cluster) == {"running"}, "the workers to run again")
 
 
-def test_ctrl_c_cancels_the_work_on_the_cluster_and_resume_goes_on(cluster, tmp_path):
-    cluster.ensure("w1", "w2")
-    data = tmp_path / "data"
-    env = {**os.environ, "PLCHMI_DATA": str(data), "PYTHONUNBUFFERED": "1"}
-    # 12 seeds: each of the two workers pauses after its first shard, having finished two at
-    # most (the next one may start before the pause), so 8 or more are left when Ctrl-C comes.
-    argv = [sys.executable, "-m", "hmi.cli", "soak", str(VALVE), "--seeds", "1-12",
-            "--steps", "4", "--cluster", cluster.address]
-    cluster.client.register_plugin(_gate())
-    command = None
-    try:
-        command = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                   env=env, cwd=ROOT)
+def _terminal_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+class HeldSoak:
+    """`plchmi soak` of 12 seeds on the cluster, a process of its own, held by the gate
+    (:func:`_gate`): each of the two workers pauses after its first shard, having finished
+    two at most (the next one may start before the pause), so 8 or more are left when the
+    test interrupts it."""
+
+    def __init__(self, cluster: Cluster, data: Path):
+        self.cluster, self.data = cluster, data
+        self.env = {**os.environ, "PLCHMI_DATA": str(data), "PYTHONUNBUFFERED": "1"}
+        self.argv = [sys.executable, "-m", "hmi.cli", "soak", str(VALVE), "--seeds", "1-12",
+                     "--steps", "4", "--cluster", cluster.address]
+        cluster.client.register_plugin(_gate())
+        # SIGINT as a terminal leaves it, whatever this run inherited (a background job
+        # ignores it, and so would the command)
+        self.command = subprocess.Popen(self.argv, stdout=subprocess.PIPE,
+                                        stderr=subprocess.PIPE, env=self.env, cwd=ROOT,
+                                        preexec_fn=_terminal_sigint)
         # Work under way and held: a shard kept by the command, every worker paused.
         cluster.wait_for(lambda: any(data.glob("studies/*/shard-*.json")) and
                          _statuses(cluster) == {"paused"},
                          "a first shard kept and the workers held")
-        command.send_signal(signal.SIGINT)
-        _, err = command.communicate(timeout=60)
+
+    def interrupt(self) -> str:
+        """SIGINT; the command must end (the timeout only a guard: it ends within
+        CANCEL_S + CLOSE_S) with 130 and say how to go on. Its stderr."""
+        self.command.send_signal(signal.SIGINT)
+        _, err = self.command.communicate(timeout=120)
         text = err.decode()
-        assert command.returncode == 130, text
+        assert self.command.returncode == 130, text
         assert "interrupted:" in text and "--resume" in text and "Traceback" not in text
-        # The scheduler forgets the study (the workers still held): nothing left queued or
-        # computing on the workers.
-        cluster.wait_for(lambda: not any(cluster.client.processing().values()) and
-                         cluster.client.run_on_scheduler(lambda dask_scheduler:
-                                                         len(dask_scheduler.tasks)) == 0,
-                         "the cluster to be idle", timeout=30)
+        return text
+
+    def wait_idle(self) -> None:
+        """The scheduler forgets the study (the workers still held): nothing left queued
+        or computing on the workers."""
+        client = self.cluster.client
+        self.cluster.wait_for(lambda: not any(client.processing().values()) and
+                              client.run_on_scheduler(lambda dask_scheduler:
+                                                      len(dask_scheduler.tasks)) == 0,
+                              "the cluster to be idle", timeout=START_S)
+
+    def close(self) -> None:
+        """The command ended if it still runs, the gate opened."""
+        if self.command.poll() is None:
+            self.command.kill()
+            self.command.wait(10)
+        _open(self.cluster)
+
+    def resume(self) -> None:
+        """--resume reads the kept shards back and computes the others: the study whole."""
+        kept = len(list(self.data.glob("studies/*/shard-*.json")))
+        assert 1 <= kept <= 4
+        resumed = subprocess.run([*self.argv, "--resume"], capture_output=True, env=self.env,
+                                 cwd=ROOT, timeout=300)
+        assert resumed.returncode == 0, resumed.stderr.decode()
+        assert f"{kept} of 12 shards read back" in resumed.stderr.decode()
+        assert "12 kept every invariant" in resumed.stdout.decode()
+
+
+def test_ctrl_c_cancels_the_work_on_the_cluster_and_resume_goes_on(cluster, tmp_path):
+    cluster.ensure("w1", "w2")
+    soak = HeldSoak(cluster, tmp_path / "data")
+    try:
+        err = soak.interrupt()
+        assert "did not confirm the cancel" not in err
+        soak.wait_idle()
     finally:
-        if command is not None and command.poll() is None:
-            command.kill()
-            command.wait(10)
+        soak.close()
+    soak.resume()
+
+
+def test_ctrl_c_ends_the_command_though_the_scheduler_does_not_answer(cluster, tmp_path):
+    """The scheduler's process stopped (SIGSTOP: its connections open, nothing answered, as
+    a machine that hangs or a link that drops every packet): Ctrl-C still ends the command,
+    which says that the cancel was not confirmed. Once the scheduler runs again it forgets
+    the study (the cancel was sent, or the connection closed with the command), and
+    --resume goes on from the kept shards."""
+    cluster.ensure("w1", "w2")
+    soak = HeldSoak(cluster, tmp_path / "data")
+    scheduler = cluster.processes["scheduler"]
+    scheduler.send_signal(signal.SIGSTOP)
+    try:
+        err = soak.interrupt()
+        assert "the cluster did not confirm the cancel within" in err, err
+        assert "its workers may still finish work that will be ignored" in err
+    finally:
+        scheduler.send_signal(signal.SIGCONT)
+    try:
+        soak.wait_idle()
+    finally:
+        soak.close()
+    soak.resume()
+
+
+def test_ctrl_c_ends_the_command_though_its_connection_is_stuck(cluster, capsys, tmp_path):
+    """The command's own connection stuck: its Dask client's event loop blocked, as a lock
+    that an earlier KeyboardInterrupt left taken blocks it (hmi/farm/interrupt.py), so
+    nothing more is sent to the scheduler nor read from it. Ctrl-C must still end the
+    command, with 130, how to resume, and the cancel said unconfirmed, while that loop is
+    still blocked: no wait of the way out is on it unbounded. The command runs in this
+    process (`main`), so that the test can block its loop; the loop is released after."""
+    from hmi.farm.executors import DaskCluster
+
+    cluster.ensure("w1", "w2")
+    data = tmp_path / "data"
+    entered: list[DaskCluster] = []
+    enter = DaskCluster.__enter__
+
+    def spy(self: DaskCluster) -> DaskCluster:
+        entered.append(self)
+        return enter(self)
+
+    release, blocked, unblocked = threading.Event(), threading.Event(), threading.Event()
+    failed: list[BaseException] = []
+
+    def block() -> None:  # on the command's event loop
+        blocked.set()
+        release.wait(4 * START_S)  # a guard: the loop runs again in any case
+        unblocked.set()
+
+    def interrupt() -> None:
+        try:
+            cluster.wait_for(lambda: entered and entered[0].client is not None and
+                             any(data.glob("studies/*/shard-*.json")) and
+                             _statuses(cluster) == {"paused"},
+                             "a first shard kept and the workers held")
+            entered[0].client.loop.add_callback(block)
+            assert blocked.wait(START_S), "the command's event loop never ran the block"
+        except BaseException as exc:
+            failed.append(exc)
+        os.kill(os.getpid(), signal.SIGINT)  # the command ends either way
+
+    cluster.client.register_plugin(_gate())
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)  # as a terminal's
+    thread = threading.Thread(target=interrupt, daemon=True)
+    try:
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setattr(DaskCluster, "__enter__", spy)
+            patch.setenv("PLCHMI_DATA", str(data))
+            thread.start()
+            code = main(["soak", str(VALVE), "--seeds", "1-12", "--steps", "4",
+                         "--cluster", cluster.address])
+            still_blocked = not unblocked.is_set()
+    finally:
+        release.set()
+        thread.join(START_S)
+        signal.signal(signal.SIGINT, previous)
+    err = capsys.readouterr().err
+    try:
+        assert not failed, failed
+        assert code == 130, err
+        assert still_blocked, "the command ended only once its event loop ran again"
+        assert "interrupted:" in err and "--resume" in err, err
+        assert "the cluster did not confirm the cancel within" in err, err
+        # The loop running again, the abandoned connection closes: the scheduler forgets.
+        cluster.wait_for(lambda: cluster.client.run_on_scheduler(
+            lambda dask_scheduler: len(dask_scheduler.tasks)) == 0,
+            "the scheduler to forget the study", timeout=START_S)
+    finally:
         _open(cluster)
-    kept = len(list(data.glob("studies/*/shard-*.json")))
-    assert 1 <= kept <= 4
-    resumed = subprocess.run([*argv, "--resume"], capture_output=True, env=env, cwd=ROOT,
-                             timeout=300)
-    assert resumed.returncode == 0, resumed.stderr.decode()
-    assert f"{kept} of 12 shards read back" in resumed.stderr.decode()
-    assert "12 kept every invariant" in resumed.stdout.decode()

@@ -14,6 +14,7 @@ import heapq
 import json
 import time
 from collections.abc import Callable
+from contextlib import closing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -175,25 +176,28 @@ def run_study(study: Study, executor: Executor, progress: Progress | None = None
         tick(f"{stats.from_store} of {n} shards read back from {store and store.folder}")
     pending = [(i, study.shards[i]) for i in order if not found[i]]
     try:
-        for done in executor.map(study.job, pending, tick):
-            data = json.loads(json.dumps(study.encode(done.result)))  # as the store reads it
-            results[done.index] = study.decode(study.shards[done.index], data)
-            stats.seconds[done.index] = done.seconds
-            stats.cpu[done.index] = done.cpu
-            stats.workers.add(done.worker)
-            if store is not None:
-                try:
-                    store.save(done.index, data, done.seconds, done.cpu, done.worker)
-                except OSError as exc:  # results not kept only cost a resume
-                    tick(f"the results cannot be kept in {store.folder} ({exc.strerror}): "
-                         "the study goes on, but --resume will find nothing")
-                    store = None
-            if each is not None:
-                each(done.index, results[done.index])
-            done_shards += 1
-            runs_done += study.runs[done.index]
-            computed += study.runs[done.index]
-            tick()
+        # closed here whatever stops the loop: the executor's work is cancelled before the
+        # command goes on, whoever else holds the generator
+        with closing(executor.map(study.job, pending, tick)) as finished:
+            for done in finished:
+                data = json.loads(json.dumps(study.encode(done.result)))  # as the store reads it
+                results[done.index] = study.decode(study.shards[done.index], data)
+                stats.seconds[done.index] = done.seconds
+                stats.cpu[done.index] = done.cpu
+                stats.workers.add(done.worker)
+                if store is not None:
+                    try:
+                        store.save(done.index, data, done.seconds, done.cpu, done.worker)
+                    except OSError as exc:  # results not kept only cost a resume
+                        tick(f"the results cannot be kept in {store.folder} ({exc.strerror}): "
+                             "the study goes on, but --resume will find nothing")
+                        store = None
+                if each is not None:
+                    each(done.index, results[done.index])
+                done_shards += 1
+                runs_done += study.runs[done.index]
+                computed += study.runs[done.index]
+                tick()
     except KeyboardInterrupt:
         raise Interrupted(done_shards, n, stats.folder) from None
     stats.wall_s = time.perf_counter() - started
