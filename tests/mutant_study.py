@@ -20,18 +20,21 @@ The lists (by Mutant.key()): EQUIVALENT, equivalent mutants z3 cannot judge, eac
 CAUGHT_BY_TESTS, survivors a test of their own catches (the test named); GAPS, what no trace
 reaches and no proof judges (listed so that they stay in sight).
 
-`python -m tests.mutant_study PROJECT... [--sample N]` prints each project's figures (every
-mutant; `--sample N`: N seeded mutants of each diagnoser FB, every other mutant) and the
-CPU time they took.
+`python -m tests.mutant_study PROJECT... [--sample N] [--jobs N]` prints each project's
+figures (every mutant; `--sample N`: N seeded mutants of each diagnoser FB, every other
+mutant) and the CPU time they took (`--jobs N`: judged by N processes, each every N-th
+mutant; the figures are the same, the CPU time the sum of theirs).
 """
 
 from __future__ import annotations
 
+import multiprocessing
 import random
 import sys
 import time
 from collections import Counter
 from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -255,9 +258,11 @@ def chosen(found: Sequence[Mutant], per_diagnoser: int | None, seed: int) -> lis
 
 
 def run_study(name: str, runs: Sequence[Run] | None = None, per_diagnoser: int | None = None,
-              seed: int = 0, progress: Callable[[Judged], Any] | None = None) -> Study:
+              seed: int = 0, progress: Callable[[Judged], Any] | None = None,
+              shard: tuple[int, int] = (0, 1)) -> Study:
     """Record `name`'s traces (its study runs by default), judge its mutants (all, or a
-    sample: `chosen`), each survivor by its block's proof or the lists."""
+    sample: `chosen`; of those, with `shard` (k, n), every n-th from the k-th), each
+    survivor by its block's proof or the lists."""
     start = time.process_time()
     project = load_project(PROJECTS / name)
     rec, traces = record(name, study_runs(name) if runs is None else runs)
@@ -265,11 +270,32 @@ def run_study(name: str, runs: Sequence[Run] | None = None, per_diagnoser: int |
     study = Study(name, len(found), traces=len(traces),
                   scans=sum(len(t.scans) for t in traces))
     with builds_kept():
-        for m in chosen(found, per_diagnoser, seed):
+        k, n = shard
+        for m in chosen(found, per_diagnoser, seed)[k::n]:
             study.judged.append(judge_mutant(name, project, rec, traces, m))
             if progress is not None:
                 progress(study.judged[-1])
     study.cpu_s = time.process_time() - start
+    return study
+
+
+def _shard(name: str, per_diagnoser: int | None, seed: int, k: int, n: int) -> Study:
+    return run_study(name, per_diagnoser=per_diagnoser, seed=seed,
+                     progress=_progress(f"{name} {k + 1}/{n}"), shard=(k, n))
+
+
+def run_parallel(name: str, jobs: int, per_diagnoser: int | None = None,
+                 seed: int = 0) -> Study:
+    """`run_study` split over `jobs` processes (each records the traces itself and judges
+    every `jobs`-th mutant): the same mutants judged the same way, in file order, on a
+    machine with more than one core; the CPU time is the processes' sum."""
+    spawn = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(jobs, mp_context=spawn) as pool:
+        parts = list(pool.map(_shard, [name] * jobs, [per_diagnoser] * jobs, [seed] * jobs,
+                              range(jobs), [jobs] * jobs))
+    study = Study(name, parts[0].found, traces=parts[0].traces, scans=parts[0].scans,
+                  cpu_s=sum(p.cpu_s for p in parts))
+    study.judged = sorted((j for p in parts for j in p.judged), key=lambda j: j.mutant.start)
     return study
 
 
@@ -295,12 +321,15 @@ def _progress(name: str) -> Callable[[Judged], None]:
 
 
 def main(argv: list[str]) -> int:
-    per: int | None = None
-    if "--sample" in argv:
-        k = argv.index("--sample")
-        per, argv = int(argv[k + 1]), argv[:k] + argv[k + 2:]
+    options: dict[str, int] = {}
+    for flag in ("--sample", "--jobs"):
+        if flag in argv:
+            k = argv.index(flag)
+            options[flag], argv = int(argv[k + 1]), argv[:k] + argv[k + 2:]
+    per, jobs = options.get("--sample"), options.get("--jobs", 1)
     for name in argv or [p.name for p in sorted(PROJECTS.iterdir()) if p.is_dir()]:
-        study = run_study(name, per_diagnoser=per, progress=_progress(name))
+        study = (run_study(name, per_diagnoser=per, progress=_progress(name)) if jobs == 1
+                 else run_parallel(name, jobs, per_diagnoser=per))
         print(study.report(), flush=True)
     return 0
 
