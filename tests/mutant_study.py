@@ -20,14 +20,19 @@ The lists (by Mutant.key()): EQUIVALENT, equivalent mutants z3 cannot judge, eac
 CAUGHT_BY_TESTS, survivors a test of their own catches (the test named); GAPS, what no trace
 reaches and no proof judges (listed so that they stay in sight).
 
-`python -m tests.mutant_study PROJECT... [--sample N] [--jobs N]` prints each project's
-figures (every mutant; `--sample N`: N seeded mutants of each diagnoser FB, every other
-mutant) and the CPU time they took (`--jobs N`: judged by N processes, each every N-th
-mutant; the figures are the same, the CPU time the sum of theirs).
+`python -m tests.mutant_study PROJECT... [--sample N | --per-block N] [--only TEXT]
+[--jobs N] [--log FILE]` prints each project's figures (every mutant; `--sample N`: N
+seeded mutants of each diagnoser FB, every other mutant; `--per-block N`: N seeded mutants
+of each POU; `--only TEXT`: those of the POUs whose name holds TEXT) and the CPU time they
+took, by block (`--log FILE`: each verdict appended as it is reached, and those already
+there for the same export and traces taken, so that a stopped study goes on where it
+ended; `--jobs N`: judged by N processes, each every N-th mutant, the figures the same).
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 import multiprocessing
 import random
 import sys
@@ -35,7 +40,8 @@ import time
 from collections import Counter
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any
 
 from hmi.export import source
@@ -107,6 +113,7 @@ class Judged:
     mutant: Mutant
     outcome: str
     how: str = ""
+    cpu_s: float = 0.0
 
 
 @dataclass
@@ -138,6 +145,13 @@ class Study:
                  f"({self.traces} traces, {self.scans} scans, {self.cpu_s:.0f} s CPU): "
                  + ", ".join(f"{c[o]} {o}" for o in OUTCOMES)]
         lines += [f"  {n} {what}" for what, n in sorted(self.by_proof().items())]
+        cpu: dict[str, float] = {}
+        for j in self.judged:
+            cpu[j.mutant.pou] = cpu.get(j.mutant.pou, 0.0) + j.cpu_s
+        count = Counter(j.mutant.pou for j in self.judged)
+        lines.append("  CPU by block: " + ", ".join(
+            f"{pou} {count[pou]} in {s:.0f} s"
+            for pou, s in sorted(cpu.items(), key=lambda kv: -kv[1])))
         lines += [f"  {j.outcome}: {j.mutant.describe()} ({j.how})" for j in self.judged
                   if j.outcome in ("tested", "listed", "gap", "unexplained")]
         return "\n".join(lines)
@@ -241,58 +255,124 @@ def judge_survivor(name: str, project: Project, text: str, m: Mutant) -> Judged:
 # --------------------------------------------------------------------------------------------
 
 
-def chosen(found: Sequence[Mutant], per_diagnoser: int | None, seed: int) -> list[Mutant]:
+def chosen(found: Sequence[Mutant], per_diagnoser: int | None, seed: int,
+           per_block: int | None = None) -> list[Mutant]:
     """Every mutant, or (`per_diagnoser`) a seeded sample of that many of each diagnoser
-    FB's and every other one, in file order."""
-    if per_diagnoser is None:
+    FB's and every other one, or (`per_block`) of each POU's, in file order."""
+    if per_diagnoser is None and per_block is None:
         return list(found)
     by_pou: dict[str, list[Mutant]] = {}
     for m in found:
         by_pou.setdefault(m.pou, []).append(m)
     out: list[Mutant] = []
     for pou, items in by_pou.items():
-        if "_Diag_" in pou and len(items) > per_diagnoser:
-            items = random.Random(f"{seed} {pou}").sample(items, per_diagnoser)
+        k = per_block if per_block is not None else per_diagnoser if "_Diag_" in pou else None
+        if k is not None and len(items) > k:
+            items = random.Random(f"{seed} {pou}").sample(items, k)
         out += items
     return sorted(out, key=lambda m: m.start)
 
 
+@dataclass(frozen=True)
+class Choice:
+    """Which mutants a run judges: all, or a seeded sample (`chosen`); only those of POUs
+    whose name holds `only`; of those every n-th from the k-th (`shard`)."""
+
+    per_diagnoser: int | None = None
+    per_block: int | None = None
+    seed: int = 0
+    only: str | None = None
+    shard: tuple[int, int] = (0, 1)
+
+    def of(self, found: Sequence[Mutant]) -> list[Mutant]:
+        picked = [m for m in chosen(found, self.per_diagnoser, self.seed, self.per_block)
+                  if self.only is None or self.only in m.pou]
+        k, n = self.shard
+        return picked[k::n]
+
+
+def study_digest(rec: Recording, traces: Sequence[Trace]) -> str:
+    """What a logged verdict holds for: the exported text and the recorded traces (a
+    verdict of another export, or on other traces, is not taken)."""
+    h = hashlib.sha256(rec.text.encode())
+    for t in traces:
+        h.update(repr((t.name, t.scans, t.values, sorted(t.skip.items()), t.manual,
+                       t.fov)).encode())
+    return h.hexdigest()[:16]
+
+
+def _logged(log: Path | None, digest: str) -> dict[tuple[int, str], dict[str, Any]]:
+    """The verdicts `log` already holds for this study, by (start, key)."""
+    if log is None or not log.exists():
+        return {}
+    out: dict[tuple[int, str], dict[str, Any]] = {}
+    for line in log.read_text().splitlines():
+        try:
+            v = json.loads(line)
+        except json.JSONDecodeError:
+            continue  # a line cut short when a run was stopped
+        if v.get("study") == digest:
+            out[(v["start"], v["key"])] = v
+    return out
+
+
+def _log(log: Path | None, digest: str, j: Judged) -> None:
+    if log is None:
+        return
+    line = json.dumps({"study": digest, "start": j.mutant.start, "key": j.mutant.key(),
+                       "outcome": j.outcome, "how": j.how, "cpu_s": round(j.cpu_s, 3)})
+    with log.open("a") as f:  # one short line per write: appends from several processes
+        f.write(line + "\n")
+
+
 def run_study(name: str, runs: Sequence[Run] | None = None, per_diagnoser: int | None = None,
               seed: int = 0, progress: Callable[[Judged], Any] | None = None,
-              shard: tuple[int, int] = (0, 1)) -> Study:
-    """Record `name`'s traces (its study runs by default), judge its mutants (all, or a
-    sample: `chosen`; of those, with `shard` (k, n), every n-th from the k-th), each
-    survivor by its block's proof or the lists."""
+              choice: Choice | None = None, log: Path | None = None) -> Study:
+    """Record `name`'s traces (its study runs by default), judge its mutants (all, or those
+    `choice` picks), each survivor by its block's proof or the lists. With a `log`, each
+    verdict is appended to it as it is reached, and those it already holds for the same
+    export and traces are taken from it: a long study goes on where a stopped one ended.
+    The CPU time is the recording's and each verdict's (a logged one's as logged)."""
+    choice = choice or Choice(per_diagnoser, None, seed)
     start = time.process_time()
     project = load_project(PROJECTS / name)
     rec, traces = record(name, study_runs(name) if runs is None else runs)
     found = mutants(rec.text)
+    digest = study_digest(rec, traces)
+    done = _logged(log, digest)
     study = Study(name, len(found), traces=len(traces),
                   scans=sum(len(t.scans) for t in traces))
+    recording = time.process_time() - start
     with builds_kept():
-        k, n = shard
-        for m in chosen(found, per_diagnoser, seed)[k::n]:
-            study.judged.append(judge_mutant(name, project, rec, traces, m))
+        for m in choice.of(found):
+            v = done.get((m.start, m.key()))
+            if v is not None:
+                study.judged.append(Judged(m, v["outcome"], v["how"], v["cpu_s"]))
+                continue
+            began = time.process_time()
+            judged = judge_mutant(name, project, rec, traces, m)
+            study.judged.append(replace(judged, cpu_s=time.process_time() - began))
+            _log(log, digest, study.judged[-1])
             if progress is not None:
                 progress(study.judged[-1])
-    study.cpu_s = time.process_time() - start
+    study.cpu_s = recording + sum(j.cpu_s for j in study.judged)
     return study
 
 
-def _shard(name: str, per_diagnoser: int | None, seed: int, k: int, n: int) -> Study:
-    return run_study(name, per_diagnoser=per_diagnoser, seed=seed,
-                     progress=_progress(f"{name} {k + 1}/{n}"), shard=(k, n))
+def _shard(name: str, choice: Choice, log: Path | None) -> Study:
+    k, n = choice.shard
+    return run_study(name, progress=_progress(f"{name} {k + 1}/{n}"), choice=choice, log=log)
 
 
-def run_parallel(name: str, jobs: int, per_diagnoser: int | None = None,
-                 seed: int = 0) -> Study:
+def run_parallel(name: str, jobs: int, choice: Choice = Choice(),
+                 log: Path | None = None) -> Study:
     """`run_study` split over `jobs` processes (each records the traces itself and judges
     every `jobs`-th mutant): the same mutants judged the same way, in file order, on a
     machine with more than one core; the CPU time is the processes' sum."""
     spawn = multiprocessing.get_context("spawn")
+    shards = [replace(choice, shard=(k, jobs)) for k in range(jobs)]
     with ProcessPoolExecutor(jobs, mp_context=spawn) as pool:
-        parts = list(pool.map(_shard, [name] * jobs, [per_diagnoser] * jobs, [seed] * jobs,
-                              range(jobs), [jobs] * jobs))
+        parts = list(pool.map(_shard, [name] * jobs, shards, [log] * jobs))
     study = Study(name, parts[0].found, traces=parts[0].traces, scans=parts[0].scans,
                   cpu_s=sum(p.cpu_s for p in parts))
     study.judged = sorted((j for p in parts for j in p.judged), key=lambda j: j.mutant.start)
@@ -321,15 +401,21 @@ def _progress(name: str) -> Callable[[Judged], None]:
 
 
 def main(argv: list[str]) -> int:
-    options: dict[str, int] = {}
-    for flag in ("--sample", "--jobs"):
+    options: dict[str, str] = {}
+    for flag in ("--sample", "--per-block", "--jobs", "--only", "--log"):
         if flag in argv:
             k = argv.index(flag)
-            options[flag], argv = int(argv[k + 1]), argv[:k] + argv[k + 2:]
-    per, jobs = options.get("--sample"), options.get("--jobs", 1)
+            options[flag], argv = argv[k + 1], argv[:k] + argv[k + 2:]
+
+    def number(flag: str) -> int | None:
+        return int(options[flag]) if flag in options else None
+
+    choice = Choice(number("--sample"), number("--per-block"), only=options.get("--only"))
+    jobs = number("--jobs") or 1
+    log = Path(options["--log"]) if "--log" in options else None
     for name in argv or [p.name for p in sorted(PROJECTS.iterdir()) if p.is_dir()]:
-        study = (run_study(name, per_diagnoser=per, progress=_progress(name)) if jobs == 1
-                 else run_parallel(name, jobs, per_diagnoser=per))
+        study = (run_study(name, progress=_progress(name), choice=choice, log=log) if jobs == 1
+                 else run_parallel(name, jobs, choice, log))
         print(study.report(), flush=True)
     return 0
 
