@@ -53,12 +53,14 @@ from tests.ir_prove import prove_control, prove_diagnoser, prove_memory, prove_m
 from tests.program_prove import _section, prove_program
 from tests.st_mutants import Mutant, Recording, Run, Trace, judge, mutants, record, study_runs
 from tests.st_prove import (
+    UNCHECKED,
     Proof,
     Unsupported,
     builds_kept,
     indices_not_negative,
     pou_text,
     prove_filter,
+    prove_filter_as_exported,
 )
 
 _FTC = "Ftc := (DiagnosisMode <> 1) AND (DiagnosisMode <> 2),"
@@ -71,14 +73,32 @@ def _no_diagnoser(project: str) -> dict[str, str]:
         for old, new in (("<>", "="), ("1", "0"), ("AND", "OR"), ("2", "1"))}
 
 
+def _off_mode(project: str) -> dict[str, str]:
+    return {f"PRG_{project}_Safety: {_FTC} [2 -> 1]": (
+        "Ftc := DiagnosisMode <> 1: TRUE in off mode too, where it gates masks that are "
+        "all 0 (a diagnoser off writes its flags 0, at the scan the mode changes too: "
+        "its Dirty is set then), and the filter is its only reader")}
+
+
+def _first_rise(project: str, names: tuple[str, ...], rising: str) -> dict[str, str]:
+    return {f"PRG_{project}_Safety: prev_{n} := FALSE; [FALSE -> TRUE]": (
+        f"the first cycle's history of {n}: read only in a conjunction with rise({rising}) "
+        f"(`{rising} AND NOT prev_{rising}`), FALSE at the first cycle, where prev_{rising} "
+        f"is {rising}") for n in names}
+
+
+def _observe_masks(project: str) -> dict[str, str]:
+    return {f"PRG_{project}_Safety: {_FTC} [AND -> OR]": (
+        "tests/test_export_mutants.py::test_observe_mode_masks_no_order_on_the_plc: Ftc "
+        "always TRUE, the filter masks the orders of a flagged actuator in observe mode "
+        "too (the study's runs are in FTC mode)")}
+
+
 EQUIVALENT: dict[str, dict[str, str]] = {
     **{name: _no_diagnoser(name) for name in ("conveyor_robot", "palletizer", "sorting")},
-    "cispi_valve": {
-        f"PRG_cispi_valve_Safety: {_FTC} [2 -> 1]": (
-            "Ftc := DiagnosisMode <> 1: TRUE in off mode too, where it gates masks that are "
-            "all 0 (a diagnoser off writes its flags 0, at the scan the mode changes too: "
-            "its Dirty is set then), and the filter is its only reader"),
-    },
+    "cispi_valve": _off_mode("cispi_valve"),
+    "cispi_subsystem": {**_off_mode("cispi_subsystem"),
+                        **_first_rise("cispi_subsystem", ("T2_timed", "T2_fill"), "LH2")},
 }
 
 GAPS: dict[str, dict[str, str]] = {}
@@ -92,15 +112,12 @@ def _clock(project: str) -> dict[str, str]:
 
 CAUGHT_BY_TESTS: dict[str, dict[str, str]] = {
     **{name: _clock(name) for name in ("conveyor_robot", "palletizer", "sorting")},
-    "cispi_valve": {
-        **_clock("cispi_valve"),
-        f"PRG_cispi_valve_Safety: {_FTC} [AND -> OR]": (
-            "tests/test_export_mutants.py::test_observe_mode_masks_no_order_on_the_plc: Ftc "
-            "always TRUE, the filter masks the orders of a flagged actuator in observe mode "
-            "too (the study's runs are in FTC mode)"),
-    },
+    **{name: {**_clock(name), **_observe_masks(name)}
+       for name in ("cispi_valve", "cispi_subsystem")},
 }
 
+# (outcomes that depend on the lists, which may have changed since: judged again)
+LISTED = ("tested", "gap", "listed", "unexplained")
 OUTCOMES = ("caught", "stillborn", "equivalent", "refuted", "tested", "listed", "gap",
             "unexplained")
 
@@ -171,14 +188,26 @@ def _tamper(mutated: str, pou: str) -> Callable[[str], str]:
 
 
 def _filter(project: Project, text: str, m: Mutant) -> list[Proof]:
-    """prove_filter on the mutant, first for every input and state; when a loop of the
-    mutant then runs more than 100 times (the block's own run at most 4 times: e.g. a
-    next-subset step that counts up a Comb element left from an earlier call, which "every
-    state" lets hold any negative number), for every state whose kept index lists hold no
-    negative value, an invariant the proof shows the mutant keeps (they start at 0 on a
-    PLC): every state the PLC reaches."""
+    """The mutant against the exported block, itself proved equal to the engine's filter
+    (`prove_filter_as_exported`; for every input and state, or, when a loop of the mutant
+    then runs more than 100 times, for every state the PLC reaches, below): proved, an
+    equivalent mutant. Else `prove_filter` on the mutant against the engine's filter, first
+    for every input and state; when a loop of the mutant then runs more than 100 times (the
+    block's own run at most 4 times: e.g. a next-subset step that counts up a Comb element
+    left from an earlier call, which "every state" lets hold any negative number), for
+    every state whose kept index lists hold no negative value, an invariant the proof shows
+    the mutant keeps (they start at 0 on a PLC): every state the PLC reaches."""
     limit = max_distance(source.filter_bound(project))
     tamper = _tamper(m.apply(text), m.pou)
+    for invariant, unchecked in ((None, UNCHECKED), (indices_not_negative, 2)):
+        try:
+            proofs = prove_filter_as_exported(project, text, tamper, loop_limit=100,
+                                              invariant=invariant, unchecked=unchecked)
+        except Unsupported:
+            continue
+        if all(p.proved for p in proofs):
+            return proofs
+        break  # (a difference from the exported block: the engine's filter judges it)
     try:
         proofs = prove_filter(project, text, limit, tamper, loop_limit=100)
         if all(p.proved for p in proofs):
@@ -331,7 +360,8 @@ def run_study(name: str, runs: Sequence[Run] | None = None, per_diagnoser: int |
     """Record `name`'s traces (its study runs by default), judge its mutants (all, or those
     `choice` picks), each survivor by its block's proof or the lists. With a `log`, each
     verdict is appended to it as it is reached, and those it already holds for the same
-    export and traces are taken from it: a long study goes on where a stopped one ended.
+    export and traces are taken from it (but for a survivor listed or unexplained, judged
+    again: the lists may have changed): a long study goes on where a stopped one ended.
     The CPU time is the recording's and each verdict's (a logged one's as logged)."""
     choice = choice or Choice(per_diagnoser, None, seed)
     start = time.process_time()
@@ -346,7 +376,7 @@ def run_study(name: str, runs: Sequence[Run] | None = None, per_diagnoser: int |
     with builds_kept():
         for m in choice.of(found):
             v = done.get((m.start, m.key()))
-            if v is not None:
+            if v is not None and v["outcome"] not in LISTED:
                 study.judged.append(Judged(m, v["outcome"], v["how"], v["cpu_s"]))
                 continue
             began = time.process_time()

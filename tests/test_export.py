@@ -531,7 +531,8 @@ if __name__ == "__main__" and "--record" in sys.argv:
 CLOCK = "Clock(IN := TRUE, PT := T#24d);"
 
 
-@pytest.mark.parametrize("name", ["conveyor_robot", "cispi_valve", "palletizer", "sorting"])
+@pytest.mark.parametrize("name", ["conveyor_robot", "cispi_valve", "cispi_subsystem",
+                                  "palletizer", "sorting"])
 @pytest.mark.parametrize(("text_of", "at_24d_1ms"), [
     (lambda t: t, 24 * 86_400_000_000),
     # the clock's preset one millisecond longer (a mutation the recorded traces never reach)
