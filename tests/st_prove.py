@@ -1247,57 +1247,6 @@ def prove_filter(project: Any, text: str, max_distance: int,
     return proofs
 
 
-def prove_filter_as_exported(project: Any, text: str, tamper: Callable[[str], str],
-                             loop_limit: int = LOOP_LIMIT, split: tuple[str, ...] = ("FREE",),
-                             invariant: Callable[[Declared, dict[str, Any]], Any] | None = None,
-                             unchecked: int = UNCHECKED) -> list[Proof]:
-    """The `tamper`ed filter FB against the exported one (not against the engine's filter):
-    the same violation word, latch, fallback and outputs for every input and state (with an
-    `invariant`, every state satisfying it, which a call must keep), every index in bounds.
-    The exported block is proved equal to the engine's filter by `prove_filter`, so a block
-    equal to it is too, and z3 proves the equality of two blocks that share all but one
-    operator much faster than the specification (whose exact strategy is stated over every
-    output vector). A difference is not a refutation: the specification leaves some values
-    free (the violation word at a fault reset); `prove_filter` then judges the block.
-
-    Each case of the tampered block is compared with the exported block's run under the
-    same assumptions (the split value is computed by both alike unless the change is in
-    its computation), else with every run of the exported block (their cases cover every
-    input and state, so together they cover the tampered block's case)."""
-    fb_name, wiring = filter_wiring(project)
-    fb_text = pou_text(text, fb_name)
-    key = ("exported filter cases", text, loop_limit, split, invariant, unchecked)
-
-    def exported() -> list[Case]:
-        fb = parse_fb(fb_text)
-        inv = (invariant(declarations(fb), Symbolic(fb).initial),) if invariant else ()
-        return execute_cases(fb, frozenset(split), loop_limit, inv, unchecked)
-
-    originals = kept(project, key, exported)
-    fb = parse_changed(fb_text, tamper(fb_text))
-    decl = declarations(fb)
-    inv = (invariant(decl, Symbolic(fb).initial),) if invariant is not None else ()
-    cases = execute_cases(fb, frozenset(split), loop_limit, inv, unchecked)
-    compared = [wiring.outputs[v.name] for v in project.outputs] + [
-        wiring.ports[p] for p in ("Violations", "Latched", "Fallback")]
-    name = "the block's outputs equal the exported block's"
-    for case in cases:
-        same = [o for o in originals if len(o.assume) == len(case.assume)
-                and all(a.eq(b) for a, b in zip(o.assume, case.assume, strict=True))]
-        keeps = (invariant(decl, case.out),) if invariant is not None else ()
-        for original in same or originals:
-            solver = z3.Solver()
-            solver.add(*case.assume, *original.assume)
-            solver.add(z3.Not(z3.And(*[case.out[v] == original.out[v] for v in compared],
-                                     _bounds(case), *keeps)))
-            found = solver.check()
-            if found == z3.sat:
-                return [Proof(name, False, f"counterexample: {solver.model()}"[:300])]
-            if found != z3.unsat:
-                raise Unsupported(f"z3 could not compare the blocks: {found}")
-    return [Proof(name, True, f"proved in {len(cases)} case(s)")]
-
-
 def _bounds(case: Case) -> Any:
     return z3.And(True, *[ob for ob, _ in case.sym.obligations])
 
