@@ -31,6 +31,7 @@ ended; `--jobs N`: judged by N processes, each every N-th mutant, the figures th
 
 from __future__ import annotations
 
+import argparse
 import hashlib
 import json
 import multiprocessing
@@ -360,16 +361,15 @@ def _log(log: Path | None, digest: str, j: Judged) -> None:
         f.write(line + "\n")
 
 
-def run_study(name: str, runs: Sequence[Run] | None = None, per_diagnoser: int | None = None,
-              seed: int = 0, progress: Callable[[Judged], Any] | None = None,
-              choice: Choice | None = None, log: Path | None = None) -> Study:
+def run_study(name: str, runs: Sequence[Run] | None = None,
+              progress: Callable[[Judged], Any] | None = None,
+              choice: Choice = Choice(), log: Path | None = None) -> Study:
     """Record `name`'s traces (its study runs by default), judge its mutants (all, or those
     `choice` picks), each survivor by its block's proof or the lists. With a `log`, each
     verdict is appended to it as it is reached, and those it already holds for the same
     export and traces are taken from it (but for a survivor listed or unexplained, judged
     again: the lists may have changed): a long study goes on where a stopped one ended.
     The CPU time is the recording's and each verdict's (a logged one's as logged)."""
-    choice = choice or Choice(per_diagnoser, None, seed)
     start = time.process_time()
     project = load_project(PROJECTS / name)
     rec, traces = record(name, study_runs(name) if runs is None else runs)
@@ -437,21 +437,18 @@ def _progress(name: str) -> Callable[[Judged], None]:
 
 
 def main(argv: list[str]) -> int:
-    options: dict[str, str] = {}
-    for flag in ("--sample", "--per-block", "--jobs", "--only", "--log"):
-        if flag in argv:
-            k = argv.index(flag)
-            options[flag], argv = argv[k + 1], argv[:k] + argv[k + 2:]
-
-    def number(flag: str) -> int | None:
-        return int(options[flag]) if flag in options else None
-
-    choice = Choice(number("--sample"), number("--per-block"), only=options.get("--only"))
-    jobs = number("--jobs") or 1
-    log = Path(options["--log"]) if "--log" in options else None
-    for name in argv or [p.name for p in sorted(PROJECTS.iterdir()) if p.is_dir()]:
-        study = (run_study(name, progress=_progress(name), choice=choice, log=log) if jobs == 1
-                 else run_parallel(name, jobs, choice, log))
+    parser = argparse.ArgumentParser(prog="python -m tests.mutant_study")
+    parser.add_argument("projects", nargs="*", metavar="PROJECT")
+    parser.add_argument("--sample", type=int, metavar="N")
+    parser.add_argument("--per-block", type=int, metavar="N")
+    parser.add_argument("--only", metavar="TEXT")
+    parser.add_argument("--jobs", type=int, default=1, metavar="N")
+    parser.add_argument("--log", type=Path, metavar="FILE")
+    args = parser.parse_args(argv)
+    choice = Choice(args.sample, args.per_block, only=args.only)
+    for name in args.projects or [p.name for p in sorted(PROJECTS.iterdir()) if p.is_dir()]:
+        study = (run_study(name, progress=_progress(name), choice=choice, log=args.log)
+                 if args.jobs == 1 else run_parallel(name, args.jobs, choice, args.log))
         print(study.report(), flush=True)
     return 0
 

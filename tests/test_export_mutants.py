@@ -198,7 +198,7 @@ VALVE_DIAGNOSER_SAMPLE = 200
 
 @pytest.mark.slow
 def test_the_valve_mutants_are_caught_or_equivalent():
-    study = run_study("cispi_valve", per_diagnoser=VALVE_DIAGNOSER_SAMPLE, seed=0)
+    study = run_study("cispi_valve", choice=Choice(per_diagnoser=VALVE_DIAGNOSER_SAMPLE))
     counts = _checked(study)
     assert len(study.judged) == VALVE_DIAGNOSER_SAMPLE + sum(
         "_Diag_" not in m.pou for m in mutants(record("cispi_valve", [])[0].text))
