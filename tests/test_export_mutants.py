@@ -180,7 +180,10 @@ def test_observe_mode_masks_no_order_on_the_plc(name, fault):
     ftc = "Ftc := (DiagnosisMode <> 1) AND (DiagnosisMode <> 2)"
     assert ftc in rec.text
     found, _ran = replay(rec, traces, rec.text.replace(ftc, ftc.replace("AND", "OR"), 1))
+    # (the run that differs is the fault's: "correct/observe/F2..." for the valve,
+    # "correct/observe/V1.F1@30s..." for the subsystem)
     assert found is not None and found.startswith("correct/observe/"), found
+    assert found.split(",")[0].split("/")[2].split("@")[0].split(".")[-1].startswith(fault)
 
 
 @pytest.mark.slow
