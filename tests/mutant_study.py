@@ -216,13 +216,13 @@ def _filter(project: Project, text: str, m: Mutant) -> list[Proof]:
     limit = max_distance(source.filter_bound(project))
     tamper = _tamper(m.apply(text), m.pou)
     try:
-        proofs = prove_filter(project, text, limit, tamper, loop_limit=100)
+        proofs = prove_filter(project, text, limit, tamper, loop_limit=100, at_once=True)
         if all(p.proved for p in proofs):
             return proofs
     except Unsupported:
         pass
     return prove_filter(project, text, limit, tamper, loop_limit=100,
-                        invariant=indices_not_negative, unchecked=2)
+                        invariant=indices_not_negative, unchecked=2, at_once=True)
 
 
 def _block(kind: str) -> Judge:

@@ -1090,9 +1090,11 @@ def prove_filter(project: Any, text: str, max_distance: int,
                  tamper: Callable[[str], str] | None = None,
                  loop_limit: int = LOOP_LIMIT, split: tuple[str, ...] = ("FREE",),
                  invariant: Callable[[Declared, dict[str, Any]], Any] | None = None,
-                 unchecked: int = UNCHECKED) -> list[Proof]:
+                 unchecked: int = UNCHECKED, at_once: bool = False) -> list[Proof]:
     """The exported filter FB of `project` (in the exported `text`, `tamper`ed if given)
-    against the engine's filter: a list of proved (or refuted) properties.
+    against the engine's filter: a list of proved (or refuted) properties; `at_once`: all
+    proved, or the first property refuted, named by the counterexample that refutes it (what
+    the mutation study asks; not every other property checked on its own as well).
 
     With an `invariant` (a predicate over the block's variables that its initial values
     satisfy), the properties are proved for every state satisfying it, and one more
@@ -1237,7 +1239,7 @@ def prove_filter(project: Any, text: str, max_distance: int,
     if invariant is not None:
         for case, props in per_case:
             props["a call keeps the state invariant"] = invariant(decl, case.out)
-    together = _all_valid(per_case)
+    together = _all_valid(per_case, at_once)
     if together is not None:
         return together
     proofs = []
@@ -1251,17 +1253,29 @@ def _bounds(case: Case) -> Any:
     return z3.And(True, *[ob for ob, _ in case.sym.obligations])
 
 
-def _all_valid(per_case: list[tuple[Case, dict[str, Any]]]) -> list[Proof] | None:
+def _all_valid(per_case: list[tuple[Case, dict[str, Any]]], at_once: bool = False
+               ) -> list[Proof] | None:
     """Every property and the bounds proved by one z3 check per case (their conjunction:
     the terms of the block's outputs, which they share, are then bit-blasted once), or None
     when some case's check is not unsat: the properties are then checked one by one, each
-    refuted with its own counterexample."""
+    refuted with its own counterexample. `at_once`: instead, that case's counterexample
+    refutes the first property it makes false (no further check)."""
     for case, props in per_case:
         solver = z3.Solver()
-        solver.add(z3.Not(z3.Implies(z3.And(*case.assume),
-                                     z3.And(*props.values(), _bounds(case)))))
-        if solver.check() != z3.unsat:
+        named = {**props, "every array index is in bounds": _bounds(case)}
+        solver.add(z3.Not(z3.Implies(z3.And(*case.assume), z3.And(*named.values()))))
+        found = solver.check()
+        if found == z3.unsat:
+            continue
+        if not at_once:
             return None
+        if found != z3.sat:
+            return [Proof("every property", False, f"z3: {solver.reason_unknown()}",
+                          case.sym.checks)]
+        model = solver.model()
+        name = next((n for n, p in named.items()
+                     if z3.is_false(model.eval(p, model_completion=True))), "every property")
+        return [Proof(name, False, f"counterexample: {_shown(model)}", case.sym.checks)]
     checks = sum(case.sym.checks for case, _ in per_case)
     obligations = sum(len(case.sym.obligations) for case, _ in per_case)
     detail = f"proved in {len(per_case)} case(s)"
@@ -1297,9 +1311,14 @@ def _valid(name: str, prop: Any, sym: Symbolic,
     if found == z3.unsat:
         return Proof(name, True, "proved", sym.checks, len(sym.obligations))
     if found == z3.sat:
-        model = solver.model()
-        shown = ", ".join(f"{d.name()} = {model[d]}" for d in sorted(
-            model.decls(), key=lambda d: d.name()) if not d.name().startswith("$")
-            and d.arity() == 0 and (shown_if is None or shown_if(d.name())))
-        return Proof(name, False, f"counterexample: {shown[:600]}", sym.checks)
+        return Proof(name, False, f"counterexample: {_shown(solver.model(), shown_if)}",
+                     sym.checks)
     return Proof(name, False, f"z3: {solver.reason_unknown()}", sym.checks)
+
+
+def _shown(model: Any, shown_if: Callable[[str], bool] | None = None) -> str:
+    """A counterexample's values: of the constants `shown_if` accepts (all but the
+    executor's own, when None), by name, cut at 600 characters."""
+    return ", ".join(f"{d.name()} = {model[d]}" for d in sorted(
+        model.decls(), key=lambda d: d.name()) if not d.name().startswith("$")
+        and d.arity() == 0 and (shown_if is None or shown_if(d.name())))[:600]
