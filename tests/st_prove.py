@@ -1249,6 +1249,9 @@ def prove_filter(project: Any, text: str, max_distance: int,
     return proofs
 
 
+IN_BOUNDS = "every array index is in bounds"  # (the property every proof ends with)
+
+
 def _bounds(case: Case) -> Any:
     return z3.And(True, *[ob for ob, _ in case.sym.obligations])
 
@@ -1262,7 +1265,7 @@ def _all_valid(per_case: list[tuple[Case, dict[str, Any]]], at_once: bool = Fals
     refutes the first property it makes false (no further check)."""
     for case, props in per_case:
         solver = z3.Solver()
-        named = {**props, "every array index is in bounds": _bounds(case)}
+        named = {**props, IN_BOUNDS: _bounds(case)}
         solver.add(z3.Not(z3.Implies(z3.And(*case.assume), z3.And(*named.values()))))
         found = solver.check()
         if found == z3.unsat:
@@ -1280,13 +1283,13 @@ def _all_valid(per_case: list[tuple[Case, dict[str, Any]]], at_once: bool = Fals
     obligations = sum(len(case.sym.obligations) for case, _ in per_case)
     detail = f"proved in {len(per_case)} case(s)"
     return [Proof(name, True, detail, checks, obligations)
-            for name in [*per_case[0][1], "every array index is in bounds"]]
+            for name in [*per_case[0][1], IN_BOUNDS]]
 
 
 def in_bounds(cases: list[Case]) -> Proof:
     """Every array index in bounds on every path some input and state take (a constant index
     out of bounds ends its path: an obligation that the path is infeasible)."""
-    return _valid_cases("every array index is in bounds", [(case, _bounds(case))
+    return _valid_cases(IN_BOUNDS, [(case, _bounds(case))
                                                            for case in cases])
 
 

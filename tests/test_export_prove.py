@@ -82,11 +82,10 @@ def test_a_wrong_filter_is_refuted_with_a_counterexample(old, new, refuted):
 def test_an_equivalent_change_is_proved_equivalent():
     """`OnCount < BestOn` read as `<=`: a tie then sets Better, which the tie-break just after
     decides again: the same block, proved (the mutation study lists it as equivalent)."""
-    proofs = _proofs("conveyor_robot",
-                     lambda t: t.replace("(OnCount < BestOn)", "(OnCount <= BestOn)"))
+    def tamper(text: str) -> str:
+        return text.replace("(OnCount < BestOn)", "(OnCount <= BestOn)")
+    proofs = _proofs("conveyor_robot", tamper)
     assert all(p.proved for p in proofs)
-    at_once = _proofs("conveyor_robot",
-                      lambda t: t.replace("(OnCount < BestOn)", "(OnCount <= BestOn)"),
-                      at_once=True)
+    at_once = _proofs("conveyor_robot", tamper, at_once=True)
     assert [p.name for p in at_once] == [p.name for p in proofs]
     assert all(p.proved for p in at_once)
