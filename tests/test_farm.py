@@ -217,12 +217,39 @@ def test_an_interrupted_campaign_resumes_where_it_stopped(tmp_path):
     assert len(again.computed) == len(study.shards)
 
 
-def test_ctrl_c_on_a_pool_stops_its_processes_before_the_run_gives_up(tmp_path):
+def _reaped_slowly_by_other_threads(monkeypatch):
+    """The pool's own thread reaps its processes too; here it comes first and stores what it
+    reaped 1 s late, which makes the race with the stopping thread's joins happen."""
+    import threading
+    import time
+    from multiprocessing import popen_fork
+
+    def poll(self, flag=os.WNOHANG):
+        if self.returncode is None:
+            if threading.current_thread() is threading.main_thread():
+                time.sleep(0.05)
+            try:
+                pid, status = os.waitpid(self.pid, flag)
+            except OSError:
+                return None
+            if pid == self.pid:
+                if threading.current_thread() is not threading.main_thread():
+                    time.sleep(1.0)
+                self.returncode = os.waitstatus_to_exitcode(status)
+        return self.returncode
+    monkeypatch.setattr(popen_fork.Popen, "poll", poll)
+
+
+@pytest.mark.parametrize("reaping", ["as it comes", "slow in the pool's thread"])
+def test_ctrl_c_on_a_pool_stops_its_processes_before_the_run_gives_up(tmp_path, monkeypatch,
+                                                                     reaping):
     """SIGINT to this process (as a terminal's Ctrl-C) while a pool of 2 processes computes
     the campaign's 3 shards, sent as the first shard is kept: the pool, which defers Ctrl-C
     while it waits (hmi/farm/interrupt.py), takes it at its next look, so the run stops
     with 1 shard done; its processes are gone when run_study gives up, and Python's own
     SIGINT handler is back."""
+    if reaping != "as it comes":
+        _reaped_slowly_by_other_threads(monkeypatch)
     project = load_project(VALVE)
     study = campaign_study(project, campaign_of(project))
     before = set(multiprocessing.active_children())

@@ -131,6 +131,7 @@ def _stop(pool: ProcessPoolExecutor) -> None:
     """Stop now: queued shards cancelled, the running ones' processes ended (killed if they
     have not ended :data:`STOP_S` after SIGTERM: the interpreter's exit waits for them)."""
     processes = list(getattr(pool, "_processes", {}).values())
+    manager = getattr(pool, "_executor_manager_thread", None)
     pool.shutdown(wait=False, cancel_futures=True)
     for process in processes:
         process.terminate()
@@ -141,6 +142,11 @@ def _stop(pool: ProcessPoolExecutor) -> None:
         if process.is_alive():
             process.kill()
             process.join(STOP_S)
+    # The pool's own thread reaps these processes too, and a join here can lose that race:
+    # the process is dead, but its exit code is not yet stored, so it still counts as a
+    # child. That thread ends once the processes are gone; waiting for it leaves none.
+    if manager is not None:
+        manager.join(STOP_S)
 
 
 class DaskCluster:
