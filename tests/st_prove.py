@@ -316,7 +316,7 @@ def _fresh(name: str, vtype: str) -> Any:
     raise Unsupported(f"type {vtype}")
 
 
-def _literal_ast(ctx: Any, ast: Any) -> bool:
+def _literal(ctx: Any, ast: Any) -> bool:
     """A numeral, TRUE or FALSE (z3's C API asked directly: the Python predicates cost a
     dozen calls each, and the executor asks this of every term it builds)."""
     kind = z3.Z3_get_ast_kind(ctx, ast)
@@ -326,10 +326,6 @@ def _literal_ast(ctx: Any, ast: Any) -> bool:
         return False
     op = z3.Z3_get_decl_kind(ctx, z3.Z3_get_app_decl(ctx, ast))
     return bool(op == z3.Z3_OP_TRUE or op == z3.Z3_OP_FALSE)
-
-
-def _literal(v: Any) -> bool:
-    return _literal_ast(v.ctx_ref(), v.as_ast())
 
 
 # Each term's folded form and its Python value (None: not a constant), by the address of
@@ -348,9 +344,9 @@ def _folded(v: Any) -> tuple[Any, Any, Any]:
         return hit
     out = v
     ctx, ast = v.ctx_ref(), v.ast
-    if z3.Z3_get_ast_kind(ctx, ast) == z3.Z3_APP_AST and not _literal_ast(ctx, ast):
+    if z3.Z3_get_ast_kind(ctx, ast) == z3.Z3_APP_AST and not _literal(ctx, ast):
         count = z3.Z3_get_app_num_args(ctx, ast)
-        if count and all(_literal_ast(ctx, z3.Z3_get_app_arg(ctx, ast, k))
+        if count and all(_literal(ctx, z3.Z3_get_app_arg(ctx, ast, k))
                          for k in range(count)):
             out = z3.simplify(v)
     value: Any = None
@@ -374,8 +370,9 @@ def _fold(v: Any) -> Any:
 
 def _ite(cond: Any, yes: Any, no: Any) -> Any:
     """z3's If, folded when the condition is a literal or both sides are the same term."""
-    if _literal(cond):
-        return yes if z3.is_true(cond) else no
+    known = _concrete(cond)
+    if known is not None:
+        return yes if known else no
     return yes if yes.eq(no) else z3.If(cond, yes, no)
 
 
@@ -768,15 +765,10 @@ class Symbolic:
     def _feasible(self, pc: list[Any], cond: Any) -> bool:
         """Some input and state take this path with `cond`: asked as :func:`_decided` asks
         (bit-blasted first; on a stale-`Comb` mutant of the palletizer's filter, 140 path
-        checks took 85 s so against 302 s in the executor's incremental default solver,
-        with the same answers), the incremental solver when that cannot decide."""
+        checks took 85 s against 302 s in the executor's incremental default solver, with
+        the same answers)."""
         self.checks += 1
-        found, _solver = _decided(z3.And(*self.assume, *pc, cond), fallback=False)
-        if found == z3.unknown:
-            self.solver.push()
-            self.solver.add(*pc, cond)
-            found = self.solver.check()
-            self.solver.pop()
+        found, _solver = _decided(z3.And(*self.assume, *pc, cond))
         if found == z3.unknown:
             raise Unsupported("z3 could not decide a path condition")
         return found == z3.sat
@@ -1315,8 +1307,7 @@ def _all_valid(per_case: list[tuple[Case, dict[str, Any]]], at_once: bool = Fals
 def in_bounds(cases: list[Case]) -> Proof:
     """Every array index in bounds on every path some input and state take (a constant index
     out of bounds ends its path: an obligation that the path is infeasible)."""
-    return _valid_cases(IN_BOUNDS, [(case, _bounds(case))
-                                                           for case in cases])
+    return _valid_cases(IN_BOUNDS, [(case, _bounds(case)) for case in cases])
 
 
 def _valid_cases(name: str, cases: list[tuple[Case, Any]]) -> Proof:
@@ -1350,12 +1341,11 @@ def _valid(name: str, prop: Any, sym: Symbolic,
 BLASTED_RLIMIT = 20_000_000
 
 
-def _decided(formula: Any, fallback: bool = True) -> tuple[Any, Any]:
+def _decided(formula: Any) -> tuple[Any, Any]:
     """z3's answer on `formula` (sat, unsat or unknown) and the solver that gave it: first
     with the words bit-blasted before the search (what the properties of a block are made
     of; its few integers stay integers: every step keeps satisfiability, so unsat and a
-    model mean what they say), then, past BLASTED_RLIMIT, with z3's default solver (unless
-    not `fallback`: the caller has its own).
+    model mean what they say), then, past BLASTED_RLIMIT, with z3's default solver.
     Measured on the palletizer filter's cases: 1.5-5 s each by the default solver, 0.1-0.8 s
     bit-blasted."""
     solver = z3.Then("simplify", "propagate-values", "solve-eqs", "simplify", "bit-blast",
@@ -1363,7 +1353,7 @@ def _decided(formula: Any, fallback: bool = True) -> tuple[Any, Any]:
     solver.set("rlimit", BLASTED_RLIMIT)
     solver.add(formula)
     found = solver.check()
-    if found != z3.unknown or not fallback:
+    if found != z3.unknown:
         return found, solver
     solver = z3.Solver()
     solver.add(formula)

@@ -12,7 +12,10 @@ import os
 import random
 import re
 import signal
+import threading
+import time
 from dataclasses import replace
+from multiprocessing import popen_fork
 
 import pytest
 
@@ -220,9 +223,6 @@ def test_an_interrupted_campaign_resumes_where_it_stopped(tmp_path):
 def _reaped_slowly_by_other_threads(monkeypatch):
     """The pool's own thread reaps its processes too; here it comes first and stores what it
     reaped 1 s late, which makes the race with the stopping thread's joins happen."""
-    import threading
-    import time
-    from multiprocessing import popen_fork
 
     def poll(self, flag=os.WNOHANG):
         if self.returncode is None:
