@@ -57,6 +57,7 @@ from tests.st_prove import (
     Proof,
     Unsupported,
     builds_kept,
+    indices_at_start,
     indices_not_negative,
     pou_text,
     prove_filter,
@@ -210,9 +211,12 @@ def _filter(project: Project, text: str, m: Mutant) -> list[Proof]:
     """prove_filter on the mutant, first for every input and state; when a loop of the
     mutant then runs more than 100 times (the block's own run at most 4 times: e.g. a
     next-subset step that counts up a Comb element left from an earlier call, which "every
-    state" lets hold any negative number), for every state whose kept index lists hold no
-    negative value, an invariant the proof shows the mutant keeps (they start at 0 on a
-    PLC): every state the PLC reaches."""
+    state" lets hold any negative number), first from the index lists a PLC starts with
+    (every element 0, the rest of the state any: a counterexample there refutes it; none
+    proves nothing), then for every state whose kept index lists hold no negative value,
+    an invariant the proof shows the mutant keeps (they start at 0 on a PLC): every state
+    the PLC reaches. In both, a pass of a WHILE that branches on an element left from an
+    earlier call runs once per world to the loop's end (st_prove's `stale`)."""
     limit = max_distance(source.filter_bound(project))
     tamper = _tamper(m.apply(text), m.pou)
     try:
@@ -220,9 +224,17 @@ def _filter(project: Project, text: str, m: Mutant) -> list[Proof]:
         if all(p.proved for p in proofs):
             return proofs
     except Unsupported:
-        pass
+        try:  # a counterexample from the index lists a PLC starts with, if there is one
+            proofs = prove_filter(project, text, limit, tamper, loop_limit=100,
+                                  start=indices_at_start, unchecked=2, at_once=True,
+                                  stale=True)
+            if any("counterexample" in p.detail for p in proofs):
+                return proofs
+        except Unsupported:
+            pass
     return prove_filter(project, text, limit, tamper, loop_limit=100,
-                        invariant=indices_not_negative, unchecked=2, at_once=True)
+                        invariant=indices_not_negative, unchecked=2, at_once=True,
+                        stale=True)
 
 
 def _block(kind: str) -> Judge:

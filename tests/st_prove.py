@@ -38,7 +38,7 @@ import importlib
 import re
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cache
 from typing import Any, Protocol, TypeVar
 
@@ -62,6 +62,16 @@ class Dead(Exception):
     obligation, with the path as counterexample: a PLC stops there with a run-time fault).
     The innermost branch that extended the path condition catches it and keeps its other
     world."""
+
+
+class SplitPass(Exception):
+    """A branch on a value the call found in its state (see Symbolic.stale) inside a WHILE,
+    both ways possible: the WHILE's pass is run again in each world, each to the end of the
+    loop, and only then merged."""
+
+    def __init__(self, cond: Any):
+        super().__init__("a branch on a kept value")
+        self.cond = cond
 
 
 class NeedSplit(Exception):
@@ -393,9 +403,12 @@ class Symbolic:
     def __init__(self, fb: Any, initial: dict[str, Any] | None = None,
                  loop_limit: int = LOOP_LIMIT, split: frozenset[str] = frozenset(),
                  assume: tuple[Any, ...] = (), unchecked: int = UNCHECKED,
-                 blocks: dict[str, BlockModel] | None = None):
+                 blocks: dict[str, BlockModel] | None = None,
+                 stale: frozenset[str] = frozenset()):
         # (`blocks`: the function blocks a program's instances are of, by type name in upper
-        # case; an instance's variable V is the state's "INST.V")
+        # case; an instance's variable V is the state's "INST.V"; `stale`: variables whose
+        # values as the call found them a branch inside a WHILE splits the pass on, see
+        # _split_pass)
         self.fb = fb
         self.blocks = {k.upper(): v for k, v in (blocks or {}).items()}
         self.loop_limit = loop_limit
@@ -428,6 +441,10 @@ class Symbolic:
         state.update({k.upper(): v for k, v in (initial or {}).items()})
         state[EXIT] = z3.BoolVal(False)
         self.initial = dict(state)
+        self.stale = {x.get_id() for name in stale
+                      for x in (state[name] if isinstance(state[name], list) else [state[name]])}
+        self._mentions: dict[int, tuple[Any, bool, bool]] = {}
+        self.whiles = 0  # the WHILE loops the statement being executed is in
 
     def run(self) -> dict[str, Any]:
         try:
@@ -720,6 +737,8 @@ class Symbolic:
         self.pc = pc
         cond = self.value(cond_node, st)
         known = _concrete(cond)
+        if known is None and self.whiles and self._on_stale(cond):
+            known = self._split_pass(cond, pc)
         if known is True:
             return self.block(body, st, pc)
         if known is False:
@@ -761,6 +780,61 @@ class Symbolic:
         return self._either(
             cond, self._live(lambda: self.block(body, st, [*pc, cond])),
             self._live(lambda: self._if_values(rest, orelse, st, [*pc, z3.Not(cond)])))
+
+    def _on_stale(self, term: Any) -> bool:
+        """`term` reads values of `stale` as the call found them, and nothing else the call
+        was given (e.g. `Comb[3] < 4`; not a test of Found once merged worlds left it a term
+        over both: that is merged as any branch). Each term's answer kept with the term (an
+        id names a term only while it lives), terms share their parts."""
+        seen = self._mentions
+        todo = [term]
+        while todo:  # (post-order without recursion: the terms are deep)
+            t = todo[-1]
+            key = t.get_id()
+            if key in seen:
+                todo.pop()
+                continue
+            children = t.children()
+            left = [c for c in children if c.get_id() not in seen]
+            if left:
+                todo += left
+                continue
+            todo.pop()
+            if children:
+                flags = (any(seen[c.get_id()][1] for c in children),
+                         any(seen[c.get_id()][2] for c in children))
+            elif _literal(t.ctx_ref(), t.as_ast()):
+                flags = (False, False)
+            else:
+                flags = (key in self.stale, key not in self.stale)
+            seen[key] = (t, *flags)
+        _term, stale, other = seen[term.get_id()]
+        return stale and not other
+
+    def _split_pass(self, cond: Any, pc: list[Any]) -> bool:
+        """A branch on a stale value inside a WHILE: the way the path takes, if only one is
+        possible; else SplitPass (merged here, the two worlds would leave the loop's later
+        passes out of step, e.g. one world counting up a stale Comb element while the other
+        steps to the next subset: every index after it a term over both). Asked of the
+        assumptions and path conditions on stale values alone (small, where the whole path
+        condition is large): a way they exclude, the whole path excludes; a world they keep
+        that the whole path excludes is run in vain but merged under a condition that never
+        holds, which is sound."""
+        known = [c for c in (*self.assume, *pc) if self._on_stale(c)]
+
+        def possible(side: Any) -> bool:
+            self.checks += 1
+            found, _solver = _decided(z3.And(*known, side))
+            if found == z3.unknown:
+                raise Unsupported("z3 could not decide a branch on a stale value")
+            return bool(found == z3.sat)
+
+        go, stop = possible(cond), possible(z3.Not(cond))
+        if go and stop:
+            raise SplitPass(cond)
+        if not go and not stop:
+            raise Dead("both branches")
+        return go
 
     def _feasible(self, pc: list[Any], cond: Any) -> bool:
         """Some input and state take this path with `cond`: asked as :func:`_decided` asks
@@ -823,15 +897,47 @@ class Symbolic:
                 loop = "WHILE" if name is None else f"FOR {name}"
                 raise Unsupported(f"{loop} runs more than {self.loop_limit} times")
             if decided is None:  # the loop goes on under cond, stops under its negation
-                on = self._live(lambda st=st, count=count, cond=cond: self._left(
-                    s, self.block(s.statements, st, [*pc, cond]), [*pc, cond], count, name,
-                    step))
+                on = self._live(lambda st=st, count=count, cond=cond: self._on(
+                    s, st, [*pc, cond], count, name, step))
                 return st if on is None else merge(cond, on, st)
-            after = self.block(s.statements, st, pc)
+            try:
+                after = self._pass(s, st, pc, name)
+            except SplitPass as split:
+                return self._split(split, s, st, pc, count, name, step)
             if _concrete(after[EXIT]) is False:  # the loop goes on, on this path
                 st, count = self._stepped(after, name, step), count + 1
                 continue
             return self._left(s, after, pc, count, name, step)
+
+    def _on(self, s: Any, st: dict[str, Any], pc: list[Any], count: int, name: str | None,
+            step: int) -> dict[str, Any]:
+        """Pass `count` and the rest of the loop, on a path where the loop goes on."""
+        try:
+            after = self._pass(s, st, pc, name)
+        except SplitPass as split:
+            return self._split(split, s, st, pc, count, name, step)
+        return self._left(s, after, pc, count, name, step)
+
+    def _split(self, split: SplitPass, s: Any, st: dict[str, Any], pc: list[Any], count: int,
+               name: str | None, step: int) -> dict[str, Any]:
+        """The rest of a WHILE from pass `count`, once in each world of the branch (a FOR
+        leaves the split to the WHILE it is in)."""
+        if name is not None:
+            raise split
+        return self._either(split.cond, *[
+            self._live(lambda side=side: self._loop(s, st, [*pc, side], count, name, step))
+            for side in (split.cond, z3.Not(split.cond))])
+
+    def _pass(self, s: Any, st: dict[str, Any], pc: list[Any], name: str | None
+              ) -> dict[str, Any]:
+        """One pass of a loop's body (a WHILE's counted in `whiles`)."""
+        if name is not None or not self.stale:
+            return self.block(s.statements, st, pc)
+        self.whiles += 1
+        try:
+            return self.block(s.statements, st, pc)
+        finally:
+            self.whiles -= 1
 
     def _left(self, s: Any, after: dict[str, Any], pc: list[Any], count: int,
               name: str | None, step: int) -> dict[str, Any]:
@@ -969,12 +1075,14 @@ class Case:
 
 
 def execute_cases(fb: Any, split: frozenset[str], loop_limit: int = LOOP_LIMIT,
-                  assume: tuple[Any, ...] = (), unchecked: int = UNCHECKED) -> list[Case]:
+                  assume: tuple[Any, ...] = (), unchecked: int = UNCHECKED,
+                  stale: frozenset[str] = frozenset()) -> list[Case]:
     """Runs of `fb`, one per value of the split variables where the block reads them: a run
     that reads a split variable with several possible values is started again once per
     value (every value z3 finds under the assumptions, then none left: the cases are
     exhaustive), so the loops those variables bound run concretely."""
-    sym = Symbolic(fb, loop_limit=loop_limit, split=split, assume=assume, unchecked=unchecked)
+    sym = Symbolic(fb, loop_limit=loop_limit, split=split, assume=assume, unchecked=unchecked,
+                   stale=stale)
     sym.obligations = []
     try:
         out = sym.run()
@@ -992,7 +1100,7 @@ def execute_cases(fb: Any, split: frozenset[str], loop_limit: int = LOOP_LIMIT,
                 raise Unsupported("more than 4096 cases of a split value") from None
         return [case for c in values
                 for case in execute_cases(fb, split, loop_limit, (*assume, need.value == c),
-                                          unchecked)]
+                                          unchecked, stale)]
     return [Case(assume, sym, out)]
 
 
@@ -1092,13 +1200,23 @@ class Proof:
     obligations: int = 0
 
 
+def index_lists(decl: Declared) -> tuple[str, ...]:
+    """The INT arrays the block keeps between calls (the filter's Idx and Comb)."""
+    return tuple(name for name in decl.order
+                 if decl.sections[name] == "local" and decl.types[name].low is not None
+                 and decl.types[name].name in INTS)
+
+
 def indices_not_negative(decl: Declared, state: dict[str, Any]) -> Any:
     """Every INT array the block keeps between calls holds no negative value: the filter's
     index lists (Idx, Comb) start at 0 on a PLC, and the block writes indices and counts into
     them (that a call keeps it is proved with the rest)."""
-    return z3.And(True, *[x >= 0 for name in decl.order
-                          if decl.sections[name] == "local" and decl.types[name].low is not None
-                          and decl.types[name].name in INTS for x in state[name]])
+    return z3.And(True, *[x >= 0 for name in index_lists(decl) for x in state[name]])
+
+
+def indices_at_start(decl: Declared, state: dict[str, Any]) -> Any:
+    """The index lists as a PLC starts them: every element 0."""
+    return z3.And(True, *[x == 0 for name in index_lists(decl) for x in state[name]])
 
 
 def _popcount(v: Any, n: int) -> Any:
@@ -1109,11 +1227,19 @@ def prove_filter(project: Any, text: str, max_distance: int,
                  tamper: Callable[[str], str] | None = None,
                  loop_limit: int = LOOP_LIMIT, split: tuple[str, ...] = ("FREE",),
                  invariant: Callable[[Declared, dict[str, Any]], Any] | None = None,
-                 unchecked: int = UNCHECKED, at_once: bool = False) -> list[Proof]:
+                 unchecked: int = UNCHECKED, at_once: bool = False,
+                 stale: bool = False,
+                 start: Callable[[Declared, dict[str, Any]], Any] | None = None
+                 ) -> list[Proof]:
     """The exported filter FB of `project` (in the exported `text`, `tamper`ed if given)
     against the engine's filter: a list of proved (or refuted) properties; `at_once`: all
     proved, or the first property refuted, named by the counterexample that refutes it (what
     the mutation study asks; not every other property checked on its own as well).
+    `stale`: a WHILE's pass that branches on an index list's element as the call found it
+    is run once in each world to the loop's end (Symbolic's `stale`; what a mutant reading
+    a Comb element left from an earlier call needs to stay concrete). `start`: a predicate
+    over the state that only narrows the calls looked at (e.g. the index lists as a PLC
+    starts them): a property it refutes is refuted, one it proves is not proved.
 
     With an `invariant` (a predicate over the block's variables that its initial values
     satisfy), the properties are proved for every state satisfying it, and one more
@@ -1122,8 +1248,10 @@ def prove_filter(project: Any, text: str, max_distance: int,
     fb_text = pou_text(text, fb_name)
     fb = parse_fb(fb_text) if tamper is None else parse_changed(fb_text, tamper(fb_text))
     decl = declarations(fb)
-    kept = (invariant(decl, Symbolic(fb).initial),) if invariant is not None else ()
-    cases = execute_cases(fb, frozenset(split), loop_limit, kept, unchecked)
+    initial = Symbolic(fb).initial
+    kept = tuple(f(decl, initial) for f in (invariant, start) if f is not None)
+    cases = execute_cases(fb, frozenset(split), loop_limit, kept, unchecked,
+                          frozenset(index_lists(decl) if stale else ()))
     sym = cases[0].sym
     init = sym.initial
     outputs = [v.name for v in project.outputs]
@@ -1259,13 +1387,15 @@ def prove_filter(project: Any, text: str, max_distance: int,
         for case, props in per_case:
             props["a call keeps the state invariant"] = invariant(decl, case.out)
     together = _all_valid(per_case, at_once)
-    if together is not None:
+    if together is None:
+        together = [_valid_cases(name, [(case, props[name]) for case, props in per_case])
+                    for name in per_case[0][1]]
+        together.append(in_bounds(cases))
+    if start is None:
         return together
-    proofs = []
-    for name in per_case[0][1]:
-        proofs.append(_valid_cases(name, [(case, props[name]) for case, props in per_case]))
-    proofs.append(in_bounds(cases))
-    return proofs
+    return [replace(p, proved=False, detail=f"not refuted from the start given ({p.detail}): "
+                                            "not a proof") if p.proved else p
+            for p in together]
 
 
 IN_BOUNDS = "every array index is in bounds"  # (the property every proof ends with)

@@ -84,6 +84,48 @@ def test_a_state_invariant_bounds_a_loop_over_kept_state():
     assert solver.check() == z3.unsat
 
 
+# A WHILE whose pass first counts a kept element up to 2 (as a next-subset step reading a
+# Comb element left from an earlier call does), then steps J to 3: merged at each branch, the
+# worlds are out of step and J ends a term over every one of them; split per pass (`stale`),
+# each world runs to the loop's end and J is 3 in all of them.
+_OUT_OF_STEP = """FUNCTION_BLOCK FB_S
+VAR
+    C : ARRAY[0..0] OF INT;
+    J : INT;
+    Runs : INT;
+    More : BOOL;
+END_VAR
+J := 0;
+Runs := 0;
+More := TRUE;
+WHILE More DO
+    Runs := Runs + 1;
+    IF C[0] < 2 THEN
+        C[0] := C[0] + 1;
+    ELSE
+        J := J + 1;
+        More := J < 3;
+    END_IF;
+END_WHILE;
+END_FUNCTION_BLOCK
+"""
+
+
+@pytest.mark.parametrize("stale", [False, True])
+def test_a_pass_branching_on_kept_state_runs_once_per_world_to_the_loops_end(stale):
+    fb = parse_fb(_OUT_OF_STEP)
+    c0 = z3.Int("C[0]")
+    (case,) = execute_cases(fb, frozenset(), loop_limit=20, assume=(c0 >= 0,), unchecked=2,
+                            stale=frozenset({"C"} if stale else ()))
+    runs, j, kept = case.out["RUNS"], case.out["J"], case.out["C"][0]
+    solver = z3.Solver()  # the same values either way, for every kept C[0] >= 0
+    solver.add(c0 >= 0, z3.Not(z3.And(j == 3, kept == z3.If(c0 < 2, 2, c0),
+                                      runs == 3 + z3.If(c0 < 2, 2 - c0, 0))))
+    assert solver.check() == z3.unsat
+    # split, J is the literal 3 (the worlds agree term for term); merged, a term over them
+    assert (z3.is_int_value(j) and j.as_long() == 3) is stale
+
+
 # A program calling an instance of a block twice: the second call gives A only (B keeps the
 # value the first gave it), reads its output between the calls, and the block writes a
 # global it reads (VAR_EXTERNAL).
